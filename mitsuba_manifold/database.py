@@ -1,0 +1,404 @@
+"""Material databases: the built-in surrogate of MERL, folders of tables, the Gram matrix.
+
+The real MERL files cannot be shipped, so the package tabulates the Shifted Gamma
+Distribution (SGD) fits of the 100 MERL materials (Bagher et al. 2012, parameters in
+``data/merl_sgd_fits.json``, model in ``data/SGD_MODEL.md``) on the MERL grid and writes
+them as MERL ``.binary`` files. Everything downstream reads a :class:`Database`, a
+folder of ``<name>.binary`` files: real MERL files work the same way.
+"""
+
+import hashlib
+import json
+import os
+import zlib
+
+import numpy as np
+
+from . import merl
+
+FITS_PATH = os.path.join(os.path.dirname(__file__), "data", "merl_sgd_fits.json")
+SGD_FIELDS = ("rho_d", "rho_s", "alpha", "p", "f0", "f1", "kap", "lambda", "c", "k", "theta0")
+CACHE_NAME = ".manifold-cache"
+FEATURES = ("raw", "log")
+
+
+# ------------------------------------------------------------------ SGD surrogate
+
+def load_sgd_fits(path=None):
+    """SGD parameters per material: ``{name: {field: float64 array (3,)}}``, in file order."""
+    path = path or FITS_PATH
+    with open(path) as f:
+        data = json.load(f)
+    fits = {}
+    for m in data["materials"]:
+        params = {k: np.asarray(m[k], dtype=np.float64) for k in SGD_FIELDS}
+        bad = [k for k, v in params.items() if v.shape != (3,) or not np.isfinite(v).all()]
+        if bad:
+            raise ValueError(f"{path}: material {m.get('name')!r} has invalid fields {bad}")
+        fits[m["name"]] = params
+    return fits
+
+
+def _shadowing(theta, params):
+    """SGD shadowing G1 for elevations ``theta`` (..., 1), per channel, overflow-safe.
+
+    G1 = clamp(1 + lambda (1 - exp(c t^k)), 0, 1) with t = max(0, theta - theta0),
+    evaluated as 1 + lambda - exp(log(lambda) + c t^k) so that huge exponents saturate
+    to the intended limit instead of producing inf * 0.
+    """
+    t = np.maximum(theta - params["theta0"], 0.0)
+    with np.errstate(divide="ignore", over="ignore"):
+        log_ctk = np.log(params["c"]) + params["k"] * np.log(t)  # -inf where t == 0
+        expo = np.exp(np.minimum(log_ctk, 700.0))                 # c t^k, 0 where t == 0
+        big = np.exp(np.minimum(np.log(params["lambda"]) + expo, 700.0))  # lambda exp(c t^k)
+    return np.clip(1.0 + params["lambda"] - big, 0.0, 1.0)
+
+
+def sgd_reflectance(params, wi, wo):
+    """SGD BRDF values (1/sr) for direction pairs.
+
+    Parameters
+    ----------
+    params : dict
+        One material's SGD fields, each of shape (3,).
+    wi, wo : ndarray (..., 3)
+        Unit directions in the local frame (normal = +z).
+
+    Returns
+    -------
+    ndarray (..., 3)
+        Reflectance per RGB channel, 0 where either direction is below the horizon.
+    """
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    cos_h = np.clip(h[..., 2:3], 1e-300, 1.0)
+    cos_d = np.clip(np.sum(wi * h, axis=-1, keepdims=True), 0.0, 1.0)
+    cos_i, cos_o = wi[..., 2:3], wo[..., 2:3]
+    valid = (cos_i > 0) & (cos_o > 0)
+
+    alpha, p = params["alpha"], params["p"]
+    tan2 = np.maximum(1.0 - cos_h * cos_h, 0.0) / (cos_h * cos_h)
+    a = alpha + tan2 / alpha
+    with np.errstate(divide="ignore", over="ignore"):
+        log_d = np.log(params["kap"]) - a - p * np.log(a) - np.log(np.pi) - 4.0 * np.log(cos_h)
+        d = np.exp(np.minimum(log_d, 700.0))
+    fresnel = params["f0"] - cos_d * params["f1"] + (1.0 - cos_d) ** 5 * (1.0 - params["f0"])
+    g = _shadowing(np.arccos(np.clip(cos_i, -1, 1)), params) * _shadowing(np.arccos(np.clip(cos_o, -1, 1)), params)
+    safe_i = np.where(valid, cos_i, 1.0)
+    safe_o = np.where(valid, cos_o, 1.0)
+    spec = params["rho_s"] * fresnel * d * g / (safe_i * safe_o)
+    f = (params["rho_d"] + spec) / np.pi
+    return np.where(valid, f, 0.0)
+
+
+def tabulate_sgd(params, dims=merl.MERL_DIMS):
+    """Stored MERL values of an SGD material at bin centres (``phi_h = 0``).
+
+    Bins whose directions lie below the horizon are marked :data:`merl.NOT_MEASURED`.
+    Returns float64 of shape ``(3,) + dims``.
+    """
+    if isinstance(params, str):
+        params = _fit_named(params)
+    th, td, pd = merl.bin_centres(dims)
+    above = merl.above_horizon(dims)
+    wi, wo = merl.directions(th[above], td[above], pd[above])
+    refl = np.zeros((3,) + tuple(dims))
+    for c in range(3):  # per channel keeps the temporaries at one bin-count each
+        one = {k: v[c:c + 1] for k, v in params.items()}
+        refl[c][above] = sgd_reflectance(one, wi, wo)[:, 0]
+    if not np.isfinite(refl).all():  # guards the model's extreme fits; should never trigger
+        raise FloatingPointError("SGD tabulation produced non-finite values")
+    raw = merl.to_stored(refl)
+    raw[:, ~above] = merl.NOT_MEASURED
+    return raw
+
+
+def _fit_named(name):
+    fits = load_sgd_fits()
+    if name not in fits:
+        raise KeyError(f"unknown material {name!r}: the built-in database has {len(fits)} materials "
+                       f"(e.g. {', '.join(list(fits)[:5])}, ...)")
+    return fits[name]
+
+
+def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=0, progress=False):
+    """Write the built-in surrogate database: one ``<name>.binary`` per material.
+
+    Parameters
+    ----------
+    out_dir : path
+        Folder to create or complete.
+    dims : tuple of 3 int
+        Table resolution ``(n_theta_h, n_theta_d, n_phi_d)``.
+    materials : list of str, optional
+        Subset of material names (default: all 100).
+    noise : float
+        Standard deviation of multiplicative log-normal measurement noise (0: none).
+    seed : int
+        Seed of the noise; each material's noise depends on (seed, name) only.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    list of str
+        Paths of the tables written (existing valid tables are kept, not rewritten).
+
+    Raises
+    ------
+    ValueError
+        Unknown material names, bad dims or noise, or a folder made with other settings.
+    """
+    fits = load_sgd_fits()
+    names = list(fits) if materials is None else list(materials)
+    unknown = [n for n in names if n not in fits]
+    if unknown:
+        raise ValueError(f"unknown material(s) {unknown}; see mitsuba_manifold.database.load_sgd_fits()")
+    dims = tuple(int(v) for v in dims)
+    if len(dims) != 3 or min(dims) < 1:
+        raise ValueError(f"resolution must be three positive integers, got {dims}")
+    if not (np.isfinite(noise) and noise >= 0):
+        raise ValueError(f"noise must be a finite value >= 0, got {noise}")
+    os.makedirs(out_dir, exist_ok=True)
+    settings = {"source": "sgd", "dims": list(dims), "noise": float(noise), "seed": int(seed)}
+    manifest_path = os.path.join(out_dir, "database.json")
+    if os.path.exists(manifest_path):
+        with open(manifest_path) as f:
+            old = json.load(f)
+        if {k: old.get(k) for k in settings} != settings:
+            raise ValueError(f"{out_dir} holds tables made with {old}, not {settings}; "
+                             "choose another folder")
+    merl.atomic_write(manifest_path, lambda f: f.write(json.dumps(settings, indent=1).encode()))
+
+    paths = []
+    bar = _progress(names, progress, "tabulating")
+    for name in bar:
+        path = os.path.join(out_dir, name + ".binary")
+        paths.append(path)
+        if os.path.exists(path):
+            try:
+                if merl.read_header(path) == dims:
+                    continue
+            except merl.MerlFormatError:
+                pass  # corrupt leftover: rewrite it
+        raw = tabulate_sgd(fits[name], dims)
+        if noise > 0:
+            rng = np.random.default_rng([int(seed), zlib.crc32(name.encode())])
+            measured = raw >= 0
+            factor = np.exp(noise * rng.standard_normal(raw.shape) - 0.5 * noise * noise)
+            raw = np.where(measured, raw * factor, raw)
+        merl.write_binary(path, raw)
+    return paths
+
+
+def _progress(items, enabled, desc):
+    if not enabled:
+        return items
+    from tqdm import tqdm
+    return tqdm(items, desc=desc, unit="table")
+
+
+# ----------------------------------------------------------------------- albedo
+
+def albedo_weights(dims=merl.MERL_DIMS):
+    """Quadrature weights ``q`` over bins such that ``sum(q * f)`` is the bihemispherical albedo.
+
+    albedo = 1/pi * int int f cos(theta_i) cos(theta_o) dw_i dw_o, with
+    dw_i dw_o = 4 cos(theta_d) sin(theta_h) sin(theta_d) dtheta_h dphi_h dtheta_d dphi_d;
+    phi_h integrates to 2 pi and phi_d over [0, 2 pi) is twice the stored [0, pi).
+    A Lambertian f = rho/pi gives rho (up to quadrature error). Shape ``dims``.
+    """
+    n_h, n_d, n_p = dims
+    edges_h = (np.arange(n_h + 1) / n_h) ** 2 * (np.pi / 2)
+    dth = np.diff(edges_h)
+    th, td, pd = merl.bin_centres(dims)
+    wi, wo = merl.directions(th, td, pd)
+    cos = np.clip(wi[..., 2], 0, None) * np.clip(wo[..., 2], 0, None)
+    jac = 4.0 * np.cos(td) * np.sin(th) * np.sin(td)
+    area = dth[:, None, None] * (np.pi / 2 / n_d) * (np.pi / n_p)
+    return cos * jac * area * (2.0 * np.pi) * 2.0 / np.pi
+
+
+# --------------------------------------------------------------------- database
+
+def _file_sha256(path):
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 24), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+class Database:
+    """A folder of MERL ``.binary`` tables.
+
+    Parameters
+    ----------
+    folder : path
+        Folder holding ``<name>.binary`` files.
+    names : list of str, optional
+        Materials to use, in this order (default: every table in the folder, sorted).
+
+    Notes
+    -----
+    Derived data (content hashes, float32 reflectance tables, sampling densities) is
+    cached in ``<folder>/.manifold-cache`` (or under ``~/.cache/mitsuba_manifold`` when
+    the folder is read-only), keyed by each table's content hash.
+    """
+
+    def __init__(self, folder, names=None):
+        folder = os.path.abspath(os.fspath(folder))
+        if not os.path.isdir(folder):
+            raise FileNotFoundError(f"database folder {folder} does not exist")
+        available = sorted(f[:-7] for f in os.listdir(folder) if f.endswith(".binary"))
+        if names is None:
+            names = available
+            if not names:
+                raise ValueError(f"database folder {folder} holds no .binary tables")
+        else:
+            names = list(names)
+            missing = [n for n in names if n not in available]
+            if missing:
+                raise KeyError(f"database {folder} has no table for {missing}")
+            if len(set(names)) != len(names):
+                raise ValueError(f"database {folder}: material names repeat in {names}")
+        self.folder = folder
+        self.names = names
+        dims = {n: merl.read_header(self.path(n)) for n in names}
+        if len(set(dims.values())) > 1:
+            raise ValueError(f"database {folder}: tables have different resolutions {sorted(set(dims.values()))}")
+        self.dims = next(iter(dims.values()))
+        self.cache_dir = self._make_cache_dir()
+        self._hashes = None
+
+    # -- files and caches
+    def path(self, name):
+        """Path of a material's ``.binary`` file."""
+        return os.path.join(self.folder, name + ".binary")
+
+    def index(self, name):
+        """Position of ``name`` in :attr:`names` (KeyError naming the database otherwise)."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"unknown material {name!r} in database {self.folder} "
+                           f"({len(self.names)} materials)") from None
+
+    def _make_cache_dir(self):
+        local = os.path.join(self.folder, CACHE_NAME)
+        try:
+            os.makedirs(local, exist_ok=True)
+            if os.access(local, os.W_OK):
+                return local
+        except OSError:
+            pass
+        key = hashlib.sha256(self.folder.encode()).hexdigest()[:16]
+        home = os.path.join(os.path.expanduser("~"), ".cache", "mitsuba_manifold", key)
+        os.makedirs(home, exist_ok=True)
+        return home
+
+    def hash(self, name):
+        """SHA-256 of a table's file (cached by path, size and modification time)."""
+        index_path = os.path.join(self.cache_dir, "hashes.json")
+        if self._hashes is None:
+            try:
+                with open(index_path) as f:
+                    self._hashes = json.load(f)
+            except (OSError, ValueError):
+                self._hashes = {}
+        path = self.path(name)
+        st = os.stat(path)
+        key = f"{name}:{st.st_size}:{st.st_mtime_ns}"
+        digest = self._hashes.get(key)
+        if digest is None:
+            digest = _file_sha256(path)
+            self._hashes = {k: v for k, v in self._hashes.items() if not k.startswith(name + ":")}
+            self._hashes[key] = digest
+            merl.atomic_write(index_path, lambda f: f.write(json.dumps(self._hashes).encode()))
+        return digest
+
+    def hashes(self, names=None):
+        return [self.hash(n) for n in (self.names if names is None else names)]
+
+    # -- tables
+    def reflectance(self, name, mmap=True):
+        """Filled reflectance table, float32 of shape ``(3,) + dims`` (see merl.filled_reflectance).
+
+        Converted once from the ``.binary`` file and cached as ``.npy`` keyed by its hash;
+        returned memory-mapped read-only when ``mmap``.
+        """
+        self.index(name)
+        cached = os.path.join(self.cache_dir, f"{self.hash(name)}.refl.npy")
+        if not os.path.exists(cached):
+            raw = merl.read_binary(self.path(name))  # format errors name the file
+            try:
+                table = merl.filled_reflectance(raw)
+            except ValueError as e:
+                raise ValueError(f"{self.path(name)}: {e}") from None
+            merl.atomic_write(cached, lambda f: np.save(f, table))
+            if not mmap:
+                return table
+        return np.load(cached, mmap_mode="r" if mmap else None)
+
+    def stack(self, names=None, progress=False):
+        """Tables of ``names`` as one float32 matrix ``(N, d)``, rows = RGB-concatenated tables."""
+        names = self.names if names is None else list(names)
+        d = 3 * int(np.prod(self.dims))
+        out = np.empty((len(names), d), dtype=np.float32)
+        for i, name in enumerate(_progress(names, progress, "loading")):
+            out[i] = self.reflectance(name).reshape(-1)
+        return out
+
+    def albedo(self, names=None, tables=None):
+        """Bihemispherical albedo per material and channel, shape ``(N, 3)``.
+
+        ``tables`` (the :meth:`stack` of ``names``) avoids reading the tables again.
+        """
+        q = albedo_weights(self.dims).reshape(-1)
+        names = self.names if names is None else list(names)
+        rows = tables if tables is not None else (self.reflectance(n) for n in names)
+        return np.stack([np.asarray(t).reshape(3, -1) @ q for t in rows])
+
+    def gram(self, names=None, features="raw", block=1 << 16, tables=None, progress=False):
+        """Mean table and Gram matrix of the mean-subtracted observations.
+
+        ``S = Z Z^T`` where row i of ``Z`` is material i's table (in the feature space)
+        minus the mean table. Computed over blocks of bins with float64 accumulation;
+        ``Z`` is never held in float64 as a whole.
+
+        Parameters
+        ----------
+        names : list of str, optional
+        features : {"raw", "log"}
+            ``raw`` (the paper's): reflectance; ``log``: ``log(1 + reflectance)``.
+        block : int
+            Bins per block.
+        tables : ndarray (N, d) float32, optional
+            Already-loaded :meth:`stack` (avoids reading the tables again).
+
+        Returns
+        -------
+        mean : ndarray (d,) float32
+            Mean table in the feature space.
+        S : ndarray (N, N) float64
+        """
+        if features not in FEATURES:
+            raise ValueError(f"features must be one of {FEATURES}, got {features!r}")
+        names = self.names if names is None else list(names)
+        if tables is None:
+            tables = self.stack(names, progress=progress)
+        n, d = tables.shape
+        mean = np.empty(d, dtype=np.float32)
+        S = np.zeros((n, n))
+        for start in range(0, d, block):
+            z = tables[:, start:start + block].astype(np.float64)
+            if features == "log":
+                np.log1p(z, out=z)
+            m = z.mean(axis=0)
+            mean[start:start + block] = m
+            z -= m
+            S += z @ z.T
+        S = 0.5 * (S + S.T)
+        return mean, S

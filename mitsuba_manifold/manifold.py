@@ -1,0 +1,415 @@
+"""The material manifold: latent points, interpolation weights, interpolated tables.
+
+A fitted :class:`Manifold` places each of N measured materials at a latent point
+``x_i`` (paper Sec. 3). For any latent point ``x`` the GP gives
+
+    b(x) = K_inv k(x)                       (paper Eq. 4; K_inv: inverse covariance of the
+                                             latent points, k(x): covariance of x with them)
+    table(x) = mean + b^T Z = sum_i w_i table_i,   w = b + (1 - sum(b)) / N
+
+so every interpolated material is an affine combination (weights ``w`` summing to 1) of
+the measured tables: training materials are reproduced exactly, and far from every
+latent point ``b -> 0`` and the material tends to the mean BRDF.
+"""
+
+import json
+import os
+import time
+
+import numpy as np
+from scipy import linalg
+from scipy.linalg import blas
+
+from . import gplvm
+from .database import FEATURES, Database
+from .merl import atomic_write
+
+FORMAT_VERSION = 1
+
+
+class ManifoldError(ValueError):
+    """A manifold that does not fit its database, or a request it cannot answer."""
+
+
+class Manifold:
+    """A fitted latent space of measured materials (scikit-learn style: fit, then use).
+
+    Attributes
+    ----------
+    names : list of str
+        Material names, in the order of the latent points.
+    latent : ndarray (N, q)
+        Latent points ``x_i``.
+    database : str
+        Folder of the tables the manifold was fit on.
+    hashes : list of str
+        SHA-256 of each table file, to detect a mismatched database.
+    length_scale, noise : float
+        Kernel hyperparameters ``l`` and ``mu``.
+    features : str
+        Feature transform used for the fit only (``raw`` or ``log``).
+    albedos : ndarray (N, 3)
+        Bihemispherical albedo of each material (for :meth:`albedo`).
+    history : ndarray
+        Log-likelihood per optimiser iteration.
+    info : dict
+        Fit details (method, times, final log-likelihood, d, dims, ...).
+    """
+
+    def __init__(self, names, latent, database, hashes, length_scale=1.0, noise=1e-4,
+                 features="raw", albedos=None, gram=None, history=(), info=None):
+        latent = np.asarray(latent, dtype=np.float64)
+        if latent.ndim != 2 or latent.shape[0] != len(names):
+            raise ManifoldError(f"latent points must have shape (N={len(names)}, q), got {latent.shape}")
+        if not np.isfinite(latent).all():
+            raise ManifoldError("latent points contain NaN or Inf")
+        if features not in FEATURES:
+            raise ManifoldError(f"unknown feature transform {features!r}")
+        self.names = list(names)
+        self.latent = latent
+        self.database = os.fspath(database)
+        self.hashes = list(hashes)
+        self.length_scale = float(length_scale)
+        self.noise = float(noise)
+        self.features = features
+        self.albedos = None if albedos is None else np.asarray(albedos, dtype=np.float64)
+        self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
+        self.history = np.asarray(history, dtype=np.float64)
+        self.info = dict(info or {})
+        self._factorise()
+        self._tables = None
+
+    # ------------------------------------------------------------------ fit
+    @classmethod
+    def fit(cls, database, q=2, names=None, method="hooke-jeeves", length_scale=1.0,
+            noise=1e-4, features="raw", init=None, progress=False, **options):
+        """Fit latent points to the tables of ``database`` (paper Sec. 3).
+
+        Parameters
+        ----------
+        database : Database or path
+        q : int
+            Latent dimension (1 to 8).
+        names : list of str, optional
+            Materials to use (default: all in the database).
+        method : {"hooke-jeeves", "lbfgs"}
+        length_scale, noise : float
+            ``l`` and ``mu`` of the kernel ``mu delta + exp(-|x-x'|^2 / 2 l^2)``.
+        features : {"raw", "log"}
+            Transform of the tables for the fit only; interpolation always combines raw tables.
+        init : ndarray (N, q), optional
+            Starting latent points (default: PCA).
+        **options
+            Passed to :func:`gplvm.fit_latent` (``max_iter``, ``tol``, ...).
+        """
+        db = database if isinstance(database, Database) else Database(database, names)
+        names = db.names if names is None else list(names)
+        if len(names) < 2:
+            raise ManifoldError("a manifold needs at least 2 materials")
+        t0 = time.perf_counter()
+        tables = db.stack(names, progress=progress)
+        t_load = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        _, S = db.gram(names, features=features, tables=tables)
+        t_gram = time.perf_counter() - t0
+        d = tables.shape[1]
+        result = gplvm.fit_latent(S, d, q=q, method=method, length_scale=length_scale,
+                                  noise=noise, init=init, **options)
+        albedos = db.albedo(names, tables=tables)
+        info = {"method": method, "d": int(d), "dims": list(db.dims), "q": int(q),
+                "log_likelihood": float(result.log_likelihood), "time_load_s": t_load,
+                "time_gram_s": t_gram, "time_fit_s": float(result.time_s),
+                "n_evaluations": int(result.n_evaluations)}
+        m = cls(names, result.latent, db.folder, db.hashes(names), length_scale, noise,
+                features, albedos, S, result.history, info)
+        m._tables = tables
+        return m
+
+    def _factorise(self):
+        K = gplvm.kernel_matrix(self.latent, length_scale=self.length_scale, noise=self.noise)
+        try:
+            self._chol = linalg.cho_factor(K, lower=True)
+        except linalg.LinAlgError:
+            raise ManifoldError(
+                f"the covariance K of the {len(self.names)} latent points is not positive definite "
+                f"(noise mu={self.noise:g} too small for coincident points?)") from None
+        self.K = K
+        self.K_inv = linalg.cho_solve(self._chol, np.eye(len(self.names)))
+
+    @property
+    def q(self):
+        """Latent dimension."""
+        return self.latent.shape[1]
+
+    @property
+    def n(self):
+        """Number of materials."""
+        return len(self.names)
+
+    # ------------------------------------------------------------- weights
+    def _points(self, x):
+        x = np.asarray(x, dtype=np.float64)
+        single = x.ndim == 1
+        x = np.atleast_2d(x)
+        if x.ndim != 2 or x.shape[1] != self.q:
+            raise ManifoldError(f"latent point must have {self.q} coordinates, got shape {np.shape(x)[-1:] if single else np.shape(x)}")
+        if not np.isfinite(x).all():
+            raise ManifoldError("latent point contains NaN or Inf")
+        return x, single
+
+    def weights(self, x):
+        """GP weights ``b(x) = K_inv k(x)`` and affine weights ``w`` (sum to 1).
+
+        Parameters
+        ----------
+        x : array_like (q,) or (M, q)
+
+        Returns
+        -------
+        b, w : ndarray (N,) or (M, N)
+            ``sum_i w_i table_i = mean + b^T Z`` exactly. At a training point the kernel's
+            noise term ``mu delta(x, x_i)`` applies, so ``w = e_i``.
+        """
+        x, single = self._points(x)
+        k, hits = self._cross(x)
+        b = linalg.cho_solve(self._chol, k.T).T
+        rows, cols = hits
+        single_hit = np.bincount(rows, minlength=len(x))[rows] == 1
+        rows, cols = rows[single_hit], cols[single_hit]
+        b[rows] = 0.0  # k(x_i) is then column i of K, so K_inv k = e_i exactly
+        b[rows, cols] = 1.0
+        w = b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
+        return (b[0], w[0]) if single else (b, w)
+
+    def _cross(self, x):
+        """Covariances ``k(x)`` (M, N) with the noise term where x equals a latent point."""
+        k = gplvm.kernel_matrix(x, self.latent, length_scale=self.length_scale)
+        hits = np.nonzero((x[:, None, :] == self.latent[None, :, :]).all(-1))
+        k[hits] += self.noise
+        return k, hits
+
+    def variance(self, x):
+        """GP predictive variance (paper Eq. 2): ``c(x, x) - k^T K_inv k``."""
+        x, single = self._points(x)
+        k, _ = self._cross(x)
+        v = 1.0 + self.noise - np.einsum("mn,mn->m", k, linalg.cho_solve(self._chol, k.T).T)
+        return v[0] if single else v
+
+    def material_weights(self, name):
+        """One-hot weights of a training material."""
+        w = np.zeros(self.n)
+        w[self.index(name)] = 1.0
+        return w
+
+    def index(self, name):
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ManifoldError(f"unknown material {name!r}: this manifold has {self.n} materials "
+                                f"({', '.join(self.names[:6])}{', ...' if self.n > 6 else ''})") from None
+
+    def parse_weights(self, text):
+        """Weights from ``"name:w, name:w"`` (unnamed materials get 0).
+
+        Raises
+        ------
+        ManifoldError
+            Unknown names, malformed entries, non-finite values or weights summing to 0.
+        """
+        w = np.zeros(self.n)
+        entries = [e.strip() for e in str(text).split(",") if e.strip()]
+        if not entries:
+            raise ManifoldError(f"weights {text!r}: expected 'name:weight, name:weight'")
+        for e in entries:
+            name, sep, value = e.rpartition(":")
+            try:
+                v = float(value)
+            except ValueError:
+                v = None
+            if not sep or v is None or not np.isfinite(v):
+                raise ManifoldError(f"weights {text!r}: entry {e!r} is not 'name:number'")
+            w[self.index(name.strip())] += v
+        if abs(w.sum()) < 1e-12:
+            raise ManifoldError(f"weights {text!r} sum to zero; a material needs weights summing to 1 "
+                                "(they are used as given, not normalised)")
+        return w
+
+    # ------------------------------------------------------- interpolation
+    def open_database(self, folder=None, names=None):
+        """The database of this manifold (or ``folder``), checked against the recorded hashes.
+
+        Only the materials in ``names`` (default: all) are read and checked.
+        """
+        folder = folder or self.database
+        names = self.names if names is None else list(names)
+        try:
+            db = Database(folder, names)
+        except (FileNotFoundError, KeyError) as e:
+            raise ManifoldError(f"database for this manifold: {e}") from None
+        for name in names:
+            if db.hash(name) != self.hashes[self.index(name)]:
+                raise ManifoldError(
+                    f"database {db.folder}: table {name!r} differs from the one the manifold was fit on "
+                    f"(hash {db.hash(name)[:12]} != {self.hashes[self.index(name)][:12]})")
+        return db
+
+    def prune(self, w, prune=1e-3):
+        """Materials kept by pruning and the weight dropped.
+
+        Keeps ``|w_i| > prune * sum(|w|)``; the kept weights are rescaled to sum to
+        ``sum(w)`` so the combination stays affine.
+
+        Returns
+        -------
+        keep : ndarray of int
+        w_kept : ndarray
+        dropped : float
+            Sum of ``|w_i|`` over the dropped materials.
+        """
+        w = np.asarray(w, dtype=np.float64)
+        if w.shape != (self.n,) or not np.isfinite(w).all():
+            raise ManifoldError(f"weights must be {self.n} finite values, got shape {w.shape}")
+        if not 0 <= prune < 1:
+            raise ManifoldError(f"prune must be in [0, 1), got {prune}")
+        keep = np.flatnonzero(np.abs(w) > prune * np.abs(w).sum())
+        dropped = float(np.abs(w).sum() - np.abs(w[keep]).sum())
+        w_kept = w[keep]
+        if keep.size and abs(w_kept.sum()) > 0:
+            w_kept = w_kept * (w.sum() / w_kept.sum())
+        return keep, w_kept, dropped
+
+    def tables(self, database=None):
+        """All N tables in memory as float32 ``(N, d)`` (loaded once, then kept)."""
+        if self._tables is None:
+            self._tables = self.open_database(database).stack(self.names)
+        return self._tables
+
+    def combine(self, w, prune=1e-3, database=None):
+        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`.
+
+        Reads only the kept materials' tables (unless all tables are already in memory).
+
+        Returns
+        -------
+        table : ndarray float32 ``(3, n_theta_h, n_theta_d, n_phi_d)``
+        keep : ndarray of int
+            Indices of the materials used.
+        dropped : float
+        """
+        keep, w_kept, dropped = self.prune(w, prune)
+        if self._tables is not None and database is None:
+            shape = (3,) + tuple(self.info["dims"])
+            if len(keep) == self.n:  # one matrix-vector product over all tables
+                return (w_kept.astype(np.float32) @ self._tables).reshape(shape), keep, dropped
+            flat = np.zeros(self._tables.shape[1], dtype=np.float32)
+            for i, wi in zip(keep, w_kept):  # in-place y += w_i t_i, one pass per kept table
+                flat = blas.saxpy(self._tables[i], flat, a=wi)
+            return flat.reshape(shape), keep, dropped
+        db = self.open_database(database, [self.names[i] for i in keep])
+        out = np.zeros((3,) + db.dims, dtype=np.float32)
+        for i, wi in zip(keep, w_kept):
+            out += np.float32(wi) * db.reflectance(self.names[i])
+        return out, keep, dropped
+
+    def interpolate(self, x, prune=1e-3, database=None):
+        """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""
+        _, w = self.weights(x)
+        return self.combine(w, prune, database)
+
+    def mean(self, database=None):
+        """The mean table (the far-field limit of the interpolant)."""
+        return self.combine(np.full(self.n, 1.0 / self.n), prune=0.0, database=database)[0]
+
+    def albedo(self, x):
+        """Bihemispherical albedo (RGB) of the interpolated material, by linearity."""
+        if self.albedos is None:
+            raise ManifoldError("this manifold has no per-material albedos")
+        _, w = self.weights(x)
+        return w @ self.albedos
+
+    # ----------------------------------------------------------- diagnostics
+    def condition_number(self):
+        """2-norm condition number of K."""
+        ev = np.linalg.eigvalsh(self.K)
+        return float(ev[-1] / ev[0])
+
+    def bound_terms(self, x):
+        """Terms of the paper's Eq. 7 bound on ``|z(x) - z_j|`` for the nearest latent point j.
+
+        ``|z(x) - z_j| <= e^{-1/2} sqrt(2N) / l * cond(K) * |Z|_F * |x - x_j|``.
+        """
+        x, single = self._points(x)
+        dist = np.linalg.norm(x[:, None, :] - self.latent[None], axis=-1)
+        j = dist.argmin(axis=1)
+        const = np.exp(-0.5) * np.sqrt(2 * self.n) / self.length_scale
+        kappa = self.condition_number()
+        z_norm = float(np.sqrt(max(np.trace(self.gram), 0.0))) if self.gram is not None else float("nan")
+        bound = const * kappa * z_norm * dist[np.arange(len(x)), j]
+        out = {"nearest": j, "distance": dist[np.arange(len(x)), j], "constant": const,
+               "cond_K": kappa, "Z_norm": z_norm, "bound": bound}
+        if single:
+            out = {k: (v[0] if isinstance(v, np.ndarray) else v) for k, v in out.items()}
+        return out
+
+    def log_likelihood(self):
+        """Paper Eq. 6 at the stored latent points (needs the Gram matrix)."""
+        if self.gram is None:
+            raise ManifoldError("this manifold was saved without its Gram matrix")
+        return gplvm.log_likelihood(self.latent, self.gram, self.info["d"], self.length_scale, self.noise)
+
+    def summary(self):
+        """Short human-readable description."""
+        lines = [f"Manifold: {self.n} materials, q={self.q}, l={self.length_scale:g}, mu={self.noise:g}, "
+                 f"features={self.features}",
+                 f"  database: {self.database}",
+                 f"  cond(K) = {self.condition_number():.3g}"]
+        if "log_likelihood" in self.info:
+            lines.append(f"  log-likelihood L = {self.info['log_likelihood']:.6g} "
+                         f"({self.info.get('method')}, {len(self.history)} iterations, "
+                         f"{self.info.get('time_fit_s', float('nan')):.2f} s)")
+        return "\n".join(lines)
+
+    # ------------------------------------------------------------ save/load
+    def save(self, path):
+        """Write to ``.npz`` (no pickle), atomically."""
+        meta = {"format": "mitsuba-manifold", "version": FORMAT_VERSION, "names": self.names,
+                "database": self.database, "hashes": self.hashes, "length_scale": self.length_scale,
+                "noise": self.noise, "features": self.features, "info": self.info}
+        arrays = {"latent": self.latent, "history": self.history, "meta": np.array(json.dumps(meta))}
+        if self.albedos is not None:
+            arrays["albedos"] = self.albedos
+        if self.gram is not None:
+            arrays["gram"] = self.gram
+        path = os.fspath(path)
+        atomic_write(path, lambda f: np.savez(f, **arrays))
+
+    @classmethod
+    def load(cls, path):
+        """Read a manifold written by :meth:`save`.
+
+        Raises
+        ------
+        ManifoldError
+            Missing, corrupt or foreign files.
+        """
+        path = os.fspath(path)
+        if not os.path.exists(path):
+            raise ManifoldError(f"manifold file {path} does not exist")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                meta = json.loads(str(z["meta"]))
+                arrays = {k: z[k] for k in z.files if k != "meta"}
+        except Exception as e:  # zipfile, json and key errors all mean a damaged file
+            raise ManifoldError(f"{path}: not a readable manifold file ({type(e).__name__}: {e})") from None
+        if meta.get("format") != "mitsuba-manifold":
+            raise ManifoldError(f"{path}: not a mitsuba-manifold file")
+        if meta.get("version", 0) > FORMAT_VERSION:
+            raise ManifoldError(f"{path}: format version {meta['version']} is newer than this package reads")
+        try:
+            m = cls(meta["names"], arrays["latent"], meta["database"], meta["hashes"],
+                    meta["length_scale"], meta["noise"], meta["features"], arrays.get("albedos"),
+                    arrays.get("gram"), arrays.get("history", ()), meta.get("info"))
+        except KeyError as e:
+            raise ManifoldError(f"{path}: missing field {e}") from None
+        m.path = path
+        return m

@@ -1,0 +1,92 @@
+"""Figures of a fitted manifold: the latent map over an albedo heat map, the fit's convergence."""
+
+import os
+
+import numpy as np
+
+from .merl import atomic_write
+
+
+def _figure():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _save(fig, path):
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
+
+
+def albedo_grid(manifold, dims=(0, 1), resolution=160, margin=0.15):
+    """Albedo (mean of RGB) of the interpolated material over a 2D slice of the latent space.
+
+    The slice spans latent coordinates ``dims``; the other coordinates are fixed at the
+    mean of the latent points. Returns ``(xs, ys, albedo[ny, nx])``.
+    """
+    lo = manifold.latent[:, dims].min(axis=0)
+    hi = manifold.latent[:, dims].max(axis=0)
+    pad = margin * np.maximum(hi - lo, 1e-9)
+    xs = np.linspace(lo[0] - pad[0], hi[0] + pad[0], resolution)
+    ys = np.linspace(lo[1] - pad[1], hi[1] + pad[1], resolution)
+    gx, gy = np.meshgrid(xs, ys)
+    pts = np.tile(manifold.latent.mean(axis=0), (gx.size, 1))
+    pts[:, dims[0]] = gx.ravel()
+    pts[:, dims[1]] = gy.ravel()
+    return xs, ys, manifold.albedo(pts).mean(axis=1).reshape(gx.shape)
+
+
+def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
+    """PNG of the latent points with their names over the albedo heat map and iso-lines.
+
+    Paper Fig. 7 and 10. For ``q > 2`` the map is a slice through ``dims``.
+    """
+    plt = _figure()
+    xs, ys, alb = albedo_grid(manifold, dims, resolution)
+    fig, ax = plt.subplots(figsize=(11, 9))
+    im = ax.imshow(alb, origin="lower", extent=(xs[0], xs[-1], ys[0], ys[-1]), cmap="viridis", aspect="auto")
+    cs = ax.contour(xs, ys, alb, levels=12, colors="white", linewidths=0.6, alpha=0.8)
+    ax.clabel(cs, fontsize=6, fmt="%.2f")
+    fig.colorbar(im, ax=ax, label="albedo of the interpolated material (mean RGB)")
+    pts = manifold.latent[:, dims]
+    ax.scatter(pts[:, 0], pts[:, 1], s=14, c="red", edgecolors="black", linewidths=0.4, zorder=3)
+    for (px, py), name in zip(pts, manifold.names):
+        ax.annotate(name, (px, py), fontsize=5.5, color="white", xytext=(2, 2), textcoords="offset points")
+    outside = (alb < 0) | (alb > 1)
+    note = f"; {outside.mean():.1%} of the map has albedo outside [0, 1]" if outside.any() else ""
+    ax.set_title(title or f"Latent space (q={manifold.q}, slice of dims {dims}){note}", fontsize=9)
+    ax.set_xlabel(f"x[{dims[0]}]")
+    ax.set_ylabel(f"x[{dims[1]}]")
+    _save(fig, path)
+    plt.close(fig)
+    return path
+
+
+def convergence(history, path, label="Hooke-Jeeves", others=None):
+    """PNG of the log-likelihood per iteration (paper Fig. 5); ``others``: {label: history}."""
+    plt = _figure()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for lab, h in [(label, history)] + list((others or {}).items()):
+        h = np.asarray(h)
+        ax.plot(np.arange(len(h)), h, marker=".", label=lab)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("log-likelihood L")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+    return path
+
+
+def write_fit_plots(manifold, folder):
+    """Latent map(s) and convergence plot into ``folder``; returns the paths."""
+    os.makedirs(folder, exist_ok=True)
+    paths = [latent_map(manifold, os.path.join(folder, "latent_map.png"))]
+    if manifold.q > 2:
+        paths.append(latent_map(manifold, os.path.join(folder, "latent_map_dims23.png"),
+                                dims=(2, 3) if manifold.q > 3 else (1, 2)))
+    if len(manifold.history):
+        paths.append(convergence(manifold.history, os.path.join(folder, "log_likelihood.png"),
+                                 label=manifold.info.get("method", "fit")))
+    return paths

@@ -1,0 +1,30 @@
+"""Shared fixtures: a small reduced-resolution surrogate database and a manifold fit on it."""
+
+import os
+
+import pytest
+
+# Tests must never pick Debian's libLLVM 15: the package selects a newer one on import.
+import mitsuba_manifold  # noqa: F401
+
+SMALL_DIMS = (32, 32, 64)
+SMALL_MATERIALS = ["white-diffuse-bball", "gold-paint", "blue-acrylic", "chrome", "steel",
+                   "color-changing-paint3", "pink-fabric", "black-obsidian"]
+
+
+@pytest.fixture(scope="session")
+def small_db(tmp_path_factory):
+    """Folder with 8 surrogate materials at 32x32x64 bins."""
+    from mitsuba_manifold import database
+    folder = tmp_path_factory.mktemp("db32")
+    database.make_database(folder, SMALL_DIMS, SMALL_MATERIALS)
+    return str(folder)
+
+
+@pytest.fixture(scope="session")
+def small_manifold(small_db, tmp_path_factory):
+    """Path of a q=2 manifold fit on :func:`small_db`."""
+    from mitsuba_manifold.manifold import Manifold
+    path = os.path.join(str(tmp_path_factory.mktemp("manifold")), "manifold.npz")
+    Manifold.fit(small_db, q=2).save(path)
+    return path

@@ -1,0 +1,41 @@
+"""Argument helpers shared by the tools (the tools stay thin: parsing and progress only)."""
+
+import argparse
+import os
+import sys
+
+# Tools run from a checkout without installation too.
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def parse_list(text):
+    """'a,b,c' -> ['a', 'b', 'c']."""
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    if not items:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list, got {text!r}")
+    return items
+
+
+def parse_resolution(text):
+    """'90,90,180' -> (90, 90, 180)."""
+    try:
+        dims = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        dims = ()
+    if len(dims) != 3 or min(dims) < 1:
+        raise argparse.ArgumentTypeError(f"resolution must be three positive integers like 90,90,180, got {text!r}")
+    return dims
+
+
+def parse_floats(text):
+    """'0.3, -1.2' or '0.3 -1.2' -> [0.3, -1.2]."""
+    try:
+        return [float(v) for v in text.replace(",", " ").split()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers like '0.3,-1.2', got {text!r}") from None
+
+
+def fail(error, code=2):
+    """Print an error for the user and exit."""
+    print(f"error: {error}", file=sys.stderr)
+    sys.exit(code)
