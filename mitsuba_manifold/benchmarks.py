@@ -146,3 +146,306 @@ def bench_pca(folder, components=(5, 20, 40, 60), q=2, names=None, focus="color-
         if fi is not None:
             out["pca"][str(k)][focus] = float(e[fi])
     return out
+
+
+def _queries(m, n_random=64, seed=0):
+    """Typical query points: midpoints of each point's nearest pair and random points in the box."""
+    d2 = ((m.latent[:, None] - m.latent[None]) ** 2).sum(-1) + np.eye(m.n) * 1e300
+    mids = 0.5 * (m.latent + m.latent[d2.argmin(axis=1)])
+    lo, hi = m.latent.min(0), m.latent.max(0)
+    rng = np.random.default_rng(seed)
+    return np.vstack([mids, rng.uniform(lo, hi, (n_random, m.q))])
+
+
+def _weights_row(m, label, queries):
+    row = {"case": label, "cond_K": m.condition_number()}
+    _, w = m.weights(queries)
+    row.update({"max_abs_w": float(np.abs(w).max()), "max_sum_abs_w": float(np.abs(w).sum(1).max()),
+                "max_sum_error": float(np.abs(w.sum(1) - 1).max()), "finite": bool(np.isfinite(w).all())})
+    row["bounded"] = row["finite"] and row["max_sum_abs_w"] < 1e3
+    return row
+
+
+def bench_stability(folder, manifold=None, q=2, grid=48):
+    """One table over stiff and extreme cases: does everything stay finite and bounded?
+
+    Uses the latent points of a fitted manifold and varies the hyperparameters around them
+    (``l`` from 1e-3 to 1e3, ``mu`` from 1e-10 to 1e-2), near-duplicate and far-away points,
+    negative-weight blends (clamped bins, albedo outside [0, 1]), float32 against float64.
+    """
+    from .manifold import ManifoldError
+    base = Manifold.load(manifold) if manifold else Manifold.fit(folder, q=q)
+    tables = base.tables(folder if manifold else None)
+    queries = _queries(base)
+    rows = []
+
+    def variant(latent, l, mu):
+        return Manifold(base.names, latent, base.database, base.hashes, l, mu, base.features, base.albedos)
+
+    for l in (1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0, 1e3):
+        try:
+            rows.append(_weights_row(variant(base.latent, l, base.noise), f"l={l:g}, mu={base.noise:g}", queries))
+        except ManifoldError as e:
+            rows.append({"case": f"l={l:g}", "error": str(e), "finite": True, "bounded": False})
+    for mu in (1e-10, 1e-8, 1e-6, 1e-4, 1e-2):
+        try:
+            rows.append(_weights_row(variant(base.latent, base.length_scale, mu), f"l=1, mu={mu:g}", queries))
+        except ManifoldError as e:
+            rows.append({"case": f"mu={mu:g}", "error": str(e), "finite": True, "bounded": False})
+    for eps in (1e-2, 1e-4, 1e-6, 1e-8):
+        latent = base.latent.copy()
+        latent[1] = latent[0] + eps
+        try:
+            m = variant(latent, base.length_scale, base.noise)
+            row = _weights_row(m, f"near duplicate points, distance {eps:g}", np.vstack([queries, latent[:2].mean(0)]))
+        except ManifoldError as e:
+            row = {"case": f"near duplicate {eps:g}", "error": str(e), "finite": True, "bounded": False}
+        rows.append(row)
+    for dist in (1e3, 1e6, 1e12):
+        x = base.latent.mean(0) + dist / np.sqrt(base.q)
+        table, _, _ = base.interpolate(x, prune=0.0)
+        mean = base.mean()
+        rows.append({"case": f"far point at distance {dist:g}", "finite": bool(np.isfinite(table).all()),
+                     "max_relative_difference_to_mean": float(np.abs(table - mean).max() / np.abs(mean).max()),
+                     "bounded": bool(np.isfinite(table).all())})
+
+    # negative-weight blends over a latent grid: clamped bins and albedo outside [0, 1]
+    from .plots import albedo_grid
+    _, _, alb = albedo_grid(base, resolution=grid)
+    lo, hi = base.latent.min(0), base.latent.max(0)
+    pts = np.random.default_rng(1).uniform(lo - 0.25 * (hi - lo), hi + 0.25 * (hi - lo), (24, base.q))
+    _, W = base.weights(pts)
+    neg_fraction = []
+    for w in W:
+        t, _, _ = base.combine(w, prune=0.0)
+        neg_fraction.append(float((t < 0).mean()))
+    rows.append({"case": "negative-weight blends (24 random points, box + 25%)",
+                 "fraction_points_with_negative_weights": float((W < 0).any(1).mean()),
+                 "mean_fraction_bins_clamped": float(np.mean(neg_fraction)),
+                 "max_fraction_bins_clamped": float(np.max(neg_fraction)),
+                 "albedo_map_outside_0_1": float(((alb < 0) | (alb > 1)).mean()),
+                 "albedo_map_min": float(alb.min()), "albedo_map_max": float(alb.max()),
+                 "finite": True, "bounded": True})
+
+    # float32 accumulation (what the package does) against float64
+    _, w = base.weights(queries[0])
+    t32 = w.astype(np.float32) @ tables
+    t64 = w @ tables.astype(np.float64)
+    scale = np.abs(t64).max()
+    rows.append({"case": "float32 vs float64 interpolated table", "max_abs_error_relative_to_max":
+                 float(np.abs(t32 - t64).max() / scale), "finite": True, "bounded": True})
+    return {"n_materials": base.n, "q": base.q, "rows": rows,
+            "all_finite": all(r.get("finite", False) for r in rows)}
+
+
+# ------------------------------------------------------------------- rendering
+
+SCENES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenes")
+
+
+def _mitsuba(variant=None):
+    import mitsuba as mi
+
+    import mitsuba_manifold
+    from .basis import default_variant
+    variant = variant or default_variant()
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    mitsuba_manifold.register()
+    return mi
+
+
+def _sphere_with(bsdf_xml, spp, res, manifold=None):
+    """``scenes/sphere.xml`` with its material block replaced by ``bsdf_xml``."""
+    import re
+
+    mi = _mitsuba()
+    with open(os.path.join(SCENES, "sphere.xml")) as f:
+        text = f.read()
+    text = re.sub(r'<bsdf type="manifold_brdf" id="material">.*?</bsdf>', bsdf_xml, text, flags=re.S)
+    mi.Thread.thread().file_resolver().prepend(SCENES)
+    params = {"spp": str(spp), "res": str(res)}
+    if manifold is not None:
+        params["manifold"] = os.path.abspath(manifold)
+    return mi.load_string(text, **params)
+
+
+def _time_renders(scenes, repeats):
+    """Interleaved timings (seconds) of ``mi.render`` per named scene, after a warm-up render."""
+    import drjit as dr
+    import mitsuba as mi
+    times = {k: [] for k in scenes}
+    for s in scenes.values():
+        dr.eval(mi.render(s, seed=1000))
+    for rep in range(repeats):
+        for k, s in scenes.items():
+            t0 = time.perf_counter()
+            img = mi.render(s, seed=rep)
+            dr.eval(img)
+            dr.sync_thread()
+            times[k].append(time.perf_counter() - t0)
+    return {k: {"min_s": float(np.min(v)), "median_s": float(np.median(v))} for k, v in times.items()}
+
+
+def _interpolated_point(m, a="chrome", b="gold-paint"):
+    if a in m.names and b in m.names:
+        return 0.5 * (m.latent[m.index(a)] + m.latent[m.index(b)]), f"midpoint of {a} and {b}"
+    return 0.5 * (m.latent[0] + m.latent[1]), f"midpoint of {m.names[0]} and {m.names[1]}"
+
+
+def bench_bsdf(folder, manifold=None, spp=64, res=256, repeats=7, mse_res=96, mse_spp=32, ref_spp=2048,
+               materials=("chrome", "steel", "gold-metallic-paint", "red-fabric")):
+    """manifold_brdf against roughconductor, cdf against cosine sampling, construction time.
+
+    Targets: render time at most 1.5x roughconductor at equal spp; relative MSE at least
+    5x lower with ``cdf`` than with ``cosine`` for the spiky metals.
+    """
+    from . import metrics
+    from .bsdf import sampling_cache_path
+    mi = _mitsuba()
+    m = Manifold.load(manifold) if manifold else None
+    if m is None:
+        manifold = os.path.join(folder, ".manifold-cache", "bench_q2.npz")
+        m = Manifold.fit(folder, q=2)
+        m.save(manifold)
+    x, where = _interpolated_point(m)
+    xs = ", ".join(repr(float(v)) for v in x)
+    out = {"variant": mi.variant(), "x": x.tolist(), "x_is": where, "n_materials": m.n}
+
+    # construction of an interpolated material, with and without the sampling cache
+    db = m.open_database()
+    keep, _, _ = m.prune(m.weights(x)[1])
+    for i in keep:
+        path = sampling_cache_path(db, m.names[i])
+        if os.path.exists(path):
+            os.remove(path)
+    spec = {"type": "manifold_brdf", "manifold": os.path.abspath(manifold), "x": xs}
+    t0 = time.perf_counter()
+    mi.load_dict(spec)
+    out["construct_without_cache_s"] = time.perf_counter() - t0
+    out["construct_with_cache_s"] = _median_time(lambda: mi.load_dict(spec), 3)[0]
+    out["construct_materials_used"] = int(len(keep))
+    out["table_dims"] = list(db.dims)
+
+    # render time against roughconductor
+    scenes = {
+        "manifold_brdf": _sphere_with(f'<bsdf type="manifold_brdf" id="material"><string name="manifold" '
+                                      f'value="$manifold"/><string name="x" value="{xs}"/></bsdf>',
+                                      spp, res, manifold),
+        "roughconductor": _sphere_with('<bsdf type="roughconductor" id="material"><string name="material" '
+                                       'value="Cr"/><float name="alpha" value="0.05"/></bsdf>', spp, res)}
+    t = _time_renders(scenes, repeats)
+    ratio = t["manifold_brdf"]["min_s"] / t["roughconductor"]["min_s"]
+    out["render"] = {"spp": spp, "resolution": res, "times": t, "ratio_min": ratio,
+                     "ratio_median": t["manifold_brdf"]["median_s"] / t["roughconductor"]["median_s"],
+                     "ratio_target": 1.5, "meets_target": ratio <= 1.5}
+
+    # relative MSE at equal spp, cdf against cosine
+    rows = []
+    for name in materials:
+        if name not in m.names:
+            continue
+        sc = {mode: _sphere_with(f'<bsdf type="manifold_brdf" id="material"><string name="manifold" '
+                                 f'value="$manifold"/><string name="material" value="{name}"/>'
+                                 f'<string name="sampling" value="{mode}"/></bsdf>', mse_spp, mse_res, manifold)
+              for mode in ("cdf", "cosine")}
+        ref = np.mean([np.array(mi.render(sc["cdf"], spp=ref_spp // 4, seed=100 + k)) for k in range(4)], axis=0)
+        err = {mode: float(np.mean([metrics.rel_mse(np.array(mi.render(sc[mode], seed=k)), ref) for k in range(4)]))
+               for mode in sc}
+        spiky = name in ("chrome", "steel")
+        rows.append({"material": name, "rel_mse_cdf": err["cdf"], "rel_mse_cosine": err["cosine"],
+                     "cosine_over_cdf": err["cosine"] / err["cdf"],
+                     **({"target_ratio": 5.0, "meets_target": err["cosine"] / err["cdf"] >= 5.0} if spiky else {})})
+    out["sampling"] = {"spp": mse_spp, "resolution": mse_res, "reference_spp": ref_spp, "rows": rows}
+    return out
+
+
+def _gi_points(m, a="chrome", b="silver-paint"):
+    """Training point, midpoint and extrapolated point on the latent segment from a to b."""
+    if a not in m.names or b not in m.names:
+        a, b = m.names[0], m.names[1]
+    xa, xb = m.latent[m.index(a)], m.latent[m.index(b)]
+    return [("training", f"{a}", xa), ("midpoint", f"midpoint {a}-{b}", 0.5 * (xa + xb)),
+            ("extrapolated", f"{a} + 1.5 ({b} - {a})", xa + 1.5 * (xb - xa))]
+
+
+def _bias(a, ref):
+    """Mean relative difference of two images and its standard error (pixels independent)."""
+    d = (a - ref).reshape(-1, 3).astype(np.float64).mean(axis=1)
+    scale = float(np.mean(ref))
+    return float(d.mean() / scale), float(d.std() / np.sqrt(d.size) / scale)
+
+
+def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_spp=64, ref_spp=4096,
+             direct_spp=(1, 4, 16, 64, 256, 1024), mode="onepass", out=None, seed=0):
+    """Error against run time: the blend (Eq. 13) beside re-rendering the interpolated material.
+
+    For each scene and latent point (training, midpoint, extrapolated): the blend's time and
+    error against a high-spp full-GI reference (``path``), and the error and time of direct
+    renders at increasing spp. On a convex scene L2+ is zero and the blend is unbiased; on
+    a concave one the bias (L2+) is measured. Writes a log-log plot when ``out`` is given.
+    """
+    from . import basis as basis_mod
+    from . import blend as blend_mod
+    from . import metrics
+    mi = _mitsuba()
+    if manifold is None:
+        manifold = os.path.join(folder, ".manifold-cache", "bench_q2.npz")
+        Manifold.fit(folder, q=2).save(manifold)
+    m = Manifold.load(manifold)
+    out = out or os.path.join(folder, ".manifold-cache", "bench_gi")
+    os.makedirs(out, exist_ok=True)
+    report = {"resolution": res, "basis_spp": basis_spp, "reference_spp": ref_spp, "mode": mode,
+              "variant": mi.variant(), "scenes": {}}
+    for name in scenes:
+        scene_path = os.path.join(SCENES, name + ".xml")
+        folder_b = os.path.join(out, f"basis_{name}_{res}_{basis_spp}_{mode}")
+        t0 = time.perf_counter()
+        basis_mod.render_basis(scene_path, manifold, folder_b, spp=basis_spp, mode=mode, resolution=res, seed=seed)
+        t_basis = time.perf_counter() - t0
+        b = blend_mod.Basis.load(folder_b, manifold=m)
+        rows = []
+        for kind, label, x in _gi_points(m):
+            ref = blend_mod.render_reference(scene_path, manifold, x, ref_spp, seed=seed + 7919, resolution=(res, res))
+            img, info = blend_mod.blend(b, m, x=x)
+            t_blend = _median_time(lambda: blend_mod.blend(b, m, x=x), 5)[0]
+            bias, bias_se = _bias(img, ref)
+            row = {"point": kind, "x_is": label, "x": np.asarray(x).tolist(),
+                   "blend": {"time_s": t_blend, **metrics.compare(img, ref), "relative_bias": bias,
+                             "relative_bias_se": bias_se, "materials_used": int(info["n_images"])},
+                   "direct": []}
+            for spp in direct_spp:
+                t0 = time.perf_counter()
+                direct = blend_mod.render_reference(scene_path, manifold, x, spp, seed=seed + spp,
+                                                    resolution=(res, res))
+                row["direct"].append({"spp": spp, "time_s": time.perf_counter() - t0, **metrics.compare(direct, ref)})
+            rows.append(row)
+        report["scenes"][name] = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows}
+    report["plot"] = _plot_gi(report, os.path.join(out, "gi_error_vs_time.png"))
+    return report
+
+
+def _plot_gi(report, path):
+    from .plots import _figure, _save
+    plt = _figure()
+    names = list(report["scenes"])
+    fig, axes = plt.subplots(1, len(names), figsize=(6 * len(names), 4.5), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        sc = report["scenes"][name]
+        for k, row in enumerate(sc["points"]):
+            colour = f"C{k}"
+            d = row["direct"]
+            ax.loglog([r["time_s"] for r in d], [r["rel_mse"] for r in d], "o-", color=colour,
+                      label=f"direct render, {row['point']}")
+            ax.loglog([row["blend"]["time_s"]], [row["blend"]["rel_mse"]], "*", ms=14, color=colour,
+                      label=f"blend, {row['point']}")
+        ax.set_title(f"{name}.xml: basis rendered once in {sc['basis_time_s']:.0f} s "
+                     f"({report['basis_spp']} spp)", fontsize=9)
+        ax.set_xlabel("time per image (s)")
+        ax.set_ylabel(f"relative MSE vs {report['reference_spp']} spp full GI")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+    return path

@@ -18,7 +18,6 @@ import time
 
 import numpy as np
 from scipy import linalg
-from scipy.linalg import blas
 
 from . import gplvm
 from .database import FEATURES, Database
@@ -299,17 +298,16 @@ class Manifold:
         keep, w_kept, dropped = self.prune(w, prune)
         if self._tables is not None and database is None:
             shape = (3,) + tuple(self.info["dims"])
-            if len(keep) == self.n:  # one matrix-vector product over all tables
-                return (w_kept.astype(np.float32) @ self._tables).reshape(shape), keep, dropped
-            flat = np.zeros(self._tables.shape[1], dtype=np.float32)
-            for i, wi in zip(keep, w_kept):  # in-place y += w_i t_i, one pass per kept table
-                flat = blas.saxpy(self._tables[i], flat, a=wi)
+            if 2 * len(keep) > self.n:  # one (multithreaded) matrix-vector product over all tables
+                full = np.zeros(self.n, dtype=np.float32)
+                full[keep] = w_kept
+                return (full @ self._tables).reshape(shape), keep, dropped
+            flat = _weighted_sum((self._tables[i] for i in keep), w_kept, self._tables.shape[1])
             return flat.reshape(shape), keep, dropped
         db = self.open_database(database, [self.names[i] for i in keep])
-        out = np.zeros((3,) + db.dims, dtype=np.float32)
-        for i, wi in zip(keep, w_kept):
-            out += np.float32(wi) * db.reflectance(self.names[i])
-        return out, keep, dropped
+        flat = _weighted_sum((db.reflectance(self.names[i]).reshape(-1) for i in keep), w_kept,
+                             3 * int(np.prod(db.dims)))
+        return flat.reshape((3,) + db.dims), keep, dropped
 
     def interpolate(self, x, prune=1e-3, database=None):
         """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""
@@ -413,3 +411,22 @@ class Manifold:
             raise ManifoldError(f"{path}: missing field {e}") from None
         m.path = path
         return m
+
+
+def _weighted_sum(rows, weights, size, chunk=1 << 18):
+    """``sum_k weights[k] * rows[k]`` in float32, one read of each row.
+
+    Loops over chunks of bins outside and rows inside, so the accumulator and the scaled
+    chunk stay in cache and no full-size temporary is made.
+    """
+    rows = [np.asarray(r).reshape(-1) for r in rows]
+    weights = np.asarray(weights, dtype=np.float32)
+    out = np.zeros(size, dtype=np.float32)
+    tmp = np.empty(min(chunk, size), dtype=np.float32)
+    for start in range(0, size, chunk):
+        acc = out[start:start + chunk]
+        t = tmp[:len(acc)]
+        for row, wk in zip(rows, weights):
+            np.multiply(row[start:start + chunk], wk, out=t)
+            acc += t
+    return out

@@ -1,0 +1,189 @@
+"""Image files: float32 RGB OpenEXR read/write and tonemapped sRGB PNG, all written atomically.
+
+Every writer goes through a temporary file beside the target and a rename, so an existing
+image is replaced only by a complete one. Every reader raises :class:`ImageError` naming
+the file and the problem (missing, not an EXR, truncated or corrupt, wrong channels,
+non-finite values).
+"""
+
+import json
+import os
+
+import numpy as np
+
+from .merl import atomic_write
+
+
+class ImageError(ValueError):
+    """An image file that cannot be read or an image that cannot be written."""
+
+
+def _check_rgb(img, path, what="image"):
+    img = np.asarray(img)
+    if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1 or img.shape[1] < 1:
+        raise ImageError(f"{path}: {what} must have shape (height, width, 3), got {img.shape}")
+    return img
+
+
+def write_exr(path, img, metadata=None):
+    """Write an (H, W, 3) image as a float32 RGB OpenEXR file (ZIP compressed), atomically.
+
+    Parameters
+    ----------
+    path : str
+    img : array_like (H, W, 3)
+        Converted to float32; must be finite.
+    metadata : dict, optional
+        Extra header attributes: strings are stored as they are, other values as JSON text.
+    """
+    import OpenEXR
+
+    path = os.fspath(path)
+    img = np.ascontiguousarray(_check_rgb(img, path), dtype=np.float32)
+    if not np.isfinite(img).all():
+        raise ImageError(f"{path}: refusing to write an image with NaN or Inf values")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for key, value in (metadata or {}).items():
+        if key in header or key in ("channels", "dataWindow", "displayWindow"):
+            raise ImageError(f"{path}: metadata key {key!r} is reserved by OpenEXR")
+        header[str(key)] = value if isinstance(value, str) else json.dumps(value)
+    exr = OpenEXR.File(header, {"RGB": img})
+    atomic_write(path, exr.write)
+
+
+def _open(path, header_only):
+    import OpenEXR
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise ImageError(f"{path}: image file does not exist")
+    if not os.path.isfile(path):
+        raise ImageError(f"{path}: not a file")
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic != b"\x76\x2f\x31\x01":
+        raise ImageError(f"{path}: not an OpenEXR file (no EXR magic number"
+                         f"{', file is empty' if not magic else ''})")
+    try:
+        exr = OpenEXR.File(path, separate_channels=True, header_only=header_only)
+        header = exr.header()
+        channels = None if header_only else exr.channels()
+    except Exception as e:  # the library reports truncation and corruption in several ways
+        raise ImageError(f"{path}: truncated or corrupt OpenEXR file ({type(e).__name__}: {e})") from None
+    return header, channels
+
+
+def _size(header, path):
+    try:
+        lo, hi = header["dataWindow"]
+        return int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+    except (KeyError, TypeError, ValueError, IndexError):
+        raise ImageError(f"{path}: OpenEXR header has no valid data window") from None
+
+
+def read_exr_header(path):
+    """Header of an EXR file without reading its pixels.
+
+    Returns
+    -------
+    dict
+        ``width``, ``height``, ``channels`` (sorted names) and ``attributes`` (the other
+        header entries; JSON metadata written by :func:`write_exr` stays a string).
+    """
+    path = os.fspath(path)
+    header, _ = _open(path, header_only=True)
+    width, height = _size(header, path)
+    names = sorted(c.name for c in header.get("channels", []))
+    skip = {"channels", "dataWindow", "displayWindow"}
+    return {"width": width, "height": height, "channels": names,
+            "attributes": {k: v for k, v in header.items() if k not in skip}}
+
+
+def check_exr_header(path, resolution=None):
+    """Check that ``path`` is an RGB EXR (of ``resolution`` = (width, height) if given).
+
+    Reads the header only: a file truncated after its header passes here and fails in
+    :func:`read_exr`.
+    """
+    info = read_exr_header(path)
+    missing = [c for c in "RGB" if c not in info["channels"]]
+    if missing:
+        raise ImageError(f"{path}: EXR has channels {info['channels']}, missing {''.join(missing)} "
+                         "(an RGB image is needed)")
+    if resolution is not None and (info["width"], info["height"]) != tuple(resolution):
+        raise ImageError(f"{path}: image is {info['width']}x{info['height']}, expected "
+                         f"{resolution[0]}x{resolution[1]}")
+    return info
+
+
+def read_exr(path):
+    """Read the R, G, B channels of an OpenEXR file as float32 (H, W, 3).
+
+    Other channels (alpha, AOVs) are ignored; half-float channels are converted.
+
+    Raises
+    ------
+    ImageError
+        Missing, empty, non-EXR, truncated or corrupt files, missing R/G/B channels,
+        subsampled channels, NaN or Inf values.
+    """
+    path = os.fspath(path)
+    header, channels = _open(path, header_only=False)
+    width, height = _size(header, path)
+    missing = [c for c in "RGB" if c not in channels]
+    if missing:
+        raise ImageError(f"{path}: EXR has channels {sorted(channels)}, missing {''.join(missing)} "
+                         "(an RGB image is needed)")
+    planes = []
+    for c in "RGB":
+        px = channels[c].pixels
+        if px is None or np.shape(px) != (height, width):
+            raise ImageError(f"{path}: channel {c} has shape {np.shape(px)}, expected ({height}, {width}) "
+                             "(subsampled or unreadable channel)")
+        if not np.issubdtype(px.dtype, np.floating):
+            raise ImageError(f"{path}: channel {c} holds {px.dtype} values, expected float")
+        planes.append(px)
+    img = np.stack(planes, axis=-1).astype(np.float32, copy=False)
+    if not np.isfinite(img).all():
+        bad = int((~np.isfinite(img)).any(axis=-1).sum())
+        raise ImageError(f"{path}: {bad} pixels hold NaN or Inf values")
+    return img
+
+
+# ------------------------------------------------------------------ PNG
+
+def srgb_encode(linear):
+    """Linear values in [0, 1] to sRGB-encoded values in [0, 1] (IEC 61966-2-1)."""
+    c = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
+    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
+
+
+def tonemap(img, exposure=0.0):
+    """Linear RGB (H, W, 3) to 8-bit sRGB: scale by ``2**exposure``, clip to [0, 1], encode."""
+    img = np.asarray(img, dtype=np.float64) * 2.0 ** float(exposure)
+    img = np.nan_to_num(img, nan=0.0, posinf=1.0, neginf=0.0)
+    return np.round(srgb_encode(img) * 255.0).astype(np.uint8)
+
+
+def write_png(path, img, exposure=0.0, text=None):
+    """Write a PNG atomically.
+
+    Parameters
+    ----------
+    path : str
+    img : array_like (H, W, 3)
+        Linear radiance (float), tonemapped by :func:`tonemap` with ``exposure`` stops;
+        a ``uint8`` array is taken as display-ready and written as it is.
+    text : dict, optional
+        PNG text chunks (e.g. the scale of a false-colour image).
+    """
+    from PIL import Image, PngImagePlugin
+
+    path = os.fspath(path)
+    img = _check_rgb(img, path)
+    u8 = img if img.dtype == np.uint8 else tonemap(img, exposure)
+    info = PngImagePlugin.PngInfo()
+    for key, value in (text or {}).items():
+        info.add_text(str(key), str(value))
+    pil = Image.fromarray(np.ascontiguousarray(u8))
+    atomic_write(path, lambda f: pil.save(f, format="PNG", pnginfo=info))
