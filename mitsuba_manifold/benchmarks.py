@@ -360,10 +360,14 @@ def bench_bsdf(folder, manifold=None, spp=64, res=256, repeats=7, mse_res=96, ms
     return out
 
 
-def _gi_points(m, a="chrome", b="silver-paint"):
+def _gi_pair(m, a="chrome", b="silver-paint"):
+    """The two materials of the paper's Fig. 12 path (or the first two when absent)."""
+    return (a, b) if a in m.names and b in m.names else (m.names[0], m.names[1])
+
+
+def _gi_points(m):
     """Training point, midpoint and extrapolated point on the latent segment from a to b."""
-    if a not in m.names or b not in m.names:
-        a, b = m.names[0], m.names[1]
+    a, b = _gi_pair(m)
     xa, xb = m.latent[m.index(a)], m.latent[m.index(b)]
     return [("training", f"{a}", xa), ("midpoint", f"midpoint {a}-{b}", 0.5 * (xa + xb)),
             ("extrapolated", f"{a} + 1.5 ({b} - {a})", xa + 1.5 * (xb - xa))]
@@ -377,14 +381,18 @@ def _bias(a, ref):
 
 
 def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_spp=64, ref_spp=4096,
-             direct_spp=(1, 4, 16, 64, 256, 1024), mode="onepass", out=None, seed=0):
+             direct_spp=(1, 4, 16, 64, 256, 1024), mode="onepass", out=None, seed=0, save_images=False,
+             progress=False):
     """Error against run time: the blend (Eq. 13) beside re-rendering the interpolated material.
 
     For each scene and latent point (training, midpoint, extrapolated): the blend's time and
     error against a high-spp full-GI reference (``path``), and the error and time of direct
     renders at increasing spp. On a convex scene L2+ is zero and the blend is unbiased; on
-    a concave one the bias (L2+) is measured. Writes a log-log plot when ``out`` is given.
+    a concave one the bias (L2+) is measured. Writes a log-log plot into ``out``; with
+    ``save_images`` also the blends, references and error images (EXR and PNG) and the
+    contact sheet of the latent path between the two materials (paper Fig. 12).
     """
+    from . import imageio
     from . import basis as basis_mod
     from . import blend as blend_mod
     from . import metrics
@@ -401,7 +409,8 @@ def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_s
         scene_path = os.path.join(SCENES, name + ".xml")
         folder_b = os.path.join(out, f"basis_{name}_{res}_{basis_spp}_{mode}")
         t0 = time.perf_counter()
-        basis_mod.render_basis(scene_path, manifold, folder_b, spp=basis_spp, mode=mode, resolution=res, seed=seed)
+        basis_mod.render_basis(scene_path, manifold, folder_b, spp=basis_spp, mode=mode, resolution=res, seed=seed,
+                               progress=progress)
         t_basis = time.perf_counter() - t0
         b = blend_mod.Basis.load(folder_b, manifold=m)
         rows = []
@@ -420,6 +429,18 @@ def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_s
                                                     resolution=(res, res))
                 row["direct"].append({"spp": spp, "time_s": time.perf_counter() - t0, **metrics.compare(direct, ref)})
             rows.append(row)
+            if save_images:
+                stem = os.path.join(out, f"{name}_{kind}")
+                for suffix, image in (("blend", img), ("reference", ref)):
+                    imageio.write_exr(f"{stem}_{suffix}.exr", image)
+                    imageio.write_png(f"{stem}_{suffix}.png", image)
+                metrics.write_error_png(f"{stem}_error.png", img, ref)
+            if progress:
+                print(f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True)
+        if save_images:
+            images, _, _ = blend_mod.blend_path(b, m, *_gi_pair(m), steps=20)
+            blend_mod.write_contact_sheet(os.path.join(out, f"{name}_path_sheet.png"), images,
+                                          labels=[f"{t:.2f}" for t in np.linspace(0, 1, len(images))])
         report["scenes"][name] = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows}
     report["plot"] = _plot_gi(report, os.path.join(out, "gi_error_vs_time.png"))
     return report

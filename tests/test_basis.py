@@ -1,0 +1,123 @@
+"""Basis rendering: selection, resume after interruption, refusals, linearity of the blend."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+mi = pytest.importorskip("mitsuba")
+mi.set_variant("llvm_ad_rgb")
+
+import mitsuba_manifold  # noqa: E402
+from mitsuba_manifold import basis, blend, imageio  # noqa: E402
+from mitsuba_manifold.manifold import Manifold  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SPHERE = os.path.join(ROOT, "scenes", "sphere.xml")
+RES = 24
+
+
+@pytest.fixture(autouse=True)
+def _variant():
+    mi.set_variant("llvm_ad_rgb")
+    mitsuba_manifold.register()
+
+
+def test_select_materials(small_manifold):
+    m = Manifold.load(small_manifold)
+    assert basis.select_materials(m) == m.names
+    assert basis.select_materials(m, ["steel", "chrome"]) == [n for n in m.names if n in ("steel", "chrome")]
+    near = basis.select_materials(m, near=m.latent[0], radius=1e-9)
+    assert near == [m.names[0]]
+    with pytest.raises(basis.RenderBasisError, match="unknown material"):
+        basis.select_materials(m, ["steel", "adamantium"])
+    with pytest.raises(basis.RenderBasisError, match="2 finite numbers"):
+        basis.select_materials(m, near=[0.0], radius=1.0)
+    with pytest.raises(basis.RenderBasisError, match="no material lies within"):
+        basis.select_materials(m, near=m.latent.max(0) + 100, radius=0.5)
+
+
+def test_scene_without_manifold_material_is_refused(tmp_path, small_manifold):
+    scene = tmp_path / "plain.xml"
+    scene.write_text("""<scene version="3.0.0">
+      <sensor type="perspective"><film type="hdrfilm"><integer name="width" value="8"/>
+      <integer name="height" value="8"/></film></sensor>
+      <shape type="sphere"><bsdf type="diffuse"/></shape>
+      <emitter type="constant"/></scene>""")
+    with pytest.raises(basis.RenderBasisError, match="no manifold_brdf material"):
+        basis.render_basis(str(scene), small_manifold, str(tmp_path / "out"), spp=1)
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), str(scene),
+                        "--manifold", small_manifold, "--out", str(tmp_path / "out2")],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "no manifold_brdf material" in r.stderr
+
+
+def test_interrupted_run_resumes_without_corrupt_files(tmp_path, small_manifold, monkeypatch):
+    out = tmp_path / "basis"
+    real_write = imageio.write_exr
+    calls = {"n": 0}
+
+    def flaky(path, img, metadata=None):
+        calls["n"] += 1
+        if calls["n"] == 4:
+            raise KeyboardInterrupt("killed")   # dies while writing the 4th image
+        return real_write(path, img, metadata)
+
+    monkeypatch.setattr(imageio, "write_exr", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        basis.render_basis(SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material")
+    monkeypatch.setattr(imageio, "write_exr", real_write)
+    manifest = blend.read_manifest(str(out))
+    assert len(manifest["images"]) == 3
+    assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
+    for entry in manifest["images"].values():      # every listed image is whole
+        assert imageio.read_exr(out / entry["file"]).shape == (RES, RES, 3)
+    before = {k: os.stat(out / e["file"]).st_mtime_ns for k, e in manifest["images"].items()}
+
+    manifest = basis.render_basis(SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material")
+    m = Manifold.load(small_manifold)
+    assert set(manifest["images"]) == {"base", *m.names}
+    assert all(os.stat(out / manifest["images"][k]["file"]).st_mtime_ns == t for k, t in before.items())
+    b = blend.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
+    assert b.materials == [m.names]
+
+    # other settings in the same folder: refused, nothing touched
+    snapshot = {f: (out / f).read_bytes() for f in os.listdir(out)}
+    with pytest.raises(basis.RenderBasisError, match="other settings.*spp"):
+        basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="per-material")
+    assert {f: (out / f).read_bytes() for f in os.listdir(out)} == snapshot
+
+
+def _render_l1(scene, spp, seed):
+    integrator = mi.load_dict({"type": "manifold_path", "component": "l1"})
+    return np.array(mi.render(scene, integrator=integrator, spp=spp, seed=seed))[..., :3]
+
+
+def _assert_same_mean(a, b, what):
+    """Two unbiased estimates of one image agree: means over the image and its quadrants."""
+    d = (a - b).astype(np.float64)
+    h = d.shape[0] // 2
+    for part in (d, d[:h, :h], d[:h, h:], d[h:, :h], d[h:, h:]):
+        flat = part.reshape(-1, 3)
+        se = flat.std(axis=0) / np.sqrt(len(flat))
+        assert np.all(np.abs(flat.mean(axis=0)) <= 4.5 * se + 1e-7), (what, flat.mean(axis=0), se)
+
+
+def test_blend_equals_direct_l1_render(tmp_path, small_manifold):
+    """Linearity: base + sum_i w_i I_i is an unbiased estimate of the L1- image of sum_i w_i rho_i."""
+    out = tmp_path / "basis"
+    m = Manifold.load(small_manifold)
+    basis.render_basis(SPHERE, small_manifold, str(out), spp=32, resolution=RES, mode="per-material",
+                       materials=["gold-paint", "steel", "pink-fabric"])
+    b = blend.Basis.load(str(out), manifold=small_manifold)
+    w = np.zeros(m.n)
+    w[m.index("gold-paint")], w[m.index("steel")], w[m.index("pink-fabric")] = 0.5, 0.2, 0.3
+    img, info = blend.blend(b, m, w=w, prune=0.0)
+    scene, (target,) = basis.load_scene(SPHERE, small_manifold, 32, RES)
+    target.set_weights(w)
+    assert target.clamped_bins == 0
+    direct = _render_l1(scene, 128, seed=12345)
+    assert direct.mean() > 0.01
+    _assert_same_mean(img, direct, "blend vs direct")
