@@ -28,7 +28,7 @@ from .manifold import Manifold
 MODES = ("per-material", "onepass")
 
 
-class RenderBasisError(ValueError):
+class RenderBasisError(blend_mod.BasisError):
     """A basis that cannot be rendered as asked (bad scene, folder, selection)."""
 
 
@@ -78,50 +78,6 @@ def default_variant():
     return "llvm_ad_rgb"
 
 
-def load_scene(scene_path, manifold_path, spp, resolution=None, variant=None):
-    """Load a scene XML for basis rendering with its ``$manifold``/``$spp``/``$res`` set.
-
-    Returns ``(scene, targets)``: the scene's manifold BSDF instances, in shape order.
-    """
-    import mitsuba as mi
-
-    import mitsuba_manifold
-    from .integrators import manifold_bsdfs
-
-    if not os.path.isfile(scene_path):
-        raise RenderBasisError(f"scene {scene_path} does not exist")
-    variant = variant or mi.variant() or default_variant()
-    if mi.variant() != variant:
-        mi.set_variant(variant)
-    mitsuba_manifold.register()
-    used, _ = blend_mod.scene_parameters(scene_path)
-    params = {}
-    if "manifold" in used:
-        params["manifold"] = os.path.abspath(manifold_path)
-    if "spp" in used:
-        params["spp"] = str(int(spp))
-    if "integrator" in used:
-        params["integrator"] = "path"
-    if resolution is not None:
-        if "res" not in used:
-            raise RenderBasisError(f"scene {scene_path} takes no $res parameter; render at its own size")
-        params["res"] = str(int(resolution))
-    try:
-        scene = mi.load_file(scene_path, **params)
-    except Exception as e:
-        raise RenderBasisError(f"scene {scene_path}: cannot load ({e})") from None
-    targets = manifold_bsdfs(scene)
-    if not targets:
-        raise RenderBasisError(f"scene {scene_path} has no manifold_brdf material: there is nothing to "
-                               "render a basis for (give the material to edit type=\"manifold_brdf\")")
-    want = blend_mod.file_hash(manifold_path)
-    for b in targets:
-        if blend_mod.file_hash(b.manifold_path) != want:
-            raise RenderBasisError(f"scene {scene_path}: material {b.id()!r} uses manifold {b.manifold_path}, "
-                                   f"not {manifold_path} (make the scene take it as $manifold)")
-    return scene, targets
-
-
 def _open_folder(out, manifest):
     """Create ``out`` or check that its manifest matches; return the images still valid there."""
     os.makedirs(out, exist_ok=True)
@@ -147,7 +103,7 @@ def _open_folder(out, manifest):
 
 
 def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=None, radius=None,
-                 mode="per-material", seed=0, resolution=None, max_depth=-1, variant=None,
+                 mode="per-material", seed=0, resolution=None, max_depth=None, variant=None,
                  progress=False, chunk_spp=None):
     """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
 
@@ -165,10 +121,10 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         (:meth:`ManifoldPathIntegrator.render_onepass`, one target only).
     seed : int
         Same seed for every image (correlated noise makes blends smoother).
-    resolution : int, optional
-        Square image size for scenes that take ``$res``.
-    max_depth : int
-        Path depth (-1: unbounded).
+    resolution : int or (int, int), optional
+        Image size, for scenes that take ``$res`` or ``$width``/``$height``.
+    max_depth : int, optional
+        Path depth (-1: unbounded; default: the scene's ``$max_depth`` default, else -1).
     variant : str, optional
         Mitsuba variant (default: the active one, else CUDA when available, else LLVM).
     progress : bool
@@ -187,7 +143,10 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         raise RenderBasisError(f"spp must be >= 1, got {spp}")
     manifold = Manifold.load(manifold_path)
     chosen = select_materials(manifold, materials, near, radius)
-    scene, targets = load_scene(scene_path, manifold_path, spp, resolution, variant)
+    if not os.path.isfile(scene_path):
+        raise RenderBasisError(f"scene {scene_path} does not exist")
+    scene, targets, max_depth = blend_mod.load_scene(scene_path, manifold_path, spp, resolution, max_depth,
+                                             variant=variant or mi.variant() or default_variant())
     if mode == "onepass" and len(targets) != 1:
         raise RenderBasisError(f"onepass mode renders scenes with one manifold material; {scene_path} has "
                                f"{len(targets)}: use mode='per-material'")
@@ -253,18 +212,20 @@ def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress):
 
 def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, chunk_spp):
     """All material images from one set of paths (issue 5); base comes from the same paths."""
+    from tqdm import tqdm
     integrator = _integrator("l1", max_depth)
     names = [key for key, combo in todo if combo is not None]
     t0 = time.perf_counter()
-    with _bar(len(todo), progress, "rendering basis (one pass)") as bar:
-        kwargs = {"materials": names, "spp": spp, "seed": seed}
+    with tqdm(desc="rendering basis (one pass)", unit="step", disable=not progress) as bar:
+        def advance(done, total):
+            bar.total = total
+            bar.update(done - bar.n)
+        kwargs = {"materials": names, "spp": spp, "seed": seed, "progress": advance}
         if chunk_spp:
             kwargs["spp_per_pass"] = chunk_spp
         base, images = integrator.render_onepass(scene, **kwargs)
-        seconds = (time.perf_counter() - t0) / max(len(todo), 1)
-        if any(combo is None for _, combo in todo):
-            save("base", np.asarray(base, dtype=np.float32)[..., :3], seconds)
-            bar.update()
-        for name in names:
-            save(name, np.asarray(images[name], dtype=np.float32)[..., :3], seconds)
-            bar.update()
+    seconds = (time.perf_counter() - t0) / max(len(todo), 1)
+    if any(combo is None for _, combo in todo):
+        save("base", np.asarray(base, dtype=np.float32)[..., :3], seconds)
+    for name in names:
+        save(name, np.asarray(images[name], dtype=np.float32)[..., :3], seconds)

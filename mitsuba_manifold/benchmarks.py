@@ -360,14 +360,35 @@ def bench_bsdf(folder, manifold=None, spp=64, res=256, repeats=7, mse_res=96, ms
     return out
 
 
-def _gi_pair(m, a="chrome", b="silver-paint"):
-    """The two materials of the paper's Fig. 12 path (or the first two when absent)."""
-    return (a, b) if a in m.names and b in m.names else (m.names[0], m.names[1])
+def clamped_fraction(m, x):
+    """Fraction of the interpolated table's values below 0 (the plugin clamps them)."""
+    table, _, _ = m.interpolate(x)
+    return float((table < 0).mean())
 
 
-def _gi_points(m):
+def _gi_pair(m, max_clamped=1e-3):
+    """Two latent neighbours to interpolate between, for the GI comparison and the path sheet.
+
+    Among the pairs (material, its nearest latent neighbour) whose midpoint table needs
+    (almost) no clamping, the one whose albedos differ most, so that the interpolation is
+    visible. Far-apart pairs cross other materials' regions, where an affine combination
+    with large weights of both signs goes negative in many bins; the plugin clamps those
+    but a blend cannot, so such a midpoint measures clamping rather than Eq. 13.
+    """
+    d2 = ((m.latent[:, None] - m.latent[None]) ** 2).sum(-1) + np.eye(m.n) * 1e300
+    pairs = sorted({tuple(sorted((i, int(j)))) for i, j in enumerate(d2.argmin(axis=1))})
+    alb = m.albedos.mean(axis=1) if m.albedos is not None else np.zeros(m.n)
+    best, best_score = pairs[0], -1.0
+    for i, j in pairs:
+        score = abs(alb[i] - alb[j])
+        if score > best_score and clamped_fraction(m, 0.5 * (m.latent[i] + m.latent[j])) <= max_clamped:
+            best, best_score = (i, j), score
+    i, j = best
+    return m.names[i], m.names[j]
+
+
+def _gi_points(m, a, b):
     """Training point, midpoint and extrapolated point on the latent segment from a to b."""
-    a, b = _gi_pair(m)
     xa, xb = m.latent[m.index(a)], m.latent[m.index(b)]
     return [("training", f"{a}", xa), ("midpoint", f"midpoint {a}-{b}", 0.5 * (xa + xb)),
             ("extrapolated", f"{a} + 1.5 ({b} - {a})", xa + 1.5 * (xb - xa))]
@@ -403,8 +424,9 @@ def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_s
     m = Manifold.load(manifold)
     out = out or os.path.join(folder, ".manifold-cache", "bench_gi")
     os.makedirs(out, exist_ok=True)
+    pair = _gi_pair(m)
     report = {"resolution": res, "basis_spp": basis_spp, "reference_spp": ref_spp, "mode": mode,
-              "variant": mi.variant(), "scenes": {}}
+              "variant": mi.variant(), "pair": list(pair), "scenes": {}}
     for name in scenes:
         scene_path = os.path.join(SCENES, name + ".xml")
         folder_b = os.path.join(out, f"basis_{name}_{res}_{basis_spp}_{mode}")
@@ -414,12 +436,13 @@ def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_s
         t_basis = time.perf_counter() - t0
         b = blend_mod.Basis.load(folder_b, manifold=m)
         rows = []
-        for kind, label, x in _gi_points(m):
+        for kind, label, x in _gi_points(m, *pair):
             ref = blend_mod.render_reference(scene_path, manifold, x, ref_spp, seed=seed + 7919, resolution=(res, res))
             img, info = blend_mod.blend(b, m, x=x)
             t_blend = _median_time(lambda: blend_mod.blend(b, m, x=x), 5)[0]
             bias, bias_se = _bias(img, ref)
             row = {"point": kind, "x_is": label, "x": np.asarray(x).tolist(),
+                   "clamped_fraction": clamped_fraction(m, x),
                    "blend": {"time_s": t_blend, **metrics.compare(img, ref), "relative_bias": bias,
                              "relative_bias_se": bias_se, "materials_used": int(info["n_images"])},
                    "direct": []}
@@ -438,7 +461,7 @@ def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_s
             if progress:
                 print(f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True)
         if save_images:
-            images, _, _ = blend_mod.blend_path(b, m, *_gi_pair(m), steps=20)
+            images, _, _ = blend_mod.blend_path(b, m, *pair, steps=20)
             blend_mod.write_contact_sheet(os.path.join(out, f"{name}_path_sheet.png"), images,
                                           labels=[f"{t:.2f}" for t in np.linspace(0, 1, len(images))])
         report["scenes"][name] = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows}

@@ -43,7 +43,7 @@ import numpy as np
 
 from . import imageio
 from .imageio import ImageError
-from .merl import atomic_write
+from .merl import atomic_write, file_hash
 
 FORMAT = "mitsuba-manifold-basis"
 FORMAT_VERSION = 1
@@ -66,15 +66,6 @@ class BasisError(ValueError):
 
 
 # ------------------------------------------------------------------ hashes
-
-def file_hash(path):
-    """SHA-256 (hex) of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
 
 def scene_files(scene):
     """Files a scene XML names (``filename`` properties and ``<include>``), resolved
@@ -734,33 +725,32 @@ def scene_parameters(scene):
     return set(_PARAM.findall(text)), defaults
 
 
-def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None, max_depth=None,
-                     variant=None, targets=None):
-    """Full global-illumination image of the interpolated material, with Mitsuba's ``path``.
+def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=None, x=None,
+               variant=None):
+    """Load a scene XML with its ``$parameters`` set, and find its manifold materials.
 
-    Loads the scene with its ``$manifold`` and ``$x`` (and ``$spp``, ``$res``,
-    ``$max_depth``, ``$integrator`` when it takes them), sets every manifold material to
-    its latent point, and renders with a ``path`` integrator.
+    Only the parameters the XML uses are passed (Mitsuba refuses others): ``$manifold``,
+    ``$x``, ``$spp``, ``$max_depth``, ``$integrator`` (``path``) and the size through
+    ``$res`` (square) or ``$width``/``$height``.
 
     Parameters
     ----------
     scene_path, manifold_path : str
-    x : array_like
-        (q,): every manifold material of the scene at x; or (p, q): one point per target.
-    targets : list of str, optional
-        BSDF ids of the rows of a (p, q) ``x`` (a basis's ``targets``); default: the
-        scene's manifold materials in the order of its shapes.
-    spp, seed : int
-    resolution : (int, int), optional
-        ``(width, height)``; checked against the film (set through ``$res`` when square).
+    spp : int, optional
+    resolution : int or (int, int), optional
+        Square size or ``(width, height)``; checked against the film.
     max_depth : int, optional
         Default: the scene's ``$max_depth`` default, else -1 (unbounded).
+    x : array_like (q,), optional
     variant : str, optional
         Default: the active variant, else ``llvm_ad_rgb``.
 
     Returns
     -------
-    ndarray float32 (H, W, 3)
+    scene : mi.Scene
+    targets : list
+        The scene's ``manifold_brdf`` instances (shape order), checked to use ``manifold_path``.
+    max_depth : int
     """
     import mitsuba as mi
 
@@ -776,17 +766,14 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
     elif mi.variant() is None:
         mi.set_variant("llvm_ad_rgb" if "llvm_ad_rgb" in mi.variants() else "scalar_rgb")
     mitsuba_manifold.register()
-    pts = np.atleast_2d(np.asarray(x, dtype=np.float64))
-    if pts.ndim != 2 or not np.isfinite(pts).all():
-        raise BasisError(f"x must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}")
-    if int(spp) < 1:
+    if spp is not None and int(spp) < 1:
         raise BasisError(f"spp must be >= 1, got {spp}")
     params = {}
     if "manifold" in used:
         params["manifold"] = os.path.abspath(manifold_path)
-    if "x" in used:
-        params["x"] = ", ".join(repr(float(v)) for v in pts[0])
-    if "spp" in used:
+    if "x" in used and x is not None:
+        params["x"] = ", ".join(repr(float(v)) for v in np.ravel(x))
+    if "spp" in used and spp is not None:
         params["spp"] = str(int(spp))
     if "integrator" in used:
         params["integrator"] = "path"
@@ -794,20 +781,66 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
         max_depth = int(defaults.get("max_depth", -1)) if "max_depth" in used else -1
     if "max_depth" in used:
         params["max_depth"] = str(int(max_depth))
+    size = None
     if resolution is not None:
-        width, height = (int(v) for v in resolution)
-        if "res" in used and width == height:
-            params["res"] = str(width)
-        for name, value in (("width", width), ("height", height)):
+        size = (int(resolution), int(resolution)) if np.isscalar(resolution) else tuple(int(v) for v in resolution)
+        if "res" in used and size[0] == size[1]:
+            params["res"] = str(size[0])
+        for name, value in zip(("width", "height"), size):
             if name in used:
                 params[name] = str(value)
     try:
         scene = mi.load_file(scene_path, **params)
     except Exception as e:
-        raise BasisError(f"scene {scene_path}: cannot load for the reference render ({e})") from None
-    found = manifold_bsdfs(scene)
-    if not found:
-        raise BasisError(f"scene {scene_path} has no manifold_brdf material to render")
+        raise BasisError(f"scene {scene_path}: cannot load ({e})") from None
+    targets = manifold_bsdfs(scene)
+    if not targets:
+        raise BasisError(f"scene {scene_path} has no manifold_brdf material (give the material to edit "
+                         "type=\"manifold_brdf\" and take the manifold as $manifold)")
+    want = file_hash(manifold_path)
+    for bsdf in targets:
+        path = getattr(bsdf, "manifold_path", None)
+        if path is None or file_hash(path) != want:
+            raise BasisError(f"scene {scene_path}: material {bsdf.id()!r} uses manifold {path}, not "
+                             f"{manifold_path} (the scene does not take it as $manifold)")
+    film_size = tuple(int(v) for v in scene.sensors()[0].film().size())
+    if size is not None and film_size != size:
+        raise BasisError(f"scene {scene_path} renders {film_size[0]}x{film_size[1]}, not {size[0]}x{size[1]} "
+                         "(it takes no $res/$width/$height parameter for this size)")
+    return scene, targets, int(max_depth)
+
+
+def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None, max_depth=None,
+                     variant=None, targets=None):
+    """Full global-illumination image of the interpolated material, with Mitsuba's ``path``.
+
+    Loads the scene (:func:`load_scene`), sets every manifold material to its latent
+    point, and renders with a ``path`` integrator.
+
+    Parameters
+    ----------
+    scene_path, manifold_path : str
+    x : array_like
+        (q,): every manifold material of the scene at x; or (p, q): one point per target.
+    targets : list of str, optional
+        BSDF ids of the rows of a (p, q) ``x`` (a basis's ``targets``); default: the
+        scene's manifold materials in the order of its shapes.
+    spp, seed : int
+    resolution, max_depth, variant
+        As :func:`load_scene`.
+
+    Returns
+    -------
+    ndarray float32 (H, W, 3)
+    """
+    import mitsuba as mi
+
+    pts = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    if pts.ndim != 2 or not np.isfinite(pts).all():
+        raise BasisError(f"x must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}")
+    if int(spp) < 1:
+        raise BasisError(f"spp must be >= 1, got {spp}")
+    scene, found, max_depth = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant)
     ids = [b.id() for b in found]
     if len(pts) == 1:
         rows = [0] * len(found)
@@ -817,18 +850,8 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
             raise BasisError(f"x gives {len(pts)} latent points for targets {order}; the scene's manifold "
                              f"materials are {ids}")
         rows = [order.index(i) for i in ids]
-    want = file_hash(manifold_path)
     for bsdf, row in zip(found, rows):
-        path = getattr(bsdf.manifold, "path", None)
-        if path is None or file_hash(path) != want:
-            raise BasisError(f"scene {scene_path}: material {bsdf.id()!r} uses manifold {path}, not "
-                             f"{manifold_path} (the scene does not take it as $manifold)")
         bsdf.set_latent(pts[row])
-    film = scene.sensors()[0].film()
-    size = tuple(int(v) for v in film.size())
-    if resolution is not None and size != (width, height):
-        raise BasisError(f"scene {scene_path} renders {size[0]}x{size[1]}, not {width}x{height} "
-                         "(it takes no $res/$width/$height parameter for this size)")
     integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
     img = mi.render(scene, integrator=integrator, spp=int(spp), seed=int(seed))
     return np.array(img, dtype=np.float32)[..., :3].copy()

@@ -223,14 +223,6 @@ def albedo_weights(dims=merl.MERL_DIMS):
 
 # --------------------------------------------------------------------- database
 
-def _file_sha256(path):
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 24), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 class Database:
     """A folder of MERL ``.binary`` tables.
 
@@ -313,7 +305,7 @@ class Database:
         key = f"{name}:{st.st_size}:{st.st_mtime_ns}"
         digest = self._hashes.get(key)
         if digest is None:
-            digest = _file_sha256(path)
+            digest = merl.file_hash(path)
             self._hashes = {k: v for k, v in self._hashes.items() if not k.startswith(name + ":")}
             self._hashes[key] = digest
             merl.atomic_write(index_path, lambda f: f.write(json.dumps(self._hashes).encode()))

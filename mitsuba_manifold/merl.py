@@ -11,6 +11,7 @@ Bin indexing follows MERL's reference code: ``theta_h`` bins are uniform in
 ``[0, pi)`` by reciprocity; indices are clamped to range.
 """
 
+import hashlib
 import os
 import tempfile
 
@@ -95,6 +96,15 @@ def atomic_write(path, write):
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def file_hash(path):
+    """SHA-256 (hex) of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 22), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def write_binary(path, raw):

@@ -46,7 +46,7 @@ def test_scene_without_manifold_material_is_refused(tmp_path, small_manifold):
       <integer name="height" value="8"/></film></sensor>
       <shape type="sphere"><bsdf type="diffuse"/></shape>
       <emitter type="constant"/></scene>""")
-    with pytest.raises(basis.RenderBasisError, match="no manifold_brdf material"):
+    with pytest.raises(blend.BasisError, match="no manifold_brdf material"):
         basis.render_basis(str(scene), small_manifold, str(tmp_path / "out"), spp=1)
     r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), str(scene),
                         "--manifold", small_manifold, "--out", str(tmp_path / "out2")],
@@ -115,7 +115,7 @@ def test_blend_equals_direct_l1_render(tmp_path, small_manifold):
     w = np.zeros(m.n)
     w[m.index("gold-paint")], w[m.index("steel")], w[m.index("pink-fabric")] = 0.5, 0.2, 0.3
     img, info = blend.blend(b, m, w=w, prune=0.0)
-    scene, (target,) = basis.load_scene(SPHERE, small_manifold, 32, RES)
+    scene, (target,), _ = blend.load_scene(SPHERE, small_manifold, 32, RES)
     target.set_weights(w)
     assert target.clamped_bins == 0
     direct = _render_l1(scene, 128, seed=12345)

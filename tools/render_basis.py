@@ -21,7 +21,7 @@ def main(argv=None):
                    help="all materials from one set of paths (default) or one render per material")
     p.add_argument("--res", type=int, default=None, help="square resolution (scenes taking $res)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-depth", type=int, default=-1, help="path depth (-1: unbounded, default)")
+    p.add_argument("--max-depth", type=int, default=None, help="path depth (-1: unbounded; default: the scene's $max_depth)")
     p.add_argument("--variant", default=None, help="Mitsuba variant (default: cuda_ad_rgb if usable, else llvm_ad_rgb)")
     p.add_argument("--out", required=True, help="output folder")
     args = p.parse_args(argv)
