@@ -172,25 +172,42 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
                              "choose another folder")
     merl.atomic_write(manifest_path, lambda f: f.write(json.dumps(settings, indent=1).encode()))
 
-    paths = []
-    bar = _progress(names, progress, "tabulating")
-    for name in bar:
-        path = os.path.join(out_dir, name + ".binary")
-        paths.append(path)
-        if os.path.exists(path):
-            try:
-                if merl.read_header(path) == dims:
-                    continue
-            except merl.MerlFormatError:
-                pass  # corrupt leftover: rewrite it
-        raw = tabulate_sgd(fits[name], dims)
-        if noise > 0:
-            rng = np.random.default_rng([int(seed), zlib.crc32(name.encode())])
-            measured = raw >= 0
-            factor = np.exp(noise * rng.standard_normal(raw.shape) - 0.5 * noise * noise)
-            raw = np.where(measured, raw * factor, raw)
-        merl.write_binary(path, raw)
+    paths = [os.path.join(out_dir, name + ".binary") for name in names]
+    todo = [(name, path) for name, path in zip(names, paths) if not _valid_table(path, dims)]
+    jobs = [(fits[name], path, dims, float(noise), int(seed), name) for name, path in todo]
+    from tqdm import tqdm
+    with tqdm(total=len(names), initial=len(names) - len(todo), desc="tabulating", unit="table",
+              disable=not progress) as bar:
+        workers = min(len(jobs), os.cpu_count() or 1)
+        if workers > 1 and np.prod(dims) >= 1 << 16:   # big tables: one process per core
+            from concurrent.futures import ProcessPoolExecutor
+            with ProcessPoolExecutor(workers) as pool:
+                for _ in pool.map(_write_sgd_table, jobs):
+                    bar.update()
+        else:
+            for job in jobs:
+                _write_sgd_table(job)
+                bar.update()
     return paths
+
+
+def _valid_table(path, dims):
+    """True when ``path`` is a MERL file of resolution ``dims`` (a corrupt leftover is not)."""
+    try:
+        return os.path.exists(path) and merl.read_header(path) == dims
+    except merl.MerlFormatError:
+        return False
+
+
+def _write_sgd_table(job):
+    """Tabulate one SGD material, add its measurement noise, write it (a worker's task)."""
+    params, path, dims, noise, seed, name = job
+    raw = tabulate_sgd(params, dims)
+    if noise > 0:
+        rng = np.random.default_rng([seed, zlib.crc32(name.encode())])
+        factor = np.exp(noise * rng.standard_normal(raw.shape) - 0.5 * noise * noise)
+        raw = np.where(raw >= 0, raw * factor, raw)
+    merl.write_binary(path, raw)
 
 
 def _progress(items, enabled, desc):

@@ -10,9 +10,10 @@ environment with a bright sun, so that glossy materials show sharp reflections.
 """
 
 import os
-import tempfile
 
 import numpy as np
+
+from .merl import atomic_replace
 
 
 # ------------------------------------------------------------------ bowl
@@ -100,26 +101,6 @@ def bowl(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56, segments=6
     return revolve(*bowl_profile(radius, height, thickness, exponent, n), segments)
 
 
-def _atomic_write(path, write):
-    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix="." + os.path.basename(path), suffix=".tmp"
-                               + os.path.splitext(path)[1])
-    os.close(fd)
-    try:
-        write(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-
-
 def write_ply(path, vertices, faces):
     """Write a triangle mesh as binary PLY with smooth vertex normals (Mitsuba computes them).
 
@@ -137,7 +118,7 @@ def write_ply(path, vertices, faces):
     params["faces"] = type(params["faces"])(faces.ravel())
     params.update()
     mesh.recompute_vertex_normals()
-    _atomic_write(path, mesh.write_ply)
+    atomic_replace(path, mesh.write_ply)
 
 
 # ------------------------------------------------------------------ sky
@@ -170,12 +151,3 @@ def sky_envmap(width=128, height=64, sun_dir=(0.45, 0.62, 0.64), sun_radiance=30
     return img.astype(np.float32)
 
 
-def write_exr(path, image):
-    """Write a float32 (H, W, 3) image as an RGB OpenEXR file via a temporary name."""
-    import mitsuba as mi
-
-    image = np.ascontiguousarray(image, np.float32)
-    if image.ndim != 3 or image.shape[2] != 3 or not np.all(np.isfinite(image)):
-        raise ValueError(f"write_exr({path}): need a finite (H, W, 3) image, got {image.shape}")
-    bitmap = mi.Bitmap(image, mi.Bitmap.PixelFormat.RGB)
-    _atomic_write(path, lambda tmp: bitmap.write(tmp, mi.Bitmap.FileFormat.OpenEXR))

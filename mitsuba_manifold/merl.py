@@ -80,22 +80,35 @@ def read_binary(path):
     return raw.astype(np.float64, copy=False)
 
 
-def atomic_write(path, write):
-    """Call ``write(file_object)`` on a temporary file beside ``path``, then rename it.
+def atomic_replace(path, write):
+    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it to ``path``.
 
-    An existing ``path`` is replaced only when ``write`` succeeds.
+    An existing ``path`` is replaced only when ``write`` succeeds; the new file gets the
+    usual permissions (umask), not ``mkstemp``'s private ones.
     """
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".",
+                               suffix=".tmp" + os.path.splitext(path)[1], dir=folder)
+    os.close(fd)
     try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
+        write(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def atomic_write(path, write):
+    """Call ``write(file_object)`` on a temporary file beside ``path``, then rename it."""
+    def to_path(tmp):
+        with open(tmp, "wb") as f:
+            write(f)
+    atomic_replace(path, to_path)
 
 
 def file_hash(path):

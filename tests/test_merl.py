@@ -27,6 +27,9 @@ def test_round_trip_is_bit_exact(tmp_path):
     assert np.array_equal(back, raw)
     merl.write_binary(b, back)
     assert a.read_bytes() == b.read_bytes()
+    umask = os.umask(0)
+    os.umask(umask)
+    assert os.stat(a).st_mode & 0o777 == 0o666 & ~umask   # not mkstemp's private 0600
 
 
 def test_layout_matches_merl_reference(tmp_path):

@@ -18,7 +18,7 @@ def main(argv=None):
     ap.add_argument("--profile", type=int, default=56, help="bowl profile points")
     args = ap.parse_args(argv)
 
-    from mitsuba_manifold import geometry
+    from mitsuba_manifold import geometry, imageio
     import mitsuba as mi
     mi.set_variant("scalar_rgb")
 
@@ -27,7 +27,7 @@ def main(argv=None):
     geometry.write_ply(path, v, f)
     print(f"{path}: {len(v)} vertices, {len(f)} triangles, volume {geometry.signed_volume(v, f):.4f}")
     path = os.path.join(args.out, "sky.exr")
-    geometry.write_exr(path, geometry.sky_envmap())
+    imageio.write_exr(path, geometry.sky_envmap())
     print(f"{path}: {geometry.sky_envmap().shape[1]}x{geometry.sky_envmap().shape[0]} sky")
 
 
