@@ -162,10 +162,14 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         jobs = [(blend_mod.image_key(combo), combo) for combo in itertools.product(chosen, repeat=len(targets))]
     todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
 
-    def save(key, img, seconds):
-        name = key + ".exr"
-        imageio.write_exr(os.path.join(out, name), img)
-        manifest["images"][key] = {"file": name, "time_s": float(seconds)}
+    def save(images, seconds):
+        """Write ``{key: image}`` (EXR files in parallel), then list them in the manifest."""
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
+            list(pool.map(lambda kv: imageio.write_exr(os.path.join(out, kv[0] + ".exr"), kv[1]),
+                          images.items()))
+        for key in images:
+            manifest["images"][key] = {"file": key + ".exr", "time_s": float(seconds)}
         blend_mod.write_manifest(out, manifest)
 
     if not todo:
@@ -204,8 +208,7 @@ def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress):
                 for bsdf, name in zip(targets, combo):
                     bsdf.set_material(name)
                 img = mi.render(scene, integrator=touch if single else l1, spp=spp, seed=seed)
-            img = np.array(img, dtype=np.float32)[..., :3]
-            save(key, img, time.perf_counter() - t0)
+            save({key: np.array(img, dtype=np.float32)[..., :3]}, time.perf_counter() - t0)
             bar.set_postfix_str(key)
             bar.update()
 
@@ -225,7 +228,7 @@ def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, c
             kwargs["spp_per_pass"] = chunk_spp
         base, images = integrator.render_onepass(scene, **kwargs)
     seconds = (time.perf_counter() - t0) / max(len(todo), 1)
+    out = {name: np.asarray(images[name], dtype=np.float32)[..., :3] for name in names}
     if any(combo is None for _, combo in todo):
-        save("base", np.asarray(base, dtype=np.float32)[..., :3], seconds)
-    for name in names:
-        save(name, np.asarray(images[name], dtype=np.float32)[..., :3], seconds)
+        out["base"] = np.asarray(base, dtype=np.float32)[..., :3]
+    save(out, seconds)

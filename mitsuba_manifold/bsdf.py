@@ -407,10 +407,12 @@ class _ManifoldBRDF:
             raise ManifoldBRDFError(f"{PLUGIN_NAME}: {e}") from None
         self._rebuild(self._manifold.material_weights(name), self._manifold.latent[i].copy(), name)
 
-    def set_weights(self, w):
+    def set_weights(self, w, table=None):
         """Render ``sum_i w_i table_i``; ``w`` has one weight per name, or is ``{name: w}``.
 
-        Weights are used as given; they must not sum to 0.
+        Weights are used as given; they must not sum to 0. ``table`` (shape
+        ``(3, n_theta_h, n_theta_d, n_phi_d)``), when the caller already has that sum over
+        the materials kept by pruning, is used instead of reading and adding the tables.
         """
         if isinstance(w, dict):
             full = np.zeros(len(self._manifold.names))
@@ -427,13 +429,16 @@ class _ManifoldBRDF:
                                     f"got shape {w.shape}")
         if abs(w.sum()) < 1e-12:
             raise ManifoldBRDFError(f"{PLUGIN_NAME}: weights sum to zero; a material needs weights summing to 1")
-        self._rebuild(w, None, None)
+        self._rebuild(w, None, None, table)
 
-    def _rebuild(self, w, x, material):
-        """Combine the tables and sampling densities for weights ``w``, upload them."""
+    def _rebuild(self, w, x, material, table=None):
+        """Combine the tables (unless ``table`` is given) and sampling densities for weights ``w``, upload them."""
         m = self._manifold
         try:
-            table, keep, dropped = m.combine(w, prune=self._prune, database=self._database)
+            if table is None:
+                table, keep, dropped = m.combine(w, prune=self._prune, database=self._database)
+            else:
+                keep, _, dropped = m.prune(w, self._prune)
             db = m.open_database(self._database, [m.names[i] for i in keep]) if self._sampling == "cdf" else None
         except (ValueError, KeyError, OSError) as e:  # ManifoldError, damaged or missing files
             raise ManifoldBRDFError(f"{PLUGIN_NAME}: {e}") from None

@@ -255,8 +255,8 @@ class Manifold:
     def prune(self, w, prune=1e-3):
         """Materials kept by pruning and the weight dropped.
 
-        Keeps ``|w_i| > prune * sum(|w|)``; the kept weights are rescaled to sum to
-        ``sum(w)`` so the combination stays affine.
+        Keeps ``|w_i| > prune * sum(|w|)``, and always the largest ``|w_i|``; the kept
+        weights are rescaled to sum to ``sum(w)`` so the combination stays affine.
 
         Returns
         -------
@@ -270,7 +270,9 @@ class Manifold:
             raise ManifoldError(f"weights must be {self.n} finite values, got shape {w.shape}")
         if not 0 <= prune < 1:
             raise ManifoldError(f"prune must be in [0, 1), got {prune}")
-        keep = np.flatnonzero(np.abs(w) > prune * np.abs(w).sum())
+        big = np.abs(w) > prune * np.abs(w).sum()
+        big[np.argmax(np.abs(w))] = True  # never drop every material
+        keep = np.flatnonzero(big)
         dropped = float(np.abs(w).sum() - np.abs(w[keep]).sum())
         w_kept = w[keep]
         if keep.size and abs(w_kept.sum()) > 0:
@@ -355,12 +357,28 @@ class Manifold:
             raise ManifoldError("this manifold was saved without its Gram matrix")
         return gplvm.log_likelihood(self.latent, self.gram, self.info["d"], self.length_scale, self.noise)
 
+    def coincident(self, tol=1e-2):
+        """Materials whose nearest latent point lies within ``tol * l`` (indistinguishable to the GP).
+
+        Interpolating between such materials is not possible: near them the weights spread
+        over the whole group. A fit on ``raw`` features collapses materials whose tables differ
+        little compared with the spikiest ones; ``features="log"`` separates them.
+        """
+        d2 = ((self.latent[:, None] - self.latent[None]) ** 2).sum(-1)
+        np.fill_diagonal(d2, np.inf)
+        return [self.names[i] for i in np.flatnonzero(np.sqrt(d2.min(axis=1)) < tol * self.length_scale)]
+
     def summary(self):
         """Short human-readable description."""
         lines = [f"Manifold: {self.n} materials, q={self.q}, l={self.length_scale:g}, mu={self.noise:g}, "
                  f"features={self.features}",
                  f"  database: {self.database}",
                  f"  cond(K) = {self.condition_number():.3g}"]
+        close = self.coincident()
+        if close:
+            lines.append(f"  warning: {len(close)} materials share their latent point with another (within "
+                         f"0.01 l), e.g. {', '.join(close[:4])}; interpolation cannot tell them apart"
+                         + ("; try features='log'" if self.features == "raw" else ""))
         if "log_likelihood" in self.info:
             lines.append(f"  log-likelihood L = {self.info['log_likelihood']:.6g} "
                          f"({self.info.get('method')}, {len(self.history)} iterations, "

@@ -121,3 +121,20 @@ def test_blend_equals_direct_l1_render(tmp_path, small_manifold):
     direct = _render_l1(scene, 128, seed=12345)
     assert direct.mean() > 0.01
     _assert_same_mean(img, direct, "blend vs direct")
+
+
+def test_onepass_basis_through_the_tool(tmp_path, small_manifold):
+    """render_basis in one-pass mode: every image written once, listed once, reusable by blend."""
+    out = tmp_path / "onepass"
+    names = ["gold-paint", "steel", "pink-fabric"]
+    manifest = basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass",
+                                  materials=names)
+    assert manifest["mode"] == "onepass" and set(manifest["images"]) == {"base", *names}
+    b = blend.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
+    assert all(np.isfinite(b.image(k)).all() for k in ["base", *names])
+    assert b.image("steel").mean() > 0
+    images = sorted(f for f in os.listdir(out) if f.endswith(".exr"))
+    assert len(images) == 4
+    stamp = {f: os.stat(out / f).st_mtime_ns for f in images}
+    basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass", materials=names)
+    assert {f: os.stat(out / f).st_mtime_ns for f in images} == stamp   # nothing re-rendered

@@ -141,6 +141,8 @@ def test_duplicate_materials_fit_and_reproduce(tmp_path):
     for i in range(m.n):
         assert np.array_equal(m.weights(m.latent[i])[1], np.eye(m.n)[i])
     assert np.isfinite(m.condition_number())
+    assert set(m.coincident()) == {"steel", "steel-copy"}          # identical tables: one latent point
+    assert "2 materials share their latent point" in m.summary()
 
 
 def test_stiff_hyperparameters_work_or_fail_clearly(small_db):

@@ -28,6 +28,10 @@ def main(argv=None):
     p.add_argument("--out", default=os.path.join(ROOT, "out"), help="output folder (default out/)")
     p.add_argument("--resolution", type=parse_resolution, default=(90, 90, 180), help="table bins (default MERL's)")
     p.add_argument("--q", type=int, default=2, help="latent dimension (default 2)")
+    p.add_argument("--features", choices=["raw", "log"], default="log",
+                   help="fit features (default log: on the built-in surrogate, whose bin-centre specular "
+                        "peaks reach 1e8, raw features collapse most non-metallic materials onto one "
+                        "latent point; see the README)")
     p.add_argument("--scene", default="table", help="scene of scenes/ for the GI part (default table)")
     p.add_argument("--res", type=int, default=256, help="image size (default 256)")
     p.add_argument("--spp", type=int, default=64, help="basis samples per pixel (default 64)")
@@ -46,8 +50,8 @@ def main(argv=None):
         database.make_database(db_dir, args.resolution, progress=True)
         print(f"100 tables ready ({time.perf_counter() - t0:.1f} s)")
 
-        stage(f"manifold: q={args.q}")
-        m = Manifold.fit(db_dir, q=args.q, progress=True)
+        stage(f"manifold: q={args.q}, features={args.features}")
+        m = Manifold.fit(db_dir, q=args.q, features=args.features, progress=True)
         m.save(manifold_path)
         print(m.summary())
         print(f"load {m.info['time_load_s']:.1f} s, Gram {m.info['time_gram_s']:.1f} s, "
