@@ -170,7 +170,7 @@ def _queries(m, n_random=64, seed=0):
 
 
 def _weights_row(m, label, queries):
-    row = {"case": label, "cond_K": m.condition_number()}
+    row = {"case": label, "cond_K": m.condition_number(), "jump_at_training_points": m.discontinuity()}
     _, w = m.weights(queries)
     row.update({"max_abs_w": float(np.abs(w).max()), "max_sum_abs_w": float(np.abs(w).sum(1).max()),
                 "max_sum_error": float(np.abs(w.sum(1) - 1).max()), "finite": bool(np.isfinite(w).all())})

@@ -357,6 +357,19 @@ class Manifold:
             raise ManifoldError("this manifold was saved without its Gram matrix")
         return gplvm.log_likelihood(self.latent, self.gram, self.info["d"], self.length_scale, self.noise)
 
+    def discontinuity(self):
+        """Largest jump of the weights when leaving a training point, ``max_i |w(x_i+) - e_i|_1``.
+
+        At ``x_i`` the kernel's noise term ``mu delta(x, x_i)`` makes ``w = e_i`` exactly; an
+        infinitesimal step away it is absent and ``b = e_i - mu K_inv e_i``. The paper calls
+        this discontinuity negligible; it is only when K's smooth part is well conditioned
+        (latent points well apart compared with ``l``). Values near 1 mean that next to a
+        training point the material is already a blend of its neighbours.
+        """
+        db = -self.noise * self.K_inv                   # column i: b(x_i+) - e_i
+        dw = db - db.sum(axis=0, keepdims=True) / self.n  # the affine weights' change
+        return float(np.abs(dw).sum(axis=0).max())
+
     def coincident(self, tol=1e-2):
         """Materials whose nearest latent point lies within ``tol * l`` (indistinguishable to the GP).
 
@@ -374,6 +387,7 @@ class Manifold:
                  f"features={self.features}",
                  f"  database: {self.database}",
                  f"  cond(K) = {self.condition_number():.3g}"]
+        lines.append(f"  weight jump next to a training point (max |w(x_i+) - e_i|_1): {self.discontinuity():.3g}")
         close = self.coincident()
         if close:
             lines.append(f"  warning: {len(close)} materials share their latent point with another (within "

@@ -44,6 +44,14 @@ def test_training_materials_are_reproduced_exactly(fitted, small_db):
     assert np.allclose(fitted.albedo(fitted.latent), fitted.albedos, atol=1e-12)
 
 
+def test_discontinuity_is_the_jump_next_to_a_training_point(fitted):
+    jumps = []
+    for i in range(fitted.n):
+        _, w_near = fitted.weights(fitted.latent[i] + 1e-9)
+        jumps.append(np.abs(w_near - np.eye(fitted.n)[i]).sum())
+    assert max(jumps) == pytest.approx(fitted.discontinuity(), rel=1e-4, abs=1e-7)
+
+
 def test_far_field_tends_to_the_mean(fitted):
     for dist in [1e3, 1e6]:
         x = fitted.latent.mean(0) + dist
