@@ -110,6 +110,7 @@ def bench_interp(folder, manifold=None, q=2, repeats=7, prunes=(1e-3, 1e-2, 3e-2
         t_p, _ = _median_time(lambda: m.combine(w, prune=prune), repeats)
         table = m.combine(w, prune=prune)[0]
         pruned.append({"prune": prune, "time_s": t_p, "materials_kept": int(len(keep)), "dropped_weight": dropped,
+                       "l2_error_relative": float(np.linalg.norm(table - full) / np.linalg.norm(full)),
                        "max_error_relative_to_max": float(np.abs(table - full).max() / scale),
                        "albedo_error": float(np.abs(table.reshape(3, -1) @ q_w - albedo_full).max()),
                        "meets_pruned_target": t_p < 0.02})
@@ -420,13 +421,14 @@ def _bias(a, ref):
 
 def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_spp=64, ref_spp=4096,
              direct_spp=(1, 4, 16, 64, 256, 1024), mode="onepass", out=None, seed=0, save_images=False,
-             progress=False):
+             progress=False, plot=None):
     """Error against run time: the blend (Eq. 13) beside re-rendering the interpolated material.
 
     For each scene and latent point (training, midpoint, extrapolated): the blend's time and
     error against a high-spp full-GI reference (``path``), and the error and time of direct
     renders at increasing spp. On a convex scene L2+ is zero and the blend is unbiased; on
-    a concave one the bias (L2+) is measured. Writes a log-log plot into ``out``; with
+    a concave one the bias (L2+) is measured. Writes a log-log plot (``plot``, default in
+    ``out``); with
     ``save_images`` also the blends, references and error images (EXR and PNG) and the
     contact sheet of the latent path between the two materials (paper Fig. 12).
     """
@@ -447,6 +449,9 @@ def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_s
     for name in scenes:
         scene_path = os.path.join(SCENES, name + ".xml")
         folder_b = os.path.join(out, f"basis_{name}_{res}_{basis_spp}_{mode}")
+        if os.path.isdir(folder_b):  # time a whole basis, not a resumed one
+            import shutil
+            shutil.rmtree(folder_b)
         t0 = time.perf_counter()
         basis_mod.render_basis(scene_path, manifold, folder_b, spp=basis_spp, mode=mode, resolution=res, seed=seed,
                                progress=progress)
@@ -482,7 +487,7 @@ def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_s
             blend_mod.write_contact_sheet(os.path.join(out, f"{name}_path_sheet.png"), images,
                                           labels=[f"{t:.2f}" for t in np.linspace(0, 1, len(images))])
         report["scenes"][name] = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows}
-    report["plot"] = _plot_gi(report, os.path.join(out, "gi_error_vs_time.png"))
+    report["plot"] = _plot_gi(report, plot or os.path.join(out, "gi_error_vs_time.png"))
     return report
 
 

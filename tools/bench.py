@@ -45,6 +45,8 @@ def main(argv=None):
         kwargs = {"names": args.materials} if args.which in ("fit", "pca") else {}
         if args.manifold and args.which != "fit":
             kwargs["manifold"] = args.manifold
+        if args.which == "gi":
+            kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
         result = fn(folder, **kwargs)
     except (ValueError, KeyError, OSError) as e:
         fail(e)
