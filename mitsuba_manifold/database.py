@@ -399,15 +399,19 @@ class Database:
             del out
 
         merl.atomic_replace(path, write)
-        old = sorted((f for f in os.listdir(self.cache_dir)
-                      if ".rows-v1-" in f and f.endswith(".npy") and not f.startswith(".")),
-                     key=lambda f: os.path.getmtime(os.path.join(self.cache_dir, f)), reverse=True)
-        for f in old[max(1, keep):]:
+        self.evict(".rows-v1-", keep)
+        return np.load(path, mmap_mode="r")
+
+    def evict(self, marker, keep):
+        """Delete all but the ``keep`` (at least 1) most recently used cache files whose name holds ``marker``."""
+        files = sorted((f for f in os.listdir(self.cache_dir)
+                        if marker in f and f.endswith(".npy") and not f.startswith(".")),
+                       key=lambda f: os.path.getmtime(os.path.join(self.cache_dir, f)), reverse=True)
+        for f in files[max(1, keep):]:
             try:
                 os.remove(os.path.join(self.cache_dir, f))
             except OSError:
                 pass
-        return np.load(path, mmap_mode="r")
 
     def albedo(self, names=None, tables=None):
         """Bihemispherical albedo per material and channel, shape ``(N, 3)``.

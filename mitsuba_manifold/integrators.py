@@ -172,14 +172,7 @@ def _mixture_table(db, rows, mix, keep=2):
     w[:len(mix)] = mix
     table = (np.asarray(rows).reshape(-1, rows.shape[2]) @ w).reshape(shape)
     merl.atomic_write(path, lambda f: np.save(f, table))
-    old = sorted((f for f in os.listdir(db.cache_dir)
-                  if ".mixture-v1-" in f and f.endswith(".npy") and not f.startswith(".")),
-                 key=lambda f: os.path.getmtime(os.path.join(db.cache_dir, f)), reverse=True)
-    for f in old[max(1, keep):]:
-        try:
-            os.remove(os.path.join(db.cache_dir, f))
-        except OSError:
-            pass
+    db.evict(".mixture-v1-", keep)
     return table
 
 
