@@ -373,12 +373,6 @@ def bench_bsdf(folder, manifold=None, spp=64, res=256, repeats=7, mse_res=96, ms
     return out
 
 
-def clamped_fraction(m, x):
-    """Fraction of the interpolated table's values below 0 (the plugin clamps them)."""
-    table, _, _ = m.interpolate(x)
-    return float((table < 0).mean())
-
-
 def _gi_pair(m, max_clamped=1e-3, min_share=0.6):
     """Two latent neighbours to interpolate between, for the GI comparison and the path sheet.
 
@@ -398,7 +392,7 @@ def _gi_pair(m, max_clamped=1e-3, min_share=0.6):
     for i, j in sorted(pairs, key=lambda p: -abs(alb[p[0]] - alb[p[1]])):
         x = 0.5 * (m.latent[i] + m.latent[j])
         _, w = m.weights(x)
-        if w[i] + w[j] >= min_share and clamped_fraction(m, x) <= max_clamped:
+        if w[i] + w[j] >= min_share and m.negative_fraction(x) <= max_clamped:
             best = (i, j)
             break
     i, j = best
@@ -464,7 +458,7 @@ def bench_gi(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_s
             t_blend = _median_time(lambda: blend_mod.blend(b, m, x=x), 5)[0]
             bias, bias_se = _bias(img, ref)
             row = {"point": kind, "x_is": label, "x": np.asarray(x).tolist(),
-                   "clamped_fraction": clamped_fraction(m, x),
+                   "clamped_fraction": m.negative_fraction(x),
                    "blend": {"time_s": t_blend, **metrics.compare(img, ref), "relative_bias": bias,
                              "relative_bias_se": bias_se, "materials_used": int(info["n_images"])},
                    "direct": []}
@@ -677,7 +671,7 @@ def bench_basis(folder, manifold=None, scene="table", res=256, spp=64, ref_spp=4
                        "vs_l1": metrics.compare(img, ref_l1)}
     report["blend"] = {
         "x": x.tolist(), "x_is": f"midpoint {a}-{b}", "reference_spp": ref_spp,
-        "clamped_fraction": clamped_fraction(m, x), "bases": blends,
+        "clamped_fraction": m.negative_fraction(x), "bases": blends,
         "equal_time_rel_mse_ratio_vs_full_gi": (blends["per_material"]["vs_full_gi"]["rel_mse"]
                                                 / blends["onepass_equal_time"]["vs_full_gi"]["rel_mse"]),
         "equal_time_rel_mse_ratio_vs_l1": (blends["per_material"]["vs_l1"]["rel_mse"]

@@ -316,6 +316,15 @@ class Manifold:
         _, w = self.weights(x)
         return self.combine(w, prune, database)
 
+    def negative_fraction(self, x, prune=1e-3, database=None):
+        """Fraction of the interpolated table's values below 0 at ``x``.
+
+        ``manifold_brdf`` clamps them to 0, a blend of images cannot: where this is not
+        small, a blend and a render of the material differ by more than L2+.
+        """
+        table, _, _ = self.interpolate(x, prune, database)
+        return float((table < 0).mean())
+
     def mean(self, database=None):
         """The mean table (the far-field limit of the interpolant)."""
         return self.combine(np.full(self.n, 1.0 / self.n), prune=0.0, database=database)[0]

@@ -177,3 +177,12 @@ def test_bound_terms_of_eq7(fitted):
     z_j = fitted.tables()[t["nearest"]].astype(np.float64)
     assert np.linalg.norm(table - z_j) <= t["bound"]
     assert t["cond_K"] == pytest.approx(np.linalg.cond(fitted.K), rel=1e-6)
+
+
+def test_negative_fraction_counts_what_the_plugin_clamps(fitted):
+    assert fitted.negative_fraction(fitted.latent[0]) == 0.0
+    assert fitted.negative_fraction(fitted.latent.mean(0) + 1e6) == 0.0
+    rng = np.random.default_rng(3)
+    for x in fitted.latent.mean(0) + rng.normal(scale=1.0, size=(5, fitted.q)):
+        table = fitted.interpolate(x)[0]
+        assert fitted.negative_fraction(x) == pytest.approx((table < 0).mean())

@@ -155,6 +155,11 @@ def main(argv=None):
             except (ValueError, OSError, RuntimeError) as e:
                 fail(e)
             print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
+            if basis.p == 1:
+                neg = manifold.negative_fraction(bl.latent_points(basis, manifold, x)[0])
+                if neg > 1e-3:
+                    print(f"note: {100 * neg:.1f}% of the interpolated table's values are negative; "
+                          "manifold_brdf clamps them to 0, a blend keeps them, so the two differ beyond L2+")
             ref_path = stem + "_reference.exr"
             outputs.append(("reference", ref_path, lambda: imageio.write_exr(ref_path, reference)))
         if reference is not None:
