@@ -138,3 +138,36 @@ def test_onepass_basis_through_the_tool(tmp_path, small_manifold):
     stamp = {f: os.stat(out / f).st_mtime_ns for f in images}
     basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass", materials=names)
     assert {f: os.stat(out / f).st_mtime_ns for f in images} == stamp   # nothing re-rendered
+
+
+def test_two_manifold_materials_give_a_multilinear_basis(tmp_path, small_manifold):
+    """Two targets: one full L1- image per pair of materials; a training pair blends to its image."""
+    m = Manifold.load(small_manifold)
+    a, b = "gold-paint", "steel"
+    xa, xb = (", ".join(repr(float(v)) for v in m.latent[m.index(n)]) for n in (a, b))
+    scene = tmp_path / "two.xml"
+    scene.write_text(f"""<scene version="3.0.0">
+      <default name="manifold" value="{small_manifold}"/><default name="spp" value="4"/>
+      <default name="res" value="{RES}"/>
+      <sensor type="perspective"><float name="fov" value="40"/>
+        <transform name="to_world"><lookat origin="0, 0, 6" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
+        <film type="hdrfilm"><integer name="width" value="$res"/><integer name="height" value="$res"/>
+          <rfilter type="box"/></film></sensor>
+      <bsdf type="manifold_brdf" id="left"><string name="manifold" value="$manifold"/>
+        <string name="x" value="{xa}"/></bsdf>
+      <bsdf type="manifold_brdf" id="right"><string name="manifold" value="$manifold"/>
+        <string name="x" value="{xb}"/></bsdf>
+      <shape type="sphere"><point name="center" value="-1.1, 0, 0"/><ref id="left"/></shape>
+      <shape type="sphere"><point name="center" value="1.1, 0, 0"/><ref id="right"/></shape>
+      <emitter type="constant"/></scene>""")
+    out = tmp_path / "basis2"
+    manifest = basis.render_basis(str(scene), small_manifold, str(out), spp=4, materials=[a, b])
+    assert manifest["targets"] == ["left", "right"]
+    assert set(manifest["images"]) == {f"{p}+{q}" for p in (a, b) for q in (a, b)}
+    with pytest.raises(basis.RenderBasisError, match="one manifold material"):
+        basis.render_basis(str(scene), small_manifold, str(tmp_path / "b3"), spp=4, materials=[a], mode="onepass")
+    bb = blend.Basis.load(str(out), manifold=small_manifold, scene=str(scene))
+    img, _ = blend.blend(bb, m, x=np.stack([m.latent[m.index(b)], m.latent[m.index(a)]]))
+    assert np.array_equal(img, bb.image(f"{b}+{a}"))
+    assert not np.array_equal(bb.image(f"{a}+{b}"), bb.image(f"{b}+{a}"))

@@ -179,10 +179,14 @@ def test_bound_terms_of_eq7(fitted):
     assert t["cond_K"] == pytest.approx(np.linalg.cond(fitted.K), rel=1e-6)
 
 
-def test_negative_fraction_counts_what_the_plugin_clamps(fitted):
+def test_negative_fraction_counts_what_the_plugin_clamps(fitted, small_db):
     assert fitted.negative_fraction(fitted.latent[0]) == 0.0
     assert fitted.negative_fraction(fitted.latent.mean(0) + 1e6) == 0.0
+    tables = Database(small_db, fitted.names).stack().astype(np.float64)
     rng = np.random.default_rng(3)
-    for x in fitted.latent.mean(0) + rng.normal(scale=1.0, size=(5, fitted.q)):
-        table = fitted.interpolate(x)[0]
-        assert fitted.negative_fraction(x) == pytest.approx((table < 0).mean())
+    seen = []
+    for x in fitted.latent.mean(0) + rng.normal(scale=1.0, size=(8, fitted.q)):
+        expected = float(((fitted.weights(x)[1] @ tables) < 0).mean())
+        assert fitted.negative_fraction(x, prune=0.0) == pytest.approx(expected, abs=1e-4)
+        seen.append(expected)
+    assert max(seen) > 0.01        # the random points include genuinely negative blends
