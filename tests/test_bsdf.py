@@ -23,6 +23,7 @@ from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain  # noqa: E4
 from mitsuba_manifold import bsdf as mb, merl  # noqa: E402
 from mitsuba_manifold.database import Database  # noqa: E402
 from mitsuba_manifold.manifold import Manifold  # noqa: E402
+from helpers import chain  # noqa: E402
 
 VARIANT = "llvm_ad_rgb"
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -437,14 +438,6 @@ def test_relative_paths_resolve_against_the_scene(small_manifold, small_db, tmp_
     bsdf = scene.shapes()[0].bsdf()
     assert getattr(bsdf, "is_manifold_brdf", False) and bsdf.used_names == ["gold-paint"]
     assert str(tmp_path / "tables") in str(bsdf)
-
-
-def chain(exc):
-    text = []
-    while exc is not None:
-        text.append(str(exc))
-        exc = exc.__cause__ or exc.__context__
-    return "\n".join(text)
 
 
 @pytest.mark.parametrize("params, message", [

@@ -23,6 +23,7 @@ import mitsuba as mi  # noqa: E402
 
 from mitsuba_manifold import geometry, integrators  # noqa: E402
 from mitsuba_manifold.manifold import Manifold  # noqa: E402
+from helpers import chain  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENES = os.path.join(ROOT, "scenes")
@@ -442,15 +443,6 @@ def test_onepass_refuses_what_it_cannot_do(small_manifold):
 
 
 # ------------------------------------------------------------------ errors
-
-def chain(exc):
-    """The messages of an exception and of those it was raised from (mi.render wraps them)."""
-    out = []
-    while exc is not None:
-        out.append(str(exc))
-        exc = exc.__cause__ or exc.__context__
-    return " | ".join(out)
-
 
 def test_scene_without_manifold_material_is_refused():
     scene = mi.load_dict(mi.cornell_box())
