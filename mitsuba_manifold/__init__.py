@@ -5,52 +5,66 @@ Material Manifolds" (CGF 2018): a GPLVM places N measured BRDFs at latent points
 any latent point gives affine weights over the measured tables, which the
 ``manifold_brdf`` Mitsuba plugin renders and the blending tools apply to images.
 
-Importing the package after ``mi.set_variant(...)`` registers the Mitsuba plugins
-for that variant; call :func:`register` again after switching variants.
+The package face is lazy (PEP 562): ``from mitsuba_manifold import Manifold, Database,
+Basis, blend, register`` loads only what is asked for; importing the package loads
+neither Mitsuba nor Dr.Jit. The Mitsuba plugins register themselves for every variant
+as it becomes active (:mod:`mitsuba_manifold.plugin`), whatever the import order.
 """
 
-import sys
+import importlib
 
-from . import _llvm
+from . import _llvm, plugin
 
 # Dr.Jit loads libLLVM on first use of an LLVM variant: choose a working one first.
 _llvm.select()
 
 __version__ = "0.1.0"
 
+#: Public names -> "module:attribute" (or "module" for a submodule), loaded on first use.
+_FACE = {
+    "Manifold": "manifold:Manifold",
+    "Database": "database:Database",
+    "Basis": "basis:Basis",
+    # the module, callable as blend.blend (see mitsuba_manifold.blend): Python binds a
+    # submodule to its name in the package, so the name must mean the module
+    "blend": "blend",
+    "make_database": "database:make_database",
+    "MitsubaManifoldError": "errors:MitsubaManifoldError",
+}
+
+__all__ = ["register", "__version__"] + sorted(_FACE)
+
+
+def __getattr__(name):
+    target = _FACE.get(name)
+    if target is None:
+        raise AttributeError(f"module 'mitsuba_manifold' has no attribute {name!r}")
+    module, _, attr = target.partition(":")
+    value = importlib.import_module("." + module, __name__)
+    if attr:
+        value = getattr(value, attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_FACE))
+
 
 def register():
     """Register ``manifold_brdf`` and the package's integrators for the active Mitsuba variant.
 
+    Not needed in normal use (the plugins register themselves for every variant as it
+    becomes active); returns the variant.
+
     Raises
     ------
-    RuntimeError
-        If no Mitsuba variant is set, or an LLVM variant is active without libLLVM >= 16.
+    VariantError
+        (a ``RuntimeError``) If no Mitsuba variant is set, or an LLVM variant is active
+        without libLLVM >= 16.
     """
-    import mitsuba as mi
-
-    variant = mi.variant()
-    if variant is None:
-        raise RuntimeError("mitsuba_manifold.register(): call mi.set_variant(...) first")
-    if variant.startswith("llvm"):
-        _llvm.require()
-    from . import bsdf, integrators
-
-    bsdf.register()
-    integrators.register()
-    return variant
+    plugin.install()
+    return plugin.register_all()
 
 
-def _register_if_variant_set():
-    mi = sys.modules.get("mitsuba")
-    if mi is None:
-        return
-    try:
-        variant = mi.variant()
-    except Exception:  # mitsuba partially imported
-        return
-    if variant is not None:
-        register()
-
-
-_register_if_variant_set()
+plugin.install()

@@ -63,14 +63,15 @@ def select():
 
 def require():
     """Raise RuntimeError naming the problem when no usable libLLVM is selected."""
+    from .errors import VariantError
     path = os.environ.get("DRJIT_LIBLLVM_PATH") or select()
     if path is None:
         have = ", ".join(f"{p} (LLVM {v})" for p, v in candidates()) or "none"
-        raise RuntimeError(
+        raise VariantError(
             "mitsuba_manifold: Dr.Jit's LLVM backend needs libLLVM >= %d, found: %s. "
             "Install one (Debian: 'apt-get install libllvm19') or set DRJIT_LIBLLVM_PATH."
             % (MIN_VERSION, have))
     if not os.path.exists(path):
-        raise RuntimeError(f"mitsuba_manifold: DRJIT_LIBLLVM_PATH={path} does not exist")
+        raise VariantError(f"mitsuba_manifold: DRJIT_LIBLLVM_PATH={path} does not exist")
     return path
 

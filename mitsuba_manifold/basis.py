@@ -1,234 +1,442 @@
-"""Render the per-material basis images of a scene (paper Sec. 5.2, Eq. 12-13).
+"""The basis folder: per-material images of a scene, their manifest, and :class:`Basis`.
 
-For a scene whose material to edit is a ``manifold_brdf``, the L1- image of any latent
-point is ``base + sum_i w_i I_i``: ``base`` holds the paths that never scatter off the
-material, ``I_i`` those that scatter off it exactly once with measured material ``i``.
-:func:`render_basis` renders ``base.exr`` and one ``<material>.exr`` per requested
-material into a folder with a ``manifest.json`` (format in :mod:`mitsuba_manifold.blend`).
+A *basis* holds the images that blending combines (paper Sec. 5.2, Eq. 13, and Sec. 6):
+with one manifold material (*target*) in the scene, ``base`` (the paths that never touch
+it) and one image per measured material ``i`` (the paths that touch it exactly once,
+rendered with material ``i``); with ``p`` targets, the full ``L1-`` image of every
+combination of one material per target (:mod:`mitsuba_manifold.blend` combines them).
 
-With several manifold materials in the scene (one target each, paper Sec. 6) the image
-is multilinear in their weights: each image ``<a>+<b>.exr`` is the full L1- image with
-target 1 set to material ``a`` and target 2 to ``b``, for every combination asked for.
+A *basis folder* holds those images as float32 EXR files and a ``manifest.json``::
 
-Rendering is resumable: images already present and valid for the same manifest
-settings are kept, every file is written to a temporary name and renamed, and the
-manifest is updated after each image, so a killed run continues where it stopped.
+    {"format": "mitsuba-manifold-basis", "version": 1,
+     "scene": abs path, "scene_hash": sha256, "manifold": abs path, "manifold_hash": sha256,
+     "resolution": [width, height], "spp": int, "variant": str, "seed": int, "max_depth": int,
+     "mode": "per-material" | "onepass", "targets": [bsdf id, ...],
+     "images": {"base": {"file": "base.exr", "time_s": float},
+                "<material>": {"file": "<material>.exr", "time_s": float}, ...}}
+
+With one target the keys are ``base`` and material names; with ``p`` targets they are
+``"<matA>+<matB>..."`` (one name per target, in target order). ``manifold_hash`` is the
+SHA-256 of the manifold file; ``scene_hash`` that of the scene XML and the files it names
+(:func:`scene_hash`). :func:`make_manifest` and :func:`write_manifest` write the format,
+:class:`Basis` reads and checks it, :func:`mitsuba_manifold.blend.blend` and :func:`~mitsuba_manifold.blend.blend_path` combine it.
 """
 
-import itertools
+import hashlib
+import json
 import os
+import re
 import time
+import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from . import blend as blend_mod
 from . import imageio
-from .manifold import Manifold
+from .atomic import atomic_write
+from .cache import file_hash
+from .errors import BasisError, ImageError
 
+FORMAT = "mitsuba-manifold-basis"
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+BASE = "base"
+#: Joins one material name per target into an image key (multilinear bases).
+SEP = "+"
 MODES = ("per-material", "onepass")
 
-
-class RenderBasisError(blend_mod.BasisError):
-    """A basis that cannot be rendered as asked (bad scene, folder, selection)."""
+_HEX64 = re.compile(r"^[0-9a-f]{64}$")
 
 
-def select_materials(manifold, materials="all", near=None, radius=None):
-    """Names of the materials to render, in manifold order.
+# ------------------------------------------------------------------ hashes
 
-    Parameters
-    ----------
-    manifold : Manifold
-    materials : "all" or list of str
-    near : array_like (q,), optional
-        With ``radius``: only materials whose latent point lies within ``radius`` of it.
+def scene_files(scene):
+    """Files a scene XML names (``filename`` properties and ``<include>``), resolved
+    against the scene's folder; values holding ``$parameters`` are skipped."""
+    scene = os.fspath(scene)
+    try:
+        root = ET.parse(scene).getroot()
+    except ET.ParseError as e:
+        raise BasisError(f"scene {scene}: not a readable XML file ({e})") from None
+    folder = os.path.dirname(os.path.abspath(scene))
+    names = []
+    for el in root.iter():
+        value = el.get("value") if el.get("name") == "filename" else None
+        if el.tag == "include":
+            value = el.get("filename")
+        if value and "$" not in value:
+            names.append(value)
+    return [(v, os.path.join(folder, v)) for v in names]
+
+
+def scene_hash(scene):
+    """SHA-256 (hex) of a scene: its XML bytes, then the name and bytes of every file it
+    names (:func:`scene_files`) that exists beside it. Meshes and environment maps are
+    thereby part of the scene's identity; the manifold (a ``$manifold`` parameter) is not."""
+    scene = os.fspath(scene)
+    if not os.path.isfile(scene):
+        raise BasisError(f"scene {scene} does not exist")
+    h = hashlib.sha256()
+    with open(scene, "rb") as f:
+        h.update(f.read())
+    for value, path in scene_files(scene):
+        h.update(b"\0" + value.encode())
+        if os.path.isfile(path):
+            h.update(b"\0" + file_hash(path).encode())
+    return h.hexdigest()
+
+
+# ---------------------------------------------------------------- manifest
+
+def image_key(materials):
+    """Image key of one material per target: ``"a"`` or ``"a+b"``."""
+    materials = [materials] if isinstance(materials, str) else list(materials)
+    for m in materials:
+        if not m or SEP in m or m == BASE:
+            raise BasisError(f"material name {m!r} cannot be used in an image key")
+    return SEP.join(materials)
+
+
+def _is_int(v):
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def validate_manifest(manifest, where=MANIFEST):
+    """Check the fields and types of a manifest dict; returns it.
+
+    Does not require any image to be listed (a basis being rendered grows one image at a
+    time); :meth:`Basis.load` checks that the blend's images are there.
+
+    Raises
+    ------
+    BasisError
+        Naming ``where`` and the field at fault.
     """
-    if near is not None or radius is not None:
-        if near is None or radius is None:
-            raise RenderBasisError("--near and --radius go together")
-        near = np.asarray(near, dtype=np.float64).ravel()
-        if near.size != manifold.q or not np.isfinite(near).all():
-            raise RenderBasisError(f"--near must be {manifold.q} finite numbers (the manifold's latent "
-                                   f"dimension), got {near.tolist()}")
-        if not radius > 0:
-            raise RenderBasisError(f"--radius must be > 0, got {radius}")
-        dist = np.linalg.norm(manifold.latent - near, axis=1)
-        chosen = [n for n, dd in zip(manifold.names, dist) if dd <= radius]
-        if not chosen:
-            raise RenderBasisError(f"no material lies within {radius} of {near.tolist()} "
-                                   f"(nearest: {manifold.names[int(dist.argmin())]} at {dist.min():.3g})")
-        return chosen
-    if materials in (None, "all") or materials == ["all"]:
-        return list(manifold.names)
-    unknown = [m for m in materials if m not in manifold.names]
-    if unknown:
-        raise RenderBasisError(f"unknown material(s) {unknown} for manifold with {manifold.n} materials")
-    return [n for n in manifold.names if n in set(materials)]
+    def bad(msg):
+        raise BasisError(f"{where}: {msg}")
 
-
-def default_variant():
-    """``cuda_ad_rgb`` when a GPU works, else ``llvm_ad_rgb``."""
-    import mitsuba as mi
-    if "cuda_ad_rgb" in mi.variants():
-        try:
-            import drjit as dr
-            if dr.has_backend(dr.JitBackend.CUDA):
-                return "cuda_ad_rgb"
-        except Exception:  # no driver
-            pass
-    return "llvm_ad_rgb"
-
-
-def _open_folder(out, manifest):
-    """Create ``out`` or check that its manifest matches; return the images still valid there."""
-    os.makedirs(out, exist_ok=True)
-    if not os.path.exists(os.path.join(out, blend_mod.MANIFEST)):
-        return {}
-    old = blend_mod.read_manifest(out)
-    diff = blend_mod.manifest_differences(old, manifest)
-    if diff:
-        raise RenderBasisError(
-            f"{out} holds a basis made with other settings ({', '.join(diff)} differ); "
-            "choose another folder or delete it")
-    kept = {}
-    w, h = manifest["resolution"]
-    for key, entry in old["images"].items():
-        path = os.path.join(out, entry["file"])
-        try:
-            imageio.check_exr_header(path, (w, h))
-            imageio.read_exr(path)  # a killed writer never leaves a partial file, but check anyway
-        except (imageio.ImageError, OSError):
-            continue
-        kept[key] = entry
-    return kept
-
-
-def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=None, radius=None,
-                 mode="per-material", seed=0, resolution=None, max_depth=None, variant=None,
-                 progress=False, chunk_spp=None):
-    """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
-
-    Parameters
-    ----------
-    scene_path, manifold_path : str
-    out : str
-        Folder (created; resumed when it holds a basis with the same settings).
-    spp : int
-        Samples per pixel of every image.
-    materials, near, radius
-        Selection, see :func:`select_materials`.
-    mode : {"per-material", "onepass"}
-        One render per material, or all materials from one set of paths
-        (:meth:`ManifoldPathIntegrator.render_onepass`, one target only).
-    seed : int
-        Same seed for every image (correlated noise makes blends smoother).
-    resolution : int or (int, int), optional
-        Image size, for scenes that take ``$res`` or ``$width``/``$height``.
-    max_depth : int, optional
-        Path depth (-1: unbounded; default: the scene's ``$max_depth`` default, else -1).
-    variant : str, optional
-        Mitsuba variant (default: the active one, else CUDA when available, else LLVM).
-    progress : bool
-        Progress bar with ETA.
-
-    Returns
-    -------
-    dict
-        The manifest written.
-    """
-    import mitsuba as mi
-
-    if mode not in MODES:
-        raise RenderBasisError(f"mode must be one of {MODES}, got {mode!r}")
-    if int(spp) < 1:
-        raise RenderBasisError(f"spp must be >= 1, got {spp}")
-    manifold = Manifold.load(manifold_path)
-    chosen = select_materials(manifold, materials, near, radius)
-    if not os.path.isfile(scene_path):
-        raise RenderBasisError(f"scene {scene_path} does not exist")
-    scene, targets, max_depth = blend_mod.load_scene(scene_path, manifold_path, spp, resolution, max_depth,
-                                             variant=variant or mi.variant() or default_variant())
-    if mode == "onepass" and len(targets) != 1:
-        raise RenderBasisError(f"onepass mode renders scenes with one manifold material; {scene_path} has "
-                               f"{len(targets)}: use mode='per-material'")
-    size = tuple(int(v) for v in scene.sensors()[0].film().size())
-    manifest = blend_mod.make_manifest(scene_path, manifold_path, size, spp, mi.variant(), seed, max_depth,
-                                       mode, [b.id() for b in targets])
-    manifest["images"] = _open_folder(out, manifest)
-    blend_mod.write_manifest(out, manifest)
-
-    if len(targets) == 1:
-        jobs = [("base", None)] + [(name, (name,)) for name in chosen]
-    else:
-        jobs = [(blend_mod.image_key(combo), combo) for combo in itertools.product(chosen, repeat=len(targets))]
-    todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
-
-    def save(images, seconds):
-        """Write ``{key: image}`` (EXR files in parallel), then list them in the manifest."""
-        from concurrent.futures import ThreadPoolExecutor
-        with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
-            list(pool.map(lambda kv: imageio.write_exr(os.path.join(out, kv[0] + ".exr"), kv[1]),
-                          images.items()))
-        for key in images:
-            manifest["images"][key] = {"file": key + ".exr", "time_s": float(seconds)}
-        blend_mod.write_manifest(out, manifest)
-
-    if not todo:
-        return manifest
-    if mode == "onepass":
-        _render_onepass(scene, targets[0], todo, spp, seed, max_depth, save, progress, chunk_spp)
-    else:
-        _render_each(scene, targets, todo, spp, seed, max_depth, save, progress)
+    if not isinstance(manifest, dict):
+        bad("not a JSON object")
+    if manifest.get("format") != FORMAT:
+        bad(f"not a basis manifest (format {manifest.get('format')!r}, expected {FORMAT!r})")
+    version = manifest.get("version")
+    if not _is_int(version) or version < 1:
+        bad(f"invalid version {version!r}")
+    if version > FORMAT_VERSION:
+        bad(f"format version {version} is newer than this package reads ({FORMAT_VERSION})")
+    for key in ("scene", "manifold", "variant"):
+        if not isinstance(manifest.get(key), str) or not manifest[key]:
+            bad(f"field {key!r} must be a non-empty string, got {manifest.get(key)!r}")
+    for key in ("scene_hash", "manifold_hash"):
+        if not isinstance(manifest.get(key), str) or not _HEX64.match(manifest[key]):
+            bad(f"field {key!r} must be a SHA-256 hex digest, got {manifest.get(key)!r}")
+    res = manifest.get("resolution")
+    if not (isinstance(res, list) and len(res) == 2 and all(_is_int(v) and v > 0 for v in res)):
+        bad(f"resolution must be [width, height] (positive integers), got {res!r}")
+    if not _is_int(manifest.get("spp")) or manifest["spp"] < 1:
+        bad(f"spp must be a positive integer, got {manifest.get('spp')!r}")
+    if not _is_int(manifest.get("seed")):
+        bad(f"seed must be an integer, got {manifest.get('seed')!r}")
+    if not _is_int(manifest.get("max_depth")) or manifest["max_depth"] < -1:
+        bad(f"max_depth must be an integer >= -1, got {manifest.get('max_depth')!r}")
+    if manifest.get("mode") not in MODES:
+        bad(f"mode must be one of {MODES}, got {manifest.get('mode')!r}")
+    targets = manifest.get("targets")
+    if (not isinstance(targets, list) or not targets or not all(isinstance(t, str) and t for t in targets)
+            or len(set(targets)) != len(targets)):
+        bad(f"targets must be a non-empty list of distinct BSDF ids, got {targets!r}")
+    images = manifest.get("images")
+    if not isinstance(images, dict):
+        bad(f"images must be an object, got {type(images).__name__}")
+    files = set()
+    for key, entry in images.items():
+        if key != BASE:
+            parts = key.split(SEP)
+            if len(parts) != len(targets) or not all(parts) or BASE in parts:
+                bad(f"image key {key!r} must name {len(targets)} material(s) joined by {SEP!r} "
+                    f"(one per target {targets})")
+        if not isinstance(entry, dict):
+            bad(f"image {key!r}: entry must be an object with 'file' and 'time_s'")
+        name = entry.get("file")
+        if (not isinstance(name, str) or not name.endswith(".exr") or os.path.basename(name) != name
+                or name.startswith(".")):
+            bad(f"image {key!r}: file must be a plain '<name>.exr' inside the folder, got {name!r}")
+        if name in files:
+            bad(f"image {key!r}: file {name!r} is listed twice")
+        files.add(name)
+        t = entry.get("time_s")
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
+            bad(f"image {key!r}: time_s must be a non-negative number, got {t!r}")
     return manifest
 
 
-def _integrator(component, max_depth, target="all"):
-    import mitsuba as mi
-    return mi.load_dict({"type": "manifold_path", "component": component, "max_depth": int(max_depth),
-                         "target": target})
+def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mode, targets,
+                  images=None):
+    """A validated manifest dict for a basis of ``scene`` rendered with ``manifold``.
+
+    Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
+    itself, so every writer and reader agree on them.
+
+    Parameters
+    ----------
+    scene, manifold : str
+        Scene XML and saved manifold (``.npz``) paths.
+    resolution : (int, int)
+        ``(width, height)``.
+    spp, seed, max_depth : int
+    variant : str
+        Mitsuba variant used.
+    mode : {"per-material", "onepass"}
+    targets : list of str
+        BSDF ids of the scene's manifold materials, in the order of the image keys.
+    images : dict, optional
+        ``{key: {"file": ..., "time_s": ...}}`` (default: none yet).
+    """
+    manifold = os.fspath(manifold)
+    if not os.path.isfile(manifold):
+        raise BasisError(f"manifold {manifold} does not exist")
+    manifest = {
+        "format": FORMAT, "version": FORMAT_VERSION,
+        "scene": os.path.abspath(scene), "scene_hash": scene_hash(scene),
+        "manifold": os.path.abspath(manifold), "manifold_hash": file_hash(manifold),
+        "resolution": [int(v) for v in resolution], "spp": int(spp), "variant": str(variant),
+        "seed": int(seed), "max_depth": int(max_depth), "mode": mode,
+        "targets": [str(t) for t in targets], "images": dict(images or {})}
+    return validate_manifest(manifest, where="new manifest")
 
 
-def _bar(total, enabled, desc):
-    from tqdm import tqdm
-    return tqdm(total=total, desc=desc, unit="image", disable=not enabled)
+def write_manifest(folder, manifest):
+    """Validate ``manifest`` and write ``folder/manifest.json`` atomically; returns its path."""
+    validate_manifest(manifest, where=os.path.join(os.fspath(folder), MANIFEST))
+    path = os.path.join(os.fspath(folder), MANIFEST)
+    text = json.dumps(manifest, indent=1, sort_keys=False) + "\n"
+    atomic_write(path, lambda f: f.write(text.encode()))
+    return path
 
 
-def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress):
-    """One render per image: base (component 'base'), then 'touch' per material or 'l1' per combination."""
-    import mitsuba as mi
-
-    single = len(targets) == 1
-    touch = _integrator("touch", max_depth)
-    l1 = _integrator("l1", max_depth, target=",".join(b.id() for b in targets)) if not single else None
-    with _bar(len(todo), progress, "rendering basis") as bar:
-        for key, combo in todo:
-            t0 = time.perf_counter()
-            if combo is None:
-                img = mi.render(scene, integrator=_integrator("base", max_depth), spp=spp, seed=seed)
-            else:
-                for bsdf, name in zip(targets, combo):
-                    bsdf.set_material(name)
-                img = mi.render(scene, integrator=touch if single else l1, spp=spp, seed=seed)
-            save({key: np.array(img, dtype=np.float32)[..., :3]}, time.perf_counter() - t0)
-            bar.set_postfix_str(key)
-            bar.update()
+def read_manifest(folder):
+    """Read and validate ``folder/manifest.json``."""
+    folder = os.fspath(folder)
+    if not os.path.isdir(folder):
+        raise BasisError(f"basis folder {folder} does not exist")
+    path = os.path.join(folder, MANIFEST)
+    if not os.path.isfile(path):
+        raise BasisError(f"{folder}: no {MANIFEST} (not a basis folder, or render_basis has not "
+                         "written one yet)")
+    try:
+        with open(path, encoding="utf-8") as f:
+            manifest = json.load(f)
+    except (ValueError, UnicodeDecodeError) as e:
+        raise BasisError(f"{path}: not valid JSON ({e})") from None
+    return validate_manifest(manifest, where=path)
 
 
-def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, chunk_spp):
-    """All material images from one set of paths (issue 5); base comes from the same paths."""
-    from tqdm import tqdm
-    integrator = _integrator("l1", max_depth)
-    names = [key for key, combo in todo if combo is not None]
-    t0 = time.perf_counter()
-    with tqdm(desc="rendering basis (one pass)", unit="step", disable=not progress) as bar:
-        def advance(done, total):
-            bar.total = total
-            bar.update(done - bar.n)
-        kwargs = {"materials": names, "spp": spp, "seed": seed, "progress": advance}
-        if chunk_spp:
-            kwargs["spp_per_pass"] = chunk_spp
-        base, images = integrator.render_onepass(scene, **kwargs)
-    seconds = (time.perf_counter() - t0) / max(len(todo), 1)
-    out = {name: np.asarray(images[name], dtype=np.float32)[..., :3] for name in names}
-    if any(combo is None for _, combo in todo):
-        out["base"] = np.asarray(base, dtype=np.float32)[..., :3]
-    save(out, seconds)
+#: Manifest fields that define what the images are (all but "images" and the paths).
+SETTINGS = ("format", "version", "scene_hash", "manifold_hash", "resolution", "spp", "variant",
+            "seed", "max_depth", "mode", "targets")
+
+
+def manifest_differences(a, b):
+    """Setting fields (:data:`SETTINGS`) whose values differ between two manifests.
+
+    An empty list means images rendered for one are valid for the other (resume)."""
+    return [k for k in SETTINGS if a.get(k) != b.get(k)]
+
+
+# -------------------------------------------------------------------- basis
+
+def manifold_object(manifold):
+    from .manifold import Manifold
+
+    if isinstance(manifold, (str, os.PathLike)):
+        return Manifold.load(manifold)
+    if not hasattr(manifold, "weights") or not hasattr(manifold, "names"):
+        raise BasisError(f"expected a Manifold or the path of one, got {type(manifold).__name__}")
+    return manifold
+
+
+class Basis:
+    """A basis folder: its manifest and its images (read on first use, then kept).
+
+    Attributes
+    ----------
+    folder : str
+    manifest : dict
+    resolution : (int, int)
+        ``(width, height)``.
+    targets : list of str
+    p : int
+        Number of targets.
+    keys : list of str
+        Image keys other than ``base``.
+    materials : list of list of str
+        Per target, the materials that appear in some image key.
+    """
+
+    def __init__(self, folder, manifest):
+        self.folder = os.fspath(folder)
+        self.manifest = manifest
+        self.resolution = tuple(manifest["resolution"])
+        self.targets = list(manifest["targets"])
+        self.p = len(self.targets)
+        self.keys = [k for k in manifest["images"] if k != BASE]
+        parts = [k.split(SEP) for k in self.keys]
+        self.materials = [sorted({pt[t] for pt in parts}) for t in range(self.p)]
+        self._rows = {}  # image key -> row of self._store
+        self._store = None  # float32 (capacity, H, W, 3): the images read so far
+        self._checked = {}  # manifold path or object -> manifold object, checked against the manifest
+
+    @classmethod
+    def load(cls, folder, manifold=None, scene=None, verify=False):
+        """Open a basis folder and check it.
+
+        Parameters
+        ----------
+        folder : str
+        manifold : Manifold or str, optional
+            Checked against the manifest: file hash (when the manifold has a path) and
+            material names.
+        scene : str, optional
+            Scene XML, checked against the manifest's scene hash.
+        verify : bool
+            Also read every image in full now (finds files truncated after their header).
+
+        Raises
+        ------
+        BasisError
+            Missing or malformed manifest, a listed image that is missing, not an RGB EXR
+            or not of the manifest's resolution, no ``base`` image for a one-target basis,
+            a manifest made for another scene or manifold.
+        """
+        folder = os.fspath(folder)
+        manifest = read_manifest(folder)
+        basis = cls(folder, manifest)
+        if basis.p == 1 and BASE not in manifest["images"]:
+            raise BasisError(f"{folder}: the manifest lists no '{BASE}' image (paths that never touch "
+                             "the material); the basis is incomplete")
+        if not basis.keys:
+            raise BasisError(f"{folder}: the manifest lists no material image; the basis is incomplete")
+        for key, entry in manifest["images"].items():
+            try:
+                imageio.check_exr_header(basis.path(key), basis.resolution)
+            except ImageError as e:
+                raise BasisError(f"basis {folder}, image {key!r}: {e}") from None
+        if scene is not None:
+            basis.check_scene(scene)
+        if manifold is not None:
+            basis.check_manifold(manifold)
+        if verify:
+            basis.verify()
+        return basis
+
+    def __repr__(self):
+        return (f"Basis({self.folder!r}: {len(self.keys)} images, targets {self.targets}, "
+                f"{self.resolution[0]}x{self.resolution[1]}, {self.manifest['spp']} spp)")
+
+    def path(self, key):
+        """File of image ``key``."""
+        try:
+            return os.path.join(self.folder, self.manifest["images"][key]["file"])
+        except KeyError:
+            raise BasisError(f"basis {self.folder} has no image {key!r}") from None
+
+    def has(self, key):
+        return key in self.manifest["images"]
+
+    def image(self, key):
+        """Image ``key`` as float32 (H, W, 3), read once and kept (a read-only view)."""
+        row = self._rows.get(key)
+        if row is None:
+            path = self.path(key)
+            try:
+                img = imageio.read_exr(path)
+            except ImageError as e:
+                raise BasisError(f"basis {self.folder}, image {key!r}: {e}") from None
+            w, h = self.resolution
+            if img.shape != (h, w, 3):
+                raise BasisError(f"basis {self.folder}, image {key!r}: {path} is {img.shape[1]}x{img.shape[0]}, "
+                                 f"the manifest says {w}x{h}")
+            row = len(self._rows)
+            if self._store is None or row == len(self._store):  # grow by doubling, up to every image
+                cap = min(max(8, 2 * row), len(self.manifest["images"]))
+                store = np.empty((cap, h, w, 3), dtype=np.float32)
+                if row:
+                    store[:row] = self._store[:row]
+                self._store = store
+            self._store[row] = img
+            self._rows[key] = row
+        view = self._store[row]
+        view.setflags(write=False)
+        return view
+
+    def read(self, keys):
+        """Read the images ``keys`` not read before; returns the seconds spent."""
+        t0 = time.perf_counter()
+        for k in keys:
+            self.image(k)
+        return time.perf_counter() - t0
+
+    def weighted_sum(self, keys, weights):
+        """``sum_j weights[..., j] * image(keys[j])`` as float32 (..., H, W, 3).
+
+        The images read so far live in one array: when the blend uses at least half of
+        them the product runs over all of them with zero weights elsewhere (no copy),
+        otherwise over a gathered copy of the ones used.
+        """
+        weights = np.asarray(weights, dtype=np.float32)
+        self.read(keys)
+        rows = np.array([self._rows[k] for k in keys], dtype=np.intp)
+        n = len(self._rows)
+        if 2 * len(rows) >= n:
+            dense = np.zeros(weights.shape[:-1] + (n,), dtype=np.float32)
+            dense[..., rows] = weights
+            return np.tensordot(dense, self._store[:n], axes=1)
+        return np.tensordot(weights, self._store[rows], axes=1)
+
+    def verify(self):
+        """Read every listed image in full (raises :class:`BasisError` on the first bad one)."""
+        for key in self.manifest["images"]:
+            self.image(key)
+        return self
+
+    def check_scene(self, scene):
+        """Raise unless ``scene`` (an XML path) is the scene the basis was rendered from."""
+        h = scene_hash(scene)
+        if h != self.manifest["scene_hash"]:
+            raise BasisError(
+                f"basis {self.folder} was rendered from another scene: {self.manifest['scene']} "
+                f"(hash {self.manifest['scene_hash'][:12]}), not {os.path.abspath(scene)} (hash {h[:12]}); "
+                "the scene or a file it uses changed, render the basis again")
+
+    def check_manifold(self, manifold=None):
+        """The manifold object, checked against the manifest (loaded from the manifest's
+        path when ``manifold`` is None).
+
+        Checks the file hash when the manifold has a path, and that every material of the
+        basis is a material of the manifold.
+        """
+        if manifold is None:
+            manifold = self.manifest["manifold"]
+            if not os.path.isfile(manifold):
+                raise BasisError(f"basis {self.folder}: its manifold {manifold} no longer exists; "
+                                 "give the manifold explicitly")
+        key = os.path.abspath(manifold) if isinstance(manifold, (str, os.PathLike)) else manifold
+        if key in self._checked:
+            return self._checked[key]
+        m = manifold_object(manifold)
+        path = manifold if isinstance(manifold, (str, os.PathLike)) else getattr(m, "path", None)
+        if path is not None:
+            h = file_hash(path)
+            if h != self.manifest["manifold_hash"]:
+                raise BasisError(
+                    f"basis {self.folder} was rendered with another manifold: {self.manifest['manifold']} "
+                    f"(hash {self.manifest['manifold_hash'][:12]}), not {os.path.abspath(path)} "
+                    f"(hash {h[:12]})")
+        unknown = sorted({n for mats in self.materials for n in mats} - set(m.names))
+        if unknown:
+            raise BasisError(f"basis {self.folder} holds materials the manifold does not know: "
+                             f"{', '.join(unknown[:8])}{' ...' if len(unknown) > 8 else ''}; it was "
+                             "rendered with another manifold")
+        self._checked[key] = m
+        return m
+
+

@@ -13,24 +13,20 @@ the combination is ``sum_i w_i P_i``, clamped at 0, and Mitsuba's
 ``mi.set_variant(...)`` (``import mitsuba_manifold`` does it).
 """
 
-import functools
 import os
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from . import merl
-from .manifold import Manifold, ManifoldError
+from . import plugin
+from .lookups import linear_axis, merl_angles, merl_bin
+from .sampling import (SAMPLING_CACHE_VERSION, SAMPLING_GRID, combined_density,  # noqa: F401
+                       material_density, sampling_cache_path, sampling_density)
+from .errors import ManifoldBRDFError, ManifoldError, VariantError
+from .manifold import Manifold
 
 PLUGIN_NAME = "manifold_brdf"
-
-#: Sampling grid: incident elevations, half-vector azimuth vertices (over [0, pi]),
-#: half-vector elevation vertices (uniform in ``u = sqrt(theta_h / (pi/2))``), and
-#: sub-samples per axis averaged into each vertex.
-SAMPLING_GRID = (32, 33, 65, 4)
-#: Version of the cached sampling densities (bump when their definition changes).
-SAMPLING_CACHE_VERSION = 2
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
 COSINE_FRACTION = 0.1
 #: Default of the ``prune`` parameter (fraction of ``sum |w|``, as Manifold.prune).
@@ -42,182 +38,6 @@ INTERPOLATION_MODES = ("nearest", "linear")
 _HALF_PI = 0.5 * np.pi
 _U_FLOOR = 1e-4                                  # smallest u = sqrt(theta_h / (pi/2)) used by the pdf
 _SIN_FLOOR = float(np.sin(_U_FLOOR ** 2 * _HALF_PI))
-
-
-class ManifoldBRDFError(ValueError):
-    """Bad parameters of a ``manifold_brdf`` (the message names the parameter)."""
-
-
-# --------------------------------------------------------------- Dr.Jit lookups
-
-def merl_angles(wi, wo):
-    """Rusinkiewicz angles ``(theta_h, theta_d, phi_d)`` of direction pairs, in Dr.Jit.
-
-    The same mapping as :func:`merl.half_diff` (``phi_d`` folded to ``[0, pi)``),
-    written with ``atan2`` so that small angles keep full single precision: the first
-    MERL ``theta_h`` bin is 2e-4 rad wide, below what ``acos`` resolves in float32.
-    Works on scalar and JIT Mitsuba types.
-    """
-    h = wi + wo
-    rh = dr.sqrt(dr.square(h.x) + dr.square(h.y))
-    theta_h = dr.atan2(rh, h.z)
-    inv_len = dr.rsqrt(dr.square(rh) + dr.square(h.z))
-    # Frame of the half vector: rotate by -phi_h about z, then by -theta_h about y.
-    has_az = rh > 0
-    inv_rh = dr.select(has_az, dr.rcp(dr.select(has_az, rh, 1.0)), 0.0)
-    cos_ph = dr.select(has_az, h.x * inv_rh, 1.0)
-    sin_ph = dr.select(has_az, h.y * inv_rh, 0.0)
-    cos_th = h.z * inv_len
-    sin_th = rh * inv_len
-    dx = (wi.x * cos_ph + wi.y * sin_ph) * cos_th - wi.z * sin_th
-    dy = wi.y * cos_ph - wi.x * sin_ph
-    dz = (wi.x * cos_ph + wi.y * sin_ph) * sin_th + wi.z * cos_th
-    theta_d = dr.atan2(dr.sqrt(dr.square(dx) + dr.square(dy)), dz)
-    phi_d = dr.atan2(dy, dx)
-    phi_d = dr.select(phi_d < 0, phi_d + dr.pi, phi_d)
-    phi_d = dr.select(phi_d >= dr.pi, phi_d - dr.pi, phi_d)
-    return theta_h, theta_d, phi_d
-
-
-def _clamp_index(c, n):
-    return dr.clip(mi.Int32(dr.floor(c)), 0, n - 1)
-
-
-def merl_bin(theta_h, theta_d, phi_d, dims):
-    """Flat MERL bin index (as :func:`merl.flat_index`) of Rusinkiewicz angles, in Dr.Jit."""
-    n_h, n_d, n_p = dims
-    th = dr.clip(theta_h, 0.0, _HALF_PI)
-    i_h = _clamp_index(dr.sqrt(th * (1.0 / _HALF_PI)) * n_h, n_h)
-    i_d = _clamp_index(theta_d * (n_d / _HALF_PI), n_d)
-    i_p = _clamp_index(phi_d * (n_p / np.pi), n_p)
-    return mi.UInt32((i_h * n_d + i_d) * n_p + i_p)
-
-
-def _linear_axis(c, n):
-    """Neighbouring bins and weight of the upper one along a clamped axis."""
-    c = dr.clip(c - 0.5, 0.0, float(n - 1))
-    i0 = dr.minimum(mi.Int32(dr.floor(c)), n - 1)
-    t = c - mi.Float(i0)
-    return i0, dr.minimum(i0 + 1, n - 1), t
-
-
-# --------------------------------------------------------- sampling densities
-
-@functools.lru_cache(maxsize=4)
-def _sampling_geometry(dims, grid=SAMPLING_GRID):
-    """Bins and weights turning a table into its sampling densities.
-
-    For each incident elevation ``theta_i`` (``wi`` in the xz plane) and grid vertex
-    ``(v, u)``, ``s*s`` sub-samples of the half vector ``h`` (``theta_h = u^2 pi/2``,
-    azimuth ``v pi``) spread over the vertex's cell: their MERL bin (of ``wo``, ``wi``
-    reflected about ``h``) and weight ``cos(theta_o) J / s^2`` (0 below the horizon),
-    where ``J = |d wo / d(u, v)|`` is taken at the vertex itself so that the density
-    vanishes on the ``u = 0`` edge (the mirror direction) as the true one does.
-
-    Returns
-    -------
-    theta_i : ndarray (n_t,)
-    index : ndarray int32 (n_t, n_v, n_u, s*s)
-    weight : ndarray float32 (n_t, n_v, n_u, s*s)
-    """
-    n_t, n_v, n_u, s = grid
-    theta_i = np.linspace(0.0, _HALF_PI, n_t)
-    off = (np.arange(s) + 0.5) / s - 0.5
-    u = np.clip(np.arange(n_u)[:, None] / (n_u - 1) + off / (n_u - 1), 0.0, 1.0)   # (n_u, s)
-    v = np.clip(np.arange(n_v)[:, None] / (n_v - 1) + off / (n_v - 1), 0.0, 1.0)   # (n_v, s)
-    ti = theta_i[:, None, None, None, None]
-    uu = u[None, None, None, :, :]
-    vv = v[None, :, :, None, None]
-    shape = (n_t, n_v, s, n_u, s)
-    theta_h = np.broadcast_to(uu * uu * _HALF_PI, shape)
-    phi = np.broadcast_to(vv * np.pi, shape)
-    wi = np.stack(np.broadcast_arrays(np.sin(ti), 0.0 * ti, np.cos(ti)), axis=-1)
-    wi = np.broadcast_to(wi, shape + (3,))
-    h = np.stack([np.sin(theta_h) * np.cos(phi), np.sin(theta_h) * np.sin(phi), np.cos(theta_h)], axis=-1)
-    cos_d = np.sum(wi * h, axis=-1)
-    wo = 2.0 * cos_d[..., None] * h - wi
-    valid = (wi[..., 2] > 0) & (wo[..., 2] > 1e-9) & (cos_d > 0)
-    u_vertex = np.arange(n_u) / (n_u - 1)
-    theta_v = u_vertex * u_vertex * _HALF_PI
-    jac = np.broadcast_to((np.sin(theta_v) * u_vertex)[None, None, None, :, None], shape)
-    jac = 4.0 * cos_d * jac * np.pi * np.pi
-    weight = np.where(valid, wo[..., 2] * jac, 0.0) / (s * s)
-    wo_safe = np.where(valid[..., None], wo, np.array([0.0, 0.0, 1.0]))
-    wi_safe = np.where(valid[..., None], wi, np.array([0.0, 0.0, 1.0]))
-    index = np.where(valid, merl.flat_index(wi_safe, wo_safe, dims), 0)
-    order = (0, 1, 3, 2, 4)
-    index = index.transpose(order).reshape(n_t, n_v, n_u, s * s).astype(np.int32)
-    weight = weight.transpose(order).reshape(n_t, n_v, n_u, s * s).astype(np.float32)
-    return theta_i, index, weight
-
-
-def sampling_density(table, grid=SAMPLING_GRID):
-    """Unnormalised sampling density of one table, float32 ``(n_t, n_v, n_u)``.
-
-    The channel mean of ``f(wi, wo) cos(theta_o)`` times the Jacobian of the half-vector
-    parameterisation, averaged over each vertex's neighbourhood; linear in ``table``.
-    """
-    table = np.asarray(table)
-    _, index, weight = _sampling_geometry(tuple(table.shape[1:]), tuple(grid))
-    mean = table.reshape(3, -1).mean(axis=0, dtype=np.float32)
-    return np.einsum("tvus,tvus->tvu", mean[index], weight, dtype=np.float32)
-
-
-def sampling_cache_path(database, name, grid=SAMPLING_GRID):
-    """Cache file of a material's sampling density (keyed by the table's content hash)."""
-    tag = f"v{SAMPLING_CACHE_VERSION}-{grid[0]}x{grid[1]}x{grid[2]}s{grid[3]}"
-    return os.path.join(database.cache_dir, f"{database.hash(name)}.sampling-{tag}.npy")
-
-
-def material_density(database, name, grid=SAMPLING_GRID, use_cache=True):
-    """Sampling density of one material of ``database``, read from or written to the cache.
-
-    A cache file of the wrong shape or with bad values is recomputed and replaced.
-    """
-    path = sampling_cache_path(database, name, grid)
-    shape = tuple(grid[:3])
-    if use_cache and os.path.exists(path):
-        try:
-            p = np.load(path, allow_pickle=False)
-            if p.shape == shape and p.dtype == np.float32 and np.isfinite(p).all():
-                return p
-        except (OSError, ValueError):
-            pass
-        mi.Log(mi.LogLevel.Warn, f"{PLUGIN_NAME}: rebuilding damaged sampling cache {path}")
-    p = sampling_density(database.reflectance(name), grid)
-    if use_cache:
-        merl.atomic_write(path, lambda f: np.save(f, p))
-    return p
-
-
-def combined_density(densities, weights, grid=SAMPLING_GRID):
-    """``max(0, sum_i w_i P_i)`` with every incident slice usable by the sampler.
-
-    A slice with no mass (always the one at grazing incidence, ``theta_i = pi/2``)
-    takes the values of the nearest slice that has some; if none has (a black
-    material), every slice becomes uniform in the half vector's solid angle. Either
-    way the density vanishes at ``u = 0``, so that the solid-angle pdf grows no faster
-    than ``1 / theta_h`` towards the mirror direction.
-
-    Returns
-    -------
-    density : ndarray float32 (n_t, n_v, n_u)
-    empty : int
-        Number of slices that had no mass.
-    """
-    p = np.tensordot(np.asarray(weights, dtype=np.float64), np.asarray(densities, dtype=np.float64), axes=1)
-    p = np.maximum(p, 0.0)
-    good = np.flatnonzero(p.sum(axis=(1, 2)) > 0)
-    empty = p.shape[0] - good.size
-    if good.size == 0:
-        u = np.arange(grid[2]) / (grid[2] - 1)
-        p[:] = (np.sin(u * u * _HALF_PI) * u)[None, None, :]
-    elif empty:
-        for k in range(p.shape[0]):
-            nearest = good[np.argmin(np.abs(good - k))]
-            if nearest != k:
-                p[k] = p[nearest]
-    return p.astype(np.float32), int(empty)
 
 
 # ------------------------------------------------------------------ the plugin
@@ -255,7 +75,7 @@ def _resolve(path, what):
     return found
 
 
-class _ManifoldBRDF:
+class ManifoldBRDF:
     r"""Measured-material manifold BSDF (``manifold_brdf``).
 
     One-sided reflection (zero when ``wi`` or ``wo`` is below the surface) from the
@@ -296,7 +116,8 @@ class _ManifoldBRDF:
 
     Python API (to switch materials between renders without reloading the scene):
     :meth:`set_latent`, :meth:`set_material`, :meth:`set_weights`; read-only
-    :attr:`manifold`, :attr:`manifold_path`, :attr:`names`, :attr:`weights`,
+    :attr:`manifold`, :attr:`manifold_path`, :attr:`database`,
+    :attr:`interpolation`, :attr:`sampling`, :attr:`names`, :attr:`weights`,
     :attr:`latent`, :attr:`used_names`, :attr:`dropped_weight`, :attr:`clamped_bins`.
     Instances are recognised by the class attribute ``is_manifold_brdf = True``.
     """
@@ -304,7 +125,7 @@ class _ManifoldBRDF:
     is_manifold_brdf = True
 
     def __init__(self, props):
-        mi.BSDF.__init__(self, props)
+        self._base.__init__(self, props)
         if not mi.is_rgb or mi.is_polarized:
             raise ManifoldBRDFError(f"{PLUGIN_NAME}: measured RGB tables need an RGB variant "
                                     f"(scalar_rgb, llvm_ad_rgb, cuda_ad_rgb), not {mi.variant()}")
@@ -357,6 +178,21 @@ class _ManifoldBRDF:
     def manifold_path(self):
         """Resolved path of the manifold file."""
         return self._manifold_path
+
+    @property
+    def database(self):
+        """Database folder given by the ``database`` parameter (None: the manifold's own)."""
+        return self._database
+
+    @property
+    def interpolation(self):
+        """Table lookup: ``"nearest"`` or ``"linear"``."""
+        return self._interpolation
+
+    @property
+    def sampling(self):
+        """Sampling strategy: ``"cdf"`` or ``"cosine"``."""
+        return self._sampling
 
     @property
     def names(self):
@@ -504,8 +340,8 @@ class _ManifoldBRDF:
         if self._interpolation == "nearest":
             return self._gather(merl_bin(theta_h, theta_d, phi_d, self._dims), active)
         th = dr.clip(theta_h, 0.0, _HALF_PI)
-        h0, h1, th_t = _linear_axis(dr.sqrt(th * (1.0 / _HALF_PI)) * n_h, n_h)
-        d0, d1, td_t = _linear_axis(theta_d * (n_d / _HALF_PI), n_d)
+        h0, h1, th_t = linear_axis(dr.sqrt(th * (1.0 / _HALF_PI)) * n_h, n_h)
+        d0, d1, td_t = linear_axis(theta_d * (n_d / _HALF_PI), n_d)
         c = phi_d * (n_p / np.pi) - 0.5
         fc = dr.floor(c)
         tp_t = c - fc
@@ -667,30 +503,13 @@ class _ManifoldBRDF:
                 + (" (the material reflects nothing)" if self._black else "") + "\n]")
 
 
-_CLASSES = {}
-
-
-def bsdf_class(variant=None):
-    """The ``manifold_brdf`` class for ``variant`` (default: the active one).
-
-    Mitsuba's ``BSDF`` base class differs per variant, so one class is made per variant.
-    """
-    variant = variant or mi.variant()
-    if variant is None:
-        raise RuntimeError(f"{PLUGIN_NAME}: call mi.set_variant(...) first")
-    cls = _CLASSES.get(variant)
-    if cls is None:
-        if variant != mi.variant():
-            raise RuntimeError(f"{PLUGIN_NAME}: variant {variant!r} is not active")
-        namespace = {k: v for k, v in vars(_ManifoldBRDF).items() if k not in ("__dict__", "__weakref__")}
-        namespace["__qualname__"] = "ManifoldBRDF"
-        cls = type("ManifoldBRDF", (mi.BSDF,), namespace)
-        _CLASSES[variant] = cls
-    return cls
+def bsdf_class():
+    """The ``manifold_brdf`` class for the active variant (see :func:`plugin.plugin_class`)."""
+    if mi.variant() is None:
+        raise VariantError(f"{PLUGIN_NAME}: call mi.set_variant(...) first")
+    return plugin.plugin_class(ManifoldBRDF, mi.BSDF)
 
 
 def register():
     """Register ``manifold_brdf`` with Mitsuba for the active variant; returns the class."""
-    cls = bsdf_class()
-    mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
-    return cls
+    return plugin.register_plugin("bsdf", PLUGIN_NAME, ManifoldBRDF)

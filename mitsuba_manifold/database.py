@@ -7,7 +7,6 @@ them as MERL ``.binary`` files. Everything downstream reads a :class:`Database`,
 folder of ``<name>.binary`` files: real MERL files work the same way.
 """
 
-import hashlib
 import json
 import os
 import zlib
@@ -15,6 +14,9 @@ import zlib
 import numpy as np
 
 from . import merl
+from .atomic import atomic_write
+from .cache import evict, file_hash, key_hash, npy_cache
+from .errors import DatabaseError, MissingFileError, NumericalError, UnknownMaterialError
 
 FITS_PATH = os.path.join(os.path.dirname(__file__), "data", "merl_sgd_fits.json")
 SGD_FIELDS = ("rho_d", "rho_s", "alpha", "p", "f0", "f1", "kap", "lambda", "c", "k", "theta0")
@@ -34,7 +36,7 @@ def load_sgd_fits(path=None):
         params = {k: np.asarray(m[k], dtype=np.float64) for k in SGD_FIELDS}
         bad = [k for k, v in params.items() if v.shape != (3,) or not np.isfinite(v).all()]
         if bad:
-            raise ValueError(f"{path}: material {m.get('name')!r} has invalid fields {bad}")
+            raise DatabaseError(f"{path}: material {m.get('name')!r} has invalid fields {bad}")
         fits[m["name"]] = params
     return fits
 
@@ -109,7 +111,7 @@ def tabulate_sgd(params, dims=merl.MERL_DIMS):
         one = {k: v[c:c + 1] for k, v in params.items()}
         refl[c][above] = sgd_reflectance(one, wi, wo)[:, 0]
     if not np.isfinite(refl).all():  # guards the model's extreme fits; should never trigger
-        raise FloatingPointError("SGD tabulation produced non-finite values")
+        raise NumericalError("SGD tabulation produced non-finite values")
     raw = merl.to_stored(refl)
     raw[:, ~above] = merl.NOT_MEASURED
     return raw
@@ -118,7 +120,7 @@ def tabulate_sgd(params, dims=merl.MERL_DIMS):
 def _fit_named(name):
     fits = load_sgd_fits()
     if name not in fits:
-        raise KeyError(f"unknown material {name!r}: the built-in database has {len(fits)} materials "
+        raise UnknownMaterialError(f"unknown material {name!r}: the built-in database has {len(fits)} materials "
                        f"(e.g. {', '.join(list(fits)[:5])}, ...)")
     return fits[name]
 
@@ -155,12 +157,12 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     names = list(fits) if materials is None else list(materials)
     unknown = [n for n in names if n not in fits]
     if unknown:
-        raise ValueError(f"unknown material(s) {unknown}; see mitsuba_manifold.database.load_sgd_fits()")
+        raise DatabaseError(f"unknown material(s) {unknown}; see mitsuba_manifold.database.load_sgd_fits()")
     dims = tuple(int(v) for v in dims)
     if len(dims) != 3 or min(dims) < 1:
-        raise ValueError(f"resolution must be three positive integers, got {dims}")
+        raise DatabaseError(f"resolution must be three positive integers, got {dims}")
     if not (np.isfinite(noise) and noise >= 0):
-        raise ValueError(f"noise must be a finite value >= 0, got {noise}")
+        raise DatabaseError(f"noise must be a finite value >= 0, got {noise}")
     os.makedirs(out_dir, exist_ok=True)
     settings = {"source": "sgd", "dims": list(dims), "noise": float(noise), "seed": int(seed)}
     manifest_path = os.path.join(out_dir, "database.json")
@@ -168,9 +170,9 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
         with open(manifest_path) as f:
             old = json.load(f)
         if {k: old.get(k) for k in settings} != settings:
-            raise ValueError(f"{out_dir} holds tables made with {old}, not {settings}; "
+            raise DatabaseError(f"{out_dir} holds tables made with {old}, not {settings}; "
                              "choose another folder")
-    merl.atomic_write(manifest_path, lambda f: f.write(json.dumps(settings, indent=1).encode()))
+    atomic_write(manifest_path, lambda f: f.write(json.dumps(settings, indent=1).encode()))
 
     paths = [os.path.join(out_dir, name + ".binary") for name in names]
     todo = [(name, path) for name, path in zip(names, paths) if not _valid_table(path, dims)]
@@ -260,27 +262,26 @@ class Database:
     def __init__(self, folder, names=None):
         folder = os.path.abspath(os.fspath(folder))
         if not os.path.isdir(folder):
-            raise FileNotFoundError(f"database folder {folder} does not exist")
+            raise MissingFileError(f"database folder {folder} does not exist")
         available = sorted(f[:-7] for f in os.listdir(folder) if f.endswith(".binary"))
         if names is None:
             names = available
             if not names:
-                raise ValueError(f"database folder {folder} holds no .binary tables")
+                raise DatabaseError(f"database folder {folder} holds no .binary tables")
         else:
             names = list(names)
             missing = [n for n in names if n not in available]
             if missing:
-                raise KeyError(f"database {folder} has no table for {missing}")
+                raise UnknownMaterialError(f"database {folder} has no table for {missing}")
             if len(set(names)) != len(names):
-                raise ValueError(f"database {folder}: material names repeat in {names}")
+                raise DatabaseError(f"database {folder}: material names repeat in {names}")
         self.folder = folder
         self.names = names
         dims = {n: merl.read_header(self.path(n)) for n in names}
         if len(set(dims.values())) > 1:
-            raise ValueError(f"database {folder}: tables have different resolutions {sorted(set(dims.values()))}")
+            raise DatabaseError(f"database {folder}: tables have different resolutions {sorted(set(dims.values()))}")
         self.dims = next(iter(dims.values()))
         self.cache_dir = self._make_cache_dir()
-        self._hashes = None
 
     # -- files and caches
     def path(self, name):
@@ -292,7 +293,7 @@ class Database:
         try:
             return self.names.index(name)
         except ValueError:
-            raise KeyError(f"unknown material {name!r} in database {self.folder} "
+            raise UnknownMaterialError(f"unknown material {name!r} in database {self.folder} "
                            f"({len(self.names)} materials)") from None
 
     def _make_cache_dir(self):
@@ -303,30 +304,14 @@ class Database:
                 return local
         except OSError:
             pass
-        key = hashlib.sha256(self.folder.encode()).hexdigest()[:16]
+        key = key_hash(self.folder, length=16)
         home = os.path.join(os.path.expanduser("~"), ".cache", "mitsuba_manifold", key)
         os.makedirs(home, exist_ok=True)
         return home
 
     def hash(self, name):
-        """SHA-256 of a table's file (cached by path, size and modification time)."""
-        index_path = os.path.join(self.cache_dir, "hashes.json")
-        if self._hashes is None:
-            try:
-                with open(index_path) as f:
-                    self._hashes = json.load(f)
-            except (OSError, ValueError):
-                self._hashes = {}
-        path = self.path(name)
-        st = os.stat(path)
-        key = f"{name}:{st.st_size}:{st.st_mtime_ns}"
-        digest = self._hashes.get(key)
-        if digest is None:
-            digest = merl.file_hash(path)
-            self._hashes = {k: v for k, v in self._hashes.items() if not k.startswith(name + ":")}
-            self._hashes[key] = digest
-            merl.atomic_write(index_path, lambda f: f.write(json.dumps(self._hashes).encode()))
-        return digest
+        """SHA-256 of a table's file (hashed once per process, see :func:`cache.file_hash`)."""
+        return file_hash(self.path(name))
 
     def hashes(self, names=None):
         return [self.hash(n) for n in (self.names if names is None else names)]
@@ -339,17 +324,16 @@ class Database:
         returned memory-mapped read-only when ``mmap``.
         """
         self.index(name)
-        cached = os.path.join(self.cache_dir, f"{self.hash(name)}.refl.npy")
-        if not os.path.exists(cached):
+
+        def build():
             raw = merl.read_binary(self.path(name))  # format errors name the file
             try:
-                table = merl.filled_reflectance(raw)
+                return merl.filled_reflectance(raw)
             except ValueError as e:
-                raise ValueError(f"{self.path(name)}: {e}") from None
-            merl.atomic_write(cached, lambda f: np.save(f, table))
-            if not mmap:
-                return table
-        return np.load(cached, mmap_mode="r" if mmap else None)
+                raise DatabaseError(f"{self.path(name)}: {e}") from None
+
+        cached = os.path.join(self.cache_dir, f"{self.hash(name)}.refl.npy")
+        return npy_cache(cached, build, shape=(3,) + tuple(self.dims), dtype=np.float32, mmap=mmap)
 
     def stack(self, names=None, progress=False):
         """Tables of ``names`` as one float32 matrix ``(N, d)``, rows = RGB-concatenated tables."""
@@ -374,16 +358,8 @@ class Database:
             self.index(n)
         bins = int(np.prod(self.dims))
         n_pad = -(-len(names) // pad) * pad
-        key = hashlib.sha256("\n".join([f"{self.dims}:{pad}"] + self.hashes(names)).encode()).hexdigest()
-        path = os.path.join(self.cache_dir, f"{key[:40]}.rows-v1-{len(names)}x{n_pad}.npy")
-        if os.path.exists(path):
-            try:
-                rows = np.load(path, mmap_mode="r")
-                if rows.shape == (bins, 3, n_pad) and rows.dtype == np.float32:
-                    os.utime(path)  # most recently used
-                    return rows
-            except (OSError, ValueError):
-                pass
+        key = key_hash("\n".join([f"{self.dims}:{pad}"] + self.hashes(names)), length=40)
+        path = os.path.join(self.cache_dir, f"{key}.rows-v1-{len(names)}x{n_pad}.npy")
 
         def write(tmp):
             out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(bins, 3, n_pad))
@@ -398,20 +374,12 @@ class Database:
             out.flush()
             del out
 
-        merl.atomic_replace(path, write)
-        self.evict(".rows-v1-", keep)
-        return np.load(path, mmap_mode="r")
+        return npy_cache(path, write=write, shape=(bins, 3, n_pad), dtype=np.float32, mmap=True,
+                         touch=True, keep=keep, marker=".rows-v1-")
 
     def evict(self, marker, keep):
         """Delete all but the ``keep`` (at least 1) most recently used cache files whose name holds ``marker``."""
-        files = sorted((f for f in os.listdir(self.cache_dir)
-                        if marker in f and f.endswith(".npy") and not f.startswith(".")),
-                       key=lambda f: os.path.getmtime(os.path.join(self.cache_dir, f)), reverse=True)
-        for f in files[max(1, keep):]:
-            try:
-                os.remove(os.path.join(self.cache_dir, f))
-            except OSError:
-                pass
+        evict(self.cache_dir, marker, keep)
 
     def albedo(self, names=None, tables=None):
         """Bihemispherical albedo per material and channel, shape ``(N, 3)``.
@@ -447,7 +415,7 @@ class Database:
         S : ndarray (N, N) float64
         """
         if features not in FEATURES:
-            raise ValueError(f"features must be one of {FEATURES}, got {features!r}")
+            raise DatabaseError(f"features must be one of {FEATURES}, got {features!r}")
         names = self.names if names is None else list(names)
         if tables is None:
             tables = self.stack(names, progress=progress)

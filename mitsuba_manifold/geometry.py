@@ -13,7 +13,8 @@ import os
 
 import numpy as np
 
-from .merl import atomic_replace
+from .atomic import atomic_replace
+from .errors import GeometryError
 
 
 # ------------------------------------------------------------------ bowl
@@ -32,7 +33,7 @@ def bowl_profile(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56):
         centre (r = 0, y = thickness). Both ends lie on the axis.
     """
     if not (0 < thickness < radius and height > thickness and exponent >= 1 and n >= 8):
-        raise ValueError(
+        raise GeometryError(
             f"bowl_profile: need 0 < thickness ({thickness}) < radius ({radius}), "
             f"height ({height}) > thickness, exponent ({exponent}) >= 1, n ({n}) >= 8")
     m = 2000
@@ -64,12 +65,12 @@ def revolve(r, y, segments=64):
     r = np.asarray(r, float)
     y = np.asarray(y, float)
     if r.shape != y.shape or r.ndim != 1 or len(r) < 3:
-        raise ValueError("revolve: r and y must be 1-D arrays of equal length >= 3")
+        raise GeometryError("revolve: r and y must be 1-D arrays of equal length >= 3")
     if abs(r[0]) > 1e-12 or abs(r[-1]) > 1e-12 or np.any(r[1:-1] <= 0):
-        raise ValueError("revolve: the profile must start and end on the axis (r = 0) "
+        raise GeometryError("revolve: the profile must start and end on the axis (r = 0) "
                          "and stay off it in between")
     if segments < 3:
-        raise ValueError(f"revolve: segments must be >= 3, got {segments}")
+        raise GeometryError(f"revolve: segments must be >= 3, got {segments}")
     phi = 2 * np.pi * np.arange(segments) / segments
     ring_r, ring_y = r[1:-1], y[1:-1]
     k = len(ring_r)
@@ -111,7 +112,7 @@ def write_ply(path, vertices, faces):
     vertices = np.asarray(vertices, np.float32)
     faces = np.asarray(faces, np.uint32)
     if not (np.all(np.isfinite(vertices)) and faces.size and faces.max() < len(vertices)):
-        raise ValueError(f"write_ply({path}): non-finite vertices or face indices out of range")
+        raise GeometryError(f"write_ply({path}): non-finite vertices or face indices out of range")
     mesh = mi.Mesh(os.path.basename(path), len(vertices), len(faces), has_vertex_normals=True)
     params = mi.traverse(mesh)
     params["vertex_positions"] = type(params["vertex_positions"])(vertices.ravel())
@@ -131,7 +132,7 @@ def sky_envmap(width=128, height=64, sun_dir=(0.45, 0.62, 0.64), sun_radiance=30
     of ``sun_radius_deg`` around ``sun_dir`` (world space, normalised here) with a soft halo.
     """
     if width < 8 or height < 4:
-        raise ValueError(f"sky_envmap: need width >= 8 and height >= 4, got {width}x{height}")
+        raise GeometryError(f"sky_envmap: need width >= 8 and height >= 4, got {width}x{height}")
     u = (np.arange(width) + 0.5) / width
     v = (np.arange(height) + 0.5) / height
     phi, theta = np.meshgrid(2 * np.pi * u, np.pi * v)

@@ -1,4 +1,4 @@
-"""Image files: float32 RGB OpenEXR read/write and tonemapped sRGB PNG, all written atomically.
+"""Image files: float32 RGB OpenEXR read/write, tonemapped sRGB PNG and contact sheets, all written atomically.
 
 Every writer goes through a temporary file beside the target and a rename, so an existing
 image is replaced only by a complete one. Every reader raises :class:`ImageError` naming
@@ -11,11 +11,8 @@ import os
 
 import numpy as np
 
-from .merl import atomic_write
-
-
-class ImageError(ValueError):
-    """An image file that cannot be read or an image that cannot be written."""
+from .atomic import atomic_write
+from .errors import ImageError
 
 
 def _check_rgb(img, path, what="image"):
@@ -187,3 +184,43 @@ def write_png(path, img, exposure=0.0, text=None):
         info.add_text(str(key), str(value))
     pil = Image.fromarray(np.ascontiguousarray(u8))
     atomic_write(path, lambda f: pil.save(f, format="PNG", pnginfo=info))
+
+
+def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, pad=4):
+    """PNG grid of tonemapped images (one exposure for all), with optional labels; atomic.
+
+    Parameters
+    ----------
+    images : array_like (n, H, W, 3)
+        Linear radiance.
+    labels : list of str, optional
+        Drawn under each image.
+    columns : int, optional
+        Default: ``ceil(sqrt(n))``.
+    """
+    from PIL import Image, ImageDraw
+
+    images = np.asarray(images)
+    if images.ndim != 4 or images.shape[-1] != 3 or len(images) == 0:
+        raise ImageError(f"contact sheet needs images of shape (n, H, W, 3), got {images.shape}")
+    n, h, w, _ = images.shape
+    if labels is not None and len(labels) != n:
+        raise ImageError(f"{len(labels)} labels for {n} images")
+    cols = int(columns or np.ceil(np.sqrt(n)))
+    rows = -(-n // cols)
+    label_h = 14 if labels else 0
+    sheet = np.full((rows * (h + label_h + pad) + pad, cols * (w + pad) + pad, 3), 32, dtype=np.uint8)
+    tiles = tonemap(images, exposure)
+    for i in range(n):
+        r, c = divmod(i, cols)
+        y, x0 = pad + r * (h + label_h + pad), pad + c * (w + pad)
+        sheet[y:y + h, x0:x0 + w] = tiles[i]
+    if labels:
+        pil = Image.fromarray(sheet)
+        draw = ImageDraw.Draw(pil)
+        for i, text in enumerate(labels):
+            r, c = divmod(i, cols)
+            draw.text((pad + c * (w + pad) + 2, pad + r * (h + label_h + pad) + h + 1), str(text),
+                      fill=(230, 230, 230))
+        sheet = np.asarray(pil)
+    write_png(path, sheet)

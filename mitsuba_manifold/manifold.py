@@ -17,17 +17,12 @@ import os
 import time
 
 import numpy as np
-from scipy import linalg
-
-from . import gplvm
+from . import gplvm, kernel
+from .atomic import atomic_write
 from .database import FEATURES, Database
-from .merl import atomic_write
+from .errors import ManifoldError, NotPositiveDefiniteError
 
 FORMAT_VERSION = 1
-
-
-class ManifoldError(ValueError):
-    """A manifold that does not fit its database, or a request it cannot answer."""
 
 
 class Manifold:
@@ -125,15 +120,15 @@ class Manifold:
         return m
 
     def _factorise(self):
-        K = gplvm.kernel_matrix(self.latent, length_scale=self.length_scale, noise=self.noise)
+        K = kernel.kernel_matrix(self.latent, length_scale=self.length_scale, noise=self.noise)
         try:
-            self._chol = linalg.cho_factor(K, lower=True)
-        except linalg.LinAlgError:
+            self._factor = kernel.factorise(K)
+        except NotPositiveDefiniteError:
             raise ManifoldError(
                 f"the covariance K of the {len(self.names)} latent points is not positive definite "
                 f"(noise mu={self.noise:g} too small for coincident points?)") from None
         self.K = K
-        self.K_inv = linalg.cho_solve(self._chol, np.eye(len(self.names)))
+        self.K_inv = self._factor.solve(np.eye(len(self.names)))
 
     @property
     def q(self):
@@ -171,7 +166,7 @@ class Manifold:
         """
         x, single = self._points(x)
         k, hits = self._cross(x)
-        b = linalg.cho_solve(self._chol, k.T).T
+        b = self._factor.solve(k.T).T
         rows, cols = hits
         single_hit = np.bincount(rows, minlength=len(x))[rows] == 1
         rows, cols = rows[single_hit], cols[single_hit]
@@ -182,7 +177,7 @@ class Manifold:
 
     def _cross(self, x):
         """Covariances ``k(x)`` (M, N) with the noise term where x equals a latent point."""
-        k = gplvm.kernel_matrix(x, self.latent, length_scale=self.length_scale)
+        k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
         hits = np.nonzero((x[:, None, :] == self.latent[None, :, :]).all(-1))
         k[hits] += self.noise
         return k, hits
@@ -191,7 +186,7 @@ class Manifold:
         """GP predictive variance (paper Eq. 2): ``c(x, x) - k^T K_inv k``."""
         x, single = self._points(x)
         k, _ = self._cross(x)
-        v = 1.0 + self.noise - np.einsum("mn,mn->m", k, linalg.cho_solve(self._chol, k.T).T)
+        v = 1.0 + self.noise - np.einsum("mn,mn->m", k, self._factor.solve(k.T).T)
         return v[0] if single else v
 
     def material_weights(self, name):

@@ -11,11 +11,12 @@ Bin indexing follows MERL's reference code: ``theta_h`` bins are uniform in
 ``[0, pi)`` by reciprocity; indices are clamped to range.
 """
 
-import hashlib
 import os
-import tempfile
 
 import numpy as np
+
+from .atomic import atomic_write
+from .errors import MerlFormatError
 
 MERL_DIMS = (90, 90, 180)
 #: Stored value -> reflectance, per channel (MERL's RED/GREEN/BLUE_SCALE).
@@ -26,10 +27,6 @@ NOT_MEASURED = -1.0
 _HEADER = np.dtype("<i4")
 _VALUES = np.dtype("<f8")
 _MAX_BINS = 1 << 28  # far above MERL's 1.46M bins; guards against garbage headers
-
-
-class MerlFormatError(ValueError):
-    """A file that is not a valid MERL ``.binary`` table."""
 
 
 # --------------------------------------------------------------------------- I/O
@@ -80,53 +77,13 @@ def read_binary(path):
     return raw.astype(np.float64, copy=False)
 
 
-def atomic_replace(path, write):
-    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it to ``path``.
-
-    An existing ``path`` is replaced only when ``write`` succeeds; the new file gets the
-    usual permissions (umask), not ``mkstemp``'s private ones.
-    """
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".",
-                               suffix=".tmp" + os.path.splitext(path)[1], dir=folder)
-    os.close(fd)
-    try:
-        write(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def atomic_write(path, write):
-    """Call ``write(file_object)`` on a temporary file beside ``path``, then rename it."""
-    def to_path(tmp):
-        with open(tmp, "wb") as f:
-            write(f)
-    atomic_replace(path, to_path)
-
-
-def file_hash(path):
-    """SHA-256 (hex) of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 22), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def write_binary(path, raw):
     """Write stored values ``raw`` (shape ``(3, nh, nd, nphi)``) as a MERL file, atomically."""
     raw = np.asarray(raw, dtype=np.float64)
     if raw.ndim != 4 or raw.shape[0] != 3:
-        raise ValueError(f"{path}: MERL table must have shape (3, n_theta_h, n_theta_d, n_phi_d), got {raw.shape}")
+        raise MerlFormatError(f"{path}: MERL table must have shape (3, n_theta_h, n_theta_d, n_phi_d), got {raw.shape}")
     if not np.isfinite(raw).all():
-        raise ValueError(f"{path}: refusing to write NaN or Inf values")
+        raise MerlFormatError(f"{path}: refusing to write NaN or Inf values")
     header = np.array(raw.shape[1:], dtype=_HEADER)
 
     def write(f):
@@ -257,7 +214,7 @@ def filled_reflectance(raw, dtype=np.float32):
         if missing.any():
             usable = (refl[c] >= 0) & above
             if not usable.any():
-                raise ValueError(f"channel {'RGB'[c]} has no measured bin above the horizon")
+                raise MerlFormatError(f"channel {'RGB'[c]} has no measured bin above the horizon")
             _, idx = ndimage.distance_transform_edt(~usable, return_indices=True)
             channel = refl[c][tuple(idx)]
         else:

@@ -14,6 +14,7 @@ means run over every pixel and channel):
 import numpy as np
 
 from .imageio import write_png
+from .errors import MetricsError
 
 #: Default regulariser of :func:`rel_mse`.
 REL_EPS = 0.01
@@ -23,12 +24,12 @@ def _pair(a, ref):
     a = np.asarray(a, dtype=np.float64)
     ref = np.asarray(ref, dtype=np.float64)
     if a.shape != ref.shape:
-        raise ValueError(f"image has shape {a.shape}, reference {ref.shape}: they must match")
+        raise MetricsError(f"image has shape {a.shape}, reference {ref.shape}: they must match")
     if a.size == 0:
-        raise ValueError("cannot compare empty images")
+        raise MetricsError("cannot compare empty images")
     for img, what in ((a, "image"), (ref, "reference")):
         if not np.isfinite(img).all():
-            raise ValueError(f"{what} contains NaN or Inf values")
+            raise MetricsError(f"{what} contains NaN or Inf values")
     return a, ref
 
 
@@ -110,7 +111,7 @@ def false_colour(error, vmax=None, cmap="inferno"):
     if e.ndim == 3:
         e = e.mean(axis=-1)
     if e.ndim != 2:
-        raise ValueError(f"error image must be (H, W) or (H, W, 3), got {np.shape(error)}")
+        raise MetricsError(f"error image must be (H, W) or (H, W, 3), got {np.shape(error)}")
     vmax = float(e.max()) if vmax is None else float(vmax)
     scaled = e / vmax if vmax > 0 else np.zeros_like(e)
     rgba = colormaps[cmap](np.clip(scaled, 0.0, 1.0), bytes=True)

@@ -4,17 +4,17 @@ import os
 
 import numpy as np
 
-from .merl import atomic_write
+from .atomic import atomic_write
 
 
-def _figure():
+def figure():
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     return plt
 
 
-def _save(fig, path):
+def save(fig, path):
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
 
 
@@ -41,7 +41,7 @@ def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
 
     Paper Fig. 7 and 10. For ``q > 2`` the map is a slice through ``dims``.
     """
-    plt = _figure()
+    plt = figure()
     xs, ys, alb = albedo_grid(manifold, dims, resolution)
     fig, ax = plt.subplots(figsize=(11, 9))
     im = ax.imshow(alb, origin="lower", extent=(xs[0], xs[-1], ys[0], ys[-1]), cmap="viridis", aspect="auto")
@@ -57,14 +57,14 @@ def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
     ax.set_title(title or f"Latent space (q={manifold.q}, slice of dims {dims}){note}", fontsize=9)
     ax.set_xlabel(f"x[{dims[0]}]")
     ax.set_ylabel(f"x[{dims[1]}]")
-    _save(fig, path)
+    save(fig, path)
     plt.close(fig)
     return path
 
 
 def convergence(history, path, label="Hooke-Jeeves", others=None):
     """PNG of the log-likelihood per iteration (paper Fig. 5); ``others``: {label: history}."""
-    plt = _figure()
+    plt = figure()
     fig, ax = plt.subplots(figsize=(6, 4))
     for lab, h in [(label, history)] + list((others or {}).items()):
         h = np.asarray(h)
@@ -74,7 +74,7 @@ def convergence(history, path, label="Hooke-Jeeves", others=None):
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    _save(fig, path)
+    save(fig, path)
     plt.close(fig)
     return path
 
@@ -90,3 +90,29 @@ def write_fit_plots(manifold, folder):
         paths.append(convergence(manifold.history, os.path.join(folder, "log_likelihood.png"),
                                  label=manifold.info.get("method", "fit")))
     return paths
+
+
+def gi_error_vs_time(report, path):
+    """Log-log plot of relative MSE against time per image: direct renders and blends, per scene and point."""
+    plt = figure()
+    names = list(report["scenes"])
+    fig, axes = plt.subplots(1, len(names), figsize=(6 * len(names), 4.5), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        sc = report["scenes"][name]
+        for k, row in enumerate(sc["points"]):
+            colour = f"C{k}"
+            d = row["direct"]
+            ax.loglog([r["time_s"] for r in d], [r["rel_mse"] for r in d], "o-", color=colour,
+                      label=f"direct render, {row['point']}")
+            ax.loglog([row["blend"]["time_s"]], [row["blend"]["rel_mse"]], "*", ms=14, color=colour,
+                      label=f"blend, {row['point']}")
+        ax.set_title(f"{name}.xml: basis rendered once in {sc['basis_time_s']:.0f} s "
+                     f"({report['basis_spp']} spp)", fontsize=9)
+        ax.set_xlabel("time per image (s)")
+        ax.set_ylabel(f"relative MSE vs {report['reference_spp']} spp full GI")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    save(fig, path)
+    plt.close(fig)
+    return path

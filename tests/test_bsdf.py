@@ -23,7 +23,10 @@ from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain  # noqa: E4
 from mitsuba_manifold import bsdf as mb, merl  # noqa: E402
 from mitsuba_manifold.database import Database  # noqa: E402
 from mitsuba_manifold.manifold import Manifold  # noqa: E402
+from mitsuba_manifold.scenes import SCENES_DIR  # noqa: E402
 from helpers import chain  # noqa: E402
+
+pytestmark = pytest.mark.render
 
 VARIANT = "llvm_ad_rgb"
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -143,6 +146,12 @@ class HalfVectorDomain:
         sin_h = dr.norm(mi.Vector2f(h.x, h.y))
         u = dr.sqrt(dr.atan2(sin_h, h.z) / (dr.pi / 2))
         return 4.0 * dr.abs(dr.dot(self.wi, h)) * sin_h * dr.pi * u
+
+
+@pytest.fixture(autouse=True)
+def _debug_files_in_tmp(tmp_path, monkeypatch):
+    """mitsuba.chi2 writes its debug file (chi2_data.py) into the working directory: keep it in tmp_path."""
+    monkeypatch.chdir(tmp_path)
 
 
 def chi2(params, angle, domain="half", ires=4):
@@ -535,7 +544,7 @@ def test_import_registers_for_the_active_variant():
 def test_sphere_scene_renders(small_manifold, negative_x, tmp_path):
     """scenes/sphere.xml renders an interpolated material; both sampling strategies agree."""
     for name in ("sphere.xml", "sky.exr"):
-        shutil.copy(os.path.join(ROOT, "scenes", name), tmp_path / name)
+        shutil.copy(os.path.join(SCENES_DIR, name), tmp_path / name)
     text = (tmp_path / "sphere.xml").read_text()
     line = '<string name="x" value="$x"/>'
     assert line in text

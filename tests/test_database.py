@@ -157,3 +157,26 @@ def test_gram_matches_float64_reference_with_chrome_like_peaks():
     assert np.allclose(S_log, z @ z.T, rtol=1e-9)
     with pytest.raises(ValueError, match="features"):
         Stub.gram(Stub(), names=list("abcdef"), tables=tables, features="sqrt")
+
+
+def test_cache_follows_the_content_even_with_the_mtime_restored(tmp_path):
+    """Issue 10: a table edited in place with its modification time restored is read again
+    (the cache is keyed on the bytes; size and mtime are not trusted)."""
+    folder = tmp_path / "db"
+    database.make_database(folder, (8, 8, 16), ["steel", "teflon"])
+    path = str(folder / "steel.binary")
+    before = database.Database(folder)
+    old_hash, old_table = before.hash("steel"), np.array(before.reflectance("steel"))
+    st = os.stat(path)
+    raw = merl.read_binary(path)
+    raw[:, raw[0] > 0] *= 2.0                       # same size, different bytes
+    with open(path, "r+b") as f:                    # in place (same inode)
+        f.seek(0)
+        f.write(open(path, "rb").read()[:12])
+        f.write(np.asarray(raw, "<f8").tobytes())
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert os.stat(path).st_size == st.st_size and os.stat(path).st_mtime_ns == st.st_mtime_ns
+    after = database.Database(folder)
+    assert after.hash("steel") != old_hash
+    np.testing.assert_allclose(np.array(after.reflectance("steel")), np.where(old_table > 0, 2 * old_table, old_table),
+                               rtol=1e-6)

@@ -1,62 +1,16 @@
 #!/usr/bin/env python3
-"""Benchmarks (not timed tests): each subcommand measures and writes a JSON report.
+"""Benchmarks (not timed tests): tools/bench.py NAME --json OUT.
 
-  fit        Gram + optimisation time, final L (Hooke-Jeeves vs L-BFGS), cond(K), peak memory
-  interp     one full interpolated table, pruned and unpruned
-  pca        PCA reconstruction error of training tables vs the manifold's exact reproduction
-  bsdf       manifold_brdf vs roughconductor render time, cdf vs cosine sampling error, construction time
-  gi         blend vs direct re-rendering: error against run time on sphere.xml and table.xml
-  stability  cond(K), weights, clamping and precision over stiff and extreme cases
-  basis      one-pass vs per-material basis rendering
+The tool is mitsuba_manifold/cli/bench.py (also installed as a console script); --help lists its options.
 """
 
-import argparse
-import json
 import os
 import sys
-import time
 
-from _cli import fail, parse_list
+# Run from a checkout without installing the package: its root comes first on the path.
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-
-def _default_db():
-    return os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "out", "database")
-
-
-def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("which", choices=["fit", "interp", "pca", "bsdf", "gi", "stability", "basis"])
-    p.add_argument("--json", required=True, metavar="OUT", help="write the measurements here")
-    p.add_argument("--database", default=None,
-                   help="folder of MERL tables (default: out/database, made at MERL resolution if missing)")
-    p.add_argument("--materials", type=parse_list, default=None, help="subset of materials")
-    p.add_argument("--manifold", default=None, help="saved manifold (interp/bsdf/gi/basis)")
-    args = p.parse_args(argv)
-
-    from mitsuba_manifold import benchmarks, database
-    from mitsuba_manifold.merl import atomic_write
-    folder = args.database or _default_db()
-    if args.database is None and not os.path.isdir(folder):
-        print(f"making the built-in database at MERL resolution in {folder}")
-        database.make_database(folder, progress=True)
-    t0 = time.perf_counter()
-    try:
-        fn = getattr(benchmarks, "bench_" + args.which)
-        kwargs = {"names": args.materials} if args.which in ("fit", "pca") else {}
-        if args.manifold and args.which != "fit":
-            kwargs["manifold"] = args.manifold
-        if args.which == "gi":
-            kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
-        result = fn(folder, **kwargs)
-    except (ValueError, KeyError, OSError) as e:
-        fail(e)
-    report = {"benchmark": args.which, "database": os.path.abspath(folder), "machine": benchmarks.machine(),
-              "date": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": time.perf_counter() - t0,
-              "result": result}
-    text = json.dumps(report, indent=1, default=float)
-    atomic_write(args.json, lambda f: f.write(text.encode()))
-    print(text)
-
+from mitsuba_manifold.cli.bench import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,45 +1,16 @@
 #!/usr/bin/env python3
-"""Render the L1- basis of a scene: base.exr (paths never touching the manifold material)
-and one <material>.exr per measured material (paths touching it exactly once)."""
+"""Render the L1- basis of a scene: base.exr and one <material>.exr per measured material.
 
-import argparse
+The tool is mitsuba_manifold/cli/render_basis.py (also installed as a console script); --help lists its options.
+"""
+
+import os
 import sys
-import time
 
-from _cli import fail, parse_floats, parse_list
+# Run from a checkout without installing the package: its root comes first on the path.
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-
-def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("scene", help="Mitsuba scene XML with a manifold_brdf material taking $manifold")
-    p.add_argument("--manifold", default="out/manifold.npz", help="saved manifold (default out/manifold.npz)")
-    p.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
-    p.add_argument("--materials", type=parse_list, default="all", help="'all' (default) or a,b,...")
-    p.add_argument("--near", type=parse_floats, default=None, metavar="X", help="only materials near this latent point")
-    p.add_argument("--radius", type=float, default=None, help="radius for --near")
-    p.add_argument("--mode", choices=["onepass", "per-material"], default="onepass",
-                   help="all materials from one set of paths (default) or one render per material")
-    p.add_argument("--res", type=int, default=None, help="square resolution (scenes taking $res)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-depth", type=int, default=None, help="path depth (-1: unbounded; default: the scene's $max_depth)")
-    p.add_argument("--variant", default=None, help="Mitsuba variant (default: cuda_ad_rgb if usable, else llvm_ad_rgb)")
-    p.add_argument("--out", required=True, help="output folder")
-    args = p.parse_args(argv)
-    materials = args.materials if args.materials != ["all"] else "all"
-
-    from mitsuba_manifold import basis
-    t0 = time.perf_counter()
-    try:
-        manifest = basis.render_basis(args.scene, args.manifold, args.out, spp=args.spp, materials=materials,
-                                      near=args.near, radius=args.radius, mode=args.mode, seed=args.seed,
-                                      resolution=args.res, max_depth=args.max_depth, variant=args.variant,
-                                      progress=True)
-    except (ValueError, KeyError, OSError) as e:
-        fail(e)
-    n = len(manifest["images"])
-    print(f"{n} images in {args.out} ({manifest['resolution'][0]}x{manifest['resolution'][1]}, "
-          f"{manifest['spp']} spp, {manifest['mode']}, {manifest['variant']}), {time.perf_counter() - t0:.1f} s")
-
+from mitsuba_manifold.cli.render_basis import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

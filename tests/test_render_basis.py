@@ -11,11 +11,14 @@ mi = pytest.importorskip("mitsuba")
 mi.set_variant("llvm_ad_rgb")
 
 import mitsuba_manifold  # noqa: E402
-from mitsuba_manifold import basis, blend, imageio  # noqa: E402
+from mitsuba_manifold import basis as bf, imageio, render_basis, scenes  # noqa: E402
+from mitsuba_manifold.blend import blend  # noqa: E402
 from mitsuba_manifold.manifold import Manifold  # noqa: E402
 
+pytestmark = pytest.mark.render
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SPHERE = os.path.join(ROOT, "scenes", "sphere.xml")
+SPHERE = scenes.scene_path("sphere")
 RES = 24
 
 
@@ -27,16 +30,16 @@ def _variant():
 
 def test_select_materials(small_manifold):
     m = Manifold.load(small_manifold)
-    assert basis.select_materials(m) == m.names
-    assert basis.select_materials(m, ["steel", "chrome"]) == [n for n in m.names if n in ("steel", "chrome")]
-    near = basis.select_materials(m, near=m.latent[0], radius=1e-9)
+    assert render_basis.select_materials(m) == m.names
+    assert render_basis.select_materials(m, ["steel", "chrome"]) == [n for n in m.names if n in ("steel", "chrome")]
+    near = render_basis.select_materials(m, near=m.latent[0], radius=1e-9)
     assert near == [m.names[0]]
-    with pytest.raises(basis.RenderBasisError, match="unknown material"):
-        basis.select_materials(m, ["steel", "adamantium"])
-    with pytest.raises(basis.RenderBasisError, match="2 finite numbers"):
-        basis.select_materials(m, near=[0.0], radius=1.0)
-    with pytest.raises(basis.RenderBasisError, match="no material lies within"):
-        basis.select_materials(m, near=m.latent.max(0) + 100, radius=0.5)
+    with pytest.raises(render_basis.RenderBasisError, match="unknown material"):
+        render_basis.select_materials(m, ["steel", "adamantium"])
+    with pytest.raises(render_basis.RenderBasisError, match="2 finite numbers"):
+        render_basis.select_materials(m, near=[0.0], radius=1.0)
+    with pytest.raises(render_basis.RenderBasisError, match="no material lies within"):
+        render_basis.select_materials(m, near=m.latent.max(0) + 100, radius=0.5)
 
 
 def test_scene_without_manifold_material_is_refused(tmp_path, small_manifold):
@@ -46,8 +49,8 @@ def test_scene_without_manifold_material_is_refused(tmp_path, small_manifold):
       <integer name="height" value="8"/></film></sensor>
       <shape type="sphere"><bsdf type="diffuse"/></shape>
       <emitter type="constant"/></scene>""")
-    with pytest.raises(blend.BasisError, match="no manifold_brdf material"):
-        basis.render_basis(str(scene), small_manifold, str(tmp_path / "out"), spp=1)
+    with pytest.raises(bf.BasisError, match="no manifold_brdf material"):
+        render_basis.render_basis(str(scene), small_manifold, str(tmp_path / "out"), spp=1)
     r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), str(scene),
                         "--manifold", small_manifold, "--out", str(tmp_path / "out2")],
                        capture_output=True, text=True)
@@ -67,26 +70,26 @@ def test_interrupted_run_resumes_without_corrupt_files(tmp_path, small_manifold,
 
     monkeypatch.setattr(imageio, "write_exr", flaky)
     with pytest.raises(KeyboardInterrupt):
-        basis.render_basis(SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material")
+        render_basis.render_basis(SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material")
     monkeypatch.setattr(imageio, "write_exr", real_write)
-    manifest = blend.read_manifest(str(out))
+    manifest = bf.read_manifest(str(out))
     assert len(manifest["images"]) == 3
     assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
     for entry in manifest["images"].values():      # every listed image is whole
         assert imageio.read_exr(out / entry["file"]).shape == (RES, RES, 3)
     before = {k: os.stat(out / e["file"]).st_mtime_ns for k, e in manifest["images"].items()}
 
-    manifest = basis.render_basis(SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material")
+    manifest = render_basis.render_basis(SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material")
     m = Manifold.load(small_manifold)
     assert set(manifest["images"]) == {"base", *m.names}
     assert all(os.stat(out / manifest["images"][k]["file"]).st_mtime_ns == t for k, t in before.items())
-    b = blend.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
+    b = bf.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
     assert b.materials == [m.names]
 
     # other settings in the same folder: refused, nothing touched
     snapshot = {f: (out / f).read_bytes() for f in os.listdir(out)}
-    with pytest.raises(basis.RenderBasisError, match="other settings.*spp"):
-        basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="per-material")
+    with pytest.raises(render_basis.RenderBasisError, match="other settings.*spp"):
+        render_basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="per-material")
     assert {f: (out / f).read_bytes() for f in os.listdir(out)} == snapshot
 
 
@@ -109,13 +112,13 @@ def test_blend_equals_direct_l1_render(tmp_path, small_manifold):
     """Linearity: base + sum_i w_i I_i is an unbiased estimate of the L1- image of sum_i w_i rho_i."""
     out = tmp_path / "basis"
     m = Manifold.load(small_manifold)
-    basis.render_basis(SPHERE, small_manifold, str(out), spp=32, resolution=RES, mode="per-material",
+    render_basis.render_basis(SPHERE, small_manifold, str(out), spp=32, resolution=RES, mode="per-material",
                        materials=["gold-paint", "steel", "pink-fabric"])
-    b = blend.Basis.load(str(out), manifold=small_manifold)
+    b = bf.Basis.load(str(out), manifold=small_manifold)
     w = np.zeros(m.n)
     w[m.index("gold-paint")], w[m.index("steel")], w[m.index("pink-fabric")] = 0.5, 0.2, 0.3
-    img, info = blend.blend(b, m, w=w, prune=0.0)
-    scene, (target,), _ = blend.load_scene(SPHERE, small_manifold, 32, RES)
+    img, info = blend(b, m, w=w, prune=0.0)
+    scene, (target,), _ = scenes.load_scene(SPHERE, small_manifold, 32, RES)
     target.set_weights(w)
     assert target.clamped_bins == 0
     direct = _render_l1(scene, 128, seed=12345)
@@ -127,16 +130,16 @@ def test_onepass_basis_through_the_tool(tmp_path, small_manifold):
     """render_basis in one-pass mode: every image written once, listed once, reusable by blend."""
     out = tmp_path / "onepass"
     names = ["gold-paint", "steel", "pink-fabric"]
-    manifest = basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass",
+    manifest = render_basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass",
                                   materials=names)
     assert manifest["mode"] == "onepass" and set(manifest["images"]) == {"base", *names}
-    b = blend.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
+    b = bf.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
     assert all(np.isfinite(b.image(k)).all() for k in ["base", *names])
     assert b.image("steel").mean() > 0
     images = sorted(f for f in os.listdir(out) if f.endswith(".exr"))
     assert len(images) == 4
     stamp = {f: os.stat(out / f).st_mtime_ns for f in images}
-    basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass", materials=names)
+    render_basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass", materials=names)
     assert {f: os.stat(out / f).st_mtime_ns for f in images} == stamp   # nothing re-rendered
 
 
@@ -162,12 +165,12 @@ def test_two_manifold_materials_give_a_multilinear_basis(tmp_path, small_manifol
       <shape type="sphere"><point name="center" value="1.1, 0, 0"/><ref id="right"/></shape>
       <emitter type="constant"/></scene>""")
     out = tmp_path / "basis2"
-    manifest = basis.render_basis(str(scene), small_manifold, str(out), spp=4, materials=[a, b])
+    manifest = render_basis.render_basis(str(scene), small_manifold, str(out), spp=4, materials=[a, b])
     assert manifest["targets"] == ["left", "right"]
     assert set(manifest["images"]) == {f"{p}+{q}" for p in (a, b) for q in (a, b)}
-    with pytest.raises(basis.RenderBasisError, match="one manifold material"):
-        basis.render_basis(str(scene), small_manifold, str(tmp_path / "b3"), spp=4, materials=[a], mode="onepass")
-    bb = blend.Basis.load(str(out), manifold=small_manifold, scene=str(scene))
-    img, _ = blend.blend(bb, m, x=np.stack([m.latent[m.index(b)], m.latent[m.index(a)]]))
+    with pytest.raises(render_basis.RenderBasisError, match="one manifold material"):
+        render_basis.render_basis(str(scene), small_manifold, str(tmp_path / "b3"), spp=4, materials=[a], mode="onepass")
+    bb = bf.Basis.load(str(out), manifold=small_manifold, scene=str(scene))
+    img, _ = blend(bb, m, x=np.stack([m.latent[m.index(b)], m.latent[m.index(a)]]))
     assert np.array_equal(img, bb.image(f"{b}+{a}"))
     assert not np.array_equal(bb.image(f"{a}+{b}"), bb.image(f"{b}+{a}"))

@@ -1,11 +1,12 @@
-"""Argument helpers shared by the tools (the tools stay thin: parsing and progress only)."""
+"""Argument helpers shared by the command-line tools (parsing and progress only; the work is in the library)."""
 
 import argparse
-import os
 import sys
 
-# Tools run from a checkout without installation too.
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from ..errors import MitsubaManifoldError
+
+#: What a tool reports as a one-line error (anything else is a bug and keeps its traceback).
+ERRORS = (MitsubaManifoldError, OSError)
 
 
 def parse_list(text):

@@ -1,0 +1,46 @@
+"""Atomic file writes: a temporary file beside the target, renamed over it on success.
+
+A reader never sees a half-written file, and an existing file is replaced only when
+the new one is complete (GUIDE: nothing existing destroyed or half-written).
+"""
+
+import os
+import tempfile
+
+
+def atomic_replace(path, write):
+    """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it to ``path``.
+
+    An existing ``path`` is replaced only when ``write`` succeeds; the new file gets the
+    usual permissions (umask), not ``mkstemp``'s private ones.
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".",
+                               suffix=".tmp" + os.path.splitext(path)[1], dir=folder)
+    os.close(fd)
+    try:
+        write(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write(path, write):
+    """Call ``write(file_object)`` on a temporary file (binary mode) beside ``path``, then rename it."""
+    def to_path(tmp):
+        with open(tmp, "wb") as f:
+            write(f)
+    atomic_replace(path, to_path)
+
+
+def write_bytes(path, data):
+    """Write ``data`` (bytes or str, UTF-8) to ``path`` atomically."""
+    if isinstance(data, str):
+        data = data.encode()
+    atomic_write(path, lambda f: f.write(data))

@@ -1,0 +1,138 @@
+"""Content-hash caches.
+
+:func:`file_hash` is the SHA-256 of a file's bytes. It is computed once per file and
+process: the memo is keyed by the file's identity and status (device, inode, size,
+modification *and* change time), so a file edited in place -- even with its
+modification time restored, which still updates the change time -- is hashed again.
+Nothing is trusted across processes: a cache file is found by the hash of the bytes
+it was derived from, never by a file's size or date.
+
+:func:`npy_cache` is the one load-check-rebuild-evict pattern for derived ``.npy``
+arrays (reflectance tables, interleaved table rows, sampling densities, mixture
+tables): load the file if it exists and has the expected shape, dtype and values,
+otherwise build it, write it atomically, and keep only the newest few of its kind.
+"""
+
+import hashlib
+import os
+import threading
+
+import numpy as np
+
+from .atomic import atomic_replace, atomic_write
+
+_HASHES = {}
+_LOCK = threading.Lock()
+
+
+def _identity(path):
+    st = os.stat(path)
+    return (os.path.realpath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
+def file_hash(path, block=1 << 22):
+    """SHA-256 (hex) of a file's bytes, streamed; memoised per process (see the module notes)."""
+    path = os.fspath(path)
+    key = _identity(path)
+    with _LOCK:
+        digest = _HASHES.get(key)
+    if digest is None:
+        h = hashlib.sha256()
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(block), b""):
+                h.update(chunk)
+        digest = h.hexdigest()
+        with _LOCK:
+            _HASHES[key] = digest
+    return digest
+
+
+def key_hash(*parts, length=None):
+    """SHA-256 (hex) of ``parts`` (str, bytes or arrays), e.g. to name a cache file by its inputs."""
+    h = hashlib.sha256()
+    for p in parts:
+        if isinstance(p, str):
+            p = p.encode()
+        elif isinstance(p, np.ndarray):
+            p = p.tobytes()
+        h.update(bytes(p))
+        h.update(b"\0")
+    return h.hexdigest()[:length]
+
+
+def evict(folder, marker, keep):
+    """Delete all but the ``keep`` (at least 1) most recently used ``.npy`` files of ``folder``
+    whose name holds ``marker``."""
+    try:
+        names = [f for f in os.listdir(folder) if marker in f and f.endswith(".npy") and not f.startswith(".")]
+    except OSError:
+        return
+    def mtime(f):
+        try:
+            return os.path.getmtime(os.path.join(folder, f))
+        except OSError:
+            return 0.0
+    for f in sorted(names, key=mtime, reverse=True)[max(1, keep):]:
+        try:
+            os.remove(os.path.join(folder, f))
+        except OSError:
+            pass
+
+
+def _load_valid(path, shape, dtype, finite, mmap):
+    try:
+        value = np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
+    except (OSError, ValueError):
+        return None
+    if shape is not None and tuple(value.shape) != tuple(shape):
+        return None
+    if dtype is not None and value.dtype != np.dtype(dtype):
+        return None
+    if finite and not np.isfinite(value).all():
+        return None
+    return value
+
+
+def npy_cache(path, build=None, write=None, shape=None, dtype=None, finite=False, mmap=False,
+              touch=False, keep=None, marker=None, on_rebuild=None):
+    """Load the array cached at ``path``, or make it and cache it.
+
+    Parameters
+    ----------
+    path : str
+        Cache file, named after the content hash of what it is derived from.
+    build : callable, optional
+        ``build() -> ndarray``: makes the array (saved with ``np.save``).
+    write : callable, optional
+        ``write(tmp_path)``: writes the ``.npy`` file itself (for arrays larger than memory,
+        e.g. with ``np.lib.format.open_memmap``); instead of ``build``.
+    shape, dtype, finite :
+        What a cached file must have to be used (``finite``: no NaN or Inf).
+    mmap : bool
+        Return the array memory-mapped read-only.
+    touch : bool
+        Mark a cache hit as recently used (for eviction by ``keep``).
+    keep, marker : int, str
+        After writing, keep only the ``keep`` newest files of the folder whose name holds ``marker``.
+    on_rebuild : callable, optional
+        ``on_rebuild(path)`` is called when a cached file exists but fails the checks.
+    """
+    if os.path.exists(path):
+        value = _load_valid(path, shape, dtype, finite, mmap)
+        if value is not None:
+            if touch:
+                os.utime(path)
+            return value
+        if on_rebuild is not None:
+            on_rebuild(path)
+    if write is not None:
+        atomic_replace(path, write)
+        value = None
+    else:
+        value = build()
+        atomic_write(path, lambda f: np.save(f, value))
+    if keep is not None:
+        evict(os.path.dirname(os.path.abspath(path)), marker, keep)
+    if value is None or mmap:
+        return np.load(path, mmap_mode="r" if mmap else None)
+    return value

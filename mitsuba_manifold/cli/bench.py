@@ -1,0 +1,53 @@
+"""Benchmarks (not timed tests): each subcommand measures and writes a JSON report.
+
+  fit        Gram + optimisation time, final L (Hooke-Jeeves vs L-BFGS), cond(K), peak memory
+  interp     one full interpolated table, pruned and unpruned
+  pca        PCA reconstruction error of training tables vs the manifold's exact reproduction
+  bsdf       manifold_brdf vs roughconductor render time, cdf vs cosine sampling error, construction time
+  gi         blend vs direct re-rendering: error against run time on sphere.xml and table.xml
+  stability  cond(K), weights, clamping and precision over stiff and extreme cases
+  basis      one-pass vs per-material basis rendering
+"""
+
+import argparse
+import json
+import os
+import time
+
+from ..bench import NAMES
+from .common import ERRORS, fail, parse_list
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("which", choices=NAMES)
+    p.add_argument("--json", required=True, metavar="OUT", help="write the measurements here")
+    p.add_argument("--database", default=None,
+                   help="folder of MERL tables (default: out/database, made at MERL resolution if missing)")
+    p.add_argument("--materials", type=parse_list, default=None, help="subset of materials")
+    p.add_argument("--manifold", default=None, help="saved manifold (interp/bsdf/gi/basis)")
+    args = p.parse_args(argv)
+
+    from .. import bench, database
+    from ..atomic import write_bytes
+    from ..bench.common import machine
+    folder = args.database or os.path.join("out", "database")
+    t0 = time.perf_counter()
+    try:
+        if args.database is None and not os.path.isdir(folder):
+            print(f"making the built-in database at MERL resolution in {folder}")
+            database.make_database(folder, progress=True)
+        kwargs = {"names": args.materials} if args.which in ("fit", "pca") else {}
+        if args.manifold and args.which != "fit":
+            kwargs["manifold"] = args.manifold
+        if args.which == "gi":
+            kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
+        result = bench.run(args.which, folder, **kwargs)
+        report = {"benchmark": args.which, "database": os.path.abspath(folder), "machine": machine(),
+                  "date": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": time.perf_counter() - t0,
+                  "result": result}
+        text = json.dumps(report, indent=1, default=float)
+        write_bytes(args.json, text)
+    except ERRORS as e:
+        fail(e)
+    print(text)

@@ -1,0 +1,89 @@
+"""Every exception the package raises on bad input, under one root.
+
+Tools catch :class:`MitsubaManifoldError` (plus ``OSError`` where files are involved)
+and print its one-line message. Each class also derives from the built-in exception a
+caller would expect (``ValueError`` for bad values, ``KeyError`` for unknown names,
+``RuntimeError`` for a missing or unsuitable Mitsuba variant), so ``except ValueError``
+keeps working. Messages name the parameter or file, the value and the fix.
+"""
+
+import numpy as np
+
+
+class MitsubaManifoldError(Exception):
+    """Root of all mitsuba-manifold exceptions."""
+
+
+class InputError(MitsubaManifoldError, ValueError):
+    """A bad argument or parameter value."""
+
+
+class MerlFormatError(InputError):
+    """A file that is not a valid MERL ``.binary`` table."""
+
+
+class DatabaseError(InputError):
+    """A bad database folder or table set."""
+
+
+class UnknownMaterialError(MitsubaManifoldError, KeyError):
+    """A material name that the database or manifold does not hold."""
+
+    def __str__(self):  # KeyError would quote the message
+        return Exception.__str__(self)
+
+
+class NumericalError(MitsubaManifoldError, FloatingPointError):
+    """A computation produced NaN or Inf values."""
+
+
+class GPLVMError(InputError):
+    """Bad inputs to the GPLVM (Gram matrix, latent points, hyperparameters)."""
+
+
+class NotPositiveDefiniteError(MitsubaManifoldError, np.linalg.LinAlgError):
+    """A kernel matrix that is not positive definite (``LinAlgError``, a ``ValueError``)."""
+
+
+class ManifoldError(InputError):
+    """A bad manifold file, latent point or weight set."""
+
+
+class ManifoldBRDFError(InputError):
+    """Bad parameters of a ``manifold_brdf`` (the message names the parameter)."""
+
+
+class IntegratorError(InputError):
+    """Bad parameters or scene for the ``manifold_path`` integrator."""
+
+
+class VariantError(MitsubaManifoldError, RuntimeError):
+    """No Mitsuba variant set, an unsupported one, or no usable libLLVM."""
+
+
+class BasisError(InputError):
+    """A basis folder that cannot be used as asked (the message says why)."""
+
+
+class RenderBasisError(BasisError):
+    """Bad arguments to :func:`render_basis.render_basis`."""
+
+
+class ImageError(InputError):
+    """An image file that cannot be read or written as asked."""
+
+
+class GeometryError(InputError):
+    """Bad parameters of a generated mesh or environment map."""
+
+
+class MetricsError(InputError):
+    """Images that cannot be compared (shapes, values)."""
+
+
+class MissingFileError(MitsubaManifoldError, FileNotFoundError):
+    """A file or folder that should exist does not."""
+
+
+class StateError(MitsubaManifoldError, RuntimeError):
+    """A call made before what it depends on (e.g. AOV names before the scene is known)."""

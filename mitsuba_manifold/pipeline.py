@@ -1,0 +1,189 @@
+"""What the main job does, end to end (``tools/main.py``); the GI benchmark runs the same steps.
+
+1. the MERL-format database (SGD surrogates of the 100 MERL materials),
+2. the latent manifold (GPLVM fit, paper Sec. 3) with its summary and plots,
+3. the L1- basis of a scene (paper Sec. 5.2, one image per material),
+4. blends at a training point, a midpoint and an extrapolated point (Eq. 13), their errors
+   against full-GI references, and the error-against-time plot of blending vs re-rendering.
+
+:func:`run_main_job` does all four; :func:`gi_report` steps 3 and 4 (also behind
+``tools/bench.py gi``).
+"""
+
+import json
+import os
+import shutil
+import time
+
+import numpy as np
+
+from . import database, imageio, metrics, plots
+from . import scenes as _scenes  # (gi_report has a parameter named scenes)
+from .atomic import write_bytes
+from .basis import Basis
+from .blend import blend, blend_path
+from .manifold import Manifold
+from .render_basis import render_basis
+from .timing import median_time
+
+
+def gi_pair(m, max_clamped=1e-3, min_share=0.6):
+    """Two latent neighbours to interpolate between, for the GI comparison and the path sheet.
+
+    Among the pairs (material, its nearest latent neighbour) whose midpoint is a genuine
+    interpolation of the two (their weights there sum to at least ``min_share``) and whose
+    midpoint table needs (almost) no clamping, the one whose albedos differ most, so that
+    the interpolation is visible. Far-apart pairs cross other materials' regions, where an
+    affine combination with large weights of both signs goes negative in many bins; the
+    plugin clamps those but a blend cannot, so such a midpoint measures clamping rather
+    than Eq. 13.
+    """
+    d2 = ((m.latent[:, None] - m.latent[None]) ** 2).sum(-1)
+    np.fill_diagonal(d2, np.inf)
+    pairs = sorted({tuple(sorted((i, int(j)))) for i, j in enumerate(d2.argmin(axis=1))})
+    alb = m.albedos.mean(axis=1) if m.albedos is not None else np.zeros(m.n)
+    best = pairs[0]
+    for i, j in sorted(pairs, key=lambda p: -abs(alb[p[0]] - alb[p[1]])):
+        x = 0.5 * (m.latent[i] + m.latent[j])
+        _, w = m.weights(x)
+        if w[i] + w[j] >= min_share and m.negative_fraction(x) <= max_clamped:
+            best = (i, j)
+            break
+    i, j = best
+    return m.names[i], m.names[j]
+
+
+def gi_points(m, a, b):
+    """Training point, midpoint and extrapolated point on the latent segment from a to b."""
+    xa, xb = m.latent[m.index(a)], m.latent[m.index(b)]
+    return [("training", f"{a}", xa), ("midpoint", f"midpoint {a}-{b}", 0.5 * (xa + xb)),
+            ("extrapolated", f"{a} + 1.5 ({b} - {a})", xa + 1.5 * (xb - xa))]
+
+
+def relative_bias(a, ref):
+    """Mean relative difference of two images and its standard error (pixels independent)."""
+    d = (a - ref).reshape(-1, 3).astype(np.float64).mean(axis=1)
+    scale = float(np.mean(ref))
+    return float(d.mean() / scale), float(d.std() / np.sqrt(d.size) / scale)
+
+
+def gi_report(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_spp=64, ref_spp=4096,
+              direct_spp=(1, 4, 16, 64, 256, 1024), mode="onepass", out=None, seed=0, save_images=False,
+              progress=False, plot=None):
+    """Error against run time: the blend (Eq. 13) beside re-rendering the interpolated material.
+
+    For each scene (a shipped scene's name or a path) and latent point (training, midpoint,
+    extrapolated, :func:`gi_points` of :func:`gi_pair`): the blend's time and error against
+    a high-spp full-GI reference (``path``), and the error and time of direct renders at
+    increasing spp. On a convex scene L2+ is zero and the blend is unbiased; on a concave
+    one the bias (L2+) is measured. Writes a log-log plot (``plot``, default in ``out``);
+    with ``save_images`` also the blends, references and error images (EXR and PNG) and the
+    contact sheet of the latent path between the two materials (paper Fig. 12).
+    """
+    mi = _scenes.use_variant()
+    if manifold is None:
+        manifold = os.path.join(folder, ".manifold-cache", "bench_q2.npz")
+        Manifold.fit(folder, q=2).save(manifold)
+    m = Manifold.load(manifold)
+    out = out or os.path.join(folder, ".manifold-cache", "bench_gi")
+    os.makedirs(out, exist_ok=True)
+    pair = gi_pair(m)
+    report = {"resolution": res, "basis_spp": basis_spp, "reference_spp": ref_spp, "mode": mode,
+              "variant": mi.variant(), "pair": list(pair), "scenes": {}}
+    for name in scenes:
+        label = os.path.splitext(os.path.basename(name))[0]  # a shipped scene's name, or a file's stem
+        report["scenes"][name] = gi_scene(_scenes.scene_path(name), manifold, m, pair, os.path.join(out, label),
+                                          res, basis_spp, ref_spp, direct_spp, mode, seed, save_images, progress)
+    report["plot"] = plots.gi_error_vs_time(report, plot or os.path.join(out, "gi_error_vs_time.png"))
+    return report
+
+
+def gi_scene(scene_path, manifold_path, m, pair, stem, res, basis_spp, ref_spp, direct_spp, mode, seed,
+             save_images, progress):
+    """:func:`gi_report` for one scene: render its basis (timed, from scratch), then each point's
+    blend, reference and direct renders; files are named ``<stem>_...``."""
+    out, name = os.path.dirname(stem), os.path.basename(stem)
+    folder_b = os.path.join(out, f"basis_{name}_{res}_{basis_spp}_{mode}")
+    if os.path.isdir(folder_b):  # time a whole basis, not a resumed one
+        shutil.rmtree(folder_b)
+    t0 = time.perf_counter()
+    render_basis(scene_path, manifold_path, folder_b, spp=basis_spp, mode=mode, resolution=res, seed=seed,
+                 progress=progress)
+    t_basis = time.perf_counter() - t0
+    b = Basis.load(folder_b, manifold=m)
+    rows = []
+    for kind, label, x in gi_points(m, *pair):
+        ref = _scenes.render_reference(scene_path, manifold_path, x, ref_spp, seed=seed + 7919, resolution=(res, res))
+        img, info = blend(b, m, x=x)
+        t_blend = median_time(lambda: blend(b, m, x=x), 5)[0]
+        bias, bias_se = relative_bias(img, ref)
+        row = {"point": kind, "x_is": label, "x": np.asarray(x).tolist(),
+               "clamped_fraction": m.negative_fraction(x),
+               "blend": {"time_s": t_blend, **metrics.compare(img, ref), "relative_bias": bias,
+                         "relative_bias_se": bias_se, "materials_used": int(info["n_images"])},
+               "direct": []}
+        for spp in direct_spp:
+            t0 = time.perf_counter()
+            direct = _scenes.render_reference(scene_path, manifold_path, x, spp, seed=seed + spp, resolution=(res, res))
+            row["direct"].append({"spp": spp, "time_s": time.perf_counter() - t0, **metrics.compare(direct, ref)})
+        rows.append(row)
+        if save_images:
+            _save_point_images(f"{stem}_{kind}", img, ref)
+        if progress:
+            print(f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True)
+    if save_images:
+        images, _, _ = blend_path(b, m, *pair, steps=20)
+        imageio.write_contact_sheet(f"{stem}_path_sheet.png", images,
+                                    labels=[f"{t:.2f}" for t in np.linspace(0, 1, len(images))])
+    return {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows}
+
+
+def _save_point_images(stem, img, ref):
+    for suffix, image in (("blend", img), ("reference", ref)):
+        imageio.write_exr(f"{stem}_{suffix}.exr", image)
+        imageio.write_png(f"{stem}_{suffix}.png", image)
+    metrics.write_error_png(f"{stem}_error.png", img, ref)
+
+
+def run_main_job(out, resolution=(90, 90, 180), q=2, features="log", scene="table", res=256, spp=64,
+                 ref_spp=4096, mode="onepass", direct_spp=(1, 4, 16, 64, 256), log=print):
+    """The main job: database, manifold, plots, basis and blends of ``scene``, ``gi/report.json``.
+
+    ``log(text)`` reports progress (stages and results). Returns the GI report (with
+    ``report_path``).
+    """
+    t_start = time.perf_counter()
+    db_dir = os.path.join(out, "database")
+    manifold_path = os.path.join(out, "manifold.npz")
+    log(f"\n== database: {db_dir}")
+    t0 = time.perf_counter()
+    database.make_database(db_dir, resolution, progress=True)
+    log(f"100 tables ready ({time.perf_counter() - t0:.1f} s)")
+
+    log(f"\n== manifold: q={q}, features={features}")
+    m = Manifold.fit(db_dir, q=q, features=features, progress=True)
+    m.save(manifold_path)
+    log(m.summary())
+    log(f"load {m.info['time_load_s']:.1f} s, Gram {m.info['time_gram_s']:.1f} s, "
+        f"optimisation {m.info['time_fit_s']:.1f} s; saved {manifold_path}")
+    for path in plots.write_fit_plots(m, os.path.join(out, "plots")):
+        log(f"plot: {path}")
+
+    log(f"\n== basis of {scene} and blends ({res}x{res}, {spp} spp basis, {ref_spp} spp references)")
+    report = gi_report(db_dir, manifold=manifold_path, scenes=(scene,), res=res, basis_spp=spp,
+                       ref_spp=ref_spp, mode=mode, direct_spp=direct_spp, out=os.path.join(out, "gi"),
+                       save_images=True, progress=True)
+    sc = report["scenes"][scene]
+    log(f"basis: {sc['basis_images']} images in {sc['basis_time_s']:.1f} s")
+    for row in sc["points"]:
+        b = row["blend"]
+        d = next((r for r in row["direct"] if r["spp"] == 64), row["direct"][-1])
+        log(f"{row['point']:>12s} ({row['x_is']}): blend {1e3 * b['time_s']:.1f} ms, rel. MSE {b['rel_mse']:.3g}, "
+            f"PSNR {b['psnr']:.1f} dB, bias {100 * b['relative_bias']:+.2f}% | direct {d['spp']} spp "
+            f"{d['time_s']:.2f} s, rel. MSE {d['rel_mse']:.3g}")
+    report_path = os.path.join(out, "gi", "report.json")
+    write_bytes(report_path, json.dumps(report, indent=1))
+    log(f"plot: {report['plot']}\nreport: {report_path}\nimages: {os.path.join(out, 'gi')}")
+    log(f"\nmain job done in {time.perf_counter() - t_start:.0f} s")
+    report["report_path"] = report_path
+    return report

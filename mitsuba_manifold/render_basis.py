@@ -1,0 +1,219 @@
+"""Render the per-material basis images of a scene (paper Sec. 5.2, Eq. 12-13).
+
+For a scene whose material to edit is a ``manifold_brdf``, the L1- image of any latent
+point is ``base + sum_i w_i I_i``: ``base`` holds the paths that never scatter off the
+material, ``I_i`` those that scatter off it exactly once with measured material ``i``.
+:func:`render_basis` renders ``base.exr`` and one ``<material>.exr`` per requested
+material into a folder with a ``manifest.json`` (format in :mod:`mitsuba_manifold.basis`).
+
+With several manifold materials in the scene (one target each, paper Sec. 6) the image
+is multilinear in their weights: each image ``<a>+<b>.exr`` is the full L1- image with
+target 1 set to material ``a`` and target 2 to ``b``, for every combination asked for.
+
+Rendering is resumable: images already present and valid for the same manifest
+settings are kept, every file is written to a temporary name and renamed, and the
+manifest is updated after each image, so a killed run continues where it stopped.
+"""
+
+import itertools
+import os
+import time
+
+import numpy as np
+
+from . import basis as basis_folder
+from . import imageio, scenes
+from .errors import ImageError, RenderBasisError
+from .scenes import default_variant
+from .manifold import Manifold
+
+MODES = basis_folder.MODES
+
+
+def select_materials(manifold, materials="all", near=None, radius=None):
+    """Names of the materials to render, in manifold order.
+
+    Parameters
+    ----------
+    manifold : Manifold
+    materials : "all" or list of str
+    near : array_like (q,), optional
+        With ``radius``: only materials whose latent point lies within ``radius`` of it.
+    """
+    if near is not None or radius is not None:
+        if near is None or radius is None:
+            raise RenderBasisError("--near and --radius go together")
+        near = np.asarray(near, dtype=np.float64).ravel()
+        if near.size != manifold.q or not np.isfinite(near).all():
+            raise RenderBasisError(f"--near must be {manifold.q} finite numbers (the manifold's latent "
+                                   f"dimension), got {near.tolist()}")
+        if not radius > 0:
+            raise RenderBasisError(f"--radius must be > 0, got {radius}")
+        dist = np.linalg.norm(manifold.latent - near, axis=1)
+        chosen = [n for n, dd in zip(manifold.names, dist) if dd <= radius]
+        if not chosen:
+            raise RenderBasisError(f"no material lies within {radius} of {near.tolist()} "
+                                   f"(nearest: {manifold.names[int(dist.argmin())]} at {dist.min():.3g})")
+        return chosen
+    if materials in (None, "all") or materials == ["all"]:
+        return list(manifold.names)
+    unknown = [m for m in materials if m not in manifold.names]
+    if unknown:
+        raise RenderBasisError(f"unknown material(s) {unknown} for manifold with {manifold.n} materials")
+    return [n for n in manifold.names if n in set(materials)]
+
+
+def _open_folder(out, manifest):
+    """Create ``out`` or check that its manifest matches; return the images still valid there."""
+    os.makedirs(out, exist_ok=True)
+    if not os.path.exists(os.path.join(out, basis_folder.MANIFEST)):
+        return {}
+    old = basis_folder.read_manifest(out)
+    diff = basis_folder.manifest_differences(old, manifest)
+    if diff:
+        raise RenderBasisError(
+            f"{out} holds a basis made with other settings ({', '.join(diff)} differ); "
+            "choose another folder or delete it")
+    kept = {}
+    w, h = manifest["resolution"]
+    for key, entry in old["images"].items():
+        path = os.path.join(out, entry["file"])
+        try:
+            imageio.check_exr_header(path, (w, h))
+            imageio.read_exr(path)  # a killed writer never leaves a partial file, but check anyway
+        except (ImageError, OSError):
+            continue
+        kept[key] = entry
+    return kept
+
+
+def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=None, radius=None,
+                 mode="per-material", seed=0, resolution=None, max_depth=None, variant=None,
+                 progress=False, chunk_spp=None):
+    """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
+
+    Parameters
+    ----------
+    scene_path, manifold_path : str
+    out : str
+        Folder (created; resumed when it holds a basis with the same settings).
+    spp : int
+        Samples per pixel of every image.
+    materials, near, radius
+        Selection, see :func:`select_materials`.
+    mode : {"per-material", "onepass"}
+        One render per material, or all materials from one set of paths
+        (:meth:`ManifoldPathIntegrator.render_onepass`, one target only).
+    seed : int
+        Same seed for every image (correlated noise makes blends smoother).
+    resolution : int or (int, int), optional
+        Image size, for scenes that take ``$res`` or ``$width``/``$height``.
+    max_depth : int, optional
+        Path depth (-1: unbounded; default: the scene's ``$max_depth`` default, else -1).
+    variant : str, optional
+        Mitsuba variant (default: the active one, else CUDA when available, else LLVM).
+    progress : bool
+        Progress bar with ETA.
+
+    Returns
+    -------
+    dict
+        The manifest written.
+    """
+    import mitsuba as mi
+
+    if mode not in MODES:
+        raise RenderBasisError(f"mode must be one of {MODES}, got {mode!r}")
+    if int(spp) < 1:
+        raise RenderBasisError(f"spp must be >= 1, got {spp}")
+    manifold = Manifold.load(manifold_path)
+    chosen = select_materials(manifold, materials, near, radius)
+    if not os.path.isfile(scene_path):
+        raise RenderBasisError(f"scene {scene_path} does not exist")
+    scene, targets, max_depth = scenes.load_scene(scene_path, manifold_path, spp, resolution, max_depth,
+                                             variant=variant or mi.variant() or default_variant())
+    if mode == "onepass" and len(targets) != 1:
+        raise RenderBasisError(f"onepass mode renders scenes with one manifold material; {scene_path} has "
+                               f"{len(targets)}: use mode='per-material'")
+    size = tuple(int(v) for v in scene.sensors()[0].film().size())
+    manifest = basis_folder.make_manifest(scene_path, manifold_path, size, spp, mi.variant(), seed, max_depth,
+                                       mode, [b.id() for b in targets])
+    manifest["images"] = _open_folder(out, manifest)
+    basis_folder.write_manifest(out, manifest)
+
+    if len(targets) == 1:
+        jobs = [("base", None)] + [(name, (name,)) for name in chosen]
+    else:
+        jobs = [(basis_folder.image_key(combo), combo) for combo in itertools.product(chosen, repeat=len(targets))]
+    todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
+
+    def save(images, seconds):
+        """Write ``{key: image}`` (EXR files in parallel), then list them in the manifest."""
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
+            list(pool.map(lambda kv: imageio.write_exr(os.path.join(out, kv[0] + ".exr"), kv[1]),
+                          images.items()))
+        for key in images:
+            manifest["images"][key] = {"file": key + ".exr", "time_s": float(seconds)}
+        basis_folder.write_manifest(out, manifest)
+
+    if not todo:
+        return manifest
+    if mode == "onepass":
+        _render_onepass(scene, targets[0], todo, spp, seed, max_depth, save, progress, chunk_spp)
+    else:
+        _render_each(scene, targets, todo, spp, seed, max_depth, save, progress)
+    return manifest
+
+
+def _integrator(component, max_depth, target="all"):
+    import mitsuba as mi
+    return mi.load_dict({"type": "manifold_path", "component": component, "max_depth": int(max_depth),
+                         "target": target})
+
+
+def _bar(total, enabled, desc):
+    from tqdm import tqdm
+    return tqdm(total=total, desc=desc, unit="image", disable=not enabled)
+
+
+def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress):
+    """One render per image: base (component 'base'), then 'touch' per material or 'l1' per combination."""
+    import mitsuba as mi
+
+    single = len(targets) == 1
+    touch = _integrator("touch", max_depth)
+    l1 = _integrator("l1", max_depth, target=",".join(b.id() for b in targets)) if not single else None
+    with _bar(len(todo), progress, "rendering basis") as bar:
+        for key, combo in todo:
+            t0 = time.perf_counter()
+            if combo is None:
+                img = mi.render(scene, integrator=_integrator("base", max_depth), spp=spp, seed=seed)
+            else:
+                for bsdf, name in zip(targets, combo):
+                    bsdf.set_material(name)
+                img = mi.render(scene, integrator=touch if single else l1, spp=spp, seed=seed)
+            save({key: np.array(img, dtype=np.float32)[..., :3]}, time.perf_counter() - t0)
+            bar.set_postfix_str(key)
+            bar.update()
+
+
+def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, chunk_spp):
+    """All material images from one set of paths (issue 5); base comes from the same paths."""
+    from tqdm import tqdm
+    integrator = _integrator("l1", max_depth)
+    names = [key for key, combo in todo if combo is not None]
+    t0 = time.perf_counter()
+    with tqdm(desc="rendering basis (one pass)", unit="step", disable=not progress) as bar:
+        def advance(done, total):
+            bar.total = total
+            bar.update(done - bar.n)
+        kwargs = {"materials": names, "spp": spp, "seed": seed, "progress": advance}
+        if chunk_spp:
+            kwargs["spp_per_pass"] = chunk_spp
+        base, images = integrator.render_onepass(scene, **kwargs)
+    seconds = (time.perf_counter() - t0) / max(len(todo), 1)
+    out = {name: np.asarray(images[name], dtype=np.float32)[..., :3] for name in names}
+    if any(combo is None for _, combo in todo):
+        out["base"] = np.asarray(base, dtype=np.float32)[..., :3]
+    save(out, seconds)

@@ -1,0 +1,214 @@
+"""Scenes: the ones shipped with the package, loading with ``$parameters``, references.
+
+The package ships its test and demo scenes as package data (``mitsuba_manifold/scenes``):
+:func:`scene_path` accepts one of their names (``"table"``) or a path to any scene XML.
+:func:`load_scene` loads a scene with the manifold and latent point as parameters and
+finds its manifold materials; :func:`render_reference` renders the full global
+illumination of an interpolated material with Mitsuba's ``path`` (the ground truth the
+``L1-`` blends of paper Sec. 5.2 are compared with).
+"""
+
+import os
+import re
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from .cache import file_hash
+from .errors import BasisError
+
+#: Folder of the scenes shipped with the package.
+SCENES_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenes")
+
+_PARAM = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
+
+
+def shipped_scenes():
+    """Names of the scenes shipped with the package (``table``, ``sphere``, ...)."""
+    return sorted(f[:-4] for f in os.listdir(SCENES_DIR) if f.endswith(".xml"))
+
+
+def scene_path(scene):
+    """Path of a scene given as a shipped scene's name (``"table"``) or as a path to an XML file."""
+    scene = os.fspath(scene)
+    if os.path.isfile(scene):
+        return os.path.abspath(scene)
+    shipped = os.path.join(SCENES_DIR, scene + ".xml")
+    if os.sep not in scene and not scene.endswith(".xml") and os.path.isfile(shipped):
+        return shipped
+    raise BasisError(f"scene {scene} does not exist (nor is it the name of a shipped scene: "
+                     f"{', '.join(shipped_scenes())})")
+
+
+def default_variant():
+    """``cuda_ad_rgb`` when a GPU works, else ``llvm_ad_rgb``."""
+    import mitsuba as mi
+    if "cuda_ad_rgb" in mi.variants():
+        try:
+            import drjit as dr
+            if dr.has_backend(dr.JitBackend.CUDA):
+                return "cuda_ad_rgb"
+        except Exception:  # no driver
+            pass
+    return "llvm_ad_rgb"
+
+
+def use_variant(variant=None):
+    """Make ``variant`` (default: :func:`default_variant`) active with the package's plugins; returns ``mi``."""
+    import mitsuba as mi
+
+    from . import plugin
+    variant = variant or default_variant()
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    plugin.install()
+    plugin.register_all()
+    return mi
+
+
+def scene_parameters(scene):
+    """Names of the ``$parameters`` a scene XML uses, and its ``<default>`` values."""
+    scene = os.fspath(scene)
+    if not os.path.isfile(scene):
+        raise BasisError(f"scene {scene} does not exist")
+    with open(scene, encoding="utf-8") as f:
+        text = f.read()
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as e:
+        raise BasisError(f"scene {scene}: not a readable XML file ({e})") from None
+    defaults = {el.get("name"): el.get("value") for el in root.iter("default")}
+    return set(_PARAM.findall(text)), defaults
+
+
+def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=None, x=None,
+               variant=None):
+    """Load a scene XML with its ``$parameters`` set, and find its manifold materials.
+
+    Only the parameters the XML uses are passed (Mitsuba refuses others): ``$manifold``,
+    ``$x``, ``$spp``, ``$max_depth``, ``$integrator`` (``path``) and the size through
+    ``$res`` (square) or ``$width``/``$height``.
+
+    Parameters
+    ----------
+    scene_path, manifold_path : str
+    spp : int, optional
+    resolution : int or (int, int), optional
+        Square size or ``(width, height)``; checked against the film.
+    max_depth : int, optional
+        Default: the scene's ``$max_depth`` default, else -1 (unbounded).
+    x : array_like (q,), optional
+    variant : str, optional
+        Default: the active variant, else ``llvm_ad_rgb``.
+
+    Returns
+    -------
+    scene : mi.Scene
+    targets : list
+        The scene's ``manifold_brdf`` instances (shape order), checked to use ``manifold_path``.
+    max_depth : int
+    """
+    import mitsuba as mi
+
+    from . import plugin
+    from .integrators import manifold_bsdfs
+
+    scene_path, manifold_path = os.fspath(scene_path), os.fspath(manifold_path)
+    if not os.path.isfile(manifold_path):
+        raise BasisError(f"manifold {manifold_path} does not exist")
+    used, defaults = scene_parameters(scene_path)
+    if variant is not None and variant != mi.variant():
+        mi.set_variant(variant)
+    elif mi.variant() is None:
+        mi.set_variant("llvm_ad_rgb" if "llvm_ad_rgb" in mi.variants() else "scalar_rgb")
+    plugin.install()
+    plugin.register_all()
+    if spp is not None and int(spp) < 1:
+        raise BasisError(f"spp must be >= 1, got {spp}")
+    params = {}
+    if "manifold" in used:
+        params["manifold"] = os.path.abspath(manifold_path)
+    if "x" in used and x is not None:
+        params["x"] = ", ".join(repr(float(v)) for v in np.ravel(x))
+    if "spp" in used and spp is not None:
+        params["spp"] = str(int(spp))
+    if "integrator" in used:
+        params["integrator"] = "path"
+    if max_depth is None:
+        max_depth = int(defaults.get("max_depth", -1)) if "max_depth" in used else -1
+    if "max_depth" in used:
+        params["max_depth"] = str(int(max_depth))
+    size = None
+    if resolution is not None:
+        size = (int(resolution), int(resolution)) if np.isscalar(resolution) else tuple(int(v) for v in resolution)
+        if "res" in used and size[0] == size[1]:
+            params["res"] = str(size[0])
+        for name, value in zip(("width", "height"), size):
+            if name in used:
+                params[name] = str(value)
+    try:
+        scene = mi.load_file(scene_path, **params)
+    except Exception as e:
+        raise BasisError(f"scene {scene_path}: cannot load ({e})") from None
+    targets = manifold_bsdfs(scene)
+    if not targets:
+        raise BasisError(f"scene {scene_path} has no manifold_brdf material (give the material to edit "
+                         "type=\"manifold_brdf\" and take the manifold as $manifold)")
+    want = file_hash(manifold_path)
+    for bsdf in targets:
+        path = getattr(bsdf, "manifold_path", None)
+        if path is None or file_hash(path) != want:
+            raise BasisError(f"scene {scene_path}: material {bsdf.id()!r} uses manifold {path}, not "
+                             f"{manifold_path} (the scene does not take it as $manifold)")
+    film_size = tuple(int(v) for v in scene.sensors()[0].film().size())
+    if size is not None and film_size != size:
+        raise BasisError(f"scene {scene_path} renders {film_size[0]}x{film_size[1]}, not {size[0]}x{size[1]} "
+                         "(it takes no $res/$width/$height parameter for this size)")
+    return scene, targets, int(max_depth)
+
+
+def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None, max_depth=None,
+                     variant=None, targets=None):
+    """Full global-illumination image of the interpolated material, with Mitsuba's ``path``.
+
+    Loads the scene (:func:`load_scene`), sets every manifold material to its latent
+    point, and renders with a ``path`` integrator.
+
+    Parameters
+    ----------
+    scene_path, manifold_path : str
+    x : array_like
+        (q,): every manifold material of the scene at x; or (p, q): one point per target.
+    targets : list of str, optional
+        BSDF ids of the rows of a (p, q) ``x`` (a basis's ``targets``); default: the
+        scene's manifold materials in the order of its shapes.
+    spp, seed : int
+    resolution, max_depth, variant
+        As :func:`load_scene`.
+
+    Returns
+    -------
+    ndarray float32 (H, W, 3)
+    """
+    import mitsuba as mi
+
+    pts = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    if pts.ndim != 2 or not np.isfinite(pts).all():
+        raise BasisError(f"x must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}")
+    if int(spp) < 1:
+        raise BasisError(f"spp must be >= 1, got {spp}")
+    scene, found, max_depth = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant)
+    ids = [b.id() for b in found]
+    if len(pts) == 1:
+        rows = [0] * len(found)
+    else:
+        order = ids if targets is None else list(targets)
+        if len(order) != len(pts) or sorted(order) != sorted(ids):
+            raise BasisError(f"x gives {len(pts)} latent points for targets {order}; the scene's manifold "
+                             f"materials are {ids}")
+        rows = [order.index(i) for i in ids]
+    for bsdf, row in zip(found, rows):
+        bsdf.set_latent(pts[row])
+    integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
+    img = mi.render(scene, integrator=integrator, spp=int(spp), seed=int(seed))
+    return np.array(img, dtype=np.float32)[..., :3].copy()

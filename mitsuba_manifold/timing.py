@@ -1,0 +1,15 @@
+"""Wall-clock timing of repeated calls (medians; the benchmarks and the main job report them)."""
+
+import time
+
+import numpy as np
+
+
+def median_time(fn, repeats):
+    """Median wall time (s) of ``repeats`` calls of ``fn()``, and every time measured."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), times

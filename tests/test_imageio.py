@@ -1,0 +1,122 @@
+"""Image files (EXR, PNG, contact sheets) and image metrics: exact round trips, clear errors, atomic writes."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from mitsuba_manifold import imageio, metrics
+from mitsuba_manifold.errors import ImageError
+
+
+def test_exr_round_trip_is_exact_and_keeps_metadata(tmp_path):
+    rng = np.random.default_rng(0)
+    img = (rng.normal(size=(7, 11, 3)) * 10.0 ** rng.integers(-6, 6, size=(7, 11, 3))).astype(np.float32)
+    img[0, 0] = [0.0, -0.0, np.finfo(np.float32).max]
+    path = str(tmp_path / "a.exr")
+    imageio.write_exr(path, img, metadata={"scene": "x.xml", "spp": 64})
+    back = imageio.read_exr(path)
+    assert back.dtype == np.float32 and back.shape == (7, 11, 3)
+    assert np.array_equal(back.view(np.uint32), img.view(np.uint32))  # bit exact, signed zero too
+    header = imageio.read_exr_header(path)
+    assert (header["width"], header["height"]) == (11, 7)
+    assert header["attributes"]["scene"] == "x.xml" and json.loads(header["attributes"]["spp"]) == 64
+
+
+def test_exr_read_errors_name_the_file(tmp_path):
+    img = np.random.default_rng(0).uniform(size=(64, 80, 3)).astype(np.float32)
+    good = str(tmp_path / "good.exr")
+    imageio.write_exr(good, img)
+    data = open(good, "rb").read()
+    cases = {"missing.exr": (None, "does not exist"), "empty.exr": (b"", "not an OpenEXR"),
+             "text.exr": (b"hello, not an image" * 10, "not an OpenEXR"),
+             "trunc.exr": (data[: len(data) * 2 // 3], "truncated or corrupt"),
+             "header.exr": (data[:40], "truncated or corrupt")}
+    for name, (content, message) in cases.items():
+        path = str(tmp_path / name)
+        if content is not None:
+            open(path, "wb").write(content)
+        with pytest.raises(ImageError, match=message) as e:
+            imageio.read_exr(path)
+        assert path in str(e.value)
+    import OpenEXR
+    grey = str(tmp_path / "grey.exr")
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {"Y": img[..., 0].copy()}).write(grey)
+    with pytest.raises(ImageError, match=r"grey.exr: EXR has channels \['Y'\], missing RGB"):
+        imageio.read_exr(grey)
+    with pytest.raises(ImageError, match="missing RGB"):
+        imageio.check_exr_header(grey)
+    with pytest.raises(ImageError, match="is 80x64, expected 80x65"):
+        imageio.check_exr_header(good, (80, 65))
+
+
+def test_writers_never_leave_a_half_written_file(tmp_path):
+    path = str(tmp_path / "keep.exr")
+    img = np.ones((4, 5, 3), np.float32)
+    imageio.write_exr(path, img)
+    before = open(path, "rb").read()
+    bad = img.copy()
+    bad[1, 1, 1] = np.nan
+    with pytest.raises(ImageError, match="NaN"):
+        imageio.write_exr(path, bad)
+    with pytest.raises(ImageError, match="shape"):
+        imageio.write_exr(path, img[..., :2])
+    assert open(path, "rb").read() == before
+    assert os.listdir(tmp_path) == ["keep.exr"]  # no temporary file left behind
+
+
+def test_png_is_srgb_tonemapped(tmp_path):
+    from PIL import Image
+    img = np.array([[[0.0, 0.5, 1.0], [0.25, 2.0, -1.0]]], dtype=np.float32)
+    path = str(tmp_path / "a.png")
+    imageio.write_png(path, img)
+    px = np.asarray(Image.open(path).convert("RGB"))
+    # sRGB: 0.5 -> 1.055 * 0.5^(1/2.4) - 0.055 = 0.7354 -> 188; 0.25 -> 0.5371 -> 137; clipped above 1 and below 0
+    assert px.tolist() == [[[0, 188, 255], [137, 255, 0]]]
+    imageio.write_png(path, img, exposure=1.0)  # one stop up: 0.25 -> 0.5
+    assert np.asarray(Image.open(path).convert("RGB"))[0, 1, 0] == 188
+
+
+# ----------------------------------------------------------------- metrics
+
+def test_metrics_against_hand_computed_values():
+    ref = np.array([[[1.0, 2.0, 0.0], [4.0, 0.0, 0.0]]])
+    a = np.array([[[1.5, 2.0, 0.1], [2.0, 0.0, 0.0]]])
+    # squared errors 0.25, 0, 0.01, 4, 0, 0 over 6 values
+    assert metrics.mse(a, ref) == pytest.approx(4.26 / 6)
+    rel = (0.25 / 1.01 + 0.01 / 0.01 + 4.0 / 16.01) / 6
+    assert metrics.rel_mse(a, ref) == pytest.approx(rel)
+    assert metrics.psnr(a, ref) == pytest.approx(10 * np.log10(16.0 / (4.26 / 6)))  # peak = max(ref) = 4
+    assert metrics.psnr(a, ref, peak=1.0) == pytest.approx(10 * np.log10(6 / 4.26))
+    assert metrics.max_abs(a, ref) == pytest.approx(2.0)
+    assert np.allclose(metrics.error_image(a, ref), np.abs(a - ref))
+    s = metrics.compare(a, ref)
+    assert s["rel_mse"] == pytest.approx(rel) and s["max_abs"] == pytest.approx(2.0)
+    assert s["mean_abs"] == pytest.approx(2.6 / 6) and s["peak"] == 4.0
+    assert metrics.compare(ref, ref)["psnr"] == float("inf")
+    with pytest.raises(ValueError, match="shape"):
+        metrics.compare(a, ref[:, :1])
+    with pytest.raises(ValueError, match="reference contains NaN"):
+        metrics.compare(a, np.where(ref == 0, np.nan, ref))
+
+
+def test_false_colour_error_png(tmp_path):
+    from PIL import Image
+    ref = np.zeros((4, 6, 3))
+    a = ref.copy()
+    a[1, 2] = 3.0
+    a[3, 5] = 1.5
+    path = str(tmp_path / "err.png")
+    vmax = metrics.write_error_png(path, a, ref)
+    assert vmax == 3.0
+    png = Image.open(path)
+    assert png.size == (6, 4) and "0 .. 3" in png.text["error-scale"]
+    px = np.asarray(png.convert("RGB")).astype(int)
+    rgb, _ = metrics.false_colour(np.abs(a - ref), vmax=3.0)
+    assert np.array_equal(px, rgb)
+    assert (px[0, 0] == px[2, 2]).all() and not (px[1, 2] == px[0, 0]).all()  # zero error: one colour
+
+
+# ------------------------------------------------------------------- basis

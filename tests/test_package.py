@@ -1,0 +1,95 @@
+"""The package face and its plumbing: lazy imports, self-registering plugins, one root exception,
+thin tools, module sizes."""
+
+import ast
+import importlib
+import inspect
+import os
+import pkgutil
+import subprocess
+import sys
+
+import pytest
+
+import mitsuba_manifold
+from mitsuba_manifold import errors
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+PACKAGE = os.path.dirname(mitsuba_manifold.__file__)
+
+
+def _python(code, **kw):
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, **kw)
+
+
+def test_import_is_cheap_and_the_face_is_lazy():
+    r = _python("import sys, mitsuba_manifold as mm\n"
+                "heavy = [m for m in ('mitsuba', 'drjit', 'numpy', 'scipy') if m in sys.modules]\n"
+                "assert not heavy, heavy\n"
+                "from mitsuba_manifold import Manifold, Database, Basis, blend, register\n"
+                "assert Manifold.__name__ == 'Manifold' and Database.__name__ == 'Database'\n"
+                "assert Basis.__name__ == 'Basis' and callable(blend) and callable(blend.blend_path)\n"
+                "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n"
+                "print('ok')")
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        mitsuba_manifold.nothing  # noqa: B018
+
+
+def test_every_package_exception_has_the_one_root():
+    """No exception class is defined outside errors.py, and every one there has the root."""
+    for path, _, files in os.walk(PACKAGE):
+        for f in files:
+            if f.endswith(".py") and f != "errors.py":
+                tree = ast.parse(open(os.path.join(path, f)).read())
+                defined = [n.name for n in ast.walk(tree) if isinstance(n, ast.ClassDef) and n.name.endswith("Error")]
+                assert not defined, f"{f} defines {defined}: put exceptions in errors.py"
+    classes = [c for _, c in inspect.getmembers(errors, inspect.isclass) if issubclass(c, Exception)]
+    assert len(classes) > 10 and all(issubclass(c, errors.MitsubaManifoldError) for c in classes)
+    assert issubclass(errors.ManifoldError, ValueError) and issubclass(errors.UnknownMaterialError, KeyError)
+
+
+def test_tools_are_thin_and_the_cli_reachable():
+    for f in os.listdir(os.path.join(ROOT, "tools")):
+        if f.endswith(".py"):
+            text = open(os.path.join(ROOT, "tools", f)).read()
+            assert len(text.splitlines()) <= 20 and "from mitsuba_manifold.cli." in text, f
+    from mitsuba_manifold import cli
+    for module in cli.TOOLS.values():
+        assert callable(importlib.import_module(f"mitsuba_manifold.cli.{module}").main)
+    assert cli.main(["--help"]) == 0 and cli.main(["no-such-tool"]) == 2
+
+
+def test_no_module_over_about_500_lines():
+    for info in pkgutil.walk_packages([PACKAGE], "mitsuba_manifold."):
+        spec = importlib.util.find_spec(info.name)
+        if spec.origin and spec.origin.endswith(".py"):
+            n = len(open(spec.origin).read().splitlines())
+            assert n <= 520, f"{info.name} has {n} lines"
+
+
+@pytest.mark.render
+def test_readme_blocks_run_in_one_process(small_db, tmp_path):
+    """README "Using it": fit and interpolate, then render, in one Python process -- the package
+    imported before mi.set_variant, and the plugins there for every variant switched to."""
+    code = f"""
+from mitsuba_manifold.manifold import Manifold
+m = Manifold.fit({small_db!r}, q=2)
+m.save({str(tmp_path / 'manifold.npz')!r})
+b, w = m.weights([0.3, -1.2])
+import mitsuba as mi
+mi.set_variant("llvm_ad_rgb")
+import mitsuba_manifold
+from mitsuba_manifold.scenes import scene_path
+scene = mi.load_file(scene_path("sphere"), manifold={str(tmp_path / 'manifold.npz')!r}, x="0.3, -1.2", res="8")
+params = mi.traverse(scene); params["material.x"] = [0.5, -1.0]; params.update()
+img = mi.render(scene, spp=2)
+mi.set_variant("scalar_rgb")
+bsdf = mi.load_dict({{"type": "manifold_brdf", "manifold": {str(tmp_path / 'manifold.npz')!r}, "material": "chrome"}})
+mi.set_variant("llvm_ad_rgb")
+integrator = mi.load_dict({{"type": "manifold_path"}})
+print("ok", img.shape)
+"""
+    r = _python(code, timeout=300)
+    assert r.returncode == 0 and r.stdout.startswith("ok"), r.stderr[-2000:]

@@ -1,0 +1,69 @@
+"""Scenes: the shipped scenes found by name, and reference renders of interpolated materials."""
+
+import itertools
+import os
+
+import numpy as np
+import pytest
+
+from mitsuba_manifold import metrics, scenes
+from mitsuba_manifold.errors import BasisError
+from mitsuba_manifold.manifold import Manifold
+
+
+@pytest.fixture(scope="module")
+def manifold(small_manifold):
+    return Manifold.load(small_manifold)
+
+
+def test_shipped_scenes_are_found_by_name_or_path(tmp_path):
+    assert {"sphere", "table", "cbox"} <= set(scenes.shipped_scenes())
+    path = scenes.scene_path("table")
+    assert os.path.isfile(path) and path.endswith(os.path.join("mitsuba_manifold", "scenes", "table.xml"))
+    assert scenes.scene_path(path) == path
+    mine = tmp_path / "table"   # a file of that name wins over the shipped scene
+    mine.write_text("<scene version='3.0.0'/>")
+    assert scenes.scene_path(str(mine)) == str(mine)
+    with pytest.raises(BasisError, match="does not exist.*table"):
+        scenes.scene_path("no-such-scene")
+
+
+@pytest.mark.render
+def test_render_reference_is_the_interpolated_material(small_manifold, manifold, tmp_path):
+    """On the convex sphere scene (no path scatters twice off the sphere) the full-GI
+    reference of x equals, within noise, the affine blend of full renders of the training
+    materials (sum w_i = 1, so each full render brings one copy of the base). x is a
+    genuine mix of two materials whose interpolated table has no negative bins for the
+    plugin to clamp (clamping is the one non-linearity)."""
+    scene = scenes.scene_path("sphere")
+    res, spp = 24, 32
+    renders = np.stack([scenes.render_reference(scene, small_manifold, x, spp, seed=1 + i, resolution=(res, res))
+                        for i, x in enumerate(manifold.latent)])
+    assert renders.shape == (manifold.n, res, res, 3) and renders.dtype == np.float32
+    assert np.isfinite(renders).all() and renders.min() >= 0
+    best = (0.0, None)
+    for i, j in itertools.permutations(range(manifold.n), 2):
+        for a in (0.5, 0.7, 0.9):
+            x = a * manifold.latent[i] + (1 - a) * manifold.latent[j]
+            _, w = manifold.weights(x)
+            table, _, _ = manifold.interpolate(x, prune=0.0)
+            # the albedo of x farthest from every training material's, among the unclamped
+            gap = np.abs(manifold.albedos - w @ manifold.albedos).sum(axis=1).min()
+            if table.min() >= 0 and np.abs(w).sum() < 1.3 and gap > best[0]:
+                best = (gap, x)
+    assert best[0] > 0.05, "no point mixing materials without clamping on this manifold"
+    x = best[1]
+    _, w = manifold.weights(x)
+    blended = np.tensordot(w, renders.astype(np.float64), axes=1)
+    ref = scenes.render_reference(scene, small_manifold, x, spp, seed=100, resolution=(res, res))
+    ref2 = scenes.render_reference(scene, small_manifold, x, spp, seed=200, resolution=(res, res))
+    noise = metrics.rel_mse(ref2, ref)
+    err = metrics.rel_mse(blended, ref)
+    assert err < 2.0 * noise
+    assert np.allclose(blended.mean(axis=(0, 1)), ref.mean(axis=(0, 1)), rtol=0.02)
+    # the material really is x: every training material's render is further off
+    assert min(metrics.rel_mse(r, ref) for r in renders) > 2.0 * err
+    with pytest.raises(BasisError, match="renders 256x256, not 24x12"):
+        scenes.render_reference(scene, small_manifold, x, spp, resolution=(24, 12))
+    with pytest.raises(BasisError, match="manifold .* does not exist"):
+        scenes.render_reference(scene, str(tmp_path / "none.npz"), x, spp)
