@@ -15,6 +15,7 @@ latent point ``b -> 0`` and the material tends to the mean BRDF.
 import json
 import os
 import time
+from typing import NamedTuple
 
 import numpy as np
 from . import gplvm, kernel
@@ -23,6 +24,29 @@ from .database import FEATURES, Database
 from .errors import ManifoldError, NotPositiveDefiniteError
 
 FORMAT_VERSION = 1
+
+
+class Weights(NamedTuple):
+    """:meth:`Manifold.weights`: GP weights ``b = K^-1 k(x)`` (Eq. 4) and affine weights ``w``."""
+
+    b: np.ndarray
+    w: np.ndarray
+
+
+class Pruned(NamedTuple):
+    """:meth:`Manifold.prune`: materials kept, their rescaled weights, the ``|w|`` dropped."""
+
+    keep: np.ndarray
+    w_kept: np.ndarray
+    dropped: float
+
+
+class Combination(NamedTuple):
+    """:meth:`Manifold.combine`: the combined table, the materials used, the ``|w|`` dropped."""
+
+    table: np.ndarray
+    keep: np.ndarray
+    dropped: float
 
 
 class Manifold:
@@ -160,7 +184,8 @@ class Manifold:
 
         Returns
         -------
-        b, w : ndarray (N,) or (M, N)
+        Weights
+            ``(b, w)``, each ndarray (N,) or (M, N).
             ``sum_i w_i table_i = mean + b^T Z`` exactly. At a training point the kernel's
             noise term ``mu delta(x, x_i)`` applies, so ``w = e_i``.
         """
@@ -173,7 +198,7 @@ class Manifold:
         b[rows] = 0.0  # k(x_i) is then column i of K, so K_inv k = e_i exactly
         b[rows, cols] = 1.0
         w = b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
-        return (b[0], w[0]) if single else (b, w)
+        return Weights(b[0], w[0]) if single else Weights(b, w)
 
     def _cross(self, x):
         """Covariances ``k(x)`` (M, N) with the noise term where x equals a latent point."""
@@ -255,10 +280,9 @@ class Manifold:
 
         Returns
         -------
-        keep : ndarray of int
-        w_kept : ndarray
-        dropped : float
-            Sum of ``|w_i|`` over the dropped materials.
+        Pruned
+            ``keep`` (ndarray of int), ``w_kept`` (ndarray), ``dropped`` (float: sum of
+            ``|w_i|`` over the dropped materials).
         """
         w = np.asarray(w, dtype=np.float64)
         if w.shape != (self.n,) or not np.isfinite(w).all():
@@ -272,7 +296,7 @@ class Manifold:
         w_kept = w[keep]
         if keep.size and abs(w_kept.sum()) > 0:
             w_kept = w_kept * (w.sum() / w_kept.sum())
-        return keep, w_kept, dropped
+        return Pruned(keep, w_kept, dropped)
 
     def tables(self, database=None):
         """All N tables in memory as float32 ``(N, d)`` (loaded once, then kept)."""
@@ -287,10 +311,9 @@ class Manifold:
 
         Returns
         -------
-        table : ndarray float32 ``(3, n_theta_h, n_theta_d, n_phi_d)``
-        keep : ndarray of int
-            Indices of the materials used.
-        dropped : float
+        Combination
+            ``table`` (ndarray float32 ``(3, n_theta_h, n_theta_d, n_phi_d)``), ``keep``
+            (indices of the materials used), ``dropped`` (float).
         """
         keep, w_kept, dropped = self.prune(w, prune)
         if self._tables is not None and database is None:
@@ -298,13 +321,13 @@ class Manifold:
             if 2 * len(keep) > self.n:  # one (multithreaded) matrix-vector product over all tables
                 full = np.zeros(self.n, dtype=np.float32)
                 full[keep] = w_kept
-                return (full @ self._tables).reshape(shape), keep, dropped
+                return Combination((full @ self._tables).reshape(shape), keep, dropped)
             flat = _weighted_sum((self._tables[i] for i in keep), w_kept, self._tables.shape[1])
-            return flat.reshape(shape), keep, dropped
+            return Combination(flat.reshape(shape), keep, dropped)
         db = self.open_database(database, [self.names[i] for i in keep])
         flat = _weighted_sum((db.reflectance(self.names[i]).reshape(-1) for i in keep), w_kept,
                              3 * int(np.prod(db.dims)))
-        return flat.reshape((3,) + db.dims), keep, dropped
+        return Combination(flat.reshape((3,) + db.dims), keep, dropped)
 
     def interpolate(self, x, prune=1e-3, database=None):
         """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""

@@ -11,6 +11,7 @@ illumination of an interpolated material with Mitsuba's ``path`` (the ground tru
 import os
 import re
 import xml.etree.ElementTree as ET
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,6 +22,14 @@ from .errors import BasisError
 SCENES_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenes")
 
 _PARAM = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
+
+
+class LoadedScene(NamedTuple):
+    """:func:`load_scene`: the scene, its ``manifold_brdf`` instances (shape order), the path depth."""
+
+    scene: object
+    targets: list
+    max_depth: int
 
 
 def shipped_scenes():
@@ -103,10 +112,9 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
 
     Returns
     -------
-    scene : mi.Scene
-    targets : list
-        The scene's ``manifold_brdf`` instances (shape order), checked to use ``manifold_path``.
-    max_depth : int
+    LoadedScene
+        ``scene`` (mi.Scene), ``targets`` (the scene's ``manifold_brdf`` instances in shape
+        order, checked to use ``manifold_path``), ``max_depth`` (int).
     """
     import mitsuba as mi
 
@@ -164,7 +172,7 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     if size is not None and film_size != size:
         raise BasisError(f"scene {scene_path} renders {film_size[0]}x{film_size[1]}, not {size[0]}x{size[1]} "
                          "(it takes no $res/$width/$height parameter for this size)")
-    return scene, targets, int(max_depth)
+    return LoadedScene(scene, targets, int(max_depth))
 
 
 def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None, max_depth=None,

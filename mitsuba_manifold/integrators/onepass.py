@@ -11,6 +11,7 @@ tables. :class:`TableSplats` computes it directly (nearest lookups, box filter),
 import os
 import threading
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import drjit as dr
 import mitsuba as mi
@@ -347,10 +348,10 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
 
     Returns
     -------
-    base : ndarray float32 (H, W, 3)
-        The paths that never scatter off the target.
-    images : dict of str -> ndarray float32 (H, W, 3)
-        The touch image of each material, in the order of ``materials``.
+    OnePassImages
+        ``base`` (ndarray float32 (H, W, 3): the paths that never scatter off the target)
+        and ``images`` (dict of str -> ndarray float32 (H, W, 3): the touch image of each
+        material, in the order of ``materials``).
     """
 
     target = one_target(scene, integrator.target)
@@ -411,7 +412,14 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
     film.prepare([])
     film.put_block(base_block)
     base = np.array(film.develop(), dtype=np.float32)[..., :3].copy()
-    return base, splat.images(film)
+    return OnePassImages(base, splat.images(film))
+
+
+class OnePassImages(NamedTuple):
+    """:func:`render_onepass`: the base image and each material's touch image."""
+
+    base: np.ndarray
+    images: dict
 
 
 @dataclass(frozen=True)
