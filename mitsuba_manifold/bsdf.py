@@ -13,6 +13,7 @@ the combination is ``sum_i w_i P_i``, clamped at 0, and Mitsuba's
 ``mi.set_variant(...)`` (``import mitsuba_manifold`` does it).
 """
 
+import operator
 import os
 
 import drjit as dr
@@ -73,6 +74,11 @@ def _resolve(path, what):
         where = ", ".join(str(fr[i]) for i in range(len(fr)))
         raise ManifoldBRDFError(f"{PLUGIN_NAME}: {what} '{path}' not found (searched {where})")
     return found
+
+
+def _read_only(attr, doc):
+    """A read-only property returning ``self.<attr>``."""
+    return property(operator.attrgetter(attr), doc=doc)
 
 
 class ManifoldBRDF:
@@ -169,30 +175,11 @@ class ManifoldBRDF:
 
     # ------------------------------------------------------------ materials
 
-    @property
-    def manifold(self):
-        """The :class:`Manifold` this material lives on."""
-        return self._manifold
-
-    @property
-    def manifold_path(self):
-        """Resolved path of the manifold file."""
-        return self._manifold_path
-
-    @property
-    def database(self):
-        """Database folder given by the ``database`` parameter (None: the manifold's own)."""
-        return self._database
-
-    @property
-    def interpolation(self):
-        """Table lookup: ``"nearest"`` or ``"linear"``."""
-        return self._interpolation
-
-    @property
-    def sampling(self):
-        """Sampling strategy: ``"cdf"`` or ``"cosine"``."""
-        return self._sampling
+    manifold = _read_only("_manifold", "The :class:`Manifold` this material lives on.")
+    manifold_path = _read_only("_manifold_path", "Resolved path of the manifold file.")
+    database = _read_only("_database", "Database folder of the ``database`` parameter (None: the manifold's own).")
+    interpolation = _read_only("_interpolation", "Table lookup: ``'nearest'`` or ``'linear'``.")
+    sampling = _read_only("_sampling", "Sampling strategy: ``'cdf'`` or ``'cosine'``.")
 
     @property
     def names(self):
@@ -214,15 +201,8 @@ class ManifoldBRDF:
         """Materials whose tables enter the combination (after pruning)."""
         return [self._manifold.names[i] for i in self._keep]
 
-    @property
-    def dropped_weight(self):
-        """``sum |w_i|`` of the materials dropped by pruning."""
-        return self._dropped
-
-    @property
-    def clamped_bins(self):
-        """Number of (channel, bin) values of the combined table clamped from below 0."""
-        return self._n_clamped
+    dropped_weight = _read_only("_dropped", "``sum |w_i|`` of the materials dropped by pruning.")
+    clamped_bins = _read_only("_n_clamped", "Number of (channel, bin) values of the combined table clamped below 0.")
 
     def set_latent(self, x):
         """Render the material at latent point ``x`` (``q`` numbers)."""

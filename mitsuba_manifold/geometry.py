@@ -2,11 +2,11 @@
 
 The bowl is a closed, thick-walled surface of revolution around +y, standing on y = 0:
 light that enters it bounces on its inner wall several times, which makes it the
-concave test object of ``scenes/table.xml`` (paths scattering twice or more off the
+concave test object of the shipped scene ``table.xml`` (paths scattering twice or more off the
 material, ``L2+``, are visible there). The sky map is a low-resolution latitude-longitude
 environment with a bright sun, so that glossy materials show sharp reflections.
 
-``tools/make_scene_meshes.py`` writes both into ``scenes/``.
+``tools/make_scene_meshes.py`` writes both into ``mitsuba_manifold/scenes/``.
 """
 
 import os

@@ -93,3 +93,25 @@ print("ok", img.shape)
 """
     r = _python(code, timeout=300)
     assert r.returncode == 0 and r.stdout.startswith("ok"), r.stderr[-2000:]
+
+
+@pytest.mark.render
+def test_one_plugin_mechanism_for_the_bsdf_and_the_integrator(small_manifold):
+    import mitsuba as mi
+
+    from mitsuba_manifold import bsdf, integrators, plugin
+    mi.set_variant("llvm_ad_rgb")
+    b_cls, i_cls = bsdf.bsdf_class(), integrators.integrator_class()
+    assert b_cls is plugin.plugin_class(bsdf.ManifoldBRDF, mi.BSDF) and issubclass(b_cls, mi.BSDF)
+    assert i_cls is plugin.plugin_class(integrators.ManifoldPathIntegrator, mi.SamplingIntegrator)
+    assert issubclass(i_cls, mi.SamplingIntegrator)
+    b = mi.load_dict({"type": "manifold_brdf", "manifold": small_manifold, "material": "chrome",
+                      "interpolation": "linear", "sampling": "cosine"})
+    assert type(b) is b_cls and (b.interpolation, b.sampling, b.database) == ("linear", "cosine", None)
+    with pytest.raises(AttributeError):
+        b.interpolation = "nearest"        # read-only
+    mi.set_variant("scalar_rgb")           # another variant: another class, same body
+    assert bsdf.bsdf_class() is not b_cls and bsdf.bsdf_class().eval is bsdf.ManifoldBRDF.eval
+    with pytest.raises(RuntimeError, match="not supported"):
+        mi.load_dict({"type": "manifold_path"})
+    mi.set_variant("llvm_ad_rgb")
