@@ -155,6 +155,12 @@ def srgb_encode(linear):
     return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
 
 
+def srgb_decode(encoded):
+    """sRGB-encoded values in [0, 1] to linear values (the inverse of :func:`srgb_encode`)."""
+    c = np.clip(np.asarray(encoded, dtype=np.float64), 0.0, 1.0)
+    return np.where(c <= 0.04045, c / 12.92, np.power((c + 0.055) / 1.055, 2.4))
+
+
 def tonemap(img, exposure=0.0):
     """Linear RGB (H, W, 3) to 8-bit sRGB: scale by ``2**exposure``, clip to [0, 1], encode."""
     img = np.asarray(img, dtype=np.float64) * 2.0 ** float(exposure)
