@@ -14,7 +14,7 @@ over the blend, without rendering. :func:`match` minimises
   and channel, ``eps = 0.01``: bright pixels and fireflies of the target do not dominate)
   averaged over the mask, or (``loss="log"``) the MSE of log luminance;
 - ``s``: 1, or with ``exposure_free`` the best scale for each ``x`` in closed form (for the
-  log loss the best offset of the log luminance);
+  log loss: both images normalised by their mean luminance over the mask);
 - ``var(x)``: the GP's predictive variance (paper Eq. 2), an optional prior keeping the
   result where the data is.
 
@@ -44,7 +44,7 @@ from .metrics import REL_EPS
 LOSSES = ("rel_mse", "log")
 #: Rec. 709 luminance of linear RGB.
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-#: ``eps`` of the log loss, as a fraction of the target's mean luminance over the mask.
+#: ``eps`` of the log loss, relative to the mean luminance over the mask.
 LOG_EPS = 1e-3
 #: Margin of the search box around the latent points, in length scales.
 MARGIN = 2.0
@@ -301,38 +301,49 @@ class _Quadratic:
 
 
 class _LogLuminance:
-    """MSE of ``log(lum + eps)`` over the mask; exposure-free: the best offset of the logs."""
+    """MSE over the mask of ``log(lum / k + eps)`` against ``log(lum_r / mean(lum_r) + eps)``.
 
-    def __init__(self, rows, target, weight, exposure_free, eps):
-        self.A = rows @ LUMINANCE.astype(np.float32)     # (N + 1, P)
+    ``k = mean(lum_r)`` (a fixed normalisation), or exposure-free ``k = mean(lum)`` of the
+    blend itself, which makes the loss exactly invariant to the blend's scale; the exposure
+    is then ``mean(lum_r) / mean(lum)`` (means weighted by the mask).
+    """
+
+    def __init__(self, rows, target, weight, exposure_free, eps=LOG_EPS):
+        self.A = rows @ LUMINANCE                        # (N + 1, P) float64
         self.m = weight / weight.sum()
         self.eps = eps
-        self.lr = np.log(np.maximum(target @ LUMINANCE, 0.0) + eps)
+        lum_r = np.maximum(target @ LUMINANCE, 0.0)
+        self.mean_r = max(float(self.m @ lum_r), 1e-30)
+        self.lr = np.log(lum_r / self.mean_r + eps)
         self.exposure_free = exposure_free
 
-    def _residual(self, lum):
-        d = np.log(np.maximum(lum, 0.0) + self.eps) - self.lr
-        off = float(self.m @ d) if self.exposure_free else 0.0
-        return d - off, off
+    def _norm(self, lum):
+        """Normalisation ``k`` of each row of ``lum`` (..., P)."""
+        if self.exposure_free:
+            return np.maximum(np.maximum(lum, 0.0) @ self.m, 1e-12 * self.mean_r)
+        return np.full(lum.shape[:-1], self.mean_r)
 
     def __call__(self, w):
-        lum = self.A[0] + w.astype(np.float32) @ self.A[1:]
-        d, off = self._residual(lum)
-        err = float(self.m @ (d * d))
-        g = 2.0 * self.m * d / (np.maximum(lum, 0.0) + self.eps) * (lum > 0)
-        return err, self.A[1:] @ g.astype(np.float32), float(np.exp(-off))
+        lum = self.A[0] + w @ self.A[1:]
+        k = float(self._norm(lum))
+        n = np.maximum(lum, 0.0) / k
+        d = np.log(n + self.eps) - self.lr
+        gn = 2.0 * self.m * d / (n + self.eps) * (lum > 0)  # dE/dn
+        g = gn / k
+        if self.exposure_free:  # k = m . max(lum, 0) depends on w
+            g = g - self.m * (lum > 0) * float(gn @ n) / k
+        return float(self.m @ (d * d)), self.A[1:] @ g, self.mean_r / k
 
     def batch(self, W, chunk=256):
         """Errors and exposures of many weight vectors W (M, N) at once."""
-        errs, offs = [], []
+        errs, norms = [], []
         for s in range(0, len(W), chunk):
-            lum = self.A[0] + W[s:s + chunk].astype(np.float32) @ self.A[1:]
-            d = np.log(np.maximum(lum, 0.0) + self.eps) - self.lr
-            off = d @ self.m if self.exposure_free else np.zeros(len(lum))
-            d -= off[:, None]
+            lum = self.A[0] + W[s:s + chunk] @ self.A[1:]
+            k = self._norm(lum)
+            d = np.log(np.maximum(lum, 0.0) / k[:, None] + self.eps) - self.lr
             errs.append((d * d) @ self.m)
-            offs.append(off)
-        return np.concatenate(errs), np.exp(-np.concatenate(offs))
+            norms.append(k)
+        return np.concatenate(errs), self.mean_r / np.concatenate(norms)
 
 
 # ------------------------------------------------------------------- search
@@ -508,7 +519,7 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
     image = basis.weighted_sum(manifold.names, w)
     image += basis.image(BASE)
     rel = _masked_rel_mse(s * image, target, weight)
-    var = float(manifold.variance(x))
+    var = max(float(manifold.variance(x)), 0.0)
     single = SingleMatch(manifold.names[best], best, float(full_errs[best]), float(full_scales[best]))
     return MatchResult(x=np.asarray(x, dtype=float), weights=w, error=float(err), rel_mse=rel,
                        exposure=float(s), variance=var, objective=float(err + prior * var), single=single,
@@ -521,9 +532,7 @@ def _objective(basis, manifold, target, weight, pixels, loss, exposure_free, f, 
     if loss == "rel_mse":
         return _Quadratic([basis.image(k) for k in [BASE] + manifold.names], target, weight, exposure_free)
     rows = _rows(basis, manifold.names, pixels, f, full_weight)
-    r, m = target[pixels], weight[pixels]
-    eps = LOG_EPS * max(float(m @ np.maximum(r @ LUMINANCE, 0.0) / m.sum()), 1e-12)
-    return _LogLuminance(rows, r, m, exposure_free, eps)
+    return _LogLuminance(rows, target[pixels], weight[pixels], exposure_free)
 
 
 def _masked_rel_mse(a, ref, weight):
