@@ -23,9 +23,12 @@ of the ``N + 1`` images over the masked pixels makes every evaluation ``O(N^2)``
 resolution and exactly. The log loss evaluates the images at every step: the search runs on a
 box-downsampled copy and the best point is refined at full resolution.
 
-Search: every training material alone (``w = e_i``) is scored first; L-BFGS-B (SciPy) then
-starts from the best one's latent point and its nearest training points (``starts`` in all),
-and the best of the optimised points and the single materials is returned. A training point
+Search: every training material alone (``w = e_i``) and ``scan`` random points near the data
+are scored at once (one matrix product); L-BFGS-B (SciPy) then starts from the best single
+material's latent point and the best scanned points (``starts`` in all; with ``scan=0`` from
+the training points nearest to the best single material, which on a stiff manifold often
+misses the basin of the answer), and the best of the optimised points and the single
+materials is returned. A training point
 itself is reachable exactly (the kernel's noise term makes ``w = e_i`` there), so a training
 material's own image gives back its own point.
 """
@@ -382,6 +385,8 @@ def _descend(manifold, objective, prior, x0, bounds, max_iter):
 def _scan(manifold, objective, prior, bounds, n_points, seed=0):
     """``n_points`` random latent points near the data (a training point plus a normal step
     of ``l / 2``), scored at once; returns ``(points (M, q), objectives (M,))``."""
+    if n_points == 0:
+        return np.zeros((0, manifold.q)), np.zeros(0)
     rng = np.random.default_rng(seed)
     X = manifold.latent[rng.integers(manifold.n, size=n_points)]
     X = X + 0.5 * manifold.length_scale * rng.standard_normal(X.shape)
@@ -394,9 +399,13 @@ def _scan(manifold, objective, prior, bounds, n_points, seed=0):
 
 def _start_points(manifold, best, X, err, k, spread=0.25):
     """``k`` starts: the best single material's latent point, then the best scanned points
-    at least ``spread * l`` apart. Training points are nudged by ``1e-6 l`` so that the
-    descent starts on the smooth interpolant."""
+    at least ``spread * l`` apart (without scanned points: the training points nearest to
+    the best single material). Training points are nudged by ``1e-6 l`` so that the descent
+    starts on the smooth interpolant."""
     nudge = 1e-6 * manifold.length_scale / np.sqrt(manifold.q)
+    if len(X) == 0:
+        d = np.linalg.norm(manifold.latent - manifold.latent[best], axis=1)
+        return [manifold.latent[i] + nudge for i in np.argsort(d, kind="stable")[:k]]
     chosen = [manifold.latent[best] + nudge]
     for i in np.argsort(err, kind="stable"):
         if len(chosen) == k:
@@ -456,7 +465,8 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
         L-BFGS-B starts: the best single material's latent point, then the best of the
         ``scan`` points, kept ``l / 4`` apart.
     scan : int
-        Random latent points near the data scored (vectorised) to choose the starts.
+        Random latent points near the data scored (vectorised) to choose the starts; 0:
+        start from the training points nearest to the best single material only.
     max_iter : int
         L-BFGS-B iterations per start.
     downsample : int, optional
@@ -483,6 +493,8 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
         raise MatchError(f"prior must be a finite number >= 0, got {prior!r}")
     if not isinstance(starts, (int, np.integer)) or starts < 1:
         raise MatchError(f"starts must be a positive integer, got {starts!r}")
+    if not isinstance(scan, (int, np.integer)) or scan < 0:
+        raise MatchError(f"scan must be an integer >= 0, got {scan!r}")
     f = _downsample_factor(basis.resolution, downsample) if loss == "log" else 1
     t_read = basis.read([BASE] + manifold.names)
 

@@ -101,3 +101,27 @@ def two_spheres(manifold, a="white-diffuse-bball", b="gold-paint", interpolation
         "floor": {"type": "rectangle", "bsdf": {"type": "ref", "id": "grey"},
                   "to_world": mi.ScalarTransform4f().translate([0, -0.5, 0]).rotate([1, 0, 0], -90).scale(3)},
     })
+
+
+def write_basis(folder, manifold_path, images, targets=("material",), scene_text="a"):
+    """A basis folder holding ``images`` ({key: float32 (H, W, 3)}) and its manifest, for a
+    stand-in scene XML written beside them; returns the scene's path."""
+    import os
+
+    from mitsuba_manifold import basis as bf
+    from mitsuba_manifold import imageio
+
+    os.makedirs(folder, exist_ok=True)
+    scene = os.path.join(folder, "scene.xml")
+    with open(scene, "w") as f:
+        f.write(f'<scene version="3.0.0"><!-- {scene_text} --><shape type="sphere"/></scene>\n')
+    entries = {}
+    for key, img in images.items():
+        file = key.replace("+", "__") + ".exr"
+        imageio.write_exr(os.path.join(folder, file), img)
+        entries[key] = {"file": file, "time_s": 0.01}
+    h, w = next(iter(images.values())).shape[:2]
+    manifest = bf.make_manifest(scene, manifold_path, (w, h), 16, "llvm_ad_rgb", 0, 8, "per-material",
+                                list(targets), entries)
+    bf.write_manifest(folder, manifest)
+    return scene

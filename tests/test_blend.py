@@ -15,6 +15,8 @@ from mitsuba_manifold.cache import file_hash
 from mitsuba_manifold.errors import BasisError
 from mitsuba_manifold.manifold import Manifold
 
+from helpers import write_basis
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RES = (12, 9)  # width, height
 
@@ -39,20 +41,10 @@ def _scene(folder, text="a"):
 
 def _make_basis(folder, manifold_path, names, rng, targets=("material",), with_base=True):
     """Random images for ``names`` (keys) and a manifest; returns (folder, scene, images)."""
-    os.makedirs(folder, exist_ok=True)
-    scene = _scene(folder)
     w, h = RES
-    images, entries = {}, {}
     keys = ([bf.BASE] if with_base else []) + list(names)
-    for key in keys:
-        img = rng.uniform(0.0, 2.0, size=(h, w, 3)).astype(np.float32)
-        file = key.replace("+", "__") + ".exr"
-        imageio.write_exr(os.path.join(folder, file), img)
-        images[key] = img
-        entries[key] = {"file": file, "time_s": 0.01}
-    manifest = bf.make_manifest(scene, manifold_path, RES, 16, "llvm_ad_rgb", 0, 8, "per-material",
-                                list(targets), entries)
-    bf.write_manifest(folder, manifest)
+    images = {key: rng.uniform(0.0, 2.0, size=(h, w, 3)).astype(np.float32) for key in keys}
+    scene = write_basis(folder, manifold_path, images, targets)
     return folder, scene, images
 
 

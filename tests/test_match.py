@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -14,6 +15,8 @@ from mitsuba_manifold.blend import Basis, BasisError
 from mitsuba_manifold.cli import match as cli
 from mitsuba_manifold.manifold import Manifold
 from mitsuba_manifold.match import MatchError
+
+from helpers import write_basis
 
 RES = (20, 16)  # width, height
 
@@ -37,21 +40,19 @@ def _smooth_images(rng, n):
 
 
 def _make_basis(folder, manifold_path, names, seed=1, targets=("material",), keys=None):
-    os.makedirs(folder, exist_ok=True)
-    scene = os.path.join(folder, "scene.xml")
-    with open(scene, "w") as f:
-        f.write('<scene version="3.0.0"><shape type="sphere"/></scene>\n')
     keys = [bl.BASE] + list(names) if keys is None else keys
-    images, entries = {}, {}
-    for key, img in zip(keys, _smooth_images(np.random.default_rng(seed), len(keys))):
-        file = key.replace("+", "__") + ".exr"
-        imageio.write_exr(os.path.join(folder, file), img)
-        images[key] = img
-        entries[key] = {"file": file, "time_s": 0.01}
-    manifest = bl.make_manifest(scene, manifold_path, RES, 16, "llvm_ad_rgb", 0, 8, "per-material",
-                                list(targets), entries)
-    bl.write_manifest(folder, manifest)
+    images = dict(zip(keys, _smooth_images(np.random.default_rng(seed), len(keys))))
+    write_basis(folder, manifold_path, images, targets)
     return folder, images
+
+
+def _basis_without_manifold(tmp_path, small_manifold, names):
+    """A basis whose manifold file has since been deleted."""
+    moved = str(tmp_path / "moved.npz")
+    shutil.copy(small_manifold, moved)
+    folder, _ = _make_basis(str(tmp_path / "lost"), moved, names)
+    os.remove(moved)
+    return folder
 
 
 @pytest.fixture
@@ -138,6 +139,10 @@ def test_interior_point_is_recovered(basis, manifold):
     assert np.allclose(r.x, x_true, atol=1e-4)
     assert r.error < 1e-6 * r.single.error
     assert np.allclose(r.image, _blend(b, manifold, r.x), atol=1e-5)
+    near = mt.match(b, _blend(b, manifold, x_true), scan=0, starts=3)  # the training points as starts
+    best = manifold.latent[near.single.index]
+    order = np.argsort(np.linalg.norm(manifold.latent - best, axis=1))[:3]
+    assert np.allclose([s["x0"] for s in near.starts], manifold.latent[order], atol=1e-5)
     d = r.to_dict(manifold)
     assert json.loads(json.dumps(d))["x"] == pytest.approx(list(r.x))
     assert [n for n, _ in d["nearest"]][:1] == [manifold.names[int(np.argmin(np.linalg.norm(manifold.latent - r.x, axis=1)))]]
@@ -196,20 +201,14 @@ def test_bad_inputs_are_clear_errors(basis, manifold, tmp_path, small_manifold):
     with pytest.raises(MatchError, match=r"mask is 3x3, the target is 20x16"):
         mt.match(b, target, mask=np.ones((3, 3)))
     for kwargs, msg in (({"loss": "l1"}, "loss must be one of"), ({"prior": -1.0}, "prior must be"),
-                        ({"starts": 0}, "starts must be"), ({"loss": "log", "downsample": 0}, "downsample")):
+                        ({"starts": 0}, "starts must be"), ({"scan": -1}, "scan must be"), ({"loss": "log", "downsample": 0}, "downsample")):
         with pytest.raises(MatchError, match=msg):
             mt.match(b, target, **kwargs)
     # a basis missing materials, and one whose manifold is gone
     part, _ = _make_basis(str(tmp_path / "part"), small_manifold, manifold.names[:3])
     with pytest.raises(MatchError, match=r"lacks the images of 5 of the manifold's 8 materials"):
         mt.match(part, target)
-    moved = str(tmp_path / "moved.npz")
-    with open(small_manifold, "rb") as f:
-        data = f.read()
-    with open(moved, "wb") as f:
-        f.write(data)
-    lost, _ = _make_basis(str(tmp_path / "lost"), moved, manifold.names)
-    os.remove(moved)
+    lost = _basis_without_manifold(tmp_path, small_manifold, manifold.names)
     with pytest.raises(BasisError, match=r"its manifold .*moved.npz no longer exists"):
         mt.match(lost, target)
     two, _ = _make_basis(str(tmp_path / "two"), small_manifold, [], targets=("a", "b"),
@@ -287,13 +286,7 @@ def test_cli_bad_input_writes_nothing(basis, manifold, tmp_path, capsys, small_m
         assert err.startswith("error: ") and message in err and err.count("\n") == 1
         assert not os.path.exists(out) and not os.path.exists(js)
     # a basis without its manifold
-    moved = str(tmp_path / "moved.npz")
-    with open(small_manifold, "rb") as f:
-        data = f.read()
-    with open(moved, "wb") as f:
-        f.write(data)
-    lost, _ = _make_basis(str(tmp_path / "lost"), moved, manifold.names)
-    os.remove(moved)
+    lost = _basis_without_manifold(tmp_path, small_manifold, manifold.names)
     with pytest.raises(SystemExit) as e:
         cli.main(["--basis", lost, "--target", good, "--out", out])
     assert e.value.code == 2 and "no longer exists" in capsys.readouterr().err
