@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 from scipy.linalg import blas
+from threadpoolctl import threadpool_limits
 
 from . import imageio
 from .blend import BASE, Basis, BasisError
@@ -511,13 +512,15 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
     best = int(np.argmin(errs))
     bounds = _bounds(manifold)
     X, scan_err = _scan(manifold, search, prior, bounds, scan)
-    runs = [_descend(manifold, search, prior, x0, bounds, max_iter)
-            for x0 in _start_points(manifold, best, X, scan_err, int(starts))]
-    if f > 1:  # refine the best coarse point at full resolution
-        i = int(np.argmin([r["objective"] for r in runs]))
-        fine = _descend(manifold, full, prior, runs[i]["x"], bounds, max_iter)
-        runs[i] = {**fine, "x0": runs[i]["x0"], "x_search": runs[i]["x"],
-                   "n_evaluations": runs[i]["n_evaluations"] + fine["n_evaluations"]}
+    # L-BFGS-B's small linear algebra is far slower on a BLAS thread pool than on one thread
+    with threadpool_limits(1, user_api="blas"):
+        runs = [_descend(manifold, search, prior, x0, bounds, max_iter)
+                for x0 in _start_points(manifold, best, X, scan_err, int(starts))]
+        if f > 1:  # refine the best coarse point at full resolution
+            i = int(np.argmin([r["objective"] for r in runs]))
+            fine = _descend(manifold, full, prior, runs[i]["x"], bounds, max_iter)
+            runs[i] = {**fine, "x0": runs[i]["x0"], "x_search": runs[i]["x"],
+                       "n_evaluations": runs[i]["n_evaluations"] + fine["n_evaluations"]}
     # the winner: an optimised point or a training material alone, scored at full resolution
     full_errs, full_scales = full.batch(np.eye(manifold.n))
     cand = [(full_errs[best] + prior * float(manifold.variance(manifold.latent[best])), None,

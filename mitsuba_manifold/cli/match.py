@@ -34,6 +34,9 @@ def _parser():
     p.add_argument("--prior", type=float, default=0.0,
                    help="weight of the GP variance (paper Eq. 2) keeping the point near the data (default 0)")
     p.add_argument("--starts", type=int, default=8, help="L-BFGS-B starts (default 8)")
+    p.add_argument("--scan", type=int, default=2048,
+                   help="random points near the data scored to choose the starts (default 2048; 0: start "
+                        "from the training points nearest to the best single material)")
     p.add_argument("--max-iter", type=int, default=100, help="L-BFGS-B iterations per start (default 100)")
     p.add_argument("--manifold", help="manifold (.npz); default: the one in the manifest (checked by hash)")
     p.add_argument("--out", help="write the blend at the best point here (.exr)")
@@ -55,8 +58,9 @@ def _check_args(args):
         _fail(f"--out must name an .exr file, got {args.out!r}")
     if (args.png or args.render_reference) and args.out is None:
         _fail("--png and --render-reference write beside --out: give --out best.exr")
-    if args.starts < 1 or args.max_iter < 1 or args.spp < 1:
-        _fail(f"--starts, --max-iter and --spp must be >= 1, got {args.starts}, {args.max_iter}, {args.spp}")
+    if args.starts < 1 or args.max_iter < 1 or args.spp < 1 or args.scan < 0:
+        _fail(f"--starts, --max-iter and --spp must be >= 1 and --scan >= 0, got {args.starts}, "
+              f"{args.max_iter}, {args.spp}, {args.scan}")
     if args.json is not None and not args.json.lower().endswith(".json"):
         _fail(f"--json must name a .json file, got {args.json!r}")
 
@@ -178,7 +182,7 @@ def main(argv=None):
     try:
         result = mt.match(basis, target, weight, manifold=manifold, loss="log" if args.log else "rel_mse",
                           exposure_free=args.exposure_free, prior=args.prior, starts=args.starts,
-                          max_iter=args.max_iter)
+                          max_iter=args.max_iter, scan=args.scan)
     except (ValueError, OSError) as e:
         _fail(e)
     _report(result, manifold, basis)
