@@ -126,9 +126,9 @@ class MatchResult:
     extra: dict = field(default_factory=dict)
 
     def top_weights(self, k=6):
-        """The ``k`` largest ``|w_i|`` as ``[(name, w_i)]``."""
-        order = np.argsort(-np.abs(self.weights))[:k]
-        return [(self.names[i], float(self.weights[i])) for i in order]
+        """The ``k`` largest nonzero ``|w_i|`` as ``[(name, w_i)]``."""
+        order = np.argsort(-np.abs(self.weights), kind="stable")[:k]
+        return [(self.names[i], float(self.weights[i])) for i in order if self.weights[i] != 0]
 
     def nearest(self, manifold, k=3):
         """The ``k`` training materials nearest to ``x`` in latent space, ``[(name, distance)]``."""

@@ -217,6 +217,7 @@ def _masked_and_exposure(scene_path, b, m, manifold_path, res, spp, rng, seed, s
                        "unmasked_latent_distance": float(np.linalg.norm(unmasked.x - x))},
             "exposure": {"scale": scale, "fitted_exposure": free.exposure, "rel_mse": free.rel_mse,
                          "latent_distance": float(np.linalg.norm(free.x - x)),
+                         "rel_mse_scaled_back": rel_mse(free.image * (free.exposure / scale), target),
                          "unscaled_target_rel_mse": plain.rel_mse,
                          "without_exposure_free_rel_mse": fixed.rel_mse}}
 
