@@ -69,6 +69,10 @@ class RenderBasisError(BasisError):
     """Bad arguments to :func:`render_basis.render_basis`."""
 
 
+class MatchError(InputError):
+    """A target, mask, basis or setting that :func:`match.match` cannot use."""
+
+
 class ImageError(InputError):
     """An image file that cannot be read or written as asked."""
 

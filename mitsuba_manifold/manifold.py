@@ -207,30 +207,20 @@ class Manifold:
         k[hits] += self.noise
         return k, hits
 
-    def _cross_gradient(self, x):
-        """Smooth covariances ``k(x)`` (M, N), their gradients ``dk/dx`` (M, N, q) and ``K_inv k``."""
-        k = gplvm.kernel_matrix(x, self.latent, length_scale=self.length_scale)
+    def _smooth_gradients(self, x):
+        """``K_inv k(x)`` (M, N) of the smooth kernel (no noise term) and ``dk/dx`` (M, N, q)."""
+        k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
         dk = -k[:, :, None] * (x[:, None, :] - self.latent[None]) / self.length_scale ** 2
-        b = linalg.cho_solve(self._chol, k.T).T
-        return k, dk, b
+        return self._factor.solve(k.T).T, dk
 
     def weights_jacobian(self, x):
-        """Derivative of the affine weights :meth:`weights` with respect to ``x``.
-
-        ``dw/dx = (I - 1 1^T / N) K_inv dk/dx`` with ``dk_j/dx = -k_j(x) (x - x_j) / l^2``
-        (differentiating Eq. 4 and the affine correction). At a training point the
-        noise term makes ``w`` jump to ``e_i``; this is the derivative of the smooth
-        interpolant there (the limit from any side).
-
-        Returns
-        -------
-        ndarray (N, q), or (M, N, q) for M points
-        """
+        """``dw/dx``, (N, q) or (M, N, q): ``(I - 1 1^T / N) K_inv dk/dx``, ``dk_j/dx = -k_j (x - x_j) / l^2``
+        (Eq. 4 and the affine correction differentiated). At a training point, where the noise
+        term makes ``w`` jump to ``e_i``, it is the derivative of the smooth interpolant."""
         x, single = self._points(x)
-        _, dk, _ = self._cross_gradient(x)
+        _, dk = self._smooth_gradients(x)
         m, n, q = dk.shape
-        db = linalg.cho_solve(self._chol, dk.transpose(1, 0, 2).reshape(n, m * q))
-        db = db.reshape(n, m, q).transpose(1, 0, 2)
+        db = self._factor.solve(dk.transpose(1, 0, 2).reshape(n, m * q)).reshape(n, m, q).transpose(1, 0, 2)
         dw = db - db.sum(axis=1, keepdims=True) / n
         return dw[0] if single else dw
 
@@ -242,9 +232,9 @@ class Manifold:
         return v[0] if single else v
 
     def variance_gradient(self, x):
-        """Gradient of the smooth part of :meth:`variance`: ``-2 (dk/dx)^T K_inv k`` (q,) or (M, q)."""
+        """Gradient of the smooth part of :meth:`variance`: ``-2 (dk/dx)^T K_inv k``, (q,) or (M, q)."""
         x, single = self._points(x)
-        _, dk, b = self._cross_gradient(x)
+        b, dk = self._smooth_gradients(x)
         g = -2.0 * np.einsum("mnq,mn->mq", dk, b)
         return g[0] if single else g
 

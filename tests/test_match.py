@@ -9,12 +9,12 @@ import pytest
 from scipy import optimize
 
 from mitsuba_manifold import blend as bl
-from mitsuba_manifold import imageio
+from mitsuba_manifold import image_error, imageio
 from mitsuba_manifold import match as mt
-from mitsuba_manifold.blend import Basis, BasisError
+from mitsuba_manifold.basis import BASE, Basis
 from mitsuba_manifold.cli import match as cli
+from mitsuba_manifold.errors import BasisError, MatchError
 from mitsuba_manifold.manifold import Manifold
-from mitsuba_manifold.match import MatchError
 
 from helpers import write_basis
 
@@ -40,7 +40,7 @@ def _smooth_images(rng, n):
 
 
 def _make_basis(folder, manifold_path, names, seed=1, targets=("material",), keys=None):
-    keys = [bl.BASE] + list(names) if keys is None else keys
+    keys = [BASE] + list(names) if keys is None else keys
     images = dict(zip(keys, _smooth_images(np.random.default_rng(seed), len(keys))))
     write_basis(folder, manifold_path, images, targets)
     return folder, images
@@ -94,7 +94,7 @@ def test_match_objective_gradient_matches_finite_differences(basis, manifold, lo
     target = 1.3 * _blend(b, manifold, _interior_point(manifold, 2, 5))
     mask = np.ones(target.shape[:2])
     mask[:5] = 0.0
-    obj = mt._objective(b, manifold, target, mask, mask > 0, loss, exposure_free, 1)
+    obj = image_error.objective(b, manifold, target, mask, mask > 0, loss, exposure_free, 1)
     fun, _ = mt._evaluate(manifold, obj, prior)
     x0 = _interior_point(manifold, 0, 3, 0.6) + 0.05
     value, grad = fun(x0)
@@ -110,10 +110,10 @@ def test_quadratic_form_equals_the_direct_relative_mse(basis, manifold):
     mask = np.random.default_rng(3).uniform(size=target.shape[:2])
     mask[mask < 0.3] = 0.0
     for exposure_free in (False, True):
-        obj = mt._objective(b, manifold, target, mask, mask > 0, "rel_mse", exposure_free, 1)
+        obj = image_error.objective(b, manifold, target, mask, mask > 0, "rel_mse", exposure_free, 1)
         x = _interior_point(manifold, 2, 6)
         err, _, s = obj(manifold.weights(x)[1])
-        direct = mt._masked_rel_mse(s * _blend(b, manifold, x), target, mask)
+        direct = image_error.masked_rel_mse(s * _blend(b, manifold, x), target, mask)
         assert err == pytest.approx(direct, rel=1e-6)
         assert (s == 1.0) != exposure_free
 
@@ -123,7 +123,7 @@ def test_quadratic_form_equals_the_direct_relative_mse(basis, manifold):
 def test_training_material_is_recovered_exactly_from_its_own_blend(basis, manifold):
     b, images = basis
     for i, name in enumerate(manifold.names):
-        target = images[bl.BASE] + images[name]
+        target = images[BASE] + images[name]
         r = mt.match(b, target, starts=3)
         assert np.array_equal(r.x, manifold.latent[i]) and r.from_start is None
         assert r.single.name == name and r.error < 1e-12 and r.rel_mse < 1e-12

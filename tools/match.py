@@ -1,10 +1,16 @@
 #!/usr/bin/env python3
-"""Find the latent point whose blend best matches a target image (see mitsuba_manifold/cli/match.py)."""
+"""Find the latent point whose blend best matches a target image (inverse rendering on a basis).
 
+The tool is mitsuba_manifold/cli/match.py (also installed as a console script); --help lists its options.
+"""
+
+import os
 import sys
 
-import _cli  # noqa: F401  (puts the checkout on sys.path)
-from mitsuba_manifold.cli.match import main
+# Run from a checkout without installing the package: its root comes first on the path.
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from mitsuba_manifold.cli.match import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -23,12 +23,15 @@ import time
 
 import numpy as np
 
-from .. import blend as bl
 from .. import gplvm
 from .. import match as mt
-from ..basis import render_basis
+from ..basis import BASE, Basis
+from ..blend import blend
+from ..image_error import masked_rel_mse
 from ..manifold import Manifold
 from ..metrics import rel_mse
+from ..render_basis import render_basis
+from ..scenes import load_scene, render_reference, scene_path, use_variant
 
 SPEED_TARGET_S = 2.0
 RATIO_TARGET = 1.5
@@ -46,9 +49,9 @@ def _median(fn, repeats):
 def bench_speed(basis_folder, manifold=None, n_targets=5, repeats=3, seed=0):
     """Match times on a basis already in memory (median over targets and repeats)."""
     t0 = time.perf_counter()
-    basis = bl.Basis.load(basis_folder, manifold=manifold)
+    basis = Basis.load(basis_folder, manifold=manifold)
     m = basis.check_manifold(manifold)
-    basis.read([bl.BASE] + m.names)
+    basis.read([BASE] + m.names)
     t_read = time.perf_counter() - t0
     rng = np.random.default_rng(seed)
     pts = _interior_points(m, n_targets, rng, clamp=None)
@@ -63,7 +66,7 @@ def bench_speed(basis_folder, manifold=None, n_targets=5, repeats=3, seed=0):
     for name, kw in settings.items():
         meds, maxes, errs = [], [], []
         for x in pts:
-            target = bl.blend(basis, m, x=x, prune=0.0)[0] * (1.7 if kw.get("exposure_free") else 1.0)
+            target = blend(basis, m, x=x, prune=0.0)[0] * (1.7 if kw.get("exposure_free") else 1.0)
             med, mx, r = _median(lambda: mt.match(basis, target, manifold=m, **kw), repeats)
             meds.append(med)
             maxes.append(mx)
@@ -105,23 +108,23 @@ def _log_rms(a, b):
     return float(np.sqrt(np.mean(np.square(np.log1p(np.maximum(a[ok], 0)) - np.log1p(b[ok])))))
 
 
-def _render_material(scene_path, manifold_path, name, spp, res, seed):
+def _render_material(scene_xml, manifold_path, name, spp, res, seed):
     """Full-GI render (``path``) of training material ``name`` from its own table."""
     import mitsuba as mi
 
-    scene, targets, max_depth = bl.load_scene(scene_path, manifold_path, spp, (res, res))
+    scene, targets, max_depth = load_scene(scene_xml, manifold_path, spp, (res, res))
     for bsdf in targets:
         bsdf.set_material(name)
     integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
     return np.array(mi.render(scene, integrator=integrator, spp=int(spp), seed=int(seed)), dtype=np.float32)[..., :3]
 
 
-def _object_mask(scene_path, manifold_path, res):
+def _object_mask(scene_xml, manifold_path, res):
     """Pixels whose camera ray first hits the manifold material (the object), as (H, W) 0/1."""
     import drjit as dr
     import mitsuba as mi
 
-    scene, targets, _ = bl.load_scene(scene_path, manifold_path, 1, (res, res))
+    scene, targets, _ = load_scene(scene_xml, manifold_path, 1, (res, res))
     idx = dr.arange(mi.UInt32, res * res)
     pos = mi.Point2f((mi.Float(idx % res) + 0.5) / res, (mi.Float(idx // res) + 0.5) / res)
     ray, _ = scene.sensors()[0].sample_ray(0.0, 0.0, pos, mi.Point2f(0.5, 0.5))
@@ -147,21 +150,21 @@ def _subset_manifold(m, keep, path):
 
 # ------------------------------------------------------------------- scenes
 
-def _basis(scene_path, m, folder, res, spp, seed):
-    """Render (or resume) the basis of ``scene_path`` with manifold ``m`` (loaded from a file)."""
+def _basis(scene_xml, m, folder, res, spp, seed):
+    """Render (or resume) the basis of ``scene_xml`` with manifold ``m`` (loaded from a file)."""
     t0 = time.perf_counter()
-    render_basis(scene_path, m.path, folder, spp=spp, mode="onepass", resolution=res, seed=seed)
-    b = bl.Basis.load(folder, manifold=m)
-    b.read([bl.BASE] + m.names)
+    render_basis(scene_xml, m.path, folder, spp=spp, mode="onepass", resolution=res, seed=seed)
+    b = Basis.load(folder, manifold=m)
+    b.read([BASE] + m.names)
     return b, time.perf_counter() - t0
 
 
-def _random_points(scene_path, b, m, manifold_path, res, spp, n, rng, seed):
+def _random_points(scene_xml, b, m, manifold_path, res, spp, n, rng, seed):
     rows = []
     for k, x in enumerate(_interior_points(m, n, rng)):
-        target = bl.render_reference(scene_path, manifold_path, x, spp, seed=seed + 101 + k, resolution=(res, res))
+        target = render_reference(scene_xml, manifold_path, x, spp, seed=seed + 101 + k, resolution=(res, res))
         r = mt.match(b, target, manifold=m)
-        own = rel_mse(bl.blend(b, m, x=x, prune=0.0)[0], target)
+        own = rel_mse(blend(b, m, x=x, prune=0.0)[0], target)
         t_true, _, _ = m.combine(m.weights(x)[1], prune=0.0)
         t_rec, _, _ = m.combine(r.weights, prune=0.0)
         rows.append({"x_true": x.tolist(), "x": r.x.tolist(), "latent_distance": float(np.linalg.norm(r.x - x)),
@@ -174,17 +177,17 @@ def _random_points(scene_path, b, m, manifold_path, res, spp, n, rng, seed):
             "median_log_rms_table_error": float(np.median([r["log_rms_table_error"] for r in rows]))}
 
 
-def _held_out(scene_path, m100, manifold_path, out, res, basis_spp, spp, n, seed):
+def _held_out(scene_xml, m100, manifold_path, out, res, basis_spp, spp, n, seed):
     rng = np.random.default_rng(seed + 1)
     held = sorted(rng.choice(m100.n, size=n, replace=False).tolist())
     keep = [i for i in range(m100.n) if i not in held]
     sub_path = os.path.join(out, f"manifold_without_{'_'.join(map(str, held))}.npz")
     m = Manifold.load(sub_path) if os.path.isfile(sub_path) else _subset_manifold(m100, keep, sub_path)
-    name = os.path.splitext(os.path.basename(scene_path))[0]
-    b, t_basis = _basis(scene_path, m, os.path.join(out, f"basis_{name}_held_out_{n}"), res, basis_spp, seed)
+    name = os.path.splitext(os.path.basename(scene_xml))[0]
+    b, t_basis = _basis(scene_xml, m, os.path.join(out, f"basis_{name}_held_out_{n}"), res, basis_spp, seed)
     rows = []
     for k, i in enumerate(held):
-        target = _render_material(scene_path, manifold_path, m100.names[i], spp, res, seed + 211 + k)
+        target = _render_material(scene_xml, manifold_path, m100.names[i], spp, res, seed + 211 + k)
         r = mt.match(b, target, manifold=m)
         errs, _ = mt.single_material_errors(b, target, manifold=m)
         j = int(np.argmin(errs))
@@ -196,10 +199,10 @@ def _held_out(scene_path, m100, manifold_path, out, res, basis_spp, spp, n, seed
             "meets_target": bool(better >= 0.8 * len(rows)), "basis_time_s": t_basis, "manifold": sub_path}
 
 
-def _masked_and_exposure(scene_path, b, m, manifold_path, res, spp, rng, seed, scale=2.5):
+def _masked_and_exposure(scene_xml, b, m, manifold_path, res, spp, rng, seed, scale=2.5):
     x = _interior_points(m, 1, rng)[0]
-    target = bl.render_reference(scene_path, manifold_path, x, spp, seed=seed + 307, resolution=(res, res))
-    mask = _object_mask(scene_path, manifold_path, res)
+    target = render_reference(scene_xml, manifold_path, x, spp, seed=seed + 307, resolution=(res, res))
+    mask = _object_mask(scene_xml, manifold_path, res)
     altered = target.copy()
     altered[mask == 0] *= np.array([0.3, 0.5, 1.4], dtype=np.float32)  # another background / lighting
     masked = mt.match(b, altered, mask=mask, manifold=m)
@@ -213,7 +216,7 @@ def _masked_and_exposure(scene_path, b, m, manifold_path, res, spp, rng, seed, s
             "masked": {"x": masked.x.tolist(), "rel_mse_in_mask": masked.rel_mse,
                        "latent_distance": float(np.linalg.norm(masked.x - x)),
                        "same_target_unaltered_rel_mse_in_mask": inside.rel_mse,
-                       "unmasked_match_rel_mse_in_mask": mt._masked_rel_mse(unmasked.image, altered, mask),
+                       "unmasked_match_rel_mse_in_mask": masked_rel_mse(unmasked.image, altered, mask),
                        "unmasked_latent_distance": float(np.linalg.norm(unmasked.x - x))},
             "exposure": {"scale": scale, "fitted_exposure": free.exposure, "rel_mse": free.rel_mse,
                          "latent_distance": float(np.linalg.norm(free.x - x)),
@@ -222,11 +225,9 @@ def _masked_and_exposure(scene_path, b, m, manifold_path, res, spp, rng, seed, s
                          "without_exposure_free_rel_mse": fixed.rel_mse}}
 
 
-def bench_match(folder, manifold=None, basis=None, scenes=("table", "sphere"), res=128, basis_spp=64,
+def run(folder, manifold=None, basis=None, scenes=("table", "sphere"), res=128, basis_spp=64,
                 target_spp=256, n_points=10, n_held_out=10, out=None, seed=0, progress=True):
     """The whole match benchmark (see the module docstring); ``folder``: the database."""
-    from ..benchmarks import SCENES, _mitsuba
-
     def say(text):
         if progress:
             print(text, flush=True)
@@ -244,21 +245,21 @@ def bench_match(folder, manifold=None, basis=None, scenes=("table", "sphere"), r
         say(f"speed on {basis} ...")
         report["speed"] = bench_speed(basis, manifold)
         say(f"  {report['speed']['settings']}")
-    mi = _mitsuba()
+    mi = use_variant()
     report["variant"] = mi.variant()
     for name in scenes:
-        scene_path = os.path.join(SCENES, name + ".xml")
+        scene_xml = scene_path(name)
         rng = np.random.default_rng(seed)
         say(f"{name}: basis of {m100.n} materials ({res}x{res}, {basis_spp} spp) ...")
-        b, t_basis = _basis(scene_path, m100, os.path.join(out, f"basis_{name}"), res, basis_spp, seed)
+        b, t_basis = _basis(scene_xml, m100, os.path.join(out, f"basis_{name}"), res, basis_spp, seed)
         sc = {"basis_time_s": t_basis}
         say(f"{name}: {n_points} random points ...")
-        sc["random_points"] = _random_points(scene_path, b, m100, manifold, res, target_spp, n_points, rng, seed)
+        sc["random_points"] = _random_points(scene_xml, b, m100, manifold, res, target_spp, n_points, rng, seed)
         say(f"  max ratio {sc['random_points']['max_ratio']:.3g}")
         say(f"{name}: masked and exposure ...")
-        sc.update(_masked_and_exposure(scene_path, b, m100, manifold, res, target_spp, rng, seed))
+        sc.update(_masked_and_exposure(scene_xml, b, m100, manifold, res, target_spp, rng, seed))
         say(f"{name}: {n_held_out} held-out materials ...")
-        sc["held_out"] = _held_out(scene_path, m100, manifold, out, res, basis_spp, target_spp, n_held_out, seed)
+        sc["held_out"] = _held_out(scene_xml, m100, manifold, out, res, basis_spp, target_spp, n_held_out, seed)
         say(f"  better on {sc['held_out']['better']} of {sc['held_out']['of']}")
         report["scenes"][name] = sc
     return report

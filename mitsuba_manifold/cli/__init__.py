@@ -13,6 +13,7 @@ TOOLS = {
     "fit": "fit_manifold",
     "render-basis": "render_basis",
     "blend": "blend",
+    "match": "match",
     "main": "main_job",
     "bench": "bench",
     "make-scene-meshes": "make_scene_meshes",

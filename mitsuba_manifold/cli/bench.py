@@ -7,6 +7,7 @@
   gi         blend vs direct re-rendering: error against run time on sphere.xml and table.xml
   stability  cond(K), weights, clamping and precision over stiff and extreme cases
   basis      one-pass vs per-material basis rendering
+  match      inverse rendering on a basis: speed (--basis, a full basis) and accuracy on table/sphere
 """
 
 import argparse
@@ -25,7 +26,11 @@ def main(argv=None):
     p.add_argument("--database", default=None,
                    help="folder of MERL tables (default: out/database, made at MERL resolution if missing)")
     p.add_argument("--materials", type=parse_list, default=None, help="subset of materials")
-    p.add_argument("--manifold", default=None, help="saved manifold (interp/bsdf/gi/basis)")
+    p.add_argument("--manifold", default=None, help="saved manifold (interp/bsdf/gi/basis/match)")
+    p.add_argument("--basis", default=None, help="match: a full basis of --manifold to time the match on")
+    p.add_argument("--res", type=int, default=128, help="match: resolution of the accuracy renders (default 128)")
+    p.add_argument("--out", default=None,
+                   help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
     args = p.parse_args(argv)
 
     from .. import bench, database
@@ -40,6 +45,8 @@ def main(argv=None):
         kwargs = {"names": args.materials} if args.which in ("fit", "pca") else {}
         if args.manifold and args.which != "fit":
             kwargs["manifold"] = args.manifold
+        if args.which == "match":
+            kwargs.update(basis=args.basis, res=args.res, out=args.out)
         if args.which == "gi":
             kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
         result = bench.run(args.which, folder, **kwargs)

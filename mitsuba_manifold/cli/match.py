@@ -14,13 +14,9 @@ reference) and everything as JSON (--json). Targets: linear EXR, or 8-bit PNG/JP
 import argparse
 import json
 import os
-import sys
 import time
 
-
-def _fail(error):
-    print(f"error: {error}", file=sys.stderr)
-    sys.exit(2)
+from .common import ERRORS, fail
 
 
 def _parser():
@@ -55,22 +51,22 @@ def _stem(path):
 
 def _check_args(args):
     if args.out is not None and not args.out.lower().endswith(".exr"):
-        _fail(f"--out must name an .exr file, got {args.out!r}")
+        fail(f"--out must name an .exr file, got {args.out!r}")
     if (args.png or args.render_reference) and args.out is None:
-        _fail("--png and --render-reference write beside --out: give --out best.exr")
+        fail("--png and --render-reference write beside --out: give --out best.exr")
     if args.starts < 1 or args.max_iter < 1 or args.spp < 1 or args.scan < 0:
-        _fail(f"--starts, --max-iter and --spp must be >= 1 and --scan >= 0, got {args.starts}, "
+        fail(f"--starts, --max-iter and --spp must be >= 1 and --scan >= 0, got {args.starts}, "
               f"{args.max_iter}, {args.spp}, {args.scan}")
     if args.json is not None and not args.json.lower().endswith(".json"):
-        _fail(f"--json must name a .json file, got {args.json!r}")
+        fail(f"--json must name a .json file, got {args.json!r}")
 
 
 def _inputs(args):
     """Basis, manifold, target and mask weights, all checked."""
     import numpy as np
 
-    from mitsuba_manifold import match as mt
-    from mitsuba_manifold.blend import Basis
+    from .. import match as mt
+    from ..basis import Basis
 
     try:
         basis = Basis.load(args.basis, manifold=args.manifold)
@@ -84,8 +80,8 @@ def _inputs(args):
             print(f"note: {int(clipped.sum())} clipped pixels of the 8-bit target are left out")
             weight = mt.check_mask(weight * ~clipped, basis.resolution,
                                    what=f"mask {args.mask or '(all pixels)'} without the target's clipped pixels")
-    except (ValueError, OSError) as e:
-        _fail(e)
+    except ERRORS as e:
+        fail(e)
     return basis, manifold, target, weight
 
 
@@ -115,40 +111,41 @@ def _outputs(args, result, basis, manifold, target):
     """(kind, path, writer) of everything to write."""
     import numpy as np
 
-    from mitsuba_manifold import blend as bl
-    from mitsuba_manifold import imageio
+    from .. import imageio
+    from ..basis import BASE
+    from ..scenes import render_reference
 
     outputs, info = [], result.to_dict(manifold)
     if args.out:
         stem = _stem(args.out)
         outputs.append(("blend at the best point", args.out, lambda: imageio.write_exr(args.out, result.image)))
         if args.png:
-            single = basis.image(result.single.name) + basis.image(bl.BASE)
+            single = basis.image(result.single.name) + basis.image(BASE)
             images = np.stack([target, result.exposure * result.image, result.single.exposure * single])
             labels = ["target", f"match ({result.error:.3g})", f"{result.single.name} ({result.single.error:.3g})"]
             sheet = stem + "_sheet.png"
-            outputs.append(("contact sheet", sheet, lambda: bl.write_contact_sheet(sheet, images, labels, columns=3)))
+            outputs.append(("contact sheet", sheet, lambda: imageio.write_contact_sheet(sheet, images, labels, columns=3)))
         if args.render_reference:
             m = basis.manifest
             print(f"rendering the best point: {m['scene']}, path, {args.spp} spp ...", flush=True)
             t0 = time.perf_counter()
             try:
-                ref = bl.render_reference(m["scene"], args.manifold or m["manifold"], result.x, args.spp,
+                ref = render_reference(m["scene"], args.manifold or m["manifold"], result.x, args.spp,
                                           seed=args.seed, resolution=basis.resolution, max_depth=m["max_depth"],
                                           variant=m["variant"])
-            except (ValueError, OSError, RuntimeError) as e:
-                _fail(e)
+            except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's
+                fail(e)
             print(f"rendered in {time.perf_counter() - t0:.1f} s")
             path = stem + "_reference.exr"
             info["reference"] = path
             outputs.append(("full-GI render of the best point", path, lambda: imageio.write_exr(path, ref)))
     if args.json:
-        from mitsuba_manifold.merl import atomic_write
+        from ..atomic import write_bytes
 
         info.update(basis=os.path.abspath(basis.folder), target=os.path.abspath(args.target),
                     mask=None if args.mask is None else os.path.abspath(args.mask))
         text = json.dumps(info, indent=1) + "\n"
-        outputs.append(("JSON", args.json, lambda: atomic_write(args.json, lambda f: f.write(text.encode()))))
+        outputs.append(("JSON", args.json, lambda: write_bytes(args.json, text)))
     return outputs
 
 
@@ -168,7 +165,7 @@ def _refuse_inputs(args):
     for path in _planned(args):
         real = os.path.realpath(path)
         if real in inputs or os.path.dirname(real) == os.path.realpath(args.basis):
-            _fail(f"output {path} would overwrite an input (the target, the mask or the basis); "
+            fail(f"output {path} would overwrite an input (the target, the mask or the basis); "
                   "choose another path")
 
 
@@ -176,15 +173,15 @@ def main(argv=None):
     args = _parser().parse_args(argv)
     _check_args(args)
     _refuse_inputs(args)
-    from mitsuba_manifold import match as mt
+    from .. import match as mt
 
     basis, manifold, target, weight = _inputs(args)
     try:
         result = mt.match(basis, target, weight, manifold=manifold, loss="log" if args.log else "rel_mse",
                           exposure_free=args.exposure_free, prior=args.prior, starts=args.starts,
                           max_iter=args.max_iter, scan=args.scan)
-    except (ValueError, OSError) as e:
-        _fail(e)
+    except ERRORS as e:
+        fail(e)
     _report(result, manifold, basis)
     outputs = _outputs(args, result, basis, manifold, target)
     try:
@@ -192,6 +189,6 @@ def main(argv=None):
             os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
             write()
             print(f"wrote {kind}: {path}")
-    except (ValueError, OSError) as e:
-        _fail(e)
+    except ERRORS as e:
+        fail(e)
     return 0
