@@ -42,7 +42,7 @@ from threadpoolctl import threadpool_limits
 
 from . import image_error, imageio
 from .basis import BASE, Basis
-from .errors import BasisError, MatchError
+from .errors import MatchError
 from .image_error import LOSSES, masked_pool, masked_rel_mse, pool
 
 #: Margin of the search box around the latent points, in length scales.
@@ -372,9 +372,8 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
         tp = masked_pool(target, weight[..., None], f)
         search = image_error.objective(basis, manifold, tp, wp, wp > 0, loss, exposure_free, f, weight[..., None])
 
-    errs, scales = search.batch(np.eye(manifold.n))
-    errs = errs + prior * manifold.variance(manifold.latent)
-    best = int(np.argmin(errs))
+    var_train = prior * manifold.variance(manifold.latent)
+    best = int(np.argmin(search.batch(np.eye(manifold.n))[0] + var_train))
     bounds = _bounds(manifold)
     X, scan_err = _scan(manifold, search, prior, bounds, scan)
     # L-BFGS-B's small linear algebra is far slower on a BLAS thread pool than on one thread
@@ -388,12 +387,12 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
                        "n_evaluations": runs[i]["n_evaluations"] + fine["n_evaluations"]}
     # the winner: an optimised point or a training material alone, scored at full resolution
     full_errs, full_scales = full.batch(np.eye(manifold.n))
-    cand = [(full_errs[best] + prior * float(manifold.variance(manifold.latent[best])), None,
-             manifold.latent[best].copy())]
+    best = int(np.argmin(full_errs + var_train))
+    cand = [(full_errs[best] + var_train[best], None, manifold.latent[best].copy())]
     for j, r in enumerate(runs):
         w = manifold.weights(r["x"])[1]
         cand.append((full(w)[0] + prior * float(manifold.variance(r["x"])), j, r["x"]))
-    objective, from_start, x = min(cand, key=lambda c: c[0])
+    _, from_start, x = min(cand, key=lambda c: c[0])
     _, w = manifold.weights(x)
     err, _, s = full(w)
     image = basis.weighted_sum(manifold.names, w)
@@ -421,4 +420,4 @@ def single_material_errors(basis, target, mask=None, manifold=None, exposure_fre
 
 
 __all__ = ["match", "MatchResult", "SingleMatch", "MatchError", "read_target", "read_mask",
-           "check_target", "check_mask", "single_material_errors", "BasisError"]
+           "check_target", "check_mask", "single_material_errors"]

@@ -6,7 +6,6 @@ import shutil
 
 import numpy as np
 import pytest
-from scipy import optimize
 
 from mitsuba_manifold import blend as bl
 from mitsuba_manifold import image_error, imageio
@@ -261,12 +260,10 @@ def test_cli_bad_input_writes_nothing(basis, manifold, tmp_path, capsys, small_m
     small = str(tmp_path / "small.exr")
     imageio.write_exr(small, np.ones((8, 8, 3)))
     nan = str(tmp_path / "nan.exr")
-    with open(nan, "wb") as f:  # write_exr refuses NaN: write one through OpenEXR directly
-        import OpenEXR
-        img = np.ones((RES[1], RES[0], 3), dtype=np.float32)
-        img[0, 0, 0] = np.nan
-        OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
-                     {"RGB": img}).write(nan)
+    import OpenEXR  # write_exr refuses NaN: write one through OpenEXR directly
+    img = np.ones((RES[1], RES[0], 3), dtype=np.float32)
+    img[0, 0, 0] = np.nan
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, {"RGB": img}).write(nan)
     black = str(tmp_path / "black.png")
     imageio.write_png(black, np.zeros((RES[1], RES[0], 3), dtype=np.uint8))
     out, js = str(tmp_path / "best.exr"), str(tmp_path / "best.json")
