@@ -3,40 +3,31 @@
 import json
 import os
 
-import numpy as np
 import pytest
 
-mi = pytest.importorskip("mitsuba")
-mi.set_variant("llvm_ad_rgb")
-
-import mitsuba_manifold  # noqa: E402
-from mitsuba_manifold import imageio, render_basis, scenes  # noqa: E402
-from mitsuba_manifold import match as mt  # noqa: E402
-from mitsuba_manifold.basis import Basis  # noqa: E402
-from mitsuba_manifold.blend import blend  # noqa: E402
-from mitsuba_manifold.cli import match as cli  # noqa: E402
-from mitsuba_manifold.manifold import Manifold  # noqa: E402
-from mitsuba_manifold.metrics import rel_mse  # noqa: E402
+from mitsuba_manifold import imageio, render_basis, scenes
+from mitsuba_manifold import match as mt
+from mitsuba_manifold.basis import Basis
+from mitsuba_manifold.blend import blend
+from mitsuba_manifold.cli import match as cli
+from mitsuba_manifold.manifold import Manifold
+from mitsuba_manifold.metrics import rel_mse
 
 pytestmark = pytest.mark.render
 
-SPHERE = scenes.scene_path("sphere")
 RES = 24
 
 
-@pytest.fixture(autouse=True)
-def _variant():
-    mi.set_variant("llvm_ad_rgb")
-    mitsuba_manifold.register()
-
-
 def test_match_of_a_path_render_and_the_tools_reference(tmp_path, small_manifold, capsys):
+    pytest.importorskip("mitsuba")
+    scenes.use_variant("llvm_ad_rgb")
+    sphere = scenes.scene_path("sphere")
     m = Manifold.load(small_manifold)
     out = str(tmp_path / "basis")
-    render_basis.render_basis(SPHERE, small_manifold, out, spp=64, resolution=RES, mode="onepass")
+    render_basis.render_basis(sphere, small_manifold, out, spp=64, resolution=RES, mode="onepass")
     b = Basis.load(out, manifold=m)
     x_true = 0.6 * m.latent[m.index("gold-paint")] + 0.4 * m.latent[m.index("blue-acrylic")]
-    target = scenes.render_reference(SPHERE, small_manifold, x_true, 256, seed=3, resolution=RES)
+    target = scenes.render_reference(sphere, small_manifold, x_true, 256, seed=3, resolution=RES)
     r = mt.match(b, target, manifold=m)
     own = rel_mse(blend(b, m, x=x_true, prune=0.0)[0], target)
     assert r.rel_mse <= 1.5 * own  # the accuracy criterion
