@@ -35,23 +35,23 @@ def pool(img, f):
     return img.reshape(shape).mean(axis=(-4, -2))
 
 
-def masked_pool(img, weight, f):
+def masked_pool(img, weight, f, pooled_weight=None):
     """Mask-weighted box average of ``f x f`` blocks: pixels outside the mask do not leak in."""
     if f == 1:
         return img
-    return pool(img * weight, f) / np.maximum(pool(weight, f), 1e-12)
+    pooled_weight = pool(weight, f) if pooled_weight is None else pooled_weight
+    return pool(img * weight, f) / np.maximum(pooled_weight, 1e-12)
 
 
-def _rows(basis, names, pixels, f=1, weight=None):
-    """The base and material images over ``pixels`` as float32 (N + 1, P, 3), each first
-    box-downsampled by ``f`` (weighted by the full-resolution mask ``weight`` (H, W, 1))."""
+def _luminance_rows(basis, names, pixels, f=1, weight=None):
+    """Luminance of the base and material images over ``pixels`` as float64 (N + 1, P), each
+    first box-downsampled by ``f`` (weighted by the full-resolution mask ``weight`` (H, W, 1))."""
     keys = [BASE] + list(names)
-    out = None
+    wp = pool(weight, f) if f > 1 else None
+    out = np.empty((len(keys), int(pixels.sum())))
     for j, key in enumerate(keys):
-        img = masked_pool(basis.image(key), weight, f)[pixels]
-        if out is None:
-            out = np.empty((len(keys),) + img.shape, dtype=np.float32)
-        out[j] = img
+        img = masked_pool(basis.image(key), weight, f, wp)[pixels]
+        out[j] = img[:, 0] * LUMINANCE[0] + img[:, 1] * LUMINANCE[1] + img[:, 2] * LUMINANCE[2]
     return out
 
 
@@ -111,13 +111,15 @@ class LogLuminanceMSE:
     is then ``mean(lum_r) / mean(lum)`` (means weighted by the mask).
     """
 
-    def __init__(self, rows, target, weight, exposure_free, eps=LOG_EPS):
-        self.A = rows @ LUMINANCE                        # (N + 1, P) float64
+    def __init__(self, lum_rows, target, weight, exposure_free, eps=LOG_EPS):
+        self.A = lum_rows                                # (N + 1, P) float64
+        self.A32 = lum_rows.astype(np.float32)           # for batches (ranking)
         self.m = weight / weight.sum()
         self.eps = eps
         lum_r = np.maximum(target @ LUMINANCE, 0.0)
         self.mean_r = max(float(self.m @ lum_r), 1e-30)
         self.lr = np.log(lum_r / self.mean_r + eps)
+        self.lr32 = self.lr.astype(np.float32)
         self.exposure_free = exposure_free
 
     def _norm(self, lum):
@@ -138,12 +140,12 @@ class LogLuminanceMSE:
         return float(self.m @ (d * d)), self.A[1:] @ g, self.mean_r / k
 
     def batch(self, W, chunk=256):
-        """Errors and exposures of many weight vectors W (M, N) at once."""
+        """Errors and exposures of many weight vectors W (M, N) at once (in float32)."""
         errs, norms = [], []
         for s in range(0, len(W), chunk):
-            lum = self.A[0] + W[s:s + chunk] @ self.A[1:]
+            lum = self.A32[0] + W[s:s + chunk].astype(np.float32) @ self.A32[1:]
             k = self._norm(lum)
-            d = np.log(np.maximum(lum, 0.0) / k[:, None] + self.eps) - self.lr
+            d = np.log(np.maximum(lum, 0.0) / k[:, None].astype(np.float32) + np.float32(self.eps)) - self.lr32
             errs.append((d * d) @ self.m)
             norms.append(k)
         return np.concatenate(errs), self.mean_r / np.concatenate(norms)
@@ -157,7 +159,7 @@ def objective(basis, manifold, target, weight, pixels, loss, exposure_free, f=1,
     """
     if loss == "rel_mse":
         return RelativeMSE([basis.image(k) for k in [BASE] + manifold.names], target, weight, exposure_free)
-    rows = _rows(basis, manifold.names, pixels, f, full_weight)
+    rows = _luminance_rows(basis, manifold.names, pixels, f, full_weight)
     return LogLuminanceMSE(rows, target[pixels], weight[pixels], exposure_free)
 
 
