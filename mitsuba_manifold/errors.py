@@ -1,4 +1,4 @@
-"""Every exception the package raises on bad input, under one root.
+"""Every exception the package raises on bad input, under one root; one-line messages.
 
 Tools catch :class:`MitsubaManifoldError` (plus ``OSError`` where files are involved)
 and print its one-line message. Each class also derives from the built-in exception a
@@ -6,6 +6,8 @@ caller would expect (``ValueError`` for bad values, ``KeyError`` for unknown nam
 ``RuntimeError`` for a missing or unsuitable Mitsuba variant), so ``except ValueError``
 keeps working. Messages name the parameter or file, the value and the fix.
 """
+
+import re
 
 import numpy as np
 
@@ -91,3 +93,56 @@ class MissingFileError(MitsubaManifoldError, FileNotFoundError):
 
 class StateError(MitsubaManifoldError, RuntimeError):
     """A call made before what it depends on (e.g. AOV names before the scene is known)."""
+
+
+class FolderLockedError(MitsubaManifoldError, OSError):
+    """Another process is writing into the folder (:class:`locking.FolderLock`)."""
+
+
+class ForeignFileError(InputError):
+    """Writing would replace a file the tool did not make, or a protected one."""
+
+
+class MaterialNameError(InputError):
+    """A material name that cannot be stored (empty, not a string, too long once escaped)."""
+
+
+# ------------------------------------------------------------ one-line messages
+# Mitsuba wraps an exception raised inside a Python plugin's constructor into a
+# RuntimeError whose text holds the parser's context and a Python traceback.
+
+_PLUGIN_LINE = re.compile(r"(manifold_(?:brdf|path): [^\n]*)")
+
+
+def _chain(exc):
+    seen = []
+    while exc is not None and exc not in seen:
+        seen.append(exc)
+        exc = exc.__cause__ or exc.__context__
+    return seen
+
+
+def plugin_message(exc):
+    """The ``manifold_brdf: ...`` / ``manifold_path: ...`` message inside ``exc`` (or its
+    causes), without Mitsuba's wrapping and traceback; else :func:`one_line` of ``exc``."""
+    for e in _chain(exc):
+        found = _PLUGIN_LINE.findall(str(e))
+        if found:
+            return found[-1].strip()
+    return one_line(exc)
+
+
+def one_line(exc):
+    """``exc`` as one line of text (a plugin's message when Mitsuba wrapped one)."""
+    if not isinstance(exc, BaseException):
+        return " ".join(str(exc).split())
+    text = str(exc)
+    if "Traceback (most recent call last)" in text or _PLUGIN_LINE.search(text):
+        found = _PLUGIN_LINE.findall(text)
+        if found:
+            return found[-1].strip()
+        lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+        return lines[-1] if lines else type(exc).__name__
+    if isinstance(exc, KeyError) and not isinstance(exc, MitsubaManifoldError) and exc.args:
+        text = str(exc.args[0])
+    return " ".join((text or type(exc).__name__).split())

@@ -26,7 +26,7 @@ NOT_MEASURED = -1.0
 
 _HEADER = np.dtype("<i4")
 _VALUES = np.dtype("<f8")
-_MAX_BINS = 1 << 28  # far above MERL's 1.46M bins; guards against garbage headers
+MAX_BINS = 1 << 28  # far above MERL's 1.46M bins; guards against garbage headers
 
 
 # --------------------------------------------------------------------------- I/O
@@ -46,7 +46,7 @@ def read_header(path):
     with open(path, "rb") as f:
         dims = tuple(int(v) for v in np.frombuffer(f.read(12), dtype=_HEADER))
     n = dims[0] * dims[1] * dims[2]
-    if min(dims) <= 0 or n > _MAX_BINS:
+    if min(dims) <= 0 or n > MAX_BINS:
         raise MerlFormatError(f"{path}: not a MERL .binary file (header dimensions {dims})")
     expected = 12 + 3 * n * _VALUES.itemsize
     if size != expected:

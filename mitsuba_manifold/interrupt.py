@@ -1,0 +1,56 @@
+"""Ctrl-C that stops long renders promptly and cleanly.
+
+A Dr.Jit kernel does not return to Python until it is done, and while Mitsuba's C++
+``render`` runs, its own SIGINT handler replaces Python's: it only asks the integrator to
+wind down (``cancel()``, which a JIT render ignores) and swallows the signal, so a loop
+over renders went on. :class:`StopRequest` turns SIGINT into a flag instead (callers also
+set it when ``integrator.should_stop()`` reports Mitsuba's cancel); renders are cut into short passes
+(:func:`sample_passes`) and call :meth:`StopRequest.check` between passes and between
+images, which raises ``KeyboardInterrupt`` there: only complete, listed files remain.
+A second Ctrl-C while waiting for the pass to end stops at once (the default handler).
+"""
+
+import signal
+import threading
+
+#: Paths per render pass: a pass of this size takes about a second on two CPU cores.
+SAMPLES_PER_PASS = 1 << 20
+
+
+class StopRequest:
+    """Context manager: while active, the first SIGINT sets :attr:`requested`.
+
+    Outside the main thread (where signals cannot be handled) it does nothing.
+    """
+
+    def __init__(self):
+        self.requested = False
+        self._previous = None
+
+    def _handle(self, signum, frame):
+        self.requested = True
+        signal.signal(signal.SIGINT, signal.default_int_handler)   # a second Ctrl-C: at once
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+            self._previous = None
+        return False
+
+    def check(self):
+        """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed."""
+        if self.requested:
+            raise KeyboardInterrupt("stopped by Ctrl-C")
+
+
+def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS):
+    """Samples per pixel of each pass: ``spp`` split so that a pass traces at most
+    ``samples_per_pass`` paths (at least 1 spp per pass); they sum to ``spp``."""
+    per = max(1, min(int(spp), int(samples_per_pass) // max(1, int(pixels))))
+    full, rest = divmod(int(spp), per)
+    return [per] * full + ([rest] if rest else [])
