@@ -8,7 +8,7 @@ combination of one material per target (:mod:`mitsuba_manifold.blend` combines t
 
 A *basis folder* holds those images as float32 EXR files and a ``manifest.json``::
 
-    {"format": "mitsuba-manifold-basis", "version": 1,
+    {"format": "mitsuba-manifold-basis", "version": 2,
      "scene": abs path, "scene_hash": sha256, "manifold": abs path, "manifold_hash": sha256,
      "resolution": [width, height], "spp": int, "variant": str, "seed": int, "max_depth": int,
      "mode": "per-material" | "onepass", "targets": [bsdf id, ...],
@@ -16,9 +16,13 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
                 "<material>": {"file": "<material>.exr", "time_s": float}, ...}}
 
 With one target the keys are ``base`` and material names; with ``p`` targets they are
-``"<matA>+<matB>..."`` (one name per target, in target order). ``manifold_hash`` is the
-SHA-256 of the manifold file; ``scene_hash`` that of the scene XML and the files it names
-(:func:`scene_hash`). :func:`make_manifest` and :func:`write_manifest` write the format,
+``"<matA>+<matB>..."`` (one name per target, in target order). From version 2 on, each
+material name in a key is escaped (:func:`mitsuba_manifold.names.escape`: ``gold-paint``
+stays, ``base`` or ``a+b`` cannot collide with the base image or the separator) and the
+file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
+(:func:`mitsuba_manifold.identity.manifold_identity`), so an identical refit is accepted.
+Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
+``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`). :func:`make_manifest` and :func:`write_manifest` write the format,
 :class:`Basis` reads and checks it, :func:`mitsuba_manifold.blend.blend` and :func:`~mitsuba_manifold.blend.blend_path` combine it.
 """
 
@@ -31,13 +35,14 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from . import imageio
+from . import imageio, names as names_mod
 from .atomic import atomic_write
 from .cache import file_hash
-from .errors import BasisError, ImageError
+from .errors import BasisError, ImageError, MaterialNameError
+from .identity import manifold_identity
 
 FORMAT = "mitsuba-manifold-basis"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 MANIFEST = "manifest.json"
 BASE = "base"
 #: Joins one material name per target into an image key (multilinear bases).
@@ -87,13 +92,45 @@ def scene_hash(scene):
 
 # ---------------------------------------------------------------- manifest
 
-def image_key(materials):
-    """Image key of one material per target: ``"a"`` or ``"a+b"``."""
+def image_key(materials, version=FORMAT_VERSION):
+    """Image key of one material per target: ``"a"`` or ``"a+b"``, names escaped
+    (:func:`names.escape`) from format version 2 on; the image file is ``<key>.exr``."""
     materials = [materials] if isinstance(materials, str) else list(materials)
+    if version >= 2:
+        try:
+            return SEP.join(names_mod.escape(m) for m in materials)
+        except MaterialNameError as e:
+            raise BasisError(str(e)) from None
     for m in materials:
         if not m or SEP in m or m == BASE:
-            raise BasisError(f"material name {m!r} cannot be used in an image key")
+            raise BasisError(f"material name {m!r} cannot be used in an image key of a version-1 basis; "
+                             "render the basis again with this version")
     return SEP.join(materials)
+
+
+def key_materials(key, version=FORMAT_VERSION):
+    """Material names (one per target) of an image key: the inverse of :func:`image_key`."""
+    parts = key.split(SEP)
+    return [names_mod.unescape(p) for p in parts] if version >= 2 else parts
+
+
+def is_basis_folder(folder):
+    """True when ``folder`` holds a basis manifest (whether or not it is complete)."""
+    try:
+        with open(os.path.join(os.fspath(folder), MANIFEST), encoding="utf-8") as f:
+            return json.load(f).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def check_output_outside_basis(out, basis_folder=None):
+    """Raise unless ``out`` lies outside every basis folder (``basis_folder`` included):
+    a blend never writes into a basis, whose files the basis's manifest owns."""
+    folder = os.path.realpath(os.path.dirname(os.path.abspath(os.fspath(out))))
+    inside = basis_folder is not None and folder == os.path.realpath(os.fspath(basis_folder))
+    if inside or is_basis_folder(folder):
+        raise BasisError(f"--out {out} lies in the basis folder {folder}; a blend never writes into a "
+                         "basis (its images belong to render_basis): choose another folder")
 
 
 def _is_int(v):
@@ -151,7 +188,8 @@ def validate_manifest(manifest, where=MANIFEST):
     for key, entry in images.items():
         if key != BASE:
             parts = key.split(SEP)
-            if len(parts) != len(targets) or not all(parts) or BASE in parts:
+            escaped = version < 2 or all(names_mod.is_escaped(pt) for pt in parts if pt)
+            if len(parts) != len(targets) or not all(parts) or BASE in parts or not escaped:
                 bad(f"image key {key!r} must name {len(targets)} material(s) joined by {SEP!r} "
                     f"(one per target {targets})")
         if not isinstance(entry, dict):
@@ -197,11 +235,29 @@ def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mo
     manifest = {
         "format": FORMAT, "version": FORMAT_VERSION,
         "scene": os.path.abspath(scene), "scene_hash": scene_hash(scene),
-        "manifold": os.path.abspath(manifold), "manifold_hash": file_hash(manifold),
+        "manifold": os.path.abspath(manifold), "manifold_hash": _identity(manifold),
         "resolution": [int(v) for v in resolution], "spp": int(spp), "variant": str(variant),
         "seed": int(seed), "max_depth": int(max_depth), "mode": mode,
         "targets": [str(t) for t in targets], "images": dict(images or {})}
     return validate_manifest(manifest, where="new manifest")
+
+
+def _identity(manifold):
+    """Content identity of a manifold file (:func:`manifold_identity`)."""
+    from .manifold import Manifold
+    return manifold_identity(Manifold.load(manifold))
+
+
+def upgrade_manifest(manifest, manifold):
+    """A version-1 manifest as version 2, when it was made with the file ``manifold`` (same
+    bytes): the manifold hash becomes its content identity and the images whose keys are
+    the same in both versions (names that escaping leaves unchanged) are kept. Any other
+    manifest is returned as it is."""
+    if manifest.get("version") != 1 or file_hash(manifold) != manifest.get("manifold_hash"):
+        return manifest
+    images = {k: e for k, e in manifest["images"].items()
+              if k == BASE or all(names_mod.is_escaped(p) for p in k.split(SEP))}
+    return dict(manifest, version=FORMAT_VERSION, manifold_hash=_identity(manifold), images=images)
 
 
 def write_manifest(folder, manifest):
@@ -278,8 +334,9 @@ class Basis:
         self.resolution = tuple(manifest["resolution"])
         self.targets = list(manifest["targets"])
         self.p = len(self.targets)
+        self.version = manifest["version"]
         self.keys = [k for k in manifest["images"] if k != BASE]
-        parts = [k.split(SEP) for k in self.keys]
+        parts = [key_materials(k, self.version) for k in self.keys]
         self.materials = [sorted({pt[t] for pt in parts}) for t in range(self.p)]
         self._rows = {}  # image key -> row of self._store
         self._store = None  # float32 (capacity, H, W, 3): the images read so far
@@ -341,6 +398,10 @@ class Basis:
 
     def has(self, key):
         return key in self.manifest["images"]
+
+    def key(self, materials):
+        """Image key of one material name per target (:func:`image_key` for this basis's version)."""
+        return image_key(materials, self.version)
 
     def image(self, key):
         """Image ``key`` as float32 (H, W, 3), read once and kept (a read-only view)."""
@@ -411,8 +472,8 @@ class Basis:
         """The manifold object, checked against the manifest (loaded from the manifest's
         path when ``manifold`` is None).
 
-        Checks the file hash when the manifold has a path, and that every material of the
-        basis is a material of the manifold.
+        Checks that every material of the basis is a material of the manifold, and its
+        content identity (version 1: the file hash, when the manifold has a path).
         """
         if manifold is None:
             manifold = self.manifest["manifold"]
@@ -423,19 +484,20 @@ class Basis:
         if key in self._checked:
             return self._checked[key]
         m = manifold_object(manifold)
-        path = manifold if isinstance(manifold, (str, os.PathLike)) else getattr(m, "path", None)
-        if path is not None:
-            h = file_hash(path)
-            if h != self.manifest["manifold_hash"]:
-                raise BasisError(
-                    f"basis {self.folder} was rendered with another manifold: {self.manifest['manifold']} "
-                    f"(hash {self.manifest['manifold_hash'][:12]}), not {os.path.abspath(path)} "
-                    f"(hash {h[:12]})")
         unknown = sorted({n for mats in self.materials for n in mats} - set(m.names))
         if unknown:
             raise BasisError(f"basis {self.folder} holds materials the manifold does not know: "
                              f"{', '.join(unknown[:8])}{' ...' if len(unknown) > 8 else ''}; it was "
                              "rendered with another manifold")
+        path = manifold if isinstance(manifold, (str, os.PathLike)) else getattr(m, "path", None)
+        if self.version >= 2 or path is not None:
+            h = manifold_identity(m) if self.version >= 2 else file_hash(path)
+            if h != self.manifest["manifold_hash"]:
+                where = os.path.abspath(path) if path is not None else "the manifold given"
+                raise BasisError(
+                    f"basis {self.folder} was rendered with another manifold: {self.manifest['manifold']} "
+                    f"(identity {self.manifest['manifold_hash'][:12]}), not {where} (identity {h[:12]}: other "
+                    "latent points, hyperparameters, materials or tables)")
         self._checked[key] = m
         return m
 

@@ -27,7 +27,7 @@ import types
 
 import numpy as np
 
-from .basis import BASE, SEP, Basis
+from .basis import BASE, Basis
 from .errors import BasisError
 
 #: Default pruning threshold (fraction of ``sum |w|``), as the ``manifold_brdf`` plugin.
@@ -97,10 +97,10 @@ def _plan(basis, manifold, W, prune, renormalise):
         info["weights"].append({names[i]: float(v) for i, v in zip(keep, wk)})
         info["dropped_weight"].append(dropped)
     if p == 1:
-        keys = [names[i] for i in kept[0][0]]
+        keys = [basis.key([names[i]]) for i in kept[0][0]]
         cw = kept[0][1].copy()
     else:
-        keys = [SEP.join(names[i] for i in combo) for combo in itertools.product(*(k for k, _ in kept))]
+        keys = [basis.key([names[i] for i in combo]) for combo in itertools.product(*(k for k, _ in kept))]
         cw = kept[0][1]
         for _, wk in kept[1:]:
             cw = np.multiply.outer(cw, wk).ravel()

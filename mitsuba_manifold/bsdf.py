@@ -26,6 +26,8 @@ from .sampling import (SAMPLING_CACHE_VERSION, SAMPLING_GRID, combined_density, 
                        material_density, sampling_cache_path, sampling_density)
 from .errors import ManifoldBRDFError, ManifoldError, VariantError
 from .manifold import Manifold
+from .overrides import database_folder
+from .validate import weight_sum
 
 PLUGIN_NAME = "manifold_brdf"
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
@@ -145,10 +147,15 @@ class ManifoldBRDF:
         except ManifoldError as e:
             raise ManifoldBRDFError(f"{PLUGIN_NAME}: {e}") from None
         self._manifold_path = path
-        self._database = _resolve(props["database"], "database folder") if "database" in props else None
+        database = props["database"] if "database" in props else database_folder()
+        self._database = _resolve(database, "database folder") if database is not None else None
         if self._database is not None and not os.path.isdir(self._database):
             raise ManifoldBRDFError(f"{PLUGIN_NAME}: database {self._database} is not a folder")
-        self._prune = float(props.get("prune", DEFAULT_PRUNE))
+        prune = props.get("prune", DEFAULT_PRUNE)
+        try:
+            self._prune = float(prune)
+        except (TypeError, ValueError):
+            raise ManifoldBRDFError(f"{PLUGIN_NAME}: prune must be a number in [0, 1), got {prune!r}") from None
         if not 0.0 <= self._prune < 1.0:
             raise ManifoldBRDFError(f"{PLUGIN_NAME}: prune must be in [0, 1), got {self._prune}")
         self._sampling = str(props.get("sampling", "cdf")).strip().lower()
@@ -243,8 +250,10 @@ class ManifoldBRDF:
         if w.shape != (n,) or not np.isfinite(w).all():
             raise ManifoldBRDFError(f"{PLUGIN_NAME}: weights must be {n} finite numbers (one per material), "
                                     f"got shape {w.shape}")
-        if abs(w.sum()) < 1e-12:
-            raise ManifoldBRDFError(f"{PLUGIN_NAME}: weights sum to zero; a material needs weights summing to 1")
+        try:
+            weight_sum(w)
+        except ManifoldError as e:
+            raise ManifoldBRDFError(f"{PLUGIN_NAME}: {e}") from None
         self._rebuild(w, None, None, table)
 
     def _rebuild(self, w, x, material, table=None):
@@ -458,7 +467,12 @@ class ManifoldBRDF:
             return
         x = np.array(self._x_param, dtype=np.float64).ravel()
         if self._x is None or x.shape != self._x.shape or not np.array_equal(x, self._x.astype(np.float32)):
-            self.set_latent(x)
+            try:
+                self.set_latent(x)
+            except Exception:  # refused: back to the material still rendered, so later updates work
+                for i, value in enumerate(self._x if self._x is not None else ()):
+                    self._x_param[i] = float(value)
+                raise
 
     def to_string(self):
         if self._material is not None:

@@ -125,15 +125,18 @@ def _fit_named(name):
     return fits[name]
 
 
-def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=0, progress=False):
+def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=0, progress=False,
+                  force=False):
     """Write the built-in surrogate database: one ``<name>.binary`` per material.
 
     Parameters
     ----------
     out_dir : path
-        Folder to create or complete.
+        Folder to create or complete. It is locked (:class:`FolderLock`) while written;
+        its ``database.json`` records the settings and the tables this function made.
     dims : tuple of 3 int
-        Table resolution ``(n_theta_h, n_theta_d, n_phi_d)``.
+        Table resolution ``(n_theta_h, n_theta_d, n_phi_d)``, checked against the format's
+        limit and the memory available before anything is written.
     materials : list of str, optional
         Subset of material names (default: all 100).
     noise : float
@@ -142,6 +145,8 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
         Seed of the noise; each material's noise depends on (seed, name) only.
     progress : bool
         Show a progress bar.
+    force : bool
+        Overwrite ``.binary`` files in ``out_dir`` that this function did not make.
 
     Returns
     -------
@@ -150,47 +155,96 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
 
     Raises
     ------
-    ValueError
-        Unknown material names, bad dims or noise, or a folder made with other settings.
+    DatabaseError
+        Unknown material names, bad dims or noise, a folder made with other settings, or
+        tables in the folder that this function did not make (without ``force``).
     """
+    from . import validate
+    from .locking import FolderLock
+
     fits = load_sgd_fits()
     names = list(fits) if materials is None else list(materials)
     unknown = [n for n in names if n not in fits]
     if unknown:
         raise DatabaseError(f"unknown material(s) {unknown}; see mitsuba_manifold.database.load_sgd_fits()")
-    dims = tuple(int(v) for v in dims)
-    if len(dims) != 3 or min(dims) < 1:
-        raise DatabaseError(f"resolution must be three positive integers, got {dims}")
+    workers = min(len(names), os.cpu_count() or 1)
+    dims = validate.table_resolution(dims, "resolution", workers=workers)
     if not (np.isfinite(noise) and noise >= 0):
         raise DatabaseError(f"noise must be a finite value >= 0, got {noise}")
-    os.makedirs(out_dir, exist_ok=True)
+    out_dir = os.fspath(out_dir)
     settings = {"source": "sgd", "dims": list(dims), "noise": float(noise), "seed": int(seed)}
-    manifest_path = os.path.join(out_dir, "database.json")
-    if os.path.exists(manifest_path):
-        with open(manifest_path) as f:
-            old = json.load(f)
-        if {k: old.get(k) for k in settings} != settings:
-            raise DatabaseError(f"{out_dir} holds tables made with {old}, not {settings}; "
-                             "choose another folder")
-    atomic_write(manifest_path, lambda f: f.write(json.dumps(settings, indent=1).encode()))
-
-    paths = [os.path.join(out_dir, name + ".binary") for name in names]
-    todo = [(name, path) for name, path in zip(names, paths) if not _valid_table(path, dims)]
-    jobs = [(fits[name], path, dims, float(noise), int(seed), name) for name, path in todo]
-    from tqdm import tqdm
-    with tqdm(total=len(names), initial=len(names) - len(todo), desc="tabulating", unit="table",
-              disable=not progress) as bar:
-        workers = min(len(jobs), os.cpu_count() or 1)
-        if workers > 1 and np.prod(dims) >= 1 << 16:   # big tables: one process per core
-            from concurrent.futures import ProcessPoolExecutor
-            with ProcessPoolExecutor(workers) as pool:
-                for _ in pool.map(_write_sgd_table, jobs):
-                    bar.update()
-        else:
-            for job in jobs:
-                _write_sgd_table(job)
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise DatabaseError(f"database folder {out_dir} is a file")
+    if os.path.isdir(out_dir):  # refuse before locking: a refused run adds nothing to the folder
+        _own_tables(out_dir, settings, names, force)
+    with FolderLock(out_dir, "database folder"):
+        made = _own_tables(out_dir, settings, names, force)
+        paths = [os.path.join(out_dir, name + ".binary") for name in names]
+        todo = [(name, path) for name, path in zip(names, paths)
+                if name not in made or not _valid_table(path, dims)]
+        made -= {name for name, _ in todo}
+        _write_settings(out_dir, settings, made)
+        jobs = [(fits[name], path, dims, float(noise), int(seed), name) for name, path in todo]
+        from tqdm import tqdm
+        with tqdm(total=len(names), initial=len(names) - len(todo), desc="tabulating", unit="table",
+                  disable=not progress) as bar:
+            def done(name):
+                made.add(name)
+                _write_settings(out_dir, settings, made)
                 bar.update()
+            if len(jobs) > 1 and workers > 1 and np.prod(dims) >= 1 << 16:   # big tables: one process per core
+                from concurrent.futures import ProcessPoolExecutor
+                with ProcessPoolExecutor(min(workers, len(jobs))) as pool:
+                    for name in pool.map(_write_sgd_table, jobs):
+                        done(name)
+            else:
+                for job in jobs:
+                    done(_write_sgd_table(job))
     return paths
+
+
+DATABASE_JSON = "database.json"
+
+
+def _write_settings(out_dir, settings, made):
+    text = json.dumps({**settings, "tables": sorted(made)}, indent=1)
+    atomic_write(os.path.join(out_dir, DATABASE_JSON), lambda f: f.write(text.encode()))
+
+
+def _own_tables(out_dir, settings, names, force):
+    """Names of the tables in ``out_dir`` that :func:`make_database` made with ``settings``.
+
+    Raises when the folder was made with other settings (and holds tables of them), or when
+    a table to write exists without having been made here (unless ``force``; never a
+    read-only one). A ``database.json`` without a table list (older versions) owns every
+    table of the folder.
+    """
+    path = os.path.join(out_dir, DATABASE_JSON)
+    made = set()
+    if os.path.exists(path):
+        try:
+            with open(path, encoding="utf-8") as f:
+                old = json.load(f)
+            listed = old.get("tables", None)
+        except (OSError, ValueError, AttributeError):
+            raise DatabaseError(f"{path} is not a database.json written by make_database; "
+                             "choose another folder") from None
+        present = {n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary")}
+        made = present if listed is None else set(listed) & present
+        if {k: old.get(k) for k in settings} != settings and made:
+            raise DatabaseError(f"{out_dir} holds tables made with "
+                             f"{ {k: old.get(k) for k in settings} }, not {settings}; choose another folder")
+    foreign = [n + ".binary" for n in names
+               if n not in made and os.path.lexists(os.path.join(out_dir, n + ".binary"))]
+    if foreign and not force:
+        raise DatabaseError(f"{out_dir} holds tables make_database did not make: {', '.join(foreign[:5])}"
+                         f"{' ...' if len(foreign) > 5 else ''}; not overwriting them: choose another "
+                         "folder, or add --force")
+    from .ownership import read_only
+    for f in foreign:
+        if read_only(os.path.join(out_dir, f)):
+            raise DatabaseError(f"{os.path.join(out_dir, f)} is read-only; not replacing it")
+    return made
 
 
 def _valid_table(path, dims):
@@ -210,6 +264,7 @@ def _write_sgd_table(job):
         factor = np.exp(noise * rng.standard_normal(raw.shape) - 0.5 * noise * noise)
         raw = np.where(raw >= 0, raw * factor, raw)
     merl.write_binary(path, raw)
+    return name
 
 
 def _progress(items, enabled, desc):
@@ -270,6 +325,10 @@ class Database:
                 raise DatabaseError(f"database folder {folder} holds no .binary tables")
         else:
             names = list(names)
+            bad = [n for n in names if not isinstance(n, str) or not n or "/" in n or os.sep in n or "\0" in n]
+            if bad:
+                raise DatabaseError(f"database {folder}: material names {bad} are not file names in the folder "
+                                    "(a name is '<name>' of '<name>.binary', without '/')")
             missing = [n for n in names if n not in available]
             if missing:
                 raise UnknownMaterialError(f"database {folder} has no table for {missing}")

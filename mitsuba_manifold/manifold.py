@@ -22,6 +22,7 @@ from . import gplvm, kernel
 from .atomic import atomic_write
 from .database import FEATURES, Database
 from .errors import ManifoldError, NotPositiveDefiniteError
+from .validate import weight_sum
 
 FORMAT_VERSION = 1
 
@@ -272,9 +273,10 @@ class Manifold:
             if not sep or v is None or not np.isfinite(v):
                 raise ManifoldError(f"weights {text!r}: entry {e!r} is not 'name:number'")
             w[self.index(name.strip())] += v
-        if abs(w.sum()) < 1e-12:
-            raise ManifoldError(f"weights {text!r} sum to zero; a material needs weights summing to 1 "
-                                "(they are used as given, not normalised)")
+        try:
+            weight_sum(w)
+        except ManifoldError as e:
+            raise ManifoldError(f"weights {text!r}: {e}") from None
         return w
 
     # ------------------------------------------------------- interpolation
@@ -287,7 +289,10 @@ class Manifold:
         names = self.names if names is None else list(names)
         try:
             db = Database(folder, names)
-        except (FileNotFoundError, KeyError) as e:
+        except FileNotFoundError as e:
+            raise ManifoldError(f"database for this manifold: {e} (if it moved, give its folder: --database "
+                                "for the tools, the 'database' parameter of manifold_brdf)") from None
+        except KeyError as e:
             raise ManifoldError(f"database for this manifold: {e}") from None
         for name in names:
             if db.hash(name) != self.hashes[self.index(name)]:

@@ -22,8 +22,10 @@ import time
 import numpy as np
 
 from . import basis as basis_folder
-from . import imageio, scenes
-from .errors import ImageError, RenderBasisError
+from . import imageio, names as names_mod, ownership, scenes, validate
+from .errors import ImageError, MaterialNameError, RenderBasisError
+from .interrupt import StopRequest, sample_passes
+from .locking import FolderLock
 from .scenes import default_variant
 from .manifold import Manifold
 
@@ -63,17 +65,37 @@ def select_materials(manifold, materials="all", near=None, radius=None):
     return [n for n in manifold.names if n in set(materials)]
 
 
-def _open_folder(out, manifest):
-    """Create ``out`` or check that its manifest matches; return the images still valid there."""
-    os.makedirs(out, exist_ok=True)
-    if not os.path.exists(os.path.join(out, basis_folder.MANIFEST)):
-        return {}
-    old = basis_folder.read_manifest(out)
-    diff = basis_folder.manifest_differences(old, manifest)
-    if diff:
+def _open_folder(out, manifest, files, force=False):
+    """Check ``out`` (locked by the caller) against ``manifest``; return the images still valid.
+
+    A folder whose manifest has other settings is refused, unless it lists no image yet
+    (nothing to lose). Files the run would write (``files``) that exist without being
+    listed in the manifest are the user's: refused unless ``force``.
+    """
+    old = None
+    listed = set()
+    if os.path.exists(os.path.join(out, basis_folder.MANIFEST)):
+        old = basis_folder.read_manifest(out)   # raises unless it is a basis manifest
+        old = basis_folder.upgrade_manifest(old, manifest["manifold"])   # resume a version-1 basis
+        listed.add(basis_folder.MANIFEST)
+        diff = basis_folder.manifest_differences(old, manifest)
+        if diff and old["images"]:
+            raise RenderBasisError(
+                f"{out} holds a basis made with other settings ({', '.join(diff)} differ); "
+                "choose another folder or delete it")
+        if diff:
+            old = None
+    listed |= {e["file"] for e in old["images"].values()} if old else set()
+    foreign = sorted(f for f in files if f not in listed and os.path.lexists(os.path.join(out, f)))
+    if foreign and not force:
         raise RenderBasisError(
-            f"{out} holds a basis made with other settings ({', '.join(diff)} differ); "
-            "choose another folder or delete it")
+            f"{out} holds files this basis did not make and would overwrite: {', '.join(foreign[:5])}"
+            f"{' ...' if len(foreign) > 5 else ''}; choose another folder, or add --force")
+    for f in foreign:
+        if ownership.read_only(os.path.join(out, f)):
+            raise RenderBasisError(f"{os.path.join(out, f)} is read-only; not replacing it")
+    if old is None:
+        return {}
     kept = {}
     w, h = manifest["resolution"]
     for key, entry in old["images"].items():
@@ -89,14 +111,15 @@ def _open_folder(out, manifest):
 
 def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=None, radius=None,
                  mode="per-material", seed=0, resolution=None, max_depth=None, variant=None,
-                 progress=False, chunk_spp=None):
+                 progress=False, chunk_spp=None, x=None, database=None, force=False):
     """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
 
     Parameters
     ----------
     scene_path, manifold_path : str
     out : str
-        Folder (created; resumed when it holds a basis with the same settings).
+        Folder (created; resumed when it holds a basis with the same settings). It is
+        locked (:class:`FolderLock`) while the images are written.
     spp : int
         Samples per pixel of every image.
     materials, near, radius
@@ -114,6 +137,17 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         Mitsuba variant (default: the active one, else CUDA when available, else LLVM).
     progress : bool
         Progress bar with ETA.
+    x : array_like (q,), optional
+        The scene's ``$x`` (default: the first material's latent point, which fits any
+        manifold whatever its latent dimension).
+    database : str, optional
+        Folder of the manifold's tables, if it moved (:func:`blend.load_scene`).
+    force : bool
+        Overwrite files in ``out`` that this basis did not make.
+
+    Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
+    passes of :data:`interrupt.SAMPLES_PER_PASS` paths) and raises ``KeyboardInterrupt``;
+    every image listed in the manifest is then complete.
 
     Returns
     -------
@@ -126,43 +160,57 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         raise RenderBasisError(f"mode must be one of {MODES}, got {mode!r}")
     if int(spp) < 1:
         raise RenderBasisError(f"spp must be >= 1, got {spp}")
+    if variant is not None:
+        validate.variant(variant, jit=True)
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise RenderBasisError(f"output folder {out} is a file")
     manifold = Manifold.load(manifold_path)
+    if x is not None:
+        x = validate.latent_point("--x", x, manifold.q)
     chosen = select_materials(manifold, materials, near, radius)
+    try:
+        names_mod.check_unique(chosen)
+    except MaterialNameError as e:
+        raise RenderBasisError(str(e)) from None
     if not os.path.isfile(scene_path):
         raise RenderBasisError(f"scene {scene_path} does not exist")
     scene, targets, max_depth = scenes.load_scene(scene_path, manifold_path, spp, resolution, max_depth,
-                                             variant=variant or mi.variant() or default_variant())
+                                                     x=x, variant=variant or mi.variant() or default_variant(),
+                                                     database=database)
     if mode == "onepass" and len(targets) != 1:
         raise RenderBasisError(f"onepass mode renders scenes with one manifold material; {scene_path} has "
                                f"{len(targets)}: use mode='per-material'")
     size = tuple(int(v) for v in scene.sensors()[0].film().size())
     manifest = basis_folder.make_manifest(scene_path, manifold_path, size, spp, mi.variant(), seed, max_depth,
                                        mode, [b.id() for b in targets])
-    manifest["images"] = _open_folder(out, manifest)
-    basis_folder.write_manifest(out, manifest)
-
     if len(targets) == 1:
-        jobs = [("base", None)] + [(name, (name,)) for name in chosen]
+        jobs = [(basis_folder.BASE, None)] + [(basis_folder.image_key([name]), (name,)) for name in chosen]
     else:
         jobs = [(basis_folder.image_key(combo), combo) for combo in itertools.product(chosen, repeat=len(targets))]
-    todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
-
-    def save(images, seconds):
-        """Write ``{key: image}`` (EXR files in parallel), then list them in the manifest."""
-        from concurrent.futures import ThreadPoolExecutor
-        with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
-            list(pool.map(lambda kv: imageio.write_exr(os.path.join(out, kv[0] + ".exr"), kv[1]),
-                          images.items()))
-        for key in images:
-            manifest["images"][key] = {"file": key + ".exr", "time_s": float(seconds)}
+    files = [key + ".exr" for key, _ in jobs] + [basis_folder.MANIFEST]
+    if os.path.isdir(out):  # refuse before locking: a refused run adds nothing to the folder
+        _open_folder(out, manifest, files, force)
+    with FolderLock(out, "basis folder"), StopRequest() as stop:
+        manifest["images"] = _open_folder(out, manifest, files, force)
         basis_folder.write_manifest(out, manifest)
+        todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
 
-    if not todo:
-        return manifest
-    if mode == "onepass":
-        _render_onepass(scene, targets[0], todo, spp, seed, max_depth, save, progress, chunk_spp)
-    else:
-        _render_each(scene, targets, todo, spp, seed, max_depth, save, progress)
+        def save(images, seconds):
+            """Write ``{key: image}`` (EXR files in parallel), then list them in the manifest."""
+            from concurrent.futures import ThreadPoolExecutor
+            with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
+                list(pool.map(lambda kv: imageio.write_exr(os.path.join(out, kv[0] + ".exr"), kv[1]),
+                              images.items()))
+            for key in images:
+                manifest["images"][key] = {"file": key + ".exr", "time_s": float(seconds)}
+            basis_folder.write_manifest(out, manifest)
+
+        if not todo:
+            return manifest
+        if mode == "onepass":
+            _render_onepass(scene, targets[0], todo, spp, seed, max_depth, save, progress, chunk_spp, stop)
+        else:
+            _render_each(scene, targets, todo, spp, seed, max_depth, save, progress, stop)
     return manifest
 
 
@@ -177,10 +225,29 @@ def _bar(total, enabled, desc):
     return tqdm(total=total, desc=desc, unit="image", disable=not enabled)
 
 
-def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress):
-    """One render per image: base (component 'base'), then 'touch' per material or 'l1' per combination."""
+def _render_passes(scene, integrator, spp, seed, stop):
+    """``mi.render`` cut into passes (:func:`sample_passes`), checking ``stop`` after each.
+
+    One pass (the usual case for small images) is exactly ``mi.render(..., spp, seed)``;
+    passes after the first use seeds ``(seed + k * 0x9E3779B9) mod 2^32``, and the image is their
+    sample-weighted mean.
+    """
     import mitsuba as mi
 
+    w, h = (int(v) for v in scene.sensors()[0].film().size())
+    total = None
+    for k, n in enumerate(sample_passes(spp, w * h)):
+        img = np.array(mi.render(scene, integrator=integrator, spp=n, seed=(seed + k * 0x9E3779B9) & 0xFFFFFFFF),
+                       dtype=np.float64)[..., :3]
+        total = img * n if total is None else total + img * n
+        if integrator.should_stop():  # Mitsuba's own SIGINT handler ran during the pass
+            stop.requested = True
+        stop.check()
+    return (total / spp).astype(np.float32)
+
+
+def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress, stop):
+    """One render per image: base (component 'base'), then 'touch' per material or 'l1' per combination."""
     single = len(targets) == 1
     touch = _integrator("touch", max_depth)
     l1 = _integrator("l1", max_depth, target=",".join(b.id() for b in targets)) if not single else None
@@ -188,24 +255,26 @@ def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress):
         for key, combo in todo:
             t0 = time.perf_counter()
             if combo is None:
-                img = mi.render(scene, integrator=_integrator("base", max_depth), spp=spp, seed=seed)
+                img = _render_passes(scene, _integrator("base", max_depth), spp, seed, stop)
             else:
                 for bsdf, name in zip(targets, combo):
                     bsdf.set_material(name)
-                img = mi.render(scene, integrator=touch if single else l1, spp=spp, seed=seed)
-            save({key: np.array(img, dtype=np.float32)[..., :3]}, time.perf_counter() - t0)
+                img = _render_passes(scene, touch if single else l1, spp, seed, stop)
+            save({key: img}, time.perf_counter() - t0)
             bar.set_postfix_str(key)
             bar.update()
 
 
-def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, chunk_spp):
+def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, chunk_spp, stop):
     """All material images from one set of paths (issue 5); base comes from the same paths."""
     from tqdm import tqdm
     integrator = _integrator("l1", max_depth)
-    names = [key for key, combo in todo if combo is not None]
+    names = [combo[0] for key, combo in todo if combo is not None]
+    keys = {combo[0]: key for key, combo in todo if combo is not None}
     t0 = time.perf_counter()
     with tqdm(desc="rendering basis (one pass)", unit="step", disable=not progress) as bar:
         def advance(done, total):
+            stop.check()
             bar.total = total
             bar.update(done - bar.n)
         kwargs = {"materials": names, "spp": spp, "seed": seed, "progress": advance}
@@ -213,7 +282,7 @@ def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, c
             kwargs["spp_per_pass"] = chunk_spp
         base, images = integrator.render_onepass(scene, **kwargs)
     seconds = (time.perf_counter() - t0) / max(len(todo), 1)
-    out = {name: np.asarray(images[name], dtype=np.float32)[..., :3] for name in names}
+    out = {keys[name]: np.asarray(images[name], dtype=np.float32)[..., :3] for name in names}
     if any(combo is None for _, combo in todo):
-        out["base"] = np.asarray(base, dtype=np.float32)[..., :3]
+        out[basis_folder.BASE] = np.asarray(base, dtype=np.float32)[..., :3]
     save(out, seconds)

@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .cache import file_hash
+from .identity import manifold_identity
 from .errors import BasisError
 
 #: Folder of the scenes shipped with the package.
@@ -91,7 +91,7 @@ def scene_parameters(scene):
 
 
 def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=None, x=None,
-               variant=None):
+               variant=None, database=None):
     """Load a scene XML with its ``$parameters`` set, and find its manifold materials.
 
     Only the parameters the XML uses are passed (Mitsuba refuses others): ``$manifold``,
@@ -107,8 +107,14 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     max_depth : int, optional
         Default: the scene's ``$max_depth`` default, else -1 (unbounded).
     x : array_like (q,), optional
+        Default: the first material's latent point (a scene's own ``$x`` default may not
+        fit the manifold's latent dimension).
     variant : str, optional
         Default: the active variant, else ``llvm_ad_rgb``.
+    database : str, optional
+        Folder of the manifold's tables when it is not where the manifold says (moved):
+        the scene's ``$database`` if it takes one, else every ``manifold_brdf`` without a
+        ``database`` parameter of its own (:func:`overrides.database_override`).
 
     Returns
     -------
@@ -136,8 +142,13 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     params = {}
     if "manifold" in used:
         params["manifold"] = os.path.abspath(manifold_path)
-    if "x" in used and x is not None:
+    if "x" in used:
+        if x is None:
+            from .manifold import Manifold
+            x = Manifold.load(manifold_path).latent[0]
         params["x"] = ", ".join(repr(float(v)) for v in np.ravel(x))
+    if database is not None and "database" in used:
+        params["database"] = os.path.abspath(database)
     if "spp" in used and spp is not None:
         params["spp"] = str(int(spp))
     if "integrator" in used:
@@ -154,18 +165,22 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         for name, value in zip(("width", "height"), size):
             if name in used:
                 params[name] = str(value)
+    from .errors import one_line
+    from .overrides import database_override
     try:
-        scene = mi.load_file(scene_path, **params)
+        with database_override(database):
+            scene = mi.load_file(scene_path, **params)
     except Exception as e:
-        raise BasisError(f"scene {scene_path}: cannot load ({e})") from None
+        raise BasisError(f"scene {scene_path}: cannot load: {one_line(e)}") from None
     targets = manifold_bsdfs(scene)
     if not targets:
         raise BasisError(f"scene {scene_path} has no manifold_brdf material (give the material to edit "
                          "type=\"manifold_brdf\" and take the manifold as $manifold)")
-    want = file_hash(manifold_path)
+    from .manifold import Manifold
+    want = manifold_identity(Manifold.load(manifold_path))
     for bsdf in targets:
         path = getattr(bsdf, "manifold_path", None)
-        if path is None or file_hash(path) != want:
+        if path is None or manifold_identity(bsdf.manifold) != want:
             raise BasisError(f"scene {scene_path}: material {bsdf.id()!r} uses manifold {path}, not "
                              f"{manifold_path} (the scene does not take it as $manifold)")
     film_size = tuple(int(v) for v in scene.sensors()[0].film().size())
@@ -176,7 +191,7 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
 
 
 def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None, max_depth=None,
-                     variant=None, targets=None):
+                     variant=None, targets=None, database=None):
     """Full global-illumination image of the interpolated material, with Mitsuba's ``path``.
 
     Loads the scene (:func:`load_scene`), sets every manifold material to its latent
@@ -191,7 +206,7 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
         BSDF ids of the rows of a (p, q) ``x`` (a basis's ``targets``); default: the
         scene's manifold materials in the order of its shapes.
     spp, seed : int
-    resolution, max_depth, variant
+    resolution, max_depth, variant, database
         As :func:`load_scene`.
 
     Returns
@@ -205,7 +220,8 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
         raise BasisError(f"x must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}")
     if int(spp) < 1:
         raise BasisError(f"spp must be >= 1, got {spp}")
-    scene, found, max_depth = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant)
+    scene, found, max_depth = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant,
+                                         database)
     ids = [b.id() for b in found]
     if len(pts) == 1:
         rows = [0] * len(found)
