@@ -15,7 +15,7 @@ import re
 import sys
 import time
 
-from .common import ERRORS, fail, parse_floats
+from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats
 
 NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
 
@@ -25,7 +25,7 @@ def _stem(path):
 
 
 def parser():
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--basis", required=True, help="basis folder written by render_basis.py")
     p.add_argument("--x", nargs="+", action="append", metavar="X",
                    help="latent point (q numbers); repeat once per target for a multilinear basis")
@@ -50,6 +50,9 @@ def parser():
                    help="images along the latent segment between materials (or 'x0,x1' points) A and B")
     p.add_argument("--steps", type=int, default=20, help="images along --path (default 20)")
     p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
+    p.add_argument("--database", help="folder of the manifold's tables, if it moved (--render-reference)")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing output files this tool did not write (never read-only ones)")
     return p
 
 
@@ -75,6 +78,14 @@ def parse(argv=None):
         fail(f"--steps must be >= 2, got {args.steps}")
     if args.spp < 1:
         fail(f"--spp must be >= 1, got {args.spp}")
+    from .. import validate
+    from ..basis import check_output_outside_basis
+    try:
+        validate.exposure(args.exposure)
+        validate.fraction("--prune", args.prune)
+        check_output_outside_basis(args.out, args.basis)
+    except ERRORS as e:
+        fail(e)
     return args
 
 
@@ -165,10 +176,10 @@ def reference_image(args, basis, manifold, outputs):
     points = latent_points(basis, manifold, args.x)
     reference = render_reference(scene, args.manifold or m["manifold"], points, args.spp, seed=args.seed,
                                  resolution=basis.resolution, max_depth=m["max_depth"], variant=m["variant"],
-                                 targets=basis.targets)
+                                 targets=basis.targets, database=args.database)
     print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
     if basis.p == 1:
-        neg = manifold.negative_fraction(points[0])
+        neg = manifold.negative_fraction(points[0], database=args.database)
         if neg > 1e-3:
             print(f"note: {100 * neg:.1f}% of the interpolated table's values are negative; "
                   "manifold_brdf clamps them to 0, a blend keeps them, so the two differ beyond L2+")
@@ -177,14 +188,21 @@ def reference_image(args, basis, manifold, outputs):
     return reference
 
 
-def write_outputs(out, outputs):
-    """Create the folder of ``out`` and run every writer, reporting each file."""
+def write_outputs(out, outputs, force=False):
+    """Check that no output replaces a file this tool did not make (:mod:`ownership`), create
+    the folder of ``out``, run every writer (reporting each file) and record the files made."""
+    from .. import ownership
+
+    for kind, path, _ in outputs:
+        ownership.check_replaceable(path, force, what=kind)
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
     for kind, path, write in outputs:
         write()
         print(f"wrote {kind}: {path}")
+    ownership.record([path for _, path, _ in outputs], "blend.py")
 
 
+@guarded
 def main(argv=None):
     args = parse(argv)
     from ..basis import Basis
@@ -197,6 +215,6 @@ def main(argv=None):
             outputs = path_outputs(args, basis, manifold)
         else:
             outputs = point_outputs(args, basis, manifold)
-        write_outputs(args.out, outputs)
+        write_outputs(args.out, outputs, args.force)
     except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's, from a reference render
         fail(e)

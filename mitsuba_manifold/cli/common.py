@@ -1,12 +1,22 @@
 """Argument helpers shared by the command-line tools (parsing and progress only; the work is in the library)."""
 
 import argparse
+import functools
 import sys
 
-from ..errors import MitsubaManifoldError
+from ..errors import MitsubaManifoldError, one_line
 
 #: What a tool reports as a one-line error (anything else is a bug and keeps its traceback).
 ERRORS = (MitsubaManifoldError, OSError)
+#: Exit status of a run stopped by Ctrl-C (128 + SIGINT), as shells report it.
+INTERRUPTED = 130
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with its errors as one line ``error: ...`` (exit 2), as every other error."""
+
+    def error(self, message):
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
 
 
 def parse_list(text):
@@ -37,6 +47,22 @@ def parse_floats(text):
 
 
 def fail(error, code=2):
-    """Print an error for the user and exit."""
-    print(f"error: {error}", file=sys.stderr)
+    """Print an error for the user (one line) and exit."""
+    print(f"error: {one_line(error)}", file=sys.stderr)
     sys.exit(code)
+
+
+def guarded(main):
+    """Run a tool's ``main`` so that what goes wrong because of its input ends as one
+    ``error:`` line: the package's errors and files the system refuses (:data:`ERRORS`),
+    memory (exit 2), and Ctrl-C (exit 130). Anything else is a bug and keeps its traceback."""
+    @functools.wraps(main)
+    def run(argv=None):
+        try:
+            return main(argv)
+        except KeyboardInterrupt:
+            fail("interrupted; every file listed so far is complete (run the same command again to resume)",
+                 INTERRUPTED)
+        except (*ERRORS, MemoryError) as e:
+            fail(e)
+    return run

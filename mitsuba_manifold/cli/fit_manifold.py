@@ -1,13 +1,33 @@
 """Fit the latent manifold of a folder of MERL tables (paper Sec. 3) and save it."""
 
-import argparse
+import os
 import time
 
-from .common import ERRORS, fail, parse_list
+from .common import ERRORS, ArgumentParser, fail, guarded, parse_list
+
+#: Files ``plots.write_fit_plots`` may write into ``--plot``.
+PLOTS = ("latent_map.png", "latent_map_dims23.png", "log_likelihood.png")
 
 
+def check(args):
+    """Everything checked before the (long) fit: values, --out and --plot (:mod:`ownership`)."""
+    from .. import ownership, validate
+    from ..errors import InputError
+
+    if not 1 <= args.q <= 8:
+        raise InputError(f"--q must be an integer from 1 to 8, got {args.q}")
+    validate.finite("--length-scale", args.length_scale, 0.0, 1e6, lo_open=True)
+    validate.finite("--noise", args.noise, 0.0, 1e6, lo_open=True)
+    ownership.check_replaceable(args.out, args.force, what="--out")
+    if args.plot:
+        validate.output_folder("--plot", args.plot)
+        for name in PLOTS:
+            ownership.check_replaceable(os.path.join(args.plot, name), args.force, what="--plot file")
+
+
+@guarded
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__)
+    p = ArgumentParser(description=__doc__)
     p.add_argument("database", help="folder of <name>.binary MERL tables")
     p.add_argument("--q", type=int, default=2, help="latent dimension (1..8, default 2)")
     p.add_argument("--out", required=True, help="output manifold (.npz)")
@@ -17,16 +37,20 @@ def main(argv=None):
     p.add_argument("--length-scale", type=float, default=1.0, help="kernel length scale l (default 1)")
     p.add_argument("--noise", type=float, default=1e-4, help="kernel noise mu (default 1e-4)")
     p.add_argument("--plot", metavar="DIR", help="write latent map and convergence PNGs here")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --out (or plot) this tool did not write (never a read-only one)")
     args = p.parse_args(argv)
 
-    from .. import plots
+    from .. import ownership, plots
     from ..manifold import Manifold
     t0 = time.perf_counter()
     try:
+        check(args)
         m = Manifold.fit(args.database, q=args.q, names=args.materials, method=args.method,
                          length_scale=args.length_scale, noise=args.noise, features=args.features,
                          progress=True)
         m.save(args.out)
+        ownership.record([args.out], "fit_manifold.py")
     except ERRORS as e:
         fail(e)
     print(m.summary())
@@ -37,8 +61,8 @@ def main(argv=None):
     if args.plot:
         try:
             paths = plots.write_fit_plots(m, args.plot)
+            ownership.record(paths, "fit_manifold.py")
         except ERRORS as e:
             fail(e)
         for path in paths:
             print(f"plot: {path}")
-
