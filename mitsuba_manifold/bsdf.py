@@ -95,8 +95,9 @@ class ManifoldBRDF:
     manifold : str
         Path of a manifold saved by :meth:`Manifold.save` (resolved like scene files).
     x : str or float
-        Latent point, e.g. ``"0.3, -1.2"`` (``q`` numbers). Exposed by ``mi.traverse``
-        as ``x``; updating it rebuilds the material.
+        Latent point, e.g. ``"0.3, -1.2"`` (``q`` numbers); empty: the first material's
+        point, which fits a manifold of any latent dimension (the shipped scenes' default).
+        Exposed by ``mi.traverse`` as ``x``; updating it rebuilds the material.
     material : str
         A training material by name (exactly its measured table).
     weights : str
@@ -171,7 +172,9 @@ class ManifoldBRDF:
             raise ManifoldBRDFError(
                 f"{PLUGIN_NAME}: give exactly one of 'x', 'material' and 'weights' (got {given or 'none'})")
         try:
-            if given[0] == "x":
+            if given[0] == "x" and str(props["x"]).strip() == "":
+                self.set_latent(self._manifold.latent[0])
+            elif given[0] == "x":
                 self.set_latent(_parse_floats(props["x"], "x"))
             elif given[0] == "material":
                 self.set_material(str(props["material"]).strip())

@@ -438,3 +438,14 @@ def test_render_basis_resumes_a_version_1_basis_of_the_same_manifold_file(tmp_pa
     assert rc == 0, err
     assert json.loads((old / "manifest.json").read_text())["version"] == 2
     assert {f: os.stat(old / f).st_mtime_ns for f in stamps} == stamps      # nothing rendered again
+
+
+def test_shipped_scenes_load_with_a_manifold_of_any_latent_dimension(tmp_path, tiny):
+    from mitsuba_manifold.scenes import scene_path
+    m3 = tmp_path / "m3.npz"
+    Manifold.fit(tiny["db"], q=3).save(m3)
+    man = Manifold.load(m3)
+    for name in ("sphere", "table", "cbox"):
+        scene = mi.load_file(scene_path(name), manifold=str(m3), res="8")
+        (bsdf,) = [s.bsdf() for s in scene.shapes() if getattr(s.bsdf(), "is_manifold_brdf", False)]
+        assert np.array_equal(bsdf.latent, man.latent[0]) and bsdf.used_names == [man.names[0]]
