@@ -24,7 +24,7 @@ import numpy as np
 from . import basis as basis_folder
 from . import imageio, names as names_mod, ownership, scenes, validate
 from .errors import ImageError, MaterialNameError, RenderBasisError
-from .interrupt import StopRequest, sample_passes
+from .interrupt import StopRequest, render_in_passes
 from .locking import FolderLock
 from .scenes import default_variant
 from .manifold import Manifold
@@ -225,27 +225,6 @@ def _bar(total, enabled, desc):
     return tqdm(total=total, desc=desc, unit="image", disable=not enabled)
 
 
-def _render_passes(scene, integrator, spp, seed, stop):
-    """``mi.render`` cut into passes (:func:`sample_passes`), checking ``stop`` after each.
-
-    One pass (the usual case for small images) is exactly ``mi.render(..., spp, seed)``;
-    passes after the first use seeds ``(seed + k * 0x9E3779B9) mod 2^32``, and the image is their
-    sample-weighted mean.
-    """
-    import mitsuba as mi
-
-    w, h = (int(v) for v in scene.sensors()[0].film().size())
-    total = None
-    for k, n in enumerate(sample_passes(spp, w * h)):
-        img = np.array(mi.render(scene, integrator=integrator, spp=n, seed=(seed + k * 0x9E3779B9) & 0xFFFFFFFF),
-                       dtype=np.float64)[..., :3]
-        total = img * n if total is None else total + img * n
-        if integrator.should_stop():  # Mitsuba's own SIGINT handler ran during the pass
-            stop.requested = True
-        stop.check()
-    return (total / spp).astype(np.float32)
-
-
 def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress, stop):
     """One render per image: base (component 'base'), then 'touch' per material or 'l1' per combination."""
     single = len(targets) == 1
@@ -255,11 +234,11 @@ def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress, sto
         for key, combo in todo:
             t0 = time.perf_counter()
             if combo is None:
-                img = _render_passes(scene, _integrator("base", max_depth), spp, seed, stop)
+                img = render_in_passes(scene, _integrator("base", max_depth), spp, seed, stop)
             else:
                 for bsdf, name in zip(targets, combo):
                     bsdf.set_material(name)
-                img = _render_passes(scene, touch if single else l1, spp, seed, stop)
+                img = render_in_passes(scene, touch if single else l1, spp, seed, stop)
             save({key: img}, time.perf_counter() - t0)
             bar.set_postfix_str(key)
             bar.update()

@@ -195,7 +195,8 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
     """Full global-illumination image of the interpolated material, with Mitsuba's ``path``.
 
     Loads the scene (:func:`load_scene`), sets every manifold material to its latent
-    point, and renders with a ``path`` integrator.
+    point, and renders with a ``path`` integrator in passes (:func:`interrupt.render_in_passes`:
+    Ctrl-C raises ``KeyboardInterrupt`` within a pass).
 
     Parameters
     ----------
@@ -233,6 +234,6 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
         rows = [order.index(i) for i in ids]
     for bsdf, row in zip(found, rows):
         bsdf.set_latent(pts[row])
+    from .interrupt import render_in_passes
     integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
-    img = mi.render(scene, integrator=integrator, spp=int(spp), seed=int(seed))
-    return np.array(img, dtype=np.float32)[..., :3].copy()
+    return render_in_passes(scene, integrator, int(spp), int(seed))   # Ctrl-C: KeyboardInterrupt

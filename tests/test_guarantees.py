@@ -327,6 +327,22 @@ def test_tools_read_a_moved_database(tmp_path, tiny):
 
 # ------------------------------------------------------------ 12. Ctrl-C
 
+def _interrupt_after(proc, wait):
+    """Send SIGINT to ``proc`` once ``wait()`` returns; its output, after checking that it
+    was still running and stopped within 10 s."""
+    wait()
+    assert proc.poll() is None, proc.communicate()
+    t0 = time.time()
+    proc.send_signal(signal.SIGINT)
+    try:
+        out = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+    assert time.time() - t0 < 10, time.time() - t0
+    return out
+
+
 @pytest.mark.parametrize("mode", ["per-material", "onepass"])
 def test_ctrl_c_stops_a_render_within_seconds_leaving_listed_files(tmp_path, tiny, mode):
     out = tmp_path / "basis"
@@ -334,20 +350,14 @@ def test_ctrl_c_stops_a_render_within_seconds_leaving_listed_files(tmp_path, tin
                              "--manifold", tiny["manifold"], "--out", str(out), "--res", "32",
                              "--spp", "200000", "--mode", mode], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
-    deadline = time.time() + 120
-    while time.time() < deadline and not (out / "manifest.json").exists():
-        time.sleep(0.2)
-    time.sleep(3.0)                               # inside a long render
-    assert proc.poll() is None, proc.communicate()
-    t0 = time.time()
-    proc.send_signal(signal.SIGINT)
-    try:
-        _, err = proc.communicate(timeout=30)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        raise
-    stopped = time.time() - t0
-    assert stopped < 10, stopped
+
+    def wait():
+        deadline = time.time() + 120
+        while time.time() < deadline and not (out / "manifest.json").exists():
+            time.sleep(0.2)
+        time.sleep(3.0)                               # inside a long render
+
+    _, err = _interrupt_after(proc, wait)
     assert proc.returncode == 130, err
     lines = error_lines(err)
     assert len(lines) == 1 and "interrupted" in lines[0] and "Traceback" not in err, err
@@ -357,6 +367,18 @@ def test_ctrl_c_stops_a_render_within_seconds_leaving_listed_files(tmp_path, tin
     assert present == listed
     for f in listed:
         assert imageio.read_exr(out / f).shape == (32, 32, 3)
+
+
+def test_ctrl_c_stops_a_reference_render_and_writes_nothing(tmp_path, tiny):
+    out = tmp_path / "blend"
+    out.mkdir()
+    proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "tools", "blend.py"), "--basis", tiny["basis"],
+                             "--x", "0,0", "--out", str(out / "img.exr"), "--render-reference", "--spp", "1000000"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _, err = _interrupt_after(proc, lambda: time.sleep(8.0))
+    assert proc.returncode == 130, err
+    assert len(error_lines(err)) == 1 and "interrupted" in err and "Traceback" not in err, err
+    assert os.listdir(out) == []
 
 
 # ------------------------------------------------------------ 13. the plugin
