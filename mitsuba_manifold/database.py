@@ -192,15 +192,30 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
                 made.add(name)
                 _write_settings(out_dir, settings, made)
                 bar.update()
-            if len(jobs) > 1 and workers > 1 and np.prod(dims) >= 1 << 16:   # big tables: one process per core
-                from concurrent.futures import ProcessPoolExecutor
-                with ProcessPoolExecutor(min(workers, len(jobs))) as pool:
-                    for name in pool.map(_write_sgd_table, jobs):
-                        done(name)
-            else:
-                for job in jobs:
-                    done(_write_sgd_table(job))
+            before = {name: _inode(path) for name, path in todo}
+            try:
+                if len(jobs) > 1 and workers > 1 and np.prod(dims) >= 1 << 16:   # big tables: one process per core
+                    from concurrent.futures import ProcessPoolExecutor
+                    with ProcessPoolExecutor(min(workers, len(jobs))) as pool:
+                        for name in pool.map(_write_sgd_table, jobs):
+                            done(name)
+                else:
+                    for job in jobs:
+                        done(_write_sgd_table(job))
+            finally:  # interrupted: list the tables the workers finished meanwhile (a new file each)
+                finished = {name for name, path in todo if name not in made and _inode(path) != before[name]
+                            and _valid_table(path, dims)}
+                if finished:
+                    made |= finished
+                    _write_settings(out_dir, settings, made)
     return paths
+
+
+def _inode(path):
+    try:
+        return os.stat(path).st_ino
+    except FileNotFoundError:
+        return None
 
 
 DATABASE_JSON = "database.json"

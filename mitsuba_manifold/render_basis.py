@@ -174,6 +174,10 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         raise RenderBasisError(str(e)) from None
     if not os.path.isfile(scene_path):
         raise RenderBasisError(f"scene {scene_path} does not exist")
+    if resolution is not None:  # images held at once: all of them in one pass, else a film and two sums
+        w, h = (int(resolution),) * 2 if np.isscalar(resolution) else (int(v) for v in resolution)
+        held = len(chosen) + 2 if mode == "onepass" else 6
+        validate.fits_in_memory("resolution", 2 * held * w * h * 3 * 4, f"{mode} images of {w}x{h}")
     scene, targets, max_depth = scenes.load_scene(scene_path, manifold_path, spp, resolution, max_depth,
                                                      x=x, variant=variant or mi.variant() or default_variant(),
                                                      database=database)

@@ -471,3 +471,38 @@ def test_shipped_scenes_load_with_a_manifold_of_any_latent_dimension(tmp_path, t
         scene = mi.load_file(scene_path(name), manifold=str(m3), res="8")
         (bsdf,) = [s.bsdf() for s in scene.shapes() if getattr(s.bsdf(), "is_manifold_brdf", False)]
         assert np.array_equal(bsdf.latent, man.latent[0]) and bsdf.used_names == [man.names[0]]
+
+
+def test_interrupted_make_database_lists_every_table_it_finished(tmp_path, monkeypatch):
+    real, calls = database._write_sgd_table, []
+
+    def write_then_interrupt(job):
+        calls.append(real(job))          # the table is complete on disk ...
+        if len(calls) == 2:
+            raise KeyboardInterrupt      # ... when Ctrl-C arrives, before it is recorded
+        return calls[-1]
+
+    monkeypatch.setattr(database, "_write_sgd_table", write_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        database.make_database(tmp_path / "db", DIMS, ["steel", "chrome", "gold-paint"])
+    listed = json.loads((tmp_path / "db" / "database.json").read_text())["tables"]
+    assert sorted(listed) == ["chrome", "steel"]
+    monkeypatch.setattr(database, "_write_sgd_table", real)
+    rc, _, err = run_tool("make_database", "--out", tmp_path / "db", "--resolution", "8,8,16",
+                          "--materials", "steel,chrome,gold-paint")
+    assert rc == 0, err                   # resumed, not refused as foreign tables
+
+
+def test_sizes_beyond_the_memory_available_are_refused_before_anything_is_written(tmp_path, tiny, monkeypatch):
+    from mitsuba_manifold import validate
+    monkeypatch.setattr(validate, "available_memory", lambda: 1 << 30)      # a 1 GiB machine
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", tmp_path / "b",
+                          "--res", 4096, "--spp", 1)
+    assert_one_error(rc, err, "resolution", "GiB")
+    rc, _, err = run_tool("make_database", "--out", tmp_path / "db", "--resolution", "256,256,512",
+                          "--materials", "steel")
+    assert_one_error(rc, err, "--resolution", "GiB")
+    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--path", "steel", "chrome", "--steps", 10 ** 7,
+                          "--out", tmp_path / "seq.exr")
+    assert_one_error(rc, err, "--steps", "GiB")
+    assert os.listdir(tmp_path) == []

@@ -94,6 +94,9 @@ def path_outputs(args, basis, manifold):
     from .. import imageio
     from ..blend import blend_path
 
+    from .. import validate
+    w, h = basis.resolution
+    validate.fits_in_memory("--steps", 2 * args.steps * w * h * 3 * 4, f"{args.steps} images of {w}x{h}")
     ends = [a if a in manifold.names else _point_or_name(a) for a in args.path]
     target = 0
     if args.target is not None:

@@ -63,6 +63,8 @@ def guarded(main):
         except KeyboardInterrupt:
             fail("interrupted; every file listed so far is complete (run the same command again to resume)",
                  INTERRUPTED)
-        except (*ERRORS, MemoryError) as e:
+        except MemoryError:
+            fail("out of memory; choose smaller sizes (resolution, --steps, --spp per pass)")
+        except ERRORS as e:
             fail(e)
     return run

@@ -49,6 +49,7 @@ def main(argv=None):
         m = Manifold.fit(args.database, q=args.q, names=args.materials, method=args.method,
                          length_scale=args.length_scale, noise=args.noise, features=args.features,
                          progress=True)
+        os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
         m.save(args.out)
         ownership.record([args.out], "fit_manifold.py")
     except ERRORS as e:
