@@ -122,6 +122,25 @@ def test_second_writer_of_a_folder_gets_a_clear_error(tmp_path, tiny):
     assert r.returncode == 0, r.stderr      # the lock went with the process that held it
 
 
+def test_two_render_basis_runs_into_one_folder_cannot_mix(tmp_path, tiny):
+    """The reported race: two runs with different spp at once. The second is refused while the
+    first holds the folder; the basis left is the first run's, whole."""
+    out = tmp_path / "basis"
+    tool = [sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), SPHERE, "--manifold",
+            tiny["manifold"], "--out", str(out), "--res", "16", "--mode", "per-material"]
+    first = subprocess.Popen(tool + ["--spp", "12000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and not (out / "manifest.json").exists():
+        time.sleep(0.1)
+    second = subprocess.run(tool + ["--spp", "4"], capture_output=True, text=True)
+    _, err = first.communicate(timeout=300)
+    assert first.returncode == 0, err
+    line = assert_one_error(second.returncode, second.stderr)
+    assert "another process" in line or "other settings" in line, line   # locked, or seen as another basis
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["spp"] == 12000 and len(manifest["images"]) == 1 + len(Manifold.load(tiny["manifold"]).names)
+
+
 # ------------------------------------------------------- 3. content-keyed caches
 
 def test_table_edited_in_place_with_its_mtime_restored_is_read_again(tmp_path):
