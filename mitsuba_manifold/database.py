@@ -13,7 +13,9 @@ import zlib
 
 import numpy as np
 
-from . import merl
+from . import merl, validate
+from .locking import FolderLock
+from .ownership import read_only
 from .atomic import atomic_write
 from .cache import evict, file_hash, key_hash, npy_cache
 from .errors import DatabaseError, MissingFileError, NumericalError, UnknownMaterialError
@@ -159,9 +161,6 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
         Unknown material names, bad dims or noise, a folder made with other settings, or
         tables in the folder that this function did not make (without ``force``).
     """
-    from . import validate
-    from .locking import FolderLock
-
     fits = load_sgd_fits()
     names = list(fits) if materials is None else list(materials)
     unknown = [n for n in names if n not in fits]
@@ -185,30 +184,38 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
         made -= {name for name, _ in todo}
         _write_settings(out_dir, settings, made)
         jobs = [(fits[name], path, dims, float(noise), int(seed), name) for name, path in todo]
-        from tqdm import tqdm
-        with tqdm(total=len(names), initial=len(names) - len(todo), desc="tabulating", unit="table",
-                  disable=not progress) as bar:
-            def done(name):
-                made.add(name)
-                _write_settings(out_dir, settings, made)
-                bar.update()
-            before = {name: _inode(path) for name, path in todo}
-            try:
-                if len(jobs) > 1 and workers > 1 and np.prod(dims) >= 1 << 16:   # big tables: one process per core
-                    from concurrent.futures import ProcessPoolExecutor
-                    with ProcessPoolExecutor(min(workers, len(jobs))) as pool:
-                        for name in pool.map(_write_sgd_table, jobs):
-                            done(name)
-                else:
-                    for job in jobs:
-                        done(_write_sgd_table(job))
-            finally:  # interrupted: list the tables the workers finished meanwhile (a new file each)
-                finished = {name for name, path in todo if name not in made and _inode(path) != before[name]
-                            and _valid_table(path, dims)}
-                if finished:
-                    made |= finished
-                    _write_settings(out_dir, settings, made)
+        _tabulate(jobs, workers, made, lambda: _write_settings(out_dir, settings, made), len(names), progress)
     return paths
+
+
+def _tabulate(jobs, workers, made, record, total, progress):
+    """Run the table jobs (one process per core for big tables), adding each finished table's
+    name to ``made`` and calling ``record()``; if interrupted, the tables the workers finished
+    meanwhile (each a new file) are added too."""
+    from tqdm import tqdm
+
+    dims = jobs[0][2] if jobs else None
+    before = {job[5]: _inode(job[1]) for job in jobs}
+    with tqdm(total=total, initial=total - len(jobs), desc="tabulating", unit="table", disable=not progress) as bar:
+        try:
+            if len(jobs) > 1 and workers > 1 and np.prod(dims) >= 1 << 16:
+                from concurrent.futures import ProcessPoolExecutor
+                with ProcessPoolExecutor(min(workers, len(jobs))) as pool:
+                    for name in pool.map(_write_sgd_table, jobs):
+                        made.add(name)
+                        record()
+                        bar.update()
+            else:
+                for job in jobs:
+                    made.add(_write_sgd_table(job))
+                    record()
+                    bar.update()
+        finally:
+            finished = {job[5] for job in jobs if job[5] not in made and _inode(job[1]) != before[job[5]]
+                        and _valid_table(job[1], dims)}
+            if finished:
+                made |= finished
+                record()
 
 
 def _inode(path):
@@ -243,19 +250,18 @@ def _own_tables(out_dir, settings, names, force):
             listed = old.get("tables", None)
         except (OSError, ValueError, AttributeError):
             raise DatabaseError(f"{path} is not a database.json written by make_database; "
-                             "choose another folder") from None
+                                "choose another folder") from None
         present = {n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary")}
         made = present if listed is None else set(listed) & present
         if {k: old.get(k) for k in settings} != settings and made:
             raise DatabaseError(f"{out_dir} holds tables made with "
-                             f"{ {k: old.get(k) for k in settings} }, not {settings}; choose another folder")
+                                f"{ {k: old.get(k) for k in settings} }, not {settings}; choose another folder")
     foreign = [n + ".binary" for n in names
                if n not in made and os.path.lexists(os.path.join(out_dir, n + ".binary"))]
     if foreign and not force:
         raise DatabaseError(f"{out_dir} holds tables make_database did not make: {', '.join(foreign[:5])}"
-                         f"{' ...' if len(foreign) > 5 else ''}; not overwriting them: choose another "
-                         "folder, or add --force")
-    from .ownership import read_only
+                            f"{' ...' if len(foreign) > 5 else ''}; not overwriting them: choose another "
+                            "folder, or add --force")
     for f in foreign:
         if read_only(os.path.join(out_dir, f)):
             raise DatabaseError(f"{os.path.join(out_dir, f)} is read-only; not replacing it")

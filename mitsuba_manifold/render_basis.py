@@ -141,7 +141,7 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         The scene's ``$x`` (default: the first material's latent point, which fits any
         manifold whatever its latent dimension).
     database : str, optional
-        Folder of the manifold's tables, if it moved (:func:`blend.load_scene`).
+        Folder of the manifold's tables, if it moved (:func:`scenes.load_scene`).
     force : bool
         Overwrite files in ``out`` that this basis did not make.
 
