@@ -15,7 +15,7 @@ import numpy as np
 
 from . import merl, validate
 from .locking import FolderLock
-from .ownership import read_only
+from .ownership import owned_tables, write_table_record
 from .atomic import atomic_write
 from .cache import evict, file_hash, key_hash, npy_cache
 from .errors import DatabaseError, MissingFileError, NumericalError, UnknownMaterialError
@@ -157,9 +157,11 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
 
     Raises
     ------
-    DatabaseError
-        Unknown material names, bad dims or noise, a folder made with other settings, or
-        tables in the folder that this function did not make (without ``force``).
+    DatabaseError, InputError
+        Unknown material names, bad dims or noise.
+    ForeignFileError
+        A folder made with other settings, or tables in it that this function did not make
+        (without ``force``).
     """
     fits = load_sgd_fits()
     names = list(fits) if materials is None else list(materials)
@@ -175,16 +177,16 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise DatabaseError(f"database folder {out_dir} is a file")
     if os.path.isdir(out_dir):  # refuse before locking: a refused run adds nothing to the folder
-        _own_tables(out_dir, settings, names, force)
+        owned_tables(out_dir, settings, names, force)
     with FolderLock(out_dir, "database folder"):
-        made = _own_tables(out_dir, settings, names, force)
+        made = owned_tables(out_dir, settings, names, force)
         paths = [os.path.join(out_dir, name + ".binary") for name in names]
         todo = [(name, path) for name, path in zip(names, paths)
                 if name not in made or not _valid_table(path, dims)]
         made -= {name for name, _ in todo}
-        _write_settings(out_dir, settings, made)
+        write_table_record(out_dir, settings, made)
         jobs = [(fits[name], path, dims, float(noise), int(seed), name) for name, path in todo]
-        _tabulate(jobs, workers, made, lambda: _write_settings(out_dir, settings, made), len(names), progress)
+        _tabulate(jobs, workers, made, lambda: write_table_record(out_dir, settings, made), len(names), progress)
     return paths
 
 
@@ -223,49 +225,6 @@ def _inode(path):
         return os.stat(path).st_ino
     except FileNotFoundError:
         return None
-
-
-DATABASE_JSON = "database.json"
-
-
-def _write_settings(out_dir, settings, made):
-    text = json.dumps({**settings, "tables": sorted(made)}, indent=1)
-    atomic_write(os.path.join(out_dir, DATABASE_JSON), lambda f: f.write(text.encode()))
-
-
-def _own_tables(out_dir, settings, names, force):
-    """Names of the tables in ``out_dir`` that :func:`make_database` made with ``settings``.
-
-    Raises when the folder was made with other settings (and holds tables of them), or when
-    a table to write exists without having been made here (unless ``force``; never a
-    read-only one). A ``database.json`` without a table list (older versions) owns every
-    table of the folder.
-    """
-    path = os.path.join(out_dir, DATABASE_JSON)
-    made = set()
-    if os.path.exists(path):
-        try:
-            with open(path, encoding="utf-8") as f:
-                old = json.load(f)
-            listed = old.get("tables", None)
-        except (OSError, ValueError, AttributeError):
-            raise DatabaseError(f"{path} is not a database.json written by make_database; "
-                                "choose another folder") from None
-        present = {n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary")}
-        made = present if listed is None else set(listed) & present
-        if {k: old.get(k) for k in settings} != settings and made:
-            raise DatabaseError(f"{out_dir} holds tables made with "
-                                f"{ {k: old.get(k) for k in settings} }, not {settings}; choose another folder")
-    foreign = [n + ".binary" for n in names
-               if n not in made and os.path.lexists(os.path.join(out_dir, n + ".binary"))]
-    if foreign and not force:
-        raise DatabaseError(f"{out_dir} holds tables make_database did not make: {', '.join(foreign[:5])}"
-                            f"{' ...' if len(foreign) > 5 else ''}; not overwriting them: choose another "
-                            "folder, or add --force")
-    for f in foreign:
-        if read_only(os.path.join(out_dir, f)):
-            raise DatabaseError(f"{os.path.join(out_dir, f)} is read-only; not replacing it")
-    return made
 
 
 def _valid_table(path, dims):

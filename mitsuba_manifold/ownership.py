@@ -8,8 +8,9 @@ user's file, or one of the tool's outputs edited since) is refused unless ``forc
 A read-only file (no write bit for its owner) is refused even with ``force``: someone
 protected it on purpose.
 
-Folders with a manifest of their own (a basis folder's ``manifest.json``, a database
-folder's ``database.json``) list their files there; this module serves single outputs.
+Folders with a manifest of their own list their files there: a basis folder's
+``manifest.json`` (:mod:`render_basis`), a database folder's ``database.json``
+(:func:`owned_tables`, :func:`write_table_record`).
 """
 
 import json
@@ -97,3 +98,47 @@ def record(paths, tool):
             files = {k: v for k, v in files.items() if os.path.isfile(os.path.join(folder, k))}
             text = json.dumps({"format": "mitsuba-manifold-outputs", "files": files}, indent=1, sort_keys=True)
             atomic_write(os.path.join(folder, RECORD), lambda f: f.write(text.encode()))
+
+
+DATABASE_JSON = "database.json"
+
+
+def write_table_record(out_dir, settings, made):
+    """Write ``<out_dir>/database.json``: ``settings`` and the names of the tables made."""
+    text = json.dumps({**settings, "tables": sorted(made)}, indent=1)
+    atomic_write(os.path.join(out_dir, DATABASE_JSON), lambda f: f.write(text.encode()))
+
+
+def owned_tables(out_dir, settings, names, force):
+    """Names of the tables in ``out_dir`` that ``database.make_database`` made with ``settings``.
+
+    Raises when the folder was made with other settings (and holds tables of them), or when
+    a table to write exists without having been made here (unless ``force``; never a
+    read-only one). A ``database.json`` without a table list (older versions) owns every
+    table of the folder.
+    """
+    path = os.path.join(out_dir, DATABASE_JSON)
+    made = set()
+    if os.path.exists(path):
+        try:
+            with open(path, encoding="utf-8") as f:
+                old = json.load(f)
+            listed = old.get("tables", None)
+        except (OSError, ValueError, AttributeError):
+            raise ForeignFileError(f"{path} is not a database.json written by make_database; "
+                                   "choose another folder") from None
+        present = {n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary")}
+        made = present if listed is None else set(listed) & present
+        if {k: old.get(k) for k in settings} != settings and made:
+            raise ForeignFileError(f"{out_dir} holds tables made with "
+                                   f"{ {k: old.get(k) for k in settings} }, not {settings}; choose another folder")
+    foreign = [n + ".binary" for n in names
+               if n not in made and os.path.lexists(os.path.join(out_dir, n + ".binary"))]
+    if foreign and not force:
+        raise ForeignFileError(f"{out_dir} holds tables make_database did not make: {', '.join(foreign[:5])}"
+                               f"{' ...' if len(foreign) > 5 else ''}; not overwriting them: choose another "
+                               "folder, or add --force")
+    for f in foreign:
+        if read_only(os.path.join(out_dir, f)):
+            raise ForeignFileError(f"{os.path.join(out_dir, f)} is read-only; not replacing it")
+    return made
