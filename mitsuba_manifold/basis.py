@@ -114,25 +114,6 @@ def key_materials(key, version=FORMAT_VERSION):
     return [names_mod.unescape(p) for p in parts] if version >= 2 else parts
 
 
-def is_basis_folder(folder):
-    """True when ``folder`` holds a basis manifest (whether or not it is complete)."""
-    try:
-        with open(os.path.join(os.fspath(folder), MANIFEST), encoding="utf-8") as f:
-            return json.load(f).get("format") == FORMAT
-    except (OSError, ValueError, AttributeError):
-        return False
-
-
-def check_output_outside_basis(out, basis_folder=None):
-    """Raise unless ``out`` lies outside every basis folder (``basis_folder`` included):
-    a blend never writes into a basis, whose files the basis's manifest owns."""
-    folder = os.path.realpath(os.path.dirname(os.path.abspath(os.fspath(out))))
-    inside = basis_folder is not None and folder == os.path.realpath(os.fspath(basis_folder))
-    if inside or is_basis_folder(folder):
-        raise BasisError(f"--out {out} lies in the basis folder {folder}; a blend never writes into a "
-                         "basis (its images belong to render_basis): choose another folder")
-
-
 def _is_int(v):
     return isinstance(v, int) and not isinstance(v, bool)
 

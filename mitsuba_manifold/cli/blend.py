@@ -78,12 +78,11 @@ def parse(argv=None):
         fail(f"--steps must be >= 2, got {args.steps}")
     if args.spp < 1:
         fail(f"--spp must be >= 1, got {args.spp}")
-    from .. import validate
-    from ..basis import check_output_outside_basis
+    from .. import ownership, validate
     try:
         validate.exposure(args.exposure)
         validate.fraction("--prune", args.prune)
-        check_output_outside_basis(args.out, args.basis)
+        ownership.check_output_outside_basis(args.out, args.basis)
     except ERRORS as e:
         fail(e)
     return args
