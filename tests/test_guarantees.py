@@ -394,7 +394,14 @@ def test_ctrl_c_stops_a_reference_render_and_writes_nothing(tmp_path, tiny):
     proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "tools", "blend.py"), "--basis", tiny["basis"],
                              "--x", "0,0", "--out", str(out / "img.exr"), "--render-reference", "--spp", "1000000"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    _, err = _interrupt_after(proc, lambda: time.sleep(8.0))
+
+    def wait():  # until the reference render has begun
+        for line in proc.stdout:
+            if "rendering the reference" in line:
+                break
+        time.sleep(2.0)
+
+    _, err = _interrupt_after(proc, wait)
     assert proc.returncode == 130, err
     assert len(error_lines(err)) == 1 and "interrupted" in err and "Traceback" not in err, err
     assert os.listdir(out) == []
