@@ -16,11 +16,12 @@ import os
 import time
 
 from ..bench import NAMES
-from .common import ERRORS, fail, parse_list
+from .common import ERRORS, ArgumentParser, fail, guarded, parse_list
 
 
+@guarded
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("which", choices=NAMES)
     p.add_argument("--json", required=True, metavar="OUT", help="write the measurements here")
     p.add_argument("--database", default=None,

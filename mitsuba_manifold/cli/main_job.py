@@ -9,11 +9,12 @@
 
 import argparse
 
-from .common import ERRORS, fail, parse_resolution
+from .common import ERRORS, ArgumentParser, fail, guarded, parse_resolution
 
 
+@guarded
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="out", help="output folder (default out/)")
     p.add_argument("--resolution", type=parse_resolution, default=(90, 90, 180), help="table bins (default MERL's)")
     p.add_argument("--q", type=int, default=2, help="latent dimension (default 2)")

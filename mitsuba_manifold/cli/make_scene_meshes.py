@@ -3,15 +3,15 @@
 Usage: python tools/make_scene_meshes.py [--out DIR] [--segments 64] [--profile 56]
 """
 
-import argparse
 import os
 
-from .common import ERRORS, fail
+from .common import ERRORS, ArgumentParser, fail, guarded
 
 
+@guarded
 def main(argv=None):
     from ..scenes import SCENES_DIR
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=SCENES_DIR, help="output folder (default: the package's scenes)")
     ap.add_argument("--segments", type=int, default=64, help="bowl segments around the axis")
     ap.add_argument("--profile", type=int, default=56, help="bowl profile points")
