@@ -62,6 +62,28 @@ def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
     return path
 
 
+def latent_line(manifold, path, resolution=400, margin=0.15):
+    """PNG of a one-dimensional latent space (q = 1): the albedo of the interpolated material
+    along ``x`` with the materials at their latent points (the ``q = 1`` analogue of
+    :func:`latent_map`)."""
+    plt = figure()
+    x = manifold.latent[:, 0]
+    pad = margin * max(x.max() - x.min(), 1e-9)
+    xs = np.linspace(x.min() - pad, x.max() + pad, resolution)
+    fig, ax = plt.subplots(figsize=(11, 5))
+    ax.plot(xs, manifold.albedo(xs[:, None]).mean(axis=1), color="0.3", lw=1)
+    mine = manifold.albedo(x[:, None]).mean(axis=1)
+    ax.scatter(x, mine, s=14, c="red", edgecolors="black", linewidths=0.4, zorder=3)
+    for px, py, name in zip(x, mine, manifold.names):
+        ax.annotate(name, (px, py), fontsize=7, rotation=60, xytext=(2, 2), textcoords="offset points")
+    ax.set_title("Latent space (q=1): albedo of the interpolated material along x", fontsize=9)
+    ax.set_xlabel("x[0]")
+    ax.set_ylabel("albedo (mean RGB)")
+    save(fig, path)
+    plt.close(fig)
+    return path
+
+
 def convergence(history, path, label="Hooke-Jeeves", others=None):
     """PNG of the log-likelihood per iteration (paper Fig. 5); ``others``: {label: history}."""
     plt = figure()
@@ -79,15 +101,20 @@ def convergence(history, path, label="Hooke-Jeeves", others=None):
     return path
 
 
+#: Files :func:`write_fit_plots` may write (the second for q > 2, the third with a history).
+FIT_PLOTS = ("latent_map.png", "latent_map_dims23.png", "log_likelihood.png")
+
+
 def write_fit_plots(manifold, folder):
-    """Latent map(s) and convergence plot into ``folder``; returns the paths."""
+    """Latent map(s) (a line for q = 1) and convergence plot into ``folder``; returns the paths."""
     os.makedirs(folder, exist_ok=True)
-    paths = [latent_map(manifold, os.path.join(folder, "latent_map.png"))]
+    first = os.path.join(folder, FIT_PLOTS[0])
+    paths = [latent_line(manifold, first) if manifold.q == 1 else latent_map(manifold, first)]
     if manifold.q > 2:
-        paths.append(latent_map(manifold, os.path.join(folder, "latent_map_dims23.png"),
+        paths.append(latent_map(manifold, os.path.join(folder, FIT_PLOTS[1]),
                                 dims=(2, 3) if manifold.q > 3 else (1, 2)))
     if len(manifold.history):
-        paths.append(convergence(manifold.history, os.path.join(folder, "log_likelihood.png"),
+        paths.append(convergence(manifold.history, os.path.join(folder, FIT_PLOTS[2]),
                                  label=manifold.info.get("method", "fit")))
     return paths
 

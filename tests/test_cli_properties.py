@@ -1,6 +1,6 @@
 """Property-based tests over the command lines of blend.py and fit_manifold.py (issue 10):
 every argument list either succeeds (exit 0) with valid outputs, or exits 2 with exactly
-one ``error:`` line and no file changed."""
+one ``error:`` line and no file changed; argument lists made of valid values only succeed."""
 
 import math
 import os
@@ -33,58 +33,86 @@ odd = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.sampled_from(
 numbers = st.one_of(st.floats(-2, 2), st.integers(-5, 5).map(float), odd)
 
 
-def mostly(valid):
-    """Values from ``valid`` two times in three, odd ones otherwise (so both outcomes are tested)."""
-    return st.one_of(valid, valid, odd)
-
-
 def _fmt(v):
     return repr(v) if isinstance(v, float) else str(v)
 
 
-def _maybe(draw, args, given, option, strategy):
-    """Perhaps add ``option=value`` (value drawn from ``strategy``) to ``args``."""
-    if draw(st.booleans()):
-        v = draw(strategy)
-        args.append(f"{option}={_fmt(v)}")
-        given[option] = v
+def _options(draw, valid, args, given, table):
+    """Perhaps add ``option=value`` to ``args`` for each ``(option, good, bad)`` of ``table``:
+    values from ``good`` only when ``valid``, else from ``good`` or (one time in three) ``bad``."""
+    for option, good, bad in table:
+        if draw(st.booleans()):
+            v = draw(good if valid else st.one_of(good, good, bad))
+            args.append(f"{option}={_fmt(v)}")
+            given[option] = v
+
+
+def _with_out(draw, valid, args, given, outs):
+    """``(args, given, valid)`` with an ``--out`` from ``outs`` (valid ones, odd ones)."""
+    given["--out"] = draw(st.sampled_from(outs[0] + ([] if valid else outs[1])))
+    return args + [f"--out={given['--out']}"], given, valid
+
+
+def _place(case, data):
+    """``(args, given, valid)`` of a drawn case with its ``WORK/`` and ``BASIS/`` paths placed."""
+    args, given, valid = case
+
+    def place(a):
+        for tag, folder in (("WORK/", data["work"]), ("BASIS/", data["basis"])):
+            if isinstance(a, str) and tag in a:
+                return a.replace(tag, folder + os.sep)
+        return a
+    return [place(a) for a in args], {k: place(v) for k, v in given.items()}, valid
+
+
+def _run(tool, lead, args, valid, folders):
+    """Run ``tool lead args``; valid arguments must succeed. Returns ``(refused, stderr)``
+    after checking that a refusal is clean (:func:`refused_cleanly`)."""
+    before = [snapshot(f) for f in folders]
+    rc, _, err = run_tool(tool, *lead, *args)
+    assert rc == 0 or not valid, err
+    return refused_cleanly(rc, err, before, folders), err
+
+
+BLEND_OUTS = (["WORK/img.exr", "WORK/sub/img.exr"],
+              ["WORK/img.txt", "WORK/user.exr", "WORK/afile/img.exr", "BASIS/x.exr", "BASIS/base.exr"])
 
 
 @st.composite
 def blend_args(draw):
+    """``(args, given, out, valid)``: half the cases use only valid values (they must succeed)."""
+    valid = draw(st.booleans())
     args, given = [], {}
     if draw(st.booleans()):
-        xs = draw(st.one_of(st.lists(numbers, min_size=2, max_size=2), st.lists(numbers, max_size=3)))
+        xs = draw(st.lists(st.floats(-3, 3), min_size=2, max_size=2) if valid else
+                  st.one_of(st.lists(numbers, min_size=2, max_size=2), st.lists(numbers, max_size=3)))
         args += ["--x", ",".join(_fmt(v) for v in xs) if xs else "abc"]
         given["x"] = xs
     else:
-        a = draw(st.sampled_from(NAMES + ["adamantium", "0,0", "nan,1"]))
+        a = draw(st.sampled_from(NAMES + ([] if valid else ["adamantium", "0,0", "nan,1"])))
         b = draw(st.sampled_from(NAMES + ["1,1"]))
-        steps = draw(st.integers(-1, 4))
+        steps = draw(st.integers(2, 4) if valid else st.integers(-1, 4))
         args += ["--path", a, b, "--steps", str(steps)]
         given["path"] = (a, b, steps)
-    _maybe(draw, args, given, "--exposure", mostly(st.floats(-8, 8)))
-    _maybe(draw, args, given, "--prune", mostly(st.floats(0, 0.5)))
+    _options(draw, valid, args, given, [("--exposure", st.floats(-8, 8), odd), ("--prune", st.floats(0, 0.5), odd)])
     if draw(st.booleans()):
         args.append("--png")
-    return args, given
+    return _with_out(draw, valid, args, given, BLEND_OUTS)
 
 
-@settings(max_examples=40, **SETTINGS)
-@given(case=blend_args(), out=st.sampled_from(["img.exr", "img.exr", "sub/img.exr", "sub/img.exr", "img.txt",
-                                               "user.exr", "afile/img.exr", "BASIS/x.exr", "BASIS/base.exr"]))
-def test_blend_cli_succeeds_or_refuses_cleanly(data, case, out):
-    (args, given), work = case, data["work"]
-    out = os.path.join(data["basis"], out[6:]) if out.startswith("BASIS/") else os.path.join(work, out)
-    before = [snapshot(work), snapshot(data["basis"])]
-    rc, _, err = run_tool("blend", "--basis", data["basis"], "--out", out, *args)
-    if refused_cleanly(rc, err, before, [work, data["basis"]]):
+@settings(max_examples=60, **SETTINGS)
+@given(case=blend_args())
+def test_blend_cli_succeeds_or_refuses_cleanly(data, case):
+    args, given, valid = _place(case, data)
+    basis_before, out = snapshot(data["basis"]), given["--out"]
+    refused, err = _run("blend", ["--basis", data["basis"]], args, valid, [data["work"], data["basis"]])
+    if refused:
         return
     assert "Traceback" not in err
     assert all(math.isfinite(v) for v in given.get("x", [])) and len(given.get("x", [0, 0])) == 2
     assert math.isfinite(given.get("--exposure", 0.0)) and abs(given.get("--exposure", 0.0)) <= 64
     assert 0 <= given.get("--prune", 0.0) < 1
-    assert snapshot(data["basis"]) == before[1]   # a blend never touches its basis
+    assert snapshot(data["basis"]) == basis_before   # a blend never touches its basis
     stem = out[:-4]
     exrs = [out] if "x" in given else [f"{stem}_{s}.exr" for s in range(given["path"][2])]
     for path in exrs:
@@ -94,32 +122,34 @@ def test_blend_cli_succeeds_or_refuses_cleanly(data, case, out):
             assert os.path.getsize(path[:-4] + ".png") > 0
 
 
+FIT_OUTS = (["WORK/m.npz", "WORK/sub/m.npz"], ["WORK/user.exr", "WORK/afile/m.npz", "WORK/afile"])
+
+
 @st.composite
 def fit_args(draw):
-    args, given = [], {}
-    _maybe(draw, args, given, "--q", st.one_of(st.integers(1, 3), st.integers(-1, 9)))
-    _maybe(draw, args, given, "--length-scale", mostly(st.floats(0.5, 2)))
-    _maybe(draw, args, given, "--noise", mostly(st.floats(1e-5, 1e-2)))
-    _maybe(draw, args, given, "--materials", st.sampled_from(
-        ["steel", "steel,chrome", "steel,adamantium", "steel,steel", ",", "chrome,gold-paint,pink-fabric"]))
-    _maybe(draw, args, given, "--method", st.sampled_from(["lbfgs", "hooke-jeeves", "newton"]))
-    _maybe(draw, args, given, "--features", st.sampled_from(["raw", "log", "sqrt"]))
-    _maybe(draw, args, given, "--plot", st.sampled_from(["plots", "afile", "afile/sub"]))
-    return args, given
+    """``(args, given, out, valid)``: half the cases use only valid values (they must succeed)."""
+    valid, args, given, one = draw(st.booleans()), [], {}, st.sampled_from
+    _options(draw, valid, args, given, [
+        ("--q", st.integers(1, 3), st.integers(-1, 9)),
+        ("--length-scale", st.floats(0.5, 2), odd),
+        ("--noise", st.floats(1e-5, 1e-2), odd),
+        ("--materials", one(["steel,chrome", "chrome,gold-paint,pink-fabric"]),
+         one(["steel", "steel,adamantium", "steel,steel", ","])),
+        ("--method", one(["lbfgs", "hooke-jeeves"]), st.just("newton")),
+        ("--features", one(["raw", "log"]), st.just("sqrt")),
+        ("--plot", st.just("WORK/plots"), one(["WORK/afile", "WORK/afile/sub"]))])
+    return _with_out(draw, valid, args, given, FIT_OUTS)
 
 
-@settings(max_examples=14, **SETTINGS)
-@given(case=fit_args(), out=st.sampled_from(["m.npz", "m.npz", "sub/m.npz", "user.exr", "afile/m.npz", "afile"]))
-def test_fit_manifold_cli_succeeds_or_refuses_cleanly(data, case, out):
-    (args, given), work = case, data["work"]
-    args = [f"--plot={os.path.join(work, a[7:])}" if a.startswith("--plot=") else a for a in args]
-    out = os.path.join(work, out)
-    before = [snapshot(work)]
-    rc, _, err = run_tool("fit_manifold", data["db"], "--out", out, *args)
-    if refused_cleanly(rc, err, before, [work]):
+@settings(max_examples=24, **SETTINGS)
+@given(case=fit_args())
+def test_fit_manifold_cli_succeeds_or_refuses_cleanly(data, case):
+    args, given, valid = _place(case, data)
+    refused, err = _run("fit_manifold", [data["db"]], args, valid, [data["work"]])
+    if refused:
         return
     assert "Traceback" not in err
-    m = Manifold.load(out)
+    m = Manifold.load(given["--out"])
     assert m.q == given.get("--q", 2) and 1 <= m.q <= 8
     assert np.isfinite(m.latent).all()
     for opt in ("--length-scale", "--noise"):

@@ -5,13 +5,9 @@ import time
 
 from .common import ERRORS, ArgumentParser, fail, guarded, parse_list
 
-#: Files ``plots.write_fit_plots`` may write into ``--plot``.
-PLOTS = ("latent_map.png", "latent_map_dims23.png", "log_likelihood.png")
-
-
 def check(args):
     """Everything checked before the (long) fit: values, --out and --plot (:mod:`ownership`)."""
-    from .. import ownership, validate
+    from .. import ownership, plots, validate
     from ..errors import InputError
 
     if not 1 <= args.q <= 8:
@@ -21,7 +17,7 @@ def check(args):
     ownership.check_replaceable(args.out, args.force, what="--out")
     if args.plot:
         validate.output_folder("--plot", args.plot)
-        for name in PLOTS:
+        for name in plots.FIT_PLOTS:
             ownership.check_replaceable(os.path.join(args.plot, name), args.force, what="--plot file")
 
 
