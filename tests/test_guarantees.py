@@ -532,3 +532,11 @@ def test_sizes_beyond_the_memory_available_are_refused_before_anything_is_writte
                           "--out", tmp_path / "seq.exr")
     assert_one_error(rc, err, "--steps", "GiB")
     assert os.listdir(tmp_path) == []
+
+
+def test_fit_manifold_plots_a_one_dimensional_latent_space(tmp_path, tiny):
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--q", 1, "--out", tmp_path / "m.npz", "--plot", tmp_path / "p")
+    assert rc == 0, err
+    from PIL import Image
+    with Image.open(tmp_path / "p" / "latent_map.png") as im:
+        assert im.size[0] > 500 and im.size[1] > 300
