@@ -384,6 +384,10 @@ class Basis:
         """Image key of one material name per target (:func:`image_key` for this basis's version)."""
         return image_key(materials, self.version)
 
+    def material_keys(self, names):
+        """Image keys of single materials ``names`` (a one-target basis), in order."""
+        return [self.key([n]) for n in names]
+
     def image(self, key):
         """Image ``key`` as float32 (H, W, 3), read once and kept (a read-only view)."""
         row = self._rows.get(key)

@@ -46,7 +46,7 @@ def masked_pool(img, weight, f, pooled_weight=None):
 def _luminance_rows(basis, names, pixels, f=1, weight=None):
     """Luminance of the base and material images over ``pixels`` as float64 (N + 1, P), each
     first box-downsampled by ``f`` (weighted by the full-resolution mask ``weight`` (H, W, 1))."""
-    keys = [BASE] + list(names)
+    keys = [BASE] + basis.material_keys(names)
     wp = pool(weight, f) if f > 1 else None
     out = np.empty((len(keys), int(pixels.sum())))
     for j, key in enumerate(keys):
@@ -158,7 +158,8 @@ def objective(basis, manifold, target, weight, pixels, loss, exposure_free, f=1,
     ``full_weight`` (H, W, 1) is the full-resolution mask used to downsample the basis.
     """
     if loss == "rel_mse":
-        return RelativeMSE([basis.image(k) for k in [BASE] + manifold.names], target, weight, exposure_free)
+        keys = [BASE] + basis.material_keys(manifold.names)
+        return RelativeMSE([basis.image(k) for k in keys], target, weight, exposure_free)
     rows = _luminance_rows(basis, manifold.names, pixels, f, full_weight)
     return LogLuminanceMSE(rows, target[pixels], weight[pixels], exposure_free)
 

@@ -299,7 +299,7 @@ def _basis_and_manifold(basis, manifold):
         raise MatchError(f"basis {basis.folder} has {basis.p} targets {basis.targets}: match works on a "
                          "basis of one manifold material")
     manifold = basis.check_manifold(manifold)
-    missing = [n for n in manifold.names if not basis.has(n)]
+    missing = [n for n, k in zip(manifold.names, basis.material_keys(manifold.names)) if not basis.has(k)]
     if missing:
         raise MatchError(f"basis {basis.folder} lacks the images of {len(missing)} of the manifold's "
                          f"{manifold.n} materials ({', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}); "
@@ -362,7 +362,7 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
     if not isinstance(scan, (int, np.integer)) or scan < 0:
         raise MatchError(f"scan must be an integer >= 0, got {scan!r}")
     f = _downsample_factor(basis.resolution, downsample) if loss == "log" else 1
-    t_read = basis.read([BASE] + manifold.names)
+    t_read = basis.read([BASE] + basis.material_keys(manifold.names))
 
     pixels = weight > 0
     full = image_error.objective(basis, manifold, target, weight, pixels, loss, exposure_free, 1)
@@ -395,7 +395,7 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
     _, from_start, x = min(cand, key=lambda c: c[0])
     _, w = manifold.weights(x)
     err, _, s = full(w)
-    image = basis.weighted_sum(manifold.names, w)
+    image = basis.weighted_sum(basis.material_keys(manifold.names), w)
     image += basis.image(BASE)
     rel = masked_rel_mse(s * image, target, weight)
     var = max(float(manifold.variance(x)), 0.0)

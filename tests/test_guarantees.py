@@ -77,6 +77,11 @@ def test_material_named_base_or_with_separator_gets_its_own_image(tmp_path):
     # every file the run made is listed: no orphan image
     listed = set(files) | {"manifest.json"}
     assert {f for f in os.listdir(out) if not f.startswith(".")} == listed
+    # match finds its way through escaped image keys
+    rc, _, err = run_tool("match", "--basis", out, "--target", tmp_path / "a+b.exr", "--json", tmp_path / "m.json",
+                          "--scan", 64, "--starts", 2)
+    assert rc == 0, err
+    assert json.loads((tmp_path / "m.json").read_text())["rel_mse"] < 1e-6
 
 
 def test_escaped_names_are_injective_and_safe():

@@ -16,12 +16,11 @@ import json
 import os
 import time
 
-from .common import ERRORS, fail
+from .common import ERRORS, ArgumentParser, fail, guarded
 
 
 def _parser():
-    p = argparse.ArgumentParser(prog="match.py", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(prog="match.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--basis", required=True, help="basis folder written by render_basis.py (one target)")
     p.add_argument("--target", required=True, help="target image: linear .exr, or 8-bit .png/.jpg (sRGB)")
     p.add_argument("--mask", help="mask image of the target's size: pixels > 0 are matched (grey = weight)")
@@ -42,6 +41,8 @@ def _parser():
                    help="with --out: also render the best point with manifold_brdf and Mitsuba's path")
     p.add_argument("--spp", type=int, default=256, help="samples per pixel of --render-reference (default 256)")
     p.add_argument("--seed", type=int, default=0, help="seed of --render-reference (default 0)")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing output files this tool did not write (never read-only ones)")
     return p
 
 
@@ -120,7 +121,7 @@ def _outputs(args, result, basis, manifold, target):
         stem = _stem(args.out)
         outputs.append(("blend at the best point", args.out, lambda: imageio.write_exr(args.out, result.image)))
         if args.png:
-            single = basis.image(result.single.name) + basis.image(BASE)
+            single = basis.image(basis.key([result.single.name])) + basis.image(BASE)
             images = np.stack([target, result.exposure * result.image, result.single.exposure * single])
             labels = ["target", f"match ({result.error:.3g})", f"{result.single.name} ({result.single.error:.3g})"]
             sheet = stem + "_sheet.png"
@@ -160,15 +161,24 @@ def _planned(args):
 
 
 def _refuse_inputs(args):
-    """Never overwrite an input (the target, the mask or an image of the basis)."""
+    """Never overwrite an input (the target, the mask or an image of the basis), nor a file
+    this tool did not make (:mod:`ownership`, unless ``--force``)."""
+    from .. import ownership
+
     inputs = {os.path.realpath(p) for p in (args.target, args.mask) if p}
     for path in _planned(args):
         real = os.path.realpath(path)
         if real in inputs or os.path.dirname(real) == os.path.realpath(args.basis):
             fail(f"output {path} would overwrite an input (the target, the mask or the basis); "
                   "choose another path")
+        try:
+            ownership.check_output_outside_basis(path)
+            ownership.check_replaceable(path, args.force, what="output")
+        except ERRORS as e:
+            fail(e)
 
 
+@guarded
 def main(argv=None):
     args = _parser().parse_args(argv)
     _check_args(args)
@@ -189,6 +199,8 @@ def main(argv=None):
             os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
             write()
             print(f"wrote {kind}: {path}")
+        from .. import ownership
+        ownership.record([path for _, path, _ in outputs], "match.py")
     except ERRORS as e:
         fail(e)
     return 0
