@@ -393,6 +393,32 @@ def test_ctrl_c_stops_a_render_within_seconds_leaving_listed_files(tmp_path, tin
         assert imageio.read_exr(out / f).shape == (32, 32, 3)
 
 
+def test_a_killed_render_leaves_no_lock_and_resumes(tmp_path, tiny):
+    out = tmp_path / "basis"
+    args = [SPHERE, "--manifold", tiny["manifold"], "--out", str(out), "--res", "16", "--spp", "3000",
+            "--mode", "per-material"]
+    proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def listed():
+        path = out / "manifest.json"
+        return json.loads(path.read_text())["images"] if path.exists() else {}
+
+    deadline = time.time() + 120
+    while time.time() < deadline and not listed():
+        time.sleep(0.1)
+    proc.kill()                                   # kill -9 after the first image
+    proc.wait()
+    before = listed()
+    assert before and not [f for f in os.listdir(out) if f.endswith(".tmp")]
+    rc, _, err = run_tool("render_basis", *args)  # the lock went with the process; the run resumes
+    assert rc == 0, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert set(before) <= set(manifest["images"]) and len(manifest["images"]) == 5
+    for entry in manifest["images"].values():
+        assert imageio.read_exr(out / entry["file"]).shape == (16, 16, 3)
+
+
 def test_ctrl_c_stops_a_reference_render_and_writes_nothing(tmp_path, tiny):
     out = tmp_path / "blend"
     out.mkdir()
