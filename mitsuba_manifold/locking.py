@@ -79,10 +79,6 @@ class FolderLock:
             os.close(self._fd)
             self._fd = None
 
-    @property
-    def held(self):
-        return self._fd is not None
-
     def __enter__(self):
         return self.acquire()
 
