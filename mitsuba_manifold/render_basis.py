@@ -65,8 +65,9 @@ def select_materials(manifold, materials="all", near=None, radius=None):
     return [n for n in manifold.names if n in set(materials)]
 
 
-def _open_folder(out, manifest, files, force=False):
-    """Check ``out`` (locked by the caller) against ``manifest``; return the images still valid.
+def _open_folder(out, manifest, files, force=False, read_images=True):
+    """Check ``out`` (locked by the caller) against ``manifest``; return the images still valid
+    (all those listed without ``read_images``).
 
     A folder whose manifest has other settings is refused, unless it lists no image yet
     (nothing to lose). Files the run would write (``files``) that exist without being
@@ -96,6 +97,8 @@ def _open_folder(out, manifest, files, force=False):
             raise RenderBasisError(f"{os.path.join(out, f)} is read-only; not replacing it")
     if old is None:
         return {}
+    if not read_images:
+        return dict(old["images"])
     kept = {}
     w, h = manifest["resolution"]
     for key, entry in old["images"].items():
@@ -193,7 +196,7 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         jobs = [(basis_folder.image_key(combo), combo) for combo in itertools.product(chosen, repeat=len(targets))]
     files = [key + ".exr" for key, _ in jobs] + [basis_folder.MANIFEST]
     if os.path.isdir(out):  # refuse before locking: a refused run adds nothing to the folder
-        _open_folder(out, manifest, files, force)
+        _open_folder(out, manifest, files, force, read_images=False)
     with FolderLock(out, "basis folder"), StopRequest() as stop:
         manifest["images"] = _open_folder(out, manifest, files, force)
         basis_folder.write_manifest(out, manifest)
