@@ -137,8 +137,11 @@ def test_two_render_basis_runs_into_one_folder_cannot_mix(tmp_path, tiny):
     deadline = time.time() + 120
     while time.time() < deadline and not (out / "manifest.json").exists():
         time.sleep(0.1)
-    second = subprocess.run(tool + ["--spp", "4"], capture_output=True, text=True)
-    _, err = first.communicate(timeout=300)
+    try:
+        second = subprocess.run(tool + ["--spp", "4"], capture_output=True, text=True, timeout=300)
+        _, err = first.communicate(timeout=300)
+    finally:
+        first.kill()                              # no-op once it has ended
     assert first.returncode == 0, err
     line = assert_one_error(second.returncode, second.stderr)
     assert "another process" in line or "other settings" in line, line   # locked, or seen as another basis
@@ -354,15 +357,14 @@ def test_tools_read_a_moved_database(tmp_path, tiny):
 def _interrupt_after(proc, wait):
     """Send SIGINT to ``proc`` once ``wait()`` returns; its output, after checking that it
     was still running and stopped within 10 s."""
-    wait()
-    assert proc.poll() is None, proc.communicate()
-    t0 = time.time()
-    proc.send_signal(signal.SIGINT)
     try:
+        wait()
+        assert proc.poll() is None, proc.communicate()
+        t0 = time.time()
+        proc.send_signal(signal.SIGINT)
         out = proc.communicate(timeout=30)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        raise
+    finally:
+        proc.kill()                               # no-op once it has ended
     assert time.time() - t0 < 10, time.time() - t0
     return out
 
@@ -407,7 +409,7 @@ def test_a_killed_render_leaves_no_lock_and_resumes(tmp_path, tiny):
     deadline = time.time() + 120
     while time.time() < deadline and not listed():
         time.sleep(0.1)
-    proc.kill()                                   # kill -9 after the first image
+    proc.kill()                                   # kill -9 after the first image (or at the deadline)
     proc.wait()
     before = listed()
     assert before and not [f for f in os.listdir(out) if f.endswith(".tmp")]
