@@ -12,6 +12,7 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
      "scene": abs path, "scene_hash": sha256, "manifold": abs path, "manifold_hash": sha256,
      "resolution": [width, height], "spp": int, "variant": str, "seed": int, "max_depth": int,
      "mode": "per-material" | "onepass", "targets": [bsdf id, ...],
+     "sensor": int (optional, default 0), "chunks": int (optional: merged from k chunks),
      "images": {"base": {"file": "base.exr", "time_s": float},
                 "<material>": {"file": "<material>.exr", "time_s": float}, ...}}
 
@@ -158,6 +159,9 @@ def validate_manifest(manifest, where=MANIFEST):
         bad(f"max_depth must be an integer >= -1, got {manifest.get('max_depth')!r}")
     if manifest.get("mode") not in MODES:
         bad(f"mode must be one of {MODES}, got {manifest.get('mode')!r}")
+    for key in ("sensor", "chunks"):  # optional: absent means sensor 0, one chunk
+        if key in manifest and (not _is_int(manifest[key]) or manifest[key] < (0 if key == "sensor" else 1)):
+            bad(f"{key} must be an integer >= {0 if key == 'sensor' else 1}, got {manifest[key]!r}")
     targets = manifest.get("targets")
     if (not isinstance(targets, list) or not targets or not all(isinstance(t, str) and t for t in targets)
             or len(set(targets)) != len(targets)):
@@ -269,7 +273,7 @@ def read_manifest(folder):
 
 #: Manifest fields that define what the images are (all but "images" and the paths).
 SETTINGS = ("format", "version", "scene_hash", "manifold_hash", "resolution", "spp", "variant",
-            "seed", "max_depth", "mode", "targets")
+            "seed", "max_depth", "mode", "targets", "sensor", "chunks")
 
 
 def manifest_differences(a, b):

@@ -75,6 +75,18 @@ class MatchError(InputError):
     """A target, mask, basis or setting that :func:`match.match` cannot use."""
 
 
+class ChunkError(BasisError):
+    """Chunks of a basis that cannot be planned or merged as asked."""
+
+
+class DenoiseError(BasisError):
+    """Denoising guides (AOVs) missing or made for another basis, or no denoiser."""
+
+
+class ExecutorError(MitsubaManifoldError, RuntimeError):
+    """An executor that cannot start (Ray missing, cluster unreachable, bad option)."""
+
+
 class ImageError(InputError):
     """An image file that cannot be read or written as asked."""
 

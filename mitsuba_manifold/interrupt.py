@@ -56,7 +56,7 @@ def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS):
     return [per] * full + ([rest] if rest else [])
 
 
-def render_in_passes(scene, integrator, spp, seed=0, stop=None):
+def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
     """``mi.render`` cut into passes (:func:`sample_passes`), checking ``stop`` after each.
 
     One pass (the usual case for small images) is exactly ``mi.render(..., spp, seed)``;
@@ -75,12 +75,12 @@ def render_in_passes(scene, integrator, spp, seed=0, stop=None):
 
     if stop is None:
         with StopRequest() as own:
-            return render_in_passes(scene, integrator, spp, seed, own)
-    w, h = (int(v) for v in scene.sensors()[0].film().size())
+            return render_in_passes(scene, integrator, spp, seed, own, sensor)
+    w, h = (int(v) for v in scene.sensors()[sensor].film().size())
     total = None
     for k, n in enumerate(sample_passes(spp, w * h)):
-        img = np.array(mi.render(scene, integrator=integrator, spp=n, seed=(seed + k * 0x9E3779B9) & 0xFFFFFFFF),
-                       dtype=np.float64)[..., :3]
+        img = np.array(mi.render(scene, integrator=integrator, spp=n, seed=(seed + k * 0x9E3779B9) & 0xFFFFFFFF,
+                                 sensor=sensor), dtype=np.float64)[..., :3]
         total = img * n if total is None else total + img * n
         if integrator.should_stop():  # Mitsuba's own SIGINT handler ran during the pass
             stop.requested = True

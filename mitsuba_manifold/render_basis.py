@@ -114,7 +114,7 @@ def _open_folder(out, manifest, files, force=False, read_images=True):
 
 def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=None, radius=None,
                  mode="per-material", seed=0, resolution=None, max_depth=None, variant=None,
-                 progress=False, chunk_spp=None, x=None, database=None, force=False):
+                 progress=False, chunk_spp=None, x=None, database=None, force=False, sensor=0, aovs=False):
     """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
 
     Parameters
@@ -147,6 +147,12 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         Folder of the manifold's tables, if it moved (:func:`scenes.load_scene`).
     force : bool
         Overwrite files in ``out`` that this basis did not make.
+    chunk_spp : int, optional
+        Samples per pixel per pass of the one-pass renderer.
+    sensor : int
+        Which of the scene's sensors (views) to render (recorded in the manifest when not 0).
+    aovs : bool
+        Also write the denoising guides ``aovs.npz`` (:func:`denoise.add_aovs`; one target).
 
     Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
     passes of :data:`interrupt.SAMPLES_PER_PASS` paths) and raises ``KeyboardInterrupt``;
@@ -187,9 +193,14 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
     if mode == "onepass" and len(targets) != 1:
         raise RenderBasisError(f"onepass mode renders scenes with one manifold material; {scene_path} has "
                                f"{len(targets)}: use mode='per-material'")
-    size = tuple(int(v) for v in scene.sensors()[0].film().size())
+    sensors = scene.sensors()
+    if not 0 <= int(sensor) < len(sensors):
+        raise RenderBasisError(f"sensor {sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)")
+    size = tuple(int(v) for v in sensors[int(sensor)].film().size())
     manifest = basis_folder.make_manifest(scene_path, manifold_path, size, spp, mi.variant(), seed, max_depth,
                                        mode, [b.id() for b in targets])
+    if int(sensor):
+        manifest["sensor"] = int(sensor)
     if len(targets) == 1:
         jobs = [(basis_folder.BASE, None)] + [(basis_folder.image_key([name]), (name,)) for name in chosen]
     else:
@@ -212,13 +223,23 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
                 manifest["images"][key] = {"file": key + ".exr", "time_s": float(seconds)}
             basis_folder.write_manifest(out, manifest)
 
-        if not todo:
-            return manifest
-        if mode == "onepass":
-            _render_onepass(scene, targets[0], todo, spp, seed, max_depth, save, progress, chunk_spp, stop)
-        else:
-            _render_each(scene, targets, todo, spp, seed, max_depth, save, progress, stop)
+        if todo and mode == "onepass":
+            _render_onepass(scene, targets[0], todo, spp, seed, max_depth, save, progress, chunk_spp, stop,
+                            int(sensor))
+        elif todo:
+            _render_each(scene, targets, todo, spp, seed, max_depth, save, progress, stop, int(sensor))
+        if aovs:
+            ensure_aovs(out, manifest)
     return manifest
+
+
+def ensure_aovs(out, manifest, spp=16):
+    """Write ``out/aovs.npz`` (:mod:`denoise`) unless one made for this basis is there."""
+    from . import denoise
+    try:
+        denoise.BasisAOVs.load(out, manifest)
+    except denoise.DenoiseError:
+        denoise.add_aovs(out, spp=spp)
 
 
 def _integrator(component, max_depth, target="all"):
@@ -232,7 +253,7 @@ def _bar(total, enabled, desc):
     return tqdm(total=total, desc=desc, unit="image", disable=not enabled)
 
 
-def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress, stop):
+def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress, stop, sensor=0):
     """One render per image: base (component 'base'), then 'touch' per material or 'l1' per combination."""
     single = len(targets) == 1
     touch = _integrator("touch", max_depth)
@@ -241,17 +262,17 @@ def _render_each(scene, targets, todo, spp, seed, max_depth, save, progress, sto
         for key, combo in todo:
             t0 = time.perf_counter()
             if combo is None:
-                img = render_in_passes(scene, _integrator("base", max_depth), spp, seed, stop)
+                img = render_in_passes(scene, _integrator("base", max_depth), spp, seed, stop, sensor)
             else:
                 for bsdf, name in zip(targets, combo):
                     bsdf.set_material(name)
-                img = render_in_passes(scene, touch if single else l1, spp, seed, stop)
+                img = render_in_passes(scene, touch if single else l1, spp, seed, stop, sensor)
             save({key: img}, time.perf_counter() - t0)
             bar.set_postfix_str(key)
             bar.update()
 
 
-def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, chunk_spp, stop):
+def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, chunk_spp, stop, sensor=0):
     """All material images from one set of paths (issue 5); base comes from the same paths."""
     from tqdm import tqdm
     integrator = _integrator("l1", max_depth)
@@ -263,7 +284,7 @@ def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, c
             stop.check()
             bar.total = total
             bar.update(done - bar.n)
-        kwargs = {"materials": names, "spp": spp, "seed": seed, "progress": advance}
+        kwargs = {"materials": names, "spp": spp, "seed": seed, "progress": advance, "sensor": sensor}
         if chunk_spp:
             kwargs["spp_per_pass"] = chunk_spp
         base, images = integrator.render_onepass(scene, **kwargs)
@@ -272,3 +293,42 @@ def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, c
     if any(combo is None for _, combo in todo):
         out[basis_folder.BASE] = np.asarray(base, dtype=np.float32)[..., :3]
     save(out, seconds)
+
+
+def count_sensors(scene_path):
+    """Sensors (views) declared at the top level of a scene XML."""
+    import xml.etree.ElementTree as ET
+    scenes.scene_parameters(scene_path)  # exists and parses, or a BasisError naming it
+    return len(ET.parse(scene_path).getroot().findall("sensor"))
+
+
+def plan_views(scenes, views, out):
+    """``(scene, sensor, folder)`` for each scene and view asked for.
+
+    One scene and one view render into ``out``; otherwise each basis goes to
+    ``out/<scene name>`` (one view) or ``out/<scene name>-view<j>``.
+
+    Parameters
+    ----------
+    scenes : list of str
+    views : "all" or list of int
+        Sensor indices (``all``: every sensor of each scene).
+    out : str
+    """
+    jobs = []
+    for scene in scenes:
+        n = count_sensors(scene)
+        chosen = list(range(n)) if views == "all" else [int(v) for v in views]
+        bad = [v for v in chosen if not 0 <= v < n]
+        if bad:
+            raise RenderBasisError(f"sensor {bad[0]} does not exist: {scene} has {n} sensor(s) "
+                                   f"(--views takes indices 0..{n - 1} or 'all')")
+        jobs += [(scene, v, len(chosen)) for v in chosen]
+    stems = [os.path.splitext(os.path.basename(s))[0] for s in scenes]
+    if len(set(stems)) != len(stems):
+        raise RenderBasisError(f"scenes {list(scenes)} share a file name; render them in separate calls")
+    if len(jobs) == 1:
+        return [(jobs[0][0], jobs[0][1], os.fspath(out))]
+    return [(scene, v, os.path.join(os.fspath(out), os.path.splitext(os.path.basename(scene))[0]
+                                    + (f"-view{v}" if n > 1 else "")))
+            for scene, v, n in jobs]
