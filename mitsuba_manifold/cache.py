@@ -25,15 +25,28 @@ _HASHES = {}
 _LOCK = threading.Lock()
 
 
-def _identity(path):
+def file_identity(path):
+    """What the memo of :func:`file_hash` is keyed by: path, device, inode, size, times."""
     st = os.stat(path)
     return (os.path.realpath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
+
+def adopt_hash(path, identity, digest):
+    """Take the hash a worker process of this run computed for ``path`` right after writing
+    it, when the file is still exactly the one it hashed (same :func:`file_identity`).
+    Returns whether it was adopted (otherwise the file will be hashed again on use)."""
+    if tuple(identity) != file_identity(path):
+        return False
+    with _LOCK:
+        _HASHES[tuple(identity)] = str(digest)
+    return True
 
 
 def file_hash(path, block=1 << 22):
     """SHA-256 (hex) of a file's bytes, streamed; memoised per process (see the module notes)."""
     path = os.fspath(path)
-    key = _identity(path)
+    key = file_identity(path)
     with _LOCK:
         digest = _HASHES.get(key)
     if digest is None:

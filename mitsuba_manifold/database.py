@@ -7,6 +7,7 @@ them as MERL ``.binary`` files. Everything downstream reads a :class:`Database`,
 folder of ``<name>.binary`` files: real MERL files work the same way.
 """
 
+import functools
 import json
 import os
 import zlib
@@ -17,7 +18,7 @@ from . import merl, validate
 from .locking import FolderLock
 from .ownership import owned_tables, write_table_record
 from .atomic import atomic_write
-from .cache import evict, file_hash, key_hash, npy_cache
+from .cache import adopt_hash, evict, file_hash, file_identity, key_hash, npy_cache
 from .errors import DatabaseError, MissingFileError, NumericalError, UnknownMaterialError
 
 FITS_PATH = os.path.join(os.path.dirname(__file__), "data", "merl_sgd_fits.json")
@@ -73,28 +74,40 @@ def sgd_reflectance(params, wi, wo):
     ndarray (..., 3)
         Reflectance per RGB channel, 0 where either direction is below the horizon.
     """
+    return _sgd_values(params, _pair_geometry(wi, wo))
+
+
+def _pair_geometry(wi, wo):
+    """The material-independent terms of the SGD model for direction pairs (..., 3)."""
     wi = np.asarray(wi, dtype=np.float64)
     wo = np.asarray(wo, dtype=np.float64)
     h = wi + wo
     h /= np.linalg.norm(h, axis=-1, keepdims=True)
     cos_h = np.clip(h[..., 2:3], 1e-300, 1.0)
-    cos_d = np.clip(np.sum(wi * h, axis=-1, keepdims=True), 0.0, 1.0)
     cos_i, cos_o = wi[..., 2:3], wo[..., 2:3]
     valid = (cos_i > 0) & (cos_o > 0)
+    g = {"valid": valid, "cos_d": np.clip(np.sum(wi * h, axis=-1, keepdims=True), 0.0, 1.0),
+         "tan2": np.maximum(1.0 - cos_h * cos_h, 0.0) / (cos_h * cos_h), "log_cos_h": np.log(cos_h),
+         "theta_i": np.arccos(np.clip(cos_i, -1, 1)), "theta_o": np.arccos(np.clip(cos_o, -1, 1)),
+         "inv_io": 1.0 / (np.where(valid, cos_i, 1.0) * np.where(valid, cos_o, 1.0))}
+    for v in g.values():
+        v.setflags(write=False)
+    return g
 
+
+def _sgd_values(params, g):
+    """SGD values from :func:`_pair_geometry` terms (broadcast over the channels of ``params``)."""
     alpha, p = params["alpha"], params["p"]
-    tan2 = np.maximum(1.0 - cos_h * cos_h, 0.0) / (cos_h * cos_h)
-    a = alpha + tan2 / alpha
+    a = alpha + g["tan2"] / alpha
     with np.errstate(divide="ignore", over="ignore"):
-        log_d = np.log(params["kap"]) - a - p * np.log(a) - np.log(np.pi) - 4.0 * np.log(cos_h)
+        log_d = np.log(params["kap"]) - a - p * np.log(a) - np.log(np.pi) - 4.0 * g["log_cos_h"]
         d = np.exp(np.minimum(log_d, 700.0))
+    cos_d = g["cos_d"]
     fresnel = params["f0"] - cos_d * params["f1"] + (1.0 - cos_d) ** 5 * (1.0 - params["f0"])
-    g = _shadowing(np.arccos(np.clip(cos_i, -1, 1)), params) * _shadowing(np.arccos(np.clip(cos_o, -1, 1)), params)
-    safe_i = np.where(valid, cos_i, 1.0)
-    safe_o = np.where(valid, cos_o, 1.0)
-    spec = params["rho_s"] * fresnel * d * g / (safe_i * safe_o)
+    shadow = _shadowing(g["theta_i"], params) * _shadowing(g["theta_o"], params)
+    spec = params["rho_s"] * fresnel * d * shadow * g["inv_io"]
     f = (params["rho_d"] + spec) / np.pi
-    return np.where(valid, f, 0.0)
+    return np.where(g["valid"], f, 0.0)
 
 
 def tabulate_sgd(params, dims=merl.MERL_DIMS):
@@ -105,18 +118,26 @@ def tabulate_sgd(params, dims=merl.MERL_DIMS):
     """
     if isinstance(params, str):
         params = _fit_named(params)
-    th, td, pd = merl.bin_centres(dims)
-    above = merl.above_horizon(dims)
-    wi, wo = merl.directions(th[above], td[above], pd[above])
+    above, geometry = _bin_geometry(tuple(int(v) for v in dims))
     refl = np.zeros((3,) + tuple(dims))
     for c in range(3):  # per channel keeps the temporaries at one bin-count each
         one = {k: v[c:c + 1] for k, v in params.items()}
-        refl[c][above] = sgd_reflectance(one, wi, wo)[:, 0]
+        refl[c][above] = _sgd_values(one, geometry)[:, 0]
     if not np.isfinite(refl).all():  # guards the model's extreme fits; should never trigger
         raise NumericalError("SGD tabulation produced non-finite values")
     raw = merl.to_stored(refl)
     raw[:, ~above] = merl.NOT_MEASURED
     return raw
+
+
+@functools.lru_cache(maxsize=2)
+def _bin_geometry(dims):
+    """The bins above the horizon and the SGD terms of their centres (the same for every
+    material, computed once per process and table resolution)."""
+    th, td, pd = merl.bin_centres(dims)
+    above = merl.above_horizon(dims)
+    above.setflags(write=False)
+    return above, _pair_geometry(*merl.directions(th[above], td[above], pd[above]))
 
 
 def _fit_named(name):
@@ -185,7 +206,8 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
                 if name not in made or not _valid_table(path, dims)]
         made -= {name for name, _ in todo}
         write_table_record(out_dir, settings, made)
-        jobs = [(fits[name], path, dims, float(noise), int(seed), name) for name, path in todo]
+        cache = cache_folder(out_dir)
+        jobs = [(fits[name], path, dims, float(noise), int(seed), name, cache) for name, path in todo]
         _tabulate(jobs, workers, made, lambda: write_table_record(out_dir, settings, made), len(names), progress)
     return paths
 
@@ -203,13 +225,14 @@ def _tabulate(jobs, workers, made, record, total, progress):
             if len(jobs) > 1 and workers > 1 and np.prod(dims) >= 1 << 16:
                 from concurrent.futures import ProcessPoolExecutor
                 with ProcessPoolExecutor(min(workers, len(jobs))) as pool:
-                    for name in pool.map(_write_sgd_table, jobs):
+                    for name, path, identity, digest in pool.map(_write_sgd_table, jobs):
+                        adopt_hash(path, identity, digest)
                         made.add(name)
                         record()
                         bar.update()
             else:
                 for job in jobs:
-                    made.add(_write_sgd_table(job))
+                    made.add(_write_sgd_table(job)[0])
                     record()
                     bar.update()
         finally:
@@ -236,15 +259,52 @@ def _valid_table(path, dims):
 
 
 def _write_sgd_table(job):
-    """Tabulate one SGD material, add its measurement noise, write it (a worker's task)."""
-    params, path, dims, noise, seed, name = job
+    """Tabulate one SGD material, add its measurement noise, write it (a worker's task).
+
+    Also writes its float32 reflectance cache (what :meth:`Database.reflectance` would
+    convert the file into, keyed by the file's hash), so that loading needs no conversion.
+    Returns ``(name, path, file identity, hash)`` for the parent to adopt the hash
+    (:func:`cache.adopt_hash`).
+    """
+    params, path, dims, noise, seed, name, cache = job
     raw = tabulate_sgd(params, dims)
     if noise > 0:
         rng = np.random.default_rng([seed, zlib.crc32(name.encode())])
         factor = np.exp(noise * rng.standard_normal(raw.shape) - 0.5 * noise * noise)
         raw = np.where(raw >= 0, raw * factor, raw)
     merl.write_binary(path, raw)
-    return name
+    digest = file_hash(path)
+    npy_cache(os.path.join(cache, f"{digest}.refl.npy"), lambda: _filled(raw, dims),
+              shape=(3,) + tuple(dims), dtype=np.float32)
+    return name, path, file_identity(path), digest
+
+
+def _filled(raw, dims):
+    """:func:`merl.filled_reflectance` of a table measured in every bin above the horizon
+    (as tabulated ones are): 0 below the horizon, clamped at 0 above; without the search
+    for missing bins (the general function is used when some are missing)."""
+    above = _bin_geometry(tuple(int(v) for v in dims))[0]
+    refl = merl.reflectance(raw, dtype=np.float32)
+    if (refl[:, above] < 0).any():
+        return merl.filled_reflectance(raw)
+    return np.where(above, np.maximum(refl, 0.0), np.float32(0.0)).astype(np.float32)
+
+
+def cache_folder(folder):
+    """The cache folder of a database folder: ``<folder>/.manifold-cache``, or under
+    ``~/.cache/mitsuba_manifold`` when the folder is read-only (created)."""
+    folder = os.path.abspath(os.fspath(folder))
+    local = os.path.join(folder, CACHE_NAME)
+    try:
+        os.makedirs(local, exist_ok=True)
+        if os.access(local, os.W_OK):
+            return local
+    except OSError:
+        pass
+    key = key_hash(folder, length=16)
+    home = os.path.join(os.path.expanduser("~"), ".cache", "mitsuba_manifold", key)
+    os.makedirs(home, exist_ok=True)
+    return home
 
 
 def _progress(items, enabled, desc):
@@ -336,17 +396,7 @@ class Database:
                            f"({len(self.names)} materials)") from None
 
     def _make_cache_dir(self):
-        local = os.path.join(self.folder, CACHE_NAME)
-        try:
-            os.makedirs(local, exist_ok=True)
-            if os.access(local, os.W_OK):
-                return local
-        except OSError:
-            pass
-        key = key_hash(self.folder, length=16)
-        home = os.path.join(os.path.expanduser("~"), ".cache", "mitsuba_manifold", key)
-        os.makedirs(home, exist_ok=True)
-        return home
+        return cache_folder(self.folder)
 
     def hash(self, name):
         """SHA-256 of a table's file (hashed once per process, see :func:`cache.file_hash`)."""
