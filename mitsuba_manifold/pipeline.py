@@ -4,7 +4,9 @@
 2. the latent manifold (GPLVM fit, paper Sec. 3) with its summary and plots,
 3. the L1- basis of a scene (paper Sec. 5.2, one image per material),
 4. blends at a training point, a midpoint and an extrapolated point (Eq. 13), their errors
-   against full-GI references, and the error-against-time plot of blending vs re-rendering.
+   against full-GI references, and the error-against-time plot of blending vs re-rendering;
+   with ``denoise``, also the blends and the highest-spp direct renders denoised (OIDN guided
+   by albedo and normal AOVs that blend like the images, :mod:`denoise`), raw errors kept.
 
 :func:`run_main_job` does all four; :func:`gi_report` steps 3 and 4 (also behind
 ``tools/bench.py gi``).
@@ -17,7 +19,7 @@ import time
 
 import numpy as np
 
-from . import database, imageio, metrics, plots
+from . import database, denoise as denoise_mod, imageio, metrics, plots
 from . import scenes as _scenes  # (gi_report has a parameter named scenes)
 from .atomic import write_bytes
 from .basis import Basis
@@ -69,7 +71,7 @@ def relative_bias(a, ref):
 
 def gi_report(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_spp=64, ref_spp=4096,
               direct_spp=(1, 4, 16, 64, 256, 1024), mode="onepass", out=None, seed=0, save_images=False,
-              progress=False, plot=None):
+              progress=False, plot=None, denoise=False):
     """Error against run time: the blend (Eq. 13) beside re-rendering the interpolated material.
 
     For each scene (a shipped scene's name or a path) and latent point (training, midpoint,
@@ -89,101 +91,149 @@ def gi_report(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_
     os.makedirs(out, exist_ok=True)
     pair = gi_pair(m)
     report = {"resolution": res, "basis_spp": basis_spp, "reference_spp": ref_spp, "mode": mode,
-              "variant": mi.variant(), "pair": list(pair), "scenes": {}}
+              "variant": mi.variant(), "pair": list(pair), "denoise": bool(denoise), "scenes": {}}
     for name in scenes:
         label = os.path.splitext(os.path.basename(name))[0]  # a shipped scene's name, or a file's stem
         report["scenes"][name] = gi_scene(_scenes.scene_path(name), manifold, m, pair, os.path.join(out, label),
-                                          res, basis_spp, ref_spp, direct_spp, mode, seed, save_images, progress)
+                                          res, basis_spp, ref_spp, direct_spp, mode, seed, save_images, progress,
+                                          denoise)
     report["plot"] = plots.gi_error_vs_time(report, plot or os.path.join(out, "gi_error_vs_time.png"))
     return report
 
 
 def gi_scene(scene_path, manifold_path, m, pair, stem, res, basis_spp, ref_spp, direct_spp, mode, seed,
-             save_images, progress):
-    """:func:`gi_report` for one scene: render its basis (timed, from scratch), then each point's
-    blend, reference and direct renders; files are named ``<stem>_...``."""
+             save_images, progress, denoise=False):
+    """:func:`gi_report` for one scene: render its basis (timed, from scratch; with its AOVs
+    when ``denoise``), then each point's blend, reference and direct renders; files are
+    named ``<stem>_...``."""
     out, name = os.path.dirname(stem), os.path.basename(stem)
     folder_b = os.path.join(out, f"basis_{name}_{res}_{basis_spp}_{mode}")
     if os.path.isdir(folder_b):  # time a whole basis, not a resumed one
         shutil.rmtree(folder_b)
     t0 = time.perf_counter()
     render_basis(scene_path, manifold_path, folder_b, spp=basis_spp, mode=mode, resolution=res, seed=seed,
-                 progress=progress)
+                 progress=progress, aovs=denoise)
     t_basis = time.perf_counter() - t0
     b = Basis.load(folder_b, manifold=m)
+    aovs = denoise_mod.BasisAOVs.load(folder_b, b.manifest) if denoise else None
     rows = []
     for kind, label, x in gi_points(m, *pair):
+        t0 = time.perf_counter()
         ref = _scenes.render_reference(scene_path, manifold_path, x, ref_spp, seed=seed + 7919, resolution=(res, res))
+        t_ref = time.perf_counter() - t0
         img, info = blend(b, m, x=x)
         t_blend = median_time(lambda: blend(b, m, x=x), 5)[0]
         bias, bias_se = relative_bias(img, ref)
-        row = {"point": kind, "x_is": label, "x": np.asarray(x).tolist(),
+        row = {"point": kind, "x_is": label, "x": np.asarray(x).tolist(), "reference_time_s": t_ref,
                "clamped_fraction": m.negative_fraction(x),
                "blend": {"time_s": t_blend, **metrics.compare(img, ref), "relative_bias": bias,
                          "relative_bias_se": bias_se, "materials_used": int(info["n_images"])},
                "direct": []}
+        guides = None
+        if aovs is not None:
+            guides = (aovs.albedo(dict(zip(info["keys"], np.asarray(info["image_weights"], float)))), aovs.normal)
+            den, t_den = _denoised(img, guides)
+            row["blend"]["denoised"] = {"time_s": t_blend + t_den, "denoise_s": t_den, **metrics.compare(den, ref)}
         for spp in direct_spp:
             t0 = time.perf_counter()
             direct = _scenes.render_reference(scene_path, manifold_path, x, spp, seed=seed + spp, resolution=(res, res))
-            row["direct"].append({"spp": spp, "time_s": time.perf_counter() - t0, **metrics.compare(direct, ref)})
+            entry = {"spp": spp, "time_s": time.perf_counter() - t0, **metrics.compare(direct, ref)}
+            if guides is not None and spp == max(direct_spp):  # the same denoiser, for a fair comparison
+                d_den, t_den = _denoised(direct, guides)
+                entry["denoised"] = {"time_s": entry["time_s"] + t_den, "denoise_s": t_den,
+                                     **metrics.compare(d_den, ref)}
+            row["direct"].append(entry)
         rows.append(row)
         if save_images:
-            _save_point_images(f"{stem}_{kind}", img, ref)
+            _save_point_images(f"{stem}_{kind}", img, ref, den if aovs is not None else None)
         if progress:
             print(f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True)
     if save_images:
         images, _, _ = blend_path(b, m, *pair, steps=20)
         imageio.write_contact_sheet(f"{stem}_path_sheet.png", images,
                                     labels=[f"{t:.2f}" for t in np.linspace(0, 1, len(images))])
-    return {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows}
+    out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows}
+    if aovs is not None:
+        out["aovs_time_s"] = aovs.time_s
+    return out
 
 
-def _save_point_images(stem, img, ref):
-    for suffix, image in (("blend", img), ("reference", ref)):
+def _denoised(image, guides):
+    """OIDN on ``image`` with (albedo, normal) guides; returns the image and the seconds it took."""
+    out = denoise_mod.denoise(image, *guides)
+    return out, median_time(lambda: denoise_mod.denoise(image, *guides), 3)[0]
+
+
+def _save_point_images(stem, img, ref, denoised=None):
+    pairs = (("blend", img), ("reference", ref)) + ((("blend_denoised", denoised),) if denoised is not None else ())
+    for suffix, image in pairs:
         imageio.write_exr(f"{stem}_{suffix}.exr", image)
         imageio.write_png(f"{stem}_{suffix}.png", image)
     metrics.write_error_png(f"{stem}_error.png", img, ref)
+    if denoised is not None:
+        metrics.write_error_png(f"{stem}_denoised_error.png", denoised, ref)
 
 
-def run_main_job(out, resolution=(90, 90, 180), q=2, features="log", scene="table", res=256, spp=64,
-                 ref_spp=4096, mode="onepass", direct_spp=(1, 4, 16, 64, 256), log=print):
+def run_main_job(out, resolution=(90, 90, 180), q=2, features="log", scene="table", res=256, spp=1024,
+                 ref_spp=2048, mode="onepass", direct_spp=(1, 4, 16, 64, 256), denoise=True, log=print):
     """The main job: database, manifold, plots, basis and blends of ``scene``, ``gi/report.json``.
 
     ``log(text)`` reports progress (stages and results). Returns the GI report (with
-    ``report_path``).
+    ``report_path`` and ``stages``: the measured seconds of each stage).
     """
     t_start = time.perf_counter()
+    stages = {}
     db_dir = os.path.join(out, "database")
     manifold_path = os.path.join(out, "manifold.npz")
     log(f"\n== database: {db_dir}")
     t0 = time.perf_counter()
     database.make_database(db_dir, resolution, progress=True)
-    log(f"100 tables ready ({time.perf_counter() - t0:.1f} s)")
+    stages["tabulate_s"] = time.perf_counter() - t0
+    log(f"100 tables ready ({stages['tabulate_s']:.1f} s)")
 
     log(f"\n== manifold: q={q}, features={features}")
     m = Manifold.fit(db_dir, q=q, features=features, progress=True)
     m.save(manifold_path)
+    stages.update(load_s=m.info["time_load_s"], gram_s=m.info["time_gram_s"], fit_s=m.info["time_fit_s"])
     log(m.summary())
     log(f"load {m.info['time_load_s']:.1f} s, Gram {m.info['time_gram_s']:.1f} s, "
         f"optimisation {m.info['time_fit_s']:.1f} s; saved {manifold_path}")
+    t0 = time.perf_counter()
     for path in plots.write_fit_plots(m, os.path.join(out, "plots")):
         log(f"plot: {path}")
+    stages["plots_s"] = time.perf_counter() - t0
 
     log(f"\n== basis of {scene} and blends ({res}x{res}, {spp} spp basis, {ref_spp} spp references)")
+    t0 = time.perf_counter()
     report = gi_report(db_dir, manifold=manifold_path, scenes=(scene,), res=res, basis_spp=spp,
                        ref_spp=ref_spp, mode=mode, direct_spp=direct_spp, out=os.path.join(out, "gi"),
-                       save_images=True, progress=True)
+                       save_images=True, progress=True, denoise=denoise)
+    t_gi = time.perf_counter() - t0
     sc = report["scenes"][scene]
-    log(f"basis: {sc['basis_images']} images in {sc['basis_time_s']:.1f} s")
+    stages["basis_s"] = sc["basis_time_s"]
+    stages["references_s"] = sum(r["reference_time_s"] for r in sc["points"])
+    stages["direct_renders_s"] = sum(d["time_s"] for r in sc["points"] for d in r["direct"])
+    stages["blends_images_plot_s"] = t_gi - stages["basis_s"] - stages["references_s"] - stages["direct_renders_s"]
+    log(f"basis: {sc['basis_images']} images in {sc['basis_time_s']:.1f} s"
+        + (f" (AOVs {sc['aovs_time_s']:.1f} s)" if "aovs_time_s" in sc else ""))
+    top = max(direct_spp)
     for row in sc["points"]:
         b = row["blend"]
-        d = next((r for r in row["direct"] if r["spp"] == 64), row["direct"][-1])
+        d = next(r for r in row["direct"] if r["spp"] == top)
         log(f"{row['point']:>12s} ({row['x_is']}): blend {1e3 * b['time_s']:.1f} ms, rel. MSE {b['rel_mse']:.3g}, "
-            f"PSNR {b['psnr']:.1f} dB, bias {100 * b['relative_bias']:+.2f}% | direct {d['spp']} spp "
-            f"{d['time_s']:.2f} s, rel. MSE {d['rel_mse']:.3g}")
+            f"PSNR {b['psnr']:.1f} dB, bias {100 * b['relative_bias']:+.2f}% | direct {top} spp "
+            f"{d['time_s']:.2f} s, rel. MSE {d['rel_mse']:.3g} | blend {d['time_s'] / b['time_s']:.0f}x faster, "
+            f"{'lower' if b['rel_mse'] < d['rel_mse'] else 'HIGHER'} error")
+        if "denoised" in b:
+            log(f"{'':>12s} denoised (OIDN, albedo+normal): blend {1e3 * b['denoised']['time_s']:.0f} ms, "
+                f"rel. MSE {b['denoised']['rel_mse']:.3g} (raw {b['rel_mse']:.3g}) | direct {top} spp "
+                f"rel. MSE {d['denoised']['rel_mse']:.3g} (raw {d['rel_mse']:.3g})")
     report_path = os.path.join(out, "gi", "report.json")
+    stages["total_s"] = time.perf_counter() - t_start
+    report["stages"] = stages
     write_bytes(report_path, json.dumps(report, indent=1))
     log(f"plot: {report['plot']}\nreport: {report_path}\nimages: {os.path.join(out, 'gi')}")
+    log("stages: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in stages.items() if k != "total_s"))
     log(f"\nmain job done in {time.perf_counter() - t_start:.0f} s")
     report["report_path"] = report_path
     return report

@@ -4,7 +4,8 @@
 2. the latent manifold (GPLVM fit) with its summary and plots,
 3. the L1- basis of a shipped scene (default table.xml; one image per material),
 4. blends at a training point, a midpoint and an extrapolated point, their errors against
-   full-GI references, and the error-against-time plot of blending vs re-rendering.
+   full-GI references (raw, and denoised with OIDN beside the raw ones), and the
+   error-against-time plot of blending vs re-rendering.
 """
 
 import argparse
@@ -24,15 +25,16 @@ def main(argv=None):
                         "latent point; see the README)")
     p.add_argument("--scene", default="table", help="shipped scene name or scene XML for the GI part (default table)")
     p.add_argument("--res", type=int, default=256, help="image size (default 256)")
-    p.add_argument("--spp", type=int, default=64, help="basis samples per pixel (default 64)")
-    p.add_argument("--ref-spp", type=int, default=4096, help="reference samples per pixel (default 4096)")
+    p.add_argument("--spp", type=int, default=1024, help="basis samples per pixel (default 1024)")
+    p.add_argument("--ref-spp", type=int, default=2048, help="reference samples per pixel (default 2048)")
+    p.add_argument("--no-denoise", action="store_true", help="skip the AOVs and the denoised figures")
     p.add_argument("--mode", choices=["onepass", "per-material"], default="onepass")
     args = p.parse_args(argv)
 
     from ..pipeline import run_main_job
     try:
         run_main_job(args.out, args.resolution, q=args.q, features=args.features, scene=args.scene,
-                     res=args.res, spp=args.spp, ref_spp=args.ref_spp, mode=args.mode,
+                     res=args.res, spp=args.spp, ref_spp=args.ref_spp, mode=args.mode, denoise=not args.no_denoise,
                      log=lambda text: print(text, flush=True))
     except ERRORS as e:
         fail(e)
