@@ -8,6 +8,8 @@
   stability  cond(K), weights, clamping and precision over stiff and extreme cases
   basis      one-pass vs per-material basis rendering
   match      inverse rendering on a basis: speed (--basis, a full basis) and accuracy on table/sphere
+  scaling    time and peak memory of every stage against N, table and image resolution, spp
+             (each point in a subprocess; makes its own databases), and chunked rendering on Ray
 """
 
 import argparse
@@ -40,7 +42,7 @@ def main(argv=None):
     folder = args.database or os.path.join("out", "database")
     t0 = time.perf_counter()
     try:
-        if args.database is None and not os.path.isdir(folder):
+        if args.database is None and not os.path.isdir(folder) and args.which != "scaling":
             print(f"making the built-in database at MERL resolution in {folder}")
             database.make_database(folder, progress=True)
         kwargs = {"names": args.materials} if args.which in ("fit", "pca") else {}
@@ -50,7 +52,12 @@ def main(argv=None):
             kwargs.update(basis=args.basis, res=args.res, out=args.out)
         if args.which == "gi":
             kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
+        if args.which == "scaling":
+            kwargs["out"] = os.path.splitext(args.json)[0] + "_work"
         result = bench.run(args.which, folder, **kwargs)
+        if args.which == "scaling":
+            from ..bench.scaling import plot
+            result["plot"] = plot(result, os.path.splitext(args.json)[0] + ".png")
         report = {"benchmark": args.which, "database": os.path.abspath(folder), "machine": machine(),
                   "date": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": time.perf_counter() - t0,
                   "result": result}
