@@ -133,6 +133,13 @@ def gi_error_vs_time(report, path):
                       label=f"direct render, {row['point']}")
             ax.loglog([row["blend"]["time_s"]], [row["blend"]["rel_mse"]], "*", ms=14, color=colour,
                       label=f"blend, {row['point']}")
+            if "denoised" in row["blend"]:  # denoised figures beside (never instead of) the raw ones
+                den = row["blend"]["denoised"]
+                ax.loglog([den["time_s"]], [den["rel_mse"]], "P", ms=10, color=colour, mfc="none",
+                          label=f"blend denoised, {row['point']}")
+                top = [r for r in d if "denoised" in r]
+                ax.loglog([r["denoised"]["time_s"] for r in top], [r["denoised"]["rel_mse"] for r in top], "s",
+                          ms=8, color=colour, mfc="none", label=f"direct {top[0]['spp']} spp denoised" if top else None)
         ax.set_title(f"{name}.xml: basis rendered once in {sc['basis_time_s']:.0f} s "
                      f"({report['basis_spp']} spp)", fontsize=9)
         ax.set_xlabel("time per image (s)")
