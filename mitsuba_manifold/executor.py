@@ -77,6 +77,11 @@ class RayExecutor:
             self._started = True
         return ray
 
+    def start(self):
+        """Start or join the cluster now (otherwise the first :meth:`map` does); returns self."""
+        self._ray()
+        return self
+
     def map(self, fn, items):
         ray = self._ray()
         items = list(items)
