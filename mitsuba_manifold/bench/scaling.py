@@ -112,7 +112,8 @@ def _main_point(argv):
     import resource
     stage, params = argv[0], json.loads(argv[1])
     out = _point(stage, params)
-    out["peak_rss_gib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
+    peak = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    out["peak_rss_gib"] = peak / 2 ** 20  # children: the tabulation's worker processes (largest one)
     print("RESULT " + json.dumps(out), flush=True)
 
 
