@@ -18,6 +18,17 @@ def save(fig, path):
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
 
 
+def finish(fig, axes, path):
+    """Grid and legend on every axis of ``axes``, then save ``fig`` to ``path`` and close it; returns ``path``."""
+    for ax in np.ravel(axes):
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    save(fig, path)
+    figure().close(fig)
+    return path
+
+
 def albedo_grid(manifold, dims=(0, 1), resolution=160, margin=0.15):
     """Albedo (mean of RGB) of the interpolated material over a 2D slice of the latent space.
 
@@ -144,9 +155,4 @@ def gi_error_vs_time(report, path):
                      f"({report['basis_spp']} spp)", fontsize=9)
         ax.set_xlabel("time per image (s)")
         ax.set_ylabel(f"relative MSE vs {report['reference_spp']} spp full GI")
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    save(fig, path)
-    plt.close(fig)
-    return path
+    return finish(fig, axes, path)

@@ -67,8 +67,9 @@ def _point(stage, p):
         init = gplvm.pca_init(S, 2)
         res = gplvm.fit_latent(S, d, q=2, method=p["method"], init=init)
         out = {"time_s": res.time_s, "evaluations": int(res.n_evaluations), "final_L": float(res.log_likelihood)}
-        if p.get("save"):  # the manifold the plugin and basis points use (fit again, timed above)
-            Manifold.fit(p["db"], q=2, names=_names(p["db"], p["n"]), features="log").save(p["save"])
+        if p.get("save"):  # the manifold the plugin and basis points use (from the fit timed above)
+            Manifold.fit(p["db"], q=2, names=_names(p["db"], p["n"]), features="log", method="lbfgs",
+                         init=res.latent).save(p["save"])
         return out
     if stage == "interp":
         db = Database(p["db"], _names(p["db"], p["n"]))
@@ -276,7 +277,7 @@ def summarise(report):
 
 def plot(report, path):
     """Log-log curves: time and peak RSS against N, and time against bins, pixels and spp."""
-    from ..plots import figure, save
+    from ..plots import figure, finish
     plt = figure()
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.6))
     series = report["series"]
@@ -296,13 +297,7 @@ def plot(report, path):
     axes[0].set(xlabel="materials N", ylabel="time (s)", title="time vs N (exponent)")
     axes[1].set(xlabel="materials N", ylabel="peak RSS (GiB, own process)", title="memory vs N")
     axes[2].set(xlabel="bins / pixels / spp", ylabel="time (s)", title="time vs table bins, image pixels, spp")
-    for ax in axes:
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    save(fig, path)
-    plt.close(fig)
-    return path
+    return finish(fig, axes, path)
 
 
 # ------------------------------------------------------------------ chunks on Ray
