@@ -276,12 +276,18 @@ def summarise(report):
         "how": (f"the Gram and an unpruned interpolated table hold all N float32 tables ({table_gib * 1024:.1f} MiB "
                 f"each at 90x90x180) in memory; 24 GiB less the {floor:.2f} GiB floor holds that many"),
     }
-    fit = report["series"].get("fit_hooke-jeeves_vs_n", {}).get("rows", [])
-    done = [r for r in fit if "time_s" in r]
-    e = out["exponents"].get("fit_hooke-jeeves_vs_n", {}).get("time")
-    if done and e:
-        last = done[-1]
-        out["walls"]["fit_hooke_jeeves_600s_n"] = int(last["n"] * (600.0 / last["time_s"]) ** (1.0 / e))
+    for method in ("hooke-jeeves", "lbfgs"):  # time wall: 600 s, from the local exponent of the last two points
+        rows = report["series"].get(f"fit_{method}_vs_n", {}).get("rows", [])
+        done = [r for r in rows if "time_s" in r]
+        failed = [r["n"] for r in rows if "error" in r]
+        if failed:  # over the point's time limit there
+            out["walls"][f"fit_{method}_over_time_limit_at_n"] = min(failed)
+        if len(done) >= 2 and not (failed and min(failed) <= done[-1]["n"] * 3):
+            (a, b) = done[-2:]
+            e = exponent([a["n"], b["n"]], [a["time_s"], b["time_s"]])
+            if e and e > 0:
+                out["walls"][f"fit_{method}_600s_n"] = int(b["n"] * (600.0 / b["time_s"]) ** (1.0 / e))
+                out["walls"][f"fit_{method}_local_exponent"] = e
     return out
 
 
