@@ -131,7 +131,7 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, res, basis_spp, ref_spp, 
                "direct": []}
         guides = None
         if aovs is not None:
-            guides = (aovs.albedo(dict(zip(info["keys"], np.asarray(info["image_weights"], float)))), aovs.normal)
+            guides = (aovs.albedo_of_blend(info, b.manifest["version"]), aovs.normal)
             den, t_den = _denoised(img, guides)
             row["blend"]["denoised"] = {"time_s": t_blend + t_den, "denoise_s": t_den, **metrics.compare(den, ref)}
         for spp in direct_spp:
