@@ -79,8 +79,7 @@ def sgd_reflectance(params, wi, wo):
 
 def _pair_geometry(wi, wo):
     """The material-independent terms of the SGD model for direction pairs (..., 3)."""
-    wi = np.asarray(wi, dtype=np.float64)
-    wo = np.asarray(wo, dtype=np.float64)
+    wi, wo = np.asarray(wi, dtype=np.float64), np.asarray(wo, dtype=np.float64)
     h = wi + wo
     h /= np.linalg.norm(h, axis=-1, keepdims=True)
     cos_h = np.clip(h[..., 2:3], 1e-300, 1.0)
@@ -132,8 +131,7 @@ def tabulate_sgd(params, dims=merl.MERL_DIMS):
 
 @functools.lru_cache(maxsize=2)
 def _bin_geometry(dims):
-    """The bins above the horizon and the SGD terms of their centres (the same for every
-    material, computed once per process and table resolution)."""
+    """The bins above the horizon and the SGD terms of their centres (once per process and resolution)."""
     th, td, pd = merl.bin_centres(dims)
     above = merl.above_horizon(dims)
     above.setflags(write=False)
@@ -206,8 +204,7 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
                 if name not in made or not _valid_table(path, dims)]
         made -= {name for name, _ in todo}
         write_table_record(out_dir, settings, made)
-        cache = cache_folder(out_dir)
-        jobs = [(fits[name], path, dims, float(noise), int(seed), name, cache) for name, path in todo]
+        jobs = [(fits[name], path, dims, float(noise), int(seed), name, cache_folder(out_dir)) for name, path in todo]
         _tabulate(jobs, workers, made, lambda: write_table_record(out_dir, settings, made), len(names), progress)
     return paths
 
@@ -261,10 +258,8 @@ def _valid_table(path, dims):
 def _write_sgd_table(job):
     """Tabulate one SGD material, add its measurement noise, write it (a worker's task).
 
-    Also writes its float32 reflectance cache (what :meth:`Database.reflectance` would
-    convert the file into, keyed by the file's hash), so that loading needs no conversion.
-    Returns ``(name, path, file identity, hash)`` for the parent to adopt the hash
-    (:func:`cache.adopt_hash`).
+    Also writes its float32 reflectance cache (keyed by the file's hash, as :meth:`Database.reflectance`),
+    so that loading needs no conversion; returns ``(name, path, file identity, hash)`` (:func:`cache.adopt_hash`).
     """
     params, path, dims, noise, seed, name, cache = job
     raw = tabulate_sgd(params, dims)
@@ -280,9 +275,8 @@ def _write_sgd_table(job):
 
 
 def _filled(raw, dims):
-    """:func:`merl.filled_reflectance` of a table measured in every bin above the horizon
-    (as tabulated ones are): 0 below the horizon, clamped at 0 above; without the search
-    for missing bins (the general function is used when some are missing)."""
+    """:func:`merl.filled_reflectance` of a table measured in every bin above the horizon (as tabulated
+    ones are), without its search for missing bins (used when some are missing)."""
     above = _bin_geometry(tuple(int(v) for v in dims))[0]
     refl = merl.reflectance(raw, dtype=np.float32)
     if (refl[:, above] < 0).any():
@@ -291,8 +285,7 @@ def _filled(raw, dims):
 
 
 def cache_folder(folder):
-    """The cache folder of a database folder: ``<folder>/.manifold-cache``, or under
-    ``~/.cache/mitsuba_manifold`` when the folder is read-only (created)."""
+    """``<folder>/.manifold-cache``, or under ``~/.cache/mitsuba_manifold`` if the folder is read-only (created)."""
     folder = os.path.abspath(os.fspath(folder))
     local = os.path.join(folder, CACHE_NAME)
     try:
