@@ -103,6 +103,10 @@ class MissingFileError(MitsubaManifoldError, FileNotFoundError):
     """A file or folder that should exist does not."""
 
 
+class ExploreError(InputError):
+    """A request the explorer (``tools/explore.py``) cannot answer; the server answers 400."""
+
+
 class StateError(MitsubaManifoldError, RuntimeError):
     """A call made before what it depends on (e.g. AOV names before the scene is known)."""
 

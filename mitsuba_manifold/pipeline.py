@@ -152,7 +152,8 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, res, basis_spp, ref_spp, 
         images, _, _ = blend_path(b, m, *pair, steps=20)
         imageio.write_contact_sheet(f"{stem}_path_sheet.png", images,
                                     labels=[f"{t:.2f}" for t in np.linspace(0, 1, len(images))])
-    out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows}
+    out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows,
+           "basis_folder": os.path.abspath(folder_b)}
     if aovs is not None:
         out["aovs_time_s"] = aovs.time_s
     return out
@@ -234,6 +235,8 @@ def run_main_job(out, resolution=(90, 90, 180), q=2, features="log", scene="tabl
     write_bytes(report_path, json.dumps(report, indent=1))
     log(f"plot: {report['plot']}\nreport: {report_path}\nimages: {os.path.join(out, 'gi')}")
     log("stages: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in stages.items() if k != "total_s"))
+    from .cli.explore import command
+    log(f"\nexplore the manifold in the browser:\n  {command(sc['basis_folder'], manifold_path)}")
     log(f"\nmain job done in {time.perf_counter() - t_start:.0f} s")
     report["report_path"] = report_path
     return report

@@ -14,15 +14,28 @@ have_llvm() {
     return 1
 }
 
-if ! have_llvm; then
-    echo "setup: installing libllvm19 (Dr.Jit needs libLLVM >= 16)" >&2
-    SUDO=""
+apt_install() {
+    # apt-get install "$@" (with sudo when not root), updating the package lists only if needed
+    local SUDO=""
     [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null && SUDO="sudo"
     export DEBIAN_FRONTEND=noninteractive
-    $SUDO apt-get install -y -q libllvm19 >/dev/null 2>&1 || {
-        $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q libllvm19 >/dev/null; }
+    $SUDO apt-get install -y -q "$@" >/dev/null 2>&1 || {
+        $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q "$@" >/dev/null; }
+}
+
+if ! have_llvm; then
+    echo "setup: installing libllvm19 (Dr.Jit needs libLLVM >= 16)" >&2
+    apt_install libllvm19
     have_llvm || { echo "setup: no libLLVM >= 16 after installing libllvm19" >&2; exit 1; }
 fi
 
+# Headless Chromium for the browser tests of tools/explore.py (Playwright drives this system
+# browser; it cannot download its own here).
+if ! command -v chromium >/dev/null && ! command -v chromium-browser >/dev/null; then
+    echo "setup: installing chromium (browser tests of tools/explore.py)" >&2
+    apt_install chromium
+    command -v chromium >/dev/null || { echo "setup: chromium did not install" >&2; exit 1; }
+fi
+
 python3 -m pip install -q --disable-pip-version-check --root-user-action=ignore -e ".[test]"
-python3 -c "import mitsuba_manifold, mitsuba, drjit" || { echo "setup: the package does not import" >&2; exit 1; }
+python3 -c "import mitsuba_manifold, mitsuba, drjit, starlette, uvicorn, playwright" || { echo "setup: the package does not import" >&2; exit 1; }

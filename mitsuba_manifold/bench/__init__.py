@@ -8,11 +8,12 @@ Timings are wall-clock medians over repeats on the machine that runs them
 """
 
 #: Benchmark names, in the order ``tools/bench.py`` lists them.
-NAMES = ("fit", "interp", "pca", "bsdf", "gi", "stability", "basis", "match", "scaling")
+NAMES = ("fit", "interp", "pca", "bsdf", "gi", "stability", "basis", "match", "scaling", "explore")
 
 
 def run(name, folder, **kwargs):
-    """Run benchmark ``name`` on the database ``folder``; returns its measurements."""
+    """Run benchmark ``name`` on the database ``folder`` (``explore``: a basis folder); returns its
+    measurements."""
     import importlib
     if name not in NAMES:
         from ..errors import InputError

@@ -17,6 +17,7 @@ TOOLS = {
     "main": "main_job",
     "bench": "bench",
     "make-scene-meshes": "make_scene_meshes",
+    "explore": "explore",
 }
 
 

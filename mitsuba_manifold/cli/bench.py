@@ -10,6 +10,8 @@
   match      inverse rendering on a basis: speed (--basis, a full basis) and accuracy on table/sphere
   scaling    time and peak memory of every stage against N, table and image resolution, spp
              (each point in a subprocess; makes its own databases), and chunked rendering on Ray
+  explore    tools/explore.py: request -> encoded image over the websocket (--basis DIR), and a
+             screenshot of the page beside the JSON
 """
 
 import argparse
@@ -29,20 +31,24 @@ def main(argv=None):
     p.add_argument("--database", default=None,
                    help="folder of MERL tables (default: out/database, made at MERL resolution if missing)")
     p.add_argument("--materials", type=parse_list, default=None, help="subset of materials")
-    p.add_argument("--manifold", default=None, help="saved manifold (interp/bsdf/gi/basis/match)")
-    p.add_argument("--basis", default=None, help="match: a full basis of --manifold to time the match on")
+    p.add_argument("--manifold", default=None, help="saved manifold (interp/bsdf/gi/basis/match/explore)")
+    p.add_argument("--basis", default=None,
+                   help="match: a full basis of --manifold to time the match on; explore: the basis to serve")
     p.add_argument("--res", type=int, default=128, help="match: resolution of the accuracy renders (default 128)")
     p.add_argument("--out", default=None,
                    help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
     args = p.parse_args(argv)
+    if args.which == "explore" and not args.basis:
+        p.error("explore needs --basis DIR (a basis folder, e.g. out/gi/basis_table_256_64_onepass)")
 
     from .. import bench, database
     from ..atomic import write_bytes
     from ..bench.common import machine
-    folder = args.database or os.path.join("out", "database")
+    explore = args.which == "explore"
+    folder = args.basis if explore else args.database or os.path.join("out", "database")
     t0 = time.perf_counter()
     try:
-        if args.database is None and not os.path.isdir(folder) and args.which != "scaling":
+        if not explore and args.database is None and not os.path.isdir(folder) and args.which != "scaling":
             print(f"making the built-in database at MERL resolution in {folder}")
             database.make_database(folder, progress=True)
         kwargs = {"names": args.materials} if args.which in ("fit", "pca") else {}
@@ -54,11 +60,14 @@ def main(argv=None):
             kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
         if args.which == "scaling":
             kwargs["out"] = os.path.splitext(args.json)[0] + "_work"
+        if explore:
+            kwargs["screenshot_path"] = os.path.splitext(args.json)[0] + ".png"
         result = bench.run(args.which, folder, **kwargs)
         if args.which == "scaling":
             from ..bench.scaling import plot
             result["plot"] = plot(result, os.path.splitext(args.json)[0] + ".png")
-        report = {"benchmark": args.which, "database": os.path.abspath(folder), "machine": machine(),
+        report = {"benchmark": args.which, "basis" if explore else "database": os.path.abspath(folder),
+                  "machine": machine(),
                   "date": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": time.perf_counter() - t0,
                   "result": result}
         text = json.dumps(report, indent=1, default=float)

@@ -1,0 +1,478 @@
+// The explorer page: latent map, scene frames over a websocket, material panel, paths, snippets,
+// reference renders. No build step; talks only to the server that served it.
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+const fmtNum = (v, d = 3) => (Math.abs(v) >= 1e4 || (Math.abs(v) < 1e-3 && v !== 0)) ? v.toExponential(2) : v.toFixed(d);
+const LOCAL = ["127.0.0.1", "localhost", "[::1]"].includes(location.hostname);
+
+const state = {
+  info: null, x: null, basis: null, exposure: 0, dims: [0, 1], map: null, mapImage: null,
+  hover: -1, a: null, b: null, displayed: null, material: null, errors: [],
+  // raw RGBA on this machine (exact, no encoding); JPEG when the page is viewed from elsewhere
+  format: new URLSearchParams(location.search).get("format") || (LOCAL ? "rgba" : "jpeg"),
+};
+
+// ------------------------------------------------------------------ server access
+async function api(path, options) {
+  const r = await fetch(path, options);
+  if (!r.ok) {
+    let msg = r.statusText;
+    try { msg = (await r.json()).error; } catch (e) { /* not JSON */ }
+    throw new Error(msg);
+  }
+  return r;
+}
+
+function setStatus(text, error = false) {
+  const s = $("status");
+  s.textContent = text;
+  s.classList.toggle("error", error);
+  if (error) state.errors.push(text);
+}
+
+// One websocket; per kind at most one request in flight and the newest one waiting.
+class Channel {
+  constructor(onMessage) {
+    this.onMessage = onMessage;
+    this.seq = 0;
+    this.inflight = {};
+    this.waiting = {};
+    this.connect();
+  }
+  connect() {
+    const proto = location.protocol === "https:" ? "wss" : "ws";
+    this.ws = new WebSocket(`${proto}://${location.host}/ws`);
+    this.ws.binaryType = "arraybuffer";
+    this.ws.onopen = () => { setStatus("connected"); this.inflight = {}; for (const k in this.waiting) this.flush(k); };
+    this.ws.onclose = () => { setStatus("disconnected from the server — retrying…", true); setTimeout(() => this.connect(), 1000); };
+    this.ws.onmessage = (ev) => {
+      const view = new DataView(ev.data);
+      const n = view.getUint32(0, true);
+      const meta = JSON.parse(new TextDecoder().decode(new Uint8Array(ev.data, 4, n)));
+      const payload = ev.data.slice(4 + n);
+      const kind = meta.type === "error" ? meta.kind : meta.type;
+      if (kind) { delete this.inflight[kind]; this.flush(kind); }
+      if (this.sent && meta.seq in this.sent) { meta.round_trip_ms = performance.now() - this.sent[meta.seq]; delete this.sent[meta.seq]; }
+      this.onMessage(meta, payload);
+    };
+  }
+  request(kind, body) { this.waiting[kind] = body; this.flush(kind); }
+  flush(kind) {
+    if (this.inflight[kind] || !this.waiting[kind] || this.ws.readyState !== WebSocket.OPEN) return;
+    const body = Object.assign({ type: kind, seq: ++this.seq }, this.waiting[kind]);
+    delete this.waiting[kind];
+    this.inflight[kind] = body.seq;
+    this.sent = this.sent || {};
+    this.sent[body.seq] = performance.now();
+    this.ws.send(JSON.stringify(body));
+  }
+  pending() { return Object.keys(this.inflight).length + Object.keys(this.waiting).length; }
+}
+
+let channel, preview;
+
+function onMessage(meta, payload) {
+  if (meta.type === "error") { setStatus(meta.error, true); return; }
+  if (meta.type === "frame") drawFrame(meta, payload);
+  else if (meta.type === "material") showMaterial(meta);
+  else if (meta.type === "table" && preview) { preview.setTable(payload, meta); state.previewX = meta.x; }
+}
+
+// ------------------------------------------------------------------ scene frames
+async function drawFrame(meta, payload) {
+  const c = $("scene");
+  if (c.width !== meta.width || c.height !== meta.height) { c.width = meta.width; c.height = meta.height; }
+  const ctx = c.getContext("2d");
+  if (meta.format === "rgba") {
+    ctx.putImageData(new ImageData(new Uint8ClampedArray(payload), meta.width, meta.height), 0, 0);
+  } else {
+    const bmp = await createImageBitmap(new Blob([payload], { type: "image/" + meta.format }));
+    ctx.drawImage(bmp, 0, 0);
+  }
+  state.displayed = { x: meta.x, seq: meta.seq, exposure: state.exposure, basis: state.basis };
+  c.dataset.x = meta.x.join(",");
+  $("timing").textContent = `${meta.n_images} images · blend ${meta.blend_ms.toFixed(1)} + tonemap ` +
+    `${meta.tonemap_ms.toFixed(1)} + ${meta.format} ${meta.encode_ms.toFixed(1)} = ${meta.total_ms.toFixed(1)} ms on the server` +
+    (meta.round_trip_ms ? ` · ${meta.round_trip_ms.toFixed(0)} ms round trip` : "");
+}
+
+function requestAll() {
+  const x = state.x;
+  channel.request("frame", { x, exposure: state.exposure, basis: state.basis, format: state.format });
+  channel.request("material", { x });
+  if (state.info.tables === "ready") channel.request("table", { x });
+}
+
+function setX(x, opts = {}) {
+  state.x = x.slice();
+  requestAll();
+  // the point (and basis) in the address: a reload or a shared link comes back here
+  history.replaceState(null, "", "#x=" + state.x.join(",") +
+                      (state.basis ? "&basis=" + encodeURIComponent(state.basis) : ""));
+  $("save-png").href = "/api/frame?" + new URLSearchParams({ x: state.x.join(","), basis: state.basis,
+                                                              exposure: state.exposure, format: "png" });
+  updateSliders();
+  drawMap();
+  if (state.info.q > 2 && !opts.keepMap) scheduleMap();
+}
+
+// ------------------------------------------------------------------ latent map
+let mapTimer = null, mapSeq = 0;
+function scheduleMap() { clearTimeout(mapTimer); mapTimer = setTimeout(loadMap, 180); }
+
+async function loadMap() {
+  const q = new URLSearchParams({ dims: state.dims.join(","), x: state.x.join(",") });
+  if (state.zoom) q.set("extent", state.zoom.join(","));
+  const id = ++mapSeq;
+  try {
+    const m = await (await api("/api/map?" + q)).json();
+    if (id !== mapSeq) return;   // a newer map is on its way
+    const img = new Image();
+    img.onload = () => { state.map = m; state.mapImage = img; state.mapImageExtent = m.extent; drawMap(); };
+    img.src = m.png;
+    $("ramp").style.background = `linear-gradient(to right, ${m.colormap.join(",")})`;
+    $("ramp-lo").textContent = m.albedo_range[0].toFixed(2);
+    $("ramp-hi").textContent = m.albedo_range[1].toFixed(2);
+  } catch (e) { setStatus("map: " + e.message, true); }
+}
+
+function toCanvas(p) {
+  const [x0, x1, y0, y1] = state.map.extent, c = $("map");
+  return [(p[state.dims[0]] - x0) / (x1 - x0) * c.width, (1 - (p[state.dims[1]] - y0) / (y1 - y0)) * c.height];
+}
+function fromCanvas(px, py) {
+  const [x0, x1, y0, y1] = state.map.extent, c = $("map");
+  const x = state.x.slice();
+  x[state.dims[0]] = x0 + px / c.width * (x1 - x0);
+  x[state.dims[1]] = y0 + (1 - py / c.height) * (y1 - y0);
+  return x;
+}
+
+function nearestPoint(px, py, radius = 9) {
+  let best = -1, bd = radius * radius;
+  state.info.latent.forEach((p, i) => {
+    const [cx, cy] = toCanvas(p), d = (cx - px) ** 2 + (cy - py) ** 2;
+    if (d < bd) { bd = d; best = i; }
+  });
+  return best;
+}
+
+function drawMap() {
+  const c = $("map"), ctx = c.getContext("2d");
+  if (!state.map) return;
+  ctx.imageSmoothingEnabled = true;
+  ctx.fillStyle = "#101216"; ctx.fillRect(0, 0, c.width, c.height);
+  const [ix0, ix1, iy0, iy1] = state.mapImageExtent || state.map.extent, [x0, x1, y0, y1] = state.map.extent;
+  ctx.drawImage(state.mapImage, (ix0 - x0) / (x1 - x0) * c.width, (1 - (iy1 - y0) / (y1 - y0)) * c.height,
+                (ix1 - ix0) / (x1 - x0) * c.width, (iy1 - iy0) / (y1 - y0) * c.height);
+  const { latent, names, albedos } = state.info;
+  if (state.a && state.b) {
+    const [ax, ay] = toCanvas(state.a.x), [bx, by] = toCanvas(state.b.x);
+    ctx.strokeStyle = "rgba(255,255,255,.85)"; ctx.setLineDash([6, 4]); ctx.lineWidth = 1.5;
+    ctx.beginPath(); ctx.moveTo(ax, ay); ctx.lineTo(bx, by); ctx.stroke(); ctx.setLineDash([]);
+  }
+  latent.forEach((p, i) => {
+    const [px, py] = toCanvas(p);
+    const a = albedos ? albedos[i] : [0.5, 0.5, 0.5];
+    // q > 2: materials far from the slice (in the other coordinates) fade out
+    const off = p.reduce((s, v, k) => s + (state.dims.includes(k) ? 0 : (v - state.x[k]) ** 2), 0);
+    ctx.globalAlpha = i === state.hover ? 1 : Math.max(0.25, Math.exp(-off / 0.5));
+    ctx.beginPath(); ctx.arc(px, py, i === state.hover ? 6 : 4, 0, 2 * Math.PI);
+    ctx.fillStyle = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
+    ctx.fill(); ctx.lineWidth = 1.5; ctx.strokeStyle = i === state.hover ? "#fff" : "rgba(0,0,0,.85)"; ctx.stroke();
+  });
+  ctx.globalAlpha = 1;
+  for (const [end, label] of [[state.a, "A"], [state.b, "B"]]) {
+    if (!end) continue;
+    const [px, py] = toCanvas(end.x);
+    ctx.fillStyle = "#fff"; ctx.font = "bold 13px system-ui"; ctx.fillText(label, px + 7, py - 7);
+  }
+  const [cx, cy] = toCanvas(state.x);
+  ctx.lineWidth = 2; ctx.strokeStyle = "#fff";
+  ctx.beginPath(); ctx.arc(cx, cy, 9, 0, 2 * Math.PI); ctx.stroke();
+  ctx.strokeStyle = "#000"; ctx.lineWidth = 1;
+  ctx.beginPath(); ctx.arc(cx, cy, 11, 0, 2 * Math.PI); ctx.stroke();
+  ctx.beginPath(); ctx.moveTo(cx - 15, cy); ctx.lineTo(cx - 5, cy); ctx.moveTo(cx + 5, cy); ctx.lineTo(cx + 15, cy);
+  ctx.moveTo(cx, cy - 15); ctx.lineTo(cx, cy - 5); ctx.moveTo(cx, cy + 5); ctx.lineTo(cx, cy + 15);
+  ctx.strokeStyle = "#fff"; ctx.lineWidth = 1.5; ctx.stroke();
+}
+
+function bindMap() {
+  const c = $("map"), tip = $("tooltip");
+  let dragging = false;
+  const pos = (ev) => {
+    const r = c.getBoundingClientRect();
+    return [(ev.clientX - r.left) * c.width / r.width, (ev.clientY - r.top) * c.height / r.height, r];
+  };
+  const pick = (ev, snap) => {
+    const [px, py] = pos(ev);
+    const i = snap ? nearestPoint(px, py) : -1;
+    setX(i >= 0 ? state.info.latent[i] : fromCanvas(px, py), { keepMap: true });
+  };
+  c.addEventListener("pointerdown", (ev) => { dragging = true; c.setPointerCapture(ev.pointerId); pick(ev, true); });
+  c.addEventListener("pointermove", (ev) => {
+    const [px, py, r] = pos(ev);
+    const i = nearestPoint(px, py);
+    if (i !== state.hover) { state.hover = i; drawMap(); }
+    if (i >= 0) {
+      tip.hidden = false; tip.textContent = state.info.names[i];
+      tip.style.left = (px * r.width / c.width + 12) + "px"; tip.style.top = (py * r.height / c.height - 10) + "px";
+    } else tip.hidden = true;
+    if (dragging) pick(ev, true);
+  });
+  c.addEventListener("pointerup", () => { dragging = false; if (state.info.q > 2) scheduleMap(); });
+  // wheel: zoom about the pointer (the map is rendered again for the new extent); double-click: whole map
+  c.addEventListener("wheel", (ev) => {
+    ev.preventDefault();
+    if (!state.map) return;
+    const [px, py] = pos(ev), [x0, x1, y0, y1] = state.map.extent;
+    const f = Math.exp(Math.sign(ev.deltaY) * 0.18);
+    const cx = x0 + px / c.width * (x1 - x0), cy = y0 + (1 - py / c.height) * (y1 - y0);
+    state.zoom = [cx - (cx - x0) * f, cx + (x1 - cx) * f, cy - (cy - y0) * f, cy + (y1 - cy) * f];
+    state.map = Object.assign({}, state.map, { extent: state.zoom });   // overlay follows at once
+    drawMap(); scheduleMap();
+  }, { passive: false });
+  c.addEventListener("dblclick", () => { state.zoom = null; loadMap(); });
+  c.addEventListener("pointerleave", () => { tip.hidden = true; if (state.hover >= 0) { state.hover = -1; drawMap(); } });
+}
+
+// q > 2: two axes for the map, a slider for every other coordinate
+function buildSliceControls() {
+  const q = state.info.q;
+  if (q <= 2) return;
+  $("slice-controls").hidden = false;
+  for (const [k, sel] of [[0, $("dim0")], [1, $("dim1")]]) {
+    for (let d = 0; d < q; d++) sel.add(new Option("x" + d, d));
+    sel.value = state.dims[k];
+    sel.onchange = () => {
+      const d = [+$("dim0").value, +$("dim1").value];
+      if (d[0] === d[1]) { sel.value = state.dims[k]; return; }
+      state.dims = d; buildSliders(); loadMap();
+    };
+  }
+  buildSliders();
+}
+
+function buildSliders() {
+  const box = $("sliders"), lat = state.info.latent;
+  box.innerHTML = "";
+  for (let d = 0; d < state.info.q; d++) {
+    if (state.dims.includes(d)) continue;
+    const vals = lat.map((p) => p[d]), lo = Math.min(...vals), hi = Math.max(...vals), pad = 0.25 * (hi - lo || 1);
+    const row = document.createElement("div"); row.className = "row";
+    row.innerHTML = `<label>x${d}</label><input type="range" data-dim="${d}" min="${lo - pad}" max="${hi + pad}" step="${(hi - lo + 2 * pad) / 500}"><span class="end"></span>`;
+    const input = row.querySelector("input");
+    input.value = state.x[d];
+    input.oninput = () => { const x = state.x.slice(); x[d] = +input.value; setX(x); };
+    box.appendChild(row);
+  }
+  updateSliders();
+}
+
+function updateSliders() {
+  for (const input of document.querySelectorAll("#sliders input")) {
+    const d = +input.dataset.dim;
+    if (document.activeElement !== input) input.value = state.x[d];
+    input.nextElementSibling.textContent = fmtNum(state.x[d]);
+  }
+}
+
+// ------------------------------------------------------------------ material panel
+function materialName(x) {
+  const i = state.info.latent.findIndex((p) => p.every((v, k) => v === x[k]));
+  return i >= 0 ? state.info.names[i] : null;
+}
+
+function showMaterial(m) {
+  state.material = m;
+  const name = materialName(m.x);
+  $("material-name").textContent = name ? name : "x = (" + m.x.map((v) => fmtNum(v)).join(", ") + ")";
+  if (m.albedo) {
+    const a = m.albedo;
+    $("albedo-swatch").style.background = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
+    $("albedo-val").textContent = a.map((v) => v.toFixed(2)).join(" · ");
+    $("albedo-val").title = "bihemispherical albedo, RGB: " + a.map((v) => v.toFixed(4)).join(", ");
+  }
+  const rel = Math.min(1, m.variance / m.prior_variance);
+  $("conf-bar").style.width = (100 * (1 - rel)).toFixed(1) + "%";
+  $("conf-bar").style.background = rel > 0.5 ? "var(--neg)" : rel > 0.1 ? "var(--warn)" : "var(--accent)";
+  $("variance-val").textContent = `GP variance ${fmtNum(m.variance, 4)} (Eq. 2)`;
+  const warn = [];
+  if (rel > 0.5) warn.push("far from every measured material: the interpolant tends to the mean BRDF");
+  if (m.albedo && m.albedo.some((v) => v < 0 || v > 1)) warn.push("albedo outside [0, 1]: not a physical material");
+  if (m.negative_fraction !== undefined && m.negative_fraction > 1e-3)
+    warn.push(`${(100 * m.negative_fraction).toFixed(1)}% of the table's bins are negative: a render clamps ` +
+              "them to 0, the blend cannot (they differ here)");
+  if (m.tables !== "ready") warn.push(m.tables_message);
+  $("warnings").innerHTML = warn.map((w) => `<div class="warn">${escapeHtml(w)}</div>`).join("");
+  $("nearest").innerHTML = "";
+  for (const n of m.nearest) {
+    const b = document.createElement("button");
+    b.textContent = n.name; b.title = `latent distance ${n.distance.toFixed(3)}`;
+    b.onclick = () => goTo(n.name);
+    $("nearest").appendChild(b);
+  }
+  const max = Math.max(...m.weights.map((w) => Math.abs(w.w)), 1e-9);
+  $("weights").innerHTML = "";
+  for (const w of m.weights.filter((w) => Math.abs(w.w) > 5e-4)) {
+    const half = 50 * Math.abs(w.w) / max;
+    const name = document.createElement("div"); name.className = "name"; name.textContent = w.name; name.onclick = () => goTo(w.name);
+    const track = document.createElement("div"); track.className = "track";
+    const bar = document.createElement("div"); bar.className = "bar" + (w.w < 0 ? " neg" : "");
+    bar.style.left = (w.w < 0 ? 50 - half : 50) + "%"; bar.style.width = half + "%";
+    track.appendChild(bar);
+    const val = document.createElement("div"); val.className = "val"; val.textContent = w.w.toFixed(3);
+    $("weights").append(name, track, val);
+  }
+  $("weights-note").textContent = `${m.n_kept} of ${state.info.names.length} kept after pruning` +
+    (m.negative_weight > 1e-6 ? ` · negative weight ${m.negative_weight.toFixed(2)}` : "");
+  if (m.slice) {
+    $("slice").src = m.slice.png;
+    $("slice-hi").textContent = m.slice.log10_range[1].toFixed(1);
+    $("slice-lo").textContent = m.slice.log10_range[0].toFixed(1);
+  }
+  scheduleSnippet();
+}
+
+function escapeHtml(s) { return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
+
+function goTo(name) { setX(state.info.latent[state.info.names.indexOf(name)]); }
+
+// ------------------------------------------------------------------ snippets
+let snippetTimer = null, snippet = null;
+function scheduleSnippet() { clearTimeout(snippetTimer); snippetTimer = setTimeout(loadSnippet, 120); }
+async function loadSnippet() {
+  try {
+    snippet = await (await api("/api/snippet?x=" + state.x.join(","))).json();
+    $("snippet").textContent = snippet.xml;
+  } catch (e) { setStatus("snippet: " + e.message, true); }
+}
+async function copy(text, what) {
+  try { await navigator.clipboard.writeText(text); $("copied").textContent = what + " copied"; }
+  catch (e) {
+    const ta = document.createElement("textarea"); ta.value = text; document.body.appendChild(ta); ta.select();
+    document.execCommand("copy"); ta.remove(); $("copied").textContent = what + " copied";
+  }
+  setTimeout(() => { $("copied").textContent = ""; }, 2000);
+}
+
+// ------------------------------------------------------------------ paths
+function endLabel(end) { return end.name || "(" + end.x.map((v) => fmtNum(v)).join(", ") + ")"; }
+function setEnd(which) {
+  const end = { x: state.x.slice(), name: materialName(state.x) };
+  state[which] = end;
+  $(which + "-label").textContent = endLabel(end);
+  const ready = state.a && state.b;
+  $("scrub").disabled = !ready; $("export-path").disabled = !ready;
+  $("scrub").value = which === "a" ? 0 : 1000; updateScrub();
+  drawMap();
+}
+function updateScrub() { $("scrub-t").textContent = "t = " + (+$("scrub").value / 1000).toFixed(2); }
+function scrub() {
+  updateScrub();
+  const t = +$("scrub").value / 1000;
+  setX(state.a.x.map((v, k) => (1 - t) * v + t * state.b.x[k]));
+}
+async function exportPath() {
+  const q = new URLSearchParams({ basis: state.basis, steps: $("steps").value,
+    a: state.a.name || state.a.x.join(","), b: state.b.name || state.b.x.join(",") });
+  try {
+    const r = await (await api("/api/path?" + q)).json();
+    $("path-cmd").hidden = false; $("path-cmd").textContent = r.command; copy(r.command, "command");
+  } catch (e) { setStatus("path: " + e.message, true); }
+}
+
+// ------------------------------------------------------------------ reference
+async function startReference() {
+  $("ref-start").disabled = true;
+  $("ref-result").hidden = true;
+  try {
+    const job = await (await api("/api/reference", { method: "POST", headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ basis: state.basis, x: state.x, spp: +$("ref-spp").value }) })).json();
+    pollReference(job.id);
+  } catch (e) { setStatus("reference: " + e.message, true); $("ref-start").disabled = false; }
+}
+async function pollReference(id) {
+  const bar = $("ref-progress");
+  bar.hidden = false;
+  let job;
+  try { job = await (await api("/api/reference/" + id)).json(); }
+  catch (e) { setStatus("reference: " + e.message, true); $("ref-start").disabled = false; return; }
+  bar.firstElementChild.style.width = (100 * job.progress).toFixed(0) + "%";
+  bar.lastElementChild.textContent = job.state === "queued" ? "waiting…" : `${job.message || "starting"}`;
+  if (job.state === "queued" || job.state === "rendering") { setTimeout(() => pollReference(id), 400); return; }
+  $("ref-start").disabled = false;
+  bar.hidden = true;
+  if (job.state === "failed") { setStatus("reference failed: " + job.message, true); return; }
+  const ev = "?exposure=" + state.exposure;
+  $("ref-blend").src = `/api/reference/${id}/blend.png${ev}`;
+  $("ref-ref").src = `/api/reference/${id}/reference.png${ev}`;
+  $("ref-err").src = `/api/reference/${id}/error.png`;
+  $("ref-caption").textContent = `reference (full GI, ${job.spp} spp, ${job.seconds.toFixed(1)} s)`;
+  const e = job.error;
+  $("ref-metrics").textContent = `rel. MSE ${fmtNum(e.rel_mse, 4)} · PSNR ${e.psnr.toFixed(1)} dB · mean |Δ| ${fmtNum(e.mean_abs, 4)}` +
+    ` · at x = (${job.x.map((v) => fmtNum(v)).join(", ")})`;
+  $("ref-result").hidden = false;
+}
+
+// ------------------------------------------------------------------ start
+async function main() {
+  try { state.info = await (await api("/api/info")).json(); }
+  catch (e) { setStatus("cannot reach the server: " + e.message, true); return; }
+  const info = state.info;
+  for (const b of info.bases) $("basis").add(new Option(`${b.name} (${b.resolution.join("×")}, ${b.images} materials)`, b.name));
+  state.basis = info.bases[0].name;
+  $("basis").onchange = () => { state.basis = $("basis").value; sceneInfo(); requestAll(); };
+  sceneInfo();
+  preview = new MaterialPreview($("sphere"), $("sphere-msg"));
+  channel = new Channel(onMessage);
+  // start at the measured material closest to the centre of the data
+  const mean = info.latent[0].map((_, k) => info.latent.reduce((s, p) => s + p[k], 0) / info.latent.length);
+  let best = 0, bd = Infinity;
+  info.latent.forEach((p, i) => { const d = p.reduce((s, v, k) => s + (v - mean[k]) ** 2, 0); if (d < bd) { bd = d; best = i; } });
+  state.x = info.latent[best].slice();
+  const hash = new URLSearchParams(location.hash.slice(1));   // #x=...&basis=... from a link
+  if (hash.get("basis") && info.bases.some((b) => b.name === hash.get("basis"))) {
+    state.basis = hash.get("basis"); $("basis").value = state.basis; sceneInfo();
+  }
+  const linked = (hash.get("x") || "").split(",").map(Number);
+  if (linked.length === info.q && linked.every(Number.isFinite)) state.x = linked;
+  buildSliceControls();
+  bindMap();
+  await loadMap();
+  setX(state.x);
+  $("exposure").oninput = () => {
+    state.exposure = +$("exposure").value;
+    $("exposure-val").textContent = state.exposure.toFixed(1) + " EV";
+    preview && preview.setExposure(state.exposure);
+    $("save-png").href = "/api/frame?" + new URLSearchParams({ x: state.x.join(","), basis: state.basis,
+                                                                exposure: state.exposure, format: "png" });
+    channel.request("frame", { x: state.x, exposure: state.exposure, basis: state.basis, format: state.format });
+  };
+  $("set-a").onclick = () => setEnd("a");
+  $("set-b").onclick = () => setEnd("b");
+  $("scrub").oninput = scrub;
+  $("export-path").onclick = exportPath;
+  $("ref-start").onclick = startReference;
+  $("copy-xml").onclick = () => snippet && copy(snippet.xml, "XML");
+  $("copy-py").onclick = () => snippet && copy(snippet.python, "Python");
+  if (info.tables === "loading") pollTables();
+}
+
+function sceneInfo() {
+  const b = state.info.bases.find((b) => b.name === state.basis);
+  $("scene-info").textContent = `${b.scene.split("/").pop()} · ${b.resolution.join("×")} · ${b.spp} spp basis`;
+  $("ref-start").disabled = !b.scene_available;
+  $("ref-note").hidden = b.scene_available;
+}
+
+async function pollTables() {
+  const info = await (await api("/api/info")).json();
+  state.info.tables = info.tables;
+  if (info.tables === "loading") { setTimeout(pollTables, 700); return; }
+  requestAll();
+}
+
+window.explore = { state, setX, setEnd, get channel() { return channel; }, get preview() { return preview; } };
+main();
