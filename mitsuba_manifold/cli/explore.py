@@ -1,6 +1,6 @@
 """Explore a material manifold in the browser: drag a latent point, see the material in the scene.
 
-  explore.py --basis out/gi/basis_table_256_64_onepass [--basis OTHER ...] [--manifold M.npz]
+  explore.py --basis out/gi/basis_table_256_1024_onepass [--basis OTHER ...] [--manifold M.npz]
              [--port 8765] [--host 127.0.0.1]
 
 Starts a local web server (127.0.0.1 unless --host says otherwise), prints the URL and
