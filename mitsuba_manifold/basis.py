@@ -290,9 +290,15 @@ def manifold_object(manifold):
 
     if isinstance(manifold, (str, os.PathLike)):
         return Manifold.load(manifold)
-    if not hasattr(manifold, "weights") or not hasattr(manifold, "names"):
-        raise BasisError(f"expected a Manifold or the path of one, got {type(manifold).__name__}")
+    _check_manifold_type(manifold)
     return manifold
+
+
+def _check_manifold_type(manifold):
+    if not isinstance(manifold, (str, os.PathLike)) and not (
+            hasattr(manifold, "weights") and hasattr(manifold, "names")):
+        raise BasisError(f"manifold: expected a Manifold or the path of one, got {type(manifold).__name__} "
+                         "(give a latent point as x=..., weights as w=...)")
 
 
 class Basis:
@@ -469,6 +475,7 @@ class Basis:
             if not os.path.isfile(manifold):
                 raise BasisError(f"basis {self.folder}: its manifold {manifold} no longer exists; "
                                  "give the manifold explicitly")
+        _check_manifold_type(manifold)
         key = os.path.abspath(manifold) if isinstance(manifold, (str, os.PathLike)) else manifold
         if key in self._checked:
             return self._checked[key]

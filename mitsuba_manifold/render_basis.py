@@ -192,7 +192,7 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
                                                      database=database)
     if mode == "onepass" and len(targets) != 1:
         raise RenderBasisError(f"onepass mode renders scenes with one manifold material; {scene_path} has "
-                               f"{len(targets)}: use mode='per-material'")
+                               f"{len(targets)}: use --mode per-material (mode='per-material' in Python)")
     sensors = scene.sensors()
     if not 0 <= int(sensor) < len(sensors):
         raise RenderBasisError(f"sensor {sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)")

@@ -169,7 +169,9 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     from .overrides import database_override
     try:
         with database_override(database):
-            scene = mi.load_file(scene_path, **params)
+            # optimize=False: Mitsuba would merge identical BSDF definitions, and two manifold
+            # materials given the same x would silently become one target.
+            scene = mi.load_file(scene_path, optimize=False, **params)
     except Exception as e:
         raise BasisError(f"scene {scene_path}: cannot load: {one_line(e)}") from None
     targets = manifold_bsdfs(scene)

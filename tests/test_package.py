@@ -115,3 +115,29 @@ def test_one_plugin_mechanism_for_the_bsdf_and_the_integrator(small_manifold):
     with pytest.raises(RuntimeError, match="not supported"):
         mi.load_dict({"type": "manifold_path"})
     mi.set_variant("llvm_ad_rgb")
+
+
+def test_negative_latent_coordinates_are_values_not_options():
+    """``--near -1.1,-0.2`` (most latent coordinates are negative) parses like ``--near=-1.1,-0.2``."""
+    from mitsuba_manifold.cli.common import ArgumentParser, parse_floats
+
+    p = ArgumentParser(prog="t")
+    p.add_argument("--near", type=parse_floats)
+    p.add_argument("--x", nargs="+")
+    p.add_argument("-v", action="store_true")
+    assert p.parse_args(["--near", "-1.1,-0.2"]).near == [-1.1, -0.2]
+    assert p.parse_args(["--near", "-1e-3 -.5"]).near == [-1e-3, -0.5]
+    assert p.parse_args(["--x", "-1", "-2.5", "-v"]).x == ["-1", "-2.5"]
+    assert p.parse_args(["-v"]).v
+
+
+def test_console_command_names_the_tool(capsys):
+    """``mitsuba-manifold fit --help`` shows ``mitsuba-manifold fit`` in its usage; an unknown
+    tool is named in one error line."""
+    from mitsuba_manifold import cli
+
+    assert cli.main(["nonsense"]) == 2
+    assert "error: unknown tool 'nonsense'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["fit", "--help"])
+    assert "usage: mitsuba-manifold fit" in capsys.readouterr().out

@@ -143,14 +143,9 @@ def test_onepass_basis_through_the_tool(tmp_path, small_manifold):
     assert {f: os.stat(out / f).st_mtime_ns for f in images} == stamp   # nothing re-rendered
 
 
-def test_two_manifold_materials_give_a_multilinear_basis(tmp_path, small_manifold):
-    """Two targets: one full L1- image per pair of materials; a training pair blends to its image."""
-    m = Manifold.load(small_manifold)
-    a, b = "gold-paint", "steel"
-    xa, xb = (", ".join(repr(float(v)) for v in m.latent[m.index(n)]) for n in (a, b))
-    scene = tmp_path / "two.xml"
-    scene.write_text(f"""<scene version="3.0.0">
-      <default name="manifold" value="{small_manifold}"/><default name="spp" value="4"/>
+def _two_sphere_scene(path, manifold, xa, xb):
+    path.write_text(f"""<scene version="3.0.0">
+      <default name="manifold" value="{manifold}"/><default name="spp" value="4"/>
       <default name="res" value="{RES}"/>
       <sensor type="perspective"><float name="fov" value="40"/>
         <transform name="to_world"><lookat origin="0, 0, 6" target="0, 0, 0" up="0, 1, 0"/></transform>
@@ -164,6 +159,24 @@ def test_two_manifold_materials_give_a_multilinear_basis(tmp_path, small_manifol
       <shape type="sphere"><point name="center" value="-1.1, 0, 0"/><ref id="left"/></shape>
       <shape type="sphere"><point name="center" value="1.1, 0, 0"/><ref id="right"/></shape>
       <emitter type="constant"/></scene>""")
+
+
+def test_two_identical_manifold_materials_stay_two_targets(tmp_path, small_manifold):
+    """Mitsuba merges identical BSDF definitions by default: two manifold materials given the
+    same x (the natural start) must still be two targets of a multilinear basis."""
+    scene = tmp_path / "same.xml"
+    _two_sphere_scene(scene, small_manifold, "", "")
+    loaded = scenes.load_scene(str(scene), small_manifold, spp=4, resolution=RES)
+    assert [t.id() for t in loaded.targets] == ["left", "right"]
+
+
+def test_two_manifold_materials_give_a_multilinear_basis(tmp_path, small_manifold):
+    """Two targets: one full L1- image per pair of materials; a training pair blends to its image."""
+    m = Manifold.load(small_manifold)
+    a, b = "gold-paint", "steel"
+    xa, xb = (", ".join(repr(float(v)) for v in m.latent[m.index(n)]) for n in (a, b))
+    scene = tmp_path / "two.xml"
+    _two_sphere_scene(scene, small_manifold, xa, xb)
     out = tmp_path / "basis2"
     manifest = render_basis.render_basis(str(scene), small_manifold, str(out), spp=4, materials=[a, b])
     assert manifest["targets"] == ["left", "right"]

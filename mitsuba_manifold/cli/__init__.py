@@ -24,9 +24,15 @@ TOOLS = {
 def main(argv=None):
     """``mitsuba-manifold TOOL [args...]``: run one tool."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    if not argv or argv[0] in ("-h", "--help") or argv[0] not in TOOLS:
-        print("usage: mitsuba-manifold {" + ",".join(TOOLS) + "} [args...]\n\n"
-              "Run 'mitsuba-manifold TOOL --help' for a tool's options.",
-              file=sys.stderr if argv and argv[0] not in ("-h", "--help") else sys.stdout)
-        return 0 if argv and argv[0] in ("-h", "--help") else 2
+    usage = ("usage: mitsuba-manifold {" + ",".join(TOOLS) + "} [args...]\n\n"
+             "Run 'mitsuba-manifold TOOL --help' for a tool's options.")
+    if argv and argv[0] in ("-h", "--help"):
+        print(usage)
+        return 0
+    if not argv or argv[0] not in TOOLS:
+        what = f"unknown tool {argv[0]!r}" if argv else "no tool given"
+        print(f"error: {what}; one of: {', '.join(TOOLS)}\n{usage}", file=sys.stderr)
+        return 2
+    # argparse names the program after argv[0]: make usage lines read "mitsuba-manifold fit ...".
+    sys.argv = [f"mitsuba-manifold {argv[0]}"] + argv[1:]
     return importlib.import_module(f"{__name__}.{TOOLS[argv[0]]}").main(argv[1:])

@@ -2,6 +2,7 @@
 
 import argparse
 import functools
+import re
 import sys
 
 from ..errors import MitsubaManifoldError, one_line
@@ -12,8 +13,18 @@ ERRORS = (MitsubaManifoldError, OSError)
 INTERRUPTED = 130
 
 
+#: A latent point or list of numbers that starts with a minus sign ("-1.1,-0.2", "-1e-3 0.5"):
+#: argparse would take it for an option and refuse ``--x -1.1,-0.2``.
+_NUMBERS = re.compile(r"^-\.?\d[\d.eE+-]*(?:[,\s]+[-+]?\.?\d[\d.eE+-]*)*$")
+
+
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse with its errors as one line ``error: ...`` (exit 2), as every other error."""
+    """argparse with its errors as one line ``error: ...`` (exit 2), as every other error,
+    and negative numbers (also comma-separated lists of them) read as values, not options."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _NUMBERS
 
     def error(self, message):
         self.exit(2, f"error: {message} (see {self.prog} --help)\n")
