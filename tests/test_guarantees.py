@@ -348,8 +348,10 @@ def test_tools_read_a_moved_database(tmp_path, tiny):
     assert rc == 0, err
     rc, _, err = run_tool("blend", "--basis", tmp_path / "b", "--manifold", m, "--database", moved,
                           "--x", ",".join(map(str, man.latent[man.index("steel")])), "--out", tmp_path / "i.exr",
-                          "--render-reference", "--spp", 1)
+                          "--render-reference", "--spp", 1, "--png")
     assert rc == 0, err
+    for name in ("i.png", "i_reference.exr", "i_reference.png", "i_error.png"):
+        assert (tmp_path / name).is_file(), name
 
 
 # ------------------------------------------------------------ 12. Ctrl-C

@@ -187,6 +187,9 @@ def reference_image(args, basis, manifold, outputs):
                   "manifold_brdf clamps them to 0, a blend keeps them, so the two differ beyond L2+")
     ref_path = _stem(args.out) + "_reference.exr"
     outputs.append(("reference", ref_path, lambda: imageio.write_exr(ref_path, reference)))
+    if args.png:
+        ref_png = _stem(args.out) + "_reference.png"
+        outputs.append(("reference PNG", ref_png, lambda: imageio.write_png(ref_png, reference, args.exposure)))
     return reference
 
 
