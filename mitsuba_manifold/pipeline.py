@@ -170,9 +170,9 @@ def _save_point_images(stem, img, ref, denoised=None):
     for suffix, image in pairs:
         imageio.write_exr(f"{stem}_{suffix}.exr", image)
         imageio.write_png(f"{stem}_{suffix}.png", image)
-    metrics.write_error_png(f"{stem}_error.png", img, ref)
-    if denoised is not None:
-        metrics.write_error_png(f"{stem}_denoised_error.png", denoised, ref)
+    vmax = metrics.write_error_png(f"{stem}_error.png", img, ref)
+    if denoised is not None:   # on the raw error's scale, so that the two compare by eye
+        metrics.write_error_png(f"{stem}_denoised_error.png", denoised, ref, vmax=vmax)
 
 
 def run_main_job(out, resolution=(90, 90, 180), q=2, features="log", scene="table", res=256, spp=1024,
