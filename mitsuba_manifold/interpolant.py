@@ -1,0 +1,232 @@
+"""Interpolation weights ``w(x)``: how a latent point combines the measured tables.
+
+Every interpolant here is *linear in the tables*: the material at latent point ``x`` is
+``sum_i w_i(x) table_i`` with weights summing to 1, so a blend of pre-rendered images
+(paper Eq. 13) and the ``manifold_brdf`` plugin give the same material for the same ``w``.
+They differ only in the function ``w(x)``:
+
+``gp`` (the paper's Eq. 4)
+    ``b(x) = K_inv k(x)``, ``w = b + (1 - sum b) / N``. Affine: weights of both signs, so
+    interpolated tables can go negative and albedos leave [0, 1]; with ``exact=True`` the
+    kernel's noise term ``mu delta(x, x_i)`` applies at a training point, so ``w(x_i) = e_i``
+    but ``w`` jumps by ``mu |K_inv e_i|`` an infinitesimal step away.
+
+``shepard`` (the default)
+    Convex inverse-distance weights ``w_i ∝ |x - x_i|^-p exp(-|x - x_i|^2 / (2 h_i^2))``
+    (Shepard 1968, with a Gaussian taper of width ``h_i = max(h, s nn_i)`` in units of
+    ``l``, ``nn_i`` the distance from ``x_i`` to its nearest other point; ``h = inf`` is
+    plain Shepard). Non-negative, summing to 1, continuous everywhere and equal to
+    ``e_i`` at ``x_i`` (no jump): interpolated tables stay non-negative and albedos stay
+    inside the range of the measured ones. Far from every latent point the weights tend
+    to the mean material (``h = inf``) or to the nearest latent points (finite ``h``).
+
+Both give their analytic Jacobian ``dw/dx`` (:meth:`Interpolant.jacobian`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+import scipy.spatial.distance
+
+from . import gplvm
+
+KINDS = ("gp", "shepard")
+
+
+class InterpolantError(ValueError):
+    """Unknown interpolant or invalid parameters."""
+
+
+def _points(x, q):
+    x = np.asarray(x, dtype=np.float64)
+    single = x.ndim == 1
+    x = np.atleast_2d(x)
+    if x.ndim != 2 or x.shape[1] != q:
+        raise InterpolantError(f"latent point must have {q} coordinates, got shape {np.shape(x)}")
+    if not np.isfinite(x).all():
+        raise InterpolantError("latent point contains NaN or Inf")
+    return x, single
+
+
+class Interpolant:
+    """Weights ``w(x)`` over N latent points (rows of ``latent``); subclasses define them."""
+
+    kind = None
+
+    def __init__(self, latent):
+        self.latent = np.asarray(latent, dtype=np.float64)
+        self.n, self.q = self.latent.shape
+
+    def params(self):
+        """The parameters, as saved with a manifold (JSON-able)."""
+        raise NotImplementedError
+
+    def weights(self, x):
+        """Weights ``(M, N)`` (or ``(N,)`` for one point), each row summing to 1."""
+        x, single = _points(x, self.q)
+        w = self._weights(x)
+        return w[0] if single else w
+
+    def jacobian(self, x):
+        """``dw/dx``: ``(M, N, q)`` (or ``(N, q)`` for one point); columns sum to 0."""
+        x, single = _points(x, self.q)
+        J = self._jacobian(x)
+        return J[0] if single else J
+
+    def _hits(self, x):
+        """Pairs (row of x, latent index) where x equals a latent point exactly."""
+        return np.nonzero((x[:, None, :] == self.latent[None, :, :]).all(-1))
+
+
+class GaussianProcessWeights(Interpolant):
+    """The paper's weights (Eq. 4): ``b = K_inv k(x)``, ``w = b + (1 - sum b) / N``.
+
+    Parameters
+    ----------
+    latent : (N, q) array
+    length_scale, noise : float
+        ``l`` and ``mu`` of ``c(x, x') = mu delta + exp(-|x - x'|^2 / 2 l^2)``.
+    exact : bool
+        Apply the noise term ``mu delta(x, x_i)`` at training points (the paper's rule:
+        ``w(x_i) = e_i``, discontinuous there); False gives the continuous GP mean
+        ``b(x) = (K_smooth + mu I)^-1 k(x)`` everywhere.
+    """
+
+    kind = "gp"
+
+    def __init__(self, latent, length_scale=1.0, noise=1e-4, exact=True):
+        super().__init__(latent)
+        self.length_scale = float(length_scale)
+        self.noise = float(noise)
+        self.exact = bool(exact)
+        self.K = gplvm.kernel_matrix(self.latent, length_scale=self.length_scale, noise=self.noise)
+        try:
+            self._chol = scipy.linalg.cho_factor(self.K, lower=True)
+        except np.linalg.LinAlgError:
+            raise InterpolantError(
+                f"the covariance K of the {self.n} latent points is not positive definite "
+                f"(noise mu={self.noise:g} too small for coincident points?)") from None
+
+    def params(self):
+        return {"kind": self.kind, "length_scale": self.length_scale, "noise": self.noise,
+                "exact": self.exact}
+
+    def gp_weights(self, x):
+        """``b(x)`` (M, N) of Eq. 4."""
+        k = gplvm.kernel_matrix(x, self.latent, length_scale=self.length_scale)
+        b = scipy.linalg.cho_solve(self._chol, k.T).T
+        if self.exact:
+            rows, cols = self._hits(x)
+            single = np.bincount(rows, minlength=len(x))[rows] == 1
+            rows, cols = rows[single], cols[single]
+            b[rows] = 0.0  # k(x_i) + mu e_i is column i of K: K_inv of it is e_i exactly
+            b[rows, cols] = 1.0
+        return b
+
+    def _weights(self, x):
+        b = self.gp_weights(x)
+        return b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
+
+    def _jacobian(self, x):
+        # dk_i/dx = -k_i (x - x_i) / l^2; db = K_inv dk; dw = db - sum(db) / N
+        k = gplvm.kernel_matrix(x, self.latent, length_scale=self.length_scale)
+        dk = -k[:, :, None] * (x[:, None, :] - self.latent[None]) / self.length_scale ** 2
+        m, n, q = dk.shape
+        db = scipy.linalg.cho_solve(self._chol, dk.transpose(1, 0, 2).reshape(n, m * q))
+        db = db.reshape(n, m, q).transpose(1, 0, 2)
+        return db - db.sum(axis=1, keepdims=True) / n
+
+
+class ShepardWeights(Interpolant):
+    """Convex weights ``w_i ∝ r_i^-p exp(-r_i^2 / 2 h_i^2)``, ``r_i = |x - x_i| / l``.
+
+    Parameters
+    ----------
+    latent : (N, q) array
+    power : float
+        ``p > q`` keeps the weights local (far points' total weight converges).
+    taper : float
+        ``h`` in units of ``l`` (``inf``: none). Small values make the weights local: between
+        two neighbours, the material is a blend of those two.
+    spread : float
+        ``s``: each point's taper is at least ``s`` times its nearest-neighbour distance.
+    length_scale : float
+        ``l``: the unit of distances.
+    """
+
+    kind = "shepard"
+
+    def __init__(self, latent, power=2.0, taper=np.inf, spread=0.0, length_scale=1.0):
+        super().__init__(latent)
+        self.power = float(power)
+        self.taper = float(taper)
+        self.spread = float(spread)
+        self.length_scale = float(length_scale)
+        if not self.power > 0 or not self.taper > 0 or not self.length_scale > 0 or not self.spread >= 0:
+            raise InterpolantError(f"shepard weights need power > 0, taper > 0, spread >= 0 and length_scale > 0, "
+                                   f"got {self.power}, {self.taper}, {self.spread}, {self.length_scale}")
+        # per-point taper: at least spread x the distance to the nearest other point, so that
+        # a path between two far-apart neighbours is not squeezed into a few steps
+        d2 = scipy.spatial.distance.cdist(self.latent, self.latent, "sqeuclidean")
+        np.fill_diagonal(d2, np.inf)
+        nn = np.sqrt(d2.min(axis=1)) / self.length_scale if self.n > 1 else np.zeros(self.n)
+        self.tapers = np.maximum(self.taper, self.spread * nn)
+        self._inv_h2 = np.where(np.isfinite(self.tapers), 1.0 / self.tapers ** 2, 0.0)
+
+    def params(self):
+        return {"kind": self.kind, "power": self.power, "taper": self.taper, "spread": self.spread,
+                "length_scale": self.length_scale}
+
+    def _log_u(self, x):
+        """log of the unnormalised weights, ``+inf`` at a latent point; and ``x - x_i`` in units of l."""
+        diff = (x[:, None, :] - self.latent[None]) / self.length_scale
+        r2 = np.einsum("mnq,mnq->mn", diff, diff)
+        with np.errstate(divide="ignore"):
+            log_u = -0.5 * self.power * np.log(r2)
+        log_u -= 0.5 * r2 * self._inv_h2
+        return log_u, diff, r2
+
+    def _weights(self, x):
+        log_u, _, _ = self._log_u(x)
+        return _normalise(log_u)
+
+    def _jacobian(self, x):
+        log_u, diff, r2 = self._log_u(x)
+        w = _normalise(log_u)
+        hit = ~np.isfinite(log_u).all(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # d log u_i / dx = -(p / r^2 + 1 / h^2) (x - x_i) / l
+            g = -(self.power / r2 + self._inv_h2)[..., None] * diff / self.length_scale
+        g[~np.isfinite(g)] = 0.0
+        J = w[..., None] * (g - np.einsum("mn,mnq->mq", w, g)[:, None, :])
+        J[hit] = 0.0  # at a latent point w = e_i and (for p > 1) it is stationary
+        return J
+
+
+def _normalise(log_u):
+    """Softmax along the last axis, with ``+inf`` entries sharing the whole weight."""
+    inf = np.isposinf(log_u)
+    rows = inf.any(axis=1)
+    out = np.empty_like(log_u)
+    if (~rows).any():
+        lu = log_u[~rows]
+        e = np.exp(lu - lu.max(axis=1, keepdims=True))
+        out[~rows] = e / e.sum(axis=1, keepdims=True)
+    if rows.any():
+        hit = inf[rows].astype(np.float64)
+        out[rows] = hit / hit.sum(axis=1, keepdims=True)
+    return out
+
+
+def make(latent, params):
+    """An interpolant from saved parameters ``{"kind": ..., ...}``."""
+    params = dict(params)
+    kind = params.pop("kind", None)
+    cls = {"gp": GaussianProcessWeights, "shepard": ShepardWeights}.get(kind)
+    if cls is None:
+        raise InterpolantError(f"unknown interpolant kind {kind!r}; use one of {', '.join(KINDS)}")
+    try:
+        return cls(latent, **params)
+    except TypeError as e:
+        raise InterpolantError(f"interpolant {kind!r}: {e}") from None
