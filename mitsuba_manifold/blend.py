@@ -30,8 +30,9 @@ import numpy as np
 from .basis import BASE, Basis
 from .errors import BasisError
 
-#: Default pruning threshold (fraction of ``sum |w|``), as the ``manifold_brdf`` plugin.
-DEFAULT_PRUNE = 1e-3
+#: Default pruning budget (largest relative L2 change of the table), as ``Manifold.prune``
+#: and the ``manifold_brdf`` plugin (``manifold.DEFAULT_PRUNE``).
+DEFAULT_PRUNE = 1e-2
 #: How far the weights of one target may sum away from 1 in a multilinear blend.
 AFFINE_TOL = 1e-6
 

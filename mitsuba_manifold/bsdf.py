@@ -25,15 +25,13 @@ from .lookups import linear_axis, merl_angles, merl_bin
 from .sampling import (SAMPLING_CACHE_VERSION, SAMPLING_GRID, combined_density,  # noqa: F401
                        material_density, sampling_cache_path, sampling_density)
 from .errors import ManifoldBRDFError, ManifoldError, VariantError
-from .manifold import Manifold
+from .manifold import DEFAULT_PRUNE, Manifold
 from .overrides import database_folder
 from .validate import weight_sum
 
 PLUGIN_NAME = "manifold_brdf"
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
 COSINE_FRACTION = 0.1
-#: Default of the ``prune`` parameter (fraction of ``sum |w|``, as Manifold.prune).
-DEFAULT_PRUNE = 1e-3
 
 SAMPLING_MODES = ("cdf", "cosine")
 INTERPOLATION_MODES = ("nearest", "linear")
@@ -106,8 +104,9 @@ class ManifoldBRDF:
     database : str
         Folder of ``.binary`` tables, overriding the manifold's; checked by hash.
     prune : float
-        Drop materials with ``|w_i| <= prune * sum |w|`` (default 1e-3); the weight
-        dropped is reported by ``to_string()``.
+        Drop the materials of smallest contribution ``|w_i| |table_i|`` while the table
+        changes by at most ``prune`` of its L2 norm (default 0.01, :meth:`Manifold.prune`);
+        the table error and the weight dropped are reported by ``to_string()``.
     sampling : ``"cdf"`` or ``"cosine"``
         Tabulated importance sampling (default) or the cosine hemisphere alone.
     interpolation : ``"nearest"`` or ``"linear"``
@@ -212,6 +211,7 @@ class ManifoldBRDF:
         return [self._manifold.names[i] for i in self._keep]
 
     dropped_weight = _read_only("_dropped", "``sum |w_i|`` of the materials dropped by pruning.")
+    prune_error = _read_only("_prune_error", "Relative L2 change of the table made by pruning (exact).")
     clamped_bins = _read_only("_n_clamped", "Number of (channel, bin) values of the combined table clamped below 0.")
 
     def set_latent(self, x):
@@ -298,6 +298,7 @@ class ManifoldBRDF:
         self._material = material
         self._keep = np.asarray(keep)
         self._dropped = float(dropped)
+        self._prune_error = m.prune_error(w, keep)
         self._n_clamped = n_clamped
         self._n_values = int(table.size)
         self._black = black
@@ -492,7 +493,8 @@ class ManifoldBRDF:
                 f"  database = {self._database or self._manifold.database},\n"
                 f"  {what},\n"
                 f"  weights used = {top}{more},\n"
-                f"  dropped weight = {self._dropped:.4g} (prune = {self._prune:g}),\n"
+                f"  pruning: table error {100 * self._prune_error:.3g}% (L2), dropped weight = {self._dropped:.4g} "
+                f"(prune = {self._prune:g}),\n"
                 f"  resolution = {self._dims[0]}x{self._dims[1]}x{self._dims[2]},\n"
                 f"  clamped bins = {self._n_clamped} of {self._n_values} values below 0,\n"
                 f"  interpolation = {self._interpolation},\n"

@@ -51,6 +51,10 @@ class ManifoldError(InputError):
     """A bad manifold file, latent point or weight set."""
 
 
+class InterpolantError(ManifoldError):
+    """An unknown interpolant or invalid interpolant parameters."""
+
+
 class ManifoldBRDFError(InputError):
     """Bad parameters of a ``manifold_brdf`` (the message names the parameter)."""
 

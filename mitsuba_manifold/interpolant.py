@@ -26,19 +26,16 @@ Both give their analytic Jacobian ``dw/dx`` (:meth:`Interpolant.jacobian`).
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 import scipy.spatial.distance
 
-from . import gplvm
+from . import kernel
+from .errors import InterpolantError, NotPositiveDefiniteError
 
 KINDS = ("gp", "shepard")
 
 
-class InterpolantError(ValueError):
-    """Unknown interpolant or invalid parameters."""
-
-
-def _points(x, q):
+def points(x, q):
+    """``x`` as an ``(M, q)`` float array and whether it was a single point; clear errors otherwise."""
     x = np.asarray(x, dtype=np.float64)
     single = x.ndim == 1
     x = np.atleast_2d(x)
@@ -64,15 +61,21 @@ class Interpolant:
 
     def weights(self, x):
         """Weights ``(M, N)`` (or ``(N,)`` for one point), each row summing to 1."""
-        x, single = _points(x, self.q)
+        x, single = points(x, self.q)
         w = self._weights(x)
         return w[0] if single else w
 
     def jacobian(self, x):
         """``dw/dx``: ``(M, N, q)`` (or ``(N, q)`` for one point); columns sum to 0."""
-        x, single = _points(x, self.q)
+        x, single = points(x, self.q)
         J = self._jacobian(x)
         return J[0] if single else J
+
+    def jump(self, eps=1e-9):
+        """``max_i |w(x_i + eps l u) - e_i|_1``: how much the weights jump next to a training point."""
+        u = np.zeros_like(self.latent)
+        u[:, 0] = eps * getattr(self, "length_scale", 1.0)
+        return float(np.abs(self._weights(self.latent + u) - np.eye(self.n)).sum(axis=1).max())
 
     def _hits(self, x):
         """Pairs (row of x, latent index) where x equals a latent point exactly."""
@@ -100,10 +103,10 @@ class GaussianProcessWeights(Interpolant):
         self.length_scale = float(length_scale)
         self.noise = float(noise)
         self.exact = bool(exact)
-        self.K = gplvm.kernel_matrix(self.latent, length_scale=self.length_scale, noise=self.noise)
+        self.K = kernel.kernel_matrix(self.latent, length_scale=self.length_scale, noise=self.noise)
         try:
-            self._chol = scipy.linalg.cho_factor(self.K, lower=True)
-        except np.linalg.LinAlgError:
+            self._factor = kernel.factorise(self.K)
+        except NotPositiveDefiniteError:
             raise InterpolantError(
                 f"the covariance K of the {self.n} latent points is not positive definite "
                 f"(noise mu={self.noise:g} too small for coincident points?)") from None
@@ -112,10 +115,20 @@ class GaussianProcessWeights(Interpolant):
         return {"kind": self.kind, "length_scale": self.length_scale, "noise": self.noise,
                 "exact": self.exact}
 
+    def jump(self, eps=1e-9):
+        """Exact for ``exact=True``: at ``x_i`` the noise term makes ``w = e_i``; an infinitesimal
+        step away it is absent and ``b = e_i - mu K_inv e_i``. The paper calls this negligible;
+        it is only when K's smooth part is well conditioned (points far apart compared with l)."""
+        if not self.exact:
+            return super().jump(eps)
+        db = -self.noise * self._factor.inverse()          # column i: b(x_i+) - e_i
+        dw = db - db.sum(axis=0, keepdims=True) / self.n  # the affine weights' change
+        return float(np.abs(dw).sum(axis=0).max())
+
     def gp_weights(self, x):
         """``b(x)`` (M, N) of Eq. 4."""
-        k = gplvm.kernel_matrix(x, self.latent, length_scale=self.length_scale)
-        b = scipy.linalg.cho_solve(self._chol, k.T).T
+        k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
+        b = self._factor.solve(k.T).T
         if self.exact:
             rows, cols = self._hits(x)
             single = np.bincount(rows, minlength=len(x))[rows] == 1
@@ -130,10 +143,10 @@ class GaussianProcessWeights(Interpolant):
 
     def _jacobian(self, x):
         # dk_i/dx = -k_i (x - x_i) / l^2; db = K_inv dk; dw = db - sum(db) / N
-        k = gplvm.kernel_matrix(x, self.latent, length_scale=self.length_scale)
+        k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
         dk = -k[:, :, None] * (x[:, None, :] - self.latent[None]) / self.length_scale ** 2
         m, n, q = dk.shape
-        db = scipy.linalg.cho_solve(self._chol, dk.transpose(1, 0, 2).reshape(n, m * q))
+        db = self._factor.solve(dk.transpose(1, 0, 2).reshape(n, m * q))
         db = db.reshape(n, m, q).transpose(1, 0, 2)
         return db - db.sum(axis=1, keepdims=True) / n
 

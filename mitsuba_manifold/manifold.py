@@ -9,26 +9,37 @@ A fitted :class:`Manifold` places each of N measured materials at a latent point
 
 so every interpolated material is an affine combination (weights ``w`` summing to 1) of
 the measured tables: training materials are reproduced exactly, and far from every
-latent point ``b -> 0`` and the material tends to the mean BRDF.
+latent point ``b -> 0`` and the material tends to the mean BRDF. That is ``preset="paper"``.
+
+The default preset keeps the GPLVM layout but fits it on ``log(1 + rho)`` features in
+q = 3 dimensions and interpolates with convex, continuous, local weights
+(:class:`interpolant.ShepardWeights`): still a linear combination of the tables (so blends
+of images stay exact), but never negative, without a jump next to the training points, and
+a point between two neighbours is a blend of those two. The choice is measured by
+``tools/bench.py space`` (README, "The material space").
 """
 
-import json
 import os
 import time
 from typing import NamedTuple
 
 import numpy as np
-from . import gplvm, kernel
-from .atomic import atomic_write
+from . import gplvm, kernel, manifold_file, pruning
+from . import interpolant as interpolants
+from . import projection as projection_mod
+from .presets import PRESETS, fit_layout, make_interpolant, settings  # noqa: F401 (re-exported)
 from .database import FEATURES, Database
 from .errors import ManifoldError, NotPositiveDefiniteError
 from .validate import weight_sum
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = manifold_file.FORMAT_VERSION
+
+#: Default pruning budget: largest relative L2 change of the table (see :meth:`Manifold.prune`).
+DEFAULT_PRUNE = 1e-2
 
 
 class Weights(NamedTuple):
-    """:meth:`Manifold.weights`: GP weights ``b = K^-1 k(x)`` (Eq. 4) and affine weights ``w``."""
+    """:meth:`Manifold.weights`: ``b`` (Eq. 4's ``K^-1 k(x)`` for GP weights, else ``w - 1/N``) and weights ``w``."""
 
     b: np.ndarray
     w: np.ndarray
@@ -72,11 +83,17 @@ class Manifold:
     history : ndarray
         Log-likelihood per optimiser iteration.
     info : dict
-        Fit details (method, times, final log-likelihood, d, dims, ...).
+        Fit details (method, times, final log-likelihood, d, dims, preset, ...).
+    interpolant : interpolant.Interpolant
+        The weight function ``w(x)`` (built from the ``interpolant`` parameters; default the
+        paper's GP weights on ``length_scale`` and ``noise``).
+    table_gram : ndarray (N, N) or None
+        ``T T^T`` of the raw tables (exact pruning errors); computed on first use when absent.
     """
 
     def __init__(self, names, latent, database, hashes, length_scale=1.0, noise=1e-4,
-                 features="raw", albedos=None, gram=None, history=(), info=None):
+                 features="raw", albedos=None, gram=None, history=(), info=None, interpolant=None,
+                 table_gram=None):
         latent = np.asarray(latent, dtype=np.float64)
         if latent.ndim != 2 or latent.shape[0] != len(names):
             raise ManifoldError(f"latent points must have shape (N={len(names)}, q), got {latent.shape}")
@@ -95,14 +112,21 @@ class Manifold:
         self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
         self.history = np.asarray(history, dtype=np.float64)
         self.info = dict(info or {})
+        self.table_gram = None if table_gram is None else np.asarray(table_gram, dtype=np.float64)
         self._factorise()
+        self.interpolant = make_interpolant(self.latent, {
+            "length_scale": self.length_scale, "noise": self.noise,
+            "interpolant": interpolant or {"kind": "gp", "exact": True}})
         self._tables = None
 
     # ------------------------------------------------------------------ fit
     @classmethod
-    def fit(cls, database, q=2, names=None, method="hooke-jeeves", length_scale=1.0,
-            noise=1e-4, features="raw", init=None, progress=False, **options):
+    def fit(cls, database, q=None, names=None, method=None, length_scale=None, noise=None,
+            features=None, init=None, progress=False, preset="default", interpolant=None, **options):
         """Fit latent points to the tables of ``database`` (paper Sec. 3).
+
+        ``Manifold.fit(database)`` fits the default preset; ``preset="paper"`` the paper's
+        exact formulation. Any other argument given overrides the preset's value.
 
         Parameters
         ----------
@@ -118,9 +142,16 @@ class Manifold:
             Transform of the tables for the fit only; interpolation always combines raw tables.
         init : ndarray (N, q), optional
             Starting latent points (default: PCA).
+        preset : {"default", "paper"}
+            See :data:`PRESETS`.
+        interpolant : dict, optional
+            Weight function parameters (``{"kind": "gp", "exact": True}``,
+            ``{"kind": "shepard", "power": 2, "taper": 0.3}``; see :mod:`interpolant`).
         **options
             Passed to :func:`gplvm.fit_latent` (``max_iter``, ``tol``, ...).
         """
+        cfg = settings(preset, q=q, method=method, length_scale=length_scale, noise=noise,
+                       features=features, interpolant=interpolant)
         db = database if isinstance(database, Database) else Database(database, names)
         names = db.names if names is None else list(names)
         if len(names) < 2:
@@ -129,18 +160,18 @@ class Manifold:
         tables = db.stack(names, progress=progress)
         t_load = time.perf_counter() - t0
         t0 = time.perf_counter()
-        _, S = db.gram(names, features=features, tables=tables)
+        table_gram = np.zeros((len(names), len(names)))
+        _, S = db.gram(names, features=cfg["features"], tables=tables, raw_out=table_gram)
         t_gram = time.perf_counter() - t0
         d = tables.shape[1]
-        result = gplvm.fit_latent(S, d, q=q, method=method, length_scale=length_scale,
-                                  noise=noise, init=init, **options)
+        result = fit_layout(S, d, cfg, init=init, **options)
         albedos = db.albedo(names, tables=tables)
-        info = {"method": method, "d": int(d), "dims": list(db.dims), "q": int(q),
-                "log_likelihood": float(result.log_likelihood), "time_load_s": t_load,
+        info = {"method": cfg["method"], "d": int(d), "dims": list(db.dims), "q": int(cfg["q"]),
+                "preset": preset, "log_likelihood": float(result.log_likelihood), "time_load_s": t_load,
                 "time_gram_s": t_gram, "time_fit_s": float(result.time_s),
                 "n_evaluations": int(result.n_evaluations)}
-        m = cls(names, result.latent, db.folder, db.hashes(names), length_scale, noise,
-                features, albedos, S, result.history, info)
+        m = cls(names, result.latent, db.folder, db.hashes(names), cfg["length_scale"], cfg["noise"],
+                cfg["features"], albedos, S, result.history, info, cfg["interpolant"], table_gram)
         m._tables = tables
         return m
 
@@ -167,17 +198,10 @@ class Manifold:
 
     # ------------------------------------------------------------- weights
     def _points(self, x):
-        x = np.asarray(x, dtype=np.float64)
-        single = x.ndim == 1
-        x = np.atleast_2d(x)
-        if x.ndim != 2 or x.shape[1] != self.q:
-            raise ManifoldError(f"latent point must have {self.q} coordinates, got shape {np.shape(x)[-1:] if single else np.shape(x)}")
-        if not np.isfinite(x).all():
-            raise ManifoldError("latent point contains NaN or Inf")
-        return x, single
+        return interpolants.points(x, self.q)
 
     def weights(self, x):
-        """GP weights ``b(x) = K_inv k(x)`` and affine weights ``w`` (sum to 1).
+        """Weights of the interpolant at ``x``: ``b`` and the affine weights ``w`` (sum to 1).
 
         Parameters
         ----------
@@ -187,22 +211,34 @@ class Manifold:
         -------
         Weights
             ``(b, w)``, each ndarray (N,) or (M, N).
-            ``sum_i w_i table_i = mean + b^T Z`` exactly. At a training point the kernel's
-            noise term ``mu delta(x, x_i)`` applies, so ``w = e_i``.
+            ``sum_i w_i table_i = mean + b^T Z`` exactly. For the paper's GP weights ``b`` is
+            Eq. 4's ``K_inv k(x)`` (at a training point the noise term ``mu delta(x, x_i)``
+            applies, so ``w = e_i``); for other interpolants ``b = w - 1/N``.
         """
         x, single = self._points(x)
-        k, hits = self._cross(x)
-        b = self._factor.solve(k.T).T
-        rows, cols = hits
-        single_hit = np.bincount(rows, minlength=len(x))[rows] == 1
-        rows, cols = rows[single_hit], cols[single_hit]
-        b[rows] = 0.0  # k(x_i) is then column i of K, so K_inv k = e_i exactly
-        b[rows, cols] = 1.0
-        w = b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
+        ip = self.interpolant
+        if isinstance(ip, interpolants.GaussianProcessWeights):
+            b = ip.gp_weights(x)
+            w = b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
+        else:
+            w = ip.weights(x)
+            b = w - 1.0 / self.n
         return Weights(b[0], w[0]) if single else Weights(b, w)
 
+    def weights_jacobian(self, x):
+        """``dw/dx`` of the interpolant, analytic: ``(N, q)`` for one point, ``(M, N, q)`` for M.
+
+        For the paper's GP weights, ``dk_i/dx = -k_i (x - x_i) / l^2`` and ``dw = K_inv dk``
+        minus its mean (the smooth part; at a training point the derivative of the limit
+        from outside). For Shepard weights see :class:`interpolant.ShepardWeights`.
+        Columns sum to 0 (the weights always sum to 1).
+        """
+        x, single = self._points(x)
+        J = self.interpolant.jacobian(x)
+        return J[0] if single else J
+
     def _cross(self, x):
-        """Covariances ``k(x)`` (M, N) with the noise term where x equals a latent point."""
+        """GP covariances ``k(x)`` (M, N) with the noise term where x equals a latent point."""
         k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
         hits = np.nonzero((x[:, None, :] == self.latent[None, :, :]).all(-1))
         k[hits] += self.noise
@@ -301,11 +337,23 @@ class Manifold:
                     f"(hash {db.hash(name)[:12]} != {self.hashes[self.index(name)][:12]})")
         return db
 
-    def prune(self, w, prune=1e-3):
+    def table_norms(self):
+        """L2 norm of each raw table (from :attr:`table_gram`)."""
+        return np.sqrt(np.maximum(np.diag(self._table_gram()), 0.0))
+
+    def _table_gram(self):
+        if self.table_gram is None:  # manifolds saved by the previous release
+            self.table_gram = pruning.raw_gram(self.tables())
+        return self.table_gram
+
+    def prune(self, w, prune=DEFAULT_PRUNE):
         """Materials kept by pruning and the weight dropped.
 
-        Keeps ``|w_i| > prune * sum(|w|)``, and always the largest ``|w_i|``; the kept
-        weights are rescaled to sum to ``sum(w)`` so the combination stays affine.
+        Drops the materials of smallest contribution ``|w_i| |table_i|`` for as long as the
+        table changes by at most ``prune`` of its L2 norm; the kept weights are rescaled to
+        sum to ``sum(w)`` so the combination stays affine. The change is computed exactly from
+        the tables' Gram matrix (:func:`pruning.prune`), rescaling included; ``prune = 0``
+        keeps every non-zero weight.
 
         Returns
         -------
@@ -318,14 +366,11 @@ class Manifold:
             raise ManifoldError(f"weights must be {self.n} finite values, got shape {w.shape}")
         if not 0 <= prune < 1:
             raise ManifoldError(f"prune must be in [0, 1), got {prune}")
-        big = np.abs(w) > prune * np.abs(w).sum()
-        big[np.argmax(np.abs(w))] = True  # never drop every material
-        keep = np.flatnonzero(big)
-        dropped = float(np.abs(w).sum() - np.abs(w[keep]).sum())
-        w_kept = w[keep]
-        if keep.size and abs(w_kept.sum()) > 0:
-            w_kept = w_kept * (w.sum() / w_kept.sum())
-        return Pruned(keep, w_kept, dropped)
+        return Pruned(*pruning.prune(w, self._table_gram(), prune))
+
+    def prune_error(self, w, keep):
+        """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled)."""
+        return pruning.error(np.asarray(w, dtype=np.float64), keep, self._table_gram())
 
     def tables(self, database=None):
         """All N tables in memory as float32 ``(N, d)`` (loaded once, then kept)."""
@@ -333,7 +378,7 @@ class Manifold:
             self._tables = self.open_database(database).stack(self.names)
         return self._tables
 
-    def combine(self, w, prune=1e-3, database=None):
+    def combine(self, w, prune=DEFAULT_PRUNE, database=None):
         """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`.
 
         Reads only the kept materials' tables (unless all tables are already in memory).
@@ -351,19 +396,19 @@ class Manifold:
                 full = np.zeros(self.n, dtype=np.float32)
                 full[keep] = w_kept
                 return Combination((full @ self._tables).reshape(shape), keep, dropped)
-            flat = _weighted_sum((self._tables[i] for i in keep), w_kept, self._tables.shape[1])
+            flat = pruning.weighted_sum((self._tables[i] for i in keep), w_kept, self._tables.shape[1])
             return Combination(flat.reshape(shape), keep, dropped)
         db = self.open_database(database, [self.names[i] for i in keep])
-        flat = _weighted_sum((db.reflectance(self.names[i]).reshape(-1) for i in keep), w_kept,
+        flat = pruning.weighted_sum((db.reflectance(self.names[i]).reshape(-1) for i in keep), w_kept,
                              3 * int(np.prod(db.dims)))
         return Combination(flat.reshape((3,) + db.dims), keep, dropped)
 
-    def interpolate(self, x, prune=1e-3, database=None):
+    def interpolate(self, x, prune=DEFAULT_PRUNE, database=None):
         """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""
         _, w = self.weights(x)
         return self.combine(w, prune, database)
 
-    def negative_fraction(self, x, prune=1e-3, database=None):
+    def negative_fraction(self, x, prune=DEFAULT_PRUNE, database=None):
         """Fraction of the interpolated table's values below 0 at ``x``.
 
         ``manifold_brdf`` clamps them to 0, a blend of images cannot: where this is not
@@ -382,6 +427,29 @@ class Manifold:
             raise ManifoldError("this manifold has no per-material albedos")
         _, w = self.weights(x)
         return w @ self.albedos
+
+    def project(self, table, **options):
+        """The latent point whose material is closest to ``table`` (any MERL table).
+
+        Parameters
+        ----------
+        table : ndarray or path
+            Reflectance table of this manifold's resolution (``(3,) + dims`` or flat, as
+            :meth:`Database.reflectance`), or the path of a MERL ``.binary`` file.
+        **options
+            Passed to :func:`projection.project` (``bins``, ``n_nearest``, ...).
+
+        Returns
+        -------
+        projection.Projection
+            ``x``, ``error`` (RMS of ``log(1 + rho)`` differences over all bins), ``weights``,
+            the nearest training material and its error, the negative-bin fraction.
+        """
+        table = projection_mod.as_table(table, 3 * int(np.prod(self.info.get("dims", (0,)))), self.info.get("dims"))
+        try:
+            return projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
+        except ValueError as e:
+            raise ManifoldError(str(e)) from None
 
     # ----------------------------------------------------------- diagnostics
     def condition_number(self):
@@ -416,15 +484,10 @@ class Manifold:
     def discontinuity(self):
         """Largest jump of the weights when leaving a training point, ``max_i |w(x_i+) - e_i|_1``.
 
-        At ``x_i`` the kernel's noise term ``mu delta(x, x_i)`` makes ``w = e_i`` exactly; an
-        infinitesimal step away it is absent and ``b = e_i - mu K_inv e_i``. The paper calls
-        this discontinuity negligible; it is only when K's smooth part is well conditioned
-        (latent points well apart compared with ``l``). Values near 1 mean that next to a
-        training point the material is already a blend of its neighbours.
+        See :meth:`interpolant.Interpolant.jump`: up to ~2 for the paper's GP weights when
+        latent points are close compared with ``l``, ~0 for the continuous Shepard weights.
         """
-        db = -self.noise * self.K_inv                   # column i: b(x_i+) - e_i
-        dw = db - db.sum(axis=0, keepdims=True) / self.n  # the affine weights' change
-        return float(np.abs(dw).sum(axis=0).max())
+        return self.interpolant.jump()
 
     def coincident(self, tol=1e-2):
         """Materials whose nearest latent point lies within ``tol * l`` (indistinguishable to the GP).
@@ -439,8 +502,11 @@ class Manifold:
 
     def summary(self):
         """Short human-readable description."""
+        params = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+                           for k, v in self.interpolant.params().items() if k not in ("kind", "length_scale", "noise"))
         lines = [f"Manifold: {self.n} materials, q={self.q}, l={self.length_scale:g}, mu={self.noise:g}, "
-                 f"features={self.features}",
+                 f"features={self.features}, preset={self.info.get('preset', 'paper')}",
+                 f"  interpolant: {self.interpolant.kind}" + (f" ({params})" if params else ""),
                  f"  database: {self.database}",
                  f"  cond(K) = {self.condition_number():.3g}"]
         lines.append(f"  weight jump next to a training point (max |w(x_i+) - e_i|_1): {self.discontinuity():.3g}")
@@ -457,64 +523,21 @@ class Manifold:
 
     # ------------------------------------------------------------ save/load
     def save(self, path):
-        """Write to ``.npz`` (no pickle), atomically."""
-        meta = {"format": "mitsuba-manifold", "version": FORMAT_VERSION, "names": self.names,
-                "database": self.database, "hashes": self.hashes, "length_scale": self.length_scale,
-                "noise": self.noise, "features": self.features, "info": self.info}
-        arrays = {"latent": self.latent, "history": self.history, "meta": np.array(json.dumps(meta))}
-        if self.albedos is not None:
-            arrays["albedos"] = self.albedos
-        if self.gram is not None:
-            arrays["gram"] = self.gram
-        path = os.fspath(path)
-        atomic_write(path, lambda f: np.savez(f, **arrays))
+        """Write to ``.npz`` (no pickle), atomically (:func:`manifold_file.write`)."""
+        manifold_file.write(self, path)
 
     @classmethod
     def load(cls, path):
-        """Read a manifold written by :meth:`save`.
+        """Read a manifold written by :meth:`save` (:func:`manifold_file.read`).
+
+        Files of format version 1 (the previous release) load with the paper's GP weights on
+        their stored ``l`` and ``mu`` (what they were used with); refit for the default.
 
         Raises
         ------
         ManifoldError
             Missing, corrupt or foreign files.
         """
-        path = os.fspath(path)
-        if not os.path.exists(path):
-            raise ManifoldError(f"manifold file {path} does not exist")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(str(z["meta"]))
-                arrays = {k: z[k] for k in z.files if k != "meta"}
-        except Exception as e:  # zipfile, json and key errors all mean a damaged file
-            raise ManifoldError(f"{path}: not a readable manifold file ({type(e).__name__}: {e})") from None
-        if meta.get("format") != "mitsuba-manifold":
-            raise ManifoldError(f"{path}: not a mitsuba-manifold file")
-        if meta.get("version", 0) > FORMAT_VERSION:
-            raise ManifoldError(f"{path}: format version {meta['version']} is newer than this package reads")
-        try:
-            m = cls(meta["names"], arrays["latent"], meta["database"], meta["hashes"],
-                    meta["length_scale"], meta["noise"], meta["features"], arrays.get("albedos"),
-                    arrays.get("gram"), arrays.get("history", ()), meta.get("info"))
-        except KeyError as e:
-            raise ManifoldError(f"{path}: missing field {e}") from None
-        m.path = path
+        m = cls(**manifold_file.read(path))
+        m.path = os.fspath(path)
         return m
-
-
-def _weighted_sum(rows, weights, size, chunk=1 << 18):
-    """``sum_k weights[k] * rows[k]`` in float32, one read of each row.
-
-    Loops over chunks of bins outside and rows inside, so the accumulator and the scaled
-    chunk stay in cache and no full-size temporary is made.
-    """
-    rows = [np.asarray(r).reshape(-1) for r in rows]
-    weights = np.asarray(weights, dtype=np.float32)
-    out = np.zeros(size, dtype=np.float32)
-    tmp = np.empty(min(chunk, size), dtype=np.float32)
-    for start in range(0, size, chunk):
-        acc = out[start:start + chunk]
-        t = tmp[:len(acc)]
-        for row, wk in zip(rows, weights):
-            np.multiply(row[start:start + chunk], wk, out=t)
-            acc += t
-    return out

@@ -152,11 +152,44 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, res, basis_spp, ref_spp, 
         images, _, _ = blend_path(b, m, *pair, steps=20)
         imageio.write_contact_sheet(f"{stem}_path_sheet.png", images,
                                     labels=[f"{t:.2f}" for t in np.linspace(0, 1, len(images))])
+<<<<<<< HEAD
     out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows,
            "basis_folder": os.path.abspath(folder_b)}
+=======
+        extrapolation_sheet(b, m, pair, f"{stem}_extrapolation_sheet", log=print if progress else None)
+    out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows}
+>>>>>>> 8574611 (Default manifold: log features, q=3, convex Shepard weights; preset paper; Manifold.project and tools/project.py; weights_jacobian; pruning by contribution with exact L2 error; saved-file v2; bench space; latent map hatching and data reach; extrapolation sheet)
     if aovs is not None:
         out["aovs_time_s"] = aovs.time_s
     return out
+
+
+def extrapolation_sheet(basis, m, pair, stem, steps=12, reach=3.0, log=None):
+    """Contact sheet along the ray from ``pair[0]`` through ``pair[1]`` and on out of the data.
+
+    ``x(t) = x_a + t (x_b - x_a)``, ``t`` from 0 to ``reach``: beyond ``t = 1`` the path leaves
+    the data. Each frame is labelled with its plausibility figures (albedo, fraction of the
+    table below 0, largest weight); they are also written to ``<stem>.json``. Returns the rows.
+    """
+    xa, xb = m.latent[m.index(pair[0])], m.latent[m.index(pair[1])]
+    ts = np.linspace(0.0, reach, steps)
+    rows, images = [], []
+    for t in ts:
+        x = xa + t * (xb - xa)
+        img, _ = blend(basis, m, x=x)
+        w = m.weights(x).w
+        a = m.albedo(x)
+        rows.append({"t": float(t), "x": x.tolist(), "albedo": a.tolist(), "negative_fraction": m.negative_fraction(x),
+                     "largest_weight": [m.names[int(np.argmax(w))], float(w.max())]})
+        images.append(img)
+    labels = [f"t={r['t']:.2f} alb {np.mean(r['albedo']):.2f} neg {100 * r['negative_fraction']:.1f}%" for r in rows]
+    imageio.write_contact_sheet(stem + ".png", np.stack(images), labels=labels, columns=6)
+    write_bytes(stem + ".json", json.dumps({"from": pair[0], "through": pair[1], "rows": rows}, indent=1))
+    if log:
+        for r, lab in zip(rows, labels):
+            log(f"  extrapolation {lab}, albedo RGB {', '.join(f'{v:.3f}' for v in r['albedo'])}, "
+                f"largest weight {r['largest_weight'][0]} {r['largest_weight'][1]:.2f}")
+    return rows
 
 
 def _denoised(image, guides):
@@ -175,8 +208,9 @@ def _save_point_images(stem, img, ref, denoised=None):
         metrics.write_error_png(f"{stem}_denoised_error.png", denoised, ref, vmax=vmax)
 
 
-def run_main_job(out, resolution=(90, 90, 180), q=2, features="log", scene="table", res=256, spp=1024,
-                 ref_spp=2048, mode="onepass", direct_spp=(1, 4, 16, 64, 256), denoise=True, log=print):
+def run_main_job(out, resolution=(90, 90, 180), q=None, features=None, scene="table", res=256, spp=1024,
+                 ref_spp=2048, mode="onepass", direct_spp=(1, 4, 16, 64, 256), denoise=True, log=print,
+                 preset="default"):
     """The main job: database, manifold, plots, basis and blends of ``scene``, ``gi/report.json``.
 
     ``log(text)`` reports progress (stages and results). Returns the GI report (with
@@ -192,8 +226,8 @@ def run_main_job(out, resolution=(90, 90, 180), q=2, features="log", scene="tabl
     stages["tabulate_s"] = time.perf_counter() - t0
     log(f"100 tables ready ({stages['tabulate_s']:.1f} s)")
 
-    log(f"\n== manifold: q={q}, features={features}")
-    m = Manifold.fit(db_dir, q=q, features=features, progress=True)
+    log(f"\n== manifold: preset {preset}" + (f", q={q}" if q else "") + (f", features={features}" if features else ""))
+    m = Manifold.fit(db_dir, q=q, features=features, preset=preset, progress=True)
     m.save(manifold_path)
     stages.update(load_s=m.info["time_load_s"], gram_s=m.info["time_gram_s"], fit_s=m.info["time_fit_s"])
     log(m.summary())

@@ -29,11 +29,11 @@ def finish(fig, axes, path):
     return path
 
 
-def albedo_grid(manifold, dims=(0, 1), resolution=160, margin=0.15):
-    """Albedo (mean of RGB) of the interpolated material over a 2D slice of the latent space.
+def slice_points(manifold, dims=(0, 1), resolution=160, margin=0.15):
+    """Grid over a 2D slice of the latent space: ``(xs, ys, points (ny * nx, q))``.
 
     The slice spans latent coordinates ``dims``; the other coordinates are fixed at the
-    mean of the latent points. Returns ``(xs, ys, albedo[ny, nx])``.
+    mean of the latent points.
     """
     lo = manifold.latent[:, dims].min(axis=0)
     hi = manifold.latent[:, dims].max(axis=0)
@@ -44,28 +44,71 @@ def albedo_grid(manifold, dims=(0, 1), resolution=160, margin=0.15):
     pts = np.tile(manifold.latent.mean(axis=0), (gx.size, 1))
     pts[:, dims[0]] = gx.ravel()
     pts[:, dims[1]] = gy.ravel()
-    return xs, ys, manifold.albedo(pts).mean(axis=1).reshape(gx.shape)
+    return xs, ys, pts
+
+
+def albedo_grid(manifold, dims=(0, 1), resolution=160, margin=0.15):
+    """Albedo (mean of RGB) of the interpolated material over a 2D slice (:func:`slice_points`).
+
+    Returns ``(xs, ys, albedo[ny, nx])``.
+    """
+    xs, ys, pts = slice_points(manifold, dims, resolution, margin)
+    return xs, ys, manifold.albedo(pts).mean(axis=1).reshape(len(ys), len(xs))
+
+
+def data_distance(manifold, pts):
+    """Distance (in units of l) from each point to the nearest latent point, and the reach of the data.
+
+    The reach is twice the median nearest-neighbour spacing of the latent points: closer than
+    that to a material, a point is among the data; farther, it extrapolates.
+    """
+    d2 = ((pts[:, None, :] - manifold.latent[None]) ** 2).sum(-1)
+    nn = ((manifold.latent[:, None] - manifold.latent[None]) ** 2).sum(-1)
+    np.fill_diagonal(nn, np.inf)
+    reach = 2.0 * float(np.median(np.sqrt(nn.min(axis=1))))
+    return np.sqrt(d2.min(axis=1)) / manifold.length_scale, reach / manifold.length_scale
 
 
 def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
     """PNG of the latent points with their names over the albedo heat map and iso-lines.
 
-    Paper Fig. 7 and 10. For ``q > 2`` the map is a slice through ``dims``.
+    Paper Fig. 7 and 10. Where any RGB albedo channel leaves [0, 1] the map is hatched; a
+    dashed line encloses where the data lives (:func:`data_distance`). For ``q > 2`` the map
+    is a slice through ``dims`` at the mean of the other coordinates; materials far from the
+    slice are drawn hollow.
     """
     plt = figure()
-    xs, ys, alb = albedo_grid(manifold, dims, resolution)
+    xs, ys, pts = slice_points(manifold, dims, resolution)
+    rgb = manifold.albedo(pts)
+    shape = (len(ys), len(xs))
+    alb = rgb.mean(axis=1).reshape(shape)
+    outside = ((rgb < 0) | (rgb > 1)).any(axis=1).reshape(shape)
+    dist, reach = data_distance(manifold, pts)
     fig, ax = plt.subplots(figsize=(11, 9))
     im = ax.imshow(alb, origin="lower", extent=(xs[0], xs[-1], ys[0], ys[-1]), cmap="viridis", aspect="auto")
     cs = ax.contour(xs, ys, alb, levels=12, colors="white", linewidths=0.6, alpha=0.8)
     ax.clabel(cs, fontsize=6, fmt="%.2f")
     fig.colorbar(im, ax=ax, label="albedo of the interpolated material (mean RGB)")
-    pts = manifold.latent[:, dims]
-    ax.scatter(pts[:, 0], pts[:, 1], s=14, c="red", edgecolors="black", linewidths=0.4, zorder=3)
-    for (px, py), name in zip(pts, manifold.names):
+    if outside.any():
+        ax.contourf(xs, ys, outside.astype(float), levels=[0.5, 1.5], colors="none", hatches=["////"])
+        ax.contour(xs, ys, outside.astype(float), levels=[0.5], colors="red", linewidths=0.8)
+    ax.contour(xs, ys, dist.reshape(shape), levels=[reach], colors="orange", linewidths=1.0, linestyles="--")
+    pts_d = manifold.latent[:, dims]
+    others = [k for k in range(manifold.q) if k not in dims]
+    off = np.abs(manifold.latent[:, others] - manifold.latent[:, others].mean(0)).max(axis=1) if others \
+        else np.zeros(manifold.n)
+    near = off <= reach
+    ax.scatter(pts_d[near, 0], pts_d[near, 1], s=14, c="red", edgecolors="black", linewidths=0.4, zorder=3)
+    ax.scatter(pts_d[~near, 0], pts_d[~near, 1], s=14, facecolors="none", edgecolors="red", linewidths=0.6,
+               zorder=3)
+    for (px, py), name in zip(pts_d, manifold.names):
         ax.annotate(name, (px, py), fontsize=5.5, color="white", xytext=(2, 2), textcoords="offset points")
-    outside = (alb < 0) | (alb > 1)
-    note = f"; {outside.mean():.1%} of the map has albedo outside [0, 1]" if outside.any() else ""
-    ax.set_title(title or f"Latent space (q={manifold.q}, slice of dims {dims}){note}", fontsize=9)
+    lo, hi = rgb.min(), rgb.max()
+    note = (f"hatched: {outside.mean():.1%} of the map has albedo outside [0, 1] ({lo:.2f} to {hi:.2f})"
+            if outside.any() else f"albedo within [0, 1] everywhere ({lo:.2f} to {hi:.2f})")
+    slice_note = f", slice of dims {dims}" + (" (hollow: materials off the slice)" if others else "")
+    ax.set_title(title or f"Latent space (q={manifold.q}{slice_note}); {note}; dashed: within {reach:.2g} l "
+                 f"of a material (the data)", fontsize=8)
     ax.set_xlabel(f"x[{dims[0]}]")
     ax.set_ylabel(f"x[{dims[1]}]")
     save(fig, path)

@@ -46,6 +46,23 @@ class Projection:
     negative_fraction: float
 
 
+def as_table(table, d, dims=None):
+    """``table`` (array, or path of a MERL ``.binary`` file) as a flat float32 array of ``d`` values."""
+    import os
+    from . import merl
+    from .errors import ManifoldError
+    if isinstance(table, (str, os.PathLike)):
+        try:
+            table = merl.filled_reflectance(merl.read_binary(os.fspath(table)))
+        except (OSError, ValueError) as e:
+            raise ManifoldError(f"table to project: {e}") from None
+    table = np.asarray(table, dtype=np.float32).reshape(-1)
+    if table.size != d:
+        raise ManifoldError(f"table to project has {table.size} values; this manifold's tables have "
+                            f"{d} (dims {dims} x RGB)")
+    return table
+
+
 def log_rms(blend, target_log):
     """RMS of ``log(1 + max(blend, 0)) - target_log`` along the last axis (float64 sums)."""
     r = np.log1p(np.maximum(blend, 0.0)) - target_log

@@ -22,8 +22,17 @@ def small_db(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def small_manifold_paper(small_db, tmp_path_factory):
+    """Path of a manifold fit on :func:`small_db` with the paper's formulation (``preset="paper"``)."""
+    from mitsuba_manifold.manifold import Manifold
+    path = os.path.join(str(tmp_path_factory.mktemp("manifold_paper")), "manifold.npz")
+    Manifold.fit(small_db, preset="paper").save(path)
+    return path
+
+
+@pytest.fixture(scope="session")
 def small_manifold(small_db, tmp_path_factory):
-    """Path of a q=2 manifold fit on :func:`small_db`."""
+    """Path of a q=2 manifold fit on :func:`small_db` (default preset otherwise)."""
     from mitsuba_manifold.manifold import Manifold
     path = os.path.join(str(tmp_path_factory.mktemp("manifold")), "manifold.npz")
     Manifold.fit(small_db, q=2).save(path)

@@ -96,9 +96,9 @@ def test_training_point_gives_base_plus_its_image_exactly(basis1, manifold):
         assert info["keys"] == [name]
 
 
-def test_far_field_gives_base_plus_mean(basis1, manifold):
+def test_uniform_weights_give_base_plus_mean(basis1, manifold):
     folder, _, images = basis1
-    img, info = bl.blend(folder, manifold, x=np.full(manifold.q, 1e3))
+    img, info = bl.blend(folder, manifold, w=np.full(manifold.n, 1.0 / manifold.n), prune=0.0)
     mean = np.mean([images[n].astype(np.float64) for n in manifold.names], axis=0)
     assert len(info["keys"]) == manifold.n
     assert np.allclose(img, images["base"] + mean, rtol=1e-6, atol=1e-6)

@@ -43,8 +43,8 @@ def variant():
 
 
 @pytest.fixture(scope="module")
-def manifold(small_manifold):
-    return Manifold.load(small_manifold)
+def manifold(small_manifold_paper):
+    return Manifold.load(small_manifold_paper)
 
 
 @pytest.fixture(scope="module")
@@ -173,19 +173,19 @@ def chi2(params, angle, domain="half", ires=4):
 
 @pytest.mark.parametrize("material", ["pink-fabric", "gold-paint", "chrome", "steel",
                                       "color-changing-paint3", "interpolated"])
-def test_chi2_half_vector_domain(small_manifold, negative_x, material):
+def test_chi2_half_vector_domain(small_manifold_paper, negative_x, material):
     if material == "interpolated":
-        params = {"manifold": small_manifold, "x": ", ".join(repr(float(v)) for v in negative_x)}
+        params = {"manifold": small_manifold_paper, "x": ", ".join(repr(float(v)) for v in negative_x)}
     else:
-        params = {"manifold": small_manifold, "material": material}
+        params = {"manifold": small_manifold_paper, "material": material}
     for angle in ANGLES:
         ok, report = chi2(params, angle)
         assert ok, report
 
 
 @pytest.mark.parametrize("material", ["pink-fabric", "white-diffuse-bball", "gold-paint"])
-def test_chi2_sphere_domain(small_manifold, material):
-    params = {"manifold": small_manifold, "material": material}
+def test_chi2_sphere_domain(small_manifold_paper, material):
+    params = {"manifold": small_manifold_paper, "material": material}
     for angle in ANGLES:
         ok, report = chi2(params, angle, domain="sphere", ires=8)
         assert ok, report
@@ -193,15 +193,15 @@ def test_chi2_sphere_domain(small_manifold, material):
 
 @pytest.mark.parametrize("params", [{"material": "chrome", "interpolation": "linear"},
                                     {"material": "steel", "sampling": "cosine"}])
-def test_chi2_options(small_manifold, params):
-    ok, report = chi2({"manifold": small_manifold, **params}, 60)
+def test_chi2_options(small_manifold_paper, params):
+    ok, report = chi2({"manifold": small_manifold_paper, **params}, 60)
     assert ok, report
 
 
-def test_chi2_at_89_degrees(small_manifold):
+def test_chi2_at_89_degrees(small_manifold_paper):
     # Near grazing incidence MERL zeroes bins whose centre is below the horizon: the
     # density has many small discontinuities, hence the finer integration of the pdf.
-    ok, report = chi2({"manifold": small_manifold, "material": "chrome"}, 89, ires=16)
+    ok, report = chi2({"manifold": small_manifold_paper, "material": "chrome"}, 89, ires=16)
     assert ok, report
 
 
@@ -223,10 +223,10 @@ def test_lookup_agrees_with_merl_indexing():
     assert (got != expected).mean() < 1e-3
 
 
-def test_training_material_evaluates_to_its_table(small_manifold, small_db):
+def test_training_material_evaluates_to_its_table(small_manifold_paper, small_db):
     db = Database(small_db)
     table = np.asarray(db.reflectance("chrome"))
-    bsdf = make(small_manifold, material="chrome")
+    bsdf = make(small_manifold_paper, material="chrome")
     assert bsdf.weights.tolist() == [1.0 if n == "chrome" else 0.0 for n in bsdf.names]
     dims = table.shape[1:]
     th, td, pd = merl.bin_centres(dims)
@@ -242,12 +242,12 @@ def test_training_material_evaluates_to_its_table(small_manifold, small_db):
     assert np.array_equal(value, expected.astype(np.float32))
 
 
-def test_eval_is_reciprocal_and_one_sided(small_manifold, negative_x):
+def test_eval_is_reciprocal_and_one_sided(small_manifold_paper, negative_x):
     x = ", ".join(repr(float(v)) for v in negative_x)
     wi, wo = random_directions(100_000, 4), random_directions(100_000, 5)
     ctx = mi.BSDFContext()
     for interpolation in ("nearest", "linear"):
-        bsdf = make(small_manifold, x=x, interpolation=interpolation)
+        bsdf = make(small_manifold_paper, x=x, interpolation=interpolation)
         f_io = np.array(bsdf.eval(ctx, interaction(wi, len(wi)), vec(wo))) / wo[:, 2]
         f_oi = np.array(bsdf.eval(ctx, interaction(wo, len(wo)), vec(wi))) / wi[:, 2]
         close = np.isclose(f_io, f_oi, rtol=1e-3, atol=1e-6).all(axis=0)
@@ -304,11 +304,11 @@ def albedo_quadrature(table, wi, n_u=1024, n_phi=512):
 
 
 @pytest.mark.parametrize("spec", ["chrome", "interpolated"])
-def test_white_furnace(small_manifold, manifold, negative_x, spec):
+def test_white_furnace(small_manifold_paper, manifold, negative_x, spec):
     if spec == "interpolated":
-        bsdf = make(small_manifold, x=", ".join(repr(float(v)) for v in negative_x))
+        bsdf = make(small_manifold_paper, x=", ".join(repr(float(v)) for v in negative_x))
     else:
-        bsdf = make(small_manifold, material=spec)
+        bsdf = make(small_manifold_paper, material=spec)
     table = np.maximum(manifold.combine(bsdf.weights)[0], 0.0)
     n = 1 << 20
     rng = np.random.default_rng(6)
@@ -323,13 +323,13 @@ def test_white_furnace(small_manifold, manifold, negative_x, spec):
         assert np.all(np.abs(mean - expected) < 5 * err + 1e-3 * expected), (angle, mean, expected, err)
 
 
-def test_sampling_concentrates_on_spiky_materials(small_manifold):
+def test_sampling_concentrates_on_spiky_materials(small_manifold_paper):
     """Tabulated sampling estimates chrome's albedo with far less noise than cosine sampling."""
     n = 1 << 18
     s = np.random.default_rng(7).random((3, n)).astype(np.float32)
     errors = {}
     for mode in ("cdf", "cosine"):
-        bsdf = make(small_manifold, material="chrome", sampling=mode)
+        bsdf = make(small_manifold_paper, material="chrome", sampling=mode)
         _, weight = bsdf.sample(mi.BSDFContext(), interaction(incident(45), n),
                                 mi.Float(s[0]), mi.Point2f(s[1], s[2]))
         w = np.array(weight).mean(axis=0)
@@ -337,9 +337,9 @@ def test_sampling_concentrates_on_spiky_materials(small_manifold):
     assert errors["cdf"] * 5 < errors["cosine"]
 
 
-def test_no_fireflies_at_the_mirror_direction(small_manifold):
+def test_no_fireflies_at_the_mirror_direction(small_manifold_paper):
     """Samples that single precision rounds onto the mirror direction keep small weights."""
-    bsdf = make(small_manifold, material="chrome")
+    bsdf = make(small_manifold_paper, material="chrome")
     rng = np.random.default_rng(11)
     n = 4096
     wi = random_directions(n, 12)
@@ -353,8 +353,8 @@ def test_no_fireflies_at_the_mirror_direction(small_manifold):
 
 # ------------------------------------------------------------------ parameters
 
-def test_traverse_x_rebuilds(small_manifold, manifold, negative_x):
-    bsdf = make(small_manifold, x="0.1, 0.2")
+def test_traverse_x_rebuilds(small_manifold_paper, manifold, negative_x):
+    bsdf = make(small_manifold_paper, x="0.1, 0.2")
     params = mi.traverse(bsdf)
     assert "x" in params
     assert np.allclose(bsdf.weights, manifold.weights([0.1, 0.2])[1])
@@ -375,8 +375,8 @@ def test_traverse_x_rebuilds(small_manifold, manifold, negative_x):
     assert np.allclose(np.array(bsdf.eval(mi.BSDFContext(), si, wo)), before, rtol=1e-5)
 
 
-def test_python_methods_switch_materials(small_manifold, small_db, manifold):
-    bsdf = make(small_manifold, x="0, 0")
+def test_python_methods_switch_materials(small_manifold_paper, small_db, manifold):
+    bsdf = make(small_manifold_paper, x="0, 0")
     assert bsdf.is_manifold_brdf and type(bsdf).is_manifold_brdf
     assert bsdf.names == manifold.names and isinstance(bsdf.manifold, Manifold)
     ctx, si = mi.BSDFContext(), interaction(incident(30), 1)
@@ -402,37 +402,42 @@ def test_python_methods_switch_materials(small_manifold, small_db, manifold):
     assert np.allclose(bsdf.weights, manifold.weights([0.3, -0.2])[1])  # failed calls change nothing
 
 
-def test_clamping_and_pruning_are_reported(small_manifold, manifold, negative_x):
+def test_clamping_and_pruning_are_reported(small_manifold_paper, manifold, negative_x):
     x = ", ".join(repr(float(v)) for v in negative_x)
-    bsdf = make(small_manifold, x=x, prune=0.0)
+    bsdf = make(small_manifold_paper, x=x, prune=0.0)
     table = manifold.combine(manifold.weights(negative_x)[1], prune=0.0)[0]
     assert bsdf.clamped_bins == int((table < 0).sum()) > 0
     assert f"clamped bins = {bsdf.clamped_bins} of" in str(bsdf)
-    pruned = make(small_manifold, x=x, prune=0.2)
-    keep, _, dropped = manifold.prune(bsdf.weights, 0.2)
+    # pruning: at a point near two materials most weights are small
+    near = 0.8 * manifold.latent[0] + 0.2 * manifold.latent[1]
+    w = manifold.weights(near).w
+    pruned = make(small_manifold_paper, x=", ".join(repr(float(v)) for v in near), prune=0.05)
+    keep, _, dropped = manifold.prune(w, 0.05)
     assert pruned.used_names == [manifold.names[i] for i in keep] and len(keep) < len(manifold.names)
     assert pruned.dropped_weight == pytest.approx(dropped) and dropped > 0
     assert f"dropped weight = {dropped:.4g}" in str(pruned)
+    assert pruned.prune_error == pytest.approx(manifold.prune_error(w, keep)) and pruned.prune_error <= 0.05
+    assert f"table error {100 * pruned.prune_error:.3g}% (L2)" in str(pruned)
 
 
-def test_sampling_cache(small_manifold, small_db, tmp_path):
+def test_sampling_cache(small_manifold_paper, small_db, tmp_path):
     folder = tmp_path / "db"
     shutil.copytree(small_db, folder, ignore=shutil.ignore_patterns(".manifold-cache"))
     db = Database(folder)
     path = mb.sampling_cache_path(db, "chrome")
     assert not os.path.exists(path)
-    make(small_manifold, material="chrome", database=str(folder))
+    make(small_manifold_paper, material="chrome", database=str(folder))
     assert os.path.dirname(path) == db.cache_dir and db.hash("chrome") in os.path.basename(path)
     cached = np.load(path)
     assert np.array_equal(cached, mb.sampling_density(db.reflectance("chrome")))
     with open(path, "wb") as f:
         f.write(b"garbage")
-    make(small_manifold, material="chrome", database=str(folder))
+    make(small_manifold_paper, material="chrome", database=str(folder))
     assert np.array_equal(np.load(path), cached)
 
 
-def test_relative_paths_resolve_against_the_scene(small_manifold, small_db, tmp_path):
-    shutil.copy(small_manifold, tmp_path / "m.npz")
+def test_relative_paths_resolve_against_the_scene(small_manifold_paper, small_db, tmp_path):
+    shutil.copy(small_manifold_paper, tmp_path / "m.npz")
     shutil.copytree(small_db, tmp_path / "tables")
     (tmp_path / "s.xml").write_text(
         '<scene version="3.0.0"><shape type="sphere"><bsdf type="manifold_brdf">'
@@ -462,20 +467,20 @@ def test_relative_paths_resolve_against_the_scene(small_manifold, small_db, tmp_
     ({"material": "chrome", "prune": 1.5}, "prune must be in"),
     ({"material": "chrome", "database": "/nonexistent/tables"}, "database folder '/nonexistent/tables' not found"),
 ])
-def test_bad_parameters(small_manifold, params, message):
+def test_bad_parameters(small_manifold_paper, params, message):
     with pytest.raises(Exception) as info:
-        make(small_manifold, **params)
+        make(small_manifold_paper, **params)
     assert message in chain(info.value)
 
 
-def test_missing_manifold_or_database(small_manifold, tmp_path):
+def test_missing_manifold_or_database(small_manifold_paper, tmp_path):
     with pytest.raises(Exception) as info:
         mi.load_dict({"type": "manifold_brdf", "material": "chrome"})
     assert "'manifold' parameter" in chain(info.value)
     with pytest.raises(Exception) as info:
         make(str(tmp_path / "missing.npz"), material="chrome")
     assert "manifold file '" + str(tmp_path / "missing.npz") + "' not found" in chain(info.value)
-    moved = Manifold.load(small_manifold)
+    moved = Manifold.load(small_manifold_paper)
     moved.database = str(tmp_path / "moved-away")
     moved.save(tmp_path / "moved.npz")
     with pytest.raises(Exception) as info:
@@ -483,24 +488,24 @@ def test_missing_manifold_or_database(small_manifold, tmp_path):
     assert str(tmp_path / "moved-away") in chain(info.value) and "does not exist" in chain(info.value)
 
 
-def test_database_must_match_the_manifold(small_manifold, small_db, tmp_path):
+def test_database_must_match_the_manifold(small_manifold_paper, small_db, tmp_path):
     folder = tmp_path / "other"
     shutil.copytree(small_db, folder, ignore=shutil.ignore_patterns(".manifold-cache"))
     raw = merl.read_binary(folder / "steel.binary")
     merl.write_binary(folder / "steel.binary", np.where(raw >= 0, raw * 1.01, raw))
-    make(small_manifold, material="chrome", database=str(folder))  # other tables are not read
+    make(small_manifold_paper, material="chrome", database=str(folder))  # other tables are not read
     with pytest.raises(Exception) as info:
-        make(small_manifold, material="steel", database=str(folder))
+        make(small_manifold_paper, material="steel", database=str(folder))
     assert "'steel' differs from the one the manifold was fit on" in chain(info.value)
     os.remove(folder / "chrome.binary")
     with pytest.raises(Exception) as info:
-        make(small_manifold, material="chrome", database=str(folder))
+        make(small_manifold_paper, material="chrome", database=str(folder))
     assert "chrome" in chain(info.value) and str(folder) in chain(info.value)
 
 
 # ------------------------------------------------------------------ variants and scenes
 
-def test_scalar_variant_matches_llvm(small_manifold, negative_x):
+def test_scalar_variant_matches_llvm(small_manifold_paper, negative_x):
     x = ", ".join(repr(float(v)) for v in negative_x)
     wi, wo = random_directions(6, 8), random_directions(6, 9)
     samples = np.random.default_rng(10).random((6, 3))
@@ -511,7 +516,7 @@ def test_scalar_variant_matches_llvm(small_manifold, negative_x):
         ctx = mi.BSDFContext()
         out = []
         for interpolation in ("nearest", "linear"):
-            bsdf = make(small_manifold, x=x, interpolation=interpolation)
+            bsdf = make(small_manifold_paper, x=x, interpolation=interpolation)
             for k in range(len(wi)):
                 si = dr.zeros(mi.SurfaceInteraction3f)
                 si.wi = mi.Vector3f(*map(float, wi[k]))
@@ -525,11 +530,11 @@ def test_scalar_variant_matches_llvm(small_manifold, negative_x):
     assert (results["llvm_ad_rgb"][:, 0] > 0).any()
 
 
-def test_non_rgb_variants_are_refused_clearly(small_manifold):
+def test_non_rgb_variants_are_refused_clearly(small_manifold_paper):
     mi.set_variant("scalar_spectral")
     mb.register()
     with pytest.raises(Exception) as info:
-        make(small_manifold, material="chrome")
+        make(small_manifold_paper, material="chrome")
     assert "need an RGB variant" in chain(info.value)
 
 
@@ -541,7 +546,7 @@ def test_import_registers_for_the_active_variant():
     assert out.stdout.strip() == "True", out.stderr
 
 
-def test_sphere_scene_renders(small_manifold, negative_x, tmp_path):
+def test_sphere_scene_renders(small_manifold_paper, negative_x, tmp_path):
     """scenes/sphere.xml renders an interpolated material; both sampling strategies agree."""
     for name in ("sphere.xml", "sky.exr"):
         shutil.copy(os.path.join(SCENES_DIR, name), tmp_path / name)
@@ -552,7 +557,7 @@ def test_sphere_scene_renders(small_manifold, negative_x, tmp_path):
     x = ", ".join(repr(float(v)) for v in negative_x)
     means = {}
     for name, spp in (("sphere.xml", 64), ("cosine.xml", 512)):
-        scene = mi.load_file(str(tmp_path / name), manifold=small_manifold, x=x, res=24, spp=spp)
+        scene = mi.load_file(str(tmp_path / name), manifold=small_manifold_paper, x=x, res=24, spp=spp)
         (bsdf,) = [s.bsdf() for s in scene.shapes() if getattr(s.bsdf(), "is_manifold_brdf", False)]
         assert np.allclose(bsdf.latent, negative_x.astype(np.float32))
         img = np.array(mi.render(scene))

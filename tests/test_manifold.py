@@ -12,8 +12,9 @@ from mitsuba_manifold.manifold import Manifold, ManifoldError
 
 
 @pytest.fixture(scope="module")
-def fitted(small_manifold):
-    return Manifold.load(small_manifold)
+def fitted(small_manifold_paper):
+    """The paper's formulation: GP weights of Eq. 4."""
+    return Manifold.load(small_manifold_paper)
 
 
 def test_weights_are_affine_and_match_mean_plus_bZ(fitted, small_db):

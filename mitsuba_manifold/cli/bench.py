@@ -12,6 +12,8 @@
              (each point in a subprocess; makes its own databases), and chunked rendering on Ray
   explore    tools/explore.py: request -> encoded image over the websocket (--basis DIR), and a
              screenshot of the page beside the JSON
+  space      the latent space: held-out fidelity (10-fold), path smoothness, jump, plausibility,
+             per configuration (paper, default, levers); --basis adds image-space smoothness
 """
 
 import argparse
@@ -33,10 +35,13 @@ def main(argv=None):
     p.add_argument("--materials", type=parse_list, default=None, help="subset of materials")
     p.add_argument("--manifold", default=None, help="saved manifold (interp/bsdf/gi/basis/match/explore)")
     p.add_argument("--basis", default=None,
-                   help="match: a full basis of --manifold to time the match on; explore: the basis to serve")
+                   help="match: a full basis of --manifold to time the match on; explore: the basis to serve; "
+                        "space: a basis of the same materials (image smoothness)")
     p.add_argument("--res", type=int, default=128, help="match: resolution of the accuracy renders (default 128)")
     p.add_argument("--out", default=None,
                    help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
+    p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare")
+    p.add_argument("--folds", type=parse_list, default=None, help="space: run only these of the 10 folds")
     args = p.parse_args(argv)
     if args.which == "explore" and not args.basis:
         p.error("explore needs --basis DIR (a basis folder, e.g. out/gi/basis_table_256_64_onepass)")
@@ -51,7 +56,10 @@ def main(argv=None):
         if not explore and args.database is None and not os.path.isdir(folder) and args.which != "scaling":
             print(f"making the built-in database at MERL resolution in {folder}")
             database.make_database(folder, progress=True)
-        kwargs = {"names": args.materials} if args.which in ("fit", "pca") else {}
+        kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space") else {}
+        if args.which == "space":
+            kwargs.update(basis=args.basis, configs=args.configs,
+                          folds=None if args.folds is None else [int(f) for f in args.folds])
         if args.manifold and args.which != "fit":
             kwargs["manifold"] = args.manifold
         if args.which == "match":

@@ -10,10 +10,12 @@ def check(args):
     from .. import ownership, plots, validate
     from ..errors import InputError
 
-    if not 1 <= args.q <= 8:
+    if args.q is not None and not 1 <= args.q <= 8:
         raise InputError(f"--q must be an integer from 1 to 8, got {args.q}")
-    validate.finite("--length-scale", args.length_scale, 0.0, 1e6, lo_open=True)
-    validate.finite("--noise", args.noise, 0.0, 1e6, lo_open=True)
+    if args.length_scale is not None:
+        validate.finite("--length-scale", args.length_scale, 0.0, 1e6, lo_open=True)
+    if args.noise is not None:
+        validate.finite("--noise", args.noise, 0.0, 1e6, lo_open=True)
     ownership.check_replaceable(args.out, args.force, what="--out")
     if args.plot:
         validate.output_folder("--plot", args.plot)
@@ -25,13 +27,17 @@ def check(args):
 def main(argv=None):
     p = ArgumentParser(description=__doc__)
     p.add_argument("database", help="folder of <name>.binary MERL tables")
-    p.add_argument("--q", type=int, default=2, help="latent dimension (1..8, default 2)")
     p.add_argument("--out", required=True, help="output manifold (.npz)")
+    p.add_argument("--preset", choices=["default", "paper"], default="default",
+                   help="default: the measured best (log features, q=3, convex Shepard weights); paper: the "
+                        "paper's exact formulation (raw features, q=2, Hooke-Jeeves, Eq. 4 GP weights). "
+                        "The options below override the preset")
+    p.add_argument("--q", type=int, default=None, help="latent dimension (1..8)")
     p.add_argument("--materials", type=parse_list, default=None, help="subset of materials (default: all)")
-    p.add_argument("--method", choices=["hooke-jeeves", "lbfgs"], default="hooke-jeeves")
-    p.add_argument("--features", choices=["raw", "log"], default="raw", help="fit features (default raw, as the paper)")
-    p.add_argument("--length-scale", type=float, default=1.0, help="kernel length scale l (default 1)")
-    p.add_argument("--noise", type=float, default=1e-4, help="kernel noise mu (default 1e-4)")
+    p.add_argument("--method", choices=["hooke-jeeves", "lbfgs"], default=None)
+    p.add_argument("--features", choices=["raw", "log"], default=None, help="fit features")
+    p.add_argument("--length-scale", type=float, default=None, help="kernel length scale l")
+    p.add_argument("--noise", type=float, default=None, help="kernel noise mu")
     p.add_argument("--plot", metavar="DIR", help="write latent map and convergence PNGs here")
     p.add_argument("--force", action="store_true",
                    help="replace an existing --out (or plot) this tool did not write (never a read-only one)")
@@ -44,7 +50,7 @@ def main(argv=None):
         check(args)
         m = Manifold.fit(args.database, q=args.q, names=args.materials, method=args.method,
                          length_scale=args.length_scale, noise=args.noise, features=args.features,
-                         progress=True)
+                         preset=args.preset, progress=True)
         os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
         m.save(args.out)
         ownership.record([args.out], "fit_manifold.py")

@@ -18,10 +18,13 @@ def main(argv=None):
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="out", help="output folder (default out/)")
     p.add_argument("--resolution", type=parse_resolution, default=(90, 90, 180), help="table bins (default MERL's)")
-    p.add_argument("--q", type=int, default=2, help="latent dimension (default 2)")
-    p.add_argument("--features", choices=["raw", "log"], default="log",
-                   help="fit features (default log: on the built-in surrogate, whose bin-centre specular "
-                        "peaks reach 1e8, raw features collapse most non-metallic materials onto one "
+    p.add_argument("--preset", choices=["default", "paper"], default="default",
+                   help="manifold settings (default: the measured best, see the README; paper: the paper's "
+                        "exact formulation)")
+    p.add_argument("--q", type=int, default=None, help="latent dimension (default: the preset's)")
+    p.add_argument("--features", choices=["raw", "log"], default=None,
+                   help="fit features (default: the preset's; on the built-in surrogate, whose bin-centre "
+                        "specular peaks reach 1e8, raw features collapse most non-metallic materials onto one "
                         "latent point; see the README)")
     p.add_argument("--scene", default="table", help="shipped scene name or scene XML for the GI part (default table)")
     p.add_argument("--res", type=int, default=256, help="image size (default 256)")
@@ -33,8 +36,9 @@ def main(argv=None):
 
     from ..pipeline import run_main_job
     try:
-        run_main_job(args.out, args.resolution, q=args.q, features=args.features, scene=args.scene,
-                     res=args.res, spp=args.spp, ref_spp=args.ref_spp, mode=args.mode, denoise=not args.no_denoise,
+        run_main_job(args.out, args.resolution, q=args.q, features=args.features, preset=args.preset,
+                     scene=args.scene, res=args.res, spp=args.spp, ref_spp=args.ref_spp, mode=args.mode,
+                     denoise=not args.no_denoise,
                      log=lambda text: print(text, flush=True))
     except ERRORS as e:
         fail(e)

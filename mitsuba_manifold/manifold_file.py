@@ -1,0 +1,62 @@
+"""The saved manifold: a ``.npz`` file (no pickle) with a JSON ``meta`` entry and arrays.
+
+Version 2 adds the interpolant's parameters and the raw tables' Gram matrix (exact pruning
+errors). Version 1 files (the previous release) read as the paper's GP interpolant on their
+stored ``l`` and ``mu``, what they were used with; anything unreadable fails with a message
+that names the file and says to refit.
+"""
+
+import json
+import os
+
+import numpy as np
+
+from .atomic import atomic_write
+from .errors import ManifoldError
+
+FORMAT = "mitsuba-manifold"
+FORMAT_VERSION = 2
+_REFIT = "refit it with tools/fit_manifold.py"
+
+
+def write(m, path):
+    """Write manifold ``m`` to ``path`` atomically."""
+    meta = {"format": FORMAT, "version": FORMAT_VERSION, "names": m.names, "database": m.database,
+            "hashes": m.hashes, "length_scale": m.length_scale, "noise": m.noise, "features": m.features,
+            "info": m.info, "interpolant": m.interpolant.params()}
+    arrays = {"latent": m.latent, "history": m.history, "meta": np.array(json.dumps(meta))}
+    for name in ("albedos", "gram", "table_gram"):
+        if getattr(m, name) is not None:
+            arrays[name] = getattr(m, name)
+    atomic_write(os.fspath(path), lambda f: np.savez(f, **arrays))
+
+
+def read(path):
+    """The keyword arguments of ``Manifold(...)`` stored in ``path``."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise ManifoldError(f"manifold file {path} does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            arrays = {k: z[k] for k in z.files if k != "meta"}
+    except Exception as e:  # zipfile, json and key errors all mean a damaged file
+        raise ManifoldError(f"{path}: not a readable manifold file ({type(e).__name__}: {e})") from None
+    if meta.get("format") != FORMAT:
+        raise ManifoldError(f"{path}: not a mitsuba-manifold file")
+    version = meta.get("version", 0)
+    if not isinstance(version, int) or not 1 <= version <= FORMAT_VERSION:
+        raise ManifoldError(f"{path}: format version {version!r} is not one this package reads "
+                            f"(1 to {FORMAT_VERSION}); {_REFIT}")
+    try:
+        info = dict(meta.get("info") or {})
+        info.setdefault("preset", "paper" if version < 2 else "custom")
+        kwargs = {"names": meta["names"], "latent": arrays["latent"], "database": meta["database"],
+                  "hashes": meta["hashes"], "length_scale": meta["length_scale"], "noise": meta["noise"],
+                  "features": meta["features"], "albedos": arrays.get("albedos"), "gram": arrays.get("gram"),
+                  "history": arrays.get("history", ()), "info": info,
+                  "interpolant": meta["interpolant"] if version >= 2 else {"kind": "gp", "exact": True},
+                  "table_gram": arrays.get("table_gram")}
+    except KeyError as e:
+        raise ManifoldError(f"{path}: missing field {e}; {_REFIT}") from None
+    return kwargs
