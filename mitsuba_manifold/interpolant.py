@@ -12,10 +12,9 @@ They differ only in the function ``w(x)``:
     but ``w`` jumps by ``mu |K_inv e_i|`` an infinitesimal step away.
 
 ``shepard`` (the default)
-    Convex inverse-distance weights ``w_i ∝ |x - x_i|^-p exp(-|x - x_i|^2 / (2 h_i^2))``
-    (Shepard 1968, with a Gaussian taper of width ``h_i = max(h, s nn_i)`` in units of
-    ``l``, ``nn_i`` the distance from ``x_i`` to its nearest other point; ``h = inf`` is
-    plain Shepard). Non-negative, summing to 1, continuous everywhere and equal to
+    Convex inverse-distance weights ``w_i ∝ |x - x_i|^-p exp(-|x - x_i|^2 / (2 h(x)^2))``
+    (Shepard 1968, with a Gaussian taper whose width ``h(x)`` grows with the distance to
+    the data; ``h = inf`` is plain Shepard). Non-negative, summing to 1, continuous everywhere and equal to
     ``e_i`` at ``x_i`` (no jump): interpolated tables stay non-negative and albedos stay
     inside the range of the measured ones. Far from every latent point the weights tend
     to the mean material (``h = inf``) or to the nearest latent points (finite ``h``).
@@ -26,7 +25,6 @@ Both give their analytic Jacobian ``dw/dx`` (:meth:`Interpolant.jacobian`).
 from __future__ import annotations
 
 import numpy as np
-import scipy.spatial.distance
 
 from . import kernel
 from .errors import InterpolantError, NotPositiveDefiniteError
@@ -152,18 +150,26 @@ class GaussianProcessWeights(Interpolant):
 
 
 class ShepardWeights(Interpolant):
-    """Convex weights ``w_i ∝ r_i^-p exp(-r_i^2 / 2 h_i^2)``, ``r_i = |x - x_i| / l``.
+    """Convex weights ``w_i ∝ r_i^-p exp(-r_i^2 / 2 h(x)^2)``, ``r_i = |x - x_i| / l``.
+
+    The taper's width adapts to the local spacing of the data, the same for every material
+    at a given ``x`` (so that between two neighbours neither dominates the other's half)::
+
+        h(x)^2 = h^2 + s^2 m(x),   m(x) = sum_j r_j^(2-p) / sum_j r_j^-p
+
+    ``m`` is a smooth soft minimum of the squared distances: ``r_i^2`` next to ``x_i``,
+    ``D^2 / 4`` half-way between two points ``D`` apart.
 
     Parameters
     ----------
     latent : (N, q) array
     power : float
-        ``p > q`` keeps the weights local (far points' total weight converges).
+        ``p``; 2 gives the smoothest transition between two neighbours.
     taper : float
-        ``h`` in units of ``l`` (``inf``: none). Small values make the weights local: between
-        two neighbours, the material is a blend of those two.
+        ``h`` in units of ``l`` (``inf``: no taper). Small values make the weights local:
+        between two neighbours, the material is a blend of those two.
     spread : float
-        ``s``: each point's taper is at least ``s`` times its nearest-neighbour distance.
+        ``s``: how much the taper widens with the distance to the data.
     length_scale : float
         ``l``: the unit of distances.
     """
@@ -179,39 +185,40 @@ class ShepardWeights(Interpolant):
         if not self.power > 0 or not self.taper > 0 or not self.length_scale > 0 or not self.spread >= 0:
             raise InterpolantError(f"shepard weights need power > 0, taper > 0, spread >= 0 and length_scale > 0, "
                                    f"got {self.power}, {self.taper}, {self.spread}, {self.length_scale}")
-        # per-point taper: at least spread x the distance to the nearest other point, so that
-        # a path between two far-apart neighbours is not squeezed into a few steps
-        d2 = scipy.spatial.distance.cdist(self.latent, self.latent, "sqeuclidean")
-        np.fill_diagonal(d2, np.inf)
-        nn = np.sqrt(d2.min(axis=1)) / self.length_scale if self.n > 1 else np.zeros(self.n)
-        self.tapers = np.maximum(self.taper, self.spread * nn)
-        self._inv_h2 = np.where(np.isfinite(self.tapers), 1.0 / self.tapers ** 2, 0.0)
 
     def params(self):
         return {"kind": self.kind, "power": self.power, "taper": self.taper, "spread": self.spread,
                 "length_scale": self.length_scale}
 
-    def _log_u(self, x):
-        """log of the unnormalised weights, ``+inf`` at a latent point; and ``x - x_i`` in units of l."""
+    def _terms(self, x):
+        """``x - x_i`` (units of l), ``r_i^2``, hit rows, ``m(x)``, ``h(x)^2`` and ``log u_i``."""
         diff = (x[:, None, :] - self.latent[None]) / self.length_scale
         r2 = np.einsum("mnq,mnq->mn", diff, diff)
+        hit = (r2 == 0).any(axis=1)
+        r2s = np.where(hit[:, None], 1.0, r2)                   # hit rows are set apart
+        inv = r2s ** (-0.5 * self.power)
+        m = np.where(hit, 0.0, (r2s * inv).sum(1) / inv.sum(1))
+        h2 = self.taper ** 2 + self.spread ** 2 * m
         with np.errstate(divide="ignore"):
-            log_u = -0.5 * self.power * np.log(r2)
-        log_u -= 0.5 * r2 * self._inv_h2
-        return log_u, diff, r2
+            log_u = -0.5 * self.power * np.log(r2) - 0.5 * r2 / h2[:, None]
+        return diff, r2s, hit, inv, m, h2, log_u
 
     def _weights(self, x):
-        log_u, _, _ = self._log_u(x)
-        return _normalise(log_u)
+        return _normalise(self._terms(x)[-1])
 
     def _jacobian(self, x):
-        log_u, diff, r2 = self._log_u(x)
+        diff, r2, hit, inv, m, h2, log_u = self._terms(x)
         w = _normalise(log_u)
-        hit = ~np.isfinite(log_u).all(axis=1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # d log u_i / dx = -(p / r^2 + 1 / h^2) (x - x_i) / l
-            g = -(self.power / r2 + self._inv_h2)[..., None] * diff / self.length_scale
-        g[~np.isfinite(g)] = 0.0
+        p, l = self.power, self.length_scale
+        # dm/dx = (dS2 - m dS0) / S0 with S0 = sum r^-p, S2 = sum r^(2-p)
+        S0 = inv.sum(1)
+        dS0 = np.einsum("mn,mnq->mq", -p * inv / r2, diff) / l
+        dS2 = np.einsum("mn,mnq->mq", (2 - p) * inv, diff) / l
+        dm = (dS2 - m[:, None] * dS0) / S0[:, None]
+        dh2 = self.spread ** 2 * dm
+        # d log u_i / dx = -p (x - x_i) / (l r_i^2) - (x - x_i) / (l h^2) + r_i^2 / (2 h^4) dh^2/dx
+        g = (-(p / r2 + 1.0 / h2[:, None])[..., None] * diff / l
+             + (0.5 * r2 / h2[:, None] ** 2)[..., None] * dh2[:, None, :])
         J = w[..., None] * (g - np.einsum("mn,mnq->mq", w, g)[:, None, :])
         J[hit] = 0.0  # at a latent point w = e_i and (for p > 1) it is stationary
         return J

@@ -35,6 +35,7 @@ CONFIGS = {
     "gp-continuous-log": ("paper", {"features": "log", "method": "lbfgs",
                                     "interpolant": {"kind": "gp", "exact": False}}),
     "shepard-global-q3": ("default", {"interpolant": {"kind": "shepard", "power": 2.0}}),
+    "shepard-fixed-taper-q3": ("default", {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2}}),
     "shepard-local-q2": ("default", {"q": 2}),
     "shepard-local-q5": ("default", {"q": 5}),
     "shepard-coslog": ("default", {"features": "coslog"}),

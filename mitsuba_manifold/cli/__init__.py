@@ -11,6 +11,7 @@ import sys
 TOOLS = {
     "make-database": "make_database",
     "fit": "fit_manifold",
+    "project": "project",
     "render-basis": "render_basis",
     "blend": "blend",
     "match": "match",
