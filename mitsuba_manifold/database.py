@@ -473,7 +473,7 @@ class Database:
         rows = tables if tables is not None else (self.reflectance(n) for n in names)
         return np.stack([np.asarray(t).reshape(3, -1) @ q for t in rows])
 
-    def gram(self, names=None, features="raw", block=1 << 16, tables=None, progress=False, raw_out=None):
+    def gram(self, names=None, features="raw", block=1 << 16, tables=None, progress=False):
         """Mean table and Gram matrix of the mean-subtracted observations.
 
         ``S = Z Z^T`` where row i of ``Z`` is material i's table (in the feature space)
@@ -489,9 +489,6 @@ class Database:
             Bins per block.
         tables : ndarray (N, d) float32, optional
             Already-loaded :meth:`stack` (avoids reading the tables again).
-        raw_out : ndarray (N, N) float64, optional
-            If given, the uncentred Gram ``T T^T`` of the raw tables is added to it in the
-            same pass (for exact pruning errors).
 
         Returns
         -------
@@ -513,8 +510,6 @@ class Database:
         with threadpool_limits(1, user_api="blas"):
             for start in range(0, d, block):
                 z = tables[:, start:start + block].astype(np.float64)
-                if raw_out is not None:
-                    raw_out += z @ z.T
                 if features == "log":
                     np.log1p(z, out=z)
                 m = z.mean(axis=0)
@@ -522,6 +517,4 @@ class Database:
                 z -= m
                 S += z @ z.T
         S = 0.5 * (S + S.T)
-        if raw_out is not None:
-            raw_out[...] = 0.5 * (raw_out + raw_out.T)
         return mean, S

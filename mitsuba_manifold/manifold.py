@@ -134,7 +134,6 @@ class Manifold:
         q : int
             Latent dimension (1 to 8).
         names : list of str, optional
-            Materials to use (default: all in the database).
         method : {"hooke-jeeves", "lbfgs"}
         length_scale, noise : float
             ``l`` and ``mu`` of the kernel ``mu delta + exp(-|x-x'|^2 / 2 l^2)``.
@@ -145,8 +144,7 @@ class Manifold:
         preset : {"default", "paper"}
             See :data:`PRESETS`.
         interpolant : dict, optional
-            Weight function parameters (``{"kind": "gp", "exact": True}``,
-            ``{"kind": "shepard", "power": 2, "taper": 0.3}``; see :mod:`interpolant`).
+            Weight function, e.g. ``{"kind": "gp", "exact": True}`` (see :mod:`interpolant`).
         **options
             Passed to :func:`gplvm.fit_latent` (``max_iter``, ``tol``, ...).
         """
@@ -160,8 +158,8 @@ class Manifold:
         tables = db.stack(names, progress=progress)
         t_load = time.perf_counter() - t0
         t0 = time.perf_counter()
-        table_gram = np.zeros((len(names), len(names)))
-        _, S = db.gram(names, features=cfg["features"], tables=tables, raw_out=table_gram)
+        _, S = db.gram(names, features=cfg["features"], tables=tables)
+        table_gram = pruning.raw_gram(tables)
         t_gram = time.perf_counter() - t0
         d = tables.shape[1]
         result = fit_layout(S, d, cfg, init=init, **options)
@@ -228,10 +226,8 @@ class Manifold:
     def weights_jacobian(self, x):
         """``dw/dx`` of the interpolant, analytic: ``(N, q)`` for one point, ``(M, N, q)`` for M.
 
-        For the paper's GP weights, ``dk_i/dx = -k_i (x - x_i) / l^2`` and ``dw = K_inv dk``
-        minus its mean (the smooth part; at a training point the derivative of the limit
-        from outside). For Shepard weights see :class:`interpolant.ShepardWeights`.
-        Columns sum to 0 (the weights always sum to 1).
+        GP weights: ``(I - 1 1^T / N) K_inv dk/dx`` (Eq. 4 differentiated; at a training point
+        the smooth part's). Shepard: :class:`interpolant.ShepardWeights`. Columns sum to 0.
         """
         x, single = self._points(x)
         J = self.interpolant.jacobian(x)
@@ -249,17 +245,6 @@ class Manifold:
         k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
         dk = -k[:, :, None] * (x[:, None, :] - self.latent[None]) / self.length_scale ** 2
         return self._factor.solve(k.T).T, dk
-
-    def weights_jacobian(self, x):
-        """``dw/dx``, (N, q) or (M, N, q): ``(I - 1 1^T / N) K_inv dk/dx``, ``dk_j/dx = -k_j (x - x_j) / l^2``
-        (Eq. 4 and the affine correction differentiated). At a training point, where the noise
-        term makes ``w`` jump to ``e_i``, it is the derivative of the smooth interpolant."""
-        x, single = self._points(x)
-        _, dk = self._smooth_gradients(x)
-        m, n, q = dk.shape
-        db = self._factor.solve(dk.transpose(1, 0, 2).reshape(n, m * q)).reshape(n, m, q).transpose(1, 0, 2)
-        dw = db - db.sum(axis=1, keepdims=True) / n
-        return dw[0] if single else dw
 
     def variance(self, x):
         """GP predictive variance (paper Eq. 2): ``c(x, x) - k^T K_inv k``."""
@@ -431,19 +416,10 @@ class Manifold:
     def project(self, table, **options):
         """The latent point whose material is closest to ``table`` (any MERL table).
 
-        Parameters
-        ----------
-        table : ndarray or path
-            Reflectance table of this manifold's resolution (``(3,) + dims`` or flat, as
-            :meth:`Database.reflectance`), or the path of a MERL ``.binary`` file.
-        **options
-            Passed to :func:`projection.project` (``bins``, ``n_nearest``, ...).
-
-        Returns
-        -------
-        projection.Projection
-            ``x``, ``error`` (RMS of ``log(1 + rho)`` differences over all bins), ``weights``,
-            the nearest training material and its error, the negative-bin fraction.
+        ``table``: a reflectance table of this manifold's resolution (as :meth:`Database.reflectance`,
+        or flat) or the path of a MERL ``.binary`` file; ``options`` go to :func:`projection.project`.
+        Returns a :class:`projection.Projection`: ``x``, ``error`` (RMS of ``log(1 + rho)``
+        differences over all bins), ``weights``, the nearest training material and its error.
         """
         table = projection_mod.as_table(table, 3 * int(np.prod(self.info.get("dims", (0,)))), self.info.get("dims"))
         try:

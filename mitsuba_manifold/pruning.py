@@ -15,11 +15,13 @@ import numpy as np
 
 def raw_gram(tables, block=1 << 16):
     """``T T^T`` (float64) of float32 tables ``(N, d)``, by blocks of values."""
+    from threadpoolctl import threadpool_limits
     n, d = tables.shape
     G = np.zeros((n, n))
-    for s in range(0, d, block):
-        t = np.asarray(tables[:, s:s + block], dtype=np.float64)
-        G += t @ t.T
+    with threadpool_limits(1, user_api="blas"):  # small products: see Database.gram
+        for s in range(0, d, block):
+            t = np.asarray(tables[:, s:s + block], dtype=np.float64)
+            G += t @ t.T
     return 0.5 * (G + G.T)
 
 

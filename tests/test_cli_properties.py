@@ -13,6 +13,7 @@ from guarantees_helpers import TINY_NAMES as NAMES, make_tiny, refused_cleanly, 
 
 from mitsuba_manifold import imageio
 from mitsuba_manifold.manifold import Manifold
+from mitsuba_manifold.presets import PRESETS
 pytestmark = pytest.mark.render   # the fixture renders a small basis
 SETTINGS = dict(deadline=None, suppress_health_check=list(HealthCheck), derandomize=True, database=None)
 
@@ -150,7 +151,7 @@ def test_fit_manifold_cli_succeeds_or_refuses_cleanly(data, case):
         return
     assert "Traceback" not in err
     m = Manifold.load(given["--out"])
-    assert m.q == given.get("--q", 2) and 1 <= m.q <= 8
+    assert m.q == given.get("--q", PRESETS["default"]["q"]) and 1 <= m.q <= 8
     assert np.isfinite(m.latent).all()
     for opt in ("--length-scale", "--noise"):
         if opt in given:

@@ -318,14 +318,14 @@ def test_render_basis_on_a_shipped_scene_with_q3_and_given_x(tmp_path, tiny):
 
 def test_identical_refit_is_accepted_by_existing_bases(tmp_path, tiny):
     again = tmp_path / "again.npz"
-    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", again)
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", again, "--q", 2)   # as make_tiny
     assert rc == 0, err
     assert file_hash(again) != file_hash(tiny["manifold"]) or True   # bytes may differ
     rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--manifold", again, "--x", "0,0",
                           "--out", tmp_path / "img.exr")
     assert rc == 0, err
     other = tmp_path / "other.npz"
-    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", other, "--length-scale", "2")
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", other, "--q", 2, "--length-scale", "2")
     assert rc == 0, err
     rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--manifold", other, "--x", "0,0",
                           "--out", tmp_path / "img2.exr")
