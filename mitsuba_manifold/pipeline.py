@@ -152,13 +152,9 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, res, basis_spp, ref_spp, 
         images, _, _ = blend_path(b, m, *pair, steps=20)
         imageio.write_contact_sheet(f"{stem}_path_sheet.png", images,
                                     labels=[f"{t:.2f}" for t in np.linspace(0, 1, len(images))])
-<<<<<<< HEAD
+        extrapolation_sheet(b, m, pair, f"{stem}_extrapolation_sheet", log=print if progress else None)
     out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows,
            "basis_folder": os.path.abspath(folder_b)}
-=======
-        extrapolation_sheet(b, m, pair, f"{stem}_extrapolation_sheet", log=print if progress else None)
-    out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows}
->>>>>>> 8574611 (Default manifold: log features, q=3, convex Shepard weights; preset paper; Manifold.project and tools/project.py; weights_jacobian; pruning by contribution with exact L2 error; saved-file v2; bench space; latent map hatching and data reach; extrapolation sheet)
     if aovs is not None:
         out["aovs_time_s"] = aovs.time_s
     return out

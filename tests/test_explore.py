@@ -31,17 +31,17 @@ RES = 32
 
 
 @pytest.fixture(scope="module")
-def small_basis(small_manifold, tmp_path_factory):
+def small_basis(small_manifold_paper, tmp_path_factory):
     mi.set_variant("llvm_ad_rgb")
     mitsuba_manifold.register()
     out = str(tmp_path_factory.mktemp("explore") / "basis_sphere")
-    render_basis(SPHERE, small_manifold, out, spp=4, resolution=RES, mode="onepass")
+    render_basis(SPHERE, small_manifold_paper, out, spp=4, resolution=RES, mode="onepass")
     return out
 
 
 @pytest.fixture(scope="module")
-def explorer(small_basis, small_manifold):
-    ex = Explorer([small_basis], manifold=small_manifold)
+def explorer(small_basis, small_manifold_paper):
+    ex = Explorer([small_basis], manifold=small_manifold_paper)
     assert ex.tables.wait(120) == "ready", ex.tables.message
     yield ex
     ex.close()
@@ -67,8 +67,8 @@ def _expected_frame(explorer, x, exposure=0.0):
 
 # ---------------------------------------------------------------- service
 
-def test_frame_is_the_blend_of_the_point(explorer, small_manifold):
-    m = Manifold.load(small_manifold)
+def test_frame_is_the_blend_of_the_point(explorer, small_manifold_paper):
+    m = Manifold.load(small_manifold_paper)
     for x in (m.latent[2], 0.5 * (m.latent[0] + m.latent[3])):
         data, meta = explorer.frame(None, x, 0.0, "rgba")
         got = np.frombuffer(data, np.uint8).reshape(RES, RES, 4)[..., :3]
@@ -76,8 +76,8 @@ def test_frame_is_the_blend_of_the_point(explorer, small_manifold):
         assert meta["width"] == meta["height"] == RES and meta["total_ms"] > 0
 
 
-def test_material_description(explorer, small_manifold):
-    m = Manifold.load(small_manifold)
+def test_material_description(explorer, small_manifold_paper):
+    m = Manifold.load(small_manifold_paper)
     i = m.index("gold-paint")
     info = explorer.material(m.latent[i])
     assert info["weights"][0] == {"name": "gold-paint", "w": 1.0}
@@ -88,9 +88,9 @@ def test_material_description(explorer, small_manifold):
     assert far["variance"] == pytest.approx(1.0 + m.noise, rel=1e-6)
 
 
-def test_tables_match_the_manifold(explorer, small_manifold):
+def test_tables_match_the_manifold(explorer, small_manifold_paper):
     """At 32x32x64 bins the preview keeps every bin: negative fraction and slice are exact."""
-    m = Manifold.load(small_manifold)
+    m = Manifold.load(small_manifold_paper)
     # a point between materials where the affine weights make some bins negative
     pairs = [(i, j, t) for i in range(m.n) for j in range(m.n) if i != j for t in (0.3, 0.5, -0.4, 1.6)]
     x = next(x for x in ((1 - t) * m.latent[i] + t * m.latent[j] for i, j, t in pairs)
@@ -120,8 +120,8 @@ def test_bad_points_are_refused(explorer):
     assert np.array_equal(explorer.point("chrome"), explorer.manifold.latent[explorer.manifold.index("chrome")])
 
 
-def test_several_bases_get_a_name_each(small_basis, small_manifold):
-    ex = Explorer([small_basis, small_basis], manifold=small_manifold, load_tables=False)
+def test_several_bases_get_a_name_each(small_basis, small_manifold_paper):
+    ex = Explorer([small_basis, small_basis], manifold=small_manifold_paper, load_tables=False)
     try:
         names = [b["name"] for b in ex.info()["bases"]]
         assert names == ["basis_sphere", "basis_sphere-2"]
@@ -134,7 +134,7 @@ def test_several_bases_get_a_name_each(small_basis, small_manifold):
         ex.close()
 
 
-def test_reference_scene_is_found_when_the_basis_moved(small_basis, small_manifold, tmp_path):
+def test_reference_scene_is_found_when_the_basis_moved(small_basis, small_manifold_paper, tmp_path):
     """A manifest naming a scene file that is gone: the shipped scene of that name and hash is
     used; --scene gives one explicitly (checked by hash); otherwise renders are refused."""
     import json as _json
@@ -146,12 +146,12 @@ def test_reference_scene_is_found_when_the_basis_moved(small_basis, small_manifo
     manifest = _json.load(open(path))
     manifest["scene"] = str(tmp_path / "gone" / "sphere.xml")
     open(path, "w").write(_json.dumps(manifest))
-    ex = Explorer([moved], manifold=small_manifold, load_tables=False)
+    ex = Explorer([moved], manifold=small_manifold_paper, load_tables=False)
     assert ex.scenes["moved"] == SPHERE and ex.info()["bases"][0]["scene_available"]
     ex.close()
     manifest["scene"] = str(tmp_path / "gone" / "elsewhere.xml")
     open(path, "w").write(_json.dumps(manifest))
-    ex = Explorer([moved], manifold=small_manifold, load_tables=False)
+    ex = Explorer([moved], manifold=small_manifold_paper, load_tables=False)
     assert ex.scenes["moved"] is None and not ex.info()["bases"][0]["scene_available"]
     with pytest.raises(ExploreError, match="missing or has changed since the basis was rendered; give it with --scene"):
         ex.start_reference(None, ex.manifold.latent[0], 4)
@@ -159,24 +159,24 @@ def test_reference_scene_is_found_when_the_basis_moved(small_basis, small_manifo
     with TestClient(create_app(ex)) as c:
         assert c.post("/api/reference", json={"x": "chrome"}).status_code == 400
     ex.close()
-    ex = Explorer([moved], manifold=small_manifold, load_tables=False, scene="sphere")
+    ex = Explorer([moved], manifold=small_manifold_paper, load_tables=False, scene="sphere")
     assert ex.scenes["moved"] == SPHERE
     ex.close()
     with pytest.raises(BasisError, match="another scene"):
-        Explorer([moved], manifold=small_manifold, load_tables=False, scene="table")
+        Explorer([moved], manifold=small_manifold_paper, load_tables=False, scene="table")
 
 
-def test_bench_upsampled_basis_blends_as_the_original(small_basis, small_manifold, tmp_path):
+def test_bench_upsampled_basis_blends_as_the_original(small_basis, small_manifold_paper, tmp_path):
     from mitsuba_manifold.bench.explore import upsampled_basis
     big = upsampled_basis(small_basis, str(tmp_path / "x2"))
-    x = Manifold.load(small_manifold).latent[2]
-    small_img, _ = blend(Basis.load(small_basis), small_manifold, x=x)
-    big_img, _ = blend(Basis.load(big), small_manifold, x=x)
+    x = Manifold.load(small_manifold_paper).latent[2]
+    small_img, _ = blend(Basis.load(small_basis), small_manifold_paper, x=x)
+    big_img, _ = blend(Basis.load(big), small_manifold_paper, x=x)
     np.testing.assert_array_equal(big_img, small_img.repeat(2, 0).repeat(2, 1))
 
 
-def test_reference_render_in_the_background(explorer, small_manifold):
-    m = Manifold.load(small_manifold)
+def test_reference_render_in_the_background(explorer, small_manifold_paper):
+    m = Manifold.load(small_manifold_paper)
     job = explorer.start_reference(None, m.latent[1], 4)
     deadline = time.monotonic() + 180
     while job.state in ("queued", "rendering") and time.monotonic() < deadline:
@@ -238,8 +238,8 @@ def test_map_zooms_with_one_colour_scale(client):
     assert part["png"] != whole["png"] and part["png"].startswith("data:image/png;base64,")
 
 
-def test_http_frame_and_snippet(client, explorer, small_manifold):
-    m = Manifold.load(small_manifold)
+def test_http_frame_and_snippet(client, explorer, small_manifold_paper):
+    m = Manifold.load(small_manifold_paper)
     x = m.latent[3]
     r = client.get("/api/frame", params={"x": ",".join(str(float(v)) for v in x), "format": "png"})
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
@@ -250,8 +250,8 @@ def test_http_frame_and_snippet(client, explorer, small_manifold):
     assert "--path chrome 0.1,0.2 --steps 5" in cmd
 
 
-def test_websocket_answers_the_newest_request_per_tab(client, small_manifold):
-    m = Manifold.load(small_manifold)
+def test_websocket_answers_the_newest_request_per_tab(client, small_manifold_paper):
+    m = Manifold.load(small_manifold_paper)
     with client.websocket_connect("/ws") as a, client.websocket_connect("/ws") as b:
         for seq in range(1, 6):
             a.send_text(json.dumps({"type": "frame", "seq": seq, "x": list(m.latent[seq % m.n]), "format": "rgba"}))
@@ -308,9 +308,9 @@ def test_cli_refuses_a_busy_port(small_basis, capsys):
         sock.close()
 
 
-def test_ctrl_c_stops_the_server_with_a_tab_connected(small_basis, small_manifold):
+def test_ctrl_c_stops_the_server_with_a_tab_connected(small_basis, small_manifold_paper):
     from websockets.sync.client import connect
-    proc, url = launch.start([small_basis], small_manifold, ["--no-tables"])
+    proc, url = launch.start([small_basis], small_manifold_paper, ["--no-tables"])
     try:
         with connect(url.replace("http://", "ws://") + "ws", max_size=None) as ws:
             ws.send(json.dumps({"type": "frame", "seq": 1, "x": "chrome", "format": "jpeg"}))
@@ -336,8 +336,8 @@ browser_only = pytest.mark.skipif(
 
 
 @pytest.fixture(scope="module")
-def server(small_basis, small_manifold):
-    proc, url = launch.start([small_basis], small_manifold)
+def server(small_basis, small_manifold_paper):
+    proc, url = launch.start([small_basis], small_manifold_paper)
     yield url
     code, out = launch.stop(proc)
     assert code == 0 and "stopped" in out, (code, out)   # Ctrl-C stops it cleanly
@@ -389,21 +389,21 @@ def _click_material(page, manifold_path, name):
 
 
 @browser_only
-def test_click_on_a_material_shows_its_blend(page, explorer, small_manifold):
-    m = Manifold.load(small_manifold)
+def test_click_on_a_material_shows_its_blend(page, explorer, small_manifold_paper):
+    m = Manifold.load(small_manifold_paper)
     page.mouse.move(*_map_position(page, m.latent[m.index("gold-paint")]))
     page.wait_for_selector("#tooltip:not([hidden])")
     assert page.inner_text("#tooltip") == "gold-paint"   # names on hover
-    x = _click_material(page, small_manifold, "gold-paint")
+    x = _click_material(page, small_manifold_paper, "gold-paint")
     np.testing.assert_array_equal(_displayed_pixels(page), _expected_frame(explorer, x))
     page.wait_for_function("document.getElementById('material-name').textContent === 'gold-paint'")
     assert not page.errors
 
 
 @browser_only
-def test_drag_changes_the_image(page, small_manifold):
-    m = Manifold.load(small_manifold)
-    start = _click_material(page, small_manifold, "steel")
+def test_drag_changes_the_image(page, small_manifold_paper):
+    m = Manifold.load(small_manifold_paper)
+    start = _click_material(page, small_manifold_paper, "steel")
     before = _displayed_pixels(page)
     x0, y0 = _map_position(page, start)
     x1, y1 = _map_position(page, 0.5 * (start + m.latent[m.index("pink-fabric")]) + 0.05)
@@ -420,8 +420,8 @@ def test_drag_changes_the_image(page, small_manifold):
 
 
 @browser_only
-def test_preview_sphere_is_shaded(page, small_manifold):
-    _click_material(page, small_manifold, "white-diffuse-bball")
+def test_preview_sphere_is_shaded(page, small_manifold_paper):
+    _click_material(page, small_manifold_paper, "white-diffuse-bball")
     page.wait_for_timeout(500)
     centre, corner = page.evaluate("""() => { const s = document.getElementById('sphere');
         const c = document.createElement('canvas'); c.width = s.width; c.height = s.height;
@@ -433,8 +433,8 @@ def test_preview_sphere_is_shaded(page, small_manifold):
 
 
 @browser_only
-def test_xml_snippet_loads_in_mitsuba_and_renders(page, small_manifold):
-    m = Manifold.load(small_manifold)
+def test_xml_snippet_loads_in_mitsuba_and_renders(page, small_manifold_paper):
+    m = Manifold.load(small_manifold_paper)
     x = 0.5 * (m.latent[m.index("blue-acrylic")] + m.latent[m.index("chrome")])
     page.evaluate("(x) => window.explore.setX(x)", [float(v) for v in x])
     _wait_displayed(page, x)
@@ -466,11 +466,11 @@ def test_bad_request_from_the_page_gets_400(page):
 
 
 @browser_only
-def test_link_restores_the_point_and_save_png_is_the_frame(page, server, explorer, small_manifold):
+def test_link_restores_the_point_and_save_png_is_the_frame(page, server, explorer, small_manifold_paper):
     import io
 
     from PIL import Image
-    x = _click_material(page, small_manifold, "chrome")
+    x = _click_material(page, small_manifold_paper, "chrome")
     link = page.url
     assert "#x=" in link
     other = page.context.new_page()
@@ -486,8 +486,8 @@ def test_link_restores_the_point_and_save_png_is_the_frame(page, server, explore
 
 
 @browser_only
-def test_two_tabs_at_once(page, server, small_manifold):
-    m = Manifold.load(small_manifold)
+def test_two_tabs_at_once(page, server, small_manifold_paper):
+    m = Manifold.load(small_manifold_paper)
     other = page.context.new_page()
     try:
         other.goto(server)
@@ -503,10 +503,10 @@ def test_two_tabs_at_once(page, server, small_manifold):
 
 
 @browser_only
-def test_path_scrubber_and_export(page, small_manifold):
-    a = _click_material(page, small_manifold, "chrome")
+def test_path_scrubber_and_export(page, small_manifold_paper):
+    a = _click_material(page, small_manifold_paper, "chrome")
     page.click("#set-a")
-    b = _click_material(page, small_manifold, "pink-fabric")
+    b = _click_material(page, small_manifold_paper, "pink-fabric")
     page.click("#set-b")
     page.fill("#scrub", "250")
     page.dispatch_event("#scrub", "input")
@@ -520,7 +520,7 @@ def test_path_scrubber_and_export(page, small_manifold):
 
 
 @browser_only
-def test_without_webgl_the_page_says_so_and_works(page, server, explorer, small_manifold):
+def test_without_webgl_the_page_says_so_and_works(page, server, explorer, small_manifold_paper):
     other = page.context.new_page()
     try:
         other.add_init_script("""{ const get = HTMLCanvasElement.prototype.getContext;
@@ -529,7 +529,7 @@ def test_without_webgl_the_page_says_so_and_works(page, server, explorer, small_
         other.goto(server)
         other.wait_for_function("window.explore && window.explore.state.displayed", timeout=60000)
         assert "WebGL 2 is not available" in other.inner_text("#sphere-msg")
-        x = _click_material(other, small_manifold, "blue-acrylic")
+        x = _click_material(other, small_manifold_paper, "blue-acrylic")
         np.testing.assert_array_equal(_displayed_pixels(other), _expected_frame(explorer, x))
     finally:
         other.close()
@@ -576,10 +576,10 @@ def _shade_like_the_preview(table, strides, key, size):
 
 
 @browser_only
-def test_preview_follows_the_merl_mapping(page, small_manifold):
+def test_preview_follows_the_merl_mapping(page, small_manifold_paper):
     """The sphere drawn by the fragment shader matches the same shading computed in NumPy from
     the interpolated table with merl.half_diff: wrong axes or bin mappings would not."""
-    m = Manifold.load(small_manifold)
+    m = Manifold.load(small_manifold_paper)
     x = 0.6 * m.latent[m.index("gold-paint")] + 0.4 * m.latent[m.index("steel")]
     page.evaluate("(x) => window.explore.setX(x)", [float(v) for v in x])
     page.wait_for_function("(x) => { const p = window.explore.state.previewX; return p && p.every((v, k) => v === x[k]); }",
