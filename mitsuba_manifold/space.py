@@ -163,13 +163,13 @@ def cross_validate(tables, names, fit, G_error, q, albedos, k=10, seed=0, bins=N
         All tables, loaded once.
     fit : callable
         ``fit(train_indices) -> interpolant`` over the training rows (in that order).
-    only_folds : iterable of int, optional
-        Run only these folds (a quicker, partial estimate).
     G_error : (N, N)
         Uncentred Gram of ``log(1 + rho)`` (the error's feature space) for the baselines.
     q : int
         Latent dimension (for PCA with k = q).
     albedos : (N, 3)
+    only_folds : iterable of int, optional
+        Run only these folds (a quicker, partial estimate).
     """
     n, d = tables.shape
     bins = projection.search_bins(d) if bins is None else bins
