@@ -308,7 +308,7 @@ def _basis_and_manifold(basis, manifold):
 
 
 def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free=False, prior=0.0,
-          starts=8, max_iter=100, downsample=None, scan=2048):
+          starts=8, max_iter=100, downsample=None, scan=8192):
     """Find the latent point whose blend (Eq. 13) best matches ``target``.
 
     Parameters

@@ -29,8 +29,8 @@ def _parser():
     p.add_argument("--prior", type=float, default=0.0,
                    help="weight of the GP variance (paper Eq. 2) keeping the point near the data (default 0)")
     p.add_argument("--starts", type=int, default=8, help="L-BFGS-B starts (default 8)")
-    p.add_argument("--scan", type=int, default=2048,
-                   help="random points near the data scored to choose the starts (default 2048; 0: start "
+    p.add_argument("--scan", type=int, default=8192,
+                   help="random points near the data scored to choose the starts (default 8192; 0: start "
                         "from the training points nearest to the best single material)")
     p.add_argument("--max-iter", type=int, default=100, help="L-BFGS-B iterations per start (default 100)")
     p.add_argument("--manifold", help="manifold (.npz); default: the one in the manifest (checked by hash)")
