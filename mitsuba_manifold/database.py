@@ -19,7 +19,7 @@ from .locking import FolderLock
 from .ownership import owned_tables, write_table_record
 from .atomic import atomic_write
 from .cache import adopt_hash, evict, file_hash, file_identity, key_hash, npy_cache
-from .errors import DatabaseError, MissingFileError, NumericalError, UnknownMaterialError
+from .errors import DatabaseError, MissingFileError, NumericalError, UnknownMaterialError, did_you_mean
 
 FITS_PATH = os.path.join(os.path.dirname(__file__), "data", "merl_sgd_fits.json")
 SGD_FIELDS = ("rho_d", "rho_s", "alpha", "p", "f0", "f1", "kap", "lambda", "c", "k", "theta0")
@@ -186,7 +186,7 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     names = list(fits) if materials is None else list(materials)
     unknown = [n for n in names if n not in fits]
     if unknown:
-        raise DatabaseError(f"unknown material(s) {unknown}; see mitsuba_manifold.database.load_sgd_fits()")
+        raise DatabaseError(f"unknown material(s) {unknown}{did_you_mean(unknown[0], fits)}; known: {', '.join(fits)}")
     workers = min(len(names), os.cpu_count() or 1)
     dims = validate.table_resolution(dims, "resolution", workers=workers)
     if not (np.isfinite(noise) and noise >= 0):

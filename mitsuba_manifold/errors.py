@@ -166,3 +166,11 @@ def one_line(exc):
     if isinstance(exc, KeyError) and not isinstance(exc, MitsubaManifoldError) and exc.args:
         text = str(exc.args[0])
     return " ".join((text or type(exc).__name__).split())
+
+
+def did_you_mean(name, choices):
+    """``" (did you mean 'steel'?)"`` for the names of ``choices`` closest to ``name``, or ``""``."""
+    import difflib
+
+    close = difflib.get_close_matches(str(name), [str(c) for c in choices], n=3)
+    return f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""

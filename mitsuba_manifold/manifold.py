@@ -29,7 +29,7 @@ from . import interpolant as interpolants
 from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings  # noqa: F401 (re-exported)
 from .database import FEATURES, Database
-from .errors import ManifoldError, NotPositiveDefiniteError
+from .errors import ManifoldError, NotPositiveDefiniteError, did_you_mean
 from .validate import weight_sum
 
 FORMAT_VERSION = manifold_file.FORMAT_VERSION
@@ -270,7 +270,7 @@ class Manifold:
         try:
             return self.names.index(name)
         except ValueError:
-            raise ManifoldError(f"unknown material {name!r}: this manifold has {self.n} materials "
+            raise ManifoldError(f"unknown material {name!r}{did_you_mean(name, self.names)}: this manifold has {self.n} materials "
                                 f"({', '.join(self.names[:6])}{', ...' if self.n > 6 else ''})") from None
 
     def parse_weights(self, text):

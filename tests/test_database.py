@@ -86,6 +86,8 @@ def test_make_database_is_deterministic_and_keeps_valid_files(tmp_path):
         database.make_database(a, dims, ["steel"], noise=0.2, seed=7)
     with pytest.raises(ValueError, match="unknown material"):
         database.make_database(tmp_path / "c", dims, ["steel", "unobtainium"])
+    with pytest.raises(ValueError, match=r"\['stel'\] \(did you mean 'steel'"):   # a typo gets a suggestion
+        database.make_database(tmp_path / "c", dims, ["stel"])
     assert json.loads((a / "database.json").read_text())["seed"] == 7
 
 

@@ -191,3 +191,11 @@ def test_negative_fraction_counts_what_the_plugin_clamps(fitted, small_db):
         assert fitted.negative_fraction(x, prune=0.0) == pytest.approx(expected, abs=1e-4)
         seen.append(expected)
     assert max(seen) > 0.01        # the random points include genuinely negative blends
+
+
+def test_unknown_material_suggests_the_closest_names(small_manifold):
+    from mitsuba_manifold.errors import ManifoldError
+
+    m = Manifold.load(small_manifold)
+    with pytest.raises(ManifoldError, match=r"unknown material 'stel' \(did you mean 'steel'"):
+        m.index("stel")
