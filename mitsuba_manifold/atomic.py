@@ -7,6 +7,10 @@ the new one is complete (GUIDE: nothing existing destroyed or half-written).
 import os
 import tempfile
 
+# The process's umask, read once: reading it means setting it, which races with other threads.
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
 
 def atomic_replace(path, write):
     """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it to ``path``.
@@ -21,9 +25,7 @@ def atomic_replace(path, write):
     os.close(fd)
     try:
         write(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
+        os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

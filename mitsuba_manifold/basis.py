@@ -220,14 +220,14 @@ def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mo
     manifest = {
         "format": FORMAT, "version": FORMAT_VERSION,
         "scene": os.path.abspath(scene), "scene_hash": scene_hash(scene),
-        "manifold": os.path.abspath(manifold), "manifold_hash": _identity(manifold),
+        "manifold": os.path.abspath(manifold), "manifold_hash": manifold_file_identity(manifold),
         "resolution": [int(v) for v in resolution], "spp": int(spp), "variant": str(variant),
         "seed": int(seed), "max_depth": int(max_depth), "mode": mode,
         "targets": [str(t) for t in targets], "images": dict(images or {})}
     return validate_manifest(manifest, where="new manifest")
 
 
-def _identity(manifold):
+def manifold_file_identity(manifold):
     """Content identity of a manifold file (:func:`manifold_identity`)."""
     from .manifold import Manifold
     return manifold_identity(Manifold.load(manifold))
@@ -242,7 +242,7 @@ def upgrade_manifest(manifest, manifold):
         return manifest
     images = {k: e for k, e in manifest["images"].items()
               if k == BASE or all(names_mod.is_escaped(p) for p in k.split(SEP))}
-    return dict(manifest, version=FORMAT_VERSION, manifold_hash=_identity(manifold), images=images)
+    return dict(manifest, version=FORMAT_VERSION, manifold_hash=manifold_file_identity(manifold), images=images)
 
 
 def write_manifest(folder, manifest):

@@ -235,7 +235,7 @@ def render_chunked(scene, manifold, out, spp=64, chunks=1, seed=0, executor=None
     manifest = merge(out, [chunk_folder(out, s) for s in specs], seed, options.get("force", False))
     merge_s = time.perf_counter() - t1
     if aovs:
-        from .basis import ensure_aovs
+        from .render_basis import ensure_aovs
         ensure_aovs(out, manifest)
     if not keep_chunks:
         shutil.rmtree(os.path.join(out, CHUNK_DIR), ignore_errors=True)
@@ -248,7 +248,9 @@ def _check_out(out, spec, spp, seed, chunks):
         return
     old = basis_folder.read_manifest(out)
     want = {"spp": int(spp), "seed": int(seed), "chunks": int(chunks),
-            "scene_hash": basis_folder.scene_hash(spec.scene), "manifold_hash": file_hash(spec.manifold)}
+            "scene_hash": basis_folder.scene_hash(spec.scene),
+            "manifold_hash": (basis_folder.manifold_file_identity(spec.manifold) if old.get("version", 1) >= 2
+                              else file_hash(spec.manifold))}
     if "mode" in spec.options:
         want["mode"] = spec.options["mode"]
     diff = [k for k, v in want.items() if old.get(k) != v]

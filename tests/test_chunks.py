@@ -89,6 +89,18 @@ def test_resume_per_chunk_and_refusals(tmp_path, small_manifold):
     with pytest.raises(errors.BasisError, match="other settings"):  # one-process render into a merged basis
         render_basis.render_basis(SPHERE, small_manifold, str(out), spp=4, **OPTIONS)
     assert before == {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
+    # the same command again: nothing to render, nothing refused, nothing rewritten
+    again = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=4, chunks=4, **OPTIONS)
+    assert again.manifest["images"].keys() == run.manifest["images"].keys()
+    assert before == {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
+
+
+def test_chunked_basis_with_denoising_guides(tmp_path, small_manifold):
+    from mitsuba_manifold import denoise
+
+    out = tmp_path / "aov"
+    run = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=2, chunks=2, aovs=True, **OPTIONS)
+    assert denoise.BasisAOVs.load(str(out), run.manifest) is not None
 
 
 def test_cli_chunks_views_and_scenes(tmp_path, small_manifold):
