@@ -142,8 +142,9 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         Weights instead of ``x``: (N,) or (p, N). With one target any weights are allowed
         (the touch images are linear in the BRDF); with several, each row must sum to 1.
     prune : float
-        Skip materials with ``|w_i| <= prune * sum |w|`` (:meth:`Manifold.prune`; the kept
-        weights are rescaled to the same sum).
+        Drop the materials of smallest contribution ``|w_i| |table_i|`` while the
+        interpolated table changes by at most ``prune`` of its L2 norm (:meth:`Manifold.prune`;
+        the kept weights are rescaled to the same sum).
     renormalise : bool
         When images the blend needs are missing from the basis (e.g. a ``--near`` basis),
         drop them and rescale the remaining image weights to the same sum instead of

@@ -17,7 +17,6 @@ import numpy as np
 from . import merl, validate
 from .locking import FolderLock
 from .ownership import owned_tables, write_table_record
-from .atomic import atomic_write
 from .cache import adopt_hash, evict, file_hash, file_identity, key_hash, npy_cache
 from .errors import DatabaseError, MissingFileError, NumericalError, UnknownMaterialError, did_you_mean
 

@@ -1,7 +1,10 @@
 """The identity of a manifold: what it computes, not the bytes of its file.
 
-Two manifolds with the same :func:`manifold_identity` give the same weights for every
-latent point over the same tables, so images rendered with one are valid for the other.
+Two manifolds with the same :func:`manifold_identity` hold the same materials at the same
+latent points over the same tables, so per-material images rendered with one are valid for
+the other. It does not include the interpolant (GP or Shepard weights and their settings):
+the images of a basis do not depend on it, but weights do, so do not key anything that
+depends on ``w(x)`` on this identity.
 The identity hashes the material names, the tables' content hashes, the latent points
 (float64 bytes), the kernel's length scale and noise and the fit's feature transform.
 It leaves out everything that does not change the interpolant: fit timings, the

@@ -1,7 +1,7 @@
 """The material manifold: latent points, interpolation weights, interpolated tables.
 
 A fitted :class:`Manifold` places each of N measured materials at a latent point
-``x_i`` (paper Sec. 3). For any latent point ``x`` the GP gives
+``x_i`` (paper Sec. 3). With ``preset="paper"``, for any latent point ``x`` the GP gives
 
     b(x) = K_inv k(x)                       (paper Eq. 4; K_inv: inverse covariance of the
                                              latent points, k(x): covariance of x with them)

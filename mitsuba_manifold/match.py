@@ -2,7 +2,8 @@
 
 The ``L1-`` image of latent point ``x`` (paper Eq. 13) is linear in the affine weights,
 
-    I(x) = base + sum_i w_i(x) I_i,        w(x) = K_inv k(x) + affine correction (Eq. 4)
+    I(x) = base + sum_i w_i(x) I_i,        w(x): the manifold's interpolant (default: convex
+                                           Shepard weights; preset "paper": Eq. 4)
 
 and ``w`` is smooth in ``x`` with the closed-form Jacobian :meth:`Manifold.weights_jacobian`,
 so ``dI/dx = sum_i (dw_i/dx) I_i`` and a target image can be matched by optimising ``x``
@@ -29,7 +30,7 @@ material's latent point and the best scanned points (``starts`` in all; with ``s
 the training points nearest to the best single material, which on a stiff manifold often
 misses the basin of the answer), and the best of the optimised points and the single
 materials is returned. A training point
-itself is reachable exactly (the kernel's noise term makes ``w = e_i`` there), so a training
+itself is reachable exactly (every interpolant gives ``w = e_i`` there), so a training
 material's own image gives back its own point.
 """
 

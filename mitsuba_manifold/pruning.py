@@ -31,7 +31,7 @@ def errors(w, kept, G):
     s = np.where(kept, w, 0.0).sum(axis=1)
     scale = np.divide(w.sum(), s, out=np.zeros_like(s), where=np.abs(s) > 0)
     delta = np.where(kept, w * scale[:, None], 0.0) - w
-    num = np.maximum(np.einsum("mi,ij,mj->m", delta, G, delta), 0.0)
+    num = np.maximum(((delta @ G) * delta).sum(axis=1), 0.0)   # BLAS, not einsum's loop
     den = float(w @ G @ w)
     if den > 0:
         return np.sqrt(num / den)

@@ -62,7 +62,6 @@ def _point(stage, p):
         return {"time_s": time.perf_counter() - t0, "load_s": t_load, "d": int(tables.shape[1])}
     if stage == "fit":
         from .. import gplvm
-        from ..manifold import Manifold
         S = np.load(p["gram"])
         d = 3 * int(np.prod(p["dims"]))
         init = gplvm.pca_init(S, 2)
