@@ -87,9 +87,13 @@ class RayExecutor:
         items = list(items)
         remote = ray.remote(num_cpus=self.cpus_per_task, max_retries=self.max_retries)(fn)
         pending = [remote.remote(item) for item in items]
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            yield ray.get(done[0])
+        try:
+            while pending:
+                done, pending = ray.wait(pending, num_returns=1)
+                yield ray.get(done[0])
+        finally:  # a failed chunk, Ctrl-C or a caller that stops: no task left rendering
+            for ref in pending:
+                ray.cancel(ref, force=True)
 
     def close(self):
         if self._started:
