@@ -135,9 +135,12 @@ class GaussianProcessWeights(Interpolant):
             b[rows, cols] = 1.0
         return b
 
-    def _weights(self, x):
-        b = self.gp_weights(x)
+    def affine(self, b):
+        """The affine weights ``w = b + (1 - sum(b)) / N`` of Eq. 4's ``b`` (M, N)."""
         return b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
+
+    def _weights(self, x):
+        return self.affine(self.gp_weights(x))
 
     def _jacobian(self, x):
         # dk_i/dx = -k_i (x - x_i) / l^2; db = K_inv dk; dw = db - sum(db) / N

@@ -182,7 +182,6 @@ class Manifold:
                 f"the covariance K of the {len(self.names)} latent points is not positive definite "
                 f"(noise mu={self.noise:g} too small for coincident points?)") from None
         self.K = K
-        self.K_inv = self._factor.solve(np.eye(len(self.names)))
 
     @property
     def q(self):
@@ -217,7 +216,7 @@ class Manifold:
         ip = self.interpolant
         if isinstance(ip, interpolants.GaussianProcessWeights):
             b = ip.gp_weights(x)
-            w = b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
+            w = ip.affine(b)
         else:
             w = ip.weights(x)
             b = w - 1.0 / self.n
