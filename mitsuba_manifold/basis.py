@@ -13,6 +13,7 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
      "resolution": [width, height], "spp": int, "variant": str, "seed": int, "max_depth": int,
      "mode": "per-material" | "onepass", "targets": [bsdf id, ...],
      "sensor": int (optional, default 0), "chunks": int (optional: merged from k chunks),
+     "pending": ["<key>.exr", ...] (optional: being written; see render_basis),
      "images": {"base": {"file": "base.exr", "time_s": float},
                 "<material>": {"file": "<material>.exr", "time_s": float}, ...}}
 
@@ -166,6 +167,9 @@ def validate_manifest(manifest, where=MANIFEST):
     if (not isinstance(targets, list) or not targets or not all(isinstance(t, str) and t for t in targets)
             or len(set(targets)) != len(targets)):
         bad(f"targets must be a non-empty list of distinct BSDF ids, got {targets!r}")
+    pending = manifest.get("pending", [])
+    if not isinstance(pending, list) or not all(_plain_exr(f) for f in pending):
+        bad(f"pending must be a list of plain '<name>.exr' file names, got {pending!r}")
     images = manifest.get("images")
     if not isinstance(images, dict):
         bad(f"images must be an object, got {type(images).__name__}")
@@ -180,8 +184,7 @@ def validate_manifest(manifest, where=MANIFEST):
         if not isinstance(entry, dict):
             bad(f"image {key!r}: entry must be an object with 'file' and 'time_s'")
         name = entry.get("file")
-        if (not isinstance(name, str) or not name.endswith(".exr") or os.path.basename(name) != name
-                or name.startswith(".")):
+        if not _plain_exr(name):
             bad(f"image {key!r}: file must be a plain '<name>.exr' inside the folder, got {name!r}")
         if name in files:
             bad(f"image {key!r}: file {name!r} is listed twice")
@@ -190,6 +193,11 @@ def validate_manifest(manifest, where=MANIFEST):
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
             bad(f"image {key!r}: time_s must be a non-negative number, got {t!r}")
     return manifest
+
+
+def _plain_exr(name):
+    return (isinstance(name, str) and name.endswith(".exr") and os.path.basename(name) == name
+            and not name.startswith("."))
 
 
 def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mode, targets,

@@ -71,7 +71,9 @@ def _open_folder(out, manifest, files, force=False, read_images=True):
 
     A folder whose manifest has other settings is refused, unless it lists no image yet
     (nothing to lose). Files the run would write (``files``) that exist without being
-    listed in the manifest are the user's: refused unless ``force``.
+    listed in the manifest are the user's: refused unless ``force``. Files the manifest
+    lists as ``pending`` were being written by a run that was killed: they are this tool's,
+    and are removed when ``read_images`` (the locked call) so they are rendered again.
     """
     old = None
     listed = set()
@@ -79,6 +81,7 @@ def _open_folder(out, manifest, files, force=False, read_images=True):
         old = basis_folder.read_manifest(out)   # raises unless it is a basis manifest
         old = basis_folder.upgrade_manifest(old, manifest["manifold"])   # resume a version-1 basis
         listed.add(basis_folder.MANIFEST)
+        listed |= _clear_pending(out, old, remove=read_images)
         diff = basis_folder.manifest_differences(old, manifest)
         if diff and old["images"]:
             raise RenderBasisError(
@@ -110,6 +113,18 @@ def _open_folder(out, manifest, files, force=False, read_images=True):
             continue
         kept[key] = entry
     return kept
+
+
+def _clear_pending(out, old, remove):
+    """The files ``old`` lists as pending and not as images (a killed run's); removed when
+    ``remove`` (a read-only one is left, and then refused as the user's)."""
+    done = {e["file"] for e in old["images"].values()}
+    pending = {f for f in old.get("pending", []) if f not in done}
+    for f in pending if remove else ():
+        path = os.path.join(out, f)
+        if os.path.lexists(path) and not ownership.read_only(path):
+            os.remove(path)
+    return {f for f in pending if not ownership.read_only(os.path.join(out, f))}
 
 
 def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=None, radius=None,
@@ -214,13 +229,19 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
 
         def save(images, seconds):
-            """Write ``{key: image}`` (EXR files in parallel), then list them in the manifest."""
+            """Write ``{key: image}`` (EXR files in parallel), then list them in the manifest.
+
+            The files are first listed as ``pending``: a run killed between writing a file
+            and listing it leaves a file its resume knows to be its own."""
             from concurrent.futures import ThreadPoolExecutor
+            manifest["pending"] = sorted(key + ".exr" for key in images)
+            basis_folder.write_manifest(out, manifest)
             with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
                 list(pool.map(lambda kv: imageio.write_exr(os.path.join(out, kv[0] + ".exr"), kv[1]),
                               images.items()))
             for key in images:
                 manifest["images"][key] = {"file": key + ".exr", "time_s": float(seconds)}
+            del manifest["pending"]
             basis_folder.write_manifest(out, manifest)
 
         if todo and mode == "onepass":

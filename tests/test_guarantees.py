@@ -423,6 +423,33 @@ def test_a_killed_render_leaves_no_lock_and_resumes(tmp_path, tiny):
         assert imageio.read_exr(out / entry["file"]).shape == (16, 16, 3)
 
 
+def test_an_image_written_but_not_yet_listed_is_the_resumed_runs_own(tmp_path, tiny):
+    """kill -9 between writing ``<key>.exr`` and listing it: the manifest named it pending,
+    so the resume renders it again instead of refusing it as the user's file."""
+    out = tmp_path / "basis"
+    args = [SPHERE, "--manifold", tiny["manifold"], "--out", str(out), "--res", "8", "--spp", "2",
+            "--mode", "per-material"]
+    assert run_tool("render_basis", *args)[0] == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    key = next(k for k in manifest["images"] if k != "base")
+    file = manifest["images"].pop(key)["file"]
+    manifest["pending"] = [file]
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    imageio.write_exr(out / file, np.full((8, 8, 3), -7.0, np.float32))   # the killed run's file
+    user = out / "notes.exr"
+    imageio.write_exr(user, np.zeros((8, 8, 3), np.float32))
+    rc, _, err = run_tool("render_basis", *args)
+    assert rc == 0, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert key in manifest["images"] and "pending" not in manifest
+    assert imageio.read_exr(out / file).min() >= 0                       # rendered again
+    assert imageio.read_exr(user).shape == (8, 8, 3)                      # not ours: untouched
+    manifest["images"].pop(key)                                           # listed nowhere now
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    rc, _, err = run_tool("render_basis", *args)
+    assert rc == 2 and file in err and "did not make" in err
+
+
 def test_ctrl_c_stops_a_reference_render_and_writes_nothing(tmp_path, tiny):
     out = tmp_path / "blend"
     out.mkdir()
