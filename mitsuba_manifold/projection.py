@@ -3,8 +3,9 @@
 The error is the RMS over bins of ``log(1 + rho(x)) - log(1 + rho)`` (``rho(x)``: the
 interpolated table, clamped at 0 as the plugin does), the usual perceptual-ish distance
 between MERL tables. On a random subsample of bins, points along the segments between the
-few training materials closest to the target are scored in one batch; the best of them
-start L-BFGS-B with the analytic gradient (the interpolant's Jacobian ``dw/dx``). The result
+few training materials closest to the target, and from each of them toward its nearest
+latent neighbours (the blends the space offers around it), are scored in one batch; the
+best of them start L-BFGS-B with the analytic gradient (the interpolant's Jacobian ``dw/dx``). The result
 is measured on all bins and never worse than the closest training material itself.
 """
 
@@ -78,8 +79,20 @@ def search_bins(d, n=SEARCH_BINS, seed=0):
     return np.sort(np.random.default_rng(seed).choice(d, n, replace=False))
 
 
+def candidates(latent, order, n_latent=6, steps=19):
+    """Starting points: along the segments between the latent points ``order`` (the closest
+    materials in table space) and from each of them toward its ``n_latent`` nearest latent
+    neighbours, plus the points themselves."""
+    t = np.linspace(0.05, 0.95, steps)[:, None]
+    ends = [(a, b) for k, a in enumerate(order) for b in order[k + 1:]]
+    for a in order:
+        near = np.argsort(np.linalg.norm(latent - latent[a], axis=1))[1:n_latent + 1]
+        ends += [(a, b) for b in near if (a, b) not in ends and (b, a) not in ends]
+    return np.vstack([latent[a] + t * (latent[b] - latent[a]) for a, b in ends] + [latent[order]])
+
+
 def project(interpolant, tables, target, names=None, bins=None, rows=None, n_nearest=4, n_starts=3,
-            max_iter=100):
+            max_iter=100, n_latent=6):
     """Best latent point of ``target`` on the manifold of ``interpolant`` over ``tables``.
 
     Parameters
@@ -99,7 +112,8 @@ def project(interpolant, tables, target, names=None, bins=None, rows=None, n_nea
         Rows of ``tables`` that are the training materials (default: all).
     n_nearest : int
         Candidate starts lie on the segments between this many closest training materials
-        (closest on the searched bins); the ``n_starts`` best of them start L-BFGS-B.
+        (closest on the searched bins) and from each of them toward its ``n_latent`` nearest
+        latent neighbours; the ``n_starts`` best of them start L-BFGS-B.
 
     Returns
     -------
@@ -119,10 +133,7 @@ def project(interpolant, tables, target, names=None, bins=None, rows=None, n_nea
     own = log_rms(T, y)
     order = np.argsort(own)[:max(1, min(n_nearest, n))]
     X = interpolant.latent
-    # candidates: points along the segments between the closest materials, scored in one batch
-    t = np.linspace(0.05, 0.95, 19)[:, None]
-    cand = [X[a] + t * (X[b] - X[a]) for k, a in enumerate(order) for b in order[k + 1:]]
-    cand = np.vstack(cand + [X[order]])
+    cand = candidates(X, order, n_latent)   # scored in one batch
     scores = log_rms(interpolant.weights(cand) @ T, y)
     best = (float(own[order[0]]), X[order[0]].copy())
 

@@ -40,7 +40,9 @@ def select_materials(manifold, materials="all", near=None, radius=None):
     manifold : Manifold
     materials : "all" or list of str
     near : array_like (q,), optional
-        With ``radius``: only materials whose latent point lies within ``radius`` of it.
+        With ``radius``: only materials whose latent point lies within ``radius`` of it, and
+        those the blend at ``near`` itself needs (kept by the default prune), so that the
+        centre of a ``--near`` basis can always be blended.
     """
     if near is not None or radius is not None:
         if near is None or radius is None:
@@ -52,8 +54,9 @@ def select_materials(manifold, materials="all", near=None, radius=None):
         if not radius > 0:
             raise RenderBasisError(f"--radius must be > 0, got {radius}")
         dist = np.linalg.norm(manifold.latent - near, axis=1)
-        chosen = [n for n, dd in zip(manifold.names, dist) if dd <= radius]
-        if not chosen:
+        needed = set(manifold.prune(manifold.weights(near).w).keep.tolist())
+        chosen = [n for i, (n, dd) in enumerate(zip(manifold.names, dist)) if dd <= radius or i in needed]
+        if not any(dist <= radius):
             raise RenderBasisError(f"no material lies within {radius} of {near.tolist()} "
                                    f"(nearest: {manifold.names[int(dist.argmin())]} at {dist.min():.3g})")
         return chosen

@@ -42,6 +42,23 @@ def test_select_materials(small_manifold):
         render_basis.select_materials(m, near=m.latent.max(0) + 100, radius=0.5)
 
 
+def test_the_centre_of_a_near_basis_can_be_blended(tmp_path, small_manifold):
+    """A radius that holds only one of two neighbours still renders what the blend at the
+    centre needs: blending there works without --renormalise."""
+    m = Manifold.load(small_manifold)
+    d = np.linalg.norm(m.latent[:, None] - m.latent[None], axis=-1) + np.eye(m.n) * 1e9
+    i, j = np.unravel_index(np.argmin(d), d.shape)
+    centre = m.latent[i] + 0.45 * (m.latent[j] - m.latent[i])
+    chosen = render_basis.select_materials(m, near=centre, radius=0.5 * d[i, j])
+    assert m.names[i] in chosen and m.names[j] in chosen
+    assert set(m.names[k] for k in m.prune(m.weights(centre).w).keep) <= set(chosen)
+    out = tmp_path / "basis"
+    render_basis.render_basis(SPHERE, small_manifold, out, spp=2, near=centre, radius=0.5 * d[i, j],
+                              resolution=8)
+    image, info = blend(out, x=centre)
+    assert image.shape == (8, 8, 3) and not info["renormalised"] and not info["missing"]
+
+
 def test_scene_without_manifold_material_is_refused(tmp_path, small_manifold):
     scene = tmp_path / "plain.xml"
     scene.write_text("""<scene version="3.0.0">

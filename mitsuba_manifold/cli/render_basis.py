@@ -37,7 +37,7 @@ def main(argv=None):
     p.add_argument("--manifold", default="out/manifold.npz", help="saved manifold (default out/manifold.npz)")
     p.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
     p.add_argument("--materials", type=parse_list, default="all", help="'all' (default) or a,b,...")
-    p.add_argument("--near", type=parse_floats, default=None, metavar="X", help="only materials near this latent point")
+    p.add_argument("--near", type=parse_floats, default=None, metavar="X", help="only the materials within --radius of this latent point, and those its own blend needs")
     p.add_argument("--radius", type=float, default=None, help="radius for --near")
     p.add_argument("--mode", choices=["onepass", "per-material"], default="onepass",
                    help="all materials from one set of paths (default) or one render per material")
