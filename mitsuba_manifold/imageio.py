@@ -192,6 +192,26 @@ def write_png(path, img, exposure=0.0, text=None):
     atomic_write(path, lambda f: pil.save(f, format="PNG", pnginfo=info))
 
 
+def _wrap(text, width, length, max_lines=3):
+    """``text`` as at most ``max_lines`` lines no wider than ``width`` (``length(s)``: pixels);
+    cut at ``-``, ``_`` or spaces where possible, the last line ending in ``...`` if it is cut."""
+    out = []
+    while text and len(out) < max_lines:
+        k = len(text)
+        while k > 1 and length(text[:k]) > width:
+            k -= 1
+        cut = max(text.rfind(ch, 0, k) for ch in "-_ ") + 1 if k < len(text) else k
+        k = cut if cut > 1 else k
+        out.append(text[:k].rstrip())
+        text = text[k:].lstrip()
+    if text:
+        last = out[-1]
+        while len(last) > 1 and length(last + "...") > width:
+            last = last[:-1]
+        out[-1] = last + "..."
+    return out or [""]
+
+
 def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, pad=4):
     """PNG grid of tonemapped images (one exposure for all), with optional labels; atomic.
 
@@ -214,7 +234,9 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
         raise ImageError(f"{len(labels)} labels for {n} images")
     cols = int(columns or np.ceil(np.sqrt(n)))
     rows = -(-n // cols)
-    label_h = 14 if labels else 0
+    draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    lines = [_wrap(str(t), w - 2, draw.textlength) for t in labels] if labels else []
+    label_h = 12 * max(map(len, lines)) + 2 if labels else 0
     sheet = np.full((rows * (h + label_h + pad) + pad, cols * (w + pad) + pad, 3), 32, dtype=np.uint8)
     tiles = tonemap(images, exposure)
     for i in range(n):
@@ -224,9 +246,9 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
     if labels:
         pil = Image.fromarray(sheet)
         draw = ImageDraw.Draw(pil)
-        for i, text in enumerate(labels):
+        for i, text in enumerate(lines):
             r, c = divmod(i, cols)
-            draw.text((pad + c * (w + pad) + 2, pad + r * (h + label_h + pad) + h + 1), str(text),
-                      fill=(230, 230, 230))
+            draw.text((pad + c * (w + pad) + 2, pad + r * (h + label_h + pad) + h + 1), "\n".join(text),
+                      fill=(230, 230, 230), spacing=2)
         sheet = np.asarray(pil)
     write_png(path, sheet)

@@ -120,3 +120,18 @@ def test_false_colour_error_png(tmp_path):
 
 
 # ------------------------------------------------------------------- basis
+
+
+def test_contact_sheet_labels_stay_under_their_own_tile(tmp_path):
+    """Long material names on small tiles wrap (or end in ...) instead of running into the next."""
+    from PIL import Image
+
+    images = np.zeros((3, 64, 64, 3), np.float32)
+    path = tmp_path / "sheet.png"
+    imageio.write_contact_sheet(path, images, labels=["specular-yellow-phenolic-and-more"] * 3, columns=3, pad=4)
+    sheet = np.asarray(Image.open(path).convert("RGB"))
+    labels = sheet[4 + 64:-4]                     # the label band under the tiles
+    assert (labels > 100).any()                   # the labels are drawn
+    for c in range(1, 3):                         # the gutters between tiles stay background
+        gutter = labels[:, c * 68:c * 68 + 4]
+        assert (gutter == 32).all()
