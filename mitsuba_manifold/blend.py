@@ -29,10 +29,8 @@ import numpy as np
 
 from .basis import BASE, Basis
 from .errors import BasisError
+from .pruning import DEFAULT_PRUNE
 
-#: Default pruning budget (largest relative L2 change of the table), as ``Manifold.prune``
-#: and the ``manifold_brdf`` plugin (``manifold.DEFAULT_PRUNE``).
-DEFAULT_PRUNE = 1e-2
 #: How far the weights of one target may sum away from 1 in a multilinear blend.
 AFFINE_TOL = 1e-6
 

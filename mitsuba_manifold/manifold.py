@@ -30,12 +30,11 @@ from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings  # noqa: F401 (re-exported)
 from .database import FEATURES, Database
 from .errors import ManifoldError, NotPositiveDefiniteError, did_you_mean
+from .pruning import DEFAULT_PRUNE
 from .validate import weight_sum
 
 FORMAT_VERSION = manifold_file.FORMAT_VERSION
 
-#: Default pruning budget: largest relative L2 change of the table (see :meth:`Manifold.prune`).
-DEFAULT_PRUNE = 1e-2
 
 
 class Weights(NamedTuple):

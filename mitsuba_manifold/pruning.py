@@ -12,6 +12,10 @@ weights, ``|delta^T T|^2 = delta^T G delta``.
 
 import numpy as np
 
+#: Default pruning budget: largest relative L2 change of the table, for ``Manifold.prune``,
+#: the ``manifold_brdf`` plugin, blends and the explorer.
+DEFAULT_PRUNE = 1e-2
+
 
 def raw_gram(tables, block=1 << 16):
     """``T T^T`` (float64) of float32 tables ``(N, d)``, by blocks of values."""

@@ -15,6 +15,7 @@ import re
 import sys
 import time
 
+from ..pruning import DEFAULT_PRUNE
 from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats
 
 NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
@@ -35,8 +36,9 @@ def parser():
     p.add_argument("--manifold", help="manifold (.npz); default: the one in the manifest (checked by hash)")
     p.add_argument("--scene", help="scene XML to check the basis against (default: not checked; "
                                    "--render-reference uses the manifest's scene)")
-    p.add_argument("--prune", type=float, default=1e-3,
-                   help="skip materials with |w_i| <= P * sum|w| (default 1e-3)")
+    p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
+                   help="drop the materials of smallest contribution while the interpolated table changes "
+                        f"by at most this fraction of its L2 norm (default {DEFAULT_PRUNE:g}, as the plugin)")
     p.add_argument("--renormalise", action="store_true",
                    help="if images with surviving weight are missing from the basis, rescale the "
                         "weights of those present instead of failing (an approximation)")

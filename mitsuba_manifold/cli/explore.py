@@ -13,6 +13,8 @@ import argparse
 import socket
 import sys
 
+from ..pruning import DEFAULT_PRUNE
+
 DEFAULT_PORT = 8765
 
 
@@ -35,7 +37,9 @@ def parser():
                                    "basis (default: the manifest's scene, or the shipped one of that name)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: any free port)")
-    p.add_argument("--prune", type=float, default=1e-3, help="blend pruning threshold (default 1e-3)")
+    p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
+                   help="drop the materials of smallest contribution while the interpolated table changes "
+                        f"by at most this fraction of its L2 norm (default {DEFAULT_PRUNE:g}, as the plugin)")
     p.add_argument("--no-tables", action="store_true",
                    help="do not load the material tables (no preview sphere, slice or negative-bin fraction)")
     return p

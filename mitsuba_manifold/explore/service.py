@@ -78,7 +78,7 @@ class Explorer:
         if not bases:
             raise ExploreError("give at least one basis folder")
         if not 0.0 <= float(prune) < 1.0:
-            raise ExploreError(f"prune must be in [0, 1) (a fraction of sum |w|), got {prune}")
+            raise ExploreError(f"prune must be in [0, 1) (a fraction of the table's L2 norm), got {prune}")
         self.prune = float(prune)
         self.bases = {}
         self.manifold_path = None
