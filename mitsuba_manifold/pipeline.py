@@ -213,6 +213,26 @@ def versus_direct(row, spp):
             "meets_error_target": bool(b["rel_mse"] < d["rel_mse"])}
 
 
+def check_main_job(out, resolution, q, scene, res, spp, ref_spp, direct_spp=(1,)):
+    """Check the main job's settings before anything is computed or written; raises
+    :class:`~mitsuba_manifold.errors.InputError` naming the option (as ``tools/main.py``
+    spells it), the value and the fix. Returns the scene's path."""
+    from . import validate
+    from .kernel import MAX_LATENT_DIM
+
+    validate.output_folder("--out", out)
+    validate.table_resolution(resolution, "--resolution")
+    if q is not None:
+        validate.positive_int("--q", q, "3", hi=MAX_LATENT_DIM)
+    path = validate.scene("--scene", scene)
+    validate.positive_int("--res", res, "256")
+    validate.positive_int("--spp", spp, "1024")
+    validate.positive_int("--ref-spp", ref_spp, "2048")
+    for s in direct_spp:
+        validate.positive_int("direct_spp", s, "64")
+    return path
+
+
 def run_main_job(out, resolution=(90, 90, 180), q=None, features=None, scene="table", res=256, spp=1024,
                  ref_spp=2048, mode="onepass", direct_spp=(1, 4, 16, 64, 256), denoise=True, log=print,
                  preset="default"):
@@ -221,6 +241,7 @@ def run_main_job(out, resolution=(90, 90, 180), q=None, features=None, scene="ta
     ``log(text)`` reports progress (stages and results). Returns the GI report (with
     ``report_path`` and ``stages``: the measured seconds of each stage).
     """
+    check_main_job(out, resolution, q, scene, res, spp, ref_spp, direct_spp)
     t_start = time.perf_counter()
     stages = {}
     db_dir = os.path.join(out, "database")

@@ -28,6 +28,35 @@ def finite(name, value, lo=-math.inf, hi=math.inf, lo_open=False):
     return v
 
 
+def positive_int(name, value, example, hi=None):
+    """``value`` as an int from 1 (to ``hi``); the error suggests ``name example``."""
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+    if not ok or value < 1 or (hi is not None and value > hi):
+        span = f"from 1 to {hi}" if hi else "of at least 1"
+        raise InputError(f"{name} {value!r} is not allowed: it must be an integer {span} (e.g. {name} {example})")
+    return int(value)
+
+
+def scene(name, value):
+    """A shipped scene's name or a readable scene XML; returns its path. The error names the
+    option and the value, and suggests the closest shipped scene names."""
+    from . import scenes
+    from .errors import MitsubaManifoldError, did_you_mean
+
+    try:
+        path = scenes.scene_path(value)
+        scenes.scene_parameters(path)
+    except MitsubaManifoldError:
+        shipped = scenes.shipped_scenes()
+        hint = did_you_mean(value, shipped) if os.sep not in str(value) else ""
+        if os.path.isfile(value):
+            raise InputError(f"{name} {value}: not a readable scene XML file; give a Mitsuba scene XML "
+                             f"or a shipped scene ({', '.join(shipped)})") from None
+        raise InputError(f"{name} {value!r}: no such file nor shipped scene{hint}; shipped scenes: "
+                         f"{', '.join(shipped)}") from None
+    return path
+
+
 def exposure(value, name="--exposure"):
     """A PNG exposure in stops (see :data:`EXPOSURE_RANGE`)."""
     return finite(name, value, *EXPOSURE_RANGE)

@@ -5,14 +5,27 @@ import os
 
 import pytest
 
-mi = pytest.importorskip("mitsuba")
-
-from mitsuba_manifold import pipeline  # noqa: E402
-
-pytestmark = pytest.mark.render
+from mitsuba_manifold import pipeline
+from mitsuba_manifold.cli import main_job
 
 
+@pytest.mark.parametrize("option, value, expect", [
+    ("--res", "0", "--res 0"), ("--spp", "-1", "--spp -1"), ("--ref-spp", "0", "--ref-spp 0"),
+    ("--q", "9", "--q 9"), ("--q", "0", "--q 0"), ("--scene", "tabel", "did you mean 'table'"),
+    ("--scene", "missing.xml", "--scene 'missing.xml'")])
+def test_main_job_refuses_bad_options_before_writing_anything(tmp_path, capsys, option, value, expect):
+    out = tmp_path / "mj"
+    with pytest.raises(SystemExit) as e:
+        main_job.main(["--out", str(out), "--resolution", "8,8,16", option, value])
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2 and len(err.splitlines()) == 1 and err.startswith(f"error: {option}"), err
+    assert expect in err and ("e.g." in err or "shipped scenes" in err), err
+    assert not out.exists()   # checked before the database, the fit or any plot
+
+
+@pytest.mark.render
 def test_main_job_writes_its_outputs_and_measures_its_targets(tmp_path):
+    pytest.importorskip("mitsuba")
     lines = []
     report = pipeline.run_main_job(str(tmp_path), resolution=(8, 8, 16), res=16, spp=4, ref_spp=8,
                                    direct_spp=(1, 4), denoise=False, log=lines.append)
