@@ -2,6 +2,7 @@
 
 import json
 import os
+import shlex
 
 import pytest
 
@@ -44,3 +45,14 @@ def test_main_job_writes_its_outputs_and_measures_its_targets(tmp_path):
         assert v["meets_error_target"] == (p["blend"]["rel_mse"] < d["rel_mse"])
     assert set(saved["stages"]) >= {"tabulate_s", "fit_s", "basis_s", "references_s", "total_s"}
     assert any("main job done" in line for line in lines) and os.path.isdir(report["scenes"]["table"]["basis_folder"])
+
+
+def test_explore_command_works_from_any_folder(tmp_path, monkeypatch):
+    from mitsuba_manifold.cli.explore import command
+
+    monkeypatch.chdir(tmp_path)
+    words = shlex.split(command(os.path.join("mj", "gi", "basis dir"), os.path.join("mj", "manifold.npz")))
+    assert words[:2] == ["mitsuba-manifold", "explore"] or (words[0] == "python3" and os.path.isfile(words[1])
+                                                             and os.path.isabs(words[1]))
+    assert words[words.index("--basis") + 1] == str(tmp_path / "mj" / "gi" / "basis dir")
+    assert words[words.index("--manifold") + 1] == str(tmp_path / "mj" / "manifold.npz")

@@ -10,6 +10,8 @@ background while the page already works.
 """
 
 import argparse
+import os
+import shlex
 import socket
 import sys
 
@@ -19,11 +21,16 @@ DEFAULT_PORT = 8765
 
 
 def command(basis, manifold=None):
-    """The explore command line for a basis (printed by the main job)."""
-    parts = ["python3 tools/explore.py", "--basis", str(basis)]
+    """The explore command line for a basis (printed by the main job), with absolute paths so
+    that it works pasted from any folder: ``python3 <checkout>/tools/explore.py`` when the
+    package runs from a checkout, else the ``mitsuba-manifold explore`` console script."""
+    tool = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
+                        "tools", "explore.py")
+    parts = ["python3", tool] if os.path.isfile(tool) else ["mitsuba-manifold", "explore"]
+    parts += ["--basis", os.path.abspath(basis)]
     if manifold:
-        parts += ["--manifold", str(manifold)]
-    return " ".join(parts)
+        parts += ["--manifold", os.path.abspath(manifold)]
+    return shlex.join(parts)
 
 
 def parser():
