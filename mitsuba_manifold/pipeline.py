@@ -213,7 +213,7 @@ def versus_direct(row, spp):
             "meets_error_target": bool(b["rel_mse"] < d["rel_mse"])}
 
 
-def check_main_job(out, resolution, q, scene, res, spp, ref_spp, direct_spp=(1,)):
+def check_main_job(out, resolution, q, scene, res, spp, ref_spp, direct_spp=(1,), mode="onepass"):
     """Check the main job's settings before anything is computed or written; raises
     :class:`~mitsuba_manifold.errors.InputError` naming the option (as ``tools/main.py``
     spells it), the value and the fix. Returns the scene's path."""
@@ -226,6 +226,8 @@ def check_main_job(out, resolution, q, scene, res, spp, ref_spp, direct_spp=(1,)
         validate.positive_int("--q", q, "3", hi=MAX_LATENT_DIM)
     path = validate.scene("--scene", scene)
     validate.positive_int("--res", res, "256")
+    held = len(database.load_sgd_fits()) + 2 if mode == "onepass" else 6   # as render_basis holds them
+    validate.fits_in_memory("--res", 2 * held * res * res * 3 * 4, f"{mode} basis images of {res}x{res}")
     validate.positive_int("--spp", spp, "1024")
     validate.positive_int("--ref-spp", ref_spp, "2048")
     for s in direct_spp:
@@ -241,7 +243,7 @@ def run_main_job(out, resolution=(90, 90, 180), q=None, features=None, scene="ta
     ``log(text)`` reports progress (stages and results). Returns the GI report (with
     ``report_path`` and ``stages``: the measured seconds of each stage).
     """
-    check_main_job(out, resolution, q, scene, res, spp, ref_spp, direct_spp)
+    check_main_job(out, resolution, q, scene, res, spp, ref_spp, direct_spp, mode)
     t_start = time.perf_counter()
     stages = {}
     db_dir = os.path.join(out, "database")
