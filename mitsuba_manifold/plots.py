@@ -75,7 +75,8 @@ def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
     Paper Fig. 7 and 10. Where any RGB albedo channel leaves [0, 1] the map is hatched; a
     dashed line encloses where the data lives (:func:`data_distance`). For ``q > 2`` the map
     is a slice through ``dims`` at the mean of the other coordinates; materials far from the
-    slice are drawn hollow.
+    slice are drawn hollow. Every material is a point; names go to as many as fit without
+    overlapping (:func:`label_points`), dark on a light halo so they read on any colour.
     """
     plt = figure()
     xs, ys, pts = slice_points(manifold, dims, resolution)
@@ -84,7 +85,7 @@ def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
     alb = rgb.mean(axis=1).reshape(shape)
     outside = ((rgb < 0) | (rgb > 1)).any(axis=1).reshape(shape)
     dist, reach = data_distance(manifold, pts)
-    fig, ax = plt.subplots(figsize=(11, 9))
+    fig, ax = plt.subplots(figsize=(11, 9), layout="constrained")
     im = ax.imshow(alb, origin="lower", extent=(xs[0], xs[-1], ys[0], ys[-1]), cmap="viridis", aspect="auto")
     cs = ax.contour(xs, ys, alb, levels=12, colors="white", linewidths=0.6, alpha=0.8)
     ax.clabel(cs, fontsize=6, fmt="%.2f")
@@ -98,22 +99,71 @@ def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
     off = np.abs(manifold.latent[:, others] - manifold.latent[:, others].mean(0)).max(axis=1) if others \
         else np.zeros(manifold.n)
     near = off <= reach
-    ax.scatter(pts_d[near, 0], pts_d[near, 1], s=14, c="red", edgecolors="black", linewidths=0.4, zorder=3)
+    ax.scatter(pts_d[near, 0], pts_d[near, 1], s=14, c="red", edgecolors="black", linewidths=0.4, zorder=5)
     ax.scatter(pts_d[~near, 0], pts_d[~near, 1], s=14, facecolors="none", edgecolors="red", linewidths=0.6,
-               zorder=3)
-    for (px, py), name in zip(pts_d, manifold.names):
-        ax.annotate(name, (px, py), fontsize=5.5, color="white", xytext=(2, 2), textcoords="offset points")
+               zorder=5)
     lo, hi = rgb.min(), rgb.max()
     note = (f"hatched: {outside.mean():.1%} of the map has albedo outside [0, 1] ({lo:.2f} to {hi:.2f})"
             if outside.any() else f"albedo within [0, 1] everywhere ({lo:.2f} to {hi:.2f})")
-    slice_note = f", slice of dims {dims}" + (" (hollow: materials off the slice)" if others else "")
-    ax.set_title(title or f"Latent space (q={manifold.q}{slice_note}); {note}; dashed: within {reach:.2g} l "
-                 f"of a material (the data)", fontsize=8)
+    slice_note = f", slice through x[{dims[0]}], x[{dims[1]}]" + (" (hollow: materials off the slice)" if others else "")
     ax.set_xlabel(f"x[{dims[0]}]")
     ax.set_ylabel(f"x[{dims[1]}]")
+
+    def heading(named):
+        return title or (f"Latent space (q={manifold.q}{slice_note}); {named} of {manifold.n} materials named"
+                         + ("" if named == manifold.n else " (no room for the others)")
+                         + f"\n{note}; dashed: within {reach:.2g} l of a material (the data)")
+    ax.set_title(heading(0), fontsize=9)  # as many lines as the final title, for the layout
+    fig.canvas.draw()                    # the layout settles; names go on the final axes
+    fig.set_layout_engine("none")
+    order = np.lexsort((-_isolation(pts_d), ~near))   # on the slice first, then the most isolated first
+    ax.set_title(heading(label_points(ax, pts_d, manifold.names, order=order)), fontsize=9)
     save(fig, path)
     plt.close(fig)
     return path
+
+
+def _isolation(xy):
+    """Distance from each point to its nearest neighbour (inf for a single point)."""
+    d2 = ((xy[:, None] - xy[None]) ** 2).sum(-1)
+    np.fill_diagonal(d2, np.inf)
+    return np.sqrt(d2.min(axis=1))
+
+
+#: Where a label may sit beside its point: (dx, dy) in points, horizontal and vertical alignment.
+_LABEL_SPOTS = ((4, 2, "left", "bottom"), (-4, 2, "right", "bottom"), (4, -2, "left", "top"),
+                (-4, -2, "right", "top"), (6, 0, "left", "center"), (-6, 0, "right", "center"),
+                (0, 5, "center", "bottom"), (0, -5, "center", "top"))
+
+
+def label_points(ax, xy, names, order=None, fontsize=7, marker_px=4):
+    """Name the points ``xy`` (data coordinates of ``ax``) where a name fits: inside the
+    axes, over no other name and no other point. Tries each spot of :data:`_LABEL_SPOTS`
+    in turn; points whose every spot is taken stay unnamed. ``order``: who is placed first
+    (default: as given). Call once the figure's layout is final. Returns how many are named.
+    """
+    import matplotlib.patheffects as pe
+    from matplotlib.transforms import Bbox
+
+    renderer = ax.figure.canvas.get_renderer()
+    frame = ax.get_window_extent(renderer)
+    disp = ax.transData.transform(np.asarray(xy, dtype=float))
+    marks = [Bbox.from_extents(x - marker_px, y - marker_px, x + marker_px, y + marker_px) for x, y in disp]
+    halo = [pe.withStroke(linewidth=2.5, foreground="white")]
+    taken, named = [], 0
+    for i in (range(len(names)) if order is None else order):
+        for dx, dy, ha, va in _LABEL_SPOTS:
+            text = ax.annotate(names[i], xy[i], xytext=(dx, dy), textcoords="offset points", ha=ha, va=va,
+                               fontsize=fontsize, color="black", path_effects=halo, zorder=4)
+            box = text.get_window_extent(renderer).padded(1.5)
+            inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1
+            if inside and not any(box.overlaps(b) for b in taken) and \
+                    not any(box.overlaps(m) for j, m in enumerate(marks) if j != i):
+                taken.append(box)
+                named += 1
+                break
+            text.remove()
+    return named
 
 
 def latent_line(manifold, path, resolution=400, margin=0.15):
@@ -155,8 +205,19 @@ def convergence(history, path, label="Hooke-Jeeves", others=None):
     return path
 
 
-#: Files :func:`write_fit_plots` may write (the second for q > 2, the third with a history).
-FIT_PLOTS = ("latent_map.png", "latent_map_dims23.png", "log_likelihood.png")
+def slice_plot_name(dims):
+    """File name of the latent map of ``dims`` (0-based, as its axes are labelled ``x[i]``)."""
+    return "latent_map.png" if tuple(dims) == (0, 1) else f"latent_map_dims{dims[0]}{dims[1]}.png"
+
+
+def second_slice(q):
+    """The latent dimensions of the second map :func:`write_fit_plots` draws (for q > 2)."""
+    return (2, 3) if q > 3 else (1, 2)
+
+
+#: Files :func:`write_fit_plots` may write: the map of x[0], x[1] (a line for q = 1), a second
+#: slice for q = 3 (x[1], x[2]) or q > 3 (x[2], x[3]), the convergence plot when there is a history.
+FIT_PLOTS = ("latent_map.png", slice_plot_name((1, 2)), slice_plot_name((2, 3)), "log_likelihood.png")
 
 
 def write_fit_plots(manifold, folder):
@@ -165,10 +226,10 @@ def write_fit_plots(manifold, folder):
     first = os.path.join(folder, FIT_PLOTS[0])
     paths = [latent_line(manifold, first) if manifold.q == 1 else latent_map(manifold, first)]
     if manifold.q > 2:
-        paths.append(latent_map(manifold, os.path.join(folder, FIT_PLOTS[1]),
-                                dims=(2, 3) if manifold.q > 3 else (1, 2)))
+        dims = second_slice(manifold.q)
+        paths.append(latent_map(manifold, os.path.join(folder, slice_plot_name(dims)), dims=dims))
     if len(manifold.history):
-        paths.append(convergence(manifold.history, os.path.join(folder, FIT_PLOTS[2]),
+        paths.append(convergence(manifold.history, os.path.join(folder, FIT_PLOTS[-1]),
                                  label=manifold.info.get("method", "fit")))
     return paths
 
