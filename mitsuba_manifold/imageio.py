@@ -252,3 +252,42 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
                       fill=(230, 230, 230), spacing=2)
         sheet = np.asarray(pil)
     write_png(path, sheet)
+
+
+def with_colour_bar(image, ramp, ticks, caption, min_width=240, pad=6, background=32):
+    """``image`` (uint8 (H, W, 3)) above a colour bar and its legend, as one uint8 image.
+
+    Parameters
+    ----------
+    ramp : uint8 (n, 3)
+        The colours of the scale, bottom to top, drawn left to right.
+    ticks : list of (fraction, str)
+        Labels under the bar at ``fraction`` of its width (0: left end, 1: right end).
+    caption : str
+        What the scale measures; wrapped under the ticks (at most three lines).
+    min_width : int
+        The legend is at least this wide (small images get a margin on their right).
+    """
+    from PIL import Image, ImageDraw
+
+    image = _check_rgb(image, "colour bar", "image")
+    h, w, _ = image.shape
+    width = max(w, min_width)
+    draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    lines = _wrap(caption, width - 2 * pad, draw.textlength)
+    bar_h, line_h = 10, 12
+    out = np.full((h + 3 * pad + bar_h + line_h * (1 + len(lines)), width, 3), background, dtype=np.uint8)
+    out[:h, :w] = image
+    x0, x1, y = pad, width - pad, h + pad
+    cols = np.linspace(0, len(ramp) - 1, x1 - x0).round().astype(int)
+    out[y:y + bar_h, x0:x1] = np.asarray(ramp, dtype=np.uint8)[cols][None]
+    pil = Image.fromarray(out)
+    draw = ImageDraw.Draw(pil)
+    for frac, text in ticks:
+        tw = draw.textlength(text)
+        tx = min(max(x0 + frac * (x1 - x0) - tw / 2, x0), x1 - tw)   # centred on its place, inside the bar
+        draw.line([(x0 + frac * (x1 - x0 - 1), y + bar_h), (x0 + frac * (x1 - x0 - 1), y + bar_h + 2)],
+                  fill=(230, 230, 230))
+        draw.text((tx, y + bar_h + 2), text, fill=(230, 230, 230))
+    draw.text((x0, y + bar_h + 2 + line_h + pad // 2), "\n".join(lines), fill=(230, 230, 230), spacing=2)
+    return np.asarray(pil)

@@ -118,11 +118,40 @@ def false_colour(error, vmax=None, cmap="inferno"):
     return np.ascontiguousarray(rgba[..., :3]), vmax
 
 
-def write_error_png(path, a, ref, vmax=None, cmap="inferno"):
-    """False-colour PNG of ``|a - r|`` (mean over channels), written atomically.
+#: Percentile of the per-pixel error at the top of an error PNG's colour scale: a few
+#: fireflies do not darken the rest of the image (they are drawn at the top colour).
+ERROR_PERCENTILE = 99.0
 
-    The colour scale (0 to ``vmax``) is stored in the PNG's text chunks. Returns ``vmax``.
+
+def robust_scale(error, percentile=ERROR_PERCENTILE):
+    """The ``percentile`` of a per-pixel error (mean over channels); its maximum if that is 0."""
+    e = np.asarray(error, dtype=np.float64)
+    e = e.mean(axis=-1) if e.ndim == 3 else e
+    v = float(np.percentile(e, percentile))
+    return v if v > 0 else float(e.max())
+
+
+def write_error_png(path, a, ref, vmax=None, cmap="inferno", percentile=ERROR_PERCENTILE):
+    """False-colour PNG of ``|a - r|`` (mean over channels) with its colour bar, written atomically.
+
+    The scale runs from 0 to ``vmax`` (default: the ``percentile`` of the error,
+    :func:`robust_scale`); errors above it take the top colour and the legend says how many
+    pixels do. The scale is drawn under the image and also stored in the PNG's text chunks.
+    Returns ``vmax``.
     """
-    rgb, vmax = false_colour(error_image(a, ref), vmax, cmap)
-    write_png(path, rgb, text={"error-scale": f"0 .. {vmax:.6g} ({cmap}, mean |a - ref| over RGB)"})
+    from matplotlib import colormaps
+
+    from .imageio import with_colour_bar
+
+    err = error_image(a, ref).mean(axis=-1)
+    how = f"{percentile:g}th percentile" if vmax is None else "given"
+    vmax = robust_scale(err, percentile) if vmax is None else float(vmax)
+    rgb, vmax = false_colour(err, vmax, cmap)
+    above = float((err > vmax).mean())
+    ramp = colormaps[cmap](np.linspace(0, 1, 256), bytes=True)[:, :3]
+    ticks = [(0.0, "0"), (0.5, f"{vmax / 2:.3g}"), (1.0, f"{vmax:.3g}" + ("+" if above else ""))]
+    caption = (f"|image - reference|, mean of RGB; scale 0 to {vmax:.3g} ({how}); "
+               f"{above:.1%} of pixels above it, at the top colour")
+    write_png(path, with_colour_bar(rgb, ramp, ticks, caption),
+              text={"error-scale": f"0 .. {vmax:.6g} ({cmap}, mean |a - ref| over RGB)"})
     return vmax

@@ -104,19 +104,26 @@ def test_metrics_against_hand_computed_values():
 
 def test_false_colour_error_png(tmp_path):
     from PIL import Image
-    ref = np.zeros((4, 6, 3))
-    a = ref.copy()
-    a[1, 2] = 3.0
-    a[3, 5] = 1.5
+    rng = np.random.default_rng(0)
+    ref = np.zeros((40, 60, 3))
+    a = ref + rng.uniform(0.0, 0.2, ref.shape)
+    a[1, 2] = 1000.0                                # one firefly must not set the scale
     path = str(tmp_path / "err.png")
     vmax = metrics.write_error_png(path, a, ref)
-    assert vmax == 3.0
+    err = np.abs(a - ref).mean(axis=-1)
+    assert vmax == pytest.approx(np.percentile(err, 99)) and vmax < 0.2
     png = Image.open(path)
-    assert png.size == (6, 4) and "0 .. 3" in png.text["error-scale"]
+    assert f"0 .. {vmax:.6g}" in png.text["error-scale"]
     px = np.asarray(png.convert("RGB")).astype(int)
-    rgb, _ = metrics.false_colour(np.abs(a - ref), vmax=3.0)
-    assert np.array_equal(px, rgb)
-    assert (px[0, 0] == px[2, 2]).all() and not (px[1, 2] == px[0, 0]).all()  # zero error: one colour
+    rgb, _ = metrics.false_colour(err, vmax=vmax)
+    assert np.array_equal(px[:40, :60], rgb)        # the image at the top, on the robust scale
+    assert np.median(px[:40, :60].sum(axis=-1)) > 200   # not almost black
+    assert png.size[0] >= 200 and png.size[1] > 40 + 30   # a legend under it, readable on small images
+    bar = px[40 + 6 + 5, 6:png.size[0] - 6]             # the colour bar's middle row, left to right
+    lo, hi = metrics.false_colour(np.array([[0.0, 1.0]]), vmax=1.0)[0][0]
+    assert np.array_equal(bar[0], lo) and np.array_equal(bar[-1], hi)
+    assert (px[40 + 6 + 10:] > 150).any()               # tick labels and caption drawn
+    assert metrics.write_error_png(path, a, ref, vmax=2.5) == 2.5   # a given scale is kept (denoised beside raw)
 
 
 # ------------------------------------------------------------------- basis

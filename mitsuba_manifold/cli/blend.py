@@ -157,7 +157,7 @@ def point_outputs(args, basis, manifold):
               f"(peak {stats['peak']:.4g}), max error {stats['max_abs']:.4g}, mean error {stats['mean_abs']:.4g}")
         err = metrics.error_image(image, reference)
         outputs.append(("error image", stem + "_error.exr", lambda: imageio.write_exr(stem + "_error.exr", err)))
-        outputs.append(("error PNG (false colour, scale in its text chunk)", stem + "_error.png",
+        outputs.append(("error PNG (false colour, its scale drawn under it)", stem + "_error.png",
                         lambda: metrics.write_error_png(stem + "_error.png", image, reference)))
     return outputs
 
