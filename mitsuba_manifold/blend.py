@@ -249,6 +249,13 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
                         "time_read_s": t_read}
 
 
+def path_labels(pair, steps):
+    """Labels of a contact sheet of :func:`blend_path` from ``pair[0]`` to ``pair[1]``: ``t``
+    under every frame, each end's name (or latent point, as given) under the first and the last."""
+    labels = [f"t = {t:.2f}" for t in np.linspace(0, 1, steps)]
+    labels[0] += f"\n{pair[0]}"
+    labels[-1] += f"\n{pair[1]}"
+    return labels
 
 
 class _CallableModule(types.ModuleType):

@@ -212,7 +212,21 @@ def _wrap(text, width, length, max_lines=3):
     return out or [""]
 
 
-def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, pad=4):
+def _label_lines(text, width, length, max_lines=4):
+    """A label as lines no wider than ``width``: each ``\n``-separated field on lines of its
+    own (:func:`_wrap`), at most ``max_lines`` in all, the last ending in ``...`` if cut."""
+    out, fields = [], str(text).split("\n")
+    for k, field in enumerate(fields):
+        room = max_lines - len(out)
+        out += _wrap(field, width, length, room)
+        if len(out) >= max_lines and k + 1 < len(fields):
+            if not out[-1].endswith("..."):
+                out[-1] = _wrap(out[-1] + " " + " ".join(fields[k + 1:]), width, length, 1)[0]
+            break
+    return out
+
+
+def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, pad=4, title=None):
     """PNG grid of tonemapped images (one exposure for all), with optional labels; atomic.
 
     Parameters
@@ -220,9 +234,13 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
     images : array_like (n, H, W, 3)
         Linear radiance.
     labels : list of str, optional
-        Drawn under each image.
+        Drawn under each image, wrapped to its width; ``\n`` starts a new line (one field
+        per line reads best on small tiles).
     columns : int, optional
         Default: ``ceil(sqrt(n))``.
+    title : str, optional
+        Drawn above the grid, wrapped to the sheet's width (what the sheet shows, e.g. its
+        two end materials).
     """
     from PIL import Image, ImageDraw
 
@@ -235,20 +253,25 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
     cols = int(columns or np.ceil(np.sqrt(n)))
     rows = -(-n // cols)
     draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
-    lines = [_wrap(str(t), w - 2, draw.textlength) for t in labels] if labels else []
+    lines = [_label_lines(t, w - 2, draw.textlength) for t in labels] if labels else []
     label_h = 12 * max(map(len, lines)) + 2 if labels else 0
-    sheet = np.full((rows * (h + label_h + pad) + pad, cols * (w + pad) + pad, 3), 32, dtype=np.uint8)
+    width = cols * (w + pad) + pad
+    heading = _wrap(str(title), width - 2 * pad, draw.textlength) if title else []
+    top = 12 * len(heading) + (pad if heading else 0)
+    sheet = np.full((top + rows * (h + label_h + pad) + pad, width, 3), 32, dtype=np.uint8)
     tiles = tonemap(images, exposure)
     for i in range(n):
         r, c = divmod(i, cols)
-        y, x0 = pad + r * (h + label_h + pad), pad + c * (w + pad)
+        y, x0 = top + pad + r * (h + label_h + pad), pad + c * (w + pad)
         sheet[y:y + h, x0:x0 + w] = tiles[i]
-    if labels:
+    if labels or heading:
         pil = Image.fromarray(sheet)
         draw = ImageDraw.Draw(pil)
+        if heading:
+            draw.text((pad, pad // 2), "\n".join(heading), fill=(240, 240, 240), spacing=2)
         for i, text in enumerate(lines):
             r, c = divmod(i, cols)
-            draw.text((pad + c * (w + pad) + 2, pad + r * (h + label_h + pad) + h + 1), "\n".join(text),
+            draw.text((pad + c * (w + pad) + 2, top + pad + r * (h + label_h + pad) + h + 1), "\n".join(text),
                       fill=(230, 230, 230), spacing=2)
         sheet = np.asarray(pil)
     write_png(path, sheet)

@@ -131,12 +131,13 @@ def robust_scale(error, percentile=ERROR_PERCENTILE):
     return v if v > 0 else float(e.max())
 
 
-def write_error_png(path, a, ref, vmax=None, cmap="inferno", percentile=ERROR_PERCENTILE):
+def write_error_png(path, a, ref, vmax=None, cmap="inferno", percentile=ERROR_PERCENTILE, scale_note=None):
     """False-colour PNG of ``|a - r|`` (mean over channels) with its colour bar, written atomically.
 
     The scale runs from 0 to ``vmax`` (default: the ``percentile`` of the error,
     :func:`robust_scale`); errors above it take the top colour and the legend says how many
     pixels do. The scale is drawn under the image and also stored in the PNG's text chunks.
+    ``scale_note`` says where a given ``vmax`` comes from (e.g. another image's scale).
     Returns ``vmax``.
     """
     from matplotlib import colormaps
@@ -144,7 +145,7 @@ def write_error_png(path, a, ref, vmax=None, cmap="inferno", percentile=ERROR_PE
     from .imageio import with_colour_bar
 
     err = error_image(a, ref).mean(axis=-1)
-    how = f"{percentile:g}th percentile" if vmax is None else "given"
+    how = f"{percentile:g}th percentile" if vmax is None else (scale_note or "a fixed scale")
     vmax = robust_scale(err, percentile) if vmax is None else float(vmax)
     rgb, vmax = false_colour(err, vmax, cmap)
     above = float((err > vmax).mean())

@@ -23,7 +23,7 @@ from . import database, denoise as denoise_mod, imageio, metrics, plots
 from . import scenes as _scenes  # (gi_report has a parameter named scenes)
 from .atomic import write_bytes
 from .basis import Basis
-from .blend import blend, blend_path
+from .blend import blend, blend_path, path_labels
 from .manifold import Manifold
 from .render_basis import render_basis
 from .timing import median_time
@@ -150,8 +150,8 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, res, basis_spp, ref_spp, 
             print(f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True)
     if save_images:
         images, _, _ = blend_path(b, m, *pair, steps=20)
-        imageio.write_contact_sheet(f"{stem}_path_sheet.png", images,
-                                    labels=[f"{t:.2f}" for t in np.linspace(0, 1, len(images))])
+        imageio.write_contact_sheet(f"{stem}_path_sheet.png", images, labels=path_labels(pair, len(images)),
+                                    title=f"{pair[0]} (t = 0) to {pair[1]} (t = 1) along their latent segment")
         extrapolation_sheet(b, m, pair, f"{stem}_extrapolation_sheet", log=print if progress else None)
     out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows,
            "basis_folder": os.path.abspath(folder_b)}
@@ -178,14 +178,24 @@ def extrapolation_sheet(basis, m, pair, stem, steps=12, reach=3.0, log=None):
         rows.append({"t": float(t), "x": x.tolist(), "albedo": a.tolist(), "negative_fraction": m.negative_fraction(x),
                      "largest_weight": [m.names[int(np.argmax(w))], float(w.max())]})
         images.append(img)
-    labels = [f"t={r['t']:.2f} alb {np.mean(r['albedo']):.2f} neg {100 * r['negative_fraction']:.1f}%" for r in rows]
-    imageio.write_contact_sheet(stem + ".png", np.stack(images), labels=labels, columns=6)
+    labels = extrapolation_labels(rows)
+    title = (f"{pair[0]} (t = 0) through {pair[1]} (t = 1) and on out of the data; under each frame: t, "
+             f"albedo (mean RGB), neg.: share of the table's bins below 0")
+    imageio.write_contact_sheet(stem + ".png", np.stack(images), labels=labels, columns=6, title=title)
     write_bytes(stem + ".json", json.dumps({"from": pair[0], "through": pair[1], "rows": rows}, indent=1))
     if log:
         for r, lab in zip(rows, labels):
-            log(f"  extrapolation {lab}, albedo RGB {', '.join(f'{v:.3f}' for v in r['albedo'])}, "
+            rgb = ", ".join(f"{v:.3f}" for v in r["albedo"])
+            log(f"  extrapolation {lab.replace(chr(10), ', ')}, albedo RGB {rgb}, "
                 f"largest weight {r['largest_weight'][0]} {r['largest_weight'][1]:.2f}")
     return rows
+
+
+def extrapolation_labels(rows):
+    """One label per frame of :func:`extrapolation_sheet`, a field per line (they read on 64 px
+    tiles): ``t``, the albedo (mean RGB), the share of the table's bins below 0."""
+    return [f"t = {r['t']:.2f}\nalbedo {np.mean(r['albedo']):.2f}\nneg. {100 * r['negative_fraction']:.1f}%"
+            for r in rows]
 
 
 def _denoised(image, guides):
@@ -201,7 +211,8 @@ def _save_point_images(stem, img, ref, denoised=None):
         imageio.write_png(f"{stem}_{suffix}.png", image)
     vmax = metrics.write_error_png(f"{stem}_error.png", img, ref)
     if denoised is not None:   # on the raw error's scale, so that the two compare by eye
-        metrics.write_error_png(f"{stem}_denoised_error.png", denoised, ref, vmax=vmax)
+        metrics.write_error_png(f"{stem}_denoised_error.png", denoised, ref, vmax=vmax,
+                                scale_note="the raw blend's error scale")
 
 
 def versus_direct(row, spp):

@@ -105,7 +105,7 @@ def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
     lo, hi = rgb.min(), rgb.max()
     note = (f"hatched: {outside.mean():.1%} of the map has albedo outside [0, 1] ({lo:.2f} to {hi:.2f})"
             if outside.any() else f"albedo within [0, 1] everywhere ({lo:.2f} to {hi:.2f})")
-    slice_note = f", slice through x[{dims[0]}], x[{dims[1]}]" + (" (hollow: materials off the slice)" if others else "")
+    slice_note = f", slice through x[{dims[0]}], x[{dims[1]}]" + (" (hollow: off the slice)" if others else "")
     ax.set_xlabel(f"x[{dims[0]}]")
     ax.set_ylabel(f"x[{dims[1]}]")
 

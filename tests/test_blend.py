@@ -301,12 +301,17 @@ def test_cli_blend_with_reference(basis1, manifold, tmp_path, cli, capsys):
         assert os.path.getsize(str(tmp_path / "out" / name)) > 0
 
 
-def test_cli_path_writes_sequence_and_sheet(basis1, manifold, tmp_path, cli, capsys):
+def test_cli_path_writes_sequence_and_sheet(basis1, manifold, tmp_path, cli, capsys, monkeypatch):
     folder, _, _ = basis1
     out = str(tmp_path / "seq" / "seq.exr")
+    sheets, write = [], imageio.write_contact_sheet
+    monkeypatch.setattr(imageio, "write_contact_sheet", lambda *a, **k: (sheets.append((a, k)), write(*a, **k)))
     cli.main(["--basis", folder, "--path", manifold.names[0], manifold.names[1], "--steps", "4", "--out", out])
     assert sorted(f for f in os.listdir(tmp_path / "seq") if not f.startswith(".")) == ["seq_0.exr", "seq_1.exr", "seq_2.exr", "seq_3.exr", "seq_sheet.png"]
     assert "4 images blended" in capsys.readouterr().out
+    (_, _, labels), kw = sheets[0]          # the sheet names its two ends
+    a, b = manifold.names[:2]
+    assert labels[0].endswith(a) and labels[-1].endswith(b) and a in kw["title"] and b in kw["title"]
 
 
 def test_cli_bad_input_overwrites_nothing(basis1, manifold, tmp_path, cli, capsys):

@@ -142,3 +142,29 @@ def test_contact_sheet_labels_stay_under_their_own_tile(tmp_path):
     for c in range(1, 3):                         # the gutters between tiles stay background
         gutter = labels[:, c * 68:c * 68 + 4]
         assert (gutter == 32).all()
+
+
+def test_contact_sheet_labels_keep_their_fields_on_lines_of_their_own(tmp_path):
+    """Main-job labels on 64 px tiles: one field per line, never cut inside a field; the title
+    (the two end materials) above the grid."""
+    from PIL import Image, ImageDraw
+
+    from mitsuba_manifold import pipeline
+    from mitsuba_manifold.blend import path_labels
+
+    length = ImageDraw.Draw(Image.new("RGB", (1, 1))).textlength
+    rows = [{"t": 2.73, "albedo": [0.31, 0.188, 0.167], "negative_fraction": 0.125}]
+    label, = pipeline.extrapolation_labels(rows)
+    assert imageio._label_lines(label, 62, length) == ["t = 2.73", "albedo 0.22", "neg. 12.5%"]
+    labels = path_labels(("alum-bronze", "white-paint"), 5)
+    assert imageio._label_lines(labels[0], 62, length) == ["t = 0.00", "alum-bronze"]
+    assert labels[-1].endswith("white-paint") and labels[2] == "t = 0.50"
+    assert imageio._label_lines("a\nb\nc\nd\ne", 62, length, max_lines=3) == ["a", "b", "c d e"]  # the rest joined
+    assert imageio._label_lines("a\nb\n" + "c" * 30 + "\nd", 62, length, max_lines=3)[-1].endswith("...")
+    plain, titled = tmp_path / "plain.png", tmp_path / "titled.png"
+    images = np.zeros((5, 64, 64, 3), np.float32)
+    imageio.write_contact_sheet(plain, images, labels=labels, columns=5)
+    imageio.write_contact_sheet(titled, images, labels=labels, columns=5, title="alum-bronze to white-paint")
+    a, b = (np.asarray(Image.open(p).convert("RGB")) for p in (plain, titled))
+    assert b.shape[0] > a.shape[0] and (b[:b.shape[0] - a.shape[0]] > 150).any()   # the title, drawn
+    assert np.array_equal(a[4:], b[b.shape[0] - a.shape[0] + 4:])                  # above the same grid

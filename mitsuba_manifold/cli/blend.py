@@ -93,7 +93,7 @@ def parse(argv=None):
 def path_outputs(args, basis, manifold):
     """Blend the images along ``--path``; returns the outputs ``(kind, path, writer)`` to write."""
     from .. import imageio
-    from ..blend import blend_path
+    from ..blend import blend_path, path_labels
 
     from .. import validate
     w, h = basis.resolution
@@ -115,10 +115,11 @@ def path_outputs(args, basis, manifold):
         if args.png:
             png = name[:-4] + ".png"
             outputs.append(("png", png, lambda n=png, i=img: imageio.write_png(n, i, args.exposure)))
-    labels = [f"t={s / (args.steps - 1):.2f}" for s in range(args.steps)]
+    labels = path_labels(args.path, args.steps)
     sheet = stem + "_sheet.png"
+    title = f"{args.path[0]} (t = 0) to {args.path[1]} (t = 1) along their latent segment"
     outputs.append(("contact sheet", sheet, lambda: imageio.write_contact_sheet(
-        sheet, images, labels, columns=min(args.steps, 10), exposure=args.exposure)))
+        sheet, images, labels, columns=min(args.steps, 10), exposure=args.exposure, title=title)))
     return outputs
 
 
