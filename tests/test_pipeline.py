@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import shlex
 
 import pytest
@@ -24,16 +25,41 @@ def test_main_job_refuses_bad_options_before_writing_anything(tmp_path, capsys, 
     assert not out.exists()   # checked before the database, the fit or any plot
 
 
+def readme_outputs(points=("training", "midpoint", "extrapolated"), scene="table"):
+    """The files the README's table of main-job outputs names (braces expanded, ``table_*``
+    as the three points), without the folders and per-material entries."""
+    text = open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "README.md")).read()
+    table = text[text.index("| file | what |"):]
+    table = table[:table.index("\n\n")]
+    names = []
+    for cell in re.findall(r"^\| (.*?) \|", table, re.M):
+        for pattern in re.findall(r"`([^`]+)`", cell):
+            pattern = pattern.replace(f"{scene}_*_", f"{scene}_{{{','.join(points)}}}_")
+            names += [n for n in expand_braces(pattern) if "<" not in n and "*" not in n and not n.endswith("/")]
+    return names
+
+
+def expand_braces(pattern):
+    m = re.search(r"\{([^{}]*)\}", pattern)
+    if not m:
+        return [pattern]
+    return [n for alt in m.group(1).split(",") for n in expand_braces(pattern[:m.start()] + alt + pattern[m.end():])]
+
+
 @pytest.mark.render
 def test_main_job_writes_its_outputs_and_measures_its_targets(tmp_path):
     pytest.importorskip("mitsuba")
     lines = []
     report = pipeline.run_main_job(str(tmp_path), resolution=(8, 8, 16), res=16, spp=4, ref_spp=8,
-                                   direct_spp=(1, 4), denoise=False, log=lines.append)
+                                   direct_spp=(1, 4), denoise=True, log=lines.append)
     gi = tmp_path / "gi"
     for name in ("report.json", "gi_error_vs_time.png", "table_path_sheet.png", "table_extrapolation_sheet.png",
                  "table_midpoint_blend.exr", "table_midpoint_reference.exr", "table_midpoint_error.png"):
         assert (gi / name).is_file(), name
+    promised = readme_outputs()             # the README's table of outputs says what is written
+    assert len(promised) > 20
+    for name in promised:
+        assert (tmp_path / name).exists(), name
     assert (tmp_path / "manifold.npz").is_file() and (tmp_path / "plots" / "latent_map.png").is_file()
     saved = json.loads((gi / "report.json").read_text())
     points = saved["scenes"]["table"]["points"]
