@@ -20,17 +20,31 @@ def atomic_replace(path, write):
     """
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".",
-                               suffix=".tmp" + os.path.splitext(path)[1], dir=folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".",
+                                   suffix=".tmp" + os.path.splitext(path)[1], dir=folder)
+    except OSError as e:
+        raise _naming(e, path, folder) from None
     os.close(fd)
     try:
         write(tmp)
         os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(e, OSError) and tmp in (e.filename, e.filename2):
+            raise _naming(e, path, folder) from None
         raise
+
+
+def _naming(error, path, folder):
+    """``error`` (about the temporary file) as the same kind of OSError about ``path``, the
+    user's name: the temporary file is an implementation detail that no longer exists."""
+    why = error.strerror or type(error).__name__
+    if not os.path.isdir(folder):
+        why = f"its folder {folder} does not exist (create it, or choose another path)"
+    return OSError(error.errno, f"cannot write {path}: {why}")
 
 
 def atomic_write(path, write):

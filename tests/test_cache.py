@@ -68,3 +68,17 @@ def test_atomic_write_leaves_the_old_file_when_the_writer_fails(tmp_path):
     with pytest.raises(RuntimeError):
         atomic.atomic_write(path, fail)
     assert path.read_text() == "old" and os.listdir(tmp_path) == ["f.txt"]
+
+
+def test_atomic_write_errors_name_the_users_path_not_the_temporary_file(tmp_path):
+    target = tmp_path / "nodir" / "x.json"
+    with pytest.raises(FileNotFoundError) as e:
+        atomic.write_bytes(target, "data")
+    assert str(target) in str(e.value) and "folder" in str(e.value) and ".tmp" not in str(e.value)
+
+    def full(tmp):
+        raise OSError(28, "No space left on device", tmp)
+    with pytest.raises(OSError) as e:
+        atomic.atomic_replace(tmp_path / "y.exr", full)
+    assert str(tmp_path / "y.exr") in str(e.value) and ".tmp" not in str(e.value)
+    assert os.listdir(tmp_path) == []
