@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -115,6 +116,30 @@ def test_project_tool(default, small_db, tmp_path):
     r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "project.py"), str(tmp_path / "none.binary"),
                         "--manifold", path], capture_output=True, text=True, cwd=str(tmp_path))
     assert r.returncode != 0 and "none.binary" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_project_json_replaces_only_its_own_files(default, small_db, tmp_path):
+    from guarantees_helpers import assert_one_error, run_tool, snapshot
+    manifold, table = str(tmp_path / "m.npz"), str(tmp_path / "in.binary")
+    default.save(manifold)
+    shutil.copy(os.path.join(small_db, "chrome.binary"), table)
+    (tmp_path / "mine.json").write_text("my notes")
+    (tmp_path / "locked.json").write_text("locked")
+    os.chmod(tmp_path / "locked.json", 0o444)
+    before = snapshot(tmp_path)
+    for out, extra, words in [(table, [], ["--json"]), (tmp_path / "notes.txt", ["--force"], [".json"]),
+                              (tmp_path / "mine.json", [], ["mine.json", "--force"]),
+                              (tmp_path / "locked.json", ["--force"], ["locked.json", "read-only"])]:
+        rc, _, err = run_tool("project", table, "--manifold", manifold, "--json", out, *extra)
+        assert_one_error(rc, err, *words)
+    assert snapshot(tmp_path) == before
+    for _ in range(2):                                      # its own output is replaced
+        rc, _, err = run_tool("project", table, "--manifold", manifold, "--json", tmp_path / "p.json")
+        assert rc == 0, err
+    assert json.loads((tmp_path / "p.json").read_text())["nearest"] == "chrome"
+    rc, _, err = run_tool("project", table, "--manifold", manifold, "--json", tmp_path / "nodir" / "p.json")
+    assert_one_error(rc, err, str(tmp_path / "nodir" / "p.json"), "does not exist")
+    assert ".tmp" not in err
 
 
 def test_default_prune_keeps_the_table_within_one_percent(default):
