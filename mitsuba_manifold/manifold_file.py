@@ -8,6 +8,7 @@ that names the file and says to refit.
 
 import json
 import os
+import zipfile
 
 import numpy as np
 
@@ -17,6 +18,11 @@ from .errors import ManifoldError
 FORMAT = "mitsuba-manifold"
 FORMAT_VERSION = 2
 _REFIT = "refit it with tools/fit_manifold.py"
+
+
+def _not_a_manifold(path, why):
+    return ManifoldError(f"{path} is not a manifold .npz written by fit_manifold ({why}); give the "
+                         "file tools/fit_manifold.py --out wrote")
 
 
 def write(m, path):
@@ -36,14 +42,21 @@ def read(path):
     path = os.fspath(path)
     if not os.path.exists(path):
         raise ManifoldError(f"manifold file {path} does not exist")
+    if os.path.isdir(path) or not zipfile.is_zipfile(path):
+        raise _not_a_manifold(path, "a folder" if os.path.isdir(path) else "not an .npz archive")
     try:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
             arrays = {k: z[k] for k in z.files if k != "meta"}
-    except Exception as e:  # zipfile, json and key errors all mean a damaged file
-        raise ManifoldError(f"{path}: not a readable manifold file ({type(e).__name__}: {e})") from None
-    if meta.get("format") != FORMAT:
-        raise ManifoldError(f"{path}: not a mitsuba-manifold file")
+    except KeyError:
+        raise _not_a_manifold(path, "an .npz without the manifold's 'meta' entry") from None
+    except ValueError as e:  # object arrays are never unpickled; their message would invite it
+        why = "it holds Python objects, which are never loaded" if "pickle" in str(e) else str(e)
+        raise _not_a_manifold(path, f"unreadable: {why}") from None
+    except Exception as e:  # zipfile and json errors mean a damaged file
+        raise _not_a_manifold(path, f"damaged: {type(e).__name__}: {e}") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise _not_a_manifold(path, "its 'meta' entry is not a mitsuba-manifold one")
     version = meta.get("version", 0)
     if not isinstance(version, int) or not 1 <= version <= FORMAT_VERSION:
         raise ManifoldError(f"{path}: format version {version!r} is not one this package reads "

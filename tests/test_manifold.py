@@ -112,7 +112,7 @@ def test_bad_inputs_give_clear_errors(fitted, small_db, tmp_path):
         Manifold.load(tmp_path / "missing.npz")
     corrupt = tmp_path / "corrupt.npz"
     corrupt.write_bytes(b"PK\x03\x04 not really a zip")
-    with pytest.raises(ManifoldError, match="not a readable manifold"):
+    with pytest.raises(ManifoldError, match="not a manifold .npz written by fit_manifold"):
         Manifold.load(corrupt)
     # a database whose table changed since the fit
     copy = tmp_path / "db"
@@ -126,6 +126,21 @@ def test_bad_inputs_give_clear_errors(fitted, small_db, tmp_path):
     os.remove(copy / "steel.binary")
     with pytest.raises(ManifoldError, match="no table for"):
         fitted.open_database(copy, ["steel"])
+
+
+def test_files_that_are_not_manifolds_are_named_without_inviting_unsafe_loading(small_db, tmp_path):
+    from PIL import Image
+    Image.new("RGB", (4, 4)).save(tmp_path / "img.png")
+    np.savez(tmp_path / "objects.npz", meta=np.array([{"format": "x"}], dtype=object))
+    np.savez(tmp_path / "other.npz", a=np.ones(3))
+    np.save(tmp_path / "array.npy", np.ones(3))
+    for path in (os.path.join(small_db, "chrome.binary"), tmp_path / "img.png", tmp_path / "objects.npz",
+                 tmp_path / "other.npz", tmp_path / "array.npy", tmp_path):
+        with pytest.raises(ManifoldError) as e:
+            Manifold.load(path)
+        text = str(e.value)
+        assert text.startswith(f"{path} is not a manifold .npz written by fit_manifold (")
+        assert "pickle" not in text and "allow_" not in text and "\n" not in text
 
 
 def test_saving_never_half_writes(fitted, tmp_path):
