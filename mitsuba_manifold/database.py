@@ -370,7 +370,7 @@ class Database:
         self.names = names
         dims = {n: merl.read_header(self.path(n)) for n in names}
         if len(set(dims.values())) > 1:
-            raise DatabaseError(f"database {folder}: tables have different resolutions {sorted(set(dims.values()))}")
+            raise DatabaseError(f"database {folder}: {merl.resolution_mismatch(dims)}")
         self.dims = next(iter(dims.values()))
         self.cache_dir = self._make_cache_dir()
 

@@ -57,6 +57,29 @@ def read_header(path):
     return dims
 
 
+def resolution_mismatch(dims, show=5):
+    """Why tables of resolutions ``dims`` ({name: (n_theta_h, n_theta_d, n_phi_d)}) cannot go
+    together, naming the files ``<name>.binary`` that differ from the most common resolution
+    (every group when no resolution is the most common)."""
+    groups = {}
+    for name, d in dims.items():
+        groups.setdefault(tuple(d), []).append(name + ".binary")
+    ranked = sorted(groups.items(), key=lambda kv: -len(kv[1]))
+
+    def files(names):
+        return ", ".join(names[:show]) + (f" and {len(names) - show} more" if len(names) > show else "")
+
+    def size(d):
+        return "x".join(map(str, d))
+    (common, members), rest = ranked[0], ranked[1:]
+    if len(members) > len(rest[0][1]):
+        odd = "; ".join(f"{files(n)} {'is' if len(n) == 1 else 'are'} {size(d)}" for d, n in rest)
+        return (f"tables have different resolutions: {len(members)} are {size(common)}, but {odd}; "
+                f"remove the odd file(s) out or remake them at {size(common)}")
+    return ("tables have different resolutions: " + "; ".join(f"{size(d)}: {files(n)}" for d, n in ranked)
+            + "; keep tables of one resolution only")
+
+
 def read_binary(path):
     """Stored values of a MERL file, float64, shape ``(3, n_theta_h, n_theta_d, n_phi_d)``.
 

@@ -105,8 +105,13 @@ def test_database_folder_errors(tmp_path, small_db):
     folder = tmp_path / "mixed"
     database.make_database(folder, (8, 8, 16), ["steel"])
     merl.write_binary(folder / "other.binary", np.ones((3, 4, 4, 8)))
-    with pytest.raises(ValueError, match="different resolutions"):
+    with pytest.raises(ValueError, match="different resolutions: ") as e:      # a tie: every group named
         database.Database(folder)
+    assert "8x8x16: steel.binary" in str(e.value) and "4x4x8: other.binary" in str(e.value)
+    database.make_database(folder, (8, 8, 16), ["steel", "chrome"])
+    with pytest.raises(ValueError, match="2 are 8x8x16, but other.binary is 4x4x8; remove") as e:
+        database.Database(folder)
+    assert "chrome.binary" not in str(e.value) and "steel.binary" not in str(e.value)
 
 
 def test_reflectance_cache_and_hash_follow_file_content(tmp_path):
