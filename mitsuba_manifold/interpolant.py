@@ -30,6 +30,9 @@ from . import kernel
 from .errors import InterpolantError, NotPositiveDefiniteError
 
 KINDS = ("gp", "shepard")
+#: Largest latent coordinate accepted: far beyond it squared distances (and their squares in the
+#: Jacobians) overflow float64, while the weights there already equal their limit far from the data.
+MAX_COORDINATE = 1e30
 
 
 def points(x, q):
@@ -41,6 +44,11 @@ def points(x, q):
         raise InterpolantError(f"latent point must have {q} coordinates, got shape {np.shape(x)}")
     if not np.isfinite(x).all():
         raise InterpolantError("latent point contains NaN or Inf")
+    big = float(np.abs(x).max(initial=0.0))
+    if big > MAX_COORDINATE:
+        raise InterpolantError(f"latent point coordinate {big:.3g} is too far out: its distances to the materials "
+                               f"overflow; give coordinates within +-{MAX_COORDINATE:.0e} (the materials lie "
+                               "within a few units of 0)")
     return x, single
 
 
@@ -199,7 +207,7 @@ class ShepardWeights(Interpolant):
         r2 = np.einsum("mnq,mnq->mn", diff, diff)
         hit = (r2 == 0).any(axis=1)
         r2s = np.where(hit[:, None], 1.0, r2)                   # hit rows are set apart
-        inv = r2s ** (-0.5 * self.power)
+        inv = (r2s / r2s.min(1, keepdims=True)) ** (-0.5 * self.power)   # scaled: no underflow far out
         m = np.where(hit, 0.0, (r2s * inv).sum(1) / inv.sum(1))
         h2 = self.taper ** 2 + self.spread ** 2 * m
         with np.errstate(divide="ignore"):

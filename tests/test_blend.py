@@ -133,6 +133,20 @@ def test_wrong_x_dimension_is_a_clear_error(basis1, manifold):
         bl.blend(folder, manifold)
 
 
+def test_cli_latent_point_too_far_out_is_one_line_without_warnings(basis1, manifold, tmp_path, cli, capsys):
+    import warnings
+    folder, _, _ = basis1
+    for big in ("1e308", "-1e200", "1e31"):
+        x = ",".join([big] + ["0"] * (manifold.q - 1))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(SystemExit) as e:
+                cli.main(["--basis", folder, "--x", x, "--out", str(tmp_path / "img.exr")])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.count("\n") == 1 and "too far out" in err and "Warning" not in err
+    assert os.listdir(tmp_path) == ["basis"]
+
+
 def test_bad_basis_folders_are_clear_errors(basis1, tmp_path, manifold):
     folder, scene, _ = basis1
     with pytest.raises(BasisError, match="does not exist"):

@@ -73,6 +73,22 @@ def test_weights_jacobian_matches_finite_differences(which, default, paper):
     assert np.allclose(m.weights_jacobian(X[0]), J[0])
 
 
+def test_far_points_get_far_field_weights_without_warnings_until_they_overflow(default, paper):
+    import warnings
+    steep = interpolant.ShepardWeights(default.latent, power=16.0, taper=0.2, spread=0.3)
+    for m, weights, jacobian in [(default, default.weights, default.weights_jacobian),
+                                 (paper, paper.weights, paper.weights_jacobian),
+                                 (default, steep.weights, steep.jacobian)]:
+        far = np.full(m.q, -1e29)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            w = np.asarray(getattr(weights(far), "w", weights(far)))
+            assert np.isfinite(jacobian(far)).all()
+        assert np.allclose(w, 1.0 / m.n)
+        with pytest.raises(ManifoldError, match="too far out"):
+            weights(np.full(m.q, 1e308))
+
+
 def test_projection_finds_a_training_material_and_a_noisy_copy(default):
     tables = default.tables()
     i = 3
