@@ -114,8 +114,9 @@ def fits_in_memory(name, nbytes, what, fraction=0.8):
     """Raise unless ``nbytes`` is below ``fraction`` of the memory available now."""
     avail = available_memory()
     if avail is not None and nbytes > fraction * avail:
-        raise InputError(f"{name}: {what} needs about {nbytes / 2**30:.3g} GiB of memory; "
-                         f"{avail / 2**30:.3g} GiB are available; choose a smaller value")
+        raise InputError(f"{name}: {what} needs about {nbytes / 2**30:.3g} GiB of memory; a run may take at "
+                         f"most {fraction:.0%} of the {avail / 2**30:.3g} GiB available now "
+                         f"({fraction * avail / 2**30:.3g} GiB): choose a smaller value")
 
 
 def table_resolution(dims, name="--resolution", bytes_per_bin=None, workers=1):

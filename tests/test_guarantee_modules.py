@@ -63,6 +63,16 @@ def test_resolution_validator_names_the_limit_and_the_memory(monkeypatch):
         validate.table_resolution((256, 256, 512))
 
 
+def test_memory_refusal_states_the_margin_it_applies(monkeypatch):
+    monkeypatch.setattr(validate, "available_memory", lambda: int(21.1 * 2**30))
+    validate.fits_in_memory("--steps", int(16.8 * 2**30), "images")              # under 80%: accepted
+    with pytest.raises(InputError) as e:
+        validate.fits_in_memory("--steps", int(20.6 * 2**30), "100000 images of 1024x1024")
+    text = str(e.value)
+    assert "20.6 GiB" in text and "at most 80% of the 21.1 GiB available" in text and "(16.9 GiB)" in text
+    assert "GiB are available" not in text
+
+
 def test_weight_sum_is_exact_and_refuses_cancellation():
     with pytest.raises(InputError, match="sum to 1 but their magnitudes"):   # fsum: exactly 1, not 0
         validate.weight_sum([1e30, -1e30, 1.0])
