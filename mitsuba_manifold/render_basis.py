@@ -23,7 +23,7 @@ import numpy as np
 
 from . import basis as basis_folder
 from . import imageio, names as names_mod, ownership, scenes, validate
-from .errors import ImageError, MaterialNameError, RenderBasisError
+from .errors import ImageError, MaterialNameError, RenderBasisError, did_you_mean
 from .interrupt import StopRequest, render_in_passes
 from .locking import FolderLock
 from .scenes import default_variant
@@ -64,7 +64,9 @@ def select_materials(manifold, materials="all", near=None, radius=None):
         return list(manifold.names)
     unknown = [m for m in materials if m not in manifold.names]
     if unknown:
-        raise RenderBasisError(f"unknown material(s) {unknown} for manifold with {manifold.n} materials")
+        raise RenderBasisError(f"unknown material(s) {unknown}{did_you_mean(unknown[0], manifold.names)}: the "
+                               f"manifold has {manifold.n} materials ({', '.join(manifold.names[:6])}"
+                               f"{', ...' if manifold.n > 6 else ''})")
     return [n for n in manifold.names if n in set(materials)]
 
 

@@ -42,6 +42,14 @@ def test_select_materials(small_manifold):
         render_basis.select_materials(m, near=m.latent.max(0) + 100, radius=0.5)
 
 
+def test_a_misspelt_material_gets_a_suggestion(small_manifold, tmp_path):
+    from guarantees_helpers import assert_one_error, run_tool
+    rc, _, err = run_tool("render_basis", "sphere", "--manifold", small_manifold, "--materials", "chrme,steel",
+                          "--res", 8, "--spp", 1, "--out", tmp_path / "b")
+    assert_one_error(rc, err, "'chrme'", "did you mean 'chrome'")
+    assert not (tmp_path / "b").exists() or not os.listdir(tmp_path / "b")
+
+
 def test_the_centre_of_a_near_basis_can_be_blended(tmp_path, small_manifold):
     """A radius that holds only one of two neighbours still renders what the blend at the
     centre needs: blending there works without --renormalise."""
