@@ -223,7 +223,13 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         raise BasisError(f"steps must be an integer >= 2, got {steps!r}")
     if not 0 <= target < basis.p:
         raise BasisError(f"target {target} out of range: the basis has {basis.p} target(s)")
+    if basis.p == 1 and x is not None:
+        raise BasisError("x is for the targets that stay fixed along a path, and this basis has one target "
+                         "(the path sets its point): leave x out")
     xa, xb = _endpoint(manifold, a), _endpoint(manifold, b)
+    if np.array_equal(xa, xb):
+        raise BasisError(f"the path's ends {a!r} and {b!r} are the same latent point (all {steps} images would "
+                         "be the same): give two different materials or points")
     t = np.linspace(0.0, 1.0, steps)[:, None]
     xs = (1.0 - t) * xa + t * xb
     if basis.p > 1:

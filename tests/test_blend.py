@@ -294,6 +294,24 @@ def test_blend_path_and_contact_sheet(basis1, manifold, tmp_path):
         bl.blend_path(folder, manifold, a, b, steps=1)
 
 
+def test_blend_path_refuses_ignored_x_and_identical_ends(basis1, manifold, tmp_path, cli, capsys):
+    folder, _, _ = basis1
+    a, b = manifold.names[0], manifold.names[1]
+    with pytest.raises(BasisError, match="one target"):
+        bl.blend_path(folder, manifold, a, b, steps=3, x=manifold.latent[2])
+    for ends in ((a, a), (manifold.latent[1], manifold.latent[1]), (a, manifold.latent[0])):
+        with pytest.raises(BasisError, match="same latent point"):
+            bl.blend_path(folder, manifold, *ends, steps=3)
+    out = str(tmp_path / "out" / "seq.exr")
+    x = ",".join(str(v) for v in manifold.latent[2])
+    for args, words in [(["--x", x, "--path", a, b], "drop --x"), (["--path", a, a], "same latent point")]:
+        with pytest.raises(SystemExit) as e:
+            cli.main(["--basis", folder, "--out", out] + args)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.count("\n") == 1 and words in err
+    assert not os.path.exists(tmp_path / "out")
+
+
 # --------------------------------------------------------------------- CLI
 
 def test_cli_blend_with_reference(basis1, manifold, tmp_path, cli, capsys):

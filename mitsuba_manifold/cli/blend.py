@@ -98,6 +98,9 @@ def path_outputs(args, basis, manifold):
     from .. import validate
     w, h = basis.resolution
     validate.fits_in_memory("--steps", 2 * args.steps * w * h * 3 * 4, f"{args.steps} images of {w}x{h}")
+    if args.x is not None and basis.p == 1:
+        fail("--x sets the fixed targets along --path, and this basis has one target, whose point the path "
+             "sets: drop --x (or drop --path to blend the point --x)")
     ends = [a if a in manifold.names else _point_or_name(a) for a in args.path]
     target = 0
     if args.target is not None:
