@@ -182,7 +182,7 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
         (without ``force``).
     """
     fits = load_sgd_fits()
-    names = list(fits) if materials is None else list(materials)
+    names = list(fits) if materials is None else list(dict.fromkeys(materials))   # a repeated name: one table
     unknown = [n for n in names if n not in fits]
     if unknown:
         raise DatabaseError(f"unknown material(s) {unknown}{did_you_mean(unknown[0], fits)}; known: {', '.join(fits)}")

@@ -91,6 +91,17 @@ def test_make_database_is_deterministic_and_keeps_valid_files(tmp_path):
     assert json.loads((a / "database.json").read_text())["seed"] == 7
 
 
+def test_repeated_materials_make_one_table_each_and_are_counted_once(tmp_path):
+    from guarantees_helpers import run_tool
+    rc, out, err = run_tool("make_database", "--out", tmp_path / "db", "--resolution", "4,4,8",
+                            "--materials", "chrome,chrome,steel,chrome")
+    assert rc == 0, err
+    assert "chrome repeated" in out and "2 tables in" in out
+    assert sorted(f for f in os.listdir(tmp_path / "db") if f.endswith(".binary")) == ["chrome.binary", "steel.binary"]
+    paths = database.make_database(tmp_path / "db2", (4, 4, 8), ["steel", "steel"])
+    assert paths == [os.path.join(tmp_path / "db2", "steel.binary")]
+
+
 def test_database_folder_errors(tmp_path, small_db):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         database.Database(tmp_path / "nope")

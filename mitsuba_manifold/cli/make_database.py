@@ -20,6 +20,10 @@ def main(argv=None):
 
     from .. import database, validate
     t0 = time.perf_counter()
+    if args.materials and len(set(args.materials)) < len(args.materials):
+        repeated = sorted({n for n in args.materials if args.materials.count(n) > 1})
+        print(f"note: {', '.join(repeated)} repeated in --materials; each table is made once")
+        args.materials = list(dict.fromkeys(args.materials))
     try:
         n = len(args.materials) if args.materials else 100
         validate.table_resolution(args.resolution, "--resolution", workers=min(n, os.cpu_count() or 1))
