@@ -123,7 +123,8 @@ def test_blend_cli_succeeds_or_refuses_cleanly(data, case):
             assert os.path.getsize(path[:-4] + ".png") > 0
 
 
-FIT_OUTS = (["WORK/m.npz", "WORK/sub/m.npz"], ["WORK/user.exr", "WORK/afile/m.npz", "WORK/afile"])
+FIT_OUTS = (["WORK/m.npz", "WORK/sub/m.npz"], ["WORK/user.exr", "WORK/afile/m.npz", "WORK/afile", "WORK/m.json",
+                                            "WORK/m"])
 
 
 @st.composite

@@ -143,6 +143,14 @@ def test_files_that_are_not_manifolds_are_named_without_inviting_unsafe_loading(
         assert "pickle" not in text and "allow_" not in text and "\n" not in text
 
 
+def test_fit_manifold_out_must_be_an_npz_name(small_db, tmp_path):
+    from guarantees_helpers import assert_one_error, run_tool
+    for out, fix in [("m.json", "m.npz"), ("m", "m.npz"), ("sub" + os.sep, os.path.join("sub", "manifold.npz"))]:
+        rc, _, err = run_tool("fit_manifold", small_db, "--out", os.path.join(tmp_path, out))
+        assert_one_error(rc, err, "--out", ".npz", f"use --out {tmp_path / fix}")
+    assert os.listdir(tmp_path) == []
+
+
 def test_saving_never_half_writes(fitted, tmp_path):
     path = tmp_path / "m.npz"
     fitted.save(path)

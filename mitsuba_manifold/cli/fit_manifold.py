@@ -16,6 +16,11 @@ def check(args):
         validate.finite("--length-scale", args.length_scale, 0.0, 1e6, lo_open=True)
     if args.noise is not None:
         validate.finite("--noise", args.noise, 0.0, 1e6, lo_open=True)
+    folder, base = os.path.split(args.out)
+    if not base.lower().endswith(".npz") or len(base) <= 4:
+        fix = os.path.join(folder, (os.path.splitext(base)[0].lstrip(".") or "manifold") + ".npz")
+        raise InputError(f"--out must name a .npz file (the manifold is saved as NumPy .npz), got {args.out!r}: "
+                         f"use --out {fix}")
     ownership.check_replaceable(args.out, args.force, what="--out")
     if args.plot:
         validate.output_folder("--plot", args.plot)
