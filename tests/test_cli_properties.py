@@ -91,7 +91,7 @@ def blend_args(draw):
         given["x"] = xs
     else:
         a = draw(st.sampled_from(NAMES + ([] if valid else ["adamantium", "0,0", "nan,1"])))
-        b = draw(st.sampled_from(NAMES + ["1,1"]))
+        b = draw(st.sampled_from([n for n in NAMES + ["1,1"] if n != a or not valid]))   # same ends: refused
         steps = draw(st.integers(2, 4) if valid else st.integers(-1, 4))
         args += ["--path", a, b, "--steps", str(steps)]
         given["path"] = (a, b, steps)
