@@ -33,7 +33,6 @@ import json
 import os
 import re
 import time
-import xml.etree.ElementTree as ET
 
 import numpy as np
 
@@ -42,6 +41,7 @@ from .atomic import atomic_write
 from .cache import file_hash
 from .errors import BasisError, ImageError, MaterialNameError
 from .identity import manifold_identity
+from .validate import scene_xml
 
 FORMAT = "mitsuba-manifold-basis"
 FORMAT_VERSION = 2
@@ -60,10 +60,7 @@ def scene_files(scene):
     """Files a scene XML names (``filename`` properties and ``<include>``), resolved
     against the scene's folder; values holding ``$parameters`` are skipped."""
     scene = os.fspath(scene)
-    try:
-        root = ET.parse(scene).getroot()
-    except ET.ParseError as e:
-        raise BasisError(f"scene {scene}: not a readable XML file ({e})") from None
+    root = scene_xml(scene)   # a scene XML, or an error naming the file
     folder = os.path.dirname(os.path.abspath(scene))
     names = []
     for el in root.iter():

@@ -10,13 +10,13 @@ illumination of an interpolated material with Mitsuba's ``path`` (the ground tru
 
 import os
 import re
-import xml.etree.ElementTree as ET
 from typing import NamedTuple
 
 import numpy as np
 
 from .identity import manifold_identity
 from .errors import BasisError
+from .validate import scene_xml
 
 #: Folder of the scenes shipped with the package.
 SCENES_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenes")
@@ -41,6 +41,7 @@ def scene_path(scene):
     """Path of a scene given as a shipped scene's name (``"table"``) or as a path to an XML file."""
     scene = os.fspath(scene)
     if os.path.isfile(scene):
+        scene_xml(scene)   # a scene XML, or an error naming the file
         return os.path.abspath(scene)
     shipped = os.path.join(SCENES_DIR, scene + ".xml")
     if os.sep not in scene and not scene.endswith(".xml") and os.path.isfile(shipped):
@@ -77,17 +78,10 @@ def use_variant(variant=None):
 
 def scene_parameters(scene):
     """Names of the ``$parameters`` a scene XML uses, and its ``<default>`` values."""
-    scene = os.fspath(scene)
-    if not os.path.isfile(scene):
-        raise BasisError(f"scene {scene} does not exist")
-    with open(scene, encoding="utf-8") as f:
-        text = f.read()
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as e:
-        raise BasisError(f"scene {scene}: not a readable XML file ({e})") from None
+    root = scene_xml(scene)   # exists, and is a scene XML (not a table or an image)
     defaults = {el.get("name"): el.get("value") for el in root.iter("default")}
-    return set(_PARAM.findall(text)), defaults
+    used = {name for el in root.iter() for value in el.attrib.values() for name in _PARAM.findall(value)}
+    return used, defaults
 
 
 def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=None, x=None,

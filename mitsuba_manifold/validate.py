@@ -6,10 +6,11 @@ the parameter, the value and what would be accepted.
 
 import math
 import os
+import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from .errors import InputError, ManifoldError
+from .errors import BasisError, InputError, ManifoldError
 
 #: PNG exposure range in stops: 2**64 already maps every positive float32 to white.
 EXPOSURE_RANGE = (-64.0, 64.0)
@@ -170,6 +171,24 @@ def output_folder(name, path):
     if not os.access(probe, os.W_OK | os.X_OK):
         raise InputError(f"{name} {path}: folder {probe} is not writable")
     return path
+
+
+def scene_xml(path):
+    """The root element of the Mitsuba scene XML ``path`` (a ``<scene>`` element), or a
+    :class:`BasisError` naming the file when it is missing, not XML (a table, an image) or
+    not a scene."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise BasisError(f"scene {path} does not exist")
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise BasisError(f"{path} is not a Mitsuba scene XML ({e}); give a scene "
+                         ".xml file or a shipped scene's name") from None
+    if root.tag != "scene":
+        raise BasisError(f"{path} is not a Mitsuba scene XML (its root element is <{root.tag}>, not <scene>); "
+                         "give a scene .xml file or a shipped scene's name")
+    return root
 
 
 def fraction(name, value):

@@ -28,6 +28,39 @@ def test_shipped_scenes_are_found_by_name_or_path(tmp_path):
         scenes.scene_path("no-such-scene")
 
 
+NOT_SCENES = {"chrome.binary": b"\x10\x00\x00\x00\x10\x00\x00\x00\xe5\xff" + bytes(64),   # a MERL table
+              "photo.png": b"\x89PNG\r\n\x1a\n" + bytes(32), "empty.xml": b"",
+              "notes.txt": "r\u00e9sum\u00e9 of the scene".encode("latin-1"),
+              "other.xml": b"<bsdf type='diffuse'/>"}
+
+
+@pytest.mark.parametrize("name", sorted(NOT_SCENES))
+def test_a_file_that_is_not_a_scene_xml_is_refused_in_one_line(tmp_path, name):
+    """Every way a scene comes in (a name or path, its parameters, its hash for a basis check)
+    refuses a table, an image or another XML with one line naming the file."""
+    from mitsuba_manifold import basis
+    path = tmp_path / name
+    path.write_bytes(NOT_SCENES[name])
+    for check in (scenes.scene_path, scenes.scene_parameters, basis.scene_hash):
+        with pytest.raises(BasisError, match=f"^{path} is not a Mitsuba scene XML \\(") as e:
+            check(str(path))
+        assert "\n" not in str(e.value)
+
+
+def test_tools_refuse_a_scene_that_is_not_xml_before_any_work(tmp_path, small_manifold, capsys):
+    from mitsuba_manifold.cli import main_job, render_basis
+    png = tmp_path / "photo.png"
+    png.write_bytes(NOT_SCENES["photo.png"])
+    for tool, argv in ((render_basis, [str(png), "--manifold", small_manifold, "--out", str(tmp_path / "b")]),
+                       (main_job, ["--out", str(tmp_path / "job"), "--resolution", "4,4,8", "--scene", str(png)])):
+        with pytest.raises(SystemExit) as e:
+            tool.main(argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err == f"error: {png} is not a Mitsuba scene XML ({err.split('(', 1)[1]}"
+        assert err.count("\n") == 1 and "Traceback" not in err
+    assert sorted(os.listdir(tmp_path)) == ["photo.png"]   # nothing made
+
+
 @pytest.mark.render
 def test_render_reference_is_the_interpolated_material(small_manifold, manifold, tmp_path):
     """On the convex sphere scene (no path scatters twice off the sphere) the full-GI
