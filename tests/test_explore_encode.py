@@ -55,3 +55,35 @@ def test_latent_map_slices_through_the_point(small_db, tmp_path):
     assert not np.array_equal(a.image, b.image)   # the third coordinate follows the point
     lo, hi = a.extent[0], a.extent[1]
     assert lo < m.latent[:, 0].min() and hi > m.latent[:, 0].max()
+
+
+# ------------------------------------------------------ listening address
+
+@pytest.mark.parametrize("port", ["99999", "65536", "-1", "http"])
+def test_cli_refuses_a_port_out_of_range_when_parsing(port, tmp_path, capsys):
+    from mitsuba_manifold.cli.explore import main
+    with pytest.raises(SystemExit) as e:   # refused before any basis is read
+        main(["--basis", str(tmp_path / "nothing"), "--port", port])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1
+    assert f"--port: must be an integer in 0..65535 (0: any free port), got '{port}'" in err
+
+
+@pytest.mark.parametrize("host", ["999.1.1.1", "192.0.2.1"])   # no such address; not this machine's (TEST-NET-1)
+def test_a_bad_host_names_host_not_port(host):
+    from mitsuba_manifold.cli.explore import bind
+    with pytest.raises(OSError, match=f"--host {host} is not an address of this machine") as e:
+        bind(host, 0)
+    assert "--port" not in str(e.value)
+
+
+def test_a_busy_port_names_port_not_host():
+    from mitsuba_manifold.cli.explore import bind
+    sock = bind("127.0.0.1", 0)
+    try:
+        port = sock.getsockname()[1]
+        with pytest.raises(OSError, match=f"--port {port} is not free to use .*choose another --port") as e:
+            bind("127.0.0.1", port)
+        assert "--host" not in str(e.value)
+    finally:
+        sock.close()

@@ -10,6 +10,7 @@ background while the page already works.
 """
 
 import argparse
+import errno
 import os
 import shlex
 import socket
@@ -33,9 +34,20 @@ def command(basis, manifold=None):
     return shlex.join(parts)
 
 
+def parse_port(text):
+    """A TCP port number 0..65535 (0: any free port)."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"must be an integer in 0..65535 (0: any free port), got {text!r}")
+    return port
+
+
 def parser():
-    p = argparse.ArgumentParser(prog="explore.py", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    from .common import ArgumentParser
+    p = ArgumentParser(prog="explore.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--basis", action="append", required=True, metavar="DIR",
                    help="basis folder (render_basis.py); repeat for several (a selector on the page)")
     p.add_argument("--manifold", help="manifold (.npz); default: the basis manifest's (checked by hash)")
@@ -43,7 +55,8 @@ def parser():
     p.add_argument("--scene", help="scene XML or shipped scene name for reference renders, checked against the "
                                    "basis (default: the manifest's scene, or the shipped one of that name)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
-    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: any free port)")
+    p.add_argument("--port", type=parse_port, default=DEFAULT_PORT,
+                   help=f"port (default {DEFAULT_PORT}; 0: any free port)")
     p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
                    help="drop the materials of smallest contribution while the interpolated table changes "
                         f"by at most this fraction of its L2 norm (default {DEFAULT_PRUNE:g}, as the plugin)")
@@ -61,10 +74,22 @@ def bind(host, port):
         sock.bind((host, port))
     except OSError as e:
         sock.close()
-        raise OSError(f"cannot listen on {host}:{port} ({e.strerror}); choose another --port") from None
+        raise OSError(f"cannot listen on {host}:{port}: {_bind_problem(e, host, port)}") from None
     sock.listen(64)
     sock.set_inheritable(True)
     return sock
+
+
+def _bind_problem(error, host, port):
+    """Why binding failed and which option to change: --host when the address is the
+    problem (unknown name, not this machine's), --port when the port is (in use, privileged)."""
+    reason = error.strerror or str(error)
+    if isinstance(error, socket.gaierror) or error.errno == errno.EADDRNOTAVAIL:
+        return (f"--host {host} is not an address of this machine ({reason}); choose another "
+                "--host (127.0.0.1: this machine only, 0.0.0.0: every interface)")
+    if error.errno in (errno.EADDRINUSE, errno.EACCES):
+        return f"--port {port} is not free to use ({reason}); choose another --port (0: any free port)"
+    return f"{reason}; check --host {host} and --port {port}"
 
 
 def url(sock):
