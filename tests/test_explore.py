@@ -298,6 +298,22 @@ def test_cli_refuses_a_bad_prune(small_basis, capsys):
     assert "prune must be in [0, 1)" in capsys.readouterr().err
 
 
+def test_an_explicit_database_must_be_the_manifolds_tables(small_basis, small_manifold_paper, small_db, tmp_path,
+                                                          capsys):
+    from mitsuba_manifold.cli.explore import main
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "file.binary").write_bytes(b"x")
+    for bad, why in (("nowhere", "does not exist"), ("file.binary", "is a file"),
+                     ("empty", "is not a database folder of this manifold: it holds no table for 8 of its 8")):
+        with pytest.raises(ExploreError, match=f"^--database {tmp_path / bad} {why}"):
+            Explorer([small_basis], manifold=small_manifold_paper, database=str(tmp_path / bad), load_tables=False)
+    assert main(["--basis", small_basis, "--port", "0", "--database", str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: --database {tmp_path / 'nowhere'} does not exist") and err.count("\n") == 1
+    ex = Explorer([small_basis], manifold=small_manifold_paper, database=small_db, load_tables=False)   # the right one
+    ex.close()
+
+
 def test_cli_refuses_a_busy_port(small_basis, capsys):
     from mitsuba_manifold.cli.explore import bind, main
     sock = bind("127.0.0.1", 0)

@@ -14,6 +14,7 @@ matrix-vector product per point):
 """
 
 import math
+import os
 import threading
 
 import numpy as np
@@ -44,6 +45,35 @@ def describe(manifold, x, prune):
     if manifold.albedos is not None:
         out["albedo"] = [float(v) for v in manifold.albedo(x)]
     return out
+
+
+def check_database(folder, manifold):
+    """Raise :class:`ExploreError` naming ``folder`` (an explicitly given ``--database``)
+    unless it is a folder holding a MERL table for each of ``manifold``'s materials.
+
+    Only the files and their headers are checked here, at once; the content hashes are
+    checked while the tables load (:class:`TableStack`)."""
+    from ..database import Database
+    from ..errors import ExploreError, MitsubaManifoldError
+    folder = os.fspath(folder)
+    if not os.path.exists(folder):
+        raise ExploreError(f"--database {folder} does not exist; give the folder of the manifold's tables, "
+                           "or leave --database out (default: the manifold's database)")
+    if not os.path.isdir(folder):
+        raise ExploreError(f"--database {folder} is a file, not a database folder (a folder of <name>.binary "
+                           "MERL tables); give the folder of the manifold's tables")
+    tables = {f[:-7] for f in os.listdir(folder) if f.endswith(".binary")}
+    missing = [n for n in manifold.names if n not in tables]
+    if missing:
+        raise ExploreError(f"--database {folder} is not a database folder of this manifold: it holds no table for "
+                           f"{len(missing)} of its {manifold.n} materials ({', '.join(missing[:3])}"
+                           f"{' ...' if len(missing) > 3 else ''}); give the folder of its tables (<name>.binary), "
+                           "or leave --database out")
+    try:
+        Database(folder, manifold.names)   # the headers: MERL tables of one resolution
+    except (MitsubaManifoldError, OSError) as e:
+        raise ExploreError(f"--database {folder} is not a database folder of this manifold ({e}); give the "
+                           "folder of its tables, or leave --database out") from None
 
 
 def preview_strides(dims, target=PREVIEW_DIMS):

@@ -90,6 +90,8 @@ class Explorer:
             if self.manifold_path is None:
                 self.manifold_path = os.path.abspath(manifold or basis.manifest["manifold"])
                 self.manifold = Manifold.load(self.manifold_path)
+                if database is not None:   # given, so it must be there (the default may be missing)
+                    material.check_database(database, self.manifold)
             basis.check_manifold(self.manifold_path)   # every basis: rendered with this manifold
             basis.verify()   # every image in memory now: no disk read while dragging
             self.bases[name] = basis
