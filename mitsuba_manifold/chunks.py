@@ -217,8 +217,10 @@ def render_chunked(scene, manifold, out, spp=64, chunks=1, seed=0, executor=None
     ChunkedRun
     """
     from .executor import LocalExecutor
+    from .render_basis import check_foreign_folder
 
     specs = plan(scene, manifold, spp, chunks, seed, **options)
+    check_foreign_folder(os.fspath(out), options.get("force", False))   # before any chunk is rendered
     _check_out(out, specs[0], spp, seed, chunks)
     executor = executor or LocalExecutor()
     t0 = time.perf_counter()

@@ -17,6 +17,7 @@ manifest is updated after each image, so a killed run continues where it stopped
 
 import itertools
 import os
+import re
 import time
 
 import numpy as np
@@ -25,7 +26,8 @@ from . import basis as basis_folder
 from . import imageio, names as names_mod, ownership, scenes, validate
 from .errors import ImageError, MaterialNameError, RenderBasisError, did_you_mean
 from .interrupt import StopRequest, render_in_passes
-from .locking import FolderLock
+from .chunks import CHUNK_DIR
+from .locking import LOCK_NAME, FolderLock
 from .scenes import default_variant
 from .manifold import Manifold
 
@@ -70,6 +72,36 @@ def select_materials(manifold, materials="all", near=None, radius=None):
     return [n for n in manifold.names if n in set(materials)]
 
 
+#: What a basis run leaves in its folder before its manifest: the lock, chunk folders,
+#: temporary files of atomic writes killed with the process (:mod:`atomic`).
+_OWN = re.compile(r"^(?:" + re.escape(LOCK_NAME) + "|" + re.escape(CHUNK_DIR) + r"|\..+\.tmp\.(?:exr|json|npz))$")
+
+
+def check_foreign_folder(out, force=False, bases=None):
+    """Refuse (unless ``force``) an existing ``out`` that holds files and no basis manifest:
+    a folder of the user's (a database, blends), which a basis would fill with images that
+    no blend may then be written beside. With ``bases`` (the names of the basis folders
+    to render in it), ``out`` is the parent of several bases and may hold only bases."""
+    if not os.path.isdir(out) or force or (bases is None and os.path.lexists(os.path.join(out, basis_folder.MANIFEST))):
+        return
+    foreign = sorted(f for f in os.listdir(out) if not _OWN.match(f) and (
+        bases is None or f not in bases and not ownership.is_basis_folder(os.path.join(out, f))))
+    if foreign:
+        what = f"not a basis folder (no {basis_folder.MANIFEST})" if bases is None else "not a folder of bases"
+        raise RenderBasisError(
+            f"{out} is {what} and holds files render_basis did not make ({', '.join(foreign[:3])}"
+            f"{' ...' if len(foreign) > 3 else ''}); choose a new or empty folder, or add --force")
+
+
+def check_job_folders(jobs, out, force=False):
+    """Before the first render: every folder of :func:`plan_views`'s ``jobs`` and, for
+    several, their parent ``out`` (:func:`check_foreign_folder`)."""
+    if len(jobs) > 1:
+        check_foreign_folder(os.fspath(out), force, bases={os.path.basename(folder) for _, _, folder in jobs})
+    for _, _, folder in jobs:
+        check_foreign_folder(folder, force)
+
+
 def _open_folder(out, manifest, files, force=False, read_images=True):
     """Check ``out`` (locked by the caller) against ``manifest``; return the images still valid
     (all those listed without ``read_images``).
@@ -80,6 +112,7 @@ def _open_folder(out, manifest, files, force=False, read_images=True):
     lists as ``pending`` were being written by a run that was killed: they are this tool's,
     and are removed when ``read_images`` (the locked call) so they are rendered again.
     """
+    check_foreign_folder(out, force)
     old = None
     listed = set()
     if os.path.exists(os.path.join(out, basis_folder.MANIFEST)):
@@ -166,7 +199,8 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
     database : str, optional
         Folder of the manifold's tables, if it moved (:func:`scenes.load_scene`).
     force : bool
-        Overwrite files in ``out`` that this basis did not make.
+        Render into an existing ``out`` that holds files but no basis manifest
+        (:func:`check_foreign_folder`), and overwrite files in ``out`` that this basis did not make.
     chunk_spp : int, optional
         Samples per pixel per pass of the one-pass renderer.
     sensor : int

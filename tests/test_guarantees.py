@@ -246,6 +246,40 @@ def test_render_basis_keeps_same_named_user_files(tmp_path, tiny):
     assert snapshot(out) == before
 
 
+def test_render_basis_refuses_a_folder_of_the_users_unless_forced(tmp_path, tiny):
+    """A database or a folder of blends is no basis folder: refused whole (no image added,
+    however the files are named), also for chunks and as the parent of several bases."""
+    db = tmp_path / "db"
+    shutil.copytree(tiny["db"], db)
+    blends = tmp_path / "blends"
+    blends.mkdir()
+    x = ",".join(f"{v:.6g}" for v in Manifold.load(tiny["manifold"]).latent[0])
+    assert run_tool("blend", "--basis", tiny["basis"], "--x", x, "--out", blends / "mine.exr")[0] == 0
+    base = ["--manifold", tiny["manifold"], "--res", 8, "--spp", 2]
+    for folder in (db, blends):
+        before = snapshot(folder)
+        for args in ([SPHERE], [SPHERE, "--chunks", 2], [SPHERE, SPHERE.replace("sphere", "table")]):
+            rc, _, err = run_tool("render_basis", *args, *base, "--out", folder)
+            assert_one_error(rc, err, f"{folder} is not a", "did not make", "--force")
+            assert snapshot(folder) == before
+    rc, _, err = run_tool("render_basis", SPHERE, *base, "--out", blends, "--force")
+    assert rc == 0, err
+    assert (blends / "mine.exr").exists() and (blends / "manifest.json").exists()
+
+
+def test_render_basis_resumes_a_folder_holding_only_its_own_lock_and_temporary_files(tmp_path, tiny):
+    """Killed before its manifest was written: the lock file and a temporary file are its own."""
+    from mitsuba_manifold.locking import LOCK_NAME
+    out = tmp_path / "basis"
+    out.mkdir()
+    (out / LOCK_NAME).write_text("")
+    (out / ".manifest.json.k3j2x9ab.tmp.json").write_text("{")
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", 8,
+                          "--spp", 1)
+    assert rc == 0, err
+    assert len(json.loads((out / "manifest.json").read_text())["images"]) == 5
+
+
 def test_fit_manifold_out_refuses_read_only_and_foreign_files(tmp_path, tiny):
     out = tmp_path / "m.npz"
     rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", out)

@@ -48,7 +48,9 @@ def main(argv=None):
     p.add_argument("--x", type=parse_floats, default=None, metavar="X",
                    help="the scene's latent point $x (q numbers; default: the first material's point)")
     p.add_argument("--database", default=None, help="folder of the manifold's tables, if it moved")
-    p.add_argument("--force", action="store_true", help="overwrite files in --out that no basis listed")
+    p.add_argument("--force", action="store_true",
+                   help="render into an --out holding files but no basis, and overwrite files there that no "
+                        "basis listed")
     p.add_argument("--views", type=parse_views, default=[0], help="sensor indices to render, or 'all' (default 0)")
     p.add_argument("--chunks", type=int, default=1, help="render each basis as this many chunks, merged (default 1)")
     p.add_argument("--executor", choices=["local", "ray"], default="local",
@@ -65,12 +67,13 @@ def main(argv=None):
 
     from ..chunks import render_chunked
     from ..executor import make_executor
-    from ..render_basis import plan_views, render_basis
+    from ..render_basis import check_job_folders, plan_views, render_basis
     from ..scenes import scene_path
     t0 = time.perf_counter()
     try:
         scenes = [s if os.path.isfile(s) else scene_path(s) for s in args.scenes]
         jobs = plan_views(scenes, args.views, args.out)
+        check_job_folders(jobs, args.out, args.force)   # every folder, before the first render
         executor = make_executor(args.executor, args.address)
         options = dict(materials=materials, near=args.near, radius=args.radius, mode=args.mode,
                        resolution=args.res, max_depth=args.max_depth, variant=args.variant, aovs=args.aovs,
