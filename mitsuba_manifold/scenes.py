@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .identity import manifold_identity
-from .errors import BasisError
+from .errors import BasisError, MitsubaManifoldError
 from .validate import scene_xml
 
 #: Folder of the scenes shipped with the package.
@@ -82,6 +82,52 @@ def scene_parameters(scene):
     defaults = {el.get("name"): el.get("value") for el in root.iter("default")}
     used = {name for el in root.iter() for value in el.attrib.values() for name in _PARAM.findall(value)}
     return used, defaults
+
+
+def scene_manifolds(scene, params=None):
+    """``(bsdf id, manifold file)`` of each ``manifold_brdf`` of a scene XML: its ``manifold``
+    value with ``$parameters`` taken from ``params``, else the scene's ``<default>``s, and a
+    relative path resolved against the scene's folder (as Mitsuba's file resolver does)."""
+    root = scene_xml(scene)
+    values = {**{el.get("name"): el.get("value") for el in root.iter("default")}, **(params or {})}
+    folder = os.path.dirname(os.path.abspath(scene))
+    found = []
+    for bsdf in root.iter("bsdf"):
+        named = [el.get("value") for el in bsdf if el.get("name") == "manifold"]
+        if bsdf.get("type") != "manifold_brdf" or not named or named[0] is None:
+            continue
+        value = _PARAM.sub(lambda m: str(values.get(m.group(1), m.group(0))), named[0])
+        path = os.path.join(folder, value)
+        if not os.path.exists(path) and os.path.exists(value):
+            path = value
+        found.append((bsdf.get("id"), os.path.abspath(path)))
+    return found
+
+
+def _check_scene_manifolds(scene, manifold_path, params):
+    """Raise unless every ``manifold_brdf`` of the scene uses ``manifold_path`` (the file, or
+    one of the same content): a scene naming its own manifold is not rendered with another's
+    latent points."""
+    want, identity = os.path.realpath(manifold_path), None
+    for bsdf_id, path in scene_manifolds(scene, params):
+        if os.path.realpath(path) == want:
+            continue
+        from .manifold import Manifold
+        try:
+            identity = identity or manifold_identity(Manifold.load(manifold_path))
+            if manifold_identity(Manifold.load(path)) == identity:
+                continue
+        except (MitsubaManifoldError, OSError):
+            pass
+        raise BasisError(_other_manifold(scene, bsdf_id, path, manifold_path))
+
+
+def _other_manifold(scene, bsdf_id, path, manifold_path):
+    if not os.path.isfile(path):
+        return (f"scene {scene}: material {bsdf_id!r} names the manifold {path} (which does not exist), not "
+                f"{manifold_path}: use value=\"$manifold\" in the scene")
+    return (f"scene {scene}: material {bsdf_id!r} names the manifold {path}, not {manifold_path}: use "
+            f"value=\"$manifold\" in the scene, or pass --manifold {path}")
 
 
 def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=None, x=None,
@@ -159,6 +205,7 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         for name, value in zip(("width", "height"), size):
             if name in used:
                 params[name] = str(value)
+    _check_scene_manifolds(scene_path, manifold_path, params)
     from .errors import one_line
     from .overrides import database_override
     try:
@@ -177,8 +224,7 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     for bsdf in targets:
         path = getattr(bsdf, "manifold_path", None)
         if path is None or manifold_identity(bsdf.manifold) != want:
-            raise BasisError(f"scene {scene_path}: material {bsdf.id()!r} uses manifold {path}, not "
-                             f"{manifold_path} (the scene does not take it as $manifold)")
+            raise BasisError(_other_manifold(scene_path, bsdf.id(), path, manifold_path))
     film_size = tuple(int(v) for v in scene.sensors()[0].film().size())
     if size is not None and film_size != size:
         raise BasisError(f"scene {scene_path} renders {film_size[0]}x{film_size[1]}, not {size[0]}x{size[1]} "

@@ -62,6 +62,27 @@ def test_tools_refuse_a_scene_that_is_not_xml_before_any_work(tmp_path, small_ma
 
 
 @pytest.mark.render
+def test_a_scene_naming_another_manifold_is_refused_naming_it(tmp_path, small_db, small_manifold):
+    """A scene with the manifold written in (not $manifold) and --manifold another one: one
+    line naming both and the fix, not the latent-dimension error of loading it with x."""
+    import shutil
+    pytest.importorskip("mitsuba")
+    other = tmp_path / "other.npz"
+    Manifold.fit(small_db, q=3).save(other)          # another latent dimension than small_manifold's 2
+    shutil.copy(small_manifold, tmp_path / "same.npz")
+    shutil.copy(os.path.join(scenes.SCENES_DIR, "sky.exr"), tmp_path / "sky.exr")
+    text = open(scenes.scene_path("sphere")).read()
+    for name, value in (("other", str(other)), ("same", "same.npz")):
+        (tmp_path / f"{name}.xml").write_text(text.replace('value="$manifold"', f'value="{value}"'))
+    with pytest.raises(BasisError) as e:
+        scenes.load_scene(str(tmp_path / "other.xml"), small_manifold, spp=1, resolution=8)
+    assert str(e.value) == (f"scene {tmp_path / 'other.xml'}: material 'material' names the manifold {other}, not "
+                            f"{small_manifold}: use value=\"$manifold\" in the scene, or pass --manifold {other}")
+    loaded = scenes.load_scene(str(tmp_path / "same.xml"), small_manifold, spp=1, resolution=8)   # same content
+    assert len(loaded.targets) == 1
+
+
+@pytest.mark.render
 def test_render_reference_is_the_interpolated_material(small_manifold, manifold, tmp_path):
     """On the convex sphere scene (no path scatters twice off the sphere) the full-GI
     reference of x equals, within noise, the affine blend of full renders of the training
