@@ -47,12 +47,11 @@ def scene(name, value):
     try:
         path = scenes.scene_path(value)
         scenes.scene_parameters(path)
-    except MitsubaManifoldError:
+    except MitsubaManifoldError as e:
         shipped = scenes.shipped_scenes()
         hint = did_you_mean(value, shipped) if os.sep not in str(value) else ""
         if os.path.isfile(value):
-            raise InputError(f"{name} {value}: not a readable scene XML file; give a Mitsuba scene XML "
-                             f"or a shipped scene ({', '.join(shipped)})") from None
+            raise InputError(f"{name}: {e}") from None
         raise InputError(f"{name} {value!r}: no such file nor shipped scene{hint}; shipped scenes: "
                          f"{', '.join(shipped)}") from None
     return path
