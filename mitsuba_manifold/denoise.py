@@ -132,12 +132,16 @@ class BasisAOVs:
         path = os.path.join(os.fspath(folder), AOV_FILE)
         if not os.path.isfile(path):
             raise DenoiseError(f"{folder} has no {AOV_FILE} (render the basis with aovs=True / --aovs)")
-        with np.load(path) as z:
-            if int(z["version"]) != AOV_VERSION:
-                raise DenoiseError(f"{path}: AOV format version {int(z['version'])}, expected {AOV_VERSION}")
-            out = cls(z["normal"], z["albedo_base"], z["hist"], z["table"], [str(n) for n in z["names"]],
-                      int(z["spp"]), float(z["time_s"]))
-            key = json.loads(str(z["basis"]))
+        try:
+            with np.load(path) as z:
+                if int(z["version"]) != AOV_VERSION:
+                    raise DenoiseError(f"{path}: AOV format version {int(z['version'])}, expected {AOV_VERSION}")
+                out = cls(z["normal"], z["albedo_base"], z["hist"], z["table"], [str(n) for n in z["names"]],
+                          int(z["spp"]), float(z["time_s"]))
+                key = json.loads(str(z["basis"]))
+        except (OSError, ValueError, KeyError, AttributeError, TypeError) as e:
+            raise DenoiseError(f"{path} is not an AOV file written by render_basis --aovs ({type(e).__name__}); "
+                               "delete it and render the AOVs again") from None
         if manifest is not None:
             want = {k: manifest.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}
             if want != key:

@@ -72,3 +72,8 @@ def test_denoised_blend_beats_raw_and_aovs_are_checked(tmp_path, small_manifold)
         denoise.denoised_blend(other, m, x=x, prune=0.0, renormalise=True)
     with pytest.raises(errors.DenoiseError, match="no aovs.npz"):
         denoise.BasisAOVs.load(out)
+    with open(os.path.join(out, denoise.AOV_FILE), "wb") as f:   # not an archive: no NumPy pickle advice
+        f.write(b"\x93NUMPY\x01\x00garbage")
+    with pytest.raises(errors.DenoiseError, match="is not an AOV file written by render_basis") as e:
+        denoise.BasisAOVs.load(out)
+    assert "pickle" not in str(e.value)

@@ -199,7 +199,8 @@ def test_http_bad_requests_get_400_with_a_message(client):
                                                                            "unknown basis"),
                        ("/api/frame?x=0,0&exposure=inf", "exposure"), ("/api/map?dims=0,0", "dims"), ("/api/map?extent=1,0,0,1", "extent"),
                        ("/api/map?extent=0,1,0,nan", "extent"),
-                       ("/api/path?a=chrome&b=nan,1", "NaN"), ("/api/reference/r999", "unknown reference"),
+                       ("/api/path?a=chrome&b=nan,1", "NaN"), ("/api/path?a=chrome&b=chrome", "same point"),
+                       ("/api/reference/r999", "unknown reference"),
                        ("/api/reference/r1%20x/blend.png", "unknown reference"), ("/api/reference/r999/blend.png", "unknown reference")]:
         r = client.get(url)
         assert r.status_code == 400, (url, r.status_code, r.text)

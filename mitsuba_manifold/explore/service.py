@@ -248,6 +248,8 @@ class Explorer:
                 ends.append(v.strip())
             else:
                 ends.append(",".join(f"{c:.6g}" for c in self.point(v, what)))
+        if ends[0] == ends[1]:
+            raise ExploreError("the path's two ends are the same point; choose two different ends")
         steps = int(self.number(steps, "steps", 2, 1000, 20))
         return (f"python3 tools/blend.py --basis {basis.folder} --manifold {self.manifold_path} "
                 f"--path {ends[0]} {ends[1]} --steps {steps} --out path.exr --png")
