@@ -333,6 +333,23 @@ def test_cli_blend_with_reference(basis1, manifold, tmp_path, cli, capsys):
         assert os.path.getsize(str(tmp_path / "out" / name)) > 0
 
 
+def test_cli_blend_again_removes_its_stale_companions_only(basis1, manifold, tmp_path, cli, capsys):
+    """A second blend to the same --out without --png or a reference leaves no PNG or error image
+    of the first point beside the new EXR; a file the user put there is kept."""
+    folder, _, images = basis1
+    ref_path = str(tmp_path / "ref.exr")
+    imageio.write_exr(ref_path, images["base"] + 0.01)
+    out = tmp_path / "out" / "img.exr"
+    x = lambda i: ",".join(str(v) for v in manifold.latent[i])  # noqa: E731
+    cli.main(["--basis", folder, "--x", x(3), "--out", str(out), "--png", "--reference", ref_path])
+    assert {"img.png", "img_error.png", "img_error.exr"} <= set(os.listdir(out.parent))
+    (out.parent / "img_reference.png").write_bytes(b"the user's own notes")
+    cli.main(["--basis", folder, "--x", x(1), "--out", str(out)])
+    left = {f for f in os.listdir(out.parent) if not f.startswith(".")}
+    assert left == {"img.exr", "img_reference.png"}, left
+    assert "removed" in capsys.readouterr().out
+
+
 def test_cli_path_writes_sequence_and_sheet(basis1, manifold, tmp_path, cli, capsys, monkeypatch):
     folder, _, _ = basis1
     out = str(tmp_path / "seq" / "seq.exr")

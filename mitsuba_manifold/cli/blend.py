@@ -213,6 +213,24 @@ def write_outputs(out, outputs, force=False):
     ownership.record([path for _, path, _ in outputs], "blend.py")
 
 
+#: Files a point blend may write beside ``<stem>.exr``.
+COMPANIONS = (".png", "_error.exr", "_error.png", "_reference.exr", "_reference.png")
+
+
+def remove_stale_companions(out, outputs):
+    """Remove the files an earlier blend to ``out`` wrote beside it that this run did not
+    write again (e.g. the previous point's error image): only files this tool recorded as its
+    own, unchanged since (:func:`ownership.owned`); a user's file is never touched."""
+    from .. import ownership
+
+    written = {os.path.abspath(path) for _, path, _ in outputs}
+    for suffix in COMPANIONS:
+        path = _stem(out) + suffix
+        if os.path.abspath(path) not in written and os.path.isfile(path) and ownership.owned(path):
+            os.remove(path)
+            print(f"removed {path} (from an earlier blend to {out}; this one did not write it)")
+
+
 @guarded
 def main(argv=None):
     args = parse(argv)
@@ -224,8 +242,10 @@ def main(argv=None):
         print(basis)
         if args.path is not None:
             outputs = path_outputs(args, basis, manifold)
+            write_outputs(args.out, outputs, args.force)
         else:
             outputs = point_outputs(args, basis, manifold)
-        write_outputs(args.out, outputs, args.force)
+            write_outputs(args.out, outputs, args.force)
+            remove_stale_companions(args.out, outputs)
     except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's, from a reference render
         fail(e)
