@@ -309,12 +309,11 @@ class ManifoldBRDF:
         if self._x is not None:
             # Parameter objects returned by an earlier mi.traverse hold this array: update
             # it in place (the latent dimension never changes), create it the first time.
+            array = mi.Float if dr.is_jit_v(mi.Float) else dr.scalar.ArrayXf
             if getattr(self, "_x_param", None) is None:
-                array = mi.Float if dr.is_jit_v(mi.Float) else dr.scalar.ArrayXf
                 self._x_param = array(self._x)
             else:
-                for i, value in enumerate(self._x):
-                    self._x_param[i] = float(value)
+                mi.set_property(self._x_param, array(self._x))
 
     # --------------------------------------------------------- lookups
 
@@ -473,9 +472,10 @@ class ManifoldBRDF:
         if self._x is None or x.shape != self._x.shape or not np.array_equal(x, self._x.astype(np.float32)):
             try:
                 self.set_latent(x)
-            except Exception:  # refused: back to the material still rendered, so later updates work
-                for i, value in enumerate(self._x if self._x is not None else ()):
-                    self._x_param[i] = float(value)
+            except Exception:  # refused: back to the material still rendered (its length too),
+                if self._x is not None:  # so that later updates work
+                    array = mi.Float if dr.is_jit_v(mi.Float) else dr.scalar.ArrayXf
+                    mi.set_property(self._x_param, array(self._x))
                 raise
 
     def to_string(self):

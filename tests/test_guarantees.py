@@ -524,6 +524,13 @@ def test_refused_parameter_update_keeps_the_previous_state(tiny):
     params.update()
     bsdf = [s.bsdf() for s in scene.shapes()][0]
     assert np.allclose(bsdf.latent, good.astype(np.float32))
+    for wrong in ([1.0], [0.1, 0.2, 0.3]):        # too short, too long: refused with the plugin's message,
+        params[key] = wrong                        # and the parameter is the rendered x again, whole
+        with pytest.raises(Exception, match=f"x must be {man.q} finite numbers"):
+            params.update()
+        assert np.allclose(np.array(params[key]), good.astype(np.float32))
+        params.set_dirty(key)                      # a later update (of anything) works
+        params.update()
 
 
 @pytest.mark.parametrize("props, words", [
