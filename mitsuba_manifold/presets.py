@@ -22,13 +22,20 @@ PRESETS = {
 
 
 def settings(preset="default", **overrides):
-    """Fit settings of ``preset`` (:data:`PRESETS`) with the non-None ``overrides`` applied."""
+    """Fit settings of ``preset`` (:data:`PRESETS`) with the non-None ``overrides`` applied.
+
+    An ``interpolant`` override of the preset's kind (or without ``kind``) changes only the
+    parameters it names (``{"taper": 0.3}``); one of another kind replaces it whole."""
     if preset not in PRESETS:
         raise ManifoldError(f"unknown preset {preset!r}; use one of {', '.join(PRESETS)}")
     unknown = set(overrides) - set(PRESETS[preset])
     if unknown:
         raise ManifoldError(f"unknown setting(s) {sorted(unknown)}; settings are {sorted(PRESETS[preset])}")
-    return {**PRESETS[preset], **{k: v for k, v in overrides.items() if v is not None}}
+    out = {**PRESETS[preset], **{k: v for k, v in overrides.items() if v is not None}}
+    given, base = overrides.get("interpolant"), PRESETS[preset]["interpolant"]
+    if isinstance(given, dict) and given.get("kind", base["kind"]) == base["kind"]:
+        out["interpolant"] = {**base, **given}
+    return out
 
 
 def fit_layout(S, d, cfg, init=None, **options):

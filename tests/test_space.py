@@ -256,6 +256,13 @@ def test_plausibility_of_convex_and_affine_weights(default, paper):
     assert aff.negative_weights > 0
 
 
+def test_a_partial_interpolant_override_keeps_the_presets_other_parameters():
+    from mitsuba_manifold.manifold import settings
+    assert settings("default", interpolant={"taper": 0.3})["interpolant"] == {
+        **settings("default")["interpolant"], "taper": 0.3}
+    assert settings("default", interpolant={"kind": "gp"})["interpolant"] == {"kind": "gp"}   # another kind: whole
+
+
 def test_cross_validation_runs_and_reports(default, small_db):
     db = Database(small_db)
     tables = default.tables()
