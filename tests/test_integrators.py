@@ -230,6 +230,15 @@ def test_scene_without_manifold_material_is_refused():
     assert np.array(img).shape[2] == 3
 
 
+def test_a_nested_manifold_material_is_named_as_the_problem(small_manifold):
+    """manifold_brdf inside twosided: the split cannot see it; say so, not 'no manifold material'."""
+    scene = mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "twosided", "b": {
+        "type": "manifold_brdf", "manifold": small_manifold, "material": "steel"}}},
+        "e": {"type": "constant"}, "c": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4}}})
+    with pytest.raises(ValueError, match="nested inside another BSDF"):
+        integrators.target_groups(scene)
+
+
 @pytest.mark.parametrize("props,message", [
     ({"component": "l2"}, "unknown component 'l2'"),
     ({"max_depth": -2}, "max_depth must be -1"),

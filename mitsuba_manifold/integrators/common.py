@@ -34,6 +34,18 @@ def manifold_bsdfs(scene):
     return found
 
 
+def nested_manifold_bsdfs(scene):
+    """Manifold BSDFs that are not a shape's own BSDF (inside twosided, blendbsdf, mask, ...)."""
+    import mitsuba as mi
+
+    own = manifold_bsdfs(scene)
+    nested = []
+    for _, _, node, _ in mi.traverse(scene).properties.values():
+        if is_manifold_bsdf(node) and not any(node is b for b in own + nested):
+            nested.append(node)
+    return nested
+
+
 def target_groups(scene, target="all"):
     """Resolve the ``target`` parameter against ``scene``.
 
@@ -57,6 +69,11 @@ def target_groups(scene, target="all"):
         BSDF, an id is repeated, or there are more than :data:`MAX_GROUPS` groups.
     """
     found = manifold_bsdfs(scene)
+    if not found and nested_manifold_bsdfs(scene):
+        raise IntegratorError(
+            "manifold_path: the scene's manifold_brdf is nested inside another BSDF (twosided, blendbsdf, "
+            "mask, ...); the L1- split needs it as the shape's own BSDF: attach manifold_brdf to the shape "
+            "directly, or render with component=\"full\".")
     if not found:
         raise IntegratorError(
             "manifold_path: the scene has no manifold material (no shape uses a "
