@@ -72,4 +72,8 @@ def read(path):
                   "table_gram": arrays.get("table_gram")}
     except KeyError as e:
         raise ManifoldError(f"{path}: missing field {e}; {_REFIT}") from None
+    for name in ("albedos", "gram", "table_gram"):   # derived arrays: a damaged one would go unnoticed
+        a = kwargs[name]
+        if a is not None and (a.dtype.kind not in "fiu" or not np.isfinite(a).all()):
+            raise ManifoldError(f"{path}: its {name} array is damaged (not finite numbers); {_REFIT}")
     return kwargs

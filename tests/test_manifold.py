@@ -96,6 +96,19 @@ def test_save_load_round_trip_without_pickle(fitted, tmp_path):
     assert np.array_equal(m.weights(x)[1], fitted.weights(x)[1])
 
 
+@pytest.mark.parametrize("name", ["albedos", "gram", "table_gram"])
+def test_a_manifold_file_with_a_damaged_derived_array_is_refused(fitted, tmp_path, name):
+    """NaN in the saved pruning Gram made the plugin drop nearly every material silently."""
+    path = tmp_path / "m.npz"
+    fitted.save(path)
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays[name] = np.full_like(arrays[name], np.nan)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(ManifoldError, match=f"its {name} array is damaged"):
+        Manifold.load(tmp_path / "bad.npz")
+
+
 def test_bad_inputs_give_clear_errors(fitted, small_db, tmp_path):
     with pytest.raises(ManifoldError, match="2 coordinates"):
         fitted.weights([0.1, 0.2, 0.3])
