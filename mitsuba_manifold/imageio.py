@@ -226,6 +226,23 @@ def _label_lines(text, width, length, max_lines=4):
     return out
 
 
+def label_font(size=10):
+    """The font of labels, titles and captions: DejaVu Sans (shipped with matplotlib), whose
+    spaces read as spaces at small sizes; Pillow's default font when it cannot be found."""
+    from PIL import ImageFont
+    key = ("font", size)
+    if key not in _FONTS:
+        try:
+            from matplotlib import font_manager
+            _FONTS[key] = ImageFont.truetype(font_manager.findfont("DejaVu Sans", fallback_to_default=False), size)
+        except Exception:  # matplotlib missing or no DejaVu: Pillow's own
+            _FONTS[key] = ImageFont.load_default()
+    return _FONTS[key]
+
+
+_FONTS = {}
+
+
 def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, pad=4, title=None):
     """PNG grid of tonemapped images (one exposure for all), with optional labels; atomic.
 
@@ -253,6 +270,7 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
     cols = int(columns or np.ceil(np.sqrt(n)))
     rows = -(-n // cols)
     draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    draw.font = label_font()
     lines = [_label_lines(t, w - 2, draw.textlength) for t in labels] if labels else []
     label_h = 12 * max(map(len, lines)) + 2 if labels else 0
     width = cols * (w + pad) + pad
@@ -267,6 +285,7 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
     if labels or heading:
         pil = Image.fromarray(sheet)
         draw = ImageDraw.Draw(pil)
+        draw.font = label_font()
         if heading:
             draw.text((pad, pad // 2), "\n".join(heading), fill=(240, 240, 240), spacing=2)
         for i, text in enumerate(lines):
@@ -297,6 +316,7 @@ def with_colour_bar(image, ramp, ticks, caption, min_width=240, pad=6, backgroun
     h, w, _ = image.shape
     width = max(w, min_width)
     draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    draw.font = label_font()
     lines = _wrap(caption, width - 2 * pad, draw.textlength)
     bar_h, line_h = 10, 12
     out = np.full((h + 3 * pad + bar_h + line_h * (1 + len(lines)), width, 3), background, dtype=np.uint8)
@@ -306,6 +326,7 @@ def with_colour_bar(image, ramp, ticks, caption, min_width=240, pad=6, backgroun
     out[y:y + bar_h, x0:x1] = np.asarray(ramp, dtype=np.uint8)[cols][None]
     pil = Image.fromarray(out)
     draw = ImageDraw.Draw(pil)
+    draw.font = label_font()
     for frac, text in ticks:
         tw = draw.textlength(text)
         tx = min(max(x0 + frac * (x1 - x0) - tw / 2, x0), x1 - tw)   # centred on its place, inside the bar
