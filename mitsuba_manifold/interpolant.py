@@ -37,11 +37,14 @@ MAX_COORDINATE = 1e30
 
 def points(x, q):
     """``x`` as an ``(M, q)`` float array and whether it was a single point; clear errors otherwise."""
-    x = np.asarray(x, dtype=np.float64)
-    single = x.ndim == 1
+    try:
+        x = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InterpolantError(f"latent point must be {q} numbers (a list or array), got {x!r:.60}") from None
+    single, shape = x.ndim == 1, x.shape
     x = np.atleast_2d(x)
     if x.ndim != 2 or x.shape[1] != q:
-        raise InterpolantError(f"latent point must have {q} coordinates, got shape {np.shape(x)}")
+        raise InterpolantError(f"latent point must have {q} coordinates, got shape {shape}")
     if not np.isfinite(x).all():
         raise InterpolantError("latent point contains NaN or Inf")
     big = float(np.abs(x).max(initial=0.0))

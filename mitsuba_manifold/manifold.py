@@ -388,6 +388,9 @@ class Manifold:
 
     def interpolate(self, x, prune=DEFAULT_PRUNE, database=None):
         """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""
+        if np.ndim(x) > 1:
+            raise ManifoldError(f"interpolate takes one latent point ({self.q} numbers), got shape {np.shape(x)}; "
+                                "call it once per point")
         _, w = self.weights(x)
         return self.combine(w, prune, database)
 

@@ -117,6 +117,12 @@ class MatchResult:
     time_read_s: float = 0.0
     extra: dict = field(default_factory=dict)
 
+    def __repr__(self):  # short: the image and the starts are attributes, not the summary
+        fields = ", ".join(f"{k}={getattr(self, k)!r}" for k in ("error", "rel_mse", "exposure", "variance", "loss"))
+        x = ", ".join(f"{v:.4g}" for v in np.asarray(self.x).ravel())
+        top = ", ".join(f"{n}:{w:.3g}" for n, w in self.top_weights(4))
+        return f"MatchResult(x=[{x}], {fields}, top weights {top}, time_s={self.time_s:.3g})"
+
     def top_weights(self, k=6):
         """The ``k`` largest nonzero ``|w_i|`` as ``[(name, w_i)]``."""
         order = np.argsort(-np.abs(self.weights), kind="stable")[:k]

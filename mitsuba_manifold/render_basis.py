@@ -24,7 +24,7 @@ import numpy as np
 
 from . import basis as basis_folder
 from . import imageio, names as names_mod, ownership, scenes, validate
-from .errors import ImageError, MaterialNameError, RenderBasisError, did_you_mean
+from .errors import ImageError, MaterialNameError, MitsubaManifoldError, RenderBasisError, did_you_mean
 from .interrupt import StopRequest, render_in_passes
 from .chunks import CHUNK_DIR
 from .locking import LOCK_NAME, FolderLock
@@ -235,8 +235,10 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
         names_mod.check_unique(chosen)
     except MaterialNameError as e:
         raise RenderBasisError(str(e)) from None
-    if not os.path.isfile(scene_path):
-        raise RenderBasisError(f"scene {scene_path} does not exist")
+    try:
+        scene_path = scenes.scene_path(scene_path)   # a scene XML, or a shipped scene's name ("table")
+    except MitsubaManifoldError as e:
+        raise RenderBasisError(str(e)) from None
     if resolution is not None:  # images held at once: all of them in one pass, else a film and two sums
         w, h = (int(resolution),) * 2 if np.isscalar(resolution) else (int(v) for v in resolution)
         held = len(chosen) + 2 if mode == "onepass" else 6

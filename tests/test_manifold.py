@@ -109,6 +109,15 @@ def test_a_manifold_file_with_a_damaged_derived_array_is_refused(fitted, tmp_pat
         Manifold.load(tmp_path / "bad.npz")
 
 
+def test_latent_points_of_the_wrong_kind_are_named(fitted):
+    with pytest.raises(ManifoldError, match="must be 2 numbers"):
+        fitted.weights("0.3,-1.2")
+    with pytest.raises(ManifoldError, match=r"interpolate takes one latent point .* got shape \(2, 2\)"):
+        fitted.interpolate(np.zeros((2, 2)))
+    with pytest.raises(ManifoldError, match=r"2 coordinates, got shape \(\)"):
+        fitted.weights(None)
+
+
 def test_bad_inputs_give_clear_errors(fitted, small_db, tmp_path):
     with pytest.raises(ManifoldError, match="2 coordinates"):
         fitted.weights([0.1, 0.2, 0.3])

@@ -130,6 +130,8 @@ def test_training_material_is_recovered_exactly_from_its_own_blend(basis, manifo
         assert r.single.name == name and r.error < 1e-12 and r.rel_mse < 1e-12
         assert np.array_equal(r.weights, np.eye(manifold.n)[i])
         assert r.variance < 2 * manifold.noise
+    text = repr(r)                                  # a short summary, not the image's pixels
+    assert len(text) < 400 and name in text and "MatchResult(x=[" in text
 
 
 def test_interior_point_is_recovered(basis, manifold):

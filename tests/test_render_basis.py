@@ -67,6 +67,15 @@ def test_the_centre_of_a_near_basis_can_be_blended(tmp_path, small_manifold):
     assert image.shape == (8, 8, 3) and not info["renormalised"] and not info["missing"]
 
 
+def test_the_library_takes_a_shipped_scenes_name_like_the_tools(tmp_path, small_manifold):
+    m = Manifold.load(small_manifold)
+    manifest = render_basis.render_basis("sphere", small_manifold, tmp_path / "b", spp=1, resolution=8,
+                                         materials=[m.names[0]])
+    assert manifest["scene"] == SPHERE and len(manifest["images"]) == 2
+    with pytest.raises(render_basis.RenderBasisError, match="spherre"):
+        render_basis.render_basis("spherre", small_manifold, tmp_path / "c", spp=1, resolution=8)
+
+
 def test_scene_without_manifold_material_is_refused(tmp_path, small_manifold):
     scene = tmp_path / "plain.xml"
     scene.write_text("""<scene version="3.0.0">
