@@ -289,8 +289,8 @@ class Manifold:
                 v = float(value)
             except ValueError:
                 v = None
-            if not sep or v is None or not np.isfinite(v):
-                raise ManifoldError(f"weights {text!r}: entry {e!r} is not 'name:number'")
+            if not sep or v is None or not np.isfinite(v) or ":" in name:
+                raise ManifoldError(f"weights {text!r}: entry {e!r} is not 'name:number' (commas separate entries)")
             w[self.index(name.strip())] += v
         try:
             weight_sum(w)

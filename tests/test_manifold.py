@@ -129,6 +129,8 @@ def test_bad_inputs_give_clear_errors(fitted, small_db, tmp_path):
         fitted.parse_weights("chrome:1, steel:-1")
     with pytest.raises(ManifoldError, match="not 'name:number'"):
         fitted.parse_weights("chrome:abc")
+    with pytest.raises(ManifoldError, match="commas separate entries"):   # a comma forgotten
+        fitted.parse_weights("chrome:0.4 steel:0.6")
     assert fitted.parse_weights("chrome:0.25, steel:0.75")[fitted.index("steel")] == 0.75
     with pytest.raises(ManifoldError, match="does not exist"):
         Manifold.load(tmp_path / "missing.npz")
