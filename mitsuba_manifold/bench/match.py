@@ -143,7 +143,9 @@ def _subset_manifold(m, keep, path):
     sub = Manifold([m.names[i] for i in keep], fit.latent, m.database, [m.hashes[i] for i in keep],
                    m.length_scale, m.noise, m.features, None if m.albedos is None else m.albedos[keep],
                    S, fit.history, {**m.info, "log_likelihood": float(fit.log_likelihood),
-                                    "subset_of": getattr(m, "path", None)})
+                                    "subset_of": getattr(m, "path", None)},
+                   interpolant=m.interpolant.params(),   # the same weights as m (its default's, not Eq. 4's)
+                   table_gram=None if m.table_gram is None else m.table_gram[np.ix_(keep, keep)])
     sub.save(path)
     return Manifold.load(path)
 
