@@ -6,6 +6,7 @@ the file and the problem (missing, not an EXR, truncated or corrupt, wrong chann
 non-finite values).
 """
 
+import functools
 import json
 import os
 
@@ -226,21 +227,16 @@ def _label_lines(text, width, length, max_lines=4):
     return out
 
 
+@functools.lru_cache(maxsize=None)
 def label_font(size=10):
     """The font of labels, titles and captions: DejaVu Sans (shipped with matplotlib), whose
     spaces read as spaces at small sizes; Pillow's default font when it cannot be found."""
     from PIL import ImageFont
-    key = ("font", size)
-    if key not in _FONTS:
-        try:
-            from matplotlib import font_manager
-            _FONTS[key] = ImageFont.truetype(font_manager.findfont("DejaVu Sans", fallback_to_default=False), size)
-        except Exception:  # matplotlib missing or no DejaVu: Pillow's own
-            _FONTS[key] = ImageFont.load_default()
-    return _FONTS[key]
-
-
-_FONTS = {}
+    try:
+        from matplotlib import font_manager
+        return ImageFont.truetype(font_manager.findfont("DejaVu Sans", fallback_to_default=False), size)
+    except Exception:  # matplotlib missing or no DejaVu: Pillow's own
+        return ImageFont.load_default()
 
 
 def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, pad=4, title=None):
