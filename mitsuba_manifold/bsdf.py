@@ -307,13 +307,16 @@ class ManifoldBRDF:
         self._cos_frac = 1.0 if distr is None else COSINE_FRACTION
         self._table = mi.Float(packed.ravel()) if dr.is_jit_v(mi.Float) else packed
         if self._x is not None:
-            # Parameter objects returned by an earlier mi.traverse hold this array: update
-            # it in place (the latent dimension never changes), create it the first time.
-            array = mi.Float if dr.is_jit_v(mi.Float) else dr.scalar.ArrayXf
-            if getattr(self, "_x_param", None) is None:
-                self._x_param = array(self._x)
-            else:
-                mi.set_property(self._x_param, array(self._x))
+            self._publish_x()
+
+    def _publish_x(self):
+        """The ``x`` parameter as the rendered ``self._x``. Parameter objects returned by an
+        earlier mi.traverse hold this array: replaced in place (length too), created the first time."""
+        array = (mi.Float if dr.is_jit_v(mi.Float) else dr.scalar.ArrayXf)(self._x)
+        if getattr(self, "_x_param", None) is None:
+            self._x_param = array
+        else:
+            mi.set_property(self._x_param, array)
 
     # --------------------------------------------------------- lookups
 
@@ -474,8 +477,7 @@ class ManifoldBRDF:
                 self.set_latent(x)
             except Exception:  # refused: back to the material still rendered (its length too),
                 if self._x is not None:  # so that later updates work
-                    array = mi.Float if dr.is_jit_v(mi.Float) else dr.scalar.ArrayXf
-                    mi.set_property(self._x_param, array(self._x))
+                    self._publish_x()
                 raise
 
     def to_string(self):
