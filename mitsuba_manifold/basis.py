@@ -37,7 +37,7 @@ import time
 import numpy as np
 
 from . import imageio, names as names_mod
-from .atomic import atomic_write
+from .atomic import write_bytes
 from .cache import file_hash
 from .errors import BasisError, ImageError, MaterialNameError
 from .identity import manifold_identity
@@ -255,7 +255,7 @@ def write_manifest(folder, manifest):
     validate_manifest(manifest, where=os.path.join(os.fspath(folder), MANIFEST))
     path = os.path.join(os.fspath(folder), MANIFEST)
     text = json.dumps(manifest, indent=1, sort_keys=False) + "\n"
-    atomic_write(path, lambda f: f.write(text.encode()))
+    write_bytes(path, text)
     return path
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from . import merl, validate
 from .locking import FolderLock
 from .ownership import owned_tables, write_table_record
-from .cache import adopt_hash, evict, file_hash, file_identity, key_hash, npy_cache
+from .cache import adopt_hash, file_hash, file_identity, key_hash, npy_cache
 from .errors import DatabaseError, MissingFileError, NumericalError, UnknownMaterialError, did_you_mean
 
 FITS_PATH = os.path.join(os.path.dirname(__file__), "data", "merl_sgd_fits.json")
@@ -457,10 +457,6 @@ class Database:
 
         return npy_cache(path, write=write, shape=(bins, 3, n_pad), dtype=np.float32, mmap=True,
                          touch=True, keep=keep, marker=".rows-v1-")
-
-    def evict(self, marker, keep):
-        """Delete all but the ``keep`` (at least 1) most recently used cache files whose name holds ``marker``."""
-        evict(self.cache_dir, marker, keep)
 
     def albedo(self, names=None, tables=None):
         """Bihemispherical albedo per material and channel, shape ``(N, 3)``.

@@ -423,10 +423,7 @@ class Manifold:
         differences over all bins), ``weights``, the nearest training material and its error.
         """
         table = projection_mod.as_table(table, 3 * int(np.prod(self.info.get("dims", (0,)))), self.info.get("dims"))
-        try:
-            return projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
-        except ValueError as e:
-            raise ManifoldError(str(e)) from None
+        return projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
 
     # ----------------------------------------------------------- diagnostics
     def condition_number(self):

@@ -18,7 +18,7 @@ import os
 import stat
 
 from . import basis
-from .atomic import atomic_write
+from .atomic import write_bytes
 from .cache import file_hash
 from .errors import ForeignFileError
 from .locking import FolderLock
@@ -98,7 +98,7 @@ def record(paths, tool):
                 files[os.path.basename(p)] = {"sha256": file_hash(p), "tool": tool}
             files = {k: v for k, v in files.items() if os.path.isfile(os.path.join(folder, k))}
             text = json.dumps({"format": "mitsuba-manifold-outputs", "files": files}, indent=1, sort_keys=True)
-            atomic_write(os.path.join(folder, RECORD), lambda f: f.write(text.encode()))
+            write_bytes(os.path.join(folder, RECORD), text)
 
 
 def is_basis_folder(folder):
@@ -126,7 +126,7 @@ DATABASE_JSON = "database.json"
 def write_table_record(out_dir, settings, made):
     """Write ``<out_dir>/database.json``: ``settings`` and the names of the tables made."""
     text = json.dumps({**settings, "tables": sorted(made)}, indent=1)
-    atomic_write(os.path.join(out_dir, DATABASE_JSON), lambda f: f.write(text.encode()))
+    write_bytes(os.path.join(out_dir, DATABASE_JSON), text)
 
 
 def owned_tables(out_dir, settings, names, force):

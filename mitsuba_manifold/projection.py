@@ -124,9 +124,9 @@ def project(interpolant, tables, target, names=None, bins=None, rows=None, n_nea
     target = np.asarray(target, dtype=np.float32).reshape(-1)
     n, d = len(rows), tables.shape[1]
     if target.shape[0] != d:
-        raise ValueError(f"table to project has {target.shape[0]} values, the manifold's tables have {d}")
+        raise ManifoldError(f"table to project has {target.shape[0]} values, the manifold's tables have {d}")
     if not np.isfinite(target).all():
-        raise ValueError("table to project has NaN or Inf values")
+        raise ManifoldError("table to project has NaN or Inf values")
     bins = search_bins(d) if bins is None else np.asarray(bins)
     T = tables[np.ix_(rows, bins)].astype(np.float64)
     y = np.log1p(np.maximum(target[bins].astype(np.float64), 0.0))

@@ -56,12 +56,11 @@ def select_materials(manifold, materials="all", near=None, radius=None):
         if not radius > 0:
             raise RenderBasisError(f"--radius must be > 0, got {radius}")
         dist = np.linalg.norm(manifold.latent - near, axis=1)
-        needed = set(manifold.prune(manifold.weights(near).w).keep.tolist())
-        chosen = [n for i, (n, dd) in enumerate(zip(manifold.names, dist)) if dd <= radius or i in needed]
         if not any(dist <= radius):
             raise RenderBasisError(f"no material lies within {radius} of {near.tolist()} "
                                    f"(nearest: {manifold.names[int(dist.argmin())]} at {dist.min():.3g})")
-        return chosen
+        needed = set(manifold.prune(manifold.weights(near).w).keep.tolist())
+        return [n for i, (n, dd) in enumerate(zip(manifold.names, dist)) if dd <= radius or i in needed]
     if materials in (None, "all") or materials == ["all"]:
         return list(manifold.names)
     unknown = [m for m in materials if m not in manifold.names]
@@ -69,7 +68,8 @@ def select_materials(manifold, materials="all", near=None, radius=None):
         raise RenderBasisError(f"unknown material(s) {unknown}{did_you_mean(unknown[0], manifold.names)}: the "
                                f"manifold has {manifold.n} materials ({', '.join(manifold.names[:6])}"
                                f"{', ...' if manifold.n > 6 else ''})")
-    return [n for n in manifold.names if n in set(materials)]
+    wanted = set(materials)
+    return [n for n in manifold.names if n in wanted]
 
 
 #: What a basis run leaves in its folder before its manifest: the lock, chunk folders,
@@ -359,9 +359,7 @@ def _render_onepass(scene, target, todo, spp, seed, max_depth, save, progress, c
 
 def count_sensors(scene_path):
     """Sensors (views) declared at the top level of a scene XML."""
-    import xml.etree.ElementTree as ET
-    scenes.scene_parameters(scene_path)  # exists and parses, or a BasisError naming it
-    return len(ET.parse(scene_path).getroot().findall("sensor"))
+    return len(validate.scene_xml(scene_path).findall("sensor"))   # or a BasisError naming the file
 
 
 def plan_views(scenes, views, out):

@@ -206,7 +206,6 @@ MAX_CANCELLATION = 1e6
 def weight_sum(w):
     """Raise :class:`ManifoldError` unless weights ``w`` make a usable material: their sum
     (exact, :func:`math.fsum`) is not 0 and not swamped by cancelling magnitudes."""
-    import math
     w = np.asarray(w, dtype=np.float64).ravel()
     if not np.isfinite(w).all():
         raise ManifoldError("weights must be finite numbers")

@@ -9,7 +9,6 @@ Ctrl-C stops within a few seconds (at the end of the current render pass); every
 listed in the folder's manifest.json is complete, and the same command resumes."""
 
 import argparse
-import os
 import time
 
 from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats, parse_list
@@ -71,7 +70,7 @@ def main(argv=None):
     from ..scenes import scene_path
     t0 = time.perf_counter()
     try:
-        scenes = [s if os.path.isfile(s) else scene_path(s) for s in args.scenes]
+        scenes = [scene_path(s) for s in args.scenes]   # a scene XML or a shipped scene's name
         jobs = plan_views(scenes, args.views, args.out)
         check_job_folders(jobs, args.out, args.force)   # every folder, before the first render
         executor = make_executor(args.executor, args.address)
