@@ -21,24 +21,22 @@ import mitsuba as mi
 import numpy as np
 
 from . import plugin
-from .lookups import linear_axis, merl_angles, merl_bin
-from .sampling import (SAMPLING_CACHE_VERSION, SAMPLING_GRID, combined_density,  # noqa: F401
+from .lookups import HALF_PI, linear_axis, merl_angles, merl_bin
+from .sampling import (PLUGIN_NAME, SAMPLING_GRID, combined_density,  # noqa: F401
                        material_density, sampling_cache_path, sampling_density)
 from .errors import ManifoldBRDFError, ManifoldError, VariantError
 from .manifold import DEFAULT_PRUNE, Manifold
 from .overrides import database_folder
 from .validate import weight_sum
 
-PLUGIN_NAME = "manifold_brdf"
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
 COSINE_FRACTION = 0.1
 
 SAMPLING_MODES = ("cdf", "cosine")
 INTERPOLATION_MODES = ("nearest", "linear")
 
-_HALF_PI = 0.5 * np.pi
 _U_FLOOR = 1e-4                                  # smallest u = sqrt(theta_h / (pi/2)) used by the pdf
-_SIN_FLOOR = float(np.sin(_U_FLOOR ** 2 * _HALF_PI))
+_SIN_FLOOR = float(np.sin(_U_FLOOR ** 2 * HALF_PI))
 
 
 # ------------------------------------------------------------------ the plugin
@@ -289,7 +287,7 @@ class ManifoldBRDF:
             dens = np.stack([material_density(db, m.names[i]) for i in keep])
             p, n_empty = combined_density(dens, w_kept)
             black = n_empty == p.shape[0]
-            theta_grid = np.linspace(0.0, _HALF_PI, SAMPLING_GRID[0])
+            theta_grid = np.linspace(0.0, HALF_PI, SAMPLING_GRID[0])
             distr = mi.MarginalContinuous2D1(p, [theta_grid.tolist()], normalize=True)
 
         # Commit only once everything succeeded.
@@ -334,9 +332,9 @@ class ManifoldBRDF:
         theta_h, theta_d, phi_d = merl_angles(wi, wo)
         if self._interpolation == "nearest":
             return self._gather(merl_bin(theta_h, theta_d, phi_d, self._dims), active)
-        th = dr.clip(theta_h, 0.0, _HALF_PI)
-        h0, h1, th_t = linear_axis(dr.sqrt(th * (1.0 / _HALF_PI)) * n_h, n_h)
-        d0, d1, td_t = linear_axis(theta_d * (n_d / _HALF_PI), n_d)
+        th = dr.clip(theta_h, 0.0, HALF_PI)
+        h0, h1, th_t = linear_axis(dr.sqrt(th * (1.0 / HALF_PI)) * n_h, n_h)
+        d0, d1, td_t = linear_axis(theta_d * (n_d / HALF_PI), n_d)
         c = phi_d * (n_p / np.pi) - 0.5
         fc = dr.floor(c)
         tp_t = c - fc
@@ -357,7 +355,7 @@ class ManifoldBRDF:
         h = wi + wo
         rh = dr.sqrt(dr.square(h.x) + dr.square(h.y))
         inv_len = dr.rsqrt(dr.square(rh) + dr.square(h.z))
-        u = dr.sqrt(dr.atan2(rh, h.z) * (1.0 / _HALF_PI))
+        u = dr.sqrt(dr.atan2(rh, h.z) * (1.0 / HALF_PI))
         ex, ey, theta_i = self._incident_frame(wi)
         v = dr.abs(dr.atan2(ex * h.y - ey * h.x, ex * h.x + ey * h.y)) * (1.0 / np.pi)
         p_uv = self._distr.eval(mi.Point2f(dr.maximum(u, _U_FLOOR), v), [theta_i], active)
@@ -444,7 +442,7 @@ class ManifoldBRDF:
             flip = (sample1 - alpha) >= 0.5 * (1.0 - alpha)
             ex, ey, theta_i = self._incident_frame(wi)
             uv, p_uv = self._distr.sample(sample2, [theta_i], use_table)
-            theta_h = dr.square(uv.x) * _HALF_PI
+            theta_h = dr.square(uv.x) * HALF_PI
             phi = dr.select(flip, -uv.y, uv.y) * np.pi
             sin_th, cos_th = dr.sincos(theta_h)
             sin_p, cos_p = dr.sincos(phi)

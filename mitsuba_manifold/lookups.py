@@ -6,7 +6,6 @@ import mitsuba as mi
 import numpy as np
 
 HALF_PI = 0.5 * np.pi
-_HALF_PI = HALF_PI
 
 
 def merl_angles(wi, wo):
@@ -45,9 +44,9 @@ def _clamp_index(c, n):
 def merl_bin(theta_h, theta_d, phi_d, dims):
     """Flat MERL bin index (as :func:`merl.flat_index`) of Rusinkiewicz angles, in Dr.Jit."""
     n_h, n_d, n_p = dims
-    th = dr.clip(theta_h, 0.0, _HALF_PI)
-    i_h = _clamp_index(dr.sqrt(th * (1.0 / _HALF_PI)) * n_h, n_h)
-    i_d = _clamp_index(theta_d * (n_d / _HALF_PI), n_d)
+    th = dr.clip(theta_h, 0.0, HALF_PI)
+    i_h = _clamp_index(dr.sqrt(th * (1.0 / HALF_PI)) * n_h, n_h)
+    i_d = _clamp_index(theta_d * (n_d / HALF_PI), n_d)
     i_p = _clamp_index(phi_d * (n_p / np.pi), n_p)
     return mi.UInt32((i_h * n_d + i_d) * n_p + i_p)
 

@@ -36,8 +36,6 @@ def manifold_bsdfs(scene):
 
 def nested_manifold_bsdfs(scene):
     """Manifold BSDFs that are not a shape's own BSDF (inside twosided, blendbsdf, mask, ...)."""
-    import mitsuba as mi
-
     own = manifold_bsdfs(scene)
     nested = []
     for _, _, node, _ in mi.traverse(scene).properties.values():

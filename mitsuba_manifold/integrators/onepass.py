@@ -20,7 +20,7 @@ import numpy as np
 from ..cache import key_hash, npy_cache
 from ..errors import IntegratorError
 from ..lookups import merl_angles, merl_bin
-from .common import class_names, primary_rays, seeded_sampler, target_groups
+from .common import primary_rays, seeded_sampler, target_groups
 
 
 #: Materials per packet of the table product (Dr.Jit packet gathers of 16 contiguous floats).
@@ -381,7 +381,7 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
     chunk = int(chunk) if chunk else (len(names) if rows is not None else 16)
     chunks = [(i, min(len(names), i + chunk)) for i in range(0, len(names), chunk)]
     alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
-    plan = dict(groups=target.groups, names=class_names([target.groups[0][0]]), select=1, keep=3, aovs=[])
+    plan = dict(groups=target.groups, select=1, keep=3, aovs=[])
 
     film.prepare([])
     base_block = film.create_block()
@@ -449,11 +449,7 @@ def one_target(scene, target):
             f"manifold_path: one-pass rendering handles one target group, the target "
             f"{target!r} gives {len(groups)} ({[g[0] for g in groups]}); render "
             "several targets material by material")
-    bsdfs = groups[0][1]
-    for b in bsdfs:
-        if not getattr(b, "is_manifold_brdf", False):
-            raise IntegratorError(f"manifold_path: target BSDF {b.id()!r} is not a "
-                                  "manifold_brdf (one-pass rendering reads its tables)")
+    bsdfs = groups[0][1]   # manifold_brdf instances: target_groups only returns those
     first = bsdfs[0]
     for b in bsdfs[1:]:
         same = (os.path.samefile(b.manifold_path, first.manifold_path)
