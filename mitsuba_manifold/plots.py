@@ -63,9 +63,7 @@ def data_distance(manifold, pts):
     that to a material, a point is among the data; farther, it extrapolates.
     """
     d2 = ((pts[:, None, :] - manifold.latent[None]) ** 2).sum(-1)
-    nn = ((manifold.latent[:, None] - manifold.latent[None]) ** 2).sum(-1)
-    np.fill_diagonal(nn, np.inf)
-    reach = 2.0 * float(np.median(np.sqrt(nn.min(axis=1))))
+    reach = 2.0 * float(np.median(_isolation(manifold.latent)))
     return np.sqrt(d2.min(axis=1)) / manifold.length_scale, reach / manifold.length_scale
 
 

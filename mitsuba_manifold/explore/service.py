@@ -92,7 +92,7 @@ class Explorer:
                 self.manifold = Manifold.load(self.manifold_path)
                 if database is not None:   # given, so it must be there (the default may be missing)
                     material.check_database(database, self.manifold)
-            basis.check_manifold(self.manifold_path)   # every basis: rendered with this manifold
+            basis.check_manifold(self.manifold)   # every basis: rendered with this manifold (loaded once)
             basis.verify()   # every image in memory now: no disk read while dragging
             self.bases[name] = basis
         self.scenes = {name: _scene_of(b, scene) for name, b in self.bases.items()}
