@@ -25,6 +25,10 @@ from ..bench import NAMES
 from .common import ERRORS, ArgumentParser, fail, guarded, parse_list
 
 
+#: Benchmarks that take a saved manifold (the others fit their own).
+WITH_MANIFOLD = ("interp", "bsdf", "gi", "stability", "basis", "match", "explore")
+
+
 @guarded
 def main(argv=None):
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -33,7 +37,7 @@ def main(argv=None):
     p.add_argument("--database", default=None,
                    help="folder of MERL tables (default: out/database, made at MERL resolution if missing)")
     p.add_argument("--materials", type=parse_list, default=None, help="subset of materials")
-    p.add_argument("--manifold", default=None, help="saved manifold (interp/bsdf/gi/basis/match/explore)")
+    p.add_argument("--manifold", default=None, help=f"saved manifold ({'/'.join(WITH_MANIFOLD)})")
     p.add_argument("--basis", default=None,
                    help="match: a full basis of --manifold to time the match on; explore: the basis to serve; "
                         "space: a basis of the same materials (image smoothness)")
@@ -43,6 +47,8 @@ def main(argv=None):
     p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare")
     p.add_argument("--folds", type=parse_list, default=None, help="space: run only these of the 10 folds")
     args = p.parse_args(argv)
+    if args.manifold and args.which not in WITH_MANIFOLD:
+        p.error(f"{args.which} takes no --manifold (it fits its own); --manifold is for {', '.join(WITH_MANIFOLD)}")
     if args.which == "explore" and not args.basis:
         p.error("explore needs --basis DIR (a basis folder, e.g. out/gi/basis_table_256_64_onepass)")
 
@@ -60,7 +66,7 @@ def main(argv=None):
         if args.which == "space":
             kwargs.update(basis=args.basis, configs=args.configs,
                           folds=None if args.folds is None else [int(f) for f in args.folds])
-        if args.manifold and args.which != "fit":
+        if args.manifold:
             kwargs["manifold"] = args.manifold
         if args.which == "match":
             kwargs.update(basis=args.basis, res=args.res, out=args.out)
