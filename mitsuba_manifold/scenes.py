@@ -162,21 +162,19 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         ``scene`` (mi.Scene), ``targets`` (the scene's ``manifold_brdf`` instances in shape
         order, checked to use ``manifold_path``), ``max_depth`` (int).
     """
+    import functools
+
     import mitsuba as mi
 
-    from . import plugin
     from .integrators import manifold_bsdfs
+    from .manifold import Manifold
 
     scene_path, manifold_path = os.fspath(scene_path), os.fspath(manifold_path)
     if not os.path.isfile(manifold_path):
         raise BasisError(f"manifold {manifold_path} does not exist")
+    manifold = functools.cache(lambda: Manifold.load(manifold_path))   # loaded once, when first needed
     used, defaults = scene_parameters(scene_path)
-    if variant is not None and variant != mi.variant():
-        mi.set_variant(variant)
-    elif mi.variant() is None:
-        mi.set_variant("llvm_ad_rgb" if "llvm_ad_rgb" in mi.variants() else "scalar_rgb")
-    plugin.install()
-    plugin.register_all()
+    use_variant(variant or mi.variant() or ("llvm_ad_rgb" if "llvm_ad_rgb" in mi.variants() else "scalar_rgb"))
     if spp is not None and int(spp) < 1:
         raise BasisError(f"spp must be >= 1, got {spp}")
     params = {}
@@ -184,8 +182,7 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         params["manifold"] = os.path.abspath(manifold_path)
     if "x" in used:
         if x is None:
-            from .manifold import Manifold
-            x = Manifold.load(manifold_path).latent[0]
+            x = manifold().latent[0]
         params["x"] = ", ".join(repr(float(v)) for v in np.ravel(x))
     if database is not None and "database" in used:
         params["database"] = os.path.abspath(database)
@@ -219,8 +216,7 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     if not targets:
         raise BasisError(f"scene {scene_path} has no manifold_brdf material (give the material to edit "
                          "type=\"manifold_brdf\" and take the manifold as $manifold)")
-    from .manifold import Manifold
-    want = manifold_identity(Manifold.load(manifold_path))
+    want = manifold_identity(manifold())
     for bsdf in targets:
         path = getattr(bsdf, "manifold_path", None)
         if path is None or manifold_identity(bsdf.manifold) != want:
