@@ -11,7 +11,6 @@ public entry point.
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 import scipy.optimize
 
 from .errors import NotPositiveDefiniteError
@@ -114,8 +113,8 @@ def hooke_jeeves(U0, S, d, mu, max_iter, tol, step0, callback, l):
 def lbfgs(U0, S, d, mu, max_iter, tol, callback, l):
     """L-BFGS-B on ``-L / scale`` with the analytic gradient, in length-scale units."""
     n, q = U0.shape
-    cho, logdet = factorise(cov(U0, mu))
-    trace0 = float(np.trace(scipy.linalg.cho_solve(cho, S, check_finite=False)))
+    factor = factorise(cov(U0, mu))
+    logdet, trace0 = factor.logdet, float(np.trace(factor.solve(S)))
     if max_iter == 0:
         return OptimiserResult(U0, [objective(logdet, trace0, d)], 1, False, "reached max_iter = 0")
     scale = 0.5 * d * abs(logdet) + 0.5 * abs(trace0)

@@ -12,7 +12,6 @@ import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
 
 from .errors import GPLVMError, NotPositiveDefiniteError
 from .kernel import check_points, check_positive, cov, factorise, sq_dist
@@ -172,8 +171,7 @@ class RankUpdatedInverse:
         """
         old = self.log_likelihood if self._version else None
         K = cov(self._U, self._mu)
-        cho, logdet = factorise(K)
-        self._install(K, cho, logdet)
+        self._install(K, factorise(K))
         self.n_refactorisations += 1
         drift = 0.0
         if old is not None:
@@ -181,12 +179,10 @@ class RankUpdatedInverse:
             self.max_drift = max(self.max_drift, drift)
         return drift
 
-    def _install(self, K, cho, logdet):
-        n = K.shape[0]
-        B = scipy.linalg.cho_solve(cho, np.eye(n), check_finite=False)
-        self._B = 0.5 * (B + B.T)
+    def _install(self, K, factor):
+        self._B = factor.inverse()
         self._K = K
-        self._logdet = logdet
+        self._logdet = factor.logdet
         self._trace = float(np.sum(self._B * self._S))
         self._since = 0
         self._version += 1
@@ -280,14 +276,14 @@ class RankUpdatedInverse:
         K[:, i] = trial._k[j]
         K[i, i] = self._c
         try:
-            cho, logdet = factorise(K)
+            factor = factorise(K)
         except NotPositiveDefiniteError:
             return -np.inf
-        trace = float(np.trace(scipy.linalg.cho_solve(cho, self._S, check_finite=False)))
-        trial._fresh[j] = (K, cho, logdet)
-        trial._logdet[j] = logdet
+        trace = float(np.trace(factor.solve(self._S)))
+        trial._fresh[j] = (K, factor)
+        trial._logdet[j] = factor.logdet
         trial._trace[j] = trace
-        return objective(logdet, trace, self._d)
+        return objective(factor.logdet, trace, self._d)
 
     def accept(self, trial, j=0):
         """Move the point of ``trial`` to its candidate ``j``; return the new L.
@@ -308,8 +304,7 @@ class RankUpdatedInverse:
         self._U[i] = trial._u[j]
         self.n_updates += 1
         if j in trial._fresh:
-            K, cho, logdet = trial._fresh[j]
-            self._install(K, cho, logdet)
+            self._install(*trial._fresh[j])
             self.n_refactorisations += 1
             return self.log_likelihood
         b = self._point(i)[2]
