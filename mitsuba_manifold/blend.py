@@ -164,13 +164,13 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
     W, pts = _target_weights(basis, manifold, x, w)
     keys, cw, info = _plan(basis, manifold, W, prune, renormalise)
     t_plan = time.perf_counter() - t0
-    image, t_read, t_sum = _compose(basis, keys, cw)
+    image, t_read, t_sum = compose(basis, keys, cw)
     info.update(x=None if pts is None else (pts[0] if basis.p == 1 else pts),
                 time_ms=1e3 * (t_plan + t_sum), time_read_s=t_read, n_images=len(keys))
     return image, info
 
 
-def _compose(basis, keys, weights):
+def compose(basis, keys, weights):
     """Eq. 13: ``base + sum_j weights[..., j] image(keys[j])`` (no base with several targets).
 
     Returns the image(s), the seconds spent reading images and the seconds of the sum.
@@ -248,7 +248,7 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
     for s, (ks, cw, _) in enumerate(plans):
         M[s, [col[k] for k in ks]] = cw
     t_plan = time.perf_counter() - t0
-    images, t_read, t_sum = _compose(basis, keys, M)
+    images, t_read, t_sum = compose(basis, keys, M)
     for (_, _, inf), xi in zip(plans, xs):
         inf["x"] = xi
     return images, xs, {"steps": [p[2] for p in plans], "time_ms": 1e3 * (t_plan + t_sum),

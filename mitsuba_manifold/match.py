@@ -43,6 +43,7 @@ from threadpoolctl import threadpool_limits
 
 from . import image_error, imageio
 from .basis import BASE, Basis
+from .blend import compose
 from .errors import MatchError
 from .image_error import LOSSES, masked_pool, masked_rel_mse, pool
 
@@ -402,8 +403,7 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
     _, from_start, x = min(cand, key=lambda c: c[0])
     _, w = manifold.weights(x)
     err, _, s = full(w)
-    image = basis.weighted_sum(basis.material_keys(manifold.names), w)
-    image += basis.image(BASE)
+    image = compose(basis, basis.material_keys(manifold.names), w)[0]   # Eq. 13 (images already read)
     rel = masked_rel_mse(s * image, target, weight)
     var = max(float(manifold.variance(x)), 0.0)
     single = SingleMatch(manifold.names[best], best, float(full_errs[best]), float(full_scales[best]))
