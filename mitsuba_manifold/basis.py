@@ -281,11 +281,11 @@ SETTINGS = ("format", "version", "scene_hash", "manifold_hash", "resolution", "s
             "seed", "max_depth", "mode", "targets", "sensor", "chunks")
 
 
-def manifest_differences(a, b):
-    """Setting fields (:data:`SETTINGS`) whose values differ between two manifests.
+def manifest_differences(a, b, ignore=()):
+    """Setting fields (:data:`SETTINGS`, but those in ``ignore``) whose values differ between two manifests.
 
     An empty list means images rendered for one are valid for the other (resume)."""
-    return [k for k in SETTINGS if a.get(k) != b.get(k)]
+    return [k for k in SETTINGS if k not in ignore and a.get(k) != b.get(k)]
 
 
 # -------------------------------------------------------------------- basis

@@ -134,10 +134,6 @@ def save_chunk(out, result):
     return manifest
 
 
-def _settings_differ(a, b):
-    return [k for k in basis_folder.SETTINGS if k not in ("spp", "seed", "chunks") and a.get(k) != b.get(k)]
-
-
 def merge(out, folders, seed, force=False):
     """Merge complete chunk folders into the basis folder ``out``: the spp-weighted mean.
 
@@ -157,7 +153,7 @@ def _merge(out, folders, seed, force):
     manifests = [basis_folder.read_manifest(f) for f in folders]
     first = manifests[0]
     for f, m in zip(folders[1:], manifests[1:]):
-        diff = _settings_differ(first, m)
+        diff = basis_folder.manifest_differences(first, m, ignore=("spp", "seed", "chunks"))
         if diff or set(m["images"]) != set(first["images"]):
             raise ChunkError(f"chunk {f} does not match chunk {folders[0]} "
                              f"({', '.join(diff) or 'images'} differ); delete {os.path.dirname(f)}")
