@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 
-from .. import scenes
+from .. import scenes, validate
 from ..basis import Basis, scene_hash
 from ..blend import DEFAULT_PRUNE, blend
-from ..errors import ExploreError
+from ..errors import ExploreError, InputError
 from ..manifold import Manifold
 from . import encode, latentmap, material
 from .reference import MAX_SPP, References
@@ -143,12 +143,9 @@ class Explorer:
         if value is None or value == "":
             return default
         try:
-            v = float(value)
-        except (TypeError, ValueError):
-            raise ExploreError(f"{what} must be a number, got {value!r}") from None
-        if not np.isfinite(v) or not lo <= v <= hi:
-            raise ExploreError(f"{what} must be a finite number in [{lo}, {hi}], got {value!r}")
-        return v
+            return validate.finite(what, value, lo, hi)
+        except InputError as e:
+            raise ExploreError(str(e)) from None
 
     def blend(self, name, x):
         """Linear image (H, W, 3) of latent point ``x`` and the blend's info."""
