@@ -468,7 +468,7 @@ class Database:
         rows = tables if tables is not None else (self.reflectance(n) for n in names)
         return np.stack([np.asarray(t).reshape(3, -1) @ q for t in rows])
 
-    def gram(self, names=None, features="raw", block=1 << 16, tables=None, progress=False):
+    def gram(self, names=None, features="raw", block=1 << 16, tables=None, progress=False, raw=False):
         """Mean table and Gram matrix of the mean-subtracted observations.
 
         ``S = Z Z^T`` where row i of ``Z`` is material i's table (in the feature space)
@@ -484,12 +484,14 @@ class Database:
             Bins per block.
         tables : ndarray (N, d) float32, optional
             Already-loaded :meth:`stack` (avoids reading the tables again).
+        raw : bool
+            Also return ``G = T T^T`` of the raw tables (:func:`pruning.raw_gram`), same pass.
 
         Returns
         -------
         mean : ndarray (d,) float32
             Mean table in the feature space.
-        S : ndarray (N, N) float64
+        S, G : ndarray (N, N) float64 (``G`` only with ``raw``)
         """
         if features not in FEATURES:
             raise DatabaseError(f"features must be one of {FEATURES}, got {features!r}")
@@ -500,11 +502,14 @@ class Database:
         n, d = tables.shape
         mean = np.empty(d, dtype=np.float32)
         S = np.zeros((n, n))
+        G = np.zeros((n, n)) if raw else None
         # Small products (N x block): one BLAS thread is as fast as two on an idle machine
         # and 10-20x faster when another process competes for the cores.
         with threadpool_limits(1, user_api="blas"):
             for start in range(0, d, block):
                 z = tables[:, start:start + block].astype(np.float64)
+                if raw:
+                    G += z @ z.T
                 if features == "log":
                     np.log1p(z, out=z)
                 m = z.mean(axis=0)
@@ -512,4 +517,4 @@ class Database:
                 z -= m
                 S += z @ z.T
         S = 0.5 * (S + S.T)
-        return mean, S
+        return (mean, S, 0.5 * (G + G.T)) if raw else (mean, S)

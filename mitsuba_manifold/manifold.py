@@ -157,8 +157,7 @@ class Manifold:
         tables = db.stack(names, progress=progress)
         t_load = time.perf_counter() - t0
         t0 = time.perf_counter()
-        _, S = db.gram(names, features=cfg["features"], tables=tables)
-        table_gram = pruning.raw_gram(tables)
+        _, S, table_gram = db.gram(names, features=cfg["features"], tables=tables, raw=True)
         t_gram = time.perf_counter() - t0
         d = tables.shape[1]
         result = fit_layout(S, d, cfg, init=init, **options)

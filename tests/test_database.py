@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from mitsuba_manifold import database, merl
+from mitsuba_manifold import database, merl, pruning
 
 
 def test_sgd_value_against_hand_computation():
@@ -173,6 +173,8 @@ def test_gram_matches_float64_reference_with_chrome_like_peaks():
     z = np.log1p(tables.astype(np.float64))
     z -= z.mean(axis=0)
     assert np.allclose(S_log, z @ z.T, rtol=1e-9)
+    _, S_both, G = Stub.gram(Stub(), names=list("abcdef"), tables=tables, features="log", raw=True)
+    assert np.array_equal(S_both, S_log) and np.array_equal(G, pruning.raw_gram(tables))   # one pass, same sums
     with pytest.raises(ValueError, match="features"):
         Stub.gram(Stub(), names=list("abcdef"), tables=tables, features="sqrt")
 
