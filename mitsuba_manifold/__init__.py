@@ -8,12 +8,12 @@ any latent point gives affine weights over the measured tables, which the
 The package face is lazy (PEP 562): ``from mitsuba_manifold import Manifold, Database,
 Basis, blend, register`` loads only what is asked for; importing the package loads
 neither Mitsuba nor Dr.Jit. The Mitsuba plugins register themselves for every variant
-as it becomes active (:mod:`mitsuba_manifold.plugin`), whatever the import order.
+as it becomes active (:mod:`mitsuba_manifold.render.plugin`), whatever the import order.
 """
 
 import importlib
 
-from . import _llvm, plugin
+from .render import llvm as _llvm, plugin
 
 # Dr.Jit loads libLLVM on first use of an LLVM variant: choose a working one first.
 _llvm.select()
@@ -22,13 +22,12 @@ __version__ = "0.1.0"
 
 #: Public names -> "module:attribute" (or "module" for a submodule), loaded on first use.
 _FACE = {
-    "Manifold": "manifold:Manifold",
-    "Database": "database:Database",
-    "Basis": "basis:Basis",
-    # the module, callable as blend.blend (see mitsuba_manifold.blend): Python binds a
-    # submodule to its name in the package, so the name must mean the module
-    "blend": "blend",
-    "make_database": "database:make_database",
+    "Manifold": "manifold.model:Manifold",
+    "Database": "data.database:Database",
+    "Basis": "basis.folder:Basis",
+    "blend": "basis.blend:blend",
+    "blend_path": "basis.blend:blend_path",
+    "make_database": "data.database:make_database",
     "MitsubaManifoldError": "errors:MitsubaManifoldError",
 }
 

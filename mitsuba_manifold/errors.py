@@ -1,7 +1,8 @@
 """Every exception the package raises on bad input, under one root; one-line messages.
 
-Tools catch :class:`MitsubaManifoldError` (plus ``OSError`` where files are involved)
-and print its one-line message. Each class also derives from the built-in exception a
+There are a dozen classes, named after what went wrong rather than after the module
+that noticed it. Tools catch :class:`MitsubaManifoldError` (plus ``OSError`` where files
+are involved) and print its one-line message. Each class also derives from the built-in exception a
 caller would expect (``ValueError`` for bad values, ``KeyError`` for unknown names,
 ``RuntimeError`` for a missing or unsuitable Mitsuba variant), so ``except ValueError``
 keeps working. Messages name the parameter or file, the value and the fix.
@@ -17,15 +18,22 @@ class MitsubaManifoldError(Exception):
 
 
 class InputError(MitsubaManifoldError, ValueError):
-    """A bad argument or parameter value."""
+    """A bad argument, parameter or request value (the message names the parameter, the value
+    and what would be accepted)."""
 
 
-class MerlFormatError(InputError):
-    """A file that is not a valid MERL ``.binary`` table."""
+class FormatError(InputError):
+    """A file or folder whose content is not what it must be: a MERL table, a database folder,
+    a manifold file, an image."""
 
 
-class DatabaseError(InputError):
-    """A bad database folder or table set."""
+class MismatchError(InputError):
+    """Something made for something else, or incomplete: a basis of another manifold, scene or
+    sensor, chunks of other settings, denoising guides of another basis."""
+
+
+class ForeignFileError(InputError):
+    """Writing would replace a file the tool did not make, or a protected one."""
 
 
 class UnknownMaterialError(MitsubaManifoldError, KeyError):
@@ -39,92 +47,25 @@ class NumericalError(MitsubaManifoldError, FloatingPointError):
     """A computation produced NaN or Inf values."""
 
 
-class GPLVMError(InputError):
-    """Bad inputs to the GPLVM (Gram matrix, latent points, hyperparameters)."""
-
-
 class NotPositiveDefiniteError(MitsubaManifoldError, np.linalg.LinAlgError):
     """A kernel matrix that is not positive definite (``LinAlgError``, a ``ValueError``)."""
-
-
-class ManifoldError(InputError):
-    """A bad manifold file, latent point or weight set."""
-
-
-class InterpolantError(ManifoldError):
-    """An unknown interpolant or invalid interpolant parameters."""
-
-
-class ManifoldBRDFError(InputError):
-    """Bad parameters of a ``manifold_brdf`` (the message names the parameter)."""
-
-
-class IntegratorError(InputError):
-    """Bad parameters or scene for the ``manifold_path`` integrator."""
 
 
 class VariantError(MitsubaManifoldError, RuntimeError):
     """No Mitsuba variant set, an unsupported one, or no usable libLLVM."""
 
 
-class BasisError(InputError):
-    """A basis folder that cannot be used as asked (the message says why)."""
-
-
-class RenderBasisError(BasisError):
-    """Bad arguments to :func:`render_basis.render_basis`."""
-
-
-class MatchError(InputError):
-    """A target, mask, basis or setting that :func:`match.match` cannot use."""
-
-
-class ChunkError(BasisError):
-    """Chunks of a basis that cannot be planned or merged as asked."""
-
-
-class DenoiseError(BasisError):
-    """Denoising guides (AOVs) missing or made for another basis, or no denoiser."""
-
-
-class ExecutorError(MitsubaManifoldError, RuntimeError):
-    """An executor that cannot start (Ray missing, cluster unreachable, bad option)."""
-
-
-class ImageError(InputError):
-    """An image file that cannot be read or written as asked."""
-
-
-class GeometryError(InputError):
-    """Bad parameters of a generated mesh or environment map."""
-
-
-class MetricsError(InputError):
-    """Images that cannot be compared (shapes, values)."""
+class UnavailableError(MitsubaManifoldError, RuntimeError):
+    """Something a call needs is not there: Ray, a cluster, a denoiser, or state that an
+    earlier call makes."""
 
 
 class MissingFileError(MitsubaManifoldError, FileNotFoundError):
     """A file or folder that should exist does not."""
 
 
-class ExploreError(InputError):
-    """A request the explorer (``tools/explore.py``) cannot answer; the server answers 400."""
-
-
-class StateError(MitsubaManifoldError, RuntimeError):
-    """A call made before what it depends on (e.g. AOV names before the scene is known)."""
-
-
 class FolderLockedError(MitsubaManifoldError, OSError):
-    """Another process is writing into the folder (:class:`locking.FolderLock`)."""
-
-
-class ForeignFileError(InputError):
-    """Writing would replace a file the tool did not make, or a protected one."""
-
-
-class MaterialNameError(InputError):
-    """A material name that cannot be stored (empty, not a string, too long once escaped)."""
+    """Another process is writing into the folder (:class:`~mitsuba_manifold._util.locking.FolderLock`)."""
 
 
 # ------------------------------------------------------------ one-line messages

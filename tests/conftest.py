@@ -15,7 +15,7 @@ SMALL_MATERIALS = ["white-diffuse-bball", "gold-paint", "blue-acrylic", "chrome"
 @pytest.fixture(scope="session")
 def small_db(tmp_path_factory):
     """Folder with 8 surrogate materials at 32x32x64 bins."""
-    from mitsuba_manifold import database
+    from mitsuba_manifold.data import database
     folder = tmp_path_factory.mktemp("db32")
     database.make_database(folder, SMALL_DIMS, SMALL_MATERIALS)
     return str(folder)
@@ -24,7 +24,7 @@ def small_db(tmp_path_factory):
 @pytest.fixture(scope="session")
 def small_manifold_paper(small_db, tmp_path_factory):
     """Path of a manifold fit on :func:`small_db` with the paper's formulation (``preset="paper"``)."""
-    from mitsuba_manifold.manifold import Manifold
+    from mitsuba_manifold.manifold.model import Manifold
     path = os.path.join(str(tmp_path_factory.mktemp("manifold_paper")), "manifold.npz")
     Manifold.fit(small_db, preset="paper").save(path)
     return path
@@ -33,7 +33,7 @@ def small_manifold_paper(small_db, tmp_path_factory):
 @pytest.fixture(scope="session")
 def small_manifold(small_db, tmp_path_factory):
     """Path of a q=2 manifold fit on :func:`small_db` (default preset otherwise)."""
-    from mitsuba_manifold.manifold import Manifold
+    from mitsuba_manifold.manifold.model import Manifold
     path = os.path.join(str(tmp_path_factory.mktemp("manifold")), "manifold.npz")
     Manifold.fit(small_db, q=2).save(path)
     return path

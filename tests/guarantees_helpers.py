@@ -13,11 +13,11 @@ _MODULES = {}
 
 
 def tool_module(name):
-    """The module holding tool ``name``'s ``main(argv)``: ``mitsuba_manifold.cli.<name>``
+    """The module holding tool ``name``'s ``main(argv)``: ``mitsuba_manifold.apps.cli.<name>``
     when the package has it, else ``tools/<name>.py`` loaded as the script is."""
     if name not in _MODULES:
         try:
-            _MODULES[name] = importlib.import_module(f"mitsuba_manifold.cli.{name}")
+            _MODULES[name] = importlib.import_module(f"mitsuba_manifold.apps.cli.{name}")
         except ModuleNotFoundError:
             tools = os.path.join(ROOT, "tools")
             if tools not in sys.path:
@@ -69,15 +69,15 @@ def snapshot(folder):
     return out
 
 
-SPHERE = os.path.join(ROOT, "mitsuba_manifold", "scenes", "sphere.xml")
+SPHERE = os.path.join(ROOT, "scenes", "sphere.xml")
 TINY_NAMES = ["steel", "chrome", "gold-paint", "pink-fabric"]
 
 
 def make_tiny(root):
     """A 4-material database at 8x8x16, a q=2 manifold on it and an 8x8 basis of the
     sphere scene rendered by render_basis.py, under ``root``; returns their paths."""
-    from mitsuba_manifold import database
-    from mitsuba_manifold.manifold import Manifold
+    from mitsuba_manifold.data import database
+    from mitsuba_manifold.manifold.model import Manifold
 
     db, m, basis = root / "db", root / "manifold.npz", root / "basis"
     database.make_database(db, (8, 8, 16), TINY_NAMES)

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from mitsuba_manifold.manifold import Manifold
-from mitsuba_manifold.scenes import scene_path
+from mitsuba_manifold.manifold.model import Manifold
+from mitsuba_manifold.render.scenes import scene_path
 
 Z_MAX = 4.5  # |z| above this fails; P(|N(0,1)| > 4.5) ~ 7e-6 per statistic
 
@@ -21,7 +21,7 @@ def load(name, manifold, material=None, **params):
     """A scene of scenes/, its manifold material set to a training ``material``."""
     import mitsuba as mi
 
-    from mitsuba_manifold import integrators
+    from mitsuba_manifold.render import integrators
     scene = mi.load_file(scene_path(name), manifold=manifold,
                          **{k: str(v) for k, v in params.items()})
     if material is not None:
@@ -108,8 +108,8 @@ def write_basis(folder, manifold_path, images, targets=("material",), scene_text
     stand-in scene XML written beside them; returns the scene's path."""
     import os
 
-    from mitsuba_manifold import basis as bf
-    from mitsuba_manifold import imageio
+    from mitsuba_manifold.basis import folder as bf
+    from mitsuba_manifold.imaging import io as imageio
 
     os.makedirs(folder, exist_ok=True)
     scene = os.path.join(folder, "scene.xml")

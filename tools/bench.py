@@ -10,7 +10,7 @@ import sys
 # Run from a checkout without installing the package: its root comes first on the path.
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from mitsuba_manifold.cli.bench import main  # noqa: E402
+from mitsuba_manifold.apps.cli.bench import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

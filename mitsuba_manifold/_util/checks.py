@@ -1,0 +1,220 @@
+"""Checks of user input made before anything is computed or written.
+
+Each function returns the checked value or raises :class:`InputError` with one line naming
+the parameter, the value and what would be accepted.
+"""
+
+import math
+import os
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from ..errors import MismatchError, InputError
+
+#: PNG exposure range in stops: 2**64 already maps every positive float32 to white.
+EXPOSURE_RANGE = (-64.0, 64.0)
+
+
+def finite(name, value, lo=-math.inf, hi=math.inf, lo_open=False):
+    """``value`` as a float, finite and in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number, got {value!r}") from None
+    low_ok = v > lo if lo_open else v >= lo
+    if not math.isfinite(v) or not low_ok or v > hi:
+        span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+        raise InputError(f"{name} must be a finite number in {span}, got {value!r}")
+    return v
+
+
+def positive_int(name, value, example, hi=None):
+    """``value`` as an int from 1 (to ``hi``); the error suggests ``name example``."""
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+    if not ok or value < 1 or (hi is not None and value > hi):
+        span = f"from 1 to {hi}" if hi else "of at least 1"
+        raise InputError(f"{name} {value!r} is not allowed: it must be an integer {span} (e.g. {name} {example})")
+    return int(value)
+
+
+def scene(name, value):
+    """A shipped scene's name or a readable scene XML; returns its path. The error names the
+    option and the value, and suggests the closest shipped scene names."""
+    from ..render import scenes
+    from ..errors import MitsubaManifoldError, did_you_mean
+
+    try:
+        path = scenes.scene_path(value)
+        scenes.scene_parameters(path)
+    except MitsubaManifoldError as e:
+        shipped = scenes.shipped_scenes()
+        hint = did_you_mean(value, shipped) if os.sep not in str(value) else ""
+        if os.path.isfile(value):
+            raise InputError(f"{name}: {e}") from None
+        raise InputError(f"{name} {value!r}: no such file nor shipped scene{hint}; shipped scenes: "
+                         f"{', '.join(shipped)}") from None
+    return path
+
+
+def exposure(value, name="--exposure"):
+    """A PNG exposure in stops (see :data:`EXPOSURE_RANGE`)."""
+    return finite(name, value, *EXPOSURE_RANGE)
+
+
+def variant(value, name="--variant", jit=False):
+    """A Mitsuba variant that is installed and renders measured RGB tables.
+
+    Parameters
+    ----------
+    jit : bool
+        Also require a JIT variant (``llvm_*``/``cuda_*``), as the ``manifold_path``
+        integrator does (``scalar_rgb`` renders ``manifold_brdf`` but not a basis).
+    """
+    import mitsuba as mi
+
+    known = list(mi.variants())
+    if value not in known:
+        raise InputError(f"{name} {value!r} is not a Mitsuba variant of this installation "
+                         f"(installed: {', '.join(known)})")
+    rgb = value.endswith("_rgb") and "polarized" not in value
+    if not rgb or (jit and not value.startswith(("llvm_", "cuda_"))):
+        usable = [v for v in known if v.endswith("_rgb") and "polarized" not in v
+                  and (not jit or v.startswith(("llvm_", "cuda_")))]
+        need = "an RGB JIT variant" if jit else "an RGB variant"
+        raise InputError(f"{name} {value!r} cannot be used here: this needs {need} "
+                         f"({', '.join(usable) or 'none installed'})")
+    if value.startswith("cuda_"):
+        import drjit as dr
+        try:
+            ok = dr.has_backend(dr.JitBackend.CUDA)
+        except Exception:
+            ok = False
+        if not ok:
+            raise InputError(f"{name} {value!r} needs a CUDA GPU, and none is usable here")
+    return value
+
+
+def available_memory():
+    """Bytes of memory available to a new allocation (Linux ``MemAvailable``), or None."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def fits_in_memory(name, nbytes, what, fraction=0.8):
+    """Raise unless ``nbytes`` is below ``fraction`` of the memory available now."""
+    avail = available_memory()
+    if avail is not None and nbytes > fraction * avail:
+        raise InputError(f"{name}: {what} needs about {nbytes / 2**30:.3g} GiB of memory; a run may take at "
+                         f"most {fraction:.0%} of the {avail / 2**30:.3g} GiB available now "
+                         f"({fraction * avail / 2**30:.3g} GiB): choose a smaller value")
+
+
+def table_resolution(dims, name="--resolution", bytes_per_bin=None, workers=1):
+    """MERL dimensions ``(n_theta_h, n_theta_d, n_phi_d)``, readable by this package and small
+    enough to tabulate in the memory available.
+
+    ``bytes_per_bin``: peak memory of one worker per bin (default: that of the SGD tabulation).
+    """
+    from ..data import merl
+
+    try:
+        dims = tuple(int(v) for v in dims)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be three positive integers, got {dims!r}") from None
+    if len(dims) != 3 or min(dims) < 1:
+        raise InputError(f"{name} must be three positive integers like 90,90,180, got {dims}")
+    bins = math.prod(dims)
+    if bins > merl.MAX_BINS:
+        raise InputError(f"{name} {'x'.join(map(str, dims))} has {bins:.3g} bins; MERL files of more than "
+                         f"{merl.MAX_BINS:.3g} bins (MERL itself: 1.46e6) are not read by this package")
+    # SGD tabulation peaks at 200 bytes per bin (measured: 291 MB above the interpreter for
+    # 90x90x180, 37 MB for 45x45x90); twice that leaves room for the writer's copy.
+    per_bin = 400 if bytes_per_bin is None else bytes_per_bin
+    fits_in_memory(name, bins * per_bin * max(1, workers),
+                   f"tabulating {'x'.join(map(str, dims))} tables ({max(1, workers)} at a time)")
+    return dims
+
+
+def latent_point(name, values, q):
+    """``q`` finite numbers as a float64 array."""
+    try:
+        arr = np.asarray(values, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be {q} numbers, got {values!r}") from None
+    if arr.size != q or not np.isfinite(arr).all():
+        raise InputError(f"{name} must be {q} finite numbers (the manifold's latent dimension), "
+                         f"got {arr.tolist()}")
+    return arr
+
+
+def output_folder(name, path):
+    """A folder that exists or can be created, and takes new files; returns it."""
+    path = os.fspath(path)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise InputError(f"{name} {path} is a file, not a folder")
+    probe = os.path.abspath(path)
+    while not os.path.exists(probe):
+        probe = os.path.dirname(probe)
+    if not os.path.isdir(probe):
+        raise InputError(f"{name} {path}: {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise InputError(f"{name} {path}: folder {probe} is not writable")
+    return path
+
+
+def scene_xml(path):
+    """The root element of the Mitsuba scene XML ``path`` (a ``<scene>`` element), or a
+    :class:`MismatchError` naming the file when it is missing, not XML (a table, an image) or
+    not a scene."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise MismatchError(f"scene {path} does not exist")
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise MismatchError(f"{path} is not a Mitsuba scene XML ({e}); give a scene "
+                         ".xml file or a shipped scene's name") from None
+    if root.tag != "scene":
+        raise MismatchError(f"{path} is not a Mitsuba scene XML (its root element is <{root.tag}>, not <scene>); "
+                         "give a scene .xml file or a shipped scene's name")
+    return root
+
+
+def fraction(name, value):
+    """A finite number in ``[0, 1)`` (e.g. a pruning threshold)."""
+    v = finite(name, value, 0.0, 1.0)
+    if v >= 1.0:
+        raise InputError(f"{name} must be a finite number in [0, 1), got {value!r}")
+    return v
+
+
+#: Largest ``sum |w| / |sum w|`` accepted: beyond it, float32 tables lose every digit of the
+#: combination to cancellation (1e30 - 1e30 + 1 is 0 in float32).
+MAX_CANCELLATION = 1e6
+
+
+def weight_sum(w):
+    """Raise :class:`InputError` unless weights ``w`` make a usable material: their sum
+    (exact, :func:`math.fsum`) is not 0 and not swamped by cancelling magnitudes."""
+    w = np.asarray(w, dtype=np.float64).ravel()
+    if not np.isfinite(w).all():
+        raise InputError("weights must be finite numbers")
+    total, size = math.fsum(w.tolist()), math.fsum(np.abs(w).tolist())
+    if total == 0.0:
+        raise InputError("weights sum to zero; a material needs weights summing to 1 "
+                            "(they are used as given, not normalised)")
+    if size > MAX_CANCELLATION * abs(total):
+        raise InputError(f"weights sum to {total:.6g} but their magnitudes add up to {size:.3g}: "
+                            f"terms this large cancel, and the combined table (float32) would keep no "
+                            f"correct digit; use weights with sum |w| <= {MAX_CANCELLATION:g} * |sum w|")
+    return total

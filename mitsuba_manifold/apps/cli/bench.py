@@ -1,0 +1,92 @@
+"""Benchmarks (not timed tests): each subcommand measures and writes a JSON report.
+
+  fit        Gram + optimisation time, final L (Hooke-Jeeves vs L-BFGS), cond(K), peak memory
+  interp     one full interpolated table, pruned and unpruned
+  pca        PCA reconstruction error of training tables vs the manifold's exact reproduction
+  bsdf       manifold_brdf vs roughconductor render time, cdf vs cosine sampling error, construction time
+  gi         blend vs direct re-rendering: error against run time on sphere.xml and table.xml
+  stability  cond(K), weights, clamping and precision over stiff and extreme cases
+  basis      one-pass vs per-material basis rendering
+  match      inverse rendering on a basis: speed (--basis, a full basis) and accuracy on table/sphere
+  scaling    time and peak memory of every stage against N, table and image resolution, spp
+             (each point in a subprocess; makes its own databases), and chunked rendering on Ray
+  explore    tools/explore.py: request -> encoded image over the websocket (--basis DIR), and a
+             screenshot of the page beside the JSON
+  space      the latent space: held-out fidelity (10-fold), path smoothness, jump, plausibility,
+             per configuration (paper, default, levers); --basis adds image-space smoothness
+"""
+
+import argparse
+import json
+import os
+import time
+
+from ..bench import NAMES
+from .common import ERRORS, ArgumentParser, fail, guarded, parse_list
+
+
+#: Benchmarks that take a saved manifold (the others fit their own).
+WITH_MANIFOLD = ("interp", "bsdf", "gi", "stability", "basis", "match", "explore")
+
+
+@guarded
+def main(argv=None):
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("which", choices=NAMES)
+    p.add_argument("--json", required=True, metavar="OUT", help="write the measurements here")
+    p.add_argument("--database", default=None,
+                   help="folder of MERL tables (default: out/database, made at MERL resolution if missing)")
+    p.add_argument("--materials", type=parse_list, default=None, help="subset of materials")
+    p.add_argument("--manifold", default=None, help=f"saved manifold ({'/'.join(WITH_MANIFOLD)})")
+    p.add_argument("--basis", default=None,
+                   help="match: a full basis of --manifold to time the match on; explore: the basis to serve; "
+                        "space: a basis of the same materials (image smoothness)")
+    p.add_argument("--res", type=int, default=128, help="match: resolution of the accuracy renders (default 128)")
+    p.add_argument("--out", default=None,
+                   help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
+    p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare")
+    p.add_argument("--folds", type=parse_list, default=None, help="space: run only these of the 10 folds")
+    args = p.parse_args(argv)
+    if args.manifold and args.which not in WITH_MANIFOLD:
+        p.error(f"{args.which} takes no --manifold (it fits its own); --manifold is for {', '.join(WITH_MANIFOLD)}")
+    if args.which == "explore" and not args.basis:
+        p.error("explore needs --basis DIR (a basis folder, e.g. out/gi/basis_table_256_64_onepass)")
+
+    from .. import bench
+    from ...data import database
+    from ..._util.atomic import write_bytes
+    from ..bench.common import machine
+    explore = args.which == "explore"
+    folder = args.basis if explore else args.database or os.path.join("out", "database")
+    t0 = time.perf_counter()
+    try:
+        if not explore and args.database is None and not os.path.isdir(folder) and args.which != "scaling":
+            print(f"making the built-in database at MERL resolution in {folder}")
+            database.make_database(folder, progress=True)
+        kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space") else {}
+        if args.which == "space":
+            kwargs.update(basis=args.basis, configs=args.configs,
+                          folds=None if args.folds is None else [int(f) for f in args.folds])
+        if args.manifold:
+            kwargs["manifold"] = args.manifold
+        if args.which == "match":
+            kwargs.update(basis=args.basis, res=args.res, out=args.out)
+        if args.which == "gi":
+            kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
+        if args.which == "scaling":
+            kwargs["out"] = os.path.splitext(args.json)[0] + "_work"
+        if explore:
+            kwargs["screenshot_path"] = os.path.splitext(args.json)[0] + ".png"
+        result = bench.run(args.which, folder, **kwargs)
+        if args.which == "scaling":
+            from ..bench.scaling import plot
+            result["plot"] = plot(result, os.path.splitext(args.json)[0] + ".png")
+        report = {"benchmark": args.which, "basis" if explore else "database": os.path.abspath(folder),
+                  "machine": machine(),
+                  "date": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": time.perf_counter() - t0,
+                  "result": result}
+        text = json.dumps(report, indent=1, default=float)
+        write_bytes(args.json, text)
+    except ERRORS as e:
+        fail(e)
+    print(text)

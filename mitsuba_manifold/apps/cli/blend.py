@@ -1,0 +1,251 @@
+"""Blend a basis of per-material renders into the image of a latent point (paper Eq. 13).
+
+  blend.py --basis DIR --x 0.3 -1.2 --out img.exr [--png]
+  blend.py --basis DIR --x 0.3,-1.2 --out img.exr --reference ref.exr
+  blend.py --basis DIR --x 0.3,-1.2 --out img.exr --render-reference --spp 1024
+  blend.py --basis DIR --path gold-paint chrome --steps 20 --out seq.exr
+
+With several manifold materials in the scene give one --x per target (in the manifest's
+target order). Nothing is written until every input has been read and checked.
+"""
+
+import argparse
+import os
+import re
+import sys
+import time
+
+from ...manifold.pruning import DEFAULT_PRUNE
+from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats
+
+NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
+
+
+def _stem(path):
+    return path[:-4] if path.lower().endswith(".exr") else path
+
+
+def parser():
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--basis", required=True, help="basis folder written by render_basis.py")
+    p.add_argument("--x", nargs="+", action="append", metavar="X",
+                   help="latent point (q numbers); repeat once per target for a multilinear basis")
+    p.add_argument("--out", required=True, help="output EXR (with --path: prefix of the sequence)")
+    p.add_argument("--png", action="store_true", help="also write tonemapped sRGB PNGs")
+    p.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops (default 0)")
+    p.add_argument("--manifold", help="manifold (.npz); default: the one in the manifest (checked by hash)")
+    p.add_argument("--scene", help="scene XML to check the basis against (default: not checked; "
+                                   "--render-reference uses the manifest's scene)")
+    p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
+                   help="drop the materials of smallest contribution while the interpolated table changes "
+                        f"by at most this fraction of its L2 norm (default {DEFAULT_PRUNE:g}, as the plugin)")
+    p.add_argument("--renormalise", action="store_true",
+                   help="if images with surviving weight are missing from the basis, rescale the "
+                        "weights of those present instead of failing (an approximation)")
+    ref = p.add_mutually_exclusive_group()
+    ref.add_argument("--reference", metavar="REF.exr", help="reference image to measure the error against")
+    ref.add_argument("--render-reference", action="store_true",
+                     help="render the full-GI reference with manifold_brdf and Mitsuba's path")
+    p.add_argument("--spp", type=int, default=256, help="samples per pixel of --render-reference (default 256)")
+    p.add_argument("--seed", type=int, default=0, help="seed of --render-reference (default 0)")
+    p.add_argument("--path", nargs=2, metavar=("A", "B"),
+                   help="images along the latent segment between materials (or 'x0,x1' points) A and B")
+    p.add_argument("--steps", type=int, default=20, help="images along --path (default 20)")
+    p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
+    p.add_argument("--database", help="folder of the manifold's tables, if it moved (--render-reference)")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing output files this tool did not write (never read-only ones)")
+    return p
+
+
+def parse(argv=None):
+    """Parsed and checked arguments, with ``args.x`` as a flat list of numbers (or None)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # "-0.3,1.2" would look like an option to argparse; with spaces it is a value
+    args = parser().parse_args([a.replace(",", " ") if NEGATIVE_LIST.match(a) else a for a in argv])
+    x = None
+    if args.x:
+        try:
+            x = [v for group in args.x for v in parse_floats(" ".join(group))]
+        except argparse.ArgumentTypeError as e:
+            fail(f"--x: {e}")
+    args.x = x
+    if args.path is None and x is None:
+        fail("give --x (a latent point) or --path A B")
+    if args.path is not None and (args.reference or args.render_reference):
+        fail("--reference/--render-reference compare one image; not with --path")
+    if not args.out.lower().endswith(".exr"):
+        fail(f"--out must name an .exr file, got {args.out!r}")
+    if args.steps < 2:
+        fail(f"--steps must be >= 2, got {args.steps}")
+    if args.spp < 1:
+        fail(f"--spp must be >= 1, got {args.spp}")
+    from ..._util import ownership, checks as validate
+    try:
+        validate.exposure(args.exposure)
+        validate.fraction("--prune", args.prune)
+        ownership.check_output_outside_basis(args.out, args.basis)
+    except ERRORS as e:
+        fail(e)
+    return args
+
+
+def path_outputs(args, basis, manifold):
+    """Blend the images along ``--path``; returns the outputs ``(kind, path, writer)`` to write."""
+    from ...imaging import io as imageio
+    from ...basis.blend import blend_path, path_labels
+
+    from ..._util import checks as validate
+    w, h = basis.resolution
+    validate.fits_in_memory("--steps", 2 * args.steps * w * h * 3 * 4, f"{args.steps} images of {w}x{h}")
+    if args.x is not None and basis.p == 1:
+        fail("--x sets the fixed targets along --path, and this basis has one target, whose point the path "
+             "sets: drop --x (or drop --path to blend the point --x)")
+    ends = [a if a in manifold.names else _point_or_name(a) for a in args.path]
+    target = 0
+    if args.target is not None:
+        if args.target not in basis.targets:
+            fail(f"--target {args.target!r} is not a target of the basis ({basis.targets})")
+        target = basis.targets.index(args.target)
+    images, _, info = blend_path(basis, manifold, ends[0], ends[1], args.steps, args.prune,
+                                 args.renormalise, target=target, x=args.x)
+    print(f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
+          f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image)")
+    stem, width, outputs = _stem(args.out), len(str(args.steps - 1)), []
+    for s, img in enumerate(images):
+        name = f"{stem}_{s:0{width}d}.exr"
+        outputs.append(("image", name, lambda n=name, i=img: imageio.write_exr(n, i)))
+        if args.png:
+            png = name[:-4] + ".png"
+            outputs.append(("png", png, lambda n=png, i=img: imageio.write_png(n, i, args.exposure)))
+    labels = path_labels(args.path, args.steps)
+    sheet = stem + "_sheet.png"
+    title = f"{args.path[0]} (t = 0) to {args.path[1]} (t = 1) along their latent segment"
+    outputs.append(("contact sheet", sheet, lambda: imageio.write_contact_sheet(
+        sheet, images, labels, columns=min(args.steps, 10), exposure=args.exposure, title=title)))
+    return outputs
+
+
+def _point_or_name(a):  # a latent point "x0,x1", else a name blend_path reports as unknown
+    try:
+        return parse_floats(a)
+    except argparse.ArgumentTypeError:
+        return a
+
+
+def point_outputs(args, basis, manifold):
+    """Blend the image of ``--x`` (and compare it with a reference); returns the outputs to write."""
+    from ...imaging import io as imageio, metrics
+    from ...basis.blend import blend
+
+    image, info = blend(basis, manifold, x=args.x, prune=args.prune, renormalise=args.renormalise)
+    for t, (weights, dropped) in enumerate(zip(info["weights"], info["dropped_weight"])):
+        top = sorted(weights.items(), key=lambda kv: -abs(kv[1]))
+        shown = ", ".join(f"{n} {v:.4g}" for n, v in top[:6]) + (" ..." if len(top) > 6 else "")
+        print(f"target {basis.targets[t]}: {len(top)} materials kept (dropped |w| {dropped:.3g}): {shown}")
+    if info["renormalised"]:
+        print(f"warning: renormalised over the images present; missing: {', '.join(sorted(info['missing']))}")
+    print(f"blend time: {info['time_ms']:.3f} ms ({info['n_images']} images; reading them: "
+          f"{info['time_read_s']:.3f} s)")
+    stem = _stem(args.out)
+    outputs = [("image", args.out, lambda: imageio.write_exr(args.out, image))]
+    if args.png:
+        outputs.append(("png", stem + ".png", lambda: imageio.write_png(stem + ".png", image, args.exposure)))
+    reference = reference_image(args, basis, manifold, outputs)
+    if reference is not None:
+        try:
+            stats = metrics.compare(image, reference)
+        except ValueError as e:
+            fail(f"reference {args.reference or 'render'}: {e}")
+        print(f"relative MSE {stats['rel_mse']:.4g} (eps {stats['eps']:g}), PSNR {stats['psnr']:.2f} dB "
+              f"(peak {stats['peak']:.4g}), max error {stats['max_abs']:.4g}, mean error {stats['mean_abs']:.4g}")
+        err = metrics.error_image(image, reference)
+        outputs.append(("error image", stem + "_error.exr", lambda: imageio.write_exr(stem + "_error.exr", err)))
+        outputs.append(("error PNG (false colour, its scale drawn under it)", stem + "_error.png",
+                        lambda: metrics.write_error_png(stem + "_error.png", image, reference)))
+    return outputs
+
+
+def reference_image(args, basis, manifold, outputs):
+    """The reference of ``--reference`` (read) or ``--render-reference`` (rendered, and added
+    to ``outputs``), or None."""
+    from ...imaging import io as imageio
+    from ...basis.blend import latent_points
+    from ...render.scenes import render_reference
+
+    if args.reference:
+        return imageio.read_exr(args.reference)
+    if not args.render_reference:
+        return None
+    m = basis.manifest
+    scene = args.scene or m["scene"]
+    print(f"rendering the reference: {scene}, path, {args.spp} spp ...", flush=True)
+    t0 = time.perf_counter()
+    points = latent_points(basis, manifold, args.x)
+    reference = render_reference(scene, args.manifold or m["manifold"], points, args.spp, seed=args.seed,
+                                 resolution=basis.resolution, max_depth=m["max_depth"], variant=m["variant"],
+                                 targets=basis.targets, database=args.database)
+    print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
+    if basis.p == 1:
+        neg = manifold.negative_fraction(points[0], database=args.database)
+        if neg > 1e-3:
+            print(f"note: {100 * neg:.1f}% of the interpolated table's values are negative; "
+                  "manifold_brdf clamps them to 0, a blend keeps them, so the two differ beyond L2+")
+    ref_path = _stem(args.out) + "_reference.exr"
+    outputs.append(("reference", ref_path, lambda: imageio.write_exr(ref_path, reference)))
+    if args.png:
+        ref_png = _stem(args.out) + "_reference.png"
+        outputs.append(("reference PNG", ref_png, lambda: imageio.write_png(ref_png, reference, args.exposure)))
+    return reference
+
+
+def write_outputs(out, outputs, force=False):
+    """Check that no output replaces a file this tool did not make (:mod:`ownership`), create
+    the folder of ``out``, run every writer (reporting each file) and record the files made."""
+    from ..._util import ownership
+
+    for kind, path, _ in outputs:
+        ownership.check_replaceable(path, force, what=kind)
+    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    for kind, path, write in outputs:
+        write()
+        print(f"wrote {kind}: {path}")
+    ownership.record([path for _, path, _ in outputs], "blend.py")
+
+
+#: Files a point blend may write beside ``<stem>.exr``.
+COMPANIONS = (".png", "_error.exr", "_error.png", "_reference.exr", "_reference.png")
+
+
+def remove_stale_companions(out, outputs):
+    """Remove the files an earlier blend to ``out`` wrote beside it that this run did not
+    write again (e.g. the previous point's error image): only files this tool recorded as its
+    own, unchanged since (:func:`ownership.owned`); a user's file is never touched."""
+    from ..._util import ownership
+
+    written = {os.path.abspath(path) for _, path, _ in outputs}
+    for suffix in COMPANIONS:
+        path = _stem(out) + suffix
+        if os.path.abspath(path) not in written and os.path.isfile(path) and ownership.owned(path):
+            os.remove(path)
+            print(f"removed {path} (from an earlier blend to {out}; this one did not write it)")
+
+
+@guarded
+def main(argv=None):
+    args = parse(argv)
+    from ...basis.folder import Basis
+
+    try:
+        basis = Basis.load(args.basis, manifold=args.manifold, scene=args.scene)
+        manifold = basis.check_manifold(args.manifold)
+        print(basis)
+        if args.path is not None:
+            outputs = path_outputs(args, basis, manifold)
+            write_outputs(args.out, outputs, args.force)
+        else:
+            outputs = point_outputs(args, basis, manifold)
+            write_outputs(args.out, outputs, args.force)
+            remove_stale_companions(args.out, outputs)
+    except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's, from a reference render
+        fail(e)

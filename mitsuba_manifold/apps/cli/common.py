@@ -1,0 +1,81 @@
+"""Argument helpers shared by the command-line tools (parsing and progress only; the work is in the library)."""
+
+import argparse
+import functools
+import re
+import sys
+
+from ...errors import MitsubaManifoldError, one_line
+
+#: What a tool reports as a one-line error (anything else is a bug and keeps its traceback).
+ERRORS = (MitsubaManifoldError, OSError)
+#: Exit status of a run stopped by Ctrl-C (128 + SIGINT), as shells report it.
+INTERRUPTED = 130
+
+
+#: A latent point or list of numbers that starts with a minus sign ("-1.1,-0.2", "-1e-3 0.5"):
+#: argparse would take it for an option and refuse ``--x -1.1,-0.2``.
+_NUMBERS = re.compile(r"^-\.?\d[\d.eE+-]*(?:[,\s]+[-+]?\.?\d[\d.eE+-]*)*$")
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with its errors as one line ``error: ...`` (exit 2), as every other error,
+    and negative numbers (also comma-separated lists of them) read as values, not options."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _NUMBERS
+
+    def error(self, message):
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
+
+
+def parse_list(text):
+    """'a,b,c' -> ['a', 'b', 'c']."""
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    if not items:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list, got {text!r}")
+    return items
+
+
+def parse_resolution(text):
+    """'90,90,180' -> (90, 90, 180)."""
+    try:
+        dims = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        dims = ()
+    if len(dims) != 3 or min(dims) < 1:
+        raise argparse.ArgumentTypeError(f"resolution must be three positive integers like 90,90,180, got {text!r}")
+    return dims
+
+
+def parse_floats(text):
+    """'0.3, -1.2' or '0.3 -1.2' -> [0.3, -1.2]."""
+    try:
+        return [float(v) for v in text.replace(",", " ").split()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers like '0.3,-1.2', got {text!r}") from None
+
+
+def fail(error, code=2):
+    """Print an error for the user (one line) and exit."""
+    print(f"error: {one_line(error)}", file=sys.stderr)
+    sys.exit(code)
+
+
+def guarded(main):
+    """Run a tool's ``main`` so that what goes wrong because of its input ends as one
+    ``error:`` line: the package's errors and files the system refuses (:data:`ERRORS`),
+    memory (exit 2), and Ctrl-C (exit 130). Anything else is a bug and keeps its traceback."""
+    @functools.wraps(main)
+    def run(argv=None):
+        try:
+            return main(argv)
+        except KeyboardInterrupt:
+            fail("interrupted; every file listed so far is complete (run the same command again to resume)",
+                 INTERRUPTED)
+        except MemoryError:
+            fail("out of memory; choose smaller sizes (resolution, --steps, --spp per pass)")
+        except ERRORS as e:
+            fail(e)
+    return run

@@ -1,0 +1,150 @@
+"""Explore a material manifold in the browser: drag a latent point, see the material in the scene.
+
+  explore.py --basis out/gi/basis_table_256_1024_onepass [--basis OTHER ...] [--manifold M.npz]
+             [--port 8765] [--host 127.0.0.1]
+
+Starts a local web server (127.0.0.1 unless --host says otherwise), prints the URL and
+serves until Ctrl-C. Every image of every basis is read into memory first; the material
+tables (for the WebGL preview, the negative-bin fraction and the BRDF slice) load in the
+background while the page already works.
+"""
+
+import argparse
+import errno
+import os
+import shlex
+import socket
+import sys
+
+from ...manifold.pruning import DEFAULT_PRUNE
+
+DEFAULT_PORT = 8765
+
+
+def command(basis, manifold=None):
+    """The explore command line for a basis (printed by the main job), with absolute paths so
+    that it works pasted from any folder: ``python3 <checkout>/tools/explore.py`` when the
+    package runs from a checkout, else the ``mitsuba-manifold explore`` console script."""
+    tool = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
+                        "tools", "explore.py")
+    parts = ["python3", tool] if os.path.isfile(tool) else ["mitsuba-manifold", "explore"]
+    parts += ["--basis", os.path.abspath(basis)]
+    if manifold:
+        parts += ["--manifold", os.path.abspath(manifold)]
+    return shlex.join(parts)
+
+
+def parse_port(text):
+    """A TCP port number 0..65535 (0: any free port)."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"must be an integer in 0..65535 (0: any free port), got {text!r}")
+    return port
+
+
+def parser():
+    from .common import ArgumentParser
+    p = ArgumentParser(prog="explore.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--basis", action="append", required=True, metavar="DIR",
+                   help="basis folder (render_basis.py); repeat for several (a selector on the page)")
+    p.add_argument("--manifold", help="manifold (.npz); default: the basis manifest's (checked by hash)")
+    p.add_argument("--database", help="tables of the manifold (default: the manifold's database)")
+    p.add_argument("--scene", help="scene XML or shipped scene name for reference renders, checked against the "
+                                   "basis (default: the manifest's scene, or the shipped one of that name)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=parse_port, default=DEFAULT_PORT,
+                   help=f"port (default {DEFAULT_PORT}; 0: any free port)")
+    p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
+                   help="drop the materials of smallest contribution while the interpolated table changes "
+                        f"by at most this fraction of its L2 norm (default {DEFAULT_PRUNE:g}, as the plugin)")
+    p.add_argument("--no-tables", action="store_true",
+                   help="do not load the material tables (no preview sphere, slice or negative-bin fraction)")
+    return p
+
+
+def bind(host, port):
+    """A listening socket (so that port 0 picks a free port and the URL printed is exact)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as e:
+        sock.close()
+        raise OSError(f"cannot listen on {host}:{port}: {_bind_problem(e, host, port)}") from None
+    sock.listen(64)
+    sock.set_inheritable(True)
+    return sock
+
+
+def _bind_problem(error, host, port):
+    """Why binding failed and which option to change: --host when the address is the
+    problem (unknown name, not this machine's), --port when the port is (in use, privileged)."""
+    reason = error.strerror or str(error)
+    if isinstance(error, socket.gaierror) or error.errno == errno.EADDRNOTAVAIL:
+        return (f"--host {host} is not an address of this machine ({reason}); choose another "
+                "--host (127.0.0.1: this machine only, 0.0.0.0: every interface)")
+    if error.errno in (errno.EADDRINUSE, errno.EACCES):
+        return f"--port {port} is not free to use ({reason}); choose another --port (0: any free port)"
+    return f"{reason}; check --host {host} and --port {port}"
+
+
+def url(sock):
+    host, port = sock.getsockname()[:2]
+    host = f"[{host}]" if ":" in host else host
+    return f"http://{host}:{port}/"
+
+
+def main(argv=None):
+    args = parser().parse_args(argv)
+    try:
+        return serve(args)
+    except KeyboardInterrupt:   # Ctrl-C before the server runs (while loading)
+        print("explore: stopped", flush=True)
+        return 130
+
+
+def serve(args):
+    import uvicorn
+
+    from ..explore import Explorer, create_app
+    from .common import ERRORS
+    try:
+        sock = bind(args.host, args.port)
+    except ERRORS as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    explorer = None
+    try:
+        print(f"loading {len(args.basis)} basis folder(s) ...", flush=True)
+        explorer = Explorer(args.basis, manifold=args.manifold, database=args.database, prune=args.prune,
+                            load_tables=not args.no_tables, scene=args.scene)
+        # frames are JPEG or raw pixels: per-message deflate would cost more time than it saves
+        server = uvicorn.Server(uvicorn.Config(create_app(explorer), log_level="warning",
+                                               timeout_graceful_shutdown=2, ws_ping_interval=None,
+                                               ws_per_message_deflate=False))
+        for name, b in explorer.bases.items():
+            print(f"basis {name}: {len(b.keys)} materials, {b.resolution[0]}x{b.resolution[1]}, {b.folder}")
+        print(f"manifold: {explorer.manifold_path} ({explorer.manifold.n} materials, q={explorer.manifold.q})")
+        if args.host not in ("127.0.0.1", "localhost", "::1"):
+            print(f"warning: listening on {args.host}: other machines can reach this server", file=sys.stderr)
+        print(f"explore at {url(sock)}   (Ctrl-C stops)", flush=True)
+        try:
+            server.run(sockets=[sock])
+        except KeyboardInterrupt:   # uvicorn stops gracefully, then passes the signal on
+            pass
+    except ERRORS as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    finally:
+        if explorer is not None:
+            explorer.close()
+        sock.close()
+    print("explore: stopped", flush=True)
+    return 0
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,60 @@
+"""Project a MERL table onto a manifold: the latent point whose material is closest.
+
+Prints the latent point, its error (RMS of log(1 + rho) differences over all bins) beside the
+nearest training material's, and the main weights; --json writes the same.
+"""
+
+import json
+import os
+
+from .common import ERRORS, ArgumentParser, fail, guarded
+
+
+def check_json(args):
+    """Refuse a --json that is not a .json name, names an input, or would replace a file
+    this tool did not write (:mod:`ownership`; never a read-only one)."""
+    from ..._util import ownership
+    from ...errors import ForeignFileError, InputError
+
+    if not args.json.lower().endswith(".json"):
+        raise InputError(f"--json must name a .json file, got {args.json!r}")
+    if os.path.realpath(args.json) in {os.path.realpath(p) for p in (args.table, args.manifold)}:
+        raise ForeignFileError(f"--json {args.json} is an input of this run; choose another name")
+    ownership.check_replaceable(args.json, args.force, what="--json")
+
+
+@guarded
+def main(argv=None):
+    p = ArgumentParser(description=__doc__)
+    p.add_argument("table", help="MERL .binary file (same resolution as the manifold's database)")
+    p.add_argument("--manifold", required=True, help="saved manifold (.npz)")
+    p.add_argument("--database", default=None, help="folder of the manifold's tables (default: as recorded)")
+    p.add_argument("--json", default=None, metavar="OUT", help="also write the result here (.json)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --json this tool did not write (never a read-only one)")
+    args = p.parse_args(argv)
+
+    from ..._util import ownership
+    from ..._util.atomic import write_bytes
+    from ...manifold.model import Manifold
+    try:
+        if args.json:
+            check_json(args)
+        m = Manifold.load(args.manifold)
+        m.tables(args.database)
+        r = m.project(args.table)
+        top = sorted(range(m.n), key=lambda i: -abs(r.weights[i]))[:5]
+        result = {"table": args.table, "x": r.x.tolist(), "error": r.error, "nearest": r.nearest,
+                  "nearest_error": r.nearest_error, "negative_fraction": r.negative_fraction,
+                  "weights": {m.names[i]: float(r.weights[i]) for i in top if r.weights[i] != 0}}
+        if args.json:
+            write_bytes(args.json, json.dumps(result, indent=1) + "\n")
+            ownership.record([args.json], "project.py")
+    except ERRORS as e:
+        fail(e)
+    print(f"x = {', '.join(f'{v:.6g}' for v in r.x)}")
+    print(f"error {r.error:.5g} (RMS of log(1 + rho) differences); nearest training material "
+          f"{r.nearest}: {r.nearest_error:.5g}")
+    print("weights: " + ", ".join(f"{k}:{v:.4g}" for k, v in result["weights"].items()))
+    if r.negative_fraction:
+        print(f"negative bins: {100 * r.negative_fraction:.3g}% (clamped by the plugin)")

@@ -1,0 +1,98 @@
+"""Render the L1- basis of a scene: base.exr (paths never touching the manifold material)
+and one <material>.exr per measured material (paths touching it exactly once).
+
+Several scenes and views (--views) in one call go to OUT/<scene>[-view<j>]/. With
+--chunks k each basis is rendered as k chunks of spp/k samples (seeds seed*k+j) and
+merged; --executor ray runs the chunks as Ray tasks (a local cluster, or --address).
+
+Ctrl-C stops within a few seconds (at the end of the current render pass); every image
+listed in the folder's manifest.json is complete, and the same command resumes."""
+
+import argparse
+import time
+
+from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats, parse_list
+
+
+def parse_views(text):
+    """'all' or '0,2' -> 'all' or [0, 2]."""
+    if text.strip() == "all":
+        return "all"
+    try:
+        views = [int(v) for v in parse_list(text)]
+    except ValueError:
+        views = [-1]
+    if min(views) < 0:
+        raise argparse.ArgumentTypeError(f"--views takes 'all' or sensor indices like 0,1, got {text!r}")
+    return views
+
+
+@guarded
+def main(argv=None):
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scenes", nargs="+", metavar="scene",
+                   help="Mitsuba scene XML(s) with a manifold_brdf material taking $manifold, or the "
+                        "name of a shipped scene (table, sphere, cbox)")
+    p.add_argument("--manifold", default="out/manifold.npz", help="saved manifold (default out/manifold.npz)")
+    p.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
+    p.add_argument("--materials", type=parse_list, default="all", help="'all' (default) or a,b,...")
+    p.add_argument("--near", type=parse_floats, default=None, metavar="X", help="only the materials within --radius of this latent point, and those its own blend needs")
+    p.add_argument("--radius", type=float, default=None, help="radius for --near")
+    p.add_argument("--mode", choices=["onepass", "per-material"], default="onepass",
+                   help="all materials from one set of paths (default) or one render per material")
+    p.add_argument("--res", type=int, default=None, help="square resolution (scenes taking $res)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-depth", type=int, default=None, help="path depth (-1: unbounded; default: the scene's $max_depth)")
+    p.add_argument("--variant", default=None, help="Mitsuba variant (default: cuda_ad_rgb if usable, else llvm_ad_rgb)")
+    p.add_argument("--x", type=parse_floats, default=None, metavar="X",
+                   help="the scene's latent point $x (q numbers; default: the first material's point)")
+    p.add_argument("--database", default=None, help="folder of the manifold's tables, if it moved")
+    p.add_argument("--force", action="store_true",
+                   help="render into an --out holding files but no basis, and overwrite files there that no "
+                        "basis listed")
+    p.add_argument("--views", type=parse_views, default=[0], help="sensor indices to render, or 'all' (default 0)")
+    p.add_argument("--chunks", type=int, default=1, help="render each basis as this many chunks, merged (default 1)")
+    p.add_argument("--executor", choices=["local", "ray"], default="local",
+                   help="where chunks run: one after another in this process (default) or as Ray tasks")
+    p.add_argument("--address", default=None, help="Ray cluster address (default: start a local one)")
+    p.add_argument("--aovs", action="store_true",
+                   help="also write aovs.npz (albedo and normal guides for denoised blends)")
+    p.add_argument("--keep-chunks", action="store_true", help="keep OUT/.chunks after merging")
+    p.add_argument("--out", required=True, help="output folder")
+    args = p.parse_args(argv)
+    materials = args.materials if args.materials != ["all"] else "all"
+    if args.res is not None and not 1 <= args.res <= 16384:
+        fail(f"--res must be from 1 to 16384, got {args.res}")
+
+    from ...render.chunks import render_chunked
+    from ...render.executor import make_executor
+    from ...render.render_basis import check_job_folders, plan_views, render_basis
+    from ...render.scenes import scene_path
+    t0 = time.perf_counter()
+    try:
+        scenes = [scene_path(s) for s in args.scenes]   # a scene XML or a shipped scene's name
+        jobs = plan_views(scenes, args.views, args.out)
+        check_job_folders(jobs, args.out, args.force)   # every folder, before the first render
+        executor = make_executor(args.executor, args.address)
+        options = dict(materials=materials, near=args.near, radius=args.radius, mode=args.mode,
+                       resolution=args.res, max_depth=args.max_depth, variant=args.variant, aovs=args.aovs,
+                       x=args.x, database=args.database, force=args.force)
+        try:
+            for scene, sensor, out in jobs:
+                t1 = time.perf_counter()
+                if args.chunks == 1 and args.executor == "local":
+                    manifest = render_basis(scene, args.manifold, out, spp=args.spp, seed=args.seed,
+                                            sensor=sensor, progress=True, **options)
+                else:
+                    manifest = render_chunked(scene, args.manifold, out, spp=args.spp, chunks=args.chunks,
+                                              seed=args.seed, executor=executor, keep_chunks=args.keep_chunks,
+                                              progress=True, sensor=sensor, **options).manifest
+                print(f"{len(manifest['images'])} images in {out} ({manifest['resolution'][0]}x"
+                      f"{manifest['resolution'][1]}, {manifest['spp']} spp, {manifest['mode']}, "
+                      f"{manifest['variant']}), {time.perf_counter() - t1:.1f} s", flush=True)
+        finally:
+            executor.close()
+    except ERRORS as e:
+        fail(e)
+    if len(jobs) > 1:
+        print(f"{len(jobs)} bases in {time.perf_counter() - t0:.1f} s")

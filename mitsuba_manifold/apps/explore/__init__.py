@@ -1,0 +1,25 @@
+"""``tools/explore.py``: the manifold as a live page (paper Sec. 5.1 and 5.2, interactively).
+
+An artist drags a point over the latent map and sees at once the scene with the
+interpolated material (a blend of a basis of per-material renders, Eq. 13, computed and
+encoded on the server), the material itself on a sphere shaded in the browser from the
+interpolated table (WebGL 2, MERL's half/diff lookup in the fragment shader) and what the
+manifold says about it: weights, albedo, GP variance (Eq. 2), negative bins, neighbours
+and a BRDF slice. A full-GI reference render runs in the background on request.
+
+Modules: :mod:`.service` (the state and every answer, no HTTP), :mod:`.server` (Starlette
+app), :mod:`.encode` (tonemap and image encoding), :mod:`.material`, :mod:`.latentmap`,
+:mod:`.reference`; ``static/`` holds the page (no build step, no network access).
+"""
+
+from ...errors import InputError
+from .service import Explorer
+
+
+def create_app(explorer):
+    """The web app of an :class:`Explorer` (imports Starlette only when called)."""
+    from .server import create_app as _create
+    return _create(explorer)
+
+
+__all__ = ["Explorer", "InputError", "create_app"]

@@ -1,0 +1,186 @@
+"""What the page shows about the material at a latent point (paper Sec. 3 and Eq. 2).
+
+:func:`describe` gives the weights (largest first), the albedo, the GP predictive
+variance of Eq. 2 (as a confidence) and the nearest training materials from the
+:class:`~mitsuba_manifold.manifold.model.Manifold`'s public methods alone. :class:`TableStack`
+adds what needs the tables themselves, from a reduced copy held in memory (one
+matrix-vector product per point):
+
+- the interpolated table at reduced resolution, in 16-bit floats, for the WebGL preview
+  (every ``stride``-th bin along each axis, so each value is a true bin of the table);
+- the fraction of negative bins of the interpolated table, estimated on those bins
+  (``manifold_brdf`` clamps them to 0; a blend of images cannot);
+- a ``theta_h x theta_d`` slice at ``phi_d = 90 deg`` at full resolution, for a log plot.
+"""
+
+import math
+import os
+import threading
+
+import numpy as np
+
+#: Largest preview table (n_theta_h, n_theta_d, n_phi_d) sent to the browser.
+PREVIEW_DIMS = (45, 45, 90)
+#: Weights shown in the bar chart.
+TOP_WEIGHTS = 12
+NEAREST = 5
+HALF_MAX = float(np.finfo(np.float16).max)
+#: Preview tables kept for repeated requests at the same point.
+RECENT = 4
+
+
+def describe(manifold, x, prune):
+    """Weights, albedo, variance and neighbours of latent point ``x`` (q,), as JSON-ready dict."""
+    _, w = manifold.weights(x)
+    keep, w_kept, dropped = manifold.prune(w, prune)
+    order = np.argsort(-np.abs(w))
+    top = [{"name": manifold.names[i], "w": float(w[i])} for i in order[:TOP_WEIGHTS]]
+    dist = np.linalg.norm(manifold.latent - np.asarray(x, dtype=np.float64)[None], axis=1)
+    near = np.argsort(dist)[:NEAREST]
+    out = {"x": [float(v) for v in x], "weights": top, "n_kept": int(len(keep)),
+           "dropped_weight": float(dropped), "negative_weight": float(-w[w < 0].sum()),
+           "variance": max(0.0, float(manifold.variance(x))), "prior_variance": 1.0 + manifold.noise,
+           "nearest": [{"name": manifold.names[i], "distance": float(dist[i])} for i in near],
+           "albedo": None}
+    if manifold.albedos is not None:
+        out["albedo"] = [float(v) for v in manifold.albedo(x)]
+    return out
+
+
+def check_database(folder, manifold):
+    """Raise :class:`InputError` naming ``folder`` (an explicitly given ``--database``)
+    unless it is a folder holding a MERL table for each of ``manifold``'s materials.
+
+    Only the files and their headers are checked here, at once; the content hashes are
+    checked while the tables load (:class:`TableStack`)."""
+    from ...data.database import Database
+    from ...errors import InputError, MitsubaManifoldError
+    folder = os.fspath(folder)
+    if not os.path.exists(folder):
+        raise InputError(f"--database {folder} does not exist; give the folder of the manifold's tables, "
+                           "or leave --database out (default: the manifold's database)")
+    if not os.path.isdir(folder):
+        raise InputError(f"--database {folder} is a file, not a database folder (a folder of <name>.binary "
+                           "MERL tables); give the folder of the manifold's tables")
+    tables = {f[:-7] for f in os.listdir(folder) if f.endswith(".binary")}
+    missing = [n for n in manifold.names if n not in tables]
+    if missing:
+        raise InputError(f"--database {folder} is not a database folder of this manifold: it holds no table for "
+                           f"{len(missing)} of its {manifold.n} materials ({', '.join(missing[:3])}"
+                           f"{' ...' if len(missing) > 3 else ''}); give the folder of its tables (<name>.binary), "
+                           "or leave --database out")
+    try:
+        Database(folder, manifold.names)   # the headers: MERL tables of one resolution
+    except (MitsubaManifoldError, OSError) as e:
+        raise InputError(f"--database {folder} is not a database folder of this manifold ({e}); give the "
+                           "folder of its tables, or leave --database out") from None
+
+
+def preview_strides(dims, target=PREVIEW_DIMS):
+    """Bin stride per axis so the preview table is at most ``target``."""
+    return tuple(max(1, math.ceil(n / t)) for n, t in zip(dims, target))
+
+
+class TableStack:
+    """Reduced tables of every material of a manifold, loaded in a background thread.
+
+    Parameters
+    ----------
+    manifold : Manifold
+    database : str, optional
+        Folder of the tables (default: the manifold's; checked against its hashes).
+
+    Attributes
+    ----------
+    state : {"loading", "ready", "unavailable"}
+    message : str
+        Why the tables are unavailable (or the loading progress).
+    dims : tuple
+        Full table resolution; ``preview_dims``: the reduced one.
+    """
+
+    def __init__(self, manifold, database=None):
+        self.manifold = manifold
+        self.database = database
+        self.state, self.message = "loading", "loading tables"
+        self.dims = self.preview_dims = None
+        self._ready = threading.Event()
+        self._lock = threading.Lock()
+        self._recent = {}
+        self._thread = threading.Thread(target=self._load, name="explore-tables", daemon=True)
+        self._thread.start()
+
+    def wait(self, timeout=None):
+        """Block until loaded (or failed); returns the state."""
+        self._ready.wait(timeout)
+        return self.state
+
+    def _load(self):
+        try:
+            db = self.manifold.open_database(self.database)
+            dims = tuple(int(v) for v in db.dims)
+            s = preview_strides(dims)
+            n = self.manifold.n
+            slice_col = min(dims[2] // 2, dims[2] - 1)   # phi_d = 90 deg
+            reduced, slices = None, np.empty((n, 3, dims[0], dims[1]), dtype=np.float32)
+            for i, name in enumerate(self.manifold.names):
+                table = db.reflectance(name)
+                small = np.ascontiguousarray(table[:, ::s[0], ::s[1], ::s[2]], dtype=np.float32)
+                if reduced is None:
+                    reduced = np.empty((n, small.size), dtype=np.float32)
+                    self.preview_dims = small.shape[1:]
+                reduced[i] = small.ravel()
+                slices[i] = table[:, :, :, slice_col]
+                self.message = f"loading tables {i + 1}/{n}"
+            self.dims, self._reduced, self._slices = dims, reduced, slices.reshape(n, -1)
+            self.state, self.message = "ready", f"{n} tables, preview {self.preview_dims}"
+        except Exception as e:  # a missing or changed database leaves the rest of the page working
+            self.state, self.message = "unavailable", f"material tables unavailable: {e}"
+        finally:
+            self._ready.set()
+
+    def _combine(self, rows, x, prune):
+        _, w = self.manifold.weights(x)
+        keep, w_kept, _ = self.manifold.prune(w, prune)
+        return w_kept.astype(np.float32) @ rows[keep]
+
+    def preview(self, x, prune):
+        """Interpolated table at reduced resolution: float16 (3, n_h, n_d, n_p), and the
+        fraction of those bins below 0 (an estimate of the full table's).
+
+        The page asks for the material's description and its table at the same point: the
+        last few answers are kept."""
+        key = (np.asarray(x, dtype=np.float64).tobytes(), float(prune))
+        with self._lock:
+            if key in self._recent:
+                return self._recent[key]
+        out = self._preview(x, prune)
+        with self._lock:
+            self._recent[key] = out
+            while len(self._recent) > RECENT:
+                self._recent.pop(next(iter(self._recent)))
+        return out
+
+    def _preview(self, x, prune):
+        table = self._combine(self._reduced, x, prune)
+        negative = float((table < 0).mean())
+        half = np.clip(table, -HALF_MAX, HALF_MAX).astype(np.float16)   # peaks above 65504 saturate
+        return half.reshape((3,) + tuple(self.preview_dims)), negative
+
+    def slice(self, x, prune):
+        """``theta_h x theta_d`` slice at ``phi_d = 90 deg``: float32 (3, n_h, n_d)."""
+        return self._combine(self._slices, x, prune).reshape(3, self.dims[0], self.dims[1])
+
+
+def slice_image(slice_rgb, floor=1e-3, cmap="magma"):
+    """8-bit RGB image of ``log10`` of a slice's mean over RGB, ``theta_d`` right, ``theta_h`` up.
+
+    Values at or below ``floor`` (negative ones included) show at the bottom of the colour
+    map. Returns ``(rgb (n_h, n_d, 3), (lo, hi))``: the log10 range mapped.
+    """
+    from matplotlib import colormaps
+
+    v = np.log10(np.maximum(slice_rgb.mean(axis=0), floor))
+    lo, hi = float(np.log10(floor)), float(max(v.max(), np.log10(floor) + 1.0))
+    rgba = colormaps[cmap]((v - lo) / (hi - lo), bytes=True)
+    return np.ascontiguousarray(rgba[::-1, :, :3]), (lo, hi)

@@ -1,0 +1,291 @@
+"""The explorer's state and answers, independent of HTTP: bases in memory, blends, frames.
+
+:class:`Explorer` holds each basis with all its images read into one float32 array (the
+``(N + 1, H*W*3)`` matrix of :class:`~mitsuba_manifold.basis.folder.Basis`) and answers every
+request of the page from a latent point: the blended frame (:func:`blend.blend`, one
+matrix-vector product over the materials kept by pruning, then :func:`encode.tonemap`
+and an encoder), the material's description, the preview table, the latent map, the
+snippets and the reference renders. Bad requests raise :class:`InputError` with a
+message naming the parameter, its value and what is expected.
+"""
+
+import base64
+import json
+import os
+import time
+
+import numpy as np
+
+from ...render import scenes
+from ..._util import checks as validate
+from ...basis.folder import Basis, scene_hash
+from ...basis.blend import DEFAULT_PRUNE, blend
+from ...errors import InputError
+from ...manifold.model import Manifold
+from . import encode, latentmap, material
+from .reference import MAX_SPP, References
+
+
+def _names(folders):
+    """Short unique names of basis folders (their base names, numbered when they repeat)."""
+    out = {}
+    for folder in folders:
+        base = os.path.basename(os.path.normpath(folder)) or "basis"
+        name, k = base, 2
+        while name in out:
+            name, k = f"{base}-{k}", k + 1
+        out[name] = folder
+    return out
+
+
+def _scene_of(basis, scene=None):
+    """Scene XML of a basis for reference renders (checked by hash), or None when it is gone."""
+    if scene is not None:
+        path = scenes.scene_path(scene)
+        basis.check_scene(path)
+        return path
+    path = basis.manifest["scene"]
+    if os.path.isfile(path):
+        return path
+    name = os.path.splitext(os.path.basename(path))[0]   # moved: a shipped scene of that name and hash
+    if name in scenes.shipped_scenes() and scene_hash(scenes.scene_path(name)) == basis.manifest["scene_hash"]:
+        return scenes.scene_path(name)
+    return None
+
+
+class Explorer:
+    """Bases and manifold of one explore session.
+
+    Parameters
+    ----------
+    bases : list of str
+        Basis folders (rendered with the same manifold, one manifold material each).
+    manifold : str, optional
+        Saved manifold (default: the first basis's manifest's; checked by hash).
+    database : str, optional
+        Tables for the preview, the negative-bin fraction and the BRDF slice (default: the
+        manifold's database).
+    prune : float
+        Pruning threshold of the blends (:meth:`Manifold.prune`), in [0, 1).
+    load_tables : bool
+        Load the tables (in a background thread) for the preview, negative bins and slice.
+    scene : str, optional
+        Scene XML (or shipped scene name) for the reference renders, checked against each
+        basis's scene hash (default: the manifest's scene, or the shipped scene of that name
+        and hash when the manifest's file has moved).
+    """
+
+    def __init__(self, bases, manifold=None, database=None, prune=DEFAULT_PRUNE, load_tables=True, scene=None):
+        if not bases:
+            raise InputError("give at least one basis folder")
+        if not 0.0 <= float(prune) < 1.0:
+            raise InputError(f"prune must be in [0, 1) (a fraction of the table's L2 norm), got {prune}")
+        self.prune = float(prune)
+        self.bases = {}
+        self.manifold_path = None
+        for name, folder in _names([os.fspath(b) for b in bases]).items():
+            basis = Basis.load(folder)
+            if basis.p != 1:
+                raise InputError(f"basis {folder} has {basis.p} manifold materials {basis.targets}; the "
+                                   "explorer moves one material (render a basis of a scene with one)")
+            if self.manifold_path is None:
+                self.manifold_path = os.path.abspath(manifold or basis.manifest["manifold"])
+                self.manifold = Manifold.load(self.manifold_path)
+                if database is not None:   # given, so it must be there (the default may be missing)
+                    material.check_database(database, self.manifold)
+            basis.check_manifold(self.manifold)   # every basis: rendered with this manifold (loaded once)
+            basis.verify()   # every image in memory now: no disk read while dragging
+            self.bases[name] = basis
+        self.scenes = {name: _scene_of(b, scene) for name, b in self.bases.items()}
+        self.tables = material.TableStack(self.manifold, database) if load_tables else None
+        self.references = References()
+
+    # ------------------------------------------------------------ requests
+    def key(self, name):
+        """Name of a basis (None or "": the first one)."""
+        if name is None or name == "":
+            return next(iter(self.bases))
+        if not isinstance(name, str) or name not in self.bases:
+            raise InputError(f"unknown basis {name!r}; this explorer serves {sorted(self.bases)}")
+        return name
+
+    def basis(self, name):
+        return self.bases[self.key(name)]
+
+    def point(self, value, what="x"):
+        """Latent point from a list of numbers or ``"a,b"`` text; a training material's name
+        gives its latent point."""
+        q = self.manifold.q
+        if isinstance(value, str) and value.strip() in self.manifold.names:
+            return self.manifold.latent[self.manifold.index(value.strip())].copy()
+        if isinstance(value, str):
+            parts = [p for p in value.replace(",", " ").split() if p]
+        elif isinstance(value, (list, tuple)):
+            parts = list(value)
+        else:
+            raise InputError(f"{what} must be {q} numbers like '0.1,-0.4' or a material name, got {value!r}")
+        try:
+            arr = np.array([float(v) for v in parts], dtype=np.float64)
+        except (TypeError, ValueError):
+            if isinstance(value, str) and len(parts) == 1:
+                raise InputError(f"{what}: unknown material {value!r} (not one of the manifold's "
+                                   f"{self.manifold.n} materials) and not numbers") from None
+            raise InputError(f"{what} must be {q} numbers, got {value!r}") from None
+        if arr.size != q:
+            raise InputError(f"{what} has {arr.size} number(s); the manifold is {q}-dimensional: give {q}")
+        if not np.isfinite(arr).all():
+            raise InputError(f"{what} contains NaN or Inf: {value!r}")
+        if np.abs(arr).max() > 1e6:
+            raise InputError(f"{what} = {value!r} is absurdly far from the latent points (|x| > 1e6)")
+        return arr
+
+    @staticmethod
+    def number(value, what, lo, hi, default):
+        if value is None or value == "":
+            return default
+        try:
+            return validate.finite(what, value, lo, hi)
+        except InputError as e:
+            raise InputError(str(e)) from None
+
+    def blend(self, name, x):
+        """Linear image (H, W, 3) of latent point ``x`` and the blend's info."""
+        return blend(self.basis(name), self.manifold, x=x, prune=self.prune)
+
+    def frame(self, name, x, exposure=0.0, fmt="jpeg"):
+        """Encoded frame of ``x``: ``(bytes, meta)``; meta has the size and the times in ms."""
+        if fmt not in encode.FORMATS:
+            raise InputError(f"format must be one of {encode.FORMATS}, got {fmt!r}")
+        t0 = time.perf_counter()
+        img, info = self.blend(name, x)
+        t1 = time.perf_counter()
+        rgb8 = encode.tonemap(img, exposure)
+        t2 = time.perf_counter()
+        data = encode.encode(rgb8, fmt)
+        t3 = time.perf_counter()
+        h, w, _ = img.shape
+        return data, {"width": w, "height": h, "format": fmt, "n_images": info["n_images"],
+                      "blend_ms": 1e3 * (t1 - t0), "tonemap_ms": 1e3 * (t2 - t1), "encode_ms": 1e3 * (t3 - t2),
+                      "total_ms": 1e3 * (t3 - t0)}
+
+    def material(self, x):
+        """Description of the material at ``x`` (JSON-ready), with the table-based parts
+        when the tables are loaded."""
+        out = material.describe(self.manifold, x, self.prune)
+        out["tables"] = self.tables.state if self.tables else "unavailable"
+        out["tables_message"] = self.tables.message if self.tables else "not loaded (--no-tables)"
+        if self.tables and self.tables.state == "ready":
+            _, out["negative_fraction"] = self.tables.preview(x, self.prune)
+            rgb, (lo, hi) = material.slice_image(self.tables.slice(x, self.prune))
+            out["slice"] = {"png": "data:image/png;base64," + base64.b64encode(encode.png_bytes(rgb)).decode(),
+                            "log10_range": [lo, hi], "phi_d_deg": 90.0}
+        return out
+
+    def preview_table(self, x):
+        """Float16 bytes of the reduced interpolated table and its layout."""
+        if not self.tables or self.tables.state != "ready":
+            raise InputError(self.tables.message if self.tables else "material tables not loaded")
+        table, negative = self.tables.preview(x, self.prune)
+        strides = material.preview_strides(self.tables.dims)
+        return table.tobytes(), {"dims": list(table.shape[1:]), "full_dims": list(self.tables.dims),
+                                 "strides": list(strides), "negative_fraction": negative}
+
+    def latent_map(self, dims, center, bounds=None):
+        """The map of the slice through ``center``; ``bounds``: ``"x0,x1,y0,y1"`` (zoom) or None."""
+        dims = self._dims(dims)
+        if bounds is not None and bounds != "":
+            bounds = self._bounds(bounds)
+        else:
+            bounds = None
+        return latentmap.render(self.manifold, center, dims, bounds=bounds)
+
+    @staticmethod
+    def _bounds(text):
+        try:
+            b = [float(v) for v in str(text).replace(",", " ").split()]
+        except ValueError:
+            b = []
+        if (len(b) != 4 or not np.isfinite(b).all() or max(map(abs, b)) > 1e6 or not b[0] < b[1]
+                or not b[2] < b[3] or min(b[1] - b[0], b[3] - b[2]) < 1e-6):
+            raise InputError(f"extent must be 'x_min,x_max,y_min,y_max' (finite, min < max, span >= 1e-6), "
+                               f"got {text!r}")
+        return tuple(b)
+
+    def _dims(self, dims):
+        q = self.manifold.q
+        if isinstance(dims, str):
+            dims = [d for d in dims.replace(",", " ").split() if d]
+        try:
+            dims = tuple(int(d) for d in dims)
+        except (TypeError, ValueError):
+            raise InputError(f"dims must be two latent coordinates like '0,1', got {dims!r}") from None
+        if len(dims) != 2 or dims[0] == dims[1] or not all(0 <= d < q for d in dims):
+            raise InputError(f"dims must be two different coordinates in 0..{q - 1}, got {list(dims)}")
+        return dims
+
+    def snippets(self, x):
+        """``<bsdf>`` XML and ``mi.load_dict`` Python for ``x``."""
+        xs = ", ".join(f"{v:.6g}" for v in x)
+        path = self.manifold_path
+        xml = (f'<bsdf type="manifold_brdf" id="material">\n'
+               f'    <string name="manifold" value="{path}"/>\n'
+               f'    <string name="x" value="{xs}"/>\n'
+               f'</bsdf>')
+        py = ("import mitsuba as mi\nimport mitsuba_manifold\n\nmi.set_variant(\"llvm_ad_rgb\")\n"
+              "mitsuba_manifold.register()\n"
+              f"bsdf = mi.load_dict({{\"type\": \"manifold_brdf\", \"manifold\": {json.dumps(path)}, "
+              f"\"x\": \"{xs}\"}})")
+        return {"xml": xml, "python": py, "x": [float(v) for v in x]}
+
+    def path_command(self, name, a, b, steps):
+        """The ``tools/blend.py --path`` command rendering the sequence from ``a`` to ``b``."""
+        basis = self.basis(name)
+        ends = []
+        for v, what in ((a, "a"), (b, "b")):
+            if isinstance(v, str) and v.strip() in self.manifold.names:
+                ends.append(v.strip())
+            else:
+                ends.append(",".join(f"{c:.6g}" for c in self.point(v, what)))
+        if ends[0] == ends[1]:
+            raise InputError("the path's two ends are the same point; choose two different ends")
+        steps = int(self.number(steps, "steps", 2, 1000, 20))
+        return (f"python3 tools/blend.py --basis {basis.folder} --manifold {self.manifold_path} "
+                f"--path {ends[0]} {ends[1]} --steps {steps} --out path.exr --png")
+
+    def info(self):
+        m = self.manifold
+        bases = [{"name": n, "folder": b.folder, "resolution": list(b.resolution), "spp": b.manifest["spp"],
+                  "scene": self.scenes[n] or b.manifest["scene"], "images": len(b.keys),
+                  "scene_available": self.scenes[n] is not None} for n, b in self.bases.items()]
+        return {"manifold": self.manifold_path, "q": m.q, "names": m.names, "latent": m.latent.tolist(),
+                "albedos": None if m.albedos is None else m.albedos.tolist(), "bases": bases,
+                "prune": self.prune, "tables": self.tables.state if self.tables else "unavailable",
+                "max_reference_spp": MAX_SPP}
+
+    # ---------------------------------------------------------- references
+    def start_reference(self, name, x, spp):
+        name = self.key(name)
+        basis, scene = self.bases[name], self.scenes[name]
+        if scene is None:
+            raise InputError(f"the scene of basis {name!r} ({basis.manifest['scene']}) is missing or has "
+                               "changed since the basis was rendered; give it with --scene")
+        spp = int(self.number(spp, "spp", 1, MAX_SPP, 256))
+        img, _ = self.blend(name, x)
+        return self.references.submit(name, basis, scene, self.manifold_path, x, spp, img)
+
+    def reference_image(self, job_id, which, exposure=0.0):
+        job = self.references.get(job_id)
+        if job is None:
+            raise InputError(f"unknown reference job {job_id!r}")
+        if job.state != "done":
+            raise InputError(f"reference job {job_id} is {job.state}, not done")
+        if which == "error":
+            from ...imaging.metrics import error_image, false_colour
+            rgb, _ = false_colour(error_image(job.images["blend"], job.images["reference"]))
+            return encode.png_bytes(rgb)
+        if which not in job.images:
+            raise InputError(f"image must be 'blend', 'reference' or 'error', got {which!r}")
+        return encode.png_bytes(encode.tonemap(job.images[which], exposure))
+
+    def close(self):
+        self.references.shutdown()

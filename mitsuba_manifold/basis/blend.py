@@ -1,0 +1,262 @@
+"""Images of any latent point from a basis of per-material renders (paper Sec. 5.2 and 6).
+
+Rendering is linear in the BRDF. With one manifold material (one *target*) in the scene,
+the part of the image made of paths that scatter off it at most once (``L1-``) is
+
+    I(x) = base + sum_i w_i(x) I_i                                   (paper Eq. 13)
+
+``base``: the paths that never touch the target; ``I_i``: the paths that touch it exactly
+once, rendered with measured material ``i``; ``w(x)``: the manifold's affine weights.
+Materials whose ``|w_i|`` is pruned away are skipped (:meth:`Manifold.prune` rescales the
+kept weights to the same sum). With ``p`` targets (paper Sec. 6) the image is multilinear:
+
+    I(x^1..x^p) = sum_{i_1..i_p} prod_t w^t_{i_t} I[i_1..i_p]
+
+where ``I[i_1..i_p]`` is the full ``L1-`` image (base included) with target ``t`` set to
+material ``i_t``.
+
+The images come from a basis folder (:mod:`mitsuba_manifold.basis.folder`). Everything here is
+NumPy: no Mitsuba is loaded. The module is callable: ``from mitsuba_manifold import blend;
+blend(basis, x=...)`` is :func:`blend`.
+"""
+
+import itertools
+import time
+
+import numpy as np
+
+from .folder import BASE, Basis
+from ..errors import MismatchError
+from ..manifold.pruning import DEFAULT_PRUNE
+
+#: How far the weights of one target may sum away from 1 in a multilinear blend.
+AFFINE_TOL = 1e-6
+
+
+# -------------------------------------------------------------------- blend
+
+def latent_points(basis, manifold, x):
+    """``x`` as (p, q): one latent point per target.
+
+    Accepts (q,) for one target, (p, q), or p*q numbers in target order."""
+    p, q = basis.p, manifold.q
+    try:
+        arr = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise MismatchError(f"x must be numbers, got {x!r}") from None
+    if arr.size != p * q or arr.ndim > 2 or (arr.ndim == 2 and arr.shape != (p, q)):
+        raise MismatchError(
+            f"x has shape {arr.shape} ({arr.size} numbers), but the basis has {p} target(s) "
+            f"{basis.targets} on a {q}-dimensional manifold: x needs {p * q} numbers "
+            f"({'q' if p == 1 else 'p x q'})")
+    arr = arr.reshape(p, q)
+    if not np.isfinite(arr).all():
+        raise MismatchError(f"x contains NaN or Inf: {arr.tolist()}")
+    return arr
+
+
+def _target_weights(basis, manifold, x, w):
+    """Affine weights (p, N) from ``x`` or ``w``, plus the latent points (or None)."""
+    if (x is None) == (w is None):
+        raise MismatchError("give exactly one of x (latent point) and w (weights)")
+    if x is not None:
+        pts = latent_points(basis, manifold, x)
+        return manifold.weights(pts)[1], pts
+    try:
+        arr = np.asarray(w, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise MismatchError(f"w must be numbers, got {w!r}") from None
+    n = len(manifold.names)
+    if arr.size != basis.p * n or arr.ndim > 2 or (arr.ndim == 2 and arr.shape != (basis.p, n)):
+        raise MismatchError(f"w has shape {arr.shape}; the basis has {basis.p} target(s) and the manifold "
+                         f"{n} materials: w needs shape ({n},) or ({basis.p}, {n})")
+    arr = arr.reshape(basis.p, n)
+    if not np.isfinite(arr).all():
+        raise MismatchError("w contains NaN or Inf")
+    return arr, None
+
+
+def _plan(basis, manifold, W, prune, renormalise):
+    """Image keys and their weights for one blend.
+
+    Returns ``(keys, weights, info)``; ``weights`` multiply the images ``keys`` (plus
+    ``base`` with weight 1 for a one-target basis).
+    """
+    p, names = basis.p, manifold.names
+    kept, info = [], {"weights": [], "dropped_weight": []}
+    for t in range(p):
+        if p > 1 and abs(W[t].sum() - 1.0) > AFFINE_TOL:
+            raise MismatchError(f"weights of target {basis.targets[t]!r} sum to {W[t].sum():.9g}; a "
+                             "multilinear blend needs weights summing to 1 per target (its images "
+                             "include the base)")
+        keep, wk, dropped = manifold.prune(W[t], prune)
+        kept.append((keep, wk))
+        info["weights"].append({names[i]: float(v) for i, v in zip(keep, wk)})
+        info["dropped_weight"].append(dropped)
+    if p == 1:
+        keys = [basis.key([names[i]]) for i in kept[0][0]]
+        cw = kept[0][1].copy()
+    else:
+        keys = [basis.key([names[i] for i in combo]) for combo in itertools.product(*(k for k, _ in kept))]
+        cw = kept[0][1]
+        for _, wk in kept[1:]:
+            cw = np.multiply.outer(cw, wk).ravel()
+    total = cw.sum()
+    present = np.array([basis.has(k) for k in keys], dtype=bool)
+    missing = {k: float(v) for k, v, ok in zip(keys, cw, present) if not ok}
+    info["missing"] = missing
+    info["renormalised"] = False
+    if missing:
+        if not renormalise:
+            listed = ", ".join(f"{k} (w={v:.4g})" for k, v in sorted(missing.items(), key=lambda kv: -abs(kv[1]))[:10])
+            raise MismatchError(
+                f"basis {basis.folder} lacks {len(missing)} image(s) whose weight survives pruning "
+                f"(prune={prune:g}): {listed}{' ...' if len(missing) > 10 else ''}. Render them, raise "
+                "--prune, or renormalise over the images present (an approximation)")
+        if not present.any() or abs(cw[present].sum()) < 1e-12:
+            raise MismatchError(f"basis {basis.folder}: none of the images this blend needs is present "
+                             f"(missing: {', '.join(sorted(missing)[:10])}); cannot renormalise")
+        keys = [k for k, ok in zip(keys, present) if ok]
+        cw = cw[present] * (total / cw[present].sum())
+        info["renormalised"] = True
+    info["keys"] = keys
+    info["image_weights"] = cw
+    return keys, cw, info
+
+
+def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False):
+    """The image of latent point ``x`` (or weights ``w``) from a basis.
+
+    Parameters
+    ----------
+    basis : Basis or str
+    manifold : Manifold or str, optional
+        Default: the manifest's manifold. Checked against the manifest.
+    x : array_like
+        Latent point: (q,) for one target, (p, q) (or p*q numbers) for p targets.
+    w : array_like
+        Weights instead of ``x``: (N,) or (p, N). With one target any weights are allowed
+        (the touch images are linear in the BRDF); with several, each row must sum to 1.
+    prune : float
+        Drop the materials of smallest contribution ``|w_i| |table_i|`` while the
+        interpolated table changes by at most ``prune`` of its L2 norm (:meth:`Manifold.prune`;
+        the kept weights are rescaled to the same sum).
+    renormalise : bool
+        When images the blend needs are missing from the basis (e.g. a ``--near`` basis),
+        drop them and rescale the remaining image weights to the same sum instead of
+        raising. This approximates the missing materials by the present ones.
+
+    Returns
+    -------
+    image : ndarray float32 (H, W, 3)
+    info : dict
+        ``weights`` (per target, kept material -> weight), ``dropped_weight`` (per target),
+        ``keys``/``image_weights`` (images combined), ``missing``, ``renormalised``, ``x``,
+        ``time_ms`` (weights, pruning, gathering and summing the images in memory),
+        ``time_read_s`` (reading from disk the images not read before).
+    """
+    if not isinstance(basis, Basis):
+        basis = Basis.load(basis)
+    manifold = basis.check_manifold(manifold)
+    t0 = time.perf_counter()
+    W, pts = _target_weights(basis, manifold, x, w)
+    keys, cw, info = _plan(basis, manifold, W, prune, renormalise)
+    t_plan = time.perf_counter() - t0
+    image, t_read, t_sum = compose(basis, keys, cw)
+    info.update(x=None if pts is None else (pts[0] if basis.p == 1 else pts),
+                time_ms=1e3 * (t_plan + t_sum), time_read_s=t_read, n_images=len(keys))
+    return image, info
+
+
+def compose(basis, keys, weights):
+    """Eq. 13: ``base + sum_j weights[..., j] image(keys[j])`` (no base with several targets).
+
+    Returns the image(s), the seconds spent reading images and the seconds of the sum.
+    """
+    t_read = basis.read(keys + ([BASE] if basis.p == 1 else []))
+    t0 = time.perf_counter()
+    images = basis.weighted_sum(keys, weights)
+    if basis.p == 1:
+        images += basis.image(BASE)
+    return images, t_read, time.perf_counter() - t0
+
+
+def _endpoint(manifold, v):
+    if isinstance(v, str):
+        return manifold.latent[manifold.index(v)].copy()
+    arr = np.asarray(v, dtype=np.float64).ravel()
+    if arr.size != manifold.q or not np.isfinite(arr).all():
+        raise MismatchError(f"path end {v!r}: expected a material name or {manifold.q} finite numbers")
+    return arr
+
+
+def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRUNE, renormalise=False,
+               target=0, x=None):
+    """Images along the latent segment from ``a`` to ``b`` (paper Fig. 12).
+
+    Parameters
+    ----------
+    a, b : str or array_like (q,)
+        Material names (their latent points) or latent points.
+    steps : int
+        Number of images, ``t = 0 .. 1`` inclusive (>= 2).
+    target : int
+        With several targets: which one moves along the segment.
+    x : array_like (p, q), optional
+        With several targets: the latent points of the others (row ``target`` ignored).
+
+    Returns
+    -------
+    images : ndarray float32 (steps, H, W, 3)
+    xs : ndarray (steps, q)
+        The latent points of the moving target.
+    info : dict
+        ``steps`` (the per-image info of :func:`blend`), ``time_ms`` (all images, as
+        :func:`blend`), ``time_read_s``.
+    """
+    if not isinstance(basis, Basis):
+        basis = Basis.load(basis)
+    manifold = basis.check_manifold(manifold)
+    if not isinstance(steps, (int, np.integer)) or steps < 2:
+        raise MismatchError(f"steps must be an integer >= 2, got {steps!r}")
+    if not 0 <= target < basis.p:
+        raise MismatchError(f"target {target} out of range: the basis has {basis.p} target(s)")
+    if basis.p == 1 and x is not None:
+        raise MismatchError("x is for the targets that stay fixed along a path, and this basis has one target "
+                         "(the path sets its point): leave x out")
+    xa, xb = _endpoint(manifold, a), _endpoint(manifold, b)
+    if np.array_equal(xa, xb):
+        raise MismatchError(f"the path's ends {a!r} and {b!r} are the same latent point (all {steps} images would "
+                         "be the same): give two different materials or points")
+    t = np.linspace(0.0, 1.0, steps)[:, None]
+    xs = (1.0 - t) * xa + t * xb
+    if basis.p > 1:
+        if x is None:
+            raise MismatchError(f"the basis has {basis.p} targets: give x for the targets that stay fixed")
+        fixed = latent_points(basis, manifold, x)
+    t0 = time.perf_counter()
+    plans = []
+    for xi in xs:
+        pts = xi[None] if basis.p == 1 else np.where(np.arange(basis.p)[:, None] == target, xi, fixed)
+        W = manifold.weights(pts)[1]
+        plans.append(_plan(basis, manifold, W, prune, renormalise))
+    keys = sorted({k for ks, _, _ in plans for k in ks})
+    col = {k: j for j, k in enumerate(keys)}
+    M = np.zeros((steps, len(keys)), dtype=np.float32)
+    for s, (ks, cw, _) in enumerate(plans):
+        M[s, [col[k] for k in ks]] = cw
+    t_plan = time.perf_counter() - t0
+    images, t_read, t_sum = compose(basis, keys, M)
+    for (_, _, inf), xi in zip(plans, xs):
+        inf["x"] = xi
+    return images, xs, {"steps": [p[2] for p in plans], "time_ms": 1e3 * (t_plan + t_sum),
+                        "time_read_s": t_read}
+
+
+def path_labels(pair, steps):
+    """Labels of a contact sheet of :func:`blend_path` from ``pair[0]`` to ``pair[1]``: ``t``
+    under every frame, each end's name (or latent point, as given) under the first and the last."""
+    labels = [f"t = {t:.2f}" for t in np.linspace(0, 1, steps)]
+    labels[0] += f"\n{pair[0]}"
+    labels[-1] += f"\n{pair[1]}"
+    return labels

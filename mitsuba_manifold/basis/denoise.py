@@ -1,0 +1,222 @@
+"""Denoised blends: Intel Open Image Denoise guided by albedo and normal AOVs that blend too.
+
+A denoiser works best with the albedo and normal of the first visible surface. Both are
+available for any latent point from the basis without rendering:
+
+* normals do not depend on the material (one image, shared);
+* the albedo where the first hit is *not* the manifold material does not depend on it
+  either (``albedo_base``: the mean BSDF sample weight ``f cos / pdf`` there, the
+  directional albedo of any BSDF); where it is, the albedo of material ``i`` is its directional
+  albedo ``a_i(theta)`` at the viewing angle, and that is linear in the BRDF, so the
+  albedo of a blend with weights ``w`` is ``sum_i w_i a_i(theta)``, like Eq. 13.
+
+:func:`render_aovs` traces first hits only (the ``manifold_aovs`` integrator, ``spp``
+anti-aliased samples): normals, ``albedo_base`` (of other BSDFs) and, on the target, a
+per-pixel histogram ``h`` of the viewing angle over :data:`THETA_BINS` bins.
+:func:`directional_albedos` tabulates ``a_i`` per material and angle bin from the
+measured tables (quadrature over half vectors). The albedo of
+weights ``w`` is ``clip(albedo_base + h @ (w @ a), 0, 1)`` (:meth:`BasisAOVs.albedo`).
+They are saved beside the basis as ``aovs.npz`` (atomic; checked against the basis
+manifest on load). :func:`denoise` calls ``pyoidn`` (OIDN 2.x, CPU). Report the raw
+image's error beside the denoised one: the denoiser is biased towards smooth images.
+"""
+
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import folder as basis_folder
+from ..data import merl
+from .._util.atomic import atomic_write
+from ..errors import MismatchError
+
+AOV_FILE = "aovs.npz"
+THETA_BINS = 45  # as integrators.aovs.THETA_BINS (not imported: that module needs Mitsuba)
+AOV_VERSION = 1
+
+
+# ------------------------------------------------------------------ first-hit AOVs
+
+def first_hit_aovs(scene, targets, spp=16, seed=0, sensor=0, bins=THETA_BINS):
+    """``(normal, albedo_base, hist)`` images of a loaded scene: (H, W, 3), (H, W, 3), (H, W, bins)."""
+    import mitsuba as mi
+
+    integ = mi.load_dict({"type": "manifold_aovs", "bins": int(bins)})
+    integ.targets = list(targets)
+    img = np.array(mi.render(scene, integrator=integ, spp=int(spp), seed=int(seed), sensor=int(sensor)),
+                   dtype=np.float32)
+    aov = img[..., img.shape[-1] - 6 - bins:]
+    return aov[..., 0:3].copy(), aov[..., 3:6].copy(), aov[..., 6:].copy()
+
+
+def directional_albedos(db, names, bins=THETA_BINS, n_phi=64, refine=2, pad=16):
+    """``a[i, k, c]``: albedo of material ``names[i]`` lit from ``theta`` at the centre of bin ``k``.
+
+    ``a(theta_i) = int f(w_i, w_o) cos(theta_o) dw_o``, integrated over half vectors
+    ``h`` (``w_o`` = ``w_i`` reflected about ``h``, ``dw_o = 4 (w_i . h) dw_h``) by the
+    midpoint rule on the tables' own ``theta_h`` spacing (``refine`` points per bin,
+    so that narrow specular peaks are not missed) and ``n_phi`` azimuths, with the filled
+    tables (negative values clamped at 0 as the BSDF does; ``Database.material_rows``).
+    """
+    rows = db.material_rows(names, pad=pad)
+    n_u = refine * int(db.dims[0])
+    u = (np.arange(n_u) + 0.5) / n_u
+    t_h = u * u * (np.pi / 2)
+    dt_h = 2 * u * (np.pi / 2) / n_u
+    p_h = (np.arange(n_phi) + 0.5) / n_phi * (2 * np.pi)
+    T, P = np.meshgrid(t_h, p_h, indexing="ij")
+    h = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
+    dwh = (np.sin(T) * dt_h[:, None]).reshape(-1) * (2 * np.pi / n_phi)
+    t_i = (np.arange(bins) + 0.5) / bins * (np.pi / 2)
+    wi = np.repeat(np.stack([np.sin(t_i), np.zeros(bins), np.cos(t_i)], -1), len(h), 0)
+    hh = np.tile(h, (bins, 1))
+    cos_d = np.sum(wi * hh, -1)
+    wo = 2 * cos_d[:, None] * hh - wi
+    weight = np.where((wo[:, 2] > 0) & (cos_d > 0), wo[:, 2] * 4 * cos_d * np.tile(dwh, bins), 0.0)
+    idx = merl.flat_index(wi, np.where(weight[:, None] > 0, wo, [0.0, 0.0, 1.0]), tuple(db.dims))
+    uniq, inv = np.unique(idx, return_inverse=True)
+    values = np.maximum(np.asarray(rows[uniq], dtype=np.float32)[..., :len(names)], 0.0)  # (u, 3, N)
+    f = values[inv.reshape(-1)].reshape(bins, len(h), 3, len(names))
+    return np.einsum("kocn,ko->nkc", f, weight.reshape(bins, len(h))).astype(np.float32)
+
+
+@dataclass
+class BasisAOVs:
+    """The denoising guides of a basis (see the module docstring)."""
+    normal: np.ndarray       # (H, W, 3)
+    albedo_base: np.ndarray  # (H, W, 3)
+    hist: np.ndarray         # (H, W, bins): fraction of samples hitting the target per angle bin
+    table: np.ndarray        # (N, bins, 3): directional albedo per material
+    names: list
+    spp: int
+    time_s: float = 0.0
+
+    def albedo(self, weights):
+        """Albedo image of the material with weights ``{name: w}`` (or (N,) in :attr:`names` order)."""
+        if isinstance(weights, dict):
+            index = {n: i for i, n in enumerate(self.names)}
+            missing = [n for n in weights if n not in index]
+            if missing:
+                raise MismatchError(f"AOVs have no directional albedo for {missing}")
+            w = np.zeros(len(self.names))
+            for n, v in weights.items():
+                w[index[n]] = v
+        else:
+            w = np.asarray(weights, dtype=np.float64)
+            if w.shape != (len(self.names),):
+                raise MismatchError(f"weights must have {len(self.names)} entries, got shape {w.shape}")
+        mixed = np.tensordot(w, self.table, axes=1)  # (bins, 3)
+        return np.clip(self.albedo_base + self.hist @ mixed.astype(np.float32), 0.0, 1.0)
+
+    def albedo_of_blend(self, info, version=basis_folder.FORMAT_VERSION):
+        """Albedo image of a one-target blend, from its ``info`` (image keys and weights)."""
+        weights = np.asarray(info["image_weights"], dtype=np.float64)
+        return self.albedo({basis_folder.key_materials(k, version)[0]: w for k, w in zip(info["keys"], weights)})
+
+    def save(self, folder, manifest):
+        path = os.path.join(os.fspath(folder), AOV_FILE)
+        key = {k: manifest.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}
+        import json
+        atomic_write(path, lambda f: np.savez(
+            f, normal=self.normal, albedo_base=self.albedo_base, hist=self.hist, table=self.table,
+            names=np.array(self.names), spp=self.spp, time_s=self.time_s, version=AOV_VERSION,
+            basis=json.dumps(key, sort_keys=True)))
+        return path
+
+    @classmethod
+    def load(cls, folder, manifest=None):
+        """Read ``folder/aovs.npz``; with ``manifest``, check it was made for that basis."""
+        import json
+        path = os.path.join(os.fspath(folder), AOV_FILE)
+        if not os.path.isfile(path):
+            raise MismatchError(f"{folder} has no {AOV_FILE} (render the basis with aovs=True / --aovs)")
+        try:
+            with np.load(path) as z:
+                if int(z["version"]) != AOV_VERSION:
+                    raise MismatchError(f"{path}: AOV format version {int(z['version'])}, expected {AOV_VERSION}")
+                out = cls(z["normal"], z["albedo_base"], z["hist"], z["table"], [str(n) for n in z["names"]],
+                          int(z["spp"]), float(z["time_s"]))
+                key = json.loads(str(z["basis"]))
+        except (OSError, ValueError, KeyError, AttributeError, TypeError) as e:
+            raise MismatchError(f"{path} is not an AOV file written by render_basis --aovs ({type(e).__name__}); "
+                               "delete it and render the AOVs again") from None
+        if manifest is not None:
+            want = {k: manifest.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}
+            if want != key:
+                diff = [k for k in want if want[k] != key.get(k)]
+                raise MismatchError(f"{path} was made for another basis ({', '.join(diff)} differ); "
+                                   "render the AOVs again")
+        return out
+
+
+def render_aovs(scene_path, manifold_path, names, spp=16, seed=0, resolution=None, sensor=0, max_depth=None):
+    """First-hit AOVs and directional albedos of ``names`` for a scene (a :class:`BasisAOVs`)."""
+    from ..render import scenes
+    from ..manifold.model import Manifold
+
+    t0 = time.perf_counter()
+    scene, targets, _ = scenes.load_scene(scene_path, manifold_path, spp, resolution, max_depth)
+    normal, albedo_base, hist = first_hit_aovs(scene, targets, spp, seed, sensor)
+    db = Manifold.load(manifold_path).open_database(None, names)
+    table = directional_albedos(db, list(names))
+    return BasisAOVs(normal, albedo_base, hist, table, list(names), int(spp), time.perf_counter() - t0)
+
+
+def add_aovs(folder, spp=16, seed=0):
+    """Render the AOVs of the basis in ``folder`` (one target) and save them beside it."""
+    manifest = basis_folder.read_manifest(folder)
+    if len(manifest["targets"]) != 1:
+        raise MismatchError(f"{folder}: AOVs of a blend are linear for one target; this basis has "
+                           f"{len(manifest['targets'])}")
+    names = [basis_folder.key_materials(k, manifest["version"])[0] for k in manifest["images"]
+             if k != basis_folder.BASE]
+    aovs = render_aovs(manifest["scene"], manifest["manifold"], names, spp, seed,
+                       tuple(manifest["resolution"]), manifest.get("sensor", 0), manifest["max_depth"])
+    aovs.save(folder, manifest)
+    return aovs
+
+
+# ------------------------------------------------------------------ denoising
+
+def denoise(image, albedo=None, normal=None, quality="high"):
+    """OIDN (``pyoidn``) on a linear HDR image; ``albedo`` in [0, 1] and ``normal`` guide it."""
+    try:
+        import pyoidn
+    except ImportError:
+        raise MismatchError("denoising needs pyoidn (pip install pyoidn)") from None
+    img = np.ascontiguousarray(np.maximum(image, 0.0), dtype=np.float32)
+    kw = {}
+    if albedo is not None:
+        kw["albedo"] = np.ascontiguousarray(albedo, dtype=np.float32)
+    if normal is not None:
+        if albedo is None:
+            raise MismatchError("OIDN takes normals only together with an albedo")
+        kw["normal"] = np.ascontiguousarray(np.clip(normal, -1.0, 1.0), dtype=np.float32)
+    return pyoidn.denoise(img, hdr=True, clean_aux=bool(kw), quality=quality, **kw)
+
+
+def denoised_blend(basis, manifold=None, x=None, w=None, aovs=None, guides=True, **kwargs):
+    """:func:`blend` and its denoised version.
+
+    Returns
+    -------
+    raw, denoised : ndarray float32 (H, W, 3)
+    info : dict
+        The blend's info plus ``denoise_ms`` and ``guided`` (AOVs used).
+    """
+    from .blend import blend
+
+    if not isinstance(basis, basis_folder.Basis):
+        basis = basis_folder.Basis.load(basis)
+    raw, info = blend(basis, manifold, x=x, w=w, **kwargs)
+    t0 = time.perf_counter()
+    if guides:
+        aovs = aovs or BasisAOVs.load(basis.folder, basis.manifest)
+        albedo = aovs.albedo_of_blend(info, basis.manifest["version"])
+        out = denoise(raw, albedo, aovs.normal)
+    else:
+        out = denoise(raw)
+    info.update(denoise_ms=1e3 * (time.perf_counter() - t0), guided=bool(guides))
+    return raw, out, info

@@ -1,0 +1,431 @@
+"""Inverse rendering on a basis: the latent point whose image best matches a target.
+
+The ``L1-`` image of latent point ``x`` (paper Eq. 13) is linear in the affine weights,
+
+    I(x) = base + sum_i w_i(x) I_i,        w(x): the manifold's interpolant (default: convex
+                                           Shepard weights; preset "paper": Eq. 4)
+
+and ``w`` is smooth in ``x`` with the closed-form Jacobian :meth:`Manifold.weights_jacobian`,
+so ``dI/dx = sum_i (dw_i/dx) I_i`` and a target image can be matched by optimising ``x``
+over the blend, without rendering. :func:`match` minimises
+
+    E(x) = image_error(s I(x), target) + prior * var(x)
+
+- ``image_error``: the relative MSE of :mod:`metrics` (``(a - r)^2 / (r^2 + eps)`` per pixel
+  and channel, ``eps = 0.01``: bright pixels and fireflies of the target do not dominate)
+  averaged over the mask, or (``loss="log"``) the MSE of log luminance;
+- ``s``: 1, or with ``exposure_free`` the best scale for each ``x`` in closed form (for the
+  log loss: both images normalised by their mean luminance over the mask);
+- ``var(x)``: the GP's predictive variance (paper Eq. 2), an optional prior keeping the
+  result where the data is.
+
+For the relative MSE the error is a quadratic form in ``u = (1, w)``: one float64 Gram matrix
+of the ``N + 1`` images over the masked pixels makes every evaluation ``O(N^2)``, at full
+resolution and exactly. The log loss evaluates the images at every step: the search runs on a
+box-downsampled copy and the best point is refined at full resolution.
+
+Search: every training material alone (``w = e_i``) and ``scan`` random points near the data
+are scored at once (one matrix product); L-BFGS-B (SciPy) then starts from the best single
+material's latent point and the best scanned points (``starts`` in all; with ``scan=0`` from
+the training points nearest to the best single material, which on a stiff manifold often
+misses the basin of the answer), and the best of the optimised points and the single
+materials is returned. A training point
+itself is reachable exactly (every interpolant gives ``w = e_i`` there), so a training
+material's own image gives back its own point.
+"""
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize
+from threadpoolctl import threadpool_limits
+
+from . import objectives as image_error
+from ..imaging import io as imageio
+from .folder import BASE, Basis
+from .blend import compose
+from ..errors import InputError
+from .objectives import LOSSES, masked_pool, masked_rel_mse, pool
+
+#: Margin of the search box around the latent points, in length scales.
+MARGIN = 2.0
+#: Pixels of the downsampled search image (log loss) are about this many at most.
+SEARCH_PIXELS = 64 * 64
+
+
+@dataclass
+class SingleMatch:
+    """The best training material alone (``w = e_i``)."""
+    name: str
+    index: int
+    error: float
+    exposure: float
+
+
+@dataclass
+class MatchResult:
+    """What :func:`match` found.
+
+    Attributes
+    ----------
+    x : ndarray (q,)
+        The best latent point.
+    weights : ndarray (N,)
+        Its affine weights (manifold order).
+    error : float
+        The image error at ``x`` (relative MSE, or log-luminance MSE with ``loss="log"``)
+        over the mask, at full resolution, after the exposure.
+    rel_mse : float
+        Relative MSE (:func:`metrics.rel_mse` over the mask) of ``exposure * image``.
+    exposure : float
+        Scale applied to the blend (1 unless ``exposure_free``).
+    variance : float
+        GP variance (Eq. 2) at ``x``: near 0 at the data, ``1 + mu`` far from it.
+    objective : float
+        ``error + prior * variance``.
+    single : SingleMatch
+        The best training material alone.
+    from_start : int or None
+        Index in ``starts`` of the optimisation that won, None when a training material
+        alone was best.
+    starts : list of dict
+        Per start: ``x0``, ``x``, ``objective``, ``n_evaluations``, ``message``.
+    image : ndarray float32 (H, W, 3)
+        The blend at ``x`` (full frame, before the exposure).
+    names : list of str
+    loss, prior, exposure_free, downsample, n_pixels, time_s
+        The settings, masked pixels used and the wall time (the basis' images read
+        before the call are not re-read; ``time_read_s`` is what reading took).
+    """
+    x: np.ndarray
+    weights: np.ndarray
+    error: float
+    rel_mse: float
+    exposure: float
+    variance: float
+    objective: float
+    single: SingleMatch
+    from_start: object
+    starts: list
+    image: np.ndarray
+    names: list
+    loss: str
+    prior: float
+    exposure_free: bool
+    downsample: int
+    n_pixels: int
+    time_s: float
+    time_read_s: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    def __repr__(self):  # short: the image and the starts are attributes, not the summary
+        fields = ", ".join(f"{k}={getattr(self, k)!r}" for k in ("error", "rel_mse", "exposure", "variance", "loss"))
+        x = ", ".join(f"{v:.4g}" for v in np.asarray(self.x).ravel())
+        top = ", ".join(f"{n}:{w:.3g}" for n, w in self.top_weights(4))
+        return f"MatchResult(x=[{x}], {fields}, top weights {top}, time_s={self.time_s:.3g})"
+
+    def top_weights(self, k=6):
+        """The ``k`` largest nonzero ``|w_i|`` as ``[(name, w_i)]``."""
+        order = np.argsort(-np.abs(self.weights), kind="stable")[:k]
+        return [(self.names[i], float(self.weights[i])) for i in order if self.weights[i] != 0]
+
+    def nearest(self, manifold, k=3):
+        """The ``k`` training materials nearest to ``x`` in latent space, ``[(name, distance)]``."""
+        d = np.linalg.norm(manifold.latent - self.x, axis=1)
+        return [(manifold.names[i], float(d[i])) for i in np.argsort(d)[:k]]
+
+    def to_dict(self, manifold=None):
+        """JSON-ready summary (no image)."""
+        out = {"x": self.x.tolist(), "error": self.error, "loss": self.loss, "rel_mse": self.rel_mse,
+               "exposure": self.exposure, "exposure_free": self.exposure_free, "variance": self.variance,
+               "prior": self.prior, "objective": self.objective, "top_weights": self.top_weights(10),
+               "weights": dict(zip(self.names, self.weights.tolist())),
+               "single": {"name": self.single.name, "error": self.single.error,
+                          "exposure": self.single.exposure},
+               "from_start": self.from_start, "starts": [
+                   {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in s.items()}
+                   for s in self.starts],
+               "downsample": self.downsample, "n_pixels": self.n_pixels, "time_s": self.time_s,
+               "time_read_s": self.time_read_s}
+        if manifold is not None:
+            out["nearest"] = self.nearest(manifold)
+        return out
+
+
+# ------------------------------------------------------------------ inputs
+
+def check_target(target, resolution, what="target"):
+    """``target`` as float64 (H, W, 3), checked against the basis ``resolution`` (width, height)."""
+    arr = np.asarray(target)
+    w, h = resolution
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise InputError(f"{what} must be an RGB image of shape (height, width, 3), got {arr.shape}")
+    if arr.shape[:2] != (h, w):
+        raise InputError(f"{what} is {arr.shape[1]}x{arr.shape[0]}, the basis is {w}x{h}: render or "
+                         "resize the target to the basis resolution")
+    bad = ~np.isfinite(arr).all(axis=-1)
+    if bad.any():
+        raise InputError(f"{what} has {int(bad.sum())} pixels with NaN or Inf values; fix them or "
+                         "leave them out of the image")
+    return arr.astype(np.float64)
+
+
+def check_mask(mask, resolution, what="mask"):
+    """Mask weights in [0, 1] as float64 (H, W): (H, W) or (H, W, C) (channels averaged)."""
+    w, h = resolution
+    arr = np.asarray(mask, dtype=np.float64)
+    if arr.ndim == 3:
+        arr = arr.mean(axis=-1)
+    if arr.shape != (h, w):
+        raise InputError(f"{what} is {arr.shape[1] if arr.ndim == 2 else arr.shape}"
+                         f"{'x' + str(arr.shape[0]) if arr.ndim == 2 else ''}, the target is {w}x{h}: "
+                         "they must have the same size")
+    if not np.isfinite(arr).all():
+        raise InputError(f"{what} has NaN or Inf values")
+    arr = np.clip(arr, 0.0, 1.0)
+    if not (arr > 0).any():
+        raise InputError(f"{what} selects no pixel (all zero): nothing to match")
+    return arr
+
+
+def read_target(path):
+    """A target image: linear EXR, or an 8-bit PNG/JPEG (sRGB-decoded to linear).
+
+    Returns ``(image float32 (H, W, 3), saturated (H, W) bool)``: the pixels of an 8-bit
+    image with a channel at 255 (clipped, their true value unknown), to leave out of the
+    match; none for an EXR.
+    """
+    path = str(path)
+    if path.lower().endswith(".exr"):
+        img = imageio.read_exr(path)
+        return img, np.zeros(img.shape[:2], dtype=bool)
+    u8 = _read_8bit(path, "RGB", "target")
+    return imageio.srgb_decode(u8 / 255.0).astype(np.float32), (u8 == 255).any(axis=-1)
+
+
+def read_mask(path):
+    """A mask image (PNG/JPEG grey or RGB: value / 255; EXR: mean of R, G, B) as (H, W)."""
+    path = str(path)
+    if path.lower().endswith(".exr"):
+        return imageio.read_exr(path).mean(axis=-1)
+    return _read_8bit(path, "L", "mask") / 255.0
+
+
+def _read_8bit(path, mode, what):
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im.convert(mode), dtype=np.float64)
+    except FileNotFoundError:
+        raise InputError(f"{what} {path}: file does not exist") from None
+    except (UnidentifiedImageError, OSError) as e:
+        raise InputError(f"{what} {path}: not a readable image ({e})") from None
+
+
+# ------------------------------------------------------------------- search
+
+def _bounds(manifold):
+    lo = manifold.latent.min(axis=0) - MARGIN * manifold.length_scale
+    hi = manifold.latent.max(axis=0) + MARGIN * manifold.length_scale
+    return list(zip(lo, hi))
+
+
+def _evaluate(manifold, objective, prior):
+    """SciPy's ``fun(x) -> (value, gradient)`` for L-BFGS-B, counting evaluations."""
+    count = [0]
+
+    def fun(x):
+        count[0] += 1
+        _, w = manifold.weights(x)
+        err, gw, _ = objective(w)
+        grad = manifold.weights_jacobian(x).T @ gw
+        if prior:
+            err += prior * float(manifold.variance(x))
+            grad = grad + prior * manifold.variance_gradient(x)
+        return err, grad
+
+    return fun, count
+
+
+def _descend(manifold, objective, prior, x0, bounds, max_iter):
+    fun, count = _evaluate(manifold, objective, prior)
+    res = optimize.minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
+                            options={"maxiter": max_iter})
+    return {"x0": np.asarray(x0, dtype=float), "x": res.x, "objective": float(res.fun),
+            "n_evaluations": count[0], "message": str(res.message)}
+
+
+def _scan(manifold, objective, prior, bounds, n_points, seed=0):
+    """``n_points`` random latent points near the data (a training point plus a normal step
+    of ``l / 2``), scored at once; returns ``(points (M, q), objectives (M,))``."""
+    if n_points == 0:
+        return np.zeros((0, manifold.q)), np.zeros(0)
+    rng = np.random.default_rng(seed)
+    X = manifold.latent[rng.integers(manifold.n, size=n_points)]
+    X = X + 0.5 * manifold.length_scale * rng.standard_normal(X.shape)
+    X = np.clip(X, *np.array(bounds).T)
+    err, _ = objective.batch(manifold.weights(X)[1])
+    if prior:
+        err = err + prior * manifold.variance(X)
+    return X, err
+
+
+def _start_points(manifold, best, X, err, k, spread=0.25):
+    """``k`` starts: the best single material's latent point, then the best scanned points
+    at least ``spread * l`` apart (without scanned points: the training points nearest to
+    the best single material). Training points are nudged by ``1e-6 l`` so that the descent
+    starts on the smooth interpolant."""
+    nudge = 1e-6 * manifold.length_scale / np.sqrt(manifold.q)
+    if len(X) == 0:
+        d = np.linalg.norm(manifold.latent - manifold.latent[best], axis=1)
+        return [manifold.latent[i] + nudge for i in np.argsort(d, kind="stable")[:k]]
+    chosen = [manifold.latent[best] + nudge]
+    for i in np.argsort(err, kind="stable"):
+        if len(chosen) == k:
+            break
+        if min(np.linalg.norm(X[i] - c) for c in chosen) >= spread * manifold.length_scale:
+            chosen.append(X[i])
+    return chosen
+
+
+def _downsample_factor(resolution, downsample):
+    if downsample is not None:
+        f = int(downsample)
+        if f < 1 or f > min(resolution):
+            raise InputError(f"downsample must be an integer in 1..{min(resolution)}, got {downsample!r}")
+        return f
+    return max(1, int(np.sqrt(resolution[0] * resolution[1] / SEARCH_PIXELS)))
+
+
+# -------------------------------------------------------------------- match
+
+def _basis_and_manifold(basis, manifold):
+    if not isinstance(basis, Basis):
+        basis = Basis.load(basis)
+    if basis.p != 1:
+        raise InputError(f"basis {basis.folder} has {basis.p} targets {basis.targets}: match works on a "
+                         "basis of one manifold material")
+    manifold = basis.check_manifold(manifold)
+    missing = [n for n, k in zip(manifold.names, basis.material_keys(manifold.names)) if not basis.has(k)]
+    if missing:
+        raise InputError(f"basis {basis.folder} lacks the images of {len(missing)} of the manifold's "
+                         f"{manifold.n} materials ({', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}); "
+                         "match needs every material: render the full basis")
+    return basis, manifold
+
+
+def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free=False, prior=0.0,
+          starts=8, max_iter=100, downsample=None, scan=8192):
+    """Find the latent point whose blend (Eq. 13) best matches ``target``.
+
+    Parameters
+    ----------
+    basis : Basis or str
+        A complete one-target basis (every material of the manifold).
+    target : array_like (H, W, 3)
+        Linear RGB at the basis' resolution, finite.
+    mask : array_like (H, W) or (H, W, C), optional
+        Pixel weights in [0, 1] (0: ignored); default all pixels.
+    manifold : Manifold or str, optional
+        Default: the basis' own (checked against its manifest).
+    loss : {"rel_mse", "log"}
+        Relative MSE of :mod:`metrics`, or MSE of log luminance.
+    exposure_free : bool
+        Fit the blend's scale in closed form at every evaluation.
+    prior : float
+        Weight of the GP variance (Eq. 2) added to the error (0: off).
+    starts : int
+        L-BFGS-B starts: the best single material's latent point, then the best of the
+        ``scan`` points, kept ``l / 4`` apart.
+    scan : int
+        Random latent points near the data scored (vectorised) to choose the starts; 0:
+        start from the training points nearest to the best single material only.
+    max_iter : int
+        L-BFGS-B iterations per start.
+    downsample : int, optional
+        Box factor of the search image for the log loss (default: about 64x64 pixels);
+        the relative MSE is always exact at full resolution.
+
+    Returns
+    -------
+    MatchResult
+
+    Raises
+    ------
+    InputError, MismatchError
+        A target of another size or with NaN/Inf pixels, an all-zero mask, a basis with
+        several targets, missing images or without its manifold, bad settings.
+    """
+    t0 = time.perf_counter()
+    basis, manifold = _basis_and_manifold(basis, manifold)
+    target = check_target(target, basis.resolution)
+    weight = np.ones(target.shape[:2]) if mask is None else check_mask(mask, basis.resolution)
+    if loss not in LOSSES:
+        raise InputError(f"loss must be one of {LOSSES}, got {loss!r}")
+    if not (np.isfinite(prior) and prior >= 0):
+        raise InputError(f"prior must be a finite number >= 0, got {prior!r}")
+    if not isinstance(starts, (int, np.integer)) or starts < 1:
+        raise InputError(f"starts must be a positive integer, got {starts!r}")
+    if not isinstance(scan, (int, np.integer)) or scan < 0:
+        raise InputError(f"scan must be an integer >= 0, got {scan!r}")
+    f = _downsample_factor(basis.resolution, downsample) if loss == "log" else 1
+    t_read = basis.read([BASE] + basis.material_keys(manifold.names))
+
+    pixels = weight > 0
+    full = image_error.objective(basis, manifold, target, weight, pixels, loss, exposure_free, 1)
+    search = full
+    if f > 1:
+        wp = pool(weight[..., None], f)[..., 0]
+        tp = masked_pool(target, weight[..., None], f)
+        search = image_error.objective(basis, manifold, tp, wp, wp > 0, loss, exposure_free, f, weight[..., None])
+
+    var_train = prior * manifold.variance(manifold.latent)
+    best = int(np.argmin(search.batch(np.eye(manifold.n))[0] + var_train))
+    bounds = _bounds(manifold)
+    X, scan_err = _scan(manifold, search, prior, bounds, scan)
+    # L-BFGS-B's small linear algebra is far slower on a BLAS thread pool than on one thread
+    with threadpool_limits(1, user_api="blas"):
+        runs = [_descend(manifold, search, prior, x0, bounds, max_iter)
+                for x0 in _start_points(manifold, best, X, scan_err, int(starts))]
+        if f > 1:  # refine the best coarse point at full resolution
+            i = int(np.argmin([r["objective"] for r in runs]))
+            fine = _descend(manifold, full, prior, runs[i]["x"], bounds, max_iter)
+            runs[i] = {**fine, "x0": runs[i]["x0"], "x_search": runs[i]["x"],
+                       "n_evaluations": runs[i]["n_evaluations"] + fine["n_evaluations"]}
+    # the winner: an optimised point or a training material alone, scored at full resolution
+    full_errs, full_scales = full.batch(np.eye(manifold.n))
+    best = int(np.argmin(full_errs + var_train))
+    cand = [(full_errs[best] + var_train[best], None, manifold.latent[best].copy())]
+    for j, r in enumerate(runs):
+        w = manifold.weights(r["x"])[1]
+        cand.append((full(w)[0] + prior * float(manifold.variance(r["x"])), j, r["x"]))
+    _, from_start, x = min(cand, key=lambda c: c[0])
+    _, w = manifold.weights(x)
+    err, _, s = full(w)
+    image = compose(basis, basis.material_keys(manifold.names), w)[0]   # Eq. 13 (images already read)
+    rel = masked_rel_mse(s * image, target, weight)
+    var = max(float(manifold.variance(x)), 0.0)
+    single = SingleMatch(manifold.names[best], best, float(full_errs[best]), float(full_scales[best]))
+    return MatchResult(x=np.asarray(x, dtype=float), weights=w, error=float(err), rel_mse=rel,
+                       exposure=float(s), variance=var, objective=float(err + prior * var), single=single,
+                       from_start=from_start, starts=runs, image=image, names=list(manifold.names),
+                       loss=loss, prior=float(prior), exposure_free=bool(exposure_free), downsample=f,
+                       n_pixels=int(pixels.sum()), time_s=time.perf_counter() - t0, time_read_s=t_read)
+
+
+def single_material_errors(basis, target, mask=None, manifold=None, exposure_free=False):
+    """Relative MSE (over the mask) of every training material alone; ``(errors (N,), exposures (N,))``.
+
+    The baseline of a match: the best any one measured material can do.
+    """
+    basis, manifold = _basis_and_manifold(basis, manifold)
+    target = check_target(target, basis.resolution)
+    weight = np.ones(target.shape[:2]) if mask is None else check_mask(mask, basis.resolution)
+    obj = image_error.objective(basis, manifold, target, weight, weight > 0, "rel_mse", exposure_free, 1)
+    return obj.batch(np.eye(manifold.n))
+
+
+__all__ = ["match", "MatchResult", "SingleMatch", "InputError", "read_target", "read_mask",
+           "check_target", "check_mask", "single_material_errors"]

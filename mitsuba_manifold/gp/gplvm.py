@@ -1,0 +1,245 @@
+"""Fit of the latent manifold: a GPLVM on the Gram matrix of the measured tables (paper Sec. 3).
+
+Each of the N measured materials gets a latent point ``x_i`` in ``q`` dimensions (the
+*latent* points, rows of an ``(N, q)`` array) chosen to maximise the log-likelihood of a
+Gaussian process (Eq. 6)::
+
+    L = -d/2 log|K| - 1/2 tr(K^-1 S),      S = Z Z^T,
+    K_ij = mu delta_ij + exp(-|x_i - x_j|^2 / (2 l^2))                         (Eq. 5)
+
+where Z is the mean-subtracted ``N x d`` observation matrix, K the covariance matrix of the
+latent points, ``K_inv`` its inverse (the *inverse covariance*), ``l`` the length scale and
+``mu`` the noise. Only the ``N x N`` Gram matrix S and the number of values d enter the fit,
+so this module never sees a table.
+
+Two optimisers work on the same objective from the same start (:func:`pca_init` by default):
+
+* ``"hooke-jeeves"``, the paper's: direct search moving one latent point at a time. A move
+  changes one row and column of K; :class:`RankUpdatedInverse` updates ``K_inv``, ``log|K|``
+  and ``tr(K_inv S)`` with two rank-one (Sherman-Morrison) updates and the matrix
+  determinant lemma in O(N^2), refactorising from scratch periodically and whenever an
+  update loses accuracy.
+* ``"lbfgs"``: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation).
+
+The model is split GPy style: :mod:`.kernel` (covariance, factorisation of K),
+:mod:`.likelihood` (L and its gradient), :mod:`.rank_update` (the rank-one updated inverse)
+and :mod:`.optimisers`; this module holds the PCA start and :func:`fit_latent`, and
+re-exports the public functions of the others.
+
+Internally both work in units of the length scale (``u = x / l``): scaling ``l`` and the
+latent points together changes neither K nor L, so a fit at any ``l`` is the fit at ``l = 1``
+scaled by ``l``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import numbers
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import optimisers
+from ..errors import InputError, NotPositiveDefiniteError
+from .kernel import MAX_LATENT_DIM, check_points, check_positive, kernel_matrix
+from .likelihood import check_gram, check_d, log_likelihood, log_likelihood_grad, value_u
+from .rank_update import MoveTrial, RankUpdatedInverse
+
+try:  # optional: lets small fits run BLAS single-threaded, much faster for N ~ 100
+    from threadpoolctl import threadpool_limits
+except ImportError:  # pragma: no cover - depends on the environment
+    threadpool_limits = None
+
+__all__ = [
+    "MAX_LATENT_DIM",
+    "NotPositiveDefiniteError",
+    "kernel_matrix",
+    "log_likelihood",
+    "log_likelihood_grad",
+    "pca_init",
+    "RankUpdatedInverse",
+    "MoveTrial",
+    "FitResult",
+    "fit_latent",
+]
+
+#: Up to this many materials the fit runs BLAS on one thread (when threadpoolctl is
+#: installed): the N x N products are too small to gain from threads, which only add
+#: synchronisation (badly so on a busy machine).
+SINGLE_THREAD_MAX_N = 256
+
+_METHODS = ("hooke-jeeves", "lbfgs")
+
+
+def check_q(q):
+    if isinstance(q, (bool, np.bool_)) or not isinstance(q, numbers.Integral) \
+            or not 1 <= q <= MAX_LATENT_DIM:
+        raise InputError(f"latent dimension q must be an integer from 1 to {MAX_LATENT_DIM}, "
+                         f"got {q!r}")
+    return int(q)
+
+
+def pca_init(S, q, length_scale=1.0):
+    """Linear PCA of the materials from their Gram matrix, as latent starting points.
+
+    The principal coordinates are ``U_q sqrt(lambda_q)`` from the eigendecomposition of S,
+    scaled by one common factor so that the first coordinate has standard deviation ``l``
+    (the axes keep their relative sizes). Each axis is signed so that its largest entry is
+    positive. Axes beyond the rank of S are zero.
+
+    Parameters
+    ----------
+    S : (N, N) array_like
+        Gram matrix of the mean-subtracted observations.
+    q : int
+        Latent dimension, 1 to 8.
+    length_scale : float
+        ``l``; the result is proportional to it.
+
+    Returns
+    -------
+    (N, q) ndarray
+    """
+    S = check_gram(S)
+    q = check_q(q)
+    l = check_positive("length_scale", length_scale)
+    n = S.shape[0]
+    lam, vec = np.linalg.eigh(S)
+    lam, vec = lam[::-1], vec[:, ::-1]
+    k = min(q, n)
+    coords = np.zeros((n, q))
+    keep = lam[:k] > 1e-12 * lam[0]
+    coords[:, :k] = vec[:, :k] * np.sqrt(np.where(keep, lam[:k], 0.0))
+    big = np.argmax(np.abs(coords), axis=0)
+    coords *= np.where(coords[big, np.arange(q)] < 0, -1.0, 1.0)
+    spread = coords[:, 0].std()
+    if not spread > 0:
+        raise InputError("Gram matrix S is zero: all materials are identical after mean "
+                         "subtraction, there is nothing to lay out")
+    return coords * (l / spread)
+
+
+@dataclass
+class FitResult:
+    """Outcome of :func:`fit_latent`.
+
+    Attributes
+    ----------
+    latent : (N, q) ndarray
+        Optimised latent points.
+    log_likelihood : float
+        Final L, from a fresh factorisation.
+    history : ndarray
+        L at the start and after each iteration (a sweep over all points for Hooke-Jeeves,
+        an L-BFGS-B iteration otherwise).
+    n_evaluations : int
+        Objective evaluations (trial positions for Hooke-Jeeves, L and gradient for L-BFGS).
+    time_s : float
+        Wall time of the optimisation.
+    method : str
+    converged : bool
+        Whether the stopping tolerance was met before ``max_iter``.
+    message : str
+    length_scale, noise : float
+    n_refactorisations : int
+        From-scratch factorisations of K (Hooke-Jeeves).
+    max_drift : float
+        Largest relative disagreement between the maintained L and a fresh one (Hooke-Jeeves).
+    """
+
+    latent: np.ndarray
+    log_likelihood: float
+    history: np.ndarray
+    n_evaluations: int
+    time_s: float
+    method: str
+    converged: bool = False
+    message: str = ""
+    length_scale: float = 1.0
+    noise: float = 1e-4
+    n_refactorisations: int = 0
+    max_drift: float = 0.0
+
+    @property
+    def n_iterations(self):
+        """Iterations done (sweeps for Hooke-Jeeves)."""
+        return len(self.history) - 1
+
+
+def fit_latent(S, d, q=2, method="hooke-jeeves", length_scale=1.0, noise=1e-4, init=None,
+               max_iter=None, tol=None, callback=None, initial_step=0.25):
+    """Latent points maximising the GPLVM log-likelihood L (Eq. 6).
+
+    Parameters
+    ----------
+    S : (N, N) array_like
+        Gram matrix ``Z Z^T`` of the mean-subtracted observations (float64).
+    d : int
+        Number of values per material.
+    q : int
+        Latent dimension, 1 to 8.
+    method : {"hooke-jeeves", "lbfgs"}
+        The paper's direct search with rank-one updates, or L-BFGS-B with the gradient.
+    length_scale, noise : float
+        ``l`` and ``mu``.
+    init : (N, q) array_like, optional
+        Starting points; :func:`pca_init` by default.
+    max_iter : int, optional
+        Sweeps over all points (Hooke-Jeeves, default 500) or L-BFGS-B iterations (default
+        2000).
+    tol : float, optional
+        Hooke-Jeeves: stop when every point's step is below ``tol * l`` (default 1e-3).
+        L-BFGS-B: stop when the largest gradient entry of ``L / scale`` with respect to
+        ``x / l`` is below ``tol`` (default 1e-7; ``scale`` is the size of L's terms at the
+        start).
+    callback : callable, optional
+        ``callback(iteration, latent, L)`` after each iteration; returning True stops.
+    initial_step : float
+        Hooke-Jeeves: first step, in units of ``l``.
+
+    Returns
+    -------
+    FitResult
+
+    Notes
+    -----
+    Hooke-Jeeves moves single points, so collective motions of the whole cloud are slow
+    for it: on strongly coupled layouts it can stop (every step below ``tol``) at a lower L
+    than L-BFGS; a smaller ``tol`` goes further at a higher cost. For ``N <= 256`` BLAS runs
+    single-threaded during the fit when ``threadpoolctl`` is installed.
+    """
+    S = check_gram(S)
+    d = check_d(d)
+    q = check_q(q)
+    l = check_positive("length_scale", length_scale)
+    mu = check_positive("noise", noise)
+    if method not in _METHODS:
+        raise InputError(f"unknown method {method!r}; use one of {', '.join(_METHODS)}")
+    if init is None:
+        X0 = pca_init(S, q, l)
+    else:
+        X0 = check_points("init", init, n=S.shape[0], q=q)
+    if max_iter is not None and (isinstance(max_iter, bool)
+                                 or not isinstance(max_iter, numbers.Integral) or max_iter < 0):
+        raise InputError(f"max_iter must be an integer >= 0, got {max_iter!r}")
+    if tol is not None:
+        tol = check_positive("tol", tol)
+    if callback is not None and not callable(callback):
+        raise InputError("callback must be callable")
+    step = check_positive("initial_step", initial_step)
+    U0 = X0 / l
+    single = threadpool_limits is not None and S.shape[0] <= SINGLE_THREAD_MAX_N
+    t0 = time.perf_counter()
+    with threadpool_limits(1, user_api="blas") if single else contextlib.nullcontext():
+        if method == "hooke-jeeves":
+            res = optimisers.hooke_jeeves(U0, S, d, mu, 500 if max_iter is None else int(max_iter),
+                                1e-3 if tol is None else tol, step, callback, l)
+        else:
+            res = optimisers.lbfgs(U0, S, d, mu, 2000 if max_iter is None else int(max_iter),
+                         1e-7 if tol is None else tol, callback, l)
+        L = value_u(res.units, S, d, mu)
+    return FitResult(latent=res.units * l, log_likelihood=L, history=np.asarray(res.history, dtype=np.float64),
+                     n_evaluations=res.n_evaluations, time_s=time.perf_counter() - t0, method=method,
+                     converged=res.converged, message=res.message, length_scale=l, noise=mu,
+                     n_refactorisations=res.n_refactorisations, max_drift=res.max_drift)

@@ -1,0 +1,158 @@
+"""Image error metrics against a reference, and error images.
+
+Definitions (``a``: the image tested, ``r``: the reference, both linear RGB (H, W, 3);
+means run over every pixel and channel):
+
+- ``mse      = mean((a - r)^2)``
+- ``rel_mse  = mean((a - r)^2 / (r^2 + eps))``, ``eps = 0.01``: the per-pixel, per-channel
+  relative MSE common in rendering papers; ``eps`` keeps black pixels from dominating.
+- ``psnr     = 10 log10(peak^2 / mse)`` dB with ``peak = max(r)`` (the reference's brightest
+  value; 1 if the reference is all zero or negative); ``inf`` for identical images.
+- ``max_abs  = max |a - r|``, ``mean_abs = mean |a - r|``.
+"""
+
+import numpy as np
+
+from .io import write_png
+from ..errors import InputError
+
+#: Default regulariser of :func:`rel_mse`.
+REL_EPS = 0.01
+
+
+def _pair(a, ref):
+    a = np.asarray(a, dtype=np.float64)
+    ref = np.asarray(ref, dtype=np.float64)
+    if a.shape != ref.shape:
+        raise InputError(f"image has shape {a.shape}, reference {ref.shape}: they must match")
+    if a.size == 0:
+        raise InputError("cannot compare empty images")
+    for img, what in ((a, "image"), (ref, "reference")):
+        if not np.isfinite(img).all():
+            raise InputError(f"{what} contains NaN or Inf values")
+    return a, ref
+
+
+def mse(a, ref):
+    """Mean squared error over pixels and channels."""
+    a, ref = _pair(a, ref)
+    return float(np.mean(np.square(a - ref)))
+
+
+def rel_mse(a, ref, eps=REL_EPS):
+    """Relative MSE ``mean((a - r)^2 / (r^2 + eps))`` (per pixel and channel)."""
+    a, ref = _pair(a, ref)
+    return float(np.mean(np.square(a - ref) / (np.square(ref) + eps)))
+
+
+def psnr_peak(ref):
+    """The PSNR peak: ``max(ref)``, or 1 when the reference has no positive value."""
+    m = float(np.max(ref))
+    return m if m > 0 else 1.0
+
+
+def psnr(a, ref, peak=None):
+    """PSNR in dB, ``10 log10(peak^2 / mse)``; ``peak`` defaults to :func:`psnr_peak`."""
+    a, ref = _pair(a, ref)
+    peak = psnr_peak(ref) if peak is None else float(peak)
+    err = np.mean(np.square(a - ref))
+    return float("inf") if err == 0 else float(10.0 * np.log10(peak * peak / err))
+
+
+def max_abs(a, ref):
+    """Largest absolute difference over pixels and channels."""
+    a, ref = _pair(a, ref)
+    return float(np.max(np.abs(a - ref)))
+
+
+def error_image(a, ref):
+    """Per-pixel, per-channel absolute difference ``|a - r|`` as float32 (H, W, 3)."""
+    a, ref = _pair(a, ref)
+    return np.abs(a - ref).astype(np.float32)
+
+
+def compare(a, ref, eps=REL_EPS, peak=None):
+    """All metrics of ``a`` against ``ref``.
+
+    Returns
+    -------
+    dict
+        ``rel_mse``, ``mse``, ``psnr`` (dB), ``peak``, ``max_abs``, ``mean_abs``, ``eps``.
+    """
+    a, ref = _pair(a, ref)
+    d = a - ref
+    sq = np.square(d)
+    err = float(sq.mean())
+    peak = psnr_peak(ref) if peak is None else float(peak)
+    return {"rel_mse": float(np.mean(sq / (np.square(ref) + eps))), "mse": err,
+            "psnr": float("inf") if err == 0 else float(10.0 * np.log10(peak * peak / err)),
+            "peak": peak, "max_abs": float(np.abs(d).max()), "mean_abs": float(np.abs(d).mean()),
+            "eps": float(eps)}
+
+
+def false_colour(error, vmax=None, cmap="inferno"):
+    """Map a scalar error per pixel to 8-bit RGB with a matplotlib colour map.
+
+    Parameters
+    ----------
+    error : array_like (H, W) or (H, W, 3)
+        Colour images are reduced to their mean over channels.
+    vmax : float, optional
+        Value mapped to the top of the colour map (default: the largest error).
+
+    Returns
+    -------
+    rgb : ndarray uint8 (H, W, 3)
+    vmax : float
+    """
+    from matplotlib import colormaps
+
+    e = np.asarray(error, dtype=np.float64)
+    if e.ndim == 3:
+        e = e.mean(axis=-1)
+    if e.ndim != 2:
+        raise InputError(f"error image must be (H, W) or (H, W, 3), got {np.shape(error)}")
+    vmax = float(e.max()) if vmax is None else float(vmax)
+    scaled = e / vmax if vmax > 0 else np.zeros_like(e)
+    rgba = colormaps[cmap](np.clip(scaled, 0.0, 1.0), bytes=True)
+    return np.ascontiguousarray(rgba[..., :3]), vmax
+
+
+#: Percentile of the per-pixel error at the top of an error PNG's colour scale: a few
+#: fireflies do not darken the rest of the image (they are drawn at the top colour).
+ERROR_PERCENTILE = 99.0
+
+
+def robust_scale(error, percentile=ERROR_PERCENTILE):
+    """The ``percentile`` of a per-pixel error (mean over channels); its maximum if that is 0."""
+    e = np.asarray(error, dtype=np.float64)
+    e = e.mean(axis=-1) if e.ndim == 3 else e
+    v = float(np.percentile(e, percentile))
+    return v if v > 0 else float(e.max())
+
+
+def write_error_png(path, a, ref, vmax=None, cmap="inferno", percentile=ERROR_PERCENTILE, scale_note=None):
+    """False-colour PNG of ``|a - r|`` (mean over channels) with its colour bar, written atomically.
+
+    The scale runs from 0 to ``vmax`` (default: the ``percentile`` of the error,
+    :func:`robust_scale`); errors above it take the top colour and the legend says how many
+    pixels do. The scale is drawn under the image and also stored in the PNG's text chunks.
+    ``scale_note`` says where a given ``vmax`` comes from (e.g. another image's scale).
+    Returns ``vmax``.
+    """
+    from matplotlib import colormaps
+
+    from .io import with_colour_bar
+
+    err = error_image(a, ref).mean(axis=-1)
+    how = f"{percentile:g}th percentile" if vmax is None else (scale_note or "a fixed scale")
+    vmax = robust_scale(err, percentile) if vmax is None else float(vmax)
+    rgb, vmax = false_colour(err, vmax, cmap)
+    above = float((err > vmax).mean())
+    ramp = colormaps[cmap](np.linspace(0, 1, 256), bytes=True)[:, :3]
+    ticks = [(0.0, "0"), (0.5, f"{vmax / 2:.3g}"), (1.0, f"{vmax:.3g}" + ("+" if above else ""))]
+    caption = (f"|image - reference|, mean of RGB; scale 0 to {vmax:.3g} ({how}); "
+               f"{above:.1%} of pixels above it, at the top colour")
+    write_png(path, with_colour_bar(rgb, ramp, ticks, caption),
+              text={"error-scale": f"0 .. {vmax:.6g} ({cmap}, mean |a - ref| over RGB)"})
+    return vmax

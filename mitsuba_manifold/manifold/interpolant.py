@@ -1,0 +1,266 @@
+"""Interpolation weights ``w(x)``: how a latent point combines the measured tables.
+
+Every interpolant here is *linear in the tables*: the material at latent point ``x`` is
+``sum_i w_i(x) table_i`` with weights summing to 1, so a blend of pre-rendered images
+(paper Eq. 13) and the ``manifold_brdf`` plugin give the same material for the same ``w``.
+They differ only in the function ``w(x)``:
+
+``gp`` (the paper's Eq. 4)
+    ``b(x) = K_inv k(x)``, ``w = b + (1 - sum b) / N``. Affine: weights of both signs, so
+    interpolated tables can go negative and albedos leave [0, 1]; with ``exact=True`` the
+    kernel's noise term ``mu delta(x, x_i)`` applies at a training point, so ``w(x_i) = e_i``
+    but ``w`` jumps by ``mu |K_inv e_i|`` an infinitesimal step away.
+
+``shepard`` (the default)
+    Convex inverse-distance weights ``w_i ∝ |x - x_i|^-p exp(-|x - x_i|^2 / (2 h(x)^2))``
+    (Shepard 1968, with a Gaussian taper whose width ``h(x)`` grows with the distance to
+    the data; ``h = inf`` is plain Shepard). Non-negative, summing to 1, continuous everywhere and equal to
+    ``e_i`` at ``x_i`` (no jump): interpolated tables stay non-negative and albedos stay
+    inside the range of the measured ones. Far from every latent point the weights tend
+    to the mean material (``h = inf``) or to the nearest latent points (finite ``h``).
+
+Both give their analytic Jacobian ``dw/dx`` (:meth:`Interpolant.jacobian`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..gp import kernel
+from ..errors import InputError, NotPositiveDefiniteError
+
+KINDS = ("gp", "shepard")
+#: Largest latent coordinate accepted: far beyond it squared distances (and their squares in the
+#: Jacobians) overflow float64, while the weights there already equal their limit far from the data.
+MAX_COORDINATE = 1e30
+
+
+def points(x, q):
+    """``x`` as an ``(M, q)`` float array and whether it was a single point; clear errors otherwise."""
+    try:
+        x = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"latent point must be {q} numbers (a list or array), got {x!r:.60}") from None
+    single, shape = x.ndim == 1, x.shape
+    x = np.atleast_2d(x)
+    if x.ndim != 2 or x.shape[1] != q:
+        raise InputError(f"latent point must have {q} coordinates, got shape {shape}")
+    if not np.isfinite(x).all():
+        raise InputError("latent point contains NaN or Inf")
+    big = float(np.abs(x).max(initial=0.0))
+    if big > MAX_COORDINATE:
+        raise InputError(f"latent point coordinate {big:.3g} is too far out: its distances to the materials "
+                               f"overflow; give coordinates within +-{MAX_COORDINATE:.0e} (the materials lie "
+                               "within a few units of 0)")
+    return x, single
+
+
+class Interpolant:
+    """Weights ``w(x)`` over N latent points (rows of ``latent``); subclasses define them."""
+
+    kind = None
+
+    def __init__(self, latent):
+        self.latent = np.asarray(latent, dtype=np.float64)
+        self.n, self.q = self.latent.shape
+
+    def params(self):
+        """The parameters, as saved with a manifold (JSON-able)."""
+        raise NotImplementedError
+
+    def weights(self, x):
+        """Weights ``(M, N)`` (or ``(N,)`` for one point), each row summing to 1."""
+        x, single = points(x, self.q)
+        w = self._weights(x)
+        return w[0] if single else w
+
+    def jacobian(self, x):
+        """``dw/dx``: ``(M, N, q)`` (or ``(N, q)`` for one point); columns sum to 0."""
+        x, single = points(x, self.q)
+        J = self._jacobian(x)
+        return J[0] if single else J
+
+    def jump(self, eps=1e-9):
+        """``max_i |w(x_i + eps l u) - e_i|_1``: how much the weights jump next to a training point."""
+        u = np.zeros_like(self.latent)
+        u[:, 0] = eps * getattr(self, "length_scale", 1.0)
+        return float(np.abs(self._weights(self.latent + u) - np.eye(self.n)).sum(axis=1).max())
+
+    def _hits(self, x):
+        """Pairs (row of x, latent index) where x equals a latent point exactly."""
+        return np.nonzero((x[:, None, :] == self.latent[None, :, :]).all(-1))
+
+
+class GaussianProcessWeights(Interpolant):
+    """The paper's weights (Eq. 4): ``b = K_inv k(x)``, ``w = b + (1 - sum b) / N``.
+
+    Parameters
+    ----------
+    latent : (N, q) array
+    length_scale, noise : float
+        ``l`` and ``mu`` of ``c(x, x') = mu delta + exp(-|x - x'|^2 / 2 l^2)``.
+    exact : bool
+        Apply the noise term ``mu delta(x, x_i)`` at training points (the paper's rule:
+        ``w(x_i) = e_i``, discontinuous there); False gives the continuous GP mean
+        ``b(x) = (K_smooth + mu I)^-1 k(x)`` everywhere.
+    """
+
+    kind = "gp"
+
+    def __init__(self, latent, length_scale=1.0, noise=1e-4, exact=True):
+        super().__init__(latent)
+        self.length_scale = float(length_scale)
+        self.noise = float(noise)
+        self.exact = bool(exact)
+        self.K = kernel.kernel_matrix(self.latent, length_scale=self.length_scale, noise=self.noise)
+        try:
+            self._factor = kernel.factorise(self.K)
+        except NotPositiveDefiniteError:
+            raise InputError(
+                f"the covariance K of the {self.n} latent points is not positive definite "
+                f"(noise mu={self.noise:g} too small for coincident points?)") from None
+
+    def params(self):
+        return {"kind": self.kind, "length_scale": self.length_scale, "noise": self.noise,
+                "exact": self.exact}
+
+    def jump(self, eps=1e-9):
+        """Exact for ``exact=True``: at ``x_i`` the noise term makes ``w = e_i``; an infinitesimal
+        step away it is absent and ``b = e_i - mu K_inv e_i``. The paper calls this negligible;
+        it is only when K's smooth part is well conditioned (points far apart compared with l)."""
+        if not self.exact:
+            return super().jump(eps)
+        db = -self.noise * self._factor.inverse()          # column i: b(x_i+) - e_i
+        dw = db - db.sum(axis=0, keepdims=True) / self.n  # the affine weights' change
+        return float(np.abs(dw).sum(axis=0).max())
+
+    def gp_weights(self, x):
+        """``b(x)`` (M, N) of Eq. 4."""
+        k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
+        b = self._factor.solve(k.T).T
+        if self.exact:
+            rows, cols = self._hits(x)
+            single = np.bincount(rows, minlength=len(x))[rows] == 1
+            rows, cols = rows[single], cols[single]
+            b[rows] = 0.0  # k(x_i) + mu e_i is column i of K: K_inv of it is e_i exactly
+            b[rows, cols] = 1.0
+        return b
+
+    def affine(self, b):
+        """The affine weights ``w = b + (1 - sum(b)) / N`` of Eq. 4's ``b`` (M, N)."""
+        return b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
+
+    def _weights(self, x):
+        return self.affine(self.gp_weights(x))
+
+    def _jacobian(self, x):
+        # dk_i/dx = -k_i (x - x_i) / l^2; db = K_inv dk; dw = db - sum(db) / N
+        k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
+        dk = -k[:, :, None] * (x[:, None, :] - self.latent[None]) / self.length_scale ** 2
+        m, n, q = dk.shape
+        db = self._factor.solve(dk.transpose(1, 0, 2).reshape(n, m * q))
+        db = db.reshape(n, m, q).transpose(1, 0, 2)
+        return db - db.sum(axis=1, keepdims=True) / n
+
+
+class ShepardWeights(Interpolant):
+    """Convex weights ``w_i ∝ r_i^-p exp(-r_i^2 / 2 h(x)^2)``, ``r_i = |x - x_i| / l``.
+
+    The taper's width adapts to the local spacing of the data, the same for every material
+    at a given ``x`` (so that between two neighbours neither dominates the other's half)::
+
+        h(x)^2 = h^2 + s^2 m(x),   m(x) = sum_j r_j^(2-p) / sum_j r_j^-p
+
+    ``m`` is a smooth soft minimum of the squared distances: ``r_i^2`` next to ``x_i``,
+    ``D^2 / 4`` half-way between two points ``D`` apart.
+
+    Parameters
+    ----------
+    latent : (N, q) array
+    power : float
+        ``p``; 2 gives the smoothest transition between two neighbours.
+    taper : float
+        ``h`` in units of ``l`` (``inf``: no taper). Small values make the weights local:
+        between two neighbours, the material is a blend of those two.
+    spread : float
+        ``s``: how much the taper widens with the distance to the data.
+    length_scale : float
+        ``l``: the unit of distances.
+    """
+
+    kind = "shepard"
+
+    def __init__(self, latent, power=2.0, taper=np.inf, spread=0.0, length_scale=1.0):
+        super().__init__(latent)
+        self.power = float(power)
+        self.taper = float(taper)
+        self.spread = float(spread)
+        self.length_scale = float(length_scale)
+        if not self.power > 0 or not self.taper > 0 or not self.length_scale > 0 or not self.spread >= 0:
+            raise InputError(f"shepard weights need power > 0, taper > 0, spread >= 0 and length_scale > 0, "
+                                   f"got {self.power}, {self.taper}, {self.spread}, {self.length_scale}")
+
+    def params(self):
+        return {"kind": self.kind, "power": self.power, "taper": self.taper, "spread": self.spread,
+                "length_scale": self.length_scale}
+
+    def _terms(self, x):
+        """``x - x_i`` (units of l), ``r_i^2``, hit rows, ``m(x)``, ``h(x)^2`` and ``log u_i``."""
+        diff = (x[:, None, :] - self.latent[None]) / self.length_scale
+        r2 = np.einsum("mnq,mnq->mn", diff, diff)
+        hit = (r2 == 0).any(axis=1)
+        r2s = np.where(hit[:, None], 1.0, r2)                   # hit rows are set apart
+        inv = (r2s / r2s.min(1, keepdims=True)) ** (-0.5 * self.power)   # scaled: no underflow far out
+        m = np.where(hit, 0.0, (r2s * inv).sum(1) / inv.sum(1))
+        h2 = self.taper ** 2 + self.spread ** 2 * m
+        with np.errstate(divide="ignore"):
+            log_u = -0.5 * self.power * np.log(r2) - 0.5 * r2 / h2[:, None]
+        return diff, r2s, hit, inv, m, h2, log_u
+
+    def _weights(self, x):
+        return _normalise(self._terms(x)[-1])
+
+    def _jacobian(self, x):
+        diff, r2, hit, inv, m, h2, log_u = self._terms(x)
+        w = _normalise(log_u)
+        p, l = self.power, self.length_scale
+        # dm/dx = (dS2 - m dS0) / S0 with S0 = sum r^-p, S2 = sum r^(2-p)
+        S0 = inv.sum(1)
+        dS0 = np.einsum("mn,mnq->mq", -p * inv / r2, diff) / l
+        dS2 = np.einsum("mn,mnq->mq", (2 - p) * inv, diff) / l
+        dm = (dS2 - m[:, None] * dS0) / S0[:, None]
+        dh2 = self.spread ** 2 * dm
+        # d log u_i / dx = -p (x - x_i) / (l r_i^2) - (x - x_i) / (l h^2) + r_i^2 / (2 h^4) dh^2/dx
+        g = (-(p / r2 + 1.0 / h2[:, None])[..., None] * diff / l
+             + (0.5 * r2 / h2[:, None] ** 2)[..., None] * dh2[:, None, :])
+        J = w[..., None] * (g - np.einsum("mn,mnq->mq", w, g)[:, None, :])
+        J[hit] = 0.0  # at a latent point w = e_i and (for p > 1) it is stationary
+        return J
+
+
+def _normalise(log_u):
+    """Softmax along the last axis, with ``+inf`` entries sharing the whole weight."""
+    inf = np.isposinf(log_u)
+    rows = inf.any(axis=1)
+    out = np.empty_like(log_u)
+    if (~rows).any():
+        lu = log_u[~rows]
+        e = np.exp(lu - lu.max(axis=1, keepdims=True))
+        out[~rows] = e / e.sum(axis=1, keepdims=True)
+    if rows.any():
+        hit = inf[rows].astype(np.float64)
+        out[rows] = hit / hit.sum(axis=1, keepdims=True)
+    return out
+
+
+def make(latent, params):
+    """An interpolant from saved parameters ``{"kind": ..., ...}``."""
+    params = dict(params)
+    kind = params.pop("kind", None)
+    cls = {"gp": GaussianProcessWeights, "shepard": ShepardWeights}.get(kind)
+    if cls is None:
+        raise InputError(f"unknown interpolant kind {kind!r}; use one of {', '.join(KINDS)}")
+    try:
+        return cls(latent, **params)
+    except TypeError as e:
+        raise InputError(f"interpolant {kind!r}: {e}") from None

@@ -1,0 +1,257 @@
+"""A basis rendered in chunks of samples, then merged (issue 13).
+
+A basis image is a Monte Carlo mean over samples, so a basis at ``S`` spp is the
+spp-weighted mean of ``k`` bases at ``S_j`` spp (``sum S_j = S``) rendered with different
+seeds. Chunks are independent: :mod:`mitsuba_manifold.render.executor` runs them one after
+another in this process (``local``) or as Ray tasks (``ray``), and :func:`render_chunked`
+merges them into an ordinary basis folder (:mod:`mitsuba_manifold.basis.folder` format).
+
+Seeds: chunk ``j`` of ``k`` is rendered with seed ``seed * k + j``. The one-pass renderer
+seeds pass ``p`` of ``n`` with ``seed * n + p``, so when every chunk is one pass
+(``S_j * pixels`` at most ``max_samples``, 4M), the merged basis equals the single-process
+basis rendered with ``spp_per_pass = S / k`` and the same seed, to float32 rounding
+(exactly the same samples, summed in another order). With a box filter (the basis
+scenes') every sample weighs 1 and the spp-weighted mean is exact; with other filters
+it is an unbiased estimate of the same image, not the identical sum.
+
+Resumable per chunk: the driver writes each finished chunk into
+``<out>/.chunks/<j>-of-<k>/`` (images first, manifest last, every file atomically); a
+chunk whose folder holds a complete manifest is not rendered again. The merge writes
+``<out>``'s images atomically and refuses a folder holding a basis of other settings
+(the manifest records ``chunks``: ``k``). Chunk folders are removed after a merge unless
+``keep_chunks``.
+"""
+
+import os
+import shutil
+import socket
+import tempfile
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..basis import folder as basis_folder
+from ..imaging import io as imageio
+from .._util.cache import file_hash
+from ..errors import MismatchError
+
+CHUNK_DIR = ".chunks"
+
+
+@dataclass(frozen=True)
+class ChunkSpec:
+    """One chunk to render: plain data, sent to a worker as it is.
+
+    ``options`` are :func:`mitsuba_manifold.render.render_basis.render_basis` keyword arguments
+    (``materials``, ``mode``, ``resolution``, ``max_depth``, ``variant``, ``sensor``).
+    """
+    scene: str
+    manifold: str
+    index: int
+    count: int
+    spp: int
+    seed: int
+    options: dict = field(default_factory=dict)
+
+    @property
+    def name(self):
+        return f"{self.index:03d}-of-{self.count:03d}"
+
+
+@dataclass
+class ChunkResult:
+    """What a worker sends back: the chunk's images and manifest, and where and how fast."""
+    spec: ChunkSpec
+    manifest: dict
+    images: dict
+    seconds: float
+    host: str
+    pid: int
+
+
+def chunk_seed(seed, index, count):
+    """Seed of chunk ``index`` of ``count`` (see the module docstring)."""
+    return int(seed) * int(count) + int(index)
+
+
+def plan(scene, manifold, spp, chunks, seed=0, **options):
+    """Split a basis of ``spp`` samples per pixel into ``chunks`` :class:`ChunkSpec`.
+
+    The first ``spp % chunks`` chunks get one sample more than the others.
+    """
+    spp, chunks = int(spp), int(chunks)
+    if chunks < 1:
+        raise MismatchError(f"chunks must be >= 1, got {chunks}")
+    if spp < chunks:
+        raise MismatchError(f"spp ({spp}) must be at least the number of chunks ({chunks}): "
+                         "every chunk renders at least one sample per pixel")
+    scene, manifold = os.path.abspath(os.fspath(scene)), os.path.abspath(os.fspath(manifold))
+    return [ChunkSpec(scene, manifold, j, chunks, spp // chunks + (j < spp % chunks),
+                      chunk_seed(seed, j, chunks), dict(options)) for j in range(chunks)]
+
+
+def render_chunk(spec):
+    """Render one chunk into a private temporary folder; return its images (a worker's task)."""
+    from .render_basis import render_basis
+
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="mitsuba-manifold-chunk-") as tmp:
+        manifest = render_basis(spec.scene, spec.manifold, tmp, spp=spec.spp, seed=spec.seed,
+                                          **spec.options)
+        images = {key: imageio.read_exr(os.path.join(tmp, entry["file"]))
+                  for key, entry in manifest["images"].items()}
+    return ChunkResult(spec, manifest, images, time.perf_counter() - t0, socket.gethostname(), os.getpid())
+
+
+def chunk_folder(out, spec):
+    return os.path.join(os.fspath(out), CHUNK_DIR, spec.name)
+
+
+def chunk_done(folder):
+    """The manifest of a completely saved chunk folder, else None."""
+    try:
+        manifest = basis_folder.read_manifest(folder)
+    except MismatchError:
+        return None
+    if not manifest.get("chunk_complete"):
+        return None
+    for entry in manifest["images"].values():
+        if not os.path.isfile(os.path.join(folder, entry["file"])):
+            return None
+    return manifest
+
+
+def save_chunk(out, result):
+    """Write a worker's chunk into its folder: images, then the manifest (the completion mark)."""
+    folder = chunk_folder(out, result.spec)
+    os.makedirs(folder, exist_ok=True)
+    for key, entry in result.manifest["images"].items():
+        imageio.write_exr(os.path.join(folder, entry["file"]), result.images[key])
+    manifest = dict(result.manifest, chunk_complete=True,
+                    chunk_run={"seconds": result.seconds, "host": result.host, "pid": result.pid})
+    basis_folder.write_manifest(folder, manifest)
+    return manifest
+
+
+def merge(out, folders, seed, force=False):
+    """Merge complete chunk folders into the basis folder ``out``: the spp-weighted mean.
+
+    Returns the merged manifest. Images ``out`` already holds for the same settings are
+    kept (a merge killed half-way resumes); a basis of other settings, or files the basis
+    did not make (unless ``force``), are refused. ``out`` is locked while merging.
+    """
+    from .._util.locking import FolderLock
+
+    with FolderLock(os.fspath(out), "basis folder"):
+        return _merge(out, folders, seed, force)
+
+
+def _merge(out, folders, seed, force):
+    from .render_basis import _open_folder
+
+    manifests = [basis_folder.read_manifest(f) for f in folders]
+    first = manifests[0]
+    for f, m in zip(folders[1:], manifests[1:]):
+        diff = basis_folder.manifest_differences(first, m, ignore=("spp", "seed", "chunks"))
+        if diff or set(m["images"]) != set(first["images"]):
+            raise MismatchError(f"chunk {f} does not match chunk {folders[0]} "
+                             f"({', '.join(diff) or 'images'} differ); delete {os.path.dirname(f)}")
+    spp = np.array([m["spp"] for m in manifests], dtype=np.float64)
+    merged = {k: v for k, v in first.items() if k not in ("chunk_complete", "chunk_run")}
+    merged.update(spp=int(spp.sum()), seed=int(seed), chunks=len(folders), images={})
+    files = [e["file"] for e in first["images"].values()] + [basis_folder.MANIFEST]
+    merged["images"] = _open_folder(out, merged, files, force)
+    basis_folder.write_manifest(out, merged)
+    weights = spp / spp.sum()
+    for key in first["images"]:
+        if key in merged["images"]:
+            continue
+        acc = None
+        for f, m, w in zip(folders, manifests, weights):
+            img = imageio.read_exr(os.path.join(f, m["images"][key]["file"])).astype(np.float64) * w
+            acc = img if acc is None else acc + img
+        name = first["images"][key]["file"]
+        imageio.write_exr(os.path.join(out, name), acc.astype(np.float32))
+        merged["images"][key] = {"file": name,
+                                 "time_s": float(sum(m["images"][key]["time_s"] for m in manifests))}
+    basis_folder.write_manifest(out, merged)
+    return merged
+
+
+@dataclass
+class ChunkedRun:
+    """What :func:`render_chunked` did: the merged manifest and per-chunk timings."""
+    manifest: dict
+    rendered: list  # (chunk name, seconds, host, pid) of the chunks rendered in this call
+    resumed: list   # names of chunks found complete
+    wall_s: float
+    merge_s: float
+
+
+def render_chunked(scene, manifold, out, spp=64, chunks=1, seed=0, executor=None, keep_chunks=False,
+                   progress=False, aovs=False, **options):
+    """Render a basis as ``chunks`` chunks with ``executor`` and merge them into ``out``.
+
+    Parameters
+    ----------
+    scene, manifold, out : str
+    spp, seed : int
+        Of the merged basis (chunk seeds: :func:`chunk_seed`).
+    chunks : int
+    executor : LocalExecutor or RayExecutor, optional
+        Default: :class:`mitsuba_manifold.render.executor.LocalExecutor`.
+    keep_chunks : bool
+        Keep ``<out>/.chunks`` after merging.
+    aovs : bool
+        Also write the denoising guides of the merged basis (rendered here, once).
+    options
+        :func:`mitsuba_manifold.render.render_basis.render_basis` keyword arguments.
+
+    Returns
+    -------
+    ChunkedRun
+    """
+    from .executor import LocalExecutor
+    from .render_basis import check_foreign_folder
+
+    specs = plan(scene, manifold, spp, chunks, seed, **options)
+    check_foreign_folder(os.fspath(out), options.get("force", False))   # before any chunk is rendered
+    _check_out(out, specs[0], spp, seed, chunks)
+    executor = executor or LocalExecutor()
+    t0 = time.perf_counter()
+    resumed = [s.name for s in specs if chunk_done(chunk_folder(out, s))]
+    todo = [s for s in specs if s.name not in resumed]
+    rendered = []
+    for result in executor.map(render_chunk, todo):
+        save_chunk(out, result)
+        rendered.append((result.spec.name, result.seconds, result.host, result.pid))
+        if progress:
+            print(f"  chunk {result.spec.name}: {result.spec.spp} spp in {result.seconds:.1f} s "
+                  f"({result.host}, pid {result.pid})", flush=True)
+    t1 = time.perf_counter()
+    manifest = merge(out, [chunk_folder(out, s) for s in specs], seed, options.get("force", False))
+    merge_s = time.perf_counter() - t1
+    if aovs:
+        from .render_basis import ensure_aovs
+        ensure_aovs(out, manifest)
+    if not keep_chunks:
+        shutil.rmtree(os.path.join(out, CHUNK_DIR), ignore_errors=True)
+    return ChunkedRun(manifest, rendered, resumed, time.perf_counter() - t0, merge_s)
+
+
+def _check_out(out, spec, spp, seed, chunks):
+    """Refuse early (before rendering) an ``out`` holding a basis of other settings."""
+    if not os.path.exists(os.path.join(os.fspath(out), basis_folder.MANIFEST)):
+        return
+    old = basis_folder.read_manifest(out)
+    want = {"spp": int(spp), "seed": int(seed), "chunks": int(chunks),
+            "scene_hash": basis_folder.scene_hash(spec.scene),
+            "manifold_hash": (basis_folder.manifold_file_identity(spec.manifold) if old.get("version", 1) >= 2
+                              else file_hash(spec.manifold))}
+    if "mode" in spec.options:
+        want["mode"] = spec.options["mode"]
+    diff = [k for k, v in want.items() if old.get(k) != v]
+    if diff:
+        raise MismatchError(f"{out} holds a basis made with other settings ({', '.join(diff)} differ); "
+                         "choose another folder or delete it")

@@ -1,0 +1,202 @@
+"""Shared machinery of the package's integrators (as Mitsuba's ``ad/integrators/common.py``).
+
+The paper's Sec. 5.2 splits the light reaching the camera by how many times it
+scattered off the material being edited (the *target*, a ``manifold_brdf``):
+``L = L1- + L2+``, where ``L1-`` (paths scattering off the target at most once) is
+affine in the target's BRDF. This module resolves targets and path classes in a scene,
+checks variants, and seeds samplers and primary rays for integrators that trace whole
+wavefronts themselves.
+"""
+
+import drjit as dr
+import mitsuba as mi
+
+from ...errors import InputError, VariantError
+
+#: Values of the ``component`` parameter besides ``touch:<id>+<id>...``.
+COMPONENTS = ("full", "l1", "base", "touch", "rest")
+#: Most target groups (the number of path classes grows as 2 ** groups).
+MAX_GROUPS = 4
+
+
+def is_manifold_bsdf(bsdf):
+    """True when ``bsdf`` is a manifold material (an instance flagged ``is_manifold_brdf``)."""
+    return bsdf is not None and bool(getattr(bsdf, "is_manifold_brdf", False))
+
+
+def manifold_bsdfs(scene):
+    """The distinct manifold BSDF instances of ``scene``, in the order of ``scene.shapes()``."""
+    found = []
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if is_manifold_bsdf(bsdf) and not any(bsdf is b for b in found):
+            found.append(bsdf)
+    return found
+
+
+def nested_manifold_bsdfs(scene):
+    """Manifold BSDFs that are not a shape's own BSDF (inside twosided, blendbsdf, mask, ...)."""
+    own = manifold_bsdfs(scene)
+    nested = []
+    for _, _, node, _ in mi.traverse(scene).properties.values():
+        if is_manifold_bsdf(node) and not any(node is b for b in own + nested):
+            nested.append(node)
+    return nested
+
+
+def target_groups(scene, target="all"):
+    """Resolve the ``target`` parameter against ``scene``.
+
+    Parameters
+    ----------
+    scene : mi.Scene
+    target : str
+        ``"all"``: every manifold BSDF of the scene counts as one material (one group);
+        ``"each"``: one group per manifold BSDF; otherwise a comma-separated list of
+        BSDF ids, one group per id.
+
+    Returns
+    -------
+    list of (str, list of mi.BSDF)
+        One ``(name, bsdfs)`` pair per group.
+
+    Raises
+    ------
+    ValueError
+        If the scene holds no manifold BSDF, an id is unknown or not a manifold
+        BSDF, an id is repeated, or there are more than :data:`MAX_GROUPS` groups.
+    """
+    found = manifold_bsdfs(scene)
+    if not found and nested_manifold_bsdfs(scene):
+        raise InputError(
+            "manifold_path: the scene's manifold_brdf is nested inside another BSDF (twosided, blendbsdf, "
+            "mask, ...); the L1- split needs it as the shape's own BSDF: attach manifold_brdf to the shape "
+            "directly, or render with component=\"full\".")
+    if not found:
+        raise InputError(
+            "manifold_path: the scene has no manifold material (no shape uses a "
+            "'manifold_brdf' BSDF); the L1- split needs one. Give the material to edit "
+            "type=\"manifold_brdf\", or render with component=\"full\".")
+    target = str(target).strip()
+    if target == "all":
+        groups = [("touch", found)]
+    elif target == "each":
+        groups = [(b.id(), [b]) for b in found]
+    else:
+        ids = [s.strip() for s in target.split(",") if s.strip()]
+        if not ids:
+            raise InputError("manifold_path: target is empty; use 'all', 'each' or BSDF ids")
+        if len(set(ids)) != len(ids):
+            raise InputError(f"manifold_path: target {target!r} names a BSDF twice")
+        by_id = {b.id(): b for b in found}
+        groups = []
+        for i in ids:
+            if i not in by_id:
+                others = [s.bsdf().id() for s in scene.shapes() if s.bsdf() is not None]
+                kind = ("is not a manifold_brdf" if i in others else "is not in the scene")
+                raise InputError(
+                    f"manifold_path: target BSDF {i!r} {kind}; manifold BSDFs of the "
+                    f"scene: {sorted(by_id)}")
+            groups.append((i, [by_id[i]]))
+    if len(groups) > MAX_GROUPS:
+        raise InputError(
+            f"manifold_path: {len(groups)} target groups, at most {MAX_GROUPS} are "
+            "supported; use target='all' or name the BSDFs to edit")
+    return groups
+
+
+def class_names(group_names):
+    """Names of the path classes for the given group names.
+
+    Class ``m`` (``0 <= m < 2 ** len(group_names)``) holds the paths that scattered off
+    exactly the groups whose bits are set in ``m``, each once: ``"base"`` for ``m = 0``,
+    ``"touch"`` for the single group when there is one, ``"touch:a+b"`` otherwise.
+    The last class, ``"rest"``, holds the paths that scattered twice or more off a group
+    (``L2+``).
+    """
+    p = len(group_names)
+    names = []
+    for m in range(1 << p):
+        if m == 0:
+            names.append("base")
+        elif p == 1:
+            names.append("touch")
+        else:
+            names.append("touch:" + "+".join(group_names[g] for g in range(p) if m >> g & 1))
+    names.append("rest")
+    return names
+
+
+def power_heuristic(pdf_a, pdf_b):
+    a2, b2 = dr.square(pdf_a), dr.square(pdf_b)
+    w = a2 / (a2 + b2)
+    return dr.select(dr.isfinite(w), w, 0)
+
+
+def check_variant(variant=None):
+    """Raise ``RuntimeError`` unless ``variant`` (default: the active one) can run the integrator.
+
+    The integrator traces whole wavefronts with Dr.Jit loops: it needs a JIT variant
+    (``llvm_*`` or ``cuda_*``) with RGB spectra, e.g. ``llvm_ad_rgb`` or ``cuda_ad_rgb``.
+    """
+    variant = variant or mi.variant()
+    if variant is None:
+        raise VariantError("manifold_path: call mi.set_variant(...) before using the integrator")
+    if not (variant.startswith(("llvm_", "cuda_")) and variant.endswith("_rgb")):
+        raise VariantError(
+            f"manifold_path: variant {variant!r} is not supported; the integrator traces "
+            "wavefronts with Dr.Jit and needs an RGB JIT variant such as 'llvm_ad_rgb' "
+            "or 'cuda_ad_rgb' (mi.set_variant(...), then mitsuba_manifold.register())")
+    return variant
+
+
+def seeded_sampler(sensor, seed, spp):
+    """A clone of ``sensor``'s sampler seeded for one wavefront of ``spp`` samples per pixel
+    (the film's crop, plus its border when the film samples it)."""
+    film = sensor.film()
+    sampler = sensor.sampler().clone()
+    if spp:
+        sampler.set_sample_count(spp)
+    spp = sampler.sample_count()
+    sampler.set_samples_per_wavefront(spp)
+    size = film.crop_size()
+    if film.sample_border():
+        size += 2 * film.rfilter().border_size()
+    count = int(dr.prod(size)) * spp
+    if count > 2 ** 32:
+        raise InputError(f"manifold_path: {count} samples in one wavefront exceed 2^32; "
+                              "use fewer samples per pixel per pass")
+    sampler.seed(seed, count)
+    return sampler
+
+
+def primary_rays(scene, sensor, sampler):
+    """One camera ray per sample of ``sampler``, pixel by pixel, ``spp`` consecutive samples each.
+
+    Returns ``(ray, weight, pos)`` with ``pos`` the film position to splat at (the pixel's
+    corner with a box filter, the sample's position otherwise).
+    """
+    film = sensor.film()
+    rfilter = film.rfilter()
+    size = film.crop_size()
+    border = rfilter.border_size()
+    if film.sample_border():
+        size += 2 * border
+    spp = sampler.sample_count()
+    idx = dr.arange(mi.UInt32, dr.prod(size) * spp) // spp
+    pos = mi.Vector2i()
+    pos.y = mi.Int32(idx // size[0])
+    pos.x = mi.Int32(idx - mi.UInt32(pos.y) * size[0])
+    if film.sample_border():
+        pos -= border
+    pos += mi.Vector2i(film.crop_offset())
+    pos_f = mi.Vector2f(pos) + sampler.next_2d()
+    scale = dr.rcp(mi.ScalarVector2f(film.crop_size()))
+    offset = -mi.ScalarVector2f(film.crop_offset()) * scale
+    aperture = sampler.next_2d() if sensor.needs_aperture_sample() else mi.Vector2f(0.0)
+    time = mi.Float(sensor.shutter_open())
+    if sensor.shutter_open_time() > 0:
+        time += sampler.next_1d() * sensor.shutter_open_time()
+    ray, weight = sensor.sample_ray_differential(time=time, sample1=0.0, sample2=dr.fma(pos_f, scale, offset),
+                                                 sample3=aperture)
+    return ray, weight, (mi.Vector2f(pos) if rfilter.is_box_filter() else pos_f)

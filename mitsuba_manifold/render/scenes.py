@@ -1,0 +1,288 @@
+"""Scenes: the ones shipped with the package, loading with ``$parameters``, references.
+
+The package ships its test and demo scenes (``scenes/`` in a checkout, ``mitsuba_manifold/scenes``
+once installed):
+:func:`scene_path` accepts one of their names (``"table"``) or a path to any scene XML.
+:func:`load_scene` loads a scene with the manifold and latent point as parameters and
+finds its manifold materials; :func:`render_reference` renders the full global
+illumination of an interpolated material with Mitsuba's ``path`` (the ground truth the
+``L1-`` blends of paper Sec. 5.2 are compared with).
+"""
+
+import os
+import re
+from typing import NamedTuple
+
+import numpy as np
+
+from ..manifold.identity import manifold_identity
+from ..errors import MismatchError, MitsubaManifoldError
+from .._util.checks import scene_xml
+
+def _scenes_dir():
+    """The shipped scenes: ``scenes/`` at the top of a checkout, installed as the package data
+    ``mitsuba_manifold/scenes`` (``pyproject.toml`` maps one to the other)."""
+    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    for folder in (os.path.join(package, "scenes"), os.path.join(os.path.dirname(package), "scenes")):
+        if os.path.isfile(os.path.join(folder, "table.xml")):
+            return folder
+    return os.path.join(package, "scenes")
+
+
+#: Folder of the scenes shipped with the package.
+SCENES_DIR = _scenes_dir()
+
+_PARAM = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
+
+
+class LoadedScene(NamedTuple):
+    """:func:`load_scene`: the scene, its ``manifold_brdf`` instances (shape order), the path depth."""
+
+    scene: object
+    targets: list
+    max_depth: int
+
+
+def shipped_scenes():
+    """Names of the scenes shipped with the package (``table``, ``sphere``, ...)."""
+    return sorted(f[:-4] for f in os.listdir(SCENES_DIR) if f.endswith(".xml"))
+
+
+def scene_path(scene):
+    """Path of a scene given as a shipped scene's name (``"table"``) or as a path to an XML file."""
+    scene = os.fspath(scene)
+    if os.path.isfile(scene):
+        scene_xml(scene)   # a scene XML, or an error naming the file
+        return os.path.abspath(scene)
+    shipped = os.path.join(SCENES_DIR, scene + ".xml")
+    if os.sep not in scene and not scene.endswith(".xml") and os.path.isfile(shipped):
+        return shipped
+    raise MismatchError(f"scene {scene} does not exist (nor is it the name of a shipped scene: "
+                     f"{', '.join(shipped_scenes())})")
+
+
+def default_variant():
+    """``cuda_ad_rgb`` when a GPU works, else ``llvm_ad_rgb``."""
+    import mitsuba as mi
+    if "cuda_ad_rgb" in mi.variants():
+        try:
+            import drjit as dr
+            if dr.has_backend(dr.JitBackend.CUDA):
+                return "cuda_ad_rgb"
+        except Exception:  # no driver
+            pass
+    return "llvm_ad_rgb"
+
+
+def use_variant(variant=None):
+    """Make ``variant`` (default: :func:`default_variant`) active with the package's plugins; returns ``mi``."""
+    import mitsuba as mi
+
+    from . import plugin
+    variant = variant or default_variant()
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    plugin.install()
+    plugin.register_all()
+    return mi
+
+
+def scene_parameters(scene):
+    """Names of the ``$parameters`` a scene XML uses, and its ``<default>`` values."""
+    root = scene_xml(scene)   # exists, and is a scene XML (not a table or an image)
+    defaults = {el.get("name"): el.get("value") for el in root.iter("default")}
+    used = {name for el in root.iter() for value in el.attrib.values() for name in _PARAM.findall(value)}
+    return used, defaults
+
+
+def scene_manifolds(scene, params=None):
+    """``(bsdf id, manifold file)`` of each ``manifold_brdf`` of a scene XML: its ``manifold``
+    value with ``$parameters`` taken from ``params``, else the scene's ``<default>``s, and a
+    relative path resolved against the scene's folder (as Mitsuba's file resolver does)."""
+    root = scene_xml(scene)
+    values = {**{el.get("name"): el.get("value") for el in root.iter("default")}, **(params or {})}
+    folder = os.path.dirname(os.path.abspath(scene))
+    found = []
+    for bsdf in root.iter("bsdf"):
+        named = [el.get("value") for el in bsdf if el.get("name") == "manifold"]
+        if bsdf.get("type") != "manifold_brdf" or not named or named[0] is None:
+            continue
+        value = _PARAM.sub(lambda m: str(values.get(m.group(1), m.group(0))), named[0])
+        path = os.path.join(folder, value)
+        if not os.path.exists(path) and os.path.exists(value):
+            path = value
+        found.append((bsdf.get("id"), os.path.abspath(path)))
+    return found
+
+
+def _check_scene_manifolds(scene, manifold_path, params):
+    """Raise unless every ``manifold_brdf`` of the scene uses ``manifold_path`` (the file, or
+    one of the same content): a scene naming its own manifold is not rendered with another's
+    latent points."""
+    want, identity = os.path.realpath(manifold_path), None
+    for bsdf_id, path in scene_manifolds(scene, params):
+        if os.path.realpath(path) == want:
+            continue
+        from ..manifold.model import Manifold
+        try:
+            identity = identity or manifold_identity(Manifold.load(manifold_path))
+            if manifold_identity(Manifold.load(path)) == identity:
+                continue
+        except (MitsubaManifoldError, OSError):
+            pass
+        raise MismatchError(_other_manifold(scene, bsdf_id, path, manifold_path))
+
+
+def _other_manifold(scene, bsdf_id, path, manifold_path):
+    if not os.path.isfile(path):
+        return (f"scene {scene}: material {bsdf_id!r} names the manifold {path} (which does not exist), not "
+                f"{manifold_path}: use value=\"$manifold\" in the scene")
+    return (f"scene {scene}: material {bsdf_id!r} names the manifold {path}, not {manifold_path}: use "
+            f"value=\"$manifold\" in the scene, or pass --manifold {path}")
+
+
+def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=None, x=None,
+               variant=None, database=None):
+    """Load a scene XML with its ``$parameters`` set, and find its manifold materials.
+
+    Only the parameters the XML uses are passed (Mitsuba refuses others): ``$manifold``,
+    ``$x``, ``$spp``, ``$max_depth``, ``$integrator`` (``path``) and the size through
+    ``$res`` (square) or ``$width``/``$height``.
+
+    Parameters
+    ----------
+    scene_path, manifold_path : str
+    spp : int, optional
+    resolution : int or (int, int), optional
+        Square size or ``(width, height)``; checked against the film.
+    max_depth : int, optional
+        Default: the scene's ``$max_depth`` default, else -1 (unbounded).
+    x : array_like (q,), optional
+        Default: the first material's latent point (a scene's own ``$x`` default may not
+        fit the manifold's latent dimension).
+    variant : str, optional
+        Default: the active variant, else ``llvm_ad_rgb``.
+    database : str, optional
+        Folder of the manifold's tables when it is not where the manifold says (moved):
+        the scene's ``$database`` if it takes one, else every ``manifold_brdf`` without a
+        ``database`` parameter of its own (:func:`overrides.database_override`).
+
+    Returns
+    -------
+    LoadedScene
+        ``scene`` (mi.Scene), ``targets`` (the scene's ``manifold_brdf`` instances in shape
+        order, checked to use ``manifold_path``), ``max_depth`` (int).
+    """
+    import functools
+
+    import mitsuba as mi
+
+    from .integrators import manifold_bsdfs
+    from ..manifold.model import Manifold
+
+    scene_path, manifold_path = os.fspath(scene_path), os.fspath(manifold_path)
+    if not os.path.isfile(manifold_path):
+        raise MismatchError(f"manifold {manifold_path} does not exist")
+    manifold = functools.cache(lambda: Manifold.load(manifold_path))   # loaded once, when first needed
+    used, defaults = scene_parameters(scene_path)
+    use_variant(variant or mi.variant() or ("llvm_ad_rgb" if "llvm_ad_rgb" in mi.variants() else "scalar_rgb"))
+    if spp is not None and int(spp) < 1:
+        raise MismatchError(f"spp must be >= 1, got {spp}")
+    params = {}
+    if "manifold" in used:
+        params["manifold"] = os.path.abspath(manifold_path)
+    if "x" in used:
+        if x is None:
+            x = manifold().latent[0]
+        params["x"] = ", ".join(repr(float(v)) for v in np.ravel(x))
+    if database is not None and "database" in used:
+        params["database"] = os.path.abspath(database)
+    if "spp" in used and spp is not None:
+        params["spp"] = str(int(spp))
+    if "integrator" in used:
+        params["integrator"] = "path"
+    if max_depth is None:
+        max_depth = int(defaults.get("max_depth", -1)) if "max_depth" in used else -1
+    if "max_depth" in used:
+        params["max_depth"] = str(int(max_depth))
+    size = None
+    if resolution is not None:
+        size = (int(resolution), int(resolution)) if np.isscalar(resolution) else tuple(int(v) for v in resolution)
+        if "res" in used and size[0] == size[1]:
+            params["res"] = str(size[0])
+        for name, value in zip(("width", "height"), size):
+            if name in used:
+                params[name] = str(value)
+    _check_scene_manifolds(scene_path, manifold_path, params)
+    from ..errors import one_line
+    from .overrides import database_override
+    try:
+        with database_override(database):
+            # optimize=False: Mitsuba would merge identical BSDF definitions, and two manifold
+            # materials given the same x would silently become one target.
+            scene = mi.load_file(scene_path, optimize=False, **params)
+    except Exception as e:
+        raise MismatchError(f"scene {scene_path}: cannot load: {one_line(e)}") from None
+    targets = manifold_bsdfs(scene)
+    if not targets:
+        raise MismatchError(f"scene {scene_path} has no manifold_brdf material (give the material to edit "
+                         "type=\"manifold_brdf\" and take the manifold as $manifold)")
+    want = manifold_identity(manifold())
+    for bsdf in targets:
+        path = getattr(bsdf, "manifold_path", None)
+        if path is None or manifold_identity(bsdf.manifold) != want:
+            raise MismatchError(_other_manifold(scene_path, bsdf.id(), path, manifold_path))
+    film_size = tuple(int(v) for v in scene.sensors()[0].film().size())
+    if size is not None and film_size != size:
+        raise MismatchError(f"scene {scene_path} renders {film_size[0]}x{film_size[1]}, not {size[0]}x{size[1]} "
+                         "(it takes no $res/$width/$height parameter for this size)")
+    return LoadedScene(scene, targets, int(max_depth))
+
+
+def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None, max_depth=None,
+                     variant=None, targets=None, database=None):
+    """Full global-illumination image of the interpolated material, with Mitsuba's ``path``.
+
+    Loads the scene (:func:`load_scene`), sets every manifold material to its latent
+    point, and renders with a ``path`` integrator in passes (:func:`interrupt.render_in_passes`:
+    Ctrl-C raises ``KeyboardInterrupt`` within a pass).
+
+    Parameters
+    ----------
+    scene_path, manifold_path : str
+    x : array_like
+        (q,): every manifold material of the scene at x; or (p, q): one point per target.
+    targets : list of str, optional
+        BSDF ids of the rows of a (p, q) ``x`` (a basis's ``targets``); default: the
+        scene's manifold materials in the order of its shapes.
+    spp, seed : int
+    resolution, max_depth, variant, database
+        As :func:`load_scene`.
+
+    Returns
+    -------
+    ndarray float32 (H, W, 3)
+    """
+    import mitsuba as mi
+
+    pts = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    if pts.ndim != 2 or not np.isfinite(pts).all():
+        raise MismatchError(f"x must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}")
+    if int(spp) < 1:
+        raise MismatchError(f"spp must be >= 1, got {spp}")
+    scene, found, max_depth = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant,
+                                         database)
+    ids = [b.id() for b in found]
+    if len(pts) == 1:
+        rows = [0] * len(found)
+    else:
+        order = ids if targets is None else list(targets)
+        if len(order) != len(pts) or sorted(order) != sorted(ids):
+            raise MismatchError(f"x gives {len(pts)} latent points for targets {order}; the scene's manifold "
+                             f"materials are {ids}")
+        rows = [order.index(i) for i in ids]
+    for bsdf, row in zip(found, rows):
+        bsdf.set_latent(pts[row])
+    from .interrupt import render_in_passes
+    integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
+    return render_in_passes(scene, integrator, int(spp), int(seed))   # Ctrl-C: KeyboardInterrupt

@@ -1,0 +1,646 @@
+"""Nothing lost, nothing silently wrong (issue 10): every fault found by the hostile-user
+runs, reproduced through the tools' command lines and the plugin's public API.
+
+Tools run in-process through their ``main(argv)`` (:mod:`guarantees_helpers`); a few run
+as subprocesses where the operating system is part of the test (signals, locks).
+"""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from guarantees_helpers import ROOT, SPHERE, assert_one_error, error_lines, make_tiny, run_tool, snapshot
+
+pytestmark = pytest.mark.render
+mi = pytest.importorskip("mitsuba")
+mi.set_variant("llvm_ad_rgb")
+import mitsuba_manifold  # noqa: E402
+from mitsuba_manifold.data import database, merl
+from mitsuba_manifold.imaging import io as imageio
+from mitsuba_manifold._util.cache import file_hash  # noqa: E402
+from mitsuba_manifold._util.locking import FolderLock  # noqa: E402
+from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
+
+DIMS = (8, 8, 16)
+
+
+@pytest.fixture(autouse=True)
+def _variant():
+    mi.set_variant("llvm_ad_rgb")
+    mitsuba_manifold.register()
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """A 4-material database at 8x8x16, a q=2 manifold on it, and a rendered 8x8 basis."""
+    return make_tiny(tmp_path_factory.mktemp("tiny"))
+
+
+def _table(path, dims=DIMS, value=1.0):
+    merl.write_binary(path, np.full((3,) + tuple(dims), value))
+
+
+# ------------------------------------------------------ 1. reserved and odd names
+
+def test_material_named_base_or_with_separator_gets_its_own_image(tmp_path):
+    db = tmp_path / "db"
+    database.make_database(db, DIMS, ["steel", "chrome"])
+    shutil.copy(db / "chrome.binary", db / "base.binary")
+    raw = merl.read_binary(db / "steel.binary")
+    merl.write_binary(db / "a+b.binary", np.where(raw > 0, raw * 0.5, raw))
+    m = tmp_path / "m.npz"
+    rc, _, err = run_tool("fit_manifold", db, "--out", m, "--features", "log")
+    assert rc == 0, err
+    out = tmp_path / "basis"
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", m, "--out", out, "--res", 8, "--spp", 2,
+                          "--mode", "per-material")
+    assert rc == 0, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    files = [e["file"] for e in manifest["images"].values()]
+    assert len(manifest["images"]) == 5 and len(set(files)) == 5
+    man = Manifold.load(m)
+    base = imageio.read_exr(out / manifest["images"]["base"]["file"])
+    for name in ("base", "a+b"):
+        x = ",".join(repr(float(v)) for v in man.latent[man.index(name)])
+        rc, _, err = run_tool("blend", "--basis", out, "--x", x, "--out", tmp_path / f"{name}.exr")
+        assert rc == 0, err
+        img = imageio.read_exr(tmp_path / f"{name}.exr")
+        assert not np.allclose(img, 2 * base)      # the old collision: material 'base' read as base
+        touch = img - base
+        assert touch.max() > 0
+    # every file the run made is listed: no orphan image
+    listed = set(files) | {"manifest.json"}
+    assert {f for f in os.listdir(out) if not f.startswith(".")} == listed
+    # match finds its way through escaped image keys
+    rc, _, err = run_tool("match", "--basis", out, "--target", tmp_path / "a+b.exr", "--json", tmp_path / "m.json",
+                          "--scan", 64, "--starts", 2)
+    assert rc == 0, err
+    assert json.loads((tmp_path / "m.json").read_text())["rel_mse"] < 1e-6
+
+
+def test_escaped_names_are_injective_and_safe():
+    from hypothesis import given, settings, strategies as st
+    from mitsuba_manifold._util import names
+
+    @settings(max_examples=300, deadline=None)
+    @given(st.text(min_size=1, max_size=30), st.text(min_size=1, max_size=30))
+    def check(a, b):
+        try:
+            ea, eb = names.escape(a), names.escape(b)
+        except names.InputError:
+            return
+        assert names.unescape(ea) == a
+        assert (ea == eb) == (a == b)
+        assert set(ea) <= names.SAFE | {"%"} and not ea.startswith(".")
+        assert ea.lower() not in names.RESERVED and "+" not in ea and "/" not in ea
+
+    check()
+    for n in ("base", "BASE", "manifest", "a+b", "../x", ".hidden", "a%2Bb"):
+        e = names.escape(n)
+        assert e not in ("base", "manifest") and "/" not in e and not e.startswith(".")
+    assert names.escape("gold-paint") == "gold-paint"
+    with pytest.raises(names.InputError, match="differ only in case"):
+        names.check_unique(["Steel", "steel"])
+
+
+# ------------------------------------------------------------ 2. locks
+
+def test_second_writer_of_a_folder_gets_a_clear_error(tmp_path, tiny):
+    out = tmp_path / "db"
+    with FolderLock(out, "database folder"):
+        before = snapshot(out)
+        r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "make_database.py"), "--out", str(out),
+                            "--resolution", "8,8,16", "--materials", "steel"], capture_output=True, text=True)
+        assert_one_error(r.returncode, r.stderr, str(out), "another process")
+        assert snapshot(out) == before
+        rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out,
+                              "--res", 8, "--spp", 1)
+        assert_one_error(rc, err, "another process")
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "make_database.py"), "--out", str(out),
+                        "--resolution", "8,8,16", "--materials", "steel"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr      # the lock went with the process that held it
+
+
+def test_two_render_basis_runs_into_one_folder_cannot_mix(tmp_path, tiny):
+    """The reported race: two runs with different spp at once. The second is refused while the
+    first holds the folder; the basis left is the first run's, whole."""
+    out = tmp_path / "basis"
+    tool = [sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), SPHERE, "--manifold",
+            tiny["manifold"], "--out", str(out), "--res", "16", "--mode", "per-material"]
+    first = subprocess.Popen(tool + ["--spp", "12000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and not (out / "manifest.json").exists():
+        time.sleep(0.1)
+    try:
+        second = subprocess.run(tool + ["--spp", "4"], capture_output=True, text=True, timeout=300)
+        _, err = first.communicate(timeout=300)
+    finally:
+        first.kill()                              # no-op once it has ended
+    assert first.returncode == 0, err
+    line = assert_one_error(second.returncode, second.stderr)
+    assert "another process" in line or "other settings" in line, line   # locked, or seen as another basis
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["spp"] == 12000 and len(manifest["images"]) == 1 + len(Manifold.load(tiny["manifold"]).names)
+
+
+# ------------------------------------------------------- 3. content-keyed caches
+
+def test_table_edited_in_place_with_its_mtime_restored_is_read_again(tmp_path):
+    folder = tmp_path / "db"
+    database.make_database(folder, DIMS, ["steel", "chrome"])
+    db = database.Database(folder)
+    h1, t1 = db.hash("steel"), np.array(db.reflectance("steel"))
+    path = db.path("steel")
+    st = os.stat(path)
+    raw = merl.read_binary(path)
+    with open(path, "r+b") as f:                     # same size, same inode, mtime put back
+        f.seek(12)
+        f.write(np.where(raw > 0, raw * 3, raw).astype("<f8").tobytes())
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    db2 = database.Database(folder)
+    assert db2.hash("steel") != h1
+    assert np.allclose(np.array(db2.reflectance("steel")), 3 * t1)
+
+
+# ------------------------------------------------------------ 4. / 9. blend inputs
+
+@pytest.mark.parametrize("exposure", ["nan", "inf", "-inf", "1e10", "-1e10"])
+def test_blend_refuses_exposures_that_cannot_make_an_image(tmp_path, tiny, exposure):
+    before = snapshot(tmp_path)
+    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--x", "0,0", "--out", tmp_path / "img.exr",
+                          "--png", f"--exposure={exposure}")
+    assert_one_error(rc, err, "--exposure")
+    assert snapshot(tmp_path) == before
+
+
+# ------------------------------------------------------------ 5.-8. data lost
+
+def test_blend_never_writes_into_a_basis_folder(tiny):
+    before = snapshot(tiny["basis"])
+    for name in ("base.exr", "new.exr"):
+        rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--x", "0,0",
+                              "--out", os.path.join(tiny["basis"], name), "--png")
+        assert_one_error(rc, err, "basis")
+    assert snapshot(tiny["basis"]) == before
+
+
+def test_blend_replaces_its_own_outputs_but_not_the_users(tmp_path, tiny):
+    out = tmp_path / "img.exr"
+    for _ in range(2):
+        rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--x", "0,0", "--out", out, "--png")
+        assert rc == 0, err
+    (tmp_path / "mine.png").write_bytes(b"my own picture")
+    before = snapshot(tmp_path)
+    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--x", "0,0", "--out", tmp_path / "mine.exr", "--png")
+    assert_one_error(rc, err, "mine.png", "--force")
+    assert snapshot(tmp_path) == before
+    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--x", "0,0", "--out", tmp_path / "mine.exr",
+                          "--png", "--force")
+    assert rc == 0, err
+    os.chmod(out, 0o444)
+    before = snapshot(tmp_path)
+    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--x", "0,0", "--out", out, "--force")
+    assert_one_error(rc, err, "read-only")
+    assert snapshot(tmp_path) == before
+
+
+def test_make_database_keeps_foreign_tables(tmp_path):
+    out = tmp_path / "db"
+    out.mkdir()
+    _table(out / "steel.binary", dims=(4, 4, 8), value=7.0)          # the user's own table
+    before = snapshot(out)
+    rc, _, err = run_tool("make_database", "--out", out, "--resolution", "8,8,16", "--materials", "steel,chrome")
+    assert_one_error(rc, err, "steel.binary")
+    assert snapshot(out) == before
+    # a folder the tool made: extra foreign tables are refused too
+    rc, _, err = run_tool("make_database", "--out", tmp_path / "db2", "--resolution", "8,8,16", "--materials", "chrome")
+    assert rc == 0, err
+    _table(tmp_path / "db2" / "steel.binary", value=7.0)
+    before = snapshot(tmp_path / "db2")
+    rc, _, err = run_tool("make_database", "--out", tmp_path / "db2", "--resolution", "8,8,16",
+                          "--materials", "chrome,steel")
+    assert_one_error(rc, err, "steel.binary")
+    assert snapshot(tmp_path / "db2") == before
+    # its own tables are resumed, and --force takes over foreign ones
+    rc, _, err = run_tool("make_database", "--out", out, "--resolution", "8,8,16", "--materials", "steel,chrome",
+                          "--force")
+    assert rc == 0, err
+    assert merl.read_header(out / "steel.binary") == DIMS
+
+
+def test_render_basis_keeps_same_named_user_files(tmp_path, tiny):
+    out = tmp_path / "basis"
+    out.mkdir()
+    imageio.write_exr(out / "chrome.exr", np.ones((4, 4, 3)))
+    (out / "notes.txt").write_text("mine")
+    before = snapshot(out)
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", 8,
+                          "--spp", 1)
+    assert_one_error(rc, err, "chrome.exr")
+    assert snapshot(out) == before
+
+
+def test_render_basis_refuses_a_folder_of_the_users_unless_forced(tmp_path, tiny):
+    """A database or a folder of blends is no basis folder: refused whole (no image added,
+    however the files are named), also for chunks and as the parent of several bases."""
+    db = tmp_path / "db"
+    shutil.copytree(tiny["db"], db)
+    blends = tmp_path / "blends"
+    blends.mkdir()
+    x = ",".join(f"{v:.6g}" for v in Manifold.load(tiny["manifold"]).latent[0])
+    assert run_tool("blend", "--basis", tiny["basis"], "--x", x, "--out", blends / "mine.exr")[0] == 0
+    base = ["--manifold", tiny["manifold"], "--res", 8, "--spp", 2]
+    for folder in (db, blends):
+        before = snapshot(folder)
+        for args in ([SPHERE], [SPHERE, "--chunks", 2], [SPHERE, SPHERE.replace("sphere", "table")]):
+            rc, _, err = run_tool("render_basis", *args, *base, "--out", folder)
+            assert_one_error(rc, err, f"{folder} is not a", "did not make", "--force")
+            assert snapshot(folder) == before
+    rc, _, err = run_tool("render_basis", SPHERE, *base, "--out", blends, "--force")
+    assert rc == 0, err
+    assert (blends / "mine.exr").exists() and (blends / "manifest.json").exists()
+
+
+def test_render_basis_resumes_a_folder_holding_only_its_own_lock_and_temporary_files(tmp_path, tiny):
+    """Killed before its manifest was written: the lock file and a temporary file are its own."""
+    from mitsuba_manifold._util.locking import LOCK_NAME
+    out = tmp_path / "basis"
+    out.mkdir()
+    (out / LOCK_NAME).write_text("")
+    (out / ".manifest.json.k3j2x9ab.tmp.json").write_text("{")
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", 8,
+                          "--spp", 1)
+    assert rc == 0, err
+    assert len(json.loads((out / "manifest.json").read_text())["images"]) == 5
+
+
+def test_fit_manifold_out_refuses_read_only_and_foreign_files(tmp_path, tiny):
+    out = tmp_path / "m.npz"
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", out)
+    assert rc == 0, err
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", out)        # its own output: replaced
+    assert rc == 0, err
+    os.chmod(out, 0o444)
+    (tmp_path / "thesis.npz").write_bytes(b"PK not a manifold")
+    before = snapshot(tmp_path)
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", out, "--force")
+    assert_one_error(rc, err, str(out), "read-only")
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", tmp_path / "thesis.npz")
+    assert_one_error(rc, err, "thesis.npz")
+    assert snapshot(tmp_path) == before
+
+
+# ---------------------------------------------------- 9. tracebacks -> messages
+
+def test_fit_manifold_plot_into_a_file_is_refused_before_fitting(tmp_path, tiny):
+    (tmp_path / "plots").write_text("a file")
+    before = snapshot(tmp_path)
+    for plot in (tmp_path / "plots", tmp_path / "plots" / "sub"):
+        rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", tmp_path / "m.npz", "--plot", plot)
+        assert_one_error(rc, err, "--plot")
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("variant, words", [("bogus", ["--variant", "bogus"]),
+                                            ("scalar_rgb", ["--variant", "scalar_rgb"]),
+                                            ("llvm_ad_spectral_polarized", ["--variant"])])
+def test_render_basis_refuses_unusable_variants_and_leaves_nothing(tmp_path, tiny, variant, words):
+    out = tmp_path / "basis"
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", 8,
+                          "--spp", 1, "--variant", variant)
+    assert_one_error(rc, err, *words)
+    assert not out.exists() or not [f for f in os.listdir(out) if not f.startswith(".")]
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", 8,
+                          "--spp", 1, "--materials", "steel", "--variant", "llvm_ad_rgb")
+    assert rc == 0, err      # the corrected rerun is accepted
+
+
+def test_make_database_refuses_impossible_resolutions_before_writing(tmp_path):
+    out = tmp_path / "db"
+    for res in ("100000,100000,100000", "4096,4096,4096", "0,8,16", "8,8"):
+        rc, _, err = run_tool("make_database", "--out", out, "--resolution", res, "--materials", "steel")
+        assert_one_error(rc, err, "--resolution")
+        assert not out.exists() or not os.listdir(out)
+    rc, _, err = run_tool("make_database", "--out", out, "--resolution", "8,8,16", "--materials", "steel")
+    assert rc == 0, err
+
+
+# --------------------------------------------------- 10. latent dimension of scenes
+
+def test_render_basis_on_a_shipped_scene_with_q3_and_given_x(tmp_path, tiny):
+    m3 = tmp_path / "m3.npz"
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--q", "3", "--out", m3)
+    assert rc == 0, err
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", m3, "--out", tmp_path / "b", "--res", 8,
+                          "--spp", 1, "--materials", "steel")
+    assert rc == 0, err
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", m3, "--out", tmp_path / "b2", "--res", 8,
+                          "--spp", 1, "--materials", "steel", "--x", "0.1,0.2,0.3")
+    assert rc == 0, err
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", m3, "--out", tmp_path / "b3", "--res", 8,
+                          "--spp", 1, "--x", "0.1,0.2")
+    assert_one_error(rc, err, "--x", "3")
+
+
+# -------------------------------------------- 11. content identity, moved databases
+
+def test_identical_refit_is_accepted_by_existing_bases(tmp_path, tiny):
+    again = tmp_path / "again.npz"
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", again, "--q", 2)   # as make_tiny
+    assert rc == 0, err
+    assert file_hash(again) != file_hash(tiny["manifold"]) or True   # bytes may differ
+    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--manifold", again, "--x", "0,0",
+                          "--out", tmp_path / "img.exr")
+    assert rc == 0, err
+    other = tmp_path / "other.npz"
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", other, "--q", 2, "--length-scale", "2")
+    assert rc == 0, err
+    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--manifold", other, "--x", "0,0",
+                          "--out", tmp_path / "img2.exr")
+    assert_one_error(rc, err, "another manifold")
+
+
+def test_tools_read_a_moved_database(tmp_path, tiny):
+    moved = tmp_path / "moved"
+    shutil.copytree(tiny["db"], moved)
+    m = tmp_path / "m.npz"
+    Manifold.load(tiny["manifold"]).save(m)
+    man = Manifold.load(m)
+    man.database = str(tmp_path / "gone")
+    man.save(m)
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", m, "--out", tmp_path / "b", "--res", 8,
+                          "--spp", 1, "--materials", "steel")
+    assert_one_error(rc, err, "--database")
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", m, "--out", tmp_path / "b", "--res", 8,
+                          "--spp", 1, "--materials", "steel", "--database", moved)
+    assert rc == 0, err
+    rc, _, err = run_tool("blend", "--basis", tmp_path / "b", "--manifold", m, "--database", moved,
+                          "--x", ",".join(map(str, man.latent[man.index("steel")])), "--out", tmp_path / "i.exr",
+                          "--render-reference", "--spp", 1, "--png")
+    assert rc == 0, err
+    for name in ("i.png", "i_reference.exr", "i_reference.png", "i_error.png"):
+        assert (tmp_path / name).is_file(), name
+
+
+# ------------------------------------------------------------ 12. Ctrl-C
+
+def _interrupt_after(proc, wait):
+    """Send SIGINT to ``proc`` once ``wait()`` returns; its output, after checking that it
+    was still running and stopped within 10 s."""
+    try:
+        wait()
+        assert proc.poll() is None, proc.communicate()
+        t0 = time.time()
+        proc.send_signal(signal.SIGINT)
+        out = proc.communicate(timeout=30)
+    finally:
+        proc.kill()                               # no-op once it has ended
+    assert time.time() - t0 < 10, time.time() - t0
+    return out
+
+
+@pytest.mark.parametrize("mode", ["per-material", "onepass"])
+def test_ctrl_c_stops_a_render_within_seconds_leaving_listed_files(tmp_path, tiny, mode):
+    out = tmp_path / "basis"
+    proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), SPHERE,
+                             "--manifold", tiny["manifold"], "--out", str(out), "--res", "32",
+                             "--spp", "200000", "--mode", mode], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+
+    def wait():
+        deadline = time.time() + 120
+        while time.time() < deadline and not (out / "manifest.json").exists():
+            time.sleep(0.2)
+        time.sleep(3.0)                               # inside a long render
+
+    _, err = _interrupt_after(proc, wait)
+    assert proc.returncode == 130, err
+    lines = error_lines(err)
+    assert len(lines) == 1 and "interrupted" in lines[0] and "Traceback" not in err, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    listed = {e["file"] for e in manifest["images"].values()}
+    present = {f for f in os.listdir(out) if not f.startswith(".")} - {"manifest.json"}
+    assert present == listed
+    for f in listed:
+        assert imageio.read_exr(out / f).shape == (32, 32, 3)
+
+
+def test_a_killed_render_leaves_no_lock_and_resumes(tmp_path, tiny):
+    out = tmp_path / "basis"
+    args = [SPHERE, "--manifold", tiny["manifold"], "--out", str(out), "--res", "16", "--spp", "3000",
+            "--mode", "per-material"]
+    proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def listed():
+        path = out / "manifest.json"
+        return json.loads(path.read_text())["images"] if path.exists() else {}
+
+    deadline = time.time() + 120
+    while time.time() < deadline and not listed():
+        time.sleep(0.1)
+    proc.kill()                                   # kill -9 after the first image (or at the deadline)
+    proc.wait()
+    before = listed()
+    assert before and not [f for f in os.listdir(out) if f.endswith(".tmp")]
+    rc, _, err = run_tool("render_basis", *args)  # the lock went with the process; the run resumes
+    assert rc == 0, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert set(before) <= set(manifest["images"]) and len(manifest["images"]) == 5
+    for entry in manifest["images"].values():
+        assert imageio.read_exr(out / entry["file"]).shape == (16, 16, 3)
+
+
+def test_an_image_written_but_not_yet_listed_is_the_resumed_runs_own(tmp_path, tiny):
+    """kill -9 between writing ``<key>.exr`` and listing it: the manifest named it pending,
+    so the resume renders it again instead of refusing it as the user's file."""
+    out = tmp_path / "basis"
+    args = [SPHERE, "--manifold", tiny["manifold"], "--out", str(out), "--res", "8", "--spp", "2",
+            "--mode", "per-material"]
+    assert run_tool("render_basis", *args)[0] == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    key = next(k for k in manifest["images"] if k != "base")
+    file = manifest["images"].pop(key)["file"]
+    manifest["pending"] = [file]
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    imageio.write_exr(out / file, np.full((8, 8, 3), -7.0, np.float32))   # the killed run's file
+    user = out / "notes.exr"
+    imageio.write_exr(user, np.zeros((8, 8, 3), np.float32))
+    rc, _, err = run_tool("render_basis", *args)
+    assert rc == 0, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert key in manifest["images"] and "pending" not in manifest
+    assert imageio.read_exr(out / file).min() >= 0                       # rendered again
+    assert imageio.read_exr(user).shape == (8, 8, 3)                      # not ours: untouched
+    manifest["images"].pop(key)                                           # listed nowhere now
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    rc, _, err = run_tool("render_basis", *args)
+    assert rc == 2 and file in err and "did not make" in err
+
+
+def test_ctrl_c_stops_a_reference_render_and_writes_nothing(tmp_path, tiny):
+    out = tmp_path / "blend"
+    out.mkdir()
+    proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "tools", "blend.py"), "--basis", tiny["basis"],
+                             "--x", "0,0", "--out", str(out / "img.exr"), "--render-reference", "--spp", "1000000"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    def wait():  # until the reference render has begun
+        for line in proc.stdout:
+            if "rendering the reference" in line:
+                break
+        time.sleep(2.0)
+
+    _, err = _interrupt_after(proc, wait)
+    assert proc.returncode == 130, err
+    assert len(error_lines(err)) == 1 and "interrupted" in err and "Traceback" not in err, err
+    assert os.listdir(out) == []
+
+
+# ------------------------------------------------------------ 13. the plugin
+
+def _bsdf(manifold, **props):
+    return mi.load_dict({"type": "manifold_brdf", "manifold": manifold, **props})
+
+
+def test_refused_parameter_update_keeps_the_previous_state(tiny):
+    man = Manifold.load(tiny["manifold"])
+    scene = mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {
+        "type": "manifold_brdf", "id": "material", "manifold": tiny["manifold"], "x": "0, 0"}}})
+    params = mi.traverse(scene)
+    key = [k for k in params.keys() if k.endswith(".x")][0]
+    params[key] = [float("nan"), 0.0]
+    with pytest.raises(Exception, match="x"):
+        params.update()
+    assert np.isfinite(np.array(params[key])).all()
+    good = man.latent[man.index("steel")]
+    params[key] = good.tolist()
+    params.update()
+    bsdf = [s.bsdf() for s in scene.shapes()][0]
+    assert np.allclose(bsdf.latent, good.astype(np.float32))
+    for wrong in ([1.0], [0.1, 0.2, 0.3]):        # too short, too long: refused with the plugin's message,
+        params[key] = wrong                        # and the parameter is the rendered x again, whole
+        with pytest.raises(Exception, match=f"x must be {man.q} finite numbers"):
+            params.update()
+        assert np.allclose(np.array(params[key]), good.astype(np.float32))
+        params.set_dirty(key)                      # a later update (of anything) works
+        params.update()
+
+
+@pytest.mark.parametrize("props, words", [
+    ({"x": "0, 0", "prune": "abc"}, ["prune", "abc"]),
+    ({"weights": "steel:1e30, chrome:-1e30, gold-paint:1"}, ["weights"]),
+    ({"weights": "steel:1, chrome:-1"}, ["sum to zero"]),
+    ({"x": "nan, 0"}, ["x"]),
+    ({"x": "0, 0", "sampling": "bogus"}, ["sampling"]),
+])
+def test_plugin_errors_are_one_clean_line(tiny, props, words):
+    from mitsuba_manifold import errors
+    with pytest.raises(Exception) as info:
+        _bsdf(tiny["manifold"], **props)
+    msg = errors.plugin_message(info.value)
+    assert "\n" not in msg and "Traceback" not in msg and msg.startswith("manifold_brdf: "), msg
+    for w in words:
+        assert w in msg, msg
+    if "1e30" in props.get("weights", ""):
+        assert "sum to zero" not in msg
+
+
+def test_names_cannot_leave_the_database_folder(tmp_path, tiny):
+    (tmp_path / "x.binary").write_bytes(open(os.path.join(tiny["db"], "steel.binary"), "rb").read())
+    inner = tmp_path / "inner"
+    shutil.copytree(tiny["db"], inner)
+    with pytest.raises(ValueError, match="not file names"):
+        database.Database(inner, ["steel", "../x"])
+
+
+def _version_1_copy(tiny, old):
+    """A copy of the tiny basis with a version-1 manifest (raw names, manifold file hash)."""
+    shutil.copytree(tiny["basis"], old)
+    manifest = json.loads((old / "manifest.json").read_text())
+    manifest.update(version=1, manifold_hash=file_hash(tiny["manifold"]))
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    return manifest
+
+
+def test_version_1_bases_are_still_read_and_checked_by_file_hash(tmp_path, tiny):
+    old = tmp_path / "old"
+    manifest = _version_1_copy(tiny, old)
+    rc, _, err = run_tool("blend", "--basis", old, "--x", "0,0", "--out", tmp_path / "a.exr")
+    assert rc == 0, err
+    manifest["manifold_hash"] = "0" * 64
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    rc, _, err = run_tool("blend", "--basis", old, "--x", "0,0", "--out", tmp_path / "b.exr")
+    assert_one_error(rc, err, "another manifold")
+
+
+def test_render_basis_resumes_a_version_1_basis_of_the_same_manifold_file(tmp_path, tiny):
+    old = tmp_path / "old"
+    _version_1_copy(tiny, old)
+    stamps = {f: os.stat(old / f).st_mtime_ns for f in os.listdir(old) if f.endswith(".exr")}
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", old, "--res", 8,
+                          "--spp", 1, "--mode", "per-material")
+    assert rc == 0, err
+    assert json.loads((old / "manifest.json").read_text())["version"] == 2
+    assert {f: os.stat(old / f).st_mtime_ns for f in stamps} == stamps      # nothing rendered again
+
+
+def test_shipped_scenes_load_with_a_manifold_of_any_latent_dimension(tmp_path, tiny):
+    from mitsuba_manifold.render.scenes import scene_path
+    m3 = tmp_path / "m3.npz"
+    Manifold.fit(tiny["db"], q=3).save(m3)
+    man = Manifold.load(m3)
+    for name in ("sphere", "table", "cbox"):
+        scene = mi.load_file(scene_path(name), manifold=str(m3), res="8")
+        (bsdf,) = [s.bsdf() for s in scene.shapes() if getattr(s.bsdf(), "is_manifold_brdf", False)]
+        assert np.array_equal(bsdf.latent, man.latent[0]) and bsdf.used_names == [man.names[0]]
+
+
+def test_interrupted_make_database_lists_every_table_it_finished(tmp_path, monkeypatch):
+    real, calls = database._write_sgd_table, []
+
+    def write_then_interrupt(job):
+        calls.append(real(job))          # the table is complete on disk ...
+        if len(calls) == 2:
+            raise KeyboardInterrupt      # ... when Ctrl-C arrives, before it is recorded
+        return calls[-1]
+
+    monkeypatch.setattr(database, "_write_sgd_table", write_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        database.make_database(tmp_path / "db", DIMS, ["steel", "chrome", "gold-paint"])
+    listed = json.loads((tmp_path / "db" / "database.json").read_text())["tables"]
+    assert sorted(listed) == ["chrome", "steel"]
+    monkeypatch.setattr(database, "_write_sgd_table", real)
+    rc, _, err = run_tool("make_database", "--out", tmp_path / "db", "--resolution", "8,8,16",
+                          "--materials", "steel,chrome,gold-paint")
+    assert rc == 0, err                   # resumed, not refused as foreign tables
+
+
+def test_sizes_beyond_the_memory_available_are_refused_before_anything_is_written(tmp_path, tiny, monkeypatch):
+    from mitsuba_manifold._util import checks as validate
+    monkeypatch.setattr(validate, "available_memory", lambda: 1 << 30)      # a 1 GiB machine
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", tmp_path / "b",
+                          "--res", 4096, "--spp", 1)
+    assert_one_error(rc, err, "resolution", "GiB")
+    rc, _, err = run_tool("make_database", "--out", tmp_path / "db", "--resolution", "256,256,512",
+                          "--materials", "steel")
+    assert_one_error(rc, err, "--resolution", "GiB")
+    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--path", "steel", "chrome", "--steps", 10 ** 7,
+                          "--out", tmp_path / "seq.exr")
+    assert_one_error(rc, err, "--steps", "GiB")
+    assert os.listdir(tmp_path) == []
+
+
+def test_fit_manifold_plots_a_one_dimensional_latent_space(tmp_path, tiny):
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--q", 1, "--out", tmp_path / "m.npz", "--plot", tmp_path / "p")
+    assert rc == 0, err
+    from PIL import Image
+    with Image.open(tmp_path / "p" / "latent_map.png") as im:
+        assert im.size[0] > 500 and im.size[1] > 300

@@ -1,0 +1,305 @@
+"""match: the latent point of a target image on a basis (inverse rendering), on small synthetic bases."""
+
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from mitsuba_manifold.basis import blend as bl
+from mitsuba_manifold.basis import objectives as image_error
+from mitsuba_manifold.imaging import io as imageio
+from mitsuba_manifold.basis import match as mt
+from mitsuba_manifold.basis.folder import BASE, Basis
+from mitsuba_manifold.apps.cli import match as cli
+from mitsuba_manifold.errors import MismatchError, InputError
+from mitsuba_manifold.manifold.model import Manifold
+
+from helpers import write_basis
+
+RES = (20, 16)  # width, height
+
+
+@pytest.fixture(scope="module")
+def manifold(small_manifold_paper):
+    """The paper's GP weights: the exact-recovery tests need weights that are not stationary at
+    the training points (the default Shepard weights are flat there, so x is found to ~1e-6)."""
+    return Manifold.load(small_manifold_paper)
+
+
+def _smooth_images(rng, n):
+    """``n`` positive images with smooth, material-specific structure (like renders)."""
+    h, w = RES[1], RES[0]
+    yy, xx = np.mgrid[0:h, 0:w] / max(h, w)
+    out = []
+    for _ in range(n):
+        c = rng.uniform(0.2, 1.0, size=3)
+        f = rng.uniform(1, 6, size=2)
+        pattern = 0.5 + 0.5 * np.sin(f[0] * xx * 3 + rng.uniform(0, 6)) * np.cos(f[1] * yy * 3)
+        out.append((pattern[..., None] * c + 0.05 * rng.uniform(size=(h, w, 3))).astype(np.float32))
+    return out
+
+
+def _make_basis(folder, manifold_path, names, seed=1, targets=("material",), keys=None):
+    keys = [BASE] + list(names) if keys is None else keys
+    images = dict(zip(keys, _smooth_images(np.random.default_rng(seed), len(keys))))
+    write_basis(folder, manifold_path, images, targets)
+    return folder, images
+
+
+def _basis_without_manifold(tmp_path, small_manifold_paper, names):
+    """A basis whose manifold file has since been deleted."""
+    moved = str(tmp_path / "moved.npz")
+    shutil.copy(small_manifold_paper, moved)
+    folder, _ = _make_basis(str(tmp_path / "lost"), moved, names)
+    os.remove(moved)
+    return folder
+
+
+@pytest.fixture
+def basis(tmp_path, small_manifold_paper, manifold):
+    folder, images = _make_basis(str(tmp_path / "basis"), small_manifold_paper, manifold.names)
+    return Basis.load(folder, manifold=manifold), images
+
+
+def _blend(basis, manifold, x):
+    return bl.blend(basis, manifold, x=x, prune=0.0)[0].astype(np.float64)
+
+
+def _interior_point(manifold, a=0, b=1, t=0.35):
+    return (1 - t) * manifold.latent[a] + t * manifold.latent[b]
+
+
+# ------------------------------------------------------------- gradients
+
+def test_weights_jacobian_matches_finite_differences(manifold):
+    rng = np.random.default_rng(0)
+    pts = manifold.latent[rng.integers(manifold.n, size=6)] + rng.normal(scale=0.4, size=(6, manifold.q))
+    J = manifold.weights_jacobian(pts)
+    assert J.shape == (6, manifold.n, manifold.q)
+    h = 1e-6
+    for x, Jx in zip(pts, J):
+        assert np.array_equal(manifold.weights_jacobian(x), Jx)
+        fd = np.stack([(manifold.weights(x + h * e)[1] - manifold.weights(x - h * e)[1]) / (2 * h)
+                       for e in np.eye(manifold.q)], axis=-1)
+        assert np.allclose(Jx, fd, rtol=1e-5, atol=1e-6 * np.abs(Jx).max())
+        assert np.allclose(Jx.sum(axis=0), 0.0, atol=1e-9)  # the weights keep summing to 1
+        fdv = [(manifold.variance(x + h * e) - manifold.variance(x - h * e)) / (2 * h) for e in np.eye(manifold.q)]
+        assert np.allclose(manifold.variance_gradient(x), fdv, rtol=1e-5, atol=1e-8)
+
+
+@pytest.mark.parametrize("loss,exposure_free,prior", [("rel_mse", False, 0.0), ("rel_mse", True, 0.05),
+                                                      ("log", False, 0.0), ("log", True, 0.05)])
+def test_match_objective_gradient_matches_finite_differences(basis, manifold, loss, exposure_free, prior):
+    b, _ = basis
+    target = 1.3 * _blend(b, manifold, _interior_point(manifold, 2, 5))
+    mask = np.ones(target.shape[:2])
+    mask[:5] = 0.0
+    obj = image_error.objective(b, manifold, target, mask, mask > 0, loss, exposure_free, 1)
+    fun, _ = mt._evaluate(manifold, obj, prior)
+    x0 = _interior_point(manifold, 0, 3, 0.6) + 0.05
+    value, grad = fun(x0)
+    assert value > 1e-4  # far from the optimum: a real gradient
+    h = 1e-5
+    fd = [(fun(x0 + h * e)[0] - fun(x0 - h * e)[0]) / (2 * h) for e in np.eye(manifold.q)]
+    assert np.allclose(grad, fd, rtol=2e-3, atol=1e-4 * np.abs(grad).max())
+
+
+def test_quadratic_form_equals_the_direct_relative_mse(basis, manifold):
+    b, _ = basis
+    target = _blend(b, manifold, _interior_point(manifold, 1, 4)) * 0.8
+    mask = np.random.default_rng(3).uniform(size=target.shape[:2])
+    mask[mask < 0.3] = 0.0
+    for exposure_free in (False, True):
+        obj = image_error.objective(b, manifold, target, mask, mask > 0, "rel_mse", exposure_free, 1)
+        x = _interior_point(manifold, 2, 6)
+        err, _, s = obj(manifold.weights(x)[1])
+        direct = image_error.masked_rel_mse(s * _blend(b, manifold, x), target, mask)
+        assert err == pytest.approx(direct, rel=1e-6)
+        assert (s == 1.0) != exposure_free
+
+
+# ---------------------------------------------------------------- matches
+
+def test_training_material_is_recovered_exactly_from_its_own_blend(basis, manifold):
+    b, images = basis
+    for i, name in enumerate(manifold.names):
+        target = images[BASE] + images[name]
+        r = mt.match(b, target, starts=3)
+        assert np.array_equal(r.x, manifold.latent[i]) and r.from_start is None
+        assert r.single.name == name and r.error < 1e-12 and r.rel_mse < 1e-12
+        assert np.array_equal(r.weights, np.eye(manifold.n)[i])
+        assert r.variance < 2 * manifold.noise
+    text = repr(r)                                  # a short summary, not the image's pixels
+    assert len(text) < 400 and name in text and "MatchResult(x=[" in text
+
+
+def test_interior_point_is_recovered(basis, manifold):
+    b, _ = basis
+    x_true = _interior_point(manifold, 0, 1)
+    r = mt.match(b, _blend(b, manifold, x_true))
+    assert r.error < 1e-9 and r.from_start is not None
+    assert np.allclose(r.x, x_true, atol=1e-4)
+    assert r.error < 1e-6 * r.single.error
+    assert np.allclose(r.image, _blend(b, manifold, r.x), atol=1e-5)
+    near = mt.match(b, _blend(b, manifold, x_true), scan=0, starts=3)  # the training points as starts
+    best = manifold.latent[near.single.index]
+    order = np.argsort(np.linalg.norm(manifold.latent - best, axis=1))[:3]
+    assert np.allclose([s["x0"] for s in near.starts], manifold.latent[order], atol=1e-5)
+    d = r.to_dict(manifold)
+    assert json.loads(json.dumps(d))["x"] == pytest.approx(list(r.x))
+    assert [n for n, _ in d["nearest"]][:1] == [manifold.names[int(np.argmin(np.linalg.norm(manifold.latent - r.x, axis=1)))]]
+
+
+def test_masked_match_ignores_what_is_outside_the_mask(basis, manifold):
+    b, _ = basis
+    x_true = _interior_point(manifold, 3, 6, 0.5)
+    target = _blend(b, manifold, x_true)
+    mask = np.zeros(target.shape[:2])
+    mask[4:12, 5:15] = 1.0
+    garbled = target.copy()
+    garbled[mask == 0] = np.random.default_rng(7).uniform(0, 5, size=((mask == 0).sum(), 3))
+    r = mt.match(b, garbled, mask=mask)
+    assert r.n_pixels == int(mask.sum())
+    assert r.error < 1e-8 and np.allclose(r.x, x_true, atol=1e-3)
+    unmasked = mt.match(b, garbled)
+    assert unmasked.error > 1e3 * max(r.error, 1e-12)
+
+
+@pytest.mark.parametrize("loss", ["rel_mse", "log"])
+def test_exposure_free_match_finds_point_and_exposure(basis, manifold, loss):
+    b, _ = basis
+    x_true = _interior_point(manifold, 4, 7, 0.4)
+    target = 3.7 * _blend(b, manifold, x_true)
+    r = mt.match(b, target, exposure_free=True, loss=loss, downsample=2)
+    assert np.allclose(r.x, x_true, atol=1e-3)
+    assert r.exposure == pytest.approx(3.7, rel=1e-3) and r.rel_mse < 1e-6
+    fixed = mt.match(b, target, loss=loss)
+    assert fixed.exposure == 1.0 and fixed.error > 1e3 * max(r.error, 1e-12)
+
+
+def test_prior_pulls_towards_the_data(basis, manifold):
+    b, _ = basis
+    far = manifold.latent.mean(axis=0) + np.array([0.0, 1.5]) + manifold.latent.std(axis=0)
+    target = _blend(b, manifold, far) * 1.0
+    free = mt.match(b, target)
+    held = mt.match(b, target, prior=1.0)
+    assert held.variance < free.variance
+    assert held.objective == pytest.approx(held.error + 1.0 * held.variance)
+
+
+# -------------------------------------------------------------- bad input
+
+def test_bad_inputs_are_clear_errors(basis, manifold, tmp_path, small_manifold_paper):
+    b, images = basis
+    target = _blend(b, manifold, manifold.latent[0])
+    with pytest.raises(InputError, match=r"target is 20x15, the basis is 20x16"):
+        mt.match(b, target[:-1])
+    nan = target.copy()
+    nan[3, 4, 1] = np.nan
+    with pytest.raises(InputError, match=r"1 pixels with NaN or Inf"):
+        mt.match(b, nan)
+    with pytest.raises(InputError, match=r"mask selects no pixel \(all zero\)"):
+        mt.match(b, target, mask=np.zeros(target.shape[:2]))
+    with pytest.raises(InputError, match=r"mask is 3x3, the target is 20x16"):
+        mt.match(b, target, mask=np.ones((3, 3)))
+    for kwargs, msg in (({"loss": "l1"}, "loss must be one of"), ({"prior": -1.0}, "prior must be"),
+                        ({"starts": 0}, "starts must be"), ({"scan": -1}, "scan must be"), ({"loss": "log", "downsample": 0}, "downsample")):
+        with pytest.raises(InputError, match=msg):
+            mt.match(b, target, **kwargs)
+    # a basis missing materials, and one whose manifold is gone
+    part, _ = _make_basis(str(tmp_path / "part"), small_manifold_paper, manifold.names[:3])
+    with pytest.raises(InputError, match=r"lacks the images of 5 of the manifold's 8 materials"):
+        mt.match(part, target)
+    lost = _basis_without_manifold(tmp_path, small_manifold_paper, manifold.names)
+    with pytest.raises(MismatchError, match=r"its manifold .*moved.npz no longer exists"):
+        mt.match(lost, target)
+    two, _ = _make_basis(str(tmp_path / "two"), small_manifold_paper, [], targets=("a", "b"),
+                         keys=[f"{p}+{q}" for p in manifold.names[:2] for q in manifold.names[:2]])
+    with pytest.raises(InputError, match=r"has 2 targets"):
+        mt.match(two, target[:, :, :])
+
+
+def test_8bit_target_is_decoded_and_clipped_pixels_dropped(tmp_path):
+    u8 = np.zeros((4, 5, 3), dtype=np.uint8)
+    u8[..., 0] = 128
+    u8[1, 2] = 255
+    imageio.write_png(str(tmp_path / "t.png"), u8)
+    img, clipped = mt.read_target(str(tmp_path / "t.png"))
+    assert img[0, 0, 0] == pytest.approx(((128 / 255 + 0.055) / 1.055) ** 2.4, rel=1e-6)
+    assert clipped.sum() == 1 and clipped[1, 2]
+    assert np.allclose(imageio.srgb_encode(imageio.srgb_decode(np.linspace(0, 1, 11))), np.linspace(0, 1, 11))
+    with pytest.raises(InputError, match="not a readable image"):
+        open(str(tmp_path / "bad.png"), "wb").write(b"nope")
+        mt.read_target(str(tmp_path / "bad.png"))
+
+
+# -------------------------------------------------------------------- CLI
+
+def test_cli_writes_blend_sheet_and_json(basis, manifold, tmp_path, capsys):
+    b, _ = basis
+    x_true = _interior_point(manifold, 0, 1)
+    tpath = str(tmp_path / "target.exr")
+    imageio.write_exr(tpath, 2.0 * _blend(b, manifold, x_true))
+    mpath = str(tmp_path / "mask.png")
+    m = np.zeros((RES[1], RES[0], 3), dtype=np.uint8)
+    m[2:14, 3:17] = 255
+    imageio.write_png(mpath, m)
+    out, js = str(tmp_path / "o" / "best.exr"), str(tmp_path / "best.json")
+    assert cli.main(["--basis", b.folder, "--target", tpath, "--mask", mpath, "--exposure-free",
+                     "--out", out, "--png", "--json", js]) == 0
+    text = capsys.readouterr().out
+    assert "best latent point" in text and "fitted exposure x2" in text and "nearest training materials" in text
+    got = json.load(open(js))
+    assert np.allclose(got["x"], x_true, atol=1e-3) and got["exposure"] == pytest.approx(2.0, rel=1e-3)
+    assert got["mask"] == os.path.abspath(mpath) and len(got["weights"]) == manifold.n
+    assert np.allclose(imageio.read_exr(out), _blend(b, manifold, got["x"]), atol=1e-4)
+    assert os.path.isfile(str(tmp_path / "o" / "best_sheet.png"))
+
+
+def test_cli_bad_input_writes_nothing(basis, manifold, tmp_path, capsys, small_manifold_paper):
+    b, _ = basis
+    good = str(tmp_path / "good.exr")
+    imageio.write_exr(good, _blend(b, manifold, manifold.latent[2]))
+    small = str(tmp_path / "small.exr")
+    imageio.write_exr(small, np.ones((8, 8, 3)))
+    nan = str(tmp_path / "nan.exr")
+    import OpenEXR  # write_exr refuses NaN: write one through OpenEXR directly
+    img = np.ones((RES[1], RES[0], 3), dtype=np.float32)
+    img[0, 0, 0] = np.nan
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, {"RGB": img}).write(nan)
+    black = str(tmp_path / "black.png")
+    imageio.write_png(black, np.zeros((RES[1], RES[0], 3), dtype=np.uint8))
+    out, js = str(tmp_path / "best.exr"), str(tmp_path / "best.json")
+    outs = ["--out", out, "--json", js]
+    cases = [(["--target", small] + outs, "small.exr is 8x8, the basis is 20x16"),
+             (["--target", nan] + outs, "NaN or Inf"),
+             (["--target", good, "--mask", black] + outs, "selects no pixel (all zero)"),
+             (["--target", str(tmp_path / "none.exr")] + outs, "none.exr: image file does not exist"),
+             (["--target", good, "--out", good], "would overwrite an input"),
+             (["--target", good, "--out", str(tmp_path / "best.png")], "--out must name an .exr file"),
+             (["--target", good, "--png", "--json", js], "give --out")]
+    for extra, message in cases:
+        with pytest.raises(SystemExit) as e:
+            cli.main(["--basis", b.folder] + extra)
+        assert e.value.code == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and message in err and err.count("\n") == 1
+        assert not os.path.exists(out) and not os.path.exists(js)
+    # a basis without its manifold
+    lost = _basis_without_manifold(tmp_path, small_manifold_paper, manifold.names)
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--basis", lost, "--target", good, "--out", out])
+    assert e.value.code == 2 and "no longer exists" in capsys.readouterr().err
+    assert not os.path.exists(out)
+
+
+def test_the_benchmarks_held_out_manifold_keeps_the_weights_of_the_full_one(small_manifold, tmp_path):
+    """bench match's held-out manifolds are fit on a subset: they must use the full manifold's
+    interpolant (the default's convex weights), not Manifold's own default (Eq. 4)."""
+    from mitsuba_manifold.apps.bench.match import _subset_manifold
+    full = Manifold.load(small_manifold)
+    sub = _subset_manifold(full, np.arange(full.n - 1), tmp_path / "sub.npz")
+    assert sub.interpolant.params() == full.interpolant.params() and sub.interpolant.kind == "shepard"
+    assert np.array_equal(sub.table_gram, full.table_gram[:-1, :-1])

@@ -1,0 +1,248 @@
+"""The Manifold: weights, exact reproduction, far field, save/load and mismatches."""
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from mitsuba_manifold.data import database, merl
+from mitsuba_manifold.data.database import Database
+from mitsuba_manifold.manifold.model import Manifold, InputError
+
+
+@pytest.fixture(scope="module")
+def fitted(small_manifold_paper):
+    """The paper's formulation: GP weights of Eq. 4."""
+    return Manifold.load(small_manifold_paper)
+
+
+def test_weights_are_affine_and_match_mean_plus_bZ(fitted, small_db):
+    rng = np.random.default_rng(0)
+    x = fitted.latent.mean(0) + rng.normal(scale=0.5, size=(7, fitted.q))
+    b, w = fitted.weights(x)
+    assert b.shape == w.shape == (7, fitted.n)
+    assert np.allclose(w.sum(axis=1), 1.0, atol=1e-12)
+    tables = Database(small_db, fitted.names).stack().astype(np.float64)
+    mean = tables.mean(axis=0)
+    Z = tables - mean
+    for k in range(3):
+        assert np.allclose(w[k] @ tables, mean + b[k] @ Z, rtol=1e-9, atol=1e-9 * np.abs(tables).max())
+    # single point gives 1-D arrays, equal to the batched row
+    b0, w0 = fitted.weights(x[0])
+    assert np.allclose(w0, w[0]) and np.allclose(b0, b[0])
+
+
+def test_training_materials_are_reproduced_exactly(fitted, small_db):
+    db = Database(small_db)
+    for i, name in enumerate(fitted.names):
+        b, w = fitted.weights(fitted.latent[i])
+        assert np.array_equal(w, np.eye(fitted.n)[i])
+        table, keep, dropped = fitted.interpolate(fitted.latent[i])
+        assert keep.tolist() == [i] and dropped == 0
+        assert np.array_equal(table, np.asarray(db.reflectance(name)))
+        assert fitted.variance(fitted.latent[i]) == pytest.approx(0.0, abs=1e-9)
+    assert np.allclose(fitted.albedo(fitted.latent), fitted.albedos, atol=1e-12)
+
+
+def test_discontinuity_is_the_jump_next_to_a_training_point(fitted):
+    jumps = []
+    for i in range(fitted.n):
+        _, w_near = fitted.weights(fitted.latent[i] + 1e-9)
+        jumps.append(np.abs(w_near - np.eye(fitted.n)[i]).sum())
+    assert max(jumps) == pytest.approx(fitted.discontinuity(), rel=1e-4, abs=1e-7)
+
+
+def test_far_field_tends_to_the_mean(fitted):
+    for dist in [1e3, 1e6]:
+        x = fitted.latent.mean(0) + dist
+        b, w = fitted.weights(x)
+        assert np.all(np.isfinite(w)) and np.allclose(b, 0, atol=1e-12)
+        assert np.allclose(w, 1.0 / fitted.n)
+        table, keep, _ = fitted.interpolate(x)
+        assert np.allclose(table, fitted.mean(), rtol=1e-5, atol=1e-6 * np.abs(table).max())
+        assert fitted.variance(x) == pytest.approx(1.0 + fitted.noise)
+
+
+def test_interpolated_albedo_uses_linearity(fitted):
+    x = fitted.latent[:2].mean(axis=0)
+    table, _, _ = fitted.interpolate(x, prune=0.0)
+    q = database.albedo_weights(table.shape[1:]).reshape(-1)
+    assert np.allclose(fitted.albedo(x), table.reshape(3, -1) @ q, rtol=1e-4)
+
+
+def test_pruning_reports_dropped_weight(fitted):
+    x = fitted.latent[0] + 0.05
+    _, w = fitted.weights(x)
+    keep, w_kept, dropped = fitted.prune(w, 0.05)
+    assert dropped == pytest.approx(np.abs(w).sum() - np.abs(w[keep]).sum())
+    assert w_kept.sum() == pytest.approx(w.sum())
+    full, keep0, d0 = fitted.combine(w, prune=0.0)
+    assert d0 == 0 and len(keep0) == fitted.n
+    pruned, _, _ = fitted.combine(w, prune=0.05)
+    assert np.abs(pruned - full).max() <= 1.1 * dropped * np.abs(fitted.tables()).max()
+
+
+def test_save_load_round_trip_without_pickle(fitted, tmp_path):
+    path = tmp_path / "m.npz"
+    fitted.save(path)
+    with np.load(path, allow_pickle=False) as z:
+        assert all(z[k].dtype != object for k in z.files)
+    m = Manifold.load(path)
+    assert m.names == fitted.names and np.array_equal(m.latent, fitted.latent)
+    assert m.hashes == fitted.hashes and m.q == fitted.q
+    assert m.log_likelihood() == pytest.approx(fitted.info["log_likelihood"], rel=1e-9)
+    x = fitted.latent.mean(0)
+    assert np.array_equal(m.weights(x)[1], fitted.weights(x)[1])
+
+
+@pytest.mark.parametrize("name", ["albedos", "gram", "table_gram"])
+def test_a_manifold_file_with_a_damaged_derived_array_is_refused(fitted, tmp_path, name):
+    """NaN in the saved pruning Gram made the plugin drop nearly every material silently."""
+    path = tmp_path / "m.npz"
+    fitted.save(path)
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays[name] = np.full_like(arrays[name], np.nan)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(InputError, match=f"its {name} array is damaged"):
+        Manifold.load(tmp_path / "bad.npz")
+
+
+def test_latent_points_of_the_wrong_kind_are_named(fitted):
+    with pytest.raises(InputError, match="must be 2 numbers"):
+        fitted.weights("0.3,-1.2")
+    with pytest.raises(InputError, match=r"interpolate takes one latent point .* got shape \(2, 2\)"):
+        fitted.interpolate(np.zeros((2, 2)))
+    with pytest.raises(InputError, match=r"2 coordinates, got shape \(\)"):
+        fitted.weights(None)
+
+
+def test_bad_inputs_give_clear_errors(fitted, small_db, tmp_path):
+    with pytest.raises(InputError, match="2 coordinates"):
+        fitted.weights([0.1, 0.2, 0.3])
+    with pytest.raises(InputError, match="NaN"):
+        fitted.weights([np.nan, 0.0])
+    with pytest.raises(InputError, match="unknown material 'mithril'"):
+        fitted.material_weights("mithril")
+    with pytest.raises(InputError, match="sum to zero"):
+        fitted.parse_weights("chrome:1, steel:-1")
+    with pytest.raises(InputError, match="not 'name:number'"):
+        fitted.parse_weights("chrome:abc")
+    with pytest.raises(InputError, match="commas separate entries"):   # a comma forgotten
+        fitted.parse_weights("chrome:0.4 steel:0.6")
+    assert fitted.parse_weights("chrome:0.25, steel:0.75")[fitted.index("steel")] == 0.75
+    with pytest.raises(InputError, match="does not exist"):
+        Manifold.load(tmp_path / "missing.npz")
+    corrupt = tmp_path / "corrupt.npz"
+    corrupt.write_bytes(b"PK\x03\x04 not really a zip")
+    with pytest.raises(InputError, match="not a manifold .npz written by fit_manifold"):
+        Manifold.load(corrupt)
+    # a database whose table changed since the fit
+    copy = tmp_path / "db"
+    shutil.copytree(small_db, copy, ignore=shutil.ignore_patterns(".manifold-cache"))
+    raw = merl.read_binary(copy / "chrome.binary")
+    raw[raw > 0] *= 1.01
+    merl.write_binary(copy / "chrome.binary", raw)
+    with pytest.raises(InputError, match="chrome.*differs"):
+        fitted.open_database(copy)
+    fitted.open_database(copy, ["steel"])   # untouched tables still check out
+    os.remove(copy / "steel.binary")
+    with pytest.raises(InputError, match="no table for"):
+        fitted.open_database(copy, ["steel"])
+
+
+def test_files_that_are_not_manifolds_are_named_without_inviting_unsafe_loading(small_db, tmp_path):
+    from PIL import Image
+    Image.new("RGB", (4, 4)).save(tmp_path / "img.png")
+    np.savez(tmp_path / "objects.npz", meta=np.array([{"format": "x"}], dtype=object))
+    np.savez(tmp_path / "other.npz", a=np.ones(3))
+    np.save(tmp_path / "array.npy", np.ones(3))
+    for path in (os.path.join(small_db, "chrome.binary"), tmp_path / "img.png", tmp_path / "objects.npz",
+                 tmp_path / "other.npz", tmp_path / "array.npy", tmp_path):
+        with pytest.raises(InputError) as e:
+            Manifold.load(path)
+        text = str(e.value)
+        assert text.startswith(f"{path} is not a manifold .npz written by fit_manifold (")
+        assert "pickle" not in text and "allow_" not in text and "\n" not in text
+
+
+def test_fit_manifold_out_must_be_an_npz_name(small_db, tmp_path):
+    from guarantees_helpers import assert_one_error, run_tool
+    for out, fix in [("m.json", "m.npz"), ("m", "m.npz"), ("sub" + os.sep, os.path.join("sub", "manifold.npz"))]:
+        rc, _, err = run_tool("fit_manifold", small_db, "--out", os.path.join(tmp_path, out))
+        assert_one_error(rc, err, "--out", ".npz", f"use --out {tmp_path / fix}")
+    assert os.listdir(tmp_path) == []
+
+
+def test_saving_never_half_writes(fitted, tmp_path):
+    path = tmp_path / "m.npz"
+    fitted.save(path)
+    before = path.read_bytes()
+    broken = Manifold.load(path)
+    broken.latent = np.array([["not", "numbers"]])        # makes savez fail halfway? no: json/arrays
+    broken.info = {"bad": object()}                       # json cannot encode this
+    with pytest.raises(TypeError):
+        broken.save(path)
+    assert path.read_bytes() == before
+    assert sorted(os.listdir(tmp_path)) == ["m.npz"]
+
+
+def test_duplicate_materials_fit_and_reproduce(tmp_path):
+    folder = tmp_path / "dup"
+    database.make_database(folder, (8, 8, 16), ["steel", "teflon", "gold-paint"])
+    shutil.copy(folder / "steel.binary", folder / "steel-copy.binary")
+    m = Manifold.fit(folder, q=2)
+    assert np.all(np.isfinite(m.latent))
+    for i in range(m.n):
+        assert np.array_equal(m.weights(m.latent[i])[1], np.eye(m.n)[i])
+    assert np.isfinite(m.condition_number())
+    assert set(m.coincident()) == {"steel", "steel-copy"}          # identical tables: one latent point
+    assert "2 materials share their latent point" in m.summary()
+
+
+def test_stiff_hyperparameters_work_or_fail_clearly(small_db):
+    for l in (1e-3, 1e3):
+        m = Manifold.fit(small_db, q=2, length_scale=l)
+        x = m.latent[:2].mean(0)
+        b, w = m.weights(x)
+        assert np.all(np.isfinite(w)) and w.sum() == pytest.approx(1.0)
+    try:
+        m = Manifold.fit(small_db, q=2, noise=1e-10)
+    except (InputError, ArithmeticError, ValueError) as e:
+        assert "noise" in str(e) or "positive definite" in str(e)
+    else:
+        assert np.all(np.isfinite(m.weights(m.latent.mean(0))[1]))
+        assert m.condition_number() < 1e16
+
+
+def test_bound_terms_of_eq7(fitted):
+    t = fitted.bound_terms(fitted.latent[3])
+    assert t["nearest"] == 3 and t["distance"] == 0 and t["bound"] == 0
+    x = fitted.latent[3] + 0.01
+    t = fitted.bound_terms(x)
+    table = fitted.interpolate(x, prune=0.0)[0].reshape(-1).astype(np.float64)
+    z_j = fitted.tables()[t["nearest"]].astype(np.float64)
+    assert np.linalg.norm(table - z_j) <= t["bound"]
+    assert t["cond_K"] == pytest.approx(np.linalg.cond(fitted.K), rel=1e-6)
+
+
+def test_negative_fraction_counts_what_the_plugin_clamps(fitted, small_db):
+    assert fitted.negative_fraction(fitted.latent[0]) == 0.0
+    assert fitted.negative_fraction(fitted.latent.mean(0) + 1e6) == 0.0
+    tables = Database(small_db, fitted.names).stack().astype(np.float64)
+    rng = np.random.default_rng(3)
+    seen = []
+    for x in fitted.latent.mean(0) + rng.normal(scale=1.0, size=(8, fitted.q)):
+        expected = float(((fitted.weights(x)[1] @ tables) < 0).mean())
+        assert fitted.negative_fraction(x, prune=0.0) == pytest.approx(expected, abs=1e-4)
+        seen.append(expected)
+    assert max(seen) > 0.01        # the random points include genuinely negative blends
+
+
+def test_unknown_material_suggests_the_closest_names(small_manifold):
+    from mitsuba_manifold.errors import InputError
+
+    m = Manifold.load(small_manifold)
+    with pytest.raises(InputError, match=r"unknown material 'stel' \(did you mean 'steel'"):
+        m.index("stel")

@@ -1,0 +1,198 @@
+"""Chunked basis rendering: planning, merging, resuming, and the Ray executor (issue 13)."""
+
+import os
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+mi = pytest.importorskip("mitsuba")
+mi.set_variant("llvm_ad_rgb")
+
+import mitsuba_manifold  # noqa: E402
+from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
+from mitsuba_manifold.basis import folder as basis
+from mitsuba_manifold.render import chunks, executor, render_basis
+from mitsuba_manifold import errors
+from mitsuba_manifold.imaging import io as imageio
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SPHERE = scene_path("sphere")
+RES = 16
+OPTIONS = {"mode": "onepass", "resolution": RES, "materials": ["gold-paint", "chrome", "pink-fabric"]}
+
+
+@pytest.fixture(autouse=True)
+def _variant():
+    mi.set_variant("llvm_ad_rgb")
+    mitsuba_manifold.register()
+
+
+def _images(folder):
+    b = basis.Basis.load(folder)
+    return {k: imageio.read_exr(b.path(k)) for k in ["base"] + b.keys}
+
+
+def test_plan_splits_samples_and_seeds():
+    specs = chunks.plan(SPHERE, SPHERE, 10, 4, seed=3, mode="onepass")
+    assert [s.spp for s in specs] == [3, 3, 2, 2]
+    assert [s.seed for s in specs] == [12, 13, 14, 15]
+    assert len({s.name for s in specs}) == 4
+    with pytest.raises(errors.MismatchError, match="at least the number of chunks"):
+        chunks.plan(SPHERE, SPHERE, 2, 3)
+    with pytest.raises(errors.MismatchError, match="chunks must be >= 1"):
+        chunks.plan(SPHERE, SPHERE, 2, 0)
+
+
+def test_merged_chunks_equal_single_process_basis(tmp_path, small_manifold):
+    """k chunks at S/k spp with seeds seed*k+j are the passes of one render at S spp."""
+    single = tmp_path / "single"
+    render_basis.render_basis(SPHERE, small_manifold, str(single), spp=8, seed=2, chunk_spp=2, **OPTIONS)
+    run = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "merged"), spp=8, chunks=4, seed=2,
+                                **OPTIONS)
+    assert run.manifest["spp"] == 8 and run.manifest["chunks"] == 4 and len(run.rendered) == 4
+    a, b = _images(single), _images(tmp_path / "merged")
+    assert a.keys() == b.keys()
+    for k in a:
+        np.testing.assert_allclose(b[k], a[k], rtol=2e-6, atol=1e-7 * max(1.0, float(a[k].max())))
+    assert not (tmp_path / "merged" / chunks.CHUNK_DIR).exists()
+    # a different seed gives different images (the comparison above can fail)
+    other = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "other"), spp=8, chunks=4, seed=5,
+                                  **OPTIONS)
+    assert other.manifest["seed"] == 5
+    assert not np.allclose(_images(tmp_path / "other")["chrome"], b["chrome"])
+
+
+def test_resume_per_chunk_and_refusals(tmp_path, small_manifold):
+    out = tmp_path / "b"
+
+    class Dies(executor.LocalExecutor):
+        """Renders two chunks, then the run is killed."""
+        def map(self, fn, items):
+            for i, item in enumerate(items):
+                if i == 2:
+                    raise KeyboardInterrupt
+                yield fn(item)
+
+    with pytest.raises(KeyboardInterrupt):
+        chunks.render_chunked(SPHERE, small_manifold, str(out), spp=4, chunks=4, executor=Dies(), **OPTIONS)
+    done = sorted(os.listdir(out / chunks.CHUNK_DIR))
+    assert done == ["000-of-004", "001-of-004"]
+    run = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=4, chunks=4, keep_chunks=True, **OPTIONS)
+    assert run.resumed == done and [r[0] for r in run.rendered] == ["002-of-004", "003-of-004"]
+    ref = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "ref"), spp=4, chunks=4, **OPTIONS)
+    for k, img in _images(out).items():
+        np.testing.assert_array_equal(img, _images(tmp_path / "ref")[k])
+    assert ref.manifest["images"].keys() == run.manifest["images"].keys()
+    before = {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
+    with pytest.raises(errors.InputError, match="other settings .*spp"):
+        chunks.render_chunked(SPHERE, small_manifold, str(out), spp=8, chunks=4, **OPTIONS)
+    with pytest.raises(errors.InputError, match="other settings"):  # one-process render into a merged basis
+        render_basis.render_basis(SPHERE, small_manifold, str(out), spp=4, **OPTIONS)
+    assert before == {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
+    # the same command again: nothing to render, nothing refused, nothing rewritten
+    again = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=4, chunks=4, **OPTIONS)
+    assert again.manifest["images"].keys() == run.manifest["images"].keys()
+    assert before == {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
+
+
+def test_chunked_basis_with_denoising_guides(tmp_path, small_manifold):
+    from mitsuba_manifold.basis import denoise
+
+    out = tmp_path / "aov"
+    run = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=2, chunks=2, aovs=True, **OPTIONS)
+    assert denoise.BasisAOVs.load(str(out), run.manifest) is not None
+
+
+def test_cli_chunks_views_and_scenes(tmp_path, small_manifold):
+    scene2 = tmp_path / "two_views.xml"
+    text = open(SPHERE).read()
+    # a second sensor: the same camera (so both views must match) as another view
+    start = text.index("<sensor")
+    end = text.index("</sensor>") + len("</sensor>")
+    scene2.write_text(text[:end] + text[start:end] + text[end:])
+    os.symlink(os.path.join(os.path.dirname(SPHERE), "sky.exr"), tmp_path / "sky.exr")
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), SPHERE, str(scene2),
+                        "--manifold", small_manifold, "--out", str(tmp_path / "out"), "--views", "all",
+                        "--chunks", "2", "--spp", "2", "--res", str(RES), "--materials", "gold-paint,chrome"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    folders = sorted(os.listdir(tmp_path / "out"))
+    assert folders == ["sphere", "two_views-view0", "two_views-view1"]
+    v0, v1 = _images(tmp_path / "out" / "two_views-view0"), _images(tmp_path / "out" / "two_views-view1")
+    assert basis.read_manifest(tmp_path / "out" / "two_views-view1")["sensor"] == 1
+    np.testing.assert_allclose(v0["chrome"], v1["chrome"], rtol=1e-5, atol=1e-6)
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), SPHERE,
+                        "--manifold", small_manifold, "--out", str(tmp_path / "bad"), "--views", "3"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "sensor 3" in r.stderr and "1 sensor" in r.stderr
+
+
+# ------------------------------------------------------------------------------- Ray
+
+def _die_once(spec):
+    """Kill this worker process the first time any chunk runs (marker file), then render."""
+    marker = spec.options.pop("_marker")
+    if not os.path.exists(marker):
+        with open(marker, "w") as f:
+            f.write(str(os.getpid()))
+        os.kill(os.getpid(), signal.SIGKILL)
+    return chunks.render_chunk(spec)
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    ray = pytest.importorskip("ray")
+    # workers import the package from this tree, and this module (for _die_once) by name
+    path = os.pathsep.join([ROOT, os.path.dirname(os.path.abspath(__file__)), os.environ.get("PYTHONPATH", "")])
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+             runtime_env={"env_vars": {"PYTHONPATH": path}})
+    yield ray
+    ray.shutdown()
+
+
+def test_ray_chunks_equal_local_chunks_and_killed_worker_reruns(tmp_path, small_manifold, ray_cluster):
+    local = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "local"), spp=4, chunks=2, seed=1,
+                                  **OPTIONS)
+    ray_ex = executor.RayExecutor(max_retries=2)
+    run = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "ray"), spp=4, chunks=2, seed=1,
+                                executor=ray_ex, **OPTIONS)
+    pids = {r[3] for r in run.rendered}
+    assert os.getpid() not in pids
+    a, b = _images(tmp_path / "local"), _images(tmp_path / "ray")
+    for k in a:
+        np.testing.assert_allclose(b[k], a[k], rtol=1e-6, atol=1e-7)
+    assert local.manifest["images"].keys() == run.manifest["images"].keys()
+
+    # a worker killed while rendering: Ray re-runs its task, the basis is complete and the same
+    marker = tmp_path / "killed-once"
+    specs = chunks.plan(SPHERE, small_manifold, 4, 2, seed=1, _marker=str(marker), **OPTIONS)
+    results = list(ray_ex.map(_die_once, specs))
+    assert marker.exists() and int(marker.read_text()) not in {r.pid for r in results}
+    assert sorted(r.spec.name for r in results) == ["000-of-002", "001-of-002"]
+    for r in results:
+        chunks.save_chunk(str(tmp_path / "killed"), r)
+    chunks.merge(str(tmp_path / "killed"), [chunks.chunk_folder(tmp_path / "killed", s) for s in specs], seed=1)
+    for k, img in _images(tmp_path / "killed").items():
+        np.testing.assert_allclose(img, a[k], rtol=1e-6, atol=1e-7)
+    # without retries the same fault fails the run
+    marker.unlink()
+    with pytest.raises(Exception, match="(?i)worker|died|crash|exit"):
+        list(executor.RayExecutor(max_retries=0).map(_die_once, specs[:1]))
+
+
+def test_ray_missing_is_a_clear_error(monkeypatch):
+    import builtins
+    real = builtins.__import__
+
+    def no_ray(name, *a, **k):
+        if name == "ray":
+            raise ImportError("no ray")
+        return real(name, *a, **k)
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    with pytest.raises(errors.UnavailableError, match="pip install"):
+        list(executor.RayExecutor().map(len, ["a"]))
+    with pytest.raises(errors.UnavailableError, match="--address is for"):
+        executor.make_executor("local", address="auto")
