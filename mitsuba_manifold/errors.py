@@ -6,6 +6,11 @@ are involved) and print its one-line message. Each class also derives from the b
 caller would expect (``ValueError`` for bad values, ``KeyError`` for unknown names,
 ``RuntimeError`` for a missing or unsuitable Mitsuba variant), so ``except ValueError``
 keeps working. Messages name the parameter or file, the value and the fix.
+
+A message names a Python parameter in backquotes (```spp` must be >= 1, got 0``): the
+command-line tools write the option that sets it instead (``--spp must be >= 1, got 0``,
+:func:`mitsuba_manifold.apps.cli.common.cli_message`), so the library never speaks in
+option names.
 """
 
 import re

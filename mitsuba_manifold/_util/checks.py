@@ -38,61 +38,9 @@ def positive_int(name, value, example, hi=None):
     return int(value)
 
 
-def scene(name, value):
-    """A shipped scene's name or a readable scene XML; returns its path. The error names the
-    option and the value, and suggests the closest shipped scene names."""
-    from ..render import scenes
-    from ..errors import MitsubaManifoldError, did_you_mean
-
-    try:
-        path = scenes.scene_path(value)
-        scenes.scene_parameters(path)
-    except MitsubaManifoldError as e:
-        shipped = scenes.shipped_scenes()
-        hint = did_you_mean(value, shipped) if os.sep not in str(value) else ""
-        if os.path.isfile(value):
-            raise InputError(f"{name}: {e}") from None
-        raise InputError(f"{name} {value!r}: no such file nor shipped scene{hint}; shipped scenes: "
-                         f"{', '.join(shipped)}") from None
-    return path
-
-
 def exposure(value, name="--exposure"):
     """A PNG exposure in stops (see :data:`EXPOSURE_RANGE`)."""
     return finite(name, value, *EXPOSURE_RANGE)
-
-
-def variant(value, name="--variant", jit=False):
-    """A Mitsuba variant that is installed and renders measured RGB tables.
-
-    Parameters
-    ----------
-    jit : bool
-        Also require a JIT variant (``llvm_*``/``cuda_*``), as the ``manifold_path``
-        integrator does (``scalar_rgb`` renders ``manifold_brdf`` but not a basis).
-    """
-    import mitsuba as mi
-
-    known = list(mi.variants())
-    if value not in known:
-        raise InputError(f"{name} {value!r} is not a Mitsuba variant of this installation "
-                         f"(installed: {', '.join(known)})")
-    rgb = value.endswith("_rgb") and "polarized" not in value
-    if not rgb or (jit and not value.startswith(("llvm_", "cuda_"))):
-        usable = [v for v in known if v.endswith("_rgb") and "polarized" not in v
-                  and (not jit or v.startswith(("llvm_", "cuda_")))]
-        need = "an RGB JIT variant" if jit else "an RGB variant"
-        raise InputError(f"{name} {value!r} cannot be used here: this needs {need} "
-                         f"({', '.join(usable) or 'none installed'})")
-    if value.startswith("cuda_"):
-        import drjit as dr
-        try:
-            ok = dr.has_backend(dr.JitBackend.CUDA)
-        except Exception:
-            ok = False
-        if not ok:
-            raise InputError(f"{name} {value!r} needs a CUDA GPU, and none is usable here")
-    return value
 
 
 def available_memory():
@@ -117,32 +65,6 @@ def fits_in_memory(name, nbytes, what, fraction=0.8):
         raise InputError(f"{name}: {what} needs about {nbytes / 2**30:.3g} GiB of memory; a run may take at "
                          f"most {fraction:.0%} of the {avail / 2**30:.3g} GiB available now "
                          f"({fraction * avail / 2**30:.3g} GiB): choose a smaller value")
-
-
-def table_resolution(dims, name="--resolution", bytes_per_bin=None, workers=1):
-    """MERL dimensions ``(n_theta_h, n_theta_d, n_phi_d)``, readable by this package and small
-    enough to tabulate in the memory available.
-
-    ``bytes_per_bin``: peak memory of one worker per bin (default: that of the SGD tabulation).
-    """
-    from ..data import merl
-
-    try:
-        dims = tuple(int(v) for v in dims)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be three positive integers, got {dims!r}") from None
-    if len(dims) != 3 or min(dims) < 1:
-        raise InputError(f"{name} must be three positive integers like 90,90,180, got {dims}")
-    bins = math.prod(dims)
-    if bins > merl.MAX_BINS:
-        raise InputError(f"{name} {'x'.join(map(str, dims))} has {bins:.3g} bins; MERL files of more than "
-                         f"{merl.MAX_BINS:.3g} bins (MERL itself: 1.46e6) are not read by this package")
-    # SGD tabulation peaks at 200 bytes per bin (measured: 291 MB above the interpreter for
-    # 90x90x180, 37 MB for 45x45x90); twice that leaves room for the writer's copy.
-    per_bin = 400 if bytes_per_bin is None else bytes_per_bin
-    fits_in_memory(name, bins * per_bin * max(1, workers),
-                   f"tabulating {'x'.join(map(str, dims))} tables ({max(1, workers)} at a time)")
-    return dims
 
 
 def latent_point(name, values, q):

@@ -9,7 +9,7 @@ A read-only file (no write bit for its owner) is refused even with ``force``: so
 protected it on purpose.
 
 Folders with a manifest of their own list their files there: a basis folder's
-``manifest.json`` (:mod:`render_basis`), a database folder's ``database.json``
+``manifest.json`` (:mod:`mitsuba_manifold.render.render_basis`), a database folder's ``database.json``
 (:func:`owned_tables`, :func:`write_table_record`).
 """
 
@@ -17,7 +17,6 @@ import json
 import os
 import stat
 
-from ..basis import folder as basis
 from .atomic import write_bytes
 from .cache import file_hash
 from ..errors import ForeignFileError
@@ -99,25 +98,6 @@ def record(paths, tool):
             files = {k: v for k, v in files.items() if os.path.isfile(os.path.join(folder, k))}
             text = json.dumps({"format": "mitsuba-manifold-outputs", "files": files}, indent=1, sort_keys=True)
             write_bytes(os.path.join(folder, RECORD), text)
-
-
-def is_basis_folder(folder):
-    """True when ``folder`` holds a basis manifest (whether or not it is complete)."""
-    try:
-        with open(os.path.join(os.fspath(folder), basis.MANIFEST), encoding="utf-8") as f:
-            return json.load(f).get("format") == basis.FORMAT
-    except (OSError, ValueError, AttributeError):
-        return False
-
-
-def check_output_outside_basis(out, basis_folder=None):
-    """Raise unless ``out`` lies outside every basis folder (``basis_folder`` included):
-    a blend never writes into a basis, whose files the basis's manifest owns."""
-    folder = os.path.realpath(os.path.dirname(os.path.abspath(os.fspath(out))))
-    inside = basis_folder is not None and folder == os.path.realpath(os.fspath(basis_folder))
-    if inside or is_basis_folder(folder):
-        raise ForeignFileError(f"--out {out} lies in the basis folder {folder}; a blend never writes into a "
-                               "basis (its images belong to render_basis): choose another folder")
 
 
 DATABASE_JSON = "database.json"

@@ -231,13 +231,14 @@ def check_main_job(out, resolution, q, scene, res, spp, ref_spp, direct_spp=(1,)
     :class:`~mitsuba_manifold.errors.InputError` naming the option (as ``tools/main.py``
     spells it), the value and the fix. Returns the scene's path."""
     from .._util import checks as validate
+    from ..data import merl
     from ..gp.kernel import MAX_LATENT_DIM
 
     validate.output_folder("--out", out)
-    validate.table_resolution(resolution, "--resolution")
+    merl.table_resolution(resolution, "--resolution")
     if q is not None:
         validate.positive_int("--q", q, "3", hi=MAX_LATENT_DIM)
-    path = validate.scene("--scene", scene)
+    path = _scenes.check_scene("--scene", scene)
     validate.positive_int("--res", res, "256")
     held = len(database.load_sgd_fits()) + 2 if mode == "onepass" else 6   # as render_basis holds them
     validate.fits_in_memory("--res", 2 * held * res * res * 3 * 4, f"{mode} basis images of {res}x{res}")

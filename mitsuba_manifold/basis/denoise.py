@@ -10,7 +10,7 @@ available for any latent point from the basis without rendering:
   albedo ``a_i(theta)`` at the viewing angle, and that is linear in the BRDF, so the
   albedo of a blend with weights ``w`` is ``sum_i w_i a_i(theta)``, like Eq. 13.
 
-:func:`render_aovs` traces first hits only (the ``manifold_aovs`` integrator, ``spp``
+:func:`~mitsuba_manifold.render.guides.render_aovs` traces first hits only (the ``manifold_aovs`` integrator, ``spp``
 anti-aliased samples): normals, ``albedo_base`` (of other BSDFs) and, on the target, a
 per-pixel histogram ``h`` of the viewing angle over :data:`THETA_BINS` bins.
 :func:`directional_albedos` tabulates ``a_i`` per material and angle bin from the
@@ -37,19 +37,7 @@ THETA_BINS = 45  # as integrators.aovs.THETA_BINS (not imported: that module nee
 AOV_VERSION = 1
 
 
-# ------------------------------------------------------------------ first-hit AOVs
-
-def first_hit_aovs(scene, targets, spp=16, seed=0, sensor=0, bins=THETA_BINS):
-    """``(normal, albedo_base, hist)`` images of a loaded scene: (H, W, 3), (H, W, 3), (H, W, bins)."""
-    import mitsuba as mi
-
-    integ = mi.load_dict({"type": "manifold_aovs", "bins": int(bins)})
-    integ.targets = list(targets)
-    img = np.array(mi.render(scene, integrator=integ, spp=int(spp), seed=int(seed), sensor=int(sensor)),
-                   dtype=np.float32)
-    aov = img[..., img.shape[-1] - 6 - bins:]
-    return aov[..., 0:3].copy(), aov[..., 3:6].copy(), aov[..., 6:].copy()
-
+# ------------------------------------------------------------------ directional albedos
 
 def directional_albedos(db, names, bins=THETA_BINS, n_phi=64, refine=2, pad=16):
     """``a[i, k, c]``: albedo of material ``names[i]`` lit from ``theta`` at the centre of bin ``k``.
@@ -149,33 +137,6 @@ class BasisAOVs:
                 raise MismatchError(f"{path} was made for another basis ({', '.join(diff)} differ); "
                                    "render the AOVs again")
         return out
-
-
-def render_aovs(scene_path, manifold_path, names, spp=16, seed=0, resolution=None, sensor=0, max_depth=None):
-    """First-hit AOVs and directional albedos of ``names`` for a scene (a :class:`BasisAOVs`)."""
-    from ..render import scenes
-    from ..manifold.model import Manifold
-
-    t0 = time.perf_counter()
-    scene, targets, _ = scenes.load_scene(scene_path, manifold_path, spp, resolution, max_depth)
-    normal, albedo_base, hist = first_hit_aovs(scene, targets, spp, seed, sensor)
-    db = Manifold.load(manifold_path).open_database(None, names)
-    table = directional_albedos(db, list(names))
-    return BasisAOVs(normal, albedo_base, hist, table, list(names), int(spp), time.perf_counter() - t0)
-
-
-def add_aovs(folder, spp=16, seed=0):
-    """Render the AOVs of the basis in ``folder`` (one target) and save them beside it."""
-    manifest = basis_folder.read_manifest(folder)
-    if len(manifest["targets"]) != 1:
-        raise MismatchError(f"{folder}: AOVs of a blend are linear for one target; this basis has "
-                           f"{len(manifest['targets'])}")
-    names = [basis_folder.key_materials(k, manifest["version"])[0] for k in manifest["images"]
-             if k != basis_folder.BASE]
-    aovs = render_aovs(manifest["scene"], manifest["manifold"], names, spp, seed,
-                       tuple(manifest["resolution"]), manifest.get("sensor", 0), manifest["max_depth"])
-    aovs.save(folder, manifest)
-    return aovs
 
 
 # ------------------------------------------------------------------ denoising

@@ -40,7 +40,7 @@ from ..imaging import io as imageio
 from .._util import names as names_mod
 from .._util.atomic import write_bytes
 from .._util.cache import file_hash
-from ..errors import MismatchError, FormatError, InputError
+from ..errors import FormatError, ForeignFileError, InputError, MismatchError
 from ..manifold.identity import manifold_identity
 from .._util.checks import scene_xml
 
@@ -504,3 +504,20 @@ class Basis:
         return m
 
 
+def is_basis_folder(folder):
+    """True when ``folder`` holds a basis manifest (whether or not it is complete)."""
+    try:
+        with open(os.path.join(os.fspath(folder), MANIFEST), encoding="utf-8") as f:
+            return json.load(f).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def check_output_outside_basis(out, basis_folder=None):
+    """Raise unless ``out`` lies outside every basis folder (``basis_folder`` included):
+    a blend never writes into a basis, whose files the basis's manifest owns."""
+    folder = os.path.realpath(os.path.dirname(os.path.abspath(os.fspath(out))))
+    inside = basis_folder is not None and folder == os.path.realpath(os.fspath(basis_folder))
+    if inside or is_basis_folder(folder):
+        raise ForeignFileError(f"--out {out} lies in the basis folder {folder}; a blend never writes into a "
+                               "basis (its images belong to render_basis): choose another folder")

@@ -188,7 +188,7 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     if unknown:
         raise FormatError(f"unknown material(s) {unknown}{did_you_mean(unknown[0], fits)}; known: {', '.join(fits)}")
     workers = min(len(names), os.cpu_count() or 1)
-    dims = validate.table_resolution(dims, "resolution", workers=workers)
+    dims = merl.table_resolution(dims, "resolution", workers=workers)
     if not (np.isfinite(noise) and noise >= 0):
         raise FormatError(f"noise must be a finite value >= 0, got {noise}")
     out_dir = os.fspath(out_dir)

@@ -11,12 +11,14 @@ Bin indexing follows MERL's reference code: ``theta_h`` bins are uniform in
 ``[0, pi)`` by reciprocity; indices are clamped to range.
 """
 
+import math
 import os
 
 import numpy as np
 
+from .._util import checks
 from .._util.atomic import atomic_write
-from ..errors import FormatError
+from ..errors import FormatError, InputError
 
 MERL_DIMS = (90, 90, 180)
 #: Stored value -> reflectance, per channel (MERL's RED/GREEN/BLUE_SCALE).
@@ -244,3 +246,27 @@ def filled_reflectance(raw, dtype=np.float32):
             channel = refl[c]
         out[c] = np.where(above, np.maximum(channel, 0.0), 0.0)
     return out
+
+
+def table_resolution(dims, name="--resolution", bytes_per_bin=None, workers=1):
+    """MERL dimensions ``(n_theta_h, n_theta_d, n_phi_d)``, readable by this package and small
+    enough to tabulate in the memory available.
+
+    ``bytes_per_bin``: peak memory of one worker per bin (default: that of the SGD tabulation).
+    """
+    try:
+        dims = tuple(int(v) for v in dims)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be three positive integers, got {dims!r}") from None
+    if len(dims) != 3 or min(dims) < 1:
+        raise InputError(f"{name} must be three positive integers like 90,90,180, got {dims}")
+    bins = math.prod(dims)
+    if bins > MAX_BINS:
+        raise InputError(f"{name} {'x'.join(map(str, dims))} has {bins:.3g} bins; MERL files of more than "
+                         f"{MAX_BINS:.3g} bins (MERL itself: 1.46e6) are not read by this package")
+    # SGD tabulation peaks at 200 bytes per bin (measured: 291 MB above the interpreter for
+    # 90x90x180, 37 MB for 45x45x90); twice that leaves room for the writer's copy.
+    per_bin = 400 if bytes_per_bin is None else bytes_per_bin
+    checks.fits_in_memory(name, bins * per_bin * max(1, workers),
+                   f"tabulating {'x'.join(map(str, dims))} tables ({max(1, workers)} at a time)")
+    return dims

@@ -26,11 +26,11 @@ from ..basis import folder as basis_folder
 from ..imaging import io as imageio
 from .._util import names as names_mod, ownership, checks as validate
 from . import scenes
-from ..errors import FormatError, InputError, MitsubaManifoldError, did_you_mean
+from ..errors import FormatError, InputError, MismatchError, MitsubaManifoldError, did_you_mean
 from .interrupt import StopRequest, render_in_passes
 from .chunks import CHUNK_DIR
 from .._util.locking import LOCK_NAME, FolderLock
-from .scenes import default_variant
+from .scenes import check_variant, default_variant
 from ..manifold.model import Manifold
 
 MODES = basis_folder.MODES
@@ -87,7 +87,7 @@ def check_foreign_folder(out, force=False, bases=None):
     if not os.path.isdir(out) or force or (bases is None and os.path.lexists(os.path.join(out, basis_folder.MANIFEST))):
         return
     foreign = sorted(f for f in os.listdir(out) if not _OWN.match(f) and (
-        bases is None or f not in bases and not ownership.is_basis_folder(os.path.join(out, f))))
+        bases is None or f not in bases and not basis_folder.is_basis_folder(os.path.join(out, f))))
     if foreign:
         what = f"not a basis folder (no {basis_folder.MANIFEST})" if bases is None else "not a folder of bases"
         raise InputError(
@@ -208,7 +208,7 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
     sensor : int
         Which of the scene's sensors (views) to render (recorded in the manifest when not 0).
     aovs : bool
-        Also write the denoising guides ``aovs.npz`` (:func:`denoise.add_aovs`; one target).
+        Also write the denoising guides ``aovs.npz`` (:func:`guides.add_aovs`; one target).
 
     Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
     passes of :data:`interrupt.SAMPLES_PER_PASS` paths) and raises ``KeyboardInterrupt``;
@@ -226,7 +226,7 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
     if int(spp) < 1:
         raise InputError(f"spp must be >= 1, got {spp}")
     if variant is not None:
-        validate.variant(variant, jit=True)
+        check_variant(variant, jit=True)
     if os.path.exists(out) and not os.path.isdir(out):
         raise InputError(f"output folder {out} is a file")
     manifold = Manifold.load(manifold_path)
@@ -298,12 +298,12 @@ def render_basis(scene_path, manifold_path, out, spp=64, materials="all", near=N
 
 
 def ensure_aovs(out, manifest, spp=16):
-    """Write ``out/aovs.npz`` (:mod:`denoise`) unless one made for this basis is there."""
-    from ..basis import denoise
+    """Write ``out/aovs.npz`` (:mod:`~mitsuba_manifold.render.guides`) unless one made for this basis is there."""
+    from . import guides
     try:
-        denoise.BasisAOVs.load(out, manifest)
-    except denoise.MismatchError:
-        denoise.add_aovs(out, spp=spp)
+        guides.BasisAOVs.load(out, manifest)
+    except MismatchError:
+        guides.add_aovs(out, spp=spp)
 
 
 def _integrator(component, max_depth, target="all"):

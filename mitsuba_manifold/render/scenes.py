@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..manifold.identity import manifold_identity
-from ..errors import MismatchError, MitsubaManifoldError
+from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
 from .._util.checks import scene_xml
 
 def _scenes_dir():
@@ -286,3 +286,52 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
     from .interrupt import render_in_passes
     integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
     return render_in_passes(scene, integrator, int(spp), int(seed))   # Ctrl-C: KeyboardInterrupt
+
+
+def check_scene(name, value):
+    """A shipped scene's name or a readable scene XML; returns its path. The error names the
+    option and the value, and suggests the closest shipped scene names."""
+    try:
+        path = scene_path(value)
+        scene_parameters(path)
+    except MitsubaManifoldError as e:
+        shipped = shipped_scenes()
+        hint = did_you_mean(value, shipped) if os.sep not in str(value) else ""
+        if os.path.isfile(value):
+            raise InputError(f"{name}: {e}") from None
+        raise InputError(f"{name} {value!r}: no such file nor shipped scene{hint}; shipped scenes: "
+                         f"{', '.join(shipped)}") from None
+    return path
+
+
+def check_variant(value, name="`variant`", jit=False):
+    """A Mitsuba variant that is installed and renders measured RGB tables.
+
+    Parameters
+    ----------
+    jit : bool
+        Also require a JIT variant (``llvm_*``/``cuda_*``), as the ``manifold_path``
+        integrator does (``scalar_rgb`` renders ``manifold_brdf`` but not a basis).
+    """
+    import mitsuba as mi
+
+    known = list(mi.variants())
+    if value not in known:
+        raise InputError(f"{name} {value!r} is not a Mitsuba variant of this installation "
+                         f"(installed: {', '.join(known)})")
+    rgb = value.endswith("_rgb") and "polarized" not in value
+    if not rgb or (jit and not value.startswith(("llvm_", "cuda_"))):
+        usable = [v for v in known if v.endswith("_rgb") and "polarized" not in v
+                  and (not jit or v.startswith(("llvm_", "cuda_")))]
+        need = "an RGB JIT variant" if jit else "an RGB variant"
+        raise InputError(f"{name} {value!r} cannot be used here: this needs {need} "
+                         f"({', '.join(usable) or 'none installed'})")
+    if value.startswith("cuda_"):
+        import drjit as dr
+        try:
+            ok = dr.has_backend(dr.JitBackend.CUDA)
+        except Exception:
+            ok = False
+        if not ok:
+            raise InputError(f"{name} {value!r} needs a CUDA GPU, and none is usable here")
+    return value

@@ -9,6 +9,7 @@ import pytest
 from mitsuba_manifold.manifold import identity
 from mitsuba_manifold.render import interrupt
 from mitsuba_manifold._util import ownership, checks as validate
+from mitsuba_manifold.data import merl
 from mitsuba_manifold.errors import FolderLockedError, ForeignFileError, InputError
 from mitsuba_manifold._util.locking import FolderLock
 from mitsuba_manifold.manifold.model import Manifold
@@ -57,12 +58,12 @@ def test_exposure_validator(value, ok):
 
 
 def test_resolution_validator_names_the_limit_and_the_memory(monkeypatch):
-    assert validate.table_resolution((90, 90, 180)) == (90, 90, 180)
+    assert merl.table_resolution((90, 90, 180)) == (90, 90, 180)
     with pytest.raises(InputError, match="not read by this package"):
-        validate.table_resolution((100000, 100000, 100000))
+        merl.table_resolution((100000, 100000, 100000))
     monkeypatch.setattr(validate, "available_memory", lambda: 1 << 30)
     with pytest.raises(InputError, match="GiB"):
-        validate.table_resolution((256, 256, 512))
+        merl.table_resolution((256, 256, 512))
 
 
 def test_memory_refusal_states_the_margin_it_applies(monkeypatch):

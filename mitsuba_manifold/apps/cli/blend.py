@@ -81,10 +81,11 @@ def parse(argv=None):
     if args.spp < 1:
         fail(f"--spp must be >= 1, got {args.spp}")
     from ..._util import ownership, checks as validate
+    from ...basis import folder as basis_folder
     try:
         validate.exposure(args.exposure)
         validate.fraction("--prune", args.prune)
-        ownership.check_output_outside_basis(args.out, args.basis)
+        basis_folder.check_output_outside_basis(args.out, args.basis)
     except ERRORS as e:
         fail(e)
     return args

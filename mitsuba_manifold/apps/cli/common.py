@@ -18,13 +18,42 @@ INTERRUPTED = 130
 _NUMBERS = re.compile(r"^-\.?\d[\d.eE+-]*(?:[,\s]+[-+]?\.?\d[\d.eE+-]*)*$")
 
 
+#: The parser of the running tool: :func:`fail` names its options in library messages.
+_ACTIVE = []
+
+#: A Python parameter named in a library message (:mod:`mitsuba_manifold.errors`): `name`.
+_PARAM = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse with its errors as one line ``error: ...`` (exit 2), as every other error,
-    and negative numbers (also comma-separated lists of them) read as values, not options."""
+    and negative numbers (also comma-separated lists of them) read as values, not options.
 
-    def __init__(self, *args, **kwargs):
+    ``aliases`` maps library parameter names to this tool's options where the option's
+    ``dest`` differs (``{"scene_path": "scene"}``): library messages name Python
+    parameters, and :func:`fail` writes the tool's option instead."""
+
+    def __init__(self, *args, aliases=None, **kwargs):
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = _NUMBERS
+        self.aliases = dict(aliases or {})
+
+    def parse_args(self, args=None, namespace=None):
+        _ACTIVE[:] = [self]
+        return super().parse_args(args, namespace)
+
+    def option_names(self):
+        """Python parameter (argparse ``dest`` or alias) -> the option a user types."""
+        names = {}
+        for action in self._actions:
+            if action.option_strings:
+                names[action.dest] = max(action.option_strings, key=len)
+            elif action.dest != "help":
+                names[action.dest] = action.metavar if isinstance(action.metavar, str) else action.dest
+        for param, dest in self.aliases.items():
+            if dest in names:
+                names[param] = names[dest]
+        return names
 
     def error(self, message):
         self.exit(2, f"error: {message} (see {self.prog} --help)\n")
@@ -57,9 +86,17 @@ def parse_floats(text):
         raise argparse.ArgumentTypeError(f"expected numbers like '0.3,-1.2', got {text!r}") from None
 
 
+def cli_message(error, parser=None):
+    """``error`` as one line for a command-line user: each Python parameter the library named
+    (`spp`) becomes the option that sets it (``--spp``), or plain text where none does."""
+    parser = parser or (_ACTIVE[0] if _ACTIVE else None)
+    names = parser.option_names() if parser is not None else {}
+    return _PARAM.sub(lambda m: names.get(m.group(1), m.group(1)), one_line(error))
+
+
 def fail(error, code=2):
-    """Print an error for the user (one line) and exit."""
-    print(f"error: {one_line(error)}", file=sys.stderr)
+    """Print an error for the user (one line, in the tool's option names) and exit."""
+    print(f"error: {cli_message(error)}", file=sys.stderr)
     sys.exit(code)
 
 

@@ -20,6 +20,7 @@ def main(argv=None):
 
     from ...data import database
     from ..._util import checks as validate
+    from ...data import merl
     t0 = time.perf_counter()
     if args.materials and len(set(args.materials)) < len(args.materials):
         repeated = sorted({n for n in args.materials if args.materials.count(n) > 1})
@@ -27,7 +28,7 @@ def main(argv=None):
         args.materials = list(dict.fromkeys(args.materials))
     try:
         n = len(args.materials) if args.materials else 100
-        validate.table_resolution(args.resolution, "--resolution", workers=min(n, os.cpu_count() or 1))
+        merl.table_resolution(args.resolution, "--resolution", workers=min(n, os.cpu_count() or 1))
         validate.finite("--noise", args.noise, 0.0, 10.0)
         paths = database.make_database(args.out, args.resolution, args.materials, args.noise,
                                        args.seed, progress=True, force=args.force)

@@ -164,6 +164,7 @@ def _refuse_inputs(args):
     """Never overwrite an input (the target, the mask or an image of the basis), nor a file
     this tool did not make (:mod:`ownership`, unless ``--force``)."""
     from ..._util import ownership
+    from ...basis import folder as basis_folder
 
     inputs = {os.path.realpath(p) for p in (args.target, args.mask) if p}
     for path in _planned(args):
@@ -172,7 +173,7 @@ def _refuse_inputs(args):
             fail(f"output {path} would overwrite an input (the target, the mask or the basis); "
                   "choose another path")
         try:
-            ownership.check_output_outside_basis(path)
+            basis_folder.check_output_outside_basis(path)
             ownership.check_replaceable(path, args.force, what="output")
         except ERRORS as e:
             fail(e)
