@@ -6,6 +6,8 @@ import pytest
 
 # Tests must never pick Debian's libLLVM 15: the package selects a newer one on import.
 import mitsuba_manifold  # noqa: F401
+# -m "not render" starts neither Mitsuba, Dr.Jit nor Ray (the session fails if it does).
+from numpy_only import pytest_sessionfinish  # noqa: F401
 
 SMALL_DIMS = (32, 32, 64)
 SMALL_MATERIALS = ["white-diffuse-bball", "gold-paint", "blue-acrylic", "chrome", "steel",

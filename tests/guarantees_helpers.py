@@ -71,6 +71,16 @@ def snapshot(folder):
 
 SPHERE = os.path.join(ROOT, "scenes", "sphere.xml")
 TINY_NAMES = ["steel", "chrome", "gold-paint", "pink-fabric"]
+#: Table resolution of the tiny databases.
+DIMS = (8, 8, 16)
+
+
+def write_table(path, dims=DIMS, value=1.0):
+    """A MERL table of ``dims`` bins, every value ``value``."""
+    import numpy as np
+
+    from mitsuba_manifold.data import merl
+    merl.write_binary(path, np.full((3,) + tuple(dims), value))
 
 
 def make_tiny(root):

@@ -5,11 +5,10 @@ the new one is complete (GUIDE: nothing existing destroyed or half-written).
 """
 
 import os
-import tempfile
+import secrets
 
-# The process's umask, read once: reading it means setting it, which races with other threads.
-_UMASK = os.umask(0)
-os.umask(_UMASK)
+#: Tries at a fresh temporary name before giving up (as :func:`tempfile.mkstemp`).
+_TRIES = 100
 
 
 def atomic_replace(path, write):
@@ -21,14 +20,12 @@ def atomic_replace(path, write):
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     try:
-        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".",
-                                   suffix=".tmp" + os.path.splitext(path)[1], dir=folder)
+        tmp, mode = _temporary(path, folder)
     except OSError as e:
         raise _naming(e, path, folder) from None
-    os.close(fd)
     try:
         write(tmp)
-        os.chmod(tmp, 0o666 & ~_UMASK)
+        os.chmod(tmp, mode)   # a writer that re-created the file may have given it other permissions
         os.replace(tmp, path)
     except BaseException as e:
         if os.path.exists(tmp):
@@ -36,6 +33,27 @@ def atomic_replace(path, write):
         if isinstance(e, OSError) and tmp in (e.filename, e.filename2):
             raise _naming(e, path, folder) from None
         raise
+
+
+def _temporary(path, folder):
+    """A new empty file beside ``path`` (``.<name>.<random>.tmp<ext>``) and its permissions.
+
+    The file is created with mode 0666, so the kernel applies the process's umask (read
+    here, when it is needed, without changing it: ``os.umask`` can only be read by
+    setting it, which would race with other threads creating files)."""
+    prefix, suffix = "." + os.path.basename(path) + ".", ".tmp" + os.path.splitext(path)[1]
+    flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
+    for _ in range(_TRIES):
+        tmp = os.path.join(folder, prefix + secrets.token_hex(4) + suffix)
+        try:
+            fd = os.open(tmp, flags, 0o666)
+        except FileExistsError:
+            continue
+        try:
+            return tmp, os.fstat(fd).st_mode & 0o777
+        finally:
+            os.close(fd)
+    raise FileExistsError(f"no free temporary name beside {path} after {_TRIES} tries")
 
 
 def _naming(error, path, folder):

@@ -1,7 +1,9 @@
 """Checks of user input made before anything is computed or written.
 
 Each function returns the checked value or raises :class:`InputError` with one line naming
-the parameter, the value and what would be accepted.
+the parameter, the value and what would be accepted. ``name`` is how the message names the
+value: a Python parameter in backquotes (```spp```, which the command-line tools write as
+their option, :func:`mitsuba_manifold.apps.cli.common.cli_message`) or a tool's own words.
 """
 
 import math
@@ -38,7 +40,7 @@ def positive_int(name, value, example, hi=None):
     return int(value)
 
 
-def exposure(value, name="--exposure"):
+def exposure(value, name="`exposure`"):
     """A PNG exposure in stops (see :data:`EXPOSURE_RANGE`)."""
     return finite(name, value, *EXPOSURE_RANGE)
 

@@ -62,7 +62,8 @@ def check_replaceable(path, force=False, what="output"):
     force : bool
         Allow replacing a file the tool did not make (never a read-only one).
     what : str
-        The option or role of the path, for the message (e.g. ``"--out"``).
+        The role of the path, for the message: a Python parameter in backquotes (``"`out`"``,
+        which a command-line tool writes as its option) or plain words (``"output"``).
     """
     path = os.fspath(path)
     if not os.path.lexists(path):
@@ -82,7 +83,7 @@ def check_replaceable(path, force=False, what="output"):
                                "writable or choose another name)")
     if not force and not owned(path):
         raise ForeignFileError(f"{what} {path} exists and was not written by this tool (or was changed "
-                               "since); not replacing it: choose another name, or add --force")
+                               "since); not replacing it: choose another name, or pass `force`")
 
 
 def record(paths, tool):
@@ -137,7 +138,7 @@ def owned_tables(out_dir, settings, names, force):
     if foreign and not force:
         raise ForeignFileError(f"{out_dir} holds tables make_database did not make: {', '.join(foreign[:5])}"
                                f"{' ...' if len(foreign) > 5 else ''}; not overwriting them: choose another "
-                               "folder, or add --force")
+                               "folder, or pass `force`")
     for f in foreign:
         if read_only(os.path.join(out_dir, f)):
             raise ForeignFileError(f"{os.path.join(out_dir, f)} is read-only; not replacing it")

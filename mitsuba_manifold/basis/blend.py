@@ -43,36 +43,36 @@ def latent_points(basis, manifold, x):
     try:
         arr = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
-        raise MismatchError(f"x must be numbers, got {x!r}") from None
+        raise MismatchError(f"`x` must be numbers, got {x!r}") from None
     if arr.size != p * q or arr.ndim > 2 or (arr.ndim == 2 and arr.shape != (p, q)):
         raise MismatchError(
-            f"x has shape {arr.shape} ({arr.size} numbers), but the basis has {p} target(s) "
-            f"{basis.targets} on a {q}-dimensional manifold: x needs {p * q} numbers "
+            f"`x` has shape {arr.shape} ({arr.size} numbers), but the basis has {p} target(s) "
+            f"{basis.targets} on a {q}-dimensional manifold: `x` needs {p * q} numbers "
             f"({'q' if p == 1 else 'p x q'})")
     arr = arr.reshape(p, q)
     if not np.isfinite(arr).all():
-        raise MismatchError(f"x contains NaN or Inf: {arr.tolist()}")
+        raise MismatchError(f"`x` contains NaN or Inf: {arr.tolist()}")
     return arr
 
 
 def _target_weights(basis, manifold, x, w):
     """Affine weights (p, N) from ``x`` or ``w``, plus the latent points (or None)."""
     if (x is None) == (w is None):
-        raise MismatchError("give exactly one of x (latent point) and w (weights)")
+        raise MismatchError("give exactly one of `x` (latent point) and `w` (weights)")
     if x is not None:
         pts = latent_points(basis, manifold, x)
         return manifold.weights(pts)[1], pts
     try:
         arr = np.asarray(w, dtype=np.float64)
     except (TypeError, ValueError):
-        raise MismatchError(f"w must be numbers, got {w!r}") from None
+        raise MismatchError(f"`w` must be numbers, got {w!r}") from None
     n = len(manifold.names)
     if arr.size != basis.p * n or arr.ndim > 2 or (arr.ndim == 2 and arr.shape != (basis.p, n)):
-        raise MismatchError(f"w has shape {arr.shape}; the basis has {basis.p} target(s) and the manifold "
-                         f"{n} materials: w needs shape ({n},) or ({basis.p}, {n})")
+        raise MismatchError(f"`w` has shape {arr.shape}; the basis has {basis.p} target(s) and the manifold "
+                         f"{n} materials: `w` needs shape ({n},) or ({basis.p}, {n})")
     arr = arr.reshape(basis.p, n)
     if not np.isfinite(arr).all():
-        raise MismatchError("w contains NaN or Inf")
+        raise MismatchError("`w` contains NaN or Inf")
     return arr, None
 
 
@@ -112,7 +112,7 @@ def _plan(basis, manifold, W, prune, renormalise):
             raise MismatchError(
                 f"basis {basis.folder} lacks {len(missing)} image(s) whose weight survives pruning "
                 f"(prune={prune:g}): {listed}{' ...' if len(missing) > 10 else ''}. Render them, raise "
-                "--prune, or renormalise over the images present (an approximation)")
+                "`prune`, or pass `renormalise` to rescale over the images present (an approximation)")
         if not present.any() or abs(cw[present].sum()) < 1e-12:
             raise MismatchError(f"basis {basis.folder}: none of the images this blend needs is present "
                              f"(missing: {', '.join(sorted(missing)[:10])}); cannot renormalise")
@@ -142,7 +142,7 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         interpolated table changes by at most ``prune`` of its L2 norm (:meth:`Manifold.prune`;
         the kept weights are rescaled to the same sum).
     renormalise : bool
-        When images the blend needs are missing from the basis (e.g. a ``--near`` basis),
+        When images the blend needs are missing from the basis (e.g. a basis rendered ``near`` a point only),
         drop them and rescale the remaining image weights to the same sum instead of
         raising. This approximates the missing materials by the present ones.
 
@@ -186,7 +186,7 @@ def _endpoint(manifold, v):
         return manifold.latent[manifold.index(v)].copy()
     arr = np.asarray(v, dtype=np.float64).ravel()
     if arr.size != manifold.q or not np.isfinite(arr).all():
-        raise MismatchError(f"path end {v!r}: expected a material name or {manifold.q} finite numbers")
+        raise MismatchError(f"path end {v!r} (`a` or `b`): expected a material name or {manifold.q} finite numbers")
     return arr
 
 
@@ -218,12 +218,12 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         basis = Basis.load(basis)
     manifold = basis.check_manifold(manifold)
     if not isinstance(steps, (int, np.integer)) or steps < 2:
-        raise MismatchError(f"steps must be an integer >= 2, got {steps!r}")
+        raise MismatchError(f"`steps` must be an integer >= 2, got {steps!r}")
     if not 0 <= target < basis.p:
-        raise MismatchError(f"target {target} out of range: the basis has {basis.p} target(s)")
+        raise MismatchError(f"`target` {target} out of range: the basis has {basis.p} target(s)")
     if basis.p == 1 and x is not None:
-        raise MismatchError("x is for the targets that stay fixed along a path, and this basis has one target "
-                         "(the path sets its point): leave x out")
+        raise MismatchError("`x` is for the targets that stay fixed along a path, and this basis has one target "
+                         "(the path sets its point): leave `x` out")
     xa, xb = _endpoint(manifold, a), _endpoint(manifold, b)
     if np.array_equal(xa, xb):
         raise MismatchError(f"the path's ends {a!r} and {b!r} are the same latent point (all {steps} images would "
@@ -232,7 +232,7 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
     xs = (1.0 - t) * xa + t * xb
     if basis.p > 1:
         if x is None:
-            raise MismatchError(f"the basis has {basis.p} targets: give x for the targets that stay fixed")
+            raise MismatchError(f"the basis has {basis.p} targets: give `x` for the targets that stay fixed")
         fixed = latent_points(basis, manifold, x)
     t0 = time.perf_counter()
     plans = []

@@ -119,7 +119,7 @@ class BasisAOVs:
         import json
         path = os.path.join(os.fspath(folder), AOV_FILE)
         if not os.path.isfile(path):
-            raise MismatchError(f"{folder} has no {AOV_FILE} (render the basis with aovs=True / --aovs)")
+            raise MismatchError(f"{folder} has no {AOV_FILE} (render the basis with `aovs`)")
         try:
             with np.load(path) as z:
                 if int(z["version"]) != AOV_VERSION:
@@ -128,7 +128,7 @@ class BasisAOVs:
                           int(z["spp"]), float(z["time_s"]))
                 key = json.loads(str(z["basis"]))
         except (OSError, ValueError, KeyError, AttributeError, TypeError) as e:
-            raise MismatchError(f"{path} is not an AOV file written by render_basis --aovs ({type(e).__name__}); "
+            raise MismatchError(f"{path} is not an AOV file written by render_basis with `aovs` ({type(e).__name__}); "
                                "delete it and render the AOVs again") from None
         if manifest is not None:
             want = {k: manifest.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}

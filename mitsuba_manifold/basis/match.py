@@ -35,18 +35,18 @@ material's own image gives back its own point.
 """
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import optimize
 from threadpoolctl import threadpool_limits
 
 from . import objectives as image_error
-from ..imaging import io as imageio
 from .folder import BASE, Basis
 from .blend import compose
 from ..errors import InputError
 from .objectives import LOSSES, masked_pool, masked_rel_mse, pool
+from .targets import check_mask, check_target, read_mask, read_target
 
 #: Margin of the search box around the latent points, in length scales.
 MARGIN = 2.0
@@ -153,77 +153,6 @@ class MatchResult:
         return out
 
 
-# ------------------------------------------------------------------ inputs
-
-def check_target(target, resolution, what="target"):
-    """``target`` as float64 (H, W, 3), checked against the basis ``resolution`` (width, height)."""
-    arr = np.asarray(target)
-    w, h = resolution
-    if arr.ndim != 3 or arr.shape[2] != 3:
-        raise InputError(f"{what} must be an RGB image of shape (height, width, 3), got {arr.shape}")
-    if arr.shape[:2] != (h, w):
-        raise InputError(f"{what} is {arr.shape[1]}x{arr.shape[0]}, the basis is {w}x{h}: render or "
-                         "resize the target to the basis resolution")
-    bad = ~np.isfinite(arr).all(axis=-1)
-    if bad.any():
-        raise InputError(f"{what} has {int(bad.sum())} pixels with NaN or Inf values; fix them or "
-                         "leave them out of the image")
-    return arr.astype(np.float64)
-
-
-def check_mask(mask, resolution, what="mask"):
-    """Mask weights in [0, 1] as float64 (H, W): (H, W) or (H, W, C) (channels averaged)."""
-    w, h = resolution
-    arr = np.asarray(mask, dtype=np.float64)
-    if arr.ndim == 3:
-        arr = arr.mean(axis=-1)
-    if arr.shape != (h, w):
-        raise InputError(f"{what} is {arr.shape[1] if arr.ndim == 2 else arr.shape}"
-                         f"{'x' + str(arr.shape[0]) if arr.ndim == 2 else ''}, the target is {w}x{h}: "
-                         "they must have the same size")
-    if not np.isfinite(arr).all():
-        raise InputError(f"{what} has NaN or Inf values")
-    arr = np.clip(arr, 0.0, 1.0)
-    if not (arr > 0).any():
-        raise InputError(f"{what} selects no pixel (all zero): nothing to match")
-    return arr
-
-
-def read_target(path):
-    """A target image: linear EXR, or an 8-bit PNG/JPEG (sRGB-decoded to linear).
-
-    Returns ``(image float32 (H, W, 3), saturated (H, W) bool)``: the pixels of an 8-bit
-    image with a channel at 255 (clipped, their true value unknown), to leave out of the
-    match; none for an EXR.
-    """
-    path = str(path)
-    if path.lower().endswith(".exr"):
-        img = imageio.read_exr(path)
-        return img, np.zeros(img.shape[:2], dtype=bool)
-    u8 = _read_8bit(path, "RGB", "target")
-    return imageio.srgb_decode(u8 / 255.0).astype(np.float32), (u8 == 255).any(axis=-1)
-
-
-def read_mask(path):
-    """A mask image (PNG/JPEG grey or RGB: value / 255; EXR: mean of R, G, B) as (H, W)."""
-    path = str(path)
-    if path.lower().endswith(".exr"):
-        return imageio.read_exr(path).mean(axis=-1)
-    return _read_8bit(path, "L", "mask") / 255.0
-
-
-def _read_8bit(path, mode, what):
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as im:
-            return np.asarray(im.convert(mode), dtype=np.float64)
-    except FileNotFoundError:
-        raise InputError(f"{what} {path}: file does not exist") from None
-    except (UnidentifiedImageError, OSError) as e:
-        raise InputError(f"{what} {path}: not a readable image ({e})") from None
-
-
 # ------------------------------------------------------------------- search
 
 def _bounds(manifold):
@@ -294,7 +223,7 @@ def _downsample_factor(resolution, downsample):
     if downsample is not None:
         f = int(downsample)
         if f < 1 or f > min(resolution):
-            raise InputError(f"downsample must be an integer in 1..{min(resolution)}, got {downsample!r}")
+            raise InputError(f"`downsample` must be an integer in 1..{min(resolution)}, got {downsample!r}")
         return f
     return max(1, int(np.sqrt(resolution[0] * resolution[1] / SEARCH_PIXELS)))
 
@@ -316,8 +245,52 @@ def _basis_and_manifold(basis, manifold):
     return basis, manifold
 
 
-def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free=False, prior=0.0,
-          starts=8, max_iter=100, downsample=None, scan=8192):
+@dataclass(frozen=True)
+class MatchSettings:
+    """How :func:`match` searches (every field is also a keyword of :func:`match`).
+
+    Attributes
+    ----------
+    loss : {"rel_mse", "log"}
+        Relative MSE of :mod:`metrics`, or MSE of log luminance.
+    exposure_free : bool
+        Fit the blend's scale in closed form at every evaluation.
+    prior : float
+        Weight of the GP variance (Eq. 2) added to the error (0: off).
+    starts : int
+        L-BFGS-B starts: the best single material's latent point, then the best of the
+        ``scan`` points, kept ``l / 4`` apart.
+    max_iter : int
+        L-BFGS-B iterations per start.
+    downsample : int, optional
+        Box factor of the search image for the log loss (default: about 64x64 pixels);
+        the relative MSE is always exact at full resolution.
+    scan : int
+        Random latent points near the data scored (vectorised) to choose the starts; 0:
+        start from the training points nearest to the best single material only.
+    """
+    loss: str = "rel_mse"
+    exposure_free: bool = False
+    prior: float = 0.0
+    starts: int = 8
+    max_iter: int = 100
+    downsample: object = None
+    scan: int = 8192
+
+    def check(self):
+        """Raise :class:`InputError` naming the first setting out of range; returns ``self``."""
+        if self.loss not in LOSSES:
+            raise InputError(f"`loss` must be one of {LOSSES}, got {self.loss!r}")
+        if not (np.isfinite(self.prior) and self.prior >= 0):
+            raise InputError(f"`prior` must be a finite number >= 0, got {self.prior!r}")
+        if not isinstance(self.starts, (int, np.integer)) or self.starts < 1:
+            raise InputError(f"`starts` must be a positive integer, got {self.starts!r}")
+        if not isinstance(self.scan, (int, np.integer)) or self.scan < 0:
+            raise InputError(f"`scan` must be an integer >= 0, got {self.scan!r}")
+        return self
+
+
+def match(basis, target, mask=None, manifold=None, settings=None, **overrides):
     """Find the latent point whose blend (Eq. 13) best matches ``target``.
 
     Parameters
@@ -330,23 +303,11 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
         Pixel weights in [0, 1] (0: ignored); default all pixels.
     manifold : Manifold or str, optional
         Default: the basis' own (checked against its manifest).
-    loss : {"rel_mse", "log"}
-        Relative MSE of :mod:`metrics`, or MSE of log luminance.
-    exposure_free : bool
-        Fit the blend's scale in closed form at every evaluation.
-    prior : float
-        Weight of the GP variance (Eq. 2) added to the error (0: off).
-    starts : int
-        L-BFGS-B starts: the best single material's latent point, then the best of the
-        ``scan`` points, kept ``l / 4`` apart.
-    scan : int
-        Random latent points near the data scored (vectorised) to choose the starts; 0:
-        start from the training points nearest to the best single material only.
-    max_iter : int
-        L-BFGS-B iterations per start.
-    downsample : int, optional
-        Box factor of the search image for the log loss (default: about 64x64 pixels);
-        the relative MSE is always exact at full resolution.
+    settings : MatchSettings, optional
+        How to search (default: :class:`MatchSettings`' defaults).
+    **overrides
+        Fields of :class:`MatchSettings` (``loss``, ``exposure_free``, ``prior``, ``starts``,
+        ``max_iter``, ``downsample``, ``scan``) replacing those of ``settings``.
 
     Returns
     -------
@@ -359,42 +320,56 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
         several targets, missing images or without its manifold, bad settings.
     """
     t0 = time.perf_counter()
+    opts = replace(settings or MatchSettings(), **overrides).check()
     basis, manifold = _basis_and_manifold(basis, manifold)
     target = check_target(target, basis.resolution)
     weight = np.ones(target.shape[:2]) if mask is None else check_mask(mask, basis.resolution)
-    if loss not in LOSSES:
-        raise InputError(f"loss must be one of {LOSSES}, got {loss!r}")
-    if not (np.isfinite(prior) and prior >= 0):
-        raise InputError(f"prior must be a finite number >= 0, got {prior!r}")
-    if not isinstance(starts, (int, np.integer)) or starts < 1:
-        raise InputError(f"starts must be a positive integer, got {starts!r}")
-    if not isinstance(scan, (int, np.integer)) or scan < 0:
-        raise InputError(f"scan must be an integer >= 0, got {scan!r}")
-    f = _downsample_factor(basis.resolution, downsample) if loss == "log" else 1
+    f = _downsample_factor(basis.resolution, opts.downsample) if opts.loss == "log" else 1
     t_read = basis.read([BASE] + basis.material_keys(manifold.names))
-
-    pixels = weight > 0
-    full = image_error.objective(basis, manifold, target, weight, pixels, loss, exposure_free, 1)
+    full = image_error.objective(basis, manifold, target, weight, opts.loss, opts.exposure_free)
     search = full
     if f > 1:
         wp = pool(weight[..., None], f)[..., 0]
         tp = masked_pool(target, weight[..., None], f)
-        search = image_error.objective(basis, manifold, tp, wp, wp > 0, loss, exposure_free, f, weight[..., None])
+        search = image_error.objective(basis, manifold, tp, wp, opts.loss, opts.exposure_free, f, weight[..., None])
+    runs = _search(manifold, search, full, opts, f)
+    best, from_start, x = _winner(manifold, full, runs, opts.prior)
+    _, w = manifold.weights(x)
+    err, _, s = full(w)
+    image = compose(basis, basis.material_keys(manifold.names), w)[0]   # Eq. 13 (images already read)
+    var = max(float(manifold.variance(x)), 0.0)
+    return MatchResult(x=np.asarray(x, dtype=float), weights=w, error=float(err),
+                       rel_mse=masked_rel_mse(s * image, target, weight), exposure=float(s), variance=var,
+                       objective=float(err + opts.prior * var), single=best, from_start=from_start, starts=runs,
+                       image=image, names=list(manifold.names), loss=opts.loss, prior=float(opts.prior),
+                       exposure_free=bool(opts.exposure_free), downsample=f, n_pixels=int((weight > 0).sum()),
+                       time_s=time.perf_counter() - t0, time_read_s=t_read)
 
+
+def _search(manifold, search, full, opts, f):
+    """The L-BFGS-B descents of :func:`match` on the ``search`` objective, from the best single
+    material and the best scanned points; with ``f > 1`` the best is refined on ``full``."""
+    prior = opts.prior
     var_train = prior * manifold.variance(manifold.latent)
     best = int(np.argmin(search.batch(np.eye(manifold.n))[0] + var_train))
     bounds = _bounds(manifold)
-    X, scan_err = _scan(manifold, search, prior, bounds, scan)
+    X, scan_err = _scan(manifold, search, prior, bounds, opts.scan)
     # L-BFGS-B's small linear algebra is far slower on a BLAS thread pool than on one thread
     with threadpool_limits(1, user_api="blas"):
-        runs = [_descend(manifold, search, prior, x0, bounds, max_iter)
-                for x0 in _start_points(manifold, best, X, scan_err, int(starts))]
+        runs = [_descend(manifold, search, prior, x0, bounds, opts.max_iter)
+                for x0 in _start_points(manifold, best, X, scan_err, int(opts.starts))]
         if f > 1:  # refine the best coarse point at full resolution
             i = int(np.argmin([r["objective"] for r in runs]))
-            fine = _descend(manifold, full, prior, runs[i]["x"], bounds, max_iter)
+            fine = _descend(manifold, full, prior, runs[i]["x"], bounds, opts.max_iter)
             runs[i] = {**fine, "x0": runs[i]["x0"], "x_search": runs[i]["x"],
                        "n_evaluations": runs[i]["n_evaluations"] + fine["n_evaluations"]}
-    # the winner: an optimised point or a training material alone, scored at full resolution
+    return runs
+
+
+def _winner(manifold, full, runs, prior):
+    """The best single material, and the winner (an optimised point or a training material
+    alone, scored at full resolution): ``(SingleMatch, index of its run or None, x)``."""
+    var_train = prior * manifold.variance(manifold.latent)
     full_errs, full_scales = full.batch(np.eye(manifold.n))
     best = int(np.argmin(full_errs + var_train))
     cand = [(full_errs[best] + var_train[best], None, manifold.latent[best].copy())]
@@ -402,17 +377,8 @@ def match(basis, target, mask=None, manifold=None, loss="rel_mse", exposure_free
         w = manifold.weights(r["x"])[1]
         cand.append((full(w)[0] + prior * float(manifold.variance(r["x"])), j, r["x"]))
     _, from_start, x = min(cand, key=lambda c: c[0])
-    _, w = manifold.weights(x)
-    err, _, s = full(w)
-    image = compose(basis, basis.material_keys(manifold.names), w)[0]   # Eq. 13 (images already read)
-    rel = masked_rel_mse(s * image, target, weight)
-    var = max(float(manifold.variance(x)), 0.0)
     single = SingleMatch(manifold.names[best], best, float(full_errs[best]), float(full_scales[best]))
-    return MatchResult(x=np.asarray(x, dtype=float), weights=w, error=float(err), rel_mse=rel,
-                       exposure=float(s), variance=var, objective=float(err + prior * var), single=single,
-                       from_start=from_start, starts=runs, image=image, names=list(manifold.names),
-                       loss=loss, prior=float(prior), exposure_free=bool(exposure_free), downsample=f,
-                       n_pixels=int(pixels.sum()), time_s=time.perf_counter() - t0, time_read_s=t_read)
+    return single, from_start, x
 
 
 def single_material_errors(basis, target, mask=None, manifold=None, exposure_free=False):
@@ -423,9 +389,9 @@ def single_material_errors(basis, target, mask=None, manifold=None, exposure_fre
     basis, manifold = _basis_and_manifold(basis, manifold)
     target = check_target(target, basis.resolution)
     weight = np.ones(target.shape[:2]) if mask is None else check_mask(mask, basis.resolution)
-    obj = image_error.objective(basis, manifold, target, weight, weight > 0, "rel_mse", exposure_free, 1)
+    obj = image_error.objective(basis, manifold, target, weight, "rel_mse", exposure_free)
     return obj.batch(np.eye(manifold.n))
 
 
-__all__ = ["match", "MatchResult", "SingleMatch", "InputError", "read_target", "read_mask",
+__all__ = ["match", "MatchSettings", "MatchResult", "SingleMatch", "InputError", "read_target", "read_mask",
            "check_target", "check_mask", "single_material_errors"]

@@ -151,12 +151,14 @@ class LogLuminanceMSE:
         return np.concatenate(errs), self.mean_r / np.concatenate(norms)
 
 
-def objective(basis, manifold, target, weight, pixels, loss, exposure_free, f=1, full_weight=None):
-    """The objective of ``loss`` for ``target`` (H', W', 3) with mask weights ``weight`` (H', W').
+def objective(basis, manifold, target, weight, loss, exposure_free, f=1, full_weight=None):
+    """The objective of ``loss`` for ``target`` (H', W', 3) with mask weights ``weight`` (H', W')
+    (the pixels of weight > 0 count).
 
     ``f > 1``: target and weights are already box-downsampled by ``f`` (log loss only) and
     ``full_weight`` (H, W, 1) is the full-resolution mask used to downsample the basis.
     """
+    pixels = weight > 0
     if loss == "rel_mse":
         keys = [BASE] + basis.material_keys(manifold.names)
         return RelativeMSE([basis.image(k) for k in keys], target, weight, exposure_free)

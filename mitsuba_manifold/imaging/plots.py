@@ -7,11 +7,18 @@ import numpy as np
 from .._util.atomic import atomic_write
 
 
-def figure():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
+def subplots(nrows=1, ncols=1, squeeze=True, layout=None, **figure_kw):
+    """A new figure and its axes (as ``pyplot.subplots``), drawn by Agg.
+
+    The figure is made without ``pyplot``: no backend is switched (a caller's interactive
+    backend stays as it is) and no figure is registered anywhere, so nothing needs closing.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(layout=layout, **figure_kw)
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(nrows, ncols, squeeze=squeeze)
 
 
 def save(fig, path):
@@ -25,7 +32,6 @@ def finish(fig, axes, path):
         ax.legend(fontsize=7)
     fig.tight_layout()
     save(fig, path)
-    figure().close(fig)
     return path
 
 
@@ -76,14 +82,13 @@ def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
     slice are drawn hollow. Every material is a point; names go to as many as fit without
     overlapping (:func:`label_points`), dark on a light halo so they read on any colour.
     """
-    plt = figure()
     xs, ys, pts = slice_points(manifold, dims, resolution)
     rgb = manifold.albedo(pts)
     shape = (len(ys), len(xs))
     alb = rgb.mean(axis=1).reshape(shape)
     outside = ((rgb < 0) | (rgb > 1)).any(axis=1).reshape(shape)
     dist, reach = data_distance(manifold, pts)
-    fig, ax = plt.subplots(figsize=(11, 9), layout="constrained")
+    fig, ax = subplots(figsize=(11, 9), layout="constrained")
     im = ax.imshow(alb, origin="lower", extent=(xs[0], xs[-1], ys[0], ys[-1]), cmap="viridis", aspect="auto")
     cs = ax.contour(xs, ys, alb, levels=12, colors="white", linewidths=0.6, alpha=0.8)
     ax.clabel(cs, fontsize=6, fmt="%.2f")
@@ -117,7 +122,6 @@ def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
     order = np.lexsort((-_isolation(pts_d), ~near))   # on the slice first, then the most isolated first
     ax.set_title(heading(label_points(ax, pts_d, manifold.names, order=order)), fontsize=9)
     save(fig, path)
-    plt.close(fig)
     return path
 
 
@@ -168,11 +172,10 @@ def latent_line(manifold, path, resolution=400, margin=0.15):
     """PNG of a one-dimensional latent space (q = 1): the albedo of the interpolated material
     along ``x`` with the materials at their latent points (the ``q = 1`` analogue of
     :func:`latent_map`)."""
-    plt = figure()
     x = manifold.latent[:, 0]
     pad = margin * max(x.max() - x.min(), 1e-9)
     xs = np.linspace(x.min() - pad, x.max() + pad, resolution)
-    fig, ax = plt.subplots(figsize=(11, 5))
+    fig, ax = subplots(figsize=(11, 5))
     ax.plot(xs, manifold.albedo(xs[:, None]).mean(axis=1), color="0.3", lw=1)
     mine = manifold.albedo(x[:, None]).mean(axis=1)
     ax.scatter(x, mine, s=14, c="red", edgecolors="black", linewidths=0.4, zorder=3)
@@ -182,14 +185,12 @@ def latent_line(manifold, path, resolution=400, margin=0.15):
     ax.set_xlabel("x[0]")
     ax.set_ylabel("albedo (mean RGB)")
     save(fig, path)
-    plt.close(fig)
     return path
 
 
 def convergence(history, path, label="Hooke-Jeeves", others=None):
     """PNG of the log-likelihood per iteration (paper Fig. 5); ``others``: {label: history}."""
-    plt = figure()
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = subplots(figsize=(6, 4))
     for lab, h in [(label, history)] + list((others or {}).items()):
         h = np.asarray(h)
         ax.plot(np.arange(len(h)), h, marker=".", label=lab)
@@ -199,7 +200,6 @@ def convergence(history, path, label="Hooke-Jeeves", others=None):
     ax.legend()
     fig.tight_layout()
     save(fig, path)
-    plt.close(fig)
     return path
 
 
@@ -234,9 +234,8 @@ def write_fit_plots(manifold, folder):
 
 def gi_error_vs_time(report, path):
     """Log-log plot of relative MSE against time per image: direct renders and blends, per scene and point."""
-    plt = figure()
     names = list(report["scenes"])
-    fig, axes = plt.subplots(1, len(names), figsize=(6 * len(names), 4.5), squeeze=False)
+    fig, axes = subplots(1, len(names), figsize=(6 * len(names), 4.5), squeeze=False)
     for ax, name in zip(axes[0], names):
         sc = report["scenes"][name]
         for k, row in enumerate(sc["points"]):

@@ -4,11 +4,16 @@ import json
 import os
 import re
 import shlex
+import subprocess
+import sys
 
 import pytest
 
 from mitsuba_manifold.apps import pipeline
 from mitsuba_manifold.apps.cli import main_job
+from mitsuba_manifold.errors import InputError
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 @pytest.mark.parametrize("option, value, expect", [
@@ -28,7 +33,7 @@ def test_main_job_refuses_bad_options_before_writing_anything(tmp_path, capsys, 
 def readme_outputs(points=("training", "midpoint", "extrapolated"), scene="table"):
     """The files the README's table of main-job outputs names (braces expanded, ``table_*``
     as the three points), without the folders and per-material entries."""
-    text = open(os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "README.md")).read()
+    text = open(os.path.join(ROOT, "README.md")).read()
     table = text[text.index("| file | what |"):]
     table = table[:table.index("\n\n")]
     names = []
@@ -78,7 +83,24 @@ def test_explore_command_works_from_any_folder(tmp_path, monkeypatch):
 
     monkeypatch.chdir(tmp_path)
     words = shlex.split(command(os.path.join("mj", "gi", "basis dir"), os.path.join("mj", "manifold.npz")))
-    assert words[:2] == ["mitsuba-manifold", "explore"] or (words[0] == "python3" and os.path.isfile(words[1])
-                                                             and os.path.isabs(words[1]))
+    checkout_tool = os.path.join(ROOT, "tools", "explore.py")
+    if os.path.isfile(checkout_tool):   # run from a checkout: its own tool, by absolute path
+        assert words[:2] == ["python3", checkout_tool]
+    else:                               # an installed package: the console script
+        assert words[:2] == ["mitsuba-manifold", "explore"]
     assert words[words.index("--basis") + 1] == str(tmp_path / "mj" / "gi" / "basis dir")
     assert words[words.index("--manifold") + 1] == str(tmp_path / "mj" / "manifold.npz")
+
+
+def test_the_pipeline_names_python_parameters_and_imports_no_tool():
+    """Called from Python, the main job's checks name its parameters (the tool writes its
+    options, test above); the pipeline shares the explore command line, not the CLI module."""
+    with pytest.raises(InputError, match=r"^`res` 0 is not allowed: .*\(e\.g\. `res` 256\)"):
+        pipeline.MainJob("out", res=0).check()
+    with pytest.raises(InputError, match=r"^`ref_spp` -1 is not allowed"):
+        pipeline.check_main_job("out", (8, 8, 16), None, "table", 16, 4, -1)
+    r = subprocess.run([sys.executable, "-c", "import sys, mitsuba_manifold.apps.pipeline\n"
+                        "print([m for m in sys.modules if m.startswith('mitsuba_manifold.apps.cli')])"],
+                       capture_output=True, text=True, cwd=ROOT,
+                       env=dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")))
+    assert r.returncode == 0 and r.stdout.strip() == "[]", r.stderr[-2000:]

@@ -129,7 +129,7 @@ def test_wrong_x_dimension_is_a_clear_error(basis1, manifold):
             bl.blend(folder, manifold, x=x)
     with pytest.raises(MismatchError, match="NaN"):
         bl.blend(folder, manifold, x=[np.nan, 0.0])
-    with pytest.raises(MismatchError, match="exactly one of x"):
+    with pytest.raises(MismatchError, match="exactly one of `x`"):
         bl.blend(folder, manifold)
 
 

@@ -1,33 +1,17 @@
-"""Denoised blends: directional albedos, first-hit AOVs, OIDN lowering the error (issue 13)."""
+"""Denoised blends: directional albedos (NumPy), first-hit AOVs and OIDN lowering the error
+(issue 13; rendered, ``render`` marker)."""
 
 import os
 
 import numpy as np
 import pytest
 
-mi = pytest.importorskip("mitsuba")
-pytest.importorskip("pyoidn")
-mi.set_variant("llvm_ad_rgb")
-
-import mitsuba_manifold  # noqa: E402
-from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
-from mitsuba_manifold.basis import folder as basis, denoise
 from mitsuba_manifold import errors
+from mitsuba_manifold.basis import denoise, manifest
 from mitsuba_manifold.data import merl
+from mitsuba_manifold.data.database import Database
 from mitsuba_manifold.imaging import metrics
-from mitsuba_manifold.render import render_basis, scenes
-from mitsuba_manifold.data.database import Database  # noqa: E402
-from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
-
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-TABLE = scene_path("table")
-
-
-@pytest.fixture(autouse=True)
-def _variant():
-    mi.set_variant("llvm_ad_rgb")
-    mitsuba_manifold.register()
+from mitsuba_manifold.manifold.model import Manifold
 
 
 def test_directional_albedo_of_lambertian_tables(tmp_path):
@@ -43,13 +27,22 @@ def test_directional_albedo_of_lambertian_tables(tmp_path):
     np.testing.assert_allclose(a[1], 0.9, rtol=0.03)
 
 
+@pytest.mark.render
 def test_denoised_blend_beats_raw_and_aovs_are_checked(tmp_path, small_manifold):
+    mi = pytest.importorskip("mitsuba")
+    pytest.importorskip("pyoidn")
+    import mitsuba_manifold
+    from mitsuba_manifold.render import render_basis, scenes
+
+    mi.set_variant("llvm_ad_rgb")
+    mitsuba_manifold.register()
+    TABLE = scenes.scene_path("table")
     m = Manifold.load(small_manifold)
     out = str(tmp_path / "b")
     names = ["gold-paint", "chrome", "pink-fabric", "white-diffuse-bball"]
     render_basis.render_basis(TABLE, small_manifold, out, spp=4, mode="onepass", resolution=48, materials=names,
                        aovs=True)
-    aovs = denoise.BasisAOVs.load(out, basis.read_manifest(out))
+    aovs = denoise.BasisAOVs.load(out, manifest.read_manifest(out))
     hit = aovs.hist.sum(-1)
     assert hit.min() >= 0 and hit.max() <= 1 + 1e-5 and (hit > 0.99).sum() > 50  # the bowl
     n = np.linalg.norm(aovs.normal, axis=-1)

@@ -96,7 +96,7 @@ def test_match_objective_gradient_matches_finite_differences(basis, manifold, lo
     target = 1.3 * _blend(b, manifold, _interior_point(manifold, 2, 5))
     mask = np.ones(target.shape[:2])
     mask[:5] = 0.0
-    obj = image_error.objective(b, manifold, target, mask, mask > 0, loss, exposure_free, 1)
+    obj = image_error.objective(b, manifold, target, mask, loss, exposure_free)
     fun, _ = mt._evaluate(manifold, obj, prior)
     x0 = _interior_point(manifold, 0, 3, 0.6) + 0.05
     value, grad = fun(x0)
@@ -112,7 +112,7 @@ def test_quadratic_form_equals_the_direct_relative_mse(basis, manifold):
     mask = np.random.default_rng(3).uniform(size=target.shape[:2])
     mask[mask < 0.3] = 0.0
     for exposure_free in (False, True):
-        obj = image_error.objective(b, manifold, target, mask, mask > 0, "rel_mse", exposure_free, 1)
+        obj = image_error.objective(b, manifold, target, mask, "rel_mse", exposure_free)
         x = _interior_point(manifold, 2, 6)
         err, _, s = obj(manifold.weights(x)[1])
         direct = image_error.masked_rel_mse(s * _blend(b, manifold, x), target, mask)
@@ -204,8 +204,8 @@ def test_bad_inputs_are_clear_errors(basis, manifold, tmp_path, small_manifold_p
         mt.match(b, target, mask=np.zeros(target.shape[:2]))
     with pytest.raises(InputError, match=r"mask is 3x3, the target is 20x16"):
         mt.match(b, target, mask=np.ones((3, 3)))
-    for kwargs, msg in (({"loss": "l1"}, "loss must be one of"), ({"prior": -1.0}, "prior must be"),
-                        ({"starts": 0}, "starts must be"), ({"scan": -1}, "scan must be"), ({"loss": "log", "downsample": 0}, "downsample")):
+    for kwargs, msg in (({"loss": "l1"}, "`loss` must be one of"), ({"prior": -1.0}, "`prior` must be"),
+                        ({"starts": 0}, "`starts` must be"), ({"scan": -1}, "`scan` must be"), ({"loss": "log", "downsample": 0}, "`downsample` must be")):
         with pytest.raises(InputError, match=msg):
             mt.match(b, target, **kwargs)
     # a basis missing materials, and one whose manifold is gone

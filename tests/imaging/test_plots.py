@@ -18,9 +18,8 @@ def synthetic(q, n=60, seed=0):
 
 
 def test_label_points_names_a_subset_that_never_overlaps_and_stays_inside():
-    plt = plots.figure()
     m = synthetic(2)
-    fig, ax = plt.subplots(figsize=(6, 5))
+    fig, ax = plots.subplots(figsize=(6, 5))
     ax.scatter(*m.latent.T)
     fig.canvas.draw()
     named = plots.label_points(ax, m.latent, m.names)
@@ -32,7 +31,6 @@ def test_label_points_names_a_subset_that_never_overlaps_and_stays_inside():
         assert frame.x0 <= b.x0 and b.x1 <= frame.x1 and frame.y0 <= b.y0 and b.y1 <= frame.y1
         assert not any(b.overlaps(o) for o in boxes[k + 1:])
     assert all(t.get_path_effects() for t in ax.texts)   # a halo: readable on light and dark colours
-    plt.close(fig)
 
 
 def test_latent_map_fills_the_image(tmp_path):

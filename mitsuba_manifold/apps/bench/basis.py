@@ -5,7 +5,7 @@ import time
 
 import numpy as np
 
-from .. import pipeline
+from .. import comparison
 from ...render import scenes
 from ...basis.folder import Basis
 from ...basis.blend import blend
@@ -52,7 +52,7 @@ def run(folder, manifold=None, scene="table", res=256, spp=64, ref_spp=4096, rep
     Then, at equal total basis time: the one-pass mode gets the spp that makes its wall
     time that of the per-material mode (fitted from its times at ``spp`` and ``4 spp``,
     rounded down to whole passes of ``spp``), and both blends at the midpoint of
-    :func:`pipeline.gi_pair` are compared with a full-GI reference (``path``, ``ref_spp``) and with
+    :func:`comparison.gi_pair` are compared with a full-GI reference (``path``, ``ref_spp``) and with
     the L1- reference (``manifold_path``, ``component=l1``, ``ref_spp``), which is what a
     blend estimates without bias.
     """
@@ -165,10 +165,10 @@ def equal_time(scene_path, manifold, out, spp, res, seed, onepass_wall, per):
 
 
 def blend_errors(scene_path, manifold, m, out, spp, spp_eq, res, ref_spp, seed):
-    """Each basis's blend at the midpoint of :func:`pipeline.gi_pair` against the full-GI and L1- references."""
+    """Each basis's blend at the midpoint of :func:`comparison.gi_pair` against the full-GI and L1- references."""
     from ...imaging import metrics
 
-    a, b = pipeline.gi_pair(m)
+    a, b = comparison.gi_pair(m)
     x = 0.5 * (m.latent[m.index(a)] + m.latent[m.index(b)])
     ref = scenes.render_reference(scene_path, manifold, x, ref_spp, seed=seed + 7919, resolution=(res, res))
     ref_l1 = l1_reference(scene_path, manifold, x, ref_spp, seed + 7919, res)
@@ -176,7 +176,7 @@ def blend_errors(scene_path, manifold, m, out, spp, spp_eq, res, ref_spp, seed):
     for key, where, s in (("per_material", f"per_material_{spp}", spp), ("onepass", f"onepass_{spp}", spp),
                           ("onepass_equal_time", f"onepass_{spp_eq}", spp_eq)):
         img, _ = blend(Basis.load(os.path.join(out, where), manifold=m), m, x=x)
-        bias, bias_se = pipeline.relative_bias(img, ref)
+        bias, bias_se = comparison.relative_bias(img, ref)
         blends[key] = {"spp": s, "vs_full_gi": {**metrics.compare(img, ref), "relative_bias": bias,
                                                 "relative_bias_se": bias_se},
                        "vs_l1": metrics.compare(img, ref_l1)}

@@ -4,7 +4,7 @@ import time
 
 import numpy as np
 
-from .. import pipeline
+from .. import comparison
 from ...manifold.model import Manifold
 from ..._util.timing import median_time
 from .common import peak_rss_gib
@@ -23,7 +23,7 @@ def run(folder, manifold=None, q=2, repeats=7, prunes=(1e-3, 1e-2, 3e-2, 1e-1)):
     tables = m.tables(folder if manifold else None)
     t_load = time.perf_counter() - t0
     # the midpoint of two latent neighbours (as the GI benchmark), a typical interpolation query
-    a, b = pipeline.gi_pair(m)
+    a, b = comparison.gi_pair(m)
     x = 0.5 * (m.latent[m.index(a)] + m.latent[m.index(b)])
     _, w = m.weights(x)
     t_weights, _ = median_time(lambda: m.weights(x), repeats)

@@ -294,9 +294,8 @@ def summarise(report):
 
 def plot(report, path):
     """Log-log curves: time and peak RSS against N, and time against bins, pixels and spp."""
-    from ...imaging.plots import figure, finish
-    plt = figure()
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.6))
+    from ...imaging.plots import finish, subplots
+    fig, axes = subplots(1, 3, figsize=(16, 4.6))
     series = report["series"]
     expo = report["summary"]["exponents"]
     for key, s in series.items():

@@ -22,7 +22,7 @@ import os
 import time
 
 from ..bench import NAMES
-from .common import ERRORS, ArgumentParser, fail, guarded, parse_list
+from .common import ArgumentParser, guarded, parse_list
 
 
 #: Benchmarks that take a saved manifold (the others fit their own).
@@ -59,34 +59,31 @@ def main(argv=None):
     explore = args.which == "explore"
     folder = args.basis if explore else args.database or os.path.join("out", "database")
     t0 = time.perf_counter()
-    try:
-        if not explore and args.database is None and not os.path.isdir(folder) and args.which != "scaling":
-            print(f"making the built-in database at MERL resolution in {folder}")
-            database.make_database(folder, progress=True)
-        kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space") else {}
-        if args.which == "space":
-            kwargs.update(basis=args.basis, configs=args.configs,
-                          folds=None if args.folds is None else [int(f) for f in args.folds])
-        if args.manifold:
-            kwargs["manifold"] = args.manifold
-        if args.which == "match":
-            kwargs.update(basis=args.basis, res=args.res, out=args.out)
-        if args.which == "gi":
-            kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
-        if args.which == "scaling":
-            kwargs["out"] = os.path.splitext(args.json)[0] + "_work"
-        if explore:
-            kwargs["screenshot_path"] = os.path.splitext(args.json)[0] + ".png"
-        result = bench.run(args.which, folder, **kwargs)
-        if args.which == "scaling":
-            from ..bench.scaling import plot
-            result["plot"] = plot(result, os.path.splitext(args.json)[0] + ".png")
-        report = {"benchmark": args.which, "basis" if explore else "database": os.path.abspath(folder),
-                  "machine": machine(),
-                  "date": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": time.perf_counter() - t0,
-                  "result": result}
-        text = json.dumps(report, indent=1, default=float)
-        write_bytes(args.json, text)
-    except ERRORS as e:
-        fail(e)
+    if not explore and args.database is None and not os.path.isdir(folder) and args.which != "scaling":
+        print(f"making the built-in database at MERL resolution in {folder}")
+        database.make_database(folder, progress=True)
+    kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space") else {}
+    if args.which == "space":
+        kwargs.update(basis=args.basis, configs=args.configs,
+                      folds=None if args.folds is None else [int(f) for f in args.folds])
+    if args.manifold:
+        kwargs["manifold"] = args.manifold
+    if args.which == "match":
+        kwargs.update(basis=args.basis, res=args.res, out=args.out)
+    if args.which == "gi":
+        kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
+    if args.which == "scaling":
+        kwargs["out"] = os.path.splitext(args.json)[0] + "_work"
+    if explore:
+        kwargs["screenshot_path"] = os.path.splitext(args.json)[0] + ".png"
+    result = bench.run(args.which, folder, **kwargs)
+    if args.which == "scaling":
+        from ..bench.scaling import plot
+        result["plot"] = plot(result, os.path.splitext(args.json)[0] + ".png")
+    report = {"benchmark": args.which, "basis" if explore else "database": os.path.abspath(folder),
+              "machine": machine(),
+              "date": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": time.perf_counter() - t0,
+              "result": result}
+    text = json.dumps(report, indent=1, default=float)
+    write_bytes(args.json, text)
     print(text)

@@ -80,14 +80,11 @@ def parse(argv=None):
         fail(f"--steps must be >= 2, got {args.steps}")
     if args.spp < 1:
         fail(f"--spp must be >= 1, got {args.spp}")
-    from ..._util import ownership, checks as validate
-    from ...basis import folder as basis_folder
-    try:
-        validate.exposure(args.exposure)
-        validate.fraction("--prune", args.prune)
-        basis_folder.check_output_outside_basis(args.out, args.basis)
-    except ERRORS as e:
-        fail(e)
+    from ..._util import checks as validate
+    from ...basis import ownership as basis_ownership
+    validate.exposure(args.exposure)
+    validate.fraction("--prune", args.prune)
+    basis_ownership.check_output_outside_basis(args.out, args.basis)
     return args
 
 

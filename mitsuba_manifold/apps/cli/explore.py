@@ -11,27 +11,15 @@ background while the page already works.
 
 import argparse
 import errno
-import os
-import shlex
 import socket
 import sys
 
 from ...manifold.pruning import DEFAULT_PRUNE
+from ..commands import explore_command
 
 DEFAULT_PORT = 8765
-
-
-def command(basis, manifold=None):
-    """The explore command line for a basis (printed by the main job), with absolute paths so
-    that it works pasted from any folder: ``python3 <checkout>/tools/explore.py`` when the
-    package runs from a checkout, else the ``mitsuba-manifold explore`` console script."""
-    tool = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
-                        "tools", "explore.py")
-    parts = ["python3", tool] if os.path.isfile(tool) else ["mitsuba-manifold", "explore"]
-    parts += ["--basis", os.path.abspath(basis)]
-    if manifold:
-        parts += ["--manifold", os.path.abspath(manifold)]
-    return shlex.join(parts)
+#: This tool's command line for a basis (as the main job prints it).
+command = explore_command
 
 
 def parse_port(text):
@@ -111,11 +99,11 @@ def serve(args):
     import uvicorn
 
     from ..explore import Explorer, create_app
-    from .common import ERRORS
+    from .common import ERRORS, cli_message
     try:
         sock = bind(args.host, args.port)
     except ERRORS as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {cli_message(e)}", file=sys.stderr)
         return 2
     explorer = None
     try:
@@ -137,7 +125,7 @@ def serve(args):
         except KeyboardInterrupt:   # uvicorn stops gracefully, then passes the signal on
             pass
     except ERRORS as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {cli_message(e)}", file=sys.stderr)
         return 2
     finally:
         if explorer is not None:

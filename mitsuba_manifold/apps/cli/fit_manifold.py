@@ -3,7 +3,7 @@
 import os
 import time
 
-from .common import ERRORS, ArgumentParser, fail, guarded, parse_list
+from .common import ArgumentParser, guarded, parse_list
 
 def check(args):
     """Everything checked before the (long) fit: values, --out and --plot (:mod:`ownership`)."""
@@ -53,26 +53,20 @@ def main(argv=None):
     from ...imaging import plots
     from ...manifold.model import Manifold
     t0 = time.perf_counter()
-    try:
-        check(args)
-        m = Manifold.fit(args.database, q=args.q, names=args.materials, method=args.method,
-                         length_scale=args.length_scale, noise=args.noise, features=args.features,
-                         preset=args.preset, progress=True)
-        os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-        m.save(args.out)
-        ownership.record([args.out], "fit_manifold.py")
-    except ERRORS as e:
-        fail(e)
+    check(args)
+    m = Manifold.fit(args.database, q=args.q, names=args.materials, method=args.method,
+                     length_scale=args.length_scale, noise=args.noise, features=args.features,
+                     preset=args.preset, progress=True)
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    m.save(args.out)
+    ownership.record([args.out], "fit_manifold.py")
     print(m.summary())
     print(f"time: {time.perf_counter() - t0:.2f} s total (load {m.info['time_load_s']:.2f} s, "
           f"Gram {m.info['time_gram_s']:.2f} s, optimisation {m.info['time_fit_s']:.2f} s)")
     print(f"final L = {m.info['log_likelihood']:.8g}, cond(K) = {m.condition_number():.4g}")
     print(f"saved {args.out}")
     if args.plot:
-        try:
-            paths = plots.write_fit_plots(m, args.plot)
-            ownership.record(paths, "fit_manifold.py")
-        except ERRORS as e:
-            fail(e)
+        paths = plots.write_fit_plots(m, args.plot)
+        ownership.record(paths, "fit_manifold.py")
         for path in paths:
             print(f"plot: {path}")

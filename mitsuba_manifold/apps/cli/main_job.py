@@ -10,7 +10,7 @@
 
 import argparse
 
-from .common import ERRORS, ArgumentParser, fail, guarded, parse_resolution
+from .common import ArgumentParser, guarded, parse_resolution
 
 
 @guarded
@@ -34,11 +34,8 @@ def main(argv=None):
     p.add_argument("--mode", choices=["onepass", "per-material"], default="onepass")
     args = p.parse_args(argv)
 
-    from ..pipeline import run_main_job
-    try:
-        run_main_job(args.out, args.resolution, q=args.q, features=args.features, preset=args.preset,
-                     scene=args.scene, res=args.res, spp=args.spp, ref_spp=args.ref_spp, mode=args.mode,
-                     denoise=not args.no_denoise,
-                     log=lambda text: print(text, flush=True))
-    except ERRORS as e:
-        fail(e)
+    from ..pipeline import MainJob, run_main_job
+    job = MainJob(args.out, args.resolution, q=args.q, features=args.features, preset=args.preset,
+                  scene=args.scene, res=args.res, spp=args.spp, ref_spp=args.ref_spp, mode=args.mode,
+                  denoise=not args.no_denoise)
+    run_main_job(job, log=lambda text: print(text, flush=True))

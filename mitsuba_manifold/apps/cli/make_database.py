@@ -3,7 +3,7 @@
 import os
 import time
 
-from .common import ERRORS, ArgumentParser, fail, guarded, parse_list, parse_resolution
+from .common import ArgumentParser, guarded, parse_list, parse_resolution
 
 
 @guarded
@@ -26,12 +26,9 @@ def main(argv=None):
         repeated = sorted({n for n in args.materials if args.materials.count(n) > 1})
         print(f"note: {', '.join(repeated)} repeated in --materials; each table is made once")
         args.materials = list(dict.fromkeys(args.materials))
-    try:
-        n = len(args.materials) if args.materials else 100
-        merl.table_resolution(args.resolution, "--resolution", workers=min(n, os.cpu_count() or 1))
-        validate.finite("--noise", args.noise, 0.0, 10.0)
-        paths = database.make_database(args.out, args.resolution, args.materials, args.noise,
-                                       args.seed, progress=True, force=args.force)
-    except ERRORS as e:
-        fail(e)
+    n = len(args.materials) if args.materials else 100
+    merl.table_resolution(args.resolution, "--resolution", workers=min(n, os.cpu_count() or 1))
+    validate.finite("--noise", args.noise, 0.0, 10.0)
+    paths = database.make_database(args.out, args.resolution, args.materials, args.noise,
+                                   args.seed, progress=True, force=args.force)
     print(f"{len(paths)} tables in {args.out} ({time.perf_counter() - t0:.1f} s)")

@@ -5,7 +5,7 @@ Usage: python tools/make_scene_meshes.py [--out DIR] [--segments 64] [--profile 
 
 import os
 
-from .common import ERRORS, ArgumentParser, fail, guarded
+from .common import ArgumentParser, guarded
 
 
 @guarded
@@ -23,14 +23,11 @@ def main(argv=None):
     from ...imaging import io as imageio
     if mi.variant() is None:
         mi.set_variant("scalar_rgb")  # write_ply builds the mesh with Mitsuba
-    try:
-        v, f = geometry.bowl(n=args.profile, segments=args.segments)
-        path = os.path.join(args.out, "bowl.ply")
-        geometry.write_ply(path, v, f)
-        print(f"{path}: {len(v)} vertices, {len(f)} triangles, volume {geometry.signed_volume(v, f):.4f}")
-        path = os.path.join(args.out, "sky.exr")
-        sky = geometry.sky_envmap()
-        imageio.write_exr(path, sky)
-    except ERRORS as e:
-        fail(e)
+    v, f = geometry.bowl(n=args.profile, segments=args.segments)
+    path = os.path.join(args.out, "bowl.ply")
+    geometry.write_ply(path, v, f)
+    print(f"{path}: {len(v)} vertices, {len(f)} triangles, volume {geometry.signed_volume(v, f):.4f}")
+    path = os.path.join(args.out, "sky.exr")
+    sky = geometry.sky_envmap()
+    imageio.write_exr(path, sky)
     print(f"{path}: {sky.shape[1]}x{sky.shape[0]} sky")

@@ -69,20 +69,17 @@ def _inputs(args):
     from ...basis import match as mt
     from ...basis.folder import Basis
 
-    try:
-        basis = Basis.load(args.basis, manifold=args.manifold)
-        manifold = basis.check_manifold(args.manifold)
-        target, clipped = mt.read_target(args.target)
-        target = mt.check_target(target, basis.resolution, what=f"target {args.target}")
-        weight = np.ones(target.shape[:2])
-        if args.mask:
-            weight = mt.check_mask(mt.read_mask(args.mask), basis.resolution, what=f"mask {args.mask}")
-        if clipped.any():
-            print(f"note: {int(clipped.sum())} clipped pixels of the 8-bit target are left out")
-            weight = mt.check_mask(weight * ~clipped, basis.resolution,
-                                   what=f"mask {args.mask or '(all pixels)'} without the target's clipped pixels")
-    except ERRORS as e:
-        fail(e)
+    basis = Basis.load(args.basis, manifold=args.manifold)
+    manifold = basis.check_manifold(args.manifold)
+    target, clipped = mt.read_target(args.target)
+    target = mt.check_target(target, basis.resolution, what=f"target {args.target}")
+    weight = np.ones(target.shape[:2])
+    if args.mask:
+        weight = mt.check_mask(mt.read_mask(args.mask), basis.resolution, what=f"mask {args.mask}")
+    if clipped.any():
+        print(f"note: {int(clipped.sum())} clipped pixels of the 8-bit target are left out")
+        weight = mt.check_mask(weight * ~clipped, basis.resolution,
+                               what=f"mask {args.mask or '(all pixels)'} without the target's clipped pixels")
     return basis, manifold, target, weight
 
 
@@ -164,7 +161,7 @@ def _refuse_inputs(args):
     """Never overwrite an input (the target, the mask or an image of the basis), nor a file
     this tool did not make (:mod:`ownership`, unless ``--force``)."""
     from ..._util import ownership
-    from ...basis import folder as basis_folder
+    from ...basis import ownership as basis_ownership
 
     inputs = {os.path.realpath(p) for p in (args.target, args.mask) if p}
     for path in _planned(args):
@@ -172,11 +169,8 @@ def _refuse_inputs(args):
         if real in inputs or os.path.dirname(real) == os.path.realpath(args.basis):
             fail(f"output {path} would overwrite an input (the target, the mask or the basis); "
                   "choose another path")
-        try:
-            basis_folder.check_output_outside_basis(path)
-            ownership.check_replaceable(path, args.force, what="output")
-        except ERRORS as e:
-            fail(e)
+        basis_ownership.check_output_outside_basis(path)
+        ownership.check_replaceable(path, args.force, what="output")
 
 
 @guarded
@@ -187,21 +181,15 @@ def main(argv=None):
     from ...basis import match as mt
 
     basis, manifold, target, weight = _inputs(args)
-    try:
-        result = mt.match(basis, target, weight, manifold=manifold, loss="log" if args.log else "rel_mse",
-                          exposure_free=args.exposure_free, prior=args.prior, starts=args.starts,
-                          max_iter=args.max_iter, scan=args.scan)
-    except ERRORS as e:
-        fail(e)
+    result = mt.match(basis, target, weight, manifold=manifold, loss="log" if args.log else "rel_mse",
+                      exposure_free=args.exposure_free, prior=args.prior, starts=args.starts,
+                      max_iter=args.max_iter, scan=args.scan)
     _report(result, manifold, basis)
     outputs = _outputs(args, result, basis, manifold, target)
-    try:
-        for kind, path, write in outputs:
-            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-            write()
-            print(f"wrote {kind}: {path}")
-        from ..._util import ownership
-        ownership.record([path for _, path, _ in outputs], "match.py")
-    except ERRORS as e:
-        fail(e)
+    for kind, path, write in outputs:
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        write()
+        print(f"wrote {kind}: {path}")
+    from ..._util import ownership
+    ownership.record([path for _, path, _ in outputs], "match.py")
     return 0

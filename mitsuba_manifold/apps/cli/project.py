@@ -7,7 +7,7 @@ nearest training material's, and the main weights; --json writes the same.
 import json
 import os
 
-from .common import ERRORS, ArgumentParser, fail, guarded
+from .common import ArgumentParser, guarded
 
 
 def check_json(args):
@@ -37,21 +37,18 @@ def main(argv=None):
     from ..._util import ownership
     from ..._util.atomic import write_bytes
     from ...manifold.model import Manifold
-    try:
-        if args.json:
-            check_json(args)
-        m = Manifold.load(args.manifold)
-        m.tables(args.database)
-        r = m.project(args.table)
-        top = sorted(range(m.n), key=lambda i: -abs(r.weights[i]))[:5]
-        result = {"table": args.table, "x": r.x.tolist(), "error": r.error, "nearest": r.nearest,
-                  "nearest_error": r.nearest_error, "negative_fraction": r.negative_fraction,
-                  "weights": {m.names[i]: float(r.weights[i]) for i in top if r.weights[i] != 0}}
-        if args.json:
-            write_bytes(args.json, json.dumps(result, indent=1) + "\n")
-            ownership.record([args.json], "project.py")
-    except ERRORS as e:
-        fail(e)
+    if args.json:
+        check_json(args)
+    m = Manifold.load(args.manifold)
+    m.tables(args.database)
+    r = m.project(args.table)
+    top = sorted(range(m.n), key=lambda i: -abs(r.weights[i]))[:5]
+    result = {"table": args.table, "x": r.x.tolist(), "error": r.error, "nearest": r.nearest,
+              "nearest_error": r.nearest_error, "negative_fraction": r.negative_fraction,
+              "weights": {m.names[i]: float(r.weights[i]) for i in top if r.weights[i] != 0}}
+    if args.json:
+        write_bytes(args.json, json.dumps(result, indent=1) + "\n")
+        ownership.record([args.json], "project.py")
     print(f"x = {', '.join(f'{v:.6g}' for v in r.x)}")
     print(f"error {r.error:.5g} (RMS of log(1 + rho) differences); nearest training material "
           f"{r.nearest}: {r.nearest_error:.5g}")

@@ -11,7 +11,7 @@ listed in the folder's manifest.json is complete, and the same command resumes."
 import argparse
 import time
 
-from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats, parse_list
+from .common import ArgumentParser, fail, guarded, parse_floats, parse_list
 
 
 def parse_views(text):
@@ -69,30 +69,27 @@ def main(argv=None):
     from ...render.render_basis import check_job_folders, plan_views, render_basis
     from ...render.scenes import scene_path
     t0 = time.perf_counter()
+    scenes = [scene_path(s) for s in args.scenes]   # a scene XML or a shipped scene's name
+    jobs = plan_views(scenes, args.views, args.out)
+    check_job_folders(jobs, args.out, args.force)   # every folder, before the first render
+    executor = make_executor(args.executor, args.address)
+    options = dict(materials=materials, near=args.near, radius=args.radius, mode=args.mode,
+                   resolution=args.res, max_depth=args.max_depth, variant=args.variant, aovs=args.aovs,
+                   x=args.x, database=args.database, force=args.force)
     try:
-        scenes = [scene_path(s) for s in args.scenes]   # a scene XML or a shipped scene's name
-        jobs = plan_views(scenes, args.views, args.out)
-        check_job_folders(jobs, args.out, args.force)   # every folder, before the first render
-        executor = make_executor(args.executor, args.address)
-        options = dict(materials=materials, near=args.near, radius=args.radius, mode=args.mode,
-                       resolution=args.res, max_depth=args.max_depth, variant=args.variant, aovs=args.aovs,
-                       x=args.x, database=args.database, force=args.force)
-        try:
-            for scene, sensor, out in jobs:
-                t1 = time.perf_counter()
-                if args.chunks == 1 and args.executor == "local":
-                    manifest = render_basis(scene, args.manifold, out, spp=args.spp, seed=args.seed,
-                                            sensor=sensor, progress=True, **options)
-                else:
-                    manifest = render_chunked(scene, args.manifold, out, spp=args.spp, chunks=args.chunks,
-                                              seed=args.seed, executor=executor, keep_chunks=args.keep_chunks,
-                                              progress=True, sensor=sensor, **options).manifest
-                print(f"{len(manifest['images'])} images in {out} ({manifest['resolution'][0]}x"
-                      f"{manifest['resolution'][1]}, {manifest['spp']} spp, {manifest['mode']}, "
-                      f"{manifest['variant']}), {time.perf_counter() - t1:.1f} s", flush=True)
-        finally:
-            executor.close()
-    except ERRORS as e:
-        fail(e)
+        for scene, sensor, out in jobs:
+            t1 = time.perf_counter()
+            if args.chunks == 1 and args.executor == "local":
+                manifest = render_basis(scene, args.manifold, out, spp=args.spp, seed=args.seed,
+                                        sensor=sensor, progress=True, **options)
+            else:
+                manifest = render_chunked(scene, args.manifold, out, spp=args.spp, chunks=args.chunks,
+                                          seed=args.seed, executor=executor, keep_chunks=args.keep_chunks,
+                                          progress=True, sensor=sensor, **options).manifest
+            print(f"{len(manifest['images'])} images in {out} ({manifest['resolution'][0]}x"
+                  f"{manifest['resolution'][1]}, {manifest['spp']} spp, {manifest['mode']}, "
+                  f"{manifest['variant']}), {time.perf_counter() - t1:.1f} s", flush=True)
+    finally:
+        executor.close()
     if len(jobs) > 1:
         print(f"{len(jobs)} bases in {time.perf_counter() - t0:.1f} s")

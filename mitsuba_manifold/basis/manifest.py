@@ -1,0 +1,295 @@
+"""The basis folder's format: its ``manifest.json``, image keys and the identities of scene and manifold.
+
+A *basis* holds the images that blending combines (paper Sec. 5.2, Eq. 13, and Sec. 6):
+with one manifold material (*target*) in the scene, ``base`` (the paths that never touch
+it) and one image per measured material ``i`` (the paths that touch it exactly once,
+rendered with material ``i``); with ``p`` targets, the full ``L1-`` image of every
+combination of one material per target (:mod:`mitsuba_manifold.basis.blend` combines them).
+
+A *basis folder* holds those images as float32 EXR files and a ``manifest.json``::
+
+    {"format": "mitsuba-manifold-basis", "version": 2,
+     "scene": abs path, "scene_hash": sha256, "manifold": abs path, "manifold_hash": sha256,
+     "resolution": [width, height], "spp": int, "variant": str, "seed": int, "max_depth": int,
+     "mode": "per-material" | "onepass", "targets": [bsdf id, ...],
+     "sensor": int (optional, default 0), "chunks": int (optional: merged from k chunks),
+     "pending": ["<key>.exr", ...] (optional: being written; see render_basis),
+     "images": {"base": {"file": "base.exr", "time_s": float},
+                "<material>": {"file": "<material>.exr", "time_s": float}, ...}}
+
+With one target the keys are ``base`` and material names; with ``p`` targets they are
+``"<matA>+<matB>..."`` (one name per target, in target order). From version 2 on, each
+material name in a key is escaped (:func:`mitsuba_manifold._util.names.escape`: ``gold-paint``
+stays, ``base`` or ``a+b`` cannot collide with the base image or the separator) and the
+file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
+(:func:`mitsuba_manifold.manifold.identity.manifold_identity`), so an identical refit is accepted.
+Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
+``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`). :func:`make_manifest` and :func:`write_manifest` write the format, :func:`read_manifest`
+reads it; :class:`~mitsuba_manifold.basis.folder.Basis` opens a folder and its images,
+:mod:`mitsuba_manifold.basis.ownership` says which files a basis folder owns, and
+:func:`mitsuba_manifold.basis.blend.blend` and :func:`~mitsuba_manifold.basis.blend.blend_path` combine the images.
+"""
+
+import hashlib
+import json
+import os
+import re
+
+import numpy as np
+
+from .._util import names as names_mod
+from .._util.atomic import write_bytes
+from .._util.cache import file_hash
+from .._util.checks import scene_xml
+from ..errors import MismatchError
+from ..manifold.identity import manifold_identity
+
+FORMAT = "mitsuba-manifold-basis"
+FORMAT_VERSION = 2
+MANIFEST = "manifest.json"
+BASE = "base"
+#: Joins one material name per target into an image key (multilinear bases).
+SEP = "+"
+MODES = ("per-material", "onepass")
+
+_HEX64 = re.compile(r"^[0-9a-f]{64}$")
+
+
+# ------------------------------------------------------------------ hashes
+
+def scene_files(scene):
+    """Files a scene XML names (``filename`` properties and ``<include>``), resolved
+    against the scene's folder; values holding ``$parameters`` are skipped."""
+    scene = os.fspath(scene)
+    root = scene_xml(scene)   # a scene XML, or an error naming the file
+    folder = os.path.dirname(os.path.abspath(scene))
+    names = []
+    for el in root.iter():
+        value = el.get("value") if el.get("name") == "filename" else None
+        if el.tag == "include":
+            value = el.get("filename")
+        if value and "$" not in value:
+            names.append(value)
+    return [(v, os.path.join(folder, v)) for v in names]
+
+
+def scene_hash(scene):
+    """SHA-256 (hex) of a scene: its XML bytes, then the name and bytes of every file it
+    names (:func:`scene_files`) that exists beside it. Meshes and environment maps are
+    thereby part of the scene's identity; the manifold (a ``$manifold`` parameter) is not."""
+    scene = os.fspath(scene)
+    if not os.path.isfile(scene):
+        raise MismatchError(f"scene {scene} does not exist")
+    h = hashlib.sha256()
+    with open(scene, "rb") as f:
+        h.update(f.read())
+    for value, path in scene_files(scene):
+        h.update(b"\0" + value.encode())
+        if os.path.isfile(path):
+            h.update(b"\0" + file_hash(path).encode())
+    return h.hexdigest()
+
+
+# ---------------------------------------------------------------- manifest
+
+def image_key(materials, version=FORMAT_VERSION):
+    """Image key of one material per target: ``"a"`` or ``"a+b"``, names escaped
+    (:func:`names.escape`) from format version 2 on; the image file is ``<key>.exr``."""
+    materials = [materials] if isinstance(materials, str) else list(materials)
+    if version >= 2:
+        return SEP.join(names_mod.escape(m) for m in materials)   # InputError for a name no file can have
+    for m in materials:
+        if not m or SEP in m or m == BASE:
+            raise MismatchError(f"material name {m!r} cannot be used in an image key of a version-1 basis; "
+                             "render the basis again with this version")
+    return SEP.join(materials)
+
+
+def key_materials(key, version=FORMAT_VERSION):
+    """Material names (one per target) of an image key: the inverse of :func:`image_key`."""
+    parts = key.split(SEP)
+    return [names_mod.unescape(p) for p in parts] if version >= 2 else parts
+
+
+def _is_int(v):
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def validate_manifest(manifest, where=MANIFEST):
+    """Check the fields and types of a manifest dict; returns it.
+
+    Does not require any image to be listed (a basis being rendered grows one image at a
+    time); :meth:`Basis.load` checks that the blend's images are there.
+
+    Raises
+    ------
+    MismatchError
+        Naming ``where`` and the field at fault.
+    """
+    def bad(msg):
+        raise MismatchError(f"{where}: {msg}")
+
+    if not isinstance(manifest, dict):
+        bad("not a JSON object")
+    if manifest.get("format") != FORMAT:
+        bad(f"not a basis manifest (format {manifest.get('format')!r}, expected {FORMAT!r})")
+    version = manifest.get("version")
+    if not _is_int(version) or version < 1:
+        bad(f"invalid version {version!r}")
+    if version > FORMAT_VERSION:
+        bad(f"format version {version} is newer than this package reads ({FORMAT_VERSION})")
+    for key in ("scene", "manifold", "variant"):
+        if not isinstance(manifest.get(key), str) or not manifest[key]:
+            bad(f"field {key!r} must be a non-empty string, got {manifest.get(key)!r}")
+    for key in ("scene_hash", "manifold_hash"):
+        if not isinstance(manifest.get(key), str) or not _HEX64.match(manifest[key]):
+            bad(f"field {key!r} must be a SHA-256 hex digest, got {manifest.get(key)!r}")
+    res = manifest.get("resolution")
+    if not (isinstance(res, list) and len(res) == 2 and all(_is_int(v) and v > 0 for v in res)):
+        bad(f"resolution must be [width, height] (positive integers), got {res!r}")
+    if not _is_int(manifest.get("spp")) or manifest["spp"] < 1:
+        bad(f"spp must be a positive integer, got {manifest.get('spp')!r}")
+    if not _is_int(manifest.get("seed")):
+        bad(f"seed must be an integer, got {manifest.get('seed')!r}")
+    if not _is_int(manifest.get("max_depth")) or manifest["max_depth"] < -1:
+        bad(f"max_depth must be an integer >= -1, got {manifest.get('max_depth')!r}")
+    if manifest.get("mode") not in MODES:
+        bad(f"mode must be one of {MODES}, got {manifest.get('mode')!r}")
+    for key in ("sensor", "chunks"):  # optional: absent means sensor 0, one chunk
+        if key in manifest and (not _is_int(manifest[key]) or manifest[key] < (0 if key == "sensor" else 1)):
+            bad(f"{key} must be an integer >= {0 if key == 'sensor' else 1}, got {manifest[key]!r}")
+    targets = manifest.get("targets")
+    if (not isinstance(targets, list) or not targets or not all(isinstance(t, str) and t for t in targets)
+            or len(set(targets)) != len(targets)):
+        bad(f"targets must be a non-empty list of distinct BSDF ids, got {targets!r}")
+    pending = manifest.get("pending", [])
+    if not isinstance(pending, list) or not all(_plain_exr(f) for f in pending):
+        bad(f"pending must be a list of plain '<name>.exr' file names, got {pending!r}")
+    images = manifest.get("images")
+    if not isinstance(images, dict):
+        bad(f"images must be an object, got {type(images).__name__}")
+    files = set()
+    for key, entry in images.items():
+        if key != BASE:
+            parts = key.split(SEP)
+            escaped = version < 2 or all(names_mod.is_escaped(pt) for pt in parts if pt)
+            if len(parts) != len(targets) or not all(parts) or BASE in parts or not escaped:
+                bad(f"image key {key!r} must name {len(targets)} material(s) joined by {SEP!r} "
+                    f"(one per target {targets})")
+        if not isinstance(entry, dict):
+            bad(f"image {key!r}: entry must be an object with 'file' and 'time_s'")
+        name = entry.get("file")
+        if not _plain_exr(name):
+            bad(f"image {key!r}: file must be a plain '<name>.exr' inside the folder, got {name!r}")
+        if name in files:
+            bad(f"image {key!r}: file {name!r} is listed twice")
+        files.add(name)
+        t = entry.get("time_s")
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
+            bad(f"image {key!r}: time_s must be a non-negative number, got {t!r}")
+    return manifest
+
+
+def _plain_exr(name):
+    return (isinstance(name, str) and name.endswith(".exr") and os.path.basename(name) == name
+            and not name.startswith("."))
+
+
+def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mode, targets,
+                  images=None):
+    """A validated manifest dict for a basis of ``scene`` rendered with ``manifold``.
+
+    Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
+    itself, so every writer and reader agree on them.
+
+    Parameters
+    ----------
+    scene, manifold : str
+        Scene XML and saved manifold (``.npz``) paths.
+    resolution : (int, int)
+        ``(width, height)``.
+    spp, seed, max_depth : int
+    variant : str
+        Mitsuba variant used.
+    mode : {"per-material", "onepass"}
+    targets : list of str
+        BSDF ids of the scene's manifold materials, in the order of the image keys.
+    images : dict, optional
+        ``{key: {"file": ..., "time_s": ...}}`` (default: none yet).
+    """
+    manifold = os.fspath(manifold)
+    if not os.path.isfile(manifold):
+        raise MismatchError(f"manifold {manifold} does not exist")
+    manifest = {
+        "format": FORMAT, "version": FORMAT_VERSION,
+        "scene": os.path.abspath(scene), "scene_hash": scene_hash(scene),
+        "manifold": os.path.abspath(manifold), "manifold_hash": manifold_file_identity(manifold),
+        "resolution": [int(v) for v in resolution], "spp": int(spp), "variant": str(variant),
+        "seed": int(seed), "max_depth": int(max_depth), "mode": mode,
+        "targets": [str(t) for t in targets], "images": dict(images or {})}
+    return validate_manifest(manifest, where="new manifest")
+
+
+def manifold_file_identity(manifold):
+    """Content identity of a manifold file (:func:`manifold_identity`)."""
+    from ..manifold.model import Manifold
+    return manifold_identity(Manifold.load(manifold))
+
+
+def upgrade_manifest(manifest, manifold):
+    """A version-1 manifest as version 2, when it was made with the file ``manifold`` (same
+    bytes): the manifold hash becomes its content identity and the images whose keys are
+    the same in both versions (names that escaping leaves unchanged) are kept. Any other
+    manifest is returned as it is."""
+    if manifest.get("version") != 1 or file_hash(manifold) != manifest.get("manifold_hash"):
+        return manifest
+    images = {k: e for k, e in manifest["images"].items()
+              if k == BASE or all(names_mod.is_escaped(p) for p in k.split(SEP))}
+    return dict(manifest, version=FORMAT_VERSION, manifold_hash=manifold_file_identity(manifold), images=images)
+
+
+def write_manifest(folder, manifest):
+    """Validate ``manifest`` and write ``folder/manifest.json`` atomically; returns its path."""
+    validate_manifest(manifest, where=os.path.join(os.fspath(folder), MANIFEST))
+    path = os.path.join(os.fspath(folder), MANIFEST)
+    text = json.dumps(manifest, indent=1, sort_keys=False) + "\n"
+    write_bytes(path, text)
+    return path
+
+
+def read_manifest(folder):
+    """Read and validate ``folder/manifest.json``."""
+    folder = os.fspath(folder)
+    if not os.path.isdir(folder):
+        raise MismatchError(f"basis folder {folder} does not exist")
+    path = os.path.join(folder, MANIFEST)
+    if not os.path.isfile(path):
+        raise MismatchError(f"{folder}: no {MANIFEST} (not a basis folder, or render_basis has not "
+                         "written one yet)")
+    try:
+        with open(path, encoding="utf-8") as f:
+            manifest = json.load(f)
+    except (ValueError, UnicodeDecodeError) as e:
+        raise MismatchError(f"{path}: not valid JSON ({e})") from None
+    return validate_manifest(manifest, where=path)
+
+
+#: Manifest fields that define what the images are (all but "images" and the paths).
+SETTINGS = ("format", "version", "scene_hash", "manifold_hash", "resolution", "spp", "variant",
+            "seed", "max_depth", "mode", "targets", "sensor", "chunks")
+
+
+def manifest_differences(a, b, ignore=()):
+    """Setting fields (:data:`SETTINGS`, but those in ``ignore``) whose values differ between two manifests.
+
+    An empty list means images rendered for one are valid for the other (resume)."""
+    return [k for k in SETTINGS if k not in ignore and a.get(k) != b.get(k)]
+
+
+def is_basis_folder(folder):
+    """True when ``folder`` holds a basis manifest (whether or not it is complete)."""
+    try:
+        with open(os.path.join(os.fspath(folder), MANIFEST), encoding="utf-8") as f:
+            return json.load(f).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
