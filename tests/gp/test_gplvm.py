@@ -355,12 +355,12 @@ def _S():
     (dict(S=_S() + np.triu(np.ones((6, 6)), 1)), "not symmetric"),
     (dict(S=-_S()), "positive semi-definite"),
     (dict(S=[["a"] * 6] * 6), "real numeric"),
-    (dict(d=0), "d "),
-    (dict(d=2.5), "d "),
-    (dict(d=True), "d "),
-    (dict(q=0), "q must"),
-    (dict(q=9), "q must"),
-    (dict(q=2.0), "q must"),
+    (dict(d=0), "`d` "),
+    (dict(d=2.5), "`d` "),
+    (dict(d=True), "`d` "),
+    (dict(q=0), "`q` must"),
+    (dict(q=9), "`q` must"),
+    (dict(q=2.0), "`q` must"),
     (dict(init=np.zeros((5, 2))), "5 points"),
     (dict(init=np.zeros((6, 3))), "expected q = 2"),
     (dict(init=np.full((6, 2), np.inf)), "non-finite"),
@@ -368,7 +368,7 @@ def _S():
     (dict(length_scale=-1.0), "length_scale"),
     (dict(noise=0.0), "noise"),
     (dict(noise=np.nan), "noise"),
-    (dict(method="newton"), "unknown method"),
+    (dict(method="newton"), "unknown `method`"),
     (dict(max_iter=-1), "max_iter"),
     (dict(tol=-1e-3), "tol"),
 ])
@@ -387,5 +387,5 @@ def test_bad_latent_is_rejected_by_the_objective():
         gplvm.log_likelihood(np.zeros((6, 9)), S, 10)
     with pytest.raises(ValueError, match="non-finite"):
         gplvm.log_likelihood_grad(np.full((6, 2), np.nan), S, 10)
-    with pytest.raises(ValueError, match="Gram matrix S is zero"):
+    with pytest.raises(ValueError, match="Gram matrix `S` is zero"):
         gplvm.pca_init(np.zeros((4, 4)), 2)
