@@ -61,6 +61,12 @@ class Interpolant:
         w = self._weights(x)
         return w[0] if single else w
 
+    def b_and_w(self, x):
+        """``b`` and the weights ``w`` (M, N) at points ``x`` (M, q): ``sum_i w_i table_i = mean + b^T Z``,
+        so ``b = w - 1/N`` (the GP's Eq. 4 ``b`` for :class:`GaussianProcessWeights`)."""
+        w = self._weights(x)
+        return w - 1.0 / self.n, w
+
     def jacobian(self, x):
         """``dw/dx``: ``(M, N, q)`` (or ``(N, q)`` for one point); columns sum to 0."""
         x, single = points(x, self.q)
@@ -130,6 +136,10 @@ class GaussianProcessWeights(Interpolant):
     def affine(self, b):
         """The affine weights ``w = b + (1 - sum(b)) / N`` of Eq. 4's ``b`` (M, N)."""
         return b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
+
+    def b_and_w(self, x):
+        b = self.gp_weights(x)
+        return b, self.affine(b)
 
     def _weights(self, x):
         return self.affine(self.gp_weights(x))

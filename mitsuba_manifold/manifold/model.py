@@ -26,51 +26,33 @@ summary to :mod:`.report`, the ``.npz`` file to :mod:`.io`.
 """
 
 import os
-import time
 from typing import NamedTuple
 
 import numpy as np
 
 from ..gp.kernel import Kernel
 from ..gp.likelihood import log_likelihood
-from . import io as manifold_file, materials, pruning, report
+from . import fitting, io as manifold_file, materials, pruning, report
 from . import interpolant as interpolants
 from . import projection as projection_mod
-from .presets import PRESETS, fit_layout, make_interpolant, settings  # noqa: F401 (re-exported)
+from .presets import PRESETS, fit_layout, make_interpolant, settings
 from .pruning import DEFAULT_PRUNE
-from .record import FitRecord, Timings
-from .tables import Combination, Pruned, TrainingTables  # noqa: F401 (re-exported)
+from .record import FitRecord, learned_arguments
+from .tables import Combination, Pruned, TrainingTables
 from ..data.database import FEATURES, Database
 from ..errors import InputError
 
+#: Names other modules import from here (the presets, the pruning default, the result types).
+__all__ = ["Manifold", "Weights", "Pruned", "Combination", "FitRecord", "PRESETS", "DEFAULT_PRUNE",
+           "FORMAT_VERSION", "settings", "fit_layout", "make_interpolant", "InputError"]
+
 FORMAT_VERSION = manifold_file.FORMAT_VERSION
-
-#: The previous release's positional parameters after ``albedos``, and every learned-state keyword.
-_LEGACY_POSITIONAL = ("gram", "history", "info")
-_LEARNED = ("gram", "table_gram", "interpolant", "record", "history", "info")
-
 
 class Weights(NamedTuple):
     """:meth:`Manifold.weights`: ``b`` (Eq. 4's ``K^-1 k(x)`` for GP weights, else ``w - 1/N``) and weights ``w``."""
 
     b: np.ndarray
     w: np.ndarray
-
-
-def _learned(legacy, learned):
-    """The learned-state keywords of ``Manifold(...)``, the previous release's positional ones included."""
-    if len(legacy) > len(_LEGACY_POSITIONAL):
-        raise TypeError(f"Manifold() takes at most {8 + len(_LEGACY_POSITIONAL)} positional arguments")
-    for key, value in zip(_LEGACY_POSITIONAL, legacy):
-        if key in learned:
-            raise TypeError(f"Manifold() got multiple values for argument {key!r}")
-        learned[key] = value
-    unknown = sorted(set(learned) - set(_LEARNED))
-    if unknown:
-        raise TypeError(f"Manifold() got an unexpected keyword argument {unknown[0]!r}")
-    if "record" in learned and ("info" in learned or "history" in learned):
-        raise TypeError("Manifold() takes either `record` or `info` and `history`, not both")
-    return learned
 
 
 class Manifold:
@@ -119,7 +101,7 @@ class Manifold:
 
     def __init__(self, names, latent, database, hashes, length_scale=1.0, noise=1e-4, features="raw",
                  albedos=None, *legacy, **learned):
-        learned = _learned(legacy, learned)
+        learned = learned_arguments(legacy, learned)
         latent = np.asarray(latent, dtype=np.float64)
         if latent.ndim != 2 or latent.shape[0] != len(names):
             raise InputError(f"latent points must have shape (N={len(names)}, q), got {latent.shape}")
@@ -177,24 +159,10 @@ class Manifold:
         cfg = settings(preset, q=q, method=method, length_scale=length_scale, noise=noise,
                        features=features, interpolant=interpolant)
         db = database if isinstance(database, Database) else Database(database, names)
-        names = db.names if names is None else list(names)
-        if len(names) < 2:
-            raise InputError("a manifold needs at least 2 materials")
-        t0 = time.perf_counter()
-        tables = db.stack(names, progress=progress)
-        t_load = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        _, S, table_gram = db.gram(names, features=cfg["features"], tables=tables, raw=True)
-        t_gram = time.perf_counter() - t0
-        result = fit_layout(S, tables.shape[1], cfg, init=init, **options)
-        record = FitRecord(method=cfg["method"], preset=preset, q=int(cfg["q"]), d=int(tables.shape[1]),
-                           dims=db.dims, log_likelihood=float(result.log_likelihood),
-                           n_evaluations=int(result.n_evaluations), history=result.history,
-                           timings=Timings(t_load, t_gram, float(result.time_s)))
-        m = cls(names, result.latent, db.folder, db.hashes(names), cfg["length_scale"], cfg["noise"],
-                cfg["features"], db.albedo(names, tables=tables), gram=S, record=record,
-                interpolant=cfg["interpolant"], table_gram=table_gram)
-        m._tables = tables
+        f = fitting.fit_database(db, names, cfg, preset, init=init, progress=progress, **options)
+        m = cls(f.names, f.result.latent, db.folder, f.hashes, cfg["length_scale"], cfg["noise"], cfg["features"],
+                f.albedos, gram=f.gram, record=f.record, interpolant=cfg["interpolant"], table_gram=f.table_gram)
+        m._tables = f.tables
         return m
 
     # ------------------------------------------------------------ learned state
@@ -263,28 +231,15 @@ class Manifold:
         return interpolants.points(x, self.q)
 
     def weights(self, x):
-        """Weights of the interpolant at ``x``: ``b`` and the affine weights ``w`` (sum to 1).
+        """Weights of the interpolant at ``x`` ((q,) or (M, q)): a :class:`Weights` ``(b, w)``,
+        each (N,) or (M, N); ``w`` sums to 1 and ``sum_i w_i table_i = mean + b^T Z`` exactly.
 
-        Parameters
-        ----------
-        x : array_like (q,) or (M, q)
-
-        Returns
-        -------
-        Weights
-            ``(b, w)``, each ndarray (N,) or (M, N).
-            ``sum_i w_i table_i = mean + b^T Z`` exactly. For the paper's GP weights ``b`` is
-            Eq. 4's ``K_inv k(x)`` (at a training point the noise term ``mu delta(x, x_i)``
-            applies, so ``w = e_i``); for other interpolants ``b = w - 1/N``.
+        For the paper's GP weights ``b`` is Eq. 4's ``K_inv k(x)`` (at a training point the
+        noise term ``mu delta(x, x_i)`` applies, so ``w = e_i``); for other interpolants
+        ``b = w - 1/N``.
         """
         x, single = self._points(x)
-        ip = self.interpolant
-        if isinstance(ip, interpolants.GaussianProcessWeights):
-            b = ip.gp_weights(x)
-            w = ip.affine(b)
-        else:
-            w = ip.weights(x)
-            b = w - 1.0 / self.n
+        b, w = self.interpolant.b_and_w(x)
         return Weights(b[0], w[0]) if single else Weights(b, w)
 
     def weights_jacobian(self, x):
@@ -338,20 +293,9 @@ class Manifold:
         return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self.database)), 0.0))
 
     def prune(self, w, prune=DEFAULT_PRUNE):
-        """Materials kept by pruning and the weight dropped.
-
-        Drops the materials of smallest contribution ``|w_i| |table_i|`` for as long as the
-        table changes by at most ``prune`` of its L2 norm; the kept weights are rescaled to
-        sum to ``sum(w)`` so the combination stays affine. The change is computed exactly from
-        the tables' Gram matrix (:func:`pruning.prune`), rescaling included; ``prune = 0``
-        keeps every non-zero weight.
-
-        Returns
-        -------
-        Pruned
-            ``keep`` (ndarray of int), ``w_kept`` (ndarray), ``dropped`` (float: sum of
-            ``|w_i|`` over the dropped materials).
-        """
+        """Materials kept by pruning weights ``w`` within ``prune`` (relative L2 change of the
+        table, exact; 0 keeps every non-zero weight): a :class:`Pruned` ``(keep, w_kept,
+        dropped)`` (:meth:`TrainingTables.prune`)."""
         return self._store.prune(w, prune, self.database)
 
     def prune_error(self, w, keep):
@@ -359,16 +303,9 @@ class Manifold:
         return pruning.error(np.asarray(w, dtype=np.float64), keep, self._store.raw_gram(self.database))
 
     def combine(self, w, prune=DEFAULT_PRUNE, database=None):
-        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`.
-
-        Reads only the kept materials' tables (unless all tables are already in memory).
-
-        Returns
-        -------
-        Combination
-            ``table`` (ndarray float32 ``(3, n_theta_h, n_theta_d, n_phi_d)``), ``keep``
-            (indices of the materials used), ``dropped`` (float).
-        """
+        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
+        :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
+        Reads only the kept materials' tables (unless all are in memory)."""
         return self._store.combine(w, prune, self.database, self.dims, database)
 
     def interpolate(self, x, prune=DEFAULT_PRUNE, database=None):

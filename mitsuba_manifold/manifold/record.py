@@ -85,3 +85,26 @@ class FitRecord:
                 out[key] = list(value) if key == "dims" else value
         out.update(self.extra)
         return out
+
+
+#: ``Manifold(...)``'s learned-state keywords, and the previous release's positional ones after ``albedos``.
+LEARNED = ("gram", "table_gram", "interpolant", "record", "history", "info")
+LEGACY_POSITIONAL = ("gram", "history", "info")
+
+
+def learned_arguments(legacy, learned):
+    """The learned-state keywords of ``Manifold(names, latent, database, hashes, l, mu, features,
+    albedos, *legacy, **learned)``, the previous release's positional ones included; TypeError
+    as Python gives for a wrong call."""
+    if len(legacy) > len(LEGACY_POSITIONAL):
+        raise TypeError(f"Manifold() takes at most {8 + len(LEGACY_POSITIONAL)} positional arguments")
+    for key, value in zip(LEGACY_POSITIONAL, legacy):
+        if key in learned:
+            raise TypeError(f"Manifold() got multiple values for argument {key!r}")
+        learned[key] = value
+    unknown = sorted(set(learned) - set(LEARNED))
+    if unknown:
+        raise TypeError(f"Manifold() got an unexpected keyword argument {unknown[0]!r}")
+    if "record" in learned and ("info" in learned or "history" in learned):
+        raise TypeError("Manifold() takes either `record` or `info` and `history`, not both")
+    return learned

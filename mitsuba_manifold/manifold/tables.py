@@ -85,7 +85,20 @@ class TrainingTables:
         return self.gram
 
     def prune(self, w, budget, folder):
-        """Materials kept by pruning weights ``w`` within the relative L2 ``budget`` (:func:`pruning.prune`)."""
+        """Materials kept by pruning weights ``w`` within the relative L2 ``budget``.
+
+        Drops the materials of smallest contribution ``|w_i| |table_i|`` for as long as the
+        table changes by at most ``budget`` of its L2 norm; the kept weights are rescaled to
+        sum to ``sum(w)`` so the combination stays affine. The change is computed exactly from
+        the tables' Gram matrix (:func:`pruning.prune`), rescaling included; ``budget = 0``
+        keeps every non-zero weight.
+
+        Returns
+        -------
+        Pruned
+            ``keep`` (ndarray of int), ``w_kept`` (ndarray), ``dropped`` (float: sum of
+            ``|w_i|`` over the dropped materials).
+        """
         w = np.asarray(w, dtype=np.float64)
         n = len(self.names)
         if w.shape != (n,) or not np.isfinite(w).all():
