@@ -257,7 +257,7 @@ class GPLVM:
                          n_refactorisations=res.n_refactorisations, max_drift=res.max_drift)
 
 
-def fit_latent(S, d, q=2, method="hooke-jeeves", length_scale=1.0, noise=1e-4, init=None, *,
+def fit_latent(S, d, q=2, *, method="hooke-jeeves", length_scale=1.0, noise=1e-4, init=None,
                max_iter=None, tol=None, callback=None, initial_step=0.25):
     """Latent points maximising the GPLVM log-likelihood L (Eq. 6): :class:`GPLVM` as one call.
 

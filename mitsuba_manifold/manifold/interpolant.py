@@ -184,7 +184,7 @@ class ShepardWeights(Interpolant):
         self.spread = float(spread)
         self.length_scale = float(length_scale)
         if not self.power > 0 or not self.taper > 0 or not self.length_scale > 0 or not self.spread >= 0:
-            raise InputError(f"shepard weights need power > 0, taper > 0, spread >= 0 and length_scale > 0, "
+            raise InputError(f"shepard weights need `power` > 0, `taper` > 0, `spread` >= 0 and `length_scale` > 0, "
                                    f"got {self.power}, {self.taper}, {self.spread}, {self.length_scale}")
 
     def params(self):

@@ -131,7 +131,7 @@ def folds(n, k=10, seed=0):
     return np.array_split(np.random.default_rng(seed).permutation(n), k)
 
 
-def cross_validate(tables, names, fit, G_error, q, albedos, k=10, seed=0, bins=None, progress=None,
+def cross_validate(tables, names, fit, G_error, q, albedos, *, k=10, seed=0, bins=None, progress=None,
                    only_folds=None):
     """K-fold held-out fidelity of a manifold configuration.
 
