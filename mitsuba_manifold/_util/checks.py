@@ -7,8 +7,11 @@ their option, :func:`mitsuba_manifold.apps.cli.common.cli_message`) or a tool's 
 """
 
 import math
+import numbers
 import os
+import re
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -69,16 +72,107 @@ def fits_in_memory(name, nbytes, what, fraction=0.8):
                          f"({fraction * avail / 2**30:.3g} GiB): choose a smaller value")
 
 
+#: A number written as text: digits, an optional point and exponent (no ``1_0``, ``0x1``, ``inf``).
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+#: Separators of the coordinates in a latent point's text: commas and/or blanks.
+_SEPARATOR = re.compile(r"\s*,\s*|\s+")
+
+
+def _items(values):
+    """The scalars of a (nested) sequence or array, in order (Python types: ``ndarray.tolist``)."""
+    if hasattr(values, "__array__") and not isinstance(values, np.ndarray):
+        values = np.asarray(values)
+    if isinstance(values, np.ndarray):
+        values = values.tolist()
+    if isinstance(values, Sequence) and not isinstance(values, (str, bytes, bytearray)):
+        return [v for x in values for v in _items(x)]
+    return [values]
+
+
+def _coordinate(name, v, q):
+    """One coordinate as a float: a real number (not a boolean) or a number written as text."""
+    if isinstance(v, str):
+        if not v.strip():
+            raise InputError(f"{name} has an empty coordinate (two commas in a row?); give {q} numbers "
+                             "like '0.25, -1e-3'")
+        if not _NUMBER.fullmatch(v.strip()):
+            raise InputError(f"{name}: {v!r} is not a number; give {q} numbers like '0.25, -1e-3'")
+        return float(v)
+    if isinstance(v, (bool, np.bool_)):
+        raise InputError(f"{name} must be {q} numbers, got the boolean {v!r}")
+    if isinstance(v, numbers.Complex) and not isinstance(v, numbers.Real):
+        raise InputError(f"{name} must be {q} real numbers, got the complex number {v!r}")
+    if not isinstance(v, numbers.Real):
+        raise InputError(f"{name} must be {q} numbers, got {v!r:.60}")
+    return float(v)
+
+
+#: NumPy kinds of what is not a real number, by name.
+_NOT_REAL = {"b": "booleans", "c": "complex numbers", "U": "strings", "S": "strings"}
+
+
+def _kind(v):
+    """The NumPy kind of a scalar that is not a real number (``None`` for the others)."""
+    if isinstance(v, (bool, np.bool_)):
+        return "b"
+    if isinstance(v, numbers.Complex) and not isinstance(v, numbers.Real):
+        return "c"
+    return "U" if isinstance(v, (str, bytes)) else None
+
+
 def latent_point(name, values, q):
-    """``q`` finite numbers as a float64 array."""
-    try:
-        arr = np.asarray(values, dtype=np.float64).ravel()
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be {q} numbers, got {values!r}") from None
+    """One latent point: ``q`` finite numbers as a float64 array ``(q,)``.
+
+    ``values`` is a sequence or array of real numbers (any shape with ``q`` of them), or text
+    ``"a, b, c"`` / ``"a b c"``. Refused, with a message naming ``name`` (pass it as the
+    caller's parameter, e.g. ``"`x`"``): booleans, complex numbers, non-finite values, a
+    wrong count, and number forms ``float()`` accepts but nobody types for a coordinate
+    (``"1_0"``, ``"0x1"``, ``"nan"``, ``"inf"``).
+    """
+    if isinstance(values, str):
+        text = values.strip()
+        parts = _SEPARATOR.split(text) if text else []
+    elif isinstance(values, (bytes, bytearray)):
+        raise InputError(f"{name} must be {q} numbers, got bytes {values!r:.60}")
+    else:
+        parts = _items(values)
+    arr = np.array([_coordinate(name, v, q) for v in parts], dtype=np.float64)
     if arr.size != q or not np.isfinite(arr).all():
         raise InputError(f"{name} must be {q} finite numbers (the manifold's latent dimension), "
                          f"got {arr.tolist()}")
     return arr
+
+
+def latent_points(name, x, q, max_abs=math.inf):
+    """Latent points as an ``(M, q)`` float64 array, and whether ``x`` was one point ``(q,)``.
+
+    The array form of :func:`latent_point` (no text; vectorised for batches): ``x`` is
+    ``(q,)`` or ``(M, q)`` real numbers; booleans, complex numbers, text, non-finite values
+    and coordinates beyond ``max_abs`` are refused.
+    """
+    if isinstance(x, (list, tuple)):   # a Python list: its items, not NumPy's promotion of them
+        kind = next((k for k in map(_kind, _items(x)) if k), None)
+    else:
+        kind = np.asarray(x).dtype.kind
+    if kind in _NOT_REAL:
+        raise InputError(f"{name} must be {q} numbers (a list or array; {_NOT_REAL[kind]} are not "
+                         f"accepted), got {x!r:.60}")
+    try:
+        arr = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be {q} numbers (a list or array), got {x!r:.60}") from None
+    single, shape = arr.ndim == 1, arr.shape
+    arr = np.atleast_2d(arr)
+    if arr.ndim != 2 or arr.shape[1] != q:
+        raise InputError(f"{name} must have {q} coordinates, got shape {shape}")
+    if not np.isfinite(arr).all():
+        raise InputError(f"{name} contains NaN or Inf")
+    big = float(np.abs(arr).max(initial=0.0))
+    if big > max_abs:
+        raise InputError(f"{name} coordinate {big:.3g} is too far out: its distances to the materials "
+                         f"overflow; give coordinates within +-{max_abs:.0e} (the materials lie "
+                         "within a few units of 0)")
+    return arr, single
 
 
 def output_folder(name, path):

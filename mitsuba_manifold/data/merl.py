@@ -248,7 +248,7 @@ def filled_reflectance(raw, dtype=np.float32):
     return out
 
 
-def table_resolution(dims, name="--resolution", bytes_per_bin=None, workers=1):
+def table_resolution(dims, name="`dims`", bytes_per_bin=None, workers=1):
     """MERL dimensions ``(n_theta_h, n_theta_d, n_phi_d)``, readable by this package and small
     enough to tabulate in the memory available.
 

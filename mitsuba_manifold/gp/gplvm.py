@@ -21,10 +21,13 @@ Two optimisers work on the same objective from the same start (:func:`pca_init` 
   update loses accuracy.
 * ``"lbfgs"``: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation).
 
-The model is split GPy style: :mod:`.kernel` (covariance, factorisation of K),
-:mod:`.likelihood` (L and its gradient), :mod:`.rank_update` (the rank-one updated inverse)
-and :mod:`.optimisers`; this module holds the PCA start and :func:`fit_latent`, and
-re-exports the public functions of the others.
+The model is split GPy style: :mod:`.kernel` (the :class:`~.kernel.Kernel` object:
+covariance, gradients, the factorisation of K), :mod:`.likelihood` (the objective L and its
+gradients), :mod:`.rank_update` (the rank-one updated inverse), :mod:`.optimisers` (with
+their options dataclasses) and :mod:`.posterior` (predictions of the fitted GP). This module
+holds the PCA start and the estimator: :class:`GPLVM` (scikit-learn style: settings in the
+constructor, ``fit(S, d)`` returning a :class:`FitResult`) and :func:`fit_latent`, the same
+as one function; it re-exports the public names of the others.
 
 Internally both work in units of the length scale (``u = x / l``): scaling ``l`` and the
 latent points together changes neither K nor L, so a fit at any ``l`` is the fit at ``l = 1``
@@ -42,8 +45,9 @@ import numpy as np
 
 from . import optimisers
 from ..errors import InputError, NotPositiveDefiniteError
-from .kernel import MAX_LATENT_DIM, check_points, check_positive, kernel_matrix
-from .likelihood import check_gram, check_d, log_likelihood, log_likelihood_grad, value_u
+from .kernel import MAX_LATENT_DIM, Kernel, check_points, check_positive, kernel_matrix
+from .likelihood import Likelihood, check_gram, log_likelihood, log_likelihood_grad
+from .optimisers import HookeJeevesOptions, LBFGSOptions
 from .rank_update import MoveTrial, RankUpdatedInverse
 
 try:  # optional: lets small fits run BLAS single-threaded, much faster for N ~ 100
@@ -54,6 +58,11 @@ except ImportError:  # pragma: no cover - depends on the environment
 __all__ = [
     "MAX_LATENT_DIM",
     "NotPositiveDefiniteError",
+    "Kernel",
+    "Likelihood",
+    "HookeJeevesOptions",
+    "LBFGSOptions",
+    "GPLVM",
     "kernel_matrix",
     "log_likelihood",
     "log_likelihood_grad",
@@ -69,13 +78,14 @@ __all__ = [
 #: synchronisation (badly so on a busy machine).
 SINGLE_THREAD_MAX_N = 256
 
-_METHODS = ("hooke-jeeves", "lbfgs")
+#: Optimisers by name, with their options type.
+METHODS = {"hooke-jeeves": HookeJeevesOptions, "lbfgs": LBFGSOptions}
 
 
 def check_q(q):
     if isinstance(q, (bool, np.bool_)) or not isinstance(q, numbers.Integral) \
             or not 1 <= q <= MAX_LATENT_DIM:
-        raise InputError(f"latent dimension q must be an integer from 1 to {MAX_LATENT_DIM}, "
+        raise InputError(f"`q` must be an integer from 1 to {MAX_LATENT_DIM} (the latent dimension), "
                          f"got {q!r}")
     return int(q)
 
@@ -115,7 +125,7 @@ def pca_init(S, q, length_scale=1.0):
     coords *= np.where(coords[big, np.arange(q)] < 0, -1.0, 1.0)
     spread = coords[:, 0].std()
     if not spread > 0:
-        raise InputError("Gram matrix S is zero: all materials are identical after mean "
+        raise InputError("Gram matrix `S` is zero: all materials are identical after mean "
                          "subtraction, there is nothing to lay out")
     return coords * (l / spread)
 
@@ -166,41 +176,26 @@ class FitResult:
         """Iterations done (sweeps for Hooke-Jeeves)."""
         return len(self.history) - 1
 
+    @property
+    def kernel(self):
+        """The :class:`Kernel` the points were fitted with."""
+        return Kernel(self.length_scale, self.noise)
 
-def fit_latent(S, d, q=2, method="hooke-jeeves", length_scale=1.0, noise=1e-4, init=None,
-               max_iter=None, tol=None, callback=None, initial_step=0.25):
-    """Latent points maximising the GPLVM log-likelihood L (Eq. 6).
+
+class GPLVM:
+    """The GPLVM fit of latent points to a Gram matrix (paper Sec. 3), scikit-learn style:
+    settings in the constructor, data in :meth:`fit`.
 
     Parameters
     ----------
-    S : (N, N) array_like
-        Gram matrix ``Z Z^T`` of the mean-subtracted observations (float64).
-    d : int
-        Number of values per material.
     q : int
         Latent dimension, 1 to 8.
+    kernel : Kernel, optional
+        ``l`` and ``mu > 0`` (default ``Kernel()``: ``l = 1``, ``mu = 1e-4``).
     method : {"hooke-jeeves", "lbfgs"}
         The paper's direct search with rank-one updates, or L-BFGS-B with the gradient.
-    length_scale, noise : float
-        ``l`` and ``mu``.
-    init : (N, q) array_like, optional
-        Starting points; :func:`pca_init` by default.
-    max_iter : int, optional
-        Sweeps over all points (Hooke-Jeeves, default 500) or L-BFGS-B iterations (default
-        2000).
-    tol : float, optional
-        Hooke-Jeeves: stop when every point's step is below ``tol * l`` (default 1e-3).
-        L-BFGS-B: stop when the largest gradient entry of ``L / scale`` with respect to
-        ``x / l`` is below ``tol`` (default 1e-7; ``scale`` is the size of L's terms at the
-        start).
-    callback : callable, optional
-        ``callback(iteration, latent, L)`` after each iteration; returning True stops.
-    initial_step : float
-        Hooke-Jeeves: first step, in units of ``l``.
-
-    Returns
-    -------
-    FitResult
+    options : HookeJeevesOptions or LBFGSOptions, optional
+        The optimiser's settings (default: the method's defaults).
 
     Notes
     -----
@@ -209,37 +204,94 @@ def fit_latent(S, d, q=2, method="hooke-jeeves", length_scale=1.0, noise=1e-4, i
     than L-BFGS; a smaller ``tol`` goes further at a higher cost. For ``N <= 256`` BLAS runs
     single-threaded during the fit when ``threadpoolctl`` is installed.
     """
-    S = check_gram(S)
-    d = check_d(d)
-    q = check_q(q)
-    l = check_positive("length_scale", length_scale)
-    mu = check_positive("noise", noise)
-    if method not in _METHODS:
-        raise InputError(f"unknown method {method!r}; use one of {', '.join(_METHODS)}")
-    if init is None:
-        X0 = pca_init(S, q, l)
-    else:
-        X0 = check_points("init", init, n=S.shape[0], q=q)
-    if max_iter is not None and (isinstance(max_iter, bool)
-                                 or not isinstance(max_iter, numbers.Integral) or max_iter < 0):
-        raise InputError(f"max_iter must be an integer >= 0, got {max_iter!r}")
-    if tol is not None:
-        tol = check_positive("tol", tol)
-    if callback is not None and not callable(callback):
-        raise InputError("callback must be callable")
-    step = check_positive("initial_step", initial_step)
-    U0 = X0 / l
-    single = threadpool_limits is not None and S.shape[0] <= SINGLE_THREAD_MAX_N
-    t0 = time.perf_counter()
-    with threadpool_limits(1, user_api="blas") if single else contextlib.nullcontext():
-        if method == "hooke-jeeves":
-            res = optimisers.hooke_jeeves(U0, S, d, mu, 500 if max_iter is None else int(max_iter),
-                                1e-3 if tol is None else tol, step, callback, l)
+
+    def __init__(self, q=2, kernel=None, method="hooke-jeeves", options=None):
+        self.q = check_q(q)
+        self.kernel = Kernel() if kernel is None else kernel
+        check_positive("noise", self.kernel.noise)
+        if method not in METHODS:
+            raise InputError(f"unknown `method` {method!r}; use one of {', '.join(METHODS)}")
+        self.method = method
+        self.options = METHODS[method]() if options is None else options
+        if not isinstance(self.options, METHODS[method]):
+            raise InputError(f"`options` of method {method!r} must be a {METHODS[method].__name__}, "
+                             f"got {type(options).__name__}")
+
+    def fit(self, S, d, init=None, callback=None):
+        """Latent points maximising the log-likelihood L (Eq. 6) of Gram matrix ``S``.
+
+        Parameters
+        ----------
+        S : (N, N) array_like
+            Gram matrix ``Z Z^T`` of the mean-subtracted observations (float64).
+        d : int
+            Number of values per material.
+        init : (N, q) array_like, optional
+            Starting points; :func:`pca_init` by default.
+        callback : callable, optional
+            ``callback(iteration, latent, L)`` after each iteration; returning True stops.
+
+        Returns
+        -------
+        FitResult
+        """
+        likelihood = Likelihood(S, d, self.kernel)
+        l = self.kernel.length_scale
+        if init is None:
+            X0 = pca_init(likelihood.S, self.q, l)
         else:
-            res = optimisers.lbfgs(U0, S, d, mu, 2000 if max_iter is None else int(max_iter),
-                         1e-7 if tol is None else tol, callback, l)
-        L = value_u(res.units, S, d, mu)
-    return FitResult(latent=res.units * l, log_likelihood=L, history=np.asarray(res.history, dtype=np.float64),
-                     n_evaluations=res.n_evaluations, time_s=time.perf_counter() - t0, method=method,
-                     converged=res.converged, message=res.message, length_scale=l, noise=mu,
-                     n_refactorisations=res.n_refactorisations, max_drift=res.max_drift)
+            X0 = check_points("init", init, n=likelihood.n, q=self.q)
+        if callback is not None and not callable(callback):
+            raise InputError("`callback` must be callable")
+        unit = likelihood.in_units()
+        run = optimisers.hooke_jeeves if self.method == "hooke-jeeves" else optimisers.lbfgs
+        single = threadpool_limits is not None and likelihood.n <= SINGLE_THREAD_MAX_N
+        t0 = time.perf_counter()
+        with threadpool_limits(1, user_api="blas") if single else contextlib.nullcontext():
+            res = run(unit, X0 / l, self.options, callback, l)
+            L = unit._value(res.units)
+        return FitResult(latent=res.units * l, log_likelihood=L,
+                         history=np.asarray(res.history, dtype=np.float64), n_evaluations=res.n_evaluations,
+                         time_s=time.perf_counter() - t0, method=self.method, converged=res.converged,
+                         message=res.message, length_scale=l, noise=self.kernel.noise,
+                         n_refactorisations=res.n_refactorisations, max_drift=res.max_drift)
+
+
+def fit_latent(S, d, q=2, *, method="hooke-jeeves", length_scale=1.0, noise=1e-4, init=None,
+               max_iter=None, tol=None, callback=None, initial_step=0.25):
+    """Latent points maximising the GPLVM log-likelihood L (Eq. 6): :class:`GPLVM` as one call.
+
+    ``GPLVM(q, Kernel(length_scale, noise), method, options).fit(S, d, init, callback)``
+    with the options made of ``max_iter``, ``tol`` and ``initial_step``.
+
+    Parameters
+    ----------
+    S, d, init, callback
+        See :meth:`GPLVM.fit`.
+    q, method
+        See :class:`GPLVM`.
+    length_scale, noise : float
+        ``l`` and ``mu`` of the :class:`Kernel`.
+    max_iter : int, optional
+        Sweeps over all points (Hooke-Jeeves, default 500) or L-BFGS-B iterations (default
+        2000).
+    tol : float, optional
+        Hooke-Jeeves: stop when every point's step is below ``tol * l`` (default 1e-3).
+        L-BFGS-B: stop when the largest gradient entry of ``L / scale`` with respect to
+        ``x / l`` is below ``tol`` (default 1e-7; ``scale`` is the size of L's terms at the
+        start).
+    initial_step : float
+        Hooke-Jeeves: first step, in units of ``l``.
+
+    Returns
+    -------
+    FitResult
+    """
+    kernel = Kernel(check_positive("length_scale", length_scale), check_positive("noise", noise))
+    if method not in METHODS:
+        raise InputError(f"unknown `method` {method!r}; use one of {', '.join(METHODS)}")
+    given = {k: v for k, v in (("max_iter", max_iter), ("tol", tol)) if v is not None}
+    step = check_positive("initial_step", initial_step)
+    if method == "hooke-jeeves":
+        given["initial_step"] = step
+    return GPLVM(q, kernel, method, METHODS[method](**given)).fit(S, d, init, callback)

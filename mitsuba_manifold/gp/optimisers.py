@@ -4,19 +4,74 @@
   evaluated through :class:`~mitsuba_manifold.gp.rank_update.RankUpdatedInverse`;
 * :func:`lbfgs`: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation).
 
-Both return an :class:`OptimiserResult`; :func:`mitsuba_manifold.gp.gplvm.fit_latent` is the
-public entry point.
+Each takes the objective in units of the length scale (a :class:`~.likelihood.Likelihood`
+with ``l = 1``), the starting points and its options (:class:`HookeJeevesOptions`,
+:class:`LBFGSOptions`), and returns an :class:`OptimiserResult`;
+:class:`mitsuba_manifold.gp.gplvm.GPLVM` (and :func:`~mitsuba_manifold.gp.gplvm.fit_latent`)
+is the public entry point.
 """
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.optimize
 
-from ..errors import NotPositiveDefiniteError
-from .kernel import cov, factorise
-from .likelihood import objective, value_grad_u, value_u
+from ..errors import InputError, NotPositiveDefiniteError
+from .kernel import check_positive, factorise
+from .likelihood import objective
 from .rank_update import RankUpdatedInverse
+
+
+def _check_max_iter(max_iter):
+    if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) or max_iter < 0:
+        raise InputError(f"`max_iter` must be an integer >= 0, got {max_iter!r}")
+    return int(max_iter)
+
+
+@dataclass(frozen=True)
+class HookeJeevesOptions:
+    """Settings of :func:`hooke_jeeves`.
+
+    Attributes
+    ----------
+    max_iter : int
+        Sweeps over all points.
+    tol : float
+        Stop when every point's step is below ``tol`` (in units of ``l``).
+    initial_step : float
+        First step of every point, in units of ``l``.
+    """
+
+    max_iter: int = 500
+    tol: float = 1e-3
+    initial_step: float = 0.25
+
+    def __post_init__(self):
+        object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))
+        object.__setattr__(self, "tol", check_positive("tol", self.tol))
+        object.__setattr__(self, "initial_step", check_positive("initial_step", self.initial_step))
+
+
+@dataclass(frozen=True)
+class LBFGSOptions:
+    """Settings of :func:`lbfgs`.
+
+    Attributes
+    ----------
+    max_iter : int
+        L-BFGS-B iterations.
+    tol : float
+        Stop when the largest gradient entry of ``L / scale`` with respect to ``x / l`` is
+        below ``tol`` (``scale``: the size of L's terms at the start).
+    """
+
+    max_iter: int = 2000
+    tol: float = 1e-7
+
+    def __post_init__(self):
+        object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))
+        object.__setattr__(self, "tol", check_positive("tol", self.tol))
 
 
 @dataclass
@@ -32,8 +87,11 @@ class OptimiserResult:
     max_drift: float = 0.0
 
 
-def hooke_jeeves(U0, S, d, mu, max_iter, tol, step0, callback, l):
+def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, length_scale=1.0):
     """Hooke-Jeeves direct search, one latent point at a time, in length-scale units.
+
+    ``likelihood``: the objective with ``l = 1`` (:meth:`Likelihood.in_units`); ``callback``
+    gets the points times ``length_scale``.
 
     For each point: an exploratory poll of ``+-step`` along every coordinate (evaluated in
     one batch), plus the move combining every improving coordinate; then pattern moves
@@ -42,9 +100,11 @@ def hooke_jeeves(U0, S, d, mu, max_iter, tol, step0, callback, l):
     are accepted, and a sweep whose fresh L came out lower (rounding) is undone.
     """
     n, q = U0.shape
-    state = RankUpdatedInverse(U0, S, d, 1.0, mu, refactor_every=max(n, 10), _validated=True)
+    max_iter, tol, l = options.max_iter, options.tol, length_scale
+    state = RankUpdatedInverse(U0, likelihood.S, likelihood.d, 1.0, likelihood.kernel.noise,
+                               refactor_every=max(n, 10), _validated=True)
     history = [state.log_likelihood]
-    steps = np.full(n, float(step0))
+    steps = np.full(n, float(options.initial_step))
     poll = np.zeros((2 * q, q))
     poll[0::2][np.diag_indices(q)] = 1.0
     poll[1::2][np.diag_indices(q)] = -1.0
@@ -110,10 +170,14 @@ def hooke_jeeves(U0, S, d, mu, max_iter, tol, step0, callback, l):
                            state.n_refactorisations, state.max_drift)
 
 
-def lbfgs(U0, S, d, mu, max_iter, tol, callback, l):
-    """L-BFGS-B on ``-L / scale`` with the analytic gradient, in length-scale units."""
+def lbfgs(likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.0):
+    """L-BFGS-B on ``-L / scale`` with the analytic gradient, in length-scale units.
+
+    ``likelihood``, ``callback`` and ``length_scale`` as for :func:`hooke_jeeves`.
+    """
     n, q = U0.shape
-    factor = factorise(cov(U0, mu))
+    S, d, max_iter, tol, l = likelihood.S, likelihood.d, options.max_iter, options.tol, length_scale
+    factor = factorise(likelihood.kernel._K(U0))
     logdet, trace0 = factor.logdet, float(np.trace(factor.solve(S)))
     if max_iter == 0:
         return OptimiserResult(U0, [objective(logdet, trace0, d)], 1, False, "reached max_iter = 0")
@@ -127,7 +191,7 @@ def lbfgs(U0, S, d, mu, max_iter, tol, callback, l):
         counter["nev"] += 1
         U = flat.reshape(n, q)
         try:
-            L, g = value_grad_u(U, S, d, mu)
+            L, g = likelihood._value_grad(U)
         except NotPositiveDefiniteError:
             return np.inf, np.zeros_like(flat)
         cache.clear()
@@ -142,7 +206,7 @@ def lbfgs(U0, S, d, mu, max_iter, tol, callback, l):
 
     def cb(xk):
         key = xk.tobytes()
-        L = cache[key] if key in cache else value_u(xk.reshape(n, q), S, d, mu)
+        L = cache[key] if key in cache else likelihood._value(xk.reshape(n, q))
         history.append(L)
         last["x"] = xk.copy()
         if callback is not None and callback(len(history) - 1, xk.reshape(n, q) * l, L):

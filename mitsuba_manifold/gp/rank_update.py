@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError, NotPositiveDefiniteError
-from .kernel import check_points, check_positive, cov, factorise, sq_dist
+from .kernel import Kernel, check_points, check_positive, factorise
 from .likelihood import check_d, check_gram, objective
 
 
@@ -90,7 +90,7 @@ class RankUpdatedInverse:
         Largest relative refinement correction of ``P k`` accepted from the maintained inverse.
     """
 
-    def __init__(self, latent, S, d, length_scale=1.0, noise=1e-4, refactor_every=50,
+    def __init__(self, latent, S, d, length_scale=1.0, noise=1e-4, *, refactor_every=50,
                  min_pivot=1e-6, max_correction=1e-5, _validated=False):
         if not _validated:
             S = check_gram(S)
@@ -99,12 +99,13 @@ class RankUpdatedInverse:
             noise = check_positive("noise", noise)
             latent = check_points("latent", latent, n=S.shape[0])
         if isinstance(refactor_every, bool) or int(refactor_every) < 1:
-            raise InputError(f"refactor_every must be an integer >= 1, got {refactor_every!r}")
+            raise InputError(f"`refactor_every` must be an integer >= 1, got {refactor_every!r}")
         self._S = S
         self._d = float(d)
         self._l = float(length_scale)
         self._mu = float(noise)
         self._c = 1.0 + self._mu
+        self._kernel = Kernel(1.0, self._mu)     # on points in units of the length scale
         self._U = np.array(latent, dtype=np.float64) / self._l
         self.refactor_every = int(refactor_every)
         self.min_pivot = float(min_pivot)
@@ -170,7 +171,7 @@ class RankUpdatedInverse:
             :attr:`scale`); also kept as the maximum in :attr:`max_drift`.
         """
         old = self.log_likelihood if self._version else None
-        K = cov(self._U, self._mu)
+        K = self._kernel._K(self._U)
         self._install(K, factorise(K))
         self.n_refactorisations += 1
         drift = 0.0
@@ -236,7 +237,7 @@ class RankUpdatedInverse:
             prep = self._point(i)
             first = prep[4] is None       # then row 0 is the current position (s_old, w_old)
             uu = np.vstack([self._U[i:i + 1], u]) if first else u
-            k = np.exp(-0.5 * sq_dist(uu, self._U))
+            k = self._kernel._cross(uu, self._U)
             k[:, i] = 0.0
             w, pivot, corr = self._schur(prep[3], k)
             w[:, i] = -1.0                # w = A^-1 k - e_i

@@ -1,6 +1,9 @@
 """The learned material space: :class:`~mitsuba_manifold.manifold.model.Manifold` (latent points
-and what was learned), the interpolants giving weights ``w(x)`` (paper Eq. 4 and the convex
-default), presets, pruning, projection of new tables, space diagnostics and the ``.npz`` format.
+and what was learned, its :class:`~.record.FitRecord`), the fit of a database (:mod:`.fitting`),
+the interpolants giving weights ``w(x)`` (paper Eq. 4 and the convex default), the training
+tables and their combination (:mod:`.tables`), pruning, materials by name and weight text
+(:mod:`.materials`), projection of new tables, diagnostics and the summary (:mod:`.report`),
+presets, space metrics and the ``.npz`` format.
 
 Depends on :mod:`.gp`, :mod:`.data` and :mod:`._util`.
 """

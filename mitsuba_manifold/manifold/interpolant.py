@@ -26,8 +26,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..gp import kernel
+from .._util import checks
 from ..errors import InputError, NotPositiveDefiniteError
+from ..gp.kernel import Kernel, coincident
+from ..gp.posterior import Posterior
 
 KINDS = ("gp", "shepard")
 #: Largest latent coordinate accepted: far beyond it squared distances (and their squares in the
@@ -36,23 +38,8 @@ MAX_COORDINATE = 1e30
 
 
 def points(x, q):
-    """``x`` as an ``(M, q)`` float array and whether it was a single point; clear errors otherwise."""
-    try:
-        x = np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"latent point must be {q} numbers (a list or array), got {x!r:.60}") from None
-    single, shape = x.ndim == 1, x.shape
-    x = np.atleast_2d(x)
-    if x.ndim != 2 or x.shape[1] != q:
-        raise InputError(f"latent point must have {q} coordinates, got shape {shape}")
-    if not np.isfinite(x).all():
-        raise InputError("latent point contains NaN or Inf")
-    big = float(np.abs(x).max(initial=0.0))
-    if big > MAX_COORDINATE:
-        raise InputError(f"latent point coordinate {big:.3g} is too far out: its distances to the materials "
-                               f"overflow; give coordinates within +-{MAX_COORDINATE:.0e} (the materials lie "
-                               "within a few units of 0)")
-    return x, single
+    """``x`` as an ``(M, q)`` float array and whether it was a single point (:func:`checks.latent_points`)."""
+    return checks.latent_points("latent point", x, q, MAX_COORDINATE)
 
 
 class Interpolant:
@@ -74,6 +61,12 @@ class Interpolant:
         w = self._weights(x)
         return w[0] if single else w
 
+    def b_and_w(self, x):
+        """``b`` and the weights ``w`` (M, N) at points ``x`` (M, q): ``sum_i w_i table_i = mean + b^T Z``,
+        so ``b = w - 1/N`` (the GP's Eq. 4 ``b`` for :class:`GaussianProcessWeights`)."""
+        w = self._weights(x)
+        return w - 1.0 / self.n, w
+
     def jacobian(self, x):
         """``dw/dx``: ``(M, N, q)`` (or ``(N, q)`` for one point); columns sum to 0."""
         x, single = points(x, self.q)
@@ -85,10 +78,6 @@ class Interpolant:
         u = np.zeros_like(self.latent)
         u[:, 0] = eps * getattr(self, "length_scale", 1.0)
         return float(np.abs(self._weights(self.latent + u) - np.eye(self.n)).sum(axis=1).max())
-
-    def _hits(self, x):
-        """Pairs (row of x, latent index) where x equals a latent point exactly."""
-        return np.nonzero((x[:, None, :] == self.latent[None, :, :]).all(-1))
 
 
 class GaussianProcessWeights(Interpolant):
@@ -112,13 +101,12 @@ class GaussianProcessWeights(Interpolant):
         self.length_scale = float(length_scale)
         self.noise = float(noise)
         self.exact = bool(exact)
-        self.K = kernel.kernel_matrix(self.latent, length_scale=self.length_scale, noise=self.noise)
-        try:
-            self._factor = kernel.factorise(self.K)
-        except NotPositiveDefiniteError:
-            raise InputError(
-                f"the covariance K of the {self.n} latent points is not positive definite "
-                f"(noise mu={self.noise:g} too small for coincident points?)") from None
+        self.gp = posterior(self.latent, Kernel(self.length_scale, self.noise))
+
+    @property
+    def K(self):
+        """The covariance matrix of the latent points."""
+        return self.gp.K
 
     def params(self):
         return {"kind": self.kind, "length_scale": self.length_scale, "noise": self.noise,
@@ -130,16 +118,15 @@ class GaussianProcessWeights(Interpolant):
         it is only when K's smooth part is well conditioned (points far apart compared with l)."""
         if not self.exact:
             return super().jump(eps)
-        db = -self.noise * self._factor.inverse()          # column i: b(x_i+) - e_i
+        db = -self.noise * self.gp.inverse()               # column i: b(x_i+) - e_i
         dw = db - db.sum(axis=0, keepdims=True) / self.n  # the affine weights' change
         return float(np.abs(dw).sum(axis=0).max())
 
     def gp_weights(self, x):
         """``b(x)`` (M, N) of Eq. 4."""
-        k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
-        b = self._factor.solve(k.T).T
+        b = self.gp.weights(x)
         if self.exact:
-            rows, cols = self._hits(x)
+            rows, cols = coincident(x, self.latent)
             single = np.bincount(rows, minlength=len(x))[rows] == 1
             rows, cols = rows[single], cols[single]
             b[rows] = 0.0  # k(x_i) + mu e_i is column i of K: K_inv of it is e_i exactly
@@ -150,17 +137,17 @@ class GaussianProcessWeights(Interpolant):
         """The affine weights ``w = b + (1 - sum(b)) / N`` of Eq. 4's ``b`` (M, N)."""
         return b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
 
+    def b_and_w(self, x):
+        b = self.gp_weights(x)
+        return b, self.affine(b)
+
     def _weights(self, x):
         return self.affine(self.gp_weights(x))
 
     def _jacobian(self, x):
-        # dk_i/dx = -k_i (x - x_i) / l^2; db = K_inv dk; dw = db - sum(db) / N
-        k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
-        dk = -k[:, :, None] * (x[:, None, :] - self.latent[None]) / self.length_scale ** 2
-        m, n, q = dk.shape
-        db = self._factor.solve(dk.transpose(1, 0, 2).reshape(n, m * q))
-        db = db.reshape(n, m, q).transpose(1, 0, 2)
-        return db - db.sum(axis=1, keepdims=True) / n
+        # db = K_inv dk/dx (the posterior's); dw = db - sum(db) / N
+        db = self.gp.weights_jacobian(x)
+        return db - db.sum(axis=1, keepdims=True) / self.n
 
 
 class ShepardWeights(Interpolant):
@@ -197,7 +184,7 @@ class ShepardWeights(Interpolant):
         self.spread = float(spread)
         self.length_scale = float(length_scale)
         if not self.power > 0 or not self.taper > 0 or not self.length_scale > 0 or not self.spread >= 0:
-            raise InputError(f"shepard weights need power > 0, taper > 0, spread >= 0 and length_scale > 0, "
+            raise InputError(f"shepard weights need `power` > 0, `taper` > 0, `spread` >= 0 and `length_scale` > 0, "
                                    f"got {self.power}, {self.taper}, {self.spread}, {self.length_scale}")
 
     def params(self):
@@ -251,6 +238,17 @@ def _normalise(log_u):
         hit = inf[rows].astype(np.float64)
         out[rows] = hit / hit.sum(axis=1, keepdims=True)
     return out
+
+
+def posterior(latent, kernel):
+    """The GP :class:`~mitsuba_manifold.gp.posterior.Posterior` of ``latent`` (the one factorisation
+    of its K), or an :class:`InputError` saying why K has none."""
+    try:
+        return Posterior(latent, kernel)
+    except NotPositiveDefiniteError:
+        raise InputError(
+            f"the covariance K of the {len(latent)} latent points is not positive definite "
+            f"(`noise` mu={kernel.noise:g} too small for coincident points?)") from None
 
 
 def make(latent, params):

@@ -1,5 +1,8 @@
 """The saved manifold: a ``.npz`` file (no pickle) with a JSON ``meta`` entry and arrays.
 
+The fit's :class:`~.record.FitRecord` is stored as the ``meta`` entry's ``info`` dict and the
+``history`` array, the layout of every release so far.
+
 Version 2 adds the interpolant's parameters and the raw tables' Gram matrix (exact pruning
 errors). Version 1 files (the previous release) read as the paper's GP interpolant on their
 stored ``l`` and ``mu``, what they were used with; anything unreadable fails with a message
@@ -13,6 +16,7 @@ import zipfile
 import numpy as np
 
 from .._util.atomic import atomic_write
+from .record import FitRecord
 from ..errors import InputError
 
 FORMAT = "mitsuba-manifold"
@@ -22,7 +26,7 @@ _REFIT = "refit it with tools/fit_manifold.py"
 
 def _not_a_manifold(path, why):
     return InputError(f"{path} is not a manifold .npz written by fit_manifold ({why}); give the "
-                         "file tools/fit_manifold.py --out wrote")
+                      "file that tools/fit_manifold.py or Manifold.save wrote")
 
 
 def write(m, path):
@@ -67,7 +71,7 @@ def read(path):
         kwargs = {"names": meta["names"], "latent": arrays["latent"], "database": meta["database"],
                   "hashes": meta["hashes"], "length_scale": meta["length_scale"], "noise": meta["noise"],
                   "features": meta["features"], "albedos": arrays.get("albedos"), "gram": arrays.get("gram"),
-                  "history": arrays.get("history", ()), "info": info,
+                  "record": FitRecord.from_info(info, arrays.get("history", ())),
                   "interpolant": meta["interpolant"] if version >= 2 else {"kind": "gp", "exact": True},
                   "table_gram": arrays.get("table_gram")}
     except KeyError as e:

@@ -17,26 +17,36 @@ q = 3 dimensions and interpolates with convex, continuous, local weights
 of images stay exact), but never negative, without a jump next to the training points, and
 a point between two neighbours is a blend of those two. The choice is measured by
 ``tools/bench.py space`` (README, "The material space").
+
+:class:`Manifold` holds what was learned and delegates: the GP (kernel, factorisation of K,
+variance) to :mod:`mitsuba_manifold.gp`, the weights ``w(x)`` to its interpolant
+(:mod:`.interpolant`), the tables and their combination to :mod:`.tables`, names and
+weight text to :mod:`.materials`, projection to :mod:`.projection`, diagnostics and the
+summary to :mod:`.report`, the ``.npz`` file to :mod:`.io`.
 """
 
 import os
-import time
 from typing import NamedTuple
 
 import numpy as np
-from ..gp import gplvm, kernel
-from . import io as manifold_file, pruning
+
+from ..gp.kernel import Kernel
+from ..gp.likelihood import log_likelihood
+from . import fitting, io as manifold_file, materials, pruning, report
 from . import interpolant as interpolants
 from . import projection as projection_mod
-from .presets import PRESETS, fit_layout, make_interpolant, settings  # noqa: F401 (re-exported)
-from ..data.database import FEATURES, Database
-from ..errors import InputError, NotPositiveDefiniteError, did_you_mean
+from .presets import PRESETS, fit_layout, make_interpolant, settings
 from .pruning import DEFAULT_PRUNE
-from .._util.checks import weight_sum
+from .record import FitRecord, learned_arguments
+from .tables import Combination, Pruned, TrainingTables
+from ..data.database import FEATURES, Database
+from ..errors import InputError
+
+#: Names other modules import from here (the presets, the pruning default, the result types).
+__all__ = ["Manifold", "Weights", "Pruned", "Combination", "FitRecord", "PRESETS", "DEFAULT_PRUNE",
+           "FORMAT_VERSION", "settings", "fit_layout", "make_interpolant", "InputError"]
 
 FORMAT_VERSION = manifold_file.FORMAT_VERSION
-
-
 
 class Weights(NamedTuple):
     """:meth:`Manifold.weights`: ``b`` (Eq. 4's ``K^-1 k(x)`` for GP weights, else ``w - 1/N``) and weights ``w``."""
@@ -45,24 +55,23 @@ class Weights(NamedTuple):
     w: np.ndarray
 
 
-class Pruned(NamedTuple):
-    """:meth:`Manifold.prune`: materials kept, their rescaled weights, the ``|w|`` dropped."""
-
-    keep: np.ndarray
-    w_kept: np.ndarray
-    dropped: float
-
-
-class Combination(NamedTuple):
-    """:meth:`Manifold.combine`: the combined table, the materials used, the ``|w|`` dropped."""
-
-    table: np.ndarray
-    keep: np.ndarray
-    dropped: float
-
-
 class Manifold:
     """A fitted latent space of measured materials (scikit-learn style: fit, then use).
+
+    Parameters
+    ----------
+    names, latent, database, hashes
+        See the attributes.
+    length_scale, noise : float
+        The kernel's hyperparameters ``l`` and ``mu`` (:attr:`kernel`).
+    features : {"raw", "log"}
+    albedos : (N, 3) array, optional
+    *legacy
+        ``gram, history, info`` after ``albedos``, as the previous release took them.
+    **learned
+        ``gram``, ``table_gram``, ``interpolant`` (its parameters, default the paper's GP
+        weights on ``l`` and ``mu``) and ``record`` (a :class:`FitRecord`), or instead of it
+        the previous release's ``history`` and ``info`` dict.
 
     Attributes
     ----------
@@ -74,54 +83,53 @@ class Manifold:
         Folder of the tables the manifold was fit on.
     hashes : list of str
         SHA-256 of each table file, to detect a mismatched database.
-    length_scale, noise : float
-        Kernel hyperparameters ``l`` and ``mu``.
+    kernel : gp.kernel.Kernel
+        The covariance function (``length_scale`` and ``noise``, also attributes here).
     features : str
         Feature transform used for the fit only (``raw`` or ``log``).
-    albedos : ndarray (N, 3)
+    albedos : ndarray (N, 3) or None
         Bihemispherical albedo of each material (for :meth:`albedo`).
-    history : ndarray
-        Log-likelihood per optimiser iteration.
-    info : dict
-        Fit details (method, times, final log-likelihood, d, dims, preset, ...).
-    interpolant : interpolant.Interpolant
-        The weight function ``w(x)`` (built from the ``interpolant`` parameters; default the
-        paper's GP weights on ``length_scale`` and ``noise``).
+    gram : ndarray (N, N) or None
+        ``S = Z Z^T`` the latent points were fit to (:meth:`log_likelihood`, Eq. 7's ``|Z|``).
     table_gram : ndarray (N, N) or None
         ``T T^T`` of the raw tables (exact pruning errors); computed on first use when absent.
+    interpolant : interpolant.Interpolant
+        The weight function ``w(x)``.
+    record : FitRecord
+        What the fit did: method, preset, ``d``, ``dims``, final log-likelihood, history, timings.
     """
 
-    def __init__(self, names, latent, database, hashes, length_scale=1.0, noise=1e-4,
-                 features="raw", albedos=None, gram=None, history=(), info=None, interpolant=None,
-                 table_gram=None):
+    def __init__(self, names, latent, database, hashes, length_scale=1.0, noise=1e-4, features="raw",
+                 albedos=None, *legacy, **learned):
+        learned = learned_arguments(legacy, learned)
         latent = np.asarray(latent, dtype=np.float64)
         if latent.ndim != 2 or latent.shape[0] != len(names):
             raise InputError(f"latent points must have shape (N={len(names)}, q), got {latent.shape}")
         if not np.isfinite(latent).all():
             raise InputError("latent points contain NaN or Inf")
         if features not in FEATURES:
-            raise InputError(f"unknown feature transform {features!r}")
+            raise InputError(f"unknown feature transform `features` = {features!r}; use one of {FEATURES}")
         self.names = list(names)
         self.latent = latent
         self.database = os.fspath(database)
         self.hashes = list(hashes)
-        self.length_scale = float(length_scale)
-        self.noise = float(noise)
+        self.kernel = Kernel(length_scale, noise)
         self.features = features
         self.albedos = None if albedos is None else np.asarray(albedos, dtype=np.float64)
+        gram = learned.get("gram")
         self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
-        self.history = np.asarray(history, dtype=np.float64)
-        self.info = dict(info or {})
-        self.table_gram = None if table_gram is None else np.asarray(table_gram, dtype=np.float64)
-        self._factorise()
+        self.record = learned.get("record") or FitRecord.from_info(learned.get("info"), learned.get("history", ()))
+        self._store = TrainingTables(self.names, self.hashes, learned.get("table_gram"))
         self.interpolant = make_interpolant(self.latent, {
             "length_scale": self.length_scale, "noise": self.noise,
-            "interpolant": interpolant or {"kind": "gp", "exact": True}})
-        self._tables = None
+            "interpolant": learned.get("interpolant") or {"kind": "gp", "exact": True}})
+        ip = self.interpolant
+        same = isinstance(ip, interpolants.GaussianProcessWeights) and ip.gp.kernel == self.kernel
+        self._gp = ip.gp if same else interpolants.posterior(self.latent, self.kernel)   # K factorised once
 
     # ------------------------------------------------------------------ fit
     @classmethod
-    def fit(cls, database, q=None, names=None, method=None, length_scale=None, noise=None,
+    def fit(cls, database, *, q=None, names=None, method=None, length_scale=None, noise=None,
             features=None, init=None, progress=False, preset="default", interpolant=None, **options):
         """Fit latent points to the tables of ``database`` (paper Sec. 3).
 
@@ -151,36 +159,62 @@ class Manifold:
         cfg = settings(preset, q=q, method=method, length_scale=length_scale, noise=noise,
                        features=features, interpolant=interpolant)
         db = database if isinstance(database, Database) else Database(database, names)
-        names = db.names if names is None else list(names)
-        if len(names) < 2:
-            raise InputError("a manifold needs at least 2 materials")
-        t0 = time.perf_counter()
-        tables = db.stack(names, progress=progress)
-        t_load = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        _, S, table_gram = db.gram(names, features=cfg["features"], tables=tables, raw=True)
-        t_gram = time.perf_counter() - t0
-        d = tables.shape[1]
-        result = fit_layout(S, d, cfg, init=init, **options)
-        albedos = db.albedo(names, tables=tables)
-        info = {"method": cfg["method"], "d": int(d), "dims": list(db.dims), "q": int(cfg["q"]),
-                "preset": preset, "log_likelihood": float(result.log_likelihood), "time_load_s": t_load,
-                "time_gram_s": t_gram, "time_fit_s": float(result.time_s),
-                "n_evaluations": int(result.n_evaluations)}
-        m = cls(names, result.latent, db.folder, db.hashes(names), cfg["length_scale"], cfg["noise"],
-                cfg["features"], albedos, S, result.history, info, cfg["interpolant"], table_gram)
-        m._tables = tables
+        f = fitting.fit_database(db, names, cfg, preset, init=init, progress=progress, **options)
+        m = cls(f.names, f.result.latent, db.folder, f.hashes, cfg["length_scale"], cfg["noise"], cfg["features"],
+                f.albedos, gram=f.gram, record=f.record, interpolant=cfg["interpolant"], table_gram=f.table_gram)
+        m._tables = f.tables
         return m
 
-    def _factorise(self):
-        K = kernel.kernel_matrix(self.latent, length_scale=self.length_scale, noise=self.noise)
-        try:
-            self._factor = kernel.factorise(K)
-        except NotPositiveDefiniteError:
-            raise InputError(
-                f"the covariance K of the {len(self.names)} latent points is not positive definite "
-                f"(noise mu={self.noise:g} too small for coincident points?)") from None
-        self.K = K
+    # ------------------------------------------------------------ learned state
+    @property
+    def length_scale(self):
+        """The kernel's length scale ``l``."""
+        return self.kernel.length_scale
+
+    @property
+    def noise(self):
+        """The kernel's noise ``mu``."""
+        return self.kernel.noise
+
+    @property
+    def K(self):
+        """Covariance matrix of the latent points (:class:`gp.posterior.Posterior`)."""
+        return self._gp.K
+
+    @property
+    def history(self):
+        """Log-likelihood per optimiser iteration (:attr:`record`)."""
+        return self.record.history
+
+    @property
+    def info(self):
+        """The fit's record as the previous release's ``info`` dict (a new dict: assign one to replace it)."""
+        return self.record.as_info()
+
+    @info.setter
+    def info(self, value):
+        self.record = FitRecord.from_info(value, self.record.history)
+
+    @property
+    def dims(self):
+        """Table resolution ``(n_theta_h, n_theta_d, n_phi_d)`` of the fit (None if not recorded)."""
+        return self.record.dims
+
+    @property
+    def table_gram(self):
+        return self._store.gram
+
+    @table_gram.setter
+    def table_gram(self, value):
+        self._store.gram = None if value is None else np.asarray(value, dtype=np.float64)
+
+    @property
+    def _tables(self):
+        return self._store.loaded
+
+    @_tables.setter
+    def _tables(self, tables):
+        self._store.loaded = tables
 
     @property
     def q(self):
@@ -197,28 +231,15 @@ class Manifold:
         return interpolants.points(x, self.q)
 
     def weights(self, x):
-        """Weights of the interpolant at ``x``: ``b`` and the affine weights ``w`` (sum to 1).
+        """Weights of the interpolant at ``x`` ((q,) or (M, q)): a :class:`Weights` ``(b, w)``,
+        each (N,) or (M, N); ``w`` sums to 1 and ``sum_i w_i table_i = mean + b^T Z`` exactly.
 
-        Parameters
-        ----------
-        x : array_like (q,) or (M, q)
-
-        Returns
-        -------
-        Weights
-            ``(b, w)``, each ndarray (N,) or (M, N).
-            ``sum_i w_i table_i = mean + b^T Z`` exactly. For the paper's GP weights ``b`` is
-            Eq. 4's ``K_inv k(x)`` (at a training point the noise term ``mu delta(x, x_i)``
-            applies, so ``w = e_i``); for other interpolants ``b = w - 1/N``.
+        For the paper's GP weights ``b`` is Eq. 4's ``K_inv k(x)`` (at a training point the
+        noise term ``mu delta(x, x_i)`` applies, so ``w = e_i``); for other interpolants
+        ``b = w - 1/N``.
         """
         x, single = self._points(x)
-        ip = self.interpolant
-        if isinstance(ip, interpolants.GaussianProcessWeights):
-            b = ip.gp_weights(x)
-            w = ip.affine(b)
-        else:
-            w = ip.weights(x)
-            b = w - 1.0 / self.n
+        b, w = self.interpolant.b_and_w(x)
         return Weights(b[0], w[0]) if single else Weights(b, w)
 
     def weights_jacobian(self, x):
@@ -231,166 +252,67 @@ class Manifold:
         J = self.interpolant.jacobian(x)
         return J[0] if single else J
 
-    def _cross(self, x):
-        """GP covariances ``k(x)`` (M, N) with the noise term where x equals a latent point."""
-        k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
-        hits = np.nonzero((x[:, None, :] == self.latent[None, :, :]).all(-1))
-        k[hits] += self.noise
-        return k, hits
-
-    def _smooth_gradients(self, x):
-        """``K_inv k(x)`` (M, N) of the smooth kernel (no noise term) and ``dk/dx`` (M, N, q)."""
-        k = kernel.kernel_matrix(x, self.latent, length_scale=self.length_scale)
-        dk = -k[:, :, None] * (x[:, None, :] - self.latent[None]) / self.length_scale ** 2
-        return self._factor.solve(k.T).T, dk
-
     def variance(self, x):
         """GP predictive variance (paper Eq. 2): ``c(x, x) - k^T K_inv k``."""
         x, single = self._points(x)
-        k, _ = self._cross(x)
-        v = 1.0 + self.noise - np.einsum("mn,mn->m", k, self._factor.solve(k.T).T)
+        v = self._gp.variance(x)
         return v[0] if single else v
 
     def variance_gradient(self, x):
         """Gradient of the smooth part of :meth:`variance`: ``-2 (dk/dx)^T K_inv k``, (q,) or (M, q)."""
         x, single = self._points(x)
-        b, dk = self._smooth_gradients(x)
-        g = -2.0 * np.einsum("mnq,mn->mq", dk, b)
+        g = self._gp.variance_gradient(x)
         return g[0] if single else g
 
     def material_weights(self, name):
         """One-hot weights of a training material."""
-        w = np.zeros(self.n)
-        w[self.index(name)] = 1.0
-        return w
+        return materials.one_hot(self.names, name)
 
     def index(self, name):
-        try:
-            return self.names.index(name)
-        except ValueError:
-            raise InputError(f"unknown material {name!r}{did_you_mean(name, self.names)}: this manifold has {self.n} materials "
-                                f"({', '.join(self.names[:6])}{', ...' if self.n > 6 else ''})") from None
+        """Position of material ``name`` (:func:`materials.index`)."""
+        return materials.index(self.names, name)
 
     def parse_weights(self, text):
-        """Weights from ``"name:w, name:w"`` (unnamed materials get 0).
+        """Weights from ``"name:w, name:w"`` (unnamed materials get 0; :func:`materials.parse_weights`)."""
+        return materials.parse_weights(text, self.names)
 
-        Raises
-        ------
-        InputError
-            Unknown names, malformed entries, non-finite values or weights summing to 0.
-        """
-        w = np.zeros(self.n)
-        entries = [e.strip() for e in str(text).split(",") if e.strip()]
-        if not entries:
-            raise InputError(f"weights {text!r}: expected 'name:weight, name:weight'")
-        for e in entries:
-            name, sep, value = e.rpartition(":")
-            try:
-                v = float(value)
-            except ValueError:
-                v = None
-            if not sep or v is None or not np.isfinite(v) or ":" in name:
-                raise InputError(f"weights {text!r}: entry {e!r} is not 'name:number' (commas separate entries)")
-            w[self.index(name.strip())] += v
-        try:
-            weight_sum(w)
-        except InputError as e:
-            raise InputError(f"weights {text!r}: {e}") from None
-        return w
-
-    # ------------------------------------------------------- interpolation
+    # ------------------------------------------------------- tables, interpolation
     def open_database(self, folder=None, names=None):
         """The database of this manifold (or ``folder``), checked against the recorded hashes.
 
         Only the materials in ``names`` (default: all) are read and checked.
         """
-        folder = folder or self.database
-        names = self.names if names is None else list(names)
-        try:
-            db = Database(folder, names)
-        except FileNotFoundError as e:
-            raise InputError(f"database for this manifold: {e} (if it moved, give its folder: --database "
-                                "for the tools, the 'database' parameter of manifold_brdf)") from None
-        except KeyError as e:
-            raise InputError(f"database for this manifold: {e}") from None
-        for name in names:
-            if db.hash(name) != self.hashes[self.index(name)]:
-                raise InputError(
-                    f"database {db.folder}: table {name!r} differs from the one the manifold was fit on "
-                    f"(hash {db.hash(name)[:12]} != {self.hashes[self.index(name)][:12]})")
-        return db
-
-    def table_norms(self):
-        """L2 norm of each raw table (from :attr:`table_gram`)."""
-        return np.sqrt(np.maximum(np.diag(self._table_gram()), 0.0))
-
-    def _table_gram(self):
-        if self.table_gram is None:  # manifolds saved by the previous release
-            self.table_gram = pruning.raw_gram(self.tables())
-        return self.table_gram
-
-    def prune(self, w, prune=DEFAULT_PRUNE):
-        """Materials kept by pruning and the weight dropped.
-
-        Drops the materials of smallest contribution ``|w_i| |table_i|`` for as long as the
-        table changes by at most ``prune`` of its L2 norm; the kept weights are rescaled to
-        sum to ``sum(w)`` so the combination stays affine. The change is computed exactly from
-        the tables' Gram matrix (:func:`pruning.prune`), rescaling included; ``prune = 0``
-        keeps every non-zero weight.
-
-        Returns
-        -------
-        Pruned
-            ``keep`` (ndarray of int), ``w_kept`` (ndarray), ``dropped`` (float: sum of
-            ``|w_i|`` over the dropped materials).
-        """
-        w = np.asarray(w, dtype=np.float64)
-        if w.shape != (self.n,) or not np.isfinite(w).all():
-            raise InputError(f"weights must be {self.n} finite values, got shape {w.shape}")
-        if not 0 <= prune < 1:
-            raise InputError(f"prune must be in [0, 1), got {prune}")
-        return Pruned(*pruning.prune(w, self._table_gram(), prune))
-
-    def prune_error(self, w, keep):
-        """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled)."""
-        return pruning.error(np.asarray(w, dtype=np.float64), keep, self._table_gram())
+        return self._store.open(folder or self.database, names)
 
     def tables(self, database=None):
         """All N tables in memory as float32 ``(N, d)`` (loaded once, then kept)."""
-        if self._tables is None:
-            self._tables = self.open_database(database).stack(self.names)
-        return self._tables
+        return self._store.stack(database or self.database)
+
+    def table_norms(self):
+        """L2 norm of each raw table (from :attr:`table_gram`)."""
+        return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self.database)), 0.0))
+
+    def prune(self, w, prune=DEFAULT_PRUNE):
+        """Materials kept by pruning weights ``w`` within ``prune`` (relative L2 change of the
+        table, exact; 0 keeps every non-zero weight): a :class:`Pruned` ``(keep, w_kept,
+        dropped)`` (:meth:`TrainingTables.prune`)."""
+        return self._store.prune(w, prune, self.database)
+
+    def prune_error(self, w, keep):
+        """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled)."""
+        return pruning.error(np.asarray(w, dtype=np.float64), keep, self._store.raw_gram(self.database))
 
     def combine(self, w, prune=DEFAULT_PRUNE, database=None):
-        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`.
-
-        Reads only the kept materials' tables (unless all tables are already in memory).
-
-        Returns
-        -------
-        Combination
-            ``table`` (ndarray float32 ``(3, n_theta_h, n_theta_d, n_phi_d)``), ``keep``
-            (indices of the materials used), ``dropped`` (float).
-        """
-        keep, w_kept, dropped = self.prune(w, prune)
-        if self._tables is not None and database is None:
-            shape = (3,) + tuple(self.info["dims"])
-            if 2 * len(keep) > self.n:  # one (multithreaded) matrix-vector product over all tables
-                full = np.zeros(self.n, dtype=np.float32)
-                full[keep] = w_kept
-                return Combination((full @ self._tables).reshape(shape), keep, dropped)
-            flat = pruning.weighted_sum((self._tables[i] for i in keep), w_kept, self._tables.shape[1])
-            return Combination(flat.reshape(shape), keep, dropped)
-        db = self.open_database(database, [self.names[i] for i in keep])
-        flat = pruning.weighted_sum((db.reflectance(self.names[i]).reshape(-1) for i in keep), w_kept,
-                             3 * int(np.prod(db.dims)))
-        return Combination(flat.reshape((3,) + db.dims), keep, dropped)
+        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
+        :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
+        Reads only the kept materials' tables (unless all are in memory)."""
+        return self._store.combine(w, prune, self.database, self.dims, database)
 
     def interpolate(self, x, prune=DEFAULT_PRUNE, database=None):
         """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""
         if np.ndim(x) > 1:
             raise InputError(f"interpolate takes one latent point ({self.q} numbers), got shape {np.shape(x)}; "
-                                "call it once per point")
+                             "call it once per point")
         _, w = self.weights(x)
         return self.combine(w, prune, database)
 
@@ -422,38 +344,30 @@ class Manifold:
         Returns a :class:`projection.Projection`: ``x``, ``error`` (RMS of ``log(1 + rho)``
         differences over all bins), ``weights``, the nearest training material and its error.
         """
-        table = projection_mod.as_table(table, 3 * int(np.prod(self.info.get("dims", (0,)))), self.info.get("dims"))
+        table = projection_mod.as_table(table, 3 * int(np.prod(self.dims or (0,))), self.dims)
         return projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
 
     # ----------------------------------------------------------- diagnostics
     def condition_number(self):
         """2-norm condition number of K."""
-        ev = np.linalg.eigvalsh(self.K)
-        return float(ev[-1] / ev[0])
+        return self._gp.condition_number()
 
     def bound_terms(self, x):
         """Terms of the paper's Eq. 7 bound on ``|z(x) - z_j|`` for the nearest latent point j.
 
-        ``|z(x) - z_j| <= e^{-1/2} sqrt(2N) / l * cond(K) * |Z|_F * |x - x_j|``.
+        ``|z(x) - z_j| <= e^{-1/2} sqrt(2N) / l * cond(K) * |Z|_F * |x - x_j|`` (:func:`report.bound_terms`).
         """
         x, single = self._points(x)
-        dist = np.linalg.norm(x[:, None, :] - self.latent[None], axis=-1)
-        j = dist.argmin(axis=1)
-        const = np.exp(-0.5) * np.sqrt(2 * self.n) / self.length_scale
-        kappa = self.condition_number()
-        z_norm = float(np.sqrt(max(np.trace(self.gram), 0.0))) if self.gram is not None else float("nan")
-        bound = const * kappa * z_norm * dist[np.arange(len(x)), j]
-        out = {"nearest": j, "distance": dist[np.arange(len(x)), j], "constant": const,
-               "cond_K": kappa, "Z_norm": z_norm, "bound": bound}
+        out = report.bound_terms(x, self.latent, self.length_scale, self.condition_number(), self.gram)
         if single:
             out = {k: (v[0] if isinstance(v, np.ndarray) else v) for k, v in out.items()}
         return out
 
     def log_likelihood(self):
         """Paper Eq. 6 at the stored latent points (needs the Gram matrix)."""
-        if self.gram is None:
+        if self.gram is None or self.record.d is None:
             raise InputError("this manifold was saved without its Gram matrix")
-        return gplvm.log_likelihood(self.latent, self.gram, self.info["d"], self.length_scale, self.noise)
+        return log_likelihood(self.latent, self.gram, self.record.d, self.length_scale, self.noise)
 
     def discontinuity(self):
         """Largest jump of the weights when leaving a training point, ``max_i |w(x_i+) - e_i|_1``.
@@ -470,30 +384,11 @@ class Manifold:
         over the whole group. A fit on ``raw`` features collapses materials whose tables differ
         little compared with the spikiest ones; ``features="log"`` separates them.
         """
-        d2 = ((self.latent[:, None] - self.latent[None]) ** 2).sum(-1)
-        np.fill_diagonal(d2, np.inf)
-        return [self.names[i] for i in np.flatnonzero(np.sqrt(d2.min(axis=1)) < tol * self.length_scale)]
+        return report.coincident(self.latent, self.names, self.length_scale, tol)
 
     def summary(self):
-        """Short human-readable description."""
-        params = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
-                           for k, v in self.interpolant.params().items() if k not in ("kind", "length_scale", "noise"))
-        lines = [f"Manifold: {self.n} materials, q={self.q}, l={self.length_scale:g}, mu={self.noise:g}, "
-                 f"features={self.features}, preset={self.info.get('preset', 'paper')}",
-                 f"  interpolant: {self.interpolant.kind}" + (f" ({params})" if params else ""),
-                 f"  database: {self.database}",
-                 f"  cond(K) = {self.condition_number():.3g}"]
-        lines.append(f"  weight jump next to a training point (max |w(x_i+) - e_i|_1): {self.discontinuity():.3g}")
-        close = self.coincident()
-        if close:
-            lines.append(f"  warning: {len(close)} materials share their latent point with another (within "
-                         f"0.01 l), e.g. {', '.join(close[:4])}; interpolation cannot tell them apart"
-                         + ("; try features='log'" if self.features == "raw" else ""))
-        if "log_likelihood" in self.info:
-            lines.append(f"  log-likelihood L = {self.info['log_likelihood']:.6g} "
-                         f"({self.info.get('method')}, {len(self.history)} iterations, "
-                         f"{self.info.get('time_fit_s', float('nan')):.2f} s)")
-        return "\n".join(lines)
+        """Short human-readable description (:func:`report.summary`)."""
+        return report.summary(self)
 
     # ------------------------------------------------------------ save/load
     def save(self, path):

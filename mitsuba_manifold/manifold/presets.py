@@ -27,7 +27,7 @@ def settings(preset="default", **overrides):
     An ``interpolant`` override of the preset's kind (or without ``kind``) changes only the
     parameters it names (``{"taper": 0.3}``); one of another kind replaces it whole."""
     if preset not in PRESETS:
-        raise InputError(f"unknown preset {preset!r}; use one of {', '.join(PRESETS)}")
+        raise InputError(f"unknown `preset` {preset!r}; use one of {', '.join(PRESETS)}")
     unknown = set(overrides) - set(PRESETS[preset])
     if unknown:
         raise InputError(f"unknown setting(s) {sorted(unknown)}; settings are {sorted(PRESETS[preset])}")

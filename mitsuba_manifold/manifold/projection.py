@@ -91,7 +91,7 @@ def candidates(latent, order, n_latent=6, steps=19):
     return np.vstack([latent[a] + t * (latent[b] - latent[a]) for a, b in ends] + [latent[order]])
 
 
-def project(interpolant, tables, target, names=None, bins=None, rows=None, n_nearest=4, n_starts=3,
+def project(interpolant, tables, target, names=None, bins=None, rows=None, *, n_nearest=4, n_starts=3,
             max_iter=100, n_latent=6):
     """Best latent point of ``target`` on the manifold of ``interpolant`` over ``tables``.
 

@@ -12,21 +12,16 @@ weights, ``|delta^T T|^2 = delta^T G delta``.
 
 import numpy as np
 
+from ..data import gram
+
 #: Default pruning budget: largest relative L2 change of the table, for ``Manifold.prune``,
 #: the ``manifold_brdf`` plugin, blends and the explorer.
 DEFAULT_PRUNE = 1e-2
 
 
-def raw_gram(tables, block=1 << 16):
-    """``T T^T`` (float64) of float32 tables ``(N, d)``, by blocks of values."""
-    from threadpoolctl import threadpool_limits
-    n, d = tables.shape
-    G = np.zeros((n, n))
-    with threadpool_limits(1, user_api="blas"):  # small products: see Database.gram
-        for s in range(0, d, block):
-            t = np.asarray(tables[:, s:s + block], dtype=np.float64)
-            G += t @ t.T
-    return 0.5 * (G + G.T)
+def raw_gram(tables, block=gram.BLOCK):
+    """``T T^T`` (float64) of float32 tables ``(N, d)``, by blocks of values (:func:`gram.gram`)."""
+    return gram.gram(tables, "raw", centre=False, block=block).S
 
 
 def errors(w, kept, G):

@@ -23,9 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import projection
+from ..data import gram
 
 #: Feature transforms of the fit (``coslog``: ``log(1 + rho cos(theta_i) cos(theta_o))``).
-FEATURES = ("raw", "log", "coslog")
+FEATURES = gram.FEATURES
 
 
 class _Report:
@@ -39,36 +40,13 @@ class _Report:
 
 # ------------------------------------------------------------------ features, Gram
 
-def transform(block, features, cos=None):
-    """Feature transform of a block of table values (float32 ``(N, b)``), in place when possible."""
-    block = np.asarray(block, dtype=np.float32)
-    if features == "raw":
-        return block
-    if features == "log":
-        return np.log1p(np.maximum(block, 0.0))
-    if features == "coslog":
-        if cos is None:
-            raise ValueError("features 'coslog' need the cosine weights of the bins")
-        return np.log1p(np.maximum(block, 0.0) * cos)
-    raise ValueError(f"features must be one of {FEATURES}, got {features!r}")
-
-
-def feature_gram(tables, features="log", cos=None, block=1 << 16):
-    """Uncentred Gram matrix ``F F^T`` (float64) of the tables in a feature space.
+def feature_gram(tables, features="log", cos=None, block=gram.BLOCK):
+    """Uncentred Gram matrix ``F F^T`` (float64) of the tables in a feature space (:func:`gram.gram`).
 
     ``tables``: ``(N, d)`` float32 (RGB-concatenated); ``cos``: ``(d / 3,)`` per-bin
     ``cos(theta_i) cos(theta_o)`` for ``coslog``.
     """
-    n, d = tables.shape
-    G = np.zeros((n, n))
-    bins = d // 3
-    for c in range(3):
-        for s in range(0, bins, block):
-            e = min(bins, s + block)
-            f = transform(tables[:, c * bins + s:c * bins + e], features,
-                          None if cos is None else cos[s:e]).astype(np.float64)
-            G += f @ f.T
-    return 0.5 * (G + G.T)
+    return gram.gram(tables, features, centre=False, cos=cos, block=block).S
 
 
 def centred(G, idx=None):
@@ -153,7 +131,7 @@ def folds(n, k=10, seed=0):
     return np.array_split(np.random.default_rng(seed).permutation(n), k)
 
 
-def cross_validate(tables, names, fit, G_error, q, albedos, k=10, seed=0, bins=None, progress=None,
+def cross_validate(tables, names, fit, G_error, q, albedos, *, k=10, seed=0, bins=None, progress=None,
                    only_folds=None):
     """K-fold held-out fidelity of a manifold configuration.
 

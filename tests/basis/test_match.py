@@ -73,22 +73,6 @@ def _interior_point(manifold, a=0, b=1, t=0.35):
 
 # ------------------------------------------------------------- gradients
 
-def test_weights_jacobian_matches_finite_differences(manifold):
-    rng = np.random.default_rng(0)
-    pts = manifold.latent[rng.integers(manifold.n, size=6)] + rng.normal(scale=0.4, size=(6, manifold.q))
-    J = manifold.weights_jacobian(pts)
-    assert J.shape == (6, manifold.n, manifold.q)
-    h = 1e-6
-    for x, Jx in zip(pts, J):
-        assert np.array_equal(manifold.weights_jacobian(x), Jx)
-        fd = np.stack([(manifold.weights(x + h * e)[1] - manifold.weights(x - h * e)[1]) / (2 * h)
-                       for e in np.eye(manifold.q)], axis=-1)
-        assert np.allclose(Jx, fd, rtol=1e-5, atol=1e-6 * np.abs(Jx).max())
-        assert np.allclose(Jx.sum(axis=0), 0.0, atol=1e-9)  # the weights keep summing to 1
-        fdv = [(manifold.variance(x + h * e) - manifold.variance(x - h * e)) / (2 * h) for e in np.eye(manifold.q)]
-        assert np.allclose(manifold.variance_gradient(x), fdv, rtol=1e-5, atol=1e-8)
-
-
 @pytest.mark.parametrize("loss,exposure_free,prior", [("rel_mse", False, 0.0), ("rel_mse", True, 0.05),
                                                       ("log", False, 0.0), ("log", True, 0.05)])
 def test_match_objective_gradient_matches_finite_differences(basis, manifold, loss, exposure_free, prior):

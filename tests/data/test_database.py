@@ -1,4 +1,4 @@
-"""Built-in surrogate database, Database folders, albedo quadrature and the Gram matrix."""
+"""Built-in surrogate database, Database folders and albedo quadrature."""
 
 import json
 import os
@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from mitsuba_manifold.data import database, merl
-from mitsuba_manifold.manifold import pruning
 
 
 def test_sgd_value_against_hand_computation():
@@ -150,34 +149,6 @@ def test_albedo_quadrature_lambertian(small_db):
     assert alb.shape == (len(db.names), 3) and np.all(alb > 0)
     i = db.names.index("white-diffuse-bball")
     assert np.all(alb[i] > 0.2)
-
-
-def test_gram_matches_float64_reference_with_chrome_like_peaks():
-    rng = np.random.default_rng(0)
-    n, d = 6, 50000
-    tables = rng.uniform(0, 2e-3, (n, d)).astype(np.float32)      # diffuse-like 1e-3 values
-    peaks = rng.choice(d, 20, replace=False)
-    tables[0, peaks] = 1e4                                       # chrome-like peaks
-    tables[1, peaks[:5]] = 3e3
-    ref = tables.astype(np.float64)
-    ref -= ref.mean(axis=0)
-    S_ref = ref @ ref.T
-
-    class Stub(database.Database):
-        def __init__(self):
-            pass
-    mean, S = Stub.gram(Stub(), names=list("abcdef"), tables=tables, block=4096)
-    assert np.allclose(mean, tables.astype(np.float64).mean(axis=0), rtol=1e-6)
-    # small entries (diffuse-diffuse pairs) must be accurate too, not only the huge ones
-    assert np.allclose(S, S_ref, rtol=1e-9, atol=1e-9 * np.abs(S_ref[2:, 2:]).max())
-    _, S_log = Stub.gram(Stub(), names=list("abcdef"), tables=tables, features="log")
-    z = np.log1p(tables.astype(np.float64))
-    z -= z.mean(axis=0)
-    assert np.allclose(S_log, z @ z.T, rtol=1e-9)
-    _, S_both, G = Stub.gram(Stub(), names=list("abcdef"), tables=tables, features="log", raw=True)
-    assert np.array_equal(S_both, S_log) and np.array_equal(G, pruning.raw_gram(tables))   # one pass, same sums
-    with pytest.raises(ValueError, match="features"):
-        Stub.gram(Stub(), names=list("abcdef"), tables=tables, features="sqrt")
 
 
 def test_cache_follows_the_content_even_with_the_mtime_restored(tmp_path):

@@ -1,37 +1,13 @@
-"""Tests of the GPLVM fit (mitsuba_manifold.gp.gplvm) on synthetic Gram matrices."""
+"""Tests of the GPLVM fit (mitsuba_manifold.gp.gplvm): PCA start, rank-one updates, the optimisers, on synthetic Gram matrices."""
 
 import warnings
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
 
 from mitsuba_manifold.gp import gplvm
 
-
-def gram(Z, d=None):
-    """Gram matrix of the mean-subtracted rows of Z, scaled as if Z had d columns."""
-    Z = Z - Z.mean(axis=0)
-    S = Z @ Z.T
-    S = 0.5 * (S + S.T)
-    return S if d is None else S * (d / Z.shape[1])
-
-
-def smooth_data(n, dd=300, hidden=2, seed=0):
-    """Rows that vary smoothly with hidden low-dimensional coordinates (a true manifold)."""
-    rng = np.random.default_rng(seed)
-    t = rng.standard_normal((n, hidden))
-    features = np.cos(t @ rng.standard_normal((hidden, 24)) + rng.uniform(0, 6, 24))
-    return features @ rng.standard_normal((24, dd)) + 0.01 * rng.standard_normal((n, dd))
-
-
-def dense_log_likelihood(X, S, d, l, mu):
-    """Eq. 6 written with plain NumPy (slogdet and solve), the reference."""
-    diff = X[:, None, :] - X[None, :, :]
-    K = np.exp(-np.sum(diff ** 2, axis=-1) / (2 * l * l)) + mu * np.eye(len(X))
-    sign, logdet = np.linalg.slogdet(K)
-    assert sign > 0
-    return -0.5 * d * logdet - 0.5 * np.trace(np.linalg.solve(K, S))
+from gp_synthetic import dense_log_likelihood, gram, smooth_data
 
 
 @pytest.fixture(scope="module")
@@ -41,55 +17,7 @@ def problem():
     return S, d
 
 
-# ------------------------------------------------------------------ objective, kernel
-
-def test_kernel_matrix_is_eq5():
-    rng = np.random.default_rng(0)
-    A, B = rng.standard_normal((5, 3)), rng.standard_normal((4, 3))
-    K = gplvm.kernel_matrix(A, length_scale=0.7, noise=1e-3)
-    ref = np.exp(-((A[:, None] - A[None]) ** 2).sum(-1) / (2 * 0.49)) + 1e-3 * np.eye(5)
-    np.testing.assert_allclose(K, ref, rtol=1e-14)
-    cross = gplvm.kernel_matrix(A, B, length_scale=0.7, noise=1e-3)
-    assert cross.shape == (5, 4)
-    np.testing.assert_allclose(
-        cross, np.exp(-((A[:, None] - B[None]) ** 2).sum(-1) / (2 * 0.49)), rtol=1e-14)
-    # no noise in the cross-covariance, even at coincident points
-    assert gplvm.kernel_matrix(A, A[:2], noise=0.5)[0, 0] == 1.0
-
-
-def test_log_likelihood_matches_dense_formula(problem):
-    S, d = problem
-    X = np.random.default_rng(2).standard_normal((len(S), 3))
-    L = gplvm.log_likelihood(X, S, d, length_scale=1.3, noise=1e-3)
-    assert L == pytest.approx(dense_log_likelihood(X, S, d, 1.3, 1e-3), rel=1e-12)
-
-
-@settings(max_examples=20, deadline=None)
-@given(angle=st.floats(-3.2, 3.2), shift=st.tuples(st.floats(-5, 5), st.floats(-5, 5)))
-def test_log_likelihood_invariant_under_rigid_motion(problem, angle, shift):
-    S, d = problem
-    X = gplvm.pca_init(S, 2)
-    R = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
-    L0 = gplvm.log_likelihood(X, S, d)
-    assert gplvm.log_likelihood(X @ R + np.array(shift), S, d) == pytest.approx(L0, rel=1e-9)
-
-
-@pytest.mark.parametrize("l", [1.0, 0.4])
-def test_gradient_matches_finite_differences(problem, l):
-    S, d = problem
-    X = gplvm.pca_init(S, 3, length_scale=l)
-    L, grad = gplvm.log_likelihood_grad(X, S, d, length_scale=l)
-    assert L == pytest.approx(gplvm.log_likelihood(X, S, d, length_scale=l), rel=1e-13)
-    assert grad.shape == X.shape
-    h = 1e-5 * l
-    for i, j in [(0, 0), (3, 1), (7, 2), (len(S) - 1, 0), (11, 1)]:
-        Xp, Xm = X.copy(), X.copy()
-        Xp[i, j] += h
-        Xm[i, j] -= h
-        num = (gplvm.log_likelihood(Xp, S, d, length_scale=l)
-               - gplvm.log_likelihood(Xm, S, d, length_scale=l)) / (2 * h)
-        assert grad[i, j] == pytest.approx(num, rel=1e-5, abs=1e-6 * np.abs(grad).max())
-
+# ------------------------------------------------------------------ PCA start
 
 def test_pca_init_recovers_linear_layout_and_scales_with_l():
     rng = np.random.default_rng(4)
@@ -355,12 +283,12 @@ def _S():
     (dict(S=_S() + np.triu(np.ones((6, 6)), 1)), "not symmetric"),
     (dict(S=-_S()), "positive semi-definite"),
     (dict(S=[["a"] * 6] * 6), "real numeric"),
-    (dict(d=0), "d "),
-    (dict(d=2.5), "d "),
-    (dict(d=True), "d "),
-    (dict(q=0), "q must"),
-    (dict(q=9), "q must"),
-    (dict(q=2.0), "q must"),
+    (dict(d=0), "`d` "),
+    (dict(d=2.5), "`d` "),
+    (dict(d=True), "`d` "),
+    (dict(q=0), "`q` must"),
+    (dict(q=9), "`q` must"),
+    (dict(q=2.0), "`q` must"),
     (dict(init=np.zeros((5, 2))), "5 points"),
     (dict(init=np.zeros((6, 3))), "expected q = 2"),
     (dict(init=np.full((6, 2), np.inf)), "non-finite"),
@@ -368,7 +296,7 @@ def _S():
     (dict(length_scale=-1.0), "length_scale"),
     (dict(noise=0.0), "noise"),
     (dict(noise=np.nan), "noise"),
-    (dict(method="newton"), "unknown method"),
+    (dict(method="newton"), "unknown `method`"),
     (dict(max_iter=-1), "max_iter"),
     (dict(tol=-1e-3), "tol"),
 ])
@@ -387,5 +315,5 @@ def test_bad_latent_is_rejected_by_the_objective():
         gplvm.log_likelihood(np.zeros((6, 9)), S, 10)
     with pytest.raises(ValueError, match="non-finite"):
         gplvm.log_likelihood_grad(np.full((6, 2), np.nan), S, 10)
-    with pytest.raises(ValueError, match="Gram matrix S is zero"):
+    with pytest.raises(ValueError, match="Gram matrix `S` is zero"):
         gplvm.pca_init(np.zeros((4, 4)), 2)

@@ -246,3 +246,41 @@ def test_unknown_material_suggests_the_closest_names(small_manifold):
     m = Manifold.load(small_manifold)
     with pytest.raises(InputError, match=r"unknown material 'stel' \(did you mean 'steel'"):
         m.index("stel")
+
+
+def test_the_fit_is_kept_as_a_typed_record_written_in_the_info_layout(fitted, tmp_path):
+    from mitsuba_manifold.manifold.record import FitRecord
+    rec = fitted.record
+    assert (rec.method, rec.preset, rec.q, rec.d) == ("hooke-jeeves", "paper", 2, 3 * 32 * 32 * 64)
+    assert rec.dims == fitted.dims == (32, 32, 64) and rec.timings.fit_s > 0 and rec.n_evaluations > 0
+    assert np.array_equal(rec.history, fitted.history) and rec.log_likelihood == pytest.approx(fitted.history[-1], rel=1e-9)
+    assert list(fitted.info) == list(FitRecord.INFO) and fitted.info["dims"] == [32, 32, 64]
+    info = {**fitted.info, "subset_of": "elsewhere.npz"}               # an entry of another version: kept
+    again = FitRecord.from_info(info, rec.history)
+    assert again.extra == {"subset_of": "elsewhere.npz"} and again.as_info() == info
+    m = Manifold.load(fitted.path)
+    m.info = info
+    assert m.record.method == "hooke-jeeves" and np.array_equal(m.history, fitted.history)
+    m.save(tmp_path / "m.npz")
+    assert Manifold.load(tmp_path / "m.npz").info == info
+
+
+def test_the_previous_releases_constructor_calls_work(fitted):
+    legacy = Manifold(fitted.names, fitted.latent, fitted.database, fitted.hashes, fitted.length_scale,
+                      fitted.noise, fitted.features, fitted.albedos, fitted.gram, fitted.history, fitted.info,
+                      interpolant=fitted.interpolant.params(), table_gram=fitted.table_gram)
+    typed = Manifold(fitted.names, fitted.latent, fitted.database, fitted.hashes, fitted.length_scale,
+                     fitted.noise, fitted.features, fitted.albedos, gram=fitted.gram, record=fitted.record,
+                     interpolant=fitted.interpolant.params(), table_gram=fitted.table_gram)
+    for m in (legacy, typed):
+        assert m.info == fitted.info and np.array_equal(m.gram, fitted.gram) and m.kernel == fitted.kernel
+        assert m.log_likelihood() == fitted.log_likelihood()
+    bare = Manifold(fitted.names, fitted.latent, "db", fitted.hashes)
+    assert bare.info == {} and bare.history.size == 0 and bare.interpolant.kind == "gp"
+    args = (fitted.names, fitted.latent, "db", fitted.hashes, 1.0, 1e-4, "raw", None)
+    for call, words in [(lambda: Manifold(*args, None, (), {}, None), "at most 11 positional"),
+                        (lambda: Manifold(*args, None, gram=None), "multiple values for argument 'gram'"),
+                        (lambda: Manifold(*args, tables=None), "unexpected keyword argument 'tables'"),
+                        (lambda: Manifold(*args, record=fitted.record, info={}), "either `record`")]:
+        with pytest.raises(TypeError, match=words):
+            call()

@@ -60,18 +60,23 @@ def test_paper_preset_reproduces_the_previous_fit(paper, small_db):
 
 
 @pytest.mark.parametrize("which", ["default", "paper"])
-def test_weights_jacobian_matches_finite_differences(which, default, paper):
+def test_weights_jacobian_and_variance_gradient_match_finite_differences(which, default, paper):
+    """The one test of Manifold.weights_jacobian (Shepard and Eq. 4 weights) and variance_gradient."""
     m = default if which == "default" else paper
     X = _box_points(m, 8, seed=1)
     J = m.weights_jacobian(X)
     assert J.shape == (8, m.n, m.q) and np.allclose(J.sum(axis=1), 0, atol=1e-9)
+    G = m.variance_gradient(X)
     h = 1e-6
     for k in range(m.q):
         e = np.zeros(m.q)
         e[k] = h
         fd = (m.weights(X + e).w - m.weights(X - e).w) / (2 * h)
         assert np.allclose(J[:, :, k], fd, rtol=1e-4, atol=1e-6)
-    assert np.allclose(m.weights_jacobian(X[0]), J[0])
+        fdv = (m.variance(X + e) - m.variance(X - e)) / (2 * h)
+        assert np.allclose(G[:, k], fdv, rtol=1e-5, atol=1e-8)
+    for i in range(len(X)):                                  # one point: the batch's row
+        assert np.array_equal(m.weights_jacobian(X[i]), J[i]) and np.array_equal(m.variance_gradient(X[i]), G[i])
 
 
 def test_far_points_get_far_field_weights_without_warnings_until_they_overflow(default, paper):
