@@ -43,6 +43,7 @@ def test_directional_albedo_of_lambertian_tables(tmp_path):
     np.testing.assert_allclose(a[1], 0.9, rtol=0.03)
 
 
+@pytest.mark.render
 def test_denoised_blend_beats_raw_and_aovs_are_checked(tmp_path, small_manifold):
     m = Manifold.load(small_manifold)
     out = str(tmp_path / "b")
