@@ -85,8 +85,11 @@ class ManifoldBRDF(mi.BSDF):
     :attr:`interpolation`, :attr:`sampling`, :attr:`names`, :attr:`weights`,
     :attr:`latent`, :attr:`used_names`, :attr:`dropped_weight`, :attr:`clamped_bins`.
     ``isinstance(shape.bsdf(), mitsuba_manifold.render.bsdf.ManifoldBRDF)`` tells a manifold
-    material in the active variant.
+    material in the active variant (as the package's integrators do); the class attribute
+    ``is_manifold_brdf = True`` is kept for callers that tested it before.
     """
+
+    is_manifold_brdf = True
 
     def __init__(self, props):
         super().__init__(props)
