@@ -6,17 +6,25 @@ any latent point gives affine weights over the measured tables, which the
 ``manifold_brdf`` Mitsuba plugin renders and the blending tools apply to images.
 
 The package face is lazy (PEP 562): ``from mitsuba_manifold import Manifold, Database,
-Basis, blend, register`` loads only what is asked for; importing the package loads
-neither Mitsuba nor Dr.Jit. The Mitsuba plugins register themselves for every variant
-as it becomes active (:mod:`mitsuba_manifold.render.plugin`), whatever the import order.
+Basis, blend, register`` loads only what is asked for.
+
+No side effects on import: ``import mitsuba_manifold`` (and every subsystem but ``render``)
+loads neither Mitsuba nor Dr.Jit and changes nothing, ``os.environ`` included. The one
+subsystem that does something on import is the rendering one: importing
+:mod:`mitsuba_manifold.render` (any of its modules, e.g. ``mitsuba_manifold.render.scenes``),
+or calling :func:`register`,
+
+- sets ``DRJIT_LIBLLVM_PATH`` to a libLLVM >= 16 when Dr.Jit is not imported yet and the
+  variable is unset (Dr.Jit reads it on first import; Debian's libLLVM 15 aborts renders);
+- registers the Mitsuba plugins (``manifold_brdf``, ``manifold_path``, ``manifold_aovs``) for
+  the active variant and for every variant activated later.
+
+So a Mitsuba user writes ``import mitsuba as mi; mi.set_variant("llvm_ad_rgb");
+import mitsuba_manifold.render`` (or the two imports the other way round) and then
+``mi.load_file(...)`` scenes with ``manifold_brdf`` materials.
 """
 
 import importlib
-
-from .render import llvm as _llvm, plugin
-
-# Dr.Jit loads libLLVM on first use of an LLVM variant: choose a working one first.
-_llvm.select()
 
 __version__ = "0.1.0"
 
@@ -51,10 +59,11 @@ def __dir__():
 
 
 def register():
-    """Register ``manifold_brdf`` and the package's integrators for the active Mitsuba variant.
+    """Register ``manifold_brdf`` and the package's integrators for the active Mitsuba variant
+    and every variant activated later; returns the active variant.
 
-    Not needed in normal use (the plugins register themselves for every variant as it
-    becomes active); returns the variant.
+    The same as ``import mitsuba_manifold.render`` (see the package docstring), except that
+    it raises when no variant is active.
 
     Raises
     ------
@@ -62,8 +71,6 @@ def register():
         (a ``RuntimeError``) If no Mitsuba variant is set, or an LLVM variant is active
         without libLLVM >= 16.
     """
-    plugin.install()
-    return plugin.register_all()
-
-
-plugin.install()
+    plugins = importlib.import_module(".render.plugins", __name__)   # by name: the face imports no module
+    plugins.install()
+    return plugins.register()

@@ -1,13 +1,42 @@
-"""Shared fixtures: a small reduced-resolution surrogate database and a manifold fit on it."""
+"""Shared fixtures: a small reduced-resolution surrogate database, a manifold fit on it, and
+``variant``, the Mitsuba variant of the rendering tests.
+
+Tests that render, or start Ray, carry the ``render`` marker (``pytestmark = [pytest.mark.render,
+pytest.mark.usefixtures("variant")]`` for a module), so ``-m "not render"`` runs the NumPy-only
+part without starting either.
+"""
 
 import os
 
 import pytest
 
-# Tests must never pick Debian's libLLVM 15: the package selects a newer one on import.
-import mitsuba_manifold  # noqa: F401
 # -m "not render" starts neither Mitsuba, Dr.Jit nor Ray (the session fails if it does).
 from numpy_only import pytest_sessionfinish  # noqa: F401
+
+#: The variant every rendering test runs in.
+VARIANT = "llvm_ad_rgb"
+
+
+def pytest_configure(config):
+    """Before any test module imports Dr.Jit: importing the rendering subsystem selects a libLLVM
+    >= 16 (Debian's libLLVM 15 aborts renders) and registers the plugins for every variant
+    (:mod:`mitsuba_manifold.render`). Runs that deselect rendering do neither."""
+    if "not render" not in (config.getoption("markexpr", "") or ""):
+        try:
+            import mitsuba_manifold.render  # noqa: F401
+        except ImportError:   # no Mitsuba: the rendering tests skip
+            pass
+
+
+@pytest.fixture
+def variant():
+    """:data:`VARIANT` active, with the package's plugins, during the test and after it (a test
+    may switch variants); skips without Mitsuba."""
+    mi = pytest.importorskip("mitsuba")
+    import mitsuba_manifold.render  # noqa: F401  (the plugins, for this variant and every later one)
+    mi.set_variant(VARIANT)
+    yield VARIANT
+    mi.set_variant(VARIANT)
 
 SMALL_DIMS = (32, 32, 64)
 SMALL_MATERIALS = ["white-diffuse-bball", "gold-paint", "blue-acrylic", "chrome", "steel",

@@ -3,7 +3,6 @@
 import numpy as np
 
 from mitsuba_manifold.manifold.model import Manifold
-from mitsuba_manifold.render.scenes import scene_path
 
 Z_MAX = 4.5  # |z| above this fails; P(|N(0,1)| > 4.5) ~ 7e-6 per statistic
 
@@ -21,8 +20,8 @@ def load(name, manifold, material=None, **params):
     """A scene of scenes/, its manifold material set to a training ``material``."""
     import mitsuba as mi
 
-    from mitsuba_manifold.render import integrators
-    scene = mi.load_file(scene_path(name), manifold=manifold,
+    from mitsuba_manifold.render import integrators, scenes
+    scene = mi.load_file(scenes.scene_path(name), manifold=manifold,
                          **{k: str(v) for k, v in params.items()})
     if material is not None:
         for bsdf in integrators.manifold_bsdfs(scene):

@@ -18,8 +18,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PACKAGE = os.path.dirname(mitsuba_manifold.__file__)
 
 
-def _python(code, **kw):
-    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+def _python(code, env=None, **kw):
+    env = dict(os.environ if env is None else env, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, **kw)
 
 
@@ -131,26 +131,68 @@ print("ok", img.shape)
     assert r.returncode == 0 and r.stdout.startswith("ok"), r.stderr[-2000:]
 
 
-@pytest.mark.render
-def test_one_plugin_mechanism_for_the_bsdf_and_the_integrator(small_manifold):
-    import mitsuba as mi
+def test_importing_the_package_changes_no_environment_variable():
+    """``import mitsuba_manifold`` and its face change nothing, ``os.environ`` included; the rule of
+    the package docstring: importing the rendering subsystem selects a libLLVM >= 16 for Dr.Jit."""
+    # Third-party libraries may set variables of their own (threadpoolctl: KMP_DUPLICATE_LIB_OK): imported first.
+    code = ("import os, sys, importlib.util\n"
+            "for lib in ('numpy', 'scipy.linalg', 'threadpoolctl'):\n"
+            "    if importlib.util.find_spec(lib.split('.')[0]): importlib.import_module(lib)\n"
+            "before = dict(os.environ)\n"
+            "import mitsuba_manifold\n"
+            "from mitsuba_manifold import Manifold, Database, Basis, blend, register, make_database\n"
+            "import mitsuba_manifold.basis.folder, mitsuba_manifold.manifold.model, mitsuba_manifold.apps.cli\n"
+            "assert dict(os.environ) == before, set(os.environ.items()) ^ set(before.items())\n"
+            "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n"
+            "print('ok')")
+    env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
+    r = _python(code, env=env)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+    pytest.importorskip("mitsuba")
+    r = _python("import os, mitsuba_manifold.render, mitsuba_manifold.render.llvm as llvm\n"
+                "print(os.environ.get('DRJIT_LIBLLVM_PATH') == llvm.newest())", env=env)
+    assert r.returncode == 0 and r.stdout.strip() == "True", r.stderr
 
-    from mitsuba_manifold.render import bsdf, integrators, plugin
-    mi.set_variant("llvm_ad_rgb")
-    b_cls, i_cls = bsdf.bsdf_class(), integrators.integrator_class()
-    assert b_cls is plugin.plugin_class(bsdf.ManifoldBRDF, mi.BSDF) and issubclass(b_cls, mi.BSDF)
-    assert i_cls is plugin.plugin_class(integrators.ManifoldPathIntegrator, mi.SamplingIntegrator)
-    assert issubclass(i_cls, mi.SamplingIntegrator)
-    b = mi.load_dict({"type": "manifold_brdf", "manifold": small_manifold, "material": "chrome",
-                      "interpolation": "linear", "sampling": "cosine"})
-    assert type(b) is b_cls and (b.interpolation, b.sampling, b.database) == ("linear", "cosine", None)
-    with pytest.raises(AttributeError):
-        b.interpolation = "nearest"        # read-only
-    mi.set_variant("scalar_rgb")           # another variant: another class, same body
-    assert bsdf.bsdf_class() is not b_cls and bsdf.bsdf_class().eval is bsdf.ManifoldBRDF.eval
-    with pytest.raises(RuntimeError, match="not supported"):
-        mi.load_dict({"type": "manifold_path"})
-    mi.set_variant("llvm_ad_rgb")
+
+#: Calls in a test that start Mitsuba (a variant, a render, a scene) or Ray: ``mi.<name>(...)``,
+#: ``ray.<name>(...)``, and the package's rendering functions by name.
+_MITSUBA = {"set_variant", "render", "load_file", "load_dict"}
+_STARTS = {"render_basis", "render_reference", "render_chunked", "render_aovs", "add_aovs", "first_hit_aovs",
+           "load_scene", "use_variant", "register", "RayExecutor"}
+
+
+def _starts(call):
+    f = call.func
+    if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and f.value.id in ("mi", "mitsuba", "ray"):
+        return f.attr in _MITSUBA or f.value.id == "ray"
+    return getattr(f, "attr", getattr(f, "id", None)) in _STARTS
+
+
+def _marked_render(decorators):
+    return any("render" in ast.unparse(d) for d in decorators)
+
+
+def test_tests_that_start_mitsuba_or_ray_carry_the_render_marker():
+    """``-m "not render"`` is the NumPy-only part: a test that starts Mitsuba or Ray (a call of
+    :func:`_starts`, or the ``variant`` fixture) is marked ``render``, itself or its module."""
+    unmarked = []
+    for folder, _, files in os.walk(os.path.join(ROOT, "tests")):
+        for f in sorted(files):
+            if not (f.startswith("test_") and f.endswith(".py")):
+                continue
+            tree = ast.parse(open(os.path.join(folder, f)).read())
+            marks = [n.value for n in tree.body if isinstance(n, ast.Assign)
+                     and any(getattr(t, "id", None) == "pytestmark" for t in n.targets)]
+            if _marked_render(marks):
+                continue
+            for node in tree.body:
+                if not (isinstance(node, ast.FunctionDef) and node.name.startswith("test_")) \
+                        or _marked_render(node.decorator_list):
+                    continue
+                starts = any(_starts(c) for c in ast.walk(node) if isinstance(c, ast.Call))
+                if starts or "variant" in [a.arg for a in node.args.args]:
+                    unmarked.append(f"{f}::{node.name}")
+    assert not unmarked, f"tests starting Mitsuba or Ray without the render marker: {unmarked}"
 
 
 def test_negative_latent_coordinates_are_values_not_options():

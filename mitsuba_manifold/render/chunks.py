@@ -35,16 +35,16 @@ from ..basis import folder as basis_folder
 from ..imaging import io as imageio
 from .._util.cache import file_hash
 from ..errors import MismatchError
-
-CHUNK_DIR = ".chunks"
+from .folders import CHUNK_DIR, check_foreign_folder, open_folder
 
 
 @dataclass(frozen=True)
 class ChunkSpec:
     """One chunk to render: plain data, sent to a worker as it is.
 
-    ``options`` are :func:`mitsuba_manifold.render.render_basis.render_basis` keyword arguments
-    (``materials``, ``mode``, ``resolution``, ``max_depth``, ``variant``, ``sensor``).
+    ``options`` are :class:`mitsuba_manifold.render.render_basis.BasisOptions` fields, as keyword
+    arguments of ``render_basis`` (``materials``, ``mode``, ``resolution``, ``max_depth``, ``variant``,
+    ``sensor``).
     """
     scene: str
     manifold: str
@@ -82,9 +82,9 @@ def plan(scene, manifold, spp, chunks, seed=0, **options):
     """
     spp, chunks = int(spp), int(chunks)
     if chunks < 1:
-        raise MismatchError(f"chunks must be >= 1, got {chunks}")
+        raise MismatchError(f"`chunks` must be >= 1, got {chunks}")
     if spp < chunks:
-        raise MismatchError(f"spp ({spp}) must be at least the number of chunks ({chunks}): "
+        raise MismatchError(f"`spp` ({spp}) must be at least the number of chunks ({chunks}): "
                          "every chunk renders at least one sample per pixel")
     scene, manifold = os.path.abspath(os.fspath(scene)), os.path.abspath(os.fspath(manifold))
     return [ChunkSpec(scene, manifold, j, chunks, spp // chunks + (j < spp % chunks),
@@ -148,8 +148,6 @@ def merge(out, folders, seed, force=False):
 
 
 def _merge(out, folders, seed, force):
-    from .render_basis import _open_folder
-
     manifests = [basis_folder.read_manifest(f) for f in folders]
     first = manifests[0]
     for f, m in zip(folders[1:], manifests[1:]):
@@ -161,7 +159,7 @@ def _merge(out, folders, seed, force):
     merged = {k: v for k, v in first.items() if k not in ("chunk_complete", "chunk_run")}
     merged.update(spp=int(spp.sum()), seed=int(seed), chunks=len(folders), images={})
     files = [e["file"] for e in first["images"].values()] + [basis_folder.MANIFEST]
-    merged["images"] = _open_folder(out, merged, files, force)
+    merged["images"] = open_folder(out, merged, files, force)
     basis_folder.write_manifest(out, merged)
     weights = spp / spp.sum()
     for key in first["images"]:
@@ -213,7 +211,6 @@ def render_chunked(scene, manifold, out, spp=64, chunks=1, seed=0, executor=None
     ChunkedRun
     """
     from .executor import LocalExecutor
-    from .render_basis import check_foreign_folder
 
     specs = plan(scene, manifold, spp, chunks, seed, **options)
     check_foreign_folder(os.fspath(out), options.get("force", False))   # before any chunk is rendered

@@ -48,9 +48,9 @@ class RayExecutor:
 
     def __init__(self, address=None, num_cpus=None, cpus_per_task=1, max_retries=3, runtime_env=None):
         if int(cpus_per_task) < 1:
-            raise UnavailableError(f"cpus_per_task must be >= 1, got {cpus_per_task}")
+            raise UnavailableError(f"`cpus_per_task` must be >= 1, got {cpus_per_task}")
         if int(max_retries) < 0:
-            raise UnavailableError(f"max_retries must be >= 0, got {max_retries}")
+            raise UnavailableError(f"`max_retries` must be >= 0, got {max_retries}")
         self.address, self.num_cpus = address, num_cpus
         self.cpus_per_task, self.max_retries = int(cpus_per_task), int(max_retries)
         self.runtime_env = runtime_env
@@ -61,7 +61,7 @@ class RayExecutor:
             import ray
         except ImportError:
             raise UnavailableError("executor 'ray' needs Ray: pip install 'mitsuba-manifold[ray]' "
-                                "(or use --executor local)") from None
+                                "(or use the 'local' executor)") from None
         if not ray.is_initialized():
             kwargs = {"include_dashboard": False, "log_to_driver": False}
             if self.address:
@@ -106,8 +106,8 @@ def make_executor(name="local", address=None, **kwargs):
     """``local`` or ``ray`` (``address`` and ``kwargs`` go to :class:`RayExecutor`)."""
     if name == "local":
         if address:
-            raise UnavailableError("--address is for --executor ray")
+            raise UnavailableError("`address` is for the 'ray' executor")
         return LocalExecutor()
     if name == "ray":
         return RayExecutor(address=address, **kwargs)
-    raise UnavailableError(f"executor must be one of {EXECUTORS}, got {name!r}")
+    raise UnavailableError(f"`name` (the executor) must be one of {EXECUTORS}, got {name!r}")

@@ -2,8 +2,10 @@
 
 Dr.Jit loads libLLVM lazily, the first time an ``llvm_*`` variant runs a kernel, and
 takes the path from ``DRJIT_LIBLLVM_PATH``. Debian's default libLLVM 15 aborts the
-whole process on some kernels ("Cannot select ... fminimum"), so the package points
-Dr.Jit at a newer library before anything runs, unless the user already chose one.
+whole process on some kernels ("Cannot select ... fminimum"), so importing
+:mod:`mitsuba_manifold.render` points Dr.Jit at a newer library (:func:`select`) when Dr.Jit
+is not imported yet, unless the user already chose one. Nothing else in the package
+changes ``os.environ``.
 """
 
 import glob
@@ -45,6 +47,14 @@ def candidates():
     return sorted(found.items(), key=lambda kv: -kv[1])
 
 
+def newest():
+    """The newest libLLVM >= 16 of this machine, or None."""
+    for path, version in candidates():
+        if version >= MIN_VERSION:
+            return path
+    return None
+
+
 def select():
     """Set ``DRJIT_LIBLLVM_PATH`` to a libLLVM >= 16 unless the user set it.
 
@@ -54,17 +64,17 @@ def select():
     user = os.environ.get("DRJIT_LIBLLVM_PATH")
     if user:
         return user
-    for path, version in candidates():
-        if version >= MIN_VERSION:
-            os.environ["DRJIT_LIBLLVM_PATH"] = path
-            return path
-    return None
+    path = newest()
+    if path is not None:
+        os.environ["DRJIT_LIBLLVM_PATH"] = path
+    return path
 
 
 def require():
-    """Raise RuntimeError naming the problem when no usable libLLVM is selected."""
+    """The libLLVM for Dr.Jit (``DRJIT_LIBLLVM_PATH``, else :func:`newest`); a ``VariantError``
+    (a ``RuntimeError``) naming the problem when there is none. Changes nothing."""
     from ..errors import VariantError
-    path = os.environ.get("DRJIT_LIBLLVM_PATH") or select()
+    path = os.environ.get("DRJIT_LIBLLVM_PATH") or newest()
     if path is None:
         have = ", ".join(f"{p} (LLVM {v})" for p, v in candidates()) or "none"
         raise VariantError(

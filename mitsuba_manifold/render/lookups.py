@@ -1,5 +1,5 @@
 """MERL half/diff bin lookups of direction pairs in Dr.Jit (the BSDF's and the one-pass
-renderer's table indexing; :mod:`merl` holds the NumPy versions)."""
+renderer's table indexing; :mod:`merl` holds the NumPy versions), and table values at them."""
 
 import drjit as dr
 import mitsuba as mi
@@ -57,3 +57,41 @@ def linear_axis(c, n):
     i0 = dr.minimum(mi.Int32(dr.floor(c)), n - 1)
     t = c - mi.Float(i0)
     return i0, dr.minimum(i0 + 1, n - 1), t
+
+
+def gather_rgb(table, idx, active):
+    """RGB of bins ``idx`` of a packed table: a Dr.Jit array of ``(bins, 3)`` floats in JIT
+    variants, a NumPy ``(bins, 3)`` array in scalar ones."""
+    if dr.is_jit_v(mi.Float):
+        return dr.gather(mi.Color3f, table, idx, active)
+    if not active:
+        return mi.Color3f(0.0)
+    r, g, b = table[int(idx)]
+    return mi.Color3f(float(r), float(g), float(b))
+
+
+def table_value(table, dims, interpolation, wi, wo, active):
+    """Table value ``f(wi, wo)`` (no cosine) of a packed table (:func:`gather_rgb`) of MERL
+    ``dims``: the bin of the pair (``"nearest"``) or trilinear interpolation between bin centres
+    (``"linear"``, periodic in ``phi_d`` over ``pi``)."""
+    n_h, n_d, n_p = dims
+    theta_h, theta_d, phi_d = merl_angles(wi, wo)
+    if interpolation == "nearest":
+        return gather_rgb(table, merl_bin(theta_h, theta_d, phi_d, dims), active)
+    th = dr.clip(theta_h, 0.0, HALF_PI)
+    h0, h1, th_t = linear_axis(dr.sqrt(th * (1.0 / HALF_PI)) * n_h, n_h)
+    d0, d1, td_t = linear_axis(theta_d * (n_d / HALF_PI), n_d)
+    c = phi_d * (n_p / np.pi) - 0.5
+    fc = dr.floor(c)
+    tp_t = c - fc
+    p0 = mi.Int32(fc)
+    p0 = dr.select(p0 < 0, p0 + n_p, p0)
+    p1 = p0 + 1
+    p1 = dr.select(p1 >= n_p, p1 - n_p, p1)
+    result = mi.Color3f(0.0)
+    for ih, wh in ((h0, 1.0 - th_t), (h1, th_t)):
+        for id_, wd in ((d0, 1.0 - td_t), (d1, td_t)):
+            for ip, wp in ((p0, 1.0 - tp_t), (p1, tp_t)):
+                idx = mi.UInt32((ih * n_d + id_) * n_p + ip)
+                result += gather_rgb(table, idx, active) * (wh * wd * wp)
+    return result

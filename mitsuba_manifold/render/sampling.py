@@ -5,12 +5,13 @@ unnormalised density of outgoing directions over the half-vector parameterisatio
 (cached beside the database, keyed by the table's content hash). By linearity the
 density of an affine combination is ``sum_i w_i P_i``, clamped at 0
 (:func:`combined_density`), which ``manifold_brdf`` samples with Mitsuba's
-``MarginalContinuous2D1``.
+``MarginalContinuous2D1`` (:func:`sample_half_vector`, :func:`half_vector_pdf`).
 """
 
 import functools
 import os
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -138,3 +139,66 @@ def combined_density(densities, weights, grid=SAMPLING_GRID):
             if nearest != k:
                 p[k] = p[nearest]
     return p.astype(np.float32), int(empty)
+
+
+# ------------------------------------------------------------------ the density in Dr.Jit
+
+#: Smallest ``u = sqrt(theta_h / (pi/2))`` at which the solid-angle pdf is evaluated.
+U_FLOOR = 1e-4
+_SIN_FLOOR = float(np.sin(U_FLOOR ** 2 * _HALF_PI))
+
+
+def per_solid_angle(p_uv, u, sin_th, cos_d, active):
+    """Density over ``(u, v)`` to density over ``wo``: divide by ``|d wo / d(u, v)|``.
+
+    ``wo = reflect(wi, h)`` gives ``d wo = 4 cos_d d h``, ``d h = sin_th d theta_h d phi``,
+    ``theta_h = u^2 pi/2`` and ``phi = +-v pi`` (each sign with probability 1/2):
+    ``|d wo / d(u, v)| = 8 pi^2 cos_d sin_th u``. The density grows like 1/theta_h
+    towards the mirror direction, and single precision rounds directions within
+    ~1e-7 of it onto it (u = 0): those are evaluated at a tiny ``u`` instead of
+    letting the Jacobian vanish (which would drop the tabulated part).
+    """
+    near = u < U_FLOOR
+    u = dr.maximum(u, U_FLOOR)
+    sin_th = dr.select(near, _SIN_FLOOR, sin_th)
+    jac = (8.0 * np.pi * np.pi) * cos_d * sin_th * u
+    ok = active & (jac > 0)
+    return dr.select(ok, p_uv / dr.select(ok, jac, 1.0), 0.0)
+
+
+def incident_frame(wi):
+    """Unit azimuth ``(ex, ey)`` of ``wi`` (x axis at normal incidence) and its elevation."""
+    r = dr.sqrt(dr.square(wi.x) + dr.square(wi.y))
+    has = r > 0
+    inv_r = dr.select(has, dr.rcp(dr.select(has, r, 1.0)), 0.0)
+    ex = dr.select(has, wi.x * inv_r, 1.0)
+    ey = dr.select(has, wi.y * inv_r, 0.0)
+    return ex, ey, dr.atan2(r, wi.z)
+
+
+def half_vector_pdf(distr, wi, wo, active):
+    """Density (solid angle) at ``wo`` of sampling the half vector from ``distr`` (a
+    ``MarginalContinuous2D1`` over ``(u, v)``, conditioned on the incident elevation)."""
+    h = wi + wo
+    rh = dr.sqrt(dr.square(h.x) + dr.square(h.y))
+    inv_len = dr.rsqrt(dr.square(rh) + dr.square(h.z))
+    u = dr.sqrt(dr.atan2(rh, h.z) * (1.0 / _HALF_PI))
+    ex, ey, theta_i = incident_frame(wi)
+    v = dr.abs(dr.atan2(ex * h.y - ey * h.x, ex * h.x + ey * h.y)) * (1.0 / np.pi)
+    p_uv = distr.eval(mi.Point2f(dr.maximum(u, U_FLOOR), v), [theta_i], active)
+    return per_solid_angle(p_uv, u, rh * inv_len, dr.dot(wi, h) * inv_len, active)
+
+
+def sample_half_vector(distr, wi, sample2, flip, active):
+    """``(wo, pdf)``: a half vector ``h`` drawn from ``distr`` over ``(u, v)``, its azimuth sign
+    ``-`` where ``flip``, and ``wo`` the reflection of ``wi`` about it, with the solid-angle
+    density of that strategy."""
+    ex, ey, theta_i = incident_frame(wi)
+    uv, p_uv = distr.sample(sample2, [theta_i], active)
+    theta_h = dr.square(uv.x) * _HALF_PI
+    phi = dr.select(flip, -uv.y, uv.y) * np.pi
+    sin_th, cos_th = dr.sincos(theta_h)
+    sin_p, cos_p = dr.sincos(phi)
+    hx, hy = sin_th * cos_p, sin_th * sin_p
+    h = mi.Vector3f(ex * hx - ey * hy, ey * hx + ex * hy, cos_th)
+    return mi.reflect(wi, h), per_solid_angle(p_uv, uv.x, sin_th, dr.dot(wi, h), active)

@@ -74,16 +74,40 @@ def default_variant():
     return "llvm_ad_rgb"
 
 
-def use_variant(variant=None):
-    """Make ``variant`` (default: :func:`default_variant`) active with the package's plugins; returns ``mi``."""
+def use_variant(variant=None, jit=False):
+    """The variant to render in, active and with the package's plugins; returns ``mi``.
+
+    Never switches the variant unless asked, as Mitsuba itself:
+
+    - ``variant`` given: that one (checked, :func:`check_variant`), activated as
+      ``mi.set_variant(variant)`` would (the scenes loaded then live in it);
+    - else the active variant, checked (an unsuitable one is refused, not replaced);
+    - else (no variant is active yet) :func:`default_variant`, activated.
+
+    To render in another variant for a while, wrap the calls in Mitsuba's own
+    ``with mi.util.scoped_set_variant("llvm_ad_rgb"): ...``.
+
+    Parameters
+    ----------
+    jit : bool
+        Require a JIT variant, as the ``manifold_path`` integrator does.
+    """
     import mitsuba as mi
 
-    from . import plugin
-    variant = variant or default_variant()
-    if mi.variant() != variant:
-        mi.set_variant(variant)
-    plugin.install()
-    plugin.register_all()
+    from . import plugins
+    if variant is not None:
+        check_variant(variant, jit=jit)
+        if mi.variant() != variant:
+            mi.set_variant(variant)
+    elif mi.variant() is not None:
+        try:
+            check_variant(mi.variant(), "the active Mitsuba variant", jit)
+        except InputError as e:
+            raise InputError(f"{e}; call mi.set_variant(...) or pass `variant`") from None
+    else:
+        mi.set_variant(default_variant())
+    plugins.install()
+    plugins.register()
     return mi
 
 
@@ -138,7 +162,7 @@ def _other_manifold(scene, bsdf_id, path, manifold_path):
         return (f"scene {scene}: material {bsdf_id!r} names the manifold {path} (which does not exist), not "
                 f"{manifold_path}: use value=\"$manifold\" in the scene")
     return (f"scene {scene}: material {bsdf_id!r} names the manifold {path}, not {manifold_path}: use "
-            f"value=\"$manifold\" in the scene, or pass --manifold {path}")
+            f"value=\"$manifold\" in the scene, or pass `manifold_path`={path}")
 
 
 def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=None, x=None,
@@ -161,7 +185,9 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         Default: the first material's latent point (a scene's own ``$x`` default may not
         fit the manifold's latent dimension).
     variant : str, optional
-        Default: the active variant, else ``llvm_ad_rgb``.
+        The Mitsuba variant to load the scene in (activated: the scene lives in it). Default:
+        the active variant, or :func:`default_variant` when none is active yet; the active
+        variant is never switched unless ``variant`` asks for another (:func:`use_variant`).
     database : str, optional
         Folder of the manifold's tables when it is not where the manifold says (moved):
         the scene's ``$database`` if it takes one, else every ``manifold_brdf`` without a
@@ -185,9 +211,9 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         raise MismatchError(f"manifold {manifold_path} does not exist")
     manifold = functools.cache(lambda: Manifold.load(manifold_path))   # loaded once, when first needed
     used, defaults = scene_parameters(scene_path)
-    use_variant(variant or mi.variant() or ("llvm_ad_rgb" if "llvm_ad_rgb" in mi.variants() else "scalar_rgb"))
+    use_variant(variant)
     if spp is not None and int(spp) < 1:
-        raise MismatchError(f"spp must be >= 1, got {spp}")
+        raise MismatchError(f"`spp` must be >= 1, got {spp}")
     params = {}
     if "manifold" in used:
         params["manifold"] = os.path.abspath(manifold_path)
@@ -228,10 +254,9 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         raise MismatchError(f"scene {scene_path} has no manifold_brdf material (give the material to edit "
                          "type=\"manifold_brdf\" and take the manifold as $manifold)")
     want = manifold_identity(manifold())
-    for bsdf in targets:
-        path = getattr(bsdf, "manifold_path", None)
-        if path is None or manifold_identity(bsdf.manifold) != want:
-            raise MismatchError(_other_manifold(scene_path, bsdf.id(), path, manifold_path))
+    for bsdf in targets:   # ManifoldBRDF instances (manifold_bsdfs)
+        if manifold_identity(bsdf.manifold) != want:
+            raise MismatchError(_other_manifold(scene_path, bsdf.id(), bsdf.manifold_path, manifold_path))
     film_size = tuple(int(v) for v in scene.sensors()[0].film().size())
     if size is not None and film_size != size:
         raise MismatchError(f"scene {scene_path} renders {film_size[0]}x{film_size[1]}, not {size[0]}x{size[1]} "
@@ -257,7 +282,7 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
         scene's manifold materials in the order of its shapes.
     spp, seed : int
     resolution, max_depth, variant, database
-        As :func:`load_scene`.
+        As :func:`load_scene` (``variant``: the active one unless given).
 
     Returns
     -------
@@ -267,9 +292,9 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
 
     pts = np.atleast_2d(np.asarray(x, dtype=np.float64))
     if pts.ndim != 2 or not np.isfinite(pts).all():
-        raise MismatchError(f"x must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}")
+        raise MismatchError(f"`x` must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}")
     if int(spp) < 1:
-        raise MismatchError(f"spp must be >= 1, got {spp}")
+        raise MismatchError(f"`spp` must be >= 1, got {spp}")
     scene, found, max_depth = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant,
                                          database)
     ids = [b.id() for b in found]
@@ -278,7 +303,7 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
     else:
         order = ids if targets is None else list(targets)
         if len(order) != len(pts) or sorted(order) != sorted(ids):
-            raise MismatchError(f"x gives {len(pts)} latent points for targets {order}; the scene's manifold "
+            raise MismatchError(f"`x` gives {len(pts)} latent points for targets {order}; the scene's manifold "
                              f"materials are {ids}")
         rows = [order.index(i) for i in ids]
     for bsdf, row in zip(found, rows):

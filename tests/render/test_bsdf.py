@@ -15,32 +15,23 @@ import sys
 import numpy as np
 import pytest
 
-import mitsuba_manifold  # noqa: F401  (selects a working libLLVM before drjit loads)
+import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain  # noqa: E402
 
-from mitsuba_manifold.render import bsdf as mb
-from mitsuba_manifold.data import merl
+from mitsuba_manifold.render import integrators, lookups, sampling  # noqa: E402
+from mitsuba_manifold.data import merl  # noqa: E402
 from mitsuba_manifold.data.database import Database  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 from mitsuba_manifold.render.scenes import SCENES_DIR  # noqa: E402
 from helpers import chain  # noqa: E402
 
-pytestmark = pytest.mark.render
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
-VARIANT = "llvm_ad_rgb"
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 ANGLES = (0, 30, 60, 80)
 CHI2_TESTS = 40  # chi-square tests in this file, for the Sidak-corrected significance level
-
-
-@pytest.fixture(autouse=True)
-def variant():
-    mi.set_variant(VARIANT)
-    mb.register()
-    yield VARIANT
-    mi.set_variant(VARIANT)
 
 
 @pytest.fixture(scope="module")
@@ -213,7 +204,7 @@ def test_lookup_agrees_with_merl_indexing():
     wi, wo = random_directions(200_000, 1), random_directions(200_000, 2)
     wi64, wo64 = wi.astype(np.float64), wo.astype(np.float64)
     expected = merl.flat_index(wi64, wo64, dims)
-    got = np.array(mb.merl_bin(*mb.merl_angles(vec(wi), vec(wo)), dims))
+    got = np.array(lookups.merl_bin(*lookups.merl_angles(vec(wi), vec(wo)), dims))
     # Distance to the nearest bin boundary (in bins): float32 may round across it.
     th, td, pd = merl.half_diff(wi64, wo64)
     c = [np.sqrt(th / (np.pi / 2)) * dims[0], td / (np.pi / 2) * dims[1], np.mod(pd, np.pi) / np.pi * dims[2]]
@@ -378,7 +369,8 @@ def test_traverse_x_rebuilds(small_manifold_paper, manifold, negative_x):
 
 def test_python_methods_switch_materials(small_manifold_paper, small_db, manifold):
     bsdf = make(small_manifold_paper, x="0, 0")
-    assert bsdf.is_manifold_brdf and type(bsdf).is_manifold_brdf
+    from mitsuba_manifold.render import bsdf as manifold_brdf
+    assert isinstance(bsdf, manifold_brdf.ManifoldBRDF) and isinstance(bsdf, mi.BSDF)
     assert bsdf.names == manifold.names and isinstance(bsdf.manifold, Manifold)
     ctx, si = mi.BSDFContext(), interaction(incident(30), 1)
     wo = mi.Vector3f(*incident(-31))
@@ -425,12 +417,12 @@ def test_sampling_cache(small_manifold_paper, small_db, tmp_path):
     folder = tmp_path / "db"
     shutil.copytree(small_db, folder, ignore=shutil.ignore_patterns(".manifold-cache"))
     db = Database(folder)
-    path = mb.sampling_cache_path(db, "chrome")
+    path = sampling.sampling_cache_path(db, "chrome")
     assert not os.path.exists(path)
     make(small_manifold_paper, material="chrome", database=str(folder))
     assert os.path.dirname(path) == db.cache_dir and db.hash("chrome") in os.path.basename(path)
     cached = np.load(path)
-    assert np.array_equal(cached, mb.sampling_density(db.reflectance("chrome")))
+    assert np.array_equal(cached, sampling.sampling_density(db.reflectance("chrome")))
     with open(path, "wb") as f:
         f.write(b"garbage")
     make(small_manifold_paper, material="chrome", database=str(folder))
@@ -451,7 +443,7 @@ def test_relative_paths_resolve_against_the_scene(small_manifold_paper, small_db
     finally:
         os.chdir(cwd)
     bsdf = scene.shapes()[0].bsdf()
-    assert getattr(bsdf, "is_manifold_brdf", False) and bsdf.used_names == ["gold-paint"]
+    assert integrators.is_manifold_bsdf(bsdf) and bsdf.used_names == ["gold-paint"]
     assert str(tmp_path / "tables") in str(bsdf)
 
 
@@ -512,8 +504,7 @@ def test_scalar_variant_matches_llvm(small_manifold_paper, negative_x):
     samples = np.random.default_rng(10).random((6, 3))
     results = {}
     for variant in ("llvm_ad_rgb", "scalar_rgb"):
-        mi.set_variant(variant)
-        mb.register()
+        mi.set_variant(variant)   # the plugins follow (mitsuba_manifold.render.plugins)
         ctx = mi.BSDFContext()
         out = []
         for interpolation in ("nearest", "linear"):
@@ -533,22 +524,26 @@ def test_scalar_variant_matches_llvm(small_manifold_paper, negative_x):
 
 def test_non_rgb_variants_are_refused_clearly(small_manifold_paper):
     mi.set_variant("scalar_spectral")
-    mb.register()
     with pytest.raises(Exception) as info:
         make(small_manifold_paper, material="chrome")
     assert "need an RGB variant" in chain(info.value)
 
 
-def test_import_registers_for_the_active_variant():
-    code = ("import mitsuba as mi; mi.set_variant('scalar_rgb'); import mitsuba_manifold\n"
-            "try:\n    mi.load_dict({'type': 'manifold_brdf'})\n"
-            "except Exception as e:\n    print('manifold' in str(e) and 'required' in str(e))\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+@pytest.mark.parametrize("order", ["variant first", "import first"])
+def test_import_registers_for_the_active_variant(order):
+    """``import mitsuba_manifold.render`` registers the plugins, before or after ``mi.set_variant``."""
+    steps = ["import mitsuba as mi; mi.set_variant('scalar_rgb')", "import mitsuba_manifold.render"]
+    code = "\n".join(steps if order == "variant first" else steps[::-1]) + (
+        "\ntry:\n    mi.load_dict({'type': 'manifold_brdf'})\n"
+        "except Exception as e:\n    print('manifold' in str(e) and 'required' in str(e))\n")
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, env=env)
     assert out.stdout.strip() == "True", out.stderr
 
 
 def test_sphere_scene_renders(small_manifold_paper, negative_x, tmp_path):
     """scenes/sphere.xml renders an interpolated material; both sampling strategies agree."""
+    from mitsuba_manifold.render import bsdf as manifold_brdf   # the class of the active variant
     for name in ("sphere.xml", "sky.exr"):
         shutil.copy(os.path.join(SCENES_DIR, name), tmp_path / name)
     text = (tmp_path / "sphere.xml").read_text()
@@ -559,7 +554,7 @@ def test_sphere_scene_renders(small_manifold_paper, negative_x, tmp_path):
     means = {}
     for name, spp in (("sphere.xml", 64), ("cosine.xml", 512)):
         scene = mi.load_file(str(tmp_path / name), manifold=small_manifold_paper, x=x, res=24, spp=spp)
-        (bsdf,) = [s.bsdf() for s in scene.shapes() if getattr(s.bsdf(), "is_manifold_brdf", False)]
+        (bsdf,) = [s.bsdf() for s in scene.shapes() if isinstance(s.bsdf(), manifold_brdf.ManifoldBRDF)]
         assert np.allclose(bsdf.latent, negative_x.astype(np.float32))
         img = np.array(mi.render(scene))
         assert np.isfinite(img).all() and img.min() >= 0 and img.mean() > 0

@@ -8,26 +8,20 @@ import sys
 import numpy as np
 import pytest
 
-mi = pytest.importorskip("mitsuba")
-mi.set_variant("llvm_ad_rgb")
+pytest.importorskip("mitsuba")
 
-import mitsuba_manifold  # noqa: E402
 from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
-from mitsuba_manifold.basis import folder as basis
-from mitsuba_manifold.render import chunks, executor, render_basis
-from mitsuba_manifold import errors
-from mitsuba_manifold.imaging import io as imageio
+from mitsuba_manifold.basis import folder as basis  # noqa: E402
+from mitsuba_manifold.render import chunks, executor, render_basis  # noqa: E402
+from mitsuba_manifold import errors  # noqa: E402
+from mitsuba_manifold.imaging import io as imageio  # noqa: E402
+
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]   # renders and starts Ray
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SPHERE = scene_path("sphere")
 RES = 16
 OPTIONS = {"mode": "onepass", "resolution": RES, "materials": ["gold-paint", "chrome", "pink-fabric"]}
-
-
-@pytest.fixture(autouse=True)
-def _variant():
-    mi.set_variant("llvm_ad_rgb")
-    mitsuba_manifold.register()
 
 
 def _images(folder):
@@ -42,7 +36,7 @@ def test_plan_splits_samples_and_seeds():
     assert len({s.name for s in specs}) == 4
     with pytest.raises(errors.MismatchError, match="at least the number of chunks"):
         chunks.plan(SPHERE, SPHERE, 2, 3)
-    with pytest.raises(errors.MismatchError, match="chunks must be >= 1"):
+    with pytest.raises(errors.MismatchError, match="`chunks` must be >= 1"):
         chunks.plan(SPHERE, SPHERE, 2, 0)
 
 
@@ -194,5 +188,5 @@ def test_ray_missing_is_a_clear_error(monkeypatch):
     monkeypatch.setattr(builtins, "__import__", no_ray)
     with pytest.raises(errors.UnavailableError, match="pip install"):
         list(executor.RayExecutor().map(len, ["a"]))
-    with pytest.raises(errors.UnavailableError, match="--address is for"):
+    with pytest.raises(errors.UnavailableError, match="`address` is for"):
         executor.make_executor("local", address="auto")

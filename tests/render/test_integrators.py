@@ -17,7 +17,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-import mitsuba_manifold  # (selects a working libLLVM before drjit loads)
+import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
@@ -28,20 +28,11 @@ from helpers import chain  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SCENES = SCENES_DIR
-VARIANT = "llvm_ad_rgb"
-
-
-@pytest.fixture(autouse=True)
-def variant():
-    mi.set_variant(VARIANT)
-    mitsuba_manifold.register()
-    yield VARIANT
-
 
 from helpers import (Z_MAX, assert_same_mean, integrator, load, mean_var, midpoint, renders,  # noqa: E402,F401
                      two_spheres, z_scores)
 
-pytestmark = pytest.mark.render
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
 # ------------------------------------------------------------------ agreement with `path`
 
@@ -265,7 +256,6 @@ def test_bad_targets(small_manifold, props, message):
 
 def test_scalar_variant_is_refused_clearly():
     mi.set_variant("scalar_rgb")
-    integrators.register()
     with pytest.raises(Exception) as info:
         mi.load_dict({"type": "manifold_path"})
     assert "needs an RGB JIT variant" in chain(info.value)

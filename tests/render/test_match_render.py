@@ -14,14 +14,12 @@ from mitsuba_manifold.apps.cli import match as cli
 from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold.imaging.metrics import rel_mse
 
-pytestmark = pytest.mark.render
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
 RES = 24
 
 
 def test_match_of_a_path_render_and_the_tools_reference(tmp_path, small_manifold, capsys):
-    pytest.importorskip("mitsuba")
-    scenes.use_variant("llvm_ad_rgb")
     sphere = scenes.scene_path("sphere")
     m = Manifold.load(small_manifold)
     out = str(tmp_path / "basis")

@@ -8,23 +8,16 @@ import shutil
 import numpy as np
 import pytest
 
-import mitsuba_manifold  # (selects a working libLLVM before drjit loads)
+import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
 from mitsuba_manifold.render import integrators  # noqa: E402
-from mitsuba_manifold.render.integrators import onepass  # noqa: E402
+from mitsuba_manifold.render.integrators import splats  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 from helpers import assert_same_mean, chain, integrator, load, midpoint, renders, two_spheres  # noqa: E402,F401
 
-pytestmark = pytest.mark.render
-
-
-@pytest.fixture(autouse=True)
-def variant():
-    mi.set_variant("llvm_ad_rgb")
-    mitsuba_manifold.register()
-    yield "llvm_ad_rgb"
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
 
 @pytest.mark.parametrize("name", ["sphere", "table"])
@@ -99,7 +92,7 @@ def test_onepass_table_product_is_the_same_in_tiles_and_chunks(small_manifold, m
     scene = load("table", small_manifold, res=24)
     integ = integrator(max_depth=8)
     base, whole = integ.render_onepass(scene, spp=8, seed=2)
-    monkeypatch.setattr(onepass, "_SUM_BYTES", 100 * 12 * 16 * max(1, dr.thread_count()))
+    monkeypatch.setattr(splats, "_SUM_BYTES", 100 * 12 * 16 * max(1, dr.thread_count()))
     calls = []
     base2, tiled = integ.render_onepass(scene, spp=8, seed=2, chunk=3,
                                         progress=lambda d, t: calls.append((d, t)))
@@ -174,9 +167,9 @@ def test_onepass_refuses_what_it_cannot_do(small_manifold):
         integrator(target="a").render_onepass(scene, materials=["chrome", "nope"], spp=1)
     with pytest.raises(ValueError, match="no manifold material"):
         integrator().render_onepass(mi.load_dict(mi.cornell_box()), spp=1)
-    with pytest.raises(ValueError, match="spp_per_pass must be >= 1"):
+    with pytest.raises(ValueError, match="`spp_per_pass` must be >= 1"):
         integrator(target="a").render_onepass(scene, spp=4, spp_per_pass=0)
-    with pytest.raises(ValueError, match="chunk must be >= 1"):
+    with pytest.raises(ValueError, match="`chunk` must be >= 1"):
         integrator(target="a").render_onepass(scene, spp=4, chunk=0)
 
 

@@ -8,26 +8,18 @@ import numpy as np
 import pytest
 
 mi = pytest.importorskip("mitsuba")
-mi.set_variant("llvm_ad_rgb")
 
-import mitsuba_manifold  # noqa: E402
-from mitsuba_manifold.basis import folder as bf
-from mitsuba_manifold.imaging import io as imageio
-from mitsuba_manifold.render import render_basis, scenes
+from mitsuba_manifold.basis import folder as bf  # noqa: E402
+from mitsuba_manifold.imaging import io as imageio  # noqa: E402
+from mitsuba_manifold.render import render_basis, scenes  # noqa: E402
 from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 
-pytestmark = pytest.mark.render
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SPHERE = scenes.scene_path("sphere")
 RES = 24
-
-
-@pytest.fixture(autouse=True)
-def _variant():
-    mi.set_variant("llvm_ad_rgb")
-    mitsuba_manifold.register()
 
 
 def test_select_materials(small_manifold):

@@ -78,7 +78,7 @@ def test_a_scene_naming_another_manifold_is_refused_naming_it(tmp_path, small_db
     with pytest.raises(MismatchError) as e:
         scenes.load_scene(str(tmp_path / "other.xml"), small_manifold, spp=1, resolution=8)
     assert str(e.value) == (f"scene {tmp_path / 'other.xml'}: material 'material' names the manifold {other}, not "
-                            f"{small_manifold}: use value=\"$manifold\" in the scene, or pass --manifold {other}")
+                            f"{small_manifold}: use value=\"$manifold\" in the scene, or pass `manifold_path`={other}")
     loaded = scenes.load_scene(str(tmp_path / "same.xml"), small_manifold, spp=1, resolution=8)   # same content
     assert len(loaded.targets) == 1
 
@@ -122,3 +122,27 @@ def test_render_reference_is_the_interpolated_material(small_manifold, manifold,
         scenes.render_reference(scene, small_manifold, x, spp, resolution=(24, 12))
     with pytest.raises(MismatchError, match="manifold .* does not exist"):
         scenes.render_reference(scene, str(tmp_path / "none.npz"), x, spp)
+
+
+@pytest.mark.render
+def test_load_scene_renders_in_the_active_variant_and_switches_only_when_asked(variant, small_manifold, tmp_path):
+    import mitsuba as mi
+
+    from mitsuba_manifold.errors import InputError
+    from mitsuba_manifold.render import render_basis
+    sphere = scenes.scene_path("sphere")
+    mi.set_variant("scalar_rgb")
+    loaded = scenes.load_scene(sphere, small_manifold, spp=1, resolution=8)
+    assert mi.variant() == "scalar_rgb" and len(loaded.targets) == 1           # the active one, kept
+    with pytest.raises(InputError, match="needs an RGB JIT variant.*pass `variant`"):
+        render_basis.render_basis(sphere, small_manifold, tmp_path / "b", spp=1, resolution=8)
+    assert mi.variant() == "scalar_rgb" and not (tmp_path / "b").exists()       # refused, not switched
+    mi.set_variant("scalar_spectral")
+    with pytest.raises(InputError, match="active Mitsuba variant 'scalar_spectral' cannot be used"):
+        scenes.load_scene(sphere, small_manifold, spp=1, resolution=8)
+    assert mi.variant() == "scalar_spectral"
+    scenes.load_scene(sphere, small_manifold, spp=1, resolution=8, variant="llvm_ad_rgb")   # asked for
+    assert mi.variant() == "llvm_ad_rgb"
+    with mi.util.scoped_set_variant("scalar_rgb"):                               # Mitsuba's own, for a while
+        assert scenes.load_scene(sphere, small_manifold, spp=1, resolution=8).targets
+    assert mi.variant() == "llvm_ad_rgb"

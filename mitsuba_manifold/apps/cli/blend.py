@@ -26,7 +26,8 @@ def _stem(path):
 
 
 def parser():
-    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       aliases={"manifold_path": "manifold"})
     p.add_argument("--basis", required=True, help="basis folder written by render_basis.py")
     p.add_argument("--x", nargs="+", action="append", metavar="X",
                    help="latent point (q numbers); repeat once per target for a multilinear basis")

@@ -20,7 +20,8 @@ from .common import ERRORS, ArgumentParser, fail, guarded
 
 
 def _parser():
-    p = ArgumentParser(prog="match.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(prog="match.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       aliases={"manifold_path": "manifold"})
     p.add_argument("--basis", required=True, help="basis folder written by render_basis.py (one target)")
     p.add_argument("--target", required=True, help="target image: linear .exr, or 8-bit .png/.jpg (sRGB)")
     p.add_argument("--mask", help="mask image of the target's size: pixels > 0 are matched (grey = weight)")

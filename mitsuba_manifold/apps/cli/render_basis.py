@@ -29,7 +29,8 @@ def parse_views(text):
 
 @guarded
 def main(argv=None):
-    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       aliases={"manifold_path": "manifold"})
     p.add_argument("scenes", nargs="+", metavar="scene",
                    help="Mitsuba scene XML(s) with a manifold_brdf material taking $manifold, or the "
                         "name of a shipped scene (table, sphere, cbox)")

@@ -1,16 +1,19 @@
-"""``manifold_aovs``: first-hit guides for denoising blends (:mod:`mitsuba_manifold.basis.denoise`)."""
+"""``manifold_aovs``: first-hit guides for denoising blends (:mod:`mitsuba_manifold.basis.denoise`).
+
+A plugin module as Mitsuba's own (a ``mi.SamplingIntegrator`` of the active variant, registered
+by the last line; :mod:`mitsuba_manifold.render.plugins` re-creates it for each variant).
+"""
 
 import drjit as dr
 import mitsuba as mi
 
-from .. import plugin
 from .common import check_variant
 
 #: Bins of the viewing angle ``theta_i`` on the target (uniform over [0, pi/2]).
 THETA_BINS = 45
 
 
-class FirstHitAOVs:
+class FirstHitAOVs(mi.SamplingIntegrator):
     r"""First-hit AOVs whose blend is the AOV of the blended material.
 
     For each camera sample, at its first hit: the shading normal (world space); for
@@ -25,7 +28,8 @@ class FirstHitAOVs:
     """
 
     def __init__(self, props):
-        self._base.__init__(self, props)
+        check_variant()   # first: Mitsuba warns about Python integrators in scalar variants
+        super().__init__(props)
         self.bins = int(props.get("bins", THETA_BINS))
         self.targets = []
 
@@ -53,6 +57,4 @@ class FirstHitAOVs:
         return f"FirstHitAOVs[bins={self.bins}, targets={len(self.targets)}]"
 
 
-def register():
-    """Register ``manifold_aovs`` for the active variant."""
-    return plugin.register_plugin("integrator", "manifold_aovs", FirstHitAOVs, check=check_variant)
+mi.register_integrator("manifold_aovs", lambda props: FirstHitAOVs(props))

@@ -3,9 +3,9 @@
 The paper's Sec. 5.2 splits the light reaching the camera by how many times it
 scattered off the material being edited (the *target*, a ``manifold_brdf``):
 ``L = L1- + L2+``, where ``L1-`` (paths scattering off the target at most once) is
-affine in the target's BRDF. This module resolves targets and path classes in a scene,
-checks variants, and seeds samplers and primary rays for integrators that trace whole
-wavefronts themselves.
+affine in the target's BRDF. This module resolves targets and path classes in a scene
+and checks variants; integrators that trace whole wavefronts themselves seed samplers and
+make primary rays with Mitsuba's own ``ADIntegrator.prepare`` and ``sample_rays``.
 """
 
 import drjit as dr
@@ -20,8 +20,10 @@ MAX_GROUPS = 4
 
 
 def is_manifold_bsdf(bsdf):
-    """True when ``bsdf`` is a manifold material (an instance flagged ``is_manifold_brdf``)."""
-    return bsdf is not None and bool(getattr(bsdf, "is_manifold_brdf", False))
+    """True when ``bsdf`` is a manifold material: a ``manifold_brdf`` of the active variant
+    (an instance of :class:`mitsuba_manifold.render.bsdf.ManifoldBRDF`)."""
+    from .. import bsdf as manifold_brdf   # the module .plugins made for the active variant
+    return isinstance(bsdf, manifold_brdf.ManifoldBRDF)
 
 
 def manifold_bsdfs(scene):
@@ -148,55 +150,3 @@ def check_variant(variant=None):
             "wavefronts with Dr.Jit and needs an RGB JIT variant such as 'llvm_ad_rgb' "
             "or 'cuda_ad_rgb' (mi.set_variant(...), then mitsuba_manifold.register())")
     return variant
-
-
-def seeded_sampler(sensor, seed, spp):
-    """A clone of ``sensor``'s sampler seeded for one wavefront of ``spp`` samples per pixel
-    (the film's crop, plus its border when the film samples it)."""
-    film = sensor.film()
-    sampler = sensor.sampler().clone()
-    if spp:
-        sampler.set_sample_count(spp)
-    spp = sampler.sample_count()
-    sampler.set_samples_per_wavefront(spp)
-    size = film.crop_size()
-    if film.sample_border():
-        size += 2 * film.rfilter().border_size()
-    count = int(dr.prod(size)) * spp
-    if count > 2 ** 32:
-        raise InputError(f"manifold_path: {count} samples in one wavefront exceed 2^32; "
-                              "use fewer samples per pixel per pass")
-    sampler.seed(seed, count)
-    return sampler
-
-
-def primary_rays(scene, sensor, sampler):
-    """One camera ray per sample of ``sampler``, pixel by pixel, ``spp`` consecutive samples each.
-
-    Returns ``(ray, weight, pos)`` with ``pos`` the film position to splat at (the pixel's
-    corner with a box filter, the sample's position otherwise).
-    """
-    film = sensor.film()
-    rfilter = film.rfilter()
-    size = film.crop_size()
-    border = rfilter.border_size()
-    if film.sample_border():
-        size += 2 * border
-    spp = sampler.sample_count()
-    idx = dr.arange(mi.UInt32, dr.prod(size) * spp) // spp
-    pos = mi.Vector2i()
-    pos.y = mi.Int32(idx // size[0])
-    pos.x = mi.Int32(idx - mi.UInt32(pos.y) * size[0])
-    if film.sample_border():
-        pos -= border
-    pos += mi.Vector2i(film.crop_offset())
-    pos_f = mi.Vector2f(pos) + sampler.next_2d()
-    scale = dr.rcp(mi.ScalarVector2f(film.crop_size()))
-    offset = -mi.ScalarVector2f(film.crop_offset()) * scale
-    aperture = sampler.next_2d() if sensor.needs_aperture_sample() else mi.Vector2f(0.0)
-    time = mi.Float(sensor.shutter_open())
-    if sensor.shutter_open_time() > 0:
-        time += sampler.next_1d() * sensor.shutter_open_time()
-    ray, weight = sensor.sample_ray_differential(time=time, sample1=0.0, sample2=dr.fma(pos_f, scale, offset),
-                                                 sample3=aperture)
-    return ray, weight, (mi.Vector2f(pos) if rfilter.is_box_filter() else pos_f)

@@ -7,21 +7,23 @@ latent point is ``base + sum_i w_i touch_i``: ``base`` holds the paths that neve
 scatter off the target (the same for every material), ``touch_i`` the paths that
 scatter off it exactly once, rendered with training material ``i``.
 
-The integrator is the class below (a plugin body, see :mod:`mitsuba_manifold.render.plugin`),
-registered by :func:`register` for every variant. Its method ``render_onepass`` renders
-``base`` and the touch images of many materials from one set of paths
-(:mod:`.onepass`).
+The integrator is the class below, a ``mi.SamplingIntegrator`` of the active variant
+registered by the module's last line (:mod:`mitsuba_manifold.render.plugins` re-creates it
+for each variant, as Mitsuba does its own Python integrators). It is not one of Mitsuba's
+``ADIntegrator`` family: it differentiates nothing (its BSDF's ``x`` is not differentiable),
+and Mitsuba's C++ ``SamplingIntegrator.render`` (film, AOVs, passes, cancel) is what it needs.
+Its method ``render_onepass`` renders ``base`` and the touch images of many materials from
+one set of paths (:mod:`.onepass`).
 """
 
 import drjit as dr
 import mitsuba as mi
 
-from .. import plugin
 from ...errors import InputError, UnavailableError
 from .common import COMPONENTS, check_variant, class_names, power_heuristic, target_groups
 
 
-class ManifoldPathIntegrator:
+class ManifoldPathIntegrator(mi.SamplingIntegrator):
     r"""Path tracer splitting radiance by the number of scatterings off a manifold material.
 
     Unidirectional path tracing with next-event estimation, multiple importance
@@ -65,7 +67,8 @@ class ManifoldPathIntegrator:
     """
 
     def __init__(self, props):
-        self._base.__init__(self, props)
+        check_variant()   # first: Mitsuba warns about Python integrators in scalar variants
+        super().__init__(props)
         max_depth = props.get("max_depth", -1)
         if max_depth < -1:
             raise InputError(f"manifold_path: max_depth must be -1 (unbounded) or >= 0, got {max_depth}")
@@ -164,7 +167,7 @@ class ManifoldPathIntegrator:
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         # The film's channels come from aov_names(), which needs the scene: resolve first.
         self.prepare_scene(scene)
-        return self._base.render(self, scene, sensor, seed, spp, develop, evaluate)
+        return super().render(scene, sensor, seed, spp, develop, evaluate)
 
     # ------------------------------------------------------------ tracing
 
@@ -348,17 +351,4 @@ class ManifoldPathIntegrator:
                 f"split={self.split}]")
 
 
-def integrator_class():
-    """The integrator class for the active Mitsuba variant (see :func:`plugin.plugin_class`)."""
-    check_variant()
-    return plugin.plugin_class(ManifoldPathIntegrator, mi.SamplingIntegrator)
-
-
-def register():
-    """Register ``manifold_path`` with Mitsuba for the active variant.
-
-    In variants the integrator cannot run in (scalar, spectral, mono), the name is
-    registered all the same, and creating the integrator raises a ``VariantError``
-    (a ``RuntimeError``) that says which variants work.
-    """
-    return plugin.register_plugin("integrator", "manifold_path", ManifoldPathIntegrator, check=check_variant)
+mi.register_integrator("manifold_path", lambda props: ManifoldPathIntegrator(props))
