@@ -1,6 +1,6 @@
 """What the page shows about the material at a latent point (paper Sec. 3 and Eq. 2).
 
-:func:`describe` gives the weights (largest first), the albedo, the GP predictive
+:func:`describe` gives the weights (largest first, each saying whether pruning keeps it), the albedo, the GP predictive
 variance of Eq. 2 (as a confidence) and the nearest training materials from the
 :class:`~mitsuba_manifold.manifold.model.Manifold`'s public methods alone. :class:`TableStack`
 adds what needs the tables themselves, from a reduced copy held in memory (one
@@ -34,7 +34,8 @@ def describe(manifold, x, prune):
     _, w = manifold.weights(x)
     keep, w_kept, dropped = manifold.prune(w, prune)
     order = np.argsort(-np.abs(w))
-    top = [{"name": manifold.names[i], "w": float(w[i])} for i in order[:TOP_WEIGHTS]]
+    kept = set(int(i) for i in np.asarray(keep).ravel())
+    top = [{"name": manifold.names[i], "w": float(w[i]), "kept": int(i) in kept} for i in order[:TOP_WEIGHTS]]
     dist = np.linalg.norm(manifold.latent - np.asarray(x, dtype=np.float64)[None], axis=1)
     near = np.argsort(dist)[:NEAREST]
     out = {"x": [float(v) for v in x], "weights": top, "n_kept": int(len(keep)),
