@@ -423,7 +423,7 @@ def page(server):
         errors = []
         pg.on("pageerror", lambda e: errors.append(str(e)))
         pg.goto(server)
-        pg.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.material",
+        pg.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.material && window.explore.state.map",
                              timeout=60000)
         pg.errors = errors
         yield pg
@@ -561,7 +561,7 @@ def test_two_tabs_at_once(page, server, small_manifold_paper):
     other = page.context.new_page()
     try:
         other.goto(server)
-        other.wait_for_function("window.explore && window.explore.state.displayed", timeout=60000)
+        other.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map", timeout=60000)
         xa, xb = m.latent[m.index("chrome")], m.latent[m.index("pink-fabric")]
         page.evaluate("(x) => window.explore.setX(x)", [float(v) for v in xa])
         other.evaluate("(x) => window.explore.setX(x)", [float(v) for v in xb])
@@ -597,7 +597,7 @@ def test_without_webgl_the_page_says_so_and_works(page, server, explorer, small_
             HTMLCanvasElement.prototype.getContext = function (kind, ...rest) {
                 return kind === 'webgl2' ? null : get.call(this, kind, ...rest); }; }""")
         other.goto(server)
-        other.wait_for_function("window.explore && window.explore.state.displayed", timeout=60000)
+        other.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map", timeout=60000)
         assert "WebGL 2 is not available" in other.inner_text("#sphere-msg")
         x = _click_material(other, small_manifold_paper, "blue-acrylic")
         np.testing.assert_array_equal(_displayed_pixels(other), _expected_frame(explorer, x))

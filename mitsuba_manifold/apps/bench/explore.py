@@ -138,7 +138,7 @@ def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000),
                                                                         "--enable-unsafe-swiftshader"])
             page = browser.new_context(viewport={"width": size[0], "height": size[1]}).new_page()
             page.goto(url)
-            page.wait_for_function("window.explore && window.explore.state.displayed && "
+            page.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map && "
                                    "window.explore.state.info.tables !== 'loading'", timeout=120000)
             latent = np.array(page.evaluate("window.explore.state.info.latent"))
             a = int(np.argmin(((latent - latent.mean(axis=0)) ** 2).sum(axis=1)))
