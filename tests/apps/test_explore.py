@@ -120,6 +120,26 @@ def test_tables_match_the_manifold(explorer, small_manifold_paper):
     assert info["slice"]["png"].startswith("data:image/png;base64,")
 
 
+def test_preview_tables_are_cached_beside_the_basis(explorer, small_basis, small_manifold_paper, tmp_path):
+    """The reduced tables are written once beside the basis, named by the tables' hashes; the
+    next start reads that file and opens no table (here: a database folder that does not exist)."""
+    from mitsuba_manifold.apps.explore.material import TableStack
+    path = explorer.tables.cache_path()
+    assert os.path.dirname(path) == os.path.join(small_basis, ".manifold-cache") and os.path.isfile(path)
+    m = Manifold.load(small_manifold_paper)
+    t0 = time.perf_counter()
+    again = TableStack(m, database=str(tmp_path / "nowhere"), cache_dir=os.path.dirname(path))
+    assert again.wait(30) == "ready" and "(cached)" in again.message, again.message
+    assert time.perf_counter() - t0 < 5
+    x = 0.3 * m.latent[0] + 0.7 * m.latent[4]
+    for a, b in zip(again.preview(x, explorer.prune), explorer.tables.preview(x, explorer.prune)):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(again.slice(x, explorer.prune), explorer.tables.slice(x, explorer.prune))
+    other = m.hashes[:]
+    m.hashes = other[::-1]   # other tables: another cache file, so the database is read (and missing)
+    assert TableStack(m, database=str(tmp_path / "nowhere"), cache_dir=os.path.dirname(path)).wait(30) == "unavailable"
+
+
 def test_bad_points_are_refused(explorer):
     q = explorer.manifold.q
     for value, words in [("nan,1", "NaN"), ([1.0, float("inf")], "NaN or Inf"), ("1,2,3", f"give {q}"),

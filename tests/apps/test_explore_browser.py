@@ -217,3 +217,13 @@ def test_q3_snapping_keeps_the_slice_and_a_click_reslices(browser, q3_basis):
             assert pg.evaluate("+document.querySelector('#sliders input').value") == pytest.approx(m.latent[i, 2], abs=1e-2)
     finally:
         assert launch.stop(proc)[0] == 0
+
+
+@browser_only
+def test_browser_benchmark_measures_drags(browser, small_basis, small_manifold_paper):
+    from mitsuba_manifold.apps.bench.explore import browser as bench_browser
+    r = bench_browser(small_basis, small_manifold_paper, drags=2, moves=8, chromium=browser)
+    assert r["moves"] >= 16 and 0 < r["frames_drawn"] <= r["moves"] + 2
+    assert 0 < r["move_to_frame_ms"]["median"] <= r["move_to_frame_ms"]["p90"] <= r["move_to_frame_ms"]["max"]
+    assert r["moves_per_s"] > 0 and r["tables_ready_s"] > 0 and set(r["meets_targets"]) == {
+        "median", "p90", "moves_per_s", "tables_ready"}

@@ -23,6 +23,7 @@ from ...render import scenes
 from ..._util import checks as validate
 from ...basis.folder import Basis, scene_hash
 from ...basis.blend import DEFAULT_PRUNE, blend
+from ...data.database import cache_folder
 from ...errors import InputError
 from ...manifold.model import Manifold
 from . import encode, latentmap, material
@@ -129,7 +130,8 @@ class Explorer:
             basis.verify()   # every image in memory now: no disk read while dragging
             self.bases[name] = basis
         self.scenes = {name: _scene_of(b, scene) for name, b in self.bases.items()}
-        self.tables = material.TableStack(self.manifold, database) if load_tables else None
+        cache = cache_folder(next(iter(self.bases.values())).folder) if load_tables else None   # beside the basis
+        self.tables = material.TableStack(self.manifold, database, cache) if load_tables else None
         self.references = References()
         self._maps, self._maps_lock = {}, threading.Lock()
 

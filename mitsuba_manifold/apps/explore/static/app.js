@@ -11,7 +11,7 @@ const NUMBER = /^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$/;   // as the server
 const state = {
   info: null, x: null, basis: null, exposure: 0, dims: [0, 1], map: null, mapImage: null,
   hover: -1, a: null, b: null, displayed: null, material: null, snippet: null, errors: [], zoom: null,
-  mapKey: null, moves: 0,
+  mapKey: null, moves: 0, dragging: false, liveUntil: 0,
   // raw RGBA on this machine (exact, no encoding); JPEG when the page is viewed from elsewhere
   format: new URLSearchParams(location.search).get("format") || (LOCAL ? "rgba" : "jpeg"),
 };
@@ -61,6 +61,7 @@ async function drawFrame(meta, payload) {
   if (bmp) ctx.drawImage(bmp, 0, 0);
   else ctx.putImageData(new ImageData(new Uint8ClampedArray(payload), meta.width, meta.height), 0, 0);
   state.displayed = { x: meta.x, seq: meta.seq, exposure: meta.exposure, basis: meta.basis, at: performance.now() };
+  if (window.explore.trace) window.explore.trace.push({ x: meta.x, at: state.displayed.at });   // tools/bench.py explore --browser
   c.dataset.x = meta.x.join(",");
   const n = meta.n_images;
   $("timing").textContent = `${n} image${n === 1 ? "" : "s"} · blend ${meta.blend_ms.toFixed(1)} + tonemap ` +
@@ -77,15 +78,38 @@ function sliceKey() {
 
 function frameRequest() { return { x: state.x, exposure: state.exposure, basis: state.basis, format: state.format }; }
 
+// While a drag runs (pointer down on the map, a slider moving) the scene follows every move;
+// the panel (material, snippet) and the sphere's table follow at most every LIVE[kind] ms, so
+// that they do not take the frames' time; when the drag rests (REST ms) the kinds not yet
+// asked for the final point are asked for.
+const LIVE = { table: 60, material: 180, snippet: 250 }, REST = 120;
+const asked = {};   // kind -> [time, x] of its last request
+
+function live() { return state.dragging || performance.now() < state.liveUntil; }
+
 // One message per move: every kind of answer the point needs (the map only for a new slice).
-function sendMove() {
+function sendMove(resting = false) {
   moveQueued = false;
-  const want = ["frame", "material", "snippet"];
-  if (state.info.tables === "ready") want.push("table");
+  const now = performance.now(), dragging = !resting && live(), want = [];
+  for (const kind of ["frame", "table", "material", "snippet"]) {
+    if (kind === "table" && state.info.tables !== "ready") continue;
+    const last = asked[kind];
+    if (last && sameX(last[1], state.x)) continue;
+    if (!dragging || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x]; }
+  }
   const key = sliceKey();
   if (key !== state.mapKey) { state.mapKey = key; want.push("map"); }
+  if (preview) preview.setFast(dragging);
+  owe(dragging);
+  if (!want.length) return;
   state.moves++;
   channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom }, frameRequest()), want);
+}
+function owe(dragging) {   // kinds not asked for the point shown yet (counted by channel.pending())
+  const kinds = ["material", "snippet"].concat(state.info.tables === "ready" ? ["table"] : []);
+  channel.owed = kinds.filter((k) => !asked[k] || !sameX(asked[k][1], state.x)).length;
+  clearTimeout(state.restTimer);
+  if (dragging) state.restTimer = setTimeout(() => sendMove(true), REST);   // no move for REST ms: resting
 }
 let moveQueued = false;
 function scheduleMove() {   // at most one move per displayed frame of the browser
@@ -94,7 +118,7 @@ function scheduleMove() {   // at most one move per displayed frame of the brows
   requestAnimationFrame(() => { if (moveQueued) sendMove(); });
   setTimeout(() => { if (moveQueued) sendMove(); }, 100);   // rAF is paused in hidden tabs
 }
-function requestAll() { state.mapKey = null; scheduleMove(); }
+function requestAll() { state.mapKey = null; for (const k in asked) delete asked[k]; scheduleMove(); }
 function requestMap() {
   state.mapKey = sliceKey();
   channel.send({ type: "map", x: state.x, dims: state.dims, extent: state.zoom }, ["map"]);
@@ -230,7 +254,7 @@ function bindMap() {
     const again = lastDown && now - lastDown.t < 500 && Math.hypot(ev.clientX - lastDown.cx, ev.clientY - lastDown.cy) < 6;
     // the point before a press (before the first press of a double-click: where dblclick puts it back)
     lastDown = { x: again ? lastDown.x : state.x.slice(), t: now, cx: ev.clientX, cy: ev.clientY };
-    dragging = true; c.setPointerCapture(ev.pointerId); pick(ev, true);
+    dragging = state.dragging = true; c.setPointerCapture(ev.pointerId); pick(ev, true);
   });
   c.addEventListener("pointermove", (ev) => {
     if (!state.map) return;
@@ -243,7 +267,7 @@ function bindMap() {
     } else tip.hidden = true;
     if (dragging) pick(ev, false);
   });
-  c.addEventListener("pointerup", () => { dragging = false; });
+  c.addEventListener("pointerup", () => { dragging = state.dragging = false; state.liveUntil = performance.now() + REST; });
   // wheel: zoom about the pointer (the map is rendered again for the new extent); double-click:
   // the whole map, and the point goes back to where it was before the double-click's first press
   c.addEventListener("wheel", (ev) => {
@@ -292,7 +316,7 @@ function buildSliders() {
     row.innerHTML = `<label>x${d}</label><input type="range" data-dim="${d}" min="${lo}" max="${hi}" step="${(hi - lo) / 500}"><span class="end"></span>`;
     const input = row.querySelector("input");
     input.value = state.x[d];
-    input.oninput = () => { const x = state.x.slice(); x[d] = +input.value; setX(x); };
+    input.oninput = () => { const x = state.x.slice(); x[d] = +input.value; state.liveUntil = performance.now() + REST; setX(x); };
     box.appendChild(row);
   }
   updateSliders();
@@ -415,6 +439,7 @@ function setEnd(which) {
 function updateScrub() { $("scrub-t").textContent = "t = " + (+$("scrub").value / 1000).toFixed(2); }
 function scrub() {
   updateScrub();
+  state.liveUntil = performance.now() + REST;
   const t = +$("scrub").value / 1000;
   setX(state.a.x.map((v, k) => (1 - t) * v + t * state.b.x[k]));
 }

@@ -13,7 +13,8 @@ class Channel {
     this.answered = {};   // kind -> seq of the newest answer applied
     this.sentAt = {};     // seq -> time sent
     this.dropped = 0;     // late answers dropped
-    this.queued = null;   // messages waiting for the socket, by kind set
+    this.queued = null;   // messages waiting for the socket
+    this.owed = 0;        // kinds the page has still to ask for the point shown (a drag resting)
     this.connect();
   }
   connect() {
@@ -60,6 +61,6 @@ class Channel {
   }
   oldestWanted() { return Math.min(...Object.keys(this.latest).map((k) => this.latest[k]), this.seq); }
   // Kinds whose newest request is not answered yet.
-  pending() { return Object.keys(this.latest).filter((k) => (this.answered[k] || 0) < this.latest[k]).length; }
+  pending() { return this.owed + Object.keys(this.latest).filter((k) => (this.answered[k] || 0) < this.latest[k]).length; }
   isCurrent(kind, seq) { return this.latest[kind] === seq; }
 }
