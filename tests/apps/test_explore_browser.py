@@ -227,3 +227,12 @@ def test_browser_benchmark_measures_drags(browser, small_basis, small_manifold_p
     assert 0 < r["move_to_frame_ms"]["median"] <= r["move_to_frame_ms"]["p90"] <= r["move_to_frame_ms"]["max"]
     assert r["moves_per_s"] > 0 and r["tables_ready_s"] > 0 and set(r["meets_targets"]) == {
         "median", "p90", "moves_per_s", "tables_ready"}
+
+
+@browser_only
+def test_search_by_name_goes_to_the_material(browser, server, small_manifold_paper):
+    m = Manifold.load(small_manifold_paper)
+    with _page(browser, server) as pg:
+        pg.fill("#search", "Blue-Acrylic")
+        _wait_displayed(pg, m.latent[m.index("blue-acrylic")])
+        assert pg.inner_text("#material-name") == "blue-acrylic"

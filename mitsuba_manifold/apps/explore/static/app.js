@@ -99,7 +99,7 @@ function sendMove(resting = false) {
   }
   const key = sliceKey();
   if (key !== state.mapKey) { state.mapKey = key; want.push("map"); }
-  if (preview) preview.setFast(dragging);
+  if (preview) preview.setFast(state.dragging || dragging);   // a pointer held still keeps the drag's resolution
   owe(dragging);
   if (!want.length) return;
   state.moves++;
@@ -267,7 +267,7 @@ function bindMap() {
     } else tip.hidden = true;
     if (dragging) pick(ev, false);
   });
-  c.addEventListener("pointerup", () => { dragging = state.dragging = false; state.liveUntil = performance.now() + REST; });
+  c.addEventListener("pointerup", () => { if (dragging) { dragging = state.dragging = false; sendMove(true); } });
   // wheel: zoom about the pointer (the map is rendered again for the new extent); double-click:
   // the whole map, and the point goes back to where it was before the double-click's first press
   c.addEventListener("wheel", (ev) => {
@@ -517,6 +517,11 @@ async function main() {
     preview && preview.setExposure(state.exposure);
     updateSavePng();
     channel.send(Object.assign({ type: "frame" }, frameRequest()), ["frame"]);
+  };
+  for (const n of [...info.names].sort()) $("material-names").appendChild(new Option(n));
+  $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there
+    const v = $("search").value.trim(), hit = info.names.find((n) => n.toLowerCase() === v.toLowerCase());
+    if (hit) { goTo(hit); $("search").blur(); }
   };
   $("set-a").onclick = () => setEnd("a");
   $("set-b").onclick = () => setEnd("b");
