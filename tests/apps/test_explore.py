@@ -48,10 +48,21 @@ def explorer(small_basis, small_manifold_paper):
     ex.close()
 
 
+#: What the test client's requests are allowed as (its Host is "testserver").
+TEST_ORIGIN = "http://testserver"
+
+
+def app_for(explorer):
+    """The app of ``explorer`` answering the test client (Host ``testserver``) as the CLI
+    answers ``--allow-origin http://testserver``."""
+    from mitsuba_manifold.apps.explore.guard import AllowList
+    return create_app(explorer, AllowList.for_server("127.0.0.1", 8765, [TEST_ORIGIN]))
+
+
 @pytest.fixture(scope="module")
 def client(explorer):
     from starlette.testclient import TestClient
-    with TestClient(create_app(explorer)) as c:
+    with TestClient(app_for(explorer)) as c:
         yield c
 
 
@@ -81,7 +92,8 @@ def test_material_description(explorer, small_manifold_paper):
     m = Manifold.load(small_manifold_paper)
     i = m.index("gold-paint")
     info = explorer.material(m.latent[i])
-    assert info["weights"][0] == {"name": "gold-paint", "w": 1.0}
+    assert info["weights"][0] == {"name": "gold-paint", "w": 1.0, "kept": True}
+    assert [w["kept"] for w in info["weights"]].count(True) == info["n_kept"] == 1
     assert info["nearest"][0]["name"] == "gold-paint" and info["nearest"][0]["distance"] == 0
     assert info["variance"] < 1e-3
     np.testing.assert_allclose(info["albedo"], m.albedos[i], rtol=1e-9)
@@ -106,6 +118,26 @@ def test_tables_match_the_manifold(explorer, small_manifold_paper):
     assert info["negative_fraction"] > 0
     np.testing.assert_allclose(explorer.tables.slice(x, explorer.prune), table[:, :, :, 32], rtol=1e-4, atol=1e-6)
     assert info["slice"]["png"].startswith("data:image/png;base64,")
+
+
+def test_preview_tables_are_cached_beside_the_basis(explorer, small_basis, small_manifold_paper, tmp_path):
+    """The reduced tables are written once beside the basis, named by the tables' hashes; the
+    next start reads that file and opens no table (here: a database folder that does not exist)."""
+    from mitsuba_manifold.apps.explore.material import TableStack
+    path = explorer.tables.cache_path()
+    assert os.path.dirname(path) == os.path.join(small_basis, ".manifold-cache") and os.path.isfile(path)
+    m = Manifold.load(small_manifold_paper)
+    t0 = time.perf_counter()
+    again = TableStack(m, database=str(tmp_path / "nowhere"), cache_dir=os.path.dirname(path))
+    assert again.wait(30) == "ready" and "(cached)" in again.message, again.message
+    assert time.perf_counter() - t0 < 5
+    x = 0.3 * m.latent[0] + 0.7 * m.latent[4]
+    for a, b in zip(again.preview(x, explorer.prune), explorer.tables.preview(x, explorer.prune)):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(again.slice(x, explorer.prune), explorer.tables.slice(x, explorer.prune))
+    other = m.hashes[:]
+    m.hashes = other[::-1]   # other tables: another cache file, so the database is read (and missing)
+    assert TableStack(m, database=str(tmp_path / "nowhere"), cache_dir=os.path.dirname(path)).wait(30) == "unavailable"
 
 
 def test_bad_points_are_refused(explorer):
@@ -157,7 +189,7 @@ def test_reference_scene_is_found_when_the_basis_moved(small_basis, small_manifo
     with pytest.raises(InputError, match="missing or has changed since the basis was rendered; give it with --scene"):
         ex.start_reference(None, ex.manifold.latent[0], 4)
     from starlette.testclient import TestClient
-    with TestClient(create_app(ex)) as c:
+    with TestClient(app_for(ex)) as c:
         assert c.post("/api/reference", json={"x": "chrome"}).status_code == 400
     ex.close()
     ex = Explorer([moved], manifold=small_manifold_paper, load_tables=False, scene="sphere")
@@ -216,7 +248,7 @@ def test_internal_errors_answer_500_without_a_traceback(explorer, monkeypatch):
     def broken(*args, **kwargs):
         raise RuntimeError("secret detail /etc/passwd")
     monkeypatch.setattr(explorer, "material", broken)
-    with TestClient(create_app(explorer), raise_server_exceptions=False) as c:
+    with TestClient(app_for(explorer), raise_server_exceptions=False) as c:
         r = c.get("/api/material", params={"x": "chrome"})
     assert r.status_code == 500 and r.json() == {"error": "internal error (RuntimeError); see the server's console"}
 
@@ -340,6 +372,46 @@ def test_ctrl_c_stops_the_server_with_a_tab_connected(small_basis, small_manifol
     assert code == 0 and out.strip().endswith("explore: stopped"), (code, out)
 
 
+def test_real_server_refuses_other_hosts_and_ctrl_c_stops_a_render_within_2s(small_basis, small_manifold_paper):
+    """Against the real server (uvicorn): a DNS-rebinding Host gets 403 on HTTP and on the
+    websocket handshake; Ctrl-C while a reference render runs stops the server within 2 s."""
+    import signal
+    import socket
+    import urllib.error
+    import urllib.request
+
+    proc, url = launch.start([small_basis], small_manifold_paper, ["--no-tables"])
+    try:
+        port = url.rstrip("/").rsplit(":", 1)[1]
+        evil = urllib.request.Request(url + "api/info", headers={"Host": f"evil.example:{port}"})
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(evil, timeout=10)
+        assert refused.value.code == 403 and "refused" in json.loads(refused.value.read())["error"]
+        for host, status in ((f"evil.example:{port}", b"403"), (f"127.0.0.1:{port}", b"101")):
+            with socket.create_connection(("127.0.0.1", int(port)), timeout=10) as sock:
+                sock.sendall(f"GET /ws HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                             "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
+                assert sock.recv(100).split()[1] == status, host
+        post = urllib.request.Request(url + "api/reference", data=json.dumps({"x": "chrome", "spp": 16384}).encode(),
+                                      headers={"Content-Type": "application/json"}, method="POST")
+        job = json.loads(urllib.request.urlopen(post, timeout=30).read())
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:   # rendering, past its first pass (kernels compiled)
+            status = json.loads(urllib.request.urlopen(url + f"api/reference/{job['id']}", timeout=10).read())
+            if status["progress"] > 0:
+                break
+            time.sleep(0.05)
+        assert status["state"] == "rendering" and status["progress"] < 0.5, status
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and "explore: stopped" in out and took < 2.0, (proc.returncode, took, out)
+
+
 # ---------------------------------------------------------------- browser
 
 CHROMIUM = launch.find_chromium()
@@ -371,7 +443,7 @@ def page(server):
         errors = []
         pg.on("pageerror", lambda e: errors.append(str(e)))
         pg.goto(server)
-        pg.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.material",
+        pg.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.material && window.explore.state.map",
                              timeout=60000)
         pg.errors = errors
         yield pg
@@ -509,7 +581,7 @@ def test_two_tabs_at_once(page, server, small_manifold_paper):
     other = page.context.new_page()
     try:
         other.goto(server)
-        other.wait_for_function("window.explore && window.explore.state.displayed", timeout=60000)
+        other.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map", timeout=60000)
         xa, xb = m.latent[m.index("chrome")], m.latent[m.index("pink-fabric")]
         page.evaluate("(x) => window.explore.setX(x)", [float(v) for v in xa])
         other.evaluate("(x) => window.explore.setX(x)", [float(v) for v in xb])
@@ -545,7 +617,7 @@ def test_without_webgl_the_page_says_so_and_works(page, server, explorer, small_
             HTMLCanvasElement.prototype.getContext = function (kind, ...rest) {
                 return kind === 'webgl2' ? null : get.call(this, kind, ...rest); }; }""")
         other.goto(server)
-        other.wait_for_function("window.explore && window.explore.state.displayed", timeout=60000)
+        other.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map", timeout=60000)
         assert "WebGL 2 is not available" in other.inner_text("#sphere-msg")
         x = _click_material(other, small_manifold_paper, "blue-acrylic")
         np.testing.assert_array_equal(_displayed_pixels(other), _expected_frame(explorer, x))

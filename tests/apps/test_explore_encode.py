@@ -53,6 +53,8 @@ def test_latent_map_slices_through_the_point(small_db, tmp_path):
     b = latentmap.render(m, m.latent[5], dims=(0, 2), resolution=48)
     assert a.image.shape == (48, 48, 4) and a.dims == (0, 2)
     assert not np.array_equal(a.image, b.image)   # the third coordinate follows the point
+    assert a.albedo_range == b.albedo_range       # one colour scale for every slice
+    assert a.albedo_range[1] >= m.albedos.mean(axis=-1).max()
     lo, hi = a.extent[0], a.extent[1]
     assert lo < m.latent[:, 0].min() and hi > m.latent[:, 0].max()
 

@@ -8,6 +8,13 @@ tonemap, encode, websocket transfer), per encoding. Targets (issue 11): at most 
 256x256 and 60 ms at 512x512 for N = 100. Without a basis of the larger size a copy of the
 given basis upsampled 2x per axis (nearest) is written to a temporary folder: the time
 depends on N and the pixel count only.
+
+With ``browser=True`` (``tools/bench.py explore --browser``) it measures the page itself
+instead (:func:`browser`): in headless Chromium, drags of 20 pointer moves over the latent
+map, one move per displayed frame of the browser, timed from each pointer move to the first
+scene frame drawn for that point or a later one; the moves per second the scene follows;
+the sphere's redraws; and the time from opening the URL to the material tables being ready.
+Targets (issue 19): median <= 50 ms, p90 <= 120 ms, >= 15 moves/s, tables <= 5 s.
 """
 
 import json
@@ -65,9 +72,15 @@ def _stats(values):
 
 
 def run(basis, manifold=None, requests=60, formats=("rgba", "jpeg", "png"), upsample=True, seed=0,
-        screenshot_path=None):
+        screenshot_path=None, browser=False):
     """Frame latency per basis size and encoding (see the module docstring); with
-    ``screenshot_path`` also a screenshot of the page (:func:`screenshot`)."""
+    ``screenshot_path`` also a screenshot of the page (:func:`screenshot`); with ``browser``
+    the page's own latency instead (:func:`browser`)."""
+    if browser:
+        report = globals()["browser"](basis, manifold)
+        if screenshot_path:
+            report["screenshot"] = screenshot(basis, screenshot_path, manifold)
+        return report
     from ...basis.folder import read_manifest
     from ...manifold.model import Manifold
 
@@ -118,6 +131,99 @@ def run(basis, manifold=None, requests=60, formats=("rgba", "jpeg", "png"), upsa
     return report
 
 
+BROWSER_TARGETS = {"median_ms": 50.0, "p90_ms": 120.0, "moves_per_s": 15.0, "tables_ready_s": 5.0}
+def _launch_chromium(p):
+    return p.chromium.launch(executable_path=launch.find_chromium(),
+                             args=["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"])
+
+
+def _drag(page, a, b, moves, pace_ms):
+    """One drag from page point ``a`` to ``b`` in ``moves`` pointer moves; returns per-move
+    latency (ms) to the first frame drawn for that move or a later one, the frames drawn
+    and the drag's duration (s)."""
+    page.evaluate("""() => { const s = window.explore.state; window.explore.trace = [];
+        window.__moves = []; window.__log = () => window.__moves.push({ t: performance.now(), x: s.x.slice() });
+        window.addEventListener("pointermove", window.__log);
+        window.__draws = window.explore.preview ? window.explore.preview.draws : 0; }""")
+    page.mouse.move(*a)
+    page.mouse.down()
+    for k in range(1, moves + 1):
+        page.mouse.move(a[0] + (b[0] - a[0]) * k / moves, a[1] + (b[1] - a[1]) * k / moves)
+        page.wait_for_timeout(pace_ms)
+    page.mouse.up()
+    page.wait_for_function("""() => { const m = window.__moves, s = window.explore.state;
+        return m.length && s.displayed && s.displayed.x.every((v, k) => v === m[m.length - 1].x[k]); }""",
+                           timeout=30000)
+    out = page.evaluate("""() => { window.removeEventListener("pointermove", window.__log);
+        return { moves: window.__moves, frames: window.explore.trace,
+                 draws: (window.explore.preview ? window.explore.preview.draws : 0) - window.__draws }; }""")
+    index = {}
+    for i, m in enumerate(out["moves"]):
+        index.setdefault(tuple(m["x"]), i)
+    latencies, drawn = [], []
+    for f in out["frames"]:
+        i = index.get(tuple(f["x"]))
+        if i is not None:
+            drawn.append((i, f["at"]))
+    for i, m in enumerate(out["moves"]):
+        later = [at for j, at in drawn if j >= i and at >= m["t"]]
+        if later:
+            latencies.append(min(later) - m["t"])
+    span = (out["moves"][-1]["t"] - out["moves"][0]["t"]) / 1e3 if len(out["moves"]) > 1 else 0.0
+    return latencies, len(drawn), span, out["draws"], len(out["moves"])
+
+
+def browser(basis, manifold=None, drags=6, moves=20, pace_ms=16, chromium=None):
+    """The page's latency in headless Chromium (see the module docstring); ``chromium``: a
+    Playwright browser to use (default: the system Chromium, launched here)."""
+    if chromium is None:
+        from playwright.sync_api import sync_playwright
+        with sync_playwright() as p:
+            b = _launch_chromium(p)
+            try:
+                return browser(basis, manifold, drags, moves, pace_ms, b)
+            finally:
+                b.close()
+    report = {"drags": drags, "moves_per_drag": moves, "pace_ms": pace_ms, "client": "headless Chromium (SwiftShader)",
+              "load_average_1min_before": os.getloadavg()[0], "targets": BROWSER_TARGETS}
+    proc, url = launch.start([basis], manifold)
+    try:
+        context = chromium.new_context(viewport={"width": 1500, "height": 1000})
+        page = context.new_page()
+        t0 = time.perf_counter()
+        page.goto(url)
+        page.wait_for_function("window.explore && window.explore.state.info && window.explore.state.info.tables "
+                               "!== 'loading' && window.explore.state.previewX && window.explore.state.map",
+                               timeout=300000)
+        report["tables_ready_s"] = time.perf_counter() - t0
+        latent = np.array(page.evaluate("window.explore.state.info.latent"))
+        box = page.locator("#map").bounding_box()
+        ext = page.evaluate("window.explore.state.map.extent")
+        def at(x):
+            return (box["x"] + (x[0] - ext[0]) / (ext[1] - ext[0]) * box["width"],
+                    box["y"] + (1 - (x[1] - ext[2]) / (ext[3] - ext[2])) * box["height"])
+        rng = np.random.default_rng(0)
+        lat, frames, seconds, draws, sent = [], 0, 0.0, 0, 0
+        for _ in range(drags):
+            i, j = rng.choice(len(latent), 2, replace=False)
+            # between materials, off their points (no snapping): every move is a new point
+            a, b = [0.8 * latent[i] + 0.2 * latent[j] + 0.05, 0.2 * latent[i] + 0.8 * latent[j] + 0.05]
+            got = _drag(page, at(a), at(b), moves, pace_ms)
+            lat += got[0]
+            frames, seconds, draws, sent = frames + got[1], seconds + got[2], draws + got[3], sent + got[4]
+        context.close()
+    finally:
+        launch.stop(proc)
+    report.update({"move_to_frame_ms": _stats(lat), "moves": sent, "frames_drawn": frames,
+                   "moves_per_s": frames / seconds if seconds else None, "sphere_draws": draws,
+                   "load_average_1min_after": os.getloadavg()[0]})
+    m, t = report["move_to_frame_ms"], BROWSER_TARGETS
+    report["meets_targets"] = {"median": m["median"] <= t["median_ms"], "p90": m["p90"] <= t["p90_ms"],
+                               "moves_per_s": (report["moves_per_s"] or 0) >= t["moves_per_s"],
+                               "tables_ready": report["tables_ready_s"] <= t["tables_ready_s"]}
+    return report
+
+
 def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000), zoom_steps=12):
     """PNG of the page (system Chromium through Playwright): a path between a material near the
     centre of the data and its latent neighbour, scrubbed half-way, the map zoomed in on it, with
@@ -134,11 +240,10 @@ def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000),
     proc, url = launch.start([basis], manifold)
     try:
         with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=chromium, args=["--no-sandbox", "--use-angle=swiftshader",
-                                                                        "--enable-unsafe-swiftshader"])
+            browser = _launch_chromium(p)
             page = browser.new_context(viewport={"width": size[0], "height": size[1]}).new_page()
             page.goto(url)
-            page.wait_for_function("window.explore && window.explore.state.displayed && "
+            page.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map && "
                                    "window.explore.state.info.tables !== 'loading'", timeout=120000)
             latent = np.array(page.evaluate("window.explore.state.info.latent"))
             a = int(np.argmin(((latent - latent.mean(axis=0)) ** 2).sum(axis=1)))

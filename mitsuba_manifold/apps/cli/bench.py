@@ -44,6 +44,7 @@ def main(argv=None):
     p.add_argument("--res", type=int, default=128, help="match: resolution of the accuracy renders (default 128)")
     p.add_argument("--out", default=None,
                    help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
+    p.add_argument("--browser", action="store_true", help="explore: time the page in headless Chromium (drags)")
     p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare")
     p.add_argument("--folds", type=parse_list, default=None, help="space: run only these of the 10 folds")
     args = p.parse_args(argv)
@@ -75,7 +76,7 @@ def main(argv=None):
     if args.which == "scaling":
         kwargs["out"] = os.path.splitext(args.json)[0] + "_work"
     if explore:
-        kwargs["screenshot_path"] = os.path.splitext(args.json)[0] + ".png"
+        kwargs.update(screenshot_path=os.path.splitext(args.json)[0] + ".png", browser=args.browser)
     result = bench.run(args.which, folder, **kwargs)
     if args.which == "scaling":
         from ..bench.scaling import plot

@@ -1,10 +1,12 @@
 """Explore a material manifold in the browser: drag a latent point, see the material in the scene.
 
   explore.py --basis out/gi/basis_table_256_1024_onepass [--basis OTHER ...] [--manifold M.npz]
-             [--port 8765] [--host 127.0.0.1]
+             [--port 8765] [--host 127.0.0.1] [--allow-origin http://NAME:PORT ...]
 
 Starts a local web server (127.0.0.1 unless --host says otherwise), prints the URL and
-serves until Ctrl-C. Every image of every basis is read into memory first; the material
+serves until Ctrl-C. It answers only requests addressed to 127.0.0.1, localhost or [::1]
+with its port, or to --host (other Host headers are refused: DNS rebinding), and only pages
+of those origins (http) or of an --allow-origin. Every image of every basis is read into memory first; the material
 tables (for the WebGL preview, the negative-bin fraction and the BRDF slice) load in the
 background while the page already works.
 """
@@ -43,6 +45,9 @@ def parser():
     p.add_argument("--scene", help="scene XML or shipped scene name for reference renders, checked against the "
                                    "basis (default: the manifest's scene, or the shipped one of that name)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
+                   help="also answer requests for, and pages of, this origin (exactly: scheme, host, port, "
+                        "e.g. https://explore.example:443 behind a proxy); repeat for several")
     p.add_argument("--port", type=parse_port, default=DEFAULT_PORT,
                    help=f"port (default {DEFAULT_PORT}; 0: any free port)")
     p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
@@ -99,9 +104,15 @@ def serve(args):
     import uvicorn
 
     from ..explore import Explorer, create_app
+    from ..explore.guard import MAX_MESSAGE, AllowList
     from .common import ERRORS, cli_message
     try:
         sock = bind(args.host, args.port)
+        allow = AllowList.for_server(args.host, sock.getsockname()[1], args.allow_origin, sock.getsockname()[0])
+    except ValueError as e:   # a bad --allow-origin
+        sock.close()
+        print(f"error: --allow-origin: {e}", file=sys.stderr)
+        return 2
     except ERRORS as e:
         print(f"error: {cli_message(e)}", file=sys.stderr)
         return 2
@@ -111,9 +122,9 @@ def serve(args):
         explorer = Explorer(args.basis, manifold=args.manifold, database=args.database, prune=args.prune,
                             load_tables=not args.no_tables, scene=args.scene)
         # frames are JPEG or raw pixels: per-message deflate would cost more time than it saves
-        server = uvicorn.Server(uvicorn.Config(create_app(explorer), log_level="warning",
-                                               timeout_graceful_shutdown=2, ws_ping_interval=None,
-                                               ws_per_message_deflate=False))
+        server = uvicorn.Server(uvicorn.Config(create_app(explorer, allow), log_level="warning",
+                                               timeout_graceful_shutdown=1, ws_ping_interval=None,
+                                               ws_per_message_deflate=False, ws_max_size=MAX_MESSAGE))
         for name, b in explorer.bases.items():
             print(f"basis {name}: {len(b.keys)} materials, {b.resolution[0]}x{b.resolution[1]}, {b.folder}")
         print(f"manifold: {explorer.manifold_path} ({explorer.manifold.n} materials, q={explorer.manifold.q})")
@@ -128,11 +139,14 @@ def serve(args):
         print(f"error: {cli_message(e)}", file=sys.stderr)
         return 2
     finally:
-        if explorer is not None:
-            explorer.close()
+        idle = explorer is None or explorer.close(wait=0.3)
         sock.close()
     print("explore: stopped", flush=True)
+    if not idle:   # a reference render's pass still runs in native code: do not wait for it
+        sys.stderr.flush()
+        os._exit(0)
     return 0
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -9,17 +9,19 @@ and a BRDF slice. A full-GI reference render runs in the background on request.
 
 Modules: :mod:`.service` (the state and every answer, no HTTP), :mod:`.server` (Starlette
 app), :mod:`.encode` (tonemap and image encoding), :mod:`.material`, :mod:`.latentmap`,
-:mod:`.reference`; ``static/`` holds the page (no build step, no network access).
+:mod:`.reference`, :mod:`.guard` (who may talk to the server, size limits), :mod:`.session`
+(one tab's websocket); ``static/`` holds the page (no build step, no network access).
 """
 
 from ...errors import InputError
 from .service import Explorer
 
 
-def create_app(explorer):
-    """The web app of an :class:`Explorer` (imports Starlette only when called)."""
+def create_app(explorer, allow=None, **kwargs):
+    """The web app of an :class:`Explorer` (imports Starlette only when called); ``allow``: the
+    :class:`~.guard.AllowList` of hosts and origins it answers to (see :func:`.server.create_app`)."""
     from .server import create_app as _create
-    return _create(explorer)
+    return _create(explorer, allow, **kwargs)
 
 
 __all__ = ["Explorer", "InputError", "create_app"]

@@ -2,7 +2,9 @@
 
 The slice spans latent coordinates ``dims`` through a point ``center`` (the other
 coordinates stay at the center's values, so for ``q > 2`` the map follows the sliders).
-Colour: the albedo (mean over RGB) of the interpolated material. The region where the
+Colour: the albedo (mean over RGB) of the interpolated material, on one scale for every
+slice and zoom (0 to a little above the brightest measured material's), so that colours
+compare across the sliders of ``q > 2``. The region where the
 data lives is where the GP variance (Eq. 2) is below half its prior value ``1 + mu``;
 outside it the map is dimmed. Where any albedo channel leaves [0, 1] (a physically
 impossible material: extrapolation, negative weights) the map is hatched.
@@ -58,21 +60,25 @@ def _albedo(manifold, pts):
     return manifold.albedo(pts)
 
 
+def colour_range(manifold):
+    """The albedo range of the colour scale: the same for every slice and zoom of a manifold."""
+    if manifold.albedos is None:
+        return 0.0, 1.0
+    return 0.0, float(min(1.0, max(1.1 * np.asarray(manifold.albedos).mean(axis=-1).max(), 0.05)))
+
+
 def render(manifold, center, dims=(0, 1), resolution=192, bounds=None):
     """A :class:`LatentMap` of the slice through ``center`` (q,) spanning ``dims``, over
     ``bounds`` ``(x0_min, x0_max, x1_min, x1_max)`` (default: :func:`extent`)."""
     from matplotlib import colormaps
 
     dims = tuple(int(d) for d in dims)
-    full = extent(manifold, dims)
-    ext = full if bounds is None else tuple(float(v) for v in bounds)
+    ext = extent(manifold, dims) if bounds is None else tuple(float(v) for v in bounds)
     pts = _grid(center, dims, ext, resolution)
     alb = _albedo(manifold, pts).reshape(resolution, resolution, 3)
     var = manifold.variance(pts).reshape(resolution, resolution) / (1.0 + manifold.noise)
     mean = alb.mean(axis=-1)
-    # one colour scale for every zoom: that of the whole slice
-    whole = mean if bounds is None else _albedo(manifold, _grid(center, dims, full, 64)).mean(axis=-1)
-    lo, hi = 0.0, float(min(1.0, max(np.percentile(whole, 99), 0.05)))
+    lo, hi = colour_range(manifold)
     rgba = colormaps[CMAP](np.clip((mean - lo) / (hi - lo), 0, 1)).astype(np.float64)
     inside = var < DATA_VARIANCE
     rgba[~inside, :3] *= 0.45

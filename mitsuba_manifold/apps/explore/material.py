@@ -1,6 +1,6 @@
 """What the page shows about the material at a latent point (paper Sec. 3 and Eq. 2).
 
-:func:`describe` gives the weights (largest first), the albedo, the GP predictive
+:func:`describe` gives the weights (largest first, each saying whether pruning keeps it), the albedo, the GP predictive
 variance of Eq. 2 (as a confidence) and the nearest training materials from the
 :class:`~mitsuba_manifold.manifold.model.Manifold`'s public methods alone. :class:`TableStack`
 adds what needs the tables themselves, from a reduced copy held in memory (one
@@ -11,6 +11,11 @@ matrix-vector product per point):
 - the fraction of negative bins of the interpolated table, estimated on those bins
   (``manifold_brdf`` clamps them to 0; a blend of images cannot);
 - a ``theta_h x theta_d`` slice at ``phi_d = 90 deg`` at full resolution, for a log plot.
+
+Reading every table takes seconds per hundred MERL tables; the reduced copy is therefore
+cached (``preview-<key>.npz`` in a cache folder, by default ``<basis>/.manifold-cache``),
+named by the content hashes of the tables the manifold was fit on: the next start reads
+that one file and opens no table.
 """
 
 import math
@@ -27,6 +32,8 @@ NEAREST = 5
 HALF_MAX = float(np.finfo(np.float16).max)
 #: Preview tables kept for repeated requests at the same point.
 RECENT = 4
+#: Version of the cached reduced tables (part of the cache key).
+CACHE_VERSION = "explore-preview-v1"
 
 
 def describe(manifold, x, prune):
@@ -34,7 +41,8 @@ def describe(manifold, x, prune):
     _, w = manifold.weights(x)
     keep, w_kept, dropped = manifold.prune(w, prune)
     order = np.argsort(-np.abs(w))
-    top = [{"name": manifold.names[i], "w": float(w[i])} for i in order[:TOP_WEIGHTS]]
+    kept = set(int(i) for i in np.asarray(keep).ravel())
+    top = [{"name": manifold.names[i], "w": float(w[i]), "kept": int(i) in kept} for i in order[:TOP_WEIGHTS]]
     dist = np.linalg.norm(manifold.latent - np.asarray(x, dtype=np.float64)[None], axis=1)
     near = np.argsort(dist)[:NEAREST]
     out = {"x": [float(v) for v in x], "weights": top, "n_kept": int(len(keep)),
@@ -89,6 +97,8 @@ class TableStack:
     manifold : Manifold
     database : str, optional
         Folder of the tables (default: the manifold's; checked against its hashes).
+    cache_dir : str, optional
+        Folder for the cached reduced tables (none: no cache).
 
     Attributes
     ----------
@@ -99,9 +109,10 @@ class TableStack:
         Full table resolution; ``preview_dims``: the reduced one.
     """
 
-    def __init__(self, manifold, database=None):
+    def __init__(self, manifold, database=None, cache_dir=None):
         self.manifold = manifold
         self.database = database
+        self.cache_dir = cache_dir
         self.state, self.message = "loading", "loading tables"
         self.dims = self.preview_dims = None
         self._ready = threading.Event()
@@ -115,29 +126,74 @@ class TableStack:
         self._ready.wait(timeout)
         return self.state
 
+    def cache_path(self):
+        """The cache file of this manifold's reduced tables (named by the tables' hashes), or None."""
+        if self.cache_dir is None:
+            return None
+        from ..._util.cache import key_hash
+        key = key_hash(CACHE_VERSION, str(PREVIEW_DIMS), *self.manifold.hashes, length=24)
+        return os.path.join(self.cache_dir, f"preview-{key}.npz")
+
     def _load(self):
         try:
-            db = self.manifold.open_database(self.database)
-            dims = tuple(int(v) for v in db.dims)
-            s = preview_strides(dims)
+            cached = self._read_cache()
+            dims, reduced, slices, preview_dims = cached if cached is not None else self._read_tables()
+            self.preview_dims = preview_dims
+            self.dims, self._reduced, self._slices = dims, reduced, slices
             n = self.manifold.n
-            slice_col = min(dims[2] // 2, dims[2] - 1)   # phi_d = 90 deg
-            reduced, slices = None, np.empty((n, 3, dims[0], dims[1]), dtype=np.float32)
-            for i, name in enumerate(self.manifold.names):
-                table = db.reflectance(name)
-                small = np.ascontiguousarray(table[:, ::s[0], ::s[1], ::s[2]], dtype=np.float32)
-                if reduced is None:
-                    reduced = np.empty((n, small.size), dtype=np.float32)
-                    self.preview_dims = small.shape[1:]
-                reduced[i] = small.ravel()
-                slices[i] = table[:, :, :, slice_col]
-                self.message = f"loading tables {i + 1}/{n}"
-            self.dims, self._reduced, self._slices = dims, reduced, slices.reshape(n, -1)
-            self.state, self.message = "ready", f"{n} tables, preview {self.preview_dims}"
+            self.state, self.message = "ready", f"{n} tables, preview {self.preview_dims}" + (
+                " (cached)" if cached is not None else "")
+            if cached is None:
+                self._write_cache()
         except Exception as e:  # a missing or changed database leaves the rest of the page working
             self.state, self.message = "unavailable", f"material tables unavailable: {e}"
         finally:
             self._ready.set()
+
+    def _read_tables(self):
+        db = self.manifold.open_database(self.database)
+        dims = tuple(int(v) for v in db.dims)
+        s = preview_strides(dims)
+        n = self.manifold.n
+        slice_col = min(dims[2] // 2, dims[2] - 1)   # phi_d = 90 deg
+        reduced, slices, preview_dims = None, np.empty((n, 3, dims[0], dims[1]), dtype=np.float32), None
+        for i, name in enumerate(self.manifold.names):
+            table = db.reflectance(name)
+            small = np.ascontiguousarray(table[:, ::s[0], ::s[1], ::s[2]], dtype=np.float32)
+            if reduced is None:
+                reduced = np.empty((n, small.size), dtype=np.float32)
+                preview_dims = small.shape[1:]
+            reduced[i] = small.ravel()
+            slices[i] = table[:, :, :, slice_col]
+            self.message = f"loading tables {i + 1}/{n}"
+        return dims, reduced, slices.reshape(n, -1), tuple(preview_dims)
+
+    def _read_cache(self):
+        path = self.cache_path()
+        if path is None or not os.path.isfile(path):
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                dims, preview_dims = tuple(int(v) for v in f["dims"]), tuple(int(v) for v in f["preview_dims"])
+                reduced, slices = f["reduced"], f["slices"]
+        except (OSError, ValueError, KeyError):
+            return None
+        n = self.manifold.n
+        if reduced.shape != (n, 3 * int(np.prod(preview_dims))) or slices.shape != (n, 3 * dims[0] * dims[1]):
+            return None
+        return dims, reduced, slices, preview_dims
+
+    def _write_cache(self):
+        path = self.cache_path()
+        if path is None:
+            return
+        from ..._util.atomic import atomic_write
+        try:
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            atomic_write(path, lambda f: np.savez(f, dims=np.array(self.dims), preview_dims=np.array(self.preview_dims),
+                                                  reduced=self._reduced, slices=self._slices))
+        except OSError:   # a read-only place: no cache, the page works the same
+            pass
 
     def _combine(self, rows, x, prune):
         _, w = self.manifold.weights(x)

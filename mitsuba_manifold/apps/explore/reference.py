@@ -1,11 +1,13 @@
 """Full-GI reference renders of a latent point, in the background, with progress.
 
 The blend (Eq. 13) holds the paths that touch the material at most once (L1-); a render
-with ``manifold_brdf`` and Mitsuba's ``path`` integrator holds every path. A job renders
-the basis's scene at ``x`` in passes of a few samples (different seeds, averaged) so the
-page can show its progress, then measures the blend against it
-(:func:`mitsuba_manifold.imaging.metrics.compare`). One job renders at a time (the renders share
-the CPU with the blends); the others wait in line.
+with ``manifold_brdf`` and Mitsuba's ``path`` integrator holds every path. A job loads the
+basis's scene once, sets its material to ``x`` and renders it in passes of about a second
+(:func:`~mitsuba_manifold.render.interrupt.sample_passes`; different seeds, averaged as
+:func:`~mitsuba_manifold.render.interrupt.render_in_passes` does) so the page can show its
+progress and a stopping server does not wait for a long render, then measures the blend
+against it (:func:`mitsuba_manifold.imaging.metrics.compare`). One job renders at a time (the
+renders share the CPU with the blends); the others wait in line.
 """
 
 import itertools
@@ -17,9 +19,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...imaging import metrics
-from ...render.scenes import render_reference
+from ...render.interrupt import sample_passes
+from ...render.scenes import load_scene
 
-PASSES = 8
 MAX_SPP = 1 << 14
 KEEP_JOBS = 16
 
@@ -72,29 +74,46 @@ class References:
     def _run(self, job, basis, scene, manifold_path, blend_image):
         job.state, t0 = "rendering", time.perf_counter()
         try:
-            passes = min(PASSES, job.spp)
-            per = [job.spp // passes + (1 if k < job.spp % passes else 0) for k in range(passes)]
-            acc, done = None, 0
-            for k, spp in enumerate(per):
-                if self._stopping:
-                    raise RuntimeError("the server is stopping")
-                img = render_reference(scene, manifold_path, job.x, spp, seed=1000 + k,
-                                          resolution=tuple(basis.resolution),
-                                          max_depth=basis.manifest["max_depth"], variant=basis.manifest["variant"])
-                acc = img * spp if acc is None else acc + img * spp
-                done += spp
-                job.progress = done / job.spp
-                job.message = f"{done}/{job.spp} spp"
-            ref = (acc / job.spp).astype(np.float32)
-            job.images = {"blend": blend_image, "reference": ref}
-            job.error = metrics.compare(blend_image, ref)
+            job.images = {"blend": blend_image, "reference": self._render(job, basis, scene, manifold_path)}
+            job.error = metrics.compare(blend_image, job.images["reference"])
             job.state = "done"
         except Exception as e:  # shown on the page; the server keeps running
             job.state, job.message = "failed", f"{type(e).__name__}: {e}"
         finally:
             job.seconds = time.perf_counter() - t0
 
-    def shutdown(self):
-        """Drop the queued jobs; the running one stops after its current pass."""
+    def _render(self, job, basis, scene_path, manifold_path):
+        """The reference image of a job, in passes; stops between passes when the server does."""
+        import mitsuba as mi
+
+        loaded = load_scene(scene_path, manifold_path, job.spp, tuple(basis.resolution),
+                            basis.manifest["max_depth"], job.x, basis.manifest["variant"])
+        for bsdf in loaded.targets:
+            bsdf.set_latent(np.asarray(job.x, dtype=np.float64))
+        integrator = mi.load_dict({"type": "path", "max_depth": int(loaded.max_depth)})
+        w, h = basis.resolution
+        acc, done = None, 0
+        for k, spp in enumerate(sample_passes(job.spp, w * h)):
+            if self._stopping:
+                raise RuntimeError("the server is stopping")
+            img = np.array(mi.render(loaded.scene, integrator=integrator, spp=spp, seed=1000 + k),
+                           dtype=np.float64)[..., :3]
+            acc = img * spp if acc is None else acc + img * spp
+            done += spp
+            job.progress, job.message = done / job.spp, f"{done}/{job.spp} spp"
+        return (acc / job.spp).astype(np.float32)
+
+    def busy(self):
+        """Whether a job is rendering now."""
+        with self._lock:
+            return any(j.state == "rendering" for j in self._jobs.values())
+
+    def shutdown(self, wait=0.0):
+        """Drop the queued jobs; the running one stops after its current pass. Waits up to
+        ``wait`` seconds for it; returns whether no job is rendering any more."""
         self._stopping = True
         self._pool.shutdown(wait=False, cancel_futures=True)
+        deadline = time.monotonic() + wait
+        while self.busy() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        return not self.busy()

@@ -1,60 +1,43 @@
 """The explorer's web app (Starlette): the page, a JSON/binary API and a websocket for drags.
 
-Drags go over one websocket per tab: the page sends the latest latent point whenever the
-pointer moves, the server keeps only the newest request of each kind that arrived while it
-was busy (stale points are dropped, not queued) and answers with binary messages
-``[uint32 n][n bytes of JSON meta][payload]``. Everything else is plain HTTP
-(:func:`create_app` lists the routes). Errors in a request answer 400 with
-``{"error": message}``; no traceback reaches the page.
+Drags go over one websocket per tab (:mod:`.session`: requests tagged with their point, the
+newest of each kind answered). Everything else is plain HTTP (:func:`create_app` lists the
+routes). Every request passes :class:`~.guard.Guard` first: the Host/Origin allow-list
+(DNS rebinding, other sites) and the body size limit. Errors in a request answer 400 with
+``{"error": message}`` (one line); no traceback reaches the page.
 """
 
-import asyncio
 import json
 import os
 import re
-import struct
-from urllib.parse import urlsplit
 
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException
+from starlette.middleware import Middleware
 from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
-from starlette.websockets import WebSocketDisconnect
 
-from ...errors import InputError, UnknownMaterialError
+from ...errors import InputError
 from . import encode
+from .guard import MAX_BODY, Guard
+from .service import show
+from .session import BAD_REQUEST, Session
 
 STATIC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
-#: What answers 400: bad input (a bad value, an unknown name).
-BAD_REQUEST = (InputError, UnknownMaterialError)
 _JOB_ID = re.compile(r"^r[0-9]{1,9}$")
-#: Websocket requests, answered in this order when several wait.
-KINDS = ("frame", "material", "table")
-#: How a websocket whose tab went away fails (uvicorn's ClientDisconnected is an OSError).
-GONE = (WebSocketDisconnect, OSError)
-
-
-def pack(meta, payload=b""):
-    """One binary websocket message: JSON meta then payload."""
-    head = json.dumps(meta).encode()
-    return struct.pack("<I", len(head)) + head + payload
-
-
-def same_origin(conn):
-    """False when a browser sends a request from a page of another site (its Origin header
-    names another host): such pages may not drive the explorer's websocket or start renders."""
-    origin = conn.headers.get("origin")
-    return origin is None or urlsplit(origin).netloc == conn.headers.get("host")
 
 
 def _query(request, key, default=None):
     return request.query_params.get(key, default)
 
 
-def create_app(explorer):
+def create_app(explorer, allow=None, max_body=MAX_BODY):
     """The Starlette app serving ``explorer`` (a :class:`~.service.Explorer`).
+
+    ``allow``: the :class:`~.guard.AllowList` of hosts and origins (default: ``127.0.0.1``,
+    ``localhost`` and ``[::1]`` on any port); ``max_body``: largest request body in bytes.
 
     Routes: ``/`` the page; ``/static/*`` its files; ``/api/info``; ``/api/frame?basis&x&exposure&format``
     (the image); ``/api/material?x``; ``/api/table?x`` (float16 preview table, layout in the
@@ -90,12 +73,11 @@ def create_app(explorer):
         return Response(data, media_type="application/octet-stream", headers={"X-Table": json.dumps(meta)})
 
     async def latent_map(request):
+        import base64
         dims = _query(request, "dims", "0,1")
         center = x_of(request) if _query(request, "x") else ex.manifold.latent.mean(axis=0)
-        m = await run_in_threadpool(ex.latent_map, dims, center, _query(request, "extent"))
-        import base64
-        png = await run_in_threadpool(encode.png_bytes, m.image)
-        return JSONResponse(dict(m.info(), png="data:image/png;base64," + base64.b64encode(png).decode()))
+        png, meta = await run_in_threadpool(ex.map_png, dims, center, _query(request, "extent"))
+        return JSONResponse(dict(meta, png="data:image/png;base64," + base64.b64encode(png).decode()))
 
     async def snippet(request):
         return JSONResponse(ex.snippets(x_of(request)))
@@ -106,11 +88,9 @@ def create_app(explorer):
         return JSONResponse({"command": cmd})
 
     async def reference_start(request):
-        if not same_origin(request):
-            return JSONResponse({"error": "cross-origin request refused"}, status_code=403)
-        try:
-            body = await request.json()
-        except ValueError:
+        try:   # the body was read by Guard, at most max_body bytes
+            body = json.loads(await request.body())
+        except (ValueError, RecursionError):
             raise InputError("the request body must be JSON like {\"x\": [0.1, 0.2], \"spp\": 256}") from None
         if not isinstance(body, dict):
             raise InputError("the request body must be a JSON object")
@@ -122,7 +102,7 @@ def create_app(explorer):
         job_id = request.path_params["job"]
         job = ex.references.get(job_id) if _JOB_ID.match(job_id) else None
         if job is None:
-            raise InputError(f"unknown reference job {job_id!r}")
+            raise InputError(f"unknown reference job {show(job_id)}")
         return job
 
     async def reference_status(request):
@@ -135,64 +115,7 @@ def create_app(explorer):
         return Response(png, media_type="image/png")
 
     async def websocket(ws):
-        if not same_origin(ws):
-            await ws.close(code=1008)   # policy violation: a page of another site
-            return
-        await ws.accept()
-        pending, errors, wake = {}, [], asyncio.Event()   # only the worker sends
-
-        async def reader():
-            while True:
-                text = await ws.receive_text()
-                try:
-                    req = json.loads(text)
-                    kind = req["type"]
-                except (ValueError, KeyError, TypeError):
-                    errors.append({"type": "error", "error": f"bad message {text[:80]!r}: expected JSON with a 'type'"})
-                else:
-                    if kind in KINDS:
-                        pending[kind] = req   # replaces an older request of the same kind not yet answered
-                    else:
-                        errors.append({"type": "error", "seq": req.get("seq"),
-                                       "error": f"unknown message type {kind!r}; expected one of {KINDS}"})
-                wake.set()
-
-        async def worker():
-            while True:
-                await wake.wait()
-                wake.clear()
-                while errors or pending:
-                    if errors:
-                        await ws.send_bytes(pack(errors.pop(0)))
-                        continue
-                    kind = next(k for k in KINDS if k in pending)
-                    await ws.send_bytes(await _answer(kind, pending.pop(kind)))
-
-        async def _answer(kind, req):
-            seq = req.get("seq")
-            try:
-                x = ex.point(req.get("x"), "x")
-                if kind == "frame":
-                    exposure = ex.number(req.get("exposure"), "exposure", -20, 20, 0.0)
-                    data, meta = await run_in_threadpool(ex.frame, req.get("basis"), x, exposure,
-                                                         req.get("format", "jpeg"))
-                elif kind == "material":
-                    data, meta = b"", await run_in_threadpool(ex.material, x)
-                else:
-                    data, meta = await run_in_threadpool(ex.preview_table, x)
-            except BAD_REQUEST as e:
-                return pack({"type": "error", "kind": kind, "seq": seq, "error": str(e)})
-            return pack(dict(meta, type=kind, seq=seq, x=[float(v) for v in x]), data)
-
-        read, work = asyncio.ensure_future(reader()), asyncio.ensure_future(worker())
-        try:
-            await asyncio.wait([read, work], return_when=asyncio.FIRST_EXCEPTION)
-        finally:
-            read.cancel()
-            work.cancel()
-        for t in (work, read):   # a tab going away (also while an answer is sent) is no error
-            if t.done() and not t.cancelled() and not isinstance(t.exception(), (type(None),) + GONE):
-                raise t.exception()
+        await Session(ws, ex).run()   # the handshake passed Guard's allow-list
 
     async def bad_request(request, exc):
         return JSONResponse({"error": str(exc)}, status_code=400)
@@ -222,6 +145,7 @@ def create_app(explorer):
     handlers = {e: bad_request for e in BAD_REQUEST}
     handlers[HTTPException] = http_error
     handlers[Exception] = server_error
-    app = Starlette(routes=routes, exception_handlers=handlers)
+    app = Starlette(routes=routes, exception_handlers=handlers,
+                    middleware=[Middleware(Guard, allow=allow, max_body=max_body)])
     app.state.explorer = ex
     return app

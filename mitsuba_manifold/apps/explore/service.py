@@ -12,6 +12,9 @@ message naming the parameter, its value and what is expected.
 import base64
 import json
 import os
+import re
+import shlex
+import threading
 import time
 
 import numpy as np
@@ -20,10 +23,40 @@ from ...render import scenes
 from ..._util import checks as validate
 from ...basis.folder import Basis, scene_hash
 from ...basis.blend import DEFAULT_PRUNE, blend
+from ...data.database import cache_folder
 from ...errors import InputError
 from ...manifold.model import Manifold
 from . import encode, latentmap, material
 from .reference import MAX_SPP, References
+
+
+#: What a number may look like (as JSON writes them, plus nan/inf to name them in the error);
+#: Python's float() would also take "1_0", " 1 ", "١٢" and 4000-digit integers.
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,4})?|[+-]?(?:nan|inf|infinity)",
+                     re.IGNORECASE)
+#: Maps kept for repeated requests of the same slice.
+MAPS_KEPT = 8
+TOOLS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
+                     "tools")
+
+
+def show(value, limit=60):
+    """``repr`` of a value from a request, cut to ``limit`` characters (messages stay one line)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 5] + " ...>"
+
+
+def to_float(value):
+    """A number from a request as a float: ints, floats and number text only (no bools, no
+    "1_0"); an integer too large for a float gives +-1e308 (refused as out of range)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, str, np.integer, np.floating)):
+        raise TypeError(f"not a number: {show(value)}")
+    if isinstance(value, str) and not _NUMBER.fullmatch(value):
+        raise ValueError(f"not a number: {show(value)}")
+    try:
+        return float(value)
+    except OverflowError:
+        return 1e308 if value > 0 else -1e308
 
 
 def _names(folders):
@@ -97,8 +130,10 @@ class Explorer:
             basis.verify()   # every image in memory now: no disk read while dragging
             self.bases[name] = basis
         self.scenes = {name: _scene_of(b, scene) for name, b in self.bases.items()}
-        self.tables = material.TableStack(self.manifold, database) if load_tables else None
+        cache = cache_folder(next(iter(self.bases.values())).folder) if load_tables else None   # beside the basis
+        self.tables = material.TableStack(self.manifold, database, cache) if load_tables else None
         self.references = References()
+        self._maps, self._maps_lock = {}, threading.Lock()
 
     # ------------------------------------------------------------ requests
     def key(self, name):
@@ -106,7 +141,7 @@ class Explorer:
         if name is None or name == "":
             return next(iter(self.bases))
         if not isinstance(name, str) or name not in self.bases:
-            raise InputError(f"unknown basis {name!r}; this explorer serves {sorted(self.bases)}")
+            raise InputError(f"unknown basis {show(name)}; this explorer serves {sorted(self.bases)}")
         return name
 
     def basis(self, name):
@@ -123,20 +158,20 @@ class Explorer:
         elif isinstance(value, (list, tuple)):
             parts = list(value)
         else:
-            raise InputError(f"{what} must be {q} numbers like '0.1,-0.4' or a material name, got {value!r}")
+            raise InputError(f"{what} must be {q} numbers like '0.1,-0.4' or a material name, got {show(value)}")
+        if len(parts) != q:
+            if isinstance(value, str) and len(parts) == 1 and not _NUMBER.fullmatch(parts[0]):
+                raise InputError(f"{what}: unknown material {show(value)} (not one of the manifold's "
+                                 f"{self.manifold.n} materials) and not numbers")
+            raise InputError(f"{what} has {len(parts)} number(s); the manifold is {q}-dimensional: give {q}")
         try:
-            arr = np.array([float(v) for v in parts], dtype=np.float64)
+            arr = np.array([to_float(v) for v in parts], dtype=np.float64)
         except (TypeError, ValueError):
-            if isinstance(value, str) and len(parts) == 1:
-                raise InputError(f"{what}: unknown material {value!r} (not one of the manifold's "
-                                   f"{self.manifold.n} materials) and not numbers") from None
-            raise InputError(f"{what} must be {q} numbers, got {value!r}") from None
-        if arr.size != q:
-            raise InputError(f"{what} has {arr.size} number(s); the manifold is {q}-dimensional: give {q}")
+            raise InputError(f"{what} must be {q} numbers (like 0.25 or -1.5e-2), got {show(value)}") from None
         if not np.isfinite(arr).all():
-            raise InputError(f"{what} contains NaN or Inf: {value!r}")
+            raise InputError(f"{what} contains NaN or Inf: {show(value)}")
         if np.abs(arr).max() > 1e6:
-            raise InputError(f"{what} = {value!r} is absurdly far from the latent points (|x| > 1e6)")
+            raise InputError(f"{what} = {show(value)} is absurdly far from the latent points (|x| > 1e6)")
         return arr
 
     @staticmethod
@@ -144,9 +179,13 @@ class Explorer:
         if value is None or value == "":
             return default
         try:
-            return validate.finite(what, value, lo, hi)
-        except InputError as e:
-            raise InputError(str(e)) from None
+            v = to_float(value)
+        except (TypeError, ValueError):
+            raise InputError(f"{what} must be a number, got {show(value)}") from None
+        try:
+            return validate.finite(what, v, lo, hi)
+        except InputError:
+            raise InputError(f"{what} must be a finite number in [{lo:g}, {hi:g}], got {show(value)}") from None
 
     def blend(self, name, x):
         """Linear image (H, W, 3) of latent point ``x`` and the blend's info."""
@@ -155,7 +194,7 @@ class Explorer:
     def frame(self, name, x, exposure=0.0, fmt="jpeg"):
         """Encoded frame of ``x``: ``(bytes, meta)``; meta has the size and the times in ms."""
         if fmt not in encode.FORMATS:
-            raise InputError(f"format must be one of {encode.FORMATS}, got {fmt!r}")
+            raise InputError(f"format must be one of {encode.FORMATS}, got {show(fmt)}")
         t0 = time.perf_counter()
         img, info = self.blend(name, x)
         t1 = time.perf_counter()
@@ -202,26 +241,50 @@ class Explorer:
     @staticmethod
     def _bounds(text):
         try:
-            b = [float(v) for v in str(text).replace(",", " ").split()]
-        except ValueError:
+            b = [to_float(v) for v in (str(text).replace(",", " ").split() if isinstance(text, str) else text)]
+        except (TypeError, ValueError):
             b = []
         if (len(b) != 4 or not np.isfinite(b).all() or max(map(abs, b)) > 1e6 or not b[0] < b[1]
                 or not b[2] < b[3] or min(b[1] - b[0], b[3] - b[2]) < 1e-6):
             raise InputError(f"extent must be 'x_min,x_max,y_min,y_max' (finite, min < max, span >= 1e-6), "
-                               f"got {text!r}")
+                             f"got {show(text)}")
         return tuple(b)
 
     def _dims(self, dims):
         q = self.manifold.q
         if isinstance(dims, str):
             dims = [d for d in dims.replace(",", " ").split() if d]
-        try:
-            dims = tuple(int(d) for d in dims)
-        except (TypeError, ValueError):
-            raise InputError(f"dims must be two latent coordinates like '0,1', got {dims!r}") from None
+        ok = isinstance(dims, (list, tuple)) and all(
+            (isinstance(d, str) and d.isascii() and d.isdigit() and len(d) < 4)
+            or (isinstance(d, int) and not isinstance(d, bool)) for d in dims)
+        if not ok:
+            raise InputError(f"dims must be two latent coordinates like '0,1', got {show(dims)}")
+        dims = tuple(int(d) for d in dims)
         if len(dims) != 2 or dims[0] == dims[1] or not all(0 <= d < q for d in dims):
-            raise InputError(f"dims must be two different coordinates in 0..{q - 1}, got {list(dims)}")
+            raise InputError(f"dims must be two different coordinates in 0..{q - 1}, got {show(list(dims))}")
         return dims
+
+    def map_png(self, dims, center, bounds=None):
+        """PNG bytes and description of the map of the slice through ``center``.
+
+        The map depends on ``center`` only through the coordinates not in ``dims`` (the
+        slice): the last few maps are kept by slice, so moving within the slice (every move
+        for ``q = 2``) costs nothing."""
+        dims = self._dims(dims)
+        bounds = self._bounds(bounds) if bounds is not None and bounds != "" else None
+        c = np.asarray(center, dtype=np.float64)
+        key = (dims, tuple(float(v) for k, v in enumerate(c) if k not in dims), bounds)
+        with self._maps_lock:
+            if key in self._maps:
+                self._maps[key] = self._maps.pop(key)   # most recently used last
+                return self._maps[key]
+        m = latentmap.render(self.manifold, c, dims, bounds=bounds)
+        out = (encode.png_bytes(m.image), dict(m.info(), slice=[list(dims), list(key[1])]))
+        with self._maps_lock:
+            self._maps[key] = out
+            while len(self._maps) > MAPS_KEPT:
+                self._maps.pop(next(iter(self._maps)))
+        return out
 
     def snippets(self, x):
         """``<bsdf>`` XML and ``mi.load_dict`` Python for ``x``."""
@@ -249,8 +312,10 @@ class Explorer:
         if ends[0] == ends[1]:
             raise InputError("the path's two ends are the same point; choose two different ends")
         steps = int(self.number(steps, "steps", 2, 1000, 20))
-        return (f"python3 tools/blend.py --basis {basis.folder} --manifold {self.manifold_path} "
-                f"--path {ends[0]} {ends[1]} --steps {steps} --out path.exr --png")
+        tool = os.path.join(TOOLS, "blend.py")   # absolute: the command works pasted in any folder
+        head = ["python3", tool] if os.path.isfile(tool) else ["mitsuba-manifold", "blend"]
+        return shlex.join(head + ["--basis", os.path.abspath(basis.folder), "--manifold", self.manifold_path,
+                                  "--path", ends[0], ends[1], "--steps", str(steps), "--out", "path.exr", "--png"])
 
     def info(self):
         m = self.manifold
@@ -276,7 +341,7 @@ class Explorer:
     def reference_image(self, job_id, which, exposure=0.0):
         job = self.references.get(job_id)
         if job is None:
-            raise InputError(f"unknown reference job {job_id!r}")
+            raise InputError(f"unknown reference job {show(job_id)}")
         if job.state != "done":
             raise InputError(f"reference job {job_id} is {job.state}, not done")
         if which == "error":
@@ -284,8 +349,9 @@ class Explorer:
             rgb, _ = false_colour(error_image(job.images["blend"], job.images["reference"]))
             return encode.png_bytes(rgb)
         if which not in job.images:
-            raise InputError(f"image must be 'blend', 'reference' or 'error', got {which!r}")
+            raise InputError(f"image must be 'blend', 'reference' or 'error', got {show(which)}")
         return encode.png_bytes(encode.tonemap(job.images[which], exposure))
 
-    def close(self):
-        self.references.shutdown()
+    def close(self, wait=0.0):
+        """Stop the reference renders (waits up to ``wait`` s); returns whether none still runs."""
+        return self.references.shutdown(wait)

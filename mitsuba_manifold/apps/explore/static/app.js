@@ -6,9 +6,12 @@ const $ = (id) => document.getElementById(id);
 const fmtNum = (v, d = 3) => (Math.abs(v) >= 1e4 || (Math.abs(v) < 1e-3 && v !== 0)) ? v.toExponential(2) : v.toFixed(d);
 const LOCAL = ["127.0.0.1", "localhost", "[::1]"].includes(location.hostname);
 
+const NUMBER = /^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$/;   // as the server takes them (no "1_0")
+
 const state = {
   info: null, x: null, basis: null, exposure: 0, dims: [0, 1], map: null, mapImage: null,
-  hover: -1, a: null, b: null, displayed: null, material: null, errors: [],
+  hover: -1, a: null, b: null, displayed: null, material: null, snippet: null, errors: [], zoom: null,
+  mapKey: null, moves: 0, dragging: false, liveUntil: 0,
   // raw RGBA on this machine (exact, no encoding); JPEG when the page is viewed from elsewhere
   format: new URLSearchParams(location.search).get("format") || (LOCAL ? "rgba" : "jpeg"),
 };
@@ -31,110 +34,139 @@ function setStatus(text, error = false) {
   if (error) state.errors.push(text);
 }
 
-// One websocket; per kind at most one request in flight and the newest one waiting.
-class Channel {
-  constructor(onMessage) {
-    this.onMessage = onMessage;
-    this.seq = 0;
-    this.inflight = {};
-    this.waiting = {};
-    this.connect();
-  }
-  connect() {
-    const proto = location.protocol === "https:" ? "wss" : "ws";
-    this.ws = new WebSocket(`${proto}://${location.host}/ws`);
-    this.ws.binaryType = "arraybuffer";
-    this.ws.onopen = () => { setStatus("connected"); this.inflight = {}; for (const k in this.waiting) this.flush(k); };
-    this.ws.onclose = () => { setStatus("disconnected from the server — retrying…", true); setTimeout(() => this.connect(), 1000); };
-    this.ws.onmessage = (ev) => {
-      const view = new DataView(ev.data);
-      const n = view.getUint32(0, true);
-      const meta = JSON.parse(new TextDecoder().decode(new Uint8Array(ev.data, 4, n)));
-      const payload = ev.data.slice(4 + n);
-      const kind = meta.type === "error" ? meta.kind : meta.type;
-      if (kind) { delete this.inflight[kind]; this.flush(kind); }
-      if (this.sent && meta.seq in this.sent) { meta.round_trip_ms = performance.now() - this.sent[meta.seq]; delete this.sent[meta.seq]; }
-      this.onMessage(meta, payload);
-    };
-  }
-  request(kind, body) { this.waiting[kind] = body; this.flush(kind); }
-  flush(kind) {
-    if (this.inflight[kind] || !this.waiting[kind] || this.ws.readyState !== WebSocket.OPEN) return;
-    const body = Object.assign({ type: kind, seq: ++this.seq }, this.waiting[kind]);
-    delete this.waiting[kind];
-    this.inflight[kind] = body.seq;
-    this.sent = this.sent || {};
-    this.sent[body.seq] = performance.now();
-    this.ws.send(JSON.stringify(body));
-  }
-  pending() { return Object.keys(this.inflight).length + Object.keys(this.waiting).length; }
-}
-
 let channel, preview;
+const sameX = (a, b) => !!a && !!b && a.length === b.length && a.every((v, k) => v === b[k]);
 
 function onMessage(meta, payload) {
-  if (meta.type === "error") { setStatus(meta.error, true); return; }
+  if (meta.type === "error") { setStatus((meta.kind ? meta.kind + ": " : "") + meta.error, true); return; }
   if (meta.type === "frame") drawFrame(meta, payload);
   else if (meta.type === "material") showMaterial(meta);
-  else if (meta.type === "table" && preview) { preview.setTable(payload, meta); state.previewX = meta.x; }
+  else if (meta.type === "table" && preview) {
+    if (!sameX(meta.x, state.previewX)) preview.setTable(payload, meta);   // redrawn only when it changed
+    state.previewX = meta.x;
+  }
+  else if (meta.type === "snippet") showSnippet(meta);
+  else if (meta.type === "map") showMap(meta, payload);
+  else if (meta.type === "path") showPath(meta);
 }
 
 // ------------------------------------------------------------------ scene frames
 async function drawFrame(meta, payload) {
   const c = $("scene");
+  let bmp = null;
+  if (meta.format !== "rgba") bmp = await createImageBitmap(new Blob([payload], { type: "image/" + meta.format }));
+  if (state.displayed && state.displayed.seq > meta.seq) return;   // a newer frame was drawn meanwhile
   if (c.width !== meta.width || c.height !== meta.height) { c.width = meta.width; c.height = meta.height; }
   const ctx = c.getContext("2d");
-  if (meta.format === "rgba") {
-    ctx.putImageData(new ImageData(new Uint8ClampedArray(payload), meta.width, meta.height), 0, 0);
-  } else {
-    const bmp = await createImageBitmap(new Blob([payload], { type: "image/" + meta.format }));
-    ctx.drawImage(bmp, 0, 0);
-  }
-  state.displayed = { x: meta.x, seq: meta.seq, exposure: state.exposure, basis: state.basis };
+  if (bmp) ctx.drawImage(bmp, 0, 0);
+  else ctx.putImageData(new ImageData(new Uint8ClampedArray(payload), meta.width, meta.height), 0, 0);
+  state.displayed = { x: meta.x, seq: meta.seq, exposure: meta.exposure, basis: meta.basis, at: performance.now() };
+  if (window.explore.trace) window.explore.trace.push({ x: meta.x, at: state.displayed.at });   // tools/bench.py explore --browser
   c.dataset.x = meta.x.join(",");
-  $("timing").textContent = `${meta.n_images} images · blend ${meta.blend_ms.toFixed(1)} + tonemap ` +
+  const n = meta.n_images;
+  $("timing").textContent = `${n} image${n === 1 ? "" : "s"} · blend ${meta.blend_ms.toFixed(1)} + tonemap ` +
     `${meta.tonemap_ms.toFixed(1)} + ${meta.format} ${meta.encode_ms.toFixed(1)} = ${meta.total_ms.toFixed(1)} ms on the server` +
     (meta.round_trip_ms ? ` · ${meta.round_trip_ms.toFixed(0)} ms round trip` : "");
 }
 
-function requestAll() {
-  const x = state.x;
-  channel.request("frame", { x, exposure: state.exposure, basis: state.basis, format: state.format });
-  channel.request("material", { x });
-  if (state.info.tables === "ready") channel.request("table", { x });
+// What the map of the current point shows: the slice (the coordinates off the map's axes,
+// for q > 2), the axes and the zoom. Moving within the slice needs no new map.
+function sliceKey() {
+  const off = state.x.filter((_, k) => !state.dims.includes(k));
+  return JSON.stringify([state.dims, off, state.zoom]);
 }
 
-function setX(x, opts = {}) {
+function frameRequest() { return { x: state.x, exposure: state.exposure, basis: state.basis, format: state.format }; }
+
+// While a drag runs (pointer down on the map, a slider moving) the scene follows every move;
+// the panel (material, snippet) and the sphere's table follow at most every LIVE[kind] ms, so
+// that they do not take the frames' time; when the drag rests (REST ms) the kinds not yet
+// asked for the final point are asked for.
+const LIVE = { table: 60, material: 180, snippet: 250 }, REST = 120;
+const asked = {};   // kind -> [time, x] of its last request
+
+function live() { return state.dragging || performance.now() < state.liveUntil; }
+
+// One message per move: every kind of answer the point needs (the map only for a new slice).
+function sendMove(resting = false) {
+  moveQueued = false;
+  const now = performance.now(), dragging = !resting && live(), want = [];
+  for (const kind of ["frame", "table", "material", "snippet"]) {
+    if (kind === "table" && state.info.tables !== "ready") continue;
+    const last = asked[kind];
+    if (last && sameX(last[1], state.x)) continue;
+    if (!dragging || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x]; }
+  }
+  const key = sliceKey();
+  if (key !== state.mapKey) { state.mapKey = key; want.push("map"); }
+  if (preview) preview.setFast(state.dragging || dragging);   // a pointer held still keeps the drag's resolution
+  owe(dragging);
+  if (!want.length) return;
+  state.moves++;
+  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom }, frameRequest()), want);
+}
+function owe(dragging) {   // kinds not asked for the point shown yet (counted by channel.pending())
+  const kinds = ["material", "snippet"].concat(state.info.tables === "ready" ? ["table"] : []);
+  channel.owed = kinds.filter((k) => !asked[k] || !sameX(asked[k][1], state.x)).length;
+  clearTimeout(state.restTimer);
+  if (dragging) state.restTimer = setTimeout(() => sendMove(true), REST);   // no move for REST ms: resting
+}
+let moveQueued = false;
+function scheduleMove() {   // at most one move per displayed frame of the browser
+  if (moveQueued) return;
+  moveQueued = true;
+  requestAnimationFrame(() => { if (moveQueued) sendMove(); });
+  setTimeout(() => { if (moveQueued) sendMove(); }, 100);   // rAF is paused in hidden tabs
+}
+function requestAll() { state.mapKey = null; for (const k in asked) delete asked[k]; scheduleMove(); }
+function requestMap() {
+  state.mapKey = sliceKey();
+  channel.send({ type: "map", x: state.x, dims: state.dims, extent: state.zoom }, ["map"]);
+}
+
+function setX(x) {
   state.x = x.slice();
-  requestAll();
+  scheduleMove();
   // the point (and basis) in the address: a reload or a shared link comes back here
   history.replaceState(null, "", "#x=" + state.x.join(",") +
                       (state.basis ? "&basis=" + encodeURIComponent(state.basis) : ""));
+  updateSavePng();
+  updateSliders();
+  showPoint();
+  drawMap();
+}
+
+function updateSavePng() {
   $("save-png").href = "/api/frame?" + new URLSearchParams({ x: state.x.join(","), basis: state.basis,
                                                               exposure: state.exposure, format: "png" });
-  updateSliders();
-  drawMap();
-  if (state.info.q > 2 && !opts.keepMap) scheduleMap();
+}
+
+// The point shown: its name (a measured material) or coordinates, at once; the facts below
+// (weights, albedo, ...) are marked stale until the answer for this point arrives.
+function showPoint() {
+  const name = materialName(state.x);
+  $("material-name").textContent = name ? name : "x = (" + state.x.map((v) => fmtNum(v)).join(", ") + ")";
+  $("material-name").dataset.x = state.x.join(",");
+  $("material-panel").classList.toggle("stale", !state.material || !sameX(state.material.x, state.x));
+  $("use-box").classList.toggle("stale", !state.snippet || !sameX(state.snippet.x, state.x));
 }
 
 // ------------------------------------------------------------------ latent map
-let mapTimer = null, mapSeq = 0;
-function scheduleMap() { clearTimeout(mapTimer); mapTimer = setTimeout(loadMap, 180); }
-
-async function loadMap() {
-  const q = new URLSearchParams({ dims: state.dims.join(","), x: state.x.join(",") });
-  if (state.zoom) q.set("extent", state.zoom.join(","));
-  const id = ++mapSeq;
-  try {
-    const m = await (await api("/api/map?" + q)).json();
-    if (id !== mapSeq) return;   // a newer map is on its way
-    const img = new Image();
-    img.onload = () => { state.map = m; state.mapImage = img; state.mapImageExtent = m.extent; drawMap(); };
-    img.src = m.png;
-    $("ramp").style.background = `linear-gradient(to right, ${m.colormap.join(",")})`;
-    $("ramp-lo").textContent = m.albedo_range[0].toFixed(2);
-    $("ramp-hi").textContent = m.albedo_range[1].toFixed(2);
-  } catch (e) { setStatus("map: " + e.message, true); }
+function showMap(meta, payload) {
+  const url = URL.createObjectURL(new Blob([payload], { type: "image/png" }));
+  const img = new Image();
+  img.onload = () => {
+    if (!channel.isCurrent("map", meta.seq) && state.map && state.map.seq > meta.seq) { URL.revokeObjectURL(url); return; }
+    if (state.map && state.map.png) URL.revokeObjectURL(state.map.png);
+    state.map = Object.assign({}, meta, { png: url, extent: state.zoom || meta.extent });
+    state.mapImage = img; state.mapImageExtent = meta.extent;
+    if (!state.zoom) state.fullExtent = meta.extent;
+    drawMap();
+  };
+  img.src = url;
+  $("ramp").style.background = `linear-gradient(to right, ${meta.colormap.join(",")})`;
+  $("ramp-lo").textContent = meta.albedo_range[0].toFixed(2);
+  $("ramp-hi").textContent = meta.albedo_range[1].toFixed(2);
 }
 
 function toCanvas(p) {
@@ -160,7 +192,7 @@ function nearestPoint(px, py, radius = 9) {
 
 function drawMap() {
   const c = $("map"), ctx = c.getContext("2d");
-  if (!state.map) return;
+  if (!state.map || !state.x) return;
   ctx.imageSmoothingEnabled = true;
   ctx.fillStyle = "#101216"; ctx.fillRect(0, 0, c.width, c.height);
   const [ix0, ix1, iy0, iy1] = state.mapImageExtent || state.map.extent, [x0, x1, y0, y1] = state.map.extent;
@@ -200,18 +232,32 @@ function drawMap() {
 
 function bindMap() {
   const c = $("map"), tip = $("tooltip");
-  let dragging = false;
+  let dragging = false, lastDown = null;
   const pos = (ev) => {
     const r = c.getBoundingClientRect();
     return [(ev.clientX - r.left) * c.width / r.width, (ev.clientY - r.top) * c.height / r.height, r];
   };
-  const pick = (ev, snap) => {
+  // Near a measured material the point snaps to it. A click takes the material's whole point
+  // (for q > 2 the map re-slices through it at once); while dragging, only the map's two
+  // coordinates snap, so the point stays in the slice the map shows.
+  const pick = (ev, whole) => {
     const [px, py] = pos(ev);
-    const i = snap ? nearestPoint(px, py) : -1;
-    setX(i >= 0 ? state.info.latent[i] : fromCanvas(px, py), { keepMap: true });
+    const i = nearestPoint(px, py);
+    let x = fromCanvas(px, py);
+    if (i >= 0 && whole) x = state.info.latent[i].slice();
+    else if (i >= 0) for (const d of state.dims) x[d] = state.info.latent[i][d];
+    setX(x);
   };
-  c.addEventListener("pointerdown", (ev) => { dragging = true; c.setPointerCapture(ev.pointerId); pick(ev, true); });
+  c.addEventListener("pointerdown", (ev) => {
+    if (!state.map) return;
+    const now = performance.now();
+    const again = lastDown && now - lastDown.t < 500 && Math.hypot(ev.clientX - lastDown.cx, ev.clientY - lastDown.cy) < 6;
+    // the point before a press (before the first press of a double-click: where dblclick puts it back)
+    lastDown = { x: again ? lastDown.x : state.x.slice(), t: now, cx: ev.clientX, cy: ev.clientY };
+    dragging = state.dragging = true; c.setPointerCapture(ev.pointerId); pick(ev, true);
+  });
   c.addEventListener("pointermove", (ev) => {
+    if (!state.map) return;
     const [px, py, r] = pos(ev);
     const i = nearestPoint(px, py);
     if (i !== state.hover) { state.hover = i; drawMap(); }
@@ -219,10 +265,11 @@ function bindMap() {
       tip.hidden = false; tip.textContent = state.info.names[i];
       tip.style.left = (px * r.width / c.width + 12) + "px"; tip.style.top = (py * r.height / c.height - 10) + "px";
     } else tip.hidden = true;
-    if (dragging) pick(ev, true);
+    if (dragging) pick(ev, false);
   });
-  c.addEventListener("pointerup", () => { dragging = false; if (state.info.q > 2) scheduleMap(); });
-  // wheel: zoom about the pointer (the map is rendered again for the new extent); double-click: whole map
+  c.addEventListener("pointerup", () => { if (dragging) { dragging = state.dragging = false; sendMove(true); } });
+  // wheel: zoom about the pointer (the map is rendered again for the new extent); double-click:
+  // the whole map, and the point goes back to where it was before the double-click's first press
   c.addEventListener("wheel", (ev) => {
     ev.preventDefault();
     if (!state.map) return;
@@ -231,9 +278,14 @@ function bindMap() {
     const cx = x0 + px / c.width * (x1 - x0), cy = y0 + (1 - py / c.height) * (y1 - y0);
     state.zoom = [cx - (cx - x0) * f, cx + (x1 - cx) * f, cy - (cy - y0) * f, cy + (y1 - cy) * f];
     state.map = Object.assign({}, state.map, { extent: state.zoom });   // overlay follows at once
-    drawMap(); scheduleMap();
+    drawMap(); requestMap();
   }, { passive: false });
-  c.addEventListener("dblclick", () => { state.zoom = null; loadMap(); });
+  c.addEventListener("dblclick", () => {
+    state.zoom = null;
+    if (state.fullExtent) state.map = Object.assign({}, state.map, { extent: state.fullExtent });
+    if (lastDown && !sameX(lastDown.x, state.x)) setX(lastDown.x);
+    requestMap(); drawMap();
+  });
   c.addEventListener("pointerleave", () => { tip.hidden = true; if (state.hover >= 0) { state.hover = -1; drawMap(); } });
 }
 
@@ -248,23 +300,23 @@ function buildSliceControls() {
     sel.onchange = () => {
       const d = [+$("dim0").value, +$("dim1").value];
       if (d[0] === d[1]) { sel.value = state.dims[k]; return; }
-      state.dims = d; buildSliders(); loadMap();
+      state.dims = d; state.zoom = null; buildSliders(); requestMap();
     };
   }
   buildSliders();
 }
 
 function buildSliders() {
-  const box = $("sliders"), lat = state.info.latent;
+  const box = $("sliders");
   box.innerHTML = "";
   for (let d = 0; d < state.info.q; d++) {
     if (state.dims.includes(d)) continue;
-    const vals = lat.map((p) => p[d]), lo = Math.min(...vals), hi = Math.max(...vals), pad = 0.25 * (hi - lo || 1);
+    const [lo, hi] = coordRange(d);
     const row = document.createElement("div"); row.className = "row";
-    row.innerHTML = `<label>x${d}</label><input type="range" data-dim="${d}" min="${lo - pad}" max="${hi + pad}" step="${(hi - lo + 2 * pad) / 500}"><span class="end"></span>`;
+    row.innerHTML = `<label>x${d}</label><input type="range" data-dim="${d}" min="${lo}" max="${hi}" step="${(hi - lo) / 500}"><span class="end"></span>`;
     const input = row.querySelector("input");
     input.value = state.x[d];
-    input.oninput = () => { const x = state.x.slice(); x[d] = +input.value; setX(x); };
+    input.oninput = () => { const x = state.x.slice(); x[d] = +input.value; state.liveUntil = performance.now() + REST; setX(x); };
     box.appendChild(row);
   }
   updateSliders();
@@ -286,8 +338,7 @@ function materialName(x) {
 
 function showMaterial(m) {
   state.material = m;
-  const name = materialName(m.x);
-  $("material-name").textContent = name ? name : "x = (" + m.x.map((v) => fmtNum(v)).join(", ") + ")";
+  showPoint();
   if (m.albedo) {
     const a = m.albedo;
     $("albedo-swatch").style.background = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
@@ -317,22 +368,23 @@ function showMaterial(m) {
   $("weights").innerHTML = "";
   for (const w of m.weights.filter((w) => Math.abs(w.w) > 5e-4)) {
     const half = 50 * Math.abs(w.w) / max;
-    const name = document.createElement("div"); name.className = "name"; name.textContent = w.name; name.onclick = () => goTo(w.name);
+    const name = document.createElement("div"); name.className = "name" + (w.kept ? " kept" : " pruned");
+    name.textContent = w.name; name.onclick = () => goTo(w.name);
+    name.title = w.kept ? "kept: this material's image is in the blend" : "dropped by pruning (its share is spread over the kept ones)";
     const track = document.createElement("div"); track.className = "track";
-    const bar = document.createElement("div"); bar.className = "bar" + (w.w < 0 ? " neg" : "");
+    const bar = document.createElement("div"); bar.className = "bar" + (w.w < 0 ? " neg" : "") + (w.kept ? "" : " pruned");
     bar.style.left = (w.w < 0 ? 50 - half : 50) + "%"; bar.style.width = half + "%";
     track.appendChild(bar);
     const val = document.createElement("div"); val.className = "val"; val.textContent = w.w.toFixed(3);
     $("weights").append(name, track, val);
   }
-  $("weights-note").textContent = `${m.n_kept} of ${state.info.names.length} kept after pruning` +
+  $("weights-note").textContent = `${m.n_kept} of ${state.info.names.length} kept after pruning (● kept, ○ dropped)` +
     (m.negative_weight > 1e-6 ? ` · negative weight ${m.negative_weight.toFixed(2)}` : "");
   if (m.slice) {
     $("slice").src = m.slice.png;
     $("slice-hi").textContent = m.slice.log10_range[1].toFixed(1);
     $("slice-lo").textContent = m.slice.log10_range[0].toFixed(1);
   }
-  scheduleSnippet();
 }
 
 function escapeHtml(s) { return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
@@ -340,15 +392,31 @@ function escapeHtml(s) { return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&am
 function goTo(name) { setX(state.info.latent[state.info.names.indexOf(name)]); }
 
 // ------------------------------------------------------------------ snippets
-let snippetTimer = null, snippet = null;
-function scheduleSnippet() { clearTimeout(snippetTimer); snippetTimer = setTimeout(loadSnippet, 120); }
-async function loadSnippet() {
-  try {
-    snippet = await (await api("/api/snippet?x=" + state.x.join(","))).json();
-    $("snippet").textContent = snippet.xml;
-  } catch (e) { setStatus("snippet: " + e.message, true); }
+function showSnippet(sn) {
+  state.snippet = sn;
+  $("snippet").textContent = sn.xml;
+  $("snippet").dataset.x = sn.x.join(",");
+  showPoint();
+  for (const w of snippetWaiters.splice(0)) w();
+}
+const snippetWaiters = [];
+// The snippet of the point shown: the one at hand when it is for state.x, else asked for now.
+async function currentSnippet() {
+  while (!state.snippet || !sameX(state.snippet.x, state.x)) {
+    const seq = channel.send({ type: "snippet", x: state.x }, ["snippet"]);
+    await new Promise((resolve) => { snippetWaiters.push(resolve); setTimeout(resolve, 5000); });
+    if (channel.isCurrent("snippet", seq) && !(state.snippet && sameX(state.snippet.x, state.x))) {
+      throw new Error("no snippet for the current point from the server");
+    }
+  }
+  return state.snippet;
+}
+async function copySnippet(which, what) {
+  try { const sn = await currentSnippet(); copy(sn[which], what); }
+  catch (e) { setStatus("snippet: " + e.message, true); }
 }
 async function copy(text, what) {
+  state.copied = text;
   try { await navigator.clipboard.writeText(text); $("copied").textContent = what + " copied"; }
   catch (e) {
     const ta = document.createElement("textarea"); ta.value = text; document.body.appendChild(ta); ta.select();
@@ -371,16 +439,19 @@ function setEnd(which) {
 function updateScrub() { $("scrub-t").textContent = "t = " + (+$("scrub").value / 1000).toFixed(2); }
 function scrub() {
   updateScrub();
+  state.liveUntil = performance.now() + REST;
   const t = +$("scrub").value / 1000;
   setX(state.a.x.map((v, k) => (1 - t) * v + t * state.b.x[k]));
 }
-async function exportPath() {
-  const q = new URLSearchParams({ basis: state.basis, steps: $("steps").value,
-    a: state.a.name || state.a.x.join(","), b: state.b.name || state.b.x.join(",") });
-  try {
-    const r = await (await api("/api/path?" + q)).json();
-    $("path-cmd").hidden = false; $("path-cmd").textContent = r.command; copy(r.command, "command");
-  } catch (e) { setStatus("path: " + e.message, true); }
+function exportPath() {
+  state.pathSeq = channel.send({ type: "path", basis: state.basis, steps: $("steps").value,
+    a: state.a.name || state.a.x, b: state.b.name || state.b.x }, ["path"]);
+  $("path-cmd").classList.add("stale");
+}
+function showPath(meta) {
+  if (meta.seq !== state.pathSeq) return;   // for ends or steps changed since
+  $("path-cmd").hidden = false; $("path-cmd").classList.remove("stale");
+  $("path-cmd").textContent = meta.command; copy(meta.command, "command");
 }
 
 // ------------------------------------------------------------------ reference
@@ -426,7 +497,7 @@ async function main() {
   $("basis").onchange = () => { state.basis = $("basis").value; sceneInfo(); requestAll(); };
   sceneInfo();
   preview = new MaterialPreview($("sphere"), $("sphere-msg"));
-  channel = new Channel(onMessage);
+  channel = new Channel(onMessage, () => state.x && requestAll());
   // start at the measured material closest to the centre of the data
   const mean = info.latent[0].map((_, k) => info.latent.reduce((s, p) => s + p[k], 0) / info.latent.length);
   let best = 0, bd = Infinity;
@@ -436,28 +507,50 @@ async function main() {
   if (hash.get("basis") && info.bases.some((b) => b.name === hash.get("basis"))) {
     state.basis = hash.get("basis"); $("basis").value = state.basis; sceneInfo();
   }
-  const linked = (hash.get("x") || "").split(",").map(Number);
-  if (linked.length === info.q && linked.every(Number.isFinite)) state.x = linked;
+  if (hash.get("x")) state.x = linkedPoint(hash.get("x")) || state.x;
   buildSliceControls();
   bindMap();
-  await loadMap();
   setX(state.x);
   $("exposure").oninput = () => {
     state.exposure = +$("exposure").value;
     $("exposure-val").textContent = state.exposure.toFixed(1) + " EV";
     preview && preview.setExposure(state.exposure);
-    $("save-png").href = "/api/frame?" + new URLSearchParams({ x: state.x.join(","), basis: state.basis,
-                                                                exposure: state.exposure, format: "png" });
-    channel.request("frame", { x: state.x, exposure: state.exposure, basis: state.basis, format: state.format });
+    updateSavePng();
+    channel.send(Object.assign({ type: "frame" }, frameRequest()), ["frame"]);
+  };
+  for (const n of [...info.names].sort()) $("material-names").appendChild(new Option(n));
+  $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there
+    const v = $("search").value.trim(), hit = info.names.find((n) => n.toLowerCase() === v.toLowerCase());
+    if (hit) { goTo(hit); $("search").blur(); }
   };
   $("set-a").onclick = () => setEnd("a");
   $("set-b").onclick = () => setEnd("b");
   $("scrub").oninput = scrub;
   $("export-path").onclick = exportPath;
   $("ref-start").onclick = startReference;
-  $("copy-xml").onclick = () => snippet && copy(snippet.xml, "XML");
-  $("copy-py").onclick = () => snippet && copy(snippet.python, "Python");
+  $("copy-xml").onclick = () => copySnippet("xml", "XML");
+  $("copy-py").onclick = () => copySnippet("python", "Python");
   if (info.tables === "loading") pollTables();
+}
+
+// The point of a shared link (#x=a,b,...: numbers, or a material's name). A point outside the
+// latent data's range (that of the sliders) is clamped into it; anything else is refused.
+// Either way the page says so and stays usable.
+function linkedPoint(text) {
+  const { q, names, latent } = state.info;
+  if (names.includes(text)) return latent[names.indexOf(text)].slice();
+  const parts = text.split(",");
+  if (parts.length !== q || !parts.every((p) => NUMBER.test(p.trim()))) {
+    setStatus(`the link's point x=${text.slice(0, 60)} is not ${q} numbers nor a material name: ignored`, true);
+    return null;
+  }
+  const x = parts.map(Number), clamped = x.map((v, k) => { const [lo, hi] = coordRange(k); return Math.min(hi, Math.max(lo, v)); });
+  if (!sameX(x, clamped)) setStatus(`the link's point x=${text.slice(0, 60)} is outside the latent space shown: moved inside`, true);
+  return clamped;
+}
+function coordRange(k) {
+  const vals = state.info.latent.map((p) => p[k]), lo = Math.min(...vals), hi = Math.max(...vals), pad = 0.25 * (hi - lo || 1);
+  return [lo - pad, hi + pad];
 }
 
 function sceneInfo() {
@@ -474,5 +567,5 @@ async function pollTables() {
   requestAll();
 }
 
-window.explore = { state, setX, setEnd, get channel() { return channel; }, get preview() { return preview; } };
+window.explore = { state, setX, setEnd, currentSnippet, get channel() { return channel; }, get preview() { return preview; } };
 main();

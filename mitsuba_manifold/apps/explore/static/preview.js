@@ -94,6 +94,7 @@ class MaterialPreview {
     this.key = [0.55, 0.6, 0.58];
     this.exposure = 0;
     this.layout = null;
+    this.draws = 0;   // sphere redraws (tools/bench.py explore --browser)
     this.gl = canvas.getContext("webgl2", { antialias: true, preserveDrawingBuffer: true });
     if (!this.gl) {
       this.fail("WebGL 2 is not available in this browser: the preview sphere is off; the rest of the page works.");
@@ -170,6 +171,17 @@ class MaterialPreview {
 
   setExposure(ev) { this.exposure = ev; this.draw(); }
 
+  // While a drag runs the sphere is drawn at half resolution (a quarter of the fragments: the
+  // software rasteriser of a machine without a GPU keeps up), at full resolution once it rests.
+  setFast(fast) {
+    if (!this.gl) return;
+    if (!this.full) this.full = this.canvas.width;
+    const size = fast ? Math.round(this.full / 2) : this.full;
+    if (this.canvas.width === size) return;
+    this.canvas.width = this.canvas.height = size;
+    this.draw();
+  }
+
   bindLight() {
     const move = (ev) => {
       const r = this.canvas.getBoundingClientRect();
@@ -189,6 +201,7 @@ class MaterialPreview {
     this.pending = true;
     requestAnimationFrame(() => {
       this.pending = false;
+      this.draws++;
       const gl = this.gl;
       gl.viewport(0, 0, this.canvas.width, this.canvas.height);
       gl.useProgram(this.prog);

@@ -1,0 +1,163 @@
+"""One tab's websocket: requests tagged with their point, the newest of each kind answered.
+
+The page sends JSON text messages ``{"type": KIND, "seq": n, "x": [...], ...}`` or, once per
+pointer move, one combined ``{"type": "move", "seq": n, "x": [...], "want": [KIND, ...], ...}``
+standing for one request of each wanted kind at that point. For every kind (:data:`KINDS`)
+the session holds at most one waiting request: a newer one replaces it (a drag never
+queues stale points) and each kind has its own worker, so a slow latent map never holds up
+a frame. Every answer is a binary message ``[uint32 n][n bytes of JSON meta][payload]`` whose
+meta repeats the request's ``seq`` and the point ``x`` it is for, so the page can drop an
+answer that arrives after a newer one.
+
+Malformed input never reaches a traceback: a bad request is answered with
+``{"type": "error", "kind", "seq", "error"}``; a binary message or one larger than
+:data:`~.guard.MAX_MESSAGE` closes the websocket with code 1003 or 1009 and a reason.
+"""
+
+import asyncio
+import json
+import struct
+import sys
+import traceback
+
+from starlette.concurrency import run_in_threadpool
+from starlette.websockets import WebSocketDisconnect
+
+from ...errors import InputError, UnknownMaterialError
+from .guard import MAX_MESSAGE
+from .service import show
+
+#: Kinds of request, and the order in which they are started when several wait.
+KINDS = ("frame", "table", "material", "snippet", "map", "path")
+#: Kinds answered for a point ``x`` (tagged with it).
+POINT_KINDS = ("frame", "table", "material", "snippet", "map")
+#: What answers a bad request with an error message.
+BAD_REQUEST = (InputError, UnknownMaterialError)
+#: How a websocket whose tab went away fails (uvicorn's ClientDisconnected is an OSError).
+GONE = (WebSocketDisconnect, OSError)
+_MAX_SEQ = 2 ** 53
+
+
+def pack(meta, payload=b""):
+    """One binary websocket message: JSON meta then payload."""
+    head = json.dumps(meta).encode()
+    return struct.pack("<I", len(head)) + head + payload
+
+
+class Closing(Exception):
+    """The client broke the protocol: close the websocket with ``code`` and ``reason``."""
+
+    def __init__(self, code, reason):
+        super().__init__(reason)
+        self.code, self.reason = code, reason[:120]
+
+
+def parse(text):
+    """The requests of one message: a list of ``(kind, request)``; raises InputError."""
+    if len(text) > MAX_MESSAGE:
+        raise Closing(1009, f"message of {len(text)} characters; at most {MAX_MESSAGE}")
+    try:
+        req = json.loads(text)
+    except (ValueError, RecursionError):
+        raise InputError(f"bad message {show(text, 80)}: expected JSON like "
+                         '{"type": "frame", "seq": 1, "x": [0.1, 0.2]}') from None
+    if not isinstance(req, dict) or not isinstance(req.get("type"), str):
+        raise InputError(f"bad message {show(text, 80)}: expected a JSON object with a 'type'")
+    seq = req.get("seq")
+    if seq is not None and (isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq <= _MAX_SEQ):
+        raise InputError(f"'seq' must be an integer in 0..2^53, got {show(seq)}")
+    kind = req["type"]
+    if kind == "move":
+        want = req.get("want")
+        if not isinstance(want, list) or not want or not all(isinstance(k, str) and k in KINDS for k in want):
+            raise InputError(f"'want' of a move must be a list of kinds from {list(KINDS)}, got {show(want)}")
+        return [(k, req) for k in dict.fromkeys(want)]
+    if kind not in KINDS:
+        raise InputError(f"unknown message type {show(kind)}; expected one of {list(KINDS)} or 'move'")
+    return [(kind, req)]
+
+
+class Session:
+    """The websocket of one tab (see the module docstring)."""
+
+    def __init__(self, ws, explorer):
+        self.ws, self.ex = ws, explorer
+        self.pending = {}
+        self.wake = {k: asyncio.Event() for k in KINDS}
+        self.lock = asyncio.Lock()   # one message at a time on the socket
+
+    async def send(self, meta, payload=b""):
+        async with self.lock:
+            await self.ws.send_bytes(pack(meta, payload))
+
+    async def run(self):
+        await self.ws.accept()
+        tasks = [asyncio.ensure_future(self.reader())] + [asyncio.ensure_future(self.worker(k)) for k in KINDS]
+        try:
+            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for t in tasks:
+                t.cancel()
+        for t in tasks:   # a tab going away (also while an answer is sent) is no error
+            if t.done() and not t.cancelled() and t.exception() is not None:
+                e = t.exception()
+                if isinstance(e, Closing):
+                    await self.ws.close(code=e.code, reason=e.reason)
+                elif not isinstance(e, GONE):
+                    raise e
+
+    async def reader(self):
+        while True:
+            message = await self.ws.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            if message.get("text") is None:
+                raise Closing(1003, "binary messages are not accepted: send JSON text")
+            try:
+                requests = parse(message["text"])
+            except InputError as e:
+                await self.send({"type": "error", "kind": None, "seq": None, "error": str(e)})
+                continue
+            for kind, req in requests:
+                self.pending[kind] = req   # replaces an older request of this kind not yet started
+                self.wake[kind].set()
+
+    async def worker(self, kind):
+        while True:
+            await self.wake[kind].wait()
+            self.wake[kind].clear()
+            while kind in self.pending:
+                req = self.pending.pop(kind)
+                seq = req.get("seq")
+                try:
+                    meta, payload = await self.answer(kind, req)
+                except BAD_REQUEST as e:
+                    meta, payload = {"type": "error", "kind": kind, "seq": seq, "error": str(e)}, b""
+                except Exception as e:   # a bug: the console gets the traceback, the page one line
+                    traceback.print_exc(file=sys.stderr)
+                    meta, payload = {"type": "error", "kind": kind, "seq": seq,
+                                     "error": f"internal error ({type(e).__name__}); see the server's console"}, b""
+                await self.send(dict(meta, seq=seq), payload)
+
+    async def answer(self, kind, req):
+        """``(meta, payload)`` of one request (raises InputError on bad input)."""
+        ex = self.ex
+        if kind == "path":
+            cmd = await run_in_threadpool(ex.path_command, req.get("basis"), req.get("a"), req.get("b"),
+                                          req.get("steps"))
+            return {"type": "path", "command": cmd, "a": req.get("a"), "b": req.get("b")}, b""
+        x = ex.point(req.get("x"), "x")
+        tag = {"type": kind, "x": [float(v) for v in x]}
+        if kind == "frame":
+            exposure = ex.number(req.get("exposure"), "exposure", -20, 20, 0.0)
+            data, meta = await run_in_threadpool(ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"))
+            return dict(meta, exposure=exposure, basis=ex.key(req.get("basis")), **tag), data
+        if kind == "material":
+            return dict(await run_in_threadpool(ex.material, x), **tag), b""
+        if kind == "table":
+            data, meta = await run_in_threadpool(ex.preview_table, x)
+            return dict(meta, **tag), data
+        if kind == "snippet":
+            return dict(ex.snippets(x), **tag), b""
+        data, meta = await run_in_threadpool(ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"))
+        return dict(meta, **tag), data
