@@ -13,6 +13,7 @@ background while the page already works.
 
 import argparse
 import errno
+import os
 import socket
 import sys
 
