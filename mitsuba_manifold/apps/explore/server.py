@@ -7,6 +7,7 @@ routes). Every request passes :class:`~.guard.Guard` first: the Host/Origin allo
 ``{"error": message}`` (one line); no traceback reaches the page.
 """
 
+import base64
 import json
 import os
 import re
@@ -33,119 +34,129 @@ def _query(request, key, default=None):
     return request.query_params.get(key, default)
 
 
-def create_app(explorer, allow=None, max_body=MAX_BODY):
-    """The Starlette app serving ``explorer`` (a :class:`~.service.Explorer`).
+class Api:
+    """The HTTP endpoints of one :class:`~.service.Explorer` (each method one route of
+    :func:`create_app`); the work is in the explorer, run off the event loop."""
 
-    ``allow``: the :class:`~.guard.AllowList` of hosts and origins (default: ``127.0.0.1``,
-    ``localhost`` and ``[::1]`` on any port); ``max_body``: largest request body in bytes.
+    def __init__(self, explorer):
+        self.ex = explorer
 
-    Routes: ``/`` the page; ``/static/*`` its files; ``/api/info``; ``/api/frame?basis&x&exposure&format``
-    (the image); ``/api/material?x``; ``/api/table?x`` (float16 preview table, layout in the
-    ``X-Table`` header); ``/api/map?dims&x``; ``/api/snippet?x``; ``/api/path?basis&a&b&steps``;
-    ``POST /api/reference`` ``{basis, x, spp}``, ``/api/reference/{id}``,
-    ``/api/reference/{id}/{blend|reference|error}.png``; websocket ``/ws``.
-    """
-    ex = explorer
+    def x_of(self, request):
+        return self.ex.point(_query(request, "x", ""), "x")
 
-    def x_of(request):
-        return ex.point(_query(request, "x", ""), "x")
+    def exposure_of(self, request):
+        return self.ex.number(_query(request, "exposure"), "exposure", -20, 20, 0.0)
 
-    async def index(request):
+    async def index(self, request):
         return FileResponse(os.path.join(STATIC, "index.html"), headers={"Cache-Control": "no-cache"})
 
-    async def info(request):
-        return JSONResponse(ex.info())
+    async def info(self, request):
+        return JSONResponse(self.ex.info())
 
-    async def frame(request):
-        x = x_of(request)
-        exposure = ex.number(_query(request, "exposure"), "exposure", -20, 20, 0.0)
-        fmt = _query(request, "format", "png")
-        data, meta = await run_in_threadpool(ex.frame, _query(request, "basis"), x, exposure, fmt)
+    async def frame(self, request):
+        x, exposure, fmt = self.x_of(request), self.exposure_of(request), _query(request, "format", "png")
+        data, meta = await run_in_threadpool(self.ex.frame, _query(request, "basis"), x, exposure, fmt)
         return Response(data, media_type=encode.MIME[fmt], headers={"X-Frame": json.dumps(meta)})
 
-    async def material_route(request):
-        x = x_of(request)
-        return JSONResponse(await run_in_threadpool(ex.material, x))
+    async def material(self, request):
+        return JSONResponse(await run_in_threadpool(self.ex.material, self.x_of(request)))
 
-    async def table(request):
-        x = x_of(request)
-        data, meta = await run_in_threadpool(ex.preview_table, x)
+    async def table(self, request):
+        data, meta = await run_in_threadpool(self.ex.preview_table, self.x_of(request))
         return Response(data, media_type="application/octet-stream", headers={"X-Table": json.dumps(meta)})
 
-    async def latent_map(request):
-        import base64
+    async def latent_map(self, request):
         dims = _query(request, "dims", "0,1")
-        center = x_of(request) if _query(request, "x") else ex.manifold.latent.mean(axis=0)
-        png, meta = await run_in_threadpool(ex.map_png, dims, center, _query(request, "extent"))
+        center = self.x_of(request) if _query(request, "x") else self.ex.manifold.latent.mean(axis=0)
+        png, meta = await run_in_threadpool(self.ex.map_png, dims, center, _query(request, "extent"))
         return JSONResponse(dict(meta, png="data:image/png;base64," + base64.b64encode(png).decode()))
 
-    async def snippet(request):
-        return JSONResponse(ex.snippets(x_of(request)))
+    async def snippet(self, request):
+        return JSONResponse(self.ex.snippets(self.x_of(request)))
 
-    async def path(request):
-        cmd = ex.path_command(_query(request, "basis"), _query(request, "a", ""), _query(request, "b", ""),
-                              _query(request, "steps"))
+    async def path(self, request):
+        cmd = self.ex.path_command(_query(request, "basis"), _query(request, "a", ""), _query(request, "b", ""),
+                                   _query(request, "steps"))
         return JSONResponse({"command": cmd})
 
-    async def reference_start(request):
+    async def reference_start(self, request):
         try:   # the body was read by Guard, at most max_body bytes
             body = json.loads(await request.body())
         except (ValueError, RecursionError):
             raise InputError("the request body must be JSON like {\"x\": [0.1, 0.2], \"spp\": 256}") from None
         if not isinstance(body, dict):
             raise InputError("the request body must be a JSON object")
-        x = ex.point(body.get("x"), "x")
-        job = await run_in_threadpool(ex.start_reference, body.get("basis"), x, body.get("spp"))
+        x = self.ex.point(body.get("x"), "x")
+        job = await run_in_threadpool(self.ex.start_reference, body.get("basis"), x, body.get("spp"))
         return JSONResponse(job.status())
 
-    def job_of(request):
+    def job_of(self, request):
         job_id = request.path_params["job"]
-        job = ex.references.get(job_id) if _JOB_ID.match(job_id) else None
+        job = self.ex.references.get(job_id) if _JOB_ID.match(job_id) else None
         if job is None:
             raise InputError(f"unknown reference job {show(job_id)}")
         return job
 
-    async def reference_status(request):
-        return JSONResponse(job_of(request).status())
+    async def reference_status(self, request):
+        return JSONResponse(self.job_of(request).status())
 
-    async def reference_image(request):
-        job = job_of(request)
-        exposure = ex.number(_query(request, "exposure"), "exposure", -20, 20, 0.0)
-        png = await run_in_threadpool(ex.reference_image, job.id, request.path_params["which"], exposure)
+    async def reference_image(self, request):
+        job, exposure = self.job_of(request), self.exposure_of(request)
+        png = await run_in_threadpool(self.ex.reference_image, job.id, request.path_params["which"], exposure)
         return Response(png, media_type="image/png")
 
-    async def websocket(ws):
-        await Session(ws, ex).run()   # the handshake passed Guard's allow-list
+    async def websocket(self, ws):
+        await Session(ws, self.ex).run()   # the handshake passed Guard's allow-list
 
-    async def bad_request(request, exc):
-        return JSONResponse({"error": str(exc)}, status_code=400)
+    def routes(self):
+        return [
+            Route("/", self.index),
+            Route("/api/info", self.info),
+            Route("/api/frame", self.frame),
+            Route("/api/material", self.material),
+            Route("/api/table", self.table),
+            Route("/api/map", self.latent_map),
+            Route("/api/snippet", self.snippet),
+            Route("/api/path", self.path),
+            Route("/api/reference", self.reference_start, methods=["POST"]),
+            Route("/api/reference/{job}", self.reference_status),
+            Route("/api/reference/{job}/{which}.png", self.reference_image),
+            WebSocketRoute("/ws", self.websocket),
+            Mount("/static", StaticFiles(directory=STATIC), name="static"),
+        ]
 
-    async def http_error(request, exc):
-        return JSONResponse({"error": exc.detail}, status_code=exc.status_code)
 
-    async def server_error(request, exc):
-        return JSONResponse({"error": f"internal error ({type(exc).__name__}); see the server's console"},
-                            status_code=500)
+async def _bad_request(request, exc):
+    return JSONResponse({"error": str(exc)}, status_code=400)
 
-    routes = [
-        Route("/", index),
-        Route("/api/info", info),
-        Route("/api/frame", frame),
-        Route("/api/material", material_route),
-        Route("/api/table", table),
-        Route("/api/map", latent_map),
-        Route("/api/snippet", snippet),
-        Route("/api/path", path),
-        Route("/api/reference", reference_start, methods=["POST"]),
-        Route("/api/reference/{job}", reference_status),
-        Route("/api/reference/{job}/{which}.png", reference_image),
-        WebSocketRoute("/ws", websocket),
-        Mount("/static", StaticFiles(directory=STATIC), name="static"),
-    ]
-    handlers = {e: bad_request for e in BAD_REQUEST}
-    handlers[HTTPException] = http_error
-    handlers[Exception] = server_error
-    app = Starlette(routes=routes, exception_handlers=handlers,
+
+async def _http_error(request, exc):
+    return JSONResponse({"error": exc.detail}, status_code=exc.status_code)
+
+
+async def _server_error(request, exc):
+    return JSONResponse({"error": f"internal error ({type(exc).__name__}); see the server's console"},
+                        status_code=500)
+
+
+def create_app(explorer, allow=None, max_body=MAX_BODY):
+    """The Starlette app serving ``explorer`` (a :class:`~.service.Explorer`).
+
+    ``allow``: the :class:`~.guard.AllowList` of hosts and origins (default: ``127.0.0.1``,
+    ``localhost`` and ``[::1]`` on any port); ``max_body``: largest request body in bytes.
+
+    Routes (:meth:`Api.routes`): ``/`` the page; ``/static/*`` its files; ``/api/info``;
+    ``/api/frame?basis&x&exposure&format`` (the image); ``/api/material?x``; ``/api/table?x``
+    (float16 preview table, layout in the ``X-Table`` header); ``/api/map?dims&x``;
+    ``/api/snippet?x``; ``/api/path?basis&a&b&steps``; ``POST /api/reference`` ``{basis, x, spp}``,
+    ``/api/reference/{id}``, ``/api/reference/{id}/{blend|reference|error}.png``; websocket ``/ws``.
+    Errors in a request answer 400 (the package's input errors), their HTTP status, or 500
+    with one line (a bug; the traceback stays on the server's console).
+    """
+    handlers = {e: _bad_request for e in BAD_REQUEST}
+    handlers[HTTPException] = _http_error
+    handlers[Exception] = _server_error
+    app = Starlette(routes=Api(explorer).routes(), exception_handlers=handlers,
                     middleware=[Middleware(Guard, allow=allow, max_body=max_body)])
-    app.state.explorer = ex
+    app.state.explorer = explorer
     return app
