@@ -3,8 +3,10 @@
 Every material a manifold gives is ``sum_i w_i table_i`` over its N measured tables (paper
 Eq. 4). :class:`TrainingTables` owns what that needs: opening the database the manifold was
 fit on (each table checked against the SHA-256 recorded at the fit), the ``(N, d)`` stack
-kept in memory once loaded, the raw tables' Gram matrix ``G = T T^T`` for exact pruning
-errors (:mod:`.pruning`), and the combination itself, reading only the kept tables.
+kept in memory once loaded, what pruning measures exactly (:mod:`.pruning`: the raw tables'
+Gram matrix ``G = T T^T``, the cosine-weighted ``C = T diag(q) T^T`` and the albedos, each
+computed from the tables on first use when a manifold file of an earlier release lacks it),
+and the combination itself, reading only the kept tables.
 """
 
 from typing import NamedTuple
@@ -12,7 +14,8 @@ from typing import NamedTuple
 import numpy as np
 
 from . import materials, pruning
-from ..data.database import Database
+from .pruning import DEFAULT_RULE, RULES
+from ..data.database import Database, albedo_weights
 from ..errors import InputError
 
 
@@ -32,6 +35,16 @@ class Combination(NamedTuple):
     dropped: float
 
 
+def _float64(a):
+    return None if a is None else np.asarray(a, dtype=np.float64)
+
+
+def stored(name, doc):
+    """A property of the owner's ``_store`` (a :class:`TrainingTables`) attribute ``name``, set as float64."""
+    return property(lambda self: getattr(self._store, name),
+                    lambda self, value: setattr(self._store, name, _float64(value)), doc=doc)
+
+
 class TrainingTables:
     """The N tables of materials ``names`` whose files had SHA-256 ``hashes`` at the fit.
 
@@ -40,17 +53,21 @@ class TrainingTables:
     names, hashes : list of str
     gram : (N, N) array, optional
         ``T T^T`` of the raw tables (computed from the tables on first use when absent).
+    cos_gram : (N, N) array, optional
+        ``T diag(q) T^T``, ``q`` the bins' cosine-weighted solid angles (likewise).
+    albedos : (N, 3) array, optional
+        Bihemispherical albedo of each material (likewise).
 
     Attributes
     ----------
-    gram : ndarray or None
+    gram, cos_gram, albedos : ndarray or None
     loaded : (N, d) float32 ndarray or None
         The stack of all tables, once read (:meth:`stack`).
     """
 
-    def __init__(self, names, hashes, gram=None):
+    def __init__(self, names, hashes, gram=None, cos_gram=None, albedos=None):
         self.names, self.hashes = names, hashes
-        self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
+        self.gram, self.cos_gram, self.albedos = _float64(gram), _float64(cos_gram), _float64(albedos)
         self.loaded = None
 
     def open(self, folder, names=None):
@@ -84,14 +101,45 @@ class TrainingTables:
             self.gram = pruning.raw_gram(self.stack(folder))
         return self.gram
 
-    def prune(self, w, budget, folder):
-        """Materials kept by pruning weights ``w`` within the relative L2 ``budget``.
+    def cosine_gram(self, folder):
+        """:attr:`cos_gram`, computed from the tables in ``folder`` when absent (with :attr:`gram`
+        in the same pass when that is absent too)."""
+        if self.cos_gram is None:
+            tables = self.stack(folder)
+            dims = self.open(folder, self.names[:1]).dims
+            G, self.cos_gram = pruning.cos_grams(tables, albedo_weights(dims).reshape(-1))
+            if self.gram is None:
+                self.gram = G
+        return self.cos_gram
 
-        Drops the materials of smallest contribution ``|w_i| |table_i|`` for as long as the
-        table changes by at most ``budget`` of its L2 norm; the kept weights are rescaled to
-        sum to ``sum(w)`` so the combination stays affine. The change is computed exactly from
-        the tables' Gram matrix (:func:`pruning.prune`), rescaling included; ``budget = 0``
-        keeps every non-zero weight.
+    def albedo(self, folder):
+        """:attr:`albedos`, computed from the tables in ``folder`` when absent."""
+        if self.albedos is None:
+            db = self.open(folder, self.names[:1])
+            self.albedos = np.asarray(db.albedo(self.names, tables=self.stack(folder)), dtype=np.float64)
+        return self.albedos
+
+    def _checked(self, w, budget, rule):
+        w = np.asarray(w, dtype=np.float64)
+        n = len(self.names)
+        if w.shape != (n,) or not np.isfinite(w).all():
+            raise InputError(f"weights must be {n} finite values, got shape {w.shape}")
+        if not 0 <= budget < 1:
+            raise InputError(f"`prune` must be in [0, 1), got {budget}")
+        if rule not in RULES:
+            raise InputError(f"`rule` must be one of {', '.join(map(repr, RULES))}, got {rule!r}")
+        return w
+
+    def prune(self, w, budget, folder, rule=DEFAULT_RULE):
+        """Materials kept by pruning weights ``w`` within ``budget`` under ``rule``.
+
+        ``"image"`` (the default): each albedo channel changes by at most
+        ``pruning.ALBEDO_SHARE * budget`` and the cosine-weighted table by at most ``budget`` of
+        its norm (:func:`pruning.prune_image`). ``"raw-l2"``: the raw table by at most ``budget``
+        of its L2 norm (:func:`pruning.prune`, the previous release's rule). The kept weights
+        are rescaled to sum to ``sum(w)`` so the combination stays affine; the changes are
+        computed exactly from Gram matrices, rescaling included; ``budget = 0`` keeps every
+        non-zero weight.
 
         Returns
         -------
@@ -99,21 +147,31 @@ class TrainingTables:
             ``keep`` (ndarray of int), ``w_kept`` (ndarray), ``dropped`` (float: sum of
             ``|w_i|`` over the dropped materials).
         """
-        w = np.asarray(w, dtype=np.float64)
-        n = len(self.names)
-        if w.shape != (n,) or not np.isfinite(w).all():
-            raise InputError(f"weights must be {n} finite values, got shape {w.shape}")
-        if not 0 <= budget < 1:
-            raise InputError(f"`prune` must be in [0, 1), got {budget}")
-        return Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
+        w = self._checked(w, budget, rule)
+        if rule == "raw-l2":
+            return Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
+        return Pruned(*pruning.prune_image(w, self.cosine_gram(folder), self.albedo(folder), budget))
 
-    def combine(self, w, budget, folder, dims, database=None):
+    def error(self, w, keep, folder, rule=DEFAULT_RULE):
+        """The relative L2 change of the table in the norm of ``rule`` (cosine-weighted for
+        ``"image"``, raw for ``"raw-l2"``) when only ``keep`` is kept (rescaled)."""
+        w = self._checked(w, 0.0, rule)
+        return pruning.error(w, keep, self.raw_gram(folder) if rule == "raw-l2" else self.cosine_gram(folder))
+
+    def report(self, w, budget, folder, rule=DEFAULT_RULE):
+        """:class:`pruning.PruneReport` of :meth:`prune`: what was kept, the albedo change of each
+        channel and the cosine-weighted and raw table errors reached."""
+        keep = self.prune(w, budget, folder, rule).keep
+        return pruning.report(w, keep, rule, budget, G=self.raw_gram(folder), C=self.cosine_gram(folder),
+                              albedos=self.albedo(folder), names=self.names)
+
+    def combine(self, w, budget, folder, dims, database=None, rule=DEFAULT_RULE):
         """The table ``sum_i w_i table_i`` of shape ``(3,) + dims`` over the materials :meth:`prune` keeps.
 
         Uses the tables in memory when they are (and ``database`` is None); otherwise reads
         only the kept ones from ``database`` (default ``folder``).
         """
-        keep, w_kept, dropped = self.prune(w, budget, folder)
+        keep, w_kept, dropped = self.prune(w, budget, folder, rule)
         n = len(self.names)
         if self.loaded is not None and database is None and dims is not None:
             shape = (3,) + tuple(dims)
