@@ -297,9 +297,9 @@ class Manifold:
         """Materials kept by pruning weights ``w`` within the budget ``prune`` (0 keeps every
         non-zero weight): a :class:`Pruned` ``(keep, w_kept, dropped)``.
 
-        ``rule="image"`` (default): each albedo channel changes by at most ``prune / 2`` and the
-        cosine-weighted table by at most ``prune`` of its norm; ``"raw-l2"``: the raw table by at
-        most ``prune`` of its L2 norm (the previous release's rule); exact
+        ``rule="image"`` (default): each albedo channel changes by at most ``prune / 2``, the
+        cosine-weighted and the raw table by at most ``prune`` of their norms; ``"raw-l2"``: the
+        raw table by at most ``prune`` of its L2 norm (the previous release's rule); exact
         (:meth:`TrainingTables.prune`, :mod:`.pruning`)."""
         return self._store.prune(w, prune, self.database, rule)
 

@@ -7,14 +7,19 @@ the combination stays affine), and bounds what the change does. Two rules:
 ``"image"`` (the default)
     Bounds what light sees. The change ``delta`` of the weights must keep (a) each albedo
     channel (bihemispherical albedo, linear in the weights: ``delta @ albedos``, exact)
-    within ``albedo_share * budget`` of its value (0.5% at the default budget) and (b) the
-    *cosine-weighted* L2 change of the table within ``budget`` of its norm, in the norm
-    ``|f|^2 = sum_bins q f^2`` with ``q`` the bins' ``cos(theta_i) cos(theta_o) dw_i dw_o``
-    (the albedo quadrature weights, :func:`data.database.albedo_weights`). By Cauchy-Schwarz
-    that norm bounds the change of the light reflected towards any viewer, averaged over
-    viewers, for any incident light of bounded energy; unlike the raw L2 norm it is not
-    dominated by the specular peaks' few bins (values up to 1e8 in bins of 1e-6 sr). Exact
-    through the Gram matrix ``C = T diag(q) T^T`` (``|delta^T T|_q^2 = delta^T C delta``).
+    within ``ALBEDO_SHARE * budget`` of its value (0.5% at the default budget): the energy
+    the material reflects of any smooth light; (b) the *cosine-weighted* L2 change of the
+    table within ``budget`` of its norm, in the norm ``|f|^2 = sum_bins q f^2`` with ``q`` the
+    bins' ``cos(theta_i) cos(theta_o) dw_i dw_o`` (the albedo quadrature weights,
+    :func:`data.database.albedo_weights`): by Cauchy-Schwarz it bounds the change of the
+    light reflected towards any viewer, averaged over viewers, for incident light of bounded
+    energy; exact through ``C = T diag(q) T^T`` (``|delta^T T|_q^2 = delta^T C delta``);
+    and (c) the raw L2 change within ``RAW_SHARE * budget`` (the previous rule's bound, for
+    the narrowest peaks). (a) does most of the work: any L2 norm, cosine-weighted too, is
+    dominated by the spikiest tables' peaks, so (b) alone lets a dull material of small
+    weight go and the albedo change by 14%; (a) alone meets the image target at the
+    benchmark's points, (b) and (c) bound what an albedo cannot see (where in angle the
+    energy goes) at no measurable cost in materials kept.
     The search (:func:`prune_image`) drops materials in the order of what dropping each
     alone would change (one vectorised pass over all prefixes of that order), then goes on
     greedily, each step dropping the material whose removal changes least (O(N) per step).
@@ -43,6 +48,11 @@ RULES = ("image", "raw-l2")
 DEFAULT_RULE = "image"
 #: The "image" rule's bound on each albedo channel's relative change, as a share of the budget.
 ALBEDO_SHARE = 0.5
+#: The "image" rule's bound on the raw table's relative L2 change, as a share of the budget
+#: (``inf``: none): the previous rule's bound, kept so that the narrow specular peaks (bins at
+#: ``theta_h ~ 0``, of tiny solid angle, which a point light seen in a mirror-like highlight
+#: evaluates directly) stay bounded too; it costs no material at the benchmark's points.
+RAW_SHARE = 1.0
 #: Albedos below this count as this in the relative albedo change (a black channel).
 ALBEDO_FLOOR = 1e-4
 #: A step of the search is taken only below this fraction of the bounds (room for round-off).
@@ -138,33 +148,41 @@ def prune(w, G, budget):
 class _Search:
     """State of the greedy search of :func:`prune_image` over the non-zero weights ``w``.
 
-    Keeps ``delta`` (the change of the weights), ``C delta`` and the albedo change up to date,
-    so that the bounds after dropping any one more material cost O(N) for all candidates:
-    with ``a = S / S'`` (sums of the kept weights before and after dropping j), ``b = a - 1``
-    and ``e = w_j s / S'``, ``delta' = a delta + b w - e e_j`` (rescaling included).
+    ``Cs`` (F, m, m): the Gram matrices of the F quadratic bounds, ``budgets`` (F,) their
+    relative budgets; ``A`` (m, 3) the albedos, ``albedo_budget`` their relative budget.
+    Keeps ``delta`` (the change of the weights), every ``C delta`` and the albedo change up to
+    date, so that the bounds after dropping any one more material cost O(F N) for all
+    candidates: with ``a = S / S'`` (sums of the kept weights before and after dropping j),
+    ``b = a - 1`` and ``e = w_j s / S'``, ``delta' = a delta + b w - e e_j`` (rescaling included).
     """
 
-    def __init__(self, w, C, A, budget, albedo_budget):
-        self.w, self.C, self.A = w, C, A
+    def __init__(self, w, Cs, budgets, A, albedo_budget):
+        self.w, self.Cs, self.A = w, Cs, A
         self.s = w.sum()
-        self.Cw = C @ w
-        self.wCw = max(float(w @ self.Cw), 0.0)
+        self.Cw = Cs @ w                                              # (F, m)
+        self.wCw = np.maximum(self.Cw @ w, 0.0)                       # (F,)
         self.wA = w @ A
-        self.limit_q = (budget * budget * self.wCw) if self.wCw > 0 else 0.0
+        self.limit_q = np.asarray(budgets, dtype=np.float64) ** 2 * self.wCw
         self.limit_a = albedo_budget * np.maximum(np.abs(self.wA), ALBEDO_FLOOR)
-        self.diag = np.diag(C).copy()
+        self.diag = np.diagonal(Cs, axis1=1, axis2=2)                 # (F, m)
 
     def start(self, kept):
         """Set the state to keeping the boolean mask ``kept`` (exact, from scratch)."""
         self.kept = kept.copy()
         self.S = self.w[kept].sum()
         self.delta = _rescaled(self.w, kept)[0]
-        self.Cd = self.C @ self.delta
-        self.dCd = float(self.delta @ self.Cd)
+        self.Cd = self.Cs @ self.delta
+        self.dCd = self.Cd @ self.delta
         self.dA = self.delta @ self.A
 
+    def _shares(self, q, dA):
+        """Largest share of its bound over the quadratic forms ``q`` (F, M) and the albedo changes (M, 3)."""
+        lim = self.limit_q[:, None]
+        share_q = np.where(lim > 0, np.maximum(q, 0.0) / np.where(lim > 0, lim, 1.0), np.where(q > 0, np.inf, 0.0))
+        return np.maximum(np.sqrt(share_q.max(axis=0)), np.max(np.abs(dA) / self.limit_a, axis=1))
+
     def scores(self):
-        """Largest share of its bound (quadratic, per albedo channel) after dropping each kept material."""
+        """Largest share of its bound after dropping each kept material (and the updates)."""
         j = np.flatnonzero(self.kept)
         wj = self.w[j]
         S1 = self.S - wj
@@ -172,12 +190,11 @@ class _Search:
         S1 = np.where(ok, S1, 1.0)
         a = self.S / S1
         b, e = a - 1.0, wj * self.s / S1
-        q = (a * a * self.dCd + b * b * self.wCw + e * e * self.diag[j]
-             + 2 * a * b * float(self.delta @ self.Cw) - 2 * a * e * self.Cd[j] - 2 * b * e * self.Cw[j])
+        dCw = (self.Cd @ self.w)[:, None]
+        q = (a * a * self.dCd[:, None] + b * b * self.wCw[:, None] + e * e * self.diag[:, j]
+             + 2 * a * b * dCw - 2 * a * e * self.Cd[:, j] - 2 * b * e * self.Cw[:, j])
         dA = a[:, None] * self.dA + b[:, None] * self.wA - e[:, None] * self.A[j]
-        share_q = np.maximum(q, 0.0) / self.limit_q if self.limit_q > 0 else np.where(q > 0, np.inf, 0.0)
-        share_a = np.max(np.abs(dA) / self.limit_a, axis=1)
-        share = np.where(ok, np.maximum(np.sqrt(share_q), share_a), np.inf)
+        share = np.where(ok, self._shares(q, dA), np.inf)
         return j, share, (a, b, e, q, dA)
 
     def run(self):
@@ -191,47 +208,48 @@ class _Search:
             jj = j[k]
             self.delta = a[k] * self.delta + b[k] * self.w
             self.delta[jj] -= e[k]
-            self.Cd = a[k] * self.Cd + b[k] * self.Cw - e[k] * self.C[jj]
-            self.dCd, self.dA = float(q[k]), dA[k]
+            self.Cd = a[k] * self.Cd + b[k] * self.Cw - e[k] * self.Cs[:, jj]
+            self.dCd, self.dA = q[:, k], dA[k]
             self.S -= self.w[jj]
             self.kept[jj] = False
         return self.kept
 
     def longest_prefix(self, order):
-        """The largest k such that dropping ``order[:k]`` keeps both bounds (0 when none does).
+        """The largest k such that dropping ``order[:k]`` keeps every bound (0 when none does).
 
-        All prefixes at once in O(N^2) without a matrix product (the cores may be busy): over
+        All prefixes at once in O(F N^2) without a matrix product (the cores may be busy): over
         the kept set ``u`` of prefix k, ``u C u``, ``u C w``, ``sum u`` and ``u A`` are suffix
         sums along ``order``."""
-        w, C = self.w[order], self.C[np.ix_(order, order)]
-        M = np.outer(w, w) * C
+        w, Cs = self.w[order], self.Cs[:, order][:, :, order]
+        M = np.outer(w, w) * Cs
 
         def tail(v):
-            return np.cumsum(v[::-1], axis=0)[::-1]
+            return np.cumsum(v[..., ::-1], axis=-1)[..., ::-1]
 
-        uCu = tail(np.diag(M) + 2.0 * np.triu(M, 1).sum(axis=1))
-        uCw, S = tail(w * self.Cw[order]), tail(w)
+        uCu = tail(np.diagonal(M, axis1=1, axis2=2) + 2.0 * np.triu(M, 1).sum(axis=2))
+        uCw, S = tail(w * self.Cw[:, order]), tail(w)
         c = np.divide(self.s, S, out=np.zeros_like(S), where=np.abs(S) > 0)   # as _rescaled
-        q = np.maximum(c * c * uCu - 2.0 * c * uCw + self.wCw, 0.0)
-        dA = c[:, None] * tail(w[:, None] * self.A[order]) - self.wA
-        ok = (q <= _SAFETY ** 2 * self.limit_q) & (np.abs(dA) <= _SAFETY * self.limit_a).all(axis=1)
+        q = c * c * uCu - 2.0 * c * uCw + self.wCw[:, None]
+        dA = c[:, None] * tail((w[:, None] * self.A[order]).T).T - self.wA
+        ok = self._shares(q, dA) <= _SAFETY
         return int(np.flatnonzero(ok).max()) if ok.any() else 0
 
     def exact(self):
-        """Whether the kept set keeps both bounds, recomputed from scratch (a guard against the
+        """Whether the kept set keeps every bound, recomputed from scratch (a guard against the
         round-off of the updates)."""
         delta = _rescaled(self.w, self.kept)[0]
-        return float(delta @ self.C @ delta) <= self.limit_q and bool((np.abs(delta @ self.A) <= self.limit_a).all())
+        return bool(((self.Cs @ delta) @ delta <= self.limit_q).all() and (np.abs(delta @ self.A) <= self.limit_a).all())
 
 
-def prune_image(w, C, albedos, budget, albedo_share=ALBEDO_SHARE):
+def prune_image(w, C, albedos, budget, albedo_share=ALBEDO_SHARE, G=None, raw_share=RAW_SHARE):
     """The ``"image"`` rule: materials to keep so that each albedo channel changes by at most
-    ``albedo_share * budget`` (relative) and the cosine-weighted table by at most ``budget``
-    (relative L2 in the norm of ``C = T diag(q) T^T``); see the module docstring.
+    ``albedo_share * budget`` (relative), the cosine-weighted table by at most ``budget``
+    (relative L2 in the norm of ``C = T diag(q) T^T``) and, with ``G = T T^T``, the raw table
+    by at most ``raw_share * budget``; see the module docstring.
 
     Zero weights are dropped first (they change nothing); ``budget = 0`` keeps every
     non-zero weight. Among the others: the longest feasible prefix of the order of what
-    dropping each alone would change, then greedy single drops while both bounds hold.
+    dropping each alone would change, then greedy single drops while every bound holds.
     At least one material is kept (the first one when every weight is 0). Returns
     ``(keep, w_kept, dropped)`` as :func:`prune`.
     """
@@ -239,8 +257,12 @@ def prune_image(w, C, albedos, budget, albedo_share=ALBEDO_SHARE):
     live = np.flatnonzero(w)
     if live.size <= 1 or budget <= 0:
         return _result(w, live if live.size else [0])
-    search = _Search(w[live], C[np.ix_(live, live)], np.asarray(albedos, dtype=np.float64)[live], budget,
-                     albedo_share * budget)
+    forms, budgets = [C], [budget]
+    if G is not None and raw_share is not None and np.isfinite(raw_share):
+        forms.append(G)
+        budgets.append(raw_share * budget)
+    Cs = np.stack([F[np.ix_(live, live)] for F in forms])
+    search = _Search(w[live], Cs, budgets, np.asarray(albedos, dtype=np.float64)[live], albedo_share * budget)
     every = np.ones(live.size, dtype=bool)
     search.start(every)
     order = np.argsort(search.scores()[1], kind="stable")
@@ -259,9 +281,11 @@ class PruneReport:
     ----------
     rule : str
         ``"image"`` or ``"raw-l2"``.
-    budget, albedo_budget : float
-        The bounds: relative cosine-weighted (``"image"``) or raw (``"raw-l2"``) L2 change of the
-        table, and relative change of each albedo channel (``"image"`` only; None otherwise).
+    budget : float
+        The ``prune`` budget the rule was given.
+    albedo_budget, cos_budget, raw_budget : float or None
+        The bounds it implies on the relative change of each albedo channel and the relative
+        cosine-weighted and raw L2 changes of the table (None: not bounded by the rule).
     keep : tuple of int
         Materials kept; ``names`` their names (when known).
     n : int
@@ -277,6 +301,8 @@ class PruneReport:
     rule: str
     budget: float
     albedo_budget: object
+    cos_budget: object
+    raw_budget: object
     keep: tuple
     n: int
     dropped: float
@@ -293,20 +319,21 @@ class PruneReport:
     @property
     def within(self):
         """Whether every bound of the rule holds."""
-        if self.rule == "raw-l2":
-            return self.raw_error is None or self.raw_error <= self.budget
-        return ((self.cos_error is None or self.cos_error <= self.budget)
-                and (self.albedo_change is None or max(self.albedo_change) <= self.albedo_budget))
+        pairs = [(self.cos_error, self.cos_budget), (self.raw_error, self.raw_budget),
+                 (None if self.albedo_change is None else max(self.albedo_change), self.albedo_budget)]
+        return all(v <= bound for v, bound in pairs if v is not None and bound is not None)
 
     def __str__(self):
         parts = [f"{self.kept} of {self.n} materials kept ({self.rule} rule, budget {100 * self.budget:.3g}%)"]
+        def bound(b):
+            return f" (<= {100 * b:.3g}%)" if b is not None else ""
         if self.albedo_change is not None:
-            bound = f" (<= {100 * self.albedo_budget:.3g}%)" if self.albedo_budget is not None else ""
-            parts.append("albedo change R/G/B " + "/".join(f"{100 * v:.2g}" for v in self.albedo_change) + "%" + bound)
+            parts.append("albedo change R/G/B " + "/".join(f"{100 * v:.2g}" for v in self.albedo_change) + "%"
+                         + bound(self.albedo_budget))
         if self.cos_error is not None:
-            parts.append(f"cosine-weighted table error {100 * self.cos_error:.3g}%")
+            parts.append(f"cosine-weighted table error {100 * self.cos_error:.3g}%{bound(self.cos_budget)}")
         if self.raw_error is not None:
-            parts.append(f"raw L2 error {100 * self.raw_error:.3g}%")
+            parts.append(f"raw L2 error {100 * self.raw_error:.3g}%{bound(self.raw_budget)}")
         parts.append(f"dropped weight {self.dropped:.4g}")
         return ", ".join(parts)
 
@@ -318,9 +345,12 @@ def report(w, keep, rule, budget, G=None, C=None, albedos=None, names=None):
     kept = _mask(len(w), keep)
     keep = tuple(int(i) for i in np.flatnonzero(kept))
     alb = None if albedos is None else tuple(float(v) for v in albedo_changes(w, kept, albedos)[0])
+    budget = float(budget)
+    image = rule == "image"
     return PruneReport(
-        rule=rule, budget=float(budget), albedo_budget=ALBEDO_SHARE * float(budget) if rule == "image" else None,
-        keep=keep, n=len(w), dropped=float(np.abs(w).sum() - np.abs(w[list(keep)]).sum()), albedo_change=alb,
+        rule=rule, budget=budget, albedo_budget=ALBEDO_SHARE * budget if image else None,
+        cos_budget=budget if image else None,
+        raw_budget=(RAW_SHARE * budget if np.isfinite(RAW_SHARE) else None) if image else budget, keep=keep, n=len(w), dropped=float(np.abs(w).sum() - np.abs(w[list(keep)]).sum()), albedo_change=alb,
         cos_error=None if C is None else float(errors(w, kept, C)[0]),
         raw_error=None if G is None else float(errors(w, kept, G)[0]),
         names=tuple(names[i] for i in keep) if names is not None else ())

@@ -134,8 +134,9 @@ class TrainingTables:
         """Materials kept by pruning weights ``w`` within ``budget`` under ``rule``.
 
         ``"image"`` (the default): each albedo channel changes by at most
-        ``pruning.ALBEDO_SHARE * budget`` and the cosine-weighted table by at most ``budget`` of
-        its norm (:func:`pruning.prune_image`). ``"raw-l2"``: the raw table by at most ``budget``
+        ``pruning.ALBEDO_SHARE * budget``, the cosine-weighted table by at most ``budget`` of its
+        norm and the raw table by at most ``pruning.RAW_SHARE * budget`` of its L2 norm
+        (:func:`pruning.prune_image`). ``"raw-l2"``: the raw table by at most ``budget``
         of its L2 norm (:func:`pruning.prune`, the previous release's rule). The kept weights
         are rescaled to sum to ``sum(w)`` so the combination stays affine; the changes are
         computed exactly from Gram matrices, rescaling included; ``budget = 0`` keeps every
@@ -150,7 +151,8 @@ class TrainingTables:
         w = self._checked(w, budget, rule)
         if rule == "raw-l2":
             return Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
-        return Pruned(*pruning.prune_image(w, self.cosine_gram(folder), self.albedo(folder), budget))
+        C = self.cosine_gram(folder)
+        return Pruned(*pruning.prune_image(w, C, self.albedo(folder), budget, G=self.raw_gram(folder)))
 
     def error(self, w, keep, folder, rule=DEFAULT_RULE):
         """The relative L2 change of the table in the norm of ``rule`` (cosine-weighted for

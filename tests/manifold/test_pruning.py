@@ -33,12 +33,13 @@ def _measure(m):
 
 
 def _direct_changes(w, keep, w_kept, T, q):
-    """Relative cosine-weighted L2 change and per-channel albedo change, from the tables."""
+    """Relative cosine-weighted L2 change, per-channel albedo change and raw L2 change, from the tables."""
     full = w @ T
     delta = w_kept @ T[keep] - full
     cos = np.sqrt((q * delta ** 2).sum() / (q * full ** 2).sum())
     albedo = lambda t: (t * q).reshape(3, -1).sum(axis=1)     # noqa: E731
-    return cos, np.abs(albedo(delta)) / np.maximum(np.abs(albedo(full)), pruning.ALBEDO_FLOOR)
+    raw = np.linalg.norm(delta) / np.linalg.norm(full)
+    return cos, np.abs(albedo(delta)) / np.maximum(np.abs(albedo(full)), pruning.ALBEDO_FLOOR), raw
 
 
 def _weights(values, affine):
@@ -63,19 +64,21 @@ def test_image_rule_bounds_hold_on_drawn_weights(default, values, affine, budget
     assert w_kept.sum() == pytest.approx(w.sum(), rel=1e-12, abs=1e-12)
     assert dropped == pytest.approx(np.abs(w).sum() - np.abs(w[keep]).sum(), abs=1e-12)
     assert not set(np.flatnonzero(w == 0)) & set(keep) or len(keep) == 1
-    cos, albedo = _direct_changes(w, keep, w_kept, *_measure(default))
-    assert cos <= budget * (1 + 1e-6) + 1e-9
+    cos, albedo, raw = _direct_changes(w, keep, w_kept, *_measure(default))
+    assert cos <= budget * (1 + 1e-6) + 1e-9 and raw <= pruning.RAW_SHARE * budget * (1 + 1e-6) + 1e-9
     assert (albedo <= pruning.ALBEDO_SHARE * budget * (1 + 1e-6) + 1e-9).all()
     report = default.prune_report(w, budget)
     assert report.keep == tuple(keep) and report.within and report.rule == "image"
     assert report.cos_error == pytest.approx(cos, rel=1e-6, abs=1e-9)
+    assert report.raw_error == pytest.approx(raw, rel=1e-6, abs=1e-9)
     np.testing.assert_allclose(report.albedo_change, albedo, rtol=1e-6, atol=1e-9)
 
 
 @settings(max_examples=80, deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), n=st.integers(2, 60), budget=st.floats(1e-4, 0.3),
-       affine=st.booleans(), share=st.sampled_from([0.5, 0.1, 2.0]))
-def test_image_rule_on_many_materials_is_within_bounds_and_greedy_to_the_end(seed, n, budget, affine, share):
+       affine=st.booleans(), share=st.sampled_from([0.5, 0.1, 2.0]), raw_share=st.sampled_from([1.0, 3.0, np.inf]))
+def test_image_rule_on_many_materials_is_within_bounds_and_greedy_to_the_end(seed, n, budget, affine, share,
+                                                                               raw_share):
     """Spiky and dull synthetic tables: both bounds hold, exactly (no Gram matrix needed to check
     them), and no kept material could be dropped as well (the search stops only when it must)."""
     rng = np.random.default_rng(seed)
@@ -89,16 +92,19 @@ def test_image_rule_on_many_materials_is_within_bounds_and_greedy_to_the_end(see
     if affine:
         w = w + rng.normal(0, 0.2 / n, n)
         w /= w.sum()
-    keep, w_kept, _ = pruning.prune_image(w, C, A, budget, share)
-    cos, albedo = _direct_changes(w, keep, w_kept, T, q)
+    G = T @ T.T
+    keep, w_kept, _ = pruning.prune_image(w, C, A, budget, share, G=G, raw_share=raw_share)
+    cos, albedo, raw = _direct_changes(w, keep, w_kept, T, q)
     assert len(keep) >= 1 and w_kept.sum() == pytest.approx(w.sum(), rel=1e-12)
     assert cos <= budget * (1 + 1e-6) + 1e-12 and (albedo <= share * budget * (1 + 1e-6) + 1e-12).all()
+    assert raw <= raw_share * budget * (1 + 1e-6) + 1e-12
     if len(keep) > 1:
         kept = np.zeros(n, dtype=bool)
         kept[keep] = True
         fewer = np.repeat(kept[None], len(keep), axis=0)
         fewer[np.arange(len(keep)), keep] = False                 # each row drops one more
         over = ((pruning.errors(w, fewer, C) > budget * (1 - 1e-8))
+                | (pruning.errors(w, fewer, G) > raw_share * budget * (1 - 1e-8))
                 | (pruning.albedo_changes(w, fewer, A) > share * budget * (1 - 1e-8)).any(axis=1))
         assert over.all()
 
@@ -168,8 +174,12 @@ def test_the_report_says_what_was_kept_and_the_bounds_reached(default):
     text = str(r)
     assert f"{r.kept} of {default.n} materials kept" in text and "albedo change R/G/B" in text
     assert "cosine-weighted table error" in text and "raw L2 error" in text
-    late = pruning.PruneReport("image", 0.01, 0.005, (0,), 2, 0.5, (0.006, 0.0, 0.0), 0.001, 0.2)
+    assert r.raw_budget == r.cos_budget == r.budget and r.raw_error <= r.raw_budget
+    assert "(<= 0.5%)" in text and "(<= 1%)" in text
+    late = pruning.PruneReport("image", 0.01, 0.005, 0.01, 0.01, (0,), 2, 0.5, (0.006, 0.0, 0.0), 0.001, 0.002)
     assert not late.within
+    old = default.prune_report(w, rule="raw-l2")
+    assert old.albedo_budget is None and old.cos_budget is None and old.raw_budget == 0.01 and old.within
 
 
 def _rewrite_without(path, out, names):
