@@ -20,7 +20,8 @@ a point between two neighbours is a blend of those two. The choice is measured b
 
 :class:`Manifold` holds what was learned and delegates: the GP (kernel, factorisation of K,
 variance) to :mod:`mitsuba_manifold.gp`, the weights ``w(x)`` to its interpolant
-(:mod:`.interpolant`), the tables and their combination to :mod:`.tables`, names and
+(:mod:`.interpolant`), the tables, their pruning and combination to :mod:`.tables`
+(:class:`~.tables.PruningMethods`: ``prune``, ``prune_report``, ``combine``), names and
 weight text to :mod:`.materials`, projection to :mod:`.projection`, diagnostics and the
 summary to :mod:`.report`, the ``.npz`` file to :mod:`.io`.
 """
@@ -38,7 +39,7 @@ from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, PruneReport
 from .record import FitRecord, learned_arguments
-from .tables import Combination, Pruned, TrainingTables, stored
+from .tables import Combination, Pruned, PruningMethods, TrainingTables
 from ..data.database import FEATURES, Database
 from ..errors import InputError
 
@@ -55,7 +56,7 @@ class Weights(NamedTuple):
     w: np.ndarray
 
 
-class Manifold:
+class Manifold(PruningMethods):
     """A fitted latent space of measured materials (scikit-learn style: fit, then use).
 
     Parameters
@@ -205,10 +206,6 @@ class Manifold:
         """Table resolution ``(n_theta_h, n_theta_d, n_phi_d)`` of the fit (None if not recorded)."""
         return self.record.dims
 
-    table_gram = stored("gram", "``T T^T`` of the raw tables (:attr:`TrainingTables.gram`).")
-    cos_gram = stored("cos_gram", "``T diag(q) T^T`` (:attr:`TrainingTables.cos_gram`).")
-    albedos = stored("albedos", "Albedo of each material, (N, 3) (:attr:`TrainingTables.albedos`).")
-
     @property
     def _tables(self):
         return self._store.loaded
@@ -288,37 +285,6 @@ class Manifold:
     def tables(self, database=None):
         """All N tables in memory as float32 ``(N, d)`` (loaded once, then kept)."""
         return self._store.stack(database or self.database)
-
-    def table_norms(self):
-        """L2 norm of each raw table (from :attr:`table_gram`)."""
-        return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self.database)), 0.0))
-
-    def prune(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
-        """Materials kept by pruning weights ``w`` within the budget ``prune`` (0 keeps every
-        non-zero weight): a :class:`Pruned` ``(keep, w_kept, dropped)``.
-
-        ``rule="image"`` (default): each albedo channel changes by at most ``prune / 2``, the
-        cosine-weighted and the raw table by at most ``prune`` of their norms; ``"raw-l2"``: the
-        raw table by at most ``prune`` of its L2 norm (the previous release's rule); exact
-        (:meth:`TrainingTables.prune`, :mod:`.pruning`)."""
-        return self._store.prune(w, prune, self.database, rule)
-
-    def prune_error(self, w, keep, rule=DEFAULT_RULE):
-        """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled),
-        in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``)."""
-        return self._store.error(w, keep, self.database, rule)
-
-    def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
-        """What :meth:`prune` keeps and the bounds it reaches: a :class:`PruneReport` (materials
-        kept and their names, albedo change per channel, cosine-weighted and raw table errors,
-        the budgets; ``str()`` of it is one line for ``print(bsdf)`` and the explorer)."""
-        return self._store.report(w, prune, self.database, rule)
-
-    def combine(self, w, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
-        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
-        :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
-        Reads only the kept materials' tables (unless all are in memory)."""
-        return self._store.combine(w, prune, self.database, self.dims, database, rule)
 
     def interpolate(self, x, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
         """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""

@@ -207,6 +207,9 @@ def test_manifold_files_without_the_cosine_gram_or_albedos_load_and_prune_the_sa
         old.save(tmp_path / "again.npz")                      # the computed arrays are saved with it
         with np.load(tmp_path / "again.npz", allow_pickle=False) as z:
             assert {"cos_gram", "table_gram", "albedos"} <= set(z.files)
+    again = Manifold.load(tmp_path / "m1.npz")                # computed once per database: cached
+    assert [again.prune(w).keep.tolist() for w in again.weights(X).w] == expected
+    assert again._tables is None and np.array_equal(again.cos_gram, old.cos_gram)
 
 
 def test_cosine_gram_is_the_tables_in_the_measure_light_sees(default, small_db):
