@@ -2,8 +2,9 @@
 
 The GPLVM sees the measured tables only through ``S = Z Z^T`` (``Z``: each material's table
 in a feature space, minus the mean table); pruning needs ``G = T T^T`` of the raw tables and
-the space metrics the uncentred ``F F^T`` of a feature space. :func:`gram` computes any of
-them in one pass over blocks of values: each block is converted to float64 once, the
+the space metrics the uncentred ``F F^T`` of a feature space, and the "image" pruning rule
+the cosine-weighted ``T diag(q) T^T`` (``q``: each bin's ``cos(theta_i) cos(theta_o) dw_i dw_o``).
+:func:`gram` computes any of them in one pass over blocks of values: each block is converted to float64 once, the
 products accumulate in float64 and ``Z`` (or ``F``) is never held in float64 as a whole.
 Centring each block by its own column means (rather than centring the finished Gram
 matrix) keeps the small entries accurate next to chrome-like peaks of 1e4.
@@ -34,11 +35,14 @@ class Gram:
         The mean table in the feature space (``centre=True`` only).
     raw : (N, N) float64 or None
         ``T T^T`` of the raw tables (``raw=True`` only).
+    weighted : (N, N) float64 or None
+        ``T diag(q) T^T`` of the raw tables (``weights=q`` only).
     """
 
     S: np.ndarray
     mean: np.ndarray = None
     raw: np.ndarray = None
+    weighted: np.ndarray = None
 
 
 def transform(block, features, cos=None):
@@ -57,7 +61,7 @@ def transform(block, features, cos=None):
     raise FormatError(f"`features` must be one of {FEATURES}, got {features!r}")
 
 
-def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK):
+def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, weights=None):
     """Gram matrices of the rows of ``tables`` in one pass (see the module docstring).
 
     Parameters
@@ -74,6 +78,9 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK):
         Per-bin ``cos(theta_i) cos(theta_o)`` for ``coslog`` (the same for each channel).
     block : int
         Values per block.
+    weights : (bins,) array, optional
+        Per-bin weights ``q`` (the same for each channel): also ``T diag(q) T^T`` of the raw
+        tables, from the same blocks.
 
     Returns
     -------
@@ -87,6 +94,10 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK):
     mean = np.empty(d, dtype=np.float32) if centre else None
     S = np.zeros((n, n))
     G = np.zeros((n, n)) if raw else None
+    C = None if weights is None else np.zeros((n, n))
+    weights = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+    if weights is not None and weights.size != bins:
+        raise FormatError(f"`weights` must hold one value per bin ({bins}), got {weights.size}")
     # Small products (N x block): one BLAS thread is as fast as two on an idle machine
     # and 10-20x faster when another process competes for the cores.
     with threadpool_limits(1, user_api="blas"):
@@ -94,11 +105,15 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK):
             z = np.array(tables[:, start:start + block], dtype=np.float64)
             if raw:
                 G += z @ z.T
-            w = None if cos is None else cos[np.arange(start, start + z.shape[1]) % bins]
+            bins_of = np.arange(start, start + z.shape[1]) % bins
+            if C is not None:
+                C += (z * weights[bins_of]) @ z.T
+            w = None if cos is None else cos[bins_of]
             z = transform(z, features, w)
             if centre:
                 m = z.mean(axis=0)
                 mean[start:start + block] = m
                 z -= m
             S += z @ z.T
-    return Gram(0.5 * (S + S.T), mean, None if G is None else 0.5 * (G + G.T))
+    sym = (lambda M: None if M is None else 0.5 * (M + M.T))
+    return Gram(sym(S), mean, sym(G), sym(C))

@@ -4,9 +4,12 @@ The fit's :class:`~.record.FitRecord` is stored as the ``meta`` entry's ``info``
 ``history`` array, the layout of every release so far.
 
 Version 2 adds the interpolant's parameters and the raw tables' Gram matrix (exact pruning
-errors). Version 1 files (the previous release) read as the paper's GP interpolant on their
-stored ``l`` and ``mu``, what they were used with; anything unreadable fails with a message
-that names the file and says to refit.
+errors); files of this release add ``cos_gram``, the cosine-weighted Gram matrix of the
+"image" pruning rule, an optional array that readers of earlier version-2 files ignore and
+that this reader computes from the tables when a file lacks it. Version 1 files (the
+previous release) read as the paper's GP interpolant on their stored ``l`` and ``mu``,
+what they were used with; anything unreadable fails with a message that names the file
+and says to refit.
 """
 
 import json
@@ -22,6 +25,8 @@ from ..errors import InputError
 FORMAT = "mitsuba-manifold"
 FORMAT_VERSION = 2
 _REFIT = "refit it with tools/fit_manifold.py"
+#: Arrays derived from the tables (optional: computed from them on first use when absent).
+DERIVED = ("albedos", "gram", "table_gram", "cos_gram")
 
 
 def _not_a_manifold(path, why):
@@ -35,7 +40,7 @@ def write(m, path):
             "hashes": m.hashes, "length_scale": m.length_scale, "noise": m.noise, "features": m.features,
             "info": m.info, "interpolant": m.interpolant.params()}
     arrays = {"latent": m.latent, "history": m.history, "meta": np.array(json.dumps(meta))}
-    for name in ("albedos", "gram", "table_gram"):
+    for name in DERIVED:
         if getattr(m, name) is not None:
             arrays[name] = getattr(m, name)
     atomic_write(os.fspath(path), lambda f: np.savez(f, **arrays))
@@ -73,10 +78,10 @@ def read(path):
                   "features": meta["features"], "albedos": arrays.get("albedos"), "gram": arrays.get("gram"),
                   "record": FitRecord.from_info(info, arrays.get("history", ())),
                   "interpolant": meta["interpolant"] if version >= 2 else {"kind": "gp", "exact": True},
-                  "table_gram": arrays.get("table_gram")}
+                  "table_gram": arrays.get("table_gram"), "cos_gram": arrays.get("cos_gram")}
     except KeyError as e:
         raise InputError(f"{path}: missing field {e}; {_REFIT}") from None
-    for name in ("albedos", "gram", "table_gram"):   # derived arrays: a damaged one would go unnoticed
+    for name in DERIVED:   # derived arrays: a damaged one would go unnoticed
         a = kwargs[name]
         if a is not None and (a.dtype.kind not in "fiu" or not np.isfinite(a).all()):
             raise InputError(f"{path}: its {name} array is damaged (not finite numbers); {_REFIT}")

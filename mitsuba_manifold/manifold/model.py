@@ -20,7 +20,8 @@ a point between two neighbours is a blend of those two. The choice is measured b
 
 :class:`Manifold` holds what was learned and delegates: the GP (kernel, factorisation of K,
 variance) to :mod:`mitsuba_manifold.gp`, the weights ``w(x)`` to its interpolant
-(:mod:`.interpolant`), the tables and their combination to :mod:`.tables`, names and
+(:mod:`.interpolant`), the tables, their pruning and combination to :mod:`.tables`
+(:class:`~.tables.PruningMethods`: ``prune``, ``prune_report``, ``combine``), names and
 weight text to :mod:`.materials`, projection to :mod:`.projection`, diagnostics and the
 summary to :mod:`.report`, the ``.npz`` file to :mod:`.io`.
 """
@@ -32,19 +33,19 @@ import numpy as np
 
 from ..gp.kernel import Kernel
 from ..gp.likelihood import log_likelihood
-from . import fitting, io as manifold_file, materials, pruning, report
+from . import fitting, io as manifold_file, materials, report
 from . import interpolant as interpolants
 from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings
-from .pruning import DEFAULT_PRUNE
+from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, PruneReport
 from .record import FitRecord, learned_arguments
-from .tables import Combination, Pruned, TrainingTables
+from .tables import Combination, Pruned, PruningMethods, TrainingTables
 from ..data.database import FEATURES, Database
 from ..errors import InputError
 
 #: Names other modules import from here (the presets, the pruning default, the result types).
 __all__ = ["Manifold", "Weights", "Pruned", "Combination", "FitRecord", "PRESETS", "DEFAULT_PRUNE",
-           "FORMAT_VERSION", "settings", "fit_layout", "make_interpolant", "InputError"]
+           "DEFAULT_RULE", "PruneReport", "FORMAT_VERSION", "settings", "fit_layout", "make_interpolant", "InputError"]
 
 FORMAT_VERSION = manifold_file.FORMAT_VERSION
 
@@ -55,7 +56,7 @@ class Weights(NamedTuple):
     w: np.ndarray
 
 
-class Manifold:
+class Manifold(PruningMethods):
     """A fitted latent space of measured materials (scikit-learn style: fit, then use).
 
     Parameters
@@ -69,7 +70,7 @@ class Manifold:
     *legacy
         ``gram, history, info`` after ``albedos``, as the previous release took them.
     **learned
-        ``gram``, ``table_gram``, ``interpolant`` (its parameters, default the paper's GP
+        ``gram``, ``table_gram``, ``cos_gram``, ``interpolant`` (its parameters, default the paper's GP
         weights on ``l`` and ``mu``) and ``record`` (a :class:`FitRecord`), or instead of it
         the previous release's ``history`` and ``info`` dict.
 
@@ -88,11 +89,15 @@ class Manifold:
     features : str
         Feature transform used for the fit only (``raw`` or ``log``).
     albedos : ndarray (N, 3) or None
-        Bihemispherical albedo of each material (for :meth:`albedo`).
+        Bihemispherical albedo of each material (for :meth:`albedo` and pruning; computed
+        from the tables when pruning needs it and it is absent).
     gram : ndarray (N, N) or None
         ``S = Z Z^T`` the latent points were fit to (:meth:`log_likelihood`, Eq. 7's ``|Z|``).
     table_gram : ndarray (N, N) or None
-        ``T T^T`` of the raw tables (exact pruning errors); computed on first use when absent.
+        ``T T^T`` of the raw tables (exact "raw-l2" pruning errors); computed on first use when absent.
+    cos_gram : ndarray (N, N) or None
+        ``T diag(q) T^T``, ``q`` each bin's ``cos(theta_i) cos(theta_o) dw_i dw_o`` (exact "image"
+        pruning errors, :mod:`.pruning`); computed on first use when absent.
     interpolant : interpolant.Interpolant
         The weight function ``w(x)``.
     record : FitRecord
@@ -115,11 +120,11 @@ class Manifold:
         self.hashes = list(hashes)
         self.kernel = Kernel(length_scale, noise)
         self.features = features
-        self.albedos = None if albedos is None else np.asarray(albedos, dtype=np.float64)
         gram = learned.get("gram")
         self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
         self.record = learned.get("record") or FitRecord.from_info(learned.get("info"), learned.get("history", ()))
-        self._store = TrainingTables(self.names, self.hashes, learned.get("table_gram"))
+        self._store = TrainingTables(self.names, self.hashes, learned.get("table_gram"), learned.get("cos_gram"),
+                                     albedos)
         self.interpolant = make_interpolant(self.latent, {
             "length_scale": self.length_scale, "noise": self.noise,
             "interpolant": learned.get("interpolant") or {"kind": "gp", "exact": True}})
@@ -161,7 +166,8 @@ class Manifold:
         db = database if isinstance(database, Database) else Database(database, names)
         f = fitting.fit_database(db, names, cfg, preset, init=init, progress=progress, **options)
         m = cls(f.names, f.result.latent, db.folder, f.hashes, cfg["length_scale"], cfg["noise"], cfg["features"],
-                f.albedos, gram=f.gram, record=f.record, interpolant=cfg["interpolant"], table_gram=f.table_gram)
+                f.albedos, gram=f.gram, record=f.record, interpolant=cfg["interpolant"], table_gram=f.table_gram,
+                cos_gram=f.cos_gram)
         m._tables = f.tables
         return m
 
@@ -199,14 +205,6 @@ class Manifold:
     def dims(self):
         """Table resolution ``(n_theta_h, n_theta_d, n_phi_d)`` of the fit (None if not recorded)."""
         return self.record.dims
-
-    @property
-    def table_gram(self):
-        return self._store.gram
-
-    @table_gram.setter
-    def table_gram(self, value):
-        self._store.gram = None if value is None else np.asarray(value, dtype=np.float64)
 
     @property
     def _tables(self):
@@ -288,33 +286,13 @@ class Manifold:
         """All N tables in memory as float32 ``(N, d)`` (loaded once, then kept)."""
         return self._store.stack(database or self.database)
 
-    def table_norms(self):
-        """L2 norm of each raw table (from :attr:`table_gram`)."""
-        return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self.database)), 0.0))
-
-    def prune(self, w, prune=DEFAULT_PRUNE):
-        """Materials kept by pruning weights ``w`` within ``prune`` (relative L2 change of the
-        table, exact; 0 keeps every non-zero weight): a :class:`Pruned` ``(keep, w_kept,
-        dropped)`` (:meth:`TrainingTables.prune`)."""
-        return self._store.prune(w, prune, self.database)
-
-    def prune_error(self, w, keep):
-        """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled)."""
-        return pruning.error(np.asarray(w, dtype=np.float64), keep, self._store.raw_gram(self.database))
-
-    def combine(self, w, prune=DEFAULT_PRUNE, database=None):
-        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
-        :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
-        Reads only the kept materials' tables (unless all are in memory)."""
-        return self._store.combine(w, prune, self.database, self.dims, database)
-
-    def interpolate(self, x, prune=DEFAULT_PRUNE, database=None):
+    def interpolate(self, x, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
         """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""
         if np.ndim(x) > 1:
             raise InputError(f"interpolate takes one latent point ({self.q} numbers), got shape {np.shape(x)}; "
                              "call it once per point")
         _, w = self.weights(x)
-        return self.combine(w, prune, database)
+        return self.combine(w, prune, database, rule)
 
     def negative_fraction(self, x, prune=DEFAULT_PRUNE, database=None):
         """Fraction of the interpolated table's values below 0 at ``x``.

@@ -3,16 +3,21 @@
 Every material a manifold gives is ``sum_i w_i table_i`` over its N measured tables (paper
 Eq. 4). :class:`TrainingTables` owns what that needs: opening the database the manifold was
 fit on (each table checked against the SHA-256 recorded at the fit), the ``(N, d)`` stack
-kept in memory once loaded, the raw tables' Gram matrix ``G = T T^T`` for exact pruning
-errors (:mod:`.pruning`), and the combination itself, reading only the kept tables.
+kept in memory once loaded, what pruning measures exactly (:mod:`.pruning`: the raw tables'
+Gram matrix ``G = T T^T``, the cosine-weighted ``C = T diag(q) T^T`` and the albedos, each
+computed from the tables on first use when a manifold file of an earlier release lacks it),
+and the combination itself, reading only the kept tables.
 """
 
+import os
 from typing import NamedTuple
 
 import numpy as np
 
 from . import materials, pruning
-from ..data.database import Database
+from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES
+from .._util.cache import key_hash, npy_cache
+from ..data.database import Database, albedo_weights
 from ..errors import InputError
 
 
@@ -32,6 +37,16 @@ class Combination(NamedTuple):
     dropped: float
 
 
+def _float64(a):
+    return None if a is None else np.asarray(a, dtype=np.float64)
+
+
+def stored(name, doc):
+    """A property of the owner's ``_store`` (a :class:`TrainingTables`) attribute ``name``, set as float64."""
+    return property(lambda self: getattr(self._store, name),
+                    lambda self, value: setattr(self._store, name, _float64(value)), doc=doc)
+
+
 class TrainingTables:
     """The N tables of materials ``names`` whose files had SHA-256 ``hashes`` at the fit.
 
@@ -40,17 +55,21 @@ class TrainingTables:
     names, hashes : list of str
     gram : (N, N) array, optional
         ``T T^T`` of the raw tables (computed from the tables on first use when absent).
+    cos_gram : (N, N) array, optional
+        ``T diag(q) T^T``, ``q`` the bins' cosine-weighted solid angles (likewise).
+    albedos : (N, 3) array, optional
+        Bihemispherical albedo of each material (likewise).
 
     Attributes
     ----------
-    gram : ndarray or None
+    gram, cos_gram, albedos : ndarray or None
     loaded : (N, d) float32 ndarray or None
         The stack of all tables, once read (:meth:`stack`).
     """
 
-    def __init__(self, names, hashes, gram=None):
+    def __init__(self, names, hashes, gram=None, cos_gram=None, albedos=None):
         self.names, self.hashes = names, hashes
-        self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
+        self.gram, self.cos_gram, self.albedos = _float64(gram), _float64(cos_gram), _float64(albedos)
         self.loaded = None
 
     def open(self, folder, names=None):
@@ -84,14 +103,55 @@ class TrainingTables:
             self.gram = pruning.raw_gram(self.stack(folder))
         return self.gram
 
-    def prune(self, w, budget, folder):
-        """Materials kept by pruning weights ``w`` within the relative L2 ``budget``.
+    def cosine_gram(self, folder):
+        """:attr:`cos_gram`, computed from the tables in ``folder`` when absent (with :attr:`gram`
+        in the same pass when that is absent too), once per database: cached in its cache
+        folder, named by the tables' hashes (a manifold file of an earlier release, which
+        cannot be rewritten without changing the hash its bases record, reads the tables
+        only the first time)."""
+        if self.cos_gram is None:
+            db = self.open(folder, self.names[:1])
+            n = len(self.names)
+            path = os.path.join(db.cache_dir, key_hash("cos-gram-v1", *self.hashes, length=40) + ".cosgram-v1.npy")
 
-        Drops the materials of smallest contribution ``|w_i| |table_i|`` for as long as the
-        table changes by at most ``budget`` of its L2 norm; the kept weights are rescaled to
-        sum to ``sum(w)`` so the combination stays affine. The change is computed exactly from
-        the tables' Gram matrix (:func:`pruning.prune`), rescaling included; ``budget = 0``
-        keeps every non-zero weight.
+            def build():
+                return np.stack(pruning.cos_grams(self.stack(folder), albedo_weights(db.dims).reshape(-1)))
+
+            G, self.cos_gram = npy_cache(path, build, shape=(2, n, n), dtype=np.float64, finite=True)
+            if self.gram is None:
+                self.gram = np.array(G)
+            self.cos_gram = np.array(self.cos_gram)
+        return self.cos_gram
+
+    def albedo(self, folder):
+        """:attr:`albedos`, computed from the tables in ``folder`` when absent."""
+        if self.albedos is None:
+            db = self.open(folder, self.names[:1])
+            self.albedos = np.asarray(db.albedo(self.names, tables=self.stack(folder)), dtype=np.float64)
+        return self.albedos
+
+    def _checked(self, w, budget, rule):
+        w = np.asarray(w, dtype=np.float64)
+        n = len(self.names)
+        if w.shape != (n,) or not np.isfinite(w).all():
+            raise InputError(f"weights must be {n} finite values, got shape {w.shape}")
+        if not 0 <= budget < 1:
+            raise InputError(f"`prune` must be in [0, 1), got {budget}")
+        if rule not in RULES:
+            raise InputError(f"`rule` must be one of {', '.join(map(repr, RULES))}, got {rule!r}")
+        return w
+
+    def prune(self, w, budget, folder, rule=DEFAULT_RULE):
+        """Materials kept by pruning weights ``w`` within ``budget`` under ``rule``.
+
+        ``"image"`` (the default): each albedo channel changes by at most
+        ``pruning.ALBEDO_SHARE * budget``, the cosine-weighted table by at most ``budget`` of its
+        norm and the raw table by at most ``pruning.RAW_SHARE * budget`` of its L2 norm
+        (:func:`pruning.prune_image`). ``"raw-l2"``: the raw table by at most ``budget``
+        of its L2 norm (:func:`pruning.prune`, the previous release's rule). The kept weights
+        are rescaled to sum to ``sum(w)`` so the combination stays affine; the changes are
+        computed exactly from Gram matrices, rescaling included; ``budget = 0`` keeps every
+        non-zero weight.
 
         Returns
         -------
@@ -99,21 +159,32 @@ class TrainingTables:
             ``keep`` (ndarray of int), ``w_kept`` (ndarray), ``dropped`` (float: sum of
             ``|w_i|`` over the dropped materials).
         """
-        w = np.asarray(w, dtype=np.float64)
-        n = len(self.names)
-        if w.shape != (n,) or not np.isfinite(w).all():
-            raise InputError(f"weights must be {n} finite values, got shape {w.shape}")
-        if not 0 <= budget < 1:
-            raise InputError(f"`prune` must be in [0, 1), got {budget}")
-        return Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
+        w = self._checked(w, budget, rule)
+        if rule == "raw-l2":
+            return Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
+        C = self.cosine_gram(folder)
+        return Pruned(*pruning.prune_image(w, C, self.albedo(folder), budget, G=self.raw_gram(folder)))
 
-    def combine(self, w, budget, folder, dims, database=None):
+    def error(self, w, keep, folder, rule=DEFAULT_RULE):
+        """The relative L2 change of the table in the norm of ``rule`` (cosine-weighted for
+        ``"image"``, raw for ``"raw-l2"``) when only ``keep`` is kept (rescaled)."""
+        w = self._checked(w, 0.0, rule)
+        return pruning.error(w, keep, self.raw_gram(folder) if rule == "raw-l2" else self.cosine_gram(folder))
+
+    def report(self, w, budget, folder, rule=DEFAULT_RULE):
+        """:class:`pruning.PruneReport` of :meth:`prune`: what was kept, the albedo change of each
+        channel and the cosine-weighted and raw table errors reached."""
+        keep = self.prune(w, budget, folder, rule).keep
+        return pruning.report(w, keep, rule, budget, G=self.raw_gram(folder), C=self.cosine_gram(folder),
+                              albedos=self.albedo(folder), names=self.names)
+
+    def combine(self, w, budget, folder, dims, database=None, rule=DEFAULT_RULE):
         """The table ``sum_i w_i table_i`` of shape ``(3,) + dims`` over the materials :meth:`prune` keeps.
 
         Uses the tables in memory when they are (and ``database`` is None); otherwise reads
         only the kept ones from ``database`` (default ``folder``).
         """
-        keep, w_kept, dropped = self.prune(w, budget, folder)
+        keep, w_kept, dropped = self.prune(w, budget, folder, rule)
         n = len(self.names)
         if self.loaded is not None and database is None and dims is not None:
             shape = (3,) + tuple(dims)
@@ -127,3 +198,43 @@ class TrainingTables:
         flat = pruning.weighted_sum((db.reflectance(self.names[i]).reshape(-1) for i in keep), w_kept,
                                     3 * int(np.prod(db.dims)))
         return Combination(flat.reshape((3,) + db.dims), keep, dropped)
+
+
+class PruningMethods:
+    """:class:`~.model.Manifold`'s pruning and combination of its tables (its ``_store``, a
+    :class:`TrainingTables`, ``database`` and ``dims``), and the arrays they use."""
+
+    table_gram = stored("gram", "``T T^T`` of the raw tables (:attr:`TrainingTables.gram`).")
+    cos_gram = stored("cos_gram", "``T diag(q) T^T`` (:attr:`TrainingTables.cos_gram`).")
+    albedos = stored("albedos", "Albedo of each material, (N, 3) (:attr:`TrainingTables.albedos`).")
+
+    def table_norms(self):
+        """L2 norm of each raw table (from :attr:`table_gram`)."""
+        return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self.database)), 0.0))
+
+    def prune(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
+        """Materials kept by pruning weights ``w`` within the budget ``prune`` (0 keeps every
+        non-zero weight): a :class:`Pruned` ``(keep, w_kept, dropped)``.
+
+        ``rule="image"`` (default): each albedo channel changes by at most ``prune / 2``, the
+        cosine-weighted and the raw table by at most ``prune`` of their norms; ``"raw-l2"``: the
+        raw table by at most ``prune`` of its L2 norm (the previous release's rule); exact
+        (:meth:`TrainingTables.prune`, :mod:`.pruning`)."""
+        return self._store.prune(w, prune, self.database, rule)
+
+    def prune_error(self, w, keep, rule=DEFAULT_RULE):
+        """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled),
+        in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``)."""
+        return self._store.error(w, keep, self.database, rule)
+
+    def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
+        """What :meth:`prune` keeps and the bounds it reaches: a :class:`pruning.PruneReport` (materials
+        kept and their names, albedo change per channel, cosine-weighted and raw table errors,
+        the budgets; ``str()`` of it is one line for ``print(bsdf)`` and the explorer)."""
+        return self._store.report(w, prune, self.database, rule)
+
+    def combine(self, w, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
+        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
+        :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
+        Reads only the kept materials' tables (unless all are in memory)."""
+        return self._store.combine(w, prune, self.database, self.dims, database, rule)

@@ -53,3 +53,23 @@ def test_one_pass_gives_every_gram_the_package_uses():
     assert np.array_equal(space.feature_gram(tables, "coslog", cos), gram.gram(tables, "coslog", centre=False, cos=cos).S)
     with pytest.raises(ValueError, match="`cos`"):
         gram.gram(tables, "coslog")
+
+
+def test_cosine_weighted_gram_comes_from_the_same_pass():
+    """``T diag(q) T^T`` (the "image" pruning rule's measure) beside the fit's Gram, in one pass."""
+    rng = np.random.default_rng(2)
+    bins = 3000
+    tables = rng.uniform(0, 3, (4, 3 * bins)).astype(np.float32)
+    tables[0, :7] = 1e5                                            # peaks in bins of tiny measure
+    q = rng.uniform(0, 1e-3, bins)
+    q[:7] = 1e-9
+    T = tables.astype(np.float64)
+    g = gram.gram(tables, "log", centre=True, raw=True, weights=q, block=1000)
+    np.testing.assert_allclose(g.weighted, (T * np.tile(q, 3)) @ T.T, rtol=1e-12)
+    assert np.array_equal(g.raw, pruning.raw_gram(tables, block=1000))
+    assert np.array_equal(g.S, gram.gram(tables, "log", centre=True, block=1000).S)   # the fit's Gram unchanged
+    G, C = pruning.cos_grams(tables, q, block=1000)
+    assert np.array_equal(G, g.raw) and np.array_equal(C, g.weighted)
+    assert gram.gram(tables, "raw").weighted is None
+    with pytest.raises(ValueError, match="`weights`.*3000"):
+        gram.gram(tables, "raw", weights=q[:-1])

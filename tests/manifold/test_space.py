@@ -164,15 +164,26 @@ def test_project_json_replaces_only_its_own_files(default, small_db, tmp_path):
     assert ".tmp" not in err
 
 
-def test_default_prune_keeps_the_table_within_one_percent(default):
+def test_default_prune_keeps_the_table_within_its_bounds(default):
+    """The "raw-l2" rule within 1% of the raw L2 norm; the default "image" rule within 1% of the
+    cosine-weighted norm and 0.5% of each albedo channel (errors measured on the tables)."""
+    from mitsuba_manifold.data.database import albedo_weights
     tables = default.tables()
+    q = albedo_weights(default.dims).reshape(-1)
+    qq = np.tile(q, 3)
     for x in _box_points(default, 12, seed=2):
         w = default.weights(x).w
-        full = w @ tables
-        table, keep, _ = default.combine(w)
+        full = (w @ tables.astype(np.float64))
+        table, keep, _ = default.combine(w, rule="raw-l2")
         err = np.linalg.norm(table.reshape(-1) - full) / np.linalg.norm(full)
         assert err <= 0.01 + 1e-5
-        assert err == pytest.approx(default.prune_error(w, keep), abs=1e-5)
+        assert err == pytest.approx(default.prune_error(w, keep, rule="raw-l2"), abs=1e-5)
+        table, keep, _ = default.combine(w)
+        d = table.reshape(-1) - full
+        err = np.sqrt((qq * d * d).sum() / (qq * full * full).sum())
+        assert err <= 0.01 + 1e-5 and err == pytest.approx(default.prune_error(w, keep), abs=1e-5)
+        albedo = full.reshape(3, -1) @ q
+        assert (np.abs(d.reshape(3, -1) @ q) <= 0.005 * albedo + 1e-6).all()
 
 
 def test_prune_by_contribution_keeps_small_weights_on_spiky_tables(paper):

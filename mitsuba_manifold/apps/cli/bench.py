@@ -14,6 +14,7 @@
              screenshot of the page beside the JSON
   space      the latent space: held-out fidelity (10-fold), path smoothness, jump, plausibility,
              per configuration (paper, default, levers); --basis adds image-space smoothness
+  prune      pruning rules: albedo, cosine-weighted and raw table change, materials kept, ms per call; --basis: image change
 """
 
 import argparse
@@ -26,7 +27,7 @@ from .common import ArgumentParser, guarded, parse_list
 
 
 #: Benchmarks that take a saved manifold (the others fit their own).
-WITH_MANIFOLD = ("interp", "bsdf", "gi", "stability", "basis", "match", "explore")
+WITH_MANIFOLD = ("interp", "bsdf", "gi", "stability", "basis", "match", "explore", "prune")
 
 
 @guarded
@@ -71,6 +72,8 @@ def main(argv=None):
         kwargs["manifold"] = args.manifold
     if args.which == "match":
         kwargs.update(basis=args.basis, res=args.res, out=args.out)
+    if args.which == "prune":
+        kwargs["basis"] = args.basis
     if args.which == "gi":
         kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
     if args.which == "scaling":
