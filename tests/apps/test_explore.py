@@ -94,6 +94,7 @@ def test_material_description(explorer, small_manifold_paper):
     info = explorer.material(m.latent[i])
     assert info["weights"][0] == {"name": "gold-paint", "w": 1.0, "kept": True}
     assert [w["kept"] for w in info["weights"]].count(True) == info["n_kept"] == 1
+    assert info["pruning"].startswith("1 of ") and info["pruning_albedo"] <= info["pruning_albedo_budget"]
     assert info["nearest"][0]["name"] == "gold-paint" and info["nearest"][0]["distance"] == 0
     assert info["variance"] < 1e-3
     np.testing.assert_allclose(info["albedo"], m.albedos[i], rtol=1e-9)

@@ -39,7 +39,8 @@ CACHE_VERSION = "explore-preview-v1"
 def describe(manifold, x, prune):
     """Weights, albedo, variance and neighbours of latent point ``x`` (q,), as JSON-ready dict."""
     _, w = manifold.weights(x)
-    keep, w_kept, dropped = manifold.prune(w, prune)
+    report = manifold.prune_report(w, prune)   # what pruning keeps and the bounds it reaches
+    keep, dropped = report.keep, report.dropped
     order = np.argsort(-np.abs(w))
     kept = set(int(i) for i in np.asarray(keep).ravel())
     top = [{"name": manifold.names[i], "w": float(w[i]), "kept": int(i) in kept} for i in order[:TOP_WEIGHTS]]
@@ -47,6 +48,9 @@ def describe(manifold, x, prune):
     near = np.argsort(dist)[:NEAREST]
     out = {"x": [float(v) for v in x], "weights": top, "n_kept": int(len(keep)),
            "dropped_weight": float(dropped), "negative_weight": float(-w[w < 0].sum()),
+           "pruning": str(report),
+           "pruning_albedo": None if report.albedo_change is None else float(max(report.albedo_change)),
+           "pruning_albedo_budget": report.albedo_budget,
            "variance": max(0.0, float(manifold.variance(x))), "prior_variance": 1.0 + manifold.noise,
            "nearest": [{"name": manifold.names[i], "distance": float(dist[i])} for i in near],
            "albedo": None}

@@ -379,7 +379,10 @@ function showMaterial(m) {
     $("weights").append(name, track, val);
   }
   $("weights-note").textContent = `${m.n_kept} of ${state.info.names.length} kept after pruning (● kept, ○ dropped)` +
-    (m.negative_weight > 1e-6 ? ` · negative weight ${m.negative_weight.toFixed(2)}` : "");
+    (m.negative_weight > 1e-6 ? ` · negative weight ${m.negative_weight.toFixed(2)}` : "") +
+    (m.pruning_albedo != null ? ` · albedo change ${(100 * m.pruning_albedo).toFixed(2)}%` +
+      (m.pruning_albedo_budget != null ? ` (≤ ${(100 * m.pruning_albedo_budget).toFixed(2)}%)` : "") : "");
+  $("weights-note").title = m.pruning || "";   // the bound pruning reached (albedo, cosine-weighted, raw L2)
   if (m.slice) {
     $("slice").src = m.slice.png;
     $("slice-hi").textContent = m.slice.log10_range[1].toFixed(1);
