@@ -68,15 +68,15 @@ def rescaled(w, J, idx):
     return v, r * (Js - np.outer(ws / part, Js.sum(axis=0)))
 
 
-def jitter(x, manifold, scale=0.05, rng=None):
-    """``x`` moved by ``scale`` typical steps in a random direction, when it lies on a
+def jitter(x, manifold, scale=1.0, rng=None):
+    """``x`` moved by ``scale`` typical steps (:func:`typical_step`) in a random direction, when it lies on a
     training point (where the Shepard weights' Jacobian is 0); otherwise unchanged."""
     x = np.asarray(x, dtype=np.float64).copy()
     step = typical_step(manifold.latent)
     if np.min(np.linalg.norm(manifold.latent - x, axis=1)) < 1e-3 * step:
         rng = np.random.default_rng(0) if rng is None else rng
         d = rng.normal(size=x.shape)
-        x += scale * 4.0 * step * d / np.linalg.norm(d)
+        x += scale * step * d / np.linalg.norm(d)
     return x
 
 

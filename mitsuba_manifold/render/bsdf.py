@@ -319,6 +319,29 @@ class ManifoldBRDF(mi.BSDF):
         """The :class:`.ad.ActiveSet` of AD mode (None before it was first entered)."""
         return self._active
 
+    @property
+    def ad_weights(self):
+        """The weights of the active set in AD mode (a ``mi.Float`` of size K that follows ``x``;
+        None otherwise)."""
+        return self._w
+
+    def forward_weights(self, dx):
+        """Forward mode: the active set's weights as a new AD leaf carrying ``J dx`` (propagated from
+        ``x`` through :class:`.ad.LatentWeights`, the analytic Jacobian), used from now on; returns it. Then
+        ``integrator.render_forward(scene, {"w": leaf})`` gives the image's derivative along ``dx``.
+        (Mitsuba's ``render_forward`` propagates only inside its isolated scope, which the edge
+        ``x -> w`` made by ``params.update()`` lies outside: propagating from ``x`` itself fails.)"""
+        if self._w is None:
+            raise InputError(f"{PLUGIN_NAME}: forward_weights needs AD mode (a grad-enabled x after params.update())")
+        dr.set_grad(self._x_param, mi.Float(np.asarray(dx, dtype=np.float32).ravel()))
+        dw = dr.forward_to(self._w)   # through LatentWeights.forward; clears the edges x -> w
+        leaf = dr.detach(self._w)
+        dr.enable_grad(leaf)
+        dr.set_grad(leaf, dw)
+        self._w = leaf
+        self._gather = ad.mixture_gather(self._active.slots, leaf, self._active.host.shape[1], self._active.k)
+        return leaf
+
     def _read_tables(self, names):
         db = self._manifold.open_database(self._options.database, names)
         return {n: np.asarray(db.reflectance(n)) for n in names}
@@ -335,7 +358,7 @@ class ManifoldBRDF(mi.BSDF):
 
         def weights_fn(x):
             state["idx"], v, Jv, state["w"] = self._active.update(x)
-            state["v"], state["x"] = v, x
+            state["v"], state["x"], state["J"] = v, x, Jv
             return v, Jv
 
         try:
@@ -358,7 +381,7 @@ class ManifoldBRDF(mi.BSDF):
             prune_error=self._manifold.prune_error(state["w"], order), n_clamped=0, n_values=a.host.size,
             black=black, dims=a.dims, distr=distr, table=None)
         self._cos_frac = 1.0 if distr is None else COSINE_FRACTION
-        self._w = w
+        self._w, self._jac = w, state["J"]
         self._gather = ad.mixture_gather(a.slots, w, a.host.shape[1], a.k)
 
     def to_string(self):

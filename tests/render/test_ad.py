@@ -1,0 +1,180 @@
+"""The differentiable latent point of ``manifold_brdf`` (:mod:`mitsuba_manifold.render.ad`): the custom
+operation's Jacobian, the gradient of a full-GI ``prb`` render against central finite differences
+(fixed sampling proxy, no Russian roulette), training-point starts, and the primal image of AD mode
+against the combined table."""
+
+import gc
+
+import numpy as np
+import pytest
+
+import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
+import drjit as dr  # noqa: E402
+import mitsuba as mi  # noqa: E402
+
+from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
+from mitsuba_manifold.render import ad  # noqa: E402
+
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
+
+RES, SPP, DEPTH = 12, 8, 3
+
+
+@pytest.fixture(scope="module")
+def manifold(small_manifold):
+    return Manifold.load(small_manifold)
+
+
+def _scene(manifold_path, x, terms=4, prune=0.01):
+    """A sphere on a floor sharing the manifold material, under a constant sky (inter-reflections)."""
+    mat = {"type": "manifold_brdf", "id": "mat", "manifold": manifold_path, "x": ", ".join(map(str, x)),
+           "ad_terms": terms, "prune": prune}
+    return mi.load_dict({
+        "type": "scene", "mat": mat,
+        "sensor": {"type": "perspective", "fov": 40, "to_world": mi.ScalarTransform4f().look_at(
+            origin=[0, 1.2, 3.5], target=[0, 0, 0], up=[0, 1, 0]),
+            "film": {"type": "hdrfilm", "width": RES, "height": RES, "rfilter": {"type": "box"}}},
+        "sphere": {"type": "sphere", "bsdf": {"type": "ref", "id": "mat"}},
+        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, -1, 0]).rotate(
+            [1, 0, 0], -90).scale(4), "bsdf": {"type": "ref", "id": "mat"}},
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
+        "lamp": {"type": "point", "position": [1.5, 2.5, 1.5], "intensity": {"type": "rgb", "value": 8.0}},
+    }, optimize=False)
+
+
+def _x0(manifold):
+    """A point between two materials (no training point: nonzero Jacobian)."""
+    return 0.55 * manifold.latent[1] + 0.45 * manifold.latent[2]
+
+
+def _grad_enabled(scene, x):
+    params = mi.traverse(scene)
+    params["mat.x"] = mi.Float(np.asarray(x, dtype=np.float32))
+    dr.enable_grad(params["mat.x"])
+    params.update()
+    return params
+
+
+PRB = {"type": "prb", "max_depth": DEPTH, "rr_depth": 1000}
+
+
+def _mean_image(scene, params, x, seed):
+    params["mat.x"] = mi.Float(np.asarray(x, dtype=np.float32))
+    dr.enable_grad(params["mat.x"])
+    params.update()
+    with dr.suspend_grad():
+        img = mi.render(scene, params, integrator=mi.load_dict(PRB), spp=SPP, seed=seed)
+    return float(np.array(img, dtype=np.float64).mean())
+
+
+def _central_differences(scene, params, x0, h=2e-3, seed=1):
+    fd = []
+    for j in range(x0.size):
+        e = np.eye(x0.size)[j] * h
+        fd.append((_mean_image(scene, params, x0 + e, seed) - _mean_image(scene, params, x0 - e, seed)) / (2 * h))
+    return np.array(fd)
+
+
+def test_custom_op_jacobian_with_rescaled_active_set(manifold):
+    x0 = _x0(manifold)
+    _, w = manifold.weights(x0)
+    J = manifold.weights_jacobian(x0)
+    idx = ad.choose_active(w, J, 3, ad.typical_step(manifold.latent))
+
+    def fn(x):
+        _, w = manifold.weights(x)
+        return ad.rescaled(w, manifold.weights_jacobian(x), idx)
+
+    v, Jv = fn(x0)
+    assert v.sum() == pytest.approx(1.0) and np.allclose(Jv.sum(axis=0), 0.0, atol=1e-9)
+    h = 1e-6
+    fd = np.stack([(fn(x0 + h * e)[0] - fn(x0 - h * e)[0]) / (2 * h) for e in np.eye(manifold.q)], axis=1)
+    np.testing.assert_allclose(Jv, fd, rtol=1e-4, atol=1e-6)
+    full = ad.rescaled(w, J, np.arange(manifold.n))[1]
+    np.testing.assert_allclose(full, J, atol=1e-12)   # nothing dropped: exactly Manifold.weights_jacobian
+
+    x = mi.Float(x0.astype(np.float32))
+    dr.enable_grad(x)
+    out = ad.latent_weights(x, fn)
+    c = np.arange(1.0, len(idx) + 1)
+    dr.backward(dr.sum(out * mi.Float(c)))
+    np.testing.assert_allclose(np.array(dr.grad(x)), c @ Jv, rtol=1e-5)
+    x = mi.Float(x0.astype(np.float32))
+    dr.enable_grad(x)
+    out = ad.latent_weights(x, fn)
+    dr.set_grad(x, mi.Float([1.0, -2.0]))
+    dr.forward_to(out)
+    np.testing.assert_allclose(np.array(dr.grad(out)), Jv @ [1.0, -2.0], rtol=1e-5, atol=1e-7)
+
+
+def test_active_set_by_weight_and_jacobian_with_hysteresis():
+    w = np.array([0.5, 0.3, 0.15, 0.05])
+    J = np.array([[0.0], [0.0], [0.0], [10.0]])
+    assert ad.choose_active(w, J, 2, step=0.0).tolist() == [0, 1]
+    assert ad.choose_active(w, J, 2, step=0.1).tolist() == [0, 3]   # the weight that moves fast
+    assert ad.choose_active(w, J * 0, 2, step=0.0, previous=[0, 2]).tolist() == [0, 1]
+    w2 = np.array([0.5, 0.27, 0.3, 0.0])   # 2 slightly ahead of the member 1: kept (hysteresis)
+    assert ad.choose_active(w2, J * 0, 2, step=0.0, previous=[0, 1]).tolist() == [0, 1]
+
+
+@pytest.mark.parametrize("mode", ["forward", "backward"])
+def test_render_gradient_matches_central_differences(small_manifold, manifold, mode):
+    gc.collect()   # no AD graph of an earlier test's scene left (prb's forward mode traverses from the enqueued)
+    x0 = _x0(manifold)
+    scene = _scene(small_manifold, x0)
+    params = _grad_enabled(scene, x0)
+    bsdf = [b for b in scene.shapes()][0].bsdf()
+    assert bsdf.differentiable and len(bsdf.active_set.idx) == 4
+    bsdf.hold_proxy = True   # one sampling proxy for every render below
+    integ = mi.load_dict(PRB)
+    # the gradient pass uses seed_grad: the finite differences render with that seed
+    if mode == "backward":
+        img = mi.render(scene, params, integrator=integ, spp=SPP, seed=7, seed_grad=1)
+        dr.backward(dr.mean(img, axis=None))
+        grad = np.array(dr.grad(params["mat.x"]))
+    else:
+        grad = []
+        for j in range(manifold.q):
+            params = _grad_enabled(scene, x0)
+            leaf = bsdf.forward_weights(np.eye(manifold.q)[j])
+            d_img = mi.load_dict(PRB).render_forward(scene, {"w": leaf}, seed=1, spp=SPP)
+            grad.append(float(np.array(d_img, dtype=np.float64).mean()))
+        grad = np.array(grad)
+    fd = _central_differences(scene, params, x0)
+    assert np.abs(grad).max() > 0
+    np.testing.assert_allclose(grad, fd, rtol=2e-2, atol=2e-3 * np.abs(fd).max())
+
+
+def test_training_point_has_zero_gradient_and_jitter_moves(small_manifold, manifold):
+    xi = manifold.latent[3]
+    assert np.abs(manifold.weights_jacobian(xi)).max() < 1e-8   # Shepard: flat at a training point
+    moved = ad.jitter(xi, manifold)
+    assert np.linalg.norm(moved - xi) > 0 and np.abs(manifold.weights_jacobian(moved)).max() > 1e-3
+    assert np.array_equal(ad.jitter(_x0(manifold), manifold), _x0(manifold))
+    scene = _scene(small_manifold, moved)
+    params = _grad_enabled(scene, moved)
+    img = mi.render(scene, params, integrator=mi.load_dict(PRB), spp=4, seed=2)
+    dr.backward(dr.mean(img, axis=None))
+    assert np.abs(np.array(dr.grad(params["mat.x"]))).max() > 0
+
+
+def test_ad_mode_primal_equals_combined_table(small_manifold, manifold):
+    """K = N and no pruning: the AD mode renders the same material as today's combined table;
+    without gradients the plugin stays on the combined table."""
+    x0 = _x0(manifold)
+    scene = _scene(small_manifold, x0, terms=manifold.n, prune=0.0)
+    bsdf = [b for b in scene.shapes()][0].bsdf()
+    integ = mi.load_dict({"type": "path", "max_depth": DEPTH})
+    params = mi.traverse(scene)
+    assert params.flags("mat.x") & mi.ParamFlags.NonDifferentiable == 0   # differentiable in AD variants
+    params["mat.x"] = mi.Float(x0.astype(np.float32))
+    params.update()
+    assert not bsdf.differentiable and bsdf.active_set is None
+    plain = np.array(mi.render(scene, integrator=integ, spp=16, seed=3))
+    params = _grad_enabled(scene, x0)
+    bsdf.hold_proxy = False
+    assert bsdf.differentiable
+    with dr.suspend_grad():
+        in_ad = np.array(mi.render(scene, integrator=integ, spp=16, seed=3))
+    np.testing.assert_allclose(in_ad, plain, rtol=1e-3, atol=1e-5)
+    np.testing.assert_allclose(bsdf.weights.sum(), 1.0)
