@@ -191,3 +191,19 @@ def test_ad_mode_primal_equals_combined_table(small_manifold, manifold):
         in_ad = np.array(mi.render(scene, integrator=integ, spp=16, seed=3))
     np.testing.assert_allclose(in_ad, plain, rtol=1e-3, atol=1e-5)
     np.testing.assert_allclose(bsdf.weights.sum(), 1.0)
+
+
+@pytest.mark.parametrize("kind", ["prbvolpath", "direct_projective"])
+def test_other_differentiable_integrators(small_manifold, manifold, kind):
+    """prbvolpath (as prb) and direct_projective (direct light only) differentiate x too: their
+    gradients agree in sign with prb's, limited to the same depth."""
+    x0 = _x0(manifold)
+    scene = _scene(small_manifold, x0)
+    grads = []
+    for d in (dict(PRB, max_depth=2), {"type": kind} if kind == "direct_projective" else dict(PRB, type=kind)):
+        params = _grad_enabled(scene, x0)
+        img = mi.render(scene, params, integrator=mi.load_dict(d), spp=16, seed=2, seed_grad=3)
+        dr.backward(dr.mean(img, axis=None))
+        grads.append(np.array(dr.grad(params["mat.x"])))
+    assert np.abs(grads[1]).max() > 0
+    assert np.all(np.sign(grads[0]) == np.sign(grads[1]))
