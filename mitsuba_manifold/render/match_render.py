@@ -244,9 +244,9 @@ def match_render(views, manifold_path, options=None, basis=None, database=None):
     """
     from . import ad
     opts = options or MatchRenderOptions()
-    if opts.iterations < 1 or opts.spp < 1 or opts.eval_spp < 1 or opts.scan_spp < 1 or opts.starts < 1:
-        raise InputError("`iterations`, `spp`, `eval_spp`, `scan_spp` and `starts` must be >= 1, got "
-                         f"{opts.iterations}, {opts.spp}, {opts.eval_spp}, {opts.scan_spp}, {opts.starts}")
+    for name in ("iterations", "spp", "eval_spp", "scan_spp", "starts", "max_depth"):
+        if int(getattr(opts, name)) < 1:
+            raise InputError(f"`{name}` must be >= 1, got {getattr(opts, name)}")
     if not views:
         raise InputError("`views` is empty: give at least one scene and target")
     t0 = time.perf_counter()

@@ -65,3 +65,30 @@ def test_match_render_converges_without_a_basis(tmp_path, small_manifold):
     assert os.path.getsize(r.plot) > 0 and len(r.history) == 2 and len(r.history[0]) == 12
     assert r.w.sum() == pytest.approx(1.0) and r.images[0].shape == (16, 16, 3)
     json.dumps(r.to_dict(m))
+
+
+def test_match_render_tool(tmp_path, small_manifold, capsys):
+    """tools/match.py --render: the point, weights and image error printed; the render, the plot and the
+    JSON written; option names in its errors."""
+    sphere = scenes.scene_path("sphere")
+    m = Manifold.load(small_manifold)
+    target = scenes.render_reference(sphere, small_manifold, m.latent[m.index("gold-paint")], 64, seed=3,
+                                     resolution=12, max_depth=2)
+    tpath = str(tmp_path / "target.exr")
+    imageio.write_exr(tpath, target)
+    best, js, png = str(tmp_path / "best.exr"), str(tmp_path / "m.json"), str(tmp_path / "conv.png")
+    common = ["--render", "--manifold", small_manifold, "--scene", sphere, "--target", tpath, "--max-depth", "2",
+              "--no-progress"]
+    assert cli.main(common + ["--iterations", "3", "--spp", "2", "--eval-spp", "8", "--starts", "1",
+                              "--out", best, "--json", js, "--plot", png]) == 0
+    out = capsys.readouterr().out
+    assert "largest weights:" in out and "image error: relative MSE" in out and "not identifiable" in out
+    got = json.load(open(js))
+    assert len(got["x"]) == m.q and abs(sum(got["weights"].values()) - 1) < 1e-6 and got["renders"] == [best]
+    assert imageio.read_exr(best).shape == (12, 12, 3) and os.path.getsize(png) > 0
+    with pytest.raises(SystemExit):
+        cli.main(common + ["--iterations", "0"])
+    assert "--iterations must be >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(common + ["--target", tpath, "--mask", tpath])
+    assert "--mask is given 1 times for 2 targets" in capsys.readouterr().err
