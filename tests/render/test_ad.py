@@ -207,3 +207,28 @@ def test_other_differentiable_integrators(small_manifold, manifold, kind):
         grads.append(np.array(dr.grad(params["mat.x"])))
     assert np.abs(grads[1]).max() > 0
     assert np.all(np.sign(grads[0]) == np.sign(grads[1]))
+
+
+def test_active_set_switch_recompiles_nothing(small_manifold, manifold):
+    """K is fixed: moving x across the data replaces slots and weights, never the kernels."""
+    x0 = _x0(manifold)
+    scene = _scene(small_manifold, x0, terms=2)
+    bsdf = scene.shapes()[0].bsdf()
+    integ = mi.load_dict(PRB)
+
+    def step(x, seed):
+        params = _grad_enabled(scene, x)
+        img = mi.render(scene, params, integrator=integ, spp=2, seed=seed, seed_grad=seed + 1)
+        dr.backward(dr.mean(img, axis=None))
+        return [k for k in dr.kernel_history() if k.get("cache_hit") is False]
+
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        step(x0, 0)
+        first = bsdf.active_set.idx.copy()
+        far = 0.5 * (manifold.latent[5] + manifold.latent[6])
+        compiled = step(far, 2)
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert set(bsdf.active_set.idx.tolist()) != set(first.tolist()) and bsdf.active_set.switches > 0
+    assert compiled == []

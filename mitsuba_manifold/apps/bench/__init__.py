@@ -8,7 +8,8 @@ Timings are wall-clock medians over repeats on the machine that runs them
 """
 
 #: Benchmark names, in the order ``tools/bench.py`` lists them.
-NAMES = ("fit", "interp", "pca", "bsdf", "gi", "stability", "basis", "match", "scaling", "explore", "space")
+NAMES = ("fit", "interp", "pca", "bsdf", "gi", "stability", "basis", "match", "match-render", "scaling", "explore",
+         "space")
 
 
 def run(name, folder, **kwargs):
@@ -18,4 +19,4 @@ def run(name, folder, **kwargs):
     if name not in NAMES:
         from ...errors import InputError
         raise InputError(f"unknown benchmark {name!r}; choose one of {', '.join(NAMES)}")
-    return importlib.import_module(f"{__name__}.{name}").run(folder, **kwargs)
+    return importlib.import_module(f"{__name__}.{name.replace('-', '_')}").run(folder, **kwargs)
