@@ -26,10 +26,9 @@ import numpy as np
 from ..errors import InputError
 from .._util.checks import weight_sum
 from . import ad
-from .lookups import HALF_PI, gather_rgb, table_value
+from .lookups import gather_rgb, table_value
 from .material import Combination, combine, parse_floats, read_properties
-from .sampling import (PLUGIN_NAME, SAMPLING_GRID, combined_density, half_vector_pdf, material_density,
-                       sample_half_vector)
+from .sampling import PLUGIN_NAME, combined_distribution, half_vector_pdf, material_density, sample_half_vector
 
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
 COSINE_FRACTION = 0.1
@@ -155,7 +154,9 @@ class ManifoldBRDF(mi.BSDF):
         return [self._manifold.names[i] for i in self._c.keep]
 
     def set_latent(self, x):
-        """Render the material at latent point ``x`` (``q`` numbers)."""
+        """Render the material at latent point ``x`` (``q`` numbers). In AD mode
+        (:attr:`differentiable`) the point is the grad-enabled parameter's value: set it through
+        ``params["<id>.x"]`` and ``params.update()``."""
         x = np.asarray(x, dtype=np.float64).ravel()
         q = self._manifold.q
         if x.size != q or not np.isfinite(x).all():
@@ -368,10 +369,7 @@ class ManifoldBRDF(mi.BSDF):
         a, old = self._active, self._c
         distr, black = old.distr, old.black
         if self.sampling == "cdf" and (not self.hold_proxy or self._w is None or distr is None):
-            p, n_empty = combined_density(a.densities, state["v"])
-            black = n_empty == p.shape[0]
-            theta_grid = np.linspace(0.0, HALF_PI, SAMPLING_GRID[0])
-            distr = mi.MarginalContinuous2D1(p, [theta_grid.tolist()], normalize=True)
+            distr, black = combined_distribution(a.densities, state["v"])
         full = np.zeros(self._manifold.n)
         full[state["idx"]] = state["v"]
         order = np.sort(state["idx"])
@@ -392,6 +390,8 @@ class ManifoldBRDF(mi.BSDF):
             what = "x = [" + ", ".join(f"{v:.6g}" for v in c.x) + "]"
         else:
             what = "weights = given"
+        if self._w is not None:
+            what += f" (AD mode: active set of {self._active.k}, clamping per lookup)"
         order = c.keep[np.argsort(-np.abs(c.w[c.keep]))]
         top = ", ".join(f"{self._manifold.names[i]}:{c.w[i]:.4g}" for i in order[:6])
         more = f", ... ({len(order)} in all)" if len(order) > 6 else ""
