@@ -7,8 +7,10 @@ with ``prb``, ``dr.backward``, ``mi.ad.Adam``), on the differentiable ``x`` of `
 loss is the relative MSE of :func:`imaging.metrics.rel_mse` over the masks, summed over the views.
 
 Starts: the training materials whose renders (``scan_spp``) are nearest to the targets,
-moved off their training point (:func:`.ad.jitter`: the convex Shepard weights have a zero
-Jacobian there), and the basis match's point when a basis is given. Each start runs
+moved off their training point towards their best-ranked latent neighbour (:func:`_start_near`:
+the convex Shepard weights have a zero Jacobian at a training point, and are flat near it), and
+the basis match's point when a basis is given. The best training material itself stays a
+candidate for the result. Each start runs
 ``iterations`` Adam steps (learning rate decayed to a tenth); its last iterate and its iterate
 of lowest loss are re-rendered at ``eval_spp`` with another seed, and the best becomes the
 result. ``x`` is not identifiable from one image (several points give near-identical weights):
@@ -46,7 +48,7 @@ class MatchRenderOptions:
     scan_spp: int = 4
     starts: int = 3
     lr: float = None
-    exposure: bool = False
+    exposure: bool = False  # fit a brightness scale (least squares at every step)
     max_depth: int = 4
     integrator: str = "prb"
     seed: int = 0
@@ -159,48 +161,53 @@ class _Problem:
             params.update()
 
     def loss(self, exposure, spp, seed, differentiable=True):
-        """Sum over the views of the weighted squared error (a Dr.Jit Float), and the images."""
+        """``(loss, images, exposure)``: the mean over the views of the weighted squared error (a
+        Dr.Jit Float) of ``exposure * image``; ``exposure`` None: the least-squares scale of the
+        images (detached: at the optimal scale, the gradient in x is the one at fixed scale)."""
         import drjit as dr
-        mi, total, images = self.mi, 0.0, []
-        for i, (v, (t, w)) in enumerate(zip(self.views, self.tensors)):
-            scene = self.loaded[v.scene].scene
+        mi, images = self.mi, []
+        for i, v in enumerate(self.views):
             integ = self.integrator if differentiable else self.primal
-            img = mi.render(scene, self.params[v.scene] if differentiable else None, integrator=integ,
-                            sensor=v.sensor, spp=spp, seed=seed + 7919 * i, seed_grad=seed + 7919 * i + 104729)
-            images.append(img)
-            total = total + dr.sum(dr.square(exposure * img - t) * w, axis=None)
-        return total / len(self.views), images
+            images.append(mi.render(self.loaded[v.scene].scene, self.params[v.scene] if differentiable else None,
+                                    integrator=integ, sensor=v.sensor, spp=spp, seed=seed + 7919 * i,
+                                    seed_grad=seed + 7919 * i + 104729))
+        if exposure is None:
+            num = sum(dr.sum(dr.detach(im) * t * w, axis=None) for im, (t, w) in zip(images, self.tensors))
+            den = sum(dr.sum(dr.square(dr.detach(im)) * w, axis=None) for im, (t, w) in zip(images, self.tensors))
+            exposure = mi.Float(float(np.array(num).ravel()[0]) / max(float(np.array(den).ravel()[0]), 1e-30))
+        total = sum(dr.sum(dr.square(exposure * im - t) * w, axis=None) for im, (t, w) in zip(images, self.tensors))
+        return total / len(self.views), images, float(np.array(exposure).ravel()[0])
 
     def evaluate(self, x, exposure, spp, seed):
-        """Primal ``(error, images as NumPy)`` at ``x`` with today's combined table (no gradient)."""
+        """Primal ``(error, images as NumPy, exposure)`` at ``x`` with today's combined table (no
+        gradient); ``exposure`` None: fitted."""
         import drjit as dr
         self.set_x(np.asarray(x))
         with dr.suspend_grad():
-            loss, images = self.loss(self.mi.Float(exposure), spp, seed, differentiable=False)
-        return float(np.array(loss).ravel()[0]), [np.array(im) for im in images]
+            loss, images, e = self.loss(None if exposure is None else self.mi.Float(exposure), spp, seed,
+                                        differentiable=False)
+        return float(np.array(loss).ravel()[0]), [np.array(im) for im in images], e
 
 
 def _scan(problem, opts):
     """Training materials ranked by their render's error (``scan_spp``): ``[(error, index)]``."""
     m = problem.manifold
-    errs = [(problem.evaluate(m.latent[i], 1.0, opts.scan_spp, opts.seed + 11)[0], i) for i in range(m.n)]
+    e = None if opts.exposure else 1.0
+    errs = [(problem.evaluate(m.latent[i], e, opts.scan_spp, opts.seed + 11)[0], i) for i in range(m.n)]
     return sorted(errs)
 
 
 def _descend(problem, x0, opts, lr, bar):
-    """Adam from ``x0``: ``(history, x_last, x_best, exposure_last)``."""
+    """Adam from ``x0`` (learning rate decayed to a tenth): ``(history, x_last, x_best)``."""
     import drjit as dr
     mi = problem.mi
     opt = mi.ad.Adam(lr=lr)
     opt["x"] = mi.Float(np.asarray(x0, dtype=np.float32))
-    if opts.exposure:
-        opt["log_exposure"] = mi.Float(0.0)
     history, best = [], (np.inf, np.asarray(x0, dtype=np.float64))
     for it in range(opts.iterations):
-        opt.set_learning_rate({"x": lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * it / opts.iterations)))})
+        opt.set_learning_rate(lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * it / opts.iterations))))
         problem.set_x(opt["x"])
-        exposure = dr.exp(opt["log_exposure"]) if opts.exposure else mi.Float(1.0)
-        loss, _ = problem.loss(exposure, opts.spp, opts.seed + 1000 * (it + 1))
+        loss, _, _ = problem.loss(None if opts.exposure else mi.Float(1.0), opts.spp, opts.seed + 1000 * (it + 1))
         dr.backward(loss)
         value = float(np.array(loss).ravel()[0])
         history.append(value)
@@ -210,8 +217,7 @@ def _descend(problem, x0, opts, lr, bar):
         if bar is not None:
             bar.set_postfix(loss=f"{value:.4g}")
             bar.update(1)
-    e = float(np.exp(np.array(opt["log_exposure"])[0])) if opts.exposure else 1.0
-    return history, np.array(opt["x"], dtype=np.float64), best[1], e
+    return history, np.array(opt["x"], dtype=np.float64), best[1]
 
 
 def _plot(history, path, labels):
@@ -254,8 +260,7 @@ def match_render(views, manifold_path, options=None, basis=None, database=None):
     m = problem.manifold
     lr = opts.lr if opts.lr is not None else ad.typical_step(m.latent)
     ranked = _scan(problem, opts)
-    rng = np.random.default_rng(opts.seed)
-    starts = [("material " + m.names[i], ad.jitter(m.latent[i], m, rng=rng)) for _, i in ranked[:opts.starts]]
+    starts = [("material " + m.names[i], _start_near(m, i, ranked)) for _, i in ranked[:opts.starts]]
     if basis is not None:
         starts.insert(0, ("basis match", _basis_start(basis, m, problem.data[0][0])))
     from tqdm import tqdm
@@ -263,27 +268,46 @@ def match_render(views, manifold_path, options=None, basis=None, database=None):
                leave=False)
     runs, t_iter = [], time.perf_counter()
     for kind, x0 in starts:
-        history, x_last, x_best, e = _descend(problem, x0, opts, lr, bar)
+        history, x_last, x_best = _descend(problem, x0, opts, lr, bar)
         for which, x in (("last", x_last), ("lowest loss", x_best)):
-            err, images = problem.evaluate(x, e, opts.eval_spp, opts.seed + 55)
+            err, images, e = problem.evaluate(x, None if opts.exposure else 1.0, opts.eval_spp, opts.seed + 55)
             runs.append({"start": kind, "x0": np.asarray(x0).tolist(), "iterate": which, "x": x.tolist(),
                          "error": err, "exposure": e, "images": images, "history": history})
     bar.close()
     t_iter = (time.perf_counter() - t_iter) / max(1, len(starts) * opts.iterations)
-    best = min(runs, key=lambda r: r["error"])
     single_err, single_i = ranked[0]
-    s_err, _ = problem.evaluate(m.latent[single_i], 1.0, opts.eval_spp, opts.seed + 55)
+    s_err, s_images, s_e = problem.evaluate(m.latent[single_i], None if opts.exposure else 1.0, opts.eval_spp,
+                                            opts.seed + 55)
+    runs.append({"start": "best single material", "x0": m.latent[single_i].tolist(), "iterate": "none",
+                 "x": m.latent[single_i].tolist(), "error": s_err, "exposure": s_e, "images": s_images,
+                 "history": []})   # the training point itself stays a candidate
+    best = min(runs, key=lambda r: r["error"])
     x = np.asarray(best["x"])
     _, w = m.weights(x)
     per_view = _per_view_errors(best["images"], problem.data, best["exposure"])
     history = [r["history"] for r in runs if r["iterate"] == "last"]
+    extra = {"from_start": None if best["iterate"] == "none" else best["start"]}
     plot = _plot(history, opts.plot, [s[0] for s in starts]) if opts.plot else None
     return MatchRenderResult(
         x=x, w=np.asarray(w), names=list(m.names), error=float(np.mean(per_view)), errors=per_view,
         exposure=best["exposure"], images=[best["exposure"] * im for im in best["images"]],
-        single={"name": m.names[single_i], "error": s_err},
+        single={"name": m.names[single_i], "error": s_err, "exposure": s_e},
         starts=[{k: v for k, v in r.items() if k not in ("images", "history")} for r in runs],
-        history=history, time_s=time.perf_counter() - t0, time_per_iteration_s=t_iter, plot=plot)
+        history=history, time_s=time.perf_counter() - t0, time_per_iteration_s=t_iter, plot=plot, extra=extra)
+
+
+def _start_near(manifold, i, ranked, t=0.3):
+    """A start near training material ``i``, off its training point (where the Shepard weights
+    are flat): ``t`` of the way towards the best-ranked of its 3 latent neighbours, so that both
+    materials' weights move with ``x`` (:func:`.ad.jitter` when it has no neighbour)."""
+    from . import ad
+    d = np.linalg.norm(manifold.latent - manifold.latent[i], axis=1)
+    d[i] = np.inf
+    near = set(np.argsort(d)[:3].tolist())
+    j = next((k for _, k in ranked if k in near and d[k] > 1e-6), None)
+    if j is None:
+        return ad.jitter(manifold.latent[i], manifold)
+    return manifold.latent[i] + t * (manifold.latent[j] - manifold.latent[i])
 
 
 def _per_view_errors(images, data, exposure):

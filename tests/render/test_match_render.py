@@ -3,6 +3,8 @@
 import json
 import os
 
+import numpy as np
+
 import pytest
 
 from mitsuba_manifold.imaging import io as imageio
@@ -44,6 +46,13 @@ def test_match_of_a_path_render_and_the_tools_reference(tmp_path, small_manifold
     # the sphere has no L2+: the render of the point and its blend agree up to noise
     assert abs(ref.mean() - imageio.read_exr(best).mean()) < 0.05 * ref.mean()
     assert os.path.isfile(best)
+
+    # the differentiable match starts from the basis match too
+    from mitsuba_manifold.render import match_render as mr
+    opts = mr.MatchRenderOptions(iterations=2, spp=2, eval_spp=16, starts=1, max_depth=2, progress=False)
+    rr = mr.match_render([mr.View(sphere, target)], small_manifold, opts, basis=out)
+    assert [s["start"] for s in rr.starts][:2] == ["basis match"] * 2
+    assert np.allclose(rr.starts[0]["x0"], r.x)
 
 
 def test_match_render_converges_without_a_basis(tmp_path, small_manifold):
@@ -92,3 +101,19 @@ def test_match_render_tool(tmp_path, small_manifold, capsys):
     with pytest.raises(SystemExit):
         cli.main(common + ["--target", tpath, "--mask", tpath])
     assert "--mask is given 1 times for 2 targets" in capsys.readouterr().err
+
+
+def test_match_render_fits_an_exposure(small_manifold):
+    """exposure=True: a target 2.5x brighter than a training material's render is matched with a
+    fitted scale near 2.5 (least squares at every step), and the images returned are scaled."""
+    from mitsuba_manifold.render import match_render as mr
+
+    sphere = scenes.scene_path("sphere")
+    m = Manifold.load(small_manifold)
+    target = 2.5 * scenes.render_reference(sphere, small_manifold, m.latent[m.index("gold-paint")], 128, seed=3,
+                                           resolution=12, max_depth=2)
+    opts = mr.MatchRenderOptions(iterations=3, spp=4, eval_spp=64, starts=1, max_depth=2, progress=False,
+                                 exposure=True)
+    r = mr.match_render([mr.View(sphere, target)], small_manifold, opts)
+    assert r.exposure == pytest.approx(2.5, rel=0.15)
+    assert np.mean(r.images[0]) == pytest.approx(np.mean(target), rel=0.15)

@@ -98,7 +98,7 @@ def _ad_render_time(views, manifold_path, x, opts):
         dr.enable_grad(xv)
         t0 = time.perf_counter()
         problem.set_x(xv)
-        loss, _ = problem.loss(mi.Float(1.0), opts.spp, opts.seed + k)
+        loss, _, _ = problem.loss(mi.Float(1.0), opts.spp, opts.seed + k)
         dr.backward(loss)
         dr.eval(dr.grad(xv))
         times.append(time.perf_counter() - t0)

@@ -98,6 +98,8 @@ def _report(r, manifold):
     print(f"image error: relative MSE {r.error:.4g} (per view: {views})"
           + (f", fitted exposure x{r.exposure:.4g}" if r.exposure != 1.0 else ""))
     print(f"best single training material: {r.single['name']}, relative MSE {r.single['error']:.4g}")
+    if r.extra.get("from_start") is None:
+        print("the best single material itself is the best point")
     print(f"match time: {r.time_s:.1f} s ({len(r.history)} starts, {r.time_per_iteration_s:.3f} s per iteration)")
     print("note: x is not identifiable from one image; compare the weights and the image error")
 
