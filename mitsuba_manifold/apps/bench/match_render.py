@@ -120,7 +120,7 @@ def _database(folder, out, n_materials):
 
 
 def run(folder, manifold=None, res=32, target_spp=256, n_points=3, n_held_out=3, n_materials=10, iterations=15,
-        spp=4, eval_spp=64, starts=2, max_depth=4, out=None, seed=0):
+        spp=4, eval_spp=256, scan_spp=16, starts=2, max_depth=4, out=None, seed=0):
     """Measurements of the differentiable match; see the module docstring."""
     use_variant()
     out = out or os.path.join("out", "bench_match_render")
@@ -132,12 +132,12 @@ def run(folder, manifold=None, res=32, target_spp=256, n_points=3, n_held_out=3,
     m = Manifold.load(manifold)
     cbox = scene_path("cbox")
     sensors = _sensors(res)
-    opts = mr.MatchRenderOptions(iterations=iterations, spp=spp, eval_spp=eval_spp, starts=starts,
+    opts = mr.MatchRenderOptions(iterations=iterations, spp=spp, eval_spp=eval_spp, scan_spp=scan_spp, starts=starts,
                                  max_depth=max_depth, seed=seed, progress=False)
     rng = np.random.default_rng(seed)
     masks = _object_masks(cbox, manifold, sensors)
     report = {"settings": {"res": res, "views": len(sensors), "target_spp": target_spp, "spp": spp,
-                           "eval_spp": eval_spp, "iterations": iterations, "starts": starts, "max_depth": max_depth,
+                           "eval_spp": eval_spp, "scan_spp": scan_spp, "iterations": iterations, "starts": starts, "max_depth": max_depth,
                            "materials": m.n, "table_dims": list(m.dims), "database": os.path.abspath(db),
                            "masked_pixels": [int(mk.sum()) for mk in masks]},
               "random_points": [], "held_out": []}
@@ -146,7 +146,10 @@ def run(folder, manifold=None, res=32, target_spp=256, n_points=3, n_held_out=3,
         views = _views(cbox, targets, sensors, masks)
         r = mr.match_render(views, manifold, opts)
         floor = _floor(cbox, manifold, x, views, opts)
+        w_true = m.weights(x)[1]
+        top = np.argsort(-np.abs(w_true))[:4]
         report["random_points"].append({**_summary(r), "x_true": x.tolist(), "floor": floor,
+                                        "true_top_weights": [(m.names[k], float(w_true[k])) for k in top],
                                         "ratio": r.error / floor, "single_ratio": r.single["error"] / floor,
                                         "meets_ratio": r.error <= RATIO_TARGET * floor})
     for i in sorted(rng.choice(m.n, size=n_held_out, replace=False).tolist()):
