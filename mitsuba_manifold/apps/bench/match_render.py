@@ -11,9 +11,9 @@ no basis is made for), and matched with :func:`mitsuba_manifold.render.match_ren
    materials' own tables; the match's error against the best single training material's.
 
 Images are compared over the pixels where the camera sees the material (object masks), where the
-image depends on it directly. Timings: seconds per Adam iteration (all views, forward + backward) and per match, against a
-primal ``path`` render of the same views and spp; peak RSS. By default a reduced setting that
-fits a shared 2-core machine: a surrogate database of ``n_materials`` at 32x32x64 bins (made in
+image depends on it directly. Timings: seconds per Adam iteration (all views, forward + backward)
+and per match, against a primal ``path`` render of the same views and spp; peak RSS. By default a
+reduced setting that fits a shared 2-core machine: a surrogate database of ``n_materials`` at 32x32x64 bins (made in
 ``out``) unless ``folder`` holds one, 32x32 images, few points (the issue's full setting is
 ``res=64, n_points=10, n_held_out=10`` on the 100 materials).
 """
@@ -137,7 +137,8 @@ def run(folder, manifold=None, res=32, target_spp=256, n_points=3, n_held_out=3,
     rng = np.random.default_rng(seed)
     masks = _object_masks(cbox, manifold, sensors)
     report = {"settings": {"res": res, "views": len(sensors), "target_spp": target_spp, "spp": spp,
-                           "eval_spp": eval_spp, "scan_spp": scan_spp, "iterations": iterations, "starts": starts, "max_depth": max_depth,
+                           "eval_spp": eval_spp, "scan_spp": scan_spp, "iterations": iterations, "starts": starts,
+                           "max_depth": max_depth,
                            "materials": m.n, "table_dims": list(m.dims), "database": os.path.abspath(db),
                            "masked_pixels": [int(mk.sum()) for mk in masks]},
               "random_points": [], "held_out": []}
@@ -172,7 +173,8 @@ def run(folder, manifold=None, res=32, target_spp=256, n_points=3, n_held_out=3,
                                                            + report["held_out"]]))}
     ratios = [e["ratio"] for e in report["random_points"]]
     report["summary"] = {"ratio_median": float(np.median(ratios)) if ratios else None,
-                         "ratio_target": RATIO_TARGET, "meets_ratio": sum(e["meets_ratio"] for e in report["random_points"]),
+                         "ratio_target": RATIO_TARGET,
+                         "meets_ratio": sum(e["meets_ratio"] for e in report["random_points"]),
                          "held_out_better": sum(e["better_than_single"] for e in report["held_out"]),
                          "held_out_of": len(report["held_out"]), "peak_rss_gib": peak_rss_gib()}
     return report
