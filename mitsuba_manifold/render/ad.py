@@ -25,6 +25,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .material import Combination
+
 #: Default size of the active set.
 DEFAULT_TERMS = 8
 #: Bonus factor of the current members' scores (hysteresis of the active set).
@@ -180,3 +182,28 @@ def mixture_gather(slots, weights, n_bins, k):
             out += wj * dr.gather(mi.Color3f, slots, idx + j * n_bins, active)
         return dr.maximum(out, 0.0)
     return gather
+
+
+def combination(manifold, active, state, distr, black):
+    """The :class:`.material.Combination` describing AD mode's material (``state``: ``idx`` of the
+    slots, their weights ``v``, the full weights ``w``, the point ``x``); ``table`` None (the slots
+    are in ``active``), clamping counted nowhere (it happens per lookup)."""
+    full = np.zeros(manifold.n)
+    full[state["idx"]] = state["v"]
+    order = np.sort(state["idx"])
+    w = state["w"]
+    return Combination(w=full, x=state["x"], material=None, keep=order,
+                       dropped=float(np.abs(w).sum() - np.abs(w[order]).sum()),
+                       prune_error=manifold.prune_error(w, order), n_clamped=0, n_values=active.host.size,
+                       black=black, dims=active.dims, distr=distr, table=None)
+
+
+def forward_leaf(x, w, dx):
+    """Forward mode: ``J dx`` pushed from ``x`` to the weights ``w`` (through :class:`LatentWeights`,
+    which clears the edges ``x -> w``), returned on a new AD leaf with ``w``'s value."""
+    dr.set_grad(x, mi.Float(np.asarray(dx, dtype=np.float32).ravel()))
+    dw = dr.forward_to(w)
+    leaf = dr.detach(w)
+    dr.enable_grad(leaf)
+    dr.set_grad(leaf, dw)
+    return leaf

@@ -27,7 +27,7 @@ from ..errors import InputError
 from .._util.checks import weight_sum
 from . import ad
 from .lookups import gather_rgb, table_value
-from .material import Combination, combine, parse_floats, read_properties
+from .material import combine, parse_floats, read_properties
 from .sampling import PLUGIN_NAME, combined_distribution, half_vector_pdf, material_density, sample_half_vector
 
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
@@ -334,12 +334,7 @@ class ManifoldBRDF(mi.BSDF):
         ``x -> w`` made by ``params.update()`` lies outside: propagating from ``x`` itself fails.)"""
         if self._w is None:
             raise InputError(f"{PLUGIN_NAME}: forward_weights needs AD mode (a grad-enabled x after params.update())")
-        dr.set_grad(self._x_param, mi.Float(np.asarray(dx, dtype=np.float32).ravel()))
-        dw = dr.forward_to(self._w)   # through LatentWeights.forward; clears the edges x -> w
-        leaf = dr.detach(self._w)
-        dr.enable_grad(leaf)
-        dr.set_grad(leaf, dw)
-        self._w = leaf
+        self._w = leaf = ad.forward_leaf(self._x_param, self._w, dx)
         self._gather = ad.mixture_gather(self._active.slots, leaf, self._active.host.shape[1], self._active.k)
         return leaf
 
@@ -359,27 +354,19 @@ class ManifoldBRDF(mi.BSDF):
 
         def weights_fn(x):
             state["idx"], v, Jv, state["w"] = self._active.update(x)
-            state["v"], state["x"], state["J"] = v, x, Jv
+            state["v"], state["x"] = v, x
             return v, Jv
 
         try:
             w = ad.latent_weights(self._x_param, weights_fn)
         except (ValueError, KeyError, OSError) as e:  # damaged or missing files
             raise InputError(f"{PLUGIN_NAME}: {e}") from None
-        a, old = self._active, self._c
-        distr, black = old.distr, old.black
+        a, distr, black = self._active, self._c.distr, self._c.black
         if self.sampling == "cdf" and (not self.hold_proxy or self._w is None or distr is None):
             distr, black = combined_distribution(a.densities, state["v"])
-        full = np.zeros(self._manifold.n)
-        full[state["idx"]] = state["v"]
-        order = np.sort(state["idx"])
-        self._c = Combination(
-            w=full, x=state["x"], material=None, keep=order,
-            dropped=float(np.abs(state["w"]).sum() - np.abs(state["w"][order]).sum()),
-            prune_error=self._manifold.prune_error(state["w"], order), n_clamped=0, n_values=a.host.size,
-            black=black, dims=a.dims, distr=distr, table=None)
+        self._c = ad.combination(self._manifold, a, state, distr, black)
         self._cos_frac = 1.0 if distr is None else COSINE_FRACTION
-        self._w, self._jac = w, state["J"]
+        self._w = w
         self._gather = ad.mixture_gather(a.slots, w, a.host.shape[1], a.k)
 
     def to_string(self):
