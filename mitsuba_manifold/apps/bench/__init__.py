@@ -12,6 +12,11 @@ NAMES = ("fit", "interp", "pca", "bsdf", "gi", "stability", "basis", "match", "m
          "space")
 
 
+def module_name(name):
+    """The module of benchmark ``name`` (``match-render``: ``match_render``)."""
+    return f"{__name__}.{name.replace('-', '_')}"
+
+
 def run(name, folder, **kwargs):
     """Run benchmark ``name`` on the database ``folder`` (``explore``: a basis folder); returns its
     measurements."""
@@ -19,4 +24,4 @@ def run(name, folder, **kwargs):
     if name not in NAMES:
         from ...errors import InputError
         raise InputError(f"unknown benchmark {name!r}; choose one of {', '.join(NAMES)}")
-    return importlib.import_module(f"{__name__}.{name.replace('-', '_')}").run(folder, **kwargs)
+    return importlib.import_module(module_name(name)).run(folder, **kwargs)
