@@ -224,9 +224,10 @@ def test_console_command_names_the_tool(capsys):
 def test_bench_takes_manifold_only_where_the_benchmark_uses_it(tmp_path, capsys):
     """--manifold goes to the benchmarks whose run() takes one; the others refuse it in one
     line (they fit their own) instead of failing inside with a TypeError."""
+    from mitsuba_manifold.apps.bench import module_name
     from mitsuba_manifold.apps.cli import bench as bench_cli
     takes = {n for n in bench_cli.NAMES
-             if "manifold" in inspect.signature(importlib.import_module(f"mitsuba_manifold.apps.bench.{n}").run).parameters}
+             if "manifold" in inspect.signature(importlib.import_module(module_name(n)).run).parameters}
     assert set(bench_cli.WITH_MANIFOLD) == takes
     with pytest.raises(SystemExit) as e:
         bench_cli.main(["space", "--json", str(tmp_path / "s.json"), "--manifold", str(tmp_path / "m.npz")])

@@ -25,9 +25,10 @@ import numpy as np
 
 from ..errors import InputError
 from .._util.checks import weight_sum
-from .lookups import table_value
+from . import ad
+from .lookups import gather_rgb, table_value
 from .material import combine, parse_floats, read_properties
-from .sampling import PLUGIN_NAME, half_vector_pdf, sample_half_vector
+from .sampling import PLUGIN_NAME, combined_distribution, half_vector_pdf, material_density, sample_half_vector
 
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
 COSINE_FRACTION = 0.1
@@ -52,7 +53,14 @@ class ManifoldBRDF(mi.BSDF):
     x : str or float
         Latent point, e.g. ``"0.3, -1.2"`` (``q`` numbers); empty: the first material's
         point, which fits a manifold of any latent dimension (the shipped scenes' default).
-        Exposed by ``mi.traverse`` as ``x``; updating it rebuilds the material.
+        Exposed by ``mi.traverse`` as ``x``; updating it rebuilds the material. In AD
+        variants ``x`` is differentiable: once it is grad-enabled (``dr.enable_grad``,
+        then ``params.update()``), the value is ``max(0, sum_k w_k table_k)`` over an active
+        set of ``ad_terms`` materials whose weights follow ``x`` (:mod:`.ad`), and sampling
+        uses a detached proxy (the pdf is never differentiated). Without gradients (and in
+        non-AD and scalar variants) the material is today's single combined table.
+    ad_terms : int
+        Size K of the active set in AD mode (default 8; fixed, so nothing recompiles).
     material : str
         A training material by name (exactly its measured table).
     weights : str
@@ -97,6 +105,10 @@ class ManifoldBRDF(mi.BSDF):
         self.m_components = [self.m_flags]
         self._manifold, self._options = read_properties(props)
         self._x_param = None
+        self._gather, self._active, self._w, self.hold_proxy = gather_rgb, None, None, False
+        self._ad_terms = int(props.get("ad_terms", ad.DEFAULT_TERMS))
+        if self._ad_terms < 1:
+            raise InputError(f"{PLUGIN_NAME}: ad_terms must be >= 1, got {self._ad_terms}")
         chooser, value = self._options.chooser, self._options.value
         try:
             if chooser == "x" and str(value).strip() == "":
@@ -142,13 +154,18 @@ class ManifoldBRDF(mi.BSDF):
         return [self._manifold.names[i] for i in self._c.keep]
 
     def set_latent(self, x):
-        """Render the material at latent point ``x`` (``q`` numbers)."""
+        """Render the material at latent point ``x`` (``q`` numbers). In AD mode
+        (:attr:`differentiable`) the point is the grad-enabled parameter's value: set it through
+        ``params["<id>.x"]`` and ``params.update()``."""
         x = np.asarray(x, dtype=np.float64).ravel()
         q = self._manifold.q
         if x.size != q or not np.isfinite(x).all():
             raise InputError(
                 f"{PLUGIN_NAME}: x must be {q} finite numbers (the latent dimension of "
                 f"{self.manifold_path}), got {x.tolist()}")
+        if self.differentiable:
+            self._update_ad()
+            return
         _, w = self._manifold.weights(x)
         self._rebuild(w, x, None)
 
@@ -190,6 +207,7 @@ class ManifoldBRDF(mi.BSDF):
         """Combine the tables and sampling densities for weights ``w``; committed only once
         everything succeeded."""
         self._c = combine(self._manifold, self._options, w, x, material, table)
+        self._gather, self._w = gather_rgb, None
         self._cos_frac = 1.0 if self._c.distr is None else COSINE_FRACTION
         if self._c.x is not None:
             self._publish_x()
@@ -213,7 +231,7 @@ class ManifoldBRDF(mi.BSDF):
         """
         wi, c = si.wi, self._c
         active = active & (wi.z > 0) & (wo.z > 0)
-        f = table_value(c.table, c.dims, self.interpolation, wi, wo, active)
+        f = table_value(c.table, c.dims, self.interpolation, wi, wo, active, self._gather)
         nonzero = active & ((f.x > 0) | (f.y > 0) | (f.z > 0))
         pdf = self._cos_frac * mi.warp.square_to_cosine_hemisphere_pdf(wo)
         if c.distr is not None:
@@ -223,14 +241,15 @@ class ManifoldBRDF(mi.BSDF):
                 p = dr.select(known, p_table, half_vector_pdf(c.distr, wi, wo, dr.select(known, False, nonzero)))
             pdf += (1.0 - self._cos_frac) * p
         value = dr.select(nonzero, f * wo.z, 0.0)
-        return value, dr.select(nonzero, pdf, 0.0)
+        return value, dr.detach(dr.select(nonzero, pdf, 0.0))
 
     def eval(self, ctx, si, wo, active=True):
         if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection):
             return mi.Color3f(0.0)
         wi, c = si.wi, self._c
         active = active & (wi.z > 0) & (wo.z > 0)
-        return dr.select(active, table_value(c.table, c.dims, self.interpolation, wi, wo, active) * wo.z, 0.0)
+        f = table_value(c.table, c.dims, self.interpolation, wi, wo, active, self._gather)
+        return dr.select(active, f * wo.z, 0.0)
 
     def pdf(self, ctx, si, wo, active=True):
         if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection):
@@ -270,13 +289,17 @@ class ManifoldBRDF(mi.BSDF):
 
     def traverse(self, callback):
         if self._c.x is not None:
-            callback.put("x", self._x_param, mi.ParamFlags.NonDifferentiable)
+            flags = mi.ParamFlags.Differentiable if dr.is_diff_v(mi.Float) else mi.ParamFlags.NonDifferentiable
+            callback.put("x", self._x_param, flags)
 
     def parameters_changed(self, keys=[]):
         if self._x_param is None or (keys and "x" not in keys):
             return
         x = np.array(self._x_param, dtype=np.float64).ravel()
-        rendered = self._c.x
+        if self.differentiable:
+            self.set_latent(x)
+            return
+        rendered = self._c.x if self._w is None else None   # leaving AD mode: rebuild
         if rendered is None or x.shape != rendered.shape or not np.array_equal(x, rendered.astype(np.float32)):
             try:
                 self.set_latent(x)
@@ -284,6 +307,67 @@ class ManifoldBRDF(mi.BSDF):
                 if self._c.x is not None:  # so that later updates work
                     self._publish_x()
                 raise
+
+    # --------------------------------------------------------- AD mode
+
+    @property
+    def differentiable(self):
+        """True in an AD variant while the ``x`` parameter is grad-enabled (:mod:`.ad` mode)."""
+        return dr.is_diff_v(mi.Float) and self._x_param is not None and dr.grad_enabled(self._x_param)
+
+    @property
+    def active_set(self):
+        """The :class:`.ad.ActiveSet` of AD mode (None before it was first entered)."""
+        return self._active
+
+    @property
+    def ad_weights(self):
+        """The weights of the active set in AD mode (a ``mi.Float`` of size K that follows ``x``;
+        None otherwise)."""
+        return self._w
+
+    def forward_weights(self, dx):
+        """Forward mode: the active set's weights as a new AD leaf carrying ``J dx`` (propagated from
+        ``x`` through :class:`.ad.LatentWeights`, the analytic Jacobian), used from now on; returns it. Then
+        ``integrator.render_forward(scene, {"w": leaf})`` gives the image's derivative along ``dx``.
+        (Mitsuba's ``render_forward`` propagates only inside its isolated scope, which the edge
+        ``x -> w`` made by ``params.update()`` lies outside: propagating from ``x`` itself fails.)"""
+        if self._w is None:
+            raise InputError(f"{PLUGIN_NAME}: forward_weights needs AD mode (a grad-enabled x after params.update())")
+        self._w = leaf = ad.forward_leaf(self._x_param, self._w, dx)
+        self._gather = ad.mixture_gather(self._active.slots, leaf, self._active.host.shape[1], self._active.k)
+        return leaf
+
+    def _read_tables(self, names):
+        db = self._manifold.open_database(self._options.database, names)
+        return {n: np.asarray(db.reflectance(n)) for n in names}
+
+    def _read_density(self, name):
+        return material_density(self._manifold.open_database(self._options.database, [name]), name)
+
+    def _update_ad(self):
+        """Weights of the active set at the grad-enabled ``x`` through :func:`.ad.latent_weights`,
+        the slots' tables, and (unless :attr:`hold_proxy`) the detached sampling proxy."""
+        if self._active is None:
+            self._active = ad.ActiveSet(self._manifold, self._ad_terms, self._read_tables, self._read_density)
+        state = {}
+
+        def weights_fn(x):
+            state["idx"], v, Jv, state["w"] = self._active.update(x)
+            state["v"], state["x"] = v, x
+            return v, Jv
+
+        try:
+            w = ad.latent_weights(self._x_param, weights_fn)
+        except (ValueError, KeyError, OSError) as e:  # damaged or missing files
+            raise InputError(f"{PLUGIN_NAME}: {e}") from None
+        a, distr, black = self._active, self._c.distr, self._c.black
+        if self.sampling == "cdf" and (not self.hold_proxy or self._w is None or distr is None):
+            distr, black = combined_distribution(a.densities, state["v"])
+        self._c = ad.combination(self._manifold, a, state, distr, black)
+        self._cos_frac = 1.0 if distr is None else COSINE_FRACTION
+        self._w = w
+        self._gather = ad.mixture_gather(a.slots, w, a.host.shape[1], a.k)
 
     def to_string(self):
         c, o = self._c, self._options
@@ -293,6 +377,8 @@ class ManifoldBRDF(mi.BSDF):
             what = "x = [" + ", ".join(f"{v:.6g}" for v in c.x) + "]"
         else:
             what = "weights = given"
+        if self._w is not None:
+            what += f" (AD mode: active set of {self._active.k}, clamping per lookup)"
         order = c.keep[np.argsort(-np.abs(c.w[c.keep]))]
         top = ", ".join(f"{self._manifold.names[i]}:{c.w[i]:.4g}" for i in order[:6])
         more = f", ... ({len(order)} in all)" if len(order) > 6 else ""

@@ -70,14 +70,15 @@ def gather_rgb(table, idx, active):
     return mi.Color3f(float(r), float(g), float(b))
 
 
-def table_value(table, dims, interpolation, wi, wo, active):
+def table_value(table, dims, interpolation, wi, wo, active, gather=gather_rgb):
     """Table value ``f(wi, wo)`` (no cosine) of a packed table (:func:`gather_rgb`) of MERL
     ``dims``: the bin of the pair (``"nearest"``) or trilinear interpolation between bin centres
-    (``"linear"``, periodic in ``phi_d`` over ``pi``)."""
+    (``"linear"``, periodic in ``phi_d`` over ``pi``). ``gather(table, idx, active)`` reads the
+    bins (:func:`.ad.mixture_gather`: a weighted sum of several tables)."""
     n_h, n_d, n_p = dims
     theta_h, theta_d, phi_d = merl_angles(wi, wo)
     if interpolation == "nearest":
-        return gather_rgb(table, merl_bin(theta_h, theta_d, phi_d, dims), active)
+        return gather(table, merl_bin(theta_h, theta_d, phi_d, dims), active)
     th = dr.clip(theta_h, 0.0, HALF_PI)
     h0, h1, th_t = linear_axis(dr.sqrt(th * (1.0 / HALF_PI)) * n_h, n_h)
     d0, d1, td_t = linear_axis(theta_d * (n_d / HALF_PI), n_d)
@@ -93,5 +94,5 @@ def table_value(table, dims, interpolation, wi, wo, active):
         for id_, wd in ((d0, 1.0 - td_t), (d1, td_t)):
             for ip, wp in ((p0, 1.0 - tp_t), (p1, tp_t)):
                 idx = mi.UInt32((ih * n_d + id_) * n_p + ip)
-                result += gather_rgb(table, idx, active) * (wh * wd * wp)
+                result += gather(table, idx, active) * (wh * wd * wp)
     return result

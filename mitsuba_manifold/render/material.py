@@ -17,9 +17,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..manifold.model import DEFAULT_PRUNE, Manifold
-from .lookups import HALF_PI
 from .overrides import database_folder
-from .sampling import PLUGIN_NAME, SAMPLING_GRID, combined_density, material_density
+from .sampling import PLUGIN_NAME, combined_distribution, material_density
 
 SAMPLING_MODES = ("cdf", "cosine")
 INTERPOLATION_MODES = ("nearest", "linear")
@@ -164,10 +163,7 @@ def combine(manifold, options, w, x=None, material=None, table=None):
     distr, black = None, False
     if options.sampling == "cdf":
         dens = np.stack([material_density(db, m.names[i]) for i in keep])
-        p, n_empty = combined_density(dens, np.asarray(w, dtype=np.float64)[keep])
-        black = n_empty == p.shape[0]
-        theta_grid = np.linspace(0.0, HALF_PI, SAMPLING_GRID[0])
-        distr = mi.MarginalContinuous2D1(p, [theta_grid.tolist()], normalize=True)
+        distr, black = combined_distribution(dens, np.asarray(w, dtype=np.float64)[keep])
     return Combination(
         w=np.asarray(w, dtype=np.float64).copy(), x=None if x is None else np.asarray(x, dtype=np.float64).copy(),
         material=material, keep=np.asarray(keep), dropped=float(dropped), prune_error=m.prune_error(w, keep),

@@ -141,6 +141,15 @@ def combined_density(densities, weights, grid=SAMPLING_GRID):
     return p.astype(np.float32), int(empty)
 
 
+def combined_distribution(densities, weights, grid=SAMPLING_GRID):
+    """``(MarginalContinuous2D1 over (u, v) conditioned on theta_i, black)`` sampling
+    :func:`combined_density` of ``densities`` (n, n_t, n_v, n_u) with ``weights`` (n,);
+    ``black``: no slice had mass (the material reflects nothing)."""
+    p, n_empty = combined_density(densities, weights, grid)
+    theta_grid = np.linspace(0.0, _HALF_PI, grid[0])
+    return mi.MarginalContinuous2D1(p, [theta_grid.tolist()], normalize=True), n_empty == p.shape[0]
+
+
 # ------------------------------------------------------------------ the density in Dr.Jit
 
 #: Smallest ``u = sqrt(theta_h / (pi/2))`` at which the solid-angle pdf is evaluated.

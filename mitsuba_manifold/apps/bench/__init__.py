@@ -8,7 +8,13 @@ Timings are wall-clock medians over repeats on the machine that runs them
 """
 
 #: Benchmark names, in the order ``tools/bench.py`` lists them.
-NAMES = ("fit", "interp", "pca", "bsdf", "gi", "stability", "basis", "match", "scaling", "explore", "space", "prune")
+NAMES = ("fit", "interp", "pca", "bsdf", "gi", "stability", "basis", "match", "match-render", "scaling", "explore",
+         "space", "prune")
+
+
+def module_name(name):
+    """The module of benchmark ``name`` (``match-render``: ``match_render``)."""
+    return f"{__name__}.{name.replace('-', '_')}"
 
 
 def run(name, folder, **kwargs):
@@ -18,4 +24,4 @@ def run(name, folder, **kwargs):
     if name not in NAMES:
         from ...errors import InputError
         raise InputError(f"unknown benchmark {name!r}; choose one of {', '.join(NAMES)}")
-    return importlib.import_module(f"{__name__}.{name}").run(folder, **kwargs)
+    return importlib.import_module(module_name(name)).run(folder, **kwargs)

@@ -8,6 +8,7 @@
   stability  cond(K), weights, clamping and precision over stiff and extreme cases
   basis      one-pass vs per-material basis rendering
   match      inverse rendering on a basis: speed (--basis, a full basis) and accuracy on table/sphere
+  match-render  inverse rendering through the differentiable x (prb, Adam), 3 views of cbox, no basis
   scaling    time and peak memory of every stage against N, table and image resolution, spp
              (each point in a subprocess; makes its own databases), and chunked rendering on Ray
   explore    tools/explore.py: request -> encoded image over the websocket (--basis DIR), and a
@@ -27,7 +28,7 @@ from .common import ArgumentParser, guarded, parse_list
 
 
 #: Benchmarks that take a saved manifold (the others fit their own).
-WITH_MANIFOLD = ("interp", "bsdf", "gi", "stability", "basis", "match", "explore", "prune")
+WITH_MANIFOLD = ("interp", "bsdf", "gi", "stability", "basis", "match", "match-render", "explore", "prune")
 
 
 @guarded
@@ -61,7 +62,7 @@ def main(argv=None):
     explore = args.which == "explore"
     folder = args.basis if explore else args.database or os.path.join("out", "database")
     t0 = time.perf_counter()
-    if not explore and args.database is None and not os.path.isdir(folder) and args.which != "scaling":
+    if not explore and args.database is None and not os.path.isdir(folder) and args.which not in ("scaling", "match-render"):
         print(f"making the built-in database at MERL resolution in {folder}")
         database.make_database(folder, progress=True)
     kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space") else {}
@@ -74,6 +75,8 @@ def main(argv=None):
         kwargs.update(basis=args.basis, res=args.res, out=args.out)
     if args.which == "prune":
         kwargs["basis"] = args.basis
+    if args.which == "match-render":
+        kwargs["out"] = args.out or os.path.splitext(args.json)[0] + "_work"
     if args.which == "gi":
         kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
     if args.which == "scaling":

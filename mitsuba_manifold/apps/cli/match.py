@@ -14,6 +14,7 @@ reference) and everything as JSON (--json). Targets: linear EXR, or 8-bit PNG/JP
 import argparse
 import json
 import os
+import sys
 import time
 
 from .common import ERRORS, ArgumentParser, fail, guarded
@@ -22,6 +23,8 @@ from .common import ERRORS, ArgumentParser, fail, guarded
 def _parser():
     p = ArgumentParser(prog="match.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
                        aliases={"manifold_path": "manifold"})
+    p.add_argument("--render", action="store_true",
+                   help="match full-GI renders of scenes instead of a basis (differentiable x; --render --help)")
     p.add_argument("--basis", required=True, help="basis folder written by render_basis.py (one target)")
     p.add_argument("--target", required=True, help="target image: linear .exr, or 8-bit .png/.jpg (sRGB)")
     p.add_argument("--mask", help="mask image of the target's size: pixels > 0 are matched (grey = weight)")
@@ -176,6 +179,10 @@ def _refuse_inputs(args):
 
 @guarded
 def main(argv=None):
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--render" in argv:   # differentiable rendering, no basis: its own tool
+        from .match_render import main as match_render_main
+        return match_render_main([a for a in argv if a != "--render"])
     args = _parser().parse_args(argv)
     _check_args(args)
     _refuse_inputs(args)
