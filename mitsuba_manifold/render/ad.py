@@ -194,7 +194,9 @@ def combination(manifold, active, state, distr, black):
     w = state["w"]
     return Combination(w=full, x=state["x"], material=None, keep=order,
                        dropped=float(np.abs(w).sum() - np.abs(w[order]).sum()),
-                       prune_error=manifold.prune_error(w, order), n_clamped=0, n_values=active.host.size,
+                       prune_error=manifold.prune_error(w, order),
+                       pruning=f"none in AD mode (an active set of {len(order)} materials, chosen by weight and "
+                               "Jacobian)", n_clamped=0, n_values=active.host.size,
                        black=black, dims=active.dims, distr=distr, table=None)
 
 

@@ -48,7 +48,8 @@ class Combination:
     material: object        # training material's name, or None
     keep: np.ndarray        # indices of the materials in the table
     dropped: float          # sum |w_i| of the materials pruned
-    prune_error: float      # relative L2 change of the table made by pruning
+    prune_error: float      # relative change of the table made by pruning, in the rule's norm
+    pruning: object         # what pruning kept and the bounds it reached (a PruneReport)
     n_clamped: int          # (channel, bin) values clamped below 0
     n_values: int
     black: bool             # the sampling density has no mass (the material reflects nothing)
@@ -167,5 +168,6 @@ def combine(manifold, options, w, x=None, material=None, table=None):
     return Combination(
         w=np.asarray(w, dtype=np.float64).copy(), x=None if x is None else np.asarray(x, dtype=np.float64).copy(),
         material=material, keep=np.asarray(keep), dropped=float(dropped), prune_error=m.prune_error(w, keep),
+        pruning=m.prune_report(np.asarray(w, dtype=np.float64), options.prune),
         n_clamped=n_clamped, n_values=int(packed.size), black=black, dims=dims, distr=distr,
         table=mi.Float(packed.ravel()) if dr.is_jit_v(mi.Float) else packed)
