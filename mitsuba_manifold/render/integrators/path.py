@@ -184,7 +184,9 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
     def trace_paths(self, scene, sampler, ray, active, plan, record, proxy=None):
         """Trace paths; return the selected radiance, validity, AOV parts and records.
 
-        With ``record`` (one target group, for :meth:`render_onepass`), the image holds
+        ``record``: False, or the most vertices on the target recorded per path (True: 1;
+        :meth:`render_onepass_gi` records more, :mod:`.records`; a path is cut at the vertex
+        after them). With ``record`` (one target group, for :meth:`render_onepass`), the image holds
         the ``base`` class only, and the path's single vertex on the target is recorded
         instead of evaluated (there the BSDF ``proxy`` is sampled in place of the
         target's, with pdf ``q``): the throughput before it (``beta``), the local
@@ -335,6 +337,14 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         return onepass.render_onepass(self, scene, materials, spp=spp, seed=seed, sensor=sensor,
                                       chunk=chunk, max_samples=max_samples,
                                       spp_per_pass=spp_per_pass, progress=progress)
+
+    def render_onepass_gi(self, scene, materials=None, spp=0, seed=0, sensor=0, levels=3, pairs=(),
+                          **options):
+        """Base, touch, ``L2+`` and cross-term images of every material from one set of paths:
+        :func:`mitsuba_manifold.render.integrators.onepass.render_onepass_gi`."""
+        from . import onepass
+        return onepass.render_onepass_gi(self, scene, materials, spp=spp, seed=seed, sensor=sensor,
+                                         levels=levels, pairs=pairs, **options)
 
     def to_string(self):
         return (f"ManifoldPathIntegrator[max_depth={self.max_depth}, rr_depth="
