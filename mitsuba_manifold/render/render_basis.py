@@ -114,6 +114,18 @@ class BasisOptions:
         Which of the scene's sensors (views) to render (recorded in the manifest when not 0).
     aovs : bool
         Also write the denoising guides ``aovs.npz`` (:func:`guides.add_aovs`; one target).
+    components : {"auto", "l1"}
+        ``"auto"`` (one-pass mode): also the full-GI images (``touch + L2+`` of every material,
+        :func:`~.integrators.onepass.render_onepass_gi`) and the cross terms of the pairs blended
+        together (:mod:`mitsuba_manifold.basis.crossterms`), left out (and said why in the
+        manifest's ``left_out``) where the scene does not need them: L2+ below
+        :data:`REST_TOL` of the material's light (a convex object alone: exactly 0). ``"l1"``:
+        the L1- basis only. Per-material mode renders L1- only.
+    levels : int
+        Most vertices on the material per path in the L2+ images (paths touching it more
+        often are cut; the manifest's ``gi_stats`` counts them).
+    cross_tol : float
+        Smallest weight product of a pair whose cross term is stored.
     """
 
     spp: int = 64
@@ -132,6 +144,13 @@ class BasisOptions:
     force: bool = False
     sensor: int = 0
     aovs: bool = False
+    components: str = "auto"
+    levels: int = 3
+    cross_tol: float = 1e-3
+
+
+#: L2+ images are left out when their light is below this fraction of the material's.
+REST_TOL = 1e-4
 
 
 def render_basis(scene_path, manifold_path, out, options=None, **settings):
@@ -172,25 +191,52 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
                                           o.mode, [b.id() for b in targets])
     if int(o.sensor):
         manifest["sensor"] = int(o.sensor)
+    gi = o.mode == "onepass" and o.components == "auto"
+    if gi:
+        manifest["levels"] = int(o.levels)
+    else:
+        manifest["left_out"] = {"l2+": "per-material mode renders L1- images only" if o.mode != "onepass"
+                                else "components 'l1' asked for"}
     if len(targets) == 1:
         jobs = [(basis_folder.BASE, None)] + [(basis_folder.image_key([name]), (name,)) for name in chosen]
     else:
         jobs = [(basis_folder.image_key(combo), combo) for combo in itertools.product(chosen, repeat=len(targets))]
     files = [key + ".exr" for key, _ in jobs] + [basis_folder.MANIFEST]
+    if gi:
+        files += [key + GI_SUFFIX for key, combo in jobs if combo is not None] + [CROSS_FILE]
     if os.path.isdir(out):  # refuse before locking: a refused run adds nothing to the folder
         open_folder(out, manifest, files, o.force, read_images=False)
     with FolderLock(out, "basis folder"), StopRequest() as stop:
         manifest["images"] = open_folder(out, manifest, files, o.force)
+        if gi:
+            _carry_gi(out, manifest)
         basis_folder.write_manifest(out, manifest)
         todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
+        if gi and (todo or ("l2+" in manifest.get("components", []) and any(
+                key not in manifest.get("gi_images", {}) for key, combo in jobs if combo is not None))):
+            todo = jobs   # the full-GI images and cross terms come from one pass over every material
         save = functools.partial(_save, out, manifest)
-        if todo and o.mode == "onepass":
+        if todo and gi:
+            from .gi_basis import render_gi
+            render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop)
+            if o.progress:
+                print(describe_components(manifest))
+        elif todo and o.mode == "onepass":
             _render_onepass(scene, targets[0], todo, o, max_depth, save, stop)
         elif todo:
             _render_each(scene, targets, todo, o, max_depth, save, stop)
         if o.aovs:
             ensure_aovs(out, manifest)
     return manifest
+
+
+def describe_components(manifest):
+    """One line per component: what the basis holds, and what it left out and why."""
+    held = ", ".join(manifest.get("components", ["l1"]))
+    lines = [f"basis holds: {held}" + (f" (levels <= {manifest['levels']})" if "levels" in manifest else "")]
+    for comp, why in manifest.get("left_out", {}).items():
+        lines.append(f"left out {comp}: {why}")
+    return "\n".join(lines)
 
 
 def _check_request(scene_path, manifold_path, out, o):
@@ -222,20 +268,43 @@ def _check_request(scene_path, manifold_path, out, o):
     return scene_path, manifold, chosen, x
 
 
-def _save(out, manifest, images, seconds):
-    """Write ``{key: image}`` into ``out`` (EXR files in parallel), then list them in ``manifest``.
+#: File suffix of a material's full-GI image (``manifest["gi_images"]``) and the cross terms' file.
+GI_SUFFIX = ".gi.exr"
+CROSS_FILE = "cross.npz"
+
+
+def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
+    """Write ``{key: image}`` into ``out`` (EXR files in parallel), then list them in
+    ``manifest[section]`` (``"images"``, or ``"gi_images"`` with ``suffix`` :data:`GI_SUFFIX`).
 
     The files are first listed as ``pending``: a run killed between writing a file
     and listing it leaves a file its resume knows to be its own."""
     from concurrent.futures import ThreadPoolExecutor
-    manifest["pending"] = sorted(key + ".exr" for key in images)
+    manifest["pending"] = sorted(key + suffix for key in images)
     basis_folder.write_manifest(out, manifest)
     with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
-        list(pool.map(lambda kv: imageio.write_exr(os.path.join(out, kv[0] + ".exr"), kv[1]), images.items()))
+        list(pool.map(lambda kv: imageio.write_exr(os.path.join(out, kv[0] + suffix), kv[1]), images.items()))
+    entries = manifest.setdefault(section, {})
     for key in images:
-        manifest["images"][key] = {"file": key + ".exr", "time_s": float(seconds)}
+        entries[key] = {"file": key + suffix, "time_s": float(seconds)}
     del manifest["pending"]
     basis_folder.write_manifest(out, manifest)
+
+
+def _carry_gi(out, manifest):
+    """What a resumed full-GI basis keeps of its earlier run: its full-GI images (of materials
+    still listed), what it holds and left out, its cross terms, its measurements."""
+    path = os.path.join(out, basis_folder.MANIFEST)
+    if not manifest["images"] or not os.path.isfile(path):
+        return
+    old = basis_folder.read_manifest(out)
+    gi = {k: e for k, e in old.get("gi_images", {}).items()
+          if k in manifest["images"] and os.path.isfile(os.path.join(out, e["file"]))}
+    if gi:
+        manifest["gi_images"] = gi
+    for key in ("components", "left_out", "cross", "gi_stats"):
+        if key in old:
+            manifest[key] = old[key]
 
 
 def ensure_aovs(out, manifest, spp=16):

@@ -258,7 +258,6 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
                 rs.acc += dr.select(rs.n > 0, Le, 0)
 
             # --- Class after scattering here
-            cls_before = mi.UInt32(cls)
             if dr.hint(track, mode="scalar"):
                 hit = mi.UInt32(0)
                 for g in range(len(groups)):
