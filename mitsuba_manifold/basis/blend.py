@@ -164,9 +164,11 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
         rows, prods, left = cross_weights([names[kept[0][0][kept_names.index(k)]] for k in mats], wk, pairs)
         info["cross"] = (rows, prods)
         info["cross_left_weight"] = left if "cross" in basis.components else None
-        keys = [basis.gi_key(k) for k in keys]
-    info["keys"] = keys
+    info["keys"] = keys   # the materials' image keys (as an L1- blend names them)
     info["image_weights"] = cw
+    if info["cross"] is not None:
+        keys = [basis.gi_key(k) for k in keys]
+    info["image_keys"] = keys   # the images summed
     return keys, cw, info
 
 
