@@ -53,10 +53,11 @@ def _basis(scene, manifold, out, warm=True, **kw):
 
 
 def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), res=64, basis_spp=256,
-            ref_spp=4096, direct_spp=256, levels=3, out=None, seed=0, log=print):
+            ref_spp=4096, direct_spp=256, levels=3, out=None, seed=0, log=print, both_ends=False):
     """Issue 21's targets per scene: L1- and full-GI bases (time, size, what they hold), and at
     the points of :func:`gi_points` the bias and relative MSE of both blends and of a
-    ``direct_spp`` render against a ``ref_spp`` reference (Mitsuba's ``path``)."""
+    ``direct_spp`` render against a ``ref_spp`` reference (Mitsuba's ``path``); ``both_ends``:
+    also at the pair's second material (with convex weights the extrapolated point is close to it)."""
     manifold = manifold or os.path.join(folder, ".manifold-cache", "bench_q2.npz")
     if not os.path.isfile(manifold):
         Manifold.fit(folder, q=2).save(manifold)
@@ -74,7 +75,8 @@ def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), r
         gi, t_gi, s_gi = _basis(path, manifold, os.path.join(out, f"{name}_gi"), levels=levels, **kw)
         b_l1, b_gi = Basis.load(os.path.join(out, f"{name}_l1"), manifold=m), Basis.load(os.path.join(out, f"{name}_gi"), manifold=m)
         rows = []
-        for kind, label, x in gi_points(m, *pair) + [("training", pair[1], m.latent[m.index(pair[1])])]:
+        ends = [("training", pair[1], m.latent[m.index(pair[1])])] if both_ends else []
+        for kind, label, x in gi_points(m, *pair) + ends:
             ref = _scenes.render_reference(path, manifold, x, ref_spp, seed=seed + 7919, resolution=(res, res))
             t0 = time.perf_counter()
             direct = _scenes.render_reference(path, manifold, x, direct_spp, seed=seed + 31, resolution=(res, res))
