@@ -6,6 +6,11 @@ covers every material, that vertex is recorded, and each material's image is a s
 product ``(pixels x bins) @ (bins x materials)`` of the recorded *splats* with the
 tables. :class:`TableSplats` computes it directly (nearest lookups, box filter),
 :class:`FilterSplats` through image blocks with the film's filter.
+
+:func:`render_onepass_gi` lets the same paths go on after their second vertex on the target:
+every vertex there is sampled with the proxy and recorded (:mod:`.records`), and each
+material's ``L2+`` image is the sum over splats of ``a prod_j f_i(b_j)`` (:mod:`.multisplats`),
+so that ``base + touch_i + rest_i`` is material ``i``'s full-GI image (issue 21).
 """
 
 import os
