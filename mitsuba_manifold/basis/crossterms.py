@@ -10,13 +10,14 @@ one vertex with ``i``, the other with ``j``), and for affine weights (``sum_i w_
 so adding the stored ``C_ij`` makes the blend exact for those paths (paper Sec. 5.2 leaves
 this second-order term out). ``C_ii = 0``. A pair is stored when some point of the explored
 region (the training points, the midpoints of every material and its latent neighbours,
-random points of the latent box) blends both with ``|w_i w_j| >= tol`` after pruning.
+random points of the latent box) blends both with ``|w_i w_j| >= tol`` (before pruning by
+default: pruning only drops small weights and rescales the others by about ``1 +- prune``, so
+the pairs of the pruned blends are among these, up to that rescaling).
 """
 
 import numpy as np
 
 from ..errors import InputError
-from ..manifold.pruning import DEFAULT_PRUNE
 
 #: Smallest weight product of a stored pair.
 CROSS_TOL = 1e-3
@@ -36,15 +37,18 @@ def explored_points(manifold, random=200, neighbours=NEIGHBOURS, seed=0):
     return np.concatenate([lat, mids, box])
 
 
-def select_pairs(manifold, names, tol=CROSS_TOL, prune=DEFAULT_PRUNE, points=None):
+def select_pairs(manifold, names, tol=CROSS_TOL, prune=None, points=None):
     """Pairs ``(name_i, name_j)`` (manifold order, ``i < j``) among ``names`` whose weight
-    product reaches ``tol`` at some explored point (:func:`explored_points`, or ``points``).
+    product reaches ``tol`` at some explored point (:func:`explored_points`, or ``points``);
+    ``prune``: of the weights first (:meth:`Manifold.prune`, slow: an exact table error per
+    point), default none (see the module).
 
     Returns
     -------
     pairs : list of (str, str)
     stats : dict
-        ``points``, ``pairs``, ``materials_per_point`` (median kept), ``left_weight`` (the
+        ``points``, ``pairs``, ``materials_per_point`` (median kept, or with weight ``>= tol``
+        without pruning), ``left_weight`` (the
         largest ``|w_i w_j|`` of a pair not stored).
     """
     if not tol > 0:
@@ -56,7 +60,11 @@ def select_pairs(manifold, names, tol=CROSS_TOL, prune=DEFAULT_PRUNE, points=Non
     best = np.zeros((manifold.n, manifold.n))
     kept = []
     for w in np.atleast_2d(manifold.weights(pts)[1]):
-        keep, wk, _ = manifold.prune(w, prune)
+        if prune is None:
+            keep = np.flatnonzero(np.abs(w) >= tol)
+            wk = w[keep]
+        else:
+            keep, wk, _ = manifold.prune(w, prune)
         kept.append(len(keep))
         ok = wanted[keep]
         keep, wk = np.asarray(keep)[ok], np.asarray(wk)[ok]

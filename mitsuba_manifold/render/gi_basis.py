@@ -10,6 +10,7 @@ object alone records no path touching it twice) and writes, beside the L1- image
 and why, and what was measured (the basis format: :mod:`mitsuba_manifold.basis.manifest`).
 """
 
+import contextlib
 import io
 import os
 import time
@@ -19,6 +20,53 @@ import numpy as np
 from .._util.atomic import write_bytes
 from ..basis import folder as basis_folder
 from ..basis.crossterms import select_pairs
+
+
+#: File suffix of a material's full-GI image (``manifest["gi_images"]``) and the cross terms' file.
+GI_SUFFIX = ".gi.exr"
+CROSS_FILE = "cross.npz"
+
+
+#: L2+ images are left out when their light is below this fraction of the material's.
+REST_TOL = 1e-4
+
+
+def carry_gi(out, manifest):
+    """What a resumed full-GI basis keeps of its earlier run: its full-GI images (of materials
+    still listed), what it holds and left out, its cross terms, its measurements."""
+    path = os.path.join(out, basis_folder.MANIFEST)
+    if not manifest["images"] or not os.path.isfile(path):
+        return
+    old = basis_folder.read_manifest(out)
+    gi = {k: e for k, e in old.get("gi_images", {}).items()
+          if k in manifest["images"] and os.path.isfile(os.path.join(out, e["file"]))}
+    if gi:
+        manifest["gi_images"] = gi
+    for key in ("components", "left_out", "cross", "gi_stats"):
+        if key in old:
+            manifest[key] = old[key]
+
+
+def describe_components(manifest):
+    """One line per component: what the basis holds, and what it left out and why."""
+    held = ", ".join(manifest.get("components", ["l1"]))
+    lines = [f"basis holds: {held}" + (f" (levels <= {manifest['levels']})" if "levels" in manifest else "")]
+    for comp, why in manifest.get("left_out", {}).items():
+        lines.append(f"left out {comp}: {why}")
+    return "\n".join(lines)
+
+
+@contextlib.contextmanager
+def progress_bar(desc, enabled, stop):
+    """A tqdm bar; yields ``advance(done, total)`` for the renderers' ``progress`` (which also
+    honours Ctrl-C through ``stop``)."""
+    from tqdm import tqdm
+    with tqdm(desc=desc, unit="step", disable=not enabled) as bar:
+        def advance(done, total):
+            stop.check()
+            bar.total = total
+            bar.update(done - bar.n)
+        yield advance
 
 
 def _integrator(max_depth):
@@ -45,18 +93,12 @@ def needs_rest(paths, touch, rest, tol):
 def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
     """Render every material of ``todo`` (all of the basis's) with full GI from one pass and
     write the images, the cross terms and the manifest's account of them (see the module)."""
-    from tqdm import tqdm
-    from .render_basis import CROSS_FILE, GI_SUFFIX, REST_TOL
     names = [combo[0] for _, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
     pairs, pstats = select_pairs(manifold, names, tol=o.cross_tol)
     t0 = time.perf_counter()
-    with tqdm(desc="rendering basis (one pass, full GI)", unit="step", disable=not o.progress) as bar:
-        def advance(done, total):
-            stop.check()
-            bar.total = total
-            bar.update(done - bar.n)
-        kwargs = {"progress": advance}
+    with progress_bar("rendering basis (one pass, full GI)", o.progress, stop) as advance:
+        kwargs = {"progress": advance, "cross_fraction": o.cross_fraction}
         if o.chunk_spp:
             kwargs["spp_per_pass"] = o.chunk_spp
         r = _integrator(max_depth).render_onepass_gi(scene, materials=names, spp=o.spp, seed=o.seed,
@@ -66,7 +108,7 @@ def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
     needed, why, frac = needs_rest(r.paths, r.touch, r.rest, REST_TOL)
     stats = {"render_s": round(seconds, 3), "levels": int(o.levels), "paths_by_touches": [int(v) for v in r.paths],
              "cut_fraction": float(r.paths[-1] / max(1, r.paths.sum())), "rest_fraction": frac,
-             "pairs": pstats}
+             "pairs": pstats, "cross_fraction": float(o.cross_fraction)}
     images = {keys[n]: np.asarray(r.touch[n], np.float32) for n in names}
     if any(combo is None for _, combo in todo):
         images[basis_folder.BASE] = np.asarray(r.base, np.float32)

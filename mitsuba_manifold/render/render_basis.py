@@ -29,6 +29,7 @@ from .._util import names as names_mod, checks as validate
 from . import scenes
 from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
 from .folders import check_foreign_folder, check_job_folders, open_folder
+from .gi_basis import CROSS_FILE, GI_SUFFIX, REST_TOL, carry_gi, describe_components, progress_bar, render_gi
 from .interrupt import StopRequest, render_in_passes
 from .._util.locking import FolderLock
 from .scenes import check_variant
@@ -36,7 +37,7 @@ from ..manifold.model import Manifold
 
 MODES = basis_folder.MODES
 
-__all__ = ["MODES", "BasisOptions", "check_foreign_folder", "check_job_folders", "count_sensors", "ensure_aovs",
+__all__ = ["CROSS_FILE", "GI_SUFFIX", "MODES", "REST_TOL", "BasisOptions", "describe_components", "check_foreign_folder", "check_job_folders", "count_sensors", "ensure_aovs",
            "plan_views", "render_basis", "select_materials"]
 
 
@@ -126,6 +127,9 @@ class BasisOptions:
         often are cut; the manifest's ``gi_stats`` counts them).
     cross_tol : float
         Smallest weight product of a pair whose cross term is stored.
+    cross_fraction : float
+        Share of the two-vertex splats the cross terms use (unbiased; bounds their cost: a
+        cross term enters a blend with weight ``w_i w_j <= 1/4``, so its noise matters less).
     """
 
     spp: int = 64
@@ -147,10 +151,7 @@ class BasisOptions:
     components: str = "auto"
     levels: int = 3
     cross_tol: float = 1e-3
-
-
-#: L2+ images are left out when their light is below this fraction of the material's.
-REST_TOL = 1e-4
+    cross_fraction: float = 0.25
 
 
 def render_basis(scene_path, manifold_path, out, options=None, **settings):
@@ -209,7 +210,7 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
     with FolderLock(out, "basis folder"), StopRequest() as stop:
         manifest["images"] = open_folder(out, manifest, files, o.force)
         if gi:
-            _carry_gi(out, manifest)
+            carry_gi(out, manifest)
         basis_folder.write_manifest(out, manifest)
         todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
         if gi and (todo or ("l2+" in manifest.get("components", []) and any(
@@ -217,7 +218,6 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
             todo = jobs   # the full-GI images and cross terms come from one pass over every material
         save = functools.partial(_save, out, manifest)
         if todo and gi:
-            from .gi_basis import render_gi
             render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop)
             if o.progress:
                 print(describe_components(manifest))
@@ -228,15 +228,6 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
         if o.aovs:
             ensure_aovs(out, manifest)
     return manifest
-
-
-def describe_components(manifest):
-    """One line per component: what the basis holds, and what it left out and why."""
-    held = ", ".join(manifest.get("components", ["l1"]))
-    lines = [f"basis holds: {held}" + (f" (levels <= {manifest['levels']})" if "levels" in manifest else "")]
-    for comp, why in manifest.get("left_out", {}).items():
-        lines.append(f"left out {comp}: {why}")
-    return "\n".join(lines)
 
 
 def _check_request(scene_path, manifold_path, out, o):
@@ -268,11 +259,6 @@ def _check_request(scene_path, manifold_path, out, o):
     return scene_path, manifold, chosen, x
 
 
-#: File suffix of a material's full-GI image (``manifest["gi_images"]``) and the cross terms' file.
-GI_SUFFIX = ".gi.exr"
-CROSS_FILE = "cross.npz"
-
-
 def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
     """Write ``{key: image}`` into ``out`` (EXR files in parallel), then list them in
     ``manifest[section]`` (``"images"``, or ``"gi_images"`` with ``suffix`` :data:`GI_SUFFIX`).
@@ -289,22 +275,6 @@ def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
         entries[key] = {"file": key + suffix, "time_s": float(seconds)}
     del manifest["pending"]
     basis_folder.write_manifest(out, manifest)
-
-
-def _carry_gi(out, manifest):
-    """What a resumed full-GI basis keeps of its earlier run: its full-GI images (of materials
-    still listed), what it holds and left out, its cross terms, its measurements."""
-    path = os.path.join(out, basis_folder.MANIFEST)
-    if not manifest["images"] or not os.path.isfile(path):
-        return
-    old = basis_folder.read_manifest(out)
-    gi = {k: e for k, e in old.get("gi_images", {}).items()
-          if k in manifest["images"] and os.path.isfile(os.path.join(out, e["file"]))}
-    if gi:
-        manifest["gi_images"] = gi
-    for key in ("components", "left_out", "cross", "gi_stats"):
-        if key in old:
-            manifest[key] = old[key]
 
 
 def ensure_aovs(out, manifest, spp=16):
@@ -349,16 +319,11 @@ def _render_each(scene, targets, todo, o, max_depth, save, stop):
 
 def _render_onepass(scene, target, todo, o, max_depth, save, stop):
     """All material images from one set of paths (issue 5); base comes from the same paths."""
-    from tqdm import tqdm
     integrator = _integrator("l1", max_depth)
     names = [combo[0] for key, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
     t0 = time.perf_counter()
-    with tqdm(desc="rendering basis (one pass)", unit="step", disable=not o.progress) as bar:
-        def advance(done, total):
-            stop.check()
-            bar.total = total
-            bar.update(done - bar.n)
+    with progress_bar("rendering basis (one pass)", o.progress, stop) as advance:
         kwargs = {"materials": names, "spp": o.spp, "seed": o.seed, "progress": advance, "sensor": int(o.sensor)}
         if o.chunk_spp:
             kwargs["spp_per_pass"] = o.chunk_spp

@@ -36,8 +36,9 @@ class MultiSplats:
     ``rows`` is the flat ``(bins, 3, n_pad)`` table of :class:`.splats.TableSplats`.
     """
 
-    def __init__(self, rows, n_pad, names, dims, pixels, levels, pairs=()):
+    def __init__(self, rows, n_pad, names, dims, pixels, levels, pairs=(), cross_fraction=1.0):
         self.rows, self.n_pad, self.names, self.dims = rows, int(n_pad), names, dims
+        self.cross_fraction = float(cross_fraction)
         self.pixels, self.levels, self.pairs = int(pixels), int(levels), list(pairs)
         self.sums = dr.zeros(mi.Float, self.pixels * 3 * self.n_pad)
         self.cross = [dr.zeros(mi.Float, self.pixels * 3 * len(self.pairs[p0:p0 + PAIR_CHUNK]))
@@ -45,8 +46,10 @@ class MultiSplats:
         self.splats = []      # (k, [bins], amplitude, pixel) per level and kind
         self.counts = np.zeros(self.levels + 2, np.int64)   # paths by vertices on the target
 
-    def prepare(self, rec, weight, pixel):
-        """Splats of levels ``2 ..`` of one pass (``weight``: the camera sample weight)."""
+    def prepare(self, rec, weight, pixel, seed=0):
+        """Splats of levels ``2 ..`` of one pass (``weight``: the camera sample weight; ``seed``:
+        of the pass, for the choice of the two-vertex splats that the cross terms use)."""
+        self.seed = int(seed)
         levels = rec["levels"]
         self.counts += np.bincount(np.minimum(rec["count"].numpy(), self.levels + 1),
                                    minlength=self.levels + 2)[:self.levels + 2]
@@ -74,12 +77,25 @@ class MultiSplats:
                 self.splats.append((k, bins, amp, pix))
 
     def add(self):
-        """Add the prepared splats to the ``L2+`` sums and (two-vertex ones) the cross terms."""
+        """Add the prepared splats to the ``L2+`` sums and (two-vertex ones) the cross terms.
+
+        The cross terms use each two-vertex splat with probability ``cross_fraction`` (weighted by
+        its inverse: unbiased), which bounds their cost where many pairs are stored."""
+        rng = np.random.default_rng([self.seed, 21])
         for k, bins, amp, pix in self.splats:
             self._rest(bins, amp, pix)
-            if k == 2:
-                for c, p0 in enumerate(range(0, len(self.pairs), PAIR_CHUNK)):
-                    self._cross(self.cross[c], self.pairs[p0:p0 + PAIR_CHUNK], bins, amp, pix)
+            if k != 2 or not self.pairs:
+                continue
+            if self.cross_fraction < 1.0:
+                pick = np.flatnonzero(rng.random(dr.width(pix)) < self.cross_fraction).astype(np.uint32)
+                idx = mi.UInt32(pick)
+                bins = [dr.gather(mi.UInt32, b, idx) for b in bins]
+                amp = dr.gather(mi.Color3f, amp, idx) * (1.0 / self.cross_fraction)
+                pix = dr.gather(mi.UInt32, pix, idx)
+                if pick.size == 0:
+                    continue
+            for c, p0 in enumerate(range(0, len(self.pairs), PAIR_CHUNK)):
+                self._cross(self.cross[c], self.pairs[p0:p0 + PAIR_CHUNK], bins, amp, pix)
 
     def _rest(self, bins, amp, pix):
         packets = self.n_pad // PACKET

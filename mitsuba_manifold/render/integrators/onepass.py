@@ -153,7 +153,8 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     and the splats of levels ``2 .. levels`` make each material's ``L2+`` image and, for the
     pairs of material names ``pairs``, the cross terms (:mod:`.multisplats`). Nearest lookups
     and a box filter only. ``options``: ``chunk``, ``max_samples``, ``spp_per_pass``,
-    ``progress`` of :func:`render_onepass`.
+    ``progress`` of :func:`render_onepass`, and ``cross_fraction`` (the share of the two-vertex
+    splats the cross terms use, each weighted by its inverse; default 1).
 
     Returns
     -------
@@ -161,7 +162,10 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     """
     if int(levels) < 2:
         raise InputError(f"manifold_path: `levels` must be >= 2 (1 is render_onepass), got {levels}")
-    gi = {"levels": int(levels), "pairs": [tuple(str(n) for n in p) for p in pairs]}
+    fraction = float(options.get("cross_fraction", 1.0))
+    if not 0 < fraction <= 1:
+        raise InputError(f"manifold_path: `cross_fraction` must be in (0, 1], got {fraction}")
+    gi = {"levels": int(levels), "pairs": [tuple(str(n) for n in p) for p in pairs], "cross_fraction": fraction}
     base, touch, extra = _render(integrator, scene, materials, spp, seed, sensor,
                                  options.get("chunk"), options.get("max_samples", 1 << 22),
                                  options.get("spp_per_pass"), options.get("progress"), gi)
@@ -220,7 +224,7 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
         if bad:
             raise InputError(f"manifold_path: `pairs` must name two rendered materials each, got {bad[0]!r}")
         multi = MultiSplats(splat.rows, splat.n_pad, names, dims, splat.pixels, levels,
-                            [(index[a], index[b]) for a, b in gi["pairs"]])
+                            [(index[a], index[b]) for a, b in gi["pairs"]], gi.get("cross_fraction", 1.0))
 
     done, total = 0, len(passes) * len(chunks)
     # Mitsuba's own sampler seeding and primary rays (they use nothing of their instance).
@@ -235,7 +239,7 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
             base_block.put(pos, head + [mi.Float(1.0)])
             splat.prepare(rec, rec["beta"] * weight, pos)
             if multi is not None:
-                multi.prepare(rec, weight, splat.pixel_of(pos))
+                multi.prepare(rec, weight, splat.pixel_of(pos), seed * len(passes) + p)
             del sampler, ray, L, valid, rec, head
             for c in range(len(chunks)):
                 splat.add(c)

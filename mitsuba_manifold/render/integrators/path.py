@@ -198,7 +198,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         ``beta * (f(wi, wo_nee) e_nee + f(wi, wo) g)``: the same estimator as
         rendering it alone, except that directions come from ``q``.
 
-        One function of ~150 lines on purpose: it is one ``@dr.syntax`` loop, like Mitsuba's own
+        One long function (~150 lines) on purpose: it is one ``@dr.syntax`` loop, like Mitsuba's own
         ``prb`` ``sample``; Dr.Jit tracks every loop variable of its body, and splitting the
         body would thread some twenty path-state variables through helper calls.
         """
