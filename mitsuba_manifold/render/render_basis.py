@@ -124,7 +124,9 @@ class BasisOptions:
         the L1- basis only. Per-material mode renders L1- only.
     levels : int
         Most vertices on the material per path in the L2+ images (paths touching it more
-        often are cut; the manifest's ``gi_stats`` counts them).
+        often are cut; the manifest's ``gi_stats`` counts them). The default 8 is the shipped
+        scenes' ``max_depth``: nothing is cut there (levels 3 cut 5.9% of white-paint's light
+        in the table's bowl).
     cross_tol : float
         Smallest weight product of a pair whose cross term is stored.
     cross_fraction : float
@@ -149,7 +151,7 @@ class BasisOptions:
     sensor: int = 0
     aovs: bool = False
     components: str = "auto"
-    levels: int = 3
+    levels: int = 8
     cross_tol: float = 1e-3
     cross_fraction: float = 0.25
 

@@ -144,7 +144,7 @@ class OnePassGI:
     levels: int
 
 
-def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0, levels=3, pairs=(),
+def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0, levels=8, pairs=(),
                       **options):
     """Render base, touch, ``L2+`` and cross-term images of every material from one set of paths.
 
@@ -197,12 +197,13 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
         _prefetch(rows.filename)  # read while the paths are traced
     proxy = _sampling_proxy(target, db, names, rows)
 
+    levels = gi["levels"] if gi else 1
     spp = int(spp) or sensor.sampler().sample_count()
-    passes = _passes(film, spp, max_samples, spp_per_pass)
+    # the records of every level of every path are held at once: fewer paths per pass
+    passes = _passes(film, spp, max(1, int(max_samples) * 3 // max(3, levels)), spp_per_pass)
     chunk = int(chunk) if chunk else (len(names) if rows is not None else 16)
     chunks = [(i, min(len(names), i + chunk)) for i in range(0, len(names), chunk)]
     alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
-    levels = gi["levels"] if gi else 1
     plan = dict(groups=target.groups, select=1, keep=3 if levels == 1 else 7, aovs=[])
 
     film.prepare([])
