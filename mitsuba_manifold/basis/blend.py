@@ -237,7 +237,8 @@ def compose(basis, keys, weights, cross=None):
     if basis.p == 1:
         images += basis.image(BASE)
     if cross is not None and len(cross[0]):
-        images += np.tensordot(np.asarray(cross[1], np.float32), basis.cross_terms()[1][cross[0]], axes=1)
+        terms = basis.cross_terms()[1][cross[0]].astype(np.float32)   # the rows used, float16 -> 32
+        images += np.tensordot(np.asarray(cross[1], np.float32), terms, axes=1)
     return images, t_read, time.perf_counter() - t0
 
 

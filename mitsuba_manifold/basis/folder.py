@@ -154,18 +154,19 @@ class Basis:
         return GI + key
 
     def cross_terms(self):
-        """The cross terms ``C_ij`` (:mod:`.crossterms`): ``({(name_i, name_j): row}, float32
-        (P, H, W, 3))``, read once; empty without them."""
+        """The cross terms ``C_ij`` (:mod:`.crossterms`): ``({(name_i, name_j): row}, float16
+        (P, H, W, 3))``, read once and kept as stored (half the memory of float32; a blend
+        converts the few rows it uses); empty without them."""
         if self._cross is None:
             entry = self.manifest.get("cross")
             w, h = self.resolution
             if entry is None or "cross" not in self.components:
-                self._cross = ({}, np.zeros((0, h, w, 3), np.float32))
+                self._cross = ({}, np.zeros((0, h, w, 3), np.float16))
             else:
                 path = os.path.join(self.folder, entry["file"])
                 try:
                     with np.load(path) as data:
-                        pairs, images = data["pairs"], data["images"].astype(np.float32)
+                        pairs, images = data["pairs"], np.asarray(data["images"], np.float16)
                 except (OSError, KeyError, ValueError) as e:
                     raise MismatchError(f"basis {self.folder}: cross terms {path} unreadable ({e})") from None
                 if images.shape != (len(pairs), h, w, 3):

@@ -53,7 +53,7 @@ def _basis(scene, manifold, out, warm=True, **kw):
 
 
 def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), res=64, basis_spp=256,
-            ref_spp=4096, direct_spp=256, levels=8, out=None, seed=0, log=print, both_ends=False):
+            ref_spp=4096, direct_spp=256, levels=5, out=None, seed=0, log=print, both_ends=False):
     """Issue 21's targets per scene: L1- and full-GI bases (time, size, what they hold), and at
     the points of :func:`gi_points` the bias and relative MSE of both blends and of a
     ``direct_spp`` render against a ``ref_spp`` reference (Mitsuba's ``path``); ``both_ends``:
@@ -122,7 +122,7 @@ def blend_time(manifold, out, res=256, scene="table", spp=1, points=20, log=prin
             blend(b, m, x=x, component=comp)   # reads the images once
         res_ms[comp] = float(np.median([median_time(lambda: blend(b, m, x=x, component=comp), 3)[0] * 1e3
                                         for x in pts]))
-    mem = b._store.nbytes + b.cross_terms()[1].nbytes
+    mem = b._store.nbytes + b.cross_terms()[1].nbytes   # images float32, cross terms float16
     out = {"resolution": res, "materials": m.n, "blend_ms": res_ms, "basis_bytes": size,
            "memory_bytes": int(mem), "components": manifest["components"],
            "pairs": manifest.get("cross", {}).get("pairs", 0)}

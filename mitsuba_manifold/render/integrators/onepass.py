@@ -144,7 +144,7 @@ class OnePassGI:
     levels: int
 
 
-def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0, levels=8, pairs=(),
+def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(),
                       **options):
     """Render base, touch, ``L2+`` and cross-term images of every material from one set of paths.
 
@@ -251,6 +251,8 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
             if multi is not None:
                 multi.add()
                 multi.release()
+                if progress is not None:
+                    progress(done, total)   # the L2+ splats took a while: let the caller stop
     film.prepare([])
     film.put_block(base_block)
     base = np.array(film.develop(), dtype=np.float32)[..., :3].copy()

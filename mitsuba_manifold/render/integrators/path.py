@@ -337,7 +337,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
                                       chunk=chunk, max_samples=max_samples,
                                       spp_per_pass=spp_per_pass, progress=progress)
 
-    def render_onepass_gi(self, scene, materials=None, spp=0, seed=0, sensor=0, levels=8, pairs=(),
+    def render_onepass_gi(self, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(),
                           **options):
         """Base, touch, ``L2+`` and cross-term images of every material from one set of paths:
         :func:`mitsuba_manifold.render.integrators.onepass.render_onepass_gi`."""
