@@ -2,7 +2,9 @@
 also ``tools/bench.py gi``): the blend (paper Eq. 13) beside re-rendering the interpolated
 material, error against run time.
 
-A basis of the scene is rendered (timed, from scratch); at a training point, a midpoint and
+A basis of the scene is rendered (timed, from scratch; a one-pass basis holds full-GI images
+where the scene needs them, and the report gives its default full-GI blend and, beside it,
+its L1- blend, issue 21); at a training point, a midpoint and
 an extrapolated point on the segment between two latent neighbours (:func:`gi_pair`) the
 blend is compared with a high-spp full-GI reference, beside direct renders at increasing
 spp; with ``denoise`` the blends and the highest-spp direct render are also denoised (OIDN
@@ -182,8 +184,13 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
     bias, bias_se = relative_bias(img, ref)
     row = {"x": np.asarray(x).tolist(), "reference_time_s": t_ref, "clamped_fraction": m.negative_fraction(x),
            "blend": {"time_s": t_blend, **metrics.compare(img, ref), "relative_bias": bias,
-                     "relative_bias_se": bias_se, "materials_used": int(info["n_images"])},
+                     "relative_bias_se": bias_se, "materials_used": int(info["n_images"]),
+                     "component": info["component"]},
            "direct": []}
+    if info["component"] == "full":   # the L1- blend of the same basis beside it (issue 21)
+        l1, _ = blend(b, m, x=x, component="l1")
+        l1_bias, l1_se = relative_bias(l1, ref)
+        row["blend_l1"] = {**metrics.compare(l1, ref), "relative_bias": l1_bias, "relative_bias_se": l1_se}
     guides = den = None
     if aovs is not None:
         guides = (aovs.albedo_of_blend(info, b.manifest["version"]), aovs.normal)

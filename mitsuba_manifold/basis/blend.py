@@ -15,6 +15,15 @@ kept weights to the same sum). With ``p`` targets (paper Sec. 6) the image is mu
 where ``I[i_1..i_p]`` is the full ``L1-`` image (base included) with target ``t`` set to
 material ``i_t``.
 
+A one-pass basis of one target may also hold full-GI images (issue 21; the paper's
+practice, Sec. 5.2 and Fig. 12: "applying this interpolation to calculate I_* directly"):
+``F_i = touch_i + L2+_i``, so that ``base + F_i`` is material ``i`` with global illumination,
+and the cross terms ``C_ij`` of :mod:`.crossterms`. The default blend (``component="full"``)
+is then ``base + sum_i w_i F_i + sum_{i<j} w_i w_j C_ij``: exact at every training material
+and for paths with two vertices on the material. ``component="l1"`` is Eq. 13. A basis
+without full-GI images blends L1- (an older basis says so with a warning; one whose scene
+does not need them, e.g. a convex object alone, says why in ``info["component_note"]``).
+
 The images come from a basis folder (:mod:`mitsuba_manifold.basis.folder`). Everything here is
 NumPy: no Mitsuba is loaded. The module is callable: ``from mitsuba_manifold import blend;
 blend(basis, x=...)`` is :func:`blend`.
@@ -22,15 +31,41 @@ blend(basis, x=...)`` is :func:`blend`.
 
 import itertools
 import time
+import warnings
 
 import numpy as np
 
+from .crossterms import cross_weights
 from .folder import BASE, Basis
 from ..errors import MismatchError
 from ..manifold.pruning import DEFAULT_PRUNE
 
 #: How far the weights of one target may sum away from 1 in a multilinear blend.
 AFFINE_TOL = 1e-6
+#: Values of ``component``: full GI where the basis holds it (default), or L1- (Eq. 13).
+BLEND_COMPONENTS = ("full", "l1")
+
+
+def resolve_component(basis, component=None):
+    """``(component used, note)`` of a blend of ``basis`` asked for ``component`` (None: "full").
+
+    "full" on a basis without full-GI images blends L1-; the note says why (empty when the
+    basis holds what was asked). An older basis (no ``components`` in its manifest) also
+    warns, once per :class:`Basis`."""
+    component = "full" if component is None else str(component)
+    if component not in BLEND_COMPONENTS:
+        raise MismatchError(f"`component` must be one of {BLEND_COMPONENTS}, got {component!r}")
+    if component == "l1" or "l2+" in basis.components:
+        return component, ""
+    if basis.legacy:
+        note = (f"basis {basis.folder} predates full-GI bases (its manifest lists no components): it blends "
+                "L1- only, leaving out light that touched the material twice or more; render it again for full GI")
+        if not getattr(basis, "_warned_legacy", False):
+            basis._warned_legacy = True
+            warnings.warn(note, UserWarning, stacklevel=3)
+        return "l1", note
+    why = basis.manifest.get("left_out", {}).get("l2+", "the basis holds L1- images only")
+    return "l1", f"L1- blend: {why}"
 
 
 # -------------------------------------------------------------------- blend
@@ -76,11 +111,12 @@ def _target_weights(basis, manifold, x, w):
     return arr, None
 
 
-def _plan(basis, manifold, W, prune, renormalise):
+def _plan(basis, manifold, W, prune, renormalise, component="l1"):
     """Image keys and their weights for one blend.
 
     Returns ``(keys, weights, info)``; ``weights`` multiply the images ``keys`` (plus
-    ``base`` with weight 1 for a one-target basis).
+    ``base`` with weight 1 for a one-target basis). With ``component`` "full" the keys are
+    the full-GI images and ``info["cross"]`` the rows and weights of the cross terms.
     """
     p, names = basis.p, manifold.names
     kept, info = [], {"weights": [], "dropped_weight": []}
@@ -119,12 +155,24 @@ def _plan(basis, manifold, W, prune, renormalise):
         keys = [k for k, ok in zip(keys, present) if ok]
         cw = cw[present] * (total / cw[present].sum())
         info["renormalised"] = True
-    info["keys"] = keys
+    info["cross"] = None
+    if component == "full" and p == 1:
+        pairs, _ = basis.cross_terms()
+        kept_names = [basis.key([names[i]]) for i in kept[0][0]]
+        mats = [k for k in kept_names if k in keys]
+        wk = np.array([cw[keys.index(k)] for k in mats])
+        rows, prods, left = cross_weights([names[kept[0][0][kept_names.index(k)]] for k in mats], wk, pairs)
+        info["cross"] = (rows, prods)
+        info["cross_left_weight"] = left if "cross" in basis.components else None
+    info["keys"] = keys   # the materials' image keys (as an L1- blend names them)
     info["image_weights"] = cw
+    if info["cross"] is not None:
+        keys = [basis.gi_key(k) for k in keys]
+    info["image_keys"] = keys   # the images summed
     return keys, cw, info
 
 
-def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False):
+def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False, component=None):
     """The image of latent point ``x`` (or weights ``w``) from a basis.
 
     Parameters
@@ -145,11 +193,17 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         When images the blend needs are missing from the basis (e.g. a basis rendered ``near`` a point only),
         drop them and rescale the remaining image weights to the same sum instead of
         raising. This approximates the missing materials by the present ones.
+    component : {"full", "l1"}, optional
+        ``"full"`` (default): the full-GI blend where the basis holds full-GI images (else
+        L1-, see :func:`resolve_component`); ``"l1"``: Eq. 13 on the L1- images.
 
     Returns
     -------
     image : ndarray float32 (H, W, 3)
     info : dict
+        ``component`` (the one blended) and ``component_note`` (why it is not the one
+        asked for, or ""), ``cross_left_weight`` (largest ``|w_i w_j|`` of a pair whose cross
+        term the basis does not hold; None without cross terms),
         ``weights`` (per target, kept material -> weight), ``dropped_weight`` (per target),
         ``keys``/``image_weights`` (images combined), ``missing``, ``renormalised``, ``x``,
         ``time_ms`` (weights, pruning, gathering and summing the images in memory),
@@ -158,27 +212,40 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
     manifold = basis.check_manifold(manifold)
+    used, note = resolve_component(basis, component)
     t0 = time.perf_counter()
     W, pts = _target_weights(basis, manifold, x, w)
-    keys, cw, info = _plan(basis, manifold, W, prune, renormalise)
+    keys, cw, info = _plan(basis, manifold, W, prune, renormalise, used)
     t_plan = time.perf_counter() - t0
-    image, t_read, t_sum = compose(basis, keys, cw)
-    info.update(x=None if pts is None else (pts[0] if basis.p == 1 else pts),
+    image, t_read, t_sum = compose(basis, keys, cw, info["cross"])
+    info.update(component=used, component_note=note, x=None if pts is None else (pts[0] if basis.p == 1 else pts),
                 time_ms=1e3 * (t_plan + t_sum), time_read_s=t_read, n_images=len(keys))
     return image, info
 
 
-def compose(basis, keys, weights):
-    """Eq. 13: ``base + sum_j weights[..., j] image(keys[j])`` (no base with several targets).
+def compose(basis, keys, weights, cross=None):
+    """Eq. 13: ``base + sum_j weights[..., j] image(keys[j])`` (no base with several targets),
+    plus ``sum_r products[..., r] C[rows[r]]`` with ``cross = (rows, products)`` (full GI).
 
     Returns the image(s), the seconds spent reading images and the seconds of the sum.
     """
     t_read = basis.read(keys + ([BASE] if basis.p == 1 else []))
+    if cross is not None:
+        t_read += _timed(basis.cross_terms)
     t0 = time.perf_counter()
     images = basis.weighted_sum(keys, weights)
     if basis.p == 1:
         images += basis.image(BASE)
+    if cross is not None and len(cross[0]):
+        terms = basis.cross_terms()[1][cross[0]].astype(np.float32)   # the rows used, float16 -> 32
+        images += np.tensordot(np.asarray(cross[1], np.float32), terms, axes=1)
     return images, t_read, time.perf_counter() - t0
+
+
+def _timed(fn):
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
 
 
 def _endpoint(manifold, v):
@@ -191,7 +258,7 @@ def _endpoint(manifold, v):
 
 
 def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRUNE, renormalise=False,
-               target=0, x=None):
+               target=0, x=None, component=None):
     """Images along the latent segment from ``a`` to ``b`` (paper Fig. 12).
 
     Parameters
@@ -204,6 +271,8 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         With several targets: which one moves along the segment.
     x : array_like (p, q), optional
         With several targets: the latent points of the others (row ``target`` ignored).
+    component : {"full", "l1"}, optional
+        As :func:`blend`.
 
     Returns
     -------
@@ -234,23 +303,32 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         if x is None:
             raise MismatchError(f"the basis has {basis.p} targets: give `x` for the targets that stay fixed")
         fixed = latent_points(basis, manifold, x)
+    used, note = resolve_component(basis, component)
     t0 = time.perf_counter()
     plans = []
     for xi in xs:
         pts = xi[None] if basis.p == 1 else np.where(np.arange(basis.p)[:, None] == target, xi, fixed)
         W = manifold.weights(pts)[1]
-        plans.append(_plan(basis, manifold, W, prune, renormalise))
+        plans.append(_plan(basis, manifold, W, prune, renormalise, used))
     keys = sorted({k for ks, _, _ in plans for k in ks})
     col = {k: j for j, k in enumerate(keys)}
     M = np.zeros((steps, len(keys)), dtype=np.float32)
     for s, (ks, cw, _) in enumerate(plans):
         M[s, [col[k] for k in ks]] = cw
+    cross = None
+    if used == "full" and basis.p == 1:   # the cross terms of every step, as one matrix
+        rows = sorted({int(r) for _, _, inf in plans for r in inf["cross"][0]})
+        at = {r: j for j, r in enumerate(rows)}
+        C = np.zeros((steps, len(rows)), dtype=np.float32)
+        for s_, (_, _, inf) in enumerate(plans):
+            C[s_, [at[int(r)] for r in inf["cross"][0]]] = inf["cross"][1]
+        cross = (np.array(rows, dtype=np.intp), C)
     t_plan = time.perf_counter() - t0
-    images, t_read, t_sum = compose(basis, keys, M)
+    images, t_read, t_sum = compose(basis, keys, M, cross)
     for (_, _, inf), xi in zip(plans, xs):
         inf["x"] = xi
     return images, xs, {"steps": [p[2] for p in plans], "time_ms": 1e3 * (t_plan + t_sum),
-                        "time_read_s": t_read}
+                        "time_read_s": t_read, "component": used, "component_note": note}
 
 
 def path_labels(pair, steps):

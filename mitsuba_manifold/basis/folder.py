@@ -29,6 +29,10 @@ __all__ = ["Basis", "manifold_object",
            "check_output_outside_basis"]
 
 
+#: Prefix of the keys of full-GI images (``manifest["gi_images"]``) in :meth:`Basis.image`.
+GI = "gi:"
+
+
 # -------------------------------------------------------------------- basis
 
 def manifold_object(manifold):
@@ -78,6 +82,10 @@ class Basis:
         self._rows = {}  # image key -> row of self._store
         self._store = None  # float32 (capacity, H, W, 3): the images read so far
         self._checked = {}  # manifold path or object -> manifold object, checked against the manifest
+        #: What the basis holds (:data:`manifest.COMPONENTS`); an older basis: L1- only.
+        self.components = list(manifest.get("components", ["l1"]))
+        self.legacy = "components" not in manifest
+        self._cross = None  # (pairs {(a, b): row}, float32 (P, H, W, 3)) once read
 
     @classmethod
     def load(cls, folder, manifold=None, scene=None, verify=False):
@@ -109,7 +117,7 @@ class Basis:
                              "the material); the basis is incomplete")
         if not basis.keys:
             raise MismatchError(f"{folder}: the manifest lists no material image; the basis is incomplete")
-        for key, entry in manifest["images"].items():
+        for key in list(manifest["images"]) + [GI + k for k in manifest.get("gi_images", {})]:
             try:
                 imageio.check_exr_header(basis.path(key), basis.resolution)
             except FormatError as e:
@@ -126,15 +134,46 @@ class Basis:
         return (f"Basis({self.folder!r}: {len(self.keys)} images, targets {self.targets}, "
                 f"{self.resolution[0]}x{self.resolution[1]}, {self.manifest['spp']} spp)")
 
+    def _entry(self, key):
+        if key.startswith(GI):
+            return self.manifest.get("gi_images", {}).get(key[len(GI):])
+        return self.manifest["images"].get(key)
+
     def path(self, key):
-        """File of image ``key``."""
-        try:
-            return os.path.join(self.folder, self.manifest["images"][key]["file"])
-        except KeyError:
-            raise MismatchError(f"basis {self.folder} has no image {key!r}") from None
+        """File of image ``key`` (``"gi:<key>"``: the material's full-GI image less base)."""
+        entry = self._entry(key)
+        if entry is None:
+            raise MismatchError(f"basis {self.folder} has no image {key!r}")
+        return os.path.join(self.folder, entry["file"])
 
     def has(self, key):
-        return key in self.manifest["images"]
+        return self._entry(key) is not None
+
+    def gi_key(self, key):
+        """Key of the full-GI image (``touch + L2+``) of material image ``key``."""
+        return GI + key
+
+    def cross_terms(self):
+        """The cross terms ``C_ij`` (:mod:`.crossterms`): ``({(name_i, name_j): row}, float16
+        (P, H, W, 3))``, read once and kept as stored (half the memory of float32; a blend
+        converts the few rows it uses); empty without them."""
+        if self._cross is None:
+            entry = self.manifest.get("cross")
+            w, h = self.resolution
+            if entry is None or "cross" not in self.components:
+                self._cross = ({}, np.zeros((0, h, w, 3), np.float16))
+            else:
+                path = os.path.join(self.folder, entry["file"])
+                try:
+                    with np.load(path) as data:
+                        pairs, images = data["pairs"], np.asarray(data["images"], np.float16)
+                except (OSError, KeyError, ValueError) as e:
+                    raise MismatchError(f"basis {self.folder}: cross terms {path} unreadable ({e})") from None
+                if images.shape != (len(pairs), h, w, 3):
+                    raise MismatchError(f"basis {self.folder}: {path} holds images of shape {images.shape[1:]}, "
+                                        f"the manifest says {w}x{h}")
+                self._cross = ({(str(a), str(b)): r for r, (a, b) in enumerate(pairs)}, images)
+        return self._cross
 
     def key(self, materials):
         """Image key of one material name per target (:func:`image_key` for this basis's version)."""
@@ -159,7 +198,7 @@ class Basis:
                                  f"the manifest says {w}x{h}")
             row = len(self._rows)
             if self._store is None or row == len(self._store):  # grow by doubling, up to every image
-                cap = min(max(8, 2 * row), len(self.manifest["images"]))
+                cap = min(max(8, 2 * row), len(self.manifest["images"]) + len(self.manifest.get("gi_images", {})))
                 store = np.empty((cap, h, w, 3), dtype=np.float32)
                 if row:
                     store[:row] = self._store[:row]
@@ -196,8 +235,9 @@ class Basis:
 
     def verify(self):
         """Read every listed image in full (raises :class:`MismatchError` on the first bad one)."""
-        for key in self.manifest["images"]:
+        for key in list(self.manifest["images"]) + [GI + k for k in self.manifest.get("gi_images", {})]:
             self.image(key)
+        self.cross_terms()
         return self
 
     def check_scene(self, scene):

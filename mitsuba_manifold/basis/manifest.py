@@ -15,7 +15,16 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
      "sensor": int (optional, default 0), "chunks": int (optional: merged from k chunks),
      "pending": ["<key>.exr", ...] (optional: being written; see render_basis),
      "images": {"base": {"file": "base.exr", "time_s": float},
-                "<material>": {"file": "<material>.exr", "time_s": float}, ...}}
+                "<material>": {"file": "<material>.exr", "time_s": float}, ...},
+     optional, one-pass bases of one target (issue 21):
+     "components": ["l1"] | ["l1", "l2+"] | ["l1", "l2+", "cross"] (what the basis holds; a
+        manifest without it is an older L1- basis), "levels": int (most vertices on the
+        material per path in the L2+ images; paths touching it more often are left out),
+     "gi_images": {"<material>": {"file": "<material>.gi.exr", "time_s": float}, ...}
+        (``touch + L2+``: ``base + gi_images[i]`` is material i's full-GI image),
+     "cross": {"file": "cross.npz", "pairs": int, "tol": float} (the cross terms ``C_ij``,
+        float16, of the pairs of :mod:`mitsuba_manifold.basis.crossterms`),
+     "left_out": {"l2+" | "cross": "why"}, "gi_stats": {...} (measurements of the render)}
 
 With one target the keys are ``base`` and material names; with ``p`` targets they are
 ``"<matA>+<matB>..."`` (one name per target, in target order). From version 2 on, each
@@ -187,7 +196,31 @@ def validate_manifest(manifest, where=MANIFEST):
         t = entry.get("time_s")
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
             bad(f"image {key!r}: time_s must be a non-negative number, got {t!r}")
+    _validate_components(manifest, bad)
     return manifest
+
+
+#: What a basis may hold (``components`` of the manifest; absent: ``["l1"]``, an older basis).
+COMPONENTS = ("l1", "l2+", "cross")
+
+
+def _validate_components(manifest, bad):
+    comps = manifest.get("components", ["l1"])
+    if (not isinstance(comps, list) or not comps or comps[0] != "l1" or len(set(comps)) != len(comps)
+            or not set(comps) <= set(COMPONENTS) or ("cross" in comps and "l2+" not in comps)):
+        bad(f"components must list 'l1', then 'l2+' and 'cross' if held, got {comps!r}")
+    if "levels" in manifest and (not _is_int(manifest["levels"]) or manifest["levels"] < 1):
+        bad(f"levels must be an integer >= 1, got {manifest['levels']!r}")
+    gi = manifest.get("gi_images", {})
+    if not isinstance(gi, dict) or not all(isinstance(e, dict) and _plain_exr(e.get("file")) for e in gi.values()):
+        bad("gi_images must map material keys to {'file': '<name>.exr', 'time_s': ...}")
+    cross = manifest.get("cross")
+    if cross is not None and not (isinstance(cross, dict) and isinstance(cross.get("file"), str)
+                                  and os.path.basename(cross["file"]) == cross["file"]
+                                  and cross["file"].endswith(".npz")):
+        bad(f"cross must be {{'file': '<name>.npz', ...}}, got {cross!r}")
+    if not isinstance(manifest.get("left_out", {}), dict):
+        bad("left_out must map components to the reason they were left out")
 
 
 def _plain_exr(name):
@@ -196,7 +229,7 @@ def _plain_exr(name):
 
 
 def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mode, targets,
-                  images=None):
+                  images=None, components=("l1",)):
     """A validated manifest dict for a basis of ``scene`` rendered with ``manifold``.
 
     Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
@@ -216,6 +249,9 @@ def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mo
         BSDF ids of the scene's manifold materials, in the order of the image keys.
     images : dict, optional
         ``{key: {"file": ..., "time_s": ...}}`` (default: none yet).
+    components : sequence of str
+        What the basis holds (:data:`COMPONENTS`; default L1- only). A renderer that adds
+        full-GI images sets it when it writes them.
     """
     manifold = os.fspath(manifold)
     if not os.path.isfile(manifold):
@@ -226,7 +262,8 @@ def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mo
         "manifold": os.path.abspath(manifold), "manifold_hash": manifold_file_identity(manifold),
         "resolution": [int(v) for v in resolution], "spp": int(spp), "variant": str(variant),
         "seed": int(seed), "max_depth": int(max_depth), "mode": mode,
-        "targets": [str(t) for t in targets], "images": dict(images or {})}
+        "targets": [str(t) for t in targets], "images": dict(images or {}),
+        "components": [str(c) for c in components]}
     return validate_manifest(manifest, where="new manifest")
 
 
@@ -276,7 +313,7 @@ def read_manifest(folder):
 
 #: Manifest fields that define what the images are (all but "images" and the paths).
 SETTINGS = ("format", "version", "scene_hash", "manifold_hash", "resolution", "spp", "variant",
-            "seed", "max_depth", "mode", "targets", "sensor", "chunks")
+            "seed", "max_depth", "mode", "targets", "sensor", "chunks", "levels")
 
 
 def manifest_differences(a, b, ignore=()):

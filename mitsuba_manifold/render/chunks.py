@@ -100,7 +100,10 @@ def render_chunk(spec):
         manifest = render_basis(spec.scene, spec.manifold, tmp, spp=spec.spp, seed=spec.seed,
                                           **spec.options)
         images = {key: imageio.read_exr(os.path.join(tmp, entry["file"]))
-                  for key, entry in manifest["images"].items()}
+                  for key, entry in _entries(manifest)}
+        if "cross" in manifest:
+            with np.load(os.path.join(tmp, manifest["cross"]["file"])) as data:
+                images[_CROSS] = (data["pairs"], data["images"])
     return ChunkResult(spec, manifest, images, time.perf_counter() - t0, socket.gethostname(), os.getpid())
 
 
@@ -116,18 +119,38 @@ def chunk_done(folder):
         return None
     if not manifest.get("chunk_complete"):
         return None
-    for entry in manifest["images"].values():
+    for _, entry in _entries(manifest):
         if not os.path.isfile(os.path.join(folder, entry["file"])):
             return None
     return manifest
+
+
+#: Key of a chunk's cross terms among its images (``(pairs, float16 images)``).
+_CROSS = "cross:"
+
+
+def _entries(manifest):
+    """``(key, entry)`` of every image file of a manifest: L1- images, then full-GI ones (``gi:<key>``)."""
+    return list(manifest["images"].items()) + [(basis_folder.GI + k, e) for k, e in
+                                               manifest.get("gi_images", {}).items()]
+
+
+def _write_cross(path, pairs, images):
+    import io
+    from .._util.atomic import write_bytes
+    buf = io.BytesIO()
+    np.savez(buf, pairs=pairs, images=images.astype(np.float16))
+    write_bytes(path, buf.getvalue())
 
 
 def save_chunk(out, result):
     """Write a worker's chunk into its folder: images, then the manifest (the completion mark)."""
     folder = chunk_folder(out, result.spec)
     os.makedirs(folder, exist_ok=True)
-    for key, entry in result.manifest["images"].items():
+    for key, entry in _entries(result.manifest):
         imageio.write_exr(os.path.join(folder, entry["file"]), result.images[key])
+    if "cross" in result.manifest:
+        _write_cross(os.path.join(folder, result.manifest["cross"]["file"]), *result.images[_CROSS])
     manifest = dict(result.manifest, chunk_complete=True,
                     chunk_run={"seconds": result.seconds, "host": result.host, "pid": result.pid})
     basis_folder.write_manifest(folder, manifest)
@@ -152,27 +175,39 @@ def _merge(out, folders, seed, force):
     first = manifests[0]
     for f, m in zip(folders[1:], manifests[1:]):
         diff = basis_folder.manifest_differences(first, m, ignore=("spp", "seed", "chunks"))
-        if diff or set(m["images"]) != set(first["images"]):
+        if (diff or set(m["images"]) != set(first["images"])
+                or m.get("components") != first.get("components") or set(dict(_entries(m))) != set(dict(_entries(first)))):
             raise MismatchError(f"chunk {f} does not match chunk {folders[0]} "
                              f"({', '.join(diff) or 'images'} differ); delete {os.path.dirname(f)}")
     spp = np.array([m["spp"] for m in manifests], dtype=np.float64)
     merged = {k: v for k, v in first.items() if k not in ("chunk_complete", "chunk_run")}
     merged.update(spp=int(spp.sum()), seed=int(seed), chunks=len(folders), images={})
-    files = [e["file"] for e in first["images"].values()] + [basis_folder.MANIFEST]
+    merged.pop("gi_images", None)
+    files = [e["file"] for _, e in _entries(first)] + [basis_folder.MANIFEST]
     merged["images"] = open_folder(out, merged, files, force)
     basis_folder.write_manifest(out, merged)
     weights = spp / spp.sum()
-    for key in first["images"]:
-        if key in merged["images"]:
+    for key, entry in _entries(first):
+        gi = key.startswith(basis_folder.GI)
+        section, plain = ("gi_images", key[len(basis_folder.GI):]) if gi else ("images", key)
+        if plain in merged.get(section, {}):
             continue
         acc = None
         for f, m, w in zip(folders, manifests, weights):
-            img = imageio.read_exr(os.path.join(f, m["images"][key]["file"])).astype(np.float64) * w
+            img = imageio.read_exr(os.path.join(f, m[section][plain]["file"])).astype(np.float64) * w
             acc = img if acc is None else acc + img
-        name = first["images"][key]["file"]
-        imageio.write_exr(os.path.join(out, name), acc.astype(np.float32))
-        merged["images"][key] = {"file": name,
-                                 "time_s": float(sum(m["images"][key]["time_s"] for m in manifests))}
+        imageio.write_exr(os.path.join(out, entry["file"]), acc.astype(np.float32))
+        merged.setdefault(section, {})[plain] = {
+            "file": entry["file"], "time_s": float(sum(m[section][plain]["time_s"] for m in manifests))}
+    if "cross" in first:   # the cross terms: the same spp-weighted mean
+        acc, pairs = None, None
+        for f, m, w in zip(folders, manifests, weights):
+            with np.load(os.path.join(f, m["cross"]["file"])) as data:
+                if pairs is not None and list(data["pairs"].ravel()) != list(pairs.ravel()):
+                    raise MismatchError(f"chunk {f} holds cross terms of other pairs; delete {os.path.dirname(f)}")
+                pairs, img = data["pairs"], data["images"].astype(np.float64) * w
+            acc = img if acc is None else acc + img
+        _write_cross(os.path.join(out, first["cross"]["file"]), pairs, acc)
     basis_folder.write_manifest(out, merged)
     return merged
 

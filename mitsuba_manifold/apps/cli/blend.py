@@ -4,6 +4,11 @@
   blend.py --basis DIR --x 0.3,-1.2 --out img.exr --reference ref.exr
   blend.py --basis DIR --x 0.3,-1.2 --out img.exr --render-reference --spp 1024
   blend.py --basis DIR --path gold-paint chrome --steps 20 --out seq.exr
+  blend.py --basis DIR --x 0.3,-1.2 --out img.exr --component l1
+
+A full-GI basis (render_basis.py --mode onepass) blends its full-GI images and cross terms by
+default; --component l1 blends the L1- images (paper Eq. 13). An older basis blends L1- and
+says so.
 
 With several manifold materials in the scene give one --x per target (in the manifest's
 target order). Nothing is written until every input has been read and checked.
@@ -54,6 +59,9 @@ def parser():
     p.add_argument("--steps", type=int, default=20, help="images along --path (default 20)")
     p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
     p.add_argument("--database", help="folder of the manifold's tables, if it moved (--render-reference)")
+    p.add_argument("--component", choices=["full", "l1"], default=None,
+                   help="full: full-GI images and cross terms where the basis holds them (default); "
+                        "l1: the L1- images only (Eq. 13)")
     p.add_argument("--force", action="store_true",
                    help="replace existing output files this tool did not write (never read-only ones)")
     return p
@@ -106,8 +114,10 @@ def path_outputs(args, basis, manifold):
         if args.target not in basis.targets:
             fail(f"--target {args.target!r} is not a target of the basis ({basis.targets})")
         target = basis.targets.index(args.target)
-    images, _, info = blend_path(basis, manifold, ends[0], ends[1], args.steps, args.prune,
-                                 args.renormalise, target=target, x=args.x)
+    with _one_line_warnings():
+        images, _, info = blend_path(basis, manifold, ends[0], ends[1], args.steps, args.prune,
+                                     args.renormalise, target=target, x=args.x, component=args.component)
+    _say_component(info)
     print(f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
           f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image)")
     stem, width, outputs = _stem(args.out), len(str(args.steps - 1)), []
@@ -125,6 +135,29 @@ def path_outputs(args, basis, manifold):
     return outputs
 
 
+class _one_line_warnings:
+    """Library warnings (an older L1- basis) as one ``warning: ...`` line on stderr."""
+
+    def __enter__(self):
+        import warnings
+        self.catch = warnings.catch_warnings(record=True)
+        self.caught = self.catch.__enter__()
+        warnings.simplefilter("always", UserWarning)
+
+    def __exit__(self, *exc):
+        self.catch.__exit__(*exc)
+        for w in self.caught:
+            print(f"warning: {w.message}", file=sys.stderr)
+
+
+def _say_component(info):
+    """One line: which blend was made (full GI or L1-) and, for L1-, why."""
+    if info.get("component") == "full":
+        print("blend: full GI (full-GI images and cross terms)")
+    elif info.get("component_note") and "predates" not in info["component_note"]:
+        print(f"blend: {info['component_note']}")
+
+
 def _point_or_name(a):  # a latent point "x0,x1", else a name blend_path reports as unknown
     try:
         return parse_floats(a)
@@ -137,7 +170,10 @@ def point_outputs(args, basis, manifold):
     from ...imaging import io as imageio, metrics
     from ...basis.blend import blend
 
-    image, info = blend(basis, manifold, x=args.x, prune=args.prune, renormalise=args.renormalise)
+    with _one_line_warnings():
+        image, info = blend(basis, manifold, x=args.x, prune=args.prune, renormalise=args.renormalise,
+                            component=args.component)
+    _say_component(info)
     for t, (weights, dropped) in enumerate(zip(info["weights"], info["dropped_weight"])):
         top = sorted(weights.items(), key=lambda kv: -abs(kv[1]))
         shown = ", ".join(f"{n} {v:.4g}" for n, v in top[:6]) + (" ..." if len(top) > 6 else "")

@@ -3,7 +3,9 @@
 - :mod:`.common`: targets, path classes, variant checks;
 - :mod:`.path`: ``manifold_path``, the path tracer splitting ``L = L1- + L2+``;
 - :mod:`.onepass`: the base image and every material's touch image from one set of paths
-  (the splats of one pass in :mod:`.splats`);
+  (the splats of one pass in :mod:`.splats`), and with full GI every material's ``L2+`` image and
+  the cross terms (:func:`.onepass.render_onepass_gi`: the vertices recorded in :mod:`.records`,
+  their splats in :mod:`.multisplats`);
 - :mod:`.aovs`: ``manifold_aovs``, first-hit normal and albedo guides for denoising blends.
 
 :mod:`.path` and :mod:`.aovs` are plugin modules (classes on the active variant's

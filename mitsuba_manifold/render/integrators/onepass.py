@@ -6,6 +6,11 @@ covers every material, that vertex is recorded, and each material's image is a s
 product ``(pixels x bins) @ (bins x materials)`` of the recorded *splats* with the
 tables. :class:`TableSplats` computes it directly (nearest lookups, box filter),
 :class:`FilterSplats` through image blocks with the film's filter.
+
+:func:`render_onepass_gi` lets the same paths go on after their second vertex on the target:
+every vertex there is sampled with the proxy and recorded (:mod:`.records`), and each
+material's ``L2+`` image is the sum over splats of ``a prod_j f_i(b_j)`` (:mod:`.multisplats`),
+so that ``base + touch_i + rest_i`` is material ``i``'s full-GI image (issue 21).
 """
 
 import os
@@ -20,6 +25,7 @@ import numpy as np
 from ..._util.cache import key_hash, npy_cache
 from ...errors import InputError
 from .common import target_groups
+from .multisplats import MultiSplats
 from .splats import PACKET, FilterSplats, TableSplats
 
 
@@ -114,6 +120,61 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
         material, in the order of ``materials``).
     """
 
+    base, images, _ = _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
+                              spp_per_pass, progress)
+    return OnePassImages(base, images)
+
+
+@dataclass
+class OnePassGI:
+    """:func:`render_onepass_gi`: every material's full-GI image from one set of paths.
+
+    ``base``: paths that never touch the material; ``touch[name]``: exactly once (L1-
+    minus base); ``rest[name]``: two to ``levels`` times (``L2+``, those beyond ``levels``
+    are cut: ``paths[levels + 1]`` of them); ``base + touch + rest`` is the material's full-GI
+    image. ``cross[(a, b)]``: ``C_ab = 2 L2_ab - L2_aa - L2_bb`` of the two-vertex paths.
+    ``paths[k]``: paths with ``k`` vertices on the material (``levels + 1``: more).
+    """
+
+    base: np.ndarray
+    touch: dict
+    rest: dict
+    cross: dict
+    paths: np.ndarray
+    levels: int
+
+
+def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(),
+                      **options):
+    """Render base, touch, ``L2+`` and cross-term images of every material from one set of paths.
+
+    As :func:`render_onepass`, but paths go on after their second vertex on the target, up
+    to ``levels`` vertices (every one sampled with the proxy and recorded, :mod:`.records`),
+    and the splats of levels ``2 .. levels`` make each material's ``L2+`` image and, for the
+    pairs of material names ``pairs``, the cross terms (:mod:`.multisplats`). Nearest lookups
+    and a box filter only. ``options``: ``chunk``, ``max_samples``, ``spp_per_pass``,
+    ``progress`` of :func:`render_onepass`, and ``cross_fraction`` (the share of the two-vertex
+    splats the cross terms use, each weighted by its inverse; default 1).
+
+    Returns
+    -------
+    OnePassGI
+    """
+    if int(levels) < 2:
+        raise InputError(f"manifold_path: `levels` must be >= 2 (1 is render_onepass), got {levels}")
+    fraction = float(options.get("cross_fraction", 1.0))
+    if not 0 < fraction <= 1:
+        raise InputError(f"manifold_path: `cross_fraction` must be in (0, 1], got {fraction}")
+    gi = {"levels": int(levels), "pairs": [tuple(str(n) for n in p) for p in pairs], "cross_fraction": fraction}
+    base, touch, extra = _render(integrator, scene, materials, spp, seed, sensor,
+                                 options.get("chunk"), options.get("max_samples", 1 << 22),
+                                 options.get("spp_per_pass"), options.get("progress"), gi)
+    return OnePassGI(base, touch, extra["rest"], extra["cross"], extra["paths"], int(levels))
+
+
+def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples, spp_per_pass, progress,
+            gi=None):
+    """:func:`render_onepass` (``gi`` None) or :func:`render_onepass_gi` (``gi``: levels, pairs)."""
     target = one_target(scene, integrator.target)
     names = _material_names(target.manifold, target.path, materials)
     if spp_per_pass is not None and int(spp_per_pass) < 1:
@@ -136,12 +197,14 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
         _prefetch(rows.filename)  # read while the paths are traced
     proxy = _sampling_proxy(target, db, names, rows)
 
+    levels = gi["levels"] if gi else 1
     spp = int(spp) or sensor.sampler().sample_count()
-    passes = _passes(film, spp, max_samples, spp_per_pass)
+    # the records of every level of every path are held at once: fewer paths per pass
+    passes = _passes(film, spp, max(1, int(max_samples) * 3 // max(3, levels)), spp_per_pass)
     chunk = int(chunk) if chunk else (len(names) if rows is not None else 16)
     chunks = [(i, min(len(names), i + chunk)) for i in range(0, len(names), chunk)]
     alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
-    plan = dict(groups=target.groups, select=1, keep=3, aovs=[])
+    plan = dict(groups=target.groups, select=1, keep=3 if levels == 1 else 7, aovs=[])
 
     film.prepare([])
     base_block = film.create_block()
@@ -151,6 +214,18 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
                              len(passes) > 1)
     else:
         splat = TableSplats(base_block, rows, names, chunks, dims)
+    multi = None
+    if gi:
+        if rows is None:
+            raise InputError("manifold_path: L2+ images need nearest lookups and a box filter (the table "
+                             "product); give the scene's manifold_brdf interpolation=\"nearest\" and its film "
+                             "a box rfilter, or render the L1- basis (levels 1)")
+        index = {n: k for k, n in enumerate(names)}
+        bad = [p for p in gi["pairs"] if len(p) != 2 or p[0] not in index or p[1] not in index]
+        if bad:
+            raise InputError(f"manifold_path: `pairs` must name two rendered materials each, got {bad[0]!r}")
+        multi = MultiSplats(splat.rows, splat.n_pad, names, dims, splat.pixels, levels,
+                            [(index[a], index[b]) for a, b in gi["pairs"]], gi.get("cross_fraction", 1.0))
 
     done, total = 0, len(passes) * len(chunks)
     # Mitsuba's own sampler seeding and primary rays (they use nothing of their instance).
@@ -159,11 +234,13 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
         for p, n_spp in enumerate(passes):
             sampler, _ = rays.prepare(integrator, sensor, seed * len(passes) + p, n_spp, [])
             ray, weight, pos = rays.sample_rays(integrator, scene, sensor, sampler)
-            L, valid, _, rec = integrator.trace_paths(scene, sampler, ray, mi.Bool(True), plan, True, proxy)
+            L, valid, _, rec = integrator.trace_paths(scene, sampler, ray, mi.Bool(True), plan, levels, proxy)
             L = L * weight
             head = [L.x, L.y, L.z] + ([dr.select(valid, 1.0, 0.0)] if alpha else [])
             base_block.put(pos, head + [mi.Float(1.0)])
             splat.prepare(rec, rec["beta"] * weight, pos)
+            if multi is not None:
+                multi.prepare(rec, weight, splat.pixel_of(pos), seed * len(passes) + p)
             del sampler, ray, L, valid, rec, head
             for c in range(len(chunks)):
                 splat.add(c)
@@ -171,10 +248,19 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
                 if progress is not None:
                     progress(done, total)
             splat.release()
+            if multi is not None:
+                multi.add()
+                multi.release()
+                if progress is not None:
+                    progress(done, total)   # the L2+ splats took a while: let the caller stop
     film.prepare([])
     film.put_block(base_block)
     base = np.array(film.develop(), dtype=np.float32)[..., :3].copy()
-    return OnePassImages(base, splat.images(film))
+    images = splat.images(film)
+    if multi is None:
+        return base, images, None
+    rest, cross = multi.images(splat.scale(), base.shape)
+    return base, images, {"rest": rest, "cross": cross, "paths": multi.counts}
 
 
 class OnePassImages(NamedTuple):

@@ -20,6 +20,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ...errors import InputError, UnavailableError
+from .records import Records
 from .common import COMPONENTS, check_variant, class_names, power_heuristic, target_groups
 
 
@@ -183,7 +184,9 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
     def trace_paths(self, scene, sampler, ray, active, plan, record, proxy=None):
         """Trace paths; return the selected radiance, validity, AOV parts and records.
 
-        With ``record`` (one target group, for :meth:`render_onepass`), the image holds
+        ``record``: False, or the most vertices on the target recorded per path (True: 1;
+        :meth:`render_onepass_gi` records more, :mod:`.records`; a path is cut at the vertex
+        after them). With ``record`` (one target group, for :meth:`render_onepass`), the image holds
         the ``base`` class only, and the path's single vertex on the target is recorded
         instead of evaluated (there the BSDF ``proxy`` is sampled in place of the
         target's, with pdf ``q``): the throughput before it (``beta``), the local
@@ -195,7 +198,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         ``beta * (f(wi, wo_nee) e_nee + f(wi, wo) g)``: the same estimator as
         rendering it alone, except that directions come from ``q``.
 
-        One function of ~150 lines on purpose: it is one ``@dr.syntax`` loop, like Mitsuba's own
+        One long function (~150 lines) on purpose: it is one ``@dr.syntax`` loop, like Mitsuba's own
         ``prb`` ``sample``; Dr.Jit tracks every loop variable of its body, and splitting the
         body would thread some twenty path-state variables through helper calls.
         """
@@ -205,6 +208,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         track = len(groups) > 0
         aov_classes = plan["aovs"]
 
+        levels = int(record)  # most vertices on the target recorded (True: 1)
         bsdf_ctx = mi.BSDFContext()
         ray = mi.Ray3f(ray)
         depth = mi.UInt32(0)
@@ -219,15 +223,10 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         prev_si = dr.zeros(mi.SurfaceInteraction3f)
         prev_bsdf_pdf = mi.Float(1)
         prev_bsdf_delta = mi.Bool(True)
-        # Records of the touch vertex (record mode): after it, beta is the throughput
-        # relative to the sampled direction, and rr_scale the throughput up to there.
-        rec_beta = mi.Spectrum(0) if record else None
-        rec_wi = mi.Vector3f(0, 0, 1) if record else None
-        rec_wo_nee = mi.Vector3f(0, 0, 1) if record else None
-        rec_e_nee = mi.Spectrum(0) if record else None
-        rec_wo = mi.Vector3f(0, 0, 1) if record else None
-        rec_inv_pdf = mi.Float(0) if record else None
-        L_after = mi.Spectrum(0) if record else None
+        # Records of the vertices on the target (record mode, :mod:`.records`): ``beta`` is the
+        # throughput since the last such vertex, ``rr_scale`` the proxy's throughput up to it.
+        rec = Records(levels, dr.width(ray.d.x)) if record else None
+        rs = rec.state if record else None
         rr_scale = mi.Float(1) if record else None
 
         if dr.hint(self.hide_emitters, mode="scalar"):
@@ -256,10 +255,9 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             for k in range(len(aov_classes)):
                 parts[k] += dr.select(cls == aov_classes[k], Le, 0)
             if dr.hint(record, mode="scalar"):
-                L_after += dr.select(cls == 1, Le, 0)
+                rs.acc += dr.select(rs.n > 0, Le, 0)
 
             # --- Class after scattering here
-            cls_before = mi.UInt32(cls)
             if dr.hint(track, mode="scalar"):
                 hit = mi.UInt32(0)
                 for g in range(len(groups)):
@@ -269,8 +267,10 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
                 cls = dr.select((cls == rest) | again, rest, cls | hit)
             if dr.hint(record, mode="scalar"):
                 # On the target, sample (and weigh the light connection) with the
-                # density that covers every material.
+                # density that covers every material; record the vertex.
                 bsdf = dr.select(hit != 0, mi.BSDFPtr(proxy), bsdf)
+                rs, first = rec.arrive(rs, active & (hit != 0), beta, si.wi)
+                active &= rs.n <= levels  # a path that has touched it more often ends here
 
             active_next = (active & si.is_valid() & (depth + 1 < self.max_depth)
                            & ((mi.UInt32(keep) >> cls) & 1 != 0))
@@ -287,12 +287,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             for k in range(len(aov_classes)):
                 parts[k] += dr.select(cls == aov_classes[k], Lr, 0)
             if dr.hint(record, mode="scalar"):
-                first = active & (cls_before == 0) & (cls == 1)
-                L_after += dr.select((cls == 1) & ~first, Lr, 0)
-                rec_beta = dr.select(first, beta, rec_beta)
-                rec_wi = dr.select(first, si.wi, rec_wi)
-                rec_wo_nee = dr.select(first, wo, rec_wo_nee)
-                rec_e_nee = dr.select(first & active_em, mis_em * em_weight, rec_e_nee)
+                rs.acc += dr.select((rs.n > 0) & ~first, Lr, 0)
+                rec.light(rs, first, wo, dr.select(active_em, mis_em * em_weight, 0))
 
             # --- BSDF sampling
             bs, bsdf_weight = bsdf.sample(bsdf_ctx, si, sampler.next_1d(),
@@ -302,9 +298,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             beta_full = beta * bsdf_weight
             if dr.hint(record, mode="scalar"):
                 ok = first & active_next & (bs.pdf > 0)
-                rec_wo = dr.select(first, bs.wo, rec_wo)
-                rec_inv_pdf = dr.select(ok, dr.rcp(bs.pdf), rec_inv_pdf)
-                rr_scale = dr.select(first, dr.max(mi.unpolarized_spectrum(beta_full)), rr_scale)
+                rs = rec.leave(rs, first, bs.wo, dr.select(ok, dr.rcp(bs.pdf), 0.0))
+                rr_scale = dr.select(first, rr_scale * dr.max(mi.unpolarized_spectrum(beta_full)), rr_scale)
                 beta = dr.select(first, dr.select(ok, 1.0, 0.0), beta_full)
             else:
                 beta = beta_full
@@ -316,7 +311,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             beta_max = dr.max(mi.unpolarized_spectrum(beta))
             active_next &= beta_max != 0
             if dr.hint(record, mode="scalar"):
-                beta_max = dr.select(cls == 1, beta_max * rr_scale, beta_max)
+                beta_max = dr.select(rs.n > 0, beta_max * rr_scale, beta_max)
             rr_prob = dr.minimum(beta_max * dr.square(eta), 0.95)
             rr_active = depth >= self.rr_depth
             beta[rr_active] *= dr.rcp(rr_prob)
@@ -325,10 +320,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             depth[si.is_valid()] += 1
             active = active_next
 
-        records = None
-        if dr.hint(record, mode="scalar"):
-            records = dict(beta=rec_beta, wi=rec_wi, wo_nee=rec_wo_nee, e_nee=rec_e_nee,
-                           wo=rec_wo, g=L_after * rec_inv_pdf)
+        records = rec.finish(rs) if record else None
         return L, depth != 0, parts, records
 
     # ------------------------------------------------------------ one pass
@@ -344,6 +336,14 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         return onepass.render_onepass(self, scene, materials, spp=spp, seed=seed, sensor=sensor,
                                       chunk=chunk, max_samples=max_samples,
                                       spp_per_pass=spp_per_pass, progress=progress)
+
+    def render_onepass_gi(self, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(),
+                          **options):
+        """Base, touch, ``L2+`` and cross-term images of every material from one set of paths:
+        :func:`mitsuba_manifold.render.integrators.onepass.render_onepass_gi`."""
+        from . import onepass
+        return onepass.render_onepass_gi(self, scene, materials, spp=spp, seed=seed, sensor=sensor,
+                                         levels=levels, pairs=pairs, **options)
 
     def to_string(self):
         return (f"ManifoldPathIntegrator[max_depth={self.max_depth}, rr_depth="

@@ -71,12 +71,21 @@ class TableSplats:
         self.tile = max(1, _SUM_BYTES // (12 * widest * max(1, dr.thread_count())))
         self.tiles = []
 
-    def prepare(self, rec, beta, pos):
-        """Turn one pass's records into splats, sorted by bin within tiles of pixels."""
+    def pixel_of(self, pos):
+        """Row of each sample's pixel in the sums (box filter: the pixel the position lies in)."""
         size, offset = self.block.size(), self.block.offset()
         x = mi.Int32(dr.floor(pos.x)) - offset.x
         y = mi.Int32(dr.floor(pos.y)) - offset.y
-        pixel = mi.UInt32(y * size.x + x)
+        return mi.UInt32(y * size.x + x)
+
+    def scale(self):
+        """Per pixel, 1 / the filter weights of all samples (0 where none), as NumPy."""
+        weight = np.array(self.block.tensor())[..., -1].reshape(-1)
+        return np.where(weight > 0, 1.0 / np.where(weight > 0, weight, 1.0), 0.0).astype(np.float32)
+
+    def prepare(self, rec, beta, pos):
+        """Turn one pass's records into splats, sorted by bin within tiles of pixels."""
+        pixel = self.pixel_of(pos)
         keys, amps = [], []
         for wo, a in ((rec["wo_nee"], rec["e_nee"]), (rec["wo"], rec["g"])):
             a = beta * a * wo.z
@@ -137,8 +146,7 @@ class TableSplats:
     def images(self, film):
         """Each material's sums divided by the filter weights of all samples."""
         block = np.array(self.block.tensor())
-        weight = block[..., -1].reshape(-1)
-        scale = mi.Float(np.where(weight > 0, 1.0 / np.where(weight > 0, weight, 1.0), 0.0))
+        scale = mi.Float(self.scale())
         shape = block.shape[:2] + (3,)
         images = {}
         for (k0, k1), (kb0, kb1), sums in zip(self.chunks, self.packets, self.sums):

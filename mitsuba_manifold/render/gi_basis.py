@@ -1,0 +1,138 @@
+"""The full-GI part of a one-pass basis (issue 21): every material's ``touch + L2+`` image
+and the cross terms of the pairs blended together, from the paths of the L1- images.
+
+:func:`render_gi` renders them with :meth:`ManifoldPathIntegrator.render_onepass_gi`,
+decides what the scene needs (no L2+ where the material cannot see itself: a convex
+object alone records no path touching it twice) and writes, beside the L1- images,
+``<material>.gi.exr`` (``base + <material>.gi.exr`` is its full-GI image) and
+``cross.npz`` (float16 ``C_ij``, :mod:`mitsuba_manifold.basis.crossterms`); the manifest's
+``components``, ``left_out`` and ``gi_stats`` say what the basis holds, what it left out
+and why, and what was measured (the basis format: :mod:`mitsuba_manifold.basis.manifest`).
+"""
+
+import contextlib
+import io
+import os
+import time
+
+import numpy as np
+
+from .._util.atomic import write_bytes
+from ..basis import folder as basis_folder
+from ..basis.crossterms import select_pairs
+
+
+#: File suffix of a material's full-GI image (``manifest["gi_images"]``) and the cross terms' file.
+GI_SUFFIX = ".gi.exr"
+CROSS_FILE = "cross.npz"
+
+
+#: L2+ images are left out when their light is below this fraction of the material's.
+REST_TOL = 1e-4
+
+
+def carry_gi(out, manifest):
+    """What a resumed full-GI basis keeps of its earlier run: its full-GI images (of materials
+    still listed), what it holds and left out, its cross terms, its measurements."""
+    path = os.path.join(out, basis_folder.MANIFEST)
+    if not manifest["images"] or not os.path.isfile(path):
+        return
+    old = basis_folder.read_manifest(out)
+    gi = {k: e for k, e in old.get("gi_images", {}).items()
+          if k in manifest["images"] and os.path.isfile(os.path.join(out, e["file"]))}
+    if gi:
+        manifest["gi_images"] = gi
+    for key in ("components", "left_out", "cross", "gi_stats"):
+        if key in old:
+            manifest[key] = old[key]
+
+
+def describe_components(manifest):
+    """One line per component: what the basis holds, and what it left out and why."""
+    held = ", ".join(manifest.get("components", ["l1"]))
+    lines = [f"basis holds: {held}" + (f" (levels <= {manifest['levels']})" if "levels" in manifest else "")]
+    for comp, why in manifest.get("left_out", {}).items():
+        lines.append(f"left out {comp}: {why}")
+    return "\n".join(lines)
+
+
+@contextlib.contextmanager
+def progress_bar(desc, enabled, stop):
+    """A tqdm bar; yields ``advance(done, total)`` for the renderers' ``progress`` (which also
+    honours Ctrl-C through ``stop``)."""
+    from tqdm import tqdm
+    with tqdm(desc=desc, unit="step", disable=not enabled) as bar:
+        def advance(done, total):
+            stop.check()
+            bar.total = total
+            bar.update(done - bar.n)
+        yield advance
+
+
+def _integrator(max_depth):
+    import mitsuba as mi
+    return mi.load_dict({"type": "manifold_path", "component": "l1", "max_depth": int(max_depth)})
+
+
+def needs_rest(paths, touch, rest, tol):
+    """``(needed, why)``: whether the L2+ images carry light (their sum above ``tol`` of the
+    material's), with the measurement that says so."""
+    total = int(np.sum(paths))
+    twice = int(np.sum(paths[2:]))
+    lit = sum(float(np.sum(v)) for v in touch.values()) + sum(float(np.sum(v)) for v in rest.values())
+    frac = sum(float(np.sum(v)) for v in rest.values()) / lit if lit > 0 else 0.0
+    if twice == 0:
+        return False, (f"the material cannot see itself: none of {total} paths touched it twice "
+                       "(L2+ is exactly 0)"), frac
+    if abs(frac) < tol:
+        return False, (f"L2+ is {frac:.2e} of the material's light (below {tol:g}; {twice} of {total} "
+                       "paths touched it twice or more)"), frac
+    return True, "", frac
+
+
+def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
+    """Render every material of ``todo`` (all of the basis's) with full GI from one pass and
+    write the images, the cross terms and the manifest's account of them (see the module)."""
+    names = [combo[0] for _, combo in todo if combo is not None]
+    keys = {combo[0]: key for key, combo in todo if combo is not None}
+    pairs, pstats = select_pairs(manifold, names, tol=o.cross_tol)
+    t0 = time.perf_counter()
+    with progress_bar("rendering basis (one pass, full GI)", o.progress, stop) as advance:
+        kwargs = {"progress": advance, "cross_fraction": o.cross_fraction}
+        if o.chunk_spp:
+            kwargs["spp_per_pass"] = o.chunk_spp
+        r = _integrator(max_depth).render_onepass_gi(scene, materials=names, spp=o.spp, seed=o.seed,
+                                                     sensor=int(o.sensor), levels=o.levels, pairs=pairs, **kwargs)
+    seconds = time.perf_counter() - t0
+    per = seconds / max(len(todo), 1)
+    needed, why, frac = needs_rest(r.paths, r.touch, r.rest, REST_TOL)
+    stats = {"render_s": round(seconds, 3), "levels": int(o.levels), "paths_by_touches": [int(v) for v in r.paths],
+             "cut_fraction": float(r.paths[-1] / max(1, r.paths.sum())), "rest_fraction": frac,
+             "pairs": pstats, "cross_fraction": float(o.cross_fraction)}
+    images = {keys[n]: np.asarray(r.touch[n], np.float32) for n in names}
+    if any(combo is None for _, combo in todo):
+        images[basis_folder.BASE] = np.asarray(r.base, np.float32)
+    left = {}
+    if needed:
+        manifest["components"] = ["l1", "l2+"]
+    else:
+        manifest["components"] = ["l1"]
+        left["l2+"] = why
+        left["cross"] = "no L2+ images"
+    manifest["left_out"] = left
+    manifest["gi_stats"] = stats
+    save(images, per)
+    if not needed:
+        return
+    save({keys[n]: np.asarray(r.touch[n] + r.rest[n], np.float32) for n in names}, per,
+         section="gi_images", suffix=GI_SUFFIX)
+    if r.cross:
+        buf = io.BytesIO()
+        np.savez(buf, pairs=np.array(list(r.cross), dtype=str),
+                 images=np.stack([r.cross[p] for p in r.cross]).astype(np.float16))
+        write_bytes(os.path.join(out, CROSS_FILE), buf.getvalue())
+        manifest["cross"] = {"file": CROSS_FILE, "pairs": len(r.cross), "tol": float(o.cross_tol)}
+        manifest["components"] = ["l1", "l2+", "cross"]
+    else:
+        left["cross"] = f"no pair of materials reaches a weight product of {o.cross_tol:g} in the explored region"
+    basis_folder.write_manifest(out, manifest)

@@ -1,0 +1,163 @@
+"""The splats of paths that touch the target two to ``levels`` times (one-pass ``L2+``).
+
+Level ``k`` of a path (:mod:`.records`) gives two splats (light connection, sampled
+direction), each with ``k`` MERL bins ``b_1 .. b_k`` and an RGB amplitude ``a``: a material
+``f`` adds ``a prod_j f(b_j)`` to the pixel (paper Sec. 5.2, the one-pass weight is the
+product of ``f / proxy`` over the path's vertices on the material). :class:`MultiSplats`
+sums that for every material (the ``L2+`` image of each, ``rest_i``) and, for the
+two-vertex splats and the pairs asked for, the cross terms
+
+    C_ij = 2 L2_ij - L2_ii - L2_jj = - sum a (f_i(b_1) - f_j(b_1)) (f_i(b_2) - f_j(b_2)),
+
+``L2_ij = sum a (f_i(b_1) f_j(b_2) + f_j(b_1) f_i(b_2)) / 2``, with which the blend
+``sum_i w_i I_i + sum_{i<j} w_i w_j C_ij`` is exact for two-vertex paths (affine weights).
+Nearest lookups and a box filter only (the table product of :class:`.splats.TableSplats`).
+"""
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..lookups import merl_angles, merl_bin
+from .splats import PACKET
+
+#: Pairs of materials per cross-term kernel (bounds the per-thread copies of the sums).
+PAIR_CHUNK = 64
+
+
+def _bins(wi, wo, dims):
+    return merl_bin(*merl_angles(wi, wo), dims)
+
+
+class MultiSplats:
+    """Per-pixel sums of ``a prod_j max(f_i(b_j), 0)`` over levels ``2 .. levels`` for every
+    material, and of the cross terms of ``pairs`` (index pairs) over level 2.
+
+    ``rows`` is the flat ``(bins, 3, n_pad)`` table of :class:`.splats.TableSplats`.
+    """
+
+    def __init__(self, rows, n_pad, names, dims, pixels, levels, pairs=(), cross_fraction=1.0):
+        self.rows, self.n_pad, self.names, self.dims = rows, int(n_pad), names, dims
+        self.cross_fraction = float(cross_fraction)
+        self.pixels, self.levels, self.pairs = int(pixels), int(levels), list(pairs)
+        self.sums = dr.zeros(mi.Float, self.pixels * 3 * self.n_pad)
+        self.cross = [dr.zeros(mi.Float, self.pixels * 3 * len(self.pairs[p0:p0 + PAIR_CHUNK]))
+                      for p0 in range(0, len(self.pairs), PAIR_CHUNK)]
+        self.splats = []      # (k, [bins], amplitude, pixel) per level and kind
+        self.counts = np.zeros(self.levels + 2, np.int64)   # paths by vertices on the target
+
+    def prepare(self, rec, weight, pixel, seed=0):
+        """Splats of levels ``2 ..`` of one pass (``weight``: the camera sample weight; ``seed``:
+        of the pass, for the choice of the two-vertex splats that the cross terms use)."""
+        self.seed = int(seed)
+        levels = rec["levels"]
+        self.counts += np.bincount(np.minimum(rec["count"].numpy(), self.levels + 1),
+                                   minlength=self.levels + 2)[:self.levels + 2]
+        self.splats = []
+        for k in range(2, self.levels + 1):
+            lv = levels[:k]
+            earlier = [_bins(v["wi"], v["wo"], self.dims) for v in lv[:-1]]
+            ok = mi.Bool(True)
+            for v in lv[:-1]:
+                ok &= (v["wi"].z > 0) & (v["wo"].z > 0)
+            last = lv[-1]
+            for wo, a in ((last["wo_nee"], last["e_nee"]), (last["wo"], last["g"])):
+                a = weight * a * wo.z
+                good = ok & (last["wi"].z > 0) & (wo.z > 0) & dr.any(a != 0)
+                idx = dr.compress(good)
+                if dr.width(idx) == 0:
+                    continue
+                bins = [dr.gather(mi.UInt32, b, idx) for b in earlier + [_bins(last["wi"], wo, self.dims)]]
+                # read the tables in the order of the first bin
+                order = mi.UInt32(np.argsort(bins[0].numpy(), kind="stable").astype(np.uint32))
+                bins = [dr.gather(mi.UInt32, b, order) for b in bins]
+                idx = dr.gather(mi.UInt32, idx, order)
+                amp, pix = dr.gather(mi.Color3f, a, idx), dr.gather(mi.UInt32, pixel, idx)
+                dr.eval(bins, amp, pix)
+                self.splats.append((k, bins, amp, pix))
+
+    def add(self):
+        """Add the prepared splats to the ``L2+`` sums and (two-vertex ones) the cross terms.
+
+        The cross terms use each two-vertex splat with probability ``cross_fraction`` (weighted by
+        its inverse: unbiased), which bounds their cost where many pairs are stored."""
+        rng = np.random.default_rng([self.seed, 21])
+        for k, bins, amp, pix in self.splats:
+            self._rest(bins, amp, pix)
+            if k != 2 or not self.pairs:
+                continue
+            if self.cross_fraction < 1.0:
+                pick = np.flatnonzero(rng.random(dr.width(pix)) < self.cross_fraction).astype(np.uint32)
+                idx = mi.UInt32(pick)
+                bins = [dr.gather(mi.UInt32, b, idx) for b in bins]
+                amp = dr.gather(mi.Color3f, amp, idx) * (1.0 / self.cross_fraction)
+                pix = dr.gather(mi.UInt32, pix, idx)
+                if pick.size == 0:
+                    continue
+            for c, p0 in enumerate(range(0, len(self.pairs), PAIR_CHUNK)):
+                self._cross(self.cross[c], self.pairs[p0:p0 + PAIR_CHUNK], bins, amp, pix)
+
+    def _rest(self, bins, amp, pix):
+        packets = self.n_pad // PACKET
+        lane = dr.arange(mi.UInt32, dr.width(pix) * packets)
+        s, kb = lane // packets, lane % packets
+        b = [dr.gather(mi.UInt32, v, s) for v in bins]
+        q = dr.gather(mi.UInt32, pix, s)
+        a = dr.gather(mi.Color3f, amp, s)
+        with _expand(self.sums):
+            for c in range(3):
+                t = a[c]
+                for bj in b:
+                    t = t * dr.maximum(dr.gather(mi.ArrayXf, self.rows, (bj * 3 + c) * packets + kb,
+                                                 shape=(PACKET, dr.width(lane))), 0.0)
+                dr.scatter_add(self.sums, t, (q * 3 + c) * packets + kb, mode=dr.ReduceMode.Expand)
+            dr.eval(self.sums)
+
+    def _cross(self, sums, pairs, bins, amp, pix):
+        n = len(pairs)
+        lane = dr.arange(mi.UInt32, dr.width(pix) * n)
+        s, p = lane // n, lane % n
+        pi = dr.gather(mi.UInt32, mi.UInt32([i for i, _ in pairs]), p)
+        pj = dr.gather(mi.UInt32, mi.UInt32([j for _, j in pairs]), p)
+        b1, b2 = dr.gather(mi.UInt32, bins[0], s), dr.gather(mi.UInt32, bins[1], s)
+        q = dr.gather(mi.UInt32, pix, s)
+        a = dr.gather(mi.Color3f, amp, s)
+        f = lambda b, c, i: dr.maximum(dr.gather(mi.Float, self.rows, (b * 3 + c) * self.n_pad + i), 0.0)  # noqa: E731
+        with _expand(sums):
+            for c in range(3):
+                d1 = f(b1, c, pi) - f(b1, c, pj)
+                d2 = f(b2, c, pi) - f(b2, c, pj)
+                dr.scatter_add(sums, -a[c] * d1 * d2, (q * 3 + c) * n + p, mode=dr.ReduceMode.Expand)
+            dr.eval(sums)
+
+    def release(self):
+        self.splats = []
+
+    def images(self, scale, shape):
+        """``rest`` (material -> ``L2+`` image) and ``cross`` ((name_i, name_j) -> ``C_ij``),
+        scaled by ``scale`` (per pixel: 1 / the filter weights of all samples)."""
+        sums = self.sums.numpy().reshape(self.pixels, 3, self.n_pad) * scale[:, None, None]
+        rest = {n: np.ascontiguousarray(sums[:, :, k].reshape(shape), np.float32)
+                for k, n in enumerate(self.names)}
+        cross = {}
+        for c, p0 in enumerate(range(0, len(self.pairs), PAIR_CHUNK)):
+            chunk = self.pairs[p0:p0 + PAIR_CHUNK]
+            part = self.cross[c].numpy().reshape(self.pixels, 3, len(chunk)) * scale[:, None, None]
+            for k, (i, j) in enumerate(chunk):
+                cross[(self.names[i], self.names[j])] = np.ascontiguousarray(part[:, :, k].reshape(shape),
+                                                                             np.float32)
+        return rest, cross
+
+
+class _expand:
+    """Let ``ReduceMode.Expand`` scatter-adds keep a copy of ``sums`` per thread."""
+
+    def __init__(self, sums):
+        self.width = dr.width(sums)
+
+    def __enter__(self):
+        self.threshold = dr.expand_threshold()
+        dr.set_expand_threshold(max(self.threshold, self.width))
+
+    def __exit__(self, *exc):
+        dr.set_expand_threshold(self.threshold)

@@ -1,0 +1,122 @@
+"""Full-GI bases (issue 21): the L2+ images and cross terms of the one pass, what a basis
+leaves out, and the blends that use them."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
+import mitsuba as mi  # noqa: E402
+
+from mitsuba_manifold.basis import folder as bf  # noqa: E402
+from mitsuba_manifold.basis.blend import blend, blend_path  # noqa: E402
+from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
+from mitsuba_manifold.render import integrators, render_basis  # noqa: E402
+from helpers import assert_same_mean, integrator, load, renders  # noqa: E402
+
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
+
+SEEDS = range(8)
+
+
+def _gi(scene, **kw):
+    integ = integrator(max_depth=8)
+    return [integ.render_onepass_gi(scene, spp=16, seed=s, **kw) for s in SEEDS]
+
+
+def test_full_gi_image_of_a_training_material_equals_mitsubas_path(small_manifold):
+    """base + touch + L2+ of a material, from the shared paths (every vertex on the material
+    recorded: ``levels`` = ``max_depth``, nothing cut), equals Mitsuba's ``path`` rendering
+    the scene with that material, within Monte Carlo noise (block and image z-tests); the
+    touch images are those of render_onepass, exactly."""
+    scene = load("table", small_manifold, "gold-paint", res=24)
+    (bsdf,) = integrators.manifold_bsdfs(scene)
+    out = _gi(scene, levels=8)
+    assert out[0].paths[2:].sum() > 0   # the bowl sees itself
+    base, touch = integrator(max_depth=8).render_onepass(scene, spp=16, seed=0)
+    np.testing.assert_array_equal(out[0].base, base)
+    for name in ("gold-paint", "white-diffuse-bball"):
+        np.testing.assert_allclose(out[0].touch[name], touch[name], rtol=1e-5, atol=1e-7)
+        bsdf.set_material(name)
+        ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 8}), 16, [300 + s for s in SEEDS])
+        img = np.stack([o.base + o.touch[name] + o.rest[name] for o in out])
+        assert np.stack([o.rest[name] for o in out]).mean() > 1e-3 * img.mean()
+        assert_same_mean(img, ref, f"full-GI one pass vs path, {name}")
+        l1 = np.stack([o.base + o.touch[name] for o in out])
+        assert (ref.mean() - l1.mean()) > 0   # what the L1- image left out
+
+
+def test_cross_term_of_two_identical_materials_vanishes(small_manifold):
+    """C_aa = 2 L2_aa - L2_aa - L2_aa = 0 exactly (the kernel sums -a d(b1) d(b2) with
+    d = f_a - f_a = 0); C_ab of two different materials is not 0 where the bowl sees itself."""
+    scene = load("table", small_manifold, "gold-paint", res=16)
+    (r,) = _gi(scene, levels=2, pairs=[("gold-paint", "gold-paint"), ("gold-paint", "pink-fabric")])[:1]
+    assert not np.any(r.cross[("gold-paint", "gold-paint")])
+    c = r.cross[("gold-paint", "pink-fabric")]
+    assert np.abs(c).max() > 0
+    assert np.isfinite(c).all() and np.all(r.rest["gold-paint"] >= 0)
+
+
+def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manifold):
+    """A full-GI basis of the table: the manifest says what it holds; the default blend at a
+    training point is ``base + F_i`` exactly, ``component="l1"`` is Eq. 13's ``base + I_i``;
+    the blend along a path uses the cross terms as the point blend does."""
+    out = tmp_path / "basis"
+    manifest = render_basis.render_basis("table", small_manifold, out, spp=8, mode="onepass", resolution=16,
+                                         max_depth=8)
+    assert manifest["components"][:2] == ["l1", "l2+"] and manifest["levels"] == 5
+    assert manifest["gi_stats"]["rest_fraction"] > 0 and not manifest.get("left_out", {}).get("l2+")
+    m = Manifold.load(small_manifold)
+    b = bf.Basis.load(out, manifold=m)
+    k = m.names.index("gold-paint")
+    img, info = blend(b, m, x=m.latent[k])
+    assert info["component"] == "full" and info["component_note"] == ""
+    np.testing.assert_allclose(img, b.image("base") + b.image("gi:gold-paint"), rtol=1e-6, atol=1e-7)
+    img1, info1 = blend(b, m, x=m.latent[k], component="l1")
+    np.testing.assert_allclose(img1, b.image("base") + b.image("gold-paint"), rtol=1e-6, atol=1e-7)
+    assert img.mean() > img1.mean()
+    pairs = b.cross_terms()[0]
+    if pairs:
+        a, c = next(iter(pairs))
+        images, _, pinfo = blend_path(b, m, a, c, steps=3)
+        mid, minfo = blend(b, m, x=0.5 * (m.latent[m.names.index(a)] + m.latent[m.names.index(c)]))
+        np.testing.assert_allclose(images[1], mid, rtol=1e-4, atol=1e-6)
+        assert pinfo["component"] == "full"
+
+
+def test_an_old_l1_basis_still_blends_and_says_so(tmp_path, small_manifold):
+    """A basis whose manifest predates full GI (no ``components``) blends L1- and warns once."""
+    out = tmp_path / "old"
+    render_basis.render_basis("sphere", small_manifold, out, spp=2, mode="onepass", resolution=8,
+                              components="l1")
+    path = os.path.join(out, bf.MANIFEST)
+    with open(path) as f:
+        manifest = json.load(f)
+    for key in ("components", "left_out", "levels", "gi_stats"):
+        manifest.pop(key, None)
+    with open(path, "w") as f:
+        json.dump(manifest, f)
+    m = Manifold.load(small_manifold)
+    b = bf.Basis.load(out, manifold=m)
+    with pytest.warns(UserWarning, match="L1- only") as caught:
+        img, info = blend(b, m, x=m.latent[0])
+    assert len(caught) == 1 and "\n" not in str(caught[0].message)
+    assert info["component"] == "l1"
+    np.testing.assert_allclose(img, blend(b, m, x=m.latent[0], component="l1")[0])
+
+
+def test_a_convex_object_alone_holds_no_l2(tmp_path, small_manifold):
+    """The sphere cannot see itself: no path touches it twice, so the basis holds no L2+ or
+    cross-term images, and the manifest (and the blend's note) say why."""
+    out = tmp_path / "sphere"
+    manifest = render_basis.render_basis("sphere", small_manifold, out, spp=4, mode="onepass", resolution=12)
+    assert manifest["components"] == ["l1"]
+    assert "cannot see itself" in manifest["left_out"]["l2+"]
+    assert manifest["gi_stats"]["paths_by_touches"][2:] == [0] * (len(manifest["gi_stats"]["paths_by_touches"]) - 2)
+    assert not any(f.endswith(".gi.exr") or f == "cross.npz" for f in os.listdir(out))
+    assert "cannot see itself" in render_basis.describe_components(manifest)
+    m = Manifold.load(small_manifold)
+    img, info = blend(out, m, x=m.latent[0])
+    assert info["component"] == "l1" and "cannot see itself" in info["component_note"]
