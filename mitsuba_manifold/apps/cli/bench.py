@@ -46,12 +46,25 @@ def main(argv=None):
                    help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
     p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare")
     p.add_argument("--folds", type=parse_list, default=None, help="space: run only these of the 10 folds")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --json (or its plot) this tool did not write (never a read-only "
+                        "file, nor anything but a regular file)")
     args = p.parse_args(argv)
     if args.manifold and args.which not in WITH_MANIFOLD:
         p.error(f"{args.which} takes no --manifold (it fits its own); --manifold is for {', '.join(WITH_MANIFOLD)}")
     if args.which == "explore" and not args.basis:
         p.error("explore needs --basis DIR (a basis folder, e.g. out/gi/basis_table_256_64_onepass)")
 
+    from ..._util import ownership
+    with ownership.Outputs("bench.py", args.force) as guard:
+        guard.check(args.json, "--json")   # before the benchmark: nothing of the user's is replaced
+        if args.which in ("gi", "scaling", "explore"):
+            guard.check(os.path.splitext(args.json)[0] + ".png", "--json's plot")
+        run(args)
+
+
+def run(args):
+    """Run the benchmark ``args.which`` and write its report to ``--json``."""
     from .. import bench
     from ...data import database
     from ..._util.atomic import write_bytes
@@ -85,5 +98,6 @@ def main(argv=None):
               "date": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": time.perf_counter() - t0,
               "result": result}
     text = json.dumps(report, indent=1, default=float)
+    os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
     write_bytes(args.json, text)
     print(text)
