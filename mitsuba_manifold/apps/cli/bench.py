@@ -22,7 +22,7 @@ import os
 import time
 
 from ..bench import NAMES
-from .common import ArgumentParser, guarded, parse_list
+from .common import ArgumentParser, guarded, parse_indices, parse_list
 
 
 #: Benchmarks that take a saved manifold (the others fit their own).
@@ -45,7 +45,7 @@ def main(argv=None):
     p.add_argument("--out", default=None,
                    help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
     p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare")
-    p.add_argument("--folds", type=parse_list, default=None, help="space: run only these of the 10 folds")
+    p.add_argument("--folds", type=parse_indices, default=None, help="space: run only these of the 10 folds")
     p.add_argument("--force", action="store_true",
                    help="replace an existing --json (or its plot) this tool did not write (never a read-only "
                         "file, nor anything but a regular file)")
@@ -78,7 +78,7 @@ def run(args):
     kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space") else {}
     if args.which == "space":
         kwargs.update(basis=args.basis, configs=args.configs,
-                      folds=None if args.folds is None else [int(f) for f in args.folds])
+                      folds=args.folds)
     if args.manifold:
         kwargs["manifold"] = args.manifold
     if args.which == "match":

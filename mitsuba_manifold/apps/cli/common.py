@@ -67,6 +67,17 @@ def parse_list(text):
     return items
 
 
+def parse_indices(text):
+    """'0,3' -> [0, 3] (integers >= 0)."""
+    try:
+        values = [int(v) for v in parse_list(text)]
+    except ValueError:
+        values = [-1]
+    if min(values) < 0:
+        raise argparse.ArgumentTypeError(f"expected indices like 0,3 (integers >= 0), got {text!r}")
+    return values
+
+
 def parse_resolution(text):
     """'90,90,180' -> (90, 90, 180)."""
     try:
