@@ -312,7 +312,7 @@ def owned_tables(out_dir, settings, names, force):
         except (OSError, ValueError, AttributeError):
             raise ForeignFileError(f"{path} is not a database.json written by make_database; "
                                    "choose another folder") from None
-        present = {n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary")}
+        present = {n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary") and not n.startswith(".")}
         made = present if listed is None else set(listed) & present
         if {k: old.get(k) for k in settings} != settings and made:
             raise ForeignFileError(f"{out_dir} holds tables made with "

@@ -221,3 +221,30 @@ def test_references_render_the_sensor_of_the_basis_or_say_why_not(tmp_path, tiny
     old = Basis(tiny["basis"], {k: v for k, v in m.items() if k != "sensor"})
     assert reference_view(old, scene, with_sensor, warn=warnings.append) == {"sensor": 0}
     assert len(warnings) == 1 and "2 sensors" in warnings[0]
+
+
+def test_the_main_job_removes_only_a_basis_of_its_own_to_render_it_again(tmp_path, tiny):
+    import shutil
+
+    from mitsuba_manifold.basis.ownership import remove_basis
+    from mitsuba_manifold.errors import ForeignFileError
+
+    own, theirs, user = tmp_path / "own", tmp_path / "theirs", tmp_path / "user"
+    for folder in (own, theirs):
+        shutil.copytree(tiny["basis"], folder)
+    (own / atomic.temporary_name(own / "steel.exr", "1-abcd-0123abcd")).write_bytes(b"killed")
+    (theirs / "notes.txt").write_text("the user's")
+    user.mkdir()
+    (user / "photo.exr").write_bytes(b"the user's")
+    remove_basis(own)
+    assert not own.exists()
+    for folder in (theirs, user):
+        before = snapshot(folder)
+        with pytest.raises(ForeignFileError, match="not removing it"):
+            remove_basis(folder)
+        assert snapshot(folder) == before
+    os.remove(theirs / "notes.txt")
+    os.chmod(theirs / "base.exr", 0o444)
+    with pytest.raises(ForeignFileError, match="read-only"):
+        remove_basis(theirs)
+    remove_basis(tmp_path / "missing")                 # nothing to remove

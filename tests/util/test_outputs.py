@@ -171,3 +171,10 @@ def test_temporary_files_of_killed_writers_are_swept_by_the_next_write(tmp_path)
     left = set(os.listdir(tmp_path))
     assert killed not in left and old not in left
     assert {running, other_host, ".hidden-by-the-user", "other.json"} <= left
+
+
+def test_a_database_folder_never_counts_temporary_files_as_tables(tmp_path):
+    (tmp_path / "steel.binary").write_bytes(b"table")
+    (tmp_path / atomic.temporary_name(tmp_path / "chrome.binary", "123-abcd-0123abcd")).write_bytes(b"half")
+    (tmp_path / ownership.DATABASE_JSON).write_text('{"resolution": [8, 8, 16]}')   # no table list: older
+    assert ownership.owned_tables(tmp_path, {"resolution": [8, 8, 16]}, ["steel"], False) == {"steel"}

@@ -11,7 +11,7 @@ listed in the folder's manifest.json is complete, and the same command resumes."
 import argparse
 import time
 
-from .common import ArgumentParser, fail, guarded, parse_floats, parse_list
+from .common import ArgumentParser, fail, guarded, parse_floats, parse_indices, parse_list
 
 
 def parse_views(text):
@@ -19,11 +19,9 @@ def parse_views(text):
     if text.strip() == "all":
         return "all"
     try:
-        views = [int(v) for v in parse_list(text)]
-    except ValueError:
-        views = [-1]
-    if min(views) < 0:
-        raise argparse.ArgumentTypeError(f"--views takes 'all' or sensor indices like 0,1, got {text!r}")
+        views = parse_indices(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"--views takes 'all' or sensor indices like 0,1, got {text!r}") from None
     twice = sorted({v for v in views if views.count(v) > 1})
     if twice:
         raise argparse.ArgumentTypeError(f"--views lists sensor {twice[0]} more than once ({text!r}): each "
