@@ -97,13 +97,28 @@ def frame_names(args):
     return [f"{_stem(args.out)}_{s:0{width}d}.exr" for s in range(args.steps)]
 
 
+def _existing_frames(args):
+    """The frames of ``--path`` (EXR, and PNG with ``--png``) that exist already, found by
+    listing their folder (not by trying every step)."""
+    width = len(str(args.steps - 1))
+    frame = re.compile(re.escape(os.path.basename(_stem(args.out))) + r"_(\d{%d})\.(exr|png)$" % width)
+    folder = os.path.dirname(os.path.abspath(args.out))
+    names = os.listdir(folder) if os.path.isdir(folder) else []
+    found = [(n, frame.match(n)) for n in names]
+    return [os.path.join(os.path.dirname(args.out), n) for n, m in found
+            if m and int(m.group(1)) < args.steps and (args.png or m.group(2) == "exr")]
+
+
 def planned(args):
-    """``(kind, path)`` of every file the run will write (:func:`path_outputs`, :func:`point_outputs`)."""
+    """``(kind, path)`` of the files the run will write (:func:`path_outputs`, :func:`point_outputs`)
+    to check first: with ``--path``, the first frame (every frame's name is as long) and the
+    frames that exist already, found without listing every step (``--steps`` is not yet checked
+    against the memory)."""
     stem, png = _stem(args.out), args.png
     if args.path is not None:
-        names = frame_names(args)
-        out = [("image", f) for f in names] + ([("png", f[:-4] + ".png") for f in names] if png else [])
-        return out + [("contact sheet", stem + "_sheet.png")]
+        first = f"{stem}_{0:0{len(str(args.steps - 1))}d}.exr"
+        out = [("image", first)] + ([("png", first[:-4] + ".png")] if png else [])
+        return out + [("frame", p) for p in _existing_frames(args)] + [("contact sheet", stem + "_sheet.png")]
     out = [("image", args.out)] + ([("png", stem + ".png")] if png else [])
     if args.render_reference:
         out += [("reference", stem + "_reference.exr")] + ([("reference PNG", stem + "_reference.png")] if png else [])
