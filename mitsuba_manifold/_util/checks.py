@@ -236,3 +236,18 @@ def weight_sum(w):
                             f"terms this large cancel, and the combined table (float32) would keep no "
                             f"correct digit; use weights with sum |w| <= {MAX_CANCELLATION:g} * |sum w|")
     return total
+
+
+#: Mitsuba's samplers take 32-bit seeds.
+SEED_LIMIT = 1 << 32
+
+
+def seed(name, value, streams=1, why=""):
+    """A seed from 0 such that ``streams`` consecutive seeds from ``value * streams`` (a
+    renderer seeding pass ``p`` of ``n`` with ``seed * n + p``) fit Mitsuba's 32 bits."""
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+    streams = max(1, int(streams))
+    top = SEED_LIMIT // streams - 1
+    if not ok or not 0 <= value <= top:
+        raise InputError(f"{name} must be an integer from 0 to {top}{why}, got {value!r}")
+    return int(value)

@@ -5,8 +5,18 @@ SHA-256 in ``<folder>/.mitsuba-manifold-outputs.json`` (:data:`RECORD`). Before 
 again it calls :func:`check_replaceable`: a path that does not exist is fine; one listed
 with the same content is the tool's own output and may be replaced; anything else (a
 user's file, or one of the tool's outputs edited since) is refused unless ``force``.
-A read-only file (no write bit for its owner) is refused even with ``force``: someone
-protected it on purpose.
+Refused even with ``force``: a read-only file (no write bit for its owner: someone
+protected it on purpose), and anything that is not a regular file (a folder, a symbolic
+link, a FIFO, a device such as ``/dev/null``: an atomic rename would replace the node
+itself), and a name longer than the file system allows.
+
+:class:`Outputs` is the one discipline every tool writes under: it checks each output
+before the run (``check``) and, while active, sees every atomic write into its paths and
+folders (:func:`mitsuba_manifold._util.atomic.watching`): each file is checked again, and
+is recorded as the tool's own *before* it is renamed into place (write-ahead: the record
+holds the new content's hash beside the one it replaces), so that a run stopped at any
+moment -- an exception, Ctrl-C, SIGKILL -- leaves only files the same command replaces.
+A file whose content is already what the tool would write is left as it is.
 
 Folders with a manifest of their own list their files there: a basis folder's
 ``manifest.json`` (:mod:`mitsuba_manifold.render.render_basis`), a database folder's ``database.json``
@@ -17,7 +27,7 @@ import json
 import os
 import stat
 
-from .atomic import write_bytes
+from .atomic import name_max, watching, write_bytes
 from .cache import file_hash
 from ..errors import ForeignFileError
 from .locking import FolderLock
@@ -34,9 +44,21 @@ def _read_record(path):
         with open(_record_path(path), encoding="utf-8") as f:
             data = json.load(f)
         files = data.get("files") if isinstance(data, dict) else None
-        return files if isinstance(files, dict) else {}
+        return {k: v for k, v in files.items() if isinstance(v, dict)} if isinstance(files, dict) else {}
     except (OSError, ValueError):
         return {}
+
+
+def _update_record(folder, change):
+    """Apply ``change(files)`` (it edits the ``{name: entry}`` dict in place and returns the
+    names it set) to ``folder``'s record under its lock; entries of vanished files are
+    dropped, but for those just set (written ahead of their file)."""
+    with FolderLock(folder, "output folder", name=RECORD + ".lock", wait=True):
+        files = _read_record(os.path.join(folder, RECORD))
+        fresh = set(change(files) or ())
+        files = {k: v for k, v in files.items() if k in fresh or os.path.isfile(os.path.join(folder, k))}
+        text = json.dumps({"format": "mitsuba-manifold-outputs", "files": files}, indent=1, sort_keys=True)
+        write_bytes(os.path.join(folder, RECORD), text)
 
 
 def read_only(path):
@@ -48,57 +70,219 @@ def read_only(path):
 
 
 def owned(path):
-    """True when ``path`` is listed in its folder's record with its current content."""
+    """True when ``path`` is listed in its folder's record with its current content (or, for a
+    run stopped between recording and renaming, the content it was replacing)."""
     entry = _read_record(path).get(os.path.basename(path))
-    return isinstance(entry, dict) and entry.get("sha256") == file_hash(path)
+    if not isinstance(entry, dict) or not os.path.isfile(path):
+        return False
+    return file_hash(path) in (entry.get("sha256"), entry.get("was"))
 
 
-def check_replaceable(path, force=False, what="output"):
-    """Raise :class:`ForeignFileError` unless writing ``path`` destroys nothing of the user's.
+def _refusal(path, force, what):
+    """``(kind, message)`` of why ``path`` may not be written, or None. ``kind`` is
+    ``"foreign"`` for a file the tool did not make (allowed by ``force``), else the
+    reason no option overrides."""
+    path = os.fspath(path)
+    limit, length = name_max(path), len(os.fsencode(os.path.basename(path)))
+    if length > limit:
+        return "name", (f"{what} {path}: the file name is {length} bytes, longer than the file system "
+                        f"allows ({limit}); choose a shorter name")
+    if not os.path.lexists(path):
+        probe = os.path.dirname(os.path.abspath(path))
+        while not os.path.exists(probe):
+            probe = os.path.dirname(probe)
+        if not os.path.isdir(probe):
+            return "folder", f"{what} {path}: {probe} is a file, not a folder"
+        return None
+    if os.path.isdir(path) and not os.path.islink(path):
+        return "directory", f"{what} {path} is a folder, not a file"
+    if os.path.islink(path) or not os.path.isfile(path):
+        kind = "a symbolic link" if os.path.islink(path) else "a device, FIFO or socket"
+        return "special", f"{what} {path} exists and is not a regular file ({kind}); not replacing it"
+    if read_only(path):
+        return "read-only", (f"{what} {path} exists and is read-only; not replacing it (make it writable or "
+                             "choose another name)")
+    if not force and not owned(path):
+        return "foreign", (f"{what} {path} exists and was not written by this tool (or was changed since); "
+                           "not replacing it: choose another name, or pass `force`")
+    return None
+
+
+def check_replaceable(path, force=False, what="output", owner=True):
+    """Raise :class:`ForeignFileError` unless writing ``path`` destroys nothing of the user's
+    (see the module notes).
 
     Parameters
     ----------
     path : str
     force : bool
-        Allow replacing a file the tool did not make (never a read-only one).
+        Allow replacing a file the tool did not make (never a read-only one, nor one
+        that is not a regular file).
     what : str
         The role of the path, for the message: a Python parameter in backquotes (``"`out`"``,
         which a command-line tool writes as its option) or plain words (``"output"``).
+    owner : bool
+        Also refuse a file the tool did not make (False: only what ``force`` cannot allow,
+        for a first check before the inputs are read).
     """
-    path = os.fspath(path)
-    if not os.path.lexists(path):
-        folder = os.path.dirname(os.path.abspath(path))
-        probe = folder
-        while not os.path.exists(probe):
-            probe = os.path.dirname(probe)
-        if not os.path.isdir(probe):
-            raise ForeignFileError(f"{what} {path}: {probe} is a file, not a folder")
-        return
-    if os.path.isdir(path):
-        raise ForeignFileError(f"{what} {path} is a folder, not a file")
-    if os.path.islink(path) or not os.path.isfile(path):
-        raise ForeignFileError(f"{what} {path} exists and is not a regular file; not replacing it")
-    if read_only(path):
-        raise ForeignFileError(f"{what} {path} exists and is read-only; not replacing it (make it "
-                               "writable or choose another name)")
-    if not force and not owned(path):
-        raise ForeignFileError(f"{what} {path} exists and was not written by this tool (or was changed "
-                               "since); not replacing it: choose another name, or pass `force`")
+    refusal = _refusal(path, force, what)
+    if refusal is not None and (owner or refusal[0] != "foreign"):
+        raise ForeignFileError(refusal[1])
 
 
-def record(paths, tool):
-    """List ``paths`` (just written) with their content hashes in their folders' records."""
+def record(paths, tool, group=None):
+    """List ``paths`` (just written) with their content hashes in their folders' records
+    (``group``: what the run wrote them as, for :meth:`Outputs.remove_stale`)."""
     by_folder = {}
     for p in paths:
         by_folder.setdefault(os.path.dirname(os.path.abspath(p)), []).append(os.fspath(p))
     for folder, items in by_folder.items():
-        with FolderLock(folder, "output folder", name=RECORD + ".lock", wait=True):
-            files = _read_record(items[0])
+        def change(files, items=items):
             for p in items:
-                files[os.path.basename(p)] = {"sha256": file_hash(p), "tool": tool}
-            files = {k: v for k, v in files.items() if os.path.isfile(os.path.join(folder, k))}
-            text = json.dumps({"format": "mitsuba-manifold-outputs", "files": files}, indent=1, sort_keys=True)
-            write_bytes(os.path.join(folder, RECORD), text)
+                files[os.path.basename(p)] = _entry(file_hash(p), tool, group)
+        _update_record(folder, change)
+
+
+def _entry(digest, tool, group=None, was=None):
+    entry = {"sha256": digest, "tool": tool}
+    if group is not None:
+        entry["group"] = group
+    if was is not None:
+        entry["was"] = was
+    return entry
+
+
+class Outputs:
+    """The output discipline of one tool run, as a context manager (see the module notes).
+
+    Parameters
+    ----------
+    tool : str
+        Recorded as the files' maker (``"blend.py"``).
+    force : bool
+        Replace files the tool did not make (never read-only or non-regular ones).
+    folders : list of path, optional
+        Folders whose every file written during the run is an output (the main job's
+        ``gi/``, whose image names depend on the fitted manifold); others are added by
+        :meth:`check`.
+    group : str, optional
+        What this run writes (``"path:/abs/seq.exr"``): recorded with each file, so that a
+        later run of the same group removes what it no longer writes (:meth:`remove_stale`).
+
+    Examples
+    --------
+    >>> with Outputs("bench.py", force=args.force) as outputs:
+    ...     outputs.check(args.json, "--json")     # before the long run
+    ...     write_bytes(args.json, text)          # checked, recorded, renamed
+    """
+
+    def __init__(self, tool, force=False, folders=(), group=None):
+        self.tool, self.force, self.group = tool, bool(force), group
+        self.folders = {os.path.abspath(os.fspath(f)) for f in folders}
+        self.written, self.kept = [], []   # paths written (or already right), those left as they were
+        self._paths, self._identical, self._was = {}, set(), {}
+        self._context = None
+
+    def check(self, path, what="output", identical=False):
+        """Refuse ``path`` now (:func:`check_replaceable`) and watch its writes. With
+        ``identical``, a file the tool did not make is refused only when the new content
+        differs (checked when it is written): for generated files shipped with the package."""
+        key = os.path.abspath(os.fspath(path))
+        refusal = _refusal(path, self.force, what)
+        if refusal is not None and not (identical and refusal[0] == "foreign"):
+            raise ForeignFileError(refusal[1])
+        self._paths[key] = what
+        if identical:
+            self._identical.add(key)
+        return path
+
+    def watches(self, path):
+        """True when writes to ``path`` are this run's outputs."""
+        key = os.path.abspath(os.fspath(path))
+        return os.path.basename(key) != RECORD and (key in self._paths or os.path.dirname(key) in self.folders)
+
+    def before(self, path):
+        """Called by :func:`atomic.atomic_replace` before it writes ``path``."""
+        if not self.watches(path):
+            return
+        key = os.path.abspath(os.fspath(path))
+        refusal = _refusal(path, self.force, self._paths.get(key, "output"))
+        if refusal is not None and not (key in self._identical and refusal[0] == "foreign"):
+            raise ForeignFileError(refusal[1])
+
+    def claim(self, path, tmp):
+        """Called by :func:`atomic.atomic_replace` with the complete new content ``tmp`` of
+        ``path``: records it as the tool's own before the rename; returns False (keep the
+        existing file) when the content is already ``tmp``'s."""
+        if not self.watches(path):
+            return True
+        key = os.path.abspath(os.fspath(path))
+        new = file_hash(tmp)
+        exists = os.path.isfile(path) and not os.path.islink(path)
+        mine = exists and owned(path)
+        if exists and file_hash(path) == new:
+            if mine or self.force:
+                record([path], self.tool, self.group)
+            self.written.append(path)
+            self.kept.append(path)
+            return False
+        refusal = _refusal(path, self.force, self._paths.get(key, "output"))
+        if refusal is not None:
+            raise ForeignFileError(refusal[1])
+        was = file_hash(path) if mine else None
+        if was is not None:
+            self._was[key] = new
+        name = os.path.basename(key)
+
+        def change(files):
+            files[name] = _entry(new, self.tool, self.group, was)
+            return [name]
+        _update_record(os.path.dirname(key), change)
+        self.written.append(path)
+        return True
+
+    def remove_stale(self, folder, names=None):
+        """Remove the files of ``folder`` (of those ``names`` only, if given) that an earlier
+        run of this tool and group recorded and this run did not write (unchanged since: a
+        user's edit keeps a file). Returns the paths removed."""
+        folder = os.path.abspath(os.fspath(folder))
+        mine = {os.path.abspath(p) for p in self.written}
+        stale = [os.path.join(folder, name) for name, e in _read_record(os.path.join(folder, RECORD)).items()
+                 if self.group is not None and e.get("group") == self.group and e.get("tool") == self.tool
+                 and os.path.join(folder, name) not in mine and (names is None or name in names)]
+        removed = [p for p in stale if os.path.isfile(p) and not os.path.islink(p) and owned(p)]
+        for p in removed:
+            os.remove(p)
+        if stale:
+            def change(files):
+                for p in stale:
+                    files.pop(os.path.basename(p), None)
+            _update_record(folder, change)
+        return removed
+
+    def _settle(self):
+        """Drop the replaced content's hash of every file renamed into place."""
+        by_folder = {}
+        for key, digest in self._was.items():
+            if os.path.isfile(key) and file_hash(key) == digest:
+                by_folder.setdefault(os.path.dirname(key), []).append(os.path.basename(key))
+        for folder, names in by_folder.items():
+            def change(files, names=names):
+                for n in names:
+                    if n in files:
+                        files[n].pop("was", None)
+            _update_record(folder, change)
+        self._was.clear()
+
+    def __enter__(self):
+        self._context = watching(self)
+        self._context.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        self._context.__exit__(*exc)
+        self._settle()
+        return False
 
 
 DATABASE_JSON = "database.json"
@@ -128,7 +312,7 @@ def owned_tables(out_dir, settings, names, force):
         except (OSError, ValueError, AttributeError):
             raise ForeignFileError(f"{path} is not a database.json written by make_database; "
                                    "choose another folder") from None
-        present = {n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary")}
+        present = {n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary") and not n.startswith(".")}
         made = present if listed is None else set(listed) & present
         if {k: old.get(k) for k in settings} != settings and made:
             raise ForeignFileError(f"{out_dir} holds tables made with "

@@ -15,7 +15,6 @@ images and the contact sheets of the latent path (paper Fig. 12) and of the extr
 
 import json
 import os
-import shutil
 import time
 from dataclasses import dataclass, replace
 
@@ -24,6 +23,7 @@ import numpy as np
 from ..basis import denoise as denoise_mod
 from ..basis.blend import blend, blend_path, path_labels
 from ..basis.folder import Basis
+from ..basis.ownership import remove_basis
 from ..imaging import io as imageio, metrics, plots
 from ..manifold.model import Manifold
 from ..render import scenes as _scenes  # (gi_report has a parameter named scenes)
@@ -143,8 +143,7 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
     opts = settings
     out, name = os.path.dirname(stem), os.path.basename(stem)
     folder_b = os.path.join(out, f"basis_{name}_{opts.res}_{opts.basis_spp}_{opts.mode}")
-    if os.path.isdir(folder_b):  # time a whole basis, not a resumed one
-        shutil.rmtree(folder_b)
+    remove_basis(folder_b)   # time a whole basis, not a resumed one (only a basis of its own)
     t0 = time.perf_counter()
     render_basis(scene_path, manifold_path, folder_b, spp=opts.basis_spp, mode=opts.mode, resolution=opts.res,
                  seed=opts.seed, progress=opts.progress, aovs=opts.denoise)

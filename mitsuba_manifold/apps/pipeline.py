@@ -22,6 +22,7 @@ from ..data import database
 from ..imaging import plots
 from ..manifold.model import Manifold
 from ..render import scenes as _scenes
+from .._util import ownership
 from .._util.atomic import write_bytes
 from .commands import explore_command
 from .comparison import (GISettings, extrapolation_labels, extrapolation_sheet, gi_pair, gi_points, gi_report,
@@ -55,6 +56,9 @@ class MainJob:
         Direct renders the blends are compared with.
     denoise : bool
         Also the AOVs and the denoised figures.
+    force : bool
+        Replace files in ``out`` this job did not write (never read-only ones, nor anything
+        but regular files); without it they are refused before anything is computed.
     """
     out: str
     resolution: tuple = (90, 90, 180)
@@ -68,6 +72,7 @@ class MainJob:
     mode: str = "onepass"
     direct_spp: tuple = (1, 4, 16, 64, 256)
     denoise: bool = True
+    force: bool = False
 
     def check(self):
         """Check the settings before anything is computed or written; raises
@@ -109,6 +114,29 @@ def run_main_job(job, log=print, **fields):
     """
     job = replace(job, **fields) if isinstance(job, MainJob) else MainJob(job, **fields)
     job.check()
+    with ownership.Outputs("main.py", job.force, folders=_output_folders(job)) as guard:
+        for what, path in main_job_outputs(job):   # before anything is computed
+            guard.check(path, what)
+        return _run(job, log)
+
+
+def _output_folders(job):
+    """Folders whose every file is an output of the job: the plots, and ``gi/`` (whose image
+    names depend on the fitted manifold). The database and the basis folders keep their own
+    records (``database.json``, ``manifest.json``)."""
+    return [os.path.join(job.out, "plots"), os.path.join(job.out, "gi")]
+
+
+def main_job_outputs(job):
+    """``(what, path)`` of the files the job writes whatever the data: the manifold, the
+    latent map and the report (the others are checked as they are written)."""
+    return [("`out`'s manifold", os.path.join(job.out, "manifold.npz")),
+            ("`out`'s plot", os.path.join(job.out, "plots", plots.FIT_PLOTS[0])),
+            ("`out`'s report", os.path.join(job.out, "gi", "report.json"))]
+
+
+def _run(job, log):
+    """:func:`run_main_job` once its outputs are checked (and watched)."""
     t_start = time.perf_counter()
     stages = {}
     db_dir, manifold_path = _database_and_manifold(job, log, stages)

@@ -38,6 +38,7 @@ import numpy as np
 from .crossterms import cross_weights
 from .folder import BASE, Basis
 from ..errors import MismatchError
+from ..imaging.io import printable
 from ..manifold.pruning import DEFAULT_PRUNE
 
 #: How far the weights of one target may sum away from 1 in a multilinear blend.
@@ -333,8 +334,9 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
 
 def path_labels(pair, steps):
     """Labels of a contact sheet of :func:`blend_path` from ``pair[0]`` to ``pair[1]``: ``t``
-    under every frame, each end's name (or latent point, as given) under the first and the last."""
+    under every frame, each end's name (or latent point, as given) under the first and the last
+    (control characters of a name escaped: one field per line)."""
     labels = [f"t = {t:.2f}" for t in np.linspace(0, 1, steps)]
-    labels[0] += f"\n{pair[0]}"
-    labels[-1] += f"\n{pair[1]}"
+    labels[0] += f"\n{printable(pair[0])}"
+    labels[-1] += f"\n{printable(pair[1])}"
     return labels

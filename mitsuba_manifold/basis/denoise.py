@@ -105,7 +105,7 @@ class BasisAOVs:
 
     def save(self, folder, manifest):
         path = os.path.join(os.fspath(folder), AOV_FILE)
-        key = {k: manifest.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}
+        key = _basis_key(manifest)
         import json
         atomic_write(path, lambda f: np.savez(
             f, normal=self.normal, albedo_base=self.albedo_base, hist=self.hist, table=self.table,
@@ -126,17 +126,25 @@ class BasisAOVs:
                     raise MismatchError(f"{path}: AOV format version {int(z['version'])}, expected {AOV_VERSION}")
                 out = cls(z["normal"], z["albedo_base"], z["hist"], z["table"], [str(n) for n in z["names"]],
                           int(z["spp"]), float(z["time_s"]))
-                key = json.loads(str(z["basis"]))
+                key = _basis_key(json.loads(str(z["basis"])))
         except (OSError, ValueError, KeyError, AttributeError, TypeError) as e:
             raise MismatchError(f"{path} is not an AOV file written by render_basis with `aovs` ({type(e).__name__}); "
                                "delete it and render the AOVs again") from None
         if manifest is not None:
-            want = {k: manifest.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}
+            want = _basis_key(manifest)
             if want != key:
                 diff = [k for k in want if want[k] != key.get(k)]
                 raise MismatchError(f"{path} was made for another basis ({', '.join(diff)} differ); "
                                    "render the AOVs again")
         return out
+
+
+def _basis_key(manifest):
+    """What AOVs are made for: the basis's scene, manifold, resolution and sensor (absent in
+    manifests of earlier versions: sensor 0)."""
+    key = {k: manifest.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}
+    key["sensor"] = key["sensor"] or 0
+    return key
 
 
 # ------------------------------------------------------------------ denoising

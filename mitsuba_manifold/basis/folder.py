@@ -134,6 +134,18 @@ class Basis:
         return (f"Basis({self.folder!r}: {len(self.keys)} images, targets {self.targets}, "
                 f"{self.resolution[0]}x{self.resolution[1]}, {self.manifest['spp']} spp)")
 
+    @property
+    def sensor(self):
+        """The scene's sensor (view) the images were rendered from (0 when the manifest does
+        not say: :attr:`sensor_known`)."""
+        return int(self.manifest.get("sensor", 0))
+
+    @property
+    def sensor_known(self):
+        """True when the manifest records its sensor (manifests of earlier versions recorded
+        only sensors other than 0)."""
+        return "sensor" in self.manifest
+
     def _entry(self, key):
         if key.startswith(GI):
             return self.manifest.get("gi_images", {}).get(key[len(GI):])

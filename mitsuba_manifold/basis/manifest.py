@@ -12,7 +12,9 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
      "scene": abs path, "scene_hash": sha256, "manifold": abs path, "manifold_hash": sha256,
      "resolution": [width, height], "spp": int, "variant": str, "seed": int, "max_depth": int,
      "mode": "per-material" | "onepass", "targets": [bsdf id, ...],
-     "sensor": int (optional, default 0), "chunks": int (optional: merged from k chunks),
+     "sensor": int (the scene's sensor rendered; absent in manifests of earlier versions, which
+               rendered sensor 0 unless they say otherwise),
+     "chunks": int (optional: merged from k chunks),
      "pending": ["<key>.exr", ...] (optional: being written; see render_basis),
      "images": {"base": {"file": "base.exr", "time_s": float},
                 "<material>": {"file": "<material>.exr", "time_s": float}, ...},
@@ -229,7 +231,7 @@ def _plain_exr(name):
 
 
 def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mode, targets,
-                  images=None, components=("l1",)):
+                  images=None, components=("l1",), sensor=0):
     """A validated manifest dict for a basis of ``scene`` rendered with ``manifold``.
 
     Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
@@ -252,6 +254,9 @@ def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mo
     components : sequence of str
         What the basis holds (:data:`COMPONENTS`; default L1- only). A renderer that adds
         full-GI images sets it when it writes them.
+    sensor : int
+        The scene's sensor (view) the images are rendered from; always recorded, so that a
+        reference of the basis renders the same view.
     """
     manifold = os.fspath(manifold)
     if not os.path.isfile(manifold):
@@ -262,7 +267,7 @@ def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mo
         "manifold": os.path.abspath(manifold), "manifold_hash": manifold_file_identity(manifold),
         "resolution": [int(v) for v in resolution], "spp": int(spp), "variant": str(variant),
         "seed": int(seed), "max_depth": int(max_depth), "mode": mode,
-        "targets": [str(t) for t in targets], "images": dict(images or {}),
+        "targets": [str(t) for t in targets], "sensor": int(sensor), "images": dict(images or {}),
         "components": [str(c) for c in components]}
     return validate_manifest(manifest, where="new manifest")
 
@@ -319,8 +324,11 @@ SETTINGS = ("format", "version", "scene_hash", "manifold_hash", "resolution", "s
 def manifest_differences(a, b, ignore=()):
     """Setting fields (:data:`SETTINGS`, but those in ``ignore``) whose values differ between two manifests.
 
-    An empty list means images rendered for one are valid for the other (resume)."""
-    return [k for k in SETTINGS if k not in ignore and a.get(k) != b.get(k)]
+    An empty list means images rendered for one are valid for the other (resume). A manifest
+    without ``sensor`` (an earlier version's) rendered sensor 0."""
+    def value(m, k):
+        return m.get(k, 0) if k == "sensor" else m.get(k)
+    return [k for k in SETTINGS if k not in ignore and value(a, k) != value(b, k)]
 
 
 def is_basis_folder(folder):

@@ -1,11 +1,15 @@
 """The target of a match and its mask: read from image files and checked against a basis.
 
-A target is linear RGB at the basis' resolution (an EXR as it is; an 8-bit PNG/JPEG
-sRGB-decoded, its clipped pixels reported so that the match leaves them out); a mask gives
+A target is linear RGB at the basis' resolution (an EXR as it is; a PNG/JPEG sRGB-decoded at
+its depth, 8 bits or a 16-bit greyscale PNG, its clipped pixels reported so that the match
+leaves them out; the size checked before any pixel is decoded); a mask gives
 each pixel a weight in [0, 1] (0: ignored). :func:`mitsuba_manifold.basis.match.match` uses
 :func:`check_target` and :func:`check_mask`; the ``match`` tool reads files with
 :func:`read_target` and :func:`read_mask`.
 """
+
+import struct
+import warnings
 
 import numpy as np
 
@@ -47,36 +51,95 @@ def check_mask(mask, resolution, what="mask"):
     return arr
 
 
-def read_target(path):
-    """A target image: linear EXR, or an 8-bit PNG/JPEG (sRGB-decoded to linear).
+def read_target(path, resolution=None):
+    """A target image: linear EXR, or a PNG/JPEG (sRGB-decoded to linear) read at its depth:
+    8 bits, or 16 bits for a greyscale PNG (a 16-bit colour PNG is refused: Pillow would read
+    it as 8 bits).
 
-    Returns ``(image float32 (H, W, 3), saturated (H, W) bool)``: the pixels of an 8-bit
-    image with a channel at 255 (clipped, their true value unknown), to leave out of the
-    match; none for an EXR.
+    With ``resolution`` (the basis's ``(width, height)``) the size is checked from the file's
+    header before any pixel is decoded; a size beyond memory is refused in any case.
+
+    Returns ``(image float32 (H, W, 3), saturated (H, W) bool)``: the pixels of a PNG/JPEG
+    with a channel at its largest code (255, or 65535: clipped, their true value unknown),
+    to leave out of the match; none for an EXR.
     """
     path = str(path)
     if path.lower().endswith(".exr"):
+        _exr_size(path, resolution, "target")
         img = imageio.read_exr(path)
         return img, np.zeros(img.shape[:2], dtype=bool)
-    u8 = _read_8bit(path, "RGB", "target")
-    return imageio.srgb_decode(u8 / 255.0).astype(np.float32), (u8 == 255).any(axis=-1)
+    codes, top = _read_coded(path, "target", resolution)
+    if codes.shape[-1] == 1:
+        codes = np.repeat(codes, 3, axis=-1)
+    return imageio.srgb_decode(codes / top).astype(np.float32), (codes == top).any(axis=-1)
 
 
-def read_mask(path):
-    """A mask image (PNG/JPEG grey or RGB: value / 255; EXR: mean of R, G, B) as (H, W)."""
+def read_mask(path, resolution=None):
+    """A mask image (PNG/JPEG grey or RGB: value / largest code, 255 or 65535; EXR: mean of
+    R, G, B) as (H, W); ``resolution`` as for :func:`read_target`."""
     path = str(path)
     if path.lower().endswith(".exr"):
+        _exr_size(path, resolution, "mask")
         return imageio.read_exr(path).mean(axis=-1)
-    return _read_8bit(path, "L", "mask") / 255.0
+    codes, top = _read_coded(path, "mask", resolution)
+    return codes.mean(axis=-1) / top
 
 
-def _read_8bit(path, mode, what):
+#: The 8 bytes every PNG file starts with.
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _png_header(path):
+    """``(width, height, bit depth, colour type)`` from a PNG's IHDR chunk, or None (not a PNG)."""
+    with open(path, "rb") as f:
+        head = f.read(26)
+    if len(head) < 26 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+        return None
+    width, height = struct.unpack(">II", head[16:24])
+    return width, height, head[24], head[25]
+
+
+def _check_size(what, path, size, resolution):
+    """Refuse an image of ``size`` (width, height) other than ``resolution``, or beyond memory."""
+    from .._util import checks as validate
+
+    w, h = (int(v) for v in size)
+    if resolution is not None and (w, h) != tuple(resolution):
+        raise InputError(f"{what} {path} is {w}x{h}, the basis is {resolution[0]}x{resolution[1]}: render "
+                         "or resize the target to the basis resolution")
+    validate.fits_in_memory(what, 4 * w * h * 3 * 8, f"the {w}x{h} image {path}")
+
+
+def _exr_size(path, resolution, what):
+    info = imageio.read_exr_header(path)
+    _check_size(what, path, (info["width"], info["height"]), resolution)
+
+
+def _read_coded(path, what, resolution=None):
+    """The integer codes of a PNG/JPEG as float64 (H, W, C) (C: 1 grey, 3 colour) and the
+    largest code (255, or 65535 for a 16-bit greyscale PNG); the size checked before decoding."""
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(path) as im:
-            return np.asarray(im.convert(mode), dtype=np.float64)
+        png = _png_header(path)
+        if png is not None:
+            _check_size(what, path, png[:2], resolution)
+            if png[2] == 16 and png[3] != 0:
+                raise InputError(f"{what} {path} is a 16-bit PNG with colour or alpha (colour type {png[3]}), "
+                                 "which cannot be read at its depth here (it would be cut to 8 bits): save it "
+                                 "as a linear EXR, an 8-bit PNG or a 16-bit greyscale PNG without alpha")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                _check_size(what, path, im.size, resolution)
+                if im.mode.startswith("I;16") or (im.mode == "I" and png is not None and png[2] == 16):
+                    return np.asarray(im, dtype=np.float64)[..., None], 65535
+                if im.mode in ("1", "L", "LA", "I", "F"):
+                    return np.asarray(im.convert("L"), dtype=np.float64)[..., None], 255
+                return np.asarray(im.convert("RGB"), dtype=np.float64), 255
     except FileNotFoundError:
         raise InputError(f"{what} {path}: file does not exist") from None
-    except (UnidentifiedImageError, OSError) as e:
+    except Image.DecompressionBombError as e:
+        raise InputError(f"{what} {path} is too large to decode ({e})") from None
+    except (UnidentifiedImageError, OSError, SyntaxError) as e:
         raise InputError(f"{what} {path}: not a readable image ({e})") from None

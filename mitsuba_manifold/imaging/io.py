@@ -193,6 +193,14 @@ def write_png(path, img, exposure=0.0, text=None):
     atomic_write(path, lambda f: pil.save(f, format="PNG", pnginfo=info))
 
 
+def printable(text):
+    """``text`` with every character that is not printable (newlines, tabs, other control
+    and format characters) written as its Python escape (``\\n``, ``\\x07``, ``\\u202e``): a
+    material name drawn in a label or a title reads as it is, on one line."""
+    text = str(text)
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+
+
 def _wrap(text, width, length, max_lines=3):
     """``text`` as at most ``max_lines`` lines no wider than ``width`` (``length(s)``: pixels);
     cut at ``-``, ``_`` or spaces where possible, the last line ending in ``...`` if it is cut."""
@@ -216,7 +224,7 @@ def _wrap(text, width, length, max_lines=3):
 def _label_lines(text, width, length, max_lines=4):
     """A label as lines no wider than ``width``: each ``\n``-separated field on lines of its
     own (:func:`_wrap`), at most ``max_lines`` in all, the last ending in ``...`` if cut."""
-    out, fields = [], str(text).split("\n")
+    out, fields = [], [printable(f) for f in str(text).split("\n")]
     for k, field in enumerate(fields):
         room = max_lines - len(out)
         out += _wrap(field, width, length, room)
@@ -248,12 +256,13 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
         Linear radiance.
     labels : list of str, optional
         Drawn under each image, wrapped to its width; ``\n`` starts a new line (one field
-        per line reads best on small tiles).
+        per line reads best on small tiles); other control characters are drawn escaped
+        (:func:`printable`).
     columns : int, optional
         Default: ``ceil(sqrt(n))``.
     title : str, optional
         Drawn above the grid, wrapped to the sheet's width (what the sheet shows, e.g. its
-        two end materials).
+        two end materials); one paragraph, control characters escaped (:func:`printable`).
     """
     from PIL import Image, ImageDraw
 
@@ -270,7 +279,7 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
     lines = [_label_lines(t, w - 2, draw.textlength) for t in labels] if labels else []
     label_h = 12 * max(map(len, lines)) + 2 if labels else 0
     width = cols * (w + pad) + pad
-    heading = _wrap(str(title), width - 2 * pad, draw.textlength) if title else []
+    heading = _wrap(printable(title), width - 2 * pad, draw.textlength) if title else []
     top = 12 * len(heading) + (pad if heading else 0)
     sheet = np.full((top + rows * (h + label_h + pad) + pad, width, 3), 32, dtype=np.uint8)
     tiles = tonemap(images, exposure)

@@ -112,7 +112,7 @@ class BasisOptions:
         Render into an existing ``out`` that holds files but no basis manifest
         (:func:`check_foreign_folder`), and overwrite files in ``out`` that this basis did not make.
     sensor : int
-        Which of the scene's sensors (views) to render (recorded in the manifest when not 0).
+        Which of the scene's sensors (views) to render (recorded in the manifest).
     aovs : bool
         Also write the denoising guides ``aovs.npz`` (:func:`guides.add_aovs`; one target).
     components : {"auto", "l1"}
@@ -191,9 +191,7 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
         raise InputError(f"`sensor` {o.sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)")
     size = tuple(int(v) for v in sensors[int(o.sensor)].film().size())
     manifest = basis_folder.make_manifest(scene_path, manifold_path, size, o.spp, mi.variant(), o.seed, max_depth,
-                                          o.mode, [b.id() for b in targets])
-    if int(o.sensor):
-        manifest["sensor"] = int(o.sensor)
+                                          o.mode, [b.id() for b in targets], sensor=int(o.sensor))
     gi = o.mode == "onepass" and o.components == "auto"
     if gi:
         manifest["levels"] = int(o.levels)

@@ -168,3 +168,21 @@ def test_contact_sheet_labels_keep_their_fields_on_lines_of_their_own(tmp_path):
     a, b = (np.asarray(Image.open(p).convert("RGB")) for p in (plain, titled))
     assert b.shape[0] > a.shape[0] and (b[:b.shape[0] - a.shape[0]] > 150).any()   # the title, drawn
     assert np.array_equal(a[4:], b[b.shape[0] - a.shape[0] + 4:])                  # above the same grid
+
+
+def test_control_characters_in_names_are_drawn_escaped_on_one_line(tmp_path):
+    """A material name holding a newline, a tab or a NUL (issue 20): the sheet is drawn (no PIL
+    error on a multi-line title), the name stays one field of its label, escaped."""
+    from PIL import Image, ImageDraw
+
+    from mitsuba_manifold.basis.blend import path_labels
+
+    length = ImageDraw.Draw(Image.new("RGB", (1, 1))).textlength
+    labels = path_labels(("evil\nname", "tab\there\x00"), 3)
+    assert imageio._label_lines(labels[0], 200, length) == ["t = 0.00", "evil\\nname"]
+    assert imageio._label_lines(labels[-1], 200, length) == ["t = 1.00", "tab\\there\\x00"]
+    assert imageio.printable("a\u202eb ü") == "a\\u202eb ü"
+    path = tmp_path / "sheet.png"
+    imageio.write_contact_sheet(path, np.zeros((3, 16, 16, 3), np.float32), labels=labels,
+                                title="evil\nname (t = 0) to tab\there\x00 (t = 1)")
+    assert Image.open(path).size[0] > 0

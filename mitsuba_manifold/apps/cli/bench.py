@@ -24,7 +24,7 @@ import os
 import time
 
 from ..bench import NAMES
-from .common import ArgumentParser, guarded, parse_list
+from .common import ArgumentParser, guarded, parse_indices, parse_list
 
 
 #: Benchmarks that take a saved manifold (the others fit their own).
@@ -48,13 +48,26 @@ def main(argv=None):
                    help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
     p.add_argument("--browser", action="store_true", help="explore: time the page in headless Chromium (drags)")
     p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare")
-    p.add_argument("--folds", type=parse_list, default=None, help="space: run only these of the 10 folds")
+    p.add_argument("--folds", type=parse_indices, default=None, help="space: run only these of the 10 folds")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --json (or its plot) this tool did not write (never a read-only "
+                        "file, nor anything but a regular file)")
     args = p.parse_args(argv)
     if args.manifold and args.which not in WITH_MANIFOLD:
         p.error(f"{args.which} takes no --manifold (it fits its own); --manifold is for {', '.join(WITH_MANIFOLD)}")
     if args.which == "explore" and not args.basis:
         p.error("explore needs --basis DIR (a basis folder, e.g. out/gi/basis_table_256_64_onepass)")
 
+    from ..._util import ownership
+    with ownership.Outputs("bench.py", args.force) as guard:
+        guard.check(args.json, "--json")   # before the benchmark: nothing of the user's is replaced
+        if args.which in ("gi", "scaling", "explore"):
+            guard.check(os.path.splitext(args.json)[0] + ".png", "--json's plot")
+        run(args)
+
+
+def run(args):
+    """Run the benchmark ``args.which`` and write its report to ``--json``."""
     from .. import bench
     from ...data import database
     from ..._util.atomic import write_bytes
@@ -68,7 +81,7 @@ def main(argv=None):
     kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space") else {}
     if args.which == "space":
         kwargs.update(basis=args.basis, configs=args.configs,
-                      folds=None if args.folds is None else [int(f) for f in args.folds])
+                      folds=args.folds)
     if args.manifold:
         kwargs["manifold"] = args.manifold
     if args.which == "match":
@@ -92,5 +105,6 @@ def main(argv=None):
               "date": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": time.perf_counter() - t0,
               "result": result}
     text = json.dumps(report, indent=1, default=float)
+    os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
     write_bytes(args.json, text)
     print(text)

@@ -21,7 +21,7 @@ import sys
 import time
 
 from ...manifold.pruning import DEFAULT_PRUNE
-from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats
+from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats, reference_view
 
 NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
 
@@ -89,12 +89,51 @@ def parse(argv=None):
         fail(f"--steps must be >= 2, got {args.steps}")
     if args.spp < 1:
         fail(f"--spp must be >= 1, got {args.spp}")
-    from ..._util import checks as validate
+    from ..._util import checks as validate, ownership
     from ...basis import ownership as basis_ownership
     validate.exposure(args.exposure)
     validate.fraction("--prune", args.prune)
+    validate.seed("--seed", args.seed)
     basis_ownership.check_output_outside_basis(args.out, args.basis)
+    for kind, path in planned(args):   # names and kinds of targets (their owners: before writing)
+        ownership.check_replaceable(path, args.force, what=kind, owner=False)
     return args
+
+
+def frame_names(args):
+    """The EXR frames of ``--path``: ``<stem>_<s>.exr``, ``s`` zero-padded to the widest."""
+    width = len(str(args.steps - 1))
+    return [f"{_stem(args.out)}_{s:0{width}d}.exr" for s in range(args.steps)]
+
+
+def _existing_frames(args):
+    """The frames of ``--path`` (EXR, and PNG with ``--png``) that exist already, found by
+    listing their folder (not by trying every step)."""
+    width = len(str(args.steps - 1))
+    frame = re.compile(re.escape(os.path.basename(_stem(args.out))) + r"_(\d{%d})\.(exr|png)$" % width)
+    folder = os.path.dirname(os.path.abspath(args.out))
+    names = os.listdir(folder) if os.path.isdir(folder) else []
+    found = [(n, frame.match(n)) for n in names]
+    return [os.path.join(os.path.dirname(args.out), n) for n, m in found
+            if m and int(m.group(1)) < args.steps and (args.png or m.group(2) == "exr")]
+
+
+def planned(args):
+    """``(kind, path)`` of the files the run will write (:func:`path_outputs`, :func:`point_outputs`)
+    to check first: with ``--path``, the first frame (every frame's name is as long) and the
+    frames that exist already, found without listing every step (``--steps`` is not yet checked
+    against the memory)."""
+    stem, png = _stem(args.out), args.png
+    if args.path is not None:
+        first = f"{stem}_{0:0{len(str(args.steps - 1))}d}.exr"
+        out = [("image", first)] + ([("png", first[:-4] + ".png")] if png else [])
+        return out + [("frame", p) for p in _existing_frames(args)] + [("contact sheet", stem + "_sheet.png")]
+    out = [("image", args.out)] + ([("png", stem + ".png")] if png else [])
+    if args.render_reference:
+        out += [("reference", stem + "_reference.exr")] + ([("reference PNG", stem + "_reference.png")] if png else [])
+    if args.reference or args.render_reference:
+        out += [("error image", stem + "_error.exr"), ("error PNG", stem + "_error.png")]
+    return out
 
 
 def path_outputs(args, basis, manifold):
@@ -120,9 +159,8 @@ def path_outputs(args, basis, manifold):
     _say_component(info)
     print(f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
           f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image)")
-    stem, width, outputs = _stem(args.out), len(str(args.steps - 1)), []
-    for s, img in enumerate(images):
-        name = f"{stem}_{s:0{width}d}.exr"
+    stem, outputs = _stem(args.out), []
+    for name, img in zip(frame_names(args), images):
         outputs.append(("image", name, lambda n=name, i=img: imageio.write_exr(n, i)))
         if args.png:
             png = name[:-4] + ".png"
@@ -217,9 +255,10 @@ def reference_image(args, basis, manifold, outputs):
     print(f"rendering the reference: {scene}, path, {args.spp} spp ...", flush=True)
     t0 = time.perf_counter()
     points = latent_points(basis, manifold, args.x)
+    view = reference_view(basis, scene, render_reference)
     reference = render_reference(scene, args.manifold or m["manifold"], points, args.spp, seed=args.seed,
                                  resolution=basis.resolution, max_depth=m["max_depth"], variant=m["variant"],
-                                 targets=basis.targets, database=args.database)
+                                 targets=basis.targets, database=args.database, **view)
     print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
     if basis.p == 1:
         neg = manifold.negative_fraction(points[0], database=args.database)
@@ -234,18 +273,25 @@ def reference_image(args, basis, manifold, outputs):
     return reference
 
 
-def write_outputs(out, outputs, force=False):
-    """Check that no output replaces a file this tool did not make (:mod:`ownership`), create
-    the folder of ``out``, run every writer (reporting each file) and record the files made."""
+def write_outputs(out, outputs, force=False, group=None):
+    """Write ``outputs`` under the tools' output discipline (:class:`ownership.Outputs`): check
+    that none replaces a file this tool did not make, create the folder of ``out``, run every
+    writer (reporting each file), each file recorded as the tool's own as it is written (a run
+    stopped half-way leaves files the same command replaces). With ``group`` (what the run
+    writes, e.g. ``"path:" + out``), the files an earlier run of the group wrote and this one
+    did not are removed (a shorter ``--path``'s surplus frames)."""
     from ..._util import ownership
 
-    for kind, path, _ in outputs:
-        ownership.check_replaceable(path, force, what=kind)
-    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
-    for kind, path, write in outputs:
-        write()
-        print(f"wrote {kind}: {path}")
-    ownership.record([path for _, path, _ in outputs], "blend.py")
+    with ownership.Outputs("blend.py", force, group=group) as guard:
+        for kind, path, _ in outputs:
+            guard.check(path, kind)
+        os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+        for kind, path, write in outputs:
+            write()
+            print(f"wrote {kind}: {path}")
+        if group is not None:
+            for path in guard.remove_stale(os.path.dirname(os.path.abspath(out))):
+                print(f"removed {path} (from an earlier blend to {out}; this one did not write it)")
 
 
 #: Files a point blend may write beside ``<stem>.exr``.
@@ -277,10 +323,10 @@ def main(argv=None):
         print(basis)
         if args.path is not None:
             outputs = path_outputs(args, basis, manifold)
-            write_outputs(args.out, outputs, args.force)
+            write_outputs(args.out, outputs, args.force, group="path:" + os.path.abspath(args.out))
         else:
             outputs = point_outputs(args, basis, manifold)
-            write_outputs(args.out, outputs, args.force)
+            write_outputs(args.out, outputs, args.force, group="point:" + os.path.abspath(args.out))
             remove_stale_companions(args.out, outputs)
     except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's, from a reference render
         fail(e)

@@ -5,8 +5,9 @@ import time
 
 from .common import ArgumentParser, guarded, parse_list
 
-def check(args):
-    """Everything checked before the (long) fit: values, --out and --plot (:mod:`ownership`)."""
+def check(args, guard=None):
+    """Everything checked before the (long) fit: values, --out and --plot (``guard``: the run's
+    :class:`ownership.Outputs`, which then watches them; default: checked only)."""
     from ..._util import ownership, checks as validate
     from ...imaging import plots
     from ...errors import InputError
@@ -22,11 +23,12 @@ def check(args):
         fix = os.path.join(folder, (os.path.splitext(base)[0].lstrip(".") or "manifold") + ".npz")
         raise InputError(f"--out must name a .npz file (the manifold is saved as NumPy .npz), got {args.out!r}: "
                          f"use --out {fix}")
-    ownership.check_replaceable(args.out, args.force, what="--out")
+    guard = guard or ownership.Outputs("fit_manifold.py", args.force)
+    guard.check(args.out, "--out")
     if args.plot:
         validate.output_folder("--plot", args.plot)
         for name in plots.FIT_PLOTS:
-            ownership.check_replaceable(os.path.join(args.plot, name), args.force, what="--plot file")
+            guard.check(os.path.join(args.plot, name), "--plot file")
 
 
 @guarded
@@ -50,23 +52,31 @@ def main(argv=None):
     args = p.parse_args(argv)
 
     from ..._util import ownership
+    t0 = time.perf_counter()
+    group = None if args.plot is None else "plots:" + os.path.abspath(args.plot)
+    with ownership.Outputs("fit_manifold.py", args.force, group=group) as guard:
+        check(args, guard)
+        fit_and_save(args, guard, t0)
+
+
+def fit_and_save(args, guard, t0):
+    """The fit, the manifold and the plots (each recorded as written, under ``guard``);
+    plots an earlier fit wrote into ``--plot`` and this one does not (another ``q``) are removed."""
     from ...imaging import plots
     from ...manifold.model import Manifold
-    t0 = time.perf_counter()
-    check(args)
+
     m = Manifold.fit(args.database, q=args.q, names=args.materials, method=args.method,
                      length_scale=args.length_scale, noise=args.noise, features=args.features,
                      preset=args.preset, progress=True)
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     m.save(args.out)
-    ownership.record([args.out], "fit_manifold.py")
     print(m.summary())
     print(f"time: {time.perf_counter() - t0:.2f} s total (load {m.info['time_load_s']:.2f} s, "
           f"Gram {m.info['time_gram_s']:.2f} s, optimisation {m.info['time_fit_s']:.2f} s)")
     print(f"final L = {m.info['log_likelihood']:.8g}, cond(K) = {m.condition_number():.4g}")
     print(f"saved {args.out}")
     if args.plot:
-        paths = plots.write_fit_plots(m, args.plot)
-        ownership.record(paths, "fit_manifold.py")
-        for path in paths:
+        for path in plots.write_fit_plots(m, args.plot):
             print(f"plot: {path}")
+        for path in guard.remove_stale(args.plot, names=plots.FIT_PLOTS):
+            print(f"removed {path} (an earlier fit's plot; this one has no such plot)")

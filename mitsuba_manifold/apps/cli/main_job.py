@@ -32,10 +32,13 @@ def main(argv=None):
     p.add_argument("--ref-spp", type=int, default=2048, help="reference samples per pixel (default 2048)")
     p.add_argument("--no-denoise", action="store_true", help="skip the AOVs and the denoised figures")
     p.add_argument("--mode", choices=["onepass", "per-material"], default="onepass")
+    p.add_argument("--force", action="store_true",
+                   help="replace files in --out this job did not write (never read-only ones); without it "
+                        "they are refused before anything is computed")
     args = p.parse_args(argv)
 
     from ..pipeline import MainJob, run_main_job
     job = MainJob(args.out, args.resolution, q=args.q, features=args.features, preset=args.preset,
                   scene=args.scene, res=args.res, spp=args.spp, ref_spp=args.ref_spp, mode=args.mode,
-                  denoise=not args.no_denoise)
+                  denoise=not args.no_denoise, force=args.force)
     run_main_job(job, log=lambda text: print(text, flush=True))

@@ -15,8 +15,25 @@ def main(argv=None):
     ap.add_argument("--out", default=SCENES_DIR, help="output folder (default: the package's scenes)")
     ap.add_argument("--segments", type=int, default=64, help="bowl segments around the axis")
     ap.add_argument("--profile", type=int, default=56, help="bowl profile points")
+    ap.add_argument("--force", action="store_true",
+                    help="replace a bowl.ply or sky.exr this tool did not write (never a read-only file, nor "
+                         "anything but a regular file); without it, one of the same content is left as it is")
     args = ap.parse_args(argv)
 
+    from ..._util import checks as validate, ownership
+    validate.positive_int("--segments", args.segments, "64")
+    validate.positive_int("--profile", args.profile, "56")
+    validate.output_folder("--out", args.out)
+    bowl, sky = os.path.join(args.out, "bowl.ply"), os.path.join(args.out, "sky.exr")
+    with ownership.Outputs("make_scene_meshes.py", args.force) as guard:
+        for path in (bowl, sky):   # the shipped files: refused only if what is written differs
+            guard.check(path, "output", identical=True)
+        os.makedirs(args.out, exist_ok=True)
+        write_assets(args, bowl, sky, guard)
+
+
+def write_assets(args, bowl, sky, guard):
+    """Write the bowl mesh and the sky map (under ``guard``, :class:`ownership.Outputs`)."""
     import mitsuba as mi
 
     from ...render import geometry
@@ -24,10 +41,10 @@ def main(argv=None):
     if mi.variant() is None:
         mi.set_variant("scalar_rgb")  # write_ply builds the mesh with Mitsuba
     v, f = geometry.bowl(n=args.profile, segments=args.segments)
-    path = os.path.join(args.out, "bowl.ply")
-    geometry.write_ply(path, v, f)
-    print(f"{path}: {len(v)} vertices, {len(f)} triangles, volume {geometry.signed_volume(v, f):.4f}")
-    path = os.path.join(args.out, "sky.exr")
-    sky = geometry.sky_envmap()
-    imageio.write_exr(path, sky)
-    print(f"{path}: {sky.shape[1]}x{sky.shape[0]} sky")
+    geometry.write_ply(bowl, v, f)
+    note = " (unchanged)" if bowl in guard.kept else ""
+    print(f"{bowl}{note}: {len(v)} vertices, {len(f)} triangles, volume {geometry.signed_volume(v, f):.4f}")
+    image = geometry.sky_envmap()
+    imageio.write_exr(sky, image)
+    note = " (unchanged)" if sky in guard.kept else ""
+    print(f"{sky}{note}: {image.shape[1]}x{image.shape[0]} sky")

@@ -7,8 +7,9 @@ Prints the best latent point, its nearest training materials and largest weights
 image error (relative MSE over the mask; the fitted exposure with --exposure-free) and the
 best single training material; writes the blend at the best point (--out), a contact sheet
 target | match | best single material (--png), a full-GI render of the point (--render-
-reference) and everything as JSON (--json). Targets: linear EXR, or 8-bit PNG/JPEG
-(sRGB-decoded; clipped pixels left out). Nothing is written until the match has succeeded.
+reference) and everything as JSON (--json). Targets: linear EXR, or PNG/JPEG (sRGB-decoded
+at their depth: 8 bits, or a 16-bit greyscale PNG; clipped pixels left out). Nothing is
+written until the match has succeeded.
 """
 
 import argparse
@@ -17,7 +18,7 @@ import os
 import sys
 import time
 
-from .common import ERRORS, ArgumentParser, fail, guarded
+from .common import ERRORS, ArgumentParser, fail, guarded, reference_view
 
 
 def _parser():
@@ -26,7 +27,7 @@ def _parser():
     p.add_argument("--render", action="store_true",
                    help="match full-GI renders of scenes instead of a basis (differentiable x; --render --help)")
     p.add_argument("--basis", required=True, help="basis folder written by render_basis.py (one target)")
-    p.add_argument("--target", required=True, help="target image: linear .exr, or 8-bit .png/.jpg (sRGB)")
+    p.add_argument("--target", required=True, help="target image: linear .exr, or .png/.jpg (sRGB; 8 bits, or 16-bit grey)")
     p.add_argument("--mask", help="mask image of the target's size: pixels > 0 are matched (grey = weight)")
     p.add_argument("--exposure-free", action="store_true", help="fit the blend's brightness scale too")
     p.add_argument("--log", action="store_true", help="match log luminance instead of relative MSE of RGB")
@@ -64,6 +65,8 @@ def _check_args(args):
               f"{args.max_iter}, {args.spp}, {args.scan}")
     if args.json is not None and not args.json.lower().endswith(".json"):
         fail(f"--json must name a .json file, got {args.json!r}")
+    from ..._util import checks as validate
+    validate.seed("--seed", args.seed)
 
 
 def _inputs(args):
@@ -75,13 +78,13 @@ def _inputs(args):
 
     basis = Basis.load(args.basis, manifold=args.manifold)
     manifold = basis.check_manifold(args.manifold)
-    target, clipped = mt.read_target(args.target)
+    target, clipped = mt.read_target(args.target, basis.resolution)
     target = mt.check_target(target, basis.resolution, what=f"target {args.target}")
     weight = np.ones(target.shape[:2])
     if args.mask:
-        weight = mt.check_mask(mt.read_mask(args.mask), basis.resolution, what=f"mask {args.mask}")
+        weight = mt.check_mask(mt.read_mask(args.mask, basis.resolution), basis.resolution, what=f"mask {args.mask}")
     if clipped.any():
-        print(f"note: {int(clipped.sum())} clipped pixels of the 8-bit target are left out")
+        print(f"note: {int(clipped.sum())} clipped pixels of the target (a channel at its largest code) are left out")
         weight = mt.check_mask(weight * ~clipped, basis.resolution,
                                what=f"mask {args.mask or '(all pixels)'} without the target's clipped pixels")
     return basis, manifold, target, weight
@@ -132,9 +135,10 @@ def _outputs(args, result, basis, manifold, target):
             print(f"rendering the best point: {m['scene']}, path, {args.spp} spp ...", flush=True)
             t0 = time.perf_counter()
             try:
+                view = reference_view(basis, m["scene"], render_reference)
                 ref = render_reference(m["scene"], args.manifold or m["manifold"], result.x, args.spp,
-                                          seed=args.seed, resolution=basis.resolution, max_depth=m["max_depth"],
-                                          variant=m["variant"])
+                                       seed=args.seed, resolution=basis.resolution, max_depth=m["max_depth"],
+                                       variant=m["variant"], **view)
             except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's
                 fail(e)
             print(f"rendered in {time.perf_counter() - t0:.1f} s")
@@ -161,10 +165,10 @@ def _planned(args):
     return out
 
 
-def _refuse_inputs(args):
+def _refuse_inputs(args, guard):
     """Never overwrite an input (the target, the mask or an image of the basis), nor a file
-    this tool did not make (:mod:`ownership`, unless ``--force``)."""
-    from ..._util import ownership
+    this tool did not make (``guard``: :class:`ownership.Outputs`, which allows those with
+    ``--force``)."""
     from ...basis import ownership as basis_ownership
 
     inputs = {os.path.realpath(p) for p in (args.target, args.mask) if p}
@@ -174,7 +178,7 @@ def _refuse_inputs(args):
             fail(f"output {path} would overwrite an input (the target, the mask or the basis); "
                   "choose another path")
         basis_ownership.check_output_outside_basis(path)
-        ownership.check_replaceable(path, args.force, what="output")
+        guard.check(path, "output")
 
 
 @guarded
@@ -185,19 +189,21 @@ def main(argv=None):
         return match_render_main([a for a in argv if a != "--render"])
     args = _parser().parse_args(argv)
     _check_args(args)
-    _refuse_inputs(args)
+    from ..._util import ownership
     from ...basis import match as mt
 
-    basis, manifold, target, weight = _inputs(args)
-    result = mt.match(basis, target, weight, manifold=manifold, loss="log" if args.log else "rel_mse",
-                      exposure_free=args.exposure_free, prior=args.prior, starts=args.starts,
-                      max_iter=args.max_iter, scan=args.scan)
-    _report(result, manifold, basis)
-    outputs = _outputs(args, result, basis, manifold, target)
-    for kind, path, write in outputs:
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        write()
-        print(f"wrote {kind}: {path}")
-    from ..._util import ownership
-    ownership.record([path for _, path, _ in outputs], "match.py")
+    with ownership.Outputs("match.py", args.force) as guard:
+        _refuse_inputs(args, guard)
+        basis, manifold, target, weight = _inputs(args)
+        result = mt.match(basis, target, weight, manifold=manifold, loss="log" if args.log else "rel_mse",
+                          exposure_free=args.exposure_free, prior=args.prior, starts=args.starts,
+                          max_iter=args.max_iter, scan=args.scan)
+        _report(result, manifold, basis)
+        outputs = _outputs(args, result, basis, manifold, target)
+        for kind, path, _ in outputs:
+            guard.check(path, kind)
+        for kind, path, write in outputs:
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            write()
+            print(f"wrote {kind}: {path}")
     return 0

@@ -10,9 +10,10 @@ import os
 from .common import ArgumentParser, guarded
 
 
-def check_json(args):
+def check_json(args, guard=None):
     """Refuse a --json that is not a .json name, names an input, or would replace a file
-    this tool did not write (:mod:`ownership`; never a read-only one)."""
+    this tool did not write (``guard``, the run's :class:`ownership.Outputs`; never a
+    read-only one)."""
     from ..._util import ownership
     from ...errors import ForeignFileError, InputError
 
@@ -20,7 +21,7 @@ def check_json(args):
         raise InputError(f"--json must name a .json file, got {args.json!r}")
     if os.path.realpath(args.json) in {os.path.realpath(p) for p in (args.table, args.manifold)}:
         raise ForeignFileError(f"--json {args.json} is an input of this run; choose another name")
-    ownership.check_replaceable(args.json, args.force, what="--json")
+    (guard or ownership.Outputs("project.py", args.force)).check(args.json, "--json")
 
 
 @guarded
@@ -35,10 +36,17 @@ def main(argv=None):
     args = p.parse_args(argv)
 
     from ..._util import ownership
+    with ownership.Outputs("project.py", args.force) as guard:
+        if args.json:
+            check_json(args, guard)
+        project(args)
+
+
+def project(args):
+    """Project ``args.table``, print the result and write ``--json``."""
     from ..._util.atomic import write_bytes
     from ...manifold.model import Manifold
-    if args.json:
-        check_json(args)
+
     m = Manifold.load(args.manifold)
     m.tables(args.database)
     r = m.project(args.table)
@@ -48,7 +56,6 @@ def main(argv=None):
               "weights": {m.names[i]: float(r.weights[i]) for i in top if r.weights[i] != 0}}
     if args.json:
         write_bytes(args.json, json.dumps(result, indent=1) + "\n")
-        ownership.record([args.json], "project.py")
     print(f"x = {', '.join(f'{v:.6g}' for v in r.x)}")
     print(f"error {r.error:.5g} (RMS of log(1 + rho) differences); nearest training material "
           f"{r.nearest}: {r.nearest_error:.5g}")

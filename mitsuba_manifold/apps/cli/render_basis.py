@@ -11,7 +11,7 @@ listed in the folder's manifest.json is complete, and the same command resumes."
 import argparse
 import time
 
-from .common import ArgumentParser, fail, guarded, parse_floats, parse_list
+from .common import ArgumentParser, fail, guarded, parse_floats, parse_indices, parse_list
 
 
 def parse_views(text):
@@ -19,12 +19,32 @@ def parse_views(text):
     if text.strip() == "all":
         return "all"
     try:
-        views = [int(v) for v in parse_list(text)]
-    except ValueError:
-        views = [-1]
-    if min(views) < 0:
-        raise argparse.ArgumentTypeError(f"--views takes 'all' or sensor indices like 0,1, got {text!r}")
+        views = parse_indices(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"--views takes 'all' or sensor indices like 0,1, got {text!r}") from None
+    twice = sorted({v for v in views if views.count(v) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"--views lists sensor {twice[0]} more than once ({text!r}): each "
+                                         "view is rendered once, into its own folder")
     return views
+
+
+def check_numbers(args):
+    """The options that need no scene, before any folder is made: ``--spp``, ``--chunks``, and
+    ``--seed``, whose derived seeds must fit Mitsuba's 32 bits (one-pass renders seed pass
+    ``p`` of ``n`` with ``seed * n + p``, at most one pass per sample; chunk ``j`` of ``k``
+    has seed ``seed * k + j``)."""
+    from ..._util import checks as validate
+
+    validate.positive_int("--spp", args.spp, "64")
+    validate.positive_int("--chunks", args.chunks, "4")
+    if args.res is not None and not 1 <= args.res <= 16384:
+        fail(f"--res must be from 1 to 16384, got {args.res}")
+    per_chunk = -(-args.spp // args.chunks)
+    streams = args.chunks * (per_chunk if args.mode == "onepass" else 1)
+    why = (f" with --spp {args.spp}, --chunks {args.chunks} and --mode {args.mode} (the renderer derives up to "
+           f"{streams} seeds from it, and Mitsuba's seeds have 32 bits)")
+    validate.seed("--seed", args.seed, streams, why if streams > 1 else "")
 
 
 @guarded
@@ -62,8 +82,7 @@ def main(argv=None):
     p.add_argument("--out", required=True, help="output folder")
     args = p.parse_args(argv)
     materials = args.materials if args.materials != ["all"] else "all"
-    if args.res is not None and not 1 <= args.res <= 16384:
-        fail(f"--res must be from 1 to 16384, got {args.res}")
+    check_numbers(args)
 
     from ...render.chunks import render_chunked
     from ...render.executor import make_executor
