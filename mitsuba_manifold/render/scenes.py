@@ -265,7 +265,7 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
 
 
 def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None, max_depth=None,
-                     variant=None, targets=None, database=None):
+                     variant=None, targets=None, database=None, sensor=0):
     """Full global-illumination image of the interpolated material, with Mitsuba's ``path``.
 
     Loads the scene (:func:`load_scene`), sets every manifold material to its latent
@@ -283,6 +283,9 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
     spp, seed : int
     resolution, max_depth, variant, database
         As :func:`load_scene` (``variant``: the active one unless given).
+    sensor : int
+        Which of the scene's sensors (views) to render: a basis's own (its manifest's
+        ``sensor``), so that the reference compares with its blends pixel for pixel.
 
     Returns
     -------
@@ -310,7 +313,9 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
         bsdf.set_latent(pts[row])
     from .interrupt import render_in_passes
     integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
-    return render_in_passes(scene, integrator, int(spp), int(seed))   # Ctrl-C: KeyboardInterrupt
+    if not 0 <= int(sensor) < len(scene.sensors()):
+        raise InputError(f"`sensor` {sensor} does not exist: {scene_path} has {len(scene.sensors())} sensor(s)")
+    return render_in_passes(scene, integrator, int(spp), int(seed), sensor=int(sensor))   # Ctrl-C: KeyboardInterrupt
 
 
 def check_scene(name, value):

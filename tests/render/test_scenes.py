@@ -1,6 +1,7 @@
 """Scenes: the shipped scenes found by name, and reference renders of interpolated materials."""
 
 import itertools
+import re
 import os
 
 import numpy as np
@@ -146,3 +147,24 @@ def test_load_scene_renders_in_the_active_variant_and_switches_only_when_asked(v
     with mi.util.scoped_set_variant("scalar_rgb"):                               # Mitsuba's own, for a while
         assert scenes.load_scene(sphere, small_manifold, spp=1, resolution=8).targets
     assert mi.variant() == "llvm_ad_rgb"
+
+
+def test_render_reference_renders_the_sensor_asked_for(small_manifold, manifold, tmp_path):
+    """A basis of view 1 gets its reference from view 1 (issue 20: references came from sensor 0)."""
+    import mitsuba as mi
+    text = open(scenes.scene_path("sphere")).read()
+    start, end = text.index("<sensor"), text.index("</sensor>") + len("</sensor>")
+    second = text[start:end]
+    second = re.sub(r'origin="[^"]*"', 'origin="3, 1, 3"', second, count=1)
+    scene = tmp_path / "two_views.xml"
+    scene.write_text(text[:end] + second + text[end:])
+    os.symlink(os.path.join(os.path.dirname(scenes.scene_path("sphere")), "sky.exr"), tmp_path / "sky.exr")
+    x = manifold.latent[0]
+    views = [scenes.render_reference(str(scene), small_manifold, x, 4, seed=3, resolution=(16, 16), sensor=s)
+             for s in (0, 1)]
+    assert metrics.rel_mse(views[0], views[1]) > 1e-3   # the two cameras see different images
+    loaded = scenes.load_scene(str(scene), small_manifold, 4, (16, 16), None, x)
+    direct = np.array(mi.render(loaded.scene, spp=4, seed=3, sensor=1), dtype=np.float32)[..., :3]
+    assert metrics.rel_mse(views[1], direct) < metrics.rel_mse(views[0], direct)
+    with pytest.raises(Exception, match="`sensor` 2 does not exist"):
+        scenes.render_reference(str(scene), small_manifold, x, 1, resolution=(16, 16), sensor=2)

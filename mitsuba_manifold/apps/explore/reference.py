@@ -96,7 +96,8 @@ class References:
         for k, spp in enumerate(sample_passes(job.spp, w * h)):
             if self._stopping:
                 raise RuntimeError("the server is stopping")
-            img = np.array(mi.render(loaded.scene, integrator=integrator, spp=spp, seed=1000 + k),
+            img = np.array(mi.render(loaded.scene, integrator=integrator, spp=spp, seed=1000 + k,
+                                     sensor=basis.sensor),   # the basis's own view
                            dtype=np.float64)[..., :3]
             acc = img * spp if acc is None else acc + img * spp
             done += spp
