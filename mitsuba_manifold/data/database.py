@@ -14,6 +14,7 @@ import numpy as np
 from . import gram as gram_matrix, merl
 from .surrogate import FITS_PATH, SGD_FIELDS, load_sgd_fits, sgd_reflectance, tabulate_sgd
 from .surrogate import bin_geometry
+from .._util.atomic import is_temporary
 from .._util.locking import FolderLock
 from .._util.ownership import owned_tables, write_table_record
 from .._util.cache import adopt_hash, file_hash, file_identity, key_hash, npy_cache
@@ -232,7 +233,8 @@ class Database:
         folder = os.path.abspath(os.fspath(folder))
         if not os.path.isdir(folder):
             raise MissingFileError(f"database folder {folder} does not exist")
-        available = sorted(f[:-7] for f in os.listdir(folder) if f.endswith(".binary"))
+        available = sorted(f[:-7] for f in os.listdir(folder)   # temporaries of writers are hidden: skipped
+                           if f.endswith(".binary") and not f.startswith(".") and not is_temporary(f))
         if names is None:
             names = available
             if not names:

@@ -172,3 +172,15 @@ def test_cache_follows_the_content_even_with_the_mtime_restored(tmp_path):
     assert after.hash("steel") != old_hash
     np.testing.assert_allclose(np.array(after.reflectance("steel")), np.where(old_table > 0, 2 * old_table, old_table),
                                rtol=1e-6)
+
+
+def test_a_database_skips_the_temporary_files_of_writers(tmp_path, small_db):
+    """A killed writer's temporary (old and new naming) is not read as a material (issue 20)."""
+    import shutil
+    from mitsuba_manifold.data.database import Database
+    folder = tmp_path / "db"
+    shutil.copytree(small_db, folder)
+    first = sorted(Database(str(folder)).names)
+    (folder / ".ipswich-pine-221.binary.1234.tmp.binary").write_bytes(b"\0" * 12)
+    (folder / ".chrome.binary.99-abcd-x1y2.tmp.binary").write_bytes(b"\0" * 12)
+    assert sorted(Database(str(folder)).names) == first

@@ -74,7 +74,7 @@ def check_database(folder, manifold):
     if not os.path.isdir(folder):
         raise InputError(f"--database {folder} is a file, not a database folder (a folder of <name>.binary "
                            "MERL tables); give the folder of the manifold's tables")
-    tables = {f[:-7] for f in os.listdir(folder) if f.endswith(".binary")}
+    tables = {f[:-7] for f in os.listdir(folder) if f.endswith(".binary") and not f.startswith(".")}
     missing = [n for n in manifold.names if n not in tables]
     if missing:
         raise InputError(f"--database {folder} is not a database folder of this manifold: it holds no table for "
