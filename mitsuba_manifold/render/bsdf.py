@@ -24,10 +24,10 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import InputError
-from .._util.checks import weight_sum
+from .._util.checks import latent_point, weight_sum
 from . import ad
 from .lookups import gather_rgb, table_value
-from .material import combine, parse_floats, read_properties
+from .material import combine, read_properties
 from .sampling import PLUGIN_NAME, combined_distribution, half_vector_pdf, material_density, sample_half_vector
 
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
@@ -114,7 +114,7 @@ class ManifoldBRDF(mi.BSDF):
             if chooser == "x" and str(value).strip() == "":
                 self.set_latent(self._manifold.latent[0])
             elif chooser == "x":
-                self.set_latent(parse_floats(value, "x"))
+                self.set_latent(value)
             elif chooser == "material":
                 self.set_material(str(value).strip())
             else:
@@ -157,12 +157,10 @@ class ManifoldBRDF(mi.BSDF):
         """Render the material at latent point ``x`` (``q`` numbers). In AD mode
         (:attr:`differentiable`) the point is the grad-enabled parameter's value: set it through
         ``params["<id>.x"]`` and ``params.update()``."""
-        x = np.asarray(x, dtype=np.float64).ravel()
-        q = self._manifold.q
-        if x.size != q or not np.isfinite(x).all():
-            raise InputError(
-                f"{PLUGIN_NAME}: x must be {q} finite numbers (the latent dimension of "
-                f"{self.manifold_path}), got {x.tolist()}")
+        try:   # the one check of a latent point (text "0.3, -1.2", a sequence or an array)
+            x = latent_point("x", x, self._manifold.q)
+        except InputError as e:
+            raise InputError(f"{PLUGIN_NAME}: {e} ({self.manifold_path})") from None
         if self.differentiable:
             self._update_ad()
             return

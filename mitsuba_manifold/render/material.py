@@ -58,28 +58,6 @@ class Combination:
     table: object           # (bins, 3) RGB, a Dr.Jit Float in JIT variants, NumPy in scalar ones
 
 
-def parse_floats(value, what):
-    """A property given as text (``"0.3, -1.2"``), a number or a sequence, as finite float64s."""
-    if isinstance(value, str):
-        parts = [p for p in value.replace(",", " ").split() if p]
-        try:
-            vals = [float(p) for p in parts]
-        except ValueError:
-            raise InputError(f"{PLUGIN_NAME}: {what} {value!r} is not a list of numbers") from None
-    elif isinstance(value, (int, float)):
-        vals = [float(value)]
-    else:
-        try:
-            vals = [float(v) for v in np.ravel(np.array(value, dtype=np.float64))]
-        except (TypeError, ValueError):
-            raise InputError(
-                f"{PLUGIN_NAME}: {what} of type {type(value).__name__} is not a list of numbers") from None
-    vals = np.asarray(vals, dtype=np.float64)
-    if vals.size == 0 or not np.isfinite(vals).all():
-        raise InputError(f"{PLUGIN_NAME}: {what} {value!r} must be finite numbers")
-    return vals
-
-
 def resolve(path, what):
     """A path as given in a scene, resolved with Mitsuba's file resolver (which knows
     the folder of the scene being loaded); error naming the folders searched."""

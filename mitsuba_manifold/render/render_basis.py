@@ -56,10 +56,7 @@ def select_materials(manifold, materials="all", near=None, radius=None):
     if near is not None or radius is not None:
         if near is None or radius is None:
             raise InputError("`near` and `radius` go together")
-        near = np.asarray(near, dtype=np.float64).ravel()
-        if near.size != manifold.q or not np.isfinite(near).all():
-            raise InputError(f"`near` must be {manifold.q} finite numbers (the manifold's latent "
-                                   f"dimension), got {near.tolist()}")
+        near = validate.latent_point("`near`", near, manifold.q)
         if not radius > 0:
             raise InputError(f"`radius` must be > 0, got {radius}")
         dist = np.linalg.norm(manifold.latent - near, axis=1)

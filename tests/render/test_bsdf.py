@@ -451,7 +451,7 @@ def test_relative_paths_resolve_against_the_scene(small_manifold_paper, small_db
 @pytest.mark.parametrize("params, message", [
     ({"material": "unobtainium"}, "unknown material 'unobtainium'"),
     ({"x": "0.1, 0.2, 0.3"}, "latent dimension"),
-    ({"x": "0.1, nope"}, "not a list of numbers"),
+    ({"x": "0.1, nope"}, "'nope' is not a number"),
     ({"weights": "chrome:1, steel:-1"}, "sum to zero"),
     ({"weights": "chrome:1, gold:0.5"}, "unknown material 'gold'"),
     ({}, "exactly one of 'x', 'material' and 'weights'"),
