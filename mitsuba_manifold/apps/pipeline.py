@@ -26,6 +26,7 @@ from ..render import scenes as _scenes  # (gi_report has a parameter named scene
 from .._util.atomic import write_bytes
 from ..basis.folder import Basis
 from ..basis.blend import blend, blend_path, path_labels
+from ..manifold import paths
 from ..manifold.model import Manifold
 from ..render.render_basis import render_basis
 from .._util.timing import median_time
@@ -82,7 +83,8 @@ def gi_report(folder, manifold=None, scenes=("sphere", "table"), res=128, basis_
     increasing spp. On a convex scene L2+ is zero and the blend is unbiased; on a concave
     one the bias (L2+) is measured. Writes a log-log plot (``plot``, default in ``out``);
     with ``save_images`` also the blends, references and error images (EXR and PNG) and the
-    contact sheet of the latent path between the two materials (paper Fig. 12).
+    contact sheet of the latent path between the two materials (paper Fig. 12; the path of
+    :data:`paths.DEFAULT_KIND`).
     """
     mi = _scenes.use_variant()
     if manifold is None:
@@ -151,9 +153,10 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, res, basis_spp, ref_spp, 
         if progress:
             print(f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True)
     if save_images:
-        images, _, _ = blend_path(b, m, *pair, steps=20)
+        images, _, _ = blend_path(b, m, *pair, steps=20, kind=paths.DEFAULT_KIND)
         imageio.write_contact_sheet(f"{stem}_path_sheet.png", images, labels=path_labels(pair, len(images)),
-                                    title=f"{pair[0]} (t = 0) to {pair[1]} (t = 1) along their latent segment")
+                                    title=f"{pair[0]} (t = 0) to {pair[1]} (t = 1) along a {paths.DEFAULT_KIND} "
+                                          "latent path (paths.py)")
         extrapolation_sheet(b, m, pair, f"{stem}_extrapolation_sheet", log=print if progress else None)
     out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows,
            "basis_folder": os.path.abspath(folder_b)}

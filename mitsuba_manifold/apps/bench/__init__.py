@@ -8,7 +8,7 @@ Timings are wall-clock medians over repeats on the machine that runs them
 """
 
 #: Benchmark names, in the order ``tools/bench.py`` lists them.
-NAMES = ("fit", "interp", "pca", "bsdf", "gi", "stability", "basis", "match", "scaling", "explore", "space")
+NAMES = ("fit", "interp", "pca", "bsdf", "gi", "stability", "basis", "match", "scaling", "explore", "space", "fig9")
 
 
 def run(name, folder, **kwargs):

@@ -14,6 +14,8 @@
              screenshot of the page beside the JSON
   space      the latent space: held-out fidelity (10-fold), path smoothness, jump, plausibility,
              per configuration (paper, default, levers); --basis adds image-space smoothness
+  fig9       the paper's Fig. 9: perceptual distances from both ends along paths of 20 steps, per preset
+             (--configs default,paper) and path kind (straight, uniform, geodesic); plots beside the JSON
 """
 
 import argparse
@@ -44,7 +46,8 @@ def main(argv=None):
     p.add_argument("--res", type=int, default=128, help="match: resolution of the accuracy renders (default 128)")
     p.add_argument("--out", default=None,
                    help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
-    p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare")
+    p.add_argument("--configs", type=parse_list, default=None,
+                   help="space: configurations to compare; fig9: presets (default: default,paper)")
     p.add_argument("--folds", type=parse_list, default=None, help="space: run only these of the 10 folds")
     args = p.parse_args(argv)
     if args.manifold and args.which not in WITH_MANIFOLD:
@@ -63,7 +66,11 @@ def main(argv=None):
         if not explore and args.database is None and not os.path.isdir(folder) and args.which != "scaling":
             print(f"making the built-in database at MERL resolution in {folder}")
             database.make_database(folder, progress=True)
-        kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space") else {}
+        kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space", "fig9") else {}
+        if args.which == "fig9":
+            kwargs["plot_stem"] = os.path.splitext(args.json)[0]
+            if args.configs:
+                kwargs["presets"] = tuple(args.configs)
         if args.which == "space":
             kwargs.update(basis=args.basis, configs=args.configs,
                           folds=None if args.folds is None else [int(f) for f in args.folds])

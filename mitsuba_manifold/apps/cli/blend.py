@@ -3,7 +3,7 @@
   blend.py --basis DIR --x 0.3 -1.2 --out img.exr [--png]
   blend.py --basis DIR --x 0.3,-1.2 --out img.exr --reference ref.exr
   blend.py --basis DIR --x 0.3,-1.2 --out img.exr --render-reference --spp 1024
-  blend.py --basis DIR --path gold-paint chrome --steps 20 --out seq.exr
+  blend.py --basis DIR --path gold-paint chrome --steps 20 --out seq.exr [--path-kind straight]
 
 With several manifold materials in the scene give one --x per target (in the manifest's
 target order). Nothing is written until every input has been read and checked.
@@ -15,6 +15,7 @@ import re
 import sys
 import time
 
+from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND, KINDS as PATH_KINDS
 from ...manifold.pruning import DEFAULT_PRUNE
 from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats
 
@@ -51,6 +52,10 @@ def parser():
     p.add_argument("--path", nargs=2, metavar=("A", "B"),
                    help="images along the latent segment between materials (or 'x0,x1' points) A and B")
     p.add_argument("--steps", type=int, default=20, help="images along --path (default 20)")
+    p.add_argument("--path-kind", choices=PATH_KINDS, default=DEFAULT_PATH_KIND,
+                   help="the path of --path: straight (the latent segment at equal steps), uniform (the segment "
+                        "at equal perceptual steps) or geodesic (a shortest path under the perceptual metric, at "
+                        f"equal steps); default {DEFAULT_PATH_KIND}, the most even measured (tools/bench.py fig9)")
     p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
     p.add_argument("--database", help="folder of the manifold's tables, if it moved (--render-reference)")
     p.add_argument("--force", action="store_true",
@@ -109,7 +114,7 @@ def path_outputs(args, basis, manifold):
             fail(f"--target {args.target!r} is not a target of the basis ({basis.targets})")
         target = basis.targets.index(args.target)
     images, _, info = blend_path(basis, manifold, ends[0], ends[1], args.steps, args.prune,
-                                 args.renormalise, target=target, x=args.x)
+                                 args.renormalise, target=target, x=args.x, kind=args.path_kind)
     print(f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
           f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image)")
     stem, width, outputs = _stem(args.out), len(str(args.steps - 1)), []
@@ -121,7 +126,7 @@ def path_outputs(args, basis, manifold):
             outputs.append(("png", png, lambda n=png, i=img: imageio.write_png(n, i, args.exposure)))
     labels = path_labels(args.path, args.steps)
     sheet = stem + "_sheet.png"
-    title = f"{args.path[0]} (t = 0) to {args.path[1]} (t = 1) along their latent segment"
+    title = f"{args.path[0]} (t = 0) to {args.path[1]} (t = 1) along a {args.path_kind} latent path"
     outputs.append(("contact sheet", sheet, lambda: imageio.write_contact_sheet(
         sheet, images, labels, columns=min(args.steps, 10), exposure=args.exposure, title=title)))
     return outputs
