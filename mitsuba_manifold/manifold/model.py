@@ -518,18 +518,12 @@ class Manifold:
 
     # ------------------------------------------------------------ perceptual paths
     def distance(self, x, y, stride=(1, 1, 1)):
-        """Perceptual distance [PR12] between the materials at ``x`` and ``y`` (:mod:`paths`).
-
-        ``x``, ``y``: material names, latent points ``(q,)`` or stacks ``(M, q)``; the table of
-        a point is ``sum_i w_i(x) table_i`` (unpruned), compared by
-        :func:`data.distance.brdf_distance`. Returns a float, or ``(M,)``/``(M, K)`` for stacks.
-        ``stride``: the quadrature's sub-grid (default every bin).
-        """
+        """[PR12] distance between the tables ``sum_i w_i table_i`` at ``x`` and ``y`` (names, points
+        ``(q,)`` or stacks ``(M, q)``: a float, ``(M,)`` or ``(M, K)``); :func:`paths.latent_distance`."""
         from . import paths
         return paths.latent_distance(self, x, y, stride)
 
     def path(self, a, b, steps=21, kind=None):
-        """``steps`` latent points from ``a`` to ``b`` (names or points) of ``kind`` (``straight``,
-        ``uniform``, ``geodesic``; default :data:`paths.DEFAULT_KIND`); see :func:`paths.path`."""
+        """``steps`` latent points from ``a`` to ``b`` of ``kind`` (default the best measured); :func:`paths.path`."""
         from . import paths
         return paths.path(self, a, b, steps, kind or paths.DEFAULT_KIND)
