@@ -40,7 +40,7 @@ from ..errors import InputError
 
 KINDS = ("straight", "uniform", "geodesic")
 #: The kind ``Manifold.path``, ``blend.py --path`` and the main job's contact sheet use: the
-#: best measured by ``tools/bench.py fig9`` (README, "Paths").
+#: best measured by ``tools/bench.py fig9`` (``bench/fig9.json``).
 DEFAULT_KIND = "geodesic"
 #: Sub-grid of the searches (see the module doc).
 SEARCH_STRIDE = (1, 5, 10)
@@ -89,13 +89,16 @@ class PathMetric:
 
     def distances(self, X, Y=None):
         """``(M, K)`` perceptual distances between the tables at ``X`` and at ``Y`` (default ``X``)."""
-        WX = self.weights(X)
-        WY = WX if Y is None else self.weights(Y)
+        W = self.weights(X if Y is None else np.concatenate([np.atleast_2d(X), np.atleast_2d(Y)]))
+        m = len(np.atleast_2d(X))
+
+        def split(F):
+            return (F, F) if Y is None else (F[:m], F[m:])
         if self._small:
-            parts = [(self.quad.features(WX @ self.rows), self.quad.features(WY @ self.rows))]
-        else:
-            parts = ((p.features(WX @ self.rows[:, p.index]), p.features(WY @ self.rows[:, p.index]))
-                     for p in self.quad.blocks())
+            return gram_distances([split(self.quad.features(W @ self.rows))])
+        # blocks of the full table are contiguous spans of its columns: multiply a view, then pick
+        parts = (split(p.features((W @ self.rows[:, p.index[0]:p.index[-1] + 1])[:, p.index - p.index[0]]))
+                 for p in self.quad.blocks())
         return gram_distances(parts)
 
     def energy(self, X):
@@ -308,7 +311,7 @@ def minimise_energy(metric, X, iterations=200):
     return np.concatenate([xa[None], res.x.reshape(-1, q), xb[None]])
 
 
-def geodesic(metric, xa, xb, steps, points=17, iterations=40):
+def geodesic(metric, xa, xb, steps, points=17, iterations=25):
     """A shortest path from ``xa`` to ``xb``, at equal perceptual steps.
 
     Two starts, the latent segment and the shortest path through the :class:`LatentGraph`,
