@@ -22,6 +22,7 @@ import numpy as np
 
 from ..basis import denoise as denoise_mod
 from ..basis.blend import blend, blend_path, path_labels
+from ..manifold import paths
 from ..basis.folder import Basis
 from ..basis.ownership import remove_basis
 from ..imaging import io as imageio, metrics, plots
@@ -159,9 +160,10 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
         if opts.progress:
             print(f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True)
     if opts.save_images:
-        images, _, _ = blend_path(b, m, *pair, steps=20)
+        images, _, _ = blend_path(b, m, *pair, steps=20, kind=paths.DEFAULT_KIND)
         imageio.write_contact_sheet(f"{stem}_path_sheet.png", images, labels=path_labels(pair, len(images)),
-                                    title=f"{pair[0]} (t = 0) to {pair[1]} (t = 1) along their latent segment")
+                                    title=f"{pair[0]} (t = 0) to {pair[1]} (t = 1) along a {paths.DEFAULT_KIND} "
+                                          "latent path")
         extrapolation_sheet(b, m, pair, f"{stem}_extrapolation_sheet", log=print if opts.progress else None)
     out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows,
            "basis_folder": os.path.abspath(folder_b)}

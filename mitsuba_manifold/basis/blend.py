@@ -259,8 +259,8 @@ def _endpoint(manifold, v):
 
 
 def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRUNE, renormalise=False,
-               target=0, x=None, component=None):
-    """Images along the latent segment from ``a`` to ``b`` (paper Fig. 12).
+               target=0, x=None, component=None, kind="straight", points=None):
+    """Images along a latent path from ``a`` to ``b`` (paper Fig. 12).
 
     Parameters
     ----------
@@ -268,6 +268,12 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         Material names (their latent points) or latent points.
     steps : int
         Number of images, ``t = 0 .. 1`` inclusive (>= 2).
+    kind : str
+        The path (:mod:`mitsuba_manifold.manifold.paths`): ``straight`` (the latent segment at
+        equal steps, the default here), ``uniform`` or ``geodesic`` (equal perceptual steps).
+    points : array_like (steps, q), optional
+        The latent points of the path instead (e.g. from ``Manifold.path``); ``a``, ``b``,
+        ``steps`` and ``kind`` are then ignored.
     target : int
         With several targets: which one moves along the segment.
     x : array_like (p, q), optional
@@ -287,19 +293,18 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
     manifold = basis.check_manifold(manifold)
-    if not isinstance(steps, (int, np.integer)) or steps < 2:
+    if points is not None:
+        xs = _path_points(manifold, points)
+        steps = len(xs)
+    elif not isinstance(steps, (int, np.integer)) or steps < 2:
         raise MismatchError(f"`steps` must be an integer >= 2, got {steps!r}")
     if not 0 <= target < basis.p:
         raise MismatchError(f"`target` {target} out of range: the basis has {basis.p} target(s)")
     if basis.p == 1 and x is not None:
         raise MismatchError("`x` is for the targets that stay fixed along a path, and this basis has one target "
                          "(the path sets its point): leave `x` out")
-    xa, xb = _endpoint(manifold, a), _endpoint(manifold, b)
-    if np.array_equal(xa, xb):
-        raise MismatchError(f"the path's ends {a!r} and {b!r} are the same latent point (all {steps} images would "
-                         "be the same): give two different materials or points")
-    t = np.linspace(0.0, 1.0, steps)[:, None]
-    xs = (1.0 - t) * xa + t * xb
+    if points is None:
+        xs = _segment_points(manifold, a, b, steps, kind)
     if basis.p > 1:
         if x is None:
             raise MismatchError(f"the basis has {basis.p} targets: give `x` for the targets that stay fixed")
@@ -330,6 +335,30 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         inf["x"] = xi
     return images, xs, {"steps": [p[2] for p in plans], "time_ms": 1e3 * (t_plan + t_sum),
                         "time_read_s": t_read, "component": used, "component_note": note}
+
+
+def _segment_points(manifold, a, b, steps, kind):
+    """The ``steps`` latent points of a path of ``kind`` from ``a`` to ``b`` (the segment: as before)."""
+    xa, xb = _endpoint(manifold, a), _endpoint(manifold, b)
+    if np.array_equal(xa, xb):
+        raise MismatchError(f"the path's ends {a!r} and {b!r} are the same latent point (all {steps} images would "
+                         "be the same): give two different materials or points")
+    if kind == "straight":
+        t = np.linspace(0.0, 1.0, steps)[:, None]
+        return (1.0 - t) * xa + t * xb
+    from ..manifold import paths
+    return paths.path(manifold, xa, xb, steps, kind)
+
+
+def _path_points(manifold, points):
+    """``points`` as a ``(steps, q)`` array of finite latent points (steps >= 2)."""
+    try:
+        xs = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise MismatchError(f"`points` must be numbers, got {points!r:.60}") from None
+    if xs.ndim != 2 or xs.shape[1] != manifold.q or len(xs) < 2 or not np.isfinite(xs).all():
+        raise MismatchError(f"`points` must be (steps >= 2, q = {manifold.q}) finite latent points, got shape {xs.shape}")
+    return xs
 
 
 def path_labels(pair, steps):

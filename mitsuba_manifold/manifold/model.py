@@ -386,5 +386,17 @@ class Manifold(PruningMethods):
             Missing, corrupt or foreign files.
         """
         m = cls(**manifold_file.read(path))
-        m.path = os.fspath(path)
+        m.file = os.fspath(path)   # where it was read from (``path`` is the method of paths)
         return m
+
+    # ------------------------------------------------------------ perceptual paths
+    def distance(self, x, y, stride=(1, 1, 1)):
+        """[PR12] distance between the tables ``sum_i w_i table_i`` at ``x`` and ``y`` (names, points
+        ``(q,)`` or stacks ``(M, q)``: a float, ``(M,)`` or ``(M, K)``); :func:`paths.latent_distance`."""
+        from . import paths
+        return paths.latent_distance(self, x, y, stride)
+
+    def path(self, a, b, steps=21, kind=None):
+        """``steps`` latent points from ``a`` to ``b`` of ``kind`` (default the best measured); :func:`paths.path`."""
+        from . import paths
+        return paths.path(self, a, b, steps, kind or paths.DEFAULT_KIND)

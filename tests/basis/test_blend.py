@@ -13,7 +13,7 @@ from mitsuba_manifold.imaging import io as imageio, metrics
 from mitsuba_manifold.basis.folder import Basis
 from mitsuba_manifold._util.cache import file_hash
 from mitsuba_manifold.manifold.identity import manifold_identity
-from mitsuba_manifold.errors import MismatchError
+from mitsuba_manifold.errors import InputError, MismatchError
 from mitsuba_manifold.manifold.model import Manifold
 
 from helpers import write_basis
@@ -292,6 +292,24 @@ def test_blend_path_and_contact_sheet(basis1, manifold, tmp_path):
     assert Image.open(sheet).size == (5 * RES[0] + 6 * 2, RES[1] + 14 + 2 * 2)
     with pytest.raises(MismatchError, match="steps"):
         bl.blend_path(folder, manifold, a, b, steps=1)
+
+
+def test_blend_path_of_a_kind_or_of_given_points(basis1, manifold):
+    """``kind`` walks :meth:`Manifold.path`; ``points`` blends exactly the latent points given."""
+    folder, _, images = basis1
+    a, b = manifold.names[1], manifold.names[4]
+    seq, xs, _ = bl.blend_path(folder, manifold, a, b, steps=5, kind="uniform")
+    assert np.allclose(xs, manifold.path(a, b, steps=5, kind="uniform"))
+    assert np.array_equal(seq[0], images["base"] + images[a]) and np.array_equal(seq[-1], images["base"] + images[b])
+    pts = manifold.latent[[0, 2, 3]] + 0.01
+    seq, xs, _ = bl.blend_path(folder, manifold, points=pts)
+    assert np.array_equal(xs, pts) and len(seq) == 3
+    for img, x in zip(seq, pts):
+        assert np.allclose(img, bl.blend(folder, manifold, x=x)[0], rtol=1e-6, atol=1e-6)
+    with pytest.raises(MismatchError, match="points"):
+        bl.blend_path(folder, manifold, points=pts[:1])
+    with pytest.raises(InputError, match="`kind`"):
+        bl.blend_path(folder, manifold, a, b, steps=5, kind="scenic")
 
 
 def test_blend_path_refuses_ignored_x_and_identical_ends(basis1, manifold, tmp_path, cli, capsys):

@@ -143,7 +143,7 @@ def _subset_manifold(m, keep, path):
     sub = Manifold([m.names[i] for i in keep], fit.latent, m.database, [m.hashes[i] for i in keep],
                    m.length_scale, m.noise, m.features, None if m.albedos is None else m.albedos[keep],
                    S, fit.history, {**m.info, "log_likelihood": float(fit.log_likelihood),
-                                    "subset_of": getattr(m, "path", None)},
+                                    "subset_of": getattr(m, "file", None)},
                    interpolant=m.interpolant.params(),   # the same weights as m (its default's, not Eq. 4's)
                    table_gram=None if m.table_gram is None else m.table_gram[np.ix_(keep, keep)])
     sub.save(path)
@@ -155,7 +155,7 @@ def _subset_manifold(m, keep, path):
 def _basis(scene_xml, m, folder, res, spp, seed):
     """Render (or resume) the basis of ``scene_xml`` with manifold ``m`` (loaded from a file)."""
     t0 = time.perf_counter()
-    render_basis(scene_xml, m.path, folder, spp=spp, mode="onepass", resolution=res, seed=seed)
+    render_basis(scene_xml, m.file, folder, spp=spp, mode="onepass", resolution=res, seed=seed)
     b = Basis.load(folder, manifold=m)
     b.read([BASE] + m.names)
     return b, time.perf_counter() - t0

@@ -16,6 +16,8 @@
   space      the latent space: held-out fidelity (10-fold), path smoothness, jump, plausibility,
              per configuration (paper, default, levers); --basis adds image-space smoothness
   prune      pruning rules: albedo, cosine-weighted and raw table change, materials kept, ms per call; --basis: image change
+  fig9       the paper's Fig. 9: perceptual distances from both ends along paths of 20 steps, per preset
+             (--configs default,paper) and path kind (straight, uniform, geodesic); plots beside the JSON
 """
 
 import argparse
@@ -47,7 +49,7 @@ def main(argv=None):
     p.add_argument("--out", default=None,
                    help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
     p.add_argument("--browser", action="store_true", help="explore: time the page in headless Chromium (drags)")
-    p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare")
+    p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare; fig9: presets (default: default,paper)")
     p.add_argument("--folds", type=parse_indices, default=None, help="space: run only these of the 10 folds")
     p.add_argument("--force", action="store_true",
                    help="replace an existing --json (or its plot) this tool did not write (never a read-only "
@@ -78,7 +80,11 @@ def run(args):
     if not explore and args.database is None and not os.path.isdir(folder) and args.which not in ("scaling", "match-render"):
         print(f"making the built-in database at MERL resolution in {folder}")
         database.make_database(folder, progress=True)
-    kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space") else {}
+    kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space", "fig9") else {}
+    if args.which == "fig9":
+        kwargs["plot_stem"] = os.path.splitext(args.json)[0]
+        if args.configs:
+            kwargs["presets"] = tuple(args.configs)
     if args.which == "space":
         kwargs.update(basis=args.basis, configs=args.configs,
                       folds=args.folds)

@@ -3,7 +3,7 @@
   blend.py --basis DIR --x 0.3 -1.2 --out img.exr [--png]
   blend.py --basis DIR --x 0.3,-1.2 --out img.exr --reference ref.exr
   blend.py --basis DIR --x 0.3,-1.2 --out img.exr --render-reference --spp 1024
-  blend.py --basis DIR --path gold-paint chrome --steps 20 --out seq.exr
+  blend.py --basis DIR --path gold-paint chrome --steps 20 --out seq.exr [--path-kind straight]
   blend.py --basis DIR --x 0.3,-1.2 --out img.exr --component l1
 
 A full-GI basis (render_basis.py --mode onepass) blends its full-GI images and cross terms by
@@ -20,6 +20,7 @@ import re
 import sys
 import time
 
+from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND, KINDS as PATH_KINDS
 from ...manifold.pruning import DEFAULT_PRUNE
 from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats, reference_view
 
@@ -57,6 +58,10 @@ def parser():
     p.add_argument("--path", nargs=2, metavar=("A", "B"),
                    help="images along the latent segment between materials (or 'x0,x1' points) A and B")
     p.add_argument("--steps", type=int, default=20, help="images along --path (default 20)")
+    p.add_argument("--path-kind", choices=PATH_KINDS, default=DEFAULT_PATH_KIND,
+                   help="the path of --path: straight (the latent segment at equal steps), uniform (the segment "
+                        "at equal perceptual steps) or geodesic (a shortest path under the perceptual metric, at "
+                        f"equal steps); default {DEFAULT_PATH_KIND}, the most even measured (tools/bench.py fig9)")
     p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
     p.add_argument("--database", help="folder of the manifold's tables, if it moved (--render-reference)")
     p.add_argument("--component", choices=["full", "l1"], default=None,
@@ -155,7 +160,8 @@ def path_outputs(args, basis, manifold):
         target = basis.targets.index(args.target)
     with _one_line_warnings():
         images, _, info = blend_path(basis, manifold, ends[0], ends[1], args.steps, args.prune,
-                                     args.renormalise, target=target, x=args.x, component=args.component)
+                                     args.renormalise, target=target, x=args.x, component=args.component,
+                                     kind=args.path_kind)
     _say_component(info)
     print(f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
           f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image)")
@@ -167,7 +173,7 @@ def path_outputs(args, basis, manifold):
             outputs.append(("png", png, lambda n=png, i=img: imageio.write_png(n, i, args.exposure)))
     labels = path_labels(args.path, args.steps)
     sheet = stem + "_sheet.png"
-    title = f"{args.path[0]} (t = 0) to {args.path[1]} (t = 1) along their latent segment"
+    title = f"{args.path[0]} (t = 0) to {args.path[1]} (t = 1) along a {args.path_kind} latent path"
     outputs.append(("contact sheet", sheet, lambda: imageio.write_contact_sheet(
         sheet, images, labels, columns=min(args.steps, 10), exposure=args.exposure, title=title)))
     return outputs

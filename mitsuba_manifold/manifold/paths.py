@@ -1,0 +1,374 @@
+"""Paths through the material space that move evenly under a perceptual metric.
+
+The paper (Sec. 6, Fig. 9) walks latent segments in 20 equal steps and measures, with the
+perceptual distance of [PR12] (:mod:`mitsuba_manifold.data.distance`), how far each
+interpolated material is from the two ends; it hopes for "perceptually uniform traversal".
+The latent space is not that: with the default convex weights a material barely changes
+near its own latent point and then changes quickly, and a segment between materials that
+are far apart in latent space crosses others. :func:`path` offers three kinds:
+
+``straight``
+    The latent segment ``x(t) = (1 - t) a + t b`` at equal ``t`` (the paper's).
+``uniform``
+    The same segment at equal *perceptual* steps: dense samples, their cumulative
+    perceptual length, inverted (:func:`reparameterise`).
+``geodesic``
+    A shortest path under the metric pulled back to latent space, staying where the data is:
+    Dijkstra on a graph of latent samples laid along the segments between latent neighbours
+    (edges weighted by the perceptual distance of their tables, :class:`LatentGraph`), then
+    relaxed towards a discrete geodesic (the path energy minimised by L-BFGS with its
+    analytic gradient, :func:`minimise_energy`) and re-parameterised at equal perceptual
+    steps. The graph is built once per manifold and metric.
+
+The metric on latent points is ``d(x, y) = d_PR12(table(x), table(y))`` with ``table(x) =
+sum_i w_i(x) table_i`` (the manifold's weights, unpruned, clamped at 0 as the plugin does).
+Searches use a :class:`~mitsuba_manifold.data.distance.Quadrature` on a sub-grid of bins
+(:data:`SEARCH_STRIDE`: every ``theta_h`` bin, every 5th ``theta_d``, every 10th ``phi_d``;
+pairwise distances between the 100 built-in materials within 0.7% of the full grid's);
+``tools/bench.py fig9`` measures the paths on the full grid.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..data.distance import Quadrature, gram_distances
+from ..errors import InputError
+
+KINDS = ("straight", "uniform", "geodesic")
+#: The kind ``Manifold.path``, ``blend.py --path`` and the main job's contact sheet use: the
+#: best measured by ``tools/bench.py fig9`` (``bench/fig9.json``).
+DEFAULT_KIND = "geodesic"
+#: Sub-grid of the searches (see the module doc).
+SEARCH_STRIDE = (1, 5, 10)
+#: Table values below which the cube root's slope is capped (in :meth:`PathMetric.energy`).
+FLOOR = 1e-6
+#: Samples of a segment when re-parameterising it by perceptual length.
+DENSE = 129
+
+_METRICS = weakref.WeakKeyDictionary()
+
+
+class PathMetric:
+    """The perceptual metric pulled back to the latent space of ``manifold``.
+
+    ``features(X)`` are the :class:`Quadrature` features of the tables at latent points ``X``
+    (their Euclidean distances are the [PR12]-style distances); ``distances(X, Y)`` the matrix
+    of distances, in blocks of bins (any stride, the full grid included).
+    """
+
+    def __init__(self, manifold, stride=SEARCH_STRIDE, tables=None):
+        self.manifold = manifold
+        dims = tuple(manifold.info["dims"])
+        self.quad = Quadrature.of(dims, stride)
+        full = manifold.tables() if tables is None else tables
+        self._small = self.quad.size * 4 <= full.shape[1]
+        self.rows = np.ascontiguousarray(full[:, self.quad.index]) if self._small else full
+        self._graph = None
+
+    @classmethod
+    def of(cls, manifold, stride=SEARCH_STRIDE):
+        """The metric of ``manifold`` for ``stride``, built once and kept while the manifold lives."""
+        cache = _METRICS.setdefault(manifold, {})
+        key = tuple(int(s) for s in stride)
+        if key not in cache:
+            cache[key] = cls(manifold, key)
+        return cache[key]
+
+    def weights(self, X):
+        return self.manifold.weights(np.atleast_2d(X)).w.astype(np.float32)
+
+    def features(self, X):
+        """Features ``(M, size)`` of the tables at latent points ``X`` (M, q) (sub-grids only)."""
+        if not self._small:
+            raise InputError("features of every bin do not fit a search; use `distances` on the full grid")
+        return self.quad.features(self.weights(X) @ self.rows)
+
+    def distances(self, X, Y=None):
+        """``(M, K)`` perceptual distances between the tables at ``X`` and at ``Y`` (default ``X``)."""
+        W = self.weights(X if Y is None else np.concatenate([np.atleast_2d(X), np.atleast_2d(Y)]))
+        m = len(np.atleast_2d(X))
+
+        def split(F):
+            return (F, F) if Y is None else (F[:m], F[m:])
+        if self._small:
+            return gram_distances([split(self.quad.features(W @ self.rows))])
+        # blocks of the full table are contiguous spans of its columns: multiply a view, then pick
+        parts = (split(p.features((W @ self.rows[:, p.index[0]:p.index[-1] + 1])[:, p.index - p.index[0]]))
+                 for p in self.quad.blocks())
+        return gram_distances(parts)
+
+    def energy(self, X):
+        """Discrete path energy ``E = sum_k |F(x_k+1) - F(x_k)|^2`` of the polyline ``X`` (M, q) and
+        its gradient ``dE/dX`` (M, q), analytic (chain rule through the cube root, the table
+        combination and the interpolant's Jacobian ``dw/dx``; the cube root's slope is capped
+        where a table value is below :data:`FLOOR`)."""
+        W = self.weights(X)
+        V = W @ self.rows
+        F = self.quad.scale * np.cbrt(np.maximum(V, 0.0) * self.quad.cos)
+        D = np.diff(F, axis=0)
+        G = np.zeros_like(F)
+        G[:-1] -= 2.0 * D
+        G[1:] += 2.0 * D
+        slope = self.quad.scale * np.cbrt(self.quad.cos) / 3.0 * np.maximum(V, FLOOR) ** (-2.0 / 3.0)
+        dW = ((G * np.where(V > 0, slope, 0.0)).astype(np.float32) @ self.rows.T).astype(np.float64)
+        J = self.manifold.weights_jacobian(X)
+        return float((D * D).sum()), np.einsum("mn,mnq->mq", dW, J)
+
+    def steps(self, X):
+        """Perceptual lengths of the ``M - 1`` steps of the polyline ``X``."""
+        if self._small:
+            return step_lengths(self.features(X))
+        return np.diag(self.distances(X), 1).copy()
+
+    def graph(self):
+        """The :class:`LatentGraph` of this metric (built on first use)."""
+        if self._graph is None:
+            self._graph = LatentGraph.build(self)
+        return self._graph
+
+
+def step_lengths(F):
+    """Euclidean lengths of the steps between consecutive rows of ``F``."""
+    return np.sqrt(np.einsum("mk,mk->m", np.diff(F, axis=0), np.diff(F, axis=0)))
+
+
+def endpoint(manifold, v, what):
+    """A path end (material name or ``q`` numbers) as a latent point."""
+    if isinstance(v, str):
+        return manifold.latent[manifold.index(v)].copy()
+    try:
+        arr = np.asarray(v, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if arr.size != manifold.q or not np.isfinite(arr).all():
+        raise InputError(f"`{what}` {v!r:.60}: expected a material name or {manifold.q} finite numbers")
+    return arr
+
+
+def reparameterise(X, lengths, steps):
+    """``steps`` points along the polyline ``X`` (M, q) at equal cumulative perceptual length.
+
+    ``lengths``: the ``M - 1`` step lengths. Between samples the latent position is linear in
+    the length (the polyline is dense enough that the metric is locally linear)."""
+    s = np.concatenate([[0.0], np.cumsum(lengths)])
+    if s[-1] <= 0:
+        return np.linspace(0, 1, steps)[:, None] * (X[-1] - X[0]) + X[0]
+    return _at_length(X, s, np.linspace(0.0, s[-1], steps))
+
+
+def even(metric, X, steps, fraction=0.1, passes=8, polish=20):
+    """``steps`` points along the polyline ``X`` at equal perceptual steps.
+
+    The polyline is refined first: every piece longer than ``fraction`` of an even step is
+    split at its latent midpoint (up to ``passes`` times), so that the metric is nearly linear
+    on each piece where the material changes fast (a weight switching over a short latent
+    distance), and its cumulative length is inverted (:func:`reparameterise`). Equal lengths
+    along the path are not yet equal *steps* (distances between consecutive points) where the
+    path turns back within a step, as it does passing a third material's latent point; up to
+    ``polish`` rounds then rescale each step's share of the length by ``mean / step`` (the
+    most even points seen are kept).
+    """
+    lengths = metric.steps(X)
+    for _ in range(passes):
+        long = lengths > fraction * lengths.sum() / (steps - 1)
+        if not long.any():
+            break
+        mids = 0.5 * (X[:-1][long] + X[1:][long])
+        order = np.argsort(np.concatenate([np.arange(len(X)), np.flatnonzero(long) + 0.5]), kind="stable")
+        X = np.concatenate([X, mids])[order]
+        lengths = metric.steps(X)
+    s = np.concatenate([[0.0], np.cumsum(lengths)])
+    if s[-1] <= 0:
+        return reparameterise(X, lengths, steps)
+    u = np.linspace(0.0, 1.0, steps)
+    best, best_spread = None, np.inf
+    for _ in range(polish + 1):
+        P = _at_length(X, s, u * s[-1])
+        c = metric.steps(P)
+        spread = np.abs(c / c.mean() - 1).max()
+        if spread < best_spread:
+            best, best_spread = P, spread
+        if spread < 1e-3 or not (c > 0).all():
+            break
+        du = np.diff(u) * (c.mean() / c) ** 0.5
+        u = np.concatenate([[0.0], np.cumsum(du / du.sum())])
+    return best
+
+
+def _at_length(X, s, target):
+    """Points of the polyline ``X`` (cumulative lengths ``s``) at lengths ``target``, ends exact."""
+    k = np.clip(np.searchsorted(s, target, side="right") - 1, 0, len(X) - 2)
+    span = s[k + 1] - s[k]
+    frac = np.clip(np.where(span > 0, (target - s[k]) / np.where(span > 0, span, 1), 0.0), 0, 1)
+    out = X[k] + frac[:, None] * (X[k + 1] - X[k])
+    out[0], out[-1] = X[0], X[-1]
+    return out
+
+
+def densify(X, n):
+    """``n`` points along the latent polyline ``X``, equally spaced in latent length."""
+    seg = np.linalg.norm(np.diff(X, axis=0), axis=1)
+    return reparameterise(X, seg, n) if seg.sum() > 0 else np.repeat(X[:1], n, axis=0)
+
+
+def straight(xa, xb, steps):
+    """The latent segment from ``xa`` to ``xb`` at ``steps`` equal steps of ``t`` (``t = 0..1``)."""
+    return xa + np.linspace(0.0, 1.0, steps)[:, None] * (xb - xa)
+
+
+def uniform(metric, xa, xb, steps, dense=DENSE):
+    """The latent segment at equal perceptual steps (``dense`` samples, arc-length inversion)."""
+    return even(metric, straight(xa, xb, max(dense, steps)), steps)
+
+
+@dataclass
+class LatentGraph:
+    """A graph of latent samples where the data is, edges weighted by perceptual distance.
+
+    Nodes: the (distinct) latent points and ``per_edge`` points along each segment from a
+    material to each of its ``neighbours`` nearest latent neighbours and along the segments
+    of their minimum spanning tree (the blends the space offers; the tree keeps the graph
+    connected); edges: consecutive nodes along each segment and each node to its ``k``
+    nearest nodes in latent space, weighted by the distance between their tables.
+    """
+
+    nodes: np.ndarray
+    graph: object
+
+    @classmethod
+    def build(cls, metric, neighbours=8, per_edge=7, k=10):
+        from scipy import sparse
+        from scipy.sparse.csgraph import minimum_spanning_tree
+        from scipy.spatial import cKDTree
+
+        X = metric.manifold.latent
+        n, q = X.shape
+        nn = cKDTree(X).query(X, k=min(neighbours, n - 1) + 1)[1][:, 1:]
+        tree = minimum_spanning_tree(np.linalg.norm(X[:, None] - X[None], axis=-1) + 1e-12).tocoo()
+        pairs = np.concatenate([np.stack([np.repeat(np.arange(n), nn.shape[1]), nn.ravel()], 1),
+                                np.stack([tree.row, tree.col], 1)])
+        pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+        t = np.linspace(0.0, 1.0, per_edge + 2)
+        chains = X[pairs[:, 0], None] + t[None, :, None] * (X[pairs[:, 1]] - X[pairs[:, 0]])[:, None]
+        nodes, inverse = np.unique(chains.reshape(-1, q), axis=0, return_inverse=True)
+        inverse = inverse.reshape(chains.shape[:2])
+        F = np.concatenate([metric.features(nodes[s:s + 512]).astype(np.float32)
+                            for s in range(0, len(nodes), 512)])
+        idx = cKDTree(nodes).query(nodes, k=min(k, len(nodes) - 1) + 1)[1]
+        rows = np.concatenate([np.repeat(np.arange(len(nodes)), idx.shape[1] - 1), inverse[:, :-1].ravel()])
+        cols = np.concatenate([idx[:, 1:].ravel(), inverse[:, 1:].ravel()])
+        keep = rows != cols
+        rows, cols = rows[keep], cols[keep]
+        w = np.concatenate([np.sqrt(((F[rows[s:s + 256]] - F[cols[s:s + 256]]) ** 2).sum(1, dtype=np.float64))
+                            for s in range(0, len(rows), 256)]) + 1e-12
+        g = sparse.coo_matrix((w, (rows, cols)), shape=(len(nodes),) * 2).tocsr()
+        return cls(nodes, g.maximum(g.T))
+
+    def shortest(self, metric, xa, xb, k=10):
+        """Latent polyline of the shortest graph path from ``xa`` to ``xb`` (ends joined to their
+        ``k`` nearest nodes)."""
+        from scipy import sparse
+        from scipy.sparse.csgraph import dijkstra
+        from scipy.spatial import cKDTree
+
+        n = len(self.nodes)
+        ends = np.stack([xa, xb])
+        near = cKDTree(self.nodes).query(ends, k=min(k, n))[1]
+        Fe, Fn = metric.features(ends), metric.features(self.nodes[near.ravel()])
+        w = np.sqrt(((np.repeat(Fe, near.shape[1], axis=0) - Fn) ** 2).sum(1)) + 1e-12
+        rows = np.repeat([n, n + 1], near.shape[1])
+        extra = sparse.coo_matrix((w, (rows, near.ravel())), shape=(n + 2, n + 2)).tocsr()
+        g = sparse.bmat([[self.graph, None], [None, sparse.csr_matrix((2, 2))]]).tocsr() + extra + extra.T
+        _, pred = dijkstra(g, indices=n, return_predecessors=True)
+        chain, v = [n + 1], n + 1
+        while v != n:
+            v = pred[v]
+            if v < 0:
+                raise InputError("the path's ends are not connected through the latent graph")
+            chain.append(v)
+        pts = np.concatenate([self.nodes, ends])
+        return pts[chain[::-1]]
+
+
+def minimise_energy(metric, X, iterations=200):
+    """The polyline ``X`` with its interior points moved to minimise :meth:`PathMetric.energy`
+    (L-BFGS; its minimisers are discrete geodesics at constant speed), ends fixed."""
+    import scipy.optimize
+
+    xa, xb, q = X[0], X[-1], X.shape[1]
+
+    def fun(flat):
+        Y = np.concatenate([xa[None], flat.reshape(-1, q), xb[None]])
+        e, g = metric.energy(Y)
+        return e, g[1:-1].ravel()
+
+    res = scipy.optimize.minimize(fun, X[1:-1].ravel(), jac=True, method="L-BFGS-B",
+                                  options={"maxiter": iterations})
+    return np.concatenate([xa[None], res.x.reshape(-1, q), xb[None]])
+
+
+def geodesic(metric, xa, xb, steps, points=17, iterations=25):
+    """A shortest path from ``xa`` to ``xb``, at equal perceptual steps.
+
+    Two starts, the latent segment and the shortest path through the :class:`LatentGraph`,
+    each at ``points`` equal perceptual steps, relaxed by :func:`minimise_energy`; the
+    shortest of the four paths (relaxed or not) under the metric wins, so a geodesic is never
+    longer than the segment.
+    """
+    best, best_length = None, np.inf
+    for start in (straight(xa, xb, 2), metric.graph().shortest(metric, xa, xb)):
+        X = even(metric, densify(start, DENSE), points)
+        for cand in (X, minimise_energy(metric, X, iterations)):
+            Xd = densify(cand, DENSE)
+            length = metric.steps(Xd).sum()
+            if length < best_length:
+                best, best_length = Xd, length
+    return even(metric, best, steps)
+
+
+def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):
+    """``steps`` latent points from ``a`` to ``b`` (material names or latent points), of ``kind``.
+
+    See the module doc for the kinds. ``metric``: a :class:`PathMetric` (default: the
+    manifold's, on the search sub-grid, built once). Returns ``(steps, q)``; row 0 is ``a``'s
+    latent point and the last row ``b``'s.
+    """
+    if kind not in KINDS:
+        raise InputError(f"`kind` {kind!r} is not a path kind; use one of {', '.join(KINDS)}")
+    if not isinstance(steps, (int, np.integer)) or isinstance(steps, bool) or steps < 2:
+        raise InputError(f"`steps` must be an integer >= 2, got {steps!r}")
+    xa, xb = endpoint(manifold, a, "a"), endpoint(manifold, b, "b")
+    if kind == "straight" or np.array_equal(xa, xb):
+        return straight(xa, xb, steps)
+    metric = metric or PathMetric.of(manifold)
+    return uniform(metric, xa, xb, steps) if kind == "uniform" else geodesic(metric, xa, xb, steps)
+
+
+def latent_distance(manifold, x, y, stride=(1, 1, 1)):
+    """:meth:`Manifold.distance`: ``d`` between the tables at ``x`` and ``y`` (names, points or stacks)."""
+    X, x_single = _points(manifold, x, "x")
+    Y, y_single = _points(manifold, y, "y")
+    D = PathMetric.of(manifold, stride).distances(X, Y)
+    if x_single and y_single:
+        return float(D[0, 0])
+    if x_single or y_single:
+        return D[0] if x_single else D[:, 0]
+    return D
+
+
+def _points(manifold, v, what):
+    """``v`` (a name, a point or a stack of points) as ``(M, q)`` and whether it was one."""
+    if isinstance(v, str):
+        return endpoint(manifold, v, what)[None], True
+    arr = np.asarray(v, dtype=np.float64) if not isinstance(v, (list, tuple)) or not v or not isinstance(v[0], str) \
+        else np.stack([endpoint(manifold, n, what) for n in v])
+    if arr.ndim == 1:
+        return endpoint(manifold, arr, what)[None], True
+    if arr.ndim != 2 or arr.shape[1] != manifold.q or not np.isfinite(arr).all():
+        raise InputError(f"`{what}` must be a material name, {manifold.q} numbers or (M, {manifold.q}) points, "
+                         f"got shape {arr.shape}")
+    return arr, False

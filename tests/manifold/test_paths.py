@@ -1,0 +1,116 @@
+"""Paths through the space: Manifold.distance, the straight, uniform and geodesic kinds."""
+
+import numpy as np
+import pytest
+
+from mitsuba_manifold.data import distance
+from mitsuba_manifold.errors import InputError
+from mitsuba_manifold.manifold import paths
+from mitsuba_manifold.manifold.model import Manifold
+
+
+@pytest.fixture(scope="module")
+def m(small_manifold):
+    """The default preset (convex Shepard weights), q = 2, on the 8 small materials."""
+    return Manifold.load(small_manifold)
+
+
+@pytest.fixture(scope="module")
+def pair(m):
+    """Two materials far apart in latent space (the segment between them crosses others)."""
+    d = np.linalg.norm(m.latent[:, None] - m.latent[None], axis=-1)
+    i, j = np.unravel_index(np.argmax(d), d.shape)
+    return m.names[i], m.names[j]
+
+
+def test_manifold_distance_is_the_table_distance_of_the_interpolated_materials(m):
+    rng = np.random.default_rng(0)
+    x, y = m.latent[0] + 0.1 * rng.normal(size=m.q), m.latent[3] + 0.1 * rng.normal(size=m.q)
+    tx = m.combine(m.weights(x).w, prune=0.0).table
+    ty = m.combine(m.weights(y).w, prune=0.0).table
+    assert m.distance(x, y) == pytest.approx(distance.brdf_distance(tx, ty), rel=1e-5)
+    assert m.distance(x, x) == 0.0
+    assert m.distance(x, y) == pytest.approx(m.distance(y, x), rel=1e-9)
+    # names are their latent points; stacks give vectors and matrices
+    assert m.distance(m.names[1], m.names[2]) == pytest.approx(m.distance(m.latent[1], m.latent[2]), rel=1e-9)
+    D = m.distance(m.latent, m.latent)
+    assert D.shape == (m.n, m.n) and np.all(np.diag(D) == 0.0)
+    assert m.distance(m.latent, m.names[0]).shape == (m.n,)
+    with pytest.raises(InputError, match="`x`"):
+        m.distance([1.0] * (m.q + 1), m.names[0])
+    with pytest.raises(InputError, match="unknown material"):
+        m.distance("adamantium", m.names[0])
+
+
+def test_straight_is_the_latent_segment(m, pair):
+    X = m.path(*pair, steps=21, kind="straight")
+    xa, xb = m.latent[m.index(pair[0])], m.latent[m.index(pair[1])]
+    assert X.shape == (21, m.q)
+    assert np.allclose(X, xa + np.linspace(0, 1, 21)[:, None] * (xb - xa))
+
+
+def test_uniform_steps_are_equal_within_5_percent(m, pair):
+    X = m.path(*pair, steps=21, kind="uniform")
+    metric = paths.PathMetric.of(m)
+    s = metric.steps(X)
+    assert np.abs(s / s.mean() - 1).max() < 0.05, s / s.mean()
+    # on the segment: every point is on the latent line from a to b, in order
+    xa, xb = X[0], X[-1]
+    t = (X - xa) @ (xb - xa) / np.dot(xb - xa, xb - xa)
+    assert np.allclose(xa + t[:, None] * (xb - xa), X, atol=1e-9) and (np.diff(t) > 0).all()
+    # the straight segment's steps are not even (what uniform fixes)
+    s0 = metric.steps(m.path(*pair, steps=21, kind="straight"))
+    assert s0.max() / s0.mean() > 1.2
+
+
+def test_a_geodesic_is_never_longer_than_the_straight_segment(m):
+    metric = paths.PathMetric.of(m)
+
+    def length(X):
+        Xd = paths.densify(X, 257)
+        return metric.steps(Xd).sum()
+
+    d = np.linalg.norm(m.latent[:, None] - m.latent[None], axis=-1)
+    order = np.dstack(np.unravel_index(np.argsort(-d, axis=None), d.shape))[0]
+    for i, j in [p for p in order if p[0] < p[1]][:3]:
+        a, b = m.names[i], m.names[j]
+        G = m.path(a, b, steps=21, kind="geodesic")
+        assert np.array_equal(G[0], m.latent[i]) and np.array_equal(G[-1], m.latent[j])
+        assert length(G) <= length(m.path(a, b, steps=2, kind="straight")) * (1 + 1e-3)
+        s = metric.steps(G)
+        assert s.max() / s.sum() < 0.1  # even steps along it too
+
+
+def test_the_path_energy_gradient_is_the_derivative_of_the_energy(m):
+    metric = paths.PathMetric.of(m)
+    X = paths.straight(m.latent[0], m.latent[4], 7) + np.array([0.03, -0.02])
+    e, g = metric.energy(X)
+    h = 1e-5
+    for k, c in [(2, 0), (3, 1), (5, 0)]:
+        up, down = X.copy(), X.copy()
+        up[k, c] += h
+        down[k, c] -= h
+        fd = (metric.energy(up)[0] - metric.energy(down)[0]) / (2 * h)
+        assert g[k, c] == pytest.approx(fd, rel=0.05, abs=1e-6 * abs(e))
+
+
+def test_reparameterise_inverts_the_cumulative_length():
+    X = np.linspace(0, 1, 101)[:, None] ** 2 * np.array([[2.0, 0.0]])   # speed grows with t
+    lengths = np.linalg.norm(np.diff(X, axis=0), axis=1)
+    Y = paths.reparameterise(X, lengths, 11)
+    assert np.allclose(np.diff(Y[:, 0]), 0.2, atol=1e-9)
+
+
+def test_paths_between_points_and_the_errors(m, pair):
+    x = m.latent[m.index(pair[0])] + 0.05
+    X = m.path(x, pair[1], steps=5, kind="uniform")
+    assert np.allclose(X[0], x) and X.shape == (5, m.q)
+    assert np.allclose(m.path(x, x, steps=3, kind="geodesic"), x)
+    with pytest.raises(InputError, match="`kind`"):
+        m.path(*pair, kind="scenic")
+    with pytest.raises(InputError, match="`steps`"):
+        m.path(*pair, steps=1)
+    with pytest.raises(InputError, match="`b`"):
+        m.path(pair[0], [0.0] * (m.q + 2))
+    assert paths.DEFAULT_KIND in paths.KINDS
+    assert m.path(*pair, steps=4).shape == (4, m.q)   # the default kind
