@@ -33,7 +33,7 @@ import numpy as np
 
 from ..gp.kernel import Kernel
 from ..gp.likelihood import log_likelihood
-from . import fitting, io as manifold_file, materials, report
+from . import fitting, io as manifold_file, materials, paths, report
 from . import interpolant as interpolants
 from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings
@@ -393,10 +393,8 @@ class Manifold(PruningMethods):
     def distance(self, x, y, stride=(1, 1, 1)):
         """[PR12] distance between the tables ``sum_i w_i table_i`` at ``x`` and ``y`` (names, points
         ``(q,)`` or stacks ``(M, q)``: a float, ``(M,)`` or ``(M, K)``); :func:`paths.latent_distance`."""
-        from . import paths
         return paths.latent_distance(self, x, y, stride)
 
     def path(self, a, b, steps=21, kind=None):
         """``steps`` latent points from ``a`` to ``b`` of ``kind`` (default the best measured); :func:`paths.path`."""
-        from . import paths
         return paths.path(self, a, b, steps, kind or paths.DEFAULT_KIND)

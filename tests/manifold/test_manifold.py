@@ -258,7 +258,7 @@ def test_the_fit_is_kept_as_a_typed_record_written_in_the_info_layout(fitted, tm
     info = {**fitted.info, "subset_of": "elsewhere.npz"}               # an entry of another version: kept
     again = FitRecord.from_info(info, rec.history)
     assert again.extra == {"subset_of": "elsewhere.npz"} and again.as_info() == info
-    m = Manifold.load(fitted.path)
+    m = Manifold.load(fitted.file)
     m.info = info
     assert m.record.method == "hooke-jeeves" and np.array_equal(m.history, fitted.history)
     m.save(tmp_path / "m.npz")
