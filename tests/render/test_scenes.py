@@ -149,7 +149,8 @@ def test_load_scene_renders_in_the_active_variant_and_switches_only_when_asked(v
     assert mi.variant() == "llvm_ad_rgb"
 
 
-def test_render_reference_renders_the_sensor_asked_for(small_manifold, manifold, tmp_path):
+@pytest.mark.render
+def test_render_reference_renders_the_sensor_asked_for(variant, small_manifold, manifold, tmp_path):
     """A basis of view 1 gets its reference from view 1 (issue 20: references came from sensor 0)."""
     import mitsuba as mi
     text = open(scenes.scene_path("sphere")).read()
