@@ -147,7 +147,7 @@ class BasisOptions:
     force: bool = False
     sensor: int = 0
     aovs: bool = False
-    components: str = "auto"
+    components: str = "l1"
     levels: int = 5
     cross_tol: float = 1e-3
     cross_fraction: float = 0.25

@@ -194,7 +194,7 @@ def test_ray_missing_is_a_clear_error(monkeypatch):
 
 def test_merged_chunks_of_a_full_gi_basis_equal_the_single_process_one(tmp_path, small_manifold):
     """The table's full-GI images and cross terms merge as the L1- images do (issue 21)."""
-    opts = dict(OPTIONS, materials="all")
+    opts = dict(OPTIONS, materials="all", components="auto")
     single = tmp_path / "single"
     render_basis.render_basis(scene_path("table"), small_manifold, str(single), spp=4, seed=1, chunk_spp=2, **opts)
     run = chunks.render_chunked(scene_path("table"), small_manifold, str(tmp_path / "merged"), spp=4, chunks=2,

@@ -64,14 +64,14 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
     training point is ``base + F_i`` exactly, ``component="l1"`` is Eq. 13's ``base + I_i``;
     the blend along a path uses the cross terms as the point blend does."""
     out = tmp_path / "basis"
-    manifest = render_basis.render_basis("table", small_manifold, out, spp=8, mode="onepass", resolution=16,
+    manifest = render_basis.render_basis("table", small_manifold, out, spp=8, mode="onepass", components="auto", resolution=16,
                                          max_depth=8)
     assert manifest["components"][:2] == ["l1", "l2+"] and manifest["levels"] == 5
     assert manifest["gi_stats"]["rest_fraction"] > 0 and not manifest.get("left_out", {}).get("l2+")
     m = Manifold.load(small_manifold)
     b = bf.Basis.load(out, manifold=m)
     k = m.names.index("gold-paint")
-    img, info = blend(b, m, x=m.latent[k])
+    img, info = blend(b, m, x=m.latent[k], component="full")
     assert info["component"] == "full" and info["component_note"] == ""
     np.testing.assert_allclose(img, b.image("base") + b.image("gi:gold-paint"), rtol=1e-6, atol=1e-7)
     img1, info1 = blend(b, m, x=m.latent[k], component="l1")
@@ -80,8 +80,8 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
     pairs = b.cross_terms()[0]
     if pairs:
         a, c = next(iter(pairs))
-        images, _, pinfo = blend_path(b, m, a, c, steps=3)
-        mid, minfo = blend(b, m, x=0.5 * (m.latent[m.names.index(a)] + m.latent[m.names.index(c)]))
+        images, _, pinfo = blend_path(b, m, a, c, steps=3, component="full")
+        mid, minfo = blend(b, m, x=0.5 * (m.latent[m.names.index(a)] + m.latent[m.names.index(c)]), component="full")
         np.testing.assert_allclose(images[1], mid, rtol=1e-4, atol=1e-6)
         assert pinfo["component"] == "full"
 
@@ -101,7 +101,7 @@ def test_an_old_l1_basis_still_blends_and_says_so(tmp_path, small_manifold):
     m = Manifold.load(small_manifold)
     b = bf.Basis.load(out, manifold=m)
     with pytest.warns(UserWarning, match="L1- only") as caught:
-        img, info = blend(b, m, x=m.latent[0])
+        img, info = blend(b, m, x=m.latent[0], component="full")
     assert len(caught) == 1 and "\n" not in str(caught[0].message)
     assert info["component"] == "l1"
     np.testing.assert_allclose(img, blend(b, m, x=m.latent[0], component="l1")[0])
@@ -111,12 +111,13 @@ def test_a_convex_object_alone_holds_no_l2(tmp_path, small_manifold):
     """The sphere cannot see itself: no path touches it twice, so the basis holds no L2+ or
     cross-term images, and the manifest (and the blend's note) say why."""
     out = tmp_path / "sphere"
-    manifest = render_basis.render_basis("sphere", small_manifold, out, spp=4, mode="onepass", resolution=12)
+    manifest = render_basis.render_basis("sphere", small_manifold, out, spp=4, mode="onepass", components="auto",
+                                         resolution=12)
     assert manifest["components"] == ["l1"]
     assert "cannot see itself" in manifest["left_out"]["l2+"]
     assert manifest["gi_stats"]["paths_by_touches"][2:] == [0] * (len(manifest["gi_stats"]["paths_by_touches"]) - 2)
     assert not any(f.endswith(".gi.exr") or f == "cross.npz" for f in os.listdir(out))
     assert "cannot see itself" in render_basis.describe_components(manifest)
     m = Manifold.load(small_manifold)
-    img, info = blend(out, m, x=m.latent[0])
+    img, info = blend(out, m, x=m.latent[0], component="full")
     assert info["component"] == "l1" and "cannot see itself" in info["component_note"]

@@ -4,11 +4,11 @@
   blend.py --basis DIR --x 0.3,-1.2 --out img.exr --reference ref.exr
   blend.py --basis DIR --x 0.3,-1.2 --out img.exr --render-reference --spp 1024
   blend.py --basis DIR --path gold-paint chrome --steps 20 --out seq.exr [--path-kind straight]
-  blend.py --basis DIR --x 0.3,-1.2 --out img.exr --component l1
+  blend.py --basis DIR --x 0.3,-1.2 --out img.exr --component full
 
-A full-GI basis (render_basis.py --mode onepass) blends its full-GI images and cross terms by
-default; --component l1 blends the L1- images (paper Eq. 13). An older basis blends L1- and
-says so.
+The default blends the L1- images (paper Eq. 13). --component full blends the full-GI images and
+cross terms of a basis rendered with render_basis.py --components full (exact at the training
+materials, but noisy for spiky materials for now); a basis without them blends L1- and says so.
 
 With several manifold materials in the scene give one --x per target (in the manifest's
 target order). Nothing is written until every input has been read and checked.
@@ -65,8 +65,8 @@ def parser():
     p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
     p.add_argument("--database", help="folder of the manifold's tables, if it moved (--render-reference)")
     p.add_argument("--component", choices=["full", "l1"], default=None,
-                   help="full: full-GI images and cross terms where the basis holds them (default); "
-                        "l1: the L1- images only (Eq. 13)")
+                   help="l1: the L1- images (Eq. 13; default); full: the full-GI images and cross terms where "
+                        "the basis holds them (render_basis.py --components full)")
     p.add_argument("--force", action="store_true",
                    help="replace existing output files this tool did not write (never read-only ones)")
     return p

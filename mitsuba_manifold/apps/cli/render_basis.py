@@ -61,6 +61,9 @@ def main(argv=None):
     p.add_argument("--radius", type=float, default=None, help="radius for --near")
     p.add_argument("--mode", choices=["onepass", "per-material"], default="onepass",
                    help="all materials from one set of paths (default) or one render per material")
+    p.add_argument("--components", choices=["l1", "full"], default="l1",
+                   help="l1: the L1- images (default); full (one-pass mode): also every material's full-GI "
+                        "image and the cross terms of the pairs blended together (blend.py --component full)")
     p.add_argument("--res", type=int, default=None, help="square resolution (scenes taking $res)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-depth", type=int, default=None, help="path depth (-1: unbounded; default: the scene's $max_depth)")
@@ -94,6 +97,7 @@ def main(argv=None):
     check_job_folders(jobs, args.out, args.force)   # every folder, before the first render
     executor = make_executor(args.executor, args.address)
     options = dict(materials=materials, near=args.near, radius=args.radius, mode=args.mode,
+                   components="auto" if args.components == "full" else "l1",
                    resolution=args.res, max_depth=args.max_depth, variant=args.variant, aovs=args.aovs,
                    x=args.x, database=args.database, force=args.force)
     try:
