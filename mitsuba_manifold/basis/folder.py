@@ -491,7 +491,7 @@ class Basis:
             raise MismatchError(f"basis {self.folder} holds materials the manifold does not know: "
                              f"{', '.join(unknown[:8])}{' ...' if len(unknown) > 8 else ''}; it was "
                              "rendered with another manifold")
-        path = manifold if isinstance(manifold, (str, os.PathLike)) else getattr(m, "path", None)
+        path = manifold if isinstance(manifold, (str, os.PathLike)) else getattr(m, "file", None)
         if self.version >= 2 or path is not None:
             h = manifold_identity(m) if self.version >= 2 else file_hash(path)
             if h != self.manifest["manifold_hash"]:
