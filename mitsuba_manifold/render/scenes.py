@@ -293,11 +293,24 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
     """
     import mitsuba as mi
 
-    pts = np.atleast_2d(np.asarray(x, dtype=np.float64))
-    if pts.ndim != 2 or not np.isfinite(pts).all():
-        raise MismatchError(f"`x` must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}")
+    _points(x)
     if int(spp) < 1:
         raise MismatchError(f"`spp` must be >= 1, got {spp}")
+    scene, max_depth = scene_at(scene_path, manifold_path, x, spp, resolution, max_depth, variant, targets,
+                                database)
+    from .interrupt import render_in_passes
+    integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
+    if not 0 <= int(sensor) < len(scene.sensors()):
+        raise InputError(f"`sensor` {sensor} does not exist: {scene_path} has {len(scene.sensors())} sensor(s)")
+    return render_in_passes(scene, integrator, int(spp), int(seed), sensor=int(sensor))   # Ctrl-C: KeyboardInterrupt
+
+
+def scene_at(scene_path, manifold_path, x, spp=None, resolution=None, max_depth=None, variant=None, targets=None,
+             database=None):
+    """``(scene, max_depth)``: the scene loaded (:func:`load_scene`) with every manifold material
+    at its latent point: ``x`` (q,) for all of them, or (p, q) one per target (``targets``: the
+    BSDF ids of the rows, default the scene's manifold materials in the order of its shapes)."""
+    pts = _points(x)
     scene, found, max_depth = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant,
                                          database)
     ids = [b.id() for b in found]
@@ -307,15 +320,19 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
         order = ids if targets is None else list(targets)
         if len(order) != len(pts) or sorted(order) != sorted(ids):
             raise MismatchError(f"`x` gives {len(pts)} latent points for targets {order}; the scene's manifold "
-                             f"materials are {ids}")
+                                f"materials are {ids}")
         rows = [order.index(i) for i in ids]
     for bsdf, row in zip(found, rows):
         bsdf.set_latent(pts[row])
-    from .interrupt import render_in_passes
-    integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
-    if not 0 <= int(sensor) < len(scene.sensors()):
-        raise InputError(f"`sensor` {sensor} does not exist: {scene_path} has {len(scene.sensors())} sensor(s)")
-    return render_in_passes(scene, integrator, int(spp), int(seed), sensor=int(sensor))   # Ctrl-C: KeyboardInterrupt
+    return scene, max_depth
+
+
+def _points(x):
+    """``x`` as a (p, q) array of finite latent points, or the error naming it."""
+    pts = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    if pts.ndim != 2 or not np.isfinite(pts).all():
+        raise MismatchError(f"`x` must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}")
+    return pts
 
 
 def check_scene(name, value):

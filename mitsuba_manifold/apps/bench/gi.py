@@ -53,11 +53,13 @@ def _basis(scene, manifold, out, warm=True, **kw):
 
 
 def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), res=64, basis_spp=256,
-            ref_spp=4096, direct_spp=256, levels=5, out=None, seed=0, log=print, both_ends=False):
+            ref_spp=4096, direct_spp=256, levels=5, out=None, seed=0, log=print, both_ends=False, gi_options=None):
     """Issue 21's targets per scene: L1- and full-GI bases (time, size, what they hold), and at
     the points of :func:`gi_points` the bias and relative MSE of both blends and of a
     ``direct_spp`` render against a ``ref_spp`` reference (Mitsuba's ``path``); ``both_ends``:
-    also at the pair's second material (with convex weights the extrapolated point is close to it)."""
+    also at the pair's second material (with convex weights the extrapolated point is close to it);
+    ``gi_options``: more :class:`~mitsuba_manifold.render.render_basis.BasisOptions` fields of the
+    full-GI basis (e.g. ``cross_fraction``)."""
     manifold = manifold or os.path.join(folder, ".manifold-cache", "bench_q2.npz")
     if not os.path.isfile(manifold):
         Manifold.fit(folder, q=2).save(manifold)
@@ -72,7 +74,8 @@ def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), r
         path = _scenes.scene_path(scene)
         kw = dict(spp=basis_spp, resolution=res, seed=seed)
         l1, t_l1, s_l1 = _basis(path, manifold, os.path.join(out, f"{name}_l1"), components="l1", **kw)
-        gi, t_gi, s_gi = _basis(path, manifold, os.path.join(out, f"{name}_gi"), levels=levels, **kw)
+        gi, t_gi, s_gi = _basis(path, manifold, os.path.join(out, f"{name}_gi"), components="auto", levels=levels,
+                                **kw, **(gi_options or {}))
         b_l1, b_gi = Basis.load(os.path.join(out, f"{name}_l1"), manifold=m), Basis.load(os.path.join(out, f"{name}_gi"), manifold=m)
         rows = []
         ends = [("training", pair[1], m.latent[m.index(pair[1])])] if both_ends else []

@@ -64,6 +64,11 @@ def parser():
                         f"equal steps); default {DEFAULT_PATH_KIND}, the most even measured (tools/bench.py fig9)")
     p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
     p.add_argument("--database", help="folder of the manifold's tables, if it moved (--render-reference)")
+    p.add_argument("--refine", type=int, metavar="SPP", default=None,
+                   help="make the image exact: render what the basis cannot give at the point (its L2+ light, "
+                        "SPP samples per pixel) and add it to the L1- blend; reports its noise")
+    p.add_argument("--refine-passes", type=int, default=4,
+                   help="independent passes of --refine, which estimate its noise (default 4)")
     p.add_argument("--component", choices=["full", "l1"], default=None,
                    help="l1: the L1- images (Eq. 13; default); full: the full-GI images and cross terms where "
                         "the basis holds them (render_basis.py --components full)")
@@ -92,6 +97,12 @@ def parse(argv=None):
         fail(f"--out must name an .exr file, got {args.out!r}")
     if args.steps < 2:
         fail(f"--steps must be >= 2, got {args.steps}")
+    if args.refine is not None and args.path is not None:
+        fail("--refine makes one point's image exact; not with --path")
+    if args.refine is not None and args.refine < 1:
+        fail(f"--refine must be >= 1 (samples per pixel), got {args.refine}")
+    if args.refine is not None and not 1 <= args.refine_passes <= args.refine:
+        fail(f"--refine-passes must be in 1..--refine ({args.refine}), got {args.refine_passes}")
     if args.spp < 1:
         fail(f"--spp must be >= 1, got {args.spp}")
     from ..._util import checks as validate, ownership
@@ -202,6 +213,19 @@ def _say_component(info):
         print(f"blend: {info['component_note']}")
 
 
+def _refined(args, basis, manifold):
+    """The image of ``--refine`` (:func:`mitsuba_manifold.render.refine.refine`), its progress printed."""
+    from ...render.refine import refine_passes
+
+    print(f"refining: L2+ at the point, {args.refine} spp in {args.refine_passes} passes ...", flush=True)
+    last = None
+    for last in refine_passes(basis, manifold, x=args.x, spp=args.refine, passes=args.refine_passes,
+                              seed=args.seed, database=args.database, prune=args.prune):
+        print(f"  pass {last.passes}/{args.refine_passes}: {last.spp} spp, {last.seconds:.2f} s", flush=True)
+    print(last.summary())
+    return last.image
+
+
 def _point_or_name(a):  # a latent point "x0,x1", else a name blend_path reports as unknown
     try:
         return parse_floats(a)
@@ -226,6 +250,9 @@ def point_outputs(args, basis, manifold):
         print(f"warning: renormalised over the images present; missing: {', '.join(sorted(info['missing']))}")
     print(f"blend time: {info['time_ms']:.3f} ms ({info['n_images']} images; reading them: "
           f"{info['time_read_s']:.3f} s)")
+    unrefined = image
+    if args.refine is not None:
+        image = _refined(args, basis, manifold)
     stem = _stem(args.out)
     outputs = [("image", args.out, lambda: imageio.write_exr(args.out, image))]
     if args.png:
@@ -236,6 +263,8 @@ def point_outputs(args, basis, manifold):
             stats = metrics.compare(image, reference)
         except ValueError as e:
             fail(f"reference {args.reference or 'render'}: {e}")
+        if args.refine is not None:
+            print(f"before refining: relative MSE {metrics.compare(unrefined, reference)['rel_mse']:.4g}")
         print(f"relative MSE {stats['rel_mse']:.4g} (eps {stats['eps']:g}), PSNR {stats['psnr']:.2f} dB "
               f"(peak {stats['peak']:.4g}), max error {stats['max_abs']:.4g}, mean error {stats['mean_abs']:.4g}")
         err = metrics.error_image(image, reference)

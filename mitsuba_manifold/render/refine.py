@@ -1,0 +1,133 @@
+"""Refining a blend to the exact full-GI image of its point (issue 21, ``blend.py --refine``).
+
+A basis gives any latent point's ``L1-`` image exactly (Eq. 13 is affine in the weights:
+``base + sum_i w_i touch_i``); what no finite set of per-material images gives exactly is the
+light that touched the material twice or more (``L2+``, second order in the weights). The
+refinement renders only that part, at the point itself: ``manifold_path`` with
+``component="rest"`` and every target at its latent point, in independent passes, so that
+
+    refined(x) = blend_L1(x) + rest(x)
+
+is an unbiased estimate of the full-GI render of ``x`` (the L1- blend's own noise is the
+basis's). The passes also estimate the refinement's noise: the per-pixel standard error
+of their mean, reported as a relative MSE (the metric of :mod:`mitsuba_manifold.imaging.metrics`).
+:func:`refine_passes` yields the estimate after each pass (progressive: a viewer shows them
+as they come); :func:`refine` returns the last.
+"""
+
+import contextlib
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..basis.blend import blend, latent_points
+from ..errors import InputError
+from ..imaging.metrics import REL_EPS
+from . import scenes
+from .interrupt import StopRequest
+
+
+@dataclass
+class Refined:
+    """A refined blend: ``image = l1 + rest``; ``pixel_se`` (H, W, 3) the standard error of
+    ``rest`` per pixel (from the passes; NaN after one pass); ``noise_rel_mse`` its mean of
+    ``se^2 / (image^2 + eps)``; ``spp`` and ``passes`` rendered so far, in ``seconds``."""
+
+    image: np.ndarray
+    l1: np.ndarray
+    rest: np.ndarray
+    pixel_se: np.ndarray
+    noise_rel_mse: float
+    spp: int
+    passes: int
+    seconds: float
+
+    def summary(self):
+        """One line: what was rendered and its estimated noise."""
+        noise = "n/a (one pass)" if self.passes < 2 else f"{self.noise_rel_mse:.3g}"
+        return (f"refined: L2+ rendered at the point with {self.spp} spp in {self.passes} passes, "
+                f"{self.seconds:.2f} s; estimated noise of the refinement (rel. MSE) {noise}")
+
+
+def _pass_plan(spp, passes):
+    spp, passes = int(spp), int(passes)
+    if spp < 1:
+        raise InputError(f"`spp` must be >= 1, got {spp}")
+    if not 1 <= passes <= spp:
+        raise InputError(f"`passes` must be in 1..spp ({spp}), got {passes}")
+    return [spp // passes + (1 if k < spp % passes else 0) for k in range(passes)]
+
+
+def _rest_integrator(basis, max_depth):
+    import mitsuba as mi
+    target = "all" if basis.p == 1 else ",".join(basis.targets)
+    return mi.load_dict({"type": "manifold_path", "component": "rest", "target": target,
+                         "max_depth": int(max_depth)})
+
+
+def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, stop=None, prune=None):
+    """Yield a :class:`Refined` estimate after each of ``passes`` passes (``spp`` in all).
+
+    Parameters
+    ----------
+    basis : Basis
+        Its manifest names the scene, the view (``sensor``), the size and the path depth; the
+        ``L1-`` part is its blend (:func:`~mitsuba_manifold.basis.blend.blend`, ``component="l1"``).
+    manifold : Manifold
+    x : array_like
+        The point (q,), or (p, q) for a basis of several targets (as :func:`blend`).
+    spp, passes, seed : int
+        Samples per pixel of the ``L2+`` render in all, cut into ``passes`` independent passes
+        (at least 2 to estimate the noise).
+    database : str, optional
+        Folder of the manifold's tables if it moved.
+    stop : StopRequest, optional
+        Checked after each pass (Ctrl-C ends the refinement there: ``KeyboardInterrupt``).
+    prune : float, optional
+        The blend's pruning (default: the blend's); the rendered material prunes as
+        ``manifold_brdf`` does at the same point.
+    """
+    import mitsuba as mi
+
+    plan = _pass_plan(spp, passes)
+    m = basis.manifest
+    kw = {} if prune is None else {"prune": prune}
+    l1, _ = blend(basis, manifold, x=x, component="l1", **kw)
+    points = latent_points(basis, manifold, x)
+    scene, max_depth = scenes.scene_at(m["scene"], m["manifold"], points, None, basis.resolution, m["max_depth"],
+                                       m["variant"], basis.targets, database)
+    integrator = _rest_integrator(basis, max_depth)
+    t0, total, total2, done = time.perf_counter(), 0.0, 0.0, 0
+    own = stop is None
+    stop = stop or StopRequest()
+    with (stop if own else contextlib.nullcontext()):
+        for k, n in enumerate(plan):
+            img = np.array(mi.render(scene, integrator=integrator, spp=n, sensor=int(basis.sensor),
+                                     seed=(int(seed) + k * 0x9E3779B9) & 0xFFFFFFFF), np.float64)[..., :3]
+            total, total2, done = total + n * img, total2 + n * img * img, done + n
+            if integrator.should_stop():
+                stop.requested = True
+            stop.check()
+            yield _estimate(l1, total, total2, done, k + 1, time.perf_counter() - t0)
+
+
+def _estimate(l1, total, total2, done, passes, seconds):
+    """The refined image from the spp-weighted sums of the pass images and their squares."""
+    rest = total / done
+    if passes > 1:   # sum_k n_k (img_k - rest)^2 / (passes - 1) estimates a sample's variance
+        se = np.sqrt(np.maximum(total2 - done * rest * rest, 0.0) / ((passes - 1) * done))
+    else:
+        se = np.full_like(rest, np.nan)
+    image = (l1 + rest).astype(np.float32)
+    noise = float(np.mean(se ** 2 / (image.astype(np.float64) ** 2 + REL_EPS))) if passes > 1 else float("nan")
+    return Refined(image, l1, rest.astype(np.float32), se.astype(np.float32), noise, int(done), passes, seconds)
+
+
+def refine(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, prune=None):
+    """The last estimate of :func:`refine_passes` (all ``spp`` samples): a :class:`Refined`."""
+    last = None
+    for last in refine_passes(basis, manifold, x, spp, passes, seed, database, prune=prune):
+        pass
+    return last
+

@@ -1,0 +1,108 @@
+"""Refining a blend (issue 21): the L1- blend plus the L2+ rendered at the point is the
+full-GI render of that point, whatever the point, with its noise estimated honestly."""
+
+import numpy as np
+import pytest
+
+import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
+
+from mitsuba_manifold.basis import folder as bf  # noqa: E402
+from mitsuba_manifold.errors import InputError  # noqa: E402
+from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
+from mitsuba_manifold.render import render_basis, scenes  # noqa: E402
+from mitsuba_manifold.render.refine import refine, refine_passes  # noqa: E402
+from helpers import assert_same_mean  # noqa: E402
+
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
+
+RES = 16
+
+
+@pytest.fixture(scope="module")
+def basis(tmp_path_factory, small_manifold):
+    out = tmp_path_factory.mktemp("refine") / "basis"
+    render_basis.render_basis("table", small_manifold, out, spp=4096, mode="onepass", resolution=RES, max_depth=8)
+    m = Manifold.load(small_manifold)
+    return bf.Basis.load(out, manifold=m), m
+
+
+def _midpoint(m, a="gold-paint", b="white-diffuse-bball"):
+    return 0.5 * (m.latent[m.index(a)] + m.latent[m.index(b)])
+
+
+def test_refined_blend_is_the_full_gi_render_of_its_point(basis, small_manifold):
+    """At a midpoint (where the L1- blend misses the bowl's interreflection, and no per-material
+    image gives the L2+ of the blended material), refined blends over independent seeds and
+    Mitsuba's ``path`` at the same point agree within noise (block and image z-tests); the
+    L1- blend alone is darker."""
+    b, m = basis
+    x = _midpoint(m)
+    refined = [refine(b, m, x=x, spp=32, passes=2, seed=100 + s) for s in range(8)]
+    ref = np.stack([scenes.render_reference(b.manifest["scene"], small_manifold, x, 256, seed=900 + s,
+                                            resolution=b.resolution, max_depth=8) for s in range(8)])
+    img = np.stack([r.image for r in refined])
+    assert np.stack([r.rest for r in refined]).mean() > 1e-3 * img.mean()   # the bowl sees itself
+    # the L1- part is the basis's, the same in every estimate: its noise (4096 spp) is not in the
+    # spread the z-test sees, so it is kept well below that of the references' mean (8 x 256 spp)
+    assert_same_mean(img, ref, "refined blend vs path at a midpoint")
+    assert refined[0].l1.mean() < ref.mean()
+
+
+def test_refinement_noise_estimate_matches_the_spread_of_independent_runs(basis):
+    """The reported per-pixel standard error of the L2+ part is, on average over pixels, within
+    a factor 1.6 of the standard deviation of that part over independent refinements."""
+    b, m = basis
+    x = _midpoint(m)
+    runs = [refine(b, m, x=x, spp=16, passes=4, seed=10 + s) for s in range(10)]
+    spread = np.stack([r.rest for r in runs]).std(axis=0, ddof=1)
+    reported = np.mean([r.pixel_se for r in runs], axis=0)
+    lit = spread > np.percentile(spread, 50)
+    ratio = reported[lit].mean() / spread[lit].mean()
+    assert 1 / 1.6 < ratio < 1.6, ratio
+    assert all(np.isfinite(r.noise_rel_mse) and r.noise_rel_mse >= 0 for r in runs)
+
+
+def test_progressive_estimates_add_samples_and_report_after_each_pass(basis):
+    b, m = basis
+    steps = list(refine_passes(b, m, x=m.latent[0], spp=9, passes=3, seed=1))
+    assert [s.spp for s in steps] == [3, 6, 9] and [s.passes for s in steps] == [1, 2, 3]
+    assert np.isnan(steps[0].noise_rel_mse) and np.isfinite(steps[-1].noise_rel_mse)
+    assert "9 spp in 3 passes" in steps[-1].summary()
+
+
+@pytest.mark.parametrize("spp, passes, match", [(0, 1, "`spp` must be >= 1"), (4, 5, "`passes` must be in 1..spp"),
+                                                (4, 0, "`passes` must be in 1..spp")])
+def test_bad_sample_counts_are_refused_before_rendering(basis, spp, passes, match):
+    b, m = basis
+    with pytest.raises(InputError, match=match):
+        refine(b, m, x=m.latent[0], spp=spp, passes=passes)
+
+
+def test_blend_tool_refines_and_reports_the_error_before_and_after(basis, tmp_path):
+    """``blend.py --refine SPP --render-reference``: the refined image is written, the tool says
+    what it rendered and its noise, and the error against the reference before and after."""
+    from guarantees_helpers import run_tool
+
+    b, m = basis
+    x = ",".join(repr(float(v)) for v in _midpoint(m))
+    out = tmp_path / "img.exr"
+    rc, so, se = run_tool("blend", "--basis", b.folder, "--x", x, "--out", out, "--refine", 16,
+                          "--refine-passes", 2, "--render-reference", "--spp", 64)
+    assert rc == 0, se
+    assert "refined: L2+ rendered at the point with 16 spp in 2 passes" in so
+    assert "before refining: relative MSE" in so and out.is_file()
+
+
+@pytest.mark.parametrize("extra, words", [(["--refine", "0"], ["--refine", ">= 1"]),
+                                          (["--refine", "4", "--refine-passes", "9"], ["--refine-passes", "1..--refine"]),
+                                          (["--refine", "4", "--path", "gold-paint", "pink-fabric"], ["--refine", "--path"])])
+def test_blend_tool_refuses_bad_refine_options_in_one_line(basis, tmp_path, extra, words):
+    from guarantees_helpers import assert_one_error, run_tool
+
+    b, m = basis
+    args = ["--basis", b.folder, "--out", tmp_path / "img.exr"] + extra
+    if "--path" not in extra:
+        args += ["--x", ",".join(repr(float(v)) for v in m.latent[0])]
+    rc, _, se = run_tool("blend", *args)
+    assert_one_error(rc, se, *words)
+    assert not (tmp_path / "img.exr").exists()
