@@ -171,10 +171,11 @@ class TrainingTables:
         w = self._checked(w, 0.0, rule)
         return pruning.error(w, keep, self.raw_gram(folder) if rule == "raw-l2" else self.cosine_gram(folder))
 
-    def report(self, w, budget, folder, rule=DEFAULT_RULE):
+    def report(self, w, budget, folder, rule=DEFAULT_RULE, keep=None):
         """:class:`pruning.PruneReport` of :meth:`prune`: what was kept, the albedo change of each
-        channel and the cosine-weighted and raw table errors reached."""
-        keep = self.prune(w, budget, folder, rule).keep
+        channel and the cosine-weighted and raw table errors reached (``keep``: what :meth:`prune`
+        kept of the same ``w``, when the caller has it, instead of pruning again)."""
+        keep = self.prune(w, budget, folder, rule).keep if keep is None else keep
         return pruning.report(w, keep, rule, budget, G=self.raw_gram(folder), C=self.cosine_gram(folder),
                               albedos=self.albedo(folder), names=self.names)
 
@@ -227,11 +228,12 @@ class PruningMethods:
         in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``)."""
         return self._store.error(w, keep, self.database, rule)
 
-    def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
+    def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE, keep=None):
         """What :meth:`prune` keeps and the bounds it reaches: a :class:`pruning.PruneReport` (materials
         kept and their names, albedo change per channel, cosine-weighted and raw table errors,
-        the budgets; ``str()`` of it is one line for ``print(bsdf)`` and the explorer)."""
-        return self._store.report(w, prune, self.database, rule)
+        the budgets; ``str()`` of it is one line for ``print(bsdf)`` and the explorer). ``keep``:
+        what :meth:`prune` kept of the same ``w`` (not pruned again)."""
+        return self._store.report(w, prune, self.database, rule, keep=keep)
 
     def combine(self, w, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
         """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a

@@ -143,9 +143,10 @@ def combine(manifold, options, w, x=None, material=None, table=None):
     if options.sampling == "cdf":
         dens = np.stack([material_density(db, m.names[i]) for i in keep])
         distr, black = combined_distribution(dens, np.asarray(w, dtype=np.float64)[keep])
+    report = m.prune_report(np.asarray(w, dtype=np.float64), options.prune, keep=keep)   # pruned once
     return Combination(
         w=np.asarray(w, dtype=np.float64).copy(), x=None if x is None else np.asarray(x, dtype=np.float64).copy(),
-        material=material, keep=np.asarray(keep), dropped=float(dropped), prune_error=m.prune_error(w, keep),
-        pruning=m.prune_report(np.asarray(w, dtype=np.float64), options.prune),
+        material=material, keep=np.asarray(keep), dropped=float(dropped), prune_error=report.cos_error,
+        pruning=report,
         n_clamped=n_clamped, n_values=int(packed.size), black=black, dims=dims, distr=distr,
         table=mi.Float(packed.ravel()) if dr.is_jit_v(mi.Float) else packed)

@@ -127,7 +127,9 @@ class BasisOptions:
     cross_tol : float
         Smallest weight product of a pair whose cross term is stored.
     cross_fraction : float
-        Share of the two-vertex splats the cross terms use (unbiased; bounds their cost: a
+        Share of the splats the cross terms use (unbiased; bounds their cost, but below 1 the
+        per-path cancellation between the cross terms and the ``L2+`` images is lost and a
+        midpoint of white-paint and blue-rubber takes the noise of white-paint's ``L2+``: a
         cross term enters a blend with weight ``w_i w_j <= 1/4``, so its noise matters less).
     """
 
@@ -150,7 +152,7 @@ class BasisOptions:
     components: str = "l1"
     levels: int = 5
     cross_tol: float = 1e-3
-    cross_fraction: float = 0.25
+    cross_fraction: float = 1.0
 
 
 def render_basis(scene_path, manifold_path, out, options=None, **settings):

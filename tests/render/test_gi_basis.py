@@ -48,6 +48,25 @@ def test_full_gi_image_of_a_training_material_equals_mitsubas_path(small_manifol
         assert (ref.mean() - l1.mean()) > 0   # what the L1- image left out
 
 
+def test_cross_terms_make_a_pairs_midpoint_exact_for_every_number_of_touches(small_manifold):
+    """``base + (F_a + F_b) / 2 + C_ab / 4`` from the shared paths (the blend at the pair's
+    midpoint) equals Mitsuba's ``path`` rendering the midpoint material ``(f_a + f_b) / 2``
+    within noise, with paths touching the bowl three and more times; the cross term is
+    significantly negative (the midpoint's interreflection is below the mean of its ends')."""
+    scene = load("table", small_manifold, "gold-paint", res=24)
+    (bsdf,) = integrators.manifold_bsdfs(scene)
+    a, b = "gold-paint", "white-diffuse-bball"
+    out = _gi(scene, levels=8, pairs=[(a, b)])
+    assert out[0].paths[3:].sum() > 0
+    img = np.stack([o.base + 0.5 * (o.touch[a] + o.rest[a] + o.touch[b] + o.rest[b]) + 0.25 * o.cross[(a, b)]
+                    for o in out])
+    bsdf.set_weights({a: 0.5, b: 0.5})
+    ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 8}), 16, [500 + s for s in SEEDS])
+    assert_same_mean(img, ref, "midpoint blend with cross terms vs path")
+    cross = np.stack([o.cross[(a, b)] for o in out]).sum(axis=(1, 2, 3))   # per seed
+    assert cross.mean() < -3 * cross.std(ddof=1) / np.sqrt(len(cross))   # f_a, f_b differ: C_ab < 0
+
+
 def test_cross_term_of_two_identical_materials_vanishes(small_manifold):
     """C_aa = 2 L2_aa - L2_aa - L2_aa = 0 exactly (the kernel sums -a d(b1) d(b2) with
     d = f_a - f_a = 0); C_ab of two different materials is not 0 where the bowl sees itself."""

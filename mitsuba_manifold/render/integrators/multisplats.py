@@ -4,14 +4,21 @@ Level ``k`` of a path (:mod:`.records`) gives two splats (light connection, samp
 direction), each with ``k`` MERL bins ``b_1 .. b_k`` and an RGB amplitude ``a``: a material
 ``f`` adds ``a prod_j f(b_j)`` to the pixel (paper Sec. 5.2, the one-pass weight is the
 product of ``f / proxy`` over the path's vertices on the material). :class:`MultiSplats`
-sums that for every material (the ``L2+`` image of each, ``rest_i``) and, for the
-two-vertex splats and the pairs asked for, the cross terms
+sums that for every material (the ``L2+`` image of each, ``rest_i``) and, for the pairs
+asked for, the cross terms through the pair's midpoint ``m = (f_i + f_j) / 2``:
 
-    C_ij = 2 L2_ij - L2_ii - L2_jj = - sum a (f_i(b_1) - f_j(b_1)) (f_i(b_2) - f_j(b_2)),
+    C_ij = 4 R_m - 2 R_i - 2 R_j = sum a (4 prod_k m(b_k) - 2 prod_k f_i(b_k) - 2 prod_k f_j(b_k)),
 
-``L2_ij = sum a (f_i(b_1) f_j(b_2) + f_j(b_1) f_i(b_2)) / 2``, with which the blend
-``sum_i w_i I_i + sum_{i<j} w_i w_j C_ij`` is exact for two-vertex paths (affine weights).
-Nearest lookups and a box filter only (the table product of :class:`.splats.TableSplats`).
+over the splats of every level (``R``: the ``L2+`` image of a material). With them the blend
+``sum_i w_i I_i + sum_{i<j} w_i w_j C_ij`` is, along the segment between two materials, the
+quadratic through its ends and its midpoint: exact there for every number of vertices on the
+material, and everywhere on the segment for two-vertex paths, where ``C_ij`` is the paper's
+second-order term ``2 L2_ij - L2_ii - L2_jj = - sum a (f_i(b_1) - f_j(b_1)) (f_i(b_2) - f_j(b_2))``
+(computed in that form). Where paths touch the material three or more times, a cross term of
+two-vertex paths alone leaves the blend of two materials that see themselves differently
+(white-paint and blue-rubber on the table's bowl) 1.7% too bright at their midpoint, with the
+noise of the brighter one's ``L2+`` (``docs/benchmarks.md``). Nearest lookups and a box filter
+only (the table product of :class:`.splats.TableSplats`).
 """
 
 import drjit as dr
@@ -31,7 +38,7 @@ def _bins(wi, wo, dims):
 
 class MultiSplats:
     """Per-pixel sums of ``a prod_j max(f_i(b_j), 0)`` over levels ``2 .. levels`` for every
-    material, and of the cross terms of ``pairs`` (index pairs) over level 2.
+    material, and of the cross terms of ``pairs`` (index pairs) over every level.
 
     ``rows`` is the flat ``(bins, 3, n_pad)`` table of :class:`.splats.TableSplats`.
     """
@@ -48,7 +55,7 @@ class MultiSplats:
 
     def prepare(self, rec, weight, pixel, seed=0):
         """Splats of levels ``2 ..`` of one pass (``weight``: the camera sample weight; ``seed``:
-        of the pass, for the choice of the two-vertex splats that the cross terms use)."""
+        of the pass, for the choice of the splats that the cross terms use)."""
         self.seed = int(seed)
         levels = rec["levels"]
         self.counts += np.bincount(np.minimum(rec["count"].numpy(), self.levels + 1),
@@ -77,14 +84,14 @@ class MultiSplats:
                 self.splats.append((k, bins, amp, pix))
 
     def add(self):
-        """Add the prepared splats to the ``L2+`` sums and (two-vertex ones) the cross terms.
+        """Add the prepared splats to the ``L2+`` sums and the cross terms.
 
-        The cross terms use each two-vertex splat with probability ``cross_fraction`` (weighted by
+        The cross terms use each splat with probability ``cross_fraction`` (weighted by
         its inverse: unbiased), which bounds their cost where many pairs are stored."""
         rng = np.random.default_rng([self.seed, 21])
         for k, bins, amp, pix in self.splats:
             self._rest(bins, amp, pix)
-            if k != 2 or not self.pairs:
+            if not self.pairs:
                 continue
             if self.cross_fraction < 1.0:
                 pick = np.flatnonzero(rng.random(dr.width(pix)) < self.cross_fraction).astype(np.uint32)
@@ -119,15 +126,21 @@ class MultiSplats:
         s, p = lane // n, lane % n
         pi = dr.gather(mi.UInt32, mi.UInt32([i for i, _ in pairs]), p)
         pj = dr.gather(mi.UInt32, mi.UInt32([j for _, j in pairs]), p)
-        b1, b2 = dr.gather(mi.UInt32, bins[0], s), dr.gather(mi.UInt32, bins[1], s)
+        b = [dr.gather(mi.UInt32, v, s) for v in bins]
         q = dr.gather(mi.UInt32, pix, s)
         a = dr.gather(mi.Color3f, amp, s)
         f = lambda b, c, i: dr.maximum(dr.gather(mi.Float, self.rows, (b * 3 + c) * self.n_pad + i), 0.0)  # noqa: E731
         with _expand(sums):
             for c in range(3):
-                d1 = f(b1, c, pi) - f(b1, c, pj)
-                d2 = f(b2, c, pi) - f(b2, c, pj)
-                dr.scatter_add(sums, -a[c] * d1 * d2, (q * 3 + c) * n + p, mode=dr.ReduceMode.Expand)
+                if len(b) == 2:   # the difference form: exactly 0 for equal materials, no cancellation
+                    term = -a[c] * (f(b[0], c, pi) - f(b[0], c, pj)) * (f(b[1], c, pi) - f(b[1], c, pj))
+                else:
+                    ti, tj, tm = a[c], a[c], a[c]
+                    for bk in b:
+                        fi, fj = f(bk, c, pi), f(bk, c, pj)
+                        ti, tj, tm = ti * fi, tj * fj, tm * (0.5 * (fi + fj))
+                    term = 4.0 * tm - 2.0 * ti - 2.0 * tj
+                dr.scatter_add(sums, term, (q * 3 + c) * n + p, mode=dr.ReduceMode.Expand)
             dr.eval(sums)
 
     def release(self):

@@ -132,7 +132,8 @@ class OnePassGI:
     ``base``: paths that never touch the material; ``touch[name]``: exactly once (L1-
     minus base); ``rest[name]``: two to ``levels`` times (``L2+``, those beyond ``levels``
     are cut: ``paths[levels + 1]`` of them); ``base + touch + rest`` is the material's full-GI
-    image. ``cross[(a, b)]``: ``C_ab = 2 L2_ab - L2_aa - L2_bb`` of the two-vertex paths.
+    image. ``cross[(a, b)]``: ``C_ab = 4 R_m - 2 R_a - 2 R_b`` (``R_m``: the ``L2+`` image of their midpoint
+    material; for two-vertex paths the paper's ``2 L2_ab - L2_aa - L2_bb``, :mod:`.multisplats`).
     ``paths[k]``: paths with ``k`` vertices on the material (``levels + 1``: more).
     """
 
@@ -153,7 +154,7 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     and the splats of levels ``2 .. levels`` make each material's ``L2+`` image and, for the
     pairs of material names ``pairs``, the cross terms (:mod:`.multisplats`). Nearest lookups
     and a box filter only. ``options``: ``chunk``, ``max_samples``, ``spp_per_pass``,
-    ``progress`` of :func:`render_onepass`, and ``cross_fraction`` (the share of the two-vertex
+    ``progress`` of :func:`render_onepass`, and ``cross_fraction`` (the share of the
     splats the cross terms use, each weighted by its inverse; default 1).
 
     Returns
