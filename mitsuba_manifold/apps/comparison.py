@@ -28,6 +28,7 @@ from ..basis.ownership import remove_basis
 from ..imaging import io as imageio, metrics, plots
 from ..manifold.model import Manifold
 from ..render import scenes as _scenes  # (gi_report has a parameter named scenes)
+from ..render.refine import refine
 from ..render.render_basis import render_basis
 from .._util.atomic import write_bytes
 from .._util.timing import median_time
@@ -95,6 +96,8 @@ class GISettings:
         Print a line per point.
     denoise : bool
         Also denoise the blends and the highest-spp direct render (OIDN, AOV guides).
+    refine_spp : int
+        Samples per pixel of the refined blend (``blend.py --refine``) at each point (0: none).
     """
     res: int = 128
     basis_spp: int = 64
@@ -105,6 +108,7 @@ class GISettings:
     save_images: bool = False
     progress: bool = False
     denoise: bool = False
+    refine_spp: int = 0
 
 
 def gi_report(folder, manifold=None, scenes=("sphere", "table"), out=None, plot=None, settings=None, **overrides):
@@ -147,7 +151,8 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
     remove_basis(folder_b)   # time a whole basis, not a resumed one (only a basis of its own)
     t0 = time.perf_counter()
     render_basis(scene_path, manifold_path, folder_b, spp=opts.basis_spp, mode=opts.mode, resolution=opts.res,
-                 seed=opts.seed, progress=opts.progress, aovs=opts.denoise)
+                 seed=opts.seed, progress=opts.progress, aovs=opts.denoise,
+                 components="auto" if opts.mode == "onepass" else "l1")
     t_basis = time.perf_counter() - t0
     b = Basis.load(folder_b, manifold=m)
     aovs = denoise_mod.BasisAOVs.load(folder_b, b.manifest) if opts.denoise else None
@@ -192,6 +197,8 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
         l1, _ = blend(b, m, x=x, component="l1")
         l1_bias, l1_se = relative_bias(l1, ref)
         row["blend_l1"] = {**metrics.compare(l1, ref), "relative_bias": l1_bias, "relative_bias_se": l1_se}
+    if opts.refine_spp:
+        row["refined"] = _refined_row(b, m, x, ref, opts)
     guides = den = None
     if aovs is not None:
         guides = (aovs.albedo_of_blend(info, b.manifest["version"]), aovs.normal)
@@ -207,6 +214,15 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
                                  **metrics.compare(d_den, ref)}
         row["direct"].append(entry)
     return row, (img, ref, den)
+
+
+def _refined_row(b, m, x, ref, opts):
+    """``blend.py --refine`` at ``x`` (:func:`~mitsuba_manifold.render.refine.refine`): time, error, noise."""
+    t0 = time.perf_counter()
+    r = refine(b, m, x=x, spp=opts.refine_spp, passes=min(4, opts.refine_spp), seed=opts.seed + 104729)
+    bias, se = relative_bias(r.image, ref)
+    return {"spp": opts.refine_spp, "time_s": time.perf_counter() - t0, **metrics.compare(r.image, ref),
+            "relative_bias": bias, "relative_bias_se": se, "noise_rel_mse": r.noise_rel_mse}
 
 
 def extrapolation_sheet(basis, m, pair, stem, steps=12, reach=3.0, log=None):

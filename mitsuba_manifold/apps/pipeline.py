@@ -67,7 +67,7 @@ class MainJob:
     preset: str = "default"
     scene: str = "table"
     res: int = 256
-    spp: int = 1024
+    spp: int = 512
     ref_spp: int = 2048
     mode: str = "onepass"
     direct_spp: tuple = (1, 4, 16, 64, 256)
@@ -91,7 +91,7 @@ class MainJob:
         validate.positive_int("`res`", res, "256")
         held = len(database.load_sgd_fits()) + 2 if self.mode == "onepass" else 6   # as render_basis holds them
         validate.fits_in_memory("`res`", 2 * held * res * res * 3 * 4, f"{self.mode} basis images of {res}x{res}")
-        validate.positive_int("`spp`", self.spp, "1024")
+        validate.positive_int("`spp`", self.spp, "512")
         validate.positive_int("`ref_spp`", self.ref_spp, "2048")
         for s in self.direct_spp:
             validate.positive_int("`direct_spp`", s, "64")
@@ -145,7 +145,8 @@ def _run(job, log):
     t0 = time.perf_counter()
     report = gi_report(db_dir, manifold=manifold_path, scenes=(job.scene,), out=os.path.join(job.out, "gi"),
                        res=job.res, basis_spp=job.spp, ref_spp=job.ref_spp, mode=job.mode,
-                       direct_spp=job.direct_spp, save_images=True, progress=True, denoise=job.denoise)
+                       direct_spp=job.direct_spp, save_images=True, progress=True, denoise=job.denoise,
+                       refine_spp=max(1, max(job.direct_spp) // 4))
     t_gi = time.perf_counter() - t0
     sc = report["scenes"][job.scene]
     stages["basis_s"] = sc["basis_time_s"]
@@ -203,6 +204,13 @@ def _log_points(points, top, log):
             f"PSNR {b['psnr']:.1f} dB, bias {100 * b['relative_bias']:+.2f}% | direct {top} spp "
             f"{d['time_s']:.2f} s, rel. MSE {d['rel_mse']:.3g} | blend {v['speedup']:.0f}x faster, "
             f"{'lower' if v['meets_error_target'] else 'HIGHER'} error")
+        if "blend_l1" in row:
+            log(f"{'':>12s} L1- blend (no L2+): rel. MSE {row['blend_l1']['rel_mse']:.3g}, bias "
+                f"{100 * row['blend_l1']['relative_bias']:+.2f}%")
+        if "refined" in row:
+            r = row["refined"]
+            log(f"{'':>12s} refined ({r['spp']} spp of L2+): {r['time_s']:.2f} s, rel. MSE {r['rel_mse']:.3g}, "
+                f"bias {100 * r['relative_bias']:+.2f}%")
         if "denoised" in b:
             log(f"{'':>12s} denoised (OIDN, albedo+normal): blend {1e3 * b['denoised']['time_s']:.0f} ms, "
                 f"rel. MSE {b['denoised']['rel_mse']:.3g} (raw {b['rel_mse']:.3g}) | direct {top} spp "

@@ -48,16 +48,17 @@ BLEND_COMPONENTS = ("full", "l1")
 
 
 def resolve_component(basis, component=None):
-    """``(component used, note)`` of a blend of ``basis`` asked for ``component`` (None: "l1").
+    """``(component used, note)`` of a blend of ``basis`` asked for ``component`` (None: "full").
 
-    The default is L1- (Eq. 13) until the variance of the one-pass L2+ images is bounded: on the
-    main job's basis (table, 256x256, 1024 spp) the full-GI blend removed the bias at white-paint
-    (-9.3% to -0.65%) but its fireflies raised the relative MSE from 0.014 to 0.10 (docs/benchmarks.md).
+    The default is the full-GI blend wherever the basis holds full-GI images (the paper's
+    practice, Sec. 5.2): exact at every training material, and with the cross terms through
+    each pair's midpoint (:mod:`.crossterms`) within 0.2% at the midpoint of white-paint and
+    blue-rubber on the table, where the L1- blend is 1.9% too dark (``docs/benchmarks.md``).
 
     "full" on a basis without full-GI images blends L1-; the note says why (empty when the
     basis holds what was asked). An older basis (no ``components`` in its manifest) also
     warns, once per :class:`Basis`."""
-    component = "l1" if component is None else str(component)
+    component = "full" if component is None else str(component)
     if component not in BLEND_COMPONENTS:
         raise MismatchError(f"`component` must be one of {BLEND_COMPONENTS}, got {component!r}")
     if component == "l1" or "l2+" in basis.components:

@@ -239,6 +239,8 @@ class Basis:
         self.read(keys)
         rows = np.array([self._rows[k] for k in keys], dtype=np.intp)
         n = len(self._rows)
+        if weights.ndim == 1 and len(rows):   # one image: in-place axpy, no gathered copy
+            return _axpy_sum(self._store, rows, weights)
         if 2 * len(rows) >= n:
             dense = np.zeros(weights.shape[:-1] + (n,), dtype=np.float32)
             dense[..., rows] = weights
@@ -294,3 +296,16 @@ class Basis:
                     "latent points, hyperparameters, materials or tables)")
         self._checked[key] = m
         return m
+
+
+def _axpy_sum(store, rows, weights):
+    """``sum_j weights[j] * store[rows[j]]`` (float32) by in-place NumPy passes over the images
+    used, without gathering them (a ``tensordot`` copies them first) and without BLAS, whose
+    threads, on a busy machine, took tens of milliseconds to wake for a product this small."""
+    out = np.zeros(store.shape[1:], dtype=np.float32)
+    tmp = np.empty_like(out)
+    for r, w in zip(rows, weights):
+        if w != 0.0:
+            np.multiply(store[r], w, out=tmp)
+            out += tmp
+    return out

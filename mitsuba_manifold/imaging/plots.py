@@ -243,8 +243,16 @@ def gi_error_vs_time(report, path):
             d = row["direct"]
             ax.loglog([r["time_s"] for r in d], [r["rel_mse"] for r in d], "o-", color=colour,
                       label=f"direct render, {row['point']}")
+            comp = "full-GI blend" if row["blend"].get("component") == "full" else "L1- blend"
             ax.loglog([row["blend"]["time_s"]], [row["blend"]["rel_mse"]], "*", ms=14, color=colour,
-                      label=f"blend, {row['point']}")
+                      label=f"{comp}, {row['point']}")
+            if "blend_l1" in row:   # the L1- blend of the same basis, at the full-GI blend's time
+                ax.loglog([row["blend"]["time_s"]], [row["blend_l1"]["rel_mse"]], "x", ms=10, color=colour,
+                          label=f"L1- blend, {row['point']}")
+            if "refined" in row:
+                r = row["refined"]
+                ax.loglog([r["time_s"]], [r["rel_mse"]], "D", ms=8, color=colour,
+                          label=f"refined ({r['spp']} spp L2+), {row['point']}")
             if "denoised" in row["blend"]:  # denoised figures beside (never instead of) the raw ones
                 den = row["blend"]["denoised"]
                 ax.loglog([den["time_s"]], [den["rel_mse"]], "P", ms=10, color=colour, mfc="none",

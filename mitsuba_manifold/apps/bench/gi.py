@@ -129,7 +129,8 @@ def blend_time(manifold, out, res=256, scene="table", spp=1, points=20, log=prin
     from ...basis.crossterms import explored_points
     m = Manifold.load(manifold)
     folder = os.path.join(out, f"blend_time_{scene}_{res}")
-    manifest, t, size = _basis(_scenes.scene_path(scene), manifold, folder, spp=spp, resolution=res)
+    manifest, t, size = _basis(_scenes.scene_path(scene), manifold, folder, spp=spp, resolution=res,
+                               components="auto")
     b = Basis.load(folder, manifold=m)
     pts = explored_points(m)[m.n:m.n + points]
     res_ms = {}

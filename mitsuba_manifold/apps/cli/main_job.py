@@ -28,7 +28,8 @@ def main(argv=None):
                         "latent point; see the README)")
     p.add_argument("--scene", default="table", help="shipped scene name or scene XML for the GI part (default table)")
     p.add_argument("--res", type=int, default=256, help="image size (default 256)")
-    p.add_argument("--spp", type=int, default=1024, help="basis samples per pixel (default 1024)")
+    p.add_argument("--spp", type=int, default=512, help="basis samples per pixel (default 512; the basis holds "
+                                                        "full-GI images, about 3x the cost of L1- ones)")
     p.add_argument("--ref-spp", type=int, default=2048, help="reference samples per pixel (default 2048)")
     p.add_argument("--no-denoise", action="store_true", help="skip the AOVs and the denoised figures")
     p.add_argument("--mode", choices=["onepass", "per-material"], default="onepass")

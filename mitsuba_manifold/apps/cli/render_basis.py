@@ -61,9 +61,10 @@ def main(argv=None):
     p.add_argument("--radius", type=float, default=None, help="radius for --near")
     p.add_argument("--mode", choices=["onepass", "per-material"], default="onepass",
                    help="all materials from one set of paths (default) or one render per material")
-    p.add_argument("--components", choices=["l1", "full"], default="l1",
-                   help="l1: the L1- images (default); full (one-pass mode): also every material's full-GI "
-                        "image and the cross terms of the pairs blended together (blend.py --component full)")
+    p.add_argument("--components", choices=["l1", "full"], default="full",
+                   help="full (default, one-pass mode): also every material's full-GI image and the cross terms "
+                        "of the pairs blended together, left out where the scene does not need them (a convex "
+                        "object alone); l1: the L1- images only (about 3x faster to render)")
     p.add_argument("--res", type=int, default=None, help="square resolution (scenes taking $res)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-depth", type=int, default=None, help="path depth (-1: unbounded; default: the scene's $max_depth)")
