@@ -243,9 +243,21 @@ def compose(basis, keys, weights, cross=None):
     if basis.p == 1:
         images += basis.image(BASE)
     if cross is not None and len(cross[0]):
-        terms = basis.cross_terms()[1][cross[0]].astype(np.float32)   # the rows used, float16 -> 32
-        images += np.tensordot(np.asarray(cross[1], np.float32), terms, axes=1)
+        _add_cross(images, basis, cross[0], np.asarray(cross[1], np.float32))
     return images, t_read, time.perf_counter() - t0
+
+
+def _add_cross(images, basis, rows, products):
+    """``images += sum_r products[..., r] C[rows[r]]``: one image in place, term by term, from the
+    float32 rows the basis keeps (:meth:`Basis.cross_term`); a sequence by ``tensordot``."""
+    if products.ndim == 1:
+        tmp = np.empty(images.shape, np.float32)
+        for r, p in zip(rows, products):
+            if p != 0.0:
+                np.multiply(basis.cross_term(int(r)), p, out=tmp)
+                images += tmp
+        return
+    images += np.tensordot(products, basis.cross_terms()[1][rows].astype(np.float32), axes=1)
 
 
 def _timed(fn):

@@ -53,7 +53,7 @@ def select_pairs(manifold, names, tol=CROSS_TOL, prune=None, points=None):
     stats : dict
         ``points``, ``pairs``, ``materials_per_point`` (median kept, or with weight ``>= tol``
         without pruning), ``left_weight`` (the
-        largest ``|w_i w_j|`` of a pair not stored).
+        largest ``|w_i w_j|`` of a pair not stored), ``products`` (each pair's largest ``|w_i w_j|``).
     """
     if not tol > 0:
         raise InputError(f"`tol` must be > 0, got {tol}")
@@ -79,7 +79,8 @@ def select_pairs(manifold, names, tol=CROSS_TOL, prune=None, points=None):
     pairs = [(manifold.names[i], manifold.names[j]) for i, j, c in zip(*iu, chosen) if c]
     left = best[iu][~chosen]
     return pairs, {"points": len(pts), "pairs": len(pairs), "materials_per_point": float(np.median(kept)),
-                   "left_weight": float(left.max()) if left.size else 0.0}
+                   "left_weight": float(left.max()) if left.size else 0.0,
+                   "products": [float(v) for v in best[iu][chosen]]}
 
 
 def cross_weights(names, weights, pairs):

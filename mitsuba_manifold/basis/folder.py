@@ -85,7 +85,8 @@ class Basis:
         #: What the basis holds (:data:`manifest.COMPONENTS`); an older basis: L1- only.
         self.components = list(manifest.get("components", ["l1"]))
         self.legacy = "components" not in manifest
-        self._cross = None  # (pairs {(a, b): row}, float32 (P, H, W, 3)) once read
+        self._cross = None  # (pairs {(a, b): row}, float16 (P, H, W, 3)) once read
+        self._cross32 = {}  # row -> float32 (H, W, 3), the rows blended so far
 
     @classmethod
     def load(cls, folder, manifold=None, scene=None, verify=False):
@@ -186,6 +187,14 @@ class Basis:
                                         f"the manifest says {w}x{h}")
                 self._cross = ({(str(a), str(b)): r for r, (a, b) in enumerate(pairs)}, images)
         return self._cross
+
+    def cross_term(self, row):
+        """Cross term ``row`` of :meth:`cross_terms` as float32 (H, W, 3), converted once and kept
+        (NumPy's float16 conversion costs more than the blend itself; only the rows blended are kept
+        twice)."""
+        if row not in self._cross32:
+            self._cross32[row] = self.cross_terms()[1][row].astype(np.float32)
+        return self._cross32[row]
 
     def key(self, materials):
         """Image key of one material name per target (:func:`image_key` for this basis's version)."""

@@ -20,6 +20,7 @@ import numpy as np
 from .._util.atomic import write_bytes
 from ..basis import folder as basis_folder
 from ..basis.crossterms import select_pairs
+from .integrators.multisplats import PairSelection
 
 
 #: File suffix of a material's full-GI image (``manifest["gi_images"]``) and the cross terms' file.
@@ -96,9 +97,10 @@ def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
     names = [combo[0] for _, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
     pairs, pstats = select_pairs(manifold, names, tol=o.cross_tol)
+    select = PairSelection(tuple(pstats.pop("products")), tol=o.cross_light_tol) if o.cross_light_tol else None
     t0 = time.perf_counter()
     with progress_bar("rendering basis (one pass, full GI)", o.progress, stop) as advance:
-        kwargs = {"progress": advance, "cross_fraction": o.cross_fraction}
+        kwargs = {"progress": advance, "cross_fraction": o.cross_fraction, "pair_selection": select}
         if o.chunk_spp:
             kwargs["spp_per_pass"] = o.chunk_spp
         r = _integrator(max_depth).render_onepass_gi(scene, materials=names, spp=o.spp, seed=o.seed,
@@ -108,7 +110,7 @@ def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
     needed, why, frac = needs_rest(r.paths, r.touch, r.rest, REST_TOL)
     stats = {"render_s": round(seconds, 3), "levels": int(o.levels), "paths_by_touches": [int(v) for v in r.paths],
              "cut_fraction": float(r.paths[-1] / max(1, r.paths.sum())), "rest_fraction": frac,
-             "pairs": pstats, "cross_fraction": float(o.cross_fraction)}
+             "pairs": pstats, "cross_fraction": float(o.cross_fraction), "pair_selection": r.selection}
     images = {keys[n]: np.asarray(r.touch[n], np.float32) for n in names}
     if any(combo is None for _, combo in todo):
         images[basis_folder.BASE] = np.asarray(r.base, np.float32)
@@ -134,5 +136,8 @@ def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
         manifest["cross"] = {"file": CROSS_FILE, "pairs": len(r.cross), "tol": float(o.cross_tol)}
         manifest["components"] = ["l1", "l2+", "cross"]
     else:
-        left["cross"] = f"no pair of materials reaches a weight product of {o.cross_tol:g} in the explored region"
+        sel = r.selection or {}
+        left["cross"] = (f"none of {sel['candidates']} candidate pairs would change its L2+ light by "
+                         f"{sel['tol']:g} (largest {sel['largest_left_out']:.2g})" if sel.get("candidates") else
+                         f"no pair of materials reaches a weight product of {o.cross_tol:g} in the explored region")
     basis_folder.write_manifest(out, manifest)

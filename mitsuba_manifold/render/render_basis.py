@@ -125,7 +125,11 @@ class BasisOptions:
         white-paint (the most interreflecting material): levels 3 cut 2.3% of its light, 4 cut
         0.7%, 5 cut 0.02% (the default), 8 (its ``max_depth``) nothing.
     cross_tol : float
-        Smallest weight product of a pair whose cross term is stored.
+        Smallest weight product of a candidate pair (one that some explored point blends).
+    cross_light_tol : float
+        Of the candidates, a cross term is stored when leaving it out could change the ``L2+``
+        light of its pair by at least this share, weight product included, measured on the
+        first pass (:class:`~.integrators.multisplats.PairSelection`); 0 stores every candidate.
     cross_fraction : float
         Share of the splats the cross terms use (unbiased; bounds their cost, but below 1 the
         per-path cancellation between the cross terms and the ``L2+`` images is lost and a
@@ -152,6 +156,7 @@ class BasisOptions:
     components: str = "l1"
     levels: int = 5
     cross_tol: float = 1e-3
+    cross_light_tol: float = 0.005
     cross_fraction: float = 1.0
 
 

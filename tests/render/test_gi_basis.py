@@ -78,6 +78,26 @@ def test_cross_term_of_two_identical_materials_vanishes(small_manifold):
     assert np.isfinite(c).all() and np.all(r.rest["gold-paint"] >= 0)
 
 
+def test_pair_selection_keeps_cross_terms_that_matter_and_drops_null_ones(small_manifold):
+    """Measured on the first pass: a pair of two identical materials (cross term exactly 0) is
+    dropped, a pair of different ones kept; the kept pair's term is the one computed without
+    selection on the same paths; the selection says what it measured."""
+    from mitsuba_manifold.render.integrators.multisplats import PairSelection
+
+    scene = load("table", small_manifold, "gold-paint", res=16)
+    pairs = [("gold-paint", "gold-paint"), ("gold-paint", "pink-fabric")]
+    sel = PairSelection(products=(0.25, 0.25), tol=1e-4, pilot=0.5)
+    integ = integrator(max_depth=8)
+    r = integ.render_onepass_gi(scene, spp=16, seed=3, levels=5, pairs=pairs, pair_selection=sel)
+    assert list(r.cross) == [("gold-paint", "pink-fabric")]
+    assert r.selection["candidates"] == 2 and r.selection["kept"] == 1 and r.selection["largest_left_out"] == 0
+    full = integ.render_onepass_gi(scene, spp=16, seed=3, levels=5, pairs=pairs)
+    np.testing.assert_allclose(r.cross[pairs[1]], full.cross[pairs[1]], rtol=1e-5, atol=1e-7)
+    none = integ.render_onepass_gi(scene, spp=16, seed=3, levels=5, pairs=pairs,
+                                   pair_selection=PairSelection(products=(0.25, 0.25), tol=1e9))
+    assert none.cross == {} and none.selection["kept"] == 0
+
+
 def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manifold):
     """A full-GI basis of the table: the manifest says what it holds; the default blend at a
     training point is ``base + F_i`` exactly, ``component="l1"`` is Eq. 13's ``base + I_i``;

@@ -21,6 +21,8 @@ noise of the brighter one's ``L2+`` (``docs/benchmarks.md``). Nearest lookups an
 only (the table product of :class:`.splats.TableSplats`).
 """
 
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -30,6 +32,21 @@ from .splats import PACKET
 
 #: Pairs of materials per cross-term kernel (bounds the per-thread copies of the sums).
 PAIR_CHUNK = 64
+
+
+@dataclass(frozen=True)
+class PairSelection:
+    """Which candidate pairs get a cross term, measured on the first pass (:meth:`MultiSplats.add`).
+
+    ``products``: each candidate's largest weight product in the explored region; a pair is kept
+    when ``products * sum|C_ij| >= tol * (R_i + R_j) / 2`` (sums over the image; ``C_ij`` from
+    a share ``pilot`` of the first pass's splats, ``R`` the materials' ``L2+`` light in that
+    pass): what leaving it out can change of the ``L2+`` light, at most ``tol``. Pairs of
+    materials that see themselves alike have cross terms within noise of 0 and are dropped."""
+
+    products: tuple
+    tol: float = 0.005
+    pilot: float = 0.125
 
 
 def _bins(wi, wo, dims):
@@ -43,13 +60,16 @@ class MultiSplats:
     ``rows`` is the flat ``(bins, 3, n_pad)`` table of :class:`.splats.TableSplats`.
     """
 
-    def __init__(self, rows, n_pad, names, dims, pixels, levels, pairs=(), cross_fraction=1.0):
+    def __init__(self, rows, n_pad, names, dims, pixels, levels, pairs=(), cross_fraction=1.0, select=None):
         self.rows, self.n_pad, self.names, self.dims = rows, int(n_pad), names, dims
         self.cross_fraction = float(cross_fraction)
-        self.pixels, self.levels, self.pairs = int(pixels), int(levels), list(pairs)
+        self.pixels, self.levels = int(pixels), int(levels)
+        self.candidates, self.select = list(pairs), select
+        # with a selection, the pairs are chosen on the first pass (:meth:`_choose`)
+        self.pairs = list(pairs) if select is None or not pairs else None
+        self.cross = self._sums(self.pairs or [])
+        self.selection = None   # what :meth:`_choose` measured
         self.sums = dr.zeros(mi.Float, self.pixels * 3 * self.n_pad)
-        self.cross = [dr.zeros(mi.Float, self.pixels * 3 * len(self.pairs[p0:p0 + PAIR_CHUNK]))
-                      for p0 in range(0, len(self.pairs), PAIR_CHUNK)]
         self.splats = []      # (k, [bins], amplitude, pixel) per level and kind
         self.counts = np.zeros(self.levels + 2, np.int64)   # paths by vertices on the target
 
@@ -83,26 +103,57 @@ class MultiSplats:
                 dr.eval(bins, amp, pix)
                 self.splats.append((k, bins, amp, pix))
 
+    def _sums(self, pairs):
+        return [dr.zeros(mi.Float, self.pixels * 3 * len(pairs[p0:p0 + PAIR_CHUNK]))
+                for p0 in range(0, len(pairs), PAIR_CHUNK)]
+
     def add(self):
-        """Add the prepared splats to the ``L2+`` sums and the cross terms.
+        """Add the prepared splats to the ``L2+`` sums and the cross terms (on the first pass
+        with a :class:`PairSelection`, after choosing the pairs).
 
         The cross terms use each splat with probability ``cross_fraction`` (weighted by
         its inverse: unbiased), which bounds their cost where many pairs are stored."""
         rng = np.random.default_rng([self.seed, 21])
         for k, bins, amp, pix in self.splats:
             self._rest(bins, amp, pix)
-            if not self.pairs:
-                continue
-            if self.cross_fraction < 1.0:
-                pick = np.flatnonzero(rng.random(dr.width(pix)) < self.cross_fraction).astype(np.uint32)
-                idx = mi.UInt32(pick)
-                bins = [dr.gather(mi.UInt32, b, idx) for b in bins]
-                amp = dr.gather(mi.Color3f, amp, idx) * (1.0 / self.cross_fraction)
-                pix = dr.gather(mi.UInt32, pix, idx)
-                if pick.size == 0:
-                    continue
-            for c, p0 in enumerate(range(0, len(self.pairs), PAIR_CHUNK)):
-                self._cross(self.cross[c], self.pairs[p0:p0 + PAIR_CHUNK], bins, amp, pix)
+        if self.pairs is None:
+            self._choose(rng)
+        if self.pairs:
+            for k, bins, amp, pix in self.splats:
+                self._cross_all(self.cross, self.pairs, bins, amp, pix, self.cross_fraction, rng)
+
+    def _cross_all(self, sums, pairs, bins, amp, pix, fraction, rng):
+        """The cross terms of ``pairs`` into ``sums`` from a share ``fraction`` of the splats."""
+        if fraction < 1.0:
+            pick = np.flatnonzero(rng.random(dr.width(pix)) < fraction).astype(np.uint32)
+            if pick.size == 0:
+                return
+            idx = mi.UInt32(pick)
+            bins = [dr.gather(mi.UInt32, b, idx) for b in bins]
+            amp = dr.gather(mi.Color3f, amp, idx) * (1.0 / fraction)
+            pix = dr.gather(mi.UInt32, pix, idx)
+        for c, p0 in enumerate(range(0, len(pairs), PAIR_CHUNK)):
+            self._cross(sums[c], pairs[p0:p0 + PAIR_CHUNK], bins, amp, pix)
+
+    def _choose(self, rng):
+        """Keep the candidate pairs whose cross term matters (:class:`PairSelection`), measured
+        on this first pass: every candidate's cross term from a share ``pilot`` of its splats."""
+        sel = self.select
+        pilot = self._sums(self.candidates)
+        for k, bins, amp, pix in self.splats:
+            self._cross_all(pilot, self.candidates, bins, amp, pix, sel.pilot, rng)
+        mag = np.concatenate([np.abs(p.numpy().reshape(self.pixels * 3, -1)).sum(axis=0) for p in pilot]) \
+            if pilot else np.zeros(0)
+        light = self.sums.numpy().reshape(self.pixels * 3, self.n_pad).sum(axis=0)
+        i, j = (np.array([p[k] for p in self.candidates], dtype=int) for k in (0, 1))
+        ref = np.maximum(0.5 * (light[i] + light[j]), 1e-30)
+        score = np.asarray(sel.products, float) * mag / ref
+        keep = score >= sel.tol
+        self.pairs = [p for p, k in zip(self.candidates, keep) if k]
+        self.cross = self._sums(self.pairs)
+        left = score[~keep]
+        self.selection = {"candidates": len(self.candidates), "kept": len(self.pairs), "tol": sel.tol,
+                          "pilot": sel.pilot, "largest_left_out": float(left.max()) if left.size else 0.0}
 
     def _rest(self, bins, amp, pix):
         packets = self.n_pad // PACKET
@@ -152,9 +203,9 @@ class MultiSplats:
         sums = self.sums.numpy().reshape(self.pixels, 3, self.n_pad) * scale[:, None, None]
         rest = {n: np.ascontiguousarray(sums[:, :, k].reshape(shape), np.float32)
                 for k, n in enumerate(self.names)}
-        cross = {}
-        for c, p0 in enumerate(range(0, len(self.pairs), PAIR_CHUNK)):
-            chunk = self.pairs[p0:p0 + PAIR_CHUNK]
+        cross, pairs = {}, self.pairs or []
+        for c, p0 in enumerate(range(0, len(pairs), PAIR_CHUNK)):
+            chunk = pairs[p0:p0 + PAIR_CHUNK]
             part = self.cross[c].numpy().reshape(self.pixels, 3, len(chunk)) * scale[:, None, None]
             for k, (i, j) in enumerate(chunk):
                 cross[(self.names[i], self.names[j])] = np.ascontiguousarray(part[:, :, k].reshape(shape),

@@ -143,6 +143,7 @@ class OnePassGI:
     cross: dict
     paths: np.ndarray
     levels: int
+    selection: dict = None   # what the pair selection measured (``pair_selection``), or None
 
 
 def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(),
@@ -155,7 +156,9 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     pairs of material names ``pairs``, the cross terms (:mod:`.multisplats`). Nearest lookups
     and a box filter only. ``options``: ``chunk``, ``max_samples``, ``spp_per_pass``,
     ``progress`` of :func:`render_onepass`, and ``cross_fraction`` (the share of the
-    splats the cross terms use, each weighted by its inverse; default 1).
+    splats the cross terms use, each weighted by its inverse; default 1) and ``pair_selection``
+    (a :class:`.multisplats.PairSelection`: ``pairs`` are candidates, those whose cross term
+    matters are kept, measured on the first pass).
 
     Returns
     -------
@@ -166,11 +169,12 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     fraction = float(options.get("cross_fraction", 1.0))
     if not 0 < fraction <= 1:
         raise InputError(f"manifold_path: `cross_fraction` must be in (0, 1], got {fraction}")
-    gi = {"levels": int(levels), "pairs": [tuple(str(n) for n in p) for p in pairs], "cross_fraction": fraction}
+    gi = {"levels": int(levels), "pairs": [tuple(str(n) for n in p) for p in pairs], "cross_fraction": fraction,
+          "select": options.get("pair_selection")}
     base, touch, extra = _render(integrator, scene, materials, spp, seed, sensor,
                                  options.get("chunk"), options.get("max_samples", 1 << 22),
                                  options.get("spp_per_pass"), options.get("progress"), gi)
-    return OnePassGI(base, touch, extra["rest"], extra["cross"], extra["paths"], int(levels))
+    return OnePassGI(base, touch, extra["rest"], extra["cross"], extra["paths"], int(levels), extra["selection"])
 
 
 def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples, spp_per_pass, progress,
@@ -226,7 +230,8 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
         if bad:
             raise InputError(f"manifold_path: `pairs` must name two rendered materials each, got {bad[0]!r}")
         multi = MultiSplats(splat.rows, splat.n_pad, names, dims, splat.pixels, levels,
-                            [(index[a], index[b]) for a, b in gi["pairs"]], gi.get("cross_fraction", 1.0))
+                            [(index[a], index[b]) for a, b in gi["pairs"]], gi.get("cross_fraction", 1.0),
+                            gi.get("select"))
 
     done, total = 0, len(passes) * len(chunks)
     # Mitsuba's own sampler seeding and primary rays (they use nothing of their instance).
@@ -261,7 +266,7 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     if multi is None:
         return base, images, None
     rest, cross = multi.images(splat.scale(), base.shape)
-    return base, images, {"rest": rest, "cross": cross, "paths": multi.counts}
+    return base, images, {"rest": rest, "cross": cross, "paths": multi.counts, "selection": multi.selection}
 
 
 class OnePassImages(NamedTuple):
