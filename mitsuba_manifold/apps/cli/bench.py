@@ -5,6 +5,7 @@
   pca        PCA reconstruction error of training tables vs the manifold's exact reproduction
   bsdf       manifold_brdf vs roughconductor render time, cdf vs cosine sampling error, construction time
   gi         blend vs direct re-rendering: error against run time on sphere.xml and table.xml
+  gi-targets full-GI bases: bias and error of L1-, full-GI, refined blends and direct renders, basis cost, blend time
   stability  cond(K), weights, clamping and precision over stiff and extreme cases
   basis      one-pass vs per-material basis rendering
   match      inverse rendering on a basis: speed (--basis, a full basis) and accuracy on table/sphere
@@ -30,7 +31,7 @@ from .common import ArgumentParser, guarded, parse_indices, parse_list
 
 
 #: Benchmarks that take a saved manifold (the others fit their own).
-WITH_MANIFOLD = ("interp", "bsdf", "gi", "stability", "basis", "match", "match-render", "explore", "prune")
+WITH_MANIFOLD = ("interp", "bsdf", "gi", "gi-targets", "stability", "basis", "match", "match-render", "explore", "prune")
 
 
 @guarded

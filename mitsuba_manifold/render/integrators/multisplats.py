@@ -39,10 +39,10 @@ class PairSelection:
     """Which candidate pairs get a cross term, measured on the first pass (:meth:`MultiSplats.add`).
 
     ``products``: each candidate's largest weight product in the explored region; a pair is kept
-    when ``products * sum|C_ij| >= tol * (R_i + R_j) / 2`` (sums over the image; ``C_ij`` from
-    a share ``pilot`` of the first pass's splats, ``R`` the materials' ``L2+`` light in that
-    pass): what leaving it out can change of the ``L2+`` light, at most ``tol``. Pairs of
-    materials that see themselves alike have cross terms within noise of 0 and are dropped."""
+    when ``products * |sum C_ij| >= tol * (R_i + R_j) / 2`` (sums over the image, the largest
+    channel; ``C_ij`` from a share ``pilot`` of the first pass's splats, ``R`` the materials'
+    ``L2+`` light in that pass): what leaving it out changes of the ``L2+`` light, at most
+    ``tol``. Pairs of materials that see themselves alike have cross terms near 0 and are dropped."""
 
     products: tuple
     tol: float = 0.005
@@ -142,9 +142,10 @@ class MultiSplats:
         pilot = self._sums(self.candidates)
         for k, bins, amp, pix in self.splats:
             self._cross_all(pilot, self.candidates, bins, amp, pix, sel.pilot, rng)
-        mag = np.concatenate([np.abs(p.numpy().reshape(self.pixels * 3, -1)).sum(axis=0) for p in pilot]) \
-            if pilot else np.zeros(0)
-        light = self.sums.numpy().reshape(self.pixels * 3, self.n_pad).sum(axis=0)
+        # the light a cross term moves, per channel over the image (where per-pixel noise cancels)
+        mag = np.concatenate([np.abs(p.numpy().reshape(self.pixels, 3, -1).sum(axis=0)).max(axis=0)
+                              for p in pilot]) if pilot else np.zeros(0)
+        light = self.sums.numpy().reshape(self.pixels, 3, self.n_pad).sum(axis=0).max(axis=0)
         i, j = (np.array([p[k] for p in self.candidates], dtype=int) for k in (0, 1))
         ref = np.maximum(0.5 * (light[i] + light[j]), 1e-30)
         score = np.asarray(sel.products, float) * mag / ref
