@@ -246,6 +246,9 @@ class Database:
                 raise FormatError(f"database folder {folder} holds no .binary tables")
         else:
             names = list(names)
+            if not names:
+                raise FormatError(f"database {folder}: `names` is empty; give at least one material name "
+                                  "(or None for every table of the folder)")
             bad = [n for n in names if not isinstance(n, str) or not n or "/" in n or os.sep in n or "\0" in n]
             if bad:
                 raise FormatError(f"database {folder}: material names {bad} are not file names in the folder "

@@ -9,6 +9,7 @@ computed from the tables on first use when a manifold file of an earlier release
 and the combination itself, reading only the kept tables.
 """
 
+import numbers
 import os
 from typing import NamedTuple
 
@@ -142,8 +143,8 @@ class TrainingTables:
         n = len(self.names)
         if w.shape != (n,) or not np.isfinite(w).all():
             raise InputError(f"weights must be {n} finite values, got shape {w.shape}")
-        if not 0 <= budget < 1:
-            raise InputError(f"`prune` must be in [0, 1), got {budget}")
+        if isinstance(budget, (bool, np.bool_)) or not isinstance(budget, numbers.Real) or not 0 <= budget < 1:
+            raise InputError(f"`prune` must be in [0, 1), got {budget!r}")
         if rule not in RULES:
             raise InputError(f"`rule` must be one of {', '.join(map(repr, RULES))}, got {rule!r}")
         return w

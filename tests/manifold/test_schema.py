@@ -157,3 +157,15 @@ def test_any_array_in_an_array_field_loads_or_is_refused_naming_it(tmp_path, sav
         Manifold.load(path)
     except FormatError as e:
         assert f"its {field} " in str(e), str(e)
+
+
+def test_api_values_of_the_wrong_kind_are_one_input_error(small_db, small_manifold):
+    """Tracebacks of issue 20: a text prune, an empty names list, a text interpolant parameter."""
+    from mitsuba_manifold.errors import InputError
+    m = Manifold.load(small_manifold)
+    with pytest.raises(InputError, match=r"`prune` must be in \[0, 1\), got '0.1'"):
+        m.interpolate(m.latent[0], prune="0.1")
+    with pytest.raises(InputError, match="`names` is empty"):
+        Manifold.fit(small_db, names=[])
+    with pytest.raises(InputError, match="interpolant 'shepard'"):
+        Manifold.fit(small_db, interpolant={"taper": "x"}, max_iter=1)
