@@ -14,7 +14,7 @@ import numpy as np
 from . import gram as gram_matrix, merl
 from .surrogate import FITS_PATH, SGD_FIELDS, load_sgd_fits, sgd_reflectance, tabulate_sgd
 from .surrogate import bin_geometry
-from .._util.atomic import is_temporary
+from .._util.atomic import is_temporary, sweep
 from .._util.locking import FolderLock
 from .._util.ownership import owned_tables, write_table_record
 from .._util.workers import owned_pool
@@ -84,6 +84,8 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     if os.path.isdir(out_dir):  # refuse before locking: a refused run adds nothing to the folder
         owned_tables(out_dir, settings, names, force)
     with FolderLock(out_dir, "database folder"):
+        for folder in (out_dir, cache_folder(out_dir)):   # temporaries of killed writers (a killed run's)
+            sweep(folder)
         made = owned_tables(out_dir, settings, names, force)
         paths = [os.path.join(out_dir, name + ".binary") for name in names]
         todo = [(name, path) for name, path in zip(names, paths)
