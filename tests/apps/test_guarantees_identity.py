@@ -130,8 +130,9 @@ def test_chunks_of_other_settings_are_rendered_again_and_a_finished_run_is_not(t
         run = chunks.render_chunked(SPHERE, m, out, spp=4, chunks=2, seed=7, **OPTIONS)
         assert [r[0] for r in run.rendered] == ["000-of-002", "001-of-002"] and run.resumed == []
         assert run.manifest["spp"] == 4 and run.manifest["seed"] == 7
-        for key, img in _images(out).items():
-            np.testing.assert_array_equal(img, _images(tmp_path / "clean")[key])
+        for key, img in _images(out).items():   # the same samples (threads may sum them in another order)
+            want = _images(tmp_path / "clean")[key]
+            np.testing.assert_allclose(img, want, rtol=2e-6, atol=1e-7 * max(1.0, float(want.max())))
     before = snapshot(tmp_path / "clean")
     again = chunks.render_chunked(SPHERE, m, str(tmp_path / "clean"), spp=4, chunks=2, seed=7, **OPTIONS)
     assert again.rendered == [] and again.manifest["images"].keys() == clean.manifest["images"].keys()
