@@ -93,23 +93,25 @@ def open_folder(out, manifest, files, force=False, read_images=True):
         return {}
     if not read_images:
         return dict(old["images"])
-    kept = {}
-    w, h = manifest["resolution"]
-    for key, entry in old["images"].items():
-        path = os.path.join(out, entry["file"])
-        try:
-            imageio.check_exr_header(path, (w, h))
-            imageio.read_exr(path)  # a killed writer never leaves a partial file, but check anyway
-            valid = not basis_folder.image_changed(out, entry)
-        except (FormatError, OSError):
-            valid = False
-        if valid:
-            kept[key] = entry
-        elif os.path.lexists(path) and ownership.read_only(path):
-            raise InputError(f"{path} is not the image render_basis wrote (changed or damaged since) and is "
-                             "read-only; not replacing it: make it writable to render it again, or choose "
-                             "another folder")
-    return kept
+    size = tuple(manifest["resolution"])
+    return {key: entry for key, entry in old["images"].items() if image_still_valid(out, entry, size)}
+
+
+def image_still_valid(out, entry, size):
+    """True when the image of manifest ``entry`` in ``out`` is the one written (its SHA-256, when
+    recorded), readable and of ``size``; one that is not and is read-only is refused (InputError)."""
+    path = os.path.join(out, entry["file"])
+    try:
+        imageio.check_exr_header(path, size)
+        imageio.read_exr(path)  # a killed writer never leaves a partial file, but check anyway
+        valid = not basis_folder.image_changed(out, entry)
+    except (FormatError, OSError):
+        valid = False
+    if not valid and os.path.lexists(path) and ownership.read_only(path):
+        raise InputError(f"{path} is not the image render_basis wrote (changed or damaged since) and is "
+                         "read-only; not replacing it: make it writable to render it again, or choose "
+                         "another folder")
+    return valid
 
 
 def _clear_pending(out, old, remove):
