@@ -129,7 +129,7 @@ JSON = st.recursive(st.none() | st.booleans() | st.integers(-10, 10) | st.floats
                                                                                               max_size=3), max_leaves=6)
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(field=st.sampled_from(["version", "names", "database", "hashes", "length_scale", "noise", "features",
                               "info", "interpolant"]), value=JSON)
 def test_any_json_in_a_meta_field_loads_or_is_refused_naming_it(tmp_path, saved, field, value):
@@ -145,7 +145,7 @@ ARRAY = st.tuples(st.sampled_from(["f8", "f4", "i4", "u1", "c16", "?", "U2"]),
                   st.lists(st.integers(0, 9), max_size=3))
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(field=st.sampled_from(["latent", "history", "albedos", "gram", "table_gram", "cos_gram"]), spec=ARRAY,
        seed=st.integers(0, 3))
 def test_any_array_in_an_array_field_loads_or_is_refused_naming_it(tmp_path, saved, field, spec, seed):
