@@ -288,9 +288,13 @@ class Outputs:
 DATABASE_JSON = "database.json"
 
 
-def write_table_record(out_dir, settings, made):
-    """Write ``<out_dir>/database.json``: ``settings`` and the names of the tables made."""
-    text = json.dumps({**settings, "tables": sorted(made)}, indent=1)
+def write_table_record(out_dir, settings, made, pending=()):
+    """Write ``<out_dir>/database.json``: ``settings``, the names of the tables made and of those
+    being written (``pending``, left out when empty: a run killed while writing them owns them)."""
+    record = {**settings, "tables": sorted(made)}
+    if pending:
+        record["pending"] = sorted(pending)
+    text = json.dumps(record, indent=1)
     write_bytes(os.path.join(out_dir, DATABASE_JSON), text)
 
 
@@ -299,7 +303,8 @@ def owned_tables(out_dir, settings, names, force):
 
     Raises when the folder was made with other settings (and holds tables of them), or when
     a table to write exists without having been made here (unless ``force``; never a
-    read-only one). A ``database.json`` without a table list (older versions) owns every
+    read-only one). The tables listed as ``pending`` (being written by a run that was killed)
+    are its own too. A ``database.json`` without a table list (older versions) owns every
     table of the folder.
     """
     path = os.path.join(out_dir, DATABASE_JSON)
@@ -309,7 +314,8 @@ def owned_tables(out_dir, settings, names, force):
             with open(path, encoding="utf-8") as f:
                 old = json.load(f)
             listed = old.get("tables", None)
-        except (OSError, ValueError, AttributeError):
+            listed = None if listed is None else list(listed) + list(old.get("pending", []))
+        except (OSError, ValueError, AttributeError, TypeError):
             raise ForeignFileError(f"{path} is not a database.json written by make_database; "
                                    "choose another folder") from None
         present = {n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary") and not n.startswith(".")}

@@ -17,14 +17,14 @@ from ..manifold.identity import manifold_identity
 from .._util.cache import file_hash
 from .manifest import (BASE, FORMAT, FORMAT_VERSION, MANIFEST, MODES, SEP, SETTINGS, image_key,
                        is_basis_folder, key_materials, make_manifest, manifest_differences,
-                       manifold_file_identity, read_manifest, scene_files, scene_hash, upgrade_manifest,
+                       image_changed, manifold_file_identity, read_manifest, scene_files, scene_hash, upgrade_manifest,
                        validate_manifest, write_manifest)
 from .ownership import check_output_outside_basis
 
 __all__ = ["Basis", "manifold_object",
            # the format and the ownership, re-exported for the readers of this module's older face
            "BASE", "FORMAT", "FORMAT_VERSION", "MANIFEST", "MODES", "SEP", "SETTINGS", "image_key",
-           "is_basis_folder", "key_materials", "make_manifest", "manifest_differences", "manifold_file_identity",
+           "is_basis_folder", "key_materials", "make_manifest", "manifest_differences", "image_changed", "manifold_file_identity",
            "read_manifest", "scene_files", "scene_hash", "upgrade_manifest", "validate_manifest", "write_manifest",
            "check_output_outside_basis"]
 
@@ -209,6 +209,10 @@ class Basis:
         row = self._rows.get(key)
         if row is None:
             path = self.path(key)
+            if os.path.isfile(path) and image_changed(self.folder, self._entry(key)):
+                raise MismatchError(
+                    f"basis {self.folder}, image {key!r}: {path} was changed after render_basis wrote it (its "
+                    "SHA-256 is not the manifest's); run the same render_basis command again to render it anew")
             try:
                 img = imageio.read_exr(path)
             except FormatError as e:

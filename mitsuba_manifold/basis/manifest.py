@@ -16,7 +16,8 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
                rendered sensor 0 unless they say otherwise),
      "chunks": int (optional: merged from k chunks),
      "pending": ["<key>.exr", ...] (optional: being written; see render_basis),
-     "images": {"base": {"file": "base.exr", "time_s": float},
+     "images": {"base": {"file": "base.exr", "time_s": float, "sha256": hex (of the file's bytes;
+                         absent in bases of earlier releases)},
                 "<material>": {"file": "<material>.exr", "time_s": float}, ...},
      optional, one-pass bases of one target (issue 21):
      "components": ["l1"] | ["l1", "l2+"] | ["l1", "l2+", "cross"] (what the basis holds; a
@@ -68,36 +69,70 @@ _HEX64 = re.compile(r"^[0-9a-f]{64}$")
 
 # ------------------------------------------------------------------ hashes
 
+def _named(scene):
+    """``(value, is_include)`` of each file the scene XML ``scene`` names (``$parameters`` skipped)."""
+    out = []
+    for el in scene_xml(scene).iter():   # a scene XML, or an error naming the file
+        value = el.get("filename") if el.tag == "include" else (el.get("value") if el.get("name") == "filename"
+                                                                 else None)
+        if value and "$" not in value:
+            out.append((value, el.tag == "include"))
+    return out
+
+
 def scene_files(scene):
     """Files a scene XML names (``filename`` properties and ``<include>``), resolved
     against the scene's folder; values holding ``$parameters`` are skipped."""
-    scene = os.fspath(scene)
-    root = scene_xml(scene)   # a scene XML, or an error naming the file
-    folder = os.path.dirname(os.path.abspath(scene))
-    names = []
-    for el in root.iter():
-        value = el.get("value") if el.get("name") == "filename" else None
-        if el.tag == "include":
-            value = el.get("filename")
-        if value and "$" not in value:
-            names.append(value)
-    return [(v, os.path.join(folder, v)) for v in names]
+    folder = os.path.dirname(os.path.abspath(os.fspath(scene)))
+    return [(v, os.path.join(folder, v)) for v, _ in _named(os.fspath(scene))]
+
+
+#: Deepest chain of ``<include>`` files followed by :func:`scene_hash`.
+MAX_INCLUDE_DEPTH = 16
+
+
+def _hash_included(h, xml, folders, seen):
+    """Add to ``h`` the name and bytes of every file the included XML ``xml`` names, found
+    beside the main scene or beside ``xml`` (Mitsuba resolves them against either), and of
+    the files the XML files it includes name, recursively; ``seen``: the XML files already
+    followed (each once: no cycle, no exponential fan-out)."""
+    if os.path.realpath(xml) in seen or len(folders) > MAX_INCLUDE_DEPTH:
+        return
+    seen.add(os.path.realpath(xml))
+    try:
+        named = _named(xml)
+    except MismatchError:      # not a scene XML: its bytes are hashed, Mitsuba refuses it
+        return
+    folders = folders + [os.path.dirname(os.path.abspath(xml))]
+    for value, include in named:
+        h.update(b"\1" + value.encode())
+        found = list(dict.fromkeys(p for p in (os.path.join(f, value) for f in folders) if os.path.isfile(p)))
+        for path in found:
+            h.update(b"\1" + file_hash(path).encode())
+        if include and found:
+            _hash_included(h, found[-1], folders, seen)
 
 
 def scene_hash(scene):
     """SHA-256 (hex) of a scene: its XML bytes, then the name and bytes of every file it
-    names (:func:`scene_files`) that exists beside it. Meshes and environment maps are
-    thereby part of the scene's identity; the manifold (a ``$manifold`` parameter) is not."""
+    names (:func:`scene_files`) that exists beside it, and for each ``<include>``d XML the
+    files that one names, recursively (:func:`_hash_included`). Meshes, environment maps and
+    included scenes are thereby part of the scene's identity; the manifold (a ``$manifold``
+    parameter) is not. A scene without includes hashes as in earlier releases."""
     scene = os.fspath(scene)
     if not os.path.isfile(scene):
         raise MismatchError(f"scene {scene} does not exist")
     h = hashlib.sha256()
     with open(scene, "rb") as f:
         h.update(f.read())
-    for value, path in scene_files(scene):
+    folder = os.path.dirname(os.path.abspath(scene))
+    for value, include in _named(scene):
+        path = os.path.join(folder, value)
         h.update(b"\0" + value.encode())
         if os.path.isfile(path):
             h.update(b"\0" + file_hash(path).encode())
+            if include:
+                _hash_included(h, path, [folder], {os.path.realpath(scene)})
     return h.hexdigest()
 
 
@@ -120,6 +155,13 @@ def key_materials(key, version=FORMAT_VERSION):
     """Material names (one per target) of an image key: the inverse of :func:`image_key`."""
     parts = key.split(SEP)
     return [names_mod.unescape(p) for p in parts] if version >= 2 else parts
+
+
+def image_changed(folder, entry):
+    """True when the image file of manifest ``entry`` is not the one written (its SHA-256 is
+    recorded and differs: edited in place, replaced); False when unchanged or not recorded."""
+    recorded = entry.get("sha256")
+    return recorded is not None and file_hash(os.path.join(os.fspath(folder), entry["file"])) != recorded
 
 
 def _is_int(v):
@@ -198,6 +240,8 @@ def validate_manifest(manifest, where=MANIFEST):
         t = entry.get("time_s")
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
             bad(f"image {key!r}: time_s must be a non-negative number, got {t!r}")
+        if "sha256" in entry and not (isinstance(entry["sha256"], str) and _HEX64.match(entry["sha256"])):
+            bad(f"image {key!r}: sha256 must be a SHA-256 hex digest, got {entry['sha256']!r}")
     _validate_components(manifest, bad)
     return manifest
 

@@ -14,9 +14,10 @@ import numpy as np
 from . import gram as gram_matrix, merl
 from .surrogate import FITS_PATH, SGD_FIELDS, load_sgd_fits, sgd_reflectance, tabulate_sgd
 from .surrogate import bin_geometry
-from .._util.atomic import is_temporary
+from .._util.atomic import is_temporary, sweep
 from .._util.locking import FolderLock
 from .._util.ownership import owned_tables, write_table_record
+from .._util.workers import owned_pool
 from .._util.cache import adopt_hash, file_hash, file_identity, key_hash, npy_cache
 from ..errors import FormatError, MissingFileError, UnknownMaterialError, did_you_mean
 
@@ -36,7 +37,10 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     ----------
     out_dir : path
         Folder to create or complete. It is locked (:class:`FolderLock`) while written;
-        its ``database.json`` records the settings and the tables this function made.
+        its ``database.json`` records the settings, the tables this function made and, while
+        it runs, the ones it is writing (``pending``): the same call after a kill (SIGKILL,
+        SIGTERM, Ctrl-C) at any moment resumes to the same folder as an uninterrupted run.
+        The worker processes of big tables end with this process (:func:`owned_pool`).
     dims : tuple of 3 int
         Table resolution ``(n_theta_h, n_theta_d, n_phi_d)``, checked against the format's
         limit and the memory available before anything is written.
@@ -80,14 +84,18 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     if os.path.isdir(out_dir):  # refuse before locking: a refused run adds nothing to the folder
         owned_tables(out_dir, settings, names, force)
     with FolderLock(out_dir, "database folder"):
+        for folder in (out_dir, cache_folder(out_dir)):   # temporaries of killed writers (a killed run's)
+            sweep(folder)
         made = owned_tables(out_dir, settings, names, force)
         paths = [os.path.join(out_dir, name + ".binary") for name in names]
         todo = [(name, path) for name, path in zip(names, paths)
                 if name not in made or not _valid_table(path, dims)]
         made -= {name for name, _ in todo}
-        write_table_record(out_dir, settings, made)
+        pending = {name for name, _ in todo}   # listed before they are written: a killed run's are its own
+        write_table_record(out_dir, settings, made, pending)
         jobs = [(fits[name], path, dims, float(noise), int(seed), name, cache_folder(out_dir)) for name, path in todo]
-        _tabulate(jobs, workers, made, lambda: write_table_record(out_dir, settings, made), len(names), progress)
+        _tabulate(jobs, workers, made, lambda: write_table_record(out_dir, settings, made, pending - made),
+                  len(names), progress)
     return paths
 
 
@@ -102,9 +110,8 @@ def _tabulate(jobs, workers, made, record, total, progress):
     with tqdm(total=total, initial=total - len(jobs), desc="tabulating", unit="table", disable=not progress) as bar:
         try:
             if len(jobs) > 1 and workers > 1 and np.prod(dims) >= 1 << 16:
-                from concurrent.futures import ProcessPoolExecutor
-                with ProcessPoolExecutor(min(workers, len(jobs))) as pool:
-                    for name, path, identity, digest in pool.map(_write_sgd_table, jobs):
+                with owned_pool(min(workers, len(jobs))) as pool:   # workers end with this process
+                    for name, path, identity, digest in pool.imap_unordered(_write_sgd_table, jobs):
                         adopt_hash(path, identity, digest)
                         made.add(name)
                         record()
@@ -241,6 +248,9 @@ class Database:
                 raise FormatError(f"database folder {folder} holds no .binary tables")
         else:
             names = list(names)
+            if not names:
+                raise FormatError(f"database {folder}: `names` is empty; give at least one material name "
+                                  "(or None for every table of the folder)")
             bad = [n for n in names if not isinstance(n, str) or not n or "/" in n or os.sep in n or "\0" in n]
             if bad:
                 raise FormatError(f"database {folder}: material names {bad} are not file names in the folder "

@@ -260,5 +260,7 @@ def make(latent, params):
         raise InputError(f"unknown interpolant kind {kind!r}; use one of {', '.join(KINDS)}")
     try:
         return cls(latent, **params)
-    except TypeError as e:
+    except InputError:
+        raise
+    except (TypeError, ValueError) as e:
         raise InputError(f"interpolant {kind!r}: {e}") from None

@@ -20,7 +20,8 @@ import numpy as np
 
 from .._util.atomic import atomic_write
 from .record import FitRecord
-from ..errors import InputError
+from . import schema
+from ..errors import FormatError, InputError
 
 FORMAT = "mitsuba-manifold"
 FORMAT_VERSION = 2
@@ -30,7 +31,7 @@ DERIVED = ("albedos", "gram", "table_gram", "cos_gram")
 
 
 def _not_a_manifold(path, why):
-    return InputError(f"{path} is not a manifold .npz written by fit_manifold ({why}); give the "
+    return FormatError(f"{path} is not a manifold .npz written by fit_manifold ({why}); give the "
                       "file that tools/fit_manifold.py or Manifold.save wrote")
 
 
@@ -47,42 +48,43 @@ def write(m, path):
 
 
 def read(path):
-    """The keyword arguments of ``Manifold(...)`` stored in ``path``."""
+    """The keyword arguments of ``Manifold(...)`` stored in ``path``, every field checked
+    against the schema (:mod:`.schema`) before it is used."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise InputError(f"manifold file {path} does not exist")
     if os.path.isdir(path) or not zipfile.is_zipfile(path):
         raise _not_a_manifold(path, "a folder" if os.path.isdir(path) else "not an .npz archive")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["meta"]))
-            arrays = {k: z[k] for k in z.files if k != "meta"}
-    except KeyError:
-        raise _not_a_manifold(path, "an .npz without the manifold's 'meta' entry") from None
-    except ValueError as e:  # object arrays are never unpickled; their message would invite it
-        why = "it holds Python objects, which are never loaded" if "pickle" in str(e) else str(e)
-        raise _not_a_manifold(path, f"unreadable: {why}") from None
-    except Exception as e:  # zipfile and json errors mean a damaged file
+        with zipfile.ZipFile(path) as zf:
+            if "meta.npy" not in zf.namelist():
+                raise _not_a_manifold(path, "an .npz without the manifold's 'meta' entry")
+            try:
+                meta = schema.read_meta(path, zf)
+            except FormatError as e:
+                raise _not_a_manifold(path, f"unreadable: {str(e).removeprefix(path + ': ').split(';')[0]}") from None
+            version = _checked_version(path, meta)
+            schema.check_meta(path, meta, version)
+            arrays = schema.read_arrays(path, zf, meta)
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as e:
+        if isinstance(e, InputError):
+            raise
         raise _not_a_manifold(path, f"damaged: {type(e).__name__}: {e}") from None
+    info = dict(meta.get("info") or {})
+    info.setdefault("preset", "paper" if version < 2 else "custom")
+    return {"names": meta["names"], "latent": arrays["latent"], "database": meta["database"],
+            "hashes": meta["hashes"], "length_scale": meta["length_scale"], "noise": meta["noise"],
+            "features": meta["features"], "albedos": arrays.get("albedos"), "gram": arrays.get("gram"),
+            "record": FitRecord.from_info(info, arrays.get("history", ())),
+            "interpolant": meta["interpolant"] if version >= 2 else {"kind": "gp", "exact": True},
+            "table_gram": arrays.get("table_gram"), "cos_gram": arrays.get("cos_gram")}
+
+
+def _checked_version(path, meta):
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise _not_a_manifold(path, "its 'meta' entry is not a mitsuba-manifold one")
     version = meta.get("version", 0)
-    if not isinstance(version, int) or not 1 <= version <= FORMAT_VERSION:
-        raise InputError(f"{path}: format version {version!r} is not one this package reads "
-                            f"(1 to {FORMAT_VERSION}); {_REFIT}")
-    try:
-        info = dict(meta.get("info") or {})
-        info.setdefault("preset", "paper" if version < 2 else "custom")
-        kwargs = {"names": meta["names"], "latent": arrays["latent"], "database": meta["database"],
-                  "hashes": meta["hashes"], "length_scale": meta["length_scale"], "noise": meta["noise"],
-                  "features": meta["features"], "albedos": arrays.get("albedos"), "gram": arrays.get("gram"),
-                  "record": FitRecord.from_info(info, arrays.get("history", ())),
-                  "interpolant": meta["interpolant"] if version >= 2 else {"kind": "gp", "exact": True},
-                  "table_gram": arrays.get("table_gram"), "cos_gram": arrays.get("cos_gram")}
-    except KeyError as e:
-        raise InputError(f"{path}: missing field {e}; {_REFIT}") from None
-    for name in DERIVED:   # derived arrays: a damaged one would go unnoticed
-        a = kwargs[name]
-        if a is not None and (a.dtype.kind not in "fiu" or not np.isfinite(a).all()):
-            raise InputError(f"{path}: its {name} array is damaged (not finite numbers); {_REFIT}")
-    return kwargs
+    if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= FORMAT_VERSION:
+        raise FormatError(f"{path}: its version field {version!r} is not a format version this package reads "
+                          f"(1 to {FORMAT_VERSION}); {_REFIT}")
+    return version

@@ -9,16 +9,17 @@ computed from the tables on first use when a manifold file of an earlier release
 and the combination itself, reading only the kept tables.
 """
 
+import numbers
 import os
 from typing import NamedTuple
 
 import numpy as np
 
-from . import materials, pruning
+from . import materials, pruning, schema
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES
 from .._util.cache import key_hash, npy_cache
 from ..data.database import Database, albedo_weights
-from ..errors import InputError
+from ..errors import FormatError, InputError
 
 
 class Pruned(NamedTuple):
@@ -94,7 +95,14 @@ class TrainingTables:
     def stack(self, folder):
         """All N tables as float32 ``(N, d)`` (read from ``folder`` once, then kept)."""
         if self.loaded is None:
-            self.loaded = self.open(folder).stack(self.names)
+            db = self.open(folder)
+            tables = db.stack(self.names)
+            q = np.tile(albedo_weights(db.dims).reshape(-1), 3)   # the same weight in each channel
+            wrong = schema.check_grams(tables, self.gram, self.cos_gram, q)
+            if wrong:
+                raise FormatError(f"the manifold's {wrong} is not the Gram matrix of its tables in {db.folder} "
+                                  "(the manifold file is damaged); refit it with tools/fit_manifold.py")
+            self.loaded = tables
         return self.loaded
 
     def raw_gram(self, folder):
@@ -135,8 +143,8 @@ class TrainingTables:
         n = len(self.names)
         if w.shape != (n,) or not np.isfinite(w).all():
             raise InputError(f"weights must be {n} finite values, got shape {w.shape}")
-        if not 0 <= budget < 1:
-            raise InputError(f"`prune` must be in [0, 1), got {budget}")
+        if isinstance(budget, (bool, np.bool_)) or not isinstance(budget, numbers.Real) or not 0 <= budget < 1:
+            raise InputError(f"`prune` must be in [0, 1), got {budget!r}")
         if rule not in RULES:
             raise InputError(f"`rule` must be one of {', '.join(map(repr, RULES))}, got {rule!r}")
         return w

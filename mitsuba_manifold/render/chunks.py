@@ -16,12 +16,18 @@ it is an unbiased estimate of the same image, not the identical sum.
 
 Resumable per chunk: the driver writes each finished chunk into
 ``<out>/.chunks/<j>-of-<k>/`` (images first, manifest last, every file atomically); a
-chunk whose folder holds a complete manifest is not rendered again. The merge writes
-``<out>``'s images atomically and refuses a folder holding a basis of other settings
-(the manifest records ``chunks``: ``k``). Chunk folders are removed after a merge unless
-``keep_chunks``.
+chunk whose folder holds a complete manifest of the same settings (its ``chunk_key``:
+:func:`chunk_key` of its index, count, spp, seed, options and the scene's and manifold's
+identities) and unchanged images is not rendered again; a chunk of other settings is. The
+merge writes ``<out>``'s images atomically and refuses a folder holding a basis of other
+settings (the manifest records ``chunks``: ``k``); a merged basis records the key of the
+whole run, so the same command on a finished basis renders nothing. Chunk folders are
+removed after a merge unless ``keep_chunks``. The driver holds ``<out>``'s folder lock
+(:class:`~mitsuba_manifold._util.locking.FolderLock`) from the first chunk to the merge: a
+second run into the same folder is refused at once.
 """
 
+import json
 import os
 import shutil
 import socket
@@ -33,7 +39,8 @@ import numpy as np
 
 from ..basis import folder as basis_folder
 from ..imaging import io as imageio
-from .._util.cache import file_hash
+from .._util.cache import file_hash, key_hash
+from .._util.locking import FolderLock
 from ..errors import MismatchError
 from .folders import CHUNK_DIR, check_foreign_folder, open_folder
 
@@ -111,16 +118,35 @@ def chunk_folder(out, spec):
     return os.path.join(os.fspath(out), CHUNK_DIR, spec.name)
 
 
-def chunk_done(folder):
-    """The manifest of a completely saved chunk folder, else None."""
+#: Options that do not change a chunk's images (left out of :func:`chunk_key`).
+_NOT_SETTINGS = ("force", "progress", "database")
+
+
+def identities(spec):
+    """``(scene hash, manifold identity)`` of a chunk's scene and manifold files."""
+    return basis_folder.scene_hash(spec.scene), basis_folder.manifold_file_identity(spec.manifold)
+
+
+def chunk_key(spec, ids=None):
+    """SHA-256 (hex) of what chunk ``spec``'s images depend on: index, count, spp, seed, the render
+    options and the identities of its scene and manifold (``ids``: :func:`identities`)."""
+    options = {k: v for k, v in spec.options.items() if k not in _NOT_SETTINGS}
+    head = json.dumps({"index": spec.index, "count": spec.count, "spp": spec.spp, "seed": spec.seed,
+                       "options": options}, sort_keys=True, default=repr)
+    return key_hash("chunk-v1", head, *(ids or identities(spec)))
+
+
+def chunk_done(folder, key=None):
+    """The manifest of a completely saved chunk folder (of ``chunk_key`` ``key``, when given, with
+    every image as saved), else None."""
     try:
         manifest = basis_folder.read_manifest(folder)
     except MismatchError:
         return None
-    if not manifest.get("chunk_complete"):
+    if not manifest.get("chunk_complete") or (key is not None and manifest.get("chunk_key") != key):
         return None
     for _, entry in _entries(manifest):
-        if not os.path.isfile(os.path.join(folder, entry["file"])):
+        if not os.path.isfile(os.path.join(folder, entry["file"])) or basis_folder.image_changed(folder, entry):
             return None
     return manifest
 
@@ -143,16 +169,21 @@ def _write_cross(path, pairs, images):
     write_bytes(path, buf.getvalue())
 
 
-def save_chunk(out, result):
-    """Write a worker's chunk into its folder: images, then the manifest (the completion mark)."""
+def save_chunk(out, result, key=None):
+    """Write a worker's chunk into its folder: images (their hashes recorded), then the manifest
+    (the completion mark; ``key``: the chunk's :func:`chunk_key`, recorded)."""
     folder = chunk_folder(out, result.spec)
     os.makedirs(folder, exist_ok=True)
-    for key, entry in _entries(result.manifest):
-        imageio.write_exr(os.path.join(folder, entry["file"]), result.images[key])
+    manifest = json.loads(json.dumps(result.manifest))   # a copy: the entries get this folder's hashes
+    for (key_, entry), (_, mine) in zip(_entries(result.manifest), _entries(manifest)):
+        imageio.write_exr(os.path.join(folder, entry["file"]), result.images[key_])
+        mine["sha256"] = file_hash(os.path.join(folder, entry["file"]))
     if "cross" in result.manifest:
         _write_cross(os.path.join(folder, result.manifest["cross"]["file"]), *result.images[_CROSS])
-    manifest = dict(result.manifest, chunk_complete=True,
-                    chunk_run={"seconds": result.seconds, "host": result.host, "pid": result.pid})
+    manifest.update(chunk_complete=True, chunk_run={"seconds": result.seconds, "host": result.host,
+                                                    "pid": result.pid})
+    if key is not None:
+        manifest["chunk_key"] = key
     basis_folder.write_manifest(folder, manifest)
     return manifest
 
@@ -164,13 +195,11 @@ def merge(out, folders, seed, force=False):
     kept (a merge killed half-way resumes); a basis of other settings, or files the basis
     did not make (unless ``force``), are refused. ``out`` is locked while merging.
     """
-    from .._util.locking import FolderLock
-
     with FolderLock(os.fspath(out), "basis folder"):
         return _merge(out, folders, seed, force)
 
 
-def _merge(out, folders, seed, force):
+def _merge(out, folders, seed, force, run_key=None):
     manifests = [basis_folder.read_manifest(f) for f in folders]
     first = manifests[0]
     for f, m in zip(folders[1:], manifests[1:]):
@@ -180,7 +209,7 @@ def _merge(out, folders, seed, force):
             raise MismatchError(f"chunk {f} does not match chunk {folders[0]} "
                              f"({', '.join(diff) or 'images'} differ); delete {os.path.dirname(f)}")
     spp = np.array([m["spp"] for m in manifests], dtype=np.float64)
-    merged = {k: v for k, v in first.items() if k not in ("chunk_complete", "chunk_run")}
+    merged = {k: v for k, v in first.items() if k not in ("chunk_complete", "chunk_run", "chunk_key")}
     merged.update(spp=int(spp.sum()), seed=int(seed), chunks=len(folders), images={})
     merged.pop("gi_images", None)
     files = [e["file"] for _, e in _entries(first)] + [basis_folder.MANIFEST]
@@ -198,7 +227,8 @@ def _merge(out, folders, seed, force):
             acc = img if acc is None else acc + img
         imageio.write_exr(os.path.join(out, entry["file"]), acc.astype(np.float32))
         merged.setdefault(section, {})[plain] = {
-            "file": entry["file"], "time_s": float(sum(m[section][plain]["time_s"] for m in manifests))}
+            "file": entry["file"], "time_s": float(sum(m[section][plain]["time_s"] for m in manifests)),
+            "sha256": file_hash(os.path.join(out, entry["file"]))}
     if "cross" in first:   # the cross terms: the same spp-weighted mean
         acc, pairs = None, None
         for f, m, w in zip(folders, manifests, weights):
@@ -208,6 +238,8 @@ def _merge(out, folders, seed, force):
                 pairs, img = data["pairs"], data["images"].astype(np.float64) * w
             acc = img if acc is None else acc + img
         _write_cross(os.path.join(out, first["cross"]["file"]), pairs, acc)
+    if run_key is not None:   # the mark of a finished run (written with its last image)
+        merged["chunk_key"] = run_key
     basis_folder.write_manifest(out, merged)
     return merged
 
@@ -245,31 +277,60 @@ def render_chunked(scene, manifold, out, spp=64, chunks=1, seed=0, executor=None
     -------
     ChunkedRun
     """
-    from .executor import LocalExecutor
-
     specs = plan(scene, manifold, spp, chunks, seed, **options)
     check_foreign_folder(os.fspath(out), options.get("force", False))   # before any chunk is rendered
     _check_out(out, specs[0], spp, seed, chunks)
-    executor = executor or LocalExecutor()
+    ids = identities(specs[0])
+    keys = [chunk_key(s, ids) for s in specs]
+    run_key = key_hash("chunked-run-v1", *keys)
     t0 = time.perf_counter()
-    resumed = [s.name for s in specs if chunk_done(chunk_folder(out, s))]
+    with FolderLock(os.fspath(out), "basis folder"):
+        manifest = _finished(out, run_key)
+        if manifest is not None:   # the same command on a finished basis: nothing to render
+            run = ChunkedRun(manifest, [], [s.name for s in specs], 0.0, 0.0)
+        else:
+            run = _render_and_merge(out, specs, keys, run_key, executor, progress, seed, options.get("force", False))
+        if aovs:
+            from .render_basis import ensure_aovs
+            ensure_aovs(out, run.manifest)
+        if not keep_chunks:
+            shutil.rmtree(os.path.join(out, CHUNK_DIR), ignore_errors=True)
+    run.wall_s = time.perf_counter() - t0
+    return run
+
+
+def _finished(out, run_key):
+    """The manifest of ``out`` when it holds the merged basis of the run ``run_key`` with every
+    image as merged, else None."""
+    try:
+        manifest = basis_folder.read_manifest(out)
+    except MismatchError:
+        return None
+    if manifest.get("chunk_key") != run_key:
+        return None
+    entries = _entries(manifest)
+    if any(not os.path.isfile(os.path.join(out, e["file"])) or basis_folder.image_changed(out, e) for _, e in entries):
+        return None
+    return manifest
+
+
+def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force):
+    from .executor import LocalExecutor
+
+    executor = executor or LocalExecutor()
+    key_of = dict(zip((s.name for s in specs), keys))
+    resumed = [s.name for s in specs if chunk_done(chunk_folder(out, s), key_of[s.name])]
     todo = [s for s in specs if s.name not in resumed]
     rendered = []
     for result in executor.map(render_chunk, todo):
-        save_chunk(out, result)
+        save_chunk(out, result, key_of[result.spec.name])
         rendered.append((result.spec.name, result.seconds, result.host, result.pid))
         if progress:
             print(f"  chunk {result.spec.name}: {result.spec.spp} spp in {result.seconds:.1f} s "
                   f"({result.host}, pid {result.pid})", flush=True)
     t1 = time.perf_counter()
-    manifest = merge(out, [chunk_folder(out, s) for s in specs], seed, options.get("force", False))
-    merge_s = time.perf_counter() - t1
-    if aovs:
-        from .render_basis import ensure_aovs
-        ensure_aovs(out, manifest)
-    if not keep_chunks:
-        shutil.rmtree(os.path.join(out, CHUNK_DIR), ignore_errors=True)
-    return ChunkedRun(manifest, rendered, resumed, time.perf_counter() - t0, merge_s)
+    manifest = _merge(out, [chunk_folder(out, s) for s in specs], seed, force, run_key)
+    return ChunkedRun(manifest, rendered, resumed, 0.0, time.perf_counter() - t1)
 
 
 def _check_out(out, spec, spp, seed, chunks):

@@ -56,7 +56,8 @@ def open_folder(out, manifest, files, force=False, read_images=True):
     (all those listed without ``read_images``).
 
     A folder whose manifest has other settings is refused, unless it lists no image yet
-    (nothing to lose). Files the run would write (``files``) that exist without being
+    (nothing to lose). A listed image that is damaged or changed since it was written (its
+    SHA-256 in the manifest) is rendered again, or refused when it is read-only. Files the run would write (``files``) that exist without being
     listed in the manifest are the user's: refused unless ``force``. Files the manifest
     lists as ``pending`` were being written by a run that was killed: they are this tool's,
     and are removed when ``read_images`` (the locked call) so they are rendered again.
@@ -92,17 +93,25 @@ def open_folder(out, manifest, files, force=False, read_images=True):
         return {}
     if not read_images:
         return dict(old["images"])
-    kept = {}
-    w, h = manifest["resolution"]
-    for key, entry in old["images"].items():
-        path = os.path.join(out, entry["file"])
-        try:
-            imageio.check_exr_header(path, (w, h))
-            imageio.read_exr(path)  # a killed writer never leaves a partial file, but check anyway
-        except (FormatError, OSError):
-            continue
-        kept[key] = entry
-    return kept
+    size = tuple(manifest["resolution"])
+    return {key: entry for key, entry in old["images"].items() if image_still_valid(out, entry, size)}
+
+
+def image_still_valid(out, entry, size):
+    """True when the image of manifest ``entry`` in ``out`` is the one written (its SHA-256, when
+    recorded), readable and of ``size``; one that is not and is read-only is refused (InputError)."""
+    path = os.path.join(out, entry["file"])
+    try:
+        imageio.check_exr_header(path, size)
+        imageio.read_exr(path)  # a killed writer never leaves a partial file, but check anyway
+        valid = not basis_folder.image_changed(out, entry)
+    except (FormatError, OSError):
+        valid = False
+    if not valid and os.path.lexists(path) and ownership.read_only(path):
+        raise InputError(f"{path} is not the image render_basis wrote (changed or damaged since) and is "
+                         "read-only; not replacing it: make it writable to render it again, or choose "
+                         "another folder")
+    return valid
 
 
 def _clear_pending(out, old, remove):

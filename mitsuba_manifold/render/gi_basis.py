@@ -20,6 +20,7 @@ import numpy as np
 from .._util.atomic import write_bytes
 from ..basis import folder as basis_folder
 from ..basis.crossterms import select_pairs
+from .folders import image_still_valid
 from .integrators.multisplats import PairSelection
 
 
@@ -39,8 +40,9 @@ def carry_gi(out, manifest):
     if not manifest["images"] or not os.path.isfile(path):
         return
     old = basis_folder.read_manifest(out)
+    size = tuple(manifest["resolution"])   # an image changed since it was written is rendered again
     gi = {k: e for k, e in old.get("gi_images", {}).items()
-          if k in manifest["images"] and os.path.isfile(os.path.join(out, e["file"]))}
+          if k in manifest["images"] and image_still_valid(out, e, size)}
     if gi:
         manifest["gi_images"] = gi
     for key in ("components", "left_out", "cross", "gi_stats"):

@@ -31,6 +31,7 @@ from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_me
 from .folders import check_foreign_folder, check_job_folders, open_folder
 from .gi_basis import CROSS_FILE, GI_SUFFIX, REST_TOL, carry_gi, describe_components, progress_bar, render_gi
 from .interrupt import StopRequest, render_in_passes
+from .._util.cache import file_hash
 from .._util.locking import FolderLock
 from .scenes import check_variant
 from ..manifold.model import Manifold
@@ -275,8 +276,9 @@ def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
     with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
         list(pool.map(lambda kv: imageio.write_exr(os.path.join(out, kv[0] + suffix), kv[1]), images.items()))
     entries = manifest.setdefault(section, {})
-    for key in images:
-        entries[key] = {"file": key + suffix, "time_s": float(seconds)}
+    for key in images:   # each file's hash: an image edited later is found (open_folder, Basis.image)
+        entries[key] = {"file": key + suffix, "time_s": float(seconds),
+                        "sha256": file_hash(os.path.join(out, key + suffix))}
     del manifest["pending"]
     basis_folder.write_manifest(out, manifest)
 

@@ -36,12 +36,16 @@ def upsampled_basis(folder, out, factor=2):
     from ...imaging import io as imageio
     from ...basis.folder import read_manifest, write_manifest
 
+    from ..._util.cache import file_hash
+
     manifest = read_manifest(folder)
     os.makedirs(out, exist_ok=True)
+    images = {}
     for key, entry in manifest["images"].items():
         img = imageio.read_exr(os.path.join(folder, entry["file"]))
         imageio.write_exr(os.path.join(out, entry["file"]), img.repeat(factor, 0).repeat(factor, 1))
-    manifest = dict(manifest, resolution=[v * factor for v in manifest["resolution"]])
+        images[key] = dict(entry, sha256=file_hash(os.path.join(out, entry["file"])))   # the new files' hashes
+    manifest = dict(manifest, images=images, resolution=[v * factor for v in manifest["resolution"]])
     write_manifest(out, manifest)
     return out
 
