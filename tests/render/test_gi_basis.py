@@ -98,6 +98,25 @@ def test_pair_selection_keeps_cross_terms_that_matter_and_drops_null_ones(small_
     assert none.cross == {} and none.selection["kept"] == 0
 
 
+def test_pairs_of_small_weight_use_a_share_of_the_splats_unbiased(small_manifold):
+    """A pair whose weight product is at most p uses the power of two >= 4p of the splats (1 at
+    the midpoint's 1/4); its cross term, over independent seeds, has the mean of the one from
+    every splat (z-tests)."""
+    from mitsuba_manifold.render.integrators.multisplats import PairSelection
+
+    sel = PairSelection(products=(0.05,), tol=0.0)
+    assert [sel.share(p) for p in (0.25, 0.2, 0.05, 0.01, 1e-4)] == [1.0, 1.0, 0.25, 0.0625, 0.0625]
+    scene = load("table", small_manifold, "gold-paint", res=16)
+    pair = ("gold-paint", "pink-fabric")
+    integ = integrator(max_depth=8)
+    part = [integ.render_onepass_gi(scene, spp=16, seed=s, levels=5, pairs=[pair], pair_selection=sel)
+            for s in SEEDS]
+    assert part[0].selection["splat_share"] == 0.25
+    whole = [integ.render_onepass_gi(scene, spp=16, seed=100 + s, levels=5, pairs=[pair]) for s in SEEDS]
+    assert_same_mean(np.stack([r.cross[pair] for r in part]), np.stack([r.cross[pair] for r in whole]),
+                     "cross term from a quarter of the splats vs all")
+
+
 def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manifold):
     """A full-GI basis of the table: the manifest says what it holds; the default blend at a
     training point is ``base + F_i`` exactly, ``component="l1"`` is Eq. 13's ``base + I_i``;

@@ -47,6 +47,16 @@ class PairSelection:
     products: tuple
     tol: float = 0.005
     pilot: float = 0.125
+    #: Smallest share of the splats a kept pair's cross term uses: a pair whose weight product is
+    #: at most ``p`` uses the power of two at least ``4 p`` (1 at ``p`` = 1/4, the midpoint), so
+    #: its noise in a blend, ``p^2 / share``, stays below the midpoint pair's; a third of the cost
+    #: of every pair using every splat, for the products of the built-in database.
+    min_share: float = 1 / 16
+
+    def share(self, product):
+        """The share of the splats of a pair of weight product ``product``."""
+        share = 2.0 ** np.ceil(np.log2(max(4.0 * abs(float(product)), self.min_share)))
+        return float(min(1.0, share))
 
 
 def _bins(wi, wo, dims):
@@ -67,7 +77,7 @@ class MultiSplats:
         self.candidates, self.select = list(pairs), select
         # with a selection, the pairs are chosen on the first pass (:meth:`_choose`)
         self.pairs = list(pairs) if select is None or not pairs else None
-        self.cross = self._sums(self.pairs or [])
+        self.groups = self._groups(self.pairs or [], {})
         self.selection = None   # what :meth:`_choose` measured
         self.sums = dr.zeros(mi.Float, self.pixels * 3 * self.n_pad)
         self.splats = []      # (k, [bins], amplitude, pixel) per level and kind
@@ -107,6 +117,14 @@ class MultiSplats:
         return [dr.zeros(mi.Float, self.pixels * 3 * len(pairs[p0:p0 + PAIR_CHUNK]))
                 for p0 in range(0, len(pairs), PAIR_CHUNK)]
 
+    def _groups(self, pairs, shares):
+        """``[(share of the splats, pairs, their sums)]``: the pairs grouped by ``shares`` (pair ->
+        share; ``cross_fraction`` times it, 1 where not given)."""
+        by = {}
+        for p in pairs:
+            by.setdefault(self.cross_fraction * shares.get(p, 1.0), []).append(p)
+        return [(f, ps, self._sums(ps)) for f, ps in sorted(by.items(), reverse=True)]
+
     def add(self):
         """Add the prepared splats to the ``L2+`` sums and the cross terms (on the first pass
         with a :class:`PairSelection`, after choosing the pairs).
@@ -118,9 +136,9 @@ class MultiSplats:
             self._rest(bins, amp, pix)
         if self.pairs is None:
             self._choose(rng)
-        if self.pairs:
+        for share, pairs, sums in self.groups:
             for k, bins, amp, pix in self.splats:
-                self._cross_all(self.cross, self.pairs, bins, amp, pix, self.cross_fraction, rng)
+                self._cross_all(sums, pairs, bins, amp, pix, share, rng)
 
     def _cross_all(self, sums, pairs, bins, amp, pix, fraction, rng):
         """The cross terms of ``pairs`` into ``sums`` from a share ``fraction`` of the splats."""
@@ -151,10 +169,12 @@ class MultiSplats:
         score = np.asarray(sel.products, float) * mag / ref
         keep = score >= sel.tol
         self.pairs = [p for p, k in zip(self.candidates, keep) if k]
-        self.cross = self._sums(self.pairs)
+        shares = {p: sel.share(w) for p, w, k in zip(self.candidates, sel.products, keep) if k}
+        self.groups = self._groups(self.pairs, shares)
         left = score[~keep]
         self.selection = {"candidates": len(self.candidates), "kept": len(self.pairs), "tol": sel.tol,
-                          "pilot": sel.pilot, "largest_left_out": float(left.max()) if left.size else 0.0}
+                          "pilot": sel.pilot, "largest_left_out": float(left.max()) if left.size else 0.0,
+                          "splat_share": float(np.mean(list(shares.values()))) if shares else 0.0}
 
     def _rest(self, bins, amp, pix):
         packets = self.n_pad // PACKET
@@ -204,14 +224,17 @@ class MultiSplats:
         sums = self.sums.numpy().reshape(self.pixels, 3, self.n_pad) * scale[:, None, None]
         rest = {n: np.ascontiguousarray(sums[:, :, k].reshape(shape), np.float32)
                 for k, n in enumerate(self.names)}
-        cross, pairs = {}, self.pairs or []
-        for c, p0 in enumerate(range(0, len(pairs), PAIR_CHUNK)):
-            chunk = pairs[p0:p0 + PAIR_CHUNK]
-            part = self.cross[c].numpy().reshape(self.pixels, 3, len(chunk)) * scale[:, None, None]
-            for k, (i, j) in enumerate(chunk):
-                cross[(self.names[i], self.names[j])] = np.ascontiguousarray(part[:, :, k].reshape(shape),
-                                                                             np.float32)
-        return rest, cross
+        cross = {}
+        for _, pairs, sums in self.groups:
+            for c, p0 in enumerate(range(0, len(pairs), PAIR_CHUNK)):
+                chunk = pairs[p0:p0 + PAIR_CHUNK]
+                part = sums[c].numpy().reshape(self.pixels, 3, len(chunk)) * scale[:, None, None]
+                for k, (i, j) in enumerate(chunk):
+                    cross[(self.names[i], self.names[j])] = np.ascontiguousarray(part[:, :, k].reshape(shape),
+                                                                                 np.float32)
+        order = {p: k for k, p in enumerate(self.pairs or [])}   # the candidates' order
+        keyed = {(self.names[i], self.names[j]): order[(i, j)] for (i, j) in order}
+        return rest, dict(sorted(cross.items(), key=lambda kv: keyed[kv[0]]))
 
 
 class _expand:
