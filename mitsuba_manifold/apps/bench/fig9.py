@@ -78,7 +78,13 @@ def summary(rows, pair_a=None):
 
 
 def preset_report(m, sets, kinds, progress=True):
-    """Paths of every kind for every pair of ``sets`` on manifold ``m``, measured on the full grid."""
+    """Paths of every kind for every pair of ``sets`` on manifold ``m``, measured on the full grid
+    (BLAS on one thread, as :func:`paths.path` runs: threads only contend on a busy machine)."""
+    with paths.single_threaded():
+        return _preset_report(m, sets, kinds, progress)
+
+
+def _preset_report(m, sets, kinds, progress):
     full = paths.PathMetric(m, (1, 1, 1))
     search = paths.PathMetric.of(m)
     t0 = time.perf_counter()
