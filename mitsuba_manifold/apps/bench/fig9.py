@@ -119,11 +119,10 @@ def _preset_report(m, sets, kinds, progress):
 
 def plot(report, path, preset):
     """Fig. 9 for one preset: rows = path kinds; columns = the paper's pairs and the neighbour pairs."""
-    plt = plots.figure()
     kinds = list(report["kinds"])
     cols = [("paper", i) for i in range(len(report["kinds"][kinds[0]]["rows"]["paper"]))] + [("neighbours", None),
                                                                                           ("held_out", None)]
-    fig, axes = plt.subplots(len(kinds), len(cols), figsize=(3.1 * len(cols), 2.9 * len(kinds)), squeeze=False)
+    fig, axes = plots.subplots(len(kinds), len(cols), figsize=(3.1 * len(cols), 2.9 * len(kinds)), squeeze=False)
     t = np.linspace(0, 1, STEPS)
     for r, kind in enumerate(kinds):
         rows = report["kinds"][kind]["rows"]
@@ -151,7 +150,6 @@ def plot(report, path, preset):
                  "dashed: perceptually uniform", fontsize=9)
     fig.tight_layout()
     plots.save(fig, path)
-    plt.close(fig)
     return path
 
 
