@@ -50,13 +50,13 @@ def cache_folder(manifold):
         return None
 
 
-def cached(metric, name, build, shape=None, dtype=None, keep=4):
+def cached(metric, name, build, shape=None, dtype=None, keep=4, settings=()):
     """``build()`` cached as ``<key>.<name>.npy`` in the manifold's cache folder (:func:`cache_key`
-    of ``name``); only the ``keep`` most recently used files of ``name`` are kept."""
+    of ``name`` and ``settings``); only the ``keep`` most recently used files of ``name`` are kept."""
     folder = cache_folder(metric.manifold)
     if folder is None:
         return build()
-    path = os.path.join(folder, f"{cache_key(metric, name)}.{name}.npy")
+    path = os.path.join(folder, f"{cache_key(metric, name, *settings)}.{name}.npy")
     return npy_cache(path, build, shape=shape, dtype=dtype, finite=True, touch=True, keep=keep, marker=f".{name}.")
 
 
@@ -116,7 +116,8 @@ class LatentGraph:
 
         def weigh():
             return cls.weigh(metric, nodes, edges)
-        w = cached(metric, VERSION, weigh, shape=(len(edges),), dtype=np.float64) if cache else weigh()
+        w = (cached(metric, VERSION, weigh, shape=(len(edges),), dtype=np.float64, settings=(NEIGHBOURS, PER_EDGE, K))
+             if cache else weigh())
         g = sparse.coo_matrix((np.asarray(w) + 1e-12, (edges[:, 0], edges[:, 1])), shape=(len(nodes),) * 2).tocsr()
         return cls(nodes, (g + g.T).tocsr())
 
