@@ -18,23 +18,32 @@ are far apart in latent space crosses others. :func:`path` offers three kinds:
     (edges weighted by the perceptual distance of their tables, :class:`LatentGraph`), then
     relaxed towards a discrete geodesic (the path energy minimised by L-BFGS with its
     analytic gradient, :func:`minimise_energy`) and re-parameterised at equal perceptual
-    steps. The graph is built once per manifold and metric.
+    steps. The graph is built once per manifold and metric and its edges cached on disk
+    (:mod:`latent_graph`).
 
 The metric on latent points is ``d(x, y) = d_PR12(table(x), table(y))`` with ``table(x) =
 sum_i w_i(x) table_i`` (the manifold's weights, unpruned, clamped at 0 as the plugin does).
 Searches use a :class:`~mitsuba_manifold.data.distance.Quadrature` on a sub-grid of bins
-(:data:`SEARCH_STRIDE`: every ``theta_h`` bin, every 5th ``theta_d``, every 10th ``phi_d``;
-pairwise distances between the 100 built-in materials within 0.7% of the full grid's);
-``tools/bench.py fig9`` measures the paths on the full grid.
+(:data:`SEARCH_STRIDE`: every 3rd ``theta_h`` bin, every 10th ``theta_d``, every 15th
+``phi_d``: 8 010 values a table at MERL resolution, 1/546 of them; on the 100 built-in
+materials pairwise distances within a median 0.5% of the full grid's (at most 5%), steps
+of 1/10 of a latent segment within a median 0.6% (90% within 0.8%)); ``tools/bench.py
+fig9`` measures the paths on the full grid, ``tools/bench.py paths`` their speed.
+
+Speed (an explorer scrubs paths): a path's products are small, so BLAS runs on one thread
+(:func:`single_threaded`); the sub-grid's table values and the graph's edges are cached on
+disk by content hash (:mod:`latent_graph`), so a fresh process reads neither the tables
+nor their hashes; :func:`even` evaluates only the points it adds.
 """
 
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass
 
 import numpy as np
 
+from . import latent_graph
+from .latent_graph import LatentGraph
 from ..data.distance import Quadrature, gram_distances
 from ..errors import InputError
 
@@ -42,12 +51,15 @@ KINDS = ("straight", "uniform", "geodesic")
 #: The kind ``Manifold.path``, ``blend.py --path`` and the main job's contact sheet use: the
 #: best measured by ``tools/bench.py fig9`` (``bench/fig9.json``).
 DEFAULT_KIND = "geodesic"
-#: Sub-grid of the searches (see the module doc).
-SEARCH_STRIDE = (1, 5, 10)
+#: Sub-grid of the searches (see the module doc; ``(1, 5, 10)`` before: 8.6x the values, the
+#: same Fig. 9 measures on the built-in database, ``bench/fig9_default.json``).
+SEARCH_STRIDE = (3, 10, 15)
 #: Table values below which the cube root's slope is capped (in :meth:`PathMetric.energy`).
 FLOOR = 1e-6
 #: Samples of a segment when re-parameterising it by perceptual length.
 DENSE = 129
+#: Samples of a geodesic's candidates (compared by length, then refined where coarse by :func:`even`).
+CHECK = 65
 
 _METRICS = weakref.WeakKeyDictionary()
 
@@ -58,16 +70,33 @@ class PathMetric:
     ``features(X)`` are the :class:`Quadrature` features of the tables at latent points ``X``
     (their Euclidean distances are the [PR12]-style distances); ``distances(X, Y)`` the matrix
     of distances, in blocks of bins (any stride, the full grid included).
+
+    On a sub-grid the metric holds only the tables' values at its bins, ``rows`` (N, size):
+    read from the database's cache folder when a previous process made them
+    (:func:`latent_graph.cached`, named by the manifold's content hash), so that neither the
+    tables (1.7 GB at MERL resolution) nor their hashes are read again; ``tables`` (the
+    manifold's full ``(N, d)`` stack) skips the cache. Features are float32 (the combination
+    ``w @ rows`` is float32 as the plugin's), sums of squares float64.
     """
 
     def __init__(self, manifold, stride=SEARCH_STRIDE, tables=None):
         self.manifold = manifold
         dims = tuple(manifold.info["dims"])
         self.quad = Quadrature.of(dims, stride)
-        full = manifold.tables() if tables is None else tables
-        self._small = self.quad.size * 4 <= full.shape[1]
-        self.rows = np.ascontiguousarray(full[:, self.quad.index]) if self._small else full
+        self._small = self.quad.size * 4 <= 3 * int(np.prod(dims))
+        if not self._small:
+            self.rows = manifold.tables() if tables is None else tables
+        elif tables is not None:
+            self.rows = self._pick(tables)
+        else:
+            self.rows = latent_graph.cached(self, "pathrows-v1", lambda: self._pick(manifold.tables()),
+                                            shape=(manifold.n, self.quad.size), dtype=np.float32)
+        # F = scale cbrt(v cos) = coef cbrt(v): the per-bin constant once
+        self.coef = (self.quad.scale * np.cbrt(self.quad.cos)).astype(np.float32)
         self._graph = None
+
+    def _pick(self, full):
+        return np.ascontiguousarray(np.asarray(full)[:, self.quad.index], dtype=np.float32)
 
     @classmethod
     def of(cls, manifold, stride=SEARCH_STRIDE):
@@ -82,10 +111,11 @@ class PathMetric:
         return self.manifold.weights(np.atleast_2d(X)).w.astype(np.float32)
 
     def features(self, X):
-        """Features ``(M, size)`` of the tables at latent points ``X`` (M, q) (sub-grids only)."""
+        """Features ``(M, size)`` float32 of the tables at latent points ``X`` (M, q) (sub-grids only)."""
         if not self._small:
             raise InputError("features of every bin do not fit a search; use `distances` on the full grid")
-        return self.quad.features(self.weights(X) @ self.rows)
+        V = self.weights(X) @ self.rows
+        return np.cbrt(np.maximum(V, 0.0, out=V), out=V) * self.coef
 
     def distances(self, X, Y=None):
         """``(M, K)`` perceptual distances between the tables at ``X`` and at ``Y`` (default ``X``)."""
@@ -106,17 +136,19 @@ class PathMetric:
         its gradient ``dE/dX`` (M, q), analytic (chain rule through the cube root, the table
         combination and the interpolant's Jacobian ``dw/dx``; the cube root's slope is capped
         where a table value is below :data:`FLOOR`)."""
-        W = self.weights(X)
-        V = W @ self.rows
-        F = self.quad.scale * np.cbrt(np.maximum(V, 0.0) * self.quad.cos)
+        V = self.weights(X) @ self.rows
+        C = np.cbrt(np.maximum(V, 0.0))
+        F = C * self.coef
         D = np.diff(F, axis=0)
         G = np.zeros_like(F)
         G[:-1] -= 2.0 * D
         G[1:] += 2.0 * D
-        slope = self.quad.scale * np.cbrt(self.quad.cos) / 3.0 * np.maximum(V, FLOOR) ** (-2.0 / 3.0)
-        dW = ((G * np.where(V > 0, slope, 0.0)).astype(np.float32) @ self.rows.T).astype(np.float64)
+        # dF/dv = coef / (3 cbrt(v)^2) where v > 0
+        C = np.maximum(C, np.float32(FLOOR ** (1.0 / 3.0)), out=C)
+        G *= np.where(V > 0, self.coef / (3.0 * C * C), np.float32(0.0))
+        dW = (self.rows @ G.T).T.astype(np.float64)   # this order: ~10x faster than G @ rows.T in OpenBLAS
         J = self.manifold.weights_jacobian(X)
-        return float((D * D).sum()), np.einsum("mn,mnq->mq", dW, J)
+        return float(np.einsum("mk,mk->", D, D, dtype=np.float64)), np.einsum("mn,mnq->mq", dW, J)
 
     def steps(self, X):
         """Perceptual lengths of the ``M - 1`` steps of the polyline ``X``."""
@@ -125,15 +157,16 @@ class PathMetric:
         return np.diag(self.distances(X), 1).copy()
 
     def graph(self):
-        """The :class:`LatentGraph` of this metric (built on first use)."""
+        """The :class:`LatentGraph` of this metric (built on first use; its edges cached on disk)."""
         if self._graph is None:
             self._graph = LatentGraph.build(self)
         return self._graph
 
 
 def step_lengths(F):
-    """Euclidean lengths of the steps between consecutive rows of ``F``."""
-    return np.sqrt(np.einsum("mk,mk->m", np.diff(F, axis=0), np.diff(F, axis=0)))
+    """Euclidean lengths of the steps between consecutive rows of ``F`` (sums in float64)."""
+    D = np.diff(F, axis=0)
+    return np.sqrt(np.einsum("mk,mk->m", D, D, dtype=np.float64))
 
 
 def endpoint(manifold, v, what):
@@ -160,7 +193,7 @@ def reparameterise(X, lengths, steps):
     return _at_length(X, s, np.linspace(0.0, s[-1], steps))
 
 
-def even(metric, X, steps, fraction=0.1, passes=8, polish=20):
+def even(metric, X, steps, fraction=0.1, passes=8, polish=20, F=None):
     """``steps`` points along the polyline ``X`` at equal perceptual steps.
 
     The polyline is refined first: every piece longer than ``fraction`` of an even step is
@@ -170,9 +203,13 @@ def even(metric, X, steps, fraction=0.1, passes=8, polish=20):
     along the path are not yet equal *steps* (distances between consecutive points) where the
     path turns back within a step, as it does passing a third material's latent point; up to
     ``polish`` rounds then rescale each step's share of the length by ``mean / step`` (the
-    most even points seen are kept).
+    most even points seen are kept). ``F``: the features of ``X`` when known (on a sub-grid only
+    the new midpoints are evaluated).
     """
-    lengths = metric.steps(X)
+    track = metric._small
+    if track and F is None:
+        F = metric.features(X)
+    lengths = step_lengths(F) if track else metric.steps(X)
     for _ in range(passes):
         long = lengths > fraction * lengths.sum() / (steps - 1)
         if not long.any():
@@ -180,13 +217,20 @@ def even(metric, X, steps, fraction=0.1, passes=8, polish=20):
         mids = 0.5 * (X[:-1][long] + X[1:][long])
         order = np.argsort(np.concatenate([np.arange(len(X)), np.flatnonzero(long) + 0.5]), kind="stable")
         X = np.concatenate([X, mids])[order]
-        lengths = metric.steps(X)
+        if track:
+            F = np.concatenate([F, metric.features(mids)])[order]
+        lengths = step_lengths(F) if track else metric.steps(X)
     s = np.concatenate([[0.0], np.cumsum(lengths)])
     if s[-1] <= 0:
         return reparameterise(X, lengths, steps)
+    return _polish(metric, X, s, steps, polish)
+
+
+def _polish(metric, X, s, steps, rounds):
+    """The most even ``steps`` points of up to ``rounds`` rescalings along ``X`` (lengths ``s``): :func:`even`."""
     u = np.linspace(0.0, 1.0, steps)
     best, best_spread = None, np.inf
-    for _ in range(polish + 1):
+    for _ in range(rounds + 1):
         P = _at_length(X, s, u * s[-1])
         c = metric.steps(P)
         spread = np.abs(c / c.mean() - 1).max()
@@ -216,82 +260,15 @@ def densify(X, n):
 
 
 def straight(xa, xb, steps):
-    """The latent segment from ``xa`` to ``xb`` at ``steps`` equal steps of ``t`` (``t = 0..1``)."""
-    return xa + np.linspace(0.0, 1.0, steps)[:, None] * (xb - xa)
+    """The latent segment from ``xa`` to ``xb`` at ``steps`` equal steps of ``t`` (``t = 0..1``), ends exact."""
+    X = xa + np.linspace(0.0, 1.0, steps)[:, None] * (xb - xa)
+    X[-1] = xb
+    return X
 
 
 def uniform(metric, xa, xb, steps, dense=DENSE):
     """The latent segment at equal perceptual steps (``dense`` samples, arc-length inversion)."""
     return even(metric, straight(xa, xb, max(dense, steps)), steps)
-
-
-@dataclass
-class LatentGraph:
-    """A graph of latent samples where the data is, edges weighted by perceptual distance.
-
-    Nodes: the (distinct) latent points and ``per_edge`` points along each segment from a
-    material to each of its ``neighbours`` nearest latent neighbours and along the segments
-    of their minimum spanning tree (the blends the space offers; the tree keeps the graph
-    connected); edges: consecutive nodes along each segment and each node to its ``k``
-    nearest nodes in latent space, weighted by the distance between their tables.
-    """
-
-    nodes: np.ndarray
-    graph: object
-
-    @classmethod
-    def build(cls, metric, neighbours=8, per_edge=7, k=10):
-        from scipy import sparse
-        from scipy.sparse.csgraph import minimum_spanning_tree
-        from scipy.spatial import cKDTree
-
-        X = metric.manifold.latent
-        n, q = X.shape
-        nn = cKDTree(X).query(X, k=min(neighbours, n - 1) + 1)[1][:, 1:]
-        tree = minimum_spanning_tree(np.linalg.norm(X[:, None] - X[None], axis=-1) + 1e-12).tocoo()
-        pairs = np.concatenate([np.stack([np.repeat(np.arange(n), nn.shape[1]), nn.ravel()], 1),
-                                np.stack([tree.row, tree.col], 1)])
-        pairs = np.unique(np.sort(pairs, axis=1), axis=0)
-        t = np.linspace(0.0, 1.0, per_edge + 2)
-        chains = X[pairs[:, 0], None] + t[None, :, None] * (X[pairs[:, 1]] - X[pairs[:, 0]])[:, None]
-        nodes, inverse = np.unique(chains.reshape(-1, q), axis=0, return_inverse=True)
-        inverse = inverse.reshape(chains.shape[:2])
-        F = np.concatenate([metric.features(nodes[s:s + 512]).astype(np.float32)
-                            for s in range(0, len(nodes), 512)])
-        idx = cKDTree(nodes).query(nodes, k=min(k, len(nodes) - 1) + 1)[1]
-        rows = np.concatenate([np.repeat(np.arange(len(nodes)), idx.shape[1] - 1), inverse[:, :-1].ravel()])
-        cols = np.concatenate([idx[:, 1:].ravel(), inverse[:, 1:].ravel()])
-        keep = rows != cols
-        rows, cols = rows[keep], cols[keep]
-        w = np.concatenate([np.sqrt(((F[rows[s:s + 256]] - F[cols[s:s + 256]]) ** 2).sum(1, dtype=np.float64))
-                            for s in range(0, len(rows), 256)]) + 1e-12
-        g = sparse.coo_matrix((w, (rows, cols)), shape=(len(nodes),) * 2).tocsr()
-        return cls(nodes, g.maximum(g.T))
-
-    def shortest(self, metric, xa, xb, k=10):
-        """Latent polyline of the shortest graph path from ``xa`` to ``xb`` (ends joined to their
-        ``k`` nearest nodes)."""
-        from scipy import sparse
-        from scipy.sparse.csgraph import dijkstra
-        from scipy.spatial import cKDTree
-
-        n = len(self.nodes)
-        ends = np.stack([xa, xb])
-        near = cKDTree(self.nodes).query(ends, k=min(k, n))[1]
-        Fe, Fn = metric.features(ends), metric.features(self.nodes[near.ravel()])
-        w = np.sqrt(((np.repeat(Fe, near.shape[1], axis=0) - Fn) ** 2).sum(1)) + 1e-12
-        rows = np.repeat([n, n + 1], near.shape[1])
-        extra = sparse.coo_matrix((w, (rows, near.ravel())), shape=(n + 2, n + 2)).tocsr()
-        g = sparse.bmat([[self.graph, None], [None, sparse.csr_matrix((2, 2))]]).tocsr() + extra + extra.T
-        _, pred = dijkstra(g, indices=n, return_predecessors=True)
-        chain, v = [n + 1], n + 1
-        while v != n:
-            v = pred[v]
-            if v < 0:
-                raise InputError("the path's ends are not connected through the latent graph")
-            chain.append(v)
-        pts = np.concatenate([self.nodes, ends])
-        return pts[chain[::-1]]
 
 
 def minimise_energy(metric, X, iterations=200):
@@ -311,23 +288,25 @@ def minimise_energy(metric, X, iterations=200):
     return np.concatenate([xa[None], res.x.reshape(-1, q), xb[None]])
 
 
-def geodesic(metric, xa, xb, steps, points=17, iterations=25):
+def geodesic(metric, xa, xb, steps, points=17, iterations=25, dense=CHECK):
     """A shortest path from ``xa`` to ``xb``, at equal perceptual steps.
 
     Two starts, the latent segment and the shortest path through the :class:`LatentGraph`,
     each at ``points`` equal perceptual steps, relaxed by :func:`minimise_energy`; the
-    shortest of the four paths (relaxed or not) under the metric wins, so a geodesic is never
-    longer than the segment.
+    shortest of the four paths (relaxed or not) under the metric, measured on ``dense``
+    samples, wins (so a geodesic is never longer than the segment) and is spaced evenly by
+    :func:`even`, which refines those samples where they are coarse.
     """
     best, best_length = None, np.inf
     for start in (straight(xa, xb, 2), metric.graph().shortest(metric, xa, xb)):
-        X = even(metric, densify(start, DENSE), points)
+        X = even(metric, densify(start, dense), points)
         for cand in (X, minimise_energy(metric, X, iterations)):
-            Xd = densify(cand, DENSE)
-            length = metric.steps(Xd).sum()
+            Xd = densify(cand, dense)
+            Fd = metric.features(Xd)
+            length = step_lengths(Fd).sum()
             if length < best_length:
-                best, best_length = Xd, length
-    return even(metric, best, steps)
+                best, best_length = (Xd, Fd), length
+    return even(metric, best[0], steps, F=best[1])
 
 
 def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):
@@ -344,8 +323,16 @@ def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):
     xa, xb = endpoint(manifold, a, "a"), endpoint(manifold, b, "b")
     if kind == "straight" or np.array_equal(xa, xb):
         return straight(xa, xb, steps)
-    metric = metric or PathMetric.of(manifold)
-    return uniform(metric, xa, xb, steps) if kind == "uniform" else geodesic(metric, xa, xb, steps)
+    with single_threaded():
+        metric = metric or PathMetric.of(manifold)
+        return uniform(metric, xa, xb, steps) if kind == "uniform" else geodesic(metric, xa, xb, steps)
+
+
+def single_threaded():
+    """BLAS on one thread (threadpoolctl): a path's products are small (tens of points), and BLAS
+    threads waiting on each other made a geodesic ~20x slower on a busy 2-core machine."""
+    from threadpoolctl import threadpool_limits
+    return threadpool_limits(1, user_api="blas")
 
 
 def latent_distance(manifold, x, y, stride=(1, 1, 1)):

@@ -1,5 +1,7 @@
 """Paths through the space: Manifold.distance, the straight, uniform and geodesic kinds."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -114,3 +116,35 @@ def test_paths_between_points_and_the_errors(m, pair):
         m.path(pair[0], [0.0] * (m.q + 2))
     assert paths.DEFAULT_KIND in paths.KINDS
     assert m.path(*pair, steps=4).shape == (4, m.q)   # the default kind
+
+
+def test_rows_and_graph_are_cached_by_the_manifolds_content(small_manifold, tmp_path):
+    """A fresh load reads the metric's rows and the graph's edges from the database's cache
+    folder (named by a content hash) without reading the tables; they equal a cache-less build."""
+    from mitsuba_manifold.manifold import latent_graph
+
+    first = Manifold.load(small_manifold)
+    metric = paths.PathMetric.of(first)
+    built = metric.graph()
+    fresh = Manifold.load(small_manifold)
+    again = paths.PathMetric(fresh)
+    assert fresh._tables is None   # rows from the cache: the tables were not read
+    assert np.array_equal(again.rows, metric.rows)
+    graph = latent_graph.LatentGraph.build(again)
+    direct = latent_graph.LatentGraph.build(again, cache=False)
+    assert fresh._tables is None
+    assert np.array_equal(graph.nodes, direct.nodes) and np.array_equal(built.nodes, direct.nodes)
+    assert abs(graph.graph - built.graph).max() == 0.0          # the cached edges, exactly
+    assert abs(graph.graph - direct.graph).max() <= 1e-6 * direct.graph.max()   # float32 products' rounding
+    # symmetric, every edge once: a latent segment's consecutive nodes are one edge of its distance
+    assert abs(direct.graph - direct.graph.T).max() == 0.0
+    i, j = direct.graph.nonzero()
+    k = np.argmax(i != j)
+    d = np.linalg.norm(np.diff(again.features(direct.nodes[[i[k], j[k]]]).astype(np.float64), axis=0))
+    assert direct.graph[i[k], j[k]] == pytest.approx(d + 1e-12, rel=1e-5)
+    # another interpolant, another key; a moved database is not created by the cache
+    other = Manifold.load(small_manifold)
+    other.interpolant.taper = other.interpolant.taper * 2
+    assert latent_graph.cache_key(paths.PathMetric(other), "x") != latent_graph.cache_key(again, "x")
+    other.database = str(tmp_path / "gone")
+    assert latent_graph.cache_folder(other) is None and not os.path.exists(other.database)

@@ -8,8 +8,8 @@ Timings are wall-clock medians over repeats on the machine that runs them
 """
 
 #: Benchmark names, in the order ``tools/bench.py`` lists them.
-NAMES = ("fit", "interp", "pca", "bsdf", "gi", "gi-targets", "stability", "basis", "match", "match-render", "scaling", "explore",
-         "space", "prune", "fig9")
+NAMES = ("fit", "interp", "pca", "bsdf", "gi", "gi-targets", "stability", "basis", "match", "match-render", "scaling",
+         "explore", "space", "prune", "fig9", "paths")
 
 
 def module_name(name):

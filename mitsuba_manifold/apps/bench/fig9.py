@@ -78,7 +78,13 @@ def summary(rows, pair_a=None):
 
 
 def preset_report(m, sets, kinds, progress=True):
-    """Paths of every kind for every pair of ``sets`` on manifold ``m``, measured on the full grid."""
+    """Paths of every kind for every pair of ``sets`` on manifold ``m``, measured on the full grid
+    (BLAS on one thread, as :func:`paths.path` runs: threads only contend on a busy machine)."""
+    with paths.single_threaded():
+        return _preset_report(m, sets, kinds, progress)
+
+
+def _preset_report(m, sets, kinds, progress):
     full = paths.PathMetric(m, (1, 1, 1))
     search = paths.PathMetric.of(m)
     t0 = time.perf_counter()
@@ -113,11 +119,10 @@ def preset_report(m, sets, kinds, progress=True):
 
 def plot(report, path, preset):
     """Fig. 9 for one preset: rows = path kinds; columns = the paper's pairs and the neighbour pairs."""
-    plt = plots.figure()
     kinds = list(report["kinds"])
     cols = [("paper", i) for i in range(len(report["kinds"][kinds[0]]["rows"]["paper"]))] + [("neighbours", None),
                                                                                           ("held_out", None)]
-    fig, axes = plt.subplots(len(kinds), len(cols), figsize=(3.1 * len(cols), 2.9 * len(kinds)), squeeze=False)
+    fig, axes = plots.subplots(len(kinds), len(cols), figsize=(3.1 * len(cols), 2.9 * len(kinds)), squeeze=False)
     t = np.linspace(0, 1, STEPS)
     for r, kind in enumerate(kinds):
         rows = report["kinds"][kind]["rows"]
@@ -145,7 +150,6 @@ def plot(report, path, preset):
                  "dashed: perceptually uniform", fontsize=9)
     fig.tight_layout()
     plots.save(fig, path)
-    plt.close(fig)
     return path
 
 

@@ -19,6 +19,7 @@
   prune      pruning rules: albedo, cosine-weighted and raw table change, materials kept, ms per call; --basis: image change
   fig9       the paper's Fig. 9: perceptual distances from both ends along paths of 20 steps, per preset
              (--configs default,paper) and path kind (straight, uniform, geodesic); plots beside the JSON
+  paths      speed of the paths: seconds per path of each kind, the latent graph cold and cached
 """
 
 import argparse
@@ -81,7 +82,7 @@ def run(args):
     if not explore and args.database is None and not os.path.isdir(folder) and args.which not in ("scaling", "match-render"):
         print(f"making the built-in database at MERL resolution in {folder}")
         database.make_database(folder, progress=True)
-    kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space", "fig9") else {}
+    kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space", "fig9", "paths") else {}
     if args.which == "fig9":
         kwargs["plot_stem"] = os.path.splitext(args.json)[0]
         if args.configs:
