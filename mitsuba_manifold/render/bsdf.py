@@ -18,6 +18,7 @@ variant, so import it only with a variant set (``import mitsuba_manifold.render`
 """
 
 import operator
+from functools import partial
 
 import drjit as dr
 import mitsuba as mi
@@ -320,22 +321,19 @@ class ManifoldBRDF(mi.BSDF):
 
     @property
     def ad_weights(self):
-        """The weights of the active set in AD mode: a new ``mi.Float`` of size K that follows ``x``
-        through :class:`.ad.LatentWeights` (the analytic Jacobian), for use outside a render (while it
-        is alive its edge from ``x`` lies outside an integrator's AD scope: ``render_forward`` from ``x``
-        refuses it); None otherwise."""
+        """AD mode: a new ``mi.Float`` (K) of the active set's weights following ``x`` through
+        :class:`.ad.LatentWeights`, for use outside a render (``render_forward`` from ``x`` refuses its
+        edge while it is alive); None otherwise."""
         if self._w is None:
             return None
         v, J = self._ad_state
         return ad.latent_weights(self._x_param, lambda _x: (v, J))
 
     def forward_weights(self, dx):
-        """Forward mode on given weights: the active set's weights as a new AD leaf carrying ``J dx``
-        (propagated from ``x`` through :class:`.ad.LatentWeights`), used by the renders from now on
-        (until the next ``params.update()``); returns it, for
-        ``integrator.render_forward(scene, {"w": leaf})``. Forward mode from ``x`` itself needs none
-        of this (``dr.set_grad(params["<id>.x"], dx)``, then ``render_forward`` or ``mi.render`` and
-        ``dr.forward_to``): the weights' edges are made inside the integrator (:func:`.ad.traced_weights`)."""
+        """The active set's weights as a new AD leaf carrying ``J dx`` (:class:`.ad.LatentWeights`), rendered
+        until the next ``params.update()``; returns it, for ``integrator.render_forward(scene, {"w": leaf})``.
+        Forward mode from ``x`` itself needs none of this: ``dr.set_grad(params["<id>.x"], dx)``, then
+        ``render_forward`` (or ``mi.render`` and ``dr.forward_to``), see :func:`.ad.traced_weights`."""
         if self._w is None:
             raise InputError(f"{PLUGIN_NAME}: forward_weights needs AD mode (a grad-enabled x after params.update())")
         self._w = leaf = ad.forward_leaf(self._x_param, self.ad_weights, dx)
@@ -350,11 +348,10 @@ class ManifoldBRDF(mi.BSDF):
         return material_density(self._manifold.open_database(self._options.database, [name]), name)
 
     def _update_ad(self):
-        """AD mode at the grad-enabled ``x``: the active set, its weights ``v`` and their Jacobian ``J``
-        (NumPy, detached), the slots' tables, and (unless :attr:`hold_proxy`) the detached sampling
-        proxy. The weights enter the lookups as :func:`.ad.traced_weights` (value ``v``, derivative
-        ``J dx``), made at every lookup inside the integrator's scope: forward and backward mode from
-        ``x`` then work through Mitsuba's own ``render_forward``/``render_backward``."""
+        """AD mode at the grad-enabled ``x``: the active set, its weights ``v`` and Jacobian ``J`` (NumPy),
+        the slots' tables, and (unless :attr:`hold_proxy`) the detached sampling proxy. The weights enter
+        every lookup as :func:`.ad.traced_weights` (value ``v``, derivative ``J dx``), made inside the
+        integrator's AD scope: forward and backward mode from ``x`` work through Mitsuba's own API."""
         if self._active is None:
             self._active = ad.ActiveSet(self._manifold, self._ad_terms, self._read_tables, self._read_density)
         x = np.array(self._x_param, dtype=np.float64).ravel()
@@ -370,11 +367,8 @@ class ManifoldBRDF(mi.BSDF):
         self._cos_frac = 1.0 if distr is None else COSINE_FRACTION
         self._ad_state = (v, J)
         self._w = mi.Float(np.asarray(v, dtype=np.float32))   # detached: AD mode's marker and values
-        v_dev, J_dev, x_param = self._w, mi.Float(np.asarray(J, dtype=np.float32).ravel()), self._x_param
-
-        def traced():   # the weights' edges from x, made at each lookup: inside the integrator's AD scope
-            return ad.traced_weights(x_param, v_dev, J_dev)
-        self._gather = ad.mixture_gather(a.slots, traced, a.host.shape[1], a.k)
+        traced = partial(ad.traced_weights, self._x_param, self._w, mi.Float(np.asarray(J, dtype=np.float32).ravel()))
+        self._gather = ad.mixture_gather(a.slots, traced, a.host.shape[1], a.k)   # edges made at each lookup
 
     def to_string(self):
         c, o = self._c, self._options
