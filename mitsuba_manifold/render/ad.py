@@ -10,6 +10,16 @@ a ``mi.Float`` of size K that follows ``x`` through :class:`LatentWeights`, a
 (:meth:`Manifold.weights_jacobian`) restricted to the active set, the rescaling
 ``w_S / sum(w_S)`` (as pruning rescales) included (:func:`rescaled`).
 
+Inside a render the same map enters every table lookup as :func:`traced_weights`:
+``w = v + J (x - detach(x))`` made of ordinary Dr.Jit operations (value ``v`` exactly, derivative
+``J dx``), recorded where the lookup is. Mitsuba's ``render_forward`` (``prb`` and the others)
+isolates its AD scope and refuses to propagate across an edge made outside it, and a CustomOp's
+callbacks cannot read arrays inside the integrators' symbolic loops: with the edges made inside, a
+user's ``dr.set_grad(params["<id>.x"], dx)`` then ``render_forward`` (or ``mi.render`` and
+``dr.forward_to``/``dr.forward``) gives the image's derivative along ``dx``, and ``dr.backward``
+works as before. :class:`LatentWeights` remains the weights' operation outside a render
+(``ManifoldBRDF.ad_weights``, ``forward_weights``).
+
 The active set is chosen by weight AND Jacobian (:func:`choose_active`): the score of a
 material is ``|w_i| + step ||dw_i/dx||``, the weight it can reach within one typical step;
 choosing by ``|w_i| |table_i|`` (pruning's rule) can drop a material whose weight is
@@ -172,14 +182,44 @@ def _packed(table):
     return np.ascontiguousarray(table.reshape(3, -1).T)
 
 
+def traced_weights(x, v, J):
+    """The K weights as Dr.Jit expressions of ``x``: ``w_k = v_k + sum_j J_kj (x_j - detach(x_j))``
+    (``v`` (K,) and ``J`` (K * q,) row-major: detached ``mi.Float``), a list of K ``mi.Float``.
+
+    Their value is ``v`` exactly, their derivative the analytic Jacobian's ``J dx`` (forward) or
+    ``J^T dw`` (backward): the same map as :class:`LatentWeights`, made of ordinary operations so that
+    it can be recorded where the lookup is, inside an integrator's symbolic loop and its isolated AD
+    scope (``prb``'s ``render_forward`` refuses an edge made outside it, and a ``dr.CustomOp``'s
+    callbacks cannot read arrays inside a symbolic region). Every value is gathered from device
+    arrays (no literal), so new weights compile nothing."""
+    k = dr.width(v)
+    q = dr.width(J) // max(k, 1)
+    d = []
+    for j in range(q):
+        xj = dr.gather(mi.Float, x, mi.UInt32(j))
+        d.append(xj - dr.detach(xj))
+    out = []
+    for i in range(k):
+        wi = dr.gather(mi.Float, v, mi.UInt32(i))
+        for j in range(q):
+            wi = dr.fma(dr.gather(mi.Float, J, mi.UInt32(i * q + j)), d[j], wi)
+        out.append(wi)
+    return out
+
+
 def mixture_gather(slots, weights, n_bins, k):
     """A ``gather(table, idx, active)`` for :func:`.lookups.table_value` that returns
-    ``max(0, sum_k w_k slot_k[idx])`` (clamped per bin, as the combined table is)."""
+    ``max(0, sum_k w_k slot_k[idx])`` (clamped per bin, as the combined table is). ``weights``: a
+    ``mi.Float`` of size K, or a callable returning K ``mi.Float`` (:func:`traced_weights`), called
+    at every lookup (so that the weights' AD edges are made where the lookup is)."""
     def gather(_table, idx, active):
+        if callable(weights):
+            wk = weights()
+        else:
+            wk = [dr.gather(mi.Float, weights, mi.UInt32(j)) for j in range(k)]
         out = mi.Color3f(0.0)
         for j in range(k):
-            wj = dr.gather(mi.Float, weights, mi.UInt32(j))
-            out += wj * dr.gather(mi.Color3f, slots, idx + j * n_bins, active)
+            out += wk[j] * dr.gather(mi.Color3f, slots, idx + j * n_bins, active)
         return dr.maximum(out, 0.0)
     return gather
 

@@ -18,6 +18,7 @@ variant, so import it only with a variant set (``import mitsuba_manifold.render`
 """
 
 import operator
+from functools import partial
 
 import drjit as dr
 import mitsuba as mi
@@ -320,19 +321,22 @@ class ManifoldBRDF(mi.BSDF):
 
     @property
     def ad_weights(self):
-        """The weights of the active set in AD mode (a ``mi.Float`` of size K that follows ``x``;
-        None otherwise)."""
-        return self._w
+        """AD mode: a new ``mi.Float`` (K) of the active set's weights following ``x`` through
+        :class:`.ad.LatentWeights`, for use outside a render (``render_forward`` from ``x`` refuses its
+        edge while it is alive); None otherwise."""
+        if self._w is None:
+            return None
+        v, J = self._ad_state
+        return ad.latent_weights(self._x_param, lambda _x: (v, J))
 
     def forward_weights(self, dx):
-        """Forward mode: the active set's weights as a new AD leaf carrying ``J dx`` (propagated from
-        ``x`` through :class:`.ad.LatentWeights`, the analytic Jacobian), used from now on; returns it. Then
-        ``integrator.render_forward(scene, {"w": leaf})`` gives the image's derivative along ``dx``.
-        (Mitsuba's ``render_forward`` propagates only inside its isolated scope, which the edge
-        ``x -> w`` made by ``params.update()`` lies outside: propagating from ``x`` itself fails.)"""
+        """The active set's weights as a new AD leaf carrying ``J dx`` (:class:`.ad.LatentWeights`), rendered
+        until the next ``params.update()``; returns it, for ``integrator.render_forward(scene, {"w": leaf})``.
+        Forward mode from ``x`` itself needs none of this: ``dr.set_grad(params["<id>.x"], dx)``, then
+        ``render_forward`` (or ``mi.render`` and ``dr.forward_to``), see :func:`.ad.traced_weights`."""
         if self._w is None:
             raise InputError(f"{PLUGIN_NAME}: forward_weights needs AD mode (a grad-enabled x after params.update())")
-        self._w = leaf = ad.forward_leaf(self._x_param, self._w, dx)
+        self._w = leaf = ad.forward_leaf(self._x_param, self.ad_weights, dx)
         self._gather = ad.mixture_gather(self._active.slots, leaf, self._active.host.shape[1], self._active.k)
         return leaf
 
@@ -344,28 +348,27 @@ class ManifoldBRDF(mi.BSDF):
         return material_density(self._manifold.open_database(self._options.database, [name]), name)
 
     def _update_ad(self):
-        """Weights of the active set at the grad-enabled ``x`` through :func:`.ad.latent_weights`,
-        the slots' tables, and (unless :attr:`hold_proxy`) the detached sampling proxy."""
+        """AD mode at the grad-enabled ``x``: the active set, its weights ``v`` and Jacobian ``J`` (NumPy),
+        the slots' tables, and (unless :attr:`hold_proxy`) the detached sampling proxy. The weights enter
+        every lookup as :func:`.ad.traced_weights` (value ``v``, derivative ``J dx``), made inside the
+        integrator's AD scope: forward and backward mode from ``x`` work through Mitsuba's own API."""
         if self._active is None:
             self._active = ad.ActiveSet(self._manifold, self._ad_terms, self._read_tables, self._read_density)
-        state = {}
-
-        def weights_fn(x):
-            state["idx"], v, Jv, state["w"] = self._active.update(x)
-            state["v"], state["x"] = v, x
-            return v, Jv
-
+        x = np.array(self._x_param, dtype=np.float64).ravel()
         try:
-            w = ad.latent_weights(self._x_param, weights_fn)
+            idx, v, J, w = self._active.update(x)
         except (ValueError, KeyError, OSError) as e:  # damaged or missing files
             raise InputError(f"{PLUGIN_NAME}: {e}") from None
+        state = {"idx": idx, "v": v, "w": w, "x": x}
         a, distr, black = self._active, self._c.distr, self._c.black
         if self.sampling == "cdf" and (not self.hold_proxy or self._w is None or distr is None):
-            distr, black = combined_distribution(a.densities, state["v"])
+            distr, black = combined_distribution(a.densities, v)
         self._c = ad.combination(self._manifold, a, state, distr, black)
         self._cos_frac = 1.0 if distr is None else COSINE_FRACTION
-        self._w = w
-        self._gather = ad.mixture_gather(a.slots, w, a.host.shape[1], a.k)
+        self._ad_state = (v, J)
+        self._w = mi.Float(np.asarray(v, dtype=np.float32))   # detached: AD mode's marker and values
+        traced = partial(ad.traced_weights, self._x_param, self._w, mi.Float(np.asarray(J, dtype=np.float32).ravel()))
+        self._gather = ad.mixture_gather(a.slots, traced, a.host.shape[1], a.k)   # edges made at each lookup
 
     def to_string(self):
         c, o = self._c, self._options

@@ -11,8 +11,8 @@ moved off their training point towards their best-ranked latent neighbour (:func
 the convex Shepard weights have a zero Jacobian at a training point, and are flat near it), and
 the basis match's point when a basis is given. The best training material itself stays a
 candidate for the result. Each start runs
-``iterations`` Adam steps (learning rate decayed to a tenth); its last iterate and its iterate
-of lowest loss are re-rendered at ``eval_spp`` with another seed, and the best becomes the
+``iterations`` Adam steps (learning rate decayed to a tenth); its last iterate, its iterate
+of lowest loss and the mean of its second half's iterates are re-rendered at ``eval_spp`` with another seed, and the best becomes the
 result. ``x`` is not identifiable from one image (several points give near-identical weights):
 report the weights and the image error, not the error in ``x``.
 """
@@ -198,12 +198,13 @@ def _scan(problem, opts):
 
 
 def _descend(problem, x0, opts, lr, bar):
-    """Adam from ``x0`` (learning rate decayed to a tenth): ``(history, x_last, x_best)``."""
+    """Adam from ``x0`` (learning rate decayed to a tenth): ``(history, x_last, x_best, x_mean)``,
+    ``x_mean`` the mean of the second half's iterates (the noisy gradients' random walk averaged)."""
     import drjit as dr
     mi = problem.mi
     opt = mi.ad.Adam(lr=lr)
     opt["x"] = mi.Float(np.asarray(x0, dtype=np.float32))
-    history, best = [], (np.inf, np.asarray(x0, dtype=np.float64))
+    history, best, tail = [], (np.inf, np.asarray(x0, dtype=np.float64)), []
     for it in range(opts.iterations):
         opt.set_learning_rate(lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * it / opts.iterations))))
         problem.set_x(opt["x"])
@@ -214,10 +215,12 @@ def _descend(problem, x0, opts, lr, bar):
         if value < best[0]:
             best = (value, np.array(opt["x"], dtype=np.float64))
         opt.step()
+        if 2 * (it + 1) > opts.iterations:
+            tail.append(np.array(opt["x"], dtype=np.float64))
         if bar is not None:
             bar.set_postfix(loss=f"{value:.4g}")
             bar.update(1)
-    return history, np.array(opt["x"], dtype=np.float64), best[1]
+    return history, np.array(opt["x"], dtype=np.float64), best[1], np.mean(tail, axis=0)
 
 
 def _plot(history, path, labels):
@@ -268,8 +271,8 @@ def match_render(views, manifold_path, options=None, basis=None, database=None):
                leave=False)
     runs, t_iter = [], time.perf_counter()
     for kind, x0 in starts:
-        history, x_last, x_best = _descend(problem, x0, opts, lr, bar)
-        for which, x in (("last", x_last), ("lowest loss", x_best)):
+        history, x_last, x_best, x_mean = _descend(problem, x0, opts, lr, bar)
+        for which, x in (("last", x_last), ("lowest loss", x_best), ("mean of the second half", x_mean)):
             err, images, e = problem.evaluate(x, None if opts.exposure else 1.0, opts.eval_spp, opts.seed + 55)
             runs.append({"start": kind, "x0": np.asarray(x0).tolist(), "iterate": which, "x": x.tolist(),
                          "error": err, "exposure": e, "images": images, "history": history})

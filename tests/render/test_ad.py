@@ -117,8 +117,11 @@ def test_active_set_by_weight_and_jacobian_with_hysteresis():
     assert ad.choose_active(w2, J * 0, 2, step=0.0, previous=[0, 1]).tolist() == [0, 1]
 
 
-@pytest.mark.parametrize("mode", ["forward", "backward"])
+@pytest.mark.parametrize("mode", ["backward", "render_forward", "forward_to", "forward", "forward_weights"])
 def test_render_gradient_matches_central_differences(small_manifold, manifold, mode):
+    """Backward and forward mode the way a Mitsuba user writes them: ``dr.backward`` of ``mi.render``;
+    ``dr.set_grad(x, dx)`` then ``integrator.render_forward`` or ``mi.render`` and ``dr.forward_to``;
+    ``dr.forward(x)``; and the older ``bsdf.forward_weights(dx)`` leaf."""
     gc.collect()   # no AD graph of an earlier test's scene left (prb's forward mode traverses from the enqueued)
     x0 = _x0(manifold)
     scene = _scene(small_manifold, x0)
@@ -132,17 +135,50 @@ def test_render_gradient_matches_central_differences(small_manifold, manifold, m
         img = mi.render(scene, params, integrator=integ, spp=SPP, seed=7, seed_grad=1)
         dr.backward(dr.mean(img, axis=None))
         grad = np.array(dr.grad(params["mat.x"]))
+    elif mode == "forward":   # dr.forward(x): the derivative along dx = (1, ..., 1)
+        img = mi.render(scene, params, integrator=integ, spp=SPP, seed=7, seed_grad=1)
+        dr.forward(params["mat.x"])
+        grad = np.array([float(np.array(dr.grad(img), dtype=np.float64).mean())])
     else:
         grad = []
         for j in range(manifold.q):
             params = _grad_enabled(scene, x0)
-            leaf = bsdf.forward_weights(np.eye(manifold.q)[j])
-            d_img = mi.load_dict(PRB).render_forward(scene, {"w": leaf}, seed=1, spp=SPP)
+            dx = np.eye(manifold.q)[j]
+            if mode == "forward_weights":
+                leaf = bsdf.forward_weights(dx)
+                d_img = mi.load_dict(PRB).render_forward(scene, {"w": leaf}, seed=1, spp=SPP)
+            else:
+                dr.set_grad(params["mat.x"], mi.Float(dx.astype(np.float32)))
+                if mode == "render_forward":
+                    d_img = integ.render_forward(scene, params, seed=1, spp=SPP)
+                else:
+                    img = mi.render(scene, params, integrator=integ, spp=SPP, seed=7, seed_grad=1)
+                    dr.forward_to(img)
+                    d_img = dr.grad(img)
             grad.append(float(np.array(d_img, dtype=np.float64).mean()))
         grad = np.array(grad)
     fd = _central_differences(scene, params, x0)
+    fd = np.array([fd.sum()]) if mode == "forward" else fd
     assert np.abs(grad).max() > 0
     np.testing.assert_allclose(grad, fd, rtol=2e-2, atol=2e-3 * np.abs(fd).max())
+
+
+def test_traced_weights_value_and_derivatives():
+    """:func:`ad.traced_weights`: value ``v`` exactly, forward ``J dx``, backward ``J^T dw``."""
+    v = np.array([0.6, 0.3, 0.1])
+    J = np.array([[1.0, -2.0], [0.5, 0.25], [-1.5, 1.75]])
+    x = mi.Float([0.2, -0.4])
+    dr.enable_grad(x)
+    w = ad.traced_weights(x, mi.Float(v), mi.Float(J.ravel()))
+    np.testing.assert_array_equal([float(np.array(wi)[0]) for wi in w], v.astype(np.float32))
+    dr.backward(sum(c * wi for c, wi in zip((1.0, 2.0, 3.0), w)))
+    np.testing.assert_allclose(np.array(dr.grad(x)), np.array([1.0, 2.0, 3.0]) @ J, rtol=1e-6)
+    x = mi.Float([0.2, -0.4])
+    dr.enable_grad(x)
+    w = ad.traced_weights(x, mi.Float(v), mi.Float(J.ravel()))
+    dr.set_grad(x, mi.Float([1.0, -2.0]))
+    dr.forward_to(*w)
+    np.testing.assert_allclose([float(np.array(dr.grad(wi))[0]) for wi in w], J @ [1.0, -2.0], rtol=1e-6)
 
 
 def _adam_moves(scene, x0, steps=2):
