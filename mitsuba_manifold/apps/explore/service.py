@@ -26,8 +26,10 @@ from ...basis.blend import DEFAULT_PRUNE, blend
 from ...data.database import cache_folder
 from ...errors import InputError
 from ...manifold.model import Manifold
+from ...manifold import paths as path_kinds
 from . import encode, latentmap, material
 from .reference import MAX_SPP, References
+from .walks import MAX_STEPS, STEPS, Walks
 
 
 #: What a number may look like (as JSON writes them, plus nan/inf to name them in the error);
@@ -106,9 +108,13 @@ class Explorer:
         Scene XML (or shipped scene name) for the reference renders, checked against each
         basis's scene hash (default: the manifest's scene, or the shipped scene of that name
         and hash when the manifest's file has moved).
+    thumbnails : bool
+        Render the materials' thumbnails in the background (:mod:`.thumbs`; cached beside the
+        first basis).
     """
 
-    def __init__(self, bases, manifold=None, database=None, prune=DEFAULT_PRUNE, load_tables=True, scene=None):
+    def __init__(self, bases, manifold=None, database=None, prune=DEFAULT_PRUNE, load_tables=True, scene=None,
+                 thumbnails=False):
         if not bases:
             raise InputError("give at least one basis folder")
         if not 0.0 <= float(prune) < 1.0:
@@ -132,6 +138,12 @@ class Explorer:
         self.scenes = {name: _scene_of(b, scene) for name, b in self.bases.items()}
         cache = cache_folder(next(iter(self.bases.values())).folder) if load_tables else None   # beside the basis
         self.tables = material.TableStack(self.manifold, database, cache) if load_tables else None
+        self._walks, self._walks_lock = None, threading.Lock()
+        self.thumbs = None
+        if thumbnails:
+            from .thumbs import Thumbnails
+            self.thumbs = Thumbnails(self.manifold_path, self.manifold,
+                                     cache_folder(next(iter(self.bases.values())).folder))
         self.references = References()
         self._maps, self._maps_lock = {}, threading.Lock()
 
@@ -207,14 +219,29 @@ class Explorer:
                       "blend_ms": 1e3 * (t1 - t0), "tonemap_ms": 1e3 * (t2 - t1), "encode_ms": 1e3 * (t3 - t2),
                       "total_ms": 1e3 * (t3 - t0)}
 
-    def material(self, x):
+    @property
+    def walks(self):
+        """The :class:`~.walks.Walks` (paths, distances) of the manifold, once the tables are loaded."""
+        if not self.tables or self.tables.state != "ready":
+            raise InputError("perceptual paths and distances need the material tables: " +
+                             (self.tables.message if self.tables else "not loaded (--no-tables)"))
+        with self._walks_lock:
+            if self._walks is None:
+                self._walks = Walks(self.manifold, self.tables.metric_rows)
+        return self._walks
+
+    def material(self, x, with_slice=True):
         """Description of the material at ``x`` (JSON-ready), with the table-based parts
-        when the tables are loaded."""
+        when the tables are loaded: the negative-bin fraction, the measured material nearest
+        under the perceptual metric (``measured``: name, distance, and the median spacing of
+        the measured materials for scale) and (``with_slice``) the server's BRDF slice image."""
         out = material.describe(self.manifold, x, self.prune)
         out["tables"] = self.tables.state if self.tables else "unavailable"
         out["tables_message"] = self.tables.message if self.tables else "not loaded (--no-tables)"
         if self.tables and self.tables.state == "ready":
             _, out["negative_fraction"] = self.tables.preview(x, self.prune)
+            out["measured"] = self.walks.nearest_measured(x)
+        if self.tables and self.tables.state == "ready" and with_slice:
             rgb, (lo, hi) = material.slice_image(self.tables.slice(x, self.prune))
             out["slice"] = {"png": "data:image/png;base64," + base64.b64encode(encode.png_bytes(rgb)).decode(),
                             "log10_range": [lo, hi], "phi_d_deg": 90.0}
@@ -300,9 +327,11 @@ class Explorer:
               f"\"x\": \"{xs}\"}})")
         return {"xml": xml, "python": py, "x": [float(v) for v in x]}
 
-    def path_command(self, name, a, b, steps):
-        """The ``tools/blend.py --path`` command rendering the sequence from ``a`` to ``b``."""
+    def path_command(self, name, a, b, steps, kind=None):
+        """The ``tools/blend.py --path`` command rendering the sequence from ``a`` to ``b``
+        (``kind``: its ``--path-kind``; None: blend.py's default, the same as :meth:`route`'s)."""
         basis = self.basis(name)
+        kind = None if kind is None or kind == "" else self._kind(kind)
         ends = []
         for v, what in ((a, "a"), (b, "b")):
             if isinstance(v, str) and v.strip() in self.manifold.names:
@@ -315,7 +344,21 @@ class Explorer:
         tool = os.path.join(TOOLS, "blend.py")   # absolute: the command works pasted in any folder
         head = ["python3", tool] if os.path.isfile(tool) else ["mitsuba-manifold", "blend"]
         return shlex.join(head + ["--basis", os.path.abspath(basis.folder), "--manifold", self.manifold_path,
-                                  "--path", ends[0], ends[1], "--steps", str(steps), "--out", "path.exr", "--png"])
+                                  "--path", ends[0], ends[1], "--steps", str(steps)]
+                          + (["--path-kind", kind] if kind else []) + ["--out", "path.exr", "--png"])
+
+    def route(self, a, b, steps=None, kind=None):
+        """Future of the path from ``a`` to ``b`` (material names or points) of ``kind``
+        (default: :data:`Manifold.path`'s), ``steps`` points (:meth:`.walks.Walks.submit`)."""
+        kind = path_kinds.DEFAULT_KIND if kind is None or kind == "" else self._kind(kind)
+        steps = int(self.number(steps, "steps", 2, MAX_STEPS, STEPS))
+        return self.walks.submit(self.point(a, "a"), self.point(b, "b"), steps, kind)
+
+    @staticmethod
+    def _kind(kind):
+        if not isinstance(kind, str) or kind not in path_kinds.KINDS:
+            raise InputError(f"kind must be one of {list(path_kinds.KINDS)}, got {show(kind)}")
+        return kind
 
     def info(self):
         m = self.manifold
@@ -325,7 +368,8 @@ class Explorer:
         return {"manifold": self.manifold_path, "q": m.q, "names": m.names, "latent": m.latent.tolist(),
                 "albedos": None if m.albedos is None else m.albedos.tolist(), "bases": bases,
                 "prune": self.prune, "tables": self.tables.state if self.tables else "unavailable",
-                "max_reference_spp": MAX_SPP}
+                "max_reference_spp": MAX_SPP, "thumbs": self.thumbs.info() if self.thumbs else None,
+                "path_kinds": list(path_kinds.KINDS), "path_kind": path_kinds.DEFAULT_KIND}
 
     # ---------------------------------------------------------- references
     def start_reference(self, name, x, spp):
@@ -354,4 +398,6 @@ class Explorer:
 
     def close(self, wait=0.0):
         """Stop the reference renders (waits up to ``wait`` s); returns whether none still runs."""
+        if self.thumbs:
+            self.thumbs.close()
         return self.references.shutdown(wait)

@@ -1,6 +1,7 @@
 """One tab's websocket: requests tagged with their point, the newest of each kind answered.
 
-The page sends JSON text messages ``{"type": KIND, "seq": n, "x": [...], ...}`` or, once per
+The page sends JSON text messages ``{"type": KIND, "seq": n, "x": [...], ...}`` (``route``: ``a``, ``b``, ``steps``,
+``kind``: the points of a path, :meth:`~.service.Explorer.route`) or, once per
 pointer move, one combined ``{"type": "move", "seq": n, "x": [...], "want": [KIND, ...], ...}``
 standing for one request of each wanted kind at that point. For every kind (:data:`KINDS`)
 the session holds at most one waiting request: a newer one replaces it (a drag never
@@ -28,7 +29,7 @@ from .guard import MAX_MESSAGE
 from .service import show
 
 #: Kinds of request, and the order in which they are started when several wait.
-KINDS = ("frame", "table", "material", "snippet", "map", "path")
+KINDS = ("frame", "table", "material", "snippet", "map", "path", "route")
 #: Kinds answered for a point ``x`` (tagged with it).
 POINT_KINDS = ("frame", "table", "material", "snippet", "map")
 #: What answers a bad request with an error message.
@@ -144,8 +145,11 @@ class Session:
         ex = self.ex
         if kind == "path":
             cmd = await run_in_threadpool(ex.path_command, req.get("basis"), req.get("a"), req.get("b"),
-                                          req.get("steps"))
+                                          req.get("steps"), req.get("kind"))
             return {"type": "path", "command": cmd, "a": req.get("a"), "b": req.get("b")}, b""
+        if kind == "route":   # computed in the paths' own thread: waits without holding any other kind
+            route = await asyncio.wrap_future(ex.route(req.get("a"), req.get("b"), req.get("steps"), req.get("kind")))
+            return dict(route, type="route"), b""
         x = ex.point(req.get("x"), "x")
         tag = {"type": kind, "x": [float(v) for v in x]}
         if kind == "frame":
@@ -153,7 +157,8 @@ class Session:
             data, meta = await run_in_threadpool(ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"))
             return dict(meta, exposure=exposure, basis=ex.key(req.get("basis")), **tag), data
         if kind == "material":
-            return dict(await run_in_threadpool(ex.material, x), **tag), b""
+            with_slice = req.get("slice", True) is not False
+            return dict(await run_in_threadpool(ex.material, x, with_slice), **tag), b""
         if kind == "table":
             data, meta = await run_in_threadpool(ex.preview_table, x)
             return dict(meta, **tag), data
