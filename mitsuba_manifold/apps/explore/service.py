@@ -138,7 +138,9 @@ class Explorer:
         self.scenes = {name: _scene_of(b, scene) for name, b in self.bases.items()}
         cache = cache_folder(next(iter(self.bases.values())).folder) if load_tables else None   # beside the basis
         self.tables = material.TableStack(self.manifold, database, cache) if load_tables else None
-        self._walks, self._walks_lock = None, threading.Lock()
+        self._walks, self._walks_lock, self._walks_error = None, threading.Lock(), None
+        if self.tables:   # the metric's features of every measured table, prepared once the tables are in
+            threading.Thread(target=self._prepare_walks, name="explore-walks", daemon=True).start()
         self.thumbs = None
         if thumbnails:
             from .thumbs import Thumbnails
@@ -219,6 +221,13 @@ class Explorer:
                       "blend_ms": 1e3 * (t1 - t0), "tonemap_ms": 1e3 * (t2 - t1), "encode_ms": 1e3 * (t3 - t2),
                       "total_ms": 1e3 * (t3 - t0)}
 
+    def _prepare_walks(self):
+        if self.tables.wait() == "ready":
+            try:
+                self.walks
+            except Exception as e:   # no paths nor distances; the rest of the page works
+                self._walks_error = f"perceptual metric unavailable: {e}"
+
     @property
     def walks(self):
         """The :class:`~.walks.Walks` (paths, distances) of the manifold, once the tables are loaded."""
@@ -226,6 +235,8 @@ class Explorer:
             raise InputError("perceptual paths and distances need the material tables: " +
                              (self.tables.message if self.tables else "not loaded (--no-tables)"))
         with self._walks_lock:
+            if self._walks_error:
+                raise InputError(self._walks_error)
             if self._walks is None:
                 self._walks = Walks(self.manifold, self.tables.metric_rows)
         return self._walks
@@ -240,7 +251,8 @@ class Explorer:
         out["tables_message"] = self.tables.message if self.tables else "not loaded (--no-tables)"
         if self.tables and self.tables.state == "ready":
             _, out["negative_fraction"] = self.tables.preview(x, self.prune)
-            out["measured"] = self.walks.nearest_measured(x)
+            # never waits for the metric being prepared (a second or two after the tables)
+            out["measured"] = self._walks.nearest_measured(x) if self._walks is not None else None
         if self.tables and self.tables.state == "ready" and with_slice:
             rgb, (lo, hi) = material.slice_image(self.tables.slice(x, self.prune))
             out["slice"] = {"png": "data:image/png;base64," + base64.b64encode(encode.png_bytes(rgb)).decode(),

@@ -148,7 +148,8 @@ class Session:
                                           req.get("steps"), req.get("kind"))
             return {"type": "path", "command": cmd, "a": req.get("a"), "b": req.get("b")}, b""
         if kind == "route":   # computed in the paths' own thread: waits without holding any other kind
-            route = await asyncio.wrap_future(ex.route(req.get("a"), req.get("b"), req.get("steps"), req.get("kind")))
+            future = await run_in_threadpool(ex.route, req.get("a"), req.get("b"), req.get("steps"), req.get("kind"))
+            route = await asyncio.wrap_future(future)
             return dict(route, type="route"), b""
         x = ex.point(req.get("x"), "x")
         tag = {"type": kind, "x": [float(v) for v in x]}

@@ -22,7 +22,7 @@ import numpy as np
 from . import encode
 
 SIZE = 48
-SPP = 16
+SPP = 32
 VERSION = "explore-thumbs-v1"
 #: ``render_basis.py``'s main in the subprocess (the CLI module runs nothing on import).
 RUN = "import sys; from mitsuba_manifold.apps.cli.render_basis import main; sys.exit(main())"

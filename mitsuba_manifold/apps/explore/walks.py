@@ -13,8 +13,9 @@ without the full table stack in memory (1.7 GB for 100 MERL tables).
   metric (the distance the paths are even in), a few ms: one product over the sub-grid
   columns and a Gram product with the measured tables' features, computed once;
 - :meth:`Walks.submit`: a path ``a -> b`` of a kind (``straight`` at once, ``uniform`` and
-  ``geodesic`` in one low-priority background thread: the geodesic takes seconds), cached
-  per pair, steps and kind; returns a :class:`concurrent.futures.Future`.
+  ``geodesic`` in one low-priority background thread: the geodesic takes seconds; of the
+  requests waiting there only the newest is computed), cached per pair, steps and kind;
+  returns a :class:`concurrent.futures.Future`.
 """
 
 import os
@@ -112,9 +113,22 @@ class Walks:
         return future
 
     def _work(self):
+        """Compute the waiting paths, newest only: one asked for before a newer one started is
+        dropped (its future fails; the page asks for the ends it shows)."""
         _lower_priority()
         while True:
-            self._run(*self._queue.get())
+            item = self._queue.get()
+            if not self._queue.empty():
+                self._forget(item[0], InputError("a newer path was asked for; this one was not computed"))
+                continue
+            self._run(*item)
+
+    def _forget(self, future, error):
+        with self._lock:
+            for k, f in list(self._paths.items()):
+                if f is future:
+                    del self._paths[k]
+        future.set_exception(error)
 
     def _run(self, future, xa, xb, steps, kind):
         try:
@@ -123,9 +137,5 @@ class Walks:
             future.set_result({"kind": kind, "a": xa.tolist(), "b": xb.tolist(), "steps": steps,
                                "points": X.tolist(), "lengths": lengths.tolist()})
         except Exception as e:   # InputError or a numerical failure: the page falls back to straight
-            with self._lock:
-                for k, f in list(self._paths.items()):
-                    if f is future:
-                        del self._paths[k]
-            future.set_exception(e if isinstance(e, InputError) else
-                                 InputError(f"the {kind} path failed ({type(e).__name__}: {str(e)[:120]})"))
+            self._forget(future, e if isinstance(e, InputError) else
+                         InputError(f"the {kind} path failed ({type(e).__name__}: {str(e)[:120]})"))

@@ -361,7 +361,8 @@ function showMaterial(m) {
   $("nearest").innerHTML = "";
   $("measured").innerHTML = m.measured ? `${thumbHtml(m.measured.name, 18)}<b>${escapeHtml(m.measured.name)}</b> ` +
     `d = ${fmtNum(m.measured.distance)} <span class="muted">(${fmtNum(m.measured.distance / m.measured.spacing, 2)}× the ` +
-    `median spacing of the measured materials)</span>` : `<span class="muted">${escapeHtml(m.tables_message || "")}</span>`;
+    `median spacing of the measured materials)</span>` :
+    `<span class="muted">${m.tables === "ready" ? "preparing the perceptual metric…" : escapeHtml(m.tables_message || "")}</span>`;
   for (const n of m.nearest) {
     const b = document.createElement("button");
     b.innerHTML = thumbHtml(n.name, 16) + escapeHtml(n.name); b.title = `latent distance ${n.distance.toFixed(3)}`;

@@ -109,7 +109,7 @@ class MaterialPreview {
     this.canvas = canvas;
     this.message = message;
     this.key = [0.55, 0.6, 0.58];
-    this.keyPower = 0.6 * Math.PI;   // irradiance of the key light (the user's light)
+    this.keyPower = 1.0 * Math.PI;   // irradiance of the key light (the user's light)
     this.rotation = 0;               // the environment's rotation about the vertical, radians
     this.exposure = 0;
     this.layout = null;
@@ -288,7 +288,7 @@ class MaterialPreview {
       gl.uniform3fv(this.u.lightPow, lights.flatMap((l) => l[1]));
       gl.uniform1i(this.u.nLights, lights.length);
       gl.uniform2f(this.u.envRot, Math.cos(this.rotation), Math.sin(this.rotation));
-      gl.uniform1f(this.u.envShown, this.envReady ? 0.45 : 0.0);
+      gl.uniform1f(this.u.envShown, this.envReady ? 0.2 : 0.0);
       gl.uniform1f(this.u.exposure, this.exposure);
       gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
     });
