@@ -170,7 +170,8 @@ def _drag(page, a, b, moves, pace_ms):
         if later:
             latencies.append(min(later) - m["t"])
     span = (out["moves"][-1]["t"] - out["moves"][0]["t"]) / 1e3 if len(out["moves"]) > 1 else 0.0
-    return latencies, len(drawn), span, out["draws"], len(out["moves"])
+    parts = [(f["server_ms"], f["round_trip_ms"]) for f in out["frames"] if f.get("round_trip_ms") is not None]
+    return latencies, len(drawn), span, out["draws"], len(out["moves"]), parts
 
 
 def browser(basis, manifold=None, drags=6, moves=20, pace_ms=16, chromium=None):
@@ -203,7 +204,7 @@ def browser(basis, manifold=None, drags=6, moves=20, pace_ms=16, chromium=None):
             return (box["x"] + (x[0] - ext[0]) / (ext[1] - ext[0]) * box["width"],
                     box["y"] + (1 - (x[1] - ext[2]) / (ext[3] - ext[2])) * box["height"])
         rng = np.random.default_rng(0)
-        lat, frames, seconds, draws, sent = [], 0, 0.0, 0, 0
+        lat, frames, seconds, draws, sent, parts = [], 0, 0.0, 0, 0, []
         for _ in range(drags):
             i, j = rng.choice(len(latent), 2, replace=False)
             # between materials, off their points (no snapping): every move is a new point
@@ -211,10 +212,14 @@ def browser(basis, manifold=None, drags=6, moves=20, pace_ms=16, chromium=None):
             got = _drag(page, at(a), at(b), moves, pace_ms)
             lat += got[0]
             frames, seconds, draws, sent = frames + got[1], seconds + got[2], draws + got[3], sent + got[4]
+            parts += got[5]
         context.close()
     finally:
         launch.stop(proc)
     report.update({"move_to_frame_ms": _stats(lat), "moves": sent, "frames_drawn": frames,
+                   # where a frame's time goes: the server's blend + tonemap + encode, and send to answer
+                   "frame_server_ms": _stats([p[0] for p in parts] or [0]),
+                   "frame_round_trip_ms": _stats([p[1] for p in parts] or [0]),
                    "moves_per_s": frames / seconds if seconds else None, "sphere_draws": draws,
                    "load_average_1min_after": os.getloadavg()[0]})
     m, t = report["move_to_frame_ms"], BROWSER_TARGETS

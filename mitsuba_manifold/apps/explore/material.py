@@ -122,7 +122,7 @@ class TableStack:
         self.database = database
         self.cache_dir = cache_dir
         self.state, self.message = "loading", "loading tables"
-        self.dims = self.preview_dims = self.metric_rows = None
+        self.dims = self.preview_dims = self.metric_rows = self._coarse = None
         self._ready = threading.Event()
         self._lock = threading.Lock()
         self._recent = {}
@@ -213,28 +213,33 @@ class TableStack:
         keep, w_kept, _ = self.manifold.prune(w, prune)
         return w_kept.astype(np.float32) @ rows[keep]
 
-    def preview(self, x, prune):
+    def preview(self, x, prune, coarse=False):
         """Interpolated table at reduced resolution: float16 (3, n_h, n_d, n_p), and the
         fraction of those bins below 0 (an estimate of the full table's).
 
-        The page asks for the material's description and its table at the same point: the
-        last few answers are kept."""
-        key = (np.asarray(x, dtype=np.float64).tobytes(), float(prune))
+        ``coarse``: every other texel of that along each axis (an eighth of the work and of
+        the bytes: the page's sphere while a drag runs). The page asks for the material's
+        description and its table at the same point: the last few answers are kept."""
+        key = (np.asarray(x, dtype=np.float64).tobytes(), float(prune), bool(coarse))
         with self._lock:
             if key in self._recent:
                 return self._recent[key]
-        out = self._preview(x, prune)
+        out = self._preview(x, prune, coarse)
         with self._lock:
             self._recent[key] = out
             while len(self._recent) > RECENT:
                 self._recent.pop(next(iter(self._recent)))
         return out
 
-    def _preview(self, x, prune):
-        table = self._combine(self._reduced, x, prune)
+    def _preview(self, x, prune, coarse=False):
+        if coarse and self._coarse is None:
+            full = self._reduced.reshape((-1, 3) + tuple(self.preview_dims))
+            self._coarse = np.ascontiguousarray(full[:, :, ::2, ::2, ::2]).reshape(len(full), -1)
+        table = self._combine(self._coarse if coarse else self._reduced, x, prune)
         negative = float((table < 0).mean())
         half = np.clip(table, -HALF_MAX, HALF_MAX).astype(np.float16)   # peaks above 65504 saturate
-        return half.reshape((3,) + tuple(self.preview_dims)), negative
+        dims = tuple(-(-d // 2) for d in self.preview_dims) if coarse else tuple(self.preview_dims)
+        return half.reshape((3,) + dims), negative
 
     def slice(self, x, prune):
         """``theta_h x theta_d`` slice at ``phi_d = 90 deg``: float32 (3, n_h, n_d)."""

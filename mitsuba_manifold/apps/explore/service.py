@@ -38,6 +38,8 @@ _NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,4})?
                      re.IGNORECASE)
 #: Maps kept for repeated requests of the same slice.
 MAPS_KEPT = 8
+#: Map resolutions (pixels per side): at rest, and while the slice moves.
+FULL_MAP, COARSE_MAP = 192, 96
 TOOLS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
                      "tools")
 
@@ -241,32 +243,35 @@ class Explorer:
                 self._walks = Walks(self.manifold, self.tables.metric_rows)
         return self._walks
 
-    def material(self, x, with_slice=True):
+    def material(self, x, with_slice=True, live=False):
         """Description of the material at ``x`` (JSON-ready), with the table-based parts
         when the tables are loaded: the negative-bin fraction, the measured material nearest
         under the perceptual metric (``measured``: name, distance, and the median spacing of
-        the measured materials for scale) and (``with_slice``) the server's BRDF slice image."""
+        the measured materials for scale; not while a drag runs, ``live``) and (``with_slice``)
+        the server's BRDF slice image."""
         out = material.describe(self.manifold, x, self.prune)
         out["tables"] = self.tables.state if self.tables else "unavailable"
         out["tables_message"] = self.tables.message if self.tables else "not loaded (--no-tables)"
         if self.tables and self.tables.state == "ready":
             _, out["negative_fraction"] = self.tables.preview(x, self.prune)
             # never waits for the metric being prepared (a second or two after the tables)
-            out["measured"] = self._walks.nearest_measured(x) if self._walks is not None else None
+            out["measured"] = self._walks.nearest_measured(x) if self._walks is not None and not live else None
+            out["live"] = bool(live)
         if self.tables and self.tables.state == "ready" and with_slice:
             rgb, (lo, hi) = material.slice_image(self.tables.slice(x, self.prune))
             out["slice"] = {"png": "data:image/png;base64," + base64.b64encode(encode.png_bytes(rgb)).decode(),
                             "log10_range": [lo, hi], "phi_d_deg": 90.0}
         return out
 
-    def preview_table(self, x):
-        """Float16 bytes of the reduced interpolated table and its layout."""
+    def preview_table(self, x, coarse=False):
+        """Float16 bytes of the reduced interpolated table and its layout (``coarse``: every
+        other texel, :meth:`~.material.TableStack.preview`)."""
         if not self.tables or self.tables.state != "ready":
             raise InputError(self.tables.message if self.tables else "material tables not loaded")
-        table, negative = self.tables.preview(x, self.prune)
-        strides = material.preview_strides(self.tables.dims)
+        table, negative = self.tables.preview(x, self.prune, bool(coarse))
+        strides = [s * (2 if coarse else 1) for s in material.preview_strides(self.tables.dims)]
         return table.tobytes(), {"dims": list(table.shape[1:]), "full_dims": list(self.tables.dims),
-                                 "strides": list(strides), "negative_fraction": negative}
+                                 "strides": strides, "negative_fraction": negative, "coarse": bool(coarse)}
 
     def latent_map(self, dims, center, bounds=None):
         """The map of the slice through ``center``; ``bounds``: ``"x0,x1,y0,y1"`` (zoom) or None."""
@@ -303,21 +308,22 @@ class Explorer:
             raise InputError(f"dims must be two different coordinates in 0..{q - 1}, got {show(list(dims))}")
         return dims
 
-    def map_png(self, dims, center, bounds=None):
+    def map_png(self, dims, center, bounds=None, coarse=False):
         """PNG bytes and description of the map of the slice through ``center``.
 
         The map depends on ``center`` only through the coordinates not in ``dims`` (the
         slice): the last few maps are kept by slice, so moving within the slice (every move
-        for ``q = 2``) costs nothing."""
+        for ``q = 2``) costs nothing. ``coarse``: a quarter of the pixels (:data:`COARSE_MAP`,
+        while a slider or the path scrubber moves the slice)."""
         dims = self._dims(dims)
         bounds = self._bounds(bounds) if bounds is not None and bounds != "" else None
         c = np.asarray(center, dtype=np.float64)
-        key = (dims, tuple(float(v) for k, v in enumerate(c) if k not in dims), bounds)
+        key = (dims, tuple(float(v) for k, v in enumerate(c) if k not in dims), bounds, bool(coarse))
         with self._maps_lock:
             if key in self._maps:
                 self._maps[key] = self._maps.pop(key)   # most recently used last
                 return self._maps[key]
-        m = latentmap.render(self.manifold, c, dims, bounds=bounds)
+        m = latentmap.render(self.manifold, c, dims, resolution=COARSE_MAP if coarse else FULL_MAP, bounds=bounds)
         out = (encode.png_bytes(m.image), dict(m.info(), slice=[list(dims), list(key[1])]))
         with self._maps_lock:
             self._maps[key] = out

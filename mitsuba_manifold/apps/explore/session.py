@@ -8,7 +8,9 @@ the session holds at most one waiting request: a newer one replaces it (a drag n
 queues stale points) and each kind has its own worker, so a slow latent map never holds up
 a frame. Every answer is a binary message ``[uint32 n][n bytes of JSON meta][payload]`` whose
 meta repeats the request's ``seq`` and the point ``x`` it is for, so the page can drop an
-answer that arrives after a newer one.
+answer that arrives after a newer one. ``"coarse": true`` (a drag running) asks for the cheap
+answers: a table of every other texel, a map of a quarter of the pixels, a material without the
+distance to the closest measured one; the page asks again in full when the drag rests.
 
 Malformed input never reaches a traceback: a bad request is answered with
 ``{"type": "error", "kind", "seq", "error"}``; a binary message or one larger than
@@ -158,12 +160,13 @@ class Session:
             data, meta = await run_in_threadpool(ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"))
             return dict(meta, exposure=exposure, basis=ex.key(req.get("basis")), **tag), data
         if kind == "material":
-            with_slice = req.get("slice", True) is not False
-            return dict(await run_in_threadpool(ex.material, x, with_slice), **tag), b""
+            with_slice, live = req.get("slice", True) is not False, req.get("coarse") is True
+            return dict(await run_in_threadpool(ex.material, x, with_slice, live), **tag), b""
         if kind == "table":
-            data, meta = await run_in_threadpool(ex.preview_table, x)
+            data, meta = await run_in_threadpool(ex.preview_table, x, req.get("coarse") is True)
             return dict(meta, **tag), data
         if kind == "snippet":
             return dict(ex.snippets(x), **tag), b""
-        data, meta = await run_in_threadpool(ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"))
+        data, meta = await run_in_threadpool(ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"),
+                                             req.get("coarse") is True)
         return dict(meta, **tag), data

@@ -43,8 +43,8 @@ function onMessage(meta, payload) {
   if (meta.type === "frame") drawFrame(meta, payload);
   else if (meta.type === "material") showMaterial(meta);
   else if (meta.type === "table" && preview) {
-    if (!sameX(meta.x, state.previewX)) { preview.setTable(payload, meta); drawPlots(); }   // only when it changed
-    state.previewX = meta.x;
+    if (!sameX(meta.x, state.previewX) || meta.coarse !== state.previewCoarse) { preview.setTable(payload, meta); drawPlots(); }
+    state.previewX = meta.x; state.previewCoarse = meta.coarse;   // redrawn only when it changed
   }
   else if (meta.type === "route") showRoute(meta);
   else if (meta.type === "snippet") showSnippet(meta);
@@ -63,7 +63,8 @@ async function drawFrame(meta, payload) {
   if (bmp) ctx.drawImage(bmp, 0, 0);
   else ctx.putImageData(new ImageData(new Uint8ClampedArray(payload), meta.width, meta.height), 0, 0);
   state.displayed = { x: meta.x, seq: meta.seq, exposure: meta.exposure, basis: meta.basis, at: performance.now() };
-  if (window.explore.trace) window.explore.trace.push({ x: meta.x, at: state.displayed.at });   // tools/bench.py explore --browser
+  if (window.explore.trace) window.explore.trace.push({ x: meta.x, at: state.displayed.at, server_ms: meta.total_ms,
+    round_trip_ms: meta.round_trip_ms });   // tools/bench.py explore --browser
   c.dataset.x = meta.x.join(",");
   const n = meta.n_images;
   $("timing").textContent = `${n} image${n === 1 ? "" : "s"} · blend ${meta.blend_ms.toFixed(1)} + tonemap ` +
@@ -96,21 +97,25 @@ function sendMove(resting = false) {
   for (const kind of ["frame", "table", "material", "snippet"]) {
     if (kind === "table" && state.info.tables !== "ready") continue;
     const last = asked[kind];
-    if (last && sameX(last[1], state.x)) continue;
-    if (!dragging || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x]; }
+    if (last && sameX(last[1], state.x) && !(last[2] && !dragging)) continue;   // a coarse table is asked again at rest
+    if (!dragging || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x, dragging && (kind === "table" || kind === "material")]; }
   }
-  const key = sliceKey();
-  if (key !== state.mapKey) { state.mapKey = key; want.push("map"); }
+  const key = sliceKey();   // a new slice while dragging: a coarse map, the full one at rest
+  if (key !== state.mapKey) { state.mapKey = key; state.mapCoarse = dragging; want.push("map"); }
+  else if (state.mapCoarse && !dragging) { state.mapCoarse = false; want.push("map"); }
   if (preview) preview.setFast(state.dragging || dragging);   // a pointer held still keeps the drag's resolution
   owe(dragging);
   if (!want.length) return;
   state.moves++;
   // slice: false: the page draws the BRDF slice itself, from the table (plots.js)
-  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom, slice: false }, frameRequest()), want);
+  // coarse: while dragging the sphere's table has every other texel (an eighth of the bytes), a new
+  // slice's map a quarter of the pixels, the material no distance to the closest measured one
+  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom, slice: false, coarse: dragging },
+                             frameRequest()), want);
 }
 function owe(dragging) {   // kinds not asked for the point shown yet (counted by channel.pending())
   const kinds = ["material", "snippet"].concat(state.info.tables === "ready" ? ["table"] : []);
-  channel.owed = kinds.filter((k) => !asked[k] || !sameX(asked[k][1], state.x)).length;
+  channel.owed = kinds.filter((k) => !asked[k] || !sameX(asked[k][1], state.x) || (asked[k][2] && !dragging)).length;
   clearTimeout(state.restTimer);
   if (dragging) state.restTimer = setTimeout(() => sendMove(true), REST);   // no move for REST ms: resting
 }
@@ -359,8 +364,10 @@ function showMaterial(m) {
   if (m.tables !== "ready") warn.push(m.tables_message);
   $("warnings").innerHTML = warn.map((w) => `<div class="warn">${escapeHtml(w)}</div>`).join("");
   $("nearest").innerHTML = "";
-  $("measured").innerHTML = m.measured ? `${thumbHtml(m.measured.name, 18)}<b>${escapeHtml(m.measured.name)}</b> ` +
-    `d = ${fmtNum(m.measured.distance)} <span class="muted">(${fmtNum(m.measured.distance / m.measured.spacing, 2)}× the ` +
+  if (m.measured) state.lastMeasured = m.measured;
+  const near = m.measured || (m.live ? state.lastMeasured : null);   // a drag: the last one, marked stale
+  $("measured").innerHTML = near ? `${thumbHtml(near.name, 18)}<b>${escapeHtml(near.name)}</b> ` +
+    `d = ${fmtNum(near.distance)} <span class="muted">(${fmtNum(near.distance / near.spacing, 2)}× the ` +
     `median spacing of the measured materials)</span>` :
     `<span class="muted">${m.tables === "ready" ? "preparing the perceptual metric…" : escapeHtml(m.tables_message || "")}</span>`;
   for (const n of m.nearest) {
