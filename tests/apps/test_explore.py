@@ -564,8 +564,8 @@ def test_link_restores_the_point_and_save_png_is_the_frame(page, server, explore
 
     from PIL import Image
     x = _click_material(page, small_manifold_paper, "chrome")
-    link = page.url
-    assert "#x=" in link
+    page.wait_for_function("(x) => location.hash.startsWith('#x=' + x.join(','))", arg=[float(v) for v in x])
+    link = page.url   # the address follows the point (at most every 200 ms)
     other = page.context.new_page()
     try:
         other.goto(link)

@@ -3,6 +3,8 @@
 "use strict";
 
 const $ = (id) => document.getElementById(id);
+// Text of an element, changed only when it differs (a drag sets it on every move: no needless layout).
+const setText = (el, text) => { if (el.textContent !== text) el.textContent = text; };
 const fmtNum = (v, d = 3) => (Math.abs(v) >= 1e4 || (Math.abs(v) < 1e-3 && v !== 0)) ? v.toExponential(2) : v.toFixed(d);
 const LOCAL = ["127.0.0.1", "localhost", "[::1]"].includes(location.hostname);
 
@@ -135,14 +137,17 @@ function requestMap() {
 function setX(x) {
   state.x = x.slice();
   scheduleMove();
-  // the point (and basis) in the address: a reload or a shared link comes back here
-  history.replaceState(null, "", "#x=" + state.x.join(",") +
-                      (state.basis ? "&basis=" + encodeURIComponent(state.basis) : ""));
+  // the point (and basis) in the address: a reload or a shared link comes back here (at most every
+  // 200 ms: the browser rate-limits replaceState, and each call costs the drag milliseconds)
+  clearTimeout(state.addressTimer);
+  state.addressTimer = setTimeout(() => history.replaceState(null, "", "#x=" + state.x.join(",") +
+                                  (state.basis ? "&basis=" + encodeURIComponent(state.basis) : "")), 200);
   updateSavePng();
   updateSliders();
   showPoint();
-  drawMap();
-  $("fav").textContent = loadFavs().some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite";
+  if (state.map && sliceKey() !== state.drawnSlice) drawMap();   // q > 2: the materials fade by their distance to the slice
+  else placeCursor();
+  setText($("fav"), loadFavs().some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite");
 }
 
 function updateSavePng() {
@@ -154,7 +159,7 @@ function updateSavePng() {
 // (weights, albedo, ...) are marked stale until the answer for this point arrives.
 function showPoint() {
   const name = materialName(state.x);
-  $("material-name").textContent = name ? name : "x = (" + state.x.map((v) => fmtNum(v)).join(", ") + ")";
+  setText($("material-name"), name ? name : "x = (" + state.x.map((v) => fmtNum(v)).join(", ") + ")");
   $("material-name").dataset.x = state.x.join(",");
   $("material-panel").classList.toggle("stale", !state.material || !sameX(state.material.x, state.x));
   $("use-box").classList.toggle("stale", !state.snippet || !sameX(state.snippet.x, state.x));
@@ -225,14 +230,17 @@ function drawMap() {
     const [px, py] = toCanvas(end.x);
     ctx.fillStyle = "#fff"; ctx.font = "bold 13px system-ui"; ctx.fillText(label, px + 7, py - 7);
   }
-  const [cx, cy] = toCanvas(state.x);
-  ctx.lineWidth = 2; ctx.strokeStyle = "#fff";
-  ctx.beginPath(); ctx.arc(cx, cy, 9, 0, 2 * Math.PI); ctx.stroke();
-  ctx.strokeStyle = "#000"; ctx.lineWidth = 1;
-  ctx.beginPath(); ctx.arc(cx, cy, 11, 0, 2 * Math.PI); ctx.stroke();
-  ctx.beginPath(); ctx.moveTo(cx - 15, cy); ctx.lineTo(cx - 5, cy); ctx.moveTo(cx + 5, cy); ctx.lineTo(cx + 15, cy);
-  ctx.moveTo(cx, cy - 15); ctx.lineTo(cx, cy - 5); ctx.moveTo(cx, cy + 5); ctx.lineTo(cx, cy + 15);
-  ctx.strokeStyle = "#fff"; ctx.lineWidth = 1.5; ctx.stroke();
+  state.drawnSlice = sliceKey();
+  placeCursor();
+}
+
+// The current point's crosshair: an element over the map moved by a CSS transform (the compositor
+// moves it; redrawing the map canvas per move cost the software rasteriser most of a drag's time).
+function placeCursor() {
+  if (!state.map || !state.x) return;
+  const c = $("map"), [cx, cy] = toCanvas(state.x), k = c.clientWidth / c.width;
+  $("cursor").style.transform = `translate(${(cx * k).toFixed(1)}px, ${(cy * k).toFixed(1)}px)`;
+  $("cursor").hidden = false;
 }
 
 function bindMap() {
@@ -332,7 +340,7 @@ function updateSliders() {
   for (const input of document.querySelectorAll("#sliders input")) {
     const d = +input.dataset.dim;
     if (document.activeElement !== input) input.value = state.x[d];
-    input.nextElementSibling.textContent = fmtNum(state.x[d]);
+    setText(input.nextElementSibling, fmtNum(state.x[d]));
   }
 }
 
@@ -614,6 +622,7 @@ async function main() {
   $("path-kind").onchange = () => { if (state.a && state.b && !sameX(state.a.x, state.b.x)) requestRoute(); drawMap(); };
   bindTabs();
   bindShelf();
+  window.addEventListener("resize", placeCursor);
   $("export-path").onclick = exportPath;
   $("ref-start").onclick = startReference;
   $("copy-xml").onclick = () => copySnippet("xml", "XML");

@@ -87,8 +87,15 @@ function buildGallery() {
 
 // ------------------------------------------------------------------ favourites
 const favKey = () => "mitsuba-manifold-explore-favourites:" + state.info.manifold;
-function loadFavs() { try { return JSON.parse(localStorage.getItem(favKey())) || []; } catch (e) { return []; } }
-function saveFavs(favs) { try { localStorage.setItem(favKey(), JSON.stringify(favs.slice(0, 24))); } catch (e) { /* full */ } }
+let favCache = null;   // read once: setX asks on every move
+function loadFavs() {
+  if (!favCache) { try { favCache = JSON.parse(localStorage.getItem(favKey())) || []; } catch (e) { favCache = []; } }
+  return favCache.slice();
+}
+function saveFavs(favs) {
+  favCache = favs.slice(0, 24);
+  try { localStorage.setItem(favKey(), JSON.stringify(favCache)); } catch (e) { /* full: kept for this tab */ }
+}
 function pointLabel(x) { return materialName(x) || "(" + x.map((v) => fmtNum(v)).join(", ") + ")"; }
 function addFavourite() {
   const favs = loadFavs().filter((f) => !sameX(f.x, state.x));
