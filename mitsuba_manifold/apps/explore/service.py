@@ -12,7 +12,6 @@ message naming the parameter, its value and what is expected.
 import base64
 import json
 import os
-import re
 import shlex
 import threading
 import time
@@ -28,39 +27,17 @@ from ...errors import InputError
 from ...manifold.model import Manifold
 from ...manifold import paths as path_kinds
 from . import encode, latentmap, material
+from .inputs import NUMBER as _NUMBER, show, to_float
 from .reference import MAX_SPP, References
 from .walks import MAX_STEPS, STEPS, Walks
 
 
-#: What a number may look like (as JSON writes them, plus nan/inf to name them in the error);
-#: Python's float() would also take "1_0", " 1 ", "١٢" and 4000-digit integers.
-_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,4})?|[+-]?(?:nan|inf|infinity)",
-                     re.IGNORECASE)
 #: Maps kept for repeated requests of the same slice.
 MAPS_KEPT = 8
 #: Map resolutions (pixels per side): at rest, and while the slice moves.
 FULL_MAP, COARSE_MAP = 192, 96
 TOOLS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
                      "tools")
-
-
-def show(value, limit=60):
-    """``repr`` of a value from a request, cut to ``limit`` characters (messages stay one line)."""
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit - 5] + " ...>"
-
-
-def to_float(value):
-    """A number from a request as a float: ints, floats and number text only (no bools, no
-    "1_0"); an integer too large for a float gives +-1e308 (refused as out of range)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, str, np.integer, np.floating)):
-        raise TypeError(f"not a number: {show(value)}")
-    if isinstance(value, str) and not _NUMBER.fullmatch(value):
-        raise ValueError(f"not a number: {show(value)}")
-    try:
-        return float(value)
-    except OverflowError:
-        return 1e308 if value > 0 else -1e308
 
 
 def _names(folders):
@@ -143,6 +120,8 @@ class Explorer:
         self._walks, self._walks_lock, self._walks_error = None, threading.Lock(), None
         if self.tables:   # the metric's features of every measured table, prepared once the tables are in
             threading.Thread(target=self._prepare_walks, name="explore-walks", daemon=True).start()
+        # the map the page opens on (at the measured material closest to the data's mean), made meanwhile
+        threading.Thread(target=self.map_png, args=("0,1", self.start_point()), name="explore-map", daemon=True).start()
         self.thumbs = None
         if thumbnails:
             from .thumbs import Thumbnails
@@ -222,6 +201,11 @@ class Explorer:
         return data, {"width": w, "height": h, "format": fmt, "n_images": info["n_images"],
                       "blend_ms": 1e3 * (t1 - t0), "tonemap_ms": 1e3 * (t2 - t1), "encode_ms": 1e3 * (t3 - t2),
                       "total_ms": 1e3 * (t3 - t0)}
+
+    def start_point(self):
+        """Where the page opens: the measured material closest to the mean of the latent points."""
+        lat = self.manifold.latent
+        return lat[int(np.argmin(((lat - lat.mean(axis=0)) ** 2).sum(axis=1)))].copy()
 
     def _prepare_walks(self):
         if self.tables.wait() == "ready":

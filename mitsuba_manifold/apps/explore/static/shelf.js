@@ -143,7 +143,8 @@ function showCompare() {
     cell.className = "cmp" + (sameX(c.x, state.x) ? " here" : "");
     cell.innerHTML = `<div class="pair"><img class="frame" src="/api/frame?${q}" alt="scene">` +
       (c.img ? `<img class="ball" src="${c.img}" alt="sphere">` : "") + `</div>` +
-      `<figcaption>${escapeHtml(c.label)}${c.measured ? ` · closest ${escapeHtml(c.measured.name)} (d ${fmtNum(c.measured.distance)})` : ""}` +
+      `<figcaption>${escapeHtml(c.label)}${c.measured && c.measured.name !== c.label ?
+        ` · closest ${escapeHtml(c.measured.name)} (d ${fmtNum(c.measured.distance)})` : ""}` +
       `<button class="x" title="remove">×</button></figcaption>`;
     cell.onclick = (ev) => {
       if (ev.target.classList.contains("x")) { state.compare.splice(k, 1); showCompare(); return; }
