@@ -120,8 +120,6 @@ class Explorer:
         self._walks, self._walks_lock, self._walks_error = None, threading.Lock(), None
         if self.tables:   # the metric's features of every measured table, prepared once the tables are in
             threading.Thread(target=self._prepare_walks, name="explore-walks", daemon=True).start()
-        # the map the page opens on (at the measured material closest to the data's mean), made meanwhile
-        threading.Thread(target=self.map_png, args=("0,1", self.start_point()), name="explore-map", daemon=True).start()
         self.thumbs = None
         if thumbnails:
             from .thumbs import Thumbnails
@@ -129,6 +127,14 @@ class Explorer:
                                      cache_folder(next(iter(self.bases.values())).folder))
         self.references = References()
         self._maps, self._maps_lock = {}, threading.Lock()
+        # the map the page opens on (at the measured material closest to the data's mean), made meanwhile
+        threading.Thread(target=self._first_map, name="explore-map", daemon=True).start()
+
+    def _first_map(self):
+        try:
+            self.map_png("0,1", self.start_point())
+        except Exception:   # the page asks for it anyway (and gets the error there)
+            pass
 
     # ------------------------------------------------------------ requests
     def key(self, name):
