@@ -18,15 +18,15 @@ import time
 
 import numpy as np
 
-from ...render import scenes
 from ..._util import checks as validate
-from ...basis.folder import Basis, scene_hash
+from ...basis.folder import Basis
 from ...basis.blend import DEFAULT_PRUNE, blend
 from ...data.database import cache_folder
 from ...errors import InputError
 from ...manifold.model import Manifold
 from ...manifold import paths as path_kinds
 from . import encode, latentmap, material
+from .bases import names as _names, scene_of as _scene_of
 from .inputs import NUMBER as _NUMBER, show, to_float
 from .reference import MAX_SPP, References
 from .walks import MAX_STEPS, STEPS, Walks
@@ -38,33 +38,6 @@ MAPS_KEPT = 8
 FULL_MAP, COARSE_MAP = 192, 96
 TOOLS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
                      "tools")
-
-
-def _names(folders):
-    """Short unique names of basis folders (their base names, numbered when they repeat)."""
-    out = {}
-    for folder in folders:
-        base = os.path.basename(os.path.normpath(folder)) or "basis"
-        name, k = base, 2
-        while name in out:
-            name, k = f"{base}-{k}", k + 1
-        out[name] = folder
-    return out
-
-
-def _scene_of(basis, scene=None):
-    """Scene XML of a basis for reference renders (checked by hash), or None when it is gone."""
-    if scene is not None:
-        path = scenes.scene_path(scene)
-        basis.check_scene(path)
-        return path
-    path = basis.manifest["scene"]
-    if os.path.isfile(path):
-        return path
-    name = os.path.splitext(os.path.basename(path))[0]   # moved: a shipped scene of that name and hash
-    if name in scenes.shipped_scenes() and scene_hash(scenes.scene_path(name)) == basis.manifest["scene_hash"]:
-        return scenes.scene_path(name)
-    return None
 
 
 class Explorer:
