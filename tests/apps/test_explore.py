@@ -518,9 +518,11 @@ def test_preview_sphere_is_shaded(page, small_manifold_paper):
         const c = document.createElement('canvas'); c.width = s.width; c.height = s.height;
         const g = c.getContext('2d'); g.drawImage(s, 0, 0);
         const px = (x, y) => Array.from(g.getImageData(x, y, 1, 1).data);
-        return [px(s.width * 0.45, s.height * 0.4), px(2, 2)]; }""")
+        return [px(s.width * 0.62, s.height * 0.38), px(s.width * 0.25, s.height * 0.78)]; }""")
     assert page.evaluate("!!document.getElementById('sphere').getContext('webgl2')")
-    assert sum(centre[:3]) > 3 * 60 and sum(centre[:3]) > sum(corner[:3]) + 60, (centre, corner)
+    # the side facing the key light (upper right) is lit, the one facing the ground (lower left) much less
+    lit, away = centre, corner
+    assert sum(lit[:3]) > 3 * 60 and sum(lit[:3]) > sum(away[:3]) + 60, (lit, away)
 
 
 @browser_only
@@ -562,8 +564,8 @@ def test_link_restores_the_point_and_save_png_is_the_frame(page, server, explore
 
     from PIL import Image
     x = _click_material(page, small_manifold_paper, "chrome")
-    link = page.url
-    assert "#x=" in link
+    page.wait_for_function("(x) => location.hash.startsWith('#x=' + x.join(','))", arg=[float(v) for v in x])
+    link = page.url   # the address follows the point (at most every 200 ms)
     other = page.context.new_page()
     try:
         other.goto(link)
@@ -595,6 +597,7 @@ def test_two_tabs_at_once(page, server, small_manifold_paper):
 
 @browser_only
 def test_path_scrubber_and_export(page, small_manifold_paper):
+    page.select_option("#path-kind", "straight")
     a = _click_material(page, small_manifold_paper, "chrome")
     page.click("#set-a")
     b = _click_material(page, small_manifold_paper, "pink-fabric")
@@ -607,7 +610,7 @@ def test_path_scrubber_and_export(page, small_manifold_paper):
     page.fill("#steps", "7")
     page.click("#export-path")
     page.wait_for_selector("#path-cmd:not([hidden])")
-    assert "--path chrome pink-fabric --steps 7" in page.inner_text("#path-cmd")
+    assert "--path chrome pink-fabric --steps 7 --path-kind straight" in page.inner_text("#path-cmd")
 
 
 @browser_only
@@ -626,9 +629,10 @@ def test_without_webgl_the_page_says_so_and_works(page, server, explorer, small_
         other.close()
 
 
-def _shade_like_the_preview(table, strides, key, size):
+def _shade_like_the_preview(table, strides, lights, size):
     """NumPy mirror of static/preview.js: MERL lookup (merl.half_diff, merl_bin's sqrt mapping),
-    trilinear between texels, three lights, sRGB. Returns (size, size, 3) in [0, 1] and the sphere mask."""
+    trilinear between texels, the page's lights (the environment's and the key light: [direction,
+    RGB irradiance]), sRGB. Returns (size, size, 3) in [0, 1] and the sphere mask."""
     from mitsuba_manifold.data import merl
     n_h, n_d, n_p = table.shape[1:]
     full = np.array([n_h, n_d, n_p]) * np.array(strides)
@@ -643,8 +647,8 @@ def _shade_like_the_preview(table, strides, key, size):
     local = lambda d: np.stack([(d * t).sum(-1), (d * b).sum(-1), (d * n).sum(-1)], axis=-1)  # noqa: E731
     wo = local(np.broadcast_to([0.0, 0.0, 1.0], n.shape))
     out = np.zeros(n.shape)
-    for d, power in ((key, np.pi), ((-0.6, 0.25, 0.75), 0.25 * np.pi), ((0.1, 0.9, -0.35), 0.35 * np.pi)):
-        d = np.asarray(d, dtype=np.float64) / np.linalg.norm(d)
+    for d, power in lights:
+        d, power = np.asarray(d, dtype=np.float64) / np.linalg.norm(d), np.asarray(power, dtype=np.float64)
         wi = local(np.broadcast_to(d, n.shape))
         th, td, pd = merl.half_diff(wi, wo)
         pd = np.where(pd < 0, pd + np.pi, pd)
@@ -675,14 +679,16 @@ def test_preview_follows_the_merl_mapping(page, small_manifold_paper):
     page.evaluate("(x) => window.explore.setX(x)", [float(v) for v in x])
     page.wait_for_function("(x) => { const p = window.explore.state.previewX; return p && p.every((v, k) => v === x[k]); }",
                            arg=[float(v) for v in x], timeout=30000)
+    page.wait_for_function("window.explore.preview.envReady && !window.explore.preview.fast")
     page.wait_for_timeout(400)
-    size, pixels, key = page.evaluate("""() => { const s = document.getElementById('sphere');
+    size, pixels, lights = page.evaluate("""() => { const s = document.getElementById('sphere');
         const c = document.createElement('canvas'); c.width = s.width; c.height = s.height;
         const g = c.getContext('2d'); g.drawImage(s, 0, 0);
-        return [s.width, Array.from(g.getImageData(0, 0, s.width, s.height).data), window.explore.preview.key]; }""")
+        return [s.width, Array.from(g.getImageData(0, 0, s.width, s.height).data), window.explore.preview.lights()]; }""")
+    assert len(lights) == 17   # the environment's 16 median-cut lights and the key light
     shown = np.array(pixels, dtype=np.float64).reshape(size, size, 4)[..., :3] / 255
     table = np.clip(m.interpolate(x, prune=1e-3)[0], -65504, 65504).astype(np.float16).astype(np.float64)
-    expected, inside = _shade_like_the_preview(table, (1, 1, 1), key, size)
+    expected, inside = _shade_like_the_preview(table, (1, 1, 1), lights, size)
     err = np.abs(shown - expected)[inside]
     assert expected[inside].max() > 0.3                     # a lit, non-trivial sphere
     assert np.median(err) < 0.004 and np.percentile(err, 95) < 0.02, (np.median(err), np.percentile(err, 95))

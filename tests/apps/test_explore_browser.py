@@ -35,19 +35,20 @@ def browser():
 
 
 @contextlib.contextmanager
-def _page(browser, url, width=1500, height=1000):
-    """A new tab (own context, clipboard allowed) on ``url``, ready; closed afterwards."""
-    ctx = browser.new_context(viewport={"width": width, "height": height},
-                              permissions=["clipboard-read", "clipboard-write"])
+def _page(browser, url, width=1500, height=1000, context=None, ready=READY):
+    """A new tab on ``url``, ready; in ``context`` (default: its own, clipboard allowed, closed afterwards)."""
+    ctx = context or browser.new_context(viewport={"width": width, "height": height},
+                                         permissions=["clipboard-read", "clipboard-write"])
     try:
         pg = ctx.new_page()
         pg.errors = []
         pg.on("pageerror", lambda e: pg.errors.append(str(e)))
         pg.goto(url)
-        pg.wait_for_function(READY, timeout=60000)
+        pg.wait_for_function(ready, timeout=60000)
         yield pg
     finally:
-        ctx.close()
+        if context is None:
+            ctx.close()
 
 
 def _set(pg, x):
@@ -65,6 +66,7 @@ def test_drag_the_path_slider_stop_and_copy_gives_the_point_shown(browser, serve
     Copy XML at once: the clipboard holds the point the panel shows, and the scene shows it."""
     m = Manifold.load(small_manifold_paper)
     with _page(browser, server) as pg:
+        pg.select_option("#path-kind", "straight")   # the latent segment (test_explore_artist: the other kinds)
         for name, button in (("gold-paint", "#set-a"), ("blue-acrylic", "#set-b")):
             _set(pg, m.latent[m.index(name)])
             pg.click(button)

@@ -191,13 +191,13 @@ QUERY = st.one_of(st.text(max_size=30), st.integers(min_value=-HUGE, max_value=H
                   st.sampled_from(["chrome", "0,0", "0.1,0.2", "1_0,0", "nan,0", "0,1", "0,0,0,0", "0,1,0,1", "png",
                                    "rgba", "jpeg", "..%2F..", "-1e309,0"]))
 ROUTES = ["/api/frame", "/api/material", "/api/table", "/api/map", "/api/snippet", "/api/path", "/api/info",
-          "/api/reference/r1", "/api/reference/r1/blend.png"]
+          "/api/reference/r1", "/api/reference/r1/blend.png", "/api/route", "/api/thumbs.png"]
 
 
 @SUITE
 @given(route=st.sampled_from(ROUTES),
        params=st.dictionaries(st.sampled_from(["x", "exposure", "format", "basis", "dims", "extent", "a", "b",
-                                               "steps"]), QUERY, max_size=5))
+                                               "steps", "kind"]), QUERY, max_size=5))
 def test_fuzz_http_queries(client, route, params):
     r = client.get(route, params=params)
     if r.status_code != 200:
@@ -243,6 +243,9 @@ def test_websocket_closes_on_binary_and_oversized_messages(client):
     '{"type": "frame", "x": [NaN, 0]}', json.dumps({"type": "frame", "x": "chrome", "format": {"a": 1}}),
     json.dumps({"type": "frame", "x": "chrome", "basis": [1]}), json.dumps({"type": "path", "a": "chrome", "b": [0, 0], "steps": HUGE}),
     json.dumps({"type": "table", "x": ["1_0", 0]}), json.dumps({"type": "map", "x": "chrome", "extent": {"a": 1}}),
+    json.dumps({"type": "route", "a": "chrome", "b": "chrome"}), json.dumps({"type": "route", "a": "chrome", "b": "steel",
+                                                                            "kind": ["geodesic"]}),
+    json.dumps({"type": "route", "a": "chrome", "b": "steel", "steps": HUGE}), json.dumps({"type": "route", "a": [1e400]}),
     "null", "[]", '"frame"', "garbage"])
 def test_malformed_websocket_messages_answer_an_error_and_the_tab_stays(client, message):
     with _ws(client) as ws:
@@ -271,7 +274,10 @@ def test_service_inputs_never_raise_anything_else(explorer):
              lambda v: explorer.map_png(v, [0.0, 0.0]), lambda v: explorer.map_png("0,1", [0.0, 0.0], v),
              lambda v: explorer.key(v), lambda v: explorer.frame(None, [0.0, 0.0], 0.0, v),
              lambda v: explorer.path_command(None, "chrome", v, None),
-             lambda v: explorer.path_command(None, "chrome", "0,0", v)]
+             lambda v: explorer.path_command(None, "chrome", "0,0", v),
+             lambda v: explorer.path_command(None, "chrome", "steel", 5, v),
+             lambda v: explorer.route("chrome", v, 5, "straight"), lambda v: explorer.route("chrome", "steel", v, "straight"),
+             lambda v: explorer.route("chrome", "steel", 5, v) if v not in ("uniform", "geodesic", None, "") else None]
 
     @settings(max_examples=300, deadline=None)
     @given(st.integers(0, len(calls) - 1), JSON | QUERY)
@@ -286,10 +292,12 @@ def test_service_inputs_never_raise_anything_else(explorer):
 @SUITE
 @given(messages=st.lists(st.one_of(
     JSON.map(json.dumps),
-    st.fixed_dictionaries({"type": st.sampled_from(["frame", "table", "material", "snippet", "map", "path", "move"]),
+    st.fixed_dictionaries({"type": st.sampled_from(["frame", "table", "material", "snippet", "map", "path", "route",
+                                                    "move"]),
                            "seq": st.integers(0, 100)},
                           optional={"x": JSON, "exposure": JSON, "format": JSON, "basis": JSON, "want": JSON,
-                                    "dims": JSON, "extent": JSON, "a": JSON, "b": JSON, "steps": JSON}).map(json.dumps)),
+                                    "dims": JSON, "extent": JSON, "a": JSON, "b": JSON, "steps": JSON,
+                                    "kind": st.sampled_from(["straight", "uniform", "geodesic"]) | JSON}).map(json.dumps)),
     min_size=1, max_size=4))
 def test_fuzz_websocket(client, messages):
     """Random messages, then a sentinel: every answer until the sentinel's is well formed."""
@@ -299,7 +307,7 @@ def test_fuzz_websocket(client, messages):
         ws.send_text(json.dumps({"type": "path", "seq": 10 ** 6, "a": "chrome", "b": "steel"}))
         while True:
             meta, payload = _unpack(ws.receive_bytes())
-            assert meta["type"] in ("frame", "table", "material", "snippet", "map", "path", "error"), meta
+            assert meta["type"] in ("frame", "table", "material", "snippet", "map", "path", "route", "error"), meta
             if meta["type"] == "error":
                 assert "\n" not in meta["error"] and "internal error" not in meta["error"], meta
             if meta.get("seq") == 10 ** 6 and meta["type"] == "path":

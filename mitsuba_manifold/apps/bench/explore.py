@@ -82,8 +82,8 @@ def run(basis, manifold=None, requests=60, formats=("rgba", "jpeg", "png"), upsa
     the page's own latency instead (:func:`browser`)."""
     if browser:
         report = globals()["browser"](basis, manifold)
-        if screenshot_path:
-            report["screenshot"] = screenshot(basis, screenshot_path, manifold)
+        if screenshot_path:   # a short reference render beside the page's timing run
+            report["screenshot"] = screenshot(basis, screenshot_path, manifold, reference_spp=64)
         return report
     from ...basis.folder import read_manifest
     from ...manifold.model import Manifold
@@ -174,7 +174,8 @@ def _drag(page, a, b, moves, pace_ms):
         if later:
             latencies.append(min(later) - m["t"])
     span = (out["moves"][-1]["t"] - out["moves"][0]["t"]) / 1e3 if len(out["moves"]) > 1 else 0.0
-    return latencies, len(drawn), span, out["draws"], len(out["moves"])
+    parts = [(f["server_ms"], f["round_trip_ms"]) for f in out["frames"] if f.get("round_trip_ms") is not None]
+    return latencies, len(drawn), span, out["draws"], len(out["moves"]), parts
 
 
 def browser(basis, manifold=None, drags=6, moves=20, pace_ms=16, chromium=None):
@@ -207,7 +208,7 @@ def browser(basis, manifold=None, drags=6, moves=20, pace_ms=16, chromium=None):
             return (box["x"] + (x[0] - ext[0]) / (ext[1] - ext[0]) * box["width"],
                     box["y"] + (1 - (x[1] - ext[2]) / (ext[3] - ext[2])) * box["height"])
         rng = np.random.default_rng(0)
-        lat, frames, seconds, draws, sent = [], 0, 0.0, 0, 0
+        lat, frames, seconds, draws, sent, parts = [], 0, 0.0, 0, 0, []
         for _ in range(drags):
             i, j = rng.choice(len(latent), 2, replace=False)
             # between materials, off their points (no snapping): every move is a new point
@@ -215,10 +216,14 @@ def browser(basis, manifold=None, drags=6, moves=20, pace_ms=16, chromium=None):
             got = _drag(page, at(a), at(b), moves, pace_ms)
             lat += got[0]
             frames, seconds, draws, sent = frames + got[1], seconds + got[2], draws + got[3], sent + got[4]
+            parts += got[5]
         context.close()
     finally:
         launch.stop(proc)
     report.update({"move_to_frame_ms": _stats(lat), "moves": sent, "frames_drawn": frames,
+                   # where a frame's time goes: the server's blend + tonemap + encode, and send to answer
+                   "frame_server_ms": _stats([p[0] for p in parts] or [0]),
+                   "frame_round_trip_ms": _stats([p[1] for p in parts] or [0]),
                    "moves_per_s": frames / seconds if seconds else None, "sphere_draws": draws,
                    "load_average_1min_after": os.getloadavg()[0]})
     m, t = report["move_to_frame_ms"], BROWSER_TARGETS
@@ -228,58 +233,83 @@ def browser(basis, manifold=None, drags=6, moves=20, pace_ms=16, chromium=None):
     return report
 
 
-def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000), zoom_steps=12):
-    """PNG of the page (system Chromium through Playwright): a path between a material near the
-    centre of the data and its latent neighbour, scrubbed half-way, the map zoomed in on it, with
-    a reference render.
+#: Viewports of the screenshots beside the main one (``<stem>_<width>.png``).
+SHOT_SIZES = ((1280, 800), (1600, 1000), (1920, 1080))
+
+
+def _scenario(page, reference_spp, zoom_steps):
+    """What the screenshots show: a path between a material near the centre of the data and its
+    5th-nearest latent neighbour (the default kind, computed), scrubbed to t = 0.4; both ends and the point
+    compared; the first end a favourite; the lobe plot; the thumbnails; a reference render
+    (``reference_spp``, None: none); the map zoomed in on the path."""
+    page.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map && "
+                           "window.explore.state.info.tables !== 'loading' && window.explore.state.previewX",
+                           timeout=300000)
+    latent = np.array(page.evaluate("window.explore.state.info.latent"))
+    a = int(np.argmin(((latent - latent.mean(axis=0)) ** 2).sum(axis=1)))
+    d = ((latent - latent[a]) ** 2).sum(axis=1)
+    b = int(np.argsort(d)[min(5, len(d) - 1)])   # the 5th nearest: a path long enough to see on the map
+    for index, button in ((a, "#set-a"), (b, "#set-b")):
+        page.evaluate(f"window.explore.setX(window.explore.state.info.latent[{index}])")
+        page.wait_for_timeout(400)
+        page.click(button)
+        page.click("#compare-add")
+        if index == a:
+            page.click("#fav")
+    page.wait_for_function("window.explore.state.route.kind !== 'straight' || "
+                           "document.getElementById('route-state').textContent.includes('unavailable')", timeout=300000)
+    page.fill("#scrub", "400")
+    page.dispatch_event("#scrub", "input")
+    page.wait_for_timeout(800)
+    page.click("#compare-add")
+    page.click(".tabs button[data-tab=lobe]")
+    xy = page.evaluate("""() => { const s = window.explore.state, c = document.getElementById('map');
+        const r = c.getBoundingClientRect(), [x0, x1, y0, y1] = s.map.extent;
+        return [r.left + (s.x[s.dims[0]] - x0) / (x1 - x0) * r.width,
+                r.top + (1 - (s.x[s.dims[1]] - y0) / (y1 - y0)) * r.height]; }""")
+    page.mouse.move(*xy)
+    for _ in range(zoom_steps):
+        page.mouse.wheel(0, -100)
+        page.wait_for_timeout(120)
+    box = page.locator("#map").bounding_box()
+    page.mouse.move(box["x"] + box["width"] + 40, box["y"])
+    page.dispatch_event("#map", "pointerleave")   # no tooltip left over the map
+    if reference_spp and page.is_enabled("#ref-start"):   # the basis's scene is there
+        page.select_option("#ref-spp", str(reference_spp))
+        page.click("#ref-start")
+        page.wait_for_selector("#ref-result:not([hidden])", timeout=600000)
+        page.dispatch_event("#exposure", "input")   # a frame timed without the render beside it
+    page.wait_for_function("!window.explore.state.info.thumbs || window.explore.state.info.thumbs.state !== 'rendering'",
+                           timeout=600000)
+    page.wait_for_timeout(1500)
+
+
+def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000), zoom_steps=3):
+    """PNG of the page (system Chromium through Playwright) at ``size``, with a reference render
+    (:func:`_scenario`), and beside it ``<stem>_<width>.png`` at each of :data:`SHOT_SIZES`
+    (the viewport, without the reference render).
 
     Returns ``path``, or None when Chromium or Playwright is missing."""
     try:
         from playwright.sync_api import sync_playwright
     except ImportError:
         return None
-    chromium = launch.find_chromium()
-    if chromium is None:
+    if launch.find_chromium() is None:
         return None
+    from ..._util.atomic import write_bytes
     proc, url = launch.start([basis], manifold)
     try:
         with sync_playwright() as p:
             browser = _launch_chromium(p)
-            page = browser.new_context(viewport={"width": size[0], "height": size[1]}).new_page()
-            page.goto(url)
-            page.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map && "
-                                   "window.explore.state.info.tables !== 'loading'", timeout=120000)
-            latent = np.array(page.evaluate("window.explore.state.info.latent"))
-            a = int(np.argmin(((latent - latent.mean(axis=0)) ** 2).sum(axis=1)))
-            d = ((latent - latent[a]) ** 2).sum(axis=1)
-            d[a] = np.inf
-            b = int(np.argmin(d))
-            for index, button in ((a, "#set-a"), (b, "#set-b")):
-                page.evaluate(f"window.explore.setX(window.explore.state.info.latent[{index}])")
-                page.wait_for_timeout(300)
-                page.click(button)
-            page.fill("#scrub", "500")
-            page.dispatch_event("#scrub", "input")
-            box = page.locator("#map").bounding_box()   # zoom in on the path
-            xy = page.evaluate("""() => { const s = window.explore.state, c = document.getElementById('map');
-                const r = c.getBoundingClientRect(), [x0, x1, y0, y1] = s.map.extent;
-                return [r.left + (s.x[s.dims[0]] - x0) / (x1 - x0) * r.width,
-                        r.top + (1 - (s.x[s.dims[1]] - y0) / (y1 - y0)) * r.height]; }""")
-            page.mouse.move(*xy)
-            for _ in range(zoom_steps):
-                page.mouse.wheel(0, -100)
-                page.wait_for_timeout(150)
-            page.mouse.move(box["x"] + box["width"] + 40, box["y"])
-            if page.is_enabled("#ref-start"):   # the basis's scene is there
-                page.select_option("#ref-spp", str(reference_spp))
-                page.click("#ref-start")
-                page.wait_for_selector("#ref-result:not([hidden])", timeout=600000)
-                page.dispatch_event("#exposure", "input")   # a frame timed without the render beside it
-            page.wait_for_timeout(1500)
-            png = page.screenshot(full_page=True)
+            for k, (w, h) in enumerate([size] + list(SHOT_SIZES)):
+                context = browser.new_context(viewport={"width": w, "height": h})
+                page = context.new_page()
+                page.goto(url)
+                _scenario(page, reference_spp if k == 0 else None, zoom_steps)
+                out = path if k == 0 else f"{os.path.splitext(path)[0]}_{w}.png"
+                write_bytes(out, page.screenshot(full_page=k == 0))
+                context.close()
             browser.close()
     finally:
         launch.stop(proc)
-    from ..._util.atomic import write_bytes
-    write_bytes(path, png)
     return path

@@ -56,6 +56,8 @@ def parser():
                         f"by at most this fraction of its L2 norm (default {DEFAULT_PRUNE:g}, as the plugin)")
     p.add_argument("--no-tables", action="store_true",
                    help="do not load the material tables (no preview sphere, slice or negative-bin fraction)")
+    p.add_argument("--no-thumbnails", action="store_true",
+                   help="do not render the materials' thumbnails (made once in the background, cached beside the basis)")
     return p
 
 
@@ -121,7 +123,8 @@ def serve(args):
     try:
         print(f"loading {len(args.basis)} basis folder(s) ...", flush=True)
         explorer = Explorer(args.basis, manifold=args.manifold, database=args.database, prune=args.prune,
-                            load_tables=not args.no_tables, scene=args.scene)
+                            load_tables=not args.no_tables, scene=args.scene,
+                            thumbnails=not args.no_thumbnails)
         # frames are JPEG or raw pixels: per-message deflate would cost more time than it saves
         server = uvicorn.Server(uvicorn.Config(create_app(explorer, allow), log_level="warning",
                                                timeout_graceful_shutdown=1, ws_ping_interval=None,

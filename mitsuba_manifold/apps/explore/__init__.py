@@ -9,8 +9,10 @@ and a BRDF slice. A full-GI reference render runs in the background on request.
 
 Modules: :mod:`.service` (the state and every answer, no HTTP), :mod:`.server` (Starlette
 app), :mod:`.encode` (tonemap and image encoding), :mod:`.material`, :mod:`.latentmap`,
-:mod:`.reference`, :mod:`.guard` (who may talk to the server, size limits), :mod:`.session`
-(one tab's websocket); ``static/`` holds the page (no build step, no network access).
+:mod:`.reference`, :mod:`.guard` (who may talk to the server, size limits), :mod:`.inputs`
+(request values), :mod:`.bases` (basis names and scenes), :mod:`.session` (one tab's websocket), :mod:`.walks` (paths of ``Manifold.path``
+and the distance to the closest measured material), :mod:`.thumbs` (the materials' thumbnails),
+:mod:`.hdri` (the sphere's environment); ``static/`` holds the page (no build step, no network access).
 """
 
 from ...errors import InputError

@@ -10,7 +10,9 @@ matrix-vector product per point):
   (every ``stride``-th bin along each axis, so each value is a true bin of the table);
 - the fraction of negative bins of the interpolated table, estimated on those bins
   (``manifold_brdf`` clamps them to 0; a blend of images cannot);
-- a ``theta_h x theta_d`` slice at ``phi_d = 90 deg`` at full resolution, for a log plot.
+- a ``theta_h x theta_d`` slice at ``phi_d = 90 deg`` at full resolution, for a log plot;
+- the bins of the perceptual metric's search sub-grid (:func:`.walks.metric_columns`), for
+  the paths and the distance to the nearest measured material (:mod:`.walks`).
 
 Reading every table takes seconds per hundred MERL tables; the reduced copy is therefore
 cached (``preview-<key>.npz`` in a cache folder, by default ``<basis>/.manifold-cache``),
@@ -24,6 +26,8 @@ import threading
 
 import numpy as np
 
+from .walks import metric_columns
+
 #: Largest preview table (n_theta_h, n_theta_d, n_phi_d) sent to the browser.
 PREVIEW_DIMS = (45, 45, 90)
 #: Weights shown in the bar chart.
@@ -33,7 +37,7 @@ HALF_MAX = float(np.finfo(np.float16).max)
 #: Preview tables kept for repeated requests at the same point.
 RECENT = 4
 #: Version of the cached reduced tables (part of the cache key).
-CACHE_VERSION = "explore-preview-v1"
+CACHE_VERSION = "explore-preview-v2"
 
 
 def describe(manifold, x, prune):
@@ -118,7 +122,7 @@ class TableStack:
         self.database = database
         self.cache_dir = cache_dir
         self.state, self.message = "loading", "loading tables"
-        self.dims = self.preview_dims = None
+        self.dims = self.preview_dims = self.metric_rows = self._coarse = None
         self._ready = threading.Event()
         self._lock = threading.Lock()
         self._recent = {}
@@ -141,8 +145,8 @@ class TableStack:
     def _load(self):
         try:
             cached = self._read_cache()
-            dims, reduced, slices, preview_dims = cached if cached is not None else self._read_tables()
-            self.preview_dims = preview_dims
+            dims, reduced, slices, preview_dims, metric = cached if cached is not None else self._read_tables()
+            self.preview_dims, self.metric_rows = preview_dims, metric
             self.dims, self._reduced, self._slices = dims, reduced, slices
             n = self.manifold.n
             self.state, self.message = "ready", f"{n} tables, preview {self.preview_dims}" + (
@@ -161,8 +165,11 @@ class TableStack:
         n = self.manifold.n
         slice_col = min(dims[2] // 2, dims[2] - 1)   # phi_d = 90 deg
         reduced, slices, preview_dims = None, np.empty((n, 3, dims[0], dims[1]), dtype=np.float32), None
+        cols = metric_columns(dims)
+        metric = np.empty((n, cols.size), dtype=np.float32)
         for i, name in enumerate(self.manifold.names):
             table = db.reflectance(name)
+            metric[i] = table.reshape(-1)[cols]
             small = np.ascontiguousarray(table[:, ::s[0], ::s[1], ::s[2]], dtype=np.float32)
             if reduced is None:
                 reduced = np.empty((n, small.size), dtype=np.float32)
@@ -170,7 +177,7 @@ class TableStack:
             reduced[i] = small.ravel()
             slices[i] = table[:, :, :, slice_col]
             self.message = f"loading tables {i + 1}/{n}"
-        return dims, reduced, slices.reshape(n, -1), tuple(preview_dims)
+        return dims, reduced, slices.reshape(n, -1), tuple(preview_dims), metric
 
     def _read_cache(self):
         path = self.cache_path()
@@ -179,13 +186,14 @@ class TableStack:
         try:
             with np.load(path, allow_pickle=False) as f:
                 dims, preview_dims = tuple(int(v) for v in f["dims"]), tuple(int(v) for v in f["preview_dims"])
-                reduced, slices = f["reduced"], f["slices"]
+                reduced, slices, metric = f["reduced"], f["slices"], f["metric"]
         except (OSError, ValueError, KeyError):
             return None
         n = self.manifold.n
-        if reduced.shape != (n, 3 * int(np.prod(preview_dims))) or slices.shape != (n, 3 * dims[0] * dims[1]):
+        if (reduced.shape != (n, 3 * int(np.prod(preview_dims))) or slices.shape != (n, 3 * dims[0] * dims[1])
+                or metric.shape != (n, metric_columns(dims).size)):
             return None
-        return dims, reduced, slices, preview_dims
+        return dims, reduced, slices, preview_dims, metric
 
     def _write_cache(self):
         path = self.cache_path()
@@ -195,7 +203,8 @@ class TableStack:
         try:
             os.makedirs(os.path.dirname(path), exist_ok=True)
             atomic_write(path, lambda f: np.savez(f, dims=np.array(self.dims), preview_dims=np.array(self.preview_dims),
-                                                  reduced=self._reduced, slices=self._slices))
+                                                  reduced=self._reduced, slices=self._slices,
+                                                  metric=self.metric_rows))
         except OSError:   # a read-only place: no cache, the page works the same
             pass
 
@@ -204,28 +213,33 @@ class TableStack:
         keep, w_kept, _ = self.manifold.prune(w, prune)
         return w_kept.astype(np.float32) @ rows[keep]
 
-    def preview(self, x, prune):
+    def preview(self, x, prune, coarse=False):
         """Interpolated table at reduced resolution: float16 (3, n_h, n_d, n_p), and the
         fraction of those bins below 0 (an estimate of the full table's).
 
-        The page asks for the material's description and its table at the same point: the
-        last few answers are kept."""
-        key = (np.asarray(x, dtype=np.float64).tobytes(), float(prune))
+        ``coarse``: every other texel of that along each axis (an eighth of the work and of
+        the bytes: the page's sphere while a drag runs). The page asks for the material's
+        description and its table at the same point: the last few answers are kept."""
+        key = (np.asarray(x, dtype=np.float64).tobytes(), float(prune), bool(coarse))
         with self._lock:
             if key in self._recent:
                 return self._recent[key]
-        out = self._preview(x, prune)
+        out = self._preview(x, prune, coarse)
         with self._lock:
             self._recent[key] = out
             while len(self._recent) > RECENT:
                 self._recent.pop(next(iter(self._recent)))
         return out
 
-    def _preview(self, x, prune):
-        table = self._combine(self._reduced, x, prune)
+    def _preview(self, x, prune, coarse=False):
+        if coarse and self._coarse is None:
+            full = self._reduced.reshape((-1, 3) + tuple(self.preview_dims))
+            self._coarse = np.ascontiguousarray(full[:, :, ::2, ::2, ::2]).reshape(len(full), -1)
+        table = self._combine(self._coarse if coarse else self._reduced, x, prune)
         negative = float((table < 0).mean())
         half = np.clip(table, -HALF_MAX, HALF_MAX).astype(np.float16)   # peaks above 65504 saturate
-        return half.reshape((3,) + tuple(self.preview_dims)), negative
+        dims = tuple(-(-d // 2) for d in self.preview_dims) if coarse else tuple(self.preview_dims)
+        return half.reshape((3,) + dims), negative
 
     def slice(self, x, prune):
         """``theta_h x theta_d`` slice at ``phi_d = 90 deg``: float32 (3, n_h, n_d)."""

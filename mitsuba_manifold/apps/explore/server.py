@@ -76,8 +76,21 @@ class Api:
 
     async def path(self, request):
         cmd = self.ex.path_command(_query(request, "basis"), _query(request, "a", ""), _query(request, "b", ""),
-                                   _query(request, "steps"))
+                                   _query(request, "steps"), _query(request, "kind"))
         return JSONResponse({"command": cmd})
+
+    async def route(self, request):
+        """The path's points when computed, else ``{"state": "computing"}`` (ask again)."""
+        future = await run_in_threadpool(self.ex.route, _query(request, "a", ""), _query(request, "b", ""),
+                                         _query(request, "steps"), _query(request, "kind"))
+        if not future.done():
+            return JSONResponse({"state": "computing"})
+        return JSONResponse(dict(future.result(), state="ready"))   # a failed path raises its InputError
+
+    async def thumbs(self, request):
+        if self.ex.thumbs is None:
+            raise InputError("this explorer renders no thumbnails (--no-thumbnails)")
+        return Response(self.ex.thumbs.sheet(), media_type="image/png", headers={"Cache-Control": "max-age=3600"})
 
     async def reference_start(self, request):
         try:   # the body was read by Guard, at most max_body bytes
@@ -118,6 +131,8 @@ class Api:
             Route("/api/map", self.latent_map),
             Route("/api/snippet", self.snippet),
             Route("/api/path", self.path),
+            Route("/api/route", self.route),
+            Route("/api/thumbs.png", self.thumbs),
             Route("/api/reference", self.reference_start, methods=["POST"]),
             Route("/api/reference/{job}", self.reference_status),
             Route("/api/reference/{job}/{which}.png", self.reference_image),
@@ -148,7 +163,8 @@ def create_app(explorer, allow=None, max_body=MAX_BODY):
     Routes (:meth:`Api.routes`): ``/`` the page; ``/static/*`` its files; ``/api/info``;
     ``/api/frame?basis&x&exposure&format`` (the image); ``/api/material?x``; ``/api/table?x``
     (float16 preview table, layout in the ``X-Table`` header); ``/api/map?dims&x``;
-    ``/api/snippet?x``; ``/api/path?basis&a&b&steps``; ``POST /api/reference`` ``{basis, x, spp}``,
+    ``/api/snippet?x``; ``/api/path?basis&a&b&steps&kind`` (the blend.py command);
+    ``/api/route?a&b&steps&kind`` (the path's points); ``/api/thumbs.png`` (the thumbnail sheet); ``POST /api/reference`` ``{basis, x, spp}``,
     ``/api/reference/{id}``, ``/api/reference/{id}/{blend|reference|error}.png``; websocket ``/ws``.
     Errors in a request answer 400 (the package's input errors), their HTTP status, or 500
     with one line (a bug; the traceback stays on the server's console).

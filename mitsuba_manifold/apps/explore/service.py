@@ -12,78 +12,32 @@ message naming the parameter, its value and what is expected.
 import base64
 import json
 import os
-import re
 import shlex
 import threading
 import time
 
 import numpy as np
 
-from ...render import scenes
 from ..._util import checks as validate
-from ...basis.folder import Basis, scene_hash
+from ...basis.folder import Basis
 from ...basis.blend import DEFAULT_PRUNE, blend
 from ...data.database import cache_folder
 from ...errors import InputError
 from ...manifold.model import Manifold
+from ...manifold import paths as path_kinds
 from . import encode, latentmap, material
+from .bases import names as _names, scene_of as _scene_of
+from .inputs import NUMBER as _NUMBER, show, to_float
 from .reference import MAX_SPP, References
+from .walks import MAX_STEPS, STEPS, Walks
 
 
-#: What a number may look like (as JSON writes them, plus nan/inf to name them in the error);
-#: Python's float() would also take "1_0", " 1 ", "١٢" and 4000-digit integers.
-_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,4})?|[+-]?(?:nan|inf|infinity)",
-                     re.IGNORECASE)
 #: Maps kept for repeated requests of the same slice.
 MAPS_KEPT = 8
+#: Map resolutions (pixels per side): at rest, and while the slice moves.
+FULL_MAP, COARSE_MAP = 192, 96
 TOOLS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
                      "tools")
-
-
-def show(value, limit=60):
-    """``repr`` of a value from a request, cut to ``limit`` characters (messages stay one line)."""
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit - 5] + " ...>"
-
-
-def to_float(value):
-    """A number from a request as a float: ints, floats and number text only (no bools, no
-    "1_0"); an integer too large for a float gives +-1e308 (refused as out of range)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, str, np.integer, np.floating)):
-        raise TypeError(f"not a number: {show(value)}")
-    if isinstance(value, str) and not _NUMBER.fullmatch(value):
-        raise ValueError(f"not a number: {show(value)}")
-    try:
-        return float(value)
-    except OverflowError:
-        return 1e308 if value > 0 else -1e308
-
-
-def _names(folders):
-    """Short unique names of basis folders (their base names, numbered when they repeat)."""
-    out = {}
-    for folder in folders:
-        base = os.path.basename(os.path.normpath(folder)) or "basis"
-        name, k = base, 2
-        while name in out:
-            name, k = f"{base}-{k}", k + 1
-        out[name] = folder
-    return out
-
-
-def _scene_of(basis, scene=None):
-    """Scene XML of a basis for reference renders (checked by hash), or None when it is gone."""
-    if scene is not None:
-        path = scenes.scene_path(scene)
-        basis.check_scene(path)
-        return path
-    path = basis.manifest["scene"]
-    if os.path.isfile(path):
-        return path
-    name = os.path.splitext(os.path.basename(path))[0]   # moved: a shipped scene of that name and hash
-    if name in scenes.shipped_scenes() and scene_hash(scenes.scene_path(name)) == basis.manifest["scene_hash"]:
-        return scenes.scene_path(name)
-    return None
 
 
 class Explorer:
@@ -106,9 +60,13 @@ class Explorer:
         Scene XML (or shipped scene name) for the reference renders, checked against each
         basis's scene hash (default: the manifest's scene, or the shipped scene of that name
         and hash when the manifest's file has moved).
+    thumbnails : bool
+        Render the materials' thumbnails in the background (:mod:`.thumbs`; cached beside the
+        first basis).
     """
 
-    def __init__(self, bases, manifold=None, database=None, prune=DEFAULT_PRUNE, load_tables=True, scene=None):
+    def __init__(self, bases, manifold=None, database=None, prune=DEFAULT_PRUNE, load_tables=True, scene=None,
+                 thumbnails=False):
         if not bases:
             raise InputError("give at least one basis folder")
         if not 0.0 <= float(prune) < 1.0:
@@ -132,8 +90,24 @@ class Explorer:
         self.scenes = {name: _scene_of(b, scene) for name, b in self.bases.items()}
         cache = cache_folder(next(iter(self.bases.values())).folder) if load_tables else None   # beside the basis
         self.tables = material.TableStack(self.manifold, database, cache) if load_tables else None
+        self._walks, self._walks_lock, self._walks_error = None, threading.Lock(), None
+        if self.tables:   # the metric's features of every measured table, prepared once the tables are in
+            threading.Thread(target=self._prepare_walks, name="explore-walks", daemon=True).start()
+        self.thumbs = None
+        if thumbnails:
+            from .thumbs import Thumbnails
+            self.thumbs = Thumbnails(self.manifold_path, self.manifold,
+                                     cache_folder(next(iter(self.bases.values())).folder))
         self.references = References()
         self._maps, self._maps_lock = {}, threading.Lock()
+        # the map the page opens on (at the measured material closest to the data's mean), made meanwhile
+        threading.Thread(target=self._first_map, name="explore-map", daemon=True).start()
+
+    def _first_map(self):
+        try:
+            self.map_png("0,1", self.start_point())
+        except Exception:   # the page asks for it anyway (and gets the error there)
+            pass
 
     # ------------------------------------------------------------ requests
     def key(self, name):
@@ -207,27 +181,60 @@ class Explorer:
                       "blend_ms": 1e3 * (t1 - t0), "tonemap_ms": 1e3 * (t2 - t1), "encode_ms": 1e3 * (t3 - t2),
                       "total_ms": 1e3 * (t3 - t0)}
 
-    def material(self, x):
+    def start_point(self):
+        """Where the page opens: the measured material closest to the mean of the latent points."""
+        lat = self.manifold.latent
+        return lat[int(np.argmin(((lat - lat.mean(axis=0)) ** 2).sum(axis=1)))].copy()
+
+    def _prepare_walks(self):
+        if self.tables.wait() == "ready":
+            try:
+                self.walks
+            except Exception as e:   # no paths nor distances; the rest of the page works
+                self._walks_error = f"perceptual metric unavailable: {e}"
+
+    @property
+    def walks(self):
+        """The :class:`~.walks.Walks` (paths, distances) of the manifold, once the tables are loaded."""
+        if not self.tables or self.tables.state != "ready":
+            raise InputError("perceptual paths and distances need the material tables: " +
+                             (self.tables.message if self.tables else "not loaded (--no-tables)"))
+        with self._walks_lock:
+            if self._walks_error:
+                raise InputError(self._walks_error)
+            if self._walks is None:
+                self._walks = Walks(self.manifold, self.tables.metric_rows)
+        return self._walks
+
+    def material(self, x, with_slice=True, live=False):
         """Description of the material at ``x`` (JSON-ready), with the table-based parts
-        when the tables are loaded."""
+        when the tables are loaded: the negative-bin fraction, the measured material nearest
+        under the perceptual metric (``measured``: name, distance, and the median spacing of
+        the measured materials for scale; not while a drag runs, ``live``) and (``with_slice``)
+        the server's BRDF slice image."""
         out = material.describe(self.manifold, x, self.prune)
         out["tables"] = self.tables.state if self.tables else "unavailable"
         out["tables_message"] = self.tables.message if self.tables else "not loaded (--no-tables)"
         if self.tables and self.tables.state == "ready":
             _, out["negative_fraction"] = self.tables.preview(x, self.prune)
+            # never waits for the metric being prepared (a second or two after the tables)
+            out["measured"] = self._walks.nearest_measured(x) if self._walks is not None and not live else None
+            out["live"] = bool(live)
+        if self.tables and self.tables.state == "ready" and with_slice:
             rgb, (lo, hi) = material.slice_image(self.tables.slice(x, self.prune))
             out["slice"] = {"png": "data:image/png;base64," + base64.b64encode(encode.png_bytes(rgb)).decode(),
                             "log10_range": [lo, hi], "phi_d_deg": 90.0}
         return out
 
-    def preview_table(self, x):
-        """Float16 bytes of the reduced interpolated table and its layout."""
+    def preview_table(self, x, coarse=False):
+        """Float16 bytes of the reduced interpolated table and its layout (``coarse``: every
+        other texel, :meth:`~.material.TableStack.preview`)."""
         if not self.tables or self.tables.state != "ready":
             raise InputError(self.tables.message if self.tables else "material tables not loaded")
-        table, negative = self.tables.preview(x, self.prune)
-        strides = material.preview_strides(self.tables.dims)
+        table, negative = self.tables.preview(x, self.prune, bool(coarse))
+        strides = [s * (2 if coarse else 1) for s in material.preview_strides(self.tables.dims)]
         return table.tobytes(), {"dims": list(table.shape[1:]), "full_dims": list(self.tables.dims),
-                                 "strides": list(strides), "negative_fraction": negative}
+                                 "strides": strides, "negative_fraction": negative, "coarse": bool(coarse)}
 
     def latent_map(self, dims, center, bounds=None):
         """The map of the slice through ``center``; ``bounds``: ``"x0,x1,y0,y1"`` (zoom) or None."""
@@ -264,21 +271,22 @@ class Explorer:
             raise InputError(f"dims must be two different coordinates in 0..{q - 1}, got {show(list(dims))}")
         return dims
 
-    def map_png(self, dims, center, bounds=None):
+    def map_png(self, dims, center, bounds=None, coarse=False):
         """PNG bytes and description of the map of the slice through ``center``.
 
         The map depends on ``center`` only through the coordinates not in ``dims`` (the
         slice): the last few maps are kept by slice, so moving within the slice (every move
-        for ``q = 2``) costs nothing."""
+        for ``q = 2``) costs nothing. ``coarse``: a quarter of the pixels (:data:`COARSE_MAP`,
+        while a slider or the path scrubber moves the slice)."""
         dims = self._dims(dims)
         bounds = self._bounds(bounds) if bounds is not None and bounds != "" else None
         c = np.asarray(center, dtype=np.float64)
-        key = (dims, tuple(float(v) for k, v in enumerate(c) if k not in dims), bounds)
+        key = (dims, tuple(float(v) for k, v in enumerate(c) if k not in dims), bounds, bool(coarse))
         with self._maps_lock:
             if key in self._maps:
                 self._maps[key] = self._maps.pop(key)   # most recently used last
                 return self._maps[key]
-        m = latentmap.render(self.manifold, c, dims, bounds=bounds)
+        m = latentmap.render(self.manifold, c, dims, resolution=COARSE_MAP if coarse else FULL_MAP, bounds=bounds)
         out = (encode.png_bytes(m.image), dict(m.info(), slice=[list(dims), list(key[1])]))
         with self._maps_lock:
             self._maps[key] = out
@@ -300,9 +308,11 @@ class Explorer:
               f"\"x\": \"{xs}\"}})")
         return {"xml": xml, "python": py, "x": [float(v) for v in x]}
 
-    def path_command(self, name, a, b, steps):
-        """The ``tools/blend.py --path`` command rendering the sequence from ``a`` to ``b``."""
+    def path_command(self, name, a, b, steps, kind=None):
+        """The ``tools/blend.py --path`` command rendering the sequence from ``a`` to ``b``
+        (``kind``: its ``--path-kind``; None: blend.py's default, the same as :meth:`route`'s)."""
         basis = self.basis(name)
+        kind = None if kind is None or kind == "" else self._kind(kind)
         ends = []
         for v, what in ((a, "a"), (b, "b")):
             if isinstance(v, str) and v.strip() in self.manifold.names:
@@ -315,7 +325,21 @@ class Explorer:
         tool = os.path.join(TOOLS, "blend.py")   # absolute: the command works pasted in any folder
         head = ["python3", tool] if os.path.isfile(tool) else ["mitsuba-manifold", "blend"]
         return shlex.join(head + ["--basis", os.path.abspath(basis.folder), "--manifold", self.manifold_path,
-                                  "--path", ends[0], ends[1], "--steps", str(steps), "--out", "path.exr", "--png"])
+                                  "--path", ends[0], ends[1], "--steps", str(steps)]
+                          + (["--path-kind", kind] if kind else []) + ["--out", "path.exr", "--png"])
+
+    def route(self, a, b, steps=None, kind=None):
+        """Future of the path from ``a`` to ``b`` (material names or points) of ``kind``
+        (default: :data:`Manifold.path`'s), ``steps`` points (:meth:`.walks.Walks.submit`)."""
+        kind = path_kinds.DEFAULT_KIND if kind is None or kind == "" else self._kind(kind)
+        steps = int(self.number(steps, "steps", 2, MAX_STEPS, STEPS))
+        return self.walks.submit(self.point(a, "a"), self.point(b, "b"), steps, kind)
+
+    @staticmethod
+    def _kind(kind):
+        if not isinstance(kind, str) or kind not in path_kinds.KINDS:
+            raise InputError(f"kind must be one of {list(path_kinds.KINDS)}, got {show(kind)}")
+        return kind
 
     def info(self):
         m = self.manifold
@@ -325,7 +349,8 @@ class Explorer:
         return {"manifold": self.manifold_path, "q": m.q, "names": m.names, "latent": m.latent.tolist(),
                 "albedos": None if m.albedos is None else m.albedos.tolist(), "bases": bases,
                 "prune": self.prune, "tables": self.tables.state if self.tables else "unavailable",
-                "max_reference_spp": MAX_SPP}
+                "max_reference_spp": MAX_SPP, "thumbs": self.thumbs.info() if self.thumbs else None,
+                "path_kinds": list(path_kinds.KINDS), "path_kind": path_kinds.DEFAULT_KIND}
 
     # ---------------------------------------------------------- references
     def start_reference(self, name, x, spp):
@@ -354,4 +379,6 @@ class Explorer:
 
     def close(self, wait=0.0):
         """Stop the reference renders (waits up to ``wait`` s); returns whether none still runs."""
+        if self.thumbs:
+            self.thumbs.close()
         return self.references.shutdown(wait)

@@ -1,13 +1,16 @@
 """One tab's websocket: requests tagged with their point, the newest of each kind answered.
 
-The page sends JSON text messages ``{"type": KIND, "seq": n, "x": [...], ...}`` or, once per
+The page sends JSON text messages ``{"type": KIND, "seq": n, "x": [...], ...}`` (``route``: ``a``, ``b``, ``steps``,
+``kind``: the points of a path, :meth:`~.service.Explorer.route`) or, once per
 pointer move, one combined ``{"type": "move", "seq": n, "x": [...], "want": [KIND, ...], ...}``
 standing for one request of each wanted kind at that point. For every kind (:data:`KINDS`)
 the session holds at most one waiting request: a newer one replaces it (a drag never
 queues stale points) and each kind has its own worker, so a slow latent map never holds up
 a frame. Every answer is a binary message ``[uint32 n][n bytes of JSON meta][payload]`` whose
 meta repeats the request's ``seq`` and the point ``x`` it is for, so the page can drop an
-answer that arrives after a newer one.
+answer that arrives after a newer one. ``"coarse": true`` (a drag running) asks for the cheap
+answers: a table of every other texel, a map of a quarter of the pixels, a material without the
+distance to the closest measured one; the page asks again in full when the drag rests.
 
 Malformed input never reaches a traceback: a bad request is answered with
 ``{"type": "error", "kind", "seq", "error"}``; a binary message or one larger than
@@ -28,7 +31,7 @@ from .guard import MAX_MESSAGE
 from .service import show
 
 #: Kinds of request, and the order in which they are started when several wait.
-KINDS = ("frame", "table", "material", "snippet", "map", "path")
+KINDS = ("frame", "table", "material", "snippet", "map", "path", "route")
 #: Kinds answered for a point ``x`` (tagged with it).
 POINT_KINDS = ("frame", "table", "material", "snippet", "map")
 #: What answers a bad request with an error message.
@@ -144,8 +147,12 @@ class Session:
         ex = self.ex
         if kind == "path":
             cmd = await run_in_threadpool(ex.path_command, req.get("basis"), req.get("a"), req.get("b"),
-                                          req.get("steps"))
+                                          req.get("steps"), req.get("kind"))
             return {"type": "path", "command": cmd, "a": req.get("a"), "b": req.get("b")}, b""
+        if kind == "route":   # computed in the paths' own thread: waits without holding any other kind
+            future = await run_in_threadpool(ex.route, req.get("a"), req.get("b"), req.get("steps"), req.get("kind"))
+            route = await asyncio.wrap_future(future)
+            return dict(route, type="route"), b""
         x = ex.point(req.get("x"), "x")
         tag = {"type": kind, "x": [float(v) for v in x]}
         if kind == "frame":
@@ -153,11 +160,13 @@ class Session:
             data, meta = await run_in_threadpool(ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"))
             return dict(meta, exposure=exposure, basis=ex.key(req.get("basis")), **tag), data
         if kind == "material":
-            return dict(await run_in_threadpool(ex.material, x), **tag), b""
+            with_slice, live = req.get("slice", True) is not False, req.get("coarse") is True
+            return dict(await run_in_threadpool(ex.material, x, with_slice, live), **tag), b""
         if kind == "table":
-            data, meta = await run_in_threadpool(ex.preview_table, x)
+            data, meta = await run_in_threadpool(ex.preview_table, x, req.get("coarse") is True)
             return dict(meta, **tag), data
         if kind == "snippet":
             return dict(ex.snippets(x), **tag), b""
-        data, meta = await run_in_threadpool(ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"))
+        data, meta = await run_in_threadpool(ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"),
+                                             req.get("coarse") is True)
         return dict(meta, **tag), data

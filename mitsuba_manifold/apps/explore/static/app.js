@@ -3,6 +3,8 @@
 "use strict";
 
 const $ = (id) => document.getElementById(id);
+// Text of an element, changed only when it differs (a drag sets it on every move: no needless layout).
+const setText = (el, text) => { if (el.textContent !== text) el.textContent = text; };
 const fmtNum = (v, d = 3) => (Math.abs(v) >= 1e4 || (Math.abs(v) < 1e-3 && v !== 0)) ? v.toExponential(2) : v.toFixed(d);
 const LOCAL = ["127.0.0.1", "localhost", "[::1]"].includes(location.hostname);
 
@@ -38,13 +40,15 @@ let channel, preview;
 const sameX = (a, b) => !!a && !!b && a.length === b.length && a.every((v, k) => v === b[k]);
 
 function onMessage(meta, payload) {
+  if (meta.type === "error" && meta.kind === "route") { routeFailed(meta); return; }
   if (meta.type === "error") { setStatus((meta.kind ? meta.kind + ": " : "") + meta.error, true); return; }
   if (meta.type === "frame") drawFrame(meta, payload);
   else if (meta.type === "material") showMaterial(meta);
   else if (meta.type === "table" && preview) {
-    if (!sameX(meta.x, state.previewX)) preview.setTable(payload, meta);   // redrawn only when it changed
-    state.previewX = meta.x;
+    if (!sameX(meta.x, state.previewX) || meta.coarse !== state.previewCoarse) { preview.setTable(payload, meta); drawPlots(); }
+    state.previewX = meta.x; state.previewCoarse = meta.coarse;   // redrawn only when it changed
   }
+  else if (meta.type === "route") showRoute(meta);
   else if (meta.type === "snippet") showSnippet(meta);
   else if (meta.type === "map") showMap(meta, payload);
   else if (meta.type === "path") showPath(meta);
@@ -61,7 +65,8 @@ async function drawFrame(meta, payload) {
   if (bmp) ctx.drawImage(bmp, 0, 0);
   else ctx.putImageData(new ImageData(new Uint8ClampedArray(payload), meta.width, meta.height), 0, 0);
   state.displayed = { x: meta.x, seq: meta.seq, exposure: meta.exposure, basis: meta.basis, at: performance.now() };
-  if (window.explore.trace) window.explore.trace.push({ x: meta.x, at: state.displayed.at });   // tools/bench.py explore --browser
+  if (window.explore.trace) window.explore.trace.push({ x: meta.x, at: state.displayed.at, server_ms: meta.total_ms,
+    round_trip_ms: meta.round_trip_ms });   // tools/bench.py explore --browser
   c.dataset.x = meta.x.join(",");
   const n = meta.n_images;
   $("timing").textContent = `${n} image${n === 1 ? "" : "s"} · blend ${meta.blend_ms.toFixed(1)} + tonemap ` +
@@ -94,20 +99,25 @@ function sendMove(resting = false) {
   for (const kind of ["frame", "table", "material", "snippet"]) {
     if (kind === "table" && state.info.tables !== "ready") continue;
     const last = asked[kind];
-    if (last && sameX(last[1], state.x)) continue;
-    if (!dragging || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x]; }
+    if (last && sameX(last[1], state.x) && !(last[2] && !dragging)) continue;   // a coarse table is asked again at rest
+    if (!dragging || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x, dragging && (kind === "table" || kind === "material")]; }
   }
-  const key = sliceKey();
-  if (key !== state.mapKey) { state.mapKey = key; want.push("map"); }
+  const key = sliceKey();   // a new slice while dragging: a coarse map, the full one at rest
+  if (key !== state.mapKey) { state.mapKey = key; state.mapCoarse = dragging; want.push("map"); }
+  else if (state.mapCoarse && !dragging) { state.mapCoarse = false; want.push("map"); }
   if (preview) preview.setFast(state.dragging || dragging);   // a pointer held still keeps the drag's resolution
   owe(dragging);
   if (!want.length) return;
   state.moves++;
-  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom }, frameRequest()), want);
+  // slice: false: the page draws the BRDF slice itself, from the table (plots.js)
+  // coarse: while dragging the sphere's table has every other texel (an eighth of the bytes), a new
+  // slice's map a quarter of the pixels, the material no distance to the closest measured one
+  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom, slice: false, coarse: dragging },
+                             frameRequest()), want);
 }
 function owe(dragging) {   // kinds not asked for the point shown yet (counted by channel.pending())
   const kinds = ["material", "snippet"].concat(state.info.tables === "ready" ? ["table"] : []);
-  channel.owed = kinds.filter((k) => !asked[k] || !sameX(asked[k][1], state.x)).length;
+  channel.owed = kinds.filter((k) => !asked[k] || !sameX(asked[k][1], state.x) || (asked[k][2] && !dragging)).length;
   clearTimeout(state.restTimer);
   if (dragging) state.restTimer = setTimeout(() => sendMove(true), REST);   // no move for REST ms: resting
 }
@@ -127,13 +137,17 @@ function requestMap() {
 function setX(x) {
   state.x = x.slice();
   scheduleMove();
-  // the point (and basis) in the address: a reload or a shared link comes back here
-  history.replaceState(null, "", "#x=" + state.x.join(",") +
-                      (state.basis ? "&basis=" + encodeURIComponent(state.basis) : ""));
+  // the point (and basis) in the address: a reload or a shared link comes back here (at most every
+  // 200 ms: the browser rate-limits replaceState, and each call costs the drag milliseconds)
+  clearTimeout(state.addressTimer);
+  state.addressTimer = setTimeout(() => history.replaceState(null, "", "#x=" + state.x.join(",") +
+                                  (state.basis ? "&basis=" + encodeURIComponent(state.basis) : "")), 200);
   updateSavePng();
   updateSliders();
   showPoint();
-  drawMap();
+  if (state.map && sliceKey() !== state.drawnSlice) drawMap();   // q > 2: the materials fade by their distance to the slice
+  else placeCursor();
+  setText($("fav"), loadFavs().some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite");
 }
 
 function updateSavePng() {
@@ -145,7 +159,7 @@ function updateSavePng() {
 // (weights, albedo, ...) are marked stale until the answer for this point arrives.
 function showPoint() {
   const name = materialName(state.x);
-  $("material-name").textContent = name ? name : "x = (" + state.x.map((v) => fmtNum(v)).join(", ") + ")";
+  setText($("material-name"), name ? name : "x = (" + state.x.map((v) => fmtNum(v)).join(", ") + ")");
   $("material-name").dataset.x = state.x.join(",");
   $("material-panel").classList.toggle("stale", !state.material || !sameX(state.material.x, state.x));
   $("use-box").classList.toggle("stale", !state.snippet || !sameX(state.snippet.x, state.x));
@@ -199,11 +213,7 @@ function drawMap() {
   ctx.drawImage(state.mapImage, (ix0 - x0) / (x1 - x0) * c.width, (1 - (iy1 - y0) / (y1 - y0)) * c.height,
                 (ix1 - ix0) / (x1 - x0) * c.width, (iy1 - iy0) / (y1 - y0) * c.height);
   const { latent, names, albedos } = state.info;
-  if (state.a && state.b) {
-    const [ax, ay] = toCanvas(state.a.x), [bx, by] = toCanvas(state.b.x);
-    ctx.strokeStyle = "rgba(255,255,255,.85)"; ctx.setLineDash([6, 4]); ctx.lineWidth = 1.5;
-    ctx.beginPath(); ctx.moveTo(ax, ay); ctx.lineTo(bx, by); ctx.stroke(); ctx.setLineDash([]);
-  }
+  if (state.a && state.b) drawRoute(ctx);
   latent.forEach((p, i) => {
     const [px, py] = toCanvas(p);
     const a = albedos ? albedos[i] : [0.5, 0.5, 0.5];
@@ -220,14 +230,17 @@ function drawMap() {
     const [px, py] = toCanvas(end.x);
     ctx.fillStyle = "#fff"; ctx.font = "bold 13px system-ui"; ctx.fillText(label, px + 7, py - 7);
   }
-  const [cx, cy] = toCanvas(state.x);
-  ctx.lineWidth = 2; ctx.strokeStyle = "#fff";
-  ctx.beginPath(); ctx.arc(cx, cy, 9, 0, 2 * Math.PI); ctx.stroke();
-  ctx.strokeStyle = "#000"; ctx.lineWidth = 1;
-  ctx.beginPath(); ctx.arc(cx, cy, 11, 0, 2 * Math.PI); ctx.stroke();
-  ctx.beginPath(); ctx.moveTo(cx - 15, cy); ctx.lineTo(cx - 5, cy); ctx.moveTo(cx + 5, cy); ctx.lineTo(cx + 15, cy);
-  ctx.moveTo(cx, cy - 15); ctx.lineTo(cx, cy - 5); ctx.moveTo(cx, cy + 5); ctx.lineTo(cx, cy + 15);
-  ctx.strokeStyle = "#fff"; ctx.lineWidth = 1.5; ctx.stroke();
+  state.drawnSlice = sliceKey();
+  placeCursor();
+}
+
+// The current point's crosshair: an element over the map moved by a CSS transform (the compositor
+// moves it; redrawing the map canvas per move cost the software rasteriser most of a drag's time).
+function placeCursor() {
+  if (!state.map || !state.x) return;
+  const c = $("map"), [cx, cy] = toCanvas(state.x), k = c.clientWidth / c.width;
+  $("cursor").style.transform = `translate(${(cx * k).toFixed(1)}px, ${(cy * k).toFixed(1)}px)`;
+  $("cursor").hidden = false;
 }
 
 function bindMap() {
@@ -262,12 +275,12 @@ function bindMap() {
     const i = nearestPoint(px, py);
     if (i !== state.hover) { state.hover = i; drawMap(); }
     if (i >= 0) {
-      tip.hidden = false; tip.textContent = state.info.names[i];
+      tip.hidden = false; tip.innerHTML = thumbHtml(state.info.names[i], 48) + "<span>" + escapeHtml(state.info.names[i]) + "</span>";
       tip.style.left = (px * r.width / c.width + 12) + "px"; tip.style.top = (py * r.height / c.height - 10) + "px";
     } else tip.hidden = true;
     if (dragging) pick(ev, false);
   });
-  c.addEventListener("pointerup", () => { if (dragging) { dragging = state.dragging = false; sendMove(true); } });
+  c.addEventListener("pointerup", () => { if (dragging) { dragging = state.dragging = false; sendMove(true); commitPoint(); } });
   // wheel: zoom about the pointer (the map is rendered again for the new extent); double-click:
   // the whole map, and the point goes back to where it was before the double-click's first press
   c.addEventListener("wheel", (ev) => {
@@ -283,7 +296,7 @@ function bindMap() {
   c.addEventListener("dblclick", () => {
     state.zoom = null;
     if (state.fullExtent) state.map = Object.assign({}, state.map, { extent: state.fullExtent });
-    if (lastDown && !sameX(lastDown.x, state.x)) setX(lastDown.x);
+    if (lastDown && !sameX(lastDown.x, state.x)) { setX(lastDown.x); commitPoint(); }
     requestMap(); drawMap();
   });
   c.addEventListener("pointerleave", () => { tip.hidden = true; if (state.hover >= 0) { state.hover = -1; drawMap(); } });
@@ -317,6 +330,7 @@ function buildSliders() {
     const input = row.querySelector("input");
     input.value = state.x[d];
     input.oninput = () => { const x = state.x.slice(); x[d] = +input.value; state.liveUntil = performance.now() + REST; setX(x); };
+    input.onchange = commitPoint;
     box.appendChild(row);
   }
   updateSliders();
@@ -326,7 +340,7 @@ function updateSliders() {
   for (const input of document.querySelectorAll("#sliders input")) {
     const d = +input.dataset.dim;
     if (document.activeElement !== input) input.value = state.x[d];
-    input.nextElementSibling.textContent = fmtNum(state.x[d]);
+    setText(input.nextElementSibling, fmtNum(state.x[d]));
   }
 }
 
@@ -358,10 +372,16 @@ function showMaterial(m) {
   if (m.tables !== "ready") warn.push(m.tables_message);
   $("warnings").innerHTML = warn.map((w) => `<div class="warn">${escapeHtml(w)}</div>`).join("");
   $("nearest").innerHTML = "";
+  if (m.measured) state.lastMeasured = m.measured;
+  const near = m.measured || (m.live ? state.lastMeasured : null);   // a drag: the last one, marked stale
+  $("measured").innerHTML = near ? `${thumbHtml(near.name, 18)}<b>${escapeHtml(near.name)}</b> ` +
+    `d = ${fmtNum(near.distance)} <span class="muted">(${fmtNum(near.distance / near.spacing, 2)}× the ` +
+    `median spacing of the measured materials)</span>` :
+    `<span class="muted">${m.tables === "ready" ? "preparing the perceptual metric…" : escapeHtml(m.tables_message || "")}</span>`;
   for (const n of m.nearest) {
     const b = document.createElement("button");
-    b.textContent = n.name; b.title = `latent distance ${n.distance.toFixed(3)}`;
-    b.onclick = () => goTo(n.name);
+    b.innerHTML = thumbHtml(n.name, 16) + escapeHtml(n.name); b.title = `latent distance ${n.distance.toFixed(3)}`;
+    b.onclick = () => { goTo(n.name); commitPoint(); };
     $("nearest").appendChild(b);
   }
   const max = Math.max(...m.weights.map((w) => Math.abs(w.w)), 1e-9);
@@ -369,7 +389,7 @@ function showMaterial(m) {
   for (const w of m.weights.filter((w) => Math.abs(w.w) > 5e-4)) {
     const half = 50 * Math.abs(w.w) / max;
     const name = document.createElement("div"); name.className = "name" + (w.kept ? " kept" : " pruned");
-    name.textContent = w.name; name.onclick = () => goTo(w.name);
+    name.textContent = w.name; name.onclick = () => { goTo(w.name); commitPoint(); };
     name.title = w.kept ? "kept: this material's image is in the blend" : "dropped by pruning (its share is spread over the kept ones)";
     const track = document.createElement("div"); track.className = "track";
     const bar = document.createElement("div"); bar.className = "bar" + (w.w < 0 ? " neg" : "") + (w.kept ? "" : " pruned");
@@ -383,11 +403,6 @@ function showMaterial(m) {
     (m.pruning_albedo != null ? ` · albedo change ${(100 * m.pruning_albedo).toFixed(2)}%` +
       (m.pruning_albedo_budget != null ? ` (≤ ${(100 * m.pruning_albedo_budget).toFixed(2)}%)` : "") : "");
   $("weights-note").title = m.pruning || "";   // the bound pruning reached (albedo, cosine-weighted, raw L2)
-  if (m.slice) {
-    $("slice").src = m.slice.png;
-    $("slice-hi").textContent = m.slice.log10_range[1].toFixed(1);
-    $("slice-lo").textContent = m.slice.log10_range[0].toFixed(1);
-  }
 }
 
 function escapeHtml(s) { return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
@@ -429,25 +444,73 @@ async function copy(text, what) {
 }
 
 // ------------------------------------------------------------------ paths
+// The scrubber follows Manifold.path(a, b, steps, kind) (manifold/paths.py): the straight segment
+// at once; uniform and geodesic are computed by the server in the background (seconds) and
+// replace it when they arrive, cached there per pair. t moves along the path's points at equal
+// index steps (equal perceptual steps for uniform and geodesic).
+const ROUTE_STEPS = 21;
 function endLabel(end) { return end.name || "(" + end.x.map((v) => fmtNum(v)).join(", ") + ")"; }
 function setEnd(which) {
   const end = { x: state.x.slice(), name: materialName(state.x) };
   state[which] = end;
   $(which + "-label").textContent = endLabel(end);
-  const ready = state.a && state.b;
+  const ready = state.a && state.b && !sameX(state.a.x, state.b.x);
   $("scrub").disabled = !ready; $("export-path").disabled = !ready;
   $("scrub").value = which === "a" ? 0 : 1000; updateScrub();
+  if (ready) requestRoute(); else { state.route = null; $("route-state").textContent = ""; }
   drawMap();
+}
+function straightRoute() {
+  const a = state.a.x, b = state.b.x;
+  return Array.from({ length: ROUTE_STEPS }, (_, k) => a.map((v, d) => v + (k / (ROUTE_STEPS - 1)) * (b[d] - v)));
+}
+function requestRoute() {
+  const kind = $("path-kind").value;
+  state.route = { kind: "straight", want: kind, a: state.a.x, b: state.b.x, points: straightRoute() };
+  if (kind === "straight") { $("route-state").textContent = "the latent segment"; return; }
+  $("route-state").textContent = `${kind}: computing in the background… (straight meanwhile)`;
+  state.routeSeq = channel.send({ type: "route", a: state.a.x, b: state.b.x, steps: ROUTE_STEPS, kind }, ["route"]);
+}
+function showRoute(meta) {
+  const r = state.route;
+  if (!r || meta.seq !== state.routeSeq || meta.kind !== r.want || !sameX(meta.a, r.a) || !sameX(meta.b, r.b)) return;
+  const onPath = sameX(state.x, pointOnRoute(+$("scrub").value / 1000));
+  state.route = Object.assign({}, r, { kind: meta.kind, points: meta.points });
+  const L = meta.lengths.reduce((s, v) => s + v, 0), spread = Math.max(...meta.lengths) / (L / meta.lengths.length);
+  $("route-state").textContent = `${meta.kind} · perceptual length ${fmtNum(L)} · largest step ${spread.toFixed(2)}× the mean`;
+  if (onPath) scrub();   // the point shown moves onto the new path
+  drawMap();
+}
+function routeFailed(meta) {
+  if (meta.seq !== state.routeSeq) return;
+  $("route-state").textContent = `${$("path-kind").value} unavailable (${meta.error}): straight`;
+}
+function pointOnRoute(t) {
+  const P = state.route.points, u = t * (P.length - 1), k = Math.min(P.length - 2, Math.floor(u)), f = u - k;
+  if (f === 0) return P[k].slice();
+  if (k === P.length - 2 && f === 1) return P[k + 1].slice();
+  return P[k].map((v, d) => (1 - f) * v + f * P[k + 1][d]);
+}
+function drawRoute(ctx) {
+  const [ax, ay] = toCanvas(state.a.x), [bx, by] = toCanvas(state.b.x), r = state.route;
+  ctx.strokeStyle = r && r.kind !== "straight" ? "rgba(255,255,255,.35)" : "rgba(255,255,255,.85)";
+  ctx.setLineDash([6, 4]); ctx.lineWidth = 1.5;
+  ctx.beginPath(); ctx.moveTo(ax, ay); ctx.lineTo(bx, by); ctx.stroke(); ctx.setLineDash([]);
+  if (!r || r.kind === "straight") return;
+  ctx.strokeStyle = "#ffd166"; ctx.lineWidth = 2.5; ctx.beginPath();
+  r.points.forEach((p, k) => { const [x, y] = toCanvas(p); if (k) ctx.lineTo(x, y); else ctx.moveTo(x, y); });
+  ctx.stroke();
+  ctx.fillStyle = "#ffd166";
+  for (const p of r.points) { const [x, y] = toCanvas(p); ctx.beginPath(); ctx.arc(x, y, 2, 0, 2 * Math.PI); ctx.fill(); }
 }
 function updateScrub() { $("scrub-t").textContent = "t = " + (+$("scrub").value / 1000).toFixed(2); }
 function scrub() {
   updateScrub();
   state.liveUntil = performance.now() + REST;
-  const t = +$("scrub").value / 1000;
-  setX(state.a.x.map((v, k) => (1 - t) * v + t * state.b.x[k]));
+  setX(pointOnRoute(+$("scrub").value / 1000));
 }
 function exportPath() {
-  state.pathSeq = channel.send({ type: "path", basis: state.basis, steps: $("steps").value,
+  state.pathSeq = channel.send({ type: "path", basis: state.basis, steps: $("steps").value, kind: $("path-kind").value,
     a: state.a.name || state.a.x, b: state.b.name || state.b.x }, ["path"]);
   $("path-cmd").classList.add("stale");
 }
@@ -455,6 +518,29 @@ function showPath(meta) {
   if (meta.seq !== state.pathSeq) return;   // for ends or steps changed since
   $("path-cmd").hidden = false; $("path-cmd").classList.remove("stale");
   $("path-cmd").textContent = meta.command; copy(meta.command, "command");
+}
+
+// ------------------------------------------------------------------ plots and tabs
+function drawPlots() {
+  const tab = state.tab || "weights";
+  if (tab === "slice" && drawSlice(preview, $("slice"), +$("phi-d").value)) {
+    $("slice-hi").textContent = SLICE_RANGE[1].toFixed(0); $("slice-lo").textContent = SLICE_RANGE[0].toFixed(0);
+  }
+  if (tab === "lobe") state.lobePeak = drawLobe(preview, $("lobe"), +$("theta-i").value);
+}
+function bindTabs() {
+  for (const b of document.querySelectorAll(".tabs button")) {
+    b.onclick = () => {
+      state.tab = b.dataset.tab;
+      for (const o of document.querySelectorAll(".tabs button")) o.classList.toggle("on", o === b);
+      for (const t of ["weights", "slice", "lobe"]) $("tab-" + t).hidden = t !== state.tab;
+      drawPlots();
+    };
+  }
+  $("phi-d").oninput = () => { $("phi-d-val").textContent = $("phi-d").value + "°"; drawPlots(); };
+  $("theta-i").oninput = () => { $("theta-i-val").textContent = $("theta-i").value + "°"; drawPlots(); };
+  $("env-rot").oninput = () => preview && preview.setRotation(+$("env-rot").value * Math.PI / 180);
+  $("key-power").oninput = () => preview && preview.setKeyPower(+$("key-power").value * Math.PI);
 }
 
 // ------------------------------------------------------------------ reference
@@ -524,11 +610,19 @@ async function main() {
   for (const n of [...info.names].sort()) $("material-names").appendChild(new Option(n));
   $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there
     const v = $("search").value.trim(), hit = info.names.find((n) => n.toLowerCase() === v.toLowerCase());
-    if (hit) { goTo(hit); $("search").blur(); }
+    if (hit) { goTo(hit); commitPoint(); $("search").blur(); }
+    buildGallery();   // the gallery shows the names matching what is typed
   };
   $("set-a").onclick = () => setEnd("a");
   $("set-b").onclick = () => setEnd("b");
   $("scrub").oninput = scrub;
+  $("scrub").onchange = commitPoint;
+  for (const k of info.path_kinds) $("path-kind").add(new Option(k, k));
+  $("path-kind").value = info.path_kind;
+  $("path-kind").onchange = () => { if (state.a && state.b && !sameX(state.a.x, state.b.x)) requestRoute(); drawMap(); };
+  bindTabs();
+  bindShelf();
+  window.addEventListener("resize", placeCursor);
   $("export-path").onclick = exportPath;
   $("ref-start").onclick = startReference;
   $("copy-xml").onclick = () => copySnippet("xml", "XML");
@@ -570,5 +664,5 @@ async function pollTables() {
   requestAll();
 }
 
-window.explore = { state, setX, setEnd, currentSnippet, get channel() { return channel; }, get preview() { return preview; } };
+window.explore = { state, setX, setEnd, currentSnippet, commitPoint, stepHistory, pointOnRoute, drawPlots, get channel() { return channel; }, get preview() { return preview; } };
 main();

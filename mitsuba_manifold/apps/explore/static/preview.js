@@ -1,7 +1,9 @@
 // Real-time preview of the interpolated material (paper Sec. 5.1 in spirit): a sphere shaded in
 // the fragment shader from the table sent by the server at reduced resolution (float16, layout
-// (3, n_h, n_d, n_p) as a 3D texture n_p x n_d x 3*n_h), with MERL's half/diff lookup as in
-// mitsuba_manifold/bsdf.py (merl_angles, merl_bin) and trilinear interpolation between bins.
+// (3, n_h, n_d, n_p), uploaded as an RGB 3D texture n_p x n_d x n_h), with MERL's half/diff
+// lookup as in mitsuba_manifold/bsdf.py (merl_angles, merl_bin) and trilinear interpolation
+// between bins, lit by the shipped environment (hdri.py: its median-cut lights, rotatable, the
+// map behind the sphere) and the key light the user drags.
 "use strict";
 
 const PREVIEW_VS = `#version 300 es
@@ -10,11 +12,16 @@ void main() { uv = pos; gl_Position = vec4(pos, 0.0, 1.0); }`;
 
 const PREVIEW_FS = `#version 300 es
 precision highp float; precision highp sampler3D;
-uniform sampler3D brdf;
+uniform sampler3D brdf;  // RGB, (n_p, n_d, n_h) texels
+uniform sampler2D env;   // equirectangular environment, linear RGB (static/env/studio.f16)
 uniform vec3 fullDims;   // (n_h, n_d, n_p) of the full table
 uniform vec3 strides;    // bins of the full table per texel
 uniform vec3 texDims;    // (n_h, n_d, n_p) of the reduced table
-uniform vec3 keyDir;
+uniform vec3 lightDir[MAX_LIGHTS];
+uniform vec3 lightPow[MAX_LIGHTS];
+uniform int nLights;
+uniform vec2 envRot;     // (cos, sin) of the environment's rotation about the vertical
+uniform float envShown;  // brightness of the environment behind the sphere (0: none)
 uniform float exposure;
 in vec2 uv; out vec4 color;
 const float PI = 3.14159265358979;
@@ -41,28 +48,14 @@ vec3 merlAngles(vec3 wi, vec3 wo) {
 }
 
 // Continuous bin coordinates of the full table (merl_bin: sqrt spacing in theta_h), then the
-// position in the reduced texture, whose texel t holds full bin t * stride.
+// position in the reduced texture, whose texel t holds full bin t * stride; one trilinear fetch.
 vec3 lookup(vec3 wi, vec3 wo) {
   vec3 a = merlAngles(wi, wo);
   vec3 c = vec3(sqrt(clamp(a.x / HALF_PI, 0.0, 1.0)) * fullDims.x,
                 a.y / HALF_PI * fullDims.y,
                 a.z / PI * fullDims.z);
   vec3 r = clamp((c - 0.5) / strides + 0.5, vec3(0.5), texDims - 0.5);   // texel units
-  vec3 rgb;
-  for (int k = 0; k < 3; k++) {
-    float z = (float(k) * texDims.x + r.x) / (3.0 * texDims.x);
-    rgb[k] = texture(brdf, vec3(r.z / texDims.z, r.y / texDims.y, z)).r;
-  }
-  return max(rgb, vec3(0.0));   // manifold_brdf clamps negative values the same way
-}
-
-vec3 shade(vec3 n, vec3 v, vec3 l, float power) {
-  vec3 t = normalize(abs(n.y) < 0.99 ? cross(vec3(0.0, 1.0, 0.0), n) : cross(vec3(1.0, 0.0, 0.0), n));
-  vec3 b = cross(n, t);
-  vec3 wi = vec3(dot(l, t), dot(l, b), dot(l, n));
-  vec3 wo = vec3(dot(v, t), dot(v, b), dot(v, n));
-  if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
-  return lookup(wi, wo) * wi.z * power;
+  return max(texture(brdf, r.zyx / texDims.zyx).rgb, vec3(0.0));   // manifold_brdf clamps negatives the same way
 }
 
 vec3 srgb(vec3 c) {
@@ -70,38 +63,68 @@ vec3 srgb(vec3 c) {
   return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
 }
 
+vec3 background(vec2 q) {
+  vec3 d = normalize(vec3(q * 0.5, -1.0));
+  d = vec3(d.x * envRot.x - d.z * envRot.y, d.y, d.x * envRot.y + d.z * envRot.x);   // into the map's frame
+  vec2 t = vec2((atan(d.x, d.z) + PI) / (2.0 * PI), acos(clamp(d.y, -1.0, 1.0)) / PI);
+  return texture(env, t).rgb * envShown;
+}
+
 void main() {
   vec2 p = uv * SCALE;
   float r2 = dot(p, p);
   if (r2 > 1.0) {
-    float g = 0.07 + 0.035 * (1.0 - length(uv) * 0.5) + 0.02 * uv.y;
-    color = vec4(vec3(g), 1.0);
+    color = vec4(srgb(background(uv) * exp2(exposure)), 1.0);
     return;
   }
   vec3 n = vec3(p, sqrt(1.0 - r2));
-  vec3 v = vec3(0.0, 0.0, 1.0);
-  vec3 L = shade(n, v, normalize(keyDir), PI)                       // key light, irradiance pi
-         + shade(n, v, normalize(vec3(-0.6, 0.25, 0.75)), 0.25 * PI) // weak fill
-         + shade(n, v, normalize(vec3(0.1, 0.9, -0.35)), 0.35 * PI); // rim from behind
-  // (tests/test_explore.py mirrors this shading in NumPy)
+  vec3 t = normalize(abs(n.y) < 0.99 ? cross(vec3(0.0, 1.0, 0.0), n) : cross(vec3(1.0, 0.0, 0.0), n));
+  vec3 b = cross(n, t);
+  vec3 wo = vec3(t.z, b.z, n.z);   // the view direction (0, 0, 1) in the local frame
+  vec3 L = vec3(0.0);
+  for (int k = 0; k < MAX_LIGHTS; k++) {   // the environment's median-cut lights, then the key light
+    if (k >= nLights) break;
+    vec3 l = lightDir[k];
+    vec3 wi = vec3(dot(l, t), dot(l, b), dot(l, n));
+    if (wi.z > 0.0) L += lookup(wi, wo) * wi.z * lightPow[k];
+  }
+  // (tests/apps/test_explore.py mirrors this shading in NumPy)
   color = vec4(srgb(L * exp2(exposure)), 1.0);
 }`;
+
+// half-float bits -> float (for the slice and lobe plots drawn from the same table)
+const HALF_TO_FLOAT = (() => {
+  const out = new Float32Array(65536);
+  for (let h = 0; h < 65536; h++) {
+    const s = h & 0x8000 ? -1 : 1, e = (h >> 10) & 0x1f, m = h & 0x3ff;
+    out[h] = e === 0 ? s * m * 2 ** -24 : e === 31 ? (m ? NaN : s * Infinity) : s * (1 + m / 1024) * 2 ** (e - 15);
+  }
+  return out;
+})();
+
+const MAX_LIGHTS = 17;   // 16 median-cut lights of the environment and the key light
 
 class MaterialPreview {
   constructor(canvas, message) {
     this.canvas = canvas;
     this.message = message;
     this.key = [0.55, 0.6, 0.58];
+    this.keyPower = 1.0 * Math.PI;   // irradiance of the key light (the user's light)
+    this.rotation = 0;               // the environment's rotation about the vertical, radians
     this.exposure = 0;
     this.layout = null;
+    this.table = null;               // { halfs: Uint16Array (3, n_h, n_d, n_p), layout } for the plots
+    this.envLights = { 16: [], 8: [] };
+    this.fast = false;
     this.draws = 0;   // sphere redraws (tools/bench.py explore --browser)
-    this.gl = canvas.getContext("webgl2", { antialias: true, preserveDrawingBuffer: true });
+    this.gl = canvas.getContext("webgl2", { antialias: false, preserveDrawingBuffer: true });
     if (!this.gl) {
       this.fail("WebGL 2 is not available in this browser: the preview sphere is off; the rest of the page works.");
       return;
     }
     try { this.init(); } catch (e) { this.fail("WebGL preview failed: " + e.message); return; }
     this.bindLight();
+    this.loadEnvironment();
     this.draw();
   }
 
@@ -122,7 +145,8 @@ class MaterialPreview {
     };
     const prog = gl.createProgram();
     gl.attachShader(prog, compile(gl.VERTEX_SHADER, PREVIEW_VS));
-    gl.attachShader(prog, compile(gl.FRAGMENT_SHADER, PREVIEW_FS));
+    gl.attachShader(prog, compile(gl.FRAGMENT_SHADER,
+      PREVIEW_FS.replace("#version 300 es\n", `#version 300 es\n#define MAX_LIGHTS ${MAX_LIGHTS}\n`)));
     gl.linkProgram(prog);
     if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(prog));
     this.prog = prog;
@@ -133,18 +157,58 @@ class MaterialPreview {
     const loc = gl.getAttribLocation(prog, "pos");
     gl.enableVertexAttribArray(loc);
     gl.vertexAttribPointer(loc, 2, gl.FLOAT, false, 0, 0);
+    const linear = (target) => {
+      for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR],
+                            [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE],
+                            [gl.TEXTURE_WRAP_R, gl.CLAMP_TO_EDGE]]) gl.texParameteri(target, k, v);
+    };
+    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+    gl.activeTexture(gl.TEXTURE0);
     this.tex = gl.createTexture();
     gl.bindTexture(gl.TEXTURE_3D, this.tex);
-    for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR],
-                          [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE],
-                          [gl.TEXTURE_WRAP_R, gl.CLAMP_TO_EDGE]]) gl.texParameteri(gl.TEXTURE_3D, k, v);
-    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
-    gl.texImage3D(gl.TEXTURE_3D, 0, gl.R16F, 1, 1, 3, 0, gl.RED, gl.HALF_FLOAT, new Uint16Array(3));
+    linear(gl.TEXTURE_3D);
+    gl.texImage3D(gl.TEXTURE_3D, 0, gl.RGB16F, 1, 1, 1, 0, gl.RGB, gl.HALF_FLOAT, new Uint16Array(3));
+    gl.activeTexture(gl.TEXTURE1);
+    this.envTex = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, this.envTex);
+    linear(gl.TEXTURE_2D);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.REPEAT);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGB16F, 1, 1, 0, gl.RGB, gl.HALF_FLOAT, new Uint16Array(3));
+    gl.activeTexture(gl.TEXTURE0);
     this.u = {};
-    for (const name of ["brdf", "fullDims", "strides", "texDims", "keyDir", "exposure"])
+    for (const name of ["brdf", "env", "fullDims", "strides", "texDims", "lightDir", "lightPow", "nLights",
+                        "envRot", "envShown", "exposure"])
       this.u[name] = gl.getUniformLocation(prog, name);
     gl.uniform1i(this.u.brdf, 0);
+    gl.uniform1i(this.u.env, 1);
     this.setLayout({ dims: [1, 1, 1], full_dims: [1, 1, 1], strides: [1, 1, 1] });
+  }
+
+  // The shipped environment (mitsuba_manifold/apps/explore/hdri.py): the map and its lights.
+  async loadEnvironment() {
+    try {
+      const desc = await (await fetch("/static/env/studio.json")).json();
+      const pixels = new Uint16Array(await (await fetch("/static/env/studio.f16")).arrayBuffer());
+      this.envLights = desc.lights;
+      const gl = this.gl;
+      gl.activeTexture(gl.TEXTURE1);
+      gl.bindTexture(gl.TEXTURE_2D, this.envTex);
+      gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGB16F, desc.width, desc.height, 0, gl.RGB, gl.HALF_FLOAT, pixels);
+      gl.activeTexture(gl.TEXTURE0);
+      this.envReady = true;
+      this.draw();
+    } catch (e) { this.message.textContent = "environment map not loaded (" + e.message + "): key light only"; }
+  }
+
+  // Every light of the next draw: [direction, RGB irradiance], the environment's rotated, then the key.
+  lights(fast = this.fast) {
+    const c = Math.cos(this.rotation), s = Math.sin(this.rotation);
+    const env = (this.envLights[fast ? 8 : 16] || []).map((l) => {
+      const [x, y, z] = l.dir;
+      return [[x * c + z * s, y, -x * s + z * c], l.power];
+    });
+    const k = this.key, n = Math.hypot(...k);
+    return env.concat([[k.map((v) => v / n), [this.keyPower, this.keyPower, this.keyPower]]]);
   }
 
   setLayout(layout) {
@@ -156,28 +220,40 @@ class MaterialPreview {
     gl.uniform3fv(this.u.texDims, layout.dims);
   }
 
-  // halfs: ArrayBuffer of float16 values, layout (3, n_h, n_d, n_p)
+  // halfs: ArrayBuffer of float16 values, layout (3, n_h, n_d, n_p); uploaded as RGB texels
   setTable(halfs, layout) {
+    const src = new Uint16Array(halfs);
+    this.table = { halfs: src, layout };
     if (!this.gl) return;
     const gl = this.gl;
-    const [nh, nd, np] = layout.dims;
+    const [nh, nd, np] = layout.dims, n = nh * nd * np;
+    const rgb = new Uint16Array(3 * n);
+    for (let i = 0, j = 0; i < n; i++, j += 3) { rgb[j] = src[i]; rgb[j + 1] = src[n + i]; rgb[j + 2] = src[2 * n + i]; }
     gl.bindTexture(gl.TEXTURE_3D, this.tex);
-    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
-    gl.texImage3D(gl.TEXTURE_3D, 0, gl.R16F, np, nd, 3 * nh, 0, gl.RED, gl.HALF_FLOAT, new Uint16Array(halfs));
+    gl.texImage3D(gl.TEXTURE_3D, 0, gl.RGB16F, np, nd, nh, 0, gl.RGB, gl.HALF_FLOAT, rgb);
     this.setLayout(layout);
     this.message.textContent = "drag on the sphere to move the light";
     this.draw();
   }
 
-  setExposure(ev) { this.exposure = ev; this.draw(); }
+  // The table's value (RGB, 1/sr) at bin indices of the reduced table.
+  value(ih, id, ip) {
+    const t = this.table, [nh, nd, np] = t.layout.dims, n = nh * nd * np, i = (ih * nd + id) * np + ip;
+    return [HALF_TO_FLOAT[t.halfs[i]], HALF_TO_FLOAT[t.halfs[n + i]], HALF_TO_FLOAT[t.halfs[2 * n + i]]];
+  }
 
-  // While a drag runs the sphere is drawn at half resolution (a quarter of the fragments: the
-  // software rasteriser of a machine without a GPU keeps up), at full resolution once it rests.
+  setExposure(ev) { this.exposure = ev; this.draw(); }
+  setRotation(rad) { this.rotation = rad; this.draw(); }
+  setKeyPower(p) { this.keyPower = p; this.draw(); }
+
+  // While a drag runs the sphere is drawn at half resolution with the 8-light environment (the
+  // software rasteriser of a machine without a GPU keeps up), in full once it rests.
   setFast(fast) {
     if (!this.gl) return;
     if (!this.full) this.full = this.canvas.width;
     const size = fast ? Math.round(this.full / 2) : this.full;
-    if (this.canvas.width === size) return;
+    if (this.canvas.width === size && this.fast === fast) return;
+    this.fast = fast;
     this.canvas.width = this.canvas.height = size;
     this.draw();
   }
@@ -196,16 +272,23 @@ class MaterialPreview {
     this.canvas.addEventListener("pointerup", () => { down = false; });
   }
 
-  draw() {
+  // A small PNG of the sphere as drawn (favourites, compare).
+  snapshot() { return this.gl ? this.canvas.toDataURL("image/png") : null; }
+
+  draw() {   // at most once per displayed frame, and only when asked (something changed)
     if (!this.gl || this.pending) return;
     this.pending = true;
     requestAnimationFrame(() => {
       this.pending = false;
       this.draws++;
-      const gl = this.gl;
+      const gl = this.gl, lights = this.lights();
       gl.viewport(0, 0, this.canvas.width, this.canvas.height);
       gl.useProgram(this.prog);
-      gl.uniform3fv(this.u.keyDir, this.key);
+      gl.uniform3fv(this.u.lightDir, lights.flatMap((l) => l[0]));
+      gl.uniform3fv(this.u.lightPow, lights.flatMap((l) => l[1]));
+      gl.uniform1i(this.u.nLights, lights.length);
+      gl.uniform2f(this.u.envRot, Math.cos(this.rotation), Math.sin(this.rotation));
+      gl.uniform1f(this.u.envShown, this.envReady ? 0.2 : 0.0);
       gl.uniform1f(this.u.exposure, this.exposure);
       gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
     });

@@ -1,0 +1,163 @@
+// What an artist keeps at hand, all in the page: undo/redo of point moves (Ctrl-Z,
+// Ctrl-Shift-Z), favourites (this browser's localStorage), up to four points compared side by
+// side, and the measured materials as thumbnails (the server's sheet, /api/thumbs.png).
+"use strict";
+
+// ------------------------------------------------------------------ undo / redo
+// A move is committed when it ends (pointer up, a click, a name, a slider let go); undo goes
+// back to the point before it. Moves made by undo/redo are not committed again.
+const undoLog = { past: [], future: [], at: null, limit: 200 };
+
+function commitPoint() {
+  const x = state.x;
+  if (!x) return;
+  if (undoLog.at && !sameX(undoLog.at, x)) {
+    undoLog.past.push(undoLog.at);
+    if (undoLog.past.length > undoLog.limit) undoLog.past.shift();
+    undoLog.future = [];
+  }
+  undoLog.at = x.slice();
+  updateHistoryButtons();
+}
+function stepHistory(back) {
+  const from = back ? undoLog.past : undoLog.future, to = back ? undoLog.future : undoLog.past;
+  if (!from.length) return;
+  to.push(undoLog.at);
+  undoLog.at = from.pop();
+  setX(undoLog.at);
+  updateHistoryButtons();
+}
+function updateHistoryButtons() {
+  $("undo").disabled = !undoLog.past.length;
+  $("redo").disabled = !undoLog.future.length;
+}
+function bindHistory() {
+  $("undo").onclick = () => stepHistory(true);
+  $("redo").onclick = () => stepHistory(false);
+  document.addEventListener("keydown", (ev) => {
+    const typing = ev.target.matches && ev.target.matches("input[type=text], input:not([type]), textarea, input[list]");
+    if (typing || !(ev.ctrlKey || ev.metaKey)) return;
+    const k = ev.key.toLowerCase();
+    if (k === "z" || k === "y") { ev.preventDefault(); stepHistory(k === "z" && !ev.shiftKey); }
+  });
+}
+
+// ------------------------------------------------------------------ thumbnails
+function thumbStyle(i, px) {
+  const t = state.thumbs;
+  if (!t || i < 0) return "";
+  const c = i % t.columns, r = Math.floor(i / t.columns), rows = Math.ceil(state.info.names.length / t.columns);
+  return `background-image:url(${t.url});background-size:${t.columns * px}px ${rows * px}px;` +
+         `background-position:${-c * px}px ${-r * px}px`;
+}
+function thumbHtml(name, px = 20) {
+  const i = state.info.names.indexOf(name);
+  return state.thumbs && i >= 0 ? `<i class="thumb" style="width:${px}px;height:${px}px;${thumbStyle(i, px)}"></i>` : "";
+}
+async function pollThumbs() {
+  const t = state.info.thumbs;
+  if (!t) { $("thumbs-state").textContent = "(no thumbnails: --no-thumbnails)"; buildGallery(); return; }
+  if (t.state === "rendering") {
+    $("thumbs-state").textContent = "rendering thumbnails in the background…";
+    setTimeout(async () => {
+      try { state.info.thumbs = (await (await api("/api/info")).json()).thumbs; } catch (e) { /* retried */ }
+      pollThumbs();
+    }, 2000);
+    buildGallery();
+    return;
+  }
+  if (t.state === "ready") state.thumbs = { url: "/api/thumbs.png", columns: t.columns, size: t.size };
+  $("thumbs-state").textContent = t.state === "ready" ? `${state.info.names.length} materials, rendered with the plugin` : t.message;
+  buildGallery();
+  if (state.material) showMaterial(state.material);
+}
+function buildGallery() {
+  const box = $("gallery"), filter = ($("search").value || "").trim().toLowerCase();
+  box.innerHTML = "";
+  state.info.names.forEach((name, i) => {
+    if (filter && !name.includes(filter)) return;
+    const b = document.createElement("button");
+    b.className = "tile"; b.title = name; b.dataset.name = name;
+    b.innerHTML = (state.thumbs ? `<i class="thumb" style="width:44px;height:44px;${thumbStyle(i, 44)}"></i>` : "") +
+                  `<span>${escapeHtml(name)}</span>`;
+    b.onclick = () => { goTo(name); commitPoint(); };
+    box.appendChild(b);
+  });
+}
+
+// ------------------------------------------------------------------ favourites
+const favKey = () => "mitsuba-manifold-explore-favourites:" + state.info.manifold;
+let favCache = null;   // read once: setX asks on every move
+function loadFavs() {
+  if (!favCache) { try { favCache = JSON.parse(localStorage.getItem(favKey())) || []; } catch (e) { favCache = []; } }
+  return favCache.slice();
+}
+function saveFavs(favs) {
+  favCache = favs.slice(0, 24);
+  try { localStorage.setItem(favKey(), JSON.stringify(favCache)); } catch (e) { /* full: kept for this tab */ }
+}
+function pointLabel(x) { return materialName(x) || "(" + x.map((v) => fmtNum(v)).join(", ") + ")"; }
+function addFavourite() {
+  const favs = loadFavs().filter((f) => !sameX(f.x, state.x));
+  favs.unshift({ x: state.x.slice(), label: pointLabel(state.x), img: preview && preview.snapshot() });
+  saveFavs(favs);
+  showFavs();
+}
+function showFavs() {
+  const box = $("favs"), favs = loadFavs();
+  box.innerHTML = favs.length ? "" : `<span class="muted small">☆ favourite keeps the current point here</span>`;
+  favs.forEach((f, k) => {
+    const item = document.createElement("div");
+    item.className = "fav" + (sameX(f.x, state.x) ? " here" : "");
+    item.title = f.label;
+    item.innerHTML = (f.img ? `<img src="${f.img}" alt="">` : thumbHtml(f.label, 40)) +
+                     `<span>${escapeHtml(f.label)}</span><button class="x" title="remove">×</button>`;
+    item.onclick = (ev) => {
+      if (ev.target.classList.contains("x")) { const all = loadFavs(); all.splice(k, 1); saveFavs(all); showFavs(); return; }
+      setX(f.x); commitPoint();
+    };
+    box.appendChild(item);
+  });
+  $("fav").textContent = favs.some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite";
+}
+
+// ------------------------------------------------------------------ compare
+// Each slot: the scene frame of its point (PNG from the server), the sphere as drawn when it
+// was added, its name or coordinates and the closest measured material.
+const COMPARE_MAX = 4;
+function addCompare() {
+  if (!state.compare) state.compare = [];
+  if (state.compare.some((c) => sameX(c.x, state.x))) return;
+  if (state.compare.length >= COMPARE_MAX) state.compare.shift();
+  state.compare.push({ x: state.x.slice(), label: pointLabel(state.x), img: preview && preview.snapshot(),
+                       measured: state.material && sameX(state.material.x, state.x) ? state.material.measured : null });
+  showCompare();
+}
+function showCompare() {
+  const box = $("compare"), items = state.compare || [];
+  box.innerHTML = items.length ? "" : `<span class="muted small">+ compare adds the current point (2 to 4 side by side)</span>`;
+  box.style.gridTemplateColumns = `repeat(${Math.max(2, items.length)}, minmax(0, 1fr))`;
+  items.forEach((c, k) => {
+    const q = new URLSearchParams({ x: c.x.join(","), basis: state.basis, exposure: state.exposure, format: "png" });
+    const cell = document.createElement("figure");
+    cell.className = "cmp" + (sameX(c.x, state.x) ? " here" : "");
+    cell.innerHTML = `<div class="pair"><img class="frame" src="/api/frame?${q}" alt="scene">` +
+      (c.img ? `<img class="ball" src="${c.img}" alt="sphere">` : "") + `</div>` +
+      `<figcaption>${escapeHtml(c.label)}${c.measured && c.measured.name !== c.label ?
+        ` · closest ${escapeHtml(c.measured.name)} (d ${fmtNum(c.measured.distance)})` : ""}` +
+      `<button class="x" title="remove">×</button></figcaption>`;
+    cell.onclick = (ev) => {
+      if (ev.target.classList.contains("x")) { state.compare.splice(k, 1); showCompare(); return; }
+      setX(c.x); commitPoint();
+    };
+    box.appendChild(cell);
+  });
+}
+
+function bindShelf() {
+  bindHistory();
+  $("fav").onclick = addFavourite;
+  $("compare-add").onclick = addCompare;
+  undoLog.at = state.x.slice();
+  showFavs(); showCompare(); pollThumbs();
+}
