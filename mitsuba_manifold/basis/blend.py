@@ -36,8 +36,10 @@ import warnings
 import numpy as np
 
 from .crossterms import cross_weights
-from .folder import BASE, Basis
+from .folder import Basis
 from ..errors import MismatchError
+from .compose import compose
+from .denoise import BasisAOVs, denoise, denoised_l2
 from ..imaging.io import printable
 from ..manifold.pruning import DEFAULT_PRUNE
 
@@ -178,7 +180,8 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
     return keys, cw, info
 
 
-def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False, component=None):
+def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False, component=None,
+          l2="denoised"):
     """The image of latent point ``x`` (or weights ``w``) from a basis.
 
     Parameters
@@ -202,6 +205,9 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
     component : {"full", "l1"}, optional
         ``"full"`` (default): the full-GI blend where the basis holds full-GI images (else
         L1-, see :func:`resolve_component`); ``"l1"``: Eq. 13 on the L1- images.
+    l2 : {"denoised", "raw"}
+        The full-GI blend's part beyond L1- (noisy where interreflection runs through a narrow peak):
+        OIDN-denoised (default, :func:`~.denoise.denoised_l2`) or as summed (1-2 ms at 256x256).
 
     Returns
     -------
@@ -224,46 +230,45 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
     keys, cw, info = _plan(basis, manifold, W, prune, renormalise, used)
     t_plan = time.perf_counter() - t0
     image, t_read, t_sum = compose(basis, keys, cw, info["cross"])
+    if l2 not in L2_MODES:
+        raise MismatchError(f"`l2` must be one of {L2_MODES}, got {l2!r}")
+    t_den = 0.0
+    if used == "full" and l2 == "denoised" and basis.p == 1:
+        t0 = time.perf_counter()
+        l1_keys, l1_weights, _ = _plan(basis, manifold, W, prune, renormalise, "l1")
+        image = denoised_l2(basis, image, l1_keys, l1_weights)
+        t_den = time.perf_counter() - t0
     info.update(component=used, component_note=note, x=None if pts is None else (pts[0] if basis.p == 1 else pts),
-                time_ms=1e3 * (t_plan + t_sum), time_read_s=t_read, n_images=len(keys))
+                time_ms=1e3 * (t_plan + t_sum + t_den), time_read_s=t_read, n_images=len(keys),
+                l2=l2 if used == "full" else None)
     return image, info
 
 
-def compose(basis, keys, weights, cross=None):
-    """Eq. 13: ``base + sum_j weights[..., j] image(keys[j])`` (no base with several targets),
-    plus ``sum_r products[..., r] C[rows[r]]`` with ``cross = (rows, products)`` (full GI).
+#: Values of ``l2`` (:func:`blend`).
+L2_MODES = ("denoised", "raw")
 
-    Returns the image(s), the seconds spent reading images and the seconds of the sum.
+
+def denoised_blend(basis, manifold=None, x=None, w=None, aovs=None, guides=True, **kwargs):
+    """:func:`blend` and its denoised version (OIDN on the whole image, :mod:`.denoise`).
+
+    Returns
+    -------
+    raw, denoised : ndarray float32 (H, W, 3)
+    info : dict
+        The blend's info plus ``denoise_ms`` and ``guided`` (AOVs used).
     """
-    t_read = basis.read(keys + ([BASE] if basis.p == 1 else []))
-    if cross is not None:
-        t_read += _timed(basis.cross_terms)
+    if not isinstance(basis, Basis):
+        basis = Basis.load(basis)
+    raw, info = blend(basis, manifold, x=x, w=w, **kwargs)
     t0 = time.perf_counter()
-    images = basis.weighted_sum(keys, weights)
-    if basis.p == 1:
-        images += basis.image(BASE)
-    if cross is not None and len(cross[0]):
-        _add_cross(images, basis, cross[0], np.asarray(cross[1], np.float32))
-    return images, t_read, time.perf_counter() - t0
-
-
-def _add_cross(images, basis, rows, products):
-    """``images += sum_r products[..., r] C[rows[r]]``: one image in place, term by term, from the
-    float32 rows the basis keeps (:meth:`Basis.cross_term`); a sequence by ``tensordot``."""
-    if products.ndim == 1:
-        tmp = np.empty(images.shape, np.float32)
-        for r, p in zip(rows, products):
-            if p != 0.0:
-                np.multiply(basis.cross_term(int(r)), p, out=tmp)
-                images += tmp
-        return
-    images += np.tensordot(products, basis.cross_terms()[1][rows].astype(np.float32), axes=1)
-
-
-def _timed(fn):
-    t0 = time.perf_counter()
-    fn()
-    return time.perf_counter() - t0
+    if guides:
+        aovs = aovs or BasisAOVs.load(basis.folder, basis.manifest)
+        albedo = aovs.albedo_of_blend(info, basis.manifest["version"])
+        out = denoise(raw, albedo, aovs.normal)
+    else:
+        out = denoise(raw)
+    info.update(denoise_ms=1e3 * (time.perf_counter() - t0), guided=bool(guides))
+    return raw, out, info
 
 
 def _endpoint(manifold, v):
@@ -276,7 +281,7 @@ def _endpoint(manifold, v):
 
 
 def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRUNE, renormalise=False,
-               target=0, x=None, component=None, kind="straight", points=None):
+               target=0, x=None, component=None, kind="straight", points=None, l2="denoised"):
     """Images along a latent path from ``a`` to ``b`` (paper Fig. 12).
 
     Parameters
@@ -297,6 +302,7 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         With several targets: the latent points of the others (row ``target`` ignored).
     component : {"full", "l1"}, optional
         As :func:`blend`.
+    l2 : {"denoised", "raw"}   As :func:`blend` (``time_ms`` leaves the denoising out).
 
     Returns
     -------
@@ -348,6 +354,12 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         cross = (np.array(rows, dtype=np.intp), C)
     t_plan = time.perf_counter() - t0
     images, t_read, t_sum = compose(basis, keys, M, cross)
+    if l2 not in L2_MODES:
+        raise MismatchError(f"`l2` must be one of {L2_MODES}, got {l2!r}")
+    if used == "full" and l2 == "denoised" and basis.p == 1:   # as blend(): each step's L2+ part denoised
+        for s_, (xi, img) in enumerate(zip(xs, images)):
+            k1, w1, _ = _plan(basis, manifold, manifold.weights(xi[None])[1], prune, renormalise, "l1")
+            images[s_] = denoised_l2(basis, img, k1, w1)
     for (_, _, inf), xi in zip(plans, xs):
         inf["x"] = xi
     return images, xs, {"steps": [p[2] for p in plans], "time_ms": 1e3 * (t_plan + t_sum),

@@ -43,7 +43,7 @@ from threadpoolctl import threadpool_limits
 
 from . import objectives as image_error
 from .folder import BASE, Basis
-from .blend import compose
+from .compose import compose
 from ..errors import InputError
 from .objectives import LOSSES, masked_pool, masked_rel_mse, pool
 from .targets import check_mask, check_target, read_mask, read_target

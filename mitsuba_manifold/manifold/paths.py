@@ -75,16 +75,22 @@ class PathMetric:
     read from the database's cache folder when a previous process made them
     (:func:`latent_graph.cached`, named by the manifold's content hash), so that neither the
     tables (1.7 GB at MERL resolution) nor their hashes are read again; ``tables`` (the
-    manifold's full ``(N, d)`` stack) skips the cache. Features are float32 (the combination
-    ``w @ rows`` is float32 as the plugin's), sums of squares float64.
+    manifold's full ``(N, d)`` stack) skips the cache; ``rows`` (the tables already restricted to
+    the sub-grid, e.g. the explorer's preview tables) skips both. Features are float32 (the
+    combination ``w @ rows`` is float32 as the plugin's), sums of squares float64.
     """
 
-    def __init__(self, manifold, stride=SEARCH_STRIDE, tables=None):
+    def __init__(self, manifold, stride=SEARCH_STRIDE, tables=None, rows=None):
         self.manifold = manifold
         dims = tuple(manifold.info["dims"])
         self.quad = Quadrature.of(dims, stride)
         self._small = self.quad.size * 4 <= 3 * int(np.prod(dims))
-        if not self._small:
+        if rows is not None:
+            if not self._small or np.shape(rows) != (manifold.n, self.quad.size):
+                raise InputError(f"`rows` of shape {np.shape(rows)}: expected ({manifold.n}, {self.quad.size}),"
+                                 " the tables at the bins of a sub-grid")
+            self.rows = np.ascontiguousarray(rows, dtype=np.float32)
+        elif not self._small:
             self.rows = manifold.tables() if tables is None else tables
         elif tables is not None:
             self.rows = self._pick(tables)

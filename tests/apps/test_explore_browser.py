@@ -238,3 +238,31 @@ def test_search_by_name_goes_to_the_material(browser, server, small_manifold_pap
         pg.fill("#search", "Blue-Acrylic")
         _wait_displayed(pg, m.latent[m.index("blue-acrylic")])
         assert pg.inner_text("#material-name") == "blue-acrylic"
+
+
+@browser_only
+def test_release_refines_the_point_to_its_full_gi_image(browser, small_basis, small_manifold_paper):
+    """With --refine-spp, choosing a point (a drag's end) renders its L2+ light in the background and
+    the scene view shows the refined image and says so, with the measured noise; the next move goes
+    back to blends. The basis is of the convex sphere (no path touches it twice), so the refined
+    image is the blend itself, pixel for pixel (the library's tests check a bowl, where it is brighter)."""
+    m = Manifold.load(small_manifold_paper)
+    proc, url = launch.start([small_basis], small_manifold_paper, ["--no-thumbnails", "--refine-spp", "8"],
+                             refine=True)
+    pixels = "() => Array.from(document.getElementById('scene').getContext('2d').getImageData(0, 0, 32, 32).data)"
+    try:
+        with _page(browser, url) as pg:
+            assert pg.eval_on_selector("#refine-spp", "s => s.value") == "8"
+            _set(pg, 0.5 * (m.latent[m.index("gold-paint")] + m.latent[m.index("blue-acrylic")]))
+            blend = np.array(pg.evaluate(pixels), float)
+            pg.evaluate("() => window.explore.commitPoint()")
+            pg.wait_for_function("document.getElementById('scene').dataset.refined", timeout=120000)
+            status = pg.text_content("#refine-status")
+            assert "refined: exact full GI" in status and "spp of L2+" in status, status
+            refined = np.array(pg.evaluate(pixels), float)
+            assert np.abs(refined - blend).max() <= 2 and blend.max() > 0
+            _set(pg, m.latent[m.index("gold-paint")])   # a move: blends again
+            assert not pg.evaluate("document.getElementById('scene').dataset.refined")
+            assert pg.text_content("#refine-status") == "" and not pg.errors
+    finally:
+        launch.stop(proc)

@@ -8,6 +8,7 @@ import pytest
 
 from mitsuba_manifold import errors
 from mitsuba_manifold.basis import denoise, manifest
+from mitsuba_manifold.basis.blend import denoised_blend
 from mitsuba_manifold.data import merl
 from mitsuba_manifold.data.database import Database
 from mitsuba_manifold.imaging import metrics
@@ -57,7 +58,7 @@ def test_denoised_blend_beats_raw_and_aovs_are_checked(tmp_path, small_manifold)
 
     x = 0.5 * (m.latent[m.index("gold-paint")] + m.latent[m.index("chrome")])
     ref = scenes.render_reference(TABLE, small_manifold, x, 256, resolution=48)
-    raw, den, info = denoise.denoised_blend(out, m, x=x, prune=0.0, renormalise=True)
+    raw, den, info = denoised_blend(out, m, x=x, prune=0.0, renormalise=True)
     e_raw, e_den = metrics.compare(raw, ref)["rel_mse"], metrics.compare(den, ref)["rel_mse"]
     assert info["guided"] and e_den < 0.5 * e_raw, (e_raw, e_den)
 
@@ -66,7 +67,7 @@ def test_denoised_blend_beats_raw_and_aovs_are_checked(tmp_path, small_manifold)
     render_basis.render_basis(TABLE, small_manifold, other, spp=1, mode="onepass", resolution=32, materials=names)
     os.replace(os.path.join(out, denoise.AOV_FILE), os.path.join(other, denoise.AOV_FILE))
     with pytest.raises(errors.MismatchError, match="another basis .*resolution"):
-        denoise.denoised_blend(other, m, x=x, prune=0.0, renormalise=True)
+        denoised_blend(other, m, x=x, prune=0.0, renormalise=True)
     with pytest.raises(errors.MismatchError, match="no aovs.npz"):
         denoise.BasisAOVs.load(out)
     with open(os.path.join(out, denoise.AOV_FILE), "wb") as f:   # not an archive: no NumPy pickle advice

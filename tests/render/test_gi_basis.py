@@ -129,17 +129,22 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
     m = Manifold.load(small_manifold)
     b = bf.Basis.load(out, manifold=m)
     k = m.names.index("gold-paint")
-    img, info = blend(b, m, x=m.latent[k], component="full")
+    img, info = blend(b, m, x=m.latent[k], component="full", l2="raw")
     assert info["component"] == "full" and info["component_note"] == ""
     np.testing.assert_allclose(img, b.image("base") + b.image("gi:gold-paint"), rtol=1e-6, atol=1e-7)
+    den, dinfo = blend(b, m, x=m.latent[k])   # the default: its part beyond L1- denoised
+    l1_img = b.image("base") + b.image("gold-paint")
+    assert dinfo["l2"] == "denoised" and np.isfinite(den).all()
+    assert abs((den - l1_img).sum() - (img - l1_img).sum()) < 0.25 * abs((img - l1_img).sum())
     img1, info1 = blend(b, m, x=m.latent[k], component="l1")
     np.testing.assert_allclose(img1, b.image("base") + b.image("gold-paint"), rtol=1e-6, atol=1e-7)
     assert img.mean() > img1.mean()
     pairs = b.cross_terms()[0]
     if pairs:
         a, c = next(iter(pairs))
-        images, _, pinfo = blend_path(b, m, a, c, steps=3, component="full")
-        mid, minfo = blend(b, m, x=0.5 * (m.latent[m.names.index(a)] + m.latent[m.names.index(c)]), component="full")
+        images, _, pinfo = blend_path(b, m, a, c, steps=3, component="full", l2="raw")
+        mid, minfo = blend(b, m, x=0.5 * (m.latent[m.names.index(a)] + m.latent[m.names.index(c)]), component="full",
+                           l2="raw")
         np.testing.assert_allclose(images[1], mid, rtol=1e-4, atol=1e-6)
         assert pinfo["component"] == "full"
 

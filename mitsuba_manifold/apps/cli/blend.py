@@ -69,6 +69,8 @@ def parser():
                         "SPP samples per pixel) and add it to the L1- blend; reports its noise")
     p.add_argument("--refine-passes", type=int, default=4,
                    help="independent passes of --refine, which estimate its noise (default 4)")
+    p.add_argument("--l2", choices=["denoised", "raw"], default="denoised",
+                   help="the full-GI blend's light beyond L1-: denoised by OIDN (default) or as summed")
     p.add_argument("--component", choices=["full", "l1"], default=None,
                    help="l1: the L1- images (Eq. 13; default); full: the full-GI images and cross terms where "
                         "the basis holds them (render_basis.py --components full)")
@@ -172,7 +174,7 @@ def path_outputs(args, basis, manifold):
     with _one_line_warnings():
         images, _, info = blend_path(basis, manifold, ends[0], ends[1], args.steps, args.prune,
                                      args.renormalise, target=target, x=args.x, component=args.component,
-                                     kind=args.path_kind)
+                                     kind=args.path_kind, l2=args.l2)
     _say_component(info)
     print(f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
           f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image)")
@@ -208,7 +210,7 @@ class _one_line_warnings:
 def _say_component(info):
     """One line: which blend was made (full GI or L1-) and, for L1-, why."""
     if info.get("component") == "full":
-        print("blend: full GI (full-GI images and cross terms)")
+        print(f"blend: full GI (full-GI images and cross terms; light beyond L1- {info.get('l2')})")
     elif info.get("component_note") and "predates" not in info["component_note"]:
         print(f"blend: {info['component_note']}")
 
@@ -240,7 +242,7 @@ def point_outputs(args, basis, manifold):
 
     with _one_line_warnings():
         image, info = blend(basis, manifold, x=args.x, prune=args.prune, renormalise=args.renormalise,
-                            component=args.component)
+                            component=args.component, l2=args.l2)
     _say_component(info)
     for t, (weights, dropped) in enumerate(zip(info["weights"], info["dropped_weight"])):
         top = sorted(weights.items(), key=lambda kv: -abs(kv[1]))

@@ -56,6 +56,9 @@ def parser():
                         f"by at most this fraction of its L2 norm (default {DEFAULT_PRUNE:g}, as the plugin)")
     p.add_argument("--no-tables", action="store_true",
                    help="do not load the material tables (no preview sphere, slice or negative-bin fraction)")
+    p.add_argument("--refine-spp", type=int, default=16,
+                   help="where a drag ends, show the exact full-GI image: render the L2+ light at that point "
+                        "with this many samples per pixel (blend.py --refine; default 16, 0: never)")
     p.add_argument("--no-thumbnails", action="store_true",
                    help="do not render the materials' thumbnails (made once in the background, cached beside the basis)")
     return p
@@ -124,7 +127,7 @@ def serve(args):
         print(f"loading {len(args.basis)} basis folder(s) ...", flush=True)
         explorer = Explorer(args.basis, manifold=args.manifold, database=args.database, prune=args.prune,
                             load_tables=not args.no_tables, scene=args.scene,
-                            thumbnails=not args.no_thumbnails)
+                            thumbnails=not args.no_thumbnails, refine_spp=args.refine_spp)
         # frames are JPEG or raw pixels: per-message deflate would cost more time than it saves
         server = uvicorn.Server(uvicorn.Config(create_app(explorer, allow), log_level="warning",
                                                timeout_graceful_shutdown=1, ws_ping_interval=None,

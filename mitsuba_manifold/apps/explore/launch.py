@@ -21,10 +21,12 @@ def find_chromium():
     return None
 
 
-def start(bases, manifold=None, extra=(), timeout=300):
+def start(bases, manifold=None, extra=(), timeout=300, refine=False):
     """Run the explore CLI in a subprocess on a free port; returns ``(process, url)``.
 
-    Waits for the line with the URL (the bases are then in memory)."""
+    Waits for the line with the URL (the bases are then in memory). ``refine``: keep the page's
+    refinement on release (off here unless asked: the benchmarks and tests compare the frames the
+    blend makes)."""
     import re
     import subprocess
     import sys
@@ -34,6 +36,8 @@ def start(bases, manifold=None, extra=(), timeout=300):
         cmd += ["--basis", os.fspath(b)]
     if manifold:
         cmd += ["--manifold", os.fspath(manifold)]
+    if not refine:
+        cmd += ["--refine-spp", "0"]
     proc = subprocess.Popen(cmd + list(extra), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines, deadline = [], time.monotonic() + timeout
     while time.monotonic() < deadline:

@@ -32,6 +32,7 @@ class Job:
     basis: str
     x: list
     spp: int
+    kind: str = "reference"        # reference (path at x), refine (L1- blend + L2+ rendered at x)
     state: str = "queued"          # queued, rendering, done, failed
     progress: float = 0.0
     message: str = ""
@@ -41,7 +42,7 @@ class Job:
     error: dict = None
 
     def status(self):
-        return {"id": self.id, "basis": self.basis, "x": self.x, "spp": self.spp, "state": self.state,
+        return {"id": self.id, "basis": self.basis, "x": self.x, "spp": self.spp, "kind": self.kind, "state": self.state,
                 "progress": self.progress, "message": self.message, "seconds": self.seconds,
                 "error": self.error, "images": sorted(self.images)}
 
@@ -66,6 +67,33 @@ class References:
                     del self._jobs[old]
         self._pool.submit(self._run, job, basis, scene, manifold_path, blend_image)
         return job
+
+    def submit_refine(self, name, basis, manifold, x, spp):
+        """Start a refinement of the blend at ``x`` (:func:`~mitsuba_manifold.render.refine.refine_passes`):
+        its image (``"refined"``) after every pass, the noise the passes measure in ``error``."""
+        job = Job(id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp), kind="refine")
+        with self._lock:
+            self._jobs[job.id] = job
+        self._pool.submit(self._run_refine, job, basis, manifold)
+        return job
+
+    def _run_refine(self, job, basis, manifold):
+        from ...render.refine import refine_passes
+
+        job.state, t0 = "rendering", time.perf_counter()
+        try:
+            passes = max(1, min(4, job.spp))
+            for r in refine_passes(basis, manifold, x=np.asarray(job.x), spp=job.spp, passes=passes):
+                if self._stopping:
+                    raise RuntimeError("the server is stopping")
+                job.images = {"blend": r.image - r.rest, "refined": r.image}
+                job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of L2+"
+                job.error = {"noise_rel_mse": None if r.passes < 2 else r.noise_rel_mse}
+            job.state = "done"
+        except Exception as e:  # shown on the page; the server keeps running
+            job.state, job.message = "failed", f"{type(e).__name__}: {e}"
+        finally:
+            job.seconds = time.perf_counter() - t0
 
     def get(self, job_id):
         with self._lock:

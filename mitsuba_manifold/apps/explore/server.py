@@ -100,7 +100,11 @@ class Api:
         if not isinstance(body, dict):
             raise InputError("the request body must be a JSON object")
         x = self.ex.point(body.get("x"), "x")
-        job = await run_in_threadpool(self.ex.start_reference, body.get("basis"), x, body.get("spp"))
+        kind = body.get("kind", "reference")
+        if kind not in ("reference", "refine"):
+            raise InputError(f"kind must be 'reference' or 'refine', got {show(kind)}")
+        start = self.ex.start_refine if kind == "refine" else self.ex.start_reference
+        job = await run_in_threadpool(start, body.get("basis"), x, body.get("spp"))
         return JSONResponse(job.status())
 
     def job_of(self, request):

@@ -63,15 +63,19 @@ class Explorer:
     thumbnails : bool
         Render the materials' thumbnails in the background (:mod:`.thumbs`; cached beside the
         first basis).
+    refine_spp : int
+        Where a drag ends, the page refines the point (:meth:`start_refine`) with this many
+        samples per pixel of L2+; 0: it does not.
     """
 
     def __init__(self, bases, manifold=None, database=None, prune=DEFAULT_PRUNE, load_tables=True, scene=None,
-                 thumbnails=False):
+                 thumbnails=False, refine_spp=0):
         if not bases:
             raise InputError("give at least one basis folder")
         if not 0.0 <= float(prune) < 1.0:
             raise InputError(f"prune must be in [0, 1) (a fraction of the table's L2 norm), got {prune}")
         self.prune = float(prune)
+        self.refine_spp = int(self.number(refine_spp, "`refine_spp`", 0, MAX_SPP, 0))
         self.bases = {}
         self.manifold_path = None
         for name, folder in _names([os.fspath(b) for b in bases]).items():
@@ -161,23 +165,24 @@ class Explorer:
         except InputError:
             raise InputError(f"{what} must be a finite number in [{lo:g}, {hi:g}], got {show(value)}") from None
 
-    def blend(self, name, x):
-        """Linear image (H, W, 3) of latent point ``x`` and the blend's info."""
-        return blend(self.basis(name), self.manifold, x=x, prune=self.prune)
+    def blend(self, name, x, l2="denoised"):
+        """Linear image (H, W, 3) of latent point ``x`` and the blend's info (``l2``: of :func:`blend`)."""
+        return blend(self.basis(name), self.manifold, x=x, prune=self.prune, l2=l2)
 
-    def frame(self, name, x, exposure=0.0, fmt="jpeg"):
-        """Encoded frame of ``x``: ``(bytes, meta)``; meta has the size and the times in ms."""
+    def frame(self, name, x, exposure=0.0, fmt="jpeg", coarse=False):
+        """Encoded frame of ``x``: ``(bytes, meta)`` (size, times in ms). ``coarse`` (a drag running):
+        the L2+ part as summed, not denoised (OIDN: about 80 ms at 256x256); asked again at rest."""
         if fmt not in encode.FORMATS:
             raise InputError(f"format must be one of {encode.FORMATS}, got {show(fmt)}")
         t0 = time.perf_counter()
-        img, info = self.blend(name, x)
+        img, info = self.blend(name, x, "raw" if coarse else "denoised")
         t1 = time.perf_counter()
         rgb8 = encode.tonemap(img, exposure)
         t2 = time.perf_counter()
         data = encode.encode(rgb8, fmt)
         t3 = time.perf_counter()
         h, w, _ = img.shape
-        return data, {"width": w, "height": h, "format": fmt, "n_images": info["n_images"],
+        return data, {"width": w, "height": h, "format": fmt, "n_images": info["n_images"], "l2": info.get("l2"),
                       "blend_ms": 1e3 * (t1 - t0), "tonemap_ms": 1e3 * (t2 - t1), "encode_ms": 1e3 * (t3 - t2),
                       "total_ms": 1e3 * (t3 - t0)}
 
@@ -349,7 +354,7 @@ class Explorer:
         return {"manifold": self.manifold_path, "q": m.q, "names": m.names, "latent": m.latent.tolist(),
                 "albedos": None if m.albedos is None else m.albedos.tolist(), "bases": bases,
                 "prune": self.prune, "tables": self.tables.state if self.tables else "unavailable",
-                "max_reference_spp": MAX_SPP, "thumbs": self.thumbs.info() if self.thumbs else None,
+                "max_reference_spp": MAX_SPP, "refine_spp": self.refine_spp, "thumbs": self.thumbs.info() if self.thumbs else None,
                 "path_kinds": list(path_kinds.KINDS), "path_kind": path_kinds.DEFAULT_KIND}
 
     # ---------------------------------------------------------- references
@@ -363,18 +368,29 @@ class Explorer:
         img, _ = self.blend(name, x)
         return self.references.submit(name, basis, scene, self.manifold_path, x, spp, img)
 
+    def start_refine(self, name, x, spp):
+        """A refinement of the blend at ``x`` (``blend.py --refine``) in the background."""
+        name = self.key(name)
+        basis = self.bases[name]
+        if self.scenes[name] is None:
+            raise InputError(f"the scene of basis {name!r} ({basis.manifest['scene']}) is missing or has "
+                             "changed since the basis was rendered; give it with --scene")
+        spp = int(self.number(spp, "spp", 1, MAX_SPP, 16))
+        return self.references.submit_refine(name, basis, self.manifold, x, spp)
+
     def reference_image(self, job_id, which, exposure=0.0):
         job = self.references.get(job_id)
         if job is None:
             raise InputError(f"unknown reference job {show(job_id)}")
-        if job.state != "done":
+        if job.state != "done" and not (job.kind == "refine" and job.images):   # a refinement: after each pass
             raise InputError(f"reference job {job_id} is {job.state}, not done")
         if which == "error":
             from ...imaging.metrics import error_image, false_colour
-            rgb, _ = false_colour(error_image(job.images["blend"], job.images["reference"]))
+            other = job.images["reference"] if "reference" in job.images else job.images["refined"]
+            rgb, _ = false_colour(error_image(job.images["blend"], other))
             return encode.png_bytes(rgb)
         if which not in job.images:
-            raise InputError(f"image must be 'blend', 'reference' or 'error', got {show(which)}")
+            raise InputError(f"image must be 'blend', 'reference', 'refined' or 'error', got {show(which)}")
         return encode.png_bytes(encode.tonemap(job.images[which], exposure))
 
     def close(self, wait=0.0):

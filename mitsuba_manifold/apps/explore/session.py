@@ -157,7 +157,8 @@ class Session:
         tag = {"type": kind, "x": [float(v) for v in x]}
         if kind == "frame":
             exposure = ex.number(req.get("exposure"), "exposure", -20, 20, 0.0)
-            data, meta = await run_in_threadpool(ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"))
+            data, meta = await run_in_threadpool(ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"),
+                                                 req.get("coarse") is True)
             return dict(meta, exposure=exposure, basis=ex.key(req.get("basis")), **tag), data
         if kind == "material":
             with_slice, live = req.get("slice", True) is not False, req.get("coarse") is True

@@ -4,8 +4,8 @@ the nearest measured material (issue 18; the metric of :mod:`mitsuba_manifold.da
 Both need the :class:`~mitsuba_manifold.manifold.paths.PathMetric` of the manifold, whose
 rows are the tables at the bins of its search sub-grid (:data:`~.paths.SEARCH_STRIDE`).
 :class:`~.material.TableStack` keeps exactly those columns of every measured table (read
-with the preview tables and cached beside them), so :class:`TableMetric` is the same metric
-without the full table stack in memory (1.7 GB for 100 MERL tables).
+with the preview tables and cached beside them), so ``PathMetric(manifold, rows=...)`` is the
+same metric without the full table stack in memory (1.7 GB for 100 MERL tables).
 
 :class:`Walks` answers:
 
@@ -37,18 +37,6 @@ STEPS = 21
 MAX_STEPS = 201
 
 
-class TableMetric(paths.PathMetric):
-    """:class:`~mitsuba_manifold.manifold.paths.PathMetric` of ``manifold`` from ``rows``, the
-    tables already restricted to the quadrature's bins ``(N, quad.size)``."""
-
-    def __init__(self, manifold, rows, stride=paths.SEARCH_STRIDE):   # noqa: super().__init__ reads every table
-        self.manifold = manifold
-        self.quad = Quadrature.of(tuple(manifold.info["dims"]), stride)
-        if rows.shape != (manifold.n, self.quad.size):
-            raise InputError(f"`rows` of shape {rows.shape}: expected ({manifold.n}, {self.quad.size})")
-        self._small, self.rows, self._graph = True, np.ascontiguousarray(rows, dtype=np.float32), None
-
-
 def metric_columns(dims, stride=paths.SEARCH_STRIDE):
     """Flat indices (into a ``(3 * bins,)`` table row) of the metric's sub-grid bins."""
     return Quadrature.of(tuple(int(d) for d in dims), stride).index
@@ -67,7 +55,7 @@ class Walks:
 
     def __init__(self, manifold, rows):
         self.manifold = manifold
-        self.metric = TableMetric(manifold, rows)
+        self.metric = paths.PathMetric(manifold, rows=rows)
         measured = self.metric.quad.features(self.metric.rows).astype(np.float32)
         self._measured, self._measured_sq = measured, np.einsum("nk,nk->n", measured, measured, dtype=np.float64)
         gram = np.maximum(self._measured_sq[:, None] + self._measured_sq[None] - 2.0 * (measured @ measured.T), 0)

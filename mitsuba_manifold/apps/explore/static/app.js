@@ -60,6 +60,7 @@ async function drawFrame(meta, payload) {
   let bmp = null;
   if (meta.format !== "rgba") bmp = await createImageBitmap(new Blob([payload], { type: "image/" + meta.format }));
   if (state.displayed && state.displayed.seq > meta.seq) return;   // a newer frame was drawn meanwhile
+  if (keepsRefined(meta)) return;   // refine.js: the exact image of this point is shown
   if (c.width !== meta.width || c.height !== meta.height) { c.width = meta.width; c.height = meta.height; }
   const ctx = c.getContext("2d");
   if (bmp) ctx.drawImage(bmp, 0, 0);
@@ -100,7 +101,7 @@ function sendMove(resting = false) {
     if (kind === "table" && state.info.tables !== "ready") continue;
     const last = asked[kind];
     if (last && sameX(last[1], state.x) && !(last[2] && !dragging)) continue;   // a coarse table is asked again at rest
-    if (!dragging || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x, dragging && (kind === "table" || kind === "material")]; }
+    if (!dragging || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x, dragging && (kind === "table" || kind === "material" || kind === "frame")]; }
   }
   const key = sliceKey();   // a new slice while dragging: a coarse map, the full one at rest
   if (key !== state.mapKey) { state.mapKey = key; state.mapCoarse = dragging; want.push("map"); }
@@ -625,6 +626,12 @@ async function main() {
   window.addEventListener("resize", placeCursor);
   $("export-path").onclick = exportPath;
   $("ref-start").onclick = startReference;
+  if (!info.refine_spp) { $("refine-auto").checked = false; $("refine-auto").closest(".row").hidden = true; }
+  else {   // refine.js: the server's --refine-spp is the default
+    const sel = $("refine-spp"), spp = String(info.refine_spp);
+    if (![...sel.options].some((o) => o.value === spp)) sel.add(new Option(spp, spp));
+    sel.value = spp;
+  }
   $("copy-xml").onclick = () => copySnippet("xml", "XML");
   $("copy-py").onclick = () => copySnippet("python", "Python");
   if (info.tables === "loading") pollTables();

@@ -18,6 +18,7 @@ function commitPoint() {
   }
   undoLog.at = x.slice();
   updateHistoryButtons();
+  refineHere();   // refine.js
 }
 function stepHistory(back) {
   const from = back ? undoLog.past : undoLog.future, to = back ? undoLog.future : undoLog.past;

@@ -1,0 +1,44 @@
+"""Eq. 13 in memory: the weighted sum of a basis's images and cross terms (:mod:`.blend`)."""
+
+import time
+
+import numpy as np
+
+from .folder import BASE
+
+
+def compose(basis, keys, weights, cross=None):
+    """Eq. 13: ``base + sum_j weights[..., j] image(keys[j])`` (no base with several targets),
+    plus ``sum_r products[..., r] C[rows[r]]`` with ``cross = (rows, products)`` (full GI).
+
+    Returns the image(s), the seconds spent reading images and the seconds of the sum.
+    """
+    t_read = basis.read(keys + ([BASE] if basis.p == 1 else []))
+    if cross is not None:
+        t_read += _timed(basis.cross_terms)
+    t0 = time.perf_counter()
+    images = basis.weighted_sum(keys, weights)
+    if basis.p == 1:
+        images += basis.image(BASE)
+    if cross is not None and len(cross[0]):
+        _add_cross(images, basis, cross[0], np.asarray(cross[1], np.float32))
+    return images, t_read, time.perf_counter() - t0
+
+
+def _add_cross(images, basis, rows, products):
+    """``images += sum_r products[..., r] C[rows[r]]``: one image in place, term by term, from the
+    float32 rows the basis keeps (:meth:`Basis.cross_term`); a sequence by ``tensordot``."""
+    if products.ndim == 1:
+        tmp = np.empty(images.shape, np.float32)
+        for r, p in zip(rows, products):
+            if p != 0.0:
+                np.multiply(basis.cross_term(int(r)), p, out=tmp)
+                images += tmp
+        return
+    images += np.tensordot(products, basis.cross_terms()[1][rows].astype(np.float32), axes=1)
+
+
+def _timed(fn):
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
