@@ -193,6 +193,11 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
                      "relative_bias_se": bias_se, "materials_used": int(info["n_images"]),
                      "component": info["component"]},
            "direct": []}
+    if info.get("l2") == "denoised":   # the same blend as summed (the explorer while dragging)
+        raw, _ = blend(b, m, x=x, l2="raw")
+        raw_bias, raw_se = relative_bias(raw, ref)
+        row["blend_summed"] = {"time_s": median_time(lambda: blend(b, m, x=x, l2="raw"), 5)[0],
+                               **metrics.compare(raw, ref), "relative_bias": raw_bias, "relative_bias_se": raw_se}
     if info["component"] == "full":   # the L1- blend of the same basis beside it (issue 21)
         l1, _ = blend(b, m, x=x, component="l1")
         l1_bias, l1_se = relative_bias(l1, ref)

@@ -35,6 +35,9 @@ from ..errors import MismatchError
 AOV_FILE = "aovs.npz"
 THETA_BINS = 45  # as integrators.aovs.THETA_BINS (not imported: that module needs Mitsuba)
 AOV_VERSION = 1
+#: OIDN quality of the L2+ part of full-GI blends (:func:`denoised_l2`): smooth indirect light
+#: loses nothing measurable at ``fast`` against ``high`` (see there), at a quarter of the time.
+L2_QUALITY = "fast"
 
 
 # ------------------------------------------------------------------ directional albedos
@@ -173,15 +176,20 @@ def denoised_l2(basis, image, keys, weights):
     part beyond L1- denoised (``keys``, ``weights``: the L1- images of the same point),
     guided by the basis's AOVs when it has them (:mod:`.denoise`). That part is signed (cross
     terms) and OIDN takes light only, so its positive and negative parts are denoised apart.
-    On the main job's basis (table, 256x256, 512 spp, this session) it took the relative MSE at
-    the midpoint of blue-rubber and white-paint from 0.0155 to 0.0017 and at white-paint from
-    0.23 to 0.0035 (a 256-spp direct render: 0.0033, 0.12), for about 80 ms (docs/benchmarks.md)."""
+    OIDN's ``fast`` quality (:data:`L2_QUALITY`): on the main job's basis (table, 256x256,
+    512 spp) it took the relative MSE at the midpoint of blue-rubber and white-paint from 0.0155
+    to 0.0017 and at white-paint from 0.23 to 0.0037 (a 256-spp direct render: 0.0033, 0.12),
+    as ``high`` did (0.0017, 0.0035) in a quarter of the time: about 50 ms per part on 2 cores
+    (``high``: about 215 ms; docs/benchmarks.md)."""
     l1, _, _ = compose(basis, keys, weights, None)
     extra = image - l1
-    if not np.any(extra):
-        return image
     guides = _guides(basis, {"keys": keys, "image_weights": weights})
-    return (l1 + denoise(np.maximum(extra, 0), *guides) - denoise(np.maximum(-extra, 0), *guides)).astype(np.float32)
+    out = l1
+    for sign in (1.0, -1.0):   # the negative part is empty where no cross term is blended
+        part = np.maximum(sign * extra, 0.0)
+        if np.any(part):
+            out = out + sign * denoise(part, *guides, quality=L2_QUALITY)
+    return out.astype(np.float32)
 
 
 def _guides(basis, info):

@@ -246,6 +246,10 @@ def gi_error_vs_time(report, path):
             comp = "full-GI blend" if row["blend"].get("component") == "full" else "L1- blend"
             ax.loglog([row["blend"]["time_s"]], [row["blend"]["rel_mse"]], "*", ms=14, color=colour,
                       label=f"{comp}, {row['point']}")
+            if "blend_summed" in row:   # the same blend, its L2+ part not denoised
+                r = row["blend_summed"]
+                ax.loglog([r["time_s"]], [r["rel_mse"]], "^", ms=9, color=colour, mfc="none",
+                          label=f"full-GI blend, L2+ as summed, {row['point']}")
             if "blend_l1" in row:   # the L1- blend of the same basis, at the full-GI blend's time
                 ax.loglog([row["blend"]["time_s"]], [row["blend_l1"]["rel_mse"]], "x", ms=10, color=colour,
                           label=f"L1- blend, {row['point']}")

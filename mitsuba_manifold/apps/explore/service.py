@@ -171,7 +171,7 @@ class Explorer:
 
     def frame(self, name, x, exposure=0.0, fmt="jpeg", coarse=False):
         """Encoded frame of ``x``: ``(bytes, meta)`` (size, times in ms). ``coarse`` (a drag running):
-        the L2+ part as summed, not denoised (OIDN: about 80 ms at 256x256); asked again at rest."""
+        the L2+ part as summed, not denoised (OIDN: 50-100 ms at 256x256); asked again at rest."""
         if fmt not in encode.FORMATS:
             raise InputError(f"format must be one of {encode.FORMATS}, got {show(fmt)}")
         t0 = time.perf_counter()
