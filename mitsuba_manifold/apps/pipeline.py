@@ -218,5 +218,5 @@ def _log_points(points, top, log):
         if "denoised" in b:
             log(f"{'':>12s} whole image denoised (OIDN, albedo+normal): blend "
                 f"{1e3 * b['denoised']['time_s']:.0f} ms, "
-                f"rel. MSE {b['denoised']['rel_mse']:.3g} (not: {b['rel_mse']:.3g}) | direct {top} spp "
-                f"rel. MSE {d['denoised']['rel_mse']:.3g} (raw {d['rel_mse']:.3g})")
+                f"rel. MSE {b['denoised']['rel_mse']:.3g} (before: {b['rel_mse']:.3g}) | direct {top} spp "
+                f"rel. MSE {d['denoised']['rel_mse']:.3g} (before: {d['rel_mse']:.3g})")

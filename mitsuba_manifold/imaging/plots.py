@@ -232,40 +232,54 @@ def write_fit_plots(manifold, folder):
     return paths
 
 
+#: Markers of :func:`gi_error_vs_time`, one per way of making the image: (marker, filled, label).
+GI_MARKERS = {"direct": ("o", True, "direct render (1 to 256 spp)"), "blend": ("*", True, "full-GI blend (default)"),
+              "blend_summed": ("^", False, "full-GI blend, L2+ as summed"), "blend_l1": ("x", True, "L1- blend"),
+              "refined": ("D", True, "refined (--refine)"), "blend_denoised": ("P", False, "blend, whole image denoised"),
+              "direct_denoised": ("s", False, "direct 256 spp, denoised")}
+
+
+def _gi_points(row):
+    """``{marker kind: ([times], [rel MSEs])}`` of one point of a GI report row."""
+    b, d = row["blend"], row["direct"]
+    out = {"direct": ([r["time_s"] for r in d], [r["rel_mse"] for r in d]), "blend": ([b["time_s"]], [b["rel_mse"]])}
+    if "blend_summed" in row:
+        out["blend_summed"] = ([row["blend_summed"]["time_s"]], [row["blend_summed"]["rel_mse"]])
+    if "blend_l1" in row:   # the L1- blend of the same basis costs what the summed full one does
+        t = row.get("blend_summed", b)["time_s"]
+        out["blend_l1"] = ([t], [row["blend_l1"]["rel_mse"]])
+    if "refined" in row:
+        out["refined"] = ([row["refined"]["time_s"]], [row["refined"]["rel_mse"]])
+    if "denoised" in b:   # denoised figures beside (never instead of) the raw ones
+        out["blend_denoised"] = ([b["denoised"]["time_s"]], [b["denoised"]["rel_mse"]])
+        top = [r["denoised"] for r in d if "denoised" in r]
+        out["direct_denoised"] = ([r["time_s"] for r in top], [r["rel_mse"] for r in top])
+    return out
+
+
 def gi_error_vs_time(report, path):
-    """Log-log plot of relative MSE against time per image: direct renders and blends, per scene and point."""
+    """Log-log plot of relative MSE against time per image (Fig. 13 in spirit): per scene, each
+    point's direct renders and blends; colour: the latent point, marker: how the image was made."""
+    from matplotlib.lines import Line2D
     names = list(report["scenes"])
-    fig, axes = subplots(1, len(names), figsize=(6 * len(names), 4.5), squeeze=False)
+    fig, axes = subplots(1, len(names), figsize=(6 * len(names) + 2.6, 4.8), squeeze=False)
     for ax, name in zip(axes[0], names):
         sc = report["scenes"][name]
         for k, row in enumerate(sc["points"]):
-            colour = f"C{k}"
-            d = row["direct"]
-            ax.loglog([r["time_s"] for r in d], [r["rel_mse"] for r in d], "o-", color=colour,
-                      label=f"direct render, {row['point']}")
-            comp = "full-GI blend" if row["blend"].get("component") == "full" else "L1- blend"
-            ax.loglog([row["blend"]["time_s"]], [row["blend"]["rel_mse"]], "*", ms=14, color=colour,
-                      label=f"{comp}, {row['point']}")
-            if "blend_summed" in row:   # the same blend, its L2+ part not denoised
-                r = row["blend_summed"]
-                ax.loglog([r["time_s"]], [r["rel_mse"]], "^", ms=9, color=colour, mfc="none",
-                          label=f"full-GI blend, L2+ as summed, {row['point']}")
-            if "blend_l1" in row:   # the L1- blend of the same basis, at the full-GI blend's time
-                ax.loglog([row["blend"]["time_s"]], [row["blend_l1"]["rel_mse"]], "x", ms=10, color=colour,
-                          label=f"L1- blend, {row['point']}")
-            if "refined" in row:
-                r = row["refined"]
-                ax.loglog([r["time_s"]], [r["rel_mse"]], "D", ms=8, color=colour,
-                          label=f"refined ({r['spp']} spp L2+), {row['point']}")
-            if "denoised" in row["blend"]:  # denoised figures beside (never instead of) the raw ones
-                den = row["blend"]["denoised"]
-                ax.loglog([den["time_s"]], [den["rel_mse"]], "P", ms=10, color=colour, mfc="none",
-                          label=f"blend denoised, {row['point']}")
-                top = [r for r in d if "denoised" in r]
-                ax.loglog([r["denoised"]["time_s"] for r in top], [r["denoised"]["rel_mse"] for r in top], "s",
-                          ms=8, color=colour, mfc="none", label=f"direct {top[0]['spp']} spp denoised" if top else None)
+            for kind, (ts, es) in _gi_points(row).items():
+                marker, filled, _ = GI_MARKERS[kind]
+                ax.loglog(ts, es, marker + ("-" if kind == "direct" else ""), ms=12 if marker == "*" else 8,
+                          color=f"C{k}", mfc=None if filled else "none")
         ax.set_title(f"{name}.xml: basis rendered once in {sc['basis_time_s']:.0f} s "
                      f"({report['basis_spp']} spp)", fontsize=9)
         ax.set_xlabel("time per image (s)")
         ax.set_ylabel(f"relative MSE vs {report['reference_spp']} spp full GI")
-    return finish(fig, axes, path)
+        ax.grid(alpha=0.3, which="both")
+    points = [Line2D([], [], color=f"C{k}", lw=6, label=f"{r['point']}: {r['x_is']}")
+              for k, r in enumerate(report["scenes"][names[0]]["points"])]
+    kinds = [Line2D([], [], color="0.3", ls="", marker=mk, mfc=None if filled else "none", ms=8, label=label)
+             for mk, filled, label in GI_MARKERS.values()]
+    axes[0, -1].legend(handles=points + kinds, fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    fig.tight_layout()
+    save(fig, path)
+    return path
