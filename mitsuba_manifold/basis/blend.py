@@ -207,8 +207,7 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         L1-, see :func:`resolve_component`); ``"l1"``: Eq. 13 on the L1- images.
     l2 : {"denoised", "raw"}
         The full-GI blend's part beyond L1- (noisy where interreflection runs through a narrow peak):
-        OIDN-denoised (default, :func:`~.denoise.denoised_l2`: 50-100 ms at 256x256 on 2 cores)
-        or as summed (1-3 ms at 256x256).
+        OIDN-denoised (default, :func:`~.denoise.denoised_l2`: 50-100 ms at 256x256) or summed (1-3 ms).
 
     Returns
     -------

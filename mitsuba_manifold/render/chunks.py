@@ -10,7 +10,10 @@ Seeds: chunk ``j`` of ``k`` is rendered with seed ``seed * k + j``. The one-pass
 seeds pass ``p`` of ``n`` with ``seed * n + p``, so when every chunk is one pass
 (``S_j * pixels`` at most ``max_samples``, 4M), the merged basis equals the single-process
 basis rendered with ``spp_per_pass = S / k`` and the same seed, to float32 rounding
-(exactly the same samples, summed in another order). With a box filter (the basis
+(exactly the same samples, summed in another order). A full-GI basis chooses its cross
+terms' pairs on its first pass (:class:`~.integrators.multisplats.PairSelection`): its first
+chunk is rendered first and the others keep the pairs it chose (``cross_keep``), as the
+single process's later passes do. With a box filter (the basis
 scenes') every sample weighs 1 and the spp-weighted mean is exact; with other filters
 it is an unbiased estimate of the same image, not the identical sum.
 
@@ -33,7 +36,7 @@ import shutil
 import socket
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -322,15 +325,39 @@ def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force
     resumed = [s.name for s in specs if chunk_done(chunk_folder(out, s), key_of[s.name])]
     todo = [s for s in specs if s.name not in resumed]
     rendered = []
-    for result in executor.map(render_chunk, todo):
-        save_chunk(out, result, key_of[result.spec.name])
-        rendered.append((result.spec.name, result.seconds, result.host, result.pid))
-        if progress:
-            print(f"  chunk {result.spec.name}: {result.spec.spp} spp in {result.seconds:.1f} s "
-                  f"({result.host}, pid {result.pid})", flush=True)
+
+    def run(batch):
+        for result in executor.map(render_chunk, batch):
+            save_chunk(out, result, key_of[result.spec.name])
+            rendered.append((result.spec.name, result.seconds, result.host, result.pid))
+            if progress:
+                print(f"  chunk {result.spec.name}: {result.spec.spp} spp in {result.seconds:.1f} s "
+                      f"({result.host}, pid {result.pid})", flush=True)
+    if len(specs) > 1 and _chooses_pairs(specs[0].options):   # the first chunk's pairs for all
+        run([s for s in todo if s.index == 0])
+        follow = _first_choice(chunk_folder(out, specs[0]))
+        todo = [replace(s, options={**s.options, **follow}) for s in todo if s.index != 0]
+    run(todo)
     t1 = time.perf_counter()
     manifest = _merge(out, [chunk_folder(out, s) for s in specs], seed, force, run_key)
     return ChunkedRun(manifest, rendered, resumed, 0.0, time.perf_counter() - t1)
+
+
+def _chooses_pairs(options):
+    """Whether a chunk of ``options`` chooses cross-term pairs on its first pass."""
+    return (options.get("mode") == "onepass" and options.get("components") == "auto"
+            and options.get("cross_light_tol", 0.005) and options.get("cross_keep") is None)
+
+
+def _first_choice(folder):
+    """Options that make a later chunk keep what the first chunk (in ``folder``) chose."""
+    manifest = basis_folder.read_manifest(folder)
+    if "l2+" not in manifest.get("components", []):
+        return {}
+    if "cross" not in manifest:
+        return {"cross_keep": []}
+    with np.load(os.path.join(folder, manifest["cross"]["file"])) as data:
+        return {"cross_keep": [tuple(str(v) for v in p) for p in data["pairs"]]}
 
 
 def _check_out(out, spec, spp, seed, chunks):

@@ -99,7 +99,11 @@ def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
     names = [combo[0] for _, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
     pairs, pstats = select_pairs(manifold, names, tol=o.cross_tol)
-    select = PairSelection(tuple(pstats.pop("products")), tol=o.cross_light_tol) if o.cross_light_tol else None
+    products = tuple(pstats.pop("products"))
+    select = PairSelection(products, tol=o.cross_light_tol) if o.cross_light_tol else None
+    if o.cross_keep is not None:   # a later chunk: the first chunk's pairs
+        index = {tuple(p): k for k, p in enumerate(pairs)}
+        select = PairSelection(products, tol=o.cross_light_tol, keep=tuple(index[tuple(p)] for p in o.cross_keep))
     t0 = time.perf_counter()
     with progress_bar("rendering basis (one pass, full GI)", o.progress, stop) as advance:
         kwargs = {"progress": advance, "cross_fraction": o.cross_fraction, "pair_selection": select}
@@ -110,6 +114,7 @@ def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
     seconds = time.perf_counter() - t0
     per = seconds / max(len(todo), 1)
     needed, why, frac = needs_rest(r.paths, r.touch, r.rest, REST_TOL)
+    needed = needed or o.cross_keep is not None   # a later chunk: the first chunk stored L2+
     stats = {"render_s": round(seconds, 3), "levels": int(o.levels), "paths_by_touches": [int(v) for v in r.paths],
              "cut_fraction": float(r.paths[-1] / max(1, r.paths.sum())), "rest_fraction": frac,
              "pairs": pstats, "cross_fraction": float(o.cross_fraction), "pair_selection": r.selection}

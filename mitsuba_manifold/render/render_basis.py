@@ -136,6 +136,9 @@ class BasisOptions:
         per-path cancellation between the cross terms and the ``L2+`` images is lost and a
         midpoint of white-paint and blue-rubber takes the noise of white-paint's ``L2+``: a
         cross term enters a blend with weight ``w_i w_j <= 1/4``, so its noise matters less).
+    cross_keep : list of (str, str), optional
+        Store exactly these pairs (names) instead of choosing them on the first pass: the
+        chunks of a chunked basis keep the pairs its first chunk chose.
     """
 
     spp: int = 64
@@ -159,6 +162,7 @@ class BasisOptions:
     cross_tol: float = 1e-3
     cross_light_tol: float = 0.005
     cross_fraction: float = 1.0
+    cross_keep: object = None
 
 
 def render_basis(scene_path, manifold_path, out, options=None, **settings):

@@ -42,11 +42,14 @@ class PairSelection:
     when ``products * |sum C_ij| >= tol * (R_i + R_j) / 2`` (sums over the image, the largest
     channel; ``C_ij`` from a share ``pilot`` of the first pass's splats, ``R`` the materials'
     ``L2+`` light in that pass): what leaving it out changes of the ``L2+`` light, at most
-    ``tol``. Pairs of materials that see themselves alike have cross terms near 0 and are dropped."""
+    ``tol``. Pairs of materials that see themselves alike have cross terms near 0 and are dropped.
+    ``keep`` (indices into the candidates) keeps those, unmeasured: a chunk of a chunked basis
+    keeps the pairs its first chunk chose (:mod:`mitsuba_manifold.render.chunks`)."""
 
     products: tuple
     tol: float = 0.005
     pilot: float = 0.125
+    keep: tuple = None
     #: Smallest share of the splats a kept pair's cross term uses: a pair whose weight product is
     #: at most ``p`` uses the power of two at least ``4 p`` (1 at ``p`` = 1/4, the midpoint), so
     #: its noise in a blend, ``p^2 / share``, stays below the midpoint pair's; a third of the cost
@@ -130,12 +133,14 @@ class MultiSplats:
         with a :class:`PairSelection`, after choosing the pairs).
 
         The cross terms use each splat with probability ``cross_fraction`` (weighted by
-        its inverse: unbiased), which bounds their cost where many pairs are stored."""
+        its inverse: unbiased), which bounds their cost where many pairs are stored. The picks
+        depend on the pass's seed only (the pilot draws from its own stream), so that a chunked
+        basis, whose every chunk measures a pilot, picks as the single run does."""
         rng = np.random.default_rng([self.seed, 21])
         for k, bins, amp, pix in self.splats:
             self._rest(bins, amp, pix)
         if self.pairs is None:
-            self._choose(rng)
+            self._choose(np.random.default_rng([self.seed, 22]))
         for share, pairs, sums in self.groups:
             for k, bins, amp, pix in self.splats:
                 self._cross_all(sums, pairs, bins, amp, pix, share, rng)
@@ -157,6 +162,10 @@ class MultiSplats:
         """Keep the candidate pairs whose cross term matters (:class:`PairSelection`), measured
         on this first pass: every candidate's cross term from a share ``pilot`` of its splats."""
         sel = self.select
+        if sel.keep is not None:
+            keep = np.zeros(len(self.candidates), bool)
+            keep[list(sel.keep)] = True
+            return self._kept(keep, np.zeros(0))
         pilot = self._sums(self.candidates)
         for k, bins, amp, pix in self.splats:
             self._cross_all(pilot, self.candidates, bins, amp, pix, sel.pilot, rng)
@@ -167,11 +176,15 @@ class MultiSplats:
         i, j = (np.array([p[k] for p in self.candidates], dtype=int) for k in (0, 1))
         ref = np.maximum(0.5 * (light[i] + light[j]), 1e-30)
         score = np.asarray(sel.products, float) * mag / ref
-        keep = score >= sel.tol
+        self._kept(score >= sel.tol, score)
+
+    def _kept(self, keep, score):
+        """Use the candidates ``keep`` (bool), each with its share of the splats."""
+        sel = self.select
         self.pairs = [p for p, k in zip(self.candidates, keep) if k]
         shares = {p: sel.share(w) for p, w, k in zip(self.candidates, sel.products, keep) if k}
         self.groups = self._groups(self.pairs, shares)
-        left = score[~keep]
+        left = score[~keep] if score.size else score
         self.selection = {"candidates": len(self.candidates), "kept": len(self.pairs), "tol": sel.tol,
                           "pilot": sel.pilot, "largest_left_out": float(left.max()) if left.size else 0.0,
                           "splat_share": float(np.mean(list(shares.values()))) if shares else 0.0}
