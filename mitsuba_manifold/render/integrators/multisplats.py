@@ -32,6 +32,8 @@ from .splats import PACKET
 
 #: Pairs of materials per cross-term kernel (bounds the per-thread copies of the sums).
 PAIR_CHUNK = 64
+#: Partial sums per channel and candidate pair of the pair selection's pilot (a power of two).
+PILOT_BINS = 256
 
 
 @dataclass(frozen=True)
@@ -116,8 +118,8 @@ class MultiSplats:
                 dr.eval(bins, amp, pix)
                 self.splats.append((k, bins, amp, pix))
 
-    def _sums(self, pairs):
-        return [dr.zeros(mi.Float, self.pixels * 3 * len(pairs[p0:p0 + PAIR_CHUNK]))
+    def _sums(self, pairs, pixels=None):
+        return [dr.zeros(mi.Float, (pixels or self.pixels) * 3 * len(pairs[p0:p0 + PAIR_CHUNK]))
                 for p0 in range(0, len(pairs), PAIR_CHUNK)]
 
     def _groups(self, pairs, shares):
@@ -166,11 +168,12 @@ class MultiSplats:
             keep = np.zeros(len(self.candidates), bool)
             keep[list(sel.keep)] = True
             return self._kept(keep, np.zeros(0))
-        pilot = self._sums(self.candidates)
+        # the light a cross term moves, per channel over the image (where per-pixel noise cancels):
+        # summed into PILOT_BINS partial sums (pixel index modulo), not per pixel
+        pilot = self._sums(self.candidates, PILOT_BINS)
         for k, bins, amp, pix in self.splats:
-            self._cross_all(pilot, self.candidates, bins, amp, pix, sel.pilot, rng)
-        # the light a cross term moves, per channel over the image (where per-pixel noise cancels)
-        mag = np.concatenate([np.abs(p.numpy().reshape(self.pixels, 3, -1).sum(axis=0)).max(axis=0)
+            self._cross_all(pilot, self.candidates, bins, amp, pix & (PILOT_BINS - 1), sel.pilot, rng)
+        mag = np.concatenate([np.abs(p.numpy().reshape(PILOT_BINS, 3, -1).sum(axis=0)).max(axis=0)
                               for p in pilot]) if pilot else np.zeros(0)
         light = self.sums.numpy().reshape(self.pixels, 3, self.n_pad).sum(axis=0).max(axis=0)
         i, j = (np.array([p[k] for p in self.candidates], dtype=int) for k in (0, 1))
