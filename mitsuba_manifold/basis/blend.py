@@ -19,14 +19,12 @@ A one-pass basis of one target may also hold full-GI images (issue 21; the paper
 practice, Sec. 5.2 and Fig. 12: "applying this interpolation to calculate I_* directly"):
 ``F_i = touch_i + L2+_i``, so that ``base + F_i`` is material ``i`` with global illumination,
 and the cross terms ``C_ij`` of :mod:`.crossterms`. The default blend (``component="full"``)
-is then ``base + sum_i w_i F_i + sum_{i<j} w_i w_j C_ij``: exact at every training material
-and for paths with two vertices on the material. ``component="l1"`` is Eq. 13. A basis
-without full-GI images blends L1- (an older basis says so with a warning; one whose scene
-does not need them, e.g. a convex object alone, says why in ``info["component_note"]``).
-
-The images come from a basis folder (:mod:`mitsuba_manifold.basis.folder`). Everything here is
-NumPy: no Mitsuba is loaded. The module is callable: ``from mitsuba_manifold import blend;
-blend(basis, x=...)`` is :func:`blend`.
+is then ``base + sum_i w_i F_i + sum_{i<j} w_i w_j C_ij``, summed (``l2="raw"``) exact at every
+training material and for paths with two vertices on the material; by default its part beyond
+L1- is denoised (:func:`~.denoise.denoised_l2`). ``component="l1"`` is Eq. 13. A basis without
+full-GI images blends L1- (an older basis says so with a warning; one whose scene does not
+need them, e.g. a convex object alone, says why in ``info["component_note"]``). The images
+come from a basis folder (:mod:`mitsuba_manifold.basis.folder`); no Mitsuba is loaded here.
 """
 
 import itertools
@@ -195,9 +193,8 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         Weights instead of ``x``: (N,) or (p, N). With one target any weights are allowed
         (the touch images are linear in the BRDF); with several, each row must sum to 1.
     prune : float
-        Drop the materials of smallest contribution ``|w_i| |table_i|`` while the
-        interpolated table changes by at most ``prune`` of its L2 norm (:meth:`Manifold.prune`;
-        the kept weights are rescaled to the same sum).
+        The pruning bound of :meth:`Manifold.prune` (by default on each albedo channel and the
+        cosine-weighted table change; the kept weights are rescaled to the same sum).
     renormalise : bool
         When images the blend needs are missing from the basis (e.g. a basis rendered ``near`` a point only),
         drop them and rescale the remaining image weights to the same sum instead of
@@ -217,21 +214,19 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         asked for, or ""), ``cross_left_weight`` (largest ``|w_i w_j|`` of a pair whose cross
         term the basis does not hold; None without cross terms),
         ``weights`` (per target, kept material -> weight), ``dropped_weight`` (per target),
-        ``keys``/``image_weights`` (images combined), ``missing``, ``renormalised``, ``x``,
-        ``time_ms`` (weights, pruning, gathering and summing the images in memory),
-        ``time_read_s`` (reading from disk the images not read before).
+        ``keys``/``image_weights`` (images combined), ``missing``, ``renormalised``, ``x``, ``time_ms``
+        (weights, pruning, summing the images in memory, denoising), ``time_read_s`` (from disk).
     """
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
     manifold = basis.check_manifold(manifold)
     used, note = resolve_component(basis, component)
+    _check_l2(l2)
     t0 = time.perf_counter()
     W, pts = _target_weights(basis, manifold, x, w)
     keys, cw, info = _plan(basis, manifold, W, prune, renormalise, used)
     t_plan = time.perf_counter() - t0
     image, t_read, t_sum = compose(basis, keys, cw, info["cross"])
-    if l2 not in L2_MODES:
-        raise MismatchError(f"`l2` must be one of {L2_MODES}, got {l2!r}")
     t_den = 0.0
     if used == "full" and l2 == "denoised" and basis.p == 1:
         t0 = time.perf_counter()
@@ -248,6 +243,11 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
 L2_MODES = ("denoised", "raw")
 
 
+def _check_l2(l2):
+    if l2 not in L2_MODES:
+        raise MismatchError(f"`l2` must be one of {L2_MODES}, got {l2!r}")
+
+
 def denoised_blend(basis, manifold=None, x=None, w=None, aovs=None, guides=True, **kwargs):
     """:func:`blend` and its denoised version (OIDN on the whole image, :mod:`.denoise`).
 
@@ -259,7 +259,7 @@ def denoised_blend(basis, manifold=None, x=None, w=None, aovs=None, guides=True,
     """
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
-    raw, info = blend(basis, manifold, x=x, w=w, **kwargs)
+    raw, info = blend(basis, manifold, x=x, w=w, **{"l2": "raw", **kwargs})   # raw: its L2+ part summed
     t0 = time.perf_counter()
     if guides:
         aovs = aovs or BasisAOVs.load(basis.folder, basis.manifest)
@@ -302,7 +302,7 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         With several targets: the latent points of the others (row ``target`` ignored).
     component : {"full", "l1"}, optional
         As :func:`blend`.
-    l2 : {"denoised", "raw"}   As :func:`blend` (``time_ms`` leaves the denoising out).
+    l2 : {"denoised", "raw"}   As :func:`blend` (``time_ms`` leaves the denoising out: ``denoise_ms``).
 
     Returns
     -------
@@ -333,6 +333,7 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
             raise MismatchError(f"the basis has {basis.p} targets: give `x` for the targets that stay fixed")
         fixed = latent_points(basis, manifold, x)
     used, note = resolve_component(basis, component)
+    _check_l2(l2)
     t0 = time.perf_counter()
     plans = []
     for xi in xs:
@@ -354,16 +355,15 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         cross = (np.array(rows, dtype=np.intp), C)
     t_plan = time.perf_counter() - t0
     images, t_read, t_sum = compose(basis, keys, M, cross)
-    if l2 not in L2_MODES:
-        raise MismatchError(f"`l2` must be one of {L2_MODES}, got {l2!r}")
+    t0 = time.perf_counter()
     if used == "full" and l2 == "denoised" and basis.p == 1:   # as blend(): each step's L2+ part denoised
         for s_, (xi, img) in enumerate(zip(xs, images)):
             k1, w1, _ = _plan(basis, manifold, manifold.weights(xi[None])[1], prune, renormalise, "l1")
             images[s_] = denoised_l2(basis, img, k1, w1)
     for (_, _, inf), xi in zip(plans, xs):
         inf["x"] = xi
-    return images, xs, {"steps": [p[2] for p in plans], "time_ms": 1e3 * (t_plan + t_sum),
-                        "time_read_s": t_read, "component": used, "component_note": note}
+    return images, xs, {"steps": [p[2] for p in plans], "time_ms": 1e3 * (t_plan + t_sum), "time_read_s": t_read,
+                        "denoise_ms": 1e3 * (time.perf_counter() - t0), "component": used, "component_note": note}
 
 
 def _segment_points(manifold, a, b, steps, kind):

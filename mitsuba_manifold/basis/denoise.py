@@ -185,7 +185,7 @@ def denoised_l2(basis, image, keys, weights):
     extra = image - l1
     guides = _guides(basis, {"keys": keys, "image_weights": weights})
     out = l1
-    for sign in (1.0, -1.0):   # the negative part is empty where no cross term is blended
+    for sign in (1.0, -1.0):   # a part may be empty (no negative cross term, weights >= 0)
         part = np.maximum(sign * extra, 0.0)
         if np.any(part):
             out = out + sign * denoise(part, *guides, quality=L2_QUALITY)
@@ -203,4 +203,7 @@ def _guides(basis, info):
         basis._aovs_for_l2 = aovs
     if not aovs:
         return None, None
-    return aovs.albedo_of_blend(info, basis.manifest["version"]), aovs.normal
+    try:
+        return aovs.albedo_of_blend(info, basis.manifest["version"]), aovs.normal
+    except MismatchError:   # AOVs older than some of the basis's materials: unguided
+        return None, None

@@ -233,10 +233,10 @@ def write_fit_plots(manifold, folder):
 
 
 #: Markers of :func:`gi_error_vs_time`, one per way of making the image: (marker, filled, label).
-GI_MARKERS = {"direct": ("o", True, "direct render (1 to 256 spp)"), "blend": ("*", True, "full-GI blend (default)"),
+GI_MARKERS = {"direct": ("o", True, "direct render ({spp} spp)"), "blend": ("*", True, "the blend (default)"),
               "blend_summed": ("^", False, "full-GI blend, L2+ as summed"), "blend_l1": ("x", True, "L1- blend"),
               "refined": ("D", True, "refined (--refine)"), "blend_denoised": ("P", False, "blend, whole image denoised"),
-              "direct_denoised": ("s", False, "direct 256 spp, denoised")}
+              "direct_denoised": ("s", False, "direct {top} spp, denoised")}
 
 
 def _gi_points(row):
@@ -261,12 +261,13 @@ def gi_error_vs_time(report, path):
     """Log-log plot of relative MSE against time per image (Fig. 13 in spirit): per scene, each
     point's direct renders and blends; colour: the latent point, marker: how the image was made."""
     from matplotlib.lines import Line2D
-    names = list(report["scenes"])
+    names, drawn = list(report["scenes"]), set()
     fig, axes = subplots(1, len(names), figsize=(6 * len(names) + 2.6, 4.8), squeeze=False)
     for ax, name in zip(axes[0], names):
         sc = report["scenes"][name]
         for k, row in enumerate(sc["points"]):
             for kind, (ts, es) in _gi_points(row).items():
+                drawn.add(kind)
                 marker, filled, _ = GI_MARKERS[kind]
                 ax.loglog(ts, es, marker + ("-" if kind == "direct" else ""), ms=12 if marker == "*" else 8,
                           color=f"C{k}", mfc=None if filled else "none")
@@ -277,8 +278,11 @@ def gi_error_vs_time(report, path):
         ax.grid(alpha=0.3, which="both")
     points = [Line2D([], [], color=f"C{k}", lw=6, label=f"{r['point']}: {r['x_is']}")
               for k, r in enumerate(report["scenes"][names[0]]["points"])]
-    kinds = [Line2D([], [], color="0.3", ls="", marker=mk, mfc=None if filled else "none", ms=8, label=label)
-             for mk, filled, label in GI_MARKERS.values()]
+    spps = sorted({r["spp"] for sc in report["scenes"].values() for row in sc["points"] for r in row["direct"]})
+    spp = ", ".join(str(v) for v in spps) if len(spps) < 3 else f"{spps[0]} to {spps[-1]}"
+    kinds = [Line2D([], [], color="0.3", ls="", marker=mk, mfc=None if filled else "none", ms=8,
+                    label=label.format(spp=spp, top=spps[-1] if spps else ""))
+             for kind, (mk, filled, label) in GI_MARKERS.items() if kind in drawn]
     axes[0, -1].legend(handles=points + kinds, fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     fig.tight_layout()
     save(fig, path)

@@ -66,7 +66,8 @@ def _rest_integrator(basis, max_depth):
                          "max_depth": int(max_depth)})
 
 
-def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, stop=None, prune=None):
+def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, stop=None, prune=None,
+                  scene=None, manifold_path=None):
     """Yield a :class:`Refined` estimate after each of ``passes`` passes (``spp`` in all).
 
     Parameters
@@ -87,6 +88,9 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     prune : float, optional
         The blend's pruning (default: the blend's); the rendered material prunes as
         ``manifold_brdf`` does at the same point.
+    scene, manifold_path : str, optional
+        The scene and manifold files to render (default: the manifest's; the explorer passes
+        the ones it resolved, e.g. ``--scene``).
     """
     import mitsuba as mi
 
@@ -95,8 +99,8 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     kw = {} if prune is None else {"prune": prune}
     l1, _ = blend(basis, manifold, x=x, component="l1", **kw)
     points = latent_points(basis, manifold, x)
-    scene, max_depth = scenes.scene_at(m["scene"], m["manifold"], points, None, basis.resolution, m["max_depth"],
-                                       m["variant"], basis.targets, database)
+    scene, max_depth = scenes.scene_at(scene or m["scene"], manifold_path or m["manifold"], points, None,
+                                       basis.resolution, m["max_depth"], m["variant"], basis.targets, database)
     integrator = _rest_integrator(basis, max_depth)
     t0, total, total2, done = time.perf_counter(), 0.0, 0.0, 0
     own = stop is None

@@ -61,6 +61,25 @@ def test_closest_measured_material_under_the_perceptual_metric(explorer, small_m
     assert "slice" not in explorer.material(m.latent[0], with_slice=False)
 
 
+def test_refinement_replaces_the_blend_only_where_it_is_off_by_more_than_its_noise():
+    """The explorer's decision on release (reference.agreement): a blend equal to the refined image
+    agrees; one 10% too dark does not, although its difference is small beside the pixels; after one
+    pass (no noise estimate) there is no decision."""
+    from mitsuba_manifold.apps.explore.reference import agreement
+    from mitsuba_manifold.render.refine import _estimate
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0.2, 0.8, (16, 16, 3))
+    passes = [truth + rng.normal(0, 0.01, truth.shape) for _ in range(4)]
+    total, total2 = sum(4 * p for p in passes), sum(4 * p * p for p in passes)
+    zero = np.zeros_like(truth)
+    refined = _estimate(zero, total, total2, 16, 4, 1.0)
+    assert agreement(truth.astype(np.float32), refined)["agrees"] is True
+    off = agreement((0.9 * truth).astype(np.float32), refined)
+    assert off["agrees"] is False and off["blend_rel_mse"] > 2 * off["noise_rel_mse"]
+    one = _estimate(zero, 4 * passes[0], 4 * passes[0] ** 2, 4, 1, 1.0)
+    assert agreement(truth.astype(np.float32), one)["agrees"] is None
+
+
 def test_thumbnails_are_the_materials_alone_and_cached(small_manifold_paper, tmp_path):
     from mitsuba_manifold.apps.explore import encode
     from mitsuba_manifold.apps.explore.thumbs import Thumbnails

@@ -58,7 +58,7 @@ def _time_frames(ws_url, points, fmt, basis):
         for seq, x in enumerate(points):
             t0 = time.perf_counter()
             ws.send(json.dumps({"type": "frame", "seq": seq, "x": list(map(float, x)), "format": fmt,
-                                "basis": basis}))
+                                "basis": basis, "coarse": True}))   # a drag's frames (the page's)
             msg = ws.recv()
             times.append(1e3 * (time.perf_counter() - t0))
             n = struct.unpack("<I", msg[:4])[0]

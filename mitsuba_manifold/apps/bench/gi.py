@@ -86,8 +86,8 @@ def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), r
             row = {"point": kind, "x_is": label,
                    "direct": {"time_s": time.perf_counter() - t0, "rel_mse": metrics.compare(direct, ref)["rel_mse"],
                               "relative_bias": relative_bias(direct, ref)[0]}}
-            for comp, b in (("l1", b_l1), ("full", b_gi)):
-                img, info = blend(b, m, x=x, component=comp)
+            for comp, b, l2 in (("l1", b_l1, "raw"), ("full", b_gi, "denoised"), ("full_summed", b_gi, "raw")):
+                img, info = blend(b, m, x=x, component=comp.split("_")[0], l2=l2)
                 bias, se = relative_bias(img, ref)
                 row[comp] = {"relative_bias": bias, "relative_bias_se": se,
                              "rel_mse": metrics.compare(img, ref)["rel_mse"], "component": info["component"],
@@ -124,8 +124,9 @@ def _refined(basis, manifold, x, ref, spp, seed):
 
 
 def blend_time(manifold, out, res=256, scene="table", spp=1, points=20, log=print):
-    """Median blend time (ms) at ``res`` for the default (full-GI) and L1- blends at ``points``
-    explored points of a full-GI basis of all the manifold's materials (``spp`` per pixel)."""
+    """Median blend time (ms) at ``res`` for the default (full-GI, its L2+ part denoised), the
+    summed full-GI (``l2="raw"``) and the L1- blends at ``points`` explored points of a full-GI
+    basis of all the manifold's materials (``spp`` per pixel)."""
     from ...basis.crossterms import explored_points
     m = Manifold.load(manifold)
     folder = os.path.join(out, f"blend_time_{scene}_{res}")
@@ -134,16 +135,17 @@ def blend_time(manifold, out, res=256, scene="table", spp=1, points=20, log=prin
     b = Basis.load(folder, manifold=m)
     pts = explored_points(m)[m.n:m.n + points]
     res_ms = {}
-    for comp in ("full", "l1"):
+    for mode in ("full", "full_summed", "l1"):
+        kw = {"component": mode.split("_")[0], "l2": "denoised" if mode == "full" else "raw"}
         for x in pts:
-            blend(b, m, x=x, component=comp)   # reads the images once
-        res_ms[comp] = float(np.median([median_time(lambda: blend(b, m, x=x, component=comp), 3)[0] * 1e3
-                                        for x in pts]))
+            blend(b, m, x=x, **kw)   # reads the images once
+        res_ms[mode] = float(np.median([median_time(lambda: blend(b, m, x=x, **kw), 3)[0] * 1e3 for x in pts]))
     mem = b._store.nbytes + b.cross_terms()[1].nbytes   # images float32, cross terms float16
     out = {"resolution": res, "materials": m.n, "blend_ms": res_ms, "basis_bytes": size,
            "memory_bytes": int(mem), "components": manifest["components"],
            "pairs": manifest.get("cross", {}).get("pairs", 0)}
     if log:
-        log(f"blend at {res}x{res}, N = {m.n}: full {res_ms['full']:.2f} ms, L1- {res_ms['l1']:.2f} ms; "
+        log(f"blend at {res}x{res}, N = {m.n}: full {res_ms['full']:.2f} ms (summed "
+            f"{res_ms['full_summed']:.2f} ms), L1- {res_ms['l1']:.2f} ms; "
             f"basis {size / 1e6:.1f} MB on disk, {mem / 1e6:.1f} MB in memory, {out['pairs']} cross terms")
     return out

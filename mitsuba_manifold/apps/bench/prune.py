@@ -89,8 +89,8 @@ def _measure(m, W, cfg, grams, basis):
         if basis is not None:
             wp = np.zeros_like(w)
             wp[keep] = w[keep] * (w.sum() / w[keep].sum())
-            full = blend(basis, m, w=w, prune=0.0)[0]
-            rows["image"].append(rel_mse(blend(basis, m, w=wp, prune=0.0)[0], full))
+            full = blend(basis, m, w=w, prune=0.0, l2="raw")[0]   # linear: what pruning changes, not OIDN
+            rows["image"].append(rel_mse(blend(basis, m, w=wp, prune=0.0, l2="raw")[0], full))
     out = {"albedo_change": _stats(rows["albedo"]), "cos_error": _stats(rows["cos"]),
            "raw_error": _stats(rows["raw"]),
            "kept": {"median": float(np.median(rows["kept"])), "max": int(max(rows["kept"]))}}

@@ -72,8 +72,8 @@ def parser():
     p.add_argument("--l2", choices=["denoised", "raw"], default="denoised",
                    help="the full-GI blend's light beyond L1-: denoised by OIDN (default) or as summed")
     p.add_argument("--component", choices=["full", "l1"], default=None,
-                   help="l1: the L1- images (Eq. 13; default); full: the full-GI images and cross terms where "
-                        "the basis holds them (render_basis.py --components full)")
+                   help="full (default): the full-GI images and cross terms where the basis holds them "
+                        "(render_basis.py --components full); l1: the L1- images (Eq. 13)")
     p.add_argument("--force", action="store_true",
                    help="replace existing output files this tool did not write (never read-only ones)")
     return p
@@ -176,8 +176,9 @@ def path_outputs(args, basis, manifold):
                                      args.renormalise, target=target, x=args.x, component=args.component,
                                      kind=args.path_kind, l2=args.l2)
     _say_component(info)
+    den = f"; their L2+ light denoised in {info['denoise_ms']:.0f} ms" if info["denoise_ms"] >= 0.5 else ""
     print(f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
-          f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image)")
+          f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image){den}")
     stem, outputs = _stem(args.out), []
     for name, img in zip(frame_names(args), images):
         outputs.append(("image", name, lambda n=name, i=img: imageio.write_exr(n, i)))

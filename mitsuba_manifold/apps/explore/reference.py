@@ -47,6 +47,19 @@ class Job:
                 "error": self.error, "images": sorted(self.images)}
 
 
+def agreement(blend_image, refined):
+    """Whether the blend shown agrees with an unbiased refinement (:class:`~mitsuba_manifold.render.refine.Refined`)
+    within the refinement's noise: their relative MSE (blend against refined) is at most twice
+    the refinement's own estimated noise (its expectation where the blend is exact). Where it
+    does not, the blend is off by more than the refinement's noise, and the refined image is
+    the better one (``agrees`` False); ``None`` after one pass (no noise estimate yet)."""
+    if refined.passes < 2:
+        return {"noise_rel_mse": None, "blend_rel_mse": None, "agrees": None}
+    diff = metrics.compare(blend_image, refined.image)["rel_mse"]
+    return {"noise_rel_mse": refined.noise_rel_mse, "blend_rel_mse": diff,
+            "agrees": bool(diff <= 2.0 * refined.noise_rel_mse)}
+
+
 class References:
     """Queue of reference jobs (one worker thread)."""
 
@@ -56,39 +69,49 @@ class References:
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
         self._stopping = False
+        self._latest_refine = None
 
     def submit(self, name, basis, scene, manifold_path, x, spp, blend_image):
         """Start a job; returns it. ``blend_image``: the blend at ``x`` to compare with."""
         job = Job(id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp))
         with self._lock:
             self._jobs[job.id] = job
-            for old in list(self._jobs)[:-KEEP_JOBS]:
-                if self._jobs[old].state in ("done", "failed"):
-                    del self._jobs[old]
+            self._trim()
         self._pool.submit(self._run, job, basis, scene, manifold_path, blend_image)
         return job
 
-    def submit_refine(self, name, basis, manifold, x, spp):
-        """Start a refinement of the blend at ``x`` (:func:`~mitsuba_manifold.render.refine.refine_passes`):
-        its image (``"refined"``) after every pass, the noise the passes measure in ``error``."""
+    def submit_refine(self, name, basis, manifold, x, spp, blend_image, **where):
+        """Start a refinement of the blend at ``x`` (:func:`~mitsuba_manifold.render.refine.refine_passes`;
+        ``where``: its ``scene``, ``manifold_path`` and ``prune``): its image (``"refined"``) after
+        every pass, in ``error`` the noise the passes measure and whether ``blend_image`` (the
+        blend shown) agrees with it within that noise. A newer refinement supersedes it."""
         job = Job(id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp), kind="refine")
         with self._lock:
+            self._latest_refine = job.id
             self._jobs[job.id] = job
-        self._pool.submit(self._run_refine, job, basis, manifold)
+            self._trim()
+        self._pool.submit(self._run_refine, job, basis, manifold, blend_image, where)
         return job
 
-    def _run_refine(self, job, basis, manifold):
+    def _trim(self):
+        for old in list(self._jobs)[:-KEEP_JOBS]:
+            if self._jobs[old].state in ("done", "failed"):
+                del self._jobs[old]
+
+    def _run_refine(self, job, basis, manifold, blend_image, where):
         from ...render.refine import refine_passes
 
         job.state, t0 = "rendering", time.perf_counter()
         try:
             passes = max(1, min(4, job.spp))
-            for r in refine_passes(basis, manifold, x=np.asarray(job.x), spp=job.spp, passes=passes):
+            for r in refine_passes(basis, manifold, x=np.asarray(job.x), spp=job.spp, passes=passes, **where):
                 if self._stopping:
                     raise RuntimeError("the server is stopping")
-                job.images = {"blend": r.image - r.rest, "refined": r.image}
+                if job.id != self._latest_refine:
+                    raise RuntimeError("superseded by a newer refinement")
+                job.images = {"blend": blend_image, "refined": r.image}
                 job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of L2+"
-                job.error = {"noise_rel_mse": None if r.passes < 2 else r.noise_rel_mse}
+                job.error = agreement(blend_image, r)
             job.state = "done"
         except Exception as e:  # shown on the page; the server keeps running
             job.state, job.message = "failed", f"{type(e).__name__}: {e}"

@@ -2,11 +2,10 @@
 
 :class:`Explorer` holds each basis with all its images read into one float32 array (the
 ``(N + 1, H*W*3)`` matrix of :class:`~mitsuba_manifold.basis.folder.Basis`) and answers every
-request of the page from a latent point: the blended frame (:func:`blend.blend`, one
-matrix-vector product over the materials kept by pruning, then :func:`encode.tonemap`
-and an encoder), the material's description, the preview table, the latent map, the
-snippets and the reference renders. Bad requests raise :class:`InputError` with a
-message naming the parameter, its value and what is expected.
+request of the page from a latent point: the blended frame (:func:`blend.blend`, then
+:func:`encode.tonemap` and an encoder), the material's description, the preview table, the
+latent map, the snippets, the reference renders and refinements. Bad requests raise
+:class:`InputError` naming the parameter, its value and what is expected.
 """
 
 import base64
@@ -61,11 +60,9 @@ class Explorer:
         basis's scene hash (default: the manifest's scene, or the shipped scene of that name
         and hash when the manifest's file has moved).
     thumbnails : bool
-        Render the materials' thumbnails in the background (:mod:`.thumbs`; cached beside the
-        first basis).
+        Render the materials' thumbnails in the background (:mod:`.thumbs`; cached by the first basis).
     refine_spp : int
-        Where a drag ends, the page refines the point (:meth:`start_refine`) with this many
-        samples per pixel of L2+; 0: it does not.
+        Samples per pixel of L2+ of the page's refinement where a drag ends (:meth:`start_refine`; 0: none).
     """
 
     def __init__(self, bases, manifold=None, database=None, prune=DEFAULT_PRUNE, load_tables=True, scene=None,
@@ -74,7 +71,7 @@ class Explorer:
             raise InputError("give at least one basis folder")
         if not 0.0 <= float(prune) < 1.0:
             raise InputError(f"prune must be in [0, 1) (a fraction of the table's L2 norm), got {prune}")
-        self.prune = float(prune)
+        self.prune, self._last_blend = float(prune), (None, None)
         self.refine_spp = int(self.number(refine_spp, "`refine_spp`", 0, MAX_SPP, 0))
         self.bases = {}
         self.manifold_path = None
@@ -166,8 +163,12 @@ class Explorer:
             raise InputError(f"{what} must be a finite number in [{lo:g}, {hi:g}], got {show(value)}") from None
 
     def blend(self, name, x, l2="denoised"):
-        """Linear image (H, W, 3) of latent point ``x`` and the blend's info (``l2``: of :func:`blend`)."""
-        return blend(self.basis(name), self.manifold, x=x, prune=self.prune, l2=l2)
+        """Linear image (H, W, 3) of latent point ``x`` and the blend's info (``l2``: of :func:`blend`);
+        the last one is kept (the exposure slider tonemaps it again, without denoising again)."""
+        key, last = (name, np.asarray(x, np.float64).tobytes(), l2), self._last_blend
+        if last[0] != key:
+            last = self._last_blend = (key, blend(self.basis(name), self.manifold, x=x, prune=self.prune, l2=l2))
+        return last[1]
 
     def frame(self, name, x, exposure=0.0, fmt="jpeg", coarse=False):
         """Encoded frame of ``x``: ``(bytes, meta)`` (size, times in ms). ``coarse`` (a drag running):
@@ -358,25 +359,24 @@ class Explorer:
                 "path_kinds": list(path_kinds.KINDS), "path_kind": path_kinds.DEFAULT_KIND}
 
     # ---------------------------------------------------------- references
-    def start_reference(self, name, x, spp):
+    def _job_args(self, name, x, spp, default):
+        """``(key, basis, scene, spp, blend image)`` of a background job of basis ``name`` at ``x``."""
         name = self.key(name)
         basis, scene = self.bases[name], self.scenes[name]
         if scene is None:
             raise InputError(f"the scene of basis {name!r} ({basis.manifest['scene']}) is missing or has "
-                               "changed since the basis was rendered; give it with --scene")
-        spp = int(self.number(spp, "spp", 1, MAX_SPP, 256))
-        img, _ = self.blend(name, x)
+                             "changed since the basis was rendered; give it with --scene")
+        return name, basis, scene, int(self.number(spp, "spp", 1, MAX_SPP, default)), self.blend(name, x)[0]
+
+    def start_reference(self, name, x, spp):
+        name, basis, scene, spp, img = self._job_args(name, x, spp, 256)
         return self.references.submit(name, basis, scene, self.manifold_path, x, spp, img)
 
     def start_refine(self, name, x, spp):
         """A refinement of the blend at ``x`` (``blend.py --refine``) in the background."""
-        name = self.key(name)
-        basis = self.bases[name]
-        if self.scenes[name] is None:
-            raise InputError(f"the scene of basis {name!r} ({basis.manifest['scene']}) is missing or has "
-                             "changed since the basis was rendered; give it with --scene")
-        spp = int(self.number(spp, "spp", 1, MAX_SPP, 16))
-        return self.references.submit_refine(name, basis, self.manifold, x, spp)
+        name, basis, scene, spp, img = self._job_args(name, x, spp, 16)
+        return self.references.submit_refine(name, basis, self.manifold, x, spp, img, scene=scene,
+                                             manifold_path=self.manifold_path, prune=self.prune)
 
     def reference_image(self, job_id, which, exposure=0.0):
         job = self.references.get(job_id)
