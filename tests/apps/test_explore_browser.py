@@ -243,10 +243,10 @@ def test_search_by_name_goes_to_the_material(browser, server, small_manifold_pap
 @browser_only
 def test_release_refines_the_point_to_its_full_gi_image(browser, small_basis, small_manifold_paper):
     """With --refine-spp, choosing a point (a drag's end) renders its L2+ light in the background and
-    says whether the blend shown agrees with that unbiased render within its measured noise. The basis
-    is of the convex sphere (no path touches it twice), so the refinement is the blend itself: it
-    agrees, and the blend stays. Shown anyway (as where it disagrees), the refined image is that of
-    the point; the next move goes back to blends (the decision itself: test_explore_artist)."""
+    says whether the blend shown agrees with that unbiased render within its measured noise; the blend
+    stays. The basis is of the convex sphere (no path touches it twice), so the refinement is the blend
+    itself: it agrees. "show refined" draws the refined image of the point; the next move goes back to
+    blends (the decision itself: test_explore_artist)."""
     m = Manifold.load(small_manifold_paper)
     proc, url = launch.start([small_basis], small_manifold_paper, ["--no-thumbnails", "--refine-spp", "8"],
                              refine=True)
@@ -263,8 +263,9 @@ def test_release_refines_the_point_to_its_full_gi_image(browser, small_basis, sm
             assert "agrees with the unbiased render" in status and "spp of L2+" in status, status
             assert not pg.evaluate("document.getElementById('scene').dataset.refined")
             np.testing.assert_array_equal(np.array(pg.evaluate(pixels), float), blend)
-            pg.evaluate("() => showRefined({id: 'r1'}, window.explore.state.x, window.explore.state.basis, () => true)")
-            assert pg.evaluate("document.getElementById('scene').dataset.refined") == "r1"
+            pg.click("#refine-show")   # the user asks for the refined image
+            pg.wait_for_function("document.getElementById('scene').dataset.refined === 'r1'")
+            assert "showing the unbiased render" in pg.text_content("#refine-status")
             assert np.abs(np.array(pg.evaluate(pixels), float) - blend).max() <= 2 and blend.max() > 0
             _set(pg, m.latent[m.index("gold-paint")])   # a move: blends again
             assert not pg.evaluate("document.getElementById('scene').dataset.refined")

@@ -6,9 +6,11 @@
   blend.py --basis DIR --path gold-paint chrome --steps 20 --out seq.exr [--path-kind straight]
   blend.py --basis DIR --x 0.3,-1.2 --out img.exr --component full
 
-The default blends the L1- images (paper Eq. 13). --component full blends the full-GI images and
-cross terms of a basis rendered with render_basis.py --components full (exact at the training
-materials, but noisy for spiky materials for now); a basis without them blends L1- and says so.
+The default blends the full-GI images and cross terms of the basis (render_basis.py's default), its
+light beyond L1- denoised (--l2 raw: summed, exact at the training materials but noisy where light runs
+through narrow peaks); --component l1 blends the L1- images (paper Eq. 13). A basis without full-GI
+images blends L1- and says so. --refine SPP adds the L2+ light rendered at the point: unbiased, but
+noisy at a few SPP where the blend is not.
 
 With several manifold materials in the scene give one --x per target (in the manifest's
 target order). Nothing is written until every input has been read and checked.
@@ -44,8 +46,9 @@ def parser():
     p.add_argument("--scene", help="scene XML to check the basis against (default: not checked; "
                                    "--render-reference uses the manifest's scene)")
     p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
-                   help="drop the materials of smallest contribution while the interpolated table changes "
-                        f"by at most this fraction of its L2 norm (default {DEFAULT_PRUNE:g}, as the plugin)")
+                   help="drop the materials of smallest contribution while each albedo channel changes by at "
+                        "most half this fraction and the cosine-weighted table by at most this fraction "
+                        f"(default {DEFAULT_PRUNE:g}, as the plugin)")
     p.add_argument("--renormalise", action="store_true",
                    help="if images with surviving weight are missing from the basis, rescale the "
                         "weights of those present instead of failing (an approximation)")
@@ -65,8 +68,9 @@ def parser():
     p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
     p.add_argument("--database", help="folder of the manifold's tables, if it moved (--render-reference)")
     p.add_argument("--refine", type=int, metavar="SPP", default=None,
-                   help="make the image exact: render what the basis cannot give at the point (its L2+ light, "
-                        "SPP samples per pixel) and add it to the L1- blend; reports its noise")
+                   help="unbiased image of the point: render what the basis cannot give there (its L2+ light, "
+                        "SPP samples per pixel) and add it to the L1- blend; reports the noise its passes "
+                        "estimate (too low where fireflies are rare)")
     p.add_argument("--refine-passes", type=int, default=4,
                    help="independent passes of --refine, which estimate its noise (default 4)")
     p.add_argument("--l2", choices=["denoised", "raw"], default="denoised",
@@ -113,9 +117,23 @@ def parse(argv=None):
     validate.fraction("--prune", args.prune)
     validate.seed("--seed", args.seed)
     basis_ownership.check_output_outside_basis(args.out, args.basis)
+    _check_writable(args.out)
     for kind, path in planned(args):   # names and kinds of targets (their owners: before writing)
         ownership.check_replaceable(path, args.force, what=kind, owner=False)
     return args
+
+
+def _check_writable(out):
+    """Fail before any work when the folder of ``--out`` (or its nearest existing parent) cannot be written."""
+    folder = os.path.dirname(os.path.abspath(out))
+    while not os.path.exists(folder) and os.path.dirname(folder) != folder:
+        folder = os.path.dirname(folder)
+    import tempfile
+    try:   # a real probe: permission bits do not stop root, a read-only or virtual file system does
+        with tempfile.TemporaryFile(dir=folder, prefix=".blend-probe-"):
+            pass
+    except OSError as e:
+        fail(f"--out {out}: cannot write in {folder} ({e.strerror or e}); choose another --out")
 
 
 def frame_names(args):
@@ -211,7 +229,9 @@ class _one_line_warnings:
 def _say_component(info):
     """One line: which blend was made (full GI or L1-) and, for L1-, why."""
     if info.get("component") == "full":
-        print(f"blend: full GI (full-GI images and cross terms; light beyond L1- {info.get('l2')})")
+        print(f"blend: full GI (full-GI images and cross terms; light beyond L1- {info.get('l2') or 'summed'})")
+    elif info.get("component") == "l1" and not info.get("component_note"):
+        print("blend: L1- images only (paper Eq. 13; --component l1)")
     elif info.get("component_note") and "predates" not in info["component_note"]:
         print(f"blend: {info['component_note']}")
 
@@ -225,7 +245,7 @@ def _refined(args, basis, manifold):
     for last in refine_passes(basis, manifold, x=args.x, spp=args.refine, passes=args.refine_passes,
                               seed=args.seed, database=args.database, prune=args.prune):
         print(f"  pass {last.passes}/{args.refine_passes}: {last.spp} spp, {last.seconds:.2f} s", flush=True)
-    print(last.summary())
+    print(last.summary() + "; the image written is the L1- blend plus this L2+")
     return last.image
 
 
@@ -248,11 +268,15 @@ def point_outputs(args, basis, manifold):
     for t, (weights, dropped) in enumerate(zip(info["weights"], info["dropped_weight"])):
         top = sorted(weights.items(), key=lambda kv: -abs(kv[1]))
         shown = ", ".join(f"{n} {v:.4g}" for n, v in top[:6]) + (" ..." if len(top) > 6 else "")
-        print(f"target {basis.targets[t]}: {len(top)} materials kept (dropped |w| {dropped:.3g}): {shown}")
+        print(f"target {basis.targets[t]}: {len(top)} material{'s' * (len(top) != 1)} kept "
+              f"(dropped |w| {dropped:.3g}): {shown}")
     if info["renormalised"]:
         print(f"warning: renormalised over the images present; missing: {', '.join(sorted(info['missing']))}")
     print(f"blend time: {info['time_ms']:.3f} ms ({info['n_images']} images; reading them: "
           f"{info['time_read_s']:.3f} s)")
+    if info.get("component") == "full" and args.l2 == "raw" and args.refine is None and (image < 0).any():
+        print(f"note: {int((image < 0).any(axis=-1).sum())} pixels below 0 (the summed cross terms' noise; "
+              "the default --l2 denoised has none)")
     unrefined = image
     if args.refine is not None:
         image = _refined(args, basis, manifold)

@@ -1,5 +1,7 @@
-"""Render the L1- basis of a scene: base.exr (paths never touching the manifold material)
-and one <material>.exr per measured material (paths touching it exactly once).
+"""Render the basis of a scene: base.exr (paths never touching the manifold material), one
+<material>.exr per measured material (paths touching it exactly once) and, by default in
+one-pass mode, the full-GI images <material>.gi.exr and the cross terms cross.npz (where the
+scene needs them; --components l1 for the L1- basis only).
 
 Several scenes and views (--views) in one call go to OUT/<scene>[-view<j>]/. With
 --chunks k each basis is rendered as k chunks of spp/k samples (seeds seed*k+j) and
@@ -111,7 +113,9 @@ def main(argv=None):
                 manifest = render_chunked(scene, args.manifold, out, spp=args.spp, chunks=args.chunks,
                                           seed=args.seed, executor=executor, keep_chunks=args.keep_chunks,
                                           progress=True, sensor=sensor, **options).manifest
-            print(f"{len(manifest['images'])} images in {out} ({manifest['resolution'][0]}x"
+            gi, cross = len(manifest.get("gi_images", {})), manifest.get("cross", {}).get("pairs", 0)
+            extra = f" (and {gi} full-GI images, {cross} cross terms)" if gi else ""
+            print(f"{len(manifest['images'])} images{extra} in {out} ({manifest['resolution'][0]}x"
                   f"{manifest['resolution'][1]}, {manifest['spp']} spp, {manifest['mode']}, "
                   f"{manifest['variant']}), {time.perf_counter() - t1:.1f} s", flush=True)
     finally:

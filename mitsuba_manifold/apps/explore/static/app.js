@@ -365,7 +365,7 @@ function showMaterial(m) {
   $("conf-bar").style.background = rel > 0.5 ? "var(--neg)" : rel > 0.1 ? "var(--warn)" : "var(--accent)";
   $("variance-val").textContent = `GP variance ${fmtNum(m.variance, 4)} (Eq. 2)`;
   const warn = [];
-  if (rel > 0.5) warn.push("far from every measured material: the interpolant tends to the mean BRDF");
+  if (rel > 0.5) warn.push("far from every measured material (GP variance near its prior): an extrapolation");
   if (m.albedo && m.albedo.some((v) => v < 0 || v > 1)) warn.push("albedo outside [0, 1]: not a physical material");
   if (m.negative_fraction !== undefined && m.negative_fraction > 1e-3)
     warn.push(`${(100 * m.negative_fraction).toFixed(1)}% of the table's bins are negative: a render clamps ` +

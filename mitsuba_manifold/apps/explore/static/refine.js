@@ -1,8 +1,9 @@
 // Refinement on release (issue 21): where a drag ends (or a point is chosen), the server renders
-// what the basis cannot give at that point (its L2+ light; blend.py --refine) in passes. After each
-// pass from the second on, the server says whether the blend shown agrees with that unbiased
-// estimate within its measured noise: where it does, the blend stays (it is the less noisy image)
-// and the status says so; where it does not, the scene view shows the refined image until the
+// what the basis cannot give at that point (its L2+ light; blend.py --refine) in passes and checks
+// the blend shown against that unbiased estimate. The blend stays on screen: at a few spp the
+// refinement is noisier than the blend (fireflies where light runs through a narrow peak), and its
+// noise, estimated from a few passes, can be too low where fireflies are rare. The status says
+// whether the blend agrees within that noise; "show refined" draws the refined image until the
 // point, the basis or the exposure changes. Uses app.js's state, $, api, sameX and fmtNum.
 "use strict";
 
@@ -18,31 +19,35 @@ async function refineHere() {
   const x = state.x.slice(), basis = state.basis, run = ++refineRun, status = $("refine-status");
   const current = () => run === refineRun && sameX(x, state.x) && state.basis === basis && !state.dragging;
   const say = (text) => { if (current()) status.textContent = text; };
+  const button = $("refine-show");
+  button.hidden = true;
   say("refining…");
   try {
     let job = await (await api("/api/reference", { method: "POST", headers: { "Content-Type": "application/json" },
       body: JSON.stringify({ basis, x, spp: +$("refine-spp").value, kind: "refine" }) })).json();
-    let seen = -1;
     while (current()) {
       job = await (await api("/api/reference/" + job.id)).json();
       if (!current()) break;
       if (job.state === "failed") { say("refine failed: " + job.message); return; }
       const e = job.error || {};
-      if (job.progress > seen && e.agrees != null) {
-        seen = job.progress;
-        if (e.agrees) {
-          say(`full GI checked (${job.message}): the blend agrees with the unbiased render within its noise ` +
-              `(rel. MSE ${fmtNum(e.blend_rel_mse, 3)}, noise ${fmtNum(e.noise_rel_mse, 3)})`);
-        } else if (await showRefined(job, x, basis, current)) {
-          say(`refined (${job.message}): unbiased full GI, noise rel. MSE ${fmtNum(e.noise_rel_mse, 3)}; ` +
-              `the blend differed by ${fmtNum(e.blend_rel_mse, 3)}`);
+      if (e.agrees == null) say(`refining… ${job.message}`);
+      else {
+        const figures = `rel. MSE ${fmtNum(e.blend_rel_mse, 3)} against its estimated noise ${fmtNum(e.noise_rel_mse, 3)}`;
+        say(e.agrees ? `full GI checked (${job.message}): the blend agrees with the unbiased render (${figures})`
+                     : `full GI checked (${job.message}): the blend differs from the unbiased render (${figures})`);
+        if (!state.refined) {
+          button.hidden = false;
+          button.onclick = () => showRefined(job, x, basis, current).then((ok) => {
+            if (ok) { say(`showing the unbiased render (${job.message}; noisy at few spp); move to go back to the blend`);
+                      button.hidden = true; }
+          });
         }
-      } else if (e.agrees == null) say(`refining… ${job.message}`);
+      }
       if (job.state === "done") return;
       await new Promise((r) => setTimeout(r, 300));
     }
   } catch (err) { say("refine: " + err.message); return; }
-  if (run === refineRun && !state.refined) status.textContent = "";   // moved on before an answer
+  if (run === refineRun && !state.refined) { status.textContent = ""; button.hidden = true; }   // moved on
 }
 
 async function showRefined(job, x, basis, current) {
@@ -61,6 +66,9 @@ function keepsRefined(meta) {
   const r = state.refined;
   if (r && sameX(meta.x, r.x) && meta.basis === r.basis && meta.exposure === r.exposure && sameX(r.x, state.x)
       && state.basis === r.basis) return true;
-  if (r) { state.refined = null; delete $("scene").dataset.refined; $("refine-status").textContent = ""; }
+  if (r || state.dragging) {   // back to blends: the refined image and the last check are gone
+    state.refined = null; delete $("scene").dataset.refined;
+    $("refine-status").textContent = ""; $("refine-show").hidden = true;
+  }
   return false;
 }
