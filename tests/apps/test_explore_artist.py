@@ -80,6 +80,18 @@ def test_refinement_replaces_the_blend_only_where_it_is_off_by_more_than_its_noi
     assert agreement(truth.astype(np.float32), one)["agrees"] is None
 
 
+def test_a_refinement_queued_behind_a_newer_one_never_renders():
+    """Quick releases queue refinements behind one worker: only the newest one renders."""
+    from mitsuba_manifold.apps.explore.reference import Job, References
+    refs = References()
+    try:
+        stale, refs._latest_refine = Job(id="r1", basis="b", x=[0.0], spp=8, kind="refine"), "r2"
+        refs._run_refine(stale, None, None, None, {})   # no basis needed: it stops before any work
+        assert stale.state == "failed" and "superseded" in stale.message and not stale.images
+    finally:
+        refs.shutdown()
+
+
 def test_thumbnails_are_the_materials_alone_and_cached(small_manifold_paper, tmp_path):
     from mitsuba_manifold.apps.explore import encode
     from mitsuba_manifold.apps.explore.thumbs import Thumbnails

@@ -103,6 +103,8 @@ class References:
 
         job.state, t0 = "rendering", time.perf_counter()
         try:
+            if job.id != self._latest_refine:   # queued behind a newer one: never started
+                raise RuntimeError("superseded by a newer refinement")
             passes = max(1, min(4, job.spp))
             for r in refine_passes(basis, manifold, x=np.asarray(job.x), spp=job.spp, passes=passes, **where):
                 if self._stopping:
