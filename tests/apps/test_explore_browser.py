@@ -238,6 +238,13 @@ def test_search_by_name_goes_to_the_material(browser, server, small_manifold_pap
         pg.fill("#search", "Blue-Acrylic")
         _wait_displayed(pg, m.latent[m.index("blue-acrylic")])
         assert pg.inner_text("#material-name") == "blue-acrylic"
+        pg.fill("#search", "blue-acrylc")   # a typo and Enter: told why nothing happened
+        pg.press("#search", "Enter")
+        assert "no measured material" in pg.evaluate("document.getElementById('search').validationMessage")
+        pg.fill("#search", "chrom")         # a unique part of a name and Enter: there
+        pg.press("#search", "Enter")
+        _wait_displayed(pg, m.latent[m.index("chrome")])
+        assert pg.evaluate("document.getElementById('search').validationMessage") == "" and not pg.errors
 
 
 @browser_only

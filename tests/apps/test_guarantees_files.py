@@ -154,6 +154,30 @@ def test_table_edited_in_place_with_its_mtime_restored_is_read_again(tmp_path):
 
 # ------------------------------------------------------------ 5.-8. data lost
 
+def test_blend_x_by_material_name_is_its_point_and_an_unwritable_out_is_refused_first(tiny, tmp_path):
+    m = Manifold.load(tiny["manifold"])
+    name, point = m.names[1], ",".join(repr(float(v)) for v in m.latent[1])
+    rc, out, err = run_tool("blend", "--basis", tiny["basis"], "--x", name, "--out", tmp_path / "named.exr")
+    assert rc == 0, err
+    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--x", point, "--out", tmp_path / "numbers.exr")
+    assert rc == 0, err
+    np.testing.assert_array_equal(imageio.read_exr(tmp_path / "named.exr"), imageio.read_exr(tmp_path / "numbers.exr"))
+    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--x", name[:-1] + "q", "--out", tmp_path / "typo.exr")
+    assert_one_error(rc, err, "unknown material")
+    assert not (tmp_path / "typo.exr").exists()
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        if os.access(locked, os.W_OK) and os.geteuid() == 0:   # root: a read-only file system stands in
+            locked = "/proc/mitsuba-manifold-test"
+        rc, out, err = run_tool("blend", "--basis", tiny["basis"], "--x", name, "--out", os.path.join(locked, "a.exr"))
+        assert_one_error(rc, err, "cannot write in")
+        assert "blend time" not in out
+    finally:
+        (tmp_path / "locked").chmod(0o700)
+
+
 def test_blend_never_writes_into_a_basis_folder(tiny):
     before = snapshot(tiny["basis"])
     for name in ("base.exr", "new.exr"):

@@ -38,7 +38,8 @@ def parser():
                        aliases={"manifold_path": "manifold"})
     p.add_argument("--basis", required=True, help="basis folder written by render_basis.py")
     p.add_argument("--x", nargs="+", action="append", metavar="X",
-                   help="latent point (q numbers); repeat once per target for a multilinear basis")
+                   help="latent point (q numbers) or a measured material's name; repeat once per target "
+                        "for a multilinear basis")
     p.add_argument("--out", required=True, help="output EXR (with --path: prefix of the sequence)")
     p.add_argument("--png", action="store_true", help="also write tonemapped sRGB PNGs")
     p.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops (default 0)")
@@ -89,9 +90,9 @@ def parse(argv=None):
     # "-0.3,1.2" would look like an option to argparse; with spaces it is a value
     args = parser().parse_args([a.replace(",", " ") if NEGATIVE_LIST.match(a) else a for a in argv])
     x = None
-    if args.x:
+    if args.x:   # numbers, or (one word) a measured material's name, resolved with the manifold
         try:
-            x = [v for group in args.x for v in parse_floats(" ".join(group))]
+            x = [v for group in args.x for v in _named_or_floats(group)]
         except argparse.ArgumentTypeError as e:
             fail(f"--x: {e}")
     args.x = x
@@ -121,6 +122,20 @@ def parse(argv=None):
     for kind, path in planned(args):   # names and kinds of targets (their owners: before writing)
         ownership.check_replaceable(path, args.force, what=kind, owner=False)
     return args
+
+
+def _named_or_floats(group):
+    """One ``--x`` group: its numbers, or ``[name]`` for a single word that is not a number."""
+    if len(group) == 1 and "," not in group[0] and not re.fullmatch(r"[-+.\d].*", group[0]):
+        return [group[0]]
+    return parse_floats(" ".join(group))
+
+
+def _resolve_names(args, manifold):
+    """``args.x`` with each material name replaced by its latent point (q numbers)."""
+    if args.x is not None and any(isinstance(v, str) for v in args.x):
+        args.x = [float(c) for v in args.x for c in
+                  (manifold.latent[manifold.index(v)] if isinstance(v, str) else [v])]
 
 
 def _check_writable(out):
@@ -382,6 +397,7 @@ def main(argv=None):
     try:
         basis = Basis.load(args.basis, manifold=args.manifold, scene=args.scene)
         manifold = basis.check_manifold(args.manifold)
+        _resolve_names(args, manifold)
         print(basis)
         if args.path is not None:
             outputs = path_outputs(args, basis, manifold)

@@ -611,8 +611,17 @@ async function main() {
   for (const n of [...info.names].sort()) $("material-names").appendChild(new Option(n));
   $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there
     const v = $("search").value.trim(), hit = info.names.find((n) => n.toLowerCase() === v.toLowerCase());
+    $("search").setCustomValidity("");
     if (hit) { goTo(hit); commitPoint(); $("search").blur(); }
     buildGallery();   // the gallery shows the names matching what is typed
+  };
+  $("search").onkeydown = (ev) => {   // Enter: the one name containing what is typed, else say why not
+    if (ev.key !== "Enter") return;
+    const v = $("search").value.trim().toLowerCase(), some = info.names.filter((n) => n.toLowerCase().includes(v));
+    if (v && some.length === 1) { $("search").value = some[0]; $("search").oninput(); return; }
+    $("search").setCustomValidity(some.length ? `${some.length} materials contain "${v}": pick one from the list`
+                                              : `no measured material's name contains "${v}"`);
+    $("search").reportValidity();
   };
   $("set-a").onclick = () => setEnd("a");
   $("set-b").onclick = () => setEnd("b");
