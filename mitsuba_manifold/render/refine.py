@@ -32,7 +32,12 @@ from .interrupt import StopRequest
 class Refined:
     """A refined blend: ``image = l1 + rest``; ``pixel_se`` (H, W, 3) the standard error of
     ``rest`` per pixel (from the passes; NaN after one pass); ``noise_rel_mse`` its mean of
-    ``se^2 / (image^2 + eps)``; ``spp`` and ``passes`` rendered so far, in ``seconds``."""
+    ``se^2 / (scale^2 + eps)``; ``spp`` and ``passes`` rendered so far, in ``seconds``.
+
+    ``scale`` is the basis's own blend of the point (full GI where it holds it, else L1-), not
+    ``image``: a firefly of the refinement inflates ``image`` where it is, so relative to it
+    the noise would look small exactly where it is largest (at 16 spp on the table's bowl with
+    white-paint it read 16 times too low)."""
 
     image: np.ndarray
     l1: np.ndarray
@@ -42,12 +47,20 @@ class Refined:
     spp: int
     passes: int
     seconds: float
+    scale: np.ndarray = None
+
+    def rel_mse(self, other):
+        """Mean ``(other - image)^2 / (scale^2 + eps)``: ``other`` against the refinement, on the
+        refinement's noise scale."""
+        scale = self.image if self.scale is None else self.scale
+        d = np.asarray(other, np.float64) - self.image
+        return float(np.mean(d * d / (np.asarray(scale, np.float64) ** 2 + REL_EPS)))
 
     def summary(self):
         """One line: what was rendered and its estimated noise."""
         noise = "n/a (one pass)" if self.passes < 2 else f"{self.noise_rel_mse:.3g}"
         return (f"refined: L2+ rendered at the point with {self.spp} spp in {self.passes} passes, "
-                f"{self.seconds:.2f} s; estimated noise of the refinement (rel. MSE) {noise}")
+                f"{self.seconds:.2f} s; estimated noise of the refinement (rel. MSE, on the blend's scale) {noise}")
 
 
 def _pass_plan(spp, passes):
@@ -98,6 +111,7 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     m = basis.manifest
     kw = {} if prune is None else {"prune": prune}
     l1, _ = blend(basis, manifold, x=x, component="l1", **kw)
+    scale = blend(basis, manifold, x=x, **kw)[0] if "l2+" in basis.components else l1
     points = latent_points(basis, manifold, x)
     scene, max_depth = scenes.scene_at(scene or m["scene"], manifold_path or m["manifold"], points, None,
                                        basis.resolution, m["max_depth"], m["variant"], basis.targets, database)
@@ -113,19 +127,22 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
             if integrator.should_stop():
                 stop.requested = True
             stop.check()
-            yield _estimate(l1, total, total2, done, k + 1, time.perf_counter() - t0)
+            yield _estimate(l1, total, total2, done, k + 1, time.perf_counter() - t0, scale)
 
 
-def _estimate(l1, total, total2, done, passes, seconds):
-    """The refined image from the spp-weighted sums of the pass images and their squares."""
+def _estimate(l1, total, total2, done, passes, seconds, scale=None):
+    """The refined image from the spp-weighted sums of the pass images and their squares
+    (``scale``: of :class:`Refined`; default the refined image)."""
     rest = total / done
     if passes > 1:   # sum_k n_k (img_k - rest)^2 / (passes - 1) estimates a sample's variance
         se = np.sqrt(np.maximum(total2 - done * rest * rest, 0.0) / ((passes - 1) * done))
     else:
         se = np.full_like(rest, np.nan)
     image = (l1 + rest).astype(np.float32)
-    noise = float(np.mean(se ** 2 / (image.astype(np.float64) ** 2 + REL_EPS))) if passes > 1 else float("nan")
-    return Refined(image, l1, rest.astype(np.float32), se.astype(np.float32), noise, int(done), passes, seconds)
+    ref = np.asarray(image if scale is None else scale, np.float64)
+    noise = float(np.mean(se ** 2 / (ref ** 2 + REL_EPS))) if passes > 1 else float("nan")
+    return Refined(image, l1, rest.astype(np.float32), se.astype(np.float32), noise, int(done), passes, seconds,
+                   None if scale is None else np.asarray(scale, np.float32))
 
 
 def refine(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, prune=None):

@@ -55,7 +55,7 @@ def agreement(blend_image, refined):
     the better one (``agrees`` False); ``None`` after one pass (no noise estimate yet)."""
     if refined.passes < 2:
         return {"noise_rel_mse": None, "blend_rel_mse": None, "agrees": None}
-    diff = metrics.compare(blend_image, refined.image)["rel_mse"]
+    diff = refined.rel_mse(blend_image)   # on the same scale as its noise
     return {"noise_rel_mse": refined.noise_rel_mse, "blend_rel_mse": diff,
             "agrees": bool(diff <= 2.0 * refined.noise_rel_mse)}
 
