@@ -24,7 +24,8 @@ import time
 
 from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND, KINDS as PATH_KINDS
 from ...manifold.pruning import DEFAULT_PRUNE
-from .common import ERRORS, ArgumentParser, fail, guarded, parse_floats, reference_view
+from .common import (ERRORS, ArgumentParser, check_writable, fail, guarded, parse_floats, parse_floats_or_name,
+                     reference_view, resolve_names)
 
 NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
 
@@ -92,7 +93,7 @@ def parse(argv=None):
     x = None
     if args.x:   # numbers, or (one word) a measured material's name, resolved with the manifold
         try:
-            x = [v for group in args.x for v in _named_or_floats(group)]
+            x = [v for group in args.x for v in parse_floats_or_name(group)]
         except argparse.ArgumentTypeError as e:
             fail(f"--x: {e}")
     args.x = x
@@ -118,37 +119,10 @@ def parse(argv=None):
     validate.fraction("--prune", args.prune)
     validate.seed("--seed", args.seed)
     basis_ownership.check_output_outside_basis(args.out, args.basis)
-    _check_writable(args.out)
+    check_writable("--out", args.out)
     for kind, path in planned(args):   # names and kinds of targets (their owners: before writing)
         ownership.check_replaceable(path, args.force, what=kind, owner=False)
     return args
-
-
-def _named_or_floats(group):
-    """One ``--x`` group: its numbers, or ``[name]`` for a single word that is not a number."""
-    if len(group) == 1 and "," not in group[0] and not re.fullmatch(r"[-+.\d].*", group[0]):
-        return [group[0]]
-    return parse_floats(" ".join(group))
-
-
-def _resolve_names(args, manifold):
-    """``args.x`` with each material name replaced by its latent point (q numbers)."""
-    if args.x is not None and any(isinstance(v, str) for v in args.x):
-        args.x = [float(c) for v in args.x for c in
-                  (manifold.latent[manifold.index(v)] if isinstance(v, str) else [v])]
-
-
-def _check_writable(out):
-    """Fail before any work when the folder of ``--out`` (or its nearest existing parent) cannot be written."""
-    folder = os.path.dirname(os.path.abspath(out))
-    while not os.path.exists(folder) and os.path.dirname(folder) != folder:
-        folder = os.path.dirname(folder)
-    import tempfile
-    try:   # a real probe: permission bits do not stop root, a read-only or virtual file system does
-        with tempfile.TemporaryFile(dir=folder, prefix=".blend-probe-"):
-            pass
-    except OSError as e:
-        fail(f"--out {out}: cannot write in {folder} ({e.strerror or e}); choose another --out")
 
 
 def frame_names(args):
@@ -397,7 +371,7 @@ def main(argv=None):
     try:
         basis = Basis.load(args.basis, manifold=args.manifold, scene=args.scene)
         manifold = basis.check_manifold(args.manifold)
-        _resolve_names(args, manifold)
+        args.x = resolve_names(args.x, manifold)
         print(basis)
         if args.path is not None:
             outputs = path_outputs(args, basis, manifold)
