@@ -93,6 +93,12 @@ class References:
         self._pool.submit(self._run_refine, job, basis, manifold, blend_image, where)
         return job
 
+    def supersede_refine(self):
+        """A drag began: the running refinement stops after its pass, the queued ones never start
+        (they would take the frames' CPU)."""
+        with self._lock:
+            self._latest_refine = None
+
     def _trim(self):
         for old in list(self._jobs)[:-KEEP_JOBS]:
             if self._jobs[old].state in ("done", "failed"):

@@ -171,8 +171,7 @@ class Explorer:
         return last[1]
 
     def frame(self, name, x, exposure=0.0, fmt="jpeg", coarse=False):
-        """Encoded frame of ``x``: ``(bytes, meta)`` (size, times in ms). ``coarse`` (a drag running):
-        the L2+ part as summed, not denoised (OIDN: 50-100 ms at 256x256); asked again at rest."""
+        """Encoded frame of ``x``: ``(bytes, meta)``. ``coarse`` (a drag): L2+ summed, not denoised."""
         if fmt not in encode.FORMATS:
             raise InputError(f"format must be one of {encode.FORMATS}, got {show(fmt)}")
         t0 = time.perf_counter()
@@ -375,8 +374,8 @@ class Explorer:
     def start_refine(self, name, x, spp):
         """A refinement of the blend at ``x`` (``blend.py --refine``) in the background."""
         name, basis, scene, spp, img = self._job_args(name, x, spp, 16)
-        return self.references.submit_refine(name, basis, self.manifold, x, spp, img, scene=scene,
-                                             manifold_path=self.manifold_path, prune=self.prune)
+        where = {"scene": scene, "manifold_path": self.manifold_path, "prune": self.prune}
+        return self.references.submit_refine(name, basis, self.manifold, x, spp, img, **where)
 
     def reference_image(self, job_id, which, exposure=0.0):
         job = self.references.get(job_id)

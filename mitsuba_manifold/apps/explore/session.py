@@ -10,7 +10,8 @@ a frame. Every answer is a binary message ``[uint32 n][n bytes of JSON meta][pay
 meta repeats the request's ``seq`` and the point ``x`` it is for, so the page can drop an
 answer that arrives after a newer one. ``"coarse": true`` (a drag running) asks for the cheap
 answers: a table of every other texel, a map of a quarter of the pixels, a material without the
-distance to the closest measured one; the page asks again in full when the drag rests.
+distance to the closest measured one, a frame whose L2+ part is summed, not denoised (also while
+``"held": true``, the pointer still down); the page asks again in full when the drag rests.
 
 Malformed input never reaches a traceback: a bad request is answered with
 ``{"type": "error", "kind", "seq", "error"}``; a binary message or one larger than
@@ -157,8 +158,11 @@ class Session:
         tag = {"type": kind, "x": [float(v) for v in x]}
         if kind == "frame":
             exposure = ex.number(req.get("exposure"), "exposure", -20, 20, 0.0)
+            coarse = req.get("coarse") is True or req.get("held") is True
+            if coarse:   # a drag: no refinement competes with its frames for the CPU
+                ex.references.supersede_refine()
             data, meta = await run_in_threadpool(ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"),
-                                                 req.get("coarse") is True)
+                                                 coarse)
             return dict(meta, exposure=exposure, basis=ex.key(req.get("basis")), **tag), data
         if kind == "material":
             with_slice, live = req.get("slice", True) is not False, req.get("coarse") is True

@@ -97,11 +97,12 @@ function live() { return state.dragging || performance.now() < state.liveUntil; 
 function sendMove(resting = false) {
   moveQueued = false;
   const now = performance.now(), dragging = !resting && live(), want = [];
+  const held = dragging || state.dragging;   // pointer still down: frames stay summed (denoising takes 50-100 ms)
   for (const kind of ["frame", "table", "material", "snippet"]) {
     if (kind === "table" && state.info.tables !== "ready") continue;
-    const last = asked[kind];
-    if (last && sameX(last[1], state.x) && !(last[2] && !dragging)) continue;   // a coarse table is asked again at rest
-    if (!dragging || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x, dragging && (kind === "table" || kind === "material" || kind === "frame")]; }
+    const last = asked[kind], d = kind === "frame" ? held : dragging;
+    if (last && sameX(last[1], state.x) && !(last[2] && !d)) continue;   // a coarse answer is asked again at rest
+    if (!d || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x, d && kind !== "snippet"]; }
   }
   const key = sliceKey();   // a new slice while dragging: a coarse map, the full one at rest
   if (key !== state.mapKey) { state.mapKey = key; state.mapCoarse = dragging; want.push("map"); }
@@ -113,7 +114,7 @@ function sendMove(resting = false) {
   // slice: false: the page draws the BRDF slice itself, from the table (plots.js)
   // coarse: while dragging the sphere's table has every other texel (an eighth of the bytes), a new
   // slice's map a quarter of the pixels, the material no distance to the closest measured one
-  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom, slice: false, coarse: dragging },
+  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom, slice: false, coarse: dragging, held },
                              frameRequest()), want);
 }
 function owe(dragging) {   // kinds not asked for the point shown yet (counted by channel.pending())
