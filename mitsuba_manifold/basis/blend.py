@@ -36,7 +36,7 @@ import numpy as np
 from .crossterms import cross_weights
 from .folder import Basis
 from ..errors import MismatchError
-from .compose import _timed, compose
+from .compose import compose, read_cross
 from .denoise import BasisAOVs, denoise, denoised_l2
 from ..imaging.io import printable
 from ..manifold.pruning import DEFAULT_PRUNE
@@ -221,7 +221,7 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
     manifold = basis.check_manifold(manifold)
     used, note = resolve_component(basis, component)
     _check_l2(l2)
-    t_cross = _timed(basis.cross_terms) if used == "full" else 0.0   # from disk once (reading, not blending)
+    t_cross = read_cross(basis, used)
     t0 = time.perf_counter()
     W, pts = _target_weights(basis, manifold, x, w)
     keys, cw, info = _plan(basis, manifold, W, prune, renormalise, used)
@@ -231,8 +231,7 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
     t_den = 0.0
     if used == "full" and l2 == "denoised" and basis.p == 1:
         t0 = time.perf_counter()
-        l1_keys, l1_weights, _ = _plan(basis, manifold, W, prune, renormalise, "l1")
-        image = denoised_l2(basis, image, l1_keys, l1_weights)
+        image = denoised_l2(basis, image, info["keys"], info["image_weights"])   # the L1- images of the point
         t_den = time.perf_counter() - t0
     info.update(component=used, component_note=note, x=None if pts is None else (pts[0] if basis.p == 1 else pts),
                 time_ms=1e3 * (t_plan + t_sum + t_den), time_read_s=t_read, n_images=len(keys),
@@ -333,6 +332,7 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         fixed = latent_points(basis, manifold, x)
     used, note = resolve_component(basis, component)
     _check_l2(l2)
+    t_cross = read_cross(basis, used)
     t0 = time.perf_counter()
     plans = []
     for xi in xs:
@@ -354,11 +354,11 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         cross = (np.array(rows, dtype=np.intp), C)
     t_plan = time.perf_counter() - t0
     images, t_read, t_sum = compose(basis, keys, M, cross)
+    t_read += t_cross
     t0 = time.perf_counter()
     if used == "full" and l2 == "denoised" and basis.p == 1:   # as blend(): each step's L2+ part denoised
-        for s_, (xi, img) in enumerate(zip(xs, images)):
-            k1, w1, _ = _plan(basis, manifold, manifold.weights(xi[None])[1], prune, renormalise, "l1")
-            images[s_] = denoised_l2(basis, img, k1, w1)
+        for s_, ((_, _, inf), img) in enumerate(zip(plans, images)):
+            images[s_] = denoised_l2(basis, img, inf["keys"], inf["image_weights"])
     for (_, _, inf), xi in zip(plans, xs):
         inf["x"] = xi
     return images, xs, {"steps": [p[2] for p in plans], "time_ms": 1e3 * (t_plan + t_sum), "time_read_s": t_read,

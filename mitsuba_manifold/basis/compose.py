@@ -11,11 +11,10 @@ def compose(basis, keys, weights, cross=None):
     """Eq. 13: ``base + sum_j weights[..., j] image(keys[j])`` (no base with several targets),
     plus ``sum_r products[..., r] C[rows[r]]`` with ``cross = (rows, products)`` (full GI).
 
-    Returns the image(s), the seconds spent reading images and the seconds of the sum.
+    Returns the image(s), the seconds spent reading images and the seconds of the sum (the
+    cross terms, which planning the blend needs, are read before: :func:`.blend.blend`).
     """
     t_read = basis.read(keys + ([BASE] if basis.p == 1 else []))
-    if cross is not None:
-        t_read += _timed(basis.cross_terms)
     t0 = time.perf_counter()
     images = basis.weighted_sum(keys, weights)
     if basis.p == 1:
@@ -38,7 +37,11 @@ def _add_cross(images, basis, rows, products):
     images += np.tensordot(products, basis.cross_terms()[1][rows].astype(np.float32), axes=1)
 
 
-def _timed(fn):
+def read_cross(basis, component):
+    """Seconds reading the cross terms of a ``component`` ("full" or "l1") blend from disk (once
+    per basis; before planning the blend, which needs them)."""
+    if component != "full":
+        return 0.0
     t0 = time.perf_counter()
-    fn()
+    basis.cross_terms()
     return time.perf_counter() - t0
