@@ -10,6 +10,7 @@ import math
 import numbers
 import os
 import re
+import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 
@@ -185,8 +186,11 @@ def output_folder(name, path):
         probe = os.path.dirname(probe)
     if not os.path.isdir(probe):
         raise InputError(f"{name} {path}: {probe} is a file, not a folder")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise InputError(f"{name} {path}: folder {probe} is not writable")
+    try:   # a real probe: permission bits do not stop root, a read-only or virtual file system does
+        with tempfile.TemporaryFile(dir=probe, prefix=".probe-"):
+            pass
+    except OSError as e:
+        raise InputError(f"{name} {path}: cannot write in folder {probe} ({e.strerror or e})") from None
     return path
 
 

@@ -24,8 +24,8 @@ import time
 
 from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND, KINDS as PATH_KINDS
 from ...manifold.pruning import DEFAULT_PRUNE
-from .common import (ERRORS, ArgumentParser, check_writable, fail, guarded, parse_floats, parse_floats_or_name,
-                     reference_view, resolve_names)
+from .common import (ERRORS, ArgumentParser, fail, guarded, parse_floats, parse_floats_or_name, reference_view,
+                     resolve_names)
 
 NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
 
@@ -119,7 +119,7 @@ def parse(argv=None):
     validate.fraction("--prune", args.prune)
     validate.seed("--seed", args.seed)
     basis_ownership.check_output_outside_basis(args.out, args.basis)
-    check_writable("--out", args.out)
+    validate.output_folder("--out", os.path.dirname(os.path.abspath(args.out)))   # before any work
     for kind, path in planned(args):   # names and kinds of targets (their owners: before writing)
         ownership.check_replaceable(path, args.force, what=kind, owner=False)
     return args

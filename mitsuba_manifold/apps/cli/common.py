@@ -111,20 +111,6 @@ def resolve_names(x, manifold):
     return [float(c) for v in x for c in (manifold.latent[manifold.index(v)] if isinstance(v, str) else [v])]
 
 
-def check_writable(option, out):
-    """Fail before any work when the folder of ``out`` (or its nearest existing parent) cannot be written."""
-    import os
-    import tempfile
-    folder = os.path.dirname(os.path.abspath(out))
-    while not os.path.exists(folder) and os.path.dirname(folder) != folder:
-        folder = os.path.dirname(folder)
-    try:   # a real probe: permission bits do not stop root, a read-only or virtual file system does
-        with tempfile.TemporaryFile(dir=folder, prefix=".probe-"):
-            pass
-    except OSError as e:
-        fail(f"{option} {out}: cannot write in {folder} ({e.strerror or e}); choose another {option}")
-
-
 def cli_message(error, parser=None):
     """``error`` as one line for a command-line user: each Python parameter the library named
     (`spp`) becomes the option that sets it (``--spp``), or plain text where none does."""
