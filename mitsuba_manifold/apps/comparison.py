@@ -203,7 +203,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
         l1_bias, l1_se = relative_bias(l1, ref)
         row["blend_l1"] = {**metrics.compare(l1, ref), "relative_bias": l1_bias, "relative_bias_se": l1_se}
     if opts.refine_spp:
-        row["refined"] = _refined_row(b, m, x, ref, opts)
+        row["refined"] = refined_row(b, m, x, ref, opts.refine_spp, opts.seed + 104729)
     guides = den = None
     if aovs is not None:
         guides = (aovs.albedo_of_blend(info, b.manifest["version"]), aovs.normal)
@@ -221,12 +221,15 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
     return row, (img, ref, den)
 
 
-def _refined_row(b, m, x, ref, opts):
-    """``blend.py --refine`` at ``x`` (:func:`~mitsuba_manifold.render.refine.refine`): time, error, noise."""
+def refined_row(b, m, x, ref, spp, seed, warm=False):
+    """``blend.py --refine spp`` at ``x`` (:func:`~mitsuba_manifold.render.refine.refine`) against
+    ``ref``: time, error, bias, the noise it estimates; ``warm``: its kernels compiled first."""
+    if warm:
+        refine(b, m, x=x, spp=1, passes=1, seed=seed)
     t0 = time.perf_counter()
-    r = refine(b, m, x=x, spp=opts.refine_spp, passes=min(4, opts.refine_spp), seed=opts.seed + 104729)
+    r = refine(b, m, x=x, spp=spp, passes=min(4, spp), seed=seed)
     bias, se = relative_bias(r.image, ref)
-    return {"spp": opts.refine_spp, "time_s": time.perf_counter() - t0, **metrics.compare(r.image, ref),
+    return {"spp": spp, "time_s": time.perf_counter() - t0, **metrics.compare(r.image, ref),
             "relative_bias": bias, "relative_bias_se": se, "noise_rel_mse": r.noise_rel_mse}
 
 

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from ..comparison import gi_pair, gi_points, gi_report, relative_bias
+from ..comparison import gi_pair, gi_points, gi_report, refined_row, relative_bias
 from ...basis.blend import blend
 from ...basis.folder import Basis
 from ...imaging import metrics
@@ -92,7 +92,7 @@ def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), r
                 row[comp] = {"relative_bias": bias, "relative_bias_se": se,
                              "rel_mse": metrics.compare(img, ref)["rel_mse"], "component": info["component"],
                              "images": info["n_images"], "cross_terms": len(info["cross"][0]) if info["cross"] else 0}
-            row["refined"] = _refined(b_l1, m, x, ref, max(1, direct_spp // 4), seed)
+            row["refined"] = refined_row(b_l1, m, x, ref, max(1, direct_spp // 4), seed + 101, warm=True)
             rows.append(row)
             if log:
                 log(f"{name} {kind} ({label}): bias L1- {100 * row['l1']['relative_bias']:+.2f}%, full "
@@ -111,16 +111,6 @@ def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), r
             log(f"{name}: basis L1- {t_l1:.1f} s {s_l1 / 1e6:.2f} MB, full GI {t_gi:.1f} s {s_gi / 1e6:.2f} MB "
                 f"({t_gi / t_l1:.2f}x), holds {gi['components']}, left out {gi.get('left_out', {})}")
     return report
-
-
-def _refined(basis, manifold, x, ref, spp, seed):
-    """``blend.py --refine spp`` at ``x`` (:func:`~mitsuba_manifold.render.refine.refine`) against ``ref``."""
-    from ...render.refine import refine
-    refine(basis, manifold, x=x, spp=1, passes=1, seed=seed)   # compiles its kernels
-    t0 = time.perf_counter()
-    r = refine(basis, manifold, x=x, spp=spp, passes=min(4, spp), seed=seed + 101)
-    return {"spp": spp, "time_s": time.perf_counter() - t0, "rel_mse": metrics.compare(r.image, ref)["rel_mse"],
-            "relative_bias": relative_bias(r.image, ref)[0], "noise_rel_mse": r.noise_rel_mse}
 
 
 def blend_time(manifold, out, res=256, scene="table", spp=1, points=20, log=print):
