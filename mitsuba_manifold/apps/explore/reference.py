@@ -107,19 +107,28 @@ class References:
     def _run_refine(self, job, basis, manifold, blend_image, where):
         from ...render.refine import refine_passes
 
-        job.state, t0 = "rendering", time.perf_counter()
-        try:
-            if job.id != self._latest_refine:   # queued behind a newer one: never started
-                raise RuntimeError("superseded by a newer refinement")
-            passes = max(1, min(4, job.spp))
-            for r in refine_passes(basis, manifold, x=np.asarray(job.x), spp=job.spp, passes=passes, **where):
-                if self._stopping:
-                    raise RuntimeError("the server is stopping")
-                if job.id != self._latest_refine:
-                    raise RuntimeError("superseded by a newer refinement")
+        def passes():
+            self._check_current(job)   # queued behind a newer one: never started
+            for r in refine_passes(basis, manifold, x=np.asarray(job.x), spp=job.spp, passes=max(1, min(4, job.spp)),
+                                   **where):
+                self._check_current(job)
                 job.images = {"blend": blend_image, "refined": r.image}
                 job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of L2+"
                 job.error = agreement(blend_image, r)
+        self._execute(job, passes)
+
+    def _check_current(self, job):
+        if self._stopping:
+            raise RuntimeError("the server is stopping")
+        if job.id != self._latest_refine:
+            raise RuntimeError("superseded by a newer refinement")
+
+    @staticmethod
+    def _execute(job, work):
+        """Run ``work()`` as ``job``: its state, its failure shown on the page, its seconds."""
+        job.state, t0 = "rendering", time.perf_counter()
+        try:
+            work()
             job.state = "done"
         except Exception as e:  # shown on the page; the server keeps running
             job.state, job.message = "failed", f"{type(e).__name__}: {e}"
@@ -131,15 +140,10 @@ class References:
             return self._jobs.get(job_id)
 
     def _run(self, job, basis, scene, manifold_path, blend_image):
-        job.state, t0 = "rendering", time.perf_counter()
-        try:
+        def render():
             job.images = {"blend": blend_image, "reference": self._render(job, basis, scene, manifold_path)}
             job.error = metrics.compare(blend_image, job.images["reference"])
-            job.state = "done"
-        except Exception as e:  # shown on the page; the server keeps running
-            job.state, job.message = "failed", f"{type(e).__name__}: {e}"
-        finally:
-            job.seconds = time.perf_counter() - t0
+        self._execute(job, render)
 
     def _render(self, job, basis, scene_path, manifold_path):
         """The reference image of a job, in passes; stops between passes when the server does."""
