@@ -193,6 +193,11 @@ def _database_and_manifold(job, log, stages):
     return db_dir, manifold_path
 
 
+def _beside(label, r, took=""):
+    """An indented line of :func:`_log_points`: another image of the point, its error and bias."""
+    return f"{'':>12s} {label}: {took}rel. MSE {r['rel_mse']:.3g}, bias {100 * r['relative_bias']:+.2f}%"
+
+
 def _log_points(points, top, log):
     """One line per point of the GI report (two when denoised), with its targets against the
     direct render at ``top`` spp (added to each row as ``versus_direct``)."""
@@ -206,15 +211,12 @@ def _log_points(points, top, log):
             f"{'lower' if v['meets_error_target'] else 'HIGHER'} error")
         if "blend_summed" in row:
             r = row["blend_summed"]
-            log(f"{'':>12s} L2+ as summed (--l2 raw; the explorer while dragging): {1e3 * r['time_s']:.1f} ms, "
-                f"rel. MSE {r['rel_mse']:.3g}, bias {100 * r['relative_bias']:+.2f}%")
+            log(_beside("L2+ as summed (--l2 raw; the explorer while dragging)", r, f"{1e3 * r['time_s']:.1f} ms, "))
         if "blend_l1" in row:
-            log(f"{'':>12s} L1- blend (no L2+): rel. MSE {row['blend_l1']['rel_mse']:.3g}, bias "
-                f"{100 * row['blend_l1']['relative_bias']:+.2f}%")
+            log(_beside("L1- blend (no L2+)", row["blend_l1"]))
         if "refined" in row:
             r = row["refined"]
-            log(f"{'':>12s} refined ({r['spp']} spp of L2+): {r['time_s']:.2f} s, rel. MSE {r['rel_mse']:.3g}, "
-                f"bias {100 * r['relative_bias']:+.2f}%")
+            log(_beside(f"refined ({r['spp']} spp of L2+)", r, f"{r['time_s']:.2f} s, "))
         if "denoised" in b:
             log(f"{'':>12s} whole image denoised (OIDN, albedo+normal): blend "
                 f"{1e3 * b['denoised']['time_s']:.0f} ms, "
