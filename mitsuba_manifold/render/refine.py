@@ -80,7 +80,7 @@ def _rest_integrator(basis, max_depth):
 
 
 def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, stop=None, prune=None,
-                  scene=None, manifold_path=None):
+                  scene=None, manifold_path=None, blend_image=None):
     """Yield a :class:`Refined` estimate after each of ``passes`` passes (``spp`` in all).
 
     Parameters
@@ -104,6 +104,9 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     scene, manifold_path : str, optional
         The scene and manifold files to render (default: the manifest's; the explorer passes
         the ones it resolved, e.g. ``--scene``).
+    blend_image : ndarray, optional
+        The basis's blend of the point (:class:`Refined` ``scale``), when the caller has it
+        (the explorer does); default: blended here.
     """
     import mitsuba as mi
 
@@ -111,7 +114,9 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     m = basis.manifest
     kw = {} if prune is None else {"prune": prune}
     l1, _ = blend(basis, manifold, x=x, component="l1", **kw)
-    scale = blend(basis, manifold, x=x, **kw)[0] if "l2+" in basis.components else l1
+    scale = blend_image
+    if scale is None:
+        scale = blend(basis, manifold, x=x, **kw)[0] if "l2+" in basis.components else l1
     points = latent_points(basis, manifold, x)
     scene, max_depth = scenes.scene_at(scene or m["scene"], manifold_path or m["manifold"], points, None,
                                        basis.resolution, m["max_depth"], m["variant"], basis.targets, database)

@@ -110,7 +110,7 @@ class References:
         def passes():
             self._check_current(job)   # queued behind a newer one: never started
             for r in refine_passes(basis, manifold, x=np.asarray(job.x), spp=job.spp, passes=max(1, min(4, job.spp)),
-                                   **where):
+                                   blend_image=blend_image, **where):
                 self._check_current(job)
                 job.images = {"blend": blend_image, "refined": r.image}
                 job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of L2+"
