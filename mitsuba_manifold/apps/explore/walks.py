@@ -26,7 +26,7 @@ from concurrent.futures import Future
 
 import numpy as np
 
-from ...data.distance import Quadrature
+from ...data.distance import Quadrature, gram_distances
 from ...errors import InputError
 from ...manifold import paths
 
@@ -58,10 +58,10 @@ class Walks:
         self.metric = paths.PathMetric(manifold, rows=rows)
         measured = self.metric.quad.features(self.metric.rows).astype(np.float32)
         self._measured, self._measured_sq = measured, np.einsum("nk,nk->n", measured, measured, dtype=np.float64)
-        gram = np.maximum(self._measured_sq[:, None] + self._measured_sq[None] - 2.0 * (measured @ measured.T), 0)
-        np.fill_diagonal(gram, np.inf)
+        D = gram_distances([(measured, measured)])
+        np.fill_diagonal(D, np.inf)
         #: median distance of a measured material to its nearest measured neighbour (a scale)
-        self.spacing = float(np.median(np.sqrt(gram.min(axis=1)))) if manifold.n > 1 else 1.0
+        self.spacing = float(np.median(D.min(axis=1))) if manifold.n > 1 else 1.0
         self._paths, self._lock = OrderedDict(), threading.Lock()
         self._queue = queue.Queue()
         self._thread = threading.Thread(target=self._work, name="explore-paths", daemon=True)
