@@ -47,7 +47,12 @@ async function refineHere() {
       await new Promise((r) => setTimeout(r, 300));
     }
   } catch (err) { say("refine: " + err.message); return; }
-  if (run === refineRun && !state.refined) { status.textContent = ""; button.hidden = true; }   // moved on
+  if (run === refineRun && !state.refined) clearRefined();   // moved on before an answer
+}
+
+function clearRefined() {   // back to blends: the refined image and the last check are gone
+  state.refined = null; delete $("scene").dataset.refined;
+  $("refine-status").textContent = ""; $("refine-show").hidden = true;
 }
 
 async function showRefined(job, x, basis, current) {
@@ -66,9 +71,6 @@ function keepsRefined(meta) {
   const r = state.refined;
   if (r && sameX(meta.x, r.x) && meta.basis === r.basis && meta.exposure === r.exposure && sameX(r.x, state.x)
       && state.basis === r.basis) return true;
-  if (r || state.dragging) {   // back to blends: the refined image and the last check are gone
-    state.refined = null; delete $("scene").dataset.refined;
-    $("refine-status").textContent = ""; $("refine-show").hidden = true;
-  }
+  if (r || state.dragging) clearRefined();
   return false;
 }
