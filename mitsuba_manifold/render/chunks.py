@@ -345,8 +345,9 @@ def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force
 
 def _chooses_pairs(options):
     """Whether a chunk of ``options`` chooses cross-term pairs on its first pass."""
+    from .render_basis import BasisOptions
     return (options.get("mode") == "onepass" and options.get("components") == "auto"
-            and options.get("cross_light_tol", 0.005) and options.get("cross_keep") is None)
+            and options.get("cross_light_tol", BasisOptions.cross_light_tol) and options.get("cross_keep") is None)
 
 
 def _first_choice(folder):
