@@ -192,15 +192,16 @@ def denoised_l2(basis, image, keys, weights):
     return out.astype(np.float32)
 
 
+def _aovs_or_none(basis):
+    try:
+        return BasisAOVs.load(basis.folder, basis.manifest)
+    except MismatchError:
+        return None
+
+
 def _guides(basis, info):
     """``(albedo, normal)`` of a one-target L1- blend from the basis's AOVs, or ``(None, None)``."""
-    aovs = basis.__dict__.get("_aovs_for_l2")
-    if aovs is None:
-        try:
-            aovs = BasisAOVs.load(basis.folder, basis.manifest)
-        except MismatchError:
-            aovs = False
-        basis._aovs_for_l2 = aovs
+    aovs = basis.derived("aovs", _aovs_or_none)
     if not aovs:
         return None, None
     try:

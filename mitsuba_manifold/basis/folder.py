@@ -87,6 +87,7 @@ class Basis:
         self.legacy = "components" not in manifest
         self._cross = None  # (pairs {(a, b): row}, float16 (P, H, W, 3)) once read
         self._cross32 = {}  # row -> float32 (H, W, 3), the rows blended so far
+        self._derived = {}  # name -> what derived() made from the folder's files
 
     @classmethod
     def load(cls, folder, manifold=None, scene=None, verify=False):
@@ -130,6 +131,13 @@ class Basis:
         if verify:
             basis.verify()
         return basis
+
+    def derived(self, name, make):
+        """``make(self)`` once per basis object, kept under ``name``: what other modules read from
+        the folder's files (e.g. its AOVs for denoising) without re-reading them per blend."""
+        if name not in self._derived:
+            self._derived[name] = make(self)
+        return self._derived[name]
 
     def __repr__(self):
         return (f"Basis({self.folder!r}: {len(self.keys)} images, targets {self.targets}, "
