@@ -108,10 +108,19 @@ class HeldOut(_Report):
     albedo_max: np.ndarray
     fit_s: float
     project_s: float
+    fold: np.ndarray
+
+    def fold_ratios(self):
+        """Median per-material ratio to the nearest training material, fold by fold: how the
+        measure varies on sets of held-out materials of the size one check sees."""
+        ratio = self.error / self.nearest
+        return np.array([np.median(ratio[self.fold == f]) for f in np.unique(self.fold)])
 
     def summary(self):
         ratio = self.error / self.nearest
-        return {"n": len(self.names), "median_error": float(np.median(self.error)),
+        by_fold = self.fold_ratios()
+        return {"fold_median_ratios": by_fold.tolist(), "worst_fold_median_ratio": float(by_fold.max()),
+                "n": len(self.names), "median_error": float(np.median(self.error)),
                 "worst_error": float(self.error.max()),
                 "median_nearest": float(np.median(self.nearest)), "median_pca_q": float(np.median(self.pca_q)),
                 "median_pca5": float(np.median(self.pca5)), "median_mean": float(np.median(self.mean)),
@@ -153,7 +162,7 @@ def cross_validate(tables, names, fit, G_error, q, albedos, *, k=10, seed=0, bin
     bins = projection.search_bins(d) if bins is None else bins
     rows = {f: [] for f in ("error", "negative_fraction", "albedo_min", "albedo_max")}
     base = {"nearest": [], "pca_q": [], "pca5": [], "mean": []}
-    order, fit_s, proj_s = [], 0.0, 0.0
+    order, fold_of, fit_s, proj_s = [], [], 0.0, 0.0
     for fold, test in enumerate(folds(n, k, seed)):
         if only_folds is not None and fold not in only_folds:
             continue
@@ -173,11 +182,13 @@ def cross_validate(tables, names, fit, G_error, q, albedos, *, k=10, seed=0, bin
             rows["albedo_min"].append(float(a.min()))
             rows["albedo_max"].append(float(a.max()))
             order.append(t)
+            fold_of.append(fold)
         proj_s += time.perf_counter() - t0
         if progress:
             progress(fold)
     return HeldOut(names=[names[i] for i in order], **{k_: np.asarray(v) for k_, v in rows.items()},
-                   **{k_: np.concatenate(v) for k_, v in base.items()}, fit_s=fit_s, project_s=proj_s)
+                   **{k_: np.concatenate(v) for k_, v in base.items()}, fit_s=fit_s, project_s=proj_s,
+                   fold=np.asarray(fold_of))
 
 
 # ------------------------------------------------------------------ smoothness
@@ -212,6 +223,13 @@ def neighbour_pairs(latent, n_pairs=20, seed=0, include=()):
         if p not in pairs and p[::-1] not in pairs:
             pairs.append(p)
     return pairs
+
+
+def all_neighbour_pairs(latent):
+    """Every pair (i, nearest latent neighbour of i), each once, sorted: the pair set no seed chooses."""
+    d2 = ((latent[:, None] - latent[None]) ** 2).sum(-1)
+    np.fill_diagonal(d2, np.inf)
+    return sorted({tuple(sorted((i, int(j)))) for i, j in enumerate(d2.argmin(axis=1))})
 
 
 def step_share(steps):

@@ -294,3 +294,23 @@ def test_cross_validation_runs_and_reports(default, small_db):
     s = held.summary()
     assert s["n"] == 2 and (held.error <= held.nearest + 1e-6).all() and s["worst_negative_fraction"] == 0
     assert json.dumps(held.as_dict())
+    assert len(held.fold_ratios()) == 1 and s["worst_fold_median_ratio"] == pytest.approx(
+        np.median(held.error / held.nearest))
+
+
+def test_all_neighbour_pairs_hold_every_materials_nearest_neighbour_once():
+    latent = np.random.default_rng(2).normal(size=(30, 3))
+    pairs = space.all_neighbour_pairs(latent)
+    d = np.linalg.norm(latent[:, None] - latent[None], axis=-1) + np.diag(np.full(30, np.inf))
+    assert len(pairs) == len(set(pairs)) and all(i < j for i, j in pairs)
+    assert all(tuple(sorted((i, int(d[i].argmin())))) in pairs for i in range(30))
+    assert all(d[i, j] == d[i].min() or d[i, j] == d[j].min() for i, j in pairs)
+
+
+def test_convex_blend_reference_recovers_a_blend_of_two_tables():
+    from mitsuba_manifold.apps.bench.space import _convex_blend
+    rng = np.random.default_rng(3)
+    A = rng.uniform(0.0, 5.0, (4, 500))
+    y = np.log1p(0.3 * A[1] + 0.7 * A[2])
+    w = _convex_blend(A, y)
+    assert w == pytest.approx([0.0, 0.3, 0.7, 0.0], abs=1e-3) and w.sum() == pytest.approx(1.0)

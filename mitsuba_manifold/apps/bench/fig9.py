@@ -93,15 +93,7 @@ def _preset_report(m, sets, kinds, progress):
     for kind in kinds:
         rows, times = {}, []
         for group, pairs in sets.items():
-            rows[group] = []
-            for a, b in pairs:
-                t0 = time.perf_counter()
-                X = paths.path(m, a, b, STEPS, kind, metric=search)
-                times.append(time.perf_counter() - t0)
-                r = measure(full.distances(X))
-                r.update(pair=[a, b], x=X.tolist(),
-                         search_deviation=measure(gram_distances([(search.features(X),) * 2]))["deviation"])
-                rows[group].append(r)
+            rows[group] = _rows(m, pairs, kind, full, search, times)
         tuned = rows["paper"] + rows["neighbours"]
         pair_a = rows["paper"][0] if rows["paper"] and rows["paper"][0]["pair"] == list(PAPER_PAIRS[0]) else None
         out["kinds"][kind] = {"tuned": summary(tuned, pair_a), "held_out": summary(rows["held_out"]),
@@ -114,6 +106,35 @@ def _preset_report(m, sets, kinds, progress):
                   f"({h['largest_step']:.3f}), median still {s['median_still']:.2f} ({h['median_still']:.2f}), "
                   f"pair (a) {s.get('pair_a_deviation', float('nan')):.3f}; {np.median(times):.2f} s a path",
                   flush=True)
+    return out
+
+
+def _rows(m, pairs, kind, full, search, times):
+    """Measured paths of ``kind`` between ``pairs``; their search times appended to ``times``."""
+    rows = []
+    for a, b in pairs:
+        t0 = time.perf_counter()
+        X = paths.path(m, a, b, STEPS, kind, metric=search)
+        times.append(time.perf_counter() - t0)
+        r = measure(full.distances(X))
+        r.update(pair=[a, b], x=X.tolist(),
+                 search_deviation=measure(gram_distances([(search.features(X),) * 2]))["deviation"])
+        rows.append(r)
+    return rows
+
+
+def every_pair_report(m, progress=True):
+    """The default kind between every material and its nearest latent neighbour (each pair once,
+    :func:`space.all_neighbour_pairs`): the pair set no seed chooses."""
+    pairs = [(m.names[i], m.names[j]) for i, j in space.all_neighbour_pairs(m.latent)]
+    with paths.single_threaded():
+        rows = _rows(m, pairs, paths.DEFAULT_KIND, paths.PathMetric(m, (1, 1, 1)), paths.PathMetric.of(m), [])
+    out = {"kind": paths.DEFAULT_KIND, **summary(rows),
+           "steps_over_target": int(sum(r["largest_step"] > TARGETS["largest_step"] for r in rows)),
+           "rows": [{k: r[k] for k in ("pair", "deviation", "largest_step", "still")} for r in rows]}
+    if progress:
+        print(f"  every neighbour pair ({len(rows)}): median deviation {out['median_deviation']:.3f}, "
+              f"largest step {out['largest_step']:.3f}, median still {out['median_still']:.2f}", flush=True)
     return out
 
 
@@ -170,6 +191,8 @@ def run(folder, presets=("default", "paper"), kinds=paths.KINDS, names=None, plo
                   flush=True)
         rep = preset_report(m, sets, kinds, progress)
         rep["fit_s"] = m.info["time_fit_s"]
+        if preset == "default":
+            rep["every_neighbour_pair"] = every_pair_report(m, progress)
         if plot_stem:
             rep["plot"] = plot(rep, f"{plot_stem}_{preset}.png", preset)
         out["presets"][preset] = rep
