@@ -52,7 +52,7 @@ def test_match_of_a_path_render_and_the_tools_reference(tmp_path, small_manifold
     opts = mr.MatchRenderOptions(iterations=2, spp=2, eval_spp=16, starts=1, max_depth=2, progress=False)
     rr = mr.match_render([mr.View(sphere, target)], small_manifold, opts, basis=out)
     assert [s["start"] for s in rr.starts][:2] == ["basis match"] * 2
-    assert np.allclose(rr.starts[0]["x0"], r.x)
+    assert rr.starts[0]["iterate"] == "start" and np.allclose(rr.starts[0]["x"], r.x)
 
 
 def test_match_render_converges_without_a_basis(tmp_path, small_manifold):

@@ -112,7 +112,8 @@ def _ad_render_time(views, manifold_path, x, opts):
 def _summary(r):
     return {"error": r.error, "errors": r.errors, "x": r.x.tolist(), "single": r.single,
             "top_weights": r.top_weights(4), "time_s": r.time_s, "time_per_iteration_s": r.time_per_iteration_s,
-            "history": r.history}
+            "history": r.history, "scan_s": r.extra["scan"]["time_s"], "from_start": r.extra["from_start"],
+            "from_iterate": r.extra["from_iterate"]}
 
 
 def _database(folder, out, n_materials):
@@ -201,11 +202,12 @@ def _timing(cbox, manifold, m, ctx, report):
     return {"primal_path_render_s": t_primal, "forward_backward_render_s": t_ad,
             "forward_backward_over_primal": t_ad / t_primal, "iteration_s_median": float(np.median(per_it)),
             "iteration_over_primal": float(np.median(per_it)) / t_primal,
-            "match_s_median": float(np.median([e["time_s"] for e in runs])), "load_average": os.getloadavg()}
+            "match_s_median": float(np.median([e["time_s"] for e in runs])),
+            "scan_s_median": float(np.median([e["scan_s"] for e in runs])), "load_average": os.getloadavg()}
 
 
 def run(folder, manifold=None, res=32, target_spp=256, n_points=10, n_held_out=10, n_materials=100, iterations=12,
-        spp=12, eval_spp=256, scan_spp=16, starts=2, max_depth=4, out=None, seed=0, part="all", held_out_range=None,
+        spp=12, eval_spp=256, scan_spp=64, starts=2, max_depth=4, out=None, seed=0, part="all", held_out_range=None,
         basis_spp=64, on_result=None):
     """Measurements of the differentiable match; see the module docstring. ``part``: ``"all"``,
     ``"random"`` or ``"held-out"`` (``held_out_range=(a, b)``: only those of the held-out list);
@@ -275,7 +277,8 @@ def merge(reports):
     t = next(r["timing"] for r in reports if "timing" in r)
     out["timing"] = dict(t, iteration_s_median=float(np.median(per_it)),
                          iteration_over_primal=float(np.median(per_it)) / t["primal_path_render_s"],
-                         match_s_median=float(np.median([e["time_s"] for e in runs])))
+                         match_s_median=float(np.median([e["time_s"] for e in runs])),
+                         scan_s_median=float(np.median([e["scan_s"] for e in runs])))
     out["summary"] = dict(summary(out), peak_rss_gib=max(r["summary"]["peak_rss_gib"] for r in reports
                                                          if "summary" in r))
     return out
