@@ -3,7 +3,7 @@ no basis): ``match.py --render`` dispatches here.
 
   match.py --render --manifold M.npz --scene cbox.xml --target t.exr [--scene S --target T ...]
            [--mask m.png ...] [--sensor 0 ...] [--basis DIR] [--iterations 30] [--spp 8]
-           [--eval-spp 64] [--starts 3] [--lr L] [--exposure-free] [--max-depth 4]
+           [--eval-spp 64] [--starts 3] [--scan-spp 16] [--lr L] [--exposure-free] [--max-depth 4]
            [--integrator prb] [--out best.exr] [--plot convergence.png] [--json match.json]
 
 Every manifold_brdf of the scenes shares one latent point x, optimised with mi.ad.Adam on the
