@@ -6,14 +6,15 @@ with ``prb``, ``dr.backward``, ``mi.ad.Adam``), on the differentiable ``x`` of `
 (:mod:`.ad`). Every ``manifold_brdf`` of every scene shares one ``x`` (one material). The
 loss is the relative MSE of :func:`imaging.metrics.rel_mse` over the masks, summed over the views.
 
-Starts: the training materials whose renders (``scan_spp``) are nearest to the targets,
-moved off their training point towards their best-ranked latent neighbour (:func:`_start_near`:
-the convex Shepard weights have a zero Jacobian at a training point, and are flat near it), and
-the basis match's point when a basis is given. The best training material itself stays a
-candidate for the result. Each start runs
-``iterations`` Adam steps (learning rate decayed to a tenth); its last iterate, its iterate
-of lowest loss and the mean of its second half's iterates are re-rendered at ``eval_spp`` with another seed, and the best becomes the
-result. ``x`` is not identifiable from one image (several points give near-identical weights):
+Starts (:mod:`.match_scan`): every training material rendered alone at ``scan_spp`` (two
+independent renders), any blend's error estimated as a quadratic form in its weights from those
+renders, free of their noise (the error of one noisy render ranks glossy materials last), L-BFGS-B
+on it, and the best candidates checked with true renders; and the basis match's point when a basis
+is given. Each start runs ``iterations`` Adam steps (learning rate decayed to a tenth); the start
+itself, its last iterate, its iterate of lowest loss and the mean of its second half's iterates are
+re-rendered at ``eval_spp`` with another seed, as are the scan's best few training materials alone
+(the best of which is ``single``), and the best becomes the result.
+``x`` is not identifiable from one image (several points give near-identical weights):
 report the weights and the image error, not the error in ``x``.
 """
 
@@ -22,8 +23,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import match_scan
 from ..errors import InputError
 from ..imaging.metrics import REL_EPS
+
+#: Training materials first in the scan's ranking re-rendered at ``eval_spp``: the best single material.
+SINGLES_CHECKED = 3
 
 
 @dataclass
@@ -39,13 +44,16 @@ class View:
 
 @dataclass
 class MatchRenderOptions:
-    """Settings of :func:`match_render` (``lr``: Adam's step in latent units; None: a typical
-    step of the data, :func:`.ad.typical_step`)."""
+    """Settings of :func:`match_render` (``lr``: Adam's step in latent units; None: a third of a
+    typical step of the data, :func:`.ad.typical_step`, since the starts are the scan's checked
+    points, already near: Adam's steps are about ``lr`` long however small the noisy gradient,
+    and a full typical step walked away from good starts). ``scan_spp``: samples per training
+    material in the scan, split over two renders (:mod:`.match_scan`)."""
 
     iterations: int = 30
     spp: int = 8
     eval_spp: int = 64
-    scan_spp: int = 4
+    scan_spp: int = 16
     starts: int = 3
     lr: float = None
     exposure: bool = False  # fit a brightness scale (least squares at every step)
@@ -189,14 +197,6 @@ class _Problem:
         return float(np.array(loss).ravel()[0]), [np.array(im) for im in images], e
 
 
-def _scan(problem, opts):
-    """Training materials ranked by their render's error (``scan_spp``): ``[(error, index)]``."""
-    m = problem.manifold
-    e = None if opts.exposure else 1.0
-    errs = [(problem.evaluate(m.latent[i], e, opts.scan_spp, opts.seed + 11)[0], i) for i in range(m.n)]
-    return sorted(errs)
-
-
 def _descend(problem, x0, opts, lr, bar):
     """Adam from ``x0`` (learning rate decayed to a tenth): ``(history, x_last, x_best, x_mean)``,
     ``x_mean`` the mean of the second half's iterates (the noisy gradients' random walk averaged)."""
@@ -261,35 +261,42 @@ def match_render(views, manifold_path, options=None, basis=None, database=None):
     t0 = time.perf_counter()
     problem = _Problem(views, manifold_path, opts, database)
     m = problem.manifold
-    lr = opts.lr if opts.lr is not None else ad.typical_step(m.latent)
-    ranked = _scan(problem, opts)
-    starts = [("material " + m.names[i], _start_near(m, i, ranked)) for _, i in ranked[:opts.starts]]
+    lr = opts.lr if opts.lr is not None else ad.typical_step(m.latent) / 3.0
+    found = match_scan.scan(problem, opts, max(1, opts.eval_spp // 4))
+    ranked, starts = found["ranked"], found["starts"]
     if basis is not None:
-        starts.insert(0, ("basis match", _basis_start(basis, m, problem.data[0][0])))
+        x_b = _basis_start(basis, m, problem.data[0][0])
+        starts.insert(0, ("basis match", match_scan.adam_start(m, x_b, ranked), x_b))
     from tqdm import tqdm
     bar = tqdm(total=len(starts) * opts.iterations, desc="match-render", disable=not opts.progress,
                leave=False)
     runs, t_iter = [], time.perf_counter()
-    for kind, x0 in starts:
+    e_fix = None if opts.exposure else 1.0
+
+    def candidate(kind, x0, which, x, history):
+        err, images, e = problem.evaluate(x, e_fix, opts.eval_spp, opts.seed + 55)
+        runs.append({"start": kind, "x0": np.asarray(x0).tolist(), "iterate": which, "x": np.asarray(x).tolist(),
+                     "error": err, "exposure": e, "images": images, "history": history})
+
+    for kind, x0, x_start in starts:
         history, x_last, x_best, x_mean = _descend(problem, x0, opts, lr, bar)
+        candidate(kind, x0, "start", x_start, history)   # the scan's point itself stays a candidate
         for which, x in (("last", x_last), ("lowest loss", x_best), ("mean of the second half", x_mean)):
-            err, images, e = problem.evaluate(x, None if opts.exposure else 1.0, opts.eval_spp, opts.seed + 55)
-            runs.append({"start": kind, "x0": np.asarray(x0).tolist(), "iterate": which, "x": x.tolist(),
-                         "error": err, "exposure": e, "images": images, "history": history})
+            candidate(kind, x0, which, x, history)
     bar.close()
     t_iter = (time.perf_counter() - t_iter) / max(1, len(starts) * opts.iterations)
-    single_err, single_i = ranked[0]
-    s_err, s_images, s_e = problem.evaluate(m.latent[single_i], None if opts.exposure else 1.0, opts.eval_spp,
-                                            opts.seed + 55)
-    runs.append({"start": "best single material", "x0": m.latent[single_i].tolist(), "iterate": "none",
-                 "x": m.latent[single_i].tolist(), "error": s_err, "exposure": s_e, "images": s_images,
-                 "history": []})   # the training point itself stays a candidate
+    singles = []
+    for _, i in ranked[:SINGLES_CHECKED]:   # the best single material: of the scan's first few, at eval_spp
+        candidate("material " + m.names[i], m.latent[i], "none", m.latent[i], [])
+        singles.append((runs[-1]["error"], i, runs[-1]["exposure"]))
+    s_err, single_i, s_e = min(singles)
     best = min(runs, key=lambda r: r["error"])
     x = np.asarray(best["x"])
     _, w = m.weights(x)
     per_view = _per_view_errors(best["images"], problem.data, best["exposure"])
     history = [r["history"] for r in runs if r["iterate"] == "last"]
-    extra = {"from_start": None if best["iterate"] == "none" else best["start"]}
+    extra = {"from_start": None if best["iterate"] == "none" else best["start"], "from_iterate": best["iterate"],
+             "scan": {"time_s": found["time_s"], "candidates": found["candidates"]}}
     plot = _plot(history, opts.plot, [s[0] for s in starts]) if opts.plot else None
     return MatchRenderResult(
         x=x, w=np.asarray(w), names=list(m.names), error=float(np.mean(per_view)), errors=per_view,
@@ -297,20 +304,6 @@ def match_render(views, manifold_path, options=None, basis=None, database=None):
         single={"name": m.names[single_i], "error": s_err, "exposure": s_e},
         starts=[{k: v for k, v in r.items() if k not in ("images", "history")} for r in runs],
         history=history, time_s=time.perf_counter() - t0, time_per_iteration_s=t_iter, plot=plot, extra=extra)
-
-
-def _start_near(manifold, i, ranked, t=0.3):
-    """A start near training material ``i``, off its training point (where the Shepard weights
-    are flat): ``t`` of the way towards the best-ranked of its 3 latent neighbours, so that both
-    materials' weights move with ``x`` (:func:`.ad.jitter` when it has no neighbour)."""
-    from . import ad
-    d = np.linalg.norm(manifold.latent - manifold.latent[i], axis=1)
-    d[i] = np.inf
-    near = set(np.argsort(d)[:3].tolist())
-    j = next((k for _, k in ranked if k in near and d[k] > 1e-6), None)
-    if j is None:
-        return ad.jitter(manifold.latent[i], manifold)
-    return manifold.latent[i] + t * (manifold.latent[j] - manifold.latent[i])
 
 
 def _per_view_errors(images, data, exposure):

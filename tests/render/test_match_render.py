@@ -52,7 +52,7 @@ def test_match_of_a_path_render_and_the_tools_reference(tmp_path, small_manifold
     opts = mr.MatchRenderOptions(iterations=2, spp=2, eval_spp=16, starts=1, max_depth=2, progress=False)
     rr = mr.match_render([mr.View(sphere, target)], small_manifold, opts, basis=out)
     assert [s["start"] for s in rr.starts][:2] == ["basis match"] * 2
-    assert np.allclose(rr.starts[0]["x0"], r.x)
+    assert rr.starts[0]["iterate"] == "start" and np.allclose(rr.starts[0]["x"], r.x)
 
 
 def test_match_render_converges_without_a_basis(tmp_path, small_manifold):
@@ -72,6 +72,10 @@ def test_match_render_converges_without_a_basis(tmp_path, small_manifold):
     assert r.error <= 1.5 * floor
     assert r.error < r.single["error"]
     assert os.path.getsize(r.plot) > 0 and len(r.history) == 2 and len(r.history[0]) == 12
+    # every start's own point is a candidate, as are its iterates and 3 single materials; the best is the result
+    assert [s["iterate"] for s in r.starts].count("start") == 2 and r.extra["scan"]["candidates"]
+    assert sum(s["iterate"] == "none" for s in r.starts) == 3
+    assert min(s["error"] for s in r.starts) == pytest.approx(float(np.mean(r.errors)), rel=1e-5)
     assert r.w.sum() == pytest.approx(1.0) and r.images[0].shape == (16, 16, 3)
     json.dumps(r.to_dict(m))
 
@@ -98,6 +102,9 @@ def test_match_render_tool(tmp_path, small_manifold, capsys):
     with pytest.raises(SystemExit):
         cli.main(common + ["--iterations", "0"])
     assert "--iterations must be >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(common + ["--scan-spp", "0"])
+    assert "--scan-spp must be >= 1" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli.main(common + ["--target", tpath, "--mask", tpath])
     assert "--mask is given 1 times for 2 targets" in capsys.readouterr().err

@@ -11,7 +11,10 @@ no basis is made for; view 0 is the scene's own camera), and matched with
    materials' own tables; the match's error against the best single training material's (target:
    better on >= 8 of 10), and against the basis match (:func:`basis.match.match`) on a basis of the
    same manifold rendered from view 0 only: the basis match sees view 0, ``match_render`` all views;
-   both points rendered with ``path`` on views 1 and 2 (``uncovered``), where the basis has no image.
+   both points rendered with ``path`` on views 1 and 2 (``uncovered``), where the basis has no image;
+   the error there also free of the render noise (``uncovered_noise_free``: two independent renders
+   of each point, :func:`match_scan.cross_error`): one render's error adds its own variance, which
+   penalises a glossy point against a matte one.
 
 Images are compared over the pixels where the camera sees the material (object masks), where the
 image depends on it directly. Timings: seconds per Adam iteration (all views, forward + backward)
@@ -28,7 +31,7 @@ import time
 import numpy as np
 
 from ...manifold.model import Manifold
-from ...render import match_render as mr
+from ...render import match_render as mr, match_scan
 from ...render.scenes import load_scene, scene_path, use_variant
 from .common import peak_rss_gib
 from .match import _interior_points
@@ -112,7 +115,8 @@ def _ad_render_time(views, manifold_path, x, opts):
 def _summary(r):
     return {"error": r.error, "errors": r.errors, "x": r.x.tolist(), "single": r.single,
             "top_weights": r.top_weights(4), "time_s": r.time_s, "time_per_iteration_s": r.time_per_iteration_s,
-            "history": r.history}
+            "history": r.history, "scan_s": r.extra["scan"]["time_s"], "from_start": r.extra["from_start"],
+            "from_iterate": r.extra["from_iterate"]}
 
 
 def _database(folder, out, n_materials):
@@ -181,12 +185,16 @@ def _held_out(cbox, manifold, db, m, name, ctx):
     _, images, _ = problem.evaluate(np.asarray(b.x), 1.0, opts.eval_spp, opts.seed + 55)
     basis_errors = mr._per_view_errors(images, problem.data, 1.0)
     uncovered, basis_uncovered = float(np.mean(r.errors[1:])), float(np.mean(basis_errors[1:]))
+    unc = mr._Problem(views[1:], sub, opts)   # the same, free of the render noise (two renders each)
+    nf, nf_basis = (match_scan.cross_error(unc, x, max(1, opts.eval_spp // 4), opts.seed + 77) for x in (r.x, b.x))
     return {**_summary(r), "material": name, "better_than_single": bool(r.error < r.single["error"]),
             "train_floor": _train_floor(problem, sub_m.latent[sub_m.index(r.single["name"])], opts),
             "basis_match": {"x": np.asarray(b.x).tolist(), "errors": basis_errors, "blend_error_view0": float(b.error),
                             "time_s": t_basis},
             "uncovered_error": uncovered, "basis_uncovered_error": basis_uncovered,
-            "better_than_basis_uncovered": bool(uncovered < basis_uncovered)}
+            "better_than_basis_uncovered": bool(uncovered < basis_uncovered),
+            "uncovered_noise_free": nf, "basis_uncovered_noise_free": nf_basis,
+            "better_than_basis_uncovered_noise_free": bool(nf < nf_basis)}
 
 
 def _timing(cbox, manifold, m, ctx, report):
@@ -201,11 +209,12 @@ def _timing(cbox, manifold, m, ctx, report):
     return {"primal_path_render_s": t_primal, "forward_backward_render_s": t_ad,
             "forward_backward_over_primal": t_ad / t_primal, "iteration_s_median": float(np.median(per_it)),
             "iteration_over_primal": float(np.median(per_it)) / t_primal,
-            "match_s_median": float(np.median([e["time_s"] for e in runs])), "load_average": os.getloadavg()}
+            "match_s_median": float(np.median([e["time_s"] for e in runs])),
+            "scan_s_median": float(np.median([e["scan_s"] for e in runs])), "load_average": os.getloadavg()}
 
 
 def run(folder, manifold=None, res=32, target_spp=256, n_points=10, n_held_out=10, n_materials=100, iterations=12,
-        spp=12, eval_spp=256, scan_spp=16, starts=2, max_depth=4, out=None, seed=0, part="all", held_out_range=None,
+        spp=12, eval_spp=256, scan_spp=64, starts=2, max_depth=4, out=None, seed=0, part="all", held_out_range=None,
         basis_spp=64, on_result=None):
     """Measurements of the differentiable match; see the module docstring. ``part``: ``"all"``,
     ``"random"`` or ``"held-out"`` (``held_out_range=(a, b)``: only those of the held-out list);
@@ -257,6 +266,8 @@ def summary(report):
             "ratio_target": RATIO_TARGET, "meets_ratio": sum(e["meets_ratio"] for e in rp), "random_of": len(rp),
             "held_out_better": sum(e["better_than_single"] for e in ho), "held_out_of": len(ho),
             "held_out_better_than_basis_uncovered": sum(e["better_than_basis_uncovered"] for e in ho),
+            "held_out_better_than_basis_uncovered_noise_free": sum(e.get("better_than_basis_uncovered_noise_free", False)
+                                                                   for e in ho),
             "peak_rss_gib": max([peak_rss_gib()] + [report.get("timing", {}).get("peak_rss_gib", 0)])}
 
 
@@ -275,7 +286,8 @@ def merge(reports):
     t = next(r["timing"] for r in reports if "timing" in r)
     out["timing"] = dict(t, iteration_s_median=float(np.median(per_it)),
                          iteration_over_primal=float(np.median(per_it)) / t["primal_path_render_s"],
-                         match_s_median=float(np.median([e["time_s"] for e in runs])))
+                         match_s_median=float(np.median([e["time_s"] for e in runs])),
+                         scan_s_median=float(np.median([e["scan_s"] for e in runs])))
     out["summary"] = dict(summary(out), peak_rss_gib=max(r["summary"]["peak_rss_gib"] for r in reports
                                                          if "summary" in r))
     return out

@@ -3,13 +3,15 @@ no basis): ``match.py --render`` dispatches here.
 
   match.py --render --manifold M.npz --scene cbox.xml --target t.exr [--scene S --target T ...]
            [--mask m.png ...] [--sensor 0 ...] [--basis DIR] [--iterations 30] [--spp 8]
-           [--eval-spp 64] [--starts 3] [--lr L] [--exposure-free] [--max-depth 4]
+           [--eval-spp 64] [--starts 3] [--scan-spp 16] [--lr L] [--exposure-free] [--max-depth 4]
            [--integrator prb] [--out best.exr] [--plot convergence.png] [--json match.json]
 
 Every manifold_brdf of the scenes shares one latent point x, optimised with mi.ad.Adam on the
-relative MSE over the masks (a progress bar shows the loss). Starts: the training materials
-whose renders are nearest to the targets (moved off their training point, where the weights'
-gradient is 0), and the basis match (--basis). Prints the point, its nearest training materials,
+relative MSE over the masks (a progress bar shows the loss). Starts: a scan renders every
+training material alone (--scan-spp, two independent renders), estimates any blend's error from
+them free of the render noise, optimises that estimate and checks the best points with true
+renders (moved off a training point, where the weights' gradient is 0); and the basis match
+(--basis). Prints the point, its nearest training materials,
 its largest weights and the image error; x itself is not identifiable from one image (several
 points give near-identical weights). Writes the render at the best point (--out; one file per
 view, _1, _2, ... beside the first), a convergence plot (--plot) and everything as JSON (--json).
@@ -39,7 +41,9 @@ def _parser():
     p.add_argument("--iterations", type=int, default=30, help="Adam iterations per start (default 30)")
     p.add_argument("--spp", type=int, default=8, help="samples per pixel of the optimisation (default 8)")
     p.add_argument("--eval-spp", type=int, default=64, help="samples per pixel of the final renders (default 64)")
-    p.add_argument("--starts", type=int, default=3, help="starts from training materials (default 3)")
+    p.add_argument("--starts", type=int, default=3, help="starts from the scan (default 3)")
+    p.add_argument("--scan-spp", type=int, default=16,
+                   help="samples per pixel of each training material's scan renders, split over two (default 16)")
     p.add_argument("--lr", type=float, default=None, help="Adam's step in latent units (default: the data's)")
     p.add_argument("--exposure-free", dest="exposure", action="store_true", help="fit a brightness scale too")
     p.add_argument("--max-depth", type=int, default=4, help="path depth (default 4)")
@@ -113,6 +117,7 @@ def main(argv=None):
     scenes.use_variant()
     from ...render.match_render import MatchRenderOptions, match_render
     opts = MatchRenderOptions(iterations=args.iterations, spp=args.spp, eval_spp=args.eval_spp, starts=args.starts,
+                              scan_spp=args.scan_spp,
                               lr=args.lr, exposure=args.exposure, max_depth=args.max_depth,
                               integrator=args.integrator, seed=args.seed, progress=not args.no_progress,
                               plot=args.plot)
