@@ -274,7 +274,8 @@ function bindMap() {
   c.addEventListener("pointermove", (ev) => {
     if (!state.map) return;
     const [px, py, r] = pos(ev);
-    const i = nearestPoint(px, py);
+    const inside = ev.clientX >= r.left && ev.clientX < r.right && ev.clientY >= r.top && ev.clientY < r.bottom;
+    const i = inside ? nearestPoint(px, py) : -1;   // captured outside the map: no tooltip
     if (i !== state.hover) { state.hover = i; drawMap(); }
     if (i >= 0) {
       tip.hidden = false; tip.innerHTML = thumbHtml(state.info.names[i], 48) + "<span>" + escapeHtml(state.info.names[i]) + "</span>";
@@ -282,7 +283,15 @@ function bindMap() {
     } else tip.hidden = true;
     if (dragging) pick(ev, false);
   });
-  c.addEventListener("pointerup", () => { if (dragging) { dragging = state.dragging = false; sendMove(true); commitPoint(); } });
+  // the tooltip names the material under a hovering pointer; a press's release (on the map or,
+  // the pointer captured, anywhere else) takes it away until the pointer moves again
+  const release = () => {
+    tip.hidden = true;
+    if (state.hover >= 0) { state.hover = -1; drawMap(); }
+    if (dragging) { dragging = state.dragging = false; sendMove(true); commitPoint(); }
+  };
+  c.addEventListener("pointerup", release);
+  c.addEventListener("pointercancel", release);
   // wheel: zoom about the pointer (the map is rendered again for the new extent); double-click:
   // the whole map, and the point goes back to where it was before the double-click's first press
   c.addEventListener("wheel", (ev) => {
@@ -607,7 +616,7 @@ async function main() {
     $("exposure-val").textContent = state.exposure.toFixed(1) + " EV";
     preview && preview.setExposure(state.exposure);
     updateSavePng();
-    channel.send(Object.assign({ type: "frame" }, frameRequest()), ["frame"]);
+    if (!reexposeRefined()) channel.send(Object.assign({ type: "frame" }, frameRequest()), ["frame"]);
   };
   for (const n of [...info.names].sort()) $("material-names").appendChild(new Option(n));
   $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there
