@@ -86,9 +86,10 @@ function frameRequest() { return { x: state.x, exposure: state.exposure, basis: 
 
 // While a drag runs (pointer down on the map, a slider moving) the scene follows every move;
 // the panel (material, snippet) and the sphere's table follow at most every LIVE[kind] ms, so
-// that they do not take the frames' time; when the drag rests (REST ms) the kinds not yet
+// that they do not take the frames' time (the sphere's redraw is the page's costliest work without
+// a GPU: every 150 ms, not 60); when the drag rests (REST ms) the kinds not yet
 // asked for the final point are asked for.
-const LIVE = { table: 60, material: 180, snippet: 250 }, REST = 120;
+const LIVE = { table: 150, material: 180, snippet: 250 }, REST = 120;
 const asked = {};   // kind -> [time, x] of its last request
 
 function live() { return state.dragging || performance.now() < state.liveUntil; }

@@ -246,12 +246,13 @@ class MaterialPreview {
   setRotation(rad) { this.rotation = rad; this.draw(); }
   setKeyPower(p) { this.keyPower = p; this.draw(); }
 
-  // While a drag runs the sphere is drawn at half resolution with the 8-light environment (the
-  // software rasteriser of a machine without a GPU keeps up), in full once it rests.
+  // While a drag runs the sphere is drawn at a third of its resolution with the 8-light environment
+  // (the software rasteriser of a machine without a GPU keeps up: its draw, read back on the page's
+  // thread, was a third of that thread's time at half resolution), in full once it rests.
   setFast(fast) {
     if (!this.gl) return;
     if (!this.full) this.full = this.canvas.width;
-    const size = fast ? Math.round(this.full / 2) : this.full;
+    const size = fast ? Math.round(this.full / 3) : this.full;
     if (this.canvas.width === size && this.fast === fast) return;
     this.fast = fast;
     this.canvas.width = this.canvas.height = size;
