@@ -213,7 +213,8 @@ class Explorer:
 
     def material(self, x, with_slice=True, live=False):
         """Description of the material at ``x`` (JSON-ready), with the table-based parts
-        when the tables are loaded: the negative-bin fraction, the measured material nearest
+        when the tables are loaded: the negative-bin fraction (while a drag runs, ``live``, that
+        of the sphere's coarse table of the point, cached), the measured material nearest
         under the perceptual metric (``measured``: name, distance, and the median spacing of
         the measured materials for scale; not while a drag runs, ``live``) and (``with_slice``)
         the server's BRDF slice image."""
@@ -221,7 +222,7 @@ class Explorer:
         out["tables"] = self.tables.state if self.tables else "unavailable"
         out["tables_message"] = self.tables.message if self.tables else "not loaded (--no-tables)"
         if self.tables and self.tables.state == "ready":
-            _, out["negative_fraction"] = self.tables.preview(x, self.prune)
+            _, out["negative_fraction"] = self.tables.preview(x, self.prune, coarse=live)
             # never waits for the metric being prepared (a second or two after the tables)
             out["measured"] = self._walks.nearest_measured(x) if self._walks is not None and not live else None
             out["live"] = bool(live)
