@@ -45,6 +45,8 @@ function onMessage(meta, payload) {
   if (meta.type === "frame") drawFrame(meta, payload);
   else if (meta.type === "material") showMaterial(meta);
   else if (meta.type === "table" && preview) {
+    // the full table of a point a new drag has left (a newer table asked for): not worth its upload
+    if (!meta.coarse && live() && !channel.isCurrent("table", meta.seq)) return;
     if (!sameX(meta.x, state.previewX) || meta.coarse !== state.previewCoarse) { preview.setTable(payload, meta); drawPlots(); }
     state.previewX = meta.x; state.previewCoarse = meta.coarse;   // redrawn only when it changed
   }
@@ -289,7 +291,14 @@ function bindMap() {
   const release = () => {
     tip.hidden = true;
     if (state.hover >= 0) { state.hover = -1; drawMap(); }
-    if (dragging) { dragging = state.dragging = false; sendMove(true); commitPoint(); }
+    if (!dragging) return;
+    dragging = state.dragging = false;
+    // the point's full answers (denoised frame, full table, ...) once the pointer has been up for REST
+    // ms: a drag that starts again meanwhile never waits behind them (channel.pending() counts them)
+    clearTimeout(state.restTimer);
+    channel.owed += 1;
+    state.restTimer = setTimeout(() => sendMove(true), REST);
+    commitPoint();
   };
   c.addEventListener("pointerup", release);
   c.addEventListener("pointercancel", release);
