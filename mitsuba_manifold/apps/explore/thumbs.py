@@ -12,8 +12,9 @@ by the render settings. Each thumbnail is the blend of its material alone (weigh
 albedo and the normals (:func:`~mitsuba_manifold.basis.denoise.denoise`; without pyoidn, as
 rendered), averaged over ``SUPERSAMPLE x SUPERSAMPLE`` pixels and tonemapped at 0 EV; the
 sheet is ``columns`` tiles wide, material ``i`` at tile ``i`` (row-major). At 48 px from
-96 px and 64 spp the 101 thumbnails of the main job's manifold took 37 s to render on one
-thread of the 2-core machine (at 48 px and 32 spp undenoised, 6 s, they were visibly grainy).
+96 px and 64 spp the 100 thumbnails of the main job's manifold took 35.5 s to render (one
+thread, nice 10, the 2-core machine at load 5-6) and 26.4 s to render and denoise in another
+run; at 48 px and 32 spp, undenoised, the render took 6 s and the thumbnails were visibly grainy.
 """
 
 import math
