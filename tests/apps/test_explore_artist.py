@@ -96,6 +96,7 @@ def test_a_refinement_queued_behind_a_newer_one_never_renders():
         refs.shutdown()
 
 
+@pytest.mark.render
 def test_thumbnails_are_the_materials_alone_denoised_and_cached(small_manifold_paper, tmp_path):
     """Each tile is its material alone (weight 1), rendered at twice the size with its guides,
     denoised and averaged down: closer to a 16x-spp render of that material than the raw
