@@ -25,7 +25,7 @@ from ...errors import InputError
 from ...manifold.model import Manifold
 from ...manifold import paths as path_kinds
 from . import encode, latentmap, material
-from .bases import names as _names, scene_of as _scene_of
+from .bases import names as _names, scene_of as _scene_of, warm as _warm
 from .inputs import NUMBER as _NUMBER, show, to_float
 from .reference import MAX_SPP, References
 from .walks import MAX_STEPS, STEPS, Walks
@@ -101,12 +101,12 @@ class Explorer:
                                      cache_folder(next(iter(self.bases.values())).folder))
         self.references = References()
         self._maps, self._maps_lock = {}, threading.Lock()
-        # the map the page opens on (at the measured material closest to the data's mean), made meanwhile
         threading.Thread(target=self._first_map, name="explore-map", daemon=True).start()
 
-    def _first_map(self):
+    def _first_map(self):   # meanwhile: the map the page opens on, then the bases' float32 cross terms
         try:
             self.map_png("0,1", self.start_point())
+            _warm(self.bases)
         except Exception:   # the page asks for it anyway (and gets the error there)
             pass
 
