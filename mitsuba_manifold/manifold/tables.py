@@ -11,6 +11,7 @@ and the combination itself, reading only the kept tables.
 
 import numbers
 import os
+import threading
 from typing import NamedTuple
 
 import numpy as np
@@ -20,6 +21,11 @@ from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES
 from .._util.cache import key_hash, npy_cache
 from ..data.database import Database, albedo_weights
 from ..errors import FormatError, InputError
+
+
+#: Answers of :meth:`TrainingTables.prune` kept (the newest).
+PRUNE_MEMO = 8
+_MEMO_LOCK = threading.Lock()
 
 
 class Pruned(NamedTuple):
@@ -168,10 +174,23 @@ class TrainingTables:
             ``|w_i|`` over the dropped materials).
         """
         w = self._checked(w, budget, rule)
-        if rule == "raw-l2":
-            return Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
-        C = self.cosine_gram(folder)
-        return Pruned(*pruning.prune_image(w, C, self.albedo(folder), budget, G=self.raw_gram(folder)))
+        # the last few answers are kept: the explorer prunes the same point for its frame, its
+        # table and its description (3-6 ms each at N = 100)
+        key = (w.tobytes(), float(budget), rule, None if folder is None else os.fspath(folder))
+        memo = self.__dict__.setdefault("_pruned", {})
+        with _MEMO_LOCK:
+            hit = memo.get(key)
+        if hit is None:
+            if rule == "raw-l2":
+                hit = Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
+            else:
+                hit = Pruned(*pruning.prune_image(w, self.cosine_gram(folder), self.albedo(folder), budget,
+                                                  G=self.raw_gram(folder)))
+            with _MEMO_LOCK:
+                memo[key] = hit
+                while len(memo) > PRUNE_MEMO:
+                    memo.pop(next(iter(memo)))
+        return Pruned(hit.keep.copy(), hit.w_kept.copy(), hit.dropped)   # the caller may change its arrays
 
     def error(self, w, keep, folder, rule=DEFAULT_RULE):
         """The relative L2 change of the table in the norm of ``rule`` (cosine-weighted for

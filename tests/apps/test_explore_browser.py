@@ -273,9 +273,45 @@ def test_release_refines_the_point_to_its_full_gi_image(browser, small_basis, sm
             pg.click("#refine-show")   # the user asks for the refined image
             pg.wait_for_function("document.getElementById('scene').dataset.refined === 'r1'")
             assert "showing the unbiased render" in pg.text_content("#refine-status")
-            assert np.abs(np.array(pg.evaluate(pixels), float) - blend).max() <= 2 and blend.max() > 0
+            refined = np.array(pg.evaluate(pixels), float)
+            assert np.abs(refined - blend).max() <= 2 and blend.max() > 0
+            # a new exposure re-exposes the refined image (the server tonemaps it again), not the blend
+            pg.eval_on_selector("#exposure", "e => { e.value = '1.5'; e.dispatchEvent(new Event('input')); }")
+            pg.wait_for_function("document.getElementById('scene').dataset.refinedExposure === '1.5'")
+            brighter = np.array(pg.evaluate(pixels), float)
+            assert pg.evaluate("document.getElementById('scene').dataset.refined") == "r1"
+            assert brighter.mean() > refined.mean() + 5, (brighter.mean(), refined.mean())
+            pg.wait_for_timeout(500)   # the frame the exposure asked for (the blend) does not replace it
+            np.testing.assert_array_equal(np.array(pg.evaluate(pixels), float), brighter)
+            assert pg.evaluate("document.getElementById('scene').dataset.refined") == "r1"
             _set(pg, m.latent[m.index("gold-paint")])   # a move: blends again
             assert not pg.evaluate("document.getElementById('scene').dataset.refined")
             assert pg.text_content("#refine-status") == "" and not pg.errors
     finally:
         launch.stop(proc)
+
+
+@browser_only
+def test_the_tooltip_goes_when_the_pointer_is_released(browser, server, small_manifold_paper):
+    """Hovering a measured material shows its name; a press and release on it, or a drag from it
+    released outside the map (the pointer captured), leaves no tooltip on screen."""
+    m = Manifold.load(small_manifold_paper)
+    hidden = "document.getElementById('tooltip').hidden"
+    with _page(browser, server) as pg:
+        for name in ("gold-paint", "blue-acrylic"):
+            px, py = _map_position(pg, m.latent[m.index(name)])
+            pg.mouse.move(px + 20, py + 20)
+            pg.mouse.move(px, py)
+            assert not pg.evaluate(hidden) and name in pg.inner_text("#tooltip")
+            pg.mouse.down()
+            pg.mouse.up()
+            assert pg.evaluate(hidden)
+            pg.mouse.move(px + 1, py)   # hovering again: back
+            assert not pg.evaluate(hidden)
+            pg.mouse.down()
+            box = pg.eval_on_selector("#map", "c => { const r = c.getBoundingClientRect(); return [r.right, r.bottom]; }")
+            for k in range(1, 6):
+                pg.mouse.move(px + k / 5 * (box[0] + 40 - px), py + k / 5 * (box[1] + 40 - py))
+            pg.mouse.up()
+            assert pg.evaluate(hidden)
+        assert not pg.errors

@@ -216,3 +216,22 @@ def test_cosine_gram_is_the_tables_in_the_measure_light_sees(default, small_db):
     T, q = _measure(default)
     np.testing.assert_allclose(default.cos_gram, (T * q) @ T.T, rtol=1e-10)
     np.testing.assert_allclose(default.albedos, Database(small_db, default.names).albedo(), rtol=1e-6)
+
+
+def test_repeated_pruning_gives_the_same_answer_in_arrays_of_its_own(default):
+    """The last answers are kept (the explorer prunes one point three times): the same answer
+    for the same weights, budget and rule, never one of other weights, and arrays the caller
+    may change without changing the next answer."""
+    rng = np.random.default_rng(3)
+    w = rng.dirichlet(np.ones(default.n))
+    first = default.prune(w, 0.05)
+    first.keep[:] = -1
+    first.w_kept[:] = np.nan
+    again = default.prune(w, 0.05)
+    store, db = default._store, default.database
+    fresh = pruning.prune_image(w, store.cosine_gram(db), store.albedo(db), 0.05, G=store.raw_gram(db))
+    np.testing.assert_array_equal(again.keep, fresh[0])
+    np.testing.assert_allclose(again.w_kept, fresh[1])
+    other = default.prune(np.roll(w, 1), 0.05)
+    assert not np.array_equal(other.w_kept, again.w_kept) or not np.array_equal(other.keep, again.keep)
+    assert len(default.prune(w, 0.0).keep) == np.count_nonzero(w)

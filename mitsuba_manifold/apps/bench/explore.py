@@ -15,6 +15,12 @@ map, one move per displayed frame of the browser, timed from each pointer move t
 scene frame drawn for that point or a later one; the moves per second the scene follows;
 the sphere's redraws; and the time from opening the URL to the material tables being ready.
 Targets (issue 19): median <= 50 ms, p90 <= 120 ms, >= 15 moves/s, tables <= 5 s.
+
+Chromium runs WebGL on SwiftShader (there is no GPU) and, by default (``compositing="software"``),
+composites the page on the CPU, as Chrome does on a machine without a GPU;
+``compositing="swiftshader"`` composites it through SwiftShader's GL too (the measurements before
+2026-12-02), where every frame redraws the whole viewport in software GL (on the 2-core
+machine about 150 ms per frame at 1500x1000 under load; 65 ms at 800x600).
 """
 
 import json
@@ -76,12 +82,12 @@ def _stats(values):
 
 
 def run(basis, manifold=None, requests=60, formats=("rgba", "jpeg", "png"), upsample=True, seed=0,
-        screenshot_path=None, browser=False):
+        screenshot_path=None, browser=False, compositing="software"):
     """Frame latency per basis size and encoding (see the module docstring); with
     ``screenshot_path`` also a screenshot of the page (:func:`screenshot`); with ``browser``
     the page's own latency instead (:func:`browser`)."""
     if browser:
-        report = globals()["browser"](basis, manifold)
+        report = globals()["browser"](basis, manifold, compositing=compositing)
         if screenshot_path:   # a short reference render beside the page's timing run
             report["screenshot"] = screenshot(basis, screenshot_path, manifold, reference_spp=64)
         return report
@@ -136,9 +142,16 @@ def run(basis, manifold=None, requests=60, formats=("rgba", "jpeg", "png"), upsa
 
 
 BROWSER_TARGETS = {"median_ms": 50.0, "p90_ms": 120.0, "moves_per_s": 15.0, "tables_ready_s": 5.0}
-def _launch_chromium(p):
+#: How Chromium composites the page (see the module docstring).
+COMPOSITING = ("software", "swiftshader")
+
+
+def _launch_chromium(p, compositing="software"):
+    if compositing not in COMPOSITING:
+        raise ValueError(f"compositing must be one of {COMPOSITING}, got {compositing!r}")
     return p.chromium.launch(executable_path=launch.find_chromium(),
-                             args=["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"])
+                             args=["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"] +
+                                  (["--disable-gpu-compositing"] if compositing == "software" else []))
 
 
 def _drag(page, a, b, moves, pace_ms):
@@ -178,18 +191,21 @@ def _drag(page, a, b, moves, pace_ms):
     return latencies, len(drawn), span, out["draws"], len(out["moves"]), parts
 
 
-def browser(basis, manifold=None, drags=6, moves=20, pace_ms=16, chromium=None):
+def browser(basis, manifold=None, drags=6, moves=20, pace_ms=16, chromium=None, compositing="software"):
     """The page's latency in headless Chromium (see the module docstring); ``chromium``: a
-    Playwright browser to use (default: the system Chromium, launched here)."""
+    Playwright browser to use (default: the system Chromium, launched here, compositing as
+    ``compositing`` says)."""
     if chromium is None:
         from playwright.sync_api import sync_playwright
         with sync_playwright() as p:
-            b = _launch_chromium(p)
+            b = _launch_chromium(p, compositing)
             try:
-                return browser(basis, manifold, drags, moves, pace_ms, b)
+                return browser(basis, manifold, drags, moves, pace_ms, b, compositing)
             finally:
                 b.close()
-    report = {"drags": drags, "moves_per_drag": moves, "pace_ms": pace_ms, "client": "headless Chromium (SwiftShader)",
+    client = ("headless Chromium (WebGL on SwiftShader, " +
+              ("software compositing)" if compositing == "software" else "compositing on SwiftShader GL)"))
+    report = {"drags": drags, "moves_per_drag": moves, "pace_ms": pace_ms, "client": client,
               "load_average_1min_before": os.getloadavg()[0], "targets": BROWSER_TARGETS}
     proc, url = launch.start([basis], manifold)
     try:

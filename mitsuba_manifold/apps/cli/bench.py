@@ -51,6 +51,9 @@ def main(argv=None):
     p.add_argument("--out", default=None,
                    help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
     p.add_argument("--browser", action="store_true", help="explore: time the page in headless Chromium (drags)")
+    p.add_argument("--compositing", choices=("software", "swiftshader"), default="software",
+                   help="explore --browser: how Chromium composites the page (default software, as Chrome "
+                        "without a GPU; swiftshader: through SwiftShader GL, as measured before 2026-12-02)")
     p.add_argument("--configs", type=parse_list, default=None, help="space: configurations to compare; fig9: presets (default: default,paper)")
     p.add_argument("--folds", type=parse_indices, default=None, help="space: run only these of the 10 folds")
     p.add_argument("--force", action="store_true",
@@ -103,7 +106,8 @@ def run(args):
     if args.which == "scaling":
         kwargs["out"] = os.path.splitext(args.json)[0] + "_work"
     if explore:
-        kwargs.update(screenshot_path=os.path.splitext(args.json)[0] + ".png", browser=args.browser)
+        kwargs.update(screenshot_path=os.path.splitext(args.json)[0] + ".png", browser=args.browser,
+                      compositing=args.compositing)
     result = bench.run(args.which, folder, **kwargs)
     if args.which == "scaling":
         from ..bench.scaling import plot

@@ -31,3 +31,10 @@ def scene_of(basis, scene=None):
     if name in scenes.shipped_scenes() and scene_hash(scenes.scene_path(name)) == basis.manifest["scene_hash"]:
         return scenes.scene_path(name)
     return None
+
+
+def warm(bases):
+    """Every basis's cross terms in float32 before the first drag
+    (:meth:`~mitsuba_manifold.basis.folder.Basis.warm_cross_terms`)."""
+    for basis in bases.values():
+        basis.warm_cross_terms()

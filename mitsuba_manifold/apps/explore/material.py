@@ -148,6 +148,8 @@ class TableStack:
             dims, reduced, slices, preview_dims, metric = cached if cached is not None else self._read_tables()
             self.preview_dims, self.metric_rows = preview_dims, metric
             self.dims, self._reduced, self._slices = dims, reduced, slices
+            full = reduced.reshape((-1, 3) + tuple(preview_dims))   # a drag's tables, made before the first drag
+            self._coarse = np.ascontiguousarray(full[:, :, ::2, ::2, ::2]).reshape(len(full), -1)
             n = self.manifold.n
             self.state, self.message = "ready", f"{n} tables, preview {self.preview_dims}" + (
                 " (cached)" if cached is not None else "")
@@ -232,9 +234,6 @@ class TableStack:
         return out
 
     def _preview(self, x, prune, coarse=False):
-        if coarse and self._coarse is None:
-            full = self._reduced.reshape((-1, 3) + tuple(self.preview_dims))
-            self._coarse = np.ascontiguousarray(full[:, :, ::2, ::2, ::2]).reshape(len(full), -1)
         table = self._combine(self._coarse if coarse else self._reduced, x, prune)
         negative = float((table < 0).mean())
         half = np.clip(table, -HALF_MAX, HALF_MAX).astype(np.float16)   # peaks above 65504 saturate

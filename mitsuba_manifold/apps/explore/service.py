@@ -25,7 +25,7 @@ from ...errors import InputError
 from ...manifold.model import Manifold
 from ...manifold import paths as path_kinds
 from . import encode, latentmap, material
-from .bases import names as _names, scene_of as _scene_of
+from .bases import names as _names, scene_of as _scene_of, warm as _warm
 from .inputs import NUMBER as _NUMBER, show, to_float
 from .reference import MAX_SPP, References
 from .walks import MAX_STEPS, STEPS, Walks
@@ -101,12 +101,12 @@ class Explorer:
                                      cache_folder(next(iter(self.bases.values())).folder))
         self.references = References()
         self._maps, self._maps_lock = {}, threading.Lock()
-        # the map the page opens on (at the measured material closest to the data's mean), made meanwhile
         threading.Thread(target=self._first_map, name="explore-map", daemon=True).start()
 
-    def _first_map(self):
+    def _first_map(self):   # meanwhile: the map the page opens on, then the bases' float32 cross terms
         try:
             self.map_png("0,1", self.start_point())
+            _warm(self.bases)
         except Exception:   # the page asks for it anyway (and gets the error there)
             pass
 
@@ -213,7 +213,8 @@ class Explorer:
 
     def material(self, x, with_slice=True, live=False):
         """Description of the material at ``x`` (JSON-ready), with the table-based parts
-        when the tables are loaded: the negative-bin fraction, the measured material nearest
+        when the tables are loaded: the negative-bin fraction (while a drag runs, ``live``, that
+        of the sphere's coarse table of the point, cached), the measured material nearest
         under the perceptual metric (``measured``: name, distance, and the median spacing of
         the measured materials for scale; not while a drag runs, ``live``) and (``with_slice``)
         the server's BRDF slice image."""
@@ -221,7 +222,7 @@ class Explorer:
         out["tables"] = self.tables.state if self.tables else "unavailable"
         out["tables_message"] = self.tables.message if self.tables else "not loaded (--no-tables)"
         if self.tables and self.tables.state == "ready":
-            _, out["negative_fraction"] = self.tables.preview(x, self.prune)
+            _, out["negative_fraction"] = self.tables.preview(x, self.prune, coarse=live)
             # never waits for the metric being prepared (a second or two after the tables)
             out["measured"] = self._walks.nearest_measured(x) if self._walks is not None and not live else None
             out["live"] = bool(live)

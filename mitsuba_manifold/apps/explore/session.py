@@ -11,7 +11,10 @@ meta repeats the request's ``seq`` and the point ``x`` it is for, so the page ca
 answer that arrives after a newer one. ``"coarse": true`` (a drag running) asks for the cheap
 answers: a table of every other texel, a map of a quarter of the pixels, a material without the
 distance to the closest measured one, a frame whose L2+ part is summed, not denoised (also while
-``"held": true``, the pointer still down); the page asks again in full when the drag rests.
+``"held": true``, the pointer still down); the page asks again in full when the drag rests. A
+full (denoised) frame has its own worker (:data:`FINAL`): denoising takes 50-300 ms, and the
+first frames of the next drag do not wait for it (a coarse frame drops a full one still
+waiting; one that comes after a newer frame was drawn, the page drops by its ``seq``).
 
 Malformed input never reaches a traceback: a bad request is answered with
 ``{"type": "error", "kind", "seq", "error"}``; a binary message or one larger than
@@ -33,6 +36,8 @@ from .service import show
 
 #: Kinds of request, and the order in which they are started when several wait.
 KINDS = ("frame", "table", "material", "snippet", "map", "path", "route")
+#: The worker of full (denoised) frames; their answers are frames.
+FINAL = "final"
 #: Kinds answered for a point ``x`` (tagged with it).
 POINT_KINDS = ("frame", "table", "material", "snippet", "map")
 #: What answers a bad request with an error message.
@@ -46,6 +51,15 @@ def pack(meta, payload=b""):
     """One binary websocket message: JSON meta then payload."""
     head = json.dumps(meta).encode()
     return struct.pack("<I", len(head)) + head + payload
+
+
+def _coarse(req):
+    """Whether a frame request asks for the cheap frame of a drag (L2+ summed, not denoised)."""
+    return req.get("coarse") is True or req.get("held") is True
+
+
+def _shown(kind):
+    return "frame" if kind == FINAL else kind
 
 
 class Closing(Exception):
@@ -87,7 +101,7 @@ class Session:
     def __init__(self, ws, explorer):
         self.ws, self.ex = ws, explorer
         self.pending = {}
-        self.wake = {k: asyncio.Event() for k in KINDS}
+        self.wake = {k: asyncio.Event() for k in KINDS + (FINAL,)}
         self.lock = asyncio.Lock()   # one message at a time on the socket
 
     async def send(self, meta, payload=b""):
@@ -96,7 +110,7 @@ class Session:
 
     async def run(self):
         await self.ws.accept()
-        tasks = [asyncio.ensure_future(self.reader())] + [asyncio.ensure_future(self.worker(k)) for k in KINDS]
+        tasks = [asyncio.ensure_future(self.reader())] + [asyncio.ensure_future(self.worker(k)) for k in KINDS + (FINAL,)]
         try:
             await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
         finally:
@@ -123,6 +137,10 @@ class Session:
                 await self.send({"type": "error", "kind": None, "seq": None, "error": str(e)})
                 continue
             for kind, req in requests:
+                if kind == "frame" and not _coarse(req):
+                    kind = FINAL
+                elif kind == "frame":   # a drag again: a full frame not yet started is stale
+                    self.pending.pop(FINAL, None)
                 self.pending[kind] = req   # replaces an older request of this kind not yet started
                 self.wake[kind].set()
 
@@ -136,10 +154,10 @@ class Session:
                 try:
                     meta, payload = await self.answer(kind, req)
                 except BAD_REQUEST as e:
-                    meta, payload = {"type": "error", "kind": kind, "seq": seq, "error": str(e)}, b""
+                    meta, payload = {"type": "error", "kind": _shown(kind), "seq": seq, "error": str(e)}, b""
                 except Exception as e:   # a bug: the console gets the traceback, the page one line
                     traceback.print_exc(file=sys.stderr)
-                    meta, payload = {"type": "error", "kind": kind, "seq": seq,
+                    meta, payload = {"type": "error", "kind": _shown(kind), "seq": seq,
                                      "error": f"internal error ({type(e).__name__}); see the server's console"}, b""
                 await self.send(dict(meta, seq=seq), payload)
 
@@ -155,10 +173,11 @@ class Session:
             route = await asyncio.wrap_future(future)
             return dict(route, type="route"), b""
         x = ex.point(req.get("x"), "x")
+        kind = "frame" if kind == FINAL else kind
         tag = {"type": kind, "x": [float(v) for v in x]}
         if kind == "frame":
             exposure = ex.number(req.get("exposure"), "exposure", -20, 20, 0.0)
-            coarse = req.get("coarse") is True or req.get("held") is True
+            coarse = _coarse(req)
             if coarse:   # a drag: no refinement competes with its frames for the CPU
                 ex.references.supersede_refine()
             data, meta = await run_in_threadpool(ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"),

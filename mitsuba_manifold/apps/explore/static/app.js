@@ -45,6 +45,8 @@ function onMessage(meta, payload) {
   if (meta.type === "frame") drawFrame(meta, payload);
   else if (meta.type === "material") showMaterial(meta);
   else if (meta.type === "table" && preview) {
+    // the full table of a point a new drag has left (a newer table asked for): not worth its upload
+    if (!meta.coarse && live() && !channel.isCurrent("table", meta.seq)) return;
     if (!sameX(meta.x, state.previewX) || meta.coarse !== state.previewCoarse) { preview.setTable(payload, meta); drawPlots(); }
     state.previewX = meta.x; state.previewCoarse = meta.coarse;   // redrawn only when it changed
   }
@@ -86,9 +88,10 @@ function frameRequest() { return { x: state.x, exposure: state.exposure, basis: 
 
 // While a drag runs (pointer down on the map, a slider moving) the scene follows every move;
 // the panel (material, snippet) and the sphere's table follow at most every LIVE[kind] ms, so
-// that they do not take the frames' time; when the drag rests (REST ms) the kinds not yet
+// that they do not take the frames' time (the sphere's redraw is the page's costliest work without
+// a GPU: every 150 ms, not 60); when the drag rests (REST ms) the kinds not yet
 // asked for the final point are asked for.
-const LIVE = { table: 60, material: 180, snippet: 250 }, REST = 120;
+const LIVE = { table: 150, material: 180, snippet: 250 }, REST = 120;
 const asked = {};   // kind -> [time, x] of its last request
 
 function live() { return state.dragging || performance.now() < state.liveUntil; }
@@ -274,7 +277,8 @@ function bindMap() {
   c.addEventListener("pointermove", (ev) => {
     if (!state.map) return;
     const [px, py, r] = pos(ev);
-    const i = nearestPoint(px, py);
+    const inside = ev.clientX >= r.left && ev.clientX < r.right && ev.clientY >= r.top && ev.clientY < r.bottom;
+    const i = inside ? nearestPoint(px, py) : -1;   // captured outside the map: no tooltip
     if (i !== state.hover) { state.hover = i; drawMap(); }
     if (i >= 0) {
       tip.hidden = false; tip.innerHTML = thumbHtml(state.info.names[i], 48) + "<span>" + escapeHtml(state.info.names[i]) + "</span>";
@@ -282,7 +286,22 @@ function bindMap() {
     } else tip.hidden = true;
     if (dragging) pick(ev, false);
   });
-  c.addEventListener("pointerup", () => { if (dragging) { dragging = state.dragging = false; sendMove(true); commitPoint(); } });
+  // the tooltip names the material under a hovering pointer; a press's release (on the map or,
+  // the pointer captured, anywhere else) takes it away until the pointer moves again
+  const release = () => {
+    tip.hidden = true;
+    if (state.hover >= 0) { state.hover = -1; drawMap(); }
+    if (!dragging) return;
+    dragging = state.dragging = false;
+    // the point's full answers (denoised frame, full table, ...) once the pointer has been up for REST
+    // ms: a drag that starts again meanwhile never waits behind them (channel.pending() counts them)
+    clearTimeout(state.restTimer);
+    channel.owed += 1;
+    state.restTimer = setTimeout(() => sendMove(true), REST);
+    commitPoint();
+  };
+  c.addEventListener("pointerup", release);
+  c.addEventListener("pointercancel", release);
   // wheel: zoom about the pointer (the map is rendered again for the new extent); double-click:
   // the whole map, and the point goes back to where it was before the double-click's first press
   c.addEventListener("wheel", (ev) => {
@@ -607,7 +626,7 @@ async function main() {
     $("exposure-val").textContent = state.exposure.toFixed(1) + " EV";
     preview && preview.setExposure(state.exposure);
     updateSavePng();
-    channel.send(Object.assign({ type: "frame" }, frameRequest()), ["frame"]);
+    if (!reexposeRefined()) channel.send(Object.assign({ type: "frame" }, frameRequest()), ["frame"]);
   };
   for (const n of [...info.names].sort()) $("material-names").appendChild(new Option(n));
   $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there

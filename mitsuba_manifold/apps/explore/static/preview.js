@@ -102,7 +102,8 @@ const HALF_TO_FLOAT = (() => {
   return out;
 })();
 
-const MAX_LIGHTS = 17;   // 16 median-cut lights of the environment and the key light
+const MAX_LIGHTS = 17;
+const FULL_AFTER = 150;   // ms at rest before the sphere is drawn in full (setFast)   // 16 median-cut lights of the environment and the key light
 
 class MaterialPreview {
   constructor(canvas, message) {
@@ -246,16 +247,19 @@ class MaterialPreview {
   setRotation(rad) { this.rotation = rad; this.draw(); }
   setKeyPower(p) { this.keyPower = p; this.draw(); }
 
-  // While a drag runs the sphere is drawn at half resolution with the 8-light environment (the
-  // software rasteriser of a machine without a GPU keeps up), in full once it rests.
+  // While a drag runs the sphere is drawn at a third of its resolution with the 8-light environment
+  // (the software rasteriser of a machine without a GPU keeps up: its draw, read back on the page's
+  // thread, was a third of that thread's time at half resolution), in full once it has rested for
+  // FULL_AFTER ms (a full draw takes 100-200 ms there; a drag that starts again meanwhile skips it).
   setFast(fast) {
     if (!this.gl) return;
     if (!this.full) this.full = this.canvas.width;
-    const size = fast ? Math.round(this.full / 2) : this.full;
+    clearTimeout(this.fullTimer);
+    const size = fast ? Math.round(this.full / 3) : this.full;
     if (this.canvas.width === size && this.fast === fast) return;
-    this.fast = fast;
-    this.canvas.width = this.canvas.height = size;
-    this.draw();
+    const apply = () => { this.fast = fast; this.canvas.width = this.canvas.height = size; this.draw(); };
+    if (fast) apply();
+    else this.fullTimer = setTimeout(apply, FULL_AFTER);
   }
 
   bindLight() {

@@ -4,7 +4,8 @@
 // refinement is noisier than the blend (fireflies where light runs through a narrow peak), and its
 // noise, estimated from a few passes, can be too low where fireflies are rare. The status says
 // whether the blend agrees within that noise; "show refined" draws the refined image until the
-// point, the basis or the exposure changes. Uses app.js's state, $, api, sameX and fmtNum.
+// point or the basis changes (a new exposure re-exposes it: reexposeRefined). Uses app.js's state,
+// $, api, sameX and fmtNum.
 "use strict";
 
 let refineRun = 0;
@@ -51,26 +52,49 @@ async function refineHere() {
 }
 
 function clearRefined() {   // back to blends: the refined image and the last check are gone
-  state.refined = null; delete $("scene").dataset.refined;
+  state.refined = null; delete $("scene").dataset.refined; delete $("scene").dataset.refinedExposure;
   $("refine-status").textContent = ""; $("refine-show").hidden = true;
 }
 
 async function showRefined(job, x, basis, current) {
-  const img = new Image();
-  img.src = `/api/reference/${job.id}/refined.png?exposure=${state.exposure}`;
-  try { await img.decode(); } catch (e) { return false; }
-  if (!current()) return false;
+  const exposure = state.exposure, img = await refinedImage(job.id, exposure);
+  if (!img || !current()) return false;
   $("scene").getContext("2d").drawImage(img, 0, 0);
-  state.refined = { x, basis, exposure: state.exposure, job: job.id };
+  state.refined = { x, basis, exposure, job: job.id };
   $("scene").dataset.refined = job.id;
+  $("scene").dataset.refinedExposure = exposure;
   return true;
 }
 
-// Whether a frame from the server would replace the refined image of the same point (it keeps it).
+async function refinedImage(id, exposure) {   // the refined image tonemapped at `exposure`, or null
+  const img = new Image();
+  img.src = `/api/reference/${id}/refined.png?exposure=${exposure}`;
+  try { await img.decode(); } catch (e) { return null; }
+  return img;
+}
+
+// The exposure changed while the refined image is shown: the same image, tonemapped again by the
+// server at the new exposure (an answer for an exposure changed since is dropped).
+// Returns whether it does (a refined image is shown), at once; the image follows.
+let reexposeRun = 0;
+function reexposeRefined() {
+  const r = state.refined;
+  if (!r) return false;
+  const exposure = state.exposure, run = ++reexposeRun;
+  refinedImage(r.job, exposure).then((img) => {
+    if (!img || run !== reexposeRun || state.refined !== r || state.exposure !== exposure) return;
+    $("scene").getContext("2d").drawImage(img, 0, 0);
+    r.exposure = exposure;
+    $("scene").dataset.refinedExposure = exposure;
+  });
+  return true;
+}
+
+// Whether a frame from the server would replace the refined image of the same point (it keeps it,
+// at any exposure: reexposeRefined tonemaps it again).
 function keepsRefined(meta) {
   const r = state.refined;
-  if (r && sameX(meta.x, r.x) && meta.basis === r.basis && meta.exposure === r.exposure && sameX(r.x, state.x)
-      && state.basis === r.basis) return true;
+  if (r && sameX(meta.x, r.x) && meta.basis === r.basis && sameX(r.x, state.x) && state.basis === r.basis) return true;
   if (r || state.dragging) clearRefined();
   return false;
 }
