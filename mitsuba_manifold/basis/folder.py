@@ -7,6 +7,7 @@ read_manifest`` keeps working.
 """
 
 import os
+import threading
 import time
 
 import numpy as np
@@ -88,6 +89,7 @@ class Basis:
         self._cross = None  # (pairs {(a, b): row}, float16 (P, H, W, 3)) once read
         self._cross32 = {}  # row -> float32 (H, W, 3), the rows blended so far
         self._derived = {}  # name -> what derived() made from the folder's files
+        self._read_lock = threading.RLock()  # one reader of a file kept here (explorer threads)
 
     @classmethod
     def load(cls, folder, manifold=None, scene=None, verify=False):
@@ -135,9 +137,10 @@ class Basis:
     def derived(self, name, make):
         """``make(self)`` once per basis object, kept under ``name``: what other modules read from
         the folder's files (e.g. its AOVs for denoising) without re-reading them per blend."""
-        if name not in self._derived:
-            self._derived[name] = make(self)
-        return self._derived[name]
+        with self._read_lock:
+            if name not in self._derived:
+                self._derived[name] = make(self)
+            return self._derived[name]
 
     def __repr__(self):
         return (f"Basis({self.folder!r}: {len(self.keys)} images, targets {self.targets}, "
@@ -178,6 +181,10 @@ class Basis:
         """The cross terms ``C_ij`` (:mod:`.crossterms`): ``({(name_i, name_j): row}, float16
         (P, H, W, 3))``, read once and kept as stored (half the memory of float32; a blend
         converts the few rows it uses); empty without them."""
+        with self._read_lock:
+            return self._cross if self._cross is not None else self._read_cross()
+
+    def _read_cross(self):
         if self._cross is None:
             entry = self.manifest.get("cross")
             w, h = self.resolution

@@ -50,8 +50,11 @@ def _float64(a):
 
 def stored(name, doc):
     """A property of the owner's ``_store`` (a :class:`TrainingTables`) attribute ``name``, set as float64."""
-    return property(lambda self: getattr(self._store, name),
-                    lambda self, value: setattr(self._store, name, _float64(value)), doc=doc)
+    def set_(self, value):
+        setattr(self._store, name, _float64(value))
+        self._store.__dict__.pop("_pruned", None)   # pruning answers made with the old matrices
+
+    return property(lambda self: getattr(self._store, name), set_, doc=doc)
 
 
 class TrainingTables:
@@ -174,8 +177,8 @@ class TrainingTables:
             ``|w_i|`` over the dropped materials).
         """
         w = self._checked(w, budget, rule)
-        # the last few answers are kept: the explorer prunes the same point for its frame, its
-        # table and its description (3-6 ms each at N = 100)
+        # the last few answers are kept (first in, first out; cleared when a matrix is set): the
+        # explorer prunes the same point for its frame, its table and its description (3-6 ms each)
         key = (w.tobytes(), float(budget), rule, None if folder is None else os.fspath(folder))
         memo = self.__dict__.setdefault("_pruned", {})
         with _MEMO_LOCK:

@@ -281,7 +281,7 @@ def test_release_refines_the_point_to_its_full_gi_image(browser, small_basis, sm
             brighter = np.array(pg.evaluate(pixels), float)
             assert pg.evaluate("document.getElementById('scene').dataset.refined") == "r1"
             assert brighter.mean() > refined.mean() + 5, (brighter.mean(), refined.mean())
-            pg.wait_for_timeout(500)   # the frame the exposure asked for (the blend) does not replace it
+            pg.wait_for_timeout(500)   # nothing arriving later (a frame, another tonemap) replaces it
             np.testing.assert_array_equal(np.array(pg.evaluate(pixels), float), brighter)
             assert pg.evaluate("document.getElementById('scene').dataset.refined") == "r1"
             _set(pg, m.latent[m.index("gold-paint")])   # a move: blends again

@@ -266,8 +266,8 @@ def summary(report):
             "ratio_target": RATIO_TARGET, "meets_ratio": sum(e["meets_ratio"] for e in rp), "random_of": len(rp),
             "held_out_better": sum(e["better_than_single"] for e in ho), "held_out_of": len(ho),
             "held_out_better_than_basis_uncovered": sum(e["better_than_basis_uncovered"] for e in ho),
-            "held_out_better_than_basis_uncovered_noise_free": sum(e.get("better_than_basis_uncovered_noise_free", False)
-                                                                   for e in ho),
+            "held_out_better_than_basis_uncovered_noise_free": (None if any("better_than_basis_uncovered_noise_free" not in e for e in ho) else
+                                                                 sum(e["better_than_basis_uncovered_noise_free"] for e in ho)),
             "peak_rss_gib": max([peak_rss_gib()] + [report.get("timing", {}).get("peak_rss_gib", 0)])}
 
 

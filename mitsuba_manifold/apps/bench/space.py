@@ -138,15 +138,16 @@ def _convex_blend(A, y):
     return res.x if res.fun <= f(w0)[0] else w0
 
 
-def _blend_reference(tables, G_log, ks=(4, 8)):
+def _blend_reference(tables, G_log, only_folds=None, ks=(4, 8)):
     """What a space of convex weights could reach: for each held-out material (the same
     folds), the best convex blend of its ``k`` closest training materials, with no latent
     space at all; its error (all bins) over the nearest material's, as in the held-out rows."""
     n, d = tables.shape
     bins = projection.search_bins(d)
     T = tables[:, bins].astype(np.float64)
-    ratios, bounds = {k: [] for k in ks}, np.cumsum([0] + [len(f) for f in space.folds(n)])
-    for test in space.folds(n):
+    tests = [f for i, f in enumerate(space.folds(n)) if only_folds is None or i in only_folds]   # as cross_validate's
+    ratios, bounds = {k: [] for k in ks}, np.cumsum([0] + [len(f) for f in tests])
+    for test in tests:
         train = np.setdiff1d(np.arange(n), test)
         nearest = space.baseline_errors(G_log, train, test, d, components=())["nearest"]
         for t, near in zip(test, nearest):
@@ -223,7 +224,7 @@ def run(folder, basis=None, configs=None, names=None, folds=None, progress=True)
     for c in configs:
         out["configs"][c] = _config_report(c, cfgs[c], tables, names, grams, albedos, images, base,
                                            folds, progress)
-    out["convex_blend_reference"] = _blend_reference(tables, grams["log"])
+    out["convex_blend_reference"] = _blend_reference(tables, grams["log"], folds)
     del tables
     if "default" in configs:
         _, out["default_costs"] = _default_costs(folder, names)

@@ -103,12 +103,12 @@ class Explorer:
         self._maps, self._maps_lock = {}, threading.Lock()
         threading.Thread(target=self._first_map, name="explore-map", daemon=True).start()
 
-    def _first_map(self):   # meanwhile: the map the page opens on, then the bases' float32 cross terms
+    def _first_map(self):   # meanwhile: the map the page opens on, then the first basis's float32 cross terms
         try:
             self.map_png("0,1", self.start_point())
-            _warm(self.bases)
         except Exception:   # the page asks for it anyway (and gets the error there)
             pass
+        _warm(self.bases)
 
     # ------------------------------------------------------------ requests
     def key(self, name):

@@ -63,6 +63,7 @@ async function showRefined(job, x, basis, current) {
   state.refined = { x, basis, exposure, job: job.id };
   $("scene").dataset.refined = job.id;
   $("scene").dataset.refinedExposure = exposure;
+  if (state.exposure !== exposure) reexposeRefined();   // the exposure moved while the image loaded
   return true;
 }
 
@@ -82,7 +83,12 @@ function reexposeRefined() {
   if (!r) return false;
   const exposure = state.exposure, run = ++reexposeRun;
   refinedImage(r.job, exposure).then((img) => {
-    if (!img || run !== reexposeRun || state.refined !== r || state.exposure !== exposure) return;
+    if (run !== reexposeRun || state.refined !== r || state.exposure !== exposure) return;
+    if (!img) {   // the refinement is gone (trimmed): back to the blend at this exposure
+      clearRefined();
+      channel.send(Object.assign({ type: "frame" }, frameRequest()), ["frame"]);
+      return;
+    }
     $("scene").getContext("2d").drawImage(img, 0, 0);
     r.exposure = exposure;
     $("scene").dataset.refinedExposure = exposure;
