@@ -149,12 +149,23 @@ def shrink(img, size):
 
 def _cleaner(basis):
     """``clean(image, name)``: a material's thumbnail render denoised by OIDN, guided by its albedo
-    and the normals of the basis's AOVs; the image as it is without pyoidn or the AOVs."""
+    and the normals of the basis's AOVs (unguided without them); the image as it is without pyoidn."""
     from ...basis.denoise import BasisAOVs, denoise
+    from ...errors import MismatchError
     if not _have_denoiser():   # the renders as they are
         return lambda img, name: img
-    aovs = BasisAOVs.load(basis.folder, basis.manifest)
-    return lambda img, name: denoise(img, aovs.albedo({name: 1.0}), aovs.normal, quality="high")
+    try:
+        aovs = BasisAOVs.load(basis.folder, basis.manifest)
+    except MismatchError:   # no AOVs, or another basis's
+        aovs = None
+
+    def clean(img, name):
+        try:
+            guides = (aovs.albedo({name: 1.0}), aovs.normal) if aovs else (None, None)
+        except MismatchError:   # AOVs older than this material
+            guides = (None, None)
+        return denoise(img, *guides, quality="high")
+    return clean
 
 
 def _have_denoiser():
