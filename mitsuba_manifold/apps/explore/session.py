@@ -173,7 +173,7 @@ class Session:
             route = await asyncio.wrap_future(future)
             return dict(route, type="route"), b""
         x = ex.point(req.get("x"), "x")
-        kind = "frame" if kind == FINAL else kind
+        kind = _shown(kind)
         tag = {"type": kind, "x": [float(v) for v in x]}
         if kind == "frame":
             exposure = ex.number(req.get("exposure"), "exposure", -20, 20, 0.0)

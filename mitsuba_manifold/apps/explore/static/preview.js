@@ -102,8 +102,8 @@ const HALF_TO_FLOAT = (() => {
   return out;
 })();
 
-const MAX_LIGHTS = 17;
-const FULL_AFTER = 150;   // ms at rest before the sphere is drawn in full (setFast)   // 16 median-cut lights of the environment and the key light
+const MAX_LIGHTS = 17;    // 16 median-cut lights of the environment and the key light
+const FULL_AFTER = 150;   // ms at rest before the sphere is drawn in full (setFast)
 
 class MaterialPreview {
   constructor(canvas, message) {
