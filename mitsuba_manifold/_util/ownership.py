@@ -298,6 +298,16 @@ def write_table_record(out_dir, settings, made, pending=()):
     write_bytes(os.path.join(out_dir, DATABASE_JSON), text)
 
 
+def pending_tables(out_dir):
+    """Names listed as ``pending`` in ``<out_dir>/database.json`` (tables a killed run was writing;
+    one may be on disk without the cache its worker writes after it), empty without a record."""
+    try:
+        with open(os.path.join(out_dir, DATABASE_JSON), encoding="utf-8") as f:
+            return set(json.load(f).get("pending", []))
+    except (OSError, ValueError, AttributeError, TypeError):
+        return set()
+
+
 def owned_tables(out_dir, settings, names, force):
     """Names of the tables in ``out_dir`` that ``database.make_database`` made with ``settings``.
 

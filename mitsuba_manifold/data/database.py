@@ -16,7 +16,7 @@ from .surrogate import FITS_PATH, SGD_FIELDS, load_sgd_fits, sgd_reflectance, ta
 from .surrogate import bin_geometry
 from .._util.atomic import is_temporary, sweep
 from .._util.locking import FolderLock
-from .._util.ownership import owned_tables, write_table_record
+from .._util.ownership import owned_tables, pending_tables, write_table_record
 from .._util.workers import owned_pool
 from .._util.cache import adopt_hash, file_hash, file_identity, key_hash, npy_cache
 from ..errors import FormatError, MissingFileError, UnknownMaterialError, did_you_mean
@@ -86,10 +86,10 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     with FolderLock(out_dir, "database folder"):
         for folder in (out_dir, cache_folder(out_dir)):   # temporaries of killed writers (a killed run's)
             sweep(folder)
-        made = owned_tables(out_dir, settings, names, force)
+        made, was_pending = owned_tables(out_dir, settings, names, force), pending_tables(out_dir)
         paths = [os.path.join(out_dir, name + ".binary") for name in names]
-        todo = [(name, path) for name, path in zip(names, paths)
-                if name not in made or not _valid_table(path, dims)]
+        todo = [(name, path) for name, path in zip(names, paths) if name not in made or not _valid_table(path, dims)
+                or (name in was_pending and not _has_reflectance(path, cache_folder(out_dir)))]
         made -= {name for name, _ in todo}
         pending = {name for name, _ in todo}   # listed before they are written: a killed run's are its own
         write_table_record(out_dir, settings, made, pending)
@@ -123,10 +123,14 @@ def _tabulate(jobs, workers, made, record, total, progress):
                     bar.update()
         finally:
             finished = {job[5] for job in jobs if job[5] not in made and _inode(job[1]) != before[job[5]]
-                        and _valid_table(job[1], dims)}
+                        and _valid_table(job[1], dims) and _has_reflectance(job[1], job[6])}
             if finished:
                 made |= finished
                 record()
+
+
+def _has_reflectance(path, cache):   # else a worker stopped in between: the next run makes it again
+    return os.path.exists(os.path.join(cache, f"{file_hash(path)}.refl.npy"))
 
 
 def _inode(path):

@@ -184,3 +184,27 @@ def test_a_database_skips_the_temporary_files_of_writers(tmp_path, small_db):
     (folder / ".ipswich-pine-221.binary.1234.tmp.binary").write_bytes(b"\0" * 12)
     (folder / ".chrome.binary.99-abcd-x1y2.tmp.binary").write_bytes(b"\0" * 12)
     assert sorted(Database(str(folder)).names) == first
+
+
+def test_a_table_written_without_its_cache_is_made_again(tmp_path, monkeypatch):
+    """A run stopped between a table and its reflectance cache (SIGTERM reaching a worker there):
+    the next run makes that table again, and the folder is the one an uninterrupted run makes."""
+    import sys
+    sys.path.insert(0, os.path.dirname(os.path.dirname(__file__)))
+    from guarantees_helpers import snapshot
+    names, dims = ["steel", "chrome", "gold-paint"], (8, 8, 16)
+    database.make_database(tmp_path / "clean", dims, names)
+    real, calls = database.npy_cache, []
+
+    def stopped(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt   # the second table is on disk, its cache is not
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(database, "npy_cache", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        database.make_database(tmp_path / "db", dims, names)
+    monkeypatch.setattr(database, "npy_cache", real)
+    database.make_database(tmp_path / "db", dims, names)
+    assert snapshot(tmp_path / "db") == snapshot(tmp_path / "clean")
