@@ -156,13 +156,23 @@ def _temporary(path, folder):
 
 
 def _alive(pid):
+    """Whether process ``pid`` runs; a zombie (ended, not yet reaped: a killed run's worker whose
+    parent died too) does not."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except (PermissionError, OverflowError, ValueError):
         return True
-    return True
+    if not os.path.isdir("/proc/self"):   # not Linux: as os.kill says
+        return True
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:   # ended meanwhile
+        return False
+    except (OSError, IndexError):
+        return True
 
 
 def sweep(folder, force=False):

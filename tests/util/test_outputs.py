@@ -178,3 +178,29 @@ def test_a_database_folder_never_counts_temporary_files_as_tables(tmp_path):
     (tmp_path / atomic.temporary_name(tmp_path / "chrome.binary", "123-abcd-0123abcd")).write_bytes(b"half")
     (tmp_path / ownership.DATABASE_JSON).write_text('{"resolution": [8, 8, 16]}')   # no table list: older
     assert ownership.owned_tables(tmp_path, {"resolution": [8, 8, 16]}, ["steel"], False) == {"steel"}
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="zombies read from /proc")
+def test_a_zombie_writers_temporary_file_is_swept(tmp_path):
+    """A killed run's worker that ended but was not reaped (its parent died too) is a zombie: its
+    temporary file is swept like a dead process's, and a running process's is kept."""
+    import time
+    ended = subprocess.Popen([sys.executable, "-c", "pass"])
+    running = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:   # not waited for: a zombie once it has ended
+            with open(f"/proc/{ended.pid}/stat") as f:
+                if f.read().rsplit(")", 1)[1].split()[0] == "Z":
+                    break
+            time.sleep(0.02)
+        host = atomic._host()
+        for proc, name in ((ended, "a"), (running, "b")):
+            (tmp_path / f".{name}.npy.{proc.pid}-{host}-0123abcd.tmp").write_bytes(b"x")
+        removed = atomic.sweep(tmp_path, force=True)
+        assert [n.startswith(".a.") for n in removed] == [True]
+        assert (tmp_path / f".b.npy.{running.pid}-{host}-0123abcd.tmp").exists()
+    finally:
+        running.kill()
+        running.wait()
+        ended.wait()
