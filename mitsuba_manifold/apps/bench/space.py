@@ -7,8 +7,12 @@ database with the tables loaded once:
   :func:`projection.project`; error = RMS of ``log(1 + rho)`` differences over all bins)
   against the nearest training material, PCA with k = q and k = 5 in ``log(1 + rho)`` and the
   mean; negative-bin fraction and albedo of the best points;
+  the per-material ratio to the nearest material fold by fold (sets of ten none was tuned on);
+* a reference with no latent space: the best convex blend of each held-out material's 4 and 8
+  closest training materials (what convex weights could reach at best);
 * path smoothness: 20 pairs of latent neighbours, 41 points each; the largest step's share
   of the path's length in weights and in tonemapped images of the basis (when given);
+  in weights also on every pair of a material and its nearest latent neighbour;
 * jump at training points, plausibility over the latent box (+10%);
 * fit time (``Manifold.fit`` on the whole database) and one interpolated table, for the
   default; and the default prune's exact table error over random points.
