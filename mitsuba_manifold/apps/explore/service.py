@@ -98,7 +98,7 @@ class Explorer:
         if thumbnails:
             from .thumbs import Thumbnails
             self.thumbs = Thumbnails(self.manifold_path, self.manifold,
-                                     cache_folder(next(iter(self.bases.values())).folder))
+                                     cache_folder(next(iter(self.bases.values())).folder), after=self.tables and self.tables.wait)
         self.references = References()
         self._maps, self._maps_lock = {}, threading.Lock()
         threading.Thread(target=self._first_map, name="explore-map", daemon=True).start()

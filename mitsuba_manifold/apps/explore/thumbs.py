@@ -39,10 +39,11 @@ class Thumbnails:
     """The thumbnail sheet of a manifold's materials, made in the background.
 
     ``state``: ``"rendering"``, ``"ready"`` or ``"unavailable"`` (``message`` says why);
-    :meth:`sheet` the PNG once ready.
+    :meth:`sheet` the PNG once ready. ``after``: called before rendering (the explorer passes its
+    tables' ``wait``, so that a first start loads the tables before the thumbnails take the cores).
     """
 
-    def __init__(self, manifold_path, manifold, cache_dir, size=SIZE, spp=SPP):
+    def __init__(self, manifold_path, manifold, cache_dir, size=SIZE, spp=SPP, after=None):
         from ..._util.cache import file_hash, key_hash
         from ...render import scenes
         self.manifold_path, self.manifold, self.size, self.spp = manifold_path, manifold, int(size), int(spp)
@@ -52,6 +53,7 @@ class Thumbnails:
         self.folder = os.path.join(cache_dir, f"thumbs-{key}")
         self.columns = max(1, math.ceil(math.sqrt(manifold.n)))
         self.state, self.message, self._png, self._proc, self._closed = "rendering", "rendering thumbnails", None, None, False
+        self._after = after   # called before rendering: the material tables load first (start-up)
         self._thread = threading.Thread(target=self._make, name="explore-thumbs", daemon=True)
         self._thread.start()
 
@@ -79,6 +81,8 @@ class Thumbnails:
     def _make(self):
         try:
             if not self._complete():
+                if self._after is not None:
+                    self._after()
                 self._render()
             if self._closed:
                 return
