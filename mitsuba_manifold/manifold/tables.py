@@ -11,7 +11,6 @@ and the combination itself, reading only the kept tables.
 
 import numbers
 import os
-import threading
 from typing import NamedTuple
 
 import numpy as np
@@ -21,11 +20,11 @@ from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES
 from .._util.cache import key_hash, npy_cache
 from ..data.database import Database, albedo_weights
 from ..errors import FormatError, InputError
+from .._util.recent import Recent
 
 
 #: Answers of :meth:`TrainingTables.prune` kept (the newest).
 PRUNE_MEMO = 8
-_MEMO_LOCK = threading.Lock()
 
 
 class Pruned(NamedTuple):
@@ -52,7 +51,7 @@ def stored(name, doc):
     """A property of the owner's ``_store`` (a :class:`TrainingTables`) attribute ``name``, set as float64."""
     def set_(self, value):
         setattr(self._store, name, _float64(value))
-        self._store.__dict__.pop("_pruned", None)   # pruning answers made with the old matrices
+        self._store.pruned.clear()   # pruning answers made with the old matrices
 
     return property(lambda self: getattr(self._store, name), set_, doc=doc)
 
@@ -81,6 +80,7 @@ class TrainingTables:
         self.names, self.hashes = names, hashes
         self.gram, self.cos_gram, self.albedos = _float64(gram), _float64(cos_gram), _float64(albedos)
         self.loaded = None
+        self.pruned = Recent(PRUNE_MEMO)   # the explorer prunes each point for frame, table and description
 
     def open(self, folder, names=None):
         """The :class:`Database` in ``folder``, its tables of ``names`` (default all) checked
@@ -177,23 +177,15 @@ class TrainingTables:
             ``|w_i|`` over the dropped materials).
         """
         w = self._checked(w, budget, rule)
-        # the last few answers are kept (first in, first out; cleared when a matrix is set): the
-        # explorer prunes the same point for its frame, its table and its description (3-6 ms each)
         key = (w.tobytes(), float(budget), rule, None if folder is None else os.fspath(folder))
-        memo = self.__dict__.setdefault("_pruned", {})
-        with _MEMO_LOCK:
-            hit = memo.get(key)
-        if hit is None:
-            if rule == "raw-l2":
-                hit = Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
-            else:
-                hit = Pruned(*pruning.prune_image(w, self.cosine_gram(folder), self.albedo(folder), budget,
-                                                  G=self.raw_gram(folder)))
-            with _MEMO_LOCK:
-                memo[key] = hit
-                while len(memo) > PRUNE_MEMO:
-                    memo.pop(next(iter(memo)))
+        hit = self.pruned.get(key, lambda: self._prune(w, budget, folder, rule))   # cleared when a matrix is set
         return Pruned(hit.keep.copy(), hit.w_kept.copy(), hit.dropped)   # the caller may change its arrays
+
+    def _prune(self, w, budget, folder, rule):
+        if rule == "raw-l2":
+            return Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
+        return Pruned(*pruning.prune_image(w, self.cosine_gram(folder), self.albedo(folder), budget,
+                                           G=self.raw_gram(folder)))
 
     def error(self, w, keep, folder, rule=DEFAULT_RULE):
         """The relative L2 change of the table in the norm of ``rule`` (cosine-weighted for

@@ -27,6 +27,7 @@ import threading
 import numpy as np
 
 from .walks import metric_columns
+from ..._util.recent import Recent
 
 #: Largest preview table (n_theta_h, n_theta_d, n_phi_d) sent to the browser.
 PREVIEW_DIMS = (45, 45, 90)
@@ -124,8 +125,7 @@ class TableStack:
         self.state, self.message = "loading", "loading tables"
         self.dims = self.preview_dims = self.metric_rows = self._coarse = None
         self._ready = threading.Event()
-        self._lock = threading.Lock()
-        self._recent = {}
+        self._recent = Recent(RECENT)
         self._thread = threading.Thread(target=self._load, name="explore-tables", daemon=True)
         self._thread.start()
 
@@ -223,15 +223,7 @@ class TableStack:
         the bytes: the page's sphere while a drag runs). The page asks for the material's
         description and its table at the same point: the last few answers are kept."""
         key = (np.asarray(x, dtype=np.float64).tobytes(), float(prune), bool(coarse))
-        with self._lock:
-            if key in self._recent:
-                return self._recent[key]
-        out = self._preview(x, prune, coarse)
-        with self._lock:
-            self._recent[key] = out
-            while len(self._recent) > RECENT:
-                self._recent.pop(next(iter(self._recent)))
-        return out
+        return self._recent.get(key, lambda: self._preview(x, prune, coarse))
 
     def _preview(self, x, prune, coarse=False):
         table = self._combine(self._coarse if coarse else self._reduced, x, prune)
