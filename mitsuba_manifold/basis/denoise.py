@@ -192,6 +192,12 @@ def denoised_l2(basis, image, keys, weights):
     return out.astype(np.float32)
 
 
+def basis_aovs(basis):
+    """The :class:`BasisAOVs` of ``basis`` (read once per basis object), or None when it has none
+    made for it."""
+    return basis.derived("aovs", _aovs_or_none)
+
+
 def _aovs_or_none(basis):
     try:
         return BasisAOVs.load(basis.folder, basis.manifest)
@@ -201,7 +207,7 @@ def _aovs_or_none(basis):
 
 def _guides(basis, info):
     """``(albedo, normal)`` of a one-target L1- blend from the basis's AOVs, or ``(None, None)``."""
-    aovs = basis.derived("aovs", _aovs_or_none)
+    aovs = basis_aovs(basis)
     if not aovs:
         return None, None
     try:

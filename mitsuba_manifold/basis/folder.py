@@ -182,26 +182,25 @@ class Basis:
         (P, H, W, 3))``, read once and kept as stored (half the memory of float32; a blend
         converts the few rows it uses); empty without them."""
         with self._read_lock:
-            return self._cross if self._cross is not None else self._read_cross()
+            if self._cross is None:
+                self._cross = self._read_cross()
+            return self._cross
 
     def _read_cross(self):
-        if self._cross is None:
-            entry = self.manifest.get("cross")
-            w, h = self.resolution
-            if entry is None or "cross" not in self.components:
-                self._cross = ({}, np.zeros((0, h, w, 3), np.float16))
-            else:
-                path = os.path.join(self.folder, entry["file"])
-                try:
-                    with np.load(path) as data:
-                        pairs, images = data["pairs"], np.asarray(data["images"], np.float16)
-                except (OSError, KeyError, ValueError) as e:
-                    raise MismatchError(f"basis {self.folder}: cross terms {path} unreadable ({e})") from None
-                if images.shape != (len(pairs), h, w, 3):
-                    raise MismatchError(f"basis {self.folder}: {path} holds images of shape {images.shape[1:]}, "
-                                        f"the manifest says {w}x{h}")
-                self._cross = ({(str(a), str(b)): r for r, (a, b) in enumerate(pairs)}, images)
-        return self._cross
+        entry = self.manifest.get("cross")
+        w, h = self.resolution
+        if entry is None or "cross" not in self.components:
+            return {}, np.zeros((0, h, w, 3), np.float16)
+        path = os.path.join(self.folder, entry["file"])
+        try:
+            with np.load(path) as data:
+                pairs, images = data["pairs"], np.asarray(data["images"], np.float16)
+        except (OSError, KeyError, ValueError) as e:
+            raise MismatchError(f"basis {self.folder}: cross terms {path} unreadable ({e})") from None
+        if images.shape != (len(pairs), h, w, 3):
+            raise MismatchError(f"basis {self.folder}: {path} holds images of shape {images.shape[1:]}, "
+                                f"the manifest says {w}x{h}")
+        return {(str(a), str(b)): r for r, (a, b) in enumerate(pairs)}, images
 
     def cross_term(self, row):
         """Cross term ``row`` of :meth:`cross_terms` as float32 (H, W, 3), converted once and kept

@@ -154,14 +154,11 @@ def shrink(img, size):
 def _cleaner(basis):
     """``clean(image, name)``: a material's thumbnail render denoised by OIDN, guided by its albedo
     and the normals of the basis's AOVs (unguided without them); the image as it is without pyoidn."""
-    from ...basis.denoise import BasisAOVs, denoise
+    from ...basis.denoise import basis_aovs, denoise
     from ...errors import MismatchError
     if not _have_denoiser():   # the renders as they are
         return lambda img, name: img
-    try:
-        aovs = BasisAOVs.load(basis.folder, basis.manifest)
-    except MismatchError:   # no AOVs, or another basis's
-        aovs = None
+    aovs = basis_aovs(basis)   # None: no AOVs, or another basis's
 
     def clean(img, name):
         try:
