@@ -77,14 +77,15 @@ def summary(rows, pair_a=None):
     return out
 
 
-def preset_report(m, sets, kinds, progress=True):
+def preset_report(m, sets, kinds, progress=True, every=False):
     """Paths of every kind for every pair of ``sets`` on manifold ``m``, measured on the full grid
-    (BLAS on one thread, as :func:`paths.path` runs: threads only contend on a busy machine)."""
+    (BLAS on one thread, as :func:`paths.path` runs: threads only contend on a busy machine);
+    ``every``: also :func:`every_pair_report`, with the same metrics."""
     with paths.single_threaded():
-        return _preset_report(m, sets, kinds, progress)
+        return _preset_report(m, sets, kinds, progress, every)
 
 
-def _preset_report(m, sets, kinds, progress):
+def _preset_report(m, sets, kinds, progress, every):
     full = paths.PathMetric(m, (1, 1, 1))
     search = paths.PathMetric.of(m)
     t0 = time.perf_counter()
@@ -106,6 +107,8 @@ def _preset_report(m, sets, kinds, progress):
                   f"({h['largest_step']:.3f}), median still {s['median_still']:.2f} ({h['median_still']:.2f}), "
                   f"pair (a) {s.get('pair_a_deviation', float('nan')):.3f}; {np.median(times):.2f} s a path",
                   flush=True)
+    if every:
+        out["every_neighbour_pair"] = every_pair_report(m, progress, (full, search))
     return out
 
 
@@ -123,12 +126,14 @@ def _rows(m, pairs, kind, full, search, times):
     return rows
 
 
-def every_pair_report(m, progress=True):
+def every_pair_report(m, progress=True, metrics=None):
     """The default kind between every material and its nearest latent neighbour (each pair once,
-    :func:`space.all_neighbour_pairs`): the pair set no seed chooses."""
+    :func:`space.all_neighbour_pairs`): the pair set no seed chooses. ``metrics``: the full-grid
+    and the search :class:`paths.PathMetric` when the caller has them."""
     pairs = [(m.names[i], m.names[j]) for i, j in space.all_neighbour_pairs(m.latent)]
+    full, search = metrics or (paths.PathMetric(m, (1, 1, 1)), paths.PathMetric.of(m))
     with paths.single_threaded():
-        rows = _rows(m, pairs, paths.DEFAULT_KIND, paths.PathMetric(m, (1, 1, 1)), paths.PathMetric.of(m), [])
+        rows = _rows(m, pairs, paths.DEFAULT_KIND, full, search, [])
     out = {"kind": paths.DEFAULT_KIND, **summary(rows),
            "steps_over_target": int(sum(r["largest_step"] > TARGETS["largest_step"] for r in rows)),
            "rows": [{k: r[k] for k in ("pair", "deviation", "largest_step", "still")} for r in rows]}
@@ -189,10 +194,8 @@ def run(folder, presets=("default", "paper"), kinds=paths.KINDS, names=None, plo
         if progress:
             print(f"{preset}: fitted in {time.perf_counter() - t0:.1f} s; {sum(map(len, sets.values()))} pairs",
                   flush=True)
-        rep = preset_report(m, sets, kinds, progress)
+        rep = preset_report(m, sets, kinds, progress, every=preset == "default")
         rep["fit_s"] = m.info["time_fit_s"]
-        if preset == "default":
-            rep["every_neighbour_pair"] = every_pair_report(m, progress)
         if plot_stem:
             rep["plot"] = plot(rep, f"{plot_stem}_{preset}.png", preset)
         out["presets"][preset] = rep
