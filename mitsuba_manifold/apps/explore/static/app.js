@@ -85,6 +85,7 @@ function sliceKey() {
 }
 
 function frameRequest() { return { x: state.x, exposure: state.exposure, basis: state.basis, format: state.format }; }
+function requestFrame() { channel.send(Object.assign({ type: "frame" }, frameRequest()), ["frame"]); }   // the full frame of the point
 
 // While a drag runs (pointer down on the map, a slider moving) the scene follows every move;
 // the panel (material, snippet) and the sphere's table follow at most every LIVE[kind] ms, so
@@ -626,7 +627,7 @@ async function main() {
     $("exposure-val").textContent = state.exposure.toFixed(1) + " EV";
     preview && preview.setExposure(state.exposure);
     updateSavePng();
-    if (!reexposeRefined()) channel.send(Object.assign({ type: "frame" }, frameRequest()), ["frame"]);
+    if (!reexposeRefined()) requestFrame();
   };
   for (const n of [...info.names].sort()) $("material-names").appendChild(new Option(n));
   $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there

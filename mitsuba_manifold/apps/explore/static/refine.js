@@ -5,7 +5,7 @@
 // noise, estimated from a few passes, can be too low where fireflies are rare. The status says
 // whether the blend agrees within that noise; "show refined" draws the refined image until the
 // point or the basis changes (a new exposure re-exposes it: reexposeRefined). Uses app.js's state,
-// $, api, sameX and fmtNum.
+// $, api, sameX, fmtNum and requestFrame.
 "use strict";
 
 let refineRun = 0;
@@ -86,7 +86,7 @@ function reexposeRefined() {
     if (run !== reexposeRun || state.refined !== r || state.exposure !== exposure) return;
     if (!img) {   // the refinement is gone (trimmed): back to the blend at this exposure
       clearRefined();
-      channel.send(Object.assign({ type: "frame" }, frameRequest()), ["frame"]);
+      requestFrame();
       return;
     }
     $("scene").getContext("2d").drawImage(img, 0, 0);
