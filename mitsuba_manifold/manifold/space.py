@@ -212,9 +212,7 @@ class Paths(_Report):
 
 def neighbour_pairs(latent, n_pairs=20, seed=0, include=()):
     """``n_pairs`` pairs (i, nearest latent neighbour of i), i random (fixed seed); ``include`` first."""
-    d2 = ((latent[:, None] - latent[None]) ** 2).sum(-1)
-    np.fill_diagonal(d2, np.inf)
-    nn = d2.argmin(axis=1)
+    nn = _nearest_neighbour(latent)
     pairs = [tuple(p) for p in include]
     for i in np.random.default_rng(seed).permutation(len(latent)):
         if len(pairs) >= n_pairs:
@@ -227,9 +225,14 @@ def neighbour_pairs(latent, n_pairs=20, seed=0, include=()):
 
 def all_neighbour_pairs(latent):
     """Every pair (i, nearest latent neighbour of i), each once, sorted: the pair set no seed chooses."""
+    return sorted({tuple(sorted((i, int(j)))) for i, j in enumerate(_nearest_neighbour(latent))})
+
+
+def _nearest_neighbour(latent):
+    """Index of each latent point's nearest other point."""
     d2 = ((latent[:, None] - latent[None]) ** 2).sum(-1)
     np.fill_diagonal(d2, np.inf)
-    return sorted({tuple(sorted((i, int(j)))) for i, j in enumerate(d2.argmin(axis=1))})
+    return d2.argmin(axis=1)
 
 
 def step_share(steps):
