@@ -12,8 +12,7 @@ the measured tables: training materials are reproduced exactly, and far from eve
 latent point ``b -> 0`` and the material tends to the mean BRDF. That is ``preset="paper"``.
 
 The default preset keeps the GPLVM layout but fits it on ``log(1 + rho)`` features in
-q = 5 dimensions (the paper's choice for the full database, measured better than q = 3 on
-held-out materials and on paths) and interpolates with convex, continuous, local weights
+q = 3 dimensions and interpolates with convex, continuous, local weights
 (:class:`interpolant.ShepardWeights`): still a linear combination of the tables (so blends
 of images stay exact), but never negative, without a jump next to the training points, and
 a point between two neighbours is a blend of those two. The choice is measured by

@@ -16,7 +16,7 @@ from ..errors import InputError
 PRESETS = {
     "paper": {"q": 2, "features": "raw", "method": "hooke-jeeves", "length_scale": 1.0, "noise": 1e-4,
               "interpolant": {"kind": "gp", "exact": True}},
-    "default": {"q": 5, "features": "log", "method": "lbfgs", "length_scale": 1.0, "noise": 1e-4,
+    "default": {"q": 3, "features": "log", "method": "lbfgs", "length_scale": 1.0, "noise": 1e-4,
                 "interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2, "spread": 0.1}},
 }
 

@@ -37,7 +37,7 @@ def main(argv=None):
     p.add_argument("database", help="folder of <name>.binary MERL tables")
     p.add_argument("--out", required=True, help="output manifold (.npz)")
     p.add_argument("--preset", choices=["default", "paper"], default="default",
-                   help="default: the measured best (log features, q=5, convex Shepard weights); paper: the "
+                   help="default: the measured best (log features, q=3, convex Shepard weights); paper: the "
                         "paper's exact formulation (raw features, q=2, Hooke-Jeeves, Eq. 4 GP weights). "
                         "The options below override the preset")
     p.add_argument("--q", type=int, default=None, help="latent dimension (1..8)")
