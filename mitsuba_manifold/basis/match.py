@@ -24,12 +24,13 @@ of the ``N + 1`` images over the masked pixels makes every evaluation ``O(N^2)``
 resolution and exactly. The log loss evaluates the images at every step: the search runs on a
 box-downsampled copy and the best point is refined at full resolution.
 
-Search: every training material alone (``w = e_i``) and ``scan`` random points near the data
-are scored at once (one matrix product); L-BFGS-B (SciPy) then starts from the best single
-material's latent point and the best scanned points (``starts`` in all; with ``scan=0`` from
-the training points nearest to the best single material, which on a stiff manifold often
-misses the basin of the answer), and the best of the optimised points and the single
-materials is returned. A training point
+Search (:mod:`mitsuba_manifold.manifold.search`, shared with the render match): every
+training material alone (``w = e_i``) and ``scan`` random points near the data are scored at
+once (one matrix product); L-BFGS-B (SciPy) then starts from the best single material's
+latent point and the best scanned points (``starts`` in all; with ``scan=0`` from the
+training points nearest to the best single material, which on a stiff manifold often misses
+the basin of the answer), and the best of the optimised points and the single materials is
+returned. A training point
 itself is reachable exactly (every interpolant gives ``w = e_i`` there), so a training
 material's own image gives back its own point.
 """
@@ -38,18 +39,16 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import optimize
 from threadpoolctl import threadpool_limits
 
 from . import objectives as image_error
 from .folder import BASE, Basis
 from .compose import compose
 from ..errors import InputError
+from ..manifold import search as latent
 from .objectives import LOSSES, masked_pool, masked_rel_mse, pool
 from .targets import check_mask, check_target, read_mask, read_target
 
-#: Margin of the search box around the latent points, in length scales.
-MARGIN = 2.0
 #: Pixels of the downsampled search image (log loss) are about this many at most.
 SEARCH_PIXELS = 64 * 64
 
@@ -154,70 +153,6 @@ class MatchResult:
 
 
 # ------------------------------------------------------------------- search
-
-def _bounds(manifold):
-    lo = manifold.latent.min(axis=0) - MARGIN * manifold.length_scale
-    hi = manifold.latent.max(axis=0) + MARGIN * manifold.length_scale
-    return list(zip(lo, hi))
-
-
-def _evaluate(manifold, objective, prior):
-    """SciPy's ``fun(x) -> (value, gradient)`` for L-BFGS-B, counting evaluations."""
-    count = [0]
-
-    def fun(x):
-        count[0] += 1
-        _, w = manifold.weights(x)
-        err, gw, _ = objective(w)
-        grad = manifold.weights_jacobian(x).T @ gw
-        if prior:
-            err += prior * float(manifold.variance(x))
-            grad = grad + prior * manifold.variance_gradient(x)
-        return err, grad
-
-    return fun, count
-
-
-def _descend(manifold, objective, prior, x0, bounds, max_iter):
-    fun, count = _evaluate(manifold, objective, prior)
-    res = optimize.minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
-                            options={"maxiter": max_iter})
-    return {"x0": np.asarray(x0, dtype=float), "x": res.x, "objective": float(res.fun),
-            "n_evaluations": count[0], "message": str(res.message)}
-
-
-def _scan(manifold, objective, prior, bounds, n_points, seed=0):
-    """``n_points`` random latent points near the data (a training point plus a normal step
-    of ``l / 2``), scored at once; returns ``(points (M, q), objectives (M,))``."""
-    if n_points == 0:
-        return np.zeros((0, manifold.q)), np.zeros(0)
-    rng = np.random.default_rng(seed)
-    X = manifold.latent[rng.integers(manifold.n, size=n_points)]
-    X = X + 0.5 * manifold.length_scale * rng.standard_normal(X.shape)
-    X = np.clip(X, *np.array(bounds).T)
-    err, _ = objective.batch(manifold.weights(X)[1])
-    if prior:
-        err = err + prior * manifold.variance(X)
-    return X, err
-
-
-def _start_points(manifold, best, X, err, k, spread=0.25):
-    """``k`` starts: the best single material's latent point, then the best scanned points
-    at least ``spread * l`` apart (without scanned points: the training points nearest to
-    the best single material). Training points are nudged by ``1e-6 l`` so that the descent
-    starts on the smooth interpolant."""
-    nudge = 1e-6 * manifold.length_scale / np.sqrt(manifold.q)
-    if len(X) == 0:
-        d = np.linalg.norm(manifold.latent - manifold.latent[best], axis=1)
-        return [manifold.latent[i] + nudge for i in np.argsort(d, kind="stable")[:k]]
-    chosen = [manifold.latent[best] + nudge]
-    for i in np.argsort(err, kind="stable"):
-        if len(chosen) == k:
-            break
-        if min(np.linalg.norm(X[i] - c) for c in chosen) >= spread * manifold.length_scale:
-            chosen.append(X[i])
-    return chosen
-
 
 def _downsample_factor(resolution, downsample):
     if downsample is not None:
@@ -352,15 +287,15 @@ def _search(manifold, search, full, opts, f):
     prior = opts.prior
     var_train = prior * manifold.variance(manifold.latent)
     best = int(np.argmin(search.batch(np.eye(manifold.n))[0] + var_train))
-    bounds = _bounds(manifold)
-    X, scan_err = _scan(manifold, search, prior, bounds, opts.scan)
+    bounds = latent.box(manifold)
+    X, scan_err = latent.scan(manifold, search, prior, bounds, opts.scan)
     # L-BFGS-B's small linear algebra is far slower on a BLAS thread pool than on one thread
     with threadpool_limits(1, user_api="blas"):
-        runs = [_descend(manifold, search, prior, x0, bounds, opts.max_iter)
-                for x0 in _start_points(manifold, best, X, scan_err, int(opts.starts))]
+        runs = [latent.descend(manifold, search, prior, x0, bounds, opts.max_iter)
+                for x0 in latent.start_points(manifold, best, X, scan_err, int(opts.starts))]
         if f > 1:  # refine the best coarse point at full resolution
             i = int(np.argmin([r["objective"] for r in runs]))
-            fine = _descend(manifold, full, prior, runs[i]["x"], bounds, opts.max_iter)
+            fine = latent.descend(manifold, full, prior, runs[i]["x"], bounds, opts.max_iter)
             runs[i] = {**fine, "x0": runs[i]["x0"], "x_search": runs[i]["x"],
                        "n_evaluations": runs[i]["n_evaluations"] + fine["n_evaluations"]}
     return runs

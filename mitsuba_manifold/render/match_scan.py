@@ -27,7 +27,7 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ..basis import match as bm
+from ..manifold import search as latent
 
 #: Random latent points scored on the quadratic form (as ``basis.match``'s default scan).
 SCAN_POINTS = 8192
@@ -114,11 +114,11 @@ def scan(problem, opts, check_spp):
     obj = CrossMSE(A, B, t, c, opts.exposure)
     single = obj.batch(np.eye(m.n))[0]
     ranked = sorted(zip(single.tolist(), range(m.n)))
-    bounds = bm._bounds(m)
-    X, err = bm._scan(m, obj, 0.0, bounds, SCAN_POINTS, seed=opts.seed)
+    bounds = latent.box(m)
+    X, err = latent.scan(m, obj, 0.0, bounds, SCAN_POINTS, seed=opts.seed)
     k = max(4, 2 * int(opts.starts))
     with threadpool_limits(1, user_api="blas"):
-        runs = [bm._descend(m, obj, 0.0, x0, bounds, 100) for x0 in bm._start_points(m, ranked[0][1], X, err, k)]
+        runs = [latent.descend(m, obj, 0.0, x0, bounds, 100) for x0 in latent.start_points(m, ranked[0][1], X, err, k)]
     cand = [("blend scan", r["x"], r["objective"]) for r in sorted(runs, key=lambda r: r["objective"])]
     cand += [("material " + m.names[i], m.latent[i], e) for e, i in ranked[:2]]
     checked = []

@@ -11,6 +11,7 @@ from mitsuba_manifold.basis import blend as bl
 from mitsuba_manifold.basis import objectives as image_error
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.basis import match as mt
+from mitsuba_manifold.manifold import search as latent
 from mitsuba_manifold.basis.folder import BASE, Basis
 from mitsuba_manifold.apps.cli import match as cli
 from mitsuba_manifold.errors import MismatchError, InputError
@@ -81,7 +82,7 @@ def test_match_objective_gradient_matches_finite_differences(basis, manifold, lo
     mask = np.ones(target.shape[:2])
     mask[:5] = 0.0
     obj = image_error.objective(b, manifold, target, mask, loss, exposure_free)
-    fun, _ = mt._evaluate(manifold, obj, prior)
+    fun, _ = latent.evaluator(manifold, obj, prior)
     x0 = _interior_point(manifold, 0, 3, 0.6) + 0.05
     value, grad = fun(x0)
     assert value > 1e-4  # far from the optimum: a real gradient
