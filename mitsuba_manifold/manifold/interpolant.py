@@ -158,8 +158,11 @@ class ShepardWeights(Interpolant):
 
         h(x)^2 = h^2 + s^2 m(x),   m(x) = sum_j r_j^(2-p) / sum_j r_j^-p
 
-    ``m`` is a smooth soft minimum of the squared distances: ``r_i^2`` next to ``x_i``,
-    ``D^2 / 4`` half-way between two points ``D`` apart.
+    ``m`` is a mean of the squared distances weighted by ``r_j^-p``; for ``p = 2`` their
+    harmonic mean ``N / sum_j r_j^-2``. It is 0 at a data point and grows as ``N r_i^2``
+    next to ``x_i`` (the nearest point dominates the sum), then levels off near the
+    data's typical squared spacing: so the taper widens from ``h`` at the data to
+    ``sqrt(h^2 + s^2 m)`` between materials, the more where every material is far.
 
     Parameters
     ----------
