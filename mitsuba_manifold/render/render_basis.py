@@ -244,6 +244,8 @@ def _check_request(scene_path, manifold_path, out, o):
     path, the manifold, the materials chosen and the latent point ``x`` (or None)."""
     if o.mode not in MODES:
         raise InputError(f"`mode` must be one of {MODES}, got {o.mode!r}")
+    if o.components not in ("auto", "l1"):
+        raise InputError(f"`components` must be 'auto' (full GI where the scene needs it) or 'l1', got {o.components!r}")
     if int(o.spp) < 1:
         raise InputError(f"`spp` must be >= 1, got {o.spp}")
     if o.variant is not None:

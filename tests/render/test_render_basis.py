@@ -70,6 +70,14 @@ def test_the_library_takes_a_shipped_scenes_name_like_the_tools(tmp_path, small_
         render_basis.render_basis("spherre", small_manifold, tmp_path / "c", spp=1, resolution=8)
 
 
+def test_an_unknown_components_value_is_refused_not_rendered_as_l1(tmp_path, small_manifold):
+    # "full" is the command line's word; the library's is "auto": it once rendered an L1- basis
+    with pytest.raises(render_basis.InputError, match="`components` must be 'auto'.*got 'full'"):
+        render_basis.render_basis("sphere", small_manifold, tmp_path / "b", spp=1, resolution=8,
+                                  mode="onepass", components="full")
+    assert not (tmp_path / "b").exists()
+
+
 def test_scene_without_manifold_material_is_refused(tmp_path, small_manifold):
     scene = tmp_path / "plain.xml"
     scene.write_text("""<scene version="3.0.0">
