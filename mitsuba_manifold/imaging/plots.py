@@ -262,7 +262,8 @@ def gi_error_vs_time(report, path):
     point's direct renders and blends; colour: the latent point, marker: how the image was made."""
     from matplotlib.lines import Line2D
     names, drawn = list(report["scenes"]), set()
-    fig, axes = subplots(1, len(names), figsize=(6 * len(names) + 2.6, 4.8), squeeze=False)
+    fig, axes = subplots(1, len(names), figsize=(6.5 * len(names) + 1.5, 6.6), squeeze=False,
+                         layout="constrained")
     for ax, name in zip(axes[0], names):
         sc = report["scenes"][name]
         for k, row in enumerate(sc["points"]):
@@ -283,7 +284,7 @@ def gi_error_vs_time(report, path):
     kinds = [Line2D([], [], color="0.3", ls="", marker=mk, mfc=None if filled else "none", ms=8,
                     label=label.format(spp=spp, top=spps[-1] if spps else ""))
              for kind, (mk, filled, label) in GI_MARKERS.items() if kind in drawn]
-    axes[0, -1].legend(handles=points + kinds, fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    fig.tight_layout()
+    # below the axes, so that long point names do not squeeze the plot
+    fig.legend(handles=points + kinds, fontsize=7.5, loc="outside lower center", ncols=2, frameon=False)
     save(fig, path)
     return path
