@@ -22,6 +22,7 @@ image's error beside the denoised one: the denoiser is biased towards smooth ima
 """
 
 import os
+import zipfile
 from dataclasses import dataclass
 
 import numpy as np
@@ -119,20 +120,10 @@ class BasisAOVs:
     @classmethod
     def load(cls, folder, manifest=None):
         """Read ``folder/aovs.npz``; with ``manifest``, check it was made for that basis."""
-        import json
         path = os.path.join(os.fspath(folder), AOV_FILE)
         if not os.path.isfile(path):
             raise MismatchError(f"{folder} has no {AOV_FILE} (render the basis with `aovs`)")
-        try:
-            with np.load(path) as z:
-                if int(z["version"]) != AOV_VERSION:
-                    raise MismatchError(f"{path}: AOV format version {int(z['version'])}, expected {AOV_VERSION}")
-                out = cls(z["normal"], z["albedo_base"], z["hist"], z["table"], [str(n) for n in z["names"]],
-                          int(z["spp"]), float(z["time_s"]))
-                key = _basis_key(json.loads(str(z["basis"])))
-        except (OSError, ValueError, KeyError, AttributeError, TypeError) as e:
-            raise MismatchError(f"{path} is not an AOV file written by render_basis with `aovs` ({type(e).__name__}); "
-                               "delete it and render the AOVs again") from None
+        out, key = cls._read(path)
         if manifest is not None:
             want = _basis_key(manifest)
             if want != key:
@@ -140,6 +131,23 @@ class BasisAOVs:
                 raise MismatchError(f"{path} was made for another basis ({', '.join(diff)} differ); "
                                    "render the AOVs again")
         return out
+
+
+    @classmethod
+    def _read(cls, path):
+        """``(aovs, the basis key they were made for)`` of the file ``path``; a file that is not one
+        (truncated, garbage, another version) raises :class:`MismatchError` naming it."""
+        import json
+        try:
+            with np.load(path) as z:
+                if int(z["version"]) != AOV_VERSION:
+                    raise MismatchError(f"{path}: AOV format version {int(z['version'])}, expected {AOV_VERSION}")
+                out = cls(z["normal"], z["albedo_base"], z["hist"], z["table"], [str(n) for n in z["names"]],
+                          int(z["spp"]), float(z["time_s"]))
+                return out, _basis_key(json.loads(str(z["basis"])))
+        except (OSError, ValueError, KeyError, AttributeError, TypeError, EOFError, zipfile.BadZipFile) as e:
+            raise MismatchError(f"{path} is not an AOV file written by render_basis with `aovs` ({type(e).__name__}); "
+                                "delete it and render the AOVs again") from None
 
 
 def _basis_key(manifest):
@@ -199,10 +207,13 @@ def basis_aovs(basis):
 
 
 def _aovs_or_none(basis):
-    try:
-        return BasisAOVs.load(basis.folder, basis.manifest)
-    except MismatchError:
+    """The basis's AOVs; None when it has none or they were made for another basis (stale: the
+    denoiser then runs unguided); an unreadable file raises, naming it."""
+    path = os.path.join(basis.folder, AOV_FILE)
+    if not os.path.isfile(path):
         return None
+    aovs, key = BasisAOVs._read(path)
+    return aovs if key == _basis_key(basis.manifest) else None
 
 
 def _guides(basis, info):

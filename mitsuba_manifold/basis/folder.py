@@ -9,6 +9,7 @@ read_manifest`` keeps working.
 import os
 import threading
 import time
+import zipfile
 
 import numpy as np
 
@@ -192,11 +193,15 @@ class Basis:
         if entry is None or "cross" not in self.components:
             return {}, np.zeros((0, h, w, 3), np.float16)
         path = os.path.join(self.folder, entry["file"])
+        again = "run the same render_basis command again to render them anew"
+        if os.path.isfile(path) and image_changed(self.folder, entry):
+            raise MismatchError(f"basis {self.folder}: cross terms {path} were changed after render_basis wrote "
+                                f"them (their SHA-256 is not the manifest's); {again}")
         try:
             with np.load(path) as data:
                 pairs, images = data["pairs"], np.asarray(data["images"], np.float16)
-        except (OSError, KeyError, ValueError) as e:
-            raise MismatchError(f"basis {self.folder}: cross terms {path} unreadable ({e})") from None
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as e:
+            raise MismatchError(f"basis {self.folder}: cross terms {path} unreadable ({e}); {again}") from None
         if images.shape != (len(pairs), h, w, 3):
             raise MismatchError(f"basis {self.folder}: {path} holds images of shape {images.shape[1:]}, "
                                 f"the manifest says {w}x{h}")

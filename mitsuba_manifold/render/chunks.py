@@ -46,6 +46,7 @@ from .._util.cache import file_hash, key_hash
 from .._util.locking import FolderLock
 from ..errors import MismatchError
 from .folders import CHUNK_DIR, check_foreign_folder, open_folder
+from .gi_basis import write_cross
 
 
 @dataclass(frozen=True)
@@ -164,14 +165,6 @@ def _entries(manifest):
                                                manifest.get("gi_images", {}).items()]
 
 
-def _write_cross(path, pairs, images):
-    import io
-    from .._util.atomic import write_bytes
-    buf = io.BytesIO()
-    np.savez(buf, pairs=pairs, images=images.astype(np.float16))
-    write_bytes(path, buf.getvalue())
-
-
 def save_chunk(out, result, key=None):
     """Write a worker's chunk into its folder: images (their hashes recorded), then the manifest
     (the completion mark; ``key``: the chunk's :func:`chunk_key`, recorded)."""
@@ -182,7 +175,8 @@ def save_chunk(out, result, key=None):
         imageio.write_exr(os.path.join(folder, entry["file"]), result.images[key_])
         mine["sha256"] = file_hash(os.path.join(folder, entry["file"]))
     if "cross" in result.manifest:
-        _write_cross(os.path.join(folder, result.manifest["cross"]["file"]), *result.images[_CROSS])
+        manifest["cross"]["sha256"] = write_cross(os.path.join(folder, result.manifest["cross"]["file"]),
+                                                  *result.images[_CROSS])
     manifest.update(chunk_complete=True, chunk_run={"seconds": result.seconds, "host": result.host,
                                                     "pid": result.pid})
     if key is not None:
@@ -240,7 +234,7 @@ def _merge(out, folders, seed, force, run_key=None):
                     raise MismatchError(f"chunk {f} holds cross terms of other pairs; delete {os.path.dirname(f)}")
                 pairs, img = data["pairs"], data["images"].astype(np.float64) * w
             acc = img if acc is None else acc + img
-        _write_cross(os.path.join(out, first["cross"]["file"]), pairs, acc)
+        merged["cross"] = {**first["cross"], "sha256": write_cross(os.path.join(out, first["cross"]["file"]), pairs, acc)}
     if run_key is not None:   # the mark of a finished run (written with its last image)
         merged["chunk_key"] = run_key
     basis_folder.write_manifest(out, merged)

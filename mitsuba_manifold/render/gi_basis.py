@@ -50,6 +50,18 @@ def carry_gi(out, manifest):
             manifest[key] = old[key]
 
 
+def write_cross(path, pairs, images):
+    """Write the cross terms ``images`` (P, H, W, 3; stored as float16) of ``pairs`` to ``path``
+    atomically; returns the file's SHA-256, recorded in the manifest so that an edited or
+    replaced file is refused when read (:meth:`~mitsuba_manifold.basis.folder.Basis.cross_terms`)."""
+    import hashlib
+    buf = io.BytesIO()
+    np.savez(buf, pairs=np.asarray(pairs, dtype=str), images=np.asarray(images).astype(np.float16))
+    data = buf.getvalue()
+    write_bytes(path, data)
+    return hashlib.sha256(data).hexdigest()
+
+
 def describe_components(manifest):
     """One line per component: what the basis holds, and what it left out and why."""
     held = ", ".join(manifest.get("components", ["l1"]))
@@ -136,11 +148,8 @@ def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
     save({keys[n]: np.asarray(r.touch[n] + r.rest[n], np.float32) for n in names}, per,
          section="gi_images", suffix=GI_SUFFIX)
     if r.cross:
-        buf = io.BytesIO()
-        np.savez(buf, pairs=np.array(list(r.cross), dtype=str),
-                 images=np.stack([r.cross[p] for p in r.cross]).astype(np.float16))
-        write_bytes(os.path.join(out, CROSS_FILE), buf.getvalue())
-        manifest["cross"] = {"file": CROSS_FILE, "pairs": len(r.cross), "tol": float(o.cross_tol)}
+        digest = write_cross(os.path.join(out, CROSS_FILE), list(r.cross), np.stack([r.cross[p] for p in r.cross]))
+        manifest["cross"] = {"file": CROSS_FILE, "pairs": len(r.cross), "tol": float(o.cross_tol), "sha256": digest}
         manifest["components"] = ["l1", "l2+", "cross"]
     else:
         sel = r.selection or {}

@@ -184,3 +184,49 @@ def test_a_convex_object_alone_holds_no_l2(tmp_path, small_manifold):
     m = Manifold.load(small_manifold)
     img, info = blend(out, m, x=m.latent[0], component="full")
     assert info["component"] == "l1" and "cannot see itself" in info["component_note"]
+
+
+def test_changed_or_truncated_cross_terms_and_aovs_are_refused_naming_the_file(tmp_path, small_manifold):
+    """A ``cross.npz`` edited after render_basis wrote it (same shapes, other values) would blend
+    silently wrong: its SHA-256 is in the manifest and a changed file is refused; a truncated
+    one (or a truncated ``aovs.npz``) is a one-line error, not a zipfile traceback."""
+    import shutil
+    out = tmp_path / "basis"
+    manifest = render_basis.render_basis("table", small_manifold, out, spp=4, mode="onepass", components="auto",
+                                         resolution=8, max_depth=8, aovs=True)
+    assert "cross" in manifest["components"] and len(manifest["cross"]["sha256"]) == 64
+    m = Manifold.load(small_manifold)
+    x = m.latent[0]
+    good, _ = blend(bf.Basis.load(out, manifold=m), m, x=x, l2="raw")
+    cross = os.path.join(out, manifest["cross"]["file"])
+    edited = tmp_path / "edited"
+    shutil.copytree(out, edited)
+    with np.load(cross) as z:
+        pairs, images = z["pairs"], z["images"]
+    np.savez(os.path.join(edited, "cross.npz"), pairs=pairs, images=np.full_like(images, 1000))
+    with pytest.raises(bf.MismatchError, match="cross terms .* were changed after render_basis wrote them"):
+        blend(bf.Basis.load(edited, manifold=m), m, x=x, l2="raw")
+    truncated = tmp_path / "truncated"
+    shutil.copytree(out, truncated)
+    with open(cross, "rb") as f:
+        head = f.read(3000)
+    with open(os.path.join(truncated, "cross.npz"), "wb") as f:
+        f.write(head)
+    manifest_path = os.path.join(truncated, bf.MANIFEST)
+    with open(manifest_path) as f:
+        data = json.load(f)
+    data["cross"].pop("sha256")   # as a basis written before the hash was recorded
+    with open(manifest_path, "w") as f:
+        json.dump(data, f)
+    with pytest.raises(bf.MismatchError, match="unreadable") as err:
+        blend(bf.Basis.load(truncated, manifold=m), m, x=x, l2="raw")
+    assert "\n" not in str(err.value)
+    bad_aovs = tmp_path / "bad_aovs"
+    shutil.copytree(out, bad_aovs)
+    with open(os.path.join(out, "aovs.npz"), "rb") as f:
+        head = f.read(2000)
+    with open(os.path.join(bad_aovs, "aovs.npz"), "wb") as f:
+        f.write(head)
+    with pytest.raises(bf.MismatchError, match="aovs.npz is not an AOV file"):
+        blend(bf.Basis.load(bad_aovs, manifold=m), m, x=x)
+    np.testing.assert_array_equal(blend(bf.Basis.load(out, manifold=m), m, x=x, l2="raw")[0], good)
