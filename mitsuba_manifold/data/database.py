@@ -12,8 +12,8 @@ import zlib
 import numpy as np
 
 from . import gram as gram_matrix, merl
-from .surrogate import FITS_PATH, SGD_FIELDS, load_sgd_fits, sgd_reflectance, tabulate_sgd
-from .surrogate import bin_geometry
+from .surrogate import FITS_PATH, SGD_FIELDS, bin_geometry, load_sgd_fits, sgd_reflectance, tabulate_sgd
+from .._util import checks
 from .._util.atomic import is_temporary, sweep
 from .._util.locking import FolderLock
 from .._util.ownership import owned_tables, pending_tables, write_table_record
@@ -63,10 +63,9 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     Raises
     ------
     FormatError, InputError
-        Unknown material names, bad dims or noise.
+        Unknown material names, bad dims, noise or seed.
     ForeignFileError
-        A folder made with other settings, or tables in it that this function did not make
-        (without ``force``).
+        A folder made with other settings, or tables in it this function did not make (no ``force``).
     """
     fits = load_sgd_fits()
     names = list(fits) if materials is None else list(dict.fromkeys(materials))   # a repeated name: one table
@@ -77,6 +76,7 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     dims = merl.table_resolution(dims, "`dims`", workers=workers)
     if not (np.isfinite(noise) and noise >= 0):
         raise FormatError(f"`noise` must be a finite value >= 0, got {noise}")
+    seed = checks.seed("`seed`", seed)
     out_dir = os.fspath(out_dir)
     settings = {"source": "sgd", "dims": list(dims), "noise": float(noise), "seed": int(seed)}
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):

@@ -64,6 +64,19 @@ def test_make_database_refuses_impossible_resolutions_before_writing(tmp_path):
     assert rc == 0, err
 
 
+def test_make_database_refuses_a_negative_seed_before_writing(tmp_path):
+    out = tmp_path / "noisy"
+    rc, _, err = run_tool("make_database", "--out", out, "--resolution", "8,8,16", "--noise", "0.05",
+                          "--seed", "-1", "--materials", "chrome")
+    assert_one_error(rc, err, "--seed")
+    assert not out.exists()
+    from mitsuba_manifold.data.database import make_database
+    from mitsuba_manifold.errors import InputError
+    with pytest.raises(InputError, match="`seed` must be an integer from 0"):
+        make_database(out, (8, 8, 16), ["chrome"], noise=0.05, seed=-1)
+    assert not out.exists()
+
+
 # --------------------------------------------------- 10. latent dimension of scenes
 
 def test_render_basis_on_a_shipped_scene_with_q3_and_given_x(tmp_path, tiny):

@@ -29,6 +29,7 @@ def main(argv=None):
     n = len(args.materials) if args.materials else 100
     merl.table_resolution(args.resolution, "--resolution", workers=min(n, os.cpu_count() or 1))
     validate.finite("--noise", args.noise, 0.0, 10.0)
+    validate.seed("--seed", args.seed)
     paths = database.make_database(args.out, args.resolution, args.materials, args.noise,
                                    args.seed, progress=True, force=args.force)
     print(f"{len(paths)} tables in {args.out} ({time.perf_counter() - t0:.1f} s)")
