@@ -356,10 +356,13 @@ def _first_choice(folder):
 
 
 def _check_out(out, spec, spp, seed, chunks):
-    """Refuse early (before rendering) an ``out`` holding a basis of other settings."""
+    """Refuse early (before rendering) an ``out`` holding a basis of other settings (one that lists
+    no image yet, e.g. of a run that failed before its first, has nothing to lose: as :func:`open_folder`)."""
     if not os.path.exists(os.path.join(os.fspath(out), basis_folder.MANIFEST)):
         return
     old = basis_folder.read_manifest(out)
+    if not old["images"]:
+        return
     want = {"spp": int(spp), "seed": int(seed), "chunks": int(chunks),
             "scene_hash": basis_folder.scene_hash(spec.scene),
             "manifold_hash": (basis_folder.manifold_file_identity(spec.manifold) if old.get("version", 1) >= 2

@@ -15,9 +15,11 @@ settings are kept, every file is written to a temporary name and renamed, and th
 manifest is updated after each image, so a killed run continues where it stopped.
 """
 
+import contextlib
 import functools
 import itertools
 import os
+import shutil
 import time
 from dataclasses import dataclass, replace
 
@@ -216,7 +218,7 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
         files += [key + GI_SUFFIX for key, combo in jobs if combo is not None] + [CROSS_FILE]
     if os.path.isdir(out):  # refuse before locking: a refused run adds nothing to the folder
         open_folder(out, manifest, files, o.force, read_images=False)
-    with FolderLock(out, "basis folder"), StopRequest() as stop:
+    with _removed_if_nothing_made(out), FolderLock(out, "basis folder"), StopRequest() as stop:
         manifest["images"] = open_folder(out, manifest, files, o.force)
         if gi:
             carry_gi(out, manifest)
@@ -237,6 +239,19 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
         if o.aovs:
             ensure_aovs(out, manifest)
     return manifest
+
+
+@contextlib.contextmanager
+def _removed_if_nothing_made(out):
+    """A folder this run creates is removed again if the run fails before its first image (a
+    bad table, Ctrl-C): nothing but its manifest would be left."""
+    created = not os.path.exists(out)
+    try:
+        yield
+    except BaseException:
+        if created and os.path.isdir(out) and set(os.listdir(out)) <= {basis_folder.MANIFEST}:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
 
 
 def _check_request(scene_path, manifold_path, out, o):

@@ -2,6 +2,7 @@
 in place, chunks of other settings, finished and concurrent chunked runs."""
 
 import hashlib
+import json
 import os
 import shutil
 import stat
@@ -142,3 +143,32 @@ def test_chunks_of_other_settings_are_rendered_again_and_a_finished_run_is_not(t
             chunks.render_chunked(SPHERE, m, str(tmp_path / "clean"), spp=4, chunks=2, seed=7,
                                   **OPTIONS)
     assert snapshot(tmp_path / "clean") == before
+
+
+def test_a_run_that_failed_before_its_first_image_does_not_block_other_settings(tmp_path, tiny):
+    """A bad table stops render_basis before any image (one line naming it): a folder the run
+    made is removed again, and one that held a manifest listing no image yet (a run killed
+    before its first) does not block a run of other settings (chunks)."""
+    db = tmp_path / "db"
+    shutil.copytree(tiny["db"], db)
+    table = db / "gold-paint.binary"
+    data = table.read_bytes()
+    table.write_bytes(data[: len(data) // 2])
+    out = tmp_path / "basis"
+    args = [SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", 8, "--spp", 2, "--database", db]
+    rc, _, err = run_tool("render_basis", *args)
+    assert_one_error(rc, err, "gold-paint.binary")
+    assert not out.exists()
+    table.write_bytes(data)
+    rc, _, err = run_tool("render_basis", *args)
+    assert rc == 0, err
+    manifest = read_manifest(out)
+    manifest.pop("gi_images", None)
+    manifest["images"] = {}   # as a run killed before its first image leaves it
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    for f in out.iterdir():
+        if f.name != "manifest.json":
+            f.unlink()
+    rc, _, err = run_tool("render_basis", *args, "--chunks", 2)
+    assert rc == 0, err
+    assert read_manifest(out)["chunks"] == 2 and read_manifest(out)["images"]
