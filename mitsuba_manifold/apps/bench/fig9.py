@@ -184,6 +184,9 @@ def run(folder, presets=("default", "paper"), kinds=paths.KINDS, names=None, plo
 
     ``plot_stem``: write ``<stem>_<preset>.png`` per preset.
     """
+    from ...manifold.presets import PRESETS
+    from .inputs import known
+    presets = known("`presets`", presets, list(PRESETS), "preset")
     out = {"steps": STEPS - 1, "search_stride": list(paths.SEARCH_STRIDE), "default_kind": paths.DEFAULT_KIND,
            "targets": TARGETS, "presets": {}}
     for preset in presets:

@@ -234,6 +234,8 @@ def run(folder, manifold=None, basis=None, scenes=("table", "sphere"), res=128, 
         if progress:
             print(text, flush=True)
 
+    from ..._util.checks import positive_int
+    res = positive_int("`res`", res, 128)
     manifold = manifold or os.path.join(folder, ".manifold-cache", "bench_q2.npz")
     if not os.path.isfile(manifold):
         Manifold.fit(folder, q=2, features="log").save(manifold)

@@ -204,10 +204,9 @@ def run(folder, basis=None, configs=None, names=None, folds=None, progress=True)
     folds : iterable of int, optional
         Run only these of the 10 folds (quicker, partial).
     """
-    configs = list(CONFIGS) if configs is None else list(configs)
-    unknown = [c for c in configs if c not in CONFIGS]
-    if unknown:
-        raise ValueError(f"unknown configuration(s) {unknown}; choose from {', '.join(CONFIGS)}")
+    from .inputs import database_names, fold_numbers, known
+    configs = list(CONFIGS) if configs is None else known("`configs`", configs, list(CONFIGS), "configuration")
+    folds = fold_numbers(folds, n=len(names) if names else len(database_names(folder)))
     db = Database(folder, names)
     names = db.names
     t0 = time.perf_counter()

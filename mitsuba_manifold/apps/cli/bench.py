@@ -33,11 +33,17 @@ from .common import ArgumentParser, guarded, parse_indices, parse_list
 
 #: Benchmarks that take a saved manifold (the others fit their own).
 WITH_MANIFOLD = ("interp", "bsdf", "gi", "gi-targets", "stability", "basis", "match", "match-render", "explore", "prune")
+#: Options that only some benchmarks use (option's dest -> those benchmarks): refused elsewhere.
+ONLY = {"materials": ("fit", "pca", "space", "fig9", "paths"), "basis": ("match", "explore", "space", "prune"),
+        "res": ("match",), "out": ("match", "match-render"), "configs": ("space", "fig9"), "folds": ("space",),
+        "browser": ("explore",)}
+#: Library parameters named in the benchmarks' messages -> this tool's options.
+ALIASES = {"names": "materials", "presets": "configs", "folder": "database"}
 
 
 @guarded
 def main(argv=None):
-    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter, aliases=ALIASES)
     p.add_argument("which", choices=NAMES)
     p.add_argument("--json", required=True, metavar="OUT", help="write the measurements here")
     p.add_argument("--database", default=None,
@@ -47,7 +53,7 @@ def main(argv=None):
     p.add_argument("--basis", default=None,
                    help="match: a full basis of --manifold to time the match on; explore: the basis to serve; "
                         "space: a basis of the same materials (image smoothness)")
-    p.add_argument("--res", type=int, default=128, help="match: resolution of the accuracy renders (default 128)")
+    p.add_argument("--res", type=int, default=None, help="match: resolution of the accuracy renders (default 128)")
     p.add_argument("--out", default=None,
                    help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)")
     p.add_argument("--browser", action="store_true", help="explore: time the page in headless Chromium (drags)")
@@ -64,6 +70,10 @@ def main(argv=None):
         p.error(f"{args.which} takes no --manifold (it fits its own); --manifold is for {', '.join(WITH_MANIFOLD)}")
     if args.which == "explore" and not args.basis:
         p.error("explore needs --basis DIR (a basis folder, e.g. out/gi/basis_table_256_64_onepass)")
+    for dest, takers in ONLY.items():
+        if getattr(args, dest) not in (None, False) and args.which not in takers:
+            p.error(f"{args.which} takes no --{dest}; --{dest} is for {', '.join(takers)}")
+    check_inputs(args)
 
     from ..._util import ownership
     with ownership.Outputs("bench.py", args.force) as guard:
@@ -73,6 +83,24 @@ def main(argv=None):
         run(args)
 
 
+def database_folder(args):
+    """The database a benchmark runs on (``explore``: its basis)."""
+    return args.basis if args.which == "explore" else args.database or os.path.join("out", "database")
+
+
+def check_inputs(args):
+    """Refuse bad files and values (one line naming the option) before any database is made."""
+    from ..bench.inputs import check
+    folder = database_folder(args)
+    space = args.which == "space" and args.configs is not None
+    if space:
+        from ..bench.space import CONFIGS
+    check(args.which, folder, database_given=args.database is not None or os.path.isdir(folder),
+          manifold=args.manifold, basis=args.basis, names=args.materials,
+          configs=args.configs if space else None, config_choices=CONFIGS if space else (),
+          presets=args.configs if args.which == "fig9" else None, folds=args.folds, res=args.res)
+
+
 def run(args):
     """Run the benchmark ``args.which`` and write its report to ``--json``."""
     from .. import bench
@@ -80,7 +108,7 @@ def run(args):
     from ..._util.atomic import write_bytes
     from ..bench.common import machine
     explore = args.which == "explore"
-    folder = args.basis if explore else args.database or os.path.join("out", "database")
+    folder = database_folder(args)
     t0 = time.perf_counter()
     if not explore and args.database is None and not os.path.isdir(folder) and args.which not in ("scaling", "match-render"):
         print(f"making the built-in database at MERL resolution in {folder}")
@@ -96,7 +124,7 @@ def run(args):
     if args.manifold:
         kwargs["manifold"] = args.manifold
     if args.which == "match":
-        kwargs.update(basis=args.basis, res=args.res, out=args.out)
+        kwargs.update(basis=args.basis, res=args.res or 128, out=args.out)
     if args.which == "prune":
         kwargs["basis"] = args.basis
     if args.which == "match-render":
