@@ -100,9 +100,8 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
 
 
 def _tabulate(jobs, workers, made, record, total, progress):
-    """Run the table jobs (one process per core for big tables), adding each finished table's
-    name to ``made`` and calling ``record()``; if interrupted, the tables the workers finished
-    meanwhile (each a new file) are added too."""
+    """Run the table jobs (one process per core for big tables), adding each finished table's name
+    to ``made`` and calling ``record()``; if interrupted, also the tables finished meanwhile."""
     from tqdm import tqdm
 
     dims = jobs[0][2] if jobs else None
@@ -258,10 +257,11 @@ class Database:
             bad = [n for n in names if not isinstance(n, str) or not n or "/" in n or os.sep in n or "\0" in n]
             if bad:
                 raise FormatError(f"database {folder}: material names {bad} are not file names in the folder "
-                                    "(a name is '<name>' of '<name>.binary', without '/')")
+                                  "(a name is '<name>' of '<name>.binary', without '/')")
             missing = [n for n in names if n not in available]
             if missing:
-                raise UnknownMaterialError(f"database {folder} has no table for {missing}")
+                raise UnknownMaterialError(f"`names`: database {folder} has no table for {missing}"
+                                           f"{did_you_mean(missing[0], available)}")
             if len(set(names)) != len(names):
                 raise FormatError(f"database {folder}: material names repeat in {names}")
         self.folder = folder

@@ -175,3 +175,10 @@ def test_fit_manifold_plots_a_one_dimensional_latent_space(tmp_path, tiny):
     from PIL import Image
     with Image.open(tmp_path / "p" / "latent_map.png") as im:
         assert im.size[0] > 500 and im.size[1] > 300
+
+
+def test_fit_manifold_names_materials_it_cannot_find_with_a_did_you_mean(tmp_path, tiny):
+    out = tmp_path / "m.npz"
+    rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", out, "--materials", "chrome,stel")
+    assert_one_error(rc, err, "--materials")
+    assert "did you mean 'steel'" in err and not out.exists()

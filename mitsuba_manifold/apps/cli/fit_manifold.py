@@ -33,7 +33,7 @@ def check(args, guard=None):
 
 @guarded
 def main(argv=None):
-    p = ArgumentParser(description=__doc__)
+    p = ArgumentParser(description=__doc__, aliases={"names": "materials"})
     p.add_argument("database", help="folder of <name>.binary MERL tables")
     p.add_argument("--out", required=True, help="output manifold (.npz)")
     p.add_argument("--preset", choices=["default", "paper"], default="default",
