@@ -207,6 +207,10 @@ def test_negative_latent_coordinates_are_values_not_options():
     assert p.parse_args(["--near", "-1e-3 -.5"]).near == [-1e-3, -0.5]
     assert p.parse_args(["--x", "-1", "-2.5", "-v"]).x == ["-1", "-2.5"]
     assert p.parse_args(["-v"]).v
+    assert p.parse_args(["--near", "0.3, -1.2"]).near == [0.3, -1.2]
+    for text in ("0,,1", "0,1,", ",0"):   # an empty place is a typo, not a shorter point
+        with pytest.raises(SystemExit):
+            p.parse_args(["--near", text])
 
 
 def test_console_command_names_the_tool(capsys):

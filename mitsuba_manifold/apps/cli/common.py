@@ -90,9 +90,12 @@ def parse_resolution(text):
 
 
 def parse_floats(text):
-    """'0.3, -1.2' or '0.3 -1.2' -> [0.3, -1.2]."""
+    """'0.3, -1.2' or '0.3 -1.2' -> [0.3, -1.2]; an empty place between commas ('0,,1') is refused."""
+    parts = re.split(r"\s*,\s*|\s+", text.strip())
     try:
-        return [float(v) for v in text.replace(",", " ").split()]
+        if "" in parts:
+            raise ValueError
+        return [float(v) for v in parts]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected numbers like '0.3,-1.2', got {text!r}") from None
 
