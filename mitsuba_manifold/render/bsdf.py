@@ -29,7 +29,8 @@ from .._util.checks import latent_point, weight_sum
 from . import ad
 from .lookups import gather_rgb, table_value
 from .material import combine, read_properties
-from .sampling import PLUGIN_NAME, combined_distribution, half_vector_pdf, material_density, sample_half_vector
+from .sampling import (PLUGIN_NAME, combined_distribution, half_vector_pdf, material_density, prefixed,
+                       sample_half_vector)
 
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
 COSINE_FRACTION = 0.1
@@ -121,7 +122,7 @@ class ManifoldBRDF(mi.BSDF):
             else:
                 self.set_weights(self._manifold.parse_weights(value))
         except InputError as e:
-            raise InputError(f"{PLUGIN_NAME}: {e}") from None
+            raise InputError(prefixed(e)) from None
 
     # ------------------------------------------------------------ materials
 
@@ -161,7 +162,7 @@ class ManifoldBRDF(mi.BSDF):
         try:   # the one check of a latent point (text "0.3, -1.2", a sequence or an array)
             x = latent_point("x", x, self._manifold.q)
         except InputError as e:
-            raise InputError(f"{PLUGIN_NAME}: {e} ({self.manifold_path})") from None
+            raise InputError(prefixed(e, f" ({self.manifold_path})")) from None
         if self.differentiable:
             self._update_ad()
             return
@@ -173,7 +174,7 @@ class ManifoldBRDF(mi.BSDF):
         try:
             i = self._manifold.index(name)
         except InputError as e:
-            raise InputError(f"{PLUGIN_NAME}: {e}") from None
+            raise InputError(prefixed(e)) from None
         self._rebuild(self._manifold.material_weights(name), self._manifold.latent[i].copy(), name)
 
     def set_weights(self, w, table=None):
@@ -199,7 +200,7 @@ class ManifoldBRDF(mi.BSDF):
         try:
             weight_sum(w)
         except InputError as e:
-            raise InputError(f"{PLUGIN_NAME}: {e}") from None
+            raise InputError(prefixed(e)) from None
         self._rebuild(w, None, None, table)
 
     def _rebuild(self, w, x, material, table=None):
@@ -358,7 +359,7 @@ class ManifoldBRDF(mi.BSDF):
         try:
             idx, v, J, w = self._active.update(x)
         except (ValueError, KeyError, OSError) as e:  # damaged or missing files
-            raise InputError(f"{PLUGIN_NAME}: {e}") from None
+            raise InputError(prefixed(e)) from None
         state = {"idx": idx, "v": v, "w": w, "x": x}
         a, distr, black = self._active, self._c.distr, self._c.black
         if self.sampling == "cdf" and (not self.hold_proxy or self._w is None or distr is None):

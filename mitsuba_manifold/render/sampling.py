@@ -19,6 +19,14 @@ from ..data import merl
 from .._util.cache import npy_cache
 
 PLUGIN_NAME = "manifold_brdf"
+
+
+def prefixed(error, suffix=""):
+    """``error``'s message led by the plugin's name once (a nested plugin error already has it)."""
+    text = str(error)
+    return (text if text.startswith(PLUGIN_NAME + ":") else f"{PLUGIN_NAME}: {text}") + suffix
+
+
 #: Sampling grid: incident elevations, half-vector azimuth vertices (over [0, pi]),
 #: half-vector elevation vertices (uniform in ``u = sqrt(theta_h / (pi/2))``), and
 #: sub-samples per axis averaged into each vertex.

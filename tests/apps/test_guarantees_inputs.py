@@ -130,6 +130,7 @@ def test_refused_parameter_update_keeps_the_previous_state(tiny):
     ({"weights": "steel:1, chrome:-1"}, ["sum to zero"]),
     ({"x": "nan, 0"}, ["x"]),
     ({"x": "0, 0", "sampling": "bogus"}, ["sampling"]),
+    ({"material": "chrom"}, ["chrom", "did you mean"]),
 ])
 def test_plugin_errors_are_one_clean_line(tiny, props, words):
     from mitsuba_manifold import errors
@@ -137,6 +138,7 @@ def test_plugin_errors_are_one_clean_line(tiny, props, words):
         _bsdf(tiny["manifold"], **props)
     msg = errors.plugin_message(info.value)
     assert "\n" not in msg and "Traceback" not in msg and msg.startswith("manifold_brdf: "), msg
+    assert msg.count("manifold_brdf:") == 1, msg
     for w in words:
         assert w in msg, msg
     if "1e30" in props.get("weights", ""):
