@@ -347,7 +347,8 @@ def read_manifest(folder):
     """Read and validate ``folder/manifest.json``."""
     folder = os.fspath(folder)
     if not os.path.isdir(folder):
-        raise MismatchError(f"basis folder {folder} does not exist")
+        raise MismatchError(f"basis folder {folder} does not exist" if not os.path.exists(folder) else
+                            f"{folder} is a file, not a basis folder (give the folder render_basis wrote)")
     path = os.path.join(folder, MANIFEST)
     if not os.path.isfile(path):
         raise MismatchError(f"{folder}: no {MANIFEST} (not a basis folder, or render_basis has not "

@@ -184,3 +184,29 @@ def test_fit_manifold_names_materials_it_cannot_find_with_a_did_you_mean(tmp_pat
     rc, _, err = run_tool("fit_manifold", tiny["db"], "--out", out, "--materials", "chrome,stel")
     assert_one_error(rc, err, "--materials")
     assert "did you mean 'steel'" in err and not out.exists()
+
+
+@pytest.mark.parametrize("tool, args, option", [
+    ("blend", ["--path", "0,0", "nan,1", "--out", "{tmp}/seq.exr"], "--path"),
+    ("blend", ["--path", "0,0", "1,2,3", "--out", "{tmp}/seq.exr"], "--path"),
+    ("match", ["--target", "{tmp}/t.exr", "--starts", "0"], "--starts"),
+    ("match", ["--target", "{tmp}/t.exr", "--scan", "-1"], "--scan"),
+])
+def test_bad_values_are_named_by_their_option(tmp_path, tiny, tool, args, option):
+    """Each bad value is named by the one option at fault, in the tool's words."""
+    from mitsuba_manifold.imaging import io as imageio
+    imageio.write_exr(tmp_path / "t.exr", np.full((8, 8, 3), 0.5, np.float32))
+    before = snapshot(tmp_path)
+    rc, _, err = run_tool(tool, "--basis", tiny["basis"], *[a.format(tmp=tmp_path) for a in args])
+    assert_one_error(rc, err, option)
+    others = {"--starts", "--scan", "--max-iter", "--spp"} - {option}
+    assert not any(o in err for o in others) and "(a or b)" not in err, err
+    assert snapshot(tmp_path) == before
+
+
+def test_a_file_given_as_a_basis_folder_is_called_a_file(tmp_path, tiny):
+    target = tmp_path / "t.exr"
+    from mitsuba_manifold.imaging import io as imageio
+    imageio.write_exr(target, np.full((8, 8, 3), 0.5, np.float32))
+    rc, _, err = run_tool("blend", "--basis", target, "--x", "0,0", "--out", tmp_path / "o.exr")
+    assert_one_error(rc, err, "is a file, not a basis folder")

@@ -17,6 +17,7 @@ target order). Nothing is written until every input has been read and checked.
 """
 
 import argparse
+import math
 import os
 import re
 import sys
@@ -173,6 +174,9 @@ def path_outputs(args, basis, manifold):
         fail("--x sets the fixed targets along --path, and this basis has one target, whose point the path "
              "sets: drop --x (or drop --path to blend the point --x)")
     ends = [a if a in manifold.names else _point_or_name(a) for a in args.path]
+    for a, end in zip(args.path, ends):
+        if not isinstance(end, str) and (len(end) != manifold.q or not all(map(math.isfinite, end))):
+            fail(f"--path end {a!r} must be a material name or {manifold.q} finite numbers")
     target = 0
     if args.target is not None:
         if args.target not in basis.targets:

@@ -60,9 +60,10 @@ def _check_args(args):
         fail(f"--out must name an .exr file, got {args.out!r}")
     if (args.png or args.render_reference) and args.out is None:
         fail("--png and --render-reference write beside --out: give --out best.exr")
-    if args.starts < 1 or args.max_iter < 1 or args.spp < 1 or args.scan < 0:
-        fail(f"--starts, --max-iter and --spp must be >= 1 and --scan >= 0, got {args.starts}, "
-              f"{args.max_iter}, {args.spp}, {args.scan}")
+    for option, value, least in (("--starts", args.starts, 1), ("--max-iter", args.max_iter, 1),
+                                 ("--spp", args.spp, 1), ("--scan", args.scan, 0)):
+        if value < least:
+            fail(f"{option} must be an integer >= {least}, got {value}")
     if args.json is not None and not args.json.lower().endswith(".json"):
         fail(f"--json must name a .json file, got {args.json!r}")
     from ..._util import checks as validate

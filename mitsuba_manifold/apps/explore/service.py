@@ -70,7 +70,7 @@ class Explorer:
         if not bases:
             raise InputError("give at least one basis folder")
         if not 0.0 <= float(prune) < 1.0:
-            raise InputError(f"prune must be in [0, 1) (a fraction of the table's L2 norm), got {prune}")
+            raise InputError(f"`prune` must be in [0, 1) (a fraction of the table's L2 norm), got {prune}")
         self.prune, self._last_blend = float(prune), (None, None)
         self.refine_spp = int(self.number(refine_spp, "`refine_spp`", 0, MAX_SPP, 0))
         self.bases = {}
