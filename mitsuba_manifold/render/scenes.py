@@ -214,6 +214,8 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     use_variant(variant)
     if spp is not None and int(spp) < 1:
         raise MismatchError(f"`spp` must be >= 1, got {spp}")
+    if max_depth is not None and int(max_depth) < -1:
+        raise MismatchError(f"`max_depth` must be -1 (unbounded) or an integer >= 0, got {max_depth}")
     params = {}
     if "manifold" in used:
         params["manifold"] = os.path.abspath(manifold_path)

@@ -210,3 +210,11 @@ def test_a_file_given_as_a_basis_folder_is_called_a_file(tmp_path, tiny):
     imageio.write_exr(target, np.full((8, 8, 3), 0.5, np.float32))
     rc, _, err = run_tool("blend", "--basis", target, "--x", "0,0", "--out", tmp_path / "o.exr")
     assert_one_error(rc, err, "is a file, not a basis folder")
+
+
+def test_render_basis_names_a_bad_max_depth_before_rendering(tmp_path, tiny):
+    out = tmp_path / "b"
+    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", 8,
+                          "--spp", 1, "--max-depth", -7)
+    assert_one_error(rc, err, "--max-depth")
+    assert not out.exists()
