@@ -259,6 +259,9 @@ def match(basis, target, mask=None, manifold=None, settings=None, **overrides):
     basis, manifold = _basis_and_manifold(basis, manifold)
     target = check_target(target, basis.resolution)
     weight = np.ones(target.shape[:2]) if mask is None else check_mask(mask, basis.resolution)
+    if opts.exposure_free and not (np.abs(target) * weight[..., None]).any():
+        raise InputError("`target` is black wherever `mask` weighs it: an exposure-free match has no "
+                         "brightness to fit (give a target with light in it, or match without `exposure_free`)")
     f = _downsample_factor(basis.resolution, opts.downsample) if opts.loss == "log" else 1
     t_read = basis.read([BASE] + basis.material_keys(manifold.names))
     full = image_error.objective(basis, manifold, target, weight, opts.loss, opts.exposure_free)

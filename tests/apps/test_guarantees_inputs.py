@@ -218,3 +218,11 @@ def test_render_basis_names_a_bad_max_depth_before_rendering(tmp_path, tiny):
                           "--spp", 1, "--max-depth", -7)
     assert_one_error(rc, err, "--max-depth")
     assert not out.exists()
+
+
+def test_an_exposure_free_match_of_a_black_target_is_refused(tmp_path, tiny):
+    from mitsuba_manifold.imaging import io as imageio
+    imageio.write_exr(tmp_path / "black.exr", np.zeros((8, 8, 3), np.float32))
+    rc, _, err = run_tool("match", "--basis", tiny["basis"], "--target", tmp_path / "black.exr", "--exposure-free")
+    assert_one_error(rc, err, "--exposure-free")
+    assert "black" in err
