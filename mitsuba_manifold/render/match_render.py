@@ -18,6 +18,8 @@ re-rendered at ``eval_spp`` with another seed, as are the scan's best few traini
 report the weights and the image error, not the error in ``x``.
 """
 
+import dataclasses
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -26,6 +28,9 @@ import numpy as np
 from . import match_scan
 from ..errors import InputError
 from ..imaging.metrics import REL_EPS
+
+#: Mitsuba's differentiable integrators the loop can use (``integrator``; each takes max_depth and rr_depth).
+INTEGRATORS = ("prb", "prb_basic", "prbvolpath", "direct_projective", "prb_projective")
 
 #: Training materials first in the scan's ranking re-rendered at ``eval_spp``: the best single material.
 SINGLES_CHECKED = 3
@@ -253,11 +258,8 @@ def match_render(views, manifold_path, options=None, basis=None, database=None):
     """
     from . import ad
     opts = options or MatchRenderOptions()
-    for name in ("iterations", "spp", "eval_spp", "scan_spp", "starts", "max_depth"):
-        if int(getattr(opts, name)) < 1:
-            raise InputError(f"`{name}` must be >= 1, got {getattr(opts, name)}")
-    if not views:
-        raise InputError("`views` is empty: give at least one scene and target")
+    check_options(opts)
+    views = check_views(views)
     t0 = time.perf_counter()
     problem = _Problem(views, manifold_path, opts, database)
     m = problem.manifold
@@ -304,6 +306,37 @@ def match_render(views, manifold_path, options=None, basis=None, database=None):
         single={"name": m.names[single_i], "error": s_err, "exposure": s_e},
         starts=[{k: v for k, v in r.items() if k not in ("images", "history")} for r in runs],
         history=history, time_s=time.perf_counter() - t0, time_per_iteration_s=t_iter, plot=plot, extra=extra)
+
+
+def check_options(opts):
+    """Every setting of ``opts`` usable, or an :class:`InputError` naming it (before any work)."""
+    for name in ("iterations", "spp", "eval_spp", "scan_spp", "starts", "max_depth"):
+        if int(getattr(opts, name)) < 1:
+            raise InputError(f"`{name}` must be >= 1, got {getattr(opts, name)}")
+    if opts.lr is not None and not (isinstance(opts.lr, (int, float, np.integer, np.floating)) and math.isfinite(opts.lr) and opts.lr > 0):
+        raise InputError(f"`lr` must be a finite number > 0, got {opts.lr}")
+    if isinstance(opts.seed, bool) or not isinstance(opts.seed, (int, np.integer)) or opts.seed < 0:
+        raise InputError(f"`seed` must be an integer >= 0, got {opts.seed!r}")
+    if opts.integrator not in INTEGRATORS:
+        raise InputError(f"`integrator` {opts.integrator!r} is not one of the differentiable integrators this "
+                         f"match uses: {', '.join(INTEGRATORS)}")
+
+
+def check_views(views):
+    """``views`` with each scene resolved (a scene XML or a shipped scene's name) and its sensor checked."""
+    from . import scenes
+    from .render_basis import count_sensors
+    if not views:
+        raise InputError("`views` is empty: give at least one scene and target")
+    out = []
+    for v in views:
+        path = scenes.check_scene("`scene`", v.scene)
+        n = count_sensors(path)
+        if isinstance(v.sensor, bool) or not isinstance(v.sensor, (int, np.integer)) or not 0 <= v.sensor < n:
+            raise InputError(f"`sensor` must be an integer from 0 to {n - 1}: {path} has {n} sensor(s), "
+                             f"got {v.sensor!r}")
+        out.append(dataclasses.replace(v, scene=path, sensor=int(v.sensor)))
+    return out
 
 
 def _per_view_errors(images, data, exposure):

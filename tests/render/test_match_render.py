@@ -124,3 +124,68 @@ def test_match_render_fits_an_exposure(small_manifold):
     r = mr.match_render([mr.View(sphere, target)], small_manifold, opts)
     assert r.exposure == pytest.approx(2.5, rel=0.15)
     assert np.mean(r.images[0]) == pytest.approx(np.mean(target), rel=0.15)
+
+
+def _no_render(monkeypatch):
+    """Loading a scene (the first work of a match) fails the test: bad input is refused before it."""
+    def refuse(*args, **kwargs):
+        raise AssertionError("a scene was loaded before the input was checked")
+    monkeypatch.setattr(scenes, "load_scene", refuse)
+
+
+@pytest.mark.parametrize("bad, option, says", [
+    (["--sensor", "5"], "--sensor", "has 1 sensor(s)"),
+    (["--sensor", "-1"], "--sensor", "from 0 to 0"),
+    (["--integrator", "nosuch"], "--integrator", "prb, prb_basic, prbvolpath, direct_projective"),
+    (["--lr", "-1"], "--lr", "finite number > 0"),
+    (["--lr", "nan"], "--lr", "finite number > 0"),
+    (["--lr", "inf"], "--lr", "finite number > 0"),
+    (["--seed", "-1"], "--seed", "integer >= 0"),
+    (["--scene", "nosuch"], "--scene 'nosuch'", "no such file nor shipped scene"),
+])
+def test_match_render_tool_refuses_bad_settings_before_any_work(tmp_path, small_manifold, capsys, monkeypatch,
+                                                               bad, option, says):
+    """tools/match.py --render: a bad --sensor, --integrator, --lr, --seed or --scene ends as one
+    ``error:`` line naming the option (exit 2), before any scene is loaded or any output is made."""
+    tpath = str(tmp_path / "target.exr")
+    imageio.write_exr(tpath, np.full((8, 8, 3), 0.5, dtype=np.float32))
+    _no_render(monkeypatch)
+    out = tmp_path / "out"
+    args = ["--render", "--manifold", small_manifold, "--target", tpath, "--no-progress",
+            "--out", str(out / "best.exr"), "--json", str(out / "m.json"), "--plot", str(out / "conv.png")]
+    with pytest.raises(SystemExit) as e:
+        cli.main(args + ([] if "--scene" in bad else ["--scene", scenes.scene_path("sphere")]) + bad)
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and err.startswith("error: ")
+    assert option in err and says in err and "Traceback" not in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("change, param", [
+    ({"sensor": 1}, "`sensor`"), ({"sensor": -1}, "`sensor`"), ({"integrator": "nosuch"}, "`integrator`"),
+    ({"lr": 0.0}, "`lr`"), ({"lr": float("nan")}, "`lr`"), ({"seed": -1}, "`seed`"), ({"seed": 1.5}, "`seed`"),
+    ({"scene": "nosuch"}, "`scene`"),
+])
+def test_match_render_refuses_bad_parameters(small_manifold, monkeypatch, change, param):
+    """The library names the Python parameter of a bad view or option (InputError), before any work."""
+    from mitsuba_manifold.errors import InputError
+    from mitsuba_manifold.render import match_render as mr
+    _no_render(monkeypatch)
+    view = mr.View(change.get("scene", scenes.scene_path("sphere")), np.full((8, 8, 3), 0.5), sensor=change.get("sensor", 0))
+    opts = mr.MatchRenderOptions(progress=False, **{k: v for k, v in change.items() if k not in ("scene", "sensor")})
+    with pytest.raises(InputError, match=param):
+        mr.match_render([view], small_manifold, opts)
+
+
+def test_match_render_tool_takes_a_shipped_scene_name(tmp_path, small_manifold, capsys):
+    """--scene sphere (a shipped scene's name, as render_basis.py and blend.py take) matches that scene."""
+    x = Manifold.load(small_manifold).latent[0]
+    target = scenes.render_reference(scenes.scene_path("sphere"), small_manifold, x, 16, seed=3, resolution=8,
+                                     max_depth=1)
+    tpath, js = str(tmp_path / "target.exr"), str(tmp_path / "m.json")
+    imageio.write_exr(tpath, target)
+    assert cli.main(["--render", "--manifold", small_manifold, "--scene", "sphere", "--target", tpath,
+                     "--max-depth", "1", "--iterations", "1", "--spp", "1", "--eval-spp", "2", "--scan-spp", "2",
+                     "--starts", "1", "--no-progress", "--json", js]) == 0
+    assert "image error: relative MSE" in capsys.readouterr().out
+    assert json.load(open(js))["views"][0]["scene"] == scenes.scene_path("sphere")

@@ -26,12 +26,13 @@ from .common import ArgumentParser, fail, guarded
 
 
 def _parser():
+    from ...render.match_render import INTEGRATORS
     p = ArgumentParser(prog="match.py --render", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        aliases={"manifold_path": "manifold", "views": "target"})
     p.add_argument("--manifold", required=True, help="the manifold (.npz) of the scenes' manifold_brdf")
     p.add_argument("--scene", action="append", required=True,
-                   help="scene XML (repeat: one per --target, or one for all)")
+                   help="scene XML or a shipped scene's name (repeat: one per --target, or one for all)")
     p.add_argument("--target", action="append", required=True,
                    help="target image (repeat): linear .exr, or 8-bit .png/.jpg (sRGB)")
     p.add_argument("--mask", action="append", help="mask per target (repeat; pixels > 0 are matched)")
@@ -47,7 +48,8 @@ def _parser():
     p.add_argument("--lr", type=float, default=None, help="Adam's step in latent units (default: the data's)")
     p.add_argument("--exposure-free", dest="exposure", action="store_true", help="fit a brightness scale too")
     p.add_argument("--max-depth", type=int, default=4, help="path depth (default 4)")
-    p.add_argument("--integrator", default="prb", help="Mitsuba AD integrator (default prb)")
+    p.add_argument("--integrator", default="prb",
+                   help=f"Mitsuba AD integrator: {', '.join(INTEGRATORS)} (default prb)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--out", help="render at the best point (.exr)")
@@ -115,12 +117,14 @@ def main(argv=None):
     views = _views(args)
     from ...render import scenes
     scenes.use_variant()
-    from ...render.match_render import MatchRenderOptions, match_render
+    from ...render.match_render import MatchRenderOptions, check_options, check_views, match_render
     opts = MatchRenderOptions(iterations=args.iterations, spp=args.spp, eval_spp=args.eval_spp, starts=args.starts,
                               scan_spp=args.scan_spp,
                               lr=args.lr, exposure=args.exposure, max_depth=args.max_depth,
                               integrator=args.integrator, seed=args.seed, progress=not args.no_progress,
                               plot=args.plot)
+    check_options(opts)   # bad settings are refused before anything is created or rendered
+    views = check_views(views)
     if args.plot:
         os.makedirs(os.path.dirname(os.path.abspath(args.plot)), exist_ok=True)
     r = match_render(views, args.manifold, opts, basis=args.basis, database=args.database)
