@@ -203,8 +203,8 @@ class Basis:
         except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as e:
             raise MismatchError(f"basis {self.folder}: cross terms {path} unreadable ({e}); {again}") from None
         if images.shape != (len(pairs), h, w, 3):
-            raise MismatchError(f"basis {self.folder}: {path} holds images of shape {images.shape[1:]}, "
-                                f"the manifest says {w}x{h}")
+            raise MismatchError(f"basis {self.folder}: {path} holds {len(images)} images of shape {images.shape[1:]} "
+                                f"for {len(pairs)} pairs; the basis is {w}x{h}: {again}")
         return {(str(a), str(b)): r for r, (a, b) in enumerate(pairs)}, images
 
     def cross_term(self, row):

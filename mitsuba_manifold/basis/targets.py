@@ -25,7 +25,7 @@ def check_target(target, resolution, what="target"):
         raise InputError(f"{what} must be an RGB image of shape (height, width, 3), got {arr.shape}")
     if arr.shape[:2] != (h, w):
         raise InputError(f"{what} is {arr.shape[1]}x{arr.shape[0]}, the basis is {w}x{h}: render or "
-                         "resize the target to the basis resolution")
+                         f"resize the {what} to the basis resolution")
     bad = ~np.isfinite(arr).all(axis=-1)
     if bad.any():
         raise InputError(f"{what} has {int(bad.sum())} pixels with NaN or Inf values; fix them or "
@@ -106,7 +106,7 @@ def _check_size(what, path, size, resolution):
     w, h = (int(v) for v in size)
     if resolution is not None and (w, h) != tuple(resolution):
         raise InputError(f"{what} {path} is {w}x{h}, the basis is {resolution[0]}x{resolution[1]}: render "
-                         "or resize the target to the basis resolution")
+                         f"or resize the {what} to the basis resolution")
     validate.fits_in_memory(what, 4 * w * h * 3 * 8, f"the {w}x{h} image {path}")
 
 
