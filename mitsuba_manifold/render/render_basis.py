@@ -243,12 +243,12 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
 
 @contextlib.contextmanager
 def _removed_if_nothing_made(out):
-    """A folder this run creates is removed again if the run fails before its first image (a
-    bad table, Ctrl-C): nothing but its manifest would be left."""
+    """A folder this run creates is removed again if the run fails before its first image (a bad
+    table): nothing but its manifest would be left. Ctrl-C keeps it: the same command resumes."""
     created = not os.path.exists(out)
     try:
         yield
-    except BaseException:
+    except Exception:
         if created and os.path.isdir(out) and set(os.listdir(out)) <= {basis_folder.MANIFEST}:
             shutil.rmtree(out, ignore_errors=True)
         raise
