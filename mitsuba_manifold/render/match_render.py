@@ -313,7 +313,8 @@ def check_options(opts):
     for name in ("iterations", "spp", "eval_spp", "scan_spp", "starts", "max_depth"):
         if int(getattr(opts, name)) < 1:
             raise InputError(f"`{name}` must be >= 1, got {getattr(opts, name)}")
-    if opts.lr is not None and not (isinstance(opts.lr, (int, float, np.integer, np.floating)) and math.isfinite(opts.lr) and opts.lr > 0):
+    number = isinstance(opts.lr, (int, float, np.integer, np.floating)) and not isinstance(opts.lr, bool)
+    if opts.lr is not None and not (number and math.isfinite(opts.lr) and opts.lr > 0):
         raise InputError(f"`lr` must be a finite number > 0, got {opts.lr}")
     if isinstance(opts.seed, bool) or not isinstance(opts.seed, (int, np.integer)) or opts.seed < 0:
         raise InputError(f"`seed` must be an integer >= 0, got {opts.seed!r}")

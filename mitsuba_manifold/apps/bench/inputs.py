@@ -104,7 +104,6 @@ def check(which, folder, *, database_given=True, manifold=None, basis=None, name
         positive_int("`res`", res, 128)
 
 
-
 def _available(which, folder, database_given):
     """Materials of the database ``folder`` (the built-in ones where it is made later), or None
     where the benchmark takes no database (explore) or makes its own when it holds none."""
