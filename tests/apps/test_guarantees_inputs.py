@@ -191,6 +191,9 @@ def test_fit_manifold_names_materials_it_cannot_find_with_a_did_you_mean(tmp_pat
     ("blend", ["--path", "0,0", "1,2,3", "--out", "{tmp}/seq.exr"], "--path"),
     ("match", ["--target", "{tmp}/t.exr", "--starts", "0"], "--starts"),
     ("match", ["--target", "{tmp}/t.exr", "--scan", "-1"], "--scan"),
+    ("blend", ["--x", "-1,,0", "--out", "{tmp}/o.exr"], "empty place"),
+    ("blend", ["--x", "steel", "--x", "chrome", "--out", "{tmp}/o.exr"], "--x is given 2 times"),
+    ("blend", ["--x", "steel", "--out", "{tmp}/t.exr/o.exr"], "--out {tmp}/t.exr/o.exr: folder"),
 ])
 def test_bad_values_are_named_by_their_option(tmp_path, tiny, tool, args, option):
     """Each bad value is named by the one option at fault, in the tool's words."""
@@ -198,7 +201,7 @@ def test_bad_values_are_named_by_their_option(tmp_path, tiny, tool, args, option
     imageio.write_exr(tmp_path / "t.exr", np.full((8, 8, 3), 0.5, np.float32))
     before = snapshot(tmp_path)
     rc, _, err = run_tool(tool, "--basis", tiny["basis"], *[a.format(tmp=tmp_path) for a in args])
-    assert_one_error(rc, err, option)
+    assert_one_error(rc, err, option.format(tmp=tmp_path))
     others = {"--starts", "--scan", "--max-iter", "--spp"} - {option}
     assert not any(o in err for o in others) and "(a or b)" not in err, err
     assert snapshot(tmp_path) == before

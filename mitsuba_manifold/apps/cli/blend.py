@@ -90,8 +90,11 @@ def parse(argv=None):
     """Parsed and checked arguments, with ``args.x`` as a flat list of numbers (or None)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     # "-0.3,1.2" would look like an option to argparse; with spaces it is a value
+    for a in argv:
+        if NEGATIVE_LIST.match(a) and re.search(r",\s*(,|$)", a):
+            fail(f"{a!r} has an empty place between commas; expected numbers like '-0.3,1.2'")
     args = parser().parse_args([a.replace(",", " ") if NEGATIVE_LIST.match(a) else a for a in argv])
-    x = None
+    x, args.x_groups = None, len(args.x or ())
     if args.x:   # numbers, or (one word) a measured material's name, resolved with the manifold
         try:
             x = [v for group in args.x for v in parse_floats_or_name(group)]
@@ -120,7 +123,7 @@ def parse(argv=None):
     validate.fraction("--prune", args.prune)
     validate.seed("--seed", args.seed)
     basis_ownership.check_output_outside_basis(args.out, args.basis)
-    validate.output_folder("--out", os.path.dirname(os.path.abspath(args.out)))   # before any work
+    validate.output_folder(f"--out {args.out}: folder", os.path.dirname(os.path.abspath(args.out)))   # before work
     for kind, path in planned(args):   # names and kinds of targets (their owners: before writing)
         ownership.check_replaceable(path, args.force, what=kind, owner=False)
     return args
@@ -375,6 +378,9 @@ def main(argv=None):
     try:
         basis = Basis.load(args.basis, manifold=args.manifold, scene=args.scene)
         manifold = basis.check_manifold(args.manifold)
+        if args.x_groups > basis.p:
+            fail(f"--x is given {args.x_groups} times, and this basis has {basis.p} target(s) {basis.targets}: "
+                 f"give --x once per target")
         args.x = resolve_names(args.x, manifold)
         print(basis)
         if args.path is not None:
