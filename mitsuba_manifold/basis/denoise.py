@@ -132,7 +132,6 @@ class BasisAOVs:
                                    "render the AOVs again")
         return out
 
-
     @classmethod
     def _read(cls, path):
         """``(aovs, the basis key they were made for)`` of the file ``path``; a file that is not one

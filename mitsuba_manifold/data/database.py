@@ -14,7 +14,7 @@ import numpy as np
 from . import gram as gram_matrix, merl
 from .surrogate import FITS_PATH, SGD_FIELDS, bin_geometry, load_sgd_fits, sgd_reflectance, tabulate_sgd
 from .._util import checks
-from .._util.atomic import is_temporary, sweep
+from .._util.atomic import sweep
 from .._util.locking import FolderLock
 from .._util.ownership import owned_tables, pending_tables, write_table_record
 from .._util.workers import owned_pool
@@ -243,8 +243,7 @@ class Database:
         folder = os.path.abspath(os.fspath(folder))
         if not os.path.isdir(folder):
             raise MissingFileError(f"database folder {folder} does not exist")
-        available = sorted(f[:-7] for f in os.listdir(folder)   # temporaries of writers are hidden: skipped
-                           if f.endswith(".binary") and not f.startswith(".") and not is_temporary(f))
+        available = merl.table_names(folder)
         if names is None:
             names = available
             if not names:

@@ -33,6 +33,12 @@ MAX_BINS = 1 << 28  # far above MERL's 1.46M bins; guards against garbage header
 
 # --------------------------------------------------------------------------- I/O
 
+def table_names(folder):
+    """Names of the MERL tables in ``folder`` (``<name>.binary``), sorted; hidden files, among
+    them the temporaries of writers (:func:`~mitsuba_manifold._util.atomic.is_temporary`), skipped."""
+    return sorted(f[:-7] for f in os.listdir(folder) if f.endswith(".binary") and not f.startswith("."))
+
+
 def read_header(path):
     """Dimensions ``(n_theta_h, n_theta_d, n_phi_d)`` from a file's header, validated.
 

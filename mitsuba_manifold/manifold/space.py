@@ -135,12 +135,16 @@ class HeldOut(_Report):
                 "albedo_range": [float(self.albedo_min.min()), float(self.albedo_max.max())]}
 
 
-def folds(n, k=10, seed=0):
+#: Held-out folds of the cross-validation (:func:`folds`, :func:`cross_validate`).
+FOLDS = 10
+
+
+def folds(n, k=FOLDS, seed=0):
     """``k`` disjoint test folds covering ``range(n)`` (random, fixed seed)."""
     return np.array_split(np.random.default_rng(seed).permutation(n), k)
 
 
-def cross_validate(tables, names, fit, G_error, q, albedos, *, k=10, seed=0, bins=None, progress=None,
+def cross_validate(tables, names, fit, G_error, q, albedos, *, k=FOLDS, seed=0, bins=None, progress=None,
                    only_folds=None):
     """K-fold held-out fidelity of a manifold configuration.
 

@@ -234,7 +234,8 @@ def _merge(out, folders, seed, force, run_key=None):
                     raise MismatchError(f"chunk {f} holds cross terms of other pairs; delete {os.path.dirname(f)}")
                 pairs, img = data["pairs"], data["images"].astype(np.float64) * w
             acc = img if acc is None else acc + img
-        merged["cross"] = {**first["cross"], "sha256": write_cross(os.path.join(out, first["cross"]["file"]), pairs, acc)}
+        digest = write_cross(os.path.join(out, first["cross"]["file"]), pairs, acc)
+        merged["cross"] = {**first["cross"], "sha256": digest}
     if run_key is not None:   # the mark of a finished run (written with its last image)
         merged["chunk_key"] = run_key
     basis_folder.write_manifest(out, merged)

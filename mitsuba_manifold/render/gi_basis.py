@@ -11,6 +11,7 @@ and why, and what was measured (the basis format: :mod:`mitsuba_manifold.basis.m
 """
 
 import contextlib
+import hashlib
 import io
 import os
 import time
@@ -54,7 +55,6 @@ def write_cross(path, pairs, images):
     """Write the cross terms ``images`` (P, H, W, 3; stored as float16) of ``pairs`` to ``path``
     atomically; returns the file's SHA-256, recorded in the manifest so that an edited or
     replaced file is refused when read (:meth:`~mitsuba_manifold.basis.folder.Basis.cross_terms`)."""
-    import hashlib
     buf = io.BytesIO()
     np.savez(buf, pairs=np.asarray(pairs, dtype=str), images=np.asarray(images).astype(np.float16))
     data = buf.getvalue()

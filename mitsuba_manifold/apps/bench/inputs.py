@@ -11,9 +11,7 @@ import os
 
 from ...errors import InputError, did_you_mean
 from ..._util.checks import positive_int
-
-#: Held-out folds of the space benchmark (:func:`mitsuba_manifold.manifold.space.folds`' ``k``).
-FOLDS = 10
+from ...manifold.space import FOLDS
 
 
 def manifold_file(path, name="`manifold`"):
@@ -43,11 +41,11 @@ def database_names(folder, name="`folder`"):
     if not os.path.isdir(folder):
         raise InputError(f"{name}: database folder {folder} does not exist" if not os.path.exists(folder) else
                          f"{name}: {folder} is not a folder (give a folder of MERL .binary tables)")
+    from ...data.merl import table_names
     try:
-        files = os.listdir(folder)
+        names = table_names(folder)
     except OSError as e:
         raise InputError(f"{name}: database folder {folder} cannot be read ({e.strerror or e})") from None
-    names = sorted(f[:-7] for f in files if f.endswith(".binary") and not f.startswith("."))
     if not names:
         raise InputError(f"{name}: database folder {folder} holds no .binary tables")
     return names
@@ -99,7 +97,8 @@ def check(which, folder, *, database_given=True, manifold=None, basis=None, name
     if presets is not None:
         from ...manifold.presets import PRESETS
         known("`presets`", presets, list(PRESETS), "preset")
-    fold_numbers(folds, n=len(names or available or ()) or None if which == "space" else None)
+    materials = len(names or available or ()) or None   # unknown (None) where no database is read
+    fold_numbers(folds, n=materials if which == "space" else None)
     if res is not None:
         positive_int("`res`", res, 128)
 

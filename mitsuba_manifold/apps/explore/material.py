@@ -70,6 +70,7 @@ def check_database(folder, manifold):
 
     Only the files and their headers are checked here, at once; the content hashes are
     checked while the tables load (:class:`TableStack`)."""
+    from ...data import merl
     from ...data.database import Database
     from ...errors import InputError, MitsubaManifoldError
     folder = os.fspath(folder)
@@ -79,7 +80,7 @@ def check_database(folder, manifold):
     if not os.path.isdir(folder):
         raise InputError(f"--database {folder} is a file, not a database folder (a folder of <name>.binary "
                            "MERL tables); give the folder of the manifold's tables")
-    tables = {f[:-7] for f in os.listdir(folder) if f.endswith(".binary") and not f.startswith(".")}
+    tables = set(merl.table_names(folder))
     missing = [n for n in manifold.names if n not in tables]
     if missing:
         raise InputError(f"--database {folder} is not a database folder of this manifold: it holds no table for "
