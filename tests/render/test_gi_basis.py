@@ -230,3 +230,35 @@ def test_changed_or_truncated_cross_terms_and_aovs_are_refused_naming_the_file(t
     with pytest.raises(bf.MismatchError, match="aovs.npz is not an AOV file"):
         blend(bf.Basis.load(bad_aovs, manifold=m), m, x=x)
     np.testing.assert_array_equal(blend(bf.Basis.load(out, manifold=m), m, x=x, l2="raw")[0], good)
+
+
+def test_point_render_gives_the_blended_material_and_its_exact_quadratic_model(small_manifold):
+    """``point`` weights (the control variate of ``blend.py --refine``): the paths sample the
+    blend, the blended material's own full-GI image equals Mitsuba's ``path`` rendering it
+    (z-tests), and on paths with two vertices on the material (``levels`` 2) its L2+ equals, path
+    by path, ``sum_i w_i R_i + sum_{i<j} w_i w_j C_ij`` from the same paths: the refinement's
+    correction is exactly what the quadratic model misses."""
+    from itertools import combinations
+    from mitsuba_manifold.render.integrators.onepass import POINT
+
+    scene = load("table", small_manifold, "gold-paint", res=16)
+    (bsdf,) = integrators.manifold_bsdfs(scene)
+    names, w = ["gold-paint", "white-diffuse-bball", "pink-fabric"], np.array([0.5, 0.3, 0.2])
+    pairs = list(combinations(names, 2))
+    (two,) = _gi(scene, levels=2, pairs=pairs, materials=names, point=w)[:1]
+    model = sum(wi * two.rest[n] for wi, n in zip(w, names))
+    model = model + sum(w[names.index(a)] * w[names.index(b)] * two.cross[(a, b)] for a, b in pairs)
+    assert two.rest[POINT].mean() > 1e-3 * (two.base + two.touch[POINT]).mean()
+    np.testing.assert_allclose(two.rest[POINT], model, rtol=1e-4, atol=1e-6 * two.rest[POINT].max())
+    out = _gi(scene, levels=8, materials=names, point=w)
+    bsdf.set_weights(dict(zip(names, w)))
+    ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 8}), 16, [700 + s for s in SEEDS])
+    assert_same_mean(np.stack([o.base + o.touch[POINT] + o.rest[POINT] for o in out]), ref, "point vs path")
+
+
+def test_point_weights_are_checked(small_manifold):
+    from mitsuba_manifold.errors import InputError
+
+    scene = load("table", small_manifold, "gold-paint", res=8)
+    with pytest.raises(InputError, match="`point` must be finite weights, one per material"):
+        integrator(max_depth=4).render_onepass_gi(scene, spp=1, materials=["gold-paint"], point=[0.5, 0.5])

@@ -26,6 +26,15 @@ def basis(tmp_path_factory, small_manifold):
     return bf.Basis.load(out, manifold=m), m
 
 
+@pytest.fixture(scope="module")
+def gi_basis(tmp_path_factory, small_manifold):
+    out = tmp_path_factory.mktemp("refine_gi") / "basis"
+    render_basis.render_basis("table", small_manifold, out, spp=1024, mode="onepass", resolution=RES, max_depth=8,
+                              components="auto")
+    m = Manifold.load(small_manifold)
+    return bf.Basis.load(out, manifold=m), m
+
+
 def _midpoint(m, a="gold-paint", b="white-diffuse-bball"):
     return 0.5 * (m.latent[m.index(a)] + m.latent[m.index(b)])
 
@@ -46,6 +55,26 @@ def test_refined_blend_is_the_full_gi_render_of_its_point(basis, small_manifold)
     # spread the z-test sees, so it is kept well below that of the references' mean (8 x 256 spp)
     assert_same_mean(img, ref, "refined blend vs path at a midpoint")
     assert refined[0].l1.mean() < ref.mean()
+
+
+def test_control_variate_makes_a_full_gi_blend_the_render_of_its_point(gi_basis, small_manifold):
+    """With a full-GI basis the refinement is the control variate (blend + R - Q from the same
+    paths): over independent seeds it equals Mitsuba's ``path`` at a midpoint (z-tests, the
+    summed blend so that nothing is denoised), its correction is far less noisy than the L2+
+    it corrects, and at a training material it is exactly 0 (the model is exact there)."""
+    b, m = gi_basis
+    x = _midpoint(m)
+    refined = [refine(b, m, x=x, spp=16, passes=2, seed=100 + s, l2="raw", control_variate=True) for s in range(8)]
+    assert all(r.method == "control variate" for r in refined)
+    assert "(control variate) with 16 spp in 2 passes" in refined[0].summary()
+    ref = np.stack([scenes.render_reference(b.manifest["scene"], small_manifold, x, 256, seed=900 + s,
+                                            resolution=b.resolution, max_depth=8) for s in range(8)])
+    # the basis's blend is the same in every estimate: its noise (1024 spp) is not in the spread
+    assert_same_mean(np.stack([r.image for r in refined]), ref, "control-variate refinement vs path")
+    l2 = refine(b, m, x=x, spp=16, passes=2, seed=3, l2="raw", control_variate=True)
+    assert np.std(l2.rest) < 0.5 * np.std(b.image(b.gi_key(b.key(["gold-paint"]))) - b.image(b.key(["gold-paint"])))
+    at = refine(b, m, x=m.latent[m.index("gold-paint")], spp=4, passes=2, seed=1, l2="raw", control_variate=True)
+    assert not np.any(at.rest) and np.all(at.pixel_se == 0)
 
 
 def test_refinement_noise_estimate_matches_the_spread_of_independent_runs(basis):

@@ -113,7 +113,7 @@ class References:
                                    blend_image=blend_image, **where):
                 self._check_current(job)
                 job.images = {"blend": blend_image, "refined": r.image}
-                job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of L2+"
+                job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of " + ("L2+ correction" if r.method == "control variate" else "L2+")
                 job.error = agreement(blend_image, r)
         self._execute(job, passes)
 

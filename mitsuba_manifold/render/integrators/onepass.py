@@ -28,6 +28,9 @@ from .common import target_groups
 from .multisplats import MultiSplats
 from .splats import PACKET, FilterSplats, TableSplats
 
+#: Name of the point's own material in a render with ``point`` weights (:func:`render_onepass_gi`).
+POINT = "(point)"
+
 
 def _prefetch(path, block=1 << 24):
     """Read ``path`` in a background thread, so that it is in the page cache when needed."""
@@ -158,7 +161,11 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     ``progress`` of :func:`render_onepass`, and ``cross_fraction`` (the share of the
     splats the cross terms use, each weighted by its inverse; default 1) and ``pair_selection``
     (a :class:`.multisplats.PairSelection`: ``pairs`` are candidates, those whose cross term
-    matters are kept, measured on the first pass).
+    matters are kept, measured on the first pass) and ``point`` (weights, one per material: the
+    paths sample the blend of the materials with those weights, in absolute value, and the
+    blended material itself is rendered too, as the material :data:`POINT`: its ``rest`` and
+    the others' from the same paths make the control variate of
+    :func:`mitsuba_manifold.render.refine.refine_passes`).
 
     Returns
     -------
@@ -171,6 +178,12 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
         raise InputError(f"manifold_path: `cross_fraction` must be in (0, 1], got {fraction}")
     gi = {"levels": int(levels), "pairs": [tuple(str(n) for n in p) for p in pairs], "cross_fraction": fraction,
           "select": options.get("pair_selection")}
+    if options.get("point") is not None:
+        point = np.asarray(options["point"], np.float64)
+        if point.shape != (len(materials or ()),) or not np.isfinite(point).all() or not np.abs(point).sum() > 0:
+            raise InputError(f"manifold_path: `point` must be finite weights, one per material of `materials` "
+                             f"({len(materials or ())}), not all 0; got shape {point.shape}")
+        gi["point"] = point
     base, touch, extra = _render(integrator, scene, materials, spp, seed, sensor,
                                  options.get("chunk"), options.get("max_samples", 1 << 22),
                                  options.get("spp_per_pass"), options.get("progress"), gi)
@@ -200,7 +213,13 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
             and int(np.prod(dims)) * 3 * n_pad < 1 << 32):
         rows = db.material_rows(names, pad=PACKET)
         _prefetch(rows.filename)  # read while the paths are traced
-    proxy = _sampling_proxy(target, db, names, rows)
+    point = gi.get("point") if gi else None
+    if point is not None and rows is not None:   # the point's own material as one more column
+        rows, mix = _with_point(rows, point), np.abs(point) / max(float(np.abs(point).sum()), 1e-30)
+        proxy = _sampling_proxy(target, db, names, rows, mix)
+        names = names + [POINT]
+    else:
+        proxy = _sampling_proxy(target, db, names, rows)
 
     levels = gi["levels"] if gi else 1
     spp = int(spp) or sensor.sampler().sample_count()
@@ -326,11 +345,31 @@ def _material_names(manifold, path, materials):
     return names
 
 
-def _sampling_proxy(target, db, names, rows):
+def _with_point(rows, w):
+    """The ``(bins, 3, n)`` tables of ``len(w)`` materials and, after them, the column
+    ``sum_k w_k table_k`` (the blended material of a point, :data:`POINT`), padded to PACKET."""
+    k = len(w)
+    out = np.zeros(rows.shape[:2] + (-(-(k + 1) // PACKET) * PACKET,), np.float32)
+    out[:, :, :k] = rows[:, :, :k]
+    out[:, :, k] = out[:, :, :k] @ np.asarray(w, np.float32)
+    return out
+
+
+def _sampling_proxy(target, db, names, rows, mix=None):
     """A ``manifold_brdf`` sampling a density that covers every material: the mixture
-    ``sum_i P_i / |P_i|`` of the per-material sampling densities (paper Sec. 5.3)."""
+    ``sum_i P_i / |P_i|`` of the per-material sampling densities (paper Sec. 5.3), or, with
+    ``mix`` (a point's weights, their absolute values normalised), the table ``sum_i mix_i f_i``
+    (for convex weights the point's own material: its paths are sampled as a direct render's)."""
     from ..sampling import material_density
 
+    if mix is not None:
+        dims = tuple(int(d) for d in db.dims)
+        k = len(mix)
+        table = (rows[:, :, :k].reshape(-1, k) @ np.asarray(mix, np.float32)).reshape(rows.shape[0], 3)
+        proxy = mi.load_dict({"type": "manifold_brdf", "manifold": target.path, "prune": 0.0,
+                              "sampling": target.sampling, **target.options(), "material": names[0]})
+        proxy.set_weights(dict(zip(names, mix)), table=table.T.reshape((3,) + dims))
+        return proxy
     mass = np.array([material_density(db, n).sum() for n in names], float)
     top = mass.max()
     mix = 1.0 / np.maximum(mass, 1e-3 * top) if top > 0 else np.ones(len(names))
