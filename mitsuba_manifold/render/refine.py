@@ -1,11 +1,10 @@
 """Refining a blend to the exact full-GI image of its point (issue 21, ``blend.py --refine``).
 
 With ``control_variate=True`` and a full-GI basis (one target) the refinement is a *control
-variate*: one-pass paths at the
-point (sampled with the point's own material, :func:`~.integrators.onepass.render_onepass_gi`
-with ``point``) give, from the same paths, the point's ``L2+`` image ``R`` and the blend's model
-of it, ``Q = sum_i w_i R_i + sum_{i<j} w_i w_j C_ij`` (the weights and cross terms the blend
-used), so that
+variate*: one-pass paths at the point (sampled with the point's own material,
+:func:`~.integrators.onepass.render_onepass_gi` with ``point``) give, from the same paths, the
+point's ``L2+`` image ``R`` and the blend's model of it, ``Q = sum_i w_i R_i + sum_{i<j} w_i w_j
+C_ij`` (the weights and cross terms the blend used), so that
 
     refined(x) = blend(x) + mean(R - Q)
 
@@ -16,9 +15,10 @@ material, so its noise is that of the three-plus-vertex paths' departure from th
 model: far below that of rendering ``L2+`` itself, and few samples suffice. Paths touching the
 material more than the basis's ``levels`` times are cut, as in the basis.
 
-Otherwise (an L1- basis, several targets): a basis gives any latent point's ``L1-`` image exactly (Eq. 13 is affine in the weights:
-``base + sum_i w_i touch_i``); what no finite set of per-material images gives exactly is the
-light that touched the material twice or more (``L2+``, second order in the weights). The
+Otherwise (the default; an L1- basis; several targets): a basis gives any latent point's ``L1-``
+image exactly (Eq. 13 is affine in the weights: ``base + sum_i w_i touch_i``); what no finite
+set of per-material images gives exactly is the light that touched the material twice or more
+(``L2+``, second order in the weights). The
 refinement renders only that part, at the point itself: ``manifold_path`` with
 ``component="rest"`` and every target at its latent point, in independent passes, so that
 
@@ -106,8 +106,8 @@ def _rest_integrator(basis, max_depth):
 def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, stop=None, prune=None,
                   scene=None, manifold_path=None, blend_image=None, l2="denoised", control_variate=False):
     """Yield a :class:`Refined` estimate after each of ``passes`` passes (``spp`` in all): the
-    control variate of the module's docstring with a full-GI basis of one target, else the
-    ``L1-`` blend plus the ``L2+`` rendered at the point.
+    ``L1-`` blend plus the ``L2+`` rendered at the point, or with ``control_variate`` and a
+    full-GI basis of one target the control variate of the module's docstring.
 
     Parameters
     ----------
@@ -157,18 +157,27 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     scene, max_depth = scenes.scene_at(scene or m["scene"], manifold_path or m["manifold"], points, None,
                                        basis.resolution, m["max_depth"], m["variant"], basis.targets, database)
     integrator = _rest_integrator(basis, max_depth)
+
+    def rest(n, pass_seed):
+        return np.array(mi.render(scene, integrator=integrator, spp=n, sensor=int(basis.sensor), seed=pass_seed),
+                        np.float64)[..., :3]
+    yield from _progressive(plan, seed, stop, integrator, rest, l1, scale, "l2+")
+
+
+def _progressive(plan, seed, stop, integrator, render, start, scale, method):
+    """Yield the :class:`Refined` ``start + mean`` of ``render(spp, seed)`` after each pass of
+    ``plan`` (independent seeds); ``stop`` (or Ctrl-C) ends it after a pass."""
     t0, total, total2, done = time.perf_counter(), 0.0, 0.0, 0
     own = stop is None
     stop = stop or StopRequest()
     with (stop if own else contextlib.nullcontext()):
         for k, n in enumerate(plan):
-            img = np.array(mi.render(scene, integrator=integrator, spp=n, sensor=int(basis.sensor),
-                                     seed=(int(seed) + k * 0x9E3779B9) & 0xFFFFFFFF), np.float64)[..., :3]
+            img = render(n, (int(seed) + k * 0x9E3779B9) & 0xFFFFFFFF)
             total, total2, done = total + n * img, total2 + n * img * img, done + n
             if integrator.should_stop():
                 stop.requested = True
             stop.check()
-            yield _estimate(l1, total, total2, done, k + 1, time.perf_counter() - t0, scale)
+            yield _estimate(start, total, total2, done, k + 1, time.perf_counter() - t0, scale, method)
 
 
 def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_path, blend_image, database, l2):
@@ -187,27 +196,17 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
                                        latent_points(basis, manifold, x), None, basis.resolution, m["max_depth"],
                                        m["variant"], basis.targets, database)
     integrator = mi.load_dict({"type": "manifold_path", "component": "l1", "max_depth": int(max_depth)})
-    t0, total, total2, done = time.perf_counter(), 0.0, 0.0, 0
-    own = stop is None
-    stop = stop or StopRequest()
-    with (stop if own else contextlib.nullcontext()):
-        for k, n in enumerate(plan):
-            r = integrator.render_onepass_gi(scene, materials=names, spp=n, sensor=int(basis.sensor),
-                                             seed=(int(seed) + k * 0x9E3779B9) & 0xFFFFFFFF,
-                                             levels=int(m.get("levels", 5)), pairs=pairs, point=w)
-            q = sum(wi * r.rest[name].astype(np.float64) for wi, name in zip(w, names))
-            q = q + sum(float(pr) * r.cross[p] for pr, p in zip(prods, pairs))
-            d = r.rest[POINT].astype(np.float64) - q
-            total, total2, done = total + n * d, total2 + n * d * d, done + n
-            if integrator.should_stop():
-                stop.requested = True
-            stop.check()
-            out = _estimate(base, total, total2, done, k + 1, time.perf_counter() - t0, base)
-            out.method = CONTROL_VARIATE
-            yield out
+
+    def correction(n, pass_seed):   # R - Q from one pass's paths
+        r = integrator.render_onepass_gi(scene, materials=names, spp=n, sensor=int(basis.sensor), seed=pass_seed,
+                                         levels=int(m.get("levels", 5)), pairs=pairs, point=w)
+        q = sum(wi * r.rest[name].astype(np.float64) for wi, name in zip(w, names))
+        q = q + sum(float(pr) * r.cross[p] for pr, p in zip(prods, pairs))
+        return r.rest[POINT].astype(np.float64) - q
+    yield from _progressive(plan, seed, stop, integrator, correction, base, base, CONTROL_VARIATE)
 
 
-def _estimate(l1, total, total2, done, passes, seconds, scale=None):
+def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"):
     """The refined image from the spp-weighted sums of the pass images and their squares
     (``scale``: of :class:`Refined`; default the refined image)."""
     rest = total / done
@@ -219,7 +218,7 @@ def _estimate(l1, total, total2, done, passes, seconds, scale=None):
     ref = np.asarray(image if scale is None else scale, np.float64)
     noise = float(np.mean(se ** 2 / (ref ** 2 + REL_EPS))) if passes > 1 else float("nan")
     return Refined(image, l1, rest.astype(np.float32), se.astype(np.float32), noise, int(done), passes, seconds,
-                   None if scale is None else np.asarray(scale, np.float32))
+                   None if scale is None else np.asarray(scale, np.float32), method)
 
 
 def refine(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, prune=None, l2="denoised",

@@ -105,7 +105,7 @@ class References:
                 del self._jobs[old]
 
     def _run_refine(self, job, basis, manifold, blend_image, where):
-        from ...render.refine import refine_passes
+        from ...render.refine import CONTROL_VARIATE, refine_passes
 
         def passes():
             self._check_current(job)   # queued behind a newer one: never started
@@ -113,7 +113,8 @@ class References:
                                    blend_image=blend_image, **where):
                 self._check_current(job)
                 job.images = {"blend": blend_image, "refined": r.image}
-                job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of " + ("L2+ correction" if r.method == "control variate" else "L2+")
+                what = "L2+ correction" if r.method == CONTROL_VARIATE else "L2+"
+                job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of {what}"
                 job.error = agreement(blend_image, r)
         self._execute(job, passes)
 

@@ -162,10 +162,8 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     splats the cross terms use, each weighted by its inverse; default 1) and ``pair_selection``
     (a :class:`.multisplats.PairSelection`: ``pairs`` are candidates, those whose cross term
     matters are kept, measured on the first pass) and ``point`` (weights, one per material: the
-    paths sample the blend of the materials with those weights, in absolute value, and the
-    blended material itself is rendered too, as the material :data:`POINT`: its ``rest`` and
-    the others' from the same paths make the control variate of
-    :func:`mitsuba_manifold.render.refine.refine_passes`).
+    paths sample their blend, in absolute value, and the blend is rendered too, as :data:`POINT`:
+    with the others' ``rest`` from the same paths, the control variate of :mod:`mitsuba_manifold.render.refine`).
 
     Returns
     -------
@@ -215,9 +213,7 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
         _prefetch(rows.filename)  # read while the paths are traced
     point = gi.get("point") if gi else None
     if point is not None and rows is not None:   # the point's own material as one more column
-        rows, mix = _with_point(rows, point), np.abs(point) / max(float(np.abs(point).sum()), 1e-30)
-        proxy = _sampling_proxy(target, db, names, rows, mix)
-        names = names + [POINT]
+        rows, names, proxy = _with_point(target, db, names, rows, point)
     else:
         proxy = _sampling_proxy(target, db, names, rows)
 
@@ -345,42 +341,41 @@ def _material_names(manifold, path, materials):
     return names
 
 
-def _with_point(rows, w):
-    """The ``(bins, 3, n)`` tables of ``len(w)`` materials and, after them, the column
-    ``sum_k w_k table_k`` (the blended material of a point, :data:`POINT`), padded to PACKET."""
+def _with_point(target, db, names, rows, w):
+    """``(rows, names, proxy)``: the ``(bins, 3, n)`` tables of the materials ``names`` and, after
+    them, the column ``sum_k w_k table_k`` (the point's material, :data:`POINT`), padded to
+    PACKET; the names with :data:`POINT`; the proxy sampling ``|w|`` (:func:`_sampling_proxy`)."""
     k = len(w)
     out = np.zeros(rows.shape[:2] + (-(-(k + 1) // PACKET) * PACKET,), np.float32)
     out[:, :, :k] = rows[:, :, :k]
     out[:, :, k] = out[:, :, :k] @ np.asarray(w, np.float32)
-    return out
+    mix = np.abs(w) / float(np.abs(w).sum())
+    # convex weights: the proxy's table is the point's column (scaled to sum 1), not a second product
+    table = out[:, :, k] / float(w.sum()) if np.all(w >= 0) else out[:, :, :k].reshape(-1, k) @ mix.astype(np.float32)
+    return out, names + [POINT], _sampling_proxy(target, db, names, out, mix, table.reshape(out.shape[0], 3))
 
 
-def _sampling_proxy(target, db, names, rows, mix=None):
+def _sampling_proxy(target, db, names, rows, mix=None, table=None):
     """A ``manifold_brdf`` sampling a density that covers every material: the mixture
-    ``sum_i P_i / |P_i|`` of the per-material sampling densities (paper Sec. 5.3), or, with
-    ``mix`` (a point's weights, their absolute values normalised), the table ``sum_i mix_i f_i``
-    (for convex weights the point's own material: its paths are sampled as a direct render's)."""
+    ``sum_i P_i / |P_i|`` of the per-material sampling densities (paper Sec. 5.3), or ``mix``
+    (a point's weights, their absolute values normalised) with its ``table`` ``sum_i mix_i f_i``
+    (``(bins, 3)``; for convex weights the point's own material: its paths are sampled as a
+    direct render's)."""
     from ..sampling import material_density
 
-    if mix is not None:
-        dims = tuple(int(d) for d in db.dims)
-        k = len(mix)
-        table = (rows[:, :, :k].reshape(-1, k) @ np.asarray(mix, np.float32)).reshape(rows.shape[0], 3)
-        proxy = mi.load_dict({"type": "manifold_brdf", "manifold": target.path, "prune": 0.0,
-                              "sampling": target.sampling, **target.options(), "material": names[0]})
-        proxy.set_weights(dict(zip(names, mix)), table=table.T.reshape((3,) + dims))
-        return proxy
-    mass = np.array([material_density(db, n).sum() for n in names], float)
-    top = mass.max()
-    mix = 1.0 / np.maximum(mass, 1e-3 * top) if top > 0 else np.ones(len(names))
-    mix /= mix.sum()
+    if mix is None:
+        mass = np.array([material_density(db, n).sum() for n in names], float)
+        top = mass.max()
+        mix = 1.0 / np.maximum(mass, 1e-3 * top) if top > 0 else np.ones(len(names))
+        mix /= mix.sum()
     spec = {"type": "manifold_brdf", "manifold": target.path, "prune": 0.0,
             "sampling": target.sampling, **target.options()}
     if rows is None:
         return mi.load_dict({**spec, "weights": ", ".join(f"{n}:{float(w)!r}" for n, w in zip(names, mix))})
-    # the mixture's table from the interleaved tables (cached)
     dims = tuple(int(d) for d in db.dims)
-    table = _mixture_table(db, rows, mix).T.reshape((3,) + dims)
+    if table is None:   # the mixture's table from the interleaved tables (cached)
+        table = _mixture_table(db, rows, mix)
+    table = table.T.reshape((3,) + dims)
     proxy = mi.load_dict({**spec, "material": names[0]})
     proxy.set_weights(dict(zip(names, mix)), table=table)
     return proxy
