@@ -1,7 +1,6 @@
 """Refining a blend to the exact full-GI image of its point (issue 21, ``blend.py --refine``).
 
-With ``control_variate=True`` and a full-GI basis (one target) the refinement is a *control
-variate*: one-pass paths at the point (sampled with the point's own material,
+With a full-GI basis of one target the refinement is, by default, a *control variate*: one-pass paths at the point (sampled with the point's own material,
 :func:`~.integrators.onepass.render_onepass_gi` with ``point``) give, from the same paths, the
 point's ``L2+`` image ``R`` and the blend's model of it, ``Q = sum_i w_i R_i + sum_{i<j} w_i w_j
 C_ij`` (the weights and cross terms the blend used), so that
@@ -13,9 +12,10 @@ L2+ with ``l2="denoised"``; exactly with ``l2="raw"``). ``R - Q`` is 0 on every 
 vertices on the material (the cross terms make the model exact there) and at every training
 material, so its noise is that of the three-plus-vertex paths' departure from the quadratic
 model: far below that of rendering ``L2+`` itself, and few samples suffice. Paths touching the
-material more than the basis's ``levels`` times are cut, as in the basis.
+material more than the basis's ``levels`` times are cut, as in the basis. At a training material
+(one material, no cross term) ``R - Q`` is 0 on every path, so nothing is rendered.
 
-Otherwise (the default; an L1- basis; several targets): a basis gives any latent point's ``L1-``
+Otherwise (an L1- basis; several targets; ``control_variate=False``): a basis gives any latent point's ``L1-``
 image exactly (Eq. 13 is affine in the weights: ``base + sum_i w_i touch_i``); what no finite
 set of per-material images gives exactly is the light that touched the material twice or more
 (``L2+``, second order in the weights). The
@@ -79,6 +79,9 @@ class Refined:
         noise = "n/a (one pass)" if self.passes < 2 else f"{self.noise_rel_mse:.3g}"
         what = ("the blend's L2+ corrected at the point (control variate)" if self.method == CONTROL_VARIATE
                 else "L2+ rendered at the point")
+        if self.passes == 0:
+            return (f"refined: nothing to render, the blend is exact at a training material (the control "
+                    f"variate's correction is 0 on every path), {self.seconds:.2f} s")
         return (f"refined: {what} with {self.spp} spp in {self.passes} passes, "
                 f"{self.seconds:.2f} s; estimated noise of the refinement (rel. MSE, on the blend's scale) {noise}")
 
@@ -104,7 +107,7 @@ def _rest_integrator(basis, max_depth):
 
 
 def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, stop=None, prune=None,
-                  scene=None, manifold_path=None, blend_image=None, l2="denoised", control_variate=False):
+                  scene=None, manifold_path=None, blend_image=None, l2="denoised", control_variate="auto"):
     """Yield a :class:`Refined` estimate after each of ``passes`` passes (``spp`` in all): the
     ``L1-`` blend plus the ``L2+`` rendered at the point, or with ``control_variate`` and a
     full-GI basis of one target the control variate of the module's docstring.
@@ -136,15 +139,19 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     l2 : {"denoised", "raw"}
         The blend's ``L2+`` (:func:`~mitsuba_manifold.basis.blend.blend`) that the control variate
         corrects; ``"raw"`` makes the refinement unbiased, ``"denoised"`` keeps the denoiser's change.
-    control_variate : bool
-        Use the control variate (a full-GI basis of one target). Not yet the default: on the main
-        job (256x256) it beat a 256-spp render at the midpoint from 32 spp but took 0.9 of its time.
+    control_variate : {"auto", True, False}
+        Use the control variate where the basis allows it (a full-GI basis of one target; ``"auto"``
+        and ``True``), or render the ``L2+`` at the point (``False``). On the main job's ``table``
+        (256x256, 512-spp basis, 2 cores) the control variate beat a 256-spp render's error at the
+        midpoint from 32 spp, where rendering the ``L2+`` did not at 64 spp (docs/benchmarks.md).
     """
     import mitsuba as mi
 
     plan = _pass_plan(spp, passes)
     m = basis.manifest
     kw = {} if prune is None else {"prune": prune}
+    if control_variate not in ("auto", True, False):
+        raise InputError(f"`control_variate` must be 'auto', True or False, got {control_variate!r}")
     if control_variate and "l2+" in basis.components and basis.p == 1:
         yield from _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_path, blend_image,
                                     database, l2)
@@ -191,6 +198,10 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
     rows, prods = info["cross"] if info["cross"] is not None else ((), ())
     row_pair = {r: p for p, r in basis.cross_terms()[0].items()}
     pairs = [row_pair[int(r)] for r in rows]
+    if len(names) == 1 and not pairs:   # a training material: R = Q on every path
+        zero = np.zeros_like(base, np.float32)
+        yield Refined(base, base, zero, zero, 0.0, 0, 0, 0.0, base, CONTROL_VARIATE)
+        return
     m = basis.manifest
     scene, max_depth = scenes.scene_at(scene or m["scene"], manifold_path or m["manifold"],
                                        latent_points(basis, manifold, x), None, basis.resolution, m["max_depth"],
@@ -199,7 +210,8 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
 
     def correction(n, pass_seed):   # R - Q from one pass's paths
         r = integrator.render_onepass_gi(scene, materials=names, spp=n, sensor=int(basis.sensor), seed=pass_seed,
-                                         levels=int(m.get("levels", 5)), pairs=pairs, point=w)
+                                         levels=int(m.get("levels", 5)), pairs=pairs, point=w,
+                                         touch=False)
         q = sum(wi * r.rest[name].astype(np.float64) for wi, name in zip(w, names))
         q = q + sum(float(pr) * r.cross[p] for pr, p in zip(prods, pairs))
         return r.rest[POINT].astype(np.float64) - q
@@ -222,7 +234,7 @@ def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"
 
 
 def refine(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, prune=None, l2="denoised",
-           control_variate=False):
+           control_variate="auto"):
     """The last estimate of :func:`refine_passes` (all ``spp`` samples): a :class:`Refined`."""
     last = None
     for last in refine_passes(basis, manifold, x, spp, passes, seed, database, prune=prune, l2=l2,

@@ -7,6 +7,7 @@ import pytest
 import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
 
 from mitsuba_manifold.basis import folder as bf  # noqa: E402
+from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.errors import InputError  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 from mitsuba_manifold.render import render_basis, scenes  # noqa: E402
@@ -73,8 +74,13 @@ def test_control_variate_makes_a_full_gi_blend_the_render_of_its_point(gi_basis,
     assert_same_mean(np.stack([r.image for r in refined]), ref, "control-variate refinement vs path")
     l2 = refine(b, m, x=x, spp=16, passes=2, seed=3, l2="raw", control_variate=True)
     assert np.std(l2.rest) < 0.5 * np.std(b.image(b.gi_key(b.key(["gold-paint"]))) - b.image(b.key(["gold-paint"])))
-    at = refine(b, m, x=m.latent[m.index("gold-paint")], spp=4, passes=2, seed=1, l2="raw", control_variate=True)
+    at = refine(b, m, x=m.latent[m.index("gold-paint")], spp=4, passes=2, seed=1, l2="raw")   # the default
+    assert at.method == "control variate" and at.passes == 0 and "nothing to render" in at.summary()
     assert not np.any(at.rest) and np.all(at.pixel_se == 0)
+    np.testing.assert_array_equal(at.image, blend(b, m, x=m.latent[m.index("gold-paint")], l2="raw")[0])
+    assert refine(b, m, x=x, spp=2, passes=1, control_variate=False).method == "l2+"
+    with pytest.raises(InputError, match="`control_variate` must be 'auto', True or False"):
+        refine(b, m, x=x, spp=2, passes=1, control_variate="yes")
 
 
 def test_refinement_noise_estimate_matches_the_spread_of_independent_runs(basis):

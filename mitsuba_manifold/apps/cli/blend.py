@@ -9,8 +9,9 @@
 The default blends the full-GI images and cross terms of the basis (render_basis.py's default), its
 light beyond L1- denoised (--l2 raw: summed, exact at the training materials but noisy where light runs
 through narrow peaks); --component l1 blends the L1- images (paper Eq. 13). A basis without full-GI
-images blends L1- and says so. --refine SPP adds the L2+ light rendered at the point: unbiased, but
-noisy at a few SPP where the blend is not.
+images blends L1- and says so. --refine SPP makes the point's image unbiased: with a full-GI basis it
+corrects the blend by what the same paths say it misses (a control variate; nothing at a training
+material), otherwise it adds the L2+ light rendered at the point.
 
 With several manifold materials in the scene give one --x per target (in the manifest's
 target order). Nothing is written until every input has been read and checked.
@@ -71,9 +72,9 @@ def parser():
     p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
     p.add_argument("--database", help="folder of the manifold's tables, if it moved (--render-reference)")
     p.add_argument("--refine", type=int, metavar="SPP", default=None,
-                   help="unbiased image of the point: render what the basis cannot give there (its L2+ light, "
-                        "SPP samples per pixel) and add it to the L1- blend; reports the noise its passes "
-                        "estimate (too low where fireflies are rare)")
+                   help="unbiased image of the point, SPP samples per pixel: the full-GI blend corrected by "
+                        "a control variate (or, with an L1- basis, the L1- blend plus the L2+ rendered there); "
+                        "reports the noise its passes estimate (too low where fireflies are rare)")
     p.add_argument("--refine-passes", type=int, default=4,
                    help="independent passes of --refine, which estimate its noise (default 4)")
     p.add_argument("--l2", choices=["denoised", "raw"], default="denoised",
@@ -240,7 +241,8 @@ def _refined(args, basis, manifold):
     last = None
     for last in refine_passes(basis, manifold, x=args.x, spp=args.refine, passes=args.refine_passes,
                               seed=args.seed, database=args.database, prune=args.prune, l2=args.l2):
-        print(f"  pass {last.passes}/{args.refine_passes}: {last.spp} spp, {last.seconds:.2f} s", flush=True)
+        if last.passes:
+            print(f"  pass {last.passes}/{args.refine_passes}: {last.spp} spp, {last.seconds:.2f} s", flush=True)
     written = ("the full-GI blend plus this correction" if last.method == CONTROL_VARIATE
                else "the L1- blend plus this L2+")
     print(f"{last.summary()}; the image written is {written}")

@@ -115,6 +115,8 @@ class References:
                 job.images = {"blend": blend_image, "refined": r.image}
                 what = "L2+ correction" if r.method == CONTROL_VARIATE else "L2+"
                 job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of {what}"
+                if r.passes == 0:   # a training material: the blend is already exact
+                    job.progress, job.message = 1.0, "exact at a training material: nothing to render"
                 job.error = agreement(blend_image, r)
         self._execute(job, passes)
 

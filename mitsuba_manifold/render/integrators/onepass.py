@@ -22,14 +22,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..._util.cache import key_hash, npy_cache
 from ...errors import InputError
 from .common import target_groups
 from .multisplats import MultiSplats
+from .proxy import POINT, sampling_proxy, with_point  # noqa: F401 (POINT: re-exported)
 from .splats import PACKET, FilterSplats, TableSplats
 
-#: Name of the point's own material in a render with ``point`` weights (:func:`render_onepass_gi`).
-POINT = "(point)"
 
 
 def _prefetch(path, block=1 << 24):
@@ -43,26 +41,6 @@ def _prefetch(path, block=1 << 24):
         except OSError:
             pass
     threading.Thread(target=run, daemon=True).start()
-
-
-def _mixture_table(db, rows, mix, keep=2):
-    """``sum_k mix_k table_k`` from the interleaved tables ``rows``, as ``(bins, 3)`` float32.
-
-    Cached beside ``rows`` (keyed by them and the weights; the ``keep`` newest kept), so
-    that a later render need not read every table before it starts tracing.
-    """
-    key = os.path.basename(rows.filename).split(".")[0]
-    digest = key_hash(np.asarray(mix, dtype=np.float64), length=16)
-    path = os.path.join(db.cache_dir, f"{key}.mixture-v1-{digest}.npy")
-    shape = (rows.shape[0], 3)
-
-    def build():
-        w = np.zeros(rows.shape[2], dtype=np.float32)
-        w[:len(mix)] = mix
-        return (np.asarray(rows).reshape(-1, rows.shape[2]) @ w).reshape(shape)
-
-    return npy_cache(path, build, shape=shape, dtype=np.float32, finite=True, touch=True,
-                     keep=keep, marker=".mixture-v1-")
 
 
 def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, chunk=None,
@@ -163,7 +141,9 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     (a :class:`.multisplats.PairSelection`: ``pairs`` are candidates, those whose cross term
     matters are kept, measured on the first pass) and ``point`` (weights, one per material: the
     paths sample their blend, in absolute value, and the blend is rendered too, as :data:`POINT`:
-    with the others' ``rest`` from the same paths, the control variate of :mod:`mitsuba_manifold.render.refine`).
+    with the others' ``rest`` from the same paths, the control variate of :mod:`mitsuba_manifold.render.refine`)
+    and ``touch`` (default True; False: no touch images, ``touch`` is empty, for a caller that
+    needs only ``rest`` and ``cross``).
 
     Returns
     -------
@@ -182,6 +162,7 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
             raise InputError(f"manifold_path: `point` must be finite weights, one per material of `materials` "
                              f"({len(materials or ())}), not all 0; got shape {point.shape}")
         gi["point"] = point
+    gi["touch"] = bool(options.get("touch", True))
     base, touch, extra = _render(integrator, scene, materials, spp, seed, sensor,
                                  options.get("chunk"), options.get("max_samples", 1 << 22),
                                  options.get("spp_per_pass"), options.get("progress"), gi)
@@ -213,11 +194,12 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
         _prefetch(rows.filename)  # read while the paths are traced
     point = gi.get("point") if gi else None
     if point is not None and rows is not None:   # the point's own material as one more column
-        rows, names, proxy = _with_point(target, db, names, rows, point)
+        rows, names, proxy = with_point(target, db, names, rows, point)
     else:
-        proxy = _sampling_proxy(target, db, names, rows)
+        proxy = sampling_proxy(target, db, names, rows)
 
     levels = gi["levels"] if gi else 1
+    touch = gi.get("touch", True) if gi else True
     spp = int(spp) or sensor.sampler().sample_count()
     # the records of every level of every path are held at once: fewer paths per pass
     passes = _passes(film, spp, max(1, int(max_samples) * 3 // max(3, levels)), spp_per_pass)
@@ -259,7 +241,8 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
             L = L * weight
             head = [L.x, L.y, L.z] + ([dr.select(valid, 1.0, 0.0)] if alpha else [])
             base_block.put(pos, head + [mi.Float(1.0)])
-            splat.prepare(rec, rec["beta"] * weight, pos)
+            if touch:
+                splat.prepare(rec, rec["beta"] * weight, pos)
             if multi is not None:
                 multi.prepare(rec, weight, splat.pixel_of(pos), seed * len(passes) + p)
             del sampler, ray, L, valid, rec, head
@@ -277,7 +260,7 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     film.prepare([])
     film.put_block(base_block)
     base = np.array(film.develop(), dtype=np.float32)[..., :3].copy()
-    images = splat.images(film)
+    images = splat.images(film) if touch else {}
     if multi is None:
         return base, images, None
     rest, cross = multi.images(splat.scale(), base.shape)
@@ -339,46 +322,6 @@ def _material_names(manifold, path, materials):
             f"manifold_path: materials must be distinct names of the manifold {path}; "
             f"unknown: {unknown or 'none'} (it has {', '.join(manifold.names[:8])}, ...)")
     return names
-
-
-def _with_point(target, db, names, rows, w):
-    """``(rows, names, proxy)``: the ``(bins, 3, n)`` tables of the materials ``names`` and, after
-    them, the column ``sum_k w_k table_k`` (the point's material, :data:`POINT`), padded to
-    PACKET; the names with :data:`POINT`; the proxy sampling ``|w|`` (:func:`_sampling_proxy`)."""
-    k = len(w)
-    out = np.zeros(rows.shape[:2] + (-(-(k + 1) // PACKET) * PACKET,), np.float32)
-    out[:, :, :k] = rows[:, :, :k]
-    out[:, :, k] = out[:, :, :k] @ np.asarray(w, np.float32)
-    mix = np.abs(w) / float(np.abs(w).sum())
-    # convex weights: the proxy's table is the point's column (scaled to sum 1), not a second product
-    table = out[:, :, k] / float(w.sum()) if np.all(w >= 0) else out[:, :, :k].reshape(-1, k) @ mix.astype(np.float32)
-    return out, names + [POINT], _sampling_proxy(target, db, names, out, mix, table.reshape(out.shape[0], 3))
-
-
-def _sampling_proxy(target, db, names, rows, mix=None, table=None):
-    """A ``manifold_brdf`` sampling a density that covers every material: the mixture
-    ``sum_i P_i / |P_i|`` of the per-material sampling densities (paper Sec. 5.3), or ``mix``
-    (a point's weights, their absolute values normalised) with its ``table`` ``sum_i mix_i f_i``
-    (``(bins, 3)``; for convex weights the point's own material: its paths are sampled as a
-    direct render's)."""
-    from ..sampling import material_density
-
-    if mix is None:
-        mass = np.array([material_density(db, n).sum() for n in names], float)
-        top = mass.max()
-        mix = 1.0 / np.maximum(mass, 1e-3 * top) if top > 0 else np.ones(len(names))
-        mix /= mix.sum()
-    spec = {"type": "manifold_brdf", "manifold": target.path, "prune": 0.0,
-            "sampling": target.sampling, **target.options()}
-    if rows is None:
-        return mi.load_dict({**spec, "weights": ", ".join(f"{n}:{float(w)!r}" for n, w in zip(names, mix))})
-    dims = tuple(int(d) for d in db.dims)
-    if table is None:   # the mixture's table from the interleaved tables (cached)
-        table = _mixture_table(db, rows, mix)
-    table = table.T.reshape((3,) + dims)
-    proxy = mi.load_dict({**spec, "material": names[0]})
-    proxy.set_weights(dict(zip(names, mix)), table=table)
-    return proxy
 
 
 def _passes(film, spp, max_samples, spp_per_pass):
