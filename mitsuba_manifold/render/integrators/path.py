@@ -320,6 +320,10 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             depth[si.is_valid()] += 1
             active = active_next
 
+        if dr.hint(record, mode="scalar"):
+            # one kernel: the records' scatters and every output together (evaluated apart, the
+            # loop ran once for the scatters, once for the radiance and once for the counts)
+            dr.eval(L, depth, parts, rs)
         records = rec.finish(rs) if record else None
         return L, depth != 0, parts, records
 
