@@ -97,7 +97,8 @@ class GISettings:
     denoise : bool
         Also denoise the blends and the highest-spp direct render (OIDN, AOV guides).
     refine_spp : int
-        Samples per pixel of the refined blend (``blend.py --refine``) at each point (0: none).
+        Samples per pixel of the refined blend (``blend.py --refine``) at each point (0: none), in
+        two passes (the fewest that estimate its noise).
     """
     res: int = 128
     basis_spp: int = 64
@@ -227,7 +228,7 @@ def refined_row(b, m, x, ref, spp, seed, warm=False):
     if warm:
         refine(b, m, x=x, spp=1, passes=1, seed=seed)
     t0 = time.perf_counter()
-    r = refine(b, m, x=x, spp=spp, passes=min(4, spp), seed=seed)
+    r = refine(b, m, x=x, spp=spp, passes=min(2, spp), seed=seed)
     bias, se = relative_bias(r.image, ref)
     return {"spp": spp, "time_s": time.perf_counter() - t0, **metrics.compare(r.image, ref),
             "relative_bias": bias, "relative_bias_se": se, "noise_rel_mse": r.noise_rel_mse}

@@ -11,9 +11,15 @@ has the expectation of the point's full-GI render (up to the denoiser's change o
 L2+ with ``l2="denoised"``; exactly with ``l2="raw"``). ``R - Q`` is 0 on every path with two
 vertices on the material (the cross terms make the model exact there) and at every training
 material, so its noise is that of the three-plus-vertex paths' departure from the quadratic
-model: far below that of rendering ``L2+`` itself, and few samples suffice. Paths touching the
-material more than the basis's ``levels`` times are cut, as in the basis. At a training material
-(one material, no cross term) ``R - Q`` is 0 on every path, so nothing is rendered.
+model: far below that of rendering ``L2+`` itself, and few samples suffice. The correction covers
+paths with at most :data:`CV_LEVELS` vertices on the material (the basis's ``levels`` if fewer);
+beyond, the blend's model stands: per path, the quadratic model's departure grows about as
+``w^(1-k)`` with the ``k`` vertices on the material (``w`` the dominant weight): at the main
+job's midpoint (32 spp in 2 passes, eight seeds, a basis of eight levels) a correction through
+eight vertices left a relative MSE of 0.0037 to 0.054, through five 0.0020 to 0.0074, while the
+paths beyond five vertices carry 0.5 to 1.2% of the light at white-paint, the most
+interreflecting material (:func:`~.render_basis.render_basis`'s ``levels``). At a training material (one material, no cross
+term) ``R - Q`` is 0 on every path, so nothing is rendered.
 
 Otherwise (an L1- basis; several targets; ``control_variate=False``): a basis gives any latent point's ``L1-``
 image exactly (Eq. 13 is affine in the weights: ``base + sum_i w_i touch_i``); what no finite
@@ -88,6 +94,8 @@ class Refined:
 
 #: :class:`Refined` ``method`` of the control variate (a full-GI basis of one target).
 CONTROL_VARIATE = "control variate"
+#: Most vertices on the material of the paths that the control variate corrects (the module).
+CV_LEVELS = 5
 
 
 def _pass_plan(spp, passes):
@@ -210,7 +218,7 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
 
     def correction(n, pass_seed):   # R - Q from one pass's paths
         r = integrator.render_onepass_gi(scene, materials=names, spp=n, sensor=int(basis.sensor), seed=pass_seed,
-                                         levels=int(m.get("levels", 5)), pairs=pairs, point=w,
+                                         levels=min(int(m.get("levels", 5)), CV_LEVELS), pairs=pairs, point=w,
                                          touch=False)
         q = sum(wi * r.rest[name].astype(np.float64) for wi, name in zip(w, names))
         q = q + sum(float(pr) * r.cross[p] for pr, p in zip(prods, pairs))

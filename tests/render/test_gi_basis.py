@@ -13,6 +13,7 @@ import mitsuba as mi  # noqa: E402
 from mitsuba_manifold.basis import folder as bf  # noqa: E402
 from mitsuba_manifold.basis.blend import blend, blend_path  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
+from mitsuba_manifold.errors import InputError  # noqa: E402
 from mitsuba_manifold.render import integrators, render_basis  # noqa: E402
 from helpers import assert_same_mean, integrator, load, renders  # noqa: E402
 
@@ -124,7 +125,9 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
     out = tmp_path / "basis"
     manifest = render_basis.render_basis("table", small_manifold, out, spp=8, mode="onepass", components="auto", resolution=16,
                                          max_depth=8)
-    assert manifest["components"][:2] == ["l1", "l2+"] and manifest["levels"] == 5
+    # by default every vertex the path depth allows is recorded: no path is cut
+    assert manifest["components"][:2] == ["l1", "l2+"] and manifest["levels"] == 8
+    assert manifest["gi_stats"]["paths_by_touches"][-1] == 0
     assert manifest["gi_stats"]["rest_fraction"] > 0 and not manifest.get("left_out", {}).get("l2+")
     m = Manifold.load(small_manifold)
     b = bf.Basis.load(out, manifold=m)
@@ -147,6 +150,15 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
                            l2="raw")
         np.testing.assert_allclose(images[1], mid, rtol=1e-4, atol=1e-6)
         assert pinfo["component"] == "full"
+
+
+@pytest.mark.parametrize("levels", [1, 2.5, "5"])
+def test_bad_levels_are_refused_before_anything_is_made(tmp_path, small_manifold, levels):
+    out = tmp_path / "basis"
+    with pytest.raises(InputError, match="`levels` must be an integer >= 2"):
+        render_basis.render_basis("table", small_manifold, out, spp=2, mode="onepass", components="auto",
+                                  resolution=8, levels=levels)
+    assert not out.exists()
 
 
 def test_an_old_l1_basis_still_blends_and_says_so(tmp_path, small_manifold):

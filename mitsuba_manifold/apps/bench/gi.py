@@ -53,7 +53,7 @@ def _basis(scene, manifold, out, warm=True, **kw):
 
 
 def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), res=64, basis_spp=256,
-            ref_spp=4096, direct_spp=256, levels=5, out=None, seed=0, log=print, both_ends=False, gi_options=None):
+            ref_spp=4096, direct_spp=256, levels=None, out=None, seed=0, log=print, both_ends=False, gi_options=None):
     """Issue 21's targets per scene: L1- and full-GI bases (time, size, what they hold), and at
     the points of :func:`gi_points` the bias and relative MSE of both blends and of a
     ``direct_spp`` render against a ``ref_spp`` reference (Mitsuba's ``path``); ``both_ends``:
