@@ -21,6 +21,7 @@ import numpy as np
 from .._util.atomic import write_bytes
 from ..basis import folder as basis_folder
 from ..basis.crossterms import select_pairs
+from ..errors import InputError
 from .folders import image_still_valid
 from .integrators.multisplats import PairSelection
 
@@ -32,6 +33,18 @@ CROSS_FILE = "cross.npz"
 
 #: L2+ images are left out when their light is below this fraction of the material's.
 REST_TOL = 1e-4
+#: Default ``levels`` of a full-GI basis whose paths are unbounded (``max_depth`` -1).
+MAX_LEVELS = 12
+
+
+def gi_levels(levels, max_depth):
+    """``levels`` of :class:`~.render_basis.BasisOptions` checked, or by default (None) every
+    vertex a path of ``max_depth`` can have (:data:`MAX_LEVELS` for unbounded paths)."""
+    if levels is None:
+        return int(max_depth) if int(max_depth) > 0 else MAX_LEVELS
+    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 2:
+        raise InputError(f"`levels` must be an integer >= 2 (vertices on the material per path), got {levels!r}")
+    return int(levels)
 
 
 def carry_gi(out, manifest):

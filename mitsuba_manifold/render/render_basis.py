@@ -31,7 +31,7 @@ from .._util import names as names_mod, checks as validate
 from . import scenes
 from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
 from .folders import check_foreign_folder, check_job_folders, open_folder
-from .gi_basis import CROSS_FILE, GI_SUFFIX, REST_TOL, carry_gi, describe_components, progress_bar, render_gi
+from .gi_basis import CROSS_FILE, GI_SUFFIX, REST_TOL, carry_gi, describe_components, gi_levels, progress_bar, render_gi
 from .interrupt import StopRequest, render_in_passes
 from .._util.cache import file_hash
 from .._util.locking import FolderLock
@@ -39,8 +39,6 @@ from .scenes import check_variant
 from ..manifold.model import Manifold
 
 MODES = basis_folder.MODES
-#: Default ``levels`` of a full-GI basis whose paths are unbounded (``max_depth`` -1).
-MAX_LEVELS = 12
 
 __all__ = ["CROSS_FILE", "GI_SUFFIX", "MODES", "REST_TOL", "BasisOptions", "describe_components", "check_foreign_folder", "check_job_folders", "count_sensors", "ensure_aovs",
            "plan_views", "render_basis", "select_materials"]
@@ -125,12 +123,9 @@ class BasisOptions:
         :data:`REST_TOL` of the material's light (a convex object alone: exactly 0). ``"l1"``:
         the L1- basis only. Per-material mode renders L1- only.
     levels : int, optional
-        Most vertices on the material per path in the L2+ images (paths touching it more
-        often are cut; the manifest's ``gi_stats`` counts them). Default: every vertex the path
-        depth allows (``max_depth``; :data:`MAX_LEVELS` for unbounded paths), so that nothing is
-        cut. Measured on the table's bowl with white-paint (the most interreflecting material,
-        ``max_depth`` 8, 32 spp, the same paths cut at each level, three seeds): levels 4 cut 1.6
-        to 1.9% of the image's light, 5 cut 0.5 to 1.2%, 6 cut 0.15 to 0.8%.
+        Most vertices on the material per path in the L2+ images (more are cut, counted in ``gi_stats``); default:
+        all a path of ``max_depth`` can have (:data:`.gi_basis.MAX_LEVELS` if unbounded). On the table with white-paint
+        (depth 8, the same 32-spp paths cut, 3 seeds) 4 cut 1.6-1.9% of the light, 5 0.5-1.2%, 6 0.15-0.8%.
     cross_tol : float
         Smallest weight product of a candidate pair (one that some explored point blends).
     cross_light_tol : float
@@ -209,8 +204,7 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
                                           o.mode, [b.id() for b in targets], sensor=int(o.sensor))
     gi = o.mode == "onepass" and o.components == "auto"
     if gi:
-        o = replace(o, levels=int(o.levels) if o.levels is not None else
-                    (int(max_depth) if int(max_depth) > 0 else MAX_LEVELS))
+        o = replace(o, levels=gi_levels(o.levels, max_depth))
         manifest["levels"] = o.levels
     else:
         manifest["left_out"] = {"l2+": "per-material mode renders L1- images only" if o.mode != "onepass"
@@ -269,8 +263,7 @@ def _check_request(scene_path, manifold_path, out, o):
         raise InputError(f"`components` must be 'auto' (full GI where the scene needs it) or 'l1', got {o.components!r}")
     if int(o.spp) < 1:
         raise InputError(f"`spp` must be >= 1, got {o.spp}")
-    if o.levels is not None and not (isinstance(o.levels, (int, np.integer)) and o.levels >= 2):
-        raise InputError(f"`levels` must be an integer >= 2 (vertices on the material per path), got {o.levels!r}")
+    gi_levels(o.levels, -1)   # checked
     if o.variant is not None:
         check_variant(o.variant, jit=True)
     if os.path.exists(out) and not os.path.isdir(out):
