@@ -204,7 +204,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
         l1_bias, l1_se = relative_bias(l1, ref)
         row["blend_l1"] = {**metrics.compare(l1, ref), "relative_bias": l1_bias, "relative_bias_se": l1_se}
     if opts.refine_spp:
-        row["refined"] = refined_row(b, m, x, ref, opts.refine_spp, opts.seed + 104729)
+        row["refined"] = refined_row(b, m, x, ref, opts.refine_spp, opts.seed + 104729, warm=True)   # as the direct renders
     guides = den = None
     if aovs is not None:
         guides = (aovs.albedo_of_blend(info, b.manifest["version"]), aovs.normal)

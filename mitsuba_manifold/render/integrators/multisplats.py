@@ -68,6 +68,37 @@ def _bins(wi, wo, dims):
     return merl_bin(*merl_angles(wi, wo), dims)
 
 
+#: The levels whose splats share a kernel: 2 (the cross terms' difference form), 3, and 4 on (few
+#: splats each: on the table with white-paint 250k, 115k, 12k, 3k, 1k paths at levels 2 to 6).
+LEVEL_SETS = ((2, 2), (3, 3), (4, None))
+
+
+def _level_sets(levels):
+    """:data:`LEVEL_SETS` up to ``levels``: ``(first, last)`` pairs."""
+    return [(a, min(levels, b or levels)) for a, b in LEVEL_SETS if a <= levels]
+
+
+def _merged(parts, k):
+    """One splat set ``(k, bins, amplitude, pixel, count)`` from ``parts`` of levels up to ``k`` (the
+    highest there: the products run over ``k`` bins):
+    the bins past a splat's own level are 0 and ``count`` (None where every splat has ``k`` bins)
+    says how many it has; sorted by the first bin, so that the tables are read in order."""
+    width = [dr.width(p[2]) for p in parts]
+    cat = lambda arrays, t: mi.UInt32(np.concatenate([a.numpy() for a in arrays])) if t is mi.UInt32 else \
+        mi.Color3f(np.concatenate([a.numpy() for a in arrays], axis=-1))   # noqa: E731
+    bins = [cat([p[0][j] if j < len(p[0]) else dr.zeros(mi.UInt32, w) for p, w in zip(parts, width)], mi.UInt32)
+            for j in range(k)]
+    count = None if all(len(p[0]) == k for p in parts) else \
+        mi.UInt32(np.concatenate([np.full(w, len(p[0]), np.uint32) for p, w in zip(parts, width)]))
+    amp, pix = cat([p[1] for p in parts], mi.Color3f), cat([p[2] for p in parts], mi.UInt32)
+    order = mi.UInt32(np.argsort(bins[0].numpy(), kind="stable").astype(np.uint32))
+    take = lambda v, t: dr.gather(t, v, order)   # noqa: E731
+    bins, amp, pix = [take(b, mi.UInt32) for b in bins], take(amp, mi.Color3f), take(pix, mi.UInt32)
+    count = None if count is None else take(count, mi.UInt32)
+    dr.eval(bins, amp, pix, count)
+    return k, bins, amp, pix, count
+
+
 class MultiSplats:
     """Per-pixel sums of ``a prod_j max(f_i(b_j), 0)`` over levels ``2 .. levels`` for every
     material, and of the cross terms of ``pairs`` (index pairs) over every level.
@@ -85,38 +116,40 @@ class MultiSplats:
         self.groups = self._groups(self.pairs or [], {})
         self.selection = None   # what :meth:`_choose` measured
         self.sums = dr.zeros(mi.Float, self.pixels * 3 * self.n_pad)
-        self.splats = []      # (k, [bins], amplitude, pixel) per level and kind
+        self.splats = []      # (k, [bins], amplitude, pixel, count) per set of levels (:func:`_merged`)
         self.counts = np.zeros(self.levels + 2, np.int64)   # paths by vertices on the target
 
     def prepare(self, rec, weight, pixel, seed=0):
         """Splats of levels ``2 ..`` of one pass (``weight``: the camera sample weight; ``seed``:
-        of the pass, for the choice of the splats that the cross terms use)."""
+        of the pass, for the choice of the splats that the cross terms use), in the sets of
+        :data:`LEVEL_SETS`: one kernel per set and not per level, for the per-thread copies of the
+        sums each kernel makes cost the same for the few splats of a high level as for many."""
         self.seed = int(seed)
         levels = rec["levels"]
         self.counts += np.bincount(np.minimum(rec["count"].numpy(), self.levels + 1),
                                    minlength=self.levels + 2)[:self.levels + 2]
         self.splats = []
-        for k in range(2, self.levels + 1):
-            lv = levels[:k]
-            earlier = [_bins(v["wi"], v["wo"], self.dims) for v in lv[:-1]]
-            ok = mi.Bool(True)
-            for v in lv[:-1]:
-                ok &= (v["wi"].z > 0) & (v["wo"].z > 0)
-            last = lv[-1]
-            for wo, a in ((last["wo_nee"], last["e_nee"]), (last["wo"], last["g"])):
-                a = weight * a * wo.z
-                good = ok & (last["wi"].z > 0) & (wo.z > 0) & dr.any(a != 0)
-                idx = dr.compress(good)
-                if dr.width(idx) == 0:
-                    continue
-                bins = [dr.gather(mi.UInt32, b, idx) for b in earlier + [_bins(last["wi"], wo, self.dims)]]
-                # read the tables in the order of the first bin
-                order = mi.UInt32(np.argsort(bins[0].numpy(), kind="stable").astype(np.uint32))
-                bins = [dr.gather(mi.UInt32, b, order) for b in bins]
-                idx = dr.gather(mi.UInt32, idx, order)
-                amp, pix = dr.gather(mi.Color3f, a, idx), dr.gather(mi.UInt32, pixel, idx)
-                dr.eval(bins, amp, pix)
-                self.splats.append((k, bins, amp, pix))
+        for first, last in _level_sets(self.levels):
+            parts = [part for k in range(first, last + 1) for part in self._level(levels[:k], weight, pixel)]
+            if parts:
+                self.splats.append(_merged(parts, max(len(p[0]) for p in parts)))
+
+    def _level(self, lv, weight, pixel):
+        """The splats ``(bins, amplitude, pixel)`` of level ``len(lv)``: light connection, sampled direction."""
+        earlier = [_bins(v["wi"], v["wo"], self.dims) for v in lv[:-1]]
+        ok = mi.Bool(True)
+        for v in lv[:-1]:
+            ok &= (v["wi"].z > 0) & (v["wo"].z > 0)
+        last, out = lv[-1], []
+        for wo, a in ((last["wo_nee"], last["e_nee"]), (last["wo"], last["g"])):
+            a = weight * a * wo.z
+            good = ok & (last["wi"].z > 0) & (wo.z > 0) & dr.any(a != 0)
+            idx = dr.compress(good)
+            if dr.width(idx) == 0:
+                continue
+            bins = [dr.gather(mi.UInt32, b, idx) for b in earlier + [_bins(last["wi"], wo, self.dims)]]
+            out.append((bins, dr.gather(mi.Color3f, a, idx), dr.gather(mi.UInt32, pixel, idx)))
+        return out
 
     def _sums(self, pairs, pixels=None):
         return [dr.zeros(mi.Float, (pixels or self.pixels) * 3 * len(pairs[p0:p0 + PAIR_CHUNK]))
@@ -139,16 +172,18 @@ class MultiSplats:
         depend on the pass's seed only (the pilot draws from its own stream), so that a chunked
         basis, whose every chunk measures a pilot, picks as the single run does."""
         rng = np.random.default_rng([self.seed, 21])
-        for k, bins, amp, pix in self.splats:
-            self._rest(bins, amp, pix)
+        for k, bins, amp, pix, count in self.splats:
+            self._rest(bins, amp, pix, count)
         if self.pairs is None:
             self._choose(np.random.default_rng([self.seed, 22]))
         for share, pairs, sums in self.groups:
-            for k, bins, amp, pix in self.splats:
-                self._cross_all(sums, pairs, bins, amp, pix, share, rng)
+            for k, bins, amp, pix, count in self.splats:
+                self._cross_all(sums, pairs, (bins, amp, pix, count), share, rng)
 
-    def _cross_all(self, sums, pairs, bins, amp, pix, fraction, rng):
-        """The cross terms of ``pairs`` into ``sums`` from a share ``fraction`` of the splats."""
+    def _cross_all(self, sums, pairs, splats, fraction, rng):
+        """The cross terms of ``pairs`` into ``sums`` from a share ``fraction`` of the ``splats``
+        (``bins, amp, pix, count``)."""
+        bins, amp, pix, count = splats
         if fraction < 1.0:
             pick = np.flatnonzero(rng.random(dr.width(pix)) < fraction).astype(np.uint32)
             if pick.size == 0:
@@ -157,8 +192,9 @@ class MultiSplats:
             bins = [dr.gather(mi.UInt32, b, idx) for b in bins]
             amp = dr.gather(mi.Color3f, amp, idx) * (1.0 / fraction)
             pix = dr.gather(mi.UInt32, pix, idx)
+            count = None if count is None else dr.gather(mi.UInt32, count, idx)
         for c, p0 in enumerate(range(0, len(pairs), PAIR_CHUNK)):
-            self._cross(sums[c], pairs[p0:p0 + PAIR_CHUNK], bins, amp, pix)
+            self._cross(sums[c], pairs[p0:p0 + PAIR_CHUNK], bins, amp, pix, count)
 
     def _choose(self, rng):
         """Keep the candidate pairs whose cross term matters (:class:`PairSelection`), measured
@@ -171,8 +207,8 @@ class MultiSplats:
         # the light a cross term moves, per channel over the image (where per-pixel noise cancels):
         # summed into PILOT_BINS partial sums (pixel index modulo), not per pixel
         pilot = self._sums(self.candidates, PILOT_BINS)
-        for k, bins, amp, pix in self.splats:
-            self._cross_all(pilot, self.candidates, bins, amp, pix & (PILOT_BINS - 1), sel.pilot, rng)
+        for k, bins, amp, pix, count in self.splats:
+            self._cross_all(pilot, self.candidates, (bins, amp, pix & (PILOT_BINS - 1), count), sel.pilot, rng)
         mag = np.concatenate([np.abs(p.numpy().reshape(PILOT_BINS, 3, -1).sum(axis=0)).max(axis=0)
                               for p in pilot]) if pilot else np.zeros(0)
         light = self.sums.numpy().reshape(self.pixels, 3, self.n_pad).sum(axis=0).max(axis=0)
@@ -192,29 +228,32 @@ class MultiSplats:
                           "pilot": sel.pilot, "largest_left_out": float(left.max()) if left.size else 0.0,
                           "splat_share": float(np.mean(list(shares.values()))) if shares else 0.0}
 
-    def _rest(self, bins, amp, pix):
+    def _rest(self, bins, amp, pix, count=None):
         packets = self.n_pad // PACKET
         lane = dr.arange(mi.UInt32, dr.width(pix) * packets)
         s, kb = lane // packets, lane % packets
         b = [dr.gather(mi.UInt32, v, s) for v in bins]
+        has = _has_bin(count, s, len(b))
         q = dr.gather(mi.UInt32, pix, s)
         a = dr.gather(mi.Color3f, amp, s)
         with _expand(self.sums):
             for c in range(3):
                 t = a[c]
-                for bj in b:
-                    t = t * dr.maximum(dr.gather(mi.ArrayXf, self.rows, (bj * 3 + c) * packets + kb,
-                                                 shape=(PACKET, dr.width(lane))), 0.0)
+                for bj, ok in zip(b, has):
+                    f = dr.maximum(dr.gather(mi.ArrayXf, self.rows, (bj * 3 + c) * packets + kb,
+                                             shape=(PACKET, dr.width(lane)), active=ok), 0.0)
+                    t = t * (f if ok is True else dr.select(ok, f, 1.0))
                 dr.scatter_add(self.sums, t, (q * 3 + c) * packets + kb, mode=dr.ReduceMode.Expand)
             dr.eval(self.sums)
 
-    def _cross(self, sums, pairs, bins, amp, pix):
+    def _cross(self, sums, pairs, bins, amp, pix, count=None):
         n = len(pairs)
         lane = dr.arange(mi.UInt32, dr.width(pix) * n)
         s, p = lane // n, lane % n
         pi = dr.gather(mi.UInt32, mi.UInt32([i for i, _ in pairs]), p)
         pj = dr.gather(mi.UInt32, mi.UInt32([j for _, j in pairs]), p)
         b = [dr.gather(mi.UInt32, v, s) for v in bins]
+        has = _has_bin(count, s, len(b))
         q = dr.gather(mi.UInt32, pix, s)
         a = dr.gather(mi.Color3f, amp, s)
         f = lambda b, c, i: dr.maximum(dr.gather(mi.Float, self.rows, (b * 3 + c) * self.n_pad + i), 0.0)  # noqa: E731
@@ -224,8 +263,10 @@ class MultiSplats:
                     term = -a[c] * (f(b[0], c, pi) - f(b[0], c, pj)) * (f(b[1], c, pi) - f(b[1], c, pj))
                 else:
                     ti, tj, tm = a[c], a[c], a[c]
-                    for bk in b:
+                    for bk, ok in zip(b, has):
                         fi, fj = f(bk, c, pi), f(bk, c, pj)
+                        if ok is not True:   # past the splat's own level: a factor 1
+                            fi, fj = dr.select(ok, fi, 1.0), dr.select(ok, fj, 1.0)
                         ti, tj, tm = ti * fi, tj * fj, tm * (0.5 * (fi + fj))
                     term = 4.0 * tm - 2.0 * ti - 2.0 * tj
                 dr.scatter_add(sums, term, (q * 3 + c) * n + p, mode=dr.ReduceMode.Expand)
@@ -251,6 +292,11 @@ class MultiSplats:
         order = {p: k for k, p in enumerate(self.pairs or [])}   # the candidates' order
         keyed = {(self.names[i], self.names[j]): order[(i, j)] for (i, j) in order}
         return rest, dict(sorted(cross.items(), key=lambda kv: keyed[kv[0]]))
+
+
+def _has_bin(count, s, k):
+    """Per bin position of ``k``, whether the splats ``s`` have it: True, or a mask (``count``)."""
+    return [True] * k if count is None else [True] * 2 + [dr.gather(mi.UInt32, count, s) > j for j in range(2, k)]
 
 
 class _expand:

@@ -201,8 +201,9 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     levels = gi["levels"] if gi else 1
     touch = gi.get("touch", True) if gi else True
     spp = int(spp) or sensor.sampler().sample_count()
-    # the records of every level of every path are held at once: fewer paths per pass
-    passes = _passes(film, spp, max(1, int(max_samples) * 3 // max(3, levels)), spp_per_pass)
+    # the records of every level of every path are held at once (60 bytes per path and level): fewer
+    # paths per pass, but not below 3/5 of ``max_samples`` (each pass costs its cross terms' sums)
+    passes = _passes(film, spp, max(1, int(max_samples) * 3 // max(3, min(levels, 5))), spp_per_pass)
     chunk = int(chunk) if chunk else (len(names) if rows is not None else 16)
     chunks = [(i, min(len(names), i + chunk)) for i in range(0, len(names), chunk)]
     alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
