@@ -2,8 +2,8 @@
 and on ``facing`` (a sphere on a floor before a wall, all of the material; not shipped), L1- and
 full-GI bases (time, size, what they hold), and at a training point, the midpoint of the GI pair,
 the extrapolated point and the pair's second material: bias and relative MSE of the L1- blend,
-the full-GI blend, the refined blend (``blend.py --refine``, a quarter of the direct render's
-samples) and a 256-spp direct render against 4096-spp references (:func:`.gi.targets`); then the
+the full-GI blend, the refined blend (``blend.py --refine`` on the full-GI basis, an eighth of the
+direct render's samples) and a 256-spp direct render against 4096-spp references (:func:`.gi.targets`); then the
 blend time at 256x256 for every material of the manifold (:func:`.gi.blend_time`)."""
 
 import os
