@@ -84,13 +84,12 @@ def _merged(parts, k):
     the bins past a splat's own level are 0 and ``count`` (None where every splat has ``k`` bins)
     says how many it has; sorted by the first bin, so that the tables are read in order."""
     width = [dr.width(p[2]) for p in parts]
-    cat = lambda arrays, t: mi.UInt32(np.concatenate([a.numpy() for a in arrays])) if t is mi.UInt32 else \
-        mi.Color3f(np.concatenate([a.numpy() for a in arrays], axis=-1))   # noqa: E731
-    bins = [cat([p[0][j] if j < len(p[0]) else dr.zeros(mi.UInt32, w) for p, w in zip(parts, width)], mi.UInt32)
+    bins = [dr.concat([p[0][j] if j < len(p[0]) else dr.zeros(mi.UInt32, w) for p, w in zip(parts, width)])
             for j in range(k)]
     count = None if all(len(p[0]) == k for p in parts) else \
-        mi.UInt32(np.concatenate([np.full(w, len(p[0]), np.uint32) for p, w in zip(parts, width)]))
-    amp, pix = cat([p[1] for p in parts], mi.Color3f), cat([p[2] for p in parts], mi.UInt32)
+        dr.concat([dr.full(mi.UInt32, len(p[0]), w) for p, w in zip(parts, width)])
+    amp = mi.Color3f(*(dr.concat([p[1][c] for p in parts]) for c in range(3)))
+    pix = dr.concat([p[2] for p in parts])
     order = mi.UInt32(np.argsort(bins[0].numpy(), kind="stable").astype(np.uint32))
     take = lambda v, t: dr.gather(t, v, order)   # noqa: E731
     bins, amp, pix = [take(b, mi.UInt32) for b in bins], take(amp, mi.Color3f), take(pix, mi.UInt32)

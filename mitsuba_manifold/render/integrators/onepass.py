@@ -29,7 +29,6 @@ from .proxy import POINT, sampling_proxy, with_point  # noqa: F401 (POINT: re-ex
 from .splats import PACKET, FilterSplats, TableSplats
 
 
-
 def _prefetch(path, block=1 << 24):
     """Read ``path`` in a background thread, so that it is in the page cache when needed."""
     def run():
