@@ -284,6 +284,7 @@ def test_release_refines_the_point_to_its_full_gi_image(browser, small_basis, sm
             pg.wait_for_timeout(500)   # nothing arriving later (a frame, another tonemap) replaces it
             np.testing.assert_array_equal(np.array(pg.evaluate(pixels), float), brighter)
             assert pg.evaluate("document.getElementById('scene').dataset.refined") == "r1"
+            assert "showing the unbiased render" in pg.text_content("#refine-status")   # no later poll's check
             _set(pg, m.latent[m.index("gold-paint")])   # a move: blends again
             assert not pg.evaluate("document.getElementById('scene').dataset.refined")
             assert pg.text_content("#refine-status") == "" and not pg.errors

@@ -31,7 +31,8 @@ async function refineHere() {
       if (!current()) break;
       if (job.state === "failed") { say("refine failed: " + job.message); return; }
       const e = job.error || {};
-      if (e.agrees == null) say(`refining… ${job.message}`);
+      if (state.refined && state.refined.job === job.id) { /* shown: its status stays until a move */ }
+      else if (e.agrees == null) say(`refining… ${job.message}`);
       else {
         const figures = `rel. MSE ${fmtNum(e.blend_rel_mse, 3)} against its estimated noise ${fmtNum(e.noise_rel_mse, 3)}`;
         say(e.agrees ? `full GI checked (${job.message}): the blend agrees with the unbiased render (${figures})`
