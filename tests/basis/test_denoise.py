@@ -28,6 +28,20 @@ def test_directional_albedo_of_lambertian_tables(tmp_path):
     np.testing.assert_allclose(a[1], 0.9, rtol=0.03)
 
 
+def test_restored_light_keeps_every_channel_total_and_spreads_a_firefly():
+    """What a denoiser took (a firefly, signed cross-term light) comes back with each channel's
+    total exactly, spread over about an eighth of the image: no pixel gets a firefly back."""
+    removed = np.zeros((48, 64, 3), np.float32)
+    removed[2, 3] = (900.0, 0.0, 30.0)          # near a corner: the edges keep the light too
+    removed[30, 40, 1] = -60.0                  # a negative part (cross terms)
+    back = denoise.restore_light(removed)
+    np.testing.assert_allclose(back.sum(axis=(0, 1)), removed.sum(axis=(0, 1)), rtol=1e-4, atol=1e-3)
+    assert back[..., 0].max() < 0.02 * 900.0 and back[..., 0].min() >= 0.0
+    assert back[..., 1].min() < 0.0 and back[..., 1].max() <= 0.0
+    wide = np.count_nonzero(back[..., 0] > 0.5 * back[..., 0].max())
+    assert 20 < wide < 0.25 * 48 * 64, wide   # spread, not everywhere
+
+
 @pytest.mark.render
 def test_denoised_blend_beats_raw_and_aovs_are_checked(tmp_path, small_manifold):
     mi = pytest.importorskip("mitsuba")

@@ -138,7 +138,9 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
     den, dinfo = blend(b, m, x=m.latent[k])   # the default: its part beyond L1- denoised
     l1_img = b.image("base") + b.image("gold-paint")
     assert dinfo["l2"] == "denoised" and np.isfinite(den).all()
-    assert abs((den - l1_img).sum() - (img - l1_img).sum()) < 0.25 * abs((img - l1_img).sum())
+    # the denoiser's smoothing keeps each channel's light beyond L1- (what it took is put back)
+    np.testing.assert_allclose((den - l1_img).sum(axis=(0, 1)), (img - l1_img).sum(axis=(0, 1)), rtol=1e-3,
+                               atol=1e-4 * float(np.abs(img - l1_img).sum()))
     img1, info1 = blend(b, m, x=m.latent[k], component="l1")
     np.testing.assert_allclose(img1, b.image("base") + b.image("gold-paint"), rtol=1e-6, atol=1e-7)
     assert img.mean() > img1.mean()
