@@ -313,8 +313,15 @@ def scene_at(scene_path, manifold_path, x, spp=None, resolution=None, max_depth=
     at its latent point: ``x`` (q,) for all of them, or (p, q) one per target (``targets``: the
     BSDF ids of the rows, default the scene's manifold materials in the order of its shapes)."""
     pts = _points(x)
-    scene, found, max_depth = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant,
-                                         database)
+    loaded = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant, database)
+    set_points(loaded.targets, pts, targets)
+    return loaded.scene, loaded.max_depth
+
+
+def set_points(found, x, targets=None):
+    """Every manifold material ``found`` (:attr:`LoadedScene.targets`) at its latent point: ``x``
+    (q,) for all of them, or (p, q) one per target (``targets`` as :func:`scene_at`)."""
+    pts = _points(x)
     ids = [b.id() for b in found]
     if len(pts) == 1:
         rows = [0] * len(found)
@@ -326,7 +333,6 @@ def scene_at(scene_path, manifold_path, x, spp=None, resolution=None, max_depth=
         rows = [order.index(i) for i in ids]
     for bsdf, row in zip(found, rows):
         bsdf.set_latent(pts[row])
-    return scene, max_depth
 
 
 def _points(x):
