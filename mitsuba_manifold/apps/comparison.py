@@ -224,11 +224,14 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
 
 def refined_row(b, m, x, ref, spp, seed, warm=False):
     """``blend.py --refine spp`` at ``x`` (:func:`~mitsuba_manifold.render.refine.refine`) against
-    ``ref``: time, error, bias, the noise it estimates; ``warm``: its kernels compiled first."""
+    ``ref``: time, error, bias, the noise it estimates; ``warm``: its kernels compiled first (a
+    refinement of the same samples and passes, another seed: the sample count is in the kernels,
+    so a 1-spp warm-up left 1.3 s of compiling in the timed 32-spp refinement at 256x256)."""
+    passes = min(2, spp)
     if warm:
-        refine(b, m, x=x, spp=1, passes=1, seed=seed)
+        refine(b, m, x=x, spp=spp, passes=passes, seed=seed + 1)
     t0 = time.perf_counter()
-    r = refine(b, m, x=x, spp=spp, passes=min(2, spp), seed=seed)
+    r = refine(b, m, x=x, spp=spp, passes=passes, seed=seed)
     bias, se = relative_bias(r.image, ref)
     return {"spp": spp, "time_s": time.perf_counter() - t0, **metrics.compare(r.image, ref),
             "relative_bias": bias, "relative_bias_se": se, "noise_rel_mse": r.noise_rel_mse}
