@@ -21,8 +21,7 @@ practice, Sec. 5.2 and Fig. 12: "applying this interpolation to calculate I_* di
 and the cross terms ``C_ij`` of :mod:`.crossterms`. The default blend (``component="full"``)
 is then ``base + sum_i w_i F_i + sum_{i<j} w_i w_j C_ij``, summed (``l2="raw"``) exact at every
 training material and for paths with two vertices on the material; by default its part beyond
-L1- is denoised and the light the denoiser took put back at low frequency
-(:func:`~.denoise.denoised_l2`: the same light as summed). ``component="l1"`` is Eq. 13. A basis without
+L1- is denoised, keeping its light (:func:`~.denoise.denoised_l2`). ``component="l1"`` is Eq. 13. A basis without
 full-GI images blends L1- (an older basis says so with a warning; one whose scene does not
 need them, e.g. a convex object alone, says why in ``info["component_note"]``). The images
 come from a basis folder (:mod:`mitsuba_manifold.basis.folder`); no Mitsuba is loaded here.
@@ -204,8 +203,7 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         L1-, see :func:`resolve_component`); ``"l1"``: Eq. 13 on the L1- images.
     l2 : {"denoised", "raw"}
         The full-GI blend's part beyond L1- (noisy where interreflection runs through a narrow peak):
-        OIDN-denoised with the light it took put back at low frequency (default,
-        :func:`~.denoise.denoised_l2`: 50-100 ms at 256x256) or summed (1-3 ms).
+        OIDN-denoised, its light kept (default, :func:`~.denoise.denoised_l2`: 50-100 ms at 256x256) or summed (1-3 ms).
 
     Returns
     -------

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..basis.blend import blend, latent_points
-from ..errors import InputError
+from ..errors import InputError, MitsubaManifoldError
 from ..imaging.metrics import REL_EPS
 from . import scenes
 from .integrators.onepass import POINT
@@ -114,34 +114,52 @@ class _SceneCache:
     release, and loading the scene with its table at the point took 0.24 s of a 1.7-s refinement
     (table, 256x256, 32 spp; 0.25 s of 0.42 s at 64x64). Keyed by everything the scene is loaded
     with but the point, and by the scene's and manifold's files (size and time: a manifold fitted
-    again is loaded again). A refinement takes the scene out while it renders (one running
-    beside it loads its own) and puts it back after. One entry, locked."""
+    again is loaded again; not the files the XML references, nor the tables). A refinement takes
+    the scene out while it renders (one running beside it loads its own) and puts it back when it
+    ends or is stopped, not when it failed. One entry, locked."""
 
     def __init__(self):
         self.key, self.value, self.lock = None, None, threading.Lock()
 
     @contextlib.contextmanager
     def take(self, basis, scene, manifold_path, database, x):
-        """``(loaded, hit)``: the :class:`~.scenes.LoadedScene` of ``basis``'s scene (or ``scene``),
-        loaded with its materials at ``x`` where it was not cached (``hit``: it was; its materials
-        are then where the last refinement put them)."""
+        """The :class:`~.scenes.LoadedScene` of ``basis``'s scene (or ``scene``): the kept one (its
+        materials where the last refinement put them; its variant activated, as loading it does),
+        or one loaded with its materials at ``x``."""
         m = basis.manifest
         path, manifold_path = scene or m["scene"], manifold_path or m["manifold"]
-        files = tuple((os.path.abspath(f), os.stat(f).st_size, os.stat(f).st_mtime_ns)
-                      for f in (scenes.scene_path(path), manifold_path))
-        key = (files, tuple(basis.resolution), m["max_depth"], m["variant"], tuple(basis.targets), database)
+        key = self._key(basis, path, manifold_path, database)
         with self.lock:
-            loaded = self.value if self.key == key else None
+            loaded = self.value if key is not None and self.key == key else None
             self.key, self.value = None, None
-        hit = loaded is not None
-        if not hit:
+        if loaded is None:
             loaded = scenes.load_scene(path, manifold_path, None, basis.resolution, m["max_depth"], x[0],
                                        m["variant"], database)
+        else:
+            scenes.use_variant(m["variant"])
+        keep = False
         try:
-            yield loaded, hit
+            yield loaded
+            keep = True
+        except (GeneratorExit, KeyboardInterrupt):   # closed early or stopped between passes: whole
+            keep = True
+            raise
         finally:
-            with self.lock:
-                self.key, self.value = key, loaded
+            if keep and key is not None:
+                with self.lock:
+                    self.key, self.value = key, loaded
+
+    @staticmethod
+    def _key(basis, path, manifold_path, database):
+        """What the scene is loaded with but the point; None where a file cannot be read (nothing
+        is kept then, and loading says what is wrong)."""
+        m = basis.manifest
+        try:
+            files = tuple((os.path.abspath(f), os.stat(f).st_size, os.stat(f).st_mtime_ns)
+                          for f in (scenes.scene_path(path), manifold_path))
+        except (OSError, MitsubaManifoldError):
+            return None
+        return files, tuple(basis.resolution), m["max_depth"], m["variant"], tuple(basis.targets), database
 
 
 _SCENES = _SceneCache()
@@ -209,7 +227,7 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     if scale is None:
         scale = blend(basis, manifold, x=x, **kw)[0] if "l2+" in basis.components else l1
     points = np.atleast_2d(latent_points(basis, manifold, x))
-    with _SCENES.take(basis, scene, manifold_path, database, points) as (loaded, _):
+    with _SCENES.take(basis, scene, manifold_path, database, points) as loaded:
         scenes.set_points(loaded.targets, points, basis.targets)
         integrator = _rest_integrator(basis, loaded.max_depth)
 
@@ -254,7 +272,7 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
     # the scene's own material is not evaluated: on the target the paths use the proxy of the
     # point's weights (the point's column, onepass), so a cached scene is not moved to the point
     points = np.atleast_2d(latent_points(basis, manifold, x))
-    with _SCENES.take(basis, scene, manifold_path, database, points) as (loaded, _):
+    with _SCENES.take(basis, scene, manifold_path, database, points) as loaded:
         integrator = mi.load_dict({"type": "manifold_path", "component": "l1", "max_depth": int(loaded.max_depth)})
 
         def correction(n, pass_seed):   # R - Q from one pass's paths

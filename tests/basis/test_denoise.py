@@ -40,6 +40,7 @@ def test_restored_light_keeps_every_channel_total_and_spreads_a_firefly():
     assert back[..., 1].min() < 0.0 and back[..., 1].max() <= 0.0
     wide = np.count_nonzero(back[..., 0] > 0.5 * back[..., 0].max())
     assert 20 < wide < 0.25 * 48 * 64, wide   # spread, not everywhere
+    assert back[-1, -1, 0] < 1e-3 * back[..., 0].max()   # near where it was taken, not across the image
 
 
 @pytest.mark.render

@@ -8,6 +8,7 @@ import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before 
 
 from mitsuba_manifold.basis import folder as bf  # noqa: E402
 from mitsuba_manifold.basis.blend import blend  # noqa: E402
+from mitsuba_manifold import errors  # noqa: E402
 from mitsuba_manifold.errors import InputError  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 from mitsuba_manifold.render import render_basis, scenes  # noqa: E402
@@ -146,17 +147,28 @@ def test_blend_tool_refuses_bad_refine_options_in_one_line(basis, tmp_path, extr
 @pytest.mark.parametrize("control_variate", [True, False])
 def test_a_refinement_after_another_point_is_the_one_of_a_fresh_scene(gi_basis, control_variate, monkeypatch):
     """The scene a refinement loaded is kept for the next (the explorer refines on every release):
-    at a second point the refinement on the kept scene equals, same seed, the one on a scene
-    loaded afresh, for the control variate and for the L2+ rendered at the point."""
+    at a second point the refinement on the kept scene (not loaded again) equals, same seed, the
+    one on a scene loaded afresh, for the control variate and for the L2+ rendered at the point."""
     from mitsuba_manifold.render import refine as refine_module
     b, m = gi_basis
+    loads = []
+    load = scenes.load_scene
+    monkeypatch.setattr(scenes, "load_scene", lambda *a, **k: loads.append(a) or load(*a, **k))
     first, second = _midpoint(m), _midpoint(m, "gold-paint", "pink-fabric")
     kw = dict(spp=4, passes=2, control_variate=control_variate)
     monkeypatch.setattr(refine_module, "_SCENES", refine_module._SceneCache())   # the first point loads it
     refine(b, m, x=first, seed=3, **kw)
     kept = refine(b, m, x=second, seed=5, **kw)
+    assert len(loads) == 1
     monkeypatch.setattr(refine_module, "_SCENES", refine_module._SceneCache())   # loaded again
     fresh = refine(b, m, x=second, seed=5, **kw)
+    assert len(loads) == 2
     assert kept.spp == fresh.spp == 4 and np.abs(fresh.rest).max() > 0
     assert kept.method == fresh.method == ("control variate" if control_variate else "l2+")
     np.testing.assert_allclose(kept.image, fresh.image, rtol=1e-4, atol=1e-6 * float(np.abs(fresh.image).max()))
+
+
+def test_a_refinement_of_a_missing_manifold_says_so(gi_basis, tmp_path):
+    b, m = gi_basis
+    with pytest.raises(errors.MismatchError, match=r"manifold .*gone\.npz does not exist"):
+        next(refine_passes(b, m, x=_midpoint(m), spp=2, passes=1, manifold_path=str(tmp_path / "gone.npz")))
