@@ -28,7 +28,7 @@ from ..basis.ownership import remove_basis
 from ..imaging import io as imageio, metrics, plots
 from ..manifold.model import Manifold
 from ..render import scenes as _scenes  # (gi_report has a parameter named scenes)
-from ..render.refine import refine
+from ..render.refine import forget_kept, refine
 from ..render.render_basis import render_basis
 from .._util.atomic import write_bytes
 from .._util.timing import median_time
@@ -224,16 +224,25 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
 
 def refined_row(b, m, x, ref, spp, seed, warm=False):
     """``blend.py --refine spp`` at ``x`` (:func:`~mitsuba_manifold.render.refine.refine`) against
-    ``ref``: time, error, bias, the noise it estimates; ``warm``: its kernels compiled first (a
-    refinement of the same samples and passes, another seed: the sample count is in the kernels,
-    so a 1-spp warm-up left 1.3 s of compiling in the timed 32-spp refinement at 256x256)."""
+    ``ref``: error, bias, the noise it estimates, and its time as the explorer has it at a newly
+    chosen point (``time_s``: the scene kept from the last refinement, the point's tables built)
+    and from nothing (``time_cold_s``: the scene loaded, as a new ``blend.py`` process does);
+    ``warm``: its kernels compiled first, as the direct renders' are (by a refinement of the same
+    samples and passes: the sample count is in the kernels, and a 1-spp warm-up left 1.3 s of
+    compiling in the timed 32-spp refinement at 256x256)."""
     passes = min(2, spp)
     if warm:
         refine(b, m, x=x, spp=spp, passes=passes, seed=seed + 1)
+    forget_kept(scene=False)
     t0 = time.perf_counter()
     r = refine(b, m, x=x, spp=spp, passes=passes, seed=seed)
+    t_new = time.perf_counter() - t0
+    forget_kept()
+    t0 = time.perf_counter()
+    refine(b, m, x=x, spp=spp, passes=passes, seed=seed)
+    t_cold = time.perf_counter() - t0
     bias, se = relative_bias(r.image, ref)
-    return {"spp": spp, "time_s": time.perf_counter() - t0, **metrics.compare(r.image, ref),
+    return {"spp": spp, "time_s": t_new, "time_cold_s": t_cold, **metrics.compare(r.image, ref),
             "relative_bias": bias, "relative_bias_se": se, "noise_rel_mse": r.noise_rel_mse}
 
 

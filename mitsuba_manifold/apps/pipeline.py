@@ -216,7 +216,8 @@ def _log_points(points, top, log):
             log(_beside("L1- blend (no L2+)", row["blend_l1"]))
         if "refined" in row:
             r = row["refined"]
-            log(_beside(f"refined ({r['spp']} spp)", r, f"{r['time_s']:.2f} s, "))
+            log(_beside(f"refined ({r['spp']} spp)", r, f"{r['time_s']:.2f} s at a new point ({r['time_cold_s']:.2f} s "
+                                                       f"from nothing), "))
         if "denoised" in b:
             log(f"{'':>12s} whole image denoised (OIDN, albedo+normal): blend "
                 f"{1e3 * b['denoised']['time_s']:.0f} ms, "

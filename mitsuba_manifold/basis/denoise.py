@@ -208,15 +208,15 @@ def restore_light(removed, width=RESTORE_WIDTH):
 
     OIDN takes fireflies away, and with them the light they carry on average: caustic paths
     through a narrow peak (white-paint's red lobe on the table's bowl) are rare and bright, so the
-    denoised L2+ part is darker than its expectation, by the same amount on every seed (table,
-    64x64, 256-spp bases, six seeds: -1.61% of white-paint's image, standard error 0.09%, where the
-    summed blend is -0.40% +- 0.31% and a direct render -0.18% +- 0.14%). That loss is smooth
-    over the surface, so adding back ``removed`` blurred by a kernel of standard deviation
-    ``width`` times the image's larger side removes it (-0.43% on those seeds) while the blend
-    keeps the denoiser's detail (relative MSE 0.0065 against 0.0061 denoised and 0.086 summed);
-    the per-image mean is then as noisy as the summed blend's (docs/benchmarks.md). Three box
-    filters (reflected at the edges, so the total is kept exactly) stand for the Gaussian: 10 ms
-    at 256x256, whatever the width."""
+    denoised L2+ part is darker than its expectation, by about the same amount on every seed (table,
+    64x64, 256-spp bases, six seeds: -1.61% of white-paint's image, sd 0.23%, where the summed blend
+    is -0.40% +- 0.31% and a direct render -0.18% +- 0.14%). That loss is smooth over the surface,
+    so ``removed`` is added back blurred by a kernel of standard deviation ``width`` times the
+    image's larger side: the blend then has the summed blend's light exactly (-0.40% there) and
+    keeps the denoiser's detail (relative MSE 0.0065 against 0.0061 denoised alone and 0.086
+    summed); the mean of one image is then as noisy as the summed blend's (docs/benchmarks.md).
+    Three box filters (reflected at the edges, so each channel's total is kept) stand for the
+    Gaussian: 10 ms at 256x256, whatever the width."""
     from scipy.ndimage import uniform_filter
 
     sigma = width * max(removed.shape[:2])

@@ -50,6 +50,7 @@ from ..errors import InputError, MitsubaManifoldError
 from ..imaging.metrics import REL_EPS
 from . import scenes
 from .integrators.onepass import POINT
+from .integrators.proxy import forget_point
 from .interrupt import StopRequest
 
 
@@ -149,6 +150,10 @@ class _SceneCache:
                 with self.lock:
                     self.key, self.value = key, loaded
 
+    def clear(self):
+        with self.lock:
+            self.key, self.value = None, None
+
     @staticmethod
     def _key(basis, path, manifold_path, database):
         """What the scene is loaded with but the point; None where a file cannot be read (nothing
@@ -163,6 +168,14 @@ class _SceneCache:
 
 
 _SCENES = _SceneCache()
+
+
+def forget_kept(scene=True):
+    """Drop what a refinement keeps for the next: the last point's tables and, with ``scene``, the
+    loaded scene (a benchmark times a refinement at a new point, or one starting from nothing)."""
+    forget_point()
+    if scene:
+        _SCENES.clear()
 
 
 def _rest_integrator(basis, max_depth):

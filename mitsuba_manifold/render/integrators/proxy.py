@@ -68,8 +68,17 @@ class _LastPoint:
             rows_out, names_out, proxy = self.value
             return rows_out, list(names_out), proxy
 
+    def clear(self):
+        with self.lock:
+            self.key, self.value = None, None
+
 
 _POINT_CACHE = _LastPoint()
+
+
+def forget_point():
+    """Drop the last point's tables (:class:`_LastPoint`): the next point builds its own."""
+    _POINT_CACHE.clear()
 
 
 def with_point(target, db, names, rows, w):
