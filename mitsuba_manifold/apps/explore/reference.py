@@ -20,7 +20,7 @@ import numpy as np
 
 from ...imaging import metrics
 from ...render.interrupt import sample_passes
-from ...render.scenes import load_scene
+from ...render.scenes import load_scene, set_points
 
 MAX_SPP = 1 << 14
 KEEP_JOBS = 16
@@ -154,8 +154,7 @@ class References:
 
         loaded = load_scene(scene_path, manifold_path, job.spp, tuple(basis.resolution),
                             basis.manifest["max_depth"], job.x, basis.manifest["variant"])
-        for bsdf in loaded.targets:
-            bsdf.set_latent(np.asarray(job.x, dtype=np.float64))
+        set_points(loaded.targets, job.x)
         integrator = mi.load_dict({"type": "path", "max_depth": int(loaded.max_depth)})
         w, h = basis.resolution
         acc, done = None, 0
