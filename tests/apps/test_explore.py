@@ -736,4 +736,5 @@ def test_q3_map_is_a_slice_with_a_slider(page, q3_basis):
         assert other.eval_on_selector_all("#sliders input", "els => els.map(e => +e.dataset.dim)") == [1]
     finally:
         other.close()
-        assert launch.stop(proc)[0] == 0
+        code, out = launch.stop(proc)
+        assert code == 0, out[-3000:]

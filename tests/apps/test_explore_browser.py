@@ -218,7 +218,8 @@ def test_q3_snapping_keeps_the_slice_and_a_click_reslices(browser, q3_basis):
                                  timeout=30000)                      # ... and the map re-slices through it
             assert pg.evaluate("+document.querySelector('#sliders input').value") == pytest.approx(m.latent[i, 2], abs=1e-2)
     finally:
-        assert launch.stop(proc)[0] == 0
+        code, out = launch.stop(proc)
+        assert code == 0, out[-3000:]
 
 
 @browser_only

@@ -146,13 +146,15 @@ def serve(args):
         print(f"error: {cli_message(e)}", file=sys.stderr)
         return 2
     finally:
-        idle = explorer is None or explorer.close(wait=0.3)
+        if explorer is not None:
+            explorer.close(wait=0.3)
         sock.close()
     print("explore: stopped", flush=True)
-    if not idle:   # a reference render's pass still runs in native code: do not wait for it
-        sys.stderr.flush()
-        os._exit(0)
-    return 0
+    # Exit without finalizing the interpreter: a render's pass, a frame being denoised in the
+    # server's thread pool, the thumbnail sheet, the tables or the paths may still run in native
+    # code, and finalizing under them can abort the process (a stopped server exited with -6 in CI).
+    sys.stderr.flush()
+    os._exit(0)
 
 
 if __name__ == "__main__":
