@@ -239,7 +239,7 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     scale = blend_image
     if scale is None:
         scale = blend(basis, manifold, x=x, **kw)[0] if "l2+" in basis.components else l1
-    points = np.atleast_2d(latent_points(basis, manifold, x))
+    points = latent_points(basis, manifold, x)
     with _SCENES.take(basis, scene, manifold_path, database, points) as loaded:
         scenes.set_points(loaded.targets, points, basis.targets)
         integrator = _rest_integrator(basis, loaded.max_depth)
@@ -284,7 +284,7 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
     m = basis.manifest
     # the scene's own material is not evaluated: on the target the paths use the proxy of the
     # point's weights (the point's column, onepass), so a cached scene is not moved to the point
-    points = np.atleast_2d(latent_points(basis, manifold, x))
+    points = latent_points(basis, manifold, x)
     with _SCENES.take(basis, scene, manifold_path, database, points) as loaded:
         integrator = mi.load_dict({"type": "manifold_path", "component": "l1", "max_depth": int(loaded.max_depth)})
 
