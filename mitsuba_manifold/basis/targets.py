@@ -175,11 +175,11 @@ def _read_coded(path, what, resolution=None):
         png = _png_header(path)
         if png is not None:
             _check_size(what, path, png[:2], resolution)
-            _check_png_data(what, path, png)
             if png[2] == 16 and png[3] != 0:
                 raise InputError(f"{what} {path} is a 16-bit PNG with colour or alpha (colour type {png[3]}), "
                                  "which cannot be read at its depth here (it would be cut to 8 bits): save it "
                                  "as a linear EXR, an 8-bit PNG or a 16-bit greyscale PNG without alpha")
+            _check_png_data(what, path, png)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             with Image.open(path) as im:
