@@ -30,9 +30,9 @@ def check_target(target, resolution, what="target"):
     if bad.any():
         raise InputError(f"{what} has {int(bad.sum())} pixels with NaN or Inf values; fix them or "
                          "leave them out of the image")
-    if not (arr > 0).any():
-        raise InputError(f"{what} holds no light (every value is <= 0, the lowest {float(arr.min()):.3g}): "
-                         "a rendered or photographed target has positive linear RGB")
+    if (arr < 0).any() and not (arr > 0).any():
+        raise InputError(f"{what} holds only negative values (the lowest {float(arr.min()):.3g}) and no light: "
+                         "a rendered or photographed target has positive linear RGB (a negated image?)")
     return arr.astype(np.float64)
 
 

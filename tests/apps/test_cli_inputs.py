@@ -68,6 +68,6 @@ def test_a_png_whose_rows_end_early_is_refused_not_read_as_black(tmp_path):
 
 
 def test_a_target_of_no_light_is_refused():
-    with pytest.raises(InputError, match="holds no light"):
+    with pytest.raises(InputError, match="holds only negative values"):
         targets.check_target(-np.ones((4, 4, 3)), (4, 4))
     assert targets.check_target(np.full((4, 4, 3), 0.5), (4, 4)).shape == (4, 4, 3)
