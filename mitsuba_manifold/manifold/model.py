@@ -169,7 +169,7 @@ class Manifold(PruningMethods):
         if int(np.prod(db.dims)) < 2:
             raise InputError(f"database {db.folder}: tables of {'x'.join(map(str, db.dims))} bins hold one value "
                              "per channel, too little to place materials apart; use tables of more bins "
-                             "(MERL's are 90x90x180; tools/make_database.py --resolution 16x16x32 for a quick one)")
+                             "(MERL's are 90x90x180; tools/make_database.py --resolution 16,16,32 for a quick one)")
         f = fitting.fit_database(db, names, cfg, preset, init=init, progress=progress, **options)
         same = schema.coincident_latent(f.result.latent, f.hashes, f.names, cfg["length_scale"])
         if same:

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..manifold.identity import manifold_identity
-from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
+from ..errors import InputError, MismatchError, MitsubaManifoldError, VariantError, did_you_mean
 from .._util.checks import scene_xml
 
 def _scenes_dir():
@@ -62,8 +62,16 @@ def scene_path(scene):
 
 
 def default_variant():
-    """``cuda_ad_rgb`` when a GPU works, else ``llvm_ad_rgb``."""
+    """The variant named by the environment variable ``MM_VARIANT`` when set (refused unless
+    Mitsuba has it), else ``cuda_ad_rgb`` when a GPU works, else ``llvm_ad_rgb``."""
     import mitsuba as mi
+
+    chosen = os.environ.get("MM_VARIANT")
+    if chosen:
+        if chosen not in mi.variants():
+            raise VariantError(f"MM_VARIANT={chosen} is not a variant of this Mitsuba ({', '.join(mi.variants())}); "
+                               "unset it or name one of those")
+        return chosen
     if "cuda_ad_rgb" in mi.variants():
         try:
             import drjit as dr
