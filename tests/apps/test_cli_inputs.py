@@ -71,3 +71,26 @@ def test_a_target_of_no_light_is_refused():
     with pytest.raises(InputError, match="holds only negative values"):
         targets.check_target(-np.ones((4, 4, 3)), (4, 4))
     assert targets.check_target(np.full((4, 4, 3), 0.5), (4, 4)).shape == (4, 4, 3)
+
+
+def test_refining_with_fewer_samples_than_the_default_passes_is_not_refused(capsys, tmp_path):
+    """--refine 2 without --refine-passes: two passes (the default 4 would exceed the samples), so the
+    parser goes on to the basis (missing here) instead of refusing an option the user never gave."""
+    from mitsuba_manifold.apps.cli.blend import main
+
+    err = _error(capsys, main, ["--basis", str(tmp_path / "none"), "--x", "0,0", "--refine", "2",
+                                "--out", str(tmp_path / "o.exr")])
+    assert "--refine-passes" not in err and "does not exist" in err
+
+
+@pytest.mark.render
+def test_a_variant_that_cannot_render_is_refused_in_one_line(monkeypatch):
+    pytest.importorskip("mitsuba")
+    from mitsuba_manifold.errors import VariantError
+    from mitsuba_manifold.render import scenes
+
+    monkeypatch.setenv("MM_VARIANT", "scalar_rgb")
+    with pytest.raises(VariantError, match="MM_VARIANT=scalar_rgb: the tools render in llvm_ad_rgb"):
+        scenes.default_variant()
+    monkeypatch.setenv("MM_VARIANT", "llvm_ad_rgb")
+    assert scenes.default_variant() == "llvm_ad_rgb"

@@ -75,8 +75,8 @@ def parser():
                    help="unbiased image of the point, SPP samples per pixel: the full-GI blend corrected by "
                         "a control variate (or, with an L1- basis, the L1- blend plus the L2+ rendered there); "
                         "reports the noise its passes estimate (too low where fireflies are rare)")
-    p.add_argument("--refine-passes", type=int, default=4,
-                   help="independent passes of --refine, which estimate its noise (default 4)")
+    p.add_argument("--refine-passes", type=int, default=None,
+                   help="independent passes of --refine, which estimate its noise (default 4, or --refine if fewer)")
     p.add_argument("--l2", choices=["denoised", "raw"], default="denoised",
                    help="the full-GI blend's light beyond L1-: denoised by OIDN (default) or as summed")
     p.add_argument("--component", choices=["full", "l1"], default=None,
@@ -114,6 +114,8 @@ def parse(argv=None):
         fail("--refine makes one point's image exact; not with --path")
     if args.refine is not None and args.refine < 1:
         fail(f"--refine must be >= 1 (samples per pixel), got {args.refine}")
+    if args.refine_passes is None:   # not given: 4 passes, fewer when --refine has fewer samples
+        args.refine_passes = min(4, args.refine) if args.refine is not None and args.refine >= 1 else 4
     if args.refine is not None and not 1 <= args.refine_passes <= args.refine:
         fail(f"--refine-passes must be in 1..--refine ({args.refine}), got {args.refine_passes}")
     if args.spp < 1:
