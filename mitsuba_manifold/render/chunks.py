@@ -214,8 +214,7 @@ def _merge(out, folders, seed, force, run_key=None):
     done = {e["file"] for e in merged["images"].values()}
     # listed as pending before the first is written: an interrupted merge leaves files the same
     # command knows as its own (removed and merged again); the manifest is rewritten as images land
-    merged["pending"] = sorted(f for f in files[:-1] + ([first["cross"]["file"]] if "cross" in first else [])
-                               if f not in done)
+    merged["pending"] = sorted(f for f in files[:-1] if f not in done)
     basis_folder.write_manifest(out, merged)
     weights = spp / spp.sum()
     last_write = time.perf_counter()
