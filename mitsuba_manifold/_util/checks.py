@@ -236,8 +236,8 @@ def weight_sum(w):
     if not np.isfinite(w).all():
         raise InputError("weights must be finite numbers")
     if np.abs(w).max(initial=0.0) > MAX_WEIGHT:
-        raise InputError(f"weights must be at most {MAX_WEIGHT:g} in magnitude (a material's weights sum to 1), "
-                         f"got {np.abs(w).max():.3g}")
+        raise InputError(f"weights must be at most {MAX_WEIGHT:g} in magnitude (a material's "
+                         f"weights sum to 1), got {np.abs(w).max():.3g}")
     total, size = math.fsum(w.tolist()), math.fsum(np.abs(w).tolist())
     if total == 0.0:
         raise InputError("weights sum to zero; a material needs weights summing to 1 "

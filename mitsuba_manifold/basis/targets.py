@@ -31,8 +31,9 @@ def check_target(target, resolution, what="target"):
         raise InputError(f"{what} has {int(bad.sum())} pixels with NaN or Inf values; fix them or "
                          "leave them out of the image")
     if (arr < 0).any() and not (arr > 0).any():
-        raise InputError(f"{what} holds only negative values (the lowest {float(arr.min()):.3g}) and no light: "
-                         "a rendered or photographed target has positive linear RGB (a negated image?)")
+        raise InputError(f"{what} holds only negative values (the lowest {float(arr.min()):.3g}) "
+                         "and no light: a rendered or photographed target has positive linear RGB "
+                         "(a negated image?)")
     return arr.astype(np.float64)
 
 
@@ -93,7 +94,8 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def _png_header(path):
-    """``(width, height, bit depth, colour type, interlace)`` from a PNG's IHDR chunk, or None (not a PNG)."""
+    """``(width, height, bit depth, colour type, interlace)`` from a PNG's IHDR chunk, or None
+    (not a PNG)."""
     with open(path, "rb") as f:
         head = f.read(29)
     if len(head) < 29 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
@@ -105,7 +107,8 @@ def _png_header(path):
 #: Samples per pixel of each PNG colour type (grey, RGB, palette, grey + alpha, RGBA).
 PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
 #: The seven passes of Adam7 interlacing: (x0, y0, dx, dy).
-ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2))
+ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2),
+         (0, 1, 1, 2))
 
 
 def _png_data_size(width, height, depth, colour, interlace):
@@ -146,8 +149,9 @@ def _check_png_data(what, path, header):
                 break   # Pillow reports corrupt data itself
             f.seek(4, 1)
     if got < expected:
-        raise InputError(f"{what} {path}: truncated PNG (its image data holds {got} of the {expected} bytes "
-                         "its header announces, the rest would read as black); save the image again")
+        raise InputError(f"{what} {path}: truncated PNG (its image data holds {got} of the "
+                         f"{expected} bytes its header announces, the rest would read as black); "
+                         "save the image again")
 
 
 def _check_size(what, path, size, resolution):

@@ -242,8 +242,8 @@ class Database:
     def __init__(self, folder, names=None):
         folder = os.path.abspath(os.fspath(folder))
         if os.path.isfile(folder):
-            raise FormatError(f"database {folder} is a file, not a folder; pass the folder holding the "
-                              f".binary tables ({os.path.dirname(folder)})")
+            raise FormatError(f"database {folder} is a file, not a folder; pass the folder "
+                              f"holding the .binary tables ({os.path.dirname(folder)})")
         if not os.path.isdir(folder):
             raise MissingFileError(f"database folder {folder} does not exist")
         available = merl.table_names(folder)

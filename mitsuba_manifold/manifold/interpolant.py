@@ -103,7 +103,8 @@ class GaussianProcessWeights(Interpolant):
         self.length_scale = _number(self.kind, "length_scale", length_scale)
         self.noise = _number(self.kind, "noise", noise)
         if not isinstance(exact, (bool, np.bool_)):
-            raise InputError(f"interpolant {self.kind!r}: `exact` must be True or False, got {exact!r}")
+            raise InputError(f"interpolant {self.kind!r}: `exact` must be True or False, "
+                             f"got {exact!r}")
         self.exact = bool(exact)
         self.gp = posterior(self.latent, Kernel(self.length_scale, self.noise))
 
@@ -186,9 +187,10 @@ class ShepardWeights(Interpolant):
 
     def __init__(self, latent, power=2.0, taper=np.inf, spread=0.0, length_scale=1.0):
         super().__init__(latent)
+        given = (("power", power), ("taper", taper), ("spread", spread),
+                 ("length_scale", length_scale))
         self.power, self.taper, self.spread, self.length_scale = (
-            _number(self.kind, k, v) for k, v in (("power", power), ("taper", taper), ("spread", spread),
-                                       ("length_scale", length_scale)))
+            _number(self.kind, k, v) for k, v in given)
         if not self.power > 0 or not self.taper > 0 or not self.length_scale > 0 or not self.spread >= 0:
             raise InputError(f"shepard weights need `power` > 0, `taper` > 0, `spread` >= 0 and `length_scale` > 0, "
                                    f"got {self.power}, {self.taper}, {self.spread}, {self.length_scale}")
@@ -259,7 +261,8 @@ def posterior(latent, kernel):
 
 def _number(kind, name, value):
     """``value`` as a float; a bool or a text is refused (``True`` is not a power)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.floating, np.integer)):
+    number = isinstance(value, (numbers.Real, np.floating, np.integer))
+    if isinstance(value, (bool, np.bool_)) or not number:
         raise InputError(f"interpolant {kind!r}: `{name}` must be a number, got {value!r}")
     return float(value)
 

@@ -155,7 +155,8 @@ class ActiveSet:
 
     def update(self, x):
         """Prune at ``x`` and fill the slots; returns ``(idx, v, J_v, w_full)`` (NumPy): the
-        material of each slot, its weight (0 outside the kept set) and Jacobian, the full weights."""
+        material of each slot, its weight (0 outside the kept set) and Jacobian, the full
+        weights."""
         _, w = self.manifold.weights(x)
         J = self.manifold.weights_jacobian(x)
         keep = np.sort(np.asarray(self.manifold.prune(w, self.prune).keep, dtype=np.int64))
@@ -187,10 +188,11 @@ class ActiveSet:
             if not new:
                 return
             grow = len(idx) - len(held)
-            if grow > 0:   # more kept materials than slots: append slots (repeat a table, replaced below)
+            if grow > 0:   # more kept materials than slots: new slots (filled below)
                 held = held + [-1] * grow
                 self.host = np.concatenate([self.host, np.repeat(self.host[:1], grow, axis=0)])
-                self.densities = np.concatenate([self.densities, np.repeat(self.densities[:1], grow, axis=0)])
+                self.densities = np.concatenate(
+                    [self.densities, np.repeat(self.densities[:1], grow, axis=0)])
             order = np.asarray(held)
             free = [s for s, i in enumerate(held) if i not in wanted]
             t = self._read([self.manifold.names[i] for i in new])
@@ -254,7 +256,8 @@ def mixture_gather(slots, weights, n_bins, k):
 def combination(manifold, active, state, distr, black):
     """The :class:`.material.Combination` describing AD mode's material (``state``: ``idx`` of the
     slots, their weights ``v``, the full weights ``w``, the point ``x``, the pruned set ``keep``);
-    ``table`` None (the slots are in ``active``), clamping counted nowhere (it happens per lookup)."""
+    ``table`` None (the slots are in ``active``), clamping counted nowhere (it happens per
+    lookup)."""
     full = np.zeros(manifold.n)
     full[state["idx"]] = state["v"]
     keep = np.asarray(state["keep"])
@@ -263,7 +266,8 @@ def combination(manifold, active, state, distr, black):
                        dropped=float(np.abs(w).sum() - np.abs(w[keep]).sum()),
                        prune_error=manifold.prune_error(w, keep),
                        pruning=manifold.prune_report(w, active.prune, keep=keep), n_clamped=0,
-                       n_values=active.host.size, black=black, dims=active.dims, distr=distr, table=None)
+                       n_values=active.host.size, black=black, dims=active.dims, distr=distr,
+                       table=None)
 
 
 def forward_leaf(x, w, dx):

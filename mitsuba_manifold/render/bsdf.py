@@ -363,8 +363,8 @@ class ManifoldBRDF(mi.BSDF):
         every lookup as :func:`.ad.traced_weights` (value ``v``, derivative ``J dx``), made inside the
         integrator's AD scope: forward and backward mode from ``x`` work through Mitsuba's own API."""
         if self._active is None:
-            self._active = ad.ActiveSet(self._manifold, self._ad_terms, self._read_tables, self._read_density,
-                                        self._options.prune)
+            self._active = ad.ActiveSet(self._manifold, self._ad_terms, self._read_tables,
+                                        self._read_density, self._options.prune)
         x = np.array(self._x_param, dtype=np.float64).ravel()
         try:
             idx, v, J, w = self._active.update(x)

@@ -71,11 +71,11 @@ def default_variant():
     if chosen:
         usable = [v for v in ("llvm_ad_rgb", "cuda_ad_rgb") if v in mi.variants()]
         if chosen not in usable:
-            raise VariantError(f"MM_VARIANT={chosen}: the tools render in {' or '.join(usable)}; unset MM_VARIANT "
-                               "or name one of those")
+            raise VariantError(f"MM_VARIANT={chosen}: the tools render in "
+                               f"{' or '.join(usable)}; unset MM_VARIANT or name one of those")
         if chosen.startswith("cuda") and not _cuda_works():
-            raise VariantError(f"MM_VARIANT={chosen}: no CUDA device or driver works here; unset MM_VARIANT or "
-                               "use llvm_ad_rgb")
+            raise VariantError(f"MM_VARIANT={chosen}: no CUDA device or driver works here; unset "
+                               "MM_VARIANT or use llvm_ad_rgb")
         return chosen
     if "cuda_ad_rgb" in mi.variants() and _cuda_works():
         return "cuda_ad_rgb"

@@ -1,6 +1,6 @@
-"""Inputs a user gets wrong, refused in one line before any work: a path depth that shows no material,
-a path of blends beyond the limit, weights that overflow, and targets that are no image of light (a
-PNG whose rows end early, an EXR of negative values)."""
+"""Inputs a user gets wrong, refused in one line before any work: a path depth that shows no
+material, a path of blends beyond the limit, weights that overflow, and targets that are no image
+of light (a PNG whose rows end early, an EXR of negative values)."""
 
 import struct
 import zlib
@@ -32,8 +32,21 @@ def test_a_path_depth_that_shows_no_material_is_refused(capsys, tmp_path, depth)
 def test_a_path_of_too_many_steps_is_refused_naming_the_limit(capsys, tmp_path):
     from mitsuba_manifold.apps.cli.blend import MAX_STEPS, main
 
-    err = _error(capsys, main, ["--basis", str(tmp_path), "--path", "chrome", "steel", "--steps", "100000",
-                                "--out", str(tmp_path / "seq.exr")])
+    err = _error(
+        capsys,
+        main,
+        [
+            "--basis",
+            str(tmp_path),
+            "--path",
+            "chrome",
+            "steel",
+            "--steps",
+            "100000",
+            "--out",
+            str(tmp_path / "seq.exr"),
+        ],
+    )
     assert f"--steps must be from 2 to {MAX_STEPS}" in err and "100000" in err
 
 
@@ -48,15 +61,23 @@ def test_weights_that_overflow_are_refused_in_one_line(text):
 def _png(path, rows_written, width=16, height=16):
     """An RGB PNG whose IDAT holds a complete zlib stream of only ``rows_written`` rows."""
     rng = np.random.default_rng(0)
-    raw = b"".join(b"\x00" + (rng.random(width * 3) * 200 + 20).astype(np.uint8).tobytes()
-                   for _ in range(rows_written))
+    raw = b"".join(
+        b"\x00" + (rng.random(width * 3) * 200 + 20).astype(np.uint8).tobytes()
+        for _ in range(rows_written)
+    )
 
     def chunk(kind, data):
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        return (
+            struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        )
 
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw))
-                     + chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", ihdr)
+        + chunk(b"IDAT", zlib.compress(raw))
+        + chunk(b"IEND", b"")
+    )
     return str(path)
 
 
@@ -74,12 +95,24 @@ def test_a_target_of_no_light_is_refused():
 
 
 def test_refining_with_fewer_samples_than_the_default_passes_is_not_refused(capsys, tmp_path):
-    """--refine 2 without --refine-passes: two passes (the default 4 would exceed the samples), so the
-    parser goes on to the basis (missing here) instead of refusing an option the user never gave."""
+    """--refine 2 without --refine-passes: two passes (the default 4 would exceed the samples), so
+    the parser goes on to the basis (missing here) instead of refusing an option never given."""
     from mitsuba_manifold.apps.cli.blend import main
 
-    err = _error(capsys, main, ["--basis", str(tmp_path / "none"), "--x", "0,0", "--refine", "2",
-                                "--out", str(tmp_path / "o.exr")])
+    err = _error(
+        capsys,
+        main,
+        [
+            "--basis",
+            str(tmp_path / "none"),
+            "--x",
+            "0,0",
+            "--refine",
+            "2",
+            "--out",
+            str(tmp_path / "o.exr"),
+        ],
+    )
     assert "--refine-passes" not in err and "does not exist" in err
 
 
@@ -90,7 +123,9 @@ def test_a_variant_that_cannot_render_is_refused_in_one_line(monkeypatch):
     from mitsuba_manifold.render import scenes
 
     monkeypatch.setenv("MM_VARIANT", "scalar_rgb")
-    with pytest.raises(VariantError, match="MM_VARIANT=scalar_rgb: the tools render in llvm_ad_rgb"):
+    with pytest.raises(
+        VariantError, match="MM_VARIANT=scalar_rgb: the tools render in llvm_ad_rgb"
+    ):
         scenes.default_variant()
     monkeypatch.setenv("MM_VARIANT", "llvm_ad_rgb")
     assert scenes.default_variant() == "llvm_ad_rgb"

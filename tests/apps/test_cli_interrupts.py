@@ -1,6 +1,6 @@
-"""Ctrl-C at any moment of a command-line tool: one line and exit 130, also when the interrupt cuts an
-import half-way (which surfaces as another exception), and exit 0 when it comes after everything was
-written."""
+"""Ctrl-C at any moment of a command-line tool: one line and exit 130, also when the interrupt
+cuts an import half-way (which surfaces as another exception), and exit 0 when it comes after
+everything was written."""
 
 import os
 import signal
@@ -11,13 +11,21 @@ import textwrap
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
-HEAD = f"import os, signal, sys, time\nsys.path.insert(0, {ROOT!r})\nfrom mitsuba_manifold.apps.cli.common import guarded\n"
+HEAD = (
+    f"import os, signal, sys, time\nsys.path.insert(0, {ROOT!r})\n"
+    "from mitsuba_manifold.apps.cli.common import guarded\n"
+)
 
 
 def _run(code):
     """Run ``code`` (after :data:`HEAD`) in a fresh Python process: (returncode, stderr)."""
-    p = subprocess.run([sys.executable, "-c", HEAD + textwrap.dedent(code)], capture_output=True, text=True,
-                       timeout=60)
+    p = subprocess.run(
+        [sys.executable, "-c", HEAD + textwrap.dedent(code)],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     return p.returncode, p.stderr
 
 

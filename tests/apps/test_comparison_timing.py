@@ -10,7 +10,7 @@ def test_direct_render_times_exclude_compiling_and_grow_with_spp():
     compiled = set()
 
     def render(spp, seed):
-        if spp not in compiled:   # the first render of a sample count compiles its kernels
+        if spp not in compiled:  # the first render of a sample count compiles its kernels
             compiled.add(spp)
             time.sleep(0.15)
         time.sleep(0.002 * spp)

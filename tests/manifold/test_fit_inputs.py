@@ -17,7 +17,10 @@ def test_names_as_one_comma_separated_text(small_db):
 
 
 def test_a_table_file_for_the_database_folder_says_what_to_pass(small_db):
-    with pytest.raises(InputError, match=r"is a file, not a folder; pass the folder .*" + os.path.basename(small_db)):
+    with pytest.raises(
+        InputError,
+        match=r"is a file, not a folder; pass the folder .*" + os.path.basename(small_db),
+    ):
         Manifold.fit(os.path.join(small_db, "chrome.binary"))
 
 

@@ -2,7 +2,9 @@
 
 from mitsuba_manifold._util.names import escape, is_escaped, unescape
 
-GI_SUFFIX = ".gi.exr"   # the full-GI image of a material (render/gi_basis.py; no Mitsuba import here)
+GI_SUFFIX = (
+    ".gi.exr"  # the full-GI image of a material (render/gi_basis.py; no Mitsuba import here)
+)
 
 
 def test_a_name_ending_in_gi_does_not_take_another_materials_full_gi_file():
@@ -12,4 +14,4 @@ def test_a_name_ending_in_gi_does_not_take_another_materials_full_gi_file():
     assert len(l1_files) == len(names) and not l1_files & gi_files
     for n in names:
         assert unescape(escape(n)) == n and is_escaped(escape(n))
-    assert escape("gold-paint") == "gold-paint" and escape("gi") == "gi"   # common names unchanged
+    assert escape("gold-paint") == "gold-paint" and escape("gi") == "gi"  # common names unchanged

@@ -64,7 +64,8 @@ def parser():
     p.add_argument("--seed", type=int, default=0, help="seed of --render-reference (default 0)")
     p.add_argument("--path", nargs=2, metavar=("A", "B"),
                    help="images along the latent segment between materials (or 'x0,x1' points) A and B")
-    p.add_argument("--steps", type=int, default=20, help="images along --path (default 20, at most 1000)")
+    p.add_argument("--steps", type=int, default=20,
+                   help="images along --path (default 20, at most 1000)")
     p.add_argument("--path-kind", choices=PATH_KINDS, default=DEFAULT_PATH_KIND,
                    help="the path of --path: straight (the latent segment at equal steps), uniform (the segment "
                         "at equal perceptual steps) or geodesic (a shortest path under the perceptual metric, at "
@@ -76,7 +77,8 @@ def parser():
                         "a control variate (or, with an L1- basis, the L1- blend plus the L2+ rendered there); "
                         "reports the noise its passes estimate (too low where fireflies are rare)")
     p.add_argument("--refine-passes", type=int, default=None,
-                   help="independent passes of --refine, which estimate its noise (default 4, or --refine if fewer)")
+                   help="independent passes of --refine, which estimate its noise "
+                        "(default 4, or --refine if fewer)")
     p.add_argument("--l2", choices=["denoised", "raw"], default="denoised",
                    help="the full-GI blend's light beyond L1-: denoised by OIDN (default) or as summed")
     p.add_argument("--component", choices=["full", "l1"], default=None,
@@ -115,7 +117,8 @@ def parse(argv=None):
     if args.refine is not None and args.refine < 1:
         fail(f"--refine must be >= 1 (samples per pixel), got {args.refine}")
     if args.refine_passes is None:   # not given: 4 passes, fewer when --refine has fewer samples
-        args.refine_passes = min(4, args.refine) if args.refine is not None and args.refine >= 1 else 4
+        few = args.refine is not None and args.refine >= 1
+        args.refine_passes = min(4, args.refine) if few else 4
     if args.refine is not None and not 1 <= args.refine_passes <= args.refine:
         fail(f"--refine-passes must be in 1..--refine ({args.refine}), got {args.refine_passes}")
     if args.spp < 1:
@@ -346,7 +349,8 @@ LIST_FILES = 50
 def write_outputs(out, outputs, force=False, group=None):
     """Write ``outputs`` under the tools' output discipline (:class:`ownership.Outputs`): check
     that none replaces a file this tool did not make, create the folder of ``out``, run every
-    writer (reporting each file, or more than :data:`LIST_FILES` with a progress bar and one line), each file recorded as the tool's own as it is written (a run
+    writer (reporting each file, or more than :data:`LIST_FILES` with a progress bar and one
+    line), each file recorded as the tool's own as it is written (a run
     stopped half-way leaves files the same command replaces). With ``group`` (what the run
     writes, e.g. ``"path:" + out``), the files an earlier run of the group wrote and this one
     did not are removed (a shorter ``--path``'s surplus frames)."""
@@ -359,7 +363,9 @@ def write_outputs(out, outputs, force=False, group=None):
             guard.check(path, kind)
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
         many = len(outputs) > LIST_FILES
-        with tqdm(total=len(outputs), desc="writing", unit="file", disable=not many, file=sys.stderr) as bar:
+        bar = tqdm(total=len(outputs), desc="writing", unit="file", disable=not many,
+                   file=sys.stderr)
+        with bar:
             for kind, path, write in outputs:
                 write()
                 bar.update()

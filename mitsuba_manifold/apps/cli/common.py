@@ -15,7 +15,8 @@ ERRORS = (MitsubaManifoldError, OSError)
 #: Exit status of a run stopped by Ctrl-C (128 + SIGINT), as shells report it.
 INTERRUPTED = 130
 #: What a tool stopped by Ctrl-C says.
-INTERRUPTED_MESSAGE = "interrupted; every file listed so far is complete (run the same command again to resume)"
+INTERRUPTED_MESSAGE = ("interrupted; every file listed so far is complete (run the same command "
+                       "again to resume)")
 
 
 #: A latent point or list of numbers that starts with a minus sign ("-1.1,-0.2", "-1e-3 0.5"):
@@ -134,7 +135,8 @@ def fail(error, code=2):
 
 
 class _Interrupts:
-    """SIGINT while a tool runs: noted, then ``KeyboardInterrupt`` as Python's own handler raises it.
+    """SIGINT while a tool runs: noted, then ``KeyboardInterrupt`` as Python's own handler
+    raises it.
 
     Ctrl-C while a module is being imported (Mitsuba, Dr.Jit or SciPy take most of a tool's first
     second) can surface as another exception (an ``ImportError`` or ``NameError`` of the module cut
