@@ -13,8 +13,9 @@ import pytest
 # -m "not render" starts neither Mitsuba, Dr.Jit nor Ray (the session fails if it does).
 from numpy_only import pytest_sessionfinish  # noqa: F401
 
-#: The variant every rendering test runs in.
-VARIANT = "llvm_ad_rgb"
+#: The variant every rendering test runs in: ``MM_VARIANT`` (e.g. ``cuda_ad_rgb`` on a GPU, as
+#: tools/gpu_check.sh runs them), else ``llvm_ad_rgb``.
+VARIANT = os.environ.get("MM_VARIANT") or "llvm_ad_rgb"
 
 
 def pytest_configure(config):

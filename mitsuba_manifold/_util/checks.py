@@ -223,14 +223,21 @@ def fraction(name, value):
 #: Largest ``sum |w| / |sum w|`` accepted: beyond it, float32 tables lose every digit of the
 #: combination to cancellation (1e30 - 1e30 + 1 is 0 in float32).
 MAX_CANCELLATION = 1e6
+#: Largest magnitude of one weight: far beyond any blend (weights sum to 1), and their sum and the
+#: combined float32 table stay finite.
+MAX_WEIGHT = 1e12
 
 
 def weight_sum(w):
-    """Raise :class:`InputError` unless weights ``w`` make a usable material: their sum
-    (exact, :func:`math.fsum`) is not 0 and not swamped by cancelling magnitudes."""
+    """Raise :class:`InputError` unless weights ``w`` make a usable material: finite, none beyond
+    :data:`MAX_WEIGHT` in magnitude, their sum (exact, :func:`math.fsum`) not 0 and not swamped by
+    cancelling magnitudes."""
     w = np.asarray(w, dtype=np.float64).ravel()
     if not np.isfinite(w).all():
         raise InputError("weights must be finite numbers")
+    if np.abs(w).max(initial=0.0) > MAX_WEIGHT:
+        raise InputError(f"weights must be at most {MAX_WEIGHT:g} in magnitude (a material's "
+                         f"weights sum to 1), got {np.abs(w).max():.3g}")
     total, size = math.fsum(w.tolist()), math.fsum(np.abs(w).tolist())
     if total == 0.0:
         raise InputError("weights sum to zero; a material needs weights summing to 1 "

@@ -8,7 +8,9 @@ material), ``a+b`` (the separator of multilinear image keys), ``../x``, ``.hidde
 
 - different names give different stems (``%`` itself is escaped, so the map is injective),
 - no stem is a reserved word of a basis folder (:data:`RESERVED`) or starts with ``.``,
-- no stem holds the key separator ``+`` or a path separator.
+- no stem holds the key separator ``+`` or a path separator,
+- no stem ends in ``.gi`` (:data:`RESERVED_SUFFIX`: ``<name>.gi.exr`` is the full-GI image of
+  ``<name>``, so a material named ``steel.gi`` gets ``steel%2Egi.exr``).
 
 Common names are unchanged (``gold-paint`` -> ``gold-paint``), so the files stay readable.
 """
@@ -21,6 +23,8 @@ from ..errors import InputError
 SAFE = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_.")
 #: Stems with a meaning in a basis folder (compared case-insensitively).
 RESERVED = frozenset({"base", "manifest"})
+#: Ending of the stems of a basis's full-GI images (``<stem>.gi.exr``), compared case-insensitively.
+RESERVED_SUFFIX = ".gi"
 #: Longest escaped stem: file systems allow 255 bytes per name, and ".exr" or a
 #: temporary-file suffix is added.
 MAX_STEM = 200
@@ -34,6 +38,9 @@ def escape(name):
                   for c in name)
     if out.lower() in RESERVED or out.startswith("."):
         out = f"%{ord(out[0]):02X}" + out[1:]
+    if out.lower().endswith(RESERVED_SUFFIX):
+        cut = len(out) - len(RESERVED_SUFFIX)
+        out = out[:cut] + "%2E" + out[cut + 1:]
     if len(out) > MAX_STEM:
         raise InputError(f"material name {name[:40]!r}... is too long for a file name "
                          f"({len(out)} characters once escaped, at most {MAX_STEM})")

@@ -178,6 +178,21 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
     return out
 
 
+#: Direct renders of at most this many spp are timed after an untimed one of the same spp: their
+#: time is the render's, not compiling's (which would put a 1-spp render after a 4-spp one).
+WARM_SPP = 64
+
+
+def timed_render(render, spp, seed):
+    """``(image, seconds)`` of ``render(spp, seed)``; at most :data:`WARM_SPP` spp, an untimed
+    ``render(spp, seed + 1)`` first compiles its kernels (the sample count is in them)."""
+    if spp <= WARM_SPP:
+        render(spp, seed + 1)
+    t0 = time.perf_counter()
+    image = render(spp, seed)
+    return image, time.perf_counter() - t0
+
+
 def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
     """One latent point of :func:`gi_scene`: the blend (and its denoised image) against the
     reference, beside the direct renders. Returns the report row and the images
@@ -211,9 +226,9 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
         den, t_den = _denoised(img, guides)
         row["blend"]["denoised"] = {"time_s": t_blend + t_den, "denoise_s": t_den, **metrics.compare(den, ref)}
     for spp in opts.direct_spp:
-        t0 = time.perf_counter()
-        direct = _scenes.render_reference(scene_path, manifold_path, x, spp, seed=opts.seed + spp, resolution=res)
-        entry = {"spp": spp, "time_s": time.perf_counter() - t0, **metrics.compare(direct, ref)}
+        direct, t_direct = timed_render(lambda n, seed: _scenes.render_reference(
+            scene_path, manifold_path, x, n, seed=seed, resolution=res), spp, opts.seed + spp)
+        entry = {"spp": spp, "time_s": t_direct, **metrics.compare(direct, ref)}
         if guides is not None and spp == max(opts.direct_spp):  # the same denoiser, for a fair comparison
             d_den, t_den = _denoised(direct, guides)
             entry["denoised"] = {"time_s": entry["time_s"] + t_den, "denoise_s": t_den,

@@ -30,6 +30,10 @@ def check_target(target, resolution, what="target"):
     if bad.any():
         raise InputError(f"{what} has {int(bad.sum())} pixels with NaN or Inf values; fix them or "
                          "leave them out of the image")
+    if (arr < 0).any() and not (arr > 0).any():
+        raise InputError(f"{what} holds only negative values (the lowest {float(arr.min()):.3g}) "
+                         "and no light: a rendered or photographed target has positive linear RGB "
+                         "(a negated image?)")
     return arr.astype(np.float64)
 
 
@@ -90,13 +94,64 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def _png_header(path):
-    """``(width, height, bit depth, colour type)`` from a PNG's IHDR chunk, or None (not a PNG)."""
+    """``(width, height, bit depth, colour type, interlace)`` from a PNG's IHDR chunk, or None
+    (not a PNG)."""
     with open(path, "rb") as f:
-        head = f.read(26)
-    if len(head) < 26 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+        head = f.read(29)
+    if len(head) < 29 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
         return None
     width, height = struct.unpack(">II", head[16:24])
-    return width, height, head[24], head[25]
+    return width, height, head[24], head[25], head[28]
+
+
+#: Samples per pixel of each PNG colour type (grey, RGB, palette, grey + alpha, RGBA).
+PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
+#: The seven passes of Adam7 interlacing: (x0, y0, dx, dy).
+ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2),
+         (0, 1, 1, 2))
+
+
+def _png_data_size(width, height, depth, colour, interlace):
+    """Bytes of a PNG's decompressed image data: one filter byte and the packed samples per row
+    (of each Adam7 pass, when interlaced)."""
+    bits = depth * PNG_CHANNELS.get(colour, 0)
+    passes = ADAM7 if interlace else ((0, 0, 1, 1),)
+    total = 0
+    for x0, y0, dx, dy in passes:
+        w, h = -(-(width - x0) // dx), -(-(height - y0) // dy)
+        if w > 0 and h > 0:
+            total += h * (1 + -(-(w * bits) // 8))
+    return total
+
+
+def _check_png_data(what, path, header):
+    """Refuse a PNG whose image data holds fewer rows than its header says (Pillow would decode
+    the missing rows as black): the IDAT chunks' zlib stream is decompressed and counted."""
+    import zlib
+
+    expected, got = _png_data_size(*header), 0
+    inflate = zlib.decompressobj()
+    with open(path, "rb") as f:
+        f.seek(8)
+        while True:
+            head = f.read(8)
+            if len(head) < 8:
+                break
+            length, kind = struct.unpack(">I", head[:4])[0], head[4:]
+            if kind == b"IEND":
+                break
+            if kind != b"IDAT":
+                f.seek(length + 4, 1)
+                continue
+            try:
+                got += len(inflate.decompress(f.read(length)))
+            except zlib.error:
+                break   # Pillow reports corrupt data itself
+            f.seek(4, 1)
+    if got < expected:
+        raise InputError(f"{what} {path}: truncated PNG (its image data holds {got} of the "
+                         f"{expected} bytes its header announces, the rest would read as black); "
+                         "save the image again")
 
 
 def _check_size(what, path, size, resolution):
@@ -128,6 +183,7 @@ def _read_coded(path, what, resolution=None):
                 raise InputError(f"{what} {path} is a 16-bit PNG with colour or alpha (colour type {png[3]}), "
                                  "which cannot be read at its depth here (it would be cut to 8 bits): save it "
                                  "as a linear EXR, an 8-bit PNG or a 16-bit greyscale PNG without alpha")
+            _check_png_data(what, path, png)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             with Image.open(path) as im:

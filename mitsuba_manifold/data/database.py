@@ -241,6 +241,9 @@ class Database:
 
     def __init__(self, folder, names=None):
         folder = os.path.abspath(os.fspath(folder))
+        if os.path.isfile(folder):
+            raise FormatError(f"database {folder} is a file, not a folder; pass the folder "
+                              f"holding the .binary tables ({os.path.dirname(folder)})")
         if not os.path.isdir(folder):
             raise MissingFileError(f"database folder {folder} does not exist")
         available = merl.table_names(folder)
@@ -249,6 +252,8 @@ class Database:
             if not names:
                 raise FormatError(f"database folder {folder} holds no .binary tables")
         else:
+            if isinstance(names, str):   # "chrome, steel": a comma-separated list
+                names = [n.strip() for n in names.split(",") if n.strip()]
             names = list(names)
             if not names:
                 raise FormatError(f"database {folder}: `names` is empty; give at least one material name "

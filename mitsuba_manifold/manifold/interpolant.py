@@ -24,6 +24,8 @@ Both give their analytic Jacobian ``dw/dx`` (:meth:`Interpolant.jacobian`).
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
 from .._util import checks
@@ -98,8 +100,11 @@ class GaussianProcessWeights(Interpolant):
 
     def __init__(self, latent, length_scale=1.0, noise=1e-4, exact=True):
         super().__init__(latent)
-        self.length_scale = float(length_scale)
-        self.noise = float(noise)
+        self.length_scale = _number(self.kind, "length_scale", length_scale)
+        self.noise = _number(self.kind, "noise", noise)
+        if not isinstance(exact, (bool, np.bool_)):
+            raise InputError(f"interpolant {self.kind!r}: `exact` must be True or False, "
+                             f"got {exact!r}")
         self.exact = bool(exact)
         self.gp = posterior(self.latent, Kernel(self.length_scale, self.noise))
 
@@ -182,10 +187,10 @@ class ShepardWeights(Interpolant):
 
     def __init__(self, latent, power=2.0, taper=np.inf, spread=0.0, length_scale=1.0):
         super().__init__(latent)
-        self.power = float(power)
-        self.taper = float(taper)
-        self.spread = float(spread)
-        self.length_scale = float(length_scale)
+        given = (("power", power), ("taper", taper), ("spread", spread),
+                 ("length_scale", length_scale))
+        self.power, self.taper, self.spread, self.length_scale = (
+            _number(self.kind, k, v) for k, v in given)
         if not self.power > 0 or not self.taper > 0 or not self.length_scale > 0 or not self.spread >= 0:
             raise InputError(f"shepard weights need `power` > 0, `taper` > 0, `spread` >= 0 and `length_scale` > 0, "
                                    f"got {self.power}, {self.taper}, {self.spread}, {self.length_scale}")
@@ -252,6 +257,14 @@ def posterior(latent, kernel):
         raise InputError(
             f"the covariance K of the {len(latent)} latent points is not positive definite "
             f"(`noise` mu={kernel.noise:g} too small for coincident points?)") from None
+
+
+def _number(kind, name, value):
+    """``value`` as a float; a bool or a text is refused (``True`` is not a power)."""
+    number = isinstance(value, (numbers.Real, np.floating, np.integer))
+    if isinstance(value, (bool, np.bool_)) or not number:
+        raise InputError(f"interpolant {kind!r}: `{name}` must be a number, got {value!r}")
+    return float(value)
 
 
 def make(latent, params):

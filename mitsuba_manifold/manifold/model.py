@@ -33,7 +33,7 @@ import numpy as np
 
 from ..gp.kernel import Kernel
 from ..gp.likelihood import log_likelihood
-from . import fitting, io as manifold_file, materials, paths, report
+from . import fitting, io as manifold_file, materials, paths, report, schema
 from . import interpolant as interpolants
 from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings
@@ -163,8 +163,21 @@ class Manifold(PruningMethods):
         """
         cfg = settings(preset, q=q, method=method, length_scale=length_scale, noise=noise,
                        features=features, interpolant=interpolant)
+        if isinstance(names, str):   # "chrome, steel": the names of a comma-separated list
+            names = [n.strip() for n in names.split(",") if n.strip()]
         db = database if isinstance(database, Database) else Database(database, names)
+        if int(np.prod(db.dims)) < 2:
+            raise InputError(f"database {db.folder}: tables of {'x'.join(map(str, db.dims))} bins "
+                             "hold one value per channel, too little to place materials apart; use "
+                             "tables of more bins (MERL's are 90x90x180; tools/make_database.py "
+                             "--resolution 16,16,32 for a quick one)")
         f = fitting.fit_database(db, names, cfg, preset, init=init, progress=progress, **options)
+        same = schema.coincident_latent(f.result.latent, f.hashes, f.names, cfg["length_scale"])
+        if same:
+            raise InputError(f"database {db.folder}: the fit placed the different materials "
+                             f"{same[0]!r} and {same[1]!r} at one latent point (their tables are "
+                             "too alike for the fit to tell apart); leave one of them out "
+                             "(`names`) or use tables of more bins")
         m = cls(f.names, f.result.latent, db.folder, f.hashes, cfg["length_scale"], cfg["noise"], cfg["features"],
                 f.albedos, gram=f.gram, record=f.record, interpolant=cfg["interpolant"], table_gram=f.table_gram,
                 cos_gram=f.cos_gram)

@@ -146,17 +146,23 @@ def _gram(a, meta):
     return None
 
 
+def coincident_latent(latent, hashes, names, length_scale=1.0):
+    """``(name_i, name_j)`` of two different tables (other hashes) at one latent point, or None."""
+    a = np.asarray(latent, dtype=np.float64)
+    d2 = np.sum((a[:, None, :] - a[None, :, :]) ** 2, axis=-1)
+    for i, j in np.argwhere(np.triu(d2 <= (1e-9 * float(length_scale)) ** 2, 1)):
+        if hashes[i] != hashes[j]:
+            return names[i], names[j]
+    return None
+
+
 def _latent(a, meta):
     if not 1 <= a.shape[1] <= MAX_LATENT_DIM:
         return f"must have 1 to {MAX_LATENT_DIM} columns (the latent dimension q), has {a.shape[1]}"
-    hashes, l = meta.get("hashes"), float(meta.get("length_scale", 1.0))
-    d2 = np.sum((a[:, None, :] - a[None, :, :]) ** 2, axis=-1)
-    same = np.argwhere(np.triu(d2 <= (1e-9 * l) ** 2, 1))
-    for i, j in same:
-        if hashes[i] != hashes[j]:
-            names = meta["names"]
-            return (f"has coincident points for the different materials {names[i]!r} and {names[j]!r} "
-                    "(the weights could not tell them apart)")
+    same = coincident_latent(a, meta.get("hashes"), meta["names"], meta.get("length_scale", 1.0))
+    if same:
+        return (f"has coincident points for the different materials {same[0]!r} and {same[1]!r} "
+                "(the weights could not tell them apart)")
     return None
 
 

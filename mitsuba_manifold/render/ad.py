@@ -1,14 +1,17 @@
 """A differentiable latent point for ``manifold_brdf`` in Mitsuba's AD variants.
 
-In an AD variant, once ``params["<id>.x"]`` is grad-enabled, the BSDF value is
-``max(0, sum_k w_k table_{i_k})`` over a FIXED-size active set of K materials (padded with
-zero weights when the manifold has fewer): K is unrolled into the kernel, and only the
-indices (which tables sit in the K device slots) and the weights change, so nothing is
-recompiled when the set changes. The tables are never grad-enabled; the weights ``w`` are
-a ``mi.Float`` of size K that follows ``x`` through :class:`LatentWeights`, a
-``dr.CustomOp`` whose derivative is the analytic Jacobian of :meth:`Manifold.weights`
-(:meth:`Manifold.weights_jacobian`) restricted to the active set, the rescaling
-``w_S / sum(w_S)`` (as pruning rescales) included (:func:`rescaled`).
+In an AD variant, once ``params["<id>.x"]`` is grad-enabled, the BSDF renders the same material
+as without gradients: the weights at ``x`` pruned by :meth:`Manifold.prune` with the plugin's
+``prune`` and rescaled to sum to 1, clamped at 0 per bin, ``max(0, sum_{i in S} v_i table_i)``.
+Its gradient is that of the rendered image with pruning's selection ``S`` held fixed (it is
+piecewise constant in ``x``): ``dv/dx`` is the Jacobian of the rescaling ``w_S / sum(w_S)``
+(:func:`rescaled`). The materials sit in a FIXED number K of device slots (at least ``ad_terms``,
+more when pruning keeps more), padded with zero-weight materials: K is unrolled into the kernel,
+and only the indices (which tables sit in the slots) and the weights change, so nothing is
+recompiled when the set changes. The tables are never grad-enabled; the weights ``w`` are a
+``mi.Float`` of size K that follows ``x`` through :class:`LatentWeights`, a ``dr.CustomOp`` whose
+derivative is the analytic Jacobian of :meth:`Manifold.weights` (:meth:`Manifold.weights_jacobian`)
+restricted to ``S`` and rescaled.
 
 Inside a render the same map enters every table lookup as :func:`traced_weights`:
 ``w = v + J (x - detach(x))`` made of ordinary Dr.Jit operations (value ``v`` exactly, derivative
@@ -20,15 +23,17 @@ user's ``dr.set_grad(params["<id>.x"], dx)`` then ``render_forward`` (or ``mi.re
 works as before. :class:`LatentWeights` remains the weights' operation outside a render
 (``ManifoldBRDF.ad_weights``, ``forward_weights``).
 
-The active set is chosen by weight AND Jacobian (:func:`choose_active`): the score of a
-material is ``|w_i| + step ||dw_i/dx||``, the weight it can reach within one typical step;
-choosing by ``|w_i| |table_i|`` (pruning's rule) can drop a material whose weight is
-changing fast and flip the sign of the gradient. Members of the current set get a bonus
-(hysteresis), so the set does not flicker between two materials of nearly equal score.
+The slots not taken by ``S`` hold the materials of largest score ``|w_i| + step ||dw_i/dx||``
+(:func:`choose_active`), the weight a material can reach within one typical step, so that a
+material entering ``S`` is usually in a slot already; members of the current slots get a bonus
+(hysteresis), so the slots do not flicker between two materials of nearly equal score.
 
 The convex Shepard weights have a zero Jacobian exactly at a training point (``w = e_i``
 is a flat maximum of ``w_i``): the gradient there is 0, and an optimisation started at a
-training point never moves. Start a little away from it (:func:`jitter`).
+training point never moves. Start a little away from it (:func:`jitter`). Near a training point
+pruning may also keep that one material alone: the rendered material is then constant in ``x``
+and so is the image (gradient 0); a smaller ``prune`` (0 keeps every material) gives the
+optimisation a slope there.
 """
 
 import drjit as dr
@@ -121,17 +126,23 @@ def latent_weights(x, weights_fn):
 
 
 class ActiveSet:
-    """The K device slots of the active set: which materials sit in them, their packed tables
-    (one ``mi.Float`` of ``K * bins * 3`` values, never grad-enabled) and sampling densities.
+    """The K device slots of AD mode: which materials sit in them, their packed tables (one
+    ``mi.Float`` of ``K * bins * 3`` values, never grad-enabled) and sampling densities.
 
-    :meth:`update` chooses the set at ``x`` and replaces only the slots whose material changed.
+    :meth:`update` prunes the weights at ``x`` exactly as the combined table does
+    (:meth:`Manifold.prune`), puts the kept materials in slots with their rescaled weights and
+    Jacobian (:func:`rescaled`), and fills the remaining slots with the materials of largest
+    score (:func:`choose_active`) at weight 0, so that a material entering the kept set is
+    usually in a slot already. Only the slots whose material changed are replaced; K grows
+    (and the kernels recompile once) only when more materials are kept than there are slots.
     ``tables(names) -> {name: (3, nh, nd, nphi)}`` and ``density(name) -> (n_t, n_v, n_u)``
     read what is not in memory yet.
     """
 
-    def __init__(self, manifold, k, tables, density):
+    def __init__(self, manifold, k, tables, density, prune):
         self.manifold = manifold
         self.k = min(int(k), manifold.n)
+        self.prune = float(prune)
         self.step = typical_step(manifold.latent)
         self._read, self._density = tables, density
         self.idx = None          # (k,) material per slot
@@ -140,19 +151,30 @@ class ActiveSet:
         self.slots = None        # mi.Float
         self.densities = None    # (k, n_t, n_v, n_u)
         self.switches = 0        # number of slot replacements so far
+        self.keep = None         # materials kept by pruning (sorted)
 
     def update(self, x):
-        """Choose the active set at ``x``; returns ``(idx, v, J_v, w_full)`` (NumPy)."""
+        """Prune at ``x`` and fill the slots; returns ``(idx, v, J_v, w_full)`` (NumPy): the
+        material of each slot, its weight (0 outside the kept set) and Jacobian, the full
+        weights."""
         _, w = self.manifold.weights(x)
         J = self.manifold.weights_jacobian(x)
+        keep = np.sort(np.asarray(self.manifold.prune(w, self.prune).keep, dtype=np.int64))
+        self.k = max(self.k, keep.size)
+        score_w = np.where(np.isin(np.arange(w.size), keep), np.inf, w)   # the kept ones first
         prev = None if self.idx is None else np.sort(self.idx)
-        idx = choose_active(w, J, self.k, self.step, prev)
-        self._place(idx)
-        v, Jv = rescaled(w, J, self.idx)
+        self._place(choose_active(score_w, J, self.k, self.step, prev))
+        v_keep, J_keep = rescaled(w, J, keep)
+        slot = {int(i): s for s, i in enumerate(self.idx)}
+        v, Jv = np.zeros(self.k), np.zeros((self.k,) + J.shape[1:])
+        for i, vi, Ji in zip(keep, v_keep, J_keep):
+            v[slot[int(i)]], Jv[slot[int(i)]] = vi, Ji
+        self.keep = keep
         return self.idx.copy(), v, Jv, w
 
     def _place(self, idx):
-        """Keep materials already in a slot where they are; put the new ones in the freed slots."""
+        """Keep materials already in a slot where they are; put the new ones in the freed slots
+        (new slots at the end when K grew)."""
         if self.idx is None:
             order = np.asarray(idx)
             names = [self.manifold.names[i] for i in order]
@@ -161,11 +183,18 @@ class ActiveSet:
             self.host = np.stack([_packed(t[n]) for n in names])
             self.densities = np.stack([self._density(n) for n in names])
         else:
-            new = [i for i in idx if i not in set(self.idx.tolist())]
+            wanted, held = set(np.asarray(idx).tolist()), self.idx.tolist()
+            new = [i for i in idx if i not in set(held)]
             if not new:
                 return
-            order = self.idx.copy()
-            free = [s for s, i in enumerate(order) if i not in set(idx.tolist())]
+            grow = len(idx) - len(held)
+            if grow > 0:   # more kept materials than slots: new slots (filled below)
+                held = held + [-1] * grow
+                self.host = np.concatenate([self.host, np.repeat(self.host[:1], grow, axis=0)])
+                self.densities = np.concatenate(
+                    [self.densities, np.repeat(self.densities[:1], grow, axis=0)])
+            order = np.asarray(held)
+            free = [s for s, i in enumerate(held) if i not in wanted]
             t = self._read([self.manifold.names[i] for i in new])
             for s, i in zip(free, new):
                 order[s] = i
@@ -226,18 +255,19 @@ def mixture_gather(slots, weights, n_bins, k):
 
 def combination(manifold, active, state, distr, black):
     """The :class:`.material.Combination` describing AD mode's material (``state``: ``idx`` of the
-    slots, their weights ``v``, the full weights ``w``, the point ``x``); ``table`` None (the slots
-    are in ``active``), clamping counted nowhere (it happens per lookup)."""
+    slots, their weights ``v``, the full weights ``w``, the point ``x``, the pruned set ``keep``);
+    ``table`` None (the slots are in ``active``), clamping counted nowhere (it happens per
+    lookup)."""
     full = np.zeros(manifold.n)
     full[state["idx"]] = state["v"]
-    order = np.sort(state["idx"])
+    keep = np.asarray(state["keep"])
     w = state["w"]
-    return Combination(w=full, x=state["x"], material=None, keep=order,
-                       dropped=float(np.abs(w).sum() - np.abs(w[order]).sum()),
-                       prune_error=manifold.prune_error(w, order),
-                       pruning=f"none in AD mode (an active set of {len(order)} materials, chosen by weight and "
-                               "Jacobian)", n_clamped=0, n_values=active.host.size,
-                       black=black, dims=active.dims, distr=distr, table=None)
+    return Combination(w=full, x=state["x"], material=None, keep=keep,
+                       dropped=float(np.abs(w).sum() - np.abs(w[keep]).sum()),
+                       prune_error=manifold.prune_error(w, keep),
+                       pruning=manifold.prune_report(w, active.prune, keep=keep), n_clamped=0,
+                       n_values=active.host.size, black=black, dims=active.dims, distr=distr,
+                       table=None)
 
 
 def forward_leaf(x, w, dx):

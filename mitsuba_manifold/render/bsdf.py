@@ -17,6 +17,7 @@ and the last line registers it; :mod:`.plugins` imports (or reloads) this module
 variant, so import it only with a variant set (``import mitsuba_manifold.render`` does that).
 """
 
+import dataclasses
 import operator
 from functools import partial
 
@@ -57,12 +58,14 @@ class ManifoldBRDF(mi.BSDF):
         point, which fits a manifold of any latent dimension (the shipped scenes' default).
         Exposed by ``mi.traverse`` as ``x``; updating it rebuilds the material. In AD
         variants ``x`` is differentiable: once it is grad-enabled (``dr.enable_grad``,
-        then ``params.update()``), the value is ``max(0, sum_k w_k table_k)`` over an active
-        set of ``ad_terms`` materials whose weights follow ``x`` (:mod:`.ad`), and sampling
-        uses a detached proxy (the pdf is never differentiated). Without gradients (and in
-        non-AD and scalar variants) the material is today's single combined table.
+        then ``params.update()``), the material is the same pruned, rescaled combination,
+        evaluated as ``max(0, sum_k v_k table_k)`` over device slots whose weights follow
+        ``x`` (:mod:`.ad`; the gradient holds pruning's selection fixed), and sampling uses a
+        detached proxy (the pdf is never differentiated). Without gradients (and in non-AD
+        and scalar variants) the material is one combined table.
     ad_terms : int
-        Size K of the active set in AD mode (default 8; fixed, so nothing recompiles).
+        Minimum number K of device slots in AD mode (default 8; more when pruning keeps more
+        materials; fixed otherwise, so moving ``x`` recompiles nothing).
     material : str
         A training material by name (exactly its measured table).
     weights : str
@@ -94,6 +97,9 @@ class ManifoldBRDF(mi.BSDF):
     :attr:`manifold`, :attr:`manifold_path`, :attr:`database`,
     :attr:`interpolation`, :attr:`sampling`, :attr:`names`, :attr:`weights`,
     :attr:`latent`, :attr:`used_names`, :attr:`dropped_weight`, :attr:`clamped_bins`.
+    Setting the attribute ``hold_proxy = True`` keeps the current sampling density through later
+    material changes (with and without gradients): renders at nearby materials then draw the same
+    directions from the same random numbers, as central differences need.
     ``isinstance(shape.bsdf(), mitsuba_manifold.render.bsdf.ManifoldBRDF)`` tells a manifold
     material in the active variant (as the package's integrators do); the class attribute
     ``is_manifold_brdf = True`` is kept for callers that tested it before.
@@ -206,7 +212,10 @@ class ManifoldBRDF(mi.BSDF):
     def _rebuild(self, w, x, material, table=None):
         """Combine the tables and sampling densities for weights ``w``; committed only once
         everything succeeded."""
-        self._c = combine(self._manifold, self._options, w, x, material, table)
+        c = combine(self._manifold, self._options, w, x, material, table)
+        if self.hold_proxy and getattr(self, "_c", None) is not None and self._c.distr is not None:
+            c = dataclasses.replace(c, distr=self._c.distr, black=self._c.black)
+        self._c = c
         self._gather, self._w = gather_rgb, None
         self._cos_frac = 1.0 if self._c.distr is None else COSINE_FRACTION
         if self._c.x is not None:
@@ -354,13 +363,14 @@ class ManifoldBRDF(mi.BSDF):
         every lookup as :func:`.ad.traced_weights` (value ``v``, derivative ``J dx``), made inside the
         integrator's AD scope: forward and backward mode from ``x`` work through Mitsuba's own API."""
         if self._active is None:
-            self._active = ad.ActiveSet(self._manifold, self._ad_terms, self._read_tables, self._read_density)
+            self._active = ad.ActiveSet(self._manifold, self._ad_terms, self._read_tables,
+                                        self._read_density, self._options.prune)
         x = np.array(self._x_param, dtype=np.float64).ravel()
         try:
             idx, v, J, w = self._active.update(x)
         except (ValueError, KeyError, OSError) as e:  # damaged or missing files
             raise InputError(prefixed(e)) from None
-        state = {"idx": idx, "v": v, "w": w, "x": x}
+        state = {"idx": idx, "v": v, "w": w, "x": x, "keep": self._active.keep}
         a, distr, black = self._active, self._c.distr, self._c.black
         if self.sampling == "cdf" and (not self.hold_proxy or self._w is None or distr is None):
             distr, black = combined_distribution(a.densities, v)
@@ -380,7 +390,7 @@ class ManifoldBRDF(mi.BSDF):
         else:
             what = "weights = given"
         if self._w is not None:
-            what += f" (AD mode: active set of {self._active.k}, clamping per lookup)"
+            what += f" (AD mode: {self._active.k} slots, clamping per lookup)"
         order = c.keep[np.argsort(-np.abs(c.w[c.keep]))]
         top = ", ".join(f"{self._manifold.names[i]}:{c.w[i]:.4g}" for i in order[:6])
         more = f", ... ({len(order)} in all)" if len(order) > 6 else ""

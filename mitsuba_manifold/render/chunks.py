@@ -211,13 +211,21 @@ def _merge(out, folders, seed, force, run_key=None):
     merged.pop("gi_images", None)
     files = [e["file"] for _, e in _entries(first)] + [basis_folder.MANIFEST]
     merged["images"] = open_folder(out, merged, files, force)
+    done = {e["file"] for e in merged["images"].values()}
+    # listed as pending before the first is written: an interrupted merge leaves files the same
+    # command knows as its own (removed and merged again); the manifest is rewritten as images land
+    merged["pending"] = sorted(f for f in files[:-1] if f not in done)
     basis_folder.write_manifest(out, merged)
     weights = spp / spp.sum()
+    last_write = time.perf_counter()
     for key, entry in _entries(first):
         gi = key.startswith(basis_folder.GI)
         section, plain = ("gi_images", key[len(basis_folder.GI):]) if gi else ("images", key)
         if plain in merged.get(section, {}):
             continue
+        if time.perf_counter() - last_write > 1.0:   # progress kept for a resumed merge
+            basis_folder.write_manifest(out, merged)
+            last_write = time.perf_counter()
         acc = None
         for f, m, w in zip(folders, manifests, weights):
             img = imageio.read_exr(os.path.join(f, m[section][plain]["file"])).astype(np.float64) * w
@@ -238,6 +246,7 @@ def _merge(out, folders, seed, force, run_key=None):
         merged["cross"] = {**first["cross"], "sha256": digest}
     if run_key is not None:   # the mark of a finished run (written with its last image)
         merged["chunk_key"] = run_key
+    del merged["pending"]
     basis_folder.write_manifest(out, merged)
     return merged
 

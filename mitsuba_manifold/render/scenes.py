@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..manifold.identity import manifold_identity
-from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
+from ..errors import InputError, MismatchError, MitsubaManifoldError, VariantError, did_you_mean
 from .._util.checks import scene_xml
 
 def _scenes_dir():
@@ -62,16 +62,33 @@ def scene_path(scene):
 
 
 def default_variant():
-    """``cuda_ad_rgb`` when a GPU works, else ``llvm_ad_rgb``."""
+    """The variant named by the environment variable ``MM_VARIANT`` when set (``llvm_ad_rgb`` or
+    ``cuda_ad_rgb``, the latter refused where CUDA does not run), else ``cuda_ad_rgb`` when a GPU
+    works, else ``llvm_ad_rgb``."""
     import mitsuba as mi
-    if "cuda_ad_rgb" in mi.variants():
-        try:
-            import drjit as dr
-            if dr.has_backend(dr.JitBackend.CUDA):
-                return "cuda_ad_rgb"
-        except Exception:  # no driver
-            pass
+
+    chosen = os.environ.get("MM_VARIANT")
+    if chosen:
+        usable = [v for v in ("llvm_ad_rgb", "cuda_ad_rgb") if v in mi.variants()]
+        if chosen not in usable:
+            raise VariantError(f"MM_VARIANT={chosen}: the tools render in "
+                               f"{' or '.join(usable)}; unset MM_VARIANT or name one of those")
+        if chosen.startswith("cuda") and not _cuda_works():
+            raise VariantError(f"MM_VARIANT={chosen}: no CUDA device or driver works here; unset "
+                               "MM_VARIANT or use llvm_ad_rgb")
+        return chosen
+    if "cuda_ad_rgb" in mi.variants() and _cuda_works():
+        return "cuda_ad_rgb"
     return "llvm_ad_rgb"
+
+
+def _cuda_works():
+    """Whether Dr.Jit's CUDA backend runs here (a device and a driver)."""
+    try:
+        import drjit as dr
+        return bool(dr.has_backend(dr.JitBackend.CUDA))
+    except Exception:  # no driver
+        return False
 
 
 def use_variant(variant=None, jit=False):

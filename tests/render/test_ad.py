@@ -25,10 +25,12 @@ def manifold(small_manifold):
     return Manifold.load(small_manifold)
 
 
-def _scene(manifold_path, x, terms=4, prune=0.01):
-    """A sphere on a floor sharing the manifold material, under a constant sky (inter-reflections)."""
-    mat = {"type": "manifold_brdf", "id": "mat", "manifold": manifold_path, "x": ", ".join(map(str, x)),
-           "ad_terms": terms, "prune": prune}
+def _scene(manifold_path, x, terms=4, prune=0.01, defaults=False):
+    """A sphere on a floor sharing the manifold material, under a constant sky (inter-reflections);
+    ``defaults``: the plugin's own ``ad_terms`` and ``prune``."""
+    mat = {"type": "manifold_brdf", "id": "mat", "manifold": manifold_path, "x": ", ".join(map(str, x))}
+    if not defaults:
+        mat.update(ad_terms=terms, prune=prune)
     return mi.load_dict({
         "type": "scene", "mat": mat,
         "sensor": {"type": "perspective", "fov": 40, "to_world": mi.ScalarTransform4f().look_at(
@@ -203,7 +205,7 @@ def test_training_point_has_zero_gradient_and_jitter_moves(small_manifold, manif
     assert 0 < np.linalg.norm(moved - xi) < others.min()
     assert np.abs(manifold.weights_jacobian(moved)).max() > 1e-6
     assert np.array_equal(ad.jitter(_x0(manifold), manifold), _x0(manifold))   # off the data: unchanged
-    scene = _scene(small_manifold, xi)
+    scene = _scene(small_manifold, xi, prune=0.0)   # pruning would keep one material so near a training point
     assert _adam_moves(scene, xi) < 1e-4     # started on the training point: stuck (float32 rounding aside)
     assert _adam_moves(scene, moved) > 1e-2  # jittered: moves (Adam steps of ~lr = 0.05)
 
@@ -306,3 +308,41 @@ def test_scalar_variant_keeps_the_combined_table_and_ad_mode_agrees(small_manifo
         results[variant] = _eval_at(bsdf, dirs)
     assert (results["scalar_rgb"][:, 0] > 0).any()
     np.testing.assert_allclose(results["llvm_ad_rgb"], results["scalar_rgb"], rtol=1e-4, atol=1e-6)
+
+
+def test_gradient_at_defaults_is_that_of_the_plain_render(small_manifold, manifold):
+    """Default ``prune`` and ``ad_terms``: the AD mode renders the material the plain render does
+    (the pruned, rescaled combination), and ``dr.grad`` of a rendered loss agrees with central
+    differences of plain renders within 2% (common random numbers: one seed and, through
+    ``hold_proxy``, one sampling density, so that the same random numbers draw the same paths)."""
+    gc.collect()
+    x0 = _x0(manifold)
+    scene = _scene(small_manifold, x0, defaults=True)
+    bsdf = scene.shapes()[0].bsdf()
+    _, w = manifold.weights(x0)
+    pruned = manifold.prune(w).keep
+    assert 1 < len(pruned) < manifold.n           # pruning drops materials at this point
+    integ = mi.load_dict(PRB)
+
+    def plain(x, seed):
+        params = mi.traverse(scene)
+        params["mat.x"] = mi.Float(np.asarray(x, dtype=np.float32))
+        params.update()
+        assert not bsdf.differentiable
+        return np.array(mi.render(scene, integrator=integ, spp=SPP, seed=seed), dtype=np.float64)
+
+    base = plain(x0, 1)
+    bsdf.hold_proxy = True
+    params = _grad_enabled(scene, x0)
+    assert bsdf.differentiable and sorted(bsdf.used_names) == sorted(manifold.names[i] for i in pruned)
+    with dr.suspend_grad():
+        in_ad = np.array(mi.render(scene, integrator=integ, spp=SPP, seed=1), dtype=np.float64)
+    np.testing.assert_allclose(in_ad, base, rtol=1e-3, atol=1e-5)   # the same material
+    img = mi.render(scene, params, integrator=integ, spp=SPP, seed=7, seed_grad=1)
+    dr.backward(dr.mean(img, axis=None))
+    grad = np.array(dr.grad(params["mat.x"]), dtype=np.float64)
+    h = 2e-3
+    fd = np.array([(plain(x0 + h * e, 1).mean() - plain(x0 - h * e, 1).mean()) / (2 * h)
+                   for e in np.eye(manifold.q)])
+    assert np.abs(fd).max() > 0
+    np.testing.assert_allclose(grad, fd, rtol=2e-2, atol=2e-3 * np.abs(fd).max())

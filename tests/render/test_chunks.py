@@ -92,6 +92,33 @@ def test_resume_per_chunk_and_refusals(tmp_path, small_manifold):
     assert before == {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
 
 
+@pytest.mark.parametrize("after", [1, 3])
+def test_an_interrupted_merge_resumes_with_the_same_command(tmp_path, small_manifold, monkeypatch, after):
+    """Ctrl-C while the merge writes its images: the same command then completes the basis (no
+    "files this basis did not make"), equal to an uninterrupted run."""
+    out = tmp_path / "b"
+    write, merged = imageio.write_exr, []
+
+    def interrupted(path, img, *a, **k):   # the merge's writes are the ones into `out` itself
+        if os.path.dirname(os.fspath(path)) == str(out):
+            merged.append(path)
+            if len(merged) > after:
+                raise KeyboardInterrupt
+        return write(path, img, *a, **k)
+
+    monkeypatch.setattr(chunks.imageio, "write_exr", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        chunks.render_chunked(SPHERE, small_manifold, str(out), spp=2, chunks=2, **OPTIONS)
+    monkeypatch.setattr(chunks.imageio, "write_exr", write)
+    run = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=2, chunks=2, **OPTIONS)
+    assert run.resumed == ["000-of-002", "001-of-002"] and "pending" not in run.manifest
+    ref = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "ref"), spp=2, chunks=2, **OPTIONS)
+    mine, theirs = _images(out), _images(tmp_path / "ref")
+    assert mine.keys() == theirs.keys()
+    for k in mine:
+        np.testing.assert_array_equal(mine[k], theirs[k])
+
+
 def test_chunked_basis_with_denoising_guides(tmp_path, small_manifold):
     from mitsuba_manifold.basis import denoise
 

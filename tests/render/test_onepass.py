@@ -174,3 +174,11 @@ def test_onepass_refuses_what_it_cannot_do(small_manifold):
 
 
 # ------------------------------------------------------------------ errors
+
+
+def test_onepass_takes_any_32_bit_seed_over_several_passes(small_manifold):
+    """The largest seed a refinement pass can give, over several sub-passes: each sub-pass's seed
+    stays a 32-bit number (no TypeError from Mitsuba's seed())."""
+    scene = load("sphere", small_manifold, "gold-paint", res=8)
+    base, images = integrator(max_depth=3).render_onepass(scene, spp=4, seed=0xFFFFFFFF, spp_per_pass=1)
+    assert base.shape == (8, 8, 3) and np.isfinite(base).all() and base.max() > 0

@@ -64,7 +64,8 @@ def parser():
     p.add_argument("--seed", type=int, default=0, help="seed of --render-reference (default 0)")
     p.add_argument("--path", nargs=2, metavar=("A", "B"),
                    help="images along the latent segment between materials (or 'x0,x1' points) A and B")
-    p.add_argument("--steps", type=int, default=20, help="images along --path (default 20)")
+    p.add_argument("--steps", type=int, default=20,
+                   help="images along --path (default 20, at most 1000)")
     p.add_argument("--path-kind", choices=PATH_KINDS, default=DEFAULT_PATH_KIND,
                    help="the path of --path: straight (the latent segment at equal steps), uniform (the segment "
                         "at equal perceptual steps) or geodesic (a shortest path under the perceptual metric, at "
@@ -75,8 +76,9 @@ def parser():
                    help="unbiased image of the point, SPP samples per pixel: the full-GI blend corrected by "
                         "a control variate (or, with an L1- basis, the L1- blend plus the L2+ rendered there); "
                         "reports the noise its passes estimate (too low where fireflies are rare)")
-    p.add_argument("--refine-passes", type=int, default=4,
-                   help="independent passes of --refine, which estimate its noise (default 4)")
+    p.add_argument("--refine-passes", type=int, default=None,
+                   help="independent passes of --refine, which estimate its noise "
+                        "(default 4, or --refine if fewer)")
     p.add_argument("--l2", choices=["denoised", "raw"], default="denoised",
                    help="the full-GI blend's light beyond L1-: denoised by OIDN (default) or as summed")
     p.add_argument("--component", choices=["full", "l1"], default=None,
@@ -108,12 +110,15 @@ def parse(argv=None):
         fail("--reference/--render-reference compare one image; not with --path")
     if not args.out.lower().endswith(".exr"):
         fail(f"--out must name an .exr file, got {args.out!r}")
-    if args.steps < 2:
-        fail(f"--steps must be >= 2, got {args.steps}")
+    if not 2 <= args.steps <= MAX_STEPS:
+        fail(f"--steps must be from 2 to {MAX_STEPS} (one EXR file each), got {args.steps}")
     if args.refine is not None and args.path is not None:
         fail("--refine makes one point's image exact; not with --path")
     if args.refine is not None and args.refine < 1:
         fail(f"--refine must be >= 1 (samples per pixel), got {args.refine}")
+    if args.refine_passes is None:   # not given: 4 passes, fewer when --refine has fewer samples
+        few = args.refine is not None and args.refine >= 1
+        args.refine_passes = min(4, args.refine) if few else 4
     if args.refine is not None and not 1 <= args.refine_passes <= args.refine:
         fail(f"--refine-passes must be in 1..--refine ({args.refine}), got {args.refine_passes}")
     if args.spp < 1:
@@ -335,22 +340,39 @@ def reference_image(args, basis, manifold, outputs):
     return reference
 
 
+#: Most images along ``--path`` (one EXR file each, and a contact-sheet tile).
+MAX_STEPS = 1000
+#: Most files listed one per line; more are written under a progress bar.
+LIST_FILES = 50
+
+
 def write_outputs(out, outputs, force=False, group=None):
     """Write ``outputs`` under the tools' output discipline (:class:`ownership.Outputs`): check
     that none replaces a file this tool did not make, create the folder of ``out``, run every
-    writer (reporting each file), each file recorded as the tool's own as it is written (a run
+    writer (reporting each file, or more than :data:`LIST_FILES` with a progress bar and one
+    line), each file recorded as the tool's own as it is written (a run
     stopped half-way leaves files the same command replaces). With ``group`` (what the run
     writes, e.g. ``"path:" + out``), the files an earlier run of the group wrote and this one
     did not are removed (a shorter ``--path``'s surplus frames)."""
+    from tqdm import tqdm
+
     from ..._util import ownership
 
     with ownership.Outputs("blend.py", force, group=group) as guard:
         for kind, path, _ in outputs:
             guard.check(path, kind)
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
-        for kind, path, write in outputs:
-            write()
-            print(f"wrote {kind}: {path}")
+        many = len(outputs) > LIST_FILES
+        bar = tqdm(total=len(outputs), desc="writing", unit="file", disable=not many,
+                   file=sys.stderr)
+        with bar:
+            for kind, path, write in outputs:
+                write()
+                bar.update()
+                if not many:
+                    print(f"wrote {kind}: {path}")
+        if many:
+            print(f"wrote {len(outputs)} files: {outputs[0][1]} ... {outputs[-1][1]}")
         if group is not None:
             for path in guard.remove_stale(os.path.dirname(os.path.abspath(out))):
                 print(f"removed {path} (from an earlier blend to {out}; this one did not write it)")

@@ -2,8 +2,11 @@
 
 import argparse
 import functools
+import os
 import re
+import signal
 import sys
+import threading
 
 from ...errors import MitsubaManifoldError, one_line
 
@@ -11,6 +14,9 @@ from ...errors import MitsubaManifoldError, one_line
 ERRORS = (MitsubaManifoldError, OSError)
 #: Exit status of a run stopped by Ctrl-C (128 + SIGINT), as shells report it.
 INTERRUPTED = 130
+#: What a tool stopped by Ctrl-C says.
+INTERRUPTED_MESSAGE = ("interrupted; every file listed so far is complete (run the same command "
+                       "again to resume)")
 
 
 #: A latent point or list of numbers that starts with a minus sign ("-1.1,-0.2", "-1e-3 0.5"):
@@ -128,21 +134,76 @@ def fail(error, code=2):
     sys.exit(code)
 
 
+class _Interrupts:
+    """SIGINT while a tool runs: noted, then ``KeyboardInterrupt`` as Python's own handler
+    raises it.
+
+    Ctrl-C while a module is being imported (Mitsuba, Dr.Jit or SciPy take most of a tool's first
+    second) can surface as another exception (an ``ImportError`` or ``NameError`` of the module cut
+    half-way): the note tells :func:`guarded` that it was the interrupt."""
+
+    def __init__(self):
+        self.seen = False
+        self.previous = None
+
+    def handle(self, signum, frame):
+        self.seen = True
+        raise KeyboardInterrupt
+
+    def install(self):
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGINT, self.handle)
+
+    def restore(self, finished_process=False):
+        """Put the handler back; a whole process that has finished ignores a late Ctrl-C instead
+        (everything was written: exit 0, not a traceback while the interpreter shuts down)."""
+        if self.previous is None:
+            return
+        signal.signal(signal.SIGINT, signal.SIG_IGN if finished_process else self.previous)
+        self.previous = None
+
+
+def _interrupted(process):
+    """Report Ctrl-C and exit 130. A whole process ends at once (its files are closed and its
+    locks released by then): an extension module whose import the interrupt cut half-way
+    would abort the interpreter's shutdown."""
+    print(f"error: {INTERRUPTED_MESSAGE}", file=sys.stderr)
+    if process:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(INTERRUPTED)
+    sys.exit(INTERRUPTED)
+
+
 def guarded(main):
     """Run a tool's ``main`` so that what goes wrong because of its input ends as one
     ``error:`` line: the package's errors and files the system refuses (:data:`ERRORS`),
-    memory (exit 2), and Ctrl-C (exit 130). Anything else is a bug and keeps its traceback."""
+    memory (exit 2), and Ctrl-C at any moment, imports included (exit 130). Anything else
+    is a bug and keeps its traceback. Run as a process (``argv`` None), a Ctrl-C after
+    ``main`` returned is ignored: everything was written, and the tool exits 0."""
     @functools.wraps(main)
     def run(argv=None):
+        interrupts = _Interrupts()
+        interrupts.install()
+        finished = False
         try:
-            return main(argv)
+            result = main(argv)
+            finished = True
+            return result
         except KeyboardInterrupt:
-            fail("interrupted; every file listed so far is complete (run the same command again to resume)",
-                 INTERRUPTED)
+            _interrupted(argv is None)
         except MemoryError:
             fail("out of memory; choose smaller sizes (resolution, --steps, --spp per pass)")
         except ERRORS as e:
+            if interrupts.seen:
+                _interrupted(argv is None)
             fail(e)
+        except Exception:
+            if interrupts.seen:   # an import cut by Ctrl-C
+                _interrupted(argv is None)
+            raise
+        finally:
+            interrupts.restore(finished_process=finished and argv is None)
     return run
 
 

@@ -32,7 +32,8 @@ def parse_views(text):
 
 
 def check_numbers(args):
-    """The options that need no scene, before any folder is made: ``--spp``, ``--chunks``, and
+    """The options that need no scene, before any folder is made: ``--spp``, ``--chunks``,
+    ``--res``, ``--max-depth`` and
     ``--seed``, whose derived seeds must fit Mitsuba's 32 bits (one-pass renders seed pass
     ``p`` of ``n`` with ``seed * n + p``, at most one pass per sample; chunk ``j`` of ``k``
     has seed ``seed * k + j``)."""
@@ -42,6 +43,9 @@ def check_numbers(args):
     validate.positive_int("--chunks", args.chunks, "4")
     if args.res is not None and not 1 <= args.res <= 16384:
         fail(f"--res must be from 1 to 16384, got {args.res}")
+    if args.max_depth is not None and args.max_depth != -1 and args.max_depth < 2:
+        fail(f"--max-depth must be -1 (unbounded) or at least 2, got {args.max_depth} (depth 1 "
+             "reaches only the lights seen directly: no image would show the material)")
     per_chunk = -(-args.spp // args.chunks)
     streams = args.chunks * (per_chunk if args.mode == "onepass" else 1)
     why = (f" with --spp {args.spp}, --chunks {args.chunks} and --mode {args.mode} (the renderer derives up to "

@@ -235,7 +235,8 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     rays = mi.ad.integrators.common.ADIntegrator
     with dr.suspend_grad():
         for p, n_spp in enumerate(passes):
-            sampler, _ = rays.prepare(integrator, sensor, seed * len(passes) + p, n_spp, [])
+            pass_seed = (int(seed) * len(passes) + p) & 0xFFFFFFFF   # Mitsuba's seeds are 32-bit
+            sampler, _ = rays.prepare(integrator, sensor, pass_seed, n_spp, [])
             ray, weight, pos = rays.sample_rays(integrator, scene, sensor, sampler)
             L, valid, _, rec = integrator.trace_paths(scene, sampler, ray, mi.Bool(True), plan, levels, proxy)
             L = L * weight
@@ -244,7 +245,7 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
             if touch:
                 splat.prepare(rec, rec["beta"] * weight, pos)
             if multi is not None:
-                multi.prepare(rec, weight, splat.pixel_of(pos), seed * len(passes) + p)
+                multi.prepare(rec, weight, splat.pixel_of(pos), pass_seed)
             del sampler, ray, L, valid, rec, head
             for c in range(len(chunks)):
                 splat.add(c)

@@ -1,0 +1,64 @@
+"""Ctrl-C at any moment of a command-line tool: one line and exit 130, also when the interrupt
+cuts an import half-way (which surfaces as another exception), and exit 0 when it comes after
+everything was written."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+HEAD = (
+    f"import os, signal, sys, time\nsys.path.insert(0, {ROOT!r})\n"
+    "from mitsuba_manifold.apps.cli.common import guarded\n"
+)
+
+
+def _run(code):
+    """Run ``code`` (after :data:`HEAD`) in a fresh Python process: (returncode, stderr)."""
+    p = subprocess.run(
+        [sys.executable, "-c", HEAD + textwrap.dedent(code)],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    return p.returncode, p.stderr
+
+
+def test_ctrl_c_that_cuts_an_import_is_reported_as_an_interrupt():
+    """Ctrl-C while an extension imports: the module's own error handling turns it into a NameError
+    (as Dr.Jit's __init__ does); the tool reports the interrupt in one line."""
+    rc, err = _run("""
+        def work(argv=None):
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(1)
+            except BaseException:
+                pass
+            return _drjit_ext.__file__
+        sys.exit(guarded(work)())
+    """)
+    assert rc == 130, err
+    assert err.startswith("error: interrupted") and err.strip().count("\n") == 0, err
+
+
+def test_ctrl_c_after_everything_was_written_exits_0():
+    rc, err = _run("""
+        result = guarded(lambda argv=None: 0)()
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.5)
+        sys.exit(result)
+    """)
+    assert rc == 0 and err == "", err
+
+
+def test_an_in_process_call_keeps_the_callers_ctrl_c():
+    from mitsuba_manifold.apps.cli.common import guarded
+
+    before = signal.getsignal(signal.SIGINT)
+    assert guarded(lambda argv=None: 0)([]) == 0
+    assert signal.getsignal(signal.SIGINT) is before
