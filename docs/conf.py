@@ -19,12 +19,11 @@ extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
     "sphinx.ext.napoleon",
-    "sphinx.ext.mathjax",
     "clidoc",
 ]
 source_suffix = {".md": "markdown"}
 exclude_patterns = ["_build", "tutorials/*.py", "README.md"]
-myst_enable_extensions = ["colon_fence", "dollarmath", "deflist"]
+myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 
 napoleon_numpy_docstring = True

@@ -4,7 +4,8 @@
     python3 docs/tutorials/basis_blend.py --out /tmp/t --small
 
 Reads OUT/manifold.npz (tutorial 1 makes it); writes the basis to OUT/basis and
-OUT/basis_blend.png: blend | full-GI reference | difference x4, at a point between two materials.
+OUT/basis_blend.png: blend | full-GI reference | difference x4, at a point between two materials,
+and OUT/basis_parts.png: what the basis holds for one material (base, L1-, full GI, L2+).
 """
 
 import argparse
@@ -13,7 +14,7 @@ import os
 import numpy as np
 
 from mitsuba_manifold import Manifold, blend
-from mitsuba_manifold.imaging.io import write_contact_sheet
+from mitsuba_manifold.imaging.io import read_exr, write_contact_sheet
 from mitsuba_manifold.imaging.metrics import rel_mse
 from mitsuba_manifold.render.render_basis import render_basis
 from mitsuba_manifold.render.scenes import render_reference, scene_path
@@ -24,7 +25,7 @@ def main():
     ap.add_argument("--out", default="out/tutorials")
     ap.add_argument("--small", action="store_true", help="tiny images (for the tests)")
     args = ap.parse_args()
-    res, spp, ref_spp = (24, 8, 16) if args.small else (128, 128, 512)
+    res, spp, ref_spp = (24, 8, 16) if args.small else (128, 512, 1024)
     manifold = os.path.join(args.out, "manifold.npz")
     basis = os.path.join(args.out, "basis")
 
@@ -46,6 +47,17 @@ def main():
     write_contact_sheet(os.path.join(args.out, "basis_blend.png"), np.stack([image, reference, diff]),
                         ["blend", "reference (path tracer)", "|difference| x4"], columns=3)
     print("wrote", os.path.join(args.out, "basis_blend.png"))
+
+    # 4. What the basis holds for one material: base (paths that never meet the bowl), the
+    #    material's touch image (paths meeting it once) and its full-GI image (touch + L2+).
+    base = read_exr(os.path.join(basis, "base.exr"))
+    touch = read_exr(os.path.join(basis, "white-paint.exr"))
+    full = read_exr(os.path.join(basis, "white-paint.gi.exr"))
+    write_contact_sheet(os.path.join(args.out, "basis_parts.png"),
+                        np.stack([base, base + touch, base + full, 4 * (full - touch)]),
+                        ["base: never on the bowl", "L1-: base + touch", "full GI: base + touch + L2+",
+                         "L2+ x4: twice or more"], columns=4)
+    print("wrote", os.path.join(args.out, "basis_parts.png"))
 
 
 if __name__ == "__main__":

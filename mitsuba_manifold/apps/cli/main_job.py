@@ -2,7 +2,8 @@
 
 1. the MERL-format database (SGD surrogates of the 100 MERL materials, 90x90x180 bins),
 2. the latent manifold (GPLVM fit) with its summary and plots,
-3. the L1- basis of a shipped scene (default table.xml; one image per material),
+3. the full-GI basis of a shipped scene (default table.xml, one pass: base, every material's
+   L1- and full-GI image, the cross terms),
 4. blends at a training point, a midpoint and an extrapolated point, their errors against
    full-GI references (raw, and denoised with OIDN beside the raw ones), and the
    error-against-time plot of blending vs re-rendering.
