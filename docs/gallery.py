@@ -13,6 +13,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 
 import numpy as np
 
@@ -47,7 +48,7 @@ def gallery(out, small):
     from mitsuba_manifold.imaging.io import write_contact_sheet
     bins, res, spp = ((16, 16, 32), 24, 4) if small else ((90, 90, 180), 128, 256)
     materials = MATERIALS[:6] if small else MATERIALS
-    work = os.path.join(out, "work")
+    work = tempfile.mkdtemp(prefix="gallery-")   # the tables are large: never under docs/
     make_database(os.path.join(work, "database"), bins, materials)
     m = Manifold.fit(os.path.join(work, "database"))
     path = os.path.join(work, "manifold.npz")
@@ -79,7 +80,8 @@ def main():
         print("wrote", f)
     if args.no_tutorials:
         return
-    work = os.path.join(args.tutorials_out, "work")
+    work = tempfile.mkdtemp(prefix="tutorials-")
+    os.makedirs(args.tutorials_out, exist_ok=True)
     for name in TUTORIALS:
         cmd = [sys.executable, os.path.join(HERE, "tutorials", f"{name}.py"), "--out", work]
         subprocess.run(cmd + (["--small"] if args.small else []), check=True)

@@ -68,7 +68,7 @@ def tools(root):
 def help_text(parser, prog):
     parser.prog = prog
     old = os.environ.get("COLUMNS")
-    os.environ["COLUMNS"] = "100"
+    os.environ["COLUMNS"] = "88"
     try:
         return parser.format_help()
     finally:

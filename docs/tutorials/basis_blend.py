@@ -51,8 +51,8 @@ def main():
     # 4. What the basis holds for one material: base (paths that never meet the bowl), the
     #    material's touch image (paths meeting it once) and its full-GI image (touch + L2+).
     base = read_exr(os.path.join(basis, "base.exr"))
-    touch = read_exr(os.path.join(basis, "white-paint.exr"))
-    full = read_exr(os.path.join(basis, "white-paint.gi.exr"))
+    touch = read_exr(os.path.join(basis, "pink-fabric.exr"))
+    full = read_exr(os.path.join(basis, "pink-fabric.gi.exr"))
     write_contact_sheet(os.path.join(args.out, "basis_parts.png"),
                         np.stack([base, base + touch, base + full, 4 * (full - touch)]),
                         ["base: never on the bowl", "L1-: base + touch", "full GI: base + touch + L2+",

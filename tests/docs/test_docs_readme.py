@@ -91,6 +91,7 @@ def test_the_two_commands_are_what_ci_runs():
     assert " ".join(docs.split()) in " ".join(text().split())
 
 
+@pytest.mark.render   # some tools' modules import Mitsuba (match.py --render)
 def test_every_tool_command_parses():
     commands = tool_commands()
     assert len(commands) >= 5
@@ -98,6 +99,7 @@ def test_every_tool_command_parses():
         parse(c)   # raises SystemExit on an option the tool does not know
 
 
+@pytest.mark.render   # some tools' modules import Mitsuba (match.py --render)
 def test_explore_command_names_the_main_jobs_basis():
     d = clidoc.parser_of("mitsuba_manifold.apps.cli.main_job").parse_args([])
     folder = f"{d.out}/gi/basis_{d.scene}_{d.res}_{d.spp}_{d.mode}"

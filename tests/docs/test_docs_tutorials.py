@@ -84,6 +84,7 @@ def test_gallery_runs(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["latent_grid.png", "measured.png"]
 
 
+@pytest.mark.render   # some tools' modules import Mitsuba (match.py --render)
 def test_every_documented_tool_command_parses():
     commands = [c for p in doc_pages() for c in sh_commands(p)]
     assert len(commands) >= 15
@@ -91,6 +92,7 @@ def test_every_documented_tool_command_parses():
         parse(c)   # SystemExit on an option the tool does not take
 
 
+@pytest.mark.render   # some tools' modules import Mitsuba (match.py --render)
 def test_cli_reference_lists_every_tool():
     text = clidoc.page(ROOT)
     for script in glob.glob(os.path.join(ROOT, "tools", "*.py")):
