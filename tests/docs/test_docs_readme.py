@@ -22,7 +22,7 @@ TOO_LONG = {
 #: Sizes of the README's commands and snippets -> the tests' (the same code, smaller).
 SMALLER = [("--spp 64", "--spp 4"), ("--res 128", "--res 16"), ("--steps 8", "--steps 3"),
            ('"width": 128, "height": 128', '"width": 16, "height": 16'), ("spp=64", "spp=4"),
-           ("res=64", "res=16"), ("spp=256", "spp=8"), ("spp=16", "spp=2"), ("range(50)", "range(2)")]
+           ("res=64", "res=16"), ("spp=256", "spp=8"), ("spp=16", "spp=2"), ("range(60)", "range(2)")]
 
 
 def text():
