@@ -38,6 +38,7 @@ autodoc_default_options = {"members": True, "undoc-members": False}
 try:
     import mitsuba_manifold.render  # noqa: F401  (picks a libLLVM, registers the plugins)
     import mitsuba as mi
+
     mi.set_variant("scalar_rgb")
 except ImportError:
     pass

@@ -80,17 +80,29 @@ def help_text(parser, prog):
 
 def page(root):
     """The Markdown of the command-line reference."""
-    lines = ["# Command-line tools", "",
-             "Every tool is a script in `tools/` (run it from a checkout: `python3 tools/NAME.py`) and, "
-             "once the package is installed, the console script `mitsuba-manifold NAME` (see the "
-             "`[project.scripts]` table of `pyproject.toml`). This page is generated from the tools' "
-             "own argument parsers when the documentation is built: it is what `--help` prints.", ""]
+    lines = [
+        "# Command-line tools",
+        "",
+        "Every tool is a script in `tools/` (run it from a checkout: `python3 tools/NAME.py`) and, "
+        "once the package is installed, the console script `mitsuba-manifold NAME` (see the "
+        "`[project.scripts]` table of `pyproject.toml`). This page is generated from the tools' "
+        "own argument parsers when the documentation is built: it is what `--help` prints.",
+        "",
+    ]
     for name, script, module in tools(root):
         variants = [()] + [tuple(v) for v in SUB_MODES.get(name, [])]
         for argv in variants:
             title = " ".join([f"tools/{name}.py", *argv])
-            lines += [f"## `{title}`", "", f"Module: `{module}`.", "", "```text",
-                      help_text(parser_of(module, argv), f"python3 {title}").rstrip(), "```", ""]
+            lines += [
+                f"## `{title}`",
+                "",
+                f"Module: `{module}`.",
+                "",
+                "```text",
+                help_text(parser_of(module, argv), f"python3 {title}").rstrip(),
+                "```",
+                "",
+            ]
     return "\n".join(lines)
 
 
@@ -99,7 +111,7 @@ def _write(app):
     text = page(root)
     path = os.path.join(app.srcdir, "reference", "cli.md")
     old = open(path, encoding="utf-8").read() if os.path.exists(path) else None
-    if old != text:   # unchanged: keep the file's time, so Sphinx does not rebuild the page
+    if old != text:  # unchanged: keep the file's time, so Sphinx does not rebuild the page
         with open(path, "w", encoding="utf-8") as f:
             f.write(text)
 

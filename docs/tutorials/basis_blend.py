@@ -30,22 +30,39 @@ def main():
     basis = os.path.join(args.out, "basis")
 
     # 1. The basis of the shipped scene "table" (a bowl of the material on a table): one set of
-    #    paths gives base.exr, every material's image (full global illumination) and the cross terms.
-    render_basis(scene_path("table"), manifold, basis, spp=spp, resolution=res, mode="onepass",
-                 components="auto", progress=not args.small)
+    #    paths gives base.exr, every material's image (full global illumination), the cross terms.
+    render_basis(
+        scene_path("table"),
+        manifold,
+        basis,
+        spp=spp,
+        resolution=res,
+        mode="onepass",
+        components="auto",
+        progress=not args.small,
+    )
 
     # 2. A blend: any latent point, in milliseconds.
     m = Manifold.load(manifold)
     x = 0.5 * (m.latent[m.index("gold-metallic-paint")] + m.latent[m.index("white-paint")])
-    image, info = blend(basis, x=x)    # the part beyond L1- is denoised by default (l2="raw": summed)
-    print(f"blend: {info['time_ms']:.1f} ms; weights:", {k: round(v, 3) for k, v in info["weights"][0].items()})
+    image, info = blend(basis, x=x)  # the part beyond L1- is denoised by default (l2="raw": summed)
+    print(
+        f"blend: {info['time_ms']:.1f} ms; weights:",
+        {k: round(v, 3) for k, v in info["weights"][0].items()},
+    )
 
     # 3. What it approximates: a full-GI render of that material with Mitsuba's path tracer.
-    reference = render_reference(scene_path("table"), manifold, x, spp=ref_spp, resolution=res, seed=7)
+    reference = render_reference(
+        scene_path("table"), manifold, x, spp=ref_spp, resolution=res, seed=7
+    )
     print(f"relative MSE of the blend against the reference: {rel_mse(image, reference):.4f}")
     diff = np.abs(image - reference) * 4
-    write_contact_sheet(os.path.join(args.out, "basis_blend.png"), np.stack([image, reference, diff]),
-                        ["blend", "reference (path tracer)", "|difference| x4"], columns=3)
+    write_contact_sheet(
+        os.path.join(args.out, "basis_blend.png"),
+        np.stack([image, reference, diff]),
+        ["blend", "reference (path tracer)", "|difference| x4"],
+        columns=3,
+    )
     print("wrote", os.path.join(args.out, "basis_blend.png"))
 
     # 4. What the basis holds for one material: base (paths that never meet the bowl), the
@@ -53,10 +70,17 @@ def main():
     base = read_exr(os.path.join(basis, "base.exr"))
     touch = read_exr(os.path.join(basis, "pink-fabric.exr"))
     full = read_exr(os.path.join(basis, "pink-fabric.gi.exr"))
-    write_contact_sheet(os.path.join(args.out, "basis_parts.png"),
-                        np.stack([base, base + touch, base + full, 4 * (full - touch)]),
-                        ["base: never on the bowl", "L1-: base + touch", "full GI: base + touch + L2+",
-                         "L2+ x4: twice or more"], columns=4)
+    write_contact_sheet(
+        os.path.join(args.out, "basis_parts.png"),
+        np.stack([base, base + touch, base + full, 4 * (full - touch)]),
+        [
+            "base: never on the bowl",
+            "L1-: base + touch",
+            "full GI: base + touch + L2+",
+            "L2+ x4: twice or more",
+        ],
+        columns=4,
+    )
     print("wrote", os.path.join(args.out, "basis_parts.png"))
 
 

@@ -30,7 +30,7 @@ manifold = os.path.join(args.out, "manifold.npz")
 m = Manifold.load(manifold)
 
 mi.set_variant("llvm_ad_rgb")
-scene = mi.load_file(scene_path("sphere"), manifold=manifold, res=res)   # <bsdf id="material">
+scene = mi.load_file(scene_path("sphere"), manifold=manifold, res=res)  # <bsdf id="material">
 params = mi.traverse(scene)
 prb = mi.load_dict({"type": "prb", "max_depth": 8})
 
@@ -47,9 +47,9 @@ params["material.x"] = x_start
 params.update()
 start = mi.render(scene, params, integrator=prb, spp=8 * spp, seed=1001)
 
-opt = mi.ad.Adam(lr=0.02, beta_2=0.9)   # a short memory of gradient sizes: they shrink a lot
+opt = mi.ad.Adam(lr=0.02, beta_2=0.9)  # a short memory of gradient sizes: they shrink a lot
 opt["material.x"] = params["material.x"]
-params.update(opt)                 # x grad-enabled: the BSDF follows x differentiably
+params.update(opt)  # x grad-enabled: the BSDF follows x differentiably
 losses, best = [], (np.inf, None)
 for it in range(iterations):
     x_now = np.array(params["material.x"]).ravel()
@@ -62,18 +62,21 @@ for it in range(iterations):
     opt.step()
     params.update(opt)
     losses.append(float(loss.array[0]))
-    best = min(best, (losses[-1], x_now), key=lambda b: b[0])   # keep the best point seen
+    best = min(best, (losses[-1], x_now), key=lambda b: b[0])  # keep the best point seen
 x_found = best[1]
 print("true x:", np.round(x_true, 3), " found x:", np.round(x_found, 3))
 
-params["material.x"] = x_found        # a plain value: no gradient from here on
+params["material.x"] = x_found  # a plain value: no gradient from here on
 params.update()
 result = mi.render(scene, params, integrator=prb, spp=8 * spp, seed=1002)
-write_contact_sheet(os.path.join(args.out, "inverse.png"),
-                    np.stack([np.array(target), np.array(start), np.array(result)]),
-                    ["target", "start", f"best of {iterations} Adam steps"], columns=3)
+write_contact_sheet(
+    os.path.join(args.out, "inverse.png"),
+    np.stack([np.array(target), np.array(start), np.array(result)]),
+    ["target", "start", f"best of {iterations} Adam steps"],
+    columns=3,
+)
 fig, ax = subplots(figsize=(4, 2.6), layout="constrained")
-ax.semilogy(np.maximum(losses, 1e-7))   # the two-render estimate can dip below 0 near the optimum
+ax.semilogy(np.maximum(losses, 1e-7))  # the two-render estimate can dip below 0 near the optimum
 ax.set_xlabel("iteration")
 ax.set_ylabel("image MSE")
 save(fig, os.path.join(args.out, "inverse_loss.png"))

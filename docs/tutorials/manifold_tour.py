@@ -1,7 +1,7 @@
 """Tutorial 1: a manifold of measured materials, and a walk across it rendered with manifold_brdf.
 
     python3 docs/tutorials/manifold_tour.py --out out/tutorials        # about a minute
-    python3 docs/tutorials/manifold_tour.py --out /tmp/t --small       # seconds (what the tests run)
+    python3 docs/tutorials/manifold_tour.py --out /tmp/t --small       # seconds (the tests)
 
 Writes OUT/manifold_tour.png: spheres along the path between two measured materials.
 """
@@ -13,9 +13,16 @@ import numpy as np
 
 from mitsuba_manifold import Manifold, make_database
 
-MATERIALS = ["blue-rubber", "white-paint", "gold-metallic-paint", "chrome", "red-fabric",
-             "green-metallic-paint", "pink-fabric", "black-obsidian"]
-
+MATERIALS = [
+    "blue-rubber",
+    "white-paint",
+    "gold-metallic-paint",
+    "chrome",
+    "red-fabric",
+    "green-metallic-paint",
+    "pink-fabric",
+    "black-obsidian",
+]
 
 
 def main():
@@ -37,19 +44,22 @@ def main():
     # 3. Any latent point is a material: convex weights over the measured tables.
     x = 0.5 * (m.latent[m.index("blue-rubber")] + m.latent[m.index("white-paint")])
     b, w = m.weights(x)
-    print("weights at the midpoint:", {n: round(float(v), 3) for n, v in zip(m.names, w) if v > 0.01})
+    print(
+        "weights at the midpoint:", {n: round(float(v), 3) for n, v in zip(m.names, w) if v > 0.01}
+    )
     print("albedo (RGB):", np.round(m.albedo(x), 3))
 
     # 4. A path between two materials (even steps in a perceptual BRDF distance), rendered.
-    import mitsuba as mi                      # noqa: E402
-    import mitsuba_manifold.render            # noqa: E402,F401  (registers manifold_brdf)
-    from mitsuba_manifold.imaging.io import write_contact_sheet                # noqa: E402
-    from mitsuba_manifold.render.scenes import scene_path                      # noqa: E402
+    import mitsuba as mi  # noqa: E402
+    import mitsuba_manifold.render  # noqa: E402,F401  (registers manifold_brdf)
+    from mitsuba_manifold.imaging.io import write_contact_sheet  # noqa: E402
+    from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
 
     mi.set_variant("llvm_ad_rgb")
     points = m.path("blue-rubber", "white-paint", steps=5)
-    scene = mi.load_file(scene_path("sphere"), manifold=os.path.join(args.out, "manifold.npz"),
-                         res=res, spp=spp)
+    scene = mi.load_file(
+        scene_path("sphere"), manifold=os.path.join(args.out, "manifold.npz"), res=res, spp=spp
+    )
     params = mi.traverse(scene)
     images = []
     for p in points:
@@ -57,10 +67,11 @@ def main():
         params.update()
         images.append(np.array(mi.render(scene, seed=0)))
     labels = ["blue-rubber"] + [""] * (len(points) - 2) + ["white-paint"]
-    write_contact_sheet(os.path.join(args.out, "manifold_tour.png"), np.stack(images), labels,
-                        columns=len(points))
+    write_contact_sheet(
+        os.path.join(args.out, "manifold_tour.png"), np.stack(images), labels, columns=len(points)
+    )
     print("wrote", os.path.join(args.out, "manifold_tour.png"))
 
 
-if __name__ == "__main__":   # the database is written by worker processes, which import this file
+if __name__ == "__main__":  # the database is written by worker processes, which import this file
     main()

@@ -30,23 +30,45 @@ mi.set_variant("llvm_ad_rgb")
 # the material (material="gold-metallic-paint" would too); x, a latent point, is the one that
 # mi.traverse exposes. The manifold file is found like any other file of the scene.
 gold = ", ".join(f"{v:.6g}" for v in m.latent[m.index("gold-metallic-paint")])
-scene = mi.load_dict({
-    "type": "scene",
-    "integrator": {"type": "path", "max_depth": 8},
-    "sensor": {"type": "perspective", "fov": 30,
-               "to_world": mi.ScalarTransform4f().look_at(origin=[0, 1.2, 4.5], target=[0, 0.1, 0],
-                                                          up=[0, 1, 0]),
-               "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "gaussian"}},
-               "sampler": {"type": "independent", "sample_count": spp}},
-    "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 0.6}},
-    "sun": {"type": "point", "position": [2.5, 4.0, 2.0], "intensity": {"type": "rgb", "value": 25.0}},
-    "floor": {"type": "rectangle",
-              "to_world": mi.ScalarTransform4f().translate([0, -0.6, 0]).rotate([1, 0, 0], -90).scale(4),
-              "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.45}}},
-    "ball": {"type": "sphere", "radius": 0.6,
-             "bsdf": {"type": "manifold_brdf", "manifold": manifold,
-                      "x": gold}},
-})
+scene = mi.load_dict(
+    {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": 8},
+        "sensor": {
+            "type": "perspective",
+            "fov": 30,
+            "to_world": mi.ScalarTransform4f().look_at(
+                origin=[0, 1.2, 4.5], target=[0, 0.1, 0], up=[0, 1, 0]
+            ),
+            "film": {
+                "type": "hdrfilm",
+                "width": res,
+                "height": res,
+                "rfilter": {"type": "gaussian"},
+            },
+            "sampler": {"type": "independent", "sample_count": spp},
+        },
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 0.6}},
+        "sun": {
+            "type": "point",
+            "position": [2.5, 4.0, 2.0],
+            "intensity": {"type": "rgb", "value": 25.0},
+        },
+        "floor": {
+            "type": "rectangle",
+            "to_world": mi.ScalarTransform4f()
+            .translate([0, -0.6, 0])
+            .rotate([1, 0, 0], -90)
+            .scale(4),
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.45}},
+        },
+        "ball": {
+            "type": "sphere",
+            "radius": 0.6,
+            "bsdf": {"type": "manifold_brdf", "manifold": manifold, "x": gold},
+        },
+    }
+)
 images = [np.array(mi.render(scene, seed=0))]
 
 # The latent point is a scene parameter ("ball.bsdf.x" here; "<id>.x" for a <bsdf id="..."> of

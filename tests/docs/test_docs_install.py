@@ -40,6 +40,7 @@ def test_setup_installs_the_docs_extra_and_ci_builds_with_warnings_as_errors():
 
 def test_explorer_without_its_extra_names_it(monkeypatch, capsys):
     from mitsuba_manifold.apps.cli import explore
-    monkeypatch.setitem(sys.modules, "uvicorn", None)   # import uvicorn raises ImportError
+
+    monkeypatch.setitem(sys.modules, "uvicorn", None)  # import uvicorn raises ImportError
     assert explore.main(["--basis", "somewhere", "--port", "0"]) == 2
     assert "pip install 'mitsuba-manifold[explore]'" in capsys.readouterr().err

@@ -42,18 +42,37 @@ def read_keys(*modules):
         for node in ast.walk(tree):
             if isinstance(node, ast.Call):
                 f = node.func
-                if (isinstance(f, ast.Attribute) and f.attr == "get" and isinstance(f.value, ast.Name)
-                        and f.value.id == "props" and node.args and isinstance(node.args[0], ast.Constant)):
+                if (
+                    isinstance(f, ast.Attribute)
+                    and f.attr == "get"
+                    and isinstance(f.value, ast.Name)
+                    and f.value.id == "props"
+                    and node.args
+                    and isinstance(node.args[0], ast.Constant)
+                ):
                     keys.add(node.args[0].value)
-                if (len(node.args) > 1 and isinstance(node.args[0], ast.Name) and node.args[0].id == "props"
-                        and isinstance(node.args[1], ast.Constant) and isinstance(node.args[1].value, str)):
+                if (
+                    len(node.args) > 1
+                    and isinstance(node.args[0], ast.Name)
+                    and node.args[0].id == "props"
+                    and isinstance(node.args[1], ast.Constant)
+                    and isinstance(node.args[1].value, str)
+                ):
                     keys.add(node.args[1].value)
-            elif (isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name) and node.value.id == "props"
-                  and isinstance(node.slice, ast.Constant)):
+            elif (
+                isinstance(node, ast.Subscript)
+                and isinstance(node.value, ast.Name)
+                and node.value.id == "props"
+                and isinstance(node.slice, ast.Constant)
+            ):
                 keys.add(node.slice.value)
-            elif (isinstance(node, ast.Compare) and isinstance(node.left, ast.Constant)
-                  and isinstance(node.ops[0], ast.In) and isinstance(node.comparators[0], ast.Name)
-                  and node.comparators[0].id == "props"):
+            elif (
+                isinstance(node, ast.Compare)
+                and isinstance(node.left, ast.Constant)
+                and isinstance(node.ops[0], ast.In)
+                and isinstance(node.comparators[0], ast.Name)
+                and node.comparators[0].id == "props"
+            ):
                 keys.add(node.left.value)
     return keys
 
@@ -84,14 +103,22 @@ def test_page_has_the_three_plugins():
 def test_manifold_brdf_parameters(small_manifold):
     import mitsuba as mi
     from mitsuba_manifold.render import bsdf, material
+
     rows = tables()["manifold_brdf"]
     read = read_keys(bsdf, material) | set(material.CHOOSERS)
     assert read == set(rows), "documented and read parameters differ"
     base = {"type": "manifold_brdf", "manifold": small_manifold}
-    values = {"x": "", "material": "gold-paint", "weights": "gold-paint:0.5, steel:0.5",
-              "sampling": "cosine", "interpolation": "linear",
-              "prune": 0.02, "ad_terms": 4}
+    values = {
+        "x": "",
+        "material": "gold-paint",
+        "weights": "gold-paint:0.5, steel:0.5",
+        "sampling": "cosine",
+        "interpolation": "linear",
+        "prune": 0.02,
+        "ad_terms": 4,
+    }
     from mitsuba_manifold import Manifold
+
     values["database"] = Manifold.load(small_manifold).database
     for name in rows:
         if name in ("manifold",):
@@ -99,12 +126,16 @@ def test_manifold_brdf_parameters(small_manifold):
         d = dict(base, **{name: values[name]})
         if name not in material.CHOOSERS:
             d["x"] = ""
-        mi.load_dict(d)   # Mitsuba refuses a property the plugin did not read
+        mi.load_dict(d)  # Mitsuba refuses a property the plugin did not read
     with pytest.raises(Exception, match="unreferenced"):
         mi.load_dict(dict(base, x="", not_a_parameter=1))
     b = mi.load_dict(dict(base, x=""))
-    got = {"prune": b._options.prune, "sampling": b.sampling, "interpolation": b.interpolation,
-           "ad_terms": b._ad_terms}
+    got = {
+        "prune": b._options.prune,
+        "sampling": b.sampling,
+        "interpolation": b.interpolation,
+        "ad_terms": b._ad_terms,
+    }
     for name, v in got.items():
         assert default(rows[name]) == v, name
 
@@ -112,6 +143,7 @@ def test_manifold_brdf_parameters(small_manifold):
 def test_manifold_brdf_traverse(small_manifold):
     import drjit as dr
     import mitsuba as mi
+
     rows = tables()["manifold_brdf"]
     b = mi.load_dict({"type": "manifold_brdf", "manifold": small_manifold, "x": ""})
     params = mi.traverse(b)
@@ -129,9 +161,10 @@ def test_manifold_brdf_traverse(small_manifold):
 def test_integrator_parameters(plugin):
     import mitsuba as mi
     from mitsuba_manifold.render.integrators import aovs, path
+
     rows = tables()[plugin]
     module = path if plugin == "manifold_path" else aovs
-    inherited = {"hide_emitters"}   # read by Mitsuba's SamplingIntegrator
+    inherited = {"hide_emitters"}  # read by Mitsuba's SamplingIntegrator
     assert read_keys(module) == set(rows) - inherited
     for name, row in rows.items():
         v = value(row) if row["Type"] != "string" else default(row)
@@ -139,9 +172,14 @@ def test_integrator_parameters(plugin):
     with pytest.raises(Exception, match="unreferenced"):
         mi.load_dict({"type": plugin, "not_a_parameter": 1})
     obj = mi.load_dict({"type": plugin})
-    attrs = {"max_depth": lambda o: -1 if o.max_depth == 0xFFFFFFFF else o.max_depth, "rr_depth": lambda o: o.rr_depth,
-             "component": lambda o: o.component, "target": lambda o: o.target, "split": lambda o: o.split,
-             "bins": lambda o: o.bins}
+    attrs = {
+        "max_depth": lambda o: -1 if o.max_depth == 0xFFFFFFFF else o.max_depth,
+        "rr_depth": lambda o: o.rr_depth,
+        "component": lambda o: o.component,
+        "target": lambda o: o.target,
+        "split": lambda o: o.split,
+        "bins": lambda o: o.bins,
+    }
     for name, row in rows.items():
         if name in attrs:
             assert attrs[name](obj) == default(row), name

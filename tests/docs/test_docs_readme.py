@@ -1,4 +1,4 @@
-"""The README says what is true: its size and picture, its links, and every command and snippet in it
+"""The README says what is true: its size and picture, its links, every command and snippet in it
 (run at a small size, or checked against the tool's own parser where a run would take minutes)."""
 
 import os
@@ -17,12 +17,21 @@ import clidoc  # noqa: E402  (the command-line reference's parser capture)
 
 #: Commands too long for the suite: how they were last run instead.
 TOO_LONG = {
-    "tools/main.py": "`tools/setup.sh && python3 tools/main.py` in a fresh clone: about 5 minutes on 2 CPU cores",
+    "tools/main.py": "`tools/setup.sh && python3 tools/main.py` in a fresh clone: "
+    "about 5 minutes on 2 CPU cores",
 }
 #: Sizes of the README's commands and snippets -> the tests' (the same code, smaller).
-SMALLER = [("--spp 64", "--spp 4"), ("--res 128", "--res 16"), ("--steps 8", "--steps 3"),
-           ('"width": 128, "height": 128', '"width": 16, "height": 16'), ("spp=64", "spp=4"),
-           ("res=64", "res=16"), ("spp=256", "spp=8"), ("spp=16", "spp=2"), ("range(60)", "range(2)")]
+SMALLER = [
+    ("--spp 64", "--spp 4"),
+    ("--res 128", "--res 16"),
+    ("--steps 8", "--steps 3"),
+    ('"width": 128, "height": 128', '"width": 16, "height": 16'),
+    ("spp=64", "spp=4"),
+    ("res=64", "res=16"),
+    ("spp=256", "spp=8"),
+    ("spp=16", "spp=2"),
+    ("range(60)", "range(2)"),
+]
 
 
 def text():
@@ -91,15 +100,15 @@ def test_the_two_commands_are_what_ci_runs():
     assert " ".join(docs.split()) in " ".join(text().split())
 
 
-@pytest.mark.render   # some tools' modules import Mitsuba (match.py --render)
+@pytest.mark.render  # some tools' modules import Mitsuba (match.py --render)
 def test_every_tool_command_parses():
     commands = tool_commands()
     assert len(commands) >= 5
     for c in commands:
-        parse(c)   # raises SystemExit on an option the tool does not know
+        parse(c)  # raises SystemExit on an option the tool does not know
 
 
-@pytest.mark.render   # some tools' modules import Mitsuba (match.py --render)
+@pytest.mark.render  # some tools' modules import Mitsuba (match.py --render)
 def test_explore_command_names_the_main_jobs_basis():
     d = clidoc.parser_of("mitsuba_manifold.apps.cli.main_job").parse_args([])
     folder = f"{d.out}/gi/basis_{d.scene}_{d.res}_{d.spp}_{d.mode}"
@@ -133,8 +142,13 @@ def test_basis_and_blend_commands_run(workdir):
     assert len(commands) == 3
     for c in commands:
         words = shlex.split(small(c))
-        subprocess.run([sys.executable, os.path.join(ROOT, words[1])] + words[2:], cwd=cwd, env=env,
-                       check=True, capture_output=True)
+        subprocess.run(
+            [sys.executable, os.path.join(ROOT, words[1])] + words[2:],
+            cwd=cwd,
+            env=env,
+            check=True,
+            capture_output=True,
+        )
     assert (cwd / "gold.png").stat().st_size > 0
     assert list(cwd.glob("walk*.exr"))
 
@@ -145,8 +159,13 @@ def test_python_snippets_run(workdir, index):
     cwd, env = workdir
     snippets = blocks("python")
     assert len(snippets) == 2
-    r = subprocess.run([sys.executable, "-c", small(snippets[index])], cwd=cwd, env=env, capture_output=True,
-                       text=True)
+    r = subprocess.run(
+        [sys.executable, "-c", small(snippets[index])],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     if index == 0:
         assert (cwd / "ball.png").stat().st_size > 0
