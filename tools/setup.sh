@@ -37,5 +37,5 @@ if ! command -v chromium >/dev/null && ! command -v chromium-browser >/dev/null;
     command -v chromium >/dev/null || { echo "setup: chromium did not install" >&2; exit 1; }
 fi
 
-python3 -m pip install -q --disable-pip-version-check --root-user-action=ignore -e ".[test]"
+python3 -m pip install -q --disable-pip-version-check --root-user-action=ignore -e ".[test,docs]"
 python3 -c "import mitsuba_manifold, mitsuba, drjit, starlette, uvicorn, playwright" || { echo "setup: the package does not import" >&2; exit 1; }

@@ -74,9 +74,10 @@ class ManifoldBRDF(mi.BSDF):
     database : str
         Folder of ``.binary`` tables, overriding the manifold's; checked by hash.
     prune : float
-        Drop the materials of smallest contribution ``|w_i| |table_i|`` while the table
-        changes by at most ``prune`` of its L2 norm (default 0.01, :meth:`Manifold.prune`);
-        the table error and the weight dropped are reported by ``to_string()``.
+        Pruning budget (default 0.01, :meth:`Manifold.prune`, rule ``"image"``): the fewest
+        materials, their weights rescaled to the same sum, such that each albedo channel
+        changes by at most ``prune / 2`` and the cosine-weighted and raw table by at most
+        ``prune`` of their norms; what was kept and reached is reported by ``to_string()``.
     sampling : ``"cdf"`` or ``"cosine"``
         Tabulated importance sampling (default) or the cosine hemisphere alone.
     interpolation : ``"nearest"`` or ``"linear"``

@@ -50,9 +50,9 @@ def parser():
     p.add_argument("--scene", help="scene XML to check the basis against (default: not checked; "
                                    "--render-reference uses the manifest's scene)")
     p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
-                   help="drop the materials of smallest contribution while each albedo channel changes by at "
-                        "most half this fraction and the cosine-weighted table by at most this fraction "
-                        f"(default {DEFAULT_PRUNE:g}, as the plugin)")
+                   help="pruning budget (default {:g}, as the plugin): blend the fewest materials such that "
+                        "each albedo channel changes by at most half of it and the cosine-weighted and raw "
+                        "table by at most it, relatively".format(DEFAULT_PRUNE))
     p.add_argument("--renormalise", action="store_true",
                    help="if images with surviving weight are missing from the basis, rescale the "
                         "weights of those present instead of failing (an approximation)")

@@ -1,6 +1,6 @@
 """Explore a material manifold in the browser: drag a latent point, see the material in the scene.
 
-  explore.py --basis out/gi/basis_table_256_1024_onepass [--basis OTHER ...] [--manifold M.npz]
+  explore.py --basis out/gi/basis_table_256_512_onepass [--basis OTHER ...] [--manifold M.npz]
              [--port 8765] [--host 127.0.0.1] [--allow-origin http://NAME:PORT ...]
 
 Starts a local web server (127.0.0.1 unless --host says otherwise), prints the URL and
@@ -52,8 +52,9 @@ def parser():
     p.add_argument("--port", type=parse_port, default=DEFAULT_PORT,
                    help=f"port (default {DEFAULT_PORT}; 0: any free port)")
     p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
-                   help="drop the materials of smallest contribution while the interpolated table changes "
-                        f"by at most this fraction of its L2 norm (default {DEFAULT_PRUNE:g}, as the plugin)")
+                   help="pruning budget (default {:g}, as the plugin): blend the fewest materials such that "
+                        "each albedo channel changes by at most half of it and the cosine-weighted and raw "
+                        "table by at most it, relatively".format(DEFAULT_PRUNE))
     p.add_argument("--no-tables", action="store_true",
                    help="do not load the material tables (no preview sphere, slice or negative-bin fraction)")
     p.add_argument("--refine-spp", type=int, default=16,
@@ -107,7 +108,11 @@ def main(argv=None):
 
 
 def serve(args):
-    import uvicorn
+    try:
+        import uvicorn
+    except ImportError:
+        print("error: the explorer needs its extra: pip install 'mitsuba-manifold[explore]'", file=sys.stderr)
+        return 2
 
     from ..explore import Explorer, create_app
     from ..explore.guard import MAX_MESSAGE, AllowList

@@ -1,8 +1,9 @@
-"""The main job on the built-in default data, end to end (:func:`mitsuba_manifold.apps.pipeline.run_main_job`):
+"""The main job on the built-in default data, end to end (library: mitsuba_manifold.apps.pipeline.run_main_job):
 
 1. the MERL-format database (SGD surrogates of the 100 MERL materials, 90x90x180 bins),
 2. the latent manifold (GPLVM fit) with its summary and plots,
-3. the L1- basis of a shipped scene (default table.xml; one image per material),
+3. the full-GI basis of a shipped scene (default table.xml, one pass: base, every material's
+   L1- and full-GI image, the cross terms),
 4. blends at a training point, a midpoint and an extrapolated point, their errors against
    full-GI references (raw, and denoised with OIDN beside the raw ones), and the
    error-against-time plot of blending vs re-rendering.
@@ -19,13 +20,13 @@ def main(argv=None):
     p.add_argument("--out", default="out", help="output folder (default out/)")
     p.add_argument("--resolution", type=parse_resolution, default=(90, 90, 180), help="table bins (default MERL's)")
     p.add_argument("--preset", choices=["default", "paper"], default="default",
-                   help="manifold settings (default: the measured best, see the README; paper: the paper's "
-                        "exact formulation)")
+                   help="manifold settings (default: the measured best; paper: the paper's exact "
+                        "formulation; see docs/concepts/latent-space.md)")
     p.add_argument("--q", type=int, default=None, help="latent dimension (default: the preset's)")
     p.add_argument("--features", choices=["raw", "log"], default=None,
                    help="fit features (default: the preset's; on the built-in surrogate, whose bin-centre "
                         "specular peaks reach 1e8, raw features collapse most non-metallic materials onto one "
-                        "latent point; see the README)")
+                        "latent point; see docs/concepts/latent-space.md)")
     p.add_argument("--scene", default="table", help="shipped scene name or scene XML for the GI part (default table)")
     p.add_argument("--res", type=int, default=256, help="image size (default 256)")
     p.add_argument("--spp", type=int, default=512, help="basis samples per pixel (default 512; the basis holds "

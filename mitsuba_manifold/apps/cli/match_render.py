@@ -1,5 +1,5 @@
 """Find the latent point whose full-GI renders best match target images (differentiable rendering,
-no basis): ``match.py --render`` dispatches here.
+no basis): what match.py --render runs.
 
   match.py --render --manifold M.npz --scene cbox.xml --target t.exr [--scene S --target T ...]
            [--mask m.png ...] [--sensor 0 ...] [--basis DIR] [--iterations 30] [--spp 8]

@@ -1,0 +1,121 @@
+"""The command-line reference, generated from the tools' own argparse parsers at build time.
+
+Every ``tools/*.py`` script names the module whose ``main(argv)`` it runs. This extension imports
+that module, runs ``main`` with argparse's ``parse_args`` replaced by a function that hands the
+parser back instead of parsing, and writes ``reference/cli.md`` from ``parser.format_help()``:
+the page shows exactly what ``--help`` prints. Nothing here lists the tools by hand, so a tool
+added, removed or renamed shows up on the next build.
+"""
+
+import argparse
+import ast
+import contextlib
+import importlib
+import io
+import os
+
+#: Options whose presence makes a tool hand over to another parser (``match.py --render``).
+SUB_MODES = {"match": [["--render"]]}
+
+
+class _Captured(BaseException):
+    """Raised in place of parsing: carries the parser (a BaseException so no tool catches it)."""
+
+    def __init__(self, parser):
+        super().__init__()
+        self.parser = parser
+
+
+def _capture(self, args=None, namespace=None):
+    raise _Captured(self)
+
+
+def tool_module(script):
+    """The module whose ``main`` the tool script ``script`` runs (from its import line)."""
+    tree = ast.parse(open(script, encoding="utf-8").read(), script)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and any(a.name == "main" for a in node.names):
+            return node.module
+    raise RuntimeError(f"{script}: no 'from MODULE import main' line")
+
+
+def parser_of(module, argv=()):
+    """The argparse parser ``module.main(argv)`` builds, without running the tool."""
+    main = importlib.import_module(module).main
+    saved = argparse.ArgumentParser.parse_args
+    argparse.ArgumentParser.parse_args = _capture
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):
+            main(list(argv))
+    except _Captured as c:
+        return c.parser
+    finally:
+        argparse.ArgumentParser.parse_args = saved
+    raise RuntimeError(f"{module}.main built no parser")
+
+
+def tools(root):
+    """``[(name, script, module)]`` of every ``tools/*.py``, sorted by name."""
+    folder = os.path.join(root, "tools")
+    out = []
+    for f in sorted(os.listdir(folder)):
+        if f.endswith(".py") and not f.startswith("_"):
+            script = os.path.join(folder, f)
+            out.append((f[:-3], script, tool_module(script)))
+    return out
+
+
+def help_text(parser, prog):
+    parser.prog = prog
+    old = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "88"
+    try:
+        return parser.format_help()
+    finally:
+        if old is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = old
+
+
+def page(root):
+    """The Markdown of the command-line reference."""
+    lines = [
+        "# Command-line tools",
+        "",
+        "Every tool is a script in `tools/` (run it from a checkout: `python3 tools/NAME.py`) and, "
+        "once the package is installed, the console script `mitsuba-manifold NAME` (see the "
+        "`[project.scripts]` table of `pyproject.toml`). This page is generated from the tools' "
+        "own argument parsers when the documentation is built: it is what `--help` prints.",
+        "",
+    ]
+    for name, script, module in tools(root):
+        variants = [()] + [tuple(v) for v in SUB_MODES.get(name, [])]
+        for argv in variants:
+            title = " ".join([f"tools/{name}.py", *argv])
+            lines += [
+                f"## `{title}`",
+                "",
+                f"Module: `{module}`.",
+                "",
+                "```text",
+                help_text(parser_of(module, argv), f"python3 {title}").rstrip(),
+                "```",
+                "",
+            ]
+    return "\n".join(lines)
+
+
+def _write(app):
+    root = os.path.dirname(app.srcdir)
+    text = page(root)
+    path = os.path.join(app.srcdir, "reference", "cli.md")
+    old = open(path, encoding="utf-8").read() if os.path.exists(path) else None
+    if old != text:  # unchanged: keep the file's time, so Sphinx does not rebuild the page
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text)
+
+
+def setup(app):
+    app.connect("builder-inited", _write)
+    return {"parallel_read_safe": True, "parallel_write_safe": True}

@@ -1,0 +1,119 @@
+"""The documentation's images: the gallery, and the tutorials' pictures.
+
+    python3 docs/gallery.py          # writes docs/_static/gallery/ and docs/_static/tutorials/
+    python3 docs/gallery.py --out /tmp/g --small --no-tutorials      # seconds (what the tests run)
+
+The gallery: measured materials of the built-in database on the shipped ``sphere`` scene, and a
+grid of latent points around them (the materials between the measured ones). The tutorials
+(docs/tutorials/*.py) run in order at their documentation sizes and their PNGs are copied beside.
+"""
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+from mitsuba_manifold import Manifold, make_database
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+TUTORIALS = ["manifold_tour", "own_scene", "basis_blend", "inverse"]
+#: Materials of the gallery (names of the built-in database).
+MATERIALS = [
+    "blue-rubber",
+    "white-paint",
+    "gold-metallic-paint",
+    "chrome",
+    "red-fabric",
+    "green-metallic-paint",
+    "pink-fabric",
+    "black-obsidian",
+    "alum-bronze",
+    "yellow-paint",
+    "silver-metallic-paint",
+    "dark-red-paint",
+    "blue-metallic-paint",
+    "orange-paint",
+    "violet-acrylic",
+    "white-marble",
+]
+
+
+def render_spheres(manifold_path, points, res, spp):
+    """Images of the ``sphere`` scene at each latent point (one scene, ``x`` set by traverse)."""
+    import mitsuba as mi
+    import mitsuba_manifold.render  # noqa: F401
+    from mitsuba_manifold.render.scenes import scene_path
+
+    mi.set_variant("llvm_ad_rgb")
+    scene = mi.load_file(scene_path("sphere"), manifold=manifold_path, res=res, spp=spp)
+    params = mi.traverse(scene)
+    images = []
+    for p in points:
+        params["material.x"] = p
+        params.update()
+        images.append(np.array(mi.render(scene, seed=0)))
+    return np.stack(images)
+
+
+def gallery(out, small):
+    from mitsuba_manifold.imaging.io import write_contact_sheet
+
+    bins, res, spp = ((16, 16, 32), 24, 4) if small else ((90, 90, 180), 128, 256)
+    materials = MATERIALS[:6] if small else MATERIALS
+    work = tempfile.mkdtemp(prefix="gallery-")  # the tables are large: never under docs/
+    make_database(os.path.join(work, "database"), bins, materials)
+    m = Manifold.fit(os.path.join(work, "database"))
+    path = os.path.join(work, "manifold.npz")
+    m.save(path)
+    os.makedirs(out, exist_ok=True)
+    sheet = os.path.join(out, "measured.png")
+    write_contact_sheet(sheet, render_spheres(path, m.latent, res, spp), list(m.names), columns=8)
+    # A 5x5 grid over the two first latent axes through the data's mean (third coordinate fixed).
+    lo, hi = np.percentile(m.latent, [10, 90], axis=0)
+    centre = m.latent.mean(axis=0)
+    k = 3 if small else 5
+    grid = [
+        np.concatenate([[a, b], centre[2:]])
+        for b in np.linspace(hi[1], lo[1], k)
+        for a in np.linspace(lo[0], hi[0], k)
+    ]
+    labels = [f"({p[0]:.2f}, {p[1]:.2f})" for p in grid]
+    write_contact_sheet(
+        os.path.join(out, "latent_grid.png"),
+        render_spheres(path, grid, res, spp),
+        labels,
+        columns=k,
+    )
+    shutil.rmtree(work)
+    return [sheet, os.path.join(out, "latent_grid.png")]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=os.path.join(HERE, "_static", "gallery"))
+    ap.add_argument("--tutorials-out", default=os.path.join(HERE, "_static", "tutorials"))
+    ap.add_argument("--small", action="store_true", help="tiny tables and images (for the tests)")
+    ap.add_argument("--no-tutorials", action="store_true", help="the gallery only")
+    args = ap.parse_args()
+    for f in gallery(args.out, args.small):
+        print("wrote", f)
+    if args.no_tutorials:
+        return
+    work = tempfile.mkdtemp(prefix="tutorials-")
+    os.makedirs(args.tutorials_out, exist_ok=True)
+    for name in TUTORIALS:
+        cmd = [sys.executable, os.path.join(HERE, "tutorials", f"{name}.py"), "--out", work]
+        subprocess.run(cmd + (["--small"] if args.small else []), check=True)
+    for f in sorted(os.listdir(work)):
+        if f.endswith(".png"):
+            shutil.copy(os.path.join(work, f), os.path.join(args.tutorials_out, f))
+            print("wrote", os.path.join(args.tutorials_out, f))
+    shutil.rmtree(work)
+
+
+if __name__ == "__main__":
+    main()
