@@ -201,7 +201,7 @@ def test_reference_scene_is_found_when_the_basis_moved(small_basis, small_manifo
 
 
 def test_bench_upsampled_basis_blends_as_the_original(small_basis, small_manifold_paper, tmp_path):
-    from mitsuba_manifold.apps.bench.explore import upsampled_basis
+    from benchmarks.explore import upsampled_basis
     big = upsampled_basis(small_basis, str(tmp_path / "x2"))
     x = Manifold.load(small_manifold_paper).latent[2]
     small_img, _ = blend(Basis.load(small_basis), small_manifold_paper, x=x)

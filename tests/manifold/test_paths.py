@@ -151,7 +151,7 @@ def test_rows_and_graph_are_cached_by_the_manifolds_content(small_manifold, tmp_
 
 
 def test_fig9_every_neighbour_pair_measures_each_pair_once(m):
-    from mitsuba_manifold.apps.bench import fig9
+    from benchmarks import fig9
     from mitsuba_manifold.manifold import space
     rep = fig9.every_pair_report(m, progress=False)
     want = [[m.names[i], m.names[j]] for i, j in space.all_neighbour_pairs(m.latent)]

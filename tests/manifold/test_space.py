@@ -308,7 +308,7 @@ def test_all_neighbour_pairs_hold_every_materials_nearest_neighbour_once():
 
 
 def test_convex_blend_reference_recovers_a_blend_of_two_tables():
-    from mitsuba_manifold.apps.bench.space import _convex_blend
+    from benchmarks.space import _convex_blend
     rng = np.random.default_rng(3)
     A = rng.uniform(0.0, 5.0, (4, 500))
     y = np.log1p(0.3 * A[1] + 0.7 * A[2])

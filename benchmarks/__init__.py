@@ -22,6 +22,6 @@ def run(name, folder, **kwargs):
     measurements."""
     import importlib
     if name not in NAMES:
-        from ...errors import InputError
+        from mitsuba_manifold.errors import InputError
         raise InputError(f"unknown benchmark {name!r}; choose one of {', '.join(NAMES)}")
     return importlib.import_module(module_name(name)).run(folder, **kwargs)

@@ -30,9 +30,9 @@ import time
 
 import numpy as np
 
-from ...manifold.model import Manifold
-from ...render import match_render as mr, match_scan
-from ...render.scenes import load_scene, scene_path, use_variant
+from mitsuba_manifold.manifold.model import Manifold
+from mitsuba_manifold.render import match_render as mr, match_scan
+from mitsuba_manifold.render.scenes import load_scene, scene_path, use_variant
 from .common import peak_rss_gib
 from .match import _interior_points
 
@@ -120,7 +120,7 @@ def _summary(r):
 
 
 def _database(folder, out, n_materials):
-    from ...data import database
+    from mitsuba_manifold.data import database
     if folder and os.path.isdir(folder) and any(f.endswith(".binary") for f in os.listdir(folder)):
         return folder
     db = os.path.join(out, "database")
@@ -164,9 +164,9 @@ def _random_point(cbox, manifold, m, x, ctx):
 def _held_out(cbox, manifold, db, m, name, ctx):
     """One held-out material: the match on the manifold of the others, against the best single
     material and the basis match (a basis of view 0 only)."""
-    from ...basis import match as mt
-    from ...basis.folder import Basis
-    from ...render.render_basis import render_basis
+    from mitsuba_manifold.basis import match as mt
+    from mitsuba_manifold.basis.folder import Basis
+    from mitsuba_manifold.render.render_basis import render_basis
     sensors, masks, opts, out = ctx["sensors"], ctx["masks"], ctx["opts"], ctx["out"]
     sub = os.path.join(out, f"manifold_without_{name}.npz")
     Manifold.fit(db, q=2, names=[n for n in m.names if n != name]).save(sub)
@@ -297,7 +297,7 @@ def plot(report, path):
     """Convergence of every match: the training loss of the start that reached the lowest loss, over
     Adam iterations, in units of the loss at the true point (random points) or of the best single
     training material (held-out), both at the training spp."""
-    from ...imaging.plots import finish, subplots
+    from mitsuba_manifold.imaging.plots import finish, subplots
     fig, axes = subplots(1, 2, figsize=(11, 4))
     for ax, key, what in ((axes[0], "random_points", "true point"), (axes[1], "held_out", "best single material")):
         for k, e in enumerate(report[key]):
@@ -312,11 +312,11 @@ def plot(report, path):
 
 
 def main(argv=None):
-    """``python3 -m mitsuba_manifold.apps.bench.match_render --part random --json A.json`` (one part),
+    """``python3 -m benchmarks.match_render --part random --json A.json`` (one part),
     ``--merge A.json B.json --json OUT.json`` (joined, with the convergence plot beside OUT)."""
     import argparse
     import json
-    from ..._util.atomic import write_bytes
+    from mitsuba_manifold._util.atomic import write_bytes
     from .common import machine
     p = argparse.ArgumentParser(description=main.__doc__)
     p.add_argument("--json", required=True)

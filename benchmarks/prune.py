@@ -23,11 +23,11 @@ import time
 
 import numpy as np
 
-from ...basis.blend import blend
-from ...basis.folder import Basis
-from ...imaging.metrics import rel_mse
-from ...manifold import pruning, space
-from ...manifold.model import DEFAULT_PRUNE, Manifold
+from mitsuba_manifold.basis.blend import blend
+from mitsuba_manifold.basis.folder import Basis
+from mitsuba_manifold.imaging.metrics import rel_mse
+from mitsuba_manifold.manifold import pruning, space
+from mitsuba_manifold.manifold.model import DEFAULT_PRUNE, Manifold
 from .common import peak_rss_gib
 
 #: What the default must reach at every point of both sets (and the median kept).

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ...manifold.model import Manifold
+from mitsuba_manifold.manifold.model import Manifold
 
 
 def query_points(m, n_random=64, seed=0):
@@ -30,7 +30,7 @@ def run(folder, manifold=None, q=2, grid=48):
     (``l`` from 1e-3 to 1e3, ``mu`` from 1e-10 to 1e-2), near-duplicate and far-away points,
     negative-weight blends (clamped bins, albedo outside [0, 1]), float32 against float64.
     """
-    from ...manifold.model import InputError
+    from mitsuba_manifold.manifold.model import InputError
     base = Manifold.load(manifold) if manifold else Manifold.fit(folder, q=q)
     tables = base.tables(folder if manifold else None)
     queries = query_points(base)
@@ -67,7 +67,7 @@ def run(folder, manifold=None, q=2, grid=48):
                      "bounded": bool(np.isfinite(table).all())})
 
     # negative-weight blends over a latent grid: clamped bins and albedo outside [0, 1]
-    from ...imaging.plots import albedo_grid
+    from mitsuba_manifold.imaging.plots import albedo_grid
     _, _, alb = albedo_grid(base, resolution=grid)
     lo, hi = base.latent.min(0), base.latent.max(0)
     pts = np.random.default_rng(1).uniform(lo - 0.25 * (hi - lo), hi + 0.25 * (hi - lo), (24, base.q))

@@ -9,14 +9,14 @@ The checks read files, never write one.
 
 import os
 
-from ...errors import InputError, did_you_mean
-from ..._util.checks import positive_int
-from ...manifold.space import FOLDS
+from mitsuba_manifold.errors import InputError, did_you_mean
+from mitsuba_manifold._util.checks import positive_int
+from mitsuba_manifold.manifold.space import FOLDS
 
 
 def manifold_file(path, name="`manifold`"):
     """The manifold saved at ``path`` (loaded), or InputError naming ``name``."""
-    from ...manifold.model import Manifold
+    from mitsuba_manifold.manifold.model import Manifold
     try:
         return Manifold.load(path)
     except InputError as e:
@@ -25,7 +25,7 @@ def manifold_file(path, name="`manifold`"):
 
 def basis_folder(path, manifold=None, name="`basis`"):
     """Check that ``path`` is a basis folder (of ``manifold``, when given); InputError naming ``name``."""
-    from ...basis.folder import Basis
+    from mitsuba_manifold.basis.folder import Basis
     if not os.path.isdir(path):
         raise InputError(f"{name}: basis folder {path} does not exist" if not os.path.exists(path) else
                          f"{name}: {path} is not a folder (give a basis folder that render_basis.py wrote)")
@@ -41,7 +41,7 @@ def database_names(folder, name="`folder`"):
     if not os.path.isdir(folder):
         raise InputError(f"{name}: database folder {folder} does not exist" if not os.path.exists(folder) else
                          f"{name}: {folder} is not a folder (give a folder of MERL .binary tables)")
-    from ...data.merl import table_names
+    from mitsuba_manifold.data.merl import table_names
     try:
         names = table_names(folder)
     except OSError as e:
@@ -95,7 +95,7 @@ def check(which, folder, *, database_given=True, manifold=None, basis=None, name
     if configs is not None:
         known("`configs`", configs, list(config_choices), "configuration")
     if presets is not None:
-        from ...manifold.presets import PRESETS
+        from mitsuba_manifold.manifold.presets import PRESETS
         known("`presets`", presets, list(PRESETS), "preset")
     materials = len(names or available or ()) or None   # unknown (None) where no database is read
     fold_numbers(folds, n=materials if which == "space" else None)
@@ -110,5 +110,5 @@ def _available(which, folder, database_given):
         return None
     if database_given:
         return database_names(folder)
-    from ...data.database import load_sgd_fits
+    from mitsuba_manifold.data.database import load_sgd_fits
     return list(load_sgd_fits())

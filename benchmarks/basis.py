@@ -5,12 +5,12 @@ import time
 
 import numpy as np
 
-from .. import comparison
-from ...render import scenes
-from ...basis.folder import Basis
-from ...basis.blend import blend
-from ...manifold.model import Manifold
-from ...render.scenes import use_variant
+from mitsuba_manifold.apps import comparison
+from mitsuba_manifold.render import scenes
+from mitsuba_manifold.basis.folder import Basis
+from mitsuba_manifold.basis.blend import blend
+from mitsuba_manifold.manifold.model import Manifold
+from mitsuba_manifold.render.scenes import use_variant
 from .common import peak_rss_gib
 
 
@@ -22,7 +22,7 @@ def basis_run(scene_path, manifold, folder, spp, mode, res, seed):
     """
     import shutil
 
-    from ...render import render_basis as basis_mod
+    from mitsuba_manifold.render import render_basis as basis_mod
     shutil.rmtree(folder, ignore_errors=True)
     t0 = time.perf_counter()
     manifest = basis_mod.render_basis(scene_path, manifold, folder, spp=spp, mode=mode, resolution=res, seed=seed)
@@ -58,7 +58,7 @@ def run(folder, manifold=None, scene="table", res=256, spp=64, ref_spp=4096, rep
     """
     import drjit as dr
 
-    from ...render.integrators.onepass import PACKET
+    from mitsuba_manifold.render.integrators.onepass import PACKET
     mi = use_variant()
     if manifold is None:
         manifold = os.path.join(folder, ".manifold-cache", "bench_q2.npz")
@@ -166,7 +166,7 @@ def equal_time(scene_path, manifold, out, spp, res, seed, onepass_wall, per):
 
 def blend_errors(scene_path, manifold, m, out, spp, spp_eq, res, ref_spp, seed):
     """Each basis's blend at the midpoint of :func:`comparison.gi_pair` against the full-GI and L1- references."""
-    from ...imaging import metrics
+    from mitsuba_manifold.imaging import metrics
 
     a, b = comparison.gi_pair(m)
     x = 0.5 * (m.latent[m.index(a)] + m.latent[m.index(b)])

@@ -27,11 +27,11 @@ import time
 import numpy as np
 import scipy.optimize
 
-from ...imaging import io as imageio
-from ...manifold import projection, space
-from ...data.database import Database
-from ...manifold.model import DEFAULT_PRUNE, Manifold, fit_layout, make_interpolant, settings
-from ..._util.timing import median_time
+from mitsuba_manifold.imaging import io as imageio
+from mitsuba_manifold.manifold import projection, space
+from mitsuba_manifold.data.database import Database
+from mitsuba_manifold.manifold.model import DEFAULT_PRUNE, Manifold, fit_layout, make_interpolant, settings
+from mitsuba_manifold._util.timing import median_time
 
 #: Configurations compared: name -> (preset, overrides). ``default`` is the preset.
 CONFIGS = {
@@ -65,7 +65,7 @@ TARGETS = {"beats_nearest": 0.9, "median_over_nearest": 0.75, "path_weights": 0.
 
 
 def _cos_weights(dims):
-    from ...data import merl
+    from mitsuba_manifold.data import merl
     th, td, pd = merl.bin_centres(dims)
     wi, wo = merl.directions(th, td, pd)
     return (np.clip(wi[..., 2], 0, None) * np.clip(wo[..., 2], 0, None)).astype(np.float32).reshape(-1)

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from ...data.database import Database
-from ...manifold.model import Manifold
+from mitsuba_manifold.data.database import Database
+from mitsuba_manifold.manifold.model import Manifold
 
 
 def pca_errors(S, table_norms, components):

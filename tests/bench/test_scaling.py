@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from mitsuba_manifold.apps.bench import scaling
+from benchmarks import scaling
 
 
 def test_exponent_of_power_laws():

@@ -73,7 +73,7 @@ def test_space_refuses_a_fold_that_holds_none_of_few_materials(work):
 
 
 def test_space_library_refuses_folds_and_configs_before_reading_the_database(work):
-    from mitsuba_manifold.apps.bench import space
+    from benchmarks import space
     with pytest.raises(InputError, match="`folds`.*0 to 9"):
         space.run(work["db"], folds=[11], progress=False)
     with pytest.raises(InputError, match="`configs`.*did you mean 'default'"):
@@ -85,7 +85,7 @@ def test_space_library_refuses_folds_and_configs_before_reading_the_database(wor
 def test_match_refuses_a_resolution_below_one_before_making_its_folder(work, res):
     line = _refused(work, "match", "--database", work["db"], "--res", res)
     assert "--res" in line and "at least 1" in line
-    from mitsuba_manifold.apps.bench import match
+    from benchmarks import match
     with pytest.raises(InputError, match="`res`"):
         match.run(work["db"], res=int(res), progress=False)
     assert snapshot(work["root"]) == work["before"]

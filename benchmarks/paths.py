@@ -23,8 +23,8 @@ import time
 
 import numpy as np
 
-from ...manifold import latent_graph, paths
-from ...manifold.model import Manifold
+from mitsuba_manifold.manifold import latent_graph, paths
+from mitsuba_manifold.manifold.model import Manifold
 from . import fig9
 
 TARGETS = {"graph_cached_s": 5.0, "geodesic_median_s": 1.0}

@@ -23,15 +23,15 @@ import time
 
 import numpy as np
 
-from ...gp import gplvm
-from ...basis import match as mt
-from ...basis.folder import BASE, Basis
-from ...basis.blend import blend
-from ...basis.objectives import masked_rel_mse
-from ...manifold.model import Manifold
-from ...imaging.metrics import rel_mse
-from ...render.render_basis import render_basis
-from ...render.scenes import load_scene, render_reference, scene_path, use_variant
+from mitsuba_manifold.gp import gplvm
+from mitsuba_manifold.basis import match as mt
+from mitsuba_manifold.basis.folder import BASE, Basis
+from mitsuba_manifold.basis.blend import blend
+from mitsuba_manifold.basis.objectives import masked_rel_mse
+from mitsuba_manifold.manifold.model import Manifold
+from mitsuba_manifold.imaging.metrics import rel_mse
+from mitsuba_manifold.render.render_basis import render_basis
+from mitsuba_manifold.render.scenes import load_scene, render_reference, scene_path, use_variant
 
 SPEED_TARGET_S = 2.0
 RATIO_TARGET = 1.5
@@ -234,7 +234,7 @@ def run(folder, manifold=None, basis=None, scenes=("table", "sphere"), res=128, 
         if progress:
             print(text, flush=True)
 
-    from ..._util.checks import positive_int
+    from mitsuba_manifold._util.checks import positive_int
     res = positive_int("`res`", res, 128)
     manifold = manifold or os.path.join(folder, ".manifold-cache", "bench_q2.npz")
     if not os.path.isfile(manifold):

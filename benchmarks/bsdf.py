@@ -5,9 +5,9 @@ import time
 
 import numpy as np
 
-from ...manifold.model import Manifold
-from ...render.scenes import use_variant
-from ..._util.timing import median_time
+from mitsuba_manifold.manifold.model import Manifold
+from mitsuba_manifold.render.scenes import use_variant
+from mitsuba_manifold._util.timing import median_time
 from .common import interpolated_point, sphere_with, time_renders
 
 
@@ -18,8 +18,8 @@ def run(folder, manifold=None, spp=64, res=256, repeats=7, mse_res=96, mse_spp=3
     Targets: render time at most 1.5x roughconductor at equal spp; relative MSE at least
     5x lower with ``cdf`` than with ``cosine`` for the spiky metals.
     """
-    from ...imaging import metrics
-    from ...render.sampling import sampling_cache_path
+    from mitsuba_manifold.imaging import metrics
+    from mitsuba_manifold.render.sampling import sampling_cache_path
     mi = use_variant()
     m = Manifold.load(manifold) if manifold else None
     if m is None:

@@ -4,8 +4,8 @@ import time
 
 import numpy as np
 
-from ...gp import gplvm
-from ...data.database import Database
+from mitsuba_manifold.gp import gplvm
+from mitsuba_manifold.data.database import Database
 from .common import peak_rss_gib
 
 

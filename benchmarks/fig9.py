@@ -23,10 +23,10 @@ import time
 
 import numpy as np
 
-from ...data.distance import gram_distances
-from ...imaging import plots
-from ...manifold import paths, space
-from ...manifold.model import Manifold
+from mitsuba_manifold.data.distance import gram_distances
+from mitsuba_manifold.imaging import plots
+from mitsuba_manifold.manifold import paths, space
+from mitsuba_manifold.manifold.model import Manifold
 
 PAPER_PAIRS = (("blue-metallic-paint", "dark-blue-paint"), ("teflon", "silver-paint"),
                ("black-oxidized-steel", "color-changing-paint3"))
@@ -184,7 +184,7 @@ def run(folder, presets=("default", "paper"), kinds=paths.KINDS, names=None, plo
 
     ``plot_stem``: write ``<stem>_<preset>.png`` per preset.
     """
-    from ...manifold.presets import PRESETS
+    from mitsuba_manifold.manifold.presets import PRESETS
     from .inputs import known
     presets = known("`presets`", presets, list(PRESETS), "preset")
     out = {"steps": STEPS - 1, "search_stride": list(paths.SEARCH_STRIDE), "default_kind": paths.DEFAULT_KIND,

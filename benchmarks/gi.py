@@ -10,17 +10,17 @@ import time
 
 import numpy as np
 
-from ..comparison import gi_pair, gi_points, gi_report, refined_row, relative_bias
-from ...basis.blend import blend
-from ...basis.folder import Basis
-from ...imaging import metrics
-from ...manifold.model import Manifold
-from ...render import scenes as _scenes
-from ...render.render_basis import render_basis
-from ..._util.timing import median_time
+from mitsuba_manifold.apps.comparison import gi_pair, gi_points, gi_report, refined_row, relative_bias
+from mitsuba_manifold.basis.blend import blend
+from mitsuba_manifold.basis.folder import Basis
+from mitsuba_manifold.imaging import metrics
+from mitsuba_manifold.manifold.model import Manifold
+from mitsuba_manifold.render import scenes as _scenes
+from mitsuba_manifold.render.render_basis import render_basis
+from mitsuba_manifold._util.timing import median_time
 
 #: The scene made for this bench (not shipped): a sphere on a floor before a wall, all of the material.
-FACING = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
+FACING = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                       "tests", "render", "data", "facing.xml")
 
 
@@ -120,7 +120,7 @@ def blend_time(manifold, out, res=256, scene="table", spp=1, points=20, log=prin
     """Median blend time (ms) at ``res`` for the default (full-GI, its L2+ part denoised), the
     summed full-GI (``l2="raw"``) and the L1- blends at ``points`` explored points of a full-GI
     basis of all the manifold's materials (``spp`` per pixel)."""
-    from ...basis.crossterms import explored_points
+    from mitsuba_manifold.basis.crossterms import explored_points
     m = Manifold.load(manifold)
     folder = os.path.join(out, f"blend_time_{scene}_{res}")
     manifest, t, size = _basis(_scenes.scene_path(scene), manifold, folder, spp=spp, resolution=res,

@@ -4,9 +4,9 @@ import time
 
 import numpy as np
 
-from .. import comparison
-from ...manifold.model import Manifold
-from ..._util.timing import median_time
+from mitsuba_manifold.apps import comparison
+from mitsuba_manifold.manifold.model import Manifold
+from mitsuba_manifold._util.timing import median_time
 from .common import peak_rss_gib
 
 
@@ -30,7 +30,7 @@ def run(folder, manifold=None, q=2, repeats=7, prunes=(1e-3, 1e-2, 3e-2, 1e-1)):
     t_full, _ = median_time(lambda: m.combine(w, prune=0.0), repeats)
     full = m.combine(w, prune=0.0)[0]
     scale = float(np.abs(full).max())
-    from ...data.database import albedo_weights
+    from mitsuba_manifold.data.database import albedo_weights
     q_w = albedo_weights(full.shape[1:]).reshape(-1)
     albedo_full = full.reshape(3, -1) @ q_w
     pruned = []

@@ -2,7 +2,7 @@
 materials N, the table resolution, the image resolution and the samples per pixel, and
 (``chunks``) what chunked basis rendering gains from 1 to 2 Ray workers.
 
-Every point runs in its own subprocess (``python -m mitsuba_manifold.apps.bench.scaling STAGE
+Every point runs in its own subprocess (``python -m benchmarks.scaling STAGE
 JSON``), so that its peak RSS (``ru_maxrss``) is that stage's alone, Python and Mitsuba
 imports included (a floor of a few hundred MB). Stages: ``tabulate`` (the built-in
 surrogate database), ``gram`` (loading the float32 tables and the Gram matrix, log
@@ -35,7 +35,7 @@ NOISE = 0.1
 # ------------------------------------------------------------------ one point (subprocess)
 
 def _names(folder, n):
-    from ...data.database import Database
+    from mitsuba_manifold.data.database import Database
     names = Database(folder).names
     if n > len(names):
         raise ValueError(f"{folder} holds {len(names)} tables, {n} asked")
@@ -44,9 +44,9 @@ def _names(folder, n):
 
 def _point(stage, p):
     """Measure one point in this process; returns ``{"time_s": ..., ...}`` (RSS added by main)."""
-    from ...data import database
-    from ...data.database import Database
-    from ..._util.timing import median_time
+    from mitsuba_manifold.data import database
+    from mitsuba_manifold.data.database import Database
+    from mitsuba_manifold._util.timing import median_time
     if stage == "tabulate":
         t0 = time.perf_counter()
         database.make_database(p["out"], tuple(p["dims"]), list(database.load_sgd_fits())[:p["n"]])
@@ -61,14 +61,14 @@ def _point(stage, p):
         np.save(p["gram_out"], S)
         return {"time_s": time.perf_counter() - t0, "load_s": t_load, "d": int(tables.shape[1])}
     if stage == "fit":
-        from ...gp import gplvm
+        from mitsuba_manifold.gp import gplvm
         S = np.load(p["gram"])
         d = 3 * int(np.prod(p["dims"]))
         init = gplvm.pca_init(S, 2)
         res = gplvm.fit_latent(S, d, q=2, method=p["method"], init=init)
         return {"time_s": res.time_s, "evaluations": int(res.n_evaluations), "final_L": float(res.log_likelihood)}
     if stage == "manifold":  # for the later stages, whose cost does not depend on how well the fit converged
-        from ...manifold.model import Manifold
+        from mitsuba_manifold.manifold.model import Manifold
         m = Manifold.fit(p["db"], q=2, names=_names(p["db"], p["n"]), features="log", max_iter=p["max_iter"])
         m.save(p["save"])
         return {"time_s": m.info["time_fit_s"]}
@@ -79,10 +79,10 @@ def _point(stage, p):
         w += (1 - w.sum()) / p["n"]
         t, _ = median_time(lambda: w.astype(np.float32) @ tables, 3)
         return {"time_s": t, "table_bytes": int(tables.nbytes // p["n"])}
-    from ...render.scenes import use_variant
+    from mitsuba_manifold.render.scenes import use_variant
     mi = use_variant()
     if stage == "plugin":
-        from ...manifold.model import Manifold
+        from mitsuba_manifold.manifold.model import Manifold
         m = Manifold.load(p["manifold"])
         mi.load_dict({"type": "manifold_brdf", "manifold": p["manifold"], "material": m.names[0]})  # warm-up
         # a point never asked before, so that no cached mixture or sampling table is found
@@ -92,9 +92,9 @@ def _point(stage, p):
         bsdf = mi.load_dict({"type": "manifold_brdf", "manifold": p["manifold"], "x": x})
         return {"time_s": time.perf_counter() - t0, "bsdf": str(type(bsdf).__name__)}
     if stage == "basis":
-        from ...render.render_basis import render_basis
-        from ...render.scenes import scene_path
-        from ...manifold.model import Manifold
+        from mitsuba_manifold.render.render_basis import render_basis
+        from mitsuba_manifold.render.scenes import scene_path
+        from mitsuba_manifold.manifold.model import Manifold
         import shutil
         import tempfile
         Manifold.load(p["manifold"]).open_database().material_rows()  # the interleaved cache, built once
@@ -106,9 +106,9 @@ def _point(stage, p):
                      resolution=p["res"])
         return {"time_s": time.perf_counter() - t0}
     if stage == "blend":
-        from ...basis.folder import Basis
-        from ...basis.blend import blend
-        from ...manifold.model import Manifold
+        from mitsuba_manifold.basis.folder import Basis
+        from mitsuba_manifold.basis.blend import blend
+        from mitsuba_manifold.manifold.model import Manifold
         m = Manifold.load(p["manifold"])
         b = Basis.load(p["basis"], manifold=m)
         x = m.latent[:2].mean(axis=0)
@@ -129,11 +129,11 @@ def _main_point(argv):
 
 def measure(stage, params, timeout=300):
     """Run one point in a subprocess; its measurements, or ``{"error": ...}``."""
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
     t0 = time.perf_counter()
     try:
-        r = subprocess.run([sys.executable, "-m", "mitsuba_manifold.apps.bench.scaling", stage, json.dumps(params)],
+        r = subprocess.run([sys.executable, "-m", "benchmarks.scaling", stage, json.dumps(params)],
                            capture_output=True, text=True, timeout=timeout, env=env)
     except subprocess.TimeoutExpired:
         return {"error": f"over {timeout} s", "wall_s": time.perf_counter() - t0}
@@ -149,7 +149,7 @@ def measure(stage, params, timeout=300):
 
 def _noisy_database(work, n_total, dims, progress):
     """A folder of ``n_total`` tables: the 100 materials, then noisy copies (seeds 1, 2, ...)."""
-    from ...data import database
+    from mitsuba_manifold.data import database
     folder = os.path.join(work, f"db_{n_total}_{'x'.join(map(str, dims))}")
     names = list(database.load_sgd_fits())
     copies = -(-n_total // len(names))
@@ -294,7 +294,7 @@ def summarise(report):
 
 def plot(report, path):
     """Log-log curves: time and peak RSS against N, and time against bins, pixels and spp."""
-    from ...imaging.plots import finish, subplots
+    from mitsuba_manifold.imaging.plots import finish, subplots
     fig, axes = subplots(1, 3, figsize=(16, 4.6))
     series = report["series"]
     expo = report["summary"]["exponents"]
@@ -330,13 +330,13 @@ def chunk_speedup(manifold, work, res=128, spp=256, chunks=4, progress=True):
     """
     import shutil
 
-    from ...render.chunks import render_chunked
-    from ...render.executor import LocalExecutor, RayExecutor
-    from ...render.scenes import scene_path
+    from mitsuba_manifold.render.chunks import render_chunked
+    from mitsuba_manifold.render.executor import LocalExecutor, RayExecutor
+    from mitsuba_manifold.render.scenes import scene_path
 
     scene = scene_path("table")
     out = {"resolution": res, "spp": spp, "chunks": chunks, "manifold": manifold, "runs": {}}
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = {"env_vars": {"PYTHONPATH": root + os.pathsep + os.environ.get("PYTHONPATH", "")}}
     for label, ex_fn in (("local_1_process", lambda: LocalExecutor()),
                          ("ray_1_worker", lambda: RayExecutor(num_cpus=1, runtime_env=env)),

@@ -32,17 +32,17 @@ import time
 
 import numpy as np
 
-from ..explore import launch
+from mitsuba_manifold.apps.explore import launch
 
 TARGET_MS = {256 * 256: 30.0, 512 * 512: 60.0}
 
 
 def upsampled_basis(folder, out, factor=2):
     """Copy of a basis with every image upsampled ``factor`` x (nearest); returns ``out``."""
-    from ...imaging import io as imageio
-    from ...basis.folder import read_manifest, write_manifest
+    from mitsuba_manifold.imaging import io as imageio
+    from mitsuba_manifold.basis.folder import read_manifest, write_manifest
 
-    from ..._util.cache import file_hash
+    from mitsuba_manifold._util.cache import file_hash
 
     manifest = read_manifest(folder)
     os.makedirs(out, exist_ok=True)
@@ -91,8 +91,8 @@ def run(basis, manifold=None, requests=60, formats=("rgba", "jpeg", "png"), upsa
         if screenshot_path:   # a short reference render beside the page's timing run
             report["screenshot"] = screenshot(basis, screenshot_path, manifold, reference_spp=64)
         return report
-    from ...basis.folder import read_manifest
-    from ...manifold.model import Manifold
+    from mitsuba_manifold.basis.folder import read_manifest
+    from mitsuba_manifold.manifold.model import Manifold
 
     folders = [os.path.abspath(basis)]
     tmp = None
@@ -312,7 +312,7 @@ def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000),
         return None
     if launch.find_chromium() is None:
         return None
-    from ..._util.atomic import write_bytes
+    from mitsuba_manifold._util.atomic import write_bytes
     proc, url = launch.start([basis], manifold)
     try:
         with sync_playwright() as p:

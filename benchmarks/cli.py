@@ -27,8 +27,8 @@ import json
 import os
 import time
 
-from ..bench import NAMES
-from .common import ArgumentParser, guarded, parse_indices, parse_list
+from . import NAMES
+from mitsuba_manifold.apps.cli.common import ArgumentParser, guarded, parse_indices, parse_list
 
 
 #: Benchmarks that take a saved manifold (the others fit their own).
@@ -75,7 +75,7 @@ def main(argv=None):
             p.error(f"{args.which} takes no --{dest}; --{dest} is for {', '.join(takers)}")
     check_inputs(args)
 
-    from ..._util import ownership
+    from mitsuba_manifold._util import ownership
     with ownership.Outputs("bench.py", args.force) as guard:
         guard.check(args.json, "--json")   # before the benchmark: nothing of the user's is replaced
         if args.which in ("gi", "scaling", "explore"):
@@ -90,11 +90,11 @@ def database_folder(args):
 
 def check_inputs(args):
     """Refuse bad files and values (one line naming the option) before any database is made."""
-    from ..bench.inputs import check
+    from .inputs import check
     folder = database_folder(args)
     space = args.which == "space" and args.configs is not None
     if space:
-        from ..bench.space import CONFIGS
+        from .space import CONFIGS
     check(args.which, folder, database_given=args.database is not None or os.path.isdir(folder),
           manifold=args.manifold, basis=args.basis, names=args.materials,
           configs=args.configs if space else None, config_choices=CONFIGS if space else (),
@@ -103,10 +103,10 @@ def check_inputs(args):
 
 def run(args):
     """Run the benchmark ``args.which`` and write its report to ``--json``."""
-    from .. import bench
-    from ...data import database
-    from ..._util.atomic import write_bytes
-    from ..bench.common import machine
+    import benchmarks as bench
+    from mitsuba_manifold.data import database
+    from mitsuba_manifold._util.atomic import write_bytes
+    from .common import machine
     explore = args.which == "explore"
     folder = database_folder(args)
     t0 = time.perf_counter()
@@ -138,7 +138,7 @@ def run(args):
                       compositing=args.compositing)
     result = bench.run(args.which, folder, **kwargs)
     if args.which == "scaling":
-        from ..bench.scaling import plot
+        from .scaling import plot
         result["plot"] = plot(result, os.path.splitext(args.json)[0] + ".png")
     report = {"benchmark": args.which, "basis" if explore else "database": os.path.abspath(folder),
               "machine": machine(),
