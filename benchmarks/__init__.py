@@ -1,4 +1,5 @@
-"""Benchmarks behind ``tools/bench.py NAME``: one module per benchmark, each with
+"""Benchmarks behind ``tools/bench.py NAME``, outside the installed package (their reports go
+to ``benchmarks/results/``): one module per benchmark, each with
 ``run(folder, ...)`` returning a JSON-ready dict of measurements.
 
 Timings are wall-clock medians over repeats on the machine that runs them

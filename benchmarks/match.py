@@ -23,7 +23,6 @@ import time
 
 import numpy as np
 
-from mitsuba_manifold.gp import gplvm
 from mitsuba_manifold.basis import match as mt
 from mitsuba_manifold.basis.folder import BASE, Basis
 from mitsuba_manifold.basis.blend import blend
@@ -133,20 +132,9 @@ def _object_mask(scene_xml, manifold_path, res):
     return np.array(hit, dtype=np.float64).reshape(res, res)
 
 
-def _subset_manifold(m, keep, path):
-    """A manifold fit on materials ``keep`` from ``m``'s Gram matrix (centred again), saved to ``path``."""
-    S = m.gram[np.ix_(keep, keep)]
-    J = np.eye(len(keep)) - 1.0 / len(keep)
-    S = J @ S @ J  # the Gram of the subset about its own mean
-    fit = gplvm.fit_latent(S, m.info["d"], q=m.q, method=m.info.get("method", "hooke-jeeves"),
-                           length_scale=m.length_scale, noise=m.noise)
-    sub = Manifold([m.names[i] for i in keep], fit.latent, m.database, [m.hashes[i] for i in keep],
-                   m.length_scale, m.noise, m.features, None if m.albedos is None else m.albedos[keep],
-                   S, fit.history, {**m.info, "log_likelihood": float(fit.log_likelihood),
-                                    "subset_of": getattr(m, "file", None)},
-                   interpolant=m.interpolant.params(),   # the same weights as m (its default's, not Eq. 4's)
-                   table_gram=None if m.table_gram is None else m.table_gram[np.ix_(keep, keep)])
-    sub.save(path)
+def _saved(m, path):
+    """``m`` saved to ``path`` and read back (a manifold that knows its file)."""
+    m.save(path)
     return Manifold.load(path)
 
 
@@ -184,7 +172,7 @@ def _held_out(scene_xml, m100, manifold_path, out, res, basis_spp, spp, n, seed)
     held = sorted(rng.choice(m100.n, size=n, replace=False).tolist())
     keep = [i for i in range(m100.n) if i not in held]
     sub_path = os.path.join(out, f"manifold_without_{'_'.join(map(str, held))}.npz")
-    m = Manifold.load(sub_path) if os.path.isfile(sub_path) else _subset_manifold(m100, keep, sub_path)
+    m = Manifold.load(sub_path) if os.path.isfile(sub_path) else _saved(m100.subset([m100.names[i] for i in keep]), sub_path)
     name = os.path.splitext(os.path.basename(scene_xml))[0]
     b, t_basis = _basis(scene_xml, m, os.path.join(out, f"basis_{name}_held_out_{n}"), res, basis_spp, seed)
     rows = []

@@ -25,7 +25,6 @@ import os
 import time
 
 import numpy as np
-import scipy.optimize
 
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.manifold import projection, space
@@ -124,24 +123,6 @@ def _config_report(name, cfg, tables, names, grams, albedos, images, base, folds
     return row
 
 
-def _convex_blend(A, y):
-    """Simplex weights minimising the log-RMS of ``w @ A`` against ``y`` (SLSQP from the closest row)."""
-    k = len(A)
-
-    def f(w):
-        b = w @ A
-        pos = b > 0
-        r = np.log1p(np.where(pos, b, 0.0)) - y
-        return float(r @ r) / len(y), A @ np.where(pos, 2.0 * r / (1.0 + np.where(pos, b, 0.0)), 0.0) / len(y)
-
-    w0 = np.eye(k)[0]
-    res = scipy.optimize.minimize(f, w0, jac=True, method="SLSQP", bounds=[(0.0, 1.0)] * k,
-                                  constraints=[{"type": "eq", "fun": lambda w: w.sum() - 1.0,
-                                                "jac": lambda w: np.ones(k)}],
-                                  options={"maxiter": 300, "ftol": 1e-12})
-    return res.x if res.fun <= f(w0)[0] else w0
-
-
 def _blend_reference(tables, G_log, only_folds=None, ks=(4, 8)):
     """What a space of convex weights could reach: for each held-out material (the same
     folds), the best convex blend of its ``k`` closest training materials, with no latent
@@ -159,7 +140,7 @@ def _blend_reference(tables, G_log, only_folds=None, ks=(4, 8)):
             order = train[np.argsort(projection.log_rms(T[train], y))]
             full_y = np.log1p(np.maximum(tables[t], 0.0))
             for k in ks:
-                w = _convex_blend(T[order[:k]], y)
+                w = space.convex_blend(T[order[:k]], y)
                 blend = w.astype(np.float32) @ tables[order[:k]]
                 ratios[k].append(float(projection.log_rms(blend, full_y)) / near)
     return {f"closest_{k}": {"median_ratio_to_nearest": float(np.median(r)),

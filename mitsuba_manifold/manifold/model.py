@@ -389,6 +389,48 @@ class Manifold(PruningMethods):
         m.file = os.fspath(path)   # where it was read from (``path`` is the method of paths)
         return m
 
+    # ------------------------------------------------------------ subsets
+    def subset(self, names):
+        """The manifold of materials ``names`` alone, fit again on their Gram matrix.
+
+        The sub-block of this manifold's Gram matrix is centred about the subset's own mean and
+        its latent points are fit (Eq. 6) with this manifold's kernel, optimiser and latent
+        dimension; the weights come from this manifold's interpolant (its kind and parameters,
+        not the GP of Eq. 4 unless that is what this manifold uses). The result is not saved.
+
+        Parameters
+        ----------
+        names : sequence of str
+            Materials of this manifold, at least two, each once.
+
+        Raises
+        ------
+        InputError
+            An unknown or repeated name, fewer than two names, or a manifold without its Gram
+            matrix.
+        """
+        from ..gp import gplvm
+        names = list(names)
+        keep = [self.index(name) for name in names]
+        if len(set(keep)) != len(keep) or len(keep) < 2:
+            raise InputError(f"a subset needs at least two distinct materials of the manifold, got {names}; "
+                             "name each material once")
+        if self.gram is None:
+            raise InputError("this manifold holds no Gram matrix to fit a subset on; refit it with Manifold.fit")
+        S = self.gram[np.ix_(keep, keep)]
+        J = np.eye(len(keep)) - 1.0 / len(keep)
+        S = J @ S @ J
+        fit = gplvm.fit_latent(S, self.info["d"], q=self.q, method=self.info.get("method", "hooke-jeeves"),
+                               length_scale=self.length_scale, noise=self.noise)
+        table_gram = None if self.table_gram is None else self.table_gram[np.ix_(keep, keep)]
+        return type(self)(names, fit.latent, self.database, [self.hashes[i] for i in keep],
+                          self.length_scale, self.noise, self.features,
+                          None if self.albedos is None else self.albedos[keep],
+                          gram=S, history=fit.history,
+                          info={**self.info, "log_likelihood": float(fit.log_likelihood),
+                                "subset_of": getattr(self, "file", None)},
+                          interpolant=self.interpolant.params(), table_gram=table_gram)
+
     # ------------------------------------------------------------ perceptual paths
     def distance(self, x, y, stride=(1, 1, 1)):
         """[PR12] distance between the tables ``sum_i w_i table_i`` at ``x`` and ``y`` (names, points

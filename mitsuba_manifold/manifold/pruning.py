@@ -32,7 +32,7 @@ the combination stays affine), and bounds what the change does. Two rules:
     (:func:`prune`). The raw norm is dominated by the specular peaks, so a dull material of
     small weight can be dropped even where it changes the albedo by 10% or more.
 
-The measurements behind the choice: ``tools/bench.py prune`` (``bench/prune.json``).
+The measurements behind the choice: ``tools/bench.py prune`` (``benchmarks/results/prune.json``).
 """
 
 from dataclasses import dataclass
