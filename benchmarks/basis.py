@@ -5,7 +5,7 @@ import time
 
 import numpy as np
 
-from mitsuba_manifold.apps import comparison
+from mitsuba_manifold.apps import gi_comparison as comparison
 from mitsuba_manifold.render import scenes
 from mitsuba_manifold.basis.folder import Basis
 from mitsuba_manifold.basis.blend import blend

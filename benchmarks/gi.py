@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from mitsuba_manifold.apps.comparison import gi_pair, gi_points, gi_report, refined_row, relative_bias
+from mitsuba_manifold.apps.gi_comparison import gi_pair, gi_points, gi_report, refined_row, relative_bias
 from mitsuba_manifold.basis.blend import blend
 from mitsuba_manifold.basis.folder import Basis
 from mitsuba_manifold.imaging import metrics
@@ -26,7 +26,7 @@ FACING = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))
 
 def run(folder, manifold=None, scenes=("sphere", "table"), out=None, plot=None, **settings):
     """Error against run time of blends and direct renders, without saving images; ``settings``:
-    fields of :class:`~mitsuba_manifold.apps.comparison.GISettings` (``res``, ``basis_spp``,
+    fields of :class:`~mitsuba_manifold.apps.gi_comparison.GISettings` (``res``, ``basis_spp``,
     ``ref_spp``, ``direct_spp``, ``mode``, ``seed``, ``progress``); see :func:`comparison.gi_report`.
     ``settings["targets"]`` (a dict of :func:`targets`'s keywords, or True) adds the issue-21 targets."""
     more = settings.pop("targets", None)

@@ -4,7 +4,7 @@ import time
 
 import numpy as np
 
-from mitsuba_manifold.apps import comparison
+from mitsuba_manifold.apps import gi_comparison as comparison
 from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold._util.timing import median_time
 from .common import peak_rss_gib

@@ -9,7 +9,7 @@
    by albedo and normal AOVs that blend like the images, :mod:`denoise`), raw errors kept.
 
 :func:`run_main_job` does all four (settings: :class:`MainJob`); steps 3 and 4 are
-:func:`~mitsuba_manifold.apps.comparison.gi_report` (settings: :class:`GISettings`; also
+:func:`~mitsuba_manifold.apps.gi_comparison.gi_report` (settings: :class:`GISettings`; also
 behind ``tools/bench.py gi``), re-exported here with the rest of the comparison.
 """
 
@@ -25,7 +25,7 @@ from ..render import scenes as _scenes
 from .._util import ownership
 from .._util.atomic import write_bytes
 from .commands import explore_command
-from .comparison import (GISettings, extrapolation_labels, extrapolation_sheet, gi_pair, gi_points, gi_report,
+from .gi_comparison import (GISettings, extrapolation_labels, extrapolation_sheet, gi_pair, gi_points, gi_report,
                          gi_scene, relative_bias, versus_direct)
 
 __all__ = ["MainJob", "run_main_job", "check_main_job",
