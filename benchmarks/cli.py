@@ -16,7 +16,8 @@
              screenshot of the page beside the JSON
   space      the latent space: held-out fidelity (10-fold), path smoothness, jump, plausibility,
              per configuration (paper, default, levers); --basis adds image-space smoothness
-  prune      pruning rules: albedo, cosine-weighted and raw table change, materials kept, ms per call; --basis: image change
+  prune      pruning rules: albedo, cosine-weighted and raw table change, materials kept, ms per call;
+             --basis: image change
   fig9       the paper's Fig. 9: perceptual distances from both ends along paths of 20 steps, per preset
              (--configs default,paper) and path kind (straight, uniform, geodesic); plots beside the JSON
   paths      speed of the paths: seconds per path of each kind, the latent graph cold and cached
