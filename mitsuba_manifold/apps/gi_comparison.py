@@ -24,7 +24,7 @@ from ..basis import denoise as denoise_mod
 from ..basis.blend import blend, blend_path, path_labels
 from ..manifold import paths
 from ..basis.folder import Basis
-from ..basis.ownership import remove_basis
+from ..basis.folder.owned_files import remove_basis
 from ..imaging import io as imageio, metrics, plots
 from ..manifold.model import Manifold
 from ..render import scenes as _scenes  # (gi_report has a parameter named scenes)

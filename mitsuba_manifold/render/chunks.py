@@ -45,7 +45,7 @@ from ..imaging import io as imageio
 from .._util.cache import file_hash, key_hash
 from .._util.locking import FolderLock
 from ..errors import MismatchError
-from .folders import CHUNK_DIR, check_foreign_folder, open_folder
+from ..basis.folder.output import CHUNK_DIR, check_foreign_folder, open_folder
 from .gi_basis import write_cross
 
 

@@ -7,7 +7,7 @@ object alone records no path touching it twice) and writes, beside the L1- image
 ``<material>.gi.exr`` (``base + <material>.gi.exr`` is its full-GI image) and
 ``cross.npz`` (float16 ``C_ij``, :mod:`mitsuba_manifold.basis.crossterms`); the manifest's
 ``components``, ``left_out`` and ``gi_stats`` say what the basis holds, what it left out
-and why, and what was measured (the basis format: :mod:`mitsuba_manifold.basis.manifest`).
+and why, and what was measured (the basis format: :mod:`mitsuba_manifold.basis.folder.manifest`).
 """
 
 import contextlib
@@ -22,7 +22,7 @@ from .._util.atomic import write_bytes
 from ..basis import folder as basis_folder
 from ..basis.crossterms import select_pairs
 from ..errors import InputError
-from .folders import image_still_valid
+from ..basis.folder.output import image_still_valid
 from .integrators.multisplats import PairSelection
 
 

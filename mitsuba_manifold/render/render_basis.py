@@ -30,7 +30,7 @@ from ..imaging import io as imageio
 from .._util import names as names_mod, checks as validate
 from . import scenes
 from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
-from .folders import check_foreign_folder, check_job_folders, open_folder
+from ..basis.folder.output import check_foreign_folder, check_job_folders, open_folder
 from .gi_basis import CROSS_FILE, GI_SUFFIX, REST_TOL, carry_gi, describe_components, gi_levels, progress_bar, render_gi
 from .interrupt import StopRequest, render_in_passes
 from .._util.cache import file_hash

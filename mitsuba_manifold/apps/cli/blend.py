@@ -119,7 +119,7 @@ def parse(argv=None):
     if args.spp < 1:
         fail(f"--spp must be >= 1, got {args.spp}")
     from ..._util import checks as validate, ownership
-    from ...basis import ownership as basis_ownership
+    from ...basis.folder import owned_files as basis_ownership
     validate.exposure(args.exposure)
     validate.fraction("--prune", args.prune)
     validate.seed("--seed", args.seed)

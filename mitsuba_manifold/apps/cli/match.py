@@ -170,7 +170,7 @@ def _refuse_inputs(args, guard):
     """Never overwrite an input (the target, the mask or an image of the basis), nor a file
     this tool did not make (``guard``: :class:`ownership.Outputs`, which allows those with
     ``--force``)."""
-    from ...basis import ownership as basis_ownership
+    from ...basis.folder import owned_files as basis_ownership
 
     inputs = {os.path.realpath(p) for p in (args.target, args.mask) if p}
     for path in _planned(args):

@@ -1,9 +1,6 @@
 """The reader of a basis folder: :class:`Basis`, its manifest and its images (read on first use).
 
-The format (``manifest.json``, image keys, hashes) is :mod:`mitsuba_manifold.basis.manifest`,
-which files a basis folder owns is :mod:`mitsuba_manifold.basis.ownership`; both are
-re-exported here, so ``from mitsuba_manifold.basis.folder import Basis, BASE, MANIFEST,
-read_manifest`` keeps working.
+The format (``manifest.json``, image keys, hashes) is :mod:`.manifest`.
 """
 
 import os
@@ -13,22 +10,11 @@ import zipfile
 
 import numpy as np
 
-from ..errors import FormatError, MismatchError
-from ..imaging import io as imageio
-from ..manifold.identity import manifold_identity
-from .._util.cache import file_hash
-from .manifest import (BASE, FORMAT, FORMAT_VERSION, MANIFEST, MODES, SEP, SETTINGS, image_key,
-                       is_basis_folder, key_materials, make_manifest, manifest_differences,
-                       image_changed, manifold_file_identity, read_manifest, scene_files, scene_hash, upgrade_manifest,
-                       validate_manifest, write_manifest)
-from .ownership import check_output_outside_basis
-
-__all__ = ["Basis", "manifold_object",
-           # the format and the ownership, re-exported for the readers of this module's older face
-           "BASE", "FORMAT", "FORMAT_VERSION", "MANIFEST", "MODES", "SEP", "SETTINGS", "image_key",
-           "is_basis_folder", "key_materials", "make_manifest", "manifest_differences", "image_changed", "manifold_file_identity",
-           "read_manifest", "scene_files", "scene_hash", "upgrade_manifest", "validate_manifest", "write_manifest",
-           "check_output_outside_basis"]
+from ...errors import FormatError, MismatchError
+from ...imaging import io as imageio
+from ...manifold.identity import manifold_identity
+from ..._util.cache import file_hash
+from .manifest import BASE, image_changed, image_key, key_materials, read_manifest, scene_hash
 
 
 #: Prefix of the keys of full-GI images (``manifest["gi_images"]``) in :meth:`Basis.image`.
@@ -38,7 +24,7 @@ GI = "gi:"
 # -------------------------------------------------------------------- basis
 
 def manifold_object(manifold):
-    from ..manifold.model import Manifold
+    from ...manifold.model import Manifold
 
     if isinstance(manifold, (str, os.PathLike)):
         return Manifold.load(manifold)

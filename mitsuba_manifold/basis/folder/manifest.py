@@ -38,7 +38,7 @@ file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
 Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
 ``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`). :func:`make_manifest` and :func:`write_manifest` write the format, :func:`read_manifest`
 reads it; :class:`~mitsuba_manifold.basis.folder.Basis` opens a folder and its images,
-:mod:`mitsuba_manifold.basis.ownership` says which files a basis folder owns, and
+:mod:`mitsuba_manifold.basis.folder.owned_files` says which files a basis folder owns, and
 :func:`mitsuba_manifold.basis.blend.blend` and :func:`~mitsuba_manifold.basis.blend.blend_path` combine the images.
 """
 
@@ -49,12 +49,12 @@ import re
 
 import numpy as np
 
-from .._util import names as names_mod
-from .._util.atomic import write_bytes
-from .._util.cache import file_hash
-from .._util.checks import scene_xml
-from ..errors import MismatchError
-from ..manifold.identity import manifold_identity
+from ..._util import names as names_mod
+from ..._util.atomic import write_bytes
+from ..._util.cache import file_hash
+from ..._util.checks import scene_xml
+from ...errors import MismatchError
+from ...manifold.identity import manifold_identity
 
 FORMAT = "mitsuba-manifold-basis"
 FORMAT_VERSION = 2
@@ -318,7 +318,7 @@ def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mo
 
 def manifold_file_identity(manifold):
     """Content identity of a manifold file (:func:`manifold_identity`)."""
-    from ..manifold.model import Manifold
+    from ...manifold.model import Manifold
     return manifold_identity(Manifold.load(manifold))
 
 

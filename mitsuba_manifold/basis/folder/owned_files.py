@@ -9,9 +9,9 @@ image of a basis is ever replaced by a result computed from it.
 
 import os
 
-from .._util.atomic import is_temporary
-from .._util.locking import LOCK_NAME
-from ..errors import ForeignFileError
+from ..._util.atomic import is_temporary
+from ..._util.locking import LOCK_NAME
+from ...errors import ForeignFileError
 from .manifest import MANIFEST, is_basis_folder, read_manifest
 
 #: What a basis run leaves beside its images besides the manifest (AOVs, chunk folders).

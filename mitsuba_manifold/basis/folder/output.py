@@ -12,11 +12,11 @@ Used by :mod:`.render_basis` and by the merge of :mod:`.chunks`.
 import os
 import re
 
-from ..basis import folder as basis_folder
-from ..errors import FormatError, InputError
-from ..imaging import io as imageio
-from .._util import ownership
-from .._util.locking import LOCK_NAME
+from . import manifest as basis_folder
+from ...errors import FormatError, InputError
+from ...imaging import io as imageio
+from ..._util import ownership
+from ..._util.locking import LOCK_NAME
 
 #: Folder of a chunked render's chunks inside its output folder (:mod:`.chunks`).
 CHUNK_DIR = ".chunks"
