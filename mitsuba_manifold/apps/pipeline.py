@@ -24,7 +24,7 @@ from ..manifold.model import Manifold
 from ..render import scenes as _scenes
 from .._util import ownership
 from .._util.atomic import write_bytes
-from .commands import explore_command
+from .tool_commands import explore_command
 from .gi_comparison import (GISettings, extrapolation_labels, extrapolation_sheet, gi_pair, gi_points, gi_report,
                          gi_scene, relative_bias, versus_direct)
 

@@ -36,7 +36,7 @@ import numpy as np
 from .crossterms import cross_weights
 from .folder import Basis
 from ..errors import MismatchError
-from .compose import compose, read_cross
+from .composition import compose, read_cross
 from .denoise import BasisAOVs, denoise, denoised_l2
 from ..imaging.io import printable
 from ..manifold.pruning import DEFAULT_PRUNE

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import folder as basis_folder
-from .compose import compose
+from .composition import compose
 from ..data import merl
 from .._util.atomic import atomic_write
 from ..errors import MismatchError

@@ -43,7 +43,7 @@ from threadpoolctl import threadpool_limits
 
 from . import objectives as image_error
 from .folder import BASE, Basis
-from .compose import compose
+from .composition import compose
 from ..errors import InputError
 from ..manifold import search as latent
 from .objectives import LOSSES, masked_pool, masked_rel_mse, pool

@@ -1,6 +1,6 @@
 """The saved manifold: a ``.npz`` file (no pickle) with a JSON ``meta`` entry and arrays.
 
-The fit's :class:`~.record.FitRecord` is stored as the ``meta`` entry's ``info`` dict and the
+The fit's :class:`~.fit_record.FitRecord` is stored as the ``meta`` entry's ``info`` dict and the
 ``history`` array, the layout of every release so far.
 
 Version 2 adds the interpolant's parameters and the raw tables' Gram matrix (exact pruning
@@ -19,7 +19,7 @@ import zipfile
 import numpy as np
 
 from .._util.atomic import atomic_write
-from .record import FitRecord
+from .fit_record import FitRecord
 from . import schema
 from ..errors import FormatError, InputError
 

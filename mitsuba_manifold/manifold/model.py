@@ -38,7 +38,7 @@ from . import interpolant as interpolants
 from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, PruneReport
-from .record import FitRecord, learned_arguments
+from .fit_record import FitRecord, learned_arguments
 from .tables import Combination, Pruned, PruningMethods, TrainingTables
 from ..data.database import FEATURES, Database
 from ..errors import InputError

@@ -20,7 +20,7 @@ from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES
 from .._util.cache import key_hash, npy_cache
 from ..data.database import Database, albedo_weights
 from ..errors import FormatError, InputError
-from .._util.recent import Recent
+from .._util.fifo_cache import Recent
 
 
 #: Answers of :meth:`TrainingTables.prune` kept (the newest).
