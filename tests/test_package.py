@@ -221,3 +221,33 @@ def test_console_command_names_the_tool(capsys):
     with pytest.raises(SystemExit):
         cli.main(["fit", "--help"])
     assert "usage: mitsuba-manifold fit" in capsys.readouterr().out
+
+
+#: History in the sources: issue numbers and release notes belong in the CHANGELOG, not the code.
+HISTORY = re.compile(r"\bissues? \d+|previous release|earlier release", re.IGNORECASE)
+
+
+def test_the_sources_state_the_contract_not_the_history():
+    """Docstrings and comments say what the code does; no issue numbers or release history."""
+    found = []
+    for folder, _, files in os.walk(PACKAGE):
+        for f in files:
+            if f.endswith(".py"):
+                path = os.path.join(folder, f)
+                for n, line in enumerate(open(path, encoding="utf-8"), 1):
+                    if HISTORY.search(line):
+                        found.append(f"{os.path.relpath(path, PACKAGE)}:{n}: {line.strip()[:80]}")
+    assert not found, "history in the sources:\n" + "\n".join(found)
+
+
+def test_no_module_name_is_used_three_times():
+    """A module's name says what it holds: at most two modules of the package share a name; the
+    basis folder's format is one package (no ``folder`` beside ``folders``), the fit's record is
+    not a near-namesake of the integrators' records."""
+    names = {}
+    for folder, _, files in os.walk(PACKAGE):
+        for f in files:
+            if f.endswith(".py") and f != "__init__.py":
+                names.setdefault(f[:-3], []).append(os.path.relpath(os.path.join(folder, f), PACKAGE))
+    assert not {n: p for n, p in names.items() if len(p) >= 3}
+    assert not ({"folder", "folders"} <= set(names) or {"record", "records"} <= set(names))

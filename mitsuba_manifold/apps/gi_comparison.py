@@ -4,7 +4,7 @@ material, error against run time.
 
 A basis of the scene is rendered (timed, from scratch; a one-pass basis holds full-GI images
 where the scene needs them, and the report gives its default full-GI blend and, beside it,
-its L1- blend, issue 21); at a training point, a midpoint and
+its L1- blend); at a training point, a midpoint and
 an extrapolated point on the segment between two latent neighbours (:func:`gi_pair`) the
 blend is compared with a high-spp full-GI reference, beside direct renders at increasing
 spp; with ``denoise`` the blends and the highest-spp direct render are also denoised (OIDN
@@ -199,7 +199,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
         raw_bias, raw_se = relative_bias(raw, ref)
         row["blend_summed"] = {"time_s": median_time(lambda: blend(b, m, x=x, l2="raw"), 5)[0],
                                **metrics.compare(raw, ref), "relative_bias": raw_bias, "relative_bias_se": raw_se}
-    if info["component"] == "full":   # the L1- blend of the same basis beside it (issue 21)
+    if info["component"] == "full":   # the L1- blend of the same basis beside it
         l1, _ = blend(b, m, x=x, component="l1")
         l1_bias, l1_se = relative_bias(l1, ref)
         row["blend_l1"] = {**metrics.compare(l1, ref), "relative_bias": l1_bias, "relative_bias_se": l1_se}
@@ -302,7 +302,7 @@ def _save_point_images(stem, img, ref, denoised=None):
 
 
 def versus_direct(row, spp):
-    """Issue 13's targets for one point of :func:`gi_report`: the blend against the direct render
+    """The targets for one point of :func:`gi_report`: the blend against the direct render
     at ``spp`` (lower relative MSE, at least 100x faster per image)."""
     b, d = row["blend"], next(r for r in row["direct"] if r["spp"] == spp)
     speedup = d["time_s"] / b["time_s"]

@@ -29,7 +29,7 @@ from .gi_comparison import (GISettings, extrapolation_labels, extrapolation_shee
                          gi_scene, relative_bias, versus_direct)
 
 __all__ = ["MainJob", "run_main_job", "check_main_job",
-           # the GI comparison, re-exported (its callers used to find it here)
+           # the GI comparison, re-exported
            "GISettings", "extrapolation_labels", "extrapolation_sheet", "gi_pair", "gi_points", "gi_report",
            "gi_scene", "relative_bias", "versus_direct"]
 
@@ -99,7 +99,7 @@ class MainJob:
 
 
 def check_main_job(out, resolution, q, scene, res, spp, ref_spp, direct_spp=(1,), mode="onepass"):
-    """:meth:`MainJob.check` of these settings (the call of earlier versions)."""
+    """:meth:`MainJob.check` of these settings."""
     return MainJob(out, tuple(resolution), q=q, scene=scene, res=res, spp=spp, ref_spp=ref_spp,
                    direct_spp=tuple(direct_spp), mode=mode).check()
 

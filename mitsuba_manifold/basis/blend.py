@@ -15,7 +15,7 @@ kept weights to the same sum). With ``p`` targets (paper Sec. 6) the image is mu
 where ``I[i_1..i_p]`` is the full ``L1-`` image (base included) with target ``t`` set to
 material ``i_t``.
 
-A one-pass basis of one target may also hold full-GI images (issue 21; the paper's
+A one-pass basis of one target may also hold full-GI images (the paper's
 practice, Sec. 5.2 and Fig. 12: "applying this interpolation to calculate I_* directly"):
 ``F_i = touch_i + L2+_i``, so that ``base + F_i`` is material ``i`` with global illumination,
 and the cross terms ``C_ij`` of :mod:`.crossterms`. The default blend (``component="full"``)
@@ -52,8 +52,9 @@ def resolve_component(basis, component=None):
 
     The default is the full-GI blend wherever the basis holds full-GI images (the paper's
     practice, Sec. 5.2): exact at every training material, and with the cross terms through
-    each pair's midpoint (:mod:`.crossterms`) within 0.2% at the midpoint of white-paint and
-    blue-rubber on the table, where the L1- blend is 1.9% too dark (``docs/benchmarks.md``).
+    each pair's midpoint (:mod:`.crossterms`) close to a full-GI render between them, where the
+    L1- blend misses the light that reaches the material more than once (figures in
+    ``docs/benchmarks.md``).
 
     "full" on a basis without full-GI images blends L1-; the note says why (empty when the
     basis holds what was asked). An older basis (no ``components`` in its manifest) also
@@ -203,7 +204,7 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         L1-, see :func:`resolve_component`); ``"l1"``: Eq. 13 on the L1- images.
     l2 : {"denoised", "raw"}
         The full-GI blend's part beyond L1- (noisy where interreflection runs through a narrow peak):
-        OIDN-denoised, its light kept (default, :func:`~.denoise.denoised_l2`: 50-100 ms at 256x256) or summed (1-3 ms).
+        OIDN-denoised, its light kept (default, :func:`~.denoise.denoised_l2`), or summed (faster).
 
     Returns
     -------

@@ -1,4 +1,4 @@
-"""Which cross terms a full-GI basis holds, and their part of a blend (issue 21).
+"""Which cross terms a full-GI basis holds, and their part of a blend.
 
 With full-GI images ``F_i`` (material ``i`` alone) the blend ``base + sum_i w_i F_i`` is exact
 at every training material; for paths with two vertices on the material, the blended

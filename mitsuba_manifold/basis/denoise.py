@@ -187,11 +187,8 @@ def denoised_l2(basis, image, keys, weights):
     them (:mod:`.denoise`), and the light the denoiser took put back at low frequency
     (:func:`restore_light`); ``keys``, ``weights``: the L1- images of the same point. That part is
     signed (cross terms) and OIDN takes light only, so its positive and negative parts are denoised
-    apart. OIDN's ``fast`` quality (:data:`L2_QUALITY`): on the main job's basis (table, 256x256,
-    512 spp) it took the relative MSE at the midpoint of blue-rubber and white-paint from 0.0155
-    to 0.0017 and at white-paint from 0.23 to 0.0037 (a 256-spp direct render: 0.0033, 0.12),
-    as ``high`` did (0.0017, 0.0035) in a quarter of the time: about 50 ms per part on 2 cores
-    (``high``: about 215 ms; docs/benchmarks.md)."""
+    apart, at OIDN's ``fast`` quality (:data:`L2_QUALITY`; its errors against ``high``'s are in
+    docs/benchmarks.md)."""
     l1, _, _ = compose(basis, keys, weights, None)
     extra = image - l1
     guides = _guides(basis, {"keys": keys, "image_weights": weights})
@@ -208,15 +205,12 @@ def restore_light(removed, width=RESTORE_WIDTH):
 
     OIDN takes fireflies away, and with them the light they carry on average: caustic paths
     through a narrow peak (white-paint's red lobe on the table's bowl) are rare and bright, so the
-    denoised L2+ part is darker than its expectation, by about the same amount on every seed (table,
-    64x64, 256-spp bases, six seeds: -1.61% of white-paint's image, sd 0.23%, where the summed blend
-    is -0.40% +- 0.31% and a direct render -0.18% +- 0.14%). That loss is smooth over the surface,
-    so ``removed`` is added back blurred by a kernel of standard deviation ``width`` times the
-    image's larger side: the blend then has the summed blend's light exactly (-0.40% there) and
-    keeps the denoiser's detail (relative MSE 0.0065 against 0.0061 denoised alone and 0.086
-    summed); the mean of one image is then as noisy as the summed blend's (docs/benchmarks.md).
-    Three box filters (reflected at the edges, so each channel's total is kept) stand for the
-    Gaussian: 10 ms at 256x256, whatever the width."""
+    denoised L2+ part is darker than its expectation, by about the same amount on every seed. That
+    loss is smooth over the surface, so ``removed`` is added back blurred by a kernel of standard
+    deviation ``width`` times the image's larger side: the blend then has the summed blend's light
+    and keeps the denoiser's detail (figures in docs/benchmarks.md). Three box filters (reflected
+    at the edges, so each channel's total is kept) stand for the Gaussian, at a cost independent
+    of the width."""
     from scipy.ndimage import uniform_filter
 
     sigma = width * max(removed.shape[:2])

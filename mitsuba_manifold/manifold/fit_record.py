@@ -4,7 +4,7 @@
 data (``d`` values per material at resolution ``dims``), the outcome (final log-likelihood of
 Eq. 6, its history, evaluations) and the :class:`Timings`. In a saved manifold it is the
 ``info`` entry of the ``.npz`` metadata plus the ``history`` array (:mod:`.io`);
-:meth:`FitRecord.from_info` reads that layout (also files of the previous releases, and
+:meth:`FitRecord.from_info` reads that layout (also files of format version 1, and
 entries this version does not know, which are kept in :attr:`FitRecord.extra` and written
 back) and :meth:`FitRecord.as_info` writes it.
 """
@@ -85,26 +85,3 @@ class FitRecord:
                 out[key] = list(value) if key == "dims" else value
         out.update(self.extra)
         return out
-
-
-#: ``Manifold(...)``'s learned-state keywords, and the previous release's positional ones after ``albedos``.
-LEARNED = ("gram", "table_gram", "cos_gram", "interpolant", "record", "history", "info")
-LEGACY_POSITIONAL = ("gram", "history", "info")
-
-
-def learned_arguments(legacy, learned):
-    """The learned-state keywords of ``Manifold(names, latent, database, hashes, l, mu, features,
-    albedos, *legacy, **learned)``, the previous release's positional ones included; TypeError
-    as Python gives for a wrong call."""
-    if len(legacy) > len(LEGACY_POSITIONAL):
-        raise TypeError(f"Manifold() takes at most {8 + len(LEGACY_POSITIONAL)} positional arguments")
-    for key, value in zip(LEGACY_POSITIONAL, legacy):
-        if key in learned:
-            raise TypeError(f"Manifold() got multiple values for argument {key!r}")
-        learned[key] = value
-    unknown = sorted(set(learned) - set(LEARNED))
-    if unknown:
-        raise TypeError(f"Manifold() got an unexpected keyword argument {unknown[0]!r}")
-    if "record" in learned and ("info" in learned or "history" in learned):
-        raise TypeError("Manifold() takes either `record` or `info` and `history`, not both")
-    return learned

@@ -38,7 +38,7 @@ from . import interpolant as interpolants
 from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, PruneReport
-from .fit_record import FitRecord, learned_arguments
+from .fit_record import FitRecord
 from .tables import Combination, Pruned, PruningMethods, TrainingTables
 from ..data.database import FEATURES, Database
 from ..errors import InputError
@@ -67,12 +67,15 @@ class Manifold(PruningMethods):
         The kernel's hyperparameters ``l`` and ``mu`` (:attr:`kernel`).
     features : {"raw", "log"}
     albedos : (N, 3) array, optional
-    *legacy
-        ``gram, history, info`` after ``albedos``, as the previous release took them.
-    **learned
-        ``gram``, ``table_gram``, ``cos_gram``, ``interpolant`` (its parameters, default the paper's GP
-        weights on ``l`` and ``mu``) and ``record`` (a :class:`FitRecord`), or instead of it
-        the previous release's ``history`` and ``info`` dict.
+    gram, table_gram, cos_gram : (N, N) arrays, optional
+        See the attributes.
+    interpolant : dict, optional
+        The weight function's parameters (default the paper's GP weights on ``l`` and ``mu``).
+    record : FitRecord, optional
+        What the fit did (default: nothing recorded).
+
+    The constructor takes the whole learned state of a manifold (13 parameters, the last five
+    keyword-only): :meth:`fit` and :meth:`load` make one, a user rarely does.
 
     Attributes
     ----------
@@ -105,8 +108,7 @@ class Manifold(PruningMethods):
     """
 
     def __init__(self, names, latent, database, hashes, length_scale=1.0, noise=1e-4, features="raw",
-                 albedos=None, *legacy, **learned):
-        learned = learned_arguments(legacy, learned)
+                 albedos=None, *, gram=None, table_gram=None, cos_gram=None, interpolant=None, record=None):
         latent = np.asarray(latent, dtype=np.float64)
         if latent.ndim != 2 or latent.shape[0] != len(names):
             raise InputError(f"latent points must have shape (N={len(names)}, q), got {latent.shape}")
@@ -120,14 +122,12 @@ class Manifold(PruningMethods):
         self.hashes = list(hashes)
         self.kernel = Kernel(length_scale, noise)
         self.features = features
-        gram = learned.get("gram")
         self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
-        self.record = learned.get("record") or FitRecord.from_info(learned.get("info"), learned.get("history", ()))
-        self._store = TrainingTables(self.names, self.hashes, learned.get("table_gram"), learned.get("cos_gram"),
-                                     albedos)
+        self.record = record or FitRecord()
+        self._store = TrainingTables(self.names, self.hashes, table_gram, cos_gram, albedos)
         self.interpolant = make_interpolant(self.latent, {
             "length_scale": self.length_scale, "noise": self.noise,
-            "interpolant": learned.get("interpolant") or {"kind": "gp", "exact": True}})
+            "interpolant": interpolant or {"kind": "gp", "exact": True}})
         ip = self.interpolant
         same = isinstance(ip, interpolants.GaussianProcessWeights) and ip.gp.kernel == self.kernel
         self._gp = ip.gp if same else interpolants.posterior(self.latent, self.kernel)   # K factorised once
@@ -194,7 +194,7 @@ class Manifold(PruningMethods):
 
     @property
     def info(self):
-        """The fit's record as the previous release's ``info`` dict (a new dict: assign one to replace it)."""
+        """The fit's record as the saved ``info`` dict (a new dict: assign one to replace it)."""
         return self.record.as_info()
 
     @info.setter
@@ -377,7 +377,7 @@ class Manifold(PruningMethods):
     def load(cls, path):
         """Read a manifold written by :meth:`save` (:func:`manifold_file.read`).
 
-        Files of format version 1 (the previous release) load with the paper's GP weights on
+        Files of format version 1 load with the paper's GP weights on
         their stored ``l`` and ``mu`` (what they were used with); refit for the default.
 
         Raises
@@ -426,10 +426,9 @@ class Manifold(PruningMethods):
         return type(self)(names, fit.latent, self.database, [self.hashes[i] for i in keep],
                           self.length_scale, self.noise, self.features,
                           None if self.albedos is None else self.albedos[keep],
-                          gram=S, history=fit.history,
-                          info={**self.info, "log_likelihood": float(fit.log_likelihood),
-                                "subset_of": getattr(self, "file", None)},
-                          interpolant=self.interpolant.params(), table_gram=table_gram)
+                          gram=S, interpolant=self.interpolant.params(), table_gram=table_gram,
+                          record=FitRecord.from_info({**self.info, "log_likelihood": float(fit.log_likelihood),
+                                                      "subset_of": getattr(self, "file", None)}, fit.history))
 
     # ------------------------------------------------------------ perceptual paths
     def distance(self, x, y, stride=(1, 1, 1)):

@@ -5,7 +5,7 @@ Eq. 4). :class:`TrainingTables` owns what that needs: opening the database the m
 fit on (each table checked against the SHA-256 recorded at the fit), the ``(N, d)`` stack
 kept in memory once loaded, what pruning measures exactly (:mod:`.pruning`: the raw tables'
 Gram matrix ``G = T T^T``, the cosine-weighted ``C = T diag(q) T^T`` and the albedos, each
-computed from the tables on first use when a manifold file of an earlier release lacks it),
+computed from the tables on first use when a manifold file lacks it),
 and the combination itself, reading only the kept tables.
 """
 
@@ -115,7 +115,7 @@ class TrainingTables:
         return self.loaded
 
     def raw_gram(self, folder):
-        """:attr:`gram`, computed from the tables in ``folder`` when absent (manifolds of the previous release)."""
+        """:attr:`gram`, computed from the tables in ``folder`` when the manifold file holds none."""
         if self.gram is None:
             self.gram = pruning.raw_gram(self.stack(folder))
         return self.gram
@@ -123,7 +123,7 @@ class TrainingTables:
     def cosine_gram(self, folder):
         """:attr:`cos_gram`, computed from the tables in ``folder`` when absent (with :attr:`gram`
         in the same pass when that is absent too), once per database: cached in its cache
-        folder, named by the tables' hashes (a manifold file of an earlier release, which
+        folder, named by the tables' hashes (a manifold file without it, which
         cannot be rewritten without changing the hash its bases record, reads the tables
         only the first time)."""
         if self.cos_gram is None:
@@ -165,7 +165,7 @@ class TrainingTables:
         ``pruning.ALBEDO_SHARE * budget``, the cosine-weighted table by at most ``budget`` of its
         norm and the raw table by at most ``pruning.RAW_SHARE * budget`` of its L2 norm
         (:func:`pruning.prune_image`). ``"raw-l2"``: the raw table by at most ``budget``
-        of its L2 norm (:func:`pruning.prune`, the previous release's rule). The kept weights
+        of its L2 norm (:func:`pruning.prune`). The kept weights
         are rescaled to sum to ``sum(w)`` so the combination stays affine; the changes are
         computed exactly from Gram matrices, rescaling included; ``budget = 0`` keeps every
         non-zero weight.
@@ -241,7 +241,7 @@ class PruningMethods:
 
         ``rule="image"`` (default): each albedo channel changes by at most ``prune / 2``, the
         cosine-weighted and the raw table by at most ``prune`` of their norms; ``"raw-l2"``: the
-        raw table by at most ``prune`` of its L2 norm (the previous release's rule); exact
+        raw table by at most ``prune`` of its L2 norm; exact
         (:meth:`TrainingTables.prune`, :mod:`.pruning`)."""
         return self._store.prune(w, prune, self.database, rule)
 

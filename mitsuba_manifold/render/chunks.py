@@ -1,4 +1,4 @@
-"""A basis rendered in chunks of samples, then merged (issue 13).
+"""A basis rendered in chunks of samples, then merged.
 
 A basis image is a Monte Carlo mean over samples, so a basis at ``S`` spp is the
 spp-weighted mean of ``k`` bases at ``S_j`` spp (``sum S_j = S``) rendered with different

@@ -1,4 +1,4 @@
-"""The full-GI part of a one-pass basis (issue 21): every material's ``touch + L2+`` image
+"""The full-GI part of a one-pass basis: every material's ``touch + L2+`` image
 and the cross terms of the pairs blended together, from the paths of the L1- images.
 
 :func:`render_gi` renders them with :meth:`ManifoldPathIntegrator.render_onepass_gi`,

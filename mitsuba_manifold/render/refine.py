@@ -1,4 +1,4 @@
-"""Refining a blend to the exact full-GI image of its point (issue 21, ``blend.py --refine``).
+"""Refining a blend to the exact full-GI image of its point (``blend.py --refine``).
 
 With a full-GI basis of one target the refinement is, by default, a *control variate*: one-pass paths at the point (sampled with the point's own material,
 :func:`~.integrators.onepass.render_onepass_gi` with ``point``) give, from the same paths, the
@@ -14,11 +14,10 @@ material, so its noise is that of the three-plus-vertex paths' departure from th
 model: far below that of rendering ``L2+`` itself, and few samples suffice. The correction covers
 paths with at most :data:`CV_LEVELS` vertices on the material (the basis's ``levels`` if fewer);
 beyond, the blend's model stands: per path, the quadratic model's departure grows about as
-``w^(1-k)`` with the ``k`` vertices on the material (``w`` the dominant weight): at the main
-job's midpoint (32 spp in 2 passes, eight seeds, a basis of eight levels) a correction through
-eight vertices left a relative MSE of 0.0037 to 0.054, through five 0.0020 to 0.0074, while the
-paths beyond five vertices carry 0.5 to 1.2% of the light at white-paint, the most
-interreflecting material (:func:`~.render_basis.render_basis`'s ``levels``). At a training material (one material, no cross
+``w^(1-k)`` with the ``k`` vertices on the material (``w`` the dominant weight), so a correction
+through a few vertices leaves less noise than one through many, while paths through many
+vertices carry little light (:func:`~.render_basis.render_basis`'s ``levels``; figures in
+docs/benchmarks.md). At a training material (one material, no cross
 term) ``R - Q`` is 0 on every path, so nothing is rendered.
 
 Otherwise (an L1- basis; several targets; ``control_variate=False``): a basis gives any latent point's ``L1-``
@@ -112,8 +111,8 @@ def _pass_plan(spp, passes):
 
 class _SceneCache:
     """The scene of the last refinement, kept for the next one: the explorer refines on every
-    release, and loading the scene with its table at the point took 0.24 s of a 1.7-s refinement
-    (table, 256x256, 32 spp; 0.25 s of 0.42 s at 64x64). Keyed by everything the scene is loaded
+    release, and loading the scene with its table at the point is a large share of a short
+    refinement. Keyed by everything the scene is loaded
     with but the point, and by the scene's and manifold's files (size and time: a manifold fitted
     again is loaded again; not the files the XML references, nor the tables). A refinement takes
     the scene out while it renders (one running beside it loads its own) and puts it back when it
@@ -220,9 +219,8 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
         corrects; ``"raw"`` makes the refinement unbiased, ``"denoised"`` keeps the denoiser's change.
     control_variate : {"auto", True, False}
         Use the control variate where the basis allows it (a full-GI basis of one target; ``"auto"``
-        and ``True``), or render the ``L2+`` at the point (``False``). On the main job's ``table``
-        (256x256, 512-spp basis, 2 cores) the control variate beat a 256-spp render's error at the
-        midpoint from 32 spp, where rendering the ``L2+`` did not at 64 spp (docs/benchmarks.md).
+        and ``True``), or render the ``L2+`` at the point (``False``; the control variate needs
+        fewer samples for the same error, docs/benchmarks.md).
     """
     import mitsuba as mi
 

@@ -346,7 +346,7 @@ def _render_each(scene, targets, todo, o, max_depth, save, stop):
 
 
 def _render_onepass(scene, target, todo, o, max_depth, save, stop):
-    """All material images from one set of paths (issue 5); base comes from the same paths."""
+    """All material images from one set of paths; base comes from the same paths."""
     integrator = _integrator("l1", max_depth)
     names = [combo[0] for key, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}

@@ -17,9 +17,9 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
      "chunks": int (optional: merged from k chunks),
      "pending": ["<key>.exr", ...] (optional: being written; see render_basis),
      "images": {"base": {"file": "base.exr", "time_s": float, "sha256": hex (of the file's bytes;
-                         absent in bases of earlier releases)},
+                         absent in manifests that do not record it)},
                 "<material>": {"file": "<material>.exr", "time_s": float}, ...},
-     optional, one-pass bases of one target (issue 21):
+     optional, one-pass bases of one target:
      "components": ["l1"] | ["l1", "l2+"] | ["l1", "l2+", "cross"] (what the basis holds; a
         manifest without it is an older L1- basis), "levels": int (most vertices on the
         material per path in the L2+ images; paths touching it more often are left out),
@@ -118,7 +118,7 @@ def scene_hash(scene):
     names (:func:`scene_files`) that exists beside it, and for each ``<include>``d XML the
     files that one names, recursively (:func:`_hash_included`). Meshes, environment maps and
     included scenes are thereby part of the scene's identity; the manifold (a ``$manifold``
-    parameter) is not. A scene without includes hashes as in earlier releases."""
+    parameter) is not. A scene without includes hashes as its XML and named files alone."""
     scene = os.fspath(scene)
     if not os.path.isfile(scene):
         raise MismatchError(f"scene {scene} does not exist")

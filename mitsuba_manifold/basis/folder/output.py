@@ -78,7 +78,7 @@ def open_folder(out, manifest, files, force=False, read_images=True):
         if diff:
             old = None
     listed |= {e["file"] for e in old["images"].values()} if old else set()
-    if old:   # a full-GI basis's own files (issue 21)
+    if old:   # a full-GI basis's own files
         listed |= {e["file"] for e in old.get("gi_images", {}).values()}
         listed |= {old["cross"]["file"]} if "cross" in old else set()
     foreign = sorted(f for f in files if f not in listed and os.path.lexists(os.path.join(out, f)))

@@ -203,8 +203,7 @@ class Basis:
 
     def warm_cross_terms(self):
         """Convert every cross term to float32 now (:meth:`cross_term`), as a long interactive
-        session ends up holding them anyway: on the main job's full-GI basis (487 rows, 256x256)
-        0.7 s, after which the first blends of a drag took 5-17 ms instead of 10-48 ms."""
+        session ends up holding them anyway; the first blends of a drag then skip the conversion."""
         for row in range(len(self.cross_terms()[1])):
             self.cross_term(row)
 
