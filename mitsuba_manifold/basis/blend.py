@@ -71,7 +71,7 @@ def resolve_component(basis, component=None):
             basis._warned_legacy = True
             warnings.warn(note, UserWarning, stacklevel=3)
         return "l1", note
-    why = basis.manifest.get("left_out", {}).get("l2+", "the basis holds L1- images only")
+    why = (basis.manifest.left_out or {}).get("l2+", "the basis holds L1- images only")
     return "l1", f"L1- blend: {why}"
 
 
@@ -264,7 +264,7 @@ def denoised_blend(basis, manifold=None, x=None, w=None, aovs=None, guides=True,
     t0 = time.perf_counter()
     if guides:
         aovs = aovs or BasisAOVs.load(basis.folder, basis.manifest)
-        albedo = aovs.albedo_of_blend(info, basis.manifest["version"])
+        albedo = aovs.albedo_of_blend(info, basis.manifest.version)
         out = denoise(raw, albedo, aovs.normal)
     else:
         out = denoise(raw)

@@ -146,16 +146,23 @@ class BasisAOVs:
                     raise MismatchError(f"{path}: AOV format version {int(z['version'])}, expected {AOV_VERSION}")
                 out = cls(z["normal"], z["albedo_base"], z["hist"], z["table"], [str(n) for n in z["names"]],
                           int(z["spp"]), float(z["time_s"]))
-                return out, _basis_key(json.loads(str(z["basis"])))
+                return out, _stored_key(json.loads(str(z["basis"])))
         except (OSError, ValueError, KeyError, AttributeError, TypeError, EOFError, zipfile.BadZipFile) as e:
             raise MismatchError(f"{path} is not an AOV file written by render_basis with `aovs` ({type(e).__name__}); "
                                 "delete it and render the AOVs again") from None
 
 
 def _basis_key(manifest):
-    """What AOVs are made for: the basis's scene, manifold, resolution and sensor (absent in
-    manifests of earlier versions: sensor 0)."""
-    key = {k: manifest.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}
+    """What AOVs are made for: the basis's scene, manifold, resolution and sensor (a
+    :class:`~.folder.Manifest` or its JSON object)."""
+    m = basis_folder.Manifest.from_json(manifest)
+    return {"scene_hash": m.scene_hash, "manifold_hash": m.manifold_hash, "resolution": list(m.resolution),
+            "sensor": m.sensor_index}
+
+
+def _stored_key(key):
+    """:func:`_basis_key` as an AOV file stores it (a sensor not recorded is sensor 0)."""
+    key = {k: key.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}
     key["sensor"] = key["sensor"] or 0
     return key
 
@@ -243,6 +250,6 @@ def _guides(basis, info):
     if not aovs:
         return None, None
     try:
-        return aovs.albedo_of_blend(info, basis.manifest["version"]), aovs.normal
+        return aovs.albedo_of_blend(info, basis.manifest.version), aovs.normal
     except MismatchError:   # AOVs older than some of the basis's materials: unguided
         return None, None

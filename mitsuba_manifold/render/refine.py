@@ -127,16 +127,16 @@ class _SceneCache:
         materials where the last refinement put them; its variant activated, as loading it does),
         or one loaded with its materials at ``x``."""
         m = basis.manifest
-        path, manifold_path = scene or m["scene"], manifold_path or m["manifold"]
+        path, manifold_path = scene or m.scene, manifold_path or m.manifold
         key = self._key(basis, path, manifold_path, database)
         with self.lock:
             loaded = self.value if key is not None and self.key == key else None
             self.key, self.value = None, None
         if loaded is None:
-            loaded = scenes.load_scene(path, manifold_path, None, basis.resolution, m["max_depth"], x[0],
-                                       m["variant"], database)
+            loaded = scenes.load_scene(path, manifold_path, None, basis.resolution, m.max_depth, x[0],
+                                       m.variant, database)
         else:
-            scenes.use_variant(m["variant"])
+            scenes.use_variant(m.variant)
         keep = False
         try:
             yield loaded
@@ -163,7 +163,7 @@ class _SceneCache:
                           for f in (scenes.scene_path(path), manifold_path))
         except (OSError, MitsubaManifoldError):
             return None
-        return files, tuple(basis.resolution), m["max_depth"], m["variant"], tuple(basis.targets), database
+        return files, tuple(basis.resolution), m.max_depth, m.variant, tuple(basis.targets), database
 
 
 _SCENES = _SceneCache()
@@ -288,7 +288,7 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
 
         def correction(n, pass_seed):   # R - Q from one pass's paths
             r = integrator.render_onepass_gi(loaded.scene, materials=names, spp=n, sensor=int(basis.sensor),
-                                             seed=pass_seed, levels=min(int(m.get("levels", 5)), CV_LEVELS),
+                                             seed=pass_seed, levels=min(int(m.levels or 5), CV_LEVELS),
                                              pairs=pairs, point=w, touch=False)
             q = sum(wi * r.rest[name].astype(np.float64) for wi, name in zip(w, names))
             q = q + sum(float(pr) * r.cross[p] for pr, p in zip(prods, pairs))

@@ -313,13 +313,13 @@ def reference_image(args, basis, manifold, outputs):
     if not args.render_reference:
         return None
     m = basis.manifest
-    scene = args.scene or m["scene"]
+    scene = args.scene or m.scene
     print(f"rendering the reference: {scene}, path, {args.spp} spp ...", flush=True)
     t0 = time.perf_counter()
     points = latent_points(basis, manifold, args.x)
     view = reference_view(basis, scene, render_reference)
-    reference = render_reference(scene, args.manifold or m["manifold"], points, args.spp, seed=args.seed,
-                                 resolution=basis.resolution, max_depth=m["max_depth"], variant=m["variant"],
+    reference = render_reference(scene, args.manifold or m.manifold, points, args.spp, seed=args.seed,
+                                 resolution=basis.resolution, max_depth=m.max_depth, variant=m.variant,
                                  targets=basis.targets, database=args.database, **view)
     print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
     if basis.p == 1:

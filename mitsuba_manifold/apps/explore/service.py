@@ -81,7 +81,7 @@ class Explorer:
                 raise InputError(f"basis {folder} has {basis.p} manifold materials {basis.targets}; the "
                                    "explorer moves one material (render a basis of a scene with one)")
             if self.manifold_path is None:
-                self.manifold_path = os.path.abspath(manifold or basis.manifest["manifold"])
+                self.manifold_path = os.path.abspath(manifold or basis.manifest.manifold)
                 self.manifold = Manifold.load(self.manifold_path)
                 if database is not None:   # given, so it must be there (the default may be missing)
                     material.check_database(database, self.manifold)
@@ -349,8 +349,8 @@ class Explorer:
 
     def info(self):
         m = self.manifold
-        bases = [{"name": n, "folder": b.folder, "resolution": list(b.resolution), "spp": b.manifest["spp"],
-                  "scene": self.scenes[n] or b.manifest["scene"], "images": len(b.keys),
+        bases = [{"name": n, "folder": b.folder, "resolution": list(b.resolution), "spp": b.manifest.spp,
+                  "scene": self.scenes[n] or b.manifest.scene, "images": len(b.keys),
                   "scene_available": self.scenes[n] is not None} for n, b in self.bases.items()]
         return {"manifold": self.manifold_path, "q": m.q, "names": m.names, "latent": m.latent.tolist(),
                 "albedos": None if m.albedos is None else m.albedos.tolist(), "bases": bases,
@@ -364,7 +364,7 @@ class Explorer:
         name = self.key(name)
         basis, scene = self.bases[name], self.scenes[name]
         if scene is None:
-            raise InputError(f"the scene of basis {name!r} ({basis.manifest['scene']}) is missing or has "
+            raise InputError(f"the scene of basis {name!r} ({basis.manifest.scene}) is missing or has "
                              "changed since the basis was rendered; give it with --scene")
         return name, basis, scene, int(self.number(spp, "spp", 1, MAX_SPP, default)), self.blend(name, x)[0]
 

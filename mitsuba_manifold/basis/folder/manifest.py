@@ -42,10 +42,13 @@ reads it; :class:`~mitsuba_manifold.basis.folder.Basis` opens a folder and its i
 :func:`mitsuba_manifold.basis.blend.blend` and :func:`~mitsuba_manifold.basis.blend.blend_path` combine the images.
 """
 
+import dataclasses
 import hashlib
 import json
 import os
 import re
+from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -168,8 +171,8 @@ def _is_int(v):
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def validate_manifest(manifest, where=MANIFEST):
-    """Check the fields and types of a manifest dict; returns it.
+def _check_json(manifest, where=MANIFEST):
+    """Check the fields and types of a manifest's JSON object; returns it.
 
     Does not require any image to be listed (a basis being rendered grows one image at a
     time); :meth:`Basis.load` checks that the blend's images are there.
@@ -274,9 +277,183 @@ def _plain_exr(name):
             and not name.startswith("."))
 
 
+def manifold_file_identity(manifold):
+    """Content identity of a manifold file (:func:`manifold_identity`)."""
+    from ...manifold.model import Manifold
+    return manifold_identity(Manifold.load(manifold))
+
+
+def upgrade_manifest(manifest, manifold):
+    """A version-1 manifest as version 2, when it was made with the file ``manifold`` (same
+    bytes): the manifold hash becomes its content identity and the images whose keys are
+    the same in both versions (names that escaping leaves unchanged) are kept. Any other
+    manifest is returned as it is."""
+    if manifest.get("version") != 1 or file_hash(manifold) != manifest.get("manifold_hash"):
+        return manifest
+    images = {k: e for k, e in manifest["images"].items()
+              if k == BASE or all(names_mod.is_escaped(p) for p in k.split(SEP))}
+    return dict(manifest, version=FORMAT_VERSION, manifold_hash=manifold_file_identity(manifold), images=images)
+
+
+@dataclass
+class Manifest:
+    """A basis folder's ``manifest.json`` (the format of this module's doc): what the images
+    are, how they were made and which files hold them. Alone it reads (:meth:`read`), writes
+    (:meth:`write`) and checks (:meth:`check`) the format; the JSON keys are its field names.
+
+    Attributes
+    ----------
+    scene, manifold : str
+        Absolute paths of the scene XML and the saved manifold.
+    scene_hash, manifold_hash : str
+        Their identities (:func:`scene_hash`; :func:`manifold_file_identity`, version 1: the
+        file's SHA-256).
+    resolution : tuple of int
+        ``(width, height)``.
+    spp, seed, max_depth : int
+    variant : str
+        The Mitsuba variant rendered in.
+    mode : {"per-material", "onepass"}
+    targets : list of str
+        BSDF ids of the scene's manifold materials, in the order of the image keys.
+    images : dict
+        Image key -> ``{"file", "time_s"[, "sha256"]}``.
+    version : int
+        Format version (1 or 2).
+    sensor : int or None
+        The scene's sensor rendered (None: not recorded; sensor 0).
+    chunks : int or None
+        Merged from this many chunks.
+    pending : list of str or None
+        Files being written (:mod:`mitsuba_manifold.render.render_basis`).
+    components : list of str or None
+        What the basis holds (:data:`COMPONENTS`; None: not recorded, L1- only).
+    levels : int or None
+        Most vertices on the material per path in the L2+ images.
+    gi_images : dict or None
+        Material key -> entry of its ``touch + L2+`` image.
+    cross : dict or None
+        ``{"file": "<name>.npz", "pairs", "tol"[, "sha256"]}``: the cross terms.
+    left_out : dict or None
+        Component -> why it was left out.
+    gi_stats : dict or None
+        Measurements of the full-GI render.
+    extra : dict
+        Keys this version does not know (kept, and written back).
+    """
+
+    scene: str
+    scene_hash: str
+    manifold: str
+    manifold_hash: str
+    resolution: tuple
+    spp: int
+    variant: str
+    seed: int
+    max_depth: int
+    mode: str
+    targets: list
+    images: dict = field(default_factory=dict)
+    version: int = FORMAT_VERSION
+    sensor: Optional[int] = None
+    chunks: Optional[int] = None
+    pending: Optional[list] = None
+    components: Optional[list] = None
+    levels: Optional[int] = None
+    gi_images: Optional[dict] = None
+    cross: Optional[dict] = None
+    left_out: Optional[dict] = None
+    gi_stats: Optional[dict] = None
+    extra: dict = field(default_factory=dict)
+
+    # ----------------------------------------------------------- JSON
+    @classmethod
+    def from_json(cls, data, where=MANIFEST):
+        """The manifest of a JSON object, checked (:class:`MismatchError` naming ``where``)."""
+        if isinstance(data, cls):
+            return data
+        _check_json(data, where)
+        names = {f.name for f in dataclasses.fields(cls)} - {"extra"}
+        known = {k: v for k, v in data.items() if k in names}
+        known["resolution"] = tuple(known["resolution"])
+        return cls(**known, extra={k: v for k, v in data.items() if k not in names and k != "format"})
+
+    def to_json(self):
+        """The JSON object of the format: ``format``, ``version``, the fields set, then :attr:`extra`."""
+        out = {"format": FORMAT, "version": self.version}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("version", "extra") or (value is None and f.default is None):
+                continue
+            out[f.name] = list(value) if f.name == "resolution" else value
+        out.update(self.extra)
+        return out
+
+    def check(self, where="manifest"):
+        """This manifest, its fields checked (:class:`MismatchError` naming ``where``)."""
+        _check_json(self.to_json(), where)
+        return self
+
+    # ----------------------------------------------------------- files
+    @classmethod
+    def read(cls, folder):
+        """The manifest of the basis folder ``folder``, checked.
+
+        Raises
+        ------
+        MismatchError
+            No such folder, no manifest, not JSON, or a field at fault.
+        """
+        folder = os.fspath(folder)
+        if not os.path.isdir(folder):
+            raise MismatchError(f"basis folder {folder} does not exist" if not os.path.exists(folder) else
+                                f"{folder} is a file, not a basis folder (give the folder render_basis wrote)")
+        path = os.path.join(folder, MANIFEST)
+        if not os.path.isfile(path):
+            raise MismatchError(f"{folder}: no {MANIFEST} (not a basis folder, or render_basis has not "
+                                "written one yet)")
+        try:
+            with open(path, encoding="utf-8") as f:
+                data = json.load(f)
+        except (ValueError, UnicodeDecodeError) as e:
+            raise MismatchError(f"{path}: not valid JSON ({e})") from None
+        return cls.from_json(data, where=path)
+
+    def write(self, folder):
+        """Check this manifest and write ``folder/manifest.json`` atomically; returns its path."""
+        path = os.path.join(os.fspath(folder), MANIFEST)
+        data = _check_json(self.to_json(), where=path)
+        write_bytes(path, json.dumps(data, indent=1, sort_keys=False) + "\n")
+        return path
+
+    # ----------------------------------------------------------- meaning
+    @property
+    def sensor_index(self):
+        """The sensor the images were rendered from (0 when not recorded)."""
+        return 0 if self.sensor is None else self.sensor
+
+    @property
+    def held_components(self):
+        """What the basis holds (``["l1"]`` when not recorded)."""
+        return list(self.components) if self.components is not None else ["l1"]
+
+    def differences(self, other, ignore=()):
+        """Setting fields (:data:`SETTINGS`, but those in ``ignore``) whose values differ from
+        ``other``'s: empty when images rendered for one are valid for the other (resume)."""
+        other = Manifest.from_json(other)
+
+        def value(m, k):
+            if k == "format":
+                return FORMAT
+            v = m.sensor_index if k == "sensor" else getattr(m, k)
+            return list(v) if isinstance(v, tuple) else v
+        return [k for k in SETTINGS if k not in ignore and value(self, k) != value(other, k)]
+
+
 def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mode, targets,
                   images=None, components=("l1",), sensor=0):
-    """A validated manifest dict for a basis of ``scene`` rendered with ``manifold``.
+    """The JSON object of a new, checked :class:`Manifest` of a basis of ``scene`` rendered with
+    ``manifold``.
 
     Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
     itself, so every writer and reader agree on them.
@@ -316,49 +493,21 @@ def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mo
     return validate_manifest(manifest, where="new manifest")
 
 
-def manifold_file_identity(manifold):
-    """Content identity of a manifold file (:func:`manifold_identity`)."""
-    from ...manifold.model import Manifold
-    return manifold_identity(Manifold.load(manifold))
-
-
-def upgrade_manifest(manifest, manifold):
-    """A version-1 manifest as version 2, when it was made with the file ``manifold`` (same
-    bytes): the manifold hash becomes its content identity and the images whose keys are
-    the same in both versions (names that escaping leaves unchanged) are kept. Any other
-    manifest is returned as it is."""
-    if manifest.get("version") != 1 or file_hash(manifold) != manifest.get("manifold_hash"):
-        return manifest
-    images = {k: e for k, e in manifest["images"].items()
-              if k == BASE or all(names_mod.is_escaped(p) for p in k.split(SEP))}
-    return dict(manifest, version=FORMAT_VERSION, manifold_hash=manifold_file_identity(manifold), images=images)
+def validate_manifest(manifest, where=MANIFEST):
+    """Check the fields and types of a manifest's JSON object (:meth:`Manifest.from_json`); returns it."""
+    Manifest.from_json(manifest, where)
+    return manifest
 
 
 def write_manifest(folder, manifest):
-    """Validate ``manifest`` and write ``folder/manifest.json`` atomically; returns its path."""
-    validate_manifest(manifest, where=os.path.join(os.fspath(folder), MANIFEST))
-    path = os.path.join(os.fspath(folder), MANIFEST)
-    text = json.dumps(manifest, indent=1, sort_keys=False) + "\n"
-    write_bytes(path, text)
-    return path
+    """Write the manifest (a :class:`Manifest` or its JSON object) to ``folder/manifest.json``,
+    checked and atomically (:meth:`Manifest.write`); returns its path."""
+    return Manifest.from_json(manifest, where=os.path.join(os.fspath(folder), MANIFEST)).write(folder)
 
 
 def read_manifest(folder):
-    """Read and validate ``folder/manifest.json``."""
-    folder = os.fspath(folder)
-    if not os.path.isdir(folder):
-        raise MismatchError(f"basis folder {folder} does not exist" if not os.path.exists(folder) else
-                            f"{folder} is a file, not a basis folder (give the folder render_basis wrote)")
-    path = os.path.join(folder, MANIFEST)
-    if not os.path.isfile(path):
-        raise MismatchError(f"{folder}: no {MANIFEST} (not a basis folder, or render_basis has not "
-                         "written one yet)")
-    try:
-        with open(path, encoding="utf-8") as f:
-            manifest = json.load(f)
-    except (ValueError, UnicodeDecodeError) as e:
-        raise MismatchError(f"{path}: not valid JSON ({e})") from None
-    return validate_manifest(manifest, where=path)
+    """The JSON object of ``folder/manifest.json``, checked (:meth:`Manifest.read`)."""
+    return Manifest.read(folder).to_json()
 
 
 #: Manifest fields that define what the images are (all but "images" and the paths).
@@ -367,13 +516,8 @@ SETTINGS = ("format", "version", "scene_hash", "manifold_hash", "resolution", "s
 
 
 def manifest_differences(a, b, ignore=()):
-    """Setting fields (:data:`SETTINGS`, but those in ``ignore``) whose values differ between two manifests.
-
-    An empty list means images rendered for one are valid for the other (resume). A manifest
-    without ``sensor`` (an earlier version's) rendered sensor 0."""
-    def value(m, k):
-        return m.get(k, 0) if k == "sensor" else m.get(k)
-    return [k for k in SETTINGS if k not in ignore and value(a, k) != value(b, k)]
+    """:meth:`Manifest.differences` of two manifests (or their JSON objects)."""
+    return Manifest.from_json(a).differences(b, ignore)
 
 
 def is_basis_folder(folder):

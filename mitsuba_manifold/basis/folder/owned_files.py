@@ -12,7 +12,7 @@ import os
 from ..._util.atomic import is_temporary
 from ..._util.locking import LOCK_NAME
 from ...errors import ForeignFileError
-from .manifest import MANIFEST, is_basis_folder, read_manifest
+from .manifest import MANIFEST, Manifest, is_basis_folder
 
 #: What a basis run leaves beside its images besides the manifest (AOVs, chunk folders).
 EXTRA = ("aovs.npz", ".chunks")
@@ -32,9 +32,9 @@ def basis_entries(folder):
     """``(own, foreign)``: the names in a basis folder that its render made (the manifest, the
     images it lists or has pending, :data:`EXTRA`, its lock and temporary files) and the others."""
     folder = os.fspath(folder)
-    manifest = read_manifest(folder)
-    own = {MANIFEST, LOCK_NAME, *EXTRA, *manifest.get("pending", [])}
-    own |= {e["file"] for e in manifest["images"].values()}
+    manifest = Manifest.read(folder)
+    own = {MANIFEST, LOCK_NAME, *EXTRA, *(manifest.pending or [])}
+    own |= {e["file"] for e in manifest.images.values()}
     names = sorted(os.listdir(folder))
     return ([n for n in names if n in own or is_temporary(n)],
             [n for n in names if n not in own and not is_temporary(n)])

@@ -14,7 +14,7 @@ from ...errors import FormatError, MismatchError
 from ...imaging import io as imageio
 from ...manifold.identity import manifold_identity
 from ..._util.cache import file_hash
-from .manifest import BASE, image_changed, image_key, key_materials, read_manifest, scene_hash
+from .manifest import BASE, Manifest, image_changed, image_key, key_materials, scene_hash
 
 
 #: Prefix of the keys of full-GI images (``manifest["gi_images"]``) in :meth:`Basis.image`.
@@ -45,7 +45,7 @@ class Basis:
     Attributes
     ----------
     folder : str
-    manifest : dict
+    manifest : Manifest
     resolution : (int, int)
         ``(width, height)``.
     targets : list of str
@@ -59,20 +59,20 @@ class Basis:
 
     def __init__(self, folder, manifest):
         self.folder = os.fspath(folder)
-        self.manifest = manifest
-        self.resolution = tuple(manifest["resolution"])
-        self.targets = list(manifest["targets"])
+        self.manifest = manifest = Manifest.from_json(manifest)
+        self.resolution = tuple(manifest.resolution)
+        self.targets = list(manifest.targets)
         self.p = len(self.targets)
-        self.version = manifest["version"]
-        self.keys = [k for k in manifest["images"] if k != BASE]
+        self.version = manifest.version
+        self.keys = [k for k in manifest.images if k != BASE]
         parts = [key_materials(k, self.version) for k in self.keys]
         self.materials = [sorted({pt[t] for pt in parts}) for t in range(self.p)]
         self._rows = {}  # image key -> row of self._store
         self._store = None  # float32 (capacity, H, W, 3): the images read so far
         self._checked = {}  # manifold path or object -> manifold object, checked against the manifest
         #: What the basis holds (:data:`manifest.COMPONENTS`); an older basis: L1- only.
-        self.components = list(manifest.get("components", ["l1"]))
-        self.legacy = "components" not in manifest
+        self.components = manifest.held_components
+        self.legacy = manifest.components is None
         self._cross = None  # (pairs {(a, b): row}, float16 (P, H, W, 3)) once read
         self._cross32 = {}  # row -> float32 (H, W, 3), the rows blended so far
         self._derived = {}  # name -> what derived() made from the folder's files
@@ -101,14 +101,14 @@ class Basis:
             a manifest made for another scene or manifold.
         """
         folder = os.fspath(folder)
-        manifest = read_manifest(folder)
+        manifest = Manifest.read(folder)
         basis = cls(folder, manifest)
-        if basis.p == 1 and BASE not in manifest["images"]:
+        if basis.p == 1 and BASE not in manifest.images:
             raise MismatchError(f"{folder}: the manifest lists no '{BASE}' image (paths that never touch "
                              "the material); the basis is incomplete")
         if not basis.keys:
             raise MismatchError(f"{folder}: the manifest lists no material image; the basis is incomplete")
-        for key in list(manifest["images"]) + [GI + k for k in manifest.get("gi_images", {})]:
+        for key in list(manifest.images) + [GI + k for k in manifest.gi_images or {}]:
             try:
                 imageio.check_exr_header(basis.path(key), basis.resolution)
             except FormatError as e:
@@ -131,24 +131,24 @@ class Basis:
 
     def __repr__(self):
         return (f"Basis({self.folder!r}: {len(self.keys)} images, targets {self.targets}, "
-                f"{self.resolution[0]}x{self.resolution[1]}, {self.manifest['spp']} spp)")
+                f"{self.resolution[0]}x{self.resolution[1]}, {self.manifest.spp} spp)")
 
     @property
     def sensor(self):
         """The scene's sensor (view) the images were rendered from (0 when the manifest does
         not say: :attr:`sensor_known`)."""
-        return int(self.manifest.get("sensor", 0))
+        return self.manifest.sensor_index
 
     @property
     def sensor_known(self):
         """True when the manifest records its sensor (manifests of earlier versions recorded
         only sensors other than 0)."""
-        return "sensor" in self.manifest
+        return self.manifest.sensor is not None
 
     def _entry(self, key):
         if key.startswith(GI):
-            return self.manifest.get("gi_images", {}).get(key[len(GI):])
-        return self.manifest["images"].get(key)
+            return (self.manifest.gi_images or {}).get(key[len(GI):])
+        return self.manifest.images.get(key)
 
     def path(self, key):
         """File of image ``key`` (``"gi:<key>"``: the material's full-GI image less base)."""
@@ -174,7 +174,7 @@ class Basis:
             return self._cross
 
     def _read_cross(self):
-        entry = self.manifest.get("cross")
+        entry = self.manifest.cross
         w, h = self.resolution
         if entry is None or "cross" not in self.components:
             return {}, np.zeros((0, h, w, 3), np.float16)
@@ -234,7 +234,7 @@ class Basis:
                                  f"the manifest says {w}x{h}")
             row = len(self._rows)
             if self._store is None or row == len(self._store):  # grow by doubling, up to every image
-                cap = min(max(8, 2 * row), len(self.manifest["images"]) + len(self.manifest.get("gi_images", {})))
+                cap = min(max(8, 2 * row), len(self.manifest.images) + len(self.manifest.gi_images or {}))
                 store = np.empty((cap, h, w, 3), dtype=np.float32)
                 if row:
                     store[:row] = self._store[:row]
@@ -273,7 +273,7 @@ class Basis:
 
     def verify(self):
         """Read every listed image in full (raises :class:`MismatchError` on the first bad one)."""
-        for key in list(self.manifest["images"]) + [GI + k for k in self.manifest.get("gi_images", {})]:
+        for key in list(self.manifest.images) + [GI + k for k in self.manifest.gi_images or {}]:
             self.image(key)
         self.cross_terms()
         return self
@@ -281,10 +281,10 @@ class Basis:
     def check_scene(self, scene):
         """Raise unless ``scene`` (an XML path) is the scene the basis was rendered from."""
         h = scene_hash(scene)
-        if h != self.manifest["scene_hash"]:
+        if h != self.manifest.scene_hash:
             raise MismatchError(
-                f"basis {self.folder} was rendered from another scene: {self.manifest['scene']} "
-                f"(hash {self.manifest['scene_hash'][:12]}), not {os.path.abspath(scene)} (hash {h[:12]}); "
+                f"basis {self.folder} was rendered from another scene: {self.manifest.scene} "
+                f"(hash {self.manifest.scene_hash[:12]}), not {os.path.abspath(scene)} (hash {h[:12]}); "
                 "the scene or a file it uses changed, render the basis again")
 
     def check_manifold(self, manifold=None):
@@ -295,7 +295,7 @@ class Basis:
         content identity (version 1: the file hash, when the manifold has a path).
         """
         if manifold is None:
-            manifold = self.manifest["manifold"]
+            manifold = self.manifest.manifold
             if not os.path.isfile(manifold):
                 raise MismatchError(f"basis {self.folder}: its manifold {manifold} no longer exists; "
                                  "give the manifold explicitly")
@@ -312,11 +312,11 @@ class Basis:
         path = manifold if isinstance(manifold, (str, os.PathLike)) else getattr(m, "file", None)
         if self.version >= 2 or path is not None:
             h = manifold_identity(m) if self.version >= 2 else file_hash(path)
-            if h != self.manifest["manifold_hash"]:
+            if h != self.manifest.manifold_hash:
                 where = os.path.abspath(path) if path is not None else "the manifold given"
                 raise MismatchError(
-                    f"basis {self.folder} was rendered with another manifold: {self.manifest['manifold']} "
-                    f"(identity {self.manifest['manifold_hash'][:12]}), not {where} (identity {h[:12]}: other "
+                    f"basis {self.folder} was rendered with another manifold: {self.manifest.manifold} "
+                    f"(identity {self.manifest.manifold_hash[:12]}), not {where} (identity {h[:12]}: other "
                     "latent points, hyperparameters, materials or tables)")
         self._checked[key] = m
         return m
