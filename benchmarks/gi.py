@@ -91,7 +91,7 @@ def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), r
                 bias, se = relative_bias(img, ref)
                 row[comp] = {"relative_bias": bias, "relative_bias_se": se,
                              "rel_mse": metrics.compare(img, ref)["rel_mse"], "component": info["component"],
-                             "images": info["n_images"], "cross_terms": len(info["cross"][0]) if info["cross"] else 0}
+                             "images": info["n_images"], "cross_terms": len(info["plan"].cross[0]) if info["plan"].cross else 0}
             # the default refinement of the full-GI basis (the control variate; it costs about twice a
             # direct render per sample, so an eighth of the samples is about a quarter of the time)
             row["refined"] = refined_row(b_gi, m, x, ref, max(1, direct_spp // 8), seed + 101, warm=True)

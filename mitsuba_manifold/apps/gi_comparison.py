@@ -207,7 +207,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
         row["refined"] = refined_row(b, m, x, ref, opts.refine_spp, opts.seed + 104729, warm=True)   # as the direct renders
     guides = den = None
     if aovs is not None:
-        guides = (aovs.albedo_of_blend(info, b.manifest.version), aovs.normal)
+        guides = (aovs.albedo_of_blend(info["plan"], b.manifest.version), aovs.normal)
         den, t_den = _denoised(img, guides)
         row["blend"]["denoised"] = {"time_s": t_blend + t_den, "denoise_s": t_den, **metrics.compare(den, ref)}
     for spp in opts.direct_spp:

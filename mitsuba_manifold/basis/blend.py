@@ -30,6 +30,8 @@ come from a basis folder (:mod:`mitsuba_manifold.basis.folder`); no Mitsuba is l
 import itertools
 import time
 import warnings
+from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -118,12 +120,39 @@ def _target_weights(basis, manifold, x, w):
     return arr, None
 
 
-def _plan(basis, manifold, W, prune, renormalise, component="l1"):
-    """Image keys and their weights for one blend.
+@dataclass(frozen=True)
+class BlendPlan:
+    """What one blend sums (Eq. 13): the images, their weights and the cross terms.
 
-    Returns ``(keys, weights, info)``; ``weights`` multiply the images ``keys`` (plus
-    ``base`` with weight 1 for a one-target basis). With ``component`` "full" the keys are
-    the full-GI images and ``info["cross"]`` the rows and weights of the cross terms.
+    Attributes
+    ----------
+    keys : list of str
+        The materials' image keys, as an L1- blend names them.
+    image_weights : ndarray (K,)
+        Their weights (after pruning; plus ``base`` with weight 1 for a one-target basis).
+    cross : (ndarray, ndarray) or None
+        The rows of the basis's cross terms and their weights ``w_i w_j`` (a full-GI blend of
+        one target), or None.
+    image_keys : list of str
+        The images summed: :attr:`keys`, or their full-GI images when there are cross terms.
+    """
+
+    keys: list
+    image_weights: np.ndarray
+    cross: Optional[tuple] = None
+    image_keys: list = None
+
+    @property
+    def summed(self):
+        """The images summed: :attr:`image_keys` or, when not set, :attr:`keys`."""
+        return self.keys if self.image_keys is None else self.image_keys
+
+
+def _plan(basis, manifold, W, prune, renormalise, component="l1"):
+    """The :class:`BlendPlan` of one blend and its report.
+
+    Returns ``(plan, info)``: the images, weights and cross terms to sum, and ``info`` (kept
+    weights, dropped weight, missing images, renormalised, ``cross_left_weight``).
     """
     p, names = basis.p, manifold.names
     kept, info = [], {"weights": [], "dropped_weight": []}
@@ -162,21 +191,17 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
         keys = [k for k, ok in zip(keys, present) if ok]
         cw = cw[present] * (total / cw[present].sum())
         info["renormalised"] = True
-    info["cross"] = None
+    cross = None
     if component == "full" and p == 1:
         pairs, _ = basis.cross_terms()
         kept_names = [basis.key([names[i]]) for i in kept[0][0]]
         mats = [k for k in kept_names if k in keys]
         wk = np.array([cw[keys.index(k)] for k in mats])
         rows, prods, left = cross_weights([names[kept[0][0][kept_names.index(k)]] for k in mats], wk, pairs)
-        info["cross"] = (rows, prods)
+        cross = (rows, prods)
         info["cross_left_weight"] = left if "cross" in basis.components else None
-    info["keys"] = keys   # the materials' image keys (as an L1- blend names them)
-    info["image_weights"] = cw
-    if info["cross"] is not None:
-        keys = [basis.gi_key(k) for k in keys]
-    info["image_keys"] = keys   # the images summed
-    return keys, cw, info
+    summed = keys if cross is None else [basis.gi_key(k) for k in keys]
+    return BlendPlan(keys, cw, cross, summed), info
 
 
 def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False, component=None,
@@ -214,7 +239,7 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         asked for, or ""), ``cross_left_weight`` (largest ``|w_i w_j|`` of a pair whose cross
         term the basis does not hold; None without cross terms),
         ``weights`` (per target, kept material -> weight), ``dropped_weight`` (per target),
-        ``keys``/``image_weights`` (images combined), ``missing``, ``renormalised``, ``x``, ``time_ms``
+        ``plan`` (the :class:`BlendPlan` summed), ``missing``, ``renormalised``, ``x``, ``time_ms``
         (weights, pruning, summing the images in memory, denoising), ``time_read_s`` (from disk).
     """
     if not isinstance(basis, Basis):
@@ -225,17 +250,17 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
     t_cross = read_cross(basis, used)
     t0 = time.perf_counter()
     W, pts = _target_weights(basis, manifold, x, w)
-    keys, cw, info = _plan(basis, manifold, W, prune, renormalise, used)
+    plan, info = _plan(basis, manifold, W, prune, renormalise, used)
     t_plan = time.perf_counter() - t0
-    image, t_read, t_sum = compose(basis, keys, cw, info["cross"])
+    image, t_read, t_sum = compose(basis, plan.summed, plan.image_weights, plan.cross)
     t_read += t_cross
     t_den = 0.0
     if used == "full" and l2 == "denoised" and basis.p == 1:
         t0 = time.perf_counter()
-        image = denoised_l2(basis, image, info["keys"], info["image_weights"])   # the L1- images of the point
+        image = denoised_l2(basis, image, plan)
         t_den = time.perf_counter() - t0
     info.update(component=used, component_note=note, x=None if pts is None else (pts[0] if basis.p == 1 else pts),
-                time_ms=1e3 * (t_plan + t_sum + t_den), time_read_s=t_read, n_images=len(keys),
+                time_ms=1e3 * (t_plan + t_sum + t_den), time_read_s=t_read, n_images=len(plan.summed), plan=plan,
                 l2=l2 if used == "full" else None)
     return image, info
 
@@ -264,7 +289,7 @@ def denoised_blend(basis, manifold=None, x=None, w=None, aovs=None, guides=True,
     t0 = time.perf_counter()
     if guides:
         aovs = aovs or BasisAOVs.load(basis.folder, basis.manifest)
-        albedo = aovs.albedo_of_blend(info, basis.manifest.version)
+        albedo = aovs.albedo_of_blend(info["plan"], basis.manifest.version)
         out = denoise(raw, albedo, aovs.normal)
     else:
         out = denoise(raw)
@@ -340,29 +365,29 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         pts = xi[None] if basis.p == 1 else np.where(np.arange(basis.p)[:, None] == target, xi, fixed)
         W = manifold.weights(pts)[1]
         plans.append(_plan(basis, manifold, W, prune, renormalise, used))
-    keys = sorted({k for ks, _, _ in plans for k in ks})
+    keys = sorted({k for plan, _ in plans for k in plan.summed})
     col = {k: j for j, k in enumerate(keys)}
     M = np.zeros((steps, len(keys)), dtype=np.float32)
-    for s, (ks, cw, _) in enumerate(plans):
-        M[s, [col[k] for k in ks]] = cw
+    for s, (plan, _) in enumerate(plans):
+        M[s, [col[k] for k in plan.summed]] = plan.image_weights
     cross = None
     if used == "full" and basis.p == 1:   # the cross terms of every step, as one matrix
-        rows = sorted({int(r) for _, _, inf in plans for r in inf["cross"][0]})
+        rows = sorted({int(r) for plan, _ in plans for r in plan.cross[0]})
         at = {r: j for j, r in enumerate(rows)}
         C = np.zeros((steps, len(rows)), dtype=np.float32)
-        for s_, (_, _, inf) in enumerate(plans):
-            C[s_, [at[int(r)] for r in inf["cross"][0]]] = inf["cross"][1]
+        for s_, (plan, _) in enumerate(plans):
+            C[s_, [at[int(r)] for r in plan.cross[0]]] = plan.cross[1]
         cross = (np.array(rows, dtype=np.intp), C)
     t_plan = time.perf_counter() - t0
     images, t_read, t_sum = compose(basis, keys, M, cross)
     t_read += t_cross
     t0 = time.perf_counter()
     if used == "full" and l2 == "denoised" and basis.p == 1:   # as blend(): each step's L2+ part denoised
-        for s_, ((_, _, inf), img) in enumerate(zip(plans, images)):
-            images[s_] = denoised_l2(basis, img, inf["keys"], inf["image_weights"])
-    for (_, _, inf), xi in zip(plans, xs):
-        inf["x"] = xi
-    return images, xs, {"steps": [p[2] for p in plans], "time_ms": 1e3 * (t_plan + t_sum), "time_read_s": t_read,
+        for s_, ((plan, _), img) in enumerate(zip(plans, images)):
+            images[s_] = denoised_l2(basis, img, plan)
+    for (plan, inf), xi in zip(plans, xs):
+        inf.update(x=xi, plan=plan)
+    return images, xs, {"steps": [inf for _, inf in plans], "time_ms": 1e3 * (t_plan + t_sum), "time_read_s": t_read,
                         "denoise_ms": 1e3 * (time.perf_counter() - t0), "component": used, "component_note": note,
                         "l2": l2 if used == "full" else None}
 

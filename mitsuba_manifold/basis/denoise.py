@@ -105,10 +105,11 @@ class BasisAOVs:
         mixed = np.tensordot(w, self.table, axes=1)  # (bins, 3)
         return np.clip(self.albedo_base + self.hist @ mixed.astype(np.float32), 0.0, 1.0)
 
-    def albedo_of_blend(self, info, version=basis_folder.FORMAT_VERSION):
-        """Albedo image of a one-target blend, from its ``info`` (image keys and weights)."""
-        weights = np.asarray(info["image_weights"], dtype=np.float64)
-        return self.albedo({basis_folder.key_materials(k, version)[0]: w for k, w in zip(info["keys"], weights)})
+    def albedo_of_blend(self, plan, version=basis_folder.FORMAT_VERSION):
+        """Albedo image of a one-target blend, from its :class:`~.blend.BlendPlan` (image keys and
+        weights)."""
+        weights = np.asarray(plan.image_weights, dtype=np.float64)
+        return self.albedo({basis_folder.key_materials(k, version)[0]: w for k, w in zip(plan.keys, weights)})
 
     def save(self, folder, manifest):
         path = os.path.join(os.fspath(folder), AOV_FILE)
@@ -188,17 +189,18 @@ def denoise(image, albedo=None, normal=None, quality="high"):
 
 # ------------------------------------------------------------------ the L2+ part of full-GI blends
 
-def denoised_l2(basis, image, keys, weights):
+def denoised_l2(basis, image, plan):
     """``L1- blend + D + restore_light(extra - D)``: the full-GI ``image`` of a one-target blend
     with its part beyond L1- (``extra``) denoised (``D``), guided by the basis's AOVs when it has
     them (:mod:`.denoise`), and the light the denoiser took put back at low frequency
-    (:func:`restore_light`); ``keys``, ``weights``: the L1- images of the same point. That part is
+    (:func:`restore_light`); ``plan``: the blend's :class:`~.blend.BlendPlan` (its L1- images,
+    :attr:`~.blend.BlendPlan.keys`, and their weights). That part is
     signed (cross terms) and OIDN takes light only, so its positive and negative parts are denoised
     apart, at OIDN's ``fast`` quality (:data:`L2_QUALITY`; its errors against ``high``'s are in
     docs/benchmarks.md)."""
-    l1, _, _ = compose(basis, keys, weights, None)
+    l1, _, _ = compose(basis, plan.keys, plan.image_weights, None)
     extra = image - l1
-    guides = _guides(basis, {"keys": keys, "image_weights": weights})
+    guides = _guides(basis, plan)
     smooth = np.zeros_like(extra)
     for sign in (1.0, -1.0):   # a part may be empty (no negative cross term, weights >= 0)
         part = np.maximum(sign * extra, 0.0)
@@ -244,12 +246,12 @@ def _aovs_or_none(basis):
     return aovs if key == _basis_key(basis.manifest) else None
 
 
-def _guides(basis, info):
+def _guides(basis, plan):
     """``(albedo, normal)`` of a one-target L1- blend from the basis's AOVs, or ``(None, None)``."""
     aovs = basis_aovs(basis)
     if not aovs:
         return None, None
     try:
-        return aovs.albedo_of_blend(info, basis.manifest.version), aovs.normal
+        return aovs.albedo_of_blend(plan, basis.manifest.version), aovs.normal
     except MismatchError:   # AOVs older than some of the basis's materials: unguided
         return None, None

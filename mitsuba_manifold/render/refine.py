@@ -271,8 +271,9 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
     shown, info = blend(basis, manifold, x=x, component="full", l2=l2, **kw)
     base = shown if blend_image is None else np.asarray(blend_image, np.float32)
     by_key = {basis.key([n]): n for n in manifold.names}
-    names, w = [by_key[k] for k in info["keys"]], np.asarray(info["image_weights"], np.float64)
-    rows, prods = info["cross"] if info["cross"] is not None else ((), ())
+    summed = info["plan"]
+    names, w = [by_key[k] for k in summed.keys], np.asarray(summed.image_weights, np.float64)
+    rows, prods = summed.cross if summed.cross is not None else ((), ())
     row_pair = {r: p for p, r in basis.cross_terms()[0].items()}
     pairs = [row_pair[int(r)] for r in rows]
     if len(names) == 1 and not pairs:   # a training material: R = Q on every path

@@ -93,14 +93,14 @@ def test_training_point_gives_base_plus_its_image_exactly(basis1, manifold):
     for i, name in enumerate(manifold.names):
         img, info = bl.blend(basis, x=manifold.latent[i])
         assert np.array_equal(img, images["base"] + images[name])
-        assert info["keys"] == [name]
+        assert info["plan"].keys == [name]
 
 
 def test_uniform_weights_give_base_plus_mean(basis1, manifold):
     folder, _, images = basis1
     img, info = bl.blend(folder, manifold, w=np.full(manifold.n, 1.0 / manifold.n), prune=0.0)
     mean = np.mean([images[n].astype(np.float64) for n in manifold.names], axis=0)
-    assert len(info["keys"]) == manifold.n
+    assert len(info["plan"].keys) == manifold.n
     assert np.allclose(img, images["base"] + mean, rtol=1e-6, atol=1e-6)
 
 
@@ -262,7 +262,7 @@ def test_multilinear_two_target_blend(tmp_path, small_manifold, manifold):
     assert np.array_equal(img, img2)
     # training points of both targets: exactly the image of that pair
     img, info = bl.blend(basis, manifold, x=[manifold.latent[2], manifold.latent[5]])
-    assert np.array_equal(img, images[names[2] + "+" + names[5]]) and info["keys"] == [names[2] + "+" + names[5]]
+    assert np.array_equal(img, images[names[2] + "+" + names[5]]) and info["plan"].keys == [names[2] + "+" + names[5]]
     with pytest.raises(MismatchError, match=r"needs 4 numbers"):
         bl.blend(basis, manifold, x=manifold.latent[0])
     with pytest.raises(MismatchError, match="summing to 1 per target"):
