@@ -22,6 +22,7 @@ import os
 import shutil
 import time
 from dataclasses import dataclass, replace
+from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -142,28 +143,32 @@ class BasisOptions:
         chunks of a chunked basis keep the pairs its first chunk chose.
     """
 
+    # what is rendered
     spp: int = 64
-    materials: object = "all"
-    near: object = None
-    radius: object = None
+    materials: Union[str, Sequence[str]] = "all"
+    near: Optional[Sequence[float]] = None
+    radius: Optional[float] = None
     mode: str = "per-material"
     seed: int = 0
-    resolution: object = None
-    max_depth: object = None
-    variant: object = None
-    progress: bool = False
-    chunk_spp: object = None
-    x: object = None
-    database: object = None
-    force: bool = False
+    # the scene
+    resolution: Optional[Union[int, Tuple[int, int]]] = None
+    max_depth: Optional[int] = None
+    variant: Optional[str] = None
+    x: Optional[Sequence[float]] = None
+    database: Optional[str] = None
     sensor: int = 0
+    # how it runs
+    progress: bool = False
+    chunk_spp: Optional[int] = None
+    force: bool = False
     aovs: bool = False
+    # the full-GI part (one-pass mode)
     components: str = "l1"
-    levels: int = None
+    levels: Optional[int] = None
     cross_tol: float = 1e-3
     cross_light_tol: float = 0.005
     cross_fraction: float = 1.0
-    cross_keep: object = None
+    cross_keep: Optional[Sequence[Tuple[str, str]]] = None
 
 
 def render_basis(scene_path, manifold_path, out, options=None, **settings):
