@@ -251,3 +251,51 @@ def test_no_module_name_is_used_three_times():
                 names.setdefault(f[:-3], []).append(os.path.relpath(os.path.join(folder, f), PACKAGE))
     assert not {n: p for n, p in names.items() if len(p) >= 3}
     assert not ({"folder", "folders"} <= set(names) or {"record", "records"} <= set(names))
+
+
+#: Most parameters of a package function (``self``/``cls`` not counted, ``*args``/``**kwargs``
+#: counted once each) before it needs a parameter object, or a reason in its docstring.
+MAX_PARAMETERS = 10
+#: Package functions allowed that many parameters; each says why in its docstring. The list only
+#: shrinks: a new long signature takes a parameter object instead.
+LONG_SIGNATURES = {
+    "manifold/model.py:Manifold.__init__", "manifold/model.py:Manifold.fit",
+    "basis/blend.py:blend_path", "basis/folder/manifest.py:make_manifest",
+    "render/refine.py:refine_passes", "render/refine.py:_control_variate", "render/refine.py:refine",
+    "render/scenes.py:render_reference", "render/integrators/onepass.py:_render",
+    "render/integrators/onepass.py:render_onepass", "render/chunks.py:render_chunked",
+    "manifold/space.py:cross_validate", "gp/gplvm.py:fit_latent", "_util/cache.py:npy_cache",
+    "manifold/projection.py:project",
+}
+
+
+def _signatures():
+    """``{"path:Class.function": (parameters, positional)}`` of every function of the package."""
+    out = {}
+    for folder, _, files in os.walk(PACKAGE):
+        for f in files:
+            if not f.endswith(".py"):
+                continue
+            path = os.path.join(folder, f)
+            rel = os.path.relpath(path, PACKAGE).replace(os.sep, "/")
+            tree = ast.parse(open(path).read())
+            classes = {id(fn): c.name for c in ast.walk(tree) if isinstance(c, ast.ClassDef) for fn in c.body}
+            for fn in ast.walk(tree):
+                if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    a = fn.args
+                    positional = [p.arg for p in a.posonlyargs + a.args]
+                    if positional and positional[0] in ("self", "cls"):
+                        positional = positional[1:]
+                    n = len(positional) + len(a.kwonlyargs) + (a.vararg is not None) + (a.kwarg is not None)
+                    name = f"{classes[id(fn)]}.{fn.name}" if id(fn) in classes else fn.name
+                    out[f"{rel}:{name}"] = (n, len(positional), ast.get_docstring(fn) or "")
+    return out
+
+
+def test_long_signatures_are_few_and_take_keywords():
+    """A function of ten or more parameters is one of the listed few (the list only shrinks);
+    new ones take a parameter object (a dataclass) instead."""
+    signatures = _signatures()
+    long = {k for k, (n, _, _) in signatures.items() if n >= MAX_PARAMETERS}
+    assert long <= LONG_SIGNATURES, f"new functions of >= {MAX_PARAMETERS} parameters: {sorted(long - LONG_SIGNATURES)}"
+    assert not LONG_SIGNATURES - long, f"no longer long, drop from the list: {sorted(LONG_SIGNATURES - long)}"

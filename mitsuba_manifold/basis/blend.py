@@ -204,7 +204,7 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
     return BlendPlan(keys, cw, cross, summed), info
 
 
-def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False, component=None,
+def blend(basis, manifold=None, *, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False, component=None,
           l2="denoised"):
     """The image of latent point ``x`` (or weights ``w``) from a basis.
 
@@ -274,7 +274,7 @@ def _check_l2(l2):
         raise MismatchError(f"`l2` must be one of {L2_MODES}, got {l2!r}")
 
 
-def denoised_blend(basis, manifold=None, x=None, w=None, aovs=None, guides=True, **kwargs):
+def denoised_blend(basis, manifold=None, *, x=None, w=None, aovs=None, guides=True, **kwargs):
     """:func:`blend` and its denoised version (OIDN on the whole image, :mod:`.denoise`).
 
     Returns
@@ -306,9 +306,12 @@ def _endpoint(manifold, v):
     return arr
 
 
-def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRUNE, renormalise=False,
+def blend_path(basis, manifold=None, a=None, b=None, *, steps=20, prune=DEFAULT_PRUNE, renormalise=False,
                target=0, x=None, component=None, kind="straight", points=None, l2="denoised"):
     """Images along a latent path from ``a`` to ``b`` (paper Fig. 12).
+
+    Its thirteen parameters are :func:`blend`'s, the path's (ends, steps, kind or points) and the
+    targets that stay fixed; all but the basis, the manifold and the ends are keywords.
 
     Parameters
     ----------

@@ -205,8 +205,9 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
     if not 0 <= int(o.sensor) < len(sensors):
         raise InputError(f"`sensor` {o.sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)")
     size = tuple(int(v) for v in sensors[int(o.sensor)].film().size())
-    manifest = basis_folder.make_manifest(scene_path, manifold_path, size, o.spp, mi.variant(), o.seed, max_depth,
-                                          o.mode, [b.id() for b in targets], sensor=int(o.sensor))
+    manifest = basis_folder.make_manifest(scene_path, manifold_path, resolution=size, spp=o.spp,
+                                          variant=mi.variant(), seed=o.seed, max_depth=max_depth, mode=o.mode,
+                                          targets=[b.id() for b in targets], sensor=int(o.sensor))
     gi = o.mode == "onepass" and o.components == "auto"
     if gi:
         o = replace(o, levels=gi_levels(o.levels, max_depth))

@@ -228,7 +228,8 @@ def test_missing_and_truncated_images(basis1, manifold):
 
 def test_manifest_helpers(tmp_path, small_manifold):
     scene = _scene(str(tmp_path))
-    a = bf.make_manifest(scene, small_manifold, (4, 3), 8, "llvm_ad_rgb", 1, 8, "onepass", ["material"])
+    a = bf.make_manifest(scene, small_manifold, resolution=(4, 3), spp=8, variant="llvm_ad_rgb", seed=1,
+                         max_depth=8, mode="onepass", targets=["material"])
     assert a["scene"] == os.path.abspath(scene)
     assert a["manifold_hash"] == manifold_identity(Manifold.load(small_manifold))   # content, not file bytes
     path = bf.write_manifest(str(tmp_path), a)
@@ -236,7 +237,8 @@ def test_manifest_helpers(tmp_path, small_manifold):
     b = dict(a, spp=16, images={"base": {"file": "base.exr", "time_s": 1.0}})
     assert bf.manifest_differences(a, b) == ["spp"]
     with pytest.raises(MismatchError, match="mode"):
-        bf.make_manifest(scene, small_manifold, (4, 3), 8, "llvm_ad_rgb", 1, 8, "fast", ["material"])
+        bf.make_manifest(scene, small_manifold, resolution=(4, 3), spp=8, variant="llvm_ad_rgb", seed=1,
+                         max_depth=8, mode="fast", targets=["material"])
     with pytest.raises(MismatchError, match="must name 2 material"):
         bf.write_manifest(str(tmp_path), dict(a, targets=["a", "b"], images={"x": {"file": "x.exr", "time_s": 0}}))
     assert bf.read_manifest(str(tmp_path)) == a  # the refused write left the old manifest

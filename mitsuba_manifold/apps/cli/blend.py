@@ -187,9 +187,9 @@ def path_outputs(args, basis, manifold):
             fail(f"--target {args.target!r} is not a target of the basis ({basis.targets})")
         target = basis.targets.index(args.target)
     with _one_line_warnings():
-        images, _, info = blend_path(basis, manifold, ends[0], ends[1], args.steps, args.prune,
-                                     args.renormalise, target=target, x=args.x, component=args.component,
-                                     kind=args.path_kind, l2=args.l2)
+        images, _, info = blend_path(basis, manifold, ends[0], ends[1], steps=args.steps, prune=args.prune,
+                                     renormalise=args.renormalise, target=target, x=args.x,
+                                     component=args.component, kind=args.path_kind, l2=args.l2)
     _say_component(info)
     den = f"; their L2+ light denoised in {info['denoise_ms']:.0f} ms" if info["denoise_ms"] >= 0.5 else ""
     print(f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "

@@ -450,13 +450,14 @@ class Manifest:
         return [k for k in SETTINGS if k not in ignore and value(self, k) != value(other, k)]
 
 
-def make_manifest(scene, manifold, resolution, spp, variant, seed, max_depth, mode, targets,
+def make_manifest(scene, manifold, *, resolution, spp, variant, seed, max_depth, mode, targets,
                   images=None, components=("l1",), sensor=0):
     """The JSON object of a new, checked :class:`Manifest` of a basis of ``scene`` rendered with
     ``manifold``.
 
     Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
-    itself, so every writer and reader agree on them.
+    itself, so every writer and reader agree on them. It takes one keyword per field a renderer
+    sets (twelve), as :class:`Manifest` has them.
 
     Parameters
     ----------
