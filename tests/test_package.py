@@ -261,7 +261,6 @@ MAX_PARAMETERS = 10
 LONG_SIGNATURES = {
     "manifold/model.py:Manifold.__init__", "manifold/model.py:Manifold.fit",
     "basis/blend.py:blend_path", "basis/folder/manifest.py:make_manifest",
-    "render/refine.py:refine_passes", "render/refine.py:_control_variate", "render/refine.py:refine",
     "render/scenes.py:render_reference", "render/integrators/onepass.py:_render",
     "render/integrators/onepass.py:render_onepass", "render/chunks.py:render_chunked",
     "manifold/space.py:cross_validate", "gp/gplvm.py:fit_latent", "_util/cache.py:npy_cache",

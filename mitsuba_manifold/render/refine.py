@@ -40,7 +40,8 @@ import contextlib
 import os
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Optional, Union
 
 import numpy as np
 
@@ -184,10 +185,46 @@ def _rest_integrator(basis, max_depth):
                          "max_depth": int(max_depth)})
 
 
-def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, stop=None, prune=None,
-                  scene=None, manifold_path=None, blend_image=None, l2="denoised", control_variate="auto"):
-    """Yield a :class:`Refined` estimate after each of ``passes`` passes (``spp`` in all): the
-    ``L1-`` blend plus the ``L2+`` rendered at the point, or with ``control_variate`` and a
+@dataclass(frozen=True)
+class RefineRequest:
+    """How a refinement renders (:func:`refine_passes`; every field has the default of the keyword).
+
+    Attributes
+    ----------
+    spp, passes, seed : int
+        Samples per pixel of the ``L2+`` render in all, cut into ``passes`` independent passes
+        (at least 2 to estimate the noise).
+    database : str, optional
+        Folder of the manifold's tables if it moved.
+    prune : float, optional
+        The blend's pruning (default: the blend's); the rendered material prunes as
+        ``manifold_brdf`` does at the same point.
+    scene, manifold_path : str, optional
+        The scene and manifold files to render (default: the manifest's; the explorer passes
+        the ones it resolved, e.g. ``--scene``).
+    l2 : {"denoised", "raw"}
+        The blend's ``L2+`` (:func:`~mitsuba_manifold.basis.blend.blend`) that the control variate
+        corrects; ``"raw"`` makes the refinement unbiased, ``"denoised"`` keeps the denoiser's change.
+    control_variate : {"auto", True, False}
+        Use the control variate where the basis allows it (a full-GI basis of one target; ``"auto"``
+        and ``True``), or render the ``L2+`` at the point (``False``; the control variate needs
+        fewer samples for the same error, docs/benchmarks.md).
+    """
+
+    spp: int = 64
+    passes: int = 4
+    seed: int = 0
+    database: Optional[str] = None
+    prune: Optional[float] = None
+    scene: Optional[str] = None
+    manifold_path: Optional[str] = None
+    l2: str = "denoised"
+    control_variate: Union[str, bool] = "auto"
+
+
+def refine_passes(basis, manifold, x=None, request=None, *, stop=None, blend_image=None, **settings):
+    """Yield a :class:`Refined` estimate after each of ``request.passes`` passes (``spp`` in all):
+    the ``L1-`` blend plus the ``L2+`` rendered at the point, or with ``control_variate`` and a
     full-GI basis of one target the control variate of the module's docstring.
 
     Parameters
@@ -198,54 +235,37 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     manifold : Manifold
     x : array_like
         The point (q,), or (p, q) for a basis of several targets (as :func:`blend`).
-    spp, passes, seed : int
-        Samples per pixel of the ``L2+`` render in all, cut into ``passes`` independent passes
-        (at least 2 to estimate the noise).
-    database : str, optional
-        Folder of the manifold's tables if it moved.
+    request : RefineRequest, optional
+        How to render; ``settings`` (its fields as keywords) replace its fields.
     stop : StopRequest, optional
         Checked after each pass (Ctrl-C ends the refinement there: ``KeyboardInterrupt``).
-    prune : float, optional
-        The blend's pruning (default: the blend's); the rendered material prunes as
-        ``manifold_brdf`` does at the same point.
-    scene, manifold_path : str, optional
-        The scene and manifold files to render (default: the manifest's; the explorer passes
-        the ones it resolved, e.g. ``--scene``).
     blend_image : ndarray, optional
         The basis's blend of the point (:class:`Refined` ``scale``), when the caller has it
         (the explorer does); default: blended here (with ``l2``). The control variate corrects it.
-    l2 : {"denoised", "raw"}
-        The blend's ``L2+`` (:func:`~mitsuba_manifold.basis.blend.blend`) that the control variate
-        corrects; ``"raw"`` makes the refinement unbiased, ``"denoised"`` keeps the denoiser's change.
-    control_variate : {"auto", True, False}
-        Use the control variate where the basis allows it (a full-GI basis of one target; ``"auto"``
-        and ``True``), or render the ``L2+`` at the point (``False``; the control variate needs
-        fewer samples for the same error, docs/benchmarks.md).
     """
     import mitsuba as mi
 
-    plan = _pass_plan(spp, passes)
-    m = basis.manifest
-    kw = {} if prune is None else {"prune": prune}
-    if control_variate not in ("auto", True, False):
-        raise InputError(f"`control_variate` must be 'auto', True or False, got {control_variate!r}")
-    if control_variate and "l2+" in basis.components and basis.p == 1:
-        yield from _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_path, blend_image,
-                                    database, l2)
+    r = replace(request or RefineRequest(), **settings)
+    plan = _pass_plan(r.spp, r.passes)
+    kw = {} if r.prune is None else {"prune": r.prune}
+    if r.control_variate not in ("auto", True, False):
+        raise InputError(f"`control_variate` must be 'auto', True or False, got {r.control_variate!r}")
+    if r.control_variate and "l2+" in basis.components and basis.p == 1:
+        yield from _control_variate(basis, manifold, x, plan, r, stop, blend_image, kw)
         return
     l1, _ = blend(basis, manifold, x=x, component="l1", **kw)
     scale = blend_image
     if scale is None:
         scale = blend(basis, manifold, x=x, **kw)[0] if "l2+" in basis.components else l1
     points = latent_points(basis, manifold, x)
-    with _SCENES.take(basis, scene, manifold_path, database, points) as loaded:
+    with _SCENES.take(basis, r.scene, r.manifold_path, r.database, points) as loaded:
         scenes.set_points(loaded.targets, points, basis.targets)
         integrator = _rest_integrator(basis, loaded.max_depth)
 
         def rest(n, pass_seed):
             return np.array(mi.render(loaded.scene, integrator=integrator, spp=n, sensor=int(basis.sensor),
                                       seed=pass_seed), np.float64)[..., :3]
-        yield from _progressive(plan, seed, stop, integrator, rest, l1, scale, "l2+")
+        yield from _progressive(plan, r.seed, stop, integrator, rest, l1, scale, "l2+")
 
 
 def _progressive(plan, seed, stop, integrator, render, start, scale, method):
@@ -264,11 +284,12 @@ def _progressive(plan, seed, stop, integrator, render, start, scale, method):
             yield _estimate(start, total, total2, done, k + 1, time.perf_counter() - t0, scale, method)
 
 
-def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_path, blend_image, database, l2):
-    """:func:`refine_passes` with a full-GI basis: ``blend + mean(R - Q)`` (the module)."""
+def _control_variate(basis, manifold, x, plan, request, stop, blend_image, kw):
+    """:func:`refine_passes` with a full-GI basis: ``blend + mean(R - Q)`` (the module) of
+    ``request``, a :class:`RefineRequest`."""
     import mitsuba as mi
 
-    shown, info = blend(basis, manifold, x=x, component="full", l2=l2, **kw)
+    shown, info = blend(basis, manifold, x=x, component="full", l2=request.l2, **kw)
     base = shown if blend_image is None else np.asarray(blend_image, np.float32)
     by_key = {basis.key([n]): n for n in manifold.names}
     summed = info["plan"]
@@ -284,7 +305,7 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
     # the scene's own material is not evaluated: on the target the paths use the proxy of the
     # point's weights (the point's column, onepass), so a cached scene is not moved to the point
     points = latent_points(basis, manifold, x)
-    with _SCENES.take(basis, scene, manifold_path, database, points) as loaded:
+    with _SCENES.take(basis, request.scene, request.manifold_path, request.database, points) as loaded:
         integrator = mi.load_dict({"type": "manifold_path", "component": "l1", "max_depth": int(loaded.max_depth)})
 
         def correction(n, pass_seed):   # R - Q from one pass's paths
@@ -294,7 +315,7 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
             q = sum(wi * r.rest[name].astype(np.float64) for wi, name in zip(w, names))
             q = q + sum(float(pr) * r.cross[p] for pr, p in zip(prods, pairs))
             return r.rest[POINT].astype(np.float64) - q
-        yield from _progressive(plan, seed, stop, integrator, correction, base, base, CONTROL_VARIATE)
+        yield from _progressive(plan, request.seed, stop, integrator, correction, base, base, CONTROL_VARIATE)
 
 
 def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"):
@@ -312,12 +333,10 @@ def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"
                    None if scale is None else np.asarray(scale, np.float32), method)
 
 
-def refine(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, prune=None, l2="denoised",
-           control_variate="auto"):
+def refine(basis, manifold, x=None, request=None, **settings):
     """The last estimate of :func:`refine_passes` (all ``spp`` samples): a :class:`Refined`."""
     last = None
-    for last in refine_passes(basis, manifold, x, spp, passes, seed, database, prune=prune, l2=l2,
-                              control_variate=control_variate):
+    for last in refine_passes(basis, manifold, x, request, **settings):
         pass
     return last
 
