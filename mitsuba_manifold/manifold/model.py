@@ -21,7 +21,7 @@ a point between two neighbours is a blend of those two. The choice is measured b
 :class:`Manifold` holds what was learned and delegates: the GP (kernel, factorisation of K,
 variance) to :mod:`mitsuba_manifold.gp`, the weights ``w(x)`` to its interpolant
 (:mod:`.interpolant`), the tables, their pruning and combination to :mod:`.tables`
-(:class:`~.tables.PruningMethods`: ``prune``, ``prune_report``, ``combine``), names and
+(:class:`~.tables.TrainingTables`; :meth:`Manifold.prune`, ``prune_report``, ``combine``), names and
 weight text to :mod:`.materials`, projection to :mod:`.projection`, diagnostics and the
 summary to :mod:`.report`, the ``.npz`` file to :mod:`.io`.
 """
@@ -39,7 +39,7 @@ from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, PruneReport
 from .fit_record import FitRecord
-from .tables import Combination, Pruned, PruningMethods, TrainingTables
+from .tables import Combination, Pruned, TrainingTables, stored
 from ..data.database import FEATURES, Database
 from ..errors import InputError
 
@@ -56,7 +56,7 @@ class Weights(NamedTuple):
     w: np.ndarray
 
 
-class Manifold(PruningMethods):
+class Manifold:
     """A fitted latent space of measured materials (scikit-learn style: fit, then use).
 
     Parameters
@@ -324,6 +324,43 @@ class Manifold(PruningMethods):
         """
         table = projection_mod.as_table(table, 3 * int(np.prod(self.dims or (0,))), self.dims)
         return projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
+
+    # ------------------------------------------------------------- pruning
+    table_gram = stored("gram", "``T T^T`` of the raw tables (:attr:`TrainingTables.gram`).")
+    cos_gram = stored("cos_gram", "``T diag(q) T^T`` (:attr:`TrainingTables.cos_gram`).")
+    albedos = stored("albedos", "Albedo of each material, (N, 3) (:attr:`TrainingTables.albedos`).")
+
+    def table_norms(self):
+        """L2 norm of each raw table (from :attr:`table_gram`)."""
+        return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self.database)), 0.0))
+
+    def prune(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
+        """Materials kept by pruning weights ``w`` within the budget ``prune`` (0 keeps every
+        non-zero weight): a :class:`Pruned` ``(keep, w_kept, dropped)``.
+
+        ``rule="image"`` (default): each albedo channel changes by at most ``prune / 2``, the
+        cosine-weighted and the raw table by at most ``prune`` of their norms; ``"raw-l2"``: the
+        raw table by at most ``prune`` of its L2 norm; exact
+        (:meth:`TrainingTables.prune`, :mod:`.pruning`)."""
+        return self._store.prune(w, prune, self.database, rule)
+
+    def prune_error(self, w, keep, rule=DEFAULT_RULE):
+        """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled),
+        in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``)."""
+        return self._store.error(w, keep, self.database, rule)
+
+    def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE, keep=None):
+        """What :meth:`prune` keeps and the bounds it reaches: a :class:`pruning.PruneReport` (materials
+        kept and their names, albedo change per channel, cosine-weighted and raw table errors,
+        the budgets; ``str()`` of it is one line for ``print(bsdf)`` and the explorer). ``keep``:
+        what :meth:`prune` kept of the same ``w`` (not pruned again)."""
+        return self._store.report(w, prune, self.database, rule, keep=keep)
+
+    def combine(self, w, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
+        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
+        :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
+        Reads only the kept materials' tables (unless all are in memory)."""
+        return self._store.combine(w, prune, self.database, self.dims, database, rule)
 
     # ----------------------------------------------------------- diagnostics
     def condition_number(self):
