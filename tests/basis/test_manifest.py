@@ -52,3 +52,33 @@ def test_a_bad_field_is_refused_naming_the_file_and_the_field(tmp_path, field, v
     with pytest.raises(MismatchError, match=words.replace("[", r"\[")):
         write_manifest(tmp_path / "nowhere", bad)
     assert not (tmp_path / "nowhere").exists()
+
+
+def test_a_blend_call_reads_its_basis_once(tmp_path, small_manifold, monkeypatch):
+    """blend and blend_path given a folder read and check its manifest once per call; given a
+    Basis, none (the manifold is checked once per Basis, however many blends)."""
+    import numpy as np
+
+    from helpers import write_basis
+    from mitsuba_manifold.basis import blend as bl
+    from mitsuba_manifold.manifold.model import Manifold
+
+    m = Manifold.load(small_manifold)
+    rng = np.random.default_rng(0)
+    images = {"base": rng.random((3, 4, 3), np.float32)}
+    images.update({n: rng.random((3, 4, 3), np.float32) for n in m.names})
+    write_basis(str(tmp_path / "b"), small_manifold, images)
+    reads = []
+    real = Manifest.read.__func__
+    monkeypatch.setattr(Manifest, "read", classmethod(lambda cls, folder: reads.append(folder) or real(cls, folder)))
+    bl.blend(str(tmp_path / "b"), small_manifold, x=m.latent[0])
+    assert len(reads) == 1
+    bl.blend_path(str(tmp_path / "b"), small_manifold, m.names[0], m.names[1], steps=3)
+    assert len(reads) == 2
+    basis = bl.Basis.load(str(tmp_path / "b"))
+    checks = []
+    check = basis.check_manifold
+    monkeypatch.setattr(basis, "check_manifold", lambda mf=None: checks.append(mf) or check(mf))
+    for x in m.latent[:3]:
+        bl.blend(basis, small_manifold, x=x)
+    assert len(reads) == 3 and len(checks) == 3 and len(basis._checked) == 1
