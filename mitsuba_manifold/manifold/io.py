@@ -6,7 +6,8 @@ The fit's :class:`~.fit_record.FitRecord` is stored as the ``meta`` entry's ``in
 Version 2 adds the interpolant's parameters and the raw tables' Gram matrix (exact pruning
 errors); files of this release add ``cos_gram``, the cosine-weighted Gram matrix of the
 "image" pruning rule, an optional array that readers of earlier version-2 files ignore and
-that this reader computes from the tables when a file lacks it. Version 1 files read as the paper's GP interpolant on their stored ``l`` and ``mu``,
+that this reader computes from the tables when a file lacks it. Version 1 files read as the
+paper's GP interpolant on their stored ``l`` and ``mu``,
 what they were used with; anything unreadable fails with a message that names the file
 and says to refit.
 """

@@ -1,6 +1,7 @@
 """Refining a blend to the exact full-GI image of its point (``blend.py --refine``).
 
-With a full-GI basis of one target the refinement is, by default, a *control variate*: one-pass paths at the point (sampled with the point's own material,
+With a full-GI basis of one target the refinement is, by default, a *control variate*: one-pass
+paths at the point (sampled with the point's own material,
 :func:`~.integrators.onepass.render_onepass_gi` with ``point``) give, from the same paths, the
 point's ``L2+`` image ``R`` and the blend's model of it, ``Q = sum_i w_i R_i + sum_{i<j} w_i w_j
 C_ij`` (the weights and cross terms the blend used), so that

@@ -22,7 +22,8 @@ import os
 import shutil
 import time
 from dataclasses import dataclass, replace
-from typing import Optional, Sequence, Tuple, Union
+from collections.abc import Sequence
+from typing import Optional, Union
 
 import numpy as np
 
@@ -151,7 +152,7 @@ class BasisOptions:
     mode: str = "per-material"
     seed: int = 0
     # the scene
-    resolution: Optional[Union[int, Tuple[int, int]]] = None
+    resolution: Optional[Union[int, tuple[int, int]]] = None
     max_depth: Optional[int] = None
     variant: Optional[str] = None
     x: Optional[Sequence[float]] = None
@@ -168,7 +169,7 @@ class BasisOptions:
     cross_tol: float = 1e-3
     cross_light_tol: float = 0.005
     cross_fraction: float = 1.0
-    cross_keep: Optional[Sequence[Tuple[str, str]]] = None
+    cross_keep: Optional[Sequence[tuple[str, str]]] = None
 
 
 def render_basis(scene_path, manifold_path, out, options=None, **settings):

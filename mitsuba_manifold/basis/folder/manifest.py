@@ -36,8 +36,10 @@ stays, ``base`` or ``a+b`` cannot collide with the base image or the separator) 
 file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
 (:func:`mitsuba_manifold.manifold.identity.manifold_identity`), so an identical refit is accepted.
 Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
-``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`). :func:`make_manifest` and :func:`write_manifest` write the format, :func:`read_manifest`
-reads it; :class:`~mitsuba_manifold.basis.folder.Basis` opens a folder and its images,
+``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`).
+:class:`Manifest` alone reads, writes and checks the format (:func:`make_manifest`,
+:func:`write_manifest` and :func:`read_manifest` are its JSON-object face for the renderers);
+:class:`~mitsuba_manifold.basis.folder.Basis` opens a folder and its images,
 :mod:`mitsuba_manifold.basis.folder.owned_files` says which files a basis folder owns, and
 :func:`mitsuba_manifold.basis.blend.blend` and :func:`~mitsuba_manifold.basis.blend.blend_path` combine the images.
 """
@@ -390,7 +392,7 @@ class Manifest:
         return out
 
     def check(self, where="manifest"):
-        """This manifest, its fields checked (:class:`MismatchError` naming ``where``)."""
+        """Return this manifest, its fields checked (:class:`MismatchError` naming ``where``)."""
         _check_json(self.to_json(), where)
         return self
 

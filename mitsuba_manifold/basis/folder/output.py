@@ -57,8 +57,9 @@ def open_folder(out, manifest, files, force=False, read_images=True):
 
     A folder whose manifest has other settings is refused, unless it lists no image yet
     (nothing to lose). A listed image that is damaged or changed since it was written (its
-    SHA-256 in the manifest) is rendered again, or refused when it is read-only. Files the run would write (``files``) that exist without being
-    listed in the manifest are the user's: refused unless ``force``. Files the manifest
+    SHA-256 in the manifest) is rendered again, or refused when it is read-only. Files the run
+    would write (``files``) that exist without being listed in the manifest are the user's:
+    refused unless ``force``. Files the manifest
     lists as ``pending`` were being written by a run that was killed: they are this tool's,
     and are removed when ``read_images`` (the locked call) so they are rendered again.
     """
