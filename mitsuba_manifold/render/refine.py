@@ -37,6 +37,7 @@ of their mean, reported as a relative MSE (the metric of :mod:`mitsuba_manifold.
 as they come); :func:`refine` returns the last.
 """
 
+import collections
 import contextlib
 import os
 import threading
@@ -336,8 +337,6 @@ def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"
 
 def refine(basis, manifold, x=None, request=None, **settings):
     """The last estimate of :func:`refine_passes` (all ``spp`` samples): a :class:`Refined`."""
-    last = None
-    for last in refine_passes(basis, manifold, x, request, **settings):
-        pass
-    return last
+    last = collections.deque(refine_passes(basis, manifold, x, request, **settings), maxlen=1)
+    return last[0] if last else None
 
