@@ -235,12 +235,13 @@ def _say_component(info):
 
 def _refined(args, basis, manifold):
     """The image of ``--refine`` (:func:`mitsuba_manifold.render.refine.refine`), its progress printed."""
-    from ...render.refine import CONTROL_VARIATE, refine_passes
+    from ...render.refine import CONTROL_VARIATE, RefineRequest, refine_passes
 
-    print(f"refining at the point, {args.refine} spp in {args.refine_passes} passes ...", flush=True)
+    request = RefineRequest(spp=args.refine, passes=args.refine_passes, seed=args.seed, database=args.database,
+                            prune=args.prune, l2=args.l2)
+    print(f"refining at the point, {request.spp} spp in {request.passes} passes ...", flush=True)
     last = None
-    for last in refine_passes(basis, manifold, x=args.x, spp=args.refine, passes=args.refine_passes,
-                              seed=args.seed, database=args.database, prune=args.prune, l2=args.l2):
+    for last in refine_passes(basis, manifold, args.x, request):
         if last.passes:
             print(f"  pass {last.passes}/{args.refine_passes}: {last.spp} spp, {last.seconds:.2f} s", flush=True)
     written = ("the full-GI blend plus this correction" if last.method == CONTROL_VARIATE
