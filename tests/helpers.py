@@ -120,7 +120,7 @@ def write_basis(folder, manifold_path, images, targets=("material",), scene_text
         imageio.write_exr(os.path.join(folder, file), img)
         entries[key] = {"file": file, "time_s": 0.01}
     h, w = next(iter(images.values())).shape[:2]
-    manifest = bf.make_manifest(scene, manifold_path, (w, h), 16, "llvm_ad_rgb", 0, 8, "per-material",
-                                list(targets), entries)
+    manifest = bf.make_manifest(scene, manifold_path, resolution=(w, h), spp=16, variant="llvm_ad_rgb", seed=0,
+                                max_depth=8, mode="per-material", targets=list(targets), images=entries)
     bf.write_manifest(folder, manifest)
     return scene

@@ -105,3 +105,39 @@ def test_only_the_rendering_subsystem_and_the_apps_import_mitsuba():
 
 def test_every_subsystem_has_a_rank():
     assert {_subsystem(m) for m in _modules()} - {None} <= set(RANKS)
+
+
+#: The benchmarks: top-level, beside the package and outside the wheel.
+BENCHMARKS = os.path.join(os.path.dirname(PACKAGE), "benchmarks")
+TESTS = os.path.dirname(os.path.abspath(__file__))
+
+
+def _top_level_imports(path):
+    """Top-level names of the modules that ``path`` imports absolutely, anywhere in its body."""
+    names = set()
+    for node in ast.walk(ast.parse(open(path).read())):
+        if isinstance(node, ast.Import):
+            names |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def _python_files(folder):
+    for dirpath, _, files in os.walk(folder):
+        yield from (os.path.join(dirpath, f) for f in files if f.endswith(".py"))
+
+
+def test_the_benchmarks_use_the_package_and_the_package_never_the_benchmarks():
+    """Benchmarks import the package (absolutely: they are not part of it); nothing in the
+    package imports them, and only the benchmarks' own tests (tests/bench) do."""
+    assert os.path.isfile(os.path.join(BENCHMARKS, "__init__.py"))
+    assert not os.path.exists(os.path.join(PACKAGE, "apps", "bench"))
+    users = [p for p in _python_files(BENCHMARKS) if NAME in _top_level_imports(p)]
+    assert len(users) > 10
+    wrong = [os.path.relpath(p, PACKAGE) for p in _python_files(PACKAGE) if "benchmarks" in _top_level_imports(p)]
+    assert not wrong, f"package modules importing the benchmarks: {wrong}"
+    bench_tests = os.path.join(TESTS, "bench")
+    wrong = [os.path.relpath(p, TESTS) for p in _python_files(TESTS)
+             if not p.startswith(bench_tests + os.sep) and "benchmarks" in _top_level_imports(p)]
+    assert not wrong, f"core tests importing the benchmarks (put benchmark tests in tests/bench): {wrong}"

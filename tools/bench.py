@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmarks (not timed tests): tools/bench.py NAME --json OUT.
 
-The tool is mitsuba_manifold/cli/bench.py (also installed as a console script); --help lists its options.
+The tool is benchmarks/cli.py; --help lists its options.
 """
 
 import os
@@ -14,7 +14,7 @@ signal.signal(signal.SIGINT, lambda *_: (sys.stderr.write("error: interrupted wh
 # Run from a checkout without installing the package: its root comes first on the path.
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from mitsuba_manifold.apps.cli.bench import main  # noqa: E402
+from benchmarks.cli import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

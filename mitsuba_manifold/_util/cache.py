@@ -106,9 +106,13 @@ def _load_valid(path, shape, dtype, finite, mmap):
     return value
 
 
-def npy_cache(path, build=None, write=None, shape=None, dtype=None, finite=False, mmap=False,
+def npy_cache(path, build=None, write=None, *, shape=None, dtype=None, finite=False, mmap=False,
               touch=False, keep=None, marker=None, on_rebuild=None):
     """Load the array cached at ``path``, or make it and cache it.
+
+    Eleven parameters: how the array is made (``build`` or ``write``), what a cached file must
+    be (``shape``, ``dtype``, ``finite``), how it is returned and the folder's eviction; all but
+    the first three are keywords.
 
     Parameters
     ----------

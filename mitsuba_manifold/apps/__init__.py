@@ -1,5 +1,6 @@
 """What a user runs: the command-line tools (:mod:`.cli`), the live explorer (:mod:`.explore`),
-the benchmarks (:mod:`.bench`) and the main job (:mod:`.pipeline`).
+and the main job (:mod:`.pipeline`). The benchmarks (``tools/bench.py``) live outside the package,
+in the repository's top-level ``benchmarks/``.
 
 May import any subsystem; nothing in the library imports it.
 """

@@ -9,8 +9,8 @@
    by albedo and normal AOVs that blend like the images, :mod:`denoise`), raw errors kept.
 
 :func:`run_main_job` does all four (settings: :class:`MainJob`); steps 3 and 4 are
-:func:`~mitsuba_manifold.apps.comparison.gi_report` (settings: :class:`GISettings`; also
-behind ``tools/bench.py gi``), re-exported here with the rest of the comparison.
+:func:`~mitsuba_manifold.apps.gi_comparison.gi_report` (settings: :class:`~mitsuba_manifold.apps.gi_comparison.GISettings`;
+also behind ``tools/bench.py gi``).
 """
 
 import json
@@ -24,14 +24,10 @@ from ..manifold.model import Manifold
 from ..render import scenes as _scenes
 from .._util import ownership
 from .._util.atomic import write_bytes
-from .commands import explore_command
-from .comparison import (GISettings, extrapolation_labels, extrapolation_sheet, gi_pair, gi_points, gi_report,
-                         gi_scene, relative_bias, versus_direct)
+from .tool_commands import explore_command
+from .gi_comparison import gi_report, versus_direct
 
-__all__ = ["MainJob", "run_main_job", "check_main_job",
-           # the GI comparison, re-exported (its callers used to find it here)
-           "GISettings", "extrapolation_labels", "extrapolation_sheet", "gi_pair", "gi_points", "gi_report",
-           "gi_scene", "relative_bias", "versus_direct"]
+__all__ = ["MainJob", "run_main_job"]
 
 
 @dataclass(frozen=True)
@@ -96,12 +92,6 @@ class MainJob:
         for s in self.direct_spp:
             validate.positive_int("`direct_spp`", s, "64")
         return path
-
-
-def check_main_job(out, resolution, q, scene, res, spp, ref_spp, direct_spp=(1,), mode="onepass"):
-    """:meth:`MainJob.check` of these settings (the call of earlier versions)."""
-    return MainJob(out, tuple(resolution), q=q, scene=scene, res=res, spp=spp, ref_spp=ref_spp,
-                   direct_spp=tuple(direct_spp), mode=mode).check()
 
 
 def run_main_job(job, log=print, **fields):

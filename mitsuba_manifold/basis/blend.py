@@ -15,7 +15,7 @@ kept weights to the same sum). With ``p`` targets (paper Sec. 6) the image is mu
 where ``I[i_1..i_p]`` is the full ``L1-`` image (base included) with target ``t`` set to
 material ``i_t``.
 
-A one-pass basis of one target may also hold full-GI images (issue 21; the paper's
+A one-pass basis of one target may also hold full-GI images (the paper's
 practice, Sec. 5.2 and Fig. 12: "applying this interpolation to calculate I_* directly"):
 ``F_i = touch_i + L2+_i``, so that ``base + F_i`` is material ``i`` with global illumination,
 and the cross terms ``C_ij`` of :mod:`.crossterms`. The default blend (``component="full"``)
@@ -30,13 +30,15 @@ come from a basis folder (:mod:`mitsuba_manifold.basis.folder`); no Mitsuba is l
 import itertools
 import time
 import warnings
+from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
 from .crossterms import cross_weights
 from .folder import Basis
 from ..errors import MismatchError
-from .compose import compose, read_cross
+from .composition import compose, read_cross
 from .denoise import BasisAOVs, denoise, denoised_l2
 from ..imaging.io import printable
 from ..manifold.pruning import DEFAULT_PRUNE
@@ -52,8 +54,9 @@ def resolve_component(basis, component=None):
 
     The default is the full-GI blend wherever the basis holds full-GI images (the paper's
     practice, Sec. 5.2): exact at every training material, and with the cross terms through
-    each pair's midpoint (:mod:`.crossterms`) within 0.2% at the midpoint of white-paint and
-    blue-rubber on the table, where the L1- blend is 1.9% too dark (``docs/benchmarks.md``).
+    each pair's midpoint (:mod:`.crossterms`) close to a full-GI render between them, where the
+    L1- blend misses the light that reaches the material more than once (figures in
+    ``docs/benchmarks.md``).
 
     "full" on a basis without full-GI images blends L1-; the note says why (empty when the
     basis holds what was asked). An older basis (no ``components`` in its manifest) also
@@ -70,7 +73,7 @@ def resolve_component(basis, component=None):
             basis._warned_legacy = True
             warnings.warn(note, UserWarning, stacklevel=3)
         return "l1", note
-    why = basis.manifest.get("left_out", {}).get("l2+", "the basis holds L1- images only")
+    why = (basis.manifest.left_out or {}).get("l2+", "the basis holds L1- images only")
     return "l1", f"L1- blend: {why}"
 
 
@@ -117,12 +120,39 @@ def _target_weights(basis, manifold, x, w):
     return arr, None
 
 
-def _plan(basis, manifold, W, prune, renormalise, component="l1"):
-    """Image keys and their weights for one blend.
+@dataclass(frozen=True)
+class BlendPlan:
+    """What one blend sums (Eq. 13): the images, their weights and the cross terms.
 
-    Returns ``(keys, weights, info)``; ``weights`` multiply the images ``keys`` (plus
-    ``base`` with weight 1 for a one-target basis). With ``component`` "full" the keys are
-    the full-GI images and ``info["cross"]`` the rows and weights of the cross terms.
+    Attributes
+    ----------
+    keys : list of str
+        The materials' image keys, as an L1- blend names them.
+    image_weights : ndarray (K,)
+        Their weights (after pruning; plus ``base`` with weight 1 for a one-target basis).
+    cross : (ndarray, ndarray) or None
+        The rows of the basis's cross terms and their weights ``w_i w_j`` (a full-GI blend of
+        one target), or None.
+    image_keys : list of str
+        The images summed: :attr:`keys`, or their full-GI images when there are cross terms.
+    """
+
+    keys: list
+    image_weights: np.ndarray
+    cross: Optional[tuple] = None
+    image_keys: list = None
+
+    @property
+    def summed(self):
+        """The images summed: :attr:`image_keys` or, when not set, :attr:`keys`."""
+        return self.keys if self.image_keys is None else self.image_keys
+
+
+def _plan(basis, manifold, W, prune, renormalise, component="l1"):
+    """The :class:`BlendPlan` of one blend and its report.
+
+    Returns ``(plan, info)``: the images, weights and cross terms to sum, and ``info`` (kept
+    weights, dropped weight, missing images, renormalised, ``cross_left_weight``).
     """
     p, names = basis.p, manifold.names
     kept, info = [], {"weights": [], "dropped_weight": []}
@@ -161,24 +191,20 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
         keys = [k for k, ok in zip(keys, present) if ok]
         cw = cw[present] * (total / cw[present].sum())
         info["renormalised"] = True
-    info["cross"] = None
+    cross = None
     if component == "full" and p == 1:
         pairs, _ = basis.cross_terms()
         kept_names = [basis.key([names[i]]) for i in kept[0][0]]
         mats = [k for k in kept_names if k in keys]
         wk = np.array([cw[keys.index(k)] for k in mats])
         rows, prods, left = cross_weights([names[kept[0][0][kept_names.index(k)]] for k in mats], wk, pairs)
-        info["cross"] = (rows, prods)
+        cross = (rows, prods)
         info["cross_left_weight"] = left if "cross" in basis.components else None
-    info["keys"] = keys   # the materials' image keys (as an L1- blend names them)
-    info["image_weights"] = cw
-    if info["cross"] is not None:
-        keys = [basis.gi_key(k) for k in keys]
-    info["image_keys"] = keys   # the images summed
-    return keys, cw, info
+    summed = keys if cross is None else [basis.gi_key(k) for k in keys]
+    return BlendPlan(keys, cw, cross, summed), info
 
 
-def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False, component=None,
+def blend(basis, manifold=None, *, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False, component=None,
           l2="denoised"):
     """The image of latent point ``x`` (or weights ``w``) from a basis.
 
@@ -203,7 +229,7 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         L1-, see :func:`resolve_component`); ``"l1"``: Eq. 13 on the L1- images.
     l2 : {"denoised", "raw"}
         The full-GI blend's part beyond L1- (noisy where interreflection runs through a narrow peak):
-        OIDN-denoised, its light kept (default, :func:`~.denoise.denoised_l2`: 50-100 ms at 256x256) or summed (1-3 ms).
+        OIDN-denoised, its light kept (default, :func:`~.denoise.denoised_l2`), or summed (faster).
 
     Returns
     -------
@@ -213,7 +239,7 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
         asked for, or ""), ``cross_left_weight`` (largest ``|w_i w_j|`` of a pair whose cross
         term the basis does not hold; None without cross terms),
         ``weights`` (per target, kept material -> weight), ``dropped_weight`` (per target),
-        ``keys``/``image_weights`` (images combined), ``missing``, ``renormalised``, ``x``, ``time_ms``
+        ``plan`` (the :class:`BlendPlan` summed), ``missing``, ``renormalised``, ``x``, ``time_ms``
         (weights, pruning, summing the images in memory, denoising), ``time_read_s`` (from disk).
     """
     if not isinstance(basis, Basis):
@@ -224,17 +250,17 @@ def blend(basis, manifold=None, x=None, w=None, prune=DEFAULT_PRUNE, renormalise
     t_cross = read_cross(basis, used)
     t0 = time.perf_counter()
     W, pts = _target_weights(basis, manifold, x, w)
-    keys, cw, info = _plan(basis, manifold, W, prune, renormalise, used)
+    plan, info = _plan(basis, manifold, W, prune, renormalise, used)
     t_plan = time.perf_counter() - t0
-    image, t_read, t_sum = compose(basis, keys, cw, info["cross"])
+    image, t_read, t_sum = compose(basis, plan.summed, plan.image_weights, plan.cross)
     t_read += t_cross
     t_den = 0.0
     if used == "full" and l2 == "denoised" and basis.p == 1:
         t0 = time.perf_counter()
-        image = denoised_l2(basis, image, info["keys"], info["image_weights"])   # the L1- images of the point
+        image = denoised_l2(basis, image, plan)
         t_den = time.perf_counter() - t0
     info.update(component=used, component_note=note, x=None if pts is None else (pts[0] if basis.p == 1 else pts),
-                time_ms=1e3 * (t_plan + t_sum + t_den), time_read_s=t_read, n_images=len(keys),
+                time_ms=1e3 * (t_plan + t_sum + t_den), time_read_s=t_read, n_images=len(plan.summed), plan=plan,
                 l2=l2 if used == "full" else None)
     return image, info
 
@@ -248,7 +274,7 @@ def _check_l2(l2):
         raise MismatchError(f"`l2` must be one of {L2_MODES}, got {l2!r}")
 
 
-def denoised_blend(basis, manifold=None, x=None, w=None, aovs=None, guides=True, **kwargs):
+def denoised_blend(basis, manifold=None, *, x=None, w=None, aovs=None, guides=True, **kwargs):
     """:func:`blend` and its denoised version (OIDN on the whole image, :mod:`.denoise`).
 
     Returns
@@ -263,7 +289,7 @@ def denoised_blend(basis, manifold=None, x=None, w=None, aovs=None, guides=True,
     t0 = time.perf_counter()
     if guides:
         aovs = aovs or BasisAOVs.load(basis.folder, basis.manifest)
-        albedo = aovs.albedo_of_blend(info, basis.manifest["version"])
+        albedo = aovs.albedo_of_blend(info["plan"], basis.manifest.version)
         out = denoise(raw, albedo, aovs.normal)
     else:
         out = denoise(raw)
@@ -280,9 +306,12 @@ def _endpoint(manifold, v):
     return arr
 
 
-def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRUNE, renormalise=False,
+def blend_path(basis, manifold=None, a=None, b=None, *, steps=20, prune=DEFAULT_PRUNE, renormalise=False,
                target=0, x=None, component=None, kind="straight", points=None, l2="denoised"):
     """Images along a latent path from ``a`` to ``b`` (paper Fig. 12).
+
+    Its thirteen parameters are :func:`blend`'s, the path's (ends, steps, kind or points) and the
+    targets that stay fixed; all but the basis, the manifold and the ends are keywords.
 
     Parameters
     ----------
@@ -339,29 +368,29 @@ def blend_path(basis, manifold=None, a=None, b=None, steps=20, prune=DEFAULT_PRU
         pts = xi[None] if basis.p == 1 else np.where(np.arange(basis.p)[:, None] == target, xi, fixed)
         W = manifold.weights(pts)[1]
         plans.append(_plan(basis, manifold, W, prune, renormalise, used))
-    keys = sorted({k for ks, _, _ in plans for k in ks})
+    keys = sorted({k for plan, _ in plans for k in plan.summed})
     col = {k: j for j, k in enumerate(keys)}
     M = np.zeros((steps, len(keys)), dtype=np.float32)
-    for s, (ks, cw, _) in enumerate(plans):
-        M[s, [col[k] for k in ks]] = cw
+    for s, (plan, _) in enumerate(plans):
+        M[s, [col[k] for k in plan.summed]] = plan.image_weights
     cross = None
     if used == "full" and basis.p == 1:   # the cross terms of every step, as one matrix
-        rows = sorted({int(r) for _, _, inf in plans for r in inf["cross"][0]})
+        rows = sorted({int(r) for plan, _ in plans for r in plan.cross[0]})
         at = {r: j for j, r in enumerate(rows)}
         C = np.zeros((steps, len(rows)), dtype=np.float32)
-        for s_, (_, _, inf) in enumerate(plans):
-            C[s_, [at[int(r)] for r in inf["cross"][0]]] = inf["cross"][1]
+        for s_, (plan, _) in enumerate(plans):
+            C[s_, [at[int(r)] for r in plan.cross[0]]] = plan.cross[1]
         cross = (np.array(rows, dtype=np.intp), C)
     t_plan = time.perf_counter() - t0
     images, t_read, t_sum = compose(basis, keys, M, cross)
     t_read += t_cross
     t0 = time.perf_counter()
     if used == "full" and l2 == "denoised" and basis.p == 1:   # as blend(): each step's L2+ part denoised
-        for s_, ((_, _, inf), img) in enumerate(zip(plans, images)):
-            images[s_] = denoised_l2(basis, img, inf["keys"], inf["image_weights"])
-    for (_, _, inf), xi in zip(plans, xs):
-        inf["x"] = xi
-    return images, xs, {"steps": [p[2] for p in plans], "time_ms": 1e3 * (t_plan + t_sum), "time_read_s": t_read,
+        for s_, ((plan, _), img) in enumerate(zip(plans, images)):
+            images[s_] = denoised_l2(basis, img, plan)
+    for (plan, inf), xi in zip(plans, xs):
+        inf.update(x=xi, plan=plan)
+    return images, xs, {"steps": [inf for _, inf in plans], "time_ms": 1e3 * (t_plan + t_sum), "time_read_s": t_read,
                         "denoise_ms": 1e3 * (time.perf_counter() - t0), "component": used, "component_note": note,
                         "l2": l2 if used == "full" else None}
 

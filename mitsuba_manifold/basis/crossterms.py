@@ -1,4 +1,4 @@
-"""Which cross terms a full-GI basis holds, and their part of a blend (issue 21).
+"""Which cross terms a full-GI basis holds, and their part of a blend.
 
 With full-GI images ``F_i`` (material ``i`` alone) the blend ``base + sum_i w_i F_i`` is exact
 at every training material; for paths with two vertices on the material, the blended
@@ -12,7 +12,8 @@ this second-order term out). ``C_ii = 0``. A basis stores the generalisation to 
 ``C_ij = 4 R_m - 2 R_i - 2 R_j`` (``R``: ``L2+`` images, ``m`` the pair's midpoint material,
 :mod:`mitsuba_manifold.render.integrators.multisplats`): for two-vertex paths the term above,
 and for paths touching the material three or more times it makes the blend exact at the pair's
-midpoint too (a quadratic through the ends and the midpoint of the segment). A pair is stored when some point of the explored
+midpoint too (a quadratic through the ends and the midpoint of the segment). A pair is stored
+when some point of the explored
 region (the training points, the midpoints of every material and its latent neighbours,
 random points of the latent box) blends both with ``|w_i w_j| >= tol`` (before pruning by
 default: pruning only drops small weights and rescales the others by about ``1 +- prune``, so

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import folder as basis_folder
-from .compose import compose
+from .composition import compose
 from ..data import merl
 from .._util.atomic import atomic_write
 from ..errors import MismatchError
@@ -105,10 +105,11 @@ class BasisAOVs:
         mixed = np.tensordot(w, self.table, axes=1)  # (bins, 3)
         return np.clip(self.albedo_base + self.hist @ mixed.astype(np.float32), 0.0, 1.0)
 
-    def albedo_of_blend(self, info, version=basis_folder.FORMAT_VERSION):
-        """Albedo image of a one-target blend, from its ``info`` (image keys and weights)."""
-        weights = np.asarray(info["image_weights"], dtype=np.float64)
-        return self.albedo({basis_folder.key_materials(k, version)[0]: w for k, w in zip(info["keys"], weights)})
+    def albedo_of_blend(self, plan, version=basis_folder.FORMAT_VERSION):
+        """Albedo image of a one-target blend, from its :class:`~.blend.BlendPlan` (image keys and
+        weights)."""
+        weights = np.asarray(plan.image_weights, dtype=np.float64)
+        return self.albedo({basis_folder.key_materials(k, version)[0]: w for k, w in zip(plan.keys, weights)})
 
     def save(self, folder, manifest):
         path = os.path.join(os.fspath(folder), AOV_FILE)
@@ -146,16 +147,23 @@ class BasisAOVs:
                     raise MismatchError(f"{path}: AOV format version {int(z['version'])}, expected {AOV_VERSION}")
                 out = cls(z["normal"], z["albedo_base"], z["hist"], z["table"], [str(n) for n in z["names"]],
                           int(z["spp"]), float(z["time_s"]))
-                return out, _basis_key(json.loads(str(z["basis"])))
+                return out, _stored_key(json.loads(str(z["basis"])))
         except (OSError, ValueError, KeyError, AttributeError, TypeError, EOFError, zipfile.BadZipFile) as e:
             raise MismatchError(f"{path} is not an AOV file written by render_basis with `aovs` ({type(e).__name__}); "
                                 "delete it and render the AOVs again") from None
 
 
 def _basis_key(manifest):
-    """What AOVs are made for: the basis's scene, manifold, resolution and sensor (absent in
-    manifests of earlier versions: sensor 0)."""
-    key = {k: manifest.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}
+    """What AOVs are made for: the basis's scene, manifold, resolution and sensor (a
+    :class:`~.folder.Manifest` or its JSON object)."""
+    m = basis_folder.Manifest.from_json(manifest)
+    return {"scene_hash": m.scene_hash, "manifold_hash": m.manifold_hash, "resolution": list(m.resolution),
+            "sensor": m.sensor_index}
+
+
+def _stored_key(key):
+    """:func:`_basis_key` as an AOV file stores it (a sensor not recorded is sensor 0)."""
+    key = {k: key.get(k) for k in ("scene_hash", "manifold_hash", "resolution", "sensor")}
     key["sensor"] = key["sensor"] or 0
     return key
 
@@ -181,20 +189,18 @@ def denoise(image, albedo=None, normal=None, quality="high"):
 
 # ------------------------------------------------------------------ the L2+ part of full-GI blends
 
-def denoised_l2(basis, image, keys, weights):
+def denoised_l2(basis, image, plan):
     """``L1- blend + D + restore_light(extra - D)``: the full-GI ``image`` of a one-target blend
     with its part beyond L1- (``extra``) denoised (``D``), guided by the basis's AOVs when it has
     them (:mod:`.denoise`), and the light the denoiser took put back at low frequency
-    (:func:`restore_light`); ``keys``, ``weights``: the L1- images of the same point. That part is
+    (:func:`restore_light`); ``plan``: the blend's :class:`~.blend.BlendPlan` (its L1- images,
+    :attr:`~.blend.BlendPlan.keys`, and their weights). That part is
     signed (cross terms) and OIDN takes light only, so its positive and negative parts are denoised
-    apart. OIDN's ``fast`` quality (:data:`L2_QUALITY`): on the main job's basis (table, 256x256,
-    512 spp) it took the relative MSE at the midpoint of blue-rubber and white-paint from 0.0155
-    to 0.0017 and at white-paint from 0.23 to 0.0037 (a 256-spp direct render: 0.0033, 0.12),
-    as ``high`` did (0.0017, 0.0035) in a quarter of the time: about 50 ms per part on 2 cores
-    (``high``: about 215 ms; docs/benchmarks.md)."""
-    l1, _, _ = compose(basis, keys, weights, None)
+    apart, at OIDN's ``fast`` quality (:data:`L2_QUALITY`; its errors against ``high``'s are in
+    docs/benchmarks.md)."""
+    l1, _, _ = compose(basis, plan.keys, plan.image_weights, None)
     extra = image - l1
-    guides = _guides(basis, {"keys": keys, "image_weights": weights})
+    guides = _guides(basis, plan)
     smooth = np.zeros_like(extra)
     for sign in (1.0, -1.0):   # a part may be empty (no negative cross term, weights >= 0)
         part = np.maximum(sign * extra, 0.0)
@@ -208,15 +214,12 @@ def restore_light(removed, width=RESTORE_WIDTH):
 
     OIDN takes fireflies away, and with them the light they carry on average: caustic paths
     through a narrow peak (white-paint's red lobe on the table's bowl) are rare and bright, so the
-    denoised L2+ part is darker than its expectation, by about the same amount on every seed (table,
-    64x64, 256-spp bases, six seeds: -1.61% of white-paint's image, sd 0.23%, where the summed blend
-    is -0.40% +- 0.31% and a direct render -0.18% +- 0.14%). That loss is smooth over the surface,
-    so ``removed`` is added back blurred by a kernel of standard deviation ``width`` times the
-    image's larger side: the blend then has the summed blend's light exactly (-0.40% there) and
-    keeps the denoiser's detail (relative MSE 0.0065 against 0.0061 denoised alone and 0.086
-    summed); the mean of one image is then as noisy as the summed blend's (docs/benchmarks.md).
-    Three box filters (reflected at the edges, so each channel's total is kept) stand for the
-    Gaussian: 10 ms at 256x256, whatever the width."""
+    denoised L2+ part is darker than its expectation, by about the same amount on every seed. That
+    loss is smooth over the surface, so ``removed`` is added back blurred by a kernel of standard
+    deviation ``width`` times the image's larger side: the blend then has the summed blend's light
+    and keeps the denoiser's detail (figures in docs/benchmarks.md). Three box filters (reflected
+    at the edges, so each channel's total is kept) stand for the Gaussian, at a cost independent
+    of the width."""
     from scipy.ndimage import uniform_filter
 
     sigma = width * max(removed.shape[:2])
@@ -243,12 +246,12 @@ def _aovs_or_none(basis):
     return aovs if key == _basis_key(basis.manifest) else None
 
 
-def _guides(basis, info):
+def _guides(basis, plan):
     """``(albedo, normal)`` of a one-target L1- blend from the basis's AOVs, or ``(None, None)``."""
     aovs = basis_aovs(basis)
     if not aovs:
         return None, None
     try:
-        return aovs.albedo_of_blend(info, basis.manifest["version"]), aovs.normal
+        return aovs.albedo_of_blend(plan, basis.manifest.version), aovs.normal
     except MismatchError:   # AOVs older than some of the basis's materials: unguided
         return None, None

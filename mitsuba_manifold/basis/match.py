@@ -43,7 +43,7 @@ from threadpoolctl import threadpool_limits
 
 from . import objectives as image_error
 from .folder import BASE, Basis
-from .compose import compose
+from .composition import compose
 from ..errors import InputError
 from ..manifold import search as latent
 from .objectives import LOSSES, masked_pool, masked_rel_mse, pool
@@ -62,8 +62,23 @@ class SingleMatch:
     exposure: float
 
 
+class LatentMatch:
+    """What every match finds: a latent point ``x`` and its affine weights ``weights`` over the
+    materials ``names`` (the base of :class:`MatchResult` and of the rendered match's result)."""
+
+    def top_weights(self, k=6):
+        """The ``k`` largest nonzero ``|w_i|`` as ``[(name, w_i)]``."""
+        order = np.argsort(-np.abs(self.weights), kind="stable")[:k]
+        return [(self.names[i], float(self.weights[i])) for i in order if self.weights[i] != 0]
+
+    def nearest(self, manifold, k=3):
+        """The ``k`` training materials nearest to ``x`` in latent space, ``[(name, distance)]``."""
+        d = np.linalg.norm(manifold.latent - self.x, axis=1)
+        return [(manifold.names[i], float(d[i])) for i in np.argsort(d)[:k]]
+
+
 @dataclass
-class MatchResult:
+class MatchResult(LatentMatch):
     """What :func:`match` found.
 
     Attributes
@@ -123,16 +138,6 @@ class MatchResult:
         x = ", ".join(f"{v:.4g}" for v in np.asarray(self.x).ravel())
         top = ", ".join(f"{n}:{w:.3g}" for n, w in self.top_weights(4))
         return f"MatchResult(x=[{x}], {fields}, top weights {top}, time_s={self.time_s:.3g})"
-
-    def top_weights(self, k=6):
-        """The ``k`` largest nonzero ``|w_i|`` as ``[(name, w_i)]``."""
-        order = np.argsort(-np.abs(self.weights), kind="stable")[:k]
-        return [(self.names[i], float(self.weights[i])) for i in order if self.weights[i] != 0]
-
-    def nearest(self, manifold, k=3):
-        """The ``k`` training materials nearest to ``x`` in latent space, ``[(name, distance)]``."""
-        d = np.linalg.norm(manifold.latent - self.x, axis=1)
-        return [(manifold.names[i], float(d[i])) for i in np.argsort(d)[:k]]
 
     def to_dict(self, manifold=None):
         """JSON-ready summary (no image)."""

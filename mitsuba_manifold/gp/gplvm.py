@@ -261,6 +261,10 @@ def fit_latent(S, d, q=2, *, method="hooke-jeeves", length_scale=1.0, noise=1e-4
                max_iter=None, tol=None, callback=None, initial_step=0.25):
     """Latent points maximising the GPLVM log-likelihood L (Eq. 6): :class:`GPLVM` as one call.
 
+    Its eleven parameters are those of the model (:class:`GPLVM`, :class:`Kernel`), of the fit
+    and of the optimiser's options, flattened so that one call fits; all but the data and ``q``
+    are keywords.
+
     ``GPLVM(q, Kernel(length_scale, noise), method, options).fit(S, d, init, callback)``
     with the options made of ``max_iter``, ``tol`` and ``initial_step``.
 

@@ -194,8 +194,8 @@ def write_png(path, img, exposure=0.0, text=None):
 
 
 def printable(text):
-    """``text`` with every character that is not printable (newlines, tabs, other control
-    and format characters) written as its Python escape (``\\n``, ``\\x07``, ``\\u202e``): a
+    r"""``text`` with every character that is not printable (newlines, tabs, other control
+    and format characters) written as its Python escape (``\n``, ``\x07``, ``\u202e``): a
     material name drawn in a label or a title reads as it is, on one line."""
     text = str(text)
     return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
@@ -222,7 +222,7 @@ def _wrap(text, width, length, max_lines=3):
 
 
 def _label_lines(text, width, length, max_lines=4):
-    """A label as lines no wider than ``width``: each ``\n``-separated field on lines of its
+    r"""A label as lines no wider than ``width``: each ``\n``-separated field on lines of its
     own (:func:`_wrap`), at most ``max_lines`` in all, the last ending in ``...`` if cut."""
     out, fields = [], [printable(f) for f in str(text).split("\n")]
     for k, field in enumerate(fields):
@@ -248,7 +248,7 @@ def label_font(size=10):
 
 
 def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, pad=4, title=None):
-    """PNG grid of tonemapped images (one exposure for all), with optional labels; atomic.
+    r"""PNG grid of tonemapped images (one exposure for all), with optional labels; atomic.
 
     Parameters
     ----------

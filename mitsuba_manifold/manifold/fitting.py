@@ -16,7 +16,7 @@ from ..data.database import FEATURES, albedo_weights
 from ..errors import FormatError, InputError
 from ..gp.gplvm import FitResult
 from .presets import fit_layout
-from .record import FitRecord, Timings
+from .fit_record import FitRecord, Timings
 
 
 @dataclass

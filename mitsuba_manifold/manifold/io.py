@@ -1,13 +1,13 @@
 """The saved manifold: a ``.npz`` file (no pickle) with a JSON ``meta`` entry and arrays.
 
-The fit's :class:`~.record.FitRecord` is stored as the ``meta`` entry's ``info`` dict and the
+The fit's :class:`~.fit_record.FitRecord` is stored as the ``meta`` entry's ``info`` dict and the
 ``history`` array, the layout of every release so far.
 
 Version 2 adds the interpolant's parameters and the raw tables' Gram matrix (exact pruning
 errors); files of this release add ``cos_gram``, the cosine-weighted Gram matrix of the
 "image" pruning rule, an optional array that readers of earlier version-2 files ignore and
-that this reader computes from the tables when a file lacks it. Version 1 files (the
-previous release) read as the paper's GP interpolant on their stored ``l`` and ``mu``,
+that this reader computes from the tables when a file lacks it. Version 1 files read as the
+paper's GP interpolant on their stored ``l`` and ``mu``,
 what they were used with; anything unreadable fails with a message that names the file
 and says to refit.
 """
@@ -19,7 +19,7 @@ import zipfile
 import numpy as np
 
 from .._util.atomic import atomic_write
-from .record import FitRecord
+from .fit_record import FitRecord
 from . import schema
 from ..errors import FormatError, InputError
 

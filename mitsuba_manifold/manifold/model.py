@@ -21,7 +21,7 @@ a point between two neighbours is a blend of those two. The choice is measured b
 :class:`Manifold` holds what was learned and delegates: the GP (kernel, factorisation of K,
 variance) to :mod:`mitsuba_manifold.gp`, the weights ``w(x)`` to its interpolant
 (:mod:`.interpolant`), the tables, their pruning and combination to :mod:`.tables`
-(:class:`~.tables.PruningMethods`: ``prune``, ``prune_report``, ``combine``), names and
+(:class:`~.tables.TrainingTables`; :meth:`Manifold.prune`, ``prune_report``, ``combine``), names and
 weight text to :mod:`.materials`, projection to :mod:`.projection`, diagnostics and the
 summary to :mod:`.report`, the ``.npz`` file to :mod:`.io`.
 """
@@ -38,8 +38,8 @@ from . import interpolant as interpolants
 from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, PruneReport
-from .record import FitRecord, learned_arguments
-from .tables import Combination, Pruned, PruningMethods, TrainingTables
+from .fit_record import FitRecord
+from .tables import Combination, Pruned, TrainingTables, stored
 from ..data.database import FEATURES, Database
 from ..errors import InputError
 
@@ -56,7 +56,7 @@ class Weights(NamedTuple):
     w: np.ndarray
 
 
-class Manifold(PruningMethods):
+class Manifold:
     """A fitted latent space of measured materials (scikit-learn style: fit, then use).
 
     Parameters
@@ -67,12 +67,15 @@ class Manifold(PruningMethods):
         The kernel's hyperparameters ``l`` and ``mu`` (:attr:`kernel`).
     features : {"raw", "log"}
     albedos : (N, 3) array, optional
-    *legacy
-        ``gram, history, info`` after ``albedos``, as the previous release took them.
-    **learned
-        ``gram``, ``table_gram``, ``cos_gram``, ``interpolant`` (its parameters, default the paper's GP
-        weights on ``l`` and ``mu``) and ``record`` (a :class:`FitRecord`), or instead of it
-        the previous release's ``history`` and ``info`` dict.
+    gram, table_gram, cos_gram : (N, N) arrays, optional
+        See the attributes.
+    interpolant : dict, optional
+        The weight function's parameters (default the paper's GP weights on ``l`` and ``mu``).
+    record : FitRecord, optional
+        What the fit did (default: nothing recorded).
+
+    The constructor takes the whole learned state of a manifold (13 parameters, the last five
+    keyword-only): :meth:`fit` and :meth:`load` make one, a user rarely does.
 
     Attributes
     ----------
@@ -105,8 +108,7 @@ class Manifold(PruningMethods):
     """
 
     def __init__(self, names, latent, database, hashes, length_scale=1.0, noise=1e-4, features="raw",
-                 albedos=None, *legacy, **learned):
-        learned = learned_arguments(legacy, learned)
+                 albedos=None, *, gram=None, table_gram=None, cos_gram=None, interpolant=None, record=None):
         latent = np.asarray(latent, dtype=np.float64)
         if latent.ndim != 2 or latent.shape[0] != len(names):
             raise InputError(f"latent points must have shape (N={len(names)}, q), got {latent.shape}")
@@ -120,14 +122,12 @@ class Manifold(PruningMethods):
         self.hashes = list(hashes)
         self.kernel = Kernel(length_scale, noise)
         self.features = features
-        gram = learned.get("gram")
         self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
-        self.record = learned.get("record") or FitRecord.from_info(learned.get("info"), learned.get("history", ()))
-        self._store = TrainingTables(self.names, self.hashes, learned.get("table_gram"), learned.get("cos_gram"),
-                                     albedos)
+        self.record = record or FitRecord()
+        self._store = TrainingTables(self.names, self.hashes, table_gram, cos_gram, albedos)
         self.interpolant = make_interpolant(self.latent, {
             "length_scale": self.length_scale, "noise": self.noise,
-            "interpolant": learned.get("interpolant") or {"kind": "gp", "exact": True}})
+            "interpolant": interpolant or {"kind": "gp", "exact": True}})
         ip = self.interpolant
         same = isinstance(ip, interpolants.GaussianProcessWeights) and ip.gp.kernel == self.kernel
         self._gp = ip.gp if same else interpolants.posterior(self.latent, self.kernel)   # K factorised once
@@ -207,7 +207,7 @@ class Manifold(PruningMethods):
 
     @property
     def info(self):
-        """The fit's record as the previous release's ``info`` dict (a new dict: assign one to replace it)."""
+        """The fit's record as the saved ``info`` dict (a new dict: assign one to replace it)."""
         return self.record.as_info()
 
     @info.setter
@@ -338,6 +338,43 @@ class Manifold(PruningMethods):
         table = projection_mod.as_table(table, 3 * int(np.prod(self.dims or (0,))), self.dims)
         return projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
 
+    # ------------------------------------------------------------- pruning
+    table_gram = stored("gram", "``T T^T`` of the raw tables (:attr:`TrainingTables.gram`).")
+    cos_gram = stored("cos_gram", "``T diag(q) T^T`` (:attr:`TrainingTables.cos_gram`).")
+    albedos = stored("albedos", "Albedo of each material, (N, 3) (:attr:`TrainingTables.albedos`).")
+
+    def table_norms(self):
+        """L2 norm of each raw table (from :attr:`table_gram`)."""
+        return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self.database)), 0.0))
+
+    def prune(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
+        """Materials kept by pruning weights ``w`` within the budget ``prune`` (0 keeps every
+        non-zero weight): a :class:`Pruned` ``(keep, w_kept, dropped)``.
+
+        ``rule="image"`` (default): each albedo channel changes by at most ``prune / 2``, the
+        cosine-weighted and the raw table by at most ``prune`` of their norms; ``"raw-l2"``: the
+        raw table by at most ``prune`` of its L2 norm; exact
+        (:meth:`TrainingTables.prune`, :mod:`.pruning`)."""
+        return self._store.prune(w, prune, self.database, rule)
+
+    def prune_error(self, w, keep, rule=DEFAULT_RULE):
+        """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled),
+        in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``)."""
+        return self._store.error(w, keep, self.database, rule)
+
+    def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE, keep=None):
+        """What :meth:`prune` keeps and the bounds it reaches: a :class:`pruning.PruneReport` (materials
+        kept and their names, albedo change per channel, cosine-weighted and raw table errors,
+        the budgets; ``str()`` of it is one line for ``print(bsdf)`` and the explorer). ``keep``:
+        what :meth:`prune` kept of the same ``w`` (not pruned again)."""
+        return self._store.report(w, prune, self.database, rule, keep=keep)
+
+    def combine(self, w, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
+        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
+        :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
+        Reads only the kept materials' tables (unless all are in memory)."""
+        return self._store.combine(w, prune, self.database, self.dims, database, rule)
+
     # ----------------------------------------------------------- diagnostics
     def condition_number(self):
         """2-norm condition number of K."""
@@ -390,7 +427,7 @@ class Manifold(PruningMethods):
     def load(cls, path):
         """Read a manifold written by :meth:`save` (:func:`manifold_file.read`).
 
-        Files of format version 1 (the previous release) load with the paper's GP weights on
+        Files of format version 1 load with the paper's GP weights on
         their stored ``l`` and ``mu`` (what they were used with); refit for the default.
 
         Raises
@@ -401,6 +438,47 @@ class Manifold(PruningMethods):
         m = cls(**manifold_file.read(path))
         m.file = os.fspath(path)   # where it was read from (``path`` is the method of paths)
         return m
+
+    # ------------------------------------------------------------ subsets
+    def subset(self, names):
+        """The manifold of materials ``names`` alone, fit again on their Gram matrix.
+
+        The sub-block of this manifold's Gram matrix is centred about the subset's own mean and
+        its latent points are fit (Eq. 6) with this manifold's kernel, optimiser and latent
+        dimension; the weights come from this manifold's interpolant (its kind and parameters,
+        not the GP of Eq. 4 unless that is what this manifold uses). The result is not saved.
+
+        Parameters
+        ----------
+        names : sequence of str
+            Materials of this manifold, at least two, each once.
+
+        Raises
+        ------
+        InputError
+            An unknown or repeated name, fewer than two names, or a manifold without its Gram
+            matrix.
+        """
+        from ..gp import gplvm
+        names = list(names)
+        keep = [self.index(name) for name in names]
+        if len(set(keep)) != len(keep) or len(keep) < 2:
+            raise InputError(f"a subset needs at least two distinct materials of the manifold, got {names}; "
+                             "name each material once")
+        if self.gram is None:
+            raise InputError("this manifold holds no Gram matrix to fit a subset on; refit it with Manifold.fit")
+        S = self.gram[np.ix_(keep, keep)]
+        J = np.eye(len(keep)) - 1.0 / len(keep)
+        S = J @ S @ J
+        fit = gplvm.fit_latent(S, self.info["d"], q=self.q, method=self.info.get("method", "hooke-jeeves"),
+                               length_scale=self.length_scale, noise=self.noise)
+        table_gram = None if self.table_gram is None else self.table_gram[np.ix_(keep, keep)]
+        return type(self)(names, fit.latent, self.database, [self.hashes[i] for i in keep],
+                          self.length_scale, self.noise, self.features,
+                          None if self.albedos is None else self.albedos[keep],
+                          gram=S, interpolant=self.interpolant.params(), table_gram=table_gram,
+                          record=FitRecord.from_info({**self.info, "log_likelihood": float(fit.log_likelihood),
+                                                      "subset_of": getattr(self, "file", None)}, fit.history))
 
     # ------------------------------------------------------------ perceptual paths
     def distance(self, x, y, stride=(1, 1, 1)):

@@ -49,10 +49,10 @@ from ..errors import InputError
 
 KINDS = ("straight", "uniform", "geodesic")
 #: The kind ``Manifold.path``, ``blend.py --path`` and the main job's contact sheet use: the
-#: best measured by ``tools/bench.py fig9`` (``bench/fig9.json``).
+#: best measured by ``tools/bench.py fig9`` (``benchmarks/results/fig9.json``).
 DEFAULT_KIND = "geodesic"
 #: Sub-grid of the searches (see the module doc; ``(1, 5, 10)`` before: 8.6x the values, the
-#: same Fig. 9 measures on the built-in database, ``bench/fig9_default.json``).
+#: same Fig. 9 measures on the built-in database, ``benchmarks/results/fig9_default.json``).
 SEARCH_STRIDE = (3, 10, 15)
 #: Table values below which the cube root's slope is capped (in :meth:`PathMetric.energy`).
 FLOOR = 1e-6

@@ -26,13 +26,13 @@ the combination stays affine), and bounds what the change does. Two rules:
     alone would change (one vectorised pass over all prefixes of that order), then goes on
     greedily, each step dropping the material whose removal changes least (O(N) per step).
 
-``"raw-l2"`` (the previous release's)
+``"raw-l2"``
     Drops the materials of smallest contribution ``|w_i| |table_i|`` for as long as the raw
     table changes by at most ``budget`` of its L2 norm, exact from ``G = T T^T``
     (:func:`prune`). The raw norm is dominated by the specular peaks, so a dull material of
     small weight can be dropped even where it changes the albedo by 10% or more.
 
-The measurements behind the choice: ``tools/bench.py prune`` (``bench/prune.json``).
+The measurements behind the choice: ``tools/bench.py prune`` (``benchmarks/results/prune.json``).
 """
 
 from dataclasses import dataclass

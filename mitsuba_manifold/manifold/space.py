@@ -324,3 +324,41 @@ def plausibility(interpolant, albedos, tables, n_albedo=4096, n_tables=200, seed
     return Plausibility(box_low=lo, box_high=hi, albedo_outside=outside,
                         albedo_range=[float(A.min()), float(A.max())], negative_fraction=neg / d,
                         negative_weights=float(np.mean((W < 0).any(axis=1))))
+
+
+def convex_blend(tables, target):
+    """Convex weights of the rows of ``tables`` whose blend is closest to ``target`` in log space.
+
+    The weights ``w`` (each in [0, 1], summing to 1) minimise the mean of
+    ``(log(1 + w @ tables) - target)**2`` over the bins where ``w @ tables`` is positive, by SLSQP
+    from the first row alone; the first row alone is returned when the optimiser does no better.
+
+    Parameters
+    ----------
+    tables : ndarray, shape (k, d)
+        The tables (or the same bins of each) to blend.
+    target : ndarray, shape (d,)
+        ``log(1 + table)`` of the table to reach.
+
+    Returns
+    -------
+    ndarray, shape (k,)
+    """
+    import scipy.optimize
+
+    A = np.asarray(tables, dtype=np.float64)
+    y = np.asarray(target, dtype=np.float64)
+    k = len(A)
+
+    def f(w):
+        b = w @ A
+        pos = b > 0
+        r = np.log1p(np.where(pos, b, 0.0)) - y
+        return float(r @ r) / len(y), A @ np.where(pos, 2.0 * r / (1.0 + np.where(pos, b, 0.0)), 0.0) / len(y)
+
+    w0 = np.eye(k)[0]
+    res = scipy.optimize.minimize(f, w0, jac=True, method="SLSQP", bounds=[(0.0, 1.0)] * k,
+                                  constraints=[{"type": "eq", "fun": lambda w: w.sum() - 1.0,
+                                                "jac": lambda w: np.ones(k)}],
+                                  options={"maxiter": 300, "ftol": 1e-12})
+    return res.x if res.fun <= f(w0)[0] else w0

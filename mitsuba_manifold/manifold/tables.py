@@ -5,7 +5,7 @@ Eq. 4). :class:`TrainingTables` owns what that needs: opening the database the m
 fit on (each table checked against the SHA-256 recorded at the fit), the ``(N, d)`` stack
 kept in memory once loaded, what pruning measures exactly (:mod:`.pruning`: the raw tables'
 Gram matrix ``G = T T^T``, the cosine-weighted ``C = T diag(q) T^T`` and the albedos, each
-computed from the tables on first use when a manifold file of an earlier release lacks it),
+computed from the tables on first use when a manifold file lacks it),
 and the combination itself, reading only the kept tables.
 """
 
@@ -16,11 +16,11 @@ from typing import NamedTuple
 import numpy as np
 
 from . import materials, pruning, schema
-from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES
+from .pruning import DEFAULT_RULE, RULES
 from .._util.cache import key_hash, npy_cache
 from ..data.database import Database, albedo_weights
 from ..errors import FormatError, InputError
-from .._util.recent import Recent
+from .._util.fifo_cache import Recent
 
 
 #: Answers of :meth:`TrainingTables.prune` kept (the newest).
@@ -115,7 +115,7 @@ class TrainingTables:
         return self.loaded
 
     def raw_gram(self, folder):
-        """:attr:`gram`, computed from the tables in ``folder`` when absent (manifolds of the previous release)."""
+        """:attr:`gram`, computed from the tables in ``folder`` when the manifold file holds none."""
         if self.gram is None:
             self.gram = pruning.raw_gram(self.stack(folder))
         return self.gram
@@ -123,7 +123,7 @@ class TrainingTables:
     def cosine_gram(self, folder):
         """:attr:`cos_gram`, computed from the tables in ``folder`` when absent (with :attr:`gram`
         in the same pass when that is absent too), once per database: cached in its cache
-        folder, named by the tables' hashes (a manifold file of an earlier release, which
+        folder, named by the tables' hashes (a manifold file without it, which
         cannot be rewritten without changing the hash its bases record, reads the tables
         only the first time)."""
         if self.cos_gram is None:
@@ -165,7 +165,7 @@ class TrainingTables:
         ``pruning.ALBEDO_SHARE * budget``, the cosine-weighted table by at most ``budget`` of its
         norm and the raw table by at most ``pruning.RAW_SHARE * budget`` of its L2 norm
         (:func:`pruning.prune_image`). ``"raw-l2"``: the raw table by at most ``budget``
-        of its L2 norm (:func:`pruning.prune`, the previous release's rule). The kept weights
+        of its L2 norm (:func:`pruning.prune`). The kept weights
         are rescaled to sum to ``sum(w)`` so the combination stays affine; the changes are
         computed exactly from Gram matrices, rescaling included; ``budget = 0`` keeps every
         non-zero weight.
@@ -221,44 +221,3 @@ class TrainingTables:
         flat = pruning.weighted_sum((db.reflectance(self.names[i]).reshape(-1) for i in keep), w_kept,
                                     3 * int(np.prod(db.dims)))
         return Combination(flat.reshape((3,) + db.dims), keep, dropped)
-
-
-class PruningMethods:
-    """:class:`~.model.Manifold`'s pruning and combination of its tables (its ``_store``, a
-    :class:`TrainingTables`, ``database`` and ``dims``), and the arrays they use."""
-
-    table_gram = stored("gram", "``T T^T`` of the raw tables (:attr:`TrainingTables.gram`).")
-    cos_gram = stored("cos_gram", "``T diag(q) T^T`` (:attr:`TrainingTables.cos_gram`).")
-    albedos = stored("albedos", "Albedo of each material, (N, 3) (:attr:`TrainingTables.albedos`).")
-
-    def table_norms(self):
-        """L2 norm of each raw table (from :attr:`table_gram`)."""
-        return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self.database)), 0.0))
-
-    def prune(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
-        """Materials kept by pruning weights ``w`` within the budget ``prune`` (0 keeps every
-        non-zero weight): a :class:`Pruned` ``(keep, w_kept, dropped)``.
-
-        ``rule="image"`` (default): each albedo channel changes by at most ``prune / 2``, the
-        cosine-weighted and the raw table by at most ``prune`` of their norms; ``"raw-l2"``: the
-        raw table by at most ``prune`` of its L2 norm (the previous release's rule); exact
-        (:meth:`TrainingTables.prune`, :mod:`.pruning`)."""
-        return self._store.prune(w, prune, self.database, rule)
-
-    def prune_error(self, w, keep, rule=DEFAULT_RULE):
-        """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled),
-        in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``)."""
-        return self._store.error(w, keep, self.database, rule)
-
-    def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE, keep=None):
-        """What :meth:`prune` keeps and the bounds it reaches: a :class:`pruning.PruneReport` (materials
-        kept and their names, albedo change per channel, cosine-weighted and raw table errors,
-        the budgets; ``str()`` of it is one line for ``print(bsdf)`` and the explorer). ``keep``:
-        what :meth:`prune` kept of the same ``w`` (not pruned again)."""
-        return self._store.report(w, prune, self.database, rule, keep=keep)
-
-    def combine(self, w, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
-        """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
-        :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
-        Reads only the kept materials' tables (unless all are in memory)."""
-        return self._store.combine(w, prune, self.database, self.dims, database, rule)

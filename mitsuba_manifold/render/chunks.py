@@ -1,4 +1,4 @@
-"""A basis rendered in chunks of samples, then merged (issue 13).
+"""A basis rendered in chunks of samples, then merged.
 
 A basis image is a Monte Carlo mean over samples, so a basis at ``S`` spp is the
 spp-weighted mean of ``k`` bases at ``S_j`` spp (``sum S_j = S``) rendered with different
@@ -45,7 +45,7 @@ from ..imaging import io as imageio
 from .._util.cache import file_hash, key_hash
 from .._util.locking import FolderLock
 from ..errors import MismatchError
-from .folders import CHUNK_DIR, check_foreign_folder, open_folder
+from ..basis.folder.output import CHUNK_DIR, check_foreign_folder, open_folder
 from .gi_basis import write_cross
 
 

@@ -1,4 +1,4 @@
-"""The full-GI part of a one-pass basis (issue 21): every material's ``touch + L2+`` image
+"""The full-GI part of a one-pass basis: every material's ``touch + L2+`` image
 and the cross terms of the pairs blended together, from the paths of the L1- images.
 
 :func:`render_gi` renders them with :meth:`ManifoldPathIntegrator.render_onepass_gi`,
@@ -7,7 +7,7 @@ object alone records no path touching it twice) and writes, beside the L1- image
 ``<material>.gi.exr`` (``base + <material>.gi.exr`` is its full-GI image) and
 ``cross.npz`` (float16 ``C_ij``, :mod:`mitsuba_manifold.basis.crossterms`); the manifest's
 ``components``, ``left_out`` and ``gi_stats`` say what the basis holds, what it left out
-and why, and what was measured (the basis format: :mod:`mitsuba_manifold.basis.manifest`).
+and why, and what was measured (the basis format: :mod:`mitsuba_manifold.basis.folder.manifest`).
 """
 
 import contextlib
@@ -22,7 +22,7 @@ from .._util.atomic import write_bytes
 from ..basis import folder as basis_folder
 from ..basis.crossterms import select_pairs
 from ..errors import InputError
-from .folders import image_still_valid
+from ..basis.folder.output import image_still_valid
 from .integrators.multisplats import PairSelection
 
 

@@ -39,13 +39,13 @@ def render_aovs(scene_path, manifold_path, names, spp=16, seed=0, resolution=Non
 
 def add_aovs(folder, spp=16, seed=0):
     """Render the AOVs of the basis in ``folder`` (one target) and save them beside it."""
-    manifest = basis_folder.read_manifest(folder)
-    if len(manifest["targets"]) != 1:
+    manifest = basis_folder.Manifest.read(folder)
+    if len(manifest.targets) != 1:
         raise MismatchError(f"{folder}: AOVs of a blend are linear for one target; this basis has "
-                           f"{len(manifest['targets'])}")
-    names = [basis_folder.key_materials(k, manifest["version"])[0] for k in manifest["images"]
+                           f"{len(manifest.targets)}")
+    names = [basis_folder.key_materials(k, manifest.version)[0] for k in manifest.images
              if k != basis_folder.BASE]
-    aovs = render_aovs(manifest["scene"], manifest["manifold"], names, spp, seed,
-                       tuple(manifest["resolution"]), manifest.get("sensor", 0), manifest["max_depth"])
+    aovs = render_aovs(manifest.scene, manifest.manifold, names, spp, seed,
+                       tuple(manifest.resolution), manifest.sensor_index, manifest.max_depth)
     aovs.save(folder, manifest)
     return aovs

@@ -78,9 +78,8 @@ def require():
     if path is None:
         have = ", ".join(f"{p} (LLVM {v})" for p, v in candidates()) or "none"
         raise VariantError(
-            "mitsuba_manifold: Dr.Jit's LLVM backend needs libLLVM >= %d, found: %s. "
-            "Install one (Debian: 'apt-get install libllvm19') or set DRJIT_LIBLLVM_PATH."
-            % (MIN_VERSION, have))
+            f"mitsuba_manifold: Dr.Jit's LLVM backend needs libLLVM >= {MIN_VERSION}, found: {have}. "
+            "Install one (Debian: 'apt-get install libllvm19') or set DRJIT_LIBLLVM_PATH.")
     if not os.path.exists(path):
         raise VariantError(f"mitsuba_manifold: DRJIT_LIBLLVM_PATH={path} does not exist")
     return path

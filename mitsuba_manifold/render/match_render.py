@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import match_scan
+from ..basis.match import LatentMatch
 from ..errors import InputError
 from ..imaging.metrics import REL_EPS
 
@@ -70,7 +71,7 @@ class MatchRenderOptions:
 
 
 @dataclass
-class MatchRenderResult:
+class MatchRenderResult(LatentMatch):
     """The best point: ``x``, full weights ``w`` over ``names``, ``error`` (relative MSE over the
     masks, mean over the views, at ``eval_spp``), per-view ``errors``, ``exposure``, the renders
     at the best point ``images``, ``single`` (best training material: name, error), ``starts``
@@ -91,15 +92,10 @@ class MatchRenderResult:
     plot: str = None
     extra: dict = field(default_factory=dict)
 
-    def top_weights(self, k=6):
-        """The ``k`` largest ``|w_i|``: ``[(name, w_i)]``."""
-        return [(self.names[i], float(self.w[i])) for i in np.argsort(-np.abs(self.w), kind="stable")[:k]
-                if self.w[i] != 0]
-
-    def nearest(self, manifold, k=3):
-        """Training materials nearest to ``x`` in latent space: ``[(name, distance)]``."""
-        d = np.linalg.norm(manifold.latent - self.x, axis=1)
-        return [(manifold.names[i], float(d[i])) for i in np.argsort(d)[:k]]
+    @property
+    def weights(self):
+        """``w`` (:class:`~mitsuba_manifold.basis.match.LatentMatch`'s name for them)."""
+        return self.w
 
     def to_dict(self, manifold=None):
         """JSON-ready summary (no image)."""

@@ -85,7 +85,8 @@ def _on_variant(old, new):
     try:
         register()
     except MitsubaManifoldError as e:
-        warnings.warn(f"mitsuba_manifold: plugins not registered for variant {new}: {e}", RuntimeWarning)
+        warnings.warn(f"mitsuba_manifold: plugins not registered for variant {new}: {e}", RuntimeWarning,
+                      stacklevel=2)
 
 
 def install():

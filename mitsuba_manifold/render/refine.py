@@ -1,6 +1,7 @@
-"""Refining a blend to the exact full-GI image of its point (issue 21, ``blend.py --refine``).
+"""Refining a blend to the exact full-GI image of its point (``blend.py --refine``).
 
-With a full-GI basis of one target the refinement is, by default, a *control variate*: one-pass paths at the point (sampled with the point's own material,
+With a full-GI basis of one target the refinement is, by default, a *control variate*: one-pass
+paths at the point (sampled with the point's own material,
 :func:`~.integrators.onepass.render_onepass_gi` with ``point``) give, from the same paths, the
 point's ``L2+`` image ``R`` and the blend's model of it, ``Q = sum_i w_i R_i + sum_{i<j} w_i w_j
 C_ij`` (the weights and cross terms the blend used), so that
@@ -14,11 +15,10 @@ material, so its noise is that of the three-plus-vertex paths' departure from th
 model: far below that of rendering ``L2+`` itself, and few samples suffice. The correction covers
 paths with at most :data:`CV_LEVELS` vertices on the material (the basis's ``levels`` if fewer);
 beyond, the blend's model stands: per path, the quadratic model's departure grows about as
-``w^(1-k)`` with the ``k`` vertices on the material (``w`` the dominant weight): at the main
-job's midpoint (32 spp in 2 passes, eight seeds, a basis of eight levels) a correction through
-eight vertices left a relative MSE of 0.0037 to 0.054, through five 0.0020 to 0.0074, while the
-paths beyond five vertices carry 0.5 to 1.2% of the light at white-paint, the most
-interreflecting material (:func:`~.render_basis.render_basis`'s ``levels``). At a training material (one material, no cross
+``w^(1-k)`` with the ``k`` vertices on the material (``w`` the dominant weight), so a correction
+through a few vertices leaves less noise than one through many, while paths through many
+vertices carry little light (:func:`~.render_basis.render_basis`'s ``levels``; figures in
+docs/benchmarks.md). At a training material (one material, no cross
 term) ``R - Q`` is 0 on every path, so nothing is rendered.
 
 Otherwise (an L1- basis; several targets; ``control_variate=False``): a basis gives any latent point's ``L1-``
@@ -37,11 +37,13 @@ of their mean, reported as a relative MSE (the metric of :mod:`mitsuba_manifold.
 as they come); :func:`refine` returns the last.
 """
 
+import collections
 import contextlib
 import os
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Optional, Union
 
 import numpy as np
 
@@ -112,8 +114,8 @@ def _pass_plan(spp, passes):
 
 class _SceneCache:
     """The scene of the last refinement, kept for the next one: the explorer refines on every
-    release, and loading the scene with its table at the point took 0.24 s of a 1.7-s refinement
-    (table, 256x256, 32 spp; 0.25 s of 0.42 s at 64x64). Keyed by everything the scene is loaded
+    release, and loading the scene with its table at the point is a large share of a short
+    refinement. Keyed by everything the scene is loaded
     with but the point, and by the scene's and manifold's files (size and time: a manifold fitted
     again is loaded again; not the files the XML references, nor the tables). A refinement takes
     the scene out while it renders (one running beside it loads its own) and puts it back when it
@@ -128,16 +130,16 @@ class _SceneCache:
         materials where the last refinement put them; its variant activated, as loading it does),
         or one loaded with its materials at ``x``."""
         m = basis.manifest
-        path, manifold_path = scene or m["scene"], manifold_path or m["manifold"]
+        path, manifold_path = scene or m.scene, manifold_path or m.manifold
         key = self._key(basis, path, manifold_path, database)
         with self.lock:
             loaded = self.value if key is not None and self.key == key else None
             self.key, self.value = None, None
         if loaded is None:
-            loaded = scenes.load_scene(path, manifold_path, None, basis.resolution, m["max_depth"], x[0],
-                                       m["variant"], database)
+            loaded = scenes.load_scene(path, manifold_path, None, basis.resolution, m.max_depth, x[0],
+                                       m.variant, database)
         else:
-            scenes.use_variant(m["variant"])
+            scenes.use_variant(m.variant)
         keep = False
         try:
             yield loaded
@@ -164,7 +166,7 @@ class _SceneCache:
                           for f in (scenes.scene_path(path), manifold_path))
         except (OSError, MitsubaManifoldError):
             return None
-        return files, tuple(basis.resolution), m["max_depth"], m["variant"], tuple(basis.targets), database
+        return files, tuple(basis.resolution), m.max_depth, m.variant, tuple(basis.targets), database
 
 
 _SCENES = _SceneCache()
@@ -185,10 +187,46 @@ def _rest_integrator(basis, max_depth):
                          "max_depth": int(max_depth)})
 
 
-def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, stop=None, prune=None,
-                  scene=None, manifold_path=None, blend_image=None, l2="denoised", control_variate="auto"):
-    """Yield a :class:`Refined` estimate after each of ``passes`` passes (``spp`` in all): the
-    ``L1-`` blend plus the ``L2+`` rendered at the point, or with ``control_variate`` and a
+@dataclass(frozen=True)
+class RefineRequest:
+    """How a refinement renders (:func:`refine_passes`; every field has the default of the keyword).
+
+    Attributes
+    ----------
+    spp, passes, seed : int
+        Samples per pixel of the ``L2+`` render in all, cut into ``passes`` independent passes
+        (at least 2 to estimate the noise).
+    database : str, optional
+        Folder of the manifold's tables if it moved.
+    prune : float, optional
+        The blend's pruning (default: the blend's); the rendered material prunes as
+        ``manifold_brdf`` does at the same point.
+    scene, manifold_path : str, optional
+        The scene and manifold files to render (default: the manifest's; the explorer passes
+        the ones it resolved, e.g. ``--scene``).
+    l2 : {"denoised", "raw"}
+        The blend's ``L2+`` (:func:`~mitsuba_manifold.basis.blend.blend`) that the control variate
+        corrects; ``"raw"`` makes the refinement unbiased, ``"denoised"`` keeps the denoiser's change.
+    control_variate : {"auto", True, False}
+        Use the control variate where the basis allows it (a full-GI basis of one target; ``"auto"``
+        and ``True``), or render the ``L2+`` at the point (``False``; the control variate needs
+        fewer samples for the same error, docs/benchmarks.md).
+    """
+
+    spp: int = 64
+    passes: int = 4
+    seed: int = 0
+    database: Optional[str] = None
+    prune: Optional[float] = None
+    scene: Optional[str] = None
+    manifold_path: Optional[str] = None
+    l2: str = "denoised"
+    control_variate: Union[str, bool] = "auto"
+
+
+def refine_passes(basis, manifold, x=None, request=None, *, stop=None, blend_image=None, **settings):
+    """Yield a :class:`Refined` estimate after each of ``request.passes`` passes (``spp`` in all):
+    the ``L1-`` blend plus the ``L2+`` rendered at the point, or with ``control_variate`` and a
     full-GI basis of one target the control variate of the module's docstring.
 
     Parameters
@@ -199,55 +237,37 @@ def refine_passes(basis, manifold, x=None, spp=64, passes=4, seed=0, database=No
     manifold : Manifold
     x : array_like
         The point (q,), or (p, q) for a basis of several targets (as :func:`blend`).
-    spp, passes, seed : int
-        Samples per pixel of the ``L2+`` render in all, cut into ``passes`` independent passes
-        (at least 2 to estimate the noise).
-    database : str, optional
-        Folder of the manifold's tables if it moved.
+    request : RefineRequest, optional
+        How to render; ``settings`` (its fields as keywords) replace its fields.
     stop : StopRequest, optional
         Checked after each pass (Ctrl-C ends the refinement there: ``KeyboardInterrupt``).
-    prune : float, optional
-        The blend's pruning (default: the blend's); the rendered material prunes as
-        ``manifold_brdf`` does at the same point.
-    scene, manifold_path : str, optional
-        The scene and manifold files to render (default: the manifest's; the explorer passes
-        the ones it resolved, e.g. ``--scene``).
     blend_image : ndarray, optional
         The basis's blend of the point (:class:`Refined` ``scale``), when the caller has it
         (the explorer does); default: blended here (with ``l2``). The control variate corrects it.
-    l2 : {"denoised", "raw"}
-        The blend's ``L2+`` (:func:`~mitsuba_manifold.basis.blend.blend`) that the control variate
-        corrects; ``"raw"`` makes the refinement unbiased, ``"denoised"`` keeps the denoiser's change.
-    control_variate : {"auto", True, False}
-        Use the control variate where the basis allows it (a full-GI basis of one target; ``"auto"``
-        and ``True``), or render the ``L2+`` at the point (``False``). On the main job's ``table``
-        (256x256, 512-spp basis, 2 cores) the control variate beat a 256-spp render's error at the
-        midpoint from 32 spp, where rendering the ``L2+`` did not at 64 spp (docs/benchmarks.md).
     """
     import mitsuba as mi
 
-    plan = _pass_plan(spp, passes)
-    m = basis.manifest
-    kw = {} if prune is None else {"prune": prune}
-    if control_variate not in ("auto", True, False):
-        raise InputError(f"`control_variate` must be 'auto', True or False, got {control_variate!r}")
-    if control_variate and "l2+" in basis.components and basis.p == 1:
-        yield from _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_path, blend_image,
-                                    database, l2)
+    r = replace(request or RefineRequest(), **settings)
+    plan = _pass_plan(r.spp, r.passes)
+    kw = {} if r.prune is None else {"prune": r.prune}
+    if r.control_variate not in ("auto", True, False):
+        raise InputError(f"`control_variate` must be 'auto', True or False, got {r.control_variate!r}")
+    if r.control_variate and "l2+" in basis.components and basis.p == 1:
+        yield from _control_variate(basis, manifold, x, plan, r, stop, blend_image, kw)
         return
     l1, _ = blend(basis, manifold, x=x, component="l1", **kw)
     scale = blend_image
     if scale is None:
         scale = blend(basis, manifold, x=x, **kw)[0] if "l2+" in basis.components else l1
     points = latent_points(basis, manifold, x)
-    with _SCENES.take(basis, scene, manifold_path, database, points) as loaded:
+    with _SCENES.take(basis, r.scene, r.manifold_path, r.database, points) as loaded:
         scenes.set_points(loaded.targets, points, basis.targets)
         integrator = _rest_integrator(basis, loaded.max_depth)
 
         def rest(n, pass_seed):
             return np.array(mi.render(loaded.scene, integrator=integrator, spp=n, sensor=int(basis.sensor),
                                       seed=pass_seed), np.float64)[..., :3]
-        yield from _progressive(plan, seed, stop, integrator, rest, l1, scale, "l2+")
+        yield from _progressive(plan, r.seed, stop, integrator, rest, l1, scale, "l2+")
 
 
 def _progressive(plan, seed, stop, integrator, render, start, scale, method):
@@ -266,15 +286,17 @@ def _progressive(plan, seed, stop, integrator, render, start, scale, method):
             yield _estimate(start, total, total2, done, k + 1, time.perf_counter() - t0, scale, method)
 
 
-def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_path, blend_image, database, l2):
-    """:func:`refine_passes` with a full-GI basis: ``blend + mean(R - Q)`` (the module)."""
+def _control_variate(basis, manifold, x, plan, request, stop, blend_image, kw):
+    """:func:`refine_passes` with a full-GI basis: ``blend + mean(R - Q)`` (the module) of
+    ``request``, a :class:`RefineRequest`."""
     import mitsuba as mi
 
-    shown, info = blend(basis, manifold, x=x, component="full", l2=l2, **kw)
+    shown, info = blend(basis, manifold, x=x, component="full", l2=request.l2, **kw)
     base = shown if blend_image is None else np.asarray(blend_image, np.float32)
     by_key = {basis.key([n]): n for n in manifold.names}
-    names, w = [by_key[k] for k in info["keys"]], np.asarray(info["image_weights"], np.float64)
-    rows, prods = info["cross"] if info["cross"] is not None else ((), ())
+    summed = info["plan"]
+    names, w = [by_key[k] for k in summed.keys], np.asarray(summed.image_weights, np.float64)
+    rows, prods = summed.cross if summed.cross is not None else ((), ())
     row_pair = {r: p for p, r in basis.cross_terms()[0].items()}
     pairs = [row_pair[int(r)] for r in rows]
     if len(names) == 1 and not pairs:   # a training material: R = Q on every path
@@ -285,17 +307,17 @@ def _control_variate(basis, manifold, x, plan, seed, stop, kw, scene, manifold_p
     # the scene's own material is not evaluated: on the target the paths use the proxy of the
     # point's weights (the point's column, onepass), so a cached scene is not moved to the point
     points = latent_points(basis, manifold, x)
-    with _SCENES.take(basis, scene, manifold_path, database, points) as loaded:
+    with _SCENES.take(basis, request.scene, request.manifold_path, request.database, points) as loaded:
         integrator = mi.load_dict({"type": "manifold_path", "component": "l1", "max_depth": int(loaded.max_depth)})
 
         def correction(n, pass_seed):   # R - Q from one pass's paths
             r = integrator.render_onepass_gi(loaded.scene, materials=names, spp=n, sensor=int(basis.sensor),
-                                             seed=pass_seed, levels=min(int(m.get("levels", 5)), CV_LEVELS),
+                                             seed=pass_seed, levels=min(int(m.levels or 5), CV_LEVELS),
                                              pairs=pairs, point=w, touch=False)
             q = sum(wi * r.rest[name].astype(np.float64) for wi, name in zip(w, names))
             q = q + sum(float(pr) * r.cross[p] for pr, p in zip(prods, pairs))
             return r.rest[POINT].astype(np.float64) - q
-        yield from _progressive(plan, seed, stop, integrator, correction, base, base, CONTROL_VARIATE)
+        yield from _progressive(plan, request.seed, stop, integrator, correction, base, base, CONTROL_VARIATE)
 
 
 def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"):
@@ -313,12 +335,8 @@ def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"
                    None if scale is None else np.asarray(scale, np.float32), method)
 
 
-def refine(basis, manifold, x=None, spp=64, passes=4, seed=0, database=None, prune=None, l2="denoised",
-           control_variate="auto"):
+def refine(basis, manifold, x=None, request=None, **settings):
     """The last estimate of :func:`refine_passes` (all ``spp`` samples): a :class:`Refined`."""
-    last = None
-    for last in refine_passes(basis, manifold, x, spp, passes, seed, database, prune=prune, l2=l2,
-                              control_variate=control_variate):
-        pass
-    return last
+    last = collections.deque(refine_passes(basis, manifold, x, request, **settings), maxlen=1)
+    return last[0] if last else None
 

@@ -22,6 +22,8 @@ import os
 import shutil
 import time
 from dataclasses import dataclass, replace
+from collections.abc import Sequence
+from typing import Optional, Union
 
 import numpy as np
 
@@ -30,7 +32,7 @@ from ..imaging import io as imageio
 from .._util import names as names_mod, checks as validate
 from . import scenes
 from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
-from .folders import check_foreign_folder, check_job_folders, open_folder
+from ..basis.folder.output import check_foreign_folder, check_job_folders, open_folder
 from .gi_basis import CROSS_FILE, GI_SUFFIX, REST_TOL, carry_gi, describe_components, gi_levels, progress_bar, render_gi
 from .interrupt import StopRequest, render_in_passes
 from .._util.cache import file_hash
@@ -142,28 +144,32 @@ class BasisOptions:
         chunks of a chunked basis keep the pairs its first chunk chose.
     """
 
+    # what is rendered
     spp: int = 64
-    materials: object = "all"
-    near: object = None
-    radius: object = None
+    materials: Union[str, Sequence[str]] = "all"
+    near: Optional[Sequence[float]] = None
+    radius: Optional[float] = None
     mode: str = "per-material"
     seed: int = 0
-    resolution: object = None
-    max_depth: object = None
-    variant: object = None
-    progress: bool = False
-    chunk_spp: object = None
-    x: object = None
-    database: object = None
-    force: bool = False
+    # the scene
+    resolution: Optional[Union[int, tuple[int, int]]] = None
+    max_depth: Optional[int] = None
+    variant: Optional[str] = None
+    x: Optional[Sequence[float]] = None
+    database: Optional[str] = None
     sensor: int = 0
+    # how it runs
+    progress: bool = False
+    chunk_spp: Optional[int] = None
+    force: bool = False
     aovs: bool = False
+    # the full-GI part (one-pass mode)
     components: str = "l1"
-    levels: int = None
+    levels: Optional[int] = None
     cross_tol: float = 1e-3
     cross_light_tol: float = 0.005
     cross_fraction: float = 1.0
-    cross_keep: object = None
+    cross_keep: Optional[Sequence[tuple[str, str]]] = None
 
 
 def render_basis(scene_path, manifold_path, out, options=None, **settings):
@@ -200,8 +206,9 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
     if not 0 <= int(o.sensor) < len(sensors):
         raise InputError(f"`sensor` {o.sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)")
     size = tuple(int(v) for v in sensors[int(o.sensor)].film().size())
-    manifest = basis_folder.make_manifest(scene_path, manifold_path, size, o.spp, mi.variant(), o.seed, max_depth,
-                                          o.mode, [b.id() for b in targets], sensor=int(o.sensor))
+    manifest = basis_folder.make_manifest(scene_path, manifold_path, resolution=size, spp=o.spp,
+                                          variant=mi.variant(), seed=o.seed, max_depth=max_depth, mode=o.mode,
+                                          targets=[b.id() for b in targets], sensor=int(o.sensor))
     gi = o.mode == "onepass" and o.components == "auto"
     if gi:
         o = replace(o, levels=gi_levels(o.levels, max_depth))
@@ -346,7 +353,7 @@ def _render_each(scene, targets, todo, o, max_depth, save, stop):
 
 
 def _render_onepass(scene, target, todo, o, max_depth, save, stop):
-    """All material images from one set of paths (issue 5); base comes from the same paths."""
+    """All material images from one set of paths; base comes from the same paths."""
     integrator = _integrator("l1", max_depth)
     names = [combo[0] for key, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}

@@ -200,15 +200,6 @@ def test_reference_scene_is_found_when_the_basis_moved(small_basis, small_manifo
         Explorer([moved], manifold=small_manifold_paper, load_tables=False, scene="table")
 
 
-def test_bench_upsampled_basis_blends_as_the_original(small_basis, small_manifold_paper, tmp_path):
-    from mitsuba_manifold.apps.bench.explore import upsampled_basis
-    big = upsampled_basis(small_basis, str(tmp_path / "x2"))
-    x = Manifold.load(small_manifold_paper).latent[2]
-    small_img, _ = blend(Basis.load(small_basis), small_manifold_paper, x=x)
-    big_img, _ = blend(Basis.load(big), small_manifold_paper, x=x)
-    np.testing.assert_array_equal(big_img, small_img.repeat(2, 0).repeat(2, 1))
-
-
 def test_reference_render_in_the_background(explorer, small_manifold_paper):
     m = Manifold.load(small_manifold_paper)
     job = explorer.start_reference(None, m.latent[1], 4)

@@ -223,16 +223,6 @@ def test_q3_snapping_keeps_the_slice_and_a_click_reslices(browser, q3_basis):
 
 
 @browser_only
-def test_browser_benchmark_measures_drags(browser, small_basis, small_manifold_paper):
-    from mitsuba_manifold.apps.bench.explore import browser as bench_browser
-    r = bench_browser(small_basis, small_manifold_paper, drags=2, moves=8, chromium=browser)
-    assert r["moves"] >= 16 and 0 < r["frames_drawn"] <= r["moves"] + 2
-    assert 0 < r["move_to_frame_ms"]["median"] <= r["move_to_frame_ms"]["p90"] <= r["move_to_frame_ms"]["max"]
-    assert r["moves_per_s"] > 0 and r["tables_ready_s"] > 0 and set(r["meets_targets"]) == {
-        "median", "p90", "moves_per_s", "tables_ready"}
-
-
-@browser_only
 def test_search_by_name_goes_to_the_material(browser, server, small_manifold_paper):
     m = Manifold.load(small_manifold_paper)
     with _page(browser, server) as pg:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from mitsuba_manifold.manifold import identity
+from mitsuba_manifold.manifold.fit_record import FitRecord
 from mitsuba_manifold.render import interrupt
 from mitsuba_manifold._util import ownership, checks as validate
 from mitsuba_manifold.data import merl
@@ -87,7 +88,7 @@ def test_weight_sum_is_exact_and_refuses_cancellation():
 def test_identity_is_the_content_not_the_file(small_manifold, tmp_path):
     m = Manifold.load(small_manifold)
     copy = Manifold(m.names, m.latent.copy(), "/elsewhere", m.hashes, m.length_scale, m.noise, m.features,
-                    info={"time_fit_s": 123.0}, history=[1.0, 2.0])
+                    record=FitRecord.from_info({"time_fit_s": 123.0}, [1.0, 2.0]))
     assert identity.manifold_identity(copy) == identity.manifold_identity(m)
     moved = m.latent.copy()
     moved[0, 0] = np.nextafter(moved[0, 0], np.inf)

@@ -27,7 +27,7 @@ from mitsuba_manifold._util.cache import file_hash  # noqa: E402
 from mitsuba_manifold._util.locking import FolderLock  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 from mitsuba_manifold.manifold.identity import manifold_identity  # noqa: E402
-from mitsuba_manifold.basis.manifest import read_manifest  # noqa: E402
+from mitsuba_manifold.basis.folder.manifest import read_manifest  # noqa: E402
 
 
 # ------------------------------------------------------ 1. reserved and odd names

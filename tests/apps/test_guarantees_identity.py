@@ -14,7 +14,7 @@ from guarantees_helpers import ROOT, SPHERE, assert_one_error, run_tool, snapsho
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
-from mitsuba_manifold.basis.manifest import read_manifest, scene_hash  # noqa: E402
+from mitsuba_manifold.basis.folder.manifest import read_manifest, scene_hash  # noqa: E402
 from mitsuba_manifold.errors import FolderLockedError  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402

@@ -189,7 +189,7 @@ def test_render_basis_checks_seeds_and_views_before_anything_is_written(tmp_path
 
 
 def test_new_manifests_record_their_sensor_and_old_ones_mean_sensor_0(tiny):
-    from mitsuba_manifold.basis import manifest as mf
+    from mitsuba_manifold.basis.folder import manifest as mf
     from mitsuba_manifold.basis.folder import Basis
 
     m = mf.read_manifest(tiny["basis"])
@@ -226,7 +226,7 @@ def test_references_render_the_sensor_of_the_basis_or_say_why_not(tmp_path, tiny
 def test_the_main_job_removes_only_a_basis_of_its_own_to_render_it_again(tmp_path, tiny):
     import shutil
 
-    from mitsuba_manifold.basis.ownership import remove_basis
+    from mitsuba_manifold.basis.folder.owned_files import remove_basis
     from mitsuba_manifold.errors import ForeignFileError
 
     own, theirs, user = tmp_path / "own", tmp_path / "theirs", tmp_path / "user"

@@ -98,7 +98,7 @@ def test_the_pipeline_names_python_parameters_and_imports_no_tool():
     with pytest.raises(InputError, match=r"^`res` 0 is not allowed: .*\(e\.g\. `res` 256\)"):
         pipeline.MainJob("out", res=0).check()
     with pytest.raises(InputError, match=r"^`ref_spp` -1 is not allowed"):
-        pipeline.check_main_job("out", (8, 8, 16), None, "table", 16, 4, -1)
+        pipeline.MainJob("out", (8, 8, 16), q=None, scene="table", res=16, spp=4, ref_spp=-1).check()
     r = subprocess.run([sys.executable, "-c", "import sys, mitsuba_manifold.apps.pipeline\n"
                         "print([m for m in sys.modules if m.startswith('mitsuba_manifold.apps.cli')])"],
                        capture_output=True, text=True, cwd=ROOT,

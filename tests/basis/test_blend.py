@@ -93,14 +93,14 @@ def test_training_point_gives_base_plus_its_image_exactly(basis1, manifold):
     for i, name in enumerate(manifold.names):
         img, info = bl.blend(basis, x=manifold.latent[i])
         assert np.array_equal(img, images["base"] + images[name])
-        assert info["keys"] == [name]
+        assert info["plan"].keys == [name]
 
 
 def test_uniform_weights_give_base_plus_mean(basis1, manifold):
     folder, _, images = basis1
     img, info = bl.blend(folder, manifold, w=np.full(manifold.n, 1.0 / manifold.n), prune=0.0)
     mean = np.mean([images[n].astype(np.float64) for n in manifold.names], axis=0)
-    assert len(info["keys"]) == manifold.n
+    assert len(info["plan"].keys) == manifold.n
     assert np.allclose(img, images["base"] + mean, rtol=1e-6, atol=1e-6)
 
 
@@ -228,7 +228,8 @@ def test_missing_and_truncated_images(basis1, manifold):
 
 def test_manifest_helpers(tmp_path, small_manifold):
     scene = _scene(str(tmp_path))
-    a = bf.make_manifest(scene, small_manifold, (4, 3), 8, "llvm_ad_rgb", 1, 8, "onepass", ["material"])
+    a = bf.make_manifest(scene, small_manifold, resolution=(4, 3), spp=8, variant="llvm_ad_rgb", seed=1,
+                         max_depth=8, mode="onepass", targets=["material"])
     assert a["scene"] == os.path.abspath(scene)
     assert a["manifold_hash"] == manifold_identity(Manifold.load(small_manifold))   # content, not file bytes
     path = bf.write_manifest(str(tmp_path), a)
@@ -236,7 +237,8 @@ def test_manifest_helpers(tmp_path, small_manifold):
     b = dict(a, spp=16, images={"base": {"file": "base.exr", "time_s": 1.0}})
     assert bf.manifest_differences(a, b) == ["spp"]
     with pytest.raises(MismatchError, match="mode"):
-        bf.make_manifest(scene, small_manifold, (4, 3), 8, "llvm_ad_rgb", 1, 8, "fast", ["material"])
+        bf.make_manifest(scene, small_manifold, resolution=(4, 3), spp=8, variant="llvm_ad_rgb", seed=1,
+                         max_depth=8, mode="fast", targets=["material"])
     with pytest.raises(MismatchError, match="must name 2 material"):
         bf.write_manifest(str(tmp_path), dict(a, targets=["a", "b"], images={"x": {"file": "x.exr", "time_s": 0}}))
     assert bf.read_manifest(str(tmp_path)) == a  # the refused write left the old manifest
@@ -262,7 +264,7 @@ def test_multilinear_two_target_blend(tmp_path, small_manifold, manifold):
     assert np.array_equal(img, img2)
     # training points of both targets: exactly the image of that pair
     img, info = bl.blend(basis, manifold, x=[manifold.latent[2], manifold.latent[5]])
-    assert np.array_equal(img, images[names[2] + "+" + names[5]]) and info["keys"] == [names[2] + "+" + names[5]]
+    assert np.array_equal(img, images[names[2] + "+" + names[5]]) and info["plan"].keys == [names[2] + "+" + names[5]]
     with pytest.raises(MismatchError, match=r"needs 4 numbers"):
         bl.blend(basis, manifold, x=manifold.latent[0])
     with pytest.raises(MismatchError, match="summing to 1 per target"):

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from mitsuba_manifold import errors
-from mitsuba_manifold.basis import denoise, manifest
+from mitsuba_manifold.basis import denoise
+from mitsuba_manifold.basis.folder import manifest
 from mitsuba_manifold.basis.blend import denoised_blend
 from mitsuba_manifold.data import merl
 from mitsuba_manifold.data.database import Database

@@ -278,13 +278,3 @@ def test_cli_bad_input_writes_nothing(basis, manifold, tmp_path, capsys, small_m
         cli.main(["--basis", lost, "--target", good, "--out", out])
     assert e.value.code == 2 and "no longer exists" in capsys.readouterr().err
     assert not os.path.exists(out)
-
-
-def test_the_benchmarks_held_out_manifold_keeps_the_weights_of_the_full_one(small_manifold, tmp_path):
-    """bench match's held-out manifolds are fit on a subset: they must use the full manifold's
-    interpolant (the default's convex weights), not Manifold's own default (Eq. 4)."""
-    from mitsuba_manifold.apps.bench.match import _subset_manifold
-    full = Manifold.load(small_manifold)
-    sub = _subset_manifold(full, np.arange(full.n - 1), tmp_path / "sub.npz")
-    assert sub.interpolant.params() == full.interpolant.params() and sub.interpolant.kind == "shepard"
-    assert np.array_equal(sub.table_gram, full.table_gram[:-1, :-1])

@@ -1,4 +1,5 @@
-"""Tests of the GPLVM fit (mitsuba_manifold.gp.gplvm): PCA start, rank-one updates, the optimisers, on synthetic Gram matrices."""
+"""Tests of the GPLVM fit (mitsuba_manifold.gp.gplvm): PCA start, rank-one updates, the
+optimisers, on synthetic Gram matrices."""
 
 import warnings
 

@@ -149,12 +149,12 @@ def test_contact_sheet_labels_keep_their_fields_on_lines_of_their_own(tmp_path):
     (the two end materials) above the grid."""
     from PIL import Image, ImageDraw
 
-    from mitsuba_manifold.apps import pipeline
+    from mitsuba_manifold.apps import gi_comparison
     from mitsuba_manifold.basis.blend import path_labels
 
     length = ImageDraw.Draw(Image.new("RGB", (1, 1))).textlength
     rows = [{"t": 2.73, "albedo": [0.31, 0.188, 0.167], "negative_fraction": 0.125}]
-    label, = pipeline.extrapolation_labels(rows)
+    label, = gi_comparison.extrapolation_labels(rows)
     assert imageio._label_lines(label, 62, length) == ["t = 2.73", "albedo 0.22", "neg. 12.5%"]
     labels = path_labels(("alum-bronze", "white-paint"), 5)
     assert imageio._label_lines(labels[0], 62, length) == ["t = 0.00", "alum-bronze"]

@@ -148,13 +148,3 @@ def test_rows_and_graph_are_cached_by_the_manifolds_content(small_manifold, tmp_
     assert latent_graph.cache_key(paths.PathMetric(other), "x") != latent_graph.cache_key(again, "x")
     other.database = str(tmp_path / "gone")
     assert latent_graph.cache_folder(other) is None and not os.path.exists(other.database)
-
-
-def test_fig9_every_neighbour_pair_measures_each_pair_once(m):
-    from mitsuba_manifold.apps.bench import fig9
-    from mitsuba_manifold.manifold import space
-    rep = fig9.every_pair_report(m, progress=False)
-    want = [[m.names[i], m.names[j]] for i, j in space.all_neighbour_pairs(m.latent)]
-    assert [r["pair"] for r in rep["rows"]] == want
-    assert rep["largest_step"] == max(r["largest_step"] for r in rep["rows"]) <= 1.0
-    assert rep["steps_over_target"] == sum(r["largest_step"] > fig9.TARGETS["largest_step"] for r in rep["rows"])

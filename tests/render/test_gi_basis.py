@@ -13,7 +13,7 @@ import mitsuba as mi  # noqa: E402
 from mitsuba_manifold.basis import folder as bf  # noqa: E402
 from mitsuba_manifold.basis.blend import blend, blend_path  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.errors import InputError  # noqa: E402
+from mitsuba_manifold.errors import InputError, MismatchError  # noqa: E402
 from mitsuba_manifold.render import integrators, render_basis  # noqa: E402
 from helpers import assert_same_mean, integrator, load, renders  # noqa: E402
 
@@ -218,7 +218,7 @@ def test_changed_or_truncated_cross_terms_and_aovs_are_refused_naming_the_file(t
     with np.load(cross) as z:
         pairs, images = z["pairs"], z["images"]
     np.savez(os.path.join(edited, "cross.npz"), pairs=pairs, images=np.full_like(images, 1000))
-    with pytest.raises(bf.MismatchError, match="cross terms .* were changed after render_basis wrote them"):
+    with pytest.raises(MismatchError, match="cross terms .* were changed after render_basis wrote them"):
         blend(bf.Basis.load(edited, manifold=m), m, x=x, l2="raw")
     truncated = tmp_path / "truncated"
     shutil.copytree(out, truncated)
@@ -232,7 +232,7 @@ def test_changed_or_truncated_cross_terms_and_aovs_are_refused_naming_the_file(t
     data["cross"].pop("sha256")   # as a basis written before the hash was recorded
     with open(manifest_path, "w") as f:
         json.dump(data, f)
-    with pytest.raises(bf.MismatchError, match="unreadable") as err:
+    with pytest.raises(MismatchError, match="unreadable") as err:
         blend(bf.Basis.load(truncated, manifold=m), m, x=x, l2="raw")
     assert "\n" not in str(err.value)
     bad_aovs = tmp_path / "bad_aovs"
@@ -241,7 +241,7 @@ def test_changed_or_truncated_cross_terms_and_aovs_are_refused_naming_the_file(t
         head = f.read(2000)
     with open(os.path.join(bad_aovs, "aovs.npz"), "wb") as f:
         f.write(head)
-    with pytest.raises(bf.MismatchError, match="aovs.npz is not an AOV file"):
+    with pytest.raises(MismatchError, match="aovs.npz is not an AOV file"):
         blend(bf.Basis.load(bad_aovs, manifold=m), m, x=x)
     np.testing.assert_array_equal(blend(bf.Basis.load(out, manifold=m), m, x=x, l2="raw")[0], good)
 

@@ -49,7 +49,7 @@ def test_refined_blend_is_the_full_gi_render_of_its_point(basis, small_manifold)
     b, m = basis
     x = _midpoint(m)
     refined = [refine(b, m, x=x, spp=32, passes=2, seed=100 + s) for s in range(8)]
-    ref = np.stack([scenes.render_reference(b.manifest["scene"], small_manifold, x, 256, seed=900 + s,
+    ref = np.stack([scenes.render_reference(b.manifest.scene, small_manifold, x, 256, seed=900 + s,
                                             resolution=b.resolution, max_depth=8) for s in range(8)])
     img = np.stack([r.image for r in refined])
     assert np.stack([r.rest for r in refined]).mean() > 1e-3 * img.mean()   # the bowl sees itself
@@ -69,7 +69,7 @@ def test_control_variate_makes_a_full_gi_blend_the_render_of_its_point(gi_basis,
     refined = [refine(b, m, x=x, spp=16, passes=2, seed=100 + s, l2="raw", control_variate=True) for s in range(8)]
     assert all(r.method == "control variate" for r in refined)
     assert "(control variate) with 16 spp in 2 passes" in refined[0].summary()
-    ref = np.stack([scenes.render_reference(b.manifest["scene"], small_manifold, x, 256, seed=900 + s,
+    ref = np.stack([scenes.render_reference(b.manifest.scene, small_manifold, x, 256, seed=900 + s,
                                             resolution=b.resolution, max_depth=8) for s in range(8)])
     # the basis's blend is the same in every estimate: its noise (1024 spp) is not in the spread
     assert_same_mean(np.stack([r.image for r in refined]), ref, "control-variate refinement vs path")

@@ -10,6 +10,7 @@ import pytest
 mi = pytest.importorskip("mitsuba")
 
 from mitsuba_manifold.basis import folder as bf  # noqa: E402
+from mitsuba_manifold.errors import MismatchError  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
 from mitsuba_manifold.render import render_basis, scenes  # noqa: E402
 from mitsuba_manifold.basis.blend import blend  # noqa: E402
@@ -85,7 +86,7 @@ def test_scene_without_manifold_material_is_refused(tmp_path, small_manifold):
       <integer name="height" value="8"/></film></sensor>
       <shape type="sphere"><bsdf type="diffuse"/></shape>
       <emitter type="constant"/></scene>""")
-    with pytest.raises(bf.MismatchError, match="no manifold_brdf material"):
+    with pytest.raises(MismatchError, match="no manifold_brdf material"):
         render_basis.render_basis(str(scene), small_manifold, str(tmp_path / "out"), spp=1)
     r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), str(scene),
                         "--manifold", small_manifold, "--out", str(tmp_path / "out2")],

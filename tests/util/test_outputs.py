@@ -28,7 +28,7 @@ def _special_targets(tmp_path):
 
 def test_non_regular_targets_are_refused_even_with_force(tmp_path):
     targets, precious = _special_targets(tmp_path)
-    for kind, path in targets.items():
+    for path in targets.values():
         for force in (False, True):
             with pytest.raises(ForeignFileError, match="not a regular file|is a folder"):
                 ownership.check_replaceable(path, force=force, what="--json")

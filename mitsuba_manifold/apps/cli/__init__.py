@@ -16,7 +16,6 @@ TOOLS = {
     "blend": "blend",
     "match": "match",
     "main": "main_job",
-    "bench": "bench",
     "make-scene-meshes": "make_scene_meshes",
     "explore": "explore",
 }

@@ -124,7 +124,7 @@ def parse(argv=None):
     if args.spp < 1:
         fail(f"--spp must be >= 1, got {args.spp}")
     from ..._util import checks as validate, ownership
-    from ...basis import ownership as basis_ownership
+    from ...basis.folder import owned_files as basis_ownership
     validate.exposure(args.exposure)
     validate.fraction("--prune", args.prune)
     validate.seed("--seed", args.seed)
@@ -192,9 +192,9 @@ def path_outputs(args, basis, manifold):
             fail(f"--target {args.target!r} is not a target of the basis ({basis.targets})")
         target = basis.targets.index(args.target)
     with _one_line_warnings():
-        images, _, info = blend_path(basis, manifold, ends[0], ends[1], args.steps, args.prune,
-                                     args.renormalise, target=target, x=args.x, component=args.component,
-                                     kind=args.path_kind, l2=args.l2)
+        images, _, info = blend_path(basis, manifold, ends[0], ends[1], steps=args.steps, prune=args.prune,
+                                     renormalise=args.renormalise, target=target, x=args.x,
+                                     component=args.component, kind=args.path_kind, l2=args.l2)
     _say_component(info)
     den = f"; their L2+ light denoised in {info['denoise_ms']:.0f} ms" if info["denoise_ms"] >= 0.5 else ""
     print(f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
@@ -240,12 +240,13 @@ def _say_component(info):
 
 def _refined(args, basis, manifold):
     """The image of ``--refine`` (:func:`mitsuba_manifold.render.refine.refine`), its progress printed."""
-    from ...render.refine import CONTROL_VARIATE, refine_passes
+    from ...render.refine import CONTROL_VARIATE, RefineRequest, refine_passes
 
-    print(f"refining at the point, {args.refine} spp in {args.refine_passes} passes ...", flush=True)
+    request = RefineRequest(spp=args.refine, passes=args.refine_passes, seed=args.seed, database=args.database,
+                            prune=args.prune, l2=args.l2)
+    print(f"refining at the point, {request.spp} spp in {request.passes} passes ...", flush=True)
     last = None
-    for last in refine_passes(basis, manifold, x=args.x, spp=args.refine, passes=args.refine_passes,
-                              seed=args.seed, database=args.database, prune=args.prune, l2=args.l2):
+    for last in refine_passes(basis, manifold, args.x, request):
         if last.passes:
             print(f"  pass {last.passes}/{args.refine_passes}: {last.spp} spp, {last.seconds:.2f} s", flush=True)
     written = ("the full-GI blend plus this correction" if last.method == CONTROL_VARIATE
@@ -318,13 +319,13 @@ def reference_image(args, basis, manifold, outputs):
     if not args.render_reference:
         return None
     m = basis.manifest
-    scene = args.scene or m["scene"]
+    scene = args.scene or m.scene
     print(f"rendering the reference: {scene}, path, {args.spp} spp ...", flush=True)
     t0 = time.perf_counter()
     points = latent_points(basis, manifold, args.x)
     view = reference_view(basis, scene, render_reference)
-    reference = render_reference(scene, args.manifold or m["manifold"], points, args.spp, seed=args.seed,
-                                 resolution=basis.resolution, max_depth=m["max_depth"], variant=m["variant"],
+    reference = render_reference(scene, args.manifold or m.manifold, points, args.spp, seed=args.seed,
+                                 resolution=basis.resolution, max_depth=m.max_depth, variant=m.variant,
                                  targets=basis.targets, database=args.database, **view)
     print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
     if basis.p == 1:

@@ -18,7 +18,7 @@ import socket
 import sys
 
 from ...manifold.pruning import DEFAULT_PRUNE
-from ..commands import explore_command
+from ..tool_commands import explore_command
 
 DEFAULT_PORT = 8765
 #: This tool's command line for a basis (as the main job prints it).

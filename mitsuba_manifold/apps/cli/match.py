@@ -133,13 +133,13 @@ def _outputs(args, result, basis, manifold, target):
             outputs.append(("contact sheet", sheet, lambda: imageio.write_contact_sheet(sheet, images, labels, columns=3)))
         if args.render_reference:
             m = basis.manifest
-            print(f"rendering the best point: {m['scene']}, path, {args.spp} spp ...", flush=True)
+            print(f"rendering the best point: {m.scene}, path, {args.spp} spp ...", flush=True)
             t0 = time.perf_counter()
             try:
-                view = reference_view(basis, m["scene"], render_reference)
-                ref = render_reference(m["scene"], args.manifold or m["manifold"], result.x, args.spp,
-                                       seed=args.seed, resolution=basis.resolution, max_depth=m["max_depth"],
-                                       variant=m["variant"], **view)
+                view = reference_view(basis, m.scene, render_reference)
+                ref = render_reference(m.scene, args.manifold or m.manifold, result.x, args.spp,
+                                       seed=args.seed, resolution=basis.resolution, max_depth=m.max_depth,
+                                       variant=m.variant, **view)
             except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's
                 fail(e)
             print(f"rendered in {time.perf_counter() - t0:.1f} s")
@@ -170,7 +170,7 @@ def _refuse_inputs(args, guard):
     """Never overwrite an input (the target, the mask or an image of the basis), nor a file
     this tool did not make (``guard``: :class:`ownership.Outputs`, which allows those with
     ``--force``)."""
-    from ...basis import ownership as basis_ownership
+    from ...basis.folder import owned_files as basis_ownership
 
     inputs = {os.path.realpath(p) for p in (args.target, args.mask) if p}
     for path in _planned(args):

@@ -94,6 +94,7 @@ def main(argv=None):
     materials = args.materials if args.materials != ["all"] else "all"
     check_numbers(args)
 
+    from ...basis.folder.manifest import Manifest
     from ...render.chunks import render_chunked
     from ...render.executor import make_executor
     from ...render.render_basis import check_job_folders, plan_views, render_basis
@@ -117,11 +118,11 @@ def main(argv=None):
                 manifest = render_chunked(scene, args.manifold, out, spp=args.spp, chunks=args.chunks,
                                           seed=args.seed, executor=executor, keep_chunks=args.keep_chunks,
                                           progress=True, sensor=sensor, **options).manifest
-            gi, cross = len(manifest.get("gi_images", {})), manifest.get("cross", {}).get("pairs", 0)
+            m = Manifest.from_json(manifest)
+            gi, cross = len(m.gi_images or {}), (m.cross or {}).get("pairs", 0)
             extra = f" (and {gi} full-GI images, {cross} cross terms)" if gi else ""
-            print(f"{len(manifest['images'])} images{extra} in {out} ({manifest['resolution'][0]}x"
-                  f"{manifest['resolution'][1]}, {manifest['spp']} spp, {manifest['mode']}, "
-                  f"{manifest['variant']}), {time.perf_counter() - t1:.1f} s", flush=True)
+            print(f"{len(m.images)} images{extra} in {out} ({m.resolution[0]}x{m.resolution[1]}, {m.spp} spp, "
+                  f"{m.mode}, {m.variant}), {time.perf_counter() - t1:.1f} s", flush=True)
     finally:
         executor.close()
     if len(jobs) > 1:

@@ -24,11 +24,11 @@ def scene_of(basis, scene=None):
         path = scenes.scene_path(scene)
         basis.check_scene(path)
         return path
-    path = basis.manifest["scene"]
+    path = basis.manifest.scene
     if os.path.isfile(path):
         return path
     name = os.path.splitext(os.path.basename(path))[0]   # moved: a shipped scene of that name and hash
-    if name in scenes.shipped_scenes() and scene_hash(scenes.scene_path(name)) == basis.manifest["scene_hash"]:
+    if name in scenes.shipped_scenes() and scene_hash(scenes.scene_path(name)) == basis.manifest.scene_hash:
         return scenes.scene_path(name)
     return None
 

@@ -27,7 +27,7 @@ import threading
 import numpy as np
 
 from .walks import metric_columns
-from ..._util.recent import Recent
+from ..._util.fifo_cache import Recent
 
 #: Largest preview table (n_theta_h, n_theta_d, n_phi_d) sent to the browser.
 PREVIEW_DIMS = (45, 45, 90)

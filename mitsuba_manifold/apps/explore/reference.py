@@ -153,7 +153,7 @@ class References:
         import mitsuba as mi
 
         loaded = load_scene(scene_path, manifold_path, job.spp, tuple(basis.resolution),
-                            basis.manifest["max_depth"], job.x, basis.manifest["variant"])
+                            basis.manifest.max_depth, job.x, basis.manifest.variant)
         set_points(loaded.targets, job.x)
         integrator = mi.load_dict({"type": "path", "max_depth": int(loaded.max_depth)})
         w, h = basis.resolution

@@ -17,7 +17,6 @@ import time
 
 import numpy as np
 
-from ..._util import checks as validate
 from ...basis.folder import Basis
 from ...basis.blend import DEFAULT_PRUNE, blend
 from ...data.database import cache_folder
@@ -26,7 +25,7 @@ from ...manifold.model import Manifold
 from ...manifold import paths as path_kinds
 from . import encode, latentmap, material
 from .bases import names as _names, scene_of as _scene_of, warm as _warm
-from .inputs import NUMBER as _NUMBER, show, to_float
+from .inputs import extent, latent_point, map_dims, number, path_kind, show
 from .reference import MAX_SPP, References
 from .walks import MAX_STEPS, STEPS, Walks
 
@@ -81,7 +80,7 @@ class Explorer:
                 raise InputError(f"basis {folder} has {basis.p} manifold materials {basis.targets}; the "
                                    "explorer moves one material (render a basis of a scene with one)")
             if self.manifold_path is None:
-                self.manifold_path = os.path.abspath(manifold or basis.manifest["manifold"])
+                self.manifold_path = os.path.abspath(manifold or basis.manifest.manifold)
                 self.manifold = Manifold.load(self.manifold_path)
                 if database is not None:   # given, so it must be there (the default may be missing)
                     material.check_database(database, self.manifold)
@@ -123,44 +122,11 @@ class Explorer:
         return self.bases[self.key(name)]
 
     def point(self, value, what="x"):
-        """Latent point from a list of numbers or ``"a,b"`` text; a training material's name
-        gives its latent point."""
-        q = self.manifold.q
-        if isinstance(value, str) and value.strip() in self.manifold.names:
-            return self.manifold.latent[self.manifold.index(value.strip())].copy()
-        if isinstance(value, str):
-            parts = [p for p in value.replace(",", " ").split() if p]
-        elif isinstance(value, (list, tuple)):
-            parts = list(value)
-        else:
-            raise InputError(f"{what} must be {q} numbers like '0.1,-0.4' or a material name, got {show(value)}")
-        if len(parts) != q:
-            if isinstance(value, str) and len(parts) == 1 and not _NUMBER.fullmatch(parts[0]):
-                raise InputError(f"{what}: unknown material {show(value)} (not one of the manifold's "
-                                 f"{self.manifold.n} materials) and not numbers")
-            raise InputError(f"{what} has {len(parts)} number(s); the manifold is {q}-dimensional: give {q}")
-        try:
-            arr = np.array([to_float(v) for v in parts], dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError(f"{what} must be {q} numbers (like 0.25 or -1.5e-2), got {show(value)}") from None
-        if not np.isfinite(arr).all():
-            raise InputError(f"{what} contains NaN or Inf: {show(value)}")
-        if np.abs(arr).max() > 1e6:
-            raise InputError(f"{what} = {show(value)} is absurdly far from the latent points (|x| > 1e6)")
-        return arr
+        """Latent point of a request value (:func:`.inputs.latent_point`)."""
+        return latent_point(self.manifold, value, what)
 
-    @staticmethod
-    def number(value, what, lo, hi, default):
-        if value is None or value == "":
-            return default
-        try:
-            v = to_float(value)
-        except (TypeError, ValueError):
-            raise InputError(f"{what} must be a number, got {show(value)}") from None
-        try:
-            return validate.finite(what, v, lo, hi)
-        except InputError:
-            raise InputError(f"{what} must be a finite number in [{lo:g}, {hi:g}], got {show(value)}") from None
+    #: A number of a request in ``[lo, hi]`` (:func:`.inputs.number`).
+    number = staticmethod(number)
 
     def blend(self, name, x, l2="denoised"):
         """Linear image (H, W, 3) of latent point ``x`` and the blend's info (``l2``: of :func:`blend`);
@@ -251,31 +217,10 @@ class Explorer:
             bounds = None
         return latentmap.render(self.manifold, center, dims, bounds=bounds)
 
-    @staticmethod
-    def _bounds(text):
-        try:
-            b = [to_float(v) for v in (str(text).replace(",", " ").split() if isinstance(text, str) else text)]
-        except (TypeError, ValueError):
-            b = []
-        if (len(b) != 4 or not np.isfinite(b).all() or max(map(abs, b)) > 1e6 or not b[0] < b[1]
-                or not b[2] < b[3] or min(b[1] - b[0], b[3] - b[2]) < 1e-6):
-            raise InputError(f"extent must be 'x_min,x_max,y_min,y_max' (finite, min < max, span >= 1e-6), "
-                             f"got {show(text)}")
-        return tuple(b)
+    _bounds = staticmethod(extent)
 
     def _dims(self, dims):
-        q = self.manifold.q
-        if isinstance(dims, str):
-            dims = [d for d in dims.replace(",", " ").split() if d]
-        ok = isinstance(dims, (list, tuple)) and all(
-            (isinstance(d, str) and d.isascii() and d.isdigit() and len(d) < 4)
-            or (isinstance(d, int) and not isinstance(d, bool)) for d in dims)
-        if not ok:
-            raise InputError(f"dims must be two latent coordinates like '0,1', got {show(dims)}")
-        dims = tuple(int(d) for d in dims)
-        if len(dims) != 2 or dims[0] == dims[1] or not all(0 <= d < q for d in dims):
-            raise InputError(f"dims must be two different coordinates in 0..{q - 1}, got {show(list(dims))}")
-        return dims
+        return map_dims(self.manifold, dims)
 
     def map_png(self, dims, center, bounds=None, coarse=False):
         """PNG bytes and description of the map of the slice through ``center``.
@@ -341,16 +286,12 @@ class Explorer:
         steps = int(self.number(steps, "steps", 2, MAX_STEPS, STEPS))
         return self.walks.submit(self.point(a, "a"), self.point(b, "b"), steps, kind)
 
-    @staticmethod
-    def _kind(kind):
-        if not isinstance(kind, str) or kind not in path_kinds.KINDS:
-            raise InputError(f"kind must be one of {list(path_kinds.KINDS)}, got {show(kind)}")
-        return kind
+    _kind = staticmethod(path_kind)
 
     def info(self):
         m = self.manifold
-        bases = [{"name": n, "folder": b.folder, "resolution": list(b.resolution), "spp": b.manifest["spp"],
-                  "scene": self.scenes[n] or b.manifest["scene"], "images": len(b.keys),
+        bases = [{"name": n, "folder": b.folder, "resolution": list(b.resolution), "spp": b.manifest.spp,
+                  "scene": self.scenes[n] or b.manifest.scene, "images": len(b.keys),
                   "scene_available": self.scenes[n] is not None} for n, b in self.bases.items()]
         return {"manifold": self.manifold_path, "q": m.q, "names": m.names, "latent": m.latent.tolist(),
                 "albedos": None if m.albedos is None else m.albedos.tolist(), "bases": bases,
@@ -364,7 +305,7 @@ class Explorer:
         name = self.key(name)
         basis, scene = self.bases[name], self.scenes[name]
         if scene is None:
-            raise InputError(f"the scene of basis {name!r} ({basis.manifest['scene']}) is missing or has "
+            raise InputError(f"the scene of basis {name!r} ({basis.manifest.scene}) is missing or has "
                              "changed since the basis was rendered; give it with --scene")
         return name, basis, scene, int(self.number(spp, "spp", 1, MAX_SPP, default)), self.blend(name, x)[0]
 

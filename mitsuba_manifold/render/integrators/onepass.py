@@ -1,7 +1,7 @@
 """One-pass basis rendering: the base image and every material's touch image from one set of paths.
 
 For paths scattering once off the target, the material enters only at that vertex
-(paper Sec. 5.2, issue 5): the paths are traced once with a sampling density that
+(paper Sec. 5.2): the paths are traced once with a sampling density that
 covers every material, that vertex is recorded, and each material's image is a sparse
 product ``(pixels x bins) @ (bins x materials)`` of the recorded *splats* with the
 tables. :class:`TableSplats` computes it directly (nearest lookups, box filter),
@@ -10,7 +10,7 @@ tables. :class:`TableSplats` computes it directly (nearest lookups, box filter),
 :func:`render_onepass_gi` lets the same paths go on after their second vertex on the target:
 every vertex there is sampled with the proxy and recorded (:mod:`.records`), and each
 material's ``L2+`` image is the sum over splats of ``a prod_j f_i(b_j)`` (:mod:`.multisplats`),
-so that ``base + touch_i + rest_i`` is material ``i``'s full-GI image (issue 21).
+so that ``base + touch_i + rest_i`` is material ``i``'s full-GI image.
 """
 
 import os
@@ -47,7 +47,7 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
     """Render the base image and every material's touch image from one set of paths.
 
     For paths scattering once off the target, the material enters only at that
-    vertex (issue 5). The paths are traced once; on the target they sample a density
+    vertex. The paths are traced once; on the target they sample a density
     ``q`` that covers every material (the ``manifold_brdf`` sampling density of the
     mixture ``sum_i P_i / |P_i|`` of the per-material densities, plus its cosine
     fraction), and that vertex is recorded (:meth:`ManifoldPathIntegrator.trace_paths`). Its two directions (the

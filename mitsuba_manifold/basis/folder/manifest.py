@@ -1,0 +1,532 @@
+"""The basis folder's format: its ``manifest.json``, image keys and the identities of scene and manifold.
+
+A *basis* holds the images that blending combines (paper Sec. 5.2, Eq. 13, and Sec. 6):
+with one manifold material (*target*) in the scene, ``base`` (the paths that never touch
+it) and one image per measured material ``i`` (the paths that touch it exactly once,
+rendered with material ``i``); with ``p`` targets, the full ``L1-`` image of every
+combination of one material per target (:mod:`mitsuba_manifold.basis.blend` combines them).
+
+A *basis folder* holds those images as float32 EXR files and a ``manifest.json``::
+
+    {"format": "mitsuba-manifold-basis", "version": 2,
+     "scene": abs path, "scene_hash": sha256, "manifold": abs path, "manifold_hash": sha256,
+     "resolution": [width, height], "spp": int, "variant": str, "seed": int, "max_depth": int,
+     "mode": "per-material" | "onepass", "targets": [bsdf id, ...],
+     "sensor": int (the scene's sensor rendered; absent in manifests of earlier versions, which
+               rendered sensor 0 unless they say otherwise),
+     "chunks": int (optional: merged from k chunks),
+     "pending": ["<key>.exr", ...] (optional: being written; see render_basis),
+     "images": {"base": {"file": "base.exr", "time_s": float, "sha256": hex (of the file's bytes;
+                         absent in manifests that do not record it)},
+                "<material>": {"file": "<material>.exr", "time_s": float}, ...},
+     optional, one-pass bases of one target:
+     "components": ["l1"] | ["l1", "l2+"] | ["l1", "l2+", "cross"] (what the basis holds; a
+        manifest without it is an older L1- basis), "levels": int (most vertices on the
+        material per path in the L2+ images; paths touching it more often are left out),
+     "gi_images": {"<material>": {"file": "<material>.gi.exr", "time_s": float}, ...}
+        (``touch + L2+``: ``base + gi_images[i]`` is material i's full-GI image),
+     "cross": {"file": "cross.npz", "pairs": int, "tol": float} (the cross terms ``C_ij``,
+        float16, of the pairs of :mod:`mitsuba_manifold.basis.crossterms`),
+     "left_out": {"l2+" | "cross": "why"}, "gi_stats": {...} (measurements of the render)}
+
+With one target the keys are ``base`` and material names; with ``p`` targets they are
+``"<matA>+<matB>..."`` (one name per target, in target order). From version 2 on, each
+material name in a key is escaped (:func:`mitsuba_manifold._util.names.escape`: ``gold-paint``
+stays, ``base`` or ``a+b`` cannot collide with the base image or the separator) and the
+file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
+(:func:`mitsuba_manifold.manifold.identity.manifold_identity`), so an identical refit is accepted.
+Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
+``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`).
+:class:`Manifest` alone reads, writes and checks the format (:func:`make_manifest`,
+:func:`write_manifest` and :func:`read_manifest` are its JSON-object face for the renderers);
+:class:`~mitsuba_manifold.basis.folder.Basis` opens a folder and its images,
+:mod:`mitsuba_manifold.basis.folder.owned_files` says which files a basis folder owns, and
+:func:`mitsuba_manifold.basis.blend.blend` and :func:`~mitsuba_manifold.basis.blend.blend_path` combine the images.
+"""
+
+import dataclasses
+import hashlib
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from ..._util import names as names_mod
+from ..._util.atomic import write_bytes
+from ..._util.cache import file_hash
+from ..._util.checks import scene_xml
+from ...errors import MismatchError
+from ...manifold.identity import manifold_identity
+
+FORMAT = "mitsuba-manifold-basis"
+FORMAT_VERSION = 2
+MANIFEST = "manifest.json"
+BASE = "base"
+#: Joins one material name per target into an image key (multilinear bases).
+SEP = "+"
+MODES = ("per-material", "onepass")
+
+_HEX64 = re.compile(r"^[0-9a-f]{64}$")
+
+
+# ------------------------------------------------------------------ hashes
+
+def _named(scene):
+    """``(value, is_include)`` of each file the scene XML ``scene`` names (``$parameters`` skipped)."""
+    out = []
+    for el in scene_xml(scene).iter():   # a scene XML, or an error naming the file
+        value = el.get("filename") if el.tag == "include" else (el.get("value") if el.get("name") == "filename"
+                                                                 else None)
+        if value and "$" not in value:
+            out.append((value, el.tag == "include"))
+    return out
+
+
+def scene_files(scene):
+    """Files a scene XML names (``filename`` properties and ``<include>``), resolved
+    against the scene's folder; values holding ``$parameters`` are skipped."""
+    folder = os.path.dirname(os.path.abspath(os.fspath(scene)))
+    return [(v, os.path.join(folder, v)) for v, _ in _named(os.fspath(scene))]
+
+
+#: Deepest chain of ``<include>`` files followed by :func:`scene_hash`.
+MAX_INCLUDE_DEPTH = 16
+
+
+def _hash_included(h, xml, folders, seen):
+    """Add to ``h`` the name and bytes of every file the included XML ``xml`` names, found
+    beside the main scene or beside ``xml`` (Mitsuba resolves them against either), and of
+    the files the XML files it includes name, recursively; ``seen``: the XML files already
+    followed (each once: no cycle, no exponential fan-out)."""
+    if os.path.realpath(xml) in seen or len(folders) > MAX_INCLUDE_DEPTH:
+        return
+    seen.add(os.path.realpath(xml))
+    try:
+        named = _named(xml)
+    except MismatchError:      # not a scene XML: its bytes are hashed, Mitsuba refuses it
+        return
+    folders = folders + [os.path.dirname(os.path.abspath(xml))]
+    for value, include in named:
+        h.update(b"\1" + value.encode())
+        found = list(dict.fromkeys(p for p in (os.path.join(f, value) for f in folders) if os.path.isfile(p)))
+        for path in found:
+            h.update(b"\1" + file_hash(path).encode())
+        if include and found:
+            _hash_included(h, found[-1], folders, seen)
+
+
+def scene_hash(scene):
+    """SHA-256 (hex) of a scene: its XML bytes, then the name and bytes of every file it
+    names (:func:`scene_files`) that exists beside it, and for each ``<include>``d XML the
+    files that one names, recursively (:func:`_hash_included`). Meshes, environment maps and
+    included scenes are thereby part of the scene's identity; the manifold (a ``$manifold``
+    parameter) is not. A scene without includes hashes as its XML and named files alone."""
+    scene = os.fspath(scene)
+    if not os.path.isfile(scene):
+        raise MismatchError(f"scene {scene} does not exist")
+    h = hashlib.sha256()
+    with open(scene, "rb") as f:
+        h.update(f.read())
+    folder = os.path.dirname(os.path.abspath(scene))
+    for value, include in _named(scene):
+        path = os.path.join(folder, value)
+        h.update(b"\0" + value.encode())
+        if os.path.isfile(path):
+            h.update(b"\0" + file_hash(path).encode())
+            if include:
+                _hash_included(h, path, [folder], {os.path.realpath(scene)})
+    return h.hexdigest()
+
+
+# ---------------------------------------------------------------- manifest
+
+def image_key(materials, version=FORMAT_VERSION):
+    """Image key of one material per target: ``"a"`` or ``"a+b"``, names escaped
+    (:func:`names.escape`) from format version 2 on; the image file is ``<key>.exr``."""
+    materials = [materials] if isinstance(materials, str) else list(materials)
+    if version >= 2:
+        return SEP.join(names_mod.escape(m) for m in materials)   # InputError for a name no file can have
+    for m in materials:
+        if not m or SEP in m or m == BASE:
+            raise MismatchError(f"material name {m!r} cannot be used in an image key of a version-1 basis; "
+                             "render the basis again with this version")
+    return SEP.join(materials)
+
+
+def key_materials(key, version=FORMAT_VERSION):
+    """Material names (one per target) of an image key: the inverse of :func:`image_key`."""
+    parts = key.split(SEP)
+    return [names_mod.unescape(p) for p in parts] if version >= 2 else parts
+
+
+def image_changed(folder, entry):
+    """True when the image file of manifest ``entry`` is not the one written (its SHA-256 is
+    recorded and differs: edited in place, replaced); False when unchanged or not recorded."""
+    recorded = entry.get("sha256")
+    return recorded is not None and file_hash(os.path.join(os.fspath(folder), entry["file"])) != recorded
+
+
+def _is_int(v):
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _check_json(manifest, where=MANIFEST):
+    """Check the fields and types of a manifest's JSON object; returns it.
+
+    Does not require any image to be listed (a basis being rendered grows one image at a
+    time); :meth:`Basis.load` checks that the blend's images are there.
+
+    Raises
+    ------
+    MismatchError
+        Naming ``where`` and the field at fault.
+    """
+    def bad(msg):
+        raise MismatchError(f"{where}: {msg}")
+
+    if not isinstance(manifest, dict):
+        bad("not a JSON object")
+    if manifest.get("format") != FORMAT:
+        bad(f"not a basis manifest (format {manifest.get('format')!r}, expected {FORMAT!r})")
+    version = manifest.get("version")
+    if not _is_int(version) or version < 1:
+        bad(f"invalid version {version!r}")
+    if version > FORMAT_VERSION:
+        bad(f"format version {version} is newer than this package reads ({FORMAT_VERSION})")
+    for key in ("scene", "manifold", "variant"):
+        if not isinstance(manifest.get(key), str) or not manifest[key]:
+            bad(f"field {key!r} must be a non-empty string, got {manifest.get(key)!r}")
+    for key in ("scene_hash", "manifold_hash"):
+        if not isinstance(manifest.get(key), str) or not _HEX64.match(manifest[key]):
+            bad(f"field {key!r} must be a SHA-256 hex digest, got {manifest.get(key)!r}")
+    res = manifest.get("resolution")
+    if not (isinstance(res, list) and len(res) == 2 and all(_is_int(v) and v > 0 for v in res)):
+        bad(f"resolution must be [width, height] (positive integers), got {res!r}")
+    if not _is_int(manifest.get("spp")) or manifest["spp"] < 1:
+        bad(f"spp must be a positive integer, got {manifest.get('spp')!r}")
+    if not _is_int(manifest.get("seed")):
+        bad(f"seed must be an integer, got {manifest.get('seed')!r}")
+    if not _is_int(manifest.get("max_depth")) or manifest["max_depth"] < -1:
+        bad(f"max_depth must be an integer >= -1, got {manifest.get('max_depth')!r}")
+    if manifest.get("mode") not in MODES:
+        bad(f"mode must be one of {MODES}, got {manifest.get('mode')!r}")
+    for key in ("sensor", "chunks"):  # optional: absent means sensor 0, one chunk
+        if key in manifest and (not _is_int(manifest[key]) or manifest[key] < (0 if key == "sensor" else 1)):
+            bad(f"{key} must be an integer >= {0 if key == 'sensor' else 1}, got {manifest[key]!r}")
+    targets = manifest.get("targets")
+    if (not isinstance(targets, list) or not targets or not all(isinstance(t, str) and t for t in targets)
+            or len(set(targets)) != len(targets)):
+        bad(f"targets must be a non-empty list of distinct BSDF ids, got {targets!r}")
+    pending = manifest.get("pending", [])
+    if not isinstance(pending, list) or not all(_plain_exr(f) for f in pending):
+        bad(f"pending must be a list of plain '<name>.exr' file names, got {pending!r}")
+    images = manifest.get("images")
+    if not isinstance(images, dict):
+        bad(f"images must be an object, got {type(images).__name__}")
+    files = set()
+    for key, entry in images.items():
+        if key != BASE:
+            parts = key.split(SEP)
+            escaped = version < 2 or all(names_mod.is_escaped(pt) for pt in parts if pt)
+            if len(parts) != len(targets) or not all(parts) or BASE in parts or not escaped:
+                bad(f"image key {key!r} must name {len(targets)} material(s) joined by {SEP!r} "
+                    f"(one per target {targets})")
+        if not isinstance(entry, dict):
+            bad(f"image {key!r}: entry must be an object with 'file' and 'time_s'")
+        name = entry.get("file")
+        if not _plain_exr(name):
+            bad(f"image {key!r}: file must be a plain '<name>.exr' inside the folder, got {name!r}")
+        if name in files:
+            bad(f"image {key!r}: file {name!r} is listed twice")
+        files.add(name)
+        t = entry.get("time_s")
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
+            bad(f"image {key!r}: time_s must be a non-negative number, got {t!r}")
+        if "sha256" in entry and not (isinstance(entry["sha256"], str) and _HEX64.match(entry["sha256"])):
+            bad(f"image {key!r}: sha256 must be a SHA-256 hex digest, got {entry['sha256']!r}")
+    _validate_components(manifest, bad)
+    return manifest
+
+
+#: What a basis may hold (``components`` of the manifest; absent: ``["l1"]``, an older basis).
+COMPONENTS = ("l1", "l2+", "cross")
+
+
+def _validate_components(manifest, bad):
+    comps = manifest.get("components", ["l1"])
+    if (not isinstance(comps, list) or not comps or comps[0] != "l1" or len(set(comps)) != len(comps)
+            or not set(comps) <= set(COMPONENTS) or ("cross" in comps and "l2+" not in comps)):
+        bad(f"components must list 'l1', then 'l2+' and 'cross' if held, got {comps!r}")
+    if "levels" in manifest and (not _is_int(manifest["levels"]) or manifest["levels"] < 1):
+        bad(f"levels must be an integer >= 1, got {manifest['levels']!r}")
+    gi = manifest.get("gi_images", {})
+    if not isinstance(gi, dict) or not all(isinstance(e, dict) and _plain_exr(e.get("file")) for e in gi.values()):
+        bad("gi_images must map material keys to {'file': '<name>.exr', 'time_s': ...}")
+    cross = manifest.get("cross")
+    if cross is not None and not (isinstance(cross, dict) and isinstance(cross.get("file"), str)
+                                  and os.path.basename(cross["file"]) == cross["file"]
+                                  and cross["file"].endswith(".npz")):
+        bad(f"cross must be {{'file': '<name>.npz', ...}}, got {cross!r}")
+    if not isinstance(manifest.get("left_out", {}), dict):
+        bad("left_out must map components to the reason they were left out")
+
+
+def _plain_exr(name):
+    return (isinstance(name, str) and name.endswith(".exr") and os.path.basename(name) == name
+            and not name.startswith("."))
+
+
+def manifold_file_identity(manifold):
+    """Content identity of a manifold file (:func:`manifold_identity`)."""
+    from ...manifold.model import Manifold
+    return manifold_identity(Manifold.load(manifold))
+
+
+def upgrade_manifest(manifest, manifold):
+    """A version-1 manifest as version 2, when it was made with the file ``manifold`` (same
+    bytes): the manifold hash becomes its content identity and the images whose keys are
+    the same in both versions (names that escaping leaves unchanged) are kept. Any other
+    manifest is returned as it is."""
+    if manifest.get("version") != 1 or file_hash(manifold) != manifest.get("manifold_hash"):
+        return manifest
+    images = {k: e for k, e in manifest["images"].items()
+              if k == BASE or all(names_mod.is_escaped(p) for p in k.split(SEP))}
+    return dict(manifest, version=FORMAT_VERSION, manifold_hash=manifold_file_identity(manifold), images=images)
+
+
+@dataclass
+class Manifest:
+    """A basis folder's ``manifest.json`` (the format of this module's doc): what the images
+    are, how they were made and which files hold them. Alone it reads (:meth:`read`), writes
+    (:meth:`write`) and checks (:meth:`check`) the format; the JSON keys are its field names.
+
+    Attributes
+    ----------
+    scene, manifold : str
+        Absolute paths of the scene XML and the saved manifold.
+    scene_hash, manifold_hash : str
+        Their identities (:func:`scene_hash`; :func:`manifold_file_identity`, version 1: the
+        file's SHA-256).
+    resolution : tuple of int
+        ``(width, height)``.
+    spp, seed, max_depth : int
+    variant : str
+        The Mitsuba variant rendered in.
+    mode : {"per-material", "onepass"}
+    targets : list of str
+        BSDF ids of the scene's manifold materials, in the order of the image keys.
+    images : dict
+        Image key -> ``{"file", "time_s"[, "sha256"]}``.
+    version : int
+        Format version (1 or 2).
+    sensor : int or None
+        The scene's sensor rendered (None: not recorded; sensor 0).
+    chunks : int or None
+        Merged from this many chunks.
+    pending : list of str or None
+        Files being written (:mod:`mitsuba_manifold.render.render_basis`).
+    components : list of str or None
+        What the basis holds (:data:`COMPONENTS`; None: not recorded, L1- only).
+    levels : int or None
+        Most vertices on the material per path in the L2+ images.
+    gi_images : dict or None
+        Material key -> entry of its ``touch + L2+`` image.
+    cross : dict or None
+        ``{"file": "<name>.npz", "pairs", "tol"[, "sha256"]}``: the cross terms.
+    left_out : dict or None
+        Component -> why it was left out.
+    gi_stats : dict or None
+        Measurements of the full-GI render.
+    extra : dict
+        Keys this version does not know (kept, and written back).
+    """
+
+    scene: str
+    scene_hash: str
+    manifold: str
+    manifold_hash: str
+    resolution: tuple
+    spp: int
+    variant: str
+    seed: int
+    max_depth: int
+    mode: str
+    targets: list
+    images: dict = field(default_factory=dict)
+    version: int = FORMAT_VERSION
+    sensor: Optional[int] = None
+    chunks: Optional[int] = None
+    pending: Optional[list] = None
+    components: Optional[list] = None
+    levels: Optional[int] = None
+    gi_images: Optional[dict] = None
+    cross: Optional[dict] = None
+    left_out: Optional[dict] = None
+    gi_stats: Optional[dict] = None
+    extra: dict = field(default_factory=dict)
+
+    # ----------------------------------------------------------- JSON
+    @classmethod
+    def from_json(cls, data, where=MANIFEST):
+        """The manifest of a JSON object, checked (:class:`MismatchError` naming ``where``)."""
+        if isinstance(data, cls):
+            return data
+        _check_json(data, where)
+        names = {f.name for f in dataclasses.fields(cls)} - {"extra"}
+        known = {k: v for k, v in data.items() if k in names}
+        known["resolution"] = tuple(known["resolution"])
+        return cls(**known, extra={k: v for k, v in data.items() if k not in names and k != "format"})
+
+    def to_json(self):
+        """The JSON object of the format: ``format``, ``version``, the fields set, then :attr:`extra`."""
+        out = {"format": FORMAT, "version": self.version}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("version", "extra") or (value is None and f.default is None):
+                continue
+            out[f.name] = list(value) if f.name == "resolution" else value
+        out.update(self.extra)
+        return out
+
+    def check(self, where="manifest"):
+        """Return this manifest, its fields checked (:class:`MismatchError` naming ``where``)."""
+        _check_json(self.to_json(), where)
+        return self
+
+    # ----------------------------------------------------------- files
+    @classmethod
+    def read(cls, folder):
+        """The manifest of the basis folder ``folder``, checked.
+
+        Raises
+        ------
+        MismatchError
+            No such folder, no manifest, not JSON, or a field at fault.
+        """
+        folder = os.fspath(folder)
+        if not os.path.isdir(folder):
+            raise MismatchError(f"basis folder {folder} does not exist" if not os.path.exists(folder) else
+                                f"{folder} is a file, not a basis folder (give the folder render_basis wrote)")
+        path = os.path.join(folder, MANIFEST)
+        if not os.path.isfile(path):
+            raise MismatchError(f"{folder}: no {MANIFEST} (not a basis folder, or render_basis has not "
+                                "written one yet)")
+        try:
+            with open(path, encoding="utf-8") as f:
+                data = json.load(f)
+        except (ValueError, UnicodeDecodeError) as e:
+            raise MismatchError(f"{path}: not valid JSON ({e})") from None
+        return cls.from_json(data, where=path)
+
+    def write(self, folder):
+        """Check this manifest and write ``folder/manifest.json`` atomically; returns its path."""
+        path = os.path.join(os.fspath(folder), MANIFEST)
+        data = _check_json(self.to_json(), where=path)
+        write_bytes(path, json.dumps(data, indent=1, sort_keys=False) + "\n")
+        return path
+
+    # ----------------------------------------------------------- meaning
+    @property
+    def sensor_index(self):
+        """The sensor the images were rendered from (0 when not recorded)."""
+        return 0 if self.sensor is None else self.sensor
+
+    @property
+    def held_components(self):
+        """What the basis holds (``["l1"]`` when not recorded)."""
+        return list(self.components) if self.components is not None else ["l1"]
+
+    def differences(self, other, ignore=()):
+        """Setting fields (:data:`SETTINGS`, but those in ``ignore``) whose values differ from
+        ``other``'s: empty when images rendered for one are valid for the other (resume)."""
+        other = Manifest.from_json(other)
+
+        def value(m, k):
+            if k == "format":
+                return FORMAT
+            v = m.sensor_index if k == "sensor" else getattr(m, k)
+            return list(v) if isinstance(v, tuple) else v
+        return [k for k in SETTINGS if k not in ignore and value(self, k) != value(other, k)]
+
+
+def make_manifest(scene, manifold, *, resolution, spp, variant, seed, max_depth, mode, targets,
+                  images=None, components=("l1",), sensor=0):
+    """The JSON object of a new, checked :class:`Manifest` of a basis of ``scene`` rendered with
+    ``manifold``.
+
+    Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
+    itself, so every writer and reader agree on them. It takes one keyword per field a renderer
+    sets (twelve), as :class:`Manifest` has them.
+
+    Parameters
+    ----------
+    scene, manifold : str
+        Scene XML and saved manifold (``.npz``) paths.
+    resolution : (int, int)
+        ``(width, height)``.
+    spp, seed, max_depth : int
+    variant : str
+        Mitsuba variant used.
+    mode : {"per-material", "onepass"}
+    targets : list of str
+        BSDF ids of the scene's manifold materials, in the order of the image keys.
+    images : dict, optional
+        ``{key: {"file": ..., "time_s": ...}}`` (default: none yet).
+    components : sequence of str
+        What the basis holds (:data:`COMPONENTS`; default L1- only). A renderer that adds
+        full-GI images sets it when it writes them.
+    sensor : int
+        The scene's sensor (view) the images are rendered from; always recorded, so that a
+        reference of the basis renders the same view.
+    """
+    manifold = os.fspath(manifold)
+    if not os.path.isfile(manifold):
+        raise MismatchError(f"manifold {manifold} does not exist")
+    manifest = {
+        "format": FORMAT, "version": FORMAT_VERSION,
+        "scene": os.path.abspath(scene), "scene_hash": scene_hash(scene),
+        "manifold": os.path.abspath(manifold), "manifold_hash": manifold_file_identity(manifold),
+        "resolution": [int(v) for v in resolution], "spp": int(spp), "variant": str(variant),
+        "seed": int(seed), "max_depth": int(max_depth), "mode": mode,
+        "targets": [str(t) for t in targets], "sensor": int(sensor), "images": dict(images or {}),
+        "components": [str(c) for c in components]}
+    return validate_manifest(manifest, where="new manifest")
+
+
+def validate_manifest(manifest, where=MANIFEST):
+    """Check the fields and types of a manifest's JSON object (:meth:`Manifest.from_json`); returns it."""
+    Manifest.from_json(manifest, where)
+    return manifest
+
+
+def write_manifest(folder, manifest):
+    """Write the manifest (a :class:`Manifest` or its JSON object) to ``folder/manifest.json``,
+    checked and atomically (:meth:`Manifest.write`); returns its path."""
+    return Manifest.from_json(manifest, where=os.path.join(os.fspath(folder), MANIFEST)).write(folder)
+
+
+def read_manifest(folder):
+    """The JSON object of ``folder/manifest.json``, checked (:meth:`Manifest.read`)."""
+    return Manifest.read(folder).to_json()
+
+
+#: Manifest fields that define what the images are (all but "images" and the paths).
+SETTINGS = ("format", "version", "scene_hash", "manifold_hash", "resolution", "spp", "variant",
+            "seed", "max_depth", "mode", "targets", "sensor", "chunks", "levels")
+
+
+def manifest_differences(a, b, ignore=()):
+    """:meth:`Manifest.differences` of two manifests (or their JSON objects)."""
+    return Manifest.from_json(a).differences(b, ignore)
+
+
+def is_basis_folder(folder):
+    """True when ``folder`` holds a basis manifest (whether or not it is complete)."""
+    try:
+        with open(os.path.join(os.fspath(folder), MANIFEST), encoding="utf-8") as f:
+            return json.load(f).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
