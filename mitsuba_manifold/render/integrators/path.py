@@ -225,7 +225,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         prev_bsdf_delta = mi.Bool(True)
         # Records of the vertices on the target (record mode, :mod:`.records`): ``beta`` is the
         # throughput since the last such vertex, ``rr_scale`` the proxy's throughput up to it.
-        rec = Records(levels, dr.width(ray.d.x)) if record else None
+        # one record per path: an orthographic camera's rays share one direction (``ray.d`` has width 1)
+        rec = Records(levels, max(dr.width(ray.o.x), dr.width(ray.d.x), dr.width(active))) if record else None
         rs = rec.state if record else None
         rr_scale = mi.Float(1) if record else None
 
