@@ -150,3 +150,17 @@ def check_variant(variant=None):
             "wavefronts with Dr.Jit and needs an RGB JIT variant such as 'llvm_ad_rgb' "
             "or 'cuda_ad_rgb' (mi.set_variant(...), then mitsuba_manifold.register())")
     return variant
+
+
+def developed_rgb(film):
+    """The linear RGB image a film holds (float32 (H, W, 3), its crop window), whatever its
+    ``pixel_format``: the film's raw storage (R, G, B, [A,] [AOVs,] W) divided by the filter
+    weights, as ``develop`` does before converting to the pixel format (luminance, XYZ, ...), a
+    fixed map of this RGB."""
+    import numpy as np
+
+    raw = np.array(film.bitmap(raw=True), dtype=np.float64)
+    w = raw[..., -1:]
+    rgb = raw[..., :3] / np.where(w > 0, w, 1.0)
+    return np.where(w > 0, rgb, 0.0).astype(np.float32)
+

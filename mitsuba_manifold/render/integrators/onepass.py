@@ -23,7 +23,7 @@ import mitsuba as mi
 import numpy as np
 
 from ...errors import InputError
-from .common import target_groups
+from .common import developed_rgb, target_groups
 from .multisplats import MultiSplats
 from .proxy import POINT, sampling_proxy, with_point  # noqa: F401 (POINT: re-exported)
 from .splats import PACKET, FilterSplats, TableSplats
@@ -259,7 +259,8 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
                     progress(done, total)   # the L2+ splats took a while: let the caller stop
     film.prepare([])
     film.put_block(base_block)
-    base = np.array(film.develop(), dtype=np.float32)[..., :3].copy()
+    film.develop()
+    base = developed_rgb(film)   # RGB whatever the film's pixel format
     images = splat.images(film) if touch else {}
     if multi is None:
         return base, images, None
