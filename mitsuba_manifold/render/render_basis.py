@@ -195,8 +195,9 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
     o = replace(options or BasisOptions(), **settings)
     scene_path, manifold, chosen, x = _check_request(scene_path, manifold_path, out, o)
     mi = scenes.use_variant(o.variant, jit=True)
-    scene, targets, max_depth, paths = scenes.load_scene(scene_path, manifold_path, o.spp, o.resolution, o.max_depth,
-                                                         x=x, database=o.database, sensor=int(o.sensor))
+    loaded = scenes.load_scene(scene_path, manifold_path, o.spp, o.resolution, o.max_depth, x=x, database=o.database,
+                               sensor=int(o.sensor))
+    (scene, targets, max_depth), paths = loaded, loaded.integrator
     if o.mode == "onepass" and len(targets) != 1:
         raise InputError(f"onepass mode renders scenes with one manifold material; {scene_path} has "
                          f"{len(targets)}: use `mode` 'per-material'")

@@ -36,14 +36,18 @@ SCENES_DIR = _scenes_dir()
 _PARAM = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 
 
-class LoadedScene(NamedTuple):
-    """:func:`load_scene`: the scene, its ``manifold_brdf`` instances (shape order), the path
-    depth, and what the scene's integrator renders (:class:`SceneIntegrator`)."""
-
+class _Loaded(NamedTuple):
     scene: object
     targets: list
     max_depth: int
-    integrator: object = None
+
+
+class LoadedScene(_Loaded):
+    """:func:`load_scene`: the scene, its ``manifold_brdf`` instances (shape order), the path
+    depth (it unpacks as these three), and the attribute ``integrator``: what the scene's
+    integrator renders (:class:`SceneIntegrator`)."""
+
+    integrator = None
 
 
 #: Mitsuba integrators whose image is that of ``path`` (unbiased path tracers, without media),
@@ -389,7 +393,9 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
                             "(it takes no $res/$width/$height parameter for this size)")
     integrator = scene_integrator(scene, scene_path, max_depth)
     check_film(scene_path, sensors[int(sensor)].film())
-    return LoadedScene(scene, targets, integrator.max_depth, integrator)
+    loaded = LoadedScene(scene, targets, integrator.max_depth)
+    loaded.integrator = integrator
+    return loaded
 
 
 def scene_resolution(manifest):

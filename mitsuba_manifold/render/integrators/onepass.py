@@ -1,11 +1,12 @@
 """One-pass basis rendering: the base image and every material's touch image from one set of paths.
 
 For paths scattering once off the target, the material enters only at that vertex
-(paper Sec. 5.2, issue 5): the paths are traced once with a sampling density that
+(paper Sec. 5.2): the paths are traced once with a sampling density that
 covers every material, that vertex is recorded, and each material's image is a sparse
 product ``(pixels x bins) @ (bins x materials)`` of the recorded *splats* with the
-tables. :class:`TableSplats` computes it directly (nearest lookups, box filter),
-:class:`FilterSplats` through image blocks with the film's filter.
+tables. :class:`TableSplats` computes it directly (nearest lookups; each splat in every pixel
+of its sample's filter footprint, weighted as the film weighs the sample), :class:`FilterSplats`
+through image blocks with the film's filter (``linear`` lookups).
 
 :func:`render_onepass_gi` lets the same paths go on after their second vertex on the target:
 every vertex there is sampled with the proxy and recorded (:mod:`.records`), and each
@@ -56,17 +57,20 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
     ``a * table(bin)`` to the pixel, so the images are a sparse product
     ``(pixels x bins) @ (bins x materials)``.
 
-    With ``nearest`` lookups and a box filter (the usual case), that product is
+    With ``nearest`` lookups (the default), that product is
     computed directly: the tables, interleaved by bin (``Database.material_rows``,
     cached beside the database), give all materials' values at a bin in one
     contiguous read; the splats are sorted by bin, so the tables are read in order;
     one Dr.Jit kernel per group of ``chunk`` materials adds ``a * row`` into
     per-pixel sums (scatter-adds into per-thread copies, ``ReduceMode.Expand``),
-    over tiles of pixels small enough to bound that memory. Otherwise (``linear``
-    lookups, other filters) each material is evaluated at the splats sorted by bin
-    (one gather from its table, or the BSDF's own ``eval``) and splatted with the
-    film's filter. Either way the images are normalised by the filter weights of all
-    samples, as the film does. Samples are processed in passes of at most
+    over tiles of pixels small enough to bound that memory; a splat goes to every pixel of its
+    sample's filter footprint with the filter's weight there (:class:`.splats.FilterTaps`:
+    one pixel for the box filter, about 16 for Mitsuba's default Gaussian). With ``linear``
+    lookups each material is evaluated at the splats by the BSDF's own ``eval`` and splatted
+    with the film's filter. Either way the images are normalised by the filter weights of all
+    samples, as the film does: pixel ``p`` of material ``i`` is
+    ``sum_s r_ps T_is / sum_s r_ps`` (``r_ps``: the filter's weight of sample ``s`` at ``p``,
+    ``T_is``: its touch radiance with material ``i``), linear in each ``T_is``. Samples are processed in passes of at most
     ``max_samples`` paths to bound memory. Each image is an unbiased estimate of
     what ``component="touch"`` renders with that material alone; the images are
     correlated (the same paths).
@@ -134,7 +138,7 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     to ``levels`` vertices (every one sampled with the proxy and recorded, :mod:`.records`),
     and the splats of levels ``2 .. levels`` make each material's ``L2+`` image and, for the
     pairs of material names ``pairs``, the cross terms (:mod:`.multisplats`). Nearest lookups
-    and a box filter only. ``options``: ``chunk``, ``max_samples``, ``spp_per_pass``,
+    (any film filter). ``options``: ``chunk``, ``max_samples``, ``spp_per_pass``,
     ``progress`` of :func:`render_onepass`, and ``cross_fraction`` (the share of the
     splats the cross terms use, each weighted by its inverse; default 1) and ``pair_selection``
     (a :class:`.multisplats.PairSelection`: ``pairs`` are candidates, those whose cross term
@@ -183,12 +187,10 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     film = sensor.film()
     db = target.manifold.open_database(target.database, names)
     dims = tuple(int(d) for d in db.dims)
-    # The table product needs nearest lookups, a box filter (one pixel per sample)
-    # and tables addressable with 32-bit indices.
+    # The table product needs nearest lookups and tables addressable with 32-bit indices.
     n_pad = -(-len(names) // PACKET) * PACKET
     rows = None
-    if (target.interpolation == "nearest" and film.rfilter().is_box_filter()
-            and int(np.prod(dims)) * 3 * n_pad < 1 << 32):
+    if target.interpolation == "nearest" and int(np.prod(dims)) * 3 * n_pad < 1 << 32:
         rows = db.material_rows(names, pad=PACKET)
         _prefetch(rows.filename)  # read while the paths are traced
     point = gi.get("point") if gi else None
@@ -215,13 +217,12 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
         splat = FilterSplats(film, base_block, names, chunks, db, target.path, target.options(),
                              len(passes) > 1)
     else:
-        splat = TableSplats(base_block, rows, names, chunks, dims)
+        splat = TableSplats(base_block, rows, names, chunks, dims, film.rfilter())
     multi = None
     if gi:
         if rows is None:
-            raise InputError("manifold_path: L2+ images need nearest lookups and a box filter (the table "
-                             "product); give the scene's manifold_brdf interpolation=\"nearest\" and its film "
-                             "a box rfilter, or render the L1- basis (levels 1)")
+            raise InputError("manifold_path: the L2+ images need the manifold_brdf's nearest lookups (the table "
+                             "product): give it interpolation=\"nearest\" (its default), or render the L1- basis")
         index = {n: k for k, n in enumerate(names)}
         bad = [p for p in gi["pairs"] if len(p) != 2 or p[0] not in index or p[1] not in index]
         if bad:
@@ -244,7 +245,7 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
             if touch:
                 splat.prepare(rec, rec["beta"] * weight, pos)
             if multi is not None:
-                multi.prepare(rec, weight, splat.pixel_of(pos), seed * len(passes) + p)
+                multi.prepare(rec, weight, splat.taps(pos), seed * len(passes) + p)
             del sampler, ray, L, valid, rec, head
             for c in range(len(chunks)):
                 splat.add(c)
