@@ -24,7 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from ...errors import InputError
-from .common import developed_rgb, target_groups
+from .common import developed_rgb, group_carriers, is_manifold_bsdf, is_plain_twosided, target_groups
 from .multisplats import MultiSplats
 from .proxy import POINT, sampling_proxy, with_point  # noqa: F401 (POINT: re-exported)
 from .splats import PACKET, FilterSplats, TableSplats
@@ -199,6 +199,8 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     else:
         proxy = sampling_proxy(target, db, names, rows)
 
+    if any(is_plain_twosided(c) for c in group_carriers(scene, target.groups)[0]):
+        proxy = (proxy, mi.load_dict({"type": "twosided", "bsdf": proxy}))   # the back side mirrored
     levels = gi["levels"] if gi else 1
     touch = gi.get("touch", True) if gi else True
     spp = int(spp) or sensor.sampler().sample_count()
@@ -208,7 +210,9 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     chunk = int(chunk) if chunk else (len(names) if rows is not None else 16)
     chunks = [(i, min(len(names), i + chunk)) for i in range(0, len(names), chunk)]
     alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
-    plan = dict(groups=target.groups, select=1, keep=3 if levels == 1 else 7, aovs=[])
+    hits = group_carriers(scene, target.groups)
+    plan = dict(groups=target.groups, select=1, keep=3 if levels == 1 else 7, aovs=[], hits=hits,
+                mirror=[c for c in hits[0] if is_plain_twosided(c)])
 
     film.prepare([])
     base_block = film.create_block()
@@ -304,6 +308,13 @@ def one_target(scene, target):
             f"{target!r} gives {len(groups)} ({[g[0] for g in groups]}); render "
             "several targets material by material")
     bsdfs = groups[0][1]   # manifold_brdf instances: target_groups only returns those
+    for carrier in group_carriers(scene, groups)[0]:
+        if not is_manifold_bsdf(carrier) and not is_plain_twosided(carrier):
+            name = carrier.class_name() if hasattr(carrier, "class_name") else type(carrier).__name__
+            raise InputError(
+                f"manifold_path: the manifold_brdf is held by a {name} BSDF ({carrier.id()!r}); one-pass rendering "
+                "records the material's own vertices (it alone, or inside twosided): render material by "
+                "material (`mode` 'per-material', L1- images), or give the shape the manifold_brdf itself")
     first = bsdfs[0]
     for b in bsdfs[1:]:
         same = (os.path.samefile(b.manifold_path, first.manifold_path)
