@@ -276,6 +276,30 @@ def _check_scene_manifolds(scene, manifold_path, params):
         raise MismatchError(_other_manifold(scene, bsdf_id, path, manifold_path))
 
 
+#: BSDFs that hide the BSDF they hold from Mitsuba's scene traversal (the basis cannot find a
+#: ``manifold_brdf`` inside them, nor record its vertices in their perturbed frames).
+HIDING_WRAPPERS = ("normalmap", "bumpmap")
+
+
+def _check_wrappers(scene):
+    """Raise (before loading) if a ``manifold_brdf`` of the scene XML sits inside a
+    :data:`HIDING_WRAPPERS` BSDF, naming it and what works instead."""
+    root = scene_xml(scene)
+    ids = {b.get("id") for b in root.iter("bsdf") if b.get("type") == "manifold_brdf" and b.get("id")}
+    for wrapper in root.iter("bsdf"):
+        if wrapper.get("type") not in HIDING_WRAPPERS:
+            continue
+        inner = [el for el in wrapper.iter() if el is not wrapper and (
+            (el.tag == "bsdf" and el.get("type") == "manifold_brdf") or (el.tag == "ref" and el.get("id") in ids))]
+        if inner:
+            name = wrapper.get("id") or wrapper.get("type")
+            raise InputError(f"scene {scene}: the manifold_brdf is inside the {wrapper.get('type')} BSDF {name!r}, "
+                             "which the basis cannot render (it perturbs the shading frame the measured tables are "
+                             "looked up in, and hides the material from the scene's traversal): give the shape the "
+                             "manifold_brdf itself (or inside twosided), without the "
+                             f"{wrapper.get('type')}")
+
+
 def _other_manifold(scene, bsdf_id, path, manifold_path):
     if not os.path.isfile(path):
         return (f"scene {scene}: material {bsdf_id!r} names the manifold {path} (which does not exist), not "
@@ -365,6 +389,7 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
             if name in used:
                 params[name] = str(value)
     _check_scene_manifolds(scene_path, manifold_path, params)
+    _check_wrappers(scene_path)
     from ..errors import one_line
     from .overrides import database_override
     try:
