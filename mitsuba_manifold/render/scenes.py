@@ -53,7 +53,8 @@ class LoadedScene(_Loaded):
 #: Mitsuba integrators whose image is that of ``path`` (unbiased path tracers, without media),
 #: by class name: the basis reproduces them.
 PATH_LIKE = {"PathIntegrator": "path", "PRBIntegrator": "prb", "BasicPRBIntegrator": "prb_basic",
-             "VolumetricSimplePathIntegrator": "volpath", "VolpathMisIntegratorImpl": "volpathmis",
+             "VolumetricSimplePathIntegrator": "volpath", "VolumetricPathIntegrator": "volpath",
+             "VolpathMisIntegratorImpl": "volpathmis",
              "PRBVolpathIntegrator": "prbvolpath"}
 #: ... and those whose image is that of ``path`` with ``max_depth`` 2 (direct light, emitters seen).
 DIRECT_LIKE = {"DirectIntegrator": "direct"}
@@ -313,7 +314,8 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     """Load a scene XML with its ``$parameters`` set, and find its manifold materials.
 
     Only the parameters the XML uses are passed (Mitsuba refuses others): ``$manifold``,
-    ``$x``, ``$spp``, ``$max_depth``, ``$integrator`` (``path``) and the size through
+    ``$x``, ``$spp``, ``$max_depth``, ``$integrator`` (``path`` where the scene has no default for it,
+    or ``manifold_path``) and the size through
     ``$res`` (square) or ``$width``/``$height``.
 
     Parameters
@@ -376,8 +378,8 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         params["database"] = os.path.abspath(database)
     if "spp" in used and spp is not None:
         params["spp"] = str(int(spp))
-    if "integrator" in used:
-        params["integrator"] = "path"
+    if "integrator" in used and defaults.get("integrator") in (None, "manifold_path"):
+        params["integrator"] = "path"   # the scene's own default integrator type is kept
     if "max_depth" in used and max_depth is not None:
         params["max_depth"] = str(int(max_depth))
     size = None

@@ -20,7 +20,7 @@ from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.errors import InputError, MitsubaManifoldError  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 from mitsuba_manifold.render import render_basis, scenes  # noqa: E402
-from mitsuba_manifold.render.integrators.common import developed_rgb, manifold_bsdfs  # noqa: E402
+from mitsuba_manifold.render.integrators import manifold_bsdfs  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
@@ -73,6 +73,12 @@ def folder(tmp_path, small_manifold):
     """A scene folder holding the manifold as the scenes name it (``manifold.npz`` beside them)."""
     os.symlink(small_manifold, tmp_path / "manifold.npz")
     return str(tmp_path)
+
+
+def developed_rgb(film):
+    """The film's RGB (its raw storage over the filter weights), whatever its pixel format."""
+    raw = np.array(film.bitmap(raw=True), dtype=np.float64)
+    return (raw[..., :3] / np.where(raw[..., -1:] > 0, raw[..., -1:], 1.0)).astype(np.float32)
 
 
 def mitsuba_renders(path, spp, seeds, x=None, material=MATERIAL, sensor=0):

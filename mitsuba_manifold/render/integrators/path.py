@@ -219,6 +219,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         levels = int(record)  # most vertices on the target recorded (True: 1)
         bsdf_ctx = mi.BSDFContext()
         ray = mi.Ray3f(ray)
+        if dr.hint(self.max_depth == 0, mode="scalar"):
+            active = False   # as Mitsuba's path: depth 0 renders nothing, not even the emitters seen
         depth = mi.UInt32(0)
         beta = mi.Spectrum(1)
         eta = mi.Float(1)
