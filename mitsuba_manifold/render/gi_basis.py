@@ -97,9 +97,10 @@ def progress_bar(desc, enabled, stop):
         yield advance
 
 
-def _integrator(max_depth):
+def _integrator(paths):
+    """A ``manifold_path`` rendering the paths of the scene's integrator (:class:`~.scenes.SceneIntegrator`)."""
     import mitsuba as mi
-    return mi.load_dict({"type": "manifold_path", "component": "l1", "max_depth": int(max_depth)})
+    return mi.load_dict({"type": "manifold_path", "component": "l1", **paths.path_properties()})
 
 
 def needs_rest(paths, touch, rest, tol):
@@ -118,9 +119,10 @@ def needs_rest(paths, touch, rest, tol):
     return True, "", frac
 
 
-def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
+def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
     """Render every material of ``todo`` (all of the basis's) with full GI from one pass and
-    write the images, the cross terms and the manifest's account of them (see the module)."""
+    write the images, the cross terms and the manifest's account of them (see the module).
+    ``paths``: the scene's integrator settings (:class:`~.scenes.SceneIntegrator`)."""
     names = [combo[0] for _, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
     pairs, pstats = select_pairs(manifold, names, tol=o.cross_tol)
@@ -134,7 +136,7 @@ def render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop):
         kwargs = {"progress": advance, "cross_fraction": o.cross_fraction, "pair_selection": select}
         if o.chunk_spp:
             kwargs["spp_per_pass"] = o.chunk_spp
-        r = _integrator(max_depth).render_onepass_gi(scene, materials=names, spp=o.spp, seed=o.seed,
+        r = _integrator(paths).render_onepass_gi(scene, materials=names, spp=o.spp, seed=o.seed,
                                                      sensor=int(o.sensor), levels=o.levels, pairs=pairs, **kwargs)
     seconds = time.perf_counter() - t0
     per = seconds / max(len(todo), 1)

@@ -19,8 +19,10 @@ def first_hit_aovs(scene, targets, spp=16, seed=0, sensor=0, bins=THETA_BINS):
     """``(normal, albedo_base, hist)`` images of a loaded scene: (H, W, 3), (H, W, 3), (H, W, bins)."""
     import mitsuba as mi
 
+    from .integrators.common import carriers
+
     integ = mi.load_dict({"type": "manifold_aovs", "bins": int(bins)})
-    integ.targets = list(targets)
+    integ.targets = [c for c, m in carriers(scene) if any(m is t for t in targets)]   # twosided wrappers too
     img = np.array(mi.render(scene, integrator=integ, spp=int(spp), seed=int(seed), sensor=int(sensor)),
                    dtype=np.float32)
     aov = img[..., img.shape[-1] - 6 - bins:]
@@ -30,7 +32,7 @@ def first_hit_aovs(scene, targets, spp=16, seed=0, sensor=0, bins=THETA_BINS):
 def render_aovs(scene_path, manifold_path, names, spp=16, seed=0, resolution=None, sensor=0, max_depth=None):
     """First-hit AOVs and directional albedos of ``names`` for a scene (a :class:`BasisAOVs`)."""
     t0 = time.perf_counter()
-    scene, targets, _ = scenes.load_scene(scene_path, manifold_path, spp, resolution, max_depth)
+    scene, targets, _ = scenes.load_scene(scene_path, manifold_path, spp, resolution, max_depth, sensor=sensor)
     normal, albedo_base, hist = first_hit_aovs(scene, targets, spp, seed, sensor)
     db = Manifold.load(manifold_path).open_database(None, names)
     table = directional_albedos(db, list(names))
@@ -46,6 +48,6 @@ def add_aovs(folder, spp=16, seed=0):
     names = [basis_folder.key_materials(k, manifest.version)[0] for k in manifest.images
              if k != basis_folder.BASE]
     aovs = render_aovs(manifest.scene, manifest.manifold, names, spp, seed,
-                       tuple(manifest.resolution), manifest.sensor_index, manifest.max_depth)
+                       scenes.scene_resolution(manifest), manifest.sensor_index, manifest.max_depth)
     aovs.save(folder, manifest)
     return aovs

@@ -61,7 +61,7 @@ def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
 
     One pass (the usual case for small images) is exactly ``mi.render(..., spp, seed)``;
     passes after the first use seeds ``(seed + k * 0x9E3779B9) mod 2^32``, and the image is
-    their sample-weighted mean (RGB, float32). Cutting costs nothing measurable: 256x256 at
+    their sample-weighted mean (linear RGB of the film's crop window, float32, whatever its pixel format). Cutting costs nothing measurable: 256x256 at
     256 spp of the table scene took 18.3 s in one call and 15.5 s in 16 passes here.
 
     Parameters
@@ -73,14 +73,15 @@ def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
     import mitsuba as mi
     import numpy as np
 
+    from .integrators.common import developed_rgb
     if stop is None:
         with StopRequest() as own:
             return render_in_passes(scene, integrator, spp, seed, own, sensor)
-    w, h = (int(v) for v in scene.sensors()[sensor].film().size())
+    w, h = (int(v) for v in scene.sensors()[sensor].film().crop_size())
     total = None
     for k, n in enumerate(sample_passes(spp, w * h)):
-        img = np.array(mi.render(scene, integrator=integrator, spp=n, seed=(seed + k * 0x9E3779B9) & 0xFFFFFFFF,
-                                 sensor=sensor), dtype=np.float64)[..., :3]
+        mi.render(scene, integrator=integrator, spp=n, seed=(seed + k * 0x9E3779B9) & 0xFFFFFFFF, sensor=sensor)
+        img = developed_rgb(scene.sensors()[sensor].film()).astype(np.float64)   # RGB, any pixel format
         total = img * n if total is None else total + img * n
         if integrator.should_stop():  # Mitsuba's own SIGINT handler ran during the pass
             stop.requested = True

@@ -136,8 +136,8 @@ class _SceneCache:
             loaded = self.value if key is not None and self.key == key else None
             self.key, self.value = None, None
         if loaded is None:
-            loaded = scenes.load_scene(path, manifold_path, None, basis.resolution, m.max_depth, x[0],
-                                       m.variant, database)
+            loaded = scenes.load_scene(path, manifold_path, None, scenes.scene_resolution(m), m.max_depth, x[0],
+                                       m.variant, database, sensor=int(basis.sensor))
         else:
             scenes.use_variant(m.variant)
         keep = False
@@ -180,11 +180,10 @@ def forget_kept(scene=True):
         _SCENES.clear()
 
 
-def _rest_integrator(basis, max_depth):
+def _rest_integrator(basis, paths):
     import mitsuba as mi
     target = "all" if basis.p == 1 else ",".join(basis.targets)
-    return mi.load_dict({"type": "manifold_path", "component": "rest", "target": target,
-                         "max_depth": int(max_depth)})
+    return mi.load_dict({"type": "manifold_path", "component": "rest", "target": target, **paths.path_properties()})
 
 
 @dataclass(frozen=True)
@@ -262,7 +261,7 @@ def refine_passes(basis, manifold, x=None, request=None, *, stop=None, blend_ima
     points = latent_points(basis, manifold, x)
     with _SCENES.take(basis, r.scene, r.manifold_path, r.database, points) as loaded:
         scenes.set_points(loaded.targets, points, basis.targets)
-        integrator = _rest_integrator(basis, loaded.max_depth)
+        integrator = _rest_integrator(basis, loaded.integrator)
 
         def rest(n, pass_seed):
             return np.array(mi.render(loaded.scene, integrator=integrator, spp=n, sensor=int(basis.sensor),
@@ -308,7 +307,7 @@ def _control_variate(basis, manifold, x, plan, request, stop, blend_image, kw):
     # point's weights (the point's column, onepass), so a cached scene is not moved to the point
     points = latent_points(basis, manifold, x)
     with _SCENES.take(basis, request.scene, request.manifold_path, request.database, points) as loaded:
-        integrator = mi.load_dict({"type": "manifold_path", "component": "l1", "max_depth": int(loaded.max_depth)})
+        integrator = mi.load_dict({"type": "manifold_path", "component": "l1", **loaded.integrator.path_properties()})
 
         def correction(n, pass_seed):   # R - Q from one pass's paths
             r = integrator.render_onepass_gi(loaded.scene, materials=names, spp=n, sensor=int(basis.sensor),

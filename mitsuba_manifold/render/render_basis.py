@@ -97,7 +97,11 @@ class BasisOptions:
     resolution : int or (int, int), optional
         Image size, for scenes that take ``$res`` or ``$width``/``$height``.
     max_depth : int, optional
-        Path depth (-1: unbounded; default: the scene's ``$max_depth`` default, else -1).
+        Path depth (-1: unbounded), overriding the scene's integrator; default: the scene's own
+        (:func:`scenes.scene_integrator`). The basis renders what the scene's integrator does:
+        its type (``path`` and the unbiased path tracers; ``direct`` as ``path`` of depth 2),
+        ``max_depth``, ``rr_depth`` and ``hide_emitters``; other integrators are refused before
+        anything is rendered.
     variant : str, optional
         Mitsuba variant, activated (default: the active one, or :func:`scenes.default_variant`
         when none is active; see :func:`scenes.use_variant`). It must be a JIT RGB variant.
@@ -197,22 +201,29 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
     o = replace(options or BasisOptions(), **settings)
     scene_path, manifold, chosen, x = _check_request(scene_path, manifold_path, out, o)
     mi = scenes.use_variant(o.variant, jit=True)
-    scene, targets, max_depth = scenes.load_scene(scene_path, manifold_path, o.spp, o.resolution, o.max_depth,
-                                                  x=x, database=o.database)
+    loaded = scenes.load_scene(scene_path, manifold_path, o.spp, o.resolution, o.max_depth, x=x, database=o.database,
+                               sensor=int(o.sensor))
+    (scene, targets, max_depth), paths = loaded, loaded.integrator
     if o.mode == "onepass" and len(targets) != 1:
         raise InputError(f"onepass mode renders scenes with one manifold material; {scene_path} has "
                          f"{len(targets)}: use `mode` 'per-material'")
     sensors = scene.sensors()
     if not 0 <= int(o.sensor) < len(sensors):
         raise InputError(f"`sensor` {o.sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)")
-    size = tuple(int(v) for v in sensors[int(o.sensor)].film().size())
+    size = scenes.image_size(sensors[int(o.sensor)].film())   # the crop window's
     manifest = basis_folder.make_manifest(scene_path, manifold_path, resolution=size, spp=o.spp,
                                           variant=mi.variant(), seed=o.seed, max_depth=max_depth, mode=o.mode,
                                           targets=[b.id() for b in targets], sensor=int(o.sensor))
-    gi = o.mode == "onepass" and o.components == "auto"
+    manifest["integrator"] = paths.to_manifest()
+    manifest["scene_resolution"] = None if o.resolution is None else list(_size(o.resolution))
+    scatters_twice = max_depth < 0 or max_depth > 2   # depth 2 (direct): one scattering vertex per path
+    gi = o.mode == "onepass" and o.components == "auto" and scatters_twice
     if gi:
         o = replace(o, levels=gi_levels(o.levels, max_depth))
         manifest["levels"] = o.levels
+    elif o.mode == "onepass" and o.components == "auto":
+        manifest["left_out"] = {"l2+": f"the scene's paths scatter once at most ({paths.describe()}): "
+                                       "its L1- images are its full-GI images"}
     else:
         manifest["left_out"] = {"l2+": "per-material mode renders L1- images only" if o.mode != "onepass"
                                 else "components 'l1' asked for"}
@@ -236,13 +247,13 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
             todo = jobs   # the full-GI images and cross terms come from one pass over every material
         save = functools.partial(_save, out, manifest)
         if todo and gi:
-            render_gi(scene, manifold, todo, o, max_depth, out, manifest, save, stop)
+            render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop)
             if o.progress:
                 print(describe_components(manifest))
         elif todo and o.mode == "onepass":
-            _render_onepass(scene, targets[0], todo, o, max_depth, save, stop)
+            _render_onepass(scene, targets[0], todo, o, paths, save, stop)
         elif todo:
-            _render_each(scene, targets, todo, o, max_depth, save, stop)
+            _render_each(scene, targets, todo, o, paths, save, stop)
         if o.aovs:
             ensure_aovs(out, manifest)
     return manifest
@@ -287,7 +298,7 @@ def _check_request(scene_path, manifold_path, out, o):
     except MitsubaManifoldError as e:
         raise InputError(str(e)) from None
     if o.resolution is not None:  # images held at once: all of them in one pass, else a film and two sums
-        w, h = (int(o.resolution),) * 2 if np.isscalar(o.resolution) else (int(v) for v in o.resolution)
+        w, h = _size(o.resolution)
         held = len(chosen) + 2 if o.mode == "onepass" else 6
         validate.fits_in_memory("`resolution`", 2 * held * w * h * 3 * 4, f"{o.mode} images of {w}x{h}")
     return scene_path, manifold, chosen, x
@@ -321,10 +332,17 @@ def ensure_aovs(out, manifest, spp=16):
         guides.add_aovs(out, spp=spp)
 
 
-def _integrator(component, max_depth, target="all"):
+def _size(resolution):
+    """``(width, height)`` of a ``resolution`` option (a square's side, or the pair)."""
+    return (int(resolution),) * 2 if np.isscalar(resolution) else tuple(int(v) for v in resolution)
+
+
+def _integrator(component, paths, target="all"):
+    """A ``manifold_path`` of ``component`` rendering the paths of the scene's integrator
+    (:class:`~.scenes.SceneIntegrator` ``paths``: depth, Russian roulette, emitters hidden)."""
     import mitsuba as mi
-    return mi.load_dict({"type": "manifold_path", "component": component, "max_depth": int(max_depth),
-                         "target": target})
+    return mi.load_dict({"type": "manifold_path", "component": component, "target": target,
+                         **paths.path_properties()})
 
 
 def _bar(total, enabled, desc):
@@ -332,17 +350,17 @@ def _bar(total, enabled, desc):
     return tqdm(total=total, desc=desc, unit="image", disable=not enabled)
 
 
-def _render_each(scene, targets, todo, o, max_depth, save, stop):
+def _render_each(scene, targets, todo, o, paths, save, stop):
     """One render per image: base (component 'base'), then 'touch' per material or 'l1' per combination."""
     spp, seed, sensor = o.spp, o.seed, int(o.sensor)
     single = len(targets) == 1
-    touch = _integrator("touch", max_depth)
-    l1 = _integrator("l1", max_depth, target=",".join(b.id() for b in targets)) if not single else None
+    touch = _integrator("touch", paths)
+    l1 = _integrator("l1", paths, target=",".join(b.id() for b in targets)) if not single else None
     with _bar(len(todo), o.progress, "rendering basis") as bar:
         for key, combo in todo:
             t0 = time.perf_counter()
             if combo is None:
-                img = render_in_passes(scene, _integrator("base", max_depth), spp, seed, stop, sensor)
+                img = render_in_passes(scene, _integrator("base", paths), spp, seed, stop, sensor)
             else:
                 for bsdf, name in zip(targets, combo):
                     bsdf.set_material(name)
@@ -352,9 +370,9 @@ def _render_each(scene, targets, todo, o, max_depth, save, stop):
             bar.update()
 
 
-def _render_onepass(scene, target, todo, o, max_depth, save, stop):
+def _render_onepass(scene, target, todo, o, paths, save, stop):
     """All material images from one set of paths; base comes from the same paths."""
-    integrator = _integrator("l1", max_depth)
+    integrator = _integrator("l1", paths)
     names = [combo[0] for key, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
     t0 = time.perf_counter()

@@ -11,6 +11,7 @@ illumination of an interpolated material with Mitsuba's ``path`` (the ground tru
 
 import os
 import re
+from dataclasses import asdict, dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -35,12 +36,131 @@ SCENES_DIR = _scenes_dir()
 _PARAM = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 
 
-class LoadedScene(NamedTuple):
-    """:func:`load_scene`: the scene, its ``manifold_brdf`` instances (shape order), the path depth."""
-
+class _Loaded(NamedTuple):
     scene: object
     targets: list
     max_depth: int
+
+
+class LoadedScene(_Loaded):
+    """:func:`load_scene`: the scene, its ``manifold_brdf`` instances (shape order), the path
+    depth (it unpacks as these three), and the attribute ``integrator``: what the scene's
+    integrator renders (:class:`SceneIntegrator`)."""
+
+    integrator = None
+
+
+#: Mitsuba integrators whose image is that of ``path`` (unbiased path tracers, without media),
+#: by class name: the basis reproduces them.
+PATH_LIKE = {"PathIntegrator": "path", "PRBIntegrator": "prb", "BasicPRBIntegrator": "prb_basic",
+             "VolumetricSimplePathIntegrator": "volpath", "VolumetricPathIntegrator": "volpath",
+             "VolpathMisIntegratorImpl": "volpathmis",
+             "PRBVolpathIntegrator": "prbvolpath"}
+#: ... and those whose image is that of ``path`` with ``max_depth`` 2 (direct light, emitters seen).
+DIRECT_LIKE = {"DirectIntegrator": "direct"}
+#: Mitsuba's default Russian-roulette depth.
+RR_DEPTH = 5
+
+
+@dataclass(frozen=True)
+class SceneIntegrator:
+    """What a scene's integrator renders, as the basis and the references reproduce it.
+
+    ``kind``: the integrator's plugin type (``path``, ``direct``, ...; ``path`` where the scene
+    has none, as Mitsuba renders it); ``max_depth`` (-1: unbounded; ``direct`` is ``path`` with
+    ``max_depth`` 2: the emitters seen and one scattering vertex lit by next-event estimation and
+    MIS, the same image in expectation), ``rr_depth``, ``hide_emitters``; ``source``: ``"scene"``
+    (the scene's own), ``"default"`` (the scene has none) or ``"option"`` (``max_depth`` set by
+    the caller, overriding the scene's)."""
+
+    kind: str
+    max_depth: int
+    rr_depth: int
+    hide_emitters: bool
+    source: str
+
+    def path_properties(self):
+        """Properties of a ``manifold_path`` (or ``path``) integrator that renders these paths."""
+        return {"max_depth": int(self.max_depth), "rr_depth": int(self.rr_depth),
+                "hide_emitters": bool(self.hide_emitters)}
+
+    def reference(self, scene):
+        """The integrator Mitsuba renders the scene's reference with: the scene's own, or a
+        ``path`` of these settings where the depth was overridden or the scene has none."""
+        import mitsuba as mi
+        own = scene.integrator()
+        if self.source == "scene" and own is not None:
+            return own
+        return mi.load_dict({"type": "path", **self.path_properties()})
+
+    def describe(self):
+        """One phrase: ``path (max_depth 3, hide_emitters)``, with where it comes from."""
+        depth = "unbounded" if self.max_depth < 0 else str(self.max_depth)
+        extra = ", hide_emitters" if self.hide_emitters else ""
+        where = {"scene": "the scene's integrator", "default": "no integrator in the scene: Mitsuba's default",
+                 "option": "max_depth set by the caller"}[self.source]
+        return f"{self.kind} (max_depth {depth}, rr_depth {self.rr_depth}{extra}; {where})"
+
+    def to_manifest(self):
+        return asdict(self)
+
+
+def _depth_of(integrator, name, text):
+    """An integer property of a Mitsuba integrator: its attribute, else its ``to_string``."""
+    value = getattr(integrator, name, None)
+    if value is None:
+        m = re.search(rf"{name}\s*=\s*(-?\d+)", text)
+        value = int(m.group(1)) if m else None
+    if value is None:
+        return None
+    value = int(value)
+    return -1 if value >= 0xFFFFFFFF or value < 0 else value
+
+
+def scene_integrator(scene, scene_path, max_depth=None):
+    """The :class:`SceneIntegrator` of a loaded scene, or an :class:`InputError` naming the
+    setting the basis cannot reproduce (raised before anything is rendered).
+
+    ``max_depth`` (given by the caller): overrides the scene's depth where it differs (a
+    ``direct`` integrator becomes ``path`` of that depth); the scene's ``rr_depth`` and
+    ``hide_emitters`` are kept."""
+    own = scene.integrator()
+    if own is None:
+        found = SceneIntegrator("path", -1, RR_DEPTH, False, "default")
+    else:
+        cls = own.class_name() if hasattr(own, "class_name") else type(own).__name__
+        cls = type(own).__name__ if cls in ("SamplingIntegrator", "MonteCarloIntegrator", "ADIntegrator",
+                                            "RBIntegrator", "PSIntegrator") else cls
+        text = str(own)
+        hide = bool(getattr(own, "hide_emitters", False))
+        if cls in DIRECT_LIKE:
+            found = SceneIntegrator(DIRECT_LIKE[cls], 2, RR_DEPTH, hide, "scene")
+        elif cls in PATH_LIKE:
+            if PATH_LIKE[cls].startswith(("volpath", "prbvolpath")) and _has_media(scene):
+                raise InputError(f"scene {scene_path}: integrator {PATH_LIKE[cls]!r} with participating media: "
+                                 "the basis renders surfaces only; remove the media (or render the scene without "
+                                 "the manifold basis)")
+            depth = _depth_of(own, "max_depth", text)
+            rr = _depth_of(own, "rr_depth", text)
+            found = SceneIntegrator(PATH_LIKE[cls], -1 if depth is None else depth,
+                                    RR_DEPTH if rr is None or rr < 1 else rr, hide, "scene")
+        else:
+            raise InputError(f"scene {scene_path}: its integrator ({cls}) renders something the basis cannot "
+                             "reproduce (the basis renders what `path` and `direct` do): give the scene "
+                             "<integrator type=\"path\"> (with its max_depth) or type=\"direct\"")
+    if max_depth is not None and int(max_depth) != found.max_depth:
+        found = SceneIntegrator("path", int(max_depth), found.rr_depth, found.hide_emitters, "option")
+    return found
+
+
+def _has_media(scene):
+    """Whether any shape or sensor of ``scene`` bounds or holds a participating medium."""
+    for shape in scene.shapes():
+        for name in ("interior_medium", "exterior_medium"):
+            get = getattr(shape, name, None)
+            if get is not None and get() is not None:
+                return True
+    return any(getattr(s, "medium", lambda: None)() is not None for s in scene.sensors())
 
 
 def shipped_scenes():
@@ -174,6 +294,30 @@ def _check_scene_manifolds(scene, manifold_path, params):
         raise MismatchError(_other_manifold(scene, bsdf_id, path, manifold_path))
 
 
+#: BSDFs that hide the BSDF they hold from Mitsuba's scene traversal (the basis cannot find a
+#: ``manifold_brdf`` inside them, nor record its vertices in their perturbed frames).
+HIDING_WRAPPERS = ("normalmap", "bumpmap")
+
+
+def _check_wrappers(scene):
+    """Raise (before loading) if a ``manifold_brdf`` of the scene XML sits inside a
+    :data:`HIDING_WRAPPERS` BSDF, naming it and what works instead."""
+    root = scene_xml(scene)
+    ids = {b.get("id") for b in root.iter("bsdf") if b.get("type") == "manifold_brdf" and b.get("id")}
+    for wrapper in root.iter("bsdf"):
+        if wrapper.get("type") not in HIDING_WRAPPERS:
+            continue
+        inner = [el for el in wrapper.iter() if el is not wrapper and (
+            (el.tag == "bsdf" and el.get("type") == "manifold_brdf") or (el.tag == "ref" and el.get("id") in ids))]
+        if inner:
+            name = wrapper.get("id") or wrapper.get("type")
+            raise InputError(f"scene {scene}: the manifold_brdf is inside the {wrapper.get('type')} BSDF {name!r}, "
+                             "which the basis cannot render (it perturbs the shading frame the measured tables are "
+                             "looked up in, and hides the material from the scene's traversal): give the shape the "
+                             "manifold_brdf itself (or inside twosided), without the "
+                             f"{wrapper.get('type')}")
+
+
 def _other_manifold(scene, bsdf_id, path, manifold_path):
     if not os.path.isfile(path):
         return (f"scene {scene}: material {bsdf_id!r} names the manifold {path} (which does not exist), not "
@@ -183,11 +327,12 @@ def _other_manifold(scene, bsdf_id, path, manifold_path):
 
 
 def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=None, x=None,
-               variant=None, database=None):
+               variant=None, database=None, sensor=0):
     """Load a scene XML with its ``$parameters`` set, and find its manifold materials.
 
     Only the parameters the XML uses are passed (Mitsuba refuses others): ``$manifold``,
-    ``$x``, ``$spp``, ``$max_depth``, ``$integrator`` (``path``) and the size through
+    ``$x``, ``$spp``, ``$max_depth``, ``$integrator`` (``path`` where the scene has no default for it,
+    or ``manifold_path``) and the size through
     ``$res`` (square) or ``$width``/``$height``.
 
     Parameters
@@ -195,9 +340,11 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     scene_path, manifold_path : str
     spp : int, optional
     resolution : int or (int, int), optional
-        Square size or ``(width, height)``; checked against the film.
+        Square size or ``(width, height)``; checked against the film of ``sensor``.
     max_depth : int, optional
-        Default: the scene's ``$max_depth`` default, else -1 (unbounded).
+        Path depth, overriding the scene's integrator (its ``$max_depth`` where it takes one);
+        default: the scene's own (:func:`scene_integrator`: its integrator's ``max_depth``,
+        ``direct`` as 2, -1 where it has no integrator).
     x : array_like (q,), optional
         Default: the first material's latent point (a scene's own ``$x`` default may not
         fit the manifold's latent dimension).
@@ -210,11 +357,15 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         the scene's ``$database`` if it takes one, else every ``manifold_brdf`` without a
         ``database`` parameter of its own (:func:`overrides.database_override`).
 
+    sensor : int
+        The sensor whose film ``resolution`` is checked against.
+
     Returns
     -------
     LoadedScene
         ``scene`` (mi.Scene), ``targets`` (the scene's ``manifold_brdf`` instances in shape
-        order, checked to use ``manifold_path``), ``max_depth`` (int).
+        order, checked to use ``manifold_path``), ``max_depth`` (int, the paths' depth) and
+        ``integrator`` (:class:`SceneIntegrator`: what the scene's integrator renders).
     """
     import functools
 
@@ -244,11 +395,9 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         params["database"] = os.path.abspath(database)
     if "spp" in used and spp is not None:
         params["spp"] = str(int(spp))
-    if "integrator" in used:
-        params["integrator"] = "path"
-    if max_depth is None:
-        max_depth = int(defaults.get("max_depth", -1)) if "max_depth" in used else -1
-    if "max_depth" in used:
+    if "integrator" in used and defaults.get("integrator") in (None, "manifold_path"):
+        params["integrator"] = "path"   # the scene's own default integrator type is kept
+    if "max_depth" in used and max_depth is not None:
         params["max_depth"] = str(int(max_depth))
     size = None
     if resolution is not None:
@@ -259,6 +408,7 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
             if name in used:
                 params[name] = str(value)
     _check_scene_manifolds(scene_path, manifold_path, params)
+    _check_wrappers(scene_path)
     from ..errors import one_line
     from .overrides import database_override
     try:
@@ -276,20 +426,59 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     for bsdf in targets:   # ManifoldBRDF instances (manifold_bsdfs)
         if manifold_identity(bsdf.manifold) != want:
             raise MismatchError(_other_manifold(scene_path, bsdf.id(), bsdf.manifold_path, manifold_path))
-    film_size = tuple(int(v) for v in scene.sensors()[0].film().size())
-    if size is not None and film_size != size:
-        raise MismatchError(f"scene {scene_path} renders {film_size[0]}x{film_size[1]}, not {size[0]}x{size[1]} "
-                         "(it takes no $res/$width/$height parameter for this size)")
-    return LoadedScene(scene, targets, int(max_depth))
+    sensors = scene.sensors()
+    if not 0 <= int(sensor) < len(sensors):
+        raise InputError(f"`sensor` {sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)")
+    film_size = tuple(int(v) for v in sensors[int(sensor)].film().size())
+    took = "res" in params or "width" in params or "height" in params
+    if size is not None and not took and film_size != size:
+        raise MismatchError(f"scene {scene_path} renders {film_size[0]}x{film_size[1]}"
+                            f"{f' from sensor {sensor}' if sensor else ''}, not {size[0]}x{size[1]} "
+                            "(it takes no $res/$width/$height parameter for this size)")
+    integrator = scene_integrator(scene, scene_path, max_depth)
+    check_film(scene_path, sensors[int(sensor)].film())
+    loaded = LoadedScene(scene, targets, integrator.max_depth)
+    loaded.integrator = integrator
+    return loaded
+
+
+def scene_resolution(manifest):
+    """The ``resolution`` a basis's scene was loaded with (None: the scene's own film size), to
+    load it again as the basis saw it (its references, refinements); a manifest that does not
+    record it (an earlier version) was rendered at its image size. ``manifest`` is a
+    :class:`~mitsuba_manifold.basis.folder.Manifest` or its JSON object."""
+    if hasattr(manifest, "to_json"):
+        manifest = manifest.to_json()
+    if "scene_resolution" in manifest:
+        value = manifest["scene_resolution"]
+        return None if value is None else tuple(int(v) for v in value)
+    return tuple(manifest["resolution"])
+
+
+def image_size(film):
+    """``(width, height)`` of the images a film gives: its crop window's size."""
+    return tuple(int(v) for v in film.crop_size())
+
+
+def check_film(scene_path, film):
+    """Raise unless the basis can render ``film``'s images: a film that develops an image
+    (``hdrfilm``; every pixel format: the basis and references are RGB, the film's format being a
+    fixed map of it)."""
+    name = film.class_name() if hasattr(film, "class_name") else type(film).__name__
+    if name != "HDRFilm":
+        raise InputError(f"scene {scene_path}: film {name} is not supported (the basis stores linear RGB "
+                         "images): use <film type=\"hdrfilm\">")
 
 
 def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None, max_depth=None,
                      variant=None, targets=None, database=None, sensor=0):
-    """Full global-illumination image of the interpolated material, with Mitsuba's ``path``.
+    """Mitsuba's own image of the scene with the interpolated material: the ground truth of a blend.
 
     Loads the scene (:func:`load_scene`), sets every manifold material to its latent
-    point, and renders with a ``path`` integrator in passes (:func:`interrupt.render_in_passes`:
-    Ctrl-C raises ``KeyboardInterrupt`` within a pass).
+    point, and renders it with the scene's own integrator (:meth:`SceneIntegrator.reference`:
+    ``path`` of the same settings where ``max_depth`` overrides it or the scene has none) in
+    passes (:func:`interrupt.render_in_passes`: Ctrl-C raises ``KeyboardInterrupt`` within a
+    pass), as linear RGB of the film's crop window whatever its pixel format.
 
     Parameters
     ----------
@@ -310,18 +499,15 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
     -------
     ndarray float32 (H, W, 3)
     """
-    import mitsuba as mi
-
-    _points(x)
+    pts = _points(x)
     if int(spp) < 1:
         raise MismatchError(f"`spp` must be >= 1, got {spp}")
-    scene, max_depth = scene_at(scene_path, manifold_path, x, spp, resolution, max_depth, variant, targets,
-                                database)
+    loaded = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant, database,
+                        sensor=sensor)
+    set_points(loaded.targets, pts, targets)
     from .interrupt import render_in_passes
-    integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
-    if not 0 <= int(sensor) < len(scene.sensors()):
-        raise InputError(f"`sensor` {sensor} does not exist: {scene_path} has {len(scene.sensors())} sensor(s)")
-    return render_in_passes(scene, integrator, int(spp), int(seed), sensor=int(sensor))   # Ctrl-C: KeyboardInterrupt
+    integrator = loaded.integrator.reference(loaded.scene)
+    return render_in_passes(loaded.scene, integrator, int(spp), int(seed), sensor=int(sensor))   # Ctrl-C: KeyboardInterrupt
 
 
 def scene_at(scene_path, manifold_path, x, spp=None, resolution=None, max_depth=None, variant=None, targets=None,

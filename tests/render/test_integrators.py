@@ -221,13 +221,16 @@ def test_scene_without_manifold_material_is_refused():
     assert np.array(img).shape[2] == 3
 
 
-def test_a_nested_manifold_material_is_named_as_the_problem(small_manifold):
-    """manifold_brdf inside twosided: the split cannot see it; say so, not 'no manifold material'."""
-    scene = mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "twosided", "b": {
+def test_a_manifold_material_inside_twosided_is_the_target(small_manifold):
+    """manifold_brdf inside twosided: found, and a
+    hit on the wrapper is a vertex on the material."""
+    scene = mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "twosided", "id": "ts", "b": {
         "type": "manifold_brdf", "manifold": small_manifold, "material": "steel"}}},
         "e": {"type": "constant"}, "c": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4}}})
-    with pytest.raises(ValueError, match="nested inside another BSDF"):
-        integrators.target_groups(scene)
+    ((name, (bsdf,)),) = integrators.target_groups(scene, "each")
+    assert name == "b" and integrators.is_manifold_bsdf(bsdf)
+    plan = integrator(component="touch").plan(scene)
+    assert [type(c).__name__ for c in plan["hits"][0]] == ["BSDF"] and len(plan["mirror"]) == 1
 
 
 @pytest.mark.parametrize("props,message", [

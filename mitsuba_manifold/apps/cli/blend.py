@@ -59,7 +59,9 @@ def parser():
     ref = p.add_mutually_exclusive_group()
     ref.add_argument("--reference", metavar="REF.exr", help="reference image to measure the error against")
     ref.add_argument("--render-reference", action="store_true",
-                     help="render the full-GI reference with manifold_brdf and Mitsuba's path")
+                     help="render the reference: Mitsuba's own render of the basis's scene with the point's "
+                          "manifold_brdf, with the scene's integrator as the basis was (its type, max_depth, "
+                          "rr_depth, hide_emitters; a basis made with --max-depth: that depth)")
     p.add_argument("--spp", type=int, default=256, help="samples per pixel of --render-reference (default 256)")
     p.add_argument("--seed", type=int, default=0, help="seed of --render-reference (default 0)")
     p.add_argument("--path", nargs=2, metavar=("A", "B"),
@@ -312,7 +314,7 @@ def reference_image(args, basis, manifold, outputs):
     to ``outputs``), or None."""
     from ...imaging import io as imageio
     from ...basis.blend import latent_points
-    from ...render.scenes import render_reference
+    from ...render.scenes import render_reference, scene_resolution
 
     if args.reference:
         return imageio.read_exr(args.reference)
@@ -320,12 +322,15 @@ def reference_image(args, basis, manifold, outputs):
         return None
     m = basis.manifest
     scene = args.scene or m.scene
-    print(f"rendering the reference: {scene}, path, {args.spp} spp ...", flush=True)
+    paths = m.extra.get("integrator")
+    how = (f"{paths['kind']}, max_depth {paths['max_depth']}" + (", hide_emitters" if paths["hide_emitters"] else "")
+           if paths else f"max_depth {m.max_depth}")
+    print(f"rendering the reference: {scene}, {how} (as the basis), {args.spp} spp ...", flush=True)
     t0 = time.perf_counter()
     points = latent_points(basis, manifold, args.x)
     view = reference_view(basis, scene, render_reference)
     reference = render_reference(scene, args.manifold or m.manifold, points, args.spp, seed=args.seed,
-                                 resolution=basis.resolution, max_depth=m.max_depth, variant=m.variant,
+                                 resolution=scene_resolution(m), max_depth=m.max_depth, variant=m.variant,
                                  targets=basis.targets, database=args.database, **view)
     print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
     if basis.p == 1:

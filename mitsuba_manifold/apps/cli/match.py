@@ -119,7 +119,7 @@ def _outputs(args, result, basis, manifold, target):
 
     from ...imaging import io as imageio
     from ...basis.folder import BASE
-    from ...render.scenes import render_reference
+    from ...render.scenes import render_reference, scene_resolution
 
     outputs, info = [], result.to_dict(manifold)
     if args.out:
@@ -133,12 +133,12 @@ def _outputs(args, result, basis, manifold, target):
             outputs.append(("contact sheet", sheet, lambda: imageio.write_contact_sheet(sheet, images, labels, columns=3)))
         if args.render_reference:
             m = basis.manifest
-            print(f"rendering the best point: {m.scene}, path, {args.spp} spp ...", flush=True)
+            print(f"rendering the best point: {m.scene}, with its integrator, {args.spp} spp ...", flush=True)
             t0 = time.perf_counter()
             try:
                 view = reference_view(basis, m.scene, render_reference)
                 ref = render_reference(m.scene, args.manifold or m.manifold, result.x, args.spp,
-                                       seed=args.seed, resolution=basis.resolution, max_depth=m.max_depth,
+                                       seed=args.seed, resolution=scene_resolution(m), max_depth=m.max_depth,
                                        variant=m.variant, **view)
             except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's
                 fail(e)

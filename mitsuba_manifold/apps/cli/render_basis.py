@@ -73,7 +73,10 @@ def main(argv=None):
                         "object alone); l1: the L1- images only (about 3x faster to render)")
     p.add_argument("--res", type=int, default=None, help="square resolution (scenes taking $res)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-depth", type=int, default=None, help="path depth (-1: unbounded; default: the scene's $max_depth)")
+    p.add_argument("--max-depth", type=int, default=None,
+                   help="path depth (-1: unbounded), overriding the scene's integrator; default: the scene's own "
+                        "(the basis renders what the scene's integrator does: path or direct, its max_depth, "
+                        "rr_depth and hide_emitters; Mitsuba's default path, unbounded, where it has none)")
     p.add_argument("--variant", default=None, help="Mitsuba variant (default: cuda_ad_rgb if usable, else llvm_ad_rgb)")
     p.add_argument("--x", type=parse_floats, default=None, metavar="X",
                    help="the scene's latent point $x (q numbers; default: the first material's point)")

@@ -20,7 +20,7 @@ import numpy as np
 
 from ...imaging import metrics
 from ...render.interrupt import sample_passes
-from ...render.scenes import load_scene, set_points
+from ...render.scenes import load_scene, scene_resolution, set_points
 
 MAX_SPP = 1 << 14
 KEEP_JOBS = 16
@@ -152,10 +152,10 @@ class References:
         """The reference image of a job, in passes; stops between passes when the server does."""
         import mitsuba as mi
 
-        loaded = load_scene(scene_path, manifold_path, job.spp, tuple(basis.resolution),
-                            basis.manifest.max_depth, job.x, basis.manifest.variant)
+        loaded = load_scene(scene_path, manifold_path, job.spp, scene_resolution(basis.manifest),
+                            basis.manifest.max_depth, job.x, basis.manifest.variant, sensor=basis.sensor)
         set_points(loaded.targets, job.x)
-        integrator = mi.load_dict({"type": "path", "max_depth": int(loaded.max_depth)})
+        integrator = loaded.integrator.reference(loaded.scene)   # the scene's own, as the basis
         w, h = basis.resolution
         acc, done = None, 0
         for k, spp in enumerate(sample_passes(job.spp, w * h)):

@@ -48,7 +48,7 @@ class FirstHitAOVs(mi.SamplingIntegrator):
         other = valid & ~on
         _, weight = bsdf.sample(mi.BSDFContext(), si, sampler.next_1d(), sampler.next_2d(), other)
         albedo = dr.select(other, dr.clip(weight, 0.0, 1.0), 0.0)
-        theta = dr.acos(dr.clip(si.wi.z, 0.0, 1.0))
+        theta = dr.acos(dr.clip(dr.abs(si.wi.z), 0.0, 1.0))   # a twosided material's back side as its front
         k = mi.UInt32(dr.minimum(theta * (2.0 / dr.pi) * self.bins, self.bins - 1))
         hist = [dr.select(valid & on & (k == j), 1.0, 0.0) for j in range(self.bins)]
         return mi.Spectrum(0.0), valid, [n.x, n.y, n.z, albedo.x, albedo.y, albedo.z] + hist

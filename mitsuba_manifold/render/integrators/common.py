@@ -26,24 +26,79 @@ def is_manifold_bsdf(bsdf):
     return isinstance(bsdf, manifold_brdf.ManifoldBRDF)
 
 
-def manifold_bsdfs(scene):
-    """The distinct manifold BSDF instances of ``scene``, in the order of ``scene.shapes()``."""
+#: BSDFs that may hold a manifold material and keep its image affine in it, by class name: the
+#: ``twosided`` wrapper (the material on both sides; the one-pass renderer mirrors the back side).
+TWOSIDED = "TwoSidedBRDF"
+
+
+def scene_shapes(scene):
+    """Every shape of ``scene``: its own, and those inside shape groups (instanced), which
+    ``scene.shapes()`` does not list."""
+    shapes = list(scene.shapes())
+    for _, _, node, _ in mi.traverse(scene).properties.values():
+        if isinstance(node, mi.Shape) and not any(node is s for s in shapes):
+            shapes.append(node)
+    return shapes
+
+
+def _inner(bsdf):
+    """The manifold BSDFs a (wrapper) BSDF holds, found through its parameters."""
     found = []
-    for shape in scene.shapes():
+    for _, _, node, _ in mi.traverse(bsdf).properties.values():
+        if is_manifold_bsdf(node) and not any(node is b for b in found):
+            found.append(node)
+    return found
+
+
+def carriers(scene):
+    """``[(carrier, material)]``: every BSDF that a shape of ``scene`` holds (instanced ones too) and
+    that is a manifold material or holds one (``twosided``, ...), with that manifold material, in
+    the order of the shapes. A ray hitting ``carrier`` scatters off ``material``."""
+    out = []
+    for shape in scene_shapes(scene):
         bsdf = shape.bsdf()
-        if is_manifold_bsdf(bsdf) and not any(bsdf is b for b in found):
+        if bsdf is None or any(bsdf is c for c, _ in out):
+            continue
+        if is_manifold_bsdf(bsdf):
+            out.append((bsdf, bsdf))
+        else:
+            out += [(bsdf, m) for m in _inner(bsdf)]
+    for k, (c, m) in enumerate(out):   # a nested material without an id is named by its holder
+        if not m.id():
+            m.set_id(c.id() or f"manifold_brdf_{k}")
+    return out
+
+
+def is_plain_twosided(carrier):
+    """Whether ``carrier`` is a ``twosided`` wrapper with the one manifold material on both sides."""
+    name = carrier.class_name() if hasattr(carrier, "class_name") else type(carrier).__name__
+    return name == TWOSIDED and len(_inner(carrier)) == 1 and "brdf_1" not in mi.traverse(carrier).keys()
+
+
+def manifold_bsdfs(scene):
+    """The distinct manifold BSDF instances of ``scene`` (a shape's own BSDF, or held by one such as
+    ``twosided``; instanced shapes included), in the order of the shapes."""
+    found = []
+    for _, bsdf in carriers(scene):
+        if not any(bsdf is b for b in found):
             found.append(bsdf)
     return found
 
 
 def nested_manifold_bsdfs(scene):
-    """Manifold BSDFs that are not a shape's own BSDF (inside twosided, blendbsdf, mask, ...)."""
+    """Manifold BSDFs of ``scene`` that no shape's BSDF holds in a way the split can see."""
     own = manifold_bsdfs(scene)
     nested = []
     for _, _, node, _ in mi.traverse(scene).properties.values():
         if is_manifold_bsdf(node) and not any(node is b for b in own + nested):
             nested.append(node)
     return nested
+
+
+def group_carriers(scene, groups):
+    """Per target group (:func:`target_groups`), the BSDFs whose hit is a vertex on it."""
+    pairs = carriers(scene)
+    return [[c for c, m in pairs if any(m is b for b in bsdfs)] for _, bsdfs in groups]
 
 
 def target_groups(scene, target="all"):
@@ -71,9 +126,8 @@ def target_groups(scene, target="all"):
     found = manifold_bsdfs(scene)
     if not found and nested_manifold_bsdfs(scene):
         raise InputError(
-            "manifold_path: the scene's manifold_brdf is nested inside another BSDF (twosided, blendbsdf, "
-            "mask, ...); the L1- split needs it as the shape's own BSDF: attach manifold_brdf to the shape "
-            "directly, or render with component=\"full\".")
+            "manifold_path: the scene's manifold_brdf is nested where no shape's BSDF holds it; the L1- split "
+            "needs it as a shape's own BSDF or inside twosided: attach it so, or render with component=\"full\".")
     if not found:
         raise InputError(
             "manifold_path: the scene has no manifold material (no shape uses a "
@@ -94,7 +148,7 @@ def target_groups(scene, target="all"):
         groups = []
         for i in ids:
             if i not in by_id:
-                others = [s.bsdf().id() for s in scene.shapes() if s.bsdf() is not None]
+                others = [s.bsdf().id() for s in scene_shapes(scene) if s.bsdf() is not None]
                 kind = ("is not a manifold_brdf" if i in others else "is not in the scene")
                 raise InputError(
                     f"manifold_path: target BSDF {i!r} {kind}; manifold BSDFs of the "
@@ -150,3 +204,17 @@ def check_variant(variant=None):
             "wavefronts with Dr.Jit and needs an RGB JIT variant such as 'llvm_ad_rgb' "
             "or 'cuda_ad_rgb' (mi.set_variant(...), then mitsuba_manifold.register())")
     return variant
+
+
+def developed_rgb(film):
+    """The linear RGB image a film holds (float32 (H, W, 3), its crop window), whatever its
+    ``pixel_format``: the film's raw storage (R, G, B, [A,] [AOVs,] W) divided by the filter
+    weights, as ``develop`` does before converting to the pixel format (luminance, XYZ, ...), a
+    fixed map of this RGB."""
+    import numpy as np
+
+    raw = np.array(film.bitmap(raw=True), dtype=np.float64)
+    w = raw[..., -1:]
+    rgb = raw[..., :3] / np.where(w > 0, w, 1.0)
+    return np.where(w > 0, rgb, 0.0).astype(np.float32)
+

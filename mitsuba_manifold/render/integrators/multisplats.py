@@ -17,8 +17,9 @@ second-order term ``2 L2_ij - L2_ii - L2_jj = - sum a (f_i(b_1) - f_j(b_1)) (f_i
 (computed in that form). Where paths touch the material three or more times, a cross term of
 two-vertex paths alone leaves the blend of two materials that see themselves differently
 (white-paint and blue-rubber on the table's bowl) 1.7% too bright at their midpoint, with the
-noise of the brighter one's ``L2+`` (``docs/benchmarks.md``). Nearest lookups and a box filter
-only (the table product of :class:`.splats.TableSplats`).
+noise of the brighter one's ``L2+`` (``docs/benchmarks.md``). Nearest lookups (the table product
+of :class:`.splats.TableSplats`); each splat goes into every pixel of its sample's filter
+footprint with the filter's weight there (:class:`.splats.FilterTaps`), as the film puts samples.
 """
 
 from dataclasses import dataclass
@@ -28,7 +29,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..lookups import merl_angles, merl_bin
-from .splats import PACKET
+from .splats import PACKET, expand
 
 #: Pairs of materials per cross-term kernel (bounds the per-thread copies of the sums).
 PAIR_CHUNK = 64
@@ -118,8 +119,9 @@ class MultiSplats:
         self.splats = []      # (k, [bins], amplitude, pixel, count) per set of levels (:func:`_merged`)
         self.counts = np.zeros(self.levels + 2, np.int64)   # paths by vertices on the target
 
-    def prepare(self, rec, weight, pixel, seed=0):
-        """Splats of levels ``2 ..`` of one pass (``weight``: the camera sample weight; ``seed``:
+    def prepare(self, rec, weight, taps, seed=0):
+        """Splats of levels ``2 ..`` of one pass (``weight``: the camera sample weight; ``taps``: each
+        sample's pixels and filter weights, :meth:`.splats.FilterTaps.taps`; ``seed``:
         of the pass, for the choice of the splats that the cross terms use), in the sets of
         :data:`LEVEL_SETS`: one kernel per set, not per level and kind (each kernel has its fixed costs, the
         per-thread copies of the sums among them, however few splats a high level has; at 64 spp on the
@@ -130,12 +132,13 @@ class MultiSplats:
                                    minlength=self.levels + 2)[:self.levels + 2]
         self.splats = []
         for first, last in _level_sets(self.levels):
-            parts = [part for k in range(first, last + 1) for part in self._level(levels[:k], weight, pixel)]
+            parts = [part for k in range(first, last + 1) for part in self._level(levels[:k], weight, taps)]
             if parts:
                 self.splats.append(_merged(parts, max(len(p[0]) for p in parts)))
 
-    def _level(self, lv, weight, pixel):
-        """The splats ``(bins, amplitude, pixel)`` of level ``len(lv)``: light connection, sampled direction."""
+    def _level(self, lv, weight, taps):
+        """The splats ``(bins, amplitude, pixel)`` of level ``len(lv)``: light connection, sampled
+        direction, each in every pixel of its sample's filter footprint (weighted)."""
         earlier = [_bins(v["wi"], v["wo"], self.dims) for v in lv[:-1]]
         ok = mi.Bool(True)
         for v in lv[:-1]:
@@ -148,7 +151,13 @@ class MultiSplats:
             if dr.width(idx) == 0:
                 continue
             bins = [dr.gather(mi.UInt32, b, idx) for b in earlier + [_bins(last["wi"], wo, self.dims)]]
-            out.append((bins, dr.gather(mi.Color3f, a, idx), dr.gather(mi.UInt32, pixel, idx)))
+            amp = dr.gather(mi.Color3f, a, idx)
+            for take, pix, w in expand(taps, idx):
+                if take is None:
+                    out.append((bins, amp, pix))
+                else:
+                    out.append(([dr.gather(mi.UInt32, b, take) for b in bins],
+                                dr.gather(mi.Color3f, amp, take) * w, pix))
         return out
 
     def _sums(self, pairs, pixels=None):

@@ -4,8 +4,9 @@ For paths scattering once off the target, the material enters only at that verte
 (paper Sec. 5.2): the paths are traced once with a sampling density that
 covers every material, that vertex is recorded, and each material's image is a sparse
 product ``(pixels x bins) @ (bins x materials)`` of the recorded *splats* with the
-tables. :class:`TableSplats` computes it directly (nearest lookups, box filter),
-:class:`FilterSplats` through image blocks with the film's filter.
+tables. :class:`TableSplats` computes it directly (nearest lookups; each splat in every pixel
+of its sample's filter footprint, weighted as the film weighs the sample), :class:`FilterSplats`
+through image blocks with the film's filter (``linear`` lookups).
 
 :func:`render_onepass_gi` lets the same paths go on after their second vertex on the target:
 every vertex there is sampled with the proxy and recorded (:mod:`.records`), and each
@@ -23,7 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from ...errors import InputError
-from .common import target_groups
+from .common import developed_rgb, group_carriers, is_manifold_bsdf, is_plain_twosided, target_groups
 from .multisplats import MultiSplats
 from .proxy import POINT, sampling_proxy, with_point  # noqa: F401 (POINT: re-exported)
 from .splats import PACKET, FilterSplats, TableSplats
@@ -56,17 +57,20 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
     ``a * table(bin)`` to the pixel, so the images are a sparse product
     ``(pixels x bins) @ (bins x materials)``.
 
-    With ``nearest`` lookups and a box filter (the usual case), that product is
+    With ``nearest`` lookups (the default), that product is
     computed directly: the tables, interleaved by bin (``Database.material_rows``,
     cached beside the database), give all materials' values at a bin in one
     contiguous read; the splats are sorted by bin, so the tables are read in order;
     one Dr.Jit kernel per group of ``chunk`` materials adds ``a * row`` into
     per-pixel sums (scatter-adds into per-thread copies, ``ReduceMode.Expand``),
-    over tiles of pixels small enough to bound that memory. Otherwise (``linear``
-    lookups, other filters) each material is evaluated at the splats sorted by bin
-    (one gather from its table, or the BSDF's own ``eval``) and splatted with the
-    film's filter. Either way the images are normalised by the filter weights of all
-    samples, as the film does. Samples are processed in passes of at most
+    over tiles of pixels small enough to bound that memory; a splat goes to every pixel of its
+    sample's filter footprint with the filter's weight there (:class:`.splats.FilterTaps`:
+    one pixel for the box filter, about 16 for Mitsuba's default Gaussian). With ``linear``
+    lookups each material is evaluated at the splats by the BSDF's own ``eval`` and splatted
+    with the film's filter. Either way the images are normalised by the filter weights of all
+    samples, as the film does: pixel ``p`` of material ``i`` is
+    ``sum_s r_ps T_is / sum_s r_ps`` (``r_ps``: the filter's weight of sample ``s`` at ``p``,
+    ``T_is``: its touch radiance with material ``i``), linear in each ``T_is``. Samples are processed in passes of at most
     ``max_samples`` paths to bound memory. Each image is an unbiased estimate of
     what ``component="touch"`` renders with that material alone; the images are
     correlated (the same paths).
@@ -134,7 +138,7 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     to ``levels`` vertices (every one sampled with the proxy and recorded, :mod:`.records`),
     and the splats of levels ``2 .. levels`` make each material's ``L2+`` image and, for the
     pairs of material names ``pairs``, the cross terms (:mod:`.multisplats`). Nearest lookups
-    and a box filter only. ``options``: ``chunk``, ``max_samples``, ``spp_per_pass``,
+    (any film filter). ``options``: ``chunk``, ``max_samples``, ``spp_per_pass``,
     ``progress`` of :func:`render_onepass`, and ``cross_fraction`` (the share of the
     splats the cross terms use, each weighted by its inverse; default 1) and ``pair_selection``
     (a :class:`.multisplats.PairSelection`: ``pairs`` are candidates, those whose cross term
@@ -183,12 +187,10 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     film = sensor.film()
     db = target.manifold.open_database(target.database, names)
     dims = tuple(int(d) for d in db.dims)
-    # The table product needs nearest lookups, a box filter (one pixel per sample)
-    # and tables addressable with 32-bit indices.
+    # The table product needs nearest lookups and tables addressable with 32-bit indices.
     n_pad = -(-len(names) // PACKET) * PACKET
     rows = None
-    if (target.interpolation == "nearest" and film.rfilter().is_box_filter()
-            and int(np.prod(dims)) * 3 * n_pad < 1 << 32):
+    if target.interpolation == "nearest" and int(np.prod(dims)) * 3 * n_pad < 1 << 32:
         rows = db.material_rows(names, pad=PACKET)
         _prefetch(rows.filename)  # read while the paths are traced
     point = gi.get("point") if gi else None
@@ -197,6 +199,8 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     else:
         proxy = sampling_proxy(target, db, names, rows)
 
+    if any(is_plain_twosided(c) for c in group_carriers(scene, target.groups)[0]):
+        proxy = (proxy, mi.load_dict({"type": "twosided", "bsdf": proxy}))   # the back side mirrored
     levels = gi["levels"] if gi else 1
     touch = gi.get("touch", True) if gi else True
     spp = int(spp) or sensor.sampler().sample_count()
@@ -206,7 +210,9 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     chunk = int(chunk) if chunk else (len(names) if rows is not None else 16)
     chunks = [(i, min(len(names), i + chunk)) for i in range(0, len(names), chunk)]
     alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
-    plan = dict(groups=target.groups, select=1, keep=3 if levels == 1 else 7, aovs=[])
+    hits = group_carriers(scene, target.groups)
+    plan = dict(groups=target.groups, select=1, keep=3 if levels == 1 else 7, aovs=[], hits=hits,
+                mirror=[c for c in hits[0] if is_plain_twosided(c)])
 
     film.prepare([])
     base_block = film.create_block()
@@ -215,13 +221,12 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
         splat = FilterSplats(film, base_block, names, chunks, db, target.path, target.options(),
                              len(passes) > 1)
     else:
-        splat = TableSplats(base_block, rows, names, chunks, dims)
+        splat = TableSplats(base_block, rows, names, chunks, dims, film.rfilter())
     multi = None
     if gi:
         if rows is None:
-            raise InputError("manifold_path: L2+ images need nearest lookups and a box filter (the table "
-                             "product); give the scene's manifold_brdf interpolation=\"nearest\" and its film "
-                             "a box rfilter, or render the L1- basis (levels 1)")
+            raise InputError("manifold_path: the L2+ images need the manifold_brdf's nearest lookups (the table "
+                             "product): give it interpolation=\"nearest\" (its default), or render the L1- basis")
         index = {n: k for k, n in enumerate(names)}
         bad = [p for p in gi["pairs"] if len(p) != 2 or p[0] not in index or p[1] not in index]
         if bad:
@@ -245,7 +250,7 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
             if touch:
                 splat.prepare(rec, rec["beta"] * weight, pos)
             if multi is not None:
-                multi.prepare(rec, weight, splat.pixel_of(pos), pass_seed)
+                multi.prepare(rec, weight, splat.taps(pos), pass_seed)
             del sampler, ray, L, valid, rec, head
             for c in range(len(chunks)):
                 splat.add(c)
@@ -260,7 +265,8 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
                     progress(done, total)   # the L2+ splats took a while: let the caller stop
     film.prepare([])
     film.put_block(base_block)
-    base = np.array(film.develop(), dtype=np.float32)[..., :3].copy()
+    film.develop()
+    base = developed_rgb(film)   # RGB whatever the film's pixel format
     images = splat.images(film) if touch else {}
     if multi is None:
         return base, images, None
@@ -303,6 +309,13 @@ def one_target(scene, target):
             f"{target!r} gives {len(groups)} ({[g[0] for g in groups]}); render "
             "several targets material by material")
     bsdfs = groups[0][1]   # manifold_brdf instances: target_groups only returns those
+    for carrier in group_carriers(scene, groups)[0]:
+        if not is_manifold_bsdf(carrier) and not is_plain_twosided(carrier):
+            name = carrier.class_name() if hasattr(carrier, "class_name") else type(carrier).__name__
+            raise InputError(
+                f"manifold_path: the manifold_brdf is held by a {name} BSDF ({carrier.id()!r}); one-pass rendering "
+                "records the material's own vertices (it alone, or inside twosided): render material by "
+                "material (`mode` 'per-material', L1- images), or give the shape the manifold_brdf itself")
     first = bsdfs[0]
     for b in bsdfs[1:]:
         same = (os.path.samefile(b.manifold_path, first.manifold_path)

@@ -21,7 +21,8 @@ import mitsuba as mi
 
 from ...errors import InputError, UnavailableError
 from .records import Records
-from .common import COMPONENTS, check_variant, class_names, power_heuristic, target_groups
+from .common import (COMPONENTS, check_variant, class_names, group_carriers, is_plain_twosided, power_heuristic,
+                     target_groups)
 
 
 class ManifoldPathIntegrator(mi.SamplingIntegrator):
@@ -101,9 +102,13 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             ``groups`` (list of ``(name, bsdfs)``), ``names`` (class names),
             ``select`` (bit set over classes summed into the image), ``keep``
             (bit set over classes a path may still be in while worth tracing),
-            ``aovs`` (class indices written as AOVs).
+            ``aovs`` (class indices written as AOVs), ``hits`` (per group, the BSDFs whose hit
+            is a vertex on it: its manifold materials and the ``twosided`` wrappers holding them)
+            and ``mirror`` (those wrappers, whose back side the one-pass records mirror).
         """
         groups = target_groups(scene, self.target) if self.needs_targets() else []
+        hits = group_carriers(scene, groups)
+        mirror = [c for group in hits for c in group if is_plain_twosided(c)]
         names = class_names([g[0] for g in groups])
         n_sub = 1 << len(groups)
         rest = n_sub
@@ -143,7 +148,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
                 keep |= 1 << c
         if need >> rest & 1:
             keep |= 1 << rest
-        return dict(groups=groups, names=names, select=select, keep=keep, aovs=aovs)
+        return dict(groups=groups, names=names, select=select, keep=keep, aovs=aovs, hits=hits, mirror=mirror)
 
     def aov_names(self):
         if not self.split:
@@ -203,6 +208,9 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         body would thread some twenty path-state variables through helper calls.
         """
         groups, select, keep = plan["groups"], plan["select"], plan["keep"]
+        # closures over the BSDFs: read in the loop, they would be its state (their tables as variables)
+        on_target = _target_test(plan.get("hits") or [g[1] for g in groups])
+        sampled_at = _proxy_choice(plan.get("mirror", ()) if record else (), proxy)
         n_sub = 1 << len(groups)
         rest = mi.UInt32(n_sub)
         track = len(groups) > 0
@@ -211,6 +219,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         levels = int(record)  # most vertices on the target recorded (True: 1)
         bsdf_ctx = mi.BSDFContext()
         ray = mi.Ray3f(ray)
+        if dr.hint(self.max_depth == 0, mode="scalar"):
+            active = False   # as Mitsuba's path: depth 0 renders nothing, not even the emitters seen
         depth = mi.UInt32(0)
         beta = mi.Spectrum(1)
         eta = mi.Float(1)
@@ -225,7 +235,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         prev_bsdf_delta = mi.Bool(True)
         # Records of the vertices on the target (record mode, :mod:`.records`): ``beta`` is the
         # throughput since the last such vertex, ``rr_scale`` the proxy's throughput up to it.
-        rec = Records(levels, dr.width(ray.d.x)) if record else None
+        # one record per path: an orthographic camera's rays share one direction (``ray.d`` has width 1)
+        rec = Records(levels, max(dr.width(ray.o.x), dr.width(ray.d.x), dr.width(active))) if record else None
         rs = rec.state if record else None
         rr_scale = mi.Float(1) if record else None
 
@@ -259,17 +270,15 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
 
             # --- Class after scattering here
             if dr.hint(track, mode="scalar"):
-                hit = mi.UInt32(0)
-                for g in range(len(groups)):
-                    for b in groups[g][1]:
-                        hit |= dr.select(bsdf == mi.BSDFPtr(b), mi.UInt32(1 << g), 0)
+                hit = on_target(bsdf)
                 again = (hit & cls) != 0
                 cls = dr.select((cls == rest) | again, rest, cls | hit)
             if dr.hint(record, mode="scalar"):
                 # On the target, sample (and weigh the light connection) with the
-                # density that covers every material; record the vertex.
-                bsdf = dr.select(hit != 0, mi.BSDFPtr(proxy), bsdf)
-                rs, first = rec.arrive(rs, active & (hit != 0), beta, si.wi)
+                # density that covers every material; record the vertex. The back side of a
+                # twosided material is recorded mirrored (z negated), as twosided evaluates it.
+                bsdf, back = sampled_at(bsdf, hit != 0, si.wi.z < 0)
+                rs, first = rec.arrive(rs, active & (hit != 0), beta, _mirrored(si.wi, back))
                 active &= rs.n <= levels  # a path that has touched it more often ends here
 
             active_next = (active & si.is_valid() & (depth + 1 < self.max_depth)
@@ -288,7 +297,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
                 parts[k] += dr.select(cls == aov_classes[k], Lr, 0)
             if dr.hint(record, mode="scalar"):
                 rs.acc += dr.select((rs.n > 0) & ~first, Lr, 0)
-                rec.light(rs, first, wo, dr.select(active_em, mis_em * em_weight, 0))
+                rec.light(rs, first, _mirrored(wo, back), dr.select(active_em, mis_em * em_weight, 0))
 
             # --- BSDF sampling
             bs, bsdf_weight = bsdf.sample(bsdf_ctx, si, sampler.next_1d(),
@@ -298,7 +307,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             beta_full = beta * bsdf_weight
             if dr.hint(record, mode="scalar"):
                 ok = first & active_next & (bs.pdf > 0)
-                rs = rec.leave(rs, first, bs.wo, dr.select(ok, dr.rcp(bs.pdf), 0.0))
+                rs = rec.leave(rs, first, _mirrored(bs.wo, back), dr.select(ok, dr.rcp(bs.pdf), 0.0))
                 rr_scale = dr.select(first, rr_scale * dr.max(mi.unpolarized_spectrum(beta_full)), rr_scale)
                 beta = dr.select(first, dr.select(ok, 1.0, 0.0), beta_full)
             else:
@@ -353,6 +362,42 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         return (f"ManifoldPathIntegrator[max_depth={self.max_depth}, rr_depth="
                 f"{self.rr_depth}, component={self.component!r}, target={self.target!r}, "
                 f"split={self.split}]")
+
+
+def _target_test(hits):
+    """``test(bsdf)``: per lane, the bit set of the target groups whose BSDFs (``hits``: per group,
+    its manifold materials and the twosided wrappers holding them) the BSDF pointer is one of."""
+    def test(bsdf):
+        hit = mi.UInt32(0)
+        for g, carriers in enumerate(hits):
+            for b in carriers:
+                hit |= dr.select(bsdf == mi.BSDFPtr(b), mi.UInt32(1 << g), 0)
+        return hit
+    return test
+
+
+def _proxy_choice(mirror, proxy):
+    """``choose(bsdf, on, below)``: the BSDF sampled at each vertex (on the target: the proxy, or
+    its twosided wrapper where one of the twosided materials ``mirror`` was hit; ``proxy`` is the
+    proxy or the pair ``(proxy, twosided proxy)``) and whether the vertex is a twosided material's
+    back side (``below``: the incident direction is below the shading frame)."""
+    proxy, proxy_two = proxy if isinstance(proxy, tuple) else (proxy, None)
+
+    def choose(bsdf, on, below):
+        two = mi.Bool(False)
+        for carrier in mirror:
+            two |= bsdf == mi.BSDFPtr(carrier)
+        use = mi.BSDFPtr(proxy) if proxy is not None else bsdf
+        if proxy_two is not None:
+            use = dr.select(two, mi.BSDFPtr(proxy_two), use)
+        return dr.select(on, use, bsdf), two & below
+    return choose
+
+
+def _mirrored(v, back):
+    """``v`` with its z negated where ``back``: a direction on a twosided material's back side in
+    the frame its front side is evaluated in."""
+    return mi.Vector3f(v.x, v.y, dr.select(back, -v.z, v.z))
 
 
 mi.register_integrator("manifold_path", lambda props: ManifoldPathIntegrator(props))

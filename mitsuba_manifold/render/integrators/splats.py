@@ -3,8 +3,15 @@
 A sample's vertex on the target becomes two *splats* (light connection, sampled direction):
 a pixel, a MERL bin, an RGB amplitude ``a``; a material adds ``a * table(bin)`` to the pixel,
 so the images are a sparse product ``(pixels x bins) @ (bins x materials)``.
-:class:`TableSplats` computes it directly (nearest lookups, box filter), :class:`FilterSplats`
-through image blocks with the film's filter.
+
+The film's reconstruction filter enters as it does in Mitsuba's film: a sample at film position
+``s`` adds ``r(p_x + 1/2 - s_x) r(p_y + 1/2 - s_y) L`` to every pixel ``p`` of its footprint, and
+each pixel is divided by the sum of those weights over all samples (:class:`FilterTaps`). Since a
+material's image is linear in each sample's ``L``, each splat is put into every pixel of its
+sample's footprint with that weight (one pixel of weight 1 for the box filter), and every
+material's image is the film's.
+:class:`TableSplats` computes the product directly (nearest lookups), :class:`FilterSplats`
+through image blocks with the film's filter (each material evaluated by its BSDF).
 """
 
 import drjit as dr
@@ -19,6 +26,62 @@ PACKET = 16
 #: Most bytes of per-pixel sums one table kernel holds (Expand mode keeps a copy per thread).
 _SUM_BYTES = 1 << 28
 _NO_BIN = 0xFFFFFFFF
+
+
+class FilterTaps:
+    """The pixels of an image block that a sample at film position ``pos`` adds to, and the
+    filter's weight there, as ``ImageBlock.put`` computes them: the pixels ``p`` within
+    ``n = ceil(radius - 1/2)`` of the sample's, of weight ``r(p_x + 1/2 - pos_x) r(p_y + 1/2 - pos_y)``
+    (``r``: the film's filter; pixels outside the block dropped); the box filter adds 1 to the
+    sample's pixel. The block must not normalise its samples and have no border (a film's block)."""
+
+    def __init__(self, block, rfilter):
+        self.size, self.offset = block.size(), block.offset()
+        self.rfilter = rfilter
+        self.box = rfilter.is_box_filter()
+        self.n = 0 if self.box else int(np.ceil(float(rfilter.radius()) - 0.5))
+
+    @property
+    def count(self):
+        """Taps per sample."""
+        return (2 * self.n + 1) ** 2
+
+    def taps(self, pos):
+        """``[(pixel, weight)]``, one pair per tap: each sample's pixel row (``y * width + x``)
+        and weight (``None`` for the box filter's single tap: 1; 0 where the tap leaves the block)."""
+        x0 = mi.Int32(dr.floor(pos.x)) - self.offset.x
+        y0 = mi.Int32(dr.floor(pos.y)) - self.offset.y
+        if self.box:
+            return [(mi.UInt32(y0 * self.size.x + x0), None)]
+        out = []
+        for dy in range(-self.n, self.n + 1):
+            y = y0 + dy
+            wy = self.rfilter.eval(mi.Float(y + self.offset.y) + 0.5 - pos.y)
+            for dx in range(-self.n, self.n + 1):
+                x = x0 + dx
+                wx = self.rfilter.eval(mi.Float(x + self.offset.x) + 0.5 - pos.x)
+                inside = (x >= 0) & (y >= 0) & (x < self.size.x) & (y < self.size.y)
+                w = dr.select(inside, wx * wy, 0.0)
+                out.append((mi.UInt32(dr.select(inside, y * self.size.x + x, 0)), w))
+        return out
+
+
+def expand(taps, idx):
+    """The splats of samples ``idx`` (UInt32) in every pixel of their footprint: ``(take, pixel,
+    weight)`` per tap with a weight somewhere, ``take`` indexing ``idx`` (None: all of them) and
+    ``weight`` None for a weight of 1."""
+    out = []
+    for pixel, weight in taps:
+        pix = dr.gather(mi.UInt32, pixel, idx)
+        if weight is None:
+            out.append((None, pix, None))
+            continue
+        w = dr.gather(mi.Float, weight, idx)
+        take = dr.compress(w != 0)
+        if dr.width(take) == 0:
+            continue
+        out.append((take, dr.gather(mi.UInt32, pix, take), dr.gather(mi.Float, w, take)))
+    return out
 
 
 def _splat_rows(sums, splats, pixel, rows, row_packets, kb0, kb1):
@@ -52,15 +115,17 @@ def _splat_rows(sums, splats, pixel, rows, row_packets, kb0, kb1):
 
 class TableSplats:
     """The splats of :func:`render_onepass` as per-pixel sums ``sum a * table(bin)`` of every
-    material: nearest lookups, box filter (each sample lands in one pixel).
+    material: nearest lookups, each splat in every pixel of its sample's filter footprint
+    (:class:`FilterTaps`).
 
     Sums are kept per chunk of materials, laid out ``(pixels, 3, materials padded to
     PACKET)``. When a chunk's sums of the whole image, copied once per thread, exceed
     ``_SUM_BYTES``, the splats are processed in tiles of pixels into smaller sums first.
     """
 
-    def __init__(self, block, rows, names, chunks, dims):
+    def __init__(self, block, rows, names, chunks, dims, rfilter):
         self.block, self.names, self.dims = block, names, dims
+        self.filter = FilterTaps(block, rfilter)
         self.n_pad = int(rows.shape[2])
         self.rows = mi.Float(np.asarray(rows).reshape(-1))  # maps the cached file, no copy
         self.pixels = int(dr.prod(block.size()))
@@ -71,12 +136,9 @@ class TableSplats:
         self.tile = max(1, _SUM_BYTES // (12 * widest * max(1, dr.thread_count())))
         self.tiles = []
 
-    def pixel_of(self, pos):
-        """Row of each sample's pixel in the sums (box filter: the pixel the position lies in)."""
-        size, offset = self.block.size(), self.block.offset()
-        x = mi.Int32(dr.floor(pos.x)) - offset.x
-        y = mi.Int32(dr.floor(pos.y)) - offset.y
-        return mi.UInt32(y * size.x + x)
+    def taps(self, pos):
+        """Each sample's pixels in the sums and their filter weights (:meth:`FilterTaps.taps`)."""
+        return self.filter.taps(pos)
 
     def scale(self):
         """Per pixel, 1 / the filter weights of all samples (0 where none), as NumPy."""
@@ -85,14 +147,15 @@ class TableSplats:
 
     def prepare(self, rec, beta, pos):
         """Turn one pass's records into splats, sorted by bin within tiles of pixels."""
-        pixel = self.pixel_of(pos)
+        taps = self.taps(pos)
+        pixel = taps[0][0]
         keys, amps = [], []
         for wo, a in ((rec["wo_nee"], rec["e_nee"]), (rec["wo"], rec["g"])):
             a = beta * a * wo.z
             ok = (rec["wi"].z > 0) & (wo.z > 0) & dr.any(a != 0)
             keys.append(dr.select(ok, merl_bin(*merl_angles(rec["wi"], wo), self.dims), _NO_BIN))
             amps.append(a)
-        dr.eval(self.block.tensor(), pixel, keys, amps)
+        dr.eval(self.block.tensor(), taps, keys, amps)
         # Both splats of every sample in sample order (so in pixel order), compacted.
         j = dr.arange(mi.UInt32, 2 * dr.width(pixel))
         key = dr.select((j & 1) != 0, dr.gather(mi.UInt32, keys[1], j >> 1),
@@ -105,7 +168,16 @@ class TableSplats:
         amp = dr.select(second, dr.gather(mi.Color3f, amps[1], idx >> 1),
                         dr.gather(mi.Color3f, amps[0], idx >> 1))
         key = dr.gather(mi.UInt32, key, idx)
-        pix = dr.gather(mi.UInt32, pixel, idx >> 1)
+        if self.filter.box:
+            pix = dr.gather(mi.UInt32, pixel, idx >> 1)
+        else:   # every splat in each pixel of its footprint, weighted; then in pixel order
+            parts = expand(taps, idx >> 1)
+            pix = dr.concat([p for _, p, _ in parts])
+            amp = mi.Color3f(*(dr.concat([dr.gather(mi.Float, amp[c], t) * w for t, _, w in parts])
+                               for c in range(3)))
+            key = dr.concat([dr.gather(mi.UInt32, key, t) for t, _, _ in parts])
+            order = mi.UInt32(np.argsort(pix.numpy(), kind="stable").astype(np.uint32))
+            pix, amp, key = (dr.gather(type(v), v, order) for v in (pix, amp, key))
         dr.eval(key, amp, pix)
         # Sorted by bin within each tile (a stable 16-bit radix sort of the bins' leading
         # bits is enough to read the tables in order).
