@@ -384,29 +384,8 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         raise MismatchError(f"`spp` must be >= 1, got {spp}")
     if max_depth is not None and int(max_depth) < -1:
         raise MismatchError(f"`max_depth` must be -1 (unbounded) or an integer >= 0, got {max_depth}")
-    params = {}
-    if "manifold" in used:
-        params["manifold"] = os.path.abspath(manifold_path)
-    if "x" in used:
-        if x is None:
-            x = manifold().latent[0]
-        params["x"] = ", ".join(repr(float(v)) for v in np.ravel(x))
-    if database is not None and "database" in used:
-        params["database"] = os.path.abspath(database)
-    if "spp" in used and spp is not None:
-        params["spp"] = str(int(spp))
-    if "integrator" in used and defaults.get("integrator") in (None, "manifold_path"):
-        params["integrator"] = "path"   # the scene's own default integrator type is kept
-    if "max_depth" in used and max_depth is not None:
-        params["max_depth"] = str(int(max_depth))
-    size = None
-    if resolution is not None:
-        size = (int(resolution), int(resolution)) if np.isscalar(resolution) else tuple(int(v) for v in resolution)
-        if "res" in used and size[0] == size[1]:
-            params["res"] = str(size[0])
-        for name, value in zip(("width", "height"), size):
-            if name in used:
-                params[name] = str(value)
+    params, size = _scene_params(used, defaults, manifold_path, manifold, x=x, spp=spp,
+                                 max_depth=max_depth, database=database, resolution=resolution)
     _check_scene_manifolds(scene_path, manifold_path, params)
     _check_wrappers(scene_path)
     from ..errors import one_line
@@ -440,6 +419,35 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     loaded = LoadedScene(scene, targets, integrator.max_depth)
     loaded.integrator = integrator
     return loaded
+
+
+def _scene_params(used, defaults, manifold_path, manifold, *, x, spp, max_depth, database, resolution):
+    """The ``$parameters`` to load a scene with (only those its XML uses) and the image size
+    asked for (None: the film's own); ``manifold`` loads the manifold when first called."""
+    params = {}
+    if "manifold" in used:
+        params["manifold"] = os.path.abspath(manifold_path)
+    if "x" in used:
+        if x is None:
+            x = manifold().latent[0]
+        params["x"] = ", ".join(repr(float(v)) for v in np.ravel(x))
+    if database is not None and "database" in used:
+        params["database"] = os.path.abspath(database)
+    if "spp" in used and spp is not None:
+        params["spp"] = str(int(spp))
+    if "integrator" in used and defaults.get("integrator") in (None, "manifold_path"):
+        params["integrator"] = "path"   # the scene's own default integrator type is kept
+    if "max_depth" in used and max_depth is not None:
+        params["max_depth"] = str(int(max_depth))
+    size = None
+    if resolution is not None:
+        size = (int(resolution), int(resolution)) if np.isscalar(resolution) else tuple(int(v) for v in resolution)
+        if "res" in used and size[0] == size[1]:
+            params["res"] = str(size[0])
+        for name, value in zip(("width", "height"), size):
+            if name in used:
+                params[name] = str(value)
+    return params, size
 
 
 def scene_resolution(manifest):
