@@ -33,7 +33,7 @@ import numpy as np
 
 from ..gp.kernel import Kernel
 from ..gp.likelihood import log_likelihood
-from . import fitting, io as manifold_file, materials, paths, report
+from . import adding, fitting, io as manifold_file, materials, paths, report
 from . import interpolant as interpolants
 from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings
@@ -71,8 +71,9 @@ class Manifold(PruningMethods):
         ``gram, history, info`` after ``albedos``, as the previous release took them.
     **learned
         ``gram``, ``table_gram``, ``cos_gram``, ``interpolant`` (its parameters, default the paper's GP
-        weights on ``l`` and ``mu``) and ``record`` (a :class:`FitRecord`), or instead of it
-        the previous release's ``history`` and ``info`` dict.
+        weights on ``l`` and ``mu``), ``record`` (a :class:`FitRecord`), or instead of it
+        the previous release's ``history`` and ``info`` dict, and ``added`` (the
+        :class:`adding.Provenance` of materials added after the fit, or their dicts).
 
     Attributes
     ----------
@@ -102,6 +103,9 @@ class Manifold(PruningMethods):
         The weight function ``w(x)``.
     record : FitRecord
         What the fit did: method, preset, ``d``, ``dims``, final log-likelihood, history, timings.
+    added : list of adding.Provenance
+        The materials placed by :meth:`add` after the fit (the last ``len(added)`` names), with
+        where each table came from and the file (and its SHA-256) the manifold reads it from.
     """
 
     def __init__(self, names, latent, database, hashes, length_scale=1.0, noise=1e-4, features="raw",
@@ -123,8 +127,10 @@ class Manifold(PruningMethods):
         gram = learned.get("gram")
         self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
         self.record = learned.get("record") or FitRecord.from_info(learned.get("info"), learned.get("history", ()))
+        self.added = [a if isinstance(a, adding.Provenance) else adding.Provenance.from_dict(a)
+                      for a in learned.get("added") or ()]
         self._store = TrainingTables(self.names, self.hashes, learned.get("table_gram"), learned.get("cos_gram"),
-                                     albedos)
+                                     albedos, {a.name: a.path for a in self.added})
         self.interpolant = make_interpolant(self.latent, {
             "length_scale": self.length_scale, "noise": self.noise,
             "interpolant": learned.get("interpolant") or {"kind": "gp", "exact": True}})
@@ -324,6 +330,42 @@ class Manifold(PruningMethods):
         """
         table = projection_mod.as_table(table, 3 * int(np.prod(self.dims or (0,))), self.dims)
         return projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
+
+    def add(self, table_or_path, name=None, *, origin=None):
+        """Place a new measured material in this manifold without a refit (:mod:`.adding`).
+
+        Its latent point maximises the GPLVM likelihood (paper Eq. 6) of all N + 1 tables with
+        the fitted points held, started next to its closest materials; the other points, the
+        kernel and the interpolant's parameters stay as they are, and the new material is
+        reproduced exactly at its point. The manifold changes in place once everything is
+        computed (nothing changes on an error); :meth:`save` then writes it with the
+        material's :class:`adding.Provenance`.
+
+        Parameters
+        ----------
+        table_or_path : path or array
+            A MERL ``.binary`` file of this manifold's resolution (read from where it is, and
+            checked by its SHA-256 whenever read again), or a reflectance table (1/sr,
+            ``(3,) + dims`` or flat), written as a ``.binary`` file into the database's cache.
+        name : str, optional
+            The material's name (default: the file's name without its extension).
+        origin : str, optional
+            What the table is, kept in the provenance (e.g. ``"rgl:paper_white"``).
+
+        Returns
+        -------
+        adding.Added
+            The name, latent point ``x``, provenance, the closest training material, the
+            log-likelihood of the N + 1 points and the time taken.
+        """
+        kwargs, tables, info = adding.add(self, table_or_path, name, origin=origin)
+        grown = type(self)(**kwargs)
+        grown._tables = tables
+        file = getattr(self, "file", None)
+        self.__dict__.update(grown.__dict__)
+        if file is not None:
+            self.file = file
+        return info
 
     # ----------------------------------------------------------- diagnostics
     def condition_number(self):

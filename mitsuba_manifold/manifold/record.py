@@ -88,7 +88,7 @@ class FitRecord:
 
 
 #: ``Manifold(...)``'s learned-state keywords, and the previous release's positional ones after ``albedos``.
-LEARNED = ("gram", "table_gram", "cos_gram", "interpolant", "record", "history", "info")
+LEARNED = ("gram", "table_gram", "cos_gram", "interpolant", "record", "history", "info", "added")
 LEGACY_POSITIONAL = ("gram", "history", "info")
 
 
