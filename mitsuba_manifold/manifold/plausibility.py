@@ -37,12 +37,14 @@ class DirectionalAlbedo:
     """Directional albedo of tables of resolution ``dims`` at :data:`N_INCIDENCE` incidences.
 
     ``a(theta_i) = int f(theta_i, w_o) cos(theta_o) dw_o`` by the midpoint rule over
-    ``N_THETA x N_PHI`` outgoing directions, each looked up in its MERL bin.
+    ``N_THETA x N_PHI`` outgoing directions, each looked up in its MERL bin; ``theta_i``
+    (radians) replaces the default incidences.
     """
 
-    def __init__(self, dims, n_incidence=N_INCIDENCE, n_theta=N_THETA, n_phi=N_PHI):
+    def __init__(self, dims, n_incidence=N_INCIDENCE, n_theta=N_THETA, n_phi=N_PHI, theta_i=None):
         self.dims = tuple(int(v) for v in dims)
-        self.theta_i = (np.arange(n_incidence) + 0.5) / n_incidence * np.radians(89.0)
+        self.theta_i = ((np.arange(n_incidence) + 0.5) / n_incidence * np.radians(89.0) if theta_i is None
+                        else np.asarray(theta_i, dtype=np.float64))
         to = (np.arange(n_theta) + 0.5) / n_theta * (np.pi / 2)
         po = (np.arange(n_phi) + 0.5) / n_phi * (2 * np.pi)
         TO, PO = np.meshgrid(to, po, indexing="ij")
