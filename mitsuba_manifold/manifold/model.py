@@ -320,16 +320,24 @@ class Manifold(PruningMethods):
         _, w = self.weights(x)
         return w @ self.albedos
 
-    def project(self, table, **options):
+    def project(self, table, *, beyond=False, **options):
         """The latent point whose material is closest to ``table`` (any MERL table).
 
         ``table``: a reflectance table of this manifold's resolution (as :meth:`Database.reflectance`,
         or flat) or the path of a MERL ``.binary`` file; ``options`` go to :func:`projection.project`.
         Returns a :class:`projection.Projection`: ``x``, ``error`` (RMS of ``log(1 + rho)``
         differences over all bins), ``weights``, the nearest training material and its error.
+
+        ``beyond=True`` also finds the best *plausible* combination beyond the data
+        (:func:`projection.beyond`: weights outside the simplex, no negative bin, directional
+        albedo at most 1 at every incidence), in :attr:`Projection.beyond`: its ``weights``
+        render with ``manifold_brdf``'s ``weights`` and blend like any others.
         """
         table = projection_mod.as_table(table, 3 * int(np.prod(self.dims or (0,))), self.dims)
-        return projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
+        p = projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
+        if beyond:
+            p = projection_mod.beyond(p, self.tables(), table, dims=self.dims)
+        return p
 
     def add(self, table_or_path, name=None, *, origin=None):
         """Place a new measured material in this manifold without a refit (:mod:`.adding`).
