@@ -168,10 +168,14 @@ def plausible_weights(tables, target, candidates, start, albedo, *, bins, rounds
     if over.any():
         s = min(s, float(np.min((1.0 - a_0[over]) / (a_w[over] - a_0[over]))))
     s = max(0.0, s * (1 - 1e-6) if s < 1.0 else 1.0)
-    w = w0 + s * (w - w0)
-    full = np.maximum(w.astype(np.float32) @ full_rows, 0.0) if s < 1.0 else w.astype(np.float32) @ full_rows
+    w_end = w
+    for _ in range(40):   # rounding of the float32 products: step back until no value is below 0
+        w = w0 + s * (w_end - w0)
+        full = w.astype(np.float32) @ full_rows
+        if full.min() >= 0 or s == 0.0:
+            break
+        s = 0.0 if s < 1e-3 else s * 0.99
     weights = np.zeros(n)
     weights[cand] = w
     t_log = np.log1p(np.maximum(np.asarray(target, dtype=np.float32), 0.0))
-    return Plausible(weights, _log_rms(full, t_log), float((w.astype(np.float32) @ full_rows).min()),
-                     float((w @ A).max()), s)
+    return Plausible(weights, _log_rms(full, t_log), float(full.min()), float((w @ A).max()), s)
