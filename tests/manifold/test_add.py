@@ -111,3 +111,18 @@ def _saved(m, tmp_path):
     path = tmp_path / "base.npz"
     m.save(path)
     return path
+
+
+def test_fit_manifold_add_places_materials_in_a_saved_manifold(measured, tmp_path, capsys):
+    from mitsuba_manifold.apps.cli import fit_manifold
+    merl_db, rgl, base = measured
+    saved = _saved(base, tmp_path)
+    out = tmp_path / "grown.npz"
+    fit_manifold.main([str(saved), "--out", str(out), "--add", os.path.join(rgl, "paper_white.binary"),
+                       "--name", "white", "--add", os.path.join(rgl, "satin_gold.binary")])
+    m = Manifold.load(out)
+    assert m.names[-2:] == ["white", "satin_gold"] and np.array_equal(m.latent[:-2], base.latent)
+    assert [a.name for a in m.added] == ["white", "satin_gold"]
+    assert "added white" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        fit_manifold.main([str(saved), "--out", str(tmp_path / "x.npz"), "--name", "a"])
