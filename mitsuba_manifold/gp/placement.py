@@ -55,8 +55,10 @@ class OnePoint:
         n = len(self.X)
         S = check_gram(S, check_psd=False)
         if S.shape != (n + 1, n + 1):
-            raise InputError(f"`S` must be the ({n + 1}, {n + 1}) Gram matrix of the N + 1 tables, "
-                             f"got shape {S.shape}")
+            raise InputError(
+                f"`S` must be the ({n + 1}, {n + 1}) Gram matrix of the N + 1 tables, "
+                f"got shape {S.shape}"
+            )
         self.d, self.kernel = check_d(d), kernel
         f = factorise(kernel.K(self.X))
         K_inv = f.inverse()
@@ -72,7 +74,7 @@ class OnePoint:
         self.n_evaluations += 1
         x = np.asarray(x, dtype=np.float64)
         k = self.kernel.K(x[None], self.X)[0]
-        dk = -k[:, None] * (x[None] - self.X) / self.kernel.length_scale ** 2   # (N, q)
+        dk = -k[:, None] * (x[None] - self.X) / self.kernel.length_scale**2  # (N, q)
         v = self.K_inv @ k
         s = 1.0 + self.kernel.noise - k @ v
         if s <= 0:
@@ -82,7 +84,7 @@ class OnePoint:
         ds = -2.0 * v @ dk
         dg = 2.0 * (Pk - self.r) @ dk
         L = self.const - 0.5 * self.d * np.log(s) - 0.5 * g / s
-        dL = -0.5 * self.d * ds / s - 0.5 * (dg / s - g * ds / s ** 2)
+        dL = -0.5 * self.d * ds / s - 0.5 * (dg / s - g * ds / s**2)
         return float(L), dL
 
 
@@ -109,8 +111,10 @@ def place_point(latent, S, d, starts, *, length_scale=1.0, noise=1e-4, max_iter=
     one = OnePoint(latent, S, d, Kernel(length_scale, noise))
     starts = np.atleast_2d(np.asarray(starts, dtype=np.float64))
     if starts.shape[1] != one.X.shape[1] or not np.isfinite(starts).all():
-        raise InputError(f"`starts` must be finite points of {one.X.shape[1]} coordinates, got shape {starts.shape}")
-    scale = float(d)   # L is of order d: keep the optimiser's numbers near 1
+        raise InputError(
+            f"`starts` must be finite points of {one.X.shape[1]} coordinates, got shape {starts.shape}"
+        )
+    scale = float(d)  # L is of order d: keep the optimiser's numbers near 1
 
     def f(x):
         value, grad = one.value_grad(x)
@@ -118,8 +122,13 @@ def place_point(latent, S, d, starts, *, length_scale=1.0, noise=1e-4, max_iter=
 
     best = None
     for x0 in starts:
-        res = scipy.optimize.minimize(f, x0, jac=True, method="L-BFGS-B",
-                                      options={"maxiter": max_iter, "gtol": 1e-10, "ftol": 1e-14})
+        res = scipy.optimize.minimize(
+            f,
+            x0,
+            jac=True,
+            method="L-BFGS-B",
+            options={"maxiter": max_iter, "gtol": 1e-10, "ftol": 1e-14},
+        )
         if np.isfinite(res.fun) and (best is None or res.fun < best.fun):
             best = res
     return Placement(best.x.copy(), float(-best.fun * scale), one.n_evaluations)

@@ -91,12 +91,16 @@ def read_table(path, dims):
     """Reflectance table of a MERL ``.binary`` file, flat float32, checked against ``dims``."""
     path = os.fspath(path)
     if not os.path.isfile(path):
-        raise InputError(f"material to add: {path} is not a file; give a MERL .binary table (or an array)")
+        raise InputError(
+            f"material to add: {path} is not a file; give a MERL .binary table (or an array)"
+        )
     try:
         header = merl.read_header(path)
         if dims is not None and tuple(header) != tuple(dims):
-            raise InputError(f"material to add: {path} has resolution {tuple(header)}, the manifold's tables "
-                             f"have {tuple(dims)}; tabulate it at {tuple(dims)}")
+            raise InputError(
+                f"material to add: {path} has resolution {tuple(header)}, the manifold's tables "
+                f"have {tuple(dims)}; tabulate it at {tuple(dims)}"
+            )
         return merl.filled_reflectance(merl.read_binary(path)).reshape(-1)
     except merl.FormatError as e:
         raise InputError(f"material to add: {e}") from None
@@ -106,7 +110,9 @@ def read_table(path, dims):
 
 def _check_name(name, names):
     if not isinstance(name, str) or not name or "/" in name or os.sep in name or "\0" in name:
-        raise InputError(f"`name` {name!r} of the material to add must be a non-empty name without '/'")
+        raise InputError(
+            f"`name` {name!r} of the material to add must be a non-empty name without '/'"
+        )
     if name in names:
         raise InputError(f"the manifold already has a material named {name!r}; give another `name`")
 
@@ -116,6 +122,7 @@ def _stored_table(table, folder, name):
     out = os.path.join(cache_folder(folder), "added")
     os.makedirs(out, exist_ok=True)
     from .._util.names import escape
+
     path = os.path.join(out, f"{escape(name)}-{key_hash(table, length=16)}.binary")
     if not os.path.exists(path):
         merl.write_binary(path, merl.to_stored(table))
@@ -128,9 +135,9 @@ def cross_products(tables, t, weights):
     raw, cos = np.zeros(n), np.zeros(n)
     q = np.tile(np.asarray(weights, dtype=np.float32).reshape(-1), 3)
     for s in range(0, d, BLOCK):
-        block = tables[:, s:s + BLOCK]
-        raw += block @ t[s:s + BLOCK]
-        cos += block @ (t[s:s + BLOCK] * q[s:s + BLOCK])
+        block = tables[:, s : s + BLOCK]
+        raw += block @ t[s : s + BLOCK]
+        cos += block @ (t[s : s + BLOCK] * q[s : s + BLOCK])
     tt = float(np.dot(t.astype(np.float64), t.astype(np.float64)))
     tq = float(np.dot(t.astype(np.float64), (t * q).astype(np.float64)))
     return raw, cos, tt, tq
@@ -179,7 +186,9 @@ def add(m, table_or_path, name=None, *, origin=None, n_starts=8):
     """
     t0 = time.perf_counter()
     if m.gram is None or m.record.d is None:
-        raise InputError("this manifold was saved without its Gram matrix; refit it to add materials to it")
+        raise InputError(
+            "this manifold was saved without its Gram matrix; refit it to add materials to it"
+        )
     dims = m.dims
     if isinstance(table_or_path, (str, os.PathLike)):
         path = os.path.abspath(os.fspath(table_or_path))
@@ -194,14 +203,20 @@ def add(m, table_or_path, name=None, *, origin=None, n_starts=8):
         table = np.asarray(table_or_path, dtype=np.float32).reshape(-1)
         want = 3 * int(np.prod(dims)) if dims is not None else table.size
         if table.size != want:
-            raise InputError(f"table to add has {table.size} values; this manifold's tables have {want} "
-                             f"(dims {dims} x RGB)")
+            raise InputError(
+                f"table to add has {table.size} values; this manifold's tables have {want} "
+                f"(dims {dims} x RGB)"
+            )
         if not np.isfinite(table).all() or (table < 0).any():
-            raise InputError("table to add has NaN, Inf or negative values; give a reflectance table (1/sr)")
+            raise InputError(
+                "table to add has NaN, Inf or negative values; give a reflectance table (1/sr)"
+            )
         path, source = None, "table"
     tables = m.tables()
     if table.size != tables.shape[1]:
-        raise FormatError(f"table to add has {table.size} values; the manifold's tables have {tables.shape[1]}")
+        raise FormatError(
+            f"table to add has {table.size} values; the manifold's tables have {tables.shape[1]}"
+        )
     if path is None:
         path = _stored_table(table.reshape((3,) + tuple(dims)), m.database, name)
     digest = file_hash(path)
@@ -210,10 +225,14 @@ def add(m, table_or_path, name=None, *, origin=None, n_starts=8):
     starts, order = _starts(m.latent, m.length_scale, own, n_starts)
     raw, cos, tt, tq = cross_products(tables, table, albedo_weights(dims))
     S2 = grown_gram(m.gram, tables, table, m.features)
-    placed = place_point(m.latent, S2, m.record.d, starts, length_scale=m.length_scale, noise=m.noise)
+    placed = place_point(
+        m.latent, S2, m.record.d, starts, length_scale=m.length_scale, noise=m.noise
+    )
     x = placed.x
     nearest = float(np.min(np.linalg.norm(m.latent - x, axis=1)))
-    if nearest < 1e-6 * m.length_scale:   # on a training point: the weights could not tell the two apart
+    if (
+        nearest < 1e-6 * m.length_scale
+    ):  # on a training point: the weights could not tell the two apart
         x = x + 1e-3 * m.length_scale * np.eye(m.q)[0]
 
     def grow(a, row, corner):
@@ -225,14 +244,23 @@ def add(m, table_or_path, name=None, *, origin=None, n_starts=8):
     q = albedo_weights(dims).reshape(-1)
     albedo = table.reshape(3, -1).astype(np.float64) @ q
     kwargs = {
-        "names": m.names + [name], "latent": np.vstack([m.latent, x]), "database": m.database,
-        "hashes": m.hashes + [digest], "length_scale": m.length_scale, "noise": m.noise,
+        "names": m.names + [name],
+        "latent": np.vstack([m.latent, x]),
+        "database": m.database,
+        "hashes": m.hashes + [digest],
+        "length_scale": m.length_scale,
+        "noise": m.noise,
         "features": m.features,
         "albedos": None if m.albedos is None else np.vstack([m.albedos, albedo]),
-        "gram": S2, "record": m.record, "interpolant": m.interpolant.params(),
+        "gram": S2,
+        "record": m.record,
+        "interpolant": m.interpolant.params(),
         "table_gram": None if m.table_gram is None else grow(m.table_gram, raw, tt),
         "cos_gram": None if m.cos_gram is None else grow(m.cos_gram, cos, tq),
-        "added": list(getattr(m, "added", ())) + [provenance]}
+        "added": list(getattr(m, "added", ())) + [provenance],
+    }
     tables_grown = np.concatenate([tables, table[None, :]], axis=0)
-    info = Added(name, x, provenance, m.names[order[0]], placed.log_likelihood, time.perf_counter() - t0)
+    info = Added(
+        name, x, provenance, m.names[order[0]], placed.log_likelihood, time.perf_counter() - t0
+    )
     return kwargs, tables_grown, info

@@ -21,9 +21,13 @@ from .plausibility import DirectionalAlbedo
 #: Incidences (degrees) of the colour descriptor.
 INCIDENCES = (10.0, 45.0, 75.0)
 #: Linear sRGB (Rec. 709 primaries) to CIE XYZ, D65 white.
-RGB_TO_XYZ = np.array([[0.4124564, 0.3575761, 0.1804375],
-                       [0.2126729, 0.7151522, 0.0721750],
-                       [0.0193339, 0.1191920, 0.9503041]])
+RGB_TO_XYZ = np.array(
+    [
+        [0.4124564, 0.3575761, 0.1804375],
+        [0.2126729, 0.7151522, 0.0721750],
+        [0.0193339, 0.1191920, 0.9503041],
+    ]
+)
 WHITE = RGB_TO_XYZ.sum(axis=1)
 
 
@@ -33,7 +37,9 @@ def lab(rgb):
     xyz = np.maximum(xyz, 0.0)
     e = 216 / 24389
     f = np.where(xyz > e, np.cbrt(xyz), (24389 / 27 * xyz + 16) / 116)
-    return np.stack([116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])], -1)
+    return np.stack(
+        [116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])], -1
+    )
 
 
 def material_albedos(tables, dims, incidences=INCIDENCES):
@@ -69,5 +75,10 @@ def stray(weights, albedos):
     dist = distance_to_segment(D, D[0], D[-1]) / np.sqrt(n_inc)
     ends = float(np.linalg.norm(D[-1] - D[0]) / np.sqrt(n_inc))
     k = int(np.argmax(dist))
-    return {"delta_e": float(dist[k]), "share": float(dist[k] / max(ends, 1e-12)), "at": k,
-            "ends_delta_e": ends, "lab": lab(alb[:, n_inc // 2]).tolist()}
+    return {
+        "delta_e": float(dist[k]),
+        "share": float(dist[k] / max(ends, 1e-12)),
+        "at": k,
+        "ends_delta_e": ends,
+        "lab": lab(alb[:, n_inc // 2]).tolist(),
+    }

@@ -43,18 +43,25 @@ class DirectionalAlbedo:
 
     def __init__(self, dims, n_incidence=N_INCIDENCE, n_theta=N_THETA, n_phi=N_PHI, theta_i=None):
         self.dims = tuple(int(v) for v in dims)
-        self.theta_i = ((np.arange(n_incidence) + 0.5) / n_incidence * np.radians(89.0) if theta_i is None
-                        else np.asarray(theta_i, dtype=np.float64))
+        self.theta_i = (
+            (np.arange(n_incidence) + 0.5) / n_incidence * np.radians(89.0)
+            if theta_i is None
+            else np.asarray(theta_i, dtype=np.float64)
+        )
         to = (np.arange(n_theta) + 0.5) / n_theta * (np.pi / 2)
         po = (np.arange(n_phi) + 0.5) / n_phi * (2 * np.pi)
         TO, PO = np.meshgrid(to, po, indexing="ij")
-        wo = np.stack([np.sin(TO) * np.cos(PO), np.sin(TO) * np.sin(PO), np.cos(TO)], -1).reshape(-1, 3)
-        self.weight = (np.cos(TO) * np.sin(TO)).reshape(-1) * (np.pi / 2 / n_theta) * (2 * np.pi / n_phi)
+        wo = np.stack([np.sin(TO) * np.cos(PO), np.sin(TO) * np.sin(PO), np.cos(TO)], -1).reshape(
+            -1, 3
+        )
+        self.weight = (
+            (np.cos(TO) * np.sin(TO)).reshape(-1) * (np.pi / 2 / n_theta) * (2 * np.pi / n_phi)
+        )
         idx = []
         for t in self.theta_i:
             wi = np.broadcast_to(np.array([np.sin(t), 0.0, np.cos(t)]), wo.shape)
             idx.append(merl.flat_index(wi, wo, self.dims))
-        self.index = np.array(idx)   # (n_incidence, n_out)
+        self.index = np.array(idx)  # (n_incidence, n_out)
         self.bins = int(np.prod(self.dims))
 
     def of(self, tables):
@@ -62,7 +69,7 @@ class DirectionalAlbedo:
         tables = np.atleast_2d(tables)
         out = np.empty((len(tables), 3, len(self.theta_i)))
         for c in range(3):
-            vals = tables[:, c * self.bins + self.index]     # (M, n_inc, n_out)
+            vals = tables[:, c * self.bins + self.index]  # (M, n_inc, n_out)
             out[:, c] = vals.astype(np.float64) @ self.weight
         return out
 
@@ -97,8 +104,20 @@ def _log_rms(blend, y):
     return float(np.sqrt(np.mean(r * r, dtype=np.float64)))
 
 
-def plausible_weights(tables, target, candidates, start, albedo, *, bins, rounds=3, max_add=2000,
-                      max_iter=100, n_constrained=1024, affine=True):
+def plausible_weights(
+    tables,
+    target,
+    candidates,
+    start,
+    albedo,
+    *,
+    bins,
+    rounds=3,
+    max_add=2000,
+    max_iter=100,
+    n_constrained=1024,
+    affine=True,
+):
     """Best plausible affine combination of the ``candidates`` rows of ``tables`` for ``target``.
 
     Parameters
@@ -124,9 +143,9 @@ def plausible_weights(tables, target, candidates, start, albedo, *, bins, rounds
     """
     cand = np.asarray(candidates)
     n = len(tables)
-    T = tables[np.ix_(cand, bins)].astype(np.float64)          # (k, b)
+    T = tables[np.ix_(cand, bins)].astype(np.float64)  # (k, b)
     y = np.log1p(np.maximum(np.asarray(target, dtype=np.float64)[bins], 0.0))
-    A = albedo.of(tables[cand]).reshape(len(cand), -1)          # (k, 3 n_inc)
+    A = albedo.of(tables[cand]).reshape(len(cand), -1)  # (k, 3 n_inc)
     w0 = np.asarray(start, dtype=np.float64)[cand]
     w0 = w0 / w0.sum() if w0.sum() > 0 else np.full(len(cand), 1.0 / len(cand))
     scale = 1.0 / len(bins)
@@ -138,17 +157,27 @@ def plausible_weights(tables, target, candidates, start, albedo, *, bins, rounds
         g = np.where(blend > 0, 2.0 * r / (1.0 + pos), 0.0) * scale
         return float(r @ r) * scale, T @ g
 
-    extra = T[:, ::max(1, len(bins) // n_constrained)]
+    extra = T[:, :: max(1, len(bins) // n_constrained)]
     w = w0.copy()
     full_rows = tables[cand]
     for _ in range(rounds):
         C = extra
-        cons = [{"type": "ineq", "fun": lambda w, C=C: w @ C, "jac": lambda w, C=C: C.T},
-                {"type": "ineq", "fun": lambda w: 1.0 - w @ A, "jac": lambda w: -A.T}]
+        cons = [
+            {"type": "ineq", "fun": lambda w, C=C: w @ C, "jac": lambda w, C=C: C.T},
+            {"type": "ineq", "fun": lambda w: 1.0 - w @ A, "jac": lambda w: -A.T},
+        ]
         if affine:
-            cons.append({"type": "eq", "fun": lambda w: w.sum() - 1.0, "jac": lambda w: np.ones_like(w)})
-        res = scipy.optimize.minimize(f, w, jac=True, method="SLSQP", constraints=cons,
-                                      options={"maxiter": max_iter, "ftol": 1e-12})
+            cons.append(
+                {"type": "eq", "fun": lambda w: w.sum() - 1.0, "jac": lambda w: np.ones_like(w)}
+            )
+        res = scipy.optimize.minimize(
+            f,
+            w,
+            jac=True,
+            method="SLSQP",
+            constraints=cons,
+            options={"maxiter": max_iter, "ftol": 1e-12},
+        )
         w = res.x if np.all(np.isfinite(res.x)) else w
         full = w.astype(np.float32) @ full_rows
         neg = np.flatnonzero(full < 0)
@@ -169,7 +198,7 @@ def plausible_weights(tables, target, candidates, start, albedo, *, bins, rounds
         s = min(s, float(np.min((1.0 - a_0[over]) / (a_w[over] - a_0[over]))))
     s = max(0.0, s * (1 - 1e-6) if s < 1.0 else 1.0)
     w_end = w
-    for _ in range(40):   # rounding of the float32 products: step back until no value is below 0
+    for _ in range(40):  # rounding of the float32 products: step back until no value is below 0
         w = w0 + s * (w_end - w0)
         full = w.astype(np.float32) @ full_rows
         if full.min() >= 0 or s == 0.0:

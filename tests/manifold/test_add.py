@@ -7,6 +7,7 @@ import zipfile
 
 import numpy as np
 import pytest
+from measured_helpers import MERL, weights_path, write_set
 
 from mitsuba_manifold.data import gram
 from mitsuba_manifold.errors import InputError
@@ -14,8 +15,6 @@ from mitsuba_manifold.gp.kernel import Kernel
 from mitsuba_manifold.gp.likelihood import log_likelihood, log_likelihood_grad
 from mitsuba_manifold.gp.placement import OnePoint, place_point
 from mitsuba_manifold.manifold.model import Manifold
-
-from measured_helpers import MERL, weights_path, write_set
 
 pytestmark = pytest.mark.skipif(not os.path.exists(weights_path()), reason="no NBRDF weights")
 
@@ -46,19 +45,21 @@ def test_one_point_likelihood_is_eq6_of_all_points():
 
 
 def test_add_keeps_the_others_reproduces_the_new_one_and_saves_its_provenance(measured, tmp_path):
-    merl_db, rgl, base = measured
+    _merl_db, rgl, base = measured
     path = tmp_path / "base.npz"
     base.save(path)
     m = Manifold.load(path)
     before = m.latent.copy()
     info = m.add(os.path.join(rgl, "paper_white.binary"), origin="rgl:paper_white")
     assert m.n == base.n + 1 and m.names[-1] == "paper_white" == info.name
-    assert np.array_equal(m.latent[:-1], before)                      # the others unchanged
+    assert np.array_equal(m.latent[:-1], before)  # the others unchanged
     assert np.linalg.norm(m.latent - m.latent[-1], axis=1)[:-1].min() > 1e-6
     tables = m.tables()
-    table, keep, dropped = m.interpolate(m.latent[-1], prune=0.0)
-    assert keep.tolist() == [m.n - 1] and np.array_equal(table.reshape(-1), tables[-1])   # exact at its point
-    for i in range(base.n):                                           # and the others at theirs
+    table, keep, _dropped = m.interpolate(m.latent[-1], prune=0.0)
+    assert keep.tolist() == [m.n - 1] and np.array_equal(
+        table.reshape(-1), tables[-1]
+    )  # exact at its point
+    for i in range(base.n):  # and the others at theirs
         assert np.array_equal(m.weights(before[i]).w, np.eye(m.n)[i])
     # the grown Gram matrices are those of all N + 1 tables
     g = gram.gram(tables, m.features, centre=True, raw=True)
@@ -70,20 +71,25 @@ def test_add_keeps_the_others_reproduces_the_new_one_and_saves_its_provenance(me
     m.save(out)
     with zipfile.ZipFile(out) as z:
         meta = json.loads(str(np.load(z.open("meta.npy"))))
-    assert meta["version"] == 3 and [a["name"] for a in meta["added"]] == ["paper_white", "half-white"]
+    assert meta["version"] == 3 and [a["name"] for a in meta["added"]] == [
+        "paper_white",
+        "half-white",
+    ]
     again = Manifold.load(out)
     assert [a.origin for a in again.added] == ["rgl:paper_white", "half of paper_white"]
     assert again.added[0].path == os.path.abspath(os.path.join(rgl, "paper_white.binary"))
     assert [a.source for a in again.added] == ["file", "table"]
     assert np.array_equal(again.latent, m.latent)
     assert np.array_equal(again.tables(), m.tables())
-    assert np.array_equal(again.interpolate(again.latent[-1], prune=0.0)[0].reshape(-1), tables[-1] * 0.5)
-    with zipfile.ZipFile(path) as z:   # a manifold without added materials stays version 2
+    assert np.array_equal(
+        again.interpolate(again.latent[-1], prune=0.0)[0].reshape(-1), tables[-1] * 0.5
+    )
+    with zipfile.ZipFile(path) as z:  # a manifold without added materials stays version 2
         assert json.loads(str(np.load(z.open("meta.npy"))))["version"] == 2
 
 
 def test_add_refuses_bad_input_before_changing_anything(measured, tmp_path):
-    merl_db, rgl, base = measured
+    merl_db, _rgl, base = measured
     m = Manifold.load(_saved(base, tmp_path))
     names = list(m.names)
     with pytest.raises(InputError, match="already has a material named 'teflon'"):
@@ -96,7 +102,7 @@ def test_add_refuses_bad_input_before_changing_anything(measured, tmp_path):
 
 
 def test_an_added_table_that_changed_is_refused(measured, tmp_path):
-    merl_db, rgl, base = measured
+    _merl_db, rgl, base = measured
     m = Manifold.load(_saved(base, tmp_path))
     copy = tmp_path / "satin.binary"
     shutil.copy(os.path.join(rgl, "satin_gold.binary"), copy)
@@ -115,11 +121,23 @@ def _saved(m, tmp_path):
 
 def test_fit_manifold_add_places_materials_in_a_saved_manifold(measured, tmp_path, capsys):
     from mitsuba_manifold.apps.cli import fit_manifold
-    merl_db, rgl, base = measured
+
+    _merl_db, rgl, base = measured
     saved = _saved(base, tmp_path)
     out = tmp_path / "grown.npz"
-    fit_manifold.main([str(saved), "--out", str(out), "--add", os.path.join(rgl, "paper_white.binary"),
-                       "--name", "white", "--add", os.path.join(rgl, "satin_gold.binary")])
+    fit_manifold.main(
+        [
+            str(saved),
+            "--out",
+            str(out),
+            "--add",
+            os.path.join(rgl, "paper_white.binary"),
+            "--name",
+            "white",
+            "--add",
+            os.path.join(rgl, "satin_gold.binary"),
+        ]
+    )
     m = Manifold.load(out)
     assert m.names[-2:] == ["white", "satin_gold"] and np.array_equal(m.latent[:-2], base.latent)
     assert [a.name for a in m.added] == ["white", "satin_gold"]

@@ -4,13 +4,12 @@ import os
 
 import numpy as np
 import pytest
+from measured_helpers import MERL, weights_path, write_set
 
 from mitsuba_manifold.data.database import Database, albedo_weights
 from mitsuba_manifold.manifold import appearance
 from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold.manifold.plausibility import DirectionalAlbedo
-
-from measured_helpers import DIMS, MERL, weights_path, write_set
 
 pytestmark = pytest.mark.skipif(not os.path.exists(weights_path()), reason="no NBRDF weights")
 
@@ -46,9 +45,11 @@ def test_projection_beyond_the_data_is_plausible_and_closer_than_the_convex_one(
         b = p.beyond
         assert abs(b.weights).sum() > 0 and b.weights.shape == (m.n,)
         full = b.weights.astype(np.float32) @ tables
-        assert full.min() >= -1e-6 * full.max()                      # no negative lobe
-        assert da.of(full).max() <= 1.0 + 1e-6                         # albedo <= 1 at every incidence
-        assert b.max_albedo <= 1.0 + 1e-6 and b.min_value == pytest.approx(full.min(), abs=1e-6 * full.max())
+        assert full.min() >= -1e-6 * full.max()  # no negative lobe
+        assert da.of(full).max() <= 1.0 + 1e-6  # albedo <= 1 at every incidence
+        assert b.max_albedo <= 1.0 + 1e-6 and b.min_value == pytest.approx(
+            full.min(), abs=1e-6 * full.max()
+        )
         assert p.best_error <= p.error + 1e-9
         ratios.append(p.best_error / p.nearest_error)
     # paper_white and spectralon are brighter than any MERL material: the convex space cannot
@@ -65,8 +66,10 @@ def test_a_projection_without_beyond_has_none(measured):
 
 def test_stray_flags_a_detour_and_not_a_straight_morph():
     # three materials: blue, white and a dark brown; albedos (N, incidences, RGB)
-    blue, white, brown = [np.tile(np.array(c)[None], (3, 1)) for c in ([0.05, 0.08, 0.4], [0.8, 0.8, 0.8],
-                                                                       [0.08, 0.04, 0.02])]
+    blue, white, brown = [
+        np.tile(np.array(c)[None], (3, 1))
+        for c in ([0.05, 0.08, 0.4], [0.8, 0.8, 0.8], [0.08, 0.04, 0.02])
+    ]
     A = np.stack([blue, white, brown])
     t = np.linspace(0, 1, 21)
     straight = np.stack([1 - t, t, 0 * t], 1)

@@ -59,16 +59,30 @@ def project_set(m, db, names=None, progress=True):
         p = m.project(target)
         p = projection.beyond(p, tables, target, albedo=da)
         b = p.beyond
-        rows.append({"name": name, "nearest": p.nearest, "nearest_error": p.nearest_error,
-                     "convex_error": p.error, "beyond_error": b.error,
-                     "convex_ratio": p.error / p.nearest_error, "beyond_ratio": p.best_error / p.nearest_error,
-                     "min_value": b.min_value, "max_albedo": b.max_albedo, "shrink": b.shrink,
-                     "negative_weight": float(-b.weights[b.weights < 0].sum()),
-                     "target_max_albedo": float(da.of(target).max()), "time_s": time.perf_counter() - t0})
+        rows.append(
+            {
+                "name": name,
+                "nearest": p.nearest,
+                "nearest_error": p.nearest_error,
+                "convex_error": p.error,
+                "beyond_error": b.error,
+                "convex_ratio": p.error / p.nearest_error,
+                "beyond_ratio": p.best_error / p.nearest_error,
+                "min_value": b.min_value,
+                "max_albedo": b.max_albedo,
+                "shrink": b.shrink,
+                "negative_weight": float(-b.weights[b.weights < 0].sum()),
+                "target_max_albedo": float(da.of(target).max()),
+                "time_s": time.perf_counter() - t0,
+            }
+        )
         if progress:
             r = rows[-1]
-            print(f"    {name}: convex {r['convex_ratio']:.3f}, beyond {r['beyond_ratio']:.3f} of the nearest "
-                  f"({r['nearest']}); max albedo {r['max_albedo']:.3f}, min value {r['min_value']:.2g}", flush=True)
+            print(
+                f"    {name}: convex {r['convex_ratio']:.3f}, beyond {r['beyond_ratio']:.3f} of the nearest "
+                f"({r['nearest']}); max albedo {r['max_albedo']:.3f}, min value {r['min_value']:.2g}",
+                flush=True,
+            )
     return rows
 
 
@@ -78,23 +92,36 @@ def add_set(m, db, n_add):
     out = []
     for name in db.names[:n_add]:
         info = m.add(db.path(name), name=f"added:{name}")
-        table, keep, _ = m.interpolate(m.latent[-1], prune=0.0)
-        out.append({"name": name, "time_s": info.time_s, "nearest": info.nearest,
-                    "exact": bool(np.array_equal(table.reshape(-1), m.tables()[-1])),
-                    "others_unchanged": bool(np.array_equal(m.latent[:len(before)], before))})
+        table, _keep, _ = m.interpolate(m.latent[-1], prune=0.0)
+        out.append(
+            {
+                "name": name,
+                "time_s": info.time_s,
+                "nearest": info.nearest,
+                "exact": bool(np.array_equal(table.reshape(-1), m.tables()[-1])),
+                "others_unchanged": bool(np.array_equal(m.latent[: len(before)], before)),
+            }
+        )
     return out
 
 
 def summary(rows):
     ratio = np.array([r["beyond_ratio"] for r in rows])
     convex = np.array([r["convex_ratio"] for r in rows])
-    out = {"n": len(rows), "median_beyond_ratio": float(np.median(ratio)), "median_convex_ratio": float(np.median(convex)),
-           "worst_beyond_ratio": float(ratio.max()), "min_value": float(min(r["min_value"] for r in rows)),
-           "max_albedo": float(max(r["max_albedo"] for r in rows)),
-           "median_negative_weight": float(np.median([r["negative_weight"] for r in rows]))}
-    out["meets"] = {"median_ratio": out["median_beyond_ratio"] <= TARGETS["median_ratio"],
-                    "no_negative_bin": out["min_value"] >= TARGETS["min_value"],
-                    "albedo": out["max_albedo"] <= TARGETS["max_albedo"] + 1e-6}
+    out = {
+        "n": len(rows),
+        "median_beyond_ratio": float(np.median(ratio)),
+        "median_convex_ratio": float(np.median(convex)),
+        "worst_beyond_ratio": float(ratio.max()),
+        "min_value": float(min(r["min_value"] for r in rows)),
+        "max_albedo": float(max(r["max_albedo"] for r in rows)),
+        "median_negative_weight": float(np.median([r["negative_weight"] for r in rows])),
+    }
+    out["meets"] = {
+        "median_ratio": out["median_beyond_ratio"] <= TARGETS["median_ratio"],
+        "no_negative_bin": out["min_value"] >= TARGETS["min_value"],
+        "albedo": out["max_albedo"] <= TARGETS["max_albedo"] + 1e-6,
+    }
     return out
 
 
@@ -107,32 +134,55 @@ def by_device(sets, splits=SPLITS, n_add=5, names=None, progress=True):
             if test not in sets or any(s not in sets for s in train):
                 continue
             key = f"{'+'.join(train)}->{test}"
-            folder = sets[train[0]] if len(train) == 1 else combined_folder([sets[s] for s in train],
-                                                                               os.path.join(tmp, key))
+            folder = (
+                sets[train[0]]
+                if len(train) == 1
+                else combined_folder([sets[s] for s in train], os.path.join(tmp, key))
+            )
             t0 = time.perf_counter()
             m = Manifold.fit(folder)
             if progress:
-                print(f"  {key}: fitted {m.n} materials in {time.perf_counter() - t0:.1f} s", flush=True)
+                print(
+                    f"  {key}: fitted {m.n} materials in {time.perf_counter() - t0:.1f} s",
+                    flush=True,
+                )
             db = Database(sets[test])
             rows = project_set(m, db, (names or {}).get(test), progress)
             added = add_set(m, db, n_add) if n_add else []
-            out["splits"][key] = {"n_train": m.n - len(added), "dims": list(m.dims), "summary": summary(rows),
-                                  "rows": rows, "add": added,
-                                  "add_s": {"median": float(np.median([a["time_s"] for a in added])) if added else None,
-                                            "max": float(max(a["time_s"] for a in added)) if added else None}}
+            out["splits"][key] = {
+                "n_train": m.n - len(added),
+                "dims": list(m.dims),
+                "summary": summary(rows),
+                "rows": rows,
+                "add": added,
+                "add_s": {
+                    "median": float(np.median([a["time_s"] for a in added])) if added else None,
+                    "max": float(max(a["time_s"] for a in added)) if added else None,
+                },
+            }
             if progress:
                 s = out["splits"][key]["summary"]
-                print(f"  {key}: median ratio beyond {s['median_beyond_ratio']:.3f} (convex "
-                      f"{s['median_convex_ratio']:.3f}); max albedo {s['max_albedo']:.3f}, min value "
-                      f"{s['min_value']:.2g}", flush=True)
+                print(
+                    f"  {key}: median ratio beyond {s['median_beyond_ratio']:.3f} (convex "
+                    f"{s['median_convex_ratio']:.3f}); max albedo {s['max_albedo']:.3f}, min value "
+                    f"{s['min_value']:.2g}",
+                    flush=True,
+                )
     return out
 
 
 def run(folder, n_add=5, progress=True):
     """:func:`by_device` on the sub-folders ``merl``, ``rgl`` and ``nielsen`` of ``folder`` that exist."""
-    sets = {s: os.path.join(folder, s) for s in ("merl", "rgl", "nielsen") if os.path.isdir(os.path.join(folder, s))}
+    sets = {
+        s: os.path.join(folder, s)
+        for s in ("merl", "rgl", "nielsen")
+        if os.path.isdir(os.path.join(folder, s))
+    }
     if "merl" not in sets:
         from ...errors import InputError
-        raise InputError(f"measured-space: {folder} has no 'merl' sub-folder; give a folder holding the "
-                         "databases merl/, rgl/ and nielsen/")
+
+        raise InputError(
+            f"measured-space: {folder} has no 'merl' sub-folder; give a folder holding the "
+            "databases merl/, rgl/ and nielsen/"
+        )
     return by_device(sets, n_add=n_add, progress=progress)
