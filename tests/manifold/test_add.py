@@ -144,3 +144,18 @@ def test_fit_manifold_add_places_materials_in_a_saved_manifold(measured, tmp_pat
     assert "added white" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         fit_manifold.main([str(saved), "--out", str(tmp_path / "x.npz"), "--name", "a"])
+
+
+def test_add_to_the_paper_preset_keeps_its_exact_gp_weights(measured, tmp_path):
+    merl_db, rgl, _ = measured
+    m = Manifold.fit(merl_db, preset="paper")
+    before, g_before = m.latent.copy(), m.gram.copy()
+    m.add(os.path.join(rgl, "satin_gold.binary"))
+    assert m.interpolant.kind == "gp" and m.features == "raw"
+    assert np.array_equal(m.latent[:-1], before)
+    assert np.array_equal(m.weights(m.latent[-1]).w, np.eye(m.n)[-1])
+    for i in range(len(before)):
+        assert np.array_equal(m.weights(before[i]).w, np.eye(m.n)[i])
+    g = gram.gram(m.tables(), "raw", centre=True)
+    assert np.allclose(m.gram, g.S, rtol=1e-8, atol=1e-8 * np.abs(g.S).max())
+    assert not np.allclose(m.gram[:-1, :-1], g_before)   # re-centred on the new mean
