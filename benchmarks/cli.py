@@ -21,6 +21,8 @@
   fig9       the paper's Fig. 9: perceptual distances from both ends along paths of 20 steps, per preset
              (--configs default,paper) and path kind (straight, uniform, geodesic); plots beside the JSON
   paths      speed of the paths: seconds per path of each kind, the latent graph cold and cached
+  measured-space  by device (--database: a folder of merl/, rgl/, nielsen/ databases): projection
+             beyond the data against the nearest material, its plausibility, and Manifold.add
 """
 
 import argparse
@@ -111,7 +113,7 @@ def run(args):
     explore = args.which == "explore"
     folder = database_folder(args)
     t0 = time.perf_counter()
-    if not explore and args.database is None and not os.path.isdir(folder) and args.which not in ("scaling", "match-render"):
+    if not explore and args.database is None and not os.path.isdir(folder) and args.which not in ("scaling", "match-render", "measured-space"):
         print(f"making the built-in database at MERL resolution in {folder}")
         database.make_database(folder, progress=True)
     kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space", "fig9", "paths") else {}

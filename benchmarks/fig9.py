@@ -11,7 +11,10 @@ full grid of bins (the paths are searched on :data:`paths.SEARCH_STRIDE`):
   over the path's points (``t_k = k / 20``): how far either curve strays from Fig. 9's diagonal;
 * ``largest_step``: the largest step's share of the path's perceptual length;
 * ``still``: the share of steps shorter than a quarter of an even step (``L / 80``);
-* ``length_ratio``: the path's perceptual length over ``d(A, B)`` (1: the straight chord).
+* ``length_ratio``: the path's perceptual length over ``d(A, B)`` (1: the straight chord);
+* ``stray``: how far the path's colours stray from the two ends' (:func:`appearance.stray`: the
+  largest CIELAB distance of a point's directional-albedo colours from the segment between
+  the ends', ``delta_e``, and its share of the ends' own distance): blue -> brown -> white strays.
 
 Targets (issue 18, default kind on the default preset): median deviation <= 0.10, no step
 over 0.10 of its path, median still share <= 5%, pair (a)'s deviation <= 0.25.
@@ -25,7 +28,7 @@ import numpy as np
 
 from mitsuba_manifold.data.distance import gram_distances
 from mitsuba_manifold.imaging import plots
-from mitsuba_manifold.manifold import paths, space
+from mitsuba_manifold.manifold import appearance, paths, space
 from mitsuba_manifold.manifold.model import Manifold
 
 PAPER_PAIRS = (("blue-metallic-paint", "dark-blue-paint"), ("teflon", "silver-paint"),
@@ -68,6 +71,8 @@ def measure(D):
 def summary(rows, pair_a=None):
     dev = [r["deviation"] for r in rows]
     out = {"n_pairs": len(rows), "median_deviation": float(np.median(dev)), "worst_deviation": float(np.max(dev)),
+           "median_stray_delta_e": float(np.median([r["stray"]["delta_e"] for r in rows])),
+           "worst_stray_delta_e": float(np.max([r["stray"]["delta_e"] for r in rows])),
            "largest_step": float(max(r["largest_step"] for r in rows)),
            "median_still": float(np.median([r["still"] for r in rows])),
            "median_length_ratio": float(np.median([r["length_ratio"] for r in rows]))}
@@ -88,13 +93,14 @@ def preset_report(m, sets, kinds, progress=True, every=False):
 def _preset_report(m, sets, kinds, progress, every):
     full = paths.PathMetric(m, (1, 1, 1))
     search = paths.PathMetric.of(m)
+    albedos = appearance.material_albedos(m.tables(), m.dims)   # the stray's colours
     t0 = time.perf_counter()
     search.graph()
     out = {"graph_s": time.perf_counter() - t0, "graph_nodes": int(len(search.graph().nodes)), "kinds": {}}
     for kind in kinds:
         rows, times = {}, []
         for group, pairs in sets.items():
-            rows[group] = _rows(m, pairs, kind, full, search, times)
+            rows[group] = _rows(m, pairs, kind, full, search, times, albedos)
         tuned = rows["paper"] + rows["neighbours"]
         pair_a = rows["paper"][0] if rows["paper"] and rows["paper"][0]["pair"] == list(PAPER_PAIRS[0]) else None
         out["kinds"][kind] = {"tuned": summary(tuned, pair_a), "held_out": summary(rows["held_out"]),
@@ -105,38 +111,42 @@ def _preset_report(m, sets, kinds, progress, every):
             print(f"  {m.info.get('preset')} {kind:>9s}: median deviation {s['median_deviation']:.3f} "
                   f"(held out {h['median_deviation']:.3f}), largest step {s['largest_step']:.3f} "
                   f"({h['largest_step']:.3f}), median still {s['median_still']:.2f} ({h['median_still']:.2f}), "
-                  f"pair (a) {s.get('pair_a_deviation', float('nan')):.3f}; {np.median(times):.2f} s a path",
+                  f"pair (a) {s.get('pair_a_deviation', float('nan')):.3f}; stray median "
+                  f"{s['median_stray_delta_e']:.1f} dE (worst {s['worst_stray_delta_e']:.1f}); {np.median(times):.2f} s a path",
                   flush=True)
     if every:
-        out["every_neighbour_pair"] = every_pair_report(m, progress, (full, search))
+        out["every_neighbour_pair"] = every_pair_report(m, progress, (full, search), albedos)
     return out
 
 
-def _rows(m, pairs, kind, full, search, times):
-    """Measured paths of ``kind`` between ``pairs``; their search times appended to ``times``."""
+def _rows(m, pairs, kind, full, search, times, albedos):
+    """Measured paths of ``kind`` between ``pairs``; their search times appended to ``times``
+    (``albedos``: :func:`appearance.material_albedos` of ``m``, the stray's colours)."""
     rows = []
     for a, b in pairs:
         t0 = time.perf_counter()
         X = paths.path(m, a, b, STEPS, kind, metric=search)
         times.append(time.perf_counter() - t0)
         r = measure(full.distances(X))
-        r.update(pair=[a, b], x=X.tolist(),
+        stray = appearance.stray(m.weights(X).w, albedos)
+        r.update(pair=[a, b], x=X.tolist(), stray={k: stray[k] for k in ("delta_e", "share", "at", "ends_delta_e")},
                  search_deviation=measure(gram_distances([(search.features(X),) * 2]))["deviation"])
         rows.append(r)
     return rows
 
 
-def every_pair_report(m, progress=True, metrics=None):
+def every_pair_report(m, progress=True, metrics=None, albedos=None):
     """The default kind between every material and its nearest latent neighbour (each pair once,
     :func:`space.all_neighbour_pairs`): the pair set no seed chooses. ``metrics``: the full-grid
     and the search :class:`paths.PathMetric` when the caller has them."""
     pairs = [(m.names[i], m.names[j]) for i, j in space.all_neighbour_pairs(m.latent)]
     full, search = metrics or (paths.PathMetric(m, (1, 1, 1)), paths.PathMetric.of(m))
+    albedos = appearance.material_albedos(m.tables(), m.dims) if albedos is None else albedos
     with paths.single_threaded():
-        rows = _rows(m, pairs, paths.DEFAULT_KIND, full, search, [])
+        rows = _rows(m, pairs, paths.DEFAULT_KIND, full, search, [], albedos)
     out = {"kind": paths.DEFAULT_KIND, **summary(rows),
            "steps_over_target": int(sum(r["largest_step"] > TARGETS["largest_step"] for r in rows)),
-           "rows": [{k: r[k] for k in ("pair", "deviation", "largest_step", "still")} for r in rows]}
+           "rows": [{k: r[k] for k in ("pair", "deviation", "largest_step", "still", "stray")} for r in rows]}
     if progress:
         print(f"  every neighbour pair ({len(rows)}): median deviation {out['median_deviation']:.3f}, "
               f"largest step {out['largest_step']:.3f}, median still {out['median_still']:.2f}", flush=True)

@@ -106,7 +106,7 @@ def check(which, folder, *, database_given=True, manifold=None, basis=None, name
 def _available(which, folder, database_given):
     """Materials of the database ``folder`` (the built-in ones where it is made later), or None
     where the benchmark takes no database (explore) or makes its own when it holds none."""
-    if which in ("explore", "scaling", "match-render"):
+    if which in ("explore", "scaling", "match-render", "measured-space"):
         return None
     if database_given:
         return database_names(folder)

@@ -6,8 +6,11 @@ The fit's :class:`~.fit_record.FitRecord` is stored as the ``meta`` entry's ``in
 Version 2 adds the interpolant's parameters and the raw tables' Gram matrix (exact pruning
 errors); files of this release add ``cos_gram``, the cosine-weighted Gram matrix of the
 "image" pruning rule, an optional array that readers of earlier version-2 files ignore and
-that this reader computes from the tables when a file lacks it. Version 1 files read as the
-paper's GP interpolant on their stored ``l`` and ``mu``,
+that this reader computes from the tables when a file lacks it. Version 3 is version 2 with an
+``added`` entry: the provenance of materials added after the fit (:mod:`.adding`), whose
+tables are files outside the database folder; a manifold without added materials is
+written as version 2. Version 1 files read as the paper's GP interpolant on their stored
+``l`` and ``mu``,
 what they were used with; anything unreadable fails with a message that names the file
 and says to refit.
 """
@@ -24,7 +27,7 @@ from . import schema
 from ..errors import FormatError, InputError
 
 FORMAT = "mitsuba-manifold"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 _REFIT = "refit it with tools/fit_manifold.py"
 #: Arrays derived from the tables (optional: computed from them on first use when absent).
 DERIVED = ("albedos", "gram", "table_gram", "cos_gram")
@@ -40,6 +43,10 @@ def write(m, path):
     meta = {"format": FORMAT, "version": FORMAT_VERSION, "names": m.names, "database": m.database,
             "hashes": m.hashes, "length_scale": m.length_scale, "noise": m.noise, "features": m.features,
             "info": m.info, "interpolant": m.interpolant.params()}
+    if m.added:   # version 3: readers of version 2 refuse a file naming tables outside its database
+        meta["added"] = [a.as_dict() for a in m.added]
+    else:
+        meta["version"] = 2
     arrays = {"latent": m.latent, "history": m.history, "meta": np.array(json.dumps(meta))}
     for name in DERIVED:
         if getattr(m, name) is not None:
@@ -65,6 +72,7 @@ def read(path):
                 raise _not_a_manifold(path, f"unreadable: {str(e).removeprefix(path + ': ').split(';')[0]}") from None
             version = _checked_version(path, meta)
             schema.check_meta(path, meta, version)
+            _check_added(path, meta)
             arrays = schema.read_arrays(path, zf, meta)
     except (zipfile.BadZipFile, OSError, EOFError, ValueError) as e:
         if isinstance(e, InputError):
@@ -77,7 +85,8 @@ def read(path):
             "features": meta["features"], "albedos": arrays.get("albedos"), "gram": arrays.get("gram"),
             "record": FitRecord.from_info(info, arrays.get("history", ())),
             "interpolant": meta["interpolant"] if version >= 2 else {"kind": "gp", "exact": True},
-            "table_gram": arrays.get("table_gram"), "cos_gram": arrays.get("cos_gram")}
+            "table_gram": arrays.get("table_gram"), "cos_gram": arrays.get("cos_gram"),
+            "added": meta.get("added") if version >= 3 else None}
 
 
 def _checked_version(path, meta):
@@ -88,3 +97,13 @@ def _checked_version(path, meta):
         raise FormatError(f"{path}: its version field {version!r} is not a format version this package reads "
                           f"(1 to {FORMAT_VERSION}); {_REFIT}")
     return version
+
+
+def _check_added(path, meta):
+    """Each added material is one of the names, with that name's hash."""
+    index = {n: i for i, n in enumerate(meta["names"])}
+    for a in meta.get("added") or ():
+        i = index.get(a["name"])
+        if i is None or meta["hashes"][i] != a["hash"]:
+            raise FormatError(f"{path}: its added material {a['name']!r} is not one of its names with that "
+                              f"table's hash; {_REFIT}")

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..gp.kernel import Kernel
 from ..gp.likelihood import log_likelihood
-from . import fitting, io as manifold_file, materials, paths, report, schema
+from . import adding, fitting, io as manifold_file, materials, paths, report, schema
 from . import interpolant as interpolants
 from . import projection as projection_mod
 from .presets import PRESETS, fit_layout, make_interpolant, settings
@@ -73,8 +73,10 @@ class Manifold:
         The weight function's parameters (default the paper's GP weights on ``l`` and ``mu``).
     record : FitRecord, optional
         What the fit did (default: nothing recorded).
+    added : list of adding.Provenance or dict, optional
+        Where the materials added after the fit (:meth:`add`) came from.
 
-    The constructor takes the whole learned state of a manifold (13 parameters, the last five
+    The constructor takes the whole learned state of a manifold (14 parameters, the last six
     keyword-only): :meth:`fit` and :meth:`load` make one, a user rarely does.
 
     Attributes
@@ -105,10 +107,14 @@ class Manifold:
         The weight function ``w(x)``.
     record : FitRecord
         What the fit did: method, preset, ``d``, ``dims``, final log-likelihood, history, timings.
+    added : list of adding.Provenance
+        The materials placed by :meth:`add` after the fit (the last ``len(added)`` names), with
+        where each table came from and the file (and its SHA-256) the manifold reads it from.
     """
 
     def __init__(self, names, latent, database, hashes, length_scale=1.0, noise=1e-4, features="raw",
-                 albedos=None, *, gram=None, table_gram=None, cos_gram=None, interpolant=None, record=None):
+                 albedos=None, *, gram=None, table_gram=None, cos_gram=None, interpolant=None, record=None,
+                 added=None):
         latent = np.asarray(latent, dtype=np.float64)
         if latent.ndim != 2 or latent.shape[0] != len(names):
             raise InputError(f"latent points must have shape (N={len(names)}, q), got {latent.shape}")
@@ -124,7 +130,10 @@ class Manifold:
         self.features = features
         self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
         self.record = record or FitRecord()
-        self._store = TrainingTables(self.names, self.hashes, table_gram, cos_gram, albedos)
+        self.added = [a if isinstance(a, adding.Provenance) else adding.Provenance.from_dict(a)
+                      for a in added or ()]
+        self._store = TrainingTables(self.names, self.hashes, table_gram, cos_gram, albedos,
+                                     {a.name: a.path for a in self.added})
         self.interpolant = make_interpolant(self.latent, {
             "length_scale": self.length_scale, "noise": self.noise,
             "interpolant": interpolant or {"kind": "gp", "exact": True}})
@@ -327,16 +336,60 @@ class Manifold:
         _, w = self.weights(x)
         return w @ self.albedos
 
-    def project(self, table, **options):
+    def project(self, table, *, beyond=False, **options):
         """The latent point whose material is closest to ``table`` (any MERL table).
 
         ``table``: a reflectance table of this manifold's resolution (as :meth:`Database.reflectance`,
         or flat) or the path of a MERL ``.binary`` file; ``options`` go to :func:`projection.project`.
         Returns a :class:`projection.Projection`: ``x``, ``error`` (RMS of ``log(1 + rho)``
         differences over all bins), ``weights``, the nearest training material and its error.
+
+        ``beyond=True`` also finds the best *plausible* combination beyond the data
+        (:func:`projection.beyond`: weights outside the simplex, no negative bin, directional
+        albedo at most 1 at every incidence), in :attr:`Projection.beyond`: its ``weights``
+        render with ``manifold_brdf``'s ``weights`` and blend like any others.
         """
         table = projection_mod.as_table(table, 3 * int(np.prod(self.dims or (0,))), self.dims)
-        return projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
+        p = projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
+        if beyond:
+            p = projection_mod.beyond(p, self.tables(), table, dims=self.dims)
+        return p
+
+    def add(self, table_or_path, name=None, *, origin=None):
+        """Place a new measured material in this manifold without a refit (:mod:`.adding`).
+
+        Its latent point maximises the GPLVM likelihood (paper Eq. 6) of all N + 1 tables with
+        the fitted points held, started next to its closest materials; the other points, the
+        kernel and the interpolant's parameters stay as they are, and the new material is
+        reproduced exactly at its point. The manifold changes in place once everything is
+        computed (nothing changes on an error); :meth:`save` then writes it with the
+        material's :class:`adding.Provenance`.
+
+        Parameters
+        ----------
+        table_or_path : path or array
+            A MERL ``.binary`` file of this manifold's resolution (read from where it is, and
+            checked by its SHA-256 whenever read again), or a reflectance table (1/sr,
+            ``(3,) + dims`` or flat), written as a ``.binary`` file into the database's cache.
+        name : str, optional
+            The material's name (default: the file's name without its extension).
+        origin : str, optional
+            What the table is, kept in the provenance (e.g. ``"rgl:paper_white"``).
+
+        Returns
+        -------
+        adding.Added
+            The name, latent point ``x``, provenance, the closest training material, the
+            log-likelihood of the N + 1 points and the time taken.
+        """
+        kwargs, tables, info = adding.add(self, table_or_path, name, origin=origin)
+        grown = type(self)(**kwargs)
+        grown._tables = tables
+        file = getattr(self, "file", None)
+        self.__dict__.update(grown.__dict__)
+        if file is not None:
+            self.file = file
+        return info
 
     # ------------------------------------------------------------- pruning
     table_gram = stored("gram", "``T T^T`` of the raw tables (:attr:`TrainingTables.gram`).")

@@ -19,9 +19,12 @@ import scipy.optimize
 
 from ..data import merl
 from ..errors import InputError
+from .plausibility import DirectionalAlbedo, plausible_weights
 
 #: Bins used by the search (the report uses all of them).
 SEARCH_BINS = 1 << 15
+#: Candidates of the plausible combination beyond the data: this many closest training materials.
+BEYOND_CANDIDATES = 30
 
 
 @dataclass
@@ -42,6 +45,10 @@ class Projection:
         Its error (same measure).
     negative_fraction : float
         Fraction of the interpolated table's values below 0 at ``x`` (clamped in the error).
+    beyond : plausibility.Plausible or None
+        With ``beyond=True`` (:func:`beyond`): the best plausible combination of the training
+        tables, weights outside the interpolant's (affine or scaled, some negative), its
+        error, smallest value and largest directional albedo. None otherwise.
     """
 
     x: np.ndarray
@@ -50,6 +57,12 @@ class Projection:
     nearest: str
     nearest_error: float
     negative_fraction: float
+    beyond: object = None
+
+    @property
+    def best_error(self):
+        """The smaller of :attr:`error` and the plausible combination's (when computed)."""
+        return self.error if self.beyond is None else min(self.error, self.beyond.error)
 
 
 def as_table(table, d, dims=None):
@@ -178,3 +191,34 @@ def _blend(w, tables, rows, chunk=1 << 20):
     for s in range(0, tables.shape[1], chunk):
         out[s:s + chunk] = w @ tables[:, s:s + chunk]
     return out
+
+
+def beyond(projection, tables, target, *, rows=None, bins=None, n_candidates=BEYOND_CANDIDATES, affine=False,
+           albedo=None, dims=None):
+    """The best physically plausible combination of training tables for ``target`` beyond the data.
+
+    Weights over the ``n_candidates`` training materials closest to ``target`` (and those the
+    latent projection ``projection`` uses) may leave the simplex: negative, and (unless
+    ``affine``) not summing to 1, as long as the combined table has no negative bin and a
+    directional albedo at most 1 at every incidence (:func:`plausibility.plausible_weights`,
+    started from the projection's convex weights). Returns ``projection`` with
+    :attr:`Projection.beyond` set; its weights are over all training materials (``rows``).
+    """
+    tables = np.asarray(tables)
+    rows = np.arange(len(tables)) if rows is None else np.asarray(rows)
+    target = np.asarray(target, dtype=np.float32).reshape(-1)
+    bins = search_bins(tables.shape[1]) if bins is None else np.asarray(bins)
+    own = log_rms(tables[np.ix_(rows, bins)], np.log1p(np.maximum(target[bins], 0.0)))
+    cand = np.union1d(np.argsort(own)[:n_candidates], np.flatnonzero(projection.weights > 1e-4))
+    if albedo is None:
+        n_bins = tables.shape[1] // 3
+        if dims is None:
+            raise InputError("`dims` (the tables' resolution) is needed for the directional albedo")
+        if int(np.prod(dims)) != n_bins:
+            raise InputError(f"`dims` {tuple(dims)} do not match tables of {n_bins} bins")
+        albedo = DirectionalAlbedo(dims)
+    sub = tables[rows] if not np.array_equal(rows, np.arange(len(tables))) else tables
+    start = np.asarray(projection.weights, dtype=np.float64)
+    found = plausible_weights(sub, target, cand, start, albedo, bins=bins[::4], affine=affine)
+    projection.beyond = found
+    return projection

@@ -18,6 +18,7 @@ names* is checked when the tables are read (:func:`check_grams`, by random probe
 
 import json
 import math
+import os
 import numbers
 import re
 from typing import NamedTuple
@@ -90,6 +91,21 @@ def _interpolant(v, n):
     return f"has a parameter {bad[0]!r} that is not a finite number: {v[bad[0]]!r}" if bad else None
 
 
+def _added(v, n):
+    if v is None:
+        return None
+    if not isinstance(v, list) or len(v) >= n:
+        return f"must be a list of fewer than {n} added materials"
+    for a in v:
+        if not isinstance(a, dict) or not {"name", "source", "path", "hash"} <= set(a):
+            return "must hold dicts with 'name', 'source', 'path' and 'hash'"
+        if not all(isinstance(a[k], str) for k in ("name", "source", "path", "hash")) or \
+                not _HEX64.fullmatch(a["hash"]) or not os.path.isabs(a["path"]) or \
+                not isinstance(a.get("origin"), (str, type(None))):
+            return f"has a bad entry for {str(a.get('name'))[:40]!r} (texts, an absolute path, a SHA-256 hash)"
+    return None
+
+
 class MetaField(NamedTuple):
     """A ``meta`` entry: ``check(value, n)`` returns why it is wrong, or None; ``since``: first
     format version that requires it (None: optional)."""
@@ -110,6 +126,7 @@ META = (
     MetaField("features", lambda v, n: None if v in FEATURES else f"must be one of {', '.join(FEATURES)}"),
     MetaField("info", _info, None),
     MetaField("interpolant", _interpolant, 2),
+    MetaField("added", _added, None),
 )
 
 

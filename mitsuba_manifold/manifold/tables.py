@@ -18,6 +18,7 @@ import numpy as np
 from . import materials, pruning, schema
 from .pruning import DEFAULT_RULE, RULES
 from .._util.cache import key_hash, npy_cache
+from ..data import merl
 from ..data.database import Database, albedo_weights
 from ..errors import FormatError, InputError
 from .._util.fifo_cache import Recent
@@ -56,6 +57,28 @@ def stored(name, doc):
     return property(lambda self: getattr(self._store, name), set_, doc=doc)
 
 
+class WithAdded(Database):
+    """A :class:`Database` whose materials ``names`` include tables at other paths (``added``:
+    ``{name: path}``); everything else (folder, cache, resolution) is the database ``base``'s."""
+
+    def __init__(self, base, names, added):   # noqa: D107 -- no Database.__init__: base is already read
+        self.__dict__.update(base.__dict__)
+        self.names = list(names)
+        self._added = dict(added)
+        for name, path in self._added.items():
+            if not os.path.isfile(path):
+                raise InputError(f"the table of added material {name!r}, {path}, does not exist; "
+                                 "put it back or add the material again")
+            dims = merl.read_header(path)
+            if tuple(dims) != tuple(self.dims):
+                raise FormatError(f"the table of added material {name!r}, {path}, has resolution "
+                                  f"{tuple(dims)}, the database {self.folder} has {tuple(self.dims)}")
+
+    def path(self, name):
+        """Path of a material's table file (an added one's own path)."""
+        return self._added[name] if name in self._added else super().path(name)
+
+
 class TrainingTables:
     """The N tables of materials ``names`` whose files had SHA-256 ``hashes`` at the fit.
 
@@ -68,6 +91,9 @@ class TrainingTables:
         ``T diag(q) T^T``, ``q`` the bins' cosine-weighted solid angles (likewise).
     albedos : (N, 3) array, optional
         Bihemispherical albedo of each material (likewise).
+    added : dict, optional
+        ``{name: path}`` of materials whose tables are files outside the database folder
+        (materials added to a fitted manifold, :mod:`.adding`).
 
     Attributes
     ----------
@@ -76,8 +102,9 @@ class TrainingTables:
         The stack of all tables, once read (:meth:`stack`).
     """
 
-    def __init__(self, names, hashes, gram=None, cos_gram=None, albedos=None):
+    def __init__(self, names, hashes, gram=None, cos_gram=None, albedos=None, added=None):
         self.names, self.hashes = names, hashes
+        self.added = dict(added or {})
         self.gram, self.cos_gram, self.albedos = _float64(gram), _float64(cos_gram), _float64(albedos)
         self.loaded = None
         self.pruned = Recent(PRUNE_MEMO)   # the explorer prunes each point for frame, table and description
@@ -86,8 +113,11 @@ class TrainingTables:
         """The :class:`Database` in ``folder``, its tables of ``names`` (default all) checked
         against the recorded hashes."""
         names = self.names if names is None else list(names)
+        base = [n for n in names if n not in self.added]
         try:
-            db = Database(folder, names)
+            db = Database(folder, base or [n for n in self.names if n not in self.added][:1])
+            if len(base) < len(names):
+                db = WithAdded(db, names, {n: self.added[n] for n in names if n in self.added})
         except FileNotFoundError as e:
             raise InputError(f"database for this manifold: {e} (if it moved, give its folder as "
                              "`database`)") from None

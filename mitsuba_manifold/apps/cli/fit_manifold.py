@@ -12,6 +12,11 @@ def check(args, guard=None):
     from ...imaging import plots
     from ...errors import InputError
 
+    if len(args.name) > len(args.add):
+        raise InputError(f"--name given {len(args.name)} times for {len(args.add)} --add; give one --name per --add")
+    for path in args.add:
+        if not os.path.isfile(path):
+            raise InputError(f"--add {path}: no such file; give a MERL .binary table")
     if args.q is not None and not 1 <= args.q <= 8:
         raise InputError(f"--q must be an integer from 1 to 8, got {args.q}")
     if args.length_scale is not None:
@@ -47,6 +52,11 @@ def main(argv=None):
     p.add_argument("--length-scale", type=float, default=None, help="kernel length scale l")
     p.add_argument("--noise", type=float, default=None, help="kernel noise mu")
     p.add_argument("--plot", metavar="DIR", help="write latent map and convergence PNGs here")
+    p.add_argument("--add", action="append", default=[], metavar="PATH",
+                   help="add this MERL .binary table after the fit without refitting (repeatable); with a saved "
+                        "manifold .npz as DATABASE, add to it instead of fitting")
+    p.add_argument("--name", action="append", default=[], metavar="N",
+                   help="name of the --add material of the same position (default: its file name)")
     p.add_argument("--force", action="store_true",
                    help="replace an existing --out (or plot) this tool did not write (never a read-only one)")
     args = p.parse_args(argv)
@@ -65,14 +75,21 @@ def fit_and_save(args, guard, t0):
     from ...imaging import plots
     from ...manifold.model import Manifold
 
-    m = Manifold.fit(args.database, q=args.q, names=args.materials, method=args.method,
-                     length_scale=args.length_scale, noise=args.noise, features=args.features,
-                     preset=args.preset, progress=True)
+    if args.add and os.path.isfile(args.database) and args.database.lower().endswith(".npz"):
+        m = Manifold.load(args.database)
+    else:
+        m = Manifold.fit(args.database, q=args.q, names=args.materials, method=args.method,
+                         length_scale=args.length_scale, noise=args.noise, features=args.features,
+                         preset=args.preset, progress=True)
+    for k, path in enumerate(args.add):
+        info = m.add(path, args.name[k] if k < len(args.name) else None)
+        print(f"added {info.name} at {info.x.round(4).tolist()} (closest material {info.nearest}) "
+              f"in {info.time_s:.2f} s")
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     m.save(args.out)
     print(m.summary())
-    print(f"time: {time.perf_counter() - t0:.2f} s total (load {m.info['time_load_s']:.2f} s, "
-          f"Gram {m.info['time_gram_s']:.2f} s, optimisation {m.info['time_fit_s']:.2f} s)")
+    print(f"time: {time.perf_counter() - t0:.2f} s total; the fit's: load {m.info['time_load_s']:.2f} s, "
+          f"Gram {m.info['time_gram_s']:.2f} s, optimisation {m.info['time_fit_s']:.2f} s")
     print(f"final L = {m.info['log_likelihood']:.8g}, cond(K) = {m.condition_number():.4g}")
     print(f"saved {args.out}")
     if args.plot:

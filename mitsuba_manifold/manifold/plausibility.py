@@ -1,0 +1,210 @@
+"""Physical plausibility of a combination of tables, and the best plausible one beyond the data.
+
+A material ``sum_i w_i table_i`` with weights outside the simplex (some ``w_i < 0``) can go
+beyond the measured materials: brighter, shinier, more saturated. It stays a plausible BRDF
+while (1) no bin is negative and (2) its directional albedo ``a(theta_i) = int f cos(theta_o)
+dw_o`` is at most 1 at every incidence. Both are linear in the weights:
+:class:`DirectionalAlbedo` integrates a table over outgoing directions at a set of
+incidences (a fixed quadrature, a gather of bins), so ``a(w) = sum_i w_i a_i``.
+
+:func:`plausible_weights` finds affine weights (summing to 1) over a few candidate materials
+that minimise the RMS of ``log(1 + rho) - log(1 + rho_target)`` (the projection's error,
+:mod:`.projection`) under both conditions, in three steps: a constrained least-squares
+solve (SLSQP) with non-negativity at the searched bins and the albedo bound at the
+quadrature's incidences; the bins of the whole table that the solve left negative added
+as constraints and solved again (a few rounds); and last the exact guarantee: the result
+is moved toward a plausible start (a convex combination) by the largest step that keeps
+every bin of the full table non-negative and every directional albedo at most 1 (both
+conditions are linear, so that step is a ratio per bin).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.optimize
+
+from ..data import merl
+
+#: Incidences of the directional albedo bound (degrees, midpoints up to 89).
+N_INCIDENCE = 16
+#: Outgoing quadrature: elevations x azimuths (midpoints).
+N_THETA, N_PHI = 24, 48
+
+
+class DirectionalAlbedo:
+    """Directional albedo of tables of resolution ``dims`` at :data:`N_INCIDENCE` incidences.
+
+    ``a(theta_i) = int f(theta_i, w_o) cos(theta_o) dw_o`` by the midpoint rule over
+    ``N_THETA x N_PHI`` outgoing directions, each looked up in its MERL bin; ``theta_i``
+    (radians) replaces the default incidences.
+    """
+
+    def __init__(self, dims, n_incidence=N_INCIDENCE, n_theta=N_THETA, n_phi=N_PHI, theta_i=None):
+        self.dims = tuple(int(v) for v in dims)
+        self.theta_i = (
+            (np.arange(n_incidence) + 0.5) / n_incidence * np.radians(89.0)
+            if theta_i is None
+            else np.asarray(theta_i, dtype=np.float64)
+        )
+        to = (np.arange(n_theta) + 0.5) / n_theta * (np.pi / 2)
+        po = (np.arange(n_phi) + 0.5) / n_phi * (2 * np.pi)
+        TO, PO = np.meshgrid(to, po, indexing="ij")
+        wo = np.stack([np.sin(TO) * np.cos(PO), np.sin(TO) * np.sin(PO), np.cos(TO)], -1).reshape(
+            -1, 3
+        )
+        self.weight = (
+            (np.cos(TO) * np.sin(TO)).reshape(-1) * (np.pi / 2 / n_theta) * (2 * np.pi / n_phi)
+        )
+        idx = []
+        for t in self.theta_i:
+            wi = np.broadcast_to(np.array([np.sin(t), 0.0, np.cos(t)]), wo.shape)
+            idx.append(merl.flat_index(wi, wo, self.dims))
+        self.index = np.array(idx)  # (n_incidence, n_out)
+        self.bins = int(np.prod(self.dims))
+
+    def of(self, tables):
+        """Directional albedos ``(M, 3, n_incidence)`` of flat RGB tables ``(M, 3 * bins)`` (or one)."""
+        tables = np.atleast_2d(tables)
+        out = np.empty((len(tables), 3, len(self.theta_i)))
+        for c in range(3):
+            vals = tables[:, c * self.bins + self.index]  # (M, n_inc, n_out)
+            out[:, c] = vals.astype(np.float64) @ self.weight
+        return out
+
+
+@dataclass
+class Plausible:
+    """:func:`plausible_weights`: the weights over all training materials and what they reach.
+
+    Attributes
+    ----------
+    weights : (N,) ndarray
+        Affine weights (sum 1), zero outside the candidates; some may be negative.
+    error : float
+        RMS of ``log(1 + rho) - log(1 + rho_target)`` over all bins.
+    min_value : float
+        Smallest value of the combined table (>= 0).
+    max_albedo : float
+        Largest directional albedo over incidences and channels (<= 1).
+    shrink : float
+        Share of the constrained solve kept by the final guarantee (1: none needed).
+    """
+
+    weights: np.ndarray
+    error: float
+    min_value: float
+    max_albedo: float
+    shrink: float
+
+
+def _log_rms(blend, y):
+    r = np.log1p(np.maximum(blend, 0.0)) - y
+    return float(np.sqrt(np.mean(r * r, dtype=np.float64)))
+
+
+def plausible_weights(
+    tables,
+    target,
+    candidates,
+    start,
+    albedo,
+    *,
+    bins,
+    rounds=3,
+    max_add=2000,
+    max_iter=100,
+    n_constrained=1024,
+    affine=True,
+):
+    """Best plausible affine combination of the ``candidates`` rows of ``tables`` for ``target``.
+
+    Parameters
+    ----------
+    tables : (N, d) array
+        Training tables (float32, flat RGB).
+    target : (d,) array
+    candidates : array of int
+        Rows combined.
+    start : (N,) array
+        Convex weights of a plausible material (the latent projection's): the solve starts
+        there and the final guarantee moves toward it.
+    albedo : DirectionalAlbedo
+    bins : array of int
+        Searched bins (the objective); the first ``n_constrained`` of them, evenly spaced,
+        are the first non-negativity constraints.
+    affine : bool
+        Weights summing to 1 (else any sum: the combination may also scale the tables).
+
+    Returns
+    -------
+    Plausible
+    """
+    cand = np.asarray(candidates)
+    n = len(tables)
+    T = tables[np.ix_(cand, bins)].astype(np.float64)  # (k, b)
+    y = np.log1p(np.maximum(np.asarray(target, dtype=np.float64)[bins], 0.0))
+    A = albedo.of(tables[cand]).reshape(len(cand), -1)  # (k, 3 n_inc)
+    w0 = np.asarray(start, dtype=np.float64)[cand]
+    w0 = w0 / w0.sum() if w0.sum() > 0 else np.full(len(cand), 1.0 / len(cand))
+    scale = 1.0 / len(bins)
+
+    def f(w):
+        blend = w @ T
+        pos = np.maximum(blend, 0.0)
+        r = np.log1p(pos) - y
+        g = np.where(blend > 0, 2.0 * r / (1.0 + pos), 0.0) * scale
+        return float(r @ r) * scale, T @ g
+
+    extra = T[:, :: max(1, len(bins) // n_constrained)]
+    w = w0.copy()
+    full_rows = tables[cand]
+    for _ in range(rounds):
+        C = extra
+        cons = [
+            {"type": "ineq", "fun": lambda w, C=C: w @ C, "jac": lambda w, C=C: C.T},
+            {"type": "ineq", "fun": lambda w: 1.0 - w @ A, "jac": lambda w: -A.T},
+        ]
+        if affine:
+            cons.append(
+                {"type": "eq", "fun": lambda w: w.sum() - 1.0, "jac": lambda w: np.ones_like(w)}
+            )
+        res = scipy.optimize.minimize(
+            f,
+            w,
+            jac=True,
+            method="SLSQP",
+            constraints=cons,
+            options={"maxiter": max_iter, "ftol": 1e-12},
+        )
+        w = res.x if np.all(np.isfinite(res.x)) else w
+        full = w.astype(np.float32) @ full_rows
+        neg = np.flatnonzero(full < 0)
+        if len(neg) == 0:
+            break
+        worst = neg[np.argsort(full[neg])[:max_add]]
+        extra = np.concatenate([extra, full_rows[:, worst].astype(np.float64)], axis=1)
+    # the exact guarantee: move toward the plausible start by the largest safe step
+    base = w0.astype(np.float32) @ full_rows
+    full = w.astype(np.float32) @ full_rows
+    s = 1.0
+    neg = full < 0
+    if neg.any():
+        s = min(s, float(np.min(base[neg] / (base[neg] - full[neg]))))
+    a_w, a_0 = w @ A, w0 @ A
+    over = a_w > 1.0
+    if over.any():
+        s = min(s, float(np.min((1.0 - a_0[over]) / (a_w[over] - a_0[over]))))
+    s = max(0.0, s * (1 - 1e-6) if s < 1.0 else 1.0)
+    w_end = w
+    for _ in range(40):  # rounding of the float32 products: step back until no value is below 0
+        w = w0 + s * (w_end - w0)
+        full = w.astype(np.float32) @ full_rows
+        if full.min() >= 0 or s == 0.0:
+            break
+        s = 0.0 if s < 1e-3 else s * 0.99
+    weights = np.zeros(n)
+    weights[cand] = w
+    t_log = np.log1p(np.maximum(np.asarray(target, dtype=np.float32), 0.0))
+    return Plausible(weights, _log_rms(full, t_log), float(full.min()), float((w @ A).max()), s)

@@ -1,0 +1,98 @@
+"""Beyond the data: plausible combinations of measured tables, and the path-stray measure."""
+
+import os
+
+import numpy as np
+import pytest
+from measured_helpers import MERL, weights_path, write_set
+
+from mitsuba_manifold.data.database import Database, albedo_weights
+from mitsuba_manifold.manifold import appearance
+from mitsuba_manifold.manifold.model import Manifold
+from mitsuba_manifold.manifold.plausibility import DirectionalAlbedo
+
+pytestmark = pytest.mark.skipif(not os.path.exists(weights_path()), reason="no NBRDF weights")
+
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory):
+    root = tmp_path_factory.mktemp("measured")
+    merl_db = write_set(str(root / "merl"), "merl", MERL)
+    rgl = write_set(str(root / "rgl"), "rgl", ["paper_white", "spectralon", "satin_gold"])
+    return Manifold.fit(merl_db), Database(rgl)
+
+
+def test_directional_albedo_of_a_lambertian_table_is_its_albedo():
+    da = DirectionalAlbedo((30, 30, 60))
+    bins = 30 * 30 * 60
+    table = np.concatenate([np.full(bins, rho / np.pi) for rho in (0.2, 0.5, 0.9)])
+    a = da.of(table)[0]
+    assert a.shape == (3, len(da.theta_i))
+    assert np.allclose(a, np.array([0.2, 0.5, 0.9])[:, None], rtol=0.02)
+    # the bihemispherical albedo of the same tables, by the package's quadrature, agrees
+    q = albedo_weights((30, 30, 60)).reshape(-1)
+    assert np.allclose(table.reshape(3, -1) @ q, [0.2, 0.5, 0.9], rtol=0.03)
+
+
+def test_projection_beyond_the_data_is_plausible_and_closer_than_the_convex_one(measured):
+    m, rgl = measured
+    tables = m.tables()
+    da = DirectionalAlbedo(m.dims)
+    ratios = []
+    for name in ("paper_white", "spectralon"):
+        target = np.asarray(rgl.reflectance(name)).reshape(-1)
+        p = m.project(target, beyond=True)
+        b = p.beyond
+        assert abs(b.weights).sum() > 0 and b.weights.shape == (m.n,)
+        full = b.weights.astype(np.float32) @ tables
+        assert full.min() >= -1e-6 * full.max()  # no negative lobe
+        assert da.of(full).max() <= 1.0 + 1e-6  # albedo <= 1 at every incidence
+        assert b.max_albedo <= 1.0 + 1e-6 and b.min_value == pytest.approx(
+            full.min(), abs=1e-6 * full.max()
+        )
+        assert p.best_error <= p.error + 1e-9
+        ratios.append(p.best_error / p.nearest_error)
+    # paper_white and spectralon are brighter than any MERL material: the convex space cannot
+    # reach them, the plausible combination gets closer than the nearest material
+    assert np.median(ratios) < 0.9
+
+
+def test_a_projection_without_beyond_has_none(measured):
+    m, rgl = measured
+    target = np.asarray(rgl.reflectance("satin_gold")).reshape(-1)
+    plain = m.project(target)
+    assert plain.beyond is None and plain.best_error == plain.error
+
+
+def test_stray_flags_a_detour_and_not_a_straight_morph():
+    # three materials: blue, white and a dark brown; albedos (N, incidences, RGB)
+    blue, white, brown = [
+        np.tile(np.array(c)[None], (3, 1))
+        for c in ([0.05, 0.08, 0.4], [0.8, 0.8, 0.8], [0.08, 0.04, 0.02])
+    ]
+    A = np.stack([blue, white, brown])
+    t = np.linspace(0, 1, 21)
+    straight = np.stack([1 - t, t, 0 * t], 1)
+    detour = straight.copy()
+    bump = np.sin(np.pi * t) * 0.8
+    detour[:, 2] = bump
+    detour[:, :2] *= (1 - bump)[:, None]
+    s, d = appearance.stray(straight, A), appearance.stray(detour, A)
+    assert d["delta_e"] > 20 and d["share"] > 0.3 and 5 <= d["at"] <= 15
+    assert s["delta_e"] < 0.5 * d["delta_e"]
+    # Lab: a perfect white is L = 100, a = b = 0
+    assert np.allclose(appearance.lab(np.ones(3)), [100, 0, 0], atol=1e-6)
+
+
+def test_stray_on_the_measured_manifold_flags_blue_to_white_through_dark(measured):
+    m, _ = measured
+    A = appearance.material_albedos(m.tables(), m.dims)
+    ia, ib, ibrown = m.index("blue-rubber"), m.index("white-paint"), m.index("black-phenolic")
+    t = np.linspace(0, 1, 21)
+    W = np.zeros((21, m.n))
+    W[:, ia], W[:, ib] = 1 - t, t
+    direct = appearance.stray(W, A)
+    bump = np.sin(np.pi * t) * 0.7
+    V = W * (1 - bump)[:, None]
+    V[:, ibrown] += bump
+    assert appearance.stray(V, A)["delta_e"] > direct["delta_e"] + 10
