@@ -104,6 +104,11 @@ def _log_rms(blend, y):
     return float(np.sqrt(np.mean(r * r, dtype=np.float64)))
 
 
+#: The constrained solve of :func:`plausible_weights`: solves, constraints added per solve,
+#: iterations per solve, non-negativity constraints of the first solve.
+ROUNDS, MAX_ADD, MAX_ITER, N_CONSTRAINED = 3, 2000, 100, 1024
+
+
 def plausible_weights(
     tables,
     target,
@@ -112,10 +117,6 @@ def plausible_weights(
     albedo,
     *,
     bins,
-    rounds=3,
-    max_add=2000,
-    max_iter=100,
-    n_constrained=1024,
     affine=True,
 ):
     """Best plausible affine combination of the ``candidates`` rows of ``tables`` for ``target``.
@@ -132,8 +133,10 @@ def plausible_weights(
         there and the final guarantee moves toward it.
     albedo : DirectionalAlbedo
     bins : array of int
-        Searched bins (the objective); the first ``n_constrained`` of them, evenly spaced,
-        are the first non-negativity constraints.
+        Searched bins (the objective); :data:`N_CONSTRAINED` of them, evenly spaced, are the
+        first non-negativity constraints; each of at most :data:`ROUNDS` solves (SLSQP,
+        :data:`MAX_ITER` iterations) adds the :data:`MAX_ADD` most negative bins of the whole
+        table to them.
     affine : bool
         Weights summing to 1 (else any sum: the combination may also scale the tables).
 
@@ -157,10 +160,10 @@ def plausible_weights(
         g = np.where(blend > 0, 2.0 * r / (1.0 + pos), 0.0) * scale
         return float(r @ r) * scale, T @ g
 
-    extra = T[:, :: max(1, len(bins) // n_constrained)]
+    extra = T[:, :: max(1, len(bins) // N_CONSTRAINED)]
     w = w0.copy()
     full_rows = tables[cand]
-    for _ in range(rounds):
+    for _ in range(ROUNDS):
         C = extra
         cons = [
             {"type": "ineq", "fun": lambda w, C=C: w @ C, "jac": lambda w, C=C: C.T},
@@ -176,16 +179,26 @@ def plausible_weights(
             jac=True,
             method="SLSQP",
             constraints=cons,
-            options={"maxiter": max_iter, "ftol": 1e-12},
+            options={"maxiter": MAX_ITER, "ftol": 1e-12},
         )
         w = res.x if np.all(np.isfinite(res.x)) else w
         full = w.astype(np.float32) @ full_rows
         neg = np.flatnonzero(full < 0)
         if len(neg) == 0:
             break
-        worst = neg[np.argsort(full[neg])[:max_add]]
+        worst = neg[np.argsort(full[neg])[:MAX_ADD]]
         extra = np.concatenate([extra, full_rows[:, worst].astype(np.float64)], axis=1)
-    # the exact guarantee: move toward the plausible start by the largest safe step
+    w, full, s = _step_back(w, w0, full_rows, A)
+    weights = np.zeros(n)
+    weights[cand] = w
+    t_log = np.log1p(np.maximum(np.asarray(target, dtype=np.float32), 0.0))
+    return Plausible(weights, _log_rms(full, t_log), float(full.min()), float((w @ A).max()), s)
+
+
+def _step_back(w, w0, full_rows, A):
+    """The exact guarantee of :func:`plausible_weights`: ``w0 + s (w - w0)`` with the largest
+    ``s`` in [0, 1] for which no bin of the combination is negative (in float32, as rendered)
+    and no directional albedo exceeds 1; returns the weights, the combination and ``s``."""
     base = w0.astype(np.float32) @ full_rows
     full = w.astype(np.float32) @ full_rows
     s = 1.0
@@ -204,7 +217,4 @@ def plausible_weights(
         if full.min() >= 0 or s == 0.0:
             break
         s = 0.0 if s < 1e-3 else s * 0.99
-    weights = np.zeros(n)
-    weights[cand] = w
-    t_log = np.log1p(np.maximum(np.asarray(target, dtype=np.float32), 0.0))
-    return Plausible(weights, _log_rms(full, t_log), float(full.min()), float((w @ A).max()), s)
+    return w, full, s
