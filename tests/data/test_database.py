@@ -105,7 +105,7 @@ def test_repeated_materials_make_one_table_each_and_are_counted_once(tmp_path):
 def test_database_folder_errors(tmp_path, small_db):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         database.Database(tmp_path / "nope")
-    with pytest.raises(ValueError, match="holds no .binary"):
+    with pytest.raises(ValueError, match="holds no tables"):
         database.Database(tmp_path)
     with pytest.raises(KeyError, match="no table for"):
         database.Database(small_db, ["chrome", "vantablack"])
