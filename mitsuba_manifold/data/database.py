@@ -30,7 +30,7 @@ from .._util.cache import adopt_hash, file_hash, file_identity, key_hash, npy_ca
 from ..errors import FormatError, InputError, MissingFileError, UnknownMaterialError, did_you_mean
 
 __all__ = ["Database", "make_database", "cache_folder", "albedo_weights", "CACHE_NAME", "FEATURES",
-           "SourceList", "open_spec", "split_spec", "database_cache", "builtin_cache", "MADE_DTYPE",
+           "SourceList", "write_database", "open_spec", "split_spec", "database_cache", "builtin_cache", "MADE_DTYPE",
            "FITS_PATH", "SGD_FIELDS", "load_sgd_fits", "sgd_reflectance", "tabulate_sgd"]
 
 CACHE_NAME = ".manifold-cache"
@@ -106,6 +106,56 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
         _tabulate(jobs, workers, made, lambda: write_table_record(out_dir, settings, made, pending - made),
                   len(names), progress)
     return paths
+
+
+def write_database(out_dir, sources=("merl",), dims=merl.MERL_DIMS, materials=None, export=False, progress=False,
+                   force=False):
+    """Write a database folder taking its materials from ``sources`` (built-in set names and folders).
+
+    Without ``export`` the folder gets a ``sources.json`` (:class:`SourceList`) naming them and
+    no table files: the tables are made on demand into its cache (:meth:`Database.reflectance`).
+    With ``export`` every material (or those of ``materials``) is written as ``<name>.binary``,
+    and the folder is a plain MERL database. Returns the :class:`Database` of the folder.
+
+    Raises (before anything is written): unknown sets or folders, names given twice, unknown
+    materials, bad ``dims``; :class:`ForeignFileError` for files in ``out_dir`` this function
+    would replace and did not write (without ``force``).
+    """
+    from .._util.ownership import check_replaceable, record
+
+    dims = merl.table_resolution(dims, "`dims`")
+    out_dir = os.path.abspath(os.fspath(out_dir))
+    sets = tuple(s if s in SET_NAMES else os.path.abspath(os.fspath(s)) for s in dict.fromkeys(sources))
+    if not sets:
+        raise InputError("give at least one source (a built-in set or a folder) to make a database from")
+    groups = {s: builtin(s) if s in SET_NAMES else open_spec(s, dims).sources for s in sets}
+    found = combine(groups) if len(groups) > 1 else list(next(iter(groups.values())))
+    available = {s.name: s for s in found}
+    names = list(available) if materials is None else list(dict.fromkeys(materials))
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        raise UnknownMaterialError(f"unknown material(s) {unknown}{did_you_mean(unknown[0], list(available))} "
+                                   f"in {', '.join(sets)}")
+    if materials is not None and not export:
+        raise InputError("`materials` selects the tables to export; without `export` a database holds every "
+                         "material of its sources (choose them when fitting)")
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise FormatError(f"database folder {out_dir} is a file")
+    listing = os.path.join(out_dir, SOURCES_NAME)
+    targets = [os.path.join(out_dir, n + ".binary") for n in names] if export else [listing]
+    for path in targets:
+        check_replaceable(path, force, "database file")
+    os.makedirs(out_dir, exist_ok=True)
+    with FolderLock(out_dir, "database folder"):
+        if not export:
+            SourceList(sets, dims).write(listing)
+            record([listing], "make_database")
+        else:
+            for name, path in zip(_progress(names, progress, "exporting"), targets):
+                table = available[name].table(dims)
+                merl.write_binary(path, merl.to_stored(table))
+                record([path], "make_database")
+    return Database(out_dir, None if not export else names)
 
 
 def _tabulate(jobs, workers, made, record, total, progress):
