@@ -36,19 +36,24 @@ def basis_folder(path, manifold=None, name="`basis`"):
 
 
 def database_names(folder, name="`folder`"):
-    """Material names of the database folder ``folder`` (its ``.binary`` tables); InputError
-    naming ``name`` for a folder that is missing, unreadable or holds no table."""
-    if not os.path.isdir(folder):
-        raise InputError(f"{name}: database folder {folder} does not exist" if not os.path.exists(folder) else
-                         f"{name}: {folder} is not a folder (give a folder of MERL .binary tables)")
-    from ...data.merl import table_names
+    """Material names of the database ``folder`` (a folder of tables or a built-in set's name,
+    :class:`~mitsuba_manifold.data.database.Database`); InputError naming ``name`` for a folder
+    that is missing, unreadable or holds no table."""
+    from ...data.database import Database, split_spec
+    from ...data.sources import SET_NAMES
+    from ...errors import MitsubaManifoldError
+    base, _ = split_spec(folder)
+    if base not in SET_NAMES and not os.path.isdir(base):
+        raise InputError(f"{name}: database folder {folder} does not exist (built-in databases: "
+                         f"{', '.join(SET_NAMES)})" if not os.path.exists(base) else
+                         f"{name}: {folder} is not a folder (give a folder of measured tables or a built-in "
+                         f"database: {', '.join(SET_NAMES)})")
     try:
-        names = table_names(folder)
+        return list(Database(folder).names)
     except OSError as e:
         raise InputError(f"{name}: database folder {folder} cannot be read ({e.strerror or e})") from None
-    if not names:
-        raise InputError(f"{name}: database folder {folder} holds no .binary tables")
-    return names
+    except MitsubaManifoldError as e:
+        raise InputError(f"{name}: {e}") from None
 
 
 def known(name, values, choices, what):
