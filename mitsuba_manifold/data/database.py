@@ -307,7 +307,8 @@ def builtin_cache():
 
 def made_table(cache_dir, digest, build, shape):
     """A table made from a source (not a file), cached as ``<digest>.refl16.npy`` (:data:`MADE_DTYPE`)
-    or, where its values exceed that range, ``<digest>.refl.npy`` (float32); returned as float32."""
+    or, where its values exceed that range, ``<digest>.refl.npy`` (float32); returned as float32, as cached
+    (rounded to the cache's precision when just made)."""
     half = os.path.join(cache_dir, f"{digest}.refl16.npy")
     full = os.path.join(cache_dir, f"{digest}.refl.npy")
     if os.path.exists(full):
@@ -325,7 +326,7 @@ def made_table(cache_dir, digest, build, shape):
         value = npy_cache(half, build_half, shape=shape, dtype=MADE_DTYPE)
     except OverflowError:
         return npy_cache(full, lambda: made[0], shape=shape, dtype=np.float32, mmap=True)
-    return made[0] if made else value.astype(np.float32)
+    return value.astype(np.float32)   # the cached precision, also when just made: the same values every run
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,14 @@ EXTENSIONS = (".binary", ".bsdf", ".h5", ".npz")
 #: Suffixes dropped from a file's name to name its material.
 NAME_SUFFIXES = ("_rgb", "_spec")
 
+#: Where the networks of each built-in set are tabulated (:data:`nbrdf.POSITIONS`): the MERL
+#: networks at the bins' starts, where they were trained on the MERL tables' values, so that
+#: they reproduce the tables a user with the real files has; the RGL and Nielsen networks at
+#: the centres, where they agree best with the real measurements (``docs/`` has the figures).
+#: A user's network (``.h5``, ``.npz``), trained by the authors' tool on a MERL file: starts.
+SET_POSITIONS = {"merl": "starts", "rgl": "centres", "nielsen": "centres"}
+USER_POSITIONS = "starts"
+
 _READERS = {}
 
 
@@ -107,7 +115,7 @@ class Network:
     networks: nbrdf.NetworkSet
     key: str
     origin: str
-    positions: str = nbrdf.DEFAULT_POSITIONS
+    positions: str = USER_POSITIONS
     kind = "nbrdf"
 
     def native_dims(self):
@@ -232,7 +240,7 @@ def read_tensor_header(path):
 
 def _network_sources(path, prefix, origin):
     nets = nbrdf.NetworkSet.load(path, prefix)
-    return [Network(n, nets, n, origin) for n in nets.names]
+    return [Network(n, nets, n, origin, SET_POSITIONS[prefix]) for n in nets.names]
 
 
 def builtin(name):
@@ -295,14 +303,14 @@ def folder_sources(folder):
             found.append(MeasuredFile(material_name(f), path).check())
         elif f.endswith(".h5"):
             nets = nbrdf.read_keras(path, name=material_name(f))
-            found.append(Network(nets.names[0], nets, nets.names[0], path))
+            found.append(Network(nets.names[0], nets, nets.names[0], path, USER_POSITIONS))
         elif f.endswith(".npz"):
             for prefix in nbrdf.NetworkSet.prefixes(path):
                 nets = nbrdf.NetworkSet.load(path, prefix)
                 if len(nets) == 1:
-                    found.append(Network(material_name(f), nets, nets.names[0], path))
+                    found.append(Network(material_name(f), nets, nets.names[0], path, USER_POSITIONS))
                 else:
-                    found.extend(Network(n, nets, n, path) for n in nets.names)
+                    found.extend(Network(n, nets, n, path, USER_POSITIONS) for n in nets.names)
     names = {}
     for s in found:
         if s.name in names:
