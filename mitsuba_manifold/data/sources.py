@@ -50,6 +50,9 @@ NAME_SUFFIXES = ("_rgb", "_spec")
 #: A user's network (``.h5``, ``.npz``), trained by the authors' tool on a MERL file: starts.
 SET_POSITIONS = {"merl": "starts", "rgl": "centres", "nielsen": "centres"}
 USER_POSITIONS = "starts"
+#: Sample points per axis of a bin where a measured file is resampled (the rendering
+#: subsystem's reader; part of the tables' content hash).
+MEASURED_SAMPLES = 2
 
 _READERS = {}
 
@@ -169,7 +172,7 @@ class MeasuredFile:
         return None
 
     def digest(self, dims):
-        return key_hash("measured-table-v1", file_hash(self.path), _resolution(dims))
+        return key_hash("measured-table-v2", file_hash(self.path), _resolution(dims), str(MEASURED_SAMPLES))
 
     def check(self):
         """Refuse a file that is not an isotropic ``tensor_file`` (before any work)."""

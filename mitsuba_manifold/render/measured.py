@@ -16,6 +16,7 @@ import os
 import numpy as np
 
 from ..data import merl
+from ..data import sources
 from ..data.sources import MeasuredFile, material_name, register_reader
 from ..errors import FormatError, plugin_message
 
@@ -23,8 +24,6 @@ __all__ = ["resample", "evaluate", "load_measured"]
 
 #: Direction pairs evaluated per call of the plugin.
 BLOCK = 1 << 20
-#: Sample points per axis of a bin (:func:`resample`).
-SAMPLES = 2
 
 
 def load_measured(path):
@@ -67,17 +66,18 @@ def evaluate(bsdf, wi, wo, cosine=False):
     return np.maximum(out, 0.0)
 
 
-def resample(path, dims=merl.MERL_DIMS, samples=SAMPLES):
+def resample(path, dims=merl.MERL_DIMS, samples=None):
     """Reflectance table ``(3,) + dims`` float32 of the measured file ``path`` (0 below the horizon).
 
     A bin's value is the ratio ``sum eval(wi, wo) / sum cos(theta_o)`` over ``samples^3``
     points spread evenly over the bin (in the grid's ``(sqrt(theta_h), theta_d, phi_d)``
-    coordinates, ``phi_h = 0``): the BRDF whose cosine-weighted value, looked up in that
+    coordinates, ``phi_h = 0``; default :data:`~mitsuba_manifold.data.sources.MEASURED_SAMPLES`): the BRDF whose cosine-weighted value, looked up in that
     bin, has the plugin's mean there. It stays finite where the bin's centre grazes the
     horizon (a ratio at one point would divide by a cosine near 0), and a sharp highlight
     narrower than a bin keeps its energy.
     """
     dims = tuple(int(v) for v in dims)
+    samples = sources.MEASURED_SAMPLES if samples is None else int(samples)
     bsdf = load_measured(path)
     above = merl.above_horizon(dims)
     idx = [g[above].astype(np.float64) for g in np.meshgrid(*(np.arange(n) for n in dims), indexing="ij")]
@@ -102,3 +102,65 @@ def resample(path, dims=merl.MERL_DIMS, samples=SAMPLES):
 
 
 register_reader(MeasuredFile.kind, resample)
+
+
+# ------------------------------------------------------------------- fidelity
+
+def _sphere_scene(bsdf, res, spp, seed):
+    """The shipped sphere scene (sky map and point light, :file:`scenes/sphere.xml`) as a dict
+    with ``bsdf`` on the sphere; the sphere sees nothing but the lights."""
+    from .scenes import scene_path
+
+    sky = os.path.join(os.path.dirname(scene_path("sphere")), "sky.exr")
+    return {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": 8},
+        "sensor": {"type": "perspective", "fov": 32,
+                   "to_world": _lookat(), "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
+                   "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "rgb",
+                            "rfilter": {"type": "box"}}},
+        "object": {"type": "sphere", "center": [0, 0, 0], "radius": 1.0, "bsdf": bsdf},
+        "sky": {"type": "envmap", "filename": sky},
+        "lamp": {"type": "point", "position": [-3, 4, 3], "intensity": {"type": "rgb", "value": [20, 20, 20]}},
+    }
+
+
+def _lookat():
+    import mitsuba as mi
+    return mi.ScalarTransform4f().look_at(origin=[0, 0.6, 5], target=[0, 0, 0], up=[0, 1, 0])
+
+
+def fidelity(path, manifold, name=None, res=64, spp=256, seed=0, interpolation="nearest"):
+    """How a material imported from the measured file ``path`` renders against the file itself.
+
+    Renders the sphere scene (:func:`_sphere_scene`) with Mitsuba's ``measured`` plugin twice
+    (seeds ``seed`` and ``seed + 1``) and with ``manifold_brdf`` showing the material ``name``
+    (default: named after the file) of the saved ``manifold`` once (seed ``seed + 2``), with
+    its table looked up by ``interpolation``.
+
+    Returns
+    -------
+    dict
+        ``mean_ratio``: mean of the ``manifold_brdf`` image over the first ``measured`` one;
+        ``rel_mse``: its relative MSE against that image; ``noise_rel_mse``: the relative MSE
+        of the second ``measured`` render against the first (the noise of one render);
+        ``ratio_to_noise``: ``rel_mse / noise_rel_mse``.
+    """
+    from ..imaging.metrics import rel_mse
+    from .scenes import use_variant
+
+    mi = use_variant()
+    path = os.path.abspath(os.fspath(path))
+    name = name or material_name(path)
+    measured = {"type": "measured", "filename": path}
+    ours = {"type": "manifold_brdf", "manifold": os.path.abspath(os.fspath(manifold)), "material": name,
+            "interpolation": interpolation}
+
+    def render(bsdf, s):
+        scene = mi.load_dict(_sphere_scene(bsdf, res, spp, s))
+        return np.array(mi.render(scene, spp=spp, seed=s), dtype=np.float64)
+
+    ref, again, image = render(measured, seed), render(measured, seed + 1), render(ours, seed + 2)
+    noise, err = rel_mse(again, ref), rel_mse(image, ref)
+    return {"material": name, "res": res, "spp": spp, "mean_ratio": float(image.mean() / ref.mean()),
+            "rel_mse": err, "noise_rel_mse": noise, "ratio_to_noise": err / noise}

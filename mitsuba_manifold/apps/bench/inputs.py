@@ -39,9 +39,14 @@ def database_names(folder, name="`folder`"):
     """Material names of the database ``folder`` (a folder of tables or a built-in set's name,
     :class:`~mitsuba_manifold.data.database.Database`); InputError naming ``name`` for a folder
     that is missing, unreadable or holds no table."""
-    from ...data.database import Database, split_spec
-    from ...data.sources import SET_NAMES
+    from ...data.database import SOURCES_NAME, Database, split_spec
+    from ...data.merl import table_names
+    from ...data.sources import EXTENSIONS, SET_NAMES
     from ...errors import MitsubaManifoldError
+
+    def _other_kinds(path):
+        return any(f == SOURCES_NAME or (f.endswith(EXTENSIONS) and not f.endswith(".binary"))
+                   for f in os.listdir(path))
     base, _ = split_spec(folder)
     if base not in SET_NAMES and not os.path.isdir(base):
         raise InputError(f"{name}: database folder {folder} does not exist (built-in databases: "
@@ -49,11 +54,17 @@ def database_names(folder, name="`folder`"):
                          f"{name}: {folder} is not a folder (give a folder of measured tables or a built-in "
                          f"database: {', '.join(SET_NAMES)})")
     try:
-        return list(Database(folder).names)
+        if base not in SET_NAMES and not _other_kinds(base):   # .binary files only: named, not read yet
+            names = table_names(base)
+        else:
+            names = list(Database(folder).names)
     except OSError as e:
         raise InputError(f"{name}: database folder {folder} cannot be read ({e.strerror or e})") from None
     except MitsubaManifoldError as e:
         raise InputError(f"{name}: {e}") from None
+    if not names:
+        raise InputError(f"{name}: database folder {folder} holds no tables")
+    return names
 
 
 def known(name, values, choices, what):
