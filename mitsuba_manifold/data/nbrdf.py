@@ -97,6 +97,16 @@ class NetworkSet:
         return cls(names, **layers)
 
     @staticmethod
+    def positions(path, prefix, default):
+        """The positions a ``.npz`` file records for its set ``prefix`` (``default`` when none)."""
+        with np.load(path, allow_pickle=False) as f:
+            key = f"{prefix}_positions"
+            value = str(f[key]) if key in f.files else default
+        if value not in POSITIONS:
+            raise FormatError(f"{path}: {key} is {value!r}, not one of {', '.join(POSITIONS)}")
+        return value
+
+    @staticmethod
     def prefixes(path):
         """The sets of a ``.npz`` weights file (``S`` of every ``S_names`` array), in file order."""
         try:
@@ -105,11 +115,16 @@ class NetworkSet:
         except (OSError, ValueError) as e:
             raise FormatError(f"{path}: not an NBRDF .npz weights file ({e})") from None
 
-    def save(self, path, prefix="nbrdf"):
-        """Write the set as ``prefix_names``, ``prefix_w1`` ... in a ``.npz`` file (atomically)."""
+    def save(self, path, prefix="nbrdf", positions=None):
+        """Write the set as ``prefix_names``, ``prefix_w1`` ... in a ``.npz`` file (atomically),
+        with ``prefix_positions`` when given: where its tables are taken (:data:`POSITIONS`)."""
         from .._util.atomic import atomic_write
 
         arrays = {f"{prefix}_names": np.array(self.names, dtype=str)}
+        if positions is not None:
+            if positions not in POSITIONS:
+                raise InputError(f"positions={positions!r}: expected one of {', '.join(POSITIONS)}")
+            arrays[f"{prefix}_positions"] = np.array(positions)
         arrays.update({f"{prefix}_{k}": getattr(self, k) for k in LAYERS})
         atomic_write(os.fspath(path), lambda f: np.savez(f, **arrays))
 

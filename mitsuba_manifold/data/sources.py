@@ -27,7 +27,7 @@ from .._util.cache import file_hash, key_hash
 from ..errors import FormatError, InputError, UnavailableError
 
 __all__ = ["BinaryFile", "Network", "SgdFit", "MeasuredFile", "BUILTIN", "SET_NAMES", "builtin",
-           "folder_sources", "material_name", "register_reader", "read_tensor_header", "combine"]
+           "folder_sources", "material_name", "material_source", "register_reader", "read_tensor_header", "combine"]
 
 #: The built-in sets and what they hold.
 BUILTIN = {
@@ -47,7 +47,8 @@ NAME_SUFFIXES = ("_rgb", "_spec")
 #: networks at the bins' starts, where they were trained on the MERL tables' values, so that
 #: they reproduce the tables a user with the real files has; the RGL and Nielsen networks at
 #: the centres, where they agree best with the real measurements (``docs/`` has the figures).
-#: A user's network (``.h5``, ``.npz``), trained by the authors' tool on a MERL file: starts.
+#: A user's network (``.h5``, or ``.npz`` recording no positions), trained by the authors' tool on
+#: a MERL file: starts.
 SET_POSITIONS = {"merl": "starts", "rgl": "centres", "nielsen": "centres"}
 USER_POSITIONS = "starts"
 #: Sample points per axis of a bin where a measured file is resampled (the rendering
@@ -310,10 +311,11 @@ def folder_sources(folder):
         elif f.endswith(".npz"):
             for prefix in nbrdf.NetworkSet.prefixes(path):
                 nets = nbrdf.NetworkSet.load(path, prefix)
+                at = nbrdf.NetworkSet.positions(path, prefix, USER_POSITIONS)
                 if len(nets) == 1:
-                    found.append(Network(material_name(f), nets, nets.names[0], path, USER_POSITIONS))
+                    found.append(Network(material_name(f), nets, nets.names[0], path, at))
                 else:
-                    found.extend(Network(n, nets, n, path, USER_POSITIONS) for n in nets.names)
+                    found.extend(Network(n, nets, n, path, at) for n in nets.names)
     names = {}
     for s in found:
         if s.name in names:
@@ -321,3 +323,38 @@ def folder_sources(folder):
                               f"{s.origin}); keep one of them")
         names[s.name] = s
     return [names[n] for n in sorted(names)]
+
+
+def material_source(spec):
+    """The source of one material: ``SET:NAME`` of a built-in set (``rgl:paper_white``) or a file
+    (``.binary``, ``.bsdf``, ``.h5`` with its ``.json``, or an ``.npz`` of one network)."""
+    spec = os.fspath(spec)
+    head, sep, tail = spec.partition(":")
+    if sep and head in SET_NAMES and not os.path.exists(spec):
+        found = {s.name: s for s in builtin(head)}
+        if tail not in found:
+            from ..errors import UnknownMaterialError, did_you_mean
+            raise UnknownMaterialError(f"built-in database {head!r} has no material {tail!r}"
+                                       f"{did_you_mean(tail, list(found))}")
+        return found[tail]
+    if not os.path.isfile(spec):
+        from ..errors import MissingFileError
+        raise MissingFileError(f"material {spec}: no such file (give a .binary, .bsdf, .h5 or .npz file, "
+                               f"or SET:NAME of a built-in database: {', '.join(SET_NAMES)})")
+    name = material_name(spec)
+    if spec.endswith(".binary"):
+        return BinaryFile(name, spec)
+    if spec.endswith(".bsdf"):
+        return MeasuredFile(name, spec).check()
+    if spec.endswith(".h5"):
+        nets = nbrdf.read_keras(spec, name=name)
+        return Network(name, nets, name, spec, USER_POSITIONS)
+    if spec.endswith(".npz"):
+        prefixes = nbrdf.NetworkSet.prefixes(spec)
+        nets = [nbrdf.NetworkSet.load(spec, p) for p in prefixes]
+        if sum(len(n) for n in nets) != 1:
+            raise FormatError(f"{spec}: holds {sum(len(n) for n in nets)} networks; give a file of one network "
+                              "(or use the file as a database folder's)")
+        at = nbrdf.NetworkSet.positions(spec, prefixes[0], USER_POSITIONS)
+        return Network(name, nets[0], nets[0].names[0], spec, at)
+    raise FormatError(f"{spec}: not a material file (.binary, .bsdf, .h5 or .npz)")

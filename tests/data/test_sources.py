@@ -202,3 +202,21 @@ def test_builtin_names_in_the_command_line_tools(tmp_path):
     m = Manifold.load(tmp_path / "m.npz")
     assert m.database == "nielsen@8x8x16" and m.n == 8
     assert m.open_database().hash("notebook") == m.hashes[m.names.index("notebook")]
+
+
+def test_project_takes_a_material_of_any_source(tmp_path, capsys):
+    from mitsuba_manifold.apps.cli import fit_manifold, project
+    fit_manifold.main(["nielsen@8x8x16", "--out", str(tmp_path / "m.npz"), "--q", "2"])
+    capsys.readouterr()
+    project.main(["rgl:paper_white", "--manifold", str(tmp_path / "m.npz"), "--json", str(tmp_path / "p.json")])
+    result = json.loads((tmp_path / "p.json").read_text())
+    assert result["table"] == "rgl:paper_white" and result["nearest"] in Database("nielsen").names
+    nets = nbrdf.NetworkSet.load(nbrdf.WEIGHTS_PATH, "nielsen")
+    nets.subset(["notebook"]).save(tmp_path / "notebook.npz", positions=sources.SET_POSITIONS["nielsen"])
+    capsys.readouterr()
+    project.main([str(tmp_path / "notebook.npz"), "--manifold", str(tmp_path / "m.npz")])
+    out = capsys.readouterr().out
+    assert "nearest training material notebook" in out and "weights: notebook:1," in out
+    with pytest.raises(SystemExit):
+        project.main(["rgl:paper_whyte", "--manifold", str(tmp_path / "m.npz")])
+    assert "did you mean 'paper_white'" in capsys.readouterr().err
