@@ -220,3 +220,12 @@ def test_project_takes_a_material_of_any_source(tmp_path, capsys):
     with pytest.raises(SystemExit):
         project.main(["rgl:paper_whyte", "--manifold", str(tmp_path / "m.npz")])
     assert "did you mean 'paper_white'" in capsys.readouterr().err
+
+
+def test_the_main_job_runs_on_the_measured_merl_set_and_refuses_unknown_databases(tmp_path):
+    from mitsuba_manifold.apps.pipeline import MainJob
+    assert MainJob(str(tmp_path / "out")).database == "merl"
+    MainJob(str(tmp_path / "out"), database="rgl", res=8).check()
+    with pytest.raises(InputError, match=r"`database` nope:.*does not exist.*built-in databases: merl, rgl"):
+        MainJob(str(tmp_path / "out"), database="nope").check()
+    assert not (tmp_path / "out").exists()
