@@ -26,12 +26,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import merl
 from .._util.cache import key_hash
 from ..errors import FormatError, InputError, UnknownMaterialError, did_you_mean
+from . import merl
 
-__all__ = ["NetworkSet", "POSITIONS", "DEFAULT_POSITIONS", "WEIGHTS_PATH", "SETS", "features",
-           "grid_positions", "read_keras", "tabulate", "tabulate_many"]
+__all__ = [
+    "DEFAULT_POSITIONS",
+    "POSITIONS",
+    "SETS",
+    "WEIGHTS_PATH",
+    "NetworkSet",
+    "features",
+    "grid_positions",
+    "read_keras",
+    "tabulate",
+    "tabulate_many",
+]
 
 #: The weights of the published networks, shipped with the package (MIT licence, ``NBRDF_LICENSE``).
 WEIGHTS_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "nbrdf_weights.npz")
@@ -272,7 +282,7 @@ def read_keras(h5_path, json_path=None, name=None):
                          "(pip install h5py)") from None
     try:
         with h5py.File(h5_path, "r") as f:
-            root = f["model_weights"] if "model_weights" in f else f
+            root = f.get("model_weights", f)
             layers = []
             order = [n.decode() if isinstance(n, bytes) else str(n) for n in root.attrs.get("layer_names", [])]
             for layer in order or sorted(root):

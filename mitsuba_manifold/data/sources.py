@@ -22,12 +22,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import merl, nbrdf
 from .._util.cache import file_hash, key_hash
 from ..errors import FormatError, InputError, UnavailableError
+from . import merl, nbrdf
 
-__all__ = ["BinaryFile", "Network", "SgdFit", "MeasuredFile", "BUILTIN", "SET_NAMES", "builtin",
-           "folder_sources", "material_name", "material_source", "register_reader", "read_tensor_header", "combine"]
+__all__ = [
+    "BUILTIN",
+    "SET_NAMES",
+    "BinaryFile",
+    "MeasuredFile",
+    "Network",
+    "SgdFit",
+    "builtin",
+    "combine",
+    "folder_sources",
+    "material_name",
+    "material_source",
+    "read_tensor_header",
+    "register_reader",
+]
 
 #: The built-in sets and what they hold.
 BUILTIN = {

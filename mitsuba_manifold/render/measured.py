@@ -15,12 +15,11 @@ import os
 
 import numpy as np
 
-from ..data import merl
-from ..data import sources
+from ..data import merl, sources
 from ..data.sources import MeasuredFile, material_name, register_reader
 from ..errors import FormatError, plugin_message
 
-__all__ = ["resample", "evaluate", "load_measured"]
+__all__ = ["evaluate", "load_measured", "resample"]
 
 #: Direction pairs evaluated per call of the plugin.
 BLOCK = 1 << 20
@@ -36,7 +35,7 @@ def load_measured(path):
     mi = use_variant()
     try:
         return mi.load_dict({"type": "measured", "filename": path})
-    except Exception as e:   # Mitsuba raises RuntimeError with its own log text
+    except RuntimeError as e:   # Mitsuba raises RuntimeError with its own log text
         raise FormatError(f"{path}: Mitsuba's measured plugin cannot read it ({plugin_message(e)})") from None
 
 

@@ -33,10 +33,10 @@ def main(argv=None):
     p.add_argument("--force", action="store_true", help="overwrite files this tool did not make")
     args = p.parse_args(argv)
 
+    from ... import render  # noqa: F401  (the reader of Mitsuba measured files)
+    from ..._util import checks as validate
     from ...data import database, merl
     from ...errors import InputError
-    from ..._util import checks as validate
-    from ... import render  # noqa: F401  (the reader of Mitsuba measured files)
     t0 = time.perf_counter()
     sources = args.sources or ["merl"]
     if args.materials and len(set(args.materials)) < len(args.materials):
