@@ -181,6 +181,7 @@ def _database_and_manifold(job, log, stages):
     """Steps 1 and 2 of the main job: the database, the fitted manifold and its plots; returns
     their paths and adds the seconds of each stage to ``stages``."""
     manifold_path = os.path.join(job.out, "manifold.npz")
+    os.makedirs(job.out, exist_ok=True)
     log(f"\n== database: {job.database}")
     t0 = time.perf_counter()
     db = database.Database(job.database, dims=job.resolution)
