@@ -30,7 +30,7 @@ from .._util.cache import adopt_hash, file_hash, file_identity, key_hash, npy_ca
 from ..errors import FormatError, InputError, MissingFileError, UnknownMaterialError, did_you_mean
 
 __all__ = ["Database", "make_database", "cache_folder", "albedo_weights", "CACHE_NAME", "FEATURES",
-           "SourceList", "write_database", "open_spec", "split_spec", "database_cache", "builtin_cache", "MADE_DTYPE",
+           "SourceList", "TableRows", "write_database", "open_spec", "split_spec", "database_cache", "builtin_cache", "MADE_DTYPE",
            "FITS_PATH", "SGD_FIELDS", "load_sgd_fits", "sgd_reflectance", "tabulate_sgd"]
 
 CACHE_NAME = ".manifold-cache"
@@ -451,6 +451,14 @@ def database_cache(spec):
 
 # --------------------------------------------------------------------- database
 
+class TableRows(np.ndarray):
+    """Interleaved tables made in memory (:meth:`Database.material_rows` of a built-in set);
+    ``key``: the content hash that names them (a cached file's name otherwise)."""
+
+    key = None
+
+
+
 class Database:
     """A set of measured materials: a folder of tables, a built-in set, or a mix of sources.
 
@@ -587,13 +595,14 @@ class Database:
             self.index(n)
         bins = int(np.prod(self.dims))
         n_pad = -(-len(names) // pad) * pad
+        key = key_hash("\n".join([f"{self.dims}:{pad}"] + self.hashes(names)), length=40)
         if not self.files_only:
-            out = np.zeros((bins, 3, n_pad), dtype=np.float32)
+            out = np.zeros((bins, 3, n_pad), dtype=np.float32).view(TableRows)
             for k, n in enumerate(names):
                 out[:, :, k] = self.reflectance(n).reshape(3, bins).T
+            out.key = key
             out.setflags(write=False)
             return out
-        key = key_hash("\n".join([f"{self.dims}:{pad}"] + self.hashes(names)), length=40)
         path = os.path.join(self.cache_dir, f"{key}.rows-v1-{len(names)}x{n_pad}.npy")
 
         def write(tmp):
