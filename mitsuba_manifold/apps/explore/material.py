@@ -71,7 +71,7 @@ def check_database(folder, manifold):
     Only the sources are checked here, at once; the content hashes are checked while the
     tables load (:class:`TableStack`)."""
     from ...data.database import Database, split_spec
-    from ...data.sources import SET_NAMES
+    from ...data.sources import EXTENSIONS, SET_NAMES
     from ...errors import InputError, MitsubaManifoldError
     folder = os.fspath(folder)
     base, _ = split_spec(folder)
@@ -82,8 +82,9 @@ def check_database(folder, manifold):
     if base not in SET_NAMES and not os.path.isdir(base):
         raise InputError(f"--database {folder} is a file, not a database folder (a folder of <name>.binary "
                            "MERL tables); give the folder of the manifold's tables")
+    empty = base not in SET_NAMES and not any(f.endswith(EXTENSIONS) for f in os.listdir(base))
     try:
-        available = set(Database(folder).names)
+        available = set() if empty else set(Database(folder).names)
     except (MitsubaManifoldError, OSError) as e:
         raise InputError(f"--database {folder} is not a database of this manifold ({e}); give the "
                            "folder of its tables, or leave --database out") from None
