@@ -222,6 +222,7 @@ def test_project_takes_a_material_of_any_source(tmp_path, capsys):
     assert "did you mean 'paper_white'" in capsys.readouterr().err
 
 
+@pytest.mark.render   # the pipeline imports the rendering subsystem
 def test_the_main_job_runs_on_the_measured_merl_set_and_refuses_unknown_databases(tmp_path):
     from mitsuba_manifold.apps.pipeline import MainJob
     assert MainJob(str(tmp_path / "out")).database == "merl"

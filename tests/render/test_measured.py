@@ -13,7 +13,7 @@ RGL = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", "..", 
 FILES = {"paper_blue": "paper_blue_rgb.bsdf", "ilm_l3_37_metallic": "ilm_l3_37_metallic_rgb.bsdf",
          "vch_golden_yellow": "vch_golden_yellow_rgb.bsdf"}
 
-pytestmark = pytest.mark.render
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
 
 @pytest.fixture(autouse=True)

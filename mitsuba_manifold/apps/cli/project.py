@@ -54,9 +54,10 @@ def project(args):
     from ...manifold.model import Manifold
 
     from ...data.sources import material_source
-    from ... import render  # noqa: F401  (the reader of Mitsuba measured files)
 
     source = material_source(args.table)
+    if source.kind == "measured":
+        from ... import render  # noqa: F401  (registers the reader of Mitsuba measured files)
     m = Manifold.load(args.manifold)
     m.tables(args.database)
     r = m.project(args.table if source.kind == "binary" else source.table(m.dims))
