@@ -509,7 +509,7 @@ class Database:
                                   "(or None for every material of the database)")
             bad = [n for n in names if not isinstance(n, str) or not n or "/" in n or os.sep in n or "\0" in n]
             if bad:
-                raise FormatError(f"database {label}: material names {bad} are not material names "
+                raise FormatError(f"database {label}: material names {bad} are not file names of materials "
                                   "(a name is '<name>' of '<name>.binary', without '/')")
             missing = [n for n in names if n not in available]
             if missing:

@@ -391,6 +391,6 @@ def test_interrupted_make_database_lists_every_table_it_finished(tmp_path, monke
     listed = json.loads((tmp_path / "db" / "database.json").read_text())["tables"]
     assert sorted(listed) == ["chrome", "steel"]
     monkeypatch.setattr(database, "_write_sgd_table", real)
-    rc, _, err = run_tool("make_database", "--out", tmp_path / "db", "--resolution", "8,8,16",
+    rc, _, err = run_tool("make_database", "--out", tmp_path / "db", "--from", "sgd", "--resolution", "8,8,16",
                           "--materials", "steel,chrome,gold-paint")
     assert rc == 0, err                   # resumed, not refused as foreign tables
