@@ -10,7 +10,7 @@ Timings are wall-clock medians over repeats on the machine that runs them
 
 #: Benchmark names, in the order ``tools/bench.py`` lists them.
 NAMES = ("fit", "interp", "pca", "bsdf", "gi", "gi-targets", "stability", "basis", "match", "match-render", "scaling",
-         "explore", "space", "prune", "fig9", "paths", "measured-space")
+         "explore", "space", "prune", "fig9", "paths", "measured-space", "measured")
 
 
 def module_name(name):

@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 
+from mitsuba_manifold.data.database import database_cache
 from mitsuba_manifold.apps import gi_comparison as comparison
 from mitsuba_manifold.render import scenes
 from mitsuba_manifold.basis.folder import Basis
@@ -61,11 +62,11 @@ def run(folder, manifold=None, scene="table", res=256, spp=64, ref_spp=4096, rep
     from mitsuba_manifold.render.integrators.onepass import PACKET
     mi = use_variant()
     if manifold is None:
-        manifold = os.path.join(folder, ".manifold-cache", "bench_q2.npz")
+        manifold = os.path.join(database_cache(folder), "bench_q2.npz")
         Manifold.fit(folder, q=2).save(manifold)
     m = Manifold.load(manifold)
     scene_path = scenes.scene_path(scene)
-    out = out or os.path.join(folder, ".manifold-cache", "bench_basis")
+    out = out or os.path.join(database_cache(folder), "bench_basis")
     os.makedirs(out, exist_ok=True)
     report = {"scene": scene + ".xml", "resolution": res, "spp": spp, "n_materials": m.n, "variant": mi.variant(),
               "threads": dr.thread_count()}

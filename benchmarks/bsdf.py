@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 
+from mitsuba_manifold.data.database import database_cache
 from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold.render.scenes import use_variant
 from mitsuba_manifold._util.timing import median_time
@@ -23,7 +24,7 @@ def run(folder, manifold=None, spp=64, res=256, repeats=7, mse_res=96, mse_spp=3
     mi = use_variant()
     m = Manifold.load(manifold) if manifold else None
     if m is None:
-        manifold = os.path.join(folder, ".manifold-cache", "bench_q2.npz")
+        manifold = os.path.join(database_cache(folder), "bench_q2.npz")
         m = Manifold.fit(folder, q=2)
         m.save(manifold)
     x, where = interpolated_point(m)

@@ -50,7 +50,8 @@ def main(argv=None):
     p.add_argument("which", choices=NAMES)
     p.add_argument("--json", required=True, metavar="OUT", help="write the measurements here")
     p.add_argument("--database", default=None,
-                   help="folder of MERL tables (default: out/database, made at MERL resolution if missing)")
+                   help="database: a folder of measured tables or a built-in set (merl, rgl, nielsen, all, sgd; "
+                        "default merl)")
     p.add_argument("--materials", type=parse_list, default=None, help="subset of materials")
     p.add_argument("--manifold", default=None, help=f"saved manifold ({'/'.join(WITH_MANIFOLD)})")
     p.add_argument("--basis", default=None,
@@ -88,7 +89,14 @@ def main(argv=None):
 
 def database_folder(args):
     """The database a benchmark runs on (``explore``: its basis)."""
-    return args.basis if args.which == "explore" else args.database or os.path.join("out", "database")
+    return args.basis if args.which == "explore" else args.database or "merl"
+
+
+def _spec(folder):
+    """How the report names the database: a built-in set by its name, a folder by its path."""
+    from mitsuba_manifold.data.database import split_spec
+    from mitsuba_manifold.data.sources import SET_NAMES
+    return folder if split_spec(folder)[0] in SET_NAMES else os.path.abspath(folder)
 
 
 def check_inputs(args):
@@ -98,7 +106,7 @@ def check_inputs(args):
     space = args.which == "space" and args.configs is not None
     if space:
         from .space import CONFIGS
-    check(args.which, folder, database_given=args.database is not None or os.path.isdir(folder),
+    check(args.which, folder, database_given=True,
           manifold=args.manifold, basis=args.basis, names=args.materials,
           configs=args.configs if space else None, config_choices=CONFIGS if space else (),
           presets=args.configs if args.which == "fig9" else None, folds=args.folds, res=args.res)
@@ -107,15 +115,11 @@ def check_inputs(args):
 def run(args):
     """Run the benchmark ``args.which`` and write its report to ``--json``."""
     import benchmarks as bench
-    from mitsuba_manifold.data import database
     from mitsuba_manifold._util.atomic import write_bytes
     from .common import machine
     explore = args.which == "explore"
     folder = database_folder(args)
     t0 = time.perf_counter()
-    if not explore and args.database is None and not os.path.isdir(folder) and args.which not in ("scaling", "match-render", "measured-space"):
-        print(f"making the built-in database at MERL resolution in {folder}")
-        database.make_database(folder, progress=True)
     kwargs = {"names": args.materials} if args.which in ("fit", "pca", "space", "fig9", "paths") else {}
     if args.which == "fig9":
         kwargs["plot_stem"] = os.path.splitext(args.json)[0]
@@ -143,7 +147,7 @@ def run(args):
     if args.which == "scaling":
         from .scaling import plot
         result["plot"] = plot(result, os.path.splitext(args.json)[0] + ".png")
-    report = {"benchmark": args.which, "basis" if explore else "database": os.path.abspath(folder),
+    report = {"benchmark": args.which, "basis" if explore else "database": _spec(folder),
               "machine": machine(),
               "date": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": time.perf_counter() - t0,
               "result": result}

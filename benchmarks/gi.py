@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 
+from mitsuba_manifold.data.database import database_cache
 from mitsuba_manifold.apps.gi_comparison import gi_pair, gi_points, gi_report, refined_row, relative_bias
 from mitsuba_manifold.basis.blend import blend
 from mitsuba_manifold.basis.folder import Basis
@@ -60,11 +61,11 @@ def targets(folder, manifold=None, scenes=("table", "sphere", "cbox", FACING), r
     also at the pair's second material (with convex weights the extrapolated point is close to it);
     ``gi_options``: more :class:`~mitsuba_manifold.render.render_basis.BasisOptions` fields of the
     full-GI basis (e.g. ``cross_fraction``)."""
-    manifold = manifold or os.path.join(folder, ".manifold-cache", "bench_q2.npz")
+    manifold = manifold or os.path.join(database_cache(folder), "bench_q2.npz")
     if not os.path.isfile(manifold):
         Manifold.fit(folder, q=2).save(manifold)
     m = Manifold.load(manifold)
-    out = out or os.path.join(folder, ".manifold-cache", "bench_gi_targets")
+    out = out or os.path.join(database_cache(folder), "bench_gi_targets")
     os.makedirs(out, exist_ok=True)
     pair = gi_pair(m)
     report = {"resolution": res, "basis_spp": basis_spp, "reference_spp": ref_spp, "direct_spp": direct_spp,

@@ -8,13 +8,14 @@ blend time at 256x256 for every material of the manifold (:func:`.gi.blend_time`
 
 import os
 
+from mitsuba_manifold.data.database import database_cache
 from .gi import FACING, blend_time, targets
 
 
 def run(folder, manifold=None, scenes=("table", FACING), res=64, basis_spp=256, ref_spp=4096):
     """The measurements above, as a dict ``{"targets": ..., "blend": ...}``."""
-    manifold = manifold or os.path.join(folder, ".manifold-cache", "bench_q2.npz")
-    out = os.path.join(folder, ".manifold-cache", "bench_gi_targets")
+    manifold = manifold or os.path.join(database_cache(folder), "bench_q2.npz")
+    out = os.path.join(database_cache(folder), "bench_gi_targets")
     report = {"targets": targets(folder, manifold, scenes=scenes, res=res, basis_spp=basis_spp, ref_spp=ref_spp,
                                  out=out, both_ends=True)}
     report["blend"] = blend_time(manifold, out, res=256)

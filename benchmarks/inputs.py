@@ -36,18 +36,34 @@ def basis_folder(path, manifold=None, name="`basis`"):
 
 
 def database_names(folder, name="`folder`"):
-    """Material names of the database folder ``folder`` (its ``.binary`` tables); InputError
-    naming ``name`` for a folder that is missing, unreadable or holds no table."""
-    if not os.path.isdir(folder):
-        raise InputError(f"{name}: database folder {folder} does not exist" if not os.path.exists(folder) else
-                         f"{name}: {folder} is not a folder (give a folder of MERL .binary tables)")
+    """Material names of the database ``folder`` (a folder of tables or a built-in set's name,
+    :class:`~mitsuba_manifold.data.database.Database`); InputError naming ``name`` for a folder
+    that is missing, unreadable or holds no table."""
+    from mitsuba_manifold.data.database import SOURCES_NAME, Database, split_spec
     from mitsuba_manifold.data.merl import table_names
+    from mitsuba_manifold.data.sources import EXTENSIONS, SET_NAMES
+    from mitsuba_manifold.errors import MitsubaManifoldError
+
+    def _other_kinds(path):
+        return any(f == SOURCES_NAME or (f.endswith(EXTENSIONS) and not f.endswith(".binary"))
+                   for f in os.listdir(path))
+    base, _ = split_spec(folder)
+    if base not in SET_NAMES and not os.path.isdir(base):
+        raise InputError(f"{name}: database folder {folder} does not exist (built-in databases: "
+                         f"{', '.join(SET_NAMES)})" if not os.path.exists(base) else
+                         f"{name}: {folder} is not a folder (give a folder of measured tables or a built-in "
+                         f"database: {', '.join(SET_NAMES)})")
     try:
-        names = table_names(folder)
+        if base not in SET_NAMES and not _other_kinds(base):   # .binary files only: named, not read yet
+            names = table_names(base)
+        else:
+            names = list(Database(folder).names)
     except OSError as e:
         raise InputError(f"{name}: database folder {folder} cannot be read ({e.strerror or e})") from None
+    except MitsubaManifoldError as e:
+        raise InputError(f"{name}: {e}") from None
     if not names:
-        raise InputError(f"{name}: database folder {folder} holds no .binary tables")
+        raise InputError(f"{name}: database folder {folder} holds no tables")
     return names
 
 

@@ -23,6 +23,8 @@ import time
 
 import numpy as np
 
+from mitsuba_manifold.data.database import database_cache
+from mitsuba_manifold.gp import gplvm
 from mitsuba_manifold.basis import match as mt
 from mitsuba_manifold.basis.folder import BASE, Basis
 from mitsuba_manifold.basis.blend import blend
@@ -224,12 +226,12 @@ def run(folder, manifold=None, basis=None, scenes=("table", "sphere"), res=128, 
 
     from mitsuba_manifold._util.checks import positive_int
     res = positive_int("`res`", res, 128)
-    manifold = manifold or os.path.join(folder, ".manifold-cache", "bench_q2.npz")
+    manifold = manifold or os.path.join(database_cache(folder), "bench_q2.npz")
     if not os.path.isfile(manifold):
         Manifold.fit(folder, q=2, features="log").save(manifold)
     m100 = Manifold.load(manifold)
     m100.tables()  # all tables in memory: clamping checks and table errors are matrix products
-    out = out or os.path.join(folder, ".manifold-cache", "bench_match")
+    out = out or os.path.join(database_cache(folder), "bench_match")
     os.makedirs(out, exist_ok=True)
     report = {"manifold": os.path.abspath(manifold), "resolution": res, "basis_spp": basis_spp,
               "target_spp": target_spp, "scenes": {}}

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Write the built-in MERL-format database (SGD surrogates of the 100 MERL materials).
+"""Make a database folder from built-in sets (merl, rgl, nielsen, all, sgd) and measured files.
 
 The tool is mitsuba_manifold/cli/make_database.py (also installed as a console script); --help lists its options.
 """

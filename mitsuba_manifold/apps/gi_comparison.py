@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..data.database import database_cache
 from ..basis import denoise as denoise_mod
 from ..basis.blend import blend, blend_path, path_labels
 from ..manifold import paths
@@ -126,10 +127,10 @@ def gi_report(folder, manifold=None, scenes=("sphere", "table"), out=None, plot=
     opts = replace(settings or GISettings(), **overrides)
     mi = _scenes.use_variant()
     if manifold is None:
-        manifold = os.path.join(folder, ".manifold-cache", "bench_q2.npz")
+        manifold = os.path.join(database_cache(folder), "bench_q2.npz")
         Manifold.fit(folder, q=2).save(manifold)
     m = Manifold.load(manifold)
-    out = out or os.path.join(folder, ".manifold-cache", "bench_gi")
+    out = out or os.path.join(database_cache(folder), "bench_gi")
     os.makedirs(out, exist_ok=True)
     pair = gi_pair(m)
     report = {"resolution": opts.res, "basis_spp": opts.basis_spp, "reference_spp": opts.ref_spp,

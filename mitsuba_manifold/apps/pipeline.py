@@ -1,6 +1,7 @@
 """What the main job does, end to end (``tools/main.py``); the GI benchmark runs the same steps.
 
-1. the MERL-format database (SGD surrogates of the 100 MERL materials),
+1. the database (default: the built-in ``merl``, the 100 MERL measurements as NBRDF fits,
+   tables made on demand into the cache; any built-in set or folder :class:`Database` takes),
 2. the latent manifold (GPLVM fit, paper Sec. 3) with its summary and plots,
 3. the L1- basis of a scene (paper Sec. 5.2, one image per material),
 4. blends at a training point, a midpoint and an extrapolated point (Eq. 13), their errors
@@ -41,6 +42,8 @@ class MainJob:
         Output folder.
     resolution : (int, int, int)
         Table bins of the database.
+    database : str
+        Built-in set (``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``) or folder of measured tables.
     q, features, preset
         The manifold fit (:meth:`Manifold.fit`; None: the preset's).
     scene : str
@@ -69,6 +72,7 @@ class MainJob:
     direct_spp: tuple = (1, 4, 16, 64, 256)
     denoise: bool = True
     force: bool = False
+    database: str = "merl"
 
     def check(self):
         """Check the settings before anything is computed or written; raises
@@ -76,6 +80,7 @@ class MainJob:
         ``tools/main.py`` writes as its option), the value and the fix. Returns the scene's path."""
         from .._util import checks as validate
         from ..data import merl
+        from ..errors import InputError, MitsubaManifoldError
         from ..gp.kernel import MAX_LATENT_DIM
 
         validate.output_folder("`out`", self.out)
@@ -85,7 +90,11 @@ class MainJob:
         path = _scenes.check_scene("`scene`", self.scene)
         res = self.res
         validate.positive_int("`res`", res, "256")
-        held = len(database.load_sgd_fits()) + 2 if self.mode == "onepass" else 6   # as render_basis holds them
+        try:
+            n = len(database.Database(self.database, dims=self.resolution).names)
+        except MitsubaManifoldError as e:
+            raise InputError(f"`database` {self.database}: {e}") from None
+        held = n + 2 if self.mode == "onepass" else 6   # as render_basis holds them
         validate.fits_in_memory("`res`", 2 * held * res * res * 3 * 4, f"{self.mode} basis images of {res}x{res}")
         validate.positive_int("`spp`", self.spp, "512")
         validate.positive_int("`ref_spp`", self.ref_spp, "2048")
@@ -161,16 +170,17 @@ def _run(job, log):
 def _database_and_manifold(job, log, stages):
     """Steps 1 and 2 of the main job: the database, the fitted manifold and its plots; returns
     their paths and adds the seconds of each stage to ``stages``."""
-    db_dir = os.path.join(job.out, "database")
     manifold_path = os.path.join(job.out, "manifold.npz")
-    log(f"\n== database: {db_dir}")
+    os.makedirs(job.out, exist_ok=True)
+    log(f"\n== database: {job.database}")
     t0 = time.perf_counter()
-    database.make_database(db_dir, job.resolution, progress=True)
+    db = database.Database(job.database, dims=job.resolution)
+    db_dir = db.folder
     stages["tabulate_s"] = time.perf_counter() - t0
-    log(f"100 tables ready ({stages['tabulate_s']:.1f} s)")
+    log(f"{len(db.names)} materials, {'x'.join(map(str, db.dims))} bins ({stages['tabulate_s']:.1f} s)")
     log(f"\n== manifold: preset {job.preset}" + (f", q={job.q}" if job.q else "")
         + (f", features={job.features}" if job.features else ""))
-    m = Manifold.fit(db_dir, q=job.q, features=job.features, preset=job.preset, progress=True)
+    m = Manifold.fit(db, q=job.q, features=job.features, preset=job.preset, progress=True)
     m.save(manifold_path)
     stages.update(load_s=m.info["time_load_s"], gram_s=m.info["time_gram_s"], fit_s=m.info["time_fit_s"])
     log(m.summary())

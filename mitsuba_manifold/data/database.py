@@ -1,27 +1,36 @@
-"""Material databases: folders of MERL tables, read (:class:`Database`) and written (:func:`make_database`).
+"""Material databases: sets of measured materials, read (:class:`Database`) and written.
 
-Everything downstream reads a :class:`Database`, a folder of ``<name>.binary`` files: real
-MERL files work the same way. :func:`make_database` writes the built-in surrogate of MERL
-(the SGD fits of :mod:`.surrogate`, re-exported here) into such a folder. The Gram matrix
-of the tables is :mod:`.gram`'s (:meth:`Database.gram`).
+Everything downstream reads a :class:`Database`: a typed set of sources (:mod:`.sources`), one
+per material, each making its table at the database's resolution. A database is named by a
+built-in set (``merl``, the default, ``rgl``, ``nielsen``, ``all``, ``sgd``: tables made on
+demand into a cache, no files) or by a folder of MERL ``.binary`` files, Mitsuba ``measured``
+files and NBRDF networks in any mix, plus what its ``sources.json`` names (:class:`SourceList`).
+:func:`make_database` writes the SGD surrogate's tables as ``.binary`` files (with noise, for
+the scaling benchmarks); :func:`write_database` writes a database of any sources. The Gram
+matrix of the tables is :mod:`.gram`'s (:meth:`Database.gram`).
 """
 
+import json
 import os
+import re
 import zlib
+from dataclasses import dataclass
 
 import numpy as np
 
 from . import gram as gram_matrix, merl
+from .sources import SET_NAMES, builtin, combine, folder_sources
 from .surrogate import FITS_PATH, SGD_FIELDS, bin_geometry, load_sgd_fits, sgd_reflectance, tabulate_sgd
 from .._util import checks
-from .._util.atomic import sweep
+from .._util.atomic import sweep, write_bytes
 from .._util.locking import FolderLock
 from .._util.ownership import owned_tables, pending_tables, write_table_record
 from .._util.workers import owned_pool
 from .._util.cache import adopt_hash, file_hash, file_identity, key_hash, npy_cache
-from ..errors import FormatError, MissingFileError, UnknownMaterialError, did_you_mean
+from ..errors import FormatError, InputError, MissingFileError, UnknownMaterialError, did_you_mean
 
 __all__ = ["Database", "make_database", "cache_folder", "albedo_weights", "CACHE_NAME", "FEATURES",
+           "SourceList", "TableRows", "write_database", "open_spec", "split_spec", "database_cache", "builtin_cache", "MADE_DTYPE",
            "FITS_PATH", "SGD_FIELDS", "load_sgd_fits", "sgd_reflectance", "tabulate_sgd"]
 
 CACHE_NAME = ".manifold-cache"
@@ -97,6 +106,56 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
         _tabulate(jobs, workers, made, lambda: write_table_record(out_dir, settings, made, pending - made),
                   len(names), progress)
     return paths
+
+
+def write_database(out_dir, sources=("merl",), dims=merl.MERL_DIMS, materials=None, export=False, progress=False,
+                   force=False):
+    """Write a database folder taking its materials from ``sources`` (built-in set names and folders).
+
+    Without ``export`` the folder gets a ``sources.json`` (:class:`SourceList`) naming them and
+    no table files: the tables are made on demand into its cache (:meth:`Database.reflectance`).
+    With ``export`` every material (or those of ``materials``) is written as ``<name>.binary``,
+    and the folder is a plain MERL database. Returns the :class:`Database` of the folder.
+
+    Raises (before anything is written): unknown sets or folders, names given twice, unknown
+    materials, bad ``dims``; :class:`ForeignFileError` for files in ``out_dir`` this function
+    would replace and did not write (without ``force``).
+    """
+    from .._util.ownership import check_replaceable, record
+
+    dims = merl.table_resolution(dims, "`dims`")
+    out_dir = os.path.abspath(os.fspath(out_dir))
+    sets = tuple(s if s in SET_NAMES else os.path.abspath(os.fspath(s)) for s in dict.fromkeys(sources))
+    if not sets:
+        raise InputError("give at least one source (a built-in set or a folder) to make a database from")
+    groups = {s: builtin(s) if s in SET_NAMES else open_spec(s, dims).sources for s in sets}
+    found = combine(groups) if len(groups) > 1 else list(next(iter(groups.values())))
+    available = {s.name: s for s in found}
+    names = list(available) if materials is None else list(dict.fromkeys(materials))
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        raise UnknownMaterialError(f"unknown material(s) {unknown}{did_you_mean(unknown[0], list(available))} "
+                                   f"in {', '.join(sets)}")
+    if materials is not None and not export:
+        raise InputError("`materials` selects the tables to export; without `export` a database holds every "
+                         "material of its sources (choose them when fitting)")
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise FormatError(f"database folder {out_dir} is a file")
+    listing = os.path.join(out_dir, SOURCES_NAME)
+    targets = [os.path.join(out_dir, n + ".binary") for n in names] if export else [listing]
+    for path in targets:
+        check_replaceable(path, force, "database file")
+    os.makedirs(out_dir, exist_ok=True)
+    with FolderLock(out_dir, "database folder"):
+        if not export:
+            SourceList(sets, dims).write(listing)
+            record([listing], "make_database")
+        else:
+            for name, path in zip(_progress(names, progress, "exporting"), targets):
+                table = available[name].table(dims)
+                merl.write_binary(path, merl.to_stored(table))
+                record([path], "make_database")
+    return Database(out_dir, None if not export else names)
 
 
 def _tabulate(jobs, workers, made, record, total, progress):
@@ -220,81 +279,282 @@ def albedo_weights(dims=merl.MERL_DIMS):
     return cos * jac * area * (2.0 * np.pi) * 2.0 / np.pi
 
 
+# ---------------------------------------------------------------- what a database is
+
+#: Precision of the cached tables made from sources other than ``.binary`` files (networks,
+#: fits, measured files): half the disk of float32 (``docs/`` has the measured effect).
+MADE_DTYPE = np.float16
+#: Environment variable naming the cache folder of the built-in sets (default
+#: ``~/.cache/mitsuba_manifold``).
+CACHE_ENV = "MITSUBA_MANIFOLD_CACHE"
+#: A database folder's list of other sources (:class:`SourceList`).
+SOURCES_NAME = "sources.json"
+_SPEC_DIMS = re.compile(r"^(?P<base>.+)@(?P<h>\d+)x(?P<d>\d+)x(?P<p>\d+)$")
+
+
+def _size(dims):
+    return "x".join(map(str, dims))
+
+
+def builtin_cache():
+    """Cache folder of the built-in sets' tables: ``$MITSUBA_MANIFOLD_CACHE/builtin`` or
+    ``~/.cache/mitsuba_manifold/builtin`` (created)."""
+    root = os.environ.get(CACHE_ENV) or os.path.join(os.path.expanduser("~"), ".cache", "mitsuba_manifold")
+    folder = os.path.join(root, "builtin")
+    os.makedirs(folder, exist_ok=True)
+    return folder
+
+
+def made_table(cache_dir, digest, build, shape):
+    """A table made from a source (not a file), cached as ``<digest>.refl16.npy`` (:data:`MADE_DTYPE`)
+    or, where its values exceed that range, ``<digest>.refl.npy`` (float32); returned as float32, as cached
+    (rounded to the cache's precision when just made)."""
+    half = os.path.join(cache_dir, f"{digest}.refl16.npy")
+    full = os.path.join(cache_dir, f"{digest}.refl.npy")
+    if os.path.exists(full):
+        return npy_cache(full, build, shape=shape, dtype=np.float32, mmap=True)
+    made = []
+
+    def build_half():
+        table = np.asarray(build(), dtype=np.float32)
+        made.append(table)
+        if not np.all(np.abs(table) <= np.finfo(MADE_DTYPE).max):
+            raise OverflowError
+        return table.astype(MADE_DTYPE)
+
+    try:
+        value = npy_cache(half, build_half, shape=shape, dtype=MADE_DTYPE)
+    except OverflowError:
+        return npy_cache(full, lambda: made[0], shape=shape, dtype=np.float32, mmap=True)
+    return value.astype(np.float32)   # the cached precision, also when just made: the same values every run
+
+
+@dataclass(frozen=True)
+class SourceList:
+    """``sources.json`` of a database folder: the built-in sets and folders it takes materials
+    from besides its own files, and the resolution of its tables.
+
+    Attributes
+    ----------
+    sets : tuple of str
+        Built-in set names and absolute folder paths, in order.
+    dims : tuple of 3 int
+    """
+
+    sets: tuple
+    dims: tuple = merl.MERL_DIMS
+    FORMAT = "mitsuba-manifold-sources"
+
+    def check(self, where):
+        for s in self.sets:
+            if s not in SET_NAMES and not os.path.isabs(s):
+                raise FormatError(f"{where}: source {s!r} is neither a built-in set ({', '.join(SET_NAMES)}) "
+                                  "nor an absolute folder path")
+        merl.table_resolution(self.dims, f"{where}: dims")
+        return self
+
+    @classmethod
+    def read(cls, path):
+        try:
+            with open(path) as f:
+                data = json.load(f)
+            if data.get("format") != cls.FORMAT:
+                raise ValueError(f"format is {data.get('format')!r}, not {cls.FORMAT!r}")
+            return cls(tuple(data["from"]), tuple(int(v) for v in data["dims"])).check(path)
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise FormatError(f"{path}: not a database's source list ({e}); remake it with "
+                              "tools/make_database.py") from None
+
+    def write(self, path):
+        text = json.dumps({"format": self.FORMAT, "version": 1, "from": list(self.sets),
+                           "dims": list(self.dims)}, indent=1)
+        write_bytes(path, (text + "\n").encode())
+
+
+@dataclass(frozen=True)
+class DatabaseSpec:
+    """What :func:`open_spec` found: the sources of a database and where its caches go."""
+
+    key: str
+    label: str
+    sources: tuple
+    dims: tuple
+    directory: object = None   # the folder, or None for a built-in set
+
+    def cache_dir(self):
+        return cache_folder(self.directory) if self.directory else builtin_cache()
+
+
+def split_spec(spec):
+    """``(base, dims or None)`` of a database spec ``base[@NHxNDxNP]`` (an existing path is taken whole)."""
+    spec = os.fspath(spec)
+    m = _SPEC_DIMS.match(spec)
+    if m and not os.path.exists(spec):
+        return m.group("base"), (int(m.group("h")), int(m.group("d")), int(m.group("p")))
+    return spec, None
+
+
+def open_spec(spec, dims=None):
+    """The sources of a database: a built-in set's name or a folder, with an optional ``@dims``.
+
+    A bare built-in name (``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``) always means the set;
+    a folder of that name is given as a path (``./merl``). Raises one-line errors naming the
+    spec: no such set or folder, files that cannot be read, names given twice.
+    """
+    base, suffix = split_spec(spec)
+    if dims is not None and suffix is not None and tuple(dims) != suffix:
+        raise InputError(f"database {spec}: its resolution suffix and `dims` {_size(dims)} differ; give one")
+    dims = tuple(int(v) for v in dims) if dims is not None else suffix
+    if base in SET_NAMES:
+        dims = merl.table_resolution(dims or merl.MERL_DIMS, f"database {spec}: resolution")
+        key = base if dims == merl.MERL_DIMS else f"{base}@{_size(dims)}"
+        return DatabaseSpec(key, key, tuple(builtin(base)), dims)
+    folder = os.path.abspath(base)
+    if not os.path.isdir(folder):
+        if os.path.exists(folder):
+            raise MissingFileError(f"database folder {folder} is a file, not a folder of tables")
+        raise MissingFileError(f"database folder {folder} does not exist (built-in databases: "
+                               f"{', '.join(SET_NAMES)})")
+    own = folder_sources(folder)
+    listed = os.path.join(folder, SOURCES_NAME)
+    groups, natural = {folder: own}, merl.MERL_DIMS
+    if os.path.exists(listed):
+        record = SourceList.read(listed)
+        natural = record.dims
+        for s in record.sets:
+            groups[s] = builtin(s) if s in SET_NAMES else folder_sources(s)
+    found = combine(groups) if len(groups) > 1 else own
+    binary = {s.native_dims() for s in found if s.kind == "binary"}
+    if len(binary) > 1:
+        raise FormatError(f"database {folder}: " + merl.resolution_mismatch(
+            {s.name: s.native_dims() for s in found if s.kind == "binary"}))
+    if binary:
+        natural = binary.pop()
+    dims = merl.table_resolution(dims or natural, f"database {spec}: resolution")
+    key = folder if dims == natural else f"{folder}@{_size(dims)}"
+    return DatabaseSpec(key, folder, tuple(found), dims, folder)
+
+
+def database_cache(spec):
+    """The cache folder of the database ``spec`` (as a manifold records it), or None when it is
+    a folder that is gone (creating it would make an empty database folder)."""
+    base, _ = split_spec(spec)
+    if base in SET_NAMES:
+        return builtin_cache()
+    if not os.path.isdir(base):
+        return None
+    try:
+        return cache_folder(base)
+    except OSError:
+        return None
+
+
 # --------------------------------------------------------------------- database
 
+class TableRows(np.ndarray):
+    """Interleaved tables made in memory (:meth:`Database.material_rows` of a built-in set);
+    ``key``: the content hash that names them (a cached file's name otherwise)."""
+
+    key = None
+
+
+
 class Database:
-    """A folder of MERL ``.binary`` tables.
+    """A set of measured materials: a folder of tables, a built-in set, or a mix of sources.
 
     Parameters
     ----------
-    folder : path
-        Folder holding ``<name>.binary`` files.
+    folder : str or path
+        What :func:`open_spec` reads: a folder (its ``.binary``, ``.bsdf``, ``.h5`` + ``.json``
+        and ``.npz`` files, plus the sets and folders its ``sources.json`` names), or a built-in
+        set's name (:data:`sources.BUILTIN`: ``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``);
+        either with an optional resolution suffix ``@NHxNDxNP`` (``merl@45x45x90``).
     names : list of str, optional
-        Materials to use, in this order (default: every table in the folder, sorted).
+        Materials to use, in this order (default: every material, sorted for folders and in
+        the set's order for built-in sets).
+    dims : tuple of 3 int, optional
+        Table resolution (default: the ``.binary`` files', else the suffix's or ``sources.json``'s,
+        else MERL's 90x90x180).
+
+    Attributes
+    ----------
+    folder : str
+        How to open this database again (what a manifold records): the folder's absolute path
+        or the set's name, with ``@dims`` when not the default resolution.
+    sources : dict
+        ``{name: source}`` (:mod:`.sources`), the materials of :attr:`names`.
+    dims, names, cache_dir
 
     Notes
     -----
-    Derived data (content hashes, float32 reflectance tables, sampling densities) is
-    cached in ``<folder>/.manifold-cache`` (or under ``~/.cache/mitsuba_manifold`` when
-    the folder is read-only), keyed by each table's content hash.
+    Derived data (content hashes, reflectance tables, sampling densities) is cached in
+    ``<folder>/.manifold-cache`` (or under ``~/.cache/mitsuba_manifold`` when the folder is
+    read-only; built-in sets: :func:`builtin_cache`), keyed by each table's content hash.
+    Tables of ``.binary`` files are cached as float32 and memory-mapped; tables made from
+    other sources (networks, fits, measured files) as :data:`MADE_DTYPE`.
     """
 
-    def __init__(self, folder, names=None):
-        folder = os.path.abspath(os.fspath(folder))
-        if os.path.isfile(folder):
+    def __init__(self, folder, names=None, dims=None):
+        if isinstance(folder, (str, os.PathLike)) and os.path.isfile(folder):
+            folder = os.path.abspath(os.fspath(folder))
             raise FormatError(f"database {folder} is a file, not a folder; pass the folder "
-                              f"holding the .binary tables ({os.path.dirname(folder)})")
-        if not os.path.isdir(folder):
-            raise MissingFileError(f"database folder {folder} does not exist")
-        available = merl.table_names(folder)
+                              f"holding the tables ({os.path.dirname(folder)})")
+        spec = open_spec(folder, dims)
+        available = {s.name: s for s in spec.sources}
         if names is None:
-            names = available
+            names = [s.name for s in spec.sources]
             if not names:
-                raise FormatError(f"database folder {folder} holds no .binary tables")
+                raise FormatError(f"database folder {spec.label} holds no tables (.binary, .bsdf, .h5 or .npz files)")
         else:
             if isinstance(names, str):   # "chrome, steel": a comma-separated list
                 names = [n.strip() for n in names.split(",") if n.strip()]
             names = list(names)
+            label = spec.label
             if not names:
-                raise FormatError(f"database {folder}: `names` is empty; give at least one material name "
-                                  "(or None for every table of the folder)")
+                raise FormatError(f"database {label}: `names` is empty; give at least one material name "
+                                  "(or None for every material of the database)")
             bad = [n for n in names if not isinstance(n, str) or not n or "/" in n or os.sep in n or "\0" in n]
             if bad:
-                raise FormatError(f"database {folder}: material names {bad} are not file names in the folder "
+                raise FormatError(f"database {label}: material names {bad} are not file names of materials "
                                   "(a name is '<name>' of '<name>.binary', without '/')")
             missing = [n for n in names if n not in available]
             if missing:
-                raise UnknownMaterialError(f"`names`: database {folder} has no table for {missing}"
-                                           f"{did_you_mean(missing[0], available)}")
+                raise UnknownMaterialError(f"`names`: database {label} has no table for {missing}"
+                                           f"{did_you_mean(missing[0], list(available))}")
             if len(set(names)) != len(names):
-                raise FormatError(f"database {folder}: material names repeat in {names}")
-        self.folder = folder
+                raise FormatError(f"database {label}: material names repeat in {names}")
         self.names = names
-        dims = {n: merl.read_header(self.path(n)) for n in names}
-        if len(set(dims.values())) > 1:
-            raise FormatError(f"database {folder}: {merl.resolution_mismatch(dims)}")
-        self.dims = next(iter(dims.values()))
-        self.cache_dir = self._make_cache_dir()
+        self.sources = {n: available[n] for n in names}
+        self.dims = spec.dims
+        self.folder = spec.key
+        self.label = spec.label
+        self.directory = spec.directory
+        self.cache_dir = spec.cache_dir()
+        self.files_only = all(s.kind == "binary" for s in self.sources.values())
+        if not self.files_only:
+            for s in self.sources.values():
+                if s.kind == "binary" and s.native_dims() != self.dims:
+                    raise FormatError(f"database {self.label}: {s.path} is {_size(s.native_dims())}, the other "
+                                      f"tables {_size(self.dims)}; use tables of one resolution")
 
     # -- files and caches
     def path(self, name):
-        """Path of a material's ``.binary`` file."""
-        return os.path.join(self.folder, name + ".binary")
+        """Where a material comes from: its file, or its set's name."""
+        return self.sources[self.names[self.index(name)]].origin
 
     def index(self, name):
         """Position of ``name`` in :attr:`names` (KeyError naming the database otherwise)."""
         try:
             return self.names.index(name)
         except ValueError:
-            raise UnknownMaterialError(f"unknown material {name!r} in database {self.folder} "
+            raise UnknownMaterialError(f"unknown material {name!r} in database {self.label} "
                            f"({len(self.names)} materials)") from None
 
-    def _make_cache_dir(self):
-        return cache_folder(self.folder)
-
     def hash(self, name):
-        """SHA-256 of a table's file (hashed once per process, see :func:`cache.file_hash`)."""
-        return file_hash(self.path(name))
+        """Content hash of a material's table: the SHA-256 of its ``.binary`` file, or of what the
+        table is made from (network weights, fit, measured file) and the resolution."""
+        self.index(name)
+        return self.sources[name].digest(self.dims)
 
     def hashes(self, names=None):
         return [self.hash(n) for n in (self.names if names is None else names)]
@@ -303,20 +563,18 @@ class Database:
     def reflectance(self, name, mmap=True):
         """Filled reflectance table, float32 of shape ``(3,) + dims`` (see merl.filled_reflectance).
 
-        Converted once from the ``.binary`` file and cached as ``.npy`` keyed by its hash;
-        returned memory-mapped read-only when ``mmap``.
+        Made once and cached as ``.npy`` keyed by its content hash (:meth:`hash`): a ``.binary``
+        file's as float32, returned memory-mapped read-only when ``mmap``; any other source's as
+        :data:`MADE_DTYPE` (float32 where a value exceeds its range), returned in memory.
         """
         self.index(name)
-
-        def build():
-            raw = merl.read_binary(self.path(name))  # format errors name the file
-            try:
-                return merl.filled_reflectance(raw)
-            except ValueError as e:
-                raise FormatError(f"{self.path(name)}: {e}") from None
-
-        cached = os.path.join(self.cache_dir, f"{self.hash(name)}.refl.npy")
-        return npy_cache(cached, build, shape=(3,) + tuple(self.dims), dtype=np.float32, mmap=mmap)
+        source = self.sources[name]
+        shape = (3,) + tuple(self.dims)
+        digest = self.hash(name)
+        if source.kind == "binary":
+            cached = os.path.join(self.cache_dir, f"{digest}.refl.npy")
+            return npy_cache(cached, lambda: source.table(self.dims), shape=shape, dtype=np.float32, mmap=mmap)
+        return made_table(self.cache_dir, digest, lambda: source.table(self.dims), shape)
 
     def stack(self, names=None, progress=False):
         """Tables of ``names`` as one float32 matrix ``(N, d)``, rows = RGB-concatenated tables."""
@@ -335,6 +593,8 @@ class Database:
         ``len(names)`` rounded up to a multiple of ``pad`` (extra columns are 0). Built once
         and cached in :attr:`cache_dir`, keyed by the tables' hashes; only the ``keep``
         most recently used such caches are kept (each is ``bins * 3 * n_pad * 4`` bytes).
+        A database with tables made from other sources than ``.binary`` files (a built-in set)
+        builds the rows in memory instead: its tables are made quickly, and the disk is spared.
         """
         names = self.names if names is None else list(names)
         for n in names:
@@ -342,6 +602,13 @@ class Database:
         bins = int(np.prod(self.dims))
         n_pad = -(-len(names) // pad) * pad
         key = key_hash("\n".join([f"{self.dims}:{pad}"] + self.hashes(names)), length=40)
+        if not self.files_only:
+            out = np.zeros((bins, 3, n_pad), dtype=np.float32).view(TableRows)
+            for k, n in enumerate(names):
+                out[:, :, k] = self.reflectance(n).reshape(3, bins).T
+            out.key = key
+            out.setflags(write=False)
+            return out
         path = os.path.join(self.cache_dir, f"{key}.rows-v1-{len(names)}x{n_pad}.npy")
 
         def write(tmp):

@@ -40,15 +40,10 @@ def cache_key(metric, *parts):
 
 
 def cache_folder(manifold):
-    """The cache folder of ``manifold``'s database, or None when that folder is gone (no caching:
-    creating it would make an empty database folder)."""
-    from ..data.database import cache_folder as folder_of
-    if not os.path.isdir(manifold.database):
-        return None
-    try:
-        return folder_of(manifold.database)
-    except OSError:
-        return None
+    """The cache folder of ``manifold``'s database (a built-in set's: the user's cache), or None
+    when that folder is gone (no caching: creating it would make an empty database folder)."""
+    from ..data.database import database_cache
+    return database_cache(manifold.database)
 
 
 def cached(metric, name, build, shape=None, dtype=None, keep=4, settings=()):

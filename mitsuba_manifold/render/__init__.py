@@ -24,7 +24,7 @@ active one (or activate :func:`.scenes.default_variant` when Mitsuba has none ye
 
 import sys as _sys
 
-from . import llvm as _llvm, plugins as _plugins
+from . import llvm as _llvm, measured as _measured, plugins as _plugins  # noqa: F401 (measured: the .bsdf reader)
 
 if "drjit" not in _sys.modules:
     _llvm.select()

@@ -100,14 +100,14 @@ def test_second_writer_of_a_folder_gets_a_clear_error(tmp_path, tiny):
     with FolderLock(out, "database folder"):
         before = snapshot(out)
         r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "make_database.py"), "--out", str(out),
-                            "--resolution", "8,8,16", "--materials", "steel"], capture_output=True, text=True)
+                            "--from", "sgd", "--resolution", "8,8,16", "--materials", "steel"], capture_output=True, text=True)
         assert_one_error(r.returncode, r.stderr, str(out), "another process")
         assert snapshot(out) == before
         rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out,
                               "--res", 8, "--spp", 1)
         assert_one_error(rc, err, "another process")
     r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "make_database.py"), "--out", str(out),
-                        "--resolution", "8,8,16", "--materials", "steel"], capture_output=True, text=True)
+                        "--from", "sgd", "--resolution", "8,8,16", "--materials", "steel"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr      # the lock went with the process that held it
 
 
@@ -391,6 +391,6 @@ def test_interrupted_make_database_lists_every_table_it_finished(tmp_path, monke
     listed = json.loads((tmp_path / "db" / "database.json").read_text())["tables"]
     assert sorted(listed) == ["chrome", "steel"]
     monkeypatch.setattr(database, "_write_sgd_table", real)
-    rc, _, err = run_tool("make_database", "--out", tmp_path / "db", "--resolution", "8,8,16",
+    rc, _, err = run_tool("make_database", "--out", tmp_path / "db", "--from", "sgd", "--resolution", "8,8,16",
                           "--materials", "steel,chrome,gold-paint")
     assert rc == 0, err                   # resumed, not refused as foreign tables

@@ -16,7 +16,7 @@ from guarantees_helpers import ROOT, snapshot
 
 from mitsuba_manifold._util.atomic import is_temporary
 
-TOOL = [sys.executable, os.path.join(ROOT, "tools", "make_database.py"), "--resolution", "32,32,64",
+TOOL = [sys.executable, os.path.join(ROOT, "tools", "make_database.py"), "--from", "sgd", "--resolution", "32,32,64",
         "--materials", "steel,chrome,gold-paint,pink-fabric,blue-acrylic,black-obsidian"]   # 32x32x64: big enough for worker processes
 ENV = {**os.environ, "PYTHONPATH": ROOT}
 

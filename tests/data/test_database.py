@@ -96,7 +96,7 @@ def test_repeated_materials_make_one_table_each_and_are_counted_once(tmp_path):
     rc, out, err = run_tool("make_database", "--out", tmp_path / "db", "--resolution", "4,4,8",
                             "--materials", "chrome,chrome,steel,chrome")
     assert rc == 0, err
-    assert "chrome repeated" in out and "2 tables in" in out
+    assert "chrome repeated" in out and "2 .binary files in" in out
     assert sorted(f for f in os.listdir(tmp_path / "db") if f.endswith(".binary")) == ["chrome.binary", "steel.binary"]
     paths = database.make_database(tmp_path / "db2", (4, 4, 8), ["steel", "steel"])
     assert paths == [os.path.join(tmp_path / "db2", "steel.binary")]
@@ -105,7 +105,7 @@ def test_repeated_materials_make_one_table_each_and_are_counted_once(tmp_path):
 def test_database_folder_errors(tmp_path, small_db):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         database.Database(tmp_path / "nope")
-    with pytest.raises(ValueError, match="holds no .binary"):
+    with pytest.raises(ValueError, match="holds no tables"):
         database.Database(tmp_path)
     with pytest.raises(KeyError, match="no table for"):
         database.Database(small_db, ["chrome", "vantablack"])

@@ -73,7 +73,8 @@ def parser():
                         "at equal perceptual steps) or geodesic (a shortest path under the perceptual metric, at "
                         f"equal steps); default {DEFAULT_PATH_KIND}, the most even measured (tools/bench.py fig9)")
     p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
-    p.add_argument("--database", help="folder of the manifold's tables, if it moved (--render-reference)")
+    p.add_argument("--database", help="the manifold's tables (folder or built-in set name), if it moved "
+                                            "(--render-reference)")
     p.add_argument("--refine", type=int, metavar="SPP", default=None,
                    help="unbiased image of the point, SPP samples per pixel: the full-GI blend corrected by "
                         "a control variate (or, with an L1- basis, the L1- blend plus the L2+ rendered there); "

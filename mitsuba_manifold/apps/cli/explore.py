@@ -42,7 +42,8 @@ def parser():
     p.add_argument("--basis", action="append", required=True, metavar="DIR",
                    help="basis folder (render_basis.py); repeat for several (a selector on the page)")
     p.add_argument("--manifold", help="manifold (.npz); default: the basis manifest's (checked by hash)")
-    p.add_argument("--database", help="tables of the manifold (default: the manifold's database)")
+    p.add_argument("--database", help="tables of the manifold: folder or built-in set name (default: the "
+                                      "manifold's database)")
     p.add_argument("--scene", help="scene XML or shipped scene name for reference renders, checked against the "
                                    "basis (default: the manifest's scene, or the shipped one of that name)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")

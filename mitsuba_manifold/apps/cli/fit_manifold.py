@@ -1,4 +1,4 @@
-"""Fit the latent manifold of a folder of MERL tables (paper Sec. 3) and save it."""
+"""Fit the latent manifold of a database of measured materials (paper Sec. 3) and save it."""
 
 import os
 import time
@@ -39,7 +39,8 @@ def check(args, guard=None):
 @guarded
 def main(argv=None):
     p = ArgumentParser(description=__doc__, aliases={"names": "materials"})
-    p.add_argument("database", help="folder of <name>.binary MERL tables")
+    p.add_argument("database", help="built-in database (merl, rgl, nielsen, all, sgd; NAME@NHxNDxNP for another "
+                                    "resolution) or folder of measured tables (.binary, .bsdf, .h5, .npz)")
     p.add_argument("--out", required=True, help="output manifold (.npz)")
     p.add_argument("--preset", choices=["default", "paper"], default="default",
                    help="default: the measured best (log features, q=3, convex Shepard weights); paper: the "

@@ -1,6 +1,6 @@
 """The main job on the built-in default data, end to end (library: mitsuba_manifold.apps.pipeline.run_main_job):
 
-1. the MERL-format database (SGD surrogates of the 100 MERL materials, 90x90x180 bins),
+1. the database (default: the built-in ``merl``, the 100 MERL measurements, 90x90x180 bins),
 2. the latent manifold (GPLVM fit) with its summary and plots,
 3. the full-GI basis of a shipped scene (default table.xml, one pass: base, every material's
    L1- and full-GI image, the cross terms),
@@ -18,6 +18,8 @@ from .common import ArgumentParser, guarded, parse_resolution
 def main(argv=None):
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="out", help="output folder (default out/)")
+    p.add_argument("--database", default="merl",
+                   help="built-in set (merl, rgl, nielsen, all, sgd) or folder of measured tables (default merl)")
     p.add_argument("--resolution", type=parse_resolution, default=(90, 90, 180), help="table bins (default MERL's)")
     p.add_argument("--preset", choices=["default", "paper"], default="default",
                    help="manifold settings (default: the measured best; paper: the paper's exact "
@@ -42,5 +44,5 @@ def main(argv=None):
     from ..pipeline import MainJob, run_main_job
     job = MainJob(args.out, args.resolution, q=args.q, features=args.features, preset=args.preset,
                   scene=args.scene, res=args.res, spp=args.spp, ref_spp=args.ref_spp, mode=args.mode,
-                  denoise=not args.no_denoise, force=args.force)
+                  denoise=not args.no_denoise, force=args.force, database=args.database)
     run_main_job(job, log=lambda text: print(text, flush=True))

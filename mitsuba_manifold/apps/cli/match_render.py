@@ -38,7 +38,7 @@ def _parser():
     p.add_argument("--mask", action="append", help="mask per target (repeat; pixels > 0 are matched)")
     p.add_argument("--sensor", action="append", type=int, help="sensor index per target (repeat; default 0)")
     p.add_argument("--basis", help="also start from the basis match of the first target")
-    p.add_argument("--database", help="folder of the manifold's tables, when moved")
+    p.add_argument("--database", help="the manifold's tables (folder or built-in set name), when moved")
     p.add_argument("--iterations", type=int, default=30, help="Adam iterations per start (default 30)")
     p.add_argument("--spp", type=int, default=8, help="samples per pixel of the optimisation (default 8)")
     p.add_argument("--eval-spp", type=int, default=64, help="samples per pixel of the final renders (default 64)")

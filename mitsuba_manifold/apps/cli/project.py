@@ -1,4 +1,8 @@
-"""Project a MERL table onto a manifold: the latent point whose material is closest.
+"""Project a measured material onto a manifold: the latent point whose material is closest.
+
+The material: a MERL ``.binary`` file (of the manifold's resolution), a Mitsuba ``measured``
+file (``.bsdf``), an NBRDF network (``.h5`` + ``.json``, ``.npz``) or ``SET:NAME`` of a built-in
+database (``rgl:paper_white``), tabulated at the manifold's resolution.
 
 Prints the latent point, its error (RMS of log(1 + rho) differences over all bins) beside the
 nearest training material's, and the main weights; --json writes the same.
@@ -27,9 +31,11 @@ def check_json(args, guard=None):
 @guarded
 def main(argv=None):
     p = ArgumentParser(description=__doc__)
-    p.add_argument("table", help="MERL .binary file (same resolution as the manifold's database)")
+    p.add_argument("table", help="material: .binary, .bsdf, .h5 or .npz file, or SET:NAME of a built-in database "
+                                 "(e.g. rgl:paper_white)")
     p.add_argument("--manifold", required=True, help="saved manifold (.npz)")
-    p.add_argument("--database", default=None, help="folder of the manifold's tables (default: as recorded)")
+    p.add_argument("--database", default=None,
+                   help="the manifold's tables: folder or built-in set name (default: as recorded)")
     p.add_argument("--json", default=None, metavar="OUT", help="also write the result here (.json)")
     p.add_argument("--force", action="store_true",
                    help="replace an existing --json this tool did not write (never a read-only one)")
@@ -47,9 +53,14 @@ def project(args):
     from ..._util.atomic import write_bytes
     from ...manifold.model import Manifold
 
+    from ...data.sources import material_source
+
+    source = material_source(args.table)
+    if source.kind == "measured":
+        from ... import render  # noqa: F401  (registers the reader of Mitsuba measured files)
     m = Manifold.load(args.manifold)
     m.tables(args.database)
-    r = m.project(args.table)
+    r = m.project(args.table if source.kind == "binary" else source.table(m.dims))
     top = sorted(range(m.n), key=lambda i: -abs(r.weights[i]))[:5]
     result = {"table": args.table, "x": r.x.tolist(), "error": r.error, "nearest": r.nearest,
               "nearest_error": r.nearest_error, "negative_fraction": r.negative_fraction,

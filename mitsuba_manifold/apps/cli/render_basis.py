@@ -80,7 +80,7 @@ def main(argv=None):
     p.add_argument("--variant", default=None, help="Mitsuba variant (default: cuda_ad_rgb if usable, else llvm_ad_rgb)")
     p.add_argument("--x", type=parse_floats, default=None, metavar="X",
                    help="the scene's latent point $x (q numbers; default: the first material's point)")
-    p.add_argument("--database", default=None, help="folder of the manifold's tables, if it moved")
+    p.add_argument("--database", default=None, help="the manifold's tables (folder or built-in set name), if it moved")
     p.add_argument("--force", action="store_true",
                    help="render into an --out holding files but no basis, and overwrite files there that no "
                         "basis listed")

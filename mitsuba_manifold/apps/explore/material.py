@@ -65,33 +65,35 @@ def describe(manifold, x, prune):
 
 
 def check_database(folder, manifold):
-    """Raise :class:`InputError` naming ``folder`` (an explicitly given ``--database``)
-    unless it is a folder holding a MERL table for each of ``manifold``'s materials.
+    """Raise :class:`InputError` naming ``folder`` (an explicitly given ``--database``: a folder
+    or a built-in set's name) unless it holds a table for each of ``manifold``'s materials.
 
-    Only the files and their headers are checked here, at once; the content hashes are
-    checked while the tables load (:class:`TableStack`)."""
-    from ...data import merl
-    from ...data.database import Database
+    Only the sources are checked here, at once; the content hashes are checked while the
+    tables load (:class:`TableStack`)."""
+    from ...data.database import Database, split_spec
+    from ...data.sources import EXTENSIONS, SET_NAMES
     from ...errors import InputError, MitsubaManifoldError
     folder = os.fspath(folder)
-    if not os.path.exists(folder):
-        raise InputError(f"--database {folder} does not exist; give the folder of the manifold's tables, "
-                           "or leave --database out (default: the manifold's database)")
-    if not os.path.isdir(folder):
+    base, _ = split_spec(folder)
+    if base not in SET_NAMES and not os.path.exists(base):
+        raise InputError(f"--database {folder} does not exist; give the folder of the manifold's tables or a "
+                         f"built-in database ({', '.join(SET_NAMES)}), or leave --database out (default: the "
+                         "manifold's database)")
+    if base not in SET_NAMES and not os.path.isdir(base):
         raise InputError(f"--database {folder} is a file, not a database folder (a folder of <name>.binary "
                            "MERL tables); give the folder of the manifold's tables")
-    tables = set(merl.table_names(folder))
-    missing = [n for n in manifold.names if n not in tables]
+    empty = base not in SET_NAMES and not any(f.endswith(EXTENSIONS) for f in os.listdir(base))
+    try:
+        available = set() if empty else set(Database(folder).names)
+    except (MitsubaManifoldError, OSError) as e:
+        raise InputError(f"--database {folder} is not a database of this manifold ({e}); give the "
+                           "folder of its tables, or leave --database out") from None
+    missing = [n for n in manifold.names if n not in available]
     if missing:
         raise InputError(f"--database {folder} is not a database folder of this manifold: it holds no table for "
                            f"{len(missing)} of its {manifold.n} materials ({', '.join(missing[:3])}"
                            f"{' ...' if len(missing) > 3 else ''}); give the folder of its tables (<name>.binary), "
                            "or leave --database out")
-    try:
-        Database(folder, manifold.names)   # the headers: MERL tables of one resolution
-    except (MitsubaManifoldError, OSError) as e:
-        raise InputError(f"--database {folder} is not a database folder of this manifold ({e}); give the "
-                           "folder of its tables, or leave --database out") from None
 
 
 def preview_strides(dims, target=PREVIEW_DIMS):

@@ -192,7 +192,8 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     rows = None
     if target.interpolation == "nearest" and int(np.prod(dims)) * 3 * n_pad < 1 << 32:
         rows = db.material_rows(names, pad=PACKET)
-        _prefetch(rows.filename)  # read while the paths are traced
+        if isinstance(rows, np.memmap):   # a cached file (a built-in set's rows are made in memory)
+            _prefetch(rows.filename)  # read while the paths are traced
     point = gi.get("point") if gi else None
     if point is not None and rows is not None:   # the point's own material as one more column
         rows, names, proxy = with_point(target, db, names, rows, point)

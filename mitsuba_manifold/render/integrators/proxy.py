@@ -15,13 +15,19 @@ from .splats import PACKET
 POINT = "(point)"
 
 
+def rows_key(rows):
+    """The content hash naming interleaved tables: the cached file's name, or the key of tables
+    made in memory (:class:`~mitsuba_manifold.data.database.TableRows`)."""
+    return getattr(rows, "key", None) or os.path.basename(rows.filename).split(".")[0]
+
+
 def _mixture_table(db, rows, mix, keep=2):
     """``sum_k mix_k table_k`` from the interleaved tables ``rows``, as ``(bins, 3)`` float32.
 
     Cached beside ``rows`` (keyed by them and the weights; the ``keep`` newest kept), so
     that a later render need not read every table before it starts tracing.
     """
-    key = os.path.basename(rows.filename).split(".")[0]
+    key = rows_key(rows)
     digest = key_hash(np.asarray(mix, dtype=np.float64), length=16)
     path = os.path.join(db.cache_dir, f"{key}.mixture-v1-{digest}.npy")
     shape = (rows.shape[0], 3)
@@ -59,7 +65,7 @@ class _LastPoint:
 
     def get(self, args, build):
         target, db, names, rows, w = args
-        key = (os.fspath(rows.filename), tuple(names), target.path, target.sampling, target.interpolation,
+        key = (rows_key(rows), tuple(names), target.path, target.sampling, target.interpolation,
                np.asarray(w, np.float64).tobytes())
         with self.lock:
             if key != self.key:
