@@ -111,3 +111,11 @@ def test_unknown_materials_are_refused_with_a_did_you_mean(work):
 def test_options_of_other_benchmarks_are_refused_not_ignored(work, args, option):
     line = _refused(work, *args)
     assert f"takes no {option}" in line
+
+
+def test_bench_inputs_take_builtin_database_names(tmp_path):
+    from benchmarks.inputs import database_names
+    from mitsuba_manifold.errors import InputError
+    assert len(database_names("rgl")) == 51
+    with pytest.raises(InputError, match="does not exist.*built-in databases: merl"):
+        database_names(str(tmp_path / "merl_folder"))

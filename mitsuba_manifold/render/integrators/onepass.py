@@ -172,16 +172,19 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     return OnePassGI(base, touch, extra["rest"], extra["cross"], extra["paths"], int(levels), extra["selection"])
 
 
+def _check_counts(**counts):
+    """InputError for a count (``spp_per_pass``, ``chunk``) that is given and below 1."""
+    for name, value in counts.items():
+        if value is not None and int(value) < 1:
+            raise InputError(f"manifold_path: `{name}` must be >= 1, got {value}")
+
+
 def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples, spp_per_pass, progress,
             gi=None):
     """:func:`render_onepass` (``gi`` None) or :func:`render_onepass_gi` (``gi``: levels, pairs)."""
     target = one_target(scene, integrator.target)
     names = _material_names(target.manifold, target.path, materials)
-    if spp_per_pass is not None and int(spp_per_pass) < 1:
-        raise InputError(f"manifold_path: `spp_per_pass` must be >= 1, got {spp_per_pass}")
-    if chunk is not None and int(chunk) < 1:
-        raise InputError(f"manifold_path: `chunk` must be >= 1, got {chunk}")
-
+    _check_counts(spp_per_pass=spp_per_pass, chunk=chunk)
     if isinstance(sensor, int):
         sensor = scene.sensors()[sensor]
     film = sensor.film()
