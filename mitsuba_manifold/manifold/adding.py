@@ -27,8 +27,8 @@ import numpy as np
 
 from .._util.cache import file_hash, key_hash
 from ..data import merl
-from ..data.database import albedo_weights, cache_folder
-from ..errors import FormatError, InputError
+from ..data.database import albedo_weights, database_cache
+from ..errors import FormatError, InputError, MissingFileError
 from ..gp.placement import place_point
 from . import projection as projection_mod
 
@@ -118,8 +118,13 @@ def _check_name(name, names):
 
 
 def _stored_table(table, folder, name):
-    """Write an array table as a ``.binary`` file under ``folder``'s cache (named by its content)."""
-    out = os.path.join(cache_folder(folder), "added")
+    """Write an array table as a ``.binary`` file under the cache of the database ``folder`` (a
+    folder's own cache, or the user's cache for a built-in set), named by its content."""
+    cache = database_cache(folder)
+    if cache is None:
+        raise MissingFileError(f"database folder {folder} does not exist: the added table has no "
+                               "cache to be written to (give a manifold whose database is present)")
+    out = os.path.join(cache, "added")
     os.makedirs(out, exist_ok=True)
     from .._util.names import escape
 

@@ -20,6 +20,7 @@ from .pruning import DEFAULT_RULE, RULES
 from .._util.cache import key_hash, npy_cache
 from ..data import merl
 from ..data.database import Database, albedo_weights
+from ..data.sources import BinaryFile
 from ..errors import FormatError, InputError
 from .._util.fifo_cache import Recent
 
@@ -64,19 +65,18 @@ class WithAdded(Database):
     def __init__(self, base, names, added):   # noqa: D107 -- no Database.__init__: base is already read
         self.__dict__.update(base.__dict__)
         self.names = list(names)
-        self._added = dict(added)
-        for name, path in self._added.items():
+        self.sources = dict(base.sources)
+        for name, path in dict(added).items():
             if not os.path.isfile(path):
                 raise InputError(f"the table of added material {name!r}, {path}, does not exist; "
                                  "put it back or add the material again")
             dims = merl.read_header(path)
             if tuple(dims) != tuple(self.dims):
                 raise FormatError(f"the table of added material {name!r}, {path}, has resolution "
-                                  f"{tuple(dims)}, the database {self.folder} has {tuple(self.dims)}")
-
-    def path(self, name):
-        """Path of a material's table file (an added one's own path)."""
-        return self._added[name] if name in self._added else super().path(name)
+                                  f"{tuple(dims)}, the database {self.label} has {tuple(self.dims)}")
+            self.sources[name] = BinaryFile(name, path)
+        self.sources = {n: self.sources[n] for n in self.names}
+        self.files_only = all(s.kind == "binary" for s in self.sources.values())
 
 
 class TrainingTables:

@@ -3,7 +3,7 @@ renderer that compiles once per sample count, more samples never take less time.
 
 import time
 
-from mitsuba_manifold.apps.comparison import timed_render
+from mitsuba_manifold.apps.gi_comparison import timed_render
 
 
 def test_direct_render_times_exclude_compiling_and_grow_with_spp():

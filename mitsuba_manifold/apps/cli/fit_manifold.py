@@ -10,13 +10,17 @@ def check(args, guard=None):
     :class:`ownership.Outputs`, which then watches them; default: checked only)."""
     from ..._util import ownership, checks as validate
     from ...imaging import plots
-    from ...errors import InputError
+    from ...errors import InputError, MitsubaManifoldError, one_line
 
     if len(args.name) > len(args.add):
         raise InputError(f"--name given {len(args.name)} times for {len(args.add)} --add; give one --name per --add")
+    from ...data.sources import material_source
+
     for path in args.add:
-        if not os.path.isfile(path):
-            raise InputError(f"--add {path}: no such file; give a MERL .binary table")
+        try:
+            material_source(path)
+        except MitsubaManifoldError as e:
+            raise InputError(f"--add {path}: {one_line(e)}") from None
     if args.q is not None and not 1 <= args.q <= 8:
         raise InputError(f"--q must be an integer from 1 to 8, got {args.q}")
     if args.length_scale is not None:
@@ -54,8 +58,9 @@ def main(argv=None):
     p.add_argument("--noise", type=float, default=None, help="kernel noise mu")
     p.add_argument("--plot", metavar="DIR", help="write latent map and convergence PNGs here")
     p.add_argument("--add", action="append", default=[], metavar="PATH",
-                   help="add this MERL .binary table after the fit without refitting (repeatable); with a saved "
-                        "manifold .npz as DATABASE, add to it instead of fitting")
+                   help="add this material after the fit without refitting (repeatable): a .binary, .bsdf "
+                        "(Mitsuba measured), .h5 or .npz (NBRDF) file or SET:NAME of a built-in database; "
+                        "with a saved manifold .npz as DATABASE, add to it instead of fitting")
     p.add_argument("--name", action="append", default=[], metavar="N",
                    help="name of the --add material of the same position (default: its file name)")
     p.add_argument("--force", action="store_true",
@@ -82,8 +87,17 @@ def fit_and_save(args, guard, t0):
         m = Manifold.fit(args.database, q=args.q, names=args.materials, method=args.method,
                          length_scale=args.length_scale, noise=args.noise, features=args.features,
                          preset=args.preset, progress=True)
+    from ...data.sources import material_source
+
     for k, path in enumerate(args.add):
-        info = m.add(path, args.name[k] if k < len(args.name) else None)
+        source = material_source(path)
+        if source.kind == "measured":
+            from ... import render  # noqa: F401  (registers the reader of Mitsuba measured files)
+        name = args.name[k] if k < len(args.name) else source.name
+        if source.kind == "binary":
+            info = m.add(path, name)
+        else:
+            info = m.add(source.table(m.dims), name, origin=os.path.abspath(path) if os.path.exists(path) else path)
         print(f"added {info.name} at {info.x.round(4).tolist()} (closest material {info.nearest}) "
               f"in {info.time_s:.2f} s")
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
