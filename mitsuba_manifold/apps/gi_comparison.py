@@ -202,8 +202,9 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
     t0 = time.perf_counter()
     ref = _scenes.render_reference(scene_path, manifold_path, x, opts.ref_spp, seed=opts.seed + 7919, resolution=res)
     t_ref = time.perf_counter() - t0
-    img, info = blend(b, m, x=x)
-    t_blend = median_time(lambda: blend(b, m, x=x), 5)[0]
+    l2 = "denoised" if opts.denoise else "raw"   # without the denoiser, the blends as summed
+    img, info = blend(b, m, x=x, l2=l2)
+    t_blend = median_time(lambda: blend(b, m, x=x, l2=l2), 5)[0]
     bias, bias_se = relative_bias(img, ref)
     row = {"x": np.asarray(x).tolist(), "reference_time_s": t_ref, "clamped_fraction": m.negative_fraction(x),
            "blend": {"time_s": t_blend, **metrics.compare(img, ref), "relative_bias": bias,
@@ -220,7 +221,8 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
         l1_bias, l1_se = relative_bias(l1, ref)
         row["blend_l1"] = {**metrics.compare(l1, ref), "relative_bias": l1_bias, "relative_bias_se": l1_se}
     if opts.refine_spp:
-        row["refined"] = refined_row(b, m, x, ref, opts.refine_spp, opts.seed + 104729, warm=True)   # as the direct renders
+        row["refined"] = refined_row(b, m, x, ref, opts.refine_spp, opts.seed + 104729, warm=True,
+                                     l2=l2)   # warm: as the direct renders
     guides = den = None
     if aovs is not None:
         guides = (aovs.albedo_of_blend(info["plan"], b.manifest.version), aovs.normal)
@@ -238,24 +240,25 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
     return row, (img, ref, den)
 
 
-def refined_row(b, m, x, ref, spp, seed, warm=False):
+def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised"):
     """``blend.py --refine spp`` at ``x`` (:func:`~mitsuba_manifold.render.refine.refine`) against
     ``ref``: error, bias, the noise it estimates, and its time as the explorer has it at a newly
     chosen point (``time_s``: the scene kept from the last refinement, the point's tables built)
     and from nothing (``time_cold_s``: the scene loaded, as a new ``blend.py`` process does);
-    ``warm``: its kernels compiled first, as the direct renders' are (by a refinement of the same
+    ``l2``: the full-GI blend's light beyond L1- as :func:`blend` takes it; ``warm``: its kernels
+    compiled first, as the direct renders' are (by a refinement of the same
     samples and passes: the sample count is in the kernels, and a 1-spp warm-up left 1.3 s of
     compiling in the timed 32-spp refinement at 256x256)."""
     passes = min(2, spp)
     if warm:
-        refine(b, m, x=x, spp=spp, passes=passes, seed=seed + 1)
+        refine(b, m, x=x, spp=spp, passes=passes, seed=seed + 1, l2=l2)
     forget_kept(scene=False)
     t0 = time.perf_counter()
-    r = refine(b, m, x=x, spp=spp, passes=passes, seed=seed)
+    r = refine(b, m, x=x, spp=spp, passes=passes, seed=seed, l2=l2)
     t_new = time.perf_counter() - t0
     forget_kept()
     t0 = time.perf_counter()
-    refine(b, m, x=x, spp=spp, passes=passes, seed=seed)
+    refine(b, m, x=x, spp=spp, passes=passes, seed=seed, l2=l2)
     t_cold = time.perf_counter() - t0
     bias, se = relative_bias(r.image, ref)
     return {"spp": spp, "time_s": t_new, "time_cold_s": t_cold, **metrics.compare(r.image, ref),

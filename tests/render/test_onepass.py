@@ -156,7 +156,7 @@ def test_mixture_from_given_table_is_the_combined_material(small_manifold, small
                                               bsdf.pdf(ctx, si, bs.wo))]
     assert np.array(combined.result[1]).max() > 0
     for a, b in zip(combined.result, given.result):
-        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(a, b, rtol=2e-4, atol=1e-6)   # float32: CUDA contracts FMAs its own way
 
 
 def test_onepass_refuses_what_it_cannot_do(small_manifold):
