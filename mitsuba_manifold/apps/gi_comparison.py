@@ -167,11 +167,13 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
         if opts.progress:
             print(f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True)
     if opts.save_images:
-        images, _, _ = blend_path(b, m, *pair, steps=20, kind=paths.DEFAULT_KIND)
+        l2 = "denoised" if opts.denoise else "raw"
+        images, _, _ = blend_path(b, m, *pair, steps=20, kind=paths.DEFAULT_KIND, l2=l2)
         imageio.write_contact_sheet(f"{stem}_path_sheet.png", images, labels=path_labels(pair, len(images)),
                                     title=f"{pair[0]} (t = 0) to {pair[1]} (t = 1) along a {paths.DEFAULT_KIND} "
                                           "latent path")
-        extrapolation_sheet(b, m, pair, f"{stem}_extrapolation_sheet", log=print if opts.progress else None)
+        extrapolation_sheet(b, m, pair, f"{stem}_extrapolation_sheet", log=print if opts.progress else None,
+                            l2=l2)
     out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows,
            "basis_folder": os.path.abspath(folder_b)}
     if aovs is not None:
@@ -265,7 +267,7 @@ def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised"):
             "relative_bias": bias, "relative_bias_se": se, "noise_rel_mse": r.noise_rel_mse}
 
 
-def extrapolation_sheet(basis, m, pair, stem, steps=12, reach=3.0, log=None):
+def extrapolation_sheet(basis, m, pair, stem, steps=12, reach=3.0, log=None, l2="denoised"):
     """Contact sheet along the ray from ``pair[0]`` through ``pair[1]`` and on out of the data.
 
     ``x(t) = x_a + t (x_b - x_a)``, ``t`` from 0 to ``reach``: beyond ``t = 1`` the path leaves
@@ -277,7 +279,7 @@ def extrapolation_sheet(basis, m, pair, stem, steps=12, reach=3.0, log=None):
     rows, images = [], []
     for t in ts:
         x = xa + t * (xb - xa)
-        img, _ = blend(basis, m, x=x)
+        img, _ = blend(basis, m, x=x, l2=l2)
         w = m.weights(x).w
         a = m.albedo(x)
         rows.append({"t": float(t), "x": x.tolist(), "albedo": a.tolist(), "negative_fraction": m.negative_fraction(x),
