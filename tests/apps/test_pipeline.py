@@ -31,15 +31,15 @@ def test_main_job_refuses_bad_options_before_writing_anything(tmp_path, capsys, 
 
 
 def readme_outputs(points=("training", "midpoint", "extrapolated"), scene="table"):
-    """The files the README's table of main-job outputs names (braces expanded, ``table_*``
-    as the three points), without the folders and per-material entries."""
-    text = open(os.path.join(ROOT, "README.md")).read()
-    table = text[text.index("| file | what |"):]
+    """The files the getting-started page's table of main-job outputs names (braces expanded,
+    ``table_*`` as the three points), without the folders and per-material entries."""
+    text = open(os.path.join(ROOT, "docs", "getting-started.md")).read()
+    table = text[text.index("| output | what |"):]
     table = table[:table.index("\n\n")]
     names = []
     for cell in re.findall(r"^\| (.*?) \|", table, re.M):
         for pattern in re.findall(r"`([^`]+)`", cell):
-            pattern = pattern.replace(f"{scene}_*_", f"{scene}_{{{','.join(points)}}}_")
+            pattern = pattern.removeprefix("out/").replace(f"{scene}_*_", f"{scene}_{{{','.join(points)}}}_")
             names += [n for n in expand_braces(pattern) if "<" not in n and "*" not in n and not n.endswith("/")]
     return names
 
@@ -61,7 +61,7 @@ def test_main_job_writes_its_outputs_and_measures_its_targets(tmp_path):
     for name in ("report.json", "gi_error_vs_time.png", "table_path_sheet.png", "table_extrapolation_sheet.png",
                  "table_midpoint_blend.exr", "table_midpoint_reference.exr", "table_midpoint_error.png"):
         assert (gi / name).is_file(), name
-    promised = readme_outputs()             # the README's table of outputs says what is written
+    promised = readme_outputs()             # the docs' table of outputs says what is written
     assert len(promised) > 20
     for name in promised:
         assert (tmp_path / name).exists(), name
