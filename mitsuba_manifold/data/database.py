@@ -482,8 +482,13 @@ class Database:
         How to open this database again (what a manifold records): the folder's absolute path
         or the set's name, with ``@dims`` when not the default resolution.
     sources : dict
-        ``{name: source}`` (:mod:`.sources`), the materials of :attr:`names`.
-    dims, names, cache_dir
+        ``{name: source}`` (:mod:`.sources`), the materials of ``names``.
+    dims : tuple of int
+        The table resolution.
+    names : list of str
+        The materials, in order.
+    cache_dir : str
+        Where derived data is cached (see Notes).
 
     Notes
     -----
@@ -543,7 +548,7 @@ class Database:
         return self.sources[self.names[self.index(name)]].origin
 
     def index(self, name):
-        """Position of ``name`` in :attr:`names` (KeyError naming the database otherwise)."""
+        """Position of ``name`` in ``names`` (KeyError naming the database otherwise)."""
         try:
             return self.names.index(name)
         except ValueError:
