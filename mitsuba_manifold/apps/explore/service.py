@@ -368,15 +368,16 @@ class Explorer:
                              "changed since the basis was rendered; give it with --scene")
         return name, basis, scene, int(self.number(spp, "spp", 1, MAX_SPP, default)), self.blend(name, x)[0]
 
-    def start_reference(self, name, x, spp):
+    def start_reference(self, name, x, spp, tab=None):
+        """A full-GI reference render at ``x`` in the background (``tab``: the page asking)."""
         name, basis, scene, spp, img = self._job_args(name, x, spp, 256)
-        return self.references.submit(name, basis, scene, self.manifold_path, x, spp, img)
+        return self.references.submit(name, basis, scene, self.manifold_path, x, spp, img, tab=_tab(tab))
 
-    def start_refine(self, name, x, spp):
+    def start_refine(self, name, x, spp, tab=None):
         """A refinement of the blend at ``x`` (``blend.py --refine``) in the background."""
         name, basis, scene, spp, img = self._job_args(name, x, spp, 16)
         where = {"scene": scene, "manifold_path": self.manifold_path, "prune": self.prune}
-        return self.references.submit_refine(name, basis, self.manifold, x, spp, img, **where)
+        return self.references.submit_refine(name, basis, self.manifold, x, spp, img, tab=_tab(tab), **where)
 
     def reference_image(self, job_id, which, exposure=0.0):
         job = self.references.get(job_id)
@@ -398,3 +399,12 @@ class Explorer:
         if self.thumbs:
             self.thumbs.close()
         return self.references.shutdown(wait)
+
+
+def _tab(tab):
+    """The page id of a job (None: no page), or InputError."""
+    if tab is None or tab == "":
+        return None
+    if not isinstance(tab, str) or len(tab) > 64 or not tab.isascii() or not tab.isprintable():
+        raise InputError(f"tab must be the page's id (at most 64 ASCII characters), got {show(tab)}")
+    return tab
