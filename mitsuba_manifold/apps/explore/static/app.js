@@ -29,11 +29,18 @@ async function api(path, options) {
   return r;
 }
 
-function setStatus(text, error = false) {
+// The header's status: one line, an error tied to its source (a kind of answer, "reference",
+// "snippet", ...): the next success of that source clears it (clearError).
+function setStatus(text, error = false, source = null) {
+  state.status = { text, error, source };
   const s = $("status");
   s.textContent = text;
+  s.title = text;
   s.classList.toggle("error", error);
   if (error) state.errors.push(text);
+}
+function clearError(source) {
+  if (state.status && state.status.error && state.status.source === source) setStatus("connected");
 }
 
 let channel, preview;
@@ -41,7 +48,8 @@ const sameX = (a, b) => !!a && !!b && a.length === b.length && a.every((v, k) =>
 
 function onMessage(meta, payload) {
   if (meta.type === "error" && meta.kind === "route") { routeFailed(meta); return; }
-  if (meta.type === "error") { setStatus((meta.kind ? meta.kind + ": " : "") + meta.error, true); return; }
+  if (meta.type === "error") { setStatus((meta.kind ? meta.kind + ": " : "") + meta.error, true, meta.kind); return; }
+  clearError(meta.type);
   if (meta.type === "frame") drawFrame(meta, payload);
   else if (meta.type === "material") showMaterial(meta);
   else if (meta.type === "table" && preview) {
@@ -153,7 +161,7 @@ function setX(x) {
   showPoint();
   if (state.map && sliceKey() !== state.drawnSlice) drawMap();   // q > 2: the materials fade by their distance to the slice
   else placeCursor();
-  setText($("fav"), loadFavs().some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite");
+  renderShelf();   // shelf.js: favourite button, highlights, the search filter
 }
 
 function updateSavePng() {
@@ -452,8 +460,8 @@ async function currentSnippet() {
   return state.snippet;
 }
 async function copySnippet(which, what) {
-  try { const sn = await currentSnippet(); copy(sn[which], what); }
-  catch (e) { setStatus("snippet: " + e.message, true); }
+  try { const sn = await currentSnippet(); copy(sn[which], what); clearError("snippet"); }
+  catch (e) { setStatus("snippet: " + e.message, true, "snippet"); }
 }
 async function copy(text, what) {
   state.copied = text;
@@ -500,7 +508,7 @@ function showRoute(meta) {
   state.route = Object.assign({}, r, { kind: meta.kind, points: meta.points });
   const L = meta.lengths.reduce((s, v) => s + v, 0), spread = Math.max(...meta.lengths) / (L / meta.lengths.length);
   $("route-state").textContent = `${meta.kind} · perceptual length ${fmtNum(L)} · largest step ${spread.toFixed(2)}× the mean`;
-  if (onPath) scrub();   // the point shown moves onto the new path
+  if (onPath) { scrub(); commitPoint(); }   // the point shown moves onto the new path
   drawMap();
 }
 function routeFailed(meta) {
@@ -538,6 +546,7 @@ function exportPath() {
 }
 function showPath(meta) {
   if (meta.seq !== state.pathSeq) return;   // for ends or steps changed since
+  clearError("path");
   $("path-cmd").hidden = false; $("path-cmd").classList.remove("stale");
   $("path-cmd").textContent = meta.command; copy(meta.command, "command");
 }
@@ -571,22 +580,29 @@ async function startReference() {
   $("ref-result").hidden = true;
   try {
     const job = await (await api("/api/reference", { method: "POST", headers: { "Content-Type": "application/json" },
-      body: JSON.stringify({ basis: state.basis, x: state.x, spp: +$("ref-spp").value }) })).json();
+      body: JSON.stringify({ basis: state.basis, x: state.x, spp: +$("ref-spp").value, tab: TAB }) })).json();
+    state.referenceJob = job.id;
+    $("ref-cancel").hidden = false;
+    $("ref-cancel").onclick = () => api(`/api/reference/${job.id}/cancel`, { method: "POST" }).catch(() => {});
     pollReference(job.id);
-  } catch (e) { setStatus("reference: " + e.message, true); $("ref-start").disabled = false; }
+  } catch (e) { setStatus("reference: " + e.message, true, "reference"); $("ref-start").disabled = false; }
 }
 async function pollReference(id) {
   const bar = $("ref-progress");
   bar.hidden = false;
   let job;
   try { job = await (await api("/api/reference/" + id)).json(); }
-  catch (e) { setStatus("reference: " + e.message, true); $("ref-start").disabled = false; return; }
+  catch (e) { setStatus("reference: " + e.message, true, "reference"); $("ref-start").disabled = false; $("ref-cancel").hidden = true; return; }
   bar.firstElementChild.style.width = (100 * job.progress).toFixed(0) + "%";
   bar.lastElementChild.textContent = job.state === "queued" ? "waiting…" : `${job.message || "starting"}`;
   if (job.state === "queued" || job.state === "rendering") { setTimeout(() => pollReference(id), 400); return; }
   $("ref-start").disabled = false;
+  $("ref-cancel").hidden = true;
   bar.hidden = true;
-  if (job.state === "failed") { setStatus("reference failed: " + job.message, true); return; }
+  if (job.state === "cancelled") { $("ref-note-cancel").hidden = false; $("ref-note-cancel").textContent = "reference " + job.message; return; }
+  if (job.state === "failed") { setStatus("reference failed: " + job.message, true, "reference"); return; }
+  clearError("reference");
+  $("ref-note-cancel").hidden = true;
   const ev = "?exposure=" + state.exposure;
   $("ref-blend").src = `/api/reference/${id}/blend.png${ev}`;
   $("ref-ref").src = `/api/reference/${id}/reference.png${ev}`;
@@ -633,7 +649,8 @@ async function main() {
   $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there
     const v = $("search").value.trim(), hit = info.names.find((n) => n.toLowerCase() === v.toLowerCase());
     $("search").setCustomValidity("");
-    if (hit) { goTo(hit); commitPoint(); $("search").blur(); }
+    state.filter = v.toLowerCase();
+    if (hit) { state.filter = ""; goTo(hit); commitPoint(); $("search").blur(); }
     buildGallery();   // the gallery shows the names matching what is typed
   };
   $("search").onkeydown = (ev) => {   // Enter: the one name containing what is typed, else say why not
@@ -650,12 +667,19 @@ async function main() {
   $("scrub").onchange = commitPoint;
   for (const k of info.path_kinds) $("path-kind").add(new Option(k, k));
   $("path-kind").value = info.path_kind;
-  $("path-kind").onchange = () => { if (state.a && state.b && !sameX(state.a.x, state.b.x)) requestRoute(); drawMap(); };
+  $("path-kind").onchange = () => {
+    if (!(state.a && state.b && !sameX(state.a.x, state.b.x))) { drawMap(); return; }
+    const onPath = state.route && sameX(state.x, pointOnRoute(+$("scrub").value / 1000));
+    requestRoute();
+    if (onPath) { scrub(); commitPoint(); }   // the point follows the scrubber onto the new path
+    drawMap();
+  };
   bindTabs();
   bindShelf();
   window.addEventListener("resize", placeCursor);
   $("export-path").onclick = exportPath;
   $("ref-start").onclick = startReference;
+  $("refine-auto").onchange = () => { if ($("refine-auto").checked) refineHere(); else refineOff(); };
   if (!info.refine_spp) { $("refine-auto").checked = false; $("refine-auto").closest(".row").hidden = true; }
   else {   // refine.js: the server's --refine-spp is the default
     const sel = $("refine-spp"), spp = String(info.refine_spp);

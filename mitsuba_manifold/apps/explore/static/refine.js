@@ -18,14 +18,16 @@ function refineAvailable() {
 async function refineHere() {
   if (!refineAvailable()) return;
   const x = state.x.slice(), basis = state.basis, run = ++refineRun, status = $("refine-status");
-  const current = () => run === refineRun && sameX(x, state.x) && state.basis === basis && !state.dragging;
+  const current = () => run === refineRun && sameX(x, state.x) && state.basis === basis && !state.dragging &&
+                        $("refine-auto").checked;
   const say = (text) => { if (current()) status.textContent = text; };
   const button = $("refine-show");
   button.hidden = true;
   say("refining…");
   try {
     let job = await (await api("/api/reference", { method: "POST", headers: { "Content-Type": "application/json" },
-      body: JSON.stringify({ basis, x, spp: +$("refine-spp").value, kind: "refine" }) })).json();
+      body: JSON.stringify({ basis, x, spp: +$("refine-spp").value, kind: "refine", tab: TAB }) })).json();
+    state.refineJob = job.id;
     while (current()) {
       job = await (await api("/api/reference/" + job.id)).json();
       if (!current()) break;
@@ -50,6 +52,16 @@ async function refineHere() {
     }
   } catch (err) { say("refine: " + err.message); return; }
   if (run === refineRun && !state.refined) clearRefined();   // moved on before an answer
+}
+
+// Refine turned off: the running refinement is cancelled and its status and image go.
+function refineOff() {
+  refineRun++;
+  if (state.refineJob) api(`/api/reference/${state.refineJob}/cancel`, { method: "POST" }).catch(() => {});
+  state.refineJob = null;
+  const shown = !!state.refined;
+  clearRefined();
+  if (shown) requestFrame();   // back to the blend of the point
 }
 
 function clearRefined() {   // back to blends: the refined image and the last check are gone
