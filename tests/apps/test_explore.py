@@ -280,7 +280,9 @@ def test_http_frame_and_snippet(client, explorer, small_manifold_paper):
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
     assert json.loads(r.headers["x-frame"])["width"] == RES
     s = client.get("/api/snippet", params={"x": "chrome"}).json()
-    assert 'type="manifold_brdf"' in s["xml"] and explorer.manifold_path in s["xml"]
+    rel = os.path.relpath(explorer.manifold_path, explorer.snippet_folder())
+    assert 'type="manifold_brdf"' in s["xml"] and f'name="manifold" value="{rel}"' in s["xml"]
+    assert explorer.manifold_path not in s["xml"] and 'value="$manifold"' in s["xml"]
     cmd = client.get("/api/path", params={"a": "chrome", "b": "0.1,0.2", "steps": 5}).json()["command"]
     assert "--path chrome 0.1,0.2 --steps 5" in cmd
 
@@ -526,11 +528,16 @@ def test_preview_sphere_is_shaded(page, small_manifold_paper):
 
 
 @browser_only
-def test_xml_snippet_loads_in_mitsuba_and_renders(page, small_manifold_paper):
+def test_xml_snippet_loads_in_mitsuba_and_renders(page, small_manifold_paper, tmp_path):
     m = Manifold.load(small_manifold_paper)
     x = 0.5 * (m.latent[m.index("blue-acrylic")] + m.latent[m.index("chrome")])
     page.evaluate("(x) => window.explore.setX(x)", [float(v) for v in x])
     _wait_displayed(page, x)
+    page.fill("#snippet-folder", str(tmp_path))   # the scene's folder: the manifold is named relative to it
+    page.dispatch_event("#snippet-folder", "change")
+    rel = os.path.relpath(small_manifold_paper, tmp_path)
+    page.wait_for_function("(rel) => document.getElementById('snippet').textContent.includes(rel)", arg=rel,
+                           timeout=10000)
     page.wait_for_function("(x) => document.getElementById('snippet').textContent.includes(x)",
                            arg=f"{x[0]:.6g}", timeout=10000)
     xml = page.inner_text("#snippet")
@@ -540,11 +547,12 @@ def test_xml_snippet_loads_in_mitsuba_and_renders(page, small_manifold_paper):
         <sensor type="perspective"><transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/>
         </transform><film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
         <sampler type="independent"><integer name="sample_count" value="4"/></sampler></sensor></scene>"""
+    (tmp_path / "scene.xml").write_text(scene)
     mi.set_variant("llvm_ad_rgb")
     mitsuba_manifold.register()
-    img = np.array(mi.render(mi.load_string(scene)))
+    img = np.array(mi.render(mi.load_file(str(tmp_path / "scene.xml"))))
     assert np.isfinite(img).all() and img[6:10, 6:10].mean() > 0
-    bsdf = [s.bsdf() for s in mi.load_string(scene).shapes()][0]
+    bsdf = [s.bsdf() for s in mi.load_file(str(tmp_path / "scene.xml")).shapes()][0]
     np.testing.assert_allclose(bsdf.latent, x, rtol=1e-5)
 
 

@@ -115,3 +115,50 @@ def test_unknown_or_bad_tab_and_job_are_refused(client, small_manifold_paper):
     assert r.status_code == 400 and "tab must be" in r.json()["error"]
     r = client.post("/api/reference/r999999/cancel", headers=origin)
     assert r.status_code == 400 and "unknown reference job" in r.json()["error"]
+
+
+def test_snippets_name_the_manifold_relatively_and_render_after_the_folder_moves(explorer, small_manifold_paper,
+                                                                                   tmp_path):
+    """The copied XML names the manifold through $manifold, relative to the chosen scene folder;
+    the scene and the manifold moved together to another folder render the same image, and the
+    load_dict snippet loads the same material from its own folder."""
+    import shutil
+
+    import mitsuba as mi
+
+    import mitsuba_manifold
+    m = Manifold.load(small_manifold_paper)
+    x = 0.5 * (m.latent[1] + m.latent[2])
+    project = tmp_path / "project"
+    (project / "scenes").mkdir(parents=True)
+    (project / "data").mkdir()
+    shutil.copy(small_manifold_paper, project / "data" / "manifold.npz")
+    ex = explorer
+    saved, ex.manifold_path = ex.manifold_path, str(project / "data" / "manifold.npz")
+    try:
+        sn = ex.snippets(x, str(project / "scenes"))
+    finally:
+        ex.manifold_path = saved
+    assert str(tmp_path) not in sn["xml"] and str(tmp_path) not in sn["python"]
+    assert sn["manifold"] == "../data/manifold.npz" and 'value="$manifold"' in sn["xml"]
+    scene = f"""<scene version="3.0.0"><integrator type="path"/>{sn["xml"]}
+        <shape type="sphere"><ref id="material"/></shape>
+        <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
+        <sensor type="perspective"><transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/>
+        </transform><film type="hdrfilm"><integer name="width" value="12"/><integer name="height" value="12"/></film>
+        <sampler type="independent"><integer name="sample_count" value="2"/></sampler></sensor></scene>"""
+    (project / "scenes" / "s.xml").write_text(scene)
+    (project / "scenes" / "s.py").write_text(sn["python"])
+    mi.set_variant("llvm_ad_rgb")
+    mitsuba_manifold.register()
+    before = np.array(mi.render(mi.load_file(str(project / "scenes" / "s.xml")), seed=1))
+    moved = tmp_path / "elsewhere" / "moved"
+    shutil.move(str(project), str(moved))
+    after = np.array(mi.render(mi.load_file(str(moved / "scenes" / "s.xml")), seed=1))
+    assert np.isfinite(after).all() and after.mean() > 0
+    np.testing.assert_array_equal(after, before)
+    namespace = {"__file__": str(moved / "scenes" / "s.py")}
+    exec(compile(sn["python"], "s.py", "exec"), namespace)
+    np.testing.assert_allclose(namespace["bsdf"].latent, x, rtol=1e-5)
+    with pytest.raises(InputError, match="absolute folder"):
+        explorer.snippets(x, "relative/folder")

@@ -72,7 +72,7 @@ class Api:
         return JSONResponse(dict(meta, png="data:image/png;base64," + base64.b64encode(png).decode()))
 
     async def snippet(self, request):
-        return JSONResponse(self.ex.snippets(self.x_of(request)))
+        return JSONResponse(self.ex.snippets(self.x_of(request), _query(request, "folder")))
 
     async def path(self, request):
         cmd = self.ex.path_command(_query(request, "basis"), _query(request, "a", ""), _query(request, "b", ""),

@@ -14,6 +14,7 @@ import os
 import shlex
 import threading
 import time
+from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -300,19 +301,36 @@ class Explorer:
                 self._maps.pop(next(iter(self._maps)))
         return out
 
-    def snippets(self, x):
-        """``<bsdf>`` XML and ``mi.load_dict`` Python for ``x``."""
+    def snippet_folder(self):
+        """The folder the snippets name the manifold relative to by default: that of the first
+        basis's scene (a snippet pasted into that scene finds the manifold)."""
+        scene = next(iter(self.scenes.values()))
+        return os.path.dirname(os.path.abspath(scene)) if scene else os.getcwd()
+
+    def snippets(self, x, folder=None):
+        """``<bsdf>`` XML and ``mi.load_dict`` Python for ``x``, naming the manifold through a
+        ``$manifold`` parameter whose default is its path relative to ``folder`` (the scene's
+        folder: Mitsuba resolves it from there; default :meth:`snippet_folder`), so that a scene
+        and its manifold moved together still render."""
+        folder = self.snippet_folder() if folder is None or folder == "" else folder
+        if not isinstance(folder, str) or len(folder) > 4096 or not os.path.isabs(folder):
+            raise InputError(f"folder must be an absolute folder path (the scene's), got {show(folder)}")
+        rel = os.path.relpath(self.manifold_path, os.path.normpath(folder)).replace(os.sep, "/")
         xs = ", ".join(f"{v:.6g}" for v in x)
-        path = self.manifold_path
-        xml = (f'<bsdf type="manifold_brdf" id="material">\n'
-               f'    <string name="manifold" value="{path}"/>\n'
+        xml = (f'<!-- in the <scene>, before this: the manifold, relative to the scene file\'s folder -->\n'
+               f'<default name="manifold" value="{escape(rel, {chr(34): "&quot;"})}"/>\n\n'
+               f'<bsdf type="manifold_brdf" id="material">\n'
+               f'    <string name="manifold" value="$manifold"/>\n'
                f'    <string name="x" value="{xs}"/>\n'
                f'</bsdf>')
-        py = ("import mitsuba as mi\nimport mitsuba_manifold\n\nmi.set_variant(\"llvm_ad_rgb\")\n"
+        py = ("import os\n\nimport mitsuba as mi\nimport mitsuba_manifold\n\nmi.set_variant(\"llvm_ad_rgb\")\n"
               "mitsuba_manifold.register()\n"
-              f"bsdf = mi.load_dict({{\"type\": \"manifold_brdf\", \"manifold\": {json.dumps(path)}, "
-              f"\"x\": \"{xs}\"}})")
-        return {"xml": xml, "python": py, "x": [float(v) for v in x]}
+              f"# the manifold, relative to the folder of this script (or set MANIFOLD)\n"
+              f"manifold = os.environ.get(\"MANIFOLD\", os.path.join(os.path.dirname(os.path.abspath(__file__)), "
+              f"{json.dumps(rel)}))\n"
+              f"bsdf = mi.load_dict({{\"type\": \"manifold_brdf\", \"manifold\": manifold, \"x\": \"{xs}\"}})")
+        return {"xml": xml, "python": py, "x": [float(v) for v in x], "folder": folder,
+                "manifold": rel}
 
     def path_command(self, name, a, b, steps, kind=None):
         """The ``tools/blend.py --path`` command rendering the sequence from ``a`` to ``b``
@@ -356,7 +374,8 @@ class Explorer:
                 "albedos": None if m.albedos is None else m.albedos.tolist(), "bases": bases,
                 "prune": self.prune, "tables": self.tables.state if self.tables else "unavailable",
                 "max_reference_spp": MAX_SPP, "refine_spp": self.refine_spp, "thumbs": self.thumbs.info() if self.thumbs else None,
-                "path_kinds": list(path_kinds.KINDS), "path_kind": path_kinds.DEFAULT_KIND}
+                "path_kinds": list(path_kinds.KINDS), "path_kind": path_kinds.DEFAULT_KIND,
+                "snippet_folder": self.snippet_folder()}
 
     # ---------------------------------------------------------- references
     def _job_args(self, name, x, spp, default):

@@ -225,7 +225,7 @@ class Session:
             data, meta = await run_in_threadpool(ex.preview_table, x, req.get("coarse") is True)
             return dict(meta, **tag), data
         if kind == "snippet":
-            return dict(ex.snippets(x), **tag), b""
+            return dict(ex.snippets(x, req.get("folder")), **tag), b""
         data, meta = await run_in_threadpool(ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"),
                                              req.get("coarse") is True)
         return dict(meta, **tag), data

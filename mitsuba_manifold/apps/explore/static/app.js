@@ -126,7 +126,8 @@ function sendMove(resting = false) {
   // slice: false: the page draws the BRDF slice itself, from the table (plots.js)
   // coarse: while dragging the sphere's table has every other texel (an eighth of the bytes), a new
   // slice's map a quarter of the pixels, the material no distance to the closest measured one
-  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom, slice: false, coarse: dragging, held },
+  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom, slice: false, coarse: dragging, held,
+                               folder: state.snippetFolder },
                              frameRequest()), want);
 }
 function owe(dragging) {   // kinds not asked for the point shown yet (counted by channel.pending())
@@ -441,6 +442,7 @@ function goTo(name) { setX(state.info.latent[state.info.names.indexOf(name)]); }
 
 // ------------------------------------------------------------------ snippets
 function showSnippet(sn) {
+  if (sn.folder !== state.snippetFolder) return;   // asked for before the folder changed
   state.snippet = sn;
   $("snippet").textContent = sn.xml;
   $("snippet").dataset.x = sn.x.join(",");
@@ -451,7 +453,7 @@ const snippetWaiters = [];
 // The snippet of the point shown: the one at hand when it is for state.x, else asked for now.
 async function currentSnippet() {
   while (!state.snippet || !sameX(state.snippet.x, state.x)) {
-    const seq = channel.send({ type: "snippet", x: state.x }, ["snippet"]);
+    const seq = channel.send({ type: "snippet", x: state.x, folder: state.snippetFolder }, ["snippet"]);
     await new Promise((resolve) => { snippetWaiters.push(resolve); setTimeout(resolve, 5000); });
     if (channel.isCurrent("snippet", seq) && !(state.snippet && sameX(state.snippet.x, state.x))) {
       throw new Error("no snippet for the current point from the server");
@@ -686,6 +688,12 @@ async function main() {
     if (![...sel.options].some((o) => o.value === spp)) sel.add(new Option(spp, spp));
     sel.value = spp;
   }
+  state.snippetFolder = info.snippet_folder;
+  $("snippet-folder").value = info.snippet_folder;
+  $("snippet-folder").onchange = () => {   // the snippets of the point again, relative to the new folder
+    state.snippetFolder = $("snippet-folder").value.trim();
+    state.snippet = null; delete asked.snippet; showPoint(); scheduleMove();
+  };
   $("copy-xml").onclick = () => copySnippet("xml", "XML");
   $("copy-py").onclick = () => copySnippet("python", "Python");
   if (info.tables === "loading") pollTables();
