@@ -71,6 +71,10 @@ class Api:
         png, meta = await run_in_threadpool(self.ex.map_png, dims, center, _query(request, "extent"))
         return JSONResponse(dict(meta, png="data:image/png;base64," + base64.b64encode(png).decode()))
 
+    async def environment(self, request):
+        data, meta = await run_in_threadpool(self.ex.environment, _query(request, "basis"))
+        return Response(data, media_type="application/octet-stream", headers={"X-Env": json.dumps(meta)})
+
     async def snippet(self, request):
         return JSONResponse(self.ex.snippets(self.x_of(request), _query(request, "folder")))
 
@@ -140,6 +144,7 @@ class Api:
             Route("/api/table", self.table),
             Route("/api/map", self.latent_map),
             Route("/api/snippet", self.snippet),
+            Route("/api/env", self.environment),
             Route("/api/path", self.path),
             Route("/api/route", self.route),
             Route("/api/thumbs.png", self.thumbs),
@@ -174,7 +179,7 @@ def create_app(explorer, allow=None, max_body=MAX_BODY):
     Routes (:meth:`Api.routes`): ``/`` the page; ``/static/*`` its files; ``/api/info``;
     ``/api/frame?basis&x&exposure&format`` (the image); ``/api/material?x``; ``/api/table?x``
     (float16 preview table, layout in the ``X-Table`` header); ``/api/map?dims&x``;
-    ``/api/snippet?x``; ``/api/path?basis&a&b&steps&kind`` (the blend.py command);
+    ``/api/snippet?x&folder``; ``/api/env?basis`` (the scene's environment for the sphere); ``/api/path?basis&a&b&steps&kind`` (the blend.py command);
     ``/api/route?a&b&steps&kind`` (the path's points); ``/api/thumbs.png`` (the thumbnail sheet); ``POST /api/reference`` ``{basis, x, spp}``,
     ``/api/reference/{id}``, ``POST /api/reference/{id}/cancel``,
     ``/api/reference/{id}/{blend|reference|error}.png``; websocket ``/ws?tab=ID``.

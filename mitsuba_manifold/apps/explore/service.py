@@ -25,7 +25,7 @@ from ...data.database import cache_folder
 from ...errors import InputError
 from ...manifold.model import Manifold
 from ...manifold import paths as path_kinds
-from . import encode, latentmap, material
+from . import encode, hdri, latentmap, material
 from .bases import names as _names, scene_of as _scene_of, warm as _warm
 from .inputs import NUMBER as _NUMBER, show, to_float
 from .reference import MAX_SPP, References
@@ -376,6 +376,27 @@ class Explorer:
                 "max_reference_spp": MAX_SPP, "refine_spp": self.refine_spp, "thumbs": self.thumbs.info() if self.thumbs else None,
                 "path_kinds": list(path_kinds.KINDS), "path_kind": path_kinds.DEFAULT_KIND,
                 "snippet_folder": self.snippet_folder()}
+
+    def environment(self, name):
+        """The environment light of basis ``name``'s scene as its camera sees it, for the preview
+        sphere: float16 RGB bytes of a :data:`~.hdri.WIDTH` x :data:`~.hdri.HEIGHT`
+        equirectangular map in the sphere's frame (``y`` up, ``z`` towards the viewer; the
+        layout of :mod:`.hdri`) and ``{"width", "height", "emitter"}``; the scene's point lights
+        in ``"lights"`` (direction in that frame, irradiance at the centre of the scene's
+        manifold-material shapes). Raises InputError when the scene is missing or has no
+        environment light."""
+        key = self.key(name)
+        with self._maps_lock:
+            if ("env", key) in self._maps:
+                return self._maps[("env", key)]
+        basis, scene_path = self.bases[key], self.scenes[key]
+        if scene_path is None:
+            raise InputError(f"the scene of basis {key!r} is missing or has changed; start with --scene "
+                             "to light the sphere like it")
+        out = hdri.scene_environment(scene_path, self.manifold_path, basis)
+        with self._maps_lock:
+            self._maps[("env", key)] = out
+        return out
 
     # ---------------------------------------------------------- references
     def _job_args(self, name, x, spp, default):

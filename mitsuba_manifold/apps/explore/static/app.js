@@ -574,6 +574,12 @@ function bindTabs() {
   $("theta-i").oninput = () => { $("theta-i-val").textContent = $("theta-i").value + "°"; drawPlots(); };
   $("env-rot").oninput = () => preview && preview.setRotation(+$("env-rot").value * Math.PI / 180);
   $("key-power").oninput = () => preview && preview.setKeyPower(+$("key-power").value * Math.PI);
+  $("lighting").onchange = async () => {
+    if (!preview) return;
+    const msg = await preview.setLighting($("lighting").value, state.basis);
+    if (msg) { setStatus("sphere light: " + msg, true, "lighting"); $("lighting").value = "studio"; preview.setLighting("studio"); }
+    else clearError("lighting");
+  };
 }
 
 // ------------------------------------------------------------------ reference
@@ -623,7 +629,10 @@ async function main() {
   const info = state.info;
   for (const b of info.bases) $("basis").add(new Option(`${b.name} (${b.resolution.join("×")}, ${b.images} materials)`, b.name));
   state.basis = info.bases[0].name;
-  $("basis").onchange = () => { state.basis = $("basis").value; sceneInfo(); requestAll(); };
+  $("basis").onchange = () => {
+    state.basis = $("basis").value; sceneInfo(); requestAll();
+    if ($("lighting").value === "scene") $("lighting").onchange();   // the new scene's light
+  };
   sceneInfo();
   preview = new MaterialPreview($("sphere"), $("sphere-msg"));
   channel = new Channel(onMessage, () => state.x && requestAll());
