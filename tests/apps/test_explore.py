@@ -688,12 +688,16 @@ def test_preview_follows_the_merl_mapping(page, small_manifold_paper):
     page.wait_for_function("(x) => { const p = window.explore.state.previewX; return p && p.every((v, k) => v === x[k]); }",
                            arg=[float(v) for v in x], timeout=30000)
     page.wait_for_function("window.explore.preview.envReady && !window.explore.preview.fast")
-    page.wait_for_timeout(400)
+    page.select_option("#lighting", "key")   # the key light alone: one direction, shaded exactly in NumPy
+    page.eval_on_selector("#key-power", "e => { e.value = '1'; e.dispatchEvent(new Event('input')); }")
+    page.wait_for_function("window.explore.preview.keyPower > 0 && !window.explore.preview.pending")
+    page.wait_for_timeout(1000)
     size, pixels, lights = page.evaluate("""() => { const s = document.getElementById('sphere');
         const c = document.createElement('canvas'); c.width = s.width; c.height = s.height;
         const g = c.getContext('2d'); g.drawImage(s, 0, 0);
-        return [s.width, Array.from(g.getImageData(0, 0, s.width, s.height).data), window.explore.preview.lights()]; }""")
-    assert len(lights) == 17   # the environment's 16 median-cut lights and the key light
+        return [s.width, Array.from(g.getImageData(0, 0, s.width, s.height).data), [window.explore.preview.keyLight()]]; }""")
+    page.select_option("#lighting", "studio")
+    page.eval_on_selector("#key-power", "e => { e.value = '0'; e.dispatchEvent(new Event('input')); }")
     shown = np.array(pixels, dtype=np.float64).reshape(size, size, 4)[..., :3] / 255
     table = np.clip(m.interpolate(x, prune=1e-3)[0], -65504, 65504).astype(np.float16).astype(np.float64)
     expected, inside = _shade_like_the_preview(table, (1, 1, 1), lights, size)

@@ -219,3 +219,30 @@ def test_closing_pages_mid_job_stops_their_jobs_and_the_next_of_each_kind_comple
                              " || document.getElementById('thumbs-state').textContent.includes('unavailable')",
                              timeout=120000)
         assert "unavailable" not in pg.inner_text("#thumbs-state") and not pg.errors
+
+
+@browser_only
+@pytest.mark.parametrize("name", ["chrome", "steel"])
+def test_the_preview_sphere_has_no_point_light_speckles(browser, server, small_manifold_paper, name):
+    """Lit by the studio environment, a shiny sphere shows smooth reflections: next to no pixel
+    stands out from its 5x5 neighbourhood's median (16 point lights made 15-20 pinpoints, 1% of
+    the pixels; the sun's mirror image, a small disc, stays under 0.2%)."""
+    from scipy.ndimage import median_filter
+    m = Manifold.load(small_manifold_paper)
+    with _page(browser, server) as pg:
+        x = m.latent[m.index(name)]
+        pg.evaluate("(x) => window.explore.setX(x)", [float(v) for v in x])
+        pg.wait_for_function("(x) => { const p = window.explore.state.previewX; return p && p.every((v, k) => v === x[k]); }",
+                             arg=[float(v) for v in x], timeout=30000)
+        pg.wait_for_function("window.explore.preview.envReady && !window.explore.preview.fast && !window.explore.preview.pending")
+        pg.wait_for_timeout(1500)
+        size, pixels = pg.evaluate("""() => { const s = document.getElementById('sphere');
+            const c = document.createElement('canvas'); c.width = s.width; c.height = s.height;
+            const g = c.getContext('2d'); g.drawImage(s, 0, 0);
+            return [s.width, Array.from(g.getImageData(0, 0, s.width, s.height).data)]; }""")
+    img = np.array(pixels, dtype=np.float64).reshape(size, size, 4)[..., :3].mean(-1) / 255
+    j, i = np.meshgrid(np.arange(size), np.arange(size))
+    r2 = ((j + 0.5) / size * 2 - 1) ** 2 + (1 - (i + 0.5) / size * 2) ** 2
+    inside = r2 * 1.08 ** 2 < 0.9
+    spikes = np.abs(img - median_filter(img, size=5))[inside] > 0.12
+    assert img[inside].max() > 0.3 and spikes.mean() < 2e-3, (img[inside].max(), spikes.sum())   # the sun: a small clean disc
