@@ -268,7 +268,7 @@ def test_release_refines_the_point_to_its_full_gi_image(browser, small_basis, sm
             pg.wait_for_function("document.getElementById('refine-status').textContent.includes('full GI checked')",
                                  timeout=120000)
             status = pg.text_content("#refine-status")
-            assert "agrees with the unbiased render" in status and "spp of L2+" in status, status
+            assert "agrees with the unbiased render" in status and "8/8 spp" in status, status
             assert not pg.evaluate("document.getElementById('scene').dataset.refined")
             np.testing.assert_array_equal(np.array(pg.evaluate(pixels), float), blend)
             pg.click("#refine-show")   # the user asks for the refined image

@@ -64,12 +64,13 @@ class Job:
     images: dict = field(default_factory=dict)   # name -> linear float32 (H, W, 3)
     error: dict = None
     cancelled: bool = False
+    method: str = None             # a refinement's: how its L2+ light is rendered
     process: object = field(default=None, repr=False)   # a reference's render process while it runs
 
     def status(self):
         return {"id": self.id, "basis": self.basis, "x": self.x, "spp": self.spp, "kind": self.kind, "state": self.state,
                 "progress": self.progress, "message": self.message, "seconds": self.seconds,
-                "error": self.error, "images": sorted(self.images)}
+                "error": self.error, "images": sorted(self.images), "method": self.method}
 
 
 def agreement(blend_image, refined):
@@ -153,7 +154,7 @@ class References:
                 del self._jobs[old]
 
     def _run_refine(self, job, basis, manifold, blend_image, where):
-        from ...render.refine import CONTROL_VARIATE, refine_passes
+        from ...render.refine import refine_passes
 
         def passes():
             self._check_current(job)   # queued behind a newer one: never started
@@ -162,8 +163,8 @@ class References:
                                    blend_image=blend_image, **where):
                 self._check_current(job)
                 job.images = {"blend": blend_image, "refined": r.image}
-                what = "L2+ correction" if r.method == CONTROL_VARIATE else "L2+"
-                job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of {what}"
+                job.method = r.method
+                job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp"
                 if r.passes == 0:   # a training material: the blend is already exact
                     job.progress, job.message = 1.0, "exact at a training material: nothing to render"
                 job.error = agreement(blend_image, r)

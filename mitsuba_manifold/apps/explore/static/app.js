@@ -55,7 +55,7 @@ function onMessage(meta, payload) {
   else if (meta.type === "table" && preview) {
     // the full table of a point a new drag has left (a newer table asked for): not worth its upload
     if (!meta.coarse && live() && !channel.isCurrent("table", meta.seq)) return;
-    if (!sameX(meta.x, state.previewX) || meta.coarse !== state.previewCoarse) { preview.setTable(payload, meta); drawPlots(); }
+    if (!sameX(meta.x, state.previewX) || meta.coarse !== state.previewCoarse) { preview.setTable(payload, meta); drawPlots(); showGloss(); }
     state.previewX = meta.x; state.previewCoarse = meta.coarse;   // redrawn only when it changed
   }
   else if (meta.type === "route") showRoute(meta);
@@ -235,9 +235,17 @@ function drawMap() {
     // q > 2: materials far from the slice (in the other coordinates) fade out
     const off = p.reduce((s, v, k) => s + (state.dims.includes(k) ? 0 : (v - state.x[k]) ** 2), 0);
     ctx.globalAlpha = i === state.hover ? 1 : Math.max(0.25, Math.exp(-off / 0.5));
-    ctx.beginPath(); ctx.arc(px, py, i === state.hover ? 6 : 4, 0, 2 * Math.PI);
-    ctx.fillStyle = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
-    ctx.fill(); ctx.lineWidth = 1.5; ctx.strokeStyle = i === state.hover ? "#fff" : "rgba(0,0,0,.85)"; ctx.stroke();
+    const sheet = state.thumbImage, t = state.thumbs, r = sheet ? (i === state.hover ? 11 : 8) : (i === state.hover ? 6 : 4);
+    ctx.beginPath(); ctx.arc(px, py, r, 0, 2 * Math.PI);
+    if (sheet) {   // the material's own thumbnail: its appearance (gloss, colour) on the map
+      ctx.save(); ctx.clip();
+      ctx.drawImage(sheet, (i % t.columns) * t.size, Math.floor(i / t.columns) * t.size, t.size, t.size, px - r, py - r, 2 * r, 2 * r);
+      ctx.restore();
+    } else {
+      ctx.fillStyle = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
+      ctx.fill();
+    }
+    ctx.lineWidth = 1.5; ctx.strokeStyle = i === state.hover ? "#fff" : "rgba(0,0,0,.85)"; ctx.stroke();
   });
   ctx.globalAlpha = 1;
   for (const [end, label] of [[state.a, "A"], [state.b, "B"]]) {
@@ -387,13 +395,14 @@ function showMaterial(m) {
   if (m.albedo) {
     const a = m.albedo;
     $("albedo-swatch").style.background = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
-    $("albedo-val").textContent = a.map((v) => v.toFixed(2)).join(" · ");
-    $("albedo-val").title = "bihemispherical albedo, RGB: " + a.map((v) => v.toFixed(4)).join(", ");
+    const mean = (a[0] + a[1] + a[2]) / 3;
+    $("albedo-val").textContent = `${colourWord(a)} · reflects ${(100 * mean).toFixed(0)}%`;
+    $("albedo-detail").textContent = "albedo (bihemispherical), R G B: " + a.map((v) => v.toFixed(3)).join(" · ");
   }
   const rel = Math.min(1, m.variance / m.prior_variance);
   $("conf-bar").style.width = (100 * (1 - rel)).toFixed(1) + "%";
   $("conf-bar").style.background = rel > 0.5 ? "var(--neg)" : rel > 0.1 ? "var(--warn)" : "var(--accent)";
-  $("variance-val").textContent = `GP variance ${fmtNum(m.variance, 4)} (Eq. 2)`;
+  $("variance-val").textContent = `GP variance ${fmtNum(m.variance, 4)} of ${fmtNum(m.prior_variance, 3)} (paper Eq. 2)`;
   const warn = [];
   if (rel > 0.5) warn.push("far from every measured material (GP variance near its prior): an extrapolation");
   if (m.albedo && m.albedo.some((v) => v < 0 || v > 1)) warn.push("albedo outside [0, 1]: not a physical material");
@@ -405,10 +414,12 @@ function showMaterial(m) {
   $("nearest").innerHTML = "";
   if (m.measured) state.lastMeasured = m.measured;
   const near = m.measured || (m.live ? state.lastMeasured : null);   // a drag: the last one, marked stale
-  $("measured").innerHTML = near ? `${thumbHtml(near.name, 18)}<b>${escapeHtml(near.name)}</b> ` +
-    `d = ${fmtNum(near.distance)} <span class="muted">(${fmtNum(near.distance / near.spacing, 2)}× the ` +
-    `median spacing of the measured materials)</span>` :
+  const ratio = near ? near.distance / near.spacing : null;
+  const how = ratio === null ? "" : ratio < 1e-6 ? "is the measured" : ratio < 0.5 ? "very close to" : ratio < 1.5 ? "close to" : "far from; nearest";
+  $("measured").innerHTML = near ? `<span class="muted">${how}</span> ${thumbHtml(near.name, 18)}<b>${escapeHtml(near.name)}</b>` :
     `<span class="muted">${m.tables === "ready" ? "preparing the perceptual metric…" : escapeHtml(m.tables_message || "")}</span>`;
+  $("measured-detail").textContent = near ? `perceptual distance to ${near.name}: ${fmtNum(near.distance)} ` +
+    `(${fmtNum(ratio, 2)}× the median spacing of the measured materials)` : "";
   for (const n of m.nearest) {
     const b = document.createElement("button");
     b.innerHTML = thumbHtml(n.name, 16) + escapeHtml(n.name); b.title = `latent distance ${n.distance.toFixed(3)}`;
@@ -434,6 +445,38 @@ function showMaterial(m) {
     (m.pruning_albedo != null ? ` · albedo change ${(100 * m.pruning_albedo).toFixed(2)}%` +
       (m.pruning_albedo_budget != null ? ` (≤ ${(100 * m.pruning_albedo_budget).toFixed(2)}%)` : "") : "");
   $("weights-note").title = m.pruning || "";   // the bound pruning reached (albedo, cosine-weighted, raw L2)
+}
+
+// A colour's name for people: hue and lightness of the albedo (linear RGB).
+function colourWord(a) {
+  const [r, g, b] = a.map((v) => Math.max(0, v)), max = Math.max(r, g, b), min = Math.min(r, g, b);
+  const light = (r + g + b) / 3, tone = light < 0.05 ? "black" : light < 0.2 ? "dark" : light < 0.5 ? "mid" : "light";
+  if (max - min < 0.15 * max || max <= 0) return tone === "black" ? "black" : tone === "light" && light > 0.7 ? "white" : tone + " grey";
+  let h = 0;
+  if (max === r) h = ((g - b) / (max - min) + 6) % 6; else if (max === g) h = (b - r) / (max - min) + 2; else h = (r - g) / (max - min) + 4;
+  const hue = ["red", "orange", "yellow", "yellow-green", "green", "teal", "cyan", "blue", "blue", "violet", "magenta", "pink"][Math.floor(h * 2) % 12];
+  return (tone === "mid" ? "" : tone + " ") + hue;
+}
+
+// Gloss of the preview table: log10 of the reflectance towards the mirror direction (theta_h = 0)
+// over that at theta_h = 60 degrees, both at theta_d = 10 degrees (mean RGB), in words.
+function glossOf() {
+  if (!preview || !preview.table) return null;
+  const { dims, full_dims: full, strides } = preview.table.layout;
+  const bin = (deg, k, sqrtMap) => Math.min(dims[k] - 1, Math.max(0, Math.round(((sqrtMap ? Math.sqrt(deg / 90) : deg / 90) * full[k] - 0.5) / strides[k])));
+  const mean = (v) => (v[0] + v[1] + v[2]) / 3, id = bin(10, 1, false);
+  const peak = mean(preview.value(0, id, 0)), wide = mean(preview.value(bin(60, 0, true), id, 0));
+  if (!(peak > 0) || !(wide >= 0)) return null;
+  const g = Math.log10(peak / Math.max(wide, 1e-6));
+  const word = g < 0.3 ? "matte" : g < 1 ? "satin" : g < 2 ? "glossy" : g < 3 ? "very glossy" : "mirror-like";
+  return { g, word, peak, wide };
+}
+function showGloss() {
+  const gl = glossOf();
+  setText($("gloss-val"), gl ? gl.word : "");
+  $("gloss-bar").style.width = gl ? (100 * Math.min(1, Math.max(0.03, gl.g / 4))).toFixed(0) + "%" : "0";
+  setText($("gloss-detail"), gl ? `gloss: mirror-direction reflectance ${fmtNum(gl.peak)} /sr, 60° away ${fmtNum(gl.wide)} /sr ` +
+    `(10^${gl.g.toFixed(2)}×)` : "");
 }
 
 function escapeHtml(s) { return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
@@ -617,8 +660,11 @@ async function pollReference(id) {
   $("ref-err").src = `/api/reference/${id}/error.png`;
   $("ref-caption").textContent = `reference (full GI, ${job.spp} spp, ${job.seconds.toFixed(1)} s)`;
   const e = job.error;
-  $("ref-metrics").textContent = `rel. MSE ${fmtNum(e.rel_mse, 4)} · PSNR ${e.psnr.toFixed(1)} dB · mean |Δ| ${fmtNum(e.mean_abs, 4)}` +
-    ` · at x = (${job.x.map((v) => fmtNum(v)).join(", ")})`;
+  const verdict = e.psnr >= 40 ? "the blend is indistinguishable from full GI" : e.psnr >= 30 ? "the blend is close to full GI"
+    : "the blend differs visibly from full GI";
+  $("ref-metrics").innerHTML = `PSNR ${e.psnr.toFixed(1)} dB: ${verdict}<details><summary>details</summary>` +
+    escapeHtml(`rel. MSE ${fmtNum(e.rel_mse, 4)} · mean |Δ| ${fmtNum(e.mean_abs, 4)} · at x = (${job.x.map((v) => fmtNum(v)).join(", ")})`) +
+    `</details>`;
   $("ref-result").hidden = false;
 }
 

@@ -36,9 +36,10 @@ async function refineHere() {
       if (state.refined && state.refined.job === job.id) { /* shown: its status stays until a move */ }
       else if (e.agrees == null) say(`refining… ${job.message}`);
       else {
-        const figures = `rel. MSE ${fmtNum(e.blend_rel_mse, 3)} against its estimated noise ${fmtNum(e.noise_rel_mse, 3)}`;
-        say(e.agrees ? `full GI checked (${job.message}): the blend agrees with the unbiased render (${figures})`
-                     : `full GI checked (${job.message}): the blend differs from the unbiased render (${figures})`);
+        say(e.agrees ? `full GI checked (${job.message}): the blend agrees with the unbiased render`
+                     : `full GI checked (${job.message}): the blend differs from the unbiased render`);
+        if (current()) $("refine-detail").textContent = `refinement: the blend's relative MSE against the unbiased ` +
+          `render is ${fmtNum(e.blend_rel_mse, 3)}, its own estimated noise ${fmtNum(e.noise_rel_mse, 3)} (agrees: within 2×)`;
         if (!state.refined) {
           button.hidden = false;
           button.onclick = () => showRefined(job, x, basis, current).then((ok) => {
@@ -66,7 +67,7 @@ function refineOff() {
 
 function clearRefined() {   // back to blends: the refined image and the last check are gone
   state.refined = null; delete $("scene").dataset.refined; delete $("scene").dataset.refinedExposure;
-  $("refine-status").textContent = ""; $("refine-show").hidden = true;
+  $("refine-status").textContent = ""; $("refine-show").hidden = true; $("refine-detail").textContent = "";
 }
 
 async function showRefined(job, x, basis, current) {

@@ -67,7 +67,12 @@ async function pollThumbs() {
     buildGallery();
     return;
   }
-  if (t.state === "ready") state.thumbs = { url: "/api/thumbs.png", columns: t.columns, size: t.size };
+  if (t.state === "ready") {
+    state.thumbs = { url: "/api/thumbs.png", columns: t.columns, size: t.size };
+    const img = new Image();   // the map draws each measured material as its thumbnail
+    img.onload = () => { state.thumbImage = img; drawMap(); };
+    img.src = state.thumbs.url;
+  }
   $("thumbs-state").textContent = t.state === "ready" ? "rendered with the plugin" : t.message;
   buildGallery();
   if (state.material) showMaterial(state.material);
