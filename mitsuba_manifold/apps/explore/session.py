@@ -129,7 +129,6 @@ class Session:
         finally:
             for t in tasks:
                 t.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)   # each releases what it waits for
             if self.tab is not None:   # the tab went away: its renders are no one's any more
                 self.ex.references.cancel_tab(self.tab)
         for t in tasks:   # a tab going away (also while an answer is sent) is no error
