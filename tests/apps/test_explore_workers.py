@@ -32,15 +32,22 @@ def _ends(small_manifold_paper, i, j):
     return m.latent[i].tolist(), m.latent[j].tolist()
 
 
-def test_a_tab_closed_while_its_path_computes_leaves_the_path_worker_running(client, explorer,
-                                                                             small_manifold_paper):
+def test_a_tab_closed_while_its_path_computes_leaves_the_path_worker_running(
+    client, explorer, small_manifold_paper
+):
     """A page asks for a geodesic and goes away at once; a later path still completes (a
     cancelled request used to end the path thread for good)."""
     walks = explorer.walks
-    for k in range(3):   # several pages leaving mid-path, the path queued or computing
+    for k in range(3):  # several pages leaving mid-path, the path queued or computing
         a, b = _ends(small_manifold_paper, k, k + 3)
-        with client.websocket_connect(f"/ws?tab=gone{k}", headers={"origin": test_explore.TEST_ORIGIN}) as ws:
-            ws.send_text(json.dumps({"type": "route", "seq": 1, "a": a, "b": b, "kind": "geodesic", "steps": 9}))
+        with client.websocket_connect(
+            f"/ws?tab=gone{k}", headers={"origin": test_explore.TEST_ORIGIN}
+        ) as ws:
+            ws.send_text(
+                json.dumps(
+                    {"type": "route", "seq": 1, "a": a, "b": b, "kind": "geodesic", "steps": 9}
+                )
+            )
             time.sleep(0.05 * k)
     deadline = time.monotonic() + 60
     while walks.waiting() and time.monotonic() < deadline:
@@ -55,8 +62,9 @@ def test_a_tab_closed_while_its_path_computes_leaves_the_path_worker_running(cli
     assert len(route["points"]) == 7 and np.allclose(route["points"][0], a)
 
 
-def test_a_released_path_never_starts_and_a_failed_one_does_not_stop_the_worker(explorer, small_manifold_paper,
-                                                                                 monkeypatch):
+def test_a_released_path_never_starts_and_a_failed_one_does_not_stop_the_worker(
+    explorer, small_manifold_paper, monkeypatch
+):
     walks = explorer.walks
     real = paths.path
     calls = []
@@ -74,7 +82,9 @@ def test_a_released_path_never_starts_and_a_failed_one_does_not_stop_the_worker(
         bad.result(timeout=60)
     walks.release(bad)
     gone = walks.submit(a, b, 6, "uniform")
-    walks.release(gone)   # nobody waits: cancelled before the worker takes it, or computed and cached
+    walks.release(
+        gone
+    )  # nobody waits: cancelled before the worker takes it, or computed and cached
     good = walks.submit(a, b, 8, "uniform")
     assert len(good.result(timeout=60)["points"]) == 8
     walks.release(good)
@@ -82,25 +92,42 @@ def test_a_released_path_never_starts_and_a_failed_one_does_not_stop_the_worker(
     assert walks._thread.is_alive()
 
 
-def test_cancelled_and_abandoned_renders_stop_and_the_next_ones_complete(client, explorer, small_manifold_paper):
+def test_cancelled_and_abandoned_renders_stop_and_the_next_ones_complete(
+    client, explorer, small_manifold_paper
+):
     """A reference and a refinement cancelled by their page, and ones whose page went away,
     end as "cancelled"; the next reference and refinement then complete."""
     m = Manifold.load(small_manifold_paper)
     origin = {"origin": test_explore.TEST_ORIGIN}
-    big = client.post("/api/reference", json={"x": m.latent[0].tolist(), "spp": 4096}, headers=origin).json()
-    queued = client.post("/api/reference", json={"x": m.latent[1].tolist(), "spp": 4096}, headers=origin).json()
+    big = client.post(
+        "/api/reference", json={"x": m.latent[0].tolist(), "spp": 4096}, headers=origin
+    ).json()
+    queued = client.post(
+        "/api/reference", json={"x": m.latent[1].tolist(), "spp": 4096}, headers=origin
+    ).json()
     for job in (queued, big):
         assert client.post(f"/api/reference/{job['id']}/cancel", headers=origin).status_code == 200
     with client.websocket_connect("/ws?tab=closing", headers=origin) as ws:
         ws.send_text(json.dumps({"type": "frame", "seq": 1, "x": m.latent[2].tolist()}))
         ws.receive_bytes()
-        ref = client.post("/api/reference", json={"x": m.latent[2].tolist(), "spp": 4096, "tab": "closing"},
-                          headers=origin).json()
-        refine = client.post("/api/reference", json={"x": (0.5 * (m.latent[2] + m.latent[3])).tolist(), "spp": 4096,
-                                                     "kind": "refine", "tab": "closing"}, headers=origin).json()
+        ref = client.post(
+            "/api/reference",
+            json={"x": m.latent[2].tolist(), "spp": 4096, "tab": "closing"},
+            headers=origin,
+        ).json()
+        refine = client.post(
+            "/api/reference",
+            json={
+                "x": (0.5 * (m.latent[2] + m.latent[3])).tolist(),
+                "spp": 4096,
+                "kind": "refine",
+                "tab": "closing",
+            },
+            headers=origin,
+        ).json()
     for job in (big, queued, ref, refine):
         assert _wait(explorer.references.get(job["id"]), 60) == "cancelled", job
-    assert explorer.references.get(queued["id"]).seconds == 0.0   # never started
+    assert explorer.references.get(queued["id"]).seconds == 0.0  # never started
     done = explorer.start_reference(None, m.latent[4], 2)
     assert _wait(done) == "done", done.message
     refined = explorer.start_refine(None, 0.5 * (m.latent[4] + m.latent[5]), 2)
@@ -111,14 +138,19 @@ def test_cancelled_and_abandoned_renders_stop_and_the_next_ones_complete(client,
 def test_unknown_or_bad_tab_and_job_are_refused(client, small_manifold_paper):
     m = Manifold.load(small_manifold_paper)
     origin = {"origin": test_explore.TEST_ORIGIN}
-    r = client.post("/api/reference", json={"x": m.latent[0].tolist(), "spp": 2, "tab": "x" * 65}, headers=origin)
+    r = client.post(
+        "/api/reference",
+        json={"x": m.latent[0].tolist(), "spp": 2, "tab": "x" * 65},
+        headers=origin,
+    )
     assert r.status_code == 400 and "tab must be" in r.json()["error"]
     r = client.post("/api/reference/r999999/cancel", headers=origin)
     assert r.status_code == 400 and "unknown reference job" in r.json()["error"]
 
 
-def test_snippets_name_the_manifold_relatively_and_render_after_the_folder_moves(explorer, small_manifold_paper,
-                                                                                   tmp_path):
+def test_snippets_name_the_manifold_relatively_and_render_after_the_folder_moves(
+    explorer, small_manifold_paper, tmp_path
+):
     """The copied XML names the manifold through $manifold, relative to the chosen scene folder;
     the scene and the manifold moved together to another folder render the same image, and the
     load_dict snippet loads the same material from its own folder."""
@@ -127,6 +159,7 @@ def test_snippets_name_the_manifold_relatively_and_render_after_the_folder_moves
     import mitsuba as mi
 
     import mitsuba_manifold
+
     m = Manifold.load(small_manifold_paper)
     x = 0.5 * (m.latent[1] + m.latent[2])
     project = tmp_path / "project"

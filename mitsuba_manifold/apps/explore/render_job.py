@@ -3,8 +3,8 @@
 The explorer starts it at a lower priority (``nice``) so that the blends of a drag take the
 CPU first, and ends it at once when its job is cancelled (:mod:`.reference`). The process
 reads a :class:`RenderSpec` (JSON file), renders the scene at the point in passes of
-:data:`~.reference.PASS_SAMPLES` paths (as :func:`~mitsuba_manifold.render.interrupt.render_in_passes`:
-different seeds, sample-weighted mean), prints ``done total`` after each pass, and writes the
+:data:`PASS_SAMPLES` paths (as
+:func:`~mitsuba_manifold.render.interrupt.render_in_passes`: different seeds, sample-weighted mean), prints ``done total`` after each pass, and writes the
 mean image (float32 ``.npy``) to ``spec.out`` atomically at the end.
 """
 
@@ -32,6 +32,7 @@ class RenderSpec:
 
     def write(self, path):
         from ..._util.atomic import write_bytes
+
         write_bytes(path, json.dumps(asdict(self)).encode())
 
     @classmethod
@@ -48,15 +49,26 @@ def render(spec, progress=print):
     from ...render.interrupt import sample_passes
     from ...render.scenes import load_scene, set_points
 
-    loaded = load_scene(spec.scene, spec.manifold, spec.spp, tuple(spec.resolution), spec.max_depth, spec.x,
-                        spec.variant)
+    loaded = load_scene(
+        spec.scene,
+        spec.manifold,
+        spec.spp,
+        tuple(spec.resolution),
+        spec.max_depth,
+        spec.x,
+        spec.variant,
+    )
     set_points(loaded.targets, spec.x)
     integrator = mi.load_dict({"type": "path", "max_depth": int(loaded.max_depth)})
     w, h = spec.resolution
     acc, done = None, 0
     for k, spp in enumerate(sample_passes(spec.spp, w * h, PASS_SAMPLES)):
-        img = np.array(mi.render(loaded.scene, integrator=integrator, spp=spp, seed=1000 + k, sensor=spec.sensor),
-                       dtype=np.float64)[..., :3]
+        img = np.array(
+            mi.render(
+                loaded.scene, integrator=integrator, spp=spp, seed=1000 + k, sensor=spec.sensor
+            ),
+            dtype=np.float64,
+        )[..., :3]
         acc = img * spp if acc is None else acc + img * spp
         done += spp
         progress(done, spec.spp)
@@ -69,6 +81,7 @@ def main(argv=None):
     import numpy as np
 
     from ..._util.atomic import write_bytes
+
     spec = RenderSpec.read((argv or sys.argv[1:])[0])
     image = render(spec, lambda done, total: print(done, total, flush=True))
     buf = io.BytesIO()
