@@ -4,7 +4,7 @@ Starts the real server (``python3 -m mitsuba_manifold.apps.cli.explore``, its ow
 127.0.0.1 and a free port) on a basis, connects a websocket client from this process and
 times, for random latent points inside the data, the wall time from sending a
 frame request to receiving the encoded image (blend over the materials kept by pruning,
-tonemap, encode, websocket transfer), per encoding. Targets (issue 11): at most 30 ms at
+tonemap, encode, websocket transfer), per encoding. Targets: at most 30 ms at
 256x256 and 60 ms at 512x512 for N = 100. Without a basis of the larger size a copy of the
 given basis upsampled 2x per axis (nearest) is written to a temporary folder: the time
 depends on N and the pixel count only.

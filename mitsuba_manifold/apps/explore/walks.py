@@ -1,5 +1,5 @@
 """The explorer's perceptual side: paths of :func:`Manifold.path` kinds and the distance to
-the nearest measured material (issue 18; the metric of :mod:`mitsuba_manifold.data.distance`).
+the nearest measured material (the metric of :mod:`mitsuba_manifold.data.distance`).
 
 Both need the :class:`~mitsuba_manifold.manifold.paths.PathMetric` of the manifold, whose
 rows are the tables at the bins of its search sub-grid (:data:`~.paths.SEARCH_STRIDE`).

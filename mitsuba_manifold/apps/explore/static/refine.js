@@ -1,4 +1,4 @@
-// Refinement on release (issue 21): where a drag ends (or a point is chosen), the server renders
+// Refinement on release: where a drag ends (or a point is chosen), the server renders
 // what the basis cannot give at that point (its L2+ light; blend.py --refine) in passes and checks
 // the blend shown against that unbiased estimate. The blend stays on screen: at a few spp the
 // refinement is noisier than the blend (fireflies where light runs through a narrow peak), and its
