@@ -227,7 +227,9 @@ def test_q3_snapping_keeps_the_slice_and_a_click_reslices(browser, q3_basis):
 def test_browser_benchmark_measures_drags(browser, small_basis, small_manifold_paper):
     from mitsuba_manifold.apps.bench.explore import browser as bench_browser
     r = bench_browser(small_basis, small_manifold_paper, drags=2, moves=8, chromium=browser)
-    assert r["with_reference"]["cancel_s"] < 10 and r["with_reference"]["moves"] >= 16
+    ref = r["with_reference"]   # the 4096-spp render of this 32x32 basis may end before the drags do
+    assert (ref["cancel_s"] is None and ref["reference_progress_at_cancel"] == 1.0 or ref["cancel_s"] < 10) \
+        and ref["moves"] >= 16 and ref["frames_drawn"] > 0
     assert r["moves"] >= 16 and 0 < r["frames_drawn"] <= r["moves"] + 2
     assert 0 < r["move_to_frame_ms"]["median"] <= r["move_to_frame_ms"]["p90"] <= r["move_to_frame_ms"]["max"]
     assert r["moves_per_s"] > 0 and r["tables_ready_s"] > 0 and set(r["meets_targets"]) == {
