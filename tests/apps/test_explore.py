@@ -271,7 +271,9 @@ def test_http_frame_and_snippet(client, explorer, small_manifold_paper):
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
     assert json.loads(r.headers["x-frame"])["width"] == RES
     s = client.get("/api/snippet", params={"x": "chrome"}).json()
-    assert 'type="manifold_brdf"' in s["xml"] and explorer.manifold_path in s["xml"]
+    rel = os.path.relpath(explorer.manifold_path, explorer.snippet_folder())
+    assert 'type="manifold_brdf"' in s["xml"] and f'name="manifold" value="{rel}"' in s["xml"]
+    assert not rel.startswith("/") and 'value="$manifold"' in s["xml"]
     cmd = client.get("/api/path", params={"a": "chrome", "b": "0.1,0.2", "steps": 5}).json()["command"]
     assert "--path chrome 0.1,0.2 --steps 5" in cmd
 
@@ -517,11 +519,16 @@ def test_preview_sphere_is_shaded(page, small_manifold_paper):
 
 
 @browser_only
-def test_xml_snippet_loads_in_mitsuba_and_renders(page, small_manifold_paper):
+def test_xml_snippet_loads_in_mitsuba_and_renders(page, small_manifold_paper, tmp_path):
     m = Manifold.load(small_manifold_paper)
     x = 0.5 * (m.latent[m.index("blue-acrylic")] + m.latent[m.index("chrome")])
     page.evaluate("(x) => window.explore.setX(x)", [float(v) for v in x])
     _wait_displayed(page, x)
+    page.fill("#snippet-folder", str(tmp_path))   # the scene's folder: the manifold is named relative to it
+    page.dispatch_event("#snippet-folder", "change")
+    rel = os.path.relpath(small_manifold_paper, tmp_path)
+    page.wait_for_function("(rel) => document.getElementById('snippet').textContent.includes(rel)", arg=rel,
+                           timeout=10000)
     page.wait_for_function("(x) => document.getElementById('snippet').textContent.includes(x)",
                            arg=f"{x[0]:.6g}", timeout=10000)
     xml = page.inner_text("#snippet")
@@ -531,11 +538,12 @@ def test_xml_snippet_loads_in_mitsuba_and_renders(page, small_manifold_paper):
         <sensor type="perspective"><transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/>
         </transform><film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
         <sampler type="independent"><integer name="sample_count" value="4"/></sampler></sensor></scene>"""
+    (tmp_path / "scene.xml").write_text(scene)
     mi.set_variant("llvm_ad_rgb")
     mitsuba_manifold.register()
-    img = np.array(mi.render(mi.load_string(scene)))
+    img = np.array(mi.render(mi.load_file(str(tmp_path / "scene.xml"))))
     assert np.isfinite(img).all() and img[6:10, 6:10].mean() > 0
-    bsdf = [s.bsdf() for s in mi.load_string(scene).shapes()][0]
+    bsdf = [s.bsdf() for s in mi.load_file(str(tmp_path / "scene.xml")).shapes()][0]
     np.testing.assert_allclose(bsdf.latent, x, rtol=1e-5)
 
 
@@ -671,12 +679,16 @@ def test_preview_follows_the_merl_mapping(page, small_manifold_paper):
     page.wait_for_function("(x) => { const p = window.explore.state.previewX; return p && p.every((v, k) => v === x[k]); }",
                            arg=[float(v) for v in x], timeout=30000)
     page.wait_for_function("window.explore.preview.envReady && !window.explore.preview.fast")
-    page.wait_for_timeout(400)
+    page.select_option("#lighting", "key")   # the key light alone: one direction, shaded exactly in NumPy
+    page.eval_on_selector("#key-power", "e => { e.value = '1'; e.dispatchEvent(new Event('input')); }")
+    page.wait_for_function("window.explore.preview.keyPower > 0 && !window.explore.preview.pending")
+    page.wait_for_timeout(1000)
     size, pixels, lights = page.evaluate("""() => { const s = document.getElementById('sphere');
         const c = document.createElement('canvas'); c.width = s.width; c.height = s.height;
         const g = c.getContext('2d'); g.drawImage(s, 0, 0);
-        return [s.width, Array.from(g.getImageData(0, 0, s.width, s.height).data), window.explore.preview.lights()]; }""")
-    assert len(lights) == 17   # the environment's 16 median-cut lights and the key light
+        return [s.width, Array.from(g.getImageData(0, 0, s.width, s.height).data), [window.explore.preview.keyLight()]]; }""")
+    page.select_option("#lighting", "studio")
+    page.eval_on_selector("#key-power", "e => { e.value = '0'; e.dispatchEvent(new Event('input')); }")
     shown = np.array(pixels, dtype=np.float64).reshape(size, size, 4)[..., :3] / 255
     table = np.clip(m.interpolate(x, prune=1e-3)[0], -65504, 65504).astype(np.float16).astype(np.float64)
     expected, inside = _shade_like_the_preview(table, (1, 1, 1), lights, size)

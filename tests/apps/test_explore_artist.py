@@ -87,11 +87,11 @@ def test_a_refinement_queued_behind_a_newer_one_never_renders():
     try:
         stale, refs._latest_refine = Job(id="r1", basis="b", x=[0.0], spp=8, kind="refine"), "r2"
         refs._run_refine(stale, None, None, None, {})   # no basis needed: it stops before any work
-        assert stale.state == "failed" and "superseded" in stale.message and not stale.images
+        assert stale.state == "cancelled" and "superseded" in stale.message and not stale.images
         latest = Job(id="r2", basis="b", x=[0.0], spp=8, kind="refine")
         refs.supersede_refine()   # a drag began: the newest one stops too
         refs._run_refine(latest, None, None, None, {})
-        assert latest.state == "failed" and "superseded" in latest.message
+        assert latest.state == "cancelled" and "superseded" in latest.message
     finally:
         refs.shutdown()
 

@@ -47,7 +47,7 @@ def no_renders(explorer, monkeypatch):
     """Reference requests that pass validation are recorded, not rendered (fuzzing sends many)."""
     started = []
 
-    def submit(name, basis, scene, manifold_path, x, spp, img):
+    def submit(name, basis, scene, manifold_path, x, spp, img, tab=None):
         started.append((name, list(x), spp))
         from mitsuba_manifold.apps.explore.reference import Job
         return Job(id=f"r{len(started)}", basis=name, x=list(map(float, x)), spp=spp)

@@ -111,5 +111,57 @@ def write(folder=FOLDER):
     return paths
 
 
+def scene_environment(scene_path, manifold_path, basis):
+    """``(float16 RGB bytes, meta)``: the environment light of a basis's scene in the preview
+    sphere's frame, as the basis's camera sees it (:meth:`Explorer.environment`): direction
+    ``d`` of :func:`directions` is the camera's ``(-d_x, d_y, -d_z)`` (its ``+z`` looks into the
+    scene, ``+x`` to the left), the scene's environment emitter evaluated there. Raises
+    InputError when the scene has no environment emitter."""
+    import mitsuba as mi
+
+    from ...errors import InputError
+    from ...render.scenes import load_scene
+    loaded = load_scene(scene_path, manifold_path, 1, tuple(basis.resolution), basis.manifest["max_depth"], None,
+                        basis.manifest["variant"])
+    scene = loaded.scene
+    emitter = scene.environment()
+    if emitter is None:
+        raise InputError(f"the scene {os.path.basename(scene_path)} has no environment light (envmap or constant): "
+                         "light the sphere with the studio environment")
+    to_world = np.array(scene.sensors()[basis.sensor].world_transform().matrix, dtype=np.float64)[..., 0]
+    rot = to_world[:3, :3]
+    d, _ = directions()
+    cam = np.stack([-d[..., 0], d[..., 1], -d[..., 2]], axis=-1).reshape(-1, 3)
+    world = cam @ rot.T
+    world /= np.linalg.norm(world, axis=1, keepdims=True)
+    si = mi.SurfaceInteraction3f()
+    si.wi = mi.Vector3f(*(-world).T.astype(np.float32))
+    rgb = np.array(emitter.eval(si), dtype=np.float32).reshape(3, -1).T.reshape(HEIGHT, WIDTH, 3)
+    centre = _targets_centre(loaded)
+    lights = []
+    for e in scene.emitters():   # point lights: a direction and the irradiance they give at the material
+        params = mi.traverse(e)
+        if e.is_environment() or "position" not in params or "intensity.value" not in params:
+            continue
+        v = np.array(params["position"], dtype=np.float64).reshape(3) - centre
+        dist2 = float(v @ v)
+        c = np.linalg.solve(rot, v / np.sqrt(dist2))   # in the camera's frame
+        intensity = np.array(params["intensity.value"], dtype=np.float64).reshape(3)
+        lights.append({"dir": [float(-c[0]), float(c[1]), float(-c[2])], "irradiance": (intensity / dist2).tolist()})
+    meta = {"width": WIDTH, "height": HEIGHT, "emitter": type(emitter).__name__, "lights": lights}
+    return np.clip(rgb, 0, 65504).astype("<f2").tobytes(), meta
+
+
+def _targets_centre(loaded):
+    """Centre of the bounding box of the shapes made of the scene's manifold material."""
+    targets = {id(b) for b in loaded.targets}
+    boxes = [s.bbox() for s in loaded.scene.shapes() if s.bsdf() is not None and id(s.bsdf()) in targets]
+    if not boxes:
+        boxes = [loaded.scene.bbox()]
+    lo = np.min([np.array(b.min, dtype=np.float64).reshape(3) for b in boxes], axis=0)
+    hi = np.max([np.array(b.max, dtype=np.float64).reshape(3) for b in boxes], axis=0)
+    return 0.5 * (lo + hi)
+
+
 if __name__ == "__main__":   # regenerate the shipped files: python3 -m mitsuba_manifold.apps.explore.hdri
     print(*write())

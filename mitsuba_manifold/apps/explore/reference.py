@@ -1,16 +1,25 @@
 """Full-GI reference renders of a latent point, in the background, with progress.
 
 The blend (Eq. 13) holds the paths that touch the material at most once (L1-); a render
-with ``manifold_brdf`` and Mitsuba's ``path`` integrator holds every path. A job loads the
-basis's scene once, sets its material to ``x`` and renders it in passes of about a second
-(:func:`~mitsuba_manifold.render.interrupt.sample_passes`; different seeds, averaged as
-:func:`~mitsuba_manifold.render.interrupt.render_in_passes` does) so the page can show its
-progress and a stopping server does not wait for a long render, then measures the blend
-against it (:func:`mitsuba_manifold.imaging.metrics.compare`). One job renders at a time (the
-renders share the CPU with the blends); the others wait in line.
+with ``manifold_brdf`` and Mitsuba's ``path`` integrator holds every path. A reference job
+renders the basis's scene with its material at ``x`` in its own process
+(:mod:`.render_job`, started with ``nice`` so that the blends of a drag take the CPU first)
+in passes of :data:`~.render_job.PASS_SAMPLES` paths, so the page can show its progress, then
+measures the blend against it (:func:`mitsuba_manifold.imaging.metrics.compare`). A refinement
+(:meth:`References.submit_refine`) renders in the worker thread itself, at a lower priority.
+One job runs at a time; the others wait in line.
+
+Every job can be cancelled (:meth:`References.cancel`, or :meth:`References.cancel_tab` for
+all the jobs a tab started, when its websocket closes): a queued job never starts, a running
+reference's process is ended at once, a running refinement stops after its pass. Nothing a
+job does (cancelled, failed) stops the worker.
 """
 
 import itertools
+import os
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -19,11 +28,25 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...imaging import metrics
-from ...render.interrupt import sample_passes
-from ...render.scenes import load_scene, scene_resolution, set_points
+from ...render.scenes import scene_resolution
+from .render_job import RenderSpec
 
 MAX_SPP = 1 << 14
 KEEP_JOBS = 16
+#: Niceness of the reference processes and of the refinements' thread.
+NICENESS = 10
+_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+
+
+class Cancelled(Exception):
+    """The job was cancelled (by its page, or its page went away)."""
+
+
+def _lower_priority():
+    try:   # Linux: the calling thread's own niceness
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICENESS)
+    except (AttributeError, OSError):
+        pass
 
 
 @dataclass
@@ -33,18 +56,22 @@ class Job:
     x: list
     spp: int
     kind: str = "reference"        # reference (path at x), refine (L1- blend + L2+ rendered at x)
-    state: str = "queued"          # queued, rendering, done, failed
+    tab: str = None                # the page that started it (its jobs end with its websocket)
+    state: str = "queued"          # queued, rendering, done, failed, cancelled
     progress: float = 0.0
     message: str = ""
     started: float = field(default_factory=time.time)
     seconds: float = 0.0
     images: dict = field(default_factory=dict)   # name -> linear float32 (H, W, 3)
     error: dict = None
+    cancelled: bool = False
+    method: str = None             # a refinement's: how its L2+ light is rendered
+    process: object = field(default=None, repr=False)   # a reference's render process while it runs
 
     def status(self):
         return {"id": self.id, "basis": self.basis, "x": self.x, "spp": self.spp, "kind": self.kind, "state": self.state,
                 "progress": self.progress, "message": self.message, "seconds": self.seconds,
-                "error": self.error, "images": sorted(self.images)}
+                "error": self.error, "images": sorted(self.images), "method": self.method}
 
 
 def agreement(blend_image, refined):
@@ -71,21 +98,23 @@ class References:
         self._stopping = False
         self._latest_refine = None
 
-    def submit(self, name, basis, scene, manifold_path, x, spp, blend_image):
-        """Start a job; returns it. ``blend_image``: the blend at ``x`` to compare with."""
-        job = Job(id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp))
+    def submit(self, name, basis, scene, manifold_path, x, spp, blend_image, tab=None):
+        """Start a job; returns it. ``blend_image``: the blend at ``x`` to compare with; ``tab``:
+        the page that asked (:meth:`cancel_tab`)."""
+        job = Job(id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp), tab=tab)
         with self._lock:
             self._jobs[job.id] = job
             self._trim()
         self._pool.submit(self._run, job, basis, scene, manifold_path, blend_image)
         return job
 
-    def submit_refine(self, name, basis, manifold, x, spp, blend_image, **where):
+    def submit_refine(self, name, basis, manifold, x, spp, blend_image, tab=None, **where):
         """Start a refinement of the blend at ``x`` (:func:`~mitsuba_manifold.render.refine.refine_passes`;
         ``where``: its ``scene``, ``manifold_path`` and ``prune``): its image (``"refined"``) after
         every pass, in ``error`` the noise the passes measure and whether ``blend_image`` (the
         blend shown) agrees with it within that noise. A newer refinement supersedes it."""
-        job = Job(id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp), kind="refine")
+        job = Job(id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp), kind="refine",
+                  tab=tab)
         with self._lock:
             self._latest_refine = job.id
             self._jobs[job.id] = job
@@ -99,40 +128,74 @@ class References:
         with self._lock:
             self._latest_refine = None
 
+    def cancel(self, job_id):
+        """Cancel a job: queued, it never starts; rendering, it stops after its pass. Returns
+        the job (None when unknown)."""
+        with self._lock:
+            job = self._jobs.get(job_id)
+            if job is not None and job.state in ("queued", "rendering"):
+                job.cancelled = True
+                if job.state == "queued":
+                    job.state, job.message = "cancelled", "cancelled before it started"
+                proc = job.process
+                if proc is not None and proc.poll() is None:
+                    proc.terminate()
+        return job
+
+    def cancel_tab(self, tab):
+        """Cancel every job the page ``tab`` started (its websocket closed)."""
+        with self._lock:
+            ids = [j.id for j in self._jobs.values() if j.tab == tab]
+        for job_id in ids:
+            self.cancel(job_id)
+
     def _trim(self):
         for old in list(self._jobs)[:-KEEP_JOBS]:
-            if self._jobs[old].state in ("done", "failed"):
+            if self._jobs[old].state in ("done", "failed", "cancelled"):
                 del self._jobs[old]
 
     def _run_refine(self, job, basis, manifold, blend_image, where):
-        from ...render.refine import CONTROL_VARIATE, refine_passes
+        from ...render.refine import refine_passes
 
         def passes():
             self._check_current(job)   # queued behind a newer one: never started
+            _lower_priority()
             for r in refine_passes(basis, manifold, x=np.asarray(job.x), spp=job.spp, passes=max(1, min(4, job.spp)),
                                    blend_image=blend_image, **where):
                 self._check_current(job)
                 job.images = {"blend": blend_image, "refined": r.image}
-                what = "L2+ correction" if r.method == CONTROL_VARIATE else "L2+"
-                job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp of {what}"
+                job.method = r.method
+                job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp"
                 if r.passes == 0:   # a training material: the blend is already exact
                     job.progress, job.message = 1.0, "exact at a training material: nothing to render"
                 job.error = agreement(blend_image, r)
         self._execute(job, passes)
 
     def _check_current(self, job):
+        self._check(job)
+        if job.id != self._latest_refine:
+            raise Cancelled("superseded by a newer refinement")
+
+    def _check(self, job):
+        """Raise when the job is to stop now (cancelled, or the server stopping)."""
         if self._stopping:
             raise RuntimeError("the server is stopping")
-        if job.id != self._latest_refine:
-            raise RuntimeError("superseded by a newer refinement")
+        if job.cancelled:
+            raise Cancelled("cancelled")
 
-    @staticmethod
-    def _execute(job, work):
-        """Run ``work()`` as ``job``: its state, its failure shown on the page, its seconds."""
-        job.state, t0 = "rendering", time.perf_counter()
+    def _execute(self, job, work):
+        """Run ``work()`` as ``job`` (unless cancelled meanwhile): its state, its failure shown
+        on the page, its seconds. Nothing a job does ends the worker thread."""
+        with self._lock:
+            if job.cancelled or job.state != "queued":
+                return
+            job.state = "rendering"
+        t0 = time.perf_counter()
         try:
             work()
             job.state = "done"
+        except Cancelled as e:
+            job.state, job.message = "cancelled", f"{e} ({job.progress:.0%} done)"
         except Exception as e:  # shown on the page; the server keeps running
             job.state, job.message = "failed", f"{type(e).__name__}: {e}"
         finally:
@@ -149,25 +212,42 @@ class References:
         self._execute(job, render)
 
     def _render(self, job, basis, scene_path, manifold_path):
-        """The reference image of a job, in passes; stops between passes when the server does."""
-        import mitsuba as mi
-
-        loaded = load_scene(scene_path, manifold_path, job.spp, scene_resolution(basis.manifest),
-                            basis.manifest.max_depth, job.x, basis.manifest.variant, sensor=basis.sensor)
-        set_points(loaded.targets, job.x)
-        integrator = loaded.integrator.reference(loaded.scene)   # the scene's own, as the basis
-        w, h = basis.resolution
-        acc, done = None, 0
-        for k, spp in enumerate(sample_passes(job.spp, w * h)):
-            if self._stopping:
-                raise RuntimeError("the server is stopping")
-            img = np.array(mi.render(loaded.scene, integrator=integrator, spp=spp, seed=1000 + k,
-                                     sensor=basis.sensor),   # the basis's own view
-                           dtype=np.float64)[..., :3]
-            acc = img * spp if acc is None else acc + img * spp
-            done += spp
-            job.progress, job.message = done / job.spp, f"{done}/{job.spp} spp"
-        return (acc / job.spp).astype(np.float32)
+        """The reference image of a job, rendered by :mod:`.render_job` in a process of its own
+        (``nice``); ended when the job is cancelled or the server stops."""
+        with tempfile.TemporaryDirectory(prefix="explore-reference-") as tmp:
+            spec = RenderSpec(scene=os.path.abspath(scene_path), manifold=os.path.abspath(manifold_path),
+                              x=list(job.x), spp=job.spp, resolution=_listed(scene_resolution(basis.manifest)),
+                              size=list(basis.resolution), max_depth=int(basis.manifest.max_depth),
+                              variant=basis.manifest.variant,
+                              sensor=basis.sensor, out=os.path.join(tmp, "reference.npy"))
+            spec.write(os.path.join(tmp, "spec.json"))
+            env = dict(os.environ)
+            env["PYTHONPATH"] = os.pathsep.join([_ROOT] + [p for p in [env.get("PYTHONPATH")] if p])
+            cmd = ["nice", "-n", str(NICENESS), sys.executable, "-m", "mitsuba_manifold.apps.explore.render_job",
+                   os.path.join(tmp, "spec.json")]
+            with self._lock, open(os.path.join(tmp, "stderr.txt"), "w") as log:
+                self._check(job)
+                job.process = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, env=env,
+                                               start_new_session=True, text=True)
+            proc = job.process
+            try:
+                for line in proc.stdout:   # "done total" after each pass
+                    parts = line.split()
+                    if len(parts) == 2 and parts[0].isdigit():
+                        done = int(parts[0])
+                        job.progress, job.message = done / job.spp, f"{done}/{job.spp} spp"
+                proc.wait()
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+                job.process = None
+            self._check(job)
+            if proc.returncode != 0:
+                with open(os.path.join(tmp, "stderr.txt"), errors="replace") as f:
+                    lines = [ln for ln in f.read().splitlines() if ln.strip()]
+                raise RuntimeError(lines[-1] if lines else f"the render exited with {proc.returncode}")
+            return np.load(spec.out)
 
     def busy(self):
         """Whether a job is rendering now."""
@@ -175,11 +255,21 @@ class References:
             return any(j.state == "rendering" for j in self._jobs.values())
 
     def shutdown(self, wait=0.0):
-        """Drop the queued jobs; the running one stops after its current pass. Waits up to
-        ``wait`` seconds for it; returns whether no job is rendering any more."""
+        """Drop the queued jobs; the running one stops (a reference at once, a refinement after
+        its current pass). Waits up to ``wait`` seconds for it; returns whether no job is
+        rendering any more."""
         self._stopping = True
         self._pool.shutdown(wait=False, cancel_futures=True)
+        with self._lock:
+            ids = [j.id for j in self._jobs.values() if j.state == "rendering"]
+        for job_id in ids:
+            self.cancel(job_id)
         deadline = time.monotonic() + wait
         while self.busy() and time.monotonic() < deadline:
             time.sleep(0.02)
         return not self.busy()
+
+
+def _listed(resolution):
+    """A scene's load resolution as JSON (None: the film's own size)."""
+    return None if resolution is None else list(resolution)

@@ -71,8 +71,12 @@ class Api:
         png, meta = await run_in_threadpool(self.ex.map_png, dims, center, _query(request, "extent"))
         return JSONResponse(dict(meta, png="data:image/png;base64," + base64.b64encode(png).decode()))
 
+    async def environment(self, request):
+        data, meta = await run_in_threadpool(self.ex.environment, _query(request, "basis"))
+        return Response(data, media_type="application/octet-stream", headers={"X-Env": json.dumps(meta)})
+
     async def snippet(self, request):
-        return JSONResponse(self.ex.snippets(self.x_of(request)))
+        return JSONResponse(self.ex.snippets(self.x_of(request), _query(request, "folder")))
 
     async def path(self, request):
         cmd = self.ex.path_command(_query(request, "basis"), _query(request, "a", ""), _query(request, "b", ""),
@@ -83,8 +87,9 @@ class Api:
         """The path's points when computed, else ``{"state": "computing"}`` (ask again)."""
         future = await run_in_threadpool(self.ex.route, _query(request, "a", ""), _query(request, "b", ""),
                                          _query(request, "steps"), _query(request, "kind"))
-        if not future.done():
+        if not future.done():   # this request stays a waiter: the path is computed for the next poll
             return JSONResponse({"state": "computing"})
+        self.ex.walks.release(future)
         return JSONResponse(dict(future.result(), state="ready"))   # a failed path raises its InputError
 
     async def thumbs(self, request):
@@ -104,7 +109,12 @@ class Api:
         if kind not in ("reference", "refine"):
             raise InputError(f"kind must be 'reference' or 'refine', got {show(kind)}")
         start = self.ex.start_refine if kind == "refine" else self.ex.start_reference
-        job = await run_in_threadpool(start, body.get("basis"), x, body.get("spp"))
+        job = await run_in_threadpool(start, body.get("basis"), x, body.get("spp"), body.get("tab"))
+        return JSONResponse(job.status())
+
+    async def reference_cancel(self, request):
+        """Cancel a job (queued: never starts; rendering: stops after its pass)."""
+        job = self.ex.references.cancel(self.job_of(request).id)
         return JSONResponse(job.status())
 
     def job_of(self, request):
@@ -134,11 +144,13 @@ class Api:
             Route("/api/table", self.table),
             Route("/api/map", self.latent_map),
             Route("/api/snippet", self.snippet),
+            Route("/api/env", self.environment),
             Route("/api/path", self.path),
             Route("/api/route", self.route),
             Route("/api/thumbs.png", self.thumbs),
             Route("/api/reference", self.reference_start, methods=["POST"]),
             Route("/api/reference/{job}", self.reference_status),
+            Route("/api/reference/{job}/cancel", self.reference_cancel, methods=["POST"]),
             Route("/api/reference/{job}/{which}.png", self.reference_image),
             WebSocketRoute("/ws", self.websocket),
             Mount("/static", StaticFiles(directory=STATIC), name="static"),
@@ -167,9 +179,10 @@ def create_app(explorer, allow=None, max_body=MAX_BODY):
     Routes (:meth:`Api.routes`): ``/`` the page; ``/static/*`` its files; ``/api/info``;
     ``/api/frame?basis&x&exposure&format`` (the image); ``/api/material?x``; ``/api/table?x``
     (float16 preview table, layout in the ``X-Table`` header); ``/api/map?dims&x``;
-    ``/api/snippet?x``; ``/api/path?basis&a&b&steps&kind`` (the blend.py command);
+    ``/api/snippet?x&folder``; ``/api/env?basis`` (the scene's environment for the sphere); ``/api/path?basis&a&b&steps&kind`` (the blend.py command);
     ``/api/route?a&b&steps&kind`` (the path's points); ``/api/thumbs.png`` (the thumbnail sheet); ``POST /api/reference`` ``{basis, x, spp}``,
-    ``/api/reference/{id}``, ``/api/reference/{id}/{blend|reference|error}.png``; websocket ``/ws``.
+    ``/api/reference/{id}``, ``POST /api/reference/{id}/cancel``,
+    ``/api/reference/{id}/{blend|reference|error}.png``; websocket ``/ws?tab=ID``.
     Errors in a request answer 400 (the package's input errors), their HTTP status, or 500
     with one line (a bug; the traceback stays on the server's console).
     """

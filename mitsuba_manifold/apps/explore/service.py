@@ -14,6 +14,7 @@ import os
 import shlex
 import threading
 import time
+from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from ...data.database import cache_folder
 from ...errors import InputError
 from ...manifold.model import Manifold
 from ...manifold import paths as path_kinds
-from . import encode, latentmap, material
+from . import encode, hdri, latentmap, material
 from .bases import names as _names, scene_of as _scene_of, warm as _warm
 from .inputs import extent, latent_point, map_dims, number, path_kind, show
 from .reference import MAX_SPP, References
@@ -245,19 +246,36 @@ class Explorer:
                 self._maps.pop(next(iter(self._maps)))
         return out
 
-    def snippets(self, x):
-        """``<bsdf>`` XML and ``mi.load_dict`` Python for ``x``."""
+    def snippet_folder(self):
+        """The folder the snippets name the manifold relative to by default: that of the first
+        basis's scene (a snippet pasted into that scene finds the manifold)."""
+        scene = next(iter(self.scenes.values()))
+        return os.path.dirname(os.path.abspath(scene)) if scene else os.getcwd()
+
+    def snippets(self, x, folder=None):
+        """``<bsdf>`` XML and ``mi.load_dict`` Python for ``x``, naming the manifold through a
+        ``$manifold`` parameter whose default is its path relative to ``folder`` (the scene's
+        folder: Mitsuba resolves it from there; default :meth:`snippet_folder`), so that a scene
+        and its manifold moved together still render."""
+        folder = self.snippet_folder() if folder is None or folder == "" else folder
+        if not isinstance(folder, str) or len(folder) > 4096 or not os.path.isabs(folder):
+            raise InputError(f"folder must be an absolute folder path (the scene's), got {show(folder)}")
+        rel = os.path.relpath(self.manifold_path, os.path.normpath(folder)).replace(os.sep, "/")
         xs = ", ".join(f"{v:.6g}" for v in x)
-        path = self.manifold_path
-        xml = (f'<bsdf type="manifold_brdf" id="material">\n'
-               f'    <string name="manifold" value="{path}"/>\n'
+        xml = (f'<!-- in the <scene>, before this: the manifold, relative to the scene file\'s folder -->\n'
+               f'<default name="manifold" value="{escape(rel, {chr(34): "&quot;"})}"/>\n\n'
+               f'<bsdf type="manifold_brdf" id="material">\n'
+               f'    <string name="manifold" value="$manifold"/>\n'
                f'    <string name="x" value="{xs}"/>\n'
                f'</bsdf>')
-        py = ("import mitsuba as mi\nimport mitsuba_manifold\n\nmi.set_variant(\"llvm_ad_rgb\")\n"
+        py = ("import os\n\nimport mitsuba as mi\nimport mitsuba_manifold\n\nmi.set_variant(\"llvm_ad_rgb\")\n"
               "mitsuba_manifold.register()\n"
-              f"bsdf = mi.load_dict({{\"type\": \"manifold_brdf\", \"manifold\": {json.dumps(path)}, "
-              f"\"x\": \"{xs}\"}})")
-        return {"xml": xml, "python": py, "x": [float(v) for v in x]}
+              f"# the manifold, relative to the folder of this script (or set MANIFOLD)\n"
+              f"manifold = os.environ.get(\"MANIFOLD\", os.path.join(os.path.dirname(os.path.abspath(__file__)), "
+              f"{json.dumps(rel)}))\n"
+              f"bsdf = mi.load_dict({{\"type\": \"manifold_brdf\", \"manifold\": manifold, \"x\": \"{xs}\"}})")
+        return {"xml": xml, "python": py, "x": [float(v) for v in x], "folder": folder,
+                "manifold": rel}
 
     def path_command(self, name, a, b, steps, kind=None):
         """The ``tools/blend.py --path`` command rendering the sequence from ``a`` to ``b``
@@ -297,7 +315,29 @@ class Explorer:
                 "albedos": None if m.albedos is None else m.albedos.tolist(), "bases": bases,
                 "prune": self.prune, "tables": self.tables.state if self.tables else "unavailable",
                 "max_reference_spp": MAX_SPP, "refine_spp": self.refine_spp, "thumbs": self.thumbs.info() if self.thumbs else None,
-                "path_kinds": list(path_kinds.KINDS), "path_kind": path_kinds.DEFAULT_KIND}
+                "path_kinds": list(path_kinds.KINDS), "path_kind": path_kinds.DEFAULT_KIND,
+                "snippet_folder": self.snippet_folder()}
+
+    def environment(self, name):
+        """The environment light of basis ``name``'s scene as its camera sees it, for the preview
+        sphere: float16 RGB bytes of a :data:`~.hdri.WIDTH` x :data:`~.hdri.HEIGHT`
+        equirectangular map in the sphere's frame (``y`` up, ``z`` towards the viewer; the
+        layout of :mod:`.hdri`) and ``{"width", "height", "emitter"}``; the scene's point lights
+        in ``"lights"`` (direction in that frame, irradiance at the centre of the scene's
+        manifold-material shapes). Raises InputError when the scene is missing or has no
+        environment light."""
+        key = self.key(name)
+        with self._maps_lock:
+            if ("env", key) in self._maps:
+                return self._maps[("env", key)]
+        basis, scene_path = self.bases[key], self.scenes[key]
+        if scene_path is None:
+            raise InputError(f"the scene of basis {key!r} is missing or has changed; start with --scene "
+                             "to light the sphere like it")
+        out = hdri.scene_environment(scene_path, self.manifold_path, basis)
+        with self._maps_lock:
+            self._maps[("env", key)] = out
+        return out
 
     # ---------------------------------------------------------- references
     def _job_args(self, name, x, spp, default):
@@ -309,15 +349,16 @@ class Explorer:
                              "changed since the basis was rendered; give it with --scene")
         return name, basis, scene, int(self.number(spp, "spp", 1, MAX_SPP, default)), self.blend(name, x)[0]
 
-    def start_reference(self, name, x, spp):
+    def start_reference(self, name, x, spp, tab=None):
+        """A full-GI reference render at ``x`` in the background (``tab``: the page asking)."""
         name, basis, scene, spp, img = self._job_args(name, x, spp, 256)
-        return self.references.submit(name, basis, scene, self.manifold_path, x, spp, img)
+        return self.references.submit(name, basis, scene, self.manifold_path, x, spp, img, tab=_tab(tab))
 
-    def start_refine(self, name, x, spp):
+    def start_refine(self, name, x, spp, tab=None):
         """A refinement of the blend at ``x`` (``blend.py --refine``) in the background."""
         name, basis, scene, spp, img = self._job_args(name, x, spp, 16)
         where = {"scene": scene, "manifold_path": self.manifold_path, "prune": self.prune}
-        return self.references.submit_refine(name, basis, self.manifold, x, spp, img, **where)
+        return self.references.submit_refine(name, basis, self.manifold, x, spp, img, tab=_tab(tab), **where)
 
     def reference_image(self, job_id, which, exposure=0.0):
         job = self.references.get(job_id)
@@ -339,3 +380,12 @@ class Explorer:
         if self.thumbs:
             self.thumbs.close()
         return self.references.shutdown(wait)
+
+
+def _tab(tab):
+    """The page id of a job (None: no page), or InputError."""
+    if tab is None or tab == "":
+        return None
+    if not isinstance(tab, str) or len(tab) > 64 or not tab.isascii() or not tab.isprintable():
+        raise InputError(f"tab must be the page's id (at most 64 ASCII characters), got {show(tab)}")
+    return tab

@@ -16,6 +16,13 @@ full (denoised) frame has its own worker (:data:`FINAL`): denoising takes 50-300
 first frames of the next drag do not wait for it (a coarse frame drops a full one still
 waiting; one that comes after a newer frame was drawn, the page drops by its ``seq``).
 
+A path (``route``) is computed by the explorer's path thread (:class:`~.walks.Walks`); the
+session waits for it without holding any other kind, stops waiting when a newer ``route``
+request arrives or the tab goes away, and then releases the path (a path nobody waits for is
+never started). The websocket's query names the tab (``/ws?tab=ID``): when the tab's socket
+closes, the background renders the tab started with that ``tab`` (references, refinements)
+are cancelled.
+
 Malformed input never reaches a traceback: a bad request is answered with
 ``{"type": "error", "kind", "seq", "error"}``; a binary message or one larger than
 :data:`~.guard.MAX_MESSAGE` closes the websocket with code 1003 or 1009 and a reason.
@@ -62,6 +69,10 @@ def _shown(kind):
     return "frame" if kind == FINAL else kind
 
 
+class Superseded(Exception):
+    """A newer request of the same kind arrived while this one waited: no answer is sent."""
+
+
 class Closing(Exception):
     """The client broke the protocol: close the websocket with ``code`` and ``reason``."""
 
@@ -103,6 +114,8 @@ class Session:
         self.pending = {}
         self.wake = {k: asyncio.Event() for k in KINDS + (FINAL,)}
         self.lock = asyncio.Lock()   # one message at a time on the socket
+        tab = ws.query_params.get("tab", "")
+        self.tab = tab if isinstance(tab, str) and 0 < len(tab) <= 64 and tab.isascii() else None
 
     async def send(self, meta, payload=b""):
         async with self.lock:
@@ -116,6 +129,8 @@ class Session:
         finally:
             for t in tasks:
                 t.cancel()
+            if self.tab is not None:   # the tab went away: its renders are no one's any more
+                self.ex.references.cancel_tab(self.tab)
         for t in tasks:   # a tab going away (also while an answer is sent) is no error
             if t.done() and not t.cancelled() and t.exception() is not None:
                 e = t.exception()
@@ -153,6 +168,8 @@ class Session:
                 seq = req.get("seq")
                 try:
                     meta, payload = await self.answer(kind, req)
+                except Superseded:
+                    continue
                 except BAD_REQUEST as e:
                     meta, payload = {"type": "error", "kind": _shown(kind), "seq": seq, "error": str(e)}, b""
                 except Exception as e:   # a bug: the console gets the traceback, the page one line
@@ -160,6 +177,20 @@ class Session:
                     meta, payload = {"type": "error", "kind": _shown(kind), "seq": seq,
                                      "error": f"internal error ({type(e).__name__}); see the server's console"}, b""
                 await self.send(dict(meta, seq=seq), payload)
+
+    async def wait_route(self, future):
+        """The result of a path's ``future``; raises :class:`Superseded` when a newer ``route``
+        request arrives first. Never cancels ``future`` itself (other tabs may wait for it)."""
+        result = asyncio.wrap_future(future)
+        newer = asyncio.ensure_future(self.wake["route"].wait())
+        try:
+            await asyncio.wait({result, newer}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            newer.cancel()
+        if result.done():
+            return result.result()
+        result.add_done_callback(lambda f: f.cancelled() or f.exception())   # nobody reads it now
+        raise Superseded()
 
     async def answer(self, kind, req):
         """``(meta, payload)`` of one request (raises InputError on bad input)."""
@@ -170,7 +201,10 @@ class Session:
             return {"type": "path", "command": cmd, "a": req.get("a"), "b": req.get("b")}, b""
         if kind == "route":   # computed in the paths' own thread: waits without holding any other kind
             future = await run_in_threadpool(ex.route, req.get("a"), req.get("b"), req.get("steps"), req.get("kind"))
-            route = await asyncio.wrap_future(future)
+            try:
+                route = await self.wait_route(future)
+            finally:
+                ex.walks.release(future)
             return dict(route, type="route"), b""
         x = ex.point(req.get("x"), "x")
         kind = _shown(kind)
@@ -190,7 +224,7 @@ class Session:
             data, meta = await run_in_threadpool(ex.preview_table, x, req.get("coarse") is True)
             return dict(meta, **tag), data
         if kind == "snippet":
-            return dict(ex.snippets(x), **tag), b""
+            return dict(ex.snippets(x, req.get("folder")), **tag), b""
         data, meta = await run_in_threadpool(ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"),
                                              req.get("coarse") is True)
         return dict(meta, **tag), data

@@ -15,12 +15,19 @@ same metric without the full table stack in memory (1.7 GB for 100 MERL tables).
 - :meth:`Walks.submit`: a path ``a -> b`` of a kind (``straight`` at once, ``uniform`` and
   ``geodesic`` in one low-priority background thread: the geodesic takes seconds; of the
   requests waiting there only the newest is computed), cached per pair, steps and kind;
-  returns a :class:`concurrent.futures.Future`.
+  returns a :class:`concurrent.futures.Future`, shared by every caller asking for the same path;
+- :meth:`Walks.release`: a caller no longer waits for a path (its page moved on or went away);
+  a path nobody waits for any more is dropped before it starts.
+
+The worker thread outlives every request: a path whose future was cancelled, failed or
+superseded is skipped or answered with an error, never an exception in the thread.
 """
 
 import os
 import queue
+import sys
 import threading
+import traceback
 from collections import OrderedDict
 from concurrent.futures import Future
 
@@ -62,7 +69,7 @@ class Walks:
         np.fill_diagonal(D, np.inf)
         #: median distance of a measured material to its nearest measured neighbour (a scale)
         self.spacing = float(np.median(D.min(axis=1))) if manifold.n > 1 else 1.0
-        self._paths, self._lock = OrderedDict(), threading.Lock()
+        self._paths, self._lock, self._waiters, self._busy = OrderedDict(), threading.Lock(), {}, False
         self._queue = queue.Queue()
         self._thread = threading.Thread(target=self._work, name="explore-paths", daemon=True)
         self._thread.start()
@@ -79,7 +86,8 @@ class Walks:
 
     def submit(self, xa, xb, steps=STEPS, kind=paths.DEFAULT_KIND):
         """Future of ``{"kind", "a", "b", "steps", "points", "lengths"}`` for the path from latent
-        point ``xa`` to ``xb`` (done at once for ``straight`` and cached paths)."""
+        point ``xa`` to ``xb`` (done at once for ``straight`` and cached paths). Each call counts
+        as one waiter until :meth:`release`."""
         if kind not in paths.KINDS:
             raise InputError(f"kind must be one of {list(paths.KINDS)}, got {kind!r:.40}")
         xa, xb = (np.asarray(v, dtype=np.float64) for v in (xa, xb))
@@ -87,43 +95,85 @@ class Walks:
             raise InputError("the path's two ends are the same point; choose two different ends")
         key = (xa.tobytes(), xb.tobytes(), int(steps), kind)
         with self._lock:
-            if key in self._paths:
+            future = self._paths.get(key)
+            if future is not None and not future.cancelled():
                 self._paths.move_to_end(key)
-                return self._paths[key]
+                self._waiters[future] = self._waiters.get(future, 0) + 1
+                return future
             future = Future()
             self._paths[key] = future
-            while len(self._paths) > PATHS_KEPT:
+            self._waiters[future] = 1
+            while len(self._paths) > PATHS_KEPT:   # its waiters still get it
                 self._paths.popitem(last=False)
         if kind == "straight":
+            future.set_running_or_notify_cancel()
             self._run(future, xa, xb, int(steps), kind)
         else:
             self._queue.put((future, xa, xb, int(steps), kind))
         return future
 
+    def release(self, future):
+        """One waiter of ``future`` (from :meth:`submit`) no longer needs it: when nobody does,
+        a path not yet started is cancelled and dropped from the cache (a running or finished
+        one is kept: it is cached for the next request of that path)."""
+        with self._lock:
+            n = self._waiters.get(future, 0) - 1
+            if n > 0:
+                self._waiters[future] = n
+                return
+            self._waiters.pop(future, None)
+            if future.cancel():
+                self._drop(future)
+
+    def waiting(self):
+        """Number of paths queued or computing (for tests and the server's status)."""
+        return self._queue.qsize() + int(self._busy)
+
+    def _drop(self, future):   # with self._lock held
+        for k, f in list(self._paths.items()):
+            if f is future:
+                del self._paths[k]
+
     def _work(self):
         """Compute the waiting paths, newest only: one asked for before a newer one started is
-        dropped (its future fails; the page asks for the ends it shows)."""
+        dropped (its future fails; the page asks for the ends it shows). Nothing a request does
+        (cancelled, failed, superseded) ends this loop."""
         _lower_priority()
         while True:
             item = self._queue.get()
-            if not self._queue.empty():
-                self._forget(item[0], InputError("a newer path was asked for; this one was not computed"))
-                continue
-            self._run(*item)
+            try:
+                if not item[0].set_running_or_notify_cancel():   # released by every waiter
+                    continue
+                if not self._queue.empty():
+                    self._fail(item[0], InputError("a newer path was asked for; this one was not computed"))
+                    continue
+                self._busy = True
+                self._run(*item)
+            except Exception:   # a bug in one path: reported on the console, the next path runs
+                traceback.print_exc(file=sys.stderr)
+                self._fail(item[0], InputError("internal error computing the path; see the server's console"))
+            finally:
+                self._busy = False
 
-    def _forget(self, future, error):
+    def _fail(self, future, error):
+        """Fail a running ``future`` with ``error`` and drop it from the cache (asked again, it
+        is computed again)."""
         with self._lock:
-            for k, f in list(self._paths.items()):
-                if f is future:
-                    del self._paths[k]
-        future.set_exception(error)
+            self._drop(future)
+            self._waiters.pop(future, None)
+        if not future.done():
+            future.set_exception(error)
 
     def _run(self, future, xa, xb, steps, kind):
+        """Compute one path into ``future`` (already running)."""
         try:
             X = paths.path(self.manifold, xa, xb, steps, kind, metric=self.metric)
             lengths = self.metric.steps(X)
-            future.set_result({"kind": kind, "a": xa.tolist(), "b": xb.tolist(), "steps": steps,
-                               "points": X.tolist(), "lengths": lengths.tolist()})
+            result = {"kind": kind, "a": xa.tolist(), "b": xb.tolist(), "steps": steps,
+                      "points": X.tolist(), "lengths": lengths.tolist()}
         except Exception as e:   # InputError or a numerical failure: the page falls back to straight
-            self._forget(future, e if isinstance(e, InputError) else
-                         InputError(f"the {kind} path failed ({type(e).__name__}: {str(e)[:120]})"))
+            self._fail(future, e if isinstance(e, InputError) else
+                       InputError(f"the {kind} path failed ({type(e).__name__}: {str(e)[:120]})"))
+            return
+        if not future.done():
+            future.set_result(result)

@@ -29,11 +29,18 @@ async function api(path, options) {
   return r;
 }
 
-function setStatus(text, error = false) {
+// The header's status: one line, an error tied to its source (a kind of answer, "reference",
+// "snippet", ...): the next success of that source clears it (clearError).
+function setStatus(text, error = false, source = null) {
+  state.status = { text, error, source };
   const s = $("status");
   s.textContent = text;
+  s.title = text;
   s.classList.toggle("error", error);
   if (error) state.errors.push(text);
+}
+function clearError(source) {
+  if (state.status && state.status.error && state.status.source === source) setStatus("connected");
 }
 
 let channel, preview;
@@ -41,13 +48,14 @@ const sameX = (a, b) => !!a && !!b && a.length === b.length && a.every((v, k) =>
 
 function onMessage(meta, payload) {
   if (meta.type === "error" && meta.kind === "route") { routeFailed(meta); return; }
-  if (meta.type === "error") { setStatus((meta.kind ? meta.kind + ": " : "") + meta.error, true); return; }
+  if (meta.type === "error") { setStatus((meta.kind ? meta.kind + ": " : "") + meta.error, true, meta.kind); return; }
+  clearError(meta.type);
   if (meta.type === "frame") drawFrame(meta, payload);
   else if (meta.type === "material") showMaterial(meta);
   else if (meta.type === "table" && preview) {
     // the full table of a point a new drag has left (a newer table asked for): not worth its upload
     if (!meta.coarse && live() && !channel.isCurrent("table", meta.seq)) return;
-    if (!sameX(meta.x, state.previewX) || meta.coarse !== state.previewCoarse) { preview.setTable(payload, meta); drawPlots(); }
+    if (!sameX(meta.x, state.previewX) || meta.coarse !== state.previewCoarse) { preview.setTable(payload, meta); drawPlots(); showGloss(); }
     state.previewX = meta.x; state.previewCoarse = meta.coarse;   // redrawn only when it changed
   }
   else if (meta.type === "route") showRoute(meta);
@@ -118,7 +126,8 @@ function sendMove(resting = false) {
   // slice: false: the page draws the BRDF slice itself, from the table (plots.js)
   // coarse: while dragging the sphere's table has every other texel (an eighth of the bytes), a new
   // slice's map a quarter of the pixels, the material no distance to the closest measured one
-  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom, slice: false, coarse: dragging, held },
+  channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom, slice: false, coarse: dragging, held,
+                               folder: state.snippetFolder },
                              frameRequest()), want);
 }
 function owe(dragging) {   // kinds not asked for the point shown yet (counted by channel.pending())
@@ -153,7 +162,7 @@ function setX(x) {
   showPoint();
   if (state.map && sliceKey() !== state.drawnSlice) drawMap();   // q > 2: the materials fade by their distance to the slice
   else placeCursor();
-  setText($("fav"), loadFavs().some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite");
+  renderShelf();   // shelf.js: favourite button, highlights, the search filter
 }
 
 function updateSavePng() {
@@ -226,9 +235,17 @@ function drawMap() {
     // q > 2: materials far from the slice (in the other coordinates) fade out
     const off = p.reduce((s, v, k) => s + (state.dims.includes(k) ? 0 : (v - state.x[k]) ** 2), 0);
     ctx.globalAlpha = i === state.hover ? 1 : Math.max(0.25, Math.exp(-off / 0.5));
-    ctx.beginPath(); ctx.arc(px, py, i === state.hover ? 6 : 4, 0, 2 * Math.PI);
-    ctx.fillStyle = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
-    ctx.fill(); ctx.lineWidth = 1.5; ctx.strokeStyle = i === state.hover ? "#fff" : "rgba(0,0,0,.85)"; ctx.stroke();
+    const sheet = state.thumbImage, t = state.thumbs, r = sheet ? (i === state.hover ? 11 : 8) : (i === state.hover ? 6 : 4);
+    ctx.beginPath(); ctx.arc(px, py, r, 0, 2 * Math.PI);
+    if (sheet) {   // the material's own thumbnail: its appearance (gloss, colour) on the map
+      ctx.save(); ctx.clip();
+      ctx.drawImage(sheet, (i % t.columns) * t.size, Math.floor(i / t.columns) * t.size, t.size, t.size, px - r, py - r, 2 * r, 2 * r);
+      ctx.restore();
+    } else {
+      ctx.fillStyle = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
+      ctx.fill();
+    }
+    ctx.lineWidth = 1.5; ctx.strokeStyle = i === state.hover ? "#fff" : "rgba(0,0,0,.85)"; ctx.stroke();
   });
   ctx.globalAlpha = 1;
   for (const [end, label] of [[state.a, "A"], [state.b, "B"]]) {
@@ -378,13 +395,14 @@ function showMaterial(m) {
   if (m.albedo) {
     const a = m.albedo;
     $("albedo-swatch").style.background = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
-    $("albedo-val").textContent = a.map((v) => v.toFixed(2)).join(" · ");
-    $("albedo-val").title = "bihemispherical albedo, RGB: " + a.map((v) => v.toFixed(4)).join(", ");
+    const mean = (a[0] + a[1] + a[2]) / 3;
+    $("albedo-val").textContent = `${colourWord(a)} · reflects ${(100 * mean).toFixed(0)}%`;
+    $("albedo-detail").textContent = "albedo (bihemispherical), R G B: " + a.map((v) => v.toFixed(3)).join(" · ");
   }
   const rel = Math.min(1, m.variance / m.prior_variance);
   $("conf-bar").style.width = (100 * (1 - rel)).toFixed(1) + "%";
   $("conf-bar").style.background = rel > 0.5 ? "var(--neg)" : rel > 0.1 ? "var(--warn)" : "var(--accent)";
-  $("variance-val").textContent = `GP variance ${fmtNum(m.variance, 4)} (Eq. 2)`;
+  $("variance-val").textContent = `GP variance ${fmtNum(m.variance, 4)} of ${fmtNum(m.prior_variance, 3)} (paper Eq. 2)`;
   const warn = [];
   if (rel > 0.5) warn.push("far from every measured material (GP variance near its prior): an extrapolation");
   if (m.albedo && m.albedo.some((v) => v < 0 || v > 1)) warn.push("albedo outside [0, 1]: not a physical material");
@@ -396,10 +414,12 @@ function showMaterial(m) {
   $("nearest").innerHTML = "";
   if (m.measured) state.lastMeasured = m.measured;
   const near = m.measured || (m.live ? state.lastMeasured : null);   // a drag: the last one, marked stale
-  $("measured").innerHTML = near ? `${thumbHtml(near.name, 18)}<b>${escapeHtml(near.name)}</b> ` +
-    `d = ${fmtNum(near.distance)} <span class="muted">(${fmtNum(near.distance / near.spacing, 2)}× the ` +
-    `median spacing of the measured materials)</span>` :
+  const ratio = near ? near.distance / near.spacing : null;
+  const how = ratio === null ? "" : ratio < 1e-6 ? "is the measured" : ratio < 0.5 ? "very close to" : ratio < 1.5 ? "close to" : "far from; nearest";
+  $("measured").innerHTML = near ? `<span class="muted">${how}</span> ${thumbHtml(near.name, 18)}<b>${escapeHtml(near.name)}</b>` :
     `<span class="muted">${m.tables === "ready" ? "preparing the perceptual metric…" : escapeHtml(m.tables_message || "")}</span>`;
+  $("measured-detail").textContent = near ? `perceptual distance to ${near.name}: ${fmtNum(near.distance)} ` +
+    `(${fmtNum(ratio, 2)}× the median spacing of the measured materials)` : "";
   for (const n of m.nearest) {
     const b = document.createElement("button");
     b.innerHTML = thumbHtml(n.name, 16) + escapeHtml(n.name); b.title = `latent distance ${n.distance.toFixed(3)}`;
@@ -427,12 +447,45 @@ function showMaterial(m) {
   $("weights-note").title = m.pruning || "";   // the bound pruning reached (albedo, cosine-weighted, raw L2)
 }
 
+// A colour's name for people: hue and lightness of the albedo (linear RGB).
+function colourWord(a) {
+  const [r, g, b] = a.map((v) => Math.max(0, v)), max = Math.max(r, g, b), min = Math.min(r, g, b);
+  const light = (r + g + b) / 3, tone = light < 0.05 ? "black" : light < 0.2 ? "dark" : light < 0.5 ? "mid" : "light";
+  if (max - min < 0.15 * max || max <= 0) return tone === "black" ? "black" : tone === "light" && light > 0.7 ? "white" : tone + " grey";
+  let h = 0;
+  if (max === r) h = ((g - b) / (max - min) + 6) % 6; else if (max === g) h = (b - r) / (max - min) + 2; else h = (r - g) / (max - min) + 4;
+  const hue = ["red", "orange", "yellow", "yellow-green", "green", "teal", "cyan", "blue", "blue", "violet", "magenta", "pink"][Math.floor(h * 2) % 12];
+  return (tone === "mid" ? "" : tone + " ") + hue;
+}
+
+// Gloss of the preview table: log10 of the reflectance towards the mirror direction (theta_h = 0)
+// over that at theta_h = 60 degrees, both at theta_d = 10 degrees (mean RGB), in words.
+function glossOf() {
+  if (!preview || !preview.table) return null;
+  const { dims, full_dims: full, strides } = preview.table.layout;
+  const bin = (deg, k, sqrtMap) => Math.min(dims[k] - 1, Math.max(0, Math.round(((sqrtMap ? Math.sqrt(deg / 90) : deg / 90) * full[k] - 0.5) / strides[k])));
+  const mean = (v) => (v[0] + v[1] + v[2]) / 3, id = bin(10, 1, false);
+  const peak = mean(preview.value(0, id, 0)), wide = mean(preview.value(bin(60, 0, true), id, 0));
+  if (!(peak > 0) || !(wide >= 0)) return null;
+  const g = Math.log10(peak / Math.max(wide, 1e-6));
+  const word = g < 0.3 ? "matte" : g < 1 ? "satin" : g < 2 ? "glossy" : g < 3 ? "very glossy" : "mirror-like";
+  return { g, word, peak, wide };
+}
+function showGloss() {
+  const gl = glossOf();
+  setText($("gloss-val"), gl ? gl.word : "");
+  $("gloss-bar").style.width = gl ? (100 * Math.min(1, Math.max(0.03, gl.g / 4))).toFixed(0) + "%" : "0";
+  setText($("gloss-detail"), gl ? `gloss: mirror-direction reflectance ${fmtNum(gl.peak)} /sr, 60° away ${fmtNum(gl.wide)} /sr ` +
+    `(10^${gl.g.toFixed(2)}×)` : "");
+}
+
 function escapeHtml(s) { return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
 
 function goTo(name) { setX(state.info.latent[state.info.names.indexOf(name)]); }
 
 // ------------------------------------------------------------------ snippets
 function showSnippet(sn) {
+  if (sn.folder !== state.snippetFolder) return;   // asked for before the folder changed
   state.snippet = sn;
   $("snippet").textContent = sn.xml;
   $("snippet").dataset.x = sn.x.join(",");
@@ -443,7 +496,7 @@ const snippetWaiters = [];
 // The snippet of the point shown: the one at hand when it is for state.x, else asked for now.
 async function currentSnippet() {
   while (!state.snippet || !sameX(state.snippet.x, state.x)) {
-    const seq = channel.send({ type: "snippet", x: state.x }, ["snippet"]);
+    const seq = channel.send({ type: "snippet", x: state.x, folder: state.snippetFolder }, ["snippet"]);
     await new Promise((resolve) => { snippetWaiters.push(resolve); setTimeout(resolve, 5000); });
     if (channel.isCurrent("snippet", seq) && !(state.snippet && sameX(state.snippet.x, state.x))) {
       throw new Error("no snippet for the current point from the server");
@@ -452,8 +505,8 @@ async function currentSnippet() {
   return state.snippet;
 }
 async function copySnippet(which, what) {
-  try { const sn = await currentSnippet(); copy(sn[which], what); }
-  catch (e) { setStatus("snippet: " + e.message, true); }
+  try { const sn = await currentSnippet(); copy(sn[which], what); clearError("snippet"); }
+  catch (e) { setStatus("snippet: " + e.message, true, "snippet"); }
 }
 async function copy(text, what) {
   state.copied = text;
@@ -500,7 +553,7 @@ function showRoute(meta) {
   state.route = Object.assign({}, r, { kind: meta.kind, points: meta.points });
   const L = meta.lengths.reduce((s, v) => s + v, 0), spread = Math.max(...meta.lengths) / (L / meta.lengths.length);
   $("route-state").textContent = `${meta.kind} · perceptual length ${fmtNum(L)} · largest step ${spread.toFixed(2)}× the mean`;
-  if (onPath) scrub();   // the point shown moves onto the new path
+  if (onPath) { scrub(); commitPoint(); }   // the point shown moves onto the new path
   drawMap();
 }
 function routeFailed(meta) {
@@ -538,6 +591,7 @@ function exportPath() {
 }
 function showPath(meta) {
   if (meta.seq !== state.pathSeq) return;   // for ends or steps changed since
+  clearError("path");
   $("path-cmd").hidden = false; $("path-cmd").classList.remove("stale");
   $("path-cmd").textContent = meta.command; copy(meta.command, "command");
 }
@@ -563,6 +617,12 @@ function bindTabs() {
   $("theta-i").oninput = () => { $("theta-i-val").textContent = $("theta-i").value + "°"; drawPlots(); };
   $("env-rot").oninput = () => preview && preview.setRotation(+$("env-rot").value * Math.PI / 180);
   $("key-power").oninput = () => preview && preview.setKeyPower(+$("key-power").value * Math.PI);
+  $("lighting").onchange = async () => {
+    if (!preview) return;
+    const msg = await preview.setLighting($("lighting").value, state.basis);
+    if (msg) { setStatus("sphere light: " + msg, true, "lighting"); $("lighting").value = "studio"; preview.setLighting("studio"); }
+    else clearError("lighting");
+  };
 }
 
 // ------------------------------------------------------------------ reference
@@ -571,30 +631,40 @@ async function startReference() {
   $("ref-result").hidden = true;
   try {
     const job = await (await api("/api/reference", { method: "POST", headers: { "Content-Type": "application/json" },
-      body: JSON.stringify({ basis: state.basis, x: state.x, spp: +$("ref-spp").value }) })).json();
+      body: JSON.stringify({ basis: state.basis, x: state.x, spp: +$("ref-spp").value, tab: TAB }) })).json();
+    state.referenceJob = job.id;
+    $("ref-cancel").hidden = false;
+    $("ref-cancel").onclick = () => api(`/api/reference/${job.id}/cancel`, { method: "POST" }).catch(() => {});
     pollReference(job.id);
-  } catch (e) { setStatus("reference: " + e.message, true); $("ref-start").disabled = false; }
+  } catch (e) { setStatus("reference: " + e.message, true, "reference"); $("ref-start").disabled = false; }
 }
 async function pollReference(id) {
   const bar = $("ref-progress");
   bar.hidden = false;
   let job;
   try { job = await (await api("/api/reference/" + id)).json(); }
-  catch (e) { setStatus("reference: " + e.message, true); $("ref-start").disabled = false; return; }
+  catch (e) { setStatus("reference: " + e.message, true, "reference"); $("ref-start").disabled = false; $("ref-cancel").hidden = true; return; }
   bar.firstElementChild.style.width = (100 * job.progress).toFixed(0) + "%";
   bar.lastElementChild.textContent = job.state === "queued" ? "waiting…" : `${job.message || "starting"}`;
   if (job.state === "queued" || job.state === "rendering") { setTimeout(() => pollReference(id), 400); return; }
   $("ref-start").disabled = false;
+  $("ref-cancel").hidden = true;
   bar.hidden = true;
-  if (job.state === "failed") { setStatus("reference failed: " + job.message, true); return; }
+  if (job.state === "cancelled") { $("ref-note-cancel").hidden = false; $("ref-note-cancel").textContent = "reference " + job.message; return; }
+  if (job.state === "failed") { setStatus("reference failed: " + job.message, true, "reference"); return; }
+  clearError("reference");
+  $("ref-note-cancel").hidden = true;
   const ev = "?exposure=" + state.exposure;
   $("ref-blend").src = `/api/reference/${id}/blend.png${ev}`;
   $("ref-ref").src = `/api/reference/${id}/reference.png${ev}`;
   $("ref-err").src = `/api/reference/${id}/error.png`;
   $("ref-caption").textContent = `reference (full GI, ${job.spp} spp, ${job.seconds.toFixed(1)} s)`;
   const e = job.error;
-  $("ref-metrics").textContent = `rel. MSE ${fmtNum(e.rel_mse, 4)} · PSNR ${e.psnr.toFixed(1)} dB · mean |Δ| ${fmtNum(e.mean_abs, 4)}` +
-    ` · at x = (${job.x.map((v) => fmtNum(v)).join(", ")})`;
+  const verdict = e.psnr >= 40 ? "the blend is indistinguishable from full GI" : e.psnr >= 30 ? "the blend is close to full GI"
+    : "the blend differs visibly from full GI";
+  $("ref-metrics").innerHTML = `PSNR ${e.psnr.toFixed(1)} dB: ${verdict}<details><summary>details</summary>` +
+    escapeHtml(`rel. MSE ${fmtNum(e.rel_mse, 4)} · mean |Δ| ${fmtNum(e.mean_abs, 4)} · at x = (${job.x.map((v) => fmtNum(v)).join(", ")})`) +
+    `</details>`;
   $("ref-result").hidden = false;
 }
 
@@ -605,7 +675,10 @@ async function main() {
   const info = state.info;
   for (const b of info.bases) $("basis").add(new Option(`${b.name} (${b.resolution.join("×")}, ${b.images} materials)`, b.name));
   state.basis = info.bases[0].name;
-  $("basis").onchange = () => { state.basis = $("basis").value; sceneInfo(); requestAll(); };
+  $("basis").onchange = () => {
+    state.basis = $("basis").value; sceneInfo(); requestAll();
+    if ($("lighting").value === "scene") $("lighting").onchange();   // the new scene's light
+  };
   sceneInfo();
   preview = new MaterialPreview($("sphere"), $("sphere-msg"));
   channel = new Channel(onMessage, () => state.x && requestAll());
@@ -633,7 +706,8 @@ async function main() {
   $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there
     const v = $("search").value.trim(), hit = info.names.find((n) => n.toLowerCase() === v.toLowerCase());
     $("search").setCustomValidity("");
-    if (hit) { goTo(hit); commitPoint(); $("search").blur(); }
+    state.filter = v.toLowerCase();
+    if (hit) { state.filter = ""; goTo(hit); commitPoint(); $("search").blur(); }
     buildGallery();   // the gallery shows the names matching what is typed
   };
   $("search").onkeydown = (ev) => {   // Enter: the one name containing what is typed, else say why not
@@ -650,18 +724,31 @@ async function main() {
   $("scrub").onchange = commitPoint;
   for (const k of info.path_kinds) $("path-kind").add(new Option(k, k));
   $("path-kind").value = info.path_kind;
-  $("path-kind").onchange = () => { if (state.a && state.b && !sameX(state.a.x, state.b.x)) requestRoute(); drawMap(); };
+  $("path-kind").onchange = () => {
+    if (!(state.a && state.b && !sameX(state.a.x, state.b.x))) { drawMap(); return; }
+    const onPath = state.route && sameX(state.x, pointOnRoute(+$("scrub").value / 1000));
+    requestRoute();
+    if (onPath) { scrub(); commitPoint(); }   // the point follows the scrubber onto the new path
+    drawMap();
+  };
   bindTabs();
   bindShelf();
   window.addEventListener("resize", placeCursor);
   $("export-path").onclick = exportPath;
   $("ref-start").onclick = startReference;
+  $("refine-auto").onchange = () => { if ($("refine-auto").checked) refineHere(); else refineOff(); };
   if (!info.refine_spp) { $("refine-auto").checked = false; $("refine-auto").closest(".row").hidden = true; }
   else {   // refine.js: the server's --refine-spp is the default
     const sel = $("refine-spp"), spp = String(info.refine_spp);
     if (![...sel.options].some((o) => o.value === spp)) sel.add(new Option(spp, spp));
     sel.value = spp;
   }
+  state.snippetFolder = info.snippet_folder;
+  $("snippet-folder").value = info.snippet_folder;
+  $("snippet-folder").onchange = () => {   // the snippets of the point again, relative to the new folder
+    state.snippetFolder = $("snippet-folder").value.trim();
+    state.snippet = null; delete asked.snippet; showPoint(); scheduleMove();
+  };
   $("copy-xml").onclick = () => copySnippet("xml", "XML");
   $("copy-py").onclick = () => copySnippet("python", "Python");
   if (info.tables === "loading") pollTables();

@@ -4,6 +4,9 @@
 // order only: one arriving after a newer answer of its kind is late and dropped.
 "use strict";
 
+// This page's id: the server ends the renders this page started when its websocket closes.
+const TAB = (window.crypto && crypto.randomUUID) ? crypto.randomUUID() : "t" + Math.random().toString(36).slice(2);
+
 class Channel {
   constructor(onMessage, onOpen) {
     this.onMessage = onMessage;
@@ -19,7 +22,7 @@ class Channel {
   }
   connect() {
     const proto = location.protocol === "https:" ? "wss" : "ws";
-    this.ws = new WebSocket(`${proto}://${location.host}/ws`);
+    this.ws = new WebSocket(`${proto}://${location.host}/ws?tab=${TAB}`);
     this.ws.binaryType = "arraybuffer";
     this.ws.onopen = () => {
       if (this.opened || !$("status").classList.contains("error")) setStatus("connected");   // keeps a first warning

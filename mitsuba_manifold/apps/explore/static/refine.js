@@ -1,4 +1,4 @@
-// Refinement on release (issue 21): where a drag ends (or a point is chosen), the server renders
+// Refinement on release: where a drag ends (or a point is chosen), the server renders
 // what the basis cannot give at that point (its L2+ light; blend.py --refine) in passes and checks
 // the blend shown against that unbiased estimate. The blend stays on screen: at a few spp the
 // refinement is noisier than the blend (fireflies where light runs through a narrow peak), and its
@@ -18,14 +18,16 @@ function refineAvailable() {
 async function refineHere() {
   if (!refineAvailable()) return;
   const x = state.x.slice(), basis = state.basis, run = ++refineRun, status = $("refine-status");
-  const current = () => run === refineRun && sameX(x, state.x) && state.basis === basis && !state.dragging;
+  const current = () => run === refineRun && sameX(x, state.x) && state.basis === basis && !state.dragging &&
+                        $("refine-auto").checked;
   const say = (text) => { if (current()) status.textContent = text; };
   const button = $("refine-show");
   button.hidden = true;
   say("refining…");
   try {
     let job = await (await api("/api/reference", { method: "POST", headers: { "Content-Type": "application/json" },
-      body: JSON.stringify({ basis, x, spp: +$("refine-spp").value, kind: "refine" }) })).json();
+      body: JSON.stringify({ basis, x, spp: +$("refine-spp").value, kind: "refine", tab: TAB }) })).json();
+    state.refineJob = job.id;
     while (current()) {
       job = await (await api("/api/reference/" + job.id)).json();
       if (!current()) break;
@@ -34,9 +36,10 @@ async function refineHere() {
       if (state.refined && state.refined.job === job.id) { /* shown: its status stays until a move */ }
       else if (e.agrees == null) say(`refining… ${job.message}`);
       else {
-        const figures = `rel. MSE ${fmtNum(e.blend_rel_mse, 3)} against its estimated noise ${fmtNum(e.noise_rel_mse, 3)}`;
-        say(e.agrees ? `full GI checked (${job.message}): the blend agrees with the unbiased render (${figures})`
-                     : `full GI checked (${job.message}): the blend differs from the unbiased render (${figures})`);
+        say(e.agrees ? `full GI checked (${job.message}): the blend agrees with the unbiased render`
+                     : `full GI checked (${job.message}): the blend differs from the unbiased render`);
+        if (current()) $("refine-detail").textContent = `refinement: the blend's relative MSE against the unbiased ` +
+          `render is ${fmtNum(e.blend_rel_mse, 3)}, its own estimated noise ${fmtNum(e.noise_rel_mse, 3)} (agrees: within 2×)`;
         if (!state.refined) {
           button.hidden = false;
           button.onclick = () => showRefined(job, x, basis, current).then((ok) => {
@@ -52,9 +55,19 @@ async function refineHere() {
   if (run === refineRun && !state.refined) clearRefined();   // moved on before an answer
 }
 
+// Refine turned off: the running refinement is cancelled and its status and image go.
+function refineOff() {
+  refineRun++;
+  if (state.refineJob) api(`/api/reference/${state.refineJob}/cancel`, { method: "POST" }).catch(() => {});
+  state.refineJob = null;
+  const shown = !!state.refined;
+  clearRefined();
+  if (shown) requestFrame();   // back to the blend of the point
+}
+
 function clearRefined() {   // back to blends: the refined image and the last check are gone
   state.refined = null; delete $("scene").dataset.refined; delete $("scene").dataset.refinedExposure;
-  $("refine-status").textContent = ""; $("refine-show").hidden = true;
+  $("refine-status").textContent = ""; $("refine-show").hidden = true; $("refine-detail").textContent = "";
 }
 
 async function showRefined(job, x, basis, current) {

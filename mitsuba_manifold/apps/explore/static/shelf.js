@@ -67,16 +67,34 @@ async function pollThumbs() {
     buildGallery();
     return;
   }
-  if (t.state === "ready") state.thumbs = { url: "/api/thumbs.png", columns: t.columns, size: t.size };
-  $("thumbs-state").textContent = t.state === "ready" ? `${state.info.names.length} materials, rendered with the plugin` : t.message;
+  if (t.state === "ready") {
+    state.thumbs = { url: "/api/thumbs.png", columns: t.columns, size: t.size };
+    const img = new Image();   // the map draws each measured material as its thumbnail
+    img.onload = () => { state.thumbImage = img; drawMap(); };
+    img.src = state.thumbs.url;
+  }
+  $("thumbs-state").textContent = t.state === "ready" ? "rendered with the plugin" : t.message;
   buildGallery();
   if (state.material) showMaterial(state.material);
 }
+// Everything of the shelf and the header that follows the point: the favourite button, the
+// highlight of the compare and favourite entries at the point, and the search box (its text
+// is the point's name; what is typed filters the gallery until the point moves).
+function renderShelf() {
+  const here = (el) => el.dataset.x && sameX(el.dataset.x.split(",").map(Number), state.x);
+  for (const el of document.querySelectorAll("#compare .cmp, #favs .fav")) el.classList.toggle("here", here(el));
+  setText($("fav"), loadFavs().some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite");
+  const name = materialName(state.x) || "", search = $("search");
+  if (search.value !== name) { search.value = name; search.setCustomValidity(""); }
+  if (state.filter) { state.filter = ""; buildGallery(); }
+}
 function buildGallery() {
-  const box = $("gallery"), filter = ($("search").value || "").trim().toLowerCase();
+  const box = $("gallery"), filter = state.filter || "";
   box.innerHTML = "";
+  let shown = 0;
   state.info.names.forEach((name, i) => {
-    if (filter && !name.includes(filter)) return;
+    if (filter && !name.toLowerCase().includes(filter)) return;
+    shown++;
     const b = document.createElement("button");
     b.className = "tile"; b.title = name; b.dataset.name = name;
     b.innerHTML = (state.thumbs ? `<i class="thumb" style="width:44px;height:44px;${thumbStyle(i, 44)}"></i>` : "") +
@@ -84,6 +102,8 @@ function buildGallery() {
     b.onclick = () => { goTo(name); commitPoint(); };
     box.appendChild(b);
   });
+  const n = state.info.names.length;
+  setText($("gallery-count"), filter ? `${shown} of ${n} match “${filter}”` : `${n} materials`);
 }
 
 // ------------------------------------------------------------------ favourites
@@ -110,6 +130,7 @@ function showFavs() {
   favs.forEach((f, k) => {
     const item = document.createElement("div");
     item.className = "fav" + (sameX(f.x, state.x) ? " here" : "");
+    item.dataset.x = f.x.join(",");
     item.title = f.label;
     item.innerHTML = (f.img ? `<img src="${f.img}" alt="">` : thumbHtml(f.label, 40)) +
                      `<span>${escapeHtml(f.label)}</span><button class="x" title="remove">×</button>`;
@@ -142,6 +163,7 @@ function showCompare() {
     const q = new URLSearchParams({ x: c.x.join(","), basis: state.basis, exposure: state.exposure, format: "png" });
     const cell = document.createElement("figure");
     cell.className = "cmp" + (sameX(c.x, state.x) ? " here" : "");
+    cell.dataset.x = c.x.join(",");
     cell.innerHTML = `<div class="pair"><img class="frame" src="/api/frame?${q}" alt="scene">` +
       (c.img ? `<img class="ball" src="${c.img}" alt="sphere">` : "") + `</div>` +
       `<figcaption>${escapeHtml(c.label)}${c.measured && c.measured.name !== c.label ?
