@@ -9,8 +9,26 @@ Timings are wall-clock medians over repeats on the machine that runs them
 """
 
 #: Benchmark names, in the order ``tools/bench.py`` lists them.
-NAMES = ("fit", "interp", "pca", "bsdf", "gi", "gi-targets", "stability", "basis", "match", "match-render", "scaling",
-         "explore", "space", "prune", "fig9", "paths", "measured-space", "measured")
+NAMES = (
+    "fit",
+    "interp",
+    "pca",
+    "bsdf",
+    "gi",
+    "gi-targets",
+    "stability",
+    "basis",
+    "match",
+    "match-render",
+    "scaling",
+    "explore",
+    "space",
+    "prune",
+    "fig9",
+    "paths",
+    "measured-space",
+    "measured",
+)
 
 
 def module_name(name):
@@ -20,9 +38,12 @@ def module_name(name):
 
 def run(name, folder, **kwargs):
     """Run benchmark ``name`` on the database ``folder`` (``explore``: a basis folder); returns its
-    measurements."""
+    measurements.
+    """
     import importlib
+
     if name not in NAMES:
         from mitsuba_manifold.errors import InputError
+
         raise InputError(f"unknown benchmark {name!r}; choose one of {', '.join(NAMES)}")
     return importlib.import_module(module_name(name)).run(folder, **kwargs)

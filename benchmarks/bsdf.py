@@ -5,15 +5,25 @@ import time
 
 import numpy as np
 
+from mitsuba_manifold._util.timing import median_time
 from mitsuba_manifold.data.database import database_cache
 from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold.render.scenes import use_variant
-from mitsuba_manifold._util.timing import median_time
+
 from .common import interpolated_point, sphere_with, time_renders
 
 
-def run(folder, manifold=None, spp=64, res=256, repeats=7, mse_res=96, mse_spp=32, ref_spp=2048,
-               materials=("chrome", "steel", "gold-metallic-paint", "red-fabric")):
+def run(
+    folder,
+    manifold=None,
+    spp=64,
+    res=256,
+    repeats=7,
+    mse_res=96,
+    mse_spp=32,
+    ref_spp=2048,
+    materials=("chrome", "steel", "gold-metallic-paint", "red-fabric"),
+):
     """manifold_brdf against roughconductor, cdf against cosine sampling, construction time.
 
     Targets: render time at most 1.5x roughconductor at equal spp; relative MSE at least
@@ -21,6 +31,7 @@ def run(folder, manifold=None, spp=64, res=256, repeats=7, mse_res=96, mse_spp=3
     """
     from mitsuba_manifold.imaging import metrics
     from mitsuba_manifold.render.sampling import sampling_cache_path
+
     mi = use_variant()
     m = Manifold.load(manifold) if manifold else None
     if m is None:
@@ -48,32 +59,78 @@ def run(folder, manifold=None, spp=64, res=256, repeats=7, mse_res=96, mse_spp=3
 
     # render time against roughconductor
     scenes = {
-        "manifold_brdf": sphere_with(f'<bsdf type="manifold_brdf" id="material"><string name="manifold" '
-                                      f'value="$manifold"/><string name="x" value="{xs}"/></bsdf>',
-                                      spp, res, manifold),
-        "roughconductor": sphere_with('<bsdf type="roughconductor" id="material"><string name="material" '
-                                       'value="Cr"/><float name="alpha" value="0.05"/></bsdf>', spp, res)}
+        "manifold_brdf": sphere_with(
+            f'<bsdf type="manifold_brdf" id="material"><string name="manifold" '
+            f'value="$manifold"/><string name="x" value="{xs}"/></bsdf>',
+            spp,
+            res,
+            manifold,
+        ),
+        "roughconductor": sphere_with(
+            '<bsdf type="roughconductor" id="material"><string name="material" '
+            'value="Cr"/><float name="alpha" value="0.05"/></bsdf>',
+            spp,
+            res,
+        ),
+    }
     t = time_renders(scenes, repeats)
     ratio = t["manifold_brdf"]["min_s"] / t["roughconductor"]["min_s"]
-    out["render"] = {"spp": spp, "resolution": res, "times": t, "ratio_min": ratio,
-                     "ratio_median": t["manifold_brdf"]["median_s"] / t["roughconductor"]["median_s"],
-                     "ratio_target": 1.5, "meets_target": ratio <= 1.5}
+    out["render"] = {
+        "spp": spp,
+        "resolution": res,
+        "times": t,
+        "ratio_min": ratio,
+        "ratio_median": t["manifold_brdf"]["median_s"] / t["roughconductor"]["median_s"],
+        "ratio_target": 1.5,
+        "meets_target": ratio <= 1.5,
+    }
 
     # relative MSE at equal spp, cdf against cosine
     rows = []
     for name in materials:
         if name not in m.names:
             continue
-        sc = {mode: sphere_with(f'<bsdf type="manifold_brdf" id="material"><string name="manifold" '
-                                 f'value="$manifold"/><string name="material" value="{name}"/>'
-                                 f'<string name="sampling" value="{mode}"/></bsdf>', mse_spp, mse_res, manifold)
-              for mode in ("cdf", "cosine")}
-        ref = np.mean([np.array(mi.render(sc["cdf"], spp=ref_spp // 4, seed=100 + k)) for k in range(4)], axis=0)
-        err = {mode: float(np.mean([metrics.rel_mse(np.array(mi.render(sc[mode], seed=k)), ref) for k in range(4)]))
-               for mode in sc}
+        sc = {
+            mode: sphere_with(
+                f'<bsdf type="manifold_brdf" id="material"><string name="manifold" '
+                f'value="$manifold"/><string name="material" value="{name}"/>'
+                f'<string name="sampling" value="{mode}"/></bsdf>',
+                mse_spp,
+                mse_res,
+                manifold,
+            )
+            for mode in ("cdf", "cosine")
+        }
+        ref = np.mean(
+            [np.array(mi.render(sc["cdf"], spp=ref_spp // 4, seed=100 + k)) for k in range(4)],
+            axis=0,
+        )
+        err = {
+            mode: float(
+                np.mean(
+                    [metrics.rel_mse(np.array(mi.render(sc[mode], seed=k)), ref) for k in range(4)]
+                )
+            )
+            for mode in sc
+        }
         spiky = name in ("chrome", "steel")
-        rows.append({"material": name, "rel_mse_cdf": err["cdf"], "rel_mse_cosine": err["cosine"],
-                     "cosine_over_cdf": err["cosine"] / err["cdf"],
-                     **({"target_ratio": 5.0, "meets_target": err["cosine"] / err["cdf"] >= 5.0} if spiky else {})})
-    out["sampling"] = {"spp": mse_spp, "resolution": mse_res, "reference_spp": ref_spp, "rows": rows}
+        rows.append(
+            {
+                "material": name,
+                "rel_mse_cdf": err["cdf"],
+                "rel_mse_cosine": err["cosine"],
+                "cosine_over_cdf": err["cosine"] / err["cdf"],
+                **(
+                    {"target_ratio": 5.0, "meets_target": err["cosine"] / err["cdf"] >= 5.0}
+                    if spiky
+                    else {}
+                ),
+            }
+        )
+    out["sampling"] = {
+        "spp": mse_spp,
+        "resolution": mse_res,
+        "reference_spp": ref_spp,
+        "rows": rows,
+    }
     return out

@@ -12,8 +12,12 @@ from mitsuba_manifold.render.scenes import SCENES_DIR, use_variant
 
 def machine():
     """Where a benchmark ran."""
-    info = {"platform": platform.platform(), "python": platform.python_version(),
-            "cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()}
+    info = {
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "processor": platform.processor() or platform.machine(),
+    }
     try:
         with open("/proc/cpuinfo") as f:
             for line in f:
@@ -21,7 +25,7 @@ def machine():
                     info["cpu_model"] = line.split(":", 1)[1].strip()
                     break
         with open("/proc/meminfo") as f:
-            info["mem_total_gib"] = round(int(f.readline().split()[1]) / 2 ** 20, 1)
+            info["mem_total_gib"] = round(int(f.readline().split()[1]) / 2**20, 1)
     except OSError:
         pass
     return info
@@ -29,7 +33,7 @@ def machine():
 
 def peak_rss_gib():
     """Peak resident memory of this process so far."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
 
 def sphere_with(bsdf_xml, spp, res, manifold=None):
@@ -39,7 +43,9 @@ def sphere_with(bsdf_xml, spp, res, manifold=None):
     mi = use_variant()
     with open(os.path.join(SCENES_DIR, "sphere.xml")) as f:
         text = f.read()
-    text = re.sub(r'<bsdf type="manifold_brdf" id="material">.*?</bsdf>', bsdf_xml, text, flags=re.S)
+    text = re.sub(
+        r'<bsdf type="manifold_brdf" id="material">.*?</bsdf>', bsdf_xml, text, flags=re.S
+    )
     mi.Thread.thread().file_resolver().prepend(SCENES_DIR)
     params = {"spp": str(spp), "res": str(res)}
     if manifold is not None:
@@ -51,6 +57,7 @@ def time_renders(scenes, repeats):
     """Interleaved timings (seconds) of ``mi.render`` per named scene, after a warm-up render."""
     import drjit as dr
     import mitsuba as mi
+
     times = {k: [] for k in scenes}
     for s in scenes.values():
         dr.eval(mi.render(s, seed=1000))
@@ -61,7 +68,9 @@ def time_renders(scenes, repeats):
             dr.eval(img)
             dr.sync_thread()
             times[k].append(time.perf_counter() - t0)
-    return {k: {"min_s": float(np.min(v)), "median_s": float(np.median(v))} for k, v in times.items()}
+    return {
+        k: {"min_s": float(np.min(v)), "median_s": float(np.median(v))} for k, v in times.items()
+    }
 
 
 def interpolated_point(m, a="chrome", b="gold-paint"):

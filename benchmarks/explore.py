@@ -42,10 +42,9 @@ TARGET_MS = {256 * 256: 30.0, 512 * 512: 60.0}
 
 def upsampled_basis(folder, out, factor=2):
     """Copy of a basis with every image upsampled ``factor`` x (nearest); returns ``out``."""
-    from mitsuba_manifold.imaging import io as imageio
-    from mitsuba_manifold.basis.folder import read_manifest, write_manifest
-
     from mitsuba_manifold._util.cache import file_hash
+    from mitsuba_manifold.basis.folder import read_manifest, write_manifest
+    from mitsuba_manifold.imaging import io as imageio
 
     manifest = read_manifest(folder)
     os.makedirs(out, exist_ok=True)
@@ -53,8 +52,12 @@ def upsampled_basis(folder, out, factor=2):
     for key, entry in manifest["images"].items():
         img = imageio.read_exr(os.path.join(folder, entry["file"]))
         imageio.write_exr(os.path.join(out, entry["file"]), img.repeat(factor, 0).repeat(factor, 1))
-        images[key] = dict(entry, sha256=file_hash(os.path.join(out, entry["file"])))   # the new files' hashes
-    manifest = dict(manifest, images=images, resolution=[v * factor for v in manifest["resolution"]])
+        images[key] = dict(
+            entry, sha256=file_hash(os.path.join(out, entry["file"]))
+        )  # the new files' hashes
+    manifest = dict(
+        manifest, images=images, resolution=[v * factor for v in manifest["resolution"]]
+    )
     write_manifest(out, manifest)
     return out
 
@@ -66,32 +69,61 @@ def _time_frames(ws_url, points, fmt, basis):
     with connect(ws_url, max_size=None) as ws:
         for seq, x in enumerate(points):
             t0 = time.perf_counter()
-            ws.send(json.dumps({"type": "frame", "seq": seq, "x": list(map(float, x)), "format": fmt,
-                                "basis": basis, "coarse": True}))   # a drag's frames (the page's)
+            ws.send(
+                json.dumps(
+                    {
+                        "type": "frame",
+                        "seq": seq,
+                        "x": list(map(float, x)),
+                        "format": fmt,
+                        "basis": basis,
+                        "coarse": True,
+                    }
+                )
+            )  # a drag's frames (the page's)
             msg = ws.recv()
             times.append(1e3 * (time.perf_counter() - t0))
             n = struct.unpack("<I", msg[:4])[0]
-            meta = json.loads(msg[4:4 + n])
+            meta = json.loads(msg[4 : 4 + n])
             if meta["type"] != "frame":
                 raise RuntimeError(f"frame request failed: {meta}")
             sizes.append(len(msg) - 4 - n)
-            server_ms.append({k: meta[k] for k in ("blend_ms", "tonemap_ms", "encode_ms", "total_ms", "n_images")})
+            server_ms.append(
+                {
+                    k: meta[k]
+                    for k in ("blend_ms", "tonemap_ms", "encode_ms", "total_ms", "n_images")
+                }
+            )
     return times, sizes, server_ms
 
 
 def _stats(values):
     v = np.asarray(values, dtype=np.float64)
-    return {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)), "max": float(v.max())}
+    return {
+        "median": float(np.median(v)),
+        "p90": float(np.percentile(v, 90)),
+        "max": float(v.max()),
+    }
 
 
-def run(basis, manifold=None, requests=60, formats=("rgba", "jpeg", "png"), upsample=True, seed=0,
-        screenshot_path=None, browser=False, compositing="software"):
+def run(
+    basis,
+    manifold=None,
+    requests=60,
+    formats=("rgba", "jpeg", "png"),
+    upsample=True,
+    seed=0,
+    screenshot_path=None,
+    browser=False,
+    compositing="software",
+):
     """Frame latency per basis size and encoding (see the module docstring); with
     ``screenshot_path`` also a screenshot of the page (:func:`screenshot`); with ``browser``
-    the page's own latency instead (:func:`browser`)."""
+    the page's own latency instead (:func:`browser`).
+    """
     if browser:
         report = globals()["browser"](basis, manifold, compositing=compositing)
-        if screenshot_path:   # a short reference render beside the page's timing run
+        if screenshot_path:  # a short reference render beside the page's timing run
             report["screenshot"] = screenshot(basis, screenshot_path, manifold, reference_spp=64)
         return report
     from mitsuba_manifold.basis.folder import read_manifest
@@ -102,8 +134,13 @@ def run(basis, manifold=None, requests=60, formats=("rgba", "jpeg", "png"), upsa
     if upsample:
         tmp = tempfile.mkdtemp(prefix="bench_explore_")
         folders.append(upsampled_basis(basis, os.path.join(tmp, "basis_x2")))
-    report = {"requests": requests, "formats": list(formats), "client": "websockets (another process)",
-              "load_average_1min_before": os.getloadavg()[0], "sizes": []}
+    report = {
+        "requests": requests,
+        "formats": list(formats),
+        "client": "websockets (another process)",
+        "load_average_1min_before": os.getloadavg()[0],
+        "sizes": [],
+    }
     proc = None
     try:
         m = Manifold.load(manifold or read_manifest(basis)["manifold"])
@@ -118,20 +155,30 @@ def run(basis, manifold=None, requests=60, formats=("rgba", "jpeg", "png"), upsa
             manifest = read_manifest(folder)
             w, h = manifest["resolution"]
             name = os.path.basename(folder)
-            row = {"basis": folder, "upsampled": folder != folders[0], "resolution": [w, h],
-                   "n_materials": len(manifest["images"]) - 1, "target_ms": TARGET_MS.get(w * h), "formats": {}}
+            row = {
+                "basis": folder,
+                "upsampled": folder != folders[0],
+                "resolution": [w, h],
+                "n_materials": len(manifest["images"]) - 1,
+                "target_ms": TARGET_MS.get(w * h),
+                "formats": {},
+            }
             for fmt in formats:
-                _time_frames(ws_url, points[:3], fmt, name)   # warm-up
+                _time_frames(ws_url, points[:3], fmt, name)  # warm-up
                 times, sizes, server_ms = _time_frames(ws_url, points, fmt, name)
                 row["formats"][fmt] = {
-                    "request_to_image_ms": _stats(times), "bytes": _stats(sizes),
+                    "request_to_image_ms": _stats(times),
+                    "bytes": _stats(sizes),
                     "server_total_ms": _stats([s["total_ms"] for s in server_ms]),
                     "blend_ms": _stats([s["blend_ms"] for s in server_ms]),
                     "tonemap_ms": _stats([s["tonemap_ms"] for s in server_ms]),
                     "encode_ms": _stats([s["encode_ms"] for s in server_ms]),
-                    "images_blended": _stats([s["n_images"] for s in server_ms])}
+                    "images_blended": _stats([s["n_images"] for s in server_ms]),
+                }
                 if row["target_ms"]:
-                    row["formats"][fmt]["meets_target"] = _stats(times)["median"] <= row["target_ms"]
+                    row["formats"][fmt]["meets_target"] = (
+                        _stats(times)["median"] <= row["target_ms"]
+                    )
             report["sizes"].append(row)
         report["load_average_1min_after"] = os.getloadavg()[0]
     finally:
@@ -144,8 +191,13 @@ def run(basis, manifold=None, requests=60, formats=("rgba", "jpeg", "png"), upsa
     return report
 
 
-BROWSER_TARGETS = {"median_ms": 50.0, "p90_ms": 120.0, "moves_per_s": 20.0, "tables_ready_s": 5.0,
-                   "rate_with_reference": 0.5}
+BROWSER_TARGETS = {
+    "median_ms": 50.0,
+    "p90_ms": 120.0,
+    "moves_per_s": 20.0,
+    "tables_ready_s": 5.0,
+    "rate_with_reference": 0.5,
+}
 #: How Chromium composites the page (see the module docstring).
 COMPOSITING = ("software", "swiftshader")
 
@@ -153,15 +205,18 @@ COMPOSITING = ("software", "swiftshader")
 def _launch_chromium(p, compositing="software"):
     if compositing not in COMPOSITING:
         raise ValueError(f"compositing must be one of {COMPOSITING}, got {compositing!r}")
-    return p.chromium.launch(executable_path=launch.find_chromium(),
-                             args=["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"] +
-                                  (["--disable-gpu-compositing"] if compositing == "software" else []))
+    return p.chromium.launch(
+        executable_path=launch.find_chromium(),
+        args=["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+        + (["--disable-gpu-compositing"] if compositing == "software" else []),
+    )
 
 
 def _drag(page, a, b, moves, pace_ms):
     """One drag from page point ``a`` to ``b`` in ``moves`` pointer moves; returns per-move
     latency (ms) to the first frame drawn for that move or a later one, the frames drawn
-    and the drag's duration (s)."""
+    and the drag's duration (s).
+    """
     page.evaluate("""() => { const s = window.explore.state; window.explore.trace = [];
         window.__moves = []; window.__log = () => window.__moves.push({ t: performance.now(), x: s.x.slice() });
         window.addEventListener("pointermove", window.__log);
@@ -172,9 +227,11 @@ def _drag(page, a, b, moves, pace_ms):
         page.mouse.move(a[0] + (b[0] - a[0]) * k / moves, a[1] + (b[1] - a[1]) * k / moves)
         page.wait_for_timeout(pace_ms)
     page.mouse.up()
-    page.wait_for_function("""() => { const m = window.__moves, s = window.explore.state;
+    page.wait_for_function(
+        """() => { const m = window.__moves, s = window.explore.state;
         return m.length && s.displayed && s.displayed.x.every((v, k) => v === m[m.length - 1].x[k]); }""",
-                           timeout=30000)
+        timeout=30000,
+    )
     out = page.evaluate("""() => { window.removeEventListener("pointermove", window.__log);
         return { moves: window.__moves, frames: window.explore.trace,
                  draws: (window.explore.preview ? window.explore.preview.draws : 0) - window.__draws }; }""")
@@ -191,13 +248,18 @@ def _drag(page, a, b, moves, pace_ms):
         if later:
             latencies.append(min(later) - m["t"])
     span = (out["moves"][-1]["t"] - out["moves"][0]["t"]) / 1e3 if len(out["moves"]) > 1 else 0.0
-    parts = [(f["server_ms"], f["round_trip_ms"]) for f in out["frames"] if f.get("round_trip_ms") is not None]
+    parts = [
+        (f["server_ms"], f["round_trip_ms"])
+        for f in out["frames"]
+        if f.get("round_trip_ms") is not None
+    ]
     return latencies, len(drawn), span, out["draws"], len(out["moves"]), parts
 
 
 def _drags(page, at, latent, drags, moves, pace_ms, seed=0):
     """``drags`` drags of ``moves`` moves between random pairs of materials (off their points);
-    returns ``(latencies, frames, seconds, sphere draws, moves sent, per-frame parts)``."""
+    returns ``(latencies, frames, seconds, sphere draws, moves sent, per-frame parts)``.
+    """
     rng = np.random.default_rng(seed)
     lat, frames, seconds, draws, sent, parts = [], 0, 0.0, 0, 0, []
     for _ in range(drags):
@@ -206,88 +268,140 @@ def _drags(page, at, latent, drags, moves, pace_ms, seed=0):
         a, b = [0.8 * latent[i] + 0.2 * latent[j] + 0.05, 0.2 * latent[i] + 0.8 * latent[j] + 0.05]
         got = _drag(page, at(a), at(b), moves, pace_ms)
         lat += got[0]
-        frames, seconds, draws, sent = frames + got[1], seconds + got[2], draws + got[3], sent + got[4]
+        frames, seconds, draws, sent = (
+            frames + got[1],
+            seconds + got[2],
+            draws + got[3],
+            sent + got[4],
+        )
         parts += got[5]
     return lat, frames, seconds, draws, sent, parts
 
 
 def _with_reference(page, at, latent, drags, moves, pace_ms):
     """The drags again while a 4096-spp reference render runs (started from the page), then the
-    render cancelled from the page: ``{"move_to_frame_ms", "moves_per_s", "cancel_s", ...}``."""
+    render cancelled from the page: ``{"move_to_frame_ms", "moves_per_s", "cancel_s", ...}``.
+    """
     if not page.is_enabled("#ref-start"):
         return None
     page.select_option("#ref-spp", "4096")
     page.click("#ref-start")
     page.wait_for_function("window.explore.state.referenceJob", timeout=30000)
     job = page.evaluate("window.explore.state.referenceJob")
-    page.wait_for_function(f"fetch('/api/reference/{job}').then((r) => r.json()).then((j) => j.progress > 0)",
-                           timeout=120000)   # rendering (past the process's start)
+    page.wait_for_function(
+        f"fetch('/api/reference/{job}').then((r) => r.json()).then((j) => j.progress > 0)",
+        timeout=120000,
+    )  # rendering (past the process's start)
     lat, frames, seconds, _, sent, _ = _drags(page, at, latent, drags, moves, pace_ms, seed=1)
     state = page.evaluate(f"fetch('/api/reference/{job}').then((r) => r.json())")
-    cancel_s = None   # None: the render ended before the drags did (a small basis)
+    cancel_s = None  # None: the render ended before the drags did (a small basis)
     if state["state"] == "rendering" and page.is_visible("#ref-cancel"):
         t0 = time.perf_counter()
         page.click("#ref-cancel")
-        page.wait_for_function(f"fetch('/api/reference/{job}').then((r) => r.json())"
-                               ".then((j) => j.state === 'cancelled')", timeout=60000)
+        page.wait_for_function(
+            f"fetch('/api/reference/{job}').then((r) => r.json())"
+            ".then((j) => j.state === 'cancelled')",
+            timeout=60000,
+        )
         cancel_s = time.perf_counter() - t0
-    return {"move_to_frame_ms": _stats(lat), "moves": sent, "frames_drawn": frames,
-            "moves_per_s": frames / seconds if seconds else None, "reference_progress_at_cancel": state["progress"],
-            "cancel_s": cancel_s}
+    return {
+        "move_to_frame_ms": _stats(lat),
+        "moves": sent,
+        "frames_drawn": frames,
+        "moves_per_s": frames / seconds if seconds else None,
+        "reference_progress_at_cancel": state["progress"],
+        "cancel_s": cancel_s,
+    }
 
 
-def browser(basis, manifold=None, drags=3, moves=60, pace_ms=16, chromium=None, compositing="software",
-            reference=True):
+def browser(
+    basis,
+    manifold=None,
+    drags=3,
+    moves=60,
+    pace_ms=16,
+    chromium=None,
+    compositing="software",
+    reference=True,
+):
     """The page's latency in headless Chromium (see the module docstring); ``chromium``: a
     Playwright browser to use (default: the system Chromium, launched here, compositing as
-    ``compositing`` says)."""
+    ``compositing`` says).
+    """
     if chromium is None:
         from playwright.sync_api import sync_playwright
+
         with sync_playwright() as p:
             b = _launch_chromium(p, compositing)
             try:
                 return browser(basis, manifold, drags, moves, pace_ms, b, compositing)
             finally:
                 b.close()
-    client = ("headless Chromium (WebGL on SwiftShader, " +
-              ("software compositing)" if compositing == "software" else "compositing on SwiftShader GL)"))
-    report = {"drags": drags, "moves_per_drag": moves, "pace_ms": pace_ms, "client": client,
-              "load_average_1min_before": os.getloadavg()[0], "targets": BROWSER_TARGETS}
+    client = "headless Chromium (WebGL on SwiftShader, " + (
+        "software compositing)" if compositing == "software" else "compositing on SwiftShader GL)"
+    )
+    report = {
+        "drags": drags,
+        "moves_per_drag": moves,
+        "pace_ms": pace_ms,
+        "client": client,
+        "load_average_1min_before": os.getloadavg()[0],
+        "targets": BROWSER_TARGETS,
+    }
     proc, url = launch.start([basis], manifold, ["--no-thumbnails"])
     try:
         context = chromium.new_context(viewport={"width": 1500, "height": 1000})
         page = context.new_page()
         t0 = time.perf_counter()
         page.goto(url)
-        page.wait_for_function("window.explore && window.explore.state.info && window.explore.state.info.tables "
-                               "!== 'loading' && window.explore.state.previewX && window.explore.state.map",
-                               timeout=300000)
+        page.wait_for_function(
+            "window.explore && window.explore.state.info && window.explore.state.info.tables "
+            "!== 'loading' && window.explore.state.previewX && window.explore.state.map",
+            timeout=300000,
+        )
         report["tables_ready_s"] = time.perf_counter() - t0
         latent = np.array(page.evaluate("window.explore.state.info.latent"))
         box = page.locator("#map").bounding_box()
         ext = page.evaluate("window.explore.state.map.extent")
+
         def at(x):
-            return (box["x"] + (x[0] - ext[0]) / (ext[1] - ext[0]) * box["width"],
-                    box["y"] + (1 - (x[1] - ext[2]) / (ext[3] - ext[2])) * box["height"])
+            return (
+                box["x"] + (x[0] - ext[0]) / (ext[1] - ext[0]) * box["width"],
+                box["y"] + (1 - (x[1] - ext[2]) / (ext[3] - ext[2])) * box["height"],
+            )
+
         lat, frames, seconds, draws, sent, parts = _drags(page, at, latent, drags, moves, pace_ms)
         report["load_average_1min_idle_drags"] = os.getloadavg()[0]
-        report["with_reference"] = _with_reference(page, at, latent, drags, moves, pace_ms) if reference else None
+        report["with_reference"] = (
+            _with_reference(page, at, latent, drags, moves, pace_ms) if reference else None
+        )
         context.close()
     finally:
         launch.stop(proc)
-    report.update({"move_to_frame_ms": _stats(lat), "moves": sent, "frames_drawn": frames,
-                   # where a frame's time goes: the server's blend + tonemap + encode, and send to answer
-                   "frame_server_ms": _stats([p[0] for p in parts] or [0]),
-                   "frame_round_trip_ms": _stats([p[1] for p in parts] or [0]),
-                   "moves_per_s": frames / seconds if seconds else None, "sphere_draws": draws,
-                   "load_average_1min_after": os.getloadavg()[0]})
+    report.update(
+        {
+            "move_to_frame_ms": _stats(lat),
+            "moves": sent,
+            "frames_drawn": frames,
+            # where a frame's time goes: the server's blend + tonemap + encode, and send to answer
+            "frame_server_ms": _stats([p[0] for p in parts] or [0]),
+            "frame_round_trip_ms": _stats([p[1] for p in parts] or [0]),
+            "moves_per_s": frames / seconds if seconds else None,
+            "sphere_draws": draws,
+            "load_average_1min_after": os.getloadavg()[0],
+        }
+    )
     m, t = report["move_to_frame_ms"], BROWSER_TARGETS
     ref = report["with_reference"]
-    report["meets_targets"] = {"median": m["median"] <= t["median_ms"], "p90": m["p90"] <= t["p90_ms"],
-                               "moves_per_s": (report["moves_per_s"] or 0) >= t["moves_per_s"],
-                               "tables_ready": report["tables_ready_s"] <= t["tables_ready_s"],
-                               "rate_with_reference": None if ref is None else
-                               (ref["moves_per_s"] or 0) >= t["rate_with_reference"] * (report["moves_per_s"] or 0)}
+    report["meets_targets"] = {
+        "median": m["median"] <= t["median_ms"],
+        "p90": m["p90"] <= t["p90_ms"],
+        "moves_per_s": (report["moves_per_s"] or 0) >= t["moves_per_s"],
+        "tables_ready": report["tables_ready_s"] <= t["tables_ready_s"],
+        "rate_with_reference": None
+        if ref is None
+        else (ref["moves_per_s"] or 0) >= t["rate_with_reference"] * (report["moves_per_s"] or 0),
+    }
     return report
 
 
@@ -299,14 +413,19 @@ def _scenario(page, reference_spp, zoom_steps):
     """What the screenshots show: a path between a material near the centre of the data and its
     5th-nearest latent neighbour (the default kind, computed), scrubbed to t = 0.4; both ends and the point
     compared; the first end a favourite; the lobe plot; the thumbnails; a reference render
-    (``reference_spp``, None: none); the map zoomed in on the path."""
-    page.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map && "
-                           "window.explore.state.info.tables !== 'loading' && window.explore.state.previewX",
-                           timeout=300000)
+    (``reference_spp``, None: none); the map zoomed in on the path.
+    """
+    page.wait_for_function(
+        "window.explore && window.explore.state.displayed && window.explore.state.map && "
+        "window.explore.state.info.tables !== 'loading' && window.explore.state.previewX",
+        timeout=300000,
+    )
     latent = np.array(page.evaluate("window.explore.state.info.latent"))
     a = int(np.argmin(((latent - latent.mean(axis=0)) ** 2).sum(axis=1)))
     d = ((latent - latent[a]) ** 2).sum(axis=1)
-    b = int(np.argsort(d)[min(5, len(d) - 1)])   # the 5th nearest: a path long enough to see on the map
+    b = int(
+        np.argsort(d)[min(5, len(d) - 1)]
+    )  # the 5th nearest: a path long enough to see on the map
     for index, button in ((a, "#set-a"), (b, "#set-b")):
         page.evaluate(f"window.explore.setX(window.explore.state.info.latent[{index}])")
         page.wait_for_timeout(400)
@@ -314,8 +433,11 @@ def _scenario(page, reference_spp, zoom_steps):
         page.click("#compare-add")
         if index == a:
             page.click("#fav")
-    page.wait_for_function("window.explore.state.route.kind !== 'straight' || "
-                           "document.getElementById('route-state').textContent.includes('unavailable')", timeout=300000)
+    page.wait_for_function(
+        "window.explore.state.route.kind !== 'straight' || "
+        "document.getElementById('route-state').textContent.includes('unavailable')",
+        timeout=300000,
+    )
     page.fill("#scrub", "400")
     page.dispatch_event("#scrub", "input")
     page.wait_for_timeout(800)
@@ -331,14 +453,16 @@ def _scenario(page, reference_spp, zoom_steps):
         page.wait_for_timeout(120)
     box = page.locator("#map").bounding_box()
     page.mouse.move(box["x"] + box["width"] + 40, box["y"])
-    page.dispatch_event("#map", "pointerleave")   # no tooltip left over the map
-    if reference_spp and page.is_enabled("#ref-start"):   # the basis's scene is there
+    page.dispatch_event("#map", "pointerleave")  # no tooltip left over the map
+    if reference_spp and page.is_enabled("#ref-start"):  # the basis's scene is there
         page.select_option("#ref-spp", str(reference_spp))
         page.click("#ref-start")
         page.wait_for_selector("#ref-result:not([hidden])", timeout=600000)
-        page.dispatch_event("#exposure", "input")   # a frame timed without the render beside it
-    page.wait_for_function("!window.explore.state.info.thumbs || window.explore.state.info.thumbs.state !== 'rendering'",
-                           timeout=600000)
+        page.dispatch_event("#exposure", "input")  # a frame timed without the render beside it
+    page.wait_for_function(
+        "!window.explore.state.info.thumbs || window.explore.state.info.thumbs.state !== 'rendering'",
+        timeout=600000,
+    )
     page.wait_for_timeout(1500)
 
 
@@ -347,7 +471,8 @@ def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000),
     (:func:`_scenario`), and beside it ``<stem>_<width>.png`` at each of :data:`SHOT_SIZES`
     (the viewport, without the reference render).
 
-    Returns ``path``, or None when Chromium or Playwright is missing."""
+    Returns ``path``, or None when Chromium or Playwright is missing.
+    """
     try:
         from playwright.sync_api import sync_playwright
     except ImportError:
@@ -355,6 +480,7 @@ def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000),
     if launch.find_chromium() is None:
         return None
     from mitsuba_manifold._util.atomic import write_bytes
+
     proc, url = launch.start([basis], manifold)
     try:
         with sync_playwright() as p:

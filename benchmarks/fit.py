@@ -4,8 +4,9 @@ import time
 
 import numpy as np
 
-from mitsuba_manifold.gp import gplvm
 from mitsuba_manifold.data.database import Database
+from mitsuba_manifold.gp import gplvm
+
 from .common import peak_rss_gib
 
 
@@ -23,17 +24,31 @@ def run(folder, qs=(2, 5), names=None, progress=False):
     _, S = db.gram(tables=tables)
     t_gram = time.perf_counter() - t0
     d = tables.shape[1]
-    out = {"n_materials": len(db.names), "dims": list(db.dims), "d": int(d), "load_s": t_load,
-           "gram_s": t_gram, "gram_target_s": 5.0, "meets_gram_target": t_gram < 5.0, "runs": []}
+    out = {
+        "n_materials": len(db.names),
+        "dims": list(db.dims),
+        "d": int(d),
+        "load_s": t_load,
+        "gram_s": t_gram,
+        "gram_target_s": 5.0,
+        "meets_gram_target": t_gram < 5.0,
+        "runs": [],
+    }
     for q in qs:
         init = gplvm.pca_init(S, q)
         for method in ("hooke-jeeves", "lbfgs"):
             res = gplvm.fit_latent(S, d, q=q, method=method, init=init)
             K = gplvm.kernel_matrix(res.latent)
-            run = {"q": q, "method": method, "optimisation_s": res.time_s,
-                   "initial_L": float(res.history[0]) if len(res.history) else None,
-                   "final_L": float(res.log_likelihood), "iterations": len(res.history) - 1,
-                   "evaluations": int(res.n_evaluations), "cond_K": float(np.linalg.cond(K))}
+            run = {
+                "q": q,
+                "method": method,
+                "optimisation_s": res.time_s,
+                "initial_L": float(res.history[0]) if len(res.history) else None,
+                "final_L": float(res.log_likelihood),
+                "iterations": len(res.history) - 1,
+                "evaluations": int(res.n_evaluations),
+                "cond_K": float(np.linalg.cond(K)),
+            }
             if method == "hooke-jeeves" and q == 5:
                 run["target_s"] = 5.0
                 run["meets_target"] = res.time_s < 5.0

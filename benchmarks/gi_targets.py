@@ -4,11 +4,13 @@ full-GI bases (time, size, what they hold), and at a training point, the midpoin
 the extrapolated point and the pair's second material: bias and relative MSE of the L1- blend,
 the full-GI blend, the refined blend (``blend.py --refine`` on the full-GI basis, an eighth of the
 direct render's samples) and a 256-spp direct render against 4096-spp references (:func:`.gi.targets`); then the
-blend time at 256x256 for every material of the manifold (:func:`.gi.blend_time`)."""
+blend time at 256x256 for every material of the manifold (:func:`.gi.blend_time`).
+"""
 
 import os
 
 from mitsuba_manifold.data.database import database_cache
+
 from .gi import FACING, blend_time, targets
 
 
@@ -16,7 +18,17 @@ def run(folder, manifold=None, scenes=("table", FACING), res=64, basis_spp=256, 
     """The measurements above, as a dict ``{"targets": ..., "blend": ...}``."""
     manifold = manifold or os.path.join(database_cache(folder), "bench_q2.npz")
     out = os.path.join(database_cache(folder), "bench_gi_targets")
-    report = {"targets": targets(folder, manifold, scenes=scenes, res=res, basis_spp=basis_spp, ref_spp=ref_spp,
-                                 out=out, both_ends=True)}
+    report = {
+        "targets": targets(
+            folder,
+            manifold,
+            scenes=scenes,
+            res=res,
+            basis_spp=basis_spp,
+            ref_spp=ref_spp,
+            out=out,
+            both_ends=True,
+        )
+    }
     report["blend"] = blend_time(manifold, out, res=256)
     return report

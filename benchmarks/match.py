@@ -23,14 +23,13 @@ import time
 
 import numpy as np
 
-from mitsuba_manifold.data.database import database_cache
-from mitsuba_manifold.gp import gplvm
 from mitsuba_manifold.basis import match as mt
-from mitsuba_manifold.basis.folder import BASE, Basis
 from mitsuba_manifold.basis.blend import blend
+from mitsuba_manifold.basis.folder import BASE, Basis
 from mitsuba_manifold.basis.objectives import masked_rel_mse
-from mitsuba_manifold.manifold.model import Manifold
+from mitsuba_manifold.data.database import database_cache
 from mitsuba_manifold.imaging.metrics import rel_mse
+from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold.render.render_basis import render_basis
 from mitsuba_manifold.render.scenes import load_scene, render_reference, scene_path, use_variant
 
@@ -58,12 +57,23 @@ def bench_speed(basis_folder, manifold=None, n_targets=5, repeats=3, seed=0):
     pts = _interior_points(m, n_targets, rng, clamp=None)
     w, h = basis.resolution
     mask = np.zeros((h, w))
-    mask[h // 4:3 * h // 4, w // 4:3 * w // 4] = 1.0
-    settings = {"rel_mse": {}, "exposure_free": {"exposure_free": True}, "masked": {"mask": mask},
-                "log": {"loss": "log"}, "nearest_starts_only": {"scan": 0}}
-    out = {"basis": os.path.abspath(basis_folder), "n_materials": m.n, "resolution": [w, h],
-           "read_basis_s": t_read, "target_s": SPEED_TARGET_S, "settings": {},
-           "load_average": os.getloadavg()}
+    mask[h // 4 : 3 * h // 4, w // 4 : 3 * w // 4] = 1.0
+    settings = {
+        "rel_mse": {},
+        "exposure_free": {"exposure_free": True},
+        "masked": {"mask": mask},
+        "log": {"loss": "log"},
+        "nearest_starts_only": {"scan": 0},
+    }
+    out = {
+        "basis": os.path.abspath(basis_folder),
+        "n_materials": m.n,
+        "resolution": [w, h],
+        "read_basis_s": t_read,
+        "target_s": SPEED_TARGET_S,
+        "settings": {},
+        "load_average": os.getloadavg(),
+    }
     for name, kw in settings.items():
         meds, maxes, errs = [], [], []
         for x in pts:
@@ -72,19 +82,26 @@ def bench_speed(basis_folder, manifold=None, n_targets=5, repeats=3, seed=0):
             meds.append(med)
             maxes.append(mx)
             errs.append(r.error)
-        out["settings"][name] = {"median_s": float(np.median(meds)), "max_s": float(np.max(maxes)),
-                                 "max_error": float(np.max(errs)), "errors": errs,
-                                 "recovered": int(np.sum(np.array(errs) < 1e-6)), "of": len(errs),
-                                 "meets_target": bool(np.median(meds) <= SPEED_TARGET_S)}
+        out["settings"][name] = {
+            "median_s": float(np.median(meds)),
+            "max_s": float(np.max(maxes)),
+            "max_error": float(np.max(errs)),
+            "errors": errs,
+            "recovered": int(np.sum(np.array(errs) < 1e-6)),
+            "of": len(errs),
+            "meets_target": bool(np.median(meds) <= SPEED_TARGET_S),
+        }
     return out
 
 
 # ------------------------------------------------------------------ targets
 
+
 def _interior_points(m, n, rng, clamp=1e-3, max_tries=400):
     """``n`` latent points between a training point and one of its 3 nearest neighbours
     (``t`` in [0.25, 0.75]), with GP variance < 0.5 and (``clamp``) at most that fraction of
-    negative table values."""
+    negative table values.
+    """
     d = np.linalg.norm(m.latent[:, None] - m.latent[None], axis=-1)
     np.fill_diagonal(d, np.inf)
     pts = []
@@ -117,7 +134,9 @@ def _render_material(scene_xml, manifold_path, name, spp, res, seed):
     for bsdf in targets:
         bsdf.set_material(name)
     integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth)})
-    return np.array(mi.render(scene, integrator=integrator, spp=int(spp), seed=int(seed)), dtype=np.float32)[..., :3]
+    return np.array(
+        mi.render(scene, integrator=integrator, spp=int(spp), seed=int(seed)), dtype=np.float32
+    )[..., :3]
 
 
 def _object_mask(scene_xml, manifold_path, res):
@@ -142,6 +161,7 @@ def _saved(m, path):
 
 # ------------------------------------------------------------------- scenes
 
+
 def _basis(scene_xml, m, folder, res, spp, seed):
     """Render (or resume) the basis of ``scene_xml`` with manifold ``m`` (loaded from a file)."""
     t0 = time.perf_counter()
@@ -154,19 +174,36 @@ def _basis(scene_xml, m, folder, res, spp, seed):
 def _random_points(scene_xml, b, m, manifold_path, res, spp, n, rng, seed):
     rows = []
     for k, x in enumerate(_interior_points(m, n, rng)):
-        target = render_reference(scene_xml, manifold_path, x, spp, seed=seed + 101 + k, resolution=(res, res))
+        target = render_reference(
+            scene_xml, manifold_path, x, spp, seed=seed + 101 + k, resolution=(res, res)
+        )
         r = mt.match(b, target, manifold=m)
         own = rel_mse(blend(b, m, x=x, prune=0.0)[0], target)
         t_true, _, _ = m.combine(m.weights(x)[1], prune=0.0)
         t_rec, _, _ = m.combine(r.weights, prune=0.0)
-        rows.append({"x_true": x.tolist(), "x": r.x.tolist(), "latent_distance": float(np.linalg.norm(r.x - x)),
-                     "rel_mse": r.rel_mse, "blend_at_true_x_rel_mse": own, "ratio": r.rel_mse / own,
-                     "log_rms_table_error": _log_rms(t_rec, t_true), "time_s": r.time_s,
-                     "best_single": r.single.name, "best_single_rel_mse": r.single.error})
+        rows.append(
+            {
+                "x_true": x.tolist(),
+                "x": r.x.tolist(),
+                "latent_distance": float(np.linalg.norm(r.x - x)),
+                "rel_mse": r.rel_mse,
+                "blend_at_true_x_rel_mse": own,
+                "ratio": r.rel_mse / own,
+                "log_rms_table_error": _log_rms(t_rec, t_true),
+                "time_s": r.time_s,
+                "best_single": r.single.name,
+                "best_single_rel_mse": r.single.error,
+            }
+        )
     ratios = [row["ratio"] for row in rows]
-    return {"points": rows, "max_ratio": float(np.max(ratios)), "median_ratio": float(np.median(ratios)),
-            "within_target": int(np.sum(np.array(ratios) <= RATIO_TARGET)), "ratio_target": RATIO_TARGET,
-            "median_log_rms_table_error": float(np.median([r["log_rms_table_error"] for r in rows]))}
+    return {
+        "points": rows,
+        "max_ratio": float(np.max(ratios)),
+        "median_ratio": float(np.median(ratios)),
+        "within_target": int(np.sum(np.array(ratios) <= RATIO_TARGET)),
+        "ratio_target": RATIO_TARGET,
+        "median_log_rms_table_error": float(np.median([r["log_rms_table_error"] for r in rows])),
+    }
 
 
 def _held_out(scene_xml, m100, manifold_path, out, res, basis_spp, spp, n, seed):
@@ -174,29 +211,55 @@ def _held_out(scene_xml, m100, manifold_path, out, res, basis_spp, spp, n, seed)
     held = sorted(rng.choice(m100.n, size=n, replace=False).tolist())
     keep = [i for i in range(m100.n) if i not in held]
     sub_path = os.path.join(out, f"manifold_without_{'_'.join(map(str, held))}.npz")
-    m = Manifold.load(sub_path) if os.path.isfile(sub_path) else _saved(m100.subset([m100.names[i] for i in keep]), sub_path)
+    m = (
+        Manifold.load(sub_path)
+        if os.path.isfile(sub_path)
+        else _saved(m100.subset([m100.names[i] for i in keep]), sub_path)
+    )
     name = os.path.splitext(os.path.basename(scene_xml))[0]
-    b, t_basis = _basis(scene_xml, m, os.path.join(out, f"basis_{name}_held_out_{n}"), res, basis_spp, seed)
+    b, t_basis = _basis(
+        scene_xml, m, os.path.join(out, f"basis_{name}_held_out_{n}"), res, basis_spp, seed
+    )
     rows = []
     for k, i in enumerate(held):
         target = _render_material(scene_xml, manifold_path, m100.names[i], spp, res, seed + 211 + k)
         r = mt.match(b, target, manifold=m)
         errs, _ = mt.single_material_errors(b, target, manifold=m)
         j = int(np.argmin(errs))
-        rows.append({"material": m100.names[i], "x": r.x.tolist(), "rel_mse": r.rel_mse,
-                     "best_single": m.names[j], "best_single_rel_mse": float(errs[j]),
-                     "better": bool(r.rel_mse < errs[j]), "top_weights": r.top_weights(4), "time_s": r.time_s})
+        rows.append(
+            {
+                "material": m100.names[i],
+                "x": r.x.tolist(),
+                "rel_mse": r.rel_mse,
+                "best_single": m.names[j],
+                "best_single_rel_mse": float(errs[j]),
+                "better": bool(r.rel_mse < errs[j]),
+                "top_weights": r.top_weights(4),
+                "time_s": r.time_s,
+            }
+        )
     better = sum(row["better"] for row in rows)
-    return {"materials": rows, "better": int(better), "of": len(rows), "target": "better on >= 8 of 10",
-            "meets_target": bool(better >= 0.8 * len(rows)), "basis_time_s": t_basis, "manifold": sub_path}
+    return {
+        "materials": rows,
+        "better": int(better),
+        "of": len(rows),
+        "target": "better on >= 8 of 10",
+        "meets_target": bool(better >= 0.8 * len(rows)),
+        "basis_time_s": t_basis,
+        "manifold": sub_path,
+    }
 
 
 def _masked_and_exposure(scene_xml, b, m, manifold_path, res, spp, rng, seed, scale=2.5):
     x = _interior_points(m, 1, rng)[0]
-    target = render_reference(scene_xml, manifold_path, x, spp, seed=seed + 307, resolution=(res, res))
+    target = render_reference(
+        scene_xml, manifold_path, x, spp, seed=seed + 307, resolution=(res, res)
+    )
     mask = _object_mask(scene_xml, manifold_path, res)
     altered = target.copy()
-    altered[mask == 0] *= np.array([0.3, 0.5, 1.4], dtype=np.float32)  # another background / lighting
+    altered[mask == 0] *= np.array(
+        [0.3, 0.5, 1.4], dtype=np.float32
+    )  # another background / lighting
     masked = mt.match(b, altered, mask=mask, manifold=m)
     unmasked = mt.match(b, altered, manifold=m)
     inside = mt.match(b, target, mask=mask, manifold=m)
@@ -204,27 +267,51 @@ def _masked_and_exposure(scene_xml, b, m, manifold_path, res, spp, rng, seed, sc
     free = mt.match(b, bright, manifold=m, exposure_free=True)
     fixed = mt.match(b, bright, manifold=m)
     plain = mt.match(b, target, manifold=m)
-    return {"x_true": x.tolist(), "mask_fraction": float(mask.mean()),
-            "masked": {"x": masked.x.tolist(), "rel_mse_in_mask": masked.rel_mse,
-                       "latent_distance": float(np.linalg.norm(masked.x - x)),
-                       "same_target_unaltered_rel_mse_in_mask": inside.rel_mse,
-                       "unmasked_match_rel_mse_in_mask": masked_rel_mse(unmasked.image, altered, mask),
-                       "unmasked_latent_distance": float(np.linalg.norm(unmasked.x - x))},
-            "exposure": {"scale": scale, "fitted_exposure": free.exposure, "rel_mse": free.rel_mse,
-                         "latent_distance": float(np.linalg.norm(free.x - x)),
-                         "rel_mse_scaled_back": rel_mse(free.image * (free.exposure / scale), target),
-                         "unscaled_target_rel_mse": plain.rel_mse,
-                         "without_exposure_free_rel_mse": fixed.rel_mse}}
+    return {
+        "x_true": x.tolist(),
+        "mask_fraction": float(mask.mean()),
+        "masked": {
+            "x": masked.x.tolist(),
+            "rel_mse_in_mask": masked.rel_mse,
+            "latent_distance": float(np.linalg.norm(masked.x - x)),
+            "same_target_unaltered_rel_mse_in_mask": inside.rel_mse,
+            "unmasked_match_rel_mse_in_mask": masked_rel_mse(unmasked.image, altered, mask),
+            "unmasked_latent_distance": float(np.linalg.norm(unmasked.x - x)),
+        },
+        "exposure": {
+            "scale": scale,
+            "fitted_exposure": free.exposure,
+            "rel_mse": free.rel_mse,
+            "latent_distance": float(np.linalg.norm(free.x - x)),
+            "rel_mse_scaled_back": rel_mse(free.image * (free.exposure / scale), target),
+            "unscaled_target_rel_mse": plain.rel_mse,
+            "without_exposure_free_rel_mse": fixed.rel_mse,
+        },
+    }
 
 
-def run(folder, manifold=None, basis=None, scenes=("table", "sphere"), res=128, basis_spp=64,
-                target_spp=256, n_points=10, n_held_out=10, out=None, seed=0, progress=True):
+def run(
+    folder,
+    manifold=None,
+    basis=None,
+    scenes=("table", "sphere"),
+    res=128,
+    basis_spp=64,
+    target_spp=256,
+    n_points=10,
+    n_held_out=10,
+    out=None,
+    seed=0,
+    progress=True,
+):
     """The whole match benchmark (see the module docstring); ``folder``: the database."""
+
     def say(text):
         if progress:
             print(text, flush=True)
 
     from mitsuba_manifold._util.checks import positive_int
+
     res = positive_int("`res`", res, 128)
     manifold = manifold or os.path.join(database_cache(folder), "bench_q2.npz")
     if not os.path.isfile(manifold):
@@ -233,8 +320,13 @@ def run(folder, manifold=None, basis=None, scenes=("table", "sphere"), res=128, 
     m100.tables()  # all tables in memory: clamping checks and table errors are matrix products
     out = out or os.path.join(database_cache(folder), "bench_match")
     os.makedirs(out, exist_ok=True)
-    report = {"manifold": os.path.abspath(manifold), "resolution": res, "basis_spp": basis_spp,
-              "target_spp": target_spp, "scenes": {}}
+    report = {
+        "manifold": os.path.abspath(manifold),
+        "resolution": res,
+        "basis_spp": basis_spp,
+        "target_spp": target_spp,
+        "scenes": {},
+    }
     if basis is not None:
         say(f"speed on {basis} ...")
         report["speed"] = bench_speed(basis, manifold)
@@ -245,15 +337,21 @@ def run(folder, manifold=None, basis=None, scenes=("table", "sphere"), res=128, 
         scene_xml = scene_path(name)
         rng = np.random.default_rng(seed)
         say(f"{name}: basis of {m100.n} materials ({res}x{res}, {basis_spp} spp) ...")
-        b, t_basis = _basis(scene_xml, m100, os.path.join(out, f"basis_{name}"), res, basis_spp, seed)
+        b, t_basis = _basis(
+            scene_xml, m100, os.path.join(out, f"basis_{name}"), res, basis_spp, seed
+        )
         sc = {"basis_time_s": t_basis}
         say(f"{name}: {n_points} random points ...")
-        sc["random_points"] = _random_points(scene_xml, b, m100, manifold, res, target_spp, n_points, rng, seed)
+        sc["random_points"] = _random_points(
+            scene_xml, b, m100, manifold, res, target_spp, n_points, rng, seed
+        )
         say(f"  max ratio {sc['random_points']['max_ratio']:.3g}")
         say(f"{name}: masked and exposure ...")
         sc.update(_masked_and_exposure(scene_xml, b, m100, manifold, res, target_spp, rng, seed))
         say(f"{name}: {n_held_out} held-out materials ...")
-        sc["held_out"] = _held_out(scene_xml, m100, manifold, out, res, basis_spp, target_spp, n_held_out, seed)
+        sc["held_out"] = _held_out(
+            scene_xml, m100, manifold, out, res, basis_spp, target_spp, n_held_out, seed
+        )
         say(f"  better on {sc['held_out']['better']} of {sc['held_out']['of']}")
         report["scenes"][name] = sc
     return report

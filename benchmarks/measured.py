@@ -27,7 +27,9 @@ import time
 import numpy as np
 
 #: The three real RGL files shipped beside the repository (``../shared/data/rgl``).
-RGL_DIR = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", "..", "..", "shared", "data", "rgl"))
+RGL_DIR = os.path.abspath(
+    os.path.join(os.path.dirname(__file__), "..", "..", "..", "..", "shared", "data", "rgl")
+)
 TABLE_TARGET_S = 0.2
 FIT_TARGET_S = 30.0
 
@@ -54,7 +56,11 @@ def tabulation(dims=(90, 90, 180), per_set=10):
             t0 = time.perf_counter()
             nbrdf.tabulate(nets, key, dims)
             times.append(time.perf_counter() - t0)
-        out[name] = {"median_s": float(np.median(times)), "max_s": float(np.max(times)), "tables": len(times)}
+        out[name] = {
+            "median_s": float(np.median(times)),
+            "max_s": float(np.max(times)),
+            "tables": len(times),
+        }
     out["meets_target"] = all(out[s]["median_s"] <= TABLE_TARGET_S for s in nbrdf.SETS)
     return out
 
@@ -67,9 +73,13 @@ def positions(dims=(90, 90, 180), merl_stride=5, rgl_dir=RGL_DIR):
 
     q = albedo_weights(dims)
     near = np.zeros(dims, bool)
-    near[: dims[0] // 3] = True   # theta_h below 10 degrees: the highlights
-    out = {"metric": "cosine-weighted RMS of log(1 + rho) differences", "dims": list(dims),
-           "chosen": dict(sources.SET_POSITIONS), "user_networks": sources.USER_POSITIONS}
+    near[: dims[0] // 3] = True  # theta_h below 10 degrees: the highlights
+    out = {
+        "metric": "cosine-weighted RMS of log(1 + rho) differences",
+        "dims": list(dims),
+        "chosen": dict(sources.SET_POSITIONS),
+        "user_networks": sources.USER_POSITIONS,
+    }
     rgl = nbrdf.NetworkSet.load(nbrdf.WEIGHTS_PATH, "rgl")
     rows = {}
     for f in sorted(os.listdir(rgl_dir)) if os.path.isdir(rgl_dir) else []:
@@ -89,11 +99,19 @@ def positions(dims=(90, 90, 180), merl_stride=5, rgl_dir=RGL_DIR):
     errs = []
     for name in merl_nets.names[::merl_stride]:
         truth = sgd[name].table(dims)
-        errs.append([_cos_log_rms(nbrdf.tabulate(merl_nets, name, dims, pos), truth, q) for pos in nbrdf.POSITIONS])
+        errs.append(
+            [
+                _cos_log_rms(nbrdf.tabulate(merl_nets, name, dims, pos), truth, q)
+                for pos in nbrdf.POSITIONS
+            ]
+        )
     errs = np.array(errs)
-    out["merl_against_sgd"] = {"materials": len(errs), "median_centres": float(np.median(errs[:, 0])),
-                               "median_starts": float(np.median(errs[:, 1])),
-                               "starts_closer_in": int((errs[:, 1] < errs[:, 0]).sum())}
+    out["merl_against_sgd"] = {
+        "materials": len(errs),
+        "median_centres": float(np.median(errs[:, 0])),
+        "median_starts": float(np.median(errs[:, 1])),
+        "starts_closer_in": int((errs[:, 1] < errs[:, 0]).sum()),
+    }
     return out
 
 
@@ -102,7 +120,11 @@ def fidelity(res=64, spp=256, rgl_dir=RGL_DIR, work=None):
     from mitsuba_manifold.manifold.model import Manifold
     from mitsuba_manifold.render import measured
 
-    files = sorted(f for f in os.listdir(rgl_dir) if f.endswith(".bsdf")) if os.path.isdir(rgl_dir) else []
+    files = (
+        sorted(f for f in os.listdir(rgl_dir) if f.endswith(".bsdf"))
+        if os.path.isdir(rgl_dir)
+        else []
+    )
     if not files:
         return {"skipped": f"no .bsdf files in {rgl_dir}"}
     work = work or tempfile.mkdtemp(prefix="bench-measured-")
@@ -119,10 +141,16 @@ def fidelity(res=64, spp=256, rgl_dir=RGL_DIR, work=None):
     rows = [measured.fidelity(os.path.join(rgl_dir, f), path, res=res, spp=spp) for f in files]
     ratio = float(np.median([r["ratio_to_noise"] for r in rows]))
     worst_mean = float(max(abs(r["mean_ratio"] - 1) for r in rows))
-    return {"res": res, "spp": spp, "materials": rows, "import_and_fit_s": import_s,
-            "median_ratio_to_noise": ratio, "worst_mean_error": worst_mean,
-            "meets_target": ratio <= 3.0 and worst_mean <= 0.01,
-            "target": "image mean within 1%, median rel. MSE <= 3x the noise of two measured renders"}
+    return {
+        "res": res,
+        "spp": spp,
+        "materials": rows,
+        "import_and_fit_s": import_s,
+        "median_ratio_to_noise": ratio,
+        "worst_mean_error": worst_mean,
+        "meets_target": ratio <= 3.0 and worst_mean <= 0.01,
+        "target": "image mean within 1%, median rel. MSE <= 3x the noise of two measured renders",
+    }
 
 
 def _du(folder):
@@ -138,14 +166,20 @@ def lean(dims=(90, 90, 180), fit=True, binary_files=10):
     work = tempfile.mkdtemp(prefix="bench-lean-")
     env = {**os.environ, "MITSUBA_MANIFOLD_CACHE": os.path.join(work, "cache")}
     try:
-        os.environ["MITSUBA_MANIFOLD_CACHE"], before = env["MITSUBA_MANIFOLD_CACHE"], os.environ.get(
-            "MITSUBA_MANIFOLD_CACHE")
-        db = Database("merl" if tuple(dims) == merl.MERL_DIMS else f"merl@{'x'.join(map(str, dims))}")
+        os.environ["MITSUBA_MANIFOLD_CACHE"], before = (
+            env["MITSUBA_MANIFOLD_CACHE"],
+            os.environ.get("MITSUBA_MANIFOLD_CACHE"),
+        )
+        db = Database(
+            "merl" if tuple(dims) == merl.MERL_DIMS else f"merl@{'x'.join(map(str, dims))}"
+        )
         worst = 0.0
         t0 = time.perf_counter()
         for name in db.names:
             cached = db.reflectance(name)
-            exact = nbrdf.tabulate(db.sources[name].networks, name, dims, db.sources[name].positions)
+            exact = nbrdf.tabulate(
+                db.sources[name].networks, name, dims, db.sources[name].positions
+            )
             big = exact > 1e-3
             worst = max(worst, float(np.max(np.abs(cached[big] - exact[big]) / exact[big])))
         out["merl_cache_bytes"] = _du(os.path.join(work, "cache"))
@@ -163,24 +197,43 @@ def lean(dims=(90, 90, 180), fit=True, binary_files=10):
         first_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         Database(exported).stack()
-        out["binary_files"] = {"files": len(names), "bytes": _du(exported) - _du(os.path.join(exported, ".manifold-cache")),
-                               "read_bytes_s": raw_s, "first_load_s": first_s,
-                               "cached_load_s": time.perf_counter() - t0}
+        out["binary_files"] = {
+            "files": len(names),
+            "bytes": _du(exported) - _du(os.path.join(exported, ".manifold-cache")),
+            "read_bytes_s": raw_s,
+            "first_load_s": first_s,
+            "cached_load_s": time.perf_counter() - t0,
+        }
         if fit:
-            tool = os.path.join(os.path.dirname(__file__), "..", "..", "..", "tools", "fit_manifold.py")
+            tool = os.path.join(
+                os.path.dirname(__file__), "..", "..", "..", "tools", "fit_manifold.py"
+            )
             for run in ("cold", "warm"):
                 t0 = time.perf_counter()
-                r = subprocess.run([sys.executable, os.path.abspath(tool), "all", "--out",
-                                    os.path.join(work, f"all_{run}.npz")], env=env, capture_output=True, text=True,
-                                   check=False)
+                r = subprocess.run(
+                    [
+                        sys.executable,
+                        os.path.abspath(tool),
+                        "all",
+                        "--out",
+                        os.path.join(work, f"all_{run}.npz"),
+                    ],
+                    env=env,
+                    capture_output=True,
+                    text=True,
+                    check=False,
+                )
                 wall = time.perf_counter() - t0
                 if r.returncode:
                     out[f"fit_all_{run}"] = {"error": r.stderr.strip().splitlines()[-1:]}
                     continue
-                out[f"fit_all_{run}"] = {"s": wall, "meets_target": wall <= FIT_TARGET_S,
-                                         "peak_rss_children_gb": resource.getrusage(
-                                             resource.RUSAGE_CHILDREN).ru_maxrss / 2 ** 20,
-                                         "log": [ln for ln in r.stdout.splitlines() if ln.startswith("time:")]}
+                out[f"fit_all_{run}"] = {
+                    "s": wall,
+                    "meets_target": wall <= FIT_TARGET_S,
+                    "peak_rss_children_gb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+                    / 2**20,
+                    "log": [ln for ln in r.stdout.splitlines() if ln.startswith("time:")],
+                }
             out["all_cache_bytes"] = _du(os.path.join(work, "cache"))
     finally:
         if before is None:
@@ -197,7 +250,8 @@ PARTS = {"tabulation": tabulation, "positions": positions, "fidelity": fidelity,
 
 def run(folder=None, parts=None, **kwargs):
     """The report of ``parts`` (default all of :data:`PARTS`); ``folder`` is not used (the
-    benchmark uses the built-in sets and the RGL files)."""
+    benchmark uses the built-in sets and the RGL files).
+    """
     report = {}
     for name in parts or PARTS:
         t0 = time.perf_counter()

@@ -127,7 +127,8 @@ def summary(rows):
 
 def by_device(sets, splits=SPLITS, n_add=5, names=None, progress=True):
     """The report of the module doc for ``sets`` (``{set name: database folder}``); ``names``:
-    ``{set name: materials}`` to project only some."""
+    ``{set name: materials}`` to project only some.
+    """
     out = {"splits": {}, "targets": TARGETS}
     with tempfile.TemporaryDirectory() as tmp:
         for train, test in splits:

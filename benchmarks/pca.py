@@ -16,7 +16,7 @@ def pca_errors(S, table_norms, components):
     lam, U = np.linalg.eigh(S)
     order = np.argsort(lam)[::-1]
     lam, U = np.maximum(lam[order], 0), U[:, order]
-    energy = U ** 2 * lam[None, :]
+    energy = U**2 * lam[None, :]
     errors = {}
     for k in components:
         errors[k] = np.sqrt(energy[:, k:].sum(axis=1)) / table_norms
@@ -32,14 +32,28 @@ def run(folder, components=(5, 20, 40, 60), q=2, names=None, focus="color-changi
     errs = pca_errors(S, norms, [k for k in components if k < len(db.names)])
     m = Manifold.fit(db, q=q)
     m._tables = tables
-    manifold_err = np.array([np.linalg.norm(m.interpolate(m.latent[i], prune=0.0)[0].reshape(-1)
-                                            - tables[i]) / norms[i] for i in range(m.n)])
-    out = {"n_materials": len(db.names), "dims": list(db.dims), "pca": {}, "manifold_q": q,
-           "manifold_max_relative_error": float(manifold_err.max())}
+    manifold_err = np.array(
+        [
+            np.linalg.norm(m.interpolate(m.latent[i], prune=0.0)[0].reshape(-1) - tables[i])
+            / norms[i]
+            for i in range(m.n)
+        ]
+    )
+    out = {
+        "n_materials": len(db.names),
+        "dims": list(db.dims),
+        "pca": {},
+        "manifold_q": q,
+        "manifold_max_relative_error": float(manifold_err.max()),
+    }
     fi = db.names.index(focus) if focus in db.names else None
     for k, e in errs.items():
-        out["pca"][str(k)] = {"mean": float(e.mean()), "median": float(np.median(e)), "max": float(e.max()),
-                              "worst_material": db.names[int(e.argmax())]}
+        out["pca"][str(k)] = {
+            "mean": float(e.mean()),
+            "median": float(np.median(e)),
+            "max": float(e.max()),
+            "worst_material": db.names[int(e.argmax())],
+        }
         if fi is not None:
             out["pca"][str(k)][focus] = float(e[fi])
     return out

@@ -28,6 +28,7 @@ from mitsuba_manifold.basis.folder import Basis
 from mitsuba_manifold.imaging.metrics import rel_mse
 from mitsuba_manifold.manifold import pruning, space
 from mitsuba_manifold.manifold.model import DEFAULT_PRUNE, Manifold
+
 from .common import peak_rss_gib
 
 #: What the default must reach at every point of both sets (and the median kept).
@@ -58,7 +59,11 @@ def point_sets(latent, n_box=100):
     out = {}
     for name, seed in (("tune", 0), ("held_out", 1)):
         rng = np.random.default_rng(seed)
-        j = near[:, 0] if seed == 0 else near[np.arange(len(latent)), rng.integers(0, 3, len(latent))]
+        j = (
+            near[:, 0]
+            if seed == 0
+            else near[np.arange(len(latent)), rng.integers(0, 3, len(latent))]
+        )
         box = lo + rng.random((n_box, latent.shape[1])) * (hi - lo)
         out[name] = np.r_[0.5 * (latent + latent[j]), box]
     return out
@@ -66,7 +71,11 @@ def point_sets(latent, n_box=100):
 
 def _stats(v):
     v = np.asarray(v, dtype=np.float64)
-    return {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)), "max": float(v.max())}
+    return {
+        "median": float(np.median(v)),
+        "p90": float(np.percentile(v, 90)),
+        "max": float(v.max()),
+    }
 
 
 def _keep(cfg, w, G, C, A):
@@ -89,15 +98,22 @@ def _measure(m, W, cfg, grams, basis):
         if basis is not None:
             wp = np.zeros_like(w)
             wp[keep] = w[keep] * (w.sum() / w[keep].sum())
-            full = blend(basis, m, w=w, prune=0.0, l2="raw")[0]   # linear: what pruning changes, not OIDN
+            full = blend(basis, m, w=w, prune=0.0, l2="raw")[
+                0
+            ]  # linear: what pruning changes, not OIDN
             rows["image"].append(rel_mse(blend(basis, m, w=wp, prune=0.0, l2="raw")[0], full))
-    out = {"albedo_change": _stats(rows["albedo"]), "cos_error": _stats(rows["cos"]),
-           "raw_error": _stats(rows["raw"]),
-           "kept": {"median": float(np.median(rows["kept"])), "max": int(max(rows["kept"]))}}
+    out = {
+        "albedo_change": _stats(rows["albedo"]),
+        "cos_error": _stats(rows["cos"]),
+        "raw_error": _stats(rows["raw"]),
+        "kept": {"median": float(np.median(rows["kept"])), "max": int(max(rows["kept"]))},
+    }
     if rows["image"]:
         out["image_rel_mse"] = _stats(rows["image"])
-    out["meets"] = {"albedo_change": out["albedo_change"]["max"] <= TARGETS["albedo_change"],
-                    "median_kept": out["kept"]["median"] <= TARGETS["median_kept"]}
+    out["meets"] = {
+        "albedo_change": out["albedo_change"]["max"] <= TARGETS["albedo_change"],
+        "median_kept": out["kept"]["median"] <= TARGETS["median_kept"],
+    }
     if rows["image"]:
         out["meets"]["image_rel_mse"] = out["image_rel_mse"]["max"] <= TARGETS["image_rel_mse"]
     return out
@@ -117,7 +133,8 @@ def run(folder, manifold=None, basis=None, repeats=3, configs=None, progress=Tru
     """Measure every configuration of :data:`CONFIGS` (or those named in ``configs``) on both point
     sets; see the module docstring. ``folder``: the database (the manifold's, when ``manifold``
     is None a default fit on it); ``basis``: a one-target basis folder of the manifold, for the
-    image changes (skipped without one)."""
+    image changes (skipped without one).
+    """
     t0 = time.perf_counter()
     m = Manifold.load(manifold) if manifold else Manifold.fit(folder)
     database = folder if manifold else None
@@ -134,13 +151,23 @@ def run(folder, manifold=None, basis=None, repeats=3, configs=None, progress=Tru
     sets = point_sets(m.latent)
     weights = {name: m.weights(X).w for name, X in sets.items()}
     every = np.concatenate(list(weights.values()))
-    result = {"n_materials": m.n, "dims": list(m.dims or ()), "preset": m.info.get("preset"),
-              "interpolant": m.interpolant.params(), "basis": None if b is None else repr(b),
-              "points": {k: len(v) for k, v in sets.items()}, "targets": TARGETS,
-              "load_s": t_tables, "grams_s": t_grams, "configs": {}}
+    result = {
+        "n_materials": m.n,
+        "dims": list(m.dims or ()),
+        "preset": m.info.get("preset"),
+        "interpolant": m.interpolant.params(),
+        "basis": None if b is None else repr(b),
+        "points": {k: len(v) for k, v in sets.items()},
+        "targets": TARGETS,
+        "load_s": t_tables,
+        "grams_s": t_grams,
+        "configs": {},
+    }
     for name in configs or CONFIGS:
         cfg = CONFIGS[name]
-        finite = [None if v is None or not np.isfinite(v) else v for v in cfg[2:]]   # None: unbounded
+        finite = [
+            None if v is None or not np.isfinite(v) else v for v in cfg[2:]
+        ]  # None: unbounded
         row = {"rule": cfg[0], "budget": cfg[1], "albedo_share": finite[0], "raw_share": finite[1]}
         for set_name, W in weights.items():
             row[set_name] = _measure(m, W, cfg, grams, b)
@@ -149,9 +176,18 @@ def run(folder, manifold=None, basis=None, repeats=3, configs=None, progress=Tru
         result["configs"][name] = row
         if progress:
             t, h = row["tune"], row["held_out"]
-            img = "" if b is None else (f", image rel. MSE max {t['image_rel_mse']['max']:.2g} / "
-                                        f"{h['image_rel_mse']['max']:.2g}")
-            print(f"  {name}: albedo max {t['albedo_change']['max']:.2%} / {h['albedo_change']['max']:.2%}, "
-                  f"kept median {t['kept']['median']:g} / {h['kept']['median']:g}{img}", flush=True)
+            img = (
+                ""
+                if b is None
+                else (
+                    f", image rel. MSE max {t['image_rel_mse']['max']:.2g} / "
+                    f"{h['image_rel_mse']['max']:.2g}"
+                )
+            )
+            print(
+                f"  {name}: albedo max {t['albedo_change']['max']:.2%} / {h['albedo_change']['max']:.2%}, "
+                f"kept median {t['kept']['median']:g} / {h['kept']['median']:g}{img}",
+                flush=True,
+            )
     result["peak_rss_gib"] = peak_rss_gib()
     return result

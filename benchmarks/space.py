@@ -26,31 +26,51 @@ import time
 
 import numpy as np
 
+from mitsuba_manifold._util.timing import median_time
+from mitsuba_manifold.data.database import Database
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.manifold import projection, space
-from mitsuba_manifold.data.database import Database
-from mitsuba_manifold.manifold.model import DEFAULT_PRUNE, Manifold, fit_layout, make_interpolant, settings
-from mitsuba_manifold._util.timing import median_time
+from mitsuba_manifold.manifold.model import (
+    DEFAULT_PRUNE,
+    Manifold,
+    fit_layout,
+    make_interpolant,
+    settings,
+)
 
 #: Configurations compared: name -> (preset, overrides). ``default`` is the preset.
 CONFIGS = {
     "paper": ("paper", {}),
     "paper-log": ("paper", {"features": "log"}),
     "paper-log-q5": ("paper", {"features": "log", "q": 5, "method": "lbfgs"}),
-    "gp-continuous-log": ("paper", {"features": "log", "method": "lbfgs",
-                                    "interpolant": {"kind": "gp", "exact": False}}),
-    "shepard-global-q3": ("default", {"interpolant": {"kind": "shepard", "power": 2.0, "taper": float("inf"),
-                                                     "spread": 0.0}}),
-    "shepard-fixed-taper-q3": ("default", {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2,
-                                                          "spread": 0.0}}),
-    "shepard-spread-0.3": ("default", {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2,
-                                                      "spread": 0.3}}),
-    "shepard-taper-0.15": ("default", {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.15,
-                                                      "spread": 0.1}}),
-    "shepard-power-2.5": ("default", {"interpolant": {"kind": "shepard", "power": 2.5, "taper": 0.2,
-                                                     "spread": 0.1}}),
-    "shepard-spread-0.2": ("default", {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2,
-                                                      "spread": 0.2}}),
+    "gp-continuous-log": (
+        "paper",
+        {"features": "log", "method": "lbfgs", "interpolant": {"kind": "gp", "exact": False}},
+    ),
+    "shepard-global-q3": (
+        "default",
+        {"interpolant": {"kind": "shepard", "power": 2.0, "taper": float("inf"), "spread": 0.0}},
+    ),
+    "shepard-fixed-taper-q3": (
+        "default",
+        {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2, "spread": 0.0}},
+    ),
+    "shepard-spread-0.3": (
+        "default",
+        {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2, "spread": 0.3}},
+    ),
+    "shepard-taper-0.15": (
+        "default",
+        {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.15, "spread": 0.1}},
+    ),
+    "shepard-power-2.5": (
+        "default",
+        {"interpolant": {"kind": "shepard", "power": 2.5, "taper": 0.2, "spread": 0.1}},
+    ),
+    "shepard-spread-0.2": (
+        "default",
+        {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2, "spread": 0.2}},
+    ),
     "shepard-local-q2": ("default", {"q": 2}),
     "shepard-local-q4": ("default", {"q": 4}),
     "shepard-local-q5": ("default", {"q": 5}),
@@ -58,16 +78,28 @@ CONFIGS = {
     "default": ("default", {}),
 }
 
-TARGETS = {"beats_nearest": 0.9, "median_over_nearest": 0.75, "path_weights": 0.10, "path_images": 0.15,
-           "jump": 0.1, "albedo_outside": 0.02, "median_negative_fraction": 0.005, "fit_s": 30.0,
-           "interpolate_s": 0.1, "prune_error": 0.01}
+TARGETS = {
+    "beats_nearest": 0.9,
+    "median_over_nearest": 0.75,
+    "path_weights": 0.10,
+    "path_images": 0.15,
+    "jump": 0.1,
+    "albedo_outside": 0.02,
+    "median_negative_fraction": 0.005,
+    "fit_s": 30.0,
+    "interpolate_s": 0.1,
+    "prune_error": 0.01,
+}
 
 
 def _cos_weights(dims):
     from mitsuba_manifold.data import merl
+
     th, td, pd = merl.bin_centres(dims)
     wi, wo = merl.directions(th, td, pd)
-    return (np.clip(wi[..., 2], 0, None) * np.clip(wo[..., 2], 0, None)).astype(np.float32).reshape(-1)
+    return (
+        (np.clip(wi[..., 2], 0, None) * np.clip(wo[..., 2], 0, None)).astype(np.float32).reshape(-1)
+    )
 
 
 def _basis_images(basis, names):
@@ -87,8 +119,9 @@ def _config_report(name, cfg, tables, names, grams, albedos, images, base, folds
         return make_interpolant(res.latent, cfg)
 
     t0 = time.perf_counter()
-    held = space.cross_validate(tables, names, fit, grams["log"], cfg["q"], albedos,
-                                only_folds=folds)
+    held = space.cross_validate(
+        tables, names, fit, grams["log"], cfg["q"], albedos, only_folds=folds
+    )
     t_cv = time.perf_counter() - t0
     ip = fit(np.arange(len(names)))
     pairs = space.neighbour_pairs(ip.latent)
@@ -97,15 +130,27 @@ def _config_report(name, cfg, tables, names, grams, albedos, images, base, folds
     jump = space.training_jump(ip)
     plaus = space.plausibility(ip, albedos, tables)
     hs, ps, pl = held.summary(), paths.summary(), plaus.summary()
-    ps.update(all_pairs=len(every), all_pairs_worst_weight_share=float(every.max()),
-              all_pairs_over_target=int((every > TARGETS["path_weights"]).sum()))
-    row = {"settings": cfg, "held_out": hs, "paths": ps, "pairs": [[names[i], names[j]] for i, j in pairs],
-           "jump": {"median": float(np.median(jump)), "max": float(jump.max())},
-           "plausibility": pl, "cv_s": t_cv, "cv_fit_s": held.fit_s, "cv_project_s": held.project_s,
-           "held_out_rows": held.as_dict()}
+    ps.update(
+        all_pairs=len(every),
+        all_pairs_worst_weight_share=float(every.max()),
+        all_pairs_over_target=int((every > TARGETS["path_weights"]).sum()),
+    )
+    row = {
+        "settings": cfg,
+        "held_out": hs,
+        "paths": ps,
+        "pairs": [[names[i], names[j]] for i, j in pairs],
+        "jump": {"median": float(np.median(jump)), "max": float(jump.max())},
+        "plausibility": pl,
+        "cv_s": t_cv,
+        "cv_fit_s": held.fit_s,
+        "cv_project_s": held.project_s,
+        "held_out_rows": held.as_dict(),
+    }
     row["meets"] = {
         "held_out_beats_nearest": hs["beats_nearest"] >= TARGETS["beats_nearest"],
-        "held_out_median_vs_nearest": hs["median_error_over_median_nearest"] <= TARGETS["median_over_nearest"],
+        "held_out_median_vs_nearest": hs["median_error_over_median_nearest"]
+        <= TARGETS["median_over_nearest"],
         "held_out_median_vs_pca_q": hs["median_error"] <= hs["median_pca_q"],
         "held_out_every_fold": hs["worst_fold_median_ratio"] <= TARGETS["median_over_nearest"],
         "path_all_pairs": ps["all_pairs_worst_weight_share"] <= TARGETS["path_weights"],
@@ -113,24 +158,32 @@ def _config_report(name, cfg, tables, names, grams, albedos, images, base, folds
         "path_images": ps.get("worst_image_share", np.inf) <= TARGETS["path_images"],
         "jump": row["jump"]["max"] <= TARGETS["jump"],
         "albedo_outside": pl["albedo_outside_fraction"] <= TARGETS["albedo_outside"],
-        "median_negative_fraction": pl["median_negative_fraction"] <= TARGETS["median_negative_fraction"]}
+        "median_negative_fraction": pl["median_negative_fraction"]
+        <= TARGETS["median_negative_fraction"],
+    }
     if progress:
-        print(f"  {name}: held-out median {hs['median_error']:.4f} (nearest {hs['median_nearest']:.4f}, "
-              f"PCA-q {hs['median_pca_q']:.4f}), beats nearest {hs['beats_nearest']:.0%}; worst path "
-              f"{ps['worst_weight_share']:.3f} weights / {ps.get('worst_image_share', float('nan')):.3f} images; "
-              f"jump {row['jump']['max']:.3g}; albedo outside {pl['albedo_outside_fraction']:.1%}; "
-              f"({t_cv:.0f} s)", flush=True)
+        print(
+            f"  {name}: held-out median {hs['median_error']:.4f} (nearest {hs['median_nearest']:.4f}, "
+            f"PCA-q {hs['median_pca_q']:.4f}), beats nearest {hs['beats_nearest']:.0%}; worst path "
+            f"{ps['worst_weight_share']:.3f} weights / {ps.get('worst_image_share', float('nan')):.3f} images; "
+            f"jump {row['jump']['max']:.3g}; albedo outside {pl['albedo_outside_fraction']:.1%}; "
+            f"({t_cv:.0f} s)",
+            flush=True,
+        )
     return row
 
 
 def _blend_reference(tables, G_log, only_folds=None, ks=(4, 8)):
     """What a space of convex weights could reach: for each held-out material (the same
     folds), the best convex blend of its ``k`` closest training materials, with no latent
-    space at all; its error (all bins) over the nearest material's, as in the held-out rows."""
+    space at all; its error (all bins) over the nearest material's, as in the held-out rows.
+    """
     n, d = tables.shape
     bins = projection.search_bins(d)
     T = tables[:, bins].astype(np.float64)
-    tests = [f for i, f in enumerate(space.folds(n)) if only_folds is None or i in only_folds]   # as cross_validate's
+    tests = [
+        f for i, f in enumerate(space.folds(n)) if only_folds is None or i in only_folds
+    ]  # as cross_validate's
     ratios, bounds = {k: [] for k in ks}, np.cumsum([0] + [len(f) for f in tests])
     for test in tests:
         train = np.setdiff1d(np.arange(n), test)
@@ -143,9 +196,15 @@ def _blend_reference(tables, G_log, only_folds=None, ks=(4, 8)):
                 w = space.convex_blend(T[order[:k]], y)
                 blend = w.astype(np.float32) @ tables[order[:k]]
                 ratios[k].append(float(projection.log_rms(blend, full_y)) / near)
-    return {f"closest_{k}": {"median_ratio_to_nearest": float(np.median(r)),
-                             "fold_median_ratios": [float(np.median(r[a:b])) for a, b in zip(bounds[:-1], bounds[1:])]}
-            for k, r in ((k, np.asarray(v)) for k, v in ratios.items())}
+    return {
+        f"closest_{k}": {
+            "median_ratio_to_nearest": float(np.median(r)),
+            "fold_median_ratios": [
+                float(np.median(r[a:b])) for a, b in zip(bounds[:-1], bounds[1:])
+            ],
+        }
+        for k, r in ((k, np.asarray(v)) for k, v in ratios.items())
+    }
 
 
 def _default_costs(folder, names, repeats=7, n_points=20, seed=0):
@@ -164,12 +223,19 @@ def _default_costs(folder, names, repeats=7, n_points=20, seed=0):
         table, keep, _ = m.combine(w)
         errors.append(float(np.linalg.norm(table - full) / np.linalg.norm(full)))
         kept.append(int(len(keep)))
-    return m, {"fit_s": t_fit, "fit_breakdown_s": {k: m.info[k] for k in ("time_load_s", "time_gram_s", "time_fit_s")},
-               "interpolate_s": t_interp, "prune": DEFAULT_PRUNE,
-               "prune_l2_error": {"median": float(np.median(errors)), "max": float(np.max(errors))},
-               "prune_materials_kept": {"median": float(np.median(kept)), "max": int(np.max(kept))},
-               "meets": {"fit_s": t_fit <= TARGETS["fit_s"], "interpolate_s": t_interp <= TARGETS["interpolate_s"],
-                         "prune_error": float(np.max(errors)) <= TARGETS["prune_error"]}}
+    return m, {
+        "fit_s": t_fit,
+        "fit_breakdown_s": {k: m.info[k] for k in ("time_load_s", "time_gram_s", "time_fit_s")},
+        "interpolate_s": t_interp,
+        "prune": DEFAULT_PRUNE,
+        "prune_l2_error": {"median": float(np.median(errors)), "max": float(np.max(errors))},
+        "prune_materials_kept": {"median": float(np.median(kept)), "max": int(np.max(kept))},
+        "meets": {
+            "fit_s": t_fit <= TARGETS["fit_s"],
+            "interpolate_s": t_interp <= TARGETS["interpolate_s"],
+            "prune_error": float(np.max(errors)) <= TARGETS["prune_error"],
+        },
+    }
 
 
 def run(folder, basis=None, configs=None, names=None, folds=None, progress=True):
@@ -186,7 +252,12 @@ def run(folder, basis=None, configs=None, names=None, folds=None, progress=True)
         Run only these of the 10 folds (quicker, partial).
     """
     from .inputs import database_names, fold_numbers, known
-    configs = list(CONFIGS) if configs is None else known("`configs`", configs, list(CONFIGS), "configuration")
+
+    configs = (
+        list(CONFIGS)
+        if configs is None
+        else known("`configs`", configs, list(CONFIGS), "configuration")
+    )
     folds = fold_numbers(folds, n=len(names) if names else len(database_names(folder)))
     db = Database(folder, names)
     names = db.names
@@ -197,17 +268,32 @@ def run(folder, basis=None, configs=None, names=None, folds=None, progress=True)
     cfgs = {c: settings(CONFIGS[c][0], **CONFIGS[c][1]) for c in configs}
     cos = _cos_weights(db.dims)
     t0 = time.perf_counter()
-    grams = {f: space.feature_gram(tables, f, cos) for f in sorted({"log"} | {c["features"] for c in cfgs.values()})}
+    grams = {
+        f: space.feature_gram(tables, f, cos)
+        for f in sorted({"log"} | {c["features"] for c in cfgs.values()})
+    }
     t_gram = time.perf_counter() - t0
     base, images = _basis_images(basis, names)
     if progress:
-        print(f"{len(names)} tables loaded in {t_load:.1f} s, Gram matrices in {t_gram:.1f} s", flush=True)
-    out = {"n_materials": len(names), "dims": list(db.dims), "search_bins": projection.SEARCH_BINS,
-           "folds": "all 10" if folds is None else list(folds), "basis": basis, "targets": TARGETS,
-           "load_s": t_load, "gram_s": t_gram, "configs": {}}
+        print(
+            f"{len(names)} tables loaded in {t_load:.1f} s, Gram matrices in {t_gram:.1f} s",
+            flush=True,
+        )
+    out = {
+        "n_materials": len(names),
+        "dims": list(db.dims),
+        "search_bins": projection.SEARCH_BINS,
+        "folds": "all 10" if folds is None else list(folds),
+        "basis": basis,
+        "targets": TARGETS,
+        "load_s": t_load,
+        "gram_s": t_gram,
+        "configs": {},
+    }
     for c in configs:
-        out["configs"][c] = _config_report(c, cfgs[c], tables, names, grams, albedos, images, base,
-                                           folds, progress)
+        out["configs"][c] = _config_report(
+            c, cfgs[c], tables, names, grams, albedos, images, base, folds, progress
+        )
     out["convex_blend_reference"] = _blend_reference(tables, grams["log"], folds)
     del tables
     if "default" in configs:

@@ -36,8 +36,9 @@ autodoc_default_options = {"members": True, "undoc-members": False}
 # The rendering modules derive from the active variant's Mitsuba classes: one variant must be
 # set before autodoc imports them (scalar_rgb needs no libLLVM).
 try:
-    import mitsuba_manifold.render  # noqa: F401  (picks a libLLVM, registers the plugins)
     import mitsuba as mi
+
+    import mitsuba_manifold.render  # noqa: F401  (picks a libLLVM, registers the plugins)
 
     mi.set_variant("scalar_rgb")
 except ImportError:

@@ -45,6 +45,7 @@ MATERIALS = [
 def render_spheres(manifold_path, points, res, spp):
     """Images of the ``sphere`` scene at each latent point (one scene, ``x`` set by traverse)."""
     import mitsuba as mi
+
     import mitsuba_manifold.render  # noqa: F401
     from mitsuba_manifold.render.scenes import scene_path
 

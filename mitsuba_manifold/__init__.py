@@ -71,6 +71,8 @@ def register():
         (a ``RuntimeError``) If no Mitsuba variant is set, or an LLVM variant is active
         without libLLVM >= 16.
     """
-    plugins = importlib.import_module(".render.plugins", __name__)   # by name: the face imports no module
+    plugins = importlib.import_module(
+        ".render.plugins", __name__
+    )  # by name: the face imports no module
     plugins.install()
     return plugins.register()

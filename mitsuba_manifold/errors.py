@@ -24,17 +24,20 @@ class MitsubaManifoldError(Exception):
 
 class InputError(MitsubaManifoldError, ValueError):
     """A bad argument, parameter or request value (the message names the parameter, the value
-    and what would be accepted)."""
+    and what would be accepted).
+    """
 
 
 class FormatError(InputError):
     """A file or folder whose content is not what it must be: a MERL table, a database folder,
-    a manifold file, an image."""
+    a manifold file, an image.
+    """
 
 
 class MismatchError(InputError):
     """Something made for something else, or incomplete: a basis of another manifold, scene or
-    sensor, chunks of other settings, denoising guides of another basis."""
+    sensor, chunks of other settings, denoising guides of another basis.
+    """
 
 
 class ForeignFileError(InputError):
@@ -62,7 +65,8 @@ class VariantError(MitsubaManifoldError, RuntimeError):
 
 class UnavailableError(MitsubaManifoldError, RuntimeError):
     """Something a call needs is not there: Ray, a cluster, a denoiser, or state that an
-    earlier call makes."""
+    earlier call makes.
+    """
 
 
 class MissingFileError(MitsubaManifoldError, FileNotFoundError):
@@ -90,7 +94,8 @@ def _chain(exc):
 
 def plugin_message(exc):
     """The ``manifold_brdf: ...`` / ``manifold_path: ...`` message inside ``exc`` (or its
-    causes), without Mitsuba's wrapping and traceback; else :func:`one_line` of ``exc``."""
+    causes), without Mitsuba's wrapping and traceback; else :func:`one_line` of ``exc``.
+    """
     for e in _chain(exc):
         found = _PLUGIN_LINE.findall(str(e))
         if found:

@@ -25,7 +25,7 @@ def pytest_configure(config):
     if "not render" not in (config.getoption("markexpr", "") or ""):
         try:
             import mitsuba_manifold.render  # noqa: F401
-        except ImportError:   # no Mitsuba: the rendering tests skip
+        except ImportError:  # no Mitsuba: the rendering tests skip
             pass
 
 
@@ -35,19 +35,30 @@ def variant():
     may switch variants); skips without Mitsuba."""
     mi = pytest.importorskip("mitsuba")
     import mitsuba_manifold.render  # noqa: F401  (the plugins, for this variant and every later one)
+
     mi.set_variant(VARIANT)
     yield VARIANT
     mi.set_variant(VARIANT)
 
+
 SMALL_DIMS = (32, 32, 64)
-SMALL_MATERIALS = ["white-diffuse-bball", "gold-paint", "blue-acrylic", "chrome", "steel",
-                   "color-changing-paint3", "pink-fabric", "black-obsidian"]
+SMALL_MATERIALS = [
+    "white-diffuse-bball",
+    "gold-paint",
+    "blue-acrylic",
+    "chrome",
+    "steel",
+    "color-changing-paint3",
+    "pink-fabric",
+    "black-obsidian",
+]
 
 
 @pytest.fixture(scope="session")
 def small_db(tmp_path_factory):
     """Folder with 8 surrogate materials at 32x32x64 bins."""
     from mitsuba_manifold.data import database
+
     folder = tmp_path_factory.mktemp("db32")
     database.make_database(folder, SMALL_DIMS, SMALL_MATERIALS)
     return str(folder)
@@ -57,6 +68,7 @@ def small_db(tmp_path_factory):
 def small_manifold_paper(small_db, tmp_path_factory):
     """Path of a manifold fit on :func:`small_db` with the paper's formulation (``preset="paper"``)."""
     from mitsuba_manifold.manifold.model import Manifold
+
     path = os.path.join(str(tmp_path_factory.mktemp("manifold_paper")), "manifold.npz")
     Manifold.fit(small_db, preset="paper").save(path)
     return path
@@ -66,6 +78,7 @@ def small_manifold_paper(small_db, tmp_path_factory):
 def small_manifold(small_db, tmp_path_factory):
     """Path of a q=2 manifold fit on :func:`small_db` (default preset otherwise)."""
     from mitsuba_manifold.manifold.model import Manifold
+
     path = os.path.join(str(tmp_path_factory.mktemp("manifold")), "manifold.npz")
     Manifold.fit(small_db, q=2).save(path)
     return path

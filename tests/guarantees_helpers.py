@@ -22,7 +22,9 @@ def tool_module(name):
             tools = os.path.join(ROOT, "tools")
             if tools not in sys.path:
                 sys.path.insert(0, tools)
-            spec = importlib.util.spec_from_file_location(f"_tool_{name}", os.path.join(tools, name + ".py"))
+            spec = importlib.util.spec_from_file_location(
+                f"_tool_{name}", os.path.join(tools, name + ".py")
+            )
             mod = importlib.util.module_from_spec(spec)
             spec.loader.exec_module(mod)
             _MODULES[name] = mod
@@ -80,6 +82,7 @@ def write_table(path, dims=DIMS, value=1.0):
     import numpy as np
 
     from mitsuba_manifold.data import merl
+
     merl.write_binary(path, np.full((3,) + tuple(dims), value))
 
 
@@ -92,8 +95,20 @@ def make_tiny(root):
     db, m, basis = root / "db", root / "manifold.npz", root / "basis"
     database.make_database(db, (8, 8, 16), TINY_NAMES)
     Manifold.fit(str(db), q=2).save(m)
-    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", m, "--out", basis, "--res", 8, "--spp", 1,
-                          "--mode", "per-material")
+    rc, _, err = run_tool(
+        "render_basis",
+        SPHERE,
+        "--manifold",
+        m,
+        "--out",
+        basis,
+        "--res",
+        8,
+        "--spp",
+        1,
+        "--mode",
+        "per-material",
+    )
     assert rc == 0, err
     return {"root": root, "db": str(db), "manifold": str(m), "basis": str(basis)}
 

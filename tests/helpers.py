@@ -21,8 +21,10 @@ def load(name, manifold, material=None, **params):
     import mitsuba as mi
 
     from mitsuba_manifold.render import integrators, scenes
-    scene = mi.load_file(scenes.scene_path(name), manifold=manifold,
-                         **{k: str(v) for k, v in params.items()})
+
+    scene = mi.load_file(
+        scenes.scene_path(name), manifold=manifold, **{k: str(v) for k, v in params.items()}
+    )
     if material is not None:
         for bsdf in integrators.manifold_bsdfs(scene):
             bsdf.set_material(material)
@@ -31,12 +33,14 @@ def load(name, manifold, material=None, **params):
 
 def integrator(**props):
     import mitsuba as mi
+
     return mi.load_dict({"type": "manifold_path", **props})
 
 
 def renders(scene, integ, spp, seeds):
     """Images (K, H, W, C) rendered with the given seeds."""
     import mitsuba as mi
+
     return np.stack([np.array(mi.render(scene, integrator=integ, spp=spp, seed=s)) for s in seeds])
 
 
@@ -49,8 +53,8 @@ def mean_var(imgs, block=8):
     m = imgs.mean(0)
     v = imgs.var(0, ddof=1) / k  # variance of each pixel's mean over the K images
     by, bx = h // block, w // block
-    bm = m[:by * block, :bx * block].reshape(by, block, bx, block, c).mean((1, 3))
-    bv = v[:by * block, :bx * block].reshape(by, block, bx, block, c).sum((1, 3)) / block ** 4
+    bm = m[: by * block, : bx * block].reshape(by, block, bx, block, c).mean((1, 3))
+    bv = v[: by * block, : bx * block].reshape(by, block, bx, block, c).sum((1, 3)) / block**4
     return bm, bv, m.mean((0, 1)), v.sum((0, 1)) / (h * w) ** 2
 
 
@@ -79,27 +83,64 @@ def midpoint(manifold_path, a, b):
     return ", ".join(repr(float(v)) for v in x)
 
 
-def two_spheres(manifold, a="white-diffuse-bball", b="gold-paint", interpolation="nearest", rfilter="box"):
+def two_spheres(
+    manifold, a="white-diffuse-bball", b="gold-paint", interpolation="nearest", rfilter="box"
+):
     import mitsuba as mi
 
-    return mi.load_dict({
-        "type": "scene",
-        "sensor": {"type": "perspective", "fov": 40,
-                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0],
-                                                             up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": 32, "height": 32, "rfilter": {"type": rfilter}},
-                   "sampler": {"type": "independent", "sample_count": 16}},
-        "env": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
-        "a": {"type": "manifold_brdf", "manifold": manifold, "material": a,
-              "interpolation": interpolation},
-        "b": {"type": "manifold_brdf", "manifold": manifold, "material": b,
-              "interpolation": interpolation},
-        "grey": {"type": "diffuse"},
-        "sa": {"type": "sphere", "center": [-0.55, 0, 0], "radius": 0.5, "bsdf": {"type": "ref", "id": "a"}},
-        "sb": {"type": "sphere", "center": [0.55, 0, 0], "radius": 0.5, "bsdf": {"type": "ref", "id": "b"}},
-        "floor": {"type": "rectangle", "bsdf": {"type": "ref", "id": "grey"},
-                  "to_world": mi.ScalarTransform4f().translate([0, -0.5, 0]).rotate([1, 0, 0], -90).scale(3)},
-    })
+    return mi.load_dict(
+        {
+            "type": "scene",
+            "sensor": {
+                "type": "perspective",
+                "fov": 40,
+                "to_world": mi.ScalarTransform4f().look_at(
+                    origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]
+                ),
+                "film": {
+                    "type": "hdrfilm",
+                    "width": 32,
+                    "height": 32,
+                    "rfilter": {"type": rfilter},
+                },
+                "sampler": {"type": "independent", "sample_count": 16},
+            },
+            "env": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
+            "a": {
+                "type": "manifold_brdf",
+                "manifold": manifold,
+                "material": a,
+                "interpolation": interpolation,
+            },
+            "b": {
+                "type": "manifold_brdf",
+                "manifold": manifold,
+                "material": b,
+                "interpolation": interpolation,
+            },
+            "grey": {"type": "diffuse"},
+            "sa": {
+                "type": "sphere",
+                "center": [-0.55, 0, 0],
+                "radius": 0.5,
+                "bsdf": {"type": "ref", "id": "a"},
+            },
+            "sb": {
+                "type": "sphere",
+                "center": [0.55, 0, 0],
+                "radius": 0.5,
+                "bsdf": {"type": "ref", "id": "b"},
+            },
+            "floor": {
+                "type": "rectangle",
+                "bsdf": {"type": "ref", "id": "grey"},
+                "to_world": mi.ScalarTransform4f()
+                .translate([0, -0.5, 0])
+                .rotate([1, 0, 0], -90)
+                .scale(3),
+            },
+        }
+    )
 
 
 def write_basis(folder, manifold_path, images, targets=("material",), scene_text="a"):
@@ -120,7 +161,17 @@ def write_basis(folder, manifold_path, images, targets=("material",), scene_text
         imageio.write_exr(os.path.join(folder, file), img)
         entries[key] = {"file": file, "time_s": 0.01}
     h, w = next(iter(images.values())).shape[:2]
-    manifest = bf.make_manifest(scene, manifold_path, resolution=(w, h), spp=16, variant="llvm_ad_rgb", seed=0,
-                                max_depth=8, mode="per-material", targets=list(targets), images=entries)
+    manifest = bf.make_manifest(
+        scene,
+        manifold_path,
+        resolution=(w, h),
+        spp=16,
+        variant="llvm_ad_rgb",
+        seed=0,
+        max_depth=8,
+        mode="per-material",
+        targets=list(targets),
+        images=entries,
+    )
     bf.write_manifest(folder, manifest)
     return scene

@@ -25,6 +25,9 @@ def pytest_sessionfinish(session, exitstatus):
         return
     loaded = [m for m in HEAVY if m in sys.modules]
     if loaded:
-        print(f"\nerror: -m \"not render\" imported {', '.join(loaded)}: mark the tests that need them "
-              "with @pytest.mark.render and import them inside those tests", file=sys.stderr)
+        print(
+            f'\nerror: -m "not render" imported {", ".join(loaded)}: mark the tests that need them '
+            "with @pytest.mark.render and import them inside those tests",
+            file=sys.stderr,
+        )
         session.exitstatus = pytest.ExitCode.TESTS_FAILED

@@ -10,8 +10,17 @@ PACKAGE = os.path.dirname(mitsuba_manifold.__file__)
 NAME = "mitsuba_manifold"
 
 #: Subsystem -> rank: a module may import only subsystems of a lower rank, or its own.
-RANKS = {"errors": 0, "_util": 1, "data": 2, "gp": 2, "imaging": 2, "manifold": 3, "basis": 4,
-         "render": 5, "apps": 6}
+RANKS = {
+    "errors": 0,
+    "_util": 1,
+    "data": 2,
+    "gp": 2,
+    "imaging": 2,
+    "manifold": 3,
+    "basis": 4,
+    "render": 5,
+    "apps": 6,
+}
 RENDERING = ("render", "apps")
 
 
@@ -22,7 +31,7 @@ def _modules():
             if f.endswith(".py"):
                 path = os.path.join(folder, f)
                 rel = os.path.relpath(path, os.path.dirname(PACKAGE))[:-3].replace(os.sep, ".")
-                found[rel[:-len(".__init__")] if rel.endswith(".__init__") else rel] = path
+                found[rel[: -len(".__init__")] if rel.endswith(".__init__") else rel] = path
     return found
 
 
@@ -39,7 +48,7 @@ def _imports(module, path, modules):
                     deps.add(a.name)
         elif isinstance(node, ast.ImportFrom):
             if node.level:
-                base = here[:len(here) - node.level + 1]
+                base = here[: len(here) - node.level + 1]
                 target = ".".join(base + ([node.module] if node.module else []))
             else:
                 target = node.module or ""
@@ -70,7 +79,7 @@ def test_no_import_cycle_even_through_imports_inside_functions():
         stack.append(m)
         for d in sorted(edges[m]):
             if state.get(d) == 1:
-                cycles.append(stack[stack.index(d):] + [d])
+                cycles.append(stack[stack.index(d) :] + [d])
             elif d not in state:
                 visit(d)
         stack.pop()
@@ -87,7 +96,7 @@ def test_dependencies_point_one_way_between_subsystems():
     wrong = []
     for m, (deps, _) in graph.items():
         mine = _subsystem(m)
-        if mine is None:   # the package face imports lazily, by name, on first use
+        if mine is None:  # the package face imports lazily, by name, on first use
             assert not deps, f"{m} imports {sorted(deps)} at import time"
             continue
         for d in deps:
@@ -135,9 +144,18 @@ def test_the_benchmarks_use_the_package_and_the_package_never_the_benchmarks():
     assert not os.path.exists(os.path.join(PACKAGE, "apps", "bench"))
     users = [p for p in _python_files(BENCHMARKS) if NAME in _top_level_imports(p)]
     assert len(users) > 10
-    wrong = [os.path.relpath(p, PACKAGE) for p in _python_files(PACKAGE) if "benchmarks" in _top_level_imports(p)]
+    wrong = [
+        os.path.relpath(p, PACKAGE)
+        for p in _python_files(PACKAGE)
+        if "benchmarks" in _top_level_imports(p)
+    ]
     assert not wrong, f"package modules importing the benchmarks: {wrong}"
     bench_tests = os.path.join(TESTS, "bench")
-    wrong = [os.path.relpath(p, TESTS) for p in _python_files(TESTS)
-             if not p.startswith(bench_tests + os.sep) and "benchmarks" in _top_level_imports(p)]
-    assert not wrong, f"core tests importing the benchmarks (put benchmark tests in tests/bench): {wrong}"
+    wrong = [
+        os.path.relpath(p, TESTS)
+        for p in _python_files(TESTS)
+        if not p.startswith(bench_tests + os.sep) and "benchmarks" in _top_level_imports(p)
+    ]
+    assert not wrong, (
+        f"core tests importing the benchmarks (put benchmark tests in tests/bench): {wrong}"
+    )

@@ -19,19 +19,26 @@ PACKAGE = os.path.dirname(mitsuba_manifold.__file__)
 
 
 def _python(code, env=None, **kw):
-    env = dict(os.environ if env is None else env, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, **kw)
+    env = dict(
+        os.environ if env is None else env,
+        PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""),
+    )
+    return subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, **kw
+    )
 
 
 def test_import_is_cheap_and_the_face_is_lazy():
-    r = _python("import sys, mitsuba_manifold as mm\n"
-                "heavy = [m for m in ('mitsuba', 'drjit', 'numpy', 'scipy') if m in sys.modules]\n"
-                "assert not heavy, heavy\n"
-                "from mitsuba_manifold import Manifold, Database, Basis, blend, blend_path, register\n"
-                "assert Manifold.__name__ == 'Manifold' and Database.__name__ == 'Database'\n"
-                "assert Basis.__name__ == 'Basis' and callable(blend) and blend.__module__.endswith('basis.blend')\n"
-                "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n"
-                "print('ok')")
+    r = _python(
+        "import sys, mitsuba_manifold as mm\n"
+        "heavy = [m for m in ('mitsuba', 'drjit', 'numpy', 'scipy') if m in sys.modules]\n"
+        "assert not heavy, heavy\n"
+        "from mitsuba_manifold import Manifold, Database, Basis, blend, blend_path, register\n"
+        "assert Manifold.__name__ == 'Manifold' and Database.__name__ == 'Database'\n"
+        "assert Basis.__name__ == 'Basis' and callable(blend) and blend.__module__.endswith('basis.blend')\n"
+        "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n"
+        "print('ok')"
+    )
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
     with pytest.raises(AttributeError, match="no attribute 'nothing'"):
         mitsuba_manifold.nothing  # noqa: B018
@@ -43,11 +50,19 @@ def test_every_package_exception_has_the_one_root():
         for f in files:
             if f.endswith(".py") and f != "errors.py":
                 tree = ast.parse(open(os.path.join(path, f)).read())
-                defined = [n.name for n in ast.walk(tree) if isinstance(n, ast.ClassDef) and n.name.endswith("Error")]
+                defined = [
+                    n.name
+                    for n in ast.walk(tree)
+                    if isinstance(n, ast.ClassDef) and n.name.endswith("Error")
+                ]
                 assert not defined, f"{f} defines {defined}: put exceptions in errors.py"
-    classes = [c for _, c in inspect.getmembers(errors, inspect.isclass) if issubclass(c, Exception)]
+    classes = [
+        c for _, c in inspect.getmembers(errors, inspect.isclass) if issubclass(c, Exception)
+    ]
     assert len(classes) > 10 and all(issubclass(c, errors.MitsubaManifoldError) for c in classes)
-    assert issubclass(errors.InputError, ValueError) and issubclass(errors.UnknownMaterialError, KeyError)
+    assert issubclass(errors.InputError, ValueError) and issubclass(
+        errors.UnknownMaterialError, KeyError
+    )
 
 
 def test_tools_are_thin_and_the_cli_reachable():
@@ -57,6 +72,7 @@ def test_tools_are_thin_and_the_cli_reachable():
             entry = "from benchmarks." if f == "bench.py" else "from mitsuba_manifold.apps.cli."
             assert len(text.splitlines()) <= 20 and entry in text, f
     from mitsuba_manifold.apps import cli
+
     for module in cli.TOOLS.values():
         assert callable(importlib.import_module(f"mitsuba_manifold.apps.cli.{module}").main)
     assert cli.main(["--help"]) == 0 and cli.main(["no-such-tool"]) == 2
@@ -75,7 +91,10 @@ def _sources():
         for f in sorted(files):
             if f.endswith(".py"):
                 path = os.path.join(folder, f)
-                yield os.path.relpath(path, os.path.dirname(PACKAGE)), open(path, encoding="utf-8").read()
+                yield (
+                    os.path.relpath(path, os.path.dirname(PACKAGE)),
+                    open(path, encoding="utf-8").read(),
+                )
 
 
 def test_functions_are_short_enough_to_read_at_once():
@@ -86,10 +105,13 @@ def test_functions_are_short_enough_to_read_at_once():
         for node in ast.walk(ast.parse(text)):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 length = node.end_lineno - node.lineno + 1
-                if length > MAX_FUNCTION_LINES and not SAYS_WHY_LONG.search(ast.get_docstring(node) or ""):
+                if length > MAX_FUNCTION_LINES and not SAYS_WHY_LONG.search(
+                    ast.get_docstring(node) or ""
+                ):
                     long_functions.append(f"{rel}:{node.lineno} {node.name} ({length} lines)")
     assert not long_functions, (
-        f"functions over {MAX_FUNCTION_LINES} lines whose docstring does not say why: {long_functions}")
+        f"functions over {MAX_FUNCTION_LINES} lines whose docstring does not say why: {long_functions}"
+    )
 
 
 def test_the_size_check_finds_long_code():
@@ -110,17 +132,17 @@ def test_readme_blocks_run_in_one_process(small_db, tmp_path):
     code = f"""
 from mitsuba_manifold.manifold.model import Manifold
 m = Manifold.fit({small_db!r}, q=2)
-m.save({str(tmp_path / 'manifold.npz')!r})
+m.save({str(tmp_path / "manifold.npz")!r})
 b, w = m.weights([0.3, -1.2])
 import mitsuba as mi
 mi.set_variant("llvm_ad_rgb")
 import mitsuba_manifold
 from mitsuba_manifold.render.scenes import scene_path
-scene = mi.load_file(scene_path("sphere"), manifold={str(tmp_path / 'manifold.npz')!r}, x="0.3, -1.2", res="8")
+scene = mi.load_file(scene_path("sphere"), manifold={str(tmp_path / "manifold.npz")!r}, x="0.3, -1.2", res="8")
 params = mi.traverse(scene); params["material.x"] = [0.5, -1.0]; params.update()
 img = mi.render(scene, spp=2)
 mi.set_variant("scalar_rgb")
-bsdf = mi.load_dict({{"type": "manifold_brdf", "manifold": {str(tmp_path / 'manifold.npz')!r}, "material": "chrome"}})
+bsdf = mi.load_dict({{"type": "manifold_brdf", "manifold": {str(tmp_path / "manifold.npz")!r}, "material": "chrome"}})
 mi.set_variant("llvm_ad_rgb")
 integrator = mi.load_dict({{"type": "manifold_path"}})
 print("ok", img.shape)
@@ -133,35 +155,54 @@ def test_importing_the_package_changes_no_environment_variable():
     """``import mitsuba_manifold`` and its face change nothing, ``os.environ`` included; the rule of
     the package docstring: importing the rendering subsystem selects a libLLVM >= 16 for Dr.Jit."""
     # Third-party libraries may set variables of their own (threadpoolctl: KMP_DUPLICATE_LIB_OK): imported first.
-    code = ("import os, sys, importlib.util\n"
-            "for lib in ('numpy', 'scipy.linalg', 'threadpoolctl'):\n"
-            "    if importlib.util.find_spec(lib.split('.')[0]): importlib.import_module(lib)\n"
-            "before = dict(os.environ)\n"
-            "import mitsuba_manifold\n"
-            "from mitsuba_manifold import Manifold, Database, Basis, blend, register, make_database\n"
-            "import mitsuba_manifold.basis.folder, mitsuba_manifold.manifold.model, mitsuba_manifold.apps.cli\n"
-            "assert dict(os.environ) == before, set(os.environ.items()) ^ set(before.items())\n"
-            "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n"
-            "print('ok')")
+    code = (
+        "import os, sys, importlib.util\n"
+        "for lib in ('numpy', 'scipy.linalg', 'threadpoolctl'):\n"
+        "    if importlib.util.find_spec(lib.split('.')[0]): importlib.import_module(lib)\n"
+        "before = dict(os.environ)\n"
+        "import mitsuba_manifold\n"
+        "from mitsuba_manifold import Manifold, Database, Basis, blend, register, make_database\n"
+        "import mitsuba_manifold.basis.folder, mitsuba_manifold.manifold.model, mitsuba_manifold.apps.cli\n"
+        "assert dict(os.environ) == before, set(os.environ.items()) ^ set(before.items())\n"
+        "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n"
+        "print('ok')"
+    )
     env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
     r = _python(code, env=env)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
     pytest.importorskip("mitsuba")
-    r = _python("import os, mitsuba_manifold.render, mitsuba_manifold.render.llvm as llvm\n"
-                "print(os.environ.get('DRJIT_LIBLLVM_PATH') == llvm.newest())", env=env)
+    r = _python(
+        "import os, mitsuba_manifold.render, mitsuba_manifold.render.llvm as llvm\n"
+        "print(os.environ.get('DRJIT_LIBLLVM_PATH') == llvm.newest())",
+        env=env,
+    )
     assert r.returncode == 0 and r.stdout.strip() == "True", r.stderr
 
 
 #: Calls in a test that start Mitsuba (a variant, a render, a scene) or Ray: ``mi.<name>(...)``,
 #: ``ray.<name>(...)``, and the package's rendering functions by name.
 _MITSUBA = {"set_variant", "render", "load_file", "load_dict"}
-_STARTS = {"render_basis", "render_reference", "render_chunked", "render_aovs", "add_aovs", "first_hit_aovs",
-           "load_scene", "use_variant", "register", "RayExecutor"}
+_STARTS = {
+    "render_basis",
+    "render_reference",
+    "render_chunked",
+    "render_aovs",
+    "add_aovs",
+    "first_hit_aovs",
+    "load_scene",
+    "use_variant",
+    "register",
+    "RayExecutor",
+}
 
 
 def _starts(call):
     f = call.func
-    if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and f.value.id in ("mi", "mitsuba", "ray"):
+    if (
+        isinstance(f, ast.Attribute)
+        and isinstance(f.value, ast.Name)
+        and f.value.id in ("mi", "mitsuba", "ray")
+    ):
         return f.attr in _MITSUBA or f.value.id == "ray"
     return getattr(f, "attr", getattr(f, "id", None)) in _STARTS
 
@@ -179,13 +220,18 @@ def test_tests_that_start_mitsuba_or_ray_carry_the_render_marker():
             if not (f.startswith("test_") and f.endswith(".py")):
                 continue
             tree = ast.parse(open(os.path.join(folder, f)).read())
-            marks = [n.value for n in tree.body if isinstance(n, ast.Assign)
-                     and any(getattr(t, "id", None) == "pytestmark" for t in n.targets)]
+            marks = [
+                n.value
+                for n in tree.body
+                if isinstance(n, ast.Assign)
+                and any(getattr(t, "id", None) == "pytestmark" for t in n.targets)
+            ]
             if _marked_render(marks):
                 continue
             for node in tree.body:
-                if not (isinstance(node, ast.FunctionDef) and node.name.startswith("test_")) \
-                        or _marked_render(node.decorator_list):
+                if not (
+                    isinstance(node, ast.FunctionDef) and node.name.startswith("test_")
+                ) or _marked_render(node.decorator_list):
                     continue
                 starts = any(_starts(c) for c in ast.walk(node) if isinstance(c, ast.Call))
                 if starts or "variant" in [a.arg for a in node.args.args]:
@@ -206,7 +252,7 @@ def test_negative_latent_coordinates_are_values_not_options():
     assert p.parse_args(["--x", "-1", "-2.5", "-v"]).x == ["-1", "-2.5"]
     assert p.parse_args(["-v"]).v
     assert p.parse_args(["--near", "0.3, -1.2"]).near == [0.3, -1.2]
-    for text in ("0,,1", "0,1,", ",0"):   # an empty place is a typo, not a shorter point
+    for text in ("0,,1", "0,1,", ",0"):  # an empty place is a typo, not a shorter point
         with pytest.raises(SystemExit):
             p.parse_args(["--near", text])
 
@@ -248,7 +294,9 @@ def test_no_module_name_is_used_three_times():
     for folder, _, files in os.walk(PACKAGE):
         for f in files:
             if f.endswith(".py") and f != "__init__.py":
-                names.setdefault(f[:-3], []).append(os.path.relpath(os.path.join(folder, f), PACKAGE))
+                names.setdefault(f[:-3], []).append(
+                    os.path.relpath(os.path.join(folder, f), PACKAGE)
+                )
     assert not {n: p for n, p in names.items() if len(p) >= 3}
     assert not ({"folder", "folders"} <= set(names) or {"record", "records"} <= set(names))
 
@@ -259,11 +307,17 @@ MAX_PARAMETERS = 10
 #: Package functions allowed that many parameters; each says why in its docstring. The list only
 #: shrinks: a new long signature takes a parameter object instead.
 LONG_SIGNATURES = {
-    "manifold/model.py:Manifold.__init__", "manifold/model.py:Manifold.fit",
-    "basis/blend.py:blend_path", "basis/folder/manifest.py:make_manifest",
-    "render/scenes.py:render_reference", "render/integrators/onepass.py:_render",
-    "render/integrators/onepass.py:render_onepass", "render/chunks.py:render_chunked",
-    "manifold/space.py:cross_validate", "gp/gplvm.py:fit_latent", "_util/cache.py:npy_cache",
+    "manifold/model.py:Manifold.__init__",
+    "manifold/model.py:Manifold.fit",
+    "basis/blend.py:blend_path",
+    "basis/folder/manifest.py:make_manifest",
+    "render/scenes.py:render_reference",
+    "render/integrators/onepass.py:_render",
+    "render/integrators/onepass.py:render_onepass",
+    "render/chunks.py:render_chunked",
+    "manifold/space.py:cross_validate",
+    "gp/gplvm.py:fit_latent",
+    "_util/cache.py:npy_cache",
     "manifold/projection.py:project",
 }
 
@@ -278,14 +332,24 @@ def _signatures():
             path = os.path.join(folder, f)
             rel = os.path.relpath(path, PACKAGE).replace(os.sep, "/")
             tree = ast.parse(open(path).read())
-            classes = {id(fn): c.name for c in ast.walk(tree) if isinstance(c, ast.ClassDef) for fn in c.body}
+            classes = {
+                id(fn): c.name
+                for c in ast.walk(tree)
+                if isinstance(c, ast.ClassDef)
+                for fn in c.body
+            }
             for fn in ast.walk(tree):
                 if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
                     a = fn.args
                     positional = [p.arg for p in a.posonlyargs + a.args]
                     if positional and positional[0] in ("self", "cls"):
                         positional = positional[1:]
-                    n = len(positional) + len(a.kwonlyargs) + (a.vararg is not None) + (a.kwarg is not None)
+                    n = (
+                        len(positional)
+                        + len(a.kwonlyargs)
+                        + (a.vararg is not None)
+                        + (a.kwarg is not None)
+                    )
                     name = f"{classes[id(fn)]}.{fn.name}" if id(fn) in classes else fn.name
                     out[f"{rel}:{name}"] = (n, len(positional), ast.get_docstring(fn) or "")
     return out
@@ -296,5 +360,9 @@ def test_long_signatures_are_few_and_take_keywords():
     new ones take a parameter object (a dataclass) instead."""
     signatures = _signatures()
     long = {k for k, (n, _, _) in signatures.items() if n >= MAX_PARAMETERS}
-    assert long <= LONG_SIGNATURES, f"new functions of >= {MAX_PARAMETERS} parameters: {sorted(long - LONG_SIGNATURES)}"
-    assert not LONG_SIGNATURES - long, f"no longer long, drop from the list: {sorted(LONG_SIGNATURES - long)}"
+    assert long <= LONG_SIGNATURES, (
+        f"new functions of >= {MAX_PARAMETERS} parameters: {sorted(long - LONG_SIGNATURES)}"
+    )
+    assert not LONG_SIGNATURES - long, (
+        f"no longer long, drop from the list: {sorted(LONG_SIGNATURES - long)}"
+    )

@@ -9,8 +9,13 @@ import signal
 import sys
 
 # Ctrl-C while Python imports the tool, before it can write anything: one line, no traceback.
-signal.signal(signal.SIGINT, lambda *_: (sys.stderr.write("error: interrupted while starting; nothing was "
-                                                           "written\n"), os._exit(130)))
+signal.signal(
+    signal.SIGINT,
+    lambda *_: (
+        sys.stderr.write("error: interrupted while starting; nothing was written\n"),
+        os._exit(130),
+    ),
+)
 # Run from a checkout without installing the package: its root comes first on the path.
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

@@ -89,7 +89,7 @@ def page(root):
         "own argument parsers when the documentation is built: it is what `--help` prints.",
         "",
     ]
-    for name, script, module in tools(root):
+    for name, _script, module in tools(root):
         variants = [()] + [tuple(v) for v in SUB_MODES.get(name, [])]
         for argv in variants:
             title = " ".join([f"tools/{name}.py", *argv])

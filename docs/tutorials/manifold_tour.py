@@ -51,6 +51,7 @@ def main():
 
     # 4. A path between two materials (even steps in a perceptual BRDF distance), rendered.
     import mitsuba as mi  # noqa: E402
+
     import mitsuba_manifold.render  # noqa: E402,F401  (registers manifold_brdf)
     from mitsuba_manifold.imaging.io import write_contact_sheet  # noqa: E402
     from mitsuba_manifold.render.scenes import scene_path  # noqa: E402

@@ -33,7 +33,9 @@ _TRIES = 100
 #: Bytes per file name where the file system does not say (``NAME_MAX`` of Linux, macOS, Windows).
 NAME_MAX = 255
 #: ``.<name>.<pid>-<host>-<random>.tmp<ext>`` (this version) and ``.<name>.<random>.tmp<ext>`` (earlier ones).
-_TEMPORARY = re.compile(r"^\..*\.(?:(?P<pid>\d+)-(?P<host>[0-9a-f]{4})-)?[0-9a-z]{8}\.tmp(?:\.[^.]*)?$")
+_TEMPORARY = re.compile(
+    r"^\..*\.(?:(?P<pid>\d+)-(?P<host>[0-9a-f]{4})-)?[0-9a-z]{8}\.tmp(?:\.[^.]*)?$"
+)
 #: A temporary file of an earlier version (no process named) this old (seconds) is stale.
 STALE_AGE = 6 * 3600
 
@@ -44,7 +46,8 @@ _LOCK = threading.Lock()
 
 def is_temporary(name):
     """True when the file name ``name`` is a temporary file of :func:`atomic_replace` (of this
-    or an earlier version): readers skip it (and every name starting with ``.``)."""
+    or an earlier version): readers skip it (and every name starting with ``.``).
+    """
     return bool(_TEMPORARY.match(os.path.basename(os.fspath(name))))
 
 
@@ -85,13 +88,16 @@ def atomic_replace(path, write):
         raise _naming(e, path, folder) from None
     try:
         write(tmp)
-        os.chmod(tmp, mode)   # a writer that re-created the file may have given it other permissions
+        os.chmod(tmp, mode)  # a writer that re-created the file may have given it other permissions
         keep = [w.claim(path, tmp) for w in watchers]
         if all(k is not False for k in keep):
             os.replace(tmp, path)
     except BaseException as e:
-        if (isinstance(e, OSError) and not isinstance(e, MitsubaManifoldError)
-                and (tmp in (e.filename, e.filename2) or e.filename is None)):
+        if (
+            isinstance(e, OSError)
+            and not isinstance(e, MitsubaManifoldError)
+            and (tmp in (e.filename, e.filename2) or e.filename is None)
+        ):
             _remove(tmp)
             raise _naming(e, path, folder) from None
         _remove(tmp)
@@ -115,7 +121,8 @@ def _name_max(folder):
 
 def name_max(path):
     """Longest file name (bytes) the file system of ``path``'s folder (or its nearest existing
-    parent) allows."""
+    parent) allows.
+    """
     folder = os.path.dirname(os.path.abspath(os.fspath(path)))
     while not os.path.isdir(folder) and os.path.dirname(folder) != folder:
         folder = os.path.dirname(folder)
@@ -124,7 +131,8 @@ def name_max(path):
 
 def temporary_name(path, token, limit=NAME_MAX):
     """``.<name>.<token>.tmp<ext>`` for ``path``, its name shortened (never its token and
-    extension) to at most ``limit`` bytes."""
+    extension) to at most ``limit`` bytes.
+    """
     base = os.path.basename(os.fspath(path))
     suffix = f".{token}.tmp{os.path.splitext(base)[1]}"
     room = limit - 1 - len(os.fsencode(suffix))
@@ -138,7 +146,8 @@ def _temporary(path, folder):
 
     The file is created with mode 0666, so the kernel applies the process's umask (read
     here, when it is needed, without changing it: ``os.umask`` can only be read by
-    setting it, which would race with other threads creating files)."""
+    setting it, which would race with other threads creating files).
+    """
     flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
     limit = _name_max(folder) if os.path.isdir(folder) else NAME_MAX
     for _ in range(_TRIES):
@@ -157,19 +166,20 @@ def _temporary(path, folder):
 
 def _alive(pid):
     """Whether process ``pid`` runs; a zombie (ended, not yet reaped: a killed run's worker whose
-    parent died too) does not."""
+    parent died too) does not.
+    """
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except (PermissionError, OverflowError, ValueError):
         return True
-    if not os.path.isdir("/proc/self"):   # not Linux: as os.kill says
+    if not os.path.isdir("/proc/self"):  # not Linux: as os.kill says
         return True
     try:
         with open(f"/proc/{pid}/stat") as f:
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except FileNotFoundError:   # ended meanwhile
+    except FileNotFoundError:  # ended meanwhile
         return False
     except (OSError, IndexError):
         return True
@@ -179,7 +189,8 @@ def sweep(folder, force=False):
     """Remove the temporary files in ``folder`` left by writers that were killed: those naming
     a process of this host that no longer runs, and those of earlier versions (no process
     named) older than :data:`STALE_AGE`. Done once per folder and process unless ``force``;
-    returns the names removed."""
+    returns the names removed.
+    """
     folder = os.path.abspath(os.fspath(folder))
     with _LOCK:
         if folder in _SWEPT and not force:
@@ -210,13 +221,16 @@ def sweep(folder, force=False):
 
 def _naming(error, path, folder):
     """``error`` (about the temporary file) as the same kind of OSError about ``path``, the
-    user's name: the temporary file is an implementation detail that no longer exists."""
+    user's name: the temporary file is an implementation detail that no longer exists.
+    """
     why = error.strerror or type(error).__name__
     if not os.path.isdir(folder):
         why = f"its folder {folder} does not exist (create it, or choose another path)"
     elif error.errno == errno.ENAMETOOLONG:
-        why = (f"its name is too long for the file system ({len(os.fsencode(os.path.basename(path)))} bytes, "
-               f"at most {_name_max(folder)}): choose a shorter name")
+        why = (
+            f"its name is too long for the file system ({len(os.fsencode(os.path.basename(path)))} bytes, "
+            f"at most {_name_max(folder)}): choose a shorter name"
+        )
     elif error.errno == errno.ENOSPC:
         why = "no space left on the device (free some space, or choose another folder)"
     return OSError(error.errno, f"cannot write {path}: {why}")
@@ -224,9 +238,11 @@ def _naming(error, path, folder):
 
 def atomic_write(path, write):
     """Call ``write(file_object)`` on a temporary file (binary mode) beside ``path``, then rename it."""
+
     def to_path(tmp):
         with open(tmp, "wb") as f:
             write(f)
+
     atomic_replace(path, to_path)
 
 

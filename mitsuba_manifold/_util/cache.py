@@ -28,14 +28,21 @@ _LOCK = threading.Lock()
 def file_identity(path):
     """What the memo of :func:`file_hash` is keyed by: path, device, inode, size, times."""
     st = os.stat(path)
-    return (os.path.realpath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
-
+    return (
+        os.path.realpath(path),
+        st.st_dev,
+        st.st_ino,
+        st.st_size,
+        st.st_mtime_ns,
+        st.st_ctime_ns,
+    )
 
 
 def adopt_hash(path, identity, digest):
     """Take the hash a worker process of this run computed for ``path`` right after writing
     it, when the file is still exactly the one it hashed (same :func:`file_identity`).
-    Returns whether it was adopted (otherwise the file will be hashed again on use)."""
+    Returns whether it was adopted (otherwise the file will be hashed again on use).
+    """
     if tuple(identity) != file_identity(path):
         return False
     with _LOCK:
@@ -75,17 +82,24 @@ def key_hash(*parts, length=None):
 
 def evict(folder, marker, keep):
     """Delete all but the ``keep`` (at least 1) most recently used ``.npy`` files of ``folder``
-    whose name holds ``marker``."""
+    whose name holds ``marker``.
+    """
     try:
-        names = [f for f in os.listdir(folder) if marker in f and f.endswith(".npy") and not f.startswith(".")]
+        names = [
+            f
+            for f in os.listdir(folder)
+            if marker in f and f.endswith(".npy") and not f.startswith(".")
+        ]
     except OSError:
         return
+
     def mtime(f):
         try:
             return os.path.getmtime(os.path.join(folder, f))
         except OSError:
             return 0.0
-    for f in sorted(names, key=mtime, reverse=True)[max(1, keep):]:
+
+    for f in sorted(names, key=mtime, reverse=True)[max(1, keep) :]:
         try:
             os.remove(os.path.join(folder, f))
         except OSError:
@@ -106,8 +120,20 @@ def _load_valid(path, shape, dtype, finite, mmap):
     return value
 
 
-def npy_cache(path, build=None, write=None, *, shape=None, dtype=None, finite=False, mmap=False,
-              touch=False, keep=None, marker=None, on_rebuild=None):
+def npy_cache(
+    path,
+    build=None,
+    write=None,
+    *,
+    shape=None,
+    dtype=None,
+    finite=False,
+    mmap=False,
+    touch=False,
+    keep=None,
+    marker=None,
+    on_rebuild=None,
+):
     """Load the array cached at ``path``, or make it and cache it.
 
     Eleven parameters: how the array is made (``build`` or ``write``), what a cached file must

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..errors import MismatchError, InputError
+from ..errors import InputError, MismatchError
 
 #: PNG exposure range in stops: 2**64 already maps every positive float32 to white.
 EXPOSURE_RANGE = (-64.0, 64.0)
@@ -40,7 +40,9 @@ def positive_int(name, value, example, hi=None):
     ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
     if not ok or value < 1 or (hi is not None and value > hi):
         span = f"from 1 to {hi}" if hi else "of at least 1"
-        raise InputError(f"{name} {value!r} is not allowed: it must be an integer {span} (e.g. {name} {example})")
+        raise InputError(
+            f"{name} {value!r} is not allowed: it must be an integer {span} (e.g. {name} {example})"
+        )
     return int(value)
 
 
@@ -68,9 +70,11 @@ def fits_in_memory(name, nbytes, what, fraction=0.8):
     """Raise unless ``nbytes`` is below ``fraction`` of the memory available now."""
     avail = available_memory()
     if avail is not None and nbytes > fraction * avail:
-        raise InputError(f"{name}: {what} needs about {nbytes / 2**30:.3g} GiB of memory; a run may take at "
-                         f"most {fraction:.0%} of the {avail / 2**30:.3g} GiB available now "
-                         f"({fraction * avail / 2**30:.3g} GiB): choose a smaller value")
+        raise InputError(
+            f"{name}: {what} needs about {nbytes / 2**30:.3g} GiB of memory; a run may take at "
+            f"most {fraction:.0%} of the {avail / 2**30:.3g} GiB available now "
+            f"({fraction * avail / 2**30:.3g} GiB): choose a smaller value"
+        )
 
 
 #: A number written as text: digits, an optional point and exponent (no ``1_0``, ``0x1``, ``inf``).
@@ -94,8 +98,10 @@ def _coordinate(name, v, q):
     """One coordinate as a float: a real number (not a boolean) or a number written as text."""
     if isinstance(v, str):
         if not v.strip():
-            raise InputError(f"{name} has an empty coordinate (two commas in a row?); give {q} numbers "
-                             "like '0.25, -1e-3'")
+            raise InputError(
+                f"{name} has an empty coordinate (two commas in a row?); give {q} numbers "
+                "like '0.25, -1e-3'"
+            )
         if not _NUMBER.fullmatch(v.strip()):
             raise InputError(f"{name}: {v!r} is not a number; give {q} numbers like '0.25, -1e-3'")
         return float(v)
@@ -139,8 +145,10 @@ def latent_point(name, values, q):
         parts = _items(values)
     arr = np.array([_coordinate(name, v, q) for v in parts], dtype=np.float64)
     if arr.size != q or not np.isfinite(arr).all():
-        raise InputError(f"{name} must be {q} finite numbers (the manifold's latent dimension), "
-                         f"got {arr.tolist()}")
+        raise InputError(
+            f"{name} must be {q} finite numbers (the manifold's latent dimension), "
+            f"got {arr.tolist()}"
+        )
     return arr
 
 
@@ -151,13 +159,15 @@ def latent_points(name, x, q, max_abs=math.inf):
     ``(q,)`` or ``(M, q)`` real numbers; booleans, complex numbers, text, non-finite values
     and coordinates beyond ``max_abs`` are refused.
     """
-    if isinstance(x, (list, tuple)):   # a Python list: its items, not NumPy's promotion of them
+    if isinstance(x, (list, tuple)):  # a Python list: its items, not NumPy's promotion of them
         kind = next((k for k in map(_kind, _items(x)) if k), None)
     else:
         kind = np.asarray(x).dtype.kind
     if kind in _NOT_REAL:
-        raise InputError(f"{name} must be {q} numbers (a list or array; {_NOT_REAL[kind]} are not "
-                         f"accepted), got {x!r:.60}")
+        raise InputError(
+            f"{name} must be {q} numbers (a list or array; {_NOT_REAL[kind]} are not "
+            f"accepted), got {x!r:.60}"
+        )
     try:
         arr = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
@@ -170,9 +180,11 @@ def latent_points(name, x, q, max_abs=math.inf):
         raise InputError(f"{name} contains NaN or Inf")
     big = float(np.abs(arr).max(initial=0.0))
     if big > max_abs:
-        raise InputError(f"{name} coordinate {big:.3g} is too far out: its distances to the materials "
-                         f"overflow; give coordinates within +-{max_abs:.0e} (the materials lie "
-                         "within a few units of 0)")
+        raise InputError(
+            f"{name} coordinate {big:.3g} is too far out: its distances to the materials "
+            f"overflow; give coordinates within +-{max_abs:.0e} (the materials lie "
+            "within a few units of 0)"
+        )
     return arr, single
 
 
@@ -186,29 +198,36 @@ def output_folder(name, path):
         probe = os.path.dirname(probe)
     if not os.path.isdir(probe):
         raise InputError(f"{name} {path}: {probe} is a file, not a folder")
-    try:   # a real probe: permission bits do not stop root, a read-only or virtual file system does
+    try:  # a real probe: permission bits do not stop root, a read-only or virtual file system does
         with tempfile.TemporaryFile(dir=probe, prefix=".probe-"):
             pass
     except OSError as e:
-        raise InputError(f"{name} {path}: cannot write in folder {probe} ({e.strerror or e})") from None
+        raise InputError(
+            f"{name} {path}: cannot write in folder {probe} ({e.strerror or e})"
+        ) from None
     return path
 
 
 def scene_xml(path):
     """The root element of the Mitsuba scene XML ``path`` (a ``<scene>`` element), or a
     :class:`MismatchError` naming the file when it is missing, not XML (a table, an image) or
-    not a scene."""
+    not a scene.
+    """
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise MismatchError(f"scene {path} does not exist")
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as e:
-        raise MismatchError(f"{path} is not a Mitsuba scene XML ({e}); give a scene "
-                         ".xml file or a shipped scene's name") from None
+        raise MismatchError(
+            f"{path} is not a Mitsuba scene XML ({e}); give a scene "
+            ".xml file or a shipped scene's name"
+        ) from None
     if root.tag != "scene":
-        raise MismatchError(f"{path} is not a Mitsuba scene XML (its root element is <{root.tag}>, not <scene>); "
-                         "give a scene .xml file or a shipped scene's name")
+        raise MismatchError(
+            f"{path} is not a Mitsuba scene XML (its root element is <{root.tag}>, not <scene>); "
+            "give a scene .xml file or a shipped scene's name"
+        )
     return root
 
 
@@ -231,21 +250,28 @@ MAX_WEIGHT = 1e12
 def weight_sum(w):
     """Raise :class:`InputError` unless weights ``w`` make a usable material: finite, none beyond
     :data:`MAX_WEIGHT` in magnitude, their sum (exact, :func:`math.fsum`) not 0 and not swamped by
-    cancelling magnitudes."""
+    cancelling magnitudes.
+    """
     w = np.asarray(w, dtype=np.float64).ravel()
     if not np.isfinite(w).all():
         raise InputError("weights must be finite numbers")
     if np.abs(w).max(initial=0.0) > MAX_WEIGHT:
-        raise InputError(f"weights must be at most {MAX_WEIGHT:g} in magnitude (a material's "
-                         f"weights sum to 1), got {np.abs(w).max():.3g}")
+        raise InputError(
+            f"weights must be at most {MAX_WEIGHT:g} in magnitude (a material's "
+            f"weights sum to 1), got {np.abs(w).max():.3g}"
+        )
     total, size = math.fsum(w.tolist()), math.fsum(np.abs(w).tolist())
     if total == 0.0:
-        raise InputError("weights sum to zero; a material needs weights summing to 1 "
-                            "(they are used as given, not normalised)")
+        raise InputError(
+            "weights sum to zero; a material needs weights summing to 1 "
+            "(they are used as given, not normalised)"
+        )
     if size > MAX_CANCELLATION * abs(total):
-        raise InputError(f"weights sum to {total:.6g} but their magnitudes add up to {size:.3g}: "
-                            f"terms this large cancel, and the combined table (float32) would keep no "
-                            f"correct digit; use weights with sum |w| <= {MAX_CANCELLATION:g} * |sum w|")
+        raise InputError(
+            f"weights sum to {total:.6g} but their magnitudes add up to {size:.3g}: "
+            f"terms this large cancel, and the combined table (float32) would keep no "
+            f"correct digit; use weights with sum |w| <= {MAX_CANCELLATION:g} * |sum w|"
+        )
     return total
 
 
@@ -255,7 +281,8 @@ SEED_LIMIT = 1 << 32
 
 def seed(name, value, streams=1, why=""):
     """A seed from 0 such that ``streams`` consecutive seeds from ``value * streams`` (a
-    renderer seeding pass ``p`` of ``n`` with ``seed * n + p``) fit Mitsuba's 32 bits."""
+    renderer seeding pass ``p`` of ``n`` with ``seed * n + p``) fit Mitsuba's 32 bits.
+    """
     ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
     streams = max(1, int(streams))
     top = SEED_LIMIT // streams - 1

@@ -6,7 +6,8 @@ import threading
 class Recent:
     """Keeps the ``size`` newest answers of :meth:`get`. An answer is made outside the lock, so
     two threads may both make one for the same key (the later is kept); the caller owns what it
-    gets back (copy mutable answers)."""
+    gets back (copy mutable answers).
+    """
 
     def __init__(self, size):
         self.size, self._items, self._lock = int(size), {}, threading.Lock()

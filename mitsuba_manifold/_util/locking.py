@@ -47,11 +47,13 @@ class FolderLock:
         if os.path.isdir(self.path):
             fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
             try:
-                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)   # does this file system lock folders?
+                fcntl.flock(
+                    fd, fcntl.LOCK_SH | fcntl.LOCK_NB
+                )  # does this file system lock folders?
                 fcntl.flock(fd, fcntl.LOCK_UN)
                 return fd
             except BlockingIOError:
-                return fd                                        # it does: someone holds it
+                return fd  # it does: someone holds it
             except OSError:
                 os.close(fd)
                 self.path = os.path.join(self.folder, LOCK_NAME)
@@ -66,7 +68,8 @@ class FolderLock:
             os.close(fd)
             raise FolderLockedError(
                 f"{self.what} {self.folder} is being written by another process (it holds the lock "
-                f"on {self.path}); wait for it to finish or choose another folder") from None
+                f"on {self.path}); wait for it to finish or choose another folder"
+            ) from None
         except BaseException:
             os.close(fd)
             raise

@@ -34,16 +34,20 @@ def escape(name):
     """File stem of a material name (see the module docstring); reversible by :func:`unescape`."""
     if not isinstance(name, str) or not name:
         raise InputError(f"material name {name!r} must be a non-empty string")
-    out = "".join(c if c in SAFE else "".join(f"%{b:02X}" for b in c.encode("utf-8", "surrogatepass"))
-                  for c in name)
+    out = "".join(
+        c if c in SAFE else "".join(f"%{b:02X}" for b in c.encode("utf-8", "surrogatepass"))
+        for c in name
+    )
     if out.lower() in RESERVED or out.startswith("."):
         out = f"%{ord(out[0]):02X}" + out[1:]
     if out.lower().endswith(RESERVED_SUFFIX):
         cut = len(out) - len(RESERVED_SUFFIX)
-        out = out[:cut] + "%2E" + out[cut + 1:]
+        out = out[:cut] + "%2E" + out[cut + 1 :]
     if len(out) > MAX_STEM:
-        raise InputError(f"material name {name[:40]!r}... is too long for a file name "
-                         f"({len(out)} characters once escaped, at most {MAX_STEM})")
+        raise InputError(
+            f"material name {name[:40]!r}... is too long for a file name "
+            f"({len(out)} characters once escaped, at most {MAX_STEM})"
+        )
     return out
 
 
@@ -54,14 +58,17 @@ def unescape(stem):
 
 def check_unique(names):
     """Escaped stems of ``names``; raise if two would name one file on a case-insensitive
-    file system (macOS, Windows), e.g. ``Steel`` and ``steel``."""
+    file system (macOS, Windows), e.g. ``Steel`` and ``steel``.
+    """
     stems = {}
     for n in names:
         s = escape(n)
         other = stems.get(s.lower())
         if other is not None and other != n:
-            raise InputError(f"materials {other!r} and {n!r} differ only in case: their images would be "
-                             "one file on a case-insensitive file system; rename one of them")
+            raise InputError(
+                f"materials {other!r} and {n!r} differ only in case: their images would be "
+                "one file on a case-insensitive file system; rename one of them"
+            )
         stems[s.lower()] = n
     return [escape(n) for n in names]
 

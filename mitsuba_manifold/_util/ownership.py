@@ -27,9 +27,9 @@ import json
 import os
 import stat
 
+from ..errors import ForeignFileError
 from .atomic import name_max, watching, write_bytes
 from .cache import file_hash
-from ..errors import ForeignFileError
 from .locking import FolderLock
 
 RECORD = ".mitsuba-manifold-outputs.json"
@@ -44,7 +44,11 @@ def _read_record(path):
         with open(_record_path(path), encoding="utf-8") as f:
             data = json.load(f)
         files = data.get("files") if isinstance(data, dict) else None
-        return {k: v for k, v in files.items() if isinstance(v, dict)} if isinstance(files, dict) else {}
+        return (
+            {k: v for k, v in files.items() if isinstance(v, dict)}
+            if isinstance(files, dict)
+            else {}
+        )
     except (OSError, ValueError):
         return {}
 
@@ -52,12 +56,17 @@ def _read_record(path):
 def _update_record(folder, change):
     """Apply ``change(files)`` (it edits the ``{name: entry}`` dict in place and returns the
     names it set) to ``folder``'s record under its lock; entries of vanished files are
-    dropped, but for those just set (written ahead of their file)."""
+    dropped, but for those just set (written ahead of their file).
+    """
     with FolderLock(folder, "output folder", name=RECORD + ".lock", wait=True):
         files = _read_record(os.path.join(folder, RECORD))
         fresh = set(change(files) or ())
-        files = {k: v for k, v in files.items() if k in fresh or os.path.isfile(os.path.join(folder, k))}
-        text = json.dumps({"format": "mitsuba-manifold-outputs", "files": files}, indent=1, sort_keys=True)
+        files = {
+            k: v for k, v in files.items() if k in fresh or os.path.isfile(os.path.join(folder, k))
+        }
+        text = json.dumps(
+            {"format": "mitsuba-manifold-outputs", "files": files}, indent=1, sort_keys=True
+        )
         write_bytes(os.path.join(folder, RECORD), text)
 
 
@@ -71,7 +80,8 @@ def read_only(path):
 
 def owned(path):
     """True when ``path`` is listed in its folder's record with its current content (or, for a
-    run stopped between recording and renaming, the content it was replacing)."""
+    run stopped between recording and renaming, the content it was replacing).
+    """
     entry = _read_record(path).get(os.path.basename(path))
     if not isinstance(entry, dict) or not os.path.isfile(path):
         return False
@@ -81,12 +91,15 @@ def owned(path):
 def _refusal(path, force, what):
     """``(kind, message)`` of why ``path`` may not be written, or None. ``kind`` is
     ``"foreign"`` for a file the tool did not make (allowed by ``force``), else the
-    reason no option overrides."""
+    reason no option overrides.
+    """
     path = os.fspath(path)
     limit, length = name_max(path), len(os.fsencode(os.path.basename(path)))
     if length > limit:
-        return "name", (f"{what} {path}: the file name is {length} bytes, longer than the file system "
-                        f"allows ({limit}); choose a shorter name")
+        return "name", (
+            f"{what} {path}: the file name is {length} bytes, longer than the file system "
+            f"allows ({limit}); choose a shorter name"
+        )
     if not os.path.lexists(path):
         probe = os.path.dirname(os.path.abspath(path))
         while not os.path.exists(probe):
@@ -98,13 +111,20 @@ def _refusal(path, force, what):
         return "directory", f"{what} {path} is a folder, not a file"
     if os.path.islink(path) or not os.path.isfile(path):
         kind = "a symbolic link" if os.path.islink(path) else "a device, FIFO or socket"
-        return "special", f"{what} {path} exists and is not a regular file ({kind}); not replacing it"
+        return (
+            "special",
+            f"{what} {path} exists and is not a regular file ({kind}); not replacing it",
+        )
     if read_only(path):
-        return "read-only", (f"{what} {path} exists and is read-only; not replacing it (make it writable or "
-                             "choose another name)")
+        return "read-only", (
+            f"{what} {path} exists and is read-only; not replacing it (make it writable or "
+            "choose another name)"
+        )
     if not force and not owned(path):
-        return "foreign", (f"{what} {path} exists and was not written by this tool (or was changed since); "
-                           "not replacing it: choose another name, or pass `force`")
+        return "foreign", (
+            f"{what} {path} exists and was not written by this tool (or was changed since); "
+            "not replacing it: choose another name, or pass `force`"
+        )
     return None
 
 
@@ -132,14 +152,17 @@ def check_replaceable(path, force=False, what="output", owner=True):
 
 def record(paths, tool, group=None):
     """List ``paths`` (just written) with their content hashes in their folders' records
-    (``group``: what the run wrote them as, for :meth:`Outputs.remove_stale`)."""
+    (``group``: what the run wrote them as, for :meth:`Outputs.remove_stale`).
+    """
     by_folder = {}
     for p in paths:
         by_folder.setdefault(os.path.dirname(os.path.abspath(p)), []).append(os.fspath(p))
     for folder, items in by_folder.items():
+
         def change(files, items=items):
             for p in items:
                 files[os.path.basename(p)] = _entry(file_hash(p), tool, group)
+
         _update_record(folder, change)
 
 
@@ -179,14 +202,18 @@ class Outputs:
     def __init__(self, tool, force=False, folders=(), group=None):
         self.tool, self.force, self.group = tool, bool(force), group
         self.folders = {os.path.abspath(os.fspath(f)) for f in folders}
-        self.written, self.kept = [], []   # paths written (or already right), those left as they were
+        self.written, self.kept = (
+            [],
+            [],
+        )  # paths written (or already right), those left as they were
         self._paths, self._identical, self._was = {}, set(), {}
         self._context = None
 
     def check(self, path, what="output", identical=False):
         """Refuse ``path`` now (:func:`check_replaceable`) and watch its writes. With
         ``identical``, a file the tool did not make is refused only when the new content
-        differs (checked when it is written): for generated files shipped with the package."""
+        differs (checked when it is written): for generated files shipped with the package.
+        """
         key = os.path.abspath(os.fspath(path))
         refusal = _refusal(path, self.force, what)
         if refusal is not None and not (identical and refusal[0] == "foreign"):
@@ -199,7 +226,9 @@ class Outputs:
     def watches(self, path):
         """True when writes to ``path`` are this run's outputs."""
         key = os.path.abspath(os.fspath(path))
-        return os.path.basename(key) != RECORD and (key in self._paths or os.path.dirname(key) in self.folders)
+        return os.path.basename(key) != RECORD and (
+            key in self._paths or os.path.dirname(key) in self.folders
+        )
 
     def before(self, path):
         """Called by :func:`atomic.atomic_replace` before it writes ``path``."""
@@ -213,7 +242,8 @@ class Outputs:
     def claim(self, path, tmp):
         """Called by :func:`atomic.atomic_replace` with the complete new content ``tmp`` of
         ``path``: records it as the tool's own before the rename; returns False (keep the
-        existing file) when the content is already ``tmp``'s."""
+        existing file) when the content is already ``tmp``'s.
+        """
         if not self.watches(path):
             return True
         key = os.path.abspath(os.fspath(path))
@@ -237,6 +267,7 @@ class Outputs:
         def change(files):
             files[name] = _entry(new, self.tool, self.group, was)
             return [name]
+
         _update_record(os.path.dirname(key), change)
         self.written.append(path)
         return True
@@ -244,19 +275,28 @@ class Outputs:
     def remove_stale(self, folder, names=None):
         """Remove the files of ``folder`` (of those ``names`` only, if given) that an earlier
         run of this tool and group recorded and this run did not write (unchanged since: a
-        user's edit keeps a file). Returns the paths removed."""
+        user's edit keeps a file). Returns the paths removed.
+        """
         folder = os.path.abspath(os.fspath(folder))
         mine = {os.path.abspath(p) for p in self.written}
-        stale = [os.path.join(folder, name) for name, e in _read_record(os.path.join(folder, RECORD)).items()
-                 if self.group is not None and e.get("group") == self.group and e.get("tool") == self.tool
-                 and os.path.join(folder, name) not in mine and (names is None or name in names)]
+        stale = [
+            os.path.join(folder, name)
+            for name, e in _read_record(os.path.join(folder, RECORD)).items()
+            if self.group is not None
+            and e.get("group") == self.group
+            and e.get("tool") == self.tool
+            and os.path.join(folder, name) not in mine
+            and (names is None or name in names)
+        ]
         removed = [p for p in stale if os.path.isfile(p) and not os.path.islink(p) and owned(p)]
         for p in removed:
             os.remove(p)
         if stale:
+
             def change(files):
                 for p in stale:
                     files.pop(os.path.basename(p), None)
+
             _update_record(folder, change)
         return removed
 
@@ -267,10 +307,12 @@ class Outputs:
             if os.path.isfile(key) and file_hash(key) == digest:
                 by_folder.setdefault(os.path.dirname(key), []).append(os.path.basename(key))
         for folder, names in by_folder.items():
+
             def change(files, names=names):
                 for n in names:
                     if n in files:
                         files[n].pop("was", None)
+
             _update_record(folder, change)
         self._was.clear()
 
@@ -290,7 +332,8 @@ DATABASE_JSON = "database.json"
 
 def write_table_record(out_dir, settings, made, pending=()):
     """Write ``<out_dir>/database.json``: ``settings``, the names of the tables made and of those
-    being written (``pending``, left out when empty: a run killed while writing them owns them)."""
+    being written (``pending``, left out when empty: a run killed while writing them owns them).
+    """
     record = {**settings, "tables": sorted(made)}
     if pending:
         record["pending"] = sorted(pending)
@@ -300,7 +343,8 @@ def write_table_record(out_dir, settings, made, pending=()):
 
 def pending_tables(out_dir):
     """Names listed as ``pending`` in ``<out_dir>/database.json`` (tables a killed run was writing;
-    one may be on disk without the cache its worker writes after it), empty without a record."""
+    one may be on disk without the cache its worker writes after it), empty without a record.
+    """
     try:
         with open(os.path.join(out_dir, DATABASE_JSON), encoding="utf-8") as f:
             return set(json.load(f).get("pending", []))
@@ -326,19 +370,29 @@ def owned_tables(out_dir, settings, names, force):
             listed = old.get("tables", None)
             listed = None if listed is None else list(listed) + list(old.get("pending", []))
         except (OSError, ValueError, AttributeError, TypeError):
-            raise ForeignFileError(f"{path} is not a database.json written by make_database; "
-                                   "choose another folder") from None
-        present = {n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary") and not n.startswith(".")}
+            raise ForeignFileError(
+                f"{path} is not a database.json written by make_database; choose another folder"
+            ) from None
+        present = {
+            n[:-7] for n in os.listdir(out_dir) if n.endswith(".binary") and not n.startswith(".")
+        }
         made = present if listed is None else set(listed) & present
         if {k: old.get(k) for k in settings} != settings and made:
-            raise ForeignFileError(f"{out_dir} holds tables made with "
-                                   f"{ {k: old.get(k) for k in settings} }, not {settings}; choose another folder")
-    foreign = [n + ".binary" for n in names
-               if n not in made and os.path.lexists(os.path.join(out_dir, n + ".binary"))]
+            raise ForeignFileError(
+                f"{out_dir} holds tables made with "
+                f"{ {k: old.get(k) for k in settings} }, not {settings}; choose another folder"
+            )
+    foreign = [
+        n + ".binary"
+        for n in names
+        if n not in made and os.path.lexists(os.path.join(out_dir, n + ".binary"))
+    ]
     if foreign and not force:
-        raise ForeignFileError(f"{out_dir} holds tables make_database did not make: {', '.join(foreign[:5])}"
-                               f"{' ...' if len(foreign) > 5 else ''}; not overwriting them: choose another "
-                               "folder, or pass `force`")
+        raise ForeignFileError(
+            f"{out_dir} holds tables make_database did not make: {', '.join(foreign[:5])}"
+            f"{' ...' if len(foreign) > 5 else ''}; not overwriting them: choose another "
+            "folder, or pass `force`"
+        )
     for f in foreign:
         if read_only(os.path.join(out_dir, f)):
             raise ForeignFileError(f"{os.path.join(out_dir, f)} is read-only; not replacing it")

@@ -28,15 +28,16 @@ def die_with_parent(parent_pid):
             ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
         except (OSError, AttributeError):
             pass
-    if os.getppid() != parent_pid:   # the parent died before the death signal was asked for
+    if os.getppid() != parent_pid:  # the parent died before the death signal was asked for
         os._exit(1)
 
 
 @contextlib.contextmanager
 def owned_pool(processes):
     """A pool of ``processes`` spawned workers that end with this process (see the module notes)."""
-    pool = multiprocessing.get_context("spawn").Pool(processes, initializer=die_with_parent,
-                                                     initargs=(os.getpid(),))
+    pool = multiprocessing.get_context("spawn").Pool(
+        processes, initializer=die_with_parent, initargs=(os.getpid(),)
+    )
     try:
         yield pool
     except BaseException:

@@ -20,19 +20,20 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..data.database import database_cache
+from .._util.atomic import write_bytes
+from .._util.timing import median_time
 from ..basis import denoise as denoise_mod
 from ..basis.blend import blend, blend_path, path_labels
-from ..manifold import paths
 from ..basis.folder import Basis
 from ..basis.folder.owned_files import remove_basis
-from ..imaging import io as imageio, metrics, plots
+from ..data.database import database_cache
+from ..imaging import io as imageio
+from ..imaging import metrics, plots
+from ..manifold import paths
 from ..manifold.model import Manifold
 from ..render import scenes as _scenes  # (gi_report has a parameter named scenes)
 from ..render.refine import forget_kept, refine
 from ..render.render_basis import render_basis
-from .._util.atomic import write_bytes
-from .._util.timing import median_time
 
 
 def gi_pair(m, max_clamped=1e-3, min_share=0.6):
@@ -64,8 +65,11 @@ def gi_pair(m, max_clamped=1e-3, min_share=0.6):
 def gi_points(m, a, b):
     """Training point, midpoint and extrapolated point on the latent segment from a to b."""
     xa, xb = m.latent[m.index(a)], m.latent[m.index(b)]
-    return [("training", f"{a}", xa), ("midpoint", f"midpoint {a}-{b}", 0.5 * (xa + xb)),
-            ("extrapolated", f"{a} + 1.5 ({b} - {a})", xa + 1.5 * (xb - xa))]
+    return [
+        ("training", f"{a}", xa),
+        ("midpoint", f"midpoint {a}-{b}", 0.5 * (xa + xb)),
+        ("extrapolated", f"{a} + 1.5 ({b} - {a})", xa + 1.5 * (xb - xa)),
+    ]
 
 
 def relative_bias(a, ref):
@@ -101,6 +105,7 @@ class GISettings:
         Samples per pixel of the refined blend (``blend.py --refine``) at each point (0: none), in
         two passes (the fewest that estimate its noise).
     """
+
     res: int = 128
     basis_spp: int = 64
     ref_spp: int = 4096
@@ -113,7 +118,15 @@ class GISettings:
     refine_spp: int = 0
 
 
-def gi_report(folder, manifold=None, scenes=("sphere", "table"), out=None, plot=None, settings=None, **overrides):
+def gi_report(
+    folder,
+    manifold=None,
+    scenes=("sphere", "table"),
+    out=None,
+    plot=None,
+    settings=None,
+    **overrides,
+):
     """Error against run time: the blend (Eq. 13) beside re-rendering the interpolated material.
 
     For each scene (a shipped scene's name or a path) and latent point (training, midpoint,
@@ -133,28 +146,51 @@ def gi_report(folder, manifold=None, scenes=("sphere", "table"), out=None, plot=
     out = out or os.path.join(database_cache(folder), "bench_gi")
     os.makedirs(out, exist_ok=True)
     pair = gi_pair(m)
-    report = {"resolution": opts.res, "basis_spp": opts.basis_spp, "reference_spp": opts.ref_spp,
-              "mode": opts.mode, "variant": mi.variant(), "pair": list(pair), "denoise": bool(opts.denoise),
-              "scenes": {}}
+    report = {
+        "resolution": opts.res,
+        "basis_spp": opts.basis_spp,
+        "reference_spp": opts.ref_spp,
+        "mode": opts.mode,
+        "variant": mi.variant(),
+        "pair": list(pair),
+        "denoise": bool(opts.denoise),
+        "scenes": {},
+    }
     for name in scenes:
-        label = os.path.splitext(os.path.basename(name))[0]  # a shipped scene's name, or a file's stem
-        report["scenes"][name] = gi_scene(_scenes.scene_path(name), manifold, m, pair, os.path.join(out, label), opts)
-    report["plot"] = plots.gi_error_vs_time(report, plot or os.path.join(out, "gi_error_vs_time.png"))
+        label = os.path.splitext(os.path.basename(name))[
+            0
+        ]  # a shipped scene's name, or a file's stem
+        report["scenes"][name] = gi_scene(
+            _scenes.scene_path(name), manifold, m, pair, os.path.join(out, label), opts
+        )
+    report["plot"] = plots.gi_error_vs_time(
+        report, plot or os.path.join(out, "gi_error_vs_time.png")
+    )
     return report
 
 
 def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
     """:func:`gi_report` for one scene: render its basis (timed, from scratch; with its AOVs
     when ``settings.denoise``), then each point's blend, reference and direct renders; files
-    are named ``<stem>_...``."""
+    are named ``<stem>_...``.
+    """
     opts = settings
     out, name = os.path.dirname(stem), os.path.basename(stem)
     folder_b = os.path.join(out, f"basis_{name}_{opts.res}_{opts.basis_spp}_{opts.mode}")
-    remove_basis(folder_b)   # time a whole basis, not a resumed one (only a basis of its own)
+    remove_basis(folder_b)  # time a whole basis, not a resumed one (only a basis of its own)
     t0 = time.perf_counter()
-    render_basis(scene_path, manifold_path, folder_b, spp=opts.basis_spp, mode=opts.mode, resolution=opts.res,
-                 seed=opts.seed, progress=opts.progress, aovs=opts.denoise,
-                 components="auto" if opts.mode == "onepass" else "l1")
+    render_basis(
+        scene_path,
+        manifold_path,
+        folder_b,
+        spp=opts.basis_spp,
+        mode=opts.mode,
+        resolution=opts.res,
+        seed=opts.seed,
+        progress=opts.progress,
+        aovs=opts.denoise,
+        components="auto" if opts.mode == "onepass" else "l1",
+    )
     t_basis = time.perf_counter() - t0
     b = Basis.load(folder_b, manifold=m)
     aovs = denoise_mod.BasisAOVs.load(folder_b, b.manifest) if opts.denoise else None
@@ -165,17 +201,28 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
         if opts.save_images:
             _save_point_images(f"{stem}_{kind}", *images)
         if opts.progress:
-            print(f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True)
+            print(
+                f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True
+            )
     if opts.save_images:
         l2 = "denoised" if opts.denoise else "raw"
         images, _, _ = blend_path(b, m, *pair, steps=20, kind=paths.DEFAULT_KIND, l2=l2)
-        imageio.write_contact_sheet(f"{stem}_path_sheet.png", images, labels=path_labels(pair, len(images)),
-                                    title=f"{pair[0]} (t = 0) to {pair[1]} (t = 1) along a {paths.DEFAULT_KIND} "
-                                          "latent path")
-        extrapolation_sheet(b, m, pair, f"{stem}_extrapolation_sheet", log=print if opts.progress else None,
-                            l2=l2)
-    out = {"basis_time_s": t_basis, "basis_images": len(b.keys) + 1, "points": rows,
-           "basis_folder": os.path.abspath(folder_b)}
+        imageio.write_contact_sheet(
+            f"{stem}_path_sheet.png",
+            images,
+            labels=path_labels(pair, len(images)),
+            title=f"{pair[0]} (t = 0) to {pair[1]} (t = 1) along a {paths.DEFAULT_KIND} "
+            "latent path",
+        )
+        extrapolation_sheet(
+            b, m, pair, f"{stem}_extrapolation_sheet", log=print if opts.progress else None, l2=l2
+        )
+    out = {
+        "basis_time_s": t_basis,
+        "basis_images": len(b.keys) + 1,
+        "points": rows,
+        "basis_folder": os.path.abspath(folder_b),
+    }
     if aovs is not None:
         out["aovs_time_s"] = aovs.time_s
     return out
@@ -188,7 +235,8 @@ WARM_SPP = 64
 
 def timed_render(render, spp, seed):
     """``(image, seconds)`` of ``render(spp, seed)``; at most :data:`WARM_SPP` spp, an untimed
-    ``render(spp, seed + 1)`` first compiles its kernels (the sample count is in them)."""
+    ``render(spp, seed + 1)`` first compiles its kernels (the sample count is in them).
+    """
     if spp <= WARM_SPP:
         render(spp, seed + 1)
     t0 = time.perf_counter()
@@ -199,45 +247,80 @@ def timed_render(render, spp, seed):
 def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
     """One latent point of :func:`gi_scene`: the blend (and its denoised image) against the
     reference, beside the direct renders. Returns the report row and the images
-    ``(blend, reference, denoised blend or None)``."""
+    ``(blend, reference, denoised blend or None)``.
+    """
     res = (opts.res, opts.res)
     t0 = time.perf_counter()
-    ref = _scenes.render_reference(scene_path, manifold_path, x, opts.ref_spp, seed=opts.seed + 7919, resolution=res)
+    ref = _scenes.render_reference(
+        scene_path, manifold_path, x, opts.ref_spp, seed=opts.seed + 7919, resolution=res
+    )
     t_ref = time.perf_counter() - t0
-    l2 = "denoised" if opts.denoise else "raw"   # without the denoiser, the blends as summed
+    l2 = "denoised" if opts.denoise else "raw"  # without the denoiser, the blends as summed
     img, info = blend(b, m, x=x, l2=l2)
     t_blend = median_time(lambda: blend(b, m, x=x, l2=l2), 5)[0]
     bias, bias_se = relative_bias(img, ref)
-    row = {"x": np.asarray(x).tolist(), "reference_time_s": t_ref, "clamped_fraction": m.negative_fraction(x),
-           "blend": {"time_s": t_blend, **metrics.compare(img, ref), "relative_bias": bias,
-                     "relative_bias_se": bias_se, "materials_used": int(info["n_images"]),
-                     "component": info["component"]},
-           "direct": []}
-    if info.get("l2") == "denoised":   # the same blend as summed (the explorer while dragging)
+    row = {
+        "x": np.asarray(x).tolist(),
+        "reference_time_s": t_ref,
+        "clamped_fraction": m.negative_fraction(x),
+        "blend": {
+            "time_s": t_blend,
+            **metrics.compare(img, ref),
+            "relative_bias": bias,
+            "relative_bias_se": bias_se,
+            "materials_used": int(info["n_images"]),
+            "component": info["component"],
+        },
+        "direct": [],
+    }
+    if info.get("l2") == "denoised":  # the same blend as summed (the explorer while dragging)
         raw, _ = blend(b, m, x=x, l2="raw")
         raw_bias, raw_se = relative_bias(raw, ref)
-        row["blend_summed"] = {"time_s": median_time(lambda: blend(b, m, x=x, l2="raw"), 5)[0],
-                               **metrics.compare(raw, ref), "relative_bias": raw_bias, "relative_bias_se": raw_se}
-    if info["component"] == "full":   # the L1- blend of the same basis beside it
+        row["blend_summed"] = {
+            "time_s": median_time(lambda: blend(b, m, x=x, l2="raw"), 5)[0],
+            **metrics.compare(raw, ref),
+            "relative_bias": raw_bias,
+            "relative_bias_se": raw_se,
+        }
+    if info["component"] == "full":  # the L1- blend of the same basis beside it
         l1, _ = blend(b, m, x=x, component="l1")
         l1_bias, l1_se = relative_bias(l1, ref)
-        row["blend_l1"] = {**metrics.compare(l1, ref), "relative_bias": l1_bias, "relative_bias_se": l1_se}
+        row["blend_l1"] = {
+            **metrics.compare(l1, ref),
+            "relative_bias": l1_bias,
+            "relative_bias_se": l1_se,
+        }
     if opts.refine_spp:
-        row["refined"] = refined_row(b, m, x, ref, opts.refine_spp, opts.seed + 104729, warm=True,
-                                     l2=l2)   # warm: as the direct renders
+        row["refined"] = refined_row(
+            b, m, x, ref, opts.refine_spp, opts.seed + 104729, warm=True, l2=l2
+        )  # warm: as the direct renders
     guides = den = None
     if aovs is not None:
         guides = (aovs.albedo_of_blend(info["plan"], b.manifest.version), aovs.normal)
         den, t_den = _denoised(img, guides)
-        row["blend"]["denoised"] = {"time_s": t_blend + t_den, "denoise_s": t_den, **metrics.compare(den, ref)}
+        row["blend"]["denoised"] = {
+            "time_s": t_blend + t_den,
+            "denoise_s": t_den,
+            **metrics.compare(den, ref),
+        }
     for spp in opts.direct_spp:
-        direct, t_direct = timed_render(lambda n, seed: _scenes.render_reference(
-            scene_path, manifold_path, x, n, seed=seed, resolution=res), spp, opts.seed + spp)
+        direct, t_direct = timed_render(
+            lambda n, seed: _scenes.render_reference(
+                scene_path, manifold_path, x, n, seed=seed, resolution=res
+            ),
+            spp,
+            opts.seed + spp,
+        )
         entry = {"spp": spp, "time_s": t_direct, **metrics.compare(direct, ref)}
-        if guides is not None and spp == max(opts.direct_spp):  # the same denoiser, for a fair comparison
+        if guides is not None and spp == max(
+            opts.direct_spp
+        ):  # the same denoiser, for a fair comparison
             d_den, t_den = _denoised(direct, guides)
-            entry["denoised"] = {"time_s": entry["time_s"] + t_den, "denoise_s": t_den,
-                                 **metrics.compare(d_den, ref)}
+            entry["denoised"] = {
+                "time_s": entry["time_s"] + t_den,
+                "denoise_s": t_den,
+                **metrics.compare(d_den, ref),
+            }
         row["direct"].append(entry)
     return row, (img, ref, den)
 
@@ -250,7 +333,8 @@ def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised"):
     ``l2``: the full-GI blend's light beyond L1- as :func:`blend` takes it; ``warm``: its kernels
     compiled first, as the direct renders' are (by a refinement of the same
     samples and passes: the sample count is in the kernels, and a 1-spp warm-up left 1.3 s of
-    compiling in the timed 32-spp refinement at 256x256)."""
+    compiling in the timed 32-spp refinement at 256x256).
+    """
     passes = min(2, spp)
     if warm:
         refine(b, m, x=x, spp=spp, passes=passes, seed=seed + 1, l2=l2)
@@ -263,8 +347,15 @@ def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised"):
     refine(b, m, x=x, spp=spp, passes=passes, seed=seed, l2=l2)
     t_cold = time.perf_counter() - t0
     bias, se = relative_bias(r.image, ref)
-    return {"spp": spp, "time_s": t_new, "time_cold_s": t_cold, **metrics.compare(r.image, ref),
-            "relative_bias": bias, "relative_bias_se": se, "noise_rel_mse": r.noise_rel_mse}
+    return {
+        "spp": spp,
+        "time_s": t_new,
+        "time_cold_s": t_cold,
+        **metrics.compare(r.image, ref),
+        "relative_bias": bias,
+        "relative_bias_se": se,
+        "noise_rel_mse": r.noise_rel_mse,
+    }
 
 
 def extrapolation_sheet(basis, m, pair, stem, steps=12, reach=3.0, log=None, l2="denoised"):
@@ -282,27 +373,45 @@ def extrapolation_sheet(basis, m, pair, stem, steps=12, reach=3.0, log=None, l2=
         img, _ = blend(basis, m, x=x, l2=l2)
         w = m.weights(x).w
         a = m.albedo(x)
-        rows.append({"t": float(t), "x": x.tolist(), "albedo": a.tolist(), "negative_fraction": m.negative_fraction(x),
-                     "largest_weight": [m.names[int(np.argmax(w))], float(w.max())]})
+        rows.append(
+            {
+                "t": float(t),
+                "x": x.tolist(),
+                "albedo": a.tolist(),
+                "negative_fraction": m.negative_fraction(x),
+                "largest_weight": [m.names[int(np.argmax(w))], float(w.max())],
+            }
+        )
         images.append(img)
     labels = extrapolation_labels(rows)
-    title = (f"{pair[0]} (t = 0) through {pair[1]} (t = 1) and on out of the data; under each frame: t, "
-             f"albedo (mean RGB), neg.: share of the table's bins below 0")
-    imageio.write_contact_sheet(stem + ".png", np.stack(images), labels=labels, columns=6, title=title)
-    write_bytes(stem + ".json", json.dumps({"from": pair[0], "through": pair[1], "rows": rows}, indent=1))
+    title = (
+        f"{pair[0]} (t = 0) through {pair[1]} (t = 1) and on out of the data; under each frame: t, "
+        f"albedo (mean RGB), neg.: share of the table's bins below 0"
+    )
+    imageio.write_contact_sheet(
+        stem + ".png", np.stack(images), labels=labels, columns=6, title=title
+    )
+    write_bytes(
+        stem + ".json", json.dumps({"from": pair[0], "through": pair[1], "rows": rows}, indent=1)
+    )
     if log:
         for r, lab in zip(rows, labels):
             rgb = ", ".join(f"{v:.3f}" for v in r["albedo"])
-            log(f"  extrapolation {lab.replace(chr(10), ', ')}, albedo RGB {rgb}, "
-                f"largest weight {r['largest_weight'][0]} {r['largest_weight'][1]:.2f}")
+            log(
+                f"  extrapolation {lab.replace(chr(10), ', ')}, albedo RGB {rgb}, "
+                f"largest weight {r['largest_weight'][0]} {r['largest_weight'][1]:.2f}"
+            )
     return rows
 
 
 def extrapolation_labels(rows):
     """One label per frame of :func:`extrapolation_sheet`, a field per line (they read on 64 px
-    tiles): ``t``, the albedo (mean RGB), the share of the table's bins below 0."""
-    return [f"t = {r['t']:.2f}\nalbedo {np.mean(r['albedo']):.2f}\nneg. {100 * r['negative_fraction']:.1f}%"
-            for r in rows]
+    tiles): ``t``, the albedo (mean RGB), the share of the table's bins below 0.
+    """
+    return [
+        f"t = {r['t']:.2f}\nalbedo {np.mean(r['albedo']):.2f}\nneg. {100 * r['negative_fraction']:.1f}%"
+        for r in rows
+    ]
 
 
 def _denoised(image, guides):
@@ -312,20 +421,32 @@ def _denoised(image, guides):
 
 
 def _save_point_images(stem, img, ref, denoised=None):
-    pairs = (("blend", img), ("reference", ref)) + ((("blend_denoised", denoised),) if denoised is not None else ())
+    pairs = (("blend", img), ("reference", ref)) + (
+        (("blend_denoised", denoised),) if denoised is not None else ()
+    )
     for suffix, image in pairs:
         imageio.write_exr(f"{stem}_{suffix}.exr", image)
         imageio.write_png(f"{stem}_{suffix}.png", image)
     vmax = metrics.write_error_png(f"{stem}_error.png", img, ref)
-    if denoised is not None:   # on the raw error's scale, so that the two compare by eye
-        metrics.write_error_png(f"{stem}_denoised_error.png", denoised, ref, vmax=vmax,
-                                scale_note="the raw blend's error scale")
+    if denoised is not None:  # on the raw error's scale, so that the two compare by eye
+        metrics.write_error_png(
+            f"{stem}_denoised_error.png",
+            denoised,
+            ref,
+            vmax=vmax,
+            scale_note="the raw blend's error scale",
+        )
 
 
 def versus_direct(row, spp):
     """The targets for one point of :func:`gi_report`: the blend against the direct render
-    at ``spp`` (lower relative MSE, at least 100x faster per image)."""
+    at ``spp`` (lower relative MSE, at least 100x faster per image).
+    """
     b, d = row["blend"], next(r for r in row["direct"] if r["spp"] == spp)
     speedup = d["time_s"] / b["time_s"]
-    return {"direct_spp": int(spp), "speedup": speedup, "meets_speed_target": bool(speedup >= 100),
-            "meets_error_target": bool(b["rel_mse"] < d["rel_mse"])}
+    return {
+        "direct_spp": int(spp),
+        "speedup": speedup,
+        "meets_speed_target": bool(speedup >= 100),
+        "meets_error_target": bool(b["rel_mse"] < d["rel_mse"]),
+    }

@@ -10,8 +10,8 @@
    by albedo and normal AOVs that blend like the images, :mod:`denoise`), raw errors kept.
 
 :func:`run_main_job` does all four (settings: :class:`MainJob`); steps 3 and 4 are
-:func:`~mitsuba_manifold.apps.gi_comparison.gi_report` (settings: :class:`~mitsuba_manifold.apps.gi_comparison.GISettings`;
-also behind ``tools/bench.py gi``).
+:func:`~mitsuba_manifold.apps.gi_comparison.gi_report` (settings:
+:class:`~mitsuba_manifold.apps.gi_comparison.GISettings`; also behind ``tools/bench.py gi``).
 """
 
 import json
@@ -19,14 +19,14 @@ import os
 import time
 from dataclasses import dataclass, replace
 
+from .._util import ownership
+from .._util.atomic import write_bytes
 from ..data import database
 from ..imaging import plots
 from ..manifold.model import Manifold
 from ..render import scenes as _scenes
-from .._util import ownership
-from .._util.atomic import write_bytes
-from .tool_commands import explore_command
 from .gi_comparison import gi_report, versus_direct
+from .tool_commands import explore_command
 
 __all__ = ["MainJob", "run_main_job"]
 
@@ -59,6 +59,7 @@ class MainJob:
         Replace files in ``out`` this job did not write (never read-only ones, nor anything
         but regular files); without it they are refused before anything is computed.
     """
+
     out: str
     resolution: tuple = (90, 90, 180)
     q: object = None
@@ -77,7 +78,8 @@ class MainJob:
     def check(self):
         """Check the settings before anything is computed or written; raises
         :class:`~mitsuba_manifold.errors.InputError` naming the field (in backquotes, which
-        ``tools/main.py`` writes as its option), the value and the fix. Returns the scene's path."""
+        ``tools/main.py`` writes as its option), the value and the fix. Returns the scene's path.
+        """
         from .._util import checks as validate
         from ..data import merl
         from ..errors import InputError, MitsubaManifoldError
@@ -94,8 +96,10 @@ class MainJob:
             n = len(database.Database(self.database, dims=self.resolution).names)
         except MitsubaManifoldError as e:
             raise InputError(f"`database` {self.database}: {e}") from None
-        held = n + 2 if self.mode == "onepass" else 6   # as render_basis holds them
-        validate.fits_in_memory("`res`", 2 * held * res * res * 3 * 4, f"{self.mode} basis images of {res}x{res}")
+        held = n + 2 if self.mode == "onepass" else 6  # as render_basis holds them
+        validate.fits_in_memory(
+            "`res`", 2 * held * res * res * 3 * 4, f"{self.mode} basis images of {res}x{res}"
+        )
         validate.positive_int("`spp`", self.spp, "512")
         validate.positive_int("`ref_spp`", self.ref_spp, "2048")
         for s in self.direct_spp:
@@ -114,7 +118,7 @@ def run_main_job(job, log=print, **fields):
     job = replace(job, **fields) if isinstance(job, MainJob) else MainJob(job, **fields)
     job.check()
     with ownership.Outputs("main.py", job.force, folders=_output_folders(job)) as guard:
-        for what, path in main_job_outputs(job):   # before anything is computed
+        for what, path in main_job_outputs(job):  # before anything is computed
             guard.check(path, what)
         return _run(job, log)
 
@@ -122,16 +126,20 @@ def run_main_job(job, log=print, **fields):
 def _output_folders(job):
     """Folders whose every file is an output of the job: the plots, and ``gi/`` (whose image
     names depend on the fitted manifold). The database and the basis folders keep their own
-    records (``database.json``, ``manifest.json``)."""
+    records (``database.json``, ``manifest.json``).
+    """
     return [os.path.join(job.out, "plots"), os.path.join(job.out, "gi")]
 
 
 def main_job_outputs(job):
     """``(what, path)`` of the files the job writes whatever the data: the manifold, the
-    latent map and the report (the others are checked as they are written)."""
-    return [("`out`'s manifold", os.path.join(job.out, "manifold.npz")),
-            ("`out`'s plot", os.path.join(job.out, "plots", plots.FIT_PLOTS[0])),
-            ("`out`'s report", os.path.join(job.out, "gi", "report.json"))]
+    latent map and the report (the others are checked as they are written).
+    """
+    return [
+        ("`out`'s manifold", os.path.join(job.out, "manifold.npz")),
+        ("`out`'s plot", os.path.join(job.out, "plots", plots.FIT_PLOTS[0])),
+        ("`out`'s report", os.path.join(job.out, "gi", "report.json")),
+    ]
 
 
 def _run(job, log):
@@ -139,21 +147,38 @@ def _run(job, log):
     t_start = time.perf_counter()
     stages = {}
     db_dir, manifold_path = _database_and_manifold(job, log, stages)
-    log(f"\n== basis of {job.scene} and blends ({job.res}x{job.res}, {job.spp} spp basis, "
-        f"{job.ref_spp} spp references)")
+    log(
+        f"\n== basis of {job.scene} and blends ({job.res}x{job.res}, {job.spp} spp basis, "
+        f"{job.ref_spp} spp references)"
+    )
     t0 = time.perf_counter()
-    report = gi_report(db_dir, manifold=manifold_path, scenes=(job.scene,), out=os.path.join(job.out, "gi"),
-                       res=job.res, basis_spp=job.spp, ref_spp=job.ref_spp, mode=job.mode,
-                       direct_spp=job.direct_spp, save_images=True, progress=True, denoise=job.denoise,
-                       refine_spp=max(1, max(job.direct_spp) // 8))   # the CV costs ~2x a direct sample
+    report = gi_report(
+        db_dir,
+        manifold=manifold_path,
+        scenes=(job.scene,),
+        out=os.path.join(job.out, "gi"),
+        res=job.res,
+        basis_spp=job.spp,
+        ref_spp=job.ref_spp,
+        mode=job.mode,
+        direct_spp=job.direct_spp,
+        save_images=True,
+        progress=True,
+        denoise=job.denoise,
+        refine_spp=max(1, max(job.direct_spp) // 8),
+    )  # the CV costs ~2x a direct sample
     t_gi = time.perf_counter() - t0
     sc = report["scenes"][job.scene]
     stages["basis_s"] = sc["basis_time_s"]
     stages["references_s"] = sum(r["reference_time_s"] for r in sc["points"])
     stages["direct_renders_s"] = sum(d["time_s"] for r in sc["points"] for d in r["direct"])
-    stages["blends_images_plot_s"] = t_gi - stages["basis_s"] - stages["references_s"] - stages["direct_renders_s"]
-    log(f"basis: {sc['basis_images']} images in {sc['basis_time_s']:.1f} s"
-        + (f" (AOVs {sc['aovs_time_s']:.1f} s)" if "aovs_time_s" in sc else ""))
+    stages["blends_images_plot_s"] = (
+        t_gi - stages["basis_s"] - stages["references_s"] - stages["direct_renders_s"]
+    )
+    log(
+        f"basis: {sc['basis_images']} images in {sc['basis_time_s']:.1f} s"
+        + (f" (AOVs {sc['aovs_time_s']:.1f} s)" if "aovs_time_s" in sc else "")
+    )
     _log_points(sc["points"], max(job.direct_spp), log)
     report_path = os.path.join(job.out, "gi", "report.json")
     stages["total_s"] = time.perf_counter() - t_start
@@ -161,7 +186,9 @@ def _run(job, log):
     write_bytes(report_path, json.dumps(report, indent=1))
     log(f"plot: {report['plot']}\nreport: {report_path}\nimages: {os.path.join(job.out, 'gi')}")
     log("stages: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in stages.items() if k != "total_s"))
-    log(f"\nexplore the manifold in the browser:\n  {explore_command(sc['basis_folder'], manifold_path)}")
+    log(
+        f"\nexplore the manifold in the browser:\n  {explore_command(sc['basis_folder'], manifold_path)}"
+    )
     log(f"\nmain job done in {time.perf_counter() - t_start:.0f} s")
     report["report_path"] = report_path
     return report
@@ -169,7 +196,8 @@ def _run(job, log):
 
 def _database_and_manifold(job, log, stages):
     """Steps 1 and 2 of the main job: the database, the fitted manifold and its plots; returns
-    their paths and adds the seconds of each stage to ``stages``."""
+    their paths and adds the seconds of each stage to ``stages``.
+    """
     manifold_path = os.path.join(job.out, "manifold.npz")
     os.makedirs(job.out, exist_ok=True)
     log(f"\n== database: {job.database}")
@@ -177,15 +205,24 @@ def _database_and_manifold(job, log, stages):
     db = database.Database(job.database, dims=job.resolution)
     db_dir = db.folder
     stages["tabulate_s"] = time.perf_counter() - t0
-    log(f"{len(db.names)} materials, {'x'.join(map(str, db.dims))} bins ({stages['tabulate_s']:.1f} s)")
-    log(f"\n== manifold: preset {job.preset}" + (f", q={job.q}" if job.q else "")
-        + (f", features={job.features}" if job.features else ""))
+    log(
+        f"{len(db.names)} materials, {'x'.join(map(str, db.dims))} bins ({stages['tabulate_s']:.1f} s)"
+    )
+    log(
+        f"\n== manifold: preset {job.preset}"
+        + (f", q={job.q}" if job.q else "")
+        + (f", features={job.features}" if job.features else "")
+    )
     m = Manifold.fit(db, q=job.q, features=job.features, preset=job.preset, progress=True)
     m.save(manifold_path)
-    stages.update(load_s=m.info["time_load_s"], gram_s=m.info["time_gram_s"], fit_s=m.info["time_fit_s"])
+    stages.update(
+        load_s=m.info["time_load_s"], gram_s=m.info["time_gram_s"], fit_s=m.info["time_fit_s"]
+    )
     log(m.summary())
-    log(f"load {m.info['time_load_s']:.1f} s, Gram {m.info['time_gram_s']:.1f} s, "
-        f"optimisation {m.info['time_fit_s']:.1f} s; saved {manifold_path}")
+    log(
+        f"load {m.info['time_load_s']:.1f} s, Gram {m.info['time_gram_s']:.1f} s, "
+        f"optimisation {m.info['time_fit_s']:.1f} s; saved {manifold_path}"
+    )
     t0 = time.perf_counter()
     for path in plots.write_fit_plots(m, os.path.join(job.out, "plots")):
         log(f"plot: {path}")
@@ -200,26 +237,42 @@ def _beside(label, r, took=""):
 
 def _log_points(points, top, log):
     """One line per point of the GI report (two when denoised), with its targets against the
-    direct render at ``top`` spp (added to each row as ``versus_direct``)."""
+    direct render at ``top`` spp (added to each row as ``versus_direct``).
+    """
     for row in points:
         b = row["blend"]
         d = next(r for r in row["direct"] if r["spp"] == top)
         v = row["versus_direct"] = versus_direct(row, top)
-        log(f"{row['point']:>12s} ({row['x_is']}): blend {1e3 * b['time_s']:.1f} ms, rel. MSE {b['rel_mse']:.3g}, "
+        log(
+            f"{row['point']:>12s} ({row['x_is']}): blend {1e3 * b['time_s']:.1f} ms, rel. MSE {b['rel_mse']:.3g}, "
             f"PSNR {b['psnr']:.1f} dB, bias {100 * b['relative_bias']:+.2f}% | direct {top} spp "
             f"{d['time_s']:.2f} s, rel. MSE {d['rel_mse']:.3g} | blend {v['speedup']:.0f}x faster, "
-            f"{'lower' if v['meets_error_target'] else 'HIGHER'} error")
+            f"{'lower' if v['meets_error_target'] else 'HIGHER'} error"
+        )
         if "blend_summed" in row:
             r = row["blend_summed"]
-            log(_beside("L2+ as summed (--l2 raw; the explorer while dragging)", r, f"{1e3 * r['time_s']:.1f} ms, "))
+            log(
+                _beside(
+                    "L2+ as summed (--l2 raw; the explorer while dragging)",
+                    r,
+                    f"{1e3 * r['time_s']:.1f} ms, ",
+                )
+            )
         if "blend_l1" in row:
             log(_beside("L1- blend (no L2+)", row["blend_l1"]))
         if "refined" in row:
             r = row["refined"]
-            log(_beside(f"refined ({r['spp']} spp)", r, f"{r['time_s']:.2f} s at a new point ({r['time_cold_s']:.2f} s "
-                                                       f"from nothing), "))
+            log(
+                _beside(
+                    f"refined ({r['spp']} spp)",
+                    r,
+                    f"{r['time_s']:.2f} s at a new point ({r['time_cold_s']:.2f} s from nothing), ",
+                )
+            )
         if "denoised" in b:
-            log(f"{'':>12s} whole image denoised (OIDN, albedo+normal): blend "
+            log(
+                f"{'':>12s} whole image denoised (OIDN, albedo+normal): blend "
                 f"{1e3 * b['denoised']['time_s']:.0f} ms, "
                 f"rel. MSE {b['denoised']['rel_mse']:.3g} (before: {b['rel_mse']:.3g}) | direct {top} spp "
-                f"rel. MSE {d['denoised']['rel_mse']:.3g} (before: {d['rel_mse']:.3g})")
+                f"rel. MSE {d['denoised']['rel_mse']:.3g} (before: {d['rel_mse']:.3g})"
+            )

@@ -35,13 +35,13 @@ from typing import Optional
 
 import numpy as np
 
-from .crossterms import cross_weights
-from .folder import Basis
 from ..errors import MismatchError
-from .composition import compose, read_cross
-from .denoise import BasisAOVs, denoise, denoised_l2
 from ..imaging.io import printable
 from ..manifold.pruning import DEFAULT_PRUNE
+from .composition import compose, read_cross
+from .crossterms import cross_weights
+from .denoise import BasisAOVs, denoise, denoised_l2
+from .folder import Basis
 
 #: How far the weights of one target may sum away from 1 in a multilinear blend.
 AFFINE_TOL = 1e-6
@@ -60,15 +60,18 @@ def resolve_component(basis, component=None):
 
     "full" on a basis without full-GI images blends L1-; the note says why (empty when the
     basis holds what was asked). An older basis (no ``components`` in its manifest) also
-    warns, once per :class:`Basis`."""
+    warns, once per :class:`Basis`.
+    """
     component = "full" if component is None else str(component)
     if component not in BLEND_COMPONENTS:
         raise MismatchError(f"`component` must be one of {BLEND_COMPONENTS}, got {component!r}")
     if component == "l1" or "l2+" in basis.components:
         return component, ""
     if basis.legacy:
-        note = (f"basis {basis.folder} predates full-GI bases (its manifest lists no components): it blends "
-                "L1- only, leaving out light that touched the material twice or more; render it again for full GI")
+        note = (
+            f"basis {basis.folder} predates full-GI bases (its manifest lists no components): it blends "
+            "L1- only, leaving out light that touched the material twice or more; render it again for full GI"
+        )
         if not getattr(basis, "_warned_legacy", False):
             basis._warned_legacy = True
             warnings.warn(note, UserWarning, stacklevel=3)
@@ -79,10 +82,12 @@ def resolve_component(basis, component=None):
 
 # -------------------------------------------------------------------- blend
 
+
 def latent_points(basis, manifold, x):
     """``x`` as (p, q): one latent point per target.
 
-    Accepts (q,) for one target, (p, q), or p*q numbers in target order."""
+    Accepts (q,) for one target, (p, q), or p*q numbers in target order.
+    """
     p, q = basis.p, manifold.q
     try:
         arr = np.asarray(x, dtype=np.float64)
@@ -92,7 +97,8 @@ def latent_points(basis, manifold, x):
         raise MismatchError(
             f"`x` has shape {arr.shape} ({arr.size} numbers), but the basis has {p} target(s) "
             f"{basis.targets} on a {q}-dimensional manifold: `x` needs {p * q} numbers "
-            f"({'q' if p == 1 else 'p x q'})")
+            f"({'q' if p == 1 else 'p x q'})"
+        )
     arr = arr.reshape(p, q)
     if not np.isfinite(arr).all():
         raise MismatchError(f"`x` contains NaN or Inf: {arr.tolist()}")
@@ -112,8 +118,10 @@ def _target_weights(basis, manifold, x, w):
         raise MismatchError(f"`w` must be numbers, got {w!r}") from None
     n = len(manifold.names)
     if arr.size != basis.p * n or arr.ndim > 2 or (arr.ndim == 2 and arr.shape != (basis.p, n)):
-        raise MismatchError(f"`w` has shape {arr.shape}; the basis has {basis.p} target(s) and the manifold "
-                         f"{n} materials: `w` needs shape ({n},) or ({basis.p}, {n})")
+        raise MismatchError(
+            f"`w` has shape {arr.shape}; the basis has {basis.p} target(s) and the manifold "
+            f"{n} materials: `w` needs shape ({n},) or ({basis.p}, {n})"
+        )
     arr = arr.reshape(basis.p, n)
     if not np.isfinite(arr).all():
         raise MismatchError("`w` contains NaN or Inf")
@@ -158,9 +166,11 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
     kept, info = [], {"weights": [], "dropped_weight": []}
     for t in range(p):
         if p > 1 and abs(W[t].sum() - 1.0) > AFFINE_TOL:
-            raise MismatchError(f"weights of target {basis.targets[t]!r} sum to {W[t].sum():.9g}; a "
-                             "multilinear blend needs weights summing to 1 per target (its images "
-                             "include the base)")
+            raise MismatchError(
+                f"weights of target {basis.targets[t]!r} sum to {W[t].sum():.9g}; a "
+                "multilinear blend needs weights summing to 1 per target (its images "
+                "include the base)"
+            )
         keep, wk, dropped = manifold.prune(W[t], prune)
         kept.append((keep, wk))
         info["weights"].append({names[i]: float(v) for i, v in zip(keep, wk)})
@@ -169,7 +179,10 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
         keys = [basis.key([names[i]]) for i in kept[0][0]]
         cw = kept[0][1].copy()
     else:
-        keys = [basis.key([names[i] for i in combo]) for combo in itertools.product(*(k for k, _ in kept))]
+        keys = [
+            basis.key([names[i] for i in combo])
+            for combo in itertools.product(*(k for k, _ in kept))
+        ]
         cw = kept[0][1]
         for _, wk in kept[1:]:
             cw = np.multiply.outer(cw, wk).ravel()
@@ -180,14 +193,20 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
     info["renormalised"] = False
     if missing:
         if not renormalise:
-            listed = ", ".join(f"{k} (w={v:.4g})" for k, v in sorted(missing.items(), key=lambda kv: -abs(kv[1]))[:10])
+            listed = ", ".join(
+                f"{k} (w={v:.4g})"
+                for k, v in sorted(missing.items(), key=lambda kv: -abs(kv[1]))[:10]
+            )
             raise MismatchError(
                 f"basis {basis.folder} lacks {len(missing)} image(s) whose weight survives pruning "
                 f"(prune={prune:g}): {listed}{' ...' if len(missing) > 10 else ''}. Render them, raise "
-                "`prune`, or pass `renormalise` to rescale over the images present (an approximation)")
+                "`prune`, or pass `renormalise` to rescale over the images present (an approximation)"
+            )
         if not present.any() or abs(cw[present].sum()) < 1e-12:
-            raise MismatchError(f"basis {basis.folder}: none of the images this blend needs is present "
-                             f"(missing: {', '.join(sorted(missing)[:10])}); cannot renormalise")
+            raise MismatchError(
+                f"basis {basis.folder}: none of the images this blend needs is present "
+                f"(missing: {', '.join(sorted(missing)[:10])}); cannot renormalise"
+            )
         keys = [k for k, ok in zip(keys, present) if ok]
         cw = cw[present] * (total / cw[present].sum())
         info["renormalised"] = True
@@ -197,15 +216,26 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
         kept_names = [basis.key([names[i]]) for i in kept[0][0]]
         mats = [k for k in kept_names if k in keys]
         wk = np.array([cw[keys.index(k)] for k in mats])
-        rows, prods, left = cross_weights([names[kept[0][0][kept_names.index(k)]] for k in mats], wk, pairs)
+        rows, prods, left = cross_weights(
+            [names[kept[0][0][kept_names.index(k)]] for k in mats], wk, pairs
+        )
         cross = (rows, prods)
         info["cross_left_weight"] = left if "cross" in basis.components else None
     summed = keys if cross is None else [basis.gi_key(k) for k in keys]
     return BlendPlan(keys, cw, cross, summed), info
 
 
-def blend(basis, manifold=None, *, x=None, w=None, prune=DEFAULT_PRUNE, renormalise=False, component=None,
-          l2="denoised"):
+def blend(
+    basis,
+    manifold=None,
+    *,
+    x=None,
+    w=None,
+    prune=DEFAULT_PRUNE,
+    renormalise=False,
+    component=None,
+    l2="denoised",
+):
     """The image of latent point ``x`` (or weights ``w``) from a basis.
 
     Parameters
@@ -259,9 +289,16 @@ def blend(basis, manifold=None, *, x=None, w=None, prune=DEFAULT_PRUNE, renormal
         t0 = time.perf_counter()
         image = denoised_l2(basis, image, plan)
         t_den = time.perf_counter() - t0
-    info.update(component=used, component_note=note, x=None if pts is None else (pts[0] if basis.p == 1 else pts),
-                time_ms=1e3 * (t_plan + t_sum + t_den), time_read_s=t_read, n_images=len(plan.summed), plan=plan,
-                l2=l2 if used == "full" else None)
+    info.update(
+        component=used,
+        component_note=note,
+        x=None if pts is None else (pts[0] if basis.p == 1 else pts),
+        time_ms=1e3 * (t_plan + t_sum + t_den),
+        time_read_s=t_read,
+        n_images=len(plan.summed),
+        plan=plan,
+        l2=l2 if used == "full" else None,
+    )
     return image, info
 
 
@@ -285,7 +322,9 @@ def denoised_blend(basis, manifold=None, *, x=None, w=None, aovs=None, guides=Tr
     """
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
-    raw, info = blend(basis, manifold, x=x, w=w, **{"l2": "raw", **kwargs})   # raw: its L2+ part summed
+    raw, info = blend(
+        basis, manifold, x=x, w=w, **{"l2": "raw", **kwargs}
+    )  # raw: its L2+ part summed
     t0 = time.perf_counter()
     if guides:
         aovs = aovs or BasisAOVs.load(basis.folder, basis.manifest)
@@ -302,12 +341,28 @@ def _endpoint(manifold, v):
         return manifold.latent[manifold.index(v)].copy()
     arr = np.asarray(v, dtype=np.float64).ravel()
     if arr.size != manifold.q or not np.isfinite(arr).all():
-        raise MismatchError(f"path end {v!r} (`a` or `b`): expected a material name or {manifold.q} finite numbers")
+        raise MismatchError(
+            f"path end {v!r} (`a` or `b`): expected a material name or {manifold.q} finite numbers"
+        )
     return arr
 
 
-def blend_path(basis, manifold=None, a=None, b=None, *, steps=20, prune=DEFAULT_PRUNE, renormalise=False,
-               target=0, x=None, component=None, kind="straight", points=None, l2="denoised"):
+def blend_path(
+    basis,
+    manifold=None,
+    a=None,
+    b=None,
+    *,
+    steps=20,
+    prune=DEFAULT_PRUNE,
+    renormalise=False,
+    target=0,
+    x=None,
+    component=None,
+    kind="straight",
+    points=None,
+    l2="denoised",
+):
     """Images along a latent path from ``a`` to ``b`` (paper Fig. 12).
 
     Its thirteen parameters are :func:`blend`'s, the path's (ends, steps, kind or points) and the
@@ -351,13 +406,17 @@ def blend_path(basis, manifold=None, a=None, b=None, *, steps=20, prune=DEFAULT_
     if not 0 <= target < basis.p:
         raise MismatchError(f"`target` {target} out of range: the basis has {basis.p} target(s)")
     if basis.p == 1 and x is not None:
-        raise MismatchError("`x` is for the targets that stay fixed along a path, and this basis has one target "
-                         "(the path sets its point): leave `x` out")
+        raise MismatchError(
+            "`x` is for the targets that stay fixed along a path, and this basis has one target "
+            "(the path sets its point): leave `x` out"
+        )
     if points is None:
         xs = _segment_points(manifold, a, b, steps, kind)
     if basis.p > 1:
         if x is None:
-            raise MismatchError(f"the basis has {basis.p} targets: give `x` for the targets that stay fixed")
+            raise MismatchError(
+                f"the basis has {basis.p} targets: give `x` for the targets that stay fixed"
+            )
         fixed = latent_points(basis, manifold, x)
     used, note = resolve_component(basis, component)
     _check_l2(l2)
@@ -365,7 +424,9 @@ def blend_path(basis, manifold=None, a=None, b=None, *, steps=20, prune=DEFAULT_
     t0 = time.perf_counter()
     plans = []
     for xi in xs:
-        pts = xi[None] if basis.p == 1 else np.where(np.arange(basis.p)[:, None] == target, xi, fixed)
+        pts = (
+            xi[None] if basis.p == 1 else np.where(np.arange(basis.p)[:, None] == target, xi, fixed)
+        )
         W = manifold.weights(pts)[1]
         plans.append(_plan(basis, manifold, W, prune, renormalise, used))
     keys = sorted({k for plan, _ in plans for k in plan.summed})
@@ -374,7 +435,7 @@ def blend_path(basis, manifold=None, a=None, b=None, *, steps=20, prune=DEFAULT_
     for s, (plan, _) in enumerate(plans):
         M[s, [col[k] for k in plan.summed]] = plan.image_weights
     cross = None
-    if used == "full" and basis.p == 1:   # the cross terms of every step, as one matrix
+    if used == "full" and basis.p == 1:  # the cross terms of every step, as one matrix
         rows = sorted({int(r) for plan, _ in plans for r in plan.cross[0]})
         at = {r: j for j, r in enumerate(rows)}
         C = np.zeros((steps, len(rows)), dtype=np.float32)
@@ -385,26 +446,41 @@ def blend_path(basis, manifold=None, a=None, b=None, *, steps=20, prune=DEFAULT_
     images, t_read, t_sum = compose(basis, keys, M, cross)
     t_read += t_cross
     t0 = time.perf_counter()
-    if used == "full" and l2 == "denoised" and basis.p == 1:   # as blend(): each step's L2+ part denoised
+    if (
+        used == "full" and l2 == "denoised" and basis.p == 1
+    ):  # as blend(): each step's L2+ part denoised
         for s_, ((plan, _), img) in enumerate(zip(plans, images)):
             images[s_] = denoised_l2(basis, img, plan)
     for (plan, inf), xi in zip(plans, xs):
         inf.update(x=xi, plan=plan)
-    return images, xs, {"steps": [inf for _, inf in plans], "time_ms": 1e3 * (t_plan + t_sum), "time_read_s": t_read,
-                        "denoise_ms": 1e3 * (time.perf_counter() - t0), "component": used, "component_note": note,
-                        "l2": l2 if used == "full" else None}
+    return (
+        images,
+        xs,
+        {
+            "steps": [inf for _, inf in plans],
+            "time_ms": 1e3 * (t_plan + t_sum),
+            "time_read_s": t_read,
+            "denoise_ms": 1e3 * (time.perf_counter() - t0),
+            "component": used,
+            "component_note": note,
+            "l2": l2 if used == "full" else None,
+        },
+    )
 
 
 def _segment_points(manifold, a, b, steps, kind):
     """The ``steps`` latent points of a path of ``kind`` from ``a`` to ``b`` (the segment: as before)."""
     xa, xb = _endpoint(manifold, a), _endpoint(manifold, b)
     if np.array_equal(xa, xb):
-        raise MismatchError(f"the path's ends {a!r} and {b!r} are the same latent point (all {steps} images would "
-                         "be the same): give two different materials or points")
+        raise MismatchError(
+            f"the path's ends {a!r} and {b!r} are the same latent point (all {steps} images would "
+            "be the same): give two different materials or points"
+        )
     if kind == "straight":
         t = np.linspace(0.0, 1.0, steps)[:, None]
         return (1.0 - t) * xa + t * xb
     from ..manifold import paths
+
     return paths.path(manifold, xa, xb, steps, kind)
 
 
@@ -415,14 +491,17 @@ def _path_points(manifold, points):
     except (TypeError, ValueError):
         raise MismatchError(f"`points` must be numbers, got {points!r:.60}") from None
     if xs.ndim != 2 or xs.shape[1] != manifold.q or len(xs) < 2 or not np.isfinite(xs).all():
-        raise MismatchError(f"`points` must be (steps >= 2, q = {manifold.q}) finite latent points, got shape {xs.shape}")
+        raise MismatchError(
+            f"`points` must be (steps >= 2, q = {manifold.q}) finite latent points, got shape {xs.shape}"
+        )
     return xs
 
 
 def path_labels(pair, steps):
     """Labels of a contact sheet of :func:`blend_path` from ``pair[0]`` to ``pair[1]``: ``t``
     under every frame, each end's name (or latent point, as given) under the first and the last
-    (control characters of a name escaped: one field per line)."""
+    (control characters of a name escaped: one field per line).
+    """
     labels = [f"t = {t:.2f}" for t in np.linspace(0, 1, steps)]
     labels[0] += f"\n{printable(pair[0])}"
     labels[-1] += f"\n{printable(pair[1])}"

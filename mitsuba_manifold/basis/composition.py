@@ -26,7 +26,8 @@ def compose(basis, keys, weights, cross=None):
 
 def _add_cross(images, basis, rows, products):
     """``images += sum_r products[..., r] C[rows[r]]``: one image in place, term by term, from the
-    float32 rows the basis keeps (:meth:`Basis.cross_term`); a sequence by ``tensordot``."""
+    float32 rows the basis keeps (:meth:`Basis.cross_term`); a sequence by ``tensordot``.
+    """
     if products.ndim == 1:
         tmp = np.empty(images.shape, np.float32)
         for r, p in zip(rows, products):
@@ -39,7 +40,8 @@ def _add_cross(images, basis, rows, products):
 
 def read_cross(basis, component):
     """Seconds reading the cross terms of a ``component`` ("full" or "l1") blend from disk (once
-    per basis; before planning the blend, which needs them)."""
+    per basis; before planning the blend, which needs them).
+    """
     if component != "full":
         return 0.0
     t0 = time.perf_counter()

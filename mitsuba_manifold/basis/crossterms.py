@@ -32,10 +32,11 @@ NEIGHBOURS = 6
 
 def explored_points(manifold, random=200, neighbours=NEIGHBOURS, seed=0):
     """Latent points standing for the explored region: training points, midpoints of each with
-    its ``neighbours`` nearest, and ``random`` uniform points of the latent bounding box."""
+    its ``neighbours`` nearest, and ``random`` uniform points of the latent bounding box.
+    """
     lat = np.asarray(manifold.latent, dtype=np.float64)
     d = np.linalg.norm(lat[:, None] - lat[None], axis=-1)
-    near = np.argsort(d, axis=1)[:, 1:neighbours + 1]
+    near = np.argsort(d, axis=1)[:, 1 : neighbours + 1]
     mids = 0.5 * (lat[:, None] + lat[near]).reshape(-1, lat.shape[1])
     lo, hi = lat.min(0), lat.max(0)
     box = np.random.default_rng(seed).uniform(lo, hi, size=(int(random), lat.shape[1]))
@@ -79,14 +80,19 @@ def select_pairs(manifold, names, tol=CROSS_TOL, prune=None, points=None):
     chosen = best[iu] >= tol
     pairs = [(manifold.names[i], manifold.names[j]) for i, j, c in zip(*iu, chosen) if c]
     left = best[iu][~chosen]
-    return pairs, {"points": len(pts), "pairs": len(pairs), "materials_per_point": float(np.median(kept)),
-                   "left_weight": float(left.max()) if left.size else 0.0,
-                   "products": [float(v) for v in best[iu][chosen]]}
+    return pairs, {
+        "points": len(pts),
+        "pairs": len(pairs),
+        "materials_per_point": float(np.median(kept)),
+        "left_weight": float(left.max()) if left.size else 0.0,
+        "products": [float(v) for v in best[iu][chosen]],
+    }
 
 
 def cross_weights(names, weights, pairs):
     """``w_i w_j`` of the stored ``pairs`` (a dict ``(a, b) -> row``) among the kept materials
-    ``names`` with ``weights``: ``(rows, products)``, and the largest product of a pair not stored."""
+    ``names`` with ``weights``: ``(rows, products)``, and the largest product of a pair not stored.
+    """
     rows, prods, missing = [], [], 0.0
     for a in range(len(names)):
         for b in range(a + 1, len(names)):

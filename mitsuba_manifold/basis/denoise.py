@@ -27,11 +27,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._util.atomic import atomic_write
+from ..data import merl
+from ..errors import MismatchError
 from . import folder as basis_folder
 from .composition import compose
-from ..data import merl
-from .._util.atomic import atomic_write
-from ..errors import MismatchError
 
 AOV_FILE = "aovs.npz"
 THETA_BINS = 45  # as integrators.aovs.THETA_BINS (not imported: that module needs Mitsuba)
@@ -45,6 +45,7 @@ RESTORE_WIDTH = 1 / 8
 
 
 # ------------------------------------------------------------------ directional albedos
+
 
 def directional_albedos(db, names, bins=THETA_BINS, n_phi=64, refine=2, pad=16):
     """``a[i, k, c]``: albedo of material ``names[i]`` lit from ``theta`` at the centre of bin ``k``.
@@ -72,7 +73,9 @@ def directional_albedos(db, names, bins=THETA_BINS, n_phi=64, refine=2, pad=16):
     weight = np.where((wo[:, 2] > 0) & (cos_d > 0), wo[:, 2] * 4 * cos_d * np.tile(dwh, bins), 0.0)
     idx = merl.flat_index(wi, np.where(weight[:, None] > 0, wo, [0.0, 0.0, 1.0]), tuple(db.dims))
     uniq, inv = np.unique(idx, return_inverse=True)
-    values = np.maximum(np.asarray(rows[uniq], dtype=np.float32)[..., :len(names)], 0.0)  # (u, 3, N)
+    values = np.maximum(
+        np.asarray(rows[uniq], dtype=np.float32)[..., : len(names)], 0.0
+    )  # (u, 3, N)
     f = values[inv.reshape(-1)].reshape(bins, len(h), 3, len(names))
     return np.einsum("kocn,ko->nkc", f, weight.reshape(bins, len(h))).astype(np.float32)
 
@@ -80,10 +83,11 @@ def directional_albedos(db, names, bins=THETA_BINS, n_phi=64, refine=2, pad=16):
 @dataclass
 class BasisAOVs:
     """The denoising guides of a basis (see the module docstring)."""
-    normal: np.ndarray       # (H, W, 3)
+
+    normal: np.ndarray  # (H, W, 3)
     albedo_base: np.ndarray  # (H, W, 3)
-    hist: np.ndarray         # (H, W, bins): fraction of samples hitting the target per angle bin
-    table: np.ndarray        # (N, bins, 3): directional albedo per material
+    hist: np.ndarray  # (H, W, bins): fraction of samples hitting the target per angle bin
+    table: np.ndarray  # (N, bins, 3): directional albedo per material
     names: list
     spp: int
     time_s: float = 0.0
@@ -101,24 +105,41 @@ class BasisAOVs:
         else:
             w = np.asarray(weights, dtype=np.float64)
             if w.shape != (len(self.names),):
-                raise MismatchError(f"weights must have {len(self.names)} entries, got shape {w.shape}")
+                raise MismatchError(
+                    f"weights must have {len(self.names)} entries, got shape {w.shape}"
+                )
         mixed = np.tensordot(w, self.table, axes=1)  # (bins, 3)
         return np.clip(self.albedo_base + self.hist @ mixed.astype(np.float32), 0.0, 1.0)
 
     def albedo_of_blend(self, plan, version=basis_folder.FORMAT_VERSION):
         """Albedo image of a one-target blend, from its :class:`~.blend.BlendPlan` (image keys and
-        weights)."""
+        weights).
+        """
         weights = np.asarray(plan.image_weights, dtype=np.float64)
-        return self.albedo({basis_folder.key_materials(k, version)[0]: w for k, w in zip(plan.keys, weights)})
+        return self.albedo(
+            {basis_folder.key_materials(k, version)[0]: w for k, w in zip(plan.keys, weights)}
+        )
 
     def save(self, folder, manifest):
         path = os.path.join(os.fspath(folder), AOV_FILE)
         key = _basis_key(manifest)
         import json
-        atomic_write(path, lambda f: np.savez(
-            f, normal=self.normal, albedo_base=self.albedo_base, hist=self.hist, table=self.table,
-            names=np.array(self.names), spp=self.spp, time_s=self.time_s, version=AOV_VERSION,
-            basis=json.dumps(key, sort_keys=True)))
+
+        atomic_write(
+            path,
+            lambda f: np.savez(
+                f,
+                normal=self.normal,
+                albedo_base=self.albedo_base,
+                hist=self.hist,
+                table=self.table,
+                names=np.array(self.names),
+                spp=self.spp,
+                time_s=self.time_s,
+                version=AOV_VERSION,
+                basis=json.dumps(key, sort_keys=True),
+            ),
+        )
         return path
 
     @classmethod
@@ -132,33 +153,61 @@ class BasisAOVs:
             want = _basis_key(manifest)
             if want != key:
                 diff = [k for k in want if want[k] != key.get(k)]
-                raise MismatchError(f"{path} was made for another basis ({', '.join(diff)} differ); "
-                                   "render the AOVs again")
+                raise MismatchError(
+                    f"{path} was made for another basis ({', '.join(diff)} differ); "
+                    "render the AOVs again"
+                )
         return out
 
     @classmethod
     def _read(cls, path):
         """``(aovs, the basis key they were made for)`` of the file ``path``; a file that is not one
-        (truncated, garbage, another version) raises :class:`MismatchError` naming it."""
+        (truncated, garbage, another version) raises :class:`MismatchError` naming it.
+        """
         import json
+
         try:
             with np.load(path) as z:
                 if int(z["version"]) != AOV_VERSION:
-                    raise MismatchError(f"{path}: AOV format version {int(z['version'])}, expected {AOV_VERSION}")
-                out = cls(z["normal"], z["albedo_base"], z["hist"], z["table"], [str(n) for n in z["names"]],
-                          int(z["spp"]), float(z["time_s"]))
+                    raise MismatchError(
+                        f"{path}: AOV format version {int(z['version'])}, expected {AOV_VERSION}"
+                    )
+                out = cls(
+                    z["normal"],
+                    z["albedo_base"],
+                    z["hist"],
+                    z["table"],
+                    [str(n) for n in z["names"]],
+                    int(z["spp"]),
+                    float(z["time_s"]),
+                )
                 return out, _stored_key(json.loads(str(z["basis"])))
-        except (OSError, ValueError, KeyError, AttributeError, TypeError, EOFError, zipfile.BadZipFile) as e:
-            raise MismatchError(f"{path} is not an AOV file written by render_basis with `aovs` ({type(e).__name__}); "
-                                "delete it and render the AOVs again") from None
+        except (
+            OSError,
+            ValueError,
+            KeyError,
+            AttributeError,
+            TypeError,
+            EOFError,
+            zipfile.BadZipFile,
+        ) as e:
+            raise MismatchError(
+                f"{path} is not an AOV file written by render_basis with `aovs` ({type(e).__name__}); "
+                "delete it and render the AOVs again"
+            ) from None
 
 
 def _basis_key(manifest):
     """What AOVs are made for: the basis's scene, manifold, resolution and sensor (a
-    :class:`~.folder.Manifest` or its JSON object)."""
+    :class:`~.folder.Manifest` or its JSON object).
+    """
     m = basis_folder.Manifest.from_json(manifest)
-    return {"scene_hash": m.scene_hash, "manifold_hash": m.manifold_hash, "resolution": list(m.resolution),
-            "sensor": m.sensor_index}
+    return {
+        "scene_hash": m.scene_hash,
+        "manifold_hash": m.manifold_hash,
+        "resolution": list(m.resolution),
+        "sensor": m.sensor_index,
+    }
 
 
 def _stored_key(key):
@@ -169,6 +218,7 @@ def _stored_key(key):
 
 
 # ------------------------------------------------------------------ denoising
+
 
 def denoise(image, albedo=None, normal=None, quality="high"):
     """OIDN (``pyoidn``) on a linear HDR image; ``albedo`` in [0, 1] and ``normal`` guide it."""
@@ -189,6 +239,7 @@ def denoise(image, albedo=None, normal=None, quality="high"):
 
 # ------------------------------------------------------------------ the L2+ part of full-GI blends
 
+
 def denoised_l2(basis, image, plan):
     """``L1- blend + D + restore_light(extra - D)``: the full-GI ``image`` of a one-target blend
     with its part beyond L1- (``extra``) denoised (``D``), guided by the basis's AOVs when it has
@@ -197,12 +248,13 @@ def denoised_l2(basis, image, plan):
     :attr:`~.blend.BlendPlan.keys`, and their weights). That part is
     signed (cross terms) and OIDN takes light only, so its positive and negative parts are denoised
     apart, at OIDN's ``fast`` quality (:data:`L2_QUALITY`; its errors against ``high``'s are in
-    docs/benchmarks.md)."""
+    docs/benchmarks.md).
+    """
     l1, _, _ = compose(basis, plan.keys, plan.image_weights, None)
     extra = image - l1
     guides = _guides(basis, plan)
     smooth = np.zeros_like(extra)
-    for sign in (1.0, -1.0):   # a part may be empty (no negative cross term, weights >= 0)
+    for sign in (1.0, -1.0):  # a part may be empty (no negative cross term, weights >= 0)
         part = np.maximum(sign * extra, 0.0)
         if np.any(part):
             smooth = smooth + sign * denoise(part, *guides, quality=L2_QUALITY)
@@ -219,11 +271,14 @@ def restore_light(removed, width=RESTORE_WIDTH):
     deviation ``width`` times the image's larger side: the blend then has the summed blend's light
     and keeps the denoiser's detail (figures in docs/benchmarks.md). Three box filters (reflected
     at the edges, so each channel's total is kept) stand for the Gaussian, at a cost independent
-    of the width."""
+    of the width.
+    """
     from scipy.ndimage import uniform_filter
 
     sigma = width * max(removed.shape[:2])
-    size = int(round(np.sqrt(4.0 * sigma * sigma + 1.0))) | 1   # three boxes of variance (size^2 - 1) / 12
+    size = (
+        int(round(np.sqrt(4.0 * sigma * sigma + 1.0))) | 1
+    )  # three boxes of variance (size^2 - 1) / 12
     out = np.asarray(removed, np.float32)
     for _ in range(3):
         out = uniform_filter(out, (size, size, 1), mode="reflect")
@@ -232,13 +287,15 @@ def restore_light(removed, width=RESTORE_WIDTH):
 
 def basis_aovs(basis):
     """The :class:`BasisAOVs` of ``basis`` (read once per basis object), or None when it has none
-    made for it."""
+    made for it.
+    """
     return basis.derived("aovs", _aovs_or_none)
 
 
 def _aovs_or_none(basis):
     """The basis's AOVs; None when it has none or they were made for another basis (stale: the
-    denoiser then runs unguided); an unreadable file raises, naming it."""
+    denoiser then runs unguided); an unreadable file raises, naming it.
+    """
     path = os.path.join(basis.folder, AOV_FILE)
     if not os.path.isfile(path):
         return None
@@ -253,5 +310,5 @@ def _guides(basis, plan):
         return None, None
     try:
         return aovs.albedo_of_blend(plan, basis.manifest.version), aovs.normal
-    except MismatchError:   # AOVs older than some of the basis's materials: unguided
+    except MismatchError:  # AOVs older than some of the basis's materials: unguided
         return None, None

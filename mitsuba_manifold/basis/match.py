@@ -41,11 +41,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from . import objectives as image_error
-from .folder import BASE, Basis
-from .composition import compose
 from ..errors import InputError
 from ..manifold import search as latent
+from . import objectives as image_error
+from .composition import compose
+from .folder import BASE, Basis
 from .objectives import LOSSES, masked_pool, masked_rel_mse, pool
 from .targets import check_mask, check_target, read_mask, read_target
 
@@ -56,6 +56,7 @@ SEARCH_PIXELS = 64 * 64
 @dataclass
 class SingleMatch:
     """The best training material alone (``w = e_i``)."""
+
     name: str
     index: int
     error: float
@@ -64,7 +65,8 @@ class SingleMatch:
 
 class LatentMatch:
     """What every match finds: a latent point ``x`` and its affine weights ``weights`` over the
-    materials ``names`` (the base of :class:`MatchResult` and of the rendered match's result)."""
+    materials ``names`` (the base of :class:`MatchResult` and of the rendered match's result).
+    """
 
     def top_weights(self, k=6):
         """The ``k`` largest nonzero ``|w_i|`` as ``[(name, w_i)]``."""
@@ -112,6 +114,7 @@ class MatchResult(LatentMatch):
         The settings, masked pixels used and the wall time (the basis' images read
         before the call are not re-read; ``time_read_s`` is what reading took).
     """
+
     x: np.ndarray
     weights: np.ndarray
     error: float
@@ -134,24 +137,43 @@ class MatchResult(LatentMatch):
     extra: dict = field(default_factory=dict)
 
     def __repr__(self):  # short: the image and the starts are attributes, not the summary
-        fields = ", ".join(f"{k}={getattr(self, k)!r}" for k in ("error", "rel_mse", "exposure", "variance", "loss"))
+        fields = ", ".join(
+            f"{k}={getattr(self, k)!r}"
+            for k in ("error", "rel_mse", "exposure", "variance", "loss")
+        )
         x = ", ".join(f"{v:.4g}" for v in np.asarray(self.x).ravel())
         top = ", ".join(f"{n}:{w:.3g}" for n, w in self.top_weights(4))
         return f"MatchResult(x=[{x}], {fields}, top weights {top}, time_s={self.time_s:.3g})"
 
     def to_dict(self, manifold=None):
         """JSON-ready summary (no image)."""
-        out = {"x": self.x.tolist(), "error": self.error, "loss": self.loss, "rel_mse": self.rel_mse,
-               "exposure": self.exposure, "exposure_free": self.exposure_free, "variance": self.variance,
-               "prior": self.prior, "objective": self.objective, "top_weights": self.top_weights(10),
-               "weights": dict(zip(self.names, self.weights.tolist())),
-               "single": {"name": self.single.name, "error": self.single.error,
-                          "exposure": self.single.exposure},
-               "from_start": self.from_start, "starts": [
-                   {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in s.items()}
-                   for s in self.starts],
-               "downsample": self.downsample, "n_pixels": self.n_pixels, "time_s": self.time_s,
-               "time_read_s": self.time_read_s}
+        out = {
+            "x": self.x.tolist(),
+            "error": self.error,
+            "loss": self.loss,
+            "rel_mse": self.rel_mse,
+            "exposure": self.exposure,
+            "exposure_free": self.exposure_free,
+            "variance": self.variance,
+            "prior": self.prior,
+            "objective": self.objective,
+            "top_weights": self.top_weights(10),
+            "weights": dict(zip(self.names, self.weights.tolist())),
+            "single": {
+                "name": self.single.name,
+                "error": self.single.error,
+                "exposure": self.single.exposure,
+            },
+            "from_start": self.from_start,
+            "starts": [
+                {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in s.items()}
+                for s in self.starts
+            ],
+            "downsample": self.downsample,
+            "n_pixels": self.n_pixels,
+            "time_s": self.time_s,
+            "time_read_s": self.time_read_s,
+        }
         if manifold is not None:
             out["nearest"] = self.nearest(manifold)
         return out
@@ -159,29 +181,39 @@ class MatchResult(LatentMatch):
 
 # ------------------------------------------------------------------- search
 
+
 def _downsample_factor(resolution, downsample):
     if downsample is not None:
         f = int(downsample)
         if f < 1 or f > min(resolution):
-            raise InputError(f"`downsample` must be an integer in 1..{min(resolution)}, got {downsample!r}")
+            raise InputError(
+                f"`downsample` must be an integer in 1..{min(resolution)}, got {downsample!r}"
+            )
         return f
     return max(1, int(np.sqrt(resolution[0] * resolution[1] / SEARCH_PIXELS)))
 
 
 # -------------------------------------------------------------------- match
 
+
 def _basis_and_manifold(basis, manifold):
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
     if basis.p != 1:
-        raise InputError(f"basis {basis.folder} has {basis.p} targets {basis.targets}: match works on a "
-                         "basis of one manifold material")
+        raise InputError(
+            f"basis {basis.folder} has {basis.p} targets {basis.targets}: match works on a "
+            "basis of one manifold material"
+        )
     manifold = basis.check_manifold(manifold)
-    missing = [n for n, k in zip(manifold.names, basis.material_keys(manifold.names)) if not basis.has(k)]
+    missing = [
+        n for n, k in zip(manifold.names, basis.material_keys(manifold.names)) if not basis.has(k)
+    ]
     if missing:
-        raise InputError(f"basis {basis.folder} lacks the images of {len(missing)} of the manifold's "
-                         f"{manifold.n} materials ({', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}); "
-                         "match needs every material: render the full basis")
+        raise InputError(
+            f"basis {basis.folder} lacks the images of {len(missing)} of the manifold's "
+            f"{manifold.n} materials ({', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}); "
+            "match needs every material: render the full basis"
+        )
     return basis, manifold
 
 
@@ -209,6 +241,7 @@ class MatchSettings:
         Random latent points near the data scored (vectorised) to choose the starts; 0:
         start from the training points nearest to the best single material only.
     """
+
     loss: str = "rel_mse"
     exposure_free: bool = False
     prior: float = 0.0
@@ -265,8 +298,10 @@ def match(basis, target, mask=None, manifold=None, settings=None, **overrides):
     target = check_target(target, basis.resolution)
     weight = np.ones(target.shape[:2]) if mask is None else check_mask(mask, basis.resolution)
     if opts.exposure_free and not (np.abs(target) * weight[..., None]).any():
-        raise InputError("`target` is black wherever `mask` weighs it: an exposure-free match has no "
-                         "brightness to fit (give a target with light in it, or match without `exposure_free`)")
+        raise InputError(
+            "`target` is black wherever `mask` weighs it: an exposure-free match has no "
+            "brightness to fit (give a target with light in it, or match without `exposure_free`)"
+        )
     f = _downsample_factor(basis.resolution, opts.downsample) if opts.loss == "log" else 1
     t_read = basis.read([BASE] + basis.material_keys(manifold.names))
     full = image_error.objective(basis, manifold, target, weight, opts.loss, opts.exposure_free)
@@ -274,24 +309,44 @@ def match(basis, target, mask=None, manifold=None, settings=None, **overrides):
     if f > 1:
         wp = pool(weight[..., None], f)[..., 0]
         tp = masked_pool(target, weight[..., None], f)
-        search = image_error.objective(basis, manifold, tp, wp, opts.loss, opts.exposure_free, f, weight[..., None])
+        search = image_error.objective(
+            basis, manifold, tp, wp, opts.loss, opts.exposure_free, f, weight[..., None]
+        )
     runs = _search(manifold, search, full, opts, f)
     best, from_start, x = _winner(manifold, full, runs, opts.prior)
     _, w = manifold.weights(x)
     err, _, s = full(w)
-    image = compose(basis, basis.material_keys(manifold.names), w)[0]   # Eq. 13 (images already read)
+    image = compose(basis, basis.material_keys(manifold.names), w)[
+        0
+    ]  # Eq. 13 (images already read)
     var = max(float(manifold.variance(x)), 0.0)
-    return MatchResult(x=np.asarray(x, dtype=float), weights=w, error=float(err),
-                       rel_mse=masked_rel_mse(s * image, target, weight), exposure=float(s), variance=var,
-                       objective=float(err + opts.prior * var), single=best, from_start=from_start, starts=runs,
-                       image=image, names=list(manifold.names), loss=opts.loss, prior=float(opts.prior),
-                       exposure_free=bool(opts.exposure_free), downsample=f, n_pixels=int((weight > 0).sum()),
-                       time_s=time.perf_counter() - t0, time_read_s=t_read)
+    return MatchResult(
+        x=np.asarray(x, dtype=float),
+        weights=w,
+        error=float(err),
+        rel_mse=masked_rel_mse(s * image, target, weight),
+        exposure=float(s),
+        variance=var,
+        objective=float(err + opts.prior * var),
+        single=best,
+        from_start=from_start,
+        starts=runs,
+        image=image,
+        names=list(manifold.names),
+        loss=opts.loss,
+        prior=float(opts.prior),
+        exposure_free=bool(opts.exposure_free),
+        downsample=f,
+        n_pixels=int((weight > 0).sum()),
+        time_s=time.perf_counter() - t0,
+        time_read_s=t_read,
+    )
 
 
 def _search(manifold, search, full, opts, f):
     """The L-BFGS-B descents of :func:`match` on the ``search`` objective, from the best single
-    material and the best scanned points; with ``f > 1`` the best is refined on ``full``."""
+    material and the best scanned points; with ``f > 1`` the best is refined on ``full``.
+    """
     prior = opts.prior
     var_train = prior * manifold.variance(manifold.latent)
     best = int(np.argmin(search.batch(np.eye(manifold.n))[0] + var_train))
@@ -299,19 +354,26 @@ def _search(manifold, search, full, opts, f):
     X, scan_err = latent.scan(manifold, search, prior, bounds, opts.scan)
     # L-BFGS-B's small linear algebra is far slower on a BLAS thread pool than on one thread
     with threadpool_limits(1, user_api="blas"):
-        runs = [latent.descend(manifold, search, prior, x0, bounds, opts.max_iter)
-                for x0 in latent.start_points(manifold, best, X, scan_err, int(opts.starts))]
+        runs = [
+            latent.descend(manifold, search, prior, x0, bounds, opts.max_iter)
+            for x0 in latent.start_points(manifold, best, X, scan_err, int(opts.starts))
+        ]
         if f > 1:  # refine the best coarse point at full resolution
             i = int(np.argmin([r["objective"] for r in runs]))
             fine = latent.descend(manifold, full, prior, runs[i]["x"], bounds, opts.max_iter)
-            runs[i] = {**fine, "x0": runs[i]["x0"], "x_search": runs[i]["x"],
-                       "n_evaluations": runs[i]["n_evaluations"] + fine["n_evaluations"]}
+            runs[i] = {
+                **fine,
+                "x0": runs[i]["x0"],
+                "x_search": runs[i]["x"],
+                "n_evaluations": runs[i]["n_evaluations"] + fine["n_evaluations"],
+            }
     return runs
 
 
 def _winner(manifold, full, runs, prior):
     """The best single material, and the winner (an optimised point or a training material
-    alone, scored at full resolution): ``(SingleMatch, index of its run or None, x)``."""
+    alone, scored at full resolution): ``(SingleMatch, index of its run or None, x)``.
+    """
     var_train = prior * manifold.variance(manifold.latent)
     full_errs, full_scales = full.batch(np.eye(manifold.n))
     best = int(np.argmin(full_errs + var_train))
@@ -320,7 +382,9 @@ def _winner(manifold, full, runs, prior):
         w = manifold.weights(r["x"])[1]
         cand.append((full(w)[0] + prior * float(manifold.variance(r["x"])), j, r["x"]))
     _, from_start, x = min(cand, key=lambda c: c[0])
-    single = SingleMatch(manifold.names[best], best, float(full_errs[best]), float(full_scales[best]))
+    single = SingleMatch(
+        manifold.names[best], best, float(full_errs[best]), float(full_scales[best])
+    )
     return single, from_start, x
 
 
@@ -336,5 +400,15 @@ def single_material_errors(basis, target, mask=None, manifold=None, exposure_fre
     return obj.batch(np.eye(manifold.n))
 
 
-__all__ = ["match", "MatchSettings", "MatchResult", "SingleMatch", "InputError", "read_target", "read_mask",
-           "check_target", "check_mask", "single_material_errors"]
+__all__ = [
+    "match",
+    "MatchSettings",
+    "MatchResult",
+    "SingleMatch",
+    "InputError",
+    "read_target",
+    "read_mask",
+    "check_target",
+    "check_mask",
+    "single_material_errors",
+]

@@ -15,8 +15,8 @@ Exposure-free, both fit the blend's scale in closed form at every evaluation.
 import numpy as np
 from scipy.linalg import blas
 
-from .folder import BASE
 from ..imaging.metrics import REL_EPS
+from .folder import BASE
 
 LOSSES = ("rel_mse", "log")
 #: Rec. 709 luminance of linear RGB.
@@ -45,7 +45,8 @@ def masked_pool(img, weight, f, pooled_weight=None):
 
 def _luminance_rows(basis, names, pixels, f=1, weight=None):
     """Luminance of the base and material images over ``pixels`` as float64 (N + 1, P), each
-    first box-downsampled by ``f`` (weighted by the full-resolution mask ``weight`` (H, W, 1))."""
+    first box-downsampled by ``f`` (weighted by the full-resolution mask ``weight`` (H, W, 1)).
+    """
     keys = [BASE] + basis.material_keys(names)
     wp = pool(weight, f) if f > 1 else None
     out = np.empty((len(keys), int(pixels.sum())))
@@ -72,12 +73,14 @@ class RelativeMSE:
         self.e0 = 0.0
         total = 3.0 * weight.sum()
         for y in range(0, h, step):  # one band of image rows at a time: no (N + 1, P) copy
-            m = weight[y:y + step]
+            m = weight[y : y + step]
             sel = m > 0
-            r = target[y:y + step][sel].reshape(-1)
+            r = target[y : y + step][sel].reshape(-1)
             c = np.repeat(m[sel], 3) / (r * r + REL_EPS) / total
-            R = np.stack([img[y:y + step][sel].reshape(-1) for img in images]).astype(np.float64)
-            self.G = blas.dsyrk(1.0, R * np.sqrt(c), beta=1.0, c=self.G, overwrite_c=True)  # upper half
+            R = np.stack([img[y : y + step][sel].reshape(-1) for img in images]).astype(np.float64)
+            self.G = blas.dsyrk(
+                1.0, R * np.sqrt(c), beta=1.0, c=self.G, overwrite_c=True
+            )  # upper half
             self.h += R @ (c * r)
             self.e0 += float(c @ (r * r))
         self.G = np.triu(self.G) + np.triu(self.G, 1).T
@@ -96,10 +99,13 @@ class RelativeMSE:
     def batch(self, W):
         """Errors and exposures of many weight vectors W (M, N) at once."""
         U = np.concatenate((np.ones((len(W), 1)), W), axis=1)
-        a = ((U @ self.G) * U).sum(axis=1)   # BLAS: 15x faster than the three-operand einsum
+        a = ((U @ self.G) * U).sum(axis=1)  # BLAS: 15x faster than the three-operand einsum
         b = U @ self.h
-        s = np.where(a > 0, np.maximum(b / np.where(a > 0, a, 1.0), 0.0), 1.0) if self.exposure_free \
+        s = (
+            np.where(a > 0, np.maximum(b / np.where(a > 0, a, 1.0), 0.0), 1.0)
+            if self.exposure_free
             else np.ones(len(W))
+        )
         return np.maximum(s * s * a - 2.0 * s * b + self.e0, 0.0), s
 
 
@@ -112,8 +118,8 @@ class LogLuminanceMSE:
     """
 
     def __init__(self, lum_rows, target, weight, exposure_free, eps=LOG_EPS):
-        self.A = lum_rows                                # (N + 1, P) float64
-        self.A32 = lum_rows.astype(np.float32)           # for batches (ranking)
+        self.A = lum_rows  # (N + 1, P) float64
+        self.A32 = lum_rows.astype(np.float32)  # for batches (ranking)
         self.m = weight / weight.sum()
         self.eps = eps
         lum_r = np.maximum(target @ LUMINANCE, 0.0)
@@ -143,9 +149,12 @@ class LogLuminanceMSE:
         """Errors and exposures of many weight vectors W (M, N) at once (in float32)."""
         errs, norms = [], []
         for s in range(0, len(W), chunk):
-            lum = self.A32[0] + W[s:s + chunk].astype(np.float32) @ self.A32[1:]
+            lum = self.A32[0] + W[s : s + chunk].astype(np.float32) @ self.A32[1:]
             k = self._norm(lum)
-            d = np.log(np.maximum(lum, 0.0) / k[:, None].astype(np.float32) + np.float32(self.eps)) - self.lr32
+            d = (
+                np.log(np.maximum(lum, 0.0) / k[:, None].astype(np.float32) + np.float32(self.eps))
+                - self.lr32
+            )
             errs.append((d * d) @ self.m)
             norms.append(k)
         return np.concatenate(errs), self.mean_r / np.concatenate(norms)

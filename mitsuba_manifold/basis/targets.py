@@ -22,18 +22,26 @@ def check_target(target, resolution, what="target"):
     arr = np.asarray(target)
     w, h = resolution
     if arr.ndim != 3 or arr.shape[2] != 3:
-        raise InputError(f"{what} must be an RGB image of shape (height, width, 3), got {arr.shape}")
+        raise InputError(
+            f"{what} must be an RGB image of shape (height, width, 3), got {arr.shape}"
+        )
     if arr.shape[:2] != (h, w):
-        raise InputError(f"{what} is {arr.shape[1]}x{arr.shape[0]}, the basis is {w}x{h}: render or "
-                         f"resize the {what} to the basis resolution")
+        raise InputError(
+            f"{what} is {arr.shape[1]}x{arr.shape[0]}, the basis is {w}x{h}: render or "
+            f"resize the {what} to the basis resolution"
+        )
     bad = ~np.isfinite(arr).all(axis=-1)
     if bad.any():
-        raise InputError(f"{what} has {int(bad.sum())} pixels with NaN or Inf values; fix them or "
-                         "leave them out of the image")
+        raise InputError(
+            f"{what} has {int(bad.sum())} pixels with NaN or Inf values; fix them or "
+            "leave them out of the image"
+        )
     if (arr < 0).any() and not (arr > 0).any():
-        raise InputError(f"{what} holds only negative values (the lowest {float(arr.min()):.3g}) "
-                         "and no light: a rendered or photographed target has positive linear RGB "
-                         "(a negated image?)")
+        raise InputError(
+            f"{what} holds only negative values (the lowest {float(arr.min()):.3g}) "
+            "and no light: a rendered or photographed target has positive linear RGB "
+            "(a negated image?)"
+        )
     return arr.astype(np.float64)
 
 
@@ -44,9 +52,11 @@ def check_mask(mask, resolution, what="mask"):
     if arr.ndim == 3:
         arr = arr.mean(axis=-1)
     if arr.shape != (h, w):
-        raise InputError(f"{what} is {arr.shape[1] if arr.ndim == 2 else arr.shape}"
-                         f"{'x' + str(arr.shape[0]) if arr.ndim == 2 else ''}, the target is {w}x{h}: "
-                         "they must have the same size")
+        raise InputError(
+            f"{what} is {arr.shape[1] if arr.ndim == 2 else arr.shape}"
+            f"{'x' + str(arr.shape[0]) if arr.ndim == 2 else ''}, the target is {w}x{h}: "
+            "they must have the same size"
+        )
     if not np.isfinite(arr).all():
         raise InputError(f"{what} has NaN or Inf values")
     arr = np.clip(arr, 0.0, 1.0)
@@ -80,7 +90,8 @@ def read_target(path, resolution=None):
 
 def read_mask(path, resolution=None):
     """A mask image (PNG/JPEG grey or RGB: value / largest code, 255 or 65535; EXR: mean of
-    R, G, B) as (H, W); ``resolution`` as for :func:`read_target`."""
+    R, G, B) as (H, W); ``resolution`` as for :func:`read_target`.
+    """
     path = str(path)
     if path.lower().endswith(".exr"):
         _exr_size(path, resolution, "mask")
@@ -95,7 +106,8 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 def _png_header(path):
     """``(width, height, bit depth, colour type, interlace)`` from a PNG's IHDR chunk, or None
-    (not a PNG)."""
+    (not a PNG).
+    """
     with open(path, "rb") as f:
         head = f.read(29)
     if len(head) < 29 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
@@ -107,13 +119,21 @@ def _png_header(path):
 #: Samples per pixel of each PNG colour type (grey, RGB, palette, grey + alpha, RGBA).
 PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
 #: The seven passes of Adam7 interlacing: (x0, y0, dx, dy).
-ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2),
-         (0, 1, 1, 2))
+ADAM7 = (
+    (0, 0, 8, 8),
+    (4, 0, 8, 8),
+    (0, 4, 4, 8),
+    (2, 0, 4, 4),
+    (0, 2, 2, 4),
+    (1, 0, 2, 2),
+    (0, 1, 1, 2),
+)
 
 
 def _png_data_size(width, height, depth, colour, interlace):
     """Bytes of a PNG's decompressed image data: one filter byte and the packed samples per row
-    (of each Adam7 pass, when interlaced)."""
+    (of each Adam7 pass, when interlaced).
+    """
     bits = depth * PNG_CHANNELS.get(colour, 0)
     passes = ADAM7 if interlace else ((0, 0, 1, 1),)
     total = 0
@@ -126,7 +146,8 @@ def _png_data_size(width, height, depth, colour, interlace):
 
 def _check_png_data(what, path, header):
     """Refuse a PNG whose image data holds fewer rows than its header says (Pillow would decode
-    the missing rows as black): the IDAT chunks' zlib stream is decompressed and counted."""
+    the missing rows as black): the IDAT chunks' zlib stream is decompressed and counted.
+    """
     import zlib
 
     expected, got = _png_data_size(*header), 0
@@ -146,12 +167,14 @@ def _check_png_data(what, path, header):
             try:
                 got += len(inflate.decompress(f.read(length)))
             except zlib.error:
-                break   # Pillow reports corrupt data itself
+                break  # Pillow reports corrupt data itself
             f.seek(4, 1)
     if got < expected:
-        raise InputError(f"{what} {path}: truncated PNG (its image data holds {got} of the "
-                         f"{expected} bytes its header announces, the rest would read as black); "
-                         "save the image again")
+        raise InputError(
+            f"{what} {path}: truncated PNG (its image data holds {got} of the "
+            f"{expected} bytes its header announces, the rest would read as black); "
+            "save the image again"
+        )
 
 
 def _check_size(what, path, size, resolution):
@@ -160,8 +183,10 @@ def _check_size(what, path, size, resolution):
 
     w, h = (int(v) for v in size)
     if resolution is not None and (w, h) != tuple(resolution):
-        raise InputError(f"{what} {path} is {w}x{h}, the basis is {resolution[0]}x{resolution[1]}: render "
-                         f"or resize the {what} to the basis resolution")
+        raise InputError(
+            f"{what} {path} is {w}x{h}, the basis is {resolution[0]}x{resolution[1]}: render "
+            f"or resize the {what} to the basis resolution"
+        )
     validate.fits_in_memory(what, 4 * w * h * 3 * 8, f"the {w}x{h} image {path}")
 
 
@@ -172,7 +197,8 @@ def _exr_size(path, resolution, what):
 
 def _read_coded(path, what, resolution=None):
     """The integer codes of a PNG/JPEG as float64 (H, W, C) (C: 1 grey, 3 colour) and the
-    largest code (255, or 65535 for a 16-bit greyscale PNG); the size checked before decoding."""
+    largest code (255, or 65535 for a 16-bit greyscale PNG); the size checked before decoding.
+    """
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -180,15 +206,19 @@ def _read_coded(path, what, resolution=None):
         if png is not None:
             _check_size(what, path, png[:2], resolution)
             if png[2] == 16 and png[3] != 0:
-                raise InputError(f"{what} {path} is a 16-bit PNG with colour or alpha (colour type {png[3]}), "
-                                 "which cannot be read at its depth here (it would be cut to 8 bits): save it "
-                                 "as a linear EXR, an 8-bit PNG or a 16-bit greyscale PNG without alpha")
+                raise InputError(
+                    f"{what} {path} is a 16-bit PNG with colour or alpha (colour type {png[3]}), "
+                    "which cannot be read at its depth here (it would be cut to 8 bits): save it "
+                    "as a linear EXR, an 8-bit PNG or a 16-bit greyscale PNG without alpha"
+                )
             _check_png_data(what, path, png)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             with Image.open(path) as im:
                 _check_size(what, path, im.size, resolution)
-                if im.mode.startswith("I;16") or (im.mode == "I" and png is not None and png[2] == 16):
+                if im.mode.startswith("I;16") or (
+                    im.mode == "I" and png is not None and png[2] == 16
+                ):
                     return np.asarray(im, dtype=np.float64)[..., None], 65535
                 if im.mode in ("1", "L", "LA", "I", "F"):
                     return np.asarray(im.convert("L"), dtype=np.float64)[..., None], 255

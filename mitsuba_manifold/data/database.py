@@ -18,28 +18,55 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import gram as gram_matrix, merl
-from .sources import SET_NAMES, builtin, combine, folder_sources
-from .surrogate import FITS_PATH, SGD_FIELDS, bin_geometry, load_sgd_fits, sgd_reflectance, tabulate_sgd
 from .._util import checks
 from .._util.atomic import sweep, write_bytes
+from .._util.cache import adopt_hash, file_hash, file_identity, key_hash, npy_cache
 from .._util.locking import FolderLock
 from .._util.ownership import owned_tables, pending_tables, write_table_record
 from .._util.workers import owned_pool
-from .._util.cache import adopt_hash, file_hash, file_identity, key_hash, npy_cache
 from ..errors import FormatError, InputError, MissingFileError, UnknownMaterialError, did_you_mean
+from . import gram as gram_matrix
+from . import merl
+from .sources import SET_NAMES, builtin, combine, folder_sources
+from .surrogate import (
+    FITS_PATH,
+    SGD_FIELDS,
+    bin_geometry,
+    load_sgd_fits,
+    sgd_reflectance,
+    tabulate_sgd,
+)
 
-__all__ = ["Database", "make_database", "cache_folder", "albedo_weights", "CACHE_NAME", "FEATURES",
-           "SourceList", "TableRows", "write_database", "open_spec", "split_spec", "database_cache", "builtin_cache", "MADE_DTYPE",
-           "FITS_PATH", "SGD_FIELDS", "load_sgd_fits", "sgd_reflectance", "tabulate_sgd"]
+__all__ = [
+    "Database",
+    "make_database",
+    "cache_folder",
+    "albedo_weights",
+    "CACHE_NAME",
+    "FEATURES",
+    "SourceList",
+    "TableRows",
+    "write_database",
+    "open_spec",
+    "split_spec",
+    "database_cache",
+    "builtin_cache",
+    "MADE_DTYPE",
+    "FITS_PATH",
+    "SGD_FIELDS",
+    "load_sgd_fits",
+    "sgd_reflectance",
+    "tabulate_sgd",
+]
 
 CACHE_NAME = ".manifold-cache"
 #: Feature transforms of a manifold's fit (:data:`gram.FEATURES` has the metrics' ``coslog`` too).
 FEATURES = ("raw", "log")
 
 
-def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=0, progress=False,
-                  force=False):
+def make_database(
+    out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=0, progress=False, force=False
+):
     """Write the built-in surrogate database: one ``<name>.binary`` per material.
 
     Parameters
@@ -77,10 +104,14 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
         A folder made with other settings, or tables in it this function did not make (no ``force``).
     """
     fits = load_sgd_fits()
-    names = list(fits) if materials is None else list(dict.fromkeys(materials))   # a repeated name: one table
+    names = (
+        list(fits) if materials is None else list(dict.fromkeys(materials))
+    )  # a repeated name: one table
     unknown = [n for n in names if n not in fits]
     if unknown:
-        raise FormatError(f"unknown material(s) {unknown}{did_you_mean(unknown[0], fits)}; known: {', '.join(fits)}")
+        raise FormatError(
+            f"unknown material(s) {unknown}{did_you_mean(unknown[0], fits)}; known: {', '.join(fits)}"
+        )
     workers = min(len(names), os.cpu_count() or 1)
     dims = merl.table_resolution(dims, "`dims`", workers=workers)
     if not (np.isfinite(noise) and noise >= 0):
@@ -93,23 +124,49 @@ def make_database(out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=
     if os.path.isdir(out_dir):  # refuse before locking: a refused run adds nothing to the folder
         owned_tables(out_dir, settings, names, force)
     with FolderLock(out_dir, "database folder"):
-        for folder in (out_dir, cache_folder(out_dir)):   # temporaries of killed writers (a killed run's)
+        for folder in (
+            out_dir,
+            cache_folder(out_dir),
+        ):  # temporaries of killed writers (a killed run's)
             sweep(folder)
         made, was_pending = owned_tables(out_dir, settings, names, force), pending_tables(out_dir)
         paths = [os.path.join(out_dir, name + ".binary") for name in names]
-        todo = [(name, path) for name, path in zip(names, paths) if name not in made or not _valid_table(path, dims)
-                or (name in was_pending and not _has_reflectance(path, cache_folder(out_dir)))]
+        todo = [
+            (name, path)
+            for name, path in zip(names, paths)
+            if name not in made
+            or not _valid_table(path, dims)
+            or (name in was_pending and not _has_reflectance(path, cache_folder(out_dir)))
+        ]
         made -= {name for name, _ in todo}
-        pending = {name for name, _ in todo}   # listed before they are written: a killed run's are its own
+        pending = {
+            name for name, _ in todo
+        }  # listed before they are written: a killed run's are its own
         write_table_record(out_dir, settings, made, pending)
-        jobs = [(fits[name], path, dims, float(noise), int(seed), name, cache_folder(out_dir)) for name, path in todo]
-        _tabulate(jobs, workers, made, lambda: write_table_record(out_dir, settings, made, pending - made),
-                  len(names), progress)
+        jobs = [
+            (fits[name], path, dims, float(noise), int(seed), name, cache_folder(out_dir))
+            for name, path in todo
+        ]
+        _tabulate(
+            jobs,
+            workers,
+            made,
+            lambda: write_table_record(out_dir, settings, made, pending - made),
+            len(names),
+            progress,
+        )
     return paths
 
 
-def write_database(out_dir, sources=("merl",), dims=merl.MERL_DIMS, materials=None, export=False, progress=False,
-                   force=False):
+def write_database(
+    out_dir,
+    sources=("merl",),
+    dims=merl.MERL_DIMS,
+    materials=None,
+    export=False,
+    progress=False,
+    force=False,
+):
     """Write a database folder taking its materials from ``sources`` (built-in set names and folders).
 
     Without ``export`` the folder gets a ``sources.json`` (:class:`SourceList`) naming them and
@@ -125,20 +182,28 @@ def write_database(out_dir, sources=("merl",), dims=merl.MERL_DIMS, materials=No
 
     dims = merl.table_resolution(dims, "`dims`")
     out_dir = os.path.abspath(os.fspath(out_dir))
-    sets = tuple(s if s in SET_NAMES else os.path.abspath(os.fspath(s)) for s in dict.fromkeys(sources))
+    sets = tuple(
+        s if s in SET_NAMES else os.path.abspath(os.fspath(s)) for s in dict.fromkeys(sources)
+    )
     if not sets:
-        raise InputError("give at least one source (a built-in set or a folder) to make a database from")
+        raise InputError(
+            "give at least one source (a built-in set or a folder) to make a database from"
+        )
     groups = {s: builtin(s) if s in SET_NAMES else open_spec(s, dims).sources for s in sets}
     found = combine(groups) if len(groups) > 1 else list(next(iter(groups.values())))
     available = {s.name: s for s in found}
     names = list(available) if materials is None else list(dict.fromkeys(materials))
     unknown = [n for n in names if n not in available]
     if unknown:
-        raise UnknownMaterialError(f"unknown material(s) {unknown}{did_you_mean(unknown[0], list(available))} "
-                                   f"in {', '.join(sets)}")
+        raise UnknownMaterialError(
+            f"unknown material(s) {unknown}{did_you_mean(unknown[0], list(available))} "
+            f"in {', '.join(sets)}"
+        )
     if materials is not None and not export:
-        raise InputError("`materials` selects the tables to export; without `export` a database holds every "
-                         "material of its sources (choose them when fitting)")
+        raise InputError(
+            "`materials` selects the tables to export; without `export` a database holds every "
+            "material of its sources (choose them when fitting)"
+        )
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise FormatError(f"database folder {out_dir} is a file")
     listing = os.path.join(out_dir, SOURCES_NAME)
@@ -160,15 +225,22 @@ def write_database(out_dir, sources=("merl",), dims=merl.MERL_DIMS, materials=No
 
 def _tabulate(jobs, workers, made, record, total, progress):
     """Run the table jobs (one process per core for big tables), adding each finished table's name
-    to ``made`` and calling ``record()``; if interrupted, also the tables finished meanwhile."""
+    to ``made`` and calling ``record()``; if interrupted, also the tables finished meanwhile.
+    """
     from tqdm import tqdm
 
     dims = jobs[0][2] if jobs else None
     before = {job[5]: _inode(job[1]) for job in jobs}
-    with tqdm(total=total, initial=total - len(jobs), desc="tabulating", unit="table", disable=not progress) as bar:
+    with tqdm(
+        total=total,
+        initial=total - len(jobs),
+        desc="tabulating",
+        unit="table",
+        disable=not progress,
+    ) as bar:
         try:
             if len(jobs) > 1 and workers > 1 and np.prod(dims) >= 1 << 16:
-                with owned_pool(min(workers, len(jobs))) as pool:   # workers end with this process
+                with owned_pool(min(workers, len(jobs))) as pool:  # workers end with this process
                     for name, path, identity, digest in pool.imap_unordered(_write_sgd_table, jobs):
                         adopt_hash(path, identity, digest)
                         made.add(name)
@@ -180,14 +252,20 @@ def _tabulate(jobs, workers, made, record, total, progress):
                     record()
                     bar.update()
         finally:
-            finished = {job[5] for job in jobs if job[5] not in made and _inode(job[1]) != before[job[5]]
-                        and _valid_table(job[1], dims) and _has_reflectance(job[1], job[6])}
+            finished = {
+                job[5]
+                for job in jobs
+                if job[5] not in made
+                and _inode(job[1]) != before[job[5]]
+                and _valid_table(job[1], dims)
+                and _has_reflectance(job[1], job[6])
+            }
             if finished:
                 made |= finished
                 record()
 
 
-def _has_reflectance(path, cache):   # else a worker stopped in between: the next run makes it again
+def _has_reflectance(path, cache):  # else a worker stopped in between: the next run makes it again
     return os.path.exists(os.path.join(cache, f"{file_hash(path)}.refl.npy"))
 
 
@@ -220,14 +298,19 @@ def _write_sgd_table(job):
         raw = np.where(raw >= 0, raw * factor, raw)
     merl.write_binary(path, raw)
     digest = file_hash(path)
-    npy_cache(os.path.join(cache, f"{digest}.refl.npy"), lambda: _filled(raw, dims),
-              shape=(3,) + tuple(dims), dtype=np.float32)
+    npy_cache(
+        os.path.join(cache, f"{digest}.refl.npy"),
+        lambda: _filled(raw, dims),
+        shape=(3,) + tuple(dims),
+        dtype=np.float32,
+    )
     return name, path, file_identity(path), digest
 
 
 def _filled(raw, dims):
     """:func:`merl.filled_reflectance` of a table measured in every bin above the horizon (as tabulated
-    ones are), without its search for missing bins (used when some are missing)."""
+    ones are), without its search for missing bins (used when some are missing).
+    """
     above = bin_geometry(tuple(int(v) for v in dims))[0]
     refl = merl.reflectance(raw, dtype=np.float32)
     if (refl[:, above] < 0).any():
@@ -255,10 +338,12 @@ def _progress(items, enabled, desc):
     if not enabled:
         return items
     from tqdm import tqdm
+
     return tqdm(items, desc=desc, unit="table")
 
 
 # ----------------------------------------------------------------------- albedo
+
 
 def albedo_weights(dims=merl.MERL_DIMS):
     """Quadrature weights ``q`` over bins such that ``sum(q * f)`` is the bihemispherical albedo.
@@ -298,8 +383,11 @@ def _size(dims):
 
 def builtin_cache():
     """Cache folder of the built-in sets' tables: ``$MITSUBA_MANIFOLD_CACHE/builtin`` or
-    ``~/.cache/mitsuba_manifold/builtin`` (created)."""
-    root = os.environ.get(CACHE_ENV) or os.path.join(os.path.expanduser("~"), ".cache", "mitsuba_manifold")
+    ``~/.cache/mitsuba_manifold/builtin`` (created).
+    """
+    root = os.environ.get(CACHE_ENV) or os.path.join(
+        os.path.expanduser("~"), ".cache", "mitsuba_manifold"
+    )
     folder = os.path.join(root, "builtin")
     os.makedirs(folder, exist_ok=True)
     return folder
@@ -308,7 +396,8 @@ def builtin_cache():
 def made_table(cache_dir, digest, build, shape):
     """A table made from a source (not a file), cached as ``<digest>.refl16.npy`` (:data:`MADE_DTYPE`)
     or, where its values exceed that range, ``<digest>.refl.npy`` (float32); returned as float32, as cached
-    (rounded to the cache's precision when just made)."""
+    (rounded to the cache's precision when just made).
+    """
     half = os.path.join(cache_dir, f"{digest}.refl16.npy")
     full = os.path.join(cache_dir, f"{digest}.refl.npy")
     if os.path.exists(full):
@@ -326,7 +415,9 @@ def made_table(cache_dir, digest, build, shape):
         value = npy_cache(half, build_half, shape=shape, dtype=MADE_DTYPE)
     except OverflowError:
         return npy_cache(full, lambda: made[0], shape=shape, dtype=np.float32, mmap=True)
-    return value.astype(np.float32)   # the cached precision, also when just made: the same values every run
+    return value.astype(
+        np.float32
+    )  # the cached precision, also when just made: the same values every run
 
 
 @dataclass(frozen=True)
@@ -348,8 +439,10 @@ class SourceList:
     def check(self, where):
         for s in self.sets:
             if s not in SET_NAMES and not os.path.isabs(s):
-                raise FormatError(f"{where}: source {s!r} is neither a built-in set ({', '.join(SET_NAMES)}) "
-                                  "nor an absolute folder path")
+                raise FormatError(
+                    f"{where}: source {s!r} is neither a built-in set ({', '.join(SET_NAMES)}) "
+                    "nor an absolute folder path"
+                )
         merl.table_resolution(self.dims, f"{where}: dims")
         return self
 
@@ -362,12 +455,15 @@ class SourceList:
                 raise ValueError(f"format is {data.get('format')!r}, not {cls.FORMAT!r}")
             return cls(tuple(data["from"]), tuple(int(v) for v in data["dims"])).check(path)
         except (OSError, ValueError, KeyError, TypeError) as e:
-            raise FormatError(f"{path}: not a database's source list ({e}); remake it with "
-                              "tools/make_database.py") from None
+            raise FormatError(
+                f"{path}: not a database's source list ({e}); remake it with tools/make_database.py"
+            ) from None
 
     def write(self, path):
-        text = json.dumps({"format": self.FORMAT, "version": 1, "from": list(self.sets),
-                           "dims": list(self.dims)}, indent=1)
+        text = json.dumps(
+            {"format": self.FORMAT, "version": 1, "from": list(self.sets), "dims": list(self.dims)},
+            indent=1,
+        )
         write_bytes(path, (text + "\n").encode())
 
 
@@ -379,7 +475,7 @@ class DatabaseSpec:
     label: str
     sources: tuple
     dims: tuple
-    directory: object = None   # the folder, or None for a built-in set
+    directory: object = None  # the folder, or None for a built-in set
 
     def cache_dir(self):
         return cache_folder(self.directory) if self.directory else builtin_cache()
@@ -403,7 +499,9 @@ def open_spec(spec, dims=None):
     """
     base, suffix = split_spec(spec)
     if dims is not None and suffix is not None and tuple(dims) != suffix:
-        raise InputError(f"database {spec}: its resolution suffix and `dims` {_size(dims)} differ; give one")
+        raise InputError(
+            f"database {spec}: its resolution suffix and `dims` {_size(dims)} differ; give one"
+        )
     dims = tuple(int(v) for v in dims) if dims is not None else suffix
     if base in SET_NAMES:
         dims = merl.table_resolution(dims or merl.MERL_DIMS, f"database {spec}: resolution")
@@ -413,8 +511,9 @@ def open_spec(spec, dims=None):
     if not os.path.isdir(folder):
         if os.path.exists(folder):
             raise MissingFileError(f"database folder {folder} is a file, not a folder of tables")
-        raise MissingFileError(f"database folder {folder} does not exist (built-in databases: "
-                               f"{', '.join(SET_NAMES)})")
+        raise MissingFileError(
+            f"database folder {folder} does not exist (built-in databases: {', '.join(SET_NAMES)})"
+        )
     own = folder_sources(folder)
     listed = os.path.join(folder, SOURCES_NAME)
     groups, natural = {folder: own}, merl.MERL_DIMS
@@ -426,8 +525,12 @@ def open_spec(spec, dims=None):
     found = combine(groups) if len(groups) > 1 else own
     binary = {s.native_dims() for s in found if s.kind == "binary"}
     if len(binary) > 1:
-        raise FormatError(f"database {folder}: " + merl.resolution_mismatch(
-            {s.name: s.native_dims() for s in found if s.kind == "binary"}))
+        raise FormatError(
+            f"database {folder}: "
+            + merl.resolution_mismatch(
+                {s.name: s.native_dims() for s in found if s.kind == "binary"}
+            )
+        )
     if binary:
         natural = binary.pop()
     dims = merl.table_resolution(dims or natural, f"database {spec}: resolution")
@@ -437,7 +540,8 @@ def open_spec(spec, dims=None):
 
 def database_cache(spec):
     """The cache folder of the database ``spec`` (as a manifold records it), or None when it is
-    a folder that is gone (creating it would make an empty database folder)."""
+    a folder that is gone (creating it would make an empty database folder).
+    """
     base, _ = split_spec(spec)
     if base in SET_NAMES:
         return builtin_cache()
@@ -451,12 +555,13 @@ def database_cache(spec):
 
 # --------------------------------------------------------------------- database
 
+
 class TableRows(np.ndarray):
     """Interleaved tables made in memory (:meth:`Database.material_rows` of a built-in set);
-    ``key``: the content hash that names them (a cached file's name otherwise)."""
+    ``key``: the content hash that names them (a cached file's name otherwise).
+    """
 
     key = None
-
 
 
 class Database:
@@ -502,30 +607,44 @@ class Database:
     def __init__(self, folder, names=None, dims=None):
         if isinstance(folder, (str, os.PathLike)) and os.path.isfile(folder):
             folder = os.path.abspath(os.fspath(folder))
-            raise FormatError(f"database {folder} is a file, not a folder; pass the folder "
-                              f"holding the tables ({os.path.dirname(folder)})")
+            raise FormatError(
+                f"database {folder} is a file, not a folder; pass the folder "
+                f"holding the tables ({os.path.dirname(folder)})"
+            )
         spec = open_spec(folder, dims)
         available = {s.name: s for s in spec.sources}
         if names is None:
             names = [s.name for s in spec.sources]
             if not names:
-                raise FormatError(f"database folder {spec.label} holds no tables (.binary, .bsdf, .h5 or .npz files)")
+                raise FormatError(
+                    f"database folder {spec.label} holds no tables (.binary, .bsdf, .h5 or .npz files)"
+                )
         else:
-            if isinstance(names, str):   # "chrome, steel": a comma-separated list
+            if isinstance(names, str):  # "chrome, steel": a comma-separated list
                 names = [n.strip() for n in names.split(",") if n.strip()]
             names = list(names)
             label = spec.label
             if not names:
-                raise FormatError(f"database {label}: `names` is empty; give at least one material name "
-                                  "(or None for every material of the database)")
-            bad = [n for n in names if not isinstance(n, str) or not n or "/" in n or os.sep in n or "\0" in n]
+                raise FormatError(
+                    f"database {label}: `names` is empty; give at least one material name "
+                    "(or None for every material of the database)"
+                )
+            bad = [
+                n
+                for n in names
+                if not isinstance(n, str) or not n or "/" in n or os.sep in n or "\0" in n
+            ]
             if bad:
-                raise FormatError(f"database {label}: material names {bad} are not file names of materials "
-                                  "(a name is '<name>' of '<name>.binary', without '/')")
+                raise FormatError(
+                    f"database {label}: material names {bad} are not file names of materials "
+                    "(a name is '<name>' of '<name>.binary', without '/')"
+                )
             missing = [n for n in names if n not in available]
             if missing:
-                raise UnknownMaterialError(f"`names`: database {label} has no table for {missing}"
-                                           f"{did_you_mean(missing[0], list(available))}")
+                raise UnknownMaterialError(
+                    f"`names`: database {label} has no table for {missing}"
+                    f"{did_you_mean(missing[0], list(available))}"
+                )
             if len(set(names)) != len(names):
                 raise FormatError(f"database {label}: material names repeat in {names}")
         self.names = names
@@ -539,8 +658,10 @@ class Database:
         if not self.files_only:
             for s in self.sources.values():
                 if s.kind == "binary" and s.native_dims() != self.dims:
-                    raise FormatError(f"database {self.label}: {s.path} is {_size(s.native_dims())}, the other "
-                                      f"tables {_size(self.dims)}; use tables of one resolution")
+                    raise FormatError(
+                        f"database {self.label}: {s.path} is {_size(s.native_dims())}, the other "
+                        f"tables {_size(self.dims)}; use tables of one resolution"
+                    )
 
     # -- files and caches
     def path(self, name):
@@ -552,12 +673,14 @@ class Database:
         try:
             return self.names.index(name)
         except ValueError:
-            raise UnknownMaterialError(f"unknown material {name!r} in database {self.label} "
-                           f"({len(self.names)} materials)") from None
+            raise UnknownMaterialError(
+                f"unknown material {name!r} in database {self.label} ({len(self.names)} materials)"
+            ) from None
 
     def hash(self, name):
         """Content hash of a material's table: the SHA-256 of its ``.binary`` file, or of what the
-        table is made from (network weights, fit, measured file) and the resolution."""
+        table is made from (network weights, fit, measured file) and the resolution.
+        """
         self.index(name)
         return self.sources[name].digest(self.dims)
 
@@ -578,7 +701,9 @@ class Database:
         digest = self.hash(name)
         if source.kind == "binary":
             cached = os.path.join(self.cache_dir, f"{digest}.refl.npy")
-            return npy_cache(cached, lambda: source.table(self.dims), shape=shape, dtype=np.float32, mmap=mmap)
+            return npy_cache(
+                cached, lambda: source.table(self.dims), shape=shape, dtype=np.float32, mmap=mmap
+            )
         return made_table(self.cache_dir, digest, lambda: source.table(self.dims), shape)
 
     def stack(self, names=None, progress=False):
@@ -617,20 +742,30 @@ class Database:
         path = os.path.join(self.cache_dir, f"{key}.rows-v1-{len(names)}x{n_pad}.npy")
 
         def write(tmp):
-            out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(bins, 3, n_pad))
+            out = np.lib.format.open_memmap(
+                tmp, mode="w+", dtype=np.float32, shape=(bins, 3, n_pad)
+            )
             tables = [self.reflectance(n).reshape(3, bins) for n in names]
             step = 1 << 15
             block = np.zeros((3, n_pad, step), dtype=np.float32)
             for start in range(0, bins, step):
                 stop = min(bins, start + step)
                 for k, t in enumerate(tables):
-                    block[:, k, :stop - start] = t[:, start:stop]
-                out[start:stop] = block[:, :, :stop - start].transpose(2, 0, 1)
+                    block[:, k, : stop - start] = t[:, start:stop]
+                out[start:stop] = block[:, :, : stop - start].transpose(2, 0, 1)
             out.flush()
             del out
 
-        return npy_cache(path, write=write, shape=(bins, 3, n_pad), dtype=np.float32, mmap=True,
-                         touch=True, keep=keep, marker=".rows-v1-")
+        return npy_cache(
+            path,
+            write=write,
+            shape=(bins, 3, n_pad),
+            dtype=np.float32,
+            mmap=True,
+            touch=True,
+            keep=keep,
+            marker=".rows-v1-",
+        )
 
     def albedo(self, names=None, tables=None):
         """Bihemispherical albedo per material and channel, shape ``(N, 3)``.
@@ -642,7 +777,9 @@ class Database:
         rows = tables if tables is not None else (self.reflectance(n) for n in names)
         return np.stack([np.asarray(t).reshape(3, -1) @ q for t in rows])
 
-    def gram(self, names=None, features="raw", block=1 << 16, tables=None, progress=False, raw=False):
+    def gram(
+        self, names=None, features="raw", block=1 << 16, tables=None, progress=False, raw=False
+    ):
         """Mean table and Gram matrix of the mean-subtracted observations (:func:`gram.gram`).
 
         ``S = Z Z^T`` where row i of ``Z`` is material i's table (in the feature space)

@@ -35,8 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import merl
 from ..errors import InputError
+from . import merl
 
 #: Bins per block in the blockwise products (memory: a block of float64 features per table).
 BLOCK = 1 << 16
@@ -46,7 +46,7 @@ BLOCK = 1 << 16
 def _measure(dims):
     """Per-bin ``mu`` (shape ``dims``, sum 1) and ``cos_i cos_o`` at the bin centres."""
     n_h, n_d, n_p = dims
-    dth = np.diff((np.arange(n_h + 1) / n_h) ** 2 * (np.pi / 2))     # theta_h bins: uniform in sqrt
+    dth = np.diff((np.arange(n_h + 1) / n_h) ** 2 * (np.pi / 2))  # theta_h bins: uniform in sqrt
     th, td, pd = merl.bin_centres(dims)
     wi, wo = merl.directions(th, td, pd)
     above = merl.above_horizon(dims)
@@ -77,11 +77,15 @@ class Quadrature:
         dims = tuple(int(v) for v in dims)
         stride = tuple(int(s) for s in stride)
         if len(dims) != 3 or min(dims) < 1 or len(stride) != 3 or min(stride) < 1:
-            raise InputError(f"`stride` must be 3 integers >= 1 for tables of 3 dimensions, got {stride} for {dims}")
+            raise InputError(
+                f"`stride` must be 3 integers >= 1 for tables of 3 dimensions, got {stride} for {dims}"
+            )
         mu, cos = _measure(dims)
         idx = np.indices(dims)
-        cell = np.ravel_multi_index(tuple(i // s for i, s in zip(idx, stride)),
-                                    tuple(-(-n // s) for n, s in zip(dims, stride))).ravel()
+        cell = np.ravel_multi_index(
+            tuple(i // s for i, s in zip(idx, stride)),
+            tuple(-(-n // s) for n, s in zip(dims, stride)),
+        ).ravel()
         mass = np.bincount(cell, weights=mu.ravel())
         # representative: the bin nearest the cell's middle among those with weight (above the horizon)
         off = sum(np.abs(i % s - (s - 1) / 2) for i, s in zip(idx, stride)).ravel()
@@ -99,7 +103,9 @@ class Quadrature:
         """The quadrature in consecutive pieces of ``size`` values (for blockwise sums)."""
         for s in range(0, self.size, size):
             part = slice(s, s + size)
-            yield Quadrature(self.dims, self.stride, self.index[part], self.scale[part], self.cos[part])
+            yield Quadrature(
+                self.dims, self.stride, self.index[part], self.scale[part], self.cos[part]
+            )
 
     @property
     def size(self):
@@ -108,7 +114,8 @@ class Quadrature:
 
     def features(self, rows):
         """Features ``scale * cbrt(rows * cos)`` (float64) of flat rows ``(..., 3 * bins)`` or of
-        rows already restricted to :attr:`index` ``(..., size)``."""
+        rows already restricted to :attr:`index` ``(..., size)``.
+        """
         rows = np.asarray(rows)
         if rows.shape[-1] != self.size:
             rows = rows[..., self.index]
@@ -131,13 +138,17 @@ def _flat(tables, dims):
             return np.moveaxis(t, -1, -4).reshape(t.shape[:-4] + (-1,)), dims
         if t.shape[-1:] == (3 * int(np.prod(dims)),):
             return t, dims
-        raise InputError(f"`tables` of shape {t.shape} do not hold tables of {dims} bins (3 channels)")
+        raise InputError(
+            f"`tables` of shape {t.shape} do not hold tables of {dims} bins (3 channels)"
+        )
     if t.ndim >= 4 and t.shape[-4] == 3:
         return t.reshape(t.shape[:-4] + (-1,)), tuple(t.shape[-3:])
     if t.ndim >= 4 and t.shape[-1] == 3:
         return np.moveaxis(t, -1, -4).reshape(t.shape[:-4] + (-1,)), tuple(t.shape[-4:-1])
-    raise InputError(f"`tables` of shape {t.shape}: expected (..., 3, n_theta_h, n_theta_d, n_phi_d) "
-                     "tables, or flat rows with `dims`")
+    raise InputError(
+        f"`tables` of shape {t.shape}: expected (..., 3, n_theta_h, n_theta_d, n_phi_d) "
+        "tables, or flat rows with `dims`"
+    )
 
 
 def brdf_distance(a, b, dims=None, stride=(1, 1, 1)):
@@ -177,8 +188,10 @@ def distance_matrix(A, B=None, dims=None, stride=(1, 1, 1)):
     """
     fa, fb, quad = _pair(A, A if B is None else B, dims, stride)
     if fa.ndim != 2 or fb.ndim != 2:
-        raise InputError(f"`A` and `B` must be stacks of tables (one leading axis), got leading shapes "
-                         f"{fa.shape[:-1]} and {fb.shape[:-1]}")
+        raise InputError(
+            f"`A` and `B` must be stacks of tables (one leading axis), got leading shapes "
+            f"{fa.shape[:-1]} and {fb.shape[:-1]}"
+        )
     parts = ((p.features(fa[:, p.index]), p.features(fb[:, p.index])) for p in quad.blocks())
     D = gram_distances(parts, lambda i, j: brdf_distance(fa[i], fb[j], quad.dims, quad.stride))
     if B is None:

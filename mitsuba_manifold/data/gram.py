@@ -89,6 +89,7 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
     if features not in FEATURES:
         raise FormatError(f"`features` must be one of {FEATURES}, got {features!r}")
     from threadpoolctl import threadpool_limits
+
     n, d = tables.shape
     bins = d // 3
     mean = np.empty(d, dtype=np.float32) if centre else None
@@ -102,7 +103,7 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
     # and 10-20x faster when another process competes for the cores.
     with threadpool_limits(1, user_api="blas"):
         for start in range(0, d, block):
-            z = np.array(tables[:, start:start + block], dtype=np.float64)
+            z = np.array(tables[:, start : start + block], dtype=np.float64)
             if raw:
                 G += z @ z.T
             bins_of = np.arange(start, start + z.shape[1]) % bins
@@ -112,8 +113,8 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
             z = transform(z, features, w)
             if centre:
                 m = z.mean(axis=0)
-                mean[start:start + block] = m
+                mean[start : start + block] = m
                 z -= m
             S += z @ z.T
-    sym = (lambda M: None if M is None else 0.5 * (M + M.T))
+    sym = lambda M: None if M is None else 0.5 * (M + M.T)
     return Gram(sym(S), mean, sym(G), sym(C))

@@ -33,10 +33,14 @@ MAX_BINS = 1 << 28  # far above MERL's 1.46M bins; guards against garbage header
 
 # --------------------------------------------------------------------------- I/O
 
+
 def table_names(folder):
     """Names of the MERL tables in ``folder`` (``<name>.binary``), sorted; hidden files, among
-    them the temporaries of writers (:func:`~mitsuba_manifold._util.atomic.is_temporary`), skipped."""
-    return sorted(f[:-7] for f in os.listdir(folder) if f.endswith(".binary") and not f.startswith("."))
+    them the temporaries of writers (:func:`~mitsuba_manifold._util.atomic.is_temporary`), skipped.
+    """
+    return sorted(
+        f[:-7] for f in os.listdir(folder) if f.endswith(".binary") and not f.startswith(".")
+    )
 
 
 def read_header(path):
@@ -61,31 +65,41 @@ def read_header(path):
         what = "truncated" if size < expected else "has trailing data"
         raise FormatError(
             f"{path}: {what}: header says {dims[0]}x{dims[1]}x{dims[2]} bins "
-            f"({expected} bytes) but the file has {size} bytes")
+            f"({expected} bytes) but the file has {size} bytes"
+        )
     return dims
 
 
 def resolution_mismatch(dims, show=5):
     """Why tables of resolutions ``dims`` ({name: (n_theta_h, n_theta_d, n_phi_d)}) cannot go
     together, naming the files ``<name>.binary`` that differ from the most common resolution
-    (every group when no resolution is the most common)."""
+    (every group when no resolution is the most common).
+    """
     groups = {}
     for name, d in dims.items():
         groups.setdefault(tuple(d), []).append(name + ".binary")
     ranked = sorted(groups.items(), key=lambda kv: -len(kv[1]))
 
     def files(names):
-        return ", ".join(names[:show]) + (f" and {len(names) - show} more" if len(names) > show else "")
+        return ", ".join(names[:show]) + (
+            f" and {len(names) - show} more" if len(names) > show else ""
+        )
 
     def size(d):
         return "x".join(map(str, d))
+
     (common, members), rest = ranked[0], ranked[1:]
     if len(members) > len(rest[0][1]):
         odd = "; ".join(f"{files(n)} {'is' if len(n) == 1 else 'are'} {size(d)}" for d, n in rest)
-        return (f"tables have different resolutions: {len(members)} are {size(common)}, but {odd}; "
-                f"remove the odd file(s) out or remake them at {size(common)}")
-    return ("tables have different resolutions: " + "; ".join(f"{size(d)}: {files(n)}" for d, n in ranked)
-            + "; keep tables of one resolution only")
+        return (
+            f"tables have different resolutions: {len(members)} are {size(common)}, but {odd}; "
+            f"remove the odd file(s) out or remake them at {size(common)}"
+        )
+    return (
+        "tables have different resolutions: "
+        + "; ".join(f"{size(d)}: {files(n)}" for d, n in ranked)
+        + "; keep tables of one resolution only"
+    )
 
 
 def read_binary(path):
@@ -112,7 +126,9 @@ def write_binary(path, raw):
     """Write stored values ``raw`` (shape ``(3, nh, nd, nphi)``) as a MERL file, atomically."""
     raw = np.asarray(raw, dtype=np.float64)
     if raw.ndim != 4 or raw.shape[0] != 3:
-        raise FormatError(f"{path}: MERL table must have shape (3, n_theta_h, n_theta_d, n_phi_d), got {raw.shape}")
+        raise FormatError(
+            f"{path}: MERL table must have shape (3, n_theta_h, n_theta_d, n_phi_d), got {raw.shape}"
+        )
     if not np.isfinite(raw).all():
         raise FormatError(f"{path}: refusing to write NaN or Inf values")
     header = np.array(raw.shape[1:], dtype=_HEADER)
@@ -136,6 +152,7 @@ def to_stored(refl):
 
 
 # ------------------------------------------------------------- half/diff mapping
+
 
 def _rotate(v, axis, angle):
     """Rotate vectors ``v`` (..., 3) about the z (axis=2) or y (axis=1) axis by ``angle``."""
@@ -174,7 +191,8 @@ def half_diff(wi, wo):
 def directions(theta_h, theta_d, phi_d, phi_h=0.0):
     """Inverse of :func:`half_diff`: unit ``wi, wo`` (..., 3) for Rusinkiewicz coordinates."""
     theta_h, theta_d, phi_d, phi_h = np.broadcast_arrays(
-        *(np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d, phi_h)))
+        *(np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d, phi_h))
+    )
     st = np.sin(theta_d)
     d = np.stack([st * np.cos(phi_d), st * np.sin(phi_d), np.cos(theta_d)], axis=-1)
     d_out = d * np.array([-1.0, -1.0, 1.0])
@@ -191,9 +209,11 @@ def bin_index(theta_h, theta_d, phi_d, dims=MERL_DIMS):
     i_d = np.floor(np.asarray(theta_d, dtype=np.float64) / (np.pi / 2) * n_d)
     p = np.mod(np.asarray(phi_d, dtype=np.float64), np.pi)
     i_p = np.floor(p / np.pi * n_p)
-    return (np.clip(i_h, 0, n_h - 1).astype(np.int64),
-            np.clip(i_d, 0, n_d - 1).astype(np.int64),
-            np.clip(i_p, 0, n_p - 1).astype(np.int64))
+    return (
+        np.clip(i_h, 0, n_h - 1).astype(np.int64),
+        np.clip(i_d, 0, n_d - 1).astype(np.int64),
+        np.clip(i_p, 0, n_p - 1).astype(np.int64),
+    )
 
 
 def flat_index(wi, wo, dims=MERL_DIMS):
@@ -268,11 +288,16 @@ def table_resolution(dims, name="`dims`", bytes_per_bin=None, workers=1):
         raise InputError(f"{name} must be three positive integers like 90,90,180, got {dims}")
     bins = math.prod(dims)
     if bins > MAX_BINS:
-        raise InputError(f"{name} {'x'.join(map(str, dims))} has {bins:.3g} bins; MERL files of more than "
-                         f"{MAX_BINS:.3g} bins (MERL itself: 1.46e6) are not read by this package")
+        raise InputError(
+            f"{name} {'x'.join(map(str, dims))} has {bins:.3g} bins; MERL files of more than "
+            f"{MAX_BINS:.3g} bins (MERL itself: 1.46e6) are not read by this package"
+        )
     # SGD tabulation peaks at 200 bytes per bin (measured: 291 MB above the interpreter for
     # 90x90x180, 37 MB for 45x45x90); twice that leaves room for the writer's copy.
     per_bin = 400 if bytes_per_bin is None else bytes_per_bin
-    checks.fits_in_memory(name, bins * per_bin * max(1, workers),
-                   f"tabulating {'x'.join(map(str, dims))} tables ({max(1, workers)} at a time)")
+    checks.fits_in_memory(
+        name,
+        bins * per_bin * max(1, workers),
+        f"tabulating {'x'.join(map(str, dims))} tables ({max(1, workers)} at a time)",
+    )
     return dims

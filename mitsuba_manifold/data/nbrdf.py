@@ -90,7 +90,8 @@ class NetworkSet:
             if a.shape != (n,) + SHAPES[layer]:
                 raise FormatError(
                     f"NBRDF layer {layer!r} has shape {a.shape}, expected {(n,) + SHAPES[layer]} "
-                    f"for {n} networks of 6-21-21-3 units")
+                    f"for {n} networks of 6-21-21-3 units"
+                )
             if not np.all(np.isfinite(a)):
                 raise FormatError(f"NBRDF layer {layer!r} holds non-finite values")
 
@@ -121,13 +122,14 @@ class NetworkSet:
         """The sets of a ``.npz`` weights file (``S`` of every ``S_names`` array), in file order."""
         try:
             with np.load(path, allow_pickle=False) as f:
-                return [k[:-len("_names")] for k in f.files if k.endswith("_names")]
+                return [k[: -len("_names")] for k in f.files if k.endswith("_names")]
         except (OSError, ValueError) as e:
             raise FormatError(f"{path}: not an NBRDF .npz weights file ({e})") from None
 
     def save(self, path, prefix="nbrdf", positions=None):
         """Write the set as ``prefix_names``, ``prefix_w1`` ... in a ``.npz`` file (atomically),
-        with ``prefix_positions`` when given: where its tables are taken (:data:`POSITIONS`)."""
+        with ``prefix_positions`` when given: where its tables are taken (:data:`POSITIONS`).
+        """
         from .._util.atomic import atomic_write
 
         arrays = {f"{prefix}_names": np.array(self.names, dtype=str)}
@@ -159,13 +161,16 @@ class NetworkSet:
             return self.names.index(name)
         except ValueError:
             raise UnknownMaterialError(
-                f"no NBRDF network named {name!r}{did_you_mean(name, self.names)}") from None
+                f"no NBRDF network named {name!r}{did_you_mean(name, self.names)}"
+            ) from None
 
     def digest(self, name):
         """SHA-256 of the network ``name``'s weights (what its tables are derived from)."""
         i = self.index(name)
-        return key_hash("nbrdf-6-21-21-3", *(np.ascontiguousarray(getattr(self, k)[i], dtype="<f4")
-                                             for k in LAYERS))
+        return key_hash(
+            "nbrdf-6-21-21-3",
+            *(np.ascontiguousarray(getattr(self, k)[i], dtype="<f4") for k in LAYERS),
+        )
 
     def evaluate(self, name, v):
         """Reflectance ``(m, 3)`` (1/sr, clamped at 0) of the network ``name`` at inputs ``v`` ``(m, 6)``."""
@@ -175,12 +180,13 @@ class NetworkSet:
 def _evaluate(nets, i, v, out=None):
     """The network ``i`` of ``nets`` at the rows of ``v`` ``(m, 6)`` float32, into ``out`` ``(m, 3)``.
 
-    Evaluated in blocks of :data:`BLOCK` rows with float32 matrix products."""
+    Evaluated in blocks of :data:`BLOCK` rows with float32 matrix products.
+    """
     m = len(v)
     out = np.empty((m, 3), dtype=np.float32) if out is None else out
     w1, b1, w2, b2, w3, b3 = (getattr(nets, k)[i] for k in LAYERS)
     for s in range(0, m, BLOCK):
-        h = v[s:s + BLOCK] @ w1
+        h = v[s : s + BLOCK] @ w1
         h += b1
         np.maximum(h, 0.0, out=h)
         h2 = h @ w2
@@ -188,7 +194,7 @@ def _evaluate(nets, i, v, out=None):
         np.maximum(h2, 0.0, out=h2)
         y = h2 @ w3
         y += b3
-        out[s:s + BLOCK] = y
+        out[s : s + BLOCK] = y
     np.expm1(out, out=out)
     np.maximum(out, 0.0, out=out)
     return out
@@ -210,8 +216,17 @@ def grid_positions(dims=merl.MERL_DIMS, positions="centres"):
 def features(theta_h, theta_d, phi_d, dtype=np.float32):
     """Network inputs ``(m, 6)`` for Rusinkiewicz coordinates (flattened), ``phi_h = 0``."""
     th, td, pd = (np.ravel(np.asarray(a, dtype=np.float64)) for a in (theta_h, theta_d, phi_d))
-    v = np.stack([np.sin(th), np.zeros_like(th), np.cos(th),
-                  np.sin(td) * np.cos(pd), np.sin(td) * np.sin(pd), np.cos(td)], axis=1)
+    v = np.stack(
+        [
+            np.sin(th),
+            np.zeros_like(th),
+            np.cos(th),
+            np.sin(td) * np.cos(pd),
+            np.sin(td) * np.sin(pd),
+            np.cos(td),
+        ],
+        axis=1,
+    )
     return v.astype(dtype)
 
 
@@ -235,7 +250,9 @@ def tabulate(networks, name, dims=merl.MERL_DIMS, positions=DEFAULT_POSITIONS, d
     return tabulate_many(networks, [name], dims, positions, dtype)[0]
 
 
-def tabulate_many(networks, names=None, dims=merl.MERL_DIMS, positions=DEFAULT_POSITIONS, dtype=np.float32):
+def tabulate_many(
+    networks, names=None, dims=merl.MERL_DIMS, positions=DEFAULT_POSITIONS, dtype=np.float32
+):
     """Reflectance tables ``(len(names), 3, n_h, n_d, n_p)`` of the networks ``names`` (default all).
 
     The grid's inputs are computed once per resolution and positions (kept for the next call);
@@ -262,6 +279,7 @@ def tabulate_many(networks, names=None, dims=merl.MERL_DIMS, positions=DEFAULT_P
 
 # ----------------------------------------------------------------- the authors' files
 
+
 def read_keras(h5_path, json_path=None, name=None):
     """One network from the authors' Keras files: the weights ``.h5`` and its model ``.json``.
 
@@ -271,24 +289,32 @@ def read_keras(h5_path, json_path=None, name=None):
     layers with ReLU hidden units. The material is named ``name`` (default: the file's name).
     """
     h5_path = os.fspath(h5_path)
-    json_path = os.path.splitext(h5_path)[0] + ".json" if json_path is None else os.fspath(json_path)
+    json_path = (
+        os.path.splitext(h5_path)[0] + ".json" if json_path is None else os.fspath(json_path)
+    )
     name = name or os.path.splitext(os.path.basename(h5_path))[0]
     if os.path.exists(json_path):
         _check_keras_model(json_path)
     try:
         import h5py
     except ImportError:
-        raise InputError(f"{h5_path}: reading the authors' Keras .h5 files needs h5py "
-                         "(pip install h5py)") from None
+        raise InputError(
+            f"{h5_path}: reading the authors' Keras .h5 files needs h5py (pip install h5py)"
+        ) from None
     try:
         with h5py.File(h5_path, "r") as f:
             root = f.get("model_weights", f)
             layers = []
-            order = [n.decode() if isinstance(n, bytes) else str(n) for n in root.attrs.get("layer_names", [])]
+            order = [
+                n.decode() if isinstance(n, bytes) else str(n)
+                for n in root.attrs.get("layer_names", [])
+            ]
             for layer in order or sorted(root):
                 group = root[layer]
-                weight_names = [n.decode() if isinstance(n, bytes) else str(n)
-                                for n in group.attrs.get("weight_names", [])]
+                weight_names = [
+                    n.decode() if isinstance(n, bytes) else str(n)
+                    for n in group.attrs.get("weight_names", [])
+                ]
                 arrays = [np.asarray(group[w], dtype=np.float32) for w in weight_names]
                 if arrays:
                     layers.append(arrays)
@@ -296,8 +322,10 @@ def read_keras(h5_path, json_path=None, name=None):
         raise FormatError(f"{h5_path}: not a Keras weights file of an NBRDF ({e})") from None
     shapes = [tuple(a.shape) for layer in layers for a in layer]
     if shapes != [(6, 21), (21,), (21, 21), (21,), (21, 3), (3,)]:
-        raise FormatError(f"{h5_path}: expected the weights of a 6-21-21-3 NBRDF (kernel and bias of 3 dense "
-                          f"layers), found arrays of shapes {shapes}")
+        raise FormatError(
+            f"{h5_path}: expected the weights of a 6-21-21-3 NBRDF (kernel and bias of 3 dense "
+            f"layers), found arrays of shapes {shapes}"
+        )
     flat = [a[None] for layer in layers for a in layer]
     return NetworkSet((name,), *flat)
 
@@ -314,5 +342,7 @@ def _check_keras_model(path):
     units = [d.get("units") for d in dense]
     acts = [d.get("activation") for d in dense]
     if units != [21, 21, 3] or acts[:2] != ["relu", "relu"]:
-        raise FormatError(f"{path}: not an NBRDF model (dense layers of {units} units with activations {acts}; "
-                          "expected 21, 21, 3 with ReLU hidden layers)")
+        raise FormatError(
+            f"{path}: not an NBRDF model (dense layers of {units} units with activations {acts}; "
+            "expected 21, 21, 3 with ReLU hidden layers)"
+        )

@@ -73,17 +73,18 @@ _READERS = {}
 
 def register_reader(kind, reader):
     """Register ``reader(path, dims) -> (3,) + dims`` float32 reflectance for the sources of ``kind``
-    (``"measured"``: :class:`MeasuredFile`; the rendering subsystem registers Mitsuba's)."""
+    (``"measured"``: :class:`MeasuredFile`; the rendering subsystem registers Mitsuba's).
+    """
     _READERS[kind] = reader
 
 
 def material_name(path):
     """A material's name from its file: the base name without extension and ``_rgb`` / ``_spec``."""
     stem = os.path.basename(os.fspath(path))
-    stem = stem[:-len(".binary")] if stem.endswith(".binary") else os.path.splitext(stem)[0]
+    stem = stem[: -len(".binary")] if stem.endswith(".binary") else os.path.splitext(stem)[0]
     for suffix in NAME_SUFFIXES:
         if stem.endswith(suffix) and len(stem) > len(suffix):
-            return stem[:-len(suffix)]
+            return stem[: -len(suffix)]
     return stem
 
 
@@ -92,6 +93,7 @@ def _resolution(dims):
 
 
 # ---------------------------------------------------------------------------- kinds
+
 
 @dataclass(frozen=True)
 class BinaryFile:
@@ -114,10 +116,12 @@ class BinaryFile:
         return file_hash(self.path)
 
     def table(self, dims):
-        raw = merl.read_binary(self.path)   # format errors name the file
+        raw = merl.read_binary(self.path)  # format errors name the file
         if raw.shape[1:] != tuple(dims):
-            raise FormatError(f"{self.path}: a {_resolution(raw.shape[1:])} table, the database is "
-                              f"{_resolution(dims)}; remake it at {_resolution(dims)} or use tables of one resolution")
+            raise FormatError(
+                f"{self.path}: a {_resolution(raw.shape[1:])} table, the database is "
+                f"{_resolution(dims)}; remake it at {_resolution(dims)} or use tables of one resolution"
+            )
         try:
             return merl.filled_reflectance(raw)
         except ValueError as e:
@@ -139,7 +143,9 @@ class Network:
         return None
 
     def digest(self, dims):
-        return key_hash("nbrdf-table-v1", self.networks.digest(self.key), _resolution(dims), self.positions)
+        return key_hash(
+            "nbrdf-table-v1", self.networks.digest(self.key), _resolution(dims), self.positions
+        )
 
     def table(self, dims):
         return nbrdf.tabulate(self.networks, self.key, dims, self.positions)
@@ -150,7 +156,7 @@ class SgdFit:
     """The Shifted-Gamma fit of a MERL material (:func:`.surrogate.tabulate_sgd`)."""
 
     name: str
-    params: tuple   # ((field, (r, g, b)), ...) in SGD_FIELDS order
+    params: tuple  # ((field, (r, g, b)), ...) in SGD_FIELDS order
     kind = "sgd"
 
     @property
@@ -166,6 +172,7 @@ class SgdFit:
 
     def table(self, dims):
         from .surrogate import tabulate_sgd
+
         params = {k: np.asarray(v, dtype=np.float64) for k, v in self.params}
         return _filled(tabulate_sgd(params, dims), dims)
 
@@ -186,26 +193,34 @@ class MeasuredFile:
         return None
 
     def digest(self, dims):
-        return key_hash("measured-table-v2", file_hash(self.path), _resolution(dims), str(MEASURED_SAMPLES))
+        return key_hash(
+            "measured-table-v2", file_hash(self.path), _resolution(dims), str(MEASURED_SAMPLES)
+        )
 
     def check(self):
         """Refuse a file that is not an isotropic ``tensor_file`` (before any work)."""
         fields = read_tensor_header(self.path)
         if "phi_i" not in fields or "theta_i" not in fields:
-            raise FormatError(f"{self.path}: a tensor_file without phi_i/theta_i fields, not a Mitsuba "
-                              "`measured` BSDF; give an RGL-EPFL .bsdf file")
+            raise FormatError(
+                f"{self.path}: a tensor_file without phi_i/theta_i fields, not a Mitsuba "
+                "`measured` BSDF; give an RGL-EPFL .bsdf file"
+            )
         n_phi = int(np.prod(fields["phi_i"][1]))
         if n_phi != 1:
-            raise FormatError(f"{self.path}: an anisotropic measurement ({n_phi} incident azimuths); MERL tables "
-                              "are isotropic, so only isotropic measured files can be imported: use the "
-                              "material's isotropic file or leave this one out")
+            raise FormatError(
+                f"{self.path}: an anisotropic measurement ({n_phi} incident azimuths); MERL tables "
+                "are isotropic, so only isotropic measured files can be imported: use the "
+                "material's isotropic file or leave this one out"
+            )
         return self
 
     def table(self, dims):
         reader = _READERS.get(self.kind)
         if reader is None:
-            raise UnavailableError(f"{self.path}: reading Mitsuba measured files needs Mitsuba: import "
-                                   "mitsuba_manifold.render first (the command-line tools do)")
+            raise UnavailableError(
+                f"{self.path}: reading Mitsuba measured files needs Mitsuba: import "
+                "mitsuba_manifold.render first (the command-line tools do)"
+            )
         return reader(self.path, tuple(dims))
 
 
@@ -218,8 +233,19 @@ def _filled(raw, dims):
 
 # -------------------------------------------------------------------- tensor files
 
-_TYPES = {1: "u1", 2: "i1", 3: "<u2", 4: "<i2", 5: "<u4", 6: "<i4", 7: "<u8", 8: "<i8", 9: "<f2", 10: "<f4",
-          11: "<f8"}
+_TYPES = {
+    1: "u1",
+    2: "i1",
+    3: "<u2",
+    4: "<i2",
+    5: "<u4",
+    6: "<i4",
+    7: "<u8",
+    8: "<i8",
+    9: "<f2",
+    10: "<f4",
+    11: "<f8",
+}
 
 
 def read_tensor_header(path):
@@ -231,21 +257,25 @@ def read_tensor_header(path):
     except OSError as e:
         raise FormatError(f"{path}: cannot be read ({e.strerror or e})") from None
     if not head.startswith(b"tensor_file\0") or len(head) < 18:
-        raise FormatError(f"{path}: not a Mitsuba tensor_file (a measured .bsdf starts with 'tensor_file')")
+        raise FormatError(
+            f"{path}: not a Mitsuba tensor_file (a measured .bsdf starts with 'tensor_file')"
+        )
     pos = 14
-    count = int.from_bytes(head[pos:pos + 4], "little")
+    count = int.from_bytes(head[pos : pos + 4], "little")
     pos += 4
     fields = {}
     try:
         for _ in range(count):
-            n = int.from_bytes(head[pos:pos + 2], "little")
-            name = head[pos + 2:pos + 2 + n].decode()
+            n = int.from_bytes(head[pos : pos + 2], "little")
+            name = head[pos + 2 : pos + 2 + n].decode()
             pos += 2 + n
-            ndim = int.from_bytes(head[pos:pos + 2], "little")
+            ndim = int.from_bytes(head[pos : pos + 2], "little")
             dtype = _TYPES[head[pos + 2]]
-            offset = int.from_bytes(head[pos + 3:pos + 11], "little")
+            offset = int.from_bytes(head[pos + 3 : pos + 11], "little")
             pos += 11
-            shape = tuple(int.from_bytes(head[pos + 8 * k:pos + 8 * k + 8], "little") for k in range(ndim))
+            shape = tuple(
+                int.from_bytes(head[pos + 8 * k : pos + 8 * k + 8], "little") for k in range(ndim)
+            )
             pos += 8 * ndim
             fields[name] = (dtype, shape, offset)
     except (KeyError, UnicodeDecodeError, IndexError):
@@ -254,6 +284,7 @@ def read_tensor_header(path):
 
 
 # ------------------------------------------------------------------------- sets
+
 
 def _network_sources(path, prefix, origin):
     nets = nbrdf.NetworkSet.load(path, prefix)
@@ -264,13 +295,18 @@ def builtin(name):
     """The sources of a built-in set (:data:`BUILTIN`), in the set's order."""
     if name == "sgd":
         from .surrogate import SGD_FIELDS, load_sgd_fits
-        return [SgdFit(n, tuple((k, tuple(float(x) for x in p[k])) for k in SGD_FIELDS))
-                for n, p in load_sgd_fits().items()]
+
+        return [
+            SgdFit(n, tuple((k, tuple(float(x) for x in p[k])) for k in SGD_FIELDS))
+            for n, p in load_sgd_fits().items()
+        ]
     if name == "all":
         return combine({s: builtin(s) for s in nbrdf.SETS})
     if name in nbrdf.SETS:
         return _network_sources(nbrdf.WEIGHTS_PATH, name, name)
-    raise InputError(f"unknown built-in database {name!r}; the built-in ones are {', '.join(SET_NAMES)}")
+    raise InputError(
+        f"unknown built-in database {name!r}; the built-in ones are {', '.join(SET_NAMES)}"
+    )
 
 
 def combine(groups):
@@ -293,21 +329,25 @@ def combine(groups):
                 continue
             if not all(lab in SET_NAMES for lab, _ in owners):
                 a, b = owners[0][1].origin, owners[1][1].origin
-                raise FormatError(f"two materials are named {s.name!r} ({a} and {b}); rename one of the files "
-                                  "(a material is named after its file)")
+                raise FormatError(
+                    f"two materials are named {s.name!r} ({a} and {b}); rename one of the files "
+                    "(a material is named after its file)"
+                )
             out.append(_renamed(s, f"{s.name}-{label}"))
     return out
 
 
 def _renamed(source, name):
     from dataclasses import replace
+
     return replace(source, name=name)
 
 
 def folder_sources(folder):
     """The sources of the files in ``folder``, sorted by name: ``.binary``, ``.bsdf``, ``.h5``
     (with its ``.json``) and ``.npz`` networks (one network: named after the file; a set: by the
-    names it stores). Hidden files are skipped; two files naming one material are refused."""
+    names it stores). Hidden files are skipped; two files naming one material are refused.
+    """
     folder = os.fspath(folder)
     found = []
     for f in sorted(os.listdir(folder)):
@@ -315,7 +355,7 @@ def folder_sources(folder):
         if f.startswith(".") or not os.path.isfile(path):
             continue
         if f.endswith(".binary"):
-            found.append(BinaryFile(f[:-len(".binary")], path))
+            found.append(BinaryFile(f[: -len(".binary")], path))
         elif f.endswith(".bsdf"):
             found.append(MeasuredFile(material_name(f), path).check())
         elif f.endswith(".h5"):
@@ -332,28 +372,37 @@ def folder_sources(folder):
     names = {}
     for s in found:
         if s.name in names:
-            raise FormatError(f"{folder}: two files give the material {s.name!r} ({names[s.name].origin} and "
-                              f"{s.origin}); keep one of them")
+            raise FormatError(
+                f"{folder}: two files give the material {s.name!r} ({names[s.name].origin} and "
+                f"{s.origin}); keep one of them"
+            )
         names[s.name] = s
     return [names[n] for n in sorted(names)]
 
 
 def material_source(spec):
     """The source of one material: ``SET:NAME`` of a built-in set (``rgl:paper_white``) or a file
-    (``.binary``, ``.bsdf``, ``.h5`` with its ``.json``, or an ``.npz`` of one network)."""
+    (``.binary``, ``.bsdf``, ``.h5`` with its ``.json``, or an ``.npz`` of one network).
+    """
     spec = os.fspath(spec)
     head, sep, tail = spec.partition(":")
     if sep and head in SET_NAMES and not os.path.exists(spec):
         found = {s.name: s for s in builtin(head)}
         if tail not in found:
             from ..errors import UnknownMaterialError, did_you_mean
-            raise UnknownMaterialError(f"built-in database {head!r} has no material {tail!r}"
-                                       f"{did_you_mean(tail, list(found))}")
+
+            raise UnknownMaterialError(
+                f"built-in database {head!r} has no material {tail!r}"
+                f"{did_you_mean(tail, list(found))}"
+            )
         return found[tail]
     if not os.path.isfile(spec):
         from ..errors import MissingFileError
-        raise MissingFileError(f"material {spec}: no such file (give a .binary, .bsdf, .h5 or .npz file, "
-                               f"or SET:NAME of a built-in database: {', '.join(SET_NAMES)})")
+
+        raise MissingFileError(
+            f"material {spec}: no such file (give a .binary, .bsdf, .h5 or .npz file, "
+            f"or SET:NAME of a built-in database: {', '.join(SET_NAMES)})"
+        )
     name = material_name(spec)
     if spec.endswith(".binary"):
         return BinaryFile(name, spec)
@@ -366,8 +415,10 @@ def material_source(spec):
         prefixes = nbrdf.NetworkSet.prefixes(spec)
         nets = [nbrdf.NetworkSet.load(spec, p) for p in prefixes]
         if sum(len(n) for n in nets) != 1:
-            raise FormatError(f"{spec}: holds {sum(len(n) for n in nets)} networks; give a file of one network "
-                              "(or use the file as a database folder's)")
+            raise FormatError(
+                f"{spec}: holds {sum(len(n) for n in nets)} networks; give a file of one network "
+                "(or use the file as a database folder's)"
+            )
         at = nbrdf.NetworkSet.positions(spec, prefixes[0], USER_POSITIONS)
         return Network(name, nets[0], nets[0].names[0], spec, at)
     raise FormatError(f"{spec}: not a material file (.binary, .bsdf, .h5 or .npz)")

@@ -13,8 +13,8 @@ import os
 
 import numpy as np
 
-from . import merl
 from ..errors import FormatError, NumericalError, UnknownMaterialError
+from . import merl
 
 FITS_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "merl_sgd_fits.json")
 SGD_FIELDS = ("rho_d", "rho_s", "alpha", "p", "f0", "f1", "kap", "lambda", "c", "k", "theta0")
@@ -45,7 +45,7 @@ def _shadowing(theta, params):
     t = np.maximum(theta - params["theta0"], 0.0)
     with np.errstate(divide="ignore", over="ignore"):
         log_ctk = np.log(params["c"]) + params["k"] * np.log(t)  # -inf where t == 0
-        expo = np.exp(np.minimum(log_ctk, 700.0))                 # c t^k, 0 where t == 0
+        expo = np.exp(np.minimum(log_ctk, 700.0))  # c t^k, 0 where t == 0
         big = np.exp(np.minimum(np.log(params["lambda"]) + expo, 700.0))  # lambda exp(c t^k)
     return np.clip(1.0 + params["lambda"] - big, 0.0, 1.0)
 
@@ -76,10 +76,15 @@ def _pair_geometry(wi, wo):
     cos_h = np.clip(h[..., 2:3], 1e-300, 1.0)
     cos_i, cos_o = wi[..., 2:3], wo[..., 2:3]
     valid = (cos_i > 0) & (cos_o > 0)
-    g = {"valid": valid, "cos_d": np.clip(np.sum(wi * h, axis=-1, keepdims=True), 0.0, 1.0),
-         "tan2": np.maximum(1.0 - cos_h * cos_h, 0.0) / (cos_h * cos_h), "log_cos_h": np.log(cos_h),
-         "theta_i": np.arccos(np.clip(cos_i, -1, 1)), "theta_o": np.arccos(np.clip(cos_o, -1, 1)),
-         "inv_io": 1.0 / (np.where(valid, cos_i, 1.0) * np.where(valid, cos_o, 1.0))}
+    g = {
+        "valid": valid,
+        "cos_d": np.clip(np.sum(wi * h, axis=-1, keepdims=True), 0.0, 1.0),
+        "tan2": np.maximum(1.0 - cos_h * cos_h, 0.0) / (cos_h * cos_h),
+        "log_cos_h": np.log(cos_h),
+        "theta_i": np.arccos(np.clip(cos_i, -1, 1)),
+        "theta_o": np.arccos(np.clip(cos_o, -1, 1)),
+        "inv_io": 1.0 / (np.where(valid, cos_i, 1.0) * np.where(valid, cos_o, 1.0)),
+    }
     for v in g.values():
         v.setflags(write=False)
     return g
@@ -111,7 +116,7 @@ def tabulate_sgd(params, dims=merl.MERL_DIMS):
     above, geometry = bin_geometry(tuple(int(v) for v in dims))
     refl = np.zeros((3,) + tuple(dims))
     for c in range(3):  # per channel keeps the temporaries at one bin-count each
-        one = {k: v[c:c + 1] for k, v in params.items()}
+        one = {k: v[c : c + 1] for k, v in params.items()}
         refl[c][above] = _sgd_values(one, geometry)[:, 0]
     if not np.isfinite(refl).all():  # guards the model's extreme fits; should never trigger
         raise NumericalError("SGD tabulation produced non-finite values")
@@ -132,6 +137,8 @@ def bin_geometry(dims):
 def _fit_named(name):
     fits = load_sgd_fits()
     if name not in fits:
-        raise UnknownMaterialError(f"unknown material {name!r}: the built-in database has {len(fits)} materials "
-                       f"(e.g. {', '.join(list(fits)[:5])}, ...)")
+        raise UnknownMaterialError(
+            f"unknown material {name!r}: the built-in database has {len(fits)} materials "
+            f"(e.g. {', '.join(list(fits)[:5])}, ...)"
+        )
     return fits[name]

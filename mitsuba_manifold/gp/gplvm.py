@@ -43,8 +43,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import optimisers
 from ..errors import InputError, NotPositiveDefiniteError
+from . import optimisers
 from .kernel import MAX_LATENT_DIM, Kernel, check_points, check_positive, kernel_matrix
 from .likelihood import Likelihood, check_gram, log_likelihood, log_likelihood_grad
 from .optimisers import HookeJeevesOptions, LBFGSOptions
@@ -83,10 +83,14 @@ METHODS = {"hooke-jeeves": HookeJeevesOptions, "lbfgs": LBFGSOptions}
 
 
 def check_q(q):
-    if isinstance(q, (bool, np.bool_)) or not isinstance(q, numbers.Integral) \
-            or not 1 <= q <= MAX_LATENT_DIM:
-        raise InputError(f"`q` must be an integer from 1 to {MAX_LATENT_DIM} (the latent dimension), "
-                         f"got {q!r}")
+    if (
+        isinstance(q, (bool, np.bool_))
+        or not isinstance(q, numbers.Integral)
+        or not 1 <= q <= MAX_LATENT_DIM
+    ):
+        raise InputError(
+            f"`q` must be an integer from 1 to {MAX_LATENT_DIM} (the latent dimension), got {q!r}"
+        )
     return int(q)
 
 
@@ -125,8 +129,10 @@ def pca_init(S, q, length_scale=1.0):
     coords *= np.where(coords[big, np.arange(q)] < 0, -1.0, 1.0)
     spread = coords[:, 0].std()
     if not spread > 0:
-        raise InputError("Gram matrix `S` is zero: all materials are identical after mean "
-                         "subtraction, there is nothing to lay out")
+        raise InputError(
+            "Gram matrix `S` is zero: all materials are identical after mean "
+            "subtraction, there is nothing to lay out"
+        )
     return coords * (l / spread)
 
 
@@ -214,8 +220,10 @@ class GPLVM:
         self.method = method
         self.options = METHODS[method]() if options is None else options
         if not isinstance(self.options, METHODS[method]):
-            raise InputError(f"`options` of method {method!r} must be a {METHODS[method].__name__}, "
-                             f"got {type(options).__name__}")
+            raise InputError(
+                f"`options` of method {method!r} must be a {METHODS[method].__name__}, "
+                f"got {type(options).__name__}"
+            )
 
     def fit(self, S, d, init=None, callback=None):
         """Latent points maximising the log-likelihood L (Eq. 6) of Gram matrix ``S``.
@@ -250,15 +258,36 @@ class GPLVM:
         with threadpool_limits(1, user_api="blas") if single else contextlib.nullcontext():
             res = run(unit, X0 / l, self.options, callback, l)
             L = unit._value(res.units)
-        return FitResult(latent=res.units * l, log_likelihood=L,
-                         history=np.asarray(res.history, dtype=np.float64), n_evaluations=res.n_evaluations,
-                         time_s=time.perf_counter() - t0, method=self.method, converged=res.converged,
-                         message=res.message, length_scale=l, noise=self.kernel.noise,
-                         n_refactorisations=res.n_refactorisations, max_drift=res.max_drift)
+        return FitResult(
+            latent=res.units * l,
+            log_likelihood=L,
+            history=np.asarray(res.history, dtype=np.float64),
+            n_evaluations=res.n_evaluations,
+            time_s=time.perf_counter() - t0,
+            method=self.method,
+            converged=res.converged,
+            message=res.message,
+            length_scale=l,
+            noise=self.kernel.noise,
+            n_refactorisations=res.n_refactorisations,
+            max_drift=res.max_drift,
+        )
 
 
-def fit_latent(S, d, q=2, *, method="hooke-jeeves", length_scale=1.0, noise=1e-4, init=None,
-               max_iter=None, tol=None, callback=None, initial_step=0.25):
+def fit_latent(
+    S,
+    d,
+    q=2,
+    *,
+    method="hooke-jeeves",
+    length_scale=1.0,
+    noise=1e-4,
+    init=None,
+    max_iter=None,
+    tol=None,
+    callback=None,
+    initial_step=0.25,
+):
     """Latent points maximising the GPLVM log-likelihood L (Eq. 6): :class:`GPLVM` as one call.
 
     Its eleven parameters are those of the model (:class:`GPLVM`, :class:`Kernel`), of the fit

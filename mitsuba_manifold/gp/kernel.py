@@ -68,8 +68,9 @@ def check_points(name, X, n=None, q=None):
     if q is not None and X.shape[1] != q:
         raise InputError(f"`{name}` has dimension {X.shape[1]}, expected q = {q}")
     if not 1 <= X.shape[1] <= MAX_LATENT_DIM:
-        raise InputError(f"`{name}` has latent dimension {X.shape[1]}; "
-                         f"q must be from 1 to {MAX_LATENT_DIM}")
+        raise InputError(
+            f"`{name}` has latent dimension {X.shape[1]}; q must be from 1 to {MAX_LATENT_DIM}"
+        )
     if not np.all(np.isfinite(X)):
         row = int(np.argwhere(~np.isfinite(X))[0, 0])
         raise InputError(f"`{name}` has a non-finite coordinate in point {row}: {X[row]}")
@@ -93,7 +94,8 @@ def factorise(K):
         raise NotPositiveDefiniteError(
             f"covariance matrix K ({K.shape[0]} x {K.shape[0]}) is not positive definite to "
             f"working precision (noise mu = {mu:.3g}); latent points probably coincide: use a "
-            f"larger `noise` mu or separate the points")
+            f"larger `noise` mu or separate the points"
+        )
     return Factor(cho, 2.0 * float(np.sum(np.log(diag))))
 
 
@@ -134,7 +136,8 @@ class Kernel:
     # -- covariances
     def K(self, X, X2=None):
         """``K(X)`` (n x n, ``1 + mu`` on the diagonal), or the cross-covariance ``(n, m)``
-        with ``X2`` (the smooth part only, the vector ``k_*`` of Eq. 3: no noise term)."""
+        with ``X2`` (the smooth part only, the vector ``k_*`` of Eq. 3: no noise term).
+        """
         X = check_points("A", X)
         if X2 is None:
             return self._K(X)
@@ -146,7 +149,8 @@ class Kernel:
 
     def cross(self, x, X, exact=False):
         """``k(x)`` (M, N): covariances of points ``x`` with ``X``; with ``exact`` the noise term
-        ``mu delta(x, x_i)`` is added where a row of ``x`` equals a point of ``X`` exactly."""
+        ``mu delta(x, x_i)`` is added where a row of ``x`` equals a point of ``X`` exactly.
+        """
         k = self._cross(x, X)
         if exact:
             k[coincident(x, X)] += self.noise
@@ -164,9 +168,10 @@ class Kernel:
     # -- gradients
     def dK_dx(self, x, X, k=None):
         """``d k(x_m, X_n) / d x_m`` (M, N, q) ``= -k (x_m - X_n) / l^2``; ``k`` is
-        :meth:`cross` ``(x, X)`` when already computed."""
+        :meth:`cross` ``(x, X)`` when already computed.
+        """
         k = self._cross(x, X) if k is None else k
-        return -k[:, :, None] * (x[:, None, :] - X[None]) / self.length_scale ** 2
+        return -k[:, :, None] * (x[:, None, :] - X[None]) / self.length_scale**2
 
     def dK_dtheta(self, X):
         """``dK/dl`` and ``dK/dmu`` of ``K(X)``, stacked ``(2, n, n)``.
@@ -176,7 +181,7 @@ class Kernel:
         """
         X = check_points("X", X)
         r2 = sq_dist(X, X)
-        dl = np.exp(-0.5 * r2 / self.length_scale ** 2) * r2 / self.length_scale ** 3
+        dl = np.exp(-0.5 * r2 / self.length_scale**2) * r2 / self.length_scale**3
         return np.stack([dl, np.eye(len(X))])
 
     # -- factorisation
@@ -187,7 +192,8 @@ class Kernel:
 
 def coincident(x, X):
     """Index pairs (row of ``x``, row of ``X``) of points that are exactly equal: where the
-    kernel's ``delta(x, x')`` is 1."""
+    kernel's ``delta(x, x')`` is 1.
+    """
     return np.nonzero((x[:, None, :] == X[None, :, :]).all(-1))
 
 

@@ -33,19 +33,23 @@ def check_gram(S, check_psd=True):
         raise InputError(f"need at least 2 materials to fit a manifold, `S` is {n} x {n}")
     if not np.all(np.isfinite(S)):
         bad = np.argwhere(~np.isfinite(S))[0]
-        raise InputError(f"Gram matrix `S` has a non-finite entry ({S[tuple(bad)]}) at {tuple(bad)}")
+        raise InputError(
+            f"Gram matrix `S` has a non-finite entry ({S[tuple(bad)]}) at {tuple(bad)}"
+        )
     scale = np.abs(S).max()
     asym = np.abs(S - S.T).max()
     if asym > 1e-8 * scale:
-        raise InputError(f"Gram matrix `S` is not symmetric (max |S - S^T| = {asym:.3g}, "
-                         f"max |S| = {scale:.3g})")
+        raise InputError(
+            f"Gram matrix `S` is not symmetric (max |S - S^T| = {asym:.3g}, max |S| = {scale:.3g})"
+        )
     S = 0.5 * (S + S.T)
     if check_psd and scale > 0:
         ev = np.linalg.eigvalsh(S)
         if ev[0] < -1e-8 * max(ev[-1], 0.0) or ev[-1] <= 0:
             raise InputError(
                 f"Gram matrix `S` is not positive semi-definite (eigenvalues from {ev[0]:.3g} to "
-                f"{ev[-1]:.3g}); it must be Z Z^T of the mean-subtracted observations")
+                f"{ev[-1]:.3g}); it must be Z Z^T of the mean-subtracted observations"
+            )
     return S
 
 
@@ -116,7 +120,8 @@ class Likelihood:
 
     def gradient_theta(self, X):
         """``L`` and ``dL/dtheta`` (2,) for the hyperparameters ``(l, mu)`` (:attr:`Kernel.theta`):
-        ``dL/dtheta_k = 1/2 tr(G dK/dtheta_k)`` with ``G`` as in :meth:`gradient`."""
+        ``dL/dtheta_k = 1/2 tr(G dK/dtheta_k)`` with ``G`` as in :meth:`gradient`.
+        """
         X = self._latent(X)
         K = self.kernel._K(X)
         f = factorise(K)

@@ -101,8 +101,15 @@ def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, le
     """
     n, q = U0.shape
     max_iter, tol, l = options.max_iter, options.tol, length_scale
-    state = RankUpdatedInverse(U0, likelihood.S, likelihood.d, 1.0, likelihood.kernel.noise,
-                               refactor_every=max(n, 10), _validated=True)
+    state = RankUpdatedInverse(
+        U0,
+        likelihood.S,
+        likelihood.d,
+        1.0,
+        likelihood.kernel.noise,
+        refactor_every=max(n, 10),
+        _validated=True,
+    )
     history = [state.log_likelihood]
     steps = np.full(n, float(options.initial_step))
     poll = np.zeros((2 * q, q))
@@ -111,7 +118,8 @@ def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, le
 
     def explore(i, centre, f_centre, step):
         """Best ``(x, L, trial, row)`` of the poll around ``centre``; ``f_centre=None``
-        evaluates the centre too. ``trial`` is None when nothing beats the centre."""
+        evaluates the centre too. ``trial`` is None when nothing beats the centre.
+        """
         cand = centre + step * poll
         if f_centre is None:
             cand = np.vstack([cand, centre])
@@ -121,10 +129,10 @@ def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, le
         best = (centre, f_centre, None, 0)
         if f_centre is None:
             best = (centre, float(Lc[-1]), trial, 2 * q)
-        gain = Lc[:2 * q].reshape(q, 2) - best[1]
+        gain = Lc[: 2 * q].reshape(q, 2) - best[1]
         pick = np.argmax(gain, axis=1)
         up = gain[np.arange(q), pick] > margin
-        j = int(np.argmax(Lc[:2 * q]))
+        j = int(np.argmax(Lc[: 2 * q]))
         if Lc[j] > best[1] + margin:
             best = (cand[j], float(Lc[j]), trial, j)
         if np.count_nonzero(up) >= 2:
@@ -148,7 +156,7 @@ def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, le
             if trial is None:
                 steps[i] *= 0.5
                 continue
-            for _ in range(8):           # pattern moves
+            for _ in range(8):  # pattern moves
                 px, pfx, ptrial, prow = explore(i, 2.0 * x - base, None, steps[i])
                 if not pfx > fx + 1e-12 * state.scale:
                     break
@@ -166,8 +174,15 @@ def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, le
     converged = not stopped and bool(np.all(steps < tol))
     if converged:
         message = f"every step below tol = {tol:g} (in units of the length scale)"
-    return OptimiserResult(state.units.copy(), history, state.n_trials, converged, message,
-                           state.n_refactorisations, state.max_drift)
+    return OptimiserResult(
+        state.units.copy(),
+        history,
+        state.n_trials,
+        converged,
+        message,
+        state.n_refactorisations,
+        state.max_drift,
+    )
 
 
 def lbfgs(likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.0):
@@ -214,9 +229,19 @@ def lbfgs(likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.
 
     try:
         res = scipy.optimize.minimize(
-            fun, U0.ravel(), jac=True, method="L-BFGS-B", callback=cb,
-            options={"maxiter": max_iter, "gtol": tol, "ftol": 1e3 * np.finfo(float).eps,
-                     "maxcor": 20, "maxfun": 20 * max(max_iter, 1)})
+            fun,
+            U0.ravel(),
+            jac=True,
+            method="L-BFGS-B",
+            callback=cb,
+            options={
+                "maxiter": max_iter,
+                "gtol": tol,
+                "ftol": 1e3 * np.finfo(float).eps,
+                "maxcor": 20,
+                "maxfun": 20 * max(max_iter, 1),
+            },
+        )
         U, msg, ok = res.x.reshape(n, q), str(res.message), bool(res.success)
     except _Stop:
         U, msg, ok = last["x"].reshape(n, q), "stopped by callback", False

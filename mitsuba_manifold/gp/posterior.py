@@ -66,7 +66,8 @@ class Posterior:
 
     def variance(self, x):
         """``c(x, x) - k^T K^-1 k`` (M,) (Eq. 2), with the noise term ``mu delta(x, x_i)`` in ``k``
-        where ``x`` is a latent point (the variance is then 0)."""
+        where ``x`` is a latent point (the variance is then 0).
+        """
         k = self.kernel.cross(x, self.X, exact=True)
         return 1.0 + self.kernel.noise - np.einsum("mn,mn->m", k, self.factor.solve(k.T).T)
 

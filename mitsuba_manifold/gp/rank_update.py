@@ -90,8 +90,19 @@ class RankUpdatedInverse:
         Largest relative refinement correction of ``P k`` accepted from the maintained inverse.
     """
 
-    def __init__(self, latent, S, d, length_scale=1.0, noise=1e-4, *, refactor_every=50,
-                 min_pivot=1e-6, max_correction=1e-5, _validated=False):
+    def __init__(
+        self,
+        latent,
+        S,
+        d,
+        length_scale=1.0,
+        noise=1e-4,
+        *,
+        refactor_every=50,
+        min_pivot=1e-6,
+        max_correction=1e-5,
+        _validated=False,
+    ):
         if not _validated:
             S = check_gram(S)
             d = check_d(d)
@@ -105,7 +116,7 @@ class RankUpdatedInverse:
         self._l = float(length_scale)
         self._mu = float(noise)
         self._c = 1.0 + self._mu
-        self._kernel = Kernel(1.0, self._mu)     # on points in units of the length scale
+        self._kernel = Kernel(1.0, self._mu)  # on points in units of the length scale
         self._U = np.array(latent, dtype=np.float64) / self._l
         self.refactor_every = int(refactor_every)
         self.min_pivot = float(min_pivot)
@@ -191,7 +202,8 @@ class RankUpdatedInverse:
 
     def _point(self, i):
         """``b = K_inv e_i`` and ``P = K_inv - b b^T / b_i`` (row and column i exactly zero)
-        for point i, cached until the next change: ``[i, version, b, P, old]``."""
+        for point i, cached until the next change: ``[i, version, b, P, old]``.
+        """
         if self._prep is None or self._prep[0] != i or self._prep[1] != self._version:
             b = self._B[:, i].copy()
             P = self._B - b[:, None] * (b / b[i])[None, :]
@@ -202,12 +214,14 @@ class RankUpdatedInverse:
 
     def _schur(self, P, k):
         """For rows ``k`` (``k_i = 0``): ``y = A^-1 k`` padded with ``y_i = 0``, the pivot
-        ``s = (1 + mu) - k^T y`` and the relative size of the refinement correction."""
-        y = k @ P                       # P symmetric up to rounding; row/column i are zero
-        dy = (k - y @ self._K) @ P      # one step of iterative refinement against exact K
+        ``s = (1 + mu) - k^T y`` and the relative size of the refinement correction.
+        """
+        y = k @ P  # P symmetric up to rounding; row/column i are zero
+        dy = (k - y @ self._K) @ P  # one step of iterative refinement against exact K
         y += dy
-        corr = np.sqrt(np.einsum("mj,mj->m", dy, dy)
-                       / np.maximum(np.einsum("mj,mj->m", y, y), 1e-300))
+        corr = np.sqrt(
+            np.einsum("mj,mj->m", dy, dy) / np.maximum(np.einsum("mj,mj->m", y, y), 1e-300)
+        )
         pivot = self._c - np.einsum("mj,mj->m", k, y)
         return y, pivot, corr
 
@@ -226,8 +240,9 @@ class RankUpdatedInverse:
             raise InputError(f"point index {i!r} out of range for {n} points")
         pts = np.array(points, dtype=np.float64, ndmin=2)
         if pts.ndim != 2 or pts.shape[1] != self._U.shape[1]:
-            raise InputError(f"candidate points must have shape (m, {self._U.shape[1]}), "
-                             f"got {np.shape(points)}")
+            raise InputError(
+                f"candidate points must have shape (m, {self._U.shape[1]}), got {np.shape(points)}"
+            )
         if not np.all(np.isfinite(pts)):
             raise InputError("candidate points must be finite")
         return self.try_units(int(i), pts / self._l, pts)
@@ -235,36 +250,39 @@ class RankUpdatedInverse:
     def try_units(self, i, u, pts=None):
         for attempt in range(2):
             prep = self._point(i)
-            first = prep[4] is None       # then row 0 is the current position (s_old, w_old)
-            uu = np.vstack([self._U[i:i + 1], u]) if first else u
+            first = prep[4] is None  # then row 0 is the current position (s_old, w_old)
+            uu = np.vstack([self._U[i : i + 1], u]) if first else u
             k = self._kernel._cross(uu, self._U)
             k[:, i] = 0.0
             w, pivot, corr = self._schur(prep[3], k)
-            w[:, i] = -1.0                # w = A^-1 k - e_i
+            w[:, i] = -1.0  # w = A^-1 k - e_i
             if not first:
                 break
             good = corr[0] <= self.max_correction and pivot[0] >= self.min_pivot * self._c
             if good or attempt == 1:
                 break
-            self.refactorise()            # the maintained inverse has drifted
+            self.refactorise()  # the maintained inverse has drifted
         wsw = np.einsum("mj,mj->m", w, w @ self._S)
         if first:
-            if good:   # without point i: log|A| = log|K| - log s_old, tr(A^-1 S) likewise
-                prep[4] = (self._logdet - math.log(pivot[0]),
-                           self._trace - wsw[0] / pivot[0])
-            else:      # point i sits (nearly) on another one: evaluate its trials from scratch
+            if good:  # without point i: log|A| = log|K| - log s_old, tr(A^-1 S) likewise
+                prep[4] = (self._logdet - math.log(pivot[0]), self._trace - wsw[0] / pivot[0])
+            else:  # point i sits (nearly) on another one: evaluate its trials from scratch
                 prep[4] = (np.nan, np.nan)
             k, w, pivot, corr, wsw = k[1:], w[1:], pivot[1:], corr[1:], wsw[1:]
         logdet_out, trace_out = prep[4]
         self.n_trials += len(u)
-        ok = ((pivot >= self.min_pivot * self._c) & (corr <= self.max_correction)
-              & np.isfinite(logdet_out))
+        ok = (
+            (pivot >= self.min_pivot * self._c)
+            & (corr <= self.max_correction)
+            & np.isfinite(logdet_out)
+        )
         safe = np.where(ok, pivot, 1.0)
         logdet = logdet_out + np.log(safe)
         trace = trace_out + wsw / safe
         L = objective(logdet, trace, self._d)
-        trial = MoveTrial(i, u * self._l if pts is None else pts, L, self._version, u, k, w,
-                          pivot, logdet, trace)
+        trial = MoveTrial(
+            i, u * self._l if pts is None else pts, L, self._version, u, k, w, pivot, logdet, trace
+        )
         for j in np.flatnonzero(~ok):
             L[j] = self._fresh_trial(trial, j)
         return trial
@@ -300,7 +318,8 @@ class RankUpdatedInverse:
             raise InputError("this trial was evaluated before the last change; evaluate it again")
         if not np.isfinite(trial.log_likelihood[j]):
             raise NotPositiveDefiniteError(
-                f"moving point {trial.index} to {trial.points[j]} makes K singular")
+                f"moving point {trial.index} to {trial.points[j]} makes K singular"
+            )
         i = trial.index
         self._U[i] = trial._u[j]
         self.n_updates += 1
@@ -335,6 +354,6 @@ class RankUpdatedInverse:
         """Replace all latent points and refactorise; return the new L."""
         latent = check_points("latent", latent, n=self._U.shape[0], q=self._U.shape[1])
         self._U = latent / self._l
-        self._version = 0        # no drift to measure: this is a new configuration
+        self._version = 0  # no drift to measure: this is a new configuration
         self.refactorise()
         return self.log_likelihood

@@ -60,14 +60,18 @@ def _open(path, header_only):
     with open(path, "rb") as f:
         magic = f.read(4)
     if magic != b"\x76\x2f\x31\x01":
-        raise FormatError(f"{path}: not an OpenEXR file (no EXR magic number"
-                         f"{', file is empty' if not magic else ''})")
+        raise FormatError(
+            f"{path}: not an OpenEXR file (no EXR magic number"
+            f"{', file is empty' if not magic else ''})"
+        )
     try:
         exr = OpenEXR.File(path, separate_channels=True, header_only=header_only)
         header = exr.header()
         channels = None if header_only else exr.channels()
     except Exception as e:  # the library reports truncation and corruption in several ways
-        raise FormatError(f"{path}: truncated or corrupt OpenEXR file ({type(e).__name__}: {e})") from None
+        raise FormatError(
+            f"{path}: truncated or corrupt OpenEXR file ({type(e).__name__}: {e})"
+        ) from None
     return header, channels
 
 
@@ -93,8 +97,12 @@ def read_exr_header(path):
     width, height = _size(header, path)
     names = sorted(c.name for c in header.get("channels", []))
     skip = {"channels", "dataWindow", "displayWindow"}
-    return {"width": width, "height": height, "channels": names,
-            "attributes": {k: v for k, v in header.items() if k not in skip}}
+    return {
+        "width": width,
+        "height": height,
+        "channels": names,
+        "attributes": {k: v for k, v in header.items() if k not in skip},
+    }
 
 
 def check_exr_header(path, resolution=None):
@@ -106,11 +114,15 @@ def check_exr_header(path, resolution=None):
     info = read_exr_header(path)
     missing = [c for c in "RGB" if c not in info["channels"]]
     if missing:
-        raise FormatError(f"{path}: EXR has channels {info['channels']}, missing {''.join(missing)} "
-                         "(an RGB image is needed)")
+        raise FormatError(
+            f"{path}: EXR has channels {info['channels']}, missing {''.join(missing)} "
+            "(an RGB image is needed)"
+        )
     if resolution is not None and (info["width"], info["height"]) != tuple(resolution):
-        raise FormatError(f"{path}: image is {info['width']}x{info['height']}, expected "
-                         f"{resolution[0]}x{resolution[1]}")
+        raise FormatError(
+            f"{path}: image is {info['width']}x{info['height']}, expected "
+            f"{resolution[0]}x{resolution[1]}"
+        )
     return info
 
 
@@ -130,14 +142,18 @@ def read_exr(path):
     width, height = _size(header, path)
     missing = [c for c in "RGB" if c not in channels]
     if missing:
-        raise FormatError(f"{path}: EXR has channels {sorted(channels)}, missing {''.join(missing)} "
-                         "(an RGB image is needed)")
+        raise FormatError(
+            f"{path}: EXR has channels {sorted(channels)}, missing {''.join(missing)} "
+            "(an RGB image is needed)"
+        )
     planes = []
     for c in "RGB":
         px = channels[c].pixels
         if px is None or np.shape(px) != (height, width):
-            raise FormatError(f"{path}: channel {c} has shape {np.shape(px)}, expected ({height}, {width}) "
-                             "(subsampled or unreadable channel)")
+            raise FormatError(
+                f"{path}: channel {c} has shape {np.shape(px)}, expected ({height}, {width}) "
+                "(subsampled or unreadable channel)"
+            )
         if not np.issubdtype(px.dtype, np.floating):
             raise FormatError(f"{path}: channel {c} holds {px.dtype} values, expected float")
         planes.append(px)
@@ -149,6 +165,7 @@ def read_exr(path):
 
 
 # ------------------------------------------------------------------ PNG
+
 
 def srgb_encode(linear):
     """Linear values in [0, 1] to sRGB-encoded values in [0, 1] (IEC 61966-2-1)."""
@@ -196,14 +213,18 @@ def write_png(path, img, exposure=0.0, text=None):
 def printable(text):
     r"""``text`` with every character that is not printable (newlines, tabs, other control
     and format characters) written as its Python escape (``\n``, ``\x07``, ``\u202e``): a
-    material name drawn in a label or a title reads as it is, on one line."""
+    material name drawn in a label or a title reads as it is, on one line.
+    """
     text = str(text)
-    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+    return "".join(
+        c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text
+    )
 
 
 def _wrap(text, width, length, max_lines=3):
     """``text`` as at most ``max_lines`` lines no wider than ``width`` (``length(s)``: pixels);
-    cut at ``-``, ``_`` or spaces where possible, the last line ending in ``...`` if it is cut."""
+    cut at ``-``, ``_`` or spaces where possible, the last line ending in ``...`` if it is cut.
+    """
     out = []
     while text and len(out) < max_lines:
         k = len(text)
@@ -223,26 +244,32 @@ def _wrap(text, width, length, max_lines=3):
 
 def _label_lines(text, width, length, max_lines=4):
     r"""A label as lines no wider than ``width``: each ``\n``-separated field on lines of its
-    own (:func:`_wrap`), at most ``max_lines`` in all, the last ending in ``...`` if cut."""
+    own (:func:`_wrap`), at most ``max_lines`` in all, the last ending in ``...`` if cut.
+    """
     out, fields = [], [printable(f) for f in str(text).split("\n")]
     for k, field in enumerate(fields):
         room = max_lines - len(out)
         out += _wrap(field, width, length, room)
         if len(out) >= max_lines and k + 1 < len(fields):
             if not out[-1].endswith("..."):
-                out[-1] = _wrap(out[-1] + " " + " ".join(fields[k + 1:]), width, length, 1)[0]
+                out[-1] = _wrap(out[-1] + " " + " ".join(fields[k + 1 :]), width, length, 1)[0]
             break
     return out
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def label_font(size=10):
     """The font of labels, titles and captions: DejaVu Sans (shipped with matplotlib), whose
-    spaces read as spaces at small sizes; Pillow's default font when it cannot be found."""
+    spaces read as spaces at small sizes; Pillow's default font when it cannot be found.
+    """
     from PIL import ImageFont
+
     try:
         from matplotlib import font_manager
-        return ImageFont.truetype(font_manager.findfont("DejaVu Sans", fallback_to_default=False), size)
+
+        return ImageFont.truetype(
+            font_manager.findfont("DejaVu Sans", fallback_to_default=False), size
+        )
     except Exception:  # matplotlib missing or no DejaVu: Pillow's own
         return ImageFont.load_default()
 
@@ -286,7 +313,7 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
     for i in range(n):
         r, c = divmod(i, cols)
         y, x0 = top + pad + r * (h + label_h + pad), pad + c * (w + pad)
-        sheet[y:y + h, x0:x0 + w] = tiles[i]
+        sheet[y : y + h, x0 : x0 + w] = tiles[i]
     if labels or heading:
         pil = Image.fromarray(sheet)
         draw = ImageDraw.Draw(pil)
@@ -295,8 +322,12 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
             draw.text((pad, pad // 2), "\n".join(heading), fill=(240, 240, 240), spacing=2)
         for i, text in enumerate(lines):
             r, c = divmod(i, cols)
-            draw.text((pad + c * (w + pad) + 2, top + pad + r * (h + label_h + pad) + h + 1), "\n".join(text),
-                      fill=(230, 230, 230), spacing=2)
+            draw.text(
+                (pad + c * (w + pad) + 2, top + pad + r * (h + label_h + pad) + h + 1),
+                "\n".join(text),
+                fill=(230, 230, 230),
+                spacing=2,
+            )
         sheet = np.asarray(pil)
     write_png(path, sheet)
 
@@ -324,19 +355,27 @@ def with_colour_bar(image, ramp, ticks, caption, min_width=240, pad=6, backgroun
     draw.font = label_font()
     lines = _wrap(caption, width - 2 * pad, draw.textlength)
     bar_h, line_h = 10, 12
-    out = np.full((h + 3 * pad + bar_h + line_h * (1 + len(lines)), width, 3), background, dtype=np.uint8)
+    out = np.full(
+        (h + 3 * pad + bar_h + line_h * (1 + len(lines)), width, 3), background, dtype=np.uint8
+    )
     out[:h, :w] = image
     x0, x1, y = pad, width - pad, h + pad
     cols = np.linspace(0, len(ramp) - 1, x1 - x0).round().astype(int)
-    out[y:y + bar_h, x0:x1] = np.asarray(ramp, dtype=np.uint8)[cols][None]
+    out[y : y + bar_h, x0:x1] = np.asarray(ramp, dtype=np.uint8)[cols][None]
     pil = Image.fromarray(out)
     draw = ImageDraw.Draw(pil)
     draw.font = label_font()
     for frac, text in ticks:
         tw = draw.textlength(text)
-        tx = min(max(x0 + frac * (x1 - x0) - tw / 2, x0), x1 - tw)   # centred on its place, inside the bar
-        draw.line([(x0 + frac * (x1 - x0 - 1), y + bar_h), (x0 + frac * (x1 - x0 - 1), y + bar_h + 2)],
-                  fill=(230, 230, 230))
+        tx = min(
+            max(x0 + frac * (x1 - x0) - tw / 2, x0), x1 - tw
+        )  # centred on its place, inside the bar
+        draw.line(
+            [(x0 + frac * (x1 - x0 - 1), y + bar_h), (x0 + frac * (x1 - x0 - 1), y + bar_h + 2)],
+            fill=(230, 230, 230),
+        )
         draw.text((tx, y + bar_h + 2), text, fill=(230, 230, 230))
-    draw.text((x0, y + bar_h + 2 + line_h + pad // 2), "\n".join(lines), fill=(230, 230, 230), spacing=2)
+    draw.text(
+        (x0, y + bar_h + 2 + line_h + pad // 2), "\n".join(lines), fill=(230, 230, 230), spacing=2
+    )
     return np.asarray(pil)

@@ -13,8 +13,8 @@ means run over every pixel and channel):
 
 import numpy as np
 
-from .io import write_png
 from ..errors import InputError
+from .io import write_png
 
 #: Default regulariser of :func:`rel_mse`.
 REL_EPS = 0.01
@@ -84,10 +84,15 @@ def compare(a, ref, eps=REL_EPS, peak=None):
     sq = np.square(d)
     err = float(sq.mean())
     peak = psnr_peak(ref) if peak is None else float(peak)
-    return {"rel_mse": float(np.mean(sq / (np.square(ref) + eps))), "mse": err,
-            "psnr": float("inf") if err == 0 else float(10.0 * np.log10(peak * peak / err)),
-            "peak": peak, "max_abs": float(np.abs(d).max()), "mean_abs": float(np.abs(d).mean()),
-            "eps": float(eps)}
+    return {
+        "rel_mse": float(np.mean(sq / (np.square(ref) + eps))),
+        "mse": err,
+        "psnr": float("inf") if err == 0 else float(10.0 * np.log10(peak * peak / err)),
+        "peak": peak,
+        "max_abs": float(np.abs(d).max()),
+        "mean_abs": float(np.abs(d).mean()),
+        "eps": float(eps),
+    }
 
 
 def false_colour(error, vmax=None, cmap="inferno"):
@@ -131,7 +136,9 @@ def robust_scale(error, percentile=ERROR_PERCENTILE):
     return v if v > 0 else float(e.max())
 
 
-def write_error_png(path, a, ref, vmax=None, cmap="inferno", percentile=ERROR_PERCENTILE, scale_note=None):
+def write_error_png(
+    path, a, ref, vmax=None, cmap="inferno", percentile=ERROR_PERCENTILE, scale_note=None
+):
     """False-colour PNG of ``|a - r|`` (mean over channels) with its colour bar, written atomically.
 
     The scale runs from 0 to ``vmax`` (default: the ``percentile`` of the error,
@@ -151,8 +158,13 @@ def write_error_png(path, a, ref, vmax=None, cmap="inferno", percentile=ERROR_PE
     above = float((err > vmax).mean())
     ramp = colormaps[cmap](np.linspace(0, 1, 256), bytes=True)[:, :3]
     ticks = [(0.0, "0"), (0.5, f"{vmax / 2:.3g}"), (1.0, f"{vmax:.3g}" + ("+" if above else ""))]
-    caption = (f"|image - reference|, mean of RGB; scale 0 to {vmax:.3g} ({how}); "
-               f"{above:.1%} of pixels above it, at the top colour")
-    write_png(path, with_colour_bar(rgb, ramp, ticks, caption),
-              text={"error-scale": f"0 .. {vmax:.6g} ({cmap}, mean |a - ref| over RGB)"})
+    caption = (
+        f"|image - reference|, mean of RGB; scale 0 to {vmax:.3g} ({how}); "
+        f"{above:.1%} of pixels above it, at the top colour"
+    )
+    write_png(
+        path,
+        with_colour_bar(rgb, ramp, ticks, caption),
+        text={"error-scale": f"0 .. {vmax:.6g} ({cmap}, mean |a - ref| over RGB)"},
+    )
     return vmax

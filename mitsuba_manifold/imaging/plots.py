@@ -89,37 +89,71 @@ def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
     outside = ((rgb < 0) | (rgb > 1)).any(axis=1).reshape(shape)
     dist, reach = data_distance(manifold, pts)
     fig, ax = subplots(figsize=(11, 9), layout="constrained")
-    im = ax.imshow(alb, origin="lower", extent=(xs[0], xs[-1], ys[0], ys[-1]), cmap="viridis", aspect="auto")
+    im = ax.imshow(
+        alb, origin="lower", extent=(xs[0], xs[-1], ys[0], ys[-1]), cmap="viridis", aspect="auto"
+    )
     cs = ax.contour(xs, ys, alb, levels=12, colors="white", linewidths=0.6, alpha=0.8)
     ax.clabel(cs, fontsize=6, fmt="%.2f")
     fig.colorbar(im, ax=ax, label="albedo of the interpolated material (mean RGB)")
     if outside.any():
-        ax.contourf(xs, ys, outside.astype(float), levels=[0.5, 1.5], colors="none", hatches=["////"])
+        ax.contourf(
+            xs, ys, outside.astype(float), levels=[0.5, 1.5], colors="none", hatches=["////"]
+        )
         ax.contour(xs, ys, outside.astype(float), levels=[0.5], colors="red", linewidths=0.8)
-    ax.contour(xs, ys, dist.reshape(shape), levels=[reach], colors="orange", linewidths=1.0, linestyles="--")
+    ax.contour(
+        xs,
+        ys,
+        dist.reshape(shape),
+        levels=[reach],
+        colors="orange",
+        linewidths=1.0,
+        linestyles="--",
+    )
     pts_d = manifold.latent[:, dims]
     others = [k for k in range(manifold.q) if k not in dims]
-    off = np.abs(manifold.latent[:, others] - manifold.latent[:, others].mean(0)).max(axis=1) if others \
+    off = (
+        np.abs(manifold.latent[:, others] - manifold.latent[:, others].mean(0)).max(axis=1)
+        if others
         else np.zeros(manifold.n)
+    )
     near = off <= reach
-    ax.scatter(pts_d[near, 0], pts_d[near, 1], s=14, c="red", edgecolors="black", linewidths=0.4, zorder=5)
-    ax.scatter(pts_d[~near, 0], pts_d[~near, 1], s=14, facecolors="none", edgecolors="red", linewidths=0.6,
-               zorder=5)
+    ax.scatter(
+        pts_d[near, 0], pts_d[near, 1], s=14, c="red", edgecolors="black", linewidths=0.4, zorder=5
+    )
+    ax.scatter(
+        pts_d[~near, 0],
+        pts_d[~near, 1],
+        s=14,
+        facecolors="none",
+        edgecolors="red",
+        linewidths=0.6,
+        zorder=5,
+    )
     lo, hi = rgb.min(), rgb.max()
-    note = (f"hatched: {outside.mean():.1%} of the map has albedo outside [0, 1] ({lo:.2f} to {hi:.2f})"
-            if outside.any() else f"albedo within [0, 1] everywhere ({lo:.2f} to {hi:.2f})")
-    slice_note = f", slice through x[{dims[0]}], x[{dims[1]}]" + (" (hollow: off the slice)" if others else "")
+    note = (
+        f"hatched: {outside.mean():.1%} of the map has albedo outside [0, 1] ({lo:.2f} to {hi:.2f})"
+        if outside.any()
+        else f"albedo within [0, 1] everywhere ({lo:.2f} to {hi:.2f})"
+    )
+    slice_note = f", slice through x[{dims[0]}], x[{dims[1]}]" + (
+        " (hollow: off the slice)" if others else ""
+    )
     ax.set_xlabel(f"x[{dims[0]}]")
     ax.set_ylabel(f"x[{dims[1]}]")
 
     def heading(named):
-        return title or (f"Latent space (q={manifold.q}{slice_note}); {named} of {manifold.n} materials named"
-                         + ("" if named == manifold.n else " (no room for the others)")
-                         + f"\n{note}; dashed: within {reach:.2g} l of a material (the data)")
+        return title or (
+            f"Latent space (q={manifold.q}{slice_note}); {named} of {manifold.n} materials named"
+            + ("" if named == manifold.n else " (no room for the others)")
+            + f"\n{note}; dashed: within {reach:.2g} l of a material (the data)"
+        )
+
     ax.set_title(heading(0), fontsize=9)  # as many lines as the final title, for the layout
-    fig.canvas.draw()                    # the layout settles; names go on the final axes
+    fig.canvas.draw()  # the layout settles; names go on the final axes
     fig.set_layout_engine("none")
-    order = np.lexsort((-_isolation(pts_d), ~near))   # on the slice first, then the most isolated first
+    order = np.lexsort(
+        (-_isolation(pts_d), ~near)
+    )  # on the slice first, then the most isolated first
     ax.set_title(heading(label_points(ax, pts_d, manifold.names, order=order)), fontsize=9)
     save(fig, path)
     return path
@@ -133,9 +167,16 @@ def _isolation(xy):
 
 
 #: Where a label may sit beside its point: (dx, dy) in points, horizontal and vertical alignment.
-_LABEL_SPOTS = ((4, 2, "left", "bottom"), (-4, 2, "right", "bottom"), (4, -2, "left", "top"),
-                (-4, -2, "right", "top"), (6, 0, "left", "center"), (-6, 0, "right", "center"),
-                (0, 5, "center", "bottom"), (0, -5, "center", "top"))
+_LABEL_SPOTS = (
+    (4, 2, "left", "bottom"),
+    (-4, 2, "right", "bottom"),
+    (4, -2, "left", "top"),
+    (-4, -2, "right", "top"),
+    (6, 0, "left", "center"),
+    (-6, 0, "right", "center"),
+    (0, 5, "center", "bottom"),
+    (0, -5, "center", "top"),
+)
 
 
 def label_points(ax, xy, names, order=None, fontsize=7, marker_px=4):
@@ -150,17 +191,38 @@ def label_points(ax, xy, names, order=None, fontsize=7, marker_px=4):
     renderer = ax.figure.canvas.get_renderer()
     frame = ax.get_window_extent(renderer)
     disp = ax.transData.transform(np.asarray(xy, dtype=float))
-    marks = [Bbox.from_extents(x - marker_px, y - marker_px, x + marker_px, y + marker_px) for x, y in disp]
+    marks = [
+        Bbox.from_extents(x - marker_px, y - marker_px, x + marker_px, y + marker_px)
+        for x, y in disp
+    ]
     halo = [pe.withStroke(linewidth=2.5, foreground="white")]
     taken, named = [], 0
-    for i in (range(len(names)) if order is None else order):
+    for i in range(len(names)) if order is None else order:
         for dx, dy, ha, va in _LABEL_SPOTS:
-            text = ax.annotate(names[i], xy[i], xytext=(dx, dy), textcoords="offset points", ha=ha, va=va,
-                               fontsize=fontsize, color="black", path_effects=halo, zorder=4)
+            text = ax.annotate(
+                names[i],
+                xy[i],
+                xytext=(dx, dy),
+                textcoords="offset points",
+                ha=ha,
+                va=va,
+                fontsize=fontsize,
+                color="black",
+                path_effects=halo,
+                zorder=4,
+            )
             box = text.get_window_extent(renderer).padded(1.5)
-            inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1
-            if inside and not any(box.overlaps(b) for b in taken) and \
-                    not any(box.overlaps(m) for j, m in enumerate(marks) if j != i):
+            inside = (
+                frame.x0 <= box.x0
+                and box.x1 <= frame.x1
+                and frame.y0 <= box.y0
+                and box.y1 <= frame.y1
+            )
+            if (
+                inside
+                and not any(box.overlaps(b) for b in taken)
+                and not any(box.overlaps(m) for j, m in enumerate(marks) if j != i)
+            ):
                 taken.append(box)
                 named += 1
                 break
@@ -171,7 +233,8 @@ def label_points(ax, xy, names, order=None, fontsize=7, marker_px=4):
 def latent_line(manifold, path, resolution=400, margin=0.15):
     """PNG of a one-dimensional latent space (q = 1): the albedo of the interpolated material
     along ``x`` with the materials at their latent points (the ``q = 1`` analogue of
-    :func:`latent_map`)."""
+    :func:`latent_map`).
+    """
     x = manifold.latent[:, 0]
     pad = margin * max(x.max() - x.min(), 1e-9)
     xs = np.linspace(x.min() - pad, x.max() + pad, resolution)
@@ -180,7 +243,9 @@ def latent_line(manifold, path, resolution=400, margin=0.15):
     mine = manifold.albedo(x[:, None]).mean(axis=1)
     ax.scatter(x, mine, s=14, c="red", edgecolors="black", linewidths=0.4, zorder=3)
     for px, py, name in zip(x, mine, manifold.names):
-        ax.annotate(name, (px, py), fontsize=7, rotation=60, xytext=(2, 2), textcoords="offset points")
+        ax.annotate(
+            name, (px, py), fontsize=7, rotation=60, xytext=(2, 2), textcoords="offset points"
+        )
     ax.set_title("Latent space (q=1): albedo of the interpolated material along x", fontsize=9)
     ax.set_xlabel("x[0]")
     ax.set_ylabel("albedo (mean RGB)")
@@ -215,7 +280,12 @@ def second_slice(q):
 
 #: Files :func:`write_fit_plots` may write: the map of x[0], x[1] (a line for q = 1), a second
 #: slice for q = 3 (x[1], x[2]) or q > 3 (x[2], x[3]), the convergence plot when there is a history.
-FIT_PLOTS = ("latent_map.png", slice_plot_name((1, 2)), slice_plot_name((2, 3)), "log_likelihood.png")
+FIT_PLOTS = (
+    "latent_map.png",
+    slice_plot_name((1, 2)),
+    slice_plot_name((2, 3)),
+    "log_likelihood.png",
+)
 
 
 def write_fit_plots(manifold, folder):
@@ -227,30 +297,43 @@ def write_fit_plots(manifold, folder):
         dims = second_slice(manifold.q)
         paths.append(latent_map(manifold, os.path.join(folder, slice_plot_name(dims)), dims=dims))
     if len(manifold.history):
-        paths.append(convergence(manifold.history, os.path.join(folder, FIT_PLOTS[-1]),
-                                 label=manifold.info.get("method", "fit")))
+        paths.append(
+            convergence(
+                manifold.history,
+                os.path.join(folder, FIT_PLOTS[-1]),
+                label=manifold.info.get("method", "fit"),
+            )
+        )
     return paths
 
 
 #: Markers of :func:`gi_error_vs_time`, one per way of making the image: (marker, filled, label).
-GI_MARKERS = {"direct": ("o", True, "direct render ({spp} spp)"), "blend": ("*", True, "the blend (default)"),
-              "blend_summed": ("^", False, "full-GI blend, L2+ as summed"), "blend_l1": ("x", True, "L1- blend"),
-              "refined": ("D", True, "refined (--refine)"), "blend_denoised": ("P", False, "blend, whole image denoised"),
-              "direct_denoised": ("s", False, "direct {top} spp, denoised")}
+GI_MARKERS = {
+    "direct": ("o", True, "direct render ({spp} spp)"),
+    "blend": ("*", True, "the blend (default)"),
+    "blend_summed": ("^", False, "full-GI blend, L2+ as summed"),
+    "blend_l1": ("x", True, "L1- blend"),
+    "refined": ("D", True, "refined (--refine)"),
+    "blend_denoised": ("P", False, "blend, whole image denoised"),
+    "direct_denoised": ("s", False, "direct {top} spp, denoised"),
+}
 
 
 def _gi_points(row):
     """``{marker kind: ([times], [rel MSEs])}`` of one point of a GI report row."""
     b, d = row["blend"], row["direct"]
-    out = {"direct": ([r["time_s"] for r in d], [r["rel_mse"] for r in d]), "blend": ([b["time_s"]], [b["rel_mse"]])}
+    out = {
+        "direct": ([r["time_s"] for r in d], [r["rel_mse"] for r in d]),
+        "blend": ([b["time_s"]], [b["rel_mse"]]),
+    }
     if "blend_summed" in row:
         out["blend_summed"] = ([row["blend_summed"]["time_s"]], [row["blend_summed"]["rel_mse"]])
-    if "blend_l1" in row:   # the L1- blend of the same basis costs what the summed full one does
+    if "blend_l1" in row:  # the L1- blend of the same basis costs what the summed full one does
         t = row.get("blend_summed", b)["time_s"]
         out["blend_l1"] = ([t], [row["blend_l1"]["rel_mse"]])
     if "refined" in row:
         out["refined"] = ([row["refined"]["time_s"]], [row["refined"]["rel_mse"]])
-    if "denoised" in b:   # denoised figures beside (never instead of) the raw ones
+    if "denoised" in b:  # denoised figures beside (never instead of) the raw ones
         out["blend_denoised"] = ([b["denoised"]["time_s"]], [b["denoised"]["rel_mse"]])
         top = [r["denoised"] for r in d if "denoised" in r]
         out["direct_denoised"] = ([r["time_s"] for r in top], [r["rel_mse"] for r in top])
@@ -259,32 +342,66 @@ def _gi_points(row):
 
 def gi_error_vs_time(report, path):
     """Log-log plot of relative MSE against time per image (Fig. 13 in spirit): per scene, each
-    point's direct renders and blends; colour: the latent point, marker: how the image was made."""
+    point's direct renders and blends; colour: the latent point, marker: how the image was made.
+    """
     from matplotlib.lines import Line2D
+
     names, drawn = list(report["scenes"]), set()
-    fig, axes = subplots(1, len(names), figsize=(6.5 * len(names) + 1.5, 6.6), squeeze=False,
-                         layout="constrained")
+    fig, axes = subplots(
+        1, len(names), figsize=(6.5 * len(names) + 1.5, 6.6), squeeze=False, layout="constrained"
+    )
     for ax, name in zip(axes[0], names):
         sc = report["scenes"][name]
         for k, row in enumerate(sc["points"]):
             for kind, (ts, es) in _gi_points(row).items():
                 drawn.add(kind)
                 marker, filled, _ = GI_MARKERS[kind]
-                ax.loglog(ts, es, marker + ("-" if kind == "direct" else ""), ms=12 if marker == "*" else 8,
-                          color=f"C{k}", mfc=None if filled else "none")
-        ax.set_title(f"{name}.xml: basis rendered once in {sc['basis_time_s']:.0f} s "
-                     f"({report['basis_spp']} spp)", fontsize=9)
+                ax.loglog(
+                    ts,
+                    es,
+                    marker + ("-" if kind == "direct" else ""),
+                    ms=12 if marker == "*" else 8,
+                    color=f"C{k}",
+                    mfc=None if filled else "none",
+                )
+        ax.set_title(
+            f"{name}.xml: basis rendered once in {sc['basis_time_s']:.0f} s "
+            f"({report['basis_spp']} spp)",
+            fontsize=9,
+        )
         ax.set_xlabel("time per image (s)")
         ax.set_ylabel(f"relative MSE vs {report['reference_spp']} spp full GI")
         ax.grid(alpha=0.3, which="both")
-    points = [Line2D([], [], color=f"C{k}", lw=6, label=f"{r['point']}: {r['x_is']}")
-              for k, r in enumerate(report["scenes"][names[0]]["points"])]
-    spps = sorted({r["spp"] for sc in report["scenes"].values() for row in sc["points"] for r in row["direct"]})
+    points = [
+        Line2D([], [], color=f"C{k}", lw=6, label=f"{r['point']}: {r['x_is']}")
+        for k, r in enumerate(report["scenes"][names[0]]["points"])
+    ]
+    spps = sorted(
+        {
+            r["spp"]
+            for sc in report["scenes"].values()
+            for row in sc["points"]
+            for r in row["direct"]
+        }
+    )
     spp = ", ".join(str(v) for v in spps) if len(spps) < 3 else f"{spps[0]} to {spps[-1]}"
-    kinds = [Line2D([], [], color="0.3", ls="", marker=mk, mfc=None if filled else "none", ms=8,
-                    label=label.format(spp=spp, top=spps[-1] if spps else ""))
-             for kind, (mk, filled, label) in GI_MARKERS.items() if kind in drawn]
+    kinds = [
+        Line2D(
+            [],
+            [],
+            color="0.3",
+            ls="",
+            marker=mk,
+            mfc=None if filled else "none",
+            ms=8,
+            label=label.format(spp=spp, top=spps[-1] if spps else ""),
+        )
+        for kind, (mk, filled, label) in GI_MARKERS.items()
+        if kind in drawn
+    ]
     # below the axes, so that long point names do not squeeze the plot
-    fig.legend(handles=points + kinds, fontsize=7.5, loc="outside lower center", ncols=2, frameon=False)
+    fig.legend(
+        handles=points + kinds, fontsize=7.5, loc="outside lower center", ncols=2, frameon=False
+    )
     save(fig, path)
     return path

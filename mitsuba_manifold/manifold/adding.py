@@ -1,11 +1,11 @@
 """A new measured material placed in a fitted manifold without a refit.
 
-:func:`add` gives the new material the latent point that maximises the GPLVM likelihood
-(paper Eq. 6) of all N + 1 tables with the N fitted points held (:func:`gp.placement.place_point`,
-started next to the points of its closest materials, closest in ``log(1 + rho)`` on a random
-subset of bins, and at their mean weighted by closeness). The other points, the kernel and the interpolant's parameters do not change; the
-interpolant is rebuilt over the N + 1 points, so the new material is reproduced exactly at
-its point (every interpolant has ``w(x_i) = e_i``).
+:func:`add` gives the new material the latent point that maximises the GPLVM likelihood (paper Eq.
+6) of all N + 1 tables with the N fitted points held (:func:`gp.placement.place_point`, started
+next to the points of its closest materials, closest in ``log(1 + rho)`` on a random subset of
+bins, and at their mean weighted by closeness). The other points, the kernel and the interpolant's
+parameters do not change; the interpolant is rebuilt over the N + 1 points, so the new material is
+reproduced exactly at its point (every interpolant has ``w(x_i) = e_i``).
 
 The Gram matrix of the fit's features grows by one row. The N x N block is the stored one
 re-centred on the new mean; the products with the new table are taken on a random subset of
@@ -119,11 +119,14 @@ def _check_name(name, names):
 
 def _stored_table(table, folder, name):
     """Write an array table as a ``.binary`` file under the cache of the database ``folder`` (a
-    folder's own cache, or the user's cache for a built-in set), named by its content."""
+    folder's own cache, or the user's cache for a built-in set), named by its content.
+    """
     cache = database_cache(folder)
     if cache is None:
-        raise MissingFileError(f"database folder {folder} does not exist: the added table has no "
-                               "cache to be written to (give a manifold whose database is present)")
+        raise MissingFileError(
+            f"database folder {folder} does not exist: the added table has no "
+            "cache to be written to (give a manifold whose database is present)"
+        )
     out = os.path.join(cache, "added")
     os.makedirs(out, exist_ok=True)
     from .._util.names import escape
@@ -176,7 +179,8 @@ def grown_gram(S, tables, t, features, n_bins=FEATURE_BINS, seed=0):
 
 def _starts(latent, length_scale, own, n_starts, seed=0):
     """Starting points: a tenth of ``l`` from each of the ``n_starts`` closest materials (``own``:
-    each material's distance to the new table), and their mean weighted by ``own^-2``."""
+    each material's distance to the new table), and their mean weighted by ``own^-2``.
+    """
     order = np.argsort(own)[:n_starts]
     steps = np.random.default_rng(seed).standard_normal((len(order), latent.shape[1]))
     out = latent[order] + 0.1 * length_scale * steps / np.linalg.norm(steps, axis=1, keepdims=True)

@@ -60,8 +60,18 @@ class FitRecord:
     extra: dict = field(default_factory=dict)
 
     #: The entries of the saved ``info`` dict, in their order (the timings are ``time_*_s``).
-    INFO = ("method", "d", "dims", "q", "preset", "log_likelihood", "time_load_s", "time_gram_s",
-            "time_fit_s", "n_evaluations")
+    INFO = (
+        "method",
+        "d",
+        "dims",
+        "q",
+        "preset",
+        "log_likelihood",
+        "time_load_s",
+        "time_gram_s",
+        "time_fit_s",
+        "n_evaluations",
+    )
 
     def __post_init__(self):
         self.history = np.asarray(self.history, dtype=np.float64)
@@ -80,7 +90,9 @@ class FitRecord:
         """The ``info`` dict of the saved layout (entries that are None left out)."""
         out = {}
         for key in self.INFO:
-            value = getattr(self.timings, key[5:]) if key.startswith("time_") else getattr(self, key)
+            value = (
+                getattr(self.timings, key[5:]) if key.startswith("time_") else getattr(self, key)
+            )
             if value is not None:
                 out[key] = list(value) if key == "dims" else value
         out.update(self.extra)

@@ -15,8 +15,8 @@ from ..data import gram
 from ..data.database import FEATURES, albedo_weights
 from ..errors import FormatError, InputError
 from ..gp.gplvm import FitResult
-from .presets import fit_layout
 from .fit_record import FitRecord, Timings
+from .presets import fit_layout
 
 
 @dataclass
@@ -36,7 +36,8 @@ class DatabaseFit:
 
 def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
     """Fit the materials ``names`` (default all) of :class:`Database` ``db`` with settings ``cfg``
-    (:func:`presets.settings` of ``preset``); ``options`` go to :func:`gplvm.fit_latent`."""
+    (:func:`presets.settings` of ``preset``); ``options`` go to :func:`gplvm.fit_latent`.
+    """
     names = db.names if names is None else list(names)
     if len(names) < 2:
         raise InputError("a manifold needs at least 2 materials")
@@ -46,12 +47,30 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
     if cfg["features"] not in FEATURES:
         raise FormatError(f"`features` must be one of {FEATURES}, got {cfg['features']!r}")
     t0 = time.perf_counter()
-    g = gram.gram(tables, cfg["features"], centre=True, raw=True, weights=albedo_weights(db.dims).reshape(-1))
+    g = gram.gram(
+        tables, cfg["features"], centre=True, raw=True, weights=albedo_weights(db.dims).reshape(-1)
+    )
     t_gram = time.perf_counter() - t0
     result = fit_layout(g.S, tables.shape[1], cfg, init=init, **options)
-    record = FitRecord(method=cfg["method"], preset=preset, q=int(cfg["q"]), d=int(tables.shape[1]),
-                       dims=db.dims, log_likelihood=float(result.log_likelihood),
-                       n_evaluations=int(result.n_evaluations), history=result.history,
-                       timings=Timings(t_load, t_gram, float(result.time_s)))
-    return DatabaseFit(names, db.hashes(names), result, record, g.S, g.raw,
-                       db.albedo(names, tables=tables), tables, g.weighted)
+    record = FitRecord(
+        method=cfg["method"],
+        preset=preset,
+        q=int(cfg["q"]),
+        d=int(tables.shape[1]),
+        dims=db.dims,
+        log_likelihood=float(result.log_likelihood),
+        n_evaluations=int(result.n_evaluations),
+        history=result.history,
+        timings=Timings(t_load, t_gram, float(result.time_s)),
+    )
+    return DatabaseFit(
+        names,
+        db.hashes(names),
+        result,
+        record,
+        g.S,
+        g.raw,
+        db.albedo(names, tables=tables),
+        tables,
+        g.weighted,
+    )

@@ -25,9 +25,15 @@ IDENTITY_VERSION = 1
 def manifold_identity(manifold):
     """SHA-256 (hex) of a :class:`Manifold`'s content (see the module docstring)."""
     latent = np.ascontiguousarray(manifold.latent, dtype="<f8")
-    head = {"identity": IDENTITY_VERSION, "names": list(manifold.names), "hashes": list(manifold.hashes),
-            "length_scale": float(manifold.length_scale).hex(), "noise": float(manifold.noise).hex(),
-            "features": manifold.features, "shape": list(latent.shape)}
+    head = {
+        "identity": IDENTITY_VERSION,
+        "names": list(manifold.names),
+        "hashes": list(manifold.hashes),
+        "length_scale": float(manifold.length_scale).hex(),
+        "noise": float(manifold.noise).hex(),
+        "features": manifold.features,
+        "shape": list(latent.shape),
+    }
     h = hashlib.sha256(json.dumps(head, sort_keys=True).encode())
     h.update(latent.tobytes())
     return h.hexdigest()

@@ -65,7 +65,8 @@ class Interpolant:
 
     def b_and_w(self, x):
         """``b`` and the weights ``w`` (M, N) at points ``x`` (M, q): ``sum_i w_i table_i = mean + b^T Z``,
-        so ``b = w - 1/N`` (the GP's Eq. 4 ``b`` for :class:`GaussianProcessWeights`)."""
+        so ``b = w - 1/N`` (the GP's Eq. 4 ``b`` for :class:`GaussianProcessWeights`).
+        """
         w = self._weights(x)
         return w - 1.0 / self.n, w
 
@@ -103,8 +104,9 @@ class GaussianProcessWeights(Interpolant):
         self.length_scale = _number(self.kind, "length_scale", length_scale)
         self.noise = _number(self.kind, "noise", noise)
         if not isinstance(exact, (bool, np.bool_)):
-            raise InputError(f"interpolant {self.kind!r}: `exact` must be True or False, "
-                             f"got {exact!r}")
+            raise InputError(
+                f"interpolant {self.kind!r}: `exact` must be True or False, got {exact!r}"
+            )
         self.exact = bool(exact)
         self.gp = posterior(self.latent, Kernel(self.length_scale, self.noise))
 
@@ -114,16 +116,21 @@ class GaussianProcessWeights(Interpolant):
         return self.gp.K
 
     def params(self):
-        return {"kind": self.kind, "length_scale": self.length_scale, "noise": self.noise,
-                "exact": self.exact}
+        return {
+            "kind": self.kind,
+            "length_scale": self.length_scale,
+            "noise": self.noise,
+            "exact": self.exact,
+        }
 
     def jump(self, eps=1e-9):
         """Exact for ``exact=True``: at ``x_i`` the noise term makes ``w = e_i``; an infinitesimal
         step away it is absent and ``b = e_i - mu K_inv e_i``. The paper calls this negligible;
-        it is only when K's smooth part is well conditioned (points far apart compared with l)."""
+        it is only when K's smooth part is well conditioned (points far apart compared with l).
+        """
         if not self.exact:
             return super().jump(eps)
-        db = -self.noise * self.gp.inverse()               # column i: b(x_i+) - e_i
+        db = -self.noise * self.gp.inverse()  # column i: b(x_i+) - e_i
         dw = db - db.sum(axis=0, keepdims=True) / self.n  # the affine weights' change
         return float(np.abs(dw).sum(axis=0).max())
 
@@ -187,27 +194,46 @@ class ShepardWeights(Interpolant):
 
     def __init__(self, latent, power=2.0, taper=np.inf, spread=0.0, length_scale=1.0):
         super().__init__(latent)
-        given = (("power", power), ("taper", taper), ("spread", spread),
-                 ("length_scale", length_scale))
+        given = (
+            ("power", power),
+            ("taper", taper),
+            ("spread", spread),
+            ("length_scale", length_scale),
+        )
         self.power, self.taper, self.spread, self.length_scale = (
-            _number(self.kind, k, v) for k, v in given)
-        if not self.power > 0 or not self.taper > 0 or not self.length_scale > 0 or not self.spread >= 0:
-            raise InputError(f"shepard weights need `power` > 0, `taper` > 0, `spread` >= 0 and `length_scale` > 0, "
-                                   f"got {self.power}, {self.taper}, {self.spread}, {self.length_scale}")
+            _number(self.kind, k, v) for k, v in given
+        )
+        if (
+            not self.power > 0
+            or not self.taper > 0
+            or not self.length_scale > 0
+            or not self.spread >= 0
+        ):
+            raise InputError(
+                f"shepard weights need `power` > 0, `taper` > 0, `spread` >= 0 and `length_scale` > 0, "
+                f"got {self.power}, {self.taper}, {self.spread}, {self.length_scale}"
+            )
 
     def params(self):
-        return {"kind": self.kind, "power": self.power, "taper": self.taper, "spread": self.spread,
-                "length_scale": self.length_scale}
+        return {
+            "kind": self.kind,
+            "power": self.power,
+            "taper": self.taper,
+            "spread": self.spread,
+            "length_scale": self.length_scale,
+        }
 
     def _terms(self, x):
         """``x - x_i`` (units of l), ``r_i^2``, hit rows, ``m(x)``, ``h(x)^2`` and ``log u_i``."""
         diff = (x[:, None, :] - self.latent[None]) / self.length_scale
         r2 = np.einsum("mnq,mnq->mn", diff, diff)
         hit = (r2 == 0).any(axis=1)
-        r2s = np.where(hit[:, None], 1.0, r2)                   # hit rows are set apart
-        inv = (r2s / r2s.min(1, keepdims=True)) ** (-0.5 * self.power)   # scaled: no underflow far out
+        r2s = np.where(hit[:, None], 1.0, r2)  # hit rows are set apart
+        inv = (r2s / r2s.min(1, keepdims=True)) ** (
+            -0.5 * self.power
+        )  # scaled: no underflow far out
         m = np.where(hit, 0.0, (r2s * inv).sum(1) / inv.sum(1))
-        h2 = self.taper ** 2 + self.spread ** 2 * m
+        h2 = self.taper**2 + self.spread**2 * m
         with np.errstate(divide="ignore"):
             log_u = -0.5 * self.power * np.log(r2) - 0.5 * r2 / h2[:, None]
         return diff, r2s, hit, inv, m, h2, log_u
@@ -224,10 +250,12 @@ class ShepardWeights(Interpolant):
         dS0 = np.einsum("mn,mnq->mq", -p * inv / r2, diff) / l
         dS2 = np.einsum("mn,mnq->mq", (2 - p) * inv, diff) / l
         dm = (dS2 - m[:, None] * dS0) / S0[:, None]
-        dh2 = self.spread ** 2 * dm
+        dh2 = self.spread**2 * dm
         # d log u_i / dx = -p (x - x_i) / (l r_i^2) - (x - x_i) / (l h^2) + r_i^2 / (2 h^4) dh^2/dx
-        g = (-(p / r2 + 1.0 / h2[:, None])[..., None] * diff / l
-             + (0.5 * r2 / h2[:, None] ** 2)[..., None] * dh2[:, None, :])
+        g = (
+            -(p / r2 + 1.0 / h2[:, None])[..., None] * diff / l
+            + (0.5 * r2 / h2[:, None] ** 2)[..., None] * dh2[:, None, :]
+        )
         J = w[..., None] * (g - np.einsum("mn,mnq->mq", w, g)[:, None, :])
         J[hit] = 0.0  # at a latent point w = e_i and (for p > 1) it is stationary
         return J
@@ -250,13 +278,15 @@ def _normalise(log_u):
 
 def posterior(latent, kernel):
     """The GP :class:`~mitsuba_manifold.gp.posterior.Posterior` of ``latent`` (the one factorisation
-    of its K), or an :class:`InputError` saying why K has none."""
+    of its K), or an :class:`InputError` saying why K has none.
+    """
     try:
         return Posterior(latent, kernel)
     except NotPositiveDefiniteError:
         raise InputError(
             f"the covariance K of the {len(latent)} latent points is not positive definite "
-            f"(`noise` mu={kernel.noise:g} too small for coincident points?)") from None
+            f"(`noise` mu={kernel.noise:g} too small for coincident points?)"
+        ) from None
 
 
 def _number(kind, name, value):

@@ -22,9 +22,9 @@ import zipfile
 import numpy as np
 
 from .._util.atomic import atomic_write
-from .fit_record import FitRecord
-from . import schema
 from ..errors import FormatError, InputError
+from . import schema
+from .fit_record import FitRecord
 
 FORMAT = "mitsuba-manifold"
 FORMAT_VERSION = 3
@@ -34,16 +34,27 @@ DERIVED = ("albedos", "gram", "table_gram", "cos_gram")
 
 
 def _not_a_manifold(path, why):
-    return FormatError(f"{path} is not a manifold .npz written by fit_manifold ({why}); give the "
-                      "file that tools/fit_manifold.py or Manifold.save wrote")
+    return FormatError(
+        f"{path} is not a manifold .npz written by fit_manifold ({why}); give the "
+        "file that tools/fit_manifold.py or Manifold.save wrote"
+    )
 
 
 def write(m, path):
     """Write manifold ``m`` to ``path`` atomically."""
-    meta = {"format": FORMAT, "version": FORMAT_VERSION, "names": m.names, "database": m.database,
-            "hashes": m.hashes, "length_scale": m.length_scale, "noise": m.noise, "features": m.features,
-            "info": m.info, "interpolant": m.interpolant.params()}
-    if m.added:   # version 3: readers of version 2 refuse a file naming tables outside its database
+    meta = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "names": m.names,
+        "database": m.database,
+        "hashes": m.hashes,
+        "length_scale": m.length_scale,
+        "noise": m.noise,
+        "features": m.features,
+        "info": m.info,
+        "interpolant": m.interpolant.params(),
+    }
+    if m.added:  # version 3: readers of version 2 refuse a file naming tables outside its database
         meta["added"] = [a.as_dict() for a in m.added]
     else:
         meta["version"] = 2
@@ -56,7 +67,8 @@ def write(m, path):
 
 def read(path):
     """The keyword arguments of ``Manifold(...)`` stored in ``path``, every field checked
-    against the schema (:mod:`.schema`) before it is used."""
+    against the schema (:mod:`.schema`) before it is used.
+    """
     path = os.fspath(path)
     if not os.path.exists(path):
         raise InputError(f"manifold file {path} does not exist")
@@ -69,7 +81,9 @@ def read(path):
             try:
                 meta = schema.read_meta(path, zf)
             except FormatError as e:
-                raise _not_a_manifold(path, f"unreadable: {str(e).removeprefix(path + ': ').split(';')[0]}") from None
+                raise _not_a_manifold(
+                    path, f"unreadable: {str(e).removeprefix(path + ': ').split(';')[0]}"
+                ) from None
             version = _checked_version(path, meta)
             schema.check_meta(path, meta, version)
             _check_added(path, meta)
@@ -80,22 +94,37 @@ def read(path):
         raise _not_a_manifold(path, f"damaged: {type(e).__name__}: {e}") from None
     info = dict(meta.get("info") or {})
     info.setdefault("preset", "paper" if version < 2 else "custom")
-    return {"names": meta["names"], "latent": arrays["latent"], "database": meta["database"],
-            "hashes": meta["hashes"], "length_scale": meta["length_scale"], "noise": meta["noise"],
-            "features": meta["features"], "albedos": arrays.get("albedos"), "gram": arrays.get("gram"),
-            "record": FitRecord.from_info(info, arrays.get("history", ())),
-            "interpolant": meta["interpolant"] if version >= 2 else {"kind": "gp", "exact": True},
-            "table_gram": arrays.get("table_gram"), "cos_gram": arrays.get("cos_gram"),
-            "added": meta.get("added") if version >= 3 else None}
+    return {
+        "names": meta["names"],
+        "latent": arrays["latent"],
+        "database": meta["database"],
+        "hashes": meta["hashes"],
+        "length_scale": meta["length_scale"],
+        "noise": meta["noise"],
+        "features": meta["features"],
+        "albedos": arrays.get("albedos"),
+        "gram": arrays.get("gram"),
+        "record": FitRecord.from_info(info, arrays.get("history", ())),
+        "interpolant": meta["interpolant"] if version >= 2 else {"kind": "gp", "exact": True},
+        "table_gram": arrays.get("table_gram"),
+        "cos_gram": arrays.get("cos_gram"),
+        "added": meta.get("added") if version >= 3 else None,
+    }
 
 
 def _checked_version(path, meta):
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise _not_a_manifold(path, "its 'meta' entry is not a mitsuba-manifold one")
     version = meta.get("version", 0)
-    if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= FORMAT_VERSION:
-        raise FormatError(f"{path}: its version field {version!r} is not a format version this package reads "
-                          f"(1 to {FORMAT_VERSION}); {_REFIT}")
+    if (
+        isinstance(version, bool)
+        or not isinstance(version, int)
+        or not 1 <= version <= FORMAT_VERSION
+    ):
+        raise FormatError(
+            f"{path}: its version field {version!r} is not a format version this package reads "
+            f"(1 to {FORMAT_VERSION}); {_REFIT}"
+        )
     return version
 
 
@@ -105,5 +134,7 @@ def _check_added(path, meta):
     for a in meta.get("added") or ():
         i = index.get(a["name"])
         if i is None or meta["hashes"][i] != a["hash"]:
-            raise FormatError(f"{path}: its added material {a['name']!r} is not one of its names with that "
-                              f"table's hash; {_REFIT}")
+            raise FormatError(
+                f"{path}: its added material {a['name']!r} is not one of its names with that "
+                f"table's hash; {_REFIT}"
+            )

@@ -32,28 +32,47 @@ EDGE_BLOCK = 2048
 
 def cache_key(metric, *parts):
     """Content hash naming a cache file of ``metric`` (a :class:`paths.PathMetric`) and ``parts``:
-    the manifold's latent points, interpolant and recorded table hashes, and the metric's bins."""
+    the manifold's latent points, interpolant and recorded table hashes, and the metric's bins.
+    """
     m = metric.manifold
-    return key_hash(*map(str, parts), np.ascontiguousarray(m.latent, dtype=np.float64),
-                    json.dumps(m.interpolant.params(), sort_keys=True), repr(tuple(metric.quad.dims)),
-                    repr(tuple(metric.quad.stride)), *m.hashes, length=40)
+    return key_hash(
+        *map(str, parts),
+        np.ascontiguousarray(m.latent, dtype=np.float64),
+        json.dumps(m.interpolant.params(), sort_keys=True),
+        repr(tuple(metric.quad.dims)),
+        repr(tuple(metric.quad.stride)),
+        *m.hashes,
+        length=40,
+    )
 
 
 def cache_folder(manifold):
     """The cache folder of ``manifold``'s database (a built-in set's: the user's cache), or None
-    when that folder is gone (no caching: creating it would make an empty database folder)."""
+    when that folder is gone (no caching: creating it would make an empty database folder).
+    """
     from ..data.database import database_cache
+
     return database_cache(manifold.database)
 
 
 def cached(metric, name, build, shape=None, dtype=None, keep=4, settings=()):
     """``build()`` cached as ``<key>.<name>.npy`` in the manifold's cache folder (:func:`cache_key`
-    of ``name`` and ``settings``); only the ``keep`` most recently used files of ``name`` are kept."""
+    of ``name`` and ``settings``); only the ``keep`` most recently used files of ``name`` are kept.
+    """
     folder = cache_folder(metric.manifold)
     if folder is None:
         return build()
     path = os.path.join(folder, f"{cache_key(metric, name, *settings)}.{name}.npy")
-    return npy_cache(path, build, shape=shape, dtype=dtype, finite=True, touch=True, keep=keep, marker=f".{name}.")
+    return npy_cache(
+        path,
+        build,
+        shape=shape,
+        dtype=dtype,
+        finite=True,
+        touch=True,
+        keep=keep,
+        marker=f".{name}.",
+    )
 
 
 @dataclass
@@ -79,15 +98,23 @@ class LatentGraph:
         n, q = X.shape
         nn = cKDTree(X).query(X, k=min(neighbours, n - 1) + 1)[1][:, 1:]
         tree = minimum_spanning_tree(np.linalg.norm(X[:, None] - X[None], axis=-1) + 1e-12).tocoo()
-        pairs = np.concatenate([np.stack([np.repeat(np.arange(n), nn.shape[1]), nn.ravel()], 1),
-                                np.stack([tree.row, tree.col], 1)])
+        pairs = np.concatenate(
+            [
+                np.stack([np.repeat(np.arange(n), nn.shape[1]), nn.ravel()], 1),
+                np.stack([tree.row, tree.col], 1),
+            ]
+        )
         pairs = np.unique(np.sort(pairs, axis=1), axis=0)
         t = np.linspace(0.0, 1.0, per_edge + 2)
-        chains = X[pairs[:, 0], None] + t[None, :, None] * (X[pairs[:, 1]] - X[pairs[:, 0]])[:, None]
+        chains = (
+            X[pairs[:, 0], None] + t[None, :, None] * (X[pairs[:, 1]] - X[pairs[:, 0]])[:, None]
+        )
         nodes, inverse = np.unique(chains.reshape(-1, q), axis=0, return_inverse=True)
         inverse = inverse.reshape(chains.shape[:2])
         idx = cKDTree(nodes).query(nodes, k=min(k, len(nodes) - 1) + 1)[1]
-        rows = np.concatenate([np.repeat(np.arange(len(nodes)), idx.shape[1] - 1), inverse[:, :-1].ravel()])
+        rows = np.concatenate(
+            [np.repeat(np.arange(len(nodes)), idx.shape[1] - 1), inverse[:, :-1].ravel()]
+        )
         cols = np.concatenate([idx[:, 1:].ravel(), inverse[:, 1:].ravel()])
         edges = np.unique(np.sort(np.stack([rows, cols], 1), axis=1), axis=0)
         return nodes, edges[edges[:, 0] != edges[:, 1]]
@@ -95,12 +122,14 @@ class LatentGraph:
     @staticmethod
     def weigh(metric, nodes, edges):
         """Perceptual lengths of ``edges`` between ``nodes`` (blockwise, float32 features)."""
-        F = np.concatenate([metric.features(nodes[s:s + 1024]) for s in range(0, len(nodes), 1024)])
+        F = np.concatenate(
+            [metric.features(nodes[s : s + 1024]) for s in range(0, len(nodes), 1024)]
+        )
         w = np.empty(len(edges))
         for s in range(0, len(edges), EDGE_BLOCK):
-            e = edges[s:s + EDGE_BLOCK]
+            e = edges[s : s + EDGE_BLOCK]
             diff = F[e[:, 0]] - F[e[:, 1]]
-            w[s:s + EDGE_BLOCK] = np.sqrt(np.einsum("ek,ek->e", diff, diff, dtype=np.float64))
+            w[s : s + EDGE_BLOCK] = np.sqrt(np.einsum("ek,ek->e", diff, diff, dtype=np.float64))
         return w
 
     @classmethod
@@ -112,14 +141,28 @@ class LatentGraph:
 
         def weigh():
             return cls.weigh(metric, nodes, edges)
-        w = (cached(metric, VERSION, weigh, shape=(len(edges),), dtype=np.float64, settings=(NEIGHBOURS, PER_EDGE, K))
-             if cache else weigh())
-        g = sparse.coo_matrix((np.asarray(w) + 1e-12, (edges[:, 0], edges[:, 1])), shape=(len(nodes),) * 2).tocsr()
+
+        w = (
+            cached(
+                metric,
+                VERSION,
+                weigh,
+                shape=(len(edges),),
+                dtype=np.float64,
+                settings=(NEIGHBOURS, PER_EDGE, K),
+            )
+            if cache
+            else weigh()
+        )
+        g = sparse.coo_matrix(
+            (np.asarray(w) + 1e-12, (edges[:, 0], edges[:, 1])), shape=(len(nodes),) * 2
+        ).tocsr()
         return cls(nodes, (g + g.T).tocsr())
 
     def shortest(self, metric, xa, xb, k=K):
         """Latent polyline of the shortest graph path from ``xa`` to ``xb`` (ends joined to their
-        ``k`` nearest nodes)."""
+        ``k`` nearest nodes).
+        """
         from scipy import sparse
         from scipy.sparse.csgraph import dijkstra
         from scipy.spatial import cKDTree
@@ -132,7 +175,11 @@ class LatentGraph:
         w = np.sqrt(np.einsum("ek,ek->e", diff, diff, dtype=np.float64)) + 1e-12
         rows = np.repeat([n, n + 1], near.shape[1])
         extra = sparse.coo_matrix((w, (rows, near.ravel())), shape=(n + 2, n + 2)).tocsr()
-        g = sparse.bmat([[self.graph, None], [None, sparse.csr_matrix((2, 2))]]).tocsr() + extra + extra.T
+        g = (
+            sparse.bmat([[self.graph, None], [None, sparse.csr_matrix((2, 2))]]).tocsr()
+            + extra
+            + extra.T
+        )
         _, pred = dijkstra(g, indices=n, return_predecessors=True)
         chain, v = [n + 1], n + 1
         while v != n:

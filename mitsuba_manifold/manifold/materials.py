@@ -17,8 +17,10 @@ def index(names, name):
         return names.index(name)
     except ValueError:
         n = len(names)
-        raise InputError(f"unknown material {name!r}{did_you_mean(name, names)}: this manifold has {n} materials "
-                         f"({', '.join(names[:6])}{', ...' if n > 6 else ''})") from None
+        raise InputError(
+            f"unknown material {name!r}{did_you_mean(name, names)}: this manifold has {n} materials "
+            f"({', '.join(names[:6])}{', ...' if n > 6 else ''})"
+        ) from None
 
 
 def one_hot(names, name):
@@ -47,7 +49,9 @@ def parse_weights(text, names):
         except ValueError:
             v = None
         if not sep or v is None or not np.isfinite(v) or ":" in name:
-            raise InputError(f"weights {text!r}: entry {e!r} is not 'name:number' (commas separate entries)")
+            raise InputError(
+                f"weights {text!r}: entry {e!r} is not 'name:number' (commas separate entries)"
+            )
         w[index(names, name.strip())] += v
     try:
         weight_sum(w)

@@ -31,23 +31,39 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..gp.kernel import Kernel
-from ..gp.likelihood import log_likelihood
-from . import adding, fitting, io as manifold_file, materials, paths, report, schema
-from . import interpolant as interpolants
-from . import projection as projection_mod
-from .presets import PRESETS, fit_layout, make_interpolant, settings
-from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, PruneReport
-from .fit_record import FitRecord
-from .tables import Combination, Pruned, TrainingTables, stored
 from ..data.database import FEATURES, Database
 from ..errors import InputError
+from ..gp.kernel import Kernel
+from ..gp.likelihood import log_likelihood
+from . import adding, fitting, materials, paths, report, schema
+from . import interpolant as interpolants
+from . import io as manifold_file
+from . import projection as projection_mod
+from .fit_record import FitRecord
+from .presets import PRESETS, fit_layout, make_interpolant, settings
+from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, PruneReport
+from .tables import Combination, Pruned, TrainingTables, stored
 
 #: Names other modules import from here (the presets, the pruning default, the result types).
-__all__ = ["Manifold", "Weights", "Pruned", "Combination", "FitRecord", "PRESETS", "DEFAULT_PRUNE",
-           "DEFAULT_RULE", "PruneReport", "FORMAT_VERSION", "settings", "fit_layout", "make_interpolant", "InputError"]
+__all__ = [
+    "Manifold",
+    "Weights",
+    "Pruned",
+    "Combination",
+    "FitRecord",
+    "PRESETS",
+    "DEFAULT_PRUNE",
+    "DEFAULT_RULE",
+    "PruneReport",
+    "FORMAT_VERSION",
+    "settings",
+    "fit_layout",
+    "make_interpolant",
+    "InputError",
+]
 
 FORMAT_VERSION = manifold_file.FORMAT_VERSION
+
 
 class Weights(NamedTuple):
     """:meth:`Manifold.weights`: ``b`` (Eq. 4's ``K^-1 k(x)`` for GP weights, else ``w - 1/N``) and weights ``w``."""
@@ -112,16 +128,35 @@ class Manifold:
         where each table came from and the file (and its SHA-256) the manifold reads it from.
     """
 
-    def __init__(self, names, latent, database, hashes, length_scale=1.0, noise=1e-4, features="raw",
-                 albedos=None, *, gram=None, table_gram=None, cos_gram=None, interpolant=None, record=None,
-                 added=None):
+    def __init__(
+        self,
+        names,
+        latent,
+        database,
+        hashes,
+        length_scale=1.0,
+        noise=1e-4,
+        features="raw",
+        albedos=None,
+        *,
+        gram=None,
+        table_gram=None,
+        cos_gram=None,
+        interpolant=None,
+        record=None,
+        added=None,
+    ):
         latent = np.asarray(latent, dtype=np.float64)
         if latent.ndim != 2 or latent.shape[0] != len(names):
-            raise InputError(f"latent points must have shape (N={len(names)}, q), got {latent.shape}")
+            raise InputError(
+                f"latent points must have shape (N={len(names)}, q), got {latent.shape}"
+            )
         if not np.isfinite(latent).all():
             raise InputError("latent points contain NaN or Inf")
         if features not in FEATURES:
-            raise InputError(f"unknown feature transform `features` = {features!r}; use one of {FEATURES}")
+            raise InputError(
+                f"unknown feature transform `features` = {features!r}; use one of {FEATURES}"
+            )
         self.names = list(names)
         self.latent = latent
         self.database = os.fspath(database)
@@ -130,21 +165,50 @@ class Manifold:
         self.features = features
         self.gram = None if gram is None else np.asarray(gram, dtype=np.float64)
         self.record = record or FitRecord()
-        self.added = [a if isinstance(a, adding.Provenance) else adding.Provenance.from_dict(a)
-                      for a in added or ()]
-        self._store = TrainingTables(self.names, self.hashes, table_gram, cos_gram, albedos,
-                                     {a.name: a.path for a in self.added})
-        self.interpolant = make_interpolant(self.latent, {
-            "length_scale": self.length_scale, "noise": self.noise,
-            "interpolant": interpolant or {"kind": "gp", "exact": True}})
+        self.added = [
+            a if isinstance(a, adding.Provenance) else adding.Provenance.from_dict(a)
+            for a in added or ()
+        ]
+        self._store = TrainingTables(
+            self.names,
+            self.hashes,
+            table_gram,
+            cos_gram,
+            albedos,
+            {a.name: a.path for a in self.added},
+        )
+        self.interpolant = make_interpolant(
+            self.latent,
+            {
+                "length_scale": self.length_scale,
+                "noise": self.noise,
+                "interpolant": interpolant or {"kind": "gp", "exact": True},
+            },
+        )
         ip = self.interpolant
         same = isinstance(ip, interpolants.GaussianProcessWeights) and ip.gp.kernel == self.kernel
-        self._gp = ip.gp if same else interpolants.posterior(self.latent, self.kernel)   # K factorised once
+        self._gp = (
+            ip.gp if same else interpolants.posterior(self.latent, self.kernel)
+        )  # K factorised once
 
     # ------------------------------------------------------------------ fit
     @classmethod
-    def fit(cls, database, *, q=None, names=None, method=None, length_scale=None, noise=None,
-            features=None, init=None, progress=False, preset="default", interpolant=None, **options):
+    def fit(
+        cls,
+        database,
+        *,
+        q=None,
+        names=None,
+        method=None,
+        length_scale=None,
+        noise=None,
+        features=None,
+        init=None,
+        progress=False,
+        preset="default",
+        interpolant=None,
+        **options,
+    ):
         """Fit latent points to the tables of ``database`` (paper Sec. 3).
 
         ``Manifold.fit(database)`` fits the default preset; ``preset="paper"`` the paper's
@@ -170,26 +234,49 @@ class Manifold:
         **options
             Passed to :func:`gplvm.fit_latent` (``max_iter``, ``tol``, ...).
         """
-        cfg = settings(preset, q=q, method=method, length_scale=length_scale, noise=noise,
-                       features=features, interpolant=interpolant)
-        if isinstance(names, str):   # "chrome, steel": the names of a comma-separated list
+        cfg = settings(
+            preset,
+            q=q,
+            method=method,
+            length_scale=length_scale,
+            noise=noise,
+            features=features,
+            interpolant=interpolant,
+        )
+        if isinstance(names, str):  # "chrome, steel": the names of a comma-separated list
             names = [n.strip() for n in names.split(",") if n.strip()]
         db = database if isinstance(database, Database) else Database(database, names)
         if int(np.prod(db.dims)) < 2:
-            raise InputError(f"database {db.folder}: tables of {'x'.join(map(str, db.dims))} bins "
-                             "hold one value per channel, too little to place materials apart; use "
-                             "tables of more bins (MERL's are 90x90x180; tools/make_database.py "
-                             "--resolution 16,16,32 for a quick one)")
+            raise InputError(
+                f"database {db.folder}: tables of {'x'.join(map(str, db.dims))} bins "
+                "hold one value per channel, too little to place materials apart; use "
+                "tables of more bins (MERL's are 90x90x180; tools/make_database.py "
+                "--resolution 16,16,32 for a quick one)"
+            )
         f = fitting.fit_database(db, names, cfg, preset, init=init, progress=progress, **options)
         same = schema.coincident_latent(f.result.latent, f.hashes, f.names, cfg["length_scale"])
         if same:
-            raise InputError(f"database {db.folder}: the fit placed the different materials "
-                             f"{same[0]!r} and {same[1]!r} at one latent point (their tables are "
-                             "too alike for the fit to tell apart); leave one of them out "
-                             "(`names`) or use tables of more bins")
-        m = cls(f.names, f.result.latent, db.folder, f.hashes, cfg["length_scale"], cfg["noise"], cfg["features"],
-                f.albedos, gram=f.gram, record=f.record, interpolant=cfg["interpolant"], table_gram=f.table_gram,
-                cos_gram=f.cos_gram)
+            raise InputError(
+                f"database {db.folder}: the fit placed the different materials "
+                f"{same[0]!r} and {same[1]!r} at one latent point (their tables are "
+                "too alike for the fit to tell apart); leave one of them out "
+                "(`names`) or use tables of more bins"
+            )
+        m = cls(
+            f.names,
+            f.result.latent,
+            db.folder,
+            f.hashes,
+            cfg["length_scale"],
+            cfg["noise"],
+            cfg["features"],
+            f.albedos,
+            gram=f.gram,
+            record=f.record,
+            interpolant=cfg["interpolant"],
+            table_gram=f.table_gram,
+            cos_gram=f.cos_gram,
+        )
         m._tables = f.tables
         return m
 
@@ -311,8 +398,10 @@ class Manifold:
     def interpolate(self, x, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
         """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""
         if np.ndim(x) > 1:
-            raise InputError(f"interpolate takes one latent point ({self.q} numbers), got shape {np.shape(x)}; "
-                             "call it once per point")
+            raise InputError(
+                f"interpolate takes one latent point ({self.q} numbers), got shape {np.shape(x)}; "
+                "call it once per point"
+            )
         _, w = self.weights(x)
         return self.combine(w, prune, database, rule)
 
@@ -350,7 +439,9 @@ class Manifold:
         render with ``manifold_brdf``'s ``weights`` and blend like any others.
         """
         table = projection_mod.as_table(table, 3 * int(np.prod(self.dims or (0,))), self.dims)
-        p = projection_mod.project(self.interpolant, self.tables(), table, names=self.names, **options)
+        p = projection_mod.project(
+            self.interpolant, self.tables(), table, names=self.names, **options
+        )
         if beyond:
             p = projection_mod.beyond(p, self.tables(), table, dims=self.dims)
         return p
@@ -407,25 +498,29 @@ class Manifold:
         ``rule="image"`` (default): each albedo channel changes by at most ``prune / 2``, the
         cosine-weighted and the raw table by at most ``prune`` of their norms; ``"raw-l2"``: the
         raw table by at most ``prune`` of its L2 norm; exact
-        (:meth:`TrainingTables.prune`, :mod:`.pruning`)."""
+        (:meth:`TrainingTables.prune`, :mod:`.pruning`).
+        """
         return self._store.prune(w, prune, self.database, rule)
 
     def prune_error(self, w, keep, rule=DEFAULT_RULE):
         """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled),
-        in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``)."""
+        in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``).
+        """
         return self._store.error(w, keep, self.database, rule)
 
     def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE, keep=None):
         """What :meth:`prune` keeps and the bounds it reaches: a :class:`pruning.PruneReport` (materials
         kept and their names, albedo change per channel, cosine-weighted and raw table errors,
         the budgets; ``str()`` of it is one line for ``print(bsdf)`` and the explorer). ``keep``:
-        what :meth:`prune` kept of the same ``w`` (not pruned again)."""
+        what :meth:`prune` kept of the same ``w`` (not pruned again).
+        """
         return self._store.report(w, prune, self.database, rule, keep=keep)
 
     def combine(self, w, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
         """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
         :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
-        Reads only the kept materials' tables (unless all are in memory)."""
+        Reads only the kept materials' tables (unless all are in memory).
+        """
         return self._store.combine(w, prune, self.database, self.dims, database, rule)
 
     # ----------------------------------------------------------- diagnostics
@@ -439,7 +534,9 @@ class Manifold:
         ``|z(x) - z_j| <= e^{-1/2} sqrt(2N) / l * cond(K) * |Z|_F * |x - x_j|`` (:func:`report.bound_terms`).
         """
         x, single = self._points(x)
-        out = report.bound_terms(x, self.latent, self.length_scale, self.condition_number(), self.gram)
+        out = report.bound_terms(
+            x, self.latent, self.length_scale, self.condition_number(), self.gram
+        )
         if single:
             out = {k: (v[0] if isinstance(v, np.ndarray) else v) for k, v in out.items()}
         return out
@@ -489,7 +586,7 @@ class Manifold:
             Missing, corrupt or foreign files.
         """
         m = cls(**manifold_file.read(path))
-        m.file = os.fspath(path)   # where it was read from (``path`` is the method of paths)
+        m.file = os.fspath(path)  # where it was read from (``path`` is the method of paths)
         return m
 
     # ------------------------------------------------------------ subsets
@@ -513,30 +610,57 @@ class Manifold:
             matrix.
         """
         from ..gp import gplvm
+
         names = list(names)
         keep = [self.index(name) for name in names]
         if len(set(keep)) != len(keep) or len(keep) < 2:
-            raise InputError(f"a subset needs at least two distinct materials of the manifold, got {names}; "
-                             "name each material once")
+            raise InputError(
+                f"a subset needs at least two distinct materials of the manifold, got {names}; "
+                "name each material once"
+            )
         if self.gram is None:
-            raise InputError("this manifold holds no Gram matrix to fit a subset on; refit it with Manifold.fit")
+            raise InputError(
+                "this manifold holds no Gram matrix to fit a subset on; refit it with Manifold.fit"
+            )
         S = self.gram[np.ix_(keep, keep)]
         J = np.eye(len(keep)) - 1.0 / len(keep)
         S = J @ S @ J
-        fit = gplvm.fit_latent(S, self.info["d"], q=self.q, method=self.info.get("method", "hooke-jeeves"),
-                               length_scale=self.length_scale, noise=self.noise)
+        fit = gplvm.fit_latent(
+            S,
+            self.info["d"],
+            q=self.q,
+            method=self.info.get("method", "hooke-jeeves"),
+            length_scale=self.length_scale,
+            noise=self.noise,
+        )
         table_gram = None if self.table_gram is None else self.table_gram[np.ix_(keep, keep)]
-        return type(self)(names, fit.latent, self.database, [self.hashes[i] for i in keep],
-                          self.length_scale, self.noise, self.features,
-                          None if self.albedos is None else self.albedos[keep],
-                          gram=S, interpolant=self.interpolant.params(), table_gram=table_gram,
-                          record=FitRecord.from_info({**self.info, "log_likelihood": float(fit.log_likelihood),
-                                                      "subset_of": getattr(self, "file", None)}, fit.history))
+        return type(self)(
+            names,
+            fit.latent,
+            self.database,
+            [self.hashes[i] for i in keep],
+            self.length_scale,
+            self.noise,
+            self.features,
+            None if self.albedos is None else self.albedos[keep],
+            gram=S,
+            interpolant=self.interpolant.params(),
+            table_gram=table_gram,
+            record=FitRecord.from_info(
+                {
+                    **self.info,
+                    "log_likelihood": float(fit.log_likelihood),
+                    "subset_of": getattr(self, "file", None),
+                },
+                fit.history,
+            ),
+        )
 
     # ------------------------------------------------------------ perceptual paths
     def distance(self, x, y, stride=(1, 1, 1)):
         """[PR12] distance between the tables ``sum_i w_i table_i`` at ``x`` and ``y`` (names, points
-        ``(q,)`` or stacks ``(M, q)``: a float, ``(M,)`` or ``(M, K)``); :func:`paths.latent_distance`."""
+        ``(q,)`` or stacks ``(M, q)``: a float, ``(M,)`` or ``(M, K)``); :func:`paths.latent_distance`.
+        """
         return paths.latent_distance(self, x, y, stride)
 
     def path(self, a, b, steps=21, kind=None):

@@ -42,10 +42,10 @@ import weakref
 
 import numpy as np
 
-from . import latent_graph
-from .latent_graph import LatentGraph
 from ..data.distance import Quadrature, gram_distances
 from ..errors import InputError
+from . import latent_graph
+from .latent_graph import LatentGraph
 
 KINDS = ("straight", "uniform", "geodesic")
 #: The kind ``Manifold.path``, ``blend.py --path`` and the main job's contact sheet use: the
@@ -87,16 +87,23 @@ class PathMetric:
         self._small = self.quad.size * 4 <= 3 * int(np.prod(dims))
         if rows is not None:
             if not self._small or np.shape(rows) != (manifold.n, self.quad.size):
-                raise InputError(f"`rows` of shape {np.shape(rows)}: expected ({manifold.n}, {self.quad.size}),"
-                                 " the tables at the bins of a sub-grid")
+                raise InputError(
+                    f"`rows` of shape {np.shape(rows)}: expected ({manifold.n}, {self.quad.size}),"
+                    " the tables at the bins of a sub-grid"
+                )
             self.rows = np.ascontiguousarray(rows, dtype=np.float32)
         elif not self._small:
             self.rows = manifold.tables() if tables is None else tables
         elif tables is not None:
             self.rows = self._pick(tables)
         else:
-            self.rows = latent_graph.cached(self, "pathrows-v1", lambda: self._pick(manifold.tables()),
-                                            shape=(manifold.n, self.quad.size), dtype=np.float32)
+            self.rows = latent_graph.cached(
+                self,
+                "pathrows-v1",
+                lambda: self._pick(manifold.tables()),
+                shape=(manifold.n, self.quad.size),
+                dtype=np.float32,
+            )
         # F = scale cbrt(v cos) = coef cbrt(v): the per-bin constant once
         self.coef = (self.quad.scale * np.cbrt(self.quad.cos)).astype(np.float32)
         self._graph = None
@@ -119,7 +126,9 @@ class PathMetric:
     def features(self, X):
         """Features ``(M, size)`` float32 of the tables at latent points ``X`` (M, q) (sub-grids only)."""
         if not self._small:
-            raise InputError("features of every bin do not fit a search; use `distances` on the full grid")
+            raise InputError(
+                "features of every bin do not fit a search; use `distances` on the full grid"
+            )
         V = self.weights(X) @ self.rows
         return np.cbrt(np.maximum(V, 0.0, out=V), out=V) * self.coef
 
@@ -130,18 +139,26 @@ class PathMetric:
 
         def split(F):
             return (F, F) if Y is None else (F[:m], F[m:])
+
         if self._small:
             return gram_distances([split(self.quad.features(W @ self.rows))])
         # blocks of the full table are contiguous spans of its columns: multiply a view, then pick
-        parts = (split(p.features((W @ self.rows[:, p.index[0]:p.index[-1] + 1])[:, p.index - p.index[0]]))
-                 for p in self.quad.blocks())
+        parts = (
+            split(
+                p.features(
+                    (W @ self.rows[:, p.index[0] : p.index[-1] + 1])[:, p.index - p.index[0]]
+                )
+            )
+            for p in self.quad.blocks()
+        )
         return gram_distances(parts)
 
     def energy(self, X):
         """Discrete path energy ``E = sum_k |F(x_k+1) - F(x_k)|^2`` of the polyline ``X`` (M, q) and
         its gradient ``dE/dX`` (M, q), analytic (chain rule through the cube root, the table
         combination and the interpolant's Jacobian ``dw/dx``; the cube root's slope is capped
-        where a table value is below :data:`FLOOR`)."""
+        where a table value is below :data:`FLOOR`).
+        """
         V = self.weights(X) @ self.rows
         C = np.cbrt(np.maximum(V, 0.0))
         F = C * self.coef
@@ -152,7 +169,9 @@ class PathMetric:
         # dF/dv = coef / (3 cbrt(v)^2) where v > 0
         C = np.maximum(C, np.float32(FLOOR ** (1.0 / 3.0)), out=C)
         G *= np.where(V > 0, self.coef / (3.0 * C * C), np.float32(0.0))
-        dW = (self.rows @ G.T).T.astype(np.float64)   # this order: ~10x faster than G @ rows.T in OpenBLAS
+        dW = (self.rows @ G.T).T.astype(
+            np.float64
+        )  # this order: ~10x faster than G @ rows.T in OpenBLAS
         J = self.manifold.weights_jacobian(X)
         return float(np.einsum("mk,mk->", D, D, dtype=np.float64)), np.einsum("mn,mnq->mq", dW, J)
 
@@ -184,7 +203,9 @@ def endpoint(manifold, v, what):
     except (TypeError, ValueError):
         arr = np.zeros(0)
     if arr.size != manifold.q or not np.isfinite(arr).all():
-        raise InputError(f"`{what}` {v!r:.60}: expected a material name or {manifold.q} finite numbers")
+        raise InputError(
+            f"`{what}` {v!r:.60}: expected a material name or {manifold.q} finite numbers"
+        )
     return arr
 
 
@@ -192,7 +213,8 @@ def reparameterise(X, lengths, steps):
     """``steps`` points along the polyline ``X`` (M, q) at equal cumulative perceptual length.
 
     ``lengths``: the ``M - 1`` step lengths. Between samples the latent position is linear in
-    the length (the polyline is dense enough that the metric is locally linear)."""
+    the length (the polyline is dense enough that the metric is locally linear).
+    """
     s = np.concatenate([[0.0], np.cumsum(lengths)])
     if s[-1] <= 0:
         return np.linspace(0, 1, steps)[:, None] * (X[-1] - X[0]) + X[0]
@@ -221,7 +243,9 @@ def even(metric, X, steps, fraction=0.1, passes=8, polish=20, F=None):
         if not long.any():
             break
         mids = 0.5 * (X[:-1][long] + X[1:][long])
-        order = np.argsort(np.concatenate([np.arange(len(X)), np.flatnonzero(long) + 0.5]), kind="stable")
+        order = np.argsort(
+            np.concatenate([np.arange(len(X)), np.flatnonzero(long) + 0.5]), kind="stable"
+        )
         X = np.concatenate([X, mids])[order]
         if track:
             F = np.concatenate([F, metric.features(mids)])[order]
@@ -279,7 +303,8 @@ def uniform(metric, xa, xb, steps, dense=DENSE):
 
 def minimise_energy(metric, X, iterations=200):
     """The polyline ``X`` with its interior points moved to minimise :meth:`PathMetric.energy`
-    (L-BFGS; its minimisers are discrete geodesics at constant speed), ends fixed."""
+    (L-BFGS; its minimisers are discrete geodesics at constant speed), ends fixed.
+    """
     import scipy.optimize
 
     xa, xb, q = X[0], X[-1], X.shape[1]
@@ -289,8 +314,9 @@ def minimise_energy(metric, X, iterations=200):
         e, g = metric.energy(Y)
         return e, g[1:-1].ravel()
 
-    res = scipy.optimize.minimize(fun, X[1:-1].ravel(), jac=True, method="L-BFGS-B",
-                                  options={"maxiter": iterations})
+    res = scipy.optimize.minimize(
+        fun, X[1:-1].ravel(), jac=True, method="L-BFGS-B", options={"maxiter": iterations}
+    )
     return np.concatenate([xa[None], res.x.reshape(-1, q), xb[None]])
 
 
@@ -331,13 +357,17 @@ def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):
         return straight(xa, xb, steps)
     with single_threaded():
         metric = metric or PathMetric.of(manifold)
-        return uniform(metric, xa, xb, steps) if kind == "uniform" else geodesic(metric, xa, xb, steps)
+        return (
+            uniform(metric, xa, xb, steps) if kind == "uniform" else geodesic(metric, xa, xb, steps)
+        )
 
 
 def single_threaded():
     """BLAS on one thread (threadpoolctl): a path's products are small (tens of points), and BLAS
-    threads waiting on each other made a geodesic ~20x slower on a busy 2-core machine."""
+    threads waiting on each other made a geodesic ~20x slower on a busy 2-core machine.
+    """
     from threadpoolctl import threadpool_limits
+
     return threadpool_limits(1, user_api="blas")
 
 
@@ -357,11 +387,16 @@ def _points(manifold, v, what):
     """``v`` (a name, a point or a stack of points) as ``(M, q)`` and whether it was one."""
     if isinstance(v, str):
         return endpoint(manifold, v, what)[None], True
-    arr = np.asarray(v, dtype=np.float64) if not isinstance(v, (list, tuple)) or not v or not isinstance(v[0], str) \
+    arr = (
+        np.asarray(v, dtype=np.float64)
+        if not isinstance(v, (list, tuple)) or not v or not isinstance(v[0], str)
         else np.stack([endpoint(manifold, n, what) for n in v])
+    )
     if arr.ndim == 1:
         return endpoint(manifold, arr, what)[None], True
     if arr.ndim != 2 or arr.shape[1] != manifold.q or not np.isfinite(arr).all():
-        raise InputError(f"`{what}` must be a material name, {manifold.q} numbers or (M, {manifold.q}) points, "
-                         f"got shape {arr.shape}")
+        raise InputError(
+            f"`{what}` must be a material name, {manifold.q} numbers or (M, {manifold.q}) points, "
+            f"got shape {arr.shape}"
+        )
     return arr, False

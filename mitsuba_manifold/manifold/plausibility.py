@@ -198,7 +198,8 @@ def plausible_weights(
 def _step_back(w, w0, full_rows, A):
     """The exact guarantee of :func:`plausible_weights`: ``w0 + s (w - w0)`` with the largest
     ``s`` in [0, 1] for which no bin of the combination is negative (in float32, as rendered)
-    and no directional albedo exceeds 1; returns the weights, the combination and ``s``."""
+    and no directional albedo exceeds 1; returns the weights, the combination and ``s``.
+    """
     base = w0.astype(np.float32) @ full_rows
     full = w.astype(np.float32) @ full_rows
     s = 1.0

@@ -6,18 +6,30 @@ layout, paper Sec. 3) and ``interpolant`` (the weight function, :mod:`interpolan
 :func:`fit_layout` and :func:`make_interpolant`, so the benchmark measures what users get.
 """
 
+from ..errors import InputError
 from ..gp import gplvm
 from . import interpolant as interpolants
-from ..errors import InputError
 
 #: Fit settings by name. ``paper``: the paper's exact formulation (raw features, l = 1,
 #: mu = 1e-4, Hooke-Jeeves, Eq. 4 weights). ``default``: the measured best
 #: (``tools/bench.py space``; README, "The material space").
 PRESETS = {
-    "paper": {"q": 2, "features": "raw", "method": "hooke-jeeves", "length_scale": 1.0, "noise": 1e-4,
-              "interpolant": {"kind": "gp", "exact": True}},
-    "default": {"q": 3, "features": "log", "method": "lbfgs", "length_scale": 1.0, "noise": 1e-4,
-                "interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2, "spread": 0.1}},
+    "paper": {
+        "q": 2,
+        "features": "raw",
+        "method": "hooke-jeeves",
+        "length_scale": 1.0,
+        "noise": 1e-4,
+        "interpolant": {"kind": "gp", "exact": True},
+    },
+    "default": {
+        "q": 3,
+        "features": "log",
+        "method": "lbfgs",
+        "length_scale": 1.0,
+        "noise": 1e-4,
+        "interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2, "spread": 0.1},
+    },
 }
 
 
@@ -25,12 +37,15 @@ def settings(preset="default", **overrides):
     """Fit settings of ``preset`` (:data:`PRESETS`) with the non-None ``overrides`` applied.
 
     An ``interpolant`` override of the preset's kind (or without ``kind``) changes only the
-    parameters it names (``{"taper": 0.3}``); one of another kind replaces it whole."""
+    parameters it names (``{"taper": 0.3}``); one of another kind replaces it whole.
+    """
     if preset not in PRESETS:
         raise InputError(f"unknown `preset` {preset!r}; use one of {', '.join(PRESETS)}")
     unknown = set(overrides) - set(PRESETS[preset])
     if unknown:
-        raise InputError(f"unknown setting(s) {sorted(unknown)}; settings are {sorted(PRESETS[preset])}")
+        raise InputError(
+            f"unknown setting(s) {sorted(unknown)}; settings are {sorted(PRESETS[preset])}"
+        )
     out = {**PRESETS[preset], **{k: v for k, v in overrides.items() if v is not None}}
     given, base = overrides.get("interpolant"), PRESETS[preset]["interpolant"]
     if isinstance(given, dict) and given.get("kind", base["kind"]) == base["kind"]:
@@ -40,8 +55,16 @@ def settings(preset="default", **overrides):
 
 def fit_layout(S, d, cfg, init=None, **options):
     """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:func:`gplvm.fit_latent`)."""
-    return gplvm.fit_latent(S, d, q=cfg["q"], method=cfg["method"], length_scale=cfg["length_scale"],
-                            noise=cfg["noise"], init=init, **options)
+    return gplvm.fit_latent(
+        S,
+        d,
+        q=cfg["q"],
+        method=cfg["method"],
+        length_scale=cfg["length_scale"],
+        noise=cfg["noise"],
+        init=init,
+        **options,
+    )
 
 
 def make_interpolant(latent, cfg):

@@ -74,8 +74,10 @@ def as_table(table, d, dims=None):
             raise InputError(f"table to project: {e}") from None
     table = np.asarray(table, dtype=np.float32).reshape(-1)
     if table.size != d:
-        raise InputError(f"table to project has {table.size} values; this manifold's tables have "
-                            f"{d} (dims {dims} x RGB)")
+        raise InputError(
+            f"table to project has {table.size} values; this manifold's tables have "
+            f"{d} (dims {dims} x RGB)"
+        )
     return table
 
 
@@ -95,17 +97,29 @@ def search_bins(d, n=SEARCH_BINS, seed=0):
 def candidates(latent, order, n_latent=6, steps=19):
     """Starting points: along the segments between the latent points ``order`` (the closest
     materials in table space) and from each of them toward its ``n_latent`` nearest latent
-    neighbours, plus the points themselves."""
+    neighbours, plus the points themselves.
+    """
     t = np.linspace(0.05, 0.95, steps)[:, None]
-    ends = [(a, b) for k, a in enumerate(order) for b in order[k + 1:]]
+    ends = [(a, b) for k, a in enumerate(order) for b in order[k + 1 :]]
     for a in order:
-        near = np.argsort(np.linalg.norm(latent - latent[a], axis=1))[1:n_latent + 1]
+        near = np.argsort(np.linalg.norm(latent - latent[a], axis=1))[1 : n_latent + 1]
         ends += [(a, b) for b in near if (a, b) not in ends and (b, a) not in ends]
     return np.vstack([latent[a] + t * (latent[b] - latent[a]) for a, b in ends] + [latent[order]])
 
 
-def project(interpolant, tables, target, names=None, bins=None, rows=None, *, n_nearest=4, n_starts=3,
-            max_iter=100, n_latent=6):
+def project(
+    interpolant,
+    tables,
+    target,
+    names=None,
+    bins=None,
+    rows=None,
+    *,
+    n_nearest=4,
+    n_starts=3,
+    max_iter=100,
+    n_latent=6,
+):
     """Best latent point of ``target`` on the manifold of ``interpolant`` over ``tables``.
 
     Parameters
@@ -137,16 +151,18 @@ def project(interpolant, tables, target, names=None, bins=None, rows=None, *, n_
     target = np.asarray(target, dtype=np.float32).reshape(-1)
     n, d = len(rows), tables.shape[1]
     if target.shape[0] != d:
-        raise InputError(f"table to project has {target.shape[0]} values, the manifold's tables have {d}")
+        raise InputError(
+            f"table to project has {target.shape[0]} values, the manifold's tables have {d}"
+        )
     if not np.isfinite(target).all():
         raise InputError("table to project has NaN or Inf values")
     bins = search_bins(d) if bins is None else np.asarray(bins)
     T = tables[np.ix_(rows, bins)].astype(np.float64)
     y = np.log1p(np.maximum(target[bins].astype(np.float64), 0.0))
     own = log_rms(T, y)
-    order = np.argsort(own)[:max(1, min(n_nearest, n))]
+    order = np.argsort(own)[: max(1, min(n_nearest, n))]
     X = interpolant.latent
-    cand = candidates(X, order, n_latent)   # scored in one batch
+    cand = candidates(X, order, n_latent)  # scored in one batch
     scores = log_rms(interpolant.weights(cand) @ T, y)
     best = (float(own[order[0]]), X[order[0]].copy())
 
@@ -160,14 +176,21 @@ def project(interpolant, tables, target, names=None, bins=None, rows=None, *, n_
         return val, interpolant.jacobian(x).T @ (T @ g)
 
     for x0 in cand[np.argsort(scores)[:n_starts]]:
-        res = scipy.optimize.minimize(f, x0, jac=True, method="L-BFGS-B",
-                                      options={"maxiter": max_iter, "gtol": 1e-10, "ftol": 1e-12})
+        res = scipy.optimize.minimize(
+            f,
+            x0,
+            jac=True,
+            method="L-BFGS-B",
+            options={"maxiter": max_iter, "gtol": 1e-10, "ftol": 1e-12},
+        )
         err = float(np.sqrt(max(res.fun, 0.0)))
         if err < best[0]:
             best = (err, res.x.copy())
     t_log = np.log1p(np.maximum(target, 0.0))
     # on all bins: the search's point against the closest materials themselves
-    own_full = np.array([log_rms(np.asarray(tables[rows[i]], dtype=np.float32), t_log) for i in order])
+    own_full = np.array(
+        [log_rms(np.asarray(tables[rows[i]], dtype=np.float32), t_log) for i in order]
+    )
     w = interpolant.weights(best[1])
     full = _blend(w, tables, rows)
     error = float(log_rms(full, t_log))
@@ -177,9 +200,14 @@ def project(interpolant, tables, target, names=None, bins=None, rows=None, *, n_
         x, error = X[order[k]].copy(), float(own_full[k])
         w = interpolant.weights(x)
         full = _blend(w, tables, rows)
-    return Projection(x=x, error=error, weights=w,
-                      nearest=names[order[k]] if names is not None else str(order[k]),
-                      nearest_error=float(own_full[k]), negative_fraction=float((full < 0).mean()))
+    return Projection(
+        x=x,
+        error=error,
+        weights=w,
+        nearest=names[order[k]] if names is not None else str(order[k]),
+        nearest_error=float(own_full[k]),
+        negative_fraction=float((full < 0).mean()),
+    )
 
 
 def _blend(w, tables, rows, chunk=1 << 20):
@@ -189,12 +217,22 @@ def _blend(w, tables, rows, chunk=1 << 20):
     w = full
     out = np.empty(tables.shape[1], dtype=np.float32)
     for s in range(0, tables.shape[1], chunk):
-        out[s:s + chunk] = w @ tables[:, s:s + chunk]
+        out[s : s + chunk] = w @ tables[:, s : s + chunk]
     return out
 
 
-def beyond(projection, tables, target, *, rows=None, bins=None, n_candidates=BEYOND_CANDIDATES, affine=False,
-           albedo=None, dims=None):
+def beyond(
+    projection,
+    tables,
+    target,
+    *,
+    rows=None,
+    bins=None,
+    n_candidates=BEYOND_CANDIDATES,
+    affine=False,
+    albedo=None,
+    dims=None,
+):
     """The best physically plausible combination of training tables for ``target`` beyond the data.
 
     Weights over the ``n_candidates`` training materials closest to ``target`` (and those the

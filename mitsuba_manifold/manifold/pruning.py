@@ -68,7 +68,8 @@ def raw_gram(tables, block=gram.BLOCK):
 
 def cos_grams(tables, q, block=gram.BLOCK):
     """``(T T^T, T diag(q) T^T)`` of float32 tables ``(N, 3 * bins)`` in one pass; ``q``: the
-    ``(bins,)`` albedo quadrature weights (the cosine-weighted measure of each bin)."""
+    ``(bins,)`` albedo quadrature weights (the cosine-weighted measure of each bin).
+    """
     g = gram.gram(tables, "raw", centre=False, weights=q, block=block)
     return g.S, g.weighted
 
@@ -83,9 +84,10 @@ def _rescaled(w, kept):
 
 def errors(w, kept, G):
     """Relative L2 change of ``w^T T`` for each row of the boolean matrix ``kept`` (M, N), in the
-    norm of the Gram matrix ``G`` (raw ``T T^T`` or cosine-weighted ``T diag(q) T^T``)."""
+    norm of the Gram matrix ``G`` (raw ``T T^T`` or cosine-weighted ``T diag(q) T^T``).
+    """
     delta = _rescaled(w, kept)
-    num = np.maximum(((delta @ G) * delta).sum(axis=1), 0.0)   # BLAS, not einsum's loop
+    num = np.maximum(((delta @ G) * delta).sum(axis=1), 0.0)  # BLAS, not einsum's loop
     den = float(w @ G @ w)
     if den > 0:
         return np.sqrt(num / den)
@@ -94,7 +96,8 @@ def errors(w, kept, G):
 
 def albedo_changes(w, kept, albedos):
     """Relative change ``|delta @ albedos| / max(|w @ albedos|, ALBEDO_FLOOR)`` of each albedo
-    channel for each row of ``kept`` (M, N): ``(M, 3)``."""
+    channel for each row of ``kept`` (M, N): ``(M, 3)``.
+    """
     ref = np.maximum(np.abs(w @ albedos), ALBEDO_FLOOR)
     return np.abs(_rescaled(w, kept) @ albedos) / ref
 
@@ -138,7 +141,7 @@ def prune(w, G, budget):
     order = np.argsort(np.abs(w) * np.sqrt(np.maximum(np.diag(G), 0.0)), kind="stable")
     k = int(np.count_nonzero(w == 0))
     if budget > 0:
-        drop_first = np.tril(np.ones((n, n), dtype=bool), -1)   # row k drops order[:k]
+        drop_first = np.tril(np.ones((n, n), dtype=bool), -1)  # row k drops order[:k]
         kept = ~drop_first[:, np.argsort(order)]
         ok = np.flatnonzero(errors(w, kept, G) <= budget)
         if ok.size:
@@ -161,12 +164,12 @@ class _Search:
     def __init__(self, w, Cs, budgets, A, albedo_budget):
         self.w, self.Cs, self.A = w, Cs, A
         self.s = w.sum()
-        self.Cw = Cs @ w                                              # (F, m)
-        self.wCw = np.maximum(self.Cw @ w, 0.0)                       # (F,)
+        self.Cw = Cs @ w  # (F, m)
+        self.wCw = np.maximum(self.Cw @ w, 0.0)  # (F,)
         self.wA = w @ A
         self.limit_q = np.asarray(budgets, dtype=np.float64) ** 2 * self.wCw
         self.limit_a = albedo_budget * np.maximum(np.abs(self.wA), ALBEDO_FLOOR)
-        self.diag = np.diagonal(Cs, axis1=1, axis2=2)                 # (F, m)
+        self.diag = np.diagonal(Cs, axis1=1, axis2=2)  # (F, m)
 
     def start(self, kept):
         """Set the state to keeping the boolean mask ``kept`` (exact, from scratch)."""
@@ -180,7 +183,9 @@ class _Search:
     def _shares(self, q, dA):
         """Largest share of its bound over the quadratic forms ``q`` (F, M) and the albedo changes (M, 3)."""
         lim = self.limit_q[:, None]
-        share_q = np.where(lim > 0, np.maximum(q, 0.0) / np.where(lim > 0, lim, 1.0), np.where(q > 0, np.inf, 0.0))
+        share_q = np.where(
+            lim > 0, np.maximum(q, 0.0) / np.where(lim > 0, lim, 1.0), np.where(q > 0, np.inf, 0.0)
+        )
         return np.maximum(np.sqrt(share_q.max(axis=0)), np.max(np.abs(dA) / self.limit_a, axis=1))
 
     def scores(self):
@@ -193,15 +198,22 @@ class _Search:
         a = self.S / S1
         b, e = a - 1.0, wj * self.s / S1
         dCw = (self.Cd @ self.w)[:, None]
-        q = (a * a * self.dCd[:, None] + b * b * self.wCw[:, None] + e * e * self.diag[:, j]
-             + 2 * a * b * dCw - 2 * a * e * self.Cd[:, j] - 2 * b * e * self.Cw[:, j])
+        q = (
+            a * a * self.dCd[:, None]
+            + b * b * self.wCw[:, None]
+            + e * e * self.diag[:, j]
+            + 2 * a * b * dCw
+            - 2 * a * e * self.Cd[:, j]
+            - 2 * b * e * self.Cw[:, j]
+        )
         dA = a[:, None] * self.dA + b[:, None] * self.wA - e[:, None] * self.A[j]
         share = np.where(ok, self._shares(q, dA), np.inf)
         return j, share, (a, b, e, q, dA)
 
     def run(self):
         """Drop, one at a time, the material whose removal keeps the largest share smallest, while
-        that share stays within the bounds and more than one material is kept."""
+        that share stays within the bounds and more than one material is kept.
+        """
         while np.count_nonzero(self.kept) > 1:
             j, share, (a, b, e, q, dA) = self.scores()
             k = int(np.argmin(share))
@@ -221,7 +233,8 @@ class _Search:
 
         All prefixes at once in O(F N^2) without a matrix product (the cores may be busy): over
         the kept set ``u`` of prefix k, ``u C u``, ``u C w``, ``sum u`` and ``u A`` are suffix
-        sums along ``order``."""
+        sums along ``order``.
+        """
         w, Cs = self.w[order], self.Cs[:, order][:, :, order]
         M = np.outer(w, w) * Cs
 
@@ -230,7 +243,7 @@ class _Search:
 
         uCu = tail(np.diagonal(M, axis1=1, axis2=2) + 2.0 * np.triu(M, 1).sum(axis=2))
         uCw, S = tail(w * self.Cw[:, order]), tail(w)
-        c = np.divide(self.s, S, out=np.zeros_like(S), where=np.abs(S) > 0)   # as _rescaled
+        c = np.divide(self.s, S, out=np.zeros_like(S), where=np.abs(S) > 0)  # as _rescaled
         q = c * c * uCu - 2.0 * c * uCw + self.wCw[:, None]
         dA = c[:, None] * tail((w[:, None] * self.A[order]).T).T - self.wA
         ok = self._shares(q, dA) <= _SAFETY
@@ -238,9 +251,13 @@ class _Search:
 
     def exact(self):
         """Whether the kept set keeps every bound, recomputed from scratch (a guard against the
-        round-off of the updates)."""
+        round-off of the updates).
+        """
         delta = _rescaled(self.w, self.kept)[0]
-        return bool(((self.Cs @ delta) @ delta <= self.limit_q).all() and (np.abs(delta @ self.A) <= self.limit_a).all())
+        return bool(
+            ((self.Cs @ delta) @ delta <= self.limit_q).all()
+            and (np.abs(delta @ self.A) <= self.limit_a).all()
+        )
 
 
 def prune_image(w, C, albedos, budget, albedo_share=ALBEDO_SHARE, G=None, raw_share=RAW_SHARE):
@@ -264,12 +281,14 @@ def prune_image(w, C, albedos, budget, albedo_share=ALBEDO_SHARE, G=None, raw_sh
         forms.append(G)
         budgets.append(raw_share * budget)
     Cs = np.stack([F[np.ix_(live, live)] for F in forms])
-    search = _Search(w[live], Cs, budgets, np.asarray(albedos, dtype=np.float64)[live], albedo_share * budget)
+    search = _Search(
+        w[live], Cs, budgets, np.asarray(albedos, dtype=np.float64)[live], albedo_share * budget
+    )
     every = np.ones(live.size, dtype=bool)
     search.start(every)
     order = np.argsort(search.scores()[1], kind="stable")
     kept = every.copy()
-    kept[order[:search.longest_prefix(order)]] = False
+    kept[order[: search.longest_prefix(order)]] = False
     search.start(kept)
     search.run()
     return _result(w, live[search.kept] if search.exact() else live)
@@ -321,19 +340,32 @@ class PruneReport:
     @property
     def within(self):
         """Whether every bound of the rule holds."""
-        pairs = [(self.cos_error, self.cos_budget), (self.raw_error, self.raw_budget),
-                 (None if self.albedo_change is None else max(self.albedo_change), self.albedo_budget)]
+        pairs = [
+            (self.cos_error, self.cos_budget),
+            (self.raw_error, self.raw_budget),
+            (None if self.albedo_change is None else max(self.albedo_change), self.albedo_budget),
+        ]
         return all(v <= bound for v, bound in pairs if v is not None and bound is not None)
 
     def __str__(self):
-        parts = [f"{self.kept} of {self.n} materials kept ({self.rule} rule, budget {100 * self.budget:.3g}%)"]
+        parts = [
+            f"{self.kept} of {self.n} materials kept ({self.rule} rule, budget {100 * self.budget:.3g}%)"
+        ]
+
         def bound(b):
             return f" (<= {100 * b:.3g}%)" if b is not None else ""
+
         if self.albedo_change is not None:
-            parts.append("albedo change R/G/B " + "/".join(f"{100 * v:.2g}" for v in self.albedo_change) + "%"
-                         + bound(self.albedo_budget))
+            parts.append(
+                "albedo change R/G/B "
+                + "/".join(f"{100 * v:.2g}" for v in self.albedo_change)
+                + "%"
+                + bound(self.albedo_budget)
+            )
         if self.cos_error is not None:
-            parts.append(f"cosine-weighted table error {100 * self.cos_error:.3g}%{bound(self.cos_budget)}")
+            parts.append(
+                f"cosine-weighted table error {100 * self.cos_error:.3g}%{bound(self.cos_budget)}"
+            )
         if self.raw_error is not None:
             parts.append(f"raw L2 error {100 * self.raw_error:.3g}%{bound(self.raw_budget)}")
         parts.append(f"dropped weight {self.dropped:.4g}")
@@ -342,7 +374,8 @@ class PruneReport:
 
 def report(w, keep, rule, budget, G=None, C=None, albedos=None, names=None):
     """The :class:`PruneReport` of keeping ``keep`` of ``w`` under ``rule`` (exact errors from
-    the Gram matrices given: raw ``G``, cosine-weighted ``C``; albedo changes from ``albedos``)."""
+    the Gram matrices given: raw ``G``, cosine-weighted ``C``; albedo changes from ``albedos``).
+    """
     w = np.asarray(w, dtype=np.float64)
     kept = _mask(len(w), keep)
     keep = tuple(int(i) for i in np.flatnonzero(kept))
@@ -350,12 +383,19 @@ def report(w, keep, rule, budget, G=None, C=None, albedos=None, names=None):
     budget = float(budget)
     image = rule == "image"
     return PruneReport(
-        rule=rule, budget=budget, albedo_budget=ALBEDO_SHARE * budget if image else None,
+        rule=rule,
+        budget=budget,
+        albedo_budget=ALBEDO_SHARE * budget if image else None,
         cos_budget=budget if image else None,
-        raw_budget=(RAW_SHARE * budget if np.isfinite(RAW_SHARE) else None) if image else budget, keep=keep, n=len(w), dropped=float(np.abs(w).sum() - np.abs(w[list(keep)]).sum()), albedo_change=alb,
+        raw_budget=(RAW_SHARE * budget if np.isfinite(RAW_SHARE) else None) if image else budget,
+        keep=keep,
+        n=len(w),
+        dropped=float(np.abs(w).sum() - np.abs(w[list(keep)]).sum()),
+        albedo_change=alb,
         cos_error=None if C is None else float(errors(w, kept, C)[0]),
         raw_error=None if G is None else float(errors(w, kept, G)[0]),
-        names=tuple(names[i] for i in keep) if names is not None else ())
+        names=tuple(names[i] for i in keep) if names is not None else (),
+    )
 
 
 def weighted_sum(rows, weights, size, chunk=1 << 18):
@@ -369,9 +409,9 @@ def weighted_sum(rows, weights, size, chunk=1 << 18):
     out = np.zeros(size, dtype=np.float32)
     tmp = np.empty(min(chunk, size), dtype=np.float32)
     for start in range(0, size, chunk):
-        acc = out[start:start + chunk]
-        t = tmp[:len(acc)]
+        acc = out[start : start + chunk]
+        t = tmp[: len(acc)]
         for row, wk in zip(rows, weights):
-            np.multiply(row[start:start + chunk], wk, out=t)
+            np.multiply(row[start : start + chunk], wk, out=t)
             acc += t
     return out

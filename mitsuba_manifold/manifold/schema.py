@@ -18,8 +18,8 @@ names* is checked when the tables are read (:func:`check_grams`, by random probe
 
 import json
 import math
-import os
 import numbers
+import os
 import re
 from typing import NamedTuple
 
@@ -33,7 +33,7 @@ from .interpolant import KINDS
 #: Largest ``meta`` entry read (a JSON text: names, hashes, settings), bytes.
 META_LIMIT = 64 << 20
 #: Largest ``history`` (optimiser iterations) read.
-HISTORY_LIMIT = 10 ** 7
+HISTORY_LIMIT = 10**7
 #: Bytes an ``.npy`` entry may hold beyond its data (its header).
 HEADER_SLACK = 1 << 16
 _HEX64 = re.compile(r"[0-9a-f]{64}")
@@ -68,11 +68,20 @@ def _dims(v):
 
 
 #: ``info`` entries of known meaning and what each must be (others are kept as they are).
-INFO = {"method": lambda v: isinstance(v, str), "preset": lambda v: isinstance(v, str),
-        "q": lambda v: _int(v) and v >= 1, "d": lambda v: _int(v) and v >= 1, "dims": _dims,
-        "n_evaluations": lambda v: _int(v) and v >= 0,
-        "log_likelihood": lambda v: v is None or isinstance(v, numbers.Real) and not isinstance(v, bool),
-        **{f"time_{k}_s": (lambda v: v is None or _real(v) and v >= 0) for k in ("load", "gram", "fit")}}
+INFO = {
+    "method": lambda v: isinstance(v, str),
+    "preset": lambda v: isinstance(v, str),
+    "q": lambda v: _int(v) and v >= 1,
+    "d": lambda v: _int(v) and v >= 1,
+    "dims": _dims,
+    "n_evaluations": lambda v: _int(v) and v >= 0,
+    "log_likelihood": lambda v: (
+        v is None or isinstance(v, numbers.Real) and not isinstance(v, bool)
+    ),
+    **{
+        f"time_{k}_s": (lambda v: v is None or _real(v) and v >= 0) for k in ("load", "gram", "fit")
+    },
+}
 
 
 def _info(v, n):
@@ -87,7 +96,11 @@ def _info(v, n):
 def _interpolant(v, n):
     if not isinstance(v, dict) or v.get("kind") not in KINDS:
         return f"must be a dict with a 'kind' of {', '.join(map(repr, KINDS))}"
-    bad = [k for k, x in v.items() if k != "kind" and not (isinstance(x, bool) if k == "exact" else _real(x))]
+    bad = [
+        k
+        for k, x in v.items()
+        if k != "kind" and not (isinstance(x, bool) if k == "exact" else _real(x))
+    ]
     return f"has a parameter {bad[0]!r} that is not a finite number: {v[bad[0]]!r}" if bad else None
 
 
@@ -99,16 +112,20 @@ def _added(v, n):
     for a in v:
         if not isinstance(a, dict) or not {"name", "source", "path", "hash"} <= set(a):
             return "must hold dicts with 'name', 'source', 'path' and 'hash'"
-        if not all(isinstance(a[k], str) for k in ("name", "source", "path", "hash")) or \
-                not _HEX64.fullmatch(a["hash"]) or not os.path.isabs(a["path"]) or \
-                not isinstance(a.get("origin"), (str, type(None))):
+        if (
+            not all(isinstance(a[k], str) for k in ("name", "source", "path", "hash"))
+            or not _HEX64.fullmatch(a["hash"])
+            or not os.path.isabs(a["path"])
+            or not isinstance(a.get("origin"), (str, type(None)))
+        ):
             return f"has a bad entry for {str(a.get('name'))[:40]!r} (texts, an absolute path, a SHA-256 hash)"
     return None
 
 
 class MetaField(NamedTuple):
     """A ``meta`` entry: ``check(value, n)`` returns why it is wrong, or None; ``since``: first
-    format version that requires it (None: optional)."""
+    format version that requires it (None: optional).
+    """
 
     name: str
     check: object
@@ -120,10 +137,18 @@ META = (
     MetaField("version", lambda v, n: None if _int(v) else "must be an integer"),
     MetaField("names", _names),
     MetaField("hashes", _hashes),
-    MetaField("database", lambda v, n: None if isinstance(v, str) else "must be a folder's path (text)"),
-    MetaField("length_scale", lambda v, n: None if _real(v) and v > 0 else "must be a finite number > 0"),
-    MetaField("noise", lambda v, n: None if _real(v) and v >= 0 else "must be a finite number >= 0"),
-    MetaField("features", lambda v, n: None if v in FEATURES else f"must be one of {', '.join(FEATURES)}"),
+    MetaField(
+        "database", lambda v, n: None if isinstance(v, str) else "must be a folder's path (text)"
+    ),
+    MetaField(
+        "length_scale", lambda v, n: None if _real(v) and v > 0 else "must be a finite number > 0"
+    ),
+    MetaField(
+        "noise", lambda v, n: None if _real(v) and v >= 0 else "must be a finite number >= 0"
+    ),
+    MetaField(
+        "features", lambda v, n: None if v in FEATURES else f"must be one of {', '.join(FEATURES)}"
+    ),
     MetaField("info", _info, None),
     MetaField("interpolant", _interpolant, 2),
     MetaField("added", _added, None),
@@ -133,7 +158,8 @@ META = (
 class ArrayField(NamedTuple):
     """An array entry: its shape (``"N"`` the materials, ``"q"`` the latent dimension, None any
     length up to ``limit``), whether it must be present and ``check(array, meta)`` beyond
-    real, finite numbers of that shape."""
+    real, finite numbers of that shape.
+    """
 
     name: str
     shape: tuple
@@ -156,7 +182,7 @@ def _gram(a, meta):
     bad = _symmetric(a, meta)
     if bad:
         return bad
-    unit = a / np.sqrt(np.outer(diag, diag))          # correlations: |.| <= 1, PSD
+    unit = a / np.sqrt(np.outer(diag, diag))  # correlations: |.| <= 1, PSD
     low = float(np.linalg.eigvalsh(0.5 * (unit + unit.T)).min()) if len(a) else 0.0
     if low < -1e-6:
         return f"is not a Gram matrix of tables (not positive semi-definite: eigenvalue {low:.3g})"
@@ -178,8 +204,10 @@ def _latent(a, meta):
         return f"must have 1 to {MAX_LATENT_DIM} columns (the latent dimension q), has {a.shape[1]}"
     same = coincident_latent(a, meta.get("hashes"), meta["names"], meta.get("length_scale", 1.0))
     if same:
-        return (f"has coincident points for the different materials {same[0]!r} and {same[1]!r} "
-                "(the weights could not tell them apart)")
+        return (
+            f"has coincident points for the different materials {same[0]!r} and {same[1]!r} "
+            "(the weights could not tell them apart)"
+        )
     return None
 
 
@@ -202,7 +230,11 @@ def _header(zf, info):
     """``(shape, dtype)`` from the ``.npy`` header of zip entry ``info`` (nothing else read)."""
     with zf.open(info) as f:
         major, _ = np.lib.format.read_magic(f)
-        read = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+        read = (
+            np.lib.format.read_array_header_1_0
+            if major == 1
+            else np.lib.format.read_array_header_2_0
+        )
         shape, _, dtype = read(f)
     return shape, dtype
 
@@ -212,16 +244,26 @@ def _entry(path, zf, name, shape_ok, limit, kinds="fiu"):
     kind = "entry" if name == "meta" else "array"
     info = zf.getinfo(name + ".npy")
     if info.file_size > limit + HEADER_SLACK:
-        raise _refuse(path, name, f"is {info.file_size} bytes, more than its shape allows; it is not read", kind)
+        raise _refuse(
+            path,
+            name,
+            f"is {info.file_size} bytes, more than its shape allows; it is not read",
+            kind,
+        )
     try:
         shape, dtype = _header(zf, info)
-    except Exception as e:   # noqa: BLE001 -- numpy parses a header with ast and tokenize: any error
+    except Exception as e:  # noqa: BLE001 -- numpy parses a header with ast and tokenize: any error
         raise _refuse(path, name, f"has a damaged header ({type(e).__name__})", kind) from None
     if dtype.hasobject:
         raise _refuse(path, name, "holds Python objects, which are never loaded", kind)
     if dtype.kind not in kinds:
         what = {"b": "booleans", "c": "complex numbers"}.get(dtype.kind, f"dtype {dtype}")
-        raise _refuse(path, name, f"holds {what}, not real numbers" if kinds == "fiu" else f"holds {what}", kind)
+        raise _refuse(
+            path,
+            name,
+            f"holds {what}, not real numbers" if kinds == "fiu" else f"holds {what}",
+            kind,
+        )
     why = shape_ok(shape)
     if why:
         raise _refuse(path, name, why, kind)
@@ -233,7 +275,8 @@ def _entry(path, zf, name, shape_ok, limit, kinds="fiu"):
 
 def read_meta(path, zf):
     """The ``meta`` dict of the manifold archive ``zf`` (a :class:`zipfile.ZipFile` of ``path``;
-    its size and header checked, not its fields: :func:`check_meta`)."""
+    its size and header checked, not its fields: :func:`check_meta`).
+    """
     shape_ok = lambda s: None if s == () else f"must be one text, has shape {s}"  # noqa: E731
     text = _entry(path, zf, "meta", shape_ok, META_LIMIT, kinds="U")
     try:
@@ -247,9 +290,14 @@ def _shape_check(field, n, q):
 
     def ok(shape):
         if len(shape) == len(want) and all(w is None or w == s for w, s in zip(want, shape)):
-            return None if field.limit == 0 or math.prod(shape) <= field.limit else f"is longer than {field.limit}"
+            return (
+                None
+                if field.limit == 0 or math.prod(shape) <= field.limit
+                else f"is longer than {field.limit}"
+            )
         text = ", ".join("any" if w is None else str(w) for w in want)
         return f"must have shape ({text}{',' if len(want) == 1 else ''}), has {tuple(shape)}"
+
     return ok
 
 
@@ -274,8 +322,10 @@ def read_arrays(path, zf, meta):
         raise _refuse(path, "latent", "is missing", "array")
     try:
         q = int((_header(zf, zf.getinfo("latent.npy"))[0] or (0,))[-1])
-    except Exception as e:   # noqa: BLE001 -- as in _entry
-        raise _refuse(path, "latent", f"has a damaged header ({type(e).__name__})", "array") from None
+    except Exception as e:  # noqa: BLE001 -- as in _entry
+        raise _refuse(
+            path, "latent", f"has a damaged header ({type(e).__name__})", "array"
+        ) from None
     out = {}
     for field in ARRAYS:
         if field.name not in entries:
@@ -294,8 +344,6 @@ def read_arrays(path, zf, meta):
     return out
 
 
-
-
 def check_grams(tables, table_gram=None, cos_gram=None, weights=None, seed=0):
     """Why the Gram matrices are not those of ``tables`` ((N, d)): the name of the first that
     is not, or None.
@@ -305,8 +353,11 @@ def check_grams(tables, table_gram=None, cos_gram=None, weights=None, seed=0):
     a Gram matrix of other tables fails it with probability 1. Float32 products (the tables
     are not copied), compared within 1e-3 of ``max|G| sum|v|``.
     """
-    grams = [(n, G) for n, G in (("table_gram", table_gram), ("cos_gram", cos_gram))
-             if G is not None and (n == "table_gram" or weights is not None)]
+    grams = [
+        (n, G)
+        for n, G in (("table_gram", table_gram), ("cos_gram", cos_gram))
+        if G is not None and (n == "table_gram" or weights is not None)
+    ]
     if not grams:
         return None
     v = np.random.default_rng(seed).standard_normal(len(tables))

@@ -31,7 +31,8 @@ def box(manifold, margin=MARGIN):
 
 def evaluator(manifold, objective, prior=0.0):
     """SciPy's ``fun(x) -> (value, gradient)`` of ``objective(w(x)) + prior * var(x)``, and a
-    one-element list counting its evaluations."""
+    one-element list counting its evaluations.
+    """
     count = [0]
 
     def fun(x):
@@ -49,17 +50,25 @@ def evaluator(manifold, objective, prior=0.0):
 
 def descend(manifold, objective, prior, x0, bounds, max_iter):
     """L-BFGS-B from ``x0`` within ``bounds``: a dict of the start ``x0``, the point ``x``, its
-    ``objective``, ``n_evaluations`` and SciPy's ``message``."""
+    ``objective``, ``n_evaluations`` and SciPy's ``message``.
+    """
     fun, count = evaluator(manifold, objective, prior)
-    res = optimize.minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
-                            options={"maxiter": max_iter})
-    return {"x0": np.asarray(x0, dtype=float), "x": res.x, "objective": float(res.fun),
-            "n_evaluations": count[0], "message": str(res.message)}
+    res = optimize.minimize(
+        fun, x0, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": max_iter}
+    )
+    return {
+        "x0": np.asarray(x0, dtype=float),
+        "x": res.x,
+        "objective": float(res.fun),
+        "n_evaluations": count[0],
+        "message": str(res.message),
+    }
 
 
 def scan(manifold, objective, prior, bounds, n_points, seed=0):
     """``n_points`` random latent points near the data (a training point plus a normal step
-    of ``l / 2``, clipped to ``bounds``), scored at once; returns ``(points (M, q), objectives (M,))``."""
+    of ``l / 2``, clipped to ``bounds``), scored at once; returns ``(points (M, q), objectives (M,))``.
+    """
     if n_points == 0:
         return np.zeros((0, manifold.q)), np.zeros(0)
     rng = np.random.default_rng(seed)
@@ -76,7 +85,8 @@ def start_points(manifold, best, X, err, k, spread=0.25):
     """``k`` starts: the latent point of training material ``best``, then the best scanned
     points ``X`` (objectives ``err``) at least ``spread * l`` apart (without scanned points:
     the training points nearest to ``best``). Training points are nudged by ``1e-6 l`` so
-    that the descent starts on the smooth interpolant."""
+    that the descent starts on the smooth interpolant.
+    """
     nudge = 1e-6 * manifold.length_scale / np.sqrt(manifold.q)
     if len(X) == 0:
         d = np.linalg.norm(manifold.latent - manifold.latent[best], axis=1)

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import projection
 from ..data import gram
+from . import projection
 
 #: Feature transforms of the fit (``coslog``: ``log(1 + rho cos(theta_i) cos(theta_o))``).
 FEATURES = gram.FEATURES
@@ -39,6 +39,7 @@ class _Report:
 
 
 # ------------------------------------------------------------------ features, Gram
+
 
 def feature_gram(tables, features="log", cos=None, block=gram.BLOCK):
     """Uncentred Gram matrix ``F F^T`` (float64) of the tables in a feature space (:func:`gram.gram`).
@@ -76,8 +77,10 @@ def baseline_errors(G, train, test, d, components=(2, 5)):
     diag = np.diag(G)
     dist2 = diag[train][:, None] + diag[test][None] - 2 * G[np.ix_(train, test)]
     j = dist2.argmin(axis=0)
-    out = {"nearest": np.sqrt(np.maximum(dist2[j, np.arange(len(test))], 0) / d),
-           "nearest_index": train[j]}
+    out = {
+        "nearest": np.sqrt(np.maximum(dist2[j, np.arange(len(test))], 0) / d),
+        "nearest_index": train[j],
+    }
     Gtt = G[np.ix_(train, train)]
     zt2 = diag[test] - 2 * G[np.ix_(train, test)].mean(0) + Gtt.mean()
     out["mean"] = np.sqrt(np.maximum(zt2, 0) / d)
@@ -92,6 +95,7 @@ def baseline_errors(G, train, test, d, components=(2, 5)):
 
 
 # --------------------------------------------------------------- cross-validation
+
 
 @dataclass
 class HeldOut(_Report):
@@ -112,27 +116,36 @@ class HeldOut(_Report):
 
     def fold_ratios(self):
         """Median per-material ratio to the nearest training material, fold by fold: how the
-        measure varies on sets of held-out materials of the size one check sees."""
+        measure varies on sets of held-out materials of the size one check sees.
+        """
         ratio = self.error / self.nearest
         return np.array([np.median(ratio[self.fold == f]) for f in np.unique(self.fold)])
 
     def summary(self):
         ratio = self.error / self.nearest
         by_fold = self.fold_ratios()
-        return {"fold_median_ratios": by_fold.tolist(), "worst_fold_median_ratio": float(by_fold.max()),
-                "n": len(self.names), "median_error": float(np.median(self.error)),
-                "worst_error": float(self.error.max()),
-                "median_nearest": float(np.median(self.nearest)), "median_pca_q": float(np.median(self.pca_q)),
-                "median_pca5": float(np.median(self.pca5)), "median_mean": float(np.median(self.mean)),
-                "beats_nearest": float(np.mean(self.error < self.nearest * (1 - 1e-6))),
-                "median_ratio_to_nearest": float(np.median(ratio)),
-                "median_error_over_median_nearest": float(np.median(self.error) / np.median(self.nearest)),
-                "worst_ratio_to_nearest": float(ratio.max()),
-                "beats_pca_q": float(np.mean(self.error < self.pca_q)),
-                "beats_pca5": float(np.mean(self.error < self.pca5)),
-                "median_negative_fraction": float(np.median(self.negative_fraction)),
-                "worst_negative_fraction": float(self.negative_fraction.max()),
-                "albedo_range": [float(self.albedo_min.min()), float(self.albedo_max.max())]}
+        return {
+            "fold_median_ratios": by_fold.tolist(),
+            "worst_fold_median_ratio": float(by_fold.max()),
+            "n": len(self.names),
+            "median_error": float(np.median(self.error)),
+            "worst_error": float(self.error.max()),
+            "median_nearest": float(np.median(self.nearest)),
+            "median_pca_q": float(np.median(self.pca_q)),
+            "median_pca5": float(np.median(self.pca5)),
+            "median_mean": float(np.median(self.mean)),
+            "beats_nearest": float(np.mean(self.error < self.nearest * (1 - 1e-6))),
+            "median_ratio_to_nearest": float(np.median(ratio)),
+            "median_error_over_median_nearest": float(
+                np.median(self.error) / np.median(self.nearest)
+            ),
+            "worst_ratio_to_nearest": float(ratio.max()),
+            "beats_pca_q": float(np.mean(self.error < self.pca_q)),
+            "beats_pca5": float(np.mean(self.error < self.pca5)),
+            "median_negative_fraction": float(np.median(self.negative_fraction)),
+            "worst_negative_fraction": float(self.negative_fraction.max()),
+            "albedo_range": [float(self.albedo_min.min()), float(self.albedo_max.max())],
+        }
 
 
 #: Held-out folds of the cross-validation (:func:`folds`, :func:`cross_validate`).
@@ -144,8 +157,20 @@ def folds(n, k=FOLDS, seed=0):
     return np.array_split(np.random.default_rng(seed).permutation(n), k)
 
 
-def cross_validate(tables, names, fit, G_error, q, albedos, *, k=FOLDS, seed=0, bins=None, progress=None,
-                   only_folds=None):
+def cross_validate(
+    tables,
+    names,
+    fit,
+    G_error,
+    q,
+    albedos,
+    *,
+    k=FOLDS,
+    seed=0,
+    bins=None,
+    progress=None,
+    only_folds=None,
+):
     """K-fold held-out fidelity of a manifold configuration.
 
     Parameters
@@ -175,7 +200,12 @@ def cross_validate(tables, names, fit, G_error, q, albedos, *, k=FOLDS, seed=0, 
         interp = fit(train)
         fit_s += time.perf_counter() - t0
         be = baseline_errors(G_error, train, test, d, components=sorted({q, 5}))
-        for key, src in (("nearest", "nearest"), ("pca_q", f"pca{q}"), ("pca5", "pca5"), ("mean", "mean")):
+        for key, src in (
+            ("nearest", "nearest"),
+            ("pca_q", f"pca{q}"),
+            ("pca5", "pca5"),
+            ("mean", "mean"),
+        ):
             base[key].append(be[src])
         t0 = time.perf_counter()
         for t in test:
@@ -190,12 +220,18 @@ def cross_validate(tables, names, fit, G_error, q, albedos, *, k=FOLDS, seed=0, 
         proj_s += time.perf_counter() - t0
         if progress:
             progress(fold)
-    return HeldOut(names=[names[i] for i in order], **{k_: np.asarray(v) for k_, v in rows.items()},
-                   **{k_: np.concatenate(v) for k_, v in base.items()}, fit_s=fit_s, project_s=proj_s,
-                   fold=np.asarray(fold_of))
+    return HeldOut(
+        names=[names[i] for i in order],
+        **{k_: np.asarray(v) for k_, v in rows.items()},
+        **{k_: np.concatenate(v) for k_, v in base.items()},
+        fit_s=fit_s,
+        project_s=proj_s,
+        fold=np.asarray(fold_of),
+    )
 
 
 # ------------------------------------------------------------------ smoothness
+
 
 @dataclass
 class Paths(_Report):
@@ -206,11 +242,16 @@ class Paths(_Report):
     image_share: np.ndarray
 
     def summary(self):
-        out = {"n_pairs": len(self.pairs), "worst_weight_share": float(self.weight_share.max()),
-               "median_weight_share": float(np.median(self.weight_share))}
+        out = {
+            "n_pairs": len(self.pairs),
+            "worst_weight_share": float(self.weight_share.max()),
+            "median_weight_share": float(np.median(self.weight_share)),
+        }
         if self.image_share.size:
-            out.update(worst_image_share=float(self.image_share.max()),
-                       median_image_share=float(np.median(self.image_share)))
+            out.update(
+                worst_image_share=float(self.image_share.max()),
+                median_image_share=float(np.median(self.image_share)),
+            )
         return out
 
 
@@ -252,6 +293,7 @@ def path_smoothness(interpolant, pairs, steps=40, images=None, base=None, exposu
     tonemapped sRGB blends ``base + sum_i w_i images_i`` (``images``: (N, H, W, 3)).
     """
     from ..imaging.io import srgb_encode
+
     X = interpolant.latent
     t = np.linspace(0.0, 1.0, steps + 1)[:, None]
     ws, ims = [], []
@@ -262,10 +304,13 @@ def path_smoothness(interpolant, pairs, steps=40, images=None, base=None, exposu
             flat = W.astype(np.float32) @ images.reshape(len(images), -1)
             if base is not None:
                 flat += base.reshape(-1)
-            enc = srgb_encode(flat * 2.0 ** exposure)
+            enc = srgb_encode(flat * 2.0**exposure)
             ims.append(np.sqrt(np.mean(np.diff(enc, axis=0) ** 2, axis=1)))
-    return Paths(pairs=[list(p) for p in pairs], weight_share=step_share(np.array(ws)),
-                 image_share=step_share(np.array(ims)) if ims else np.zeros(0))
+    return Paths(
+        pairs=[list(p) for p in pairs],
+        weight_share=step_share(np.array(ws)),
+        image_share=step_share(np.array(ims)) if ims else np.zeros(0),
+    )
 
 
 def training_jump(interpolant, eps=1e-6, seed=0):
@@ -279,6 +324,7 @@ def training_jump(interpolant, eps=1e-6, seed=0):
 
 # ---------------------------------------------------------------- plausibility
 
+
 @dataclass
 class Plausibility(_Report):
     """Albedo and negativity over the latent box (points' bounding box + margin)."""
@@ -291,10 +337,13 @@ class Plausibility(_Report):
     negative_weights: float
 
     def summary(self):
-        return {"albedo_outside_fraction": self.albedo_outside, "albedo_range": self.albedo_range,
-                "median_negative_fraction": float(np.median(self.negative_fraction)),
-                "worst_negative_fraction": float(self.negative_fraction.max()),
-                "points_with_negative_weights": self.negative_weights}
+        return {
+            "albedo_outside_fraction": self.albedo_outside,
+            "albedo_range": self.albedo_range,
+            "median_negative_fraction": float(np.median(self.negative_fraction)),
+            "worst_negative_fraction": float(self.negative_fraction.max()),
+            "points_with_negative_weights": self.negative_weights,
+        }
 
 
 def latent_box(latent, margin=0.1):
@@ -320,10 +369,15 @@ def plausibility(interpolant, albedos, tables, n_albedo=4096, n_tables=200, seed
     neg = np.zeros(n_tables)
     d = tables.shape[1]
     for s in range(0, d, chunk):
-        neg += ((W @ tables[:, s:s + chunk]) < 0).sum(axis=1)
-    return Plausibility(box_low=lo, box_high=hi, albedo_outside=outside,
-                        albedo_range=[float(A.min()), float(A.max())], negative_fraction=neg / d,
-                        negative_weights=float(np.mean((W < 0).any(axis=1))))
+        neg += ((W @ tables[:, s : s + chunk]) < 0).sum(axis=1)
+    return Plausibility(
+        box_low=lo,
+        box_high=hi,
+        albedo_outside=outside,
+        albedo_range=[float(A.min()), float(A.max())],
+        negative_fraction=neg / d,
+        negative_weights=float(np.mean((W < 0).any(axis=1))),
+    )
 
 
 def convex_blend(tables, target):
@@ -354,11 +408,18 @@ def convex_blend(tables, target):
         b = w @ A
         pos = b > 0
         r = np.log1p(np.where(pos, b, 0.0)) - y
-        return float(r @ r) / len(y), A @ np.where(pos, 2.0 * r / (1.0 + np.where(pos, b, 0.0)), 0.0) / len(y)
+        return float(r @ r) / len(y), A @ np.where(
+            pos, 2.0 * r / (1.0 + np.where(pos, b, 0.0)), 0.0
+        ) / len(y)
 
     w0 = np.eye(k)[0]
-    res = scipy.optimize.minimize(f, w0, jac=True, method="SLSQP", bounds=[(0.0, 1.0)] * k,
-                                  constraints=[{"type": "eq", "fun": lambda w: w.sum() - 1.0,
-                                                "jac": lambda w: np.ones(k)}],
-                                  options={"maxiter": 300, "ftol": 1e-12})
+    res = scipy.optimize.minimize(
+        f,
+        w0,
+        jac=True,
+        method="SLSQP",
+        bounds=[(0.0, 1.0)] * k,
+        constraints=[{"type": "eq", "fun": lambda w: w.sum() - 1.0, "jac": lambda w: np.ones(k)}],
+        options={"maxiter": 300, "ftol": 1e-12},
+    )
     return res.x if res.fun <= f(w0)[0] else w0

@@ -15,15 +15,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import materials, pruning, schema
-from .pruning import DEFAULT_RULE, RULES
 from .._util.cache import key_hash, npy_cache
+from .._util.fifo_cache import Recent
 from ..data import merl
 from ..data.database import Database, albedo_weights
 from ..data.sources import BinaryFile
 from ..errors import FormatError, InputError
-from .._util.fifo_cache import Recent
-
+from . import materials, pruning, schema
+from .pruning import DEFAULT_RULE, RULES
 
 #: Answers of :meth:`TrainingTables.prune` kept (the newest).
 PRUNE_MEMO = 8
@@ -51,29 +50,35 @@ def _float64(a):
 
 def stored(name, doc):
     """A property of the owner's ``_store`` (a :class:`TrainingTables`) attribute ``name``, set as float64."""
+
     def set_(self, value):
         setattr(self._store, name, _float64(value))
-        self._store.pruned.clear()   # pruning answers made with the old matrices
+        self._store.pruned.clear()  # pruning answers made with the old matrices
 
     return property(lambda self: getattr(self._store, name), set_, doc=doc)
 
 
 class WithAdded(Database):
     """A :class:`Database` whose materials ``names`` include tables at other paths (``added``:
-    ``{name: path}``); everything else (folder, cache, resolution) is the database ``base``'s."""
+    ``{name: path}``); everything else (folder, cache, resolution) is the database ``base``'s.
+    """
 
-    def __init__(self, base, names, added):   # noqa: D107 -- no Database.__init__: base is already read
+    def __init__(self, base, names, added):  # noqa: D107 -- no Database.__init__: base is already read
         self.__dict__.update(base.__dict__)
         self.names = list(names)
         self.sources = dict(base.sources)
         for name, path in dict(added).items():
             if not os.path.isfile(path):
-                raise InputError(f"the table of added material {name!r}, {path}, does not exist; "
-                                 "put it back or add the material again")
+                raise InputError(
+                    f"the table of added material {name!r}, {path}, does not exist; "
+                    "put it back or add the material again"
+                )
             dims = merl.read_header(path)
             if tuple(dims) != tuple(self.dims):
-                raise FormatError(f"the table of added material {name!r}, {path}, has resolution "
-                                  f"{tuple(dims)}, the database {self.label} has {tuple(self.dims)}")
+                raise FormatError(
+                    f"the table of added material {name!r}, {path}, has resolution "
+                    f"{tuple(dims)}, the database {self.label} has {tuple(self.dims)}"
+                )
             self.sources[name] = BinaryFile(name, path)
         self.sources = {n: self.sources[n] for n in self.names}
         self.files_only = all(s.kind == "binary" for s in self.sources.values())
@@ -105,13 +110,20 @@ class TrainingTables:
     def __init__(self, names, hashes, gram=None, cos_gram=None, albedos=None, added=None):
         self.names, self.hashes = names, hashes
         self.added = dict(added or {})
-        self.gram, self.cos_gram, self.albedos = _float64(gram), _float64(cos_gram), _float64(albedos)
+        self.gram, self.cos_gram, self.albedos = (
+            _float64(gram),
+            _float64(cos_gram),
+            _float64(albedos),
+        )
         self.loaded = None
-        self.pruned = Recent(PRUNE_MEMO)   # the explorer prunes each point for frame, table and description
+        self.pruned = Recent(
+            PRUNE_MEMO
+        )  # the explorer prunes each point for frame, table and description
 
     def open(self, folder, names=None):
         """The :class:`Database` in ``folder``, its tables of ``names`` (default all) checked
-        against the recorded hashes."""
+        against the recorded hashes.
+        """
         names = self.names if names is None else list(names)
         base = [n for n in names if n not in self.added]
         try:
@@ -119,8 +131,9 @@ class TrainingTables:
             if len(base) < len(names):
                 db = WithAdded(db, names, {n: self.added[n] for n in names if n in self.added})
         except FileNotFoundError as e:
-            raise InputError(f"database for this manifold: {e} (if it moved, give its folder as "
-                             "`database`)") from None
+            raise InputError(
+                f"database for this manifold: {e} (if it moved, give its folder as `database`)"
+            ) from None
         except KeyError as e:
             raise InputError(f"database for this manifold: {e}") from None
         for name in names:
@@ -128,7 +141,8 @@ class TrainingTables:
             if db.hash(name) != recorded:
                 raise InputError(
                     f"database {db.folder}: table {name!r} differs from the one the manifold was fit on "
-                    f"(hash {db.hash(name)[:12]} != {recorded[:12]})")
+                    f"(hash {db.hash(name)[:12]} != {recorded[:12]})"
+                )
         return db
 
     def stack(self, folder):
@@ -136,11 +150,13 @@ class TrainingTables:
         if self.loaded is None:
             db = self.open(folder)
             tables = db.stack(self.names)
-            q = np.tile(albedo_weights(db.dims).reshape(-1), 3)   # the same weight in each channel
+            q = np.tile(albedo_weights(db.dims).reshape(-1), 3)  # the same weight in each channel
             wrong = schema.check_grams(tables, self.gram, self.cos_gram, q)
             if wrong:
-                raise FormatError(f"the manifold's {wrong} is not the Gram matrix of its tables in {db.folder} "
-                                  "(the manifold file is damaged); refit it with tools/fit_manifold.py")
+                raise FormatError(
+                    f"the manifold's {wrong} is not the Gram matrix of its tables in {db.folder} "
+                    "(the manifold file is damaged); refit it with tools/fit_manifold.py"
+                )
             self.loaded = tables
         return self.loaded
 
@@ -155,16 +171,23 @@ class TrainingTables:
         in the same pass when that is absent too), once per database: cached in its cache
         folder, named by the tables' hashes (a manifold file without it, which
         cannot be rewritten without changing the hash its bases record, reads the tables
-        only the first time)."""
+        only the first time).
+        """
         if self.cos_gram is None:
             db = self.open(folder, self.names[:1])
             n = len(self.names)
-            path = os.path.join(db.cache_dir, key_hash("cos-gram-v1", *self.hashes, length=40) + ".cosgram-v1.npy")
+            path = os.path.join(
+                db.cache_dir, key_hash("cos-gram-v1", *self.hashes, length=40) + ".cosgram-v1.npy"
+            )
 
             def build():
-                return np.stack(pruning.cos_grams(self.stack(folder), albedo_weights(db.dims).reshape(-1)))
+                return np.stack(
+                    pruning.cos_grams(self.stack(folder), albedo_weights(db.dims).reshape(-1))
+                )
 
-            G, self.cos_gram = npy_cache(path, build, shape=(2, n, n), dtype=np.float64, finite=True)
+            G, self.cos_gram = npy_cache(
+                path, build, shape=(2, n, n), dtype=np.float64, finite=True
+            )
             if self.gram is None:
                 self.gram = np.array(G)
             self.cos_gram = np.array(self.cos_gram)
@@ -174,7 +197,9 @@ class TrainingTables:
         """:attr:`albedos`, computed from the tables in ``folder`` when absent."""
         if self.albedos is None:
             db = self.open(folder, self.names[:1])
-            self.albedos = np.asarray(db.albedo(self.names, tables=self.stack(folder)), dtype=np.float64)
+            self.albedos = np.asarray(
+                db.albedo(self.names, tables=self.stack(folder)), dtype=np.float64
+            )
         return self.albedos
 
     def _checked(self, w, budget, rule):
@@ -182,7 +207,11 @@ class TrainingTables:
         n = len(self.names)
         if w.shape != (n,) or not np.isfinite(w).all():
             raise InputError(f"weights must be {n} finite values, got shape {w.shape}")
-        if isinstance(budget, (bool, np.bool_)) or not isinstance(budget, numbers.Real) or not 0 <= budget < 1:
+        if (
+            isinstance(budget, (bool, np.bool_))
+            or not isinstance(budget, numbers.Real)
+            or not 0 <= budget < 1
+        ):
             raise InputError(f"`prune` must be in [0, 1), got {budget!r}")
         if rule not in RULES:
             raise InputError(f"`rule` must be one of {', '.join(map(repr, RULES))}, got {rule!r}")
@@ -208,28 +237,47 @@ class TrainingTables:
         """
         w = self._checked(w, budget, rule)
         key = (w.tobytes(), float(budget), rule, None if folder is None else os.fspath(folder))
-        hit = self.pruned.get(key, lambda: self._prune(w, budget, folder, rule))   # cleared when a matrix is set
-        return Pruned(hit.keep.copy(), hit.w_kept.copy(), hit.dropped)   # the caller may change its arrays
+        hit = self.pruned.get(
+            key, lambda: self._prune(w, budget, folder, rule)
+        )  # cleared when a matrix is set
+        return Pruned(
+            hit.keep.copy(), hit.w_kept.copy(), hit.dropped
+        )  # the caller may change its arrays
 
     def _prune(self, w, budget, folder, rule):
         if rule == "raw-l2":
             return Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
-        return Pruned(*pruning.prune_image(w, self.cosine_gram(folder), self.albedo(folder), budget,
-                                           G=self.raw_gram(folder)))
+        return Pruned(
+            *pruning.prune_image(
+                w, self.cosine_gram(folder), self.albedo(folder), budget, G=self.raw_gram(folder)
+            )
+        )
 
     def error(self, w, keep, folder, rule=DEFAULT_RULE):
         """The relative L2 change of the table in the norm of ``rule`` (cosine-weighted for
-        ``"image"``, raw for ``"raw-l2"``) when only ``keep`` is kept (rescaled)."""
+        ``"image"``, raw for ``"raw-l2"``) when only ``keep`` is kept (rescaled).
+        """
         w = self._checked(w, 0.0, rule)
-        return pruning.error(w, keep, self.raw_gram(folder) if rule == "raw-l2" else self.cosine_gram(folder))
+        return pruning.error(
+            w, keep, self.raw_gram(folder) if rule == "raw-l2" else self.cosine_gram(folder)
+        )
 
     def report(self, w, budget, folder, rule=DEFAULT_RULE, keep=None):
         """:class:`pruning.PruneReport` of :meth:`prune`: what was kept, the albedo change of each
         channel and the cosine-weighted and raw table errors reached (``keep``: what :meth:`prune`
-        kept of the same ``w``, when the caller has it, instead of pruning again)."""
+        kept of the same ``w``, when the caller has it, instead of pruning again).
+        """
         keep = self.prune(w, budget, folder, rule).keep if keep is None else keep
-        return pruning.report(w, keep, rule, budget, G=self.raw_gram(folder), C=self.cosine_gram(folder),
-                              albedos=self.albedo(folder), names=self.names)
+        return pruning.report(
+            w,
+            keep,
+            rule,
+            budget,
+            G=self.raw_gram(folder),
+            C=self.cosine_gram(folder),
+            albedos=self.albedo(folder),
+            names=self.names,
+        )
 
     def combine(self, w, budget, folder, dims, database=None, rule=DEFAULT_RULE):
         """The table ``sum_i w_i table_i`` of shape ``(3,) + dims`` over the materials :meth:`prune` keeps.
@@ -245,9 +293,14 @@ class TrainingTables:
                 full = np.zeros(n, dtype=np.float32)
                 full[keep] = w_kept
                 return Combination((full @ self.loaded).reshape(shape), keep, dropped)
-            flat = pruning.weighted_sum((self.loaded[i] for i in keep), w_kept, self.loaded.shape[1])
+            flat = pruning.weighted_sum(
+                (self.loaded[i] for i in keep), w_kept, self.loaded.shape[1]
+            )
             return Combination(flat.reshape(shape), keep, dropped)
         db = self.open(database or folder, [self.names[i] for i in keep])
-        flat = pruning.weighted_sum((db.reflectance(self.names[i]).reshape(-1) for i in keep), w_kept,
-                                    3 * int(np.prod(db.dims)))
+        flat = pruning.weighted_sum(
+            (db.reflectance(self.names[i]).reshape(-1) for i in keep),
+            w_kept,
+            3 * int(np.prod(db.dims)),
+        )
         return Combination(flat.reshape((3,) + db.dims), keep, dropped)

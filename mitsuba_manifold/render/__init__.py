@@ -24,7 +24,9 @@ active one (or activate :func:`.scenes.default_variant` when Mitsuba has none ye
 
 import sys as _sys
 
-from . import llvm as _llvm, measured as _measured, plugins as _plugins  # noqa: F401 (measured: the .bsdf reader)
+from . import llvm as _llvm
+from . import measured as _measured  # noqa: F401 (registers the reader of Mitsuba measured files)
+from . import plugins as _plugins
 
 if "drjit" not in _sys.modules:
     _llvm.select()

@@ -61,7 +61,8 @@ def typical_step(latent):
 def choose_active(w, J, k, step, previous=None, hysteresis=HYSTERESIS):
     """Indices (sorted, ``min(k, N)`` of them) of the active set for weights ``w`` (N,) and
     Jacobian ``J`` (N, q): the largest scores ``|w_i| + step ||J_i||``, the members of
-    ``previous`` scored ``(1 + hysteresis)`` higher."""
+    ``previous`` scored ``(1 + hysteresis)`` higher.
+    """
     w, J = np.asarray(w, dtype=np.float64), np.asarray(J, dtype=np.float64)
     score = np.abs(w) + step * np.linalg.norm(J.reshape(w.size, -1), axis=1)
     if previous is not None:
@@ -74,7 +75,8 @@ def rescaled(w, J, idx):
     """Weights and Jacobian of the active set ``idx``, rescaled to the full set's sum:
     ``v = w_S s / sum(w_S)`` (``s = sum(w)``, 1 for a latent point) and its derivative
     ``dv/dx = (s / sum(w_S)) (J_S - v_S 1^T J_S / s)`` (with ``s`` constant, as its
-    Jacobian's columns sum to 0). Not rescaled when ``sum(w_S)`` is ~0."""
+    Jacobian's columns sum to 0). Not rescaled when ``sum(w_S)`` is ~0.
+    """
     w, J = np.asarray(w, dtype=np.float64), np.asarray(J, dtype=np.float64)
     ws, Js = w[idx], J[idx]
     total, part = w.sum(), ws.sum()
@@ -87,7 +89,8 @@ def rescaled(w, J, idx):
 
 def jitter(x, manifold, scale=1.0, rng=None):
     """``x`` moved by ``scale`` typical steps (:func:`typical_step`) in a random direction, when it lies on a
-    training point (where the Shepard weights' Jacobian is 0); otherwise unchanged."""
+    training point (where the Shepard weights' Jacobian is 0); otherwise unchanged.
+    """
     x = np.asarray(x, dtype=np.float64).copy()
     step = typical_step(manifold.latent)
     if np.min(np.linalg.norm(manifold.latent - x, axis=1)) < 1e-3 * step:
@@ -100,7 +103,8 @@ def jitter(x, manifold, scale=1.0, rng=None):
 class LatentWeights(dr.CustomOp):
     """``x (q,) -> v (K,)`` with the analytic Jacobian ``J (K, q)`` computed in ``eval``
     by ``weights_fn(x) -> (v, J)`` (NumPy, detached): forward ``dv = J dx``, backward
-    ``dx = J^T dv``."""
+    ``dx = J^T dv``.
+    """
 
     def eval(self, x, weights_fn):
         v, self.J = weights_fn(np.array(x, dtype=np.float64))
@@ -145,23 +149,24 @@ class ActiveSet:
         self.prune = float(prune)
         self.step = typical_step(manifold.latent)
         self._read, self._density = tables, density
-        self.idx = None          # (k,) material per slot
-        self.dims = None         # table resolution
-        self.host = None         # (k, bins, 3) float32
-        self.slots = None        # mi.Float
-        self.densities = None    # (k, n_t, n_v, n_u)
-        self.switches = 0        # number of slot replacements so far
-        self.keep = None         # materials kept by pruning (sorted)
+        self.idx = None  # (k,) material per slot
+        self.dims = None  # table resolution
+        self.host = None  # (k, bins, 3) float32
+        self.slots = None  # mi.Float
+        self.densities = None  # (k, n_t, n_v, n_u)
+        self.switches = 0  # number of slot replacements so far
+        self.keep = None  # materials kept by pruning (sorted)
 
     def update(self, x):
         """Prune at ``x`` and fill the slots; returns ``(idx, v, J_v, w_full)`` (NumPy): the
         material of each slot, its weight (0 outside the kept set) and Jacobian, the full
-        weights."""
+        weights.
+        """
         _, w = self.manifold.weights(x)
         J = self.manifold.weights_jacobian(x)
         keep = np.sort(np.asarray(self.manifold.prune(w, self.prune).keep, dtype=np.int64))
         self.k = max(self.k, keep.size)
-        score_w = np.where(np.isin(np.arange(w.size), keep), np.inf, w)   # the kept ones first
+        score_w = np.where(np.isin(np.arange(w.size), keep), np.inf, w)  # the kept ones first
         prev = None if self.idx is None else np.sort(self.idx)
         self._place(choose_active(score_w, J, self.k, self.step, prev))
         v_keep, J_keep = rescaled(w, J, keep)
@@ -174,7 +179,8 @@ class ActiveSet:
 
     def _place(self, idx):
         """Keep materials already in a slot where they are; put the new ones in the freed slots
-        (new slots at the end when K grew)."""
+        (new slots at the end when K grew).
+        """
         if self.idx is None:
             order = np.asarray(idx)
             names = [self.manifold.names[i] for i in order]
@@ -188,11 +194,12 @@ class ActiveSet:
             if not new:
                 return
             grow = len(idx) - len(held)
-            if grow > 0:   # more kept materials than slots: new slots (filled below)
+            if grow > 0:  # more kept materials than slots: new slots (filled below)
                 held = held + [-1] * grow
                 self.host = np.concatenate([self.host, np.repeat(self.host[:1], grow, axis=0)])
                 self.densities = np.concatenate(
-                    [self.densities, np.repeat(self.densities[:1], grow, axis=0)])
+                    [self.densities, np.repeat(self.densities[:1], grow, axis=0)]
+                )
             order = np.asarray(held)
             free = [s for s, i in enumerate(held) if i not in wanted]
             t = self._read([self.manifold.names[i] for i in new])
@@ -220,7 +227,8 @@ def traced_weights(x, v, J):
     it can be recorded where the lookup is, inside an integrator's symbolic loop and its isolated AD
     scope (``prb``'s ``render_forward`` refuses an edge made outside it, and a ``dr.CustomOp``'s
     callbacks cannot read arrays inside a symbolic region). Every value is gathered from device
-    arrays (no literal), so new weights compile nothing."""
+    arrays (no literal), so new weights compile nothing.
+    """
     k = dr.width(v)
     q = dr.width(J) // max(k, 1)
     d = []
@@ -240,7 +248,9 @@ def mixture_gather(slots, weights, n_bins, k):
     """A ``gather(table, idx, active)`` for :func:`.lookups.table_value` that returns
     ``max(0, sum_k w_k slot_k[idx])`` (clamped per bin, as the combined table is). ``weights``: a
     ``mi.Float`` of size K, or a callable returning K ``mi.Float`` (:func:`traced_weights`), called
-    at every lookup (so that the weights' AD edges are made where the lookup is)."""
+    at every lookup (so that the weights' AD edges are made where the lookup is).
+    """
+
     def gather(_table, idx, active):
         if callable(weights):
             wk = weights()
@@ -250,6 +260,7 @@ def mixture_gather(slots, weights, n_bins, k):
         for j in range(k):
             out += wk[j] * dr.gather(mi.Color3f, slots, idx + j * n_bins, active)
         return dr.maximum(out, 0.0)
+
     return gather
 
 
@@ -257,22 +268,33 @@ def combination(manifold, active, state, distr, black):
     """The :class:`.material.Combination` describing AD mode's material (``state``: ``idx`` of the
     slots, their weights ``v``, the full weights ``w``, the point ``x``, the pruned set ``keep``);
     ``table`` None (the slots are in ``active``), clamping counted nowhere (it happens per
-    lookup)."""
+    lookup).
+    """
     full = np.zeros(manifold.n)
     full[state["idx"]] = state["v"]
     keep = np.asarray(state["keep"])
     w = state["w"]
-    return Combination(w=full, x=state["x"], material=None, keep=keep,
-                       dropped=float(np.abs(w).sum() - np.abs(w[keep]).sum()),
-                       prune_error=manifold.prune_error(w, keep),
-                       pruning=manifold.prune_report(w, active.prune, keep=keep), n_clamped=0,
-                       n_values=active.host.size, black=black, dims=active.dims, distr=distr,
-                       table=None)
+    return Combination(
+        w=full,
+        x=state["x"],
+        material=None,
+        keep=keep,
+        dropped=float(np.abs(w).sum() - np.abs(w[keep]).sum()),
+        prune_error=manifold.prune_error(w, keep),
+        pruning=manifold.prune_report(w, active.prune, keep=keep),
+        n_clamped=0,
+        n_values=active.host.size,
+        black=black,
+        dims=active.dims,
+        distr=distr,
+        table=None,
+    )
 
 
 def forward_leaf(x, w, dx):
     """Forward mode: ``J dx`` pushed from ``x`` to the weights ``w`` (through :class:`LatentWeights`,
-    which clears the edges ``x -> w``), returned on a new AD leaf with ``w``'s value."""
+    which clears the edges ``x -> w``), returned on a new AD leaf with ``w``'s value.
+    """
     dr.set_grad(x, mi.Float(np.asarray(dx, dtype=np.float32).ravel()))
     dw = dr.forward_to(w)
     leaf = dr.detach(w)

@@ -25,13 +25,19 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..errors import InputError
 from .._util.checks import latent_point, weight_sum
+from ..errors import InputError
 from . import ad
 from .lookups import gather_rgb, table_value
 from .material import combine, read_properties
-from .sampling import (PLUGIN_NAME, combined_distribution, half_vector_pdf, material_density, prefixed,
-                       sample_half_vector)
+from .sampling import (
+    PLUGIN_NAME,
+    combined_distribution,
+    half_vector_pdf,
+    material_density,
+    prefixed,
+    sample_half_vector,
+)
 
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
 COSINE_FRACTION = 0.1
@@ -135,12 +141,21 @@ class ManifoldBRDF(mi.BSDF):
 
     manifold = _read_only("_manifold", "The :class:`Manifold` this material lives on.")
     manifold_path = _read_only("_options.manifold_path", "Resolved path of the manifold file.")
-    database = _read_only("_options.database", "Database folder of the ``database`` parameter (None: the manifold's own).")
-    interpolation = _read_only("_options.interpolation", "Table lookup: ``'nearest'`` or ``'linear'``.")
+    database = _read_only(
+        "_options.database",
+        "Database folder of the ``database`` parameter (None: the manifold's own).",
+    )
+    interpolation = _read_only(
+        "_options.interpolation", "Table lookup: ``'nearest'`` or ``'linear'``."
+    )
     sampling = _read_only("_options.sampling", "Sampling strategy: ``'cdf'`` or ``'cosine'``.")
     dropped_weight = _read_only("_c.dropped", "``sum |w_i|`` of the materials dropped by pruning.")
-    prune_error = _read_only("_c.prune_error", "Relative L2 change of the table made by pruning (exact).")
-    clamped_bins = _read_only("_c.n_clamped", "Number of (channel, bin) values of the combined table clamped below 0.")
+    prune_error = _read_only(
+        "_c.prune_error", "Relative L2 change of the table made by pruning (exact)."
+    )
+    clamped_bins = _read_only(
+        "_c.n_clamped", "Number of (channel, bin) values of the combined table clamped below 0."
+    )
 
     @property
     def names(self):
@@ -165,8 +180,9 @@ class ManifoldBRDF(mi.BSDF):
     def set_latent(self, x):
         """Render the material at latent point ``x`` (``q`` numbers). In AD mode
         (:attr:`differentiable`) the point is the grad-enabled parameter's value: set it through
-        ``params["<id>.x"]`` and ``params.update()``."""
-        try:   # the one check of a latent point (text "0.3, -1.2", a sequence or an array)
+        ``params["<id>.x"]`` and ``params.update()``.
+        """
+        try:  # the one check of a latent point (text "0.3, -1.2", a sequence or an array)
             x = latent_point("x", x, self._manifold.q)
         except InputError as e:
             raise InputError(prefixed(e, f" ({self.manifold_path})")) from None
@@ -196,14 +212,18 @@ class ManifoldBRDF(mi.BSDF):
             full = np.zeros(len(names))
             for name, value in w.items():
                 if name not in names:
-                    raise InputError(f"{PLUGIN_NAME}: unknown material {name!r} in weights "
-                                     f"(the manifold has {', '.join(names[:6])}, ...)")
+                    raise InputError(
+                        f"{PLUGIN_NAME}: unknown material {name!r} in weights "
+                        f"(the manifold has {', '.join(names[:6])}, ...)"
+                    )
                 full[names.index(name)] += float(value)
             w = full
         w = np.asarray(w, dtype=np.float64)
         if w.shape != (len(names),) or not np.isfinite(w).all():
-            raise InputError(f"{PLUGIN_NAME}: weights must be {len(names)} finite numbers (one per material), "
-                             f"got shape {w.shape}")
+            raise InputError(
+                f"{PLUGIN_NAME}: weights must be {len(names)} finite numbers (one per material), "
+                f"got shape {w.shape}"
+            )
         try:
             weight_sum(w)
         except InputError as e:
@@ -212,7 +232,8 @@ class ManifoldBRDF(mi.BSDF):
 
     def _rebuild(self, w, x, material, table=None):
         """Combine the tables and sampling densities for weights ``w``; committed only once
-        everything succeeded."""
+        everything succeeded.
+        """
         c = combine(self._manifold, self._options, w, x, material, table)
         if self.hold_proxy and getattr(self, "_c", None) is not None and self._c.distr is not None:
             c = dataclasses.replace(c, distr=self._c.distr, black=self._c.black)
@@ -224,7 +245,8 @@ class ManifoldBRDF(mi.BSDF):
 
     def _publish_x(self):
         """The ``x`` parameter as the rendered latent point. Parameter objects returned by an
-        earlier mi.traverse hold this array: replaced in place (length too), created the first time."""
+        earlier mi.traverse hold this array: replaced in place (length too), created the first time.
+        """
         array = (mi.Float if dr.is_jit_v(mi.Float) else dr.scalar.ArrayXf)(self._c.x)
         if self._x_param is None:
             self._x_param = array
@@ -248,7 +270,11 @@ class ManifoldBRDF(mi.BSDF):
             if known is None:
                 p = half_vector_pdf(c.distr, wi, wo, nonzero)
             else:
-                p = dr.select(known, p_table, half_vector_pdf(c.distr, wi, wo, dr.select(known, False, nonzero)))
+                p = dr.select(
+                    known,
+                    p_table,
+                    half_vector_pdf(c.distr, wi, wo, dr.select(known, False, nonzero)),
+                )
             pdf += (1.0 - self._cos_frac) * p
         value = dr.select(nonzero, f * wo.z, 0.0)
         return value, dr.detach(dr.select(nonzero, pdf, 0.0))
@@ -299,18 +325,26 @@ class ManifoldBRDF(mi.BSDF):
 
     def traverse(self, callback):
         if self._c.x is not None:
-            flags = mi.ParamFlags.Differentiable if dr.is_diff_v(mi.Float) else mi.ParamFlags.NonDifferentiable
+            flags = (
+                mi.ParamFlags.Differentiable
+                if dr.is_diff_v(mi.Float)
+                else mi.ParamFlags.NonDifferentiable
+            )
             callback.put("x", self._x_param, flags)
 
-    def parameters_changed(self, keys=[]):
+    def parameters_changed(self, keys=()):
         if self._x_param is None or (keys and "x" not in keys):
             return
         x = np.array(self._x_param, dtype=np.float64).ravel()
         if self.differentiable:
             self.set_latent(x)
             return
-        rendered = self._c.x if self._w is None else None   # leaving AD mode: rebuild
-        if rendered is None or x.shape != rendered.shape or not np.array_equal(x, rendered.astype(np.float32)):
+        rendered = self._c.x if self._w is None else None  # leaving AD mode: rebuild
+        if (
+            rendered is None
+            or x.shape != rendered.shape
+            or not np.array_equal(x, rendered.astype(np.float32))
+        ):
             try:
                 self.set_latent(x)
             except Exception:  # refused: back to the material still rendered (its length too),
@@ -323,7 +357,9 @@ class ManifoldBRDF(mi.BSDF):
     @property
     def differentiable(self):
         """True in an AD variant while the ``x`` parameter is grad-enabled (:mod:`.ad` mode)."""
-        return dr.is_diff_v(mi.Float) and self._x_param is not None and dr.grad_enabled(self._x_param)
+        return (
+            dr.is_diff_v(mi.Float) and self._x_param is not None and dr.grad_enabled(self._x_param)
+        )
 
     @property
     def active_set(self):
@@ -334,7 +370,8 @@ class ManifoldBRDF(mi.BSDF):
     def ad_weights(self):
         """AD mode: a new ``mi.Float`` (K) of the active set's weights following ``x`` through
         :class:`.ad.LatentWeights`, for use outside a render (``render_forward`` from ``x`` refuses its
-        edge while it is alive); None otherwise."""
+        edge while it is alive); None otherwise.
+        """
         if self._w is None:
             return None
         v, J = self._ad_state
@@ -344,11 +381,16 @@ class ManifoldBRDF(mi.BSDF):
         """The active set's weights as a new AD leaf carrying ``J dx`` (:class:`.ad.LatentWeights`), rendered
         until the next ``params.update()``; returns it, for ``integrator.render_forward(scene, {"w": leaf})``.
         Forward mode from ``x`` itself needs none of this: ``dr.set_grad(params["<id>.x"], dx)``, then
-        ``render_forward`` (or ``mi.render`` and ``dr.forward_to``), see :func:`.ad.traced_weights`."""
+        ``render_forward`` (or ``mi.render`` and ``dr.forward_to``), see :func:`.ad.traced_weights`.
+        """
         if self._w is None:
-            raise InputError(f"{PLUGIN_NAME}: forward_weights needs AD mode (a grad-enabled x after params.update())")
+            raise InputError(
+                f"{PLUGIN_NAME}: forward_weights needs AD mode (a grad-enabled x after params.update())"
+            )
         self._w = leaf = ad.forward_leaf(self._x_param, self.ad_weights, dx)
-        self._gather = ad.mixture_gather(self._active.slots, leaf, self._active.host.shape[1], self._active.k)
+        self._gather = ad.mixture_gather(
+            self._active.slots, leaf, self._active.host.shape[1], self._active.k
+        )
         return leaf
 
     def _read_tables(self, names):
@@ -362,10 +404,16 @@ class ManifoldBRDF(mi.BSDF):
         """AD mode at the grad-enabled ``x``: the active set, its weights ``v`` and Jacobian ``J`` (NumPy),
         the slots' tables, and (unless :attr:`hold_proxy`) the detached sampling proxy. The weights enter
         every lookup as :func:`.ad.traced_weights` (value ``v``, derivative ``J dx``), made inside the
-        integrator's AD scope: forward and backward mode from ``x`` work through Mitsuba's own API."""
+        integrator's AD scope: forward and backward mode from ``x`` work through Mitsuba's own API.
+        """
         if self._active is None:
-            self._active = ad.ActiveSet(self._manifold, self._ad_terms, self._read_tables,
-                                        self._read_density, self._options.prune)
+            self._active = ad.ActiveSet(
+                self._manifold,
+                self._ad_terms,
+                self._read_tables,
+                self._read_density,
+                self._options.prune,
+            )
         x = np.array(self._x_param, dtype=np.float64).ravel()
         try:
             idx, v, J, w = self._active.update(x)
@@ -378,9 +426,16 @@ class ManifoldBRDF(mi.BSDF):
         self._c = ad.combination(self._manifold, a, state, distr, black)
         self._cos_frac = 1.0 if distr is None else COSINE_FRACTION
         self._ad_state = (v, J)
-        self._w = mi.Float(np.asarray(v, dtype=np.float32))   # detached: AD mode's marker and values
-        traced = partial(ad.traced_weights, self._x_param, self._w, mi.Float(np.asarray(J, dtype=np.float32).ravel()))
-        self._gather = ad.mixture_gather(a.slots, traced, a.host.shape[1], a.k)   # edges made at each lookup
+        self._w = mi.Float(np.asarray(v, dtype=np.float32))  # detached: AD mode's marker and values
+        traced = partial(
+            ad.traced_weights,
+            self._x_param,
+            self._w,
+            mi.Float(np.asarray(J, dtype=np.float32).ravel()),
+        )
+        self._gather = ad.mixture_gather(
+            a.slots, traced, a.host.shape[1], a.k
+        )  # edges made at each lookup
 
     def to_string(self):
         c, o = self._c, self._options
@@ -395,17 +450,20 @@ class ManifoldBRDF(mi.BSDF):
         order = c.keep[np.argsort(-np.abs(c.w[c.keep]))]
         top = ", ".join(f"{self._manifold.names[i]}:{c.w[i]:.4g}" for i in order[:6])
         more = f", ... ({len(order)} in all)" if len(order) > 6 else ""
-        return (f"ManifoldBRDF[\n"
-                f"  manifold = {o.manifold_path},\n"
-                f"  database = {o.database or self._manifold.database},\n"
-                f"  {what},\n"
-                f"  weights used = {top}{more},\n"
-                f"  pruning: {c.pruning},\n"
-                f"  resolution = {c.dims[0]}x{c.dims[1]}x{c.dims[2]},\n"
-                f"  clamped bins = {c.n_clamped} of {c.n_values} values below 0,\n"
-                f"  interpolation = {o.interpolation},\n"
-                f"  sampling = {o.sampling}"
-                + (" (the material reflects nothing)" if c.black else "") + "\n]")
+        return (
+            f"ManifoldBRDF[\n"
+            f"  manifold = {o.manifold_path},\n"
+            f"  database = {o.database or self._manifold.database},\n"
+            f"  {what},\n"
+            f"  weights used = {top}{more},\n"
+            f"  pruning: {c.pruning},\n"
+            f"  resolution = {c.dims[0]}x{c.dims[1]}x{c.dims[2]},\n"
+            f"  clamped bins = {c.n_clamped} of {c.n_values} values below 0,\n"
+            f"  interpolation = {o.interpolation},\n"
+            f"  sampling = {o.sampling}"
+            + (" (the material reflects nothing)" if c.black else "")
+            + "\n]"
+        )
 
 
 mi.register_bsdf(PLUGIN_NAME, lambda props: ManifoldBRDF(props))

@@ -40,12 +40,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..basis import folder as basis_folder
-from ..imaging import io as imageio
 from .._util.cache import file_hash, key_hash
 from .._util.locking import FolderLock
-from ..errors import MismatchError
+from ..basis import folder as basis_folder
 from ..basis.folder.output import CHUNK_DIR, check_foreign_folder, open_folder
+from ..errors import MismatchError
+from ..imaging import io as imageio
 from .gi_basis import write_cross
 
 
@@ -57,6 +57,7 @@ class ChunkSpec:
     arguments of ``render_basis`` (``materials``, ``mode``, ``resolution``, ``max_depth``, ``variant``,
     ``sensor``).
     """
+
     scene: str
     manifold: str
     index: int
@@ -73,6 +74,7 @@ class ChunkSpec:
 @dataclass
 class ChunkResult:
     """What a worker sends back: the chunk's images and manifest, and where and how fast."""
+
     spec: ChunkSpec
     manifest: dict
     images: dict
@@ -95,11 +97,23 @@ def plan(scene, manifold, spp, chunks, seed=0, **options):
     if chunks < 1:
         raise MismatchError(f"`chunks` must be >= 1, got {chunks}")
     if spp < chunks:
-        raise MismatchError(f"`spp` ({spp}) must be at least the number of chunks ({chunks}): "
-                         "every chunk renders at least one sample per pixel")
+        raise MismatchError(
+            f"`spp` ({spp}) must be at least the number of chunks ({chunks}): "
+            "every chunk renders at least one sample per pixel"
+        )
     scene, manifold = os.path.abspath(os.fspath(scene)), os.path.abspath(os.fspath(manifold))
-    return [ChunkSpec(scene, manifold, j, chunks, spp // chunks + (j < spp % chunks),
-                      chunk_seed(seed, j, chunks), dict(options)) for j in range(chunks)]
+    return [
+        ChunkSpec(
+            scene,
+            manifold,
+            j,
+            chunks,
+            spp // chunks + (j < spp % chunks),
+            chunk_seed(seed, j, chunks),
+            dict(options),
+        )
+        for j in range(chunks)
+    ]
 
 
 def render_chunk(spec):
@@ -108,14 +122,19 @@ def render_chunk(spec):
 
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="mitsuba-manifold-chunk-") as tmp:
-        manifest = render_basis(spec.scene, spec.manifold, tmp, spp=spec.spp, seed=spec.seed,
-                                          **spec.options)
-        images = {key: imageio.read_exr(os.path.join(tmp, entry["file"]))
-                  for key, entry in _entries(manifest)}
+        manifest = render_basis(
+            spec.scene, spec.manifold, tmp, spp=spec.spp, seed=spec.seed, **spec.options
+        )
+        images = {
+            key: imageio.read_exr(os.path.join(tmp, entry["file"]))
+            for key, entry in _entries(manifest)
+        }
         if "cross" in manifest:
             with np.load(os.path.join(tmp, manifest["cross"]["file"])) as data:
                 images[_CROSS] = (data["pairs"], data["images"])
-    return ChunkResult(spec, manifest, images, time.perf_counter() - t0, socket.gethostname(), os.getpid())
+    return ChunkResult(
+        spec, manifest, images, time.perf_counter() - t0, socket.gethostname(), os.getpid()
+    )
 
 
 def chunk_folder(out, spec):
@@ -133,16 +152,27 @@ def identities(spec):
 
 def chunk_key(spec, ids=None):
     """SHA-256 (hex) of what chunk ``spec``'s images depend on: index, count, spp, seed, the render
-    options and the identities of its scene and manifold (``ids``: :func:`identities`)."""
+    options and the identities of its scene and manifold (``ids``: :func:`identities`).
+    """
     options = {k: v for k, v in spec.options.items() if k not in _NOT_SETTINGS}
-    head = json.dumps({"index": spec.index, "count": spec.count, "spp": spec.spp, "seed": spec.seed,
-                       "options": options}, sort_keys=True, default=repr)
+    head = json.dumps(
+        {
+            "index": spec.index,
+            "count": spec.count,
+            "spp": spec.spp,
+            "seed": spec.seed,
+            "options": options,
+        },
+        sort_keys=True,
+        default=repr,
+    )
     return key_hash("chunk-v1", head, *(ids or identities(spec)))
 
 
 def chunk_done(folder, key=None):
     """The manifest of a completely saved chunk folder (of ``chunk_key`` ``key``, when given, with
-    every image as saved), else None."""
+    every image as saved), else None.
+    """
     try:
         manifest = basis_folder.read_manifest(folder)
     except MismatchError:
@@ -150,7 +180,9 @@ def chunk_done(folder, key=None):
     if not manifest.get("chunk_complete") or (key is not None and manifest.get("chunk_key") != key):
         return None
     for _, entry in _entries(manifest):
-        if not os.path.isfile(os.path.join(folder, entry["file"])) or basis_folder.image_changed(folder, entry):
+        if not os.path.isfile(os.path.join(folder, entry["file"])) or basis_folder.image_changed(
+            folder, entry
+        ):
             return None
     return manifest
 
@@ -161,24 +193,31 @@ _CROSS = "cross:"
 
 def _entries(manifest):
     """``(key, entry)`` of every image file of a manifest: L1- images, then full-GI ones (``gi:<key>``)."""
-    return list(manifest["images"].items()) + [(basis_folder.GI + k, e) for k, e in
-                                               manifest.get("gi_images", {}).items()]
+    return list(manifest["images"].items()) + [
+        (basis_folder.GI + k, e) for k, e in manifest.get("gi_images", {}).items()
+    ]
 
 
 def save_chunk(out, result, key=None):
     """Write a worker's chunk into its folder: images (their hashes recorded), then the manifest
-    (the completion mark; ``key``: the chunk's :func:`chunk_key`, recorded)."""
+    (the completion mark; ``key``: the chunk's :func:`chunk_key`, recorded).
+    """
     folder = chunk_folder(out, result.spec)
     os.makedirs(folder, exist_ok=True)
-    manifest = json.loads(json.dumps(result.manifest))   # a copy: the entries get this folder's hashes
+    manifest = json.loads(
+        json.dumps(result.manifest)
+    )  # a copy: the entries get this folder's hashes
     for (key_, entry), (_, mine) in zip(_entries(result.manifest), _entries(manifest)):
         imageio.write_exr(os.path.join(folder, entry["file"]), result.images[key_])
         mine["sha256"] = file_hash(os.path.join(folder, entry["file"]))
     if "cross" in result.manifest:
-        manifest["cross"]["sha256"] = write_cross(os.path.join(folder, result.manifest["cross"]["file"]),
-                                                  *result.images[_CROSS])
-    manifest.update(chunk_complete=True, chunk_run={"seconds": result.seconds, "host": result.host,
-                                                    "pid": result.pid})
+        manifest["cross"]["sha256"] = write_cross(
+            os.path.join(folder, result.manifest["cross"]["file"]), *result.images[_CROSS]
+        )
+    manifest.update(
+        chunk_complete=True,
+        chunk_run={"seconds": result.seconds, "host": result.host, "pid": result.pid},
+    )
     if key is not None:
         manifest["chunk_key"] = key
     basis_folder.write_manifest(folder, manifest)
@@ -201,12 +240,20 @@ def _merge(out, folders, seed, force, run_key=None):
     first = manifests[0]
     for f, m in zip(folders[1:], manifests[1:]):
         diff = basis_folder.manifest_differences(first, m, ignore=("spp", "seed", "chunks"))
-        if (diff or set(m["images"]) != set(first["images"])
-                or m.get("components") != first.get("components") or set(dict(_entries(m))) != set(dict(_entries(first)))):
-            raise MismatchError(f"chunk {f} does not match chunk {folders[0]} "
-                             f"({', '.join(diff) or 'images'} differ); delete {os.path.dirname(f)}")
+        if (
+            diff
+            or set(m["images"]) != set(first["images"])
+            or m.get("components") != first.get("components")
+            or set(dict(_entries(m))) != set(dict(_entries(first)))
+        ):
+            raise MismatchError(
+                f"chunk {f} does not match chunk {folders[0]} "
+                f"({', '.join(diff) or 'images'} differ); delete {os.path.dirname(f)}"
+            )
     spp = np.array([m["spp"] for m in manifests], dtype=np.float64)
-    merged = {k: v for k, v in first.items() if k not in ("chunk_complete", "chunk_run", "chunk_key")}
+    merged = {
+        k: v for k, v in first.items() if k not in ("chunk_complete", "chunk_run", "chunk_key")
+    }
     merged.update(spp=int(spp.sum()), seed=int(seed), chunks=len(folders), images={})
     merged.pop("gi_images", None)
     files = [e["file"] for _, e in _entries(first)] + [basis_folder.MANIFEST]
@@ -220,31 +267,37 @@ def _merge(out, folders, seed, force, run_key=None):
     last_write = time.perf_counter()
     for key, entry in _entries(first):
         gi = key.startswith(basis_folder.GI)
-        section, plain = ("gi_images", key[len(basis_folder.GI):]) if gi else ("images", key)
+        section, plain = ("gi_images", key[len(basis_folder.GI) :]) if gi else ("images", key)
         if plain in merged.get(section, {}):
             continue
-        if time.perf_counter() - last_write > 1.0:   # progress kept for a resumed merge
+        if time.perf_counter() - last_write > 1.0:  # progress kept for a resumed merge
             basis_folder.write_manifest(out, merged)
             last_write = time.perf_counter()
         acc = None
         for f, m, w in zip(folders, manifests, weights):
-            img = imageio.read_exr(os.path.join(f, m[section][plain]["file"])).astype(np.float64) * w
+            img = (
+                imageio.read_exr(os.path.join(f, m[section][plain]["file"])).astype(np.float64) * w
+            )
             acc = img if acc is None else acc + img
         imageio.write_exr(os.path.join(out, entry["file"]), acc.astype(np.float32))
         merged.setdefault(section, {})[plain] = {
-            "file": entry["file"], "time_s": float(sum(m[section][plain]["time_s"] for m in manifests)),
-            "sha256": file_hash(os.path.join(out, entry["file"]))}
-    if "cross" in first:   # the cross terms: the same spp-weighted mean
+            "file": entry["file"],
+            "time_s": float(sum(m[section][plain]["time_s"] for m in manifests)),
+            "sha256": file_hash(os.path.join(out, entry["file"])),
+        }
+    if "cross" in first:  # the cross terms: the same spp-weighted mean
         acc, pairs = None, None
         for f, m, w in zip(folders, manifests, weights):
             with np.load(os.path.join(f, m["cross"]["file"])) as data:
                 if pairs is not None and list(data["pairs"].ravel()) != list(pairs.ravel()):
-                    raise MismatchError(f"chunk {f} holds cross terms of other pairs; delete {os.path.dirname(f)}")
+                    raise MismatchError(
+                        f"chunk {f} holds cross terms of other pairs; delete {os.path.dirname(f)}"
+                    )
                 pairs, img = data["pairs"], data["images"].astype(np.float64) * w
             acc = img if acc is None else acc + img
         digest = write_cross(os.path.join(out, first["cross"]["file"]), pairs, acc)
         merged["cross"] = {**first["cross"], "sha256": digest}
-    if run_key is not None:   # the mark of a finished run (written with its last image)
+    if run_key is not None:  # the mark of a finished run (written with its last image)
         merged["chunk_key"] = run_key
     del merged["pending"]
     basis_folder.write_manifest(out, merged)
@@ -254,15 +307,27 @@ def _merge(out, folders, seed, force, run_key=None):
 @dataclass
 class ChunkedRun:
     """What :func:`render_chunked` did: the merged manifest and per-chunk timings."""
+
     manifest: dict
     rendered: list  # (chunk name, seconds, host, pid) of the chunks rendered in this call
-    resumed: list   # names of chunks found complete
+    resumed: list  # names of chunks found complete
     wall_s: float
     merge_s: float
 
 
-def render_chunked(scene, manifold, out, spp=64, chunks=1, seed=0, executor=None, keep_chunks=False,
-                   progress=False, aovs=False, **options):
+def render_chunked(
+    scene,
+    manifold,
+    out,
+    spp=64,
+    chunks=1,
+    seed=0,
+    executor=None,
+    keep_chunks=False,
+    progress=False,
+    aovs=False,
+    **options,
+):
     """Render a basis as ``chunks`` chunks with ``executor`` and merge them into ``out``.
 
     Parameters
@@ -285,7 +350,9 @@ def render_chunked(scene, manifold, out, spp=64, chunks=1, seed=0, executor=None
     ChunkedRun
     """
     specs = plan(scene, manifold, spp, chunks, seed, **options)
-    check_foreign_folder(os.fspath(out), options.get("force", False))   # before any chunk is rendered
+    check_foreign_folder(
+        os.fspath(out), options.get("force", False)
+    )  # before any chunk is rendered
     _check_out(out, specs[0], spp, seed, chunks)
     ids = identities(specs[0])
     keys = [chunk_key(s, ids) for s in specs]
@@ -293,12 +360,15 @@ def render_chunked(scene, manifold, out, spp=64, chunks=1, seed=0, executor=None
     t0 = time.perf_counter()
     with FolderLock(os.fspath(out), "basis folder"):
         manifest = _finished(out, run_key)
-        if manifest is not None:   # the same command on a finished basis: nothing to render
+        if manifest is not None:  # the same command on a finished basis: nothing to render
             run = ChunkedRun(manifest, [], [s.name for s in specs], 0.0, 0.0)
         else:
-            run = _render_and_merge(out, specs, keys, run_key, executor, progress, seed, options.get("force", False))
+            run = _render_and_merge(
+                out, specs, keys, run_key, executor, progress, seed, options.get("force", False)
+            )
         if aovs:
             from .render_basis import ensure_aovs
+
             ensure_aovs(out, run.manifest)
         if not keep_chunks:
             shutil.rmtree(os.path.join(out, CHUNK_DIR), ignore_errors=True)
@@ -308,7 +378,8 @@ def render_chunked(scene, manifold, out, spp=64, chunks=1, seed=0, executor=None
 
 def _finished(out, run_key):
     """The manifest of ``out`` when it holds the merged basis of the run ``run_key`` with every
-    image as merged, else None."""
+    image as merged, else None.
+    """
     try:
         manifest = basis_folder.read_manifest(out)
     except MismatchError:
@@ -316,7 +387,10 @@ def _finished(out, run_key):
     if manifest.get("chunk_key") != run_key:
         return None
     entries = _entries(manifest)
-    if any(not os.path.isfile(os.path.join(out, e["file"])) or basis_folder.image_changed(out, e) for _, e in entries):
+    if any(
+        not os.path.isfile(os.path.join(out, e["file"])) or basis_folder.image_changed(out, e)
+        for _, e in entries
+    ):
         return None
     return manifest
 
@@ -335,9 +409,13 @@ def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force
             save_chunk(out, result, key_of[result.spec.name])
             rendered.append((result.spec.name, result.seconds, result.host, result.pid))
             if progress:
-                print(f"  chunk {result.spec.name}: {result.spec.spp} spp in {result.seconds:.1f} s "
-                      f"({result.host}, pid {result.pid})", flush=True)
-    if len(specs) > 1 and _chooses_pairs(specs[0].options):   # the first chunk's pairs for all
+                print(
+                    f"  chunk {result.spec.name}: {result.spec.spp} spp in {result.seconds:.1f} s "
+                    f"({result.host}, pid {result.pid})",
+                    flush=True,
+                )
+
+    if len(specs) > 1 and _chooses_pairs(specs[0].options):  # the first chunk's pairs for all
         run([s for s in todo if s.index == 0])
         follow = _first_choice(chunk_folder(out, specs[0]))
         todo = [replace(s, options={**s.options, **follow}) for s in todo if s.index != 0]
@@ -350,8 +428,13 @@ def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force
 def _chooses_pairs(options):
     """Whether a chunk of ``options`` chooses cross-term pairs on its first pass."""
     from .render_basis import BasisOptions
-    return (options.get("mode") == "onepass" and options.get("components") == "auto"
-            and options.get("cross_light_tol", BasisOptions.cross_light_tol) and options.get("cross_keep") is None)
+
+    return (
+        options.get("mode") == "onepass"
+        and options.get("components") == "auto"
+        and options.get("cross_light_tol", BasisOptions.cross_light_tol)
+        and options.get("cross_keep") is None
+    )
 
 
 def _first_choice(folder):
@@ -367,19 +450,29 @@ def _first_choice(folder):
 
 def _check_out(out, spec, spp, seed, chunks):
     """Refuse early (before rendering) an ``out`` holding a basis of other settings (one that lists
-    no image yet, e.g. of a run that failed before its first, has nothing to lose: as :func:`open_folder`)."""
+    no image yet, e.g. of a run that failed before its first, has nothing to lose: as :func:`open_folder`).
+    """
     if not os.path.exists(os.path.join(os.fspath(out), basis_folder.MANIFEST)):
         return
     old = basis_folder.read_manifest(out)
     if not old["images"]:
         return
-    want = {"spp": int(spp), "seed": int(seed), "chunks": int(chunks),
-            "scene_hash": basis_folder.scene_hash(spec.scene),
-            "manifold_hash": (basis_folder.manifold_file_identity(spec.manifold) if old.get("version", 1) >= 2
-                              else file_hash(spec.manifold))}
+    want = {
+        "spp": int(spp),
+        "seed": int(seed),
+        "chunks": int(chunks),
+        "scene_hash": basis_folder.scene_hash(spec.scene),
+        "manifold_hash": (
+            basis_folder.manifold_file_identity(spec.manifold)
+            if old.get("version", 1) >= 2
+            else file_hash(spec.manifold)
+        ),
+    }
     if "mode" in spec.options:
         want["mode"] = spec.options["mode"]
     diff = [k for k, v in want.items() if old.get(k) != v]
     if diff:
-        raise MismatchError(f"{out} holds a basis made with other settings ({', '.join(diff)} differ); "
-                         "choose another folder or delete it")
+        raise MismatchError(
+            f"{out} holds a basis made with other settings ({', '.join(diff)} differ); "
+            "choose another folder or delete it"
+        )

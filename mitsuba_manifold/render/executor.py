@@ -46,7 +46,9 @@ class RayExecutor:
 
     name = "ray"
 
-    def __init__(self, address=None, num_cpus=None, cpus_per_task=1, max_retries=3, runtime_env=None):
+    def __init__(
+        self, address=None, num_cpus=None, cpus_per_task=1, max_retries=3, runtime_env=None
+    ):
         if int(cpus_per_task) < 1:
             raise UnavailableError(f"`cpus_per_task` must be >= 1, got {cpus_per_task}")
         if int(max_retries) < 0:
@@ -60,8 +62,10 @@ class RayExecutor:
         try:
             import ray
         except ImportError:
-            raise UnavailableError("executor 'ray' needs Ray: pip install 'mitsuba-manifold[ray]' "
-                                "(or use the 'local' executor)") from None
+            raise UnavailableError(
+                "executor 'ray' needs Ray: pip install 'mitsuba-manifold[ray]' "
+                "(or use the 'local' executor)"
+            ) from None
         if not ray.is_initialized():
             kwargs = {"include_dashboard": False, "log_to_driver": False}
             if self.address:
@@ -73,7 +77,9 @@ class RayExecutor:
             try:
                 ray.init(**kwargs)
             except (ConnectionError, RuntimeError, ValueError) as e:
-                raise UnavailableError(f"cannot start or join the Ray cluster {self.address or '(local)'}: {e}") from None
+                raise UnavailableError(
+                    f"cannot start or join the Ray cluster {self.address or '(local)'}: {e}"
+                ) from None
             self._started = True
         return ray
 
@@ -98,6 +104,7 @@ class RayExecutor:
     def close(self):
         if self._started:
             import ray
+
             ray.shutdown()
             self._started = False
 

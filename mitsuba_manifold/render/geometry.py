@@ -16,8 +16,8 @@ import numpy as np
 from .._util.atomic import atomic_replace
 from ..errors import InputError
 
-
 # ------------------------------------------------------------------ bowl
+
 
 def bowl_profile(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56):
     """Closed profile curve of the bowl in the (r, y) half-plane, sampled by arc length.
@@ -35,12 +35,13 @@ def bowl_profile(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56):
     if not (0 < thickness < radius and height > thickness and exponent >= 1 and n >= 8):
         raise InputError(
             f"bowl_profile: need 0 < thickness ({thickness}) < radius ({radius}), "
-            f"height ({height}) > thickness, exponent ({exponent}) >= 1, n ({n}) >= 8")
+            f"height ({height}) > thickness, exponent ({exponent}) >= 1, n ({n}) >= 8"
+        )
     m = 2000
     t = np.linspace(0.0, 1.0, m)
     r_in = radius - thickness
-    outer = np.stack([radius * t, height * t ** exponent], 1)
-    inner = np.stack([r_in * t, thickness + (height - thickness) * t ** exponent], 1)[::-1]
+    outer = np.stack([radius * t, height * t**exponent], 1)
+    inner = np.stack([r_in * t, thickness + (height - thickness) * t**exponent], 1)[::-1]
     a = np.linspace(0.0, np.pi, m // 4)[1:-1]
     c, half = radius - thickness / 2, thickness / 2
     rim = np.stack([c + half * np.cos(a), height + half * np.sin(a)], 1)
@@ -67,15 +68,22 @@ def revolve(r, y, segments=64):
     if r.shape != y.shape or r.ndim != 1 or len(r) < 3:
         raise InputError("revolve: r and y must be 1-D arrays of equal length >= 3")
     if abs(r[0]) > 1e-12 or abs(r[-1]) > 1e-12 or np.any(r[1:-1] <= 0):
-        raise InputError("revolve: the profile must start and end on the axis (r = 0) "
-                         "and stay off it in between")
+        raise InputError(
+            "revolve: the profile must start and end on the axis (r = 0) and stay off it in between"
+        )
     if segments < 3:
         raise InputError(f"revolve: segments must be >= 3, got {segments}")
     phi = 2 * np.pi * np.arange(segments) / segments
     ring_r, ring_y = r[1:-1], y[1:-1]
     k = len(ring_r)
-    ring = np.stack([ring_r[:, None] * np.sin(phi), np.broadcast_to(ring_y[:, None], (k, segments)),
-                     ring_r[:, None] * np.cos(phi)], -1).reshape(-1, 3)
+    ring = np.stack(
+        [
+            ring_r[:, None] * np.sin(phi),
+            np.broadcast_to(ring_y[:, None], (k, segments)),
+            ring_r[:, None] * np.cos(phi),
+        ],
+        -1,
+    ).reshape(-1, 3)
     vertices = np.concatenate([[[0.0, y[0], 0.0]], ring, [[0.0, y[-1], 0.0]]])
     first, last = 0, len(vertices) - 1
 
@@ -124,8 +132,10 @@ def write_ply(path, vertices, faces):
 
 # ------------------------------------------------------------------ sky
 
-def sky_envmap(width=128, height=64, sun_dir=(0.45, 0.62, 0.64), sun_radiance=300.0,
-               sun_radius_deg=3.0):
+
+def sky_envmap(
+    width=128, height=64, sun_dir=(0.45, 0.62, 0.64), sun_radiance=300.0, sun_radius_deg=3.0
+):
     """Latitude-longitude sky in Mitsuba's ``envmap`` convention (y up), float32 (H, W, 3).
 
     A blue gradient above the horizon, a brownish ground below, a uniform bright sun disk
@@ -148,7 +158,5 @@ def sky_envmap(width=128, height=64, sun_dir=(0.45, 0.62, 0.64), sun_radiance=30
     cos_a = np.clip(d @ s, -1, 1)
     angle = np.degrees(np.arccos(cos_a))
     img = img + (angle < sun_radius_deg)[..., None] * sun_radiance * np.array([1.0, 0.92, 0.8])
-    img = img + 2.0 * np.exp(-(angle / 12.0) ** 2)[..., None] * np.array([1.0, 0.9, 0.7])
+    img = img + 2.0 * np.exp(-((angle / 12.0) ** 2))[..., None] * np.array([1.0, 0.9, 0.7])
     return img.astype(np.float32)
-
-

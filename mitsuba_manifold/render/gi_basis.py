@@ -21,10 +21,9 @@ import numpy as np
 from .._util.atomic import write_bytes
 from ..basis import folder as basis_folder
 from ..basis.crossterms import select_pairs
-from ..errors import InputError
 from ..basis.folder.output import image_still_valid
+from ..errors import InputError
 from .integrators.multisplats import PairSelection
-
 
 #: File suffix of a material's full-GI image (``manifest["gi_images"]``) and the cross terms' file.
 GI_SUFFIX = ".gi.exr"
@@ -39,24 +38,31 @@ MAX_LEVELS = 12
 
 def gi_levels(levels, max_depth):
     """``levels`` of :class:`~.render_basis.BasisOptions` checked, or by default (None) every
-    vertex a path of ``max_depth`` can have (:data:`MAX_LEVELS` for unbounded paths)."""
+    vertex a path of ``max_depth`` can have (:data:`MAX_LEVELS` for unbounded paths).
+    """
     if levels is None:
         return int(max_depth) if int(max_depth) > 0 else MAX_LEVELS
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 2:
-        raise InputError(f"`levels` must be an integer >= 2 (vertices on the material per path), got {levels!r}")
+        raise InputError(
+            f"`levels` must be an integer >= 2 (vertices on the material per path), got {levels!r}"
+        )
     return int(levels)
 
 
 def carry_gi(out, manifest):
     """What a resumed full-GI basis keeps of its earlier run: its full-GI images (of materials
-    still listed), what it holds and left out, its cross terms, its measurements."""
+    still listed), what it holds and left out, its cross terms, its measurements.
+    """
     path = os.path.join(out, basis_folder.MANIFEST)
     if not manifest["images"] or not os.path.isfile(path):
         return
     old = basis_folder.read_manifest(out)
-    size = tuple(manifest["resolution"])   # an image changed since it was written is rendered again
-    gi = {k: e for k, e in old.get("gi_images", {}).items()
-          if k in manifest["images"] and image_still_valid(out, e, size)}
+    size = tuple(manifest["resolution"])  # an image changed since it was written is rendered again
+    gi = {
+        k: e
+        for k, e in old.get("gi_images", {}).items()
+        if k in manifest["images"] and image_still_valid(out, e, size)
+    }
     if gi:
         manifest["gi_images"] = gi
     for key in ("components", "left_out", "cross", "gi_stats"):
@@ -67,7 +73,8 @@ def carry_gi(out, manifest):
 def write_cross(path, pairs, images):
     """Write the cross terms ``images`` (P, H, W, 3; stored as float16) of ``pairs`` to ``path``
     atomically; returns the file's SHA-256, recorded in the manifest so that an edited or
-    replaced file is refused when read (:meth:`~mitsuba_manifold.basis.folder.Basis.cross_terms`)."""
+    replaced file is refused when read (:meth:`~mitsuba_manifold.basis.folder.Basis.cross_terms`).
+    """
     buf = io.BytesIO()
     np.savez(buf, pairs=np.asarray(pairs, dtype=str), images=np.asarray(images).astype(np.float16))
     data = buf.getvalue()
@@ -78,7 +85,10 @@ def write_cross(path, pairs, images):
 def describe_components(manifest):
     """One line per component: what the basis holds, and what it left out and why."""
     held = ", ".join(manifest.get("components", ["l1"]))
-    lines = [f"basis holds: {held}" + (f" (levels <= {manifest['levels']})" if "levels" in manifest else "")]
+    lines = [
+        f"basis holds: {held}"
+        + (f" (levels <= {manifest['levels']})" if "levels" in manifest else "")
+    ]
     for comp, why in manifest.get("left_out", {}).items():
         lines.append(f"left out {comp}: {why}")
     return "\n".join(lines)
@@ -87,64 +97,102 @@ def describe_components(manifest):
 @contextlib.contextmanager
 def progress_bar(desc, enabled, stop):
     """A tqdm bar; yields ``advance(done, total)`` for the renderers' ``progress`` (which also
-    honours Ctrl-C through ``stop``)."""
+    honours Ctrl-C through ``stop``).
+    """
     from tqdm import tqdm
+
     with tqdm(desc=desc, unit="step", disable=not enabled) as bar:
+
         def advance(done, total):
             stop.check()
             bar.total = total
             bar.update(done - bar.n)
+
         yield advance
 
 
 def _integrator(paths):
     """A ``manifold_path`` rendering the paths of the scene's integrator (:class:`~.scenes.SceneIntegrator`)."""
     import mitsuba as mi
+
     return mi.load_dict({"type": "manifold_path", "component": "l1", **paths.path_properties()})
 
 
 def needs_rest(paths, touch, rest, tol):
     """``(needed, why)``: whether the L2+ images carry light (their sum above ``tol`` of the
-    material's), with the measurement that says so."""
+    material's), with the measurement that says so.
+    """
     total = int(np.sum(paths))
     twice = int(np.sum(paths[2:]))
-    lit = sum(float(np.sum(v)) for v in touch.values()) + sum(float(np.sum(v)) for v in rest.values())
+    lit = sum(float(np.sum(v)) for v in touch.values()) + sum(
+        float(np.sum(v)) for v in rest.values()
+    )
     frac = sum(float(np.sum(v)) for v in rest.values()) / lit if lit > 0 else 0.0
     if twice == 0:
-        return False, (f"the material cannot see itself: none of {total} paths touched it twice "
-                       "(L2+ is exactly 0)"), frac
+        return (
+            False,
+            (
+                f"the material cannot see itself: none of {total} paths touched it twice "
+                "(L2+ is exactly 0)"
+            ),
+            frac,
+        )
     if abs(frac) < tol:
-        return False, (f"L2+ is {frac:.2e} of the material's light (below {tol:g}; {twice} of {total} "
-                       "paths touched it twice or more)"), frac
+        return (
+            False,
+            (
+                f"L2+ is {frac:.2e} of the material's light (below {tol:g}; {twice} of {total} "
+                "paths touched it twice or more)"
+            ),
+            frac,
+        )
     return True, "", frac
 
 
 def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
     """Render every material of ``todo`` (all of the basis's) with full GI from one pass and
     write the images, the cross terms and the manifest's account of them (see the module).
-    ``paths``: the scene's integrator settings (:class:`~.scenes.SceneIntegrator`)."""
+    ``paths``: the scene's integrator settings (:class:`~.scenes.SceneIntegrator`).
+    """
     names = [combo[0] for _, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
     pairs, pstats = select_pairs(manifold, names, tol=o.cross_tol)
     products = tuple(pstats.pop("products"))
     select = PairSelection(products, tol=o.cross_light_tol) if o.cross_light_tol else None
-    if o.cross_keep is not None:   # a later chunk: the first chunk's pairs
+    if o.cross_keep is not None:  # a later chunk: the first chunk's pairs
         index = {tuple(p): k for k, p in enumerate(pairs)}
-        select = PairSelection(products, tol=o.cross_light_tol, keep=tuple(index[tuple(p)] for p in o.cross_keep))
+        select = PairSelection(
+            products, tol=o.cross_light_tol, keep=tuple(index[tuple(p)] for p in o.cross_keep)
+        )
     t0 = time.perf_counter()
     with progress_bar("rendering basis (one pass, full GI)", o.progress, stop) as advance:
         kwargs = {"progress": advance, "cross_fraction": o.cross_fraction, "pair_selection": select}
         if o.chunk_spp:
             kwargs["spp_per_pass"] = o.chunk_spp
-        r = _integrator(paths).render_onepass_gi(scene, materials=names, spp=o.spp, seed=o.seed,
-                                                     sensor=int(o.sensor), levels=o.levels, pairs=pairs, **kwargs)
+        r = _integrator(paths).render_onepass_gi(
+            scene,
+            materials=names,
+            spp=o.spp,
+            seed=o.seed,
+            sensor=int(o.sensor),
+            levels=o.levels,
+            pairs=pairs,
+            **kwargs,
+        )
     seconds = time.perf_counter() - t0
     per = seconds / max(len(todo), 1)
     needed, why, frac = needs_rest(r.paths, r.touch, r.rest, REST_TOL)
-    needed = needed or o.cross_keep is not None   # a later chunk: the first chunk stored L2+
-    stats = {"render_s": round(seconds, 3), "levels": int(o.levels), "paths_by_touches": [int(v) for v in r.paths],
-             "cut_fraction": float(r.paths[-1] / max(1, r.paths.sum())), "rest_fraction": frac,
-             "pairs": pstats, "cross_fraction": float(o.cross_fraction), "pair_selection": r.selection}
+    needed = needed or o.cross_keep is not None  # a later chunk: the first chunk stored L2+
+    stats = {
+        "render_s": round(seconds, 3),
+        "levels": int(o.levels),
+        "paths_by_touches": [int(v) for v in r.paths],
+        "cut_fraction": float(r.paths[-1] / max(1, r.paths.sum())),
+        "rest_fraction": frac,
+        "pairs": pstats,
+        "cross_fraction": float(o.cross_fraction),
+        "pair_selection": r.selection,
+    }
     images = {keys[n]: np.asarray(r.touch[n], np.float32) for n in names}
     if any(combo is None for _, combo in todo):
         images[basis_folder.BASE] = np.asarray(r.base, np.float32)
@@ -160,15 +208,29 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
     save(images, per)
     if not needed:
         return
-    save({keys[n]: np.asarray(r.touch[n] + r.rest[n], np.float32) for n in names}, per,
-         section="gi_images", suffix=GI_SUFFIX)
+    save(
+        {keys[n]: np.asarray(r.touch[n] + r.rest[n], np.float32) for n in names},
+        per,
+        section="gi_images",
+        suffix=GI_SUFFIX,
+    )
     if r.cross:
-        digest = write_cross(os.path.join(out, CROSS_FILE), list(r.cross), np.stack([r.cross[p] for p in r.cross]))
-        manifest["cross"] = {"file": CROSS_FILE, "pairs": len(r.cross), "tol": float(o.cross_tol), "sha256": digest}
+        digest = write_cross(
+            os.path.join(out, CROSS_FILE), list(r.cross), np.stack([r.cross[p] for p in r.cross])
+        )
+        manifest["cross"] = {
+            "file": CROSS_FILE,
+            "pairs": len(r.cross),
+            "tol": float(o.cross_tol),
+            "sha256": digest,
+        }
         manifest["components"] = ["l1", "l2+", "cross"]
     else:
         sel = r.selection or {}
-        left["cross"] = (f"none of {sel['candidates']} candidate pairs would change its L2+ light by "
-                         f"{sel['tol']:g} (largest {sel['largest_left_out']:.2g})" if sel.get("candidates") else
-                         f"no pair of materials reaches a weight product of {o.cross_tol:g} in the explored region")
+        left["cross"] = (
+            f"none of {sel['candidates']} candidate pairs would change its L2+ light by "
+            f"{sel['tol']:g} (largest {sel['largest_left_out']:.2g})"
+            if sel.get("candidates")
+            else f"no pair of materials reaches a weight product of {o.cross_tol:g} in the explored region"
+        )
     basis_folder.write_manifest(out, manifest)

@@ -29,7 +29,7 @@ class StopRequest:
 
     def _handle(self, signum, frame):
         self.requested = True
-        signal.signal(signal.SIGINT, signal.default_int_handler)   # a second Ctrl-C: at once
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C: at once
 
     def __enter__(self):
         if threading.current_thread() is threading.main_thread():
@@ -50,7 +50,8 @@ class StopRequest:
 
 def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS):
     """Samples per pixel of each pass: ``spp`` split so that a pass traces at most
-    ``samples_per_pass`` paths (at least 1 spp per pass); they sum to ``spp``."""
+    ``samples_per_pass`` paths (at least 1 spp per pass); they sum to ``spp``.
+    """
     per = max(1, min(int(spp), int(samples_per_pass) // max(1, int(pixels))))
     full, rest = divmod(int(spp), per)
     return [per] * full + ([rest] if rest else [])
@@ -59,10 +60,11 @@ def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS):
 def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
     """``mi.render`` cut into passes (:func:`sample_passes`), checking ``stop`` after each.
 
-    One pass (the usual case for small images) is exactly ``mi.render(..., spp, seed)``;
-    passes after the first use seeds ``(seed + k * 0x9E3779B9) mod 2^32``, and the image is
-    their sample-weighted mean (linear RGB of the film's crop window, float32, whatever its pixel format). Cutting costs nothing measurable: 256x256 at
-    256 spp of the table scene took 18.3 s in one call and 15.5 s in 16 passes here.
+    One pass (the usual case for small images) is exactly ``mi.render(..., spp, seed)``; passes
+    after the first use seeds ``(seed + k * 0x9E3779B9) mod 2^32``, and the image is their
+    sample-weighted mean (linear RGB of the film's crop window, float32, whatever its pixel
+    format). Cutting costs nothing measurable: 256x256 at 256 spp of the table scene took 18.3 s in
+    one call and 15.5 s in 16 passes here.
 
     Parameters
     ----------
@@ -74,14 +76,23 @@ def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
     import numpy as np
 
     from .integrators.common import developed_rgb
+
     if stop is None:
         with StopRequest() as own:
             return render_in_passes(scene, integrator, spp, seed, own, sensor)
     w, h = (int(v) for v in scene.sensors()[sensor].film().crop_size())
     total = None
     for k, n in enumerate(sample_passes(spp, w * h)):
-        mi.render(scene, integrator=integrator, spp=n, seed=(seed + k * 0x9E3779B9) & 0xFFFFFFFF, sensor=sensor)
-        img = developed_rgb(scene.sensors()[sensor].film()).astype(np.float64)   # RGB, any pixel format
+        mi.render(
+            scene,
+            integrator=integrator,
+            spp=n,
+            seed=(seed + k * 0x9E3779B9) & 0xFFFFFFFF,
+            sensor=sensor,
+        )
+        img = developed_rgb(scene.sensors()[sensor].film()).astype(
+            np.float64
+        )  # RGB, any pixel format
         total = img * n if total is None else total + img * n
         if integrator.should_stop():  # Mitsuba's own SIGINT handler ran during the pass
             stop.requested = True

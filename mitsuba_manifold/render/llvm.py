@@ -33,7 +33,7 @@ def _version(path):
 
 
 def candidates():
-    """libLLVM files found on this machine, newest major version first."""
+    """LibLLVM files found on this machine, newest major version first."""
     found = {}
     patterns = []
     for d in _SEARCH_DIRS:
@@ -72,15 +72,17 @@ def select():
 
 def require():
     """The libLLVM for Dr.Jit (``DRJIT_LIBLLVM_PATH``, else :func:`newest`); a ``VariantError``
-    (a ``RuntimeError``) naming the problem when there is none. Changes nothing."""
+    (a ``RuntimeError``) naming the problem when there is none. Changes nothing.
+    """
     from ..errors import VariantError
+
     path = os.environ.get("DRJIT_LIBLLVM_PATH") or newest()
     if path is None:
         have = ", ".join(f"{p} (LLVM {v})" for p, v in candidates()) or "none"
         raise VariantError(
             f"mitsuba_manifold: Dr.Jit's LLVM backend needs libLLVM >= {MIN_VERSION}, found: {have}. "
-            "Install one (Debian: 'apt-get install libllvm19') or set DRJIT_LIBLLVM_PATH.")
+            "Install one (Debian: 'apt-get install libllvm19') or set DRJIT_LIBLLVM_PATH."
+        )
     if not os.path.exists(path):
         raise VariantError(f"mitsuba_manifold: DRJIT_LIBLLVM_PATH={path} does not exist")
     return path
-

@@ -1,5 +1,6 @@
 """MERL half/diff bin lookups of direction pairs in Dr.Jit (the BSDF's and the one-pass
-renderer's table indexing; :mod:`merl` holds the NumPy versions), and table values at them."""
+renderer's table indexing; :mod:`merl` holds the NumPy versions), and table values at them.
+"""
 
 import drjit as dr
 import mitsuba as mi
@@ -61,7 +62,8 @@ def linear_axis(c, n):
 
 def gather_rgb(table, idx, active):
     """RGB of bins ``idx`` of a packed table: a Dr.Jit array of ``(bins, 3)`` floats in JIT
-    variants, a NumPy ``(bins, 3)`` array in scalar ones."""
+    variants, a NumPy ``(bins, 3)`` array in scalar ones.
+    """
     if dr.is_jit_v(mi.Float):
         return dr.gather(mi.Color3f, table, idx, active)
     if not active:
@@ -74,7 +76,8 @@ def table_value(table, dims, interpolation, wi, wo, active, gather=gather_rgb):
     """Table value ``f(wi, wo)`` (no cosine) of a packed table (:func:`gather_rgb`) of MERL
     ``dims``: the bin of the pair (``"nearest"``) or trilinear interpolation between bin centres
     (``"linear"``, periodic in ``phi_d`` over ``pi``). ``gather(table, idx, active)`` reads the
-    bins (:func:`.ad.mixture_gather`: a weighted sum of several tables)."""
+    bins (:func:`.ad.mixture_gather`: a weighted sum of several tables).
+    """
     n_h, n_d, n_p = dims
     theta_h, theta_d, phi_d = merl_angles(wi, wo)
     if interpolation == "nearest":

@@ -42,7 +42,8 @@ class CrossMSE:
     every image, ``A`` and ``B`` (N, P): ``E = sum_p c_p (s A_p w - t_p)(s B_p w - t_p)`` (unbiased
     for the noise-free error), as a quadratic form ``s^2 w^T G w - 2 s w^T h + e0`` with
     ``G = (A C B^T + B C A^T) / 2``, ``h = (A + B) C t / 2``; ``s`` 1 or (``exposure_free``) the
-    least-squares scale. The interface of :mod:`..basis.objectives` (``__call__``, ``batch``)."""
+    least-squares scale. The interface of :mod:`..basis.objectives` (``__call__``, ``batch``).
+    """
 
     def __init__(self, A, B, target, c, exposure_free=False):
         A, B = np.asarray(A, dtype=np.float64), np.asarray(B, dtype=np.float64)
@@ -77,7 +78,8 @@ class CrossMSE:
 
 def _pixels(problem):
     """The loss's pixels of every view: ``(selections, target (P,), weights c (P,))``, ``c`` the
-    loss weights divided by the number of views (the loss is the mean over the views)."""
+    loss weights divided by the number of views (the loss is the mean over the views).
+    """
     sel = [w > 0 for _, w in problem.data]
     t = np.concatenate([t[s] for (t, _), s in zip(problem.data, sel)]).astype(np.float64)
     c = np.concatenate([w[s] for (_, w), s in zip(problem.data, sel)]) / len(problem.data)
@@ -92,7 +94,8 @@ def _rows(problem, sel, x, spp, seed):
 
 def cross_error(problem, x, spp, seed, exposure_free=False):
     """The unbiased error (:class:`CrossMSE`) of the true render at ``x``: two renders of ``spp``
-    samples with independent seeds (``seed`` and ``seed + 5003``)."""
+    samples with independent seeds (``seed`` and ``seed + 5003``).
+    """
     sel, t, c = _pixels(problem)
     a, b = _rows(problem, sel, x, spp, seed), _rows(problem, sel, x, spp, seed + 5003)
     return float(CrossMSE(a[None], b[None], t, c, exposure_free)(np.ones(1))[0])
@@ -104,7 +107,8 @@ def scan(problem, opts, check_spp):
     Returns a dict: ``ranked`` ``[(error, index)]`` (every training material, scan estimate),
     ``starts`` ``[(label, x0 for Adam, x of the candidate)]`` (``opts.starts`` of them at most),
     ``candidates`` (every candidate checked: label, x, scan estimate, checked error) and
-    ``time_s``."""
+    ``time_s``.
+    """
     t0 = time.perf_counter()
     m = problem.manifold
     sel, t, c = _pixels(problem)
@@ -118,15 +122,26 @@ def scan(problem, opts, check_spp):
     X, err = latent.scan(m, obj, 0.0, bounds, SCAN_POINTS, seed=opts.seed)
     k = max(4, 2 * int(opts.starts))
     with threadpool_limits(1, user_api="blas"):
-        runs = [latent.descend(m, obj, 0.0, x0, bounds, 100) for x0 in latent.start_points(m, ranked[0][1], X, err, k)]
-    cand = [("blend scan", r["x"], r["objective"]) for r in sorted(runs, key=lambda r: r["objective"])]
+        runs = [
+            latent.descend(m, obj, 0.0, x0, bounds, 100)
+            for x0 in latent.start_points(m, ranked[0][1], X, err, k)
+        ]
+    cand = [
+        ("blend scan", r["x"], r["objective"]) for r in sorted(runs, key=lambda r: r["objective"])
+    ]
     cand += [("material " + m.names[i], m.latent[i], e) for e, i in ranked[:2]]
     checked = []
     for label, x, e in cand:
         if any(np.linalg.norm(x - y) < SAME_POINT * m.length_scale for _, y, _, _ in checked):
             continue
-        checked.append((label, np.asarray(x, dtype=np.float64), float(e),
-                        cross_error(problem, x, check_spp, opts.seed + 23, opts.exposure)))
+        checked.append(
+            (
+                label,
+                np.asarray(x, dtype=np.float64),
+                float(e),
+                cross_error(problem, x, check_spp, opts.seed + 23, opts.exposure),
+            )
+        )
     checked.sort(key=lambda r: r[3])
     starts = []
     for label, x, _, _ in checked:
@@ -134,23 +149,35 @@ def scan(problem, opts, check_spp):
             break
         if all(np.linalg.norm(x - y) >= 0.25 * m.length_scale for _, _, y in starts):
             starts.append((label, adam_start(m, x, ranked), x))
-    return {"ranked": ranked, "starts": starts, "time_s": time.perf_counter() - t0,
-            "candidates": [{"start": lab, "x": x.tolist(), "scan_error": e, "checked_error": ce}
-                           for lab, x, e, ce in checked]}
+    return {
+        "ranked": ranked,
+        "starts": starts,
+        "time_s": time.perf_counter() - t0,
+        "candidates": [
+            {"start": lab, "x": x.tolist(), "scan_error": e, "checked_error": ce}
+            for lab, x, e, ce in checked
+        ],
+    }
 
 
 def adam_start(manifold, x, ranked):
     """``x``, or a start near it when ``x`` sits on a training point (:func:`start_near`)."""
     w = np.asarray(manifold.weights(x)[1])
     i = int(np.argmax(w))
-    return start_near(manifold, i, ranked) if w[i] > AT_TRAINING_POINT else np.asarray(x, dtype=np.float64)
+    return (
+        start_near(manifold, i, ranked)
+        if w[i] > AT_TRAINING_POINT
+        else np.asarray(x, dtype=np.float64)
+    )
 
 
 def start_near(manifold, i, ranked, t=0.3):
     """A start near training material ``i``, off its training point (where the Shepard weights
     are flat): ``t`` of the way towards the best-ranked of its 3 latent neighbours, so that both
-    materials' weights move with ``x`` (:func:`.ad.jitter` when it has no neighbour)."""
+    materials' weights move with ``x`` (:func:`.ad.jitter` when it has no neighbour).
+    """
     from . import ad
+
     d = np.linalg.norm(manifold.latent - manifold.latent[i], axis=1)
     d[i] = np.inf
     near = set(np.argsort(d)[:3].tolist())

@@ -27,7 +27,8 @@ BLOCK = 1 << 20
 
 def load_measured(path):
     """Mitsuba's ``measured`` BSDF of the file ``path`` in the active variant (an RGB one, see
-    :func:`.scenes.use_variant`), after checking the file is an isotropic tensor file."""
+    :func:`.scenes.use_variant`), after checking the file is an isotropic tensor file.
+    """
     from .scenes import use_variant
 
     path = os.path.abspath(os.fspath(path))
@@ -35,14 +36,17 @@ def load_measured(path):
     mi = use_variant()
     try:
         return mi.load_dict({"type": "measured", "filename": path})
-    except RuntimeError as e:   # Mitsuba raises RuntimeError with its own log text
-        raise FormatError(f"{path}: Mitsuba's measured plugin cannot read it ({plugin_message(e)})") from None
+    except RuntimeError as e:  # Mitsuba raises RuntimeError with its own log text
+        raise FormatError(
+            f"{path}: Mitsuba's measured plugin cannot read it ({plugin_message(e)})"
+        ) from None
 
 
 def evaluate(bsdf, wi, wo, cosine=False):
     """BRDF values ``(m, 3)`` (1/sr) of a Mitsuba BSDF at local direction pairs ``(m, 3)``:
     ``eval(wi, wo) / cos(theta_o)`` (with ``cosine``: ``eval`` itself), 0 where either direction
-    is below the surface."""
+    is below the surface.
+    """
     import drjit as dr
     import mitsuba as mi
 
@@ -51,12 +55,12 @@ def evaluate(bsdf, wi, wo, cosine=False):
     out = np.zeros((len(wi), 3), dtype=np.float32)
     ctx = mi.BSDFContext()
     for s in range(0, len(wi), BLOCK):
-        a, b = wi[s:s + BLOCK], wo[s:s + BLOCK]
+        a, b = wi[s : s + BLOCK], wo[s : s + BLOCK]
         si = dr.zeros(mi.SurfaceInteraction3f, len(a))
         si.wi = mi.Vector3f(a[:, 0], a[:, 1], a[:, 2])
         si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
         value = bsdf.eval(ctx, si, mi.Vector3f(b[:, 0], b[:, 1], b[:, 2]))
-        out[s:s + BLOCK] = np.array(value, dtype=np.float32).reshape(3, -1).T
+        out[s : s + BLOCK] = np.array(value, dtype=np.float32).reshape(3, -1).T
     cos_o = wo[:, 2]
     ok = (cos_o > 0) & (wi[:, 2] > 0)
     out[~ok] = 0.0
@@ -68,18 +72,21 @@ def evaluate(bsdf, wi, wo, cosine=False):
 def resample(path, dims=merl.MERL_DIMS, samples=None):
     """Reflectance table ``(3,) + dims`` float32 of the measured file ``path`` (0 below the horizon).
 
-    A bin's value is the ratio ``sum eval(wi, wo) / sum cos(theta_o)`` over ``samples^3``
-    points spread evenly over the bin (in the grid's ``(sqrt(theta_h), theta_d, phi_d)``
-    coordinates, ``phi_h = 0``; default :data:`~mitsuba_manifold.data.sources.MEASURED_SAMPLES`): the BRDF whose cosine-weighted value, looked up in that
-    bin, has the plugin's mean there. It stays finite where the bin's centre grazes the
-    horizon (a ratio at one point would divide by a cosine near 0), and a sharp highlight
-    narrower than a bin keeps its energy.
+    A bin's value is the ratio ``sum eval(wi, wo) / sum cos(theta_o)`` over ``samples^3`` points
+    spread evenly over the bin (in the grid's ``(sqrt(theta_h), theta_d, phi_d)`` coordinates,
+    ``phi_h = 0``; default :data:`~mitsuba_manifold.data.sources.MEASURED_SAMPLES`): the BRDF whose
+    cosine-weighted value, looked up in that bin, has the plugin's mean there. It stays finite
+    where the bin's centre grazes the horizon (a ratio at one point would divide by a cosine near
+    0), and a sharp highlight narrower than a bin keeps its energy.
     """
     dims = tuple(int(v) for v in dims)
     samples = sources.MEASURED_SAMPLES if samples is None else int(samples)
     bsdf = load_measured(path)
     above = merl.above_horizon(dims)
-    idx = [g[above].astype(np.float64) for g in np.meshgrid(*(np.arange(n) for n in dims), indexing="ij")]
+    idx = [
+        g[above].astype(np.float64)
+        for g in np.meshgrid(*(np.arange(n) for n in dims), indexing="ij")
+    ]
     num = np.zeros((int(above.sum()), 3), dtype=np.float64)
     den = np.zeros(int(above.sum()), dtype=np.float64)
     offsets = (np.arange(samples) + 0.5) / samples
@@ -105,27 +112,43 @@ register_reader(MeasuredFile.kind, resample)
 
 # ------------------------------------------------------------------- fidelity
 
+
 def _sphere_scene(bsdf, res, spp, seed):
     """The shipped sphere scene (sky map and point light, :file:`scenes/sphere.xml`) as a dict
-    with ``bsdf`` on the sphere; the sphere sees nothing but the lights."""
+    with ``bsdf`` on the sphere; the sphere sees nothing but the lights.
+    """
     from .scenes import scene_path
 
     sky = os.path.join(os.path.dirname(scene_path("sphere")), "sky.exr")
     return {
         "type": "scene",
         "integrator": {"type": "path", "max_depth": 8},
-        "sensor": {"type": "perspective", "fov": 32,
-                   "to_world": _lookat(), "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
-                   "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "rgb",
-                            "rfilter": {"type": "box"}}},
+        "sensor": {
+            "type": "perspective",
+            "fov": 32,
+            "to_world": _lookat(),
+            "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
+            "film": {
+                "type": "hdrfilm",
+                "width": res,
+                "height": res,
+                "pixel_format": "rgb",
+                "rfilter": {"type": "box"},
+            },
+        },
         "object": {"type": "sphere", "center": [0, 0, 0], "radius": 1.0, "bsdf": bsdf},
         "sky": {"type": "envmap", "filename": sky},
-        "lamp": {"type": "point", "position": [-3, 4, 3], "intensity": {"type": "rgb", "value": [20, 20, 20]}},
+        "lamp": {
+            "type": "point",
+            "position": [-3, 4, 3],
+            "intensity": {"type": "rgb", "value": [20, 20, 20]},
+        },
     }
 
 
 def _lookat():
     import mitsuba as mi
+
     return mi.ScalarTransform4f().look_at(origin=[0, 0.6, 5], target=[0, 0, 0], up=[0, 1, 0])
 
 
@@ -152,8 +175,12 @@ def fidelity(path, manifold, name=None, res=64, spp=256, seed=0, interpolation="
     path = os.path.abspath(os.fspath(path))
     name = name or material_name(path)
     measured = {"type": "measured", "filename": path}
-    ours = {"type": "manifold_brdf", "manifold": os.path.abspath(os.fspath(manifold)), "material": name,
-            "interpolation": interpolation}
+    ours = {
+        "type": "manifold_brdf",
+        "manifold": os.path.abspath(os.fspath(manifold)),
+        "material": name,
+        "interpolation": interpolation,
+    }
 
     def render(bsdf, s):
         scene = mi.load_dict(_sphere_scene(bsdf, res, spp, s))
@@ -161,5 +188,12 @@ def fidelity(path, manifold, name=None, res=64, spp=256, seed=0, interpolation="
 
     ref, again, image = render(measured, seed), render(measured, seed + 1), render(ours, seed + 2)
     noise, err = rel_mse(again, ref), rel_mse(image, ref)
-    return {"material": name, "res": res, "spp": spp, "mean_ratio": float(image.mean() / ref.mean()),
-            "rel_mse": err, "noise_rel_mse": noise, "ratio_to_noise": err / noise}
+    return {
+        "material": name,
+        "res": res,
+        "spp": spp,
+        "mean_ratio": float(image.mean() / ref.mean()),
+        "rel_mse": err,
+        "noise_rel_mse": noise,
+        "ratio_to_noise": err / noise,
+    }

@@ -21,7 +21,8 @@ def database_folder():
 @contextlib.contextmanager
 def database_override(folder):
     """Within the block, new ``manifold_brdf`` instances without a ``database`` parameter
-    read their tables from ``folder``; None changes nothing."""
+    read their tables from ``folder``; None changes nothing.
+    """
     global _database
     previous = _database
     _database = None if folder is None else os.fspath(folder)

@@ -35,7 +35,7 @@ MODULES = {
 
 _PACKAGE = __name__.rpartition(".")[0]
 _LOCK = threading.RLock()
-_made = {}          # variant -> {module name: {class name: class}}
+_made = {}  # variant -> {module name: {class name: class}}
 _installed = False
 
 
@@ -47,10 +47,12 @@ def _load(variant):
             full = f"{_PACKAGE}.{name}"
             module = sys.modules.get(full)
             if made is not None and name in made and module is not None:
-                for cls in classes:   # registered with Mitsuba for this variant already
+                for cls in classes:  # registered with Mitsuba for this variant already
                     setattr(module, cls, made[name][cls])
                 continue
-            module = importlib.reload(module) if module is not None else importlib.import_module(full)
+            module = (
+                importlib.reload(module) if module is not None else importlib.import_module(full)
+            )
             _made.setdefault(variant, {})[name] = {cls: getattr(module, cls) for cls in classes}
 
 
@@ -65,8 +67,8 @@ def register():
     """
     import mitsuba as mi
 
-    from . import llvm
     from ..errors import VariantError
+    from . import llvm
 
     variant = mi.variant()
     if variant is None:
@@ -82,16 +84,21 @@ def _on_variant(old, new):
     if new is None:
         return
     from ..errors import MitsubaManifoldError
+
     try:
         register()
     except MitsubaManifoldError as e:
-        warnings.warn(f"mitsuba_manifold: plugins not registered for variant {new}: {e}", RuntimeWarning,
-                      stacklevel=2)
+        warnings.warn(
+            f"mitsuba_manifold: plugins not registered for variant {new}: {e}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
 
 
 def install():
     """Register the plugins for the active variant and for every variant activated later
-    (once per process); returns the active variant (None when none is set)."""
+    (once per process); returns the active variant (None when none is set).
+    """
     global _installed
     import mitsuba as mi
 

@@ -65,7 +65,8 @@ class Refined:
     ``scale`` is the basis's own blend of the point (full GI where it holds it, else L1-), not
     ``image``: a firefly of the refinement inflates ``image`` where it is, so relative to it
     the noise would look small exactly where it is largest (at 16 spp on the table's bowl with
-    white-paint it read 16 times too low)."""
+    white-paint it read 16 times too low).
+    """
 
     image: np.ndarray
     l1: np.ndarray
@@ -80,7 +81,8 @@ class Refined:
 
     def rel_mse(self, other):
         """Mean ``(other - image)^2 / (scale^2 + eps)``: ``other`` against the refinement, on the
-        refinement's noise scale."""
+        refinement's noise scale.
+        """
         scale = self.image if self.scale is None else self.scale
         d = np.asarray(other, np.float64) - self.image
         return float(np.mean(d * d / (np.asarray(scale, np.float64) ** 2 + REL_EPS)))
@@ -88,13 +90,20 @@ class Refined:
     def summary(self):
         """One line: what was rendered and its estimated noise."""
         noise = "n/a (one pass)" if self.passes < 2 else f"{self.noise_rel_mse:.3g}"
-        what = ("the blend's L2+ corrected at the point (control variate)" if self.method == CONTROL_VARIATE
-                else "L2+ rendered at the point")
+        what = (
+            "the blend's L2+ corrected at the point (control variate)"
+            if self.method == CONTROL_VARIATE
+            else "L2+ rendered at the point"
+        )
         if self.passes == 0:
-            return (f"refined: nothing to render, the blend is exact at a training material (the control "
-                    f"variate's correction is 0 on every path), {self.seconds:.2f} s")
-        return (f"refined: {what} with {self.spp} spp in {self.passes} passes, "
-                f"{self.seconds:.2f} s; estimated noise of the refinement (rel. MSE, on the blend's scale) {noise}")
+            return (
+                f"refined: nothing to render, the blend is exact at a training material (the control "
+                f"variate's correction is 0 on every path), {self.seconds:.2f} s"
+            )
+        return (
+            f"refined: {what} with {self.spp} spp in {self.passes} passes, "
+            f"{self.seconds:.2f} s; estimated noise of the refinement (rel. MSE, on the blend's scale) {noise}"
+        )
 
 
 #: :class:`Refined` ``method`` of the control variate (a full-GI basis of one target).
@@ -119,7 +128,8 @@ class _SceneCache:
     with but the point, and by the scene's and manifold's files (size and time: a manifold fitted
     again is loaded again; not the files the XML references, nor the tables). A refinement takes
     the scene out while it renders (one running beside it loads its own) and puts it back when it
-    ends or is stopped, not when it failed. One entry, locked."""
+    ends or is stopped, not when it failed. One entry, locked.
+    """
 
     def __init__(self):
         self.key, self.value, self.lock = None, None, threading.Lock()
@@ -128,7 +138,8 @@ class _SceneCache:
     def take(self, basis, scene, manifold_path, database, x):
         """The :class:`~.scenes.LoadedScene` of ``basis``'s scene (or ``scene``): the kept one (its
         materials where the last refinement put them; its variant activated, as loading it does),
-        or one loaded with its materials at ``x``."""
+        or one loaded with its materials at ``x``.
+        """
         m = basis.manifest
         path, manifold_path = scene or m.scene, manifold_path or m.manifold
         key = self._key(basis, path, manifold_path, database)
@@ -136,15 +147,24 @@ class _SceneCache:
             loaded = self.value if key is not None and self.key == key else None
             self.key, self.value = None, None
         if loaded is None:
-            loaded = scenes.load_scene(path, manifold_path, None, scenes.scene_resolution(m), m.max_depth, x[0],
-                                       m.variant, database, sensor=int(basis.sensor))
+            loaded = scenes.load_scene(
+                path,
+                manifold_path,
+                None,
+                scenes.scene_resolution(m),
+                m.max_depth,
+                x[0],
+                m.variant,
+                database,
+                sensor=int(basis.sensor),
+            )
         else:
             scenes.use_variant(m.variant)
         keep = False
         try:
             yield loaded
             keep = True
-        except (GeneratorExit, KeyboardInterrupt):   # closed early or stopped between passes: whole
+        except (GeneratorExit, KeyboardInterrupt):  # closed early or stopped between passes: whole
             keep = True
             raise
         finally:
@@ -159,14 +179,24 @@ class _SceneCache:
     @staticmethod
     def _key(basis, path, manifold_path, database):
         """What the scene is loaded with but the point; None where a file cannot be read (nothing
-        is kept then, and loading says what is wrong)."""
+        is kept then, and loading says what is wrong).
+        """
         m = basis.manifest
         try:
-            files = tuple((os.path.abspath(f), os.stat(f).st_size, os.stat(f).st_mtime_ns)
-                          for f in (scenes.scene_path(path), manifold_path))
+            files = tuple(
+                (os.path.abspath(f), os.stat(f).st_size, os.stat(f).st_mtime_ns)
+                for f in (scenes.scene_path(path), manifold_path)
+            )
         except (OSError, MitsubaManifoldError):
             return None
-        return files, tuple(basis.resolution), m.max_depth, m.variant, tuple(basis.targets), database
+        return (
+            files,
+            tuple(basis.resolution),
+            m.max_depth,
+            m.variant,
+            tuple(basis.targets),
+            database,
+        )
 
 
 _SCENES = _SceneCache()
@@ -174,7 +204,8 @@ _SCENES = _SceneCache()
 
 def forget_kept(scene=True):
     """Drop what a refinement keeps for the next: the last point's tables and, with ``scene``, the
-    loaded scene (a benchmark times a refinement at a new point, or one starting from nothing)."""
+    loaded scene (a benchmark times a refinement at a new point, or one starting from nothing).
+    """
     forget_point()
     if scene:
         _SCENES.clear()
@@ -182,8 +213,11 @@ def forget_kept(scene=True):
 
 def _rest_integrator(basis, paths):
     import mitsuba as mi
+
     target = "all" if basis.p == 1 else ",".join(basis.targets)
-    return mi.load_dict({"type": "manifold_path", "component": "rest", "target": target, **paths.path_properties()})
+    return mi.load_dict(
+        {"type": "manifold_path", "component": "rest", "target": target, **paths.path_properties()}
+    )
 
 
 @dataclass(frozen=True)
@@ -223,7 +257,9 @@ class RefineRequest:
     control_variate: Union[str, bool] = "auto"
 
 
-def refine_passes(basis, manifold, x=None, request=None, *, stop=None, blend_image=None, **settings):
+def refine_passes(
+    basis, manifold, x=None, request=None, *, stop=None, blend_image=None, **settings
+):
     """Yield a :class:`Refined` estimate after each of ``request.passes`` passes (``spp`` in all):
     the ``L1-`` blend plus the ``L2+`` rendered at the point, or with ``control_variate`` and a
     full-GI basis of one target the control variate of the module's docstring.
@@ -250,7 +286,9 @@ def refine_passes(basis, manifold, x=None, request=None, *, stop=None, blend_ima
     plan = _pass_plan(r.spp, r.passes)
     kw = {} if r.prune is None else {"prune": r.prune}
     if r.control_variate not in ("auto", True, False):
-        raise InputError(f"`control_variate` must be 'auto', True or False, got {r.control_variate!r}")
+        raise InputError(
+            f"`control_variate` must be 'auto', True or False, got {r.control_variate!r}"
+        )
     if r.control_variate and "l2+" in basis.components and basis.p == 1:
         yield from _control_variate(basis, manifold, x, plan, r, stop, blend_image, kw)
         return
@@ -264,30 +302,43 @@ def refine_passes(basis, manifold, x=None, request=None, *, stop=None, blend_ima
         integrator = _rest_integrator(basis, loaded.integrator)
 
         def rest(n, pass_seed):
-            return np.array(mi.render(loaded.scene, integrator=integrator, spp=n, sensor=int(basis.sensor),
-                                      seed=pass_seed), np.float64)[..., :3]
+            return np.array(
+                mi.render(
+                    loaded.scene,
+                    integrator=integrator,
+                    spp=n,
+                    sensor=int(basis.sensor),
+                    seed=pass_seed,
+                ),
+                np.float64,
+            )[..., :3]
+
         yield from _progressive(plan, r.seed, stop, integrator, rest, l1, scale, "l2+")
 
 
 def _progressive(plan, seed, stop, integrator, render, start, scale, method):
     """Yield the :class:`Refined` ``start + mean`` of ``render(spp, seed)`` after each pass of
-    ``plan`` (independent seeds); ``stop`` (or Ctrl-C) ends it after a pass."""
+    ``plan`` (independent seeds); ``stop`` (or Ctrl-C) ends it after a pass.
+    """
     t0, total, total2, done = time.perf_counter(), 0.0, 0.0, 0
     own = stop is None
     stop = stop or StopRequest()
-    with (stop if own else contextlib.nullcontext()):
+    with stop if own else contextlib.nullcontext():
         for k, n in enumerate(plan):
             img = render(n, (int(seed) + k * 0x9E3779B9) & 0xFFFFFFFF)
             total, total2, done = total + n * img, total2 + n * img * img, done + n
             if integrator.should_stop():
                 stop.requested = True
             stop.check()
-            yield _estimate(start, total, total2, done, k + 1, time.perf_counter() - t0, scale, method)
+            yield _estimate(
+                start, total, total2, done, k + 1, time.perf_counter() - t0, scale, method
+            )
 
 
 def _control_variate(basis, manifold, x, plan, request, stop, blend_image, kw):
     """:func:`refine_passes` with a full-GI basis: ``blend + mean(R - Q)`` (the module) of
-    ``request``, a :class:`RefineRequest`."""
+    ``request``, a :class:`RefineRequest`.
+    """
     import mitsuba as mi
 
     shown, info = blend(basis, manifold, x=x, component="full", l2=request.l2, **kw)
@@ -298,7 +349,7 @@ def _control_variate(basis, manifold, x, plan, request, stop, blend_image, kw):
     rows, prods = summed.cross if summed.cross is not None else ((), ())
     row_pair = {r: p for p, r in basis.cross_terms()[0].items()}
     pairs = [row_pair[int(r)] for r in rows]
-    if len(names) == 1 and not pairs:   # a training material: R = Q on every path
+    if len(names) == 1 and not pairs:  # a training material: R = Q on every path
         zero = np.zeros_like(base, np.float32)
         yield Refined(base, base, zero, zero, 0.0, 0, 0, 0.0, base, CONTROL_VARIATE)
         return
@@ -306,36 +357,61 @@ def _control_variate(basis, manifold, x, plan, request, stop, blend_image, kw):
     # the scene's own material is not evaluated: on the target the paths use the proxy of the
     # point's weights (the point's column, onepass), so a cached scene is not moved to the point
     points = latent_points(basis, manifold, x)
-    with _SCENES.take(basis, request.scene, request.manifold_path, request.database, points) as loaded:
-        integrator = mi.load_dict({"type": "manifold_path", "component": "l1", **loaded.integrator.path_properties()})
+    with _SCENES.take(
+        basis, request.scene, request.manifold_path, request.database, points
+    ) as loaded:
+        integrator = mi.load_dict(
+            {"type": "manifold_path", "component": "l1", **loaded.integrator.path_properties()}
+        )
 
-        def correction(n, pass_seed):   # R - Q from one pass's paths
-            r = integrator.render_onepass_gi(loaded.scene, materials=names, spp=n, sensor=int(basis.sensor),
-                                             seed=pass_seed, levels=min(int(m.levels or 5), CV_LEVELS),
-                                             pairs=pairs, point=w, touch=False)
+        def correction(n, pass_seed):  # R - Q from one pass's paths
+            r = integrator.render_onepass_gi(
+                loaded.scene,
+                materials=names,
+                spp=n,
+                sensor=int(basis.sensor),
+                seed=pass_seed,
+                levels=min(int(m.levels or 5), CV_LEVELS),
+                pairs=pairs,
+                point=w,
+                touch=False,
+            )
             q = sum(wi * r.rest[name].astype(np.float64) for wi, name in zip(w, names))
             q = q + sum(float(pr) * r.cross[p] for pr, p in zip(prods, pairs))
             return r.rest[POINT].astype(np.float64) - q
-        yield from _progressive(plan, request.seed, stop, integrator, correction, base, base, CONTROL_VARIATE)
+
+        yield from _progressive(
+            plan, request.seed, stop, integrator, correction, base, base, CONTROL_VARIATE
+        )
 
 
 def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"):
     """The refined image from the spp-weighted sums of the pass images and their squares
-    (``scale``: of :class:`Refined`; default the refined image)."""
+    (``scale``: of :class:`Refined`; default the refined image).
+    """
     rest = total / done
-    if passes > 1:   # sum_k n_k (img_k - rest)^2 / (passes - 1) estimates a sample's variance
+    if passes > 1:  # sum_k n_k (img_k - rest)^2 / (passes - 1) estimates a sample's variance
         se = np.sqrt(np.maximum(total2 - done * rest * rest, 0.0) / ((passes - 1) * done))
     else:
         se = np.full_like(rest, np.nan)
     image = (l1 + rest).astype(np.float32)
     ref = np.asarray(image if scale is None else scale, np.float64)
-    noise = float(np.mean(se ** 2 / (ref ** 2 + REL_EPS))) if passes > 1 else float("nan")
-    return Refined(image, l1, rest.astype(np.float32), se.astype(np.float32), noise, int(done), passes, seconds,
-                   None if scale is None else np.asarray(scale, np.float32), method)
+    noise = float(np.mean(se**2 / (ref**2 + REL_EPS))) if passes > 1 else float("nan")
+    return Refined(
+        image,
+        l1,
+        rest.astype(np.float32),
+        se.astype(np.float32),
+        noise,
+        int(done),
+        passes,
+        seconds,
+        None if scale is None else np.asarray(scale, np.float32),
+        method,
+    )
 
 
 def refine(basis, manifold, x=None, request=None, **settings):
     """The last estimate of :func:`refine_passes` (all ``spp`` samples): a :class:`Refined`."""
     last = collections.deque(refine_passes(basis, manifold, x, request, **settings), maxlen=1)
     return last[0] if last else None
-

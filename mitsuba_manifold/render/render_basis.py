@@ -21,29 +21,52 @@ import itertools
 import os
 import shutil
 import time
-from dataclasses import dataclass, replace
 from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from typing import Optional, Union
 
 import numpy as np
 
-from ..basis import folder as basis_folder
-from ..imaging import io as imageio
-from .._util import names as names_mod, checks as validate
-from . import scenes
-from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
-from ..basis.folder.output import check_foreign_folder, check_job_folders, open_folder
-from .gi_basis import CROSS_FILE, GI_SUFFIX, REST_TOL, carry_gi, describe_components, gi_levels, progress_bar, render_gi
-from .interrupt import StopRequest, render_in_passes
+from .._util import checks as validate
+from .._util import names as names_mod
 from .._util.cache import file_hash
 from .._util.locking import FolderLock
-from .scenes import check_variant
+from ..basis import folder as basis_folder
+from ..basis.folder.output import check_foreign_folder, check_job_folders, open_folder
+from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
+from ..imaging import io as imageio
 from ..manifold.model import Manifold
+from . import scenes
+from .gi_basis import (
+    CROSS_FILE,
+    GI_SUFFIX,
+    REST_TOL,
+    carry_gi,
+    describe_components,
+    gi_levels,
+    progress_bar,
+    render_gi,
+)
+from .interrupt import StopRequest, render_in_passes
+from .scenes import check_variant
 
 MODES = basis_folder.MODES
 
-__all__ = ["CROSS_FILE", "GI_SUFFIX", "MODES", "REST_TOL", "BasisOptions", "describe_components", "check_foreign_folder", "check_job_folders", "count_sensors", "ensure_aovs",
-           "plan_views", "render_basis", "select_materials"]
+__all__ = [
+    "CROSS_FILE",
+    "GI_SUFFIX",
+    "MODES",
+    "REST_TOL",
+    "BasisOptions",
+    "describe_components",
+    "check_foreign_folder",
+    "check_job_folders",
+    "count_sensors",
+    "ensure_aovs",
+    "plan_views",
+    "render_basis",
+    "select_materials",
+]
 
 
 def select_materials(manifold, materials="all", near=None, radius=None):
@@ -66,17 +89,23 @@ def select_materials(manifold, materials="all", near=None, radius=None):
             raise InputError(f"`radius` must be > 0, got {radius}")
         dist = np.linalg.norm(manifold.latent - near, axis=1)
         if not any(dist <= radius):
-            raise InputError(f"no material lies within {radius} of {near.tolist()} "
-                                   f"(nearest: {manifold.names[int(dist.argmin())]} at {dist.min():.3g})")
+            raise InputError(
+                f"no material lies within {radius} of {near.tolist()} "
+                f"(nearest: {manifold.names[int(dist.argmin())]} at {dist.min():.3g})"
+            )
         needed = set(manifold.prune(manifold.weights(near).w).keep.tolist())
-        return [n for i, (n, dd) in enumerate(zip(manifold.names, dist)) if dd <= radius or i in needed]
+        return [
+            n for i, (n, dd) in enumerate(zip(manifold.names, dist)) if dd <= radius or i in needed
+        ]
     if materials in (None, "all") or materials == ["all"]:
         return list(manifold.names)
     unknown = [m for m in materials if m not in manifold.names]
     if unknown:
-        raise InputError(f"unknown material(s) {unknown}{did_you_mean(unknown[0], manifold.names)}: the "
-                               f"manifold has {manifold.n} materials ({', '.join(manifold.names[:6])}"
-                               f"{', ...' if manifold.n > 6 else ''})")
+        raise InputError(
+            f"unknown material(s) {unknown}{did_you_mean(unknown[0], manifold.names)}: the "
+            f"manifold has {manifold.n} materials ({', '.join(manifold.names[:6])}"
+            f"{', ...' if manifold.n > 6 else ''})"
+        )
     wanted = set(materials)
     return [n for n in manifold.names if n in wanted]
 
@@ -201,36 +230,69 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
     o = replace(options or BasisOptions(), **settings)
     scene_path, manifold, chosen, x = _check_request(scene_path, manifold_path, out, o)
     mi = scenes.use_variant(o.variant, jit=True)
-    loaded = scenes.load_scene(scene_path, manifold_path, o.spp, o.resolution, o.max_depth, x=x, database=o.database,
-                               sensor=int(o.sensor))
+    loaded = scenes.load_scene(
+        scene_path,
+        manifold_path,
+        o.spp,
+        o.resolution,
+        o.max_depth,
+        x=x,
+        database=o.database,
+        sensor=int(o.sensor),
+    )
     (scene, targets, max_depth), paths = loaded, loaded.integrator
     if o.mode == "onepass" and len(targets) != 1:
-        raise InputError(f"onepass mode renders scenes with one manifold material; {scene_path} has "
-                         f"{len(targets)}: use `mode` 'per-material'")
+        raise InputError(
+            f"onepass mode renders scenes with one manifold material; {scene_path} has "
+            f"{len(targets)}: use `mode` 'per-material'"
+        )
     sensors = scene.sensors()
     if not 0 <= int(o.sensor) < len(sensors):
-        raise InputError(f"`sensor` {o.sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)")
-    size = scenes.image_size(sensors[int(o.sensor)].film())   # the crop window's
-    manifest = basis_folder.make_manifest(scene_path, manifold_path, resolution=size, spp=o.spp,
-                                          variant=mi.variant(), seed=o.seed, max_depth=max_depth, mode=o.mode,
-                                          targets=[b.id() for b in targets], sensor=int(o.sensor))
+        raise InputError(
+            f"`sensor` {o.sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)"
+        )
+    size = scenes.image_size(sensors[int(o.sensor)].film())  # the crop window's
+    manifest = basis_folder.make_manifest(
+        scene_path,
+        manifold_path,
+        resolution=size,
+        spp=o.spp,
+        variant=mi.variant(),
+        seed=o.seed,
+        max_depth=max_depth,
+        mode=o.mode,
+        targets=[b.id() for b in targets],
+        sensor=int(o.sensor),
+    )
     manifest["integrator"] = paths.to_manifest()
     manifest["scene_resolution"] = None if o.resolution is None else list(_size(o.resolution))
-    scatters_twice = max_depth < 0 or max_depth > 2   # depth 2 (direct): one scattering vertex per path
+    scatters_twice = (
+        max_depth < 0 or max_depth > 2
+    )  # depth 2 (direct): one scattering vertex per path
     gi = o.mode == "onepass" and o.components == "auto" and scatters_twice
     if gi:
         o = replace(o, levels=gi_levels(o.levels, max_depth))
         manifest["levels"] = o.levels
     elif o.mode == "onepass" and o.components == "auto":
-        manifest["left_out"] = {"l2+": f"the scene's paths scatter once at most ({paths.describe()}): "
-                                       "its L1- images are its full-GI images"}
+        manifest["left_out"] = {
+            "l2+": f"the scene's paths scatter once at most ({paths.describe()}): "
+            "its L1- images are its full-GI images"
+        }
     else:
-        manifest["left_out"] = {"l2+": "per-material mode renders L1- images only" if o.mode != "onepass"
-                                else "components 'l1' asked for"}
+        manifest["left_out"] = {
+            "l2+": "per-material mode renders L1- images only"
+            if o.mode != "onepass"
+            else "components 'l1' asked for"
+        }
     if len(targets) == 1:
-        jobs = [(basis_folder.BASE, None)] + [(basis_folder.image_key([name]), (name,)) for name in chosen]
+        jobs = [(basis_folder.BASE, None)] + [
+            (basis_folder.image_key([name]), (name,)) for name in chosen
+        ]
     else:
-        jobs = [(basis_folder.image_key(combo), combo) for combo in itertools.product(chosen, repeat=len(targets))]
+        jobs = [
+            (basis_folder.image_key(combo), combo)
+            for combo in itertools.product(chosen, repeat=len(targets))
+        ]
     files = [key + ".exr" for key, _ in jobs] + [basis_folder.MANIFEST]
     if gi:
         files += [key + GI_SUFFIX for key, combo in jobs if combo is not None] + [CROSS_FILE]
@@ -242,9 +304,18 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
             carry_gi(out, manifest)
         basis_folder.write_manifest(out, manifest)
         todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
-        if gi and (todo or ("l2+" in manifest.get("components", []) and any(
-                key not in manifest.get("gi_images", {}) for key, combo in jobs if combo is not None))):
-            todo = jobs   # the full-GI images and cross terms come from one pass over every material
+        if gi and (
+            todo
+            or (
+                "l2+" in manifest.get("components", [])
+                and any(
+                    key not in manifest.get("gi_images", {})
+                    for key, combo in jobs
+                    if combo is not None
+                )
+            )
+        ):
+            todo = jobs  # the full-GI images and cross terms come from one pass over every material
         save = functools.partial(_save, out, manifest)
         if todo and gi:
             render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop)
@@ -262,7 +333,8 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
 @contextlib.contextmanager
 def _removed_if_nothing_made(out):
     """A folder this run creates is removed again if the run fails before its first image (a bad
-    table): nothing but its manifest would be left. Ctrl-C keeps it: the same command resumes."""
+    table): nothing but its manifest would be left. Ctrl-C keeps it: the same command resumes.
+    """
     created = not os.path.exists(out)
     try:
         yield
@@ -274,14 +346,17 @@ def _removed_if_nothing_made(out):
 
 def _check_request(scene_path, manifold_path, out, o):
     """Everything :func:`render_basis` can check before loading the scene; returns the scene's
-    path, the manifold, the materials chosen and the latent point ``x`` (or None)."""
+    path, the manifold, the materials chosen and the latent point ``x`` (or None).
+    """
     if o.mode not in MODES:
         raise InputError(f"`mode` must be one of {MODES}, got {o.mode!r}")
     if o.components not in ("auto", "l1"):
-        raise InputError(f"`components` must be 'auto' (full GI where the scene needs it) or 'l1', got {o.components!r}")
+        raise InputError(
+            f"`components` must be 'auto' (full GI where the scene needs it) or 'l1', got {o.components!r}"
+        )
     if int(o.spp) < 1:
         raise InputError(f"`spp` must be >= 1, got {o.spp}")
-    gi_levels(o.levels, -1)   # checked
+    gi_levels(o.levels, -1)  # checked
     if o.variant is not None:
         check_variant(o.variant, jit=True)
     if os.path.exists(out) and not os.path.isdir(out):
@@ -294,13 +369,19 @@ def _check_request(scene_path, manifold_path, out, o):
     except InputError as e:
         raise InputError(str(e)) from None
     try:
-        scene_path = scenes.scene_path(scene_path)   # a scene XML, or a shipped scene's name ("table")
+        scene_path = scenes.scene_path(
+            scene_path
+        )  # a scene XML, or a shipped scene's name ("table")
     except MitsubaManifoldError as e:
         raise InputError(str(e)) from None
-    if o.resolution is not None:  # images held at once: all of them in one pass, else a film and two sums
+    if (
+        o.resolution is not None
+    ):  # images held at once: all of them in one pass, else a film and two sums
         w, h = _size(o.resolution)
         held = len(chosen) + 2 if o.mode == "onepass" else 6
-        validate.fits_in_memory("`resolution`", 2 * held * w * h * 3 * 4, f"{o.mode} images of {w}x{h}")
+        validate.fits_in_memory(
+            "`resolution`", 2 * held * w * h * 3 * 4, f"{o.mode} images of {w}x{h}"
+        )
     return scene_path, manifold, chosen, x
 
 
@@ -309,16 +390,28 @@ def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
     ``manifest[section]`` (``"images"``, or ``"gi_images"`` with ``suffix`` :data:`GI_SUFFIX`).
 
     The files are first listed as ``pending``: a run killed between writing a file
-    and listing it leaves a file its resume knows to be its own."""
+    and listing it leaves a file its resume knows to be its own.
+    """
     from concurrent.futures import ThreadPoolExecutor
+
     manifest["pending"] = sorted(key + suffix for key in images)
     basis_folder.write_manifest(out, manifest)
     with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
-        list(pool.map(lambda kv: imageio.write_exr(os.path.join(out, kv[0] + suffix), kv[1]), images.items()))
+        list(
+            pool.map(
+                lambda kv: imageio.write_exr(os.path.join(out, kv[0] + suffix), kv[1]),
+                images.items(),
+            )
+        )
     entries = manifest.setdefault(section, {})
-    for key in images:   # each file's hash: an image edited later is found (open_folder, Basis.image)
-        entries[key] = {"file": key + suffix, "time_s": float(seconds),
-                        "sha256": file_hash(os.path.join(out, key + suffix))}
+    for (
+        key
+    ) in images:  # each file's hash: an image edited later is found (open_folder, Basis.image)
+        entries[key] = {
+            "file": key + suffix,
+            "time_s": float(seconds),
+            "sha256": file_hash(os.path.join(out, key + suffix)),
+        }
     del manifest["pending"]
     basis_folder.write_manifest(out, manifest)
 
@@ -326,6 +419,7 @@ def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
 def ensure_aovs(out, manifest, spp=16):
     """Write ``out/aovs.npz`` (:mod:`~mitsuba_manifold.render.guides`) unless one made for this basis is there."""
     from . import guides
+
     try:
         guides.BasisAOVs.load(out, manifest)
     except MismatchError:
@@ -339,14 +433,23 @@ def _size(resolution):
 
 def _integrator(component, paths, target="all"):
     """A ``manifold_path`` of ``component`` rendering the paths of the scene's integrator
-    (:class:`~.scenes.SceneIntegrator` ``paths``: depth, Russian roulette, emitters hidden)."""
+    (:class:`~.scenes.SceneIntegrator` ``paths``: depth, Russian roulette, emitters hidden).
+    """
     import mitsuba as mi
-    return mi.load_dict({"type": "manifold_path", "component": component, "target": target,
-                         **paths.path_properties()})
+
+    return mi.load_dict(
+        {
+            "type": "manifold_path",
+            "component": component,
+            "target": target,
+            **paths.path_properties(),
+        }
+    )
 
 
 def _bar(total, enabled, desc):
     from tqdm import tqdm
+
     return tqdm(total=total, desc=desc, unit="image", disable=not enabled)
 
 
@@ -377,7 +480,13 @@ def _render_onepass(scene, target, todo, o, paths, save, stop):
     keys = {combo[0]: key for key, combo in todo if combo is not None}
     t0 = time.perf_counter()
     with progress_bar("rendering basis (one pass)", o.progress, stop) as advance:
-        kwargs = {"materials": names, "spp": o.spp, "seed": o.seed, "progress": advance, "sensor": int(o.sensor)}
+        kwargs = {
+            "materials": names,
+            "spp": o.spp,
+            "seed": o.seed,
+            "progress": advance,
+            "sensor": int(o.sensor),
+        }
         if o.chunk_spp:
             kwargs["spp_per_pass"] = o.chunk_spp
         base, images = integrator.render_onepass(scene, **kwargs)
@@ -390,7 +499,9 @@ def _render_onepass(scene, target, todo, o, paths, save, stop):
 
 def count_sensors(scene_path):
     """Sensors (views) declared at the top level of a scene XML."""
-    return len(validate.scene_xml(scene_path).findall("sensor"))   # or a MismatchError naming the file
+    return len(
+        validate.scene_xml(scene_path).findall("sensor")
+    )  # or a MismatchError naming the file
 
 
 def plan_views(scenes, views, out):
@@ -412,14 +523,24 @@ def plan_views(scenes, views, out):
         chosen = list(range(n)) if views == "all" else [int(v) for v in views]
         bad = [v for v in chosen if not 0 <= v < n]
         if bad:
-            raise InputError(f"sensor {bad[0]} does not exist: {scene} has {n} sensor(s) "
-                                   f"(`views` takes indices 0..{n - 1} or 'all')")
+            raise InputError(
+                f"sensor {bad[0]} does not exist: {scene} has {n} sensor(s) "
+                f"(`views` takes indices 0..{n - 1} or 'all')"
+            )
         jobs += [(scene, v, len(chosen)) for v in chosen]
     stems = [os.path.splitext(os.path.basename(s))[0] for s in scenes]
     if len(set(stems)) != len(stems):
         raise InputError(f"scenes {list(scenes)} share a file name; render them in separate calls")
     if len(jobs) == 1:
         return [(jobs[0][0], jobs[0][1], os.fspath(out))]
-    return [(scene, v, os.path.join(os.fspath(out), os.path.splitext(os.path.basename(scene))[0]
-                                    + (f"-view{v}" if n > 1 else "")))
-            for scene, v, n in jobs]
+    return [
+        (
+            scene,
+            v,
+            os.path.join(
+                os.fspath(out),
+                os.path.splitext(os.path.basename(scene))[0] + (f"-view{v}" if n > 1 else ""),
+            ),
+        )
+        for scene, v, n in jobs
+    ]

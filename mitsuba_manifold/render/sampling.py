@@ -15,8 +15,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..data import merl
 from .._util.cache import npy_cache
+from ..data import merl
 
 PLUGIN_NAME = "manifold_brdf"
 
@@ -57,8 +57,8 @@ def _sampling_geometry(dims, grid=SAMPLING_GRID):
     n_t, n_v, n_u, s = grid
     theta_i = np.linspace(0.0, _HALF_PI, n_t)
     off = (np.arange(s) + 0.5) / s - 0.5
-    u = np.clip(np.arange(n_u)[:, None] / (n_u - 1) + off / (n_u - 1), 0.0, 1.0)   # (n_u, s)
-    v = np.clip(np.arange(n_v)[:, None] / (n_v - 1) + off / (n_v - 1), 0.0, 1.0)   # (n_v, s)
+    u = np.clip(np.arange(n_u)[:, None] / (n_u - 1) + off / (n_u - 1), 0.0, 1.0)  # (n_u, s)
+    v = np.clip(np.arange(n_v)[:, None] / (n_v - 1) + off / (n_v - 1), 0.0, 1.0)  # (n_v, s)
     ti = theta_i[:, None, None, None, None]
     uu = u[None, None, None, :, :]
     vv = v[None, :, :, None, None]
@@ -67,7 +67,9 @@ def _sampling_geometry(dims, grid=SAMPLING_GRID):
     phi = np.broadcast_to(vv * np.pi, shape)
     wi = np.stack(np.broadcast_arrays(np.sin(ti), 0.0 * ti, np.cos(ti)), axis=-1)
     wi = np.broadcast_to(wi, shape + (3,))
-    h = np.stack([np.sin(theta_h) * np.cos(phi), np.sin(theta_h) * np.sin(phi), np.cos(theta_h)], axis=-1)
+    h = np.stack(
+        [np.sin(theta_h) * np.cos(phi), np.sin(theta_h) * np.sin(phi), np.cos(theta_h)], axis=-1
+    )
     cos_d = np.sum(wi * h, axis=-1)
     wo = 2.0 * cos_d[..., None] * h - wi
     valid = (wi[..., 2] > 0) & (wo[..., 2] > 1e-9) & (cos_d > 0)
@@ -114,9 +116,14 @@ def material_density(database, name, grid=SAMPLING_GRID, use_cache=True):
     def warn(path):
         mi.Log(mi.LogLevel.Warn, f"{PLUGIN_NAME}: rebuilding damaged sampling cache {path}")
 
-    return npy_cache(sampling_cache_path(database, name, grid),
-                     lambda: sampling_density(database.reflectance(name), grid),
-                     shape=tuple(grid[:3]), dtype=np.float32, finite=True, on_rebuild=warn)
+    return npy_cache(
+        sampling_cache_path(database, name, grid),
+        lambda: sampling_density(database.reflectance(name), grid),
+        shape=tuple(grid[:3]),
+        dtype=np.float32,
+        finite=True,
+        on_rebuild=warn,
+    )
 
 
 def combined_density(densities, weights, grid=SAMPLING_GRID):
@@ -134,7 +141,9 @@ def combined_density(densities, weights, grid=SAMPLING_GRID):
     empty : int
         Number of slices that had no mass.
     """
-    p = np.tensordot(np.asarray(weights, dtype=np.float64), np.asarray(densities, dtype=np.float64), axes=1)
+    p = np.tensordot(
+        np.asarray(weights, dtype=np.float64), np.asarray(densities, dtype=np.float64), axes=1
+    )
     p = np.maximum(p, 0.0)
     good = np.flatnonzero(p.sum(axis=(1, 2)) > 0)
     empty = p.shape[0] - good.size
@@ -152,7 +161,8 @@ def combined_density(densities, weights, grid=SAMPLING_GRID):
 def combined_distribution(densities, weights, grid=SAMPLING_GRID):
     """``(MarginalContinuous2D1 over (u, v) conditioned on theta_i, black)`` sampling
     :func:`combined_density` of ``densities`` (n, n_t, n_v, n_u) with ``weights`` (n,);
-    ``black``: no slice had mass (the material reflects nothing)."""
+    ``black``: no slice had mass (the material reflects nothing).
+    """
     p, n_empty = combined_density(densities, weights, grid)
     theta_grid = np.linspace(0.0, _HALF_PI, grid[0])
     return mi.MarginalContinuous2D1(p, [theta_grid.tolist()], normalize=True), n_empty == p.shape[0]
@@ -162,7 +172,7 @@ def combined_distribution(densities, weights, grid=SAMPLING_GRID):
 
 #: Smallest ``u = sqrt(theta_h / (pi/2))`` at which the solid-angle pdf is evaluated.
 U_FLOOR = 1e-4
-_SIN_FLOOR = float(np.sin(U_FLOOR ** 2 * _HALF_PI))
+_SIN_FLOOR = float(np.sin(U_FLOOR**2 * _HALF_PI))
 
 
 def per_solid_angle(p_uv, u, sin_th, cos_d, active):
@@ -195,7 +205,8 @@ def incident_frame(wi):
 
 def half_vector_pdf(distr, wi, wo, active):
     """Density (solid angle) at ``wo`` of sampling the half vector from ``distr`` (a
-    ``MarginalContinuous2D1`` over ``(u, v)``, conditioned on the incident elevation)."""
+    ``MarginalContinuous2D1`` over ``(u, v)``, conditioned on the incident elevation).
+    """
     h = wi + wo
     rh = dr.sqrt(dr.square(h.x) + dr.square(h.y))
     inv_len = dr.rsqrt(dr.square(rh) + dr.square(h.z))
@@ -209,7 +220,8 @@ def half_vector_pdf(distr, wi, wo, active):
 def sample_half_vector(distr, wi, sample2, flip, active):
     """``(wo, pdf)``: a half vector ``h`` drawn from ``distr`` over ``(u, v)``, its azimuth sign
     ``-`` where ``flip``, and ``wo`` the reflection of ``wi`` about it, with the solid-angle
-    density of that strategy."""
+    density of that strategy.
+    """
     ex, ey, theta_i = incident_frame(wi)
     uv, p_uv = distr.sample(sample2, [theta_i], active)
     theta_h = dr.square(uv.x) * _HALF_PI

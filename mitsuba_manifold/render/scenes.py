@@ -16,15 +16,20 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..manifold.identity import manifold_identity
-from ..errors import InputError, MismatchError, MitsubaManifoldError, VariantError, did_you_mean
 from .._util.checks import scene_xml
+from ..errors import InputError, MismatchError, MitsubaManifoldError, VariantError, did_you_mean
+from ..manifold.identity import manifold_identity
+
 
 def _scenes_dir():
     """The shipped scenes: ``scenes/`` at the top of a checkout, installed as the package data
-    ``mitsuba_manifold/scenes`` (``pyproject.toml`` maps one to the other)."""
+    ``mitsuba_manifold/scenes`` (``pyproject.toml`` maps one to the other).
+    """
     package = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    for folder in (os.path.join(package, "scenes"), os.path.join(os.path.dirname(package), "scenes")):
+    for folder in (
+        os.path.join(package, "scenes"),
+        os.path.join(os.path.dirname(package), "scenes"),
+    ):
         if os.path.isfile(os.path.join(folder, "table.xml")):
             return folder
     return os.path.join(package, "scenes")
@@ -45,17 +50,23 @@ class _Loaded(NamedTuple):
 class LoadedScene(_Loaded):
     """:func:`load_scene`: the scene, its ``manifold_brdf`` instances (shape order), the path
     depth (it unpacks as these three), and the attribute ``integrator``: what the scene's
-    integrator renders (:class:`SceneIntegrator`)."""
+    integrator renders (:class:`SceneIntegrator`).
+    """
 
     integrator = None
 
 
 #: Mitsuba integrators whose image is that of ``path`` (unbiased path tracers, without media),
 #: by class name: the basis reproduces them.
-PATH_LIKE = {"PathIntegrator": "path", "PRBIntegrator": "prb", "BasicPRBIntegrator": "prb_basic",
-             "VolumetricSimplePathIntegrator": "volpath", "VolumetricPathIntegrator": "volpath",
-             "VolpathMisIntegratorImpl": "volpathmis",
-             "PRBVolpathIntegrator": "prbvolpath"}
+PATH_LIKE = {
+    "PathIntegrator": "path",
+    "PRBIntegrator": "prb",
+    "BasicPRBIntegrator": "prb_basic",
+    "VolumetricSimplePathIntegrator": "volpath",
+    "VolumetricPathIntegrator": "volpath",
+    "VolpathMisIntegratorImpl": "volpathmis",
+    "PRBVolpathIntegrator": "prbvolpath",
+}
 #: ... and those whose image is that of ``path`` with ``max_depth`` 2 (direct light, emitters seen).
 DIRECT_LIKE = {"DirectIntegrator": "direct"}
 #: Mitsuba's default Russian-roulette depth.
@@ -71,7 +82,8 @@ class SceneIntegrator:
     ``max_depth`` 2: the emitters seen and one scattering vertex lit by next-event estimation and
     MIS, the same image in expectation), ``rr_depth``, ``hide_emitters``; ``source``: ``"scene"``
     (the scene's own), ``"default"`` (the scene has none) or ``"option"`` (``max_depth`` set by
-    the caller, overriding the scene's)."""
+    the caller, overriding the scene's).
+    """
 
     kind: str
     max_depth: int
@@ -81,13 +93,18 @@ class SceneIntegrator:
 
     def path_properties(self):
         """Properties of a ``manifold_path`` (or ``path``) integrator that renders these paths."""
-        return {"max_depth": int(self.max_depth), "rr_depth": int(self.rr_depth),
-                "hide_emitters": bool(self.hide_emitters)}
+        return {
+            "max_depth": int(self.max_depth),
+            "rr_depth": int(self.rr_depth),
+            "hide_emitters": bool(self.hide_emitters),
+        }
 
     def reference(self, scene):
         """The integrator Mitsuba renders the scene's reference with: the scene's own, or a
-        ``path`` of these settings where the depth was overridden or the scene has none."""
+        ``path`` of these settings where the depth was overridden or the scene has none.
+        """
         import mitsuba as mi
+
         own = scene.integrator()
         if self.source == "scene" and own is not None:
             return own
@@ -97,8 +114,11 @@ class SceneIntegrator:
         """One phrase: ``path (max_depth 3, hide_emitters)``, with where it comes from."""
         depth = "unbounded" if self.max_depth < 0 else str(self.max_depth)
         extra = ", hide_emitters" if self.hide_emitters else ""
-        where = {"scene": "the scene's integrator", "default": "no integrator in the scene: Mitsuba's default",
-                 "option": "max_depth set by the caller"}[self.source]
+        where = {
+            "scene": "the scene's integrator",
+            "default": "no integrator in the scene: Mitsuba's default",
+            "option": "max_depth set by the caller",
+        }[self.source]
         return f"{self.kind} (max_depth {depth}, rr_depth {self.rr_depth}{extra}; {where})"
 
     def to_manifest(self):
@@ -123,33 +143,55 @@ def scene_integrator(scene, scene_path, max_depth=None):
 
     ``max_depth`` (given by the caller): overrides the scene's depth where it differs (a
     ``direct`` integrator becomes ``path`` of that depth); the scene's ``rr_depth`` and
-    ``hide_emitters`` are kept."""
+    ``hide_emitters`` are kept.
+    """
     own = scene.integrator()
     if own is None:
         found = SceneIntegrator("path", -1, RR_DEPTH, False, "default")
     else:
         cls = own.class_name() if hasattr(own, "class_name") else type(own).__name__
-        cls = type(own).__name__ if cls in ("SamplingIntegrator", "MonteCarloIntegrator", "ADIntegrator",
-                                            "RBIntegrator", "PSIntegrator") else cls
+        cls = (
+            type(own).__name__
+            if cls
+            in (
+                "SamplingIntegrator",
+                "MonteCarloIntegrator",
+                "ADIntegrator",
+                "RBIntegrator",
+                "PSIntegrator",
+            )
+            else cls
+        )
         text = str(own)
         hide = bool(getattr(own, "hide_emitters", False))
         if cls in DIRECT_LIKE:
             found = SceneIntegrator(DIRECT_LIKE[cls], 2, RR_DEPTH, hide, "scene")
         elif cls in PATH_LIKE:
             if PATH_LIKE[cls].startswith(("volpath", "prbvolpath")) and _has_media(scene):
-                raise InputError(f"scene {scene_path}: integrator {PATH_LIKE[cls]!r} with participating media: "
-                                 "the basis renders surfaces only; remove the media (or render the scene without "
-                                 "the manifold basis)")
+                raise InputError(
+                    f"scene {scene_path}: integrator {PATH_LIKE[cls]!r} with participating media: "
+                    "the basis renders surfaces only; remove the media (or render the scene without "
+                    "the manifold basis)"
+                )
             depth = _depth_of(own, "max_depth", text)
             rr = _depth_of(own, "rr_depth", text)
-            found = SceneIntegrator(PATH_LIKE[cls], -1 if depth is None else depth,
-                                    RR_DEPTH if rr is None or rr < 1 else rr, hide, "scene")
+            found = SceneIntegrator(
+                PATH_LIKE[cls],
+                -1 if depth is None else depth,
+                RR_DEPTH if rr is None or rr < 1 else rr,
+                hide,
+                "scene",
+            )
         else:
-            raise InputError(f"scene {scene_path}: its integrator ({cls}) renders something the basis cannot "
-                             "reproduce (the basis renders what `path` and `direct` do): give the scene "
-                             "<integrator type=\"path\"> (with its max_depth) or type=\"direct\"")
+            raise InputError(
+                f"scene {scene_path}: its integrator ({cls}) renders something the basis cannot "
+                "reproduce (the basis renders what `path` and `direct` do): give the scene "
+                '<integrator type="path"> (with its max_depth) or type="direct"'
+            )
     if max_depth is not None and int(max_depth) != found.max_depth:
-        found = SceneIntegrator("path", int(max_depth), found.rr_depth, found.hide_emitters, "option")
+        found = SceneIntegrator(
+            "path", int(max_depth), found.rr_depth, found.hide_emitters, "option"
+        )
     return found
 
 
@@ -172,30 +214,37 @@ def scene_path(scene):
     """Path of a scene given as a shipped scene's name (``"table"``) or as a path to an XML file."""
     scene = os.fspath(scene)
     if os.path.isfile(scene):
-        scene_xml(scene)   # a scene XML, or an error naming the file
+        scene_xml(scene)  # a scene XML, or an error naming the file
         return os.path.abspath(scene)
     shipped = os.path.join(SCENES_DIR, scene + ".xml")
     if os.sep not in scene and not scene.endswith(".xml") and os.path.isfile(shipped):
         return shipped
-    raise MismatchError(f"scene {scene} does not exist (nor is it the name of a shipped scene: "
-                     f"{', '.join(shipped_scenes())})")
+    raise MismatchError(
+        f"scene {scene} does not exist (nor is it the name of a shipped scene: "
+        f"{', '.join(shipped_scenes())})"
+    )
 
 
 def default_variant():
     """The variant named by the environment variable ``MM_VARIANT`` when set (``llvm_ad_rgb`` or
     ``cuda_ad_rgb``, the latter refused where CUDA does not run), else ``cuda_ad_rgb`` when a GPU
-    works, else ``llvm_ad_rgb``."""
+    works, else ``llvm_ad_rgb``.
+    """
     import mitsuba as mi
 
     chosen = os.environ.get("MM_VARIANT")
     if chosen:
         usable = [v for v in ("llvm_ad_rgb", "cuda_ad_rgb") if v in mi.variants()]
         if chosen not in usable:
-            raise VariantError(f"MM_VARIANT={chosen}: the tools render in "
-                               f"{' or '.join(usable)}; unset MM_VARIANT or name one of those")
+            raise VariantError(
+                f"MM_VARIANT={chosen}: the tools render in "
+                f"{' or '.join(usable)}; unset MM_VARIANT or name one of those"
+            )
         if chosen.startswith("cuda") and not _cuda_works():
-            raise VariantError(f"MM_VARIANT={chosen}: no CUDA device or driver works here; unset "
-                               "MM_VARIANT or use llvm_ad_rgb")
+            raise VariantError(
+                f"MM_VARIANT={chosen}: no CUDA device or driver works here; unset "
+                "MM_VARIANT or use llvm_ad_rgb"
+            )
         return chosen
     if "cuda_ad_rgb" in mi.variants() and _cuda_works():
         return "cuda_ad_rgb"
@@ -206,6 +255,7 @@ def _cuda_works():
     """Whether Dr.Jit's CUDA backend runs here (a device and a driver)."""
     try:
         import drjit as dr
+
         return bool(dr.has_backend(dr.JitBackend.CUDA))
     except Exception:  # no driver
         return False
@@ -232,6 +282,7 @@ def use_variant(variant=None, jit=False):
     import mitsuba as mi
 
     from . import plugins
+
     if variant is not None:
         check_variant(variant, jit=jit)
         if mi.variant() != variant:
@@ -250,16 +301,19 @@ def use_variant(variant=None, jit=False):
 
 def scene_parameters(scene):
     """Names of the ``$parameters`` a scene XML uses, and its ``<default>`` values."""
-    root = scene_xml(scene)   # exists, and is a scene XML (not a table or an image)
+    root = scene_xml(scene)  # exists, and is a scene XML (not a table or an image)
     defaults = {el.get("name"): el.get("value") for el in root.iter("default")}
-    used = {name for el in root.iter() for value in el.attrib.values() for name in _PARAM.findall(value)}
+    used = {
+        name for el in root.iter() for value in el.attrib.values() for name in _PARAM.findall(value)
+    }
     return used, defaults
 
 
 def scene_manifolds(scene, params=None):
     """``(bsdf id, manifold file)`` of each ``manifold_brdf`` of a scene XML: its ``manifold``
     value with ``$parameters`` taken from ``params``, else the scene's ``<default>``s, and a
-    relative path resolved against the scene's folder (as Mitsuba's file resolver does)."""
+    relative path resolved against the scene's folder (as Mitsuba's file resolver does).
+    """
     root = scene_xml(scene)
     values = {**{el.get("name"): el.get("value") for el in root.iter("default")}, **(params or {})}
     folder = os.path.dirname(os.path.abspath(scene))
@@ -279,12 +333,14 @@ def scene_manifolds(scene, params=None):
 def _check_scene_manifolds(scene, manifold_path, params):
     """Raise unless every ``manifold_brdf`` of the scene uses ``manifold_path`` (the file, or
     one of the same content): a scene naming its own manifold is not rendered with another's
-    latent points."""
+    latent points.
+    """
     want, identity = os.path.realpath(manifold_path), None
     for bsdf_id, path in scene_manifolds(scene, params):
         if os.path.realpath(path) == want:
             continue
         from ..manifold.model import Manifold
+
         try:
             identity = identity or manifold_identity(Manifold.load(manifold_path))
             if manifold_identity(Manifold.load(path)) == identity:
@@ -301,33 +357,58 @@ HIDING_WRAPPERS = ("normalmap", "bumpmap")
 
 def _check_wrappers(scene):
     """Raise (before loading) if a ``manifold_brdf`` of the scene XML sits inside a
-    :data:`HIDING_WRAPPERS` BSDF, naming it and what works instead."""
+    :data:`HIDING_WRAPPERS` BSDF, naming it and what works instead.
+    """
     root = scene_xml(scene)
-    ids = {b.get("id") for b in root.iter("bsdf") if b.get("type") == "manifold_brdf" and b.get("id")}
+    ids = {
+        b.get("id") for b in root.iter("bsdf") if b.get("type") == "manifold_brdf" and b.get("id")
+    }
     for wrapper in root.iter("bsdf"):
         if wrapper.get("type") not in HIDING_WRAPPERS:
             continue
-        inner = [el for el in wrapper.iter() if el is not wrapper and (
-            (el.tag == "bsdf" and el.get("type") == "manifold_brdf") or (el.tag == "ref" and el.get("id") in ids))]
+        inner = [
+            el
+            for el in wrapper.iter()
+            if el is not wrapper
+            and (
+                (el.tag == "bsdf" and el.get("type") == "manifold_brdf")
+                or (el.tag == "ref" and el.get("id") in ids)
+            )
+        ]
         if inner:
             name = wrapper.get("id") or wrapper.get("type")
-            raise InputError(f"scene {scene}: the manifold_brdf is inside the {wrapper.get('type')} BSDF {name!r}, "
-                             "which the basis cannot render (it perturbs the shading frame the measured tables are "
-                             "looked up in, and hides the material from the scene's traversal): give the shape the "
-                             "manifold_brdf itself (or inside twosided), without the "
-                             f"{wrapper.get('type')}")
+            raise InputError(
+                f"scene {scene}: the manifold_brdf is inside the {wrapper.get('type')} BSDF {name!r}, "
+                "which the basis cannot render (it perturbs the shading frame the measured tables are "
+                "looked up in, and hides the material from the scene's traversal): give the shape the "
+                "manifold_brdf itself (or inside twosided), without the "
+                f"{wrapper.get('type')}"
+            )
 
 
 def _other_manifold(scene, bsdf_id, path, manifold_path):
     if not os.path.isfile(path):
-        return (f"scene {scene}: material {bsdf_id!r} names the manifold {path} (which does not exist), not "
-                f"{manifold_path}: use value=\"$manifold\" in the scene")
-    return (f"scene {scene}: material {bsdf_id!r} names the manifold {path}, not {manifold_path}: use "
-            f"value=\"$manifold\" in the scene, or pass `manifold_path`={path}")
+        return (
+            f"scene {scene}: material {bsdf_id!r} names the manifold {path} (which does not exist), not "
+            f'{manifold_path}: use value="$manifold" in the scene'
+        )
+    return (
+        f"scene {scene}: material {bsdf_id!r} names the manifold {path}, not {manifold_path}: use "
+        f'value="$manifold" in the scene, or pass `manifold_path`={path}'
+    )
 
 
-def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=None, x=None,
-               variant=None, database=None, sensor=0):
+def load_scene(
+    scene_path,
+    manifold_path,
+    spp=None,
+    resolution=None,
+    max_depth=None,
+    x=None,
+    variant=None,
+    database=None,
+    sensor=0,
+):
     """Load a scene XML with its ``$parameters`` set, and find its manifold materials.
 
     Only the parameters the XML uses are passed (Mitsuba refuses others): ``$manifold``,
@@ -371,25 +452,39 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
 
     import mitsuba as mi
 
-    from .integrators import manifold_bsdfs
     from ..manifold.model import Manifold
+    from .integrators import manifold_bsdfs
 
     scene_path, manifold_path = os.fspath(scene_path), os.fspath(manifold_path)
     if not os.path.isfile(manifold_path):
         raise MismatchError(f"manifold {manifold_path} does not exist")
-    manifold = functools.cache(lambda: Manifold.load(manifold_path))   # loaded once, when first needed
+    manifold = functools.cache(
+        lambda: Manifold.load(manifold_path)
+    )  # loaded once, when first needed
     used, defaults = scene_parameters(scene_path)
     use_variant(variant)
     if spp is not None and int(spp) < 1:
         raise MismatchError(f"`spp` must be >= 1, got {spp}")
     if max_depth is not None and int(max_depth) < -1:
-        raise MismatchError(f"`max_depth` must be -1 (unbounded) or an integer >= 0, got {max_depth}")
-    params, size = _scene_params(used, defaults, manifold_path, manifold, x=x, spp=spp,
-                                 max_depth=max_depth, database=database, resolution=resolution)
+        raise MismatchError(
+            f"`max_depth` must be -1 (unbounded) or an integer >= 0, got {max_depth}"
+        )
+    params, size = _scene_params(
+        used,
+        defaults,
+        manifold_path,
+        manifold,
+        x=x,
+        spp=spp,
+        max_depth=max_depth,
+        database=database,
+        resolution=resolution,
+    )
     _check_scene_manifolds(scene_path, manifold_path, params)
     _check_wrappers(scene_path)
     from ..errors import one_line
     from .overrides import database_override
+
     try:
         with database_override(database):
             # optimize=False: Mitsuba would merge identical BSDF definitions, and two manifold
@@ -399,21 +494,29 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
         raise MismatchError(f"scene {scene_path}: cannot load: {one_line(e)}") from None
     targets = manifold_bsdfs(scene)
     if not targets:
-        raise MismatchError(f"scene {scene_path} has no manifold_brdf material (give the material to edit "
-                         "type=\"manifold_brdf\" and take the manifold as $manifold)")
+        raise MismatchError(
+            f"scene {scene_path} has no manifold_brdf material (give the material to edit "
+            'type="manifold_brdf" and take the manifold as $manifold)'
+        )
     want = manifold_identity(manifold())
-    for bsdf in targets:   # ManifoldBRDF instances (manifold_bsdfs)
+    for bsdf in targets:  # ManifoldBRDF instances (manifold_bsdfs)
         if manifold_identity(bsdf.manifold) != want:
-            raise MismatchError(_other_manifold(scene_path, bsdf.id(), bsdf.manifold_path, manifold_path))
+            raise MismatchError(
+                _other_manifold(scene_path, bsdf.id(), bsdf.manifold_path, manifold_path)
+            )
     sensors = scene.sensors()
     if not 0 <= int(sensor) < len(sensors):
-        raise InputError(f"`sensor` {sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)")
+        raise InputError(
+            f"`sensor` {sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)"
+        )
     film_size = tuple(int(v) for v in sensors[int(sensor)].film().size())
     took = "res" in params or "width" in params or "height" in params
     if size is not None and not took and film_size != size:
-        raise MismatchError(f"scene {scene_path} renders {film_size[0]}x{film_size[1]}"
-                            f"{f' from sensor {sensor}' if sensor else ''}, not {size[0]}x{size[1]} "
-                            "(it takes no $res/$width/$height parameter for this size)")
+        raise MismatchError(
+            f"scene {scene_path} renders {film_size[0]}x{film_size[1]}"
+            f"{f' from sensor {sensor}' if sensor else ''}, not {size[0]}x{size[1]} "
+            "(it takes no $res/$width/$height parameter for this size)"
+        )
     integrator = scene_integrator(scene, scene_path, max_depth)
     check_film(scene_path, sensors[int(sensor)].film())
     loaded = LoadedScene(scene, targets, integrator.max_depth)
@@ -421,9 +524,12 @@ def load_scene(scene_path, manifold_path, spp=None, resolution=None, max_depth=N
     return loaded
 
 
-def _scene_params(used, defaults, manifold_path, manifold, *, x, spp, max_depth, database, resolution):
+def _scene_params(
+    used, defaults, manifold_path, manifold, *, x, spp, max_depth, database, resolution
+):
     """The ``$parameters`` to load a scene with (only those its XML uses) and the image size
-    asked for (None: the film's own); ``manifold`` loads the manifold when first called."""
+    asked for (None: the film's own); ``manifold`` loads the manifold when first called.
+    """
     params = {}
     if "manifold" in used:
         params["manifold"] = os.path.abspath(manifold_path)
@@ -436,12 +542,16 @@ def _scene_params(used, defaults, manifold_path, manifold, *, x, spp, max_depth,
     if "spp" in used and spp is not None:
         params["spp"] = str(int(spp))
     if "integrator" in used and defaults.get("integrator") in (None, "manifold_path"):
-        params["integrator"] = "path"   # the scene's own default integrator type is kept
+        params["integrator"] = "path"  # the scene's own default integrator type is kept
     if "max_depth" in used and max_depth is not None:
         params["max_depth"] = str(int(max_depth))
     size = None
     if resolution is not None:
-        size = (int(resolution), int(resolution)) if np.isscalar(resolution) else tuple(int(v) for v in resolution)
+        size = (
+            (int(resolution), int(resolution))
+            if np.isscalar(resolution)
+            else tuple(int(v) for v in resolution)
+        )
         if "res" in used and size[0] == size[1]:
             params["res"] = str(size[0])
         for name, value in zip(("width", "height"), size):
@@ -454,7 +564,8 @@ def scene_resolution(manifest):
     """The ``resolution`` a basis's scene was loaded with (None: the scene's own film size), to
     load it again as the basis saw it (its references, refinements); a manifest that does not
     record it (an earlier version) was rendered at its image size. ``manifest`` is a
-    :class:`~mitsuba_manifold.basis.folder.Manifest` or its JSON object."""
+    :class:`~mitsuba_manifold.basis.folder.Manifest` or its JSON object.
+    """
     if hasattr(manifest, "to_json"):
         manifest = manifest.to_json()
     if "scene_resolution" in manifest:
@@ -471,15 +582,29 @@ def image_size(film):
 def check_film(scene_path, film):
     """Raise unless the basis can render ``film``'s images: a film that develops an image
     (``hdrfilm``; every pixel format: the basis and references are RGB, the film's format being a
-    fixed map of it)."""
+    fixed map of it).
+    """
     name = film.class_name() if hasattr(film, "class_name") else type(film).__name__
     if name != "HDRFilm":
-        raise InputError(f"scene {scene_path}: film {name} is not supported (the basis stores linear RGB "
-                         "images): use <film type=\"hdrfilm\">")
+        raise InputError(
+            f"scene {scene_path}: film {name} is not supported (the basis stores linear RGB "
+            'images): use <film type="hdrfilm">'
+        )
 
 
-def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None, max_depth=None,
-                     variant=None, targets=None, database=None, sensor=0):
+def render_reference(
+    scene_path,
+    manifold_path,
+    x,
+    spp,
+    seed=0,
+    resolution=None,
+    max_depth=None,
+    variant=None,
+    targets=None,
+    database=None,
+    sensor=0,
+):
     """Mitsuba's own image of the scene with the interpolated material: the ground truth of a blend.
 
     Loads the scene (:func:`load_scene`), sets every manifold material to its latent
@@ -510,28 +635,53 @@ def render_reference(scene_path, manifold_path, x, spp, seed=0, resolution=None,
     pts = _points(x)
     if int(spp) < 1:
         raise MismatchError(f"`spp` must be >= 1, got {spp}")
-    loaded = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant, database,
-                        sensor=sensor)
+    loaded = load_scene(
+        scene_path,
+        manifold_path,
+        spp,
+        resolution,
+        max_depth,
+        pts[0],
+        variant,
+        database,
+        sensor=sensor,
+    )
     set_points(loaded.targets, pts, targets)
     from .interrupt import render_in_passes
+
     integrator = loaded.integrator.reference(loaded.scene)
-    return render_in_passes(loaded.scene, integrator, int(spp), int(seed), sensor=int(sensor))   # Ctrl-C: KeyboardInterrupt
+    return render_in_passes(
+        loaded.scene, integrator, int(spp), int(seed), sensor=int(sensor)
+    )  # Ctrl-C: KeyboardInterrupt
 
 
-def scene_at(scene_path, manifold_path, x, spp=None, resolution=None, max_depth=None, variant=None, targets=None,
-             database=None):
+def scene_at(
+    scene_path,
+    manifold_path,
+    x,
+    spp=None,
+    resolution=None,
+    max_depth=None,
+    variant=None,
+    targets=None,
+    database=None,
+):
     """``(scene, max_depth)``: the scene loaded (:func:`load_scene`) with every manifold material
     at its latent point: ``x`` (q,) for all of them, or (p, q) one per target (``targets``: the
-    BSDF ids of the rows, default the scene's manifold materials in the order of its shapes)."""
+    BSDF ids of the rows, default the scene's manifold materials in the order of its shapes).
+    """
     pts = _points(x)
-    loaded = load_scene(scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant, database)
+    loaded = load_scene(
+        scene_path, manifold_path, spp, resolution, max_depth, pts[0], variant, database
+    )
     set_points(loaded.targets, pts, targets)
     return loaded.scene, loaded.max_depth
 
 
 def set_points(found, x, targets=None):
     """Every manifold material ``found`` (:attr:`LoadedScene.targets`) at its latent point: ``x``
-    (q,) for all of them, or (p, q) one per target (``targets`` as :func:`scene_at`)."""
+    (q,) for all of them, or (p, q) one per target (``targets`` as :func:`scene_at`).
+    """
     pts = _points(x)
     ids = [b.id() for b in found]
     if len(pts) == 1:
@@ -539,8 +689,10 @@ def set_points(found, x, targets=None):
     else:
         order = ids if targets is None else list(targets)
         if len(order) != len(pts) or sorted(order) != sorted(ids):
-            raise MismatchError(f"`x` gives {len(pts)} latent points for targets {order}; the scene's manifold "
-                                f"materials are {ids}")
+            raise MismatchError(
+                f"`x` gives {len(pts)} latent points for targets {order}; the scene's manifold "
+                f"materials are {ids}"
+            )
         rows = [order.index(i) for i in ids]
     for bsdf, row in zip(found, rows):
         bsdf.set_latent(pts[row])
@@ -550,13 +702,16 @@ def _points(x):
     """``x`` as a (p, q) array of finite latent points, or the error naming it."""
     pts = np.atleast_2d(np.asarray(x, dtype=np.float64))
     if pts.ndim != 2 or not np.isfinite(pts).all():
-        raise MismatchError(f"`x` must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}")
+        raise MismatchError(
+            f"`x` must be finite numbers of shape (q,) or (p, q), got {np.shape(x)}"
+        )
     return pts
 
 
 def check_scene(name, value):
     """A shipped scene's name or a readable scene XML; returns its path. The error names the
-    option and the value, and suggests the closest shipped scene names."""
+    option and the value, and suggests the closest shipped scene names.
+    """
     try:
         path = scene_path(value)
         scene_parameters(path)
@@ -565,8 +720,10 @@ def check_scene(name, value):
         hint = did_you_mean(value, shipped) if os.sep not in str(value) else ""
         if os.path.isfile(value):
             raise InputError(f"{name}: {e}") from None
-        raise InputError(f"{name} {value!r}: no such file nor shipped scene{hint}; shipped scenes: "
-                         f"{', '.join(shipped)}") from None
+        raise InputError(
+            f"{name} {value!r}: no such file nor shipped scene{hint}; shipped scenes: "
+            f"{', '.join(shipped)}"
+        ) from None
     return path
 
 
@@ -583,17 +740,27 @@ def check_variant(value, name="`variant`", jit=False):
 
     known = list(mi.variants())
     if value not in known:
-        raise InputError(f"{name} {value!r} is not a Mitsuba variant of this installation "
-                         f"(installed: {', '.join(known)})")
+        raise InputError(
+            f"{name} {value!r} is not a Mitsuba variant of this installation "
+            f"(installed: {', '.join(known)})"
+        )
     rgb = value.endswith("_rgb") and "polarized" not in value
     if not rgb or (jit and not value.startswith(("llvm_", "cuda_"))):
-        usable = [v for v in known if v.endswith("_rgb") and "polarized" not in v
-                  and (not jit or v.startswith(("llvm_", "cuda_")))]
+        usable = [
+            v
+            for v in known
+            if v.endswith("_rgb")
+            and "polarized" not in v
+            and (not jit or v.startswith(("llvm_", "cuda_")))
+        ]
         need = "an RGB JIT variant" if jit else "an RGB variant"
-        raise InputError(f"{name} {value!r} cannot be used here: this needs {need} "
-                         f"({', '.join(usable) or 'none installed'})")
+        raise InputError(
+            f"{name} {value!r} cannot be used here: this needs {need} "
+            f"({', '.join(usable) or 'none installed'})"
+        )
     if value.startswith("cuda_"):
         import drjit as dr
+
         try:
             ok = dr.has_backend(dr.JitBackend.CUDA)
         except Exception:

@@ -10,6 +10,7 @@ def plugins():
     import mitsuba as mi
 
     import mitsuba_manifold
+
     mi.set_variant("llvm_ad_rgb")
     mitsuba_manifold.register()
     return mi
@@ -19,7 +20,7 @@ def plugins():
 def tiny(tmp_path_factory):
     """A 4-material database at 8x8x16, a q=2 manifold on it, and a rendered 8x8 basis."""
     import mitsuba as mi
-
     from guarantees_helpers import make_tiny
+
     mi.set_variant("llvm_ad_rgb")
     return make_tiny(tmp_path_factory.mktemp("tiny"))

@@ -13,15 +13,19 @@ import zlib
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
-
-from guarantees_helpers import TINY_NAMES as NAMES, make_tiny, refused_cleanly, run_tool, snapshot
+from guarantees_helpers import TINY_NAMES as NAMES
+from guarantees_helpers import make_tiny, refused_cleanly, run_tool, snapshot
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold.manifold.presets import PRESETS
-pytestmark = pytest.mark.render   # the fixture renders a small basis
-SETTINGS = dict(deadline=None, suppress_health_check=list(HealthCheck), derandomize=True, database=None)
+
+pytestmark = pytest.mark.render  # the fixture renders a small basis
+SETTINGS = dict(
+    deadline=None, suppress_health_check=list(HealthCheck), derandomize=True, database=None
+)
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +39,7 @@ def data(tmp_path_factory):
     (work / "afile").write_text("a file")
     _outputs_of_the_user(work)
     _targets(work, tiny["basis"])
-    special = tiny["root"] / "special"          # not snapshotted: reading a FIFO would block
+    special = tiny["root"] / "special"  # not snapshotted: reading a FIFO would block
     special.mkdir()
     os.mkfifo(special / "fifo.json")
     return {**tiny, "work": str(work), "special": str(special)}
@@ -74,7 +78,9 @@ def _targets(work, basis):
         _claim(work / name, *size, depth)
 
 
-odd = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.sampled_from([1e10, -1e10, 1e300, 0.0, -0.0]))
+odd = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True), st.sampled_from([1e10, -1e10, 1e300, 0.0, -0.0])
+)
 numbers = st.one_of(st.floats(-2, 2), st.integers(-5, 5).map(float), odd)
 
 
@@ -103,10 +109,15 @@ def _place(case, data):
     args, given, valid = case
 
     def place(a):
-        for tag, folder in (("WORK/", data["work"]), ("BASIS/", data["basis"]), ("SPECIAL/", data["special"])):
+        for tag, folder in (
+            ("WORK/", data["work"]),
+            ("BASIS/", data["basis"]),
+            ("SPECIAL/", data["special"]),
+        ):
             if isinstance(a, str) and tag in a:
                 return a.replace(tag, folder + os.sep)
         return a
+
     return [place(a) for a in args], {k: place(v) for k, v in given.items()}, valid
 
 
@@ -152,11 +163,19 @@ def _opt(option, *values):
     return st.tuples(st.just(option), st.sampled_from([str(v) for v in values])).map(list)
 
 
-JSON_FAULTS = ["WORK/user.json", "WORK/locked.json", "WORK/link.json", "SPECIAL/fifo.json", "WORK/afile/x.json"]
+JSON_FAULTS = [
+    "WORK/user.json",
+    "WORK/locked.json",
+    "WORK/link.json",
+    "SPECIAL/fifo.json",
+    "WORK/afile/x.json",
+]
 
 
-BLEND_OUTS = (["WORK/img.exr", "WORK/sub/img.exr"],
-              ["WORK/img.txt", "WORK/user.exr", "WORK/afile/img.exr", "BASIS/x.exr", "BASIS/base.exr"])
+BLEND_OUTS = (
+    ["WORK/img.exr", "WORK/sub/img.exr"],
+    ["WORK/img.txt", "WORK/user.exr", "WORK/afile/img.exr", "BASIS/x.exr", "BASIS/base.exr"],
+)
 
 
 @st.composite
@@ -165,17 +184,28 @@ def blend_args(draw):
     valid = draw(st.booleans())
     args, given = [], {}
     if draw(st.booleans()):
-        xs = draw(st.lists(st.floats(-3, 3), min_size=2, max_size=2) if valid else
-                  st.one_of(st.lists(numbers, min_size=2, max_size=2), st.lists(numbers, max_size=3)))
+        xs = draw(
+            st.lists(st.floats(-3, 3), min_size=2, max_size=2)
+            if valid
+            else st.one_of(st.lists(numbers, min_size=2, max_size=2), st.lists(numbers, max_size=3))
+        )
         args += ["--x", ",".join(_fmt(v) for v in xs) if xs else "abc"]
         given["x"] = xs
     else:
         a = draw(st.sampled_from(NAMES + ([] if valid else ["adamantium", "0,0", "nan,1"])))
-        b = draw(st.sampled_from([n for n in NAMES + ["1,1"] if n != a or not valid]))   # same ends: refused
+        b = draw(
+            st.sampled_from([n for n in NAMES + ["1,1"] if n != a or not valid])
+        )  # same ends: refused
         steps = draw(st.integers(2, 4) if valid else st.integers(-1, 4))
         args += ["--path", a, b, "--steps", str(steps)]
         given["path"] = (a, b, steps)
-    _options(draw, valid, args, given, [("--exposure", st.floats(-8, 8), odd), ("--prune", st.floats(0, 0.5), odd)])
+    _options(
+        draw,
+        valid,
+        args,
+        given,
+        [("--exposure", st.floats(-8, 8), odd), ("--prune", st.floats(0, 0.5), odd)],
+    )
     if draw(st.booleans()):
         args.append("--png")
     return _with_out(draw, valid, args, given, BLEND_OUTS)
@@ -186,14 +216,16 @@ def blend_args(draw):
 def test_blend_cli_succeeds_or_refuses_cleanly(data, case):
     args, given, valid = _place(case, data)
     basis_before, out = snapshot(data["basis"]), given["--out"]
-    refused, err = _run("blend", ["--basis", data["basis"]], args, valid, [data["work"], data["basis"]])
+    refused, err = _run(
+        "blend", ["--basis", data["basis"]], args, valid, [data["work"], data["basis"]]
+    )
     if refused:
         return
     assert "Traceback" not in err
     assert all(math.isfinite(v) for v in given.get("x", [])) and len(given.get("x", [0, 0])) == 2
     assert math.isfinite(given.get("--exposure", 0.0)) and abs(given.get("--exposure", 0.0)) <= 64
     assert 0 <= given.get("--prune", 0.0) < 1
-    assert snapshot(data["basis"]) == basis_before   # a blend never touches its basis
+    assert snapshot(data["basis"]) == basis_before  # a blend never touches its basis
     stem = out[:-4]
     exrs = [out] if "x" in given else [f"{stem}_{s}.exr" for s in range(given["path"][2])]
     for path in exrs:
@@ -203,23 +235,35 @@ def test_blend_cli_succeeds_or_refuses_cleanly(data, case):
             assert os.path.getsize(path[:-4] + ".png") > 0
 
 
-FIT_OUTS = (["WORK/m.npz", "WORK/sub/m.npz"], ["WORK/user.exr", "WORK/afile/m.npz", "WORK/afile", "WORK/m.json",
-                                            "WORK/m"])
+FIT_OUTS = (
+    ["WORK/m.npz", "WORK/sub/m.npz"],
+    ["WORK/user.exr", "WORK/afile/m.npz", "WORK/afile", "WORK/m.json", "WORK/m"],
+)
 
 
 @st.composite
 def fit_args(draw):
     """``(args, given, out, valid)``: half the cases use only valid values (they must succeed)."""
     valid, args, given, one = draw(st.booleans()), [], {}, st.sampled_from
-    _options(draw, valid, args, given, [
-        ("--q", st.integers(1, 3), st.integers(-1, 9)),
-        ("--length-scale", st.floats(0.5, 2), odd),
-        ("--noise", st.floats(1e-5, 1e-2), odd),
-        ("--materials", one(["steel,chrome", "chrome,gold-paint,pink-fabric"]),
-         one(["steel", "steel,adamantium", "steel,steel", ","])),
-        ("--method", one(["lbfgs", "hooke-jeeves"]), st.just("newton")),
-        ("--features", one(["raw", "log"]), st.just("sqrt")),
-        ("--plot", st.just("WORK/plots"), one(["WORK/afile", "WORK/afile/sub"]))])
+    _options(
+        draw,
+        valid,
+        args,
+        given,
+        [
+            ("--q", st.integers(1, 3), st.integers(-1, 9)),
+            ("--length-scale", st.floats(0.5, 2), odd),
+            ("--noise", st.floats(1e-5, 1e-2), odd),
+            (
+                "--materials",
+                one(["steel,chrome", "chrome,gold-paint,pink-fabric"]),
+                one(["steel", "steel,adamantium", "steel,steel", ","]),
+            ),
+            ("--method", one(["lbfgs", "hooke-jeeves"]), st.just("newton")),
+            ("--features", one(["raw", "log"]), st.just("sqrt")),
+            ("--plot", st.just("WORK/plots"), one(["WORK/afile", "WORK/afile/sub"])),
+        ],
+    )
     return _with_out(draw, valid, args, given, FIT_OUTS)
 
 
@@ -241,13 +285,26 @@ def test_fit_manifold_cli_succeeds_or_refuses_cleanly(data, case):
         assert m.names == given["--materials"].split(",")
 
 
-MAIN_GOOD = {"--resolution": st.just("8,8,16"), "--res": st.sampled_from([8, 16]), "--spp": st.just(1),
-             "--ref-spp": st.just(1), "--q": st.integers(1, 3), "--scene": st.sampled_from(["sphere", "table"]),
-             "--mode": st.sampled_from(["onepass", "per-material"])}
-MAIN_BAD = [_opt("--res", 0, -3, 10 ** 6, "abc"), _opt("--spp", 0, -1), _opt("--ref-spp", 0), _opt("--q", 0, 9),
-            _opt("--scene", "tabel", "missing.xml"), _opt("--resolution", "0,8,16", "8,8", "a,b,c"),
-            _opt("--out", "WORK/afile", "WORK/afile/sub", "WORK/mainout"), _opt("--mode", "fast"),
-            _opt("--features", "sqrt")]
+MAIN_GOOD = {
+    "--resolution": st.just("8,8,16"),
+    "--res": st.sampled_from([8, 16]),
+    "--spp": st.just(1),
+    "--ref-spp": st.just(1),
+    "--q": st.integers(1, 3),
+    "--scene": st.sampled_from(["sphere", "table"]),
+    "--mode": st.sampled_from(["onepass", "per-material"]),
+}
+MAIN_BAD = [
+    _opt("--res", 0, -3, 10**6, "abc"),
+    _opt("--spp", 0, -1),
+    _opt("--ref-spp", 0),
+    _opt("--q", 0, 9),
+    _opt("--scene", "tabel", "missing.xml"),
+    _opt("--resolution", "0,8,16", "8,8", "a,b,c"),
+    _opt("--out", "WORK/afile", "WORK/afile/sub", "WORK/mainout"),
+    _opt("--mode", "fast"),
+    _opt("--features", "sqrt"),
+]
 
 
 @settings(max_examples=40, **SETTINGS)
@@ -258,34 +315,88 @@ def test_main_job_cli_refuses_cleanly_before_any_work(data, args):
     assert not os.path.exists(os.path.join(data["work"], "mj", "database"))
 
 
-RENDER_GOOD = {"--res": st.just(8), "--spp": st.integers(1, 2), "--mode": st.just("per-material"),
-               "--seed": st.integers(0, 5), "--views": st.just("0")}
-RENDER_BAD = [_opt("--seed", -1, 2 ** 64, 2 ** 32), _opt("--spp", 0, -2), _opt("--chunks", 0, -1),
-              _opt("--views", "0,0", "-1", "x", "3"), _opt("--res", 0, 20000), _opt("--mode", "fast"),
-              _opt("--executor", "dask"), _opt("--out", "WORK/.")]
+RENDER_GOOD = {
+    "--res": st.just(8),
+    "--spp": st.integers(1, 2),
+    "--mode": st.just("per-material"),
+    "--seed": st.integers(0, 5),
+    "--views": st.just("0"),
+}
+RENDER_BAD = [
+    _opt("--seed", -1, 2**64, 2**32),
+    _opt("--spp", 0, -2),
+    _opt("--chunks", 0, -1),
+    _opt("--views", "0,0", "-1", "x", "3"),
+    _opt("--res", 0, 20000),
+    _opt("--mode", "fast"),
+    _opt("--executor", "dask"),
+    _opt("--out", "WORK/."),
+]
 
 
 @settings(max_examples=40, **SETTINGS)
-@given(scene=st.sampled_from(["sphere", "SCENE", "missing.xml", "WORK/afile"]), args=faulty(RENDER_GOOD, RENDER_BAD))
+@given(
+    scene=st.sampled_from(["sphere", "SCENE", "missing.xml", "WORK/afile"]),
+    args=faulty(RENDER_GOOD, RENDER_BAD),
+)
 def test_render_basis_cli_refuses_cleanly_before_rendering(data, scene, args):
     from guarantees_helpers import SPHERE
-    args, _, _ = _place(([SPHERE if scene == "SCENE" else scene, "--manifold", data["manifold"],
-                          "--out", "WORK/rb"] + args, {}, False), data)
+
+    args, _, _ = _place(
+        (
+            [
+                SPHERE if scene == "SCENE" else scene,
+                "--manifold",
+                data["manifold"],
+                "--out",
+                "WORK/rb",
+            ]
+            + args,
+            {},
+            False,
+        ),
+        data,
+    )
     _refused(data, "render_basis", [], args)
 
 
-MATCH_GOOD = {"--starts": st.just(1), "--max-iter": st.integers(1, 3), "--scan": st.sampled_from([0, 16]),
-              "--json": st.just("WORK/m.json"), "--out": st.just("WORK/best.exr"), "--prior": st.just(0.0)}
-MATCH_BAD = [_opt("--starts", 0), _opt("--max-iter", 0), _opt("--scan", -1), _opt("--spp", 0),
-             _opt("--seed", -1, 2 ** 32), _opt("--out", "WORK/m.txt", "WORK/user.exr", "BASIS/x.exr"),
-             _opt("--json", "WORK/m.txt", *JSON_FAULTS), _opt("--prior", "nan", -1),
-             _opt("--target", "WORK/bomb.png", "WORK/rgb16.png", "WORK/small.png", "WORK/none.png", "WORK/afile"),
-             _opt("--mask", "WORK/small.png", "WORK/bomb.png")]
+MATCH_GOOD = {
+    "--starts": st.just(1),
+    "--max-iter": st.integers(1, 3),
+    "--scan": st.sampled_from([0, 16]),
+    "--json": st.just("WORK/m.json"),
+    "--out": st.just("WORK/best.exr"),
+    "--prior": st.just(0.0),
+}
+MATCH_BAD = [
+    _opt("--starts", 0),
+    _opt("--max-iter", 0),
+    _opt("--scan", -1),
+    _opt("--spp", 0),
+    _opt("--seed", -1, 2**32),
+    _opt("--out", "WORK/m.txt", "WORK/user.exr", "BASIS/x.exr"),
+    _opt("--json", "WORK/m.txt", *JSON_FAULTS),
+    _opt("--prior", "nan", -1),
+    _opt(
+        "--target",
+        "WORK/bomb.png",
+        "WORK/rgb16.png",
+        "WORK/small.png",
+        "WORK/none.png",
+        "WORK/afile",
+    ),
+    _opt("--mask", "WORK/small.png", "WORK/bomb.png"),
+]
 
 
 @settings(max_examples=40, **SETTINGS)
-@given(case=st.one_of(options(MATCH_GOOD).map(lambda a: (a, True)), faulty(MATCH_GOOD, MATCH_BAD).map(
-    lambda a: (a, False))), extra=st.sampled_from([[], ["--log"], ["--exposure-free"]]))
+@given(
+    case=st.one_of(
+        options(MATCH_GOOD).map(lambda a: (a, True)),
+        faulty(MATCH_GOOD, MATCH_BAD).map(lambda a: (a, False)),
+    ),
+    extra=st.sampled_from([[], ["--log"], ["--exposure-free"]]),
+)
 def test_match_cli_succeeds_or_refuses_cleanly(data, case, extra):
     """Valid lists match the 16-bit greyscale target over all its 64 pixels (issue 20: it was
     cut to 8 bits, every pixel clipped)."""
@@ -301,14 +412,21 @@ def test_match_cli_succeeds_or_refuses_cleanly(data, case, extra):
 
 
 #: Faults of bench.py: ``(benchmark or None, arguments)``; the benchmark replaces the drawn one.
-BENCH_BAD = [st.tuples(st.none(), _opt("--json", *JSON_FAULTS, "WORK/.")), st.just((None, ["--materials", ","])),
-             st.just(("nope", [])), st.just(("fit", ["--manifold", "MANIFOLD"])), st.just(("explore", [])),
-             st.just(("space", ["--folds", "a"]))]
+BENCH_BAD = [
+    st.tuples(st.none(), _opt("--json", *JSON_FAULTS, "WORK/.")),
+    st.just((None, ["--materials", ","])),
+    st.just(("nope", [])),
+    st.just(("fit", ["--manifold", "MANIFOLD"])),
+    st.just(("explore", [])),
+    st.just(("space", ["--folds", "a"])),
+]
 
 
 @settings(max_examples=30, **SETTINGS)
-@given(which=st.sampled_from(["fit", "interp", "stability", "pca"]),
-       faults=st.lists(st.one_of(BENCH_BAD), min_size=1, max_size=2))
+@given(
+    which=st.sampled_from(["fit", "interp", "stability", "pca"]),
+    faults=st.lists(st.one_of(BENCH_BAD), min_size=1, max_size=2),
+)
 def test_bench_cli_refuses_cleanly_before_running(data, which, faults):
     args = ["--json", "WORK/b.json"]
     for bench, extra in faults:

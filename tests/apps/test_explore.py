@@ -19,12 +19,12 @@ mi.set_variant("llvm_ad_rgb")
 pytestmark = pytest.mark.render
 
 import mitsuba_manifold  # noqa: E402
-from mitsuba_manifold.imaging import io as imageio
-from mitsuba_manifold.render import scenes
-from mitsuba_manifold.basis.folder import Basis  # noqa: E402
-from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.apps.explore import Explorer, InputError, create_app, launch  # noqa: E402
+from mitsuba_manifold.basis.blend import blend  # noqa: E402
+from mitsuba_manifold.basis.folder import Basis  # noqa: E402
+from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
+from mitsuba_manifold.render import scenes
 from mitsuba_manifold.render.render_basis import render_basis  # noqa: E402
 
 SPHERE = scenes.scene_path("sphere")
@@ -56,28 +56,35 @@ def app_for(explorer):
     """The app of ``explorer`` answering the test client (Host ``testserver``) as the CLI
     answers ``--allow-origin http://testserver``."""
     from mitsuba_manifold.apps.explore.guard import AllowList
+
     return create_app(explorer, AllowList.for_server("127.0.0.1", 8765, [TEST_ORIGIN]))
 
 
 @pytest.fixture(scope="module")
 def client(explorer):
     from starlette.testclient import TestClient
+
     with TestClient(app_for(explorer)) as c:
         yield c
 
 
 def _unpack(msg):
     n = struct.unpack("<I", msg[:4])[0]
-    return json.loads(msg[4:4 + n]), msg[4 + n:]
+    return json.loads(msg[4 : 4 + n]), msg[4 + n :]
 
 
 def _expected_frame(explorer, x, exposure=0.0):
-    img, _ = blend(Basis.load(explorer.bases[next(iter(explorer.bases))].folder), explorer.manifold_path,
-                      x=x, prune=explorer.prune)
+    img, _ = blend(
+        Basis.load(explorer.bases[next(iter(explorer.bases))].folder),
+        explorer.manifold_path,
+        x=x,
+        prune=explorer.prune,
+    )
     return imageio.tonemap(img, exposure)
 
 
 # ---------------------------------------------------------------- service
+
 
 def test_frame_is_the_blend_of_the_point(explorer, small_manifold_paper):
     m = Manifold.load(small_manifold_paper)
@@ -94,7 +101,10 @@ def test_material_description(explorer, small_manifold_paper):
     info = explorer.material(m.latent[i])
     assert info["weights"][0] == {"name": "gold-paint", "w": 1.0, "kept": True}
     assert [w["kept"] for w in info["weights"]].count(True) == info["n_kept"] == 1
-    assert info["pruning"].startswith("1 of ") and info["pruning_albedo"] <= info["pruning_albedo_budget"]
+    assert (
+        info["pruning"].startswith("1 of ")
+        and info["pruning_albedo"] <= info["pruning_albedo_budget"]
+    )
     assert info["nearest"][0]["name"] == "gold-paint" and info["nearest"][0]["distance"] == 0
     assert info["variance"] < 1e-3
     np.testing.assert_allclose(info["albedo"], m.albedos[i], rtol=1e-9)
@@ -106,27 +116,41 @@ def test_tables_match_the_manifold(explorer, small_manifold_paper):
     """At 32x32x64 bins the preview keeps every bin: negative fraction and slice are exact."""
     m = Manifold.load(small_manifold_paper)
     # a point between materials where the affine weights make some bins negative
-    pairs = [(i, j, t) for i in range(m.n) for j in range(m.n) if i != j for t in (0.3, 0.5, -0.4, 1.6)]
-    x = next(x for x in ((1 - t) * m.latent[i] + t * m.latent[j] for i, j, t in pairs)
-             if m.negative_fraction(x, prune=explorer.prune) > 0)
+    pairs = [
+        (i, j, t) for i in range(m.n) for j in range(m.n) if i != j for t in (0.3, 0.5, -0.4, 1.6)
+    ]
+    x = next(
+        x
+        for x in ((1 - t) * m.latent[i] + t * m.latent[j] for i, j, t in pairs)
+        if m.negative_fraction(x, prune=explorer.prune) > 0
+    )
     data, layout = explorer.preview_table(x)
     assert layout["dims"] == layout["full_dims"] == [32, 32, 64] and layout["strides"] == [1, 1, 1]
     table, _, _ = m.interpolate(x, prune=explorer.prune)
     half = np.frombuffer(data, np.float16).reshape(table.shape).astype(np.float32)
     np.testing.assert_allclose(half, np.clip(table, -65504, 65504), rtol=2e-3, atol=1e-6)
     info = explorer.material(x)
-    assert info["negative_fraction"] == pytest.approx(m.negative_fraction(x, prune=explorer.prune), abs=1e-6)
+    assert info["negative_fraction"] == pytest.approx(
+        m.negative_fraction(x, prune=explorer.prune), abs=1e-6
+    )
     assert info["negative_fraction"] > 0
-    np.testing.assert_allclose(explorer.tables.slice(x, explorer.prune), table[:, :, :, 32], rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(
+        explorer.tables.slice(x, explorer.prune), table[:, :, :, 32], rtol=1e-4, atol=1e-6
+    )
     assert info["slice"]["png"].startswith("data:image/png;base64,")
 
 
-def test_preview_tables_are_cached_beside_the_basis(explorer, small_basis, small_manifold_paper, tmp_path):
+def test_preview_tables_are_cached_beside_the_basis(
+    explorer, small_basis, small_manifold_paper, tmp_path
+):
     """The reduced tables are written once beside the basis, named by the tables' hashes; the
     next start reads that file and opens no table (here: a database folder that does not exist)."""
     from mitsuba_manifold.apps.explore.material import TableStack
+
     path = explorer.tables.cache_path()
-    assert os.path.dirname(path) == os.path.join(small_basis, ".manifold-cache") and os.path.isfile(path)
+    assert os.path.dirname(path) == os.path.join(small_basis, ".manifold-cache") and os.path.isfile(
+        path
+    )
     m = Manifold.load(small_manifold_paper)
     t0 = time.perf_counter()
     again = TableStack(m, database=str(tmp_path / "nowhere"), cache_dir=os.path.dirname(path))
@@ -135,23 +159,38 @@ def test_preview_tables_are_cached_beside_the_basis(explorer, small_basis, small
     x = 0.3 * m.latent[0] + 0.7 * m.latent[4]
     for a, b in zip(again.preview(x, explorer.prune), explorer.tables.preview(x, explorer.prune)):
         np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(again.slice(x, explorer.prune), explorer.tables.slice(x, explorer.prune))
+    np.testing.assert_array_equal(
+        again.slice(x, explorer.prune), explorer.tables.slice(x, explorer.prune)
+    )
     other = m.hashes[:]
-    m.hashes = other[::-1]   # other tables: another cache file, so the database is read (and missing)
-    assert TableStack(m, database=str(tmp_path / "nowhere"), cache_dir=os.path.dirname(path)).wait(30) == "unavailable"
+    m.hashes = other[
+        ::-1
+    ]  # other tables: another cache file, so the database is read (and missing)
+    assert (
+        TableStack(m, database=str(tmp_path / "nowhere"), cache_dir=os.path.dirname(path)).wait(30)
+        == "unavailable"
+    )
 
 
 def test_bad_points_are_refused(explorer):
     q = explorer.manifold.q
-    for value, words in [("nan,1", "NaN"), ([1.0, float("inf")], "NaN or Inf"), ("1,2,3", f"give {q}"),
-                         ("no-such-material", "unknown material"), (None, "numbers"), ("", "give")]:
+    for value, words in [
+        ("nan,1", "NaN"),
+        ([1.0, float("inf")], "NaN or Inf"),
+        ("1,2,3", f"give {q}"),
+        ("no-such-material", "unknown material"),
+        (None, "numbers"),
+        ("", "give"),
+    ]:
         with pytest.raises(InputError, match=words):
             explorer.point(value)
     with pytest.raises(InputError, match="unknown basis"):
         explorer.frame("../../etc", [0.0] * q)
     with pytest.raises(InputError, match="format"):
         explorer.frame(None, [0.0] * q, 0.0, "gif")
-    assert np.array_equal(explorer.point("chrome"), explorer.manifold.latent[explorer.manifold.index("chrome")])
+    assert np.array_equal(
+        explorer.point("chrome"), explorer.manifold.latent[explorer.manifold.index("chrome")]
+    )
 
 
 def test_several_bases_get_a_name_each(small_basis, small_manifold_paper):
@@ -173,7 +212,9 @@ def test_reference_scene_is_found_when_the_basis_moved(small_basis, small_manifo
     used; --scene gives one explicitly (checked by hash); otherwise renders are refused."""
     import json as _json
     import shutil
+
     from mitsuba_manifold.errors import MismatchError
+
     moved = str(tmp_path / "moved")
     shutil.copytree(small_basis, moved)
     path = os.path.join(moved, "manifest.json")
@@ -187,9 +228,13 @@ def test_reference_scene_is_found_when_the_basis_moved(small_basis, small_manifo
     open(path, "w").write(_json.dumps(manifest))
     ex = Explorer([moved], manifold=small_manifold_paper, load_tables=False)
     assert ex.scenes["moved"] is None and not ex.info()["bases"][0]["scene_available"]
-    with pytest.raises(InputError, match="missing or has changed since the basis was rendered; give it with --scene"):
+    with pytest.raises(
+        InputError,
+        match="missing or has changed since the basis was rendered; give it with --scene",
+    ):
         ex.start_reference(None, ex.manifold.latent[0], 4)
     from starlette.testclient import TestClient
+
     with TestClient(app_for(ex)) as c:
         assert c.post("/api/reference", json={"x": "chrome"}).status_code == 400
     ex.close()
@@ -218,15 +263,23 @@ def test_reference_render_in_the_background(explorer, small_manifold_paper):
 
 # ---------------------------------------------------------------- HTTP
 
+
 def test_http_bad_requests_get_400_with_a_message(client):
-    for url, words in [("/api/frame?x=nan,0", "NaN"), ("/api/frame?x=1,2,3", "give 2"),
-                       ("/api/frame?x=unobtainium", "unknown material"), ("/api/frame?x=0,0&basis=..%2F..",
-                                                                           "unknown basis"),
-                       ("/api/frame?x=0,0&exposure=inf", "exposure"), ("/api/map?dims=0,0", "dims"), ("/api/map?extent=1,0,0,1", "extent"),
-                       ("/api/map?extent=0,1,0,nan", "extent"),
-                       ("/api/path?a=chrome&b=nan,1", "NaN"), ("/api/path?a=chrome&b=chrome", "same point"),
-                       ("/api/reference/r999", "unknown reference"),
-                       ("/api/reference/r1%20x/blend.png", "unknown reference"), ("/api/reference/r999/blend.png", "unknown reference")]:
+    for url, words in [
+        ("/api/frame?x=nan,0", "NaN"),
+        ("/api/frame?x=1,2,3", "give 2"),
+        ("/api/frame?x=unobtainium", "unknown material"),
+        ("/api/frame?x=0,0&basis=..%2F..", "unknown basis"),
+        ("/api/frame?x=0,0&exposure=inf", "exposure"),
+        ("/api/map?dims=0,0", "dims"),
+        ("/api/map?extent=1,0,0,1", "extent"),
+        ("/api/map?extent=0,1,0,nan", "extent"),
+        ("/api/path?a=chrome&b=nan,1", "NaN"),
+        ("/api/path?a=chrome&b=chrome", "same point"),
+        ("/api/reference/r999", "unknown reference"),
+        ("/api/reference/r1%20x/blend.png", "unknown reference"),
+        ("/api/reference/r999/blend.png", "unknown reference"),
+    ]:
         r = client.get(url)
         assert r.status_code == 400, (url, r.status_code, r.text)
         assert words in r.json()["error"], (url, r.json())
@@ -239,16 +292,24 @@ def test_internal_errors_answer_500_without_a_traceback(explorer, monkeypatch):
 
     def broken(*args, **kwargs):
         raise RuntimeError("secret detail /etc/passwd")
+
     monkeypatch.setattr(explorer, "material", broken)
     with TestClient(app_for(explorer), raise_server_exceptions=False) as c:
         r = c.get("/api/material", params={"x": "chrome"})
-    assert r.status_code == 500 and r.json() == {"error": "internal error (RuntimeError); see the server's console"}
+    assert r.status_code == 500 and r.json() == {
+        "error": "internal error (RuntimeError); see the server's console"
+    }
 
 
 def test_static_files_stay_inside_their_folder(client):
     assert client.get("/static/app.js").status_code == 200
-    for url in ("/static/../service.py", "/static/%2e%2e/service.py", "/static/..%2f__init__.py",
-                "/static/%2e%2e/%2e%2e/manifold.py", "/api/reference/..%2F..%2Fetc/blend.png"):
+    for url in (
+        "/static/../service.py",
+        "/static/%2e%2e/service.py",
+        "/static/..%2f__init__.py",
+        "/static/%2e%2e/%2e%2e/manifold.py",
+        "/api/reference/..%2F..%2Fetc/blend.png",
+    ):
         r = client.get(url)
         assert r.status_code == 404 and b"import" not in r.content, url
     r = client.get("/nowhere")
@@ -274,7 +335,9 @@ def test_http_frame_and_snippet(client, explorer, small_manifold_paper):
     rel = os.path.relpath(explorer.manifold_path, explorer.snippet_folder())
     assert 'type="manifold_brdf"' in s["xml"] and f'name="manifold" value="{rel}"' in s["xml"]
     assert not rel.startswith("/") and 'value="$manifold"' in s["xml"]
-    cmd = client.get("/api/path", params={"a": "chrome", "b": "0.1,0.2", "steps": 5}).json()["command"]
+    cmd = client.get("/api/path", params={"a": "chrome", "b": "0.1,0.2", "steps": 5}).json()[
+        "command"
+    ]
     assert "--path chrome 0.1,0.2 --steps 5" in cmd
 
 
@@ -282,8 +345,14 @@ def test_websocket_answers_the_newest_request_per_tab(client, small_manifold_pap
     m = Manifold.load(small_manifold_paper)
     with client.websocket_connect("/ws") as a, client.websocket_connect("/ws") as b:
         for seq in range(1, 6):
-            a.send_text(json.dumps({"type": "frame", "seq": seq, "x": list(m.latent[seq % m.n]), "format": "rgba"}))
-        b.send_text(json.dumps({"type": "frame", "seq": 1, "x": list(m.latent[0]), "format": "jpeg"}))
+            a.send_text(
+                json.dumps(
+                    {"type": "frame", "seq": seq, "x": list(m.latent[seq % m.n]), "format": "rgba"}
+                )
+            )
+        b.send_text(
+            json.dumps({"type": "frame", "seq": 1, "x": list(m.latent[0]), "format": "jpeg"})
+        )
         meta_b, payload_b = _unpack(b.receive_bytes())
         assert meta_b["seq"] == 1 and meta_b["format"] == "jpeg" and payload_b[:2] == b"\xff\xd8"
         seen = []
@@ -291,7 +360,9 @@ def test_websocket_answers_the_newest_request_per_tab(client, small_manifold_pap
             meta, payload = _unpack(a.receive_bytes())
             assert meta["type"] == "frame" and len(payload) == RES * RES * 4
             seen.append(meta["seq"])
-        assert seen == sorted(seen) and len(seen) <= 5   # stale requests may be dropped, never reordered
+        assert (
+            seen == sorted(seen) and len(seen) <= 5
+        )  # stale requests may be dropped, never reordered
         a.send_text(json.dumps({"type": "frame", "seq": 9, "x": [float("nan"), 0.0]}))
         meta, _ = _unpack(a.receive_bytes())
         assert meta["type"] == "error" and meta["seq"] == 9 and "NaN" in meta["error"]
@@ -302,6 +373,7 @@ def test_websocket_answers_the_newest_request_per_tab(client, small_manifold_pap
 
 def test_other_sites_cannot_drive_the_server(client):
     from starlette.websockets import WebSocketDisconnect
+
     with pytest.raises(WebSocketDisconnect):
         with client.websocket_connect("/ws", headers={"origin": "http://evil.example"}) as ws:
             ws.receive_bytes()
@@ -314,36 +386,57 @@ def test_other_sites_cannot_drive_the_server(client):
 
 # ---------------------------------------------------------------- CLI
 
+
 def test_cli_refuses_a_missing_basis(tmp_path, capsys):
     from mitsuba_manifold.apps.cli.explore import main
+
     assert main(["--basis", str(tmp_path / "nothing"), "--port", "0"]) == 2
     assert "does not exist" in capsys.readouterr().err
 
 
 def test_cli_refuses_a_bad_prune(small_basis, capsys):
     from mitsuba_manifold.apps.cli.explore import main
+
     assert main(["--basis", small_basis, "--port", "0", "--prune", "1.5"]) == 2
     assert "prune must be in [0, 1)" in capsys.readouterr().err
 
 
-def test_an_explicit_database_must_be_the_manifolds_tables(small_basis, small_manifold_paper, small_db, tmp_path,
-                                                          capsys):
+def test_an_explicit_database_must_be_the_manifolds_tables(
+    small_basis, small_manifold_paper, small_db, tmp_path, capsys
+):
     from mitsuba_manifold.apps.cli.explore import main
+
     (tmp_path / "empty").mkdir()
     (tmp_path / "file.binary").write_bytes(b"x")
-    for bad, why in (("nowhere", "does not exist"), ("file.binary", "is a file"),
-                     ("empty", "is not a database folder of this manifold: it holds no table for 8 of its 8")):
+    for bad, why in (
+        ("nowhere", "does not exist"),
+        ("file.binary", "is a file"),
+        ("empty", "is not a database folder of this manifold: it holds no table for 8 of its 8"),
+    ):
         with pytest.raises(InputError, match=f"^--database {tmp_path / bad} {why}"):
-            Explorer([small_basis], manifold=small_manifold_paper, database=str(tmp_path / bad), load_tables=False)
-    assert main(["--basis", small_basis, "--port", "0", "--database", str(tmp_path / "nowhere")]) == 2
+            Explorer(
+                [small_basis],
+                manifold=small_manifold_paper,
+                database=str(tmp_path / bad),
+                load_tables=False,
+            )
+    assert (
+        main(["--basis", small_basis, "--port", "0", "--database", str(tmp_path / "nowhere")]) == 2
+    )
     err = capsys.readouterr().err
-    assert err.startswith(f"error: --database {tmp_path / 'nowhere'} does not exist") and err.count("\n") == 1
-    ex = Explorer([small_basis], manifold=small_manifold_paper, database=small_db, load_tables=False)   # the right one
+    assert (
+        err.startswith(f"error: --database {tmp_path / 'nowhere'} does not exist")
+        and err.count("\n") == 1
+    )
+    ex = Explorer(
+        [small_basis], manifold=small_manifold_paper, database=small_db, load_tables=False
+    )  # the right one
     ex.close()
 
 
 def test_cli_refuses_a_busy_port(small_basis, capsys):
     from mitsuba_manifold.apps.cli.explore import bind, main
+
     sock = bind("127.0.0.1", 0)
     try:
         assert main(["--basis", small_basis, "--port", str(sock.getsockname()[1])]) == 2
@@ -354,19 +447,22 @@ def test_cli_refuses_a_busy_port(small_basis, capsys):
 
 def test_ctrl_c_stops_the_server_with_a_tab_connected(small_basis, small_manifold_paper):
     from websockets.sync.client import connect
+
     proc, url = launch.start([small_basis], small_manifold_paper, ["--no-tables"])
     try:
         with connect(url.replace("http://", "ws://") + "ws", max_size=None) as ws:
             ws.send(json.dumps({"type": "frame", "seq": 1, "x": "chrome", "format": "jpeg"}))
             assert _unpack(ws.recv())[0]["type"] == "frame"
-            code, out = launch.stop(proc)     # SIGINT, as Ctrl-C, while the websocket is open
+            code, out = launch.stop(proc)  # SIGINT, as Ctrl-C, while the websocket is open
     finally:
         if proc.poll() is None:
             proc.kill()
     assert code == 0 and out.strip().endswith("explore: stopped"), (code, out)
 
 
-def test_real_server_refuses_other_hosts_and_ctrl_c_stops_a_render_within_2s(small_basis, small_manifold_paper):
+def test_real_server_refuses_other_hosts_and_ctrl_c_stops_a_render_within_2s(
+    small_basis, small_manifold_paper
+):
     """Against the real server (uvicorn): a DNS-rebinding Host gets 403 on HTTP and on the
     websocket handshake; Ctrl-C while a reference render runs stops the server within 2 s."""
     import signal
@@ -383,15 +479,23 @@ def test_real_server_refuses_other_hosts_and_ctrl_c_stops_a_render_within_2s(sma
         assert refused.value.code == 403 and "refused" in json.loads(refused.value.read())["error"]
         for host, status in ((f"evil.example:{port}", b"403"), (f"127.0.0.1:{port}", b"101")):
             with socket.create_connection(("127.0.0.1", int(port)), timeout=10) as sock:
-                sock.sendall(f"GET /ws HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                             "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
+                sock.sendall(
+                    f"GET /ws HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                    "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n".encode()
+                )
                 assert sock.recv(100).split()[1] == status, host
-        post = urllib.request.Request(url + "api/reference", data=json.dumps({"x": "chrome", "spp": 16384}).encode(),
-                                      headers={"Content-Type": "application/json"}, method="POST")
+        post = urllib.request.Request(
+            url + "api/reference",
+            data=json.dumps({"x": "chrome", "spp": 16384}).encode(),
+            headers={"Content-Type": "application/json"},
+            method="POST",
+        )
         job = json.loads(urllib.request.urlopen(post, timeout=30).read())
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:   # rendering, past its first pass (kernels compiled)
-            status = json.loads(urllib.request.urlopen(url + f"api/reference/{job['id']}", timeout=10).read())
+        while time.monotonic() < deadline:  # rendering, past its first pass (kernels compiled)
+            status = json.loads(
+                urllib.request.urlopen(url + f"api/reference/{job['id']}", timeout=10).read()
+            )
             if status["progress"] > 0:
                 break
             time.sleep(0.05)
@@ -403,7 +507,11 @@ def test_real_server_refuses_other_hosts_and_ctrl_c_stops_a_render_within_2s(sma
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 0 and "explore: stopped" in out and took < 2.0, (proc.returncode, took, out)
+    assert proc.returncode == 0 and "explore: stopped" in out and took < 2.0, (
+        proc.returncode,
+        took,
+        out,
+    )
 
 
 # ---------------------------------------------------------------- browser
@@ -411,12 +519,14 @@ def test_real_server_refuses_other_hosts_and_ctrl_c_stops_a_render_within_2s(sma
 CHROMIUM = launch.find_chromium()
 try:
     import playwright.sync_api  # noqa: F401
+
     HAVE_PLAYWRIGHT = True
 except ImportError:
     HAVE_PLAYWRIGHT = False
 browser_only = pytest.mark.skipif(
     CHROMIUM is None or not HAVE_PLAYWRIGHT,
-    reason="needs the system Chromium and Playwright (tools/setup.sh installs both: apt chromium, pip playwright)")
+    reason="needs the system Chromium and Playwright (tools/setup.sh installs both: apt chromium, pip playwright)",
+)
 
 
 @pytest.fixture(scope="module")
@@ -424,21 +534,26 @@ def server(small_basis, small_manifold_paper):
     proc, url = launch.start([small_basis], small_manifold_paper)
     yield url
     code, out = launch.stop(proc)
-    assert code == 0 and "stopped" in out, (code, out)   # Ctrl-C stops it cleanly
+    assert code == 0 and "stopped" in out, (code, out)  # Ctrl-C stops it cleanly
 
 
 @pytest.fixture(scope="module")
 def page(server):
     from playwright.sync_api import sync_playwright
+
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox", "--use-angle=swiftshader",
-                                                                    "--enable-unsafe-swiftshader"])
+        browser = p.chromium.launch(
+            executable_path=CHROMIUM,
+            args=["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"],
+        )
         pg = browser.new_context(viewport={"width": 1500, "height": 1000}).new_page()
         errors = []
         pg.on("pageerror", lambda e: errors.append(str(e)))
         pg.goto(server)
-        pg.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.material && window.explore.state.map",
-                             timeout=60000)
+        pg.wait_for_function(
+            "window.explore && window.explore.state.displayed && window.explore.state.material && window.explore.state.map",
+            timeout=60000,
+        )
         pg.errors = errors
         yield pg
         browser.close()
@@ -451,17 +566,24 @@ def _displayed_pixels(pg):
 
 
 def _wait_displayed(pg, x, timeout=30000):
-    pg.wait_for_function("""(x) => { const d = window.explore.state.displayed;
+    pg.wait_for_function(
+        """(x) => { const d = window.explore.state.displayed;
         return d && d.x.length === x.length && d.x.every((v, k) => v === x[k]) &&
-               window.explore.channel.pending() === 0; }""", arg=[float(v) for v in x], timeout=timeout)
+               window.explore.channel.pending() === 0; }""",
+        arg=[float(v) for v in x],
+        timeout=timeout,
+    )
 
 
 def _map_position(pg, x):
     """Page coordinates of latent point x on the map."""
-    return pg.evaluate("""(x) => { const s = window.explore.state, c = document.getElementById('map');
+    return pg.evaluate(
+        """(x) => { const s = window.explore.state, c = document.getElementById('map');
         const r = c.getBoundingClientRect(), [x0, x1, y0, y1] = s.map.extent;
         return [r.left + (x[s.dims[0]] - x0) / (x1 - x0) * r.width,
-                r.top + (1 - (x[s.dims[1]] - y0) / (y1 - y0)) * r.height]; }""", [float(v) for v in x])
+                r.top + (1 - (x[s.dims[1]] - y0) / (y1 - y0)) * r.height]; }""",
+        [float(v) for v in x],
+    )
 
 
 def _click_material(page, manifold_path, name):
@@ -477,7 +599,7 @@ def test_click_on_a_material_shows_its_blend(page, explorer, small_manifold_pape
     m = Manifold.load(small_manifold_paper)
     page.mouse.move(*_map_position(page, m.latent[m.index("gold-paint")]))
     page.wait_for_selector("#tooltip:not([hidden])")
-    assert page.inner_text("#tooltip") == "gold-paint"   # names on hover
+    assert page.inner_text("#tooltip") == "gold-paint"  # names on hover
     x = _click_material(page, small_manifold_paper, "gold-paint")
     np.testing.assert_array_equal(_displayed_pixels(page), _expected_frame(explorer, x))
     page.wait_for_function("document.getElementById('material-name').textContent === 'gold-paint'")
@@ -496,9 +618,11 @@ def test_drag_changes_the_image(page, small_manifold_paper):
     for t in np.linspace(0, 1, 8)[1:]:
         page.mouse.move(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
     page.mouse.up()
-    page.wait_for_function("""(s) => { const d = window.explore.state.displayed;
+    page.wait_for_function(
+        """(s) => { const d = window.explore.state.displayed;
         return d && (d.x[0] !== s[0] || d.x[1] !== s[1]) && window.explore.channel.pending() === 0; }""",
-                           arg=[float(v) for v in start])
+        arg=[float(v) for v in start],
+    )
     assert np.abs(_displayed_pixels(page).astype(int) - before).mean() > 0.5
     assert not page.errors
 
@@ -524,13 +648,21 @@ def test_xml_snippet_loads_in_mitsuba_and_renders(page, small_manifold_paper, tm
     x = 0.5 * (m.latent[m.index("blue-acrylic")] + m.latent[m.index("chrome")])
     page.evaluate("(x) => window.explore.setX(x)", [float(v) for v in x])
     _wait_displayed(page, x)
-    page.fill("#snippet-folder", str(tmp_path))   # the scene's folder: the manifold is named relative to it
+    page.fill(
+        "#snippet-folder", str(tmp_path)
+    )  # the scene's folder: the manifold is named relative to it
     page.dispatch_event("#snippet-folder", "change")
     rel = os.path.relpath(small_manifold_paper, tmp_path)
-    page.wait_for_function("(rel) => document.getElementById('snippet').textContent.includes(rel)", arg=rel,
-                           timeout=10000)
-    page.wait_for_function("(x) => document.getElementById('snippet').textContent.includes(x)",
-                           arg=f"{x[0]:.6g}", timeout=10000)
+    page.wait_for_function(
+        "(rel) => document.getElementById('snippet').textContent.includes(rel)",
+        arg=rel,
+        timeout=10000,
+    )
+    page.wait_for_function(
+        "(x) => document.getElementById('snippet').textContent.includes(x)",
+        arg=f"{x[0]:.6g}",
+        timeout=10000,
+    )
     xml = page.inner_text("#snippet")
     scene = f"""<scene version="3.0.0"><integrator type="path"/>{xml}
         <shape type="sphere"><ref id="material"/></shape>
@@ -558,19 +690,26 @@ def test_bad_request_from_the_page_gets_400(page):
 
 
 @browser_only
-def test_link_restores_the_point_and_save_png_is_the_frame(page, server, explorer, small_manifold_paper):
+def test_link_restores_the_point_and_save_png_is_the_frame(
+    page, server, explorer, small_manifold_paper
+):
     import io
 
     from PIL import Image
+
     x = _click_material(page, small_manifold_paper, "chrome")
-    page.wait_for_function("(x) => location.hash.startsWith('#x=' + x.join(','))", arg=[float(v) for v in x])
-    link = page.url   # the address follows the point (at most every 200 ms)
+    page.wait_for_function(
+        "(x) => location.hash.startsWith('#x=' + x.join(','))", arg=[float(v) for v in x]
+    )
+    link = page.url  # the address follows the point (at most every 200 ms)
     other = page.context.new_page()
     try:
         other.goto(link)
         _wait_displayed(other, x)
         href = other.get_attribute("#save-png", "href")
-        png = other.evaluate("async (u) => Array.from(new Uint8Array(await (await fetch(u)).arrayBuffer()))", href)
+        png = other.evaluate(
+            "async (u) => Array.from(new Uint8Array(await (await fetch(u)).arrayBuffer()))", href
+        )
         saved = np.asarray(Image.open(io.BytesIO(bytes(png))).convert("RGB"))
         np.testing.assert_array_equal(saved, _displayed_pixels(other))
     finally:
@@ -583,7 +722,10 @@ def test_two_tabs_at_once(page, server, small_manifold_paper):
     other = page.context.new_page()
     try:
         other.goto(server)
-        other.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map", timeout=60000)
+        other.wait_for_function(
+            "window.explore && window.explore.state.displayed && window.explore.state.map",
+            timeout=60000,
+        )
         xa, xb = m.latent[m.index("chrome")], m.latent[m.index("pink-fabric")]
         page.evaluate("(x) => window.explore.setX(x)", [float(v) for v in xa])
         other.evaluate("(x) => window.explore.setX(x)", [float(v) for v in xb])
@@ -609,7 +751,9 @@ def test_path_scrubber_and_export(page, small_manifold_paper):
     page.fill("#steps", "7")
     page.click("#export-path")
     page.wait_for_selector("#path-cmd:not([hidden])")
-    assert "--path chrome pink-fabric --steps 7 --path-kind straight" in page.inner_text("#path-cmd")
+    assert "--path chrome pink-fabric --steps 7 --path-kind straight" in page.inner_text(
+        "#path-cmd"
+    )
 
 
 @browser_only
@@ -620,7 +764,10 @@ def test_without_webgl_the_page_says_so_and_works(page, server, explorer, small_
             HTMLCanvasElement.prototype.getContext = function (kind, ...rest) {
                 return kind === 'webgl2' ? null : get.call(this, kind, ...rest); }; }""")
         other.goto(server)
-        other.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map", timeout=60000)
+        other.wait_for_function(
+            "window.explore && window.explore.state.displayed && window.explore.state.map",
+            timeout=60000,
+        )
         assert "WebGL 2 is not available" in other.inner_text("#sphere-msg")
         x = _click_material(other, small_manifold_paper, "blue-acrylic")
         np.testing.assert_array_equal(_displayed_pixels(other), _expected_frame(explorer, x))
@@ -633,11 +780,12 @@ def _shade_like_the_preview(table, strides, lights, size):
     trilinear between texels, the page's lights (the environment's and the key light: [direction,
     RGB irradiance]), sRGB. Returns (size, size, 3) in [0, 1] and the sphere mask."""
     from mitsuba_manifold.data import merl
+
     n_h, n_d, n_p = table.shape[1:]
     full = np.array([n_h, n_d, n_p]) * np.array(strides)
     j, i = np.meshgrid(np.arange(size), np.arange(size))
     uv = np.stack([(j + 0.5) / size * 2 - 1, 1 - (i + 0.5) / size * 2], axis=-1) * 1.08
-    r2 = (uv ** 2).sum(-1)
+    r2 = (uv**2).sum(-1)
     inside = r2 < 0.98
     n = np.concatenate([uv, np.sqrt(np.maximum(1 - r2, 0))[..., None]], axis=-1)[inside]
     t = np.cross([0.0, 1.0, 0.0], n)
@@ -647,12 +795,21 @@ def _shade_like_the_preview(table, strides, lights, size):
     wo = local(np.broadcast_to([0.0, 0.0, 1.0], n.shape))
     out = np.zeros(n.shape)
     for d, power in lights:
-        d, power = np.asarray(d, dtype=np.float64) / np.linalg.norm(d), np.asarray(power, dtype=np.float64)
+        d, power = (
+            np.asarray(d, dtype=np.float64) / np.linalg.norm(d),
+            np.asarray(power, dtype=np.float64),
+        )
         wi = local(np.broadcast_to(d, n.shape))
         th, td, pd = merl.half_diff(wi, wo)
         pd = np.where(pd < 0, pd + np.pi, pd)
-        c = np.stack([np.sqrt(np.clip(th / (np.pi / 2), 0, 1)) * full[0], td / (np.pi / 2) * full[1],
-                      pd / np.pi * full[2]], axis=-1)
+        c = np.stack(
+            [
+                np.sqrt(np.clip(th / (np.pi / 2), 0, 1)) * full[0],
+                td / (np.pi / 2) * full[1],
+                pd / np.pi * full[2],
+            ],
+            axis=-1,
+        )
         r = np.clip((c - 0.5) / np.array(strides) + 0.5, 0.5, np.array([n_h, n_d, n_p]) - 0.5) - 0.5
         lo = np.minimum(np.floor(r).astype(int), np.array([n_h, n_d, n_p]) - 1)
         hi = np.minimum(lo + 1, np.array([n_h, n_d, n_p]) - 1)
@@ -660,7 +817,9 @@ def _shade_like_the_preview(table, strides, lights, size):
         val = 0.0
         for corner in range(8):
             idx = [np.where(corner >> a & 1, hi[:, a], lo[:, a]) for a in range(3)]
-            wgt = np.prod([np.where(corner >> a & 1, f[:, a], 1 - f[:, a]) for a in range(3)], axis=0)
+            wgt = np.prod(
+                [np.where(corner >> a & 1, f[:, a], 1 - f[:, a]) for a in range(3)], axis=0
+            )
             val = val + wgt[:, None] * table[:, idx[0], idx[1], idx[2]].T
         ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
         out += np.where(ok[:, None], np.maximum(val, 0) * wi[:, 2:3] * power, 0.0)
@@ -676,11 +835,18 @@ def test_preview_follows_the_merl_mapping(page, small_manifold_paper):
     m = Manifold.load(small_manifold_paper)
     x = 0.6 * m.latent[m.index("gold-paint")] + 0.4 * m.latent[m.index("steel")]
     page.evaluate("(x) => window.explore.setX(x)", [float(v) for v in x])
-    page.wait_for_function("(x) => { const p = window.explore.state.previewX; return p && p.every((v, k) => v === x[k]); }",
-                           arg=[float(v) for v in x], timeout=30000)
+    page.wait_for_function(
+        "(x) => { const p = window.explore.state.previewX; return p && p.every((v, k) => v === x[k]); }",
+        arg=[float(v) for v in x],
+        timeout=30000,
+    )
     page.wait_for_function("window.explore.preview.envReady && !window.explore.preview.fast")
-    page.select_option("#lighting", "key")   # the key light alone: one direction, shaded exactly in NumPy
-    page.eval_on_selector("#key-power", "e => { e.value = '1'; e.dispatchEvent(new Event('input')); }")
+    page.select_option(
+        "#lighting", "key"
+    )  # the key light alone: one direction, shaded exactly in NumPy
+    page.eval_on_selector(
+        "#key-power", "e => { e.value = '1'; e.dispatchEvent(new Event('input')); }"
+    )
     page.wait_for_function("window.explore.preview.keyPower > 0 && !window.explore.preview.pending")
     page.wait_for_timeout(1000)
     size, pixels, lights = page.evaluate("""() => { const s = document.getElementById('sphere');
@@ -688,14 +854,23 @@ def test_preview_follows_the_merl_mapping(page, small_manifold_paper):
         const g = c.getContext('2d'); g.drawImage(s, 0, 0);
         return [s.width, Array.from(g.getImageData(0, 0, s.width, s.height).data), [window.explore.preview.keyLight()]]; }""")
     page.select_option("#lighting", "studio")
-    page.eval_on_selector("#key-power", "e => { e.value = '0'; e.dispatchEvent(new Event('input')); }")
+    page.eval_on_selector(
+        "#key-power", "e => { e.value = '0'; e.dispatchEvent(new Event('input')); }"
+    )
     shown = np.array(pixels, dtype=np.float64).reshape(size, size, 4)[..., :3] / 255
-    table = np.clip(m.interpolate(x, prune=1e-3)[0], -65504, 65504).astype(np.float16).astype(np.float64)
+    table = (
+        np.clip(m.interpolate(x, prune=1e-3)[0], -65504, 65504)
+        .astype(np.float16)
+        .astype(np.float64)
+    )
     expected, inside = _shade_like_the_preview(table, (1, 1, 1), lights, size)
     err = np.abs(shown - expected)[inside]
-    assert expected[inside].max() > 0.3                     # a lit, non-trivial sphere
-    assert np.median(err) < 0.004 and np.percentile(err, 95) < 0.02, (np.median(err), np.percentile(err, 95))
-    rotated = np.abs(shown - expected[::-1])[inside]        # the test can tell a flipped image apart
+    assert expected[inside].max() > 0.3  # a lit, non-trivial sphere
+    assert np.median(err) < 0.004 and np.percentile(err, 95) < 0.02, (
+        np.median(err),
+        np.percentile(err, 95),
+    )
+    rotated = np.abs(shown - expected[::-1])[inside]  # the test can tell a flipped image apart
     assert np.median(rotated) > 2 * np.median(err) + 0.005
 
 
@@ -719,24 +894,35 @@ def test_q3_map_is_a_slice_with_a_slider(page, q3_basis):
     other = page.context.new_page()
     try:
         other.goto(url)
-        other.wait_for_function("window.explore && window.explore.state.displayed && window.explore.state.map",
-                                timeout=60000)
+        other.wait_for_function(
+            "window.explore && window.explore.state.displayed && window.explore.state.map",
+            timeout=60000,
+        )
         assert other.is_visible("#slice-controls")
-        assert other.eval_on_selector_all("#sliders input", "els => els.map(e => +e.dataset.dim)") == [2]
+        assert other.eval_on_selector_all(
+            "#sliders input", "els => els.map(e => +e.dataset.dim)"
+        ) == [2]
         before = other.evaluate("window.explore.state.map.png")
         x = other.evaluate("window.explore.state.x")
         slider = other.locator("#sliders input")
-        target = float(slider.get_attribute("min")) + 0.8 * (float(slider.get_attribute("max")) -
-                                                                float(slider.get_attribute("min")))
+        target = float(slider.get_attribute("min")) + 0.8 * (
+            float(slider.get_attribute("max")) - float(slider.get_attribute("min"))
+        )
         slider.fill(str(target))
         slider.dispatch_event("input")
         moved = other.evaluate("window.explore.state.x")
-        assert moved[:2] == x[:2] and moved[2] == pytest.approx(target, abs=1e-2 * abs(target) + 1e-2)
+        assert moved[:2] == x[:2] and moved[2] == pytest.approx(
+            target, abs=1e-2 * abs(target) + 1e-2
+        )
         _wait_displayed(other, moved)
-        other.wait_for_function("(b) => window.explore.state.map.png !== b", arg=before, timeout=30000)
-        other.select_option("#dim1", "2")     # map axes x0 x x2: the slider is now x1
+        other.wait_for_function(
+            "(b) => window.explore.state.map.png !== b", arg=before, timeout=30000
+        )
+        other.select_option("#dim1", "2")  # map axes x0 x x2: the slider is now x1
         other.wait_for_function("window.explore.state.map.dims[1] === 2", timeout=30000)
-        assert other.eval_on_selector_all("#sliders input", "els => els.map(e => +e.dataset.dim)") == [1]
+        assert other.eval_on_selector_all(
+            "#sliders input", "els => els.map(e => +e.dataset.dim)"
+        ) == [1]
     finally:
         other.close()
         code, out = launch.stop(proc)

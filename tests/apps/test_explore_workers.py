@@ -13,6 +13,7 @@ pytest.importorskip("starlette")
 pytestmark = pytest.mark.render
 
 import test_explore  # noqa: E402
+
 from mitsuba_manifold.errors import InputError  # noqa: E402
 from mitsuba_manifold.manifold import paths  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402

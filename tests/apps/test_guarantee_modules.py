@@ -6,35 +6,36 @@ import os
 import numpy as np
 import pytest
 
-from mitsuba_manifold.manifold import identity
-from mitsuba_manifold.manifold.fit_record import FitRecord
-from mitsuba_manifold.render import interrupt
-from mitsuba_manifold._util import ownership, checks as validate
+from mitsuba_manifold._util import checks as validate
+from mitsuba_manifold._util import ownership
+from mitsuba_manifold._util.locking import FolderLock
 from mitsuba_manifold.data import merl
 from mitsuba_manifold.errors import FolderLockedError, ForeignFileError, InputError
-from mitsuba_manifold._util.locking import FolderLock
+from mitsuba_manifold.manifold import identity
+from mitsuba_manifold.manifold.fit_record import FitRecord
 from mitsuba_manifold.manifold.model import Manifold
+from mitsuba_manifold.render import interrupt
 
 
 def test_folder_lock_is_exclusive_adds_no_file_and_is_released(tmp_path):
     folder = tmp_path / "f"
     with FolderLock(folder, "basis folder"):
         with pytest.raises(FolderLockedError, match="basis folder .* another process"):
-            FolderLock(folder, "basis folder").acquire()   # another open file description
+            FolderLock(folder, "basis folder").acquire()  # another open file description
         assert os.listdir(folder) == []
-    with FolderLock(folder):                                 # released
+    with FolderLock(folder):  # released
         pass
 
 
 def test_ownership_of_single_outputs(tmp_path):
     out = tmp_path / "img.exr"
-    ownership.check_replaceable(out)                         # new file: fine
+    ownership.check_replaceable(out)  # new file: fine
     out.write_bytes(b"one")
     with pytest.raises(ForeignFileError, match="not written by this tool.*pass `force`"):
         ownership.check_replaceable(out)
     ownership.check_replaceable(out, force=True)
     ownership.record([out], "test")
-    ownership.check_replaceable(out)                         # its own output
+    ownership.check_replaceable(out)  # its own output
     out.write_bytes(b"edited by the user")
     with pytest.raises(ForeignFileError, match="changed since"):
         ownership.check_replaceable(out)
@@ -48,13 +49,26 @@ def test_ownership_of_single_outputs(tmp_path):
         ownership.check_replaceable(out / "x.exr")
 
 
-@pytest.mark.parametrize("value, ok", [(0, True), (-64, True), (64, True), (64.5, False), (float("nan"), False),
-                                       (float("inf"), False), ("abc", False), (1e10, False)])
+@pytest.mark.parametrize(
+    "value, ok",
+    [
+        (0, True),
+        (-64, True),
+        (64, True),
+        (64.5, False),
+        (float("nan"), False),
+        (float("inf"), False),
+        ("abc", False),
+        (1e10, False),
+    ],
+)
 def test_exposure_validator(value, ok):
     if ok:
         assert validate.exposure(value) == float(value)
     else:
-        with pytest.raises(InputError, match="^`exposure` must be"):   # a Python parameter, not an option
+        with pytest.raises(
+            InputError, match="^`exposure` must be"
+        ):  # a Python parameter, not an option
             validate.exposure(value)
 
 
@@ -69,16 +83,20 @@ def test_resolution_validator_names_the_limit_and_the_memory(monkeypatch):
 
 def test_memory_refusal_states_the_margin_it_applies(monkeypatch):
     monkeypatch.setattr(validate, "available_memory", lambda: int(21.1 * 2**30))
-    validate.fits_in_memory("--steps", int(16.8 * 2**30), "images")              # under 80%: accepted
+    validate.fits_in_memory("--steps", int(16.8 * 2**30), "images")  # under 80%: accepted
     with pytest.raises(InputError) as e:
         validate.fits_in_memory("--steps", int(20.6 * 2**30), "100000 images of 1024x1024")
     text = str(e.value)
-    assert "20.6 GiB" in text and "at most 80% of the 21.1 GiB available" in text and "(16.9 GiB)" in text
+    assert (
+        "20.6 GiB" in text
+        and "at most 80% of the 21.1 GiB available" in text
+        and "(16.9 GiB)" in text
+    )
     assert "GiB are available" not in text
 
 
 def test_weight_sum_is_exact_and_refuses_cancellation():
-    with pytest.raises(InputError, match="sum to 1 but their magnitudes"):   # fsum: exactly 1, not 0
+    with pytest.raises(InputError, match="sum to 1 but their magnitudes"):  # fsum: exactly 1, not 0
         validate.weight_sum([1e11, -1e11, 1.0])
     with pytest.raises(InputError, match="sum to zero"):
         validate.weight_sum([1.0, -1.0])
@@ -87,8 +105,16 @@ def test_weight_sum_is_exact_and_refuses_cancellation():
 
 def test_identity_is_the_content_not_the_file(small_manifold, tmp_path):
     m = Manifold.load(small_manifold)
-    copy = Manifold(m.names, m.latent.copy(), "/elsewhere", m.hashes, m.length_scale, m.noise, m.features,
-                    record=FitRecord.from_info({"time_fit_s": 123.0}, [1.0, 2.0]))
+    copy = Manifold(
+        m.names,
+        m.latent.copy(),
+        "/elsewhere",
+        m.hashes,
+        m.length_scale,
+        m.noise,
+        m.features,
+        record=FitRecord.from_info({"time_fit_s": 123.0}, [1.0, 2.0]),
+    )
     assert identity.manifold_identity(copy) == identity.manifold_identity(m)
     moved = m.latent.copy()
     moved[0, 0] = np.nextafter(moved[0, 0], np.inf)
@@ -96,7 +122,9 @@ def test_identity_is_the_content_not_the_file(small_manifold, tmp_path):
     assert identity.manifold_identity(other) != identity.manifold_identity(m)
 
 
-@pytest.mark.parametrize("spp, pixels", [(1, 10), (64, 256 * 256), (1000, 1), (7, 1 << 21), (4096, 32 * 32)])
+@pytest.mark.parametrize(
+    "spp, pixels", [(1, 10), (64, 256 * 256), (1000, 1), (7, 1 << 21), (4096, 32 * 32)]
+)
 def test_render_passes_split_the_samples(spp, pixels):
     passes = interrupt.sample_passes(spp, pixels)
     assert sum(passes) == spp and all(n >= 1 for n in passes)

@@ -14,15 +14,14 @@ import time
 
 import numpy as np
 import pytest
-
 from guarantees_helpers import ROOT, SPHERE, error_lines, run_tool
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
 
-
 # ------------------------------------------------------------ 12. Ctrl-C
+
 
 def _interrupt_after(proc, wait):
     """Send SIGINT to ``proc`` once ``wait()`` returns; its output, after checking that it
@@ -34,7 +33,7 @@ def _interrupt_after(proc, wait):
         proc.send_signal(signal.SIGINT)
         out = proc.communicate(timeout=30)
     finally:
-        proc.kill()                               # no-op once it has ended
+        proc.kill()  # no-op once it has ended
     assert time.time() - t0 < 10, time.time() - t0
     return out
 
@@ -42,16 +41,32 @@ def _interrupt_after(proc, wait):
 @pytest.mark.parametrize("mode", ["per-material", "onepass"])
 def test_ctrl_c_stops_a_render_within_seconds_leaving_listed_files(tmp_path, tiny, mode):
     out = tmp_path / "basis"
-    proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), SPHERE,
-                             "--manifold", tiny["manifold"], "--out", str(out), "--res", "32",
-                             "--spp", "200000", "--mode", mode], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            os.path.join(ROOT, "tools", "render_basis.py"),
+            SPHERE,
+            "--manifold",
+            tiny["manifold"],
+            "--out",
+            str(out),
+            "--res",
+            "32",
+            "--spp",
+            "200000",
+            "--mode",
+            mode,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
     def wait():
         deadline = time.time() + 120
         while time.time() < deadline and not (out / "manifest.json").exists():
             time.sleep(0.2)
-        time.sleep(3.0)                               # inside a long render
+        time.sleep(3.0)  # inside a long render
 
     _, err = _interrupt_after(proc, wait)
     assert proc.returncode == 130, err
@@ -67,10 +82,24 @@ def test_ctrl_c_stops_a_render_within_seconds_leaving_listed_files(tmp_path, tin
 
 def test_a_killed_render_leaves_no_lock_and_resumes(tmp_path, tiny):
     out = tmp_path / "basis"
-    args = [SPHERE, "--manifold", tiny["manifold"], "--out", str(out), "--res", "16", "--spp", "3000",
-            "--mode", "per-material"]
-    proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), *args],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    args = [
+        SPHERE,
+        "--manifold",
+        tiny["manifold"],
+        "--out",
+        str(out),
+        "--res",
+        "16",
+        "--spp",
+        "3000",
+        "--mode",
+        "per-material",
+    ]
+    proc = subprocess.Popen(
+        [sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), *args],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
 
     def listed():
         path = out / "manifest.json"
@@ -79,7 +108,7 @@ def test_a_killed_render_leaves_no_lock_and_resumes(tmp_path, tiny):
     deadline = time.time() + 120
     while time.time() < deadline and not listed():
         time.sleep(0.1)
-    proc.kill()                                   # kill -9 after the first image (or at the deadline)
+    proc.kill()  # kill -9 after the first image (or at the deadline)
     proc.wait()
     before = listed()
     assert before and not [f for f in os.listdir(out) if f.endswith(".tmp")]
@@ -95,24 +124,35 @@ def test_an_image_written_but_not_yet_listed_is_the_resumed_runs_own(tmp_path, t
     """kill -9 between writing ``<key>.exr`` and listing it: the manifest named it pending,
     so the resume renders it again instead of refusing it as the user's file."""
     out = tmp_path / "basis"
-    args = [SPHERE, "--manifold", tiny["manifold"], "--out", str(out), "--res", "8", "--spp", "2",
-            "--mode", "per-material"]
+    args = [
+        SPHERE,
+        "--manifold",
+        tiny["manifold"],
+        "--out",
+        str(out),
+        "--res",
+        "8",
+        "--spp",
+        "2",
+        "--mode",
+        "per-material",
+    ]
     assert run_tool("render_basis", *args)[0] == 0
     manifest = json.loads((out / "manifest.json").read_text())
     key = next(k for k in manifest["images"] if k != "base")
     file = manifest["images"].pop(key)["file"]
     manifest["pending"] = [file]
     (out / "manifest.json").write_text(json.dumps(manifest))
-    imageio.write_exr(out / file, np.full((8, 8, 3), -7.0, np.float32))   # the killed run's file
+    imageio.write_exr(out / file, np.full((8, 8, 3), -7.0, np.float32))  # the killed run's file
     user = out / "notes.exr"
     imageio.write_exr(user, np.zeros((8, 8, 3), np.float32))
     rc, _, err = run_tool("render_basis", *args)
     assert rc == 0, err
     manifest = json.loads((out / "manifest.json").read_text())
     assert key in manifest["images"] and "pending" not in manifest
-    assert imageio.read_exr(out / file).min() >= 0                       # rendered again
-    assert imageio.read_exr(user).shape == (8, 8, 3)                      # not ours: untouched
-    manifest["images"].pop(key)                                           # listed nowhere now
+    assert imageio.read_exr(out / file).min() >= 0  # rendered again
+    assert imageio.read_exr(user).shape == (8, 8, 3)  # not ours: untouched
+    manifest["images"].pop(key)  # listed nowhere now
     (out / "manifest.json").write_text(json.dumps(manifest))
     rc, _, err = run_tool("render_basis", *args)
     assert rc == 2 and file in err and "did not make" in err
@@ -121,9 +161,24 @@ def test_an_image_written_but_not_yet_listed_is_the_resumed_runs_own(tmp_path, t
 def test_ctrl_c_stops_a_reference_render_and_writes_nothing(tmp_path, tiny):
     out = tmp_path / "blend"
     out.mkdir()
-    proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "tools", "blend.py"), "--basis", tiny["basis"],
-                             "--x", "0,0", "--out", str(out / "img.exr"), "--render-reference", "--spp", "1000000"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            os.path.join(ROOT, "tools", "blend.py"),
+            "--basis",
+            tiny["basis"],
+            "--x",
+            "0,0",
+            "--out",
+            str(out / "img.exr"),
+            "--render-reference",
+            "--spp",
+            "1000000",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
     def wait():  # until the reference render has begun
         for line in proc.stdout:

@@ -12,13 +12,13 @@ import json
 import os
 
 import pytest
-
 from guarantees_helpers import assert_one_error, run_tool, snapshot
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
 from mitsuba_manifold._util import atomic, ownership  # noqa: E402
-from mitsuba_manifold.imaging import io as imageio, plots  # noqa: E402
+from mitsuba_manifold.imaging import io as imageio  # noqa: E402
+from mitsuba_manifold.imaging import plots
 
 
 def _temporaries(folder):
@@ -27,14 +27,15 @@ def _temporaries(folder):
 
 # ------------------------------------------------- tools that did not check at all
 
+
 def test_bench_json_never_replaces_links_fifos_read_only_or_users_files(tmp_path, tiny):
     files = tmp_path / "files"
     files.mkdir()
     precious = files / "precious.txt"
     precious.write_text("the user's")
     link = files / "link.json"
-    link.symlink_to(precious)                          # as /dev/null would be: not a regular file
-    (tmp_path / "fifos").mkdir()                       # (kept out of the snapshot, which would block on it)
+    link.symlink_to(precious)  # as /dev/null would be: not a regular file
+    (tmp_path / "fifos").mkdir()  # (kept out of the snapshot, which would block on it)
     fifo = tmp_path / "fifos" / "fifo.json"
     os.mkfifo(fifo)
     locked = files / "locked.json"
@@ -43,18 +44,30 @@ def test_bench_json_never_replaces_links_fifos_read_only_or_users_files(tmp_path
     user = files / "user.json"
     user.write_text('{"mine": 1}')
     before = snapshot(tmp_path / "files")
-    for target, words in ((link, "not a regular file"), (fifo, "not a regular file"),
-                          (locked, "read-only"), (user, "--force")):
+    for target, words in (
+        (link, "not a regular file"),
+        (fifo, "not a regular file"),
+        (locked, "read-only"),
+        (user, "--force"),
+    ):
         for force in ([], ["--force"]) if target != user else ([],):
-            rc, _, err = run_tool("bench", "stability", "--manifold", tiny["manifold"], "--json", target, *force)
+            rc, _, err = run_tool(
+                "bench", "stability", "--manifold", tiny["manifold"], "--json", target, *force
+            )
             assert_one_error(rc, err, "--json", str(target), words)
-    assert snapshot(tmp_path / "files") == before and os.path.islink(link) and not os.path.isfile(fifo)
+    assert (
+        snapshot(tmp_path / "files") == before and os.path.islink(link) and not os.path.isfile(fifo)
+    )
     assert os.listdir(tmp_path / "fifos") == ["fifo.json"]
 
 
 def test_main_job_refuses_the_users_files_in_out_before_computing_anything(tmp_path):
     out = tmp_path / "out"
-    for rel in ("manifold.npz", os.path.join("gi", "report.json"), os.path.join("plots", "latent_map.png")):
+    for rel in (
+        "manifold.npz",
+        os.path.join("gi", "report.json"),
+        os.path.join("plots", "latent_map.png"),
+    ):
         (out / rel).parent.mkdir(parents=True, exist_ok=True)
         (out / rel).write_bytes(b"the user's " + rel.encode())
     os.chmod(out / "manifold.npz", 0o444)
@@ -68,30 +81,35 @@ def test_main_job_refuses_the_users_files_in_out_before_computing_anything(tmp_p
     rc, _, err = run_tool("main_job", *args)
     line = assert_one_error(rc, err, "--force")
     assert "manifold.npz" not in line and ("latent_map.png" in line or "report.json" in line)
-    assert snapshot(out) == before and not (out / "database").exists()   # refused before the database
+    assert (
+        snapshot(out) == before and not (out / "database").exists()
+    )  # refused before the database
 
 
 def test_make_scene_meshes_replaces_its_own_files_keeps_identical_ones_and_refuses_others(tmp_path):
     out = tmp_path / "scenes"
     args = ["--out", out, "--segments", "8", "--profile", "8"]
-    for _ in range(2):                                 # new, then its own
+    for _ in range(2):  # new, then its own
         rc, text, err = run_tool("make_scene_meshes", *args)
         assert rc == 0, err
-    os.remove(out / ownership.RECORD)                  # as shipped: made here, but not recorded
+    os.remove(out / ownership.RECORD)  # as shipped: made here, but not recorded
     os.chmod(out / "sky.exr", 0o640)
     rc, text, err = run_tool("make_scene_meshes", *args)
     assert rc == 0 and text.count("(unchanged)") == 2, (text, err)
     assert oct(os.stat(out / "sky.exr").st_mode & 0o777) == "0o640"
     rc, _, err = run_tool("make_scene_meshes", *args[:2], "--segments", "9", "--profile", "8")
-    assert_one_error(rc, err, "bowl.ply", "--force")   # another mesh over a file it did not record
+    assert_one_error(rc, err, "bowl.ply", "--force")  # another mesh over a file it did not record
     os.chmod(out / "bowl.ply", 0o444)
     before = snapshot(out)
-    rc, _, err = run_tool("make_scene_meshes", *args[:2], "--segments", "9", "--profile", "8", "--force")
+    rc, _, err = run_tool(
+        "make_scene_meshes", *args[:2], "--segments", "9", "--profile", "8", "--force"
+    )
     assert_one_error(rc, err, "bowl.ply", "read-only")
     assert snapshot(out) == before and not _temporaries(out)
 
 
 # ------------------------------------------------- failures and interruptions
+
 
 def test_a_full_disk_names_the_file_and_the_same_command_then_succeeds(tmp_path, tiny, monkeypatch):
     from PIL import Image
@@ -101,12 +119,13 @@ def test_a_full_disk_names_the_file_and_the_same_command_then_succeeds(tmp_path,
 
     def full(self, fp, *a, **k):
         raise OSError(errno.ENOSPC, "No space left on device")
+
     monkeypatch.setattr(Image.Image, "save", full)
     rc, _, err = run_tool(*cmd)
     assert_one_error(rc, err, str(tmp_path / "img.png"), "no space left")
     monkeypatch.undo()
     assert not _temporaries(tmp_path)
-    rc, _, err = run_tool(*cmd)                        # the .exr it wrote is its own
+    rc, _, err = run_tool(*cmd)  # the .exr it wrote is its own
     assert rc == 0, err
     assert (tmp_path / "img.png").is_file()
 
@@ -115,17 +134,20 @@ def test_names_too_long_for_the_file_system_are_refused_before_anything_is_writt
     ref = tmp_path / "ref.exr"
     imageio.write_exr(ref, imageio.read_exr(os.path.join(tiny["basis"], "base.exr")))
     before = snapshot(tmp_path)
-    out = tmp_path / ("x" * 246 + ".exr")              # fits; "<stem>_error.png" does not
-    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--x", "0,0", "--out", out, "--reference", ref)
+    out = tmp_path / ("x" * 246 + ".exr")  # fits; "<stem>_error.png" does not
+    rc, _, err = run_tool(
+        "blend", "--basis", tiny["basis"], "--x", "0,0", "--out", out, "--reference", ref
+    )
     assert_one_error(rc, err, "_error", "longer than the file system allows")
     assert snapshot(tmp_path) == before
     rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--x", "0,0", "--out", out)
-    assert rc == 0, err                                # its temporary name is cut to fit
+    assert rc == 0, err  # its temporary name is cut to fit
     assert out.is_file() and not _temporaries(tmp_path)
 
 
 def test_an_interrupted_path_is_redone_by_the_same_command_and_a_shorter_one_removes_the_rest(
-        tmp_path, tiny, monkeypatch):
+    tmp_path, tiny, monkeypatch
+):
     out = tmp_path / "seq.exr"
     real, calls = imageio.write_exr, []
 
@@ -134,68 +156,116 @@ def test_an_interrupted_path_is_redone_by_the_same_command_and_a_shorter_one_rem
         if len(calls) == 3:
             raise KeyboardInterrupt
         return real(path, img, *a, **k)
+
     cmd = ["blend", "--basis", tiny["basis"], "--path", "steel", "chrome", "--out", out, "--png"]
     monkeypatch.setattr(imageio, "write_exr", stopped)
     rc, _, err = run_tool(*cmd, "--steps", "5")
     assert rc == 130 and "interrupted" in err
     monkeypatch.undo()
-    rc, _, err = run_tool(*cmd, "--steps", "5")       # its own frames: replaced
+    rc, _, err = run_tool(*cmd, "--steps", "5")  # its own frames: replaced
     assert rc == 0, err
     (tmp_path / "seq_9.exr").write_bytes(b"the user's")
     rc, text, err = run_tool(*cmd, "--steps", "2")
     assert rc == 0, err
     left = sorted(n for n in os.listdir(tmp_path) if not n.startswith("."))
-    assert left == ["seq_0.exr", "seq_0.png", "seq_1.exr", "seq_1.png", "seq_9.exr", "seq_sheet.png"], left
+    assert left == [
+        "seq_0.exr",
+        "seq_0.png",
+        "seq_1.exr",
+        "seq_1.png",
+        "seq_9.exr",
+        "seq_sheet.png",
+    ], left
     assert "removed" in text and (tmp_path / "seq_9.exr").read_bytes() == b"the user's"
 
 
-def test_an_interrupted_fit_leaves_only_files_the_same_command_replaces(tmp_path, tiny, monkeypatch):
+def test_an_interrupted_fit_leaves_only_files_the_same_command_replaces(
+    tmp_path, tiny, monkeypatch
+):
     def stopped(*a, **k):
         raise KeyboardInterrupt
-    cmd = ["fit_manifold", tiny["db"], "--out", tmp_path / "m.npz", "--plot", tmp_path / "plots", "--q", "3"]
-    monkeypatch.setattr(plots, "convergence", stopped)   # after the manifold and the first plots
+
+    cmd = [
+        "fit_manifold",
+        tiny["db"],
+        "--out",
+        tmp_path / "m.npz",
+        "--plot",
+        tmp_path / "plots",
+        "--q",
+        "3",
+    ]
+    monkeypatch.setattr(plots, "convergence", stopped)  # after the manifold and the first plots
     rc, _, err = run_tool(*cmd)
     assert rc == 130 and (tmp_path / "m.npz").is_file(), err
     monkeypatch.undo()
     rc, _, err = run_tool(*cmd)
     assert rc == 0, err
-    rc, text, err = run_tool(*cmd[:-1], "2")           # q = 2 has no second slice: its plot goes
+    rc, text, err = run_tool(*cmd[:-1], "2")  # q = 2 has no second slice: its plot goes
     assert rc == 0 and "removed" in text, err
-    assert sorted(os.listdir(tmp_path / "plots")) == sorted([ownership.RECORD, ownership.RECORD + ".lock",
-                                                             "latent_map.png", "log_likelihood.png"])
+    assert sorted(os.listdir(tmp_path / "plots")) == sorted(
+        [ownership.RECORD, ownership.RECORD + ".lock", "latent_map.png", "log_likelihood.png"]
+    )
 
 
 def test_a_newline_in_a_path_end_is_drawn_escaped(tmp_path, tiny):
-    rc, _, err = run_tool("blend", "--basis", tiny["basis"], "--path", "0.1,0.2\n", "steel", "--steps", "2",
-                          "--out", tmp_path / "seq.exr")
+    rc, _, err = run_tool(
+        "blend",
+        "--basis",
+        tiny["basis"],
+        "--path",
+        "0.1,0.2\n",
+        "steel",
+        "--steps",
+        "2",
+        "--out",
+        tmp_path / "seq.exr",
+    )
     assert rc == 0, err
     assert (tmp_path / "seq_sheet.png").is_file()
 
 
 # ------------------------------------------------- render_basis arguments
 
-@pytest.mark.parametrize("extra, words", [
-    (["--seed", "1234567890"], "--seed"), (["--seed", "-1"], "--seed"), (["--seed", str(2 ** 64)], "--seed"),
-    (["--seed", str(2 ** 31), "--chunks", "2", "--mode", "per-material", "--spp", "2"], "--chunks 2"),
-    (["--views", "0,0"], "more than once"), (["--spp", "0"], "--spp"), (["--chunks", "0"], "--chunks")])
-def test_render_basis_checks_seeds_and_views_before_anything_is_written(tmp_path, tiny, extra, words):
+
+@pytest.mark.parametrize(
+    "extra, words",
+    [
+        (["--seed", "1234567890"], "--seed"),
+        (["--seed", "-1"], "--seed"),
+        (["--seed", str(2**64)], "--seed"),
+        (
+            ["--seed", str(2**31), "--chunks", "2", "--mode", "per-material", "--spp", "2"],
+            "--chunks 2",
+        ),
+        (["--views", "0,0"], "more than once"),
+        (["--spp", "0"], "--spp"),
+        (["--chunks", "0"], "--chunks"),
+    ],
+)
+def test_render_basis_checks_seeds_and_views_before_anything_is_written(
+    tmp_path, tiny, extra, words
+):
     from guarantees_helpers import SPHERE
 
     out = tmp_path / "basis"
-    rc, _, err = run_tool("render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", "8",
-                          *extra)
+    rc, _, err = run_tool(
+        "render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", "8", *extra
+    )
     assert_one_error(rc, err, words)
     assert not out.exists()
 
 
 def test_new_manifests_record_their_sensor_and_old_ones_mean_sensor_0(tiny):
-    from mitsuba_manifold.basis.folder import manifest as mf
     from mitsuba_manifold.basis.folder import Basis
+    from mitsuba_manifold.basis.folder import manifest as mf
 
     m = mf.read_manifest(tiny["basis"])
     assert m["sensor"] == 0 and Basis.load(tiny["basis"]).sensor_known
     old = {k: v for k, v in m.items() if k != "sensor"}
-    assert mf.manifest_differences(old, m) == [] and mf.manifest_differences(dict(m, sensor=1), m) == ["sensor"]
+    assert mf.manifest_differences(old, m) == [] and mf.manifest_differences(
+        dict(m, sensor=1), m
+    ) == ["sensor"]
     assert Basis(tiny["basis"], old).sensor == 0 and not Basis(tiny["basis"], old).sensor_known
 
 
@@ -205,7 +275,9 @@ def test_references_render_the_sensor_of_the_basis_or_say_why_not(tmp_path, tiny
     from mitsuba_manifold.errors import MismatchError
 
     scene = tmp_path / "two_views.xml"
-    scene.write_text('<scene version="3.0.0"><sensor type="perspective"/><sensor type="perspective"/></scene>')
+    scene.write_text(
+        '<scene version="3.0.0"><sensor type="perspective"/><sensor type="perspective"/></scene>'
+    )
     m = json.loads(open(os.path.join(tiny["basis"], "manifest.json")).read())
     one = Basis(tiny["basis"], dict(m, sensor=1))
 
@@ -214,6 +286,7 @@ def test_references_render_the_sensor_of_the_basis_or_say_why_not(tmp_path, tiny
 
     def without_sensor(scene, manifold, x, spp, seed=0):
         pass
+
     assert reference_view(one, scene, with_sensor) == {"sensor": 1}
     with pytest.raises(MismatchError, match="sensor 1"):
         reference_view(one, scene, without_sensor)
@@ -247,4 +320,4 @@ def test_the_main_job_removes_only_a_basis_of_its_own_to_render_it_again(tmp_pat
     os.chmod(theirs / "base.exr", 0o444)
     with pytest.raises(ForeignFileError, match="read-only"):
         remove_basis(theirs)
-    remove_basis(tmp_path / "missing")                 # nothing to remove
+    remove_basis(tmp_path / "missing")  # nothing to remove

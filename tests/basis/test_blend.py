@@ -6,17 +6,16 @@ import shutil
 
 import numpy as np
 import pytest
-
-from mitsuba_manifold.basis import folder as bf
-from mitsuba_manifold.basis import blend as bl
-from mitsuba_manifold.imaging import io as imageio, metrics
-from mitsuba_manifold.basis.folder import Basis
-from mitsuba_manifold._util.cache import file_hash
-from mitsuba_manifold.manifold.identity import manifold_identity
-from mitsuba_manifold.errors import InputError, MismatchError
-from mitsuba_manifold.manifold.model import Manifold
-
 from helpers import write_basis
+
+from mitsuba_manifold.basis import blend as bl
+from mitsuba_manifold.basis import folder as bf
+from mitsuba_manifold.basis.folder import Basis
+from mitsuba_manifold.errors import InputError, MismatchError
+from mitsuba_manifold.imaging import io as imageio
+from mitsuba_manifold.imaging import metrics
+from mitsuba_manifold.manifold.identity import manifold_identity
+from mitsuba_manifold.manifold.model import Manifold
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 RES = (12, 9)  # width, height
@@ -30,6 +29,7 @@ def manifold(small_manifold):
 @pytest.fixture(scope="module")
 def cli():
     from mitsuba_manifold.apps.cli import blend as blend_cli
+
     return blend_cli
 
 
@@ -52,10 +52,13 @@ def _make_basis(folder, manifold_path, names, rng, targets=("material",), with_b
 @pytest.fixture
 def basis1(tmp_path, small_manifold, manifold):
     """One-target basis with every material of the manifold."""
-    return _make_basis(str(tmp_path / "basis"), small_manifold, manifold.names, np.random.default_rng(1))
+    return _make_basis(
+        str(tmp_path / "basis"), small_manifold, manifold.names, np.random.default_rng(1)
+    )
 
 
 # ------------------------------------------------------------------ images
+
 
 def test_blend_is_the_weighted_sum(basis1, manifold):
     folder, _, images = basis1
@@ -64,14 +67,18 @@ def test_blend_is_the_weighted_sum(basis1, manifold):
     for x in manifold.latent.mean(0) + rng.normal(scale=0.7, size=(3, manifold.q)):
         img, info = bl.blend(basis, manifold, x=x, prune=0.0)
         _, w = manifold.weights(x)
-        want = images["base"] + np.einsum("i,ihwc->hwc", w, np.stack([images[n] for n in manifold.names]).astype(np.float64))
+        want = images["base"] + np.einsum(
+            "i,ihwc->hwc", w, np.stack([images[n] for n in manifold.names]).astype(np.float64)
+        )
         assert img.dtype == np.float32 and img.shape == (RES[1], RES[0], 3)
         assert np.allclose(img, want, rtol=1e-5, atol=1e-5 * np.abs(w).sum())
         assert info["time_ms"] >= 0 and not info["missing"] and np.allclose(info["x"], x)
     # weights given directly: any weights (the touch images are linear in the BRDF)
     w = rng.normal(size=manifold.n)
     img, _ = bl.blend(basis, manifold, w=w, prune=0.0)
-    want = images["base"] + sum(wi * images[n].astype(np.float64) for wi, n in zip(w, manifold.names))
+    want = images["base"] + sum(
+        wi * images[n].astype(np.float64) for wi, n in zip(w, manifold.names)
+    )
     assert np.allclose(img, want, rtol=1e-5, atol=1e-5)
 
 
@@ -83,7 +90,9 @@ def test_pruning_drops_small_weights_and_keeps_the_sum(basis1, manifold):
     keep, wk, dropped = manifold.prune(w, 0.05)
     assert len(keep) < manifold.n and dropped > 0
     assert info["weights"][0] == {manifold.names[i]: pytest.approx(v) for i, v in zip(keep, wk)}
-    want = images["base"] + sum(v * images[manifold.names[i]].astype(np.float64) for i, v in zip(keep, wk))
+    want = images["base"] + sum(
+        v * images[manifold.names[i]].astype(np.float64) for i, v in zip(keep, wk)
+    )
     assert np.allclose(img, want, rtol=1e-5, atol=1e-5)
 
 
@@ -106,7 +115,9 @@ def test_uniform_weights_give_base_plus_mean(basis1, manifold):
 
 def test_missing_materials_raise_unless_pruned_or_renormalised(tmp_path, small_manifold, manifold):
     names = manifold.names[:3]
-    folder, _, images = _make_basis(str(tmp_path / "near"), small_manifold, names, np.random.default_rng(3))
+    folder, _, images = _make_basis(
+        str(tmp_path / "near"), small_manifold, names, np.random.default_rng(3)
+    )
     basis = Basis.load(folder, manifold=small_manifold)
     img, _ = bl.blend(basis, manifold, x=manifold.latent[1])  # only material 1 survives pruning
     assert np.array_equal(img, images["base"] + images[names[1]])
@@ -133,8 +144,11 @@ def test_wrong_x_dimension_is_a_clear_error(basis1, manifold):
         bl.blend(folder, manifold)
 
 
-def test_cli_latent_point_too_far_out_is_one_line_without_warnings(basis1, manifold, tmp_path, cli, capsys):
+def test_cli_latent_point_too_far_out_is_one_line_without_warnings(
+    basis1, manifold, tmp_path, cli, capsys
+):
     import warnings
+
     folder, _, _ = basis1
     for big in ("1e308", "-1e200", "1e31"):
         x = ",".join([big] + ["0"] * (manifold.q - 1))
@@ -143,7 +157,12 @@ def test_cli_latent_point_too_far_out_is_one_line_without_warnings(basis1, manif
             with pytest.raises(SystemExit) as e:
                 cli.main(["--basis", folder, "--x", x, "--out", str(tmp_path / "img.exr")])
         err = capsys.readouterr().err
-        assert e.value.code == 2 and err.count("\n") == 1 and "too far out" in err and "Warning" not in err
+        assert (
+            e.value.code == 2
+            and err.count("\n") == 1
+            and "too far out" in err
+            and "Warning" not in err
+        )
     assert os.listdir(tmp_path) == ["basis"]
 
 
@@ -158,9 +177,13 @@ def test_bad_basis_folders_are_clear_errors(basis1, tmp_path, manifold):
     open(manifest_path, "w").write(good[:50])
     with pytest.raises(MismatchError, match="not valid JSON"):
         Basis.load(folder)
-    for field, value, message in (("resolution", [12], "resolution"), ("mode", "x", "mode"),
-                                  ("manifold_hash", "abc", "SHA-256"), ("version", 99, "newer"),
-                                  ("images", {"base": {"file": "../base.exr", "time_s": 0}}, "plain")):
+    for field, value, message in (
+        ("resolution", [12], "resolution"),
+        ("mode", "x", "mode"),
+        ("manifold_hash", "abc", "SHA-256"),
+        ("version", 99, "newer"),
+        ("images", {"base": {"file": "../base.exr", "time_s": 0}}, "plain"),
+    ):
         m = json.loads(good)
         m[field] = value
         open(manifest_path, "w").write(json.dumps(m))
@@ -185,20 +208,31 @@ def test_manifest_from_another_scene_or_manifold_is_refused(basis1, tmp_path, ma
     other_scene = _scene(str(tmp_path), "another scene")
     with pytest.raises(MismatchError, match="another scene"):
         Basis.load(folder, scene=other_scene)
-    other = Manifold(manifold.names, manifold.latent + 0.01, manifold.database, manifold.hashes,
-                     manifold.length_scale, manifold.noise, albedos=manifold.albedos)
+    other = Manifold(
+        manifold.names,
+        manifold.latent + 0.01,
+        manifold.database,
+        manifold.hashes,
+        manifold.length_scale,
+        manifold.noise,
+        albedos=manifold.albedos,
+    )
     other_path = str(tmp_path / "other.npz")
     other.save(other_path)
     with pytest.raises(MismatchError, match="another manifold"):
         Basis.load(folder, manifold=other_path)
     with pytest.raises(MismatchError, match="another manifold"):
         bl.blend(folder, other_path, x=[0.0, 0.0])
-    renamed = Manifold(["a", "b"] + manifold.names[2:], manifold.latent, manifold.database, manifold.hashes)
+    renamed = Manifold(
+        ["a", "b"] + manifold.names[2:], manifold.latent, manifold.database, manifold.hashes
+    )
     with pytest.raises(MismatchError, match="does not know"):
         bl.blend(folder, renamed, x=[0.0, 0.0])
     # a mesh the scene uses is part of its identity
     with open(scene, "w") as f:
-        f.write('<scene version="3.0.0"><shape type="ply"><string name="filename" value="m.ply"/></shape></scene>')
+        f.write(
+            '<scene version="3.0.0"><shape type="ply"><string name="filename" value="m.ply"/></shape></scene>'
+        )
     open(os.path.join(folder, "m.ply"), "w").write("one")
     h1 = bf.scene_hash(scene)
     open(os.path.join(folder, "m.ply"), "w").write("two")
@@ -211,7 +245,9 @@ def test_missing_and_truncated_images(basis1, manifold):
     path = os.path.join(folder, name + ".exr")
     data = open(path, "rb").read()
     os.remove(path)
-    with pytest.raises(MismatchError, match=f"image '{name}'.*{name}.exr: image file does not exist"):
+    with pytest.raises(
+        MismatchError, match=f"image '{name}'.*{name}.exr: image file does not exist"
+    ):
         Basis.load(folder)
     big = np.random.default_rng(5).uniform(size=(RES[1], RES[0], 3)).astype(np.float32)
     imageio.write_exr(path, big)
@@ -228,30 +264,59 @@ def test_missing_and_truncated_images(basis1, manifold):
 
 def test_manifest_helpers(tmp_path, small_manifold):
     scene = _scene(str(tmp_path))
-    a = bf.make_manifest(scene, small_manifold, resolution=(4, 3), spp=8, variant="llvm_ad_rgb", seed=1,
-                         max_depth=8, mode="onepass", targets=["material"])
+    a = bf.make_manifest(
+        scene,
+        small_manifold,
+        resolution=(4, 3),
+        spp=8,
+        variant="llvm_ad_rgb",
+        seed=1,
+        max_depth=8,
+        mode="onepass",
+        targets=["material"],
+    )
     assert a["scene"] == os.path.abspath(scene)
-    assert a["manifold_hash"] == manifold_identity(Manifold.load(small_manifold))   # content, not file bytes
+    assert a["manifold_hash"] == manifold_identity(
+        Manifold.load(small_manifold)
+    )  # content, not file bytes
     path = bf.write_manifest(str(tmp_path), a)
     assert bf.read_manifest(str(tmp_path)) == a and path.endswith("manifest.json")
     b = dict(a, spp=16, images={"base": {"file": "base.exr", "time_s": 1.0}})
     assert bf.manifest_differences(a, b) == ["spp"]
     with pytest.raises(MismatchError, match="mode"):
-        bf.make_manifest(scene, small_manifold, resolution=(4, 3), spp=8, variant="llvm_ad_rgb", seed=1,
-                         max_depth=8, mode="fast", targets=["material"])
+        bf.make_manifest(
+            scene,
+            small_manifold,
+            resolution=(4, 3),
+            spp=8,
+            variant="llvm_ad_rgb",
+            seed=1,
+            max_depth=8,
+            mode="fast",
+            targets=["material"],
+        )
     with pytest.raises(MismatchError, match="must name 2 material"):
-        bf.write_manifest(str(tmp_path), dict(a, targets=["a", "b"], images={"x": {"file": "x.exr", "time_s": 0}}))
+        bf.write_manifest(
+            str(tmp_path), dict(a, targets=["a", "b"], images={"x": {"file": "x.exr", "time_s": 0}})
+        )
     assert bf.read_manifest(str(tmp_path)) == a  # the refused write left the old manifest
     assert bf.image_key(["gold-paint", "chrome"]) == "gold-paint+chrome"
 
 
 # -------------------------------------------------------------- multilinear
 
+
 def test_multilinear_two_target_blend(tmp_path, small_manifold, manifold):
     names = manifold.names
     keys = [a + "+" + b for a in names for b in names]
-    folder, _, images = _make_basis(str(tmp_path / "two"), small_manifold, keys, np.random.default_rng(4),
-                                    targets=("cup", "saucer"), with_base=False)
+    folder, _, images = _make_basis(
+        str(tmp_path / "two"),
+        small_manifold,
+        keys,
+        np.random.default_rng(4),
+        targets=("cup", "saucer"),
+        with_base=False,
+    )
     basis = Basis.load(folder, manifold=manifold)
     assert basis.p == 2 and basis.materials == [sorted(names)] * 2
     stack = np.stack([[images[a + "+" + b] for b in names] for a in names]).astype(np.float64)
@@ -264,7 +329,9 @@ def test_multilinear_two_target_blend(tmp_path, small_manifold, manifold):
     assert np.array_equal(img, img2)
     # training points of both targets: exactly the image of that pair
     img, info = bl.blend(basis, manifold, x=[manifold.latent[2], manifold.latent[5]])
-    assert np.array_equal(img, images[names[2] + "+" + names[5]]) and info["plan"].keys == [names[2] + "+" + names[5]]
+    assert np.array_equal(img, images[names[2] + "+" + names[5]]) and info["plan"].keys == [
+        names[2] + "+" + names[5]
+    ]
     with pytest.raises(MismatchError, match=r"needs 4 numbers"):
         bl.blend(basis, manifold, x=manifold.latent[0])
     with pytest.raises(MismatchError, match="summing to 1 per target"):
@@ -279,14 +346,18 @@ def test_multilinear_two_target_blend(tmp_path, small_manifold, manifold):
 
 # -------------------------------------------------------------------- path
 
+
 def test_blend_path_and_contact_sheet(basis1, manifold, tmp_path):
     from PIL import Image
+
     folder, _, images = basis1
     a, b = manifold.names[1], manifold.names[4]
     seq, xs, info = bl.blend_path(folder, manifold, a, b, steps=5)
     assert seq.shape == (5, RES[1], RES[0], 3)
     assert np.allclose(xs[2], 0.5 * (manifold.latent[1] + manifold.latent[4]))
-    assert np.array_equal(seq[0], images["base"] + images[a]) and np.array_equal(seq[-1], images["base"] + images[b])
+    assert np.array_equal(seq[0], images["base"] + images[a]) and np.array_equal(
+        seq[-1], images["base"] + images[b]
+    )
     mid, _ = bl.blend(folder, manifold, x=xs[2])
     assert np.allclose(seq[2], mid, rtol=1e-6, atol=1e-6)
     sheet = str(tmp_path / "sheet.png")
@@ -302,7 +373,9 @@ def test_blend_path_of_a_kind_or_of_given_points(basis1, manifold):
     a, b = manifold.names[1], manifold.names[4]
     seq, xs, _ = bl.blend_path(folder, manifold, a, b, steps=5, kind="uniform")
     assert np.allclose(xs, manifold.path(a, b, steps=5, kind="uniform"))
-    assert np.array_equal(seq[0], images["base"] + images[a]) and np.array_equal(seq[-1], images["base"] + images[b])
+    assert np.array_equal(seq[0], images["base"] + images[a]) and np.array_equal(
+        seq[-1], images["base"] + images[b]
+    )
     pts = manifold.latent[[0, 2, 3]] + 0.01
     seq, xs, _ = bl.blend_path(folder, manifold, points=pts)
     assert np.array_equal(xs, pts) and len(seq) == 3
@@ -324,7 +397,10 @@ def test_blend_path_refuses_ignored_x_and_identical_ends(basis1, manifold, tmp_p
             bl.blend_path(folder, manifold, *ends, steps=3)
     out = str(tmp_path / "out" / "seq.exr")
     x = ",".join(str(v) for v in manifold.latent[2])
-    for args, words in [(["--x", x, "--path", a, b], "drop --x"), (["--path", a, a], "same latent point")]:
+    for args, words in [
+        (["--x", x, "--path", a, b], "drop --x"),
+        (["--path", a, a], "same latent point"),
+    ]:
         with pytest.raises(SystemExit) as e:
             cli.main(["--basis", folder, "--out", out] + args)
         err = capsys.readouterr().err
@@ -333,6 +409,7 @@ def test_blend_path_refuses_ignored_x_and_identical_ends(basis1, manifold, tmp_p
 
 
 # --------------------------------------------------------------------- CLI
+
 
 def test_cli_blend_with_reference(basis1, manifold, tmp_path, cli, capsys):
     folder, _, images = basis1
@@ -374,13 +451,35 @@ def test_cli_path_writes_sequence_and_sheet(basis1, manifold, tmp_path, cli, cap
     folder, _, _ = basis1
     out = str(tmp_path / "seq" / "seq.exr")
     sheets, write = [], imageio.write_contact_sheet
-    monkeypatch.setattr(imageio, "write_contact_sheet", lambda *a, **k: (sheets.append((a, k)), write(*a, **k)))
-    cli.main(["--basis", folder, "--path", manifold.names[0], manifold.names[1], "--steps", "4", "--out", out])
-    assert sorted(f for f in os.listdir(tmp_path / "seq") if not f.startswith(".")) == ["seq_0.exr", "seq_1.exr", "seq_2.exr", "seq_3.exr", "seq_sheet.png"]
+    monkeypatch.setattr(
+        imageio, "write_contact_sheet", lambda *a, **k: (sheets.append((a, k)), write(*a, **k))
+    )
+    cli.main(
+        [
+            "--basis",
+            folder,
+            "--path",
+            manifold.names[0],
+            manifold.names[1],
+            "--steps",
+            "4",
+            "--out",
+            out,
+        ]
+    )
+    assert sorted(f for f in os.listdir(tmp_path / "seq") if not f.startswith(".")) == [
+        "seq_0.exr",
+        "seq_1.exr",
+        "seq_2.exr",
+        "seq_3.exr",
+        "seq_sheet.png",
+    ]
     assert "4 images blended" in capsys.readouterr().out
-    (_, _, labels), kw = sheets[0]          # the sheet names its two ends
+    (_, _, labels), kw = sheets[0]  # the sheet names its two ends
     a, b = manifold.names[:2]
-    assert labels[0].endswith(a) and labels[-1].endswith(b) and a in kw["title"] and b in kw["title"]
+    assert (
+        labels[0].endswith(a) and labels[-1].endswith(b) and a in kw["title"] and b in kw["title"]
+    )
 
 
 def test_cli_bad_input_overwrites_nothing(basis1, manifold, tmp_path, cli, capsys):
@@ -392,13 +491,17 @@ def test_cli_bad_input_overwrites_nothing(basis1, manifold, tmp_path, cli, capsy
     open(bad_ref, "wb").write(b"v/1\x01" + b"\0" * 30)
     other_scene = _scene(str(tmp_path), "other")
     other_manifold = str(tmp_path / "other.npz")
-    Manifold(manifold.names, manifold.latent * 1.01, manifold.database, manifold.hashes).save(other_manifold)
+    Manifold(manifold.names, manifold.latent * 1.01, manifold.database, manifold.hashes).save(
+        other_manifold
+    )
     x = ["--x", "0.1", "0.2"]
-    cases = [(["--x", "0.1", "0.2", "0.3"], "needs 2 numbers"),
-             (x + ["--reference", bad_ref], "ref.exr: truncated or corrupt"),
-             (x + ["--reference", str(tmp_path / "none.exr")], "none.exr: image file does not exist"),
-             (x + ["--scene", other_scene], "another scene"),
-             (x + ["--manifold", other_manifold], "another manifold")]
+    cases = [
+        (["--x", "0.1", "0.2", "0.3"], "needs 2 numbers"),
+        (x + ["--reference", bad_ref], "ref.exr: truncated or corrupt"),
+        (x + ["--reference", str(tmp_path / "none.exr")], "none.exr: image file does not exist"),
+        (x + ["--scene", other_scene], "another scene"),
+        (x + ["--manifold", other_manifold], "another manifold"),
+    ]
     for extra, message in cases:
         with pytest.raises(SystemExit) as e:
             cli.main(["--basis", folder, "--out", out] + extra)

@@ -6,18 +6,17 @@ import shutil
 
 import numpy as np
 import pytest
-
-from mitsuba_manifold.basis import blend as bl
-from mitsuba_manifold.basis import objectives as image_error
-from mitsuba_manifold.imaging import io as imageio
-from mitsuba_manifold.basis import match as mt
-from mitsuba_manifold.manifold import search as latent
-from mitsuba_manifold.basis.folder import BASE, Basis
-from mitsuba_manifold.apps.cli import match as cli
-from mitsuba_manifold.errors import MismatchError, InputError
-from mitsuba_manifold.manifold.model import Manifold
-
 from helpers import write_basis
+
+from mitsuba_manifold.apps.cli import match as cli
+from mitsuba_manifold.basis import blend as bl
+from mitsuba_manifold.basis import match as mt
+from mitsuba_manifold.basis import objectives as image_error
+from mitsuba_manifold.basis.folder import BASE, Basis
+from mitsuba_manifold.errors import InputError, MismatchError
+from mitsuba_manifold.imaging import io as imageio
+from mitsuba_manifold.manifold import search as latent
+from mitsuba_manifold.manifold.model import Manifold
 
 RES = (20, 16)  # width, height
 
@@ -74,9 +73,14 @@ def _interior_point(manifold, a=0, b=1, t=0.35):
 
 # ------------------------------------------------------------- gradients
 
-@pytest.mark.parametrize("loss,exposure_free,prior", [("rel_mse", False, 0.0), ("rel_mse", True, 0.05),
-                                                      ("log", False, 0.0), ("log", True, 0.05)])
-def test_match_objective_gradient_matches_finite_differences(basis, manifold, loss, exposure_free, prior):
+
+@pytest.mark.parametrize(
+    "loss,exposure_free,prior",
+    [("rel_mse", False, 0.0), ("rel_mse", True, 0.05), ("log", False, 0.0), ("log", True, 0.05)],
+)
+def test_match_objective_gradient_matches_finite_differences(
+    basis, manifold, loss, exposure_free, prior
+):
     b, _ = basis
     target = 1.3 * _blend(b, manifold, _interior_point(manifold, 2, 5))
     mask = np.ones(target.shape[:2])
@@ -107,6 +111,7 @@ def test_quadratic_form_equals_the_direct_relative_mse(basis, manifold):
 
 # ---------------------------------------------------------------- matches
 
+
 def test_training_material_is_recovered_exactly_from_its_own_blend(basis, manifold):
     b, images = basis
     for i, name in enumerate(manifold.names):
@@ -116,7 +121,7 @@ def test_training_material_is_recovered_exactly_from_its_own_blend(basis, manifo
         assert r.single.name == name and r.error < 1e-12 and r.rel_mse < 1e-12
         assert np.array_equal(r.weights, np.eye(manifold.n)[i])
         assert r.variance < 2 * manifold.noise
-    text = repr(r)                                  # a short summary, not the image's pixels
+    text = repr(r)  # a short summary, not the image's pixels
     assert len(text) < 400 and name in text and "MatchResult(x=[" in text
 
 
@@ -128,13 +133,17 @@ def test_interior_point_is_recovered(basis, manifold):
     assert np.allclose(r.x, x_true, atol=1e-4)
     assert r.error < 1e-6 * r.single.error
     assert np.allclose(r.image, _blend(b, manifold, r.x), atol=1e-5)
-    near = mt.match(b, _blend(b, manifold, x_true), scan=0, starts=3)  # the training points as starts
+    near = mt.match(
+        b, _blend(b, manifold, x_true), scan=0, starts=3
+    )  # the training points as starts
     best = manifold.latent[near.single.index]
     order = np.argsort(np.linalg.norm(manifold.latent - best, axis=1))[:3]
     assert np.allclose([s["x0"] for s in near.starts], manifold.latent[order], atol=1e-5)
     d = r.to_dict(manifold)
     assert json.loads(json.dumps(d))["x"] == pytest.approx(list(r.x))
-    assert [n for n, _ in d["nearest"]][:1] == [manifold.names[int(np.argmin(np.linalg.norm(manifold.latent - r.x, axis=1)))]]
+    assert [n for n, _ in d["nearest"]][:1] == [
+        manifold.names[int(np.argmin(np.linalg.norm(manifold.latent - r.x, axis=1)))]
+    ]
 
 
 def test_masked_match_ignores_what_is_outside_the_mask(basis, manifold):
@@ -176,6 +185,7 @@ def test_prior_pulls_towards_the_data(basis, manifold):
 
 # -------------------------------------------------------------- bad input
 
+
 def test_bad_inputs_are_clear_errors(basis, manifold, tmp_path, small_manifold_paper):
     b, images = basis
     target = _blend(b, manifold, manifold.latent[0])
@@ -189,8 +199,13 @@ def test_bad_inputs_are_clear_errors(basis, manifold, tmp_path, small_manifold_p
         mt.match(b, target, mask=np.zeros(target.shape[:2]))
     with pytest.raises(InputError, match=r"mask is 3x3, the target is 20x16"):
         mt.match(b, target, mask=np.ones((3, 3)))
-    for kwargs, msg in (({"loss": "l1"}, "`loss` must be one of"), ({"prior": -1.0}, "`prior` must be"),
-                        ({"starts": 0}, "`starts` must be"), ({"scan": -1}, "`scan` must be"), ({"loss": "log", "downsample": 0}, "`downsample` must be")):
+    for kwargs, msg in (
+        ({"loss": "l1"}, "`loss` must be one of"),
+        ({"prior": -1.0}, "`prior` must be"),
+        ({"starts": 0}, "`starts` must be"),
+        ({"scan": -1}, "`scan` must be"),
+        ({"loss": "log", "downsample": 0}, "`downsample` must be"),
+    ):
         with pytest.raises(InputError, match=msg):
             mt.match(b, target, **kwargs)
     # a basis missing materials, and one whose manifold is gone
@@ -200,8 +215,13 @@ def test_bad_inputs_are_clear_errors(basis, manifold, tmp_path, small_manifold_p
     lost = _basis_without_manifold(tmp_path, small_manifold_paper, manifold.names)
     with pytest.raises(MismatchError, match=r"its manifold .*moved.npz no longer exists"):
         mt.match(lost, target)
-    two, _ = _make_basis(str(tmp_path / "two"), small_manifold_paper, [], targets=("a", "b"),
-                         keys=[f"{p}+{q}" for p in manifold.names[:2] for q in manifold.names[:2]])
+    two, _ = _make_basis(
+        str(tmp_path / "two"),
+        small_manifold_paper,
+        [],
+        targets=("a", "b"),
+        keys=[f"{p}+{q}" for p in manifold.names[:2] for q in manifold.names[:2]],
+    )
     with pytest.raises(InputError, match=r"has 2 targets"):
         mt.match(two, target[:, :, :])
 
@@ -214,13 +234,16 @@ def test_8bit_target_is_decoded_and_clipped_pixels_dropped(tmp_path):
     img, clipped = mt.read_target(str(tmp_path / "t.png"))
     assert img[0, 0, 0] == pytest.approx(((128 / 255 + 0.055) / 1.055) ** 2.4, rel=1e-6)
     assert clipped.sum() == 1 and clipped[1, 2]
-    assert np.allclose(imageio.srgb_encode(imageio.srgb_decode(np.linspace(0, 1, 11))), np.linspace(0, 1, 11))
+    assert np.allclose(
+        imageio.srgb_encode(imageio.srgb_decode(np.linspace(0, 1, 11))), np.linspace(0, 1, 11)
+    )
     with pytest.raises(InputError, match="not a readable image"):
         open(str(tmp_path / "bad.png"), "wb").write(b"nope")
         mt.read_target(str(tmp_path / "bad.png"))
 
 
 # -------------------------------------------------------------------- CLI
+
 
 def test_cli_writes_blend_sheet_and_json(basis, manifold, tmp_path, capsys):
     b, _ = basis
@@ -232,12 +255,35 @@ def test_cli_writes_blend_sheet_and_json(basis, manifold, tmp_path, capsys):
     m[2:14, 3:17] = 255
     imageio.write_png(mpath, m)
     out, js = str(tmp_path / "o" / "best.exr"), str(tmp_path / "best.json")
-    assert cli.main(["--basis", b.folder, "--target", tpath, "--mask", mpath, "--exposure-free",
-                     "--out", out, "--png", "--json", js]) == 0
+    assert (
+        cli.main(
+            [
+                "--basis",
+                b.folder,
+                "--target",
+                tpath,
+                "--mask",
+                mpath,
+                "--exposure-free",
+                "--out",
+                out,
+                "--png",
+                "--json",
+                js,
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
-    assert "best latent point" in text and "fitted exposure x2" in text and "nearest training materials" in text
+    assert (
+        "best latent point" in text
+        and "fitted exposure x2" in text
+        and "nearest training materials" in text
+    )
     got = json.load(open(js))
-    assert np.allclose(got["x"], x_true, atol=1e-3) and got["exposure"] == pytest.approx(2.0, rel=1e-3)
+    assert np.allclose(got["x"], x_true, atol=1e-3) and got["exposure"] == pytest.approx(
+        2.0, rel=1e-3
+    )
     assert got["mask"] == os.path.abspath(mpath) and len(got["weights"]) == manifold.n
     assert np.allclose(imageio.read_exr(out), _blend(b, manifold, got["x"]), atol=1e-4)
     assert os.path.isfile(str(tmp_path / "o" / "best_sheet.png"))
@@ -251,20 +297,25 @@ def test_cli_bad_input_writes_nothing(basis, manifold, tmp_path, capsys, small_m
     imageio.write_exr(small, np.ones((8, 8, 3)))
     nan = str(tmp_path / "nan.exr")
     import OpenEXR  # write_exr refuses NaN: write one through OpenEXR directly
+
     img = np.ones((RES[1], RES[0], 3), dtype=np.float32)
     img[0, 0, 0] = np.nan
-    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, {"RGB": img}).write(nan)
+    OpenEXR.File(
+        {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, {"RGB": img}
+    ).write(nan)
     black = str(tmp_path / "black.png")
     imageio.write_png(black, np.zeros((RES[1], RES[0], 3), dtype=np.uint8))
     out, js = str(tmp_path / "best.exr"), str(tmp_path / "best.json")
     outs = ["--out", out, "--json", js]
-    cases = [(["--target", small] + outs, "small.exr is 8x8, the basis is 20x16"),
-             (["--target", nan] + outs, "NaN or Inf"),
-             (["--target", good, "--mask", black] + outs, "selects no pixel (all zero)"),
-             (["--target", str(tmp_path / "none.exr")] + outs, "none.exr: image file does not exist"),
-             (["--target", good, "--out", good], "would overwrite an input"),
-             (["--target", good, "--out", str(tmp_path / "best.png")], "--out must name an .exr file"),
-             (["--target", good, "--png", "--json", js], "give --out")]
+    cases = [
+        (["--target", small] + outs, "small.exr is 8x8, the basis is 20x16"),
+        (["--target", nan] + outs, "NaN or Inf"),
+        (["--target", good, "--mask", black] + outs, "selects no pixel (all zero)"),
+        (["--target", str(tmp_path / "none.exr")] + outs, "none.exr: image file does not exist"),
+        (["--target", good, "--out", good], "would overwrite an input"),
+        (["--target", good, "--out", str(tmp_path / "best.png")], "--out must name an .exr file"),
+        (["--target", good, "--png", "--json", js], "give --out"),
+    ]
     for extra, message in cases:
         with pytest.raises(SystemExit) as e:
             cli.main(["--basis", b.folder] + extra)

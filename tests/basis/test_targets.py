@@ -17,21 +17,31 @@ from mitsuba_manifold.imaging import io as imageio
 def _png_header_only(path, width, height, depth=8, colour=2):
     """A PNG whose header claims ``width`` x ``height`` pixels, with one empty data chunk: what
     a decompression bomb looks like before decoding."""
+
     def chunk(kind, data):
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        return (
+            struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        )
+
     ihdr = struct.pack(">IIBBBBB", width, height, depth, colour, 0, 0, 0)
-    path.write_bytes(targets.PNG_SIGNATURE + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b""))
-                     + chunk(b"IEND", b""))
+    path.write_bytes(
+        targets.PNG_SIGNATURE
+        + chunk(b"IHDR", ihdr)
+        + chunk(b"IDAT", zlib.compress(b""))
+        + chunk(b"IEND", b"")
+    )
 
 
 def test_16bit_greyscale_png_target_is_read_at_its_depth(tmp_path):
-    codes = (np.arange(64).reshape(8, 8) * 1000 + 300).astype(np.uint16)   # 300 .. 63300, none at 65535
+    codes = (np.arange(64).reshape(8, 8) * 1000 + 300).astype(
+        np.uint16
+    )  # 300 .. 63300, none at 65535
     Image.fromarray(codes).save(tmp_path / "t.png")
     img, clipped = targets.read_target(tmp_path / "t.png", (8, 8))
     want = imageio.srgb_decode(codes / 65535.0)
     assert img.shape == (8, 8, 3) and not clipped.any()
     assert np.allclose(img, want[..., None], rtol=1e-6, atol=1e-9)
-    assert len(np.unique(img[..., 0])) == 64                     # not 8-bit (nor all clipped at 255)
+    assert len(np.unique(img[..., 0])) == 64  # not 8-bit (nor all clipped at 255)
     codes[0, 0] = 65535
     Image.fromarray(codes).save(tmp_path / "t.png")
     assert targets.read_target(tmp_path / "t.png")[1].sum() == 1

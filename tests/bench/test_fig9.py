@@ -17,4 +17,6 @@ def test_fig9_every_neighbour_pair_measures_each_pair_once(m):
     want = [[m.names[i], m.names[j]] for i, j in space.all_neighbour_pairs(m.latent)]
     assert [r["pair"] for r in rep["rows"]] == want
     assert rep["largest_step"] == max(r["largest_step"] for r in rep["rows"]) <= 1.0
-    assert rep["steps_over_target"] == sum(r["largest_step"] > fig9.TARGETS["largest_step"] for r in rep["rows"])
+    assert rep["steps_over_target"] == sum(
+        r["largest_step"] > fig9.TARGETS["largest_step"] for r in rep["rows"]
+    )

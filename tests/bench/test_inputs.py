@@ -5,7 +5,6 @@ makes first, runs for minutes)."""
 import os
 
 import pytest
-
 from guarantees_helpers import assert_one_error, run_tool, snapshot
 
 from mitsuba_manifold.errors import InputError
@@ -32,6 +31,7 @@ def work(tmp_path, monkeypatch):
         os.makedirs(folder, exist_ok=True)
 
     from mitsuba_manifold.data import database
+
     monkeypatch.setattr(database, "make_database", make_database)
     return {"root": tmp_path, "db": str(db), "made": made, "before": snapshot(tmp_path)}
 
@@ -68,12 +68,15 @@ def test_space_refuses_folds_beyond_the_ten(work, folds):
 
 
 def test_space_refuses_a_fold_that_holds_none_of_few_materials(work):
-    line = _refused(work, "space", "--database", work["db"], "--materials", "m00,m01,m02", "--folds", "5")
+    line = _refused(
+        work, "space", "--database", work["db"], "--materials", "m00,m01,m02", "--folds", "5"
+    )
     assert "--folds" in line and "3 materials" in line
 
 
 def test_space_library_refuses_folds_and_configs_before_reading_the_database(work):
     from benchmarks import space
+
     with pytest.raises(InputError, match="`folds`.*0 to 9"):
         space.run(work["db"], folds=[11], progress=False)
     with pytest.raises(InputError, match="`configs`.*did you mean 'default'"):
@@ -86,12 +89,15 @@ def test_match_refuses_a_resolution_below_one_before_making_its_folder(work, res
     line = _refused(work, "match", "--database", work["db"], "--res", res)
     assert "--res" in line and "at least 1" in line
     from benchmarks import match
+
     with pytest.raises(InputError, match="`res`"):
         match.run(work["db"], res=int(res), progress=False)
     assert snapshot(work["root"]) == work["before"]
 
 
-@pytest.mark.parametrize("which, name, hint", [("space", "defualt", "default"), ("fig9", "papr", "paper")])
+@pytest.mark.parametrize(
+    "which, name, hint", [("space", "defualt", "default"), ("fig9", "papr", "paper")]
+)
 def test_unknown_configs_are_refused_with_a_did_you_mean(work, which, name, hint):
     line = _refused(work, which, "--database", work["db"], "--configs", name)
     assert "--configs" in line and f"did you mean '{hint}'" in line
@@ -100,14 +106,20 @@ def test_unknown_configs_are_refused_with_a_did_you_mean(work, which, name, hint
 def test_unknown_materials_are_refused_with_a_did_you_mean(work):
     line = _refused(work, "fit", "--database", work["db"], "--materials", "m01,m1O")
     assert "--materials" in line and "did you mean" in line and "m1O" in line
-    line = _refused(work, "pca", "--materials", "chrom")   # the built-in database, made later
+    line = _refused(work, "pca", "--materials", "chrom")  # the built-in database, made later
     assert "--materials" in line and "did you mean 'chrome'" in line
 
 
-@pytest.mark.parametrize("args, option", [(["interp", "--res", "64"], "--res"), (["fit", "--folds", "1"], "--folds"),
-                                          (["interp", "--basis", "b"], "--basis"),
-                                          (["stability", "--configs", "paper"], "--configs"),
-                                          (["interp", "--materials", "m00"], "--materials")])
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (["interp", "--res", "64"], "--res"),
+        (["fit", "--folds", "1"], "--folds"),
+        (["interp", "--basis", "b"], "--basis"),
+        (["stability", "--configs", "paper"], "--configs"),
+        (["interp", "--materials", "m00"], "--materials"),
+    ],
+)
 def test_options_of_other_benchmarks_are_refused_not_ignored(work, args, option):
     line = _refused(work, *args)
     assert f"takes no {option}" in line
@@ -116,6 +128,7 @@ def test_options_of_other_benchmarks_are_refused_not_ignored(work, args, option)
 def test_bench_inputs_take_builtin_database_names(tmp_path):
     from benchmarks.inputs import database_names
     from mitsuba_manifold.errors import InputError
+
     assert len(database_names("rgl")) == 51
     with pytest.raises(InputError, match="does not exist.*built-in databases: merl"):
         database_names(str(tmp_path / "merl_folder"))

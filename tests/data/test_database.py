@@ -17,24 +17,31 @@ def test_sgd_value_against_hand_computation():
     n = np.array([[0.0, 0.0, 1.0]])
     f = database.sgd_reflectance(p, n, n)[0]
     alpha, pp, kap = p["alpha"], p["p"], p["kap"]
-    D = kap * np.exp(-alpha) / (np.pi * alpha ** pp)
+    D = kap * np.exp(-alpha) / (np.pi * alpha**pp)
     F = p["f0"] - p["f1"]
-    G1 = np.clip(1 + p["lambda"] * (1 - np.exp(p["c"] * np.maximum(0 - p["theta0"], 0) ** p["k"])), 0, 1)
+    G1 = np.clip(
+        1 + p["lambda"] * (1 - np.exp(p["c"] * np.maximum(0 - p["theta0"], 0) ** p["k"])), 0, 1
+    )
     assert np.allclose(f, (p["rho_d"] + p["rho_s"] * F * D * G1 * G1) / np.pi, rtol=1e-12)
 
     # An oblique pair in the plane of incidence: theta_i = 30 deg, theta_o = 50 deg.
     ti, to = np.radians(30), np.radians(50)
     wi = np.array([[np.sin(ti), 0, np.cos(ti)]])
     wo = np.array([[-np.sin(to), 0, np.cos(to)]])
-    th = (to - ti) / 2                      # half vector elevation, cos_d = cos((ti + to) / 2)
+    th = (to - ti) / 2  # half vector elevation, cos_d = cos((ti + to) / 2)
     cd = np.cos((ti + to) / 2)
     A = alpha + np.tan(th) ** 2 / alpha
-    D = kap * np.exp(-A) / (np.pi * A ** pp * np.cos(th) ** 4)
+    D = kap * np.exp(-A) / (np.pi * A**pp * np.cos(th) ** 4)
     F = p["f0"] - cd * p["f1"] + (1 - cd) ** 5 * (1 - p["f0"])
 
     def g1(t):
-        return np.clip(1 + p["lambda"] * (1 - np.exp(p["c"] * np.maximum(t - p["theta0"], 0) ** p["k"])), 0, 1)
-    expected = (p["rho_d"] + p["rho_s"] * F * D * g1(ti) * g1(to) / (np.cos(ti) * np.cos(to))) / np.pi
+        return np.clip(
+            1 + p["lambda"] * (1 - np.exp(p["c"] * np.maximum(t - p["theta0"], 0) ** p["k"])), 0, 1
+        )
+
+    expected = (
+        p["rho_d"] + p["rho_s"] * F * D * g1(ti) * g1(to) / (np.cos(ti) * np.cos(to))
+    ) / np.pi
     assert np.allclose(database.sgd_reflectance(p, wi, wo)[0], expected, rtol=1e-10)
     # Below the horizon: zero.
     assert np.all(database.sgd_reflectance(p, wi, wo * [1, 1, -1]) == 0)
@@ -62,7 +69,9 @@ def test_tabulation_flags_below_horizon_and_uses_bin_centres():
     th, td, pd = merl.bin_centres(dims)
     i = (3, 7, 11)
     wi, wo = merl.directions(th[i], td[i], pd[i])
-    expected = database.sgd_reflectance(database.load_sgd_fits()["pink-fabric"], wi[None], wo[None])[0]
+    expected = database.sgd_reflectance(
+        database.load_sgd_fits()["pink-fabric"], wi[None], wo[None]
+    )[0]
     assert np.allclose(raw[(slice(None),) + i] * merl.SCALE, expected, rtol=1e-12)
     with pytest.raises(KeyError, match="unknown material 'no-such'"):
         database.tabulate_sgd("no-such", dims)
@@ -86,18 +95,31 @@ def test_make_database_is_deterministic_and_keeps_valid_files(tmp_path):
         database.make_database(a, dims, ["steel"], noise=0.2, seed=7)
     with pytest.raises(ValueError, match="unknown material"):
         database.make_database(tmp_path / "c", dims, ["steel", "unobtainium"])
-    with pytest.raises(ValueError, match=r"\['stel'\] \(did you mean 'steel'"):   # a typo gets a suggestion
+    with pytest.raises(
+        ValueError, match=r"\['stel'\] \(did you mean 'steel'"
+    ):  # a typo gets a suggestion
         database.make_database(tmp_path / "c", dims, ["stel"])
     assert json.loads((a / "database.json").read_text())["seed"] == 7
 
 
 def test_repeated_materials_make_one_table_each_and_are_counted_once(tmp_path):
     from guarantees_helpers import run_tool
-    rc, out, err = run_tool("make_database", "--out", tmp_path / "db", "--resolution", "4,4,8",
-                            "--materials", "chrome,chrome,steel,chrome")
+
+    rc, out, err = run_tool(
+        "make_database",
+        "--out",
+        tmp_path / "db",
+        "--resolution",
+        "4,4,8",
+        "--materials",
+        "chrome,chrome,steel,chrome",
+    )
     assert rc == 0, err
     assert "chrome repeated" in out and "2 .binary files in" in out
-    assert sorted(f for f in os.listdir(tmp_path / "db") if f.endswith(".binary")) == ["chrome.binary", "steel.binary"]
+    assert sorted(f for f in os.listdir(tmp_path / "db") if f.endswith(".binary")) == [
+        "chrome.binary",
+        "steel.binary",
+    ]
     paths = database.make_database(tmp_path / "db2", (4, 4, 8), ["steel", "steel"])
     assert paths == [os.path.join(tmp_path / "db2", "steel.binary")]
 
@@ -116,7 +138,9 @@ def test_database_folder_errors(tmp_path, small_db):
     folder = tmp_path / "mixed"
     database.make_database(folder, (8, 8, 16), ["steel"])
     merl.write_binary(folder / "other.binary", np.ones((3, 4, 4, 8)))
-    with pytest.raises(ValueError, match="different resolutions: ") as e:      # a tie: every group named
+    with pytest.raises(
+        ValueError, match="different resolutions: "
+    ) as e:  # a tie: every group named
         database.Database(folder)
     assert "8x8x16: steel.binary" in str(e.value) and "4x4x8: other.binary" in str(e.value)
     database.make_database(folder, (8, 8, 16), ["steel", "chrome"])
@@ -161,8 +185,8 @@ def test_cache_follows_the_content_even_with_the_mtime_restored(tmp_path):
     old_hash, old_table = before.hash("steel"), np.array(before.reflectance("steel"))
     st = os.stat(path)
     raw = merl.read_binary(path)
-    raw[:, raw[0] > 0] *= 2.0                       # same size, different bytes
-    with open(path, "r+b") as f:                    # in place (same inode)
+    raw[:, raw[0] > 0] *= 2.0  # same size, different bytes
+    with open(path, "r+b") as f:  # in place (same inode)
         f.seek(0)
         f.write(open(path, "rb").read()[:12])
         f.write(np.asarray(raw, "<f8").tobytes())
@@ -170,14 +194,19 @@ def test_cache_follows_the_content_even_with_the_mtime_restored(tmp_path):
     assert os.stat(path).st_size == st.st_size and os.stat(path).st_mtime_ns == st.st_mtime_ns
     after = database.Database(folder)
     assert after.hash("steel") != old_hash
-    np.testing.assert_allclose(np.array(after.reflectance("steel")), np.where(old_table > 0, 2 * old_table, old_table),
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        np.array(after.reflectance("steel")),
+        np.where(old_table > 0, 2 * old_table, old_table),
+        rtol=1e-6,
+    )
 
 
 def test_a_database_skips_the_temporary_files_of_writers(tmp_path, small_db):
     """A killed writer's temporary (old and new naming) is not read as a material (issue 20)."""
     import shutil
+
     from mitsuba_manifold.data.database import Database
+
     folder = tmp_path / "db"
     shutil.copytree(small_db, folder)
     first = sorted(Database(str(folder)).names)
@@ -190,8 +219,10 @@ def test_a_table_written_without_its_cache_is_made_again(tmp_path, monkeypatch):
     """A run stopped between a table and its reflectance cache (SIGTERM reaching a worker there):
     the next run makes that table again, and the folder is the one an uninterrupted run makes."""
     import sys
+
     sys.path.insert(0, os.path.dirname(os.path.dirname(__file__)))
     from guarantees_helpers import snapshot
+
     names, dims = ["steel", "chrome", "gold-paint"], (8, 8, 16)
     database.make_database(tmp_path / "clean", dims, names)
     real, calls = database.npy_cache, []
@@ -199,7 +230,7 @@ def test_a_table_written_without_its_cache_is_made_again(tmp_path, monkeypatch):
     def stopped(*args, **kwargs):
         calls.append(1)
         if len(calls) == 2:
-            raise KeyboardInterrupt   # the second table is on disk, its cache is not
+            raise KeyboardInterrupt  # the second table is on disk, its cache is not
         return real(*args, **kwargs)
 
     monkeypatch.setattr(database, "npy_cache", stopped)

@@ -30,7 +30,9 @@ def test_distance_is_a_metric_on_random_tables():
     pair = distance.brdf_distance(T[:, None], T[None])
     assert np.allclose(D, pair, rtol=1e-9, atol=1e-12)
     assert distance.brdf_distance(T[3], T[3]) == 0.0
-    assert distance.brdf_distance(T[3], T[5]) == pytest.approx(distance.brdf_distance(T[5], T[3]), rel=1e-14)
+    assert distance.brdf_distance(T[3], T[5]) == pytest.approx(
+        distance.brdf_distance(T[5], T[3]), rel=1e-14
+    )
 
 
 def test_two_stacks_and_the_identical_rows_in_them():
@@ -59,7 +61,9 @@ def test_layouts_agree_channel_first_last_and_flat():
     flat = T.reshape(3, -1)
     assert distance.brdf_distance(last[0], last[1]) == pytest.approx(ref, rel=1e-12)
     assert distance.brdf_distance(flat[0], flat[1], dims=DIMS) == pytest.approx(ref, rel=1e-12)
-    assert np.allclose(distance.distance_matrix(flat, dims=DIMS), distance.distance_matrix(T), rtol=1e-9)
+    assert np.allclose(
+        distance.distance_matrix(flat, dims=DIMS), distance.distance_matrix(T), rtol=1e-9
+    )
     with pytest.raises(InputError, match="`tables`"):
         distance.brdf_distance(flat[0], flat[1])
     with pytest.raises(InputError, match="different resolutions"):
@@ -78,7 +82,7 @@ def test_a_sub_grid_estimates_the_full_grid(small_db):
     quad = distance.Quadrature.of(db.dims, (1, 5, 10))
     assert quad.size < 0.1 * T.shape[1]
     # the cells' measure covers the same integral: weights sum to 1 on both grids
-    assert (quad.scale ** 2).sum() == pytest.approx(1.0, rel=0.02)
+    assert (quad.scale**2).sum() == pytest.approx(1.0, rel=0.02)
     assert (distance.Quadrature.of(db.dims).scale ** 2).sum() == pytest.approx(1.0, rel=1e-9)
     with pytest.raises(InputError, match="`stride`"):
         distance.Quadrature.of(db.dims, (0, 1, 1))

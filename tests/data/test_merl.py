@@ -4,7 +4,8 @@ import os
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mitsuba_manifold.data import merl
 
@@ -29,7 +30,7 @@ def test_round_trip_is_bit_exact(tmp_path):
     assert a.read_bytes() == b.read_bytes()
     umask = os.umask(0)
     os.umask(umask)
-    assert os.stat(a).st_mode & 0o777 == 0o666 & ~umask   # not mkstemp's private 0600
+    assert os.stat(a).st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's private 0600
 
 
 def test_layout_matches_merl_reference(tmp_path):
@@ -71,8 +72,8 @@ def test_nan_and_inf_are_rejected(tmp_path):
     path = tmp_path / "x.binary"
     merl.write_binary(path, raw)
     data = bytearray(path.read_bytes())
-    data[12 + 8 * 7:12 + 8 * 8] = np.array([np.nan]).tobytes()
-    data[12 + 8 * 9:12 + 8 * 10] = np.array([np.inf]).tobytes()
+    data[12 + 8 * 7 : 12 + 8 * 8] = np.array([np.nan]).tobytes()
+    data[12 + 8 * 9 : 12 + 8 * 10] = np.array([np.inf]).tobytes()
     path.write_bytes(bytes(data))
     with pytest.raises(merl.FormatError, match="2 values are NaN or Inf"):
         merl.read_binary(path)
@@ -81,8 +82,10 @@ def test_nan_and_inf_are_rejected(tmp_path):
 
 
 @settings(max_examples=60, deadline=None)
-@given(cut=st.integers(min_value=0, max_value=12 + 3 * 8 * 240 - 1),
-       header=st.tuples(st.integers(-5, 300), st.integers(-5, 300), st.integers(-5, 300)))
+@given(
+    cut=st.integers(min_value=0, max_value=12 + 3 * 8 * 240 - 1),
+    header=st.tuples(st.integers(-5, 300), st.integers(-5, 300), st.integers(-5, 300)),
+)
 def test_fuzzed_corrupt_files_raise_clear_errors(tmp_path_factory, cut, header):
     folder = tmp_path_factory.mktemp("fuzz")
     raw = _random_raw()
@@ -127,7 +130,9 @@ def test_half_diff_matches_direct_vector_computation():
     phi_h = np.arctan2(h[:, 1], h[:, 0])
     theta_h = np.arccos(h[:, 2])
     # Frame around h: e1 = d h / d theta_h, e2 = d h / d phi_h (normalised), e3 = h.
-    e1 = np.stack([np.cos(theta_h) * np.cos(phi_h), np.cos(theta_h) * np.sin(phi_h), -np.sin(theta_h)], -1)
+    e1 = np.stack(
+        [np.cos(theta_h) * np.cos(phi_h), np.cos(theta_h) * np.sin(phi_h), -np.sin(theta_h)], -1
+    )
     e2 = np.stack([-np.sin(phi_h), np.cos(phi_h), np.zeros_like(phi_h)], -1)
     d = np.stack([(wi * e1).sum(-1), (wi * e2).sum(-1), (wi * h).sum(-1)], -1)
     assert np.allclose(th, theta_h, atol=1e-12)
@@ -151,9 +156,11 @@ def test_bin_index_reciprocity_and_merl_rules():
     b = merl.flat_index(wo, wi)
     assert np.array_equal(a, b)
     # MERL's reference indexing on hand-chosen values
-    i_h, i_d, i_p = merl.bin_index(np.array([0.0, (0.5 ** 2) * np.pi / 2, np.pi / 2, 2.0, -0.1]),
-                                   np.array([0.0, np.pi / 4, np.pi / 2, 0.01, 0.0]),
-                                   np.array([-np.pi / 2, np.pi / 2, np.pi, -1e-9, 3 * np.pi / 2]))
+    i_h, i_d, i_p = merl.bin_index(
+        np.array([0.0, (0.5**2) * np.pi / 2, np.pi / 2, 2.0, -0.1]),
+        np.array([0.0, np.pi / 4, np.pi / 2, 0.01, 0.0]),
+        np.array([-np.pi / 2, np.pi / 2, np.pi, -1e-9, 3 * np.pi / 2]),
+    )
     assert i_h.tolist() == [0, 45, 89, 89, 0]
     assert i_d.tolist() == [0, 45, 89, 0, 0]
     assert i_p.tolist() == [90, 90, 0, 179, 90]
@@ -181,7 +188,7 @@ def test_filled_reflectance_convention():
     raw = np.where(mask, 300.0, -1.0)[None].repeat(3, axis=0)
     raw[1] *= 2
     hole = tuple(np.argwhere(mask)[len(np.argwhere(mask)) // 2])
-    raw[(0,) + hole] = -1.0               # unmeasured above the horizon: nearest value
+    raw[(0,) + hole] = -1.0  # unmeasured above the horizon: nearest value
     refl = merl.filled_reflectance(raw)
     assert refl.dtype == np.float32
     assert np.all(refl[:, ~mask] == 0)

@@ -40,12 +40,14 @@ def test_a_network_evaluates_as_computed_by_hand():
     nets = _paper_network()
     # theta_h = 0: h1 = 1, h2 = 2 - 0.5 = 1.5, y = (1.5, 0.75, -1), f = exp(y) - 1 clamped at 0
     v = nbrdf.features([0.0], [0.3], [1.0])
-    np.testing.assert_allclose(nets.evaluate("paper", v)[0], [math.exp(1.5) - 1, math.exp(0.75) - 1, 0.0],
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        nets.evaluate("paper", v)[0], [math.exp(1.5) - 1, math.exp(0.75) - 1, 0.0], rtol=1e-6
+    )
     # theta_h = 60 degrees: h1 = 0.5, h2 = relu(1 - 0.5) = 0.5, y = (0.5, 0.25, -1)
     v = nbrdf.features([math.pi / 3], [0.1], [0.0])
-    np.testing.assert_allclose(nets.evaluate("paper", v)[0], [math.exp(0.5) - 1, math.exp(0.25) - 1, 0.0],
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        nets.evaluate("paper", v)[0], [math.exp(0.5) - 1, math.exp(0.25) - 1, 0.0], rtol=1e-5
+    )
     # theta_h = 80 degrees: h1 = 0.174, h2 = relu(0.347 - 0.5) = 0, y = b3: f = (0, 0, 0)
     v = nbrdf.features([math.radians(80)], [0.1], [0.0])
     np.testing.assert_allclose(nets.evaluate("paper", v)[0], [0.0, 0.0, 0.0], atol=1e-7)
@@ -58,10 +60,16 @@ def test_tabulation_puts_the_hand_values_at_the_bins_positions():
         table = nbrdf.tabulate(nets, "paper", dims, positions)
         th = nbrdf.grid_positions(dims, positions)[0]
         u = np.maximum(2 * np.cos(th) - 0.5, 0.0)
-        np.testing.assert_allclose(table[0], np.where(above, np.expm1(u), 0.0), rtol=1e-5, atol=1e-7)
-        np.testing.assert_allclose(table[1], np.where(above, np.expm1(u / 2), 0.0), rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(
+            table[0], np.where(above, np.expm1(u), 0.0), rtol=1e-5, atol=1e-7
+        )
+        np.testing.assert_allclose(
+            table[1], np.where(above, np.expm1(u / 2), 0.0), rtol=1e-5, atol=1e-7
+        )
         assert not table[2].any()
-    assert nbrdf.tabulate(nets, "paper", dims, "starts")[0, 0, 0, 0] == pytest.approx(math.exp(1.5) - 1, rel=1e-6)
+    assert nbrdf.tabulate(nets, "paper", dims, "starts")[0, 0, 0, 0] == pytest.approx(
+        math.exp(1.5) - 1, rel=1e-6
+    )
 
 
 def test_many_networks_at_once_match_one_at_a_time():
@@ -85,16 +93,19 @@ def test_a_builtin_set_needs_no_files_and_caches_its_tables_by_content(tmp_path)
     table = db.reflectance("bluebook")
     nets = nbrdf.NetworkSet.load(nbrdf.WEIGHTS_PATH, "nielsen")
     exact = nbrdf.tabulate(nets, "bluebook", (8, 8, 16), sources.SET_POSITIONS["nielsen"])
-    np.testing.assert_allclose(table, exact, rtol=1e-3)   # float16 cache
+    np.testing.assert_allclose(table, exact, rtol=1e-3)  # float16 cache
     cached = os.listdir(tmp_path / "cache" / "builtin")
     assert cached == [db.hash("bluebook") + ".refl16.npy"]
-    assert db.hash("bluebook") != Database("nielsen@8x8x17").hash("bluebook")   # resolution is in the hash
+    assert db.hash("bluebook") != Database("nielsen@8x8x17").hash(
+        "bluebook"
+    )  # resolution is in the hash
     np.testing.assert_array_equal(Database("nielsen@8x8x16").reflectance("bluebook"), table)
 
 
 def _write_keras(folder, nets, name):
     """The authors' files of one network: Keras ``save_weights`` layout and the model's JSON."""
     import h5py
+
     with h5py.File(os.path.join(folder, name + ".h5"), "w") as f:
         layers = ["dense_1", "dense_2", "dense_3", "lambda_1"]
         f.attrs["layer_names"] = [n.encode() for n in layers]
@@ -104,8 +115,10 @@ def _write_keras(folder, nets, name):
             g[f"{layer}/kernel:0"] = getattr(nets, f"w{k + 1}")[0]
             g[f"{layer}/bias:0"] = getattr(nets, f"b{k + 1}")[0]
         f.create_group("lambda_1").attrs["weight_names"] = []
-    dense = [{"class_name": "Dense", "config": {"units": u, "activation": a}}
-             for u, a in ((21, "relu"), (21, "relu"), (3, "linear"))]
+    dense = [
+        {"class_name": "Dense", "config": {"units": u, "activation": a}}
+        for u, a in ((21, "relu"), (21, "relu"), (3, "linear"))
+    ]
     with open(os.path.join(folder, name + ".json"), "w") as f:
         json.dump({"class_name": "Sequential", "config": {"layers": dense}}, f)
 
@@ -121,10 +134,14 @@ def test_a_folder_mixes_binary_files_networks_and_the_authors_files(tmp_path):
     _write_keras(folder, nielsen.subset(["bluebook"]), "blue_book")
     db = Database(folder)
     assert db.names == ["blue_book", "my_notebook", "steel"] and db.dims == dims
-    assert {n: s.kind for n, s in db.sources.items()} == {"blue_book": "nbrdf", "my_notebook": "nbrdf",
-                                                          "steel": "binary"}
-    np.testing.assert_allclose(db.reflectance("blue_book"), nbrdf.tabulate(nielsen, "bluebook", dims, "starts"),
-                               rtol=1e-3)
+    assert {n: s.kind for n, s in db.sources.items()} == {
+        "blue_book": "nbrdf",
+        "my_notebook": "nbrdf",
+        "steel": "binary",
+    }
+    np.testing.assert_allclose(
+        db.reflectance("blue_book"), nbrdf.tabulate(nielsen, "bluebook", dims, "starts"), rtol=1e-3
+    )
     np.testing.assert_allclose(db.reflectance("steel"), steel.table(dims), rtol=1e-6)
     assert db.stack().shape == (3, 3 * 8 * 8 * 16)
 
@@ -133,14 +150,18 @@ def test_two_files_naming_one_material_are_refused(tmp_path):
     nielsen = nbrdf.NetworkSet.load(nbrdf.WEIGHTS_PATH, "nielsen")
     nielsen.subset(["notebook"]).save(tmp_path / "notebook.npz")
     _write_keras(tmp_path, nielsen.subset(["notebook"]), "notebook_rgb")
-    with pytest.raises(FormatError, match=r"two files give the material 'notebook'.*notebook.*\.(npz|h5)"):
+    with pytest.raises(
+        FormatError, match=r"two files give the material 'notebook'.*notebook.*\.(npz|h5)"
+    ):
         Database(tmp_path)
 
 
 def test_a_users_file_clashing_with_a_builtin_set_is_refused_and_nothing_written(tmp_path):
     folder = tmp_path / "mine"
     folder.mkdir()
-    nbrdf.NetworkSet.load(nbrdf.WEIGHTS_PATH, "nielsen").subset(["notebook"]).save(folder / "notebook.npz")
+    nbrdf.NetworkSet.load(nbrdf.WEIGHTS_PATH, "nielsen").subset(["notebook"]).save(
+        folder / "notebook.npz"
+    )
     with pytest.raises(FormatError, match="two materials are named 'notebook'.*rename one"):
         write_database(tmp_path / "db", ["nielsen", folder])
     assert not (tmp_path / "db").exists()
@@ -148,12 +169,22 @@ def test_a_users_file_clashing_with_a_builtin_set_is_refused_and_nothing_written
 
 def test_a_database_folder_names_its_sources_and_exports_binary_files(tmp_path):
     db = write_database(tmp_path / "db", ["nielsen", "rgl"], (8, 8, 16))
-    assert len(db.names) == 59 and "cardboard-nielsen" in db.names and not list((tmp_path / "db").glob("*.binary"))
-    out = write_database(tmp_path / "exported", [tmp_path / "db"], (8, 8, 16), materials=["cardboard-rgl"],
-                         export=True)
+    assert (
+        len(db.names) == 59
+        and "cardboard-nielsen" in db.names
+        and not list((tmp_path / "db").glob("*.binary"))
+    )
+    out = write_database(
+        tmp_path / "exported",
+        [tmp_path / "db"],
+        (8, 8, 16),
+        materials=["cardboard-rgl"],
+        export=True,
+    )
     assert out.names == ["cardboard-rgl"] and out.files_only
-    np.testing.assert_allclose(out.reflectance("cardboard-rgl"), db.reflectance("cardboard-rgl"), rtol=1e-3,
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        out.reflectance("cardboard-rgl"), db.reflectance("cardboard-rgl"), rtol=1e-3, atol=1e-6
+    )
     with pytest.raises(UnknownMaterialError, match="unknown material"):
         write_database(tmp_path / "x", ["nielsen"], (8, 8, 16), materials=["nope"], export=True)
     assert not (tmp_path / "x").exists()
@@ -164,18 +195,22 @@ def _tensor_file(path, n_phi):
     fields = [("phi_i", 10, (n_phi,)), ("theta_i", 10, (4,))]
     head = b"tensor_file\0" + bytes([1, 0]) + struct.pack("<I", len(fields))
     for name, dtype, shape in fields:
-        head += struct.pack("<H", len(name)) + name.encode() + struct.pack("<HBQ", len(shape), dtype, 0)
+        head += (
+            struct.pack("<H", len(name)) + name.encode() + struct.pack("<HBQ", len(shape), dtype, 0)
+        )
         head += b"".join(struct.pack("<Q", n) for n in shape)
     path.write_bytes(head + bytes(64))
 
 
 def test_anisotropic_measured_files_are_refused_by_their_header(tmp_path):
     _tensor_file(tmp_path / "brushed_rgb.bsdf", 3)
-    with pytest.raises(FormatError, match=r"brushed_rgb\.bsdf: an anisotropic measurement \(3 incident azimuths\)"):
+    with pytest.raises(
+        FormatError, match=r"brushed_rgb\.bsdf: an anisotropic measurement \(3 incident azimuths\)"
+    ):
         Database(tmp_path)
     (tmp_path / "brushed_rgb.bsdf").unlink()
     _tensor_file(tmp_path / "matte_spec.bsdf", 1)
-    assert Database(tmp_path).names == ["matte"]   # named without _spec
+    assert Database(tmp_path).names == ["matte"]  # named without _spec
     (tmp_path / "junk.bsdf").write_bytes(b"not a tensor")
     with pytest.raises(FormatError, match="junk.bsdf: not a Mitsuba tensor_file"):
         Database(tmp_path)
@@ -190,11 +225,15 @@ def test_the_real_rgl_files_are_isotropic_tensor_files():
 
 def test_builtin_names_in_the_command_line_tools(tmp_path):
     from mitsuba_manifold.apps.cli import fit_manifold, make_database
-    assert make_database.main(["--out", str(tmp_path / "db"), "--from", "nielsen", "--resolution", "8,8,16"]) in (0, None)
+
+    assert make_database.main(
+        ["--out", str(tmp_path / "db"), "--from", "nielsen", "--resolution", "8,8,16"]
+    ) in (0, None)
     assert json.loads((tmp_path / "db" / "sources.json").read_text())["from"] == ["nielsen"]
     rc = fit_manifold.main(["nielsen@8x8x16", "--out", str(tmp_path / "m.npz"), "--q", "2"])
     assert rc in (0, None)
     from mitsuba_manifold import Manifold
+
     m = Manifold.load(tmp_path / "m.npz")
     assert m.database == "nielsen@8x8x16" and m.n == 8
     assert m.open_database().hash("notebook") == m.hashes[m.names.index("notebook")]
@@ -202,13 +241,24 @@ def test_builtin_names_in_the_command_line_tools(tmp_path):
 
 def test_project_takes_a_material_of_any_source(tmp_path, capsys):
     from mitsuba_manifold.apps.cli import fit_manifold, project
+
     fit_manifold.main(["nielsen@8x8x16", "--out", str(tmp_path / "m.npz"), "--q", "2"])
     capsys.readouterr()
-    project.main(["rgl:paper_white", "--manifold", str(tmp_path / "m.npz"), "--json", str(tmp_path / "p.json")])
+    project.main(
+        [
+            "rgl:paper_white",
+            "--manifold",
+            str(tmp_path / "m.npz"),
+            "--json",
+            str(tmp_path / "p.json"),
+        ]
+    )
     result = json.loads((tmp_path / "p.json").read_text())
     assert result["table"] == "rgl:paper_white" and result["nearest"] in Database("nielsen").names
     nets = nbrdf.NetworkSet.load(nbrdf.WEIGHTS_PATH, "nielsen")
-    nets.subset(["notebook"]).save(tmp_path / "notebook.npz", positions=sources.SET_POSITIONS["nielsen"])
+    nets.subset(["notebook"]).save(
+        tmp_path / "notebook.npz", positions=sources.SET_POSITIONS["nielsen"]
+    )
     capsys.readouterr()
     project.main([str(tmp_path / "notebook.npz"), "--manifold", str(tmp_path / "m.npz")])
     out = capsys.readouterr().out
@@ -218,11 +268,14 @@ def test_project_takes_a_material_of_any_source(tmp_path, capsys):
     assert "did you mean 'paper_white'" in capsys.readouterr().err
 
 
-@pytest.mark.render   # the pipeline imports the rendering subsystem
+@pytest.mark.render  # the pipeline imports the rendering subsystem
 def test_the_main_job_runs_on_the_measured_merl_set_and_refuses_unknown_databases(tmp_path):
     from mitsuba_manifold.apps.pipeline import MainJob
+
     assert MainJob(str(tmp_path / "out")).database == "merl"
     MainJob(str(tmp_path / "out"), database="rgl", res=8).check()
-    with pytest.raises(InputError, match=r"`database` nope:.*does not exist.*built-in databases: merl, rgl"):
+    with pytest.raises(
+        InputError, match=r"`database` nope:.*does not exist.*built-in databases: merl, rgl"
+    ):
         MainJob(str(tmp_path / "out"), database="nope").check()
     assert not (tmp_path / "out").exists()

@@ -102,6 +102,7 @@ def test_page_has_the_three_plugins():
 
 def test_manifold_brdf_parameters(small_manifold):
     import mitsuba as mi
+
     from mitsuba_manifold.render import bsdf, material
 
     rows = tables()["manifold_brdf"]
@@ -160,6 +161,7 @@ def test_manifold_brdf_traverse(small_manifold):
 @pytest.mark.parametrize("plugin", ["manifold_path", "manifold_aovs"])
 def test_integrator_parameters(plugin):
     import mitsuba as mi
+
     from mitsuba_manifold.render.integrators import aovs, path
 
     rows = tables()[plugin]

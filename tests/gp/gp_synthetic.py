@@ -22,7 +22,7 @@ def smooth_data(n, dd=300, hidden=2, seed=0):
 def dense_log_likelihood(X, S, d, l, mu):
     """Eq. 6 written with plain NumPy (slogdet and solve), the reference."""
     diff = X[:, None, :] - X[None, :, :]
-    K = np.exp(-np.sum(diff ** 2, axis=-1) / (2 * l * l)) + mu * np.eye(len(X))
+    K = np.exp(-np.sum(diff**2, axis=-1) / (2 * l * l)) + mu * np.eye(len(X))
     sign, logdet = np.linalg.slogdet(K)
     assert sign > 0
     return -0.5 * d * logdet - 0.5 * np.trace(np.linalg.solve(K, S))

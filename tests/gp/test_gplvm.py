@@ -5,10 +5,9 @@ import warnings
 
 import numpy as np
 import pytest
+from gp_synthetic import dense_log_likelihood, gram, smooth_data
 
 from mitsuba_manifold.gp import gplvm
-
-from gp_synthetic import dense_log_likelihood, gram, smooth_data
 
 
 @pytest.fixture(scope="module")
@@ -20,10 +19,11 @@ def problem():
 
 # ------------------------------------------------------------------ PCA start
 
+
 def test_pca_init_recovers_linear_layout_and_scales_with_l():
     rng = np.random.default_rng(4)
     coords = rng.standard_normal((15, 2)) * [3.0, 1.0]
-    Z = coords @ rng.standard_normal((2, 50))          # rank 2: PCA is exact
+    Z = coords @ rng.standard_normal((2, 50))  # rank 2: PCA is exact
     S = gram(Z)
     X = gplvm.pca_init(S, 2)
     assert X[:, 0].std() == pytest.approx(1.0, rel=1e-12)
@@ -33,7 +33,7 @@ def test_pca_init_recovers_linear_layout_and_scales_with_l():
 
     Zc = Z - Z.mean(0)
     ratio = distances(X)[np.triu_indices(15, 1)] / distances(Zc)[np.triu_indices(15, 1)]
-    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-9)   # an isometry up to one scale
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-9)  # an isometry up to one scale
     for l in (1e-3, 1e3):
         np.testing.assert_allclose(gplvm.pca_init(S, 2, length_scale=l), l * X, rtol=1e-12)
     # deterministic signs: the largest entry of each axis is positive
@@ -45,6 +45,7 @@ def test_pca_init_recovers_linear_layout_and_scales_with_l():
 
 
 # -------------------------------------------------------------- rank-updated inverse
+
 
 def fresh(X, S, d, mu):
     K = gplvm.kernel_matrix(X, noise=mu)
@@ -60,7 +61,7 @@ def test_rank_updates_match_fresh_factorisation_after_many_moves(problem, mu, sp
     n = len(S)
     rng = np.random.default_rng(5)
     X = rng.standard_normal((n, 3)) * spread
-    state = gplvm.RankUpdatedInverse(X, S, d, noise=mu, refactor_every=10 ** 6)
+    state = gplvm.RankUpdatedInverse(X, S, d, noise=mu, refactor_every=10**6)
     for _ in range(400):
         i = rng.integers(n)
         state.move(i, 0.9 * state.latent[i] + 0.5 * spread * rng.standard_normal(3))
@@ -113,11 +114,11 @@ def test_ill_conditioned_move_is_evaluated_from_scratch(problem):
     assert state.log_likelihood == pytest.approx(ref, rel=1e-8)
     # and moving it away again is accurate too
     state.move(3, X[3])
-    assert state.log_likelihood == pytest.approx(gplvm.log_likelihood(X, S, d, noise=mu),
-                                                 rel=1e-8)
+    assert state.log_likelihood == pytest.approx(gplvm.log_likelihood(X, S, d, noise=mu), rel=1e-8)
 
 
 # ----------------------------------------------------------------------- the fits
+
 
 def test_hooke_jeeves_never_decreases_L(problem, monkeypatch):
     S, d = problem
@@ -132,8 +133,9 @@ def test_hooke_jeeves_never_decreases_L(problem, monkeypatch):
         return after
 
     monkeypatch.setattr(gplvm.RankUpdatedInverse, "accept", recording_accept)
-    res = gplvm.fit_latent(S, d, q=2, init=X0,
-                           callback=lambda it, X, L: seen.append((it, L)) and False)
+    res = gplvm.fit_latent(
+        S, d, q=2, init=X0, callback=lambda it, X, L: seen.append((it, L)) and False
+    )
     h = res.history
     assert res.method == "hooke-jeeves"
     assert h[0] == pytest.approx(gplvm.log_likelihood(X0, S, d), rel=1e-12)
@@ -187,22 +189,24 @@ def test_fit_scales_with_length_scale(problem, method):
 
 # ------------------------------------------------------------------- stiff, extreme
 
+
 @pytest.mark.parametrize("method", ["hooke-jeeves", "lbfgs"])
 @pytest.mark.parametrize("mu", [1e-4, 1e-10])
 def test_duplicate_materials(method, mu):
     d = 1e5
     Z = smooth_data(14, seed=7)
     Z[5] = Z[2]
-    Z[9] = Z[2]                               # S singular beyond the mean
+    Z[9] = Z[2]  # S singular beyond the mean
     S = gram(Z, d)
     with warnings.catch_warnings():
-        warnings.simplefilter("error")        # no silent overflow/invalid value
+        warnings.simplefilter("error")  # no silent overflow/invalid value
         res = gplvm.fit_latent(S, d, q=2, method=method, noise=mu)
     assert np.isfinite(res.latent).all() and np.isfinite(res.history).all()
     assert np.all(np.diff(res.history) >= 0)
     assert res.log_likelihood > res.history[0]
     assert res.log_likelihood == pytest.approx(
-        gplvm.log_likelihood(res.latent, S, d, noise=mu), rel=1e-9)
+        gplvm.log_likelihood(res.latent, S, d, noise=mu), rel=1e-9
+    )
 
 
 def test_duplicates_coincide_under_hooke_jeeves():
@@ -234,14 +238,17 @@ def test_far_away_point_decouples(problem, method):
     X[6] = [1e6, -1e6]
     # K is block diagonal: L splits into the other points' L and point 6's own term
     rest = np.delete(np.arange(len(S)), 6)
-    expected = (dense_log_likelihood(X[rest], S[np.ix_(rest, rest)], d, 1.0, mu)
-                - 0.5 * d * np.log(1 + mu) - 0.5 * S[6, 6] / (1 + mu))
+    expected = (
+        dense_log_likelihood(X[rest], S[np.ix_(rest, rest)], d, 1.0, mu)
+        - 0.5 * d * np.log(1 + mu)
+        - 0.5 * S[6, 6] / (1 + mu)
+    )
     L, grad = gplvm.log_likelihood_grad(X, S, d, noise=mu)
     assert L == pytest.approx(expected, rel=1e-10)
     assert np.all(grad[6] == 0) and np.isfinite(grad).all()
     res = gplvm.fit_latent(S, d, q=2, method=method, init=X, noise=mu, max_iter=200)
     assert np.isfinite(res.latent).all()
-    assert np.all(res.latent[6] == X[6])          # no force reaches it
+    assert np.all(res.latent[6] == X[6])  # no force reaches it
     assert res.log_likelihood > L
     assert np.all(np.diff(res.history) >= 0)
 
@@ -273,34 +280,38 @@ def test_callback_can_stop_the_fit(problem):
 
 # --------------------------------------------------------------------- validation
 
+
 def _S():
     return gram(smooth_data(6, dd=20, seed=9))
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    (dict(S=np.ones((3, 4))), "square"),
-    (dict(S=np.ones((1, 1))), "at least 2"),
-    (dict(S=np.where(np.eye(6, dtype=bool), np.nan, _S())), "non-finite"),
-    (dict(S=_S() + np.triu(np.ones((6, 6)), 1)), "not symmetric"),
-    (dict(S=-_S()), "positive semi-definite"),
-    (dict(S=[["a"] * 6] * 6), "real numeric"),
-    (dict(d=0), "`d` "),
-    (dict(d=2.5), "`d` "),
-    (dict(d=True), "`d` "),
-    (dict(q=0), "`q` must"),
-    (dict(q=9), "`q` must"),
-    (dict(q=2.0), "`q` must"),
-    (dict(init=np.zeros((5, 2))), "5 points"),
-    (dict(init=np.zeros((6, 3))), "expected q = 2"),
-    (dict(init=np.full((6, 2), np.inf)), "non-finite"),
-    (dict(length_scale=0.0), "length_scale"),
-    (dict(length_scale=-1.0), "length_scale"),
-    (dict(noise=0.0), "noise"),
-    (dict(noise=np.nan), "noise"),
-    (dict(method="newton"), "unknown `method`"),
-    (dict(max_iter=-1), "max_iter"),
-    (dict(tol=-1e-3), "tol"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(S=np.ones((3, 4))), "square"),
+        (dict(S=np.ones((1, 1))), "at least 2"),
+        (dict(S=np.where(np.eye(6, dtype=bool), np.nan, _S())), "non-finite"),
+        (dict(S=_S() + np.triu(np.ones((6, 6)), 1)), "not symmetric"),
+        (dict(S=-_S()), "positive semi-definite"),
+        (dict(S=[["a"] * 6] * 6), "real numeric"),
+        (dict(d=0), "`d` "),
+        (dict(d=2.5), "`d` "),
+        (dict(d=True), "`d` "),
+        (dict(q=0), "`q` must"),
+        (dict(q=9), "`q` must"),
+        (dict(q=2.0), "`q` must"),
+        (dict(init=np.zeros((5, 2))), "5 points"),
+        (dict(init=np.zeros((6, 3))), "expected q = 2"),
+        (dict(init=np.full((6, 2), np.inf)), "non-finite"),
+        (dict(length_scale=0.0), "length_scale"),
+        (dict(length_scale=-1.0), "length_scale"),
+        (dict(noise=0.0), "noise"),
+        (dict(noise=np.nan), "noise"),
+        (dict(method="newton"), "unknown `method`"),
+        (dict(max_iter=-1), "max_iter"),
+        (dict(tol=-1e-3), "tol"),
+    ],
+)
 def test_bad_input_is_rejected_clearly(kwargs, match):
     args = dict(S=_S(), d=100, q=2)
     args.update(kwargs)

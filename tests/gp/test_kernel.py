@@ -22,7 +22,8 @@ def test_kernel_matrix_is_eq5():
     cross = gplvm.kernel_matrix(A, B, length_scale=0.7, noise=1e-3)
     assert cross.shape == (5, 4)
     np.testing.assert_allclose(
-        cross, np.exp(-((A[:, None] - B[None]) ** 2).sum(-1) / (2 * 0.49)), rtol=1e-14)
+        cross, np.exp(-((A[:, None] - B[None]) ** 2).sum(-1) / (2 * 0.49)), rtol=1e-14
+    )
     # no noise in the cross-covariance, even at coincident points
     assert gplvm.kernel_matrix(A, A[:2], noise=0.5)[0, 0] == 1.0
     # the function is the object's K
@@ -39,7 +40,7 @@ def test_exact_cross_covariance_adds_the_noise_only_at_equal_points():
     diff = exact - smooth
     assert diff[0, 2] == pytest.approx(0.01) and diff[2, 5] == pytest.approx(0.01)
     assert np.count_nonzero(diff) == 2
-    np.testing.assert_array_equal(exact[0], k.K(X)[2])      # column i of K: the training point's k
+    np.testing.assert_array_equal(exact[0], k.K(X)[2])  # column i of K: the training point's k
 
 
 @pytest.mark.parametrize("l", [0.5, 1.0, 3.0])
@@ -85,15 +86,19 @@ def test_factor_solves_inverts_and_gives_the_log_determinant():
 
 
 def test_kernel_refuses_bad_hyperparameters_and_factorises_only_positive_definite_K():
-    for kwargs, match in [({"length_scale": 0.0}, "`length_scale`"), ({"length_scale": np.inf}, "`length_scale`"),
-                          ({"noise": -1e-3}, "`noise`"), ({"noise": "much"}, "`noise`")]:
+    for kwargs, match in [
+        ({"length_scale": 0.0}, "`length_scale`"),
+        ({"length_scale": np.inf}, "`length_scale`"),
+        ({"noise": -1e-3}, "`noise`"),
+        ({"noise": "much"}, "`noise`"),
+    ]:
         with pytest.raises(InputError, match=match):
             Kernel(**kwargs)
     X = _points(4, 2)
     X[1] = X[0]
     with pytest.raises(NotPositiveDefiniteError, match="not positive definite"):
         Kernel(1.0, 0.0).factorise(X)
-    assert Kernel(1.0, 1e-4).factorise(X).logdet < 0        # the noise separates them
+    assert Kernel(1.0, 1e-4).factorise(X).logdet < 0  # the noise separates them
 
 
 def test_posterior_is_eq1_to_4_with_one_factorisation():
@@ -106,12 +111,18 @@ def test_posterior_is_eq1_to_4_with_one_factorisation():
     np.testing.assert_allclose(gp.weights(x), np.linalg.solve(K, k.T).T, rtol=1e-8, atol=1e-10)
     var = 1 + kernel.noise - np.einsum("mn,nm->m", k, np.linalg.solve(K, k.T))
     np.testing.assert_allclose(gp.variance(x), var, rtol=1e-8, atol=1e-12)
-    assert gp.variance(X[3:4])[0] == pytest.approx(0.0, abs=1e-9)      # the noise term at a training point
+    assert gp.variance(X[3:4])[0] == pytest.approx(
+        0.0, abs=1e-9
+    )  # the noise term at a training point
     assert gp.condition_number() == pytest.approx(np.linalg.cond(K), rel=1e-6)
     h = 1e-6
     J, G = gp.weights_jacobian(x), gp.variance_gradient(x)
     for j in range(2):
         e = np.zeros(2)
         e[j] = h
-        np.testing.assert_allclose(J[..., j], (gp.weights(x + e) - gp.weights(x - e)) / (2 * h), rtol=1e-5, atol=1e-7)
-        np.testing.assert_allclose(G[:, j], (gp.variance(x + e) - gp.variance(x - e)) / (2 * h), rtol=1e-5, atol=1e-8)
+        np.testing.assert_allclose(
+            J[..., j], (gp.weights(x + e) - gp.weights(x - e)) / (2 * h), rtol=1e-5, atol=1e-7
+        )
+        np.testing.assert_allclose(
+            G[:, j], (gp.variance(x + e) - gp.variance(x - e)) / (2 * h), rtol=1e-5, atol=1e-8
+        )

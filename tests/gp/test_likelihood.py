@@ -3,14 +3,14 @@ respect to the points and the hyperparameters by finite differences, and the est
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from gp_synthetic import dense_log_likelihood, gram, smooth_data
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mitsuba_manifold.errors import InputError
 from mitsuba_manifold.gp import gplvm
 from mitsuba_manifold.gp.kernel import Kernel
 from mitsuba_manifold.gp.likelihood import Likelihood
-
-from gp_synthetic import dense_log_likelihood, gram, smooth_data
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +49,10 @@ def test_gradient_matches_finite_differences(problem, l):
         Xp, Xm = X.copy(), X.copy()
         Xp[i, j] += h
         Xm[i, j] -= h
-        num = (gplvm.log_likelihood(Xp, S, d, length_scale=l)
-               - gplvm.log_likelihood(Xm, S, d, length_scale=l)) / (2 * h)
+        num = (
+            gplvm.log_likelihood(Xp, S, d, length_scale=l)
+            - gplvm.log_likelihood(Xm, S, d, length_scale=l)
+        ) / (2 * h)
         assert grad[i, j] == pytest.approx(num, rel=1e-5, abs=1e-6 * np.abs(grad).max())
 
 
@@ -62,7 +64,9 @@ def test_the_object_and_the_functions_agree(problem):
     L, g = lik.gradient(X)
     L2, g2 = gplvm.log_likelihood_grad(X, S, d, length_scale=0.8, noise=1e-3)
     assert L == L2 and np.array_equal(g, g2)
-    assert lik.in_units()(X / 0.8) == pytest.approx(L, rel=1e-12)     # scaling l and x together: same L
+    assert lik.in_units()(X / 0.8) == pytest.approx(
+        L, rel=1e-12
+    )  # scaling l and x together: same L
 
 
 @pytest.mark.parametrize("l,mu", [(1.0, 1e-3), (0.6, 0.05)])
@@ -81,8 +85,9 @@ def test_gradient_theta_matches_finite_differences(problem, l, mu):
 
 def test_the_estimator_is_fit_latent(problem):
     S, d = problem
-    res = gplvm.GPLVM(q=2, kernel=Kernel(1.0, 1e-4), method="lbfgs",
-                      options=gplvm.LBFGSOptions(max_iter=30)).fit(S, d)
+    res = gplvm.GPLVM(
+        q=2, kernel=Kernel(1.0, 1e-4), method="lbfgs", options=gplvm.LBFGSOptions(max_iter=30)
+    ).fit(S, d)
     ref = gplvm.fit_latent(S, d, q=2, method="lbfgs", max_iter=30)
     assert np.array_equal(res.latent, ref.latent) and res.kernel == Kernel(1.0, 1e-4)
     with pytest.raises(InputError, match="`options` of method 'lbfgs' must be a LBFGSOptions"):

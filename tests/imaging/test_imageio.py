@@ -6,13 +6,16 @@ import os
 import numpy as np
 import pytest
 
-from mitsuba_manifold.imaging import io as imageio, metrics
 from mitsuba_manifold.errors import FormatError
+from mitsuba_manifold.imaging import io as imageio
+from mitsuba_manifold.imaging import metrics
 
 
 def test_exr_round_trip_is_exact_and_keeps_metadata(tmp_path):
     rng = np.random.default_rng(0)
-    img = (rng.normal(size=(7, 11, 3)) * 10.0 ** rng.integers(-6, 6, size=(7, 11, 3))).astype(np.float32)
+    img = (rng.normal(size=(7, 11, 3)) * 10.0 ** rng.integers(-6, 6, size=(7, 11, 3))).astype(
+        np.float32
+    )
     img[0, 0] = [0.0, -0.0, np.finfo(np.float32).max]
     path = str(tmp_path / "a.exr")
     imageio.write_exr(path, img, metadata={"scene": "x.xml", "spp": 64})
@@ -21,7 +24,9 @@ def test_exr_round_trip_is_exact_and_keeps_metadata(tmp_path):
     assert np.array_equal(back.view(np.uint32), img.view(np.uint32))  # bit exact, signed zero too
     header = imageio.read_exr_header(path)
     assert (header["width"], header["height"]) == (11, 7)
-    assert header["attributes"]["scene"] == "x.xml" and json.loads(header["attributes"]["spp"]) == 64
+    assert (
+        header["attributes"]["scene"] == "x.xml" and json.loads(header["attributes"]["spp"]) == 64
+    )
 
 
 def test_exr_read_errors_name_the_file(tmp_path):
@@ -29,10 +34,13 @@ def test_exr_read_errors_name_the_file(tmp_path):
     good = str(tmp_path / "good.exr")
     imageio.write_exr(good, img)
     data = open(good, "rb").read()
-    cases = {"missing.exr": (None, "does not exist"), "empty.exr": (b"", "not an OpenEXR"),
-             "text.exr": (b"hello, not an image" * 10, "not an OpenEXR"),
-             "trunc.exr": (data[: len(data) * 2 // 3], "truncated or corrupt"),
-             "header.exr": (data[:40], "truncated or corrupt")}
+    cases = {
+        "missing.exr": (None, "does not exist"),
+        "empty.exr": (b"", "not an OpenEXR"),
+        "text.exr": (b"hello, not an image" * 10, "not an OpenEXR"),
+        "trunc.exr": (data[: len(data) * 2 // 3], "truncated or corrupt"),
+        "header.exr": (data[:40], "truncated or corrupt"),
+    }
     for name, (content, message) in cases.items():
         path = str(tmp_path / name)
         if content is not None:
@@ -41,9 +49,12 @@ def test_exr_read_errors_name_the_file(tmp_path):
             imageio.read_exr(path)
         assert path in str(e.value)
     import OpenEXR
+
     grey = str(tmp_path / "grey.exr")
-    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
-                 {"Y": img[..., 0].copy()}).write(grey)
+    OpenEXR.File(
+        {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+        {"Y": img[..., 0].copy()},
+    ).write(grey)
     with pytest.raises(FormatError, match=r"grey.exr: EXR has channels \['Y'\], missing RGB"):
         imageio.read_exr(grey)
     with pytest.raises(FormatError, match="missing RGB"):
@@ -69,6 +80,7 @@ def test_writers_never_leave_a_half_written_file(tmp_path):
 
 def test_png_is_srgb_tonemapped(tmp_path):
     from PIL import Image
+
     img = np.array([[[0.0, 0.5, 1.0], [0.25, 2.0, -1.0]]], dtype=np.float32)
     path = str(tmp_path / "a.png")
     imageio.write_png(path, img)
@@ -81,6 +93,7 @@ def test_png_is_srgb_tonemapped(tmp_path):
 
 # ----------------------------------------------------------------- metrics
 
+
 def test_metrics_against_hand_computed_values():
     ref = np.array([[[1.0, 2.0, 0.0], [4.0, 0.0, 0.0]]])
     a = np.array([[[1.5, 2.0, 0.1], [2.0, 0.0, 0.0]]])
@@ -88,7 +101,9 @@ def test_metrics_against_hand_computed_values():
     assert metrics.mse(a, ref) == pytest.approx(4.26 / 6)
     rel = (0.25 / 1.01 + 0.01 / 0.01 + 4.0 / 16.01) / 6
     assert metrics.rel_mse(a, ref) == pytest.approx(rel)
-    assert metrics.psnr(a, ref) == pytest.approx(10 * np.log10(16.0 / (4.26 / 6)))  # peak = max(ref) = 4
+    assert metrics.psnr(a, ref) == pytest.approx(
+        10 * np.log10(16.0 / (4.26 / 6))
+    )  # peak = max(ref) = 4
     assert metrics.psnr(a, ref, peak=1.0) == pytest.approx(10 * np.log10(6 / 4.26))
     assert metrics.max_abs(a, ref) == pytest.approx(2.0)
     assert np.allclose(metrics.error_image(a, ref), np.abs(a - ref))
@@ -104,10 +119,11 @@ def test_metrics_against_hand_computed_values():
 
 def test_false_colour_error_png(tmp_path):
     from PIL import Image
+
     rng = np.random.default_rng(0)
     ref = np.zeros((40, 60, 3))
     a = ref + rng.uniform(0.0, 0.2, ref.shape)
-    a[1, 2] = 1000.0                                # one firefly must not set the scale
+    a[1, 2] = 1000.0  # one firefly must not set the scale
     path = str(tmp_path / "err.png")
     vmax = metrics.write_error_png(path, a, ref)
     err = np.abs(a - ref).mean(axis=-1)
@@ -116,14 +132,18 @@ def test_false_colour_error_png(tmp_path):
     assert f"0 .. {vmax:.6g}" in png.text["error-scale"]
     px = np.asarray(png.convert("RGB")).astype(int)
     rgb, _ = metrics.false_colour(err, vmax=vmax)
-    assert np.array_equal(px[:40, :60], rgb)        # the image at the top, on the robust scale
-    assert np.median(px[:40, :60].sum(axis=-1)) > 200   # not almost black
-    assert png.size[0] >= 200 and png.size[1] > 40 + 30   # a legend under it, readable on small images
-    bar = px[40 + 6 + 5, 6:png.size[0] - 6]             # the colour bar's middle row, left to right
+    assert np.array_equal(px[:40, :60], rgb)  # the image at the top, on the robust scale
+    assert np.median(px[:40, :60].sum(axis=-1)) > 200  # not almost black
+    assert (
+        png.size[0] >= 200 and png.size[1] > 40 + 30
+    )  # a legend under it, readable on small images
+    bar = px[40 + 6 + 5, 6 : png.size[0] - 6]  # the colour bar's middle row, left to right
     lo, hi = metrics.false_colour(np.array([[0.0, 1.0]]), vmax=1.0)[0][0]
     assert np.array_equal(bar[0], lo) and np.array_equal(bar[-1], hi)
-    assert (px[40 + 6 + 10:] > 150).any()               # tick labels and caption drawn
-    assert metrics.write_error_png(path, a, ref, vmax=2.5) == 2.5   # a given scale is kept (denoised beside raw)
+    assert (px[40 + 6 + 10 :] > 150).any()  # tick labels and caption drawn
+    assert (
+        metrics.write_error_png(path, a, ref, vmax=2.5) == 2.5
+    )  # a given scale is kept (denoised beside raw)
 
 
 # ------------------------------------------------------------------- basis
@@ -135,12 +155,14 @@ def test_contact_sheet_labels_stay_under_their_own_tile(tmp_path):
 
     images = np.zeros((3, 64, 64, 3), np.float32)
     path = tmp_path / "sheet.png"
-    imageio.write_contact_sheet(path, images, labels=["specular-yellow-phenolic-and-more"] * 3, columns=3, pad=4)
+    imageio.write_contact_sheet(
+        path, images, labels=["specular-yellow-phenolic-and-more"] * 3, columns=3, pad=4
+    )
     sheet = np.asarray(Image.open(path).convert("RGB"))
-    labels = sheet[4 + 64:-4]                     # the label band under the tiles
-    assert (labels > 100).any()                   # the labels are drawn
-    for c in range(1, 3):                         # the gutters between tiles stay background
-        gutter = labels[:, c * 68:c * 68 + 4]
+    labels = sheet[4 + 64 : -4]  # the label band under the tiles
+    assert (labels > 100).any()  # the labels are drawn
+    for c in range(1, 3):  # the gutters between tiles stay background
+        gutter = labels[:, c * 68 : c * 68 + 4]
         assert (gutter == 32).all()
 
 
@@ -154,20 +176,30 @@ def test_contact_sheet_labels_keep_their_fields_on_lines_of_their_own(tmp_path):
 
     length = ImageDraw.Draw(Image.new("RGB", (1, 1))).textlength
     rows = [{"t": 2.73, "albedo": [0.31, 0.188, 0.167], "negative_fraction": 0.125}]
-    label, = gi_comparison.extrapolation_labels(rows)
+    (label,) = gi_comparison.extrapolation_labels(rows)
     assert imageio._label_lines(label, 62, length) == ["t = 2.73", "albedo 0.22", "neg. 12.5%"]
     labels = path_labels(("alum-bronze", "white-paint"), 5)
     assert imageio._label_lines(labels[0], 62, length) == ["t = 0.00", "alum-bronze"]
     assert labels[-1].endswith("white-paint") and labels[2] == "t = 0.50"
-    assert imageio._label_lines("a\nb\nc\nd\ne", 62, length, max_lines=3) == ["a", "b", "c d e"]  # the rest joined
-    assert imageio._label_lines("a\nb\n" + "c" * 30 + "\nd", 62, length, max_lines=3)[-1].endswith("...")
+    assert imageio._label_lines("a\nb\nc\nd\ne", 62, length, max_lines=3) == [
+        "a",
+        "b",
+        "c d e",
+    ]  # the rest joined
+    assert imageio._label_lines("a\nb\n" + "c" * 30 + "\nd", 62, length, max_lines=3)[-1].endswith(
+        "..."
+    )
     plain, titled = tmp_path / "plain.png", tmp_path / "titled.png"
     images = np.zeros((5, 64, 64, 3), np.float32)
     imageio.write_contact_sheet(plain, images, labels=labels, columns=5)
-    imageio.write_contact_sheet(titled, images, labels=labels, columns=5, title="alum-bronze to white-paint")
+    imageio.write_contact_sheet(
+        titled, images, labels=labels, columns=5, title="alum-bronze to white-paint"
+    )
     a, b = (np.asarray(Image.open(p).convert("RGB")) for p in (plain, titled))
-    assert b.shape[0] > a.shape[0] and (b[:b.shape[0] - a.shape[0]] > 150).any()   # the title, drawn
-    assert np.array_equal(a[4:], b[b.shape[0] - a.shape[0] + 4:])                  # above the same grid
+    assert (
+        b.shape[0] > a.shape[0] and (b[: b.shape[0] - a.shape[0]] > 150).any()
+    )  # the title, drawn
+    assert np.array_equal(a[4:], b[b.shape[0] - a.shape[0] + 4 :])  # above the same grid
 
 
 def test_control_characters_in_names_are_drawn_escaped_on_one_line(tmp_path):
@@ -183,6 +215,10 @@ def test_control_characters_in_names_are_drawn_escaped_on_one_line(tmp_path):
     assert imageio._label_lines(labels[-1], 200, length) == ["t = 1.00", "tab\\there\\x00"]
     assert imageio.printable("a\u202eb ü") == "a\\u202eb ü"
     path = tmp_path / "sheet.png"
-    imageio.write_contact_sheet(path, np.zeros((3, 16, 16, 3), np.float32), labels=labels,
-                                title="evil\nname (t = 0) to tab\there\x00 (t = 1)")
+    imageio.write_contact_sheet(
+        path,
+        np.zeros((3, 16, 16, 3), np.float32),
+        labels=labels,
+        title="evil\nname (t = 0) to tab\there\x00 (t = 1)",
+    )
     assert Image.open(path).size[0] > 0

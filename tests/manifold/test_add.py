@@ -158,7 +158,7 @@ def test_add_to_the_paper_preset_keeps_its_exact_gp_weights(measured, tmp_path):
         assert np.array_equal(m.weights(before[i]).w, np.eye(m.n)[i])
     g = gram.gram(m.tables(), "raw", centre=True)
     assert np.allclose(m.gram, g.S, rtol=1e-8, atol=1e-8 * np.abs(g.S).max())
-    assert not np.allclose(m.gram[:-1, :-1], g_before)   # re-centred on the new mean
+    assert not np.allclose(m.gram[:-1, :-1], g_before)  # re-centred on the new mean
 
 
 def test_fit_tool_adds_a_material_of_any_source_to_a_saved_manifold(tmp_path, monkeypatch):
@@ -168,9 +168,12 @@ def test_fit_tool_adds_a_material_of_any_source_to_a_saved_manifold(tmp_path, mo
     from mitsuba_manifold.apps.cli import fit_manifold
 
     base, grown = tmp_path / "m.npz", tmp_path / "g.npz"
-    monkeypatch.chdir(tmp_path)   # nothing may be written into the working directory
+    monkeypatch.chdir(tmp_path)  # nothing may be written into the working directory
     assert fit_manifold.main(["nielsen@8x8x16", "--out", str(base), "--q", "2"]) in (0, None)
-    assert fit_manifold.main([str(base), "--add", "rgl:paper_white", "--out", str(grown)]) in (0, None)
+    assert fit_manifold.main([str(base), "--add", "rgl:paper_white", "--out", str(grown)]) in (
+        0,
+        None,
+    )
     m0, m1 = Manifold.load(str(base)), Manifold.load(str(grown))
     assert m1.names == m0.names + ["paper_white"]
     np.testing.assert_array_equal(m1.latent[:-1], m0.latent)

@@ -8,7 +8,7 @@ import pytest
 
 from mitsuba_manifold.data import database, merl
 from mitsuba_manifold.data.database import Database
-from mitsuba_manifold.manifold.model import Manifold, InputError
+from mitsuba_manifold.manifold.model import InputError, Manifold
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,9 @@ def test_weights_are_affine_and_match_mean_plus_bZ(fitted, small_db):
     mean = tables.mean(axis=0)
     Z = tables - mean
     for k in range(3):
-        assert np.allclose(w[k] @ tables, mean + b[k] @ Z, rtol=1e-9, atol=1e-9 * np.abs(tables).max())
+        assert np.allclose(
+            w[k] @ tables, mean + b[k] @ Z, rtol=1e-9, atol=1e-9 * np.abs(tables).max()
+        )
     # single point gives 1-D arrays, equal to the batched row
     b0, w0 = fitted.weights(x[0])
     assert np.allclose(w0, w[0]) and np.allclose(b0, b[0])
@@ -112,7 +114,9 @@ def test_a_manifold_file_with_a_damaged_derived_array_is_refused(fitted, tmp_pat
 def test_latent_points_of_the_wrong_kind_are_named(fitted):
     with pytest.raises(InputError, match="must be 2 numbers"):
         fitted.weights("0.3,-1.2")
-    with pytest.raises(InputError, match=r"interpolate takes one latent point .* got shape \(2, 2\)"):
+    with pytest.raises(
+        InputError, match=r"interpolate takes one latent point .* got shape \(2, 2\)"
+    ):
         fitted.interpolate(np.zeros((2, 2)))
     with pytest.raises(InputError, match=r"2 coordinates, got shape \(\)"):
         fitted.weights(None)
@@ -129,7 +133,7 @@ def test_bad_inputs_give_clear_errors(fitted, small_db, tmp_path):
         fitted.parse_weights("chrome:1, steel:-1")
     with pytest.raises(InputError, match="not 'name:number'"):
         fitted.parse_weights("chrome:abc")
-    with pytest.raises(InputError, match="commas separate entries"):   # a comma forgotten
+    with pytest.raises(InputError, match="commas separate entries"):  # a comma forgotten
         fitted.parse_weights("chrome:0.4 steel:0.6")
     assert fitted.parse_weights("chrome:0.25, steel:0.75")[fitted.index("steel")] == 0.75
     with pytest.raises(InputError, match="does not exist"):
@@ -146,7 +150,7 @@ def test_bad_inputs_give_clear_errors(fitted, small_db, tmp_path):
     merl.write_binary(copy / "chrome.binary", raw)
     with pytest.raises(InputError, match="chrome.*differs"):
         fitted.open_database(copy)
-    fitted.open_database(copy, ["steel"])   # untouched tables still check out
+    fitted.open_database(copy, ["steel"])  # untouched tables still check out
     os.remove(copy / "steel.binary")
     with pytest.raises(InputError, match="no table for"):
         fitted.open_database(copy, ["steel"])
@@ -154,12 +158,19 @@ def test_bad_inputs_give_clear_errors(fitted, small_db, tmp_path):
 
 def test_files_that_are_not_manifolds_are_named_without_inviting_unsafe_loading(small_db, tmp_path):
     from PIL import Image
+
     Image.new("RGB", (4, 4)).save(tmp_path / "img.png")
     np.savez(tmp_path / "objects.npz", meta=np.array([{"format": "x"}], dtype=object))
     np.savez(tmp_path / "other.npz", a=np.ones(3))
     np.save(tmp_path / "array.npy", np.ones(3))
-    for path in (os.path.join(small_db, "chrome.binary"), tmp_path / "img.png", tmp_path / "objects.npz",
-                 tmp_path / "other.npz", tmp_path / "array.npy", tmp_path):
+    for path in (
+        os.path.join(small_db, "chrome.binary"),
+        tmp_path / "img.png",
+        tmp_path / "objects.npz",
+        tmp_path / "other.npz",
+        tmp_path / "array.npy",
+        tmp_path,
+    ):
         with pytest.raises(InputError) as e:
             Manifold.load(path)
         text = str(e.value)
@@ -169,7 +180,12 @@ def test_files_that_are_not_manifolds_are_named_without_inviting_unsafe_loading(
 
 def test_fit_manifold_out_must_be_an_npz_name(small_db, tmp_path):
     from guarantees_helpers import assert_one_error, run_tool
-    for out, fix in [("m.json", "m.npz"), ("m", "m.npz"), ("sub" + os.sep, os.path.join("sub", "manifold.npz"))]:
+
+    for out, fix in [
+        ("m.json", "m.npz"),
+        ("m", "m.npz"),
+        ("sub" + os.sep, os.path.join("sub", "manifold.npz")),
+    ]:
         rc, _, err = run_tool("fit_manifold", small_db, "--out", os.path.join(tmp_path, out))
         assert_one_error(rc, err, "--out", ".npz", f"use --out {tmp_path / fix}")
     assert os.listdir(tmp_path) == []
@@ -180,8 +196,8 @@ def test_saving_never_half_writes(fitted, tmp_path):
     fitted.save(path)
     before = path.read_bytes()
     broken = Manifold.load(path)
-    broken.latent = np.array([["not", "numbers"]])        # makes savez fail halfway? no: json/arrays
-    broken.info = {"bad": object()}                       # json cannot encode this
+    broken.latent = np.array([["not", "numbers"]])  # makes savez fail halfway? no: json/arrays
+    broken.info = {"bad": object()}  # json cannot encode this
     with pytest.raises(TypeError):
         broken.save(path)
     assert path.read_bytes() == before
@@ -197,7 +213,7 @@ def test_duplicate_materials_fit_and_reproduce(tmp_path):
     for i in range(m.n):
         assert np.array_equal(m.weights(m.latent[i])[1], np.eye(m.n)[i])
     assert np.isfinite(m.condition_number())
-    assert set(m.coincident()) == {"steel", "steel-copy"}          # identical tables: one latent point
+    assert set(m.coincident()) == {"steel", "steel-copy"}  # identical tables: one latent point
     assert "2 materials share their latent point" in m.summary()
 
 
@@ -237,7 +253,7 @@ def test_negative_fraction_counts_what_the_plugin_clamps(fitted, small_db):
         expected = float(((fitted.weights(x)[1] @ tables) < 0).mean())
         assert fitted.negative_fraction(x, prune=0.0) == pytest.approx(expected, abs=1e-4)
         seen.append(expected)
-    assert max(seen) > 0.01        # the random points include genuinely negative blends
+    assert max(seen) > 0.01  # the random points include genuinely negative blends
 
 
 def test_unknown_material_suggests_the_closest_names(small_manifold):
@@ -250,12 +266,17 @@ def test_unknown_material_suggests_the_closest_names(small_manifold):
 
 def test_the_fit_is_kept_as_a_typed_record_written_in_the_info_layout(fitted, tmp_path):
     from mitsuba_manifold.manifold.fit_record import FitRecord
+
     rec = fitted.record
     assert (rec.method, rec.preset, rec.q, rec.d) == ("hooke-jeeves", "paper", 2, 3 * 32 * 32 * 64)
-    assert rec.dims == fitted.dims == (32, 32, 64) and rec.timings.fit_s > 0 and rec.n_evaluations > 0
-    assert np.array_equal(rec.history, fitted.history) and rec.log_likelihood == pytest.approx(fitted.history[-1], rel=1e-9)
+    assert (
+        rec.dims == fitted.dims == (32, 32, 64) and rec.timings.fit_s > 0 and rec.n_evaluations > 0
+    )
+    assert np.array_equal(rec.history, fitted.history) and rec.log_likelihood == pytest.approx(
+        fitted.history[-1], rel=1e-9
+    )
     assert list(fitted.info) == list(FitRecord.INFO) and fitted.info["dims"] == [32, 32, 64]
-    info = {**fitted.info, "subset_of": "elsewhere.npz"}               # an entry of another version: kept
+    info = {**fitted.info, "subset_of": "elsewhere.npz"}  # an entry of another version: kept
     again = FitRecord.from_info(info, rec.history)
     assert again.extra == {"subset_of": "elsewhere.npz"} and again.as_info() == info
     m = Manifold.load(fitted.file)
@@ -266,10 +287,23 @@ def test_the_fit_is_kept_as_a_typed_record_written_in_the_info_layout(fitted, tm
 
 
 def test_the_constructor_takes_the_learned_state_as_keywords(fitted):
-    m = Manifold(fitted.names, fitted.latent, fitted.database, fitted.hashes, fitted.length_scale,
-                 fitted.noise, fitted.features, fitted.albedos, gram=fitted.gram, record=fitted.record,
-                 interpolant=fitted.interpolant.params(), table_gram=fitted.table_gram)
-    assert m.info == fitted.info and np.array_equal(m.gram, fitted.gram) and m.kernel == fitted.kernel
+    m = Manifold(
+        fitted.names,
+        fitted.latent,
+        fitted.database,
+        fitted.hashes,
+        fitted.length_scale,
+        fitted.noise,
+        fitted.features,
+        fitted.albedos,
+        gram=fitted.gram,
+        record=fitted.record,
+        interpolant=fitted.interpolant.params(),
+        table_gram=fitted.table_gram,
+    )
+    assert (
+        m.info == fitted.info and np.array_equal(m.gram, fitted.gram) and m.kernel == fitted.kernel
+    )
     assert m.log_likelihood() == fitted.log_likelihood()
     bare = Manifold(fitted.names, fitted.latent, "db", fitted.hashes)
     assert bare.info == {} and bare.history.size == 0 and bare.interpolant.kind == "gp"

@@ -34,7 +34,9 @@ def test_manifold_distance_is_the_table_distance_of_the_interpolated_materials(m
     assert m.distance(x, x) == 0.0
     assert m.distance(x, y) == pytest.approx(m.distance(y, x), rel=1e-9)
     # names are their latent points; stacks give vectors and matrices
-    assert m.distance(m.names[1], m.names[2]) == pytest.approx(m.distance(m.latent[1], m.latent[2]), rel=1e-9)
+    assert m.distance(m.names[1], m.names[2]) == pytest.approx(
+        m.distance(m.latent[1], m.latent[2]), rel=1e-9
+    )
     D = m.distance(m.latent, m.latent)
     assert D.shape == (m.n, m.n) and np.all(np.diag(D) == 0.0)
     assert m.distance(m.latent, m.names[0]).shape == (m.n,)
@@ -97,7 +99,7 @@ def test_the_path_energy_gradient_is_the_derivative_of_the_energy(m):
 
 
 def test_reparameterise_inverts_the_cumulative_length():
-    X = np.linspace(0, 1, 101)[:, None] ** 2 * np.array([[2.0, 0.0]])   # speed grows with t
+    X = np.linspace(0, 1, 101)[:, None] ** 2 * np.array([[2.0, 0.0]])  # speed grows with t
     lengths = np.linalg.norm(np.diff(X, axis=0), axis=1)
     Y = paths.reparameterise(X, lengths, 11)
     assert np.allclose(np.diff(Y[:, 0]), 0.2, atol=1e-9)
@@ -115,7 +117,7 @@ def test_paths_between_points_and_the_errors(m, pair):
     with pytest.raises(InputError, match="`b`"):
         m.path(pair[0], [0.0] * (m.q + 2))
     assert paths.DEFAULT_KIND in paths.KINDS
-    assert m.path(*pair, steps=4).shape == (4, m.q)   # the default kind
+    assert m.path(*pair, steps=4).shape == (4, m.q)  # the default kind
 
 
 def test_rows_and_graph_are_cached_by_the_manifolds_content(small_manifold, tmp_path):
@@ -128,23 +130,29 @@ def test_rows_and_graph_are_cached_by_the_manifolds_content(small_manifold, tmp_
     built = metric.graph()
     fresh = Manifold.load(small_manifold)
     again = paths.PathMetric(fresh)
-    assert fresh._tables is None   # rows from the cache: the tables were not read
+    assert fresh._tables is None  # rows from the cache: the tables were not read
     assert np.array_equal(again.rows, metric.rows)
     graph = latent_graph.LatentGraph.build(again)
     direct = latent_graph.LatentGraph.build(again, cache=False)
     assert fresh._tables is None
     assert np.array_equal(graph.nodes, direct.nodes) and np.array_equal(built.nodes, direct.nodes)
-    assert abs(graph.graph - built.graph).max() == 0.0          # the cached edges, exactly
-    assert abs(graph.graph - direct.graph).max() <= 1e-6 * direct.graph.max()   # float32 products' rounding
+    assert abs(graph.graph - built.graph).max() == 0.0  # the cached edges, exactly
+    assert (
+        abs(graph.graph - direct.graph).max() <= 1e-6 * direct.graph.max()
+    )  # float32 products' rounding
     # symmetric, every edge once: a latent segment's consecutive nodes are one edge of its distance
     assert abs(direct.graph - direct.graph.T).max() == 0.0
     i, j = direct.graph.nonzero()
     k = np.argmax(i != j)
-    d = np.linalg.norm(np.diff(again.features(direct.nodes[[i[k], j[k]]]).astype(np.float64), axis=0))
+    d = np.linalg.norm(
+        np.diff(again.features(direct.nodes[[i[k], j[k]]]).astype(np.float64), axis=0)
+    )
     assert direct.graph[i[k], j[k]] == pytest.approx(d + 1e-12, rel=1e-5)
     # another interpolant, another key; a moved database is not created by the cache
     other = Manifold.load(small_manifold)
     other.interpolant.taper = other.interpolant.taper * 2
-    assert latent_graph.cache_key(paths.PathMetric(other), "x") != latent_graph.cache_key(again, "x")
+    assert latent_graph.cache_key(paths.PathMetric(other), "x") != latent_graph.cache_key(
+        again, "x"
+    )
     other.database = str(tmp_path / "gone")
     assert latent_graph.cache_folder(other) is None and not os.path.exists(other.database)

@@ -6,13 +6,16 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from mitsuba_manifold.data.database import Database, albedo_weights
 from mitsuba_manifold.manifold import pruning
-from mitsuba_manifold.manifold.model import Manifold, InputError
+from mitsuba_manifold.manifold.model import InputError, Manifold
 
-SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+SETTINGS = settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 
 
 @pytest.fixture(scope="module")
@@ -36,8 +39,8 @@ def _direct_changes(w, keep, w_kept, T, q):
     """Relative cosine-weighted L2 change, per-channel albedo change and raw L2 change, from the tables."""
     full = w @ T
     delta = w_kept @ T[keep] - full
-    cos = np.sqrt((q * delta ** 2).sum() / (q * full ** 2).sum())
-    albedo = lambda t: (t * q).reshape(3, -1).sum(axis=1)     # noqa: E731
+    cos = np.sqrt((q * delta**2).sum() / (q * full**2).sum())
+    albedo = lambda t: (t * q).reshape(3, -1).sum(axis=1)  # noqa: E731
     raw = np.linalg.norm(delta) / np.linalg.norm(full)
     return cos, np.abs(albedo(delta)) / np.maximum(np.abs(albedo(full)), pruning.ALBEDO_FLOOR), raw
 
@@ -45,18 +48,22 @@ def _direct_changes(w, keep, w_kept, T, q):
 def _weights(values, affine):
     w = np.asarray(values, dtype=np.float64)
     if affine:
-        w = w - w.mean() + 1.0 / len(w) + 0.3 * w          # weights of both signs, summing to 1
+        w = w - w.mean() + 1.0 / len(w) + 0.3 * w  # weights of both signs, summing to 1
     return w / w.sum() if abs(w.sum()) > 1e-3 else None
 
 
 @SETTINGS
-@given(values=st.lists(st.floats(0, 1), min_size=8, max_size=8), affine=st.booleans(),
-       budget=st.floats(1e-3, 0.5), sparse=st.integers(0, 6))
+@given(
+    values=st.lists(st.floats(0, 1), min_size=8, max_size=8),
+    affine=st.booleans(),
+    budget=st.floats(1e-3, 0.5),
+    sparse=st.integers(0, 6),
+)
 def test_image_rule_bounds_hold_on_drawn_weights(default, values, affine, budget, sparse):
     w = _weights(values, affine)
     if w is None:
         return
-    w[:sparse] = np.where(np.arange(sparse) % 2 == 0, 0.0, w[:sparse])   # some exact zeros
+    w[:sparse] = np.where(np.arange(sparse) % 2 == 0, 0.0, w[:sparse])  # some exact zeros
     if abs(w.sum()) < 1e-3:
         return
     keep, w_kept, dropped = default.prune(w, budget)
@@ -65,7 +72,9 @@ def test_image_rule_bounds_hold_on_drawn_weights(default, values, affine, budget
     assert dropped == pytest.approx(np.abs(w).sum() - np.abs(w[keep]).sum(), abs=1e-12)
     assert not set(np.flatnonzero(w == 0)) & set(keep) or len(keep) == 1
     cos, albedo, raw = _direct_changes(w, keep, w_kept, *_measure(default))
-    assert cos <= budget * (1 + 1e-6) + 1e-9 and raw <= pruning.RAW_SHARE * budget * (1 + 1e-6) + 1e-9
+    assert (
+        cos <= budget * (1 + 1e-6) + 1e-9 and raw <= pruning.RAW_SHARE * budget * (1 + 1e-6) + 1e-9
+    )
     assert (albedo <= pruning.ALBEDO_SHARE * budget * (1 + 1e-6) + 1e-9).all()
     report = default.prune_report(w, budget)
     assert report.keep == tuple(keep) and report.within and report.rule == "image"
@@ -75,16 +84,23 @@ def test_image_rule_bounds_hold_on_drawn_weights(default, values, affine, budget
 
 
 @settings(max_examples=80, deadline=None)
-@given(seed=st.integers(0, 2 ** 32 - 1), n=st.integers(2, 60), budget=st.floats(1e-4, 0.3),
-       affine=st.booleans(), share=st.sampled_from([0.5, 0.1, 2.0]), raw_share=st.sampled_from([1.0, 3.0, np.inf]))
-def test_image_rule_on_many_materials_is_within_bounds_and_greedy_to_the_end(seed, n, budget, affine, share,
-                                                                               raw_share):
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(2, 60),
+    budget=st.floats(1e-4, 0.3),
+    affine=st.booleans(),
+    share=st.sampled_from([0.5, 0.1, 2.0]),
+    raw_share=st.sampled_from([1.0, 3.0, np.inf]),
+)
+def test_image_rule_on_many_materials_is_within_bounds_and_greedy_to_the_end(
+    seed, n, budget, affine, share, raw_share
+):
     """Spiky and dull synthetic tables: both bounds hold, exactly (no Gram matrix needed to check
     them), and no kept material could be dropped as well (the search stops only when it must)."""
     rng = np.random.default_rng(seed)
     bins = 200
     T = rng.uniform(0, 1, (n, 3 * bins)) * rng.uniform(0.01, 1, (n, 1))
-    T[rng.random(n) < 0.3, :3] *= 1e4                              # specular peaks in a few bins
+    T[rng.random(n) < 0.3, :3] *= 1e4  # specular peaks in a few bins
     q = np.tile(rng.uniform(0, 1, bins) * np.r_[1e-6, np.ones(bins - 1)], 3)
     C = (T * q) @ T.T
     A = (T * q).reshape(n, 3, bins).sum(axis=2)
@@ -96,16 +112,20 @@ def test_image_rule_on_many_materials_is_within_bounds_and_greedy_to_the_end(see
     keep, w_kept, _ = pruning.prune_image(w, C, A, budget, share, G=G, raw_share=raw_share)
     cos, albedo, raw = _direct_changes(w, keep, w_kept, T, q)
     assert len(keep) >= 1 and w_kept.sum() == pytest.approx(w.sum(), rel=1e-12)
-    assert cos <= budget * (1 + 1e-6) + 1e-12 and (albedo <= share * budget * (1 + 1e-6) + 1e-12).all()
+    assert (
+        cos <= budget * (1 + 1e-6) + 1e-12 and (albedo <= share * budget * (1 + 1e-6) + 1e-12).all()
+    )
     assert raw <= raw_share * budget * (1 + 1e-6) + 1e-12
     if len(keep) > 1:
         kept = np.zeros(n, dtype=bool)
         kept[keep] = True
         fewer = np.repeat(kept[None], len(keep), axis=0)
-        fewer[np.arange(len(keep)), keep] = False                 # each row drops one more
-        over = ((pruning.errors(w, fewer, C) > budget * (1 - 1e-8))
-                | (pruning.errors(w, fewer, G) > raw_share * budget * (1 - 1e-8))
-                | (pruning.albedo_changes(w, fewer, A) > share * budget * (1 - 1e-8)).any(axis=1))
+        fewer[np.arange(len(keep)), keep] = False  # each row drops one more
+        over = (
+            (pruning.errors(w, fewer, C) > budget * (1 - 1e-8))
+            | (pruning.errors(w, fewer, G) > raw_share * budget * (1 - 1e-8))
+            | (pruning.albedo_changes(w, fewer, A) > share * budget * (1 - 1e-8)).any(axis=1)
+        )
         assert over.all()
 
 
@@ -115,7 +135,9 @@ def test_budget_zero_keeps_every_nonzero_weight_and_one_material_is_always_kept(
         assert default.prune(w, 0.0, rule=rule).keep.tolist() == [0, 2, 4]
     one = np.eye(default.n)[3]
     assert default.prune(one, 0.4).keep.tolist() == [3]
-    keep, w_kept, _ = pruning.prune_image(np.zeros(default.n), default.cos_gram, default.albedos, 0.1)
+    keep, w_kept, _ = pruning.prune_image(
+        np.zeros(default.n), default.cos_gram, default.albedos, 0.1
+    )
     assert len(keep) == 1 and w_kept.tolist() == [0.0]
     with pytest.raises(InputError, match="`rule`.*'image'"):
         default.prune(w, 0.01, rule="l2")
@@ -132,10 +154,12 @@ def _old_rule(w, T, budget):
     for k in range(n):
         kept = order[k:]
         if abs(w[kept].sum()) > 0:
-            err = np.linalg.norm(w[kept] * (w.sum() / w[kept].sum()) @ T[kept] - full) / np.linalg.norm(full)
+            err = np.linalg.norm(
+                w[kept] * (w.sum() / w[kept].sum()) @ T[kept] - full
+            ) / np.linalg.norm(full)
             if err <= budget:
                 best = max(best, k)
-    return np.sort(order[min(best, n - 1):])
+    return np.sort(order[min(best, n - 1) :])
 
 
 def test_raw_l2_rule_is_the_previous_release_s(paper):
@@ -147,8 +171,12 @@ def test_raw_l2_rule_is_the_previous_release_s(paper):
         assert keep.tolist() == _old_rule(w, T, budget).tolist()
         assert np.array_equal(keep, pruning.prune(w, paper.table_gram, budget)[0])
         err = np.linalg.norm(w_kept @ T[keep] - w @ T) / np.linalg.norm(w @ T)
-        assert err <= budget + 1e-9 and paper.prune_error(w, keep, rule="raw-l2") == pytest.approx(err, abs=1e-7)
-        assert paper.prune_report(w, budget, rule="raw-l2").raw_error == pytest.approx(err, abs=1e-7)
+        assert err <= budget + 1e-9 and paper.prune_error(w, keep, rule="raw-l2") == pytest.approx(
+            err, abs=1e-7
+        )
+        assert paper.prune_report(w, budget, rule="raw-l2").raw_error == pytest.approx(
+            err, abs=1e-7
+        )
 
 
 def test_interpolate_and_combine_prune_with_the_image_rule_by_default(default):
@@ -158,7 +186,7 @@ def test_interpolate_and_combine_prune_with_the_image_rule_by_default(default):
     table, keep, dropped = default.interpolate(x)
     assert keep.tolist() == default.prune(w).keep.tolist() and len(keep) < default.n
     full = default.interpolate(x, prune=0.0).table
-    albedo = lambda t: t.reshape(3, -1) @ q[: q.size // 3]      # noqa: E731
+    albedo = lambda t: t.reshape(3, -1) @ q[: q.size // 3]  # noqa: E731
     assert (np.abs(albedo(table) - albedo(full)) <= 0.005 * albedo(full) * (1 + 1e-4)).all()
     raw = default.combine(w, rule="raw-l2")
     assert raw.keep.tolist() == default.prune(w, rule="raw-l2").keep.tolist()
@@ -167,8 +195,14 @@ def test_interpolate_and_combine_prune_with_the_image_rule_by_default(default):
 def test_the_report_says_what_was_kept_and_the_bounds_reached(default):
     w = default.weights(default.latent[:3].mean(axis=0)).w
     r = default.prune_report(w)
-    assert isinstance(r, pruning.PruneReport) and r.rule == "image" and r.budget == pruning.DEFAULT_PRUNE
-    assert r.albedo_budget == pytest.approx(0.005) and r.n == default.n and r.kept == len(r.keep) >= 1
+    assert (
+        isinstance(r, pruning.PruneReport)
+        and r.rule == "image"
+        and r.budget == pruning.DEFAULT_PRUNE
+    )
+    assert (
+        r.albedo_budget == pytest.approx(0.005) and r.n == default.n and r.kept == len(r.keep) >= 1
+    )
     assert r.names == tuple(default.names[i] for i in r.keep)
     assert r.cos_error == pytest.approx(default.prune_error(w, r.keep), abs=1e-12) and r.within
     text = str(r)
@@ -176,10 +210,17 @@ def test_the_report_says_what_was_kept_and_the_bounds_reached(default):
     assert "cosine-weighted table error" in text and "raw L2 error" in text
     assert r.raw_budget == r.cos_budget == r.budget and r.raw_error <= r.raw_budget
     assert "(<= 0.5%)" in text and "(<= 1%)" in text
-    late = pruning.PruneReport("image", 0.01, 0.005, 0.01, 0.01, (0,), 2, 0.5, (0.006, 0.0, 0.0), 0.001, 0.002)
+    late = pruning.PruneReport(
+        "image", 0.01, 0.005, 0.01, 0.01, (0,), 2, 0.5, (0.006, 0.0, 0.0), 0.001, 0.002
+    )
     assert not late.within
     old = default.prune_report(w, rule="raw-l2")
-    assert old.albedo_budget is None and old.cos_budget is None and old.raw_budget == 0.01 and old.within
+    assert (
+        old.albedo_budget is None
+        and old.cos_budget is None
+        and old.raw_budget == 0.01
+        and old.within
+    )
 
 
 def _rewrite_without(path, out, names):
@@ -188,9 +229,11 @@ def _rewrite_without(path, out, names):
     np.savez(out, **arrays)
 
 
-def test_manifold_files_without_the_cosine_gram_or_albedos_load_and_prune_the_same(small_manifold, tmp_path):
+def test_manifold_files_without_the_cosine_gram_or_albedos_load_and_prune_the_same(
+    small_manifold, tmp_path
+):
     fresh = Manifold.load(small_manifold)
-    assert fresh.cos_gram is not None                         # stored by the fit
+    assert fresh.cos_gram is not None  # stored by the fit
     with np.load(small_manifold, allow_pickle=False) as z:
         assert "cos_gram" in z.files and json.loads(str(z["meta"]))["version"] == 2
     X = fresh.latent.mean(0) + np.random.default_rng(5).normal(scale=0.5, size=(10, fresh.q))
@@ -204,10 +247,10 @@ def test_manifold_files_without_the_cosine_gram_or_albedos_load_and_prune_the_sa
         np.testing.assert_allclose(old.cos_gram, fresh.cos_gram, rtol=1e-12)
         np.testing.assert_allclose(old.albedos, fresh.albedos, rtol=1e-12)
         np.testing.assert_allclose(old.table_gram, fresh.table_gram, rtol=1e-12)
-        old.save(tmp_path / "again.npz")                      # the computed arrays are saved with it
+        old.save(tmp_path / "again.npz")  # the computed arrays are saved with it
         with np.load(tmp_path / "again.npz", allow_pickle=False) as z:
             assert {"cos_gram", "table_gram", "albedos"} <= set(z.files)
-    again = Manifold.load(tmp_path / "m1.npz")                # computed once per database: cached
+    again = Manifold.load(tmp_path / "m1.npz")  # computed once per database: cached
     assert [again.prune(w).keep.tolist() for w in again.weights(X).w] == expected
     assert again._tables is None and np.array_equal(again.cos_gram, old.cos_gram)
 
@@ -215,7 +258,9 @@ def test_manifold_files_without_the_cosine_gram_or_albedos_load_and_prune_the_sa
 def test_cosine_gram_is_the_tables_in_the_measure_light_sees(default, small_db):
     T, q = _measure(default)
     np.testing.assert_allclose(default.cos_gram, (T * q) @ T.T, rtol=1e-10)
-    np.testing.assert_allclose(default.albedos, Database(small_db, default.names).albedo(), rtol=1e-6)
+    np.testing.assert_allclose(
+        default.albedos, Database(small_db, default.names).albedo(), rtol=1e-6
+    )
 
 
 def test_repeated_pruning_gives_the_same_answer_in_arrays_of_its_own(default):
@@ -229,9 +274,13 @@ def test_repeated_pruning_gives_the_same_answer_in_arrays_of_its_own(default):
     first.w_kept[:] = np.nan
     again = default.prune(w, 0.05)
     store, db = default._store, default.database
-    fresh = pruning.prune_image(w, store.cosine_gram(db), store.albedo(db), 0.05, G=store.raw_gram(db))
+    fresh = pruning.prune_image(
+        w, store.cosine_gram(db), store.albedo(db), 0.05, G=store.raw_gram(db)
+    )
     np.testing.assert_array_equal(again.keep, fresh[0])
     np.testing.assert_allclose(again.w_kept, fresh[1])
     other = default.prune(np.roll(w, 1), 0.05)
-    assert not np.array_equal(other.w_kept, again.w_kept) or not np.array_equal(other.keep, again.keep)
+    assert not np.array_equal(other.w_kept, again.w_kept) or not np.array_equal(
+        other.keep, again.keep
+    )
     assert len(default.prune(w, 0.0).keep) == np.count_nonzero(w)

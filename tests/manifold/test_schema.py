@@ -8,7 +8,8 @@ import zipfile
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from mitsuba_manifold.errors import FormatError
 from mitsuba_manifold.manifold.model import Manifold
@@ -52,7 +53,10 @@ CRAFTED = [  # (field, changes as a function of the saved arrays)
     ("latent", lambda a: {"latent": np.array("0,0")}),
     ("latent", lambda a: {"latent": a["latent"].astype(complex)}),
     ("latent", lambda a: {"latent": a["latent"] > 0}),
-    ("latent", lambda a: {"latent": _latent(a, lambda x: np.vstack([x[:1], x[:1], x[2:]]))}),   # coincident
+    (
+        "latent",
+        lambda a: {"latent": _latent(a, lambda x: np.vstack([x[:1], x[:1], x[2:]]))},
+    ),  # coincident
     ("latent", lambda a: {"latent": a["latent"][:3]}),
     ("database", lambda a: {"meta_database": ["a", "b"]}),
     ("hashes", lambda a: {"meta_hashes": [1, 2]}),
@@ -67,14 +71,22 @@ CRAFTED = [  # (field, changes as a function of the saved arrays)
     ("table_gram", lambda a: {"table_gram": np.zeros_like(a["table_gram"])}),
     ("table_gram", lambda a: {"table_gram": -np.eye(len(a["table_gram"]))}),
     ("table_gram", lambda a: {"table_gram": np.eye(2)}),
-    ("table_gram", lambda a: {"table_gram": np.diag([1.0] * (len(a["table_gram"]) - 1) + [np.inf])}),
-    ("cos_gram", lambda a: {"cos_gram": a["cos_gram"] * np.where(np.eye(len(a["cos_gram"])), 1, 3)}),
+    (
+        "table_gram",
+        lambda a: {"table_gram": np.diag([1.0] * (len(a["table_gram"]) - 1) + [np.inf])},
+    ),
+    (
+        "cos_gram",
+        lambda a: {"cos_gram": a["cos_gram"] * np.where(np.eye(len(a["cos_gram"])), 1, 3)},
+    ),
     ("gram", lambda a: {"gram": np.triu(a["gram"])}),
     ("albedos", lambda a: {"albedos": a["albedos"][:, :2]}),
 ]
 
 
-@pytest.mark.parametrize("field, change", CRAFTED, ids=[f"{f}-{i}" for i, (f, _) in enumerate(CRAFTED)])
+@pytest.mark.parametrize(
+    "field, change", CRAFTED, ids=[f"{f}-{i}" for i, (f, _) in enumerate(CRAFTED)]
+)
 def test_each_crafted_field_is_one_error_naming_it(tmp_path, saved, small_db, field, change):
     meta, arrays = saved
     path = craft(tmp_path / "m.npz", meta, arrays, **change(arrays))
@@ -93,30 +105,41 @@ def test_a_gram_matrix_of_other_tables_is_refused_when_the_tables_are_read(tmp_p
     other = rng.random((len(meta["names"]), 50))
     for name in ("table_gram", "cos_gram"):
         m = Manifold.load(craft(tmp_path / f"{name}.npz", meta, arrays, **{name: other @ other.T}))
-        with pytest.raises(FormatError, match=f"manifold's {name} is not the Gram matrix of its tables"):
+        with pytest.raises(
+            FormatError, match=f"manifold's {name} is not the Gram matrix of its tables"
+        ):
             m.tables()
     m = Manifold.load(craft(tmp_path / "fine.npz", meta, arrays))
-    assert m.tables().shape[0] == len(meta["names"])     # the saved Gram matrices pass
+    assert m.tables().shape[0] == len(meta["names"])  # the saved Gram matrices pass
 
 
 def test_entries_are_refused_by_their_size_before_they_are_read(tmp_path, saved):
     meta, arrays = saved
     path = craft(tmp_path / "m.npz", meta, arrays)
     with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as zf:
-        zf.writestr("junk.npy", b"\x00not an npy" * 1000)       # never read: the load succeeds
+        zf.writestr("junk.npy", b"\x00not an npy" * 1000)  # never read: the load succeeds
     assert Manifold.load(path).names == meta["names"]
     inflated = tmp_path / "inflated.npz"
     craft(inflated, meta, {k: v for k, v in arrays.items() if k != "latent"})
-    with zipfile.ZipFile(inflated, "a", compression=zipfile.ZIP_DEFLATED) as zf, zf.open("latent.npy", "w") as f:
+    with (
+        zipfile.ZipFile(inflated, "a", compression=zipfile.ZIP_DEFLATED) as zf,
+        zf.open("latent.npy", "w") as f,
+    ):
         np.lib.format.write_array(f, arrays["latent"])
-        f.write(bytes(32 << 20))                                  # 32 MB of zeros, a few kB stored
-    with pytest.raises(FormatError, match="its latent array is .* bytes, more than its shape allows"):
+        f.write(bytes(32 << 20))  # 32 MB of zeros, a few kB stored
+    with pytest.raises(
+        FormatError, match="its latent array is .* bytes, more than its shape allows"
+    ):
         Manifold.load(inflated)
     bad_header = tmp_path / "header.npz"
     craft(bad_header, meta, {k: v for k, v in arrays.items() if k != "history"})
     with zipfile.ZipFile(bad_header, "a") as zf, zf.open("history.npy", "w") as f:
-        np.lib.format.write_array_header_1_0(f, {"descr": "<f8", "fortran_order": False, "shape": (10 ** 14,)})
-    with pytest.raises(FormatError, match="its history array is longer than"):   # 10**14 floats, no data
+        np.lib.format.write_array_header_1_0(
+            f, {"descr": "<f8", "fortran_order": False, "shape": (10**14,)}
+        )
+    with pytest.raises(
+        FormatError, match="its history array is longer than"
+    ):  # 10**14 floats, no data
         Manifold.load(bad_header)
     with zipfile.ZipFile(bad_header, "w") as zf:
         zf.writestr("meta.npy", np.lib.format.magic(1, 0) + b"\x10\x00{'descr': '<U5', 'shape': (")
@@ -124,14 +147,36 @@ def test_entries_are_refused_by_their_size_before_they_are_read(tmp_path, saved)
         Manifold.load(bad_header)
 
 
-JSON = st.recursive(st.none() | st.booleans() | st.integers(-10, 10) | st.floats(allow_nan=True)
-                    | st.text(max_size=5), lambda c: st.lists(c, max_size=3) | st.dictionaries(st.text(max_size=4), c,
-                                                                                              max_size=3), max_leaves=6)
+JSON = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.integers(-10, 10)
+    | st.floats(allow_nan=True)
+    | st.text(max_size=5),
+    lambda c: st.lists(c, max_size=3) | st.dictionaries(st.text(max_size=4), c, max_size=3),
+    max_leaves=6,
+)
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(field=st.sampled_from(["version", "names", "database", "hashes", "length_scale", "noise", "features",
-                              "info", "interpolant"]), value=JSON)
+@settings(
+    max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    field=st.sampled_from(
+        [
+            "version",
+            "names",
+            "database",
+            "hashes",
+            "length_scale",
+            "noise",
+            "features",
+            "info",
+            "interpolant",
+        ]
+    ),
+    value=JSON,
+)
 def test_any_json_in_a_meta_field_loads_or_is_refused_naming_it(tmp_path, saved, field, value):
     meta, arrays = saved
     path = craft(tmp_path / "m.npz", meta, arrays, **{f"meta_{field}": value})
@@ -141,14 +186,23 @@ def test_any_json_in_a_meta_field_loads_or_is_refused_naming_it(tmp_path, saved,
         assert f"its {field} " in str(e), str(e)
 
 
-ARRAY = st.tuples(st.sampled_from(["f8", "f4", "i4", "u1", "c16", "?", "U2"]),
-                  st.lists(st.integers(0, 9), max_size=3))
+ARRAY = st.tuples(
+    st.sampled_from(["f8", "f4", "i4", "u1", "c16", "?", "U2"]),
+    st.lists(st.integers(0, 9), max_size=3),
+)
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(field=st.sampled_from(["latent", "history", "albedos", "gram", "table_gram", "cos_gram"]), spec=ARRAY,
-       seed=st.integers(0, 3))
-def test_any_array_in_an_array_field_loads_or_is_refused_naming_it(tmp_path, saved, field, spec, seed):
+@settings(
+    max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    field=st.sampled_from(["latent", "history", "albedos", "gram", "table_gram", "cos_gram"]),
+    spec=ARRAY,
+    seed=st.integers(0, 3),
+)
+def test_any_array_in_an_array_field_loads_or_is_refused_naming_it(
+    tmp_path, saved, field, spec, seed
+):
     meta, arrays = saved
     dtype, shape = spec
     value = np.random.default_rng(seed).standard_normal(shape).astype(dtype)
@@ -162,6 +216,7 @@ def test_any_array_in_an_array_field_loads_or_is_refused_naming_it(tmp_path, sav
 def test_api_values_of_the_wrong_kind_are_one_input_error(small_db, small_manifold):
     """Tracebacks of issue 20: a text prune, an empty names list, a text interpolant parameter."""
     from mitsuba_manifold.errors import InputError
+
     m = Manifold.load(small_manifold)
     with pytest.raises(InputError, match=r"`prune` must be in \[0, 1\), got '0.1'"):
         m.interpolate(m.latent[0], prune="0.1")

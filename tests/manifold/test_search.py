@@ -38,7 +38,10 @@ def test_descent_recovers_the_point_whose_weights_it_matches(manifold):
     bounds = search.box(m)
     X, err = search.scan(m, obj, 0.0, bounds, 512, seed=3)
     best = int(np.argmin(obj.batch(np.eye(m.n))[0]))
-    runs = [search.descend(m, obj, 0.0, x0, bounds, 200) for x0 in search.start_points(m, best, X, err, 3)]
+    runs = [
+        search.descend(m, obj, 0.0, x0, bounds, 200)
+        for x0 in search.start_points(m, best, X, err, 3)
+    ]
     top = min(runs, key=lambda r: r["objective"])
     assert top["objective"] < 1e-8 * max(1.0, obj(m.weights(m.latent[best])[1])[0])
     np.testing.assert_allclose(m.weights(top["x"])[1], obj.target, atol=1e-4)
@@ -62,10 +65,12 @@ def test_starts_begin_at_the_best_material_and_keep_apart(manifold):
     err = rng.random(200)
     starts = search.start_points(m, 2, X, err, 4, spread=0.25)
     assert len(starts) <= 4 and np.linalg.norm(starts[0] - m.latent[2]) < 1e-5 * m.length_scale
-    assert not np.array_equal(starts[0], m.latent[2])    # nudged off the training point
+    assert not np.array_equal(starts[0], m.latent[2])  # nudged off the training point
     for a in range(len(starts)):
         for b in range(a + 1, len(starts)):
             assert np.linalg.norm(starts[a] - starts[b]) >= 0.25 * m.length_scale - 1e-9
     nearest = search.start_points(m, 2, np.zeros((0, m.q)), np.zeros(0), 3)
     d = np.linalg.norm(m.latent - m.latent[2], axis=1)
-    np.testing.assert_allclose([np.linalg.norm(s - m.latent[2]) for s in nearest], np.sort(d)[:3], atol=1e-5)
+    np.testing.assert_allclose(
+        [np.linalg.norm(s - m.latent[2]) for s in nearest], np.sort(d)[:3], atol=1e-5
+    )

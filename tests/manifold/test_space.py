@@ -9,10 +9,10 @@ import sys
 import numpy as np
 import pytest
 
+from mitsuba_manifold.data.database import Database
 from mitsuba_manifold.gp import gplvm
 from mitsuba_manifold.manifold import interpolant, space
-from mitsuba_manifold.data.database import Database
-from mitsuba_manifold.manifold.model import Manifold, InputError
+from mitsuba_manifold.manifold.model import InputError, Manifold
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -39,7 +39,9 @@ def test_default_is_convex_continuous_and_reproduces_training_materials(default)
     _, W = default.weights(X)
     assert (W >= 0).all() and np.allclose(W.sum(axis=1), 1)
     A = default.albedo(X)
-    assert (A >= default.albedos.min(0) - 1e-12).all() and (A <= default.albedos.max(0) + 1e-12).all()
+    assert (A >= default.albedos.min(0) - 1e-12).all() and (
+        A <= default.albedos.max(0) + 1e-12
+    ).all()
     for i in range(default.n):
         assert np.array_equal(default.weights(default.latent[i]).w, np.eye(default.n)[i])
     assert default.discontinuity() < 1e-6
@@ -51,7 +53,9 @@ def test_paper_preset_reproduces_the_previous_fit(paper, small_db):
     """preset="paper" is exactly the previous release's Manifold.fit(db): Hooke-Jeeves on raw features, Eq. 4."""
     db = Database(small_db)
     _, S = db.gram(features="raw")
-    ref = gplvm.fit_latent(S, 3 * int(np.prod(db.dims)), q=2, method="hooke-jeeves", length_scale=1.0, noise=1e-4)
+    ref = gplvm.fit_latent(
+        S, 3 * int(np.prod(db.dims)), q=2, method="hooke-jeeves", length_scale=1.0, noise=1e-4
+    )
     assert np.array_equal(paper.latent, ref.latent)
     assert paper.interpolant.kind == "gp" and paper.features == "raw"
     x = np.array([0.1, -0.3])
@@ -75,16 +79,21 @@ def test_weights_jacobian_and_variance_gradient_match_finite_differences(which, 
         assert np.allclose(J[:, :, k], fd, rtol=1e-4, atol=1e-6)
         fdv = (m.variance(X + e) - m.variance(X - e)) / (2 * h)
         assert np.allclose(G[:, k], fdv, rtol=1e-5, atol=1e-8)
-    for i in range(len(X)):                                  # one point: the batch's row
-        assert np.array_equal(m.weights_jacobian(X[i]), J[i]) and np.array_equal(m.variance_gradient(X[i]), G[i])
+    for i in range(len(X)):  # one point: the batch's row
+        assert np.array_equal(m.weights_jacobian(X[i]), J[i]) and np.array_equal(
+            m.variance_gradient(X[i]), G[i]
+        )
 
 
 def test_far_points_get_far_field_weights_without_warnings_until_they_overflow(default, paper):
     import warnings
+
     steep = interpolant.ShepardWeights(default.latent, power=16.0, taper=0.2, spread=0.3)
-    for m, weights, jacobian in [(default, default.weights, default.weights_jacobian),
-                                 (paper, paper.weights, paper.weights_jacobian),
-                                 (default, steep.weights, steep.jacobian)]:
+    for m, weights, jacobian in [
+        (default, default.weights, default.weights_jacobian),
+        (paper, paper.weights, paper.weights_jacobian),
+        (default, steep.weights, steep.jacobian),
+    ]:
         far = np.full(m.q, -1e29)
         with warnings.catch_warnings():
             warnings.simplefilter("error")
@@ -129,19 +138,41 @@ def test_project_tool(default, small_db, tmp_path):
     path = str(tmp_path / "m.npz")
     default.save(path)
     out = tmp_path / "p.json"
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "project.py"),
-                        os.path.join(small_db, "chrome.binary"), "--manifold", path, "--json", str(out)],
-                       capture_output=True, text=True, cwd=str(tmp_path))
+    r = subprocess.run(
+        [
+            sys.executable,
+            os.path.join(ROOT, "tools", "project.py"),
+            os.path.join(small_db, "chrome.binary"),
+            "--manifold",
+            path,
+            "--json",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=str(tmp_path),
+    )
     assert r.returncode == 0, r.stderr
     result = json.loads(out.read_text())
     assert result["nearest"] == "chrome" and result["error"] < 1e-6 and "x =" in r.stdout
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "project.py"), str(tmp_path / "none.binary"),
-                        "--manifold", path], capture_output=True, text=True, cwd=str(tmp_path))
+    r = subprocess.run(
+        [
+            sys.executable,
+            os.path.join(ROOT, "tools", "project.py"),
+            str(tmp_path / "none.binary"),
+            "--manifold",
+            path,
+        ],
+        capture_output=True,
+        text=True,
+        cwd=str(tmp_path),
+    )
     assert r.returncode != 0 and "none.binary" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_project_json_replaces_only_its_own_files(default, small_db, tmp_path):
     from guarantees_helpers import assert_one_error, run_tool, snapshot
+
     manifold, table = str(tmp_path / "m.npz"), str(tmp_path / "in.binary")
     default.save(manifold)
     shutil.copy(os.path.join(small_db, "chrome.binary"), table)
@@ -149,17 +180,24 @@ def test_project_json_replaces_only_its_own_files(default, small_db, tmp_path):
     (tmp_path / "locked.json").write_text("locked")
     os.chmod(tmp_path / "locked.json", 0o444)
     before = snapshot(tmp_path)
-    for out, extra, words in [(table, [], ["--json"]), (tmp_path / "notes.txt", ["--force"], [".json"]),
-                              (tmp_path / "mine.json", [], ["mine.json", "--force"]),
-                              (tmp_path / "locked.json", ["--force"], ["locked.json", "read-only"])]:
+    for out, extra, words in [
+        (table, [], ["--json"]),
+        (tmp_path / "notes.txt", ["--force"], [".json"]),
+        (tmp_path / "mine.json", [], ["mine.json", "--force"]),
+        (tmp_path / "locked.json", ["--force"], ["locked.json", "read-only"]),
+    ]:
         rc, _, err = run_tool("project", table, "--manifold", manifold, "--json", out, *extra)
         assert_one_error(rc, err, *words)
     assert snapshot(tmp_path) == before
-    for _ in range(2):                                      # its own output is replaced
-        rc, _, err = run_tool("project", table, "--manifold", manifold, "--json", tmp_path / "p.json")
+    for _ in range(2):  # its own output is replaced
+        rc, _, err = run_tool(
+            "project", table, "--manifold", manifold, "--json", tmp_path / "p.json"
+        )
         assert rc == 0, err
     assert json.loads((tmp_path / "p.json").read_text())["nearest"] == "chrome"
-    rc, _, err = run_tool("project", table, "--manifold", manifold, "--json", tmp_path / "nodir" / "p.json")
+    rc, _, err = run_tool(
+        "project", table, "--manifold", manifold, "--json", tmp_path / "nodir" / "p.json"
+    )
     assert_one_error(rc, err, str(tmp_path / "nodir" / "p.json"), "does not exist")
     assert ".tmp" not in err
 
@@ -168,12 +206,13 @@ def test_default_prune_keeps_the_table_within_its_bounds(default):
     """The "raw-l2" rule within 1% of the raw L2 norm; the default "image" rule within 1% of the
     cosine-weighted norm and 0.5% of each albedo channel (errors measured on the tables)."""
     from mitsuba_manifold.data.database import albedo_weights
+
     tables = default.tables()
     q = albedo_weights(default.dims).reshape(-1)
     qq = np.tile(q, 3)
     for x in _box_points(default, 12, seed=2):
         w = default.weights(x).w
-        full = (w @ tables.astype(np.float64))
+        full = w @ tables.astype(np.float64)
         table, keep, _ = default.combine(w, rule="raw-l2")
         err = np.linalg.norm(table.reshape(-1) - full) / np.linalg.norm(full)
         assert err <= 0.01 + 1e-5
@@ -190,6 +229,7 @@ def test_prune_by_contribution_keeps_small_weights_on_spiky_tables(paper):
     """A small weight on a table 1000x brighter contributes more than a big one on a dull table."""
     G = np.diag(np.array([1.0, 1e6] + [1e-2] * (paper.n - 2)))
     from mitsuba_manifold.manifold import pruning
+
     w = np.r_[0.6, 0.01, np.full(paper.n - 2, 0.39 / (paper.n - 2))]
     keep, w_kept, _ = pruning.prune(w, G, 0.01)
     assert 1 in keep and w_kept.sum() == pytest.approx(1.0)
@@ -199,16 +239,30 @@ def test_prune_by_contribution_keeps_small_weights_on_spiky_tables(paper):
 def test_saved_manifold_of_the_previous_release_loads_as_paper(paper, tmp_path):
     """A version-1 file (no interpolant, no table Gram) loads with the paper's GP weights; bad versions fail clearly."""
     path = tmp_path / "v1.npz"
-    meta = {"format": "mitsuba-manifold", "version": 1, "names": paper.names, "database": paper.database,
-            "hashes": paper.hashes, "length_scale": 1.0, "noise": 1e-4, "features": "raw",
-            "info": {k: v for k, v in paper.info.items() if k != "preset"}}
-    np.savez(path, latent=paper.latent, history=paper.history, meta=np.array(json.dumps(meta)),
-             albedos=paper.albedos, gram=paper.gram)
+    meta = {
+        "format": "mitsuba-manifold",
+        "version": 1,
+        "names": paper.names,
+        "database": paper.database,
+        "hashes": paper.hashes,
+        "length_scale": 1.0,
+        "noise": 1e-4,
+        "features": "raw",
+        "info": {k: v for k, v in paper.info.items() if k != "preset"},
+    }
+    np.savez(
+        path,
+        latent=paper.latent,
+        history=paper.history,
+        meta=np.array(json.dumps(meta)),
+        albedos=paper.albedos,
+        gram=paper.gram,
+    )
     old = Manifold.load(path)
     assert old.interpolant.kind == "gp" and old.info["preset"] == "paper" and old.table_gram is None
     x = np.array([0.2, 0.1])
     assert np.array_equal(old.weights(x).w, paper.weights(x).w)
-    keep, _, _ = old.prune(old.weights(x).w)       # table Gram computed from the database on demand
+    keep, _, _ = old.prune(old.weights(x).w)  # table Gram computed from the database on demand
     assert old.table_gram is not None and len(keep) >= 1
     meta["version"] = 7
     np.savez(path, latent=paper.latent, meta=np.array(json.dumps(meta)))
@@ -234,6 +288,7 @@ def test_unknown_settings_fail_clearly(small_db):
 
 
 # ------------------------------------------------------------------- metrics
+
 
 def test_baselines_from_the_gram_matrix_match_direct_computation():
     rng = np.random.default_rng(4)
@@ -262,22 +317,35 @@ def test_path_metrics_and_jump():
     assert space.step_share(np.ones((1, 40)))[0] == pytest.approx(1 / 40)
     assert space.training_jump(ip).max() < 1e-9
     gp = interpolant.GaussianProcessWeights(np.array([[0.0], [1e-3]]), noise=1e-4)
-    assert space.training_jump(gp).max() > 0.5 and gp.jump() == pytest.approx(space.training_jump(gp).max(), rel=1e-3)
+    assert space.training_jump(gp).max() > 0.5 and gp.jump() == pytest.approx(
+        space.training_jump(gp).max(), rel=1e-3
+    )
 
 
 def test_plausibility_of_convex_and_affine_weights(default, paper):
     tables = default.tables()
-    conv = space.plausibility(default.interpolant, default.albedos, tables, n_albedo=400, n_tables=8)
-    assert conv.albedo_outside == 0 and conv.negative_fraction.max() == 0 and conv.negative_weights == 0
+    conv = space.plausibility(
+        default.interpolant, default.albedos, tables, n_albedo=400, n_tables=8
+    )
+    assert (
+        conv.albedo_outside == 0
+        and conv.negative_fraction.max() == 0
+        and conv.negative_weights == 0
+    )
     aff = space.plausibility(paper.interpolant, paper.albedos, tables, n_albedo=400, n_tables=8)
     assert aff.negative_weights > 0
 
 
 def test_a_partial_interpolant_override_keeps_the_presets_other_parameters():
     from mitsuba_manifold.manifold.model import settings
+
     assert settings("default", interpolant={"taper": 0.3})["interpolant"] == {
-        **settings("default")["interpolant"], "taper": 0.3}
-    assert settings("default", interpolant={"kind": "gp"})["interpolant"] == {"kind": "gp"}   # another kind: whole
+        **settings("default")["interpolant"],
+        "taper": 0.3,
+    }
+    assert settings("default", interpolant={"kind": "gp"})["interpolant"] == {
+        "kind": "gp"
+    }  # another kind: whole
 
 
 def test_cross_validation_runs_and_reports(default, small_db):
@@ -285,17 +353,25 @@ def test_cross_validation_runs_and_reports(default, small_db):
     tables = default.tables()
     G = space.feature_gram(tables, "log")
     from mitsuba_manifold.manifold.model import fit_layout, make_interpolant, settings
+
     cfg = settings("default", q=2)
 
     def fit(train):
-        return make_interpolant(fit_layout(space.centred(G, train), tables.shape[1], cfg).latent, cfg)
+        return make_interpolant(
+            fit_layout(space.centred(G, train), tables.shape[1], cfg).latent, cfg
+        )
 
     held = space.cross_validate(tables, db.names, fit, G, 2, default.albedos, k=4, only_folds=[0])
     s = held.summary()
-    assert s["n"] == 2 and (held.error <= held.nearest + 1e-6).all() and s["worst_negative_fraction"] == 0
+    assert (
+        s["n"] == 2
+        and (held.error <= held.nearest + 1e-6).all()
+        and s["worst_negative_fraction"] == 0
+    )
     assert json.dumps(held.as_dict())
     assert len(held.fold_ratios()) == 1 and s["worst_fold_median_ratio"] == pytest.approx(
-        np.median(held.error / held.nearest))
+        np.median(held.error / held.nearest)
+    )
 
 
 def test_all_neighbour_pairs_hold_every_materials_nearest_neighbour_once():

@@ -13,10 +13,16 @@ def test_a_subset_keeps_the_weights_and_tables_of_the_full_manifold(small_manifo
     full = Manifold.load(small_manifold)
     names = full.names[:-1]
     sub = full.subset(names)
-    assert sub.names == names and sub.hashes == full.hashes[:-1] and sub.latent.shape == (full.n - 1, full.q)
-    assert sub.interpolant.params() == full.interpolant.params() and sub.interpolant.kind == "shepard"
+    assert (
+        sub.names == names
+        and sub.hashes == full.hashes[:-1]
+        and sub.latent.shape == (full.n - 1, full.q)
+    )
+    assert (
+        sub.interpolant.params() == full.interpolant.params() and sub.interpolant.kind == "shepard"
+    )
     assert np.array_equal(sub.table_gram, full.table_gram[:-1, :-1])
-    assert np.allclose(sub.gram.sum(axis=0), 0.0, atol=1e-8 * np.abs(sub.gram).max())   # centred
+    assert np.allclose(sub.gram.sum(axis=0), 0.0, atol=1e-8 * np.abs(sub.gram).max())  # centred
     # at a training point the subset's weights pick that material alone, as the full manifold's do
     _, w = sub.weights(sub.latent[0])
     assert w[0] == pytest.approx(1.0, abs=1e-6)
@@ -26,9 +32,14 @@ def test_a_subset_keeps_the_weights_and_tables_of_the_full_manifold(small_manifo
     assert np.array_equal(again.latent, sub.latent)
 
 
-@pytest.mark.parametrize("names, words", [(["chrome", "nope"], "unknown material 'nope'"),
-                                          (["chrome"], "at least two distinct"),
-                                          (["chrome", "chrome"], "at least two distinct")])
+@pytest.mark.parametrize(
+    "names, words",
+    [
+        (["chrome", "nope"], "unknown material 'nope'"),
+        (["chrome"], "at least two distinct"),
+        (["chrome", "chrome"], "at least two distinct"),
+    ],
+)
 def test_a_subset_of_unknown_or_too_few_materials_is_refused(small_manifold, names, words):
     full = Manifold.load(small_manifold)
     names = [full.names[0] if n == "chrome" else n for n in names]

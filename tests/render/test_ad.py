@@ -5,13 +5,12 @@ against the combined table."""
 
 import gc
 
+import drjit as dr  # noqa: E402
+import mitsuba as mi  # noqa: E402
 import numpy as np
 import pytest
 
 import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
-import drjit as dr  # noqa: E402
-import mitsuba as mi  # noqa: E402
-
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 from mitsuba_manifold.render import ad  # noqa: E402
 
@@ -28,20 +27,49 @@ def manifold(small_manifold):
 def _scene(manifold_path, x, terms=4, prune=0.01, defaults=False):
     """A sphere on a floor sharing the manifold material, under a constant sky (inter-reflections);
     ``defaults``: the plugin's own ``ad_terms`` and ``prune``."""
-    mat = {"type": "manifold_brdf", "id": "mat", "manifold": manifold_path, "x": ", ".join(map(str, x))}
+    mat = {
+        "type": "manifold_brdf",
+        "id": "mat",
+        "manifold": manifold_path,
+        "x": ", ".join(map(str, x)),
+    }
     if not defaults:
         mat.update(ad_terms=terms, prune=prune)
-    return mi.load_dict({
-        "type": "scene", "mat": mat,
-        "sensor": {"type": "perspective", "fov": 40, "to_world": mi.ScalarTransform4f().look_at(
-            origin=[0, 1.2, 3.5], target=[0, 0, 0], up=[0, 1, 0]),
-            "film": {"type": "hdrfilm", "width": RES, "height": RES, "rfilter": {"type": "box"}}},
-        "sphere": {"type": "sphere", "bsdf": {"type": "ref", "id": "mat"}},
-        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, -1, 0]).rotate(
-            [1, 0, 0], -90).scale(4), "bsdf": {"type": "ref", "id": "mat"}},
-        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
-        "lamp": {"type": "point", "position": [1.5, 2.5, 1.5], "intensity": {"type": "rgb", "value": 8.0}},
-    }, optimize=False)
+    return mi.load_dict(
+        {
+            "type": "scene",
+            "mat": mat,
+            "sensor": {
+                "type": "perspective",
+                "fov": 40,
+                "to_world": mi.ScalarTransform4f().look_at(
+                    origin=[0, 1.2, 3.5], target=[0, 0, 0], up=[0, 1, 0]
+                ),
+                "film": {
+                    "type": "hdrfilm",
+                    "width": RES,
+                    "height": RES,
+                    "rfilter": {"type": "box"},
+                },
+            },
+            "sphere": {"type": "sphere", "bsdf": {"type": "ref", "id": "mat"}},
+            "floor": {
+                "type": "rectangle",
+                "to_world": mi.ScalarTransform4f()
+                .translate([0, -1, 0])
+                .rotate([1, 0, 0], -90)
+                .scale(4),
+                "bsdf": {"type": "ref", "id": "mat"},
+            },
+            "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
+            "lamp": {
+                "type": "point",
+                "position": [1.5, 2.5, 1.5],
+                "intensity": {"type": "rgb", "value": 8.0},
+            },
+        },
+        optimize=False,
+    )
 
 
 def _x0(manifold):
@@ -73,7 +101,10 @@ def _central_differences(scene, params, x0, h=2e-3, seed=1):
     fd = []
     for j in range(x0.size):
         e = np.eye(x0.size)[j] * h
-        fd.append((_mean_image(scene, params, x0 + e, seed) - _mean_image(scene, params, x0 - e, seed)) / (2 * h))
+        fd.append(
+            (_mean_image(scene, params, x0 + e, seed) - _mean_image(scene, params, x0 - e, seed))
+            / (2 * h)
+        )
     return np.array(fd)
 
 
@@ -90,10 +121,14 @@ def test_custom_op_jacobian_with_rescaled_active_set(manifold):
     v, Jv = fn(x0)
     assert v.sum() == pytest.approx(1.0) and np.allclose(Jv.sum(axis=0), 0.0, atol=1e-9)
     h = 1e-6
-    fd = np.stack([(fn(x0 + h * e)[0] - fn(x0 - h * e)[0]) / (2 * h) for e in np.eye(manifold.q)], axis=1)
+    fd = np.stack(
+        [(fn(x0 + h * e)[0] - fn(x0 - h * e)[0]) / (2 * h) for e in np.eye(manifold.q)], axis=1
+    )
     np.testing.assert_allclose(Jv, fd, rtol=1e-4, atol=1e-6)
     full = ad.rescaled(w, J, np.arange(manifold.n))[1]
-    np.testing.assert_allclose(full, J, atol=1e-12)   # nothing dropped: exactly Manifold.weights_jacobian
+    np.testing.assert_allclose(
+        full, J, atol=1e-12
+    )  # nothing dropped: exactly Manifold.weights_jacobian
 
     x = mi.Float(x0.astype(np.float32))
     dr.enable_grad(x)
@@ -113,31 +148,33 @@ def test_active_set_by_weight_and_jacobian_with_hysteresis():
     w = np.array([0.5, 0.3, 0.15, 0.05])
     J = np.array([[0.0], [0.0], [0.0], [10.0]])
     assert ad.choose_active(w, J, 2, step=0.0).tolist() == [0, 1]
-    assert ad.choose_active(w, J, 2, step=0.1).tolist() == [0, 3]   # the weight that moves fast
+    assert ad.choose_active(w, J, 2, step=0.1).tolist() == [0, 3]  # the weight that moves fast
     assert ad.choose_active(w, J * 0, 2, step=0.0, previous=[0, 2]).tolist() == [0, 1]
-    w2 = np.array([0.5, 0.27, 0.3, 0.0])   # 2 slightly ahead of the member 1: kept (hysteresis)
+    w2 = np.array([0.5, 0.27, 0.3, 0.0])  # 2 slightly ahead of the member 1: kept (hysteresis)
     assert ad.choose_active(w2, J * 0, 2, step=0.0, previous=[0, 1]).tolist() == [0, 1]
 
 
-@pytest.mark.parametrize("mode", ["backward", "render_forward", "forward_to", "forward", "forward_weights"])
+@pytest.mark.parametrize(
+    "mode", ["backward", "render_forward", "forward_to", "forward", "forward_weights"]
+)
 def test_render_gradient_matches_central_differences(small_manifold, manifold, mode):
     """Backward and forward mode the way a Mitsuba user writes them: ``dr.backward`` of ``mi.render``;
     ``dr.set_grad(x, dx)`` then ``integrator.render_forward`` or ``mi.render`` and ``dr.forward_to``;
     ``dr.forward(x)``; and the older ``bsdf.forward_weights(dx)`` leaf."""
-    gc.collect()   # no AD graph of an earlier test's scene left (prb's forward mode traverses from the enqueued)
+    gc.collect()  # no AD graph of an earlier test's scene left (prb's forward mode traverses from the enqueued)
     x0 = _x0(manifold)
     scene = _scene(small_manifold, x0)
     params = _grad_enabled(scene, x0)
     bsdf = [b for b in scene.shapes()][0].bsdf()
     assert bsdf.differentiable and len(bsdf.active_set.idx) == 4
-    bsdf.hold_proxy = True   # one sampling proxy for every render below
+    bsdf.hold_proxy = True  # one sampling proxy for every render below
     integ = mi.load_dict(PRB)
     # the gradient pass uses seed_grad: the finite differences render with that seed
     if mode == "backward":
         img = mi.render(scene, params, integrator=integ, spp=SPP, seed=7, seed_grad=1)
         dr.backward(dr.mean(img, axis=None))
         grad = np.array(dr.grad(params["mat.x"]))
-    elif mode == "forward":   # dr.forward(x): the derivative along dx = (1, ..., 1)
+    elif mode == "forward":  # dr.forward(x): the derivative along dx = (1, ..., 1)
         img = mi.render(scene, params, integrator=integ, spp=SPP, seed=7, seed_grad=1)
         dr.forward(params["mat.x"])
         grad = np.array([float(np.array(dr.grad(img), dtype=np.float64).mean())])
@@ -180,7 +217,9 @@ def test_traced_weights_value_and_derivatives():
     w = ad.traced_weights(x, mi.Float(v), mi.Float(J.ravel()))
     dr.set_grad(x, mi.Float([1.0, -2.0]))
     dr.forward_to(*w)
-    np.testing.assert_allclose([float(np.array(dr.grad(wi))[0]) for wi in w], J @ [1.0, -2.0], rtol=1e-6)
+    np.testing.assert_allclose(
+        [float(np.array(dr.grad(wi))[0]) for wi in w], J @ [1.0, -2.0], rtol=1e-6
+    )
 
 
 def _adam_moves(scene, x0, steps=2):
@@ -190,7 +229,9 @@ def _adam_moves(scene, x0, steps=2):
     opt["mat.x"] = params["mat.x"]
     params.update(opt)
     for it in range(steps):
-        img = mi.render(scene, params, integrator=mi.load_dict(PRB), spp=4, seed=2 * it, seed_grad=2 * it + 1)
+        img = mi.render(
+            scene, params, integrator=mi.load_dict(PRB), spp=4, seed=2 * it, seed_grad=2 * it + 1
+        )
         dr.backward(dr.mean(img, axis=None))
         opt.step()
         params.update(opt)
@@ -199,14 +240,20 @@ def _adam_moves(scene, x0, steps=2):
 
 def test_training_point_has_zero_gradient_and_jitter_moves(small_manifold, manifold):
     xi = manifold.latent[3]
-    assert np.abs(manifold.weights_jacobian(xi)).max() < 1e-8   # Shepard: flat at a training point
+    assert np.abs(manifold.weights_jacobian(xi)).max() < 1e-8  # Shepard: flat at a training point
     moved = ad.jitter(xi, manifold)
     others = np.linalg.norm(manifold.latent - xi, axis=1)[np.arange(manifold.n) != 3]
     assert 0 < np.linalg.norm(moved - xi) < others.min()
     assert np.abs(manifold.weights_jacobian(moved)).max() > 1e-6
-    assert np.array_equal(ad.jitter(_x0(manifold), manifold), _x0(manifold))   # off the data: unchanged
-    scene = _scene(small_manifold, xi, prune=0.0)   # pruning would keep one material so near a training point
-    assert _adam_moves(scene, xi) < 1e-4     # started on the training point: stuck (float32 rounding aside)
+    assert np.array_equal(
+        ad.jitter(_x0(manifold), manifold), _x0(manifold)
+    )  # off the data: unchanged
+    scene = _scene(
+        small_manifold, xi, prune=0.0
+    )  # pruning would keep one material so near a training point
+    assert (
+        _adam_moves(scene, xi) < 1e-4
+    )  # started on the training point: stuck (float32 rounding aside)
     assert _adam_moves(scene, moved) > 1e-2  # jittered: moves (Adam steps of ~lr = 0.05)
 
 
@@ -218,7 +265,9 @@ def test_ad_mode_primal_equals_combined_table(small_manifold, manifold):
     bsdf = [b for b in scene.shapes()][0].bsdf()
     integ = mi.load_dict({"type": "path", "max_depth": DEPTH})
     params = mi.traverse(scene)
-    assert params.flags("mat.x") & mi.ParamFlags.NonDifferentiable == 0   # differentiable in AD variants
+    assert (
+        params.flags("mat.x") & mi.ParamFlags.NonDifferentiable == 0
+    )  # differentiable in AD variants
     params["mat.x"] = mi.Float(x0.astype(np.float32))
     params.update()
     assert not bsdf.differentiable and bsdf.active_set is None
@@ -239,7 +288,10 @@ def test_other_differentiable_integrators(small_manifold, manifold, kind):
     x0 = _x0(manifold)
     scene = _scene(small_manifold, x0)
     grads = []
-    for d in (dict(PRB, max_depth=2), {"type": kind} if kind == "direct_projective" else dict(PRB, type=kind)):
+    for d in (
+        dict(PRB, max_depth=2),
+        {"type": kind} if kind == "direct_projective" else dict(PRB, type=kind),
+    ):
         params = _grad_enabled(scene, x0)
         img = mi.render(scene, params, integrator=mi.load_dict(d), spp=16, seed=2, seed_grad=3)
         dr.backward(dr.mean(img, axis=None))
@@ -284,16 +336,24 @@ def _eval_at(bsdf, directions):
 
 
 @pytest.mark.parametrize("interpolation", ["nearest", "linear"])
-def test_scalar_variant_keeps_the_combined_table_and_ad_mode_agrees(small_manifold, manifold, interpolation):
+def test_scalar_variant_keeps_the_combined_table_and_ad_mode_agrees(
+    small_manifold, manifold, interpolation
+):
     """scalar_rgb: x is NonDifferentiable and the plugin evaluates today's combined table; the AD
     mode of llvm_ad_rgb (K = N, no pruning) evaluates the same values (and a pdf from the same proxy)."""
     rng = np.random.default_rng(4)
     v = rng.normal(size=(12, 2, 3))
-    v[..., 2] = np.abs(v[..., 2])   # upper hemisphere
+    v[..., 2] = np.abs(v[..., 2])  # upper hemisphere
     dirs = list(v / np.linalg.norm(v, axis=-1, keepdims=True))
     x = ", ".join(map(str, _x0(manifold)))
-    spec = {"type": "manifold_brdf", "manifold": small_manifold, "x": x, "prune": 0.0, "ad_terms": manifold.n,
-            "interpolation": interpolation}
+    spec = {
+        "type": "manifold_brdf",
+        "manifold": small_manifold,
+        "x": x,
+        "prune": 0.0,
+        "ad_terms": manifold.n,
+        "interpolation": interpolation,
+    }
     results = {}
     for variant in ("scalar_rgb", "llvm_ad_rgb"):
         mi.set_variant(variant)
@@ -321,7 +381,7 @@ def test_gradient_at_defaults_is_that_of_the_plain_render(small_manifold, manifo
     bsdf = scene.shapes()[0].bsdf()
     _, w = manifold.weights(x0)
     pruned = manifold.prune(w).keep
-    assert 1 < len(pruned) < manifold.n           # pruning drops materials at this point
+    assert 1 < len(pruned) < manifold.n  # pruning drops materials at this point
     integ = mi.load_dict(PRB)
 
     def plain(x, seed):
@@ -334,15 +394,21 @@ def test_gradient_at_defaults_is_that_of_the_plain_render(small_manifold, manifo
     base = plain(x0, 1)
     bsdf.hold_proxy = True
     params = _grad_enabled(scene, x0)
-    assert bsdf.differentiable and sorted(bsdf.used_names) == sorted(manifold.names[i] for i in pruned)
+    assert bsdf.differentiable and sorted(bsdf.used_names) == sorted(
+        manifold.names[i] for i in pruned
+    )
     with dr.suspend_grad():
         in_ad = np.array(mi.render(scene, integrator=integ, spp=SPP, seed=1), dtype=np.float64)
-    np.testing.assert_allclose(in_ad, base, rtol=1e-3, atol=1e-5)   # the same material
+    np.testing.assert_allclose(in_ad, base, rtol=1e-3, atol=1e-5)  # the same material
     img = mi.render(scene, params, integrator=integ, spp=SPP, seed=7, seed_grad=1)
     dr.backward(dr.mean(img, axis=None))
     grad = np.array(dr.grad(params["mat.x"]), dtype=np.float64)
     h = 2e-3
-    fd = np.array([(plain(x0 + h * e, 1).mean() - plain(x0 - h * e, 1).mean()) / (2 * h)
-                   for e in np.eye(manifold.q)])
+    fd = np.array(
+        [
+            (plain(x0 + h * e, 1).mean() - plain(x0 - h * e, 1).mean()) / (2 * h)
+            for e in np.eye(manifold.q)
+        ]
+    )
     assert np.abs(fd).max() > 0
     np.testing.assert_allclose(grad, fd, rtol=2e-2, atol=2e-3 * np.abs(fd).max())

@@ -12,20 +12,19 @@ import shutil
 import subprocess
 import sys
 
-import numpy as np
-import pytest
-
-import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
+import numpy as np
+import pytest
+from helpers import chain  # noqa: E402
 from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain  # noqa: E402
 
-from mitsuba_manifold.render import integrators, lookups, sampling  # noqa: E402
+import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
 from mitsuba_manifold.data import merl  # noqa: E402
 from mitsuba_manifold.data.database import Database  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
+from mitsuba_manifold.render import integrators, lookups, sampling  # noqa: E402
 from mitsuba_manifold.render.scenes import SCENES_DIR  # noqa: E402
-from helpers import chain  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
@@ -48,7 +47,11 @@ def negative_x(manifold):
         for j in range(i + 1, len(lat)):
             x = 0.5 * (lat[i] + lat[j])
             _, w = manifold.weights(x)
-            if w.min() < -0.05 and np.abs(w).sum() < 4 and (best is None or w.min() < best[1].min()):
+            if (
+                w.min() < -0.05
+                and np.abs(w).sum() < 4
+                and (best is None or w.min() < best[1].min())
+            ):
                 best = (x, w)
     assert best is not None, "no latent point with negative weights in the test manifold"
     return best[0]
@@ -72,7 +75,11 @@ def make(path, **params):
 
 def incident(angle_deg, azimuth=0.0):
     a = np.radians(angle_deg)
-    return [float(np.sin(a) * np.cos(azimuth)), float(np.sin(a) * np.sin(azimuth)), float(np.cos(a))]
+    return [
+        float(np.sin(a) * np.cos(azimuth)),
+        float(np.sin(a) * np.sin(azimuth)),
+        float(np.cos(a)),
+    ]
 
 
 def interaction(wi, n):
@@ -96,6 +103,7 @@ def random_directions(n, seed):
 
 
 # ------------------------------------------------------------------ chi-square
+
 
 class HalfVectorDomain:
     """Chi-square domain ``(phi_h - phi_i, sqrt(theta_h / (pi/2)))`` of the half vector.
@@ -163,11 +171,16 @@ def chi2(params, angle, domain="half", ires=4):
     return ok, f"{params} at {angle} deg ({domain}): p = {test.p_value}\n{test.messages}"
 
 
-@pytest.mark.parametrize("material", ["pink-fabric", "gold-paint", "chrome", "steel",
-                                      "color-changing-paint3", "interpolated"])
+@pytest.mark.parametrize(
+    "material",
+    ["pink-fabric", "gold-paint", "chrome", "steel", "color-changing-paint3", "interpolated"],
+)
 def test_chi2_half_vector_domain(small_manifold_paper, negative_x, material):
     if material == "interpolated":
-        params = {"manifold": small_manifold_paper, "x": ", ".join(repr(float(v)) for v in negative_x)}
+        params = {
+            "manifold": small_manifold_paper,
+            "x": ", ".join(repr(float(v)) for v in negative_x),
+        }
     else:
         params = {"manifold": small_manifold_paper, "material": material}
     for angle in ANGLES:
@@ -183,8 +196,13 @@ def test_chi2_sphere_domain(small_manifold_paper, material):
         assert ok, report
 
 
-@pytest.mark.parametrize("params", [{"material": "chrome", "interpolation": "linear"},
-                                    {"material": "steel", "sampling": "cosine"}])
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"material": "chrome", "interpolation": "linear"},
+        {"material": "steel", "sampling": "cosine"},
+    ],
+)
 def test_chi2_options(small_manifold_paper, params):
     ok, report = chi2({"manifold": small_manifold_paper, **params}, 60)
     assert ok, report
@@ -199,6 +217,7 @@ def test_chi2_at_89_degrees(small_manifold_paper):
 
 # ------------------------------------------------------------------ evaluation
 
+
 def test_lookup_agrees_with_merl_indexing():
     dims = (90, 90, 180)
     wi, wo = random_directions(200_000, 1), random_directions(200_000, 2)
@@ -207,7 +226,11 @@ def test_lookup_agrees_with_merl_indexing():
     got = np.array(lookups.merl_bin(*lookups.merl_angles(vec(wi), vec(wo)), dims))
     # Distance to the nearest bin boundary (in bins): float32 may round across it.
     th, td, pd = merl.half_diff(wi64, wo64)
-    c = [np.sqrt(th / (np.pi / 2)) * dims[0], td / (np.pi / 2) * dims[1], np.mod(pd, np.pi) / np.pi * dims[2]]
+    c = [
+        np.sqrt(th / (np.pi / 2)) * dims[0],
+        td / (np.pi / 2) * dims[1],
+        np.mod(pd, np.pi) / np.pi * dims[2],
+    ]
     margin = np.min([np.abs(x - np.round(x)) for x in c], axis=0)
     clear = margin > 1e-3
     assert clear.mean() > 0.99
@@ -266,16 +289,28 @@ def test_linear_interpolation_is_periodic_in_phi_d(random_manifold):
     # A quarter bin on either side of phi_d = 0 (= pi): the first and last bins mix.
     first, last = table[:, i_h, i_d, 0], table[:, i_h, i_d, n_p - 1]
     pd = np.array([0.25 / n_p * np.pi, np.pi - 0.25 / n_p * np.pi, 4.0 / n_p * np.pi])
-    expected = np.stack([0.75 * first + 0.25 * last, 0.25 * first + 0.75 * last,
-                         0.5 * (table[:, i_h, i_d, 3] + table[:, i_h, i_d, 4])], axis=1)
+    expected = np.stack(
+        [
+            0.75 * first + 0.25 * last,
+            0.25 * first + 0.75 * last,
+            0.5 * (table[:, i_h, i_d, 3] + table[:, i_h, i_d, 4]),
+        ],
+        axis=1,
+    )
     wi, wo = merl.directions(np.full(3, th), np.full(3, td), pd, phi_h=1.0)
-    value = np.array(bsdf.eval(mi.BSDFContext(), interaction(wi.astype(np.float32), 3),
-                               vec(wo.astype(np.float32)))) / wo[:, 2].astype(np.float32)
+    value = np.array(
+        bsdf.eval(
+            mi.BSDFContext(), interaction(wi.astype(np.float32), 3), vec(wo.astype(np.float32))
+        )
+    ) / wo[:, 2].astype(np.float32)
     assert not np.allclose(first, last, rtol=1e-2)
     assert np.allclose(value, expected, rtol=2e-3)
     nearest = make(random_manifold, material="b")
-    value = np.array(nearest.eval(mi.BSDFContext(), interaction(wi.astype(np.float32), 3),
-                                  vec(wo.astype(np.float32)))) / wo[:, 2].astype(np.float32)
+    value = np.array(
+        nearest.eval(
+            mi.BSDFContext(), interaction(wi.astype(np.float32), 3), vec(wo.astype(np.float32))
+        )
+    ) / wo[:, 2].astype(np.float32)
     assert np.allclose(value[:, :2], table[:, i_h, i_d, [0, n_p - 1]], rtol=1e-6)
 
 
@@ -307,12 +342,19 @@ def test_white_furnace(small_manifold_paper, manifold, negative_x, spec):
     s = rng.random((3, n)).astype(np.float32)
     for angle in (30, 80):
         wi = incident(angle)
-        _, weight = bsdf.sample(mi.BSDFContext(), interaction(wi, n), mi.Float(s[0]), mi.Point2f(s[1], s[2]))
+        _, weight = bsdf.sample(
+            mi.BSDFContext(), interaction(wi, n), mi.Float(s[0]), mi.Point2f(s[1], s[2])
+        )
         weight = np.array(weight)
         mean, err = weight.mean(axis=1), weight.std(axis=1) / np.sqrt(n)
         expected = albedo_quadrature(table, wi)
         assert expected.min() > 0.01
-        assert np.all(np.abs(mean - expected) < 5 * err + 1e-3 * expected), (angle, mean, expected, err)
+        assert np.all(np.abs(mean - expected) < 5 * err + 1e-3 * expected), (
+            angle,
+            mean,
+            expected,
+            err,
+        )
 
 
 def test_sampling_concentrates_on_spiky_materials(small_manifold_paper):
@@ -322,8 +364,9 @@ def test_sampling_concentrates_on_spiky_materials(small_manifold_paper):
     errors = {}
     for mode in ("cdf", "cosine"):
         bsdf = make(small_manifold_paper, material="chrome", sampling=mode)
-        _, weight = bsdf.sample(mi.BSDFContext(), interaction(incident(45), n),
-                                mi.Float(s[0]), mi.Point2f(s[1], s[2]))
+        _, weight = bsdf.sample(
+            mi.BSDFContext(), interaction(incident(45), n), mi.Float(s[0]), mi.Point2f(s[1], s[2])
+        )
         w = np.array(weight).mean(axis=0)
         errors[mode] = w.std() / w.mean()
     assert errors["cdf"] * 5 < errors["cosine"]
@@ -337,13 +380,18 @@ def test_no_fireflies_at_the_mirror_direction(small_manifold_paper):
     wi = random_directions(n, 12)
     sx = rng.choice(np.array([0.0, 1e-9, 1e-7, 1e-6, 1e-5], dtype=np.float32), n)
     s1 = rng.uniform(0.2, 1.0, n).astype(np.float32)  # the tabulated strategy
-    _, weight = bsdf.sample(mi.BSDFContext(), interaction(wi, n), mi.Float(s1),
-                            mi.Point2f(mi.Float(sx), mi.Float(rng.random(n).astype(np.float32))))
+    _, weight = bsdf.sample(
+        mi.BSDFContext(),
+        interaction(wi, n),
+        mi.Float(s1),
+        mi.Point2f(mi.Float(sx), mi.Float(rng.random(n).astype(np.float32))),
+    )
     weight = np.array(weight)
     assert np.isfinite(weight).all() and weight.max() < 1.0
 
 
 # ------------------------------------------------------------------ parameters
+
 
 def test_traverse_x_rebuilds(small_manifold_paper, manifold, negative_x):
     bsdf = make(small_manifold_paper, x="0.1, 0.2")
@@ -370,6 +418,7 @@ def test_traverse_x_rebuilds(small_manifold_paper, manifold, negative_x):
 def test_python_methods_switch_materials(small_manifold_paper, small_db, manifold):
     bsdf = make(small_manifold_paper, x="0, 0")
     from mitsuba_manifold.render import bsdf as manifold_brdf
+
     assert isinstance(bsdf, manifold_brdf.ManifoldBRDF) and isinstance(bsdf, mi.BSDF)
     assert bsdf.names == manifold.names and isinstance(bsdf.manifold, Manifold)
     ctx, si = mi.BSDFContext(), interaction(incident(30), 1)
@@ -379,7 +428,9 @@ def test_python_methods_switch_materials(small_manifold_paper, small_db, manifol
     f = np.array(bsdf.eval(ctx, si, wo))[:, 0] / np.float32(wo.z[0])
     idx = merl.flat_index(np.array(incident(30)), np.array(incident(-31)), steel.shape[1:])
     assert np.allclose(f, steel.reshape(3, -1)[:, idx], rtol=1e-6)
-    assert bsdf.used_names == ["steel"] and np.allclose(bsdf.latent, manifold.latent[manifold.index("steel")])
+    assert bsdf.used_names == ["steel"] and np.allclose(
+        bsdf.latent, manifold.latent[manifold.index("steel")]
+    )
     bsdf.set_weights({"steel": 0.5, "chrome": 0.5})
     assert bsdf.latent is None and sorted(bsdf.used_names) == ["chrome", "steel"]
     w = np.zeros(len(manifold.names))
@@ -392,7 +443,9 @@ def test_python_methods_switch_materials(small_manifold_paper, small_db, manifol
         bsdf.set_latent([1.0, 2.0, 3.0])
     with pytest.raises(ValueError, match="sum to zero"):
         bsdf.set_weights({"steel": 1.0, "chrome": -1.0})
-    assert np.allclose(bsdf.weights, manifold.weights([0.3, -0.2])[1])  # failed calls change nothing
+    assert np.allclose(
+        bsdf.weights, manifold.weights([0.3, -0.2])[1]
+    )  # failed calls change nothing
 
 
 def test_clamping_and_pruning_are_reported(small_manifold_paper, manifold, negative_x):
@@ -406,12 +459,21 @@ def test_clamping_and_pruning_are_reported(small_manifold_paper, manifold, negat
     w = manifold.weights(near).w
     pruned = make(small_manifold_paper, x=", ".join(repr(float(v)) for v in near), prune=0.05)
     keep, _, dropped = manifold.prune(w, 0.05)
-    assert pruned.used_names == [manifold.names[i] for i in keep] and len(keep) < len(manifold.names)
+    assert pruned.used_names == [manifold.names[i] for i in keep] and len(keep) < len(
+        manifold.names
+    )
     assert pruned.dropped_weight == pytest.approx(dropped) and dropped > 0
     assert f"dropped weight {dropped:.4g}" in str(pruned)
-    assert pruned.prune_error == pytest.approx(manifold.prune_error(w, keep)) and pruned.prune_error <= 0.05
+    assert (
+        pruned.prune_error == pytest.approx(manifold.prune_error(w, keep))
+        and pruned.prune_error <= 0.05
+    )
     text = str(pruned)
-    assert f"pruning: {len(keep)} of " in text and "albedo change" in text and "cosine-weighted table error" in text
+    assert (
+        f"pruning: {len(keep)} of " in text
+        and "albedo change" in text
+        and "cosine-weighted table error" in text
+    )
 
 
 def test_sampling_cache(small_manifold_paper, small_db, tmp_path):
@@ -436,7 +498,8 @@ def test_relative_paths_resolve_against_the_scene(small_manifold_paper, small_db
     (tmp_path / "s.xml").write_text(
         '<scene version="3.0.0"><shape type="sphere"><bsdf type="manifold_brdf">'
         '<string name="manifold" value="m.npz"/><string name="database" value="tables"/>'
-        '<string name="material" value="gold-paint"/></bsdf></shape></scene>')
+        '<string name="material" value="gold-paint"/></bsdf></shape></scene>'
+    )
     cwd = os.getcwd()
     os.chdir(ROOT)
     try:
@@ -448,19 +511,25 @@ def test_relative_paths_resolve_against_the_scene(small_manifold_paper, small_db
     assert str(tmp_path / "tables") in str(bsdf)
 
 
-@pytest.mark.parametrize("params, message", [
-    ({"material": "unobtainium"}, "unknown material 'unobtainium'"),
-    ({"x": "0.1, 0.2, 0.3"}, "latent dimension"),
-    ({"x": "0.1, nope"}, "'nope' is not a number"),
-    ({"weights": "chrome:1, steel:-1"}, "sum to zero"),
-    ({"weights": "chrome:1, gold:0.5"}, "unknown material 'gold'"),
-    ({}, "exactly one of 'x', 'material' and 'weights'"),
-    ({"x": "0, 0", "material": "chrome"}, "exactly one of"),
-    ({"material": "chrome", "sampling": "magic"}, "sampling must be one of"),
-    ({"material": "chrome", "interpolation": "cubic"}, "interpolation must be one of"),
-    ({"material": "chrome", "prune": 1.5}, "prune must be in"),
-    ({"material": "chrome", "database": "/nonexistent/tables"}, "database folder '/nonexistent/tables' not found"),
-])
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        ({"material": "unobtainium"}, "unknown material 'unobtainium'"),
+        ({"x": "0.1, 0.2, 0.3"}, "latent dimension"),
+        ({"x": "0.1, nope"}, "'nope' is not a number"),
+        ({"weights": "chrome:1, steel:-1"}, "sum to zero"),
+        ({"weights": "chrome:1, gold:0.5"}, "unknown material 'gold'"),
+        ({}, "exactly one of 'x', 'material' and 'weights'"),
+        ({"x": "0, 0", "material": "chrome"}, "exactly one of"),
+        ({"material": "chrome", "sampling": "magic"}, "sampling must be one of"),
+        ({"material": "chrome", "interpolation": "cubic"}, "interpolation must be one of"),
+        ({"material": "chrome", "prune": 1.5}, "prune must be in"),
+        (
+            {"material": "chrome", "database": "/nonexistent/tables"},
+            "database folder '/nonexistent/tables' not found",
+        ),
+    ],
+)
 def test_bad_parameters(small_manifold_paper, params, message):
     with pytest.raises(Exception) as info:
         make(small_manifold_paper, **params)
@@ -479,7 +548,9 @@ def test_missing_manifold_or_database(small_manifold_paper, tmp_path):
     moved.save(tmp_path / "moved.npz")
     with pytest.raises(Exception) as info:
         make(str(tmp_path / "moved.npz"), material="chrome")
-    assert str(tmp_path / "moved-away") in chain(info.value) and "does not exist" in chain(info.value)
+    assert str(tmp_path / "moved-away") in chain(info.value) and "does not exist" in chain(
+        info.value
+    )
 
 
 def test_database_must_match_the_manifold(small_manifold_paper, small_db, tmp_path):
@@ -499,13 +570,14 @@ def test_database_must_match_the_manifold(small_manifold_paper, small_db, tmp_pa
 
 # ------------------------------------------------------------------ variants and scenes
 
+
 def test_scalar_variant_matches_llvm(small_manifold_paper, negative_x):
     x = ", ".join(repr(float(v)) for v in negative_x)
     wi, wo = random_directions(6, 8), random_directions(6, 9)
     samples = np.random.default_rng(10).random((6, 3))
     results = {}
     for variant in ("llvm_ad_rgb", "scalar_rgb"):
-        mi.set_variant(variant)   # the plugins follow (mitsuba_manifold.render.plugins)
+        mi.set_variant(variant)  # the plugins follow (mitsuba_manifold.render.plugins)
         ctx = mi.BSDFContext()
         out = []
         for interpolation in ("nearest", "linear"):
@@ -515,9 +587,20 @@ def test_scalar_variant_matches_llvm(small_manifold_paper, negative_x):
                 si.wi = mi.Vector3f(*map(float, wi[k]))
                 d = mi.Vector3f(*map(float, wo[k]))
                 f, p = bsdf.eval_pdf(ctx, si, d)
-                bs, weight = bsdf.sample(ctx, si, float(samples[k, 0]), mi.Point2f(*map(float, samples[k, 1:])))
-                out.append(np.concatenate([np.ravel(f), np.ravel(p), np.ravel(bs.wo), np.ravel(weight),
-                                           np.ravel(bs.pdf)]).astype(np.float64))
+                bs, weight = bsdf.sample(
+                    ctx, si, float(samples[k, 0]), mi.Point2f(*map(float, samples[k, 1:]))
+                )
+                out.append(
+                    np.concatenate(
+                        [
+                            np.ravel(f),
+                            np.ravel(p),
+                            np.ravel(bs.wo),
+                            np.ravel(weight),
+                            np.ravel(bs.pdf),
+                        ]
+                    ).astype(np.float64)
+                )
         results[variant] = np.array(out)
     assert np.allclose(results["scalar_rgb"], results["llvm_ad_rgb"], rtol=1e-4, atol=1e-6)
     assert (results["llvm_ad_rgb"][:, 0] > 0).any()
@@ -536,26 +619,36 @@ def test_import_registers_for_the_active_variant(order):
     steps = ["import mitsuba as mi; mi.set_variant('scalar_rgb')", "import mitsuba_manifold.render"]
     code = "\n".join(steps if order == "variant first" else steps[::-1]) + (
         "\ntry:\n    mi.load_dict({'type': 'manifold_brdf'})\n"
-        "except Exception as e:\n    print('manifold' in str(e) and 'required' in str(e))\n")
+        "except Exception as e:\n    print('manifold' in str(e) and 'required' in str(e))\n"
+    )
     env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, env=env)
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, env=env
+    )
     assert out.stdout.strip() == "True", out.stderr
 
 
 def test_sphere_scene_renders(small_manifold_paper, negative_x, tmp_path):
     """scenes/sphere.xml renders an interpolated material; both sampling strategies agree."""
-    from mitsuba_manifold.render import bsdf as manifold_brdf   # the class of the active variant
+    from mitsuba_manifold.render import bsdf as manifold_brdf  # the class of the active variant
+
     for name in ("sphere.xml", "sky.exr"):
         shutil.copy(os.path.join(SCENES_DIR, name), tmp_path / name)
     text = (tmp_path / "sphere.xml").read_text()
     line = '<string name="x" value="$x"/>'
     assert line in text
-    (tmp_path / "cosine.xml").write_text(text.replace(line, line + '<string name="sampling" value="cosine"/>'))
+    (tmp_path / "cosine.xml").write_text(
+        text.replace(line, line + '<string name="sampling" value="cosine"/>')
+    )
     x = ", ".join(repr(float(v)) for v in negative_x)
     means = {}
     for name, spp in (("sphere.xml", 64), ("cosine.xml", 512)):
-        scene = mi.load_file(str(tmp_path / name), manifold=small_manifold_paper, x=x, res=24, spp=spp)
-        (bsdf,) = [s.bsdf() for s in scene.shapes() if isinstance(s.bsdf(), manifold_brdf.ManifoldBRDF)]
+        scene = mi.load_file(
+            str(tmp_path / name), manifold=small_manifold_paper, x=x, res=24, spp=spp
+        )
+        (bsdf,) = [
+            s.bsdf() for s in scene.shapes() if isinstance(s.bsdf(), manifold_brdf.ManifoldBRDF)
+        ]
         assert np.allclose(bsdf.latent, negative_x.astype(np.float32))
         img = np.array(mi.render(scene))
         assert np.isfinite(img).all() and img.min() >= 0 and img.mean() > 0

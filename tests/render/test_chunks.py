@@ -10,18 +10,22 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
-from mitsuba_manifold.basis import folder as basis  # noqa: E402
-from mitsuba_manifold.render import chunks, executor, render_basis  # noqa: E402
 from mitsuba_manifold import errors  # noqa: E402
+from mitsuba_manifold.basis import folder as basis  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
+from mitsuba_manifold.render import chunks, executor, render_basis  # noqa: E402
+from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
 
-pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]   # renders and starts Ray
+pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]  # renders and starts Ray
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SPHERE = scene_path("sphere")
 RES = 16
-OPTIONS = {"mode": "onepass", "resolution": RES, "materials": ["gold-paint", "chrome", "pink-fabric"]}
+OPTIONS = {
+    "mode": "onepass",
+    "resolution": RES,
+    "materials": ["gold-paint", "chrome", "pink-fabric"],
+}
 
 
 def _images(folder):
@@ -43,9 +47,12 @@ def test_plan_splits_samples_and_seeds():
 def test_merged_chunks_equal_single_process_basis(tmp_path, small_manifold):
     """k chunks at S/k spp with seeds seed*k+j are the passes of one render at S spp."""
     single = tmp_path / "single"
-    render_basis.render_basis(SPHERE, small_manifold, str(single), spp=8, seed=2, chunk_spp=2, **OPTIONS)
-    run = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "merged"), spp=8, chunks=4, seed=2,
-                                **OPTIONS)
+    render_basis.render_basis(
+        SPHERE, small_manifold, str(single), spp=8, seed=2, chunk_spp=2, **OPTIONS
+    )
+    run = chunks.render_chunked(
+        SPHERE, small_manifold, str(tmp_path / "merged"), spp=8, chunks=4, seed=2, **OPTIONS
+    )
     assert run.manifest["spp"] == 8 and run.manifest["chunks"] == 4 and len(run.rendered) == 4
     a, b = _images(single), _images(tmp_path / "merged")
     assert a.keys() == b.keys()
@@ -53,8 +60,9 @@ def test_merged_chunks_equal_single_process_basis(tmp_path, small_manifold):
         np.testing.assert_allclose(b[k], a[k], rtol=2e-6, atol=1e-7 * max(1.0, float(a[k].max())))
     assert not (tmp_path / "merged" / chunks.CHUNK_DIR).exists()
     # a different seed gives different images (the comparison above can fail)
-    other = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "other"), spp=8, chunks=4, seed=5,
-                                  **OPTIONS)
+    other = chunks.render_chunked(
+        SPHERE, small_manifold, str(tmp_path / "other"), spp=8, chunks=4, seed=5, **OPTIONS
+    )
     assert other.manifest["seed"] == 5
     assert not np.allclose(_images(tmp_path / "other")["chrome"], b["chrome"])
 
@@ -64,6 +72,7 @@ def test_resume_per_chunk_and_refusals(tmp_path, small_manifold):
 
     class Dies(executor.LocalExecutor):
         """Renders two chunks, then the run is killed."""
+
         def map(self, fn, items):
             for i, item in enumerate(items):
                 if i == 2:
@@ -71,19 +80,27 @@ def test_resume_per_chunk_and_refusals(tmp_path, small_manifold):
                 yield fn(item)
 
     with pytest.raises(KeyboardInterrupt):
-        chunks.render_chunked(SPHERE, small_manifold, str(out), spp=4, chunks=4, executor=Dies(), **OPTIONS)
+        chunks.render_chunked(
+            SPHERE, small_manifold, str(out), spp=4, chunks=4, executor=Dies(), **OPTIONS
+        )
     done = sorted(os.listdir(out / chunks.CHUNK_DIR))
     assert done == ["000-of-004", "001-of-004"]
-    run = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=4, chunks=4, keep_chunks=True, **OPTIONS)
+    run = chunks.render_chunked(
+        SPHERE, small_manifold, str(out), spp=4, chunks=4, keep_chunks=True, **OPTIONS
+    )
     assert run.resumed == done and [r[0] for r in run.rendered] == ["002-of-004", "003-of-004"]
-    ref = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "ref"), spp=4, chunks=4, **OPTIONS)
+    ref = chunks.render_chunked(
+        SPHERE, small_manifold, str(tmp_path / "ref"), spp=4, chunks=4, **OPTIONS
+    )
     for k, img in _images(out).items():
         np.testing.assert_array_equal(img, _images(tmp_path / "ref")[k])
     assert ref.manifest["images"].keys() == run.manifest["images"].keys()
     before = {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
     with pytest.raises(errors.InputError, match="other settings .*spp"):
         chunks.render_chunked(SPHERE, small_manifold, str(out), spp=8, chunks=4, **OPTIONS)
-    with pytest.raises(errors.InputError, match="other settings"):  # one-process render into a merged basis
+    with pytest.raises(
+        errors.InputError, match="other settings"
+    ):  # one-process render into a merged basis
         render_basis.render_basis(SPHERE, small_manifold, str(out), spp=4, **OPTIONS)
     assert before == {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
     # the same command again: nothing to render, nothing refused, nothing rewritten
@@ -93,13 +110,15 @@ def test_resume_per_chunk_and_refusals(tmp_path, small_manifold):
 
 
 @pytest.mark.parametrize("after", [1, 3])
-def test_an_interrupted_merge_resumes_with_the_same_command(tmp_path, small_manifold, monkeypatch, after):
+def test_an_interrupted_merge_resumes_with_the_same_command(
+    tmp_path, small_manifold, monkeypatch, after
+):
     """Ctrl-C while the merge writes its images: the same command then completes the basis (no
     "files this basis did not make"), equal to an uninterrupted run."""
     out = tmp_path / "b"
     write, merged = imageio.write_exr, []
 
-    def interrupted(path, img, *a, **k):   # the merge's writes are the ones into `out` itself
+    def interrupted(path, img, *a, **k):  # the merge's writes are the ones into `out` itself
         if os.path.dirname(os.fspath(path)) == str(out):
             merged.append(path)
             if len(merged) > after:
@@ -112,7 +131,7 @@ def test_an_interrupted_merge_resumes_with_the_same_command(tmp_path, small_mani
     monkeypatch.setattr(chunks.imageio, "write_exr", write)
     run = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=2, chunks=2, **OPTIONS)
     assert run.resumed == ["000-of-002", "001-of-002"] and "pending" not in run.manifest
-    ref = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "ref"), spp=2, chunks=2, **OPTIONS)
+    chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "ref"), spp=2, chunks=2, **OPTIONS)
     mine, theirs = _images(out), _images(tmp_path / "ref")
     assert mine.keys() == theirs.keys()
     for k in mine:
@@ -123,7 +142,9 @@ def test_chunked_basis_with_denoising_guides(tmp_path, small_manifold):
     from mitsuba_manifold.basis import denoise
 
     out = tmp_path / "aov"
-    run = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=2, chunks=2, aovs=True, **OPTIONS)
+    run = chunks.render_chunked(
+        SPHERE, small_manifold, str(out), spp=2, chunks=2, aovs=True, **OPTIONS
+    )
     assert denoise.BasisAOVs.load(str(out), run.manifest) is not None
 
 
@@ -135,23 +156,59 @@ def test_cli_chunks_views_and_scenes(tmp_path, small_manifold):
     end = text.index("</sensor>") + len("</sensor>")
     scene2.write_text(text[:end] + text[start:end] + text[end:])
     os.symlink(os.path.join(os.path.dirname(SPHERE), "sky.exr"), tmp_path / "sky.exr")
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), SPHERE, str(scene2),
-                        "--manifold", small_manifold, "--out", str(tmp_path / "out"), "--views", "all",
-                        "--chunks", "2", "--spp", "2", "--res", str(RES), "--materials", "gold-paint,chrome"],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            os.path.join(ROOT, "tools", "render_basis.py"),
+            SPHERE,
+            str(scene2),
+            "--manifold",
+            small_manifold,
+            "--out",
+            str(tmp_path / "out"),
+            "--views",
+            "all",
+            "--chunks",
+            "2",
+            "--spp",
+            "2",
+            "--res",
+            str(RES),
+            "--materials",
+            "gold-paint,chrome",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     folders = sorted(os.listdir(tmp_path / "out"))
     assert folders == ["sphere", "two_views-view0", "two_views-view1"]
-    v0, v1 = _images(tmp_path / "out" / "two_views-view0"), _images(tmp_path / "out" / "two_views-view1")
+    v0, v1 = (
+        _images(tmp_path / "out" / "two_views-view0"),
+        _images(tmp_path / "out" / "two_views-view1"),
+    )
     assert basis.read_manifest(tmp_path / "out" / "two_views-view1")["sensor"] == 1
     np.testing.assert_allclose(v0["chrome"], v1["chrome"], rtol=1e-5, atol=1e-6)
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), SPHERE,
-                        "--manifold", small_manifold, "--out", str(tmp_path / "bad"), "--views", "3"],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            os.path.join(ROOT, "tools", "render_basis.py"),
+            SPHERE,
+            "--manifold",
+            small_manifold,
+            "--out",
+            str(tmp_path / "bad"),
+            "--views",
+            "3",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "sensor 3" in r.stderr and "1 sensor" in r.stderr
 
 
 # ------------------------------------------------------------------------------- Ray
+
 
 def _die_once(spec):
     """Kill this worker process the first time any chunk runs (marker file), then render."""
@@ -167,19 +224,36 @@ def _die_once(spec):
 def ray_cluster():
     ray = pytest.importorskip("ray")
     # workers import the package from this tree, and this module (for _die_once) by name
-    path = os.pathsep.join([ROOT, os.path.dirname(os.path.abspath(__file__)), os.environ.get("PYTHONPATH", "")])
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
-             runtime_env={"env_vars": {"PYTHONPATH": path}})
+    path = os.pathsep.join(
+        [ROOT, os.path.dirname(os.path.abspath(__file__)), os.environ.get("PYTHONPATH", "")]
+    )
+    ray.init(
+        num_cpus=2,
+        include_dashboard=False,
+        log_to_driver=False,
+        runtime_env={"env_vars": {"PYTHONPATH": path}},
+    )
     yield ray
     ray.shutdown()
 
 
-def test_ray_chunks_equal_local_chunks_and_killed_worker_reruns(tmp_path, small_manifold, ray_cluster):
-    local = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "local"), spp=4, chunks=2, seed=1,
-                                  **OPTIONS)
+def test_ray_chunks_equal_local_chunks_and_killed_worker_reruns(
+    tmp_path, small_manifold, ray_cluster
+):
+    local = chunks.render_chunked(
+        SPHERE, small_manifold, str(tmp_path / "local"), spp=4, chunks=2, seed=1, **OPTIONS
+    )
     ray_ex = executor.RayExecutor(max_retries=2)
-    run = chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "ray"), spp=4, chunks=2, seed=1,
-                                executor=ray_ex, **OPTIONS)
+    run = chunks.render_chunked(
+        SPHERE,
+        small_manifold,
+        str(tmp_path / "ray"),
+        spp=4,
+        chunks=2,
+        seed=1,
+        executor=ray_ex,
+        **OPTIONS,
+    )
     pids = {r[3] for r in run.rendered}
     assert os.getpid() not in pids
     a, b = _images(tmp_path / "local"), _images(tmp_path / "ray")
@@ -195,7 +269,11 @@ def test_ray_chunks_equal_local_chunks_and_killed_worker_reruns(tmp_path, small_
     assert sorted(r.spec.name for r in results) == ["000-of-002", "001-of-002"]
     for r in results:
         chunks.save_chunk(str(tmp_path / "killed"), r)
-    chunks.merge(str(tmp_path / "killed"), [chunks.chunk_folder(tmp_path / "killed", s) for s in specs], seed=1)
+    chunks.merge(
+        str(tmp_path / "killed"),
+        [chunks.chunk_folder(tmp_path / "killed", s) for s in specs],
+        seed=1,
+    )
     for k, img in _images(tmp_path / "killed").items():
         np.testing.assert_allclose(img, a[k], rtol=1e-6, atol=1e-7)
     # without retries the same fault fails the run
@@ -206,12 +284,14 @@ def test_ray_chunks_equal_local_chunks_and_killed_worker_reruns(tmp_path, small_
 
 def test_ray_missing_is_a_clear_error(monkeypatch):
     import builtins
+
     real = builtins.__import__
 
     def no_ray(name, *a, **k):
         if name == "ray":
             raise ImportError("no ray")
         return real(name, *a, **k)
+
     monkeypatch.setattr(builtins, "__import__", no_ray)
     with pytest.raises(errors.UnavailableError, match="pip install"):
         list(executor.RayExecutor().map(len, ["a"]))
@@ -223,15 +303,28 @@ def test_merged_chunks_of_a_full_gi_basis_equal_the_single_process_one(tmp_path,
     """The table's full-GI images and cross terms merge as the L1- images do (issue 21)."""
     opts = dict(OPTIONS, materials="all", components="auto")
     single = tmp_path / "single"
-    render_basis.render_basis(scene_path("table"), small_manifold, str(single), spp=4, seed=1, chunk_spp=2, **opts)
-    run = chunks.render_chunked(scene_path("table"), small_manifold, str(tmp_path / "merged"), spp=4, chunks=2,
-                                seed=1, **opts)
+    render_basis.render_basis(
+        scene_path("table"), small_manifold, str(single), spp=4, seed=1, chunk_spp=2, **opts
+    )
+    run = chunks.render_chunked(
+        scene_path("table"),
+        small_manifold,
+        str(tmp_path / "merged"),
+        spp=4,
+        chunks=2,
+        seed=1,
+        **opts,
+    )
     assert run.manifest["components"] == basis.read_manifest(single)["components"]
     assert "l2+" in run.manifest["components"]
     a, b = basis.Basis.load(single), basis.Basis.load(tmp_path / "merged")
     for k in a.keys:
         ref = a.image(a.gi_key(k))
-        np.testing.assert_allclose(b.image(b.gi_key(k)), ref, rtol=2e-6, atol=1e-7 * max(1.0, float(ref.max())))
+        np.testing.assert_allclose(
+            b.image(b.gi_key(k)), ref, rtol=2e-6, atol=1e-7 * max(1.0, float(ref.max()))
+        )
     (pa, ca), (pb, cb) = a.cross_terms(), b.cross_terms()
     assert pa == pb
-    np.testing.assert_allclose(cb, ca, rtol=2e-3, atol=1e-3 * max(1.0, float(np.abs(ca).max())))  # float16
+    np.testing.assert_allclose(
+        cb, ca, rtol=2e-3, atol=1e-3 * max(1.0, float(np.abs(ca).max()))
+    )  # float16

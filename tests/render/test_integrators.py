@@ -14,34 +14,47 @@ import os
 import shutil
 import xml.etree.ElementTree as ET
 
-import numpy as np
-import pytest
-
-import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
-
-from mitsuba_manifold.render import geometry, integrators  # noqa: E402
-from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.render.scenes import SCENES_DIR  # noqa: E402
+import numpy as np
+import pytest
 from helpers import chain  # noqa: E402
+
+import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
+from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
+from mitsuba_manifold.render import geometry, integrators  # noqa: E402
+from mitsuba_manifold.render.scenes import SCENES_DIR  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SCENES = SCENES_DIR
 
-from helpers import (Z_MAX, assert_same_mean, integrator, load, mean_var, midpoint, renders,  # noqa: E402,F401
-                     two_spheres, z_scores)
+from helpers import (
+    Z_MAX,
+    assert_same_mean,
+    integrator,
+    load,
+    mean_var,
+    midpoint,
+    renders,  # noqa: E402,F401
+    two_spheres,
+    z_scores,
+)
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
 # ------------------------------------------------------------------ agreement with `path`
 
+
 @pytest.mark.parametrize("material", ["gold-paint", "midpoint"])
 def test_l1_equals_path_on_convex_scene(small_manifold, material):
     """A convex object alone never scatters light onto itself: L1- is the whole image."""
     if material == "midpoint":
-        scene = load("sphere", small_manifold, res=32,
-                     x=midpoint(small_manifold, "gold-paint", "blue-acrylic"))
+        scene = load(
+            "sphere",
+            small_manifold,
+            res=32,
+            x=midpoint(small_manifold, "gold-paint", "blue-acrylic"),
+        )
     else:
         scene = load("sphere", small_manifold, material, res=32)
     seeds = range(16)
@@ -68,26 +81,45 @@ def test_hidden_emitters_are_seen_through_as_path_does():
     """hide_emitters: the camera sees what lies behind an area light (a red wall), not the
     light's own (green) surface, as with Mitsuba's path."""
     t = mi.ScalarTransform4f()
-    scene = mi.load_dict({
-        "type": "scene",
-        "sensor": {"type": "perspective", "fov": 30,
-                   "to_world": t.look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": 16, "height": 16, "rfilter": {"type": "box"}}},
-        "env": {"type": "constant", "radiance": {"type": "rgb", "value": [1, 1, 1]}},
-        "light": {"type": "rectangle", "to_world": t.scale(3),
-                  "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [5, 5, 5]}},
-                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0, 0.9, 0]}}},
-        "wall": {"type": "rectangle", "to_world": t.translate([0, 0, -1]).scale(3),
-                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.9, 0, 0]}}}})
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "sensor": {
+                "type": "perspective",
+                "fov": 30,
+                "to_world": t.look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
+                "film": {"type": "hdrfilm", "width": 16, "height": 16, "rfilter": {"type": "box"}},
+            },
+            "env": {"type": "constant", "radiance": {"type": "rgb", "value": [1, 1, 1]}},
+            "light": {
+                "type": "rectangle",
+                "to_world": t.scale(3),
+                "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [5, 5, 5]}},
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0, 0.9, 0]}},
+            },
+            "wall": {
+                "type": "rectangle",
+                "to_world": t.translate([0, 0, -1]).scale(3),
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.9, 0, 0]}},
+            },
+        }
+    )
     seeds = range(8)
-    ref = renders(scene, mi.load_dict({"type": "path", "hide_emitters": True, "max_depth": 4}), 16, seeds)
-    full = renders(scene, integrator(component="full", hide_emitters=True, max_depth=4), 16,
-                   [20 + s for s in seeds])
+    ref = renders(
+        scene, mi.load_dict({"type": "path", "hide_emitters": True, "max_depth": 4}), 16, seeds
+    )
+    full = renders(
+        scene,
+        integrator(component="full", hide_emitters=True, max_depth=4),
+        16,
+        [20 + s for s in seeds],
+    )
     assert full[..., 0].mean() > 0.05 and full[..., 1].max() == 0
     assert_same_mean(full, ref, "hide_emitters: full vs path")
 
 
 # ------------------------------------------------------------------ the split
+
 
 def test_base_plus_touch_equals_l1(small_manifold):
     scene = load("table", small_manifold, "gold-paint", res=32)
@@ -112,7 +144,7 @@ def test_split_aovs_partition_the_image(small_manifold):
     img = np.array(mi.render(scene, integrator=integ, spp=8, seed=3))
     assert integ.aov_names() == [f"{c}.{ch}" for c in ("base", "touch", "rest") for ch in "RGB"]
     assert img.shape == (24, 24, 12)
-    main, base, touch, rest = (img[..., 3 * k:3 * k + 3] for k in range(4))
+    main, base, touch, rest = (img[..., 3 * k : 3 * k + 3] for k in range(4))
     np.testing.assert_allclose(base + touch + rest, main, rtol=1e-5, atol=1e-6)
     assert np.all(base >= 0) and np.all(touch >= 0) and np.all(rest >= 0)
     assert touch.mean() > 0.01 and rest.max() > 0
@@ -129,8 +161,9 @@ def test_l1_misses_measurable_l2_plus_on_concave_scene(small_manifold):
     scene = load("table", small_manifold, "white-diffuse-bball", res=32)
     seeds = range(12)
     ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 8}), 16, seeds)
-    full = renders(scene, integrator(component="full", split=True, max_depth=8), 16,
-                   [30 + s for s in seeds])
+    full = renders(
+        scene, integrator(component="full", split=True, max_depth=8), 16, [30 + s for s in seeds]
+    )
     l1 = renders(scene, integrator(component="l1", max_depth=8), 16, [60 + s for s in seeds])
     assert_same_mean(full[..., :3], ref, "full vs path on table.xml")
     # The paths left out of L1- (rest = L2+, from the same paths as the full image) carry a
@@ -157,8 +190,11 @@ def test_touch_is_linear_in_the_material(small_manifold):
     for offset, weights in enumerate(({a: 1.0}, {b: 1.0}, {a: wa, b: 1 - wa})):
         bsdf.set_weights(weights)
         imgs = renders(scene, split, 32, [1000 * offset + s for s in seeds])
-        out[len(out)] = (imgs[..., 6:9], imgs[..., 9:12],
-                         np.array(mi.render(scene, integrator=base, spp=8, seed=7)))
+        out[len(out)] = (
+            imgs[..., 6:9],
+            imgs[..., 9:12],
+            np.array(mi.render(scene, integrator=base, spp=8, seed=7)),
+        )
     (t1, r1, b1), (t2, r2, b2), (t, r, b_) = out[0], out[1], out[2]
     # Base: the paths that never scatter off the material are the same for every material.
     assert b1.mean() > 0.05
@@ -169,8 +205,8 @@ def test_touch_is_linear_in_the_material(small_manifold):
         m1, v1, g1, gv1 = mean_var(im1)
         m2, v2, g2, gv2 = mean_var(im2)
         w1, w2 = wa, 1 - wa
-        zb = z_scores((m, v), (w1 * m1 + w2 * m2, w1 ** 2 * v1 + w2 ** 2 * v2))
-        zg = z_scores((g, gv), (w1 * g1 + w2 * g2, w1 ** 2 * gv1 + w2 ** 2 * gv2))
+        zb = z_scores((m, v), (w1 * m1 + w2 * m2, w1**2 * v1 + w2**2 * v2))
+        zg = z_scores((g, gv), (w1 * g1 + w2 * g2, w1**2 * gv1 + w2**2 * gv2))
         if what == "touch":
             assert np.max(np.abs(zb)) < Z_MAX and np.max(np.abs(zg)) < Z_MAX, (what, zb, zg)
         else:  # about (w1 rho1)^2 < w1 rho1^2: the direct L2+ image is the darker one
@@ -178,6 +214,7 @@ def test_touch_is_linear_in_the_material(small_manifold):
 
 
 # ------------------------------------------------------------------ several manifold materials
+
 
 def test_each_target_gets_its_own_class(small_manifold):
     scene = two_spheres(small_manifold)
@@ -187,10 +224,11 @@ def test_each_target_gets_its_own_class(small_manifold):
     every = integrator(target="all", component="l1", split=True, max_depth=6)
     e = renders(scene, each, 16, seeds)
     a = renders(scene, every, 16, [40 + s for s in seeds])
-    assert each.aov_names() == [f"{c}.{ch}" for c in ("base", "touch_a", "touch_b", "touch_a+b")
-                                for ch in "RGB"]
+    assert each.aov_names() == [
+        f"{c}.{ch}" for c in ("base", "touch_a", "touch_b", "touch_a+b") for ch in "RGB"
+    ]
     assert every.aov_names() == [f"{c}.{ch}" for c in ("base", "touch") for ch in "RGB"]
-    base_e, ta, tb, tab = (e[..., 3 + 3 * k:6 + 3 * k] for k in range(4))
+    base_e, ta, tb, tab = (e[..., 3 + 3 * k : 6 + 3 * k] for k in range(4))
     base_a, touch_a = a[..., 3:6], a[..., 6:9]
     # With both materials as one group, touching a then b is a second touch: the group's
     # single-touch image is the sum of the two single-material classes.
@@ -205,6 +243,7 @@ def test_each_target_gets_its_own_class(small_manifold):
 
 
 # ------------------------------------------------------------------ one-pass basis
+
 
 def test_scene_without_manifold_material_is_refused():
     scene = mi.load_dict(mi.cornell_box())
@@ -224,33 +263,51 @@ def test_scene_without_manifold_material_is_refused():
 def test_a_manifold_material_inside_twosided_is_the_target(small_manifold):
     """manifold_brdf inside twosided: found, and a
     hit on the wrapper is a vertex on the material."""
-    scene = mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "twosided", "id": "ts", "b": {
-        "type": "manifold_brdf", "manifold": small_manifold, "material": "steel"}}},
-        "e": {"type": "constant"}, "c": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4}}})
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "s": {
+                "type": "sphere",
+                "bsdf": {
+                    "type": "twosided",
+                    "id": "ts",
+                    "b": {"type": "manifold_brdf", "manifold": small_manifold, "material": "steel"},
+                },
+            },
+            "e": {"type": "constant"},
+            "c": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4}},
+        }
+    )
     ((name, (bsdf,)),) = integrators.target_groups(scene, "each")
     assert name == "b" and integrators.is_manifold_bsdf(bsdf)
     plan = integrator(component="touch").plan(scene)
     assert [type(c).__name__ for c in plan["hits"][0]] == ["BSDF"] and len(plan["mirror"]) == 1
 
 
-@pytest.mark.parametrize("props,message", [
-    ({"component": "l2"}, "unknown component 'l2'"),
-    ({"max_depth": -2}, "max_depth must be -1"),
-    ({"rr_depth": 0}, "rr_depth must be > 0"),
-])
+@pytest.mark.parametrize(
+    "props,message",
+    [
+        ({"component": "l2"}, "unknown component 'l2'"),
+        ({"max_depth": -2}, "max_depth must be -1"),
+        ({"rr_depth": 0}, "rr_depth must be > 0"),
+    ],
+)
 def test_bad_parameters(props, message):
     with pytest.raises(Exception) as info:
         integrator(**props)
     assert message in chain(info.value)
 
 
-@pytest.mark.parametrize("props,message", [
-    ({"target": "grey"}, "'grey' is not a manifold_brdf"),
-    ({"target": "nope"}, "'nope' is not in the scene"),
-    ({"target": "a, a"}, "names a BSDF twice"),
-    ({"target": "a", "component": "touch:a"}, "makes one group"),
-    ({"target": "each", "component": "touch:a+c"}, "must name distinct target groups"),
-])
+@pytest.mark.parametrize(
+    "props,message",
+    [
+        ({"target": "grey"}, "'grey' is not a manifold_brdf"),
+        ({"target": "nope"}, "'nope' is not in the scene"),
+        ({"target": "a, a"}, "names a BSDF twice"),
+        ({"target": "a", "component": "touch:a"}, "makes one group"),
+        ({"target": "each", "component": "touch:a+c"}, "must name distinct target groups"),
+    ],
+)
 def test_bad_targets(small_manifold, props, message):
     scene = two_spheres(small_manifold)
     with pytest.raises(ValueError, match=message):
@@ -266,12 +323,19 @@ def test_scalar_variant_is_refused_clearly():
 
 # ------------------------------------------------------------------ scenes and assets
 
+
 @pytest.mark.parametrize("name", ["sphere", "table", "cbox"])
 def test_scene_parameters(small_manifold, tmp_path, name):
     root = ET.parse(os.path.join(SCENES, f"{name}.xml")).getroot()
     defaults = {el.get("name"): el.get("value") for el in root.iter("default")}
-    assert defaults == {"manifold": "../out/manifold.npz", "x": "", "spp": "64", "res": "256",
-                        "integrator": "path", "max_depth": "8"}
+    assert defaults == {
+        "manifold": "../out/manifold.npz",
+        "x": "",
+        "spp": "64",
+        "res": "256",
+        "integrator": "path",
+        "max_depth": "8",
+    }
     # The default manifold is found relative to the scene's folder (../out/manifold.npz).
     shutil.copytree(SCENES, tmp_path / "scenes")
     (tmp_path / "out").mkdir()
@@ -280,13 +344,18 @@ def test_scene_parameters(small_manifold, tmp_path, name):
     (bsdf,) = integrators.manifold_bsdfs(scene)
     assert bsdf.id() == "material"
     assert os.path.samefile(bsdf.manifold_path, tmp_path / "out" / "manifold.npz")
-    np.testing.assert_array_equal(bsdf.latent, Manifold.load(small_manifold).latent[0])  # fits any q
+    np.testing.assert_array_equal(
+        bsdf.latent, Manifold.load(small_manifold).latent[0]
+    )  # fits any q
     sensor = scene.sensors()[0]
     assert list(sensor.film().size()) == [256, 256] and sensor.sampler().sample_count() == 64
-    assert "PathIntegrator" in str(scene.integrator()) and "max_depth = 8" in str(scene.integrator())
+    assert "PathIntegrator" in str(scene.integrator()) and "max_depth = 8" in str(
+        scene.integrator()
+    )
     # Every parameter can be overridden.
-    scene = load(name, small_manifold, x="0.3, -1.2", res=16, spp=4, integrator="manifold_path",
-                 max_depth=5)
+    scene = load(
+        name, small_manifold, x="0.3, -1.2", res=16, spp=4, integrator="manifold_path", max_depth=5
+    )
     (bsdf,) = integrators.manifold_bsdfs(scene)
     assert os.path.samefile(bsdf.manifold_path, small_manifold)
     np.testing.assert_allclose(bsdf.latent, [0.3, -1.2])

@@ -2,7 +2,6 @@
 the scan on a rendered target."""
 
 import numpy as np
-
 import pytest
 
 from mitsuba_manifold.render import match_scan as ms
@@ -12,7 +11,7 @@ def _synthetic(rng, n=6, p=400, noisy=0, sigma=0.6):
     """Noise-free images T (n, p) of n materials, a target equal to material 0 (the glossy one,
     whose renders are noisy: sigma on ``noisy`` of them), two independent noisy render sets."""
     T = rng.uniform(0.2, 1.0, size=(n, p))
-    T[1] = T[0] + 0.08   # a matte near-miss
+    T[1] = T[0] + 0.08  # a matte near-miss
     scale = np.full(n, 0.02)
     scale[noisy] = sigma
     A = T + scale[:, None] * rng.standard_normal((n, p))
@@ -25,7 +24,7 @@ def test_cross_error_is_free_of_the_render_noise_and_ranks_the_noisy_true_materi
     T, A, B, t, c = _synthetic(rng)
     obj = ms.CrossMSE(A, B, t, c)
     cross = obj.batch(np.eye(len(T)))[0]
-    plain = ((A - t) ** 2 * c).sum(axis=1)   # the error of one render adds its variance
+    plain = ((A - t) ** 2 * c).sum(axis=1)  # the error of one render adds its variance
     truth = ((T - t) ** 2 * c).sum(axis=1)
     assert np.argmin(cross) == 0 and np.argmin(plain) != 0
     assert np.allclose(cross[1:], truth[1:], atol=2e-3)
@@ -62,11 +61,15 @@ def test_scan_finds_a_glossy_target_and_checks_its_candidates(small_manifold):
     noisiest): the scan ranks one of them first, its starts are checked candidates, apart, off the
     training points."""
     from mitsuba_manifold.manifold.model import Manifold
-    from mitsuba_manifold.render import match_render as mr, scenes
+    from mitsuba_manifold.render import match_render as mr
+    from mitsuba_manifold.render import scenes
+
     sphere = scenes.scene_path("sphere")
     m = Manifold.load(small_manifold)
     x_true = 0.7 * m.latent[m.index("chrome")] + 0.3 * m.latent[m.index("steel")]
-    target = scenes.render_reference(sphere, small_manifold, x_true, 256, seed=3, resolution=16, max_depth=2)
+    target = scenes.render_reference(
+        sphere, small_manifold, x_true, 256, seed=3, resolution=16, max_depth=2
+    )
     opts = mr.MatchRenderOptions(scan_spp=8, starts=2, max_depth=2, progress=False)
     problem = mr._Problem([mr.View(sphere, target)], small_manifold, opts)
     found = ms.scan(problem, opts, 16)
@@ -75,7 +78,9 @@ def test_scan_finds_a_glossy_target_and_checks_its_candidates(small_manifold):
     checked = [c["checked_error"] for c in found["candidates"]]
     assert checked == sorted(checked)
     xs = [x for _, _, x in found["starts"]]
-    assert all(np.linalg.norm(a - b) >= 0.25 * m.length_scale for i, a in enumerate(xs) for b in xs[:i])
+    assert all(
+        np.linalg.norm(a - b) >= 0.25 * m.length_scale for i, a in enumerate(xs) for b in xs[:i]
+    )
     for _, x0, _ in found["starts"]:
         assert np.max(m.weights(x0)[1]) < ms.AT_TRAINING_POINT
     best = found["starts"][0][2]

@@ -9,9 +9,14 @@ import pytest
 from mitsuba_manifold.data import merl
 from mitsuba_manifold.data.database import Database
 
-RGL = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "data", "rgl"))
-FILES = {"paper_blue": "paper_blue_rgb.bsdf", "ilm_l3_37_metallic": "ilm_l3_37_metallic_rgb.bsdf",
-         "vch_golden_yellow": "vch_golden_yellow_rgb.bsdf"}
+RGL = os.path.abspath(
+    os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "data", "rgl")
+)
+FILES = {
+    "paper_blue": "paper_blue_rgb.bsdf",
+    "ilm_l3_37_metallic": "ilm_l3_37_metallic_rgb.bsdf",
+    "vch_golden_yellow": "vch_golden_yellow_rgb.bsdf",
+}
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
@@ -30,6 +35,7 @@ def _random_pairs(n, seed):
         phi = rng.uniform(0, 2 * np.pi, n)
         r = np.sqrt(1 - z * z)
         return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
     return hemi(), hemi()
 
 
@@ -50,19 +56,21 @@ def test_the_table_is_the_plugins_brdf_at_random_directions():
     wi, wo = merl.directions(th, td, pd, phi_h=rng.uniform(0, 2 * np.pi, len(th)))
     plugin = measured.evaluate(bsdf, wi, wo)
     ok = (wi[:, 2] > 0.05) & (wo[:, 2] > 0.05)
-    np.testing.assert_allclose(table[(slice(None),) + tuple(picked[ok].T)].T, plugin[ok], rtol=2e-3, atol=1e-5)
+    np.testing.assert_allclose(
+        table[(slice(None),) + tuple(picked[ok].T)].T, plugin[ok], rtol=2e-3, atol=1e-5
+    )
 
     wi, wo = _random_pairs(20000, 2)
-    plugin = measured.evaluate(bsdf, wi, wo) * wo[:, 2:3]        # what a renderer integrates
+    plugin = measured.evaluate(bsdf, wi, wo) * wo[:, 2:3]  # what a renderer integrates
 
-    def error(a, b, extra=1.0):   # relative L1 of the table's value looked up at (a, b)
+    def error(a, b, extra=1.0):  # relative L1 of the table's value looked up at (a, b)
         looked_up = table.reshape(3, -1)[:, merl.flat_index(a, b, dims)].T * wo[:, 2:3] * extra
         return np.abs(looked_up - plugin).sum() / plugin.sum()
 
     ok = error(wi, wo)
-    assert ok < 0.15   # nearest-bin lookup of a glossy film
-    assert error(wi * [1, -1, 1], wo) > 5 * ok            # phi_d mirrored
-    assert error(wi, wo, extra=wo[:, 2:3]) > 2 * ok        # the cosine left in the table
+    assert ok < 0.15  # nearest-bin lookup of a glossy film
+    assert error(wi * [1, -1, 1], wo) > 5 * ok  # phi_d mirrored
+    assert error(wi, wo, extra=wo[:, 2:3]) > 2 * ok  # the cosine left in the table
 
 
 def test_measured_files_join_a_database_with_other_kinds(tmp_path):
@@ -72,14 +80,18 @@ def test_measured_files_join_a_database_with_other_kinds(tmp_path):
     folder = tmp_path / "db"
     folder.mkdir()
     os.symlink(os.path.join(RGL, FILES["paper_blue"]), folder / FILES["paper_blue"])
-    nbrdf.NetworkSet.load(nbrdf.WEIGHTS_PATH, "nielsen").subset(["notebook"]).save(folder / "notebook.npz")
+    nbrdf.NetworkSet.load(nbrdf.WEIGHTS_PATH, "nielsen").subset(["notebook"]).save(
+        folder / "notebook.npz"
+    )
     db = Database(f"{folder}@16x16x32")
     assert db.names == ["notebook", "paper_blue"] and db.dims == (16, 16, 32)
     table = db.reflectance("paper_blue")
     assert table.shape == (3, 16, 16, 32) and np.isfinite(table).all() and table.max() > 0
     rho = db.albedo(["paper_blue"])[0]
-    assert rho[2] > rho[0] and 0.05 < rho.mean() < 0.8   # a blue paper, reflecting less than all
-    assert os.listdir(tmp_path / "db" / ".manifold-cache") == [db.hash("paper_blue") + ".refl16.npy"]
+    assert rho[2] > rho[0] and 0.05 < rho.mean() < 0.8  # a blue paper, reflecting less than all
+    assert os.listdir(tmp_path / "db" / ".manifold-cache") == [
+        db.hash("paper_blue") + ".refl16.npy"
+    ]
 
 
 def test_an_imported_file_renders_as_mitsubas_measured_plugin(tmp_path):
@@ -94,7 +106,10 @@ def test_an_imported_file_renders_as_mitsubas_measured_plugin(tmp_path):
         os.symlink(os.path.join(RGL, f), folder / f)
     m = Manifold.fit(str(folder), q=1)
     m.save(tmp_path / "m.npz")
-    rows = [measured.fidelity(os.path.join(RGL, f), tmp_path / "m.npz", res=32, spp=128) for f in FILES.values()]
+    rows = [
+        measured.fidelity(os.path.join(RGL, f), tmp_path / "m.npz", res=32, spp=128)
+        for f in FILES.values()
+    ]
     for r in rows:
         assert abs(r["mean_ratio"] - 1) < 0.01, r
     assert np.median([r["ratio_to_noise"] for r in rows]) <= 3.0, rows

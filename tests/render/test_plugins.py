@@ -16,6 +16,7 @@ def _classes():
     """The plugin classes of the active variant, through their modules."""
     from mitsuba_manifold.render import bsdf
     from mitsuba_manifold.render.integrators import aovs, path
+
     return bsdf.ManifoldBRDF, path.ManifoldPathIntegrator, aovs.FirstHitAOVs
 
 
@@ -23,13 +24,29 @@ def test_the_plugins_are_classes_of_the_active_variant(small_manifold):
     brdf, path, aovs = _classes()
     assert issubclass(brdf, mi.BSDF) and issubclass(path, mi.SamplingIntegrator)
     assert issubclass(aovs, mi.SamplingIntegrator)
-    assert [cls.__name__ for cls in _classes()] == ["ManifoldBRDF", "ManifoldPathIntegrator", "FirstHitAOVs"]
-    b = mi.load_dict({"type": "manifold_brdf", "manifold": small_manifold, "material": "chrome",
-                      "interpolation": "linear", "sampling": "cosine"})
+    assert [cls.__name__ for cls in _classes()] == [
+        "ManifoldBRDF",
+        "ManifoldPathIntegrator",
+        "FirstHitAOVs",
+    ]
+    b = mi.load_dict(
+        {
+            "type": "manifold_brdf",
+            "manifold": small_manifold,
+            "material": "chrome",
+            "interpolation": "linear",
+            "sampling": "cosine",
+        }
+    )
     assert type(b) is brdf and isinstance(b, mi.BSDF)
-    assert (b.interpolation, b.sampling, b.database, b.used_names) == ("linear", "cosine", None, ["chrome"])
+    assert (b.interpolation, b.sampling, b.database, b.used_names) == (
+        "linear",
+        "cosine",
+        None,
+        ["chrome"],
+    )
     with pytest.raises(AttributeError):
-        b.interpolation = "nearest"        # read-only
+        b.interpolation = "nearest"  # read-only
     assert type(mi.load_dict({"type": "manifold_path"})) is path
     assert type(mi.load_dict({"type": "manifold_aovs"})) is aovs
     scene = mi.load_file(scene_path("sphere"), manifold=small_manifold, res="8")

@@ -10,11 +10,11 @@ import pytest
 mi = pytest.importorskip("mitsuba")
 
 from mitsuba_manifold.basis import folder as bf  # noqa: E402
+from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.errors import MismatchError  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
-from mitsuba_manifold.render import render_basis, scenes  # noqa: E402
-from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
+from mitsuba_manifold.render import render_basis, scenes  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
@@ -26,7 +26,9 @@ RES = 24
 def test_select_materials(small_manifold):
     m = Manifold.load(small_manifold)
     assert render_basis.select_materials(m) == m.names
-    assert render_basis.select_materials(m, ["steel", "chrome"]) == [n for n in m.names if n in ("steel", "chrome")]
+    assert render_basis.select_materials(m, ["steel", "chrome"]) == [
+        n for n in m.names if n in ("steel", "chrome")
+    ]
     near = render_basis.select_materials(m, near=m.latent[0], radius=1e-9)
     assert near == [m.names[0]]
     with pytest.raises(render_basis.InputError, match="unknown material"):
@@ -39,8 +41,21 @@ def test_select_materials(small_manifold):
 
 def test_a_misspelt_material_gets_a_suggestion(small_manifold, tmp_path):
     from guarantees_helpers import assert_one_error, run_tool
-    rc, _, err = run_tool("render_basis", "sphere", "--manifold", small_manifold, "--materials", "chrme,steel",
-                          "--res", 8, "--spp", 1, "--out", tmp_path / "b")
+
+    rc, _, err = run_tool(
+        "render_basis",
+        "sphere",
+        "--manifold",
+        small_manifold,
+        "--materials",
+        "chrme,steel",
+        "--res",
+        8,
+        "--spp",
+        1,
+        "--out",
+        tmp_path / "b",
+    )
     assert_one_error(rc, err, "'chrme'", "did you mean 'chrome'")
     assert not (tmp_path / "b").exists() or not os.listdir(tmp_path / "b")
 
@@ -56,16 +71,18 @@ def test_the_centre_of_a_near_basis_can_be_blended(tmp_path, small_manifold):
     assert m.names[i] in chosen and m.names[j] in chosen
     assert set(m.names[k] for k in m.prune(m.weights(centre).w).keep) <= set(chosen)
     out = tmp_path / "basis"
-    render_basis.render_basis(SPHERE, small_manifold, out, spp=2, near=centre, radius=0.5 * d[i, j],
-                              resolution=8)
+    render_basis.render_basis(
+        SPHERE, small_manifold, out, spp=2, near=centre, radius=0.5 * d[i, j], resolution=8
+    )
     image, info = blend(out, x=centre)
     assert image.shape == (8, 8, 3) and not info["renormalised"] and not info["missing"]
 
 
 def test_the_library_takes_a_shipped_scenes_name_like_the_tools(tmp_path, small_manifold):
     m = Manifold.load(small_manifold)
-    manifest = render_basis.render_basis("sphere", small_manifold, tmp_path / "b", spp=1, resolution=8,
-                                         materials=[m.names[0]])
+    manifest = render_basis.render_basis(
+        "sphere", small_manifold, tmp_path / "b", spp=1, resolution=8, materials=[m.names[0]]
+    )
     assert manifest["scene"] == SPHERE and len(manifest["images"]) == 2
     with pytest.raises(render_basis.InputError, match="spherre"):
         render_basis.render_basis("spherre", small_manifold, tmp_path / "c", spp=1, resolution=8)
@@ -74,8 +91,15 @@ def test_the_library_takes_a_shipped_scenes_name_like_the_tools(tmp_path, small_
 def test_an_unknown_components_value_is_refused_not_rendered_as_l1(tmp_path, small_manifold):
     # "full" is the command line's word; the library's is "auto": it once rendered an L1- basis
     with pytest.raises(render_basis.InputError, match="`components` must be 'auto'.*got 'full'"):
-        render_basis.render_basis("sphere", small_manifold, tmp_path / "b", spp=1, resolution=8,
-                                  mode="onepass", components="full")
+        render_basis.render_basis(
+            "sphere",
+            small_manifold,
+            tmp_path / "b",
+            spp=1,
+            resolution=8,
+            mode="onepass",
+            components="full",
+        )
     assert not (tmp_path / "b").exists()
 
 
@@ -88,9 +112,19 @@ def test_scene_without_manifold_material_is_refused(tmp_path, small_manifold):
       <emitter type="constant"/></scene>""")
     with pytest.raises(MismatchError, match="no manifold_brdf material"):
         render_basis.render_basis(str(scene), small_manifold, str(tmp_path / "out"), spp=1)
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), str(scene),
-                        "--manifold", small_manifold, "--out", str(tmp_path / "out2")],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            os.path.join(ROOT, "tools", "render_basis.py"),
+            str(scene),
+            "--manifold",
+            small_manifold,
+            "--out",
+            str(tmp_path / "out2"),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "no manifold_brdf material" in r.stderr
 
 
@@ -102,31 +136,39 @@ def test_interrupted_run_resumes_without_corrupt_files(tmp_path, small_manifold,
     def flaky(path, img, metadata=None):
         calls["n"] += 1
         if calls["n"] == 4:
-            raise KeyboardInterrupt("killed")   # dies while writing the 4th image
+            raise KeyboardInterrupt("killed")  # dies while writing the 4th image
         return real_write(path, img, metadata)
 
     monkeypatch.setattr(imageio, "write_exr", flaky)
     with pytest.raises(KeyboardInterrupt):
-        render_basis.render_basis(SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material")
+        render_basis.render_basis(
+            SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material"
+        )
     monkeypatch.setattr(imageio, "write_exr", real_write)
     manifest = bf.read_manifest(str(out))
     assert len(manifest["images"]) == 3
     assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
-    for entry in manifest["images"].values():      # every listed image is whole
+    for entry in manifest["images"].values():  # every listed image is whole
         assert imageio.read_exr(out / entry["file"]).shape == (RES, RES, 3)
     before = {k: os.stat(out / e["file"]).st_mtime_ns for k, e in manifest["images"].items()}
 
-    manifest = render_basis.render_basis(SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material")
+    manifest = render_basis.render_basis(
+        SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material"
+    )
     m = Manifold.load(small_manifold)
     assert set(manifest["images"]) == {"base", *m.names}
-    assert all(os.stat(out / manifest["images"][k]["file"]).st_mtime_ns == t for k, t in before.items())
+    assert all(
+        os.stat(out / manifest["images"][k]["file"]).st_mtime_ns == t for k, t in before.items()
+    )
     b = bf.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
     assert b.materials == [m.names]
 
     # other settings in the same folder: refused, nothing touched
     snapshot = {f: (out / f).read_bytes() for f in os.listdir(out)}
     with pytest.raises(render_basis.InputError, match="other settings.*spp"):
-        render_basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="per-material")
+        render_basis.render_basis(
+            SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="per-material"
+        )
     assert {f: (out / f).read_bytes() for f in os.listdir(out)} == snapshot
 
 
@@ -149,8 +191,15 @@ def test_blend_equals_direct_l1_render(tmp_path, small_manifold):
     """Linearity: base + sum_i w_i I_i is an unbiased estimate of the L1- image of sum_i w_i rho_i."""
     out = tmp_path / "basis"
     m = Manifold.load(small_manifold)
-    render_basis.render_basis(SPHERE, small_manifold, str(out), spp=32, resolution=RES, mode="per-material",
-                       materials=["gold-paint", "steel", "pink-fabric"])
+    render_basis.render_basis(
+        SPHERE,
+        small_manifold,
+        str(out),
+        spp=32,
+        resolution=RES,
+        mode="per-material",
+        materials=["gold-paint", "steel", "pink-fabric"],
+    )
     b = bf.Basis.load(str(out), manifold=small_manifold)
     w = np.zeros(m.n)
     w[m.index("gold-paint")], w[m.index("steel")], w[m.index("pink-fabric")] = 0.5, 0.2, 0.3
@@ -167,8 +216,9 @@ def test_onepass_basis_through_the_tool(tmp_path, small_manifold):
     """render_basis in one-pass mode: every image written once, listed once, reusable by blend."""
     out = tmp_path / "onepass"
     names = ["gold-paint", "steel", "pink-fabric"]
-    manifest = render_basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass",
-                                  materials=names)
+    manifest = render_basis.render_basis(
+        SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass", materials=names
+    )
     assert manifest["mode"] == "onepass" and set(manifest["images"]) == {"base", *names}
     b = bf.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
     assert all(np.isfinite(b.image(k)).all() for k in ["base", *names])
@@ -176,8 +226,10 @@ def test_onepass_basis_through_the_tool(tmp_path, small_manifold):
     images = sorted(f for f in os.listdir(out) if f.endswith(".exr"))
     assert len(images) == 4
     stamp = {f: os.stat(out / f).st_mtime_ns for f in images}
-    render_basis.render_basis(SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass", materials=names)
-    assert {f: os.stat(out / f).st_mtime_ns for f in images} == stamp   # nothing re-rendered
+    render_basis.render_basis(
+        SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass", materials=names
+    )
+    assert {f: os.stat(out / f).st_mtime_ns for f in images} == stamp  # nothing re-rendered
 
 
 def _two_sphere_scene(path, manifold, xa, xb):
@@ -215,11 +267,15 @@ def test_two_manifold_materials_give_a_multilinear_basis(tmp_path, small_manifol
     scene = tmp_path / "two.xml"
     _two_sphere_scene(scene, small_manifold, xa, xb)
     out = tmp_path / "basis2"
-    manifest = render_basis.render_basis(str(scene), small_manifold, str(out), spp=4, materials=[a, b])
+    manifest = render_basis.render_basis(
+        str(scene), small_manifold, str(out), spp=4, materials=[a, b]
+    )
     assert manifest["targets"] == ["left", "right"]
     assert set(manifest["images"]) == {f"{p}+{q}" for p in (a, b) for q in (a, b)}
     with pytest.raises(render_basis.InputError, match="one manifold material"):
-        render_basis.render_basis(str(scene), small_manifold, str(tmp_path / "b3"), spp=4, materials=[a], mode="onepass")
+        render_basis.render_basis(
+            str(scene), small_manifold, str(tmp_path / "b3"), spp=4, materials=[a], mode="onepass"
+        )
     bb = bf.Basis.load(str(out), manifold=small_manifold, scene=str(scene))
     img, _ = blend(bb, m, x=np.stack([m.latent[m.index(b)], m.latent[m.index(a)]]))
     assert np.array_equal(img, bb.image(f"{b}+{a}"))

@@ -9,12 +9,11 @@ defaults where they say nothing: a Gaussian film filter, no integrator)."""
 import json
 import os
 
+import mitsuba as mi  # noqa: E402
 import numpy as np
 import pytest
 
 import mitsuba_manifold.render  # noqa: F401  (a working libLLVM before drjit loads; the plugins)
-import mitsuba as mi  # noqa: E402
-
 from mitsuba_manifold.basis import folder as bf  # noqa: E402
 from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.errors import InputError, MitsubaManifoldError  # noqa: E402

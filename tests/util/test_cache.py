@@ -12,9 +12,9 @@ def test_file_hash_follows_the_bytes(tmp_path):
     path = tmp_path / "t.bin"
     path.write_bytes(b"a" * 1000)
     first = cache.file_hash(path)
-    assert first == cache.file_hash(str(path))            # memoised, same answer
+    assert first == cache.file_hash(str(path))  # memoised, same answer
     st = os.stat(path)
-    with open(path, "r+b") as f:                           # same size, in place, mtime restored
+    with open(path, "r+b") as f:  # same size, in place, mtime restored
         f.write(b"b")
     os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
     assert cache.file_hash(path) != first
@@ -33,27 +33,36 @@ def test_npy_cache_loads_checks_rebuilds_and_evicts(tmp_path):
     path = str(tmp_path / "k1.thing-v1.npy")
     a = cache.npy_cache(path, lambda: build(1.0), shape=(2, 3), dtype=np.float32, finite=True)
     b = cache.npy_cache(path, lambda: build(2.0), shape=(2, 3), dtype=np.float32, finite=True)
-    assert calls == [1.0] and np.array_equal(a, b)           # the second call loads
+    assert calls == [1.0] and np.array_equal(a, b)  # the second call loads
     np.save(path, np.full((2, 3), np.nan, dtype=np.float32))  # damaged: rebuilt, reported
-    c = cache.npy_cache(path, lambda: build(3.0), shape=(2, 3), dtype=np.float32, finite=True,
-                        on_rebuild=damaged.append)
+    c = cache.npy_cache(
+        path,
+        lambda: build(3.0),
+        shape=(2, 3),
+        dtype=np.float32,
+        finite=True,
+        on_rebuild=damaged.append,
+    )
     assert calls == [1.0, 3.0] and damaged == [path] and c[0, 0] == 3.0
-    with open(path, "wb") as f:                              # not even an .npy file
+    with open(path, "wb") as f:  # not even an .npy file
         f.write(b"garbage")
     assert cache.npy_cache(path, lambda: build(4.0), shape=(2, 3))[0, 0] == 4.0
     os.utime(path, (1000, 1000))
-    for k in range(2, 5):                                    # keep the two newest of the kind
+    for k in range(2, 5):  # keep the two newest of the kind
         p = str(tmp_path / f"k{k}.thing-v1.npy")
         cache.npy_cache(p, lambda: build(5.0), keep=2, marker=".thing-v1.")
         os.utime(p, (1000 + k, 1000 + k))
     cache.evict(str(tmp_path), ".thing-v1.", 2)
     assert sorted(os.listdir(tmp_path)) == ["k3.thing-v1.npy", "k4.thing-v1.npy"]
 
-    def write(tmp):                                          # a writer of the .npy itself, memory-mapped back
+    def write(tmp):  # a writer of the .npy itself, memory-mapped back
         out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(4,))
         out[:] = 7.0
         out.flush()
-    m = cache.npy_cache(str(tmp_path / "big.npy"), write=write, shape=(4,), dtype=np.float32, mmap=True)
+
+    m = cache.npy_cache(
+        str(tmp_path / "big.npy"), write=write, shape=(4,), dtype=np.float32, mmap=True
+    )
     assert isinstance(m, np.memmap) and m[3] == 7.0
 
 
@@ -78,6 +87,7 @@ def test_atomic_write_errors_name_the_users_path_not_the_temporary_file(tmp_path
 
     def full(tmp):
         raise OSError(28, "No space left on device", tmp)
+
     with pytest.raises(OSError) as e:
         atomic.atomic_replace(tmp_path / "y.exr", full)
     assert str(tmp_path / "y.exr") in str(e.value) and ".tmp" not in str(e.value)

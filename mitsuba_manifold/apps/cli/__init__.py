@@ -24,8 +24,10 @@ TOOLS = {
 def main(argv=None):
     """``mitsuba-manifold TOOL [args...]``: run one tool."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    usage = ("usage: mitsuba-manifold {" + ",".join(TOOLS) + "} [args...]\n\n"
-             "Run 'mitsuba-manifold TOOL --help' for a tool's options.")
+    usage = (
+        "usage: mitsuba-manifold {" + ",".join(TOOLS) + "} [args...]\n\n"
+        "Run 'mitsuba-manifold TOOL --help' for a tool's options."
+    )
     if argv and argv[0] in ("-h", "--help"):
         print(usage)
         return 0

@@ -24,10 +24,19 @@ import re
 import sys
 import time
 
-from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND, KINDS as PATH_KINDS
+from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND
+from ...manifold.paths import KINDS as PATH_KINDS
 from ...manifold.pruning import DEFAULT_PRUNE
-from .common import (ERRORS, ArgumentParser, fail, guarded, parse_floats, parse_floats_or_name, reference_view,
-                     resolve_names)
+from .common import (
+    ERRORS,
+    ArgumentParser,
+    fail,
+    guarded,
+    parse_floats,
+    parse_floats_or_name,
+    reference_view,
+    resolve_names,
+)
 
 NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
 
@@ -37,58 +46,119 @@ def _stem(path):
 
 
 def parser():
-    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-                       aliases={"manifold_path": "manifold"})
+    p = ArgumentParser(
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        aliases={"manifold_path": "manifold"},
+    )
     p.add_argument("--basis", required=True, help="basis folder written by render_basis.py")
-    p.add_argument("--x", nargs="+", action="append", metavar="X",
-                   help="latent point (q numbers) or a measured material's name; repeat once per target "
-                        "for a multilinear basis")
+    p.add_argument(
+        "--x",
+        nargs="+",
+        action="append",
+        metavar="X",
+        help="latent point (q numbers) or a measured material's name; repeat once per target "
+        "for a multilinear basis",
+    )
     p.add_argument("--out", required=True, help="output EXR (with --path: prefix of the sequence)")
     p.add_argument("--png", action="store_true", help="also write tonemapped sRGB PNGs")
     p.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops (default 0)")
-    p.add_argument("--manifold", help="manifold (.npz); default: the one in the manifest (checked by hash)")
-    p.add_argument("--scene", help="scene XML to check the basis against (default: not checked; "
-                                   "--render-reference uses the manifest's scene)")
-    p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
-                   help="pruning budget (default {:g}, as the plugin): blend the fewest materials such that "
-                        "each albedo channel changes by at most half of it and the cosine-weighted and raw "
-                        "table by at most it, relatively".format(DEFAULT_PRUNE))
-    p.add_argument("--renormalise", action="store_true",
-                   help="if images with surviving weight are missing from the basis, rescale the "
-                        "weights of those present instead of failing (an approximation)")
+    p.add_argument(
+        "--manifold", help="manifold (.npz); default: the one in the manifest (checked by hash)"
+    )
+    p.add_argument(
+        "--scene",
+        help="scene XML to check the basis against (default: not checked; "
+        "--render-reference uses the manifest's scene)",
+    )
+    p.add_argument(
+        "--prune",
+        type=float,
+        default=DEFAULT_PRUNE,
+        help=f"pruning budget (default {DEFAULT_PRUNE:g}, as the plugin): blend the fewest materials such that "
+        "each albedo channel changes by at most half of it and the cosine-weighted and raw "
+        "table by at most it, relatively",
+    )
+    p.add_argument(
+        "--renormalise",
+        action="store_true",
+        help="if images with surviving weight are missing from the basis, rescale the "
+        "weights of those present instead of failing (an approximation)",
+    )
     ref = p.add_mutually_exclusive_group()
-    ref.add_argument("--reference", metavar="REF.exr", help="reference image to measure the error against")
-    ref.add_argument("--render-reference", action="store_true",
-                     help="render the reference: Mitsuba's own render of the basis's scene with the point's "
-                          "manifold_brdf, with the scene's integrator as the basis was (its type, max_depth, "
-                          "rr_depth, hide_emitters; a basis made with --max-depth: that depth)")
-    p.add_argument("--spp", type=int, default=256, help="samples per pixel of --render-reference (default 256)")
+    ref.add_argument(
+        "--reference", metavar="REF.exr", help="reference image to measure the error against"
+    )
+    ref.add_argument(
+        "--render-reference",
+        action="store_true",
+        help="render the reference: Mitsuba's own render of the basis's scene with the point's "
+        "manifold_brdf, with the scene's integrator as the basis was (its type, max_depth, "
+        "rr_depth, hide_emitters; a basis made with --max-depth: that depth)",
+    )
+    p.add_argument(
+        "--spp", type=int, default=256, help="samples per pixel of --render-reference (default 256)"
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of --render-reference (default 0)")
-    p.add_argument("--path", nargs=2, metavar=("A", "B"),
-                   help="images along the latent segment between materials (or 'x0,x1' points) A and B")
-    p.add_argument("--steps", type=int, default=20,
-                   help="images along --path (default 20, at most 1000)")
-    p.add_argument("--path-kind", choices=PATH_KINDS, default=DEFAULT_PATH_KIND,
-                   help="the path of --path: straight (the latent segment at equal steps), uniform (the segment "
-                        "at equal perceptual steps) or geodesic (a shortest path under the perceptual metric, at "
-                        f"equal steps); default {DEFAULT_PATH_KIND}, the most even measured (tools/bench.py fig9)")
-    p.add_argument("--target", default=None, help="with --path and several targets: the BSDF id that moves")
-    p.add_argument("--database", help="the manifold's tables (folder or built-in set name), if it moved "
-                                            "(--render-reference)")
-    p.add_argument("--refine", type=int, metavar="SPP", default=None,
-                   help="unbiased image of the point, SPP samples per pixel: the full-GI blend corrected by "
-                        "a control variate (or, with an L1- basis, the L1- blend plus the L2+ rendered there); "
-                        "reports the noise its passes estimate (too low where fireflies are rare)")
-    p.add_argument("--refine-passes", type=int, default=None,
-                   help="independent passes of --refine, which estimate its noise "
-                        "(default 4, or --refine if fewer)")
-    p.add_argument("--l2", choices=["denoised", "raw"], default="denoised",
-                   help="the full-GI blend's light beyond L1-: denoised by OIDN (default) or as summed")
-    p.add_argument("--component", choices=["full", "l1"], default=None,
-                   help="full (default): the full-GI images and cross terms where the basis holds them "
-                        "(render_basis.py --components full); l1: the L1- images (Eq. 13)")
-    p.add_argument("--force", action="store_true",
-                   help="replace existing output files this tool did not write (never read-only ones)")
+    p.add_argument(
+        "--path",
+        nargs=2,
+        metavar=("A", "B"),
+        help="images along the latent segment between materials (or 'x0,x1' points) A and B",
+    )
+    p.add_argument(
+        "--steps", type=int, default=20, help="images along --path (default 20, at most 1000)"
+    )
+    p.add_argument(
+        "--path-kind",
+        choices=PATH_KINDS,
+        default=DEFAULT_PATH_KIND,
+        help="the path of --path: straight (the latent segment at equal steps), uniform (the segment "
+        "at equal perceptual steps) or geodesic (a shortest path under the perceptual metric, at "
+        f"equal steps); default {DEFAULT_PATH_KIND}, the most even measured (tools/bench.py fig9)",
+    )
+    p.add_argument(
+        "--target", default=None, help="with --path and several targets: the BSDF id that moves"
+    )
+    p.add_argument(
+        "--database",
+        help="the manifold's tables (folder or built-in set name), if it moved "
+        "(--render-reference)",
+    )
+    p.add_argument(
+        "--refine",
+        type=int,
+        metavar="SPP",
+        default=None,
+        help="unbiased image of the point, SPP samples per pixel: the full-GI blend corrected by "
+        "a control variate (or, with an L1- basis, the L1- blend plus the L2+ rendered there); "
+        "reports the noise its passes estimate (too low where fireflies are rare)",
+    )
+    p.add_argument(
+        "--refine-passes",
+        type=int,
+        default=None,
+        help="independent passes of --refine, which estimate its noise "
+        "(default 4, or --refine if fewer)",
+    )
+    p.add_argument(
+        "--l2",
+        choices=["denoised", "raw"],
+        default="denoised",
+        help="the full-GI blend's light beyond L1-: denoised by OIDN (default) or as summed",
+    )
+    p.add_argument(
+        "--component",
+        choices=["full", "l1"],
+        default=None,
+        help="full (default): the full-GI images and cross terms where the basis holds them "
+        "(render_basis.py --components full); l1: the L1- images (Eq. 13)",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace existing output files this tool did not write (never read-only ones)",
+    )
     return p
 
 
@@ -101,7 +171,7 @@ def parse(argv=None):
             fail(f"{a!r} has an empty place between commas; expected numbers like '-0.3,1.2'")
     args = parser().parse_args([a.replace(",", " ") if NEGATIVE_LIST.match(a) else a for a in argv])
     x, args.x_groups = None, len(args.x or ())
-    if args.x:   # numbers, or (one word) a measured material's name, resolved with the manifold
+    if args.x:  # numbers, or (one word) a measured material's name, resolved with the manifold
         try:
             x = [v for group in args.x for v in parse_floats_or_name(group)]
         except argparse.ArgumentTypeError as e:
@@ -119,21 +189,25 @@ def parse(argv=None):
         fail("--refine makes one point's image exact; not with --path")
     if args.refine is not None and args.refine < 1:
         fail(f"--refine must be >= 1 (samples per pixel), got {args.refine}")
-    if args.refine_passes is None:   # not given: 4 passes, fewer when --refine has fewer samples
+    if args.refine_passes is None:  # not given: 4 passes, fewer when --refine has fewer samples
         few = args.refine is not None and args.refine >= 1
         args.refine_passes = min(4, args.refine) if few else 4
     if args.refine is not None and not 1 <= args.refine_passes <= args.refine:
         fail(f"--refine-passes must be in 1..--refine ({args.refine}), got {args.refine_passes}")
     if args.spp < 1:
         fail(f"--spp must be >= 1, got {args.spp}")
-    from ..._util import checks as validate, ownership
+    from ..._util import checks as validate
+    from ..._util import ownership
     from ...basis.folder import owned_files as basis_ownership
+
     validate.exposure(args.exposure)
     validate.fraction("--prune", args.prune)
     validate.seed("--seed", args.seed)
     basis_ownership.check_output_outside_basis(args.out, args.basis)
-    validate.output_folder(f"--out {args.out}: folder", os.path.dirname(os.path.abspath(args.out)))   # before work
-    for kind, path in planned(args):   # names and kinds of targets (their owners: before writing)
+    validate.output_folder(
+        f"--out {args.out}: folder", os.path.dirname(os.path.abspath(args.out))
+    )  # before work
+    for kind, path in planned(args):  # names and kinds of targets (their owners: before writing)
         ownership.check_replaceable(path, args.force, what=kind, owner=False)
     return args
 
@@ -146,29 +220,42 @@ def frame_names(args):
 
 def _existing_frames(args):
     """The frames of ``--path`` (EXR, and PNG with ``--png``) that exist already, found by
-    listing their folder (not by trying every step)."""
+    listing their folder (not by trying every step).
+    """
     width = len(str(args.steps - 1))
-    frame = re.compile(re.escape(os.path.basename(_stem(args.out))) + r"_(\d{%d})\.(exr|png)$" % width)
+    frame = re.compile(
+        re.escape(os.path.basename(_stem(args.out))) + r"_(\d{" + str(width) + r"})\.(exr|png)$"
+    )
     folder = os.path.dirname(os.path.abspath(args.out))
     names = os.listdir(folder) if os.path.isdir(folder) else []
     found = [(n, frame.match(n)) for n in names]
-    return [os.path.join(os.path.dirname(args.out), n) for n, m in found
-            if m and int(m.group(1)) < args.steps and (args.png or m.group(2) == "exr")]
+    return [
+        os.path.join(os.path.dirname(args.out), n)
+        for n, m in found
+        if m and int(m.group(1)) < args.steps and (args.png or m.group(2) == "exr")
+    ]
 
 
 def planned(args):
     """``(kind, path)`` of the files the run will write (:func:`path_outputs`, :func:`point_outputs`)
     to check first: with ``--path``, the first frame (every frame's name is as long) and the
     frames that exist already, found without listing every step (``--steps`` is not yet checked
-    against the memory)."""
+    against the memory).
+    """
     stem, png = _stem(args.out), args.png
     if args.path is not None:
         first = f"{stem}_{0:0{len(str(args.steps - 1))}d}.exr"
         out = [("image", first)] + ([("png", first[:-4] + ".png")] if png else [])
-        return out + [("frame", p) for p in _existing_frames(args)] + [("contact sheet", stem + "_sheet.png")]
+        return (
+            out
+            + [("frame", p) for p in _existing_frames(args)]
+            + [("contact sheet", stem + "_sheet.png")]
+        )
     out = [("image", args.out)] + ([("png", stem + ".png")] if png else [])
     if args.render_reference:
-        out += [("reference", stem + "_reference.exr")] + ([("reference PNG", stem + "_reference.png")] if png else [])
+        out += [("reference", stem + "_reference.exr")] + (
+            [("reference PNG", stem + "_reference.png")] if png else []
+        )
     if args.reference or args.render_reference:
         out += [("error image", stem + "_error.exr"), ("error PNG", stem + "_error.png")]
     return out
@@ -176,18 +263,24 @@ def planned(args):
 
 def path_outputs(args, basis, manifold):
     """Blend the images along ``--path``; returns the outputs ``(kind, path, writer)`` to write."""
-    from ...imaging import io as imageio
-    from ...basis.blend import blend_path, path_labels
-
     from ..._util import checks as validate
+    from ...basis.blend import blend_path, path_labels
+    from ...imaging import io as imageio
+
     w, h = basis.resolution
-    validate.fits_in_memory("--steps", 2 * args.steps * w * h * 3 * 4, f"{args.steps} images of {w}x{h}")
+    validate.fits_in_memory(
+        "--steps", 2 * args.steps * w * h * 3 * 4, f"{args.steps} images of {w}x{h}"
+    )
     if args.x is not None and basis.p == 1:
-        fail("--x sets the fixed targets along --path, and this basis has one target, whose point the path "
-             "sets: drop --x (or drop --path to blend the point --x)")
+        fail(
+            "--x sets the fixed targets along --path, and this basis has one target, whose point the path "
+            "sets: drop --x (or drop --path to blend the point --x)"
+        )
     ends = [a if a in manifold.names else _point_or_name(a) for a in args.path]
     for a, end in zip(args.path, ends):
-        if not isinstance(end, str) and (len(end) != manifold.q or not all(map(math.isfinite, end))):
+        if not isinstance(end, str) and (
+            len(end) != manifold.q or not all(map(math.isfinite, end))
+        ):
             fail(f"--path end {a!r} must be a material name or {manifold.q} finite numbers")
     target = 0
     if args.target is not None:
@@ -195,24 +288,55 @@ def path_outputs(args, basis, manifold):
             fail(f"--target {args.target!r} is not a target of the basis ({basis.targets})")
         target = basis.targets.index(args.target)
     with _one_line_warnings():
-        images, _, info = blend_path(basis, manifold, ends[0], ends[1], steps=args.steps, prune=args.prune,
-                                     renormalise=args.renormalise, target=target, x=args.x,
-                                     component=args.component, kind=args.path_kind, l2=args.l2)
+        images, _, info = blend_path(
+            basis,
+            manifold,
+            ends[0],
+            ends[1],
+            steps=args.steps,
+            prune=args.prune,
+            renormalise=args.renormalise,
+            target=target,
+            x=args.x,
+            component=args.component,
+            kind=args.path_kind,
+            l2=args.l2,
+        )
     _say_component(info)
-    den = f"; their L2+ light denoised in {info['denoise_ms']:.0f} ms" if info["denoise_ms"] >= 0.5 else ""
-    print(f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
-          f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image){den}")
+    den = (
+        f"; their L2+ light denoised in {info['denoise_ms']:.0f} ms"
+        if info["denoise_ms"] >= 0.5
+        else ""
+    )
+    print(
+        f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
+        f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image){den}"
+    )
     stem, outputs = _stem(args.out), []
     for name, img in zip(frame_names(args), images):
         outputs.append(("image", name, lambda n=name, i=img: imageio.write_exr(n, i)))
         if args.png:
             png = name[:-4] + ".png"
-            outputs.append(("png", png, lambda n=png, i=img: imageio.write_png(n, i, args.exposure)))
+            outputs.append(
+                ("png", png, lambda n=png, i=img: imageio.write_png(n, i, args.exposure))
+            )
     labels = path_labels(args.path, args.steps)
     sheet = stem + "_sheet.png"
     title = f"{args.path[0]} (t = 0) to {args.path[1]} (t = 1) along a {args.path_kind} latent path"
-    outputs.append(("contact sheet", sheet, lambda: imageio.write_contact_sheet(
-        sheet, images, labels, columns=min(args.steps, 10), exposure=args.exposure, title=title)))
+    outputs.append(
+        (
+            "contact sheet",
+            sheet,
+            lambda: imageio.write_contact_sheet(
+                sheet,
+                images,
+                labels,
+                columns=min(args.steps, 10),
+                exposure=args.exposure,
+                title=title,
+            ),
+        )
+    )
     return outputs
 
 
@@ -221,6 +345,7 @@ class _one_line_warnings:
 
     def __enter__(self):
         import warnings
+
         self.catch = warnings.catch_warnings(record=True)
         self.caught = self.catch.__enter__()
         warnings.simplefilter("always", UserWarning)
@@ -234,7 +359,9 @@ class _one_line_warnings:
 def _say_component(info):
     """One line: which blend was made (full GI or L1-) and, for L1-, why."""
     if info.get("component") == "full":
-        print(f"blend: full GI (full-GI images and cross terms; light beyond L1- {info.get('l2') or 'summed'})")
+        print(
+            f"blend: full GI (full-GI images and cross terms; light beyond L1- {info.get('l2') or 'summed'})"
+        )
     elif info.get("component") == "l1" and not info.get("component_note"):
         print("blend: L1- images only (paper Eq. 13; --component l1)")
     elif info.get("component_note") and "predates" not in info["component_note"]:
@@ -245,15 +372,27 @@ def _refined(args, basis, manifold):
     """The image of ``--refine`` (:func:`mitsuba_manifold.render.refine.refine`), its progress printed."""
     from ...render.refine import CONTROL_VARIATE, RefineRequest, refine_passes
 
-    request = RefineRequest(spp=args.refine, passes=args.refine_passes, seed=args.seed, database=args.database,
-                            prune=args.prune, l2=args.l2)
+    request = RefineRequest(
+        spp=args.refine,
+        passes=args.refine_passes,
+        seed=args.seed,
+        database=args.database,
+        prune=args.prune,
+        l2=args.l2,
+    )
     print(f"refining at the point, {request.spp} spp in {request.passes} passes ...", flush=True)
     last = None
     for last in refine_passes(basis, manifold, args.x, request):
         if last.passes:
-            print(f"  pass {last.passes}/{args.refine_passes}: {last.spp} spp, {last.seconds:.2f} s", flush=True)
-    written = ("the full-GI blend plus this correction" if last.method == CONTROL_VARIATE
-               else "the L1- blend plus this L2+")
+            print(
+                f"  pass {last.passes}/{args.refine_passes}: {last.spp} spp, {last.seconds:.2f} s",
+                flush=True,
+            )
+    written = (
+        "the full-GI blend plus this correction"
+        if last.method == CONTROL_VARIATE
+        else "the L1- blend plus this L2+"
+    )
     print(f"{last.summary()}; the image written is {written}")
     return last.image
 
@@ -267,32 +406,55 @@ def _point_or_name(a):  # a latent point "x0,x1", else a name blend_path reports
 
 def point_outputs(args, basis, manifold):
     """Blend the image of ``--x`` (and compare it with a reference); returns the outputs to write."""
-    from ...imaging import io as imageio, metrics
     from ...basis.blend import blend
+    from ...imaging import io as imageio
+    from ...imaging import metrics
 
     with _one_line_warnings():
-        image, info = blend(basis, manifold, x=args.x, prune=args.prune, renormalise=args.renormalise,
-                            component=args.component, l2=args.l2)
+        image, info = blend(
+            basis,
+            manifold,
+            x=args.x,
+            prune=args.prune,
+            renormalise=args.renormalise,
+            component=args.component,
+            l2=args.l2,
+        )
     _say_component(info)
     for t, (weights, dropped) in enumerate(zip(info["weights"], info["dropped_weight"])):
         top = sorted(weights.items(), key=lambda kv: -abs(kv[1]))
         shown = ", ".join(f"{n} {v:.4g}" for n, v in top[:6]) + (" ..." if len(top) > 6 else "")
-        print(f"target {basis.targets[t]}: {len(top)} material{'s' * (len(top) != 1)} kept "
-              f"(dropped |w| {dropped:.3g}): {shown}")
+        print(
+            f"target {basis.targets[t]}: {len(top)} material{'s' * (len(top) != 1)} kept "
+            f"(dropped |w| {dropped:.3g}): {shown}"
+        )
     if info["renormalised"]:
-        print(f"warning: renormalised over the images present; missing: {', '.join(sorted(info['missing']))}")
-    print(f"blend time: {info['time_ms']:.3f} ms ({info['n_images']} images; reading them: "
-          f"{info['time_read_s']:.3f} s)")
-    if info.get("component") == "full" and args.l2 == "raw" and args.refine is None and (image < 0).any():
-        print(f"note: {int((image < 0).any(axis=-1).sum())} pixels below 0 (the summed cross terms' noise; "
-              "the default --l2 denoised has none)")
+        print(
+            f"warning: renormalised over the images present; missing: {', '.join(sorted(info['missing']))}"
+        )
+    print(
+        f"blend time: {info['time_ms']:.3f} ms ({info['n_images']} images; reading them: "
+        f"{info['time_read_s']:.3f} s)"
+    )
+    if (
+        info.get("component") == "full"
+        and args.l2 == "raw"
+        and args.refine is None
+        and (image < 0).any()
+    ):
+        print(
+            f"note: {int((image < 0).any(axis=-1).sum())} pixels below 0 (the summed cross terms' noise; "
+            "the default --l2 denoised has none)"
+        )
     unrefined = image
     if args.refine is not None:
         image = _refined(args, basis, manifold)
     stem = _stem(args.out)
     outputs = [("image", args.out, lambda: imageio.write_exr(args.out, image))]
     if args.png:
-        outputs.append(("png", stem + ".png", lambda: imageio.write_png(stem + ".png", image, args.exposure)))
+        outputs.append(
+            ("png", stem + ".png", lambda: imageio.write_png(stem + ".png", image, args.exposure))
+        )
     reference = reference_image(args, basis, manifold, outputs)
     if reference is not None:
         try:
@@ -300,21 +462,37 @@ def point_outputs(args, basis, manifold):
         except ValueError as e:
             fail(f"reference {args.reference or 'render'}: {e}")
         if args.refine is not None:
-            print(f"before refining: relative MSE {metrics.compare(unrefined, reference)['rel_mse']:.4g}")
-        print(f"relative MSE {stats['rel_mse']:.4g} (eps {stats['eps']:g}), PSNR {stats['psnr']:.2f} dB "
-              f"(peak {stats['peak']:.4g}), max error {stats['max_abs']:.4g}, mean error {stats['mean_abs']:.4g}")
+            print(
+                f"before refining: relative MSE {metrics.compare(unrefined, reference)['rel_mse']:.4g}"
+            )
+        print(
+            f"relative MSE {stats['rel_mse']:.4g} (eps {stats['eps']:g}), PSNR {stats['psnr']:.2f} dB "
+            f"(peak {stats['peak']:.4g}), max error {stats['max_abs']:.4g}, mean error {stats['mean_abs']:.4g}"
+        )
         err = metrics.error_image(image, reference)
-        outputs.append(("error image", stem + "_error.exr", lambda: imageio.write_exr(stem + "_error.exr", err)))
-        outputs.append(("error PNG (false colour, its scale drawn under it)", stem + "_error.png",
-                        lambda: metrics.write_error_png(stem + "_error.png", image, reference)))
+        outputs.append(
+            (
+                "error image",
+                stem + "_error.exr",
+                lambda: imageio.write_exr(stem + "_error.exr", err),
+            )
+        )
+        outputs.append(
+            (
+                "error PNG (false colour, its scale drawn under it)",
+                stem + "_error.png",
+                lambda: metrics.write_error_png(stem + "_error.png", image, reference),
+            )
+        )
     return outputs
 
 
 def reference_image(args, basis, manifold, outputs):
     """The reference of ``--reference`` (read) or ``--render-reference`` (rendered, and added
-    to ``outputs``), or None."""
-    from ...imaging import io as imageio
+    to ``outputs``), or None.
+    """
     from ...basis.blend import latent_points
+    from ...imaging import io as imageio
     from ...render.scenes import render_reference, scene_resolution
 
     if args.reference:
@@ -324,26 +502,44 @@ def reference_image(args, basis, manifold, outputs):
     m = basis.manifest
     scene = args.scene or m.scene
     paths = m.extra.get("integrator")
-    how = (f"{paths['kind']}, max_depth {paths['max_depth']}" + (", hide_emitters" if paths["hide_emitters"] else "")
-           if paths else f"max_depth {m.max_depth}")
+    how = (
+        f"{paths['kind']}, max_depth {paths['max_depth']}"
+        + (", hide_emitters" if paths["hide_emitters"] else "")
+        if paths
+        else f"max_depth {m.max_depth}"
+    )
     print(f"rendering the reference: {scene}, {how} (as the basis), {args.spp} spp ...", flush=True)
     t0 = time.perf_counter()
     points = latent_points(basis, manifold, args.x)
     view = reference_view(basis, scene, render_reference)
-    reference = render_reference(scene, args.manifold or m.manifold, points, args.spp, seed=args.seed,
-                                 resolution=scene_resolution(m), max_depth=m.max_depth, variant=m.variant,
-                                 targets=basis.targets, database=args.database, **view)
+    reference = render_reference(
+        scene,
+        args.manifold or m.manifold,
+        points,
+        args.spp,
+        seed=args.seed,
+        resolution=scene_resolution(m),
+        max_depth=m.max_depth,
+        variant=m.variant,
+        targets=basis.targets,
+        database=args.database,
+        **view,
+    )
     print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
     if basis.p == 1:
         neg = manifold.negative_fraction(points[0], database=args.database)
         if neg > 1e-3:
-            print(f"note: {100 * neg:.1f}% of the interpolated table's values are negative; "
-                  "manifold_brdf clamps them to 0, a blend keeps them, so the two differ beyond L2+")
+            print(
+                f"note: {100 * neg:.1f}% of the interpolated table's values are negative; "
+                "manifold_brdf clamps them to 0, a blend keeps them, so the two differ beyond L2+"
+            )
     ref_path = _stem(args.out) + "_reference.exr"
     outputs.append(("reference", ref_path, lambda: imageio.write_exr(ref_path, reference)))
     if args.png:
         ref_png = _stem(args.out) + "_reference.png"
-        outputs.append(("reference PNG", ref_png, lambda: imageio.write_png(ref_png, reference, args.exposure)))
+        outputs.append(
+            ("reference PNG", ref_png, lambda: imageio.write_png(ref_png, reference, args.exposure))
+        )
     return reference
 
 
@@ -360,7 +556,8 @@ def write_outputs(out, outputs, force=False, group=None):
     line), each file recorded as the tool's own as it is written (a run
     stopped half-way leaves files the same command replaces). With ``group`` (what the run
     writes, e.g. ``"path:" + out``), the files an earlier run of the group wrote and this one
-    did not are removed (a shorter ``--path``'s surplus frames)."""
+    did not are removed (a shorter ``--path``'s surplus frames).
+    """
     from tqdm import tqdm
 
     from ..._util import ownership
@@ -370,8 +567,9 @@ def write_outputs(out, outputs, force=False, group=None):
             guard.check(path, kind)
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
         many = len(outputs) > LIST_FILES
-        bar = tqdm(total=len(outputs), desc="writing", unit="file", disable=not many,
-                   file=sys.stderr)
+        bar = tqdm(
+            total=len(outputs), desc="writing", unit="file", disable=not many, file=sys.stderr
+        )
         with bar:
             for kind, path, write in outputs:
                 write()
@@ -392,7 +590,8 @@ COMPANIONS = (".png", "_error.exr", "_error.png", "_reference.exr", "_reference.
 def remove_stale_companions(out, outputs):
     """Remove the files an earlier blend to ``out`` wrote beside it that this run did not
     write again (e.g. the previous point's error image): only files this tool recorded as its
-    own, unchanged since (:func:`ownership.owned`); a user's file is never touched."""
+    own, unchanged since (:func:`ownership.owned`); a user's file is never touched.
+    """
     from ..._util import ownership
 
     written = {os.path.abspath(path) for _, path, _ in outputs}
@@ -412,8 +611,10 @@ def main(argv=None):
         basis = Basis.load(args.basis, manifold=args.manifold, scene=args.scene)
         manifold = basis.check_manifold(args.manifold)
         if args.x_groups > basis.p:
-            fail(f"--x is given {args.x_groups} times, and this basis has {basis.p} target(s) {basis.targets}: "
-                 f"give --x once per target")
+            fail(
+                f"--x is given {args.x_groups} times, and this basis has {basis.p} target(s) {basis.targets}: "
+                f"give --x once per target"
+            )
         args.x = resolve_names(args.x, manifold)
         print(basis)
         if args.path is not None:

@@ -15,8 +15,9 @@ ERRORS = (MitsubaManifoldError, OSError)
 #: Exit status of a run stopped by Ctrl-C (128 + SIGINT), as shells report it.
 INTERRUPTED = 130
 #: What a tool stopped by Ctrl-C says.
-INTERRUPTED_MESSAGE = ("interrupted; every file listed so far is complete (run the same command "
-                       "again to resume)")
+INTERRUPTED_MESSAGE = (
+    "interrupted; every file listed so far is complete (run the same command again to resume)"
+)
 
 
 #: A latent point or list of numbers that starts with a minus sign ("-1.1,-0.2", "-1e-3 0.5"):
@@ -37,7 +38,8 @@ class ArgumentParser(argparse.ArgumentParser):
 
     ``aliases`` maps library parameter names to this tool's options where the option's
     ``dest`` differs (``{"scene_path": "scene"}``): library messages name Python
-    parameters, and :func:`fail` writes the tool's option instead."""
+    parameters, and :func:`fail` writes the tool's option instead.
+    """
 
     def __init__(self, *args, aliases=None, **kwargs):
         super().__init__(*args, **kwargs)
@@ -55,7 +57,9 @@ class ArgumentParser(argparse.ArgumentParser):
             if action.option_strings:
                 names[action.dest] = max(action.option_strings, key=len)
             elif action.dest != "help":
-                names[action.dest] = action.metavar if isinstance(action.metavar, str) else action.dest
+                names[action.dest] = (
+                    action.metavar if isinstance(action.metavar, str) else action.dest
+                )
         for param, dest in self.aliases.items():
             if dest in names:
                 names[param] = names[dest]
@@ -91,7 +95,9 @@ def parse_resolution(text):
     except ValueError:
         dims = ()
     if len(dims) != 3 or min(dims) < 1:
-        raise argparse.ArgumentTypeError(f"resolution must be three positive integers like 90,90,180, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"resolution must be three positive integers like 90,90,180, got {text!r}"
+        )
     return dims
 
 
@@ -103,7 +109,9 @@ def parse_floats(text):
             raise ValueError
         return [float(v) for v in parts]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected numbers like '0.3,-1.2', got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected numbers like '0.3,-1.2', got {text!r}"
+        ) from None
 
 
 def parse_floats_or_name(group):
@@ -117,12 +125,17 @@ def resolve_names(x, manifold):
     """``x`` (numbers and material names) with each name replaced by its latent point (q numbers)."""
     if x is None or not any(isinstance(v, str) for v in x):
         return x
-    return [float(c) for v in x for c in (manifold.latent[manifold.index(v)] if isinstance(v, str) else [v])]
+    return [
+        float(c)
+        for v in x
+        for c in (manifold.latent[manifold.index(v)] if isinstance(v, str) else [v])
+    ]
 
 
 def cli_message(error, parser=None):
     """``error`` as one line for a command-line user: each Python parameter the library named
-    (`spp`) becomes the option that sets it (``--spp``), or plain text where none does."""
+    (`spp`) becomes the option that sets it (``--spp``), or plain text where none does.
+    """
     parser = parser or (_ACTIVE[0] if _ACTIVE else None)
     names = parser.option_names() if parser is not None else {}
     return _PARAM.sub(lambda m: names.get(m.group(1), m.group(1)), one_line(error))
@@ -140,7 +153,8 @@ class _Interrupts:
 
     Ctrl-C while a module is being imported (Mitsuba, Dr.Jit or SciPy take most of a tool's first
     second) can surface as another exception (an ``ImportError`` or ``NameError`` of the module cut
-    half-way): the note tells :func:`guarded` that it was the interrupt."""
+    half-way): the note tells :func:`guarded` that it was the interrupt.
+    """
 
     def __init__(self):
         self.seen = False
@@ -156,7 +170,8 @@ class _Interrupts:
 
     def restore(self, finished_process=False):
         """Put the handler back; a whole process that has finished ignores a late Ctrl-C instead
-        (everything was written: exit 0, not a traceback while the interpreter shuts down)."""
+        (everything was written: exit 0, not a traceback while the interpreter shuts down).
+        """
         if self.previous is None:
             return
         signal.signal(signal.SIGINT, signal.SIG_IGN if finished_process else self.previous)
@@ -166,7 +181,8 @@ class _Interrupts:
 def _interrupted(process):
     """Report Ctrl-C and exit 130. A whole process ends at once (its files are closed and its
     locks released by then): an extension module whose import the interrupt cut half-way
-    would abort the interpreter's shutdown."""
+    would abort the interpreter's shutdown.
+    """
     print(f"error: {INTERRUPTED_MESSAGE}", file=sys.stderr)
     if process:
         sys.stdout.flush()
@@ -180,7 +196,9 @@ def guarded(main):
     ``error:`` line: the package's errors and files the system refuses (:data:`ERRORS`),
     memory (exit 2), and Ctrl-C at any moment, imports included (exit 130). Anything else
     is a bug and keeps its traceback. Run as a process (``argv`` None), a Ctrl-C after
-    ``main`` returned is ignored: everything was written, and the tool exits 0."""
+    ``main`` returned is ignored: everything was written, and the tool exits 0.
+    """
+
     @functools.wraps(main)
     def run(argv=None):
         interrupts = _Interrupts()
@@ -199,11 +217,12 @@ def guarded(main):
                 _interrupted(argv is None)
             fail(e)
         except Exception:
-            if interrupts.seen:   # an import cut by Ctrl-C
+            if interrupts.seen:  # an import cut by Ctrl-C
                 _interrupted(argv is None)
             raise
         finally:
             interrupts.restore(finished_process=finished and argv is None)
+
     return run
 
 
@@ -212,19 +231,24 @@ def reference_view(basis, scene, render_reference, warn=print):
     that render the view of ``basis`` (its manifest's ``sensor``), so that a reference compares
     with the blend pixel for pixel. Warns when the manifest does not record its sensor (a basis
     of an earlier version) and ``scene`` has several; refuses a sensor other than 0 where
-    ``render_reference`` renders sensor 0 only."""
+    ``render_reference`` renders sensor 0 only.
+    """
     import inspect
 
     from ...errors import MismatchError
     from ...render.render_basis import count_sensors
 
     if not basis.sensor_known and count_sensors(scene) > 1:
-        warn(f"warning: the basis {basis.folder} does not record which of the {count_sensors(scene)} sensors of "
-             f"{scene} it was rendered from (made by an earlier version); rendering the reference from sensor 0")
+        warn(
+            f"warning: the basis {basis.folder} does not record which of the {count_sensors(scene)} sensors of "
+            f"{scene} it was rendered from (made by an earlier version); rendering the reference from sensor 0"
+        )
     if "sensor" in inspect.signature(render_reference).parameters:
         return {"sensor": basis.sensor}
     if basis.sensor:
-        raise MismatchError(f"the basis {basis.folder} was rendered from sensor {basis.sensor}, and this version "
-                            "renders references from sensor 0 only: compare with a reference image of that view "
-                            "instead")
+        raise MismatchError(
+            f"the basis {basis.folder} was rendered from sensor {basis.sensor}, and this version "
+            "renders references from sensor 0 only: compare with a reference image of that view "
+            "instead"
+        )
     return {}

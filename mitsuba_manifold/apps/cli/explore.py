@@ -32,37 +32,82 @@ def parse_port(text):
     except ValueError:
         port = -1
     if not 0 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"must be an integer in 0..65535 (0: any free port), got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"must be an integer in 0..65535 (0: any free port), got {text!r}"
+        )
     return port
 
 
 def parser():
     from .common import ArgumentParser
-    p = ArgumentParser(prog="explore.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--basis", action="append", required=True, metavar="DIR",
-                   help="basis folder (render_basis.py); repeat for several (a selector on the page)")
-    p.add_argument("--manifold", help="manifold (.npz); default: the basis manifest's (checked by hash)")
-    p.add_argument("--database", help="tables of the manifold: folder or built-in set name (default: the "
-                                      "manifold's database)")
-    p.add_argument("--scene", help="scene XML or shipped scene name for reference renders, checked against the "
-                                   "basis (default: the manifest's scene, or the shipped one of that name)")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
-    p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
-                   help="also answer requests for, and pages of, this origin (exactly: scheme, host, port, "
-                        "e.g. https://explore.example:443 behind a proxy); repeat for several")
-    p.add_argument("--port", type=parse_port, default=DEFAULT_PORT,
-                   help=f"port (default {DEFAULT_PORT}; 0: any free port)")
-    p.add_argument("--prune", type=float, default=DEFAULT_PRUNE,
-                   help="pruning budget (default {:g}, as the plugin): blend the fewest materials such that "
-                        "each albedo channel changes by at most half of it and the cosine-weighted and raw "
-                        "table by at most it, relatively".format(DEFAULT_PRUNE))
-    p.add_argument("--no-tables", action="store_true",
-                   help="do not load the material tables (no preview sphere, slice or negative-bin fraction)")
-    p.add_argument("--refine-spp", type=int, default=16,
-                   help="where a drag ends, show the exact full-GI image: render the L2+ light at that point "
-                        "with this many samples per pixel (blend.py --refine; default 16, 0: never)")
-    p.add_argument("--no-thumbnails", action="store_true",
-                   help="do not render the materials' thumbnails (made once in the background, cached beside the basis)")
+
+    p = ArgumentParser(
+        prog="explore.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "--basis",
+        action="append",
+        required=True,
+        metavar="DIR",
+        help="basis folder (render_basis.py); repeat for several (a selector on the page)",
+    )
+    p.add_argument(
+        "--manifold", help="manifold (.npz); default: the basis manifest's (checked by hash)"
+    )
+    p.add_argument(
+        "--database",
+        help="tables of the manifold: folder or built-in set name (default: the "
+        "manifold's database)",
+    )
+    p.add_argument(
+        "--scene",
+        help="scene XML or shipped scene name for reference renders, checked against the "
+        "basis (default: the manifest's scene, or the shipped one of that name)",
+    )
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1: this machine only)",
+    )
+    p.add_argument(
+        "--allow-origin",
+        action="append",
+        default=[],
+        metavar="ORIGIN",
+        help="also answer requests for, and pages of, this origin (exactly: scheme, host, port, "
+        "e.g. https://explore.example:443 behind a proxy); repeat for several",
+    )
+    p.add_argument(
+        "--port",
+        type=parse_port,
+        default=DEFAULT_PORT,
+        help=f"port (default {DEFAULT_PORT}; 0: any free port)",
+    )
+    p.add_argument(
+        "--prune",
+        type=float,
+        default=DEFAULT_PRUNE,
+        help=f"pruning budget (default {DEFAULT_PRUNE:g}, as the plugin): blend the fewest materials such that "
+        "each albedo channel changes by at most half of it and the cosine-weighted and raw "
+        "table by at most it, relatively",
+    )
+    p.add_argument(
+        "--no-tables",
+        action="store_true",
+        help="do not load the material tables (no preview sphere, slice or negative-bin fraction)",
+    )
+    p.add_argument(
+        "--refine-spp",
+        type=int,
+        default=16,
+        help="where a drag ends, show the exact full-GI image: render the L2+ light at that point "
+        "with this many samples per pixel (blend.py --refine; default 16, 0: never)",
+    )
+    p.add_argument(
+        "--no-thumbnails",
+        action="store_true",
+        help="do not render the materials' thumbnails (made once in the background, cached beside the basis)",
+    )
     return p
 
 
@@ -83,13 +128,18 @@ def bind(host, port):
 
 def _bind_problem(error, host, port):
     """Why binding failed and which option to change: --host when the address is the
-    problem (unknown name, not this machine's), --port when the port is (in use, privileged)."""
+    problem (unknown name, not this machine's), --port when the port is (in use, privileged).
+    """
     reason = error.strerror or str(error)
     if isinstance(error, socket.gaierror) or error.errno == errno.EADDRNOTAVAIL:
-        return (f"--host {host} is not an address of this machine ({reason}); choose another "
-                "--host (127.0.0.1: this machine only, 0.0.0.0: every interface)")
+        return (
+            f"--host {host} is not an address of this machine ({reason}); choose another "
+            "--host (127.0.0.1: this machine only, 0.0.0.0: every interface)"
+        )
     if error.errno in (errno.EADDRINUSE, errno.EACCES):
-        return f"--port {port} is not free to use ({reason}); choose another --port (0: any free port)"
+        return (
+            f"--port {port} is not free to use ({reason}); choose another --port (0: any free port)"
+        )
     return f"{reason}; check --host {host} and --port {port}"
 
 
@@ -103,7 +153,7 @@ def main(argv=None):
     args = parser().parse_args(argv)
     try:
         return serve(args)
-    except KeyboardInterrupt:   # Ctrl-C before the server runs (while loading)
+    except KeyboardInterrupt:  # Ctrl-C before the server runs (while loading)
         print("explore: stopped", flush=True)
         return 130
 
@@ -112,16 +162,22 @@ def serve(args):
     try:
         import uvicorn
     except ImportError:
-        print("error: the explorer needs its extra: pip install 'mitsuba-manifold[explore]'", file=sys.stderr)
+        print(
+            "error: the explorer needs its extra: pip install 'mitsuba-manifold[explore]'",
+            file=sys.stderr,
+        )
         return 2
 
     from ..explore import Explorer, create_app
     from ..explore.guard import MAX_MESSAGE, AllowList
     from .common import ERRORS, cli_message
+
     try:
         sock = bind(args.host, args.port)
-        allow = AllowList.for_server(args.host, sock.getsockname()[1], args.allow_origin, sock.getsockname()[0])
-    except ValueError as e:   # a bad --allow-origin
+        allow = AllowList.for_server(
+            args.host, sock.getsockname()[1], args.allow_origin, sock.getsockname()[0]
+        )
+    except ValueError as e:  # a bad --allow-origin
         sock.close()
         print(f"error: --allow-origin: {e}", file=sys.stderr)
         return 2
@@ -131,22 +187,43 @@ def serve(args):
     explorer = None
     try:
         print(f"loading {len(args.basis)} basis folder(s) ...", flush=True)
-        explorer = Explorer(args.basis, manifold=args.manifold, database=args.database, prune=args.prune,
-                            load_tables=not args.no_tables, scene=args.scene,
-                            thumbnails=not args.no_thumbnails, refine_spp=args.refine_spp)
+        explorer = Explorer(
+            args.basis,
+            manifold=args.manifold,
+            database=args.database,
+            prune=args.prune,
+            load_tables=not args.no_tables,
+            scene=args.scene,
+            thumbnails=not args.no_thumbnails,
+            refine_spp=args.refine_spp,
+        )
         # frames are JPEG or raw pixels: per-message deflate would cost more time than it saves
-        server = uvicorn.Server(uvicorn.Config(create_app(explorer, allow), log_level="warning",
-                                               timeout_graceful_shutdown=1, ws_ping_interval=None,
-                                               ws_per_message_deflate=False, ws_max_size=MAX_MESSAGE))
+        server = uvicorn.Server(
+            uvicorn.Config(
+                create_app(explorer, allow),
+                log_level="warning",
+                timeout_graceful_shutdown=1,
+                ws_ping_interval=None,
+                ws_per_message_deflate=False,
+                ws_max_size=MAX_MESSAGE,
+            )
+        )
         for name, b in explorer.bases.items():
-            print(f"basis {name}: {len(b.keys)} materials, {b.resolution[0]}x{b.resolution[1]}, {b.folder}")
-        print(f"manifold: {explorer.manifold_path} ({explorer.manifold.n} materials, q={explorer.manifold.q})")
+            print(
+                f"basis {name}: {len(b.keys)} materials, {b.resolution[0]}x{b.resolution[1]}, {b.folder}"
+            )
+        print(
+            f"manifold: {explorer.manifold_path} ({explorer.manifold.n} materials, q={explorer.manifold.q})"
+        )
         if args.host not in ("127.0.0.1", "localhost", "::1"):
-            print(f"warning: listening on {args.host}: other machines can reach this server", file=sys.stderr)
+            print(
+                f"warning: listening on {args.host}: other machines can reach this server",
+                file=sys.stderr,
+            )
         print(f"explore at {url(sock)}   (Ctrl-C stops)", flush=True)
         try:
             server.run(sockets=[sock])
-        except KeyboardInterrupt:   # uvicorn stops gracefully, then passes the signal on
+        except KeyboardInterrupt:  # uvicorn stops gracefully, then passes the signal on
             pass
     except ERRORS as e:
         print(f"error: {cli_message(e)}", file=sys.stderr)

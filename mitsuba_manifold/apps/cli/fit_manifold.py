@@ -5,15 +5,20 @@ import time
 
 from .common import ArgumentParser, guarded, parse_list
 
+
 def check(args, guard=None):
     """Everything checked before the (long) fit: values, --out and --plot (``guard``: the run's
-    :class:`ownership.Outputs`, which then watches them; default: checked only)."""
-    from ..._util import ownership, checks as validate
-    from ...imaging import plots
+    :class:`ownership.Outputs`, which then watches them; default: checked only).
+    """
+    from ..._util import checks as validate
+    from ..._util import ownership
     from ...errors import InputError, MitsubaManifoldError, one_line
+    from ...imaging import plots
 
     if len(args.name) > len(args.add):
-        raise InputError(f"--name given {len(args.name)} times for {len(args.add)} --add; give one --name per --add")
+        raise InputError(
+            f"--name given {len(args.name)} times for {len(args.add)} --add; give one --name per --add"
+        )
     from ...data.sources import material_source
 
     for path in args.add:
@@ -30,8 +35,10 @@ def check(args, guard=None):
     folder, base = os.path.split(args.out)
     if not base.lower().endswith(".npz") or len(base) <= 4:
         fix = os.path.join(folder, (os.path.splitext(base)[0].lstrip(".") or "manifold") + ".npz")
-        raise InputError(f"--out must name a .npz file (the manifold is saved as NumPy .npz), got {args.out!r}: "
-                         f"use --out {fix}")
+        raise InputError(
+            f"--out must name a .npz file (the manifold is saved as NumPy .npz), got {args.out!r}: "
+            f"use --out {fix}"
+        )
     guard = guard or ownership.Outputs("fit_manifold.py", args.force)
     guard.check(args.out, "--out")
     if args.plot:
@@ -43,31 +50,54 @@ def check(args, guard=None):
 @guarded
 def main(argv=None):
     p = ArgumentParser(description=__doc__, aliases={"names": "materials"})
-    p.add_argument("database", help="built-in database (merl, rgl, nielsen, all, sgd; NAME@NHxNDxNP for another "
-                                    "resolution) or folder of measured tables (.binary, .bsdf, .h5, .npz)")
+    p.add_argument(
+        "database",
+        help="built-in database (merl, rgl, nielsen, all, sgd; NAME@NHxNDxNP for another "
+        "resolution) or folder of measured tables (.binary, .bsdf, .h5, .npz)",
+    )
     p.add_argument("--out", required=True, help="output manifold (.npz)")
-    p.add_argument("--preset", choices=["default", "paper"], default="default",
-                   help="default: the measured best (log features, q=3, convex Shepard weights); paper: the "
-                        "paper's exact formulation (raw features, q=2, Hooke-Jeeves, Eq. 4 GP weights). "
-                        "The options below override the preset")
+    p.add_argument(
+        "--preset",
+        choices=["default", "paper"],
+        default="default",
+        help="default: the measured best (log features, q=3, convex Shepard weights); paper: the "
+        "paper's exact formulation (raw features, q=2, Hooke-Jeeves, Eq. 4 GP weights). "
+        "The options below override the preset",
+    )
     p.add_argument("--q", type=int, default=None, help="latent dimension (1..8)")
-    p.add_argument("--materials", type=parse_list, default=None, help="subset of materials (default: all)")
+    p.add_argument(
+        "--materials", type=parse_list, default=None, help="subset of materials (default: all)"
+    )
     p.add_argument("--method", choices=["hooke-jeeves", "lbfgs"], default=None)
     p.add_argument("--features", choices=["raw", "log"], default=None, help="fit features")
     p.add_argument("--length-scale", type=float, default=None, help="kernel length scale l")
     p.add_argument("--noise", type=float, default=None, help="kernel noise mu")
     p.add_argument("--plot", metavar="DIR", help="write latent map and convergence PNGs here")
-    p.add_argument("--add", action="append", default=[], metavar="PATH",
-                   help="add this material after the fit without refitting (repeatable): a .binary, .bsdf "
-                        "(Mitsuba measured), .h5 or .npz (NBRDF) file or SET:NAME of a built-in database; "
-                        "with a saved manifold .npz as DATABASE, add to it instead of fitting")
-    p.add_argument("--name", action="append", default=[], metavar="N",
-                   help="name of the --add material of the same position (default: its file name)")
-    p.add_argument("--force", action="store_true",
-                   help="replace an existing --out (or plot) this tool did not write (never a read-only one)")
+    p.add_argument(
+        "--add",
+        action="append",
+        default=[],
+        metavar="PATH",
+        help="add this material after the fit without refitting (repeatable): a .binary, .bsdf "
+        "(Mitsuba measured), .h5 or .npz (NBRDF) file or SET:NAME of a built-in database; "
+        "with a saved manifold .npz as DATABASE, add to it instead of fitting",
+    )
+    p.add_argument(
+        "--name",
+        action="append",
+        default=[],
+        metavar="N",
+        help="name of the --add material of the same position (default: its file name)",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing --out (or plot) this tool did not write (never a read-only one)",
+    )
     args = p.parse_args(argv)
 
     from ..._util import ownership
+
     t0 = time.perf_counter()
     group = None if args.plot is None else "plots:" + os.path.abspath(args.plot)
     with ownership.Outputs("fit_manifold.py", args.force, group=group) as guard:
@@ -77,16 +107,25 @@ def main(argv=None):
 
 def fit_and_save(args, guard, t0):
     """The fit, the manifold and the plots (each recorded as written, under ``guard``);
-    plots an earlier fit wrote into ``--plot`` and this one does not (another ``q``) are removed."""
+    plots an earlier fit wrote into ``--plot`` and this one does not (another ``q``) are removed.
+    """
     from ...imaging import plots
     from ...manifold.model import Manifold
 
     if args.add and os.path.isfile(args.database) and args.database.lower().endswith(".npz"):
         m = Manifold.load(args.database)
     else:
-        m = Manifold.fit(args.database, q=args.q, names=args.materials, method=args.method,
-                         length_scale=args.length_scale, noise=args.noise, features=args.features,
-                         preset=args.preset, progress=True)
+        m = Manifold.fit(
+            args.database,
+            q=args.q,
+            names=args.materials,
+            method=args.method,
+            length_scale=args.length_scale,
+            noise=args.noise,
+            features=args.features,
+            preset=args.preset,
+            progress=True,
+        )
     from ...data.sources import material_source
 
     for k, path in enumerate(args.add):
@@ -97,14 +136,22 @@ def fit_and_save(args, guard, t0):
         if source.kind == "binary":
             info = m.add(path, name)
         else:
-            info = m.add(source.table(m.dims), name, origin=os.path.abspath(path) if os.path.exists(path) else path)
-        print(f"added {info.name} at {info.x.round(4).tolist()} (closest material {info.nearest}) "
-              f"in {info.time_s:.2f} s")
+            info = m.add(
+                source.table(m.dims),
+                name,
+                origin=os.path.abspath(path) if os.path.exists(path) else path,
+            )
+        print(
+            f"added {info.name} at {info.x.round(4).tolist()} (closest material {info.nearest}) "
+            f"in {info.time_s:.2f} s"
+        )
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     m.save(args.out)
     print(m.summary())
-    print(f"time: {time.perf_counter() - t0:.2f} s total; the fit's: load {m.info['time_load_s']:.2f} s, "
-          f"Gram {m.info['time_gram_s']:.2f} s, optimisation {m.info['time_fit_s']:.2f} s")
+    print(
+        f"time: {time.perf_counter() - t0:.2f} s total; the fit's: load {m.info['time_load_s']:.2f} s, "
+        f"Gram {m.info['time_gram_s']:.2f} s, optimisation {m.info['time_fit_s']:.2f} s"
+    )
     print(f"final L = {m.info['log_likelihood']:.8g}, cond(K) = {m.condition_number():.4g}")
     print(f"saved {args.out}")
     if args.plot:

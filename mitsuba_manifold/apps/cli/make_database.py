@@ -19,16 +19,36 @@ from .common import ArgumentParser, guarded, parse_list, parse_resolution
 def main(argv=None):
     p = ArgumentParser(description=__doc__)
     p.add_argument("--out", required=True, help="output folder (created or completed)")
-    p.add_argument("--from", dest="sources", action="append", default=None, metavar="NAME_OR_PATH",
-                   help="built-in set (merl, rgl, nielsen, all, sgd) or folder of measured files; repeatable "
-                        "(default: merl)")
-    p.add_argument("--export", action="store_true", help="write every material as a MERL .binary file")
-    p.add_argument("--resolution", type=parse_resolution, default=(90, 90, 180),
-                   help="theta_h,theta_d,phi_d bins (default 90,90,180 as MERL)")
-    p.add_argument("--materials", type=parse_list, default=None,
-                   help="comma-separated names to export (default: all; implies --export)")
-    p.add_argument("--noise", type=float, default=0.0,
-                   help="multiplicative log-normal noise sigma (--from sgd only; default 0)")
+    p.add_argument(
+        "--from",
+        dest="sources",
+        action="append",
+        default=None,
+        metavar="NAME_OR_PATH",
+        help="built-in set (merl, rgl, nielsen, all, sgd) or folder of measured files; repeatable "
+        "(default: merl)",
+    )
+    p.add_argument(
+        "--export", action="store_true", help="write every material as a MERL .binary file"
+    )
+    p.add_argument(
+        "--resolution",
+        type=parse_resolution,
+        default=(90, 90, 180),
+        help="theta_h,theta_d,phi_d bins (default 90,90,180 as MERL)",
+    )
+    p.add_argument(
+        "--materials",
+        type=parse_list,
+        default=None,
+        help="comma-separated names to export (default: all; implies --export)",
+    )
+    p.add_argument(
+        "--noise",
+        type=float,
+        default=0.0,
+        help="multiplicative log-normal noise sigma (--from sgd only; default 0)",
+    )
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     p.add_argument("--force", action="store_true", help="overwrite files this tool did not make")
     args = p.parse_args(argv)
@@ -37,9 +57,10 @@ def main(argv=None):
     from ...data import database, merl
     from ...data.sources import SET_NAMES
     from ...errors import InputError
+
     t0 = time.perf_counter()
     sources = args.sources or ["merl"]
-    if any(s not in SET_NAMES for s in sources):   # a folder may hold Mitsuba measured files
+    if any(s not in SET_NAMES for s in sources):  # a folder may hold Mitsuba measured files
         from ... import render  # noqa: F401  (registers their reader)
     if args.materials and len(set(args.materials)) < len(args.materials):
         repeated = sorted({n for n in args.materials if args.materials.count(n) > 1})
@@ -50,15 +71,31 @@ def main(argv=None):
     if sources == ["sgd"] and (args.export or args.materials or args.noise > 0):
         n = len(args.materials) if args.materials else 100
         merl.table_resolution(args.resolution, "--resolution", workers=min(n, os.cpu_count() or 1))
-        paths = database.make_database(args.out, args.resolution, args.materials, args.noise,
-                                       args.seed, progress=True, force=args.force)
+        paths = database.make_database(
+            args.out,
+            args.resolution,
+            args.materials,
+            args.noise,
+            args.seed,
+            progress=True,
+            force=args.force,
+        )
         print(f"{len(paths)} tables in {args.out} ({time.perf_counter() - t0:.1f} s)")
         return
     if args.noise > 0:
         raise InputError("--noise applies to --from sgd only (noisy copies of the SGD fits)")
     merl.table_resolution(args.resolution, "--resolution")
     export = args.export or args.materials is not None
-    db = database.write_database(args.out, sources, args.resolution, args.materials, export=export,
-                                 progress=True, force=args.force)
+    db = database.write_database(
+        args.out,
+        sources,
+        args.resolution,
+        args.materials,
+        export=export,
+        progress=True,
+        force=args.force,
+    )
     what = ".binary files" if export else "materials (tables made on demand)"
-    print(f"{len(db.names)} {what} in {args.out} from {', '.join(sources)} ({time.perf_counter() - t0:.1f} s)")
+    print(
+        f"{len(db.names)} {what} in {args.out} from {', '.join(sources)} ({time.perf_counter() - t0:.1f} s)"
+    )

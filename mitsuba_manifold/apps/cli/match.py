@@ -22,32 +22,75 @@ from .common import ERRORS, ArgumentParser, fail, guarded, reference_view
 
 
 def _parser():
-    p = ArgumentParser(prog="match.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-                       aliases={"manifold_path": "manifold"})
-    p.add_argument("--render", action="store_true",
-                   help="match full-GI renders of scenes instead of a basis (differentiable x; --render --help)")
-    p.add_argument("--basis", required=True, help="basis folder written by render_basis.py (one target)")
-    p.add_argument("--target", required=True, help="target image: linear .exr, or .png/.jpg (sRGB; 8 bits, or 16-bit grey)")
-    p.add_argument("--mask", help="mask image of the target's size: pixels > 0 are matched (grey = weight)")
-    p.add_argument("--exposure-free", action="store_true", help="fit the blend's brightness scale too")
-    p.add_argument("--log", action="store_true", help="match log luminance instead of relative MSE of RGB")
-    p.add_argument("--prior", type=float, default=0.0,
-                   help="weight of the GP variance (paper Eq. 2) keeping the point near the data (default 0)")
+    p = ArgumentParser(
+        prog="match.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        aliases={"manifold_path": "manifold"},
+    )
+    p.add_argument(
+        "--render",
+        action="store_true",
+        help="match full-GI renders of scenes instead of a basis (differentiable x; --render --help)",
+    )
+    p.add_argument(
+        "--basis", required=True, help="basis folder written by render_basis.py (one target)"
+    )
+    p.add_argument(
+        "--target",
+        required=True,
+        help="target image: linear .exr, or .png/.jpg (sRGB; 8 bits, or 16-bit grey)",
+    )
+    p.add_argument(
+        "--mask", help="mask image of the target's size: pixels > 0 are matched (grey = weight)"
+    )
+    p.add_argument(
+        "--exposure-free", action="store_true", help="fit the blend's brightness scale too"
+    )
+    p.add_argument(
+        "--log", action="store_true", help="match log luminance instead of relative MSE of RGB"
+    )
+    p.add_argument(
+        "--prior",
+        type=float,
+        default=0.0,
+        help="weight of the GP variance (paper Eq. 2) keeping the point near the data (default 0)",
+    )
     p.add_argument("--starts", type=int, default=8, help="L-BFGS-B starts (default 8)")
-    p.add_argument("--scan", type=int, default=8192,
-                   help="random points near the data scored to choose the starts (default 8192; 0: start "
-                        "from the training points nearest to the best single material)")
-    p.add_argument("--max-iter", type=int, default=100, help="L-BFGS-B iterations per start (default 100)")
-    p.add_argument("--manifold", help="manifold (.npz); default: the one in the manifest (checked by hash)")
+    p.add_argument(
+        "--scan",
+        type=int,
+        default=8192,
+        help="random points near the data scored to choose the starts (default 8192; 0: start "
+        "from the training points nearest to the best single material)",
+    )
+    p.add_argument(
+        "--max-iter", type=int, default=100, help="L-BFGS-B iterations per start (default 100)"
+    )
+    p.add_argument(
+        "--manifold", help="manifold (.npz); default: the one in the manifest (checked by hash)"
+    )
     p.add_argument("--out", help="write the blend at the best point here (.exr)")
-    p.add_argument("--png", action="store_true", help="with --out: also a contact sheet target | match | best single")
+    p.add_argument(
+        "--png",
+        action="store_true",
+        help="with --out: also a contact sheet target | match | best single",
+    )
     p.add_argument("--json", metavar="OUT", help="write the result as JSON")
-    p.add_argument("--render-reference", action="store_true",
-                   help="with --out: also render the best point with manifold_brdf and Mitsuba's path")
-    p.add_argument("--spp", type=int, default=256, help="samples per pixel of --render-reference (default 256)")
+    p.add_argument(
+        "--render-reference",
+        action="store_true",
+        help="with --out: also render the best point with manifold_brdf and Mitsuba's path",
+    )
+    p.add_argument(
+        "--spp", type=int, default=256, help="samples per pixel of --render-reference (default 256)"
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of --render-reference (default 0)")
-    p.add_argument("--force", action="store_true",
-                   help="replace existing output files this tool did not write (never read-only ones)")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace existing output files this tool did not write (never read-only ones)",
+    )
     return p
 
 
@@ -60,13 +103,18 @@ def _check_args(args):
         fail(f"--out must name an .exr file, got {args.out!r}")
     if (args.png or args.render_reference) and args.out is None:
         fail("--png and --render-reference write beside --out: give --out best.exr")
-    for option, value, least in (("--starts", args.starts, 1), ("--max-iter", args.max_iter, 1),
-                                 ("--spp", args.spp, 1), ("--scan", args.scan, 0)):
+    for option, value, least in (
+        ("--starts", args.starts, 1),
+        ("--max-iter", args.max_iter, 1),
+        ("--spp", args.spp, 1),
+        ("--scan", args.scan, 0),
+    ):
         if value < least:
             fail(f"{option} must be an integer >= {least}, got {value}")
     if args.json is not None and not args.json.lower().endswith(".json"):
         fail(f"--json must name a .json file, got {args.json!r}")
     from ..._util import checks as validate
+
     validate.seed("--seed", args.seed)
 
 
@@ -83,74 +131,122 @@ def _inputs(args):
     target = mt.check_target(target, basis.resolution, what=f"target {args.target}")
     weight = np.ones(target.shape[:2])
     if args.mask:
-        weight = mt.check_mask(mt.read_mask(args.mask, basis.resolution), basis.resolution, what=f"mask {args.mask}")
+        weight = mt.check_mask(
+            mt.read_mask(args.mask, basis.resolution), basis.resolution, what=f"mask {args.mask}"
+        )
     if clipped.any():
-        print(f"note: {int(clipped.sum())} clipped pixels of the target (a channel at its largest code) are left out")
-        weight = mt.check_mask(weight * ~clipped, basis.resolution,
-                               what=f"mask {args.mask or '(all pixels)'} without the target's clipped pixels")
+        print(
+            f"note: {int(clipped.sum())} clipped pixels of the target (a channel at its largest code) are left out"
+        )
+        weight = mt.check_mask(
+            weight * ~clipped,
+            basis.resolution,
+            what=f"mask {args.mask or '(all pixels)'} without the target's clipped pixels",
+        )
     return basis, manifold, target, weight
 
 
 def _report(result, manifold, basis):
     print(basis)
     x = ", ".join(f"{v:.4f}" for v in result.x)
-    print(f"best latent point: x = {x}  (GP variance {result.variance:.3g}; 0 at the data, "
-          f"{1 + manifold.noise:.4g} far away)")
-    print("nearest training materials: " + ", ".join(f"{n} ({d:.3f})" for n, d in result.nearest(manifold)))
+    print(
+        f"best latent point: x = {x}  (GP variance {result.variance:.3g}; 0 at the data, "
+        f"{1 + manifold.noise:.4g} far away)"
+    )
+    print(
+        "nearest training materials: "
+        + ", ".join(f"{n} ({d:.3f})" for n, d in result.nearest(manifold))
+    )
     print("largest weights: " + ", ".join(f"{n} {w:+.4f}" for n, w in result.top_weights()))
     what = "log-luminance MSE" if result.loss == "log" else "relative MSE"
-    print(f"image error: {what} {result.error:.4g}" + (f", relative MSE {result.rel_mse:.4g}"
-                                                       if result.loss == "log" else "")
-          + f" over {result.n_pixels} pixels" + (f", fitted exposure x{result.exposure:.4g}"
-                                                 if result.exposure_free else ""))
+    print(
+        f"image error: {what} {result.error:.4g}"
+        + (f", relative MSE {result.rel_mse:.4g}" if result.loss == "log" else "")
+        + f" over {result.n_pixels} pixels"
+        + (f", fitted exposure x{result.exposure:.4g}" if result.exposure_free else "")
+    )
     s = result.single
-    print(f"best single training material: {s.name}, {what} {s.error:.4g}"
-          + (f" (exposure x{s.exposure:.4g})" if result.exposure_free else ""))
+    print(
+        f"best single training material: {s.name}, {what} {s.error:.4g}"
+        + (f" (exposure x{s.exposure:.4g})" if result.exposure_free else "")
+    )
     if result.from_start is None:
         print("the best single material itself is the best point")
     evals = sum(r["n_evaluations"] for r in result.starts)
-    print(f"match time: {result.time_s:.3f} s ({len(result.starts)} starts, {evals} evaluations; "
-          f"reading the basis: {result.time_read_s:.3f} s)")
+    print(
+        f"match time: {result.time_s:.3f} s ({len(result.starts)} starts, {evals} evaluations; "
+        f"reading the basis: {result.time_read_s:.3f} s)"
+    )
 
 
 def _outputs(args, result, basis, manifold, target):
     """(kind, path, writer) of everything to write."""
     import numpy as np
 
-    from ...imaging import io as imageio
     from ...basis.folder import BASE
+    from ...imaging import io as imageio
     from ...render.scenes import render_reference, scene_resolution
 
     outputs, info = [], result.to_dict(manifold)
     if args.out:
         stem = _stem(args.out)
-        outputs.append(("blend at the best point", args.out, lambda: imageio.write_exr(args.out, result.image)))
+        outputs.append(
+            ("blend at the best point", args.out, lambda: imageio.write_exr(args.out, result.image))
+        )
         if args.png:
             single = basis.image(basis.key([result.single.name])) + basis.image(BASE)
-            images = np.stack([target, result.exposure * result.image, result.single.exposure * single])
-            labels = ["target", f"match ({result.error:.3g})", f"{result.single.name} ({result.single.error:.3g})"]
+            images = np.stack(
+                [target, result.exposure * result.image, result.single.exposure * single]
+            )
+            labels = [
+                "target",
+                f"match ({result.error:.3g})",
+                f"{result.single.name} ({result.single.error:.3g})",
+            ]
             sheet = stem + "_sheet.png"
-            outputs.append(("contact sheet", sheet, lambda: imageio.write_contact_sheet(sheet, images, labels, columns=3)))
+            outputs.append(
+                (
+                    "contact sheet",
+                    sheet,
+                    lambda: imageio.write_contact_sheet(sheet, images, labels, columns=3),
+                )
+            )
         if args.render_reference:
             m = basis.manifest
-            print(f"rendering the best point: {m.scene}, with its integrator, {args.spp} spp ...", flush=True)
+            print(
+                f"rendering the best point: {m.scene}, with its integrator, {args.spp} spp ...",
+                flush=True,
+            )
             t0 = time.perf_counter()
             try:
                 view = reference_view(basis, m.scene, render_reference)
-                ref = render_reference(m.scene, args.manifold or m.manifold, result.x, args.spp,
-                                       seed=args.seed, resolution=scene_resolution(m), max_depth=m.max_depth,
-                                       variant=m.variant, **view)
+                ref = render_reference(
+                    m.scene,
+                    args.manifold or m.manifold,
+                    result.x,
+                    args.spp,
+                    seed=args.seed,
+                    resolution=scene_resolution(m),
+                    max_depth=m.max_depth,
+                    variant=m.variant,
+                    **view,
+                )
             except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's
                 fail(e)
             print(f"rendered in {time.perf_counter() - t0:.1f} s")
             path = stem + "_reference.exr"
             info["reference"] = path
-            outputs.append(("full-GI render of the best point", path, lambda: imageio.write_exr(path, ref)))
+            outputs.append(
+                ("full-GI render of the best point", path, lambda: imageio.write_exr(path, ref))
+            )
     if args.json:
         from ..._util.atomic import write_bytes
 
-        info.update(basis=os.path.abspath(basis.folder), target=os.path.abspath(args.target),
-                    mask=None if args.mask is None else os.path.abspath(args.mask))
+        info.update(
+            basis=os.path.abspath(basis.folder),
+            target=os.path.abspath(args.target),
+            mask=None if args.mask is None else os.path.abspath(args.mask),
+        )
         text = json.dumps(info, indent=1) + "\n"
         outputs.append(("JSON", args.json, lambda: write_bytes(args.json, text)))
     return outputs
@@ -169,15 +265,18 @@ def _planned(args):
 def _refuse_inputs(args, guard):
     """Never overwrite an input (the target, the mask or an image of the basis), nor a file
     this tool did not make (``guard``: :class:`ownership.Outputs`, which allows those with
-    ``--force``)."""
+    ``--force``).
+    """
     from ...basis.folder import owned_files as basis_ownership
 
     inputs = {os.path.realpath(p) for p in (args.target, args.mask) if p}
     for path in _planned(args):
         real = os.path.realpath(path)
         if real in inputs or os.path.dirname(real) == os.path.realpath(args.basis):
-            fail(f"output {path} would overwrite an input (the target, the mask or the basis); "
-                  "choose another path")
+            fail(
+                f"output {path} would overwrite an input (the target, the mask or the basis); "
+                "choose another path"
+            )
         basis_ownership.check_output_outside_basis(path)
         guard.check(path, "output")
 
@@ -185,8 +284,9 @@ def _refuse_inputs(args, guard):
 @guarded
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
-    if "--render" in argv:   # differentiable rendering, no basis: its own tool
+    if "--render" in argv:  # differentiable rendering, no basis: its own tool
         from .match_render import main as match_render_main
+
         return match_render_main([a for a in argv if a != "--render"])
     args = _parser().parse_args(argv)
     _check_args(args)
@@ -196,9 +296,18 @@ def main(argv=None):
     with ownership.Outputs("match.py", args.force) as guard:
         _refuse_inputs(args, guard)
         basis, manifold, target, weight = _inputs(args)
-        result = mt.match(basis, target, weight, manifold=manifold, loss="log" if args.log else "rel_mse",
-                          exposure_free=args.exposure_free, prior=args.prior, starts=args.starts,
-                          max_iter=args.max_iter, scan=args.scan)
+        result = mt.match(
+            basis,
+            target,
+            weight,
+            manifold=manifold,
+            loss="log" if args.log else "rel_mse",
+            exposure_free=args.exposure_free,
+            prior=args.prior,
+            starts=args.starts,
+            max_iter=args.max_iter,
+            scan=args.scan,
+        )
         _report(result, manifold, basis)
         outputs = _outputs(args, result, basis, manifold, target)
         for kind, path, _ in outputs:

@@ -17,7 +17,8 @@ from .common import ArgumentParser, guarded
 def check_json(args, guard=None):
     """Refuse a --json that is not a .json name, names an input, or would replace a file
     this tool did not write (``guard``, the run's :class:`ownership.Outputs`; never a
-    read-only one)."""
+    read-only one).
+    """
     from ..._util import ownership
     from ...errors import ForeignFileError, InputError
 
@@ -31,17 +32,27 @@ def check_json(args, guard=None):
 @guarded
 def main(argv=None):
     p = ArgumentParser(description=__doc__)
-    p.add_argument("table", help="material: .binary, .bsdf, .h5 or .npz file, or SET:NAME of a built-in database "
-                                 "(e.g. rgl:paper_white)")
+    p.add_argument(
+        "table",
+        help="material: .binary, .bsdf, .h5 or .npz file, or SET:NAME of a built-in database "
+        "(e.g. rgl:paper_white)",
+    )
     p.add_argument("--manifold", required=True, help="saved manifold (.npz)")
-    p.add_argument("--database", default=None,
-                   help="the manifold's tables: folder or built-in set name (default: as recorded)")
+    p.add_argument(
+        "--database",
+        default=None,
+        help="the manifold's tables: folder or built-in set name (default: as recorded)",
+    )
     p.add_argument("--json", default=None, metavar="OUT", help="also write the result here (.json)")
-    p.add_argument("--force", action="store_true",
-                   help="replace an existing --json this tool did not write (never a read-only one)")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing --json this tool did not write (never a read-only one)",
+    )
     args = p.parse_args(argv)
 
     from ..._util import ownership
+
     with ownership.Outputs("project.py", args.force) as guard:
         if args.json:
             check_json(args, guard)
@@ -51,9 +62,8 @@ def main(argv=None):
 def project(args):
     """Project ``args.table``, print the result and write ``--json``."""
     from ..._util.atomic import write_bytes
-    from ...manifold.model import Manifold
-
     from ...data.sources import material_source
+    from ...manifold.model import Manifold
 
     source = material_source(args.table)
     if source.kind == "measured":
@@ -62,14 +72,22 @@ def project(args):
     m.tables(args.database)
     r = m.project(args.table if source.kind == "binary" else source.table(m.dims))
     top = sorted(range(m.n), key=lambda i: -abs(r.weights[i]))[:5]
-    result = {"table": args.table, "x": r.x.tolist(), "error": r.error, "nearest": r.nearest,
-              "nearest_error": r.nearest_error, "negative_fraction": r.negative_fraction,
-              "weights": {m.names[i]: float(r.weights[i]) for i in top if r.weights[i] != 0}}
+    result = {
+        "table": args.table,
+        "x": r.x.tolist(),
+        "error": r.error,
+        "nearest": r.nearest,
+        "nearest_error": r.nearest_error,
+        "negative_fraction": r.negative_fraction,
+        "weights": {m.names[i]: float(r.weights[i]) for i in top if r.weights[i] != 0},
+    }
     if args.json:
         write_bytes(args.json, json.dumps(result, indent=1) + "\n")
     print(f"x = {', '.join(f'{v:.6g}' for v in r.x)}")
-    print(f"error {r.error:.5g} (RMS of log(1 + rho) differences); nearest training material "
-          f"{r.nearest}: {r.nearest_error:.5g}")
+    print(
+        f"error {r.error:.5g} (RMS of log(1 + rho) differences); nearest training material "
+        f"{r.nearest}: {r.nearest_error:.5g}"
+    )
     print("weights: " + ", ".join(f"{k}:{v:.4g}" for k, v in result["weights"].items()))
     if r.negative_fraction:
         print(f"negative bins: {100 * r.negative_fraction:.3g}% (clamped by the plugin)")

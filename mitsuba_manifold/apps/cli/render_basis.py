@@ -8,7 +8,8 @@ Several scenes and views (--views) in one call go to OUT/<scene>[-view<j>]/. Wit
 merged; --executor ray runs the chunks as Ray tasks (a local cluster, or --address).
 
 Ctrl-C stops within a few seconds (at the end of the current render pass); every image
-listed in the folder's manifest.json is complete, and the same command resumes."""
+listed in the folder's manifest.json is complete, and the same command resumes.
+"""
 
 import argparse
 import time
@@ -23,11 +24,15 @@ def parse_views(text):
     try:
         views = parse_indices(text)
     except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"--views takes 'all' or sensor indices like 0,1, got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"--views takes 'all' or sensor indices like 0,1, got {text!r}"
+        ) from None
     twice = sorted({v for v in views if views.count(v) > 1})
     if twice:
-        raise argparse.ArgumentTypeError(f"--views lists sensor {twice[0]} more than once ({text!r}): each "
-                                         "view is rendered once, into its own folder")
+        raise argparse.ArgumentTypeError(
+            f"--views lists sensor {twice[0]} more than once ({text!r}): each "
+            "view is rendered once, into its own folder"
+        )
     return views
 
 
@@ -36,7 +41,8 @@ def check_numbers(args):
     ``--res``, ``--max-depth`` and
     ``--seed``, whose derived seeds must fit Mitsuba's 32 bits (one-pass renders seed pass
     ``p`` of ``n`` with ``seed * n + p``, at most one pass per sample; chunk ``j`` of ``k``
-    has seed ``seed * k + j``)."""
+    has seed ``seed * k + j``).
+    """
     from ..._util import checks as validate
 
     validate.positive_int("--spp", args.spp, "64")
@@ -44,53 +50,119 @@ def check_numbers(args):
     if args.res is not None and not 1 <= args.res <= 16384:
         fail(f"--res must be from 1 to 16384, got {args.res}")
     if args.max_depth is not None and args.max_depth != -1 and args.max_depth < 2:
-        fail(f"--max-depth must be -1 (unbounded) or at least 2, got {args.max_depth} (depth 1 "
-             "reaches only the lights seen directly: no image would show the material)")
+        fail(
+            f"--max-depth must be -1 (unbounded) or at least 2, got {args.max_depth} (depth 1 "
+            "reaches only the lights seen directly: no image would show the material)"
+        )
     per_chunk = -(-args.spp // args.chunks)
     streams = args.chunks * (per_chunk if args.mode == "onepass" else 1)
-    why = (f" with --spp {args.spp}, --chunks {args.chunks} and --mode {args.mode} (the renderer derives up to "
-           f"{streams} seeds from it, and Mitsuba's seeds have 32 bits)")
+    why = (
+        f" with --spp {args.spp}, --chunks {args.chunks} and --mode {args.mode} (the renderer derives up to "
+        f"{streams} seeds from it, and Mitsuba's seeds have 32 bits)"
+    )
     validate.seed("--seed", args.seed, streams, why if streams > 1 else "")
 
 
 @guarded
 def main(argv=None):
-    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-                       aliases={"manifold_path": "manifold"})
-    p.add_argument("scenes", nargs="+", metavar="scene",
-                   help="Mitsuba scene XML(s) with a manifold_brdf material taking $manifold, or the "
-                        "name of a shipped scene (table, sphere, cbox)")
-    p.add_argument("--manifold", default="out/manifold.npz", help="saved manifold (default out/manifold.npz)")
+    p = ArgumentParser(
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        aliases={"manifold_path": "manifold"},
+    )
+    p.add_argument(
+        "scenes",
+        nargs="+",
+        metavar="scene",
+        help="Mitsuba scene XML(s) with a manifold_brdf material taking $manifold, or the "
+        "name of a shipped scene (table, sphere, cbox)",
+    )
+    p.add_argument(
+        "--manifold", default="out/manifold.npz", help="saved manifold (default out/manifold.npz)"
+    )
     p.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
     p.add_argument("--materials", type=parse_list, default="all", help="'all' (default) or a,b,...")
-    p.add_argument("--near", type=parse_floats, default=None, metavar="X", help="only the materials within --radius of this latent point, and those its own blend needs")
+    p.add_argument(
+        "--near",
+        type=parse_floats,
+        default=None,
+        metavar="X",
+        help="only the materials within --radius of this latent point, and those its own blend needs",
+    )
     p.add_argument("--radius", type=float, default=None, help="radius for --near")
-    p.add_argument("--mode", choices=["onepass", "per-material"], default="onepass",
-                   help="all materials from one set of paths (default) or one render per material")
-    p.add_argument("--components", choices=["l1", "full"], default="full",
-                   help="full (default, one-pass mode): also every material's full-GI image and the cross terms "
-                        "of the pairs blended together, left out where the scene does not need them (a convex "
-                        "object alone); l1: the L1- images only (about 3x faster to render)")
+    p.add_argument(
+        "--mode",
+        choices=["onepass", "per-material"],
+        default="onepass",
+        help="all materials from one set of paths (default) or one render per material",
+    )
+    p.add_argument(
+        "--components",
+        choices=["l1", "full"],
+        default="full",
+        help="full (default, one-pass mode): also every material's full-GI image and the cross terms "
+        "of the pairs blended together, left out where the scene does not need them (a convex "
+        "object alone); l1: the L1- images only (about 3x faster to render)",
+    )
     p.add_argument("--res", type=int, default=None, help="square resolution (scenes taking $res)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-depth", type=int, default=None,
-                   help="path depth (-1: unbounded), overriding the scene's integrator; default: the scene's own "
-                        "(the basis renders what the scene's integrator does: path or direct, its max_depth, "
-                        "rr_depth and hide_emitters; Mitsuba's default path, unbounded, where it has none)")
-    p.add_argument("--variant", default=None, help="Mitsuba variant (default: cuda_ad_rgb if usable, else llvm_ad_rgb)")
-    p.add_argument("--x", type=parse_floats, default=None, metavar="X",
-                   help="the scene's latent point $x (q numbers; default: the first material's point)")
-    p.add_argument("--database", default=None, help="the manifold's tables (folder or built-in set name), if it moved")
-    p.add_argument("--force", action="store_true",
-                   help="render into an --out holding files but no basis, and overwrite files there that no "
-                        "basis listed")
-    p.add_argument("--views", type=parse_views, default=[0], help="sensor indices to render, or 'all' (default 0)")
-    p.add_argument("--chunks", type=int, default=1, help="render each basis as this many chunks, merged (default 1)")
-    p.add_argument("--executor", choices=["local", "ray"], default="local",
-                   help="where chunks run: one after another in this process (default) or as Ray tasks")
-    p.add_argument("--address", default=None, help="Ray cluster address (default: start a local one)")
-    p.add_argument("--aovs", action="store_true",
-                   help="also write aovs.npz (albedo and normal guides for denoised blends)")
+    p.add_argument(
+        "--max-depth",
+        type=int,
+        default=None,
+        help="path depth (-1: unbounded), overriding the scene's integrator; default: the scene's own "
+        "(the basis renders what the scene's integrator does: path or direct, its max_depth, "
+        "rr_depth and hide_emitters; Mitsuba's default path, unbounded, where it has none)",
+    )
+    p.add_argument(
+        "--variant",
+        default=None,
+        help="Mitsuba variant (default: cuda_ad_rgb if usable, else llvm_ad_rgb)",
+    )
+    p.add_argument(
+        "--x",
+        type=parse_floats,
+        default=None,
+        metavar="X",
+        help="the scene's latent point $x (q numbers; default: the first material's point)",
+    )
+    p.add_argument(
+        "--database",
+        default=None,
+        help="the manifold's tables (folder or built-in set name), if it moved",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="render into an --out holding files but no basis, and overwrite files there that no "
+        "basis listed",
+    )
+    p.add_argument(
+        "--views",
+        type=parse_views,
+        default=[0],
+        help="sensor indices to render, or 'all' (default 0)",
+    )
+    p.add_argument(
+        "--chunks",
+        type=int,
+        default=1,
+        help="render each basis as this many chunks, merged (default 1)",
+    )
+    p.add_argument(
+        "--executor",
+        choices=["local", "ray"],
+        default="local",
+        help="where chunks run: one after another in this process (default) or as Ray tasks",
+    )
+    p.add_argument(
+        "--address", default=None, help="Ray cluster address (default: start a local one)"
+    )
+    p.add_argument(
+        "--aovs",
+        action="store_true",
+        help="also write aovs.npz (albedo and normal guides for denoised blends)",
+    )
     p.add_argument("--keep-chunks", action="store_true", help="keep OUT/.chunks after merging")
     p.add_argument("--out", required=True, help="output folder")
     args = p.parse_args(argv)
@@ -102,30 +174,62 @@ def main(argv=None):
     from ...render.executor import make_executor
     from ...render.render_basis import check_job_folders, plan_views, render_basis
     from ...render.scenes import scene_path
+
     t0 = time.perf_counter()
-    scenes = [scene_path(s) for s in args.scenes]   # a scene XML or a shipped scene's name
+    scenes = [scene_path(s) for s in args.scenes]  # a scene XML or a shipped scene's name
     jobs = plan_views(scenes, args.views, args.out)
-    check_job_folders(jobs, args.out, args.force)   # every folder, before the first render
+    check_job_folders(jobs, args.out, args.force)  # every folder, before the first render
     executor = make_executor(args.executor, args.address)
-    options = dict(materials=materials, near=args.near, radius=args.radius, mode=args.mode,
-                   components="auto" if args.components == "full" else "l1",
-                   resolution=args.res, max_depth=args.max_depth, variant=args.variant, aovs=args.aovs,
-                   x=args.x, database=args.database, force=args.force)
+    options = dict(
+        materials=materials,
+        near=args.near,
+        radius=args.radius,
+        mode=args.mode,
+        components="auto" if args.components == "full" else "l1",
+        resolution=args.res,
+        max_depth=args.max_depth,
+        variant=args.variant,
+        aovs=args.aovs,
+        x=args.x,
+        database=args.database,
+        force=args.force,
+    )
     try:
         for scene, sensor, out in jobs:
             t1 = time.perf_counter()
             if args.chunks == 1 and args.executor == "local":
-                manifest = render_basis(scene, args.manifold, out, spp=args.spp, seed=args.seed,
-                                        sensor=sensor, progress=True, **options)
+                manifest = render_basis(
+                    scene,
+                    args.manifold,
+                    out,
+                    spp=args.spp,
+                    seed=args.seed,
+                    sensor=sensor,
+                    progress=True,
+                    **options,
+                )
             else:
-                manifest = render_chunked(scene, args.manifold, out, spp=args.spp, chunks=args.chunks,
-                                          seed=args.seed, executor=executor, keep_chunks=args.keep_chunks,
-                                          progress=True, sensor=sensor, **options).manifest
+                manifest = render_chunked(
+                    scene,
+                    args.manifold,
+                    out,
+                    spp=args.spp,
+                    chunks=args.chunks,
+                    seed=args.seed,
+                    executor=executor,
+                    keep_chunks=args.keep_chunks,
+                    progress=True,
+                    sensor=sensor,
+                    **options,
+                ).manifest
             m = Manifest.from_json(manifest)
             gi, cross = len(m.gi_images or {}), (m.cross or {}).get("pairs", 0)
             extra = f" (and {gi} full-GI images, {cross} cross terms)" if gi else ""
-            print(f"{len(m.images)} images{extra} in {out} ({m.resolution[0]}x{m.resolution[1]}, {m.spp} spp, "
-                  f"{m.mode}, {m.variant}), {time.perf_counter() - t1:.1f} s", flush=True)
+            print(
+                f"{len(m.images)} images{extra} in {out} ({m.resolution[0]}x{m.resolution[1]}, {m.spp} spp, "
+                f"{m.mode}, {m.variant}), {time.perf_counter() - t1:.1f} s",
+                flush=True,
+            )
     finally:
         executor.close()
     if len(jobs) > 1:

@@ -7,12 +7,13 @@ interpolated table (WebGL 2, MERL's half/diff lookup in the fragment shader) and
 manifold says about it: weights, albedo, GP variance (Eq. 2), negative bins, neighbours
 and a BRDF slice. A full-GI reference render runs in the background on request.
 
-Modules: :mod:`.service` (the state and every answer, no HTTP), :mod:`.server` (Starlette
-app), :mod:`.encode` (tonemap and image encoding), :mod:`.material`, :mod:`.latentmap`,
-:mod:`.reference`, :mod:`.guard` (who may talk to the server, size limits), :mod:`.inputs`
-(request values), :mod:`.bases` (basis names and scenes), :mod:`.session` (one tab's websocket), :mod:`.walks` (paths of ``Manifold.path``
-and the distance to the closest measured material), :mod:`.thumbs` (the materials' thumbnails),
-:mod:`.hdri` (the sphere's environment); ``static/`` holds the page (no build step, no network access).
+Modules: :mod:`.service` (the state and every answer, no HTTP), :mod:`.server` (Starlette app),
+:mod:`.encode` (tonemap and image encoding), :mod:`.material`, :mod:`.latentmap`,
+:mod:`.reference`, :mod:`.guard` (who may talk to the server, size limits), :mod:`.inputs` (request
+values), :mod:`.bases` (basis names and scenes), :mod:`.session` (one tab's websocket),
+:mod:`.walks` (paths of ``Manifold.path`` and the distance to the closest measured material),
+:mod:`.thumbs` (the materials' thumbnails), :mod:`.hdri` (the sphere's environment); ``static/``
+holds the page (no build step, no network access).
 """
 
 from ...errors import InputError
@@ -21,8 +22,10 @@ from .service import Explorer
 
 def create_app(explorer, allow=None, **kwargs):
     """The web app of an :class:`Explorer` (imports Starlette only when called); ``allow``: the
-    :class:`~.guard.AllowList` of hosts and origins it answers to (see :func:`.server.create_app`)."""
+    :class:`~.guard.AllowList` of hosts and origins it answers to (see :func:`.server.create_app`).
+    """
     from .server import create_app as _create
+
     return _create(explorer, allow, **kwargs)
 
 

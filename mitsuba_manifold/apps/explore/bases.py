@@ -27,8 +27,13 @@ def scene_of(basis, scene=None):
     path = basis.manifest.scene
     if os.path.isfile(path):
         return path
-    name = os.path.splitext(os.path.basename(path))[0]   # moved: a shipped scene of that name and hash
-    if name in scenes.shipped_scenes() and scene_hash(scenes.scene_path(name)) == basis.manifest.scene_hash:
+    name = os.path.splitext(os.path.basename(path))[
+        0
+    ]  # moved: a shipped scene of that name and hash
+    if (
+        name in scenes.shipped_scenes()
+        and scene_hash(scenes.scene_path(name)) == basis.manifest.scene_hash
+    ):
         return scenes.scene_path(name)
     return None
 
@@ -36,9 +41,13 @@ def scene_of(basis, scene=None):
 def warm(bases):
     """The first basis's cross terms (the one the page opens on) in float32 before the first drag
     (:meth:`~mitsuba_manifold.basis.folder.Basis.warm_cross_terms`; about 385 MB for the main job's
-    256x256 basis); other bases convert theirs as they are blended."""
+    256x256 basis); other bases convert theirs as they are blended.
+    """
     for basis in list(bases.values())[:1]:
         try:
             basis.warm_cross_terms()
-        except (OSError, ValueError, MemoryError) as e:   # blends then convert them on first use
-            print(f"explore: {basis.folder}: cross terms not prepared ahead ({type(e).__name__}: {e})", flush=True)
+        except (OSError, ValueError, MemoryError) as e:  # blends then convert them on first use
+            print(
+                f"explore: {basis.folder}: cross terms not prepared ahead ({type(e).__name__}: {e})",
+                flush=True,
+            )

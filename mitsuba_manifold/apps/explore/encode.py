@@ -31,7 +31,8 @@ def _level(v):
 
 def _tables():
     """Thresholds (float32, the smallest float32 reaching each level; +inf appended) and the
-    level at each bucket's lower edge."""
+    level at each bucket's lower edge.
+    """
     levels = np.arange(1, 256)
     v = (levels - 0.5) / 255.0
     thr = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)

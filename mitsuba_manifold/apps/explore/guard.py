@@ -45,7 +45,12 @@ def parse_origin(text):
     try:
         parts = urlsplit(str(text).strip())
         scheme = parts.scheme.lower()
-        if scheme not in DEFAULT_PORTS or parts.path not in ("", "/") or parts.query or parts.username:
+        if (
+            scheme not in DEFAULT_PORTS
+            or parts.path not in ("", "/")
+            or parts.query
+            or parts.username
+        ):
             return None
         host = parse_host(parts.netloc, DEFAULT_PORTS[scheme])
     except ValueError:
@@ -74,14 +79,17 @@ class AllowList:
         for text in origins:
             origin = parse_origin(text)
             if origin is None:
-                raise ValueError(f"allowed origin {text!r} must be like http://name:port (scheme, host, "
-                                 "optional port; nothing else)")
+                raise ValueError(
+                    f"allowed origin {text!r} must be like http://name:port (scheme, host, "
+                    "optional port; nothing else)"
+                )
             self.origins.add(origin)
 
     @classmethod
     def for_server(cls, host, port, origins=(), bound=None):
         """The allow-list of a server started with ``--host host --port port`` (the port it
-        got), listening on address ``bound``, with ``--allow-origin`` values ``origins``."""
+        got), listening on address ``bound``, with ``--allow-origin`` values ``origins``.
+        """
         names = set(LOCAL_NAMES) | {_name(host)} | ({_name(bound)} if bound else set())
         return cls(port, names, origins)
 
@@ -92,9 +100,13 @@ class AllowList:
             return False
         name, port = host
         if name in self.hosts and self.port in (None, 80 if port is None else port):
-            return True   # a Host without a port: the scheme's default (80, or 443 behind a TLS proxy)
-        return any(o[1] == name and (o[2] == port or (port is None and o[2] == DEFAULT_PORTS[o[0]]))
-                   for o in self.origins)
+            return (
+                True  # a Host without a port: the scheme's default (80, or 443 behind a TLS proxy)
+            )
+        return any(
+            o[1] == name and (o[2] == port or (port is None and o[2] == DEFAULT_PORTS[o[0]]))
+            for o in self.origins
+        )
 
     def origin_ok(self, header, host_header):
         """Whether a browser's Origin header (None: not sent, as for same-origin GETs) is allowed."""
@@ -111,7 +123,8 @@ class AllowList:
     def describe(self):
         ports = f":{self.port}" if self.port is not None else ""
         return sorted(f"http://{h}{ports}" for h in self.hosts) + sorted(
-            f"{s}://{h}:{p}" for s, h, p in self.origins)
+            f"{s}://{h}:{p}" for s, h, p in self.origins
+        )
 
 
 def _headers(scope):
@@ -125,8 +138,10 @@ def refusal(scope, allow):
     """Why a request is refused (a one-line message), or None when it is allowed."""
     h = _headers(scope)
     if not allow.host_ok(h.get("host")):
-        return (f"refused: Host {str(h.get('host'))[:60]!r} is not this server's (allowed: "
-                f"{', '.join(allow.describe())}; start with --allow-origin to add one)")
+        return (
+            f"refused: Host {str(h.get('host'))[:60]!r} is not this server's (allowed: "
+            f"{', '.join(allow.describe())}; start with --allow-origin to add one)"
+        )
     if not allow.origin_ok(h.get("origin"), h.get("host")):
         return f"refused: a page of origin {str(h.get('origin'))[:60]!r} may not use this server (cross-origin request)"
     return None
@@ -134,14 +149,23 @@ def refusal(scope, allow):
 
 async def _answer(send, status, message):
     body = json.dumps({"error": message}).encode()
-    await send({"type": "http.response.start", "status": status,
-                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]})
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", b"application/json"),
+                (b"content-length", str(len(body)).encode()),
+            ],
+        }
+    )
     await send({"type": "http.response.body", "body": body})
 
 
 class Guard:
     """ASGI middleware: the allow-list on every request and handshake, and bodies read with
-    a limit (413 past ``max_body`` bytes, before the app sees any of it)."""
+    a limit (413 past ``max_body`` bytes, before the app sees any of it).
+    """
 
     def __init__(self, app, allow=None, max_body=MAX_BODY):
         self.app = app
@@ -153,16 +177,20 @@ class Guard:
             return await self.app(scope, receive, send)
         why = refusal(scope, self.allow)
         if why is not None:
-            if scope["type"] == "websocket":   # before accepting: the handshake answers 403
+            if scope["type"] == "websocket":  # before accepting: the handshake answers 403
                 await receive()
                 return await send({"type": "websocket.close", "code": 1008, "reason": why[:120]})
             return await _answer(send, 403, why)
         if scope["type"] == "http" and scope["method"] not in ("GET", "HEAD"):
             length = _headers(scope).get("content-length", "0").strip()
             if not length.isdigit() or int(length) > self.max_body:
-                return await _answer(send, 413 if length.isdigit() else 400,
-                                     f"request body larger than {self.max_body} bytes refused" if length.isdigit()
-                                     else "bad Content-Length header")
+                return await _answer(
+                    send,
+                    413 if length.isdigit() else 400,
+                    f"request body larger than {self.max_body} bytes refused"
+                    if length.isdigit()
+                    else "bad Content-Length header",
+                )
             body, more, size = [], True, 0
             while more:
                 message = await receive()
@@ -171,7 +199,9 @@ class Guard:
                 chunk = message.get("body", b"")
                 size += len(chunk)
                 if size > self.max_body:
-                    return await _answer(send, 413, f"request body larger than {self.max_body} bytes refused")
+                    return await _answer(
+                        send, 413, f"request body larger than {self.max_body} bytes refused"
+                    )
                 body.append(chunk)
                 more = message.get("more_body", False)
             return await self.app(scope, _replay(b"".join(body), receive), send)
@@ -184,4 +214,5 @@ def _replay(body, receive):
 
     async def again():
         return replay.pop() if replay else await receive()
+
     return again

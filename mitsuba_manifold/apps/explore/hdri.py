@@ -50,22 +50,29 @@ def studio(width=WIDTH, height=HEIGHT):
     """The environment: linear RGB float32 ``(H, W, 3)`` (see the module doc)."""
     d, omega = directions(width, height)
     up = d[..., 1:2]
-    sky = np.where(up > 0, (1 - up) ** 3 * np.array([1.0, 0.82, 0.62]) + (1 - (1 - up) ** 3) * np.array([0.32, 0.48, 0.85]),
-                   0.0)
+    sky = np.where(
+        up > 0,
+        (1 - up) ** 3 * np.array([1.0, 0.82, 0.62])
+        + (1 - (1 - up) ** 3) * np.array([0.32, 0.48, 0.85]),
+        0.0,
+    )
     ground = np.where(up <= 0, (0.16 + 0.1 * (1 + up)) * np.array([0.55, 0.5, 0.45]), 0.0)
     env = 0.9 * sky + ground
     sun_dir = np.array([np.sin(-0.9) * np.cos(0.62), np.sin(0.62), np.cos(-0.9) * np.cos(0.62)])
     sun = (d @ sun_dir) > np.cos(np.radians(4.0))
     env[sun] = np.array([1.0, 0.93, 0.8]) * 60.0
-    env[_panel(d, 1.25, 0.25, 0.35, 0.22)] = np.array([1.0, 0.97, 0.92]) * 3.0   # key panel, front right
-    env[_panel(d, np.pi, 0.5, 0.5, 0.15)] = np.array([0.85, 0.92, 1.0]) * 2.0    # rim strip behind
+    env[_panel(d, 1.25, 0.25, 0.35, 0.22)] = (
+        np.array([1.0, 0.97, 0.92]) * 3.0
+    )  # key panel, front right
+    env[_panel(d, np.pi, 0.5, 0.5, 0.15)] = np.array([0.85, 0.92, 1.0]) * 2.0  # rim strip behind
     e_up = float((env[..., 1] * np.clip(up[..., 0], 0, None) * omega).sum())
     return (env * (UP_IRRADIANCE / e_up)).astype(np.float32)
 
 
 def median_cut(env, count):
     """``count`` (a power of 2) lights of ``env``: directions ``(count, 3)`` and RGB irradiance
-    ``(count, 3)`` (the sum of ``L dw`` over each region)."""
+    ``(count, 3)`` (the sum of ``L dw`` over each region).
+    """
     h, w, _ = env.shape
     d, omega = directions(w, h)
     energy = env.mean(axis=-1) * omega
@@ -75,10 +82,16 @@ def median_cut(env, count):
         out = []
         for r0, r1, c0, c1 in regions:
             e = energy[r0:r1, c0:c1]
-            wide = (c1 - c0) * sin[r0:r1].max() * 2 > (r1 - r0) * 2   # an equirect column is narrower near the poles
+            wide = (c1 - c0) * sin[r0:r1].max() * 2 > (
+                r1 - r0
+            ) * 2  # an equirect column is narrower near the poles
             line = np.cumsum(e.sum(axis=0 if wide else 1))
             k = int(np.clip(np.searchsorted(line, line[-1] / 2) + 1, 1, len(line) - 1))
-            out += ([(r0, r1, c0, c0 + k), (r0, r1, c0 + k, c1)] if wide else [(r0, r0 + k, c0, c1), (r0 + k, r1, c0, c1)])
+            out += (
+                [(r0, r1, c0, c0 + k), (r0, r1, c0 + k, c1)]
+                if wide
+                else [(r0, r0 + k, c0, c1), (r0 + k, r1, c0, c1)]
+            )
         regions = out
     dirs, power = [], []
     for r0, r1, c0, c1 in regions:
@@ -92,17 +105,25 @@ def median_cut(env, count):
 def describe(env):
     """The JSON of :func:`write` for ``env``."""
     h, w, _ = env.shape
-    out = {"width": w, "height": h, "format": "float16 RGB, row-major, top row up (studio.f16)", "lights": {}}
+    out = {
+        "width": w,
+        "height": h,
+        "format": "float16 RGB, row-major, top row up (studio.f16)",
+        "lights": {},
+    }
     for n in LIGHTS:
         dirs, power = median_cut(env, n)
-        out["lights"][str(n)] = [{"dir": [round(float(v), 6) for v in dv], "power": [round(float(v), 6) for v in p]}
-                                 for dv, p in zip(dirs, power)]
+        out["lights"][str(n)] = [
+            {"dir": [round(float(v), 6) for v in dv], "power": [round(float(v), 6) for v in p]}
+            for dv, p in zip(dirs, power)
+        ]
     return out
 
 
 def write(folder=FOLDER):
     """Write ``studio.json`` and ``studio.f16`` into ``folder``; returns their paths."""
     from ..._util.atomic import write_bytes
+
     env = studio()
     os.makedirs(folder, exist_ok=True)
     paths = os.path.join(folder, "studio.json"), os.path.join(folder, "studio.f16")
@@ -116,19 +137,32 @@ def scene_environment(scene_path, manifold_path, basis):
     sphere's frame, as the basis's camera sees it (:meth:`Explorer.environment`): direction
     ``d`` of :func:`directions` is the camera's ``(-d_x, d_y, -d_z)`` (its ``+z`` looks into the
     scene, ``+x`` to the left), the scene's environment emitter evaluated there. Raises
-    InputError when the scene has no environment emitter."""
+    InputError when the scene has no environment emitter.
+    """
     import mitsuba as mi
 
     from ...errors import InputError
     from ...render.scenes import load_scene
-    loaded = load_scene(scene_path, manifold_path, 1, tuple(basis.resolution), basis.manifest["max_depth"], None,
-                        basis.manifest["variant"])
+
+    loaded = load_scene(
+        scene_path,
+        manifold_path,
+        1,
+        tuple(basis.resolution),
+        basis.manifest["max_depth"],
+        None,
+        basis.manifest["variant"],
+    )
     scene = loaded.scene
     emitter = scene.environment()
     if emitter is None:
-        raise InputError(f"the scene {os.path.basename(scene_path)} has no environment light (envmap or constant): "
-                         "light the sphere with the studio environment")
-    to_world = np.array(scene.sensors()[basis.sensor].world_transform().matrix, dtype=np.float64)[..., 0]
+        raise InputError(
+            f"the scene {os.path.basename(scene_path)} has no environment light (envmap or constant): "
+            "light the sphere with the studio environment"
+        )
+    to_world = np.array(scene.sensors()[basis.sensor].world_transform().matrix, dtype=np.float64)[
+        ..., 0
+    ]
     rot = to_world[:3, :3]
     d, _ = directions()
     cam = np.stack([-d[..., 0], d[..., 1], -d[..., 2]], axis=-1).reshape(-1, 3)
@@ -139,15 +173,22 @@ def scene_environment(scene_path, manifold_path, basis):
     rgb = np.array(emitter.eval(si), dtype=np.float32).reshape(3, -1).T.reshape(HEIGHT, WIDTH, 3)
     centre = _targets_centre(loaded)
     lights = []
-    for e in scene.emitters():   # point lights: a direction and the irradiance they give at the material
+    for (
+        e
+    ) in scene.emitters():  # point lights: a direction and the irradiance they give at the material
         params = mi.traverse(e)
         if e.is_environment() or "position" not in params or "intensity.value" not in params:
             continue
         v = np.array(params["position"], dtype=np.float64).reshape(3) - centre
         dist2 = float(v @ v)
-        c = np.linalg.solve(rot, v / np.sqrt(dist2))   # in the camera's frame
+        c = np.linalg.solve(rot, v / np.sqrt(dist2))  # in the camera's frame
         intensity = np.array(params["intensity.value"], dtype=np.float64).reshape(3)
-        lights.append({"dir": [float(-c[0]), float(c[1]), float(-c[2])], "irradiance": (intensity / dist2).tolist()})
+        lights.append(
+            {
+                "dir": [float(-c[0]), float(c[1]), float(-c[2])],
+                "irradiance": (intensity / dist2).tolist(),
+            }
+        )
     meta = {"width": WIDTH, "height": HEIGHT, "emitter": type(emitter).__name__, "lights": lights}
     return np.clip(rgb, 0, 65504).astype("<f2").tobytes(), meta
 
@@ -155,7 +196,9 @@ def scene_environment(scene_path, manifold_path, basis):
 def _targets_centre(loaded):
     """Centre of the bounding box of the shapes made of the scene's manifold material."""
     targets = {id(b) for b in loaded.targets}
-    boxes = [s.bbox() for s in loaded.scene.shapes() if s.bsdf() is not None and id(s.bsdf()) in targets]
+    boxes = [
+        s.bbox() for s in loaded.scene.shapes() if s.bsdf() is not None and id(s.bsdf()) in targets
+    ]
     if not boxes:
         boxes = [loaded.scene.bbox()]
     lo = np.min([np.array(b.min, dtype=np.float64).reshape(3) for b in boxes], axis=0)
@@ -163,5 +206,7 @@ def _targets_centre(loaded):
     return 0.5 * (lo + hi)
 
 
-if __name__ == "__main__":   # regenerate the shipped files: python3 -m mitsuba_manifold.apps.explore.hdri
+if (
+    __name__ == "__main__"
+):  # regenerate the shipped files: python3 -m mitsuba_manifold.apps.explore.hdri
     print(*write())

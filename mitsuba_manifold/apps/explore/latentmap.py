@@ -23,25 +23,37 @@ CMAP = "viridis"
 @dataclass
 class LatentMap:
     """One rendered map: the RGBA image (row 0 at the top = largest second coordinate)."""
+
     image: np.ndarray
     dims: tuple
-    extent: tuple          # (x0_min, x0_max, x1_min, x1_max)
-    albedo_range: tuple    # (lo, hi) of the colour scale
+    extent: tuple  # (x0_min, x0_max, x1_min, x1_max)
+    albedo_range: tuple  # (lo, hi) of the colour scale
     outside_fraction: float
-    colormap: list         # CSS colours from lo to hi, for the legend
+    colormap: list  # CSS colours from lo to hi, for the legend
 
     def info(self):
-        return {"dims": list(self.dims), "extent": list(self.extent), "albedo_range": list(self.albedo_range),
-                "outside_fraction": self.outside_fraction, "colormap": self.colormap}
+        return {
+            "dims": list(self.dims),
+            "extent": list(self.extent),
+            "albedo_range": list(self.albedo_range),
+            "outside_fraction": self.outside_fraction,
+            "colormap": self.colormap,
+        }
 
 
 def extent(manifold, dims, margin=MARGIN):
     """Bounds of the slice: the latent points' bounding box of ``dims`` plus ``margin`` each side
-    (made square in latent units so distances look right)."""
+    (made square in latent units so distances look right).
+    """
     pts = manifold.latent[:, list(dims)]
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-3) * (1 + 2 * margin)
-    return (float(centre[0] - half), float(centre[0] + half), float(centre[1] - half), float(centre[1] + half))
+    return (
+        float(centre[0] - half),
+        float(centre[0] + half),
+        float(centre[1] - half),
+        float(centre[1] + half),
+    )
 
 
 def _grid(center, dims, ext, resolution):
@@ -69,7 +81,8 @@ def colour_range(manifold):
 
 def render(manifold, center, dims=(0, 1), resolution=192, bounds=None):
     """A :class:`LatentMap` of the slice through ``center`` (q,) spanning ``dims``, over
-    ``bounds`` ``(x0_min, x0_max, x1_min, x1_max)`` (default: :func:`extent`)."""
+    ``bounds`` ``(x0_min, x0_max, x1_min, x1_max)`` (default: :func:`extent`).
+    """
     from matplotlib import colormaps
 
     dims = tuple(int(d) for d in dims)

@@ -26,7 +26,8 @@ def start(bases, manifold=None, extra=(), timeout=300, refine=False):
 
     Waits for the line with the URL (the bases are then in memory). ``refine``: keep the page's
     refinement on release (off here unless asked: the benchmarks and tests compare the frames the
-    blend makes)."""
+    blend makes).
+    """
     import re
     import subprocess
     import sys
@@ -38,7 +39,9 @@ def start(bases, manifold=None, extra=(), timeout=300, refine=False):
         cmd += ["--manifold", os.fspath(manifold)]
     if not refine:
         cmd += ["--refine-spp", "0"]
-    proc = subprocess.Popen(cmd + list(extra), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen(
+        cmd + list(extra), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
     lines, deadline = [], time.monotonic() + timeout
     while time.monotonic() < deadline:
         line = proc.stdout.readline()
@@ -55,6 +58,7 @@ def start(bases, manifold=None, extra=(), timeout=300, refine=False):
 def stop(proc, timeout=20):
     """Ctrl-C (SIGINT) the server; returns its exit code and remaining output."""
     import signal
+
     proc.send_signal(signal.SIGINT)
     try:
         out, _ = proc.communicate(timeout=timeout)

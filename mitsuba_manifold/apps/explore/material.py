@@ -26,8 +26,8 @@ import threading
 
 import numpy as np
 
-from .walks import metric_columns
 from ..._util.fifo_cache import Recent
+from .walks import metric_columns
 
 #: Largest preview table (n_theta_h, n_theta_d, n_phi_d) sent to the browser.
 PREVIEW_DIMS = (45, 45, 90)
@@ -44,21 +44,32 @@ CACHE_VERSION = "explore-preview-v2"
 def describe(manifold, x, prune):
     """Weights, albedo, variance and neighbours of latent point ``x`` (q,), as JSON-ready dict."""
     _, w = manifold.weights(x)
-    report = manifold.prune_report(w, prune)   # what pruning keeps and the bounds it reaches
+    report = manifold.prune_report(w, prune)  # what pruning keeps and the bounds it reaches
     keep, dropped = report.keep, report.dropped
     order = np.argsort(-np.abs(w))
     kept = set(int(i) for i in np.asarray(keep).ravel())
-    top = [{"name": manifold.names[i], "w": float(w[i]), "kept": int(i) in kept} for i in order[:TOP_WEIGHTS]]
+    top = [
+        {"name": manifold.names[i], "w": float(w[i]), "kept": int(i) in kept}
+        for i in order[:TOP_WEIGHTS]
+    ]
     dist = np.linalg.norm(manifold.latent - np.asarray(x, dtype=np.float64)[None], axis=1)
     near = np.argsort(dist)[:NEAREST]
-    out = {"x": [float(v) for v in x], "weights": top, "n_kept": int(len(keep)),
-           "dropped_weight": float(dropped), "negative_weight": float(-w[w < 0].sum()),
-           "pruning": str(report),
-           "pruning_albedo": None if report.albedo_change is None else float(max(report.albedo_change)),
-           "pruning_albedo_budget": report.albedo_budget,
-           "variance": max(0.0, float(manifold.variance(x))), "prior_variance": 1.0 + manifold.noise,
-           "nearest": [{"name": manifold.names[i], "distance": float(dist[i])} for i in near],
-           "albedo": None}
+    out = {
+        "x": [float(v) for v in x],
+        "weights": top,
+        "n_kept": int(len(keep)),
+        "dropped_weight": float(dropped),
+        "negative_weight": float(-w[w < 0].sum()),
+        "pruning": str(report),
+        "pruning_albedo": None
+        if report.albedo_change is None
+        else float(max(report.albedo_change)),
+        "pruning_albedo_budget": report.albedo_budget,
+        "variance": max(0.0, float(manifold.variance(x))),
+        "prior_variance": 1.0 + manifold.noise,
+        "nearest": [{"name": manifold.names[i], "distance": float(dist[i])} for i in near],
+        "albedo": None,
+    }
     if manifold.albedos is not None:
         out["albedo"] = [float(v) for v in manifold.albedo(x)]
     return out
@@ -69,31 +80,41 @@ def check_database(folder, manifold):
     or a built-in set's name) unless it holds a table for each of ``manifold``'s materials.
 
     Only the sources are checked here, at once; the content hashes are checked while the
-    tables load (:class:`TableStack`)."""
+    tables load (:class:`TableStack`).
+    """
     from ...data.database import Database, split_spec
     from ...data.sources import EXTENSIONS, SET_NAMES
     from ...errors import InputError, MitsubaManifoldError
+
     folder = os.fspath(folder)
     base, _ = split_spec(folder)
     if base not in SET_NAMES and not os.path.exists(base):
-        raise InputError(f"--database {folder} does not exist; give the folder of the manifold's tables or a "
-                         f"built-in database ({', '.join(SET_NAMES)}), or leave --database out (default: the "
-                         "manifold's database)")
+        raise InputError(
+            f"--database {folder} does not exist; give the folder of the manifold's tables or a "
+            f"built-in database ({', '.join(SET_NAMES)}), or leave --database out (default: the "
+            "manifold's database)"
+        )
     if base not in SET_NAMES and not os.path.isdir(base):
-        raise InputError(f"--database {folder} is a file, not a database folder (a folder of <name>.binary "
-                           "MERL tables); give the folder of the manifold's tables")
+        raise InputError(
+            f"--database {folder} is a file, not a database folder (a folder of <name>.binary "
+            "MERL tables); give the folder of the manifold's tables"
+        )
     empty = base not in SET_NAMES and not any(f.endswith(EXTENSIONS) for f in os.listdir(base))
     try:
         available = set() if empty else set(Database(folder).names)
     except (MitsubaManifoldError, OSError) as e:
-        raise InputError(f"--database {folder} is not a database of this manifold ({e}); give the "
-                           "folder of its tables, or leave --database out") from None
+        raise InputError(
+            f"--database {folder} is not a database of this manifold ({e}); give the "
+            "folder of its tables, or leave --database out"
+        ) from None
     missing = [n for n in manifold.names if n not in available]
     if missing:
-        raise InputError(f"--database {folder} is not a database folder of this manifold: it holds no table for "
-                           f"{len(missing)} of its {manifold.n} materials ({', '.join(missing[:3])}"
-                           f"{' ...' if len(missing) > 3 else ''}); give the folder of its tables (<name>.binary), "
-                           "or leave --database out")
+        raise InputError(
+            f"--database {folder} is not a database folder of this manifold: it holds no table for "
+            f"{len(missing)} of its {manifold.n} materials ({', '.join(missing[:3])}"
+            f"{' ...' if len(missing) > 3 else ''}); give the folder of its tables (<name>.binary), "
+            "or leave --database out"
+        )
 
 
 def preview_strides(dims, target=PREVIEW_DIMS):
@@ -142,20 +163,28 @@ class TableStack:
         if self.cache_dir is None:
             return None
         from ..._util.cache import key_hash
+
         key = key_hash(CACHE_VERSION, str(PREVIEW_DIMS), *self.manifold.hashes, length=24)
         return os.path.join(self.cache_dir, f"preview-{key}.npz")
 
     def _load(self):
         try:
             cached = self._read_cache()
-            dims, reduced, slices, preview_dims, metric = cached if cached is not None else self._read_tables()
+            dims, reduced, slices, preview_dims, metric = (
+                cached if cached is not None else self._read_tables()
+            )
             self.preview_dims, self.metric_rows = preview_dims, metric
             self.dims, self._reduced, self._slices = dims, reduced, slices
-            full = reduced.reshape((-1, 3) + tuple(preview_dims))   # a drag's tables, made before the first drag
+            full = reduced.reshape(
+                (-1, 3) + tuple(preview_dims)
+            )  # a drag's tables, made before the first drag
             self._coarse = np.ascontiguousarray(full[:, :, ::2, ::2, ::2]).reshape(len(full), -1)
             n = self.manifold.n
-            self.state, self.message = "ready", f"{n} tables, preview {self.preview_dims}" + (
-                " (cached)" if cached is not None else "")
+            self.state, self.message = (
+                "ready",
+                f"{n} tables, preview {self.preview_dims}"
+                + (" (cached)" if cached is not None else ""),
+            )
             if cached is None:
                 self._write_cache()
         except Exception as e:  # a missing or changed database leaves the rest of the page working
@@ -168,14 +197,18 @@ class TableStack:
         dims = tuple(int(v) for v in db.dims)
         s = preview_strides(dims)
         n = self.manifold.n
-        slice_col = min(dims[2] // 2, dims[2] - 1)   # phi_d = 90 deg
-        reduced, slices, preview_dims = None, np.empty((n, 3, dims[0], dims[1]), dtype=np.float32), None
+        slice_col = min(dims[2] // 2, dims[2] - 1)  # phi_d = 90 deg
+        reduced, slices, preview_dims = (
+            None,
+            np.empty((n, 3, dims[0], dims[1]), dtype=np.float32),
+            None,
+        )
         cols = metric_columns(dims)
         metric = np.empty((n, cols.size), dtype=np.float32)
         for i, name in enumerate(self.manifold.names):
             table = db.reflectance(name)
             metric[i] = table.reshape(-1)[cols]
-            small = np.ascontiguousarray(table[:, ::s[0], ::s[1], ::s[2]], dtype=np.float32)
+            small = np.ascontiguousarray(table[:, :: s[0], :: s[1], :: s[2]], dtype=np.float32)
             if reduced is None:
                 reduced = np.empty((n, small.size), dtype=np.float32)
                 preview_dims = small.shape[1:]
@@ -190,13 +223,19 @@ class TableStack:
             return None
         try:
             with np.load(path, allow_pickle=False) as f:
-                dims, preview_dims = tuple(int(v) for v in f["dims"]), tuple(int(v) for v in f["preview_dims"])
+                dims, preview_dims = (
+                    tuple(int(v) for v in f["dims"]),
+                    tuple(int(v) for v in f["preview_dims"]),
+                )
                 reduced, slices, metric = f["reduced"], f["slices"], f["metric"]
         except (OSError, ValueError, KeyError):
             return None
         n = self.manifold.n
-        if (reduced.shape != (n, 3 * int(np.prod(preview_dims))) or slices.shape != (n, 3 * dims[0] * dims[1])
-                or metric.shape != (n, metric_columns(dims).size)):
+        if (
+            reduced.shape != (n, 3 * int(np.prod(preview_dims)))
+            or slices.shape != (n, 3 * dims[0] * dims[1])
+            or metric.shape != (n, metric_columns(dims).size)
+        ):
             return None
         return dims, reduced, slices, preview_dims, metric
 
@@ -205,12 +244,21 @@ class TableStack:
         if path is None:
             return
         from ..._util.atomic import atomic_write
+
         try:
             os.makedirs(os.path.dirname(path), exist_ok=True)
-            atomic_write(path, lambda f: np.savez(f, dims=np.array(self.dims), preview_dims=np.array(self.preview_dims),
-                                                  reduced=self._reduced, slices=self._slices,
-                                                  metric=self.metric_rows))
-        except OSError:   # a read-only place: no cache, the page works the same
+            atomic_write(
+                path,
+                lambda f: np.savez(
+                    f,
+                    dims=np.array(self.dims),
+                    preview_dims=np.array(self.preview_dims),
+                    reduced=self._reduced,
+                    slices=self._slices,
+                    metric=self.metric_rows,
+                ),
+            )
+        except OSError:  # a read-only place: no cache, the page works the same
             pass
 
     def _combine(self, rows, x, prune):
@@ -224,14 +272,15 @@ class TableStack:
 
         ``coarse``: every other texel of that along each axis (an eighth of the work and of
         the bytes: the page's sphere while a drag runs). The page asks for the material's
-        description and its table at the same point: the last few answers are kept."""
+        description and its table at the same point: the last few answers are kept.
+        """
         key = (np.asarray(x, dtype=np.float64).tobytes(), float(prune), bool(coarse))
         return self._recent.get(key, lambda: self._preview(x, prune, coarse))
 
     def _preview(self, x, prune, coarse=False):
         table = self._combine(self._coarse if coarse else self._reduced, x, prune)
         negative = float((table < 0).mean())
-        half = np.clip(table, -HALF_MAX, HALF_MAX).astype(np.float16)   # peaks above 65504 saturate
+        half = np.clip(table, -HALF_MAX, HALF_MAX).astype(np.float16)  # peaks above 65504 saturate
         dims = tuple(-(-d // 2) for d in self.preview_dims) if coarse else tuple(self.preview_dims)
         return half.reshape((3,) + dims), negative
 

@@ -35,7 +35,9 @@ MAX_SPP = 1 << 14
 KEEP_JOBS = 16
 #: Niceness of the reference processes and of the refinements' thread.
 NICENESS = 10
-_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+_ROOT = os.path.dirname(
+    os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+)
 
 
 class Cancelled(Exception):
@@ -43,7 +45,7 @@ class Cancelled(Exception):
 
 
 def _lower_priority():
-    try:   # Linux: the calling thread's own niceness
+    try:  # Linux: the calling thread's own niceness
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICENESS)
     except (AttributeError, OSError):
         pass
@@ -55,23 +57,34 @@ class Job:
     basis: str
     x: list
     spp: int
-    kind: str = "reference"        # reference (path at x), refine (L1- blend + L2+ rendered at x)
-    tab: str = None                # the page that started it (its jobs end with its websocket)
-    state: str = "queued"          # queued, rendering, done, failed, cancelled
+    kind: str = "reference"  # reference (path at x), refine (L1- blend + L2+ rendered at x)
+    tab: str = None  # the page that started it (its jobs end with its websocket)
+    state: str = "queued"  # queued, rendering, done, failed, cancelled
     progress: float = 0.0
     message: str = ""
     started: float = field(default_factory=time.time)
     seconds: float = 0.0
-    images: dict = field(default_factory=dict)   # name -> linear float32 (H, W, 3)
+    images: dict = field(default_factory=dict)  # name -> linear float32 (H, W, 3)
     error: dict = None
     cancelled: bool = False
-    method: str = None             # a refinement's: how its L2+ light is rendered
-    process: object = field(default=None, repr=False)   # a reference's render process while it runs
+    method: str = None  # a refinement's: how its L2+ light is rendered
+    process: object = field(default=None, repr=False)  # a reference's render process while it runs
 
     def status(self):
-        return {"id": self.id, "basis": self.basis, "x": self.x, "spp": self.spp, "kind": self.kind, "state": self.state,
-                "progress": self.progress, "message": self.message, "seconds": self.seconds,
-                "error": self.error, "images": sorted(self.images), "method": self.method}
+        return {
+            "id": self.id,
+            "basis": self.basis,
+            "x": self.x,
+            "spp": self.spp,
+            "kind": self.kind,
+            "state": self.state,
+            "progress": self.progress,
+            "message": self.message,
+            "seconds": self.seconds,
+            "error": self.error,
+            "images": sorted(self.images),
+            "method": self.method,
+        }
 
 
 def agreement(blend_image, refined):
@@ -79,12 +92,16 @@ def agreement(blend_image, refined):
     within the refinement's noise: their relative MSE (blend against refined) is at most twice
     the refinement's own estimated noise (its expectation where the blend is exact). Where it
     does not, the blend is off by more than the refinement's noise, and the refined image is
-    the better one (``agrees`` False); ``None`` after one pass (no noise estimate yet)."""
+    the better one (``agrees`` False); ``None`` after one pass (no noise estimate yet).
+    """
     if refined.passes < 2:
         return {"noise_rel_mse": None, "blend_rel_mse": None, "agrees": None}
-    diff = refined.rel_mse(blend_image)   # on the same scale as its noise
-    return {"noise_rel_mse": refined.noise_rel_mse, "blend_rel_mse": diff,
-            "agrees": bool(diff <= 2.0 * refined.noise_rel_mse)}
+    diff = refined.rel_mse(blend_image)  # on the same scale as its noise
+    return {
+        "noise_rel_mse": refined.noise_rel_mse,
+        "blend_rel_mse": diff,
+        "agrees": bool(diff <= 2.0 * refined.noise_rel_mse),
+    }
 
 
 class References:
@@ -100,8 +117,11 @@ class References:
 
     def submit(self, name, basis, scene, manifold_path, x, spp, blend_image, tab=None):
         """Start a job; returns it. ``blend_image``: the blend at ``x`` to compare with; ``tab``:
-        the page that asked (:meth:`cancel_tab`)."""
-        job = Job(id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp), tab=tab)
+        the page that asked (:meth:`cancel_tab`).
+        """
+        job = Job(
+            id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp), tab=tab
+        )
         with self._lock:
             self._jobs[job.id] = job
             self._trim()
@@ -112,9 +132,16 @@ class References:
         """Start a refinement of the blend at ``x`` (:func:`~mitsuba_manifold.render.refine.refine_passes`;
         ``where``: its ``scene``, ``manifold_path`` and ``prune``): its image (``"refined"``) after
         every pass, in ``error`` the noise the passes measure and whether ``blend_image`` (the
-        blend shown) agrees with it within that noise. A newer refinement supersedes it."""
-        job = Job(id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp), kind="refine",
-                  tab=tab)
+        blend shown) agrees with it within that noise. A newer refinement supersedes it.
+        """
+        job = Job(
+            id=f"r{next(self._ids)}",
+            basis=name,
+            x=[float(v) for v in x],
+            spp=int(spp),
+            kind="refine",
+            tab=tab,
+        )
         with self._lock:
             self._latest_refine = job.id
             self._jobs[job.id] = job
@@ -124,13 +151,15 @@ class References:
 
     def supersede_refine(self):
         """A drag began: the running refinement stops after its pass, the queued ones never start
-        (they would take the frames' CPU)."""
+        (they would take the frames' CPU).
+        """
         with self._lock:
             self._latest_refine = None
 
     def cancel(self, job_id):
         """Cancel a job: queued, it never starts; rendering, it stops after its pass. Returns
-        the job (None when unknown)."""
+        the job (None when unknown).
+        """
         with self._lock:
             job = self._jobs.get(job_id)
             if job is not None and job.state in ("queued", "rendering"):
@@ -158,17 +187,28 @@ class References:
         from ...render.refine import refine_passes
 
         def passes():
-            self._check_current(job)   # queued behind a newer one: never started
+            self._check_current(job)  # queued behind a newer one: never started
             _lower_priority()
-            for r in refine_passes(basis, manifold, x=np.asarray(job.x), spp=job.spp, passes=max(1, min(4, job.spp)),
-                                   blend_image=blend_image, **where):
+            for r in refine_passes(
+                basis,
+                manifold,
+                x=np.asarray(job.x),
+                spp=job.spp,
+                passes=max(1, min(4, job.spp)),
+                blend_image=blend_image,
+                **where,
+            ):
                 self._check_current(job)
                 job.images = {"blend": blend_image, "refined": r.image}
                 job.method = r.method
                 job.progress, job.message = r.spp / job.spp, f"{r.spp}/{job.spp} spp"
-                if r.passes == 0:   # a training material: the blend is already exact
-                    job.progress, job.message = 1.0, "exact at a training material: nothing to render"
+                if r.passes == 0:  # a training material: the blend is already exact
+                    job.progress, job.message = (
+                        1.0,
+                        "exact at a training material: nothing to render",
+                    )
                 job.error = agreement(blend_image, r)
+
         self._execute(job, passes)
 
     def _check_current(self, job):
@@ -185,7 +225,8 @@ class References:
 
     def _execute(self, job, work):
         """Run ``work()`` as ``job`` (unless cancelled meanwhile): its state, its failure shown
-        on the page, its seconds. Nothing a job does ends the worker thread."""
+        on the page, its seconds. Nothing a job does ends the worker thread.
+        """
         with self._lock:
             if job.cancelled or job.state != "queued":
                 return
@@ -207,31 +248,56 @@ class References:
 
     def _run(self, job, basis, scene, manifold_path, blend_image):
         def render():
-            job.images = {"blend": blend_image, "reference": self._render(job, basis, scene, manifold_path)}
+            job.images = {
+                "blend": blend_image,
+                "reference": self._render(job, basis, scene, manifold_path),
+            }
             job.error = metrics.compare(blend_image, job.images["reference"])
+
         self._execute(job, render)
 
     def _render(self, job, basis, scene_path, manifold_path):
         """The reference image of a job, rendered by :mod:`.render_job` in a process of its own
-        (``nice``); ended when the job is cancelled or the server stops."""
+        (``nice``); ended when the job is cancelled or the server stops.
+        """
         with tempfile.TemporaryDirectory(prefix="explore-reference-") as tmp:
-            spec = RenderSpec(scene=os.path.abspath(scene_path), manifold=os.path.abspath(manifold_path),
-                              x=list(job.x), spp=job.spp, resolution=_listed(scene_resolution(basis.manifest)),
-                              size=list(basis.resolution), max_depth=int(basis.manifest.max_depth),
-                              variant=basis.manifest.variant,
-                              sensor=basis.sensor, out=os.path.join(tmp, "reference.npy"))
+            spec = RenderSpec(
+                scene=os.path.abspath(scene_path),
+                manifold=os.path.abspath(manifold_path),
+                x=list(job.x),
+                spp=job.spp,
+                resolution=_listed(scene_resolution(basis.manifest)),
+                size=list(basis.resolution),
+                max_depth=int(basis.manifest.max_depth),
+                variant=basis.manifest.variant,
+                sensor=basis.sensor,
+                out=os.path.join(tmp, "reference.npy"),
+            )
             spec.write(os.path.join(tmp, "spec.json"))
             env = dict(os.environ)
             env["PYTHONPATH"] = os.pathsep.join([_ROOT] + [p for p in [env.get("PYTHONPATH")] if p])
-            cmd = ["nice", "-n", str(NICENESS), sys.executable, "-m", "mitsuba_manifold.apps.explore.render_job",
-                   os.path.join(tmp, "spec.json")]
+            cmd = [
+                "nice",
+                "-n",
+                str(NICENESS),
+                sys.executable,
+                "-m",
+                "mitsuba_manifold.apps.explore.render_job",
+                os.path.join(tmp, "spec.json"),
+            ]
             with self._lock, open(os.path.join(tmp, "stderr.txt"), "w") as log:
                 self._check(job)
-                job.process = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, env=env,
-                                               start_new_session=True, text=True)
+                job.process = subprocess.Popen(
+                    cmd,
+                    stdout=subprocess.PIPE,
+                    stderr=log,
+                    env=env,
+                    start_new_session=True,
+                    text=True,
+                )
             proc = job.process
             try:
-                for line in proc.stdout:   # "done total" after each pass
+                for line in proc.stdout:  # "done total" after each pass
                     parts = line.split()
                     if len(parts) == 2 and parts[0].isdigit():
                         done = int(parts[0])
@@ -246,7 +312,9 @@ class References:
             if proc.returncode != 0:
                 with open(os.path.join(tmp, "stderr.txt"), errors="replace") as f:
                     lines = [ln for ln in f.read().splitlines() if ln.strip()]
-                raise RuntimeError(lines[-1] if lines else f"the render exited with {proc.returncode}")
+                raise RuntimeError(
+                    lines[-1] if lines else f"the render exited with {proc.returncode}"
+                )
             return np.load(spec.out)
 
     def busy(self):
@@ -257,7 +325,8 @@ class References:
     def shutdown(self, wait=0.0):
         """Drop the queued jobs; the running one stops (a reference at once, a refinement after
         its current pass). Waits up to ``wait`` seconds for it; returns whether no job is
-        rendering any more."""
+        rendering any more.
+        """
         self._stopping = True
         self._pool.shutdown(wait=False, cancel_futures=True)
         with self._lock:

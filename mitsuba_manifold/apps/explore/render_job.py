@@ -1,17 +1,17 @@
 """A reference render of the explorer in its own process (``python -m`` this module).
 
-The explorer starts it at a lower priority (``nice``) so that the blends of a drag take the
-CPU first, and ends it at once when its job is cancelled (:mod:`.reference`). The process
-reads a :class:`RenderSpec` (JSON file), renders the scene at the point in passes of
-:data:`PASS_SAMPLES` paths (as
-:func:`~mitsuba_manifold.render.interrupt.render_in_passes`: different seeds, sample-weighted mean), prints ``done total`` after each pass, and writes the
-mean image (float32 ``.npy``) to ``spec.out`` atomically at the end.
+The explorer starts it at a lower priority (``nice``) so that the blends of a drag take the CPU
+first, and ends it at once when its job is cancelled (:mod:`.reference`). The process reads a
+:class:`RenderSpec` (JSON file), renders the scene at the point in passes of :data:`PASS_SAMPLES`
+paths (as :func:`~mitsuba_manifold.render.interrupt.render_in_passes`: different seeds,
+sample-weighted mean), prints ``done total`` after each pass, and writes the mean image (float32
+``.npy``) to ``spec.out`` atomically at the end.
 """
 
 import json
 import sys
-from typing import Optional
 from dataclasses import asdict, dataclass
+from typing import Optional
 
 #: Paths per pass of a reference render (a fraction of a second on one core at 64x64).
 PASS_SAMPLES = 1 << 18
@@ -25,8 +25,8 @@ class RenderSpec:
     manifold: str
     x: list
     spp: int
-    resolution: Optional[list]   # as the basis loaded the scene (None: the film's own size)
-    size: list   # the image's (width, height)
+    resolution: Optional[list]  # as the basis loaded the scene (None: the film's own size)
+    size: list  # the image's (width, height)
     max_depth: int
     variant: str
     sensor: int
@@ -62,7 +62,7 @@ def render(spec, progress=print):
         sensor=spec.sensor,
     )
     set_points(loaded.targets, spec.x)
-    integrator = loaded.integrator.reference(loaded.scene)   # the scene's own, as the basis's
+    integrator = loaded.integrator.reference(loaded.scene)  # the scene's own, as the basis's
     w, h = spec.size
     acc, done = None, 0
     for k, spp in enumerate(sample_passes(spec.spp, w * h, PASS_SAMPLES)):

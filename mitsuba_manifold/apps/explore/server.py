@@ -36,7 +36,8 @@ def _query(request, key, default=None):
 
 class Api:
     """The HTTP endpoints of one :class:`~.service.Explorer` (each method one route of
-    :func:`create_app`); the work is in the explorer, run off the event loop."""
+    :func:`create_app`); the work is in the explorer, run off the event loop.
+    """
 
     def __init__(self, explorer):
         self.ex = explorer
@@ -48,14 +49,22 @@ class Api:
         return self.ex.number(_query(request, "exposure"), "exposure", -20, 20, 0.0)
 
     async def index(self, request):
-        return FileResponse(os.path.join(STATIC, "index.html"), headers={"Cache-Control": "no-cache"})
+        return FileResponse(
+            os.path.join(STATIC, "index.html"), headers={"Cache-Control": "no-cache"}
+        )
 
     async def info(self, request):
         return JSONResponse(self.ex.info())
 
     async def frame(self, request):
-        x, exposure, fmt = self.x_of(request), self.exposure_of(request), _query(request, "format", "png")
-        data, meta = await run_in_threadpool(self.ex.frame, _query(request, "basis"), x, exposure, fmt)
+        x, exposure, fmt = (
+            self.x_of(request),
+            self.exposure_of(request),
+            _query(request, "format", "png"),
+        )
+        data, meta = await run_in_threadpool(
+            self.ex.frame, _query(request, "basis"), x, exposure, fmt
+        )
         return Response(data, media_type=encode.MIME[fmt], headers={"X-Frame": json.dumps(meta)})
 
     async def material(self, request):
@@ -63,45 +72,73 @@ class Api:
 
     async def table(self, request):
         data, meta = await run_in_threadpool(self.ex.preview_table, self.x_of(request))
-        return Response(data, media_type="application/octet-stream", headers={"X-Table": json.dumps(meta)})
+        return Response(
+            data, media_type="application/octet-stream", headers={"X-Table": json.dumps(meta)}
+        )
 
     async def latent_map(self, request):
         dims = _query(request, "dims", "0,1")
-        center = self.x_of(request) if _query(request, "x") else self.ex.manifold.latent.mean(axis=0)
-        png, meta = await run_in_threadpool(self.ex.map_png, dims, center, _query(request, "extent"))
-        return JSONResponse(dict(meta, png="data:image/png;base64," + base64.b64encode(png).decode()))
+        center = (
+            self.x_of(request) if _query(request, "x") else self.ex.manifold.latent.mean(axis=0)
+        )
+        png, meta = await run_in_threadpool(
+            self.ex.map_png, dims, center, _query(request, "extent")
+        )
+        return JSONResponse(
+            dict(meta, png="data:image/png;base64," + base64.b64encode(png).decode())
+        )
 
     async def environment(self, request):
         data, meta = await run_in_threadpool(self.ex.environment, _query(request, "basis"))
-        return Response(data, media_type="application/octet-stream", headers={"X-Env": json.dumps(meta)})
+        return Response(
+            data, media_type="application/octet-stream", headers={"X-Env": json.dumps(meta)}
+        )
 
     async def snippet(self, request):
         return JSONResponse(self.ex.snippets(self.x_of(request), _query(request, "folder")))
 
     async def path(self, request):
-        cmd = self.ex.path_command(_query(request, "basis"), _query(request, "a", ""), _query(request, "b", ""),
-                                   _query(request, "steps"), _query(request, "kind"))
+        cmd = self.ex.path_command(
+            _query(request, "basis"),
+            _query(request, "a", ""),
+            _query(request, "b", ""),
+            _query(request, "steps"),
+            _query(request, "kind"),
+        )
         return JSONResponse({"command": cmd})
 
     async def route(self, request):
         """The path's points when computed, else ``{"state": "computing"}`` (ask again)."""
-        future = await run_in_threadpool(self.ex.route, _query(request, "a", ""), _query(request, "b", ""),
-                                         _query(request, "steps"), _query(request, "kind"))
-        if not future.done():   # this request stays a waiter: the path is computed for the next poll
+        future = await run_in_threadpool(
+            self.ex.route,
+            _query(request, "a", ""),
+            _query(request, "b", ""),
+            _query(request, "steps"),
+            _query(request, "kind"),
+        )
+        if not future.done():  # this request stays a waiter: the path is computed for the next poll
             return JSONResponse({"state": "computing"})
         self.ex.walks.release(future)
-        return JSONResponse(dict(future.result(), state="ready"))   # a failed path raises its InputError
+        return JSONResponse(
+            dict(future.result(), state="ready")
+        )  # a failed path raises its InputError
 
     async def thumbs(self, request):
         if self.ex.thumbs is None:
             raise InputError("this explorer renders no thumbnails (--no-thumbnails)")
-        return Response(self.ex.thumbs.sheet(), media_type="image/png", headers={"Cache-Control": "max-age=3600"})
+        return Response(
+            self.ex.thumbs.sheet(),
+            media_type="image/png",
+            headers={"Cache-Control": "max-age=3600"},
+        )
 
     async def reference_start(self, request):
-        try:   # the body was read by Guard, at most max_body bytes
+        try:  # the body was read by Guard, at most max_body bytes
             body = json.loads(await request.body())
         except (ValueError, RecursionError):
-            raise InputError("the request body must be JSON like {\"x\": [0.1, 0.2], \"spp\": 256}") from None
+            raise InputError(
+                'the request body must be JSON like {"x": [0.1, 0.2], "spp": 256}'
+            ) from None
         if not isinstance(body, dict):
             raise InputError("the request body must be a JSON object")
         x = self.ex.point(body.get("x"), "x")
@@ -129,11 +166,13 @@ class Api:
 
     async def reference_image(self, request):
         job, exposure = self.job_of(request), self.exposure_of(request)
-        png = await run_in_threadpool(self.ex.reference_image, job.id, request.path_params["which"], exposure)
+        png = await run_in_threadpool(
+            self.ex.reference_image, job.id, request.path_params["which"], exposure
+        )
         return Response(png, media_type="image/png")
 
     async def websocket(self, ws):
-        await Session(ws, self.ex).run()   # the handshake passed Guard's allow-list
+        await Session(ws, self.ex).run()  # the handshake passed Guard's allow-list
 
     def routes(self):
         return [
@@ -166,8 +205,10 @@ async def _http_error(request, exc):
 
 
 async def _server_error(request, exc):
-    return JSONResponse({"error": f"internal error ({type(exc).__name__}); see the server's console"},
-                        status_code=500)
+    return JSONResponse(
+        {"error": f"internal error ({type(exc).__name__}); see the server's console"},
+        status_code=500,
+    )
 
 
 def create_app(explorer, allow=None, max_body=MAX_BODY):
@@ -179,17 +220,21 @@ def create_app(explorer, allow=None, max_body=MAX_BODY):
     Routes (:meth:`Api.routes`): ``/`` the page; ``/static/*`` its files; ``/api/info``;
     ``/api/frame?basis&x&exposure&format`` (the image); ``/api/material?x``; ``/api/table?x``
     (float16 preview table, layout in the ``X-Table`` header); ``/api/map?dims&x``;
-    ``/api/snippet?x&folder``; ``/api/env?basis`` (the scene's environment for the sphere); ``/api/path?basis&a&b&steps&kind`` (the blend.py command);
-    ``/api/route?a&b&steps&kind`` (the path's points); ``/api/thumbs.png`` (the thumbnail sheet); ``POST /api/reference`` ``{basis, x, spp}``,
-    ``/api/reference/{id}``, ``POST /api/reference/{id}/cancel``,
-    ``/api/reference/{id}/{blend|reference|error}.png``; websocket ``/ws?tab=ID``.
-    Errors in a request answer 400 (the package's input errors), their HTTP status, or 500
-    with one line (a bug; the traceback stays on the server's console).
+    ``/api/snippet?x&folder``; ``/api/env?basis`` (the scene's environment for the sphere);
+    ``/api/path?basis&a&b&steps&kind`` (the blend.py command); ``/api/route?a&b&steps&kind`` (the
+    path's points); ``/api/thumbs.png`` (the thumbnail sheet); ``POST /api/reference`` ``{basis, x,
+    spp}``, ``/api/reference/{id}``, ``POST /api/reference/{id}/cancel``,
+    ``/api/reference/{id}/{blend|reference|error}.png``; websocket ``/ws?tab=ID``. Errors in a
+    request answer 400 (the package's input errors), their HTTP status, or 500 with one line (a
+    bug; the traceback stays on the server's console).
     """
     handlers = {e: _bad_request for e in BAD_REQUEST}
     handlers[HTTPException] = _http_error
     handlers[Exception] = _server_error
-    app = Starlette(routes=Api(explorer).routes(), exception_handlers=handlers,
-                    middleware=[Middleware(Guard, allow=allow, max_body=max_body)])
+    app = Starlette(
+        routes=Api(explorer).routes(),
+        exception_handlers=handlers,
+        middleware=[Middleware(Guard, allow=allow, max_body=max_body)],
+    )
     app.state.explorer = explorer
     return app

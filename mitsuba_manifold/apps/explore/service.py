@@ -18,25 +18,28 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from ...basis.folder import Basis
 from ...basis.blend import DEFAULT_PRUNE, blend
+from ...basis.folder import Basis
 from ...data.database import cache_folder
 from ...errors import InputError
-from ...manifold.model import Manifold
 from ...manifold import paths as path_kinds
+from ...manifold.model import Manifold
 from . import encode, hdri, latentmap, material
-from .bases import names as _names, scene_of as _scene_of, warm as _warm
+from .bases import names as _names
+from .bases import scene_of as _scene_of
+from .bases import warm as _warm
 from .inputs import extent, latent_point, map_dims, number, path_kind, show
 from .reference import MAX_SPP, References
 from .walks import MAX_STEPS, STEPS, Walks
-
 
 #: Maps kept for repeated requests of the same slice.
 MAPS_KEPT = 8
 #: Map resolutions (pixels per side): at rest, and while the slice moves.
 FULL_MAP, COARSE_MAP = 192, 96
-TOOLS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
-                     "tools")
+TOOLS = os.path.join(
+    os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
+    "tools",
+)
 
 
 class Explorer:
@@ -65,12 +68,23 @@ class Explorer:
         Samples per pixel of L2+ of the page's refinement where a drag ends (:meth:`start_refine`; 0: none).
     """
 
-    def __init__(self, bases, manifold=None, database=None, prune=DEFAULT_PRUNE, load_tables=True, scene=None,
-                 thumbnails=False, refine_spp=0):
+    def __init__(
+        self,
+        bases,
+        manifold=None,
+        database=None,
+        prune=DEFAULT_PRUNE,
+        load_tables=True,
+        scene=None,
+        thumbnails=False,
+        refine_spp=0,
+    ):
         if not bases:
             raise InputError("give at least one basis folder")
         if not 0.0 <= float(prune) < 1.0:
-            raise InputError(f"`prune` must be in [0, 1) (a fraction of the table's L2 norm), got {prune}")
+            raise InputError(
+                f"`prune` must be in [0, 1) (a fraction of the table's L2 norm), got {prune}"
+            )
         self.prune, self._last_blend = float(prune), (None, None)
         self.refine_spp = int(self.number(refine_spp, "`refine_spp`", 0, MAX_SPP, 0))
         self.bases = {}
@@ -78,35 +92,50 @@ class Explorer:
         for name, folder in _names([os.fspath(b) for b in bases]).items():
             basis = Basis.load(folder)
             if basis.p != 1:
-                raise InputError(f"basis {folder} has {basis.p} manifold materials {basis.targets}; the "
-                                   "explorer moves one material (render a basis of a scene with one)")
+                raise InputError(
+                    f"basis {folder} has {basis.p} manifold materials {basis.targets}; the "
+                    "explorer moves one material (render a basis of a scene with one)"
+                )
             if self.manifold_path is None:
                 self.manifold_path = os.path.abspath(manifold or basis.manifest.manifold)
                 self.manifold = Manifold.load(self.manifold_path)
-                if database is not None:   # given, so it must be there (the default may be missing)
+                if database is not None:  # given, so it must be there (the default may be missing)
                     material.check_database(database, self.manifold)
-            basis.check_manifold(self.manifold)   # every basis: rendered with this manifold (loaded once)
-            basis.verify()   # every image in memory now: no disk read while dragging
+            basis.check_manifold(
+                self.manifold
+            )  # every basis: rendered with this manifold (loaded once)
+            basis.verify()  # every image in memory now: no disk read while dragging
             self.bases[name] = basis
         self.scenes = {name: _scene_of(b, scene) for name, b in self.bases.items()}
-        cache = cache_folder(next(iter(self.bases.values())).folder) if load_tables else None   # beside the basis
+        cache = (
+            cache_folder(next(iter(self.bases.values())).folder) if load_tables else None
+        )  # beside the basis
         self.tables = material.TableStack(self.manifold, database, cache) if load_tables else None
         self._walks, self._walks_lock, self._walks_error = None, threading.Lock(), None
-        if self.tables:   # the metric's features of every measured table, prepared once the tables are in
+        if (
+            self.tables
+        ):  # the metric's features of every measured table, prepared once the tables are in
             threading.Thread(target=self._prepare_walks, name="explore-walks", daemon=True).start()
         self.thumbs = None
         if thumbnails:
             from .thumbs import Thumbnails
-            self.thumbs = Thumbnails(self.manifold_path, self.manifold,
-                                     cache_folder(next(iter(self.bases.values())).folder), after=self.tables and self.tables.wait)
+
+            self.thumbs = Thumbnails(
+                self.manifold_path,
+                self.manifold,
+                cache_folder(next(iter(self.bases.values())).folder),
+                after=self.tables and self.tables.wait,
+            )
         self.references = References()
         self._maps, self._maps_lock = {}, threading.Lock()
         threading.Thread(target=self._first_map, name="explore-map", daemon=True).start()
 
-    def _first_map(self):   # meanwhile: the map the page opens on, then the first basis's float32 cross terms
+    def _first_map(
+        self,
+    ):  # meanwhile: the map the page opens on, then the first basis's float32 cross terms
         try:
             self.map_png("0,1", self.start_point())
-        except Exception:   # the page asks for it anyway (and gets the error there)
+        except Exception:  # the page asks for it anyway (and gets the error there)
             pass
         _warm(self.bases)
 
@@ -116,7 +145,9 @@ class Explorer:
         if name is None or name == "":
             return next(iter(self.bases))
         if not isinstance(name, str) or name not in self.bases:
-            raise InputError(f"unknown basis {show(name)}; this explorer serves {sorted(self.bases)}")
+            raise InputError(
+                f"unknown basis {show(name)}; this explorer serves {sorted(self.bases)}"
+            )
         return name
 
     def basis(self, name):
@@ -131,10 +162,14 @@ class Explorer:
 
     def blend(self, name, x, l2="denoised"):
         """Linear image (H, W, 3) of latent point ``x`` and the blend's info (``l2``: of :func:`blend`);
-        the last one is kept (the exposure slider tonemaps it again, without denoising again)."""
+        the last one is kept (the exposure slider tonemaps it again, without denoising again).
+        """
         key, last = (name, np.asarray(x, np.float64).tobytes(), l2), self._last_blend
         if last[0] != key:
-            last = self._last_blend = (key, blend(self.basis(name), self.manifold, x=x, prune=self.prune, l2=l2))
+            last = self._last_blend = (
+                key,
+                blend(self.basis(name), self.manifold, x=x, prune=self.prune, l2=l2),
+            )
         return last[1]
 
     def frame(self, name, x, exposure=0.0, fmt="jpeg", coarse=False):
@@ -149,9 +184,17 @@ class Explorer:
         data = encode.encode(rgb8, fmt)
         t3 = time.perf_counter()
         h, w, _ = img.shape
-        return data, {"width": w, "height": h, "format": fmt, "n_images": info["n_images"], "l2": info.get("l2"),
-                      "blend_ms": 1e3 * (t1 - t0), "tonemap_ms": 1e3 * (t2 - t1), "encode_ms": 1e3 * (t3 - t2),
-                      "total_ms": 1e3 * (t3 - t0)}
+        return data, {
+            "width": w,
+            "height": h,
+            "format": fmt,
+            "n_images": info["n_images"],
+            "l2": info.get("l2"),
+            "blend_ms": 1e3 * (t1 - t0),
+            "tonemap_ms": 1e3 * (t2 - t1),
+            "encode_ms": 1e3 * (t3 - t2),
+            "total_ms": 1e3 * (t3 - t0),
+        }
 
     def start_point(self):
         """Where the page opens: the measured material closest to the mean of the latent points."""
@@ -161,16 +204,18 @@ class Explorer:
     def _prepare_walks(self):
         if self.tables.wait() == "ready":
             try:
-                self.walks
-            except Exception as e:   # no paths nor distances; the rest of the page works
+                _ = self.walks  # builds the path metric now, off the request path
+            except Exception as e:  # no paths nor distances; the rest of the page works
                 self._walks_error = f"perceptual metric unavailable: {e}"
 
     @property
     def walks(self):
         """The :class:`~.walks.Walks` (paths, distances) of the manifold, once the tables are loaded."""
         if not self.tables or self.tables.state != "ready":
-            raise InputError("perceptual paths and distances need the material tables: " +
-                             (self.tables.message if self.tables else "not loaded (--no-tables)"))
+            raise InputError(
+                "perceptual paths and distances need the material tables: "
+                + (self.tables.message if self.tables else "not loaded (--no-tables)")
+            )
         with self._walks_lock:
             if self._walks_error:
                 raise InputError(self._walks_error)
@@ -184,30 +229,42 @@ class Explorer:
         of the sphere's coarse table of the point, cached), the measured material nearest
         under the perceptual metric (``measured``: name, distance, and the median spacing of
         the measured materials for scale; not while a drag runs, ``live``) and (``with_slice``)
-        the server's BRDF slice image."""
+        the server's BRDF slice image.
+        """
         out = material.describe(self.manifold, x, self.prune)
         out["tables"] = self.tables.state if self.tables else "unavailable"
         out["tables_message"] = self.tables.message if self.tables else "not loaded (--no-tables)"
         if self.tables and self.tables.state == "ready":
             _, out["negative_fraction"] = self.tables.preview(x, self.prune, coarse=live)
             # never waits for the metric being prepared (a second or two after the tables)
-            out["measured"] = self._walks.nearest_measured(x) if self._walks is not None and not live else None
+            out["measured"] = (
+                self._walks.nearest_measured(x) if self._walks is not None and not live else None
+            )
             out["live"] = bool(live)
         if self.tables and self.tables.state == "ready" and with_slice:
             rgb, (lo, hi) = material.slice_image(self.tables.slice(x, self.prune))
-            out["slice"] = {"png": "data:image/png;base64," + base64.b64encode(encode.png_bytes(rgb)).decode(),
-                            "log10_range": [lo, hi], "phi_d_deg": 90.0}
+            out["slice"] = {
+                "png": "data:image/png;base64," + base64.b64encode(encode.png_bytes(rgb)).decode(),
+                "log10_range": [lo, hi],
+                "phi_d_deg": 90.0,
+            }
         return out
 
     def preview_table(self, x, coarse=False):
         """Float16 bytes of the reduced interpolated table and its layout (``coarse``: every
-        other texel, :meth:`~.material.TableStack.preview`)."""
+        other texel, :meth:`~.material.TableStack.preview`).
+        """
         if not self.tables or self.tables.state != "ready":
             raise InputError(self.tables.message if self.tables else "material tables not loaded")
         table, negative = self.tables.preview(x, self.prune, bool(coarse))
         strides = [s * (2 if coarse else 1) for s in material.preview_strides(self.tables.dims)]
-        return table.tobytes(), {"dims": list(table.shape[1:]), "full_dims": list(self.tables.dims),
-                                 "strides": strides, "negative_fraction": negative, "coarse": bool(coarse)}
+        return table.tobytes(), {
+            "dims": list(table.shape[1:]),
+            "full_dims": list(self.tables.dims),
+            "strides": strides,
+            "negative_fraction": negative,
+            "coarse": bool(coarse),
+        }
 
     def latent_map(self, dims, center, bounds=None):
         """The map of the slice through ``center``; ``bounds``: ``"x0,x1,y0,y1"`` (zoom) or None."""
@@ -229,16 +286,24 @@ class Explorer:
         The map depends on ``center`` only through the coordinates not in ``dims`` (the
         slice): the last few maps are kept by slice, so moving within the slice (every move
         for ``q = 2``) costs nothing. ``coarse``: a quarter of the pixels (:data:`COARSE_MAP`,
-        while a slider or the path scrubber moves the slice)."""
+        while a slider or the path scrubber moves the slice).
+        """
         dims = self._dims(dims)
         bounds = self._bounds(bounds) if bounds is not None and bounds != "" else None
         c = np.asarray(center, dtype=np.float64)
-        key = (dims, tuple(float(v) for k, v in enumerate(c) if k not in dims), bounds, bool(coarse))
+        key = (
+            dims,
+            tuple(float(v) for k, v in enumerate(c) if k not in dims),
+            bounds,
+            bool(coarse),
+        )
         with self._maps_lock:
             if key in self._maps:
-                self._maps[key] = self._maps.pop(key)   # most recently used last
+                self._maps[key] = self._maps.pop(key)  # most recently used last
                 return self._maps[key]
-        m = latentmap.render(self.manifold, c, dims, resolution=COARSE_MAP if coarse else FULL_MAP, bounds=bounds)
+        m = latentmap.render(
+            self.manifold, c, dims, resolution=COARSE_MAP if coarse else FULL_MAP, bounds=bounds
+        )
         out = (encode.png_bytes(m.image), dict(m.info(), slice=[list(dims), list(key[1])]))
         with self._maps_lock:
             self._maps[key] = out
@@ -248,7 +313,8 @@ class Explorer:
 
     def snippet_folder(self):
         """The folder the snippets name the manifold relative to by default: that of the first
-        basis's scene (a snippet pasted into that scene finds the manifold)."""
+        basis's scene (a snippet pasted into that scene finds the manifold).
+        """
         scene = next(iter(self.scenes.values()))
         return os.path.dirname(os.path.abspath(scene)) if scene else os.getcwd()
 
@@ -256,30 +322,43 @@ class Explorer:
         """``<bsdf>`` XML and ``mi.load_dict`` Python for ``x``, naming the manifold through a
         ``$manifold`` parameter whose default is its path relative to ``folder`` (the scene's
         folder: Mitsuba resolves it from there; default :meth:`snippet_folder`), so that a scene
-        and its manifold moved together still render."""
+        and its manifold moved together still render.
+        """
         folder = self.snippet_folder() if folder is None or folder == "" else folder
         if not isinstance(folder, str) or len(folder) > 4096 or not os.path.isabs(folder):
-            raise InputError(f"folder must be an absolute folder path (the scene's), got {show(folder)}")
+            raise InputError(
+                f"folder must be an absolute folder path (the scene's), got {show(folder)}"
+            )
         rel = os.path.relpath(self.manifold_path, os.path.normpath(folder)).replace(os.sep, "/")
         xs = ", ".join(f"{v:.6g}" for v in x)
-        xml = (f'<!-- in the <scene>, before this: the manifold, relative to the scene file\'s folder -->\n'
-               f'<default name="manifold" value="{escape(rel, {chr(34): "&quot;"})}"/>\n\n'
-               f'<bsdf type="manifold_brdf" id="material">\n'
-               f'    <string name="manifold" value="$manifold"/>\n'
-               f'    <string name="x" value="{xs}"/>\n'
-               f'</bsdf>')
-        py = ("import os\n\nimport mitsuba as mi\nimport mitsuba_manifold\n\nmi.set_variant(\"llvm_ad_rgb\")\n"
-              "mitsuba_manifold.register()\n"
-              f"# the manifold, relative to the folder of this script (or set MANIFOLD)\n"
-              f"manifold = os.environ.get(\"MANIFOLD\", os.path.join(os.path.dirname(os.path.abspath(__file__)), "
-              f"{json.dumps(rel)}))\n"
-              f"bsdf = mi.load_dict({{\"type\": \"manifold_brdf\", \"manifold\": manifold, \"x\": \"{xs}\"}})")
-        return {"xml": xml, "python": py, "x": [float(v) for v in x], "folder": folder,
-                "manifold": rel}
+        xml = (
+            f"<!-- in the <scene>, before this: the manifold, relative to the scene file's folder -->\n"
+            f'<default name="manifold" value="{escape(rel, {chr(34): "&quot;"})}"/>\n\n'
+            f'<bsdf type="manifold_brdf" id="material">\n'
+            f'    <string name="manifold" value="$manifold"/>\n'
+            f'    <string name="x" value="{xs}"/>\n'
+            f"</bsdf>"
+        )
+        py = (
+            'import os\n\nimport mitsuba as mi\nimport mitsuba_manifold\n\nmi.set_variant("llvm_ad_rgb")\n'
+            "mitsuba_manifold.register()\n"
+            f"# the manifold, relative to the folder of this script (or set MANIFOLD)\n"
+            f'manifold = os.environ.get("MANIFOLD", os.path.join(os.path.dirname(os.path.abspath(__file__)), '
+            f"{json.dumps(rel)}))\n"
+            f'bsdf = mi.load_dict({{"type": "manifold_brdf", "manifold": manifold, "x": "{xs}"}})'
+        )
+        return {
+            "xml": xml,
+            "python": py,
+            "x": [float(v) for v in x],
+            "folder": folder,
+            "manifold": rel,
+        }
 
     def path_command(self, name, a, b, steps, kind=None):
         """The ``tools/blend.py --path`` command rendering the sequence from ``a`` to ``b``
-        (``kind``: its ``--path-kind``; None: blend.py's default, the same as :meth:`route`'s)."""
+        (``kind``: its ``--path-kind``; None: blend.py's default, the same as :meth:`route`'s).
+        """
         basis = self.basis(name)
         kind = None if kind is None or kind == "" else self._kind(kind)
         ends = []
@@ -291,15 +370,29 @@ class Explorer:
         if ends[0] == ends[1]:
             raise InputError("the path's two ends are the same point; choose two different ends")
         steps = int(self.number(steps, "steps", 2, 1000, 20))
-        tool = os.path.join(TOOLS, "blend.py")   # absolute: the command works pasted in any folder
+        tool = os.path.join(TOOLS, "blend.py")  # absolute: the command works pasted in any folder
         head = ["python3", tool] if os.path.isfile(tool) else ["mitsuba-manifold", "blend"]
-        return shlex.join(head + ["--basis", os.path.abspath(basis.folder), "--manifold", self.manifold_path,
-                                  "--path", ends[0], ends[1], "--steps", str(steps)]
-                          + (["--path-kind", kind] if kind else []) + ["--out", "path.exr", "--png"])
+        return shlex.join(
+            head
+            + [
+                "--basis",
+                os.path.abspath(basis.folder),
+                "--manifold",
+                self.manifold_path,
+                "--path",
+                ends[0],
+                ends[1],
+                "--steps",
+                str(steps),
+            ]
+            + (["--path-kind", kind] if kind else [])
+            + ["--out", "path.exr", "--png"]
+        )
 
     def route(self, a, b, steps=None, kind=None):
         """Future of the path from ``a`` to ``b`` (material names or points) of ``kind``
-        (default: :data:`Manifold.path`'s), ``steps`` points (:meth:`.walks.Walks.submit`)."""
+        (default: :data:`Manifold.path`'s), ``steps`` points (:meth:`.walks.Walks.submit`).
+        """
         kind = path_kinds.DEFAULT_KIND if kind is None or kind == "" else self._kind(kind)
         steps = int(self.number(steps, "steps", 2, MAX_STEPS, STEPS))
         return self.walks.submit(self.point(a, "a"), self.point(b, "b"), steps, kind)
@@ -308,15 +401,34 @@ class Explorer:
 
     def info(self):
         m = self.manifold
-        bases = [{"name": n, "folder": b.folder, "resolution": list(b.resolution), "spp": b.manifest.spp,
-                  "scene": self.scenes[n] or b.manifest.scene, "images": len(b.keys),
-                  "scene_available": self.scenes[n] is not None} for n, b in self.bases.items()]
-        return {"manifold": self.manifold_path, "q": m.q, "names": m.names, "latent": m.latent.tolist(),
-                "albedos": None if m.albedos is None else m.albedos.tolist(), "bases": bases,
-                "prune": self.prune, "tables": self.tables.state if self.tables else "unavailable",
-                "max_reference_spp": MAX_SPP, "refine_spp": self.refine_spp, "thumbs": self.thumbs.info() if self.thumbs else None,
-                "path_kinds": list(path_kinds.KINDS), "path_kind": path_kinds.DEFAULT_KIND,
-                "snippet_folder": self.snippet_folder()}
+        bases = [
+            {
+                "name": n,
+                "folder": b.folder,
+                "resolution": list(b.resolution),
+                "spp": b.manifest.spp,
+                "scene": self.scenes[n] or b.manifest.scene,
+                "images": len(b.keys),
+                "scene_available": self.scenes[n] is not None,
+            }
+            for n, b in self.bases.items()
+        ]
+        return {
+            "manifold": self.manifold_path,
+            "q": m.q,
+            "names": m.names,
+            "latent": m.latent.tolist(),
+            "albedos": None if m.albedos is None else m.albedos.tolist(),
+            "bases": bases,
+            "prune": self.prune,
+            "tables": self.tables.state if self.tables else "unavailable",
+            "max_reference_spp": MAX_SPP,
+            "refine_spp": self.refine_spp,
+            "thumbs": self.thumbs.info() if self.thumbs else None,
+            "path_kinds": list(path_kinds.KINDS),
+            "path_kind": path_kinds.DEFAULT_KIND,
+            "snippet_folder": self.snippet_folder(),
+        }
 
     def environment(self, name):
         """The environment light of basis ``name``'s scene as its camera sees it, for the preview
@@ -325,15 +437,18 @@ class Explorer:
         layout of :mod:`.hdri`) and ``{"width", "height", "emitter"}``; the scene's point lights
         in ``"lights"`` (direction in that frame, irradiance at the centre of the scene's
         manifold-material shapes). Raises InputError when the scene is missing or has no
-        environment light."""
+        environment light.
+        """
         key = self.key(name)
         with self._maps_lock:
             if ("env", key) in self._maps:
                 return self._maps[("env", key)]
         basis, scene_path = self.bases[key], self.scenes[key]
         if scene_path is None:
-            raise InputError(f"the scene of basis {key!r} is missing or has changed; start with --scene "
-                             "to light the sphere like it")
+            raise InputError(
+                f"the scene of basis {key!r} is missing or has changed; start with --scene "
+                "to light the sphere like it"
+            )
         out = hdri.scene_environment(scene_path, self.manifold_path, basis)
         with self._maps_lock:
             self._maps[("env", key)] = out
@@ -345,34 +460,51 @@ class Explorer:
         name = self.key(name)
         basis, scene = self.bases[name], self.scenes[name]
         if scene is None:
-            raise InputError(f"the scene of basis {name!r} ({basis.manifest.scene}) is missing or has "
-                             "changed since the basis was rendered; give it with --scene")
-        return name, basis, scene, int(self.number(spp, "spp", 1, MAX_SPP, default)), self.blend(name, x)[0]
+            raise InputError(
+                f"the scene of basis {name!r} ({basis.manifest.scene}) is missing or has "
+                "changed since the basis was rendered; give it with --scene"
+            )
+        return (
+            name,
+            basis,
+            scene,
+            int(self.number(spp, "spp", 1, MAX_SPP, default)),
+            self.blend(name, x)[0],
+        )
 
     def start_reference(self, name, x, spp, tab=None):
         """A full-GI reference render at ``x`` in the background (``tab``: the page asking)."""
         name, basis, scene, spp, img = self._job_args(name, x, spp, 256)
-        return self.references.submit(name, basis, scene, self.manifold_path, x, spp, img, tab=_tab(tab))
+        return self.references.submit(
+            name, basis, scene, self.manifold_path, x, spp, img, tab=_tab(tab)
+        )
 
     def start_refine(self, name, x, spp, tab=None):
         """A refinement of the blend at ``x`` (``blend.py --refine``) in the background."""
         name, basis, scene, spp, img = self._job_args(name, x, spp, 16)
         where = {"scene": scene, "manifold_path": self.manifold_path, "prune": self.prune}
-        return self.references.submit_refine(name, basis, self.manifold, x, spp, img, tab=_tab(tab), **where)
+        return self.references.submit_refine(
+            name, basis, self.manifold, x, spp, img, tab=_tab(tab), **where
+        )
 
     def reference_image(self, job_id, which, exposure=0.0):
         job = self.references.get(job_id)
         if job is None:
             raise InputError(f"unknown reference job {show(job_id)}")
-        if job.state != "done" and not (job.kind == "refine" and job.images):   # a refinement: after each pass
+        if job.state != "done" and not (
+            job.kind == "refine" and job.images
+        ):  # a refinement: after each pass
             raise InputError(f"reference job {job_id} is {job.state}, not done")
         if which == "error":
             from ...imaging.metrics import error_image, false_colour
+
             other = job.images["reference"] if "reference" in job.images else job.images["refined"]
             rgb, _ = false_colour(error_image(job.images["blend"], other))
             return encode.png_bytes(rgb)
         if which not in job.images:
-            raise InputError(f"image must be 'blend', 'reference', 'refined' or 'error', got {show(which)}")
+            raise InputError(
+                f"image must be 'blend', 'reference', 'refined' or 'error', got {show(which)}"
+            )
         return encode.png_bytes(encode.tonemap(job.images[which], exposure))
 
     def close(self, wait=0.0):
@@ -387,5 +519,7 @@ def _tab(tab):
     if tab is None or tab == "":
         return None
     if not isinstance(tab, str) or len(tab) > 64 or not tab.isascii() or not tab.isprintable():
-        raise InputError(f"tab must be the page's id (at most 64 ASCII characters), got {show(tab)}")
+        raise InputError(
+            f"tab must be the page's id (at most 64 ASCII characters), got {show(tab)}"
+        )
     return tab

@@ -51,7 +51,7 @@ POINT_KINDS = ("frame", "table", "material", "snippet", "map")
 BAD_REQUEST = (InputError, UnknownMaterialError)
 #: How a websocket whose tab went away fails (uvicorn's ClientDisconnected is an OSError).
 GONE = (WebSocketDisconnect, OSError)
-_MAX_SEQ = 2 ** 53
+_MAX_SEQ = 2**53
 
 
 def pack(meta, payload=b""):
@@ -88,21 +88,33 @@ def parse(text):
     try:
         req = json.loads(text)
     except (ValueError, RecursionError):
-        raise InputError(f"bad message {show(text, 80)}: expected JSON like "
-                         '{"type": "frame", "seq": 1, "x": [0.1, 0.2]}') from None
+        raise InputError(
+            f"bad message {show(text, 80)}: expected JSON like "
+            '{"type": "frame", "seq": 1, "x": [0.1, 0.2]}'
+        ) from None
     if not isinstance(req, dict) or not isinstance(req.get("type"), str):
         raise InputError(f"bad message {show(text, 80)}: expected a JSON object with a 'type'")
     seq = req.get("seq")
-    if seq is not None and (isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq <= _MAX_SEQ):
+    if seq is not None and (
+        isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq <= _MAX_SEQ
+    ):
         raise InputError(f"'seq' must be an integer in 0..2^53, got {show(seq)}")
     kind = req["type"]
     if kind == "move":
         want = req.get("want")
-        if not isinstance(want, list) or not want or not all(isinstance(k, str) and k in KINDS for k in want):
-            raise InputError(f"'want' of a move must be a list of kinds from {list(KINDS)}, got {show(want)}")
+        if (
+            not isinstance(want, list)
+            or not want
+            or not all(isinstance(k, str) and k in KINDS for k in want)
+        ):
+            raise InputError(
+                f"'want' of a move must be a list of kinds from {list(KINDS)}, got {show(want)}"
+            )
         return [(k, req) for k in dict.fromkeys(want)]
     if kind not in KINDS:
-        raise InputError(f"unknown message type {show(kind)}; expected one of {list(KINDS)} or 'move'")
+        raise InputError(
+            f"unknown message type {show(kind)}; expected one of {list(KINDS)} or 'move'"
+        )
     return [(kind, req)]
 
 
@@ -113,7 +125,7 @@ class Session:
         self.ws, self.ex = ws, explorer
         self.pending = {}
         self.wake = {k: asyncio.Event() for k in KINDS + (FINAL,)}
-        self.lock = asyncio.Lock()   # one message at a time on the socket
+        self.lock = asyncio.Lock()  # one message at a time on the socket
         tab = ws.query_params.get("tab", "")
         self.tab = tab if isinstance(tab, str) and 0 < len(tab) <= 64 and tab.isascii() else None
 
@@ -123,15 +135,17 @@ class Session:
 
     async def run(self):
         await self.ws.accept()
-        tasks = [asyncio.ensure_future(self.reader())] + [asyncio.ensure_future(self.worker(k)) for k in KINDS + (FINAL,)]
+        tasks = [asyncio.ensure_future(self.reader())] + [
+            asyncio.ensure_future(self.worker(k)) for k in KINDS + (FINAL,)
+        ]
         try:
             await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
         finally:
             for t in tasks:
                 t.cancel()
-            if self.tab is not None:   # the tab went away: its renders are no one's any more
+            if self.tab is not None:  # the tab went away: its renders are no one's any more
                 self.ex.references.cancel_tab(self.tab)
-        for t in tasks:   # a tab going away (also while an answer is sent) is no error
+        for t in tasks:  # a tab going away (also while an answer is sent) is no error
             if t.done() and not t.cancelled() and t.exception() is not None:
                 e = t.exception()
                 if isinstance(e, Closing):
@@ -154,9 +168,9 @@ class Session:
             for kind, req in requests:
                 if kind == "frame" and not _coarse(req):
                     kind = FINAL
-                elif kind == "frame":   # a drag again: a full frame not yet started is stale
+                elif kind == "frame":  # a drag again: a full frame not yet started is stale
                     self.pending.pop(FINAL, None)
-                self.pending[kind] = req   # replaces an older request of this kind not yet started
+                self.pending[kind] = req  # replaces an older request of this kind not yet started
                 self.wake[kind].set()
 
     async def worker(self, kind):
@@ -171,16 +185,27 @@ class Session:
                 except Superseded:
                     continue
                 except BAD_REQUEST as e:
-                    meta, payload = {"type": "error", "kind": _shown(kind), "seq": seq, "error": str(e)}, b""
-                except Exception as e:   # a bug: the console gets the traceback, the page one line
+                    meta, payload = (
+                        {"type": "error", "kind": _shown(kind), "seq": seq, "error": str(e)},
+                        b"",
+                    )
+                except Exception as e:  # a bug: the console gets the traceback, the page one line
                     traceback.print_exc(file=sys.stderr)
-                    meta, payload = {"type": "error", "kind": _shown(kind), "seq": seq,
-                                     "error": f"internal error ({type(e).__name__}); see the server's console"}, b""
+                    meta, payload = (
+                        {
+                            "type": "error",
+                            "kind": _shown(kind),
+                            "seq": seq,
+                            "error": f"internal error ({type(e).__name__}); see the server's console",
+                        },
+                        b"",
+                    )
                 await self.send(dict(meta, seq=seq), payload)
 
     async def wait_route(self, future):
         """The result of a path's ``future``; raises :class:`Superseded` when a newer ``route``
-        request arrives first. Never cancels ``future`` itself (other tabs may wait for it)."""
+        request arrives first. Never cancels ``future`` itself (other tabs may wait for it).
+        """
         result = asyncio.wrap_future(future)
         newer = asyncio.ensure_future(self.wake["route"].wait())
         try:
@@ -189,18 +214,28 @@ class Session:
             newer.cancel()
         if result.done():
             return result.result()
-        result.add_done_callback(lambda f: f.cancelled() or f.exception())   # nobody reads it now
+        result.add_done_callback(lambda f: f.cancelled() or f.exception())  # nobody reads it now
         raise Superseded()
 
     async def answer(self, kind, req):
         """``(meta, payload)`` of one request (raises InputError on bad input)."""
         ex = self.ex
         if kind == "path":
-            cmd = await run_in_threadpool(ex.path_command, req.get("basis"), req.get("a"), req.get("b"),
-                                          req.get("steps"), req.get("kind"))
+            cmd = await run_in_threadpool(
+                ex.path_command,
+                req.get("basis"),
+                req.get("a"),
+                req.get("b"),
+                req.get("steps"),
+                req.get("kind"),
+            )
             return {"type": "path", "command": cmd, "a": req.get("a"), "b": req.get("b")}, b""
-        if kind == "route":   # computed in the paths' own thread: waits without holding any other kind
-            future = await run_in_threadpool(ex.route, req.get("a"), req.get("b"), req.get("steps"), req.get("kind"))
+        if (
+            kind == "route"
+        ):  # computed in the paths' own thread: waits without holding any other kind
+            future = await run_in_threadpool(
+                ex.route, req.get("a"), req.get("b"), req.get("steps"), req.get("kind")
+            )
             try:
                 route = await self.wait_route(future)
             finally:
@@ -212,10 +247,11 @@ class Session:
         if kind == "frame":
             exposure = ex.number(req.get("exposure"), "exposure", -20, 20, 0.0)
             coarse = _coarse(req)
-            if coarse:   # a drag: no refinement competes with its frames for the CPU
+            if coarse:  # a drag: no refinement competes with its frames for the CPU
                 ex.references.supersede_refine()
-            data, meta = await run_in_threadpool(ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"),
-                                                 coarse)
+            data, meta = await run_in_threadpool(
+                ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"), coarse
+            )
             return dict(meta, exposure=exposure, basis=ex.key(req.get("basis")), **tag), data
         if kind == "material":
             with_slice, live = req.get("slice", True) is not False, req.get("coarse") is True
@@ -225,6 +261,7 @@ class Session:
             return dict(meta, **tag), data
         if kind == "snippet":
             return dict(ex.snippets(x, req.get("folder")), **tag), b""
-        data, meta = await run_in_threadpool(ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"),
-                                             req.get("coarse") is True)
+        data, meta = await run_in_threadpool(
+            ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"), req.get("coarse") is True
+        )
         return dict(meta, **tag), data

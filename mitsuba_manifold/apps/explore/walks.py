@@ -50,7 +50,7 @@ def metric_columns(dims, stride=paths.SEARCH_STRIDE):
 
 
 def _lower_priority(niceness=10):
-    try:   # Linux: a thread's own niceness; drags keep the CPU
+    try:  # Linux: a thread's own niceness; drags keep the CPU
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), niceness)
     except (AttributeError, OSError):
         pass
@@ -58,18 +58,27 @@ def _lower_priority(niceness=10):
 
 class Walks:
     """Paths and distances of one explorer (see the module doc); ``rows``: the measured tables
-    on the metric's sub-grid ``(N, size)``."""
+    on the metric's sub-grid ``(N, size)``.
+    """
 
     def __init__(self, manifold, rows):
         self.manifold = manifold
         self.metric = paths.PathMetric(manifold, rows=rows)
         measured = self.metric.quad.features(self.metric.rows).astype(np.float32)
-        self._measured, self._measured_sq = measured, np.einsum("nk,nk->n", measured, measured, dtype=np.float64)
+        self._measured, self._measured_sq = (
+            measured,
+            np.einsum("nk,nk->n", measured, measured, dtype=np.float64),
+        )
         D = gram_distances([(measured, measured)])
         np.fill_diagonal(D, np.inf)
         #: median distance of a measured material to its nearest measured neighbour (a scale)
         self.spacing = float(np.median(D.min(axis=1))) if manifold.n > 1 else 1.0
-        self._paths, self._lock, self._waiters, self._busy = OrderedDict(), threading.Lock(), {}, False
+        self._paths, self._lock, self._waiters, self._busy = (
+            OrderedDict(),
+            threading.Lock(),
+            {},
+            False,
+        )
         self._queue = queue.Queue()
         self._thread = threading.Thread(target=self._work, name="explore-paths", daemon=True)
         self._thread.start()
@@ -77,17 +86,22 @@ class Walks:
     def nearest_measured(self, x):
         """``{"name", "distance", "spacing"}``: the measured material whose table is nearest to
         the table at ``x`` and the distance (``spacing``: the median nearest-neighbour distance
-        between measured materials, for scale)."""
+        between measured materials, for scale).
+        """
         f = self.metric.features(np.asarray(x, dtype=np.float64)[None])[0].astype(np.float32)
         d2 = self._measured_sq + float(f @ f) - 2.0 * (self._measured @ f)
         i = int(np.argmin(d2))
-        return {"name": self.manifold.names[i], "distance": float(np.sqrt(max(d2[i], 0.0))),
-                "spacing": self.spacing}
+        return {
+            "name": self.manifold.names[i],
+            "distance": float(np.sqrt(max(d2[i], 0.0))),
+            "spacing": self.spacing,
+        }
 
     def submit(self, xa, xb, steps=STEPS, kind=paths.DEFAULT_KIND):
         """Future of ``{"kind", "a", "b", "steps", "points", "lengths"}`` for the path from latent
         point ``xa`` to ``xb`` (done at once for ``straight`` and cached paths). Each call counts
-        as one waiter until :meth:`release`."""
+        as one waiter until :meth:`release`.
+        """
         if kind not in paths.KINDS:
             raise InputError(f"kind must be one of {list(paths.KINDS)}, got {kind!r:.40}")
         xa, xb = (np.asarray(v, dtype=np.float64) for v in (xa, xb))
@@ -103,7 +117,7 @@ class Walks:
             future = Future()
             self._paths[key] = future
             self._waiters[future] = 1
-            while len(self._paths) > PATHS_KEPT:   # its waiters still get it
+            while len(self._paths) > PATHS_KEPT:  # its waiters still get it
                 self._paths.popitem(last=False)
         if kind == "straight":
             future.set_running_or_notify_cancel()
@@ -115,7 +129,8 @@ class Walks:
     def release(self, future):
         """One waiter of ``future`` (from :meth:`submit`) no longer needs it: when nobody does,
         a path not yet started is cancelled and dropped from the cache (a running or finished
-        one is kept: it is cached for the next request of that path)."""
+        one is kept: it is cached for the next request of that path).
+        """
         with self._lock:
             n = self._waiters.get(future, 0) - 1
             if n > 0:
@@ -129,7 +144,7 @@ class Walks:
         """Number of paths queued or computing (for tests and the server's status)."""
         return self._queue.qsize() + int(self._busy)
 
-    def _drop(self, future):   # with self._lock held
+    def _drop(self, future):  # with self._lock held
         for k, f in list(self._paths.items()):
             if f is future:
                 del self._paths[k]
@@ -137,27 +152,34 @@ class Walks:
     def _work(self):
         """Compute the waiting paths, newest only: one asked for before a newer one started is
         dropped (its future fails; the page asks for the ends it shows). Nothing a request does
-        (cancelled, failed, superseded) ends this loop."""
+        (cancelled, failed, superseded) ends this loop.
+        """
         _lower_priority()
         while True:
             item = self._queue.get()
             try:
-                if not item[0].set_running_or_notify_cancel():   # released by every waiter
+                if not item[0].set_running_or_notify_cancel():  # released by every waiter
                     continue
                 if not self._queue.empty():
-                    self._fail(item[0], InputError("a newer path was asked for; this one was not computed"))
+                    self._fail(
+                        item[0], InputError("a newer path was asked for; this one was not computed")
+                    )
                     continue
                 self._busy = True
                 self._run(*item)
-            except Exception:   # a bug in one path: reported on the console, the next path runs
+            except Exception:  # a bug in one path: reported on the console, the next path runs
                 traceback.print_exc(file=sys.stderr)
-                self._fail(item[0], InputError("internal error computing the path; see the server's console"))
+                self._fail(
+                    item[0],
+                    InputError("internal error computing the path; see the server's console"),
+                )
             finally:
                 self._busy = False
 
     def _fail(self, future, error):
         """Fail a running ``future`` with ``error`` and drop it from the cache (asked again, it
-        is computed again)."""
+        is computed again).
+        """
         with self._lock:
             self._drop(future)
             self._waiters.pop(future, None)
@@ -169,11 +191,21 @@ class Walks:
         try:
             X = paths.path(self.manifold, xa, xb, steps, kind, metric=self.metric)
             lengths = self.metric.steps(X)
-            result = {"kind": kind, "a": xa.tolist(), "b": xb.tolist(), "steps": steps,
-                      "points": X.tolist(), "lengths": lengths.tolist()}
-        except Exception as e:   # InputError or a numerical failure: the page falls back to straight
-            self._fail(future, e if isinstance(e, InputError) else
-                       InputError(f"the {kind} path failed ({type(e).__name__}: {str(e)[:120]})"))
+            result = {
+                "kind": kind,
+                "a": xa.tolist(),
+                "b": xb.tolist(),
+                "steps": steps,
+                "points": X.tolist(),
+                "lengths": lengths.tolist(),
+            }
+        except Exception as e:  # InputError or a numerical failure: the page falls back to straight
+            self._fail(
+                future,
+                e
+                if isinstance(e, InputError)
+                else InputError(f"the {kind} path failed ({type(e).__name__}: {str(e)[:120]})"),
+            )
             return
         if not future.done():
             future.set_result(result)

@@ -10,15 +10,56 @@
 The names below are this package's face (``from mitsuba_manifold.basis.folder import Basis``).
 """
 
-from .manifest import (BASE, FORMAT, FORMAT_VERSION, MANIFEST, MODES, SEP, SETTINGS, Manifest, image_changed,
-                       image_key, is_basis_folder, key_materials, make_manifest, manifest_differences,
-                       manifold_file_identity, read_manifest, scene_files, scene_hash, upgrade_manifest,
-                       validate_manifest, write_manifest)
+from .manifest import (
+    BASE,
+    FORMAT,
+    FORMAT_VERSION,
+    MANIFEST,
+    MODES,
+    SEP,
+    SETTINGS,
+    Manifest,
+    image_changed,
+    image_key,
+    is_basis_folder,
+    key_materials,
+    make_manifest,
+    manifest_differences,
+    manifold_file_identity,
+    read_manifest,
+    scene_files,
+    scene_hash,
+    upgrade_manifest,
+    validate_manifest,
+    write_manifest,
+)
 from .owned_files import check_output_outside_basis
 from .reader import GI, Basis, manifold_object
 
-__all__ = ["Basis", "Manifest", "manifold_object", "GI",
-           "BASE", "FORMAT", "FORMAT_VERSION", "MANIFEST", "MODES", "SEP", "SETTINGS", "image_changed",
-           "image_key", "is_basis_folder", "key_materials", "make_manifest", "manifest_differences",
-           "manifold_file_identity", "read_manifest", "scene_files", "scene_hash", "upgrade_manifest",
-           "validate_manifest", "write_manifest", "check_output_outside_basis"]
+__all__ = [
+    "Basis",
+    "Manifest",
+    "manifold_object",
+    "GI",
+    "BASE",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "MANIFEST",
+    "MODES",
+    "SEP",
+    "SETTINGS",
+    "image_changed",
+    "image_key",
+    "is_basis_folder",
+    "key_materials",
+    "make_manifest",
+    "manifest_differences",
+    "manifold_file_identity",
+    "read_manifest",
+    "scene_files",
+    "scene_hash",
+    "upgrade_manifest",
+    "validate_manifest",
+    "write_manifest",
+    "check_output_outside_basis",
+]

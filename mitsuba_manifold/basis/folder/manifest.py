@@ -74,12 +74,16 @@ _HEX64 = re.compile(r"^[0-9a-f]{64}$")
 
 # ------------------------------------------------------------------ hashes
 
+
 def _named(scene):
     """``(value, is_include)`` of each file the scene XML ``scene`` names (``$parameters`` skipped)."""
     out = []
-    for el in scene_xml(scene).iter():   # a scene XML, or an error naming the file
-        value = el.get("filename") if el.tag == "include" else (el.get("value") if el.get("name") == "filename"
-                                                                 else None)
+    for el in scene_xml(scene).iter():  # a scene XML, or an error naming the file
+        value = (
+            el.get("filename")
+            if el.tag == "include"
+            else (el.get("value") if el.get("name") == "filename" else None)
+        )
         if value and "$" not in value:
             out.append((value, el.tag == "include"))
     return out
@@ -87,7 +91,8 @@ def _named(scene):
 
 def scene_files(scene):
     """Files a scene XML names (``filename`` properties and ``<include>``), resolved
-    against the scene's folder; values holding ``$parameters`` are skipped."""
+    against the scene's folder; values holding ``$parameters`` are skipped.
+    """
     folder = os.path.dirname(os.path.abspath(os.fspath(scene)))
     return [(v, os.path.join(folder, v)) for v, _ in _named(os.fspath(scene))]
 
@@ -100,18 +105,21 @@ def _hash_included(h, xml, folders, seen):
     """Add to ``h`` the name and bytes of every file the included XML ``xml`` names, found
     beside the main scene or beside ``xml`` (Mitsuba resolves them against either), and of
     the files the XML files it includes name, recursively; ``seen``: the XML files already
-    followed (each once: no cycle, no exponential fan-out)."""
+    followed (each once: no cycle, no exponential fan-out).
+    """
     if os.path.realpath(xml) in seen or len(folders) > MAX_INCLUDE_DEPTH:
         return
     seen.add(os.path.realpath(xml))
     try:
         named = _named(xml)
-    except MismatchError:      # not a scene XML: its bytes are hashed, Mitsuba refuses it
+    except MismatchError:  # not a scene XML: its bytes are hashed, Mitsuba refuses it
         return
     folders = folders + [os.path.dirname(os.path.abspath(xml))]
     for value, include in named:
         h.update(b"\1" + value.encode())
-        found = list(dict.fromkeys(p for p in (os.path.join(f, value) for f in folders) if os.path.isfile(p)))
+        found = list(
+            dict.fromkeys(p for p in (os.path.join(f, value) for f in folders) if os.path.isfile(p))
+        )
         for path in found:
             h.update(b"\1" + file_hash(path).encode())
         if include and found:
@@ -123,7 +131,8 @@ def scene_hash(scene):
     names (:func:`scene_files`) that exists beside it, and for each ``<include>``d XML the
     files that one names, recursively (:func:`_hash_included`). Meshes, environment maps and
     included scenes are thereby part of the scene's identity; the manifold (a ``$manifold``
-    parameter) is not. A scene without includes hashes as its XML and named files alone."""
+    parameter) is not. A scene without includes hashes as its XML and named files alone.
+    """
     scene = os.fspath(scene)
     if not os.path.isfile(scene):
         raise MismatchError(f"scene {scene} does not exist")
@@ -143,16 +152,22 @@ def scene_hash(scene):
 
 # ---------------------------------------------------------------- manifest
 
+
 def image_key(materials, version=FORMAT_VERSION):
     """Image key of one material per target: ``"a"`` or ``"a+b"``, names escaped
-    (:func:`names.escape`) from format version 2 on; the image file is ``<key>.exr``."""
+    (:func:`names.escape`) from format version 2 on; the image file is ``<key>.exr``.
+    """
     materials = [materials] if isinstance(materials, str) else list(materials)
     if version >= 2:
-        return SEP.join(names_mod.escape(m) for m in materials)   # InputError for a name no file can have
+        return SEP.join(
+            names_mod.escape(m) for m in materials
+        )  # InputError for a name no file can have
     for m in materials:
         if not m or SEP in m or m == BASE:
-            raise MismatchError(f"material name {m!r} cannot be used in an image key of a version-1 basis; "
-                             "render the basis again with this version")
+            raise MismatchError(
+                f"material name {m!r} cannot be used in an image key of a version-1 basis; "
+                "render the basis again with this version"
+            )
     return SEP.join(materials)
 
 
@@ -164,9 +179,13 @@ def key_materials(key, version=FORMAT_VERSION):
 
 def image_changed(folder, entry):
     """True when the image file of manifest ``entry`` is not the one written (its SHA-256 is
-    recorded and differs: edited in place, replaced); False when unchanged or not recorded."""
+    recorded and differs: edited in place, replaced); False when unchanged or not recorded.
+    """
     recorded = entry.get("sha256")
-    return recorded is not None and file_hash(os.path.join(os.fspath(folder), entry["file"])) != recorded
+    return (
+        recorded is not None
+        and file_hash(os.path.join(os.fspath(folder), entry["file"])) != recorded
+    )
 
 
 def _is_int(v):
@@ -184,6 +203,7 @@ def _check_json(manifest, where=MANIFEST):
     MismatchError
         Naming ``where`` and the field at fault.
     """
+
     def bad(msg):
         raise MismatchError(f"{where}: {msg}")
 
@@ -214,11 +234,17 @@ def _check_json(manifest, where=MANIFEST):
     if manifest.get("mode") not in MODES:
         bad(f"mode must be one of {MODES}, got {manifest.get('mode')!r}")
     for key in ("sensor", "chunks"):  # optional: absent means sensor 0, one chunk
-        if key in manifest and (not _is_int(manifest[key]) or manifest[key] < (0 if key == "sensor" else 1)):
+        if key in manifest and (
+            not _is_int(manifest[key]) or manifest[key] < (0 if key == "sensor" else 1)
+        ):
             bad(f"{key} must be an integer >= {0 if key == 'sensor' else 1}, got {manifest[key]!r}")
     targets = manifest.get("targets")
-    if (not isinstance(targets, list) or not targets or not all(isinstance(t, str) and t for t in targets)
-            or len(set(targets)) != len(targets)):
+    if (
+        not isinstance(targets, list)
+        or not targets
+        or not all(isinstance(t, str) and t for t in targets)
+        or len(set(targets)) != len(targets)
+    ):
         bad(f"targets must be a non-empty list of distinct BSDF ids, got {targets!r}")
     pending = manifest.get("pending", [])
     if not isinstance(pending, list) or not all(_plain_exr(f) for f in pending):
@@ -232,8 +258,10 @@ def _check_json(manifest, where=MANIFEST):
             parts = key.split(SEP)
             escaped = version < 2 or all(names_mod.is_escaped(pt) for pt in parts if pt)
             if len(parts) != len(targets) or not all(parts) or BASE in parts or not escaped:
-                bad(f"image key {key!r} must name {len(targets)} material(s) joined by {SEP!r} "
-                    f"(one per target {targets})")
+                bad(
+                    f"image key {key!r} must name {len(targets)} material(s) joined by {SEP!r} "
+                    f"(one per target {targets})"
+                )
         if not isinstance(entry, dict):
             bad(f"image {key!r}: entry must be an object with 'file' and 'time_s'")
         name = entry.get("file")
@@ -245,7 +273,9 @@ def _check_json(manifest, where=MANIFEST):
         t = entry.get("time_s")
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
             bad(f"image {key!r}: time_s must be a non-negative number, got {t!r}")
-        if "sha256" in entry and not (isinstance(entry["sha256"], str) and _HEX64.match(entry["sha256"])):
+        if "sha256" in entry and not (
+            isinstance(entry["sha256"], str) and _HEX64.match(entry["sha256"])
+        ):
             bad(f"image {key!r}: sha256 must be a SHA-256 hex digest, got {entry['sha256']!r}")
     _validate_components(manifest, bad)
     return manifest
@@ -257,31 +287,47 @@ COMPONENTS = ("l1", "l2+", "cross")
 
 def _validate_components(manifest, bad):
     comps = manifest.get("components", ["l1"])
-    if (not isinstance(comps, list) or not comps or comps[0] != "l1" or len(set(comps)) != len(comps)
-            or not set(comps) <= set(COMPONENTS) or ("cross" in comps and "l2+" not in comps)):
+    if (
+        not isinstance(comps, list)
+        or not comps
+        or comps[0] != "l1"
+        or len(set(comps)) != len(comps)
+        or not set(comps) <= set(COMPONENTS)
+        or ("cross" in comps and "l2+" not in comps)
+    ):
         bad(f"components must list 'l1', then 'l2+' and 'cross' if held, got {comps!r}")
     if "levels" in manifest and (not _is_int(manifest["levels"]) or manifest["levels"] < 1):
         bad(f"levels must be an integer >= 1, got {manifest['levels']!r}")
     gi = manifest.get("gi_images", {})
-    if not isinstance(gi, dict) or not all(isinstance(e, dict) and _plain_exr(e.get("file")) for e in gi.values()):
+    if not isinstance(gi, dict) or not all(
+        isinstance(e, dict) and _plain_exr(e.get("file")) for e in gi.values()
+    ):
         bad("gi_images must map material keys to {'file': '<name>.exr', 'time_s': ...}")
     cross = manifest.get("cross")
-    if cross is not None and not (isinstance(cross, dict) and isinstance(cross.get("file"), str)
-                                  and os.path.basename(cross["file"]) == cross["file"]
-                                  and cross["file"].endswith(".npz")):
+    if cross is not None and not (
+        isinstance(cross, dict)
+        and isinstance(cross.get("file"), str)
+        and os.path.basename(cross["file"]) == cross["file"]
+        and cross["file"].endswith(".npz")
+    ):
         bad(f"cross must be {{'file': '<name>.npz', ...}}, got {cross!r}")
     if not isinstance(manifest.get("left_out", {}), dict):
         bad("left_out must map components to the reason they were left out")
 
 
 def _plain_exr(name):
-    return (isinstance(name, str) and name.endswith(".exr") and os.path.basename(name) == name
-            and not name.startswith("."))
+    return (
+        isinstance(name, str)
+        and name.endswith(".exr")
+        and os.path.basename(name) == name
+        and not name.startswith(".")
+    )
 
 
 def manifold_file_identity(manifold):
     """Content identity of a manifold file (:func:`manifold_identity`)."""
     from ...manifold.model import Manifold
+
     return manifold_identity(Manifold.load(manifold))
 
 
@@ -289,12 +335,21 @@ def upgrade_manifest(manifest, manifold):
     """A version-1 manifest as version 2, when it was made with the file ``manifold`` (same
     bytes): the manifold hash becomes its content identity and the images whose keys are
     the same in both versions (names that escaping leaves unchanged) are kept. Any other
-    manifest is returned as it is."""
+    manifest is returned as it is.
+    """
     if manifest.get("version") != 1 or file_hash(manifold) != manifest.get("manifold_hash"):
         return manifest
-    images = {k: e for k, e in manifest["images"].items()
-              if k == BASE or all(names_mod.is_escaped(p) for p in k.split(SEP))}
-    return dict(manifest, version=FORMAT_VERSION, manifold_hash=manifold_file_identity(manifold), images=images)
+    images = {
+        k: e
+        for k, e in manifest["images"].items()
+        if k == BASE or all(names_mod.is_escaped(p) for p in k.split(SEP))
+    }
+    return dict(
+        manifest,
+        version=FORMAT_VERSION,
+        manifold_hash=manifold_file_identity(manifold),
+        images=images,
+    )
 
 
 @dataclass
@@ -378,7 +433,9 @@ class Manifest:
         names = {f.name for f in dataclasses.fields(cls)} - {"extra"}
         known = {k: v for k, v in data.items() if k in names}
         known["resolution"] = tuple(known["resolution"])
-        return cls(**known, extra={k: v for k, v in data.items() if k not in names and k != "format"})
+        return cls(
+            **known, extra={k: v for k, v in data.items() if k not in names and k != "format"}
+        )
 
     def to_json(self):
         """The JSON object of the format: ``format``, ``version``, the fields set, then :attr:`extra`."""
@@ -408,12 +465,17 @@ class Manifest:
         """
         folder = os.fspath(folder)
         if not os.path.isdir(folder):
-            raise MismatchError(f"basis folder {folder} does not exist" if not os.path.exists(folder) else
-                                f"{folder} is a file, not a basis folder (give the folder render_basis wrote)")
+            raise MismatchError(
+                f"basis folder {folder} does not exist"
+                if not os.path.exists(folder)
+                else f"{folder} is a file, not a basis folder (give the folder render_basis wrote)"
+            )
         path = os.path.join(folder, MANIFEST)
         if not os.path.isfile(path):
-            raise MismatchError(f"{folder}: no {MANIFEST} (not a basis folder, or render_basis has not "
-                                "written one yet)")
+            raise MismatchError(
+                f"{folder}: no {MANIFEST} (not a basis folder, or render_basis has not "
+                "written one yet)"
+            )
         try:
             with open(path, encoding="utf-8") as f:
                 data = json.load(f)
@@ -441,7 +503,8 @@ class Manifest:
 
     def differences(self, other, ignore=()):
         """Setting fields (:data:`SETTINGS`, but those in ``ignore``) whose values differ from
-        ``other``'s: empty when images rendered for one are valid for the other (resume)."""
+        ``other``'s: empty when images rendered for one are valid for the other (resume).
+        """
         other = Manifest.from_json(other)
 
         def value(m, k):
@@ -449,11 +512,25 @@ class Manifest:
                 return FORMAT
             v = m.sensor_index if k == "sensor" else getattr(m, k)
             return list(v) if isinstance(v, tuple) else v
+
         return [k for k in SETTINGS if k not in ignore and value(self, k) != value(other, k)]
 
 
-def make_manifest(scene, manifold, *, resolution, spp, variant, seed, max_depth, mode, targets,
-                  images=None, components=("l1",), sensor=0):
+def make_manifest(
+    scene,
+    manifold,
+    *,
+    resolution,
+    spp,
+    variant,
+    seed,
+    max_depth,
+    mode,
+    targets,
+    images=None,
+    components=("l1",),
+    sensor=0,
+):
     """The JSON object of a new, checked :class:`Manifest` of a basis of ``scene`` rendered with
     ``manifold``.
 
@@ -486,13 +563,23 @@ def make_manifest(scene, manifold, *, resolution, spp, variant, seed, max_depth,
     if not os.path.isfile(manifold):
         raise MismatchError(f"manifold {manifold} does not exist")
     manifest = {
-        "format": FORMAT, "version": FORMAT_VERSION,
-        "scene": os.path.abspath(scene), "scene_hash": scene_hash(scene),
-        "manifold": os.path.abspath(manifold), "manifold_hash": manifold_file_identity(manifold),
-        "resolution": [int(v) for v in resolution], "spp": int(spp), "variant": str(variant),
-        "seed": int(seed), "max_depth": int(max_depth), "mode": mode,
-        "targets": [str(t) for t in targets], "sensor": int(sensor), "images": dict(images or {}),
-        "components": [str(c) for c in components]}
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "scene": os.path.abspath(scene),
+        "scene_hash": scene_hash(scene),
+        "manifold": os.path.abspath(manifold),
+        "manifold_hash": manifold_file_identity(manifold),
+        "resolution": [int(v) for v in resolution],
+        "spp": int(spp),
+        "variant": str(variant),
+        "seed": int(seed),
+        "max_depth": int(max_depth),
+        "mode": mode,
+        "targets": [str(t) for t in targets],
+        "sensor": int(sensor),
+        "images": dict(images or {}),
+        "components": [str(c) for c in components],
+    }
     return validate_manifest(manifest, where="new manifest")
 
 
@@ -504,8 +591,11 @@ def validate_manifest(manifest, where=MANIFEST):
 
 def write_manifest(folder, manifest):
     """Write the manifest (a :class:`Manifest` or its JSON object) to ``folder/manifest.json``,
-    checked and atomically (:meth:`Manifest.write`); returns its path."""
-    return Manifest.from_json(manifest, where=os.path.join(os.fspath(folder), MANIFEST)).write(folder)
+    checked and atomically (:meth:`Manifest.write`); returns its path.
+    """
+    return Manifest.from_json(manifest, where=os.path.join(os.fspath(folder), MANIFEST)).write(
+        folder
+    )
 
 
 def read_manifest(folder):
@@ -514,8 +604,22 @@ def read_manifest(folder):
 
 
 #: Manifest fields that define what the images are (all but "images" and the paths).
-SETTINGS = ("format", "version", "scene_hash", "manifold_hash", "resolution", "spp", "variant",
-            "seed", "max_depth", "mode", "targets", "sensor", "chunks", "levels")
+SETTINGS = (
+    "format",
+    "version",
+    "scene_hash",
+    "manifold_hash",
+    "resolution",
+    "spp",
+    "variant",
+    "seed",
+    "max_depth",
+    "mode",
+    "targets",
+    "sensor",
+    "chunks",
+    "levels",
+)
 
 
 def manifest_differences(a, b, ignore=()):

@@ -12,41 +12,64 @@ Used by :mod:`.render_basis` and by the merge of :mod:`.chunks`.
 import os
 import re
 
-from . import manifest as basis_folder
-from ...errors import FormatError, InputError
-from ...imaging import io as imageio
 from ..._util import ownership
 from ..._util.locking import LOCK_NAME
+from ...errors import FormatError, InputError
+from ...imaging import io as imageio
+from . import manifest as basis_folder
 
 #: Folder of a chunked render's chunks inside its output folder (:mod:`.chunks`).
 CHUNK_DIR = ".chunks"
 
 #: What a basis run leaves in its folder before its manifest: the lock, chunk folders,
 #: temporary files of atomic writes killed with the process (:mod:`atomic`).
-_OWN = re.compile(r"^(?:" + re.escape(LOCK_NAME) + "|" + re.escape(CHUNK_DIR) + r"|\..+\.tmp\.(?:exr|json|npz))$")
+_OWN = re.compile(
+    r"^(?:" + re.escape(LOCK_NAME) + "|" + re.escape(CHUNK_DIR) + r"|\..+\.tmp\.(?:exr|json|npz))$"
+)
 
 
 def check_foreign_folder(out, force=False, bases=None):
     """Refuse (unless ``force``) an existing ``out`` that holds files and no basis manifest:
     a folder of the user's (a database, blends), which a basis would fill with images that
     no blend may then be written beside. With ``bases`` (the names of the basis folders
-    to render in it), ``out`` is the parent of several bases and may hold only bases."""
-    if not os.path.isdir(out) or force or (bases is None and os.path.lexists(os.path.join(out, basis_folder.MANIFEST))):
+    to render in it), ``out`` is the parent of several bases and may hold only bases.
+    """
+    if (
+        not os.path.isdir(out)
+        or force
+        or (bases is None and os.path.lexists(os.path.join(out, basis_folder.MANIFEST)))
+    ):
         return
-    foreign = sorted(f for f in os.listdir(out) if not _OWN.match(f) and (
-        bases is None or f not in bases and not basis_folder.is_basis_folder(os.path.join(out, f))))
+    foreign = sorted(
+        f
+        for f in os.listdir(out)
+        if not _OWN.match(f)
+        and (
+            bases is None
+            or f not in bases
+            and not basis_folder.is_basis_folder(os.path.join(out, f))
+        )
+    )
     if foreign:
-        what = f"not a basis folder (no {basis_folder.MANIFEST})" if bases is None else "not a folder of bases"
+        what = (
+            f"not a basis folder (no {basis_folder.MANIFEST})"
+            if bases is None
+            else "not a folder of bases"
+        )
         raise InputError(
             f"{out} is {what} and holds files render_basis did not make ({', '.join(foreign[:3])}"
-            f"{' ...' if len(foreign) > 3 else ''}); choose a new or empty folder, or add `force`")
+            f"{' ...' if len(foreign) > 3 else ''}); choose a new or empty folder, or add `force`"
+        )
 
 
 def check_job_folders(jobs, out, force=False):
     """Before the first render: every folder of :func:`plan_views`'s ``jobs`` and, for
-    several, their parent ``out`` (:func:`check_foreign_folder`)."""
+    several, their parent ``out`` (:func:`check_foreign_folder`).
+    """
     if len(jobs) > 1:
-        check_foreign_folder(os.fspath(out), force, bases={os.path.basename(folder) for _, _, folder in jobs})
+        check_foreign_folder(
+            os.fspath(out), force, bases={os.path.basename(folder) for _, _, folder in jobs}
+        )
     for _, _, folder in jobs:
         check_foreign_folder(folder, force)
 
@@ -67,26 +90,28 @@ def open_folder(out, manifest, files, force=False, read_images=True):
     old = None
     listed = set()
     if os.path.exists(os.path.join(out, basis_folder.MANIFEST)):
-        old = basis_folder.read_manifest(out)   # raises unless it is a basis manifest
-        old = basis_folder.upgrade_manifest(old, manifest["manifold"])   # resume a version-1 basis
+        old = basis_folder.read_manifest(out)  # raises unless it is a basis manifest
+        old = basis_folder.upgrade_manifest(old, manifest["manifold"])  # resume a version-1 basis
         listed.add(basis_folder.MANIFEST)
         listed |= _clear_pending(out, old, remove=read_images)
         diff = basis_folder.manifest_differences(old, manifest)
         if diff and old["images"]:
             raise InputError(
                 f"{out} holds a basis made with other settings ({', '.join(diff)} differ); "
-                "choose another folder or delete it")
+                "choose another folder or delete it"
+            )
         if diff:
             old = None
     listed |= {e["file"] for e in old["images"].values()} if old else set()
-    if old:   # a full-GI basis's own files
+    if old:  # a full-GI basis's own files
         listed |= {e["file"] for e in old.get("gi_images", {}).values()}
         listed |= {old["cross"]["file"]} if "cross" in old else set()
     foreign = sorted(f for f in files if f not in listed and os.path.lexists(os.path.join(out, f)))
     if foreign and not force:
         raise InputError(
             f"{out} holds files this basis did not make and would overwrite: {', '.join(foreign[:5])}"
-            f"{' ...' if len(foreign) > 5 else ''}; choose another folder, or add `force`")
+            f"{' ...' if len(foreign) > 5 else ''}; choose another folder, or add `force`"
+        )
     for f in foreign:
         if ownership.read_only(os.path.join(out, f)):
             raise InputError(f"{os.path.join(out, f)} is read-only; not replacing it")
@@ -95,12 +120,15 @@ def open_folder(out, manifest, files, force=False, read_images=True):
     if not read_images:
         return dict(old["images"])
     size = tuple(manifest["resolution"])
-    return {key: entry for key, entry in old["images"].items() if image_still_valid(out, entry, size)}
+    return {
+        key: entry for key, entry in old["images"].items() if image_still_valid(out, entry, size)
+    }
 
 
 def image_still_valid(out, entry, size):
     """True when the image of manifest ``entry`` in ``out`` is the one written (its SHA-256, when
-    recorded), readable and of ``size``; one that is not and is read-only is refused (InputError)."""
+    recorded), readable and of ``size``; one that is not and is read-only is refused (InputError).
+    """
     path = os.path.join(out, entry["file"])
     try:
         imageio.check_exr_header(path, size)
@@ -109,15 +137,18 @@ def image_still_valid(out, entry, size):
     except (FormatError, OSError):
         valid = False
     if not valid and os.path.lexists(path) and ownership.read_only(path):
-        raise InputError(f"{path} is not the image render_basis wrote (changed or damaged since) and is "
-                         "read-only; not replacing it: make it writable to render it again, or choose "
-                         "another folder")
+        raise InputError(
+            f"{path} is not the image render_basis wrote (changed or damaged since) and is "
+            "read-only; not replacing it: make it writable to render it again, or choose "
+            "another folder"
+        )
     return valid
 
 
 def _clear_pending(out, old, remove):
     """The files ``old`` lists as pending and not as images (a killed run's); removed when
-    ``remove`` (a read-only one is left, and then refused as the user's)."""
+    ``remove`` (a read-only one is left, and then refused as the user's).
+    """
     done = {e["file"] for e in old["images"].values()}
     pending = {f for f in old.get("pending", []) if f not in done}
     for f in pending if remove else ():

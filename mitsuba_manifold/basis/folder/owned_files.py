@@ -20,29 +20,36 @@ EXTRA = ("aovs.npz", ".chunks")
 
 def check_output_outside_basis(out, basis_folder=None):
     """Raise unless ``out`` lies outside every basis folder (``basis_folder`` included):
-    a blend never writes into a basis, whose files the basis's manifest owns."""
+    a blend never writes into a basis, whose files the basis's manifest owns.
+    """
     folder = os.path.realpath(os.path.dirname(os.path.abspath(os.fspath(out))))
     inside = basis_folder is not None and folder == os.path.realpath(os.fspath(basis_folder))
     if inside or is_basis_folder(folder):
-        raise ForeignFileError(f"`out` {out} lies in the basis folder {folder}; a blend never writes into a "
-                               "basis (its images belong to render_basis): choose another folder")
+        raise ForeignFileError(
+            f"`out` {out} lies in the basis folder {folder}; a blend never writes into a "
+            "basis (its images belong to render_basis): choose another folder"
+        )
 
 
 def basis_entries(folder):
     """``(own, foreign)``: the names in a basis folder that its render made (the manifest, the
-    images it lists or has pending, :data:`EXTRA`, its lock and temporary files) and the others."""
+    images it lists or has pending, :data:`EXTRA`, its lock and temporary files) and the others.
+    """
     folder = os.fspath(folder)
     manifest = Manifest.read(folder)
     own = {MANIFEST, LOCK_NAME, *EXTRA, *(manifest.pending or [])}
     own |= {e["file"] for e in manifest.images.values()}
     names = sorted(os.listdir(folder))
-    return ([n for n in names if n in own or is_temporary(n)],
-            [n for n in names if n not in own and not is_temporary(n)])
+    return (
+        [n for n in names if n in own or is_temporary(n)],
+        [n for n in names if n not in own and not is_temporary(n)],
+    )
 
 
 def remove_basis(folder):
     """Remove a basis folder that render_basis made (to render it again from scratch): refused,
-    with nothing removed, when it is not a basis folder or holds files its render did not make."""
+    with nothing removed, when it is not a basis folder or holds files its render did not make.
+    """
     import shutil
 
     folder = os.fspath(folder)
@@ -52,14 +59,22 @@ def remove_basis(folder):
         return
     if not is_basis_folder(folder):
         if os.listdir(folder):
-            raise ForeignFileError(f"{folder} holds files and no basis {MANIFEST}; not removing it: "
-                                   "choose another output folder, or move them")
+            raise ForeignFileError(
+                f"{folder} holds files and no basis {MANIFEST}; not removing it: "
+                "choose another output folder, or move them"
+            )
         return
     own, foreign = basis_entries(folder)
-    foreign += [n for n in own if os.path.isfile(os.path.join(folder, n))
-                and not os.stat(os.path.join(folder, n)).st_mode & 0o200]   # read-only: kept on purpose
+    foreign += [
+        n
+        for n in own
+        if os.path.isfile(os.path.join(folder, n))
+        and not os.stat(os.path.join(folder, n)).st_mode & 0o200
+    ]  # read-only: kept on purpose
     if foreign:
-        raise ForeignFileError(f"the basis folder {folder} holds files its render did not make "
-                               f"or read-only ones ({', '.join(foreign[:3])}{' ...' if len(foreign) > 3 else ''}); "
-                               "not removing it")
+        raise ForeignFileError(
+            f"the basis folder {folder} holds files its render did not make "
+            f"or read-only ones ({', '.join(foreign[:3])}{' ...' if len(foreign) > 3 else ''}); "
+            "not removing it"
+        )
     shutil.rmtree(folder)

@@ -10,18 +10,18 @@ import zipfile
 
 import numpy as np
 
+from ..._util.cache import file_hash
 from ...errors import FormatError, MismatchError
 from ...imaging import io as imageio
 from ...manifold.identity import manifold_identity
-from ..._util.cache import file_hash
 from .manifest import BASE, Manifest, image_changed, image_key, key_materials, scene_hash
-
 
 #: Prefix of the keys of full-GI images (``manifest["gi_images"]``) in :meth:`Basis.image`.
 GI = "gi:"
 
 
 # -------------------------------------------------------------------- basis
+
 
 def manifold_object(manifold):
     from ...manifold.model import Manifold
@@ -34,9 +34,12 @@ def manifold_object(manifold):
 
 def _check_manifold_type(manifold):
     if not isinstance(manifold, (str, os.PathLike)) and not (
-            hasattr(manifold, "weights") and hasattr(manifold, "names")):
-        raise MismatchError(f"manifold: expected a Manifold or the path of one, got {type(manifold).__name__} "
-                         "(give a latent point as x=..., weights as w=...)")
+        hasattr(manifold, "weights") and hasattr(manifold, "names")
+    ):
+        raise MismatchError(
+            f"manifold: expected a Manifold or the path of one, got {type(manifold).__name__} "
+            "(give a latent point as x=..., weights as w=...)"
+        )
 
 
 class Basis:
@@ -104,10 +107,14 @@ class Basis:
         manifest = Manifest.read(folder)
         basis = cls(folder, manifest)
         if basis.p == 1 and BASE not in manifest.images:
-            raise MismatchError(f"{folder}: the manifest lists no '{BASE}' image (paths that never touch "
-                             "the material); the basis is incomplete")
+            raise MismatchError(
+                f"{folder}: the manifest lists no '{BASE}' image (paths that never touch "
+                "the material); the basis is incomplete"
+            )
         if not basis.keys:
-            raise MismatchError(f"{folder}: the manifest lists no material image; the basis is incomplete")
+            raise MismatchError(
+                f"{folder}: the manifest lists no material image; the basis is incomplete"
+            )
         for key in list(manifest.images) + [GI + k for k in manifest.gi_images or {}]:
             try:
                 imageio.check_exr_header(basis.path(key), basis.resolution)
@@ -123,31 +130,36 @@ class Basis:
 
     def derived(self, name, make):
         """``make(self)`` once per basis object, kept under ``name``: what other modules read from
-        the folder's files (e.g. its AOVs for denoising) without re-reading them per blend."""
+        the folder's files (e.g. its AOVs for denoising) without re-reading them per blend.
+        """
         with self._read_lock:
             if name not in self._derived:
                 self._derived[name] = make(self)
             return self._derived[name]
 
     def __repr__(self):
-        return (f"Basis({self.folder!r}: {len(self.keys)} images, targets {self.targets}, "
-                f"{self.resolution[0]}x{self.resolution[1]}, {self.manifest.spp} spp)")
+        return (
+            f"Basis({self.folder!r}: {len(self.keys)} images, targets {self.targets}, "
+            f"{self.resolution[0]}x{self.resolution[1]}, {self.manifest.spp} spp)"
+        )
 
     @property
     def sensor(self):
         """The scene's sensor (view) the images were rendered from (0 when the manifest does
-        not say: :attr:`sensor_known`)."""
+        not say: :attr:`sensor_known`).
+        """
         return self.manifest.sensor_index
 
     @property
     def sensor_known(self):
         """True when the manifest records its sensor (manifests of earlier versions recorded
-        only sensors other than 0)."""
+        only sensors other than 0).
+        """
         return self.manifest.sensor is not None
 
     def _entry(self, key):
         if key.startswith(GI):
-            return (self.manifest.gi_images or {}).get(key[len(GI):])
+            return (self.manifest.gi_images or {}).get(key[len(GI) :])
         return self.manifest.images.get(key)
 
     def path(self, key):
@@ -167,7 +179,8 @@ class Basis:
     def cross_terms(self):
         """The cross terms ``C_ij`` (:mod:`.crossterms`): ``({(name_i, name_j): row}, float16
         (P, H, W, 3))``, read once and kept as stored (half the memory of float32; a blend
-        converts the few rows it uses); empty without them."""
+        converts the few rows it uses); empty without them.
+        """
         with self._read_lock:
             if self._cross is None:
                 self._cross = self._read_cross()
@@ -181,29 +194,37 @@ class Basis:
         path = os.path.join(self.folder, entry["file"])
         again = "run the same render_basis command again to render them anew"
         if os.path.isfile(path) and image_changed(self.folder, entry):
-            raise MismatchError(f"basis {self.folder}: cross terms {path} were changed after render_basis wrote "
-                                f"them (their SHA-256 is not the manifest's); {again}")
+            raise MismatchError(
+                f"basis {self.folder}: cross terms {path} were changed after render_basis wrote "
+                f"them (their SHA-256 is not the manifest's); {again}"
+            )
         try:
             with np.load(path) as data:
                 pairs, images = data["pairs"], np.asarray(data["images"], np.float16)
         except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as e:
-            raise MismatchError(f"basis {self.folder}: cross terms {path} unreadable ({e}); {again}") from None
+            raise MismatchError(
+                f"basis {self.folder}: cross terms {path} unreadable ({e}); {again}"
+            ) from None
         if images.shape != (len(pairs), h, w, 3):
-            raise MismatchError(f"basis {self.folder}: {path} holds {len(images)} images of shape {images.shape[1:]} "
-                                f"for {len(pairs)} pairs; the basis is {w}x{h}: {again}")
+            raise MismatchError(
+                f"basis {self.folder}: {path} holds {len(images)} images of shape {images.shape[1:]} "
+                f"for {len(pairs)} pairs; the basis is {w}x{h}: {again}"
+            )
         return {(str(a), str(b)): r for r, (a, b) in enumerate(pairs)}, images
 
     def cross_term(self, row):
         """Cross term ``row`` of :meth:`cross_terms` as float32 (H, W, 3), converted once and kept
         (NumPy's float16 conversion costs more than the blend itself; only the rows blended are kept
-        twice)."""
+        twice).
+        """
         if row not in self._cross32:
             self._cross32[row] = self.cross_terms()[1][row].astype(np.float32)
         return self._cross32[row]
 
     def warm_cross_terms(self):
         """Convert every cross term to float32 now (:meth:`cross_term`), as a long interactive
-        session ends up holding them anyway; the first blends of a drag then skip the conversion."""
+        session ends up holding them anyway; the first blends of a drag then skip the conversion.
+        """
         for row in range(len(self.cross_terms()[1])):
             self.cross_term(row)
 
@@ -223,18 +244,25 @@ class Basis:
             if os.path.isfile(path) and image_changed(self.folder, self._entry(key)):
                 raise MismatchError(
                     f"basis {self.folder}, image {key!r}: {path} was changed after render_basis wrote it (its "
-                    "SHA-256 is not the manifest's); run the same render_basis command again to render it anew")
+                    "SHA-256 is not the manifest's); run the same render_basis command again to render it anew"
+                )
             try:
                 img = imageio.read_exr(path)
             except FormatError as e:
                 raise MismatchError(f"basis {self.folder}, image {key!r}: {e}") from None
             w, h = self.resolution
             if img.shape != (h, w, 3):
-                raise MismatchError(f"basis {self.folder}, image {key!r}: {path} is {img.shape[1]}x{img.shape[0]}, "
-                                 f"the manifest says {w}x{h}")
+                raise MismatchError(
+                    f"basis {self.folder}, image {key!r}: {path} is {img.shape[1]}x{img.shape[0]}, "
+                    f"the manifest says {w}x{h}"
+                )
             row = len(self._rows)
-            if self._store is None or row == len(self._store):  # grow by doubling, up to every image
-                cap = min(max(8, 2 * row), len(self.manifest.images) + len(self.manifest.gi_images or {}))
+            if self._store is None or row == len(
+                self._store
+            ):  # grow by doubling, up to every image
+                cap = min(
+                    max(8, 2 * row), len(self.manifest.images) + len(self.manifest.gi_images or {})
+                )
                 store = np.empty((cap, h, w, 3), dtype=np.float32)
                 if row:
                     store[:row] = self._store[:row]
@@ -263,7 +291,7 @@ class Basis:
         self.read(keys)
         rows = np.array([self._rows[k] for k in keys], dtype=np.intp)
         n = len(self._rows)
-        if weights.ndim == 1 and len(rows):   # one image: in-place axpy, no gathered copy
+        if weights.ndim == 1 and len(rows):  # one image: in-place axpy, no gathered copy
             return _axpy_sum(self._store, rows, weights)
         if 2 * len(rows) >= n:
             dense = np.zeros(weights.shape[:-1] + (n,), dtype=np.float32)
@@ -285,7 +313,8 @@ class Basis:
             raise MismatchError(
                 f"basis {self.folder} was rendered from another scene: {self.manifest.scene} "
                 f"(hash {self.manifest.scene_hash[:12]}), not {os.path.abspath(scene)} (hash {h[:12]}); "
-                "the scene or a file it uses changed, render the basis again")
+                "the scene or a file it uses changed, render the basis again"
+            )
 
     def check_manifold(self, manifold=None):
         """The manifold object, checked against the manifest (loaded from the manifest's
@@ -297,8 +326,10 @@ class Basis:
         if manifold is None:
             manifold = self.manifest.manifold
             if not os.path.isfile(manifold):
-                raise MismatchError(f"basis {self.folder}: its manifold {manifold} no longer exists; "
-                                 "give the manifold explicitly")
+                raise MismatchError(
+                    f"basis {self.folder}: its manifold {manifold} no longer exists; "
+                    "give the manifold explicitly"
+                )
         _check_manifold_type(manifold)
         key = os.path.abspath(manifold) if isinstance(manifold, (str, os.PathLike)) else manifold
         if key in self._checked:
@@ -306,9 +337,11 @@ class Basis:
         m = manifold_object(manifold)
         unknown = sorted({n for mats in self.materials for n in mats} - set(m.names))
         if unknown:
-            raise MismatchError(f"basis {self.folder} holds materials the manifold does not know: "
-                             f"{', '.join(unknown[:8])}{' ...' if len(unknown) > 8 else ''}; it was "
-                             "rendered with another manifold")
+            raise MismatchError(
+                f"basis {self.folder} holds materials the manifold does not know: "
+                f"{', '.join(unknown[:8])}{' ...' if len(unknown) > 8 else ''}; it was "
+                "rendered with another manifold"
+            )
         path = manifold if isinstance(manifold, (str, os.PathLike)) else getattr(m, "file", None)
         if self.version >= 2 or path is not None:
             h = manifold_identity(m) if self.version >= 2 else file_hash(path)
@@ -317,7 +350,8 @@ class Basis:
                 raise MismatchError(
                     f"basis {self.folder} was rendered with another manifold: {self.manifest.manifold} "
                     f"(identity {self.manifest.manifold_hash[:12]}), not {where} (identity {h[:12]}: other "
-                    "latent points, hyperparameters, materials or tables)")
+                    "latent points, hyperparameters, materials or tables)"
+                )
         self._checked[key] = m
         return m
 
@@ -325,7 +359,8 @@ class Basis:
 def _axpy_sum(store, rows, weights):
     """``sum_j weights[j] * store[rows[j]]`` (float32) by in-place NumPy passes over the images
     used, without gathering them (a ``tensordot`` copies them first) and without BLAS, whose
-    threads, on a busy machine, took tens of milliseconds to wake for a product this small."""
+    threads, on a busy machine, took tens of milliseconds to wake for a product this small.
+    """
     out = np.zeros(store.shape[1:], dtype=np.float32)
     tmp = np.empty_like(out)
     for r, w in zip(rows, weights):

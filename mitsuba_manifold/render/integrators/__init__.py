@@ -13,7 +13,22 @@
 this package imports neither, so it can be imported before a variant is set.
 """
 
-from .common import COMPONENTS, MAX_GROUPS, check_variant, class_names, is_manifold_bsdf, manifold_bsdfs, target_groups
+from .common import (
+    COMPONENTS,
+    MAX_GROUPS,
+    check_variant,
+    class_names,
+    is_manifold_bsdf,
+    manifold_bsdfs,
+    target_groups,
+)
 
-__all__ = ["COMPONENTS", "MAX_GROUPS", "check_variant", "class_names", "is_manifold_bsdf", "manifold_bsdfs",
-           "target_groups"]
+__all__ = [
+    "COMPONENTS",
+    "MAX_GROUPS",
+    "check_variant",
+    "class_names",
+    "is_manifold_bsdf",
+    "manifold_bsdfs",
+    "target_groups",
+]

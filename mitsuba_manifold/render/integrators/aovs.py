@@ -28,14 +28,17 @@ class FirstHitAOVs(mi.SamplingIntegrator):
     """
 
     def __init__(self, props):
-        check_variant()   # first: Mitsuba warns about Python integrators in scalar variants
+        check_variant()  # first: Mitsuba warns about Python integrators in scalar variants
         super().__init__(props)
         self.bins = int(props.get("bins", THETA_BINS))
         self.targets = []
 
     def aov_names(self):
-        return ([f"normal.{c}" for c in "XYZ"] + [f"albedo.{c}" for c in "RGB"]
-                + [f"theta{k}" for k in range(self.bins)])
+        return (
+            [f"normal.{c}" for c in "XYZ"]
+            + [f"albedo.{c}" for c in "RGB"]
+            + [f"theta{k}" for k in range(self.bins)]
+        )
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         si = scene.ray_intersect(ray, active=active)
@@ -48,7 +51,9 @@ class FirstHitAOVs(mi.SamplingIntegrator):
         other = valid & ~on
         _, weight = bsdf.sample(mi.BSDFContext(), si, sampler.next_1d(), sampler.next_2d(), other)
         albedo = dr.select(other, dr.clip(weight, 0.0, 1.0), 0.0)
-        theta = dr.acos(dr.clip(dr.abs(si.wi.z), 0.0, 1.0))   # a twosided material's back side as its front
+        theta = dr.acos(
+            dr.clip(dr.abs(si.wi.z), 0.0, 1.0)
+        )  # a twosided material's back side as its front
         k = mi.UInt32(dr.minimum(theta * (2.0 / dr.pi) * self.bins, self.bins - 1))
         hist = [dr.select(valid & on & (k == j), 1.0, 0.0) for j in range(self.bins)]
         return mi.Spectrum(0.0), valid, [n.x, n.y, n.z, albedo.x, albedo.y, albedo.z] + hist

@@ -21,8 +21,10 @@ MAX_GROUPS = 4
 
 def is_manifold_bsdf(bsdf):
     """True when ``bsdf`` is a manifold material: a ``manifold_brdf`` of the active variant
-    (an instance of :class:`mitsuba_manifold.render.bsdf.ManifoldBRDF`)."""
-    from .. import bsdf as manifold_brdf   # the module .plugins made for the active variant
+    (an instance of :class:`mitsuba_manifold.render.bsdf.ManifoldBRDF`).
+    """
+    from .. import bsdf as manifold_brdf  # the module .plugins made for the active variant
+
     return isinstance(bsdf, manifold_brdf.ManifoldBRDF)
 
 
@@ -33,7 +35,8 @@ TWOSIDED = "TwoSidedBRDF"
 
 def scene_shapes(scene):
     """Every shape of ``scene``: its own, and those inside shape groups (instanced), which
-    ``scene.shapes()`` does not list."""
+    ``scene.shapes()`` does not list.
+    """
     shapes = list(scene.shapes())
     for _, _, node, _ in mi.traverse(scene).properties.values():
         if isinstance(node, mi.Shape) and not any(node is s for s in shapes):
@@ -53,7 +56,8 @@ def _inner(bsdf):
 def carriers(scene):
     """``[(carrier, material)]``: every BSDF that a shape of ``scene`` holds (instanced ones too) and
     that is a manifold material or holds one (``twosided``, ...), with that manifold material, in
-    the order of the shapes. A ray hitting ``carrier`` scatters off ``material``."""
+    the order of the shapes. A ray hitting ``carrier`` scatters off ``material``.
+    """
     out = []
     for shape in scene_shapes(scene):
         bsdf = shape.bsdf()
@@ -63,7 +67,7 @@ def carriers(scene):
             out.append((bsdf, bsdf))
         else:
             out += [(bsdf, m) for m in _inner(bsdf)]
-    for k, (c, m) in enumerate(out):   # a nested material without an id is named by its holder
+    for k, (c, m) in enumerate(out):  # a nested material without an id is named by its holder
         if not m.id():
             m.set_id(c.id() or f"manifold_brdf_{k}")
     return out
@@ -72,12 +76,17 @@ def carriers(scene):
 def is_plain_twosided(carrier):
     """Whether ``carrier`` is a ``twosided`` wrapper with the one manifold material on both sides."""
     name = carrier.class_name() if hasattr(carrier, "class_name") else type(carrier).__name__
-    return name == TWOSIDED and len(_inner(carrier)) == 1 and "brdf_1" not in mi.traverse(carrier).keys()
+    return (
+        name == TWOSIDED
+        and len(_inner(carrier)) == 1
+        and "brdf_1" not in mi.traverse(carrier).keys()
+    )
 
 
 def manifold_bsdfs(scene):
     """The distinct manifold BSDF instances of ``scene`` (a shape's own BSDF, or held by one such as
-    ``twosided``; instanced shapes included), in the order of the shapes."""
+    ``twosided``; instanced shapes included), in the order of the shapes.
+    """
     found = []
     for _, bsdf in carriers(scene):
         if not any(bsdf is b for b in found):
@@ -127,12 +136,14 @@ def target_groups(scene, target="all"):
     if not found and nested_manifold_bsdfs(scene):
         raise InputError(
             "manifold_path: the scene's manifold_brdf is nested where no shape's BSDF holds it; the L1- split "
-            "needs it as a shape's own BSDF or inside twosided: attach it so, or render with component=\"full\".")
+            'needs it as a shape\'s own BSDF or inside twosided: attach it so, or render with component="full".'
+        )
     if not found:
         raise InputError(
             "manifold_path: the scene has no manifold material (no shape uses a "
             "'manifold_brdf' BSDF); the L1- split needs one. Give the material to edit "
-            "type=\"manifold_brdf\", or render with component=\"full\".")
+            'type="manifold_brdf", or render with component="full".'
+        )
     target = str(target).strip()
     if target == "all":
         groups = [("touch", found)]
@@ -149,15 +160,17 @@ def target_groups(scene, target="all"):
         for i in ids:
             if i not in by_id:
                 others = [s.bsdf().id() for s in scene_shapes(scene) if s.bsdf() is not None]
-                kind = ("is not a manifold_brdf" if i in others else "is not in the scene")
+                kind = "is not a manifold_brdf" if i in others else "is not in the scene"
                 raise InputError(
                     f"manifold_path: target BSDF {i!r} {kind}; manifold BSDFs of the "
-                    f"scene: {sorted(by_id)}")
+                    f"scene: {sorted(by_id)}"
+                )
             groups.append((i, [by_id[i]]))
     if len(groups) > MAX_GROUPS:
         raise InputError(
             f"manifold_path: {len(groups)} target groups, at most {MAX_GROUPS} are "
-            "supported; use target='all' or name the BSDFs to edit")
+            "supported; use target='all' or name the BSDFs to edit"
+        )
     return groups
 
 
@@ -202,7 +215,8 @@ def check_variant(variant=None):
         raise VariantError(
             f"manifold_path: variant {variant!r} is not supported; the integrator traces "
             "wavefronts with Dr.Jit and needs an RGB JIT variant such as 'llvm_ad_rgb' "
-            "or 'cuda_ad_rgb' (mi.set_variant(...), then mitsuba_manifold.register())")
+            "or 'cuda_ad_rgb' (mi.set_variant(...), then mitsuba_manifold.register())"
+        )
     return variant
 
 
@@ -210,11 +224,11 @@ def developed_rgb(film):
     """The linear RGB image a film holds (float32 (H, W, 3), its crop window), whatever its
     ``pixel_format``: the film's raw storage (R, G, B, [A,] [AOVs,] W) divided by the filter
     weights, as ``develop`` does before converting to the pixel format (luminance, XYZ, ...), a
-    fixed map of this RGB."""
+    fixed map of this RGB.
+    """
     import numpy as np
 
     raw = np.array(film.bitmap(raw=True), dtype=np.float64)
     w = raw[..., -1:]
     rgb = raw[..., :3] / np.where(w > 0, w, 1.0)
     return np.where(w > 0, rgb, 0.0).astype(np.float32)
-

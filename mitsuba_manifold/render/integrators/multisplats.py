@@ -47,7 +47,8 @@ class PairSelection:
     ``L2+`` light in that pass): what leaving it out changes of the ``L2+`` light, at most
     ``tol``. Pairs of materials that see themselves alike have cross terms near 0 and are dropped.
     ``keep`` (indices into the candidates) keeps those, unmeasured: a chunk of a chunked basis
-    keeps the pairs its first chunk chose (:mod:`mitsuba_manifold.render.chunks`)."""
+    keeps the pairs its first chunk chose (:mod:`mitsuba_manifold.render.chunks`).
+    """
 
     products: tuple
     tol: float = 0.005
@@ -83,16 +84,24 @@ def _merged(parts, k):
     """One splat set ``(k, bins, amplitude, pixel, count)`` from ``parts`` of levels up to ``k`` (the
     highest there: the products run over ``k`` bins):
     the bins past a splat's own level are 0 and ``count`` (None where every splat has ``k`` bins)
-    says how many it has; sorted by the first bin, so that the tables are read in order."""
+    says how many it has; sorted by the first bin, so that the tables are read in order.
+    """
     width = [dr.width(p[2]) for p in parts]
-    bins = [dr.concat([p[0][j] if j < len(p[0]) else dr.zeros(mi.UInt32, w) for p, w in zip(parts, width)])
-            for j in range(k)]
-    count = None if all(len(p[0]) == k for p in parts) else \
-        dr.concat([dr.full(mi.UInt32, len(p[0]), w) for p, w in zip(parts, width)])
+    bins = [
+        dr.concat(
+            [p[0][j] if j < len(p[0]) else dr.zeros(mi.UInt32, w) for p, w in zip(parts, width)]
+        )
+        for j in range(k)
+    ]
+    count = (
+        None
+        if all(len(p[0]) == k for p in parts)
+        else dr.concat([dr.full(mi.UInt32, len(p[0]), w) for p, w in zip(parts, width)])
+    )
     amp = mi.Color3f(*(dr.concat([p[1][c] for p in parts]) for c in range(3)))
     pix = dr.concat([p[2] for p in parts])
     order = mi.UInt32(np.argsort(bins[0].numpy(), kind="stable").astype(np.uint32))
-    take = lambda v, t: dr.gather(t, v, order)   # noqa: E731
+    take = lambda v, t: dr.gather(t, v, order)  # noqa: E731
     bins, amp, pix = [take(b, mi.UInt32) for b in bins], take(amp, mi.Color3f), take(pix, mi.UInt32)
     count = None if count is None else take(count, mi.UInt32)
     dr.eval(bins, amp, pix, count)
@@ -106,7 +115,9 @@ class MultiSplats:
     ``rows`` is the flat ``(bins, 3, n_pad)`` table of :class:`.splats.TableSplats`.
     """
 
-    def __init__(self, rows, n_pad, names, dims, pixels, levels, pairs=(), cross_fraction=1.0, select=None):
+    def __init__(
+        self, rows, n_pad, names, dims, pixels, levels, pairs=(), cross_fraction=1.0, select=None
+    ):
         self.rows, self.n_pad, self.names, self.dims = rows, int(n_pad), names, dims
         self.cross_fraction = float(cross_fraction)
         self.pixels, self.levels = int(pixels), int(levels)
@@ -114,10 +125,10 @@ class MultiSplats:
         # with a selection, the pairs are chosen on the first pass (:meth:`_choose`)
         self.pairs = list(pairs) if select is None or not pairs else None
         self.groups = self._groups(self.pairs or [], {})
-        self.selection = None   # what :meth:`_choose` measured
+        self.selection = None  # what :meth:`_choose` measured
         self.sums = dr.zeros(mi.Float, self.pixels * 3 * self.n_pad)
-        self.splats = []      # (k, [bins], amplitude, pixel, count) per set of levels (:func:`_merged`)
-        self.counts = np.zeros(self.levels + 2, np.int64)   # paths by vertices on the target
+        self.splats = []  # (k, [bins], amplitude, pixel, count) per set of levels (:func:`_merged`)
+        self.counts = np.zeros(self.levels + 2, np.int64)  # paths by vertices on the target
 
     def prepare(self, rec, weight, taps, seed=0):
         """Splats of levels ``2 ..`` of one pass (``weight``: the camera sample weight; ``taps``: each
@@ -125,20 +136,27 @@ class MultiSplats:
         of the pass, for the choice of the splats that the cross terms use), in the sets of
         :data:`LEVEL_SETS`: one kernel per set, not per level and kind (each kernel has its fixed costs, the
         per-thread copies of the sums among them, however few splats a high level has; at 64 spp on the
-        table a basis of 8 levels then took as long as one of 5, 19.8 s, where it had taken 34.2 s against 28.5 s)."""
+        table a basis of 8 levels then took as long as one of 5, 19.8 s, where it had taken 34.2 s against 28.5 s).
+        """
         self.seed = int(seed)
         levels = rec["levels"]
-        self.counts += np.bincount(np.minimum(rec["count"].numpy(), self.levels + 1),
-                                   minlength=self.levels + 2)[:self.levels + 2]
+        self.counts += np.bincount(
+            np.minimum(rec["count"].numpy(), self.levels + 1), minlength=self.levels + 2
+        )[: self.levels + 2]
         self.splats = []
         for first, last in _level_sets(self.levels):
-            parts = [part for k in range(first, last + 1) for part in self._level(levels[:k], weight, taps)]
+            parts = [
+                part
+                for k in range(first, last + 1)
+                for part in self._level(levels[:k], weight, taps)
+            ]
             if parts:
                 self.splats.append(_merged(parts, max(len(p[0]) for p in parts)))
 
     def _level(self, lv, weight, taps):
         """The splats ``(bins, amplitude, pixel)`` of level ``len(lv)``: light connection, sampled
-        direction, each in every pixel of its sample's filter footprint (weighted)."""
+        direction, each in every pixel of its sample's filter footprint (weighted).
+        """
         earlier = [_bins(v["wi"], v["wo"], self.dims) for v in lv[:-1]]
         ok = mi.Bool(True)
         for v in lv[:-1]:
@@ -150,23 +168,33 @@ class MultiSplats:
             idx = dr.compress(good)
             if dr.width(idx) == 0:
                 continue
-            bins = [dr.gather(mi.UInt32, b, idx) for b in earlier + [_bins(last["wi"], wo, self.dims)]]
+            bins = [
+                dr.gather(mi.UInt32, b, idx) for b in earlier + [_bins(last["wi"], wo, self.dims)]
+            ]
             amp = dr.gather(mi.Color3f, a, idx)
             for take, pix, w in expand(taps, idx):
                 if take is None:
                     out.append((bins, amp, pix))
                 else:
-                    out.append(([dr.gather(mi.UInt32, b, take) for b in bins],
-                                dr.gather(mi.Color3f, amp, take) * w, pix))
+                    out.append(
+                        (
+                            [dr.gather(mi.UInt32, b, take) for b in bins],
+                            dr.gather(mi.Color3f, amp, take) * w,
+                            pix,
+                        )
+                    )
         return out
 
     def _sums(self, pairs, pixels=None):
-        return [dr.zeros(mi.Float, (pixels or self.pixels) * 3 * len(pairs[p0:p0 + PAIR_CHUNK]))
-                for p0 in range(0, len(pairs), PAIR_CHUNK)]
+        return [
+            dr.zeros(mi.Float, (pixels or self.pixels) * 3 * len(pairs[p0 : p0 + PAIR_CHUNK]))
+            for p0 in range(0, len(pairs), PAIR_CHUNK)
+        ]
 
     def _groups(self, pairs, shares):
         """``[(share of the splats, pairs, their sums)]``: the pairs grouped by ``shares`` (pair ->
-        share; ``cross_fraction`` times it, 1 where not given)."""
+        share; ``cross_fraction`` times it, 1 where not given).
+        """
         by = {}
         for p in pairs:
             by.setdefault(self.cross_fraction * shares.get(p, 1.0), []).append(p)
@@ -179,19 +207,21 @@ class MultiSplats:
         The cross terms use each splat with probability ``cross_fraction`` (weighted by
         its inverse: unbiased), which bounds their cost where many pairs are stored. The picks
         depend on the pass's seed only (the pilot draws from its own stream), so that a chunked
-        basis, whose every chunk measures a pilot, picks as the single run does."""
+        basis, whose every chunk measures a pilot, picks as the single run does.
+        """
         rng = np.random.default_rng([self.seed, 21])
-        for k, bins, amp, pix, count in self.splats:
+        for _k, bins, amp, pix, count in self.splats:
             self._rest(bins, amp, pix, count)
         if self.pairs is None:
             self._choose(np.random.default_rng([self.seed, 22]))
         for share, pairs, sums in self.groups:
-            for k, bins, amp, pix, count in self.splats:
+            for _k, bins, amp, pix, count in self.splats:
                 self._cross_all(sums, pairs, (bins, amp, pix, count), share, rng)
 
     def _cross_all(self, sums, pairs, splats, fraction, rng):
         """The cross terms of ``pairs`` into ``sums`` from a share ``fraction`` of the ``splats``
-        (``bins, amp, pix, count``)."""
+        (``bins, amp, pix, count``).
+        """
         bins, amp, pix, count = splats
         if fraction < 1.0:
             pick = np.flatnonzero(rng.random(dr.width(pix)) < fraction).astype(np.uint32)
@@ -203,11 +233,12 @@ class MultiSplats:
             pix = dr.gather(mi.UInt32, pix, idx)
             count = None if count is None else dr.gather(mi.UInt32, count, idx)
         for c, p0 in enumerate(range(0, len(pairs), PAIR_CHUNK)):
-            self._cross(sums[c], pairs[p0:p0 + PAIR_CHUNK], bins, amp, pix, count)
+            self._cross(sums[c], pairs[p0 : p0 + PAIR_CHUNK], bins, amp, pix, count)
 
     def _choose(self, rng):
         """Keep the candidate pairs whose cross term matters (:class:`PairSelection`), measured
-        on this first pass: every candidate's cross term from a share ``pilot`` of its splats."""
+        on this first pass: every candidate's cross term from a share ``pilot`` of its splats.
+        """
         sel = self.select
         if sel.keep is not None:
             keep = np.zeros(len(self.candidates), bool)
@@ -216,10 +247,20 @@ class MultiSplats:
         # the light a cross term moves, per channel over the image (where per-pixel noise cancels):
         # summed into PILOT_BINS partial sums (pixel index modulo), not per pixel
         pilot = self._sums(self.candidates, PILOT_BINS)
-        for k, bins, amp, pix, count in self.splats:
-            self._cross_all(pilot, self.candidates, (bins, amp, pix & (PILOT_BINS - 1), count), sel.pilot, rng)
-        mag = np.concatenate([np.abs(p.numpy().reshape(PILOT_BINS, 3, -1).sum(axis=0)).max(axis=0)
-                              for p in pilot]) if pilot else np.zeros(0)
+        for _k, bins, amp, pix, count in self.splats:
+            self._cross_all(
+                pilot, self.candidates, (bins, amp, pix & (PILOT_BINS - 1), count), sel.pilot, rng
+            )
+        mag = (
+            np.concatenate(
+                [
+                    np.abs(p.numpy().reshape(PILOT_BINS, 3, -1).sum(axis=0)).max(axis=0)
+                    for p in pilot
+                ]
+            )
+            if pilot
+            else np.zeros(0)
+        )
         light = self.sums.numpy().reshape(self.pixels, 3, self.n_pad).sum(axis=0).max(axis=0)
         i, j = (np.array([p[k] for p in self.candidates], dtype=int) for k in (0, 1))
         ref = np.maximum(0.5 * (light[i] + light[j]), 1e-30)
@@ -233,9 +274,14 @@ class MultiSplats:
         shares = {p: sel.share(w) for p, w, k in zip(self.candidates, sel.products, keep) if k}
         self.groups = self._groups(self.pairs, shares)
         left = score[~keep] if score.size else score
-        self.selection = {"candidates": len(self.candidates), "kept": len(self.pairs), "tol": sel.tol,
-                          "pilot": sel.pilot, "largest_left_out": float(left.max()) if left.size else 0.0,
-                          "splat_share": float(np.mean(list(shares.values()))) if shares else 0.0}
+        self.selection = {
+            "candidates": len(self.candidates),
+            "kept": len(self.pairs),
+            "tol": sel.tol,
+            "pilot": sel.pilot,
+            "largest_left_out": float(left.max()) if left.size else 0.0,
+            "splat_share": float(np.mean(list(shares.values()))) if shares else 0.0,
+        }
 
     def _rest(self, bins, amp, pix, count=None):
         packets = self.n_pad // PACKET
@@ -249,8 +295,16 @@ class MultiSplats:
             for c in range(3):
                 t = a[c]
                 for bj, ok in zip(b, has):
-                    f = dr.maximum(dr.gather(mi.ArrayXf, self.rows, (bj * 3 + c) * packets + kb,
-                                             shape=(PACKET, dr.width(lane)), active=ok), 0.0)
+                    f = dr.maximum(
+                        dr.gather(
+                            mi.ArrayXf,
+                            self.rows,
+                            (bj * 3 + c) * packets + kb,
+                            shape=(PACKET, dr.width(lane)),
+                            active=ok,
+                        ),
+                        0.0,
+                    )
                     t = t * (f if ok is True else dr.select(ok, f, 1.0))
                 dr.scatter_add(self.sums, t, (q * 3 + c) * packets + kb, mode=dr.ReduceMode.Expand)
             dr.eval(self.sums)
@@ -265,16 +319,24 @@ class MultiSplats:
         has = _has_bin(count, s, len(b))
         q = dr.gather(mi.UInt32, pix, s)
         a = dr.gather(mi.Color3f, amp, s)
-        f = lambda b, c, i: dr.maximum(dr.gather(mi.Float, self.rows, (b * 3 + c) * self.n_pad + i), 0.0)  # noqa: E731
+        f = lambda b, c, i: dr.maximum(
+            dr.gather(mi.Float, self.rows, (b * 3 + c) * self.n_pad + i), 0.0
+        )  # noqa: E731
         with _expand(sums):
             for c in range(3):
-                if len(b) == 2:   # the difference form: exactly 0 for equal materials, no cancellation
-                    term = -a[c] * (f(b[0], c, pi) - f(b[0], c, pj)) * (f(b[1], c, pi) - f(b[1], c, pj))
+                if (
+                    len(b) == 2
+                ):  # the difference form: exactly 0 for equal materials, no cancellation
+                    term = (
+                        -a[c]
+                        * (f(b[0], c, pi) - f(b[0], c, pj))
+                        * (f(b[1], c, pi) - f(b[1], c, pj))
+                    )
                 else:
                     ti, tj, tm = a[c], a[c], a[c]
                     for bk, ok in zip(b, has):
                         fi, fj = f(bk, c, pi), f(bk, c, pj)
-                        if ok is not True:   # past the splat's own level: a factor 1
+                        if ok is not True:  # past the splat's own level: a factor 1
                             fi, fj = dr.select(ok, fi, 1.0), dr.select(ok, fj, 1.0)
                         ti, tj, tm = ti * fi, tj * fj, tm * (0.5 * (fi + fj))
                     term = 4.0 * tm - 2.0 * ti - 2.0 * tj
@@ -286,26 +348,34 @@ class MultiSplats:
 
     def images(self, scale, shape):
         """``rest`` (material -> ``L2+`` image) and ``cross`` ((name_i, name_j) -> ``C_ij``),
-        scaled by ``scale`` (per pixel: 1 / the filter weights of all samples)."""
+        scaled by ``scale`` (per pixel: 1 / the filter weights of all samples).
+        """
         sums = self.sums.numpy().reshape(self.pixels, 3, self.n_pad) * scale[:, None, None]
-        rest = {n: np.ascontiguousarray(sums[:, :, k].reshape(shape), np.float32)
-                for k, n in enumerate(self.names)}
+        rest = {
+            n: np.ascontiguousarray(sums[:, :, k].reshape(shape), np.float32)
+            for k, n in enumerate(self.names)
+        }
         cross = {}
         for _, pairs, sums in self.groups:
             for c, p0 in enumerate(range(0, len(pairs), PAIR_CHUNK)):
-                chunk = pairs[p0:p0 + PAIR_CHUNK]
+                chunk = pairs[p0 : p0 + PAIR_CHUNK]
                 part = sums[c].numpy().reshape(self.pixels, 3, len(chunk)) * scale[:, None, None]
                 for k, (i, j) in enumerate(chunk):
-                    cross[(self.names[i], self.names[j])] = np.ascontiguousarray(part[:, :, k].reshape(shape),
-                                                                                 np.float32)
-        order = {p: k for k, p in enumerate(self.pairs or [])}   # the candidates' order
+                    cross[(self.names[i], self.names[j])] = np.ascontiguousarray(
+                        part[:, :, k].reshape(shape), np.float32
+                    )
+        order = {p: k for k, p in enumerate(self.pairs or [])}  # the candidates' order
         keyed = {(self.names[i], self.names[j]): order[(i, j)] for (i, j) in order}
         return rest, dict(sorted(cross.items(), key=lambda kv: keyed[kv[0]]))
 
 
 def _has_bin(count, s, k):
     """Per bin position of ``k``, whether the splats ``s`` have it: True, or a mask (``count``)."""
-    return [True] * k if count is None else [True] * 2 + [dr.gather(mi.UInt32, count, s) > j for j in range(2, k)]
+    return (
+        [True] * k
+        if count is None
+        else [True] * 2 + [dr.gather(mi.UInt32, count, s) > j for j in range(2, k)]
+    )
 
 
 class _expand:

@@ -24,7 +24,13 @@ import mitsuba as mi
 import numpy as np
 
 from ...errors import InputError
-from .common import developed_rgb, group_carriers, is_manifold_bsdf, is_plain_twosided, target_groups
+from .common import (
+    developed_rgb,
+    group_carriers,
+    is_manifold_bsdf,
+    is_plain_twosided,
+    target_groups,
+)
 from .multisplats import MultiSplats
 from .proxy import POINT, sampling_proxy, with_point  # noqa: F401 (POINT: re-exported)
 from .splats import PACKET, FilterSplats, TableSplats
@@ -32,6 +38,7 @@ from .splats import PACKET, FilterSplats, TableSplats
 
 def _prefetch(path, block=1 << 24):
     """Read ``path`` in a background thread, so that it is in the page cache when needed."""
+
     def run():
         try:
             buf = bytearray(block)
@@ -40,11 +47,22 @@ def _prefetch(path, block=1 << 24):
                     pass
         except OSError:
             pass
+
     threading.Thread(target=run, daemon=True).start()
 
 
-def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, chunk=None,
-                   max_samples=1 << 22, spp_per_pass=None, progress=None):
+def render_onepass(
+    integrator,
+    scene,
+    materials=None,
+    spp=0,
+    seed=0,
+    sensor=0,
+    chunk=None,
+    max_samples=1 << 22,
+    spp_per_pass=None,
+    progress=None,
+):
     """Render the base image and every material's touch image from one set of paths.
 
     For paths scattering once off the target, the material enters only at that
@@ -65,15 +83,14 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
     per-pixel sums (scatter-adds into per-thread copies, ``ReduceMode.Expand``),
     over tiles of pixels small enough to bound that memory; a splat goes to every pixel of its
     sample's filter footprint with the filter's weight there (:class:`.splats.FilterTaps`:
-    one pixel for the box filter, about 16 for Mitsuba's default Gaussian). With ``linear``
-    lookups each material is evaluated at the splats by the BSDF's own ``eval`` and splatted
-    with the film's filter. Either way the images are normalised by the filter weights of all
-    samples, as the film does: pixel ``p`` of material ``i`` is
-    ``sum_s r_ps T_is / sum_s r_ps`` (``r_ps``: the filter's weight of sample ``s`` at ``p``,
-    ``T_is``: its touch radiance with material ``i``), linear in each ``T_is``. Samples are processed in passes of at most
-    ``max_samples`` paths to bound memory. Each image is an unbiased estimate of
-    what ``component="touch"`` renders with that material alone; the images are
-    correlated (the same paths).
+    one pixel for the box filter, about 16 for Mitsuba's default Gaussian). With ``linear`` lookups
+    each material is evaluated at the splats by the BSDF's own ``eval`` and splatted with the
+    film's filter. Either way the images are normalised by the filter weights of all samples, as
+    the film does: pixel ``p`` of material ``i`` is ``sum_s r_ps T_is / sum_s r_ps`` (``r_ps``: the
+    filter's weight of sample ``s`` at ``p``, ``T_is``: its touch radiance with material ``i``),
+    linear in each ``T_is``. Samples are processed in passes of at most ``max_samples`` paths to
+    bound memory. Each image is an unbiased estimate of what ``component="touch"`` renders with
+    that material alone; the images are correlated (the same paths).
 
     Parameters
     ----------
@@ -103,9 +120,9 @@ def render_onepass(integrator, scene, materials=None, spp=0, seed=0, sensor=0, c
         and ``images`` (dict of str -> ndarray float32 (H, W, 3): the touch image of each
         material, in the order of ``materials``).
     """
-
-    base, images, _ = _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
-                              spp_per_pass, progress)
+    base, images, _ = _render(
+        integrator, scene, materials, spp, seed, sensor, chunk, max_samples, spp_per_pass, progress
+    )
     return OnePassImages(base, images)
 
 
@@ -127,11 +144,12 @@ class OnePassGI:
     cross: dict
     paths: np.ndarray
     levels: int
-    selection: dict = None   # what the pair selection measured (``pair_selection``), or None
+    selection: dict = None  # what the pair selection measured (``pair_selection``), or None
 
 
-def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(),
-                      **options):
+def render_onepass_gi(
+    integrator, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(), **options
+):
     """Render base, touch, ``L2+`` and cross-term images of every material from one set of paths.
 
     As :func:`render_onepass`, but paths go on after their second vertex on the target, up
@@ -153,23 +171,47 @@ def render_onepass_gi(integrator, scene, materials=None, spp=0, seed=0, sensor=0
     OnePassGI
     """
     if int(levels) < 2:
-        raise InputError(f"manifold_path: `levels` must be >= 2 (1 is render_onepass), got {levels}")
+        raise InputError(
+            f"manifold_path: `levels` must be >= 2 (1 is render_onepass), got {levels}"
+        )
     fraction = float(options.get("cross_fraction", 1.0))
     if not 0 < fraction <= 1:
         raise InputError(f"manifold_path: `cross_fraction` must be in (0, 1], got {fraction}")
-    gi = {"levels": int(levels), "pairs": [tuple(str(n) for n in p) for p in pairs], "cross_fraction": fraction,
-          "select": options.get("pair_selection")}
+    gi = {
+        "levels": int(levels),
+        "pairs": [tuple(str(n) for n in p) for p in pairs],
+        "cross_fraction": fraction,
+        "select": options.get("pair_selection"),
+    }
     if options.get("point") is not None:
         point = np.asarray(options["point"], np.float64)
-        if point.shape != (len(materials or ()),) or not np.isfinite(point).all() or not np.abs(point).sum() > 0:
-            raise InputError(f"manifold_path: `point` must be finite weights, one per material of `materials` "
-                             f"({len(materials or ())}), not all 0; got shape {point.shape}")
+        if (
+            point.shape != (len(materials or ()),)
+            or not np.isfinite(point).all()
+            or not np.abs(point).sum() > 0
+        ):
+            raise InputError(
+                f"manifold_path: `point` must be finite weights, one per material of `materials` "
+                f"({len(materials or ())}), not all 0; got shape {point.shape}"
+            )
         gi["point"] = point
     gi["touch"] = bool(options.get("touch", True))
-    base, touch, extra = _render(integrator, scene, materials, spp, seed, sensor,
-                                 options.get("chunk"), options.get("max_samples", 1 << 22),
-                                 options.get("spp_per_pass"), options.get("progress"), gi)
-    return OnePassGI(base, touch, extra["rest"], extra["cross"], extra["paths"], int(levels), extra["selection"])
+    base, touch, extra = _render(
+        integrator,
+        scene,
+        materials,
+        spp,
+        seed,
+        sensor,
+        options.get("chunk"),
+        options.get("max_samples", 1 << 22),
+        options.get("spp_per_pass"),
+        options.get("progress"),
+        gi,
+    )
+    return OnePassGI(
+        base, touch, extra["rest"], extra["cross"], extra["paths"], int(levels), extra["selection"]
+    )
 
 
 def _check_counts(**counts):
@@ -179,8 +221,19 @@ def _check_counts(**counts):
             raise InputError(f"manifold_path: `{name}` must be >= 1, got {value}")
 
 
-def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples, spp_per_pass, progress,
-            gi=None):
+def _render(
+    integrator,
+    scene,
+    materials,
+    spp,
+    seed,
+    sensor,
+    chunk,
+    max_samples,
+    spp_per_pass,
+    progress,
+    gi=None,
+):
     """:func:`render_onepass` (``gi`` None) or :func:`render_onepass_gi` (``gi``: levels, pairs)."""
     target = one_target(scene, integrator.target)
     names = _material_names(target.manifold, target.path, materials)
@@ -195,59 +248,82 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
     rows = None
     if target.interpolation == "nearest" and int(np.prod(dims)) * 3 * n_pad < 1 << 32:
         rows = db.material_rows(names, pad=PACKET)
-        if isinstance(rows, np.memmap):   # a cached file (a built-in set's rows are made in memory)
+        if isinstance(rows, np.memmap):  # a cached file (a built-in set's rows are made in memory)
             _prefetch(rows.filename)  # read while the paths are traced
     point = gi.get("point") if gi else None
-    if point is not None and rows is not None:   # the point's own material as one more column
+    if point is not None and rows is not None:  # the point's own material as one more column
         rows, names, proxy = with_point(target, db, names, rows, point)
     else:
         proxy = sampling_proxy(target, db, names, rows)
 
     if any(is_plain_twosided(c) for c in group_carriers(scene, target.groups)[0]):
-        proxy = (proxy, mi.load_dict({"type": "twosided", "bsdf": proxy}))   # the back side mirrored
+        proxy = (proxy, mi.load_dict({"type": "twosided", "bsdf": proxy}))  # the back side mirrored
     levels = gi["levels"] if gi else 1
     touch = gi.get("touch", True) if gi else True
     spp = int(spp) or sensor.sampler().sample_count()
     # the records of every level of every path are held at once (60 bytes per path and level): fewer
     # paths per pass, but not below 3/5 of ``max_samples`` (each pass costs its cross terms' sums)
-    passes = _passes(film, spp, max(1, int(max_samples) * 3 // max(3, min(levels, 5))), spp_per_pass)
+    passes = _passes(
+        film, spp, max(1, int(max_samples) * 3 // max(3, min(levels, 5))), spp_per_pass
+    )
     chunk = int(chunk) if chunk else (len(names) if rows is not None else 16)
     chunks = [(i, min(len(names), i + chunk)) for i in range(0, len(names), chunk)]
     alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
     hits = group_carriers(scene, target.groups)
-    plan = dict(groups=target.groups, select=1, keep=3 if levels == 1 else 7, aovs=[], hits=hits,
-                mirror=[c for c in hits[0] if is_plain_twosided(c)])
+    plan = dict(
+        groups=target.groups,
+        select=1,
+        keep=3 if levels == 1 else 7,
+        aovs=[],
+        hits=hits,
+        mirror=[c for c in hits[0] if is_plain_twosided(c)],
+    )
 
     film.prepare([])
     base_block = film.create_block()
     base_block.set_coalesce(base_block.coalesce() and spp >= 4)
     if rows is None:
-        splat = FilterSplats(film, base_block, names, chunks, db, target.path, target.options(),
-                             len(passes) > 1)
+        splat = FilterSplats(
+            film, base_block, names, chunks, db, target.path, target.options(), len(passes) > 1
+        )
     else:
         splat = TableSplats(base_block, rows, names, chunks, dims, film.rfilter())
     multi = None
     if gi:
         if rows is None:
-            raise InputError("manifold_path: the L2+ images need the manifold_brdf's nearest lookups (the table "
-                             "product): give it interpolation=\"nearest\" (its default), or render the L1- basis")
+            raise InputError(
+                "manifold_path: the L2+ images need the manifold_brdf's nearest lookups (the table "
+                'product): give it interpolation="nearest" (its default), or render the L1- basis'
+            )
         index = {n: k for k, n in enumerate(names)}
         bad = [p for p in gi["pairs"] if len(p) != 2 or p[0] not in index or p[1] not in index]
         if bad:
-            raise InputError(f"manifold_path: `pairs` must name two rendered materials each, got {bad[0]!r}")
-        multi = MultiSplats(splat.rows, splat.n_pad, names, dims, splat.pixels, levels,
-                            [(index[a], index[b]) for a, b in gi["pairs"]], gi.get("cross_fraction", 1.0),
-                            gi.get("select"))
+            raise InputError(
+                f"manifold_path: `pairs` must name two rendered materials each, got {bad[0]!r}"
+            )
+        multi = MultiSplats(
+            splat.rows,
+            splat.n_pad,
+            names,
+            dims,
+            splat.pixels,
+            levels,
+            [(index[a], index[b]) for a, b in gi["pairs"]],
+            gi.get("cross_fraction", 1.0),
+            gi.get("select"),
+        )
 
     done, total = 0, len(passes) * len(chunks)
     # Mitsuba's own sampler seeding and primary rays (they use nothing of their instance).
     rays = mi.ad.integrators.common.ADIntegrator
     with dr.suspend_grad():
         for p, n_spp in enumerate(passes):
-            pass_seed = (int(seed) * len(passes) + p) & 0xFFFFFFFF   # Mitsuba's seeds are 32-bit
+            pass_seed = (int(seed) * len(passes) + p) & 0xFFFFFFFF  # Mitsuba's seeds are 32-bit
             sampler, _ = rays.prepare(integrator, sensor, pass_seed, n_spp, [])
             ray, weight, pos = rays.sample_rays(integrator, scene, sensor, sampler)
-            L, valid, _, rec = integrator.trace_paths(scene, sampler, ray, mi.Bool(True), plan, levels, proxy)
+            L, valid, _, rec = integrator.trace_paths(
+                scene, sampler, ray, mi.Bool(True), plan, levels, proxy
+            )
             L = L * weight
             head = [L.x, L.y, L.z] + ([dr.select(valid, 1.0, 0.0)] if alpha else [])
             base_block.put(pos, head + [mi.Float(1.0)])
@@ -266,16 +342,20 @@ def _render(integrator, scene, materials, spp, seed, sensor, chunk, max_samples,
                 multi.add()
                 multi.release()
                 if progress is not None:
-                    progress(done, total)   # the L2+ splats took a while: let the caller stop
+                    progress(done, total)  # the L2+ splats took a while: let the caller stop
     film.prepare([])
     film.put_block(base_block)
     film.develop()
-    base = developed_rgb(film)   # RGB whatever the film's pixel format
+    base = developed_rgb(film)  # RGB whatever the film's pixel format
     images = splat.images(film) if touch else {}
     if multi is None:
         return base, images, None
     rest, cross = multi.images(splat.scale(), base.shape)
-    return base, images, {"rest": rest, "cross": cross, "paths": multi.counts, "selection": multi.selection}
+    return (
+        base,
+        images,
+        {"rest": rest, "cross": cross, "paths": multi.counts, "selection": multi.selection},
+    )
 
 
 class OnePassImages(NamedTuple):
@@ -311,25 +391,39 @@ def one_target(scene, target):
         raise InputError(
             f"manifold_path: one-pass rendering handles one target group, the target "
             f"{target!r} gives {len(groups)} ({[g[0] for g in groups]}); render "
-            "several targets material by material")
-    bsdfs = groups[0][1]   # manifold_brdf instances: target_groups only returns those
+            "several targets material by material"
+        )
+    bsdfs = groups[0][1]  # manifold_brdf instances: target_groups only returns those
     for carrier in group_carriers(scene, groups)[0]:
         if not is_manifold_bsdf(carrier) and not is_plain_twosided(carrier):
-            name = carrier.class_name() if hasattr(carrier, "class_name") else type(carrier).__name__
+            name = (
+                carrier.class_name() if hasattr(carrier, "class_name") else type(carrier).__name__
+            )
             raise InputError(
                 f"manifold_path: the manifold_brdf is held by a {name} BSDF ({carrier.id()!r}); one-pass rendering "
                 "records the material's own vertices (it alone, or inside twosided): render material by "
-                "material (`mode` 'per-material', L1- images), or give the shape the manifold_brdf itself")
+                "material (`mode` 'per-material', L1- images), or give the shape the manifold_brdf itself"
+            )
     first = bsdfs[0]
     for b in bsdfs[1:]:
-        same = (os.path.samefile(b.manifold_path, first.manifold_path)
-                and b.interpolation == first.interpolation and b.database == first.database)
+        same = (
+            os.path.samefile(b.manifold_path, first.manifold_path)
+            and b.interpolation == first.interpolation
+            and b.database == first.database
+        )
         if not same:
             raise InputError(
                 f"manifold_path: target BSDFs {first.id()!r} and {b.id()!r} differ in "
-                "manifold, database or interpolation; one-pass rendering needs them alike")
-    return OnePassTarget(groups, first.manifold, first.manifold_path, first.database,
-                         first.interpolation, first.sampling)
+                "manifold, database or interpolation; one-pass rendering needs them alike"
+            )
+    return OnePassTarget(
+        groups,
+        first.manifold,
+        first.manifold_path,
+        first.database,
+        first.interpolation,
+        first.sampling,
+    )
 
 
 def _material_names(manifold, path, materials):
@@ -338,7 +432,8 @@ def _material_names(manifold, path, materials):
     if unknown or not names or len(set(names)) != len(names):
         raise InputError(
             f"manifold_path: materials must be distinct names of the manifold {path}; "
-            f"unknown: {unknown or 'none'} (it has {', '.join(manifold.names[:8])}, ...)")
+            f"unknown: {unknown or 'none'} (it has {', '.join(manifold.names[:8])}, ...)"
+        )
     return names
 
 
@@ -350,7 +445,9 @@ def _passes(film, spp, max_samples, spp_per_pass):
     pixels = int(size[0]) * int(size[1])
     pass_spp = int(spp_per_pass) if spp_per_pass else int(max_samples) // max(pixels, 1)
     pass_spp = max(1, min(spp, pass_spp))
-    if pixels * pass_spp > 2 ** 32:
-        raise InputError(f"manifold_path: {pixels * pass_spp} samples in one wavefront exceed 2^32; "
-                         "use fewer samples per pixel per pass (`spp_per_pass`)")
+    if pixels * pass_spp > 2**32:
+        raise InputError(
+            f"manifold_path: {pixels * pass_spp} samples in one wavefront exceed 2^32; "
+            "use fewer samples per pixel per pass (`spp_per_pass`)"
+        )
     return [pass_spp] * (spp // pass_spp) + ([spp % pass_spp] if spp % pass_spp else [])

@@ -20,9 +20,16 @@ import drjit as dr
 import mitsuba as mi
 
 from ...errors import InputError, UnavailableError
+from .common import (
+    COMPONENTS,
+    check_variant,
+    class_names,
+    group_carriers,
+    is_plain_twosided,
+    power_heuristic,
+    target_groups,
+)
 from .records import Records
-from .common import (COMPONENTS, check_variant, class_names, group_carriers, is_plain_twosided, power_heuristic,
-                     target_groups)
 
 
 class ManifoldPathIntegrator(mi.SamplingIntegrator):
@@ -69,11 +76,13 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
     """
 
     def __init__(self, props):
-        check_variant()   # first: Mitsuba warns about Python integrators in scalar variants
+        check_variant()  # first: Mitsuba warns about Python integrators in scalar variants
         super().__init__(props)
         max_depth = props.get("max_depth", -1)
         if max_depth < -1:
-            raise InputError(f"manifold_path: max_depth must be -1 (unbounded) or >= 0, got {max_depth}")
+            raise InputError(
+                f"manifold_path: max_depth must be -1 (unbounded) or >= 0, got {max_depth}"
+            )
         self.max_depth = max_depth if max_depth != -1 else 0xFFFFFFFF
         self.rr_depth = props.get("rr_depth", 5)
         if self.rr_depth <= 0:
@@ -82,7 +91,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         if self.component not in COMPONENTS and not self.component.startswith("touch:"):
             raise InputError(
                 f"manifold_path: unknown component {self.component!r}; expected one of "
-                f"{', '.join(COMPONENTS)} or 'touch:<id>+<id>'")
+                f"{', '.join(COMPONENTS)} or 'touch:<id>+<id>'"
+            )
         self.target = str(props.get("target", "all"))
         self.split = bool(props.get("split", False))
         self._names = None  # class names of the last scene rendered (for aov_names)
@@ -127,14 +137,16 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             if len(groups) < 2:
                 raise InputError(
                     f"manifold_path: component {comp!r} names groups, but the target "
-                    f"{self.target!r} makes one group; use component='touch'")
-            wanted = [s.strip() for s in comp[len("touch:"):].split("+")]
+                    f"{self.target!r} makes one group; use component='touch'"
+                )
+            wanted = [s.strip() for s in comp[len("touch:") :].split("+")]
             gnames = [g[0] for g in groups]
             bad = [w for w in wanted if w not in gnames]
             if bad or len(set(wanted)) != len(wanted) or not wanted:
                 raise InputError(
                     f"manifold_path: component {comp!r} must name distinct target "
-                    f"groups among {gnames}")
+                    f"groups among {gnames}"
+                )
             select = 1 << sum(1 << gnames.index(w) for w in wanted)
         aovs = []
         if self.split:
@@ -148,7 +160,15 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
                 keep |= 1 << c
         if need >> rest & 1:
             keep |= 1 << rest
-        return dict(groups=groups, names=names, select=select, keep=keep, aovs=aovs, hits=hits, mirror=mirror)
+        return dict(
+            groups=groups,
+            names=names,
+            select=select,
+            keep=keep,
+            aovs=aovs,
+            hits=hits,
+            mirror=mirror,
+        )
 
     def aov_names(self):
         if not self.split:
@@ -156,7 +176,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         if self._names is None:
             raise UnavailableError(
                 "manifold_path: the AOV names of split=true depend on the scene; call "
-                "integrator.prepare_scene(scene) (or render once) before asking for them")
+                "integrator.prepare_scene(scene) (or render once) before asking for them"
+            )
         out = []
         for c in self._aov_classes:
             base = self._names[c].replace(":", "_")
@@ -220,7 +241,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         bsdf_ctx = mi.BSDFContext()
         ray = mi.Ray3f(ray)
         if dr.hint(self.max_depth == 0, mode="scalar"):
-            active = False   # as Mitsuba's path: depth 0 renders nothing, not even the emitters seen
+            active = False  # as Mitsuba's path: depth 0 renders nothing, not even the emitters seen
         depth = mi.UInt32(0)
         beta = mi.Spectrum(1)
         eta = mi.Float(1)
@@ -236,7 +257,11 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         # Records of the vertices on the target (record mode, :mod:`.records`): ``beta`` is the
         # throughput since the last such vertex, ``rr_scale`` the proxy's throughput up to it.
         # one record per path: an orthographic camera's rays share one direction (``ray.d`` has width 1)
-        rec = Records(levels, max(dr.width(ray.o.x), dr.width(ray.d.x), dr.width(active))) if record else None
+        rec = (
+            Records(levels, max(dr.width(ray.o.x), dr.width(ray.d.x), dr.width(active)))
+            if record
+            else None
+        )
         rs = rec.state if record else None
         rr_scale = mi.Float(1) if record else None
 
@@ -244,14 +269,16 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             # As Mitsuba's path tracers: camera rays pass through area emitters.
             skip = mi.Bool(active)
             while dr.hint(skip, label="manifold_path_skip_emitters"):
-                si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal,
-                                         coherent=True, active=skip)
+                si = scene.ray_intersect(
+                    ray, ray_flags=mi.RayFlags.Minimal, coherent=True, active=skip
+                )
                 skip &= si.is_valid() & (si.shape.emitter() != None)  # noqa: E711
                 ray[skip] = si.spawn_ray(ray.d)
 
         while dr.hint(active, label="manifold_path"):
-            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All,
-                                     coherent=(depth == 0), active=active)
+            si = scene.ray_intersect(
+                ray, ray_flags=mi.RayFlags.All, coherent=(depth == 0), active=active
+            )
             bsdf = si.bsdf(ray)
 
             # --- Emission found by the previous BSDF sample (class of the vertices before)
@@ -281,8 +308,12 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
                 rs, first = rec.arrive(rs, active & (hit != 0), beta, _mirrored(si.wi, back))
                 active &= rs.n <= levels  # a path that has touched it more often ends here
 
-            active_next = (active & si.is_valid() & (depth + 1 < self.max_depth)
-                           & ((mi.UInt32(keep) >> cls) & 1 != 0))
+            active_next = (
+                active
+                & si.is_valid()
+                & (depth + 1 < self.max_depth)
+                & ((mi.UInt32(keep) >> cls) & 1 != 0)
+            )
 
             # --- Light connection (next-event estimation)
             active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
@@ -297,18 +328,25 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
                 parts[k] += dr.select(cls == aov_classes[k], Lr, 0)
             if dr.hint(record, mode="scalar"):
                 rs.acc += dr.select((rs.n > 0) & ~first, Lr, 0)
-                rec.light(rs, first, _mirrored(wo, back), dr.select(active_em, mis_em * em_weight, 0))
+                rec.light(
+                    rs, first, _mirrored(wo, back), dr.select(active_em, mis_em * em_weight, 0)
+                )
 
             # --- BSDF sampling
-            bs, bsdf_weight = bsdf.sample(bsdf_ctx, si, sampler.next_1d(),
-                                          sampler.next_2d(), active_next)
+            bs, bsdf_weight = bsdf.sample(
+                bsdf_ctx, si, sampler.next_1d(), sampler.next_2d(), active_next
+            )
             ray = si.spawn_ray(si.to_world(bs.wo))
             eta *= bs.eta
             beta_full = beta * bsdf_weight
             if dr.hint(record, mode="scalar"):
                 ok = first & active_next & (bs.pdf > 0)
-                rs = rec.leave(rs, first, _mirrored(bs.wo, back), dr.select(ok, dr.rcp(bs.pdf), 0.0))
-                rr_scale = dr.select(first, rr_scale * dr.max(mi.unpolarized_spectrum(beta_full)), rr_scale)
+                rs = rec.leave(
+                    rs, first, _mirrored(bs.wo, back), dr.select(ok, dr.rcp(bs.pdf), 0.0)
+                )
+                rr_scale = dr.select(
+                    first, rr_scale * dr.max(mi.unpolarized_spectrum(beta_full)), rr_scale
+                )
                 beta = dr.select(first, dr.select(ok, 1.0, 0.0), beta_full)
             else:
                 beta = beta_full
@@ -338,41 +376,78 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
 
     # ------------------------------------------------------------ one pass
 
-    def render_onepass(self, scene, materials=None, spp=0, seed=0, sensor=0, chunk=None,
-                       max_samples=1 << 22, spp_per_pass=None, progress=None):
+    def render_onepass(
+        self,
+        scene,
+        materials=None,
+        spp=0,
+        seed=0,
+        sensor=0,
+        chunk=None,
+        max_samples=1 << 22,
+        spp_per_pass=None,
+        progress=None,
+    ):
         """Render the base image and every material's touch image from one set of paths.
 
         See :func:`mitsuba_manifold.render.integrators.onepass.render_onepass` (the algorithm,
         parameters and results).
         """
         from . import onepass
-        return onepass.render_onepass(self, scene, materials, spp=spp, seed=seed, sensor=sensor,
-                                      chunk=chunk, max_samples=max_samples,
-                                      spp_per_pass=spp_per_pass, progress=progress)
 
-    def render_onepass_gi(self, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(),
-                          **options):
+        return onepass.render_onepass(
+            self,
+            scene,
+            materials,
+            spp=spp,
+            seed=seed,
+            sensor=sensor,
+            chunk=chunk,
+            max_samples=max_samples,
+            spp_per_pass=spp_per_pass,
+            progress=progress,
+        )
+
+    def render_onepass_gi(
+        self, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(), **options
+    ):
         """Base, touch, ``L2+`` and cross-term images of every material from one set of paths:
-        :func:`mitsuba_manifold.render.integrators.onepass.render_onepass_gi`."""
+        :func:`mitsuba_manifold.render.integrators.onepass.render_onepass_gi`.
+        """
         from . import onepass
-        return onepass.render_onepass_gi(self, scene, materials, spp=spp, seed=seed, sensor=sensor,
-                                         levels=levels, pairs=pairs, **options)
+
+        return onepass.render_onepass_gi(
+            self,
+            scene,
+            materials,
+            spp=spp,
+            seed=seed,
+            sensor=sensor,
+            levels=levels,
+            pairs=pairs,
+            **options,
+        )
 
     def to_string(self):
-        return (f"ManifoldPathIntegrator[max_depth={self.max_depth}, rr_depth="
-                f"{self.rr_depth}, component={self.component!r}, target={self.target!r}, "
-                f"split={self.split}]")
+        return (
+            f"ManifoldPathIntegrator[max_depth={self.max_depth}, rr_depth="
+            f"{self.rr_depth}, component={self.component!r}, target={self.target!r}, "
+            f"split={self.split}]"
+        )
 
 
 def _target_test(hits):
     """``test(bsdf)``: per lane, the bit set of the target groups whose BSDFs (``hits``: per group,
-    its manifold materials and the twosided wrappers holding them) the BSDF pointer is one of."""
+    its manifold materials and the twosided wrappers holding them) the BSDF pointer is one of.
+    """
+
     def test(bsdf):
         hit = mi.UInt32(0)
         for g, carriers in enumerate(hits):
             for b in carriers:
                 hit |= dr.select(bsdf == mi.BSDFPtr(b), mi.UInt32(1 << g), 0)
         return hit
+
     return test
 
 
@@ -380,7 +455,8 @@ def _proxy_choice(mirror, proxy):
     """``choose(bsdf, on, below)``: the BSDF sampled at each vertex (on the target: the proxy, or
     its twosided wrapper where one of the twosided materials ``mirror`` was hit; ``proxy`` is the
     proxy or the pair ``(proxy, twosided proxy)``) and whether the vertex is a twosided material's
-    back side (``below``: the incident direction is below the shading frame)."""
+    back side (``below``: the incident direction is below the shading frame).
+    """
     proxy, proxy_two = proxy if isinstance(proxy, tuple) else (proxy, None)
 
     def choose(bsdf, on, below):
@@ -391,12 +467,14 @@ def _proxy_choice(mirror, proxy):
         if proxy_two is not None:
             use = dr.select(two, mi.BSDFPtr(proxy_two), use)
         return dr.select(on, use, bsdf), two & below
+
     return choose
 
 
 def _mirrored(v, back):
     """``v`` with its z negated where ``back``: a direction on a twosided material's back side in
-    the frame its front side is evaluated in."""
+    the frame its front side is evaluated in.
+    """
     return mi.Vector3f(v.x, v.y, dr.select(back, -v.z, v.z))
 
 

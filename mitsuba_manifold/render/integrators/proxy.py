@@ -1,6 +1,7 @@
 """The sampling proxy of a one-pass render (:mod:`.onepass`): a ``manifold_brdf`` whose density
 covers every rendered material (paper Sec. 5.3), or a point's blend of them, and the point's own
-material as one more column of the interleaved tables (:func:`with_point`)."""
+material as one more column of the interleaved tables (:func:`with_point`).
+"""
 
 import os
 import threading
@@ -17,7 +18,8 @@ POINT = "(point)"
 
 def rows_key(rows):
     """The content hash naming interleaved tables: the cached file's name, or the key of tables
-    made in memory (:class:`~mitsuba_manifold.data.database.TableRows`)."""
+    made in memory (:class:`~mitsuba_manifold.data.database.TableRows`).
+    """
     return getattr(rows, "key", None) or os.path.basename(rows.filename).split(".")[0]
 
 
@@ -34,42 +36,66 @@ def _mixture_table(db, rows, mix, keep=2):
 
     def build():
         w = np.zeros(rows.shape[2], dtype=np.float32)
-        w[:len(mix)] = mix
+        w[: len(mix)] = mix
         return (np.asarray(rows).reshape(-1, rows.shape[2]) @ w).reshape(shape)
 
-    return npy_cache(path, build, shape=shape, dtype=np.float32, finite=True, touch=True,
-                     keep=keep, marker=".mixture-v1-")
+    return npy_cache(
+        path,
+        build,
+        shape=shape,
+        dtype=np.float32,
+        finite=True,
+        touch=True,
+        keep=keep,
+        marker=".mixture-v1-",
+    )
 
 
 def _with_point(target, db, names, rows, w):
     """``(rows, names, proxy)``: the ``(bins, 3, n)`` tables of the materials ``names`` and, after
     them, the column ``sum_k w_k table_k`` (the point's material, :data:`POINT`), padded to
-    PACKET; the names with :data:`POINT`; the proxy sampling ``|w|`` (:func:`_sampling_proxy`)."""
+    PACKET; the names with :data:`POINT`; the proxy sampling ``|w|`` (:func:`_sampling_proxy`).
+    """
     k = len(w)
     out = np.zeros(rows.shape[:2] + (-(-(k + 1) // PACKET) * PACKET,), np.float32)
     out[:, :, :k] = rows[:, :, :k]
     out[:, :, k] = out[:, :, :k] @ np.asarray(w, np.float32)
     mix = np.abs(w) / float(np.abs(w).sum())
     # convex weights: the proxy's table is the point's column (scaled to sum 1), not a second product
-    table = out[:, :, k] / float(w.sum()) if np.all(w >= 0) else out[:, :, :k].reshape(-1, k) @ mix.astype(np.float32)
-    return out, names + [POINT], sampling_proxy(target, db, names, out, mix, table.reshape(out.shape[0], 3))
+    table = (
+        out[:, :, k] / float(w.sum())
+        if np.all(w >= 0)
+        else out[:, :, :k].reshape(-1, k) @ mix.astype(np.float32)
+    )
+    return (
+        out,
+        names + [POINT],
+        sampling_proxy(target, db, names, out, mix, table.reshape(out.shape[0], 3)),
+    )
 
 
 class _LastPoint:
     """The last point's ``_with_point`` result, kept for the next pass of the same point (a
     refinement renders one point in several passes; building its column took 0.35 s at MERL
-    resolution). Keyed by the tables' file, the names and the weights; one entry, locked."""
+    resolution). Keyed by the tables' file, the names and the weights; one entry, locked.
+    """
 
     def __init__(self):
         self.key, self.value, self.lock = None, None, threading.Lock()
 
     def get(self, args, build):
         target, db, names, rows, w = args
-        key = (rows_key(rows), tuple(names), target.path, target.sampling, target.interpolation,
-               np.asarray(w, np.float64).tobytes())
+        key = (
+            rows_key(rows),
+            tuple(names),
+            target.path,
+            target.sampling,
+            target.interpolation,
+            np.asarray(w, np.float64).tobytes(),
+        )
         with self.lock:
             if key != self.key:
-                self.key, self.value = None, None   # free the old column before building the new one
+                self.key, self.value = None, None  # free the old column before building the new one
                 self.value, self.key = build(*args), key
             rows_out, names_out, proxy = self.value
             return rows_out, list(names_out), proxy
@@ -97,7 +123,8 @@ def sampling_proxy(target, db, names, rows, mix=None, table=None):
     ``sum_i P_i / |P_i|`` of the per-material sampling densities (paper Sec. 5.3), or ``mix``
     (a point's weights, their absolute values normalised) with its ``table`` ``sum_i mix_i f_i``
     (``(bins, 3)``; for convex weights the point's own material: its paths are sampled as a
-    direct render's)."""
+    direct render's).
+    """
     from ..sampling import material_density
 
     if mix is None:
@@ -105,12 +132,19 @@ def sampling_proxy(target, db, names, rows, mix=None, table=None):
         top = mass.max()
         mix = 1.0 / np.maximum(mass, 1e-3 * top) if top > 0 else np.ones(len(names))
         mix /= mix.sum()
-    spec = {"type": "manifold_brdf", "manifold": target.path, "prune": 0.0,
-            "sampling": target.sampling, **target.options()}
+    spec = {
+        "type": "manifold_brdf",
+        "manifold": target.path,
+        "prune": 0.0,
+        "sampling": target.sampling,
+        **target.options(),
+    }
     if rows is None:
-        return mi.load_dict({**spec, "weights": ", ".join(f"{n}:{float(w)!r}" for n, w in zip(names, mix))})
+        return mi.load_dict(
+            {**spec, "weights": ", ".join(f"{n}:{float(w)!r}" for n, w in zip(names, mix))}
+        )
     dims = tuple(int(d) for d in db.dims)
-    if table is None:   # the mixture's table from the interleaved tables (cached)
+    if table is None:  # the mixture's table from the interleaved tables (cached)
         table = _mixture_table(db, rows, mix)
     table = table.T.reshape((3,) + dims)
     proxy = mi.load_dict({**spec, "material": names[0]})

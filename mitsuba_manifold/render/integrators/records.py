@@ -20,9 +20,16 @@ import mitsuba as mi
 class RecordState:
     """Per-path loop state: ``n`` (vertices on the target so far), ``acc`` (radiance since the
     last one, in units of ``beta``), ``tn`` (``T_n``), ``u`` (``T_n / q_n``) and ``c`` (the
-    cosine of the last sampled direction)."""
+    cosine of the last sampled direction).
+    """
 
-    DRJIT_STRUCT = {"n": mi.UInt32, "acc": mi.Spectrum, "tn": mi.Spectrum, "u": mi.Spectrum, "c": mi.Float}
+    DRJIT_STRUCT = {
+        "n": mi.UInt32,
+        "acc": mi.Spectrum,
+        "tn": mi.Spectrum,
+        "u": mi.Spectrum,
+        "c": mi.Float,
+    }
 
     def __init__(self, n=None, acc=None, tn=None, u=None, c=None):
         self.n = mi.UInt32(0) if n is None else n
@@ -34,7 +41,8 @@ class RecordState:
 
 class Records:
     """The per-level buffers of ``width`` paths, written by scatters while tracing; the loop
-    state is a :class:`RecordState` (``self.state``, passed through every call)."""
+    state is a :class:`RecordState` (``self.state``, passed through every call).
+    """
 
     def __init__(self, levels, width):
         self.levels = int(levels)
@@ -56,13 +64,15 @@ class Records:
 
     def arrive(self, st, hit, beta, wi):
         """A vertex on the target (lanes ``hit``); returns the new state and the lanes where it
-        is recorded (those with at most ``levels`` vertices on the target so far)."""
+        is recorded (those with at most ``levels`` vertices on the target so far).
+        """
         self._flush(st, hit)
         n = dr.select(hit, st.n + 1, st.n)
         first = hit & (n <= self.levels)
         dr.scatter(self.wi, wi, self.base + n - 1, first)
-        st = RecordState(n, dr.select(hit, 0, st.acc), dr.select(first, st.u * st.c * beta, st.tn),
-                         st.u, st.c)
+        st = RecordState(
+            n, dr.select(hit, 0, st.acc), dr.select(first, st.u * st.c * beta, st.tn), st.u, st.c
+        )
         return st, first
 
     def light(self, st, first, wo, e):
@@ -74,18 +84,33 @@ class Records:
     def leave(self, st, first, wo, inv_q):
         """The direction sampled there (``1 / q``; 0 where the path cannot go on); the new state."""
         dr.scatter(self.wo, wo, self.base + st.n - 1, first)
-        return RecordState(st.n, st.acc, st.tn, dr.select(first, st.tn * inv_q, st.u),
-                           dr.select(first, wo.z, st.c))
+        return RecordState(
+            st.n, st.acc, st.tn, dr.select(first, st.tn * inv_q, st.u), dr.select(first, wo.z, st.c)
+        )
 
     def finish(self, st):
         """The records: per level ``j`` (0-based) a dict ``wi, wo_nee, e_nee, wo, g`` in
         ``"levels"``; level 1's also at the top level, with ``beta`` = 1 (the earlier layout),
-        and ``count`` (each path's vertices on the target, ``levels + 1`` where it was cut)."""
+        and ``count`` (each path's vertices on the target, ``levels + 1`` where it was cut).
+        """
         self._flush(st, mi.Bool(True))
         levels = []
         for j in range(self.levels):
-            levels.append({k: dr.gather(type(v), v, self.base + j) for k, v in
-                           (("wi", self.wi), ("wo_nee", self.wo_nee), ("e_nee", self.e_nee),
-                            ("wo", self.wo), ("g", self.g))})
-        return dict(levels[0], beta=dr.full(mi.Spectrum, 1.0, dr.width(self.base)), levels=levels,
-                    count=st.n)
+            levels.append(
+                {
+                    k: dr.gather(type(v), v, self.base + j)
+                    for k, v in (
+                        ("wi", self.wi),
+                        ("wo_nee", self.wo_nee),
+                        ("e_nee", self.e_nee),
+                        ("wo", self.wo),
+                        ("g", self.g),
+                    )
+                }
+            )
+        return dict(
+            levels[0],
+            beta=dr.full(mi.Spectrum, 1.0, dr.width(self.base)),
+            levels=levels,
+            count=st.n,
+        )

@@ -20,7 +20,6 @@ import numpy as np
 
 from ..lookups import merl_angles, merl_bin
 
-
 #: Materials per packet of the table product (Dr.Jit packet gathers of 16 contiguous floats).
 PACKET = 16
 #: Most bytes of per-pixel sums one table kernel holds (Expand mode keeps a copy per thread).
@@ -33,7 +32,8 @@ class FilterTaps:
     filter's weight there, as ``ImageBlock.put`` computes them: the pixels ``p`` within
     ``n = ceil(radius - 1/2)`` of the sample's, of weight ``r(p_x + 1/2 - pos_x) r(p_y + 1/2 - pos_y)``
     (``r``: the film's filter; pixels outside the block dropped); the box filter adds 1 to the
-    sample's pixel. The block must not normalise its samples and have no border (a film's block)."""
+    sample's pixel. The block must not normalise its samples and have no border (a film's block).
+    """
 
     def __init__(self, block, rfilter):
         self.size, self.offset = block.size(), block.offset()
@@ -48,7 +48,8 @@ class FilterTaps:
 
     def taps(self, pos):
         """``[(pixel, weight)]``, one pair per tap: each sample's pixel row (``y * width + x``)
-        and weight (``None`` for the box filter's single tap: 1; 0 where the tap leaves the block)."""
+        and weight (``None`` for the box filter's single tap: 1; 0 where the tap leaves the block).
+        """
         x0 = mi.Int32(dr.floor(pos.x)) - self.offset.x
         y0 = mi.Int32(dr.floor(pos.y)) - self.offset.y
         if self.box:
@@ -69,7 +70,8 @@ class FilterTaps:
 def expand(taps, idx):
     """The splats of samples ``idx`` (UInt32) in every pixel of their footprint: ``(take, pixel,
     weight)`` per tap with a weight somewhere, ``take`` indexing ``idx`` (None: all of them) and
-    ``weight`` None for a weight of 1."""
+    ``weight`` None for a weight of 1.
+    """
     out = []
     for pixel, weight in taps:
         pix = dr.gather(mi.UInt32, pixel, idx)
@@ -104,10 +106,18 @@ def _splat_rows(sums, splats, pixel, rows, row_packets, kb0, kb1):
     dr.set_expand_threshold(max(threshold, dr.width(sums)))
     try:
         for c in range(3):
-            t = dr.gather(mi.ArrayXf, rows, (b * 3 + c) * row_packets + kb0 + kb,
-                          shape=(PACKET, dr.width(lane)))
-            dr.scatter_add(sums, dr.maximum(t, 0.0) * data[c + 1], (q * 3 + c) * nb + kb,
-                           mode=dr.ReduceMode.Expand)
+            t = dr.gather(
+                mi.ArrayXf,
+                rows,
+                (b * 3 + c) * row_packets + kb0 + kb,
+                shape=(PACKET, dr.width(lane)),
+            )
+            dr.scatter_add(
+                sums,
+                dr.maximum(t, 0.0) * data[c + 1],
+                (q * 3 + c) * nb + kb,
+                mode=dr.ReduceMode.Expand,
+            )
         dr.eval(sums)
     finally:
         dr.set_expand_threshold(threshold)
@@ -131,7 +141,9 @@ class TableSplats:
         self.pixels = int(dr.prod(block.size()))
         self.packets = [(k0 // PACKET, -(-k1 // PACKET)) for k0, k1 in chunks]
         self.chunks = chunks
-        self.sums = [dr.zeros(mi.Float, self.pixels * 3 * (b1 - b0) * PACKET) for b0, b1 in self.packets]
+        self.sums = [
+            dr.zeros(mi.Float, self.pixels * 3 * (b1 - b0) * PACKET) for b0, b1 in self.packets
+        ]
         widest = max(b1 - b0 for b0, b1 in self.packets) * PACKET
         self.tile = max(1, _SUM_BYTES // (12 * widest * max(1, dr.thread_count())))
         self.tiles = []
@@ -158,23 +170,33 @@ class TableSplats:
         dr.eval(self.block.tensor(), taps, keys, amps)
         # Both splats of every sample in sample order (so in pixel order), compacted.
         j = dr.arange(mi.UInt32, 2 * dr.width(pixel))
-        key = dr.select((j & 1) != 0, dr.gather(mi.UInt32, keys[1], j >> 1),
-                        dr.gather(mi.UInt32, keys[0], j >> 1))
+        key = dr.select(
+            (j & 1) != 0,
+            dr.gather(mi.UInt32, keys[1], j >> 1),
+            dr.gather(mi.UInt32, keys[0], j >> 1),
+        )
         idx = dr.compress(key != _NO_BIN)
         self.tiles = []
         if dr.width(idx) == 0:
             return
         second = (idx & 1) != 0
-        amp = dr.select(second, dr.gather(mi.Color3f, amps[1], idx >> 1),
-                        dr.gather(mi.Color3f, amps[0], idx >> 1))
+        amp = dr.select(
+            second,
+            dr.gather(mi.Color3f, amps[1], idx >> 1),
+            dr.gather(mi.Color3f, amps[0], idx >> 1),
+        )
         key = dr.gather(mi.UInt32, key, idx)
         if self.filter.box:
             pix = dr.gather(mi.UInt32, pixel, idx >> 1)
-        else:   # every splat in each pixel of its footprint, weighted; then in pixel order
+        else:  # every splat in each pixel of its footprint, weighted; then in pixel order
             parts = expand(taps, idx >> 1)
             pix = dr.concat([p for _, p, _ in parts])
-            amp = mi.Color3f(*(dr.concat([dr.gather(mi.Float, amp[c], t) * w for t, _, w in parts])
-                               for c in range(3)))
+            amp = mi.Color3f(
+                *(
+                    dr.concat([dr.gather(mi.Float, amp[c], t) * w for t, _, w in parts])
+                    for c in range(3)
+                )
+            )
             key = dr.concat([dr.gather(mi.UInt32, key, t) for t, _, _ in parts])
             order = mi.UInt32(np.argsort(pix.numpy(), kind="stable").astype(np.uint32))
             pix, amp, key = (dr.gather(type(v), v, order) for v in (pix, amp, key))
@@ -191,8 +213,9 @@ class TableSplats:
                 continue
             order = mi.UInt32(lo + np.argsort(short[lo:hi], kind="stable").astype(np.uint32))
             a = dr.gather(mi.Color3f, amp, order)
-            splats = mi.Vector4f(dr.reinterpret_array(mi.Float, dr.gather(mi.UInt32, key, order)),
-                                 a.x, a.y, a.z)
+            splats = mi.Vector4f(
+                dr.reinterpret_array(mi.Float, dr.gather(mi.UInt32, key, order)), a.x, a.y, a.z
+            )
             splats = dr.ravel(splats)  # (bin, r, g, b) per splat, contiguous
             local = dr.gather(mi.UInt32, pix, order) - int(p0)
             dr.eval(splats, local)
@@ -228,7 +251,9 @@ class TableSplats:
             k = lane // (self.pixels * 3)
             r = lane - k * (self.pixels * 3)
             p = r // 3
-            out = dr.gather(mi.Float, sums, r * width + k + (k0 - kb0 * PACKET)) * dr.gather(mi.Float, scale, p)
+            out = dr.gather(mi.Float, sums, r * width + k + (k0 - kb0 * PACKET)) * dr.gather(
+                mi.Float, scale, p
+            )
             out = out.numpy().reshape((k1 - k0,) + shape)
             for k, name in enumerate(self.names[k0:k1]):
                 images[name] = out[k]
@@ -238,7 +263,8 @@ class TableSplats:
 class FilterSplats:
     """The splats of :func:`render_onepass` put into image blocks with the film's filter,
     each material evaluated at them (``nearest``: one gather from its table; ``linear``: the
-    BSDF's own ``eval``)."""
+    BSDF's own ``eval``).
+    """
 
     def __init__(self, film, block, names, chunks, db, path, options, several_passes):
         self.film, self.block, self.names, self.chunks = film, block, names, chunks
@@ -246,9 +272,18 @@ class FilterSplats:
         self.dims = tuple(int(d) for d in db.dims)
         bins = int(np.prod(self.dims))
         self.nearest = options["interpolation"] == "nearest"
-        self.blocks = [mi.ImageBlock(block.size(), block.offset(), 3 * (k1 - k0), film.rfilter(),
-                                     border=block.has_border(), normalize=block.normalize(),
-                                     coalesce=block.coalesce()) for k0, k1 in chunks]
+        self.blocks = [
+            mi.ImageBlock(
+                block.size(),
+                block.offset(),
+                3 * (k1 - k0),
+                film.rfilter(),
+                border=block.has_border(),
+                normalize=block.normalize(),
+                coalesce=block.coalesce(),
+            )
+            for k0, k1 in chunks
+        ]
         self.cache = {}  # chunk index -> tables (nearest) or BSDFs (linear)
         self.keep = several_passes and len(names) * bins * 12 <= (1 << 31)
         if self.nearest:  # planar (RGB, bins) -> interleaved (bins, RGB)
@@ -261,13 +296,33 @@ class FilterSplats:
             return self.cache[c]
         k0, k1 = self.chunks[c]
         if self.nearest:  # each table as (bins, RGB), clamped at 0 as the BSDF does
-            data = [dr.maximum(dr.gather(mi.Float, mi.Float(np.ascontiguousarray(
-                self.db.reflectance(n), np.float32).reshape(-1)), self.interleave), 0.0)
-                for n in self.names[k0:k1]]
+            data = [
+                dr.maximum(
+                    dr.gather(
+                        mi.Float,
+                        mi.Float(
+                            np.ascontiguousarray(self.db.reflectance(n), np.float32).reshape(-1)
+                        ),
+                        self.interleave,
+                    ),
+                    0.0,
+                )
+                for n in self.names[k0:k1]
+            ]
             dr.eval(data)
         else:
-            data = [mi.load_dict({"type": "manifold_brdf", "manifold": self.path, "material": n,
-                                  "sampling": "cosine", **self.options}) for n in self.names[k0:k1]]
+            data = [
+                mi.load_dict(
+                    {
+                        "type": "manifold_brdf",
+                        "manifold": self.path,
+                        "material": n,
+                        "sampling": "cosine",
+                        **self.options,
+                    }
+                )
+                for n in self.names[k0:k1]
+            ]
         if self.keep:
             self.cache[c] = data
         return data
@@ -281,11 +336,11 @@ class FilterSplats:
             ok = (rec["wi"].z > 0) & (wo.z > 0) & dr.any(a != 0)
             key = merl_bin(*merl_angles(rec["wi"], wo), self.dims)
             key = np.array(dr.select(ok, key, _NO_BIN), dtype=np.uint32)
-            order = np.argsort(key, kind="stable")[:int(np.count_nonzero(key != _NO_BIN))]
+            order = np.argsort(key, kind="stable")[: int(np.count_nonzero(key != _NO_BIN))]
             if order.size == 0:
                 continue
             idx = mi.UInt32(order.astype(np.uint32))
-            pick = lambda v: dr.gather(type(v), v, idx)  # noqa: E731
+            pick = lambda v, idx=idx: dr.gather(type(v), v, idx)  # noqa: E731
             splat = dict(pos=pick(pos), a=pick(a), bin=mi.UInt32(key[order]))
             if not self.nearest:  # the BSDF's own lookup; eval returns f cos: undo cos
                 splat["si"] = dr.zeros(mi.SurfaceInteraction3f, order.size)
@@ -315,19 +370,26 @@ class FilterSplats:
 
     def images(self, film):
         """Develop as the film does: the material channels as AOVs of the base block,
-        normalised by the filter weights of all samples."""
+        normalised by the filter weights of all samples.
+        """
         head = np.array(self.block.tensor())
         images = {}
         for (k0, k1), block in zip(self.chunks, self.blocks):
             aovs = [f"m{k}.{c}" for k in range(k1 - k0) for c in "RGB"]
             film.prepare(aovs)
             merged = np.concatenate([head, np.array(block.tensor())], axis=-1)
-            film.put_block(mi.ImageBlock(mi.TensorXf(merged), self.block.offset(), film.rfilter(),
-                                         border=self.block.has_border(),
-                                         normalize=self.block.normalize(),
-                                         coalesce=self.block.coalesce()))
+            film.put_block(
+                mi.ImageBlock(
+                    mi.TensorXf(merged),
+                    self.block.offset(),
+                    film.rfilter(),
+                    border=self.block.has_border(),
+                    normalize=self.block.normalize(),
+                    coalesce=self.block.coalesce(),
+                )
+            )
             img = np.array(film.develop(), dtype=np.float32)
             start = img.shape[-1] - len(aovs)
             for k, name in enumerate(self.names[k0:k1]):
-                images[name] = img[..., start + 3 * k:start + 3 * k + 3].copy()
+                images[name] = img[..., start + 3 * k : start + 3 * k + 3].copy()
         return images
