@@ -1,4 +1,4 @@
-"""Basis benchmark (issue 5): one-pass against per-material basis rendering, and the blends' error."""
+"""Basis benchmark: one-pass against per-material basis rendering, and the blends' error."""
 
 import os
 import time
@@ -13,7 +13,7 @@ from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold.render import scenes
 from mitsuba_manifold.render.scenes import use_variant
 
-from .common import peak_rss_gib
+from .common import peak_rss_gib, work_manifold
 
 
 def basis_run(scene_path, manifold, folder, spp, mode, res, seed):
@@ -54,7 +54,7 @@ def l1_reference(scene_path, manifold, x, spp, seed, res):
 def run(
     folder, manifold=None, scene="table", res=256, spp=64, ref_spp=4096, repeats=3, out=None, seed=0
 ):
-    """One-pass basis rendering (issue 5) against one render per material, and the blends' error.
+    """One-pass basis rendering against one render per material, and the blends' error.
 
     Both modes run through :func:`render_basis.render_basis` on the scene ``scene`` with every
     material of the manifold, at ``res`` x ``res`` and ``spp`` samples per pixel; one-pass
@@ -65,7 +65,7 @@ def run(
     Then, at equal total basis time: the one-pass mode gets the spp that makes its wall
     time that of the per-material mode (fitted from its times at ``spp`` and ``4 spp``,
     rounded down to whole passes of ``spp``), and both blends at the midpoint of
-    :func:`comparison.gi_pair` are compared with a full-GI reference (``path``, ``ref_spp``) and with
+    :func:`gi_comparison.gi_pair` are compared with a full-GI reference (``path``, ``ref_spp``) and with
     the L1- reference (``manifold_path``, ``component=l1``, ``ref_spp``), which is what a
     blend estimates without bias.
     """
@@ -75,7 +75,7 @@ def run(
 
     mi = use_variant()
     if manifold is None:
-        manifold = os.path.join(database_cache(folder), "bench_q2.npz")
+        manifold = work_manifold(folder)
         Manifold.fit(folder, q=2).save(manifold)
     m = Manifold.load(manifold)
     scene_path = scenes.scene_path(scene)
@@ -240,7 +240,7 @@ def equal_time(scene_path, manifold, out, spp, res, seed, onepass_wall, per):
 
 
 def blend_errors(scene_path, manifold, m, out, spp, spp_eq, res, ref_spp, seed):
-    """Each basis's blend at the midpoint of :func:`comparison.gi_pair` against the full-GI and L1- references."""
+    """Each basis's blend at the midpoint of :func:`gi_comparison.gi_pair` against the full-GI and L1- references."""
     from mitsuba_manifold.imaging import metrics
 
     a, b = comparison.gi_pair(m)

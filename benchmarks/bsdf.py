@@ -6,11 +6,10 @@ import time
 import numpy as np
 
 from mitsuba_manifold._util.timing import median_time
-from mitsuba_manifold.data.database import database_cache
 from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold.render.scenes import use_variant
 
-from .common import interpolated_point, sphere_with, time_renders
+from .common import interpolated_point, sphere_with, time_renders, work_manifold
 
 
 def run(
@@ -35,7 +34,7 @@ def run(
     mi = use_variant()
     m = Manifold.load(manifold) if manifold else None
     if m is None:
-        manifold = os.path.join(database_cache(folder), "bench_q2.npz")
+        manifold = work_manifold(folder)
         m = Manifold.fit(folder, q=2)
         m.save(manifold)
     x, where = interpolated_point(m)

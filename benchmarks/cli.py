@@ -101,7 +101,7 @@ def main(argv=None):
         choices=("software", "swiftshader"),
         default="software",
         help="explore --browser: how Chromium composites the page (default software, as Chrome "
-        "without a GPU; swiftshader: through SwiftShader GL, as measured before 2026-12-02)",
+        "without a GPU; swiftshader: through SwiftShader GL)",
     )
     p.add_argument(
         "--configs",

@@ -77,3 +77,19 @@ def interpolated_point(m, a="chrome", b="gold-paint"):
     if a in m.names and b in m.names:
         return 0.5 * (m.latent[m.index(a)] + m.latent[m.index(b)]), f"midpoint of {a} and {b}"
     return 0.5 * (m.latent[0] + m.latent[1]), f"midpoint of {m.names[0]} and {m.names[1]}"
+
+
+def work_manifold(folder, tag="q2"):
+    """Where a benchmark keeps the manifold it fits on the database ``folder``: in that
+    database's cache, named by the database (a built-in set and its resolution, or the folder)
+    and ``tag`` (the fit's settings), so that no other database or fit reuses it.
+    """
+    import hashlib
+
+    from mitsuba_manifold.data.database import database_cache, split_spec
+    from mitsuba_manifold.data.sources import SET_NAMES
+
+    base, dims = split_spec(folder)
+    spec = f"{base if base in SET_NAMES else os.path.abspath(base)}@{dims}"
+    key = hashlib.sha256(spec.encode()).hexdigest()[:12]
+    return os.path.join(database_cache(folder), f"bench_{tag}_{key}.npz")

@@ -1,4 +1,4 @@
-"""The paper's Fig. 9: perceptual distances from both ends along latent paths (issue 18).
+"""The paper's Fig. 9: perceptual distances from both ends along latent paths.
 
 For each preset (``default``, ``paper``) and path kind (:data:`paths.KINDS`): paths of 20
 equal steps (21 points) between the paper's three pairs, ten pairs of latent neighbours
@@ -16,7 +16,7 @@ full grid of bins (the paths are searched on :data:`paths.SEARCH_STRIDE`):
   largest CIELAB distance of a point's directional-albedo colours from the segment between
   the ends', ``delta_e``, and its share of the ends' own distance): blue -> brown -> white strays.
 
-Targets (issue 18, default kind on the default preset): median deviation <= 0.10, no step
+Targets (default kind on the default preset): median deviation <= 0.10, no step
 over 0.10 of its path, median still share <= 5%, pair (a)'s deviation <= 0.25.
 """
 

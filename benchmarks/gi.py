@@ -1,6 +1,6 @@
 """GI benchmark: the blend against re-rendering the interpolated material, error against run
-time on the shipped sphere and table scenes (:func:`comparison.gi_report`), and the targets of
-issue 21 for full-GI bases (:func:`targets`): bias and relative MSE of the L1- and full-GI
+time on the shipped sphere and table scenes (:func:`gi_comparison.gi_report`), and the targets
+of full-GI bases (:func:`targets`): bias and relative MSE of the L1- and full-GI
 blends against full-GI references at training, midpoint and extrapolated points, beside a
 direct render; basis render time and size, L1- against full GI; blend time.
 """
@@ -26,6 +26,8 @@ from mitsuba_manifold.imaging import metrics
 from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold.render import scenes as _scenes
 from mitsuba_manifold.render.render_basis import render_basis
+
+from .common import work_manifold
 
 #: The scene made for this bench (not shipped): a sphere on a floor before a wall, all of the material.
 FACING = os.path.join(
@@ -86,14 +88,14 @@ def targets(
     both_ends=False,
     gi_options=None,
 ):
-    """Issue 21's targets per scene: L1- and full-GI bases (time, size, what they hold), and at
+    """The full-GI targets per scene: L1- and full-GI bases (time, size, what they hold), and at
     the points of :func:`gi_points` the bias and relative MSE of both blends and of a
     ``direct_spp`` render against a ``ref_spp`` reference (Mitsuba's ``path``); ``both_ends``:
     also at the pair's second material (with convex weights the extrapolated point is close to it);
     ``gi_options``: more :class:`~mitsuba_manifold.render.render_basis.BasisOptions` fields of the
     full-GI basis (e.g. ``cross_fraction``).
     """
-    manifold = manifold or os.path.join(database_cache(folder), "bench_q2.npz")
+    manifold = manifold or work_manifold(folder)
     if not os.path.isfile(manifold):
         Manifold.fit(folder, q=2).save(manifold)
     m = Manifold.load(manifold)

@@ -1,4 +1,4 @@
-"""Issue 21's targets for full-GI bases (``tools/bench.py gi-targets``): on the shipped ``table``
+"""The targets of full-GI bases (``tools/bench.py gi-targets``): on the shipped ``table``
 and on ``facing`` (a sphere on a floor before a wall, all of the material; not shipped), L1- and
 full-GI bases (time, size, what they hold), and at a training point, the midpoint of the GI pair,
 the extrapolated point and the pair's second material: bias and relative MSE of the L1- blend,
@@ -11,12 +11,13 @@ import os
 
 from mitsuba_manifold.data.database import database_cache
 
+from .common import work_manifold
 from .gi import FACING, blend_time, targets
 
 
 def run(folder, manifold=None, scenes=("table", FACING), res=64, basis_spp=256, ref_spp=4096):
     """The measurements above, as a dict ``{"targets": ..., "blend": ...}``."""
-    manifold = manifold or os.path.join(database_cache(folder), "bench_q2.npz")
+    manifold = manifold or work_manifold(folder)
     out = os.path.join(database_cache(folder), "bench_gi_targets")
     report = {
         "targets": targets(

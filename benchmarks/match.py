@@ -33,6 +33,8 @@ from mitsuba_manifold.manifold.model import Manifold
 from mitsuba_manifold.render.render_basis import render_basis
 from mitsuba_manifold.render.scenes import load_scene, render_reference, scene_path, use_variant
 
+from .common import work_manifold
+
 SPEED_TARGET_S = 2.0
 RATIO_TARGET = 1.5
 
@@ -313,7 +315,7 @@ def run(
     from mitsuba_manifold._util.checks import positive_int
 
     res = positive_int("`res`", res, 128)
-    manifold = manifold or os.path.join(database_cache(folder), "bench_q2.npz")
+    manifold = manifold or work_manifold(folder, "q2_log")
     if not os.path.isfile(manifold):
         Manifold.fit(folder, q=2, features="log").save(manifold)
     m100 = Manifold.load(manifold)

@@ -1,4 +1,4 @@
-"""Speed of the perceptual paths (issue 18): seconds per path and for the latent graph, cold and cached.
+"""Speed of the perceptual paths: seconds per path and for the latent graph, cold and cached.
 
 What the explorer's path scrubber and ``blend.py --path`` wait for (:mod:`manifold.paths`):
 
@@ -12,7 +12,7 @@ What the explorer's path scrubber and ``blend.py --path`` wait for (:mod:`manifo
 * ``path_s``: seconds per path of each kind (median, max) over the paper's three pairs and
   ten pairs of latent neighbours (:func:`fig9.pair_sets`'s tuned pairs), the graph built.
 
-Targets (the explorer's, issue 18's follow-up): graph <= 5 s once cached, a geodesic <= 1 s.
+Targets (the explorer's): graph <= 5 s once cached, a geodesic <= 1 s.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Space benchmark: is the manifold a material space worth moving through? (issue 9)
+"""Space benchmark: is the manifold a material space worth moving through?
 
 For each configuration (a preset with overrides: features, q, interpolant), on the full
 database with the tables loaded once:

@@ -17,7 +17,7 @@ import tempfile
 
 import numpy as np
 
-from mitsuba_manifold import Manifold, make_database
+from mitsuba_manifold import Manifold
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TUTORIALS = ["manifold_tour", "own_scene", "basis_blend", "inverse"]
@@ -66,8 +66,7 @@ def gallery(out, small):
     bins, res, spp = ((16, 16, 32), 24, 4) if small else ((90, 90, 180), 128, 256)
     materials = MATERIALS[:6] if small else MATERIALS
     work = tempfile.mkdtemp(prefix="gallery-")  # the tables are large: never under docs/
-    make_database(os.path.join(work, "database"), bins, materials)
-    m = Manifold.fit(os.path.join(work, "database"))
+    m = Manifold.fit("merl@{}x{}x{}".format(*bins), names=materials)  # the measured MERL set
     path = os.path.join(work, "manifold.npz")
     m.save(path)
     os.makedirs(out, exist_ok=True)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Blend a basis of per-material renders into the image of a latent point (paper Eq. 13).
 
-The tool is mitsuba_manifold/cli/blend.py (also installed as a console script); --help lists its options.
+The tool is mitsuba_manifold/apps/cli/blend.py (also installed as a console script); --help lists its options.
 """
 
 import os

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Explore a material manifold in the browser: drag a latent point, see the material in the scene.
 
-The tool is mitsuba_manifold/cli/explore.py (also installed as a console script); --help lists its options.
+The tool is mitsuba_manifold/apps/cli/explore.py (also installed as a console script); --help lists its options.
 """
 
 import os

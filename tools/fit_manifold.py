@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Fit the latent manifold of a database of measured materials (paper Sec. 3) and save it.
 
-The tool is mitsuba_manifold/cli/fit_manifold.py (also installed as a console script); --help lists its options.
+The tool is mitsuba_manifold/apps/cli/fit_manifold.py (also installed as a console script); --help lists its options.
 """
 
 import os

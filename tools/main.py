@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The main job on the built-in default data, end to end (database, manifold, basis, blends).
 
-The tool is mitsuba_manifold/cli/main_job.py (also installed as a console script); --help lists its options.
+The tool is mitsuba_manifold/apps/cli/main_job.py (also installed as a console script); --help lists its options.
 """
 
 import os

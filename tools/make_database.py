@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Make a database folder from built-in sets (merl, rgl, nielsen, all, sgd) and measured files.
 
-The tool is mitsuba_manifold/cli/make_database.py (also installed as a console script); --help lists its options.
+The tool is mitsuba_manifold/apps/cli/make_database.py (also installed as a console script); --help lists its options.
 """
 
 import os

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Write the generated assets of the shipped scenes (bowl.ply, sky.exr).
 
-The tool is mitsuba_manifold/cli/make_scene_meshes.py (also installed as a console script); --help lists its options.
+The tool is mitsuba_manifold/apps/cli/make_scene_meshes.py (also installed as a console script);
+--help lists its options.
 """
 
 import os

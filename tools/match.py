@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Find the latent point whose blend best matches a target image (inverse rendering on a basis).
 
-The tool is mitsuba_manifold/cli/match.py (also installed as a console script); --help lists its options.
+The tool is mitsuba_manifold/apps/cli/match.py (also installed as a console script); --help lists its options.
 """
 
 import os

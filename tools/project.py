@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Project a MERL table onto a manifold: the latent point whose material is closest.
 
-The tool is mitsuba_manifold/cli/project.py (also installed as a console script); --help lists its options.
+The tool is mitsuba_manifold/apps/cli/project.py (also installed as a console script); --help lists its options.
 """
 
 import os

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Render the L1- basis of a scene: base.exr and one <material>.exr per measured material.
 
-The tool is mitsuba_manifold/cli/render_basis.py (also installed as a console script); --help lists its options.
+The tool is mitsuba_manifold/apps/cli/render_basis.py (also installed as a console script); --help lists its options.
 """
 
 import os

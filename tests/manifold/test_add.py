@@ -183,3 +183,20 @@ def test_fit_tool_adds_a_material_of_any_source_to_a_saved_manifold(tmp_path, mo
     assert exit_.value.code == 2
     assert not (tmp_path / "h.npz").exists()
     assert sorted(f for f in os.listdir(tmp_path) if not f.startswith(".")) == ["g.npz", "m.npz"]
+
+
+def test_fit_tool_refuses_fit_options_for_a_saved_manifold(tmp_path):
+    """A saved manifold given as DATABASE takes --add only: fit options, or no --add, are
+    refused in one line before anything is written."""
+    from mitsuba_manifold.apps.cli import fit_manifold
+
+    base = tmp_path / "m.npz"
+    assert fit_manifold.main(["nielsen@8x8x16", "--out", str(base), "--q", "2"]) in (0, None)
+    for argv in (
+        [str(base), "--out", str(tmp_path / "a.npz")],
+        [str(base), "--add", "rgl:paper_white", "--q", "3", "--out", str(tmp_path / "b.npz")],
+    ):
+        with pytest.raises(SystemExit) as exit_:
+            fit_manifold.main(argv)
+        assert exit_.value.code == 2
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == ["m.npz"]

@@ -26,6 +26,27 @@ def check(args, guard=None):
             material_source(path)
         except MitsubaManifoldError as e:
             raise InputError(f"--add {path}: {one_line(e)}") from None
+    if os.path.isfile(args.database) and args.database.lower().endswith(".npz"):
+        if not args.add:
+            raise InputError(
+                f"{args.database} is a saved manifold, not a database: add materials to it with "
+                "--add PATH, or give a database folder or built-in name to fit"
+            )
+        fit_options = {
+            "--q": args.q,
+            "--materials": args.materials,
+            "--method": args.method,
+            "--features": args.features,
+            "--length-scale": args.length_scale,
+            "--noise": args.noise,
+            "--preset": None if args.preset == "default" else args.preset,
+        }
+        given = [k for k, v in fit_options.items() if v is not None]
+        if given:
+            raise InputError(
+                f"{', '.join(given)} set how a manifold is fitted; {args.database} is fitted "
+                "already (--add keeps its points): drop them, or fit a database instead"
+            )
     if args.q is not None and not 1 <= args.q <= 8:
         raise InputError(f"--q must be an integer from 1 to 8, got {args.q}")
     if args.length_scale is not None:

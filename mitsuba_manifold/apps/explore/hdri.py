@@ -142,16 +142,17 @@ def scene_environment(scene_path, manifold_path, basis):
     import mitsuba as mi
 
     from ...errors import InputError
-    from ...render.scenes import load_scene
+    from ...render.scenes import load_scene, scene_resolution
 
     loaded = load_scene(
         scene_path,
         manifold_path,
         1,
-        tuple(basis.resolution),
-        basis.manifest["max_depth"],
+        scene_resolution(basis.manifest),
+        basis.manifest.max_depth,
         None,
-        basis.manifest["variant"],
+        basis.manifest.variant,
+        sensor=basis.sensor,
     )
     scene = loaded.scene
     emitter = scene.environment()

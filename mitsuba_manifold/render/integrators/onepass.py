@@ -221,6 +221,51 @@ def _check_counts(**counts):
             raise InputError(f"manifold_path: `{name}` must be >= 1, got {value}")
 
 
+def _multi_splats(gi, splat, names, dims, levels):
+    """The L2+ splats of :func:`render_onepass_gi` (``gi``: its levels and pairs) over the table
+    product of ``splat`` (:class:`TableSplats`: the manifold_brdf's nearest lookups).
+    """
+    if not isinstance(splat, TableSplats):
+        raise InputError(
+            "manifold_path: the L2+ images need the manifold_brdf's nearest lookups (the table "
+            'product): give it interpolation="nearest" (its default), or render the L1- basis'
+        )
+    index = {n: k for k, n in enumerate(names)}
+    bad = [p for p in gi["pairs"] if len(p) != 2 or p[0] not in index or p[1] not in index]
+    if bad:
+        raise InputError(
+            f"manifold_path: `pairs` must name two rendered materials each, got {bad[0]!r}"
+        )
+    return MultiSplats(
+        splat.rows,
+        splat.n_pad,
+        names,
+        dims,
+        splat.pixels,
+        levels,
+        [(index[a], index[b]) for a, b in gi["pairs"]],
+        gi.get("cross_fraction", 1.0),
+        gi.get("select"),
+    )
+
+
+def _blocks(film, spp, rows, names, chunks, db, target, dims, several_passes):
+    """The film's block of the base image and the splats of the material images: the table
+    product (:class:`TableSplats`) where ``rows`` hold the tables, else the BSDF's own lookups
+    (:class:`FilterSplats`).
+    """
+    film.prepare([])
+    base_block = film.create_block()
+    base_block.set_coalesce(base_block.coalesce() and spp >= 4)
+    if rows is None:
+        splat = FilterSplats(
+            film, base_block, names, chunks, db, target.path, target.options(), several_passes
+        )
+    else:
+        splat = TableSplats(base_block, rows, names, chunks, dims, film.rfilter())
+    return base_block, splat
+
+
 def _render(
     integrator,
     scene,
@@ -279,39 +324,8 @@ def _render(
         mirror=[c for c in hits[0] if is_plain_twosided(c)],
     )
 
-    film.prepare([])
-    base_block = film.create_block()
-    base_block.set_coalesce(base_block.coalesce() and spp >= 4)
-    if rows is None:
-        splat = FilterSplats(
-            film, base_block, names, chunks, db, target.path, target.options(), len(passes) > 1
-        )
-    else:
-        splat = TableSplats(base_block, rows, names, chunks, dims, film.rfilter())
-    multi = None
-    if gi:
-        if rows is None:
-            raise InputError(
-                "manifold_path: the L2+ images need the manifold_brdf's nearest lookups (the table "
-                'product): give it interpolation="nearest" (its default), or render the L1- basis'
-            )
-        index = {n: k for k, n in enumerate(names)}
-        bad = [p for p in gi["pairs"] if len(p) != 2 or p[0] not in index or p[1] not in index]
-        if bad:
-            raise InputError(
-                f"manifold_path: `pairs` must name two rendered materials each, got {bad[0]!r}"
-            )
-        multi = MultiSplats(
-            splat.rows,
-            splat.n_pad,
-            names,
-            dims,
-            splat.pixels,
-            levels,
-            [(index[a], index[b]) for a, b in gi["pairs"]],
-            gi.get("cross_fraction", 1.0),
-            gi.get("select"),
-        )
+    base_block, splat = _blocks(film, spp, rows, names, chunks, db, target, dims, len(passes) > 1)
+    multi = _multi_splats(gi, splat, names, dims, levels) if gi else None
 
     done, total = 0, len(passes) * len(chunks)
     # Mitsuba's own sampler seeding and primary rays (they use nothing of their instance).
