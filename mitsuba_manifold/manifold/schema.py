@@ -206,7 +206,8 @@ def _latent(a, meta):
     if same:
         return (
             f"has coincident points for the different materials {same[0]!r} and {same[1]!r} "
-            "(the weights could not tell them apart)"
+            f"at its length_scale {float(meta.get('length_scale', 1.0)):.4g} (the weights could "
+            "not tell them apart)"
         )
     return None
 
