@@ -469,7 +469,9 @@ def blend_path(
 
 
 def _segment_points(manifold, a, b, steps, kind):
-    """The ``steps`` latent points of a path of ``kind`` from ``a`` to ``b`` (the segment: as before)."""
+    """The ``steps`` latent points of a path of ``kind`` from ``a`` to ``b`` (``"straight"``: the
+    segment, evenly spaced).
+    """
     xa, xb = _endpoint(manifold, a), _endpoint(manifold, b)
     if np.array_equal(xa, xb):
         raise MismatchError(

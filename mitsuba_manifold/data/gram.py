@@ -99,8 +99,8 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
     weights = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
     if weights is not None and weights.size != bins:
         raise FormatError(f"`weights` must hold one value per bin ({bins}), got {weights.size}")
-    # Small products (N x block): one BLAS thread is as fast as two on an idle machine
-    # and 10-20x faster when another process competes for the cores.
+    # Small products (N x block): one BLAS thread is as fast as two on an idle machine and
+    # much faster when another process competes for the cores.
     with threadpool_limits(1, user_api="blas"):
         for start in range(0, d, block):
             z = np.array(tables[:, start : start + block], dtype=np.float64)

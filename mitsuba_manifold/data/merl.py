@@ -292,8 +292,7 @@ def table_resolution(dims, name="`dims`", bytes_per_bin=None, workers=1):
             f"{name} {'x'.join(map(str, dims))} has {bins:.3g} bins; MERL files of more than "
             f"{MAX_BINS:.3g} bins (MERL itself: 1.46e6) are not read by this package"
         )
-    # SGD tabulation peaks at 200 bytes per bin (measured: 291 MB above the interpreter for
-    # 90x90x180, 37 MB for 45x45x90); twice that leaves room for the writer's copy.
+    # SGD tabulation peaks at about 200 bytes per bin; twice that leaves room for the writer's copy.
     per_bin = 400 if bytes_per_bin is None else bytes_per_bin
     checks.fits_in_memory(
         name,

@@ -74,7 +74,7 @@ class PathMetric:
     On a sub-grid the metric holds only the tables' values at its bins, ``rows`` (N, size):
     read from the database's cache folder when a previous process made them
     (:func:`latent_graph.cached`, named by the manifold's content hash), so that neither the
-    tables (1.7 GB at MERL resolution) nor their hashes are read again; ``tables`` (the
+    tables nor their hashes are read again; ``tables`` (the
     manifold's full ``(N, d)`` stack) skips the cache; ``rows`` (the tables already restricted to
     the sub-grid, e.g. the explorer's preview tables) skips both. Features are float32 (the
     combination ``w @ rows`` is float32 as the plugin's), sums of squares float64.
@@ -171,7 +171,7 @@ class PathMetric:
         G *= np.where(V > 0, self.coef / (3.0 * C * C), np.float32(0.0))
         dW = (self.rows @ G.T).T.astype(
             np.float64
-        )  # this order: ~10x faster than G @ rows.T in OpenBLAS
+        )  # this order: faster than G @ rows.T in OpenBLAS
         J = self.manifold.weights_jacobian(X)
         return float(np.einsum("mk,mk->", D, D, dtype=np.float64)), np.einsum("mn,mnq->mq", dW, J)
 

@@ -20,7 +20,7 @@ isolates its AD scope and refuses to propagate across an edge made outside it, a
 callbacks cannot read arrays inside the integrators' symbolic loops: with the edges made inside, a
 user's ``dr.set_grad(params["<id>.x"], dx)`` then ``render_forward`` (or ``mi.render`` and
 ``dr.forward_to``/``dr.forward``) gives the image's derivative along ``dx``, and ``dr.backward``
-works as before. :class:`LatentWeights` remains the weights' operation outside a render
+its gradient. :class:`LatentWeights` remains the weights' operation outside a render
 (``ManifoldBRDF.ad_weights``, ``forward_weights``).
 
 The slots not taken by ``S`` hold the materials of largest score ``|w_i| + step ||dw_i/dx||``

@@ -159,8 +159,8 @@ class BasisOptions:
         the L1- basis only. Per-material mode renders L1- only.
     levels : int, optional
         Most vertices on the material per path in the L2+ images (more are cut, counted in ``gi_stats``); default:
-        all a path of ``max_depth`` can have (:data:`.gi_basis.MAX_LEVELS` if unbounded). On the table with white-paint
-        (depth 8, the same 32-spp paths cut, 3 seeds) 4 cut 1.6-1.9% of the light, 5 0.5-1.2%, 6 0.15-0.8%.
+        all a path of ``max_depth`` can have (:data:`.gi_basis.MAX_LEVELS` if unbounded); the light
+        each cut level loses is in ``docs/benchmarks.md``.
     cross_tol : float
         Smallest weight product of a candidate pair (one that some explored point blends).
     cross_light_tol : float

@@ -40,8 +40,7 @@ def scene_of(basis, scene=None):
 
 def warm(bases):
     """The first basis's cross terms (the one the page opens on) in float32 before the first drag
-    (:meth:`~mitsuba_manifold.basis.folder.Basis.warm_cross_terms`; about 385 MB for the main job's
-    256x256 basis); other bases convert theirs as they are blended.
+    (:meth:`~mitsuba_manifold.basis.folder.Basis.warm_cross_terms`); other bases convert theirs as they are blended.
     """
     for basis in list(bases.values())[:1]:
         try:

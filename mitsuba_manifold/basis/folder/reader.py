@@ -358,8 +358,8 @@ class Basis:
 
 def _axpy_sum(store, rows, weights):
     """``sum_j weights[j] * store[rows[j]]`` (float32) by in-place NumPy passes over the images
-    used, without gathering them (a ``tensordot`` copies them first) and without BLAS, whose
-    threads, on a busy machine, took tens of milliseconds to wake for a product this small.
+    used, without gathering them (a ``tensordot`` copies them first) and without BLAS (its
+    threads' wake-up costs more than a product this small).
     """
     out = np.zeros(store.shape[1:], dtype=np.float32)
     tmp = np.empty_like(out)

@@ -134,9 +134,8 @@ class MultiSplats:
         """Splats of levels ``2 ..`` of one pass (``weight``: the camera sample weight; ``taps``: each
         sample's pixels and filter weights, :meth:`.splats.FilterTaps.taps`; ``seed``:
         of the pass, for the choice of the splats that the cross terms use), in the sets of
-        :data:`LEVEL_SETS`: one kernel per set, not per level and kind (each kernel has its fixed costs, the
-        per-thread copies of the sums among them, however few splats a high level has; at 64 spp on the
-        table a basis of 8 levels then took as long as one of 5, 19.8 s, where it had taken 34.2 s against 28.5 s).
+        :data:`LEVEL_SETS`: one kernel per set, not per level and kind (each kernel has its fixed
+        costs, the per-thread copies of the sums among them, however few splats a high level has).
         """
         self.seed = int(seed)
         levels = rec["levels"]

@@ -76,8 +76,8 @@ def _with_point(target, db, names, rows, w):
 
 class _LastPoint:
     """The last point's ``_with_point`` result, kept for the next pass of the same point (a
-    refinement renders one point in several passes; building its column took 0.35 s at MERL
-    resolution). Keyed by the tables' file, the names and the weights; one entry, locked.
+    refinement renders one point in several passes, and the column is built once). Keyed by the
+    tables' file, the names and the weights; one entry, locked.
     """
 
     def __init__(self):
