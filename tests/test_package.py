@@ -327,10 +327,8 @@ LONG_SIGNATURES = {
     "render/integrators/onepass.py:_render",
     "render/integrators/onepass.py:render_onepass",
     "render/chunks.py:render_chunked",
-    "manifold/space.py:cross_validate",
     "gp/gplvm.py:fit_latent",
     "_util/cache.py:npy_cache",
-    "manifold/projection.py:project",
 }
 
 
