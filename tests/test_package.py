@@ -324,11 +324,8 @@ LONG_SIGNATURES = {
     "basis/blend.py:blend_path",
     "basis/folder/manifest.py:make_manifest",
     "render/scenes.py:render_reference",
-    "render/integrators/onepass.py:_render",
-    "render/integrators/onepass.py:render_onepass",
     "render/chunks.py:render_chunked",
     "gp/gplvm.py:fit_latent",
-    "_util/cache.py:npy_cache",
 }
 
 
