@@ -325,7 +325,6 @@ LONG_SIGNATURES = {
     "basis/folder/manifest.py:make_manifest",
     "render/scenes.py:render_reference",
     "render/chunks.py:render_chunked",
-    "gp/gplvm.py:fit_latent",
 }
 
 

@@ -232,7 +232,8 @@ class Manifold:
         interpolant : dict, optional
             Weight function, e.g. ``{"kind": "gp", "exact": True}`` (see :mod:`interpolant`).
         **options
-            Passed to :func:`gplvm.fit_latent` (``max_iter``, ``tol``, ...).
+            The optimiser's ``max_iter``, ``tol``, ``initial_step`` (:func:`gplvm.optimiser_options`)
+            and the fit's ``callback`` (:meth:`gplvm.GPLVM.fit`).
         """
         cfg = settings(
             preset,
