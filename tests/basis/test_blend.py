@@ -267,12 +267,14 @@ def test_manifest_helpers(tmp_path, small_manifold):
     a = bf.make_manifest(
         scene,
         small_manifold,
-        resolution=(4, 3),
-        spp=8,
-        variant="llvm_ad_rgb",
-        seed=1,
-        max_depth=8,
-        mode="onepass",
+        bf.RenderSettings(
+            resolution=(4, 3),
+            spp=8,
+            variant="llvm_ad_rgb",
+            seed=1,
+            max_depth=8,
+            mode="onepass",
+        ),
         targets=["material"],
     )
     assert a["scene"] == os.path.abspath(scene)
@@ -287,12 +289,14 @@ def test_manifest_helpers(tmp_path, small_manifold):
         bf.make_manifest(
             scene,
             small_manifold,
-            resolution=(4, 3),
-            spp=8,
-            variant="llvm_ad_rgb",
-            seed=1,
-            max_depth=8,
-            mode="fast",
+            bf.RenderSettings(
+                resolution=(4, 3),
+                spp=8,
+                variant="llvm_ad_rgb",
+                seed=1,
+                max_depth=8,
+                mode="fast",
+            ),
             targets=["material"],
         )
     with pytest.raises(MismatchError, match="must name 2 material"):
