@@ -322,9 +322,7 @@ LONG_SIGNATURES = {
     "manifold/model.py:Manifold.__init__",
     "manifold/model.py:Manifold.fit",
     "basis/blend.py:blend_path",
-    "basis/folder/manifest.py:make_manifest",
     "render/scenes.py:render_reference",
-    "render/chunks.py:render_chunked",
 }
 
 
