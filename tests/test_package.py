@@ -321,7 +321,6 @@ MAX_PARAMETERS = 10
 LONG_SIGNATURES = {
     "manifold/model.py:Manifold.__init__",
     "manifold/model.py:Manifold.fit",
-    "basis/blend.py:blend_path",
     "render/scenes.py:render_reference",
 }
 

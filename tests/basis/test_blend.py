@@ -395,7 +395,7 @@ def test_blend_path_refuses_ignored_x_and_identical_ends(basis1, manifold, tmp_p
     folder, _, _ = basis1
     a, b = manifold.names[0], manifold.names[1]
     with pytest.raises(MismatchError, match="one target"):
-        bl.blend_path(folder, manifold, a, b, steps=3, x=manifold.latent[2])
+        bl.blend_path(folder, manifold, a, b, steps=3, moving=bl.MovingTarget(x=manifold.latent[2]))
     for ends in ((a, a), (manifold.latent[1], manifold.latent[1]), (a, manifold.latent[0])):
         with pytest.raises(MismatchError, match="same latent point"):
             bl.blend_path(folder, manifold, *ends, steps=3)
