@@ -120,7 +120,13 @@ def _config_report(name, cfg, tables, names, grams, albedos, images, base, folds
 
     t0 = time.perf_counter()
     held = space.cross_validate(
-        tables, names, fit, grams["log"], cfg["q"], albedos, only_folds=folds
+        tables,
+        names,
+        fit,
+        grams["log"],
+        cfg["q"],
+        albedos,
+        split=space.FoldSplit(only=None if folds is None else tuple(folds)),
     )
     t_cv = time.perf_counter() - t0
     ip = fit(np.arange(len(names)))

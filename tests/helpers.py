@@ -164,12 +164,14 @@ def write_basis(folder, manifold_path, images, targets=("material",), scene_text
     manifest = bf.make_manifest(
         scene,
         manifold_path,
-        resolution=(w, h),
-        spp=16,
-        variant="llvm_ad_rgb",
-        seed=0,
-        max_depth=8,
-        mode="per-material",
+        bf.RenderSettings(
+            resolution=(w, h),
+            spp=16,
+            variant="llvm_ad_rgb",
+            seed=0,
+            max_depth=8,
+            mode="per-material",
+        ),
         targets=list(targets),
         images=entries,
     )

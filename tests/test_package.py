@@ -321,16 +321,7 @@ MAX_PARAMETERS = 10
 LONG_SIGNATURES = {
     "manifold/model.py:Manifold.__init__",
     "manifold/model.py:Manifold.fit",
-    "basis/blend.py:blend_path",
-    "basis/folder/manifest.py:make_manifest",
     "render/scenes.py:render_reference",
-    "render/integrators/onepass.py:_render",
-    "render/integrators/onepass.py:render_onepass",
-    "render/chunks.py:render_chunked",
-    "manifold/space.py:cross_validate",
-    "gp/gplvm.py:fit_latent",
-    "_util/cache.py:npy_cache",
-    "manifold/projection.py:project",
 }
 
 

@@ -16,6 +16,7 @@ otherwise build it, write it atomically, and keep only the newest few of its kin
 import hashlib
 import os
 import threading
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -120,6 +121,23 @@ def _load_valid(path, shape, dtype, finite, mmap):
     return value
 
 
+@dataclass(frozen=True)
+class Eviction:
+    """Which files of a cache folder :func:`npy_cache` keeps: the ``keep`` most recently used
+    of those whose name holds ``marker`` (a cache hit counts as a use).
+
+    Parameters
+    ----------
+    keep : int
+        Files of the kind kept after a write.
+    marker : str
+        What the names of the files of the kind hold (e.g. ``".rows-v1-"``).
+    """
+
+    keep: int
+    marker: str
+
+
 def npy_cache(
     path,
     build=None,
@@ -129,16 +147,10 @@ def npy_cache(
     dtype=None,
     finite=False,
     mmap=False,
-    touch=False,
-    keep=None,
-    marker=None,
+    eviction=None,
     on_rebuild=None,
 ):
     """Load the array cached at ``path``, or make it and cache it.
-
-    Eleven parameters: how the array is made (``build`` or ``write``), what a cached file must
-    be (``shape``, ``dtype``, ``finite``), how it is returned and the folder's eviction; all but
-    the first three are keywords.
 
     Parameters
     ----------
@@ -153,17 +165,16 @@ def npy_cache(
         What a cached file must have to be used (``finite``: no NaN or Inf).
     mmap : bool
         Return the array memory-mapped read-only.
-    touch : bool
-        Mark a cache hit as recently used (for eviction by ``keep``).
-    keep, marker : int, str
-        After writing, keep only the ``keep`` newest files of the folder whose name holds ``marker``.
+    eviction : Eviction, optional
+        Mark a cache hit as recently used and, after writing, keep only the most recently used
+        files of its kind in the folder (default: no eviction).
     on_rebuild : callable, optional
         ``on_rebuild(path)`` is called when a cached file exists but fails the checks.
     """
     if os.path.exists(path):
         value = _load_valid(path, shape, dtype, finite, mmap)
         if value is not None:
-            if touch:
+            if eviction is not None:
                 os.utime(path)
             return value
         if on_rebuild is not None:
@@ -174,8 +185,8 @@ def npy_cache(
     else:
         value = build()
         atomic_write(path, lambda f: np.save(f, value))
-    if keep is not None:
-        evict(os.path.dirname(os.path.abspath(path)), marker, keep)
+    if eviction is not None:
+        evict(os.path.dirname(os.path.abspath(path)), eviction.marker, eviction.keep)
     if value is None or mmap:
         return np.load(path, mmap_mode="r" if mmap else None)
     return value

@@ -23,7 +23,7 @@ import numpy as np
 from .._util.atomic import write_bytes
 from .._util.timing import median_time
 from ..basis import denoise as denoise_mod
-from ..basis.blend import blend, blend_path, path_labels
+from ..basis.blend import BlendSettings, blend, blend_path, path_labels
 from ..basis.folder import Basis
 from ..basis.folder.owned_files import remove_basis
 from ..data.database import database_cache
@@ -206,7 +206,9 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
             )
     if opts.save_images:
         l2 = "denoised" if opts.denoise else "raw"
-        images, _, _ = blend_path(b, m, *pair, steps=20, kind=paths.DEFAULT_KIND, l2=l2)
+        images, _, _ = blend_path(
+            b, m, *pair, steps=20, kind=paths.DEFAULT_KIND, settings=BlendSettings(l2=l2)
+        )
         imageio.write_contact_sheet(
             f"{stem}_path_sheet.png",
             images,

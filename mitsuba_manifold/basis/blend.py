@@ -347,6 +347,39 @@ def _endpoint(manifold, v):
     return arr
 
 
+@dataclass(frozen=True)
+class BlendSettings:
+    """How each image of a path is blended: the settings of :func:`blend` a path shares.
+
+    Parameters
+    ----------
+    prune, renormalise, component, l2
+        As :func:`blend`.
+    """
+
+    prune: float = DEFAULT_PRUNE
+    renormalise: bool = False
+    component: Optional[str] = None
+    l2: str = "denoised"
+
+
+@dataclass(frozen=True)
+class MovingTarget:
+    """With several targets: which one moves along a path and where the others stay.
+
+    Parameters
+    ----------
+    target : int
+        The target that moves along the path.
+    x : array_like (p, q), optional
+        The latent points of the others (row ``target`` ignored); required with several
+        targets, refused with one.
+    """
+
+    target: int = 0
+    x: object = None
+
+
 def blend_path(
     basis,
     manifold=None,
@@ -354,19 +387,12 @@ def blend_path(
     b=None,
     *,
     steps=20,
-    prune=DEFAULT_PRUNE,
-    renormalise=False,
-    target=0,
-    x=None,
-    component=None,
     kind="straight",
     points=None,
-    l2="denoised",
+    moving=None,
+    settings=None,
 ):
     """Images along a latent path from ``a`` to ``b`` (paper Fig. 12).
-
-    Its thirteen parameters are :func:`blend`'s, the path's (ends, steps, kind or points) and the
-    targets that stay fixed; all but the basis, the manifold and the ends are keywords.
 
     Parameters
     ----------
@@ -380,11 +406,12 @@ def blend_path(
     points : array_like (steps, q), optional
         The latent points of the path instead (e.g. from ``Manifold.path``); ``a``, ``b``,
         ``steps`` and ``kind`` are then ignored.
-    target : int
-        With several targets: which one moves along the segment.
-    x : array_like (p, q), optional
-        With several targets: the latent points of the others (row ``target`` ignored).
-    component, l2 : As :func:`blend` (``time_ms`` leaves the denoising out: ``denoise_ms``).
+    moving : MovingTarget, optional
+        With several targets: which one moves and where the others stay (default
+        ``MovingTarget()``: the first, with no others).
+    settings : BlendSettings, optional
+        How each image is blended, as :func:`blend` (default ``BlendSettings()``; ``time_ms``
+        leaves the denoising out: ``denoise_ms``).
 
     Returns
     -------
@@ -395,6 +422,11 @@ def blend_path(
         ``steps`` (the per-image info of :func:`blend`), ``time_ms`` (all images, as
         :func:`blend`), ``time_read_s``.
     """
+    moving = MovingTarget() if moving is None else moving
+    settings = BlendSettings() if settings is None else settings
+    target, x = moving.target, moving.x
+    prune, renormalise = settings.prune, settings.renormalise
+    component, l2 = settings.component, settings.l2
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
     manifold = basis.check_manifold(manifold)

@@ -20,7 +20,14 @@ import numpy as np
 
 from .._util import checks
 from .._util.atomic import sweep, write_bytes
-from .._util.cache import adopt_hash, file_hash, file_identity, key_hash, npy_cache
+from .._util.cache import (
+    Eviction,
+    adopt_hash,
+    file_hash,
+    file_identity,
+    key_hash,
+    npy_cache,
+)
 from .._util.locking import FolderLock
 from .._util.ownership import owned_tables, pending_tables, write_table_record
 from .._util.workers import owned_pool
@@ -762,9 +769,7 @@ class Database:
             shape=(bins, 3, n_pad),
             dtype=np.float32,
             mmap=True,
-            touch=True,
-            keep=keep,
-            marker=".rows-v1-",
+            eviction=Eviction(keep, ".rows-v1-"),
         )
 
     def albedo(self, names=None, tables=None):

@@ -70,6 +70,7 @@ __all__ = [
     "RankUpdatedInverse",
     "MoveTrial",
     "FitResult",
+    "optimiser_options",
     "fit_latent",
 ]
 
@@ -274,6 +275,37 @@ class GPLVM:
         )
 
 
+def optimiser_options(method, *, max_iter=None, tol=None, initial_step=None):
+    """The settings of the optimiser ``method`` (:data:`METHODS`), its defaults but those given.
+
+    Parameters
+    ----------
+    method : {"hooke-jeeves", "lbfgs"}
+    max_iter : int, optional
+        Sweeps over all points (Hooke-Jeeves, default 500) or L-BFGS-B iterations (default
+        2000).
+    tol : float, optional
+        Hooke-Jeeves: stop when every point's step is below ``tol * l`` (default 1e-3).
+        L-BFGS-B: stop when the largest gradient entry of ``L / scale`` with respect to
+        ``x / l`` is below ``tol`` (default 1e-7; ``scale`` is the size of L's terms at the
+        start).
+    initial_step : float, optional
+        Hooke-Jeeves: first step, in units of ``l`` (default 0.25; unused by L-BFGS-B).
+
+    Returns
+    -------
+    HookeJeevesOptions or LBFGSOptions
+    """
+    if method not in METHODS:
+        raise InputError(f"unknown `method` {method!r}; use one of {', '.join(METHODS)}")
+    given = {k: v for k, v in (("max_iter", max_iter), ("tol", tol)) if v is not None}
+    if initial_step is not None:
+        step = check_positive("initial_step", initial_step)
+        if method == "hooke-jeeves":
+            given["initial_step"] = step
+    return METHODS[method](**given)
+
+
 def fit_latent(
     S,
     d,
@@ -283,19 +315,12 @@ def fit_latent(
     length_scale=1.0,
     noise=1e-4,
     init=None,
-    max_iter=None,
-    tol=None,
+    options=None,
     callback=None,
-    initial_step=0.25,
 ):
     """Latent points maximising the GPLVM log-likelihood L (Eq. 6): :class:`GPLVM` as one call.
 
-    Its eleven parameters are those of the model (:class:`GPLVM`, :class:`Kernel`), of the fit
-    and of the optimiser's options, flattened so that one call fits; all but the data and ``q``
-    are keywords.
-
-    ``GPLVM(q, Kernel(length_scale, noise), method, options).fit(S, d, init, callback)``
-    with the options made of ``max_iter``, ``tol`` and ``initial_step``.
+    ``GPLVM(q, Kernel(length_scale, noise), method, options).fit(S, d, init, callback)``.
 
     Parameters
     ----------
@@ -305,16 +330,9 @@ def fit_latent(
         See :class:`GPLVM`.
     length_scale, noise : float
         ``l`` and ``mu`` of the :class:`Kernel`.
-    max_iter : int, optional
-        Sweeps over all points (Hooke-Jeeves, default 500) or L-BFGS-B iterations (default
-        2000).
-    tol : float, optional
-        Hooke-Jeeves: stop when every point's step is below ``tol * l`` (default 1e-3).
-        L-BFGS-B: stop when the largest gradient entry of ``L / scale`` with respect to
-        ``x / l`` is below ``tol`` (default 1e-7; ``scale`` is the size of L's terms at the
-        start).
-    initial_step : float
-        Hooke-Jeeves: first step, in units of ``l``.
+    options : HookeJeevesOptions or LBFGSOptions, optional
+        The optimiser's settings, of ``method``'s type (default: its defaults; see
+        :func:`optimiser_options`).
 
     Returns
     -------
@@ -323,8 +341,10 @@ def fit_latent(
     kernel = Kernel(check_positive("length_scale", length_scale), check_positive("noise", noise))
     if method not in METHODS:
         raise InputError(f"unknown `method` {method!r}; use one of {', '.join(METHODS)}")
-    given = {k: v for k, v in (("max_iter", max_iter), ("tol", tol)) if v is not None}
-    step = check_positive("initial_step", initial_step)
-    if method == "hooke-jeeves":
-        given["initial_step"] = step
-    return GPLVM(q, kernel, method, METHODS[method](**given)).fit(S, d, init, callback)
+    options = METHODS[method]() if options is None else options
+    if not isinstance(options, METHODS[method]):
+        raise InputError(
+            f"`options` of method {method!r} must be a {METHODS[method].__name__}, "
+            f"got {type(options).__name__}; make them with gplvm.optimiser_options"
+        )
+    return GPLVM(q, kernel, method, options).fit(S, d, init, callback)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._util.cache import key_hash, npy_cache
+from .._util.cache import Eviction, key_hash, npy_cache
 from ..errors import InputError
 
 #: Version of the cached edges' layout and of the graph's construction (part of the cache key).
@@ -69,9 +69,7 @@ def cached(metric, name, build, shape=None, dtype=None, keep=4, settings=()):
         shape=shape,
         dtype=dtype,
         finite=True,
-        touch=True,
-        keep=keep,
-        marker=f".{name}.",
+        eviction=Eviction(keep, f".{name}."),
     )
 
 

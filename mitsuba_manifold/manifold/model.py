@@ -146,6 +146,12 @@ class Manifold:
         record=None,
         added=None,
     ):
+        """The manifold's learned state, one parameter per attribute (see the class).
+
+        Its fourteen parameters are the fields :meth:`load` reads back from a saved manifold (each
+        an attribute of the class), so a loader and a fit build it with one call; the last six
+        are keyword-only.
+        """
         latent = np.asarray(latent, dtype=np.float64)
         if latent.ndim != 2 or latent.shape[0] != len(names):
             raise InputError(
@@ -211,6 +217,9 @@ class Manifold:
     ):
         """Fit latent points to the tables of ``database`` (paper Sec. 3).
 
+        Its twelve parameters are the fit's settings as keywords (scikit-learn style), each
+        overriding the preset's value, so a user sets any one of them without a settings object.
+
         ``Manifold.fit(database)`` fits the default preset; ``preset="paper"`` the paper's
         exact formulation. Any other argument given overrides the preset's value.
 
@@ -232,7 +241,8 @@ class Manifold:
         interpolant : dict, optional
             Weight function, e.g. ``{"kind": "gp", "exact": True}`` (see :mod:`interpolant`).
         **options
-            Passed to :func:`gplvm.fit_latent` (``max_iter``, ``tol``, ...).
+            The optimiser's ``max_iter``, ``tol``, ``initial_step`` (:func:`gplvm.optimiser_options`)
+            and the fit's ``callback`` (:meth:`gplvm.GPLVM.fit`).
         """
         cfg = settings(
             preset,

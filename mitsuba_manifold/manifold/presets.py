@@ -53,8 +53,11 @@ def settings(preset="default", **overrides):
     return out
 
 
-def fit_layout(S, d, cfg, init=None, **options):
-    """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:func:`gplvm.fit_latent`)."""
+def fit_layout(S, d, cfg, init=None, callback=None, **options):
+    """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:func:`gplvm.fit_latent`);
+    ``options`` (``max_iter``, ``tol``, ``initial_step``) set the optimiser
+    (:func:`gplvm.optimiser_options`).
+    """
     return gplvm.fit_latent(
         S,
         d,
@@ -63,7 +66,8 @@ def fit_layout(S, d, cfg, init=None, **options):
         length_scale=cfg["length_scale"],
         noise=cfg["noise"],
         init=init,
-        **options,
+        options=gplvm.optimiser_options(cfg["method"], **options),
+        callback=callback,
     )
 
 

@@ -107,6 +107,30 @@ def candidates(latent, order, n_latent=6, steps=19):
     return np.vstack([latent[a] + t * (latent[b] - latent[a]) for a, b in ends] + [latent[order]])
 
 
+@dataclass(frozen=True)
+class SearchOptions:
+    """How :func:`project` searches the latent space.
+
+    Parameters
+    ----------
+    n_nearest : int
+        Candidate starts lie on the segments between this many closest training materials
+        (closest on the searched bins) and from each of them toward its ``n_latent`` nearest
+        latent neighbours.
+    n_starts : int
+        The best-scoring candidates that start L-BFGS-B.
+    max_iter : int
+        L-BFGS-B iterations of each start.
+    n_latent : int
+        Latent neighbours of each closest material that candidate segments lead to.
+    """
+
+    n_nearest: int = 4
+    n_starts: int = 3
+    max_iter: int = 100
+    n_latent: int = 6
+
+
 def project(
     interpolant,
     tables,
@@ -115,10 +139,7 @@ def project(
     bins=None,
     rows=None,
     *,
-    n_nearest=4,
-    n_starts=3,
-    max_iter=100,
-    n_latent=6,
+    search=None,
 ):
     """Best latent point of ``target`` on the manifold of ``interpolant`` over ``tables``.
 
@@ -137,15 +158,14 @@ def project(
         Bins searched (default :func:`search_bins`).
     rows : array of int, optional
         Rows of ``tables`` that are the training materials (default: all).
-    n_nearest : int
-        Candidate starts lie on the segments between this many closest training materials
-        (closest on the searched bins) and from each of them toward its ``n_latent`` nearest
-        latent neighbours; the ``n_starts`` best of them start L-BFGS-B.
+    search : SearchOptions, optional
+        Starts and iterations of the latent search (default ``SearchOptions()``).
 
     Returns
     -------
     Projection
     """
+    search = SearchOptions() if search is None else search
     tables = np.asarray(tables)
     rows = np.arange(len(tables)) if rows is None else np.asarray(rows)
     target = np.asarray(target, dtype=np.float32).reshape(-1)
@@ -160,9 +180,9 @@ def project(
     T = tables[np.ix_(rows, bins)].astype(np.float64)
     y = np.log1p(np.maximum(target[bins].astype(np.float64), 0.0))
     own = log_rms(T, y)
-    order = np.argsort(own)[: max(1, min(n_nearest, n))]
+    order = np.argsort(own)[: max(1, min(search.n_nearest, n))]
     X = interpolant.latent
-    cand = candidates(X, order, n_latent)  # scored in one batch
+    cand = candidates(X, order, search.n_latent)  # scored in one batch
     scores = log_rms(interpolant.weights(cand) @ T, y)
     best = (float(own[order[0]]), X[order[0]].copy())
 
@@ -175,13 +195,13 @@ def project(
         g = np.where(pos, 2.0 * r / (1.0 + np.where(pos, blend, 0.0)), 0.0) / len(y)
         return val, interpolant.jacobian(x).T @ (T @ g)
 
-    for x0 in cand[np.argsort(scores)[:n_starts]]:
+    for x0 in cand[np.argsort(scores)[: search.n_starts]]:
         res = scipy.optimize.minimize(
             f,
             x0,
             jac=True,
             method="L-BFGS-B",
-            options={"maxiter": max_iter, "gtol": 1e-10, "ftol": 1e-12},
+            options={"maxiter": search.max_iter, "gtol": 1e-10, "ftol": 1e-12},
         )
         err = float(np.sqrt(max(res.fun, 0.0)))
         if err < best[0]:

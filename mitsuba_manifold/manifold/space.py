@@ -157,6 +157,25 @@ def folds(n, k=FOLDS, seed=0):
     return np.array_split(np.random.default_rng(seed).permutation(n), k)
 
 
+@dataclass(frozen=True)
+class FoldSplit:
+    """How :func:`cross_validate` splits the materials into test folds.
+
+    Parameters
+    ----------
+    k : int
+        Number of disjoint test folds.
+    seed : int
+        Seed of the random permutation the folds are cut from.
+    only : tuple of int, optional
+        Run only these folds (a quicker, partial estimate); None runs all ``k``.
+    """
+
+    k: int = FOLDS
+    seed: int = 0
+    only: tuple | None = None
+
+
 def cross_validate(
     tables,
     names,
@@ -165,11 +184,9 @@ def cross_validate(
     q,
     albedos,
     *,
-    k=FOLDS,
-    seed=0,
+    split=None,
     bins=None,
     progress=None,
-    only_folds=None,
 ):
     """K-fold held-out fidelity of a manifold configuration.
 
@@ -177,6 +194,8 @@ def cross_validate(
     ----------
     tables : (N, d) float32
         All tables, loaded once.
+    names : list of str
+        The N material names.
     fit : callable
         ``fit(train_indices) -> interpolant`` over the training rows (in that order).
     G_error : (N, N)
@@ -184,16 +203,21 @@ def cross_validate(
     q : int
         Latent dimension (for PCA with k = q).
     albedos : (N, 3)
-    only_folds : iterable of int, optional
-        Run only these folds (a quicker, partial estimate).
+    split : FoldSplit, optional
+        The folds (how many, their seed, which of them to run); default ``FoldSplit()``.
+    bins : array of int, optional
+        MERL bins the projection searches over (default :func:`projection.search_bins`).
+    progress : callable, optional
+        Called with each finished fold's index.
     """
+    split = FoldSplit() if split is None else split
     n, d = tables.shape
     bins = projection.search_bins(d) if bins is None else bins
     rows = {f: [] for f in ("error", "negative_fraction", "albedo_min", "albedo_max")}
     base = {"nearest": [], "pca_q": [], "pca5": [], "mean": []}
     order, fold_of, fit_s, proj_s = [], [], 0.0, 0.0
-    for fold, test in enumerate(folds(n, k, seed)):
-        if only_folds is not None and fold not in only_folds:
+    for fold, test in enumerate(folds(n, split.k, split.seed)):
+        if split.only is not None and fold not in split.only:
             continue
         train = np.setdiff1d(np.arange(n), test)
         t0 = time.perf_counter()

@@ -319,9 +319,8 @@ def render_chunked(
     scene,
     manifold,
     out,
-    spp=64,
+    *,
     chunks=1,
-    seed=0,
     executor=None,
     keep_chunks=False,
     progress=False,
@@ -333,8 +332,6 @@ def render_chunked(
     Parameters
     ----------
     scene, manifold, out : str
-    spp, seed : int
-        Of the merged basis (chunk seeds: :func:`chunk_seed`).
     chunks : int
     executor : LocalExecutor or RayExecutor, optional
         Default: :class:`mitsuba_manifold.render.executor.LocalExecutor`.
@@ -343,12 +340,17 @@ def render_chunked(
     aovs : bool
         Also write the denoising guides of the merged basis (rendered here, once).
     options
-        :func:`mitsuba_manifold.render.render_basis.render_basis` keyword arguments.
+        :func:`mitsuba_manifold.render.render_basis.render_basis` keyword arguments (fields of
+        its ``BasisOptions``); ``spp`` and ``seed`` are those of the merged basis, split over
+        the chunks (chunk seeds: :func:`chunk_seed`).
 
     Returns
     -------
     ChunkedRun
     """
+    from .render_basis import BasisOptions
+
+    spp, seed = options.pop("spp", BasisOptions.spp), options.pop("seed", BasisOptions.seed)
     specs = plan(scene, manifold, spp, chunks, seed, **options)
     check_foreign_folder(
         os.fspath(out), options.get("force", False)

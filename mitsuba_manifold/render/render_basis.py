@@ -255,14 +255,16 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
     manifest = basis_folder.make_manifest(
         scene_path,
         manifold_path,
-        resolution=size,
-        spp=o.spp,
-        variant=mi.variant(),
-        seed=o.seed,
-        max_depth=max_depth,
-        mode=o.mode,
+        basis_folder.RenderSettings(
+            resolution=size,
+            spp=o.spp,
+            variant=mi.variant(),
+            seed=o.seed,
+            max_depth=max_depth,
+            mode=o.mode,
+            sensor=int(o.sensor),
+        ),
         targets=[b.id() for b in targets],
-        sensor=int(o.sensor),
     )
     manifest["integrator"] = paths.to_manifest()
     manifest["scene_resolution"] = None if o.resolution is None else list(_size(o.resolution))

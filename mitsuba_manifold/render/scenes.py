@@ -607,6 +607,10 @@ def render_reference(
 ):
     """Mitsuba's own image of the scene with the interpolated material: the ground truth of a blend.
 
+    Its eleven parameters are a render's (scene, manifold, point, samples, seed) and the settings a
+    basis records (resolution, depth, variant, targets, database, sensor), so that a caller renders
+    the view a basis was rendered with; all but the first four are optional.
+
     Loads the scene (:func:`load_scene`), sets every manifold material to its latent
     point, and renders it with the scene's own integrator (:meth:`SceneIntegrator.reference`:
     ``path`` of the same settings where ``max_depth`` overrides it or the scene has none) in

@@ -267,12 +267,14 @@ def test_manifest_helpers(tmp_path, small_manifold):
     a = bf.make_manifest(
         scene,
         small_manifold,
-        resolution=(4, 3),
-        spp=8,
-        variant="llvm_ad_rgb",
-        seed=1,
-        max_depth=8,
-        mode="onepass",
+        bf.RenderSettings(
+            resolution=(4, 3),
+            spp=8,
+            variant="llvm_ad_rgb",
+            seed=1,
+            max_depth=8,
+            mode="onepass",
+        ),
         targets=["material"],
     )
     assert a["scene"] == os.path.abspath(scene)
@@ -287,12 +289,14 @@ def test_manifest_helpers(tmp_path, small_manifold):
         bf.make_manifest(
             scene,
             small_manifold,
-            resolution=(4, 3),
-            spp=8,
-            variant="llvm_ad_rgb",
-            seed=1,
-            max_depth=8,
-            mode="fast",
+            bf.RenderSettings(
+                resolution=(4, 3),
+                spp=8,
+                variant="llvm_ad_rgb",
+                seed=1,
+                max_depth=8,
+                mode="fast",
+            ),
             targets=["material"],
         )
     with pytest.raises(MismatchError, match="must name 2 material"):
@@ -391,7 +395,7 @@ def test_blend_path_refuses_ignored_x_and_identical_ends(basis1, manifold, tmp_p
     folder, _, _ = basis1
     a, b = manifold.names[0], manifold.names[1]
     with pytest.raises(MismatchError, match="one target"):
-        bl.blend_path(folder, manifold, a, b, steps=3, x=manifold.latent[2])
+        bl.blend_path(folder, manifold, a, b, steps=3, moving=bl.MovingTarget(x=manifold.latent[2]))
     for ends in ((a, a), (manifold.latent[1], manifold.latent[1]), (a, manifold.latent[0])):
         with pytest.raises(MismatchError, match="same latent point"):
             bl.blend_path(folder, manifold, *ends, steps=3)

@@ -178,9 +178,11 @@ def test_both_optimisers_improve_from_the_same_start_and_agree():
 def test_fit_scales_with_length_scale(problem, method):
     """Scaling l and the latent points together changes nothing (paper Sec. 3)."""
     S, d = problem
-    base = gplvm.fit_latent(S, d, q=2, method=method, max_iter=40)
+    base = gplvm.fit_latent(S, d, q=2, method=method, options=_options(method, 40))
     for l in (1e-3, 1e3):
-        res = gplvm.fit_latent(S, d, q=2, method=method, length_scale=l, max_iter=40)
+        res = gplvm.fit_latent(
+            S, d, q=2, method=method, length_scale=l, options=_options(method, 40)
+        )
         assert res.log_likelihood == pytest.approx(base.log_likelihood, rel=1e-7)
         np.testing.assert_allclose(res.history[0], base.history[0], rtol=1e-10)
         if method == "hooke-jeeves":
@@ -246,7 +248,9 @@ def test_far_away_point_decouples(problem, method):
     L, grad = gplvm.log_likelihood_grad(X, S, d, noise=mu)
     assert L == pytest.approx(expected, rel=1e-10)
     assert np.all(grad[6] == 0) and np.isfinite(grad).all()
-    res = gplvm.fit_latent(S, d, q=2, method=method, init=X, noise=mu, max_iter=200)
+    res = gplvm.fit_latent(
+        S, d, q=2, method=method, init=X, noise=mu, options=_options(method, 200)
+    )
     assert np.isfinite(res.latent).all()
     assert np.all(res.latent[6] == X[6])  # no force reaches it
     assert res.log_likelihood > L
@@ -260,7 +264,7 @@ def test_gram_spanning_many_orders_of_magnitude(method):
     scales = 10.0 ** np.linspace(-3, 3, 16)[np.random.default_rng(8).permutation(16)]
     S = scales[:, None] * gram(smooth_data(16, seed=8), d) * scales[None, :]
     assert np.diag(S).max() / np.diag(S).min() > 1e11
-    res = gplvm.fit_latent(S, d, q=2, method=method, max_iter=300)
+    res = gplvm.fit_latent(S, d, q=2, method=method, options=_options(method, 300))
     assert np.isfinite(res.latent).all()
     assert np.all(np.diff(res.history) >= 0)
     assert res.log_likelihood > res.history[0]
@@ -308,8 +312,7 @@ def _S():
         (dict(noise=0.0), "noise"),
         (dict(noise=np.nan), "noise"),
         (dict(method="newton"), "unknown `method`"),
-        (dict(max_iter=-1), "max_iter"),
-        (dict(tol=-1e-3), "tol"),
+        (dict(options=gplvm.LBFGSOptions()), "must be a HookeJeevesOptions"),
     ],
 )
 def test_bad_input_is_rejected_clearly(kwargs, match):
@@ -317,6 +320,24 @@ def test_bad_input_is_rejected_clearly(kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         gplvm.fit_latent(args.pop("S"), args.pop("d"), **args)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(max_iter=-1), "max_iter"),
+        (dict(tol=-1e-3), "tol"),
+        (dict(initial_step=0.0), "initial_step"),
+    ],
+)
+def test_bad_optimiser_options_are_rejected_clearly(kwargs, match):
+    for method in gplvm.METHODS:
+        with pytest.raises(ValueError, match=match):
+            gplvm.optimiser_options(method, **kwargs)
+
+
+def _options(method, max_iter):
+    return gplvm.optimiser_options(method, max_iter=max_iter)
 
 
 def test_bad_latent_is_rejected_by_the_objective():

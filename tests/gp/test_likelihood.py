@@ -88,7 +88,7 @@ def test_the_estimator_is_fit_latent(problem):
     res = gplvm.GPLVM(
         q=2, kernel=Kernel(1.0, 1e-4), method="lbfgs", options=gplvm.LBFGSOptions(max_iter=30)
     ).fit(S, d)
-    ref = gplvm.fit_latent(S, d, q=2, method="lbfgs", max_iter=30)
+    ref = gplvm.fit_latent(S, d, q=2, method="lbfgs", options=gplvm.LBFGSOptions(max_iter=30))
     assert np.array_equal(res.latent, ref.latent) and res.kernel == Kernel(1.0, 1e-4)
     with pytest.raises(InputError, match="`options` of method 'lbfgs' must be a LBFGSOptions"):
         gplvm.GPLVM(method="lbfgs", options=gplvm.HookeJeevesOptions())

@@ -361,7 +361,9 @@ def test_cross_validation_runs_and_reports(default, small_db):
             fit_layout(space.centred(G, train), tables.shape[1], cfg).latent, cfg
         )
 
-    held = space.cross_validate(tables, db.names, fit, G, 2, default.albedos, k=4, only_folds=[0])
+    held = space.cross_validate(
+        tables, db.names, fit, G, 2, default.albedos, split=space.FoldSplit(k=4, only=(0,))
+    )
     s = held.summary()
     assert (
         s["n"] == 2

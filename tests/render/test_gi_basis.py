@@ -11,7 +11,7 @@ from helpers import assert_same_mean, integrator, load, renders  # noqa: E402
 
 import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
 from mitsuba_manifold.basis import folder as bf  # noqa: E402
-from mitsuba_manifold.basis.blend import blend, blend_path  # noqa: E402
+from mitsuba_manifold.basis.blend import BlendSettings, blend, blend_path  # noqa: E402
 from mitsuba_manifold.errors import InputError, MismatchError  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 from mitsuba_manifold.render import integrators, render_basis  # noqa: E402
@@ -190,7 +190,9 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
     pairs = b.cross_terms()[0]
     if pairs:
         a, c = next(iter(pairs))
-        images, _, pinfo = blend_path(b, m, a, c, steps=3, component="full", l2="raw")
+        images, _, pinfo = blend_path(
+            b, m, a, c, steps=3, settings=BlendSettings(component="full", l2="raw")
+        )
         mid, minfo = blend(
             b,
             m,

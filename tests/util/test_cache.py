@@ -50,7 +50,7 @@ def test_npy_cache_loads_checks_rebuilds_and_evicts(tmp_path):
     os.utime(path, (1000, 1000))
     for k in range(2, 5):  # keep the two newest of the kind
         p = str(tmp_path / f"k{k}.thing-v1.npy")
-        cache.npy_cache(p, lambda: build(5.0), keep=2, marker=".thing-v1.")
+        cache.npy_cache(p, lambda: build(5.0), eviction=cache.Eviction(2, ".thing-v1."))
         os.utime(p, (1000 + k, 1000 + k))
     cache.evict(str(tmp_path), ".thing-v1.", 2)
     assert sorted(os.listdir(tmp_path)) == ["k3.thing-v1.npy", "k4.thing-v1.npy"]

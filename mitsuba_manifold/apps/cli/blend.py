@@ -264,7 +264,7 @@ def planned(args):
 def path_outputs(args, basis, manifold):
     """Blend the images along ``--path``; returns the outputs ``(kind, path, writer)`` to write."""
     from ..._util import checks as validate
-    from ...basis.blend import blend_path, path_labels
+    from ...basis.blend import BlendSettings, MovingTarget, blend_path, path_labels
     from ...imaging import io as imageio
 
     w, h = basis.resolution
@@ -294,13 +294,14 @@ def path_outputs(args, basis, manifold):
             ends[0],
             ends[1],
             steps=args.steps,
-            prune=args.prune,
-            renormalise=args.renormalise,
-            target=target,
-            x=args.x,
-            component=args.component,
             kind=args.path_kind,
-            l2=args.l2,
+            moving=MovingTarget(target, args.x),
+            settings=BlendSettings(
+                prune=args.prune,
+                renormalise=args.renormalise,
+                component=args.component,
+                l2=args.l2,
+            ),
         )
     _say_component(info)
     den = (

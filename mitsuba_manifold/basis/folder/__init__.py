@@ -19,6 +19,7 @@ from .manifest import (
     SEP,
     SETTINGS,
     Manifest,
+    RenderSettings,
     image_changed,
     image_key,
     is_basis_folder,
@@ -39,6 +40,7 @@ from .reader import GI, Basis, manifold_object
 __all__ = [
     "Basis",
     "Manifest",
+    "RenderSettings",
     "manifold_object",
     "GI",
     "BASE",

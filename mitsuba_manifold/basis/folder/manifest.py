@@ -516,38 +516,45 @@ class Manifest:
         return [k for k in SETTINGS if k not in ignore and value(self, k) != value(other, k)]
 
 
-def make_manifest(
-    scene,
-    manifold,
-    *,
-    resolution,
-    spp,
-    variant,
-    seed,
-    max_depth,
-    mode,
-    targets,
-    images=None,
-    components=("l1",),
-    sensor=0,
-):
-    """The JSON object of a new, checked :class:`Manifest` of a basis of ``scene`` rendered with
-    ``manifold``.
-
-    Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
-    itself, so every writer and reader agree on them. It takes one keyword per field a renderer
-    sets (twelve), as :class:`Manifest` has them.
+@dataclass(frozen=True)
+class RenderSettings:
+    """The settings a basis's images are rendered with, as its :class:`Manifest` records them.
 
     Parameters
     ----------
-    scene, manifold : str
-        Scene XML and saved manifold (``.npz``) paths.
     resolution : (int, int)
         ``(width, height)``.
     spp, seed, max_depth : int
     variant : str
         Mitsuba variant used.
     mode : {"per-material", "onepass"}
+    sensor : int
+        The scene's sensor (view) the images are rendered from; always recorded, so that a
+        reference of the basis renders the same view.
+    """
+
+    resolution: tuple
+    spp: int
+    variant: str
+    seed: int
+    max_depth: int
+    mode: str
+    sensor: int = 0
+
+
+def make_manifest(scene, manifold, settings, *, targets, images=None, components=("l1",)):
+    """The JSON object of a new, checked :class:`Manifest` of a basis of ``scene`` rendered with
+    ``manifold``.
+
+    Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
+    itself, so every writer and reader agree on them.
+
+    Parameters
+    ----------
+    scene, manifold : str
+        Scene XML and saved manifold (``.npz``) paths.
+    settings : RenderSettings
+        What the images are rendered with.
     targets : list of str
         BSDF ids of the scene's manifold materials, in the order of the image keys.
     images : dict, optional
@@ -555,9 +562,6 @@ def make_manifest(
     components : sequence of str
         What the basis holds (:data:`COMPONENTS`; default L1- only). A renderer that adds
         full-GI images sets it when it writes them.
-    sensor : int
-        The scene's sensor (view) the images are rendered from; always recorded, so that a
-        reference of the basis renders the same view.
     """
     manifold = os.fspath(manifold)
     if not os.path.isfile(manifold):
@@ -569,14 +573,14 @@ def make_manifest(
         "scene_hash": scene_hash(scene),
         "manifold": os.path.abspath(manifold),
         "manifold_hash": manifold_file_identity(manifold),
-        "resolution": [int(v) for v in resolution],
-        "spp": int(spp),
-        "variant": str(variant),
-        "seed": int(seed),
-        "max_depth": int(max_depth),
-        "mode": mode,
+        "resolution": [int(v) for v in settings.resolution],
+        "spp": int(settings.spp),
+        "variant": str(settings.variant),
+        "seed": int(settings.seed),
+        "max_depth": int(settings.max_depth),
+        "mode": settings.mode,
         "targets": [str(t) for t in targets],
-        "sensor": int(sensor),
+        "sensor": int(settings.sensor),
         "images": dict(images or {}),
         "components": [str(c) for c in components],
     }

@@ -51,6 +51,26 @@ def _prefetch(path, block=1 << 24):
     threading.Thread(target=run, daemon=True).start()
 
 
+@dataclass(frozen=True)
+class PassSettings:
+    """How a one-pass render splits its work into passes and kernels.
+
+    Parameters
+    ----------
+    chunk : int, optional
+        Materials per kernel (default: all of them with the table product, 16
+        otherwise).
+    max_samples : int
+        Most paths traced at once (passes of whole samples per pixel).
+    spp_per_pass : int, optional
+        Samples per pixel per pass, instead of the most that ``max_samples`` allows.
+    """
+
+    chunk: int | None = None
+    max_samples: int = 1 << 22
+    spp_per_pass: int | None = None
+
+
 def render_onepass(
     integrator,
     scene,
@@ -58,9 +78,7 @@ def render_onepass(
     spp=0,
     seed=0,
     sensor=0,
-    chunk=None,
-    max_samples=1 << 22,
-    spp_per_pass=None,
+    settings=None,
     progress=None,
 ):
     """Render the base image and every material's touch image from one set of paths.
@@ -103,13 +121,8 @@ def render_onepass(
         Training materials of the manifold to render (default: all).
     spp, seed, sensor :
         As :meth:`render` (``spp=0``: the sensor's sample count).
-    chunk : int, optional
-        Materials per kernel (default: all of them with the table product, 16
-        otherwise).
-    max_samples : int
-        Most paths traced at once (passes of whole samples per pixel).
-    spp_per_pass : int, optional
-        Samples per pixel per pass, instead of the most that ``max_samples`` allows.
+    settings : PassSettings, optional
+        Passes and kernels: materials per kernel, paths per pass (default ``PassSettings()``).
     progress : callable, optional
         Called as ``progress(done, total)`` in work units (one per pass and chunk).
 
@@ -120,9 +133,7 @@ def render_onepass(
         and ``images`` (dict of str -> ndarray float32 (H, W, 3): the touch image of each
         material, in the order of ``materials``).
     """
-    base, images, _ = _render(
-        integrator, scene, materials, spp, seed, sensor, chunk, max_samples, spp_per_pass, progress
-    )
+    base, images, _ = _render(integrator, scene, materials, spp, seed, sensor, settings, progress)
     return OnePassImages(base, images)
 
 
@@ -203,9 +214,9 @@ def render_onepass_gi(
         spp,
         seed,
         sensor,
-        options.get("chunk"),
-        options.get("max_samples", 1 << 22),
-        options.get("spp_per_pass"),
+        PassSettings(
+            options.get("chunk"), options.get("max_samples", 1 << 22), options.get("spp_per_pass")
+        ),
         options.get("progress"),
         gi,
     )
@@ -273,13 +284,15 @@ def _render(
     spp,
     seed,
     sensor,
-    chunk,
-    max_samples,
-    spp_per_pass,
+    settings,
     progress,
     gi=None,
 ):
-    """:func:`render_onepass` (``gi`` None) or :func:`render_onepass_gi` (``gi``: levels, pairs)."""
+    """:func:`render_onepass` (``gi`` None) or :func:`render_onepass_gi` (``gi``: levels, pairs);
+    ``settings``: a :class:`PassSettings` (None: the defaults).
+    """
+    settings = PassSettings() if settings is None else settings
+    chunk, max_samples, spp_per_pass = settings.chunk, settings.max_samples, settings.spp_per_pass
     target = one_target(scene, integrator.target)
     names = _material_names(target.manifold, target.path, materials)
     _check_counts(spp_per_pass=spp_per_pass, chunk=chunk)

@@ -391,7 +391,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         """Render the base image and every material's touch image from one set of paths.
 
         See :func:`mitsuba_manifold.render.integrators.onepass.render_onepass` (the algorithm,
-        parameters and results).
+        parameters and results); ``chunk``, ``max_samples`` and ``spp_per_pass`` are those of
+        its :class:`~mitsuba_manifold.render.integrators.onepass.PassSettings`.
         """
         from . import onepass
 
@@ -402,9 +403,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             spp=spp,
             seed=seed,
             sensor=sensor,
-            chunk=chunk,
-            max_samples=max_samples,
-            spp_per_pass=spp_per_pass,
+            settings=onepass.PassSettings(chunk, max_samples, spp_per_pass),
             progress=progress,
         )
 

@@ -9,7 +9,7 @@ import threading
 import mitsuba as mi
 import numpy as np
 
-from ..._util.cache import key_hash, npy_cache
+from ..._util.cache import Eviction, key_hash, npy_cache
 from .splats import PACKET
 
 #: Name of the point's own material in a render with ``point`` weights (:func:`.onepass.render_onepass_gi`).
@@ -45,9 +45,7 @@ def _mixture_table(db, rows, mix, keep=2):
         shape=shape,
         dtype=np.float32,
         finite=True,
-        touch=True,
-        keep=keep,
-        marker=".mixture-v1-",
+        eviction=Eviction(keep, ".mixture-v1-"),
     )
 
 
