@@ -26,10 +26,10 @@ import time
 
 from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND
 from ...manifold.paths import KINDS as PATH_KINDS
-from ...manifold.pruning import DEFAULT_PRUNE
 from .common import (
     ERRORS,
     ArgumentParser,
+    add_prune_argument,
     fail,
     guarded,
     parse_floats,
@@ -71,14 +71,7 @@ def parser():
         help="scene XML to check the basis against (default: not checked; "
         "--render-reference uses the manifest's scene)",
     )
-    p.add_argument(
-        "--prune",
-        type=float,
-        default=DEFAULT_PRUNE,
-        help=f"pruning budget (default {DEFAULT_PRUNE:g}, as the plugin): blend the fewest materials such that "
-        "each albedo channel changes by at most half of it and the cosine-weighted and raw "
-        "table by at most it, relatively",
-    )
+    add_prune_argument(p)
     p.add_argument(
         "--renormalise",
         action="store_true",

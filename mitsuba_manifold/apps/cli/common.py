@@ -69,6 +69,20 @@ class ArgumentParser(argparse.ArgumentParser):
         self.exit(2, f"error: {message} (see {self.prog} --help)\n")
 
 
+def add_prune_argument(parser):
+    """``--prune``: the pruning budget of the blends a tool shows, the plugin's default and rule."""
+    from ...manifold.pruning import DEFAULT_PRUNE
+
+    parser.add_argument(
+        "--prune",
+        type=float,
+        default=DEFAULT_PRUNE,
+        help=f"pruning budget (default {DEFAULT_PRUNE:g}, as the plugin): blend the fewest materials "
+        "such that each albedo channel changes by at most half of it and the cosine-weighted and "
+        "raw table by at most it, relatively",
+    )
+
+
 def parse_list(text):
     """'a,b,c' -> ['a', 'b', 'c']."""
     items = [t.strip() for t in text.split(",") if t.strip()]

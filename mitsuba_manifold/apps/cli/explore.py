@@ -17,7 +17,6 @@ import os
 import socket
 import sys
 
-from ...manifold.pruning import DEFAULT_PRUNE
 from ..tool_commands import explore_command
 
 DEFAULT_PORT = 8765
@@ -39,7 +38,7 @@ def parse_port(text):
 
 
 def parser():
-    from .common import ArgumentParser
+    from .common import ArgumentParser, add_prune_argument
 
     p = ArgumentParser(
         prog="explore.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -83,14 +82,7 @@ def parser():
         default=DEFAULT_PORT,
         help=f"port (default {DEFAULT_PORT}; 0: any free port)",
     )
-    p.add_argument(
-        "--prune",
-        type=float,
-        default=DEFAULT_PRUNE,
-        help=f"pruning budget (default {DEFAULT_PRUNE:g}, as the plugin): blend the fewest materials such that "
-        "each albedo channel changes by at most half of it and the cosine-weighted and raw "
-        "table by at most it, relatively",
-    )
+    add_prune_argument(p)
     p.add_argument(
         "--no-tables",
         action="store_true",
