@@ -9,7 +9,7 @@ import stat
 
 import numpy as np
 import pytest
-from guarantees_helpers import ROOT, SPHERE, assert_one_error, run_tool, snapshot
+from guarantees_helpers import ROOT, SPHERE, assert_one_error, render_basis_args, run_tool, snapshot
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
@@ -220,19 +220,7 @@ def test_a_run_that_failed_before_its_first_image_does_not_block_other_settings(
     data = table.read_bytes()
     table.write_bytes(data[: len(data) // 2])
     out = tmp_path / "basis"
-    args = [
-        SPHERE,
-        "--manifold",
-        tiny["manifold"],
-        "--out",
-        out,
-        "--res",
-        8,
-        "--spp",
-        2,
-        "--database",
-        db,
-    ]
+    args = render_basis_args(tiny["manifold"], out, "--database", db, spp=2)
     rc, _, err = run_tool("render_basis", *args)
     assert_one_error(rc, err, "gold-paint.binary")
     assert not out.exists()

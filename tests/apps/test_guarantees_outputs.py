@@ -12,7 +12,7 @@ import json
 import os
 
 import pytest
-from guarantees_helpers import assert_one_error, run_tool, snapshot
+from guarantees_helpers import assert_one_error, run_render_basis, run_tool, snapshot
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
@@ -246,12 +246,8 @@ def test_a_newline_in_a_path_end_is_drawn_escaped(tmp_path, tiny):
 def test_render_basis_checks_seeds_and_views_before_anything_is_written(
     tmp_path, tiny, extra, words
 ):
-    from guarantees_helpers import SPHERE
-
     out = tmp_path / "basis"
-    rc, _, err = run_tool(
-        "render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", "8", *extra
-    )
+    rc, _, err = run_render_basis(tiny["manifold"], out, *extra, spp=None)
     assert_one_error(rc, err, words)
     assert not out.exists()
 
