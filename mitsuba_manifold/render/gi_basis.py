@@ -25,7 +25,7 @@ from ..basis.folder.output import image_still_valid
 from ..errors import InputError
 from .integrators.multisplats import PairSelection
 
-#: File suffix of a material's full-GI image (``manifest["gi_images"]``) and the cross terms' file.
+#: File suffix of a material's full-GI image (``Manifest.gi_images``) and the cross terms' file.
 GI_SUFFIX = ".gi.exr"
 CROSS_FILE = "cross.npz"
 
@@ -54,20 +54,20 @@ def carry_gi(out, manifest):
     still listed), what it holds and left out, its cross terms, its measurements.
     """
     path = os.path.join(out, basis_folder.MANIFEST)
-    if not manifest["images"] or not os.path.isfile(path):
+    if not manifest.images or not os.path.isfile(path):
         return
-    old = basis_folder.read_manifest(out)
-    size = tuple(manifest["resolution"])  # an image changed since it was written is rendered again
+    old = basis_folder.Manifest.read(out)
+    size = tuple(manifest.resolution)  # an image changed since it was written is rendered again
     gi = {
         k: e
-        for k, e in old.get("gi_images", {}).items()
-        if k in manifest["images"] and image_still_valid(out, e, size)
+        for k, e in (old.gi_images or {}).items()
+        if k in manifest.images and image_still_valid(out, e, size)
     }
     if gi:
-        manifest["gi_images"] = gi
+        manifest.gi_images = gi
     for key in ("components", "left_out", "cross", "gi_stats"):
-        if key in old:
-            manifest[key] = old[key]
+        if getattr(old, key) is not None:
+            setattr(manifest, key, getattr(old, key))
 
 
 def write_cross(path, pairs, images):
@@ -84,12 +84,12 @@ def write_cross(path, pairs, images):
 
 def describe_components(manifest):
     """One line per component: what the basis holds, and what it left out and why."""
-    held = ", ".join(manifest.get("components", ["l1"]))
+    held = ", ".join(manifest.held_components)
     lines = [
         f"basis holds: {held}"
-        + (f" (levels <= {manifest['levels']})" if "levels" in manifest else "")
+        + (f" (levels <= {manifest.levels})" if manifest.levels is not None else "")
     ]
-    for comp, why in manifest.get("left_out", {}).items():
+    for comp, why in (manifest.left_out or {}).items():
         lines.append(f"left out {comp}: {why}")
     return "\n".join(lines)
 
@@ -198,13 +198,13 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
         images[basis_folder.BASE] = np.asarray(r.base, np.float32)
     left = {}
     if needed:
-        manifest["components"] = ["l1", "l2+"]
+        manifest.components = ["l1", "l2+"]
     else:
-        manifest["components"] = ["l1"]
+        manifest.components = ["l1"]
         left["l2+"] = why
         left["cross"] = "no L2+ images"
-    manifest["left_out"] = left
-    manifest["gi_stats"] = stats
+    manifest.left_out = left
+    manifest.gi_stats = stats
     save(images, per)
     if not needed:
         return
@@ -218,13 +218,13 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
         digest = write_cross(
             os.path.join(out, CROSS_FILE), list(r.cross), np.stack([r.cross[p] for p in r.cross])
         )
-        manifest["cross"] = {
+        manifest.cross = {
             "file": CROSS_FILE,
             "pairs": len(r.cross),
             "tol": float(o.cross_tol),
             "sha256": digest,
         }
-        manifest["components"] = ["l1", "l2+", "cross"]
+        manifest.components = ["l1", "l2+", "cross"]
     else:
         sel = r.selection or {}
         left["cross"] = (
@@ -233,4 +233,4 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
             if sel.get("candidates")
             else f"no pair of materials reaches a weight product of {o.cross_tol:g} in the explored region"
         )
-    basis_folder.write_manifest(out, manifest)
+    manifest.write(out)

@@ -224,7 +224,7 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
 
     Returns
     -------
-    dict
+    Manifest
         The manifest written.
     """
     o = replace(options or BasisOptions(), **settings)
@@ -252,7 +252,7 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
             f"`sensor` {o.sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)"
         )
     size = scenes.image_size(sensors[int(o.sensor)].film())  # the crop window's
-    manifest = basis_folder.make_manifest(
+    manifest = basis_folder.Manifest.new(
         scene_path,
         manifold_path,
         basis_folder.RenderSettings(
@@ -266,22 +266,22 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
         ),
         targets=[b.id() for b in targets],
     )
-    manifest["integrator"] = paths.to_manifest()
-    manifest["scene_resolution"] = None if o.resolution is None else list(_size(o.resolution))
+    manifest.integrator = paths.to_manifest()
+    manifest.scene_resolution = None if o.resolution is None else list(_size(o.resolution))
     scatters_twice = (
         max_depth < 0 or max_depth > 2
     )  # depth 2 (direct): one scattering vertex per path
     gi = o.mode == "onepass" and o.components == "auto" and scatters_twice
     if gi:
         o = replace(o, levels=gi_levels(o.levels, max_depth))
-        manifest["levels"] = o.levels
+        manifest.levels = o.levels
     elif o.mode == "onepass" and o.components == "auto":
-        manifest["left_out"] = {
+        manifest.left_out = {
             "l2+": f"the scene's paths scatter once at most ({paths.describe()}): "
             "its L1- images are its full-GI images"
         }
     else:
-        manifest["left_out"] = {
+        manifest.left_out = {
             "l2+": "per-material mode renders L1- images only"
             if o.mode != "onepass"
             else "components 'l1' asked for"
@@ -301,17 +301,17 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
     if os.path.isdir(out):  # refuse before locking: a refused run adds nothing to the folder
         open_folder(out, manifest, files, o.force, read_images=False)
     with _removed_if_nothing_made(out), FolderLock(out, "basis folder"), StopRequest() as stop:
-        manifest["images"] = open_folder(out, manifest, files, o.force)
+        manifest.images = open_folder(out, manifest, files, o.force)
         if gi:
             carry_gi(out, manifest)
-        basis_folder.write_manifest(out, manifest)
-        todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
+        manifest.write(out)
+        todo = [(key, combo) for key, combo in jobs if key not in manifest.images]
         if gi and (
             todo
             or (
-                "l2+" in manifest.get("components", [])
+                "l2+" in manifest.held_components
                 and any(
-                    key not in manifest.get("gi_images", {})
+                    key not in (manifest.gi_images or {})
                     for key, combo in jobs
                     if combo is not None
                 )
@@ -388,16 +388,17 @@ def _check_request(scene_path, manifold_path, out, o):
 
 
 def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
-    """Write ``{key: image}`` into ``out`` (EXR files in parallel), then list them in
-    ``manifest[section]`` (``"images"``, or ``"gi_images"`` with ``suffix`` :data:`GI_SUFFIX`).
+    """Write ``{key: image}`` into ``out`` (EXR files in parallel), then list them in the
+    :class:`Manifest`'s ``section`` (``"images"``, or ``"gi_images"`` with ``suffix``
+    :data:`GI_SUFFIX`).
 
     The files are first listed as ``pending``: a run killed between writing a file
     and listing it leaves a file its resume knows to be its own.
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    manifest["pending"] = sorted(key + suffix for key in images)
-    basis_folder.write_manifest(out, manifest)
+    manifest.pending = sorted(key + suffix for key in images)
+    manifest.write(out)
     with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
         list(
             pool.map(
@@ -405,7 +406,7 @@ def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
                 images.items(),
             )
         )
-    entries = manifest.setdefault(section, {})
+    entries = manifest.section(section)
     for (
         key
     ) in images:  # each file's hash: an image edited later is found (open_folder, Basis.image)
@@ -414,8 +415,8 @@ def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
             "time_s": float(seconds),
             "sha256": file_hash(os.path.join(out, key + suffix)),
         }
-    del manifest["pending"]
-    basis_folder.write_manifest(out, manifest)
+    manifest.pending = None
+    manifest.write(out)
 
 
 def ensure_aovs(out, manifest, spp=16):

@@ -34,7 +34,7 @@ pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
 from mitsuba_manifold._util.cache import file_hash  # noqa: E402
 from mitsuba_manifold._util.locking import FolderLock  # noqa: E402
-from mitsuba_manifold.basis.folder.manifest import read_manifest  # noqa: E402
+from mitsuba_manifold.basis.folder.manifest import Manifest  # noqa: E402
 from mitsuba_manifold.data import database, merl  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
 from mitsuba_manifold.manifold.identity import manifold_identity  # noqa: E402
@@ -429,7 +429,7 @@ def test_identical_refit_is_accepted_by_existing_bases(tmp_path, tiny):
     # (they may differ: the file records when and how it was made): the identity the basis holds
     identity = manifold_identity(Manifold.load(again))
     assert identity == manifold_identity(Manifold.load(tiny["manifold"]))
-    assert identity == read_manifest(tiny["basis"])["manifold_hash"]
+    assert identity == Manifest.read(tiny["basis"]).manifold_hash
     rc, _, err = run_tool(
         "blend",
         "--basis",

@@ -256,12 +256,11 @@ def test_new_manifests_record_their_sensor_and_old_ones_mean_sensor_0(tiny):
     from mitsuba_manifold.basis.folder import Basis
     from mitsuba_manifold.basis.folder import manifest as mf
 
-    m = mf.read_manifest(tiny["basis"])
+    m = mf.Manifest.read(tiny["basis"]).to_json()
     assert m["sensor"] == 0 and Basis.load(tiny["basis"]).sensor_known
     old = {k: v for k, v in m.items() if k != "sensor"}
-    assert mf.manifest_differences(old, m) == [] and mf.manifest_differences(
-        dict(m, sensor=1), m
-    ) == ["sensor"]
+    assert mf.Manifest.from_json(old).differences(m) == []
+    assert mf.Manifest.from_json(dict(m, sensor=1)).differences(m) == ["sensor"]
     assert Basis(tiny["basis"], old).sensor == 0 and not Basis(tiny["basis"], old).sensor_known
 
 

@@ -495,7 +495,7 @@ def reference_image(args, basis, manifold, outputs):
         return None
     m = basis.manifest
     scene = args.scene or m.scene
-    paths = m.extra.get("integrator")
+    paths = m.integrator
     how = (
         f"{paths['kind']}, max_depth {paths['max_depth']}"
         + (", hide_emitters" if paths["hide_emitters"] else "")

@@ -169,7 +169,6 @@ def main(argv=None):
     materials = args.materials if args.materials != ["all"] else "all"
     check_numbers(args)
 
-    from ...basis.folder.manifest import Manifest
     from ...render.chunks import render_chunked
     from ...render.executor import make_executor
     from ...render.render_basis import check_job_folders, plan_views, render_basis
@@ -198,7 +197,7 @@ def main(argv=None):
         for scene, sensor, out in jobs:
             t1 = time.perf_counter()
             if args.chunks == 1 and args.executor == "local":
-                manifest = render_basis(
+                m = render_basis(
                     scene,
                     args.manifold,
                     out,
@@ -209,7 +208,7 @@ def main(argv=None):
                     **options,
                 )
             else:
-                manifest = render_chunked(
+                m = render_chunked(
                     scene,
                     args.manifold,
                     out,
@@ -222,7 +221,6 @@ def main(argv=None):
                     sensor=sensor,
                     **options,
                 ).manifest
-            m = Manifest.from_json(manifest)
             gi, cross = len(m.gi_images or {}), (m.cross or {}).get("pairs", 0)
             extra = f" (and {gi} full-GI images, {cross} cross terms)" if gi else ""
             print(
