@@ -334,16 +334,16 @@ def render_chunked(
         Also write the denoising guides of the merged basis (rendered here, once).
     options
         :func:`mitsuba_manifold.render.render_basis.render_basis` keyword arguments (fields of
-        its ``BasisOptions``); ``spp`` and ``seed`` are those of the merged basis, split over
+        the groups of its ``BasisOptions``); ``spp`` and ``seed`` are those of the merged basis, split over
         the chunks (chunk seeds: :func:`chunk_seed`).
 
     Returns
     -------
     ChunkedRun
     """
-    from .render_basis import BasisOptions
+    from .render_basis import Sampling
 
-    spp, seed = options.pop("spp", BasisOptions.spp), options.pop("seed", BasisOptions.seed)
+    spp, seed = options.pop("spp", Sampling.spp), options.pop("seed", Sampling.seed)
     specs = plan(scene, manifold, spp, chunks, seed, **options)
     check_foreign_folder(
         os.fspath(out), options.get("force", False)
@@ -422,12 +422,12 @@ def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force
 
 def _chooses_pairs(options):
     """Whether a chunk of ``options`` chooses cross-term pairs on its first pass."""
-    from .render_basis import BasisOptions
+    from .render_basis import FullGI
 
     return (
         options.get("mode") == "onepass"
         and options.get("components") == "auto"
-        and options.get("cross_light_tol", BasisOptions.cross_light_tol)
+        and options.get("cross_light_tol", FullGI.cross_light_tol)
         and options.get("cross_keep") is None
     )
 

@@ -37,7 +37,7 @@ MAX_LEVELS = 12
 
 
 def gi_levels(levels, max_depth):
-    """``levels`` of :class:`~.render_basis.BasisOptions` checked, or by default (None) every
+    """``levels`` of :class:`~.render_basis.FullGI` checked, or by default (None) every
     vertex a path of ``max_depth`` can have (:data:`MAX_LEVELS` for unbounded paths).
     """
     if levels is None:
@@ -156,41 +156,45 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
     """
     names = [combo[0] for _, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
-    pairs, pstats = select_pairs(manifold, names, tol=o.cross_tol)
+    pairs, pstats = select_pairs(manifold, names, tol=o.gi.cross_tol)
     products = tuple(pstats.pop("products"))
-    select = PairSelection(products, tol=o.cross_light_tol) if o.cross_light_tol else None
-    if o.cross_keep is not None:  # a later chunk: the first chunk's pairs
+    select = PairSelection(products, tol=o.gi.cross_light_tol) if o.gi.cross_light_tol else None
+    if o.gi.cross_keep is not None:  # a later chunk: the first chunk's pairs
         index = {tuple(p): k for k, p in enumerate(pairs)}
         select = PairSelection(
-            products, tol=o.cross_light_tol, keep=tuple(index[tuple(p)] for p in o.cross_keep)
+            products, tol=o.gi.cross_light_tol, keep=tuple(index[tuple(p)] for p in o.gi.cross_keep)
         )
     t0 = time.perf_counter()
-    with progress_bar("rendering basis (one pass, full GI)", o.progress, stop) as advance:
-        kwargs = {"progress": advance, "cross_fraction": o.cross_fraction, "pair_selection": select}
-        if o.chunk_spp:
-            kwargs["spp_per_pass"] = o.chunk_spp
+    with progress_bar("rendering basis (one pass, full GI)", o.run.progress, stop) as advance:
+        kwargs = {
+            "progress": advance,
+            "cross_fraction": o.gi.cross_fraction,
+            "pair_selection": select,
+        }
+        if o.sampling.chunk_spp:
+            kwargs["spp_per_pass"] = o.sampling.chunk_spp
         r = _integrator(paths).render_onepass_gi(
             scene,
             materials=names,
-            spp=o.spp,
-            seed=o.seed,
-            sensor=int(o.sensor),
-            levels=o.levels,
+            spp=o.sampling.spp,
+            seed=o.sampling.seed,
+            sensor=int(o.scene.sensor),
+            levels=o.gi.levels,
             pairs=pairs,
             **kwargs,
         )
     seconds = time.perf_counter() - t0
     per = seconds / max(len(todo), 1)
     needed, why, frac = needs_rest(r.paths, r.touch, r.rest, REST_TOL)
-    needed = needed or o.cross_keep is not None  # a later chunk: the first chunk stored L2+
+    needed = needed or o.gi.cross_keep is not None  # a later chunk: the first chunk stored L2+
     stats = {
         "render_s": round(seconds, 3),
-        "levels": int(o.levels),
+        "levels": int(o.gi.levels),
         "paths_by_touches": [int(v) for v in r.paths],
         "cut_fraction": float(r.paths[-1] / max(1, r.paths.sum())),
         "rest_fraction": frac,
         "pairs": pstats,
-        "cross_fraction": float(o.cross_fraction),
+        "cross_fraction": float(o.gi.cross_fraction),
         "pair_selection": r.selection,
     }
     images = {keys[n]: np.asarray(r.touch[n], np.float32) for n in names}
@@ -221,7 +225,7 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
         manifest.cross = {
             "file": CROSS_FILE,
             "pairs": len(r.cross),
-            "tol": float(o.cross_tol),
+            "tol": float(o.gi.cross_tol),
             "sha256": digest,
         }
         manifest.components = ["l1", "l2+", "cross"]
@@ -231,6 +235,6 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
             f"none of {sel['candidates']} candidate pairs would change its L2+ light by "
             f"{sel['tol']:g} (largest {sel['largest_left_out']:.2g})"
             if sel.get("candidates")
-            else f"no pair of materials reaches a weight product of {o.cross_tol:g} in the explored region"
+            else f"no pair of materials reaches a weight product of {o.gi.cross_tol:g} in the explored region"
         )
     manifest.write(out)

@@ -23,6 +23,24 @@ SPHERE = scenes.scene_path("sphere")
 RES = 24
 
 
+def test_basis_options_take_their_fields_by_name_into_their_groups():
+    """``render_basis(..., spp=8, mode="onepass")`` sets the fields of the groups they belong to;
+    a name that is no field is refused naming the options."""
+    o = render_basis.BasisOptions().updated(spp=8, mode="onepass", levels=3, force=True, x=[0.1])
+    assert (o.sampling.spp, o.sampling.mode, o.gi.levels, o.run.force, o.scene.x) == (
+        8,
+        "onepass",
+        3,
+        True,
+        [0.1],
+    )
+    assert o.selection == render_basis.Selection() and o.sampling.seed == 0
+    gi = render_basis.FullGI(components="auto")
+    assert o.updated(gi=gi).gi == gi and o.keywords("spp", "levels") == {"spp": 8, "levels": 3}
+    with pytest.raises(TypeError, match="'sppp'.*spp"):
+        o.updated(sppp=8)
+
+
 def test_select_materials(small_manifold):
     m = Manifold.load(small_manifold)
     assert render_basis.select_materials(m) == m.names
