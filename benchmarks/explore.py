@@ -42,23 +42,25 @@ TARGET_MS = {256 * 256: 30.0, 512 * 512: 60.0}
 
 def upsampled_basis(folder, out, factor=2):
     """Copy of a basis with every image upsampled ``factor`` x (nearest); returns ``out``."""
+    from dataclasses import replace
+
     from mitsuba_manifold._util.cache import file_hash
-    from mitsuba_manifold.basis.folder import read_manifest, write_manifest
+    from mitsuba_manifold.basis.folder import Manifest
     from mitsuba_manifold.imaging import io as imageio
 
-    manifest = read_manifest(folder)
+    manifest = Manifest.read(folder)
     os.makedirs(out, exist_ok=True)
     images = {}
-    for key, entry in manifest["images"].items():
+    for key, entry in manifest.images.items():
         img = imageio.read_exr(os.path.join(folder, entry["file"]))
         imageio.write_exr(os.path.join(out, entry["file"]), img.repeat(factor, 0).repeat(factor, 1))
         images[key] = dict(
             entry, sha256=file_hash(os.path.join(out, entry["file"]))
         )  # the new files' hashes
-    manifest = dict(
-        manifest, images=images, resolution=[v * factor for v in manifest["resolution"]]
+    size = tuple(v * factor for v in manifest.resolution)
+    replace(manifest, images=images, settings=replace(manifest.settings, resolution=size)).write(
+        out
     )
-    write_manifest(out, manifest)
     return out
 
 
@@ -126,7 +128,7 @@ def run(
         if screenshot_path:  # a short reference render beside the page's timing run
             report["screenshot"] = screenshot(basis, screenshot_path, manifold, reference_spp=64)
         return report
-    from mitsuba_manifold.basis.folder import read_manifest
+    from mitsuba_manifold.basis.folder import Manifest
     from mitsuba_manifold.manifold.model import Manifold
 
     folders = [os.path.abspath(basis)]
@@ -143,7 +145,7 @@ def run(
     }
     proc = None
     try:
-        m = Manifold.load(manifold or read_manifest(basis)["manifold"])
+        m = Manifold.load(manifold or Manifest.read(basis).manifold)
         rng = np.random.default_rng(seed)
         # points inside the data: between random pairs of latent points
         i, j = rng.integers(0, m.n, (2, requests))
@@ -152,14 +154,14 @@ def run(
         proc, base = launch.start(folders, manifold, ["--no-tables"])
         ws_url = base.replace("http://", "ws://") + "ws"
         for folder in folders:
-            manifest = read_manifest(folder)
-            w, h = manifest["resolution"]
+            manifest = Manifest.read(folder)
+            w, h = manifest.resolution
             name = os.path.basename(folder)
             row = {
                 "basis": folder,
                 "upsampled": folder != folders[0],
                 "resolution": [w, h],
-                "n_materials": len(manifest["images"]) - 1,
+                "n_materials": len(manifest.images) - 1,
                 "target_ms": TARGET_MS.get(w * h),
                 "formats": {},
             }

@@ -231,8 +231,8 @@ def blend_time(manifold, out, res=256, scene="table", spp=1, points=20, log=prin
         "blend_ms": res_ms,
         "basis_bytes": size,
         "memory_bytes": int(mem),
-        "components": manifest["components"],
-        "pairs": manifest.get("cross", {}).get("pairs", 0),
+        "components": manifest.components,
+        "pairs": (manifest.cross or {}).get("pairs", 0),
     }
     if log:
         log(

@@ -77,6 +77,26 @@ TINY_NAMES = ["steel", "chrome", "gold-paint", "pink-fabric"]
 DIMS = (8, 8, 16)
 
 
+def render_basis_args(manifold, out, *extra, scene=SPHERE, res=8, spp=1):
+    """The command line (strings) of a small ``render_basis`` run: ``scene`` with ``manifold``
+    into ``out`` at ``res`` pixels and ``spp`` samples (None: the tool's default), then ``extra``.
+    """
+    args = [scene, "--manifold", manifold, "--out", out, "--res", res]
+    args += [] if spp is None else ["--spp", spp]
+    return [str(a) for a in [*args, *extra]]
+
+
+def render_basis_command(manifold, out, *extra, **options):
+    """:func:`render_basis_args` as the command that runs ``tools/render_basis.py`` in a new process."""
+    script = os.path.join(ROOT, "tools", "render_basis.py")
+    return [sys.executable, script, *render_basis_args(manifold, out, *extra, **options)]
+
+
+def run_render_basis(manifold, out, *extra, **options):
+    """``(exit code, stdout, stderr)`` of ``render_basis`` run on :func:`render_basis_args`."""
+    return run_tool("render_basis", *render_basis_args(manifold, out, *extra, **options))
+
+
 def write_table(path, dims=DIMS, value=1.0):
     """A MERL table of ``dims`` bins, every value ``value``."""
     import numpy as np
@@ -95,20 +115,7 @@ def make_tiny(root):
     db, m, basis = root / "db", root / "manifold.npz", root / "basis"
     database.make_database(db, (8, 8, 16), TINY_NAMES)
     Manifold.fit(str(db), q=2).save(m)
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        m,
-        "--out",
-        basis,
-        "--res",
-        8,
-        "--spp",
-        1,
-        "--mode",
-        "per-material",
-    )
+    rc, _, err = run_render_basis(m, basis, "--mode", "per-material")
     assert rc == 0, err
     return {"root": root, "db": str(db), "manifold": str(m), "basis": str(basis)}
 

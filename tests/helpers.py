@@ -161,7 +161,7 @@ def write_basis(folder, manifold_path, images, targets=("material",), scene_text
         imageio.write_exr(os.path.join(folder, file), img)
         entries[key] = {"file": file, "time_s": 0.01}
     h, w = next(iter(images.values())).shape[:2]
-    manifest = bf.make_manifest(
+    manifest = bf.Manifest.new(
         scene,
         manifold_path,
         bf.RenderSettings(
@@ -175,5 +175,5 @@ def write_basis(folder, manifold_path, images, targets=("material",), scene_text
         targets=list(targets),
         images=entries,
     )
-    bf.write_manifest(folder, manifest)
+    manifest.write(folder)
     return scene

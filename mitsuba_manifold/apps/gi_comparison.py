@@ -334,8 +334,8 @@ def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised"):
     and from nothing (``time_cold_s``: the scene loaded, as a new ``blend.py`` process does);
     ``l2``: the full-GI blend's light beyond L1- as :func:`blend` takes it; ``warm``: its kernels
     compiled first, as the direct renders' are (by a refinement of the same
-    samples and passes: the sample count is in the kernels, and a 1-spp warm-up left 1.3 s of
-    compiling in the timed 32-spp refinement at 256x256).
+    samples and passes: the sample count is in the kernels, so a warm-up of other samples
+    leaves compiling in the timed refinement).
     """
     passes = min(2, spp)
     if warm:

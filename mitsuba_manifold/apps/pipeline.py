@@ -166,7 +166,7 @@ def _run(job, log):
         progress=True,
         denoise=job.denoise,
         refine_spp=max(1, max(job.direct_spp) // 8),
-    )  # the CV costs ~2x a direct sample
+    )  # a control-variate sample costs more than a direct one (docs/benchmarks.md)
     t_gi = time.perf_counter() - t0
     sc = report["scenes"][job.scene]
     stages["basis_s"] = sc["basis_time_s"]

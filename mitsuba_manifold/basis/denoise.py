@@ -37,7 +37,7 @@ AOV_FILE = "aovs.npz"
 THETA_BINS = 45  # as integrators.aovs.THETA_BINS (not imported: that module needs Mitsuba)
 AOV_VERSION = 1
 #: OIDN quality of the L2+ part of full-GI blends (:func:`denoised_l2`): smooth indirect light
-#: loses nothing measurable at ``fast`` against ``high`` (see there), at a quarter of the time.
+#: needs no more (its errors and time against ``high``: ``docs/benchmarks.md``).
 L2_QUALITY = "fast"
 #: Width (standard deviation, as a fraction of the image's larger side) of the low-pass that puts
 #: back the light the denoiser took from the L2+ part (:func:`restore_light`).

@@ -3,12 +3,12 @@
 A geodesic between two points of the material space (``paths.geodesic``) starts from the
 shortest path through a :class:`LatentGraph`: latent samples where the data is, edges
 weighted by the perceptual distance of their tables. Weighing its ~23 000 edges is the one
-costly step (1 to 6 s at MERL resolution on 2 busy cores, ``tools/bench.py paths``); the
+costly step (its time: ``tools/bench.py paths``, ``docs/benchmarks.md``); the
 edges are saved once per manifold and metric in the database's cache folder
 (:func:`database.cache_folder`), named by a content hash of everything they depend on
 (:func:`cache_key`: the latent points, the interpolant, the recorded hashes of the tables,
-the metric's bins and the graph's settings), so a later process reads them back in
-milliseconds. The nodes are recomputed (cheap, deterministic).
+the metric's bins and the graph's settings), so a later process reads them back
+instead. The nodes are recomputed (cheap, deterministic).
 """
 
 from __future__ import annotations

@@ -18,31 +18,39 @@ of images stay exact), but never negative, without a jump next to the training p
 a point between two neighbours is a blend of those two. The choice is measured by
 ``tools/bench.py space`` (README, "The material space").
 
-:class:`Manifold` holds what was learned and delegates: the GP (kernel, factorisation of K,
-variance) to :mod:`mitsuba_manifold.gp`, the weights ``w(x)`` to its interpolant
-(:mod:`.interpolant`), the tables, their pruning and combination to :mod:`.tables`
-(:class:`~.tables.TrainingTables`; :meth:`Manifold.prune`, ``prune_report``, ``combine``), names and
-weight text to :mod:`.materials`, projection to :mod:`.projection`, diagnostics and the
-summary to :mod:`.report`, the ``.npz`` file to :mod:`.io`.
+:class:`Manifold` is one class: its fit (:func:`fit_database`), names and weight text, pruning
+and combination (:meth:`Manifold.prune`, ``prune_report``, ``combine``), diagnostics and
+summary are its methods here. It calls the algorithms that are concepts of their own: the
+GP (kernel, factorisation of K, variance) in :mod:`mitsuba_manifold.gp`, the weights ``w(x)``
+of its interpolant (:mod:`.interpolant`), the pruning algorithms (:mod:`.pruning`), the
+tables read and checked once (:class:`~.tables.TrainingTables`), projection
+(:mod:`.projection`), and the ``.npz`` file (:mod:`.io`).
 """
 
+import numbers
 import os
+import time
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
-from ..data.database import FEATURES, Database
-from ..errors import InputError
+from .._util.checks import weight_sum
+from .._util.fifo_cache import Recent
+from ..data import gram as gram_mod
+from ..data.database import FEATURES, Database, albedo_weights
+from ..errors import FormatError, InputError, did_you_mean
+from ..gp.gplvm import FitResult
 from ..gp.kernel import Kernel
 from ..gp.likelihood import log_likelihood
-from . import adding, fitting, materials, paths, report, schema
+from . import adding, paths, pruning, schema
 from . import interpolant as interpolants
 from . import io as manifold_file
 from . import projection as projection_mod
-from .fit_record import FitRecord
+from .fit_record import FitRecord, Timings
 from .presets import PRESETS, fit_layout, make_interpolant, settings
-from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, PruneReport
-from .tables import Combination, Pruned, TrainingTables, stored
+from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES, PruneReport
+from .tables import TrainingTables
 
 #: Names other modules import from here (the presets, the pruning default, the result types).
 __all__ = [
@@ -64,12 +72,108 @@ __all__ = [
 
 FORMAT_VERSION = manifold_file.FORMAT_VERSION
 
+#: Answers of :meth:`Manifold.prune` kept (the newest): the explorer prunes each point for its
+#: frame, its table and its description.
+PRUNE_MEMO = 8
+
 
 class Weights(NamedTuple):
     """:meth:`Manifold.weights`: ``b`` (Eq. 4's ``K^-1 k(x)`` for GP weights, else ``w - 1/N``) and weights ``w``."""
 
     b: np.ndarray
     w: np.ndarray
+
+
+class Pruned(NamedTuple):
+    """:meth:`Manifold.prune`: materials kept, their rescaled weights, the ``|w|`` dropped."""
+
+    keep: np.ndarray
+    w_kept: np.ndarray
+    dropped: float
+
+
+class Combination(NamedTuple):
+    """:meth:`Manifold.combine`: the combined table, the materials used, the ``|w|`` dropped."""
+
+    table: np.ndarray
+    keep: np.ndarray
+    dropped: float
+
+
+@dataclass
+class DatabaseFit:
+    """What :func:`fit_database` learned: the layout, the record, and the tables' statistics."""
+
+    names: list
+    hashes: list
+    result: FitResult
+    record: FitRecord
+    gram: np.ndarray
+    table_gram: np.ndarray
+    albedos: np.ndarray
+    tables: np.ndarray
+    cos_gram: np.ndarray = None
+
+
+def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
+    """Fit the materials ``names`` (default all) of :class:`Database` ``db`` with settings ``cfg``
+    (:func:`presets.settings` of ``preset``); ``options`` go to :func:`gplvm.fit_latent`.
+
+    Reads the tables once, computes in one pass over them the Gram matrix ``S`` of the fit's
+    features, the raw tables' ``T T^T`` and their cosine-weighted ``T diag(q) T^T`` (pruning,
+    :mod:`.pruning`), fits the GPLVM layout of the settings (:func:`presets.fit_layout`) and
+    records what it did (:class:`FitRecord`).
+    """
+    names = db.names if names is None else list(names)
+    if len(names) < 2:
+        raise InputError("a manifold needs at least 2 materials")
+    t0 = time.perf_counter()
+    tables = db.stack(names, progress=progress)
+    t_load = time.perf_counter() - t0
+    if cfg["features"] not in FEATURES:
+        raise FormatError(f"`features` must be one of {FEATURES}, got {cfg['features']!r}")
+    t0 = time.perf_counter()
+    g = gram_mod.gram(
+        tables, cfg["features"], centre=True, raw=True, weights=albedo_weights(db.dims).reshape(-1)
+    )
+    t_gram = time.perf_counter() - t0
+    result = fit_layout(g.S, tables.shape[1], cfg, init=init, **options)
+    record = FitRecord(
+        method=cfg["method"],
+        preset=preset,
+        q=int(cfg["q"]),
+        d=int(tables.shape[1]),
+        dims=db.dims,
+        log_likelihood=float(result.log_likelihood),
+        n_evaluations=int(result.n_evaluations),
+        history=result.history,
+        timings=Timings(t_load, t_gram, float(result.time_s)),
+    )
+    return DatabaseFit(
+        names,
+        db.hashes(names),
+        result,
+        record,
+        g.S,
+        g.raw,
+        db.albedo(names, tables=tables),
+        tables,
+        g.weighted,
+    )
+
+
+def _float64(a):
+    return None if a is None else np.asarray(a, dtype=np.float64)
+
+
+def _stored(name, doc):
+    """A property of the manifold's :class:`TrainingTables` attribute ``name``, set as float64."""
+
+    def set_(self, value):
+        setattr(self._store, name, _float64(value))
+        self._pruned.clear()  # pruning answers made with the old matrices
+
+    return property(lambda self: getattr(self._store, name), set_, doc=doc)
 
 
 class Manifold:
@@ -183,6 +287,7 @@ class Manifold:
             albedos,
             {a.name: a.path for a in self.added},
         )
+        self._pruned = Recent(PRUNE_MEMO)
         self.interpolant = make_interpolant(
             self.latent,
             {
@@ -263,7 +368,7 @@ class Manifold:
                 "tables of more bins (MERL's are 90x90x180; tools/make_database.py "
                 "--resolution 16,16,32 for a quick one)"
             )
-        f = fitting.fit_database(db, names, cfg, preset, init=init, progress=progress, **options)
+        f = fit_database(db, names, cfg, preset, init=init, progress=progress, **options)
         same = schema.coincident_latent(f.result.latent, f.hashes, f.names, cfg["length_scale"])
         if same:
             raise InputError(
@@ -383,15 +488,50 @@ class Manifold:
 
     def material_weights(self, name):
         """One-hot weights of a training material."""
-        return materials.one_hot(self.names, name)
+        w = np.zeros(self.n)
+        w[self.index(name)] = 1.0
+        return w
 
     def index(self, name):
-        """Position of material ``name`` (:func:`materials.index`)."""
-        return materials.index(self.names, name)
+        """Position of material ``name``; :class:`InputError` with the closest names otherwise."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            n, names = self.n, self.names
+            raise InputError(
+                f"unknown material {name!r}{did_you_mean(name, names)}: this manifold has {n} "
+                f"materials ({', '.join(names[:6])}{', ...' if n > 6 else ''})"
+            ) from None
 
     def parse_weights(self, text):
-        """Weights from ``"name:w, name:w"`` (unnamed materials get 0; :func:`materials.parse_weights`)."""
-        return materials.parse_weights(text, self.names)
+        """Weights of a combination of the training materials (``sum_i w_i table_i``, paper
+        Eq. 4) from ``"name:w, name:w"`` (unnamed materials get 0), ``(N,)`` float64.
+
+        Raises
+        ------
+        InputError
+            Unknown names, malformed entries, non-finite values or weights summing to 0.
+        """
+        w = np.zeros(self.n)
+        entries = [e.strip() for e in str(text).split(",") if e.strip()]
+        if not entries:
+            raise InputError(f"weights {text!r}: expected 'name:weight, name:weight'")
+        for e in entries:
+            name, sep, value = e.rpartition(":")
+            try:
+                v = float(value)
+            except ValueError:
+                v = None
+            if not sep or v is None or not np.isfinite(v) or ":" in name:
+                raise InputError(
+                    f"weights {text!r}: entry {e!r} is not 'name:number' (commas separate entries)"
+                )
+            w[self.index(name.strip())] += v
+        try:
+            weight_sum(w)
+        except InputError as e:
+            raise InputError(f"weights {text!r}: {e}") from None
+        return w
 
     # ------------------------------------------------------- tables, interpolation
     def open_database(self, folder=None, names=None):
@@ -399,6 +539,10 @@ class Manifold:
 
         Only the materials in ``names`` (default: all) are read and checked.
         """
+        if names is not None:
+            names = list(names)
+            for name in names:
+                self.index(name)  # an unknown name: InputError with the closest ones
         return self._store.open(folder or self.database, names)
 
     def tables(self, database=None):
@@ -493,30 +637,81 @@ class Manifold:
         return info
 
     # ------------------------------------------------------------- pruning
-    table_gram = stored("gram", "``T T^T`` of the raw tables (:attr:`TrainingTables.gram`).")
-    cos_gram = stored("cos_gram", "``T diag(q) T^T`` (:attr:`TrainingTables.cos_gram`).")
-    albedos = stored("albedos", "Albedo of each material, (N, 3) (:attr:`TrainingTables.albedos`).")
+    table_gram = _stored("gram", "``T T^T`` of the raw tables (:attr:`TrainingTables.gram`).")
+    cos_gram = _stored("cos_gram", "``T diag(q) T^T`` (:attr:`TrainingTables.cos_gram`).")
+    albedos = _stored(
+        "albedos", "Albedo of each material, (N, 3) (:attr:`TrainingTables.albedos`)."
+    )
 
     def table_norms(self):
         """L2 norm of each raw table (from :attr:`table_gram`)."""
         return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self.database)), 0.0))
 
-    def prune(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
-        """Materials kept by pruning weights ``w`` within the budget ``prune`` (0 keeps every
-        non-zero weight): a :class:`Pruned` ``(keep, w_kept, dropped)``.
+    def _checked(self, w, budget, rule):
+        w = np.asarray(w, dtype=np.float64)
+        n = self.n
+        if w.shape != (n,) or not np.isfinite(w).all():
+            raise InputError(f"weights must be {n} finite values, got shape {w.shape}")
+        if (
+            isinstance(budget, (bool, np.bool_))
+            or not isinstance(budget, numbers.Real)
+            or not 0 <= budget < 1
+        ):
+            raise InputError(f"`prune` must be in [0, 1), got {budget!r}")
+        if rule not in RULES:
+            raise InputError(f"`rule` must be one of {', '.join(map(repr, RULES))}, got {rule!r}")
+        return w
 
-        ``rule="image"`` (default): each albedo channel changes by at most ``prune / 2``, the
-        cosine-weighted and the raw table by at most ``prune`` of their norms; ``"raw-l2"``: the
-        raw table by at most ``prune`` of its L2 norm; exact
-        (:meth:`TrainingTables.prune`, :mod:`.pruning`).
+    def prune(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
+        """Materials kept by pruning weights ``w`` within the budget ``prune`` under ``rule``.
+
+        ``rule="image"`` (the default): each albedo channel changes by at most
+        ``pruning.ALBEDO_SHARE * prune``, the cosine-weighted table by at most ``prune`` of its
+        norm and the raw table by at most ``pruning.RAW_SHARE * prune`` of its L2 norm
+        (:func:`pruning.prune_image`). ``"raw-l2"``: the raw table by at most ``prune``
+        of its L2 norm (:func:`pruning.prune`). The kept weights
+        are rescaled to sum to ``sum(w)`` so the combination stays affine; the changes are
+        computed exactly from Gram matrices, rescaling included; ``prune = 0`` keeps every
+        non-zero weight.
+
+        Returns
+        -------
+        Pruned
+            ``keep`` (ndarray of int), ``w_kept`` (ndarray), ``dropped`` (float: sum of
+            ``|w_i|`` over the dropped materials).
         """
-        return self._store.prune(w, prune, self.database, rule)
+        w = self._checked(w, prune, rule)
+        key = (w.tobytes(), float(prune), rule, self.database)
+        hit = self._pruned.get(
+            key, lambda: self._prune(w, prune, rule)
+        )  # cleared when a matrix is set
+        return Pruned(
+            hit.keep.copy(), hit.w_kept.copy(), hit.dropped
+        )  # the caller may change its arrays
+
+    def _prune(self, w, budget, rule):
+        folder, store = self.database, self._store
+        if rule == "raw-l2":
+            return Pruned(*pruning.prune(w, store.raw_gram(folder), budget))
+        return Pruned(
+            *pruning.prune_image(
+                w,
+                store.cosine_gram(folder),
+                store.albedo(folder),
+                budget,
+                G=store.raw_gram(folder),
+            )
+        )
 
     def prune_error(self, w, keep, rule=DEFAULT_RULE):
         """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled),
         in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``).
         """
-        return self._store.error(w, keep, self.database, rule)
+        w = self._checked(w, 0.0, rule)
+        folder, store = self.database, self._store
+        return pruning.error(
+            w, keep, store.raw_gram(folder) if rule == "raw-l2" else store.cosine_gram(folder)
+        )
 
     def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE, keep=None):
         """What :meth:`prune` keeps and the bounds it reaches: a :class:`pruning.PruneReport` (materials
@@ -524,14 +719,43 @@ class Manifold:
         the budgets; ``str()`` of it is one line for ``print(bsdf)`` and the explorer). ``keep``:
         what :meth:`prune` kept of the same ``w`` (not pruned again).
         """
-        return self._store.report(w, prune, self.database, rule, keep=keep)
+        keep = self.prune(w, prune, rule).keep if keep is None else keep
+        folder, store = self.database, self._store
+        return pruning.report(
+            w,
+            keep,
+            rule,
+            prune,
+            G=store.raw_gram(folder),
+            C=store.cosine_gram(folder),
+            albedos=store.albedo(folder),
+            names=self.names,
+        )
 
     def combine(self, w, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
         """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
         :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
-        Reads only the kept materials' tables (unless all are in memory).
+
+        Uses the tables in memory when they are (and ``database`` is None); otherwise reads
+        only the kept ones from ``database`` (default the manifold's).
         """
-        return self._store.combine(w, prune, self.database, self.dims, database, rule)
+        keep, w_kept, dropped = self.prune(w, prune, rule)
+        loaded = self._store.loaded
+        if loaded is not None and database is None and self.dims is not None:
+            shape = (3,) + tuple(self.dims)
+            if 2 * len(keep) > self.n:  # one (multithreaded) matrix-vector product over all tables
+                full = np.zeros(self.n, dtype=np.float32)
+                full[keep] = w_kept
+                return Combination((full @ loaded).reshape(shape), keep, dropped)
+            flat = pruning.weighted_sum((loaded[i] for i in keep), w_kept, loaded.shape[1])
+            return Combination(flat.reshape(shape), keep, dropped)
+        db = self._store.open(database or self.database, [self.names[i] for i in keep])
+        flat = pruning.weighted_sum(
+            (db.reflectance(self.names[i]).reshape(-1) for i in keep),
+            w_kept,
+            3 * int(np.prod(db.dims)),
+        )
+        return Combination(flat.reshape((3,) + db.dims), keep, dropped)
 
     # ----------------------------------------------------------- diagnostics
     def condition_number(self):
@@ -541,12 +765,27 @@ class Manifold:
     def bound_terms(self, x):
         """Terms of the paper's Eq. 7 bound on ``|z(x) - z_j|`` for the nearest latent point j.
 
-        ``|z(x) - z_j| <= e^{-1/2} sqrt(2N) / l * cond(K) * |Z|_F * |x - x_j|`` (:func:`report.bound_terms`).
+        ``|z(x) - z_j| <= e^{-1/2} sqrt(2N) / l * cond(K) * |Z|_F * |x - x_j|`` with ``j`` the
+        nearest latent point; ``|Z|_F`` from the Gram matrix (NaN without it). Returns a dict
+        (``nearest``, ``distance``, ``constant``, ``cond_K``, ``Z_norm``, ``bound``) of arrays
+        (M,) and scalars for points (M, q), of scalars for one point (q,).
         """
         x, single = self._points(x)
-        out = report.bound_terms(
-            x, self.latent, self.length_scale, self.condition_number(), self.gram
-        )
+        dist = np.linalg.norm(x[:, None, :] - self.latent[None], axis=-1)
+        j = dist.argmin(axis=1)
+        const = np.exp(-0.5) * np.sqrt(2 * self.n) / self.length_scale
+        gram = self.gram
+        z_norm = float(np.sqrt(max(np.trace(gram), 0.0))) if gram is not None else float("nan")
+        near = dist[np.arange(len(x)), j]
+        cond_K = self.condition_number()
+        out = {
+            "nearest": j,
+            "distance": near,
+            "constant": const,
+            "cond_K": cond_K,
+            "Z_norm": z_norm,
+            "bound": const * cond_K * z_norm * near,
+        }
         if single:
             out = {k: (v[0] if isinstance(v, np.ndarray) else v) for k, v in out.items()}
         return out
@@ -572,11 +811,43 @@ class Manifold:
         over the whole group. A fit on ``raw`` features collapses materials whose tables differ
         little compared with the spikiest ones; ``features="log"`` separates them.
         """
-        return report.coincident(self.latent, self.names, self.length_scale, tol)
+        latent = self.latent
+        d2 = ((latent[:, None] - latent[None]) ** 2).sum(-1)
+        np.fill_diagonal(d2, np.inf)
+        close = np.sqrt(d2.min(axis=1)) < tol * self.length_scale
+        return [self.names[i] for i in np.flatnonzero(close)]
 
     def summary(self):
-        """Short human-readable description (:func:`report.summary`)."""
-        return report.summary(self)
+        """Short human-readable description (what the tools print after a fit)."""
+        rec = self.record
+        params = ", ".join(
+            f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+            for k, v in self.interpolant.params().items()
+            if k not in ("kind", "length_scale", "noise")
+        )
+        lines = [
+            f"Manifold: {self.n} materials, q={self.q}, l={self.length_scale:g}, "
+            f"mu={self.noise:g}, features={self.features}, preset={rec.preset or 'paper'}",
+            f"  interpolant: {self.interpolant.kind}" + (f" ({params})" if params else ""),
+            f"  database: {self.database}",
+            f"  cond(K) = {self.condition_number():.3g}",
+            "  weight jump next to a training point (max |w(x_i+) - e_i|_1): "
+            f"{self.discontinuity():.3g}",
+        ]
+        close = self.coincident()
+        if close:
+            lines.append(
+                f"  warning: {len(close)} materials share their latent point with another (within "
+                f"0.01 l), e.g. {', '.join(close[:4])}; interpolation cannot tell them apart"
+                + ("; try features='log'" if self.features == "raw" else "")
+            )
+        if rec.log_likelihood is not None:
+            fit_s = rec.timings.fit_s if rec.timings.fit_s is not None else float("nan")
+            lines.append(
+                f"  log-likelihood L = {rec.log_likelihood:.6g} "
+                f"({rec.method}, {len(rec.history)} iterations, {fit_s:.2f} s)"
+            )
+        return "\n".join(lines)
 
     # ------------------------------------------------------------ save/load
     def save(self, path):

@@ -25,10 +25,9 @@ The metric on latent points is ``d(x, y) = d_PR12(table(x), table(y))`` with ``t
 sum_i w_i(x) table_i`` (the manifold's weights, unpruned, clamped at 0 as the plugin does).
 Searches use a :class:`~mitsuba_manifold.data.distance.Quadrature` on a sub-grid of bins
 (:data:`SEARCH_STRIDE`: every 3rd ``theta_h`` bin, every 10th ``theta_d``, every 15th
-``phi_d``: 8 010 values a table at MERL resolution, 1/546 of them; on the 100 built-in
-materials pairwise distances within a median 0.5% of the full grid's (at most 5%), steps
-of 1/10 of a latent segment within a median 0.6% (90% within 0.8%)); ``tools/bench.py
-fig9`` measures the paths on the full grid, ``tools/bench.py paths`` their speed.
+``phi_d``: 8 010 values a table at MERL resolution, 1/546 of them; how close its distances
+are to the full grid's is in ``docs/benchmarks.md``); ``tools/bench.py fig9`` measures the
+paths on the full grid, ``tools/bench.py paths`` their speed.
 
 Speed (an explorer scrubs paths): a path's products are small, so BLAS runs on one thread
 (:func:`single_threaded`); the sub-grid's table values and the graph's edges are cached on
@@ -51,8 +50,8 @@ KINDS = ("straight", "uniform", "geodesic")
 #: The kind ``Manifold.path``, ``blend.py --path`` and the main job's contact sheet use: the
 #: best measured by ``tools/bench.py fig9`` (``benchmarks/results/fig9.json``).
 DEFAULT_KIND = "geodesic"
-#: Sub-grid of the searches (see the module doc; ``(1, 5, 10)`` before: 8.6x the values, the
-#: same Fig. 9 measures on the built-in database, ``benchmarks/results/fig9_default.json``).
+#: Sub-grid of the searches (see the module doc; its Fig. 9 measures on the built-in database:
+#: ``benchmarks/results/fig9_default.json``).
 SEARCH_STRIDE = (3, 10, 15)
 #: Table values below which the cube root's slope is capped (in :meth:`PathMetric.energy`).
 FLOOR = 1e-6
@@ -363,8 +362,8 @@ def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):
 
 
 def single_threaded():
-    """BLAS on one thread (threadpoolctl): a path's products are small (tens of points), and BLAS
-    threads waiting on each other made a geodesic ~20x slower on a busy 2-core machine.
+    """BLAS on one thread (threadpoolctl): a path's products are small (tens of points), too
+    small for BLAS threads to gain more than they lose waiting on each other.
     """
     from threadpoolctl import threadpool_limits
 

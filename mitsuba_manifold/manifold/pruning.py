@@ -7,7 +7,7 @@ the combination stays affine), and bounds what the change does. Two rules:
 ``"image"`` (the default)
     Bounds what light sees. The change ``delta`` of the weights must keep (a) each albedo
     channel (bihemispherical albedo, linear in the weights: ``delta @ albedos``, exact)
-    within ``ALBEDO_SHARE * budget`` of its value (0.5% at the default budget): the energy
+    within ``ALBEDO_SHARE * budget`` of its value: the energy
     the material reflects of any smooth light; (b) the *cosine-weighted* L2 change of the
     table within ``budget`` of its norm, in the norm ``|f|^2 = sum_bins q f^2`` with ``q`` the
     bins' ``cos(theta_i) cos(theta_o) dw_i dw_o`` (the albedo quadrature weights,
@@ -17,11 +17,10 @@ the combination stays affine), and bounds what the change does. Two rules:
     and (c) the raw L2 change within ``RAW_SHARE * budget`` (the previous rule's bound, for
     the narrowest peaks). (a) does most of the work: any L2 norm, cosine-weighted too, is
     dominated by the spikiest tables' peaks, so (b) alone lets a dull material of small
-    weight go and the albedo change by 14%; (a) alone meets the image target at the
+    weight go and the albedo change by far more; (a) alone meets the image target at the
     benchmark's points; (b) and (c) bound what an albedo cannot see (where in angle the
-    energy goes; without (c) the raw table changes by up to 90% at some points, a narrow
-    peak of tiny weight dropped) at no cost in the median of materials kept (one more at
-    the worst of 400 points).
+    energy goes; without (c) a narrow peak of tiny weight can be dropped) at little cost in
+    the materials kept (``docs/benchmarks.md``).
     The search (:func:`prune_image`) drops materials in the order of what dropping each
     alone would change (one vectorised pass over all prefixes of that order), then goes on
     greedily, each step dropping the material whose removal changes least (O(N) per step).
@@ -30,7 +29,8 @@ the combination stays affine), and bounds what the change does. Two rules:
     Drops the materials of smallest contribution ``|w_i| |table_i|`` for as long as the raw
     table changes by at most ``budget`` of its L2 norm, exact from ``G = T T^T``
     (:func:`prune`). The raw norm is dominated by the specular peaks, so a dull material of
-    small weight can be dropped even where it changes the albedo by 10% or more.
+    small weight can be dropped even where it changes the albedo by much more than the
+    budget.
 
 The measurements behind the choice: ``tools/bench.py prune`` (``benchmarks/results/prune.json``).
 """

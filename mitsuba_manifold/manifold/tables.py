@@ -1,61 +1,28 @@
-"""The training tables of a manifold: opened and checked, loaded once, pruned and combined.
+"""The training tables of a manifold: opened and checked, loaded once, measured for pruning.
 
 Every material a manifold gives is ``sum_i w_i table_i`` over its N measured tables (paper
-Eq. 4). :class:`TrainingTables` owns what that needs: opening the database the manifold was
-fit on (each table checked against the SHA-256 recorded at the fit), the ``(N, d)`` stack
-kept in memory once loaded, what pruning measures exactly (:mod:`.pruning`: the raw tables'
-Gram matrix ``G = T T^T``, the cosine-weighted ``C = T diag(q) T^T`` and the albedos, each
-computed from the tables on first use when a manifold file lacks it),
-and the combination itself, reading only the kept tables.
+Eq. 4). :class:`TrainingTables` holds the data that needs: opening the database the manifold
+was fit on (each table checked against the SHA-256 recorded at the fit), the ``(N, d)`` stack
+kept in memory once loaded, and what pruning measures exactly (:mod:`.pruning`: the raw
+tables' Gram matrix ``G = T T^T``, the cosine-weighted ``C = T diag(q) T^T`` and the albedos,
+each computed from the tables on first use when a manifold file lacks it). The pruning and
+the combination are :class:`~.model.Manifold`'s methods.
 """
 
-import numbers
 import os
-from typing import NamedTuple
 
 import numpy as np
 
 from .._util.cache import key_hash, npy_cache
-from .._util.fifo_cache import Recent
 from ..data import merl
 from ..data.database import Database, albedo_weights
 from ..data.sources import BinaryFile
 from ..errors import FormatError, InputError
-from . import materials, pruning, schema
-from .pruning import DEFAULT_RULE, RULES
-
-#: Answers of :meth:`TrainingTables.prune` kept (the newest).
-PRUNE_MEMO = 8
-
-
-class Pruned(NamedTuple):
-    """:meth:`TrainingTables.prune`: materials kept, their rescaled weights, the ``|w|`` dropped."""
-
-    keep: np.ndarray
-    w_kept: np.ndarray
-    dropped: float
-
-
-class Combination(NamedTuple):
-    """:meth:`TrainingTables.combine`: the combined table, the materials used, the ``|w|`` dropped."""
-
-    table: np.ndarray
-    keep: np.ndarray
-    dropped: float
+from . import pruning, schema
 
 
 def _float64(a):
     return None if a is None else np.asarray(a, dtype=np.float64)
-
-
-def stored(name, doc):
-    """A property of the owner's ``_store`` (a :class:`TrainingTables`) attribute ``name``, set as float64."""
-
-    def set_(self, value):
-        setattr(self._store, name, _float64(value))
-        self._store.pruned.clear()  # pruning answers made with the old matrices
-
-    return property(lambda self: getattr(self._store, name), set_, doc=doc)
 
 
 class WithAdded(Database):
@@ -116,9 +83,6 @@ class TrainingTables:
             _float64(albedos),
         )
         self.loaded = None
-        self.pruned = Recent(
-            PRUNE_MEMO
-        )  # the explorer prunes each point for frame, table and description
 
     def open(self, folder, names=None):
         """The :class:`Database` in ``folder``, its tables of ``names`` (default all) checked
@@ -136,8 +100,9 @@ class TrainingTables:
             ) from None
         except KeyError as e:
             raise InputError(f"database for this manifold: {e}") from None
+        recorded_hash = dict(zip(self.names, self.hashes))
         for name in names:
-            recorded = self.hashes[materials.index(self.names, name)]
+            recorded = recorded_hash[name]
             if db.hash(name) != recorded:
                 raise InputError(
                     f"database {db.folder}: table {name!r} differs from the one the manifold was fit on "
@@ -201,106 +166,3 @@ class TrainingTables:
                 db.albedo(self.names, tables=self.stack(folder)), dtype=np.float64
             )
         return self.albedos
-
-    def _checked(self, w, budget, rule):
-        w = np.asarray(w, dtype=np.float64)
-        n = len(self.names)
-        if w.shape != (n,) or not np.isfinite(w).all():
-            raise InputError(f"weights must be {n} finite values, got shape {w.shape}")
-        if (
-            isinstance(budget, (bool, np.bool_))
-            or not isinstance(budget, numbers.Real)
-            or not 0 <= budget < 1
-        ):
-            raise InputError(f"`prune` must be in [0, 1), got {budget!r}")
-        if rule not in RULES:
-            raise InputError(f"`rule` must be one of {', '.join(map(repr, RULES))}, got {rule!r}")
-        return w
-
-    def prune(self, w, budget, folder, rule=DEFAULT_RULE):
-        """Materials kept by pruning weights ``w`` within ``budget`` under ``rule``.
-
-        ``"image"`` (the default): each albedo channel changes by at most
-        ``pruning.ALBEDO_SHARE * budget``, the cosine-weighted table by at most ``budget`` of its
-        norm and the raw table by at most ``pruning.RAW_SHARE * budget`` of its L2 norm
-        (:func:`pruning.prune_image`). ``"raw-l2"``: the raw table by at most ``budget``
-        of its L2 norm (:func:`pruning.prune`). The kept weights
-        are rescaled to sum to ``sum(w)`` so the combination stays affine; the changes are
-        computed exactly from Gram matrices, rescaling included; ``budget = 0`` keeps every
-        non-zero weight.
-
-        Returns
-        -------
-        Pruned
-            ``keep`` (ndarray of int), ``w_kept`` (ndarray), ``dropped`` (float: sum of
-            ``|w_i|`` over the dropped materials).
-        """
-        w = self._checked(w, budget, rule)
-        key = (w.tobytes(), float(budget), rule, None if folder is None else os.fspath(folder))
-        hit = self.pruned.get(
-            key, lambda: self._prune(w, budget, folder, rule)
-        )  # cleared when a matrix is set
-        return Pruned(
-            hit.keep.copy(), hit.w_kept.copy(), hit.dropped
-        )  # the caller may change its arrays
-
-    def _prune(self, w, budget, folder, rule):
-        if rule == "raw-l2":
-            return Pruned(*pruning.prune(w, self.raw_gram(folder), budget))
-        return Pruned(
-            *pruning.prune_image(
-                w, self.cosine_gram(folder), self.albedo(folder), budget, G=self.raw_gram(folder)
-            )
-        )
-
-    def error(self, w, keep, folder, rule=DEFAULT_RULE):
-        """The relative L2 change of the table in the norm of ``rule`` (cosine-weighted for
-        ``"image"``, raw for ``"raw-l2"``) when only ``keep`` is kept (rescaled).
-        """
-        w = self._checked(w, 0.0, rule)
-        return pruning.error(
-            w, keep, self.raw_gram(folder) if rule == "raw-l2" else self.cosine_gram(folder)
-        )
-
-    def report(self, w, budget, folder, rule=DEFAULT_RULE, keep=None):
-        """:class:`pruning.PruneReport` of :meth:`prune`: what was kept, the albedo change of each
-        channel and the cosine-weighted and raw table errors reached (``keep``: what :meth:`prune`
-        kept of the same ``w``, when the caller has it, instead of pruning again).
-        """
-        keep = self.prune(w, budget, folder, rule).keep if keep is None else keep
-        return pruning.report(
-            w,
-            keep,
-            rule,
-            budget,
-            G=self.raw_gram(folder),
-            C=self.cosine_gram(folder),
-            albedos=self.albedo(folder),
-            names=self.names,
-        )
-
-    def combine(self, w, budget, folder, dims, database=None, rule=DEFAULT_RULE):
-        """The table ``sum_i w_i table_i`` of shape ``(3,) + dims`` over the materials :meth:`prune` keeps.
-
-        Uses the tables in memory when they are (and ``database`` is None); otherwise reads
-        only the kept ones from ``database`` (default ``folder``).
-        """
-        keep, w_kept, dropped = self.prune(w, budget, folder, rule)
-        n = len(self.names)
-        if self.loaded is not None and database is None and dims is not None:
-            shape = (3,) + tuple(dims)
-            if 2 * len(keep) > n:  # one (multithreaded) matrix-vector product over all tables
-                full = np.zeros(n, dtype=np.float32)
-                full[keep] = w_kept
-                return Combination((full @ self.loaded).reshape(shape), keep, dropped)
-            flat = pruning.weighted_sum(
-                (self.loaded[i] for i in keep), w_kept, self.loaded.shape[1]
-            )
-            return Combination(flat.reshape(shape), keep, dropped)
-        db = self.open(database or folder, [self.names[i] for i in keep])
-        flat = pruning.weighted_sum(
-            (db.reflectance(self.names[i]).reshape(-1) for i in keep),
-            w_kept,
-            3 * int(np.prod(db.dims)),
-        )
-        return Combination(flat.reshape((3,) + db.dims), keep, dropped)

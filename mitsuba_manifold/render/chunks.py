@@ -76,7 +76,7 @@ class ChunkResult:
     """What a worker sends back: the chunk's images and manifest, and where and how fast."""
 
     spec: ChunkSpec
-    manifest: dict
+    manifest: basis_folder.Manifest
     images: dict
     seconds: float
     host: str
@@ -127,10 +127,10 @@ def render_chunk(spec):
         )
         images = {
             key: imageio.read_exr(os.path.join(tmp, entry["file"]))
-            for key, entry in _entries(manifest)
+            for key, entry in manifest.entries()
         }
-        if "cross" in manifest:
-            with np.load(os.path.join(tmp, manifest["cross"]["file"])) as data:
+        if manifest.cross:
+            with np.load(os.path.join(tmp, manifest.cross["file"])) as data:
                 images[_CROSS] = (data["pairs"], data["images"])
     return ChunkResult(
         spec, manifest, images, time.perf_counter() - t0, socket.gethostname(), os.getpid()
@@ -174,12 +174,12 @@ def chunk_done(folder, key=None):
     every image as saved), else None.
     """
     try:
-        manifest = basis_folder.read_manifest(folder)
+        manifest = basis_folder.Manifest.read(folder)
     except MismatchError:
         return None
-    if not manifest.get("chunk_complete") or (key is not None and manifest.get("chunk_key") != key):
+    if not manifest.chunk_complete or (key is not None and manifest.chunk_key != key):
         return None
-    for _, entry in _entries(manifest):
+    for _, entry in manifest.entries():
         if not os.path.isfile(os.path.join(folder, entry["file"])) or basis_folder.image_changed(
             folder, entry
         ):
@@ -191,36 +191,25 @@ def chunk_done(folder, key=None):
 _CROSS = "cross:"
 
 
-def _entries(manifest):
-    """``(key, entry)`` of every image file of a manifest: L1- images, then full-GI ones (``gi:<key>``)."""
-    return list(manifest["images"].items()) + [
-        (basis_folder.GI + k, e) for k, e in manifest.get("gi_images", {}).items()
-    ]
-
-
 def save_chunk(out, result, key=None):
     """Write a worker's chunk into its folder: images (their hashes recorded), then the manifest
     (the completion mark; ``key``: the chunk's :func:`chunk_key`, recorded).
     """
     folder = chunk_folder(out, result.spec)
     os.makedirs(folder, exist_ok=True)
-    manifest = json.loads(
-        json.dumps(result.manifest)
-    )  # a copy: the entries get this folder's hashes
-    for (key_, entry), (_, mine) in zip(_entries(result.manifest), _entries(manifest)):
+    manifest = result.manifest.copy()  # the entries get this folder's hashes
+    for (key_, entry), (_, mine) in zip(result.manifest.entries(), manifest.entries()):
         imageio.write_exr(os.path.join(folder, entry["file"]), result.images[key_])
         mine["sha256"] = file_hash(os.path.join(folder, entry["file"]))
-    if "cross" in result.manifest:
-        manifest["cross"]["sha256"] = write_cross(
-            os.path.join(folder, result.manifest["cross"]["file"]), *result.images[_CROSS]
+    if result.manifest.cross:
+        manifest.cross["sha256"] = write_cross(
+            os.path.join(folder, result.manifest.cross["file"]), *result.images[_CROSS]
         )
-    manifest.update(
-        chunk_complete=True,
-        chunk_run={"seconds": result.seconds, "host": result.host, "pid": result.pid},
-    )
+    manifest.chunk_complete = True
+    manifest.chunk_run = {"seconds": result.seconds, "host": result.host, "pid": result.pid}
     if key is not None:
-        manifest["chunk_key"] = key
-    basis_folder.write_manifest(folder, manifest)
+        manifest.chunk_key = key
+    manifest.write(folder)
     return manifest
 
 
@@ -236,71 +225,75 @@ def merge(out, folders, seed, force=False):
 
 
 def _merge(out, folders, seed, force, run_key=None):
-    manifests = [basis_folder.read_manifest(f) for f in folders]
+    manifests = [basis_folder.Manifest.read(f) for f in folders]
     first = manifests[0]
     for f, m in zip(folders[1:], manifests[1:]):
-        diff = basis_folder.manifest_differences(first, m, ignore=("spp", "seed", "chunks"))
+        diff = first.differences(m, ignore=("spp", "seed", "chunks"))
         if (
             diff
-            or set(m["images"]) != set(first["images"])
-            or m.get("components") != first.get("components")
-            or set(dict(_entries(m))) != set(dict(_entries(first)))
+            or set(m.images) != set(first.images)
+            or m.components != first.components
+            or set(dict(m.entries())) != set(dict(first.entries()))
         ):
             raise MismatchError(
                 f"chunk {f} does not match chunk {folders[0]} "
                 f"({', '.join(diff) or 'images'} differ); delete {os.path.dirname(f)}"
             )
-    spp = np.array([m["spp"] for m in manifests], dtype=np.float64)
-    merged = {
-        k: v for k, v in first.items() if k not in ("chunk_complete", "chunk_run", "chunk_key")
-    }
-    merged.update(spp=int(spp.sum()), seed=int(seed), chunks=len(folders), images={})
-    merged.pop("gi_images", None)
-    files = [e["file"] for _, e in _entries(first)] + [basis_folder.MANIFEST]
-    merged["images"] = open_folder(out, merged, files, force)
-    done = {e["file"] for e in merged["images"].values()}
+    spp = np.array([m.spp for m in manifests], dtype=np.float64)
+    merged = replace(
+        first.copy(),
+        settings=replace(first.settings, spp=int(spp.sum()), seed=int(seed)),
+        chunks=len(folders),
+        images={},
+        gi_images=None,
+        chunk_complete=None,
+        chunk_run=None,
+        chunk_key=None,
+    )
+    files = [e["file"] for _, e in first.entries()] + [basis_folder.MANIFEST]
+    merged.images = open_folder(out, merged, files, force)
+    done = {e["file"] for e in merged.images.values()}
     # listed as pending before the first is written: an interrupted merge leaves files the same
     # command knows as its own (removed and merged again); the manifest is rewritten as images land
-    merged["pending"] = sorted(f for f in files[:-1] if f not in done)
-    basis_folder.write_manifest(out, merged)
+    merged.pending = sorted(f for f in files[:-1] if f not in done)
+    merged.write(out)
     weights = spp / spp.sum()
     last_write = time.perf_counter()
-    for key, entry in _entries(first):
+    for key, entry in first.entries():
         gi = key.startswith(basis_folder.GI)
         section, plain = ("gi_images", key[len(basis_folder.GI) :]) if gi else ("images", key)
-        if plain in merged.get(section, {}):
+        if plain in (getattr(merged, section) or {}):
             continue
         if time.perf_counter() - last_write > 1.0:  # progress kept for a resumed merge
-            basis_folder.write_manifest(out, merged)
+            merged.write(out)
             last_write = time.perf_counter()
         acc = None
         for f, m, w in zip(folders, manifests, weights):
-            img = (
-                imageio.read_exr(os.path.join(f, m[section][plain]["file"])).astype(np.float64) * w
-            )
+            file = getattr(m, section)[plain]["file"]
+            img = imageio.read_exr(os.path.join(f, file)).astype(np.float64) * w
             acc = img if acc is None else acc + img
         imageio.write_exr(os.path.join(out, entry["file"]), acc.astype(np.float32))
-        merged.setdefault(section, {})[plain] = {
+        merged.section(section)[plain] = {
             "file": entry["file"],
-            "time_s": float(sum(m[section][plain]["time_s"] for m in manifests)),
+            "time_s": float(sum(getattr(m, section)[plain]["time_s"] for m in manifests)),
             "sha256": file_hash(os.path.join(out, entry["file"])),
         }
-    if "cross" in first:  # the cross terms: the same spp-weighted mean
+    if first.cross:  # the cross terms: the same spp-weighted mean
         acc, pairs = None, None
         for f, m, w in zip(folders, manifests, weights):
-            with np.load(os.path.join(f, m["cross"]["file"])) as data:
+            with np.load(os.path.join(f, m.cross["file"])) as data:
                 if pairs is not None and list(data["pairs"].ravel()) != list(pairs.ravel()):
                     raise MismatchError(
                         f"chunk {f} holds cross terms of other pairs; delete {os.path.dirname(f)}"
                     )
                 pairs, img = data["pairs"], data["images"].astype(np.float64) * w
             acc = img if acc is None else acc + img
-        digest = write_cross(os.path.join(out, first["cross"]["file"]), pairs, acc)
-        merged["cross"] = {**first["cross"], "sha256": digest}
+        digest = write_cross(os.path.join(out, first.cross["file"]), pairs, acc)
+        merged.cross = {**first.cross, "sha256": digest}
     if run_key is not None:  # the mark of a finished run (written with its last image)
-        merged["chunk_key"] = run_key
-    del merged["pending"]
-    basis_folder.write_manifest(out, merged)
+        merged.chunk_key = run_key
+    merged.pending = None
+    merged.write(out)
     return merged
 
 
@@ -308,7 +301,7 @@ def _merge(out, folders, seed, force, run_key=None):
 class ChunkedRun:
     """What :func:`render_chunked` did: the merged manifest and per-chunk timings."""
 
-    manifest: dict
+    manifest: basis_folder.Manifest
     rendered: list  # (chunk name, seconds, host, pid) of the chunks rendered in this call
     resumed: list  # names of chunks found complete
     wall_s: float
@@ -341,16 +334,16 @@ def render_chunked(
         Also write the denoising guides of the merged basis (rendered here, once).
     options
         :func:`mitsuba_manifold.render.render_basis.render_basis` keyword arguments (fields of
-        its ``BasisOptions``); ``spp`` and ``seed`` are those of the merged basis, split over
+        the groups of its ``BasisOptions``); ``spp`` and ``seed`` are those of the merged basis, split over
         the chunks (chunk seeds: :func:`chunk_seed`).
 
     Returns
     -------
     ChunkedRun
     """
-    from .render_basis import BasisOptions
+    from .render_basis import Sampling
 
-    spp, seed = options.pop("spp", BasisOptions.spp), options.pop("seed", BasisOptions.seed)
+    spp, seed = options.pop("spp", Sampling.spp), options.pop("seed", Sampling.seed)
     specs = plan(scene, manifold, spp, chunks, seed, **options)
     check_foreign_folder(
         os.fspath(out), options.get("force", False)
@@ -383,12 +376,12 @@ def _finished(out, run_key):
     image as merged, else None.
     """
     try:
-        manifest = basis_folder.read_manifest(out)
+        manifest = basis_folder.Manifest.read(out)
     except MismatchError:
         return None
-    if manifest.get("chunk_key") != run_key:
+    if manifest.chunk_key != run_key:
         return None
-    entries = _entries(manifest)
+    entries = manifest.entries()
     if any(
         not os.path.isfile(os.path.join(out, e["file"])) or basis_folder.image_changed(out, e)
         for _, e in entries
@@ -429,24 +422,24 @@ def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force
 
 def _chooses_pairs(options):
     """Whether a chunk of ``options`` chooses cross-term pairs on its first pass."""
-    from .render_basis import BasisOptions
+    from .render_basis import FullGI
 
     return (
         options.get("mode") == "onepass"
         and options.get("components") == "auto"
-        and options.get("cross_light_tol", BasisOptions.cross_light_tol)
+        and options.get("cross_light_tol", FullGI.cross_light_tol)
         and options.get("cross_keep") is None
     )
 
 
 def _first_choice(folder):
     """Options that make a later chunk keep what the first chunk (in ``folder``) chose."""
-    manifest = basis_folder.read_manifest(folder)
-    if "l2+" not in manifest.get("components", []):
+    manifest = basis_folder.Manifest.read(folder)
+    if "l2+" not in manifest.held_components:
         return {}
-    if "cross" not in manifest:
+    if manifest.cross is None:
         return {"cross_keep": []}
-    with np.load(os.path.join(folder, manifest["cross"]["file"])) as data:
+    with np.load(os.path.join(folder, manifest.cross["file"])) as data:
         return {"cross_keep": [tuple(str(v) for v in p) for p in data["pairs"]]}
 
 
@@ -456,8 +449,8 @@ def _check_out(out, spec, spp, seed, chunks):
     """
     if not os.path.exists(os.path.join(os.fspath(out), basis_folder.MANIFEST)):
         return
-    old = basis_folder.read_manifest(out)
-    if not old["images"]:
+    old = basis_folder.Manifest.read(out)
+    if not old.images:
         return
     want = {
         "spp": int(spp),
@@ -466,13 +459,13 @@ def _check_out(out, spec, spp, seed, chunks):
         "scene_hash": basis_folder.scene_hash(spec.scene),
         "manifold_hash": (
             basis_folder.manifold_file_identity(spec.manifold)
-            if old.get("version", 1) >= 2
+            if old.version >= 2
             else file_hash(spec.manifold)
         ),
     }
     if "mode" in spec.options:
         want["mode"] = spec.options["mode"]
-    diff = [k for k, v in want.items() if old.get(k) != v]
+    diff = [k for k, v in want.items() if getattr(old, k) != v]
     if diff:
         raise MismatchError(
             f"{out} holds a basis made with other settings ({', '.join(diff)} differ); "

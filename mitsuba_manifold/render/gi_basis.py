@@ -25,7 +25,7 @@ from ..basis.folder.output import image_still_valid
 from ..errors import InputError
 from .integrators.multisplats import PairSelection
 
-#: File suffix of a material's full-GI image (``manifest["gi_images"]``) and the cross terms' file.
+#: File suffix of a material's full-GI image (``Manifest.gi_images``) and the cross terms' file.
 GI_SUFFIX = ".gi.exr"
 CROSS_FILE = "cross.npz"
 
@@ -37,7 +37,7 @@ MAX_LEVELS = 12
 
 
 def gi_levels(levels, max_depth):
-    """``levels`` of :class:`~.render_basis.BasisOptions` checked, or by default (None) every
+    """``levels`` of :class:`~.render_basis.FullGI` checked, or by default (None) every
     vertex a path of ``max_depth`` can have (:data:`MAX_LEVELS` for unbounded paths).
     """
     if levels is None:
@@ -54,20 +54,20 @@ def carry_gi(out, manifest):
     still listed), what it holds and left out, its cross terms, its measurements.
     """
     path = os.path.join(out, basis_folder.MANIFEST)
-    if not manifest["images"] or not os.path.isfile(path):
+    if not manifest.images or not os.path.isfile(path):
         return
-    old = basis_folder.read_manifest(out)
-    size = tuple(manifest["resolution"])  # an image changed since it was written is rendered again
+    old = basis_folder.Manifest.read(out)
+    size = tuple(manifest.resolution)  # an image changed since it was written is rendered again
     gi = {
         k: e
-        for k, e in old.get("gi_images", {}).items()
-        if k in manifest["images"] and image_still_valid(out, e, size)
+        for k, e in (old.gi_images or {}).items()
+        if k in manifest.images and image_still_valid(out, e, size)
     }
     if gi:
-        manifest["gi_images"] = gi
+        manifest.gi_images = gi
     for key in ("components", "left_out", "cross", "gi_stats"):
-        if key in old:
-            manifest[key] = old[key]
+        if getattr(old, key) is not None:
+            setattr(manifest, key, getattr(old, key))
 
 
 def write_cross(path, pairs, images):
@@ -84,12 +84,12 @@ def write_cross(path, pairs, images):
 
 def describe_components(manifest):
     """One line per component: what the basis holds, and what it left out and why."""
-    held = ", ".join(manifest.get("components", ["l1"]))
+    held = ", ".join(manifest.held_components)
     lines = [
         f"basis holds: {held}"
-        + (f" (levels <= {manifest['levels']})" if "levels" in manifest else "")
+        + (f" (levels <= {manifest.levels})" if manifest.levels is not None else "")
     ]
-    for comp, why in manifest.get("left_out", {}).items():
+    for comp, why in (manifest.left_out or {}).items():
         lines.append(f"left out {comp}: {why}")
     return "\n".join(lines)
 
@@ -156,41 +156,45 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
     """
     names = [combo[0] for _, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
-    pairs, pstats = select_pairs(manifold, names, tol=o.cross_tol)
+    pairs, pstats = select_pairs(manifold, names, tol=o.gi.cross_tol)
     products = tuple(pstats.pop("products"))
-    select = PairSelection(products, tol=o.cross_light_tol) if o.cross_light_tol else None
-    if o.cross_keep is not None:  # a later chunk: the first chunk's pairs
+    select = PairSelection(products, tol=o.gi.cross_light_tol) if o.gi.cross_light_tol else None
+    if o.gi.cross_keep is not None:  # a later chunk: the first chunk's pairs
         index = {tuple(p): k for k, p in enumerate(pairs)}
         select = PairSelection(
-            products, tol=o.cross_light_tol, keep=tuple(index[tuple(p)] for p in o.cross_keep)
+            products, tol=o.gi.cross_light_tol, keep=tuple(index[tuple(p)] for p in o.gi.cross_keep)
         )
     t0 = time.perf_counter()
-    with progress_bar("rendering basis (one pass, full GI)", o.progress, stop) as advance:
-        kwargs = {"progress": advance, "cross_fraction": o.cross_fraction, "pair_selection": select}
-        if o.chunk_spp:
-            kwargs["spp_per_pass"] = o.chunk_spp
+    with progress_bar("rendering basis (one pass, full GI)", o.run.progress, stop) as advance:
+        kwargs = {
+            "progress": advance,
+            "cross_fraction": o.gi.cross_fraction,
+            "pair_selection": select,
+        }
+        if o.sampling.chunk_spp:
+            kwargs["spp_per_pass"] = o.sampling.chunk_spp
         r = _integrator(paths).render_onepass_gi(
             scene,
             materials=names,
-            spp=o.spp,
-            seed=o.seed,
-            sensor=int(o.sensor),
-            levels=o.levels,
+            spp=o.sampling.spp,
+            seed=o.sampling.seed,
+            sensor=int(o.scene.sensor),
+            levels=o.gi.levels,
             pairs=pairs,
             **kwargs,
         )
     seconds = time.perf_counter() - t0
     per = seconds / max(len(todo), 1)
     needed, why, frac = needs_rest(r.paths, r.touch, r.rest, REST_TOL)
-    needed = needed or o.cross_keep is not None  # a later chunk: the first chunk stored L2+
+    needed = needed or o.gi.cross_keep is not None  # a later chunk: the first chunk stored L2+
     stats = {
         "render_s": round(seconds, 3),
-        "levels": int(o.levels),
+        "levels": int(o.gi.levels),
         "paths_by_touches": [int(v) for v in r.paths],
         "cut_fraction": float(r.paths[-1] / max(1, r.paths.sum())),
         "rest_fraction": frac,
         "pairs": pstats,
-        "cross_fraction": float(o.cross_fraction),
+        "cross_fraction": float(o.gi.cross_fraction),
         "pair_selection": r.selection,
     }
     images = {keys[n]: np.asarray(r.touch[n], np.float32) for n in names}
@@ -198,13 +202,13 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
         images[basis_folder.BASE] = np.asarray(r.base, np.float32)
     left = {}
     if needed:
-        manifest["components"] = ["l1", "l2+"]
+        manifest.components = ["l1", "l2+"]
     else:
-        manifest["components"] = ["l1"]
+        manifest.components = ["l1"]
         left["l2+"] = why
         left["cross"] = "no L2+ images"
-    manifest["left_out"] = left
-    manifest["gi_stats"] = stats
+    manifest.left_out = left
+    manifest.gi_stats = stats
     save(images, per)
     if not needed:
         return
@@ -218,19 +222,19 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
         digest = write_cross(
             os.path.join(out, CROSS_FILE), list(r.cross), np.stack([r.cross[p] for p in r.cross])
         )
-        manifest["cross"] = {
+        manifest.cross = {
             "file": CROSS_FILE,
             "pairs": len(r.cross),
-            "tol": float(o.cross_tol),
+            "tol": float(o.gi.cross_tol),
             "sha256": digest,
         }
-        manifest["components"] = ["l1", "l2+", "cross"]
+        manifest.components = ["l1", "l2+", "cross"]
     else:
         sel = r.selection or {}
         left["cross"] = (
             f"none of {sel['candidates']} candidate pairs would change its L2+ light by "
             f"{sel['tol']:g} (largest {sel['largest_left_out']:.2g})"
             if sel.get("candidates")
-            else f"no pair of materials reaches a weight product of {o.cross_tol:g} in the explored region"
+            else f"no pair of materials reaches a weight product of {o.gi.cross_tol:g} in the explored region"
         )
-    basis_folder.write_manifest(out, manifest)
+    manifest.write(out)

@@ -64,8 +64,7 @@ class Refined:
 
     ``scale`` is the basis's own blend of the point (full GI where it holds it, else L1-), not
     ``image``: a firefly of the refinement inflates ``image`` where it is, so relative to it
-    the noise would look small exactly where it is largest (at 16 spp on the table's bowl with
-    white-paint it read 16 times too low).
+    the noise would look small exactly where it is largest.
     """
 
     image: np.ndarray

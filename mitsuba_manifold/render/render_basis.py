@@ -22,7 +22,7 @@ import os
 import shutil
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Optional, Union
 
 import numpy as np
@@ -58,6 +58,11 @@ __all__ = [
     "MODES",
     "REST_TOL",
     "BasisOptions",
+    "FullGI",
+    "RunBehaviour",
+    "Sampling",
+    "SceneSetup",
+    "Selection",
     "describe_components",
     "check_foreign_folder",
     "check_job_folders",
@@ -111,18 +116,45 @@ def select_materials(manifold, materials="all", near=None, radius=None):
 
 
 @dataclass(frozen=True)
-class BasisOptions:
-    """How :func:`render_basis` renders a basis (every field has the default of the keyword).
+class Selection:
+    """Which materials are rendered (:func:`select_materials`).
+
+    materials : "all" or list of str
+    near, radius
+        With both: the materials within ``radius`` of the latent point ``near`` (and those
+        the blend at ``near`` needs).
+    """
+
+    materials: Union[str, Sequence[str]] = "all"
+    near: Optional[Sequence[float]] = None
+    radius: Optional[float] = None
+
+
+@dataclass(frozen=True)
+class Sampling:
+    """How the images are sampled.
 
     spp : int
         Samples per pixel of every image.
-    materials, near, radius
-        Selection, see :func:`select_materials`.
+    seed : int
+        Same seed for every image (correlated noise makes blends smoother).
     mode : {"per-material", "onepass"}
         One render per material, or all materials from one set of paths
         (:meth:`ManifoldPathIntegrator.render_onepass`, one target only).
-    seed : int
-        Same seed for every image (correlated noise makes blends smoother).
+    chunk_spp : int, optional
+        Samples per pixel per pass of the one-pass renderer.
+    """
+
+    spp: int = 64
+    seed: int = 0
+    mode: str = "per-material"
+    chunk_spp: Optional[int] = None
+
+
+@dataclass(frozen=True)
+class SceneSetup:
+    """How the scene is loaded (:func:`scenes.load_scene`).
+
     resolution : int or (int, int), optional
         Image size, for scenes that take ``$res`` or ``$width``/``$height``.
     max_depth : int, optional
@@ -134,22 +166,27 @@ class BasisOptions:
     variant : str, optional
         Mitsuba variant, activated (default: the active one, or :func:`scenes.default_variant`
         when none is active; see :func:`scenes.use_variant`). It must be a JIT RGB variant.
-    progress : bool
-        Progress bar with ETA.
-    chunk_spp : int, optional
-        Samples per pixel per pass of the one-pass renderer.
     x : array_like (q,), optional
         The scene's ``$x`` (default: the first material's latent point, which fits any
         manifold whatever its latent dimension).
     database : str, optional
-        Folder of the manifold's tables, if it moved (:func:`scenes.load_scene`).
-    force : bool
-        Render into an existing ``out`` that holds files but no basis manifest
-        (:func:`check_foreign_folder`), and overwrite files in ``out`` that this basis did not make.
+        Folder of the manifold's tables, if it moved.
     sensor : int
         Which of the scene's sensors (views) to render (recorded in the manifest).
-    aovs : bool
-        Also write the denoising guides ``aovs.npz`` (:func:`guides.add_aovs`; one target).
+    """
+
+    resolution: Optional[Union[int, tuple[int, int]]] = None
+    max_depth: Optional[int] = None
+    variant: Optional[str] = None
+    x: Optional[Sequence[float]] = None
+    database: Optional[str] = None
+    sensor: int = 0
+
+
+@dataclass(frozen=True)
+class FullGI:
+    """The full-GI part of a one-pass basis.
+
     components : {"auto", "l1"}
         ``"auto"`` (one-pass mode): also the full-GI images (``touch + L2+`` of every material,
         :func:`~.integrators.onepass.render_onepass_gi`) and the cross terms of the pairs blended
@@ -158,9 +195,9 @@ class BasisOptions:
         :data:`REST_TOL` of the material's light (a convex object alone: exactly 0). ``"l1"``:
         the L1- basis only. Per-material mode renders L1- only.
     levels : int, optional
-        Most vertices on the material per path in the L2+ images (more are cut, counted in ``gi_stats``); default:
-        all a path of ``max_depth`` can have (:data:`.gi_basis.MAX_LEVELS` if unbounded); the light
-        each cut level loses is in ``docs/benchmarks.md``.
+        Most vertices on the material per path in the L2+ images (more are cut, counted in
+        ``gi_stats``); default: all a path of ``max_depth`` can have (:data:`.gi_basis.MAX_LEVELS`
+        if unbounded); the light each cut level loses is in ``docs/benchmarks.md``.
     cross_tol : float
         Smallest weight product of a candidate pair (one that some explored point blends).
     cross_light_tol : float
@@ -177,32 +214,88 @@ class BasisOptions:
         chunks of a chunked basis keep the pairs its first chunk chose.
     """
 
-    # what is rendered
-    spp: int = 64
-    materials: Union[str, Sequence[str]] = "all"
-    near: Optional[Sequence[float]] = None
-    radius: Optional[float] = None
-    mode: str = "per-material"
-    seed: int = 0
-    # the scene
-    resolution: Optional[Union[int, tuple[int, int]]] = None
-    max_depth: Optional[int] = None
-    variant: Optional[str] = None
-    x: Optional[Sequence[float]] = None
-    database: Optional[str] = None
-    sensor: int = 0
-    # how it runs
-    progress: bool = False
-    chunk_spp: Optional[int] = None
-    force: bool = False
-    aovs: bool = False
-    # the full-GI part (one-pass mode)
     components: str = "l1"
     levels: Optional[int] = None
     cross_tol: float = 1e-3
     cross_light_tol: float = 0.005
     cross_fraction: float = 1.0
     cross_keep: Optional[Sequence[tuple[str, str]]] = None
+
+
+@dataclass(frozen=True)
+class RunBehaviour:
+    """How the run behaves towards its folder and its user.
+
+    force : bool
+        Render into an existing ``out`` that holds files but no basis manifest
+        (:func:`check_foreign_folder`), and overwrite files in ``out`` that this basis did not make.
+    progress : bool
+        Progress bar with ETA.
+    aovs : bool
+        Also write the denoising guides ``aovs.npz`` (:func:`guides.add_aovs`; one target).
+    """
+
+    force: bool = False
+    progress: bool = False
+    aovs: bool = False
+
+
+@dataclass(frozen=True)
+class BasisOptions:
+    """How :func:`render_basis` renders a basis, in five groups (each field has the default of
+    the keyword of :func:`render_basis` of the same name).
+
+    selection : Selection
+        Which materials.
+    sampling : Sampling
+        Samples per pixel, seed, mode.
+    scene : SceneSetup
+        How the scene is loaded: resolution, depth, variant, ``$x``, database, sensor.
+    gi : FullGI
+        The full-GI images and cross terms of a one-pass basis.
+    run : RunBehaviour
+        Folder and progress.
+    """
+
+    selection: Selection = field(default_factory=Selection)
+    sampling: Sampling = field(default_factory=Sampling)
+    scene: SceneSetup = field(default_factory=SceneSetup)
+    gi: FullGI = field(default_factory=FullGI)
+    run: RunBehaviour = field(default_factory=RunBehaviour)
+
+    def updated(self, **settings):
+        """These options with ``settings`` changed: fields of the groups by their own names
+        (``spp=64``, ``mode="onepass"``), or whole groups (``gi=FullGI(...)``).
+
+        Raises
+        ------
+        TypeError
+            A name that is neither a field of a group nor a group.
+        """
+        groups = {g: {} for g in _GROUPS}
+        whole = {}
+        for name, value in settings.items():
+            if name in _GROUPS:
+                whole[name] = value
+            elif name in _GROUP_OF:
+                groups[_GROUP_OF[name]][name] = value
+            else:
+                raise TypeError(
+                    f"render_basis() got an unexpected keyword argument {name!r}; "
+                    f"the options are {', '.join(sorted(_GROUP_OF))}"
+                )
+        out = replace(self, **whole)
+        return replace(out, **{g: replace(getattr(out, g), **kw) for g, kw in groups.items() if kw})
+
+    def keywords(self, *names):
+        """The fields ``names`` (default all) as ``{name: value}``: the keywords of :func:`render_basis`."""
+        names = names or tuple(_GROUP_OF)
+        return {n: getattr(getattr(self, _GROUP_OF[n]), n) for n in names}
+
+
+#: The groups of :class:`BasisOptions` and, for each field of a group, its group.
+_GROUPS = {f.name: f.default_factory for f in fields(BasisOptions)}
+_GROUP_OF = {f.name: g for g, cls in _GROUPS.items() for f in fields(cls)}
 
 
 def render_basis(scene_path, manifold_path, out, options=None, **settings):
@@ -215,8 +308,9 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
         Folder (created; resumed when it holds a basis with the same settings). It is
         locked (:class:`FolderLock`) while the images are written.
     options : BasisOptions, optional
-        How to render; or its fields as keywords (``render_basis(scene, manifold, out,
-        spp=64, mode="onepass")``), which override those of ``options``.
+        How to render; or the fields of its groups as keywords (``render_basis(scene, manifold,
+        out, spp=64, mode="onepass")``), which override those of ``options``
+        (:meth:`BasisOptions.updated`).
 
     Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
     passes of :data:`interrupt.SAMPLES_PER_PASS` paths) and raises ``KeyboardInterrupt``;
@@ -224,66 +318,68 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
 
     Returns
     -------
-    dict
+    Manifest
         The manifest written.
     """
-    o = replace(options or BasisOptions(), **settings)
+    o = (options or BasisOptions()).updated(**settings)
     scene_path, manifold, chosen, x = _check_request(scene_path, manifold_path, out, o)
-    mi = scenes.use_variant(o.variant, jit=True)
+    mi = scenes.use_variant(o.scene.variant, jit=True)
     loaded = scenes.load_scene(
         scene_path,
         manifold_path,
-        o.spp,
-        o.resolution,
-        o.max_depth,
+        o.sampling.spp,
+        o.scene.resolution,
+        o.scene.max_depth,
         x=x,
-        database=o.database,
-        sensor=int(o.sensor),
+        database=o.scene.database,
+        sensor=int(o.scene.sensor),
     )
     (scene, targets, max_depth), paths = loaded, loaded.integrator
-    if o.mode == "onepass" and len(targets) != 1:
+    if o.sampling.mode == "onepass" and len(targets) != 1:
         raise InputError(
             f"onepass mode renders scenes with one manifold material; {scene_path} has "
             f"{len(targets)}: use `mode` 'per-material'"
         )
     sensors = scene.sensors()
-    if not 0 <= int(o.sensor) < len(sensors):
+    if not 0 <= int(o.scene.sensor) < len(sensors):
         raise InputError(
-            f"`sensor` {o.sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)"
+            f"`sensor` {o.scene.sensor} does not exist: {scene_path} has {len(sensors)} sensor(s)"
         )
-    size = scenes.image_size(sensors[int(o.sensor)].film())  # the crop window's
-    manifest = basis_folder.make_manifest(
+    size = scenes.image_size(sensors[int(o.scene.sensor)].film())  # the crop window's
+    manifest = basis_folder.Manifest.new(
         scene_path,
         manifold_path,
         basis_folder.RenderSettings(
             resolution=size,
-            spp=o.spp,
+            spp=o.sampling.spp,
             variant=mi.variant(),
-            seed=o.seed,
+            seed=o.sampling.seed,
             max_depth=max_depth,
-            mode=o.mode,
-            sensor=int(o.sensor),
+            mode=o.sampling.mode,
+            sensor=int(o.scene.sensor),
         ),
         targets=[b.id() for b in targets],
     )
-    manifest["integrator"] = paths.to_manifest()
-    manifest["scene_resolution"] = None if o.resolution is None else list(_size(o.resolution))
+    manifest.integrator = paths.to_manifest()
+    manifest.scene_resolution = (
+        None if o.scene.resolution is None else list(_size(o.scene.resolution))
+    )
     scatters_twice = (
         max_depth < 0 or max_depth > 2
     )  # depth 2 (direct): one scattering vertex per path
-    gi = o.mode == "onepass" and o.components == "auto" and scatters_twice
+    gi = o.sampling.mode == "onepass" and o.gi.components == "auto" and scatters_twice
     if gi:
-        o = replace(o, levels=gi_levels(o.levels, max_depth))
-        manifest["levels"] = o.levels
-    elif o.mode == "onepass" and o.components == "auto":
-        manifest["left_out"] = {
+        o = o.updated(levels=gi_levels(o.gi.levels, max_depth))
+        manifest.levels = o.gi.levels
+    elif o.sampling.mode == "onepass" and o.gi.components == "auto":
+        manifest.left_out = {
             "l2+": f"the scene's paths scatter once at most ({paths.describe()}): "
             "its L1- images are its full-GI images"
         }
     else:
-        manifest["left_out"] = {
+        manifest.left_out = {
             "l2+": "per-material mode renders L1- images only"
-            if o.mode != "onepass"
+            if o.sampling.mode != "onepass"
             else "components 'l1' asked for"
         }
     if len(targets) == 1:
@@ -299,19 +395,19 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
     if gi:
         files += [key + GI_SUFFIX for key, combo in jobs if combo is not None] + [CROSS_FILE]
     if os.path.isdir(out):  # refuse before locking: a refused run adds nothing to the folder
-        open_folder(out, manifest, files, o.force, read_images=False)
+        open_folder(out, manifest, files, o.run.force, read_images=False)
     with _removed_if_nothing_made(out), FolderLock(out, "basis folder"), StopRequest() as stop:
-        manifest["images"] = open_folder(out, manifest, files, o.force)
+        manifest.images = open_folder(out, manifest, files, o.run.force)
         if gi:
             carry_gi(out, manifest)
-        basis_folder.write_manifest(out, manifest)
-        todo = [(key, combo) for key, combo in jobs if key not in manifest["images"]]
+        manifest.write(out)
+        todo = [(key, combo) for key, combo in jobs if key not in manifest.images]
         if gi and (
             todo
             or (
-                "l2+" in manifest.get("components", [])
+                "l2+" in manifest.held_components
                 and any(
-                    key not in manifest.get("gi_images", {})
+                    key not in (manifest.gi_images or {})
                     for key, combo in jobs
                     if combo is not None
                 )
@@ -321,13 +417,13 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
         save = functools.partial(_save, out, manifest)
         if todo and gi:
             render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop)
-            if o.progress:
+            if o.run.progress:
                 print(describe_components(manifest))
-        elif todo and o.mode == "onepass":
+        elif todo and o.sampling.mode == "onepass":
             _render_onepass(scene, targets[0], todo, o, paths, save, stop)
         elif todo:
             _render_each(scene, targets, todo, o, paths, save, stop)
-        if o.aovs:
+        if o.run.aovs:
             ensure_aovs(out, manifest)
     return manifest
 
@@ -350,22 +446,22 @@ def _check_request(scene_path, manifold_path, out, o):
     """Everything :func:`render_basis` can check before loading the scene; returns the scene's
     path, the manifold, the materials chosen and the latent point ``x`` (or None).
     """
-    if o.mode not in MODES:
-        raise InputError(f"`mode` must be one of {MODES}, got {o.mode!r}")
-    if o.components not in ("auto", "l1"):
+    if o.sampling.mode not in MODES:
+        raise InputError(f"`mode` must be one of {MODES}, got {o.sampling.mode!r}")
+    if o.gi.components not in ("auto", "l1"):
         raise InputError(
-            f"`components` must be 'auto' (full GI where the scene needs it) or 'l1', got {o.components!r}"
+            f"`components` must be 'auto' (full GI where the scene needs it) or 'l1', got {o.gi.components!r}"
         )
-    if int(o.spp) < 1:
-        raise InputError(f"`spp` must be >= 1, got {o.spp}")
-    gi_levels(o.levels, -1)  # checked
-    if o.variant is not None:
-        check_variant(o.variant, jit=True)
+    if int(o.sampling.spp) < 1:
+        raise InputError(f"`spp` must be >= 1, got {o.sampling.spp}")
+    gi_levels(o.gi.levels, -1)  # checked
+    if o.scene.variant is not None:
+        check_variant(o.scene.variant, jit=True)
     if os.path.exists(out) and not os.path.isdir(out):
         raise InputError(f"`out` {out} is a file, not a folder")
     manifold = Manifold.load(manifold_path)
-    x = None if o.x is None else validate.latent_point("`x`", o.x, manifold.q)
-    chosen = select_materials(manifold, o.materials, o.near, o.radius)
+    x = None if o.scene.x is None else validate.latent_point("`x`", o.scene.x, manifold.q)
+    chosen = select_materials(manifold, o.selection.materials, o.selection.near, o.selection.radius)
     try:
         names_mod.check_unique(chosen)
     except InputError as e:
@@ -377,27 +473,28 @@ def _check_request(scene_path, manifold_path, out, o):
     except MitsubaManifoldError as e:
         raise InputError(str(e)) from None
     if (
-        o.resolution is not None
+        o.scene.resolution is not None
     ):  # images held at once: all of them in one pass, else a film and two sums
-        w, h = _size(o.resolution)
-        held = len(chosen) + 2 if o.mode == "onepass" else 6
+        w, h = _size(o.scene.resolution)
+        held = len(chosen) + 2 if o.sampling.mode == "onepass" else 6
         validate.fits_in_memory(
-            "`resolution`", 2 * held * w * h * 3 * 4, f"{o.mode} images of {w}x{h}"
+            "`resolution`", 2 * held * w * h * 3 * 4, f"{o.sampling.mode} images of {w}x{h}"
         )
     return scene_path, manifold, chosen, x
 
 
 def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
-    """Write ``{key: image}`` into ``out`` (EXR files in parallel), then list them in
-    ``manifest[section]`` (``"images"``, or ``"gi_images"`` with ``suffix`` :data:`GI_SUFFIX`).
+    """Write ``{key: image}`` into ``out`` (EXR files in parallel), then list them in the
+    :class:`Manifest`'s ``section`` (``"images"``, or ``"gi_images"`` with ``suffix``
+    :data:`GI_SUFFIX`).
 
     The files are first listed as ``pending``: a run killed between writing a file
     and listing it leaves a file its resume knows to be its own.
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    manifest["pending"] = sorted(key + suffix for key in images)
-    basis_folder.write_manifest(out, manifest)
+    manifest.pending = sorted(key + suffix for key in images)
+    manifest.write(out)
     with ThreadPoolExecutor(min(len(images), os.cpu_count() or 1)) as pool:  # OpenEXR drops the GIL
         list(
             pool.map(
@@ -405,7 +502,7 @@ def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
                 images.items(),
             )
         )
-    entries = manifest.setdefault(section, {})
+    entries = manifest.section(section)
     for (
         key
     ) in images:  # each file's hash: an image edited later is found (open_folder, Basis.image)
@@ -414,8 +511,8 @@ def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
             "time_s": float(seconds),
             "sha256": file_hash(os.path.join(out, key + suffix)),
         }
-    del manifest["pending"]
-    basis_folder.write_manifest(out, manifest)
+    manifest.pending = None
+    manifest.write(out)
 
 
 def ensure_aovs(out, manifest, spp=16):
@@ -457,11 +554,11 @@ def _bar(total, enabled, desc):
 
 def _render_each(scene, targets, todo, o, paths, save, stop):
     """One render per image: base (component 'base'), then 'touch' per material or 'l1' per combination."""
-    spp, seed, sensor = o.spp, o.seed, int(o.sensor)
+    spp, seed, sensor = o.sampling.spp, o.sampling.seed, int(o.scene.sensor)
     single = len(targets) == 1
     touch = _integrator("touch", paths)
     l1 = _integrator("l1", paths, target=",".join(b.id() for b in targets)) if not single else None
-    with _bar(len(todo), o.progress, "rendering basis") as bar:
+    with _bar(len(todo), o.run.progress, "rendering basis") as bar:
         for key, combo in todo:
             t0 = time.perf_counter()
             if combo is None:
@@ -481,16 +578,16 @@ def _render_onepass(scene, target, todo, o, paths, save, stop):
     names = [combo[0] for key, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
     t0 = time.perf_counter()
-    with progress_bar("rendering basis (one pass)", o.progress, stop) as advance:
+    with progress_bar("rendering basis (one pass)", o.run.progress, stop) as advance:
         kwargs = {
             "materials": names,
-            "spp": o.spp,
-            "seed": o.seed,
+            "spp": o.sampling.spp,
+            "seed": o.sampling.seed,
             "progress": advance,
-            "sensor": int(o.sensor),
+            "sensor": int(o.scene.sensor),
         }
-        if o.chunk_spp:
-            kwargs["spp_per_pass"] = o.chunk_spp
+        if o.sampling.chunk_spp:
+            kwargs["spp_per_pass"] = o.sampling.chunk_spp
         base, images = integrator.render_onepass(scene, **kwargs)
     seconds = (time.perf_counter() - t0) / max(len(todo), 1)
     out = {keys[name]: np.asarray(images[name], dtype=np.float32)[..., :3] for name in names}

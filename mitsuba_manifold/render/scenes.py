@@ -564,14 +564,10 @@ def scene_resolution(manifest):
     """The ``resolution`` a basis's scene was loaded with (None: the scene's own film size), to
     load it again as the basis saw it (its references, refinements); a manifest that does not
     record it (an earlier version) was rendered at its image size. ``manifest`` is a
-    :class:`~mitsuba_manifold.basis.folder.Manifest` or its JSON object.
+    :class:`~mitsuba_manifold.basis.folder.Manifest`
+    (:attr:`~mitsuba_manifold.basis.folder.Manifest.loaded_resolution`).
     """
-    if hasattr(manifest, "to_json"):
-        manifest = manifest.to_json()
-    if "scene_resolution" in manifest:
-        value = manifest["scene_resolution"]
-        return None if value is None else tuple(int(v) for v in value)
-    return tuple(manifest["resolution"])
+    return manifest.loaded_resolution
 
 
 def image_size(film):

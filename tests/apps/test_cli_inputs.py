@@ -52,10 +52,11 @@ def test_a_path_of_too_many_steps_is_refused_naming_the_limit(capsys, tmp_path):
 
 @pytest.mark.parametrize("text", ["chrome:1e308, steel:1e308", "chrome:1e300"])
 def test_weights_that_overflow_are_refused_in_one_line(text):
-    from mitsuba_manifold.manifold.materials import parse_weights
+    from mitsuba_manifold.manifold.model import Manifold
 
+    m = Manifold(["chrome", "steel"], [[0.0], [1.0]], "db", ["a", "b"])
     with pytest.raises(InputError, match="at most 1e\\+12 in magnitude"):
-        parse_weights(text, ["chrome", "steel"])
+        m.parse_weights(text)
 
 
 def _png(path, rows_written, width=16, height=16):

@@ -21,6 +21,8 @@ from guarantees_helpers import (
     ROOT,
     SPHERE,
     assert_one_error,
+    render_basis_command,
+    run_render_basis,
     run_tool,
     snapshot,
 )
@@ -32,7 +34,7 @@ pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
 from mitsuba_manifold._util.cache import file_hash  # noqa: E402
 from mitsuba_manifold._util.locking import FolderLock  # noqa: E402
-from mitsuba_manifold.basis.folder.manifest import read_manifest  # noqa: E402
+from mitsuba_manifold.basis.folder.manifest import Manifest  # noqa: E402
 from mitsuba_manifold.data import database, merl  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
 from mitsuba_manifold.manifold.identity import manifold_identity  # noqa: E402
@@ -51,20 +53,7 @@ def test_material_named_base_or_with_separator_gets_its_own_image(tmp_path):
     rc, _, err = run_tool("fit_manifold", db, "--out", m, "--features", "log")
     assert rc == 0, err
     out = tmp_path / "basis"
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        m,
-        "--out",
-        out,
-        "--res",
-        8,
-        "--spp",
-        2,
-        "--mode",
-        "per-material",
-    )
+    rc, _, err = run_render_basis(m, out, "--mode", "per-material", spp=2)
     assert rc == 0, err
     manifest = json.loads((out / "manifest.json").read_text())
     files = [e["file"] for e in manifest["images"].values()]
@@ -152,18 +141,7 @@ def test_second_writer_of_a_folder_gets_a_clear_error(tmp_path, tiny):
         )
         assert_one_error(r.returncode, r.stderr, str(out), "another process")
         assert snapshot(out) == before
-        rc, _, err = run_tool(
-            "render_basis",
-            SPHERE,
-            "--manifold",
-            tiny["manifold"],
-            "--out",
-            out,
-            "--res",
-            8,
-            "--spp",
-            1,
-        )
+        rc, _, err = run_render_basis(tiny["manifold"], out)
         assert_one_error(rc, err, "another process")
     r = subprocess.run(
         [
@@ -188,19 +166,7 @@ def test_two_render_basis_runs_into_one_folder_cannot_mix(tmp_path, tiny):
     """The reported race: two runs with different spp at once. The second is refused while the
     first holds the folder; the basis left is the first run's, whole."""
     out = tmp_path / "basis"
-    tool = [
-        sys.executable,
-        os.path.join(ROOT, "tools", "render_basis.py"),
-        SPHERE,
-        "--manifold",
-        tiny["manifold"],
-        "--out",
-        str(out),
-        "--res",
-        "16",
-        "--mode",
-        "per-material",
-    ]
+    tool = render_basis_command(tiny["manifold"], out, "--mode", "per-material", res=16, spp=None)
     first = subprocess.Popen(
         tool + ["--spp", "12000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
@@ -389,9 +355,7 @@ def test_render_basis_keeps_same_named_user_files(tmp_path, tiny):
     imageio.write_exr(out / "chrome.exr", np.ones((4, 4, 3)))
     (out / "notes.txt").write_text("mine")
     before = snapshot(out)
-    rc, _, err = run_tool(
-        "render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", 8, "--spp", 1
-    )
+    rc, _, err = run_render_basis(tiny["manifold"], out)
     assert_one_error(rc, err, "chrome.exr")
     assert snapshot(out) == before
 
@@ -433,9 +397,7 @@ def test_render_basis_resumes_a_folder_holding_only_its_own_lock_and_temporary_f
     out.mkdir()
     (out / LOCK_NAME).write_text("")
     (out / ".manifest.json.k3j2x9ab.tmp.json").write_text("{")
-    rc, _, err = run_tool(
-        "render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", 8, "--spp", 1
-    )
+    rc, _, err = run_render_basis(tiny["manifold"], out)
     assert rc == 0, err
     assert len(json.loads((out / "manifest.json").read_text())["images"]) == 5
 
@@ -467,7 +429,7 @@ def test_identical_refit_is_accepted_by_existing_bases(tmp_path, tiny):
     # (they may differ: the file records when and how it was made): the identity the basis holds
     identity = manifold_identity(Manifold.load(again))
     assert identity == manifold_identity(Manifold.load(tiny["manifold"]))
-    assert identity == read_manifest(tiny["basis"])["manifold_hash"]
+    assert identity == Manifest.read(tiny["basis"]).manifold_hash
     rc, _, err = run_tool(
         "blend",
         "--basis",
@@ -507,37 +469,9 @@ def test_tools_read_a_moved_database(tmp_path, tiny):
     man = Manifold.load(m)
     man.database = str(tmp_path / "gone")
     man.save(m)
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        m,
-        "--out",
-        tmp_path / "b",
-        "--res",
-        8,
-        "--spp",
-        1,
-        "--materials",
-        "steel",
-    )
+    rc, _, err = run_render_basis(m, tmp_path / "b", "--materials", "steel")
     assert_one_error(rc, err, "--database")
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        m,
-        "--out",
-        tmp_path / "b",
-        "--res",
-        8,
-        "--spp",
-        1,
-        "--materials",
-        "steel",
-        "--database",
-        moved,
-    )
+    rc, _, err = run_render_basis(m, tmp_path / "b", "--materials", "steel", "--database", moved)
     assert rc == 0, err
     rc, _, err = run_tool(
         "blend",
@@ -593,20 +527,7 @@ def test_render_basis_resumes_a_version_1_basis_of_the_same_manifold_file(tmp_pa
     old = tmp_path / "old"
     _version_1_copy(tiny, old)
     stamps = {f: os.stat(old / f).st_mtime_ns for f in os.listdir(old) if f.endswith(".exr")}
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        tiny["manifold"],
-        "--out",
-        old,
-        "--res",
-        8,
-        "--spp",
-        1,
-        "--mode",
-        "per-material",
-    )
+    rc, _, err = run_render_basis(tiny["manifold"], old, "--mode", "per-material")
     assert rc == 0, err
     assert json.loads((old / "manifest.json").read_text())["version"] == 2
     assert {f: os.stat(old / f).st_mtime_ns for f in stamps} == stamps  # nothing rendered again

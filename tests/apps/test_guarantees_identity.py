@@ -9,13 +9,13 @@ import stat
 
 import numpy as np
 import pytest
-from guarantees_helpers import ROOT, SPHERE, assert_one_error, run_tool, snapshot
+from guarantees_helpers import ROOT, SPHERE, assert_one_error, render_basis_args, run_tool, snapshot
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
 from mitsuba_manifold._util.cache import file_hash  # noqa: E402
 from mitsuba_manifold._util.locking import FolderLock  # noqa: E402
-from mitsuba_manifold.basis.folder.manifest import read_manifest, scene_hash  # noqa: E402
+from mitsuba_manifold.basis.folder.manifest import Manifest, scene_hash  # noqa: E402
 from mitsuba_manifold.errors import FolderLockedError  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
@@ -107,7 +107,7 @@ def _edit(path, factor=2.0):
 def test_a_basis_image_edited_in_place_is_refused_by_blend_and_rendered_again(tmp_path, tiny):
     out = tmp_path / "basis"
     shutil.copytree(tiny["basis"], out)
-    entry = read_manifest(out)["images"]["steel"]
+    entry = Manifest.read(out).images["steel"]
     path = out / entry["file"]
     original = imageio.read_exr(path)
     assert entry["sha256"] == file_hash(path)
@@ -171,8 +171,8 @@ class _Dies(executor.LocalExecutor):
 
 
 def _images(folder):
-    m = read_manifest(folder)
-    return {k: imageio.read_exr(os.path.join(folder, e["file"])) for k, e in m["images"].items()}
+    m = Manifest.read(folder)
+    return {k: imageio.read_exr(os.path.join(folder, e["file"])) for k, e in m.images.items()}
 
 
 def test_chunks_of_other_settings_are_rendered_again_and_a_finished_run_is_not(tmp_path, tiny):
@@ -186,7 +186,7 @@ def test_chunks_of_other_settings_are_rendered_again_and_a_finished_run_is_not(t
             chunks.render_chunked(SPHERE, m, out, chunks=2, executor=_Dies(), **first, **OPTIONS)
         run = chunks.render_chunked(SPHERE, m, out, spp=4, chunks=2, seed=7, **OPTIONS)
         assert [r[0] for r in run.rendered] == ["000-of-002", "001-of-002"] and run.resumed == []
-        assert run.manifest["spp"] == 4 and run.manifest["seed"] == 7
+        assert run.manifest.spp == 4 and run.manifest.seed == 7
         for key, img in _images(
             out
         ).items():  # the same samples (threads may sum them in another order)
@@ -198,9 +198,7 @@ def test_chunks_of_other_settings_are_rendered_again_and_a_finished_run_is_not(t
     again = chunks.render_chunked(
         SPHERE, m, str(tmp_path / "clean"), spp=4, chunks=2, seed=7, **OPTIONS
     )
-    assert (
-        again.rendered == [] and again.manifest["images"].keys() == clean.manifest["images"].keys()
-    )
+    assert again.rendered == [] and again.manifest.images.keys() == clean.manifest.images.keys()
     assert snapshot(tmp_path / "clean") == before
     with FolderLock(tmp_path / "clean", "basis folder"):  # another run holds the folder
         with pytest.raises(FolderLockedError, match="being written by another process"):
@@ -220,26 +218,14 @@ def test_a_run_that_failed_before_its_first_image_does_not_block_other_settings(
     data = table.read_bytes()
     table.write_bytes(data[: len(data) // 2])
     out = tmp_path / "basis"
-    args = [
-        SPHERE,
-        "--manifold",
-        tiny["manifold"],
-        "--out",
-        out,
-        "--res",
-        8,
-        "--spp",
-        2,
-        "--database",
-        db,
-    ]
+    args = render_basis_args(tiny["manifold"], out, "--database", db, spp=2)
     rc, _, err = run_tool("render_basis", *args)
     assert_one_error(rc, err, "gold-paint.binary")
     assert not out.exists()
     table.write_bytes(data)
     rc, _, err = run_tool("render_basis", *args)
     assert rc == 0, err
-    manifest = read_manifest(out)
+    manifest = Manifest.read(out).to_json()
     manifest.pop("gi_images", None)
     manifest["images"] = {}  # as a run killed before its first image leaves it
     (out / "manifest.json").write_text(json.dumps(manifest))
@@ -248,4 +234,4 @@ def test_a_run_that_failed_before_its_first_image_does_not_block_other_settings(
             f.unlink()
     rc, _, err = run_tool("render_basis", *args, "--chunks", 2)
     assert rc == 0, err
-    assert read_manifest(out)["chunks"] == 2 and read_manifest(out)["images"]
+    assert Manifest.read(out).chunks == 2 and Manifest.read(out).images

@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 import pytest
-from guarantees_helpers import SPHERE, assert_one_error, run_tool, snapshot
+from guarantees_helpers import assert_one_error, run_render_basis, run_tool, snapshot
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
@@ -61,37 +61,11 @@ def test_fit_manifold_plot_into_a_file_is_refused_before_fitting(tmp_path, tiny)
 )
 def test_render_basis_refuses_unusable_variants_and_leaves_nothing(tmp_path, tiny, variant, words):
     out = tmp_path / "basis"
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        tiny["manifold"],
-        "--out",
-        out,
-        "--res",
-        8,
-        "--spp",
-        1,
-        "--variant",
-        variant,
-    )
+    rc, _, err = run_render_basis(tiny["manifold"], out, "--variant", variant)
     assert_one_error(rc, err, *words)
     assert not out.exists() or not [f for f in os.listdir(out) if not f.startswith(".")]
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        tiny["manifold"],
-        "--out",
-        out,
-        "--res",
-        8,
-        "--spp",
-        1,
-        "--materials",
-        "steel",
-        "--variant",
-        "llvm_ad_rgb",
+    rc, _, err = run_render_basis(
+        tiny["manifold"], out, "--materials", "steel", "--variant", "llvm_ad_rgb"
     )
     assert rc == 0, err  # the corrected rerun is accepted
 
@@ -142,52 +116,11 @@ def test_render_basis_on_a_shipped_scene_with_q3_and_given_x(tmp_path, tiny):
     m3 = tmp_path / "m3.npz"
     rc, _, err = run_tool("fit_manifold", tiny["db"], "--q", "3", "--out", m3)
     assert rc == 0, err
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        m3,
-        "--out",
-        tmp_path / "b",
-        "--res",
-        8,
-        "--spp",
-        1,
-        "--materials",
-        "steel",
-    )
+    rc, _, err = run_render_basis(m3, tmp_path / "b", "--materials", "steel")
     assert rc == 0, err
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        m3,
-        "--out",
-        tmp_path / "b2",
-        "--res",
-        8,
-        "--spp",
-        1,
-        "--materials",
-        "steel",
-        "--x",
-        "0.1,0.2,0.3",
-    )
+    rc, _, err = run_render_basis(m3, tmp_path / "b2", "--materials", "steel", "--x", "0.1,0.2,0.3")
     assert rc == 0, err
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        m3,
-        "--out",
-        tmp_path / "b3",
-        "--res",
-        8,
-        "--spp",
-        1,
-        "--x",
-        "0.1,0.2",
-    )
+    rc, _, err = run_render_basis(m3, tmp_path / "b3", "--x", "0.1,0.2")
     assert_one_error(rc, err, "--x", "3")
 
 
@@ -280,18 +213,7 @@ def test_sizes_beyond_the_memory_available_are_refused_before_anything_is_writte
     from mitsuba_manifold._util import checks as validate
 
     monkeypatch.setattr(validate, "available_memory", lambda: 1 << 30)  # a 1 GiB machine
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        tiny["manifold"],
-        "--out",
-        tmp_path / "b",
-        "--res",
-        4096,
-        "--spp",
-        1,
-    )
+    rc, _, err = run_render_basis(tiny["manifold"], tmp_path / "b", res=4096)
     assert_one_error(rc, err, "resolution", "GiB")
     rc, _, err = run_tool(
         "make_database",
@@ -381,20 +303,7 @@ def test_a_file_given_as_a_basis_folder_is_called_a_file(tmp_path, tiny):
 
 def test_render_basis_names_a_bad_max_depth_before_rendering(tmp_path, tiny):
     out = tmp_path / "b"
-    rc, _, err = run_tool(
-        "render_basis",
-        SPHERE,
-        "--manifold",
-        tiny["manifold"],
-        "--out",
-        out,
-        "--res",
-        8,
-        "--spp",
-        1,
-        "--max-depth",
-        -7,
-    )
+    rc, _, err = run_render_basis(tiny["manifold"], out, "--max-depth", -7)
     assert_one_error(rc, err, "--max-depth")
     assert not out.exists()
 

@@ -14,7 +14,13 @@ import time
 
 import numpy as np
 import pytest
-from guarantees_helpers import ROOT, SPHERE, error_lines, run_tool
+from guarantees_helpers import (
+    ROOT,
+    error_lines,
+    render_basis_args,
+    render_basis_command,
+    run_tool,
+)
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
@@ -42,21 +48,7 @@ def _interrupt_after(proc, wait):
 def test_ctrl_c_stops_a_render_within_seconds_leaving_listed_files(tmp_path, tiny, mode):
     out = tmp_path / "basis"
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            os.path.join(ROOT, "tools", "render_basis.py"),
-            SPHERE,
-            "--manifold",
-            tiny["manifold"],
-            "--out",
-            str(out),
-            "--res",
-            "32",
-            "--spp",
-            "200000",
-            "--mode",
-            mode,
-        ],
+        render_basis_command(tiny["manifold"], out, "--mode", mode, res=32, spp=200000),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -82,21 +74,9 @@ def test_ctrl_c_stops_a_render_within_seconds_leaving_listed_files(tmp_path, tin
 
 def test_a_killed_render_leaves_no_lock_and_resumes(tmp_path, tiny):
     out = tmp_path / "basis"
-    args = [
-        SPHERE,
-        "--manifold",
-        tiny["manifold"],
-        "--out",
-        str(out),
-        "--res",
-        "16",
-        "--spp",
-        "3000",
-        "--mode",
-        "per-material",
-    ]
+    args = render_basis_args(tiny["manifold"], out, "--mode", "per-material", res=16, spp=3000)
     proc = subprocess.Popen(
-        [sys.executable, os.path.join(ROOT, "tools", "render_basis.py"), *args],
+        render_basis_command(tiny["manifold"], out, "--mode", "per-material", res=16, spp=3000),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
@@ -124,19 +104,7 @@ def test_an_image_written_but_not_yet_listed_is_the_resumed_runs_own(tmp_path, t
     """kill -9 between writing ``<key>.exr`` and listing it: the manifest named it pending,
     so the resume renders it again instead of refusing it as the user's file."""
     out = tmp_path / "basis"
-    args = [
-        SPHERE,
-        "--manifold",
-        tiny["manifold"],
-        "--out",
-        str(out),
-        "--res",
-        "8",
-        "--spp",
-        "2",
-        "--mode",
-        "per-material",
-    ]
+    args = render_basis_args(tiny["manifold"], out, "--mode", "per-material", spp=2)
     assert run_tool("render_basis", *args)[0] == 0
     manifest = json.loads((out / "manifest.json").read_text())
     key = next(k for k in manifest["images"] if k != "base")

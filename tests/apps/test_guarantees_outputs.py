@@ -12,7 +12,7 @@ import json
 import os
 
 import pytest
-from guarantees_helpers import assert_one_error, run_tool, snapshot
+from guarantees_helpers import assert_one_error, run_render_basis, run_tool, snapshot
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("plugins")]
 mi = pytest.importorskip("mitsuba")
@@ -246,12 +246,8 @@ def test_a_newline_in_a_path_end_is_drawn_escaped(tmp_path, tiny):
 def test_render_basis_checks_seeds_and_views_before_anything_is_written(
     tmp_path, tiny, extra, words
 ):
-    from guarantees_helpers import SPHERE
-
     out = tmp_path / "basis"
-    rc, _, err = run_tool(
-        "render_basis", SPHERE, "--manifold", tiny["manifold"], "--out", out, "--res", "8", *extra
-    )
+    rc, _, err = run_render_basis(tiny["manifold"], out, *extra, spp=None)
     assert_one_error(rc, err, words)
     assert not out.exists()
 
@@ -260,12 +256,11 @@ def test_new_manifests_record_their_sensor_and_old_ones_mean_sensor_0(tiny):
     from mitsuba_manifold.basis.folder import Basis
     from mitsuba_manifold.basis.folder import manifest as mf
 
-    m = mf.read_manifest(tiny["basis"])
+    m = mf.Manifest.read(tiny["basis"]).to_json()
     assert m["sensor"] == 0 and Basis.load(tiny["basis"]).sensor_known
     old = {k: v for k, v in m.items() if k != "sensor"}
-    assert mf.manifest_differences(old, m) == [] and mf.manifest_differences(
-        dict(m, sensor=1), m
-    ) == ["sensor"]
+    assert mf.Manifest.from_json(old).differences(m) == []
+    assert mf.Manifest.from_json(dict(m, sensor=1)).differences(m) == ["sensor"]
     assert Basis(tiny["basis"], old).sensor == 0 and not Basis(tiny["basis"], old).sensor_known
 
 

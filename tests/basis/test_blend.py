@@ -3,6 +3,7 @@
 import json
 import os
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -264,7 +265,7 @@ def test_missing_and_truncated_images(basis1, manifold):
 
 def test_manifest_helpers(tmp_path, small_manifold):
     scene = _scene(str(tmp_path))
-    a = bf.make_manifest(
+    a = bf.Manifest.new(
         scene,
         small_manifold,
         bf.RenderSettings(
@@ -277,16 +278,20 @@ def test_manifest_helpers(tmp_path, small_manifold):
         ),
         targets=["material"],
     )
-    assert a["scene"] == os.path.abspath(scene)
-    assert a["manifold_hash"] == manifold_identity(
+    assert a.scene == os.path.abspath(scene)
+    assert a.manifold_hash == manifold_identity(
         Manifold.load(small_manifold)
     )  # content, not file bytes
-    path = bf.write_manifest(str(tmp_path), a)
-    assert bf.read_manifest(str(tmp_path)) == a and path.endswith("manifest.json")
-    b = dict(a, spp=16, images={"base": {"file": "base.exr", "time_s": 1.0}})
-    assert bf.manifest_differences(a, b) == ["spp"]
+    path = a.write(str(tmp_path))
+    assert bf.Manifest.read(str(tmp_path)) == a and path.endswith("manifest.json")
+    b = replace(
+        a,
+        settings=replace(a.settings, spp=16),
+        images={"base": {"file": "base.exr", "time_s": 1.0}},
+    )
+    assert a.differences(b) == ["spp"]
     with pytest.raises(MismatchError, match="mode"):
-        bf.make_manifest(
+        bf.Manifest.new(
             scene,
             small_manifold,
             bf.RenderSettings(
@@ -300,10 +305,10 @@ def test_manifest_helpers(tmp_path, small_manifold):
             targets=["material"],
         )
     with pytest.raises(MismatchError, match="must name 2 material"):
-        bf.write_manifest(
-            str(tmp_path), dict(a, targets=["a", "b"], images={"x": {"file": "x.exr", "time_s": 0}})
+        replace(a, targets=["a", "b"], images={"x": {"file": "x.exr", "time_s": 0}}).write(
+            str(tmp_path)
         )
-    assert bf.read_manifest(str(tmp_path)) == a  # the refused write left the old manifest
+    assert bf.Manifest.read(str(tmp_path)) == a  # the refused write left the old manifest
     assert bf.image_key(["gold-paint", "chrome"]) == "gold-paint+chrome"
 
 
@@ -341,9 +346,9 @@ def test_multilinear_two_target_blend(tmp_path, small_manifold, manifold):
     with pytest.raises(MismatchError, match="summing to 1 per target"):
         bl.blend(basis, manifold, w=np.ones((2, manifold.n)))
     # a pair missing from the basis, with weight: refused, naming it
-    m = bf.read_manifest(folder)
-    del m["images"][names[2] + "+" + names[5]]
-    bf.write_manifest(folder, m)
+    m = bf.Manifest.read(folder)
+    del m.images[names[2] + "+" + names[5]]
+    m.write(folder)
     with pytest.raises(MismatchError, match=f"{names[2]}\\+{names[5]}"):
         bl.blend(folder, manifold, x=[manifold.latent[2], manifold.latent[5]])
 

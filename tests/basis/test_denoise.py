@@ -64,7 +64,7 @@ def test_denoised_blend_beats_raw_and_aovs_are_checked(tmp_path, small_manifold)
     render_basis.render_basis(
         TABLE, small_manifold, out, spp=4, mode="onepass", resolution=48, materials=names, aovs=True
     )
-    aovs = denoise.BasisAOVs.load(out, manifest.read_manifest(out))
+    aovs = denoise.BasisAOVs.load(out, manifest.Manifest.read(out))
     hit = aovs.hist.sum(-1)
     assert hit.min() >= 0 and hit.max() <= 1 + 1e-5 and (hit > 0.99).sum() > 50  # the bowl
     n = np.linalg.norm(aovs.normal, axis=-1)

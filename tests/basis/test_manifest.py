@@ -1,10 +1,11 @@
 """The basis manifest as a type (:class:`Manifest`): files written before read the same."""
 
+import dataclasses
 import json
 
 import pytest
 
-from mitsuba_manifold.basis.folder import MANIFEST, Manifest, read_manifest, write_manifest
+from mitsuba_manifold.basis.folder import MANIFEST, NOT_RECORDED, Manifest, RenderSettings
 from mitsuba_manifold.errors import MismatchError
 
 #: A manifest of format version 1, as the first releases wrote it: no sensor, no components.
@@ -46,7 +47,7 @@ V2 = dict(
 def test_a_manifest_written_before_reads_and_writes_back_the_same(tmp_path, data):
     (tmp_path / MANIFEST).write_text(json.dumps(data))
     m = Manifest.read(tmp_path)
-    assert m.to_json() == data and read_manifest(tmp_path) == data
+    assert m.to_json() == data and list(m.to_json()) == list(data)
     assert m.resolution == (32, 24) and m.images["chrome"]["time_s"] == 2.0
     out = tmp_path / "again"
     out.mkdir()
@@ -57,15 +58,121 @@ def test_a_manifest_written_before_reads_and_writes_back_the_same(tmp_path, data
 def test_what_a_manifest_leaves_unsaid_has_its_meaning():
     old, new = Manifest.from_json(V1), Manifest.from_json(V2)
     assert (old.sensor, old.sensor_index, old.held_components) == (None, 0, ["l1"])
-    assert (new.sensor_index, new.held_components, new.extra) == (
+    assert (new.sensor_index, new.held_components, new.chunk_key, new.extra) == (
         1,
         ["l1", "l2+", "cross"],
-        {"chunk_key": "k"},
+        "k",
+        {},
     )
+    assert old.scene_resolution is NOT_RECORDED and old.loaded_resolution == (32, 24)
     assert (
         old.differences(dict(V1, sensor=0)) == [] and new.differences(V2, ignore=("sensor",)) == []
     )
     assert Manifest.from_json(dict(V1, spp=32)).differences(V1) == ["spp"]
+
+
+#: The bytes of a ``manifest.json`` the renderers wrote before :class:`Manifest` held a
+#: :class:`RenderSettings` (a merged chunk of a full-GI basis, with a key of a later version).
+WRITTEN_BEFORE = """{
+ "format": "mitsuba-manifold-basis",
+ "version": 2,
+ "scene": "/s/sphere.xml",
+ "scene_hash": "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa",
+ "manifold": "/m/m.npz",
+ "manifold_hash": "bbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbb",
+ "resolution": [
+  8,
+  6
+ ],
+ "spp": 4,
+ "variant": "llvm_ad_rgb",
+ "seed": 3,
+ "max_depth": -1,
+ "mode": "onepass",
+ "targets": [
+  "mat"
+ ],
+ "images": {
+  "base": {
+   "file": "base.exr",
+   "time_s": 0.5,
+   "sha256": "cccccccccccccccccccccccccccccccccccccccccccccccccccccccccccccccc"
+  },
+  "steel": {
+   "file": "steel.exr",
+   "time_s": 0.5,
+   "sha256": "dddddddddddddddddddddddddddddddddddddddddddddddddddddddddddddddd"
+  }
+ },
+ "sensor": 0,
+ "chunks": 2,
+ "components": [
+  "l1",
+  "l2+",
+  "cross"
+ ],
+ "levels": 4,
+ "gi_images": {
+  "steel": {
+   "file": "steel.gi.exr",
+   "time_s": 0.5
+  }
+ },
+ "cross": {
+  "file": "cross.npz",
+  "pairs": 1,
+  "tol": 0.01
+ },
+ "left_out": {},
+ "gi_stats": {
+  "render_s": 1.0
+ },
+ "integrator": {
+  "type": "path",
+  "max_depth": -1,
+  "rr_depth": 5,
+  "hide_emitters": false,
+  "source": "scene"
+ },
+ "scene_resolution": null,
+ "chunk_complete": true,
+ "chunk_run": {
+  "seconds": 1.5,
+  "host": "h",
+  "pid": 7
+ },
+ "chunk_key": "eeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeee",
+ "future_key": [
+  1,
+  2
+ ]
+}
+"""
+
+
+def test_a_file_written_before_reads_the_same_and_is_written_back_byte_for_byte(tmp_path):
+    (tmp_path / MANIFEST).write_text(WRITTEN_BEFORE)
+    m = Manifest.read(tmp_path)
+    assert m.settings == RenderSettings((8, 6), 4, "llvm_ad_rgb", 3, -1, "onepass", sensor=0)
+    assert (m.resolution, m.spp, m.seed, m.max_depth, m.mode, m.sensor) == (
+        (8, 6),
+        4,
+        3,
+        -1,
+        "onepass",
+        0,
+    )
+    assert m.integrator["source"] == "scene" and m.scene_resolution is None
+    assert m.loaded_resolution is None  # loaded at the scene's own film size
+    assert (m.chunks, m.chunk_complete, m.chunk_run["pid"], m.chunk_key) == (2, True, 7, "e" * 64)
+    assert m.extra == {"future_key": [1, 2]}
+    assert [k for k, _ in m.entries()] == ["base", "steel", "gi:steel"]
+    assert m.listed_files() == {"base.exr", "steel.exr", "steel.gi.exr", "cross.npz"}
+    assert list(m.to_json()) == list(json.loads(WRITTEN_BEFORE))
+    out = tmp_path / "again"
+    out.mkdir()
+    m.copy().write(out)
+    assert (out / MANIFEST).read_text() == WRITTEN_BEFORE
 
 
 @pytest.mark.parametrize(
@@ -83,9 +190,12 @@ def test_a_bad_field_is_refused_naming_the_file_and_the_field(tmp_path, field, v
         Manifest.read(tmp_path)
     assert words in str(e.value)
     bad = Manifest.from_json(V1)
-    setattr(bad, field, value)
+    if field in {f.name for f in dataclasses.fields(RenderSettings)}:
+        bad.settings = dataclasses.replace(bad.settings, **{field: value})
+    else:
+        setattr(bad, field, value)
     with pytest.raises(MismatchError, match=words.replace("[", r"\[")):
-        write_manifest(tmp_path / "nowhere", bad)
+        bad.write(tmp_path / "nowhere")
     assert not (tmp_path / "nowhere").exists()
 
 

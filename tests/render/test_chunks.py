@@ -53,7 +53,7 @@ def test_merged_chunks_equal_single_process_basis(tmp_path, small_manifold):
     run = chunks.render_chunked(
         SPHERE, small_manifold, str(tmp_path / "merged"), spp=8, chunks=4, seed=2, **OPTIONS
     )
-    assert run.manifest["spp"] == 8 and run.manifest["chunks"] == 4 and len(run.rendered) == 4
+    assert run.manifest.spp == 8 and run.manifest.chunks == 4 and len(run.rendered) == 4
     a, b = _images(single), _images(tmp_path / "merged")
     assert a.keys() == b.keys()
     for k in a:
@@ -63,7 +63,7 @@ def test_merged_chunks_equal_single_process_basis(tmp_path, small_manifold):
     other = chunks.render_chunked(
         SPHERE, small_manifold, str(tmp_path / "other"), spp=8, chunks=4, seed=5, **OPTIONS
     )
-    assert other.manifest["seed"] == 5
+    assert other.manifest.seed == 5
     assert not np.allclose(_images(tmp_path / "other")["chrome"], b["chrome"])
 
 
@@ -94,7 +94,7 @@ def test_resume_per_chunk_and_refusals(tmp_path, small_manifold):
     )
     for k, img in _images(out).items():
         np.testing.assert_array_equal(img, _images(tmp_path / "ref")[k])
-    assert ref.manifest["images"].keys() == run.manifest["images"].keys()
+    assert ref.manifest.images.keys() == run.manifest.images.keys()
     before = {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
     with pytest.raises(errors.InputError, match="other settings .*spp"):
         chunks.render_chunked(SPHERE, small_manifold, str(out), spp=8, chunks=4, **OPTIONS)
@@ -105,7 +105,7 @@ def test_resume_per_chunk_and_refusals(tmp_path, small_manifold):
     assert before == {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
     # the same command again: nothing to render, nothing refused, nothing rewritten
     again = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=4, chunks=4, **OPTIONS)
-    assert again.manifest["images"].keys() == run.manifest["images"].keys()
+    assert again.manifest.images.keys() == run.manifest.images.keys()
     assert before == {f: os.path.getmtime(out / f) for f in os.listdir(out) if f.endswith(".exr")}
 
 
@@ -130,7 +130,7 @@ def test_an_interrupted_merge_resumes_with_the_same_command(
         chunks.render_chunked(SPHERE, small_manifold, str(out), spp=2, chunks=2, **OPTIONS)
     monkeypatch.setattr(chunks.imageio, "write_exr", write)
     run = chunks.render_chunked(SPHERE, small_manifold, str(out), spp=2, chunks=2, **OPTIONS)
-    assert run.resumed == ["000-of-002", "001-of-002"] and "pending" not in run.manifest
+    assert run.resumed == ["000-of-002", "001-of-002"] and run.manifest.pending is None
     chunks.render_chunked(SPHERE, small_manifold, str(tmp_path / "ref"), spp=2, chunks=2, **OPTIONS)
     mine, theirs = _images(out), _images(tmp_path / "ref")
     assert mine.keys() == theirs.keys()
@@ -187,7 +187,7 @@ def test_cli_chunks_views_and_scenes(tmp_path, small_manifold):
         _images(tmp_path / "out" / "two_views-view0"),
         _images(tmp_path / "out" / "two_views-view1"),
     )
-    assert basis.read_manifest(tmp_path / "out" / "two_views-view1")["sensor"] == 1
+    assert basis.Manifest.read(tmp_path / "out" / "two_views-view1").sensor == 1
     np.testing.assert_allclose(v0["chrome"], v1["chrome"], rtol=1e-5, atol=1e-6)
     r = subprocess.run(
         [
@@ -259,7 +259,7 @@ def test_ray_chunks_equal_local_chunks_and_killed_worker_reruns(
     a, b = _images(tmp_path / "local"), _images(tmp_path / "ray")
     for k in a:
         np.testing.assert_allclose(b[k], a[k], rtol=1e-6, atol=1e-7)
-    assert local.manifest["images"].keys() == run.manifest["images"].keys()
+    assert local.manifest.images.keys() == run.manifest.images.keys()
 
     # a worker killed while rendering: Ray re-runs its task, the basis is complete and the same
     marker = tmp_path / "killed-once"
@@ -315,8 +315,8 @@ def test_merged_chunks_of_a_full_gi_basis_equal_the_single_process_one(tmp_path,
         seed=1,
         **opts,
     )
-    assert run.manifest["components"] == basis.read_manifest(single)["components"]
-    assert "l2+" in run.manifest["components"]
+    assert run.manifest.components == basis.Manifest.read(single).components
+    assert "l2+" in run.manifest.components
     a, b = basis.Basis.load(single), basis.Basis.load(tmp_path / "merged")
     for k in a.keys:
         ref = a.image(a.gi_key(k))

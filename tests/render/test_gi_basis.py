@@ -163,9 +163,9 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
         max_depth=8,
     )
     # by default every vertex the path depth allows is recorded: no path is cut
-    assert manifest["components"][:2] == ["l1", "l2+"] and manifest["levels"] == 8
-    assert manifest["gi_stats"]["paths_by_touches"][-1] == 0
-    assert manifest["gi_stats"]["rest_fraction"] > 0 and not manifest.get("left_out", {}).get("l2+")
+    assert manifest.components[:2] == ["l1", "l2+"] and manifest.levels == 8
+    assert manifest.gi_stats["paths_by_touches"][-1] == 0
+    assert manifest.gi_stats["rest_fraction"] > 0 and not (manifest.left_out or {}).get("l2+")
     m = Manifold.load(small_manifold)
     b = bf.Basis.load(out, manifold=m)
     k = m.names.index("gold-paint")
@@ -250,10 +250,10 @@ def test_a_convex_object_alone_holds_no_l2(tmp_path, small_manifold):
     manifest = render_basis.render_basis(
         "sphere", small_manifold, out, spp=4, mode="onepass", components="auto", resolution=12
     )
-    assert manifest["components"] == ["l1"]
-    assert "cannot see itself" in manifest["left_out"]["l2+"]
-    assert manifest["gi_stats"]["paths_by_touches"][2:] == [0] * (
-        len(manifest["gi_stats"]["paths_by_touches"]) - 2
+    assert manifest.components == ["l1"]
+    assert "cannot see itself" in manifest.left_out["l2+"]
+    assert manifest.gi_stats["paths_by_touches"][2:] == [0] * (
+        len(manifest.gi_stats["paths_by_touches"]) - 2
     )
     assert not any(f.endswith(".gi.exr") or f == "cross.npz" for f in os.listdir(out))
     assert "cannot see itself" in render_basis.describe_components(manifest)
@@ -282,11 +282,11 @@ def test_changed_or_truncated_cross_terms_and_aovs_are_refused_naming_the_file(
         max_depth=8,
         aovs=True,
     )
-    assert "cross" in manifest["components"] and len(manifest["cross"]["sha256"]) == 64
+    assert "cross" in manifest.components and len(manifest.cross["sha256"]) == 64
     m = Manifold.load(small_manifold)
     x = m.latent[0]
     good, _ = blend(bf.Basis.load(out, manifold=m), m, x=x, l2="raw")
-    cross = os.path.join(out, manifest["cross"]["file"])
+    cross = os.path.join(out, manifest.cross["file"])
     edited = tmp_path / "edited"
     shutil.copytree(out, edited)
     with np.load(cross) as z:

@@ -23,6 +23,24 @@ SPHERE = scenes.scene_path("sphere")
 RES = 24
 
 
+def test_basis_options_take_their_fields_by_name_into_their_groups():
+    """``render_basis(..., spp=8, mode="onepass")`` sets the fields of the groups they belong to;
+    a name that is no field is refused naming the options."""
+    o = render_basis.BasisOptions().updated(spp=8, mode="onepass", levels=3, force=True, x=[0.1])
+    assert (o.sampling.spp, o.sampling.mode, o.gi.levels, o.run.force, o.scene.x) == (
+        8,
+        "onepass",
+        3,
+        True,
+        [0.1],
+    )
+    assert o.selection == render_basis.Selection() and o.sampling.seed == 0
+    gi = render_basis.FullGI(components="auto")
+    assert o.updated(gi=gi).gi == gi and o.keywords("spp", "levels") == {"spp": 8, "levels": 3}
+    with pytest.raises(TypeError, match="'sppp'.*spp"):
+        o.updated(sppp=8)
+
+
 def test_select_materials(small_manifold):
     m = Manifold.load(small_manifold)
     assert render_basis.select_materials(m) == m.names
@@ -83,7 +101,7 @@ def test_the_library_takes_a_shipped_scenes_name_like_the_tools(tmp_path, small_
     manifest = render_basis.render_basis(
         "sphere", small_manifold, tmp_path / "b", spp=1, resolution=8, materials=[m.names[0]]
     )
-    assert manifest["scene"] == SPHERE and len(manifest["images"]) == 2
+    assert manifest.scene == SPHERE and len(manifest.images) == 2
     with pytest.raises(render_basis.InputError, match="spherre"):
         render_basis.render_basis("spherre", small_manifold, tmp_path / "c", spp=1, resolution=8)
 
@@ -145,20 +163,20 @@ def test_interrupted_run_resumes_without_corrupt_files(tmp_path, small_manifold,
             SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material"
         )
     monkeypatch.setattr(imageio, "write_exr", real_write)
-    manifest = bf.read_manifest(str(out))
-    assert len(manifest["images"]) == 3
+    manifest = bf.Manifest.read(str(out))
+    assert len(manifest.images) == 3
     assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
-    for entry in manifest["images"].values():  # every listed image is whole
+    for entry in manifest.images.values():  # every listed image is whole
         assert imageio.read_exr(out / entry["file"]).shape == (RES, RES, 3)
-    before = {k: os.stat(out / e["file"]).st_mtime_ns for k, e in manifest["images"].items()}
+    before = {k: os.stat(out / e["file"]).st_mtime_ns for k, e in manifest.images.items()}
 
     manifest = render_basis.render_basis(
         SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material"
     )
     m = Manifold.load(small_manifold)
-    assert set(manifest["images"]) == {"base", *m.names}
+    assert set(manifest.images) == {"base", *m.names}
     assert all(
-        os.stat(out / manifest["images"][k]["file"]).st_mtime_ns == t for k, t in before.items()
+        os.stat(out / manifest.images[k]["file"]).st_mtime_ns == t for k, t in before.items()
     )
     b = bf.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
     assert b.materials == [m.names]
@@ -219,7 +237,7 @@ def test_onepass_basis_through_the_tool(tmp_path, small_manifold):
     manifest = render_basis.render_basis(
         SPHERE, small_manifold, str(out), spp=8, resolution=RES, mode="onepass", materials=names
     )
-    assert manifest["mode"] == "onepass" and set(manifest["images"]) == {"base", *names}
+    assert manifest.mode == "onepass" and set(manifest.images) == {"base", *names}
     b = bf.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
     assert all(np.isfinite(b.image(k)).all() for k in ["base", *names])
     assert b.image("steel").mean() > 0
@@ -270,8 +288,8 @@ def test_two_manifold_materials_give_a_multilinear_basis(tmp_path, small_manifol
     manifest = render_basis.render_basis(
         str(scene), small_manifold, str(out), spp=4, materials=[a, b]
     )
-    assert manifest["targets"] == ["left", "right"]
-    assert set(manifest["images"]) == {f"{p}+{q}" for p in (a, b) for q in (a, b)}
+    assert manifest.targets == ["left", "right"]
+    assert set(manifest.images) == {f"{p}+{q}" for p in (a, b) for q in (a, b)}
     with pytest.raises(render_basis.InputError, match="one manifold material"):
         render_basis.render_basis(
             str(scene), small_manifold, str(tmp_path / "b3"), spp=4, materials=[a], mode="onepass"

@@ -139,7 +139,7 @@ def basis_blend(path, out, x=None, spp=64, **options):
     m = Manifold.load(manifold)
     point = m.latent[m.index(MATERIAL)] if x is None else x
     img, _ = blend(bf.Basis.load(out), m, x=point, l2="raw", prune=0.0)
-    return img, bf.read_manifest(out)
+    return img, bf.Manifest.read(out)
 
 
 def assert_same_mean(a, b, what, block=8, z_max=5.0):
@@ -185,8 +185,8 @@ def test_the_scene_integrators_depth_is_rendered_not_the_tools(folder):
         '<integrator type="path"><integer name="max_depth" value="2"/></integrator>',
     )
     img, manifest = basis_blend(path, os.path.join(folder, "b"), spp=128)
-    assert manifest["max_depth"] == 2 and manifest["integrator"]["source"] == "scene"
-    assert "l2+" in manifest["left_out"] and "scatter once" in manifest["left_out"]["l2+"]
+    assert manifest.max_depth == 2 and manifest.integrator["source"] == "scene"
+    assert "l2+" in manifest.left_out and "scatter once" in manifest.left_out["l2+"]
     refs = mitsuba_renders(path, 128, range(6))
     _mean_close(img, refs, "depth 2 blend vs Mitsuba")
     unbounded = mitsuba_renders(cbox(folder, "deep", ""), 64, range(2))
@@ -202,7 +202,7 @@ def test_direct_integrator_and_hidden_emitters(folder):
         '<integrator type="direct"><boolean name="hide_emitters" value="true"/></integrator>',
     )
     img, manifest = basis_blend(path, os.path.join(folder, "b"), spp=128)
-    assert manifest["integrator"] == {
+    assert manifest.integrator == {
         "kind": "direct",
         "max_depth": 2,
         "rr_depth": 5,
@@ -396,7 +396,7 @@ def test_crop_window_luminance_film_and_a_second_non_square_sensor(folder):
         '<integer name="crop_width" value="12"/><integer name="crop_height" value="10"/>',
     )
     img, manifest = basis_blend(crop, os.path.join(folder, "b1"), spp=16)
-    assert manifest["resolution"] == [12, 10] and img.shape == (10, 12, 3)
+    assert manifest.resolution == (12, 10) and img.shape == (10, 12, 3)
     m = Manifold.load(manifold)
     ref = scenes.render_reference(
         crop,
@@ -435,8 +435,8 @@ def test_crop_window_luminance_film_and_a_second_non_square_sensor(folder):
         resolution=12,
         materials=[MATERIAL, OTHER],
     )
-    manifest = bf.read_manifest(out)
-    assert manifest["resolution"] == [12, 8]
+    manifest = bf.Manifest.read(out)
+    assert manifest.resolution == (12, 8)
     ref = scenes.render_reference(
         views, manifold, m.latent[0], 4, resolution=scenes.scene_resolution(manifest), sensor=1
     )

@@ -23,6 +23,8 @@ import os
 import re
 import sys
 import time
+from dataclasses import dataclass, replace
+from typing import Optional
 
 from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND
 from ...manifold.paths import KINDS as PATH_KINDS
@@ -155,21 +157,107 @@ def parser():
     return p
 
 
+@dataclass(frozen=True)
+class Output:
+    """Where and how the images are written: ``--out``, ``--png``, ``--exposure``, ``--force``."""
+
+    out: str
+    png: bool = False
+    exposure: float = 0.0
+    force: bool = False
+
+    @property
+    def stem(self):
+        """``--out`` without its ``.exr``."""
+        return _stem(self.out)
+
+
+@dataclass(frozen=True)
+class PathRequest:
+    """``--path A B``: ``steps`` images along a latent path of ``kind``; ``target`` (a BSDF id)
+    the target that moves when the basis has several.
+    """
+
+    ends: tuple
+    steps: int = 20
+    kind: str = DEFAULT_PATH_KIND
+    target: Optional[str] = None
+
+
+@dataclass(frozen=True)
+class ReferenceRequest:
+    """What the blend is compared with: the image ``file`` (``--reference``), or a render
+    (``--render-reference``, ``spp`` samples per pixel, ``seed``); neither: no comparison.
+    """
+
+    file: Optional[str] = None
+    render: bool = False
+    spp: int = 256
+    seed: int = 0
+
+    @property
+    def wanted(self):
+        """Whether the blend is compared with a reference."""
+        return bool(self.file or self.render)
+
+
+@dataclass(frozen=True)
+class RefineChoice:
+    """``--refine SPP``: ``spp`` samples per pixel in ``passes`` passes (None: no refinement)."""
+
+    spp: Optional[int] = None
+    passes: int = 4
+
+
+@dataclass(frozen=True)
+class BlendRequest:
+    """Everything ``blend.py`` was asked, checked: made once by :func:`parse` from the command line.
+
+    Attributes
+    ----------
+    basis, manifold, scene, database : str or None
+        ``--basis``, ``--manifold``, ``--scene``, ``--database``.
+    x : list or None
+        The latent points of ``--x`` (numbers, or a material's name), flat, target after target;
+        :func:`main` resolves the names with the manifold.
+    x_groups : int
+        How often ``--x`` was given (once per target).
+    settings : BlendSettings
+        ``--prune``, ``--renormalise``, ``--component``, ``--l2``.
+    path : PathRequest or None
+        ``--path`` (None: the image of one point).
+    reference : ReferenceRequest
+    refine : RefineChoice
+    output : Output
+    """
+
+    basis: str
+    manifold: Optional[str]
+    scene: Optional[str]
+    database: Optional[str]
+    x: Optional[list]
+    x_groups: int
+    settings: "BlendSettings"  # noqa: F821 -- mitsuba_manifold.basis.blend's, imported by parse()
+    path: Optional[PathRequest]
+    reference: ReferenceRequest
+    refine: RefineChoice
+    output: Output
+
+
 def parse(argv=None):
-    """Parsed and checked arguments, with ``args.x`` as a flat list of numbers (or None)."""
+    """The checked :class:`BlendRequest` of the command line ``argv``."""
     argv = sys.argv[1:] if argv is None else list(argv)
     # "-0.3,1.2" would look like an option to argparse; with spaces it is a value
     for a in argv:
         if NEGATIVE_LIST.match(a) and re.search(r",\s*(,|$)", a):
             fail(f"{a!r} has an empty place between commas; expected numbers like '-0.3,1.2'")
     args = parser().parse_args([a.replace(",", " ") if NEGATIVE_LIST.match(a) else a for a in argv])
-    x, args.x_groups = None, len(args.x or ())
+    x = None
     if args.x:  # numbers, or (one word) a measured material's name, resolved with the manifold
         try:
             x = [v for group in args.x for v in parse_floats_or_name(group)]
         except argparse.ArgumentTypeError as e:
             fail(f"--x: {e}")
-    args.x = x
     if args.path is None and x is None:
         fail("give --x (a latent point) or --path A B")
     if args.path is not None and (args.reference or args.render_reference):
@@ -182,15 +270,16 @@ def parse(argv=None):
         fail("--refine makes one point's image exact; not with --path")
     if args.refine is not None and args.refine < 1:
         fail(f"--refine must be >= 1 (samples per pixel), got {args.refine}")
-    if args.refine_passes is None:  # not given: 4 passes, fewer when --refine has fewer samples
-        few = args.refine is not None and args.refine >= 1
-        args.refine_passes = min(4, args.refine) if few else 4
-    if args.refine is not None and not 1 <= args.refine_passes <= args.refine:
-        fail(f"--refine-passes must be in 1..--refine ({args.refine}), got {args.refine_passes}")
+    passes = args.refine_passes
+    if passes is None:  # not given: 4 passes, fewer when --refine has fewer samples
+        passes = min(4, args.refine) if args.refine is not None else 4
+    if args.refine is not None and not 1 <= passes <= args.refine:
+        fail(f"--refine-passes must be in 1..--refine ({args.refine}), got {passes}")
     if args.spp < 1:
         fail(f"--spp must be >= 1, got {args.spp}")
     from ..._util import checks as validate
     from ..._util import ownership
+    from ...basis.blend import BlendSettings
     from ...basis.folder import owned_files as basis_ownership
 
     validate.exposure(args.exposure)
@@ -200,101 +289,117 @@ def parse(argv=None):
     validate.output_folder(
         f"--out {args.out}: folder", os.path.dirname(os.path.abspath(args.out))
     )  # before work
-    for kind, path in planned(args):  # names and kinds of targets (their owners: before writing)
-        ownership.check_replaceable(path, args.force, what=kind, owner=False)
-    return args
+    path = None
+    if args.path is not None:
+        path = PathRequest(tuple(args.path), args.steps, args.path_kind, args.target)
+    request = BlendRequest(
+        basis=args.basis,
+        manifold=args.manifold,
+        scene=args.scene,
+        database=args.database,
+        x=x,
+        x_groups=len(args.x or ()),
+        settings=BlendSettings(
+            prune=args.prune, renormalise=args.renormalise, component=args.component, l2=args.l2
+        ),
+        path=path,
+        reference=ReferenceRequest(args.reference, args.render_reference, args.spp, args.seed),
+        refine=RefineChoice(args.refine, passes),
+        output=Output(args.out, args.png, args.exposure, args.force),
+    )
+    for kind, file in planned(request):  # names and kinds of targets (their owners: before writing)
+        ownership.check_replaceable(file, args.force, what=kind, owner=False)
+    return request
 
 
-def frame_names(args):
+def frame_names(output, steps):
     """The EXR frames of ``--path``: ``<stem>_<s>.exr``, ``s`` zero-padded to the widest."""
-    width = len(str(args.steps - 1))
-    return [f"{_stem(args.out)}_{s:0{width}d}.exr" for s in range(args.steps)]
+    width = len(str(steps - 1))
+    return [f"{output.stem}_{s:0{width}d}.exr" for s in range(steps)]
 
 
-def _existing_frames(args):
+def _existing_frames(output, steps):
     """The frames of ``--path`` (EXR, and PNG with ``--png``) that exist already, found by
     listing their folder (not by trying every step).
     """
-    width = len(str(args.steps - 1))
+    width = len(str(steps - 1))
     frame = re.compile(
-        re.escape(os.path.basename(_stem(args.out))) + r"_(\d{" + str(width) + r"})\.(exr|png)$"
+        re.escape(os.path.basename(output.stem)) + r"_(\d{" + str(width) + r"})\.(exr|png)$"
     )
-    folder = os.path.dirname(os.path.abspath(args.out))
+    folder = os.path.dirname(os.path.abspath(output.out))
     names = os.listdir(folder) if os.path.isdir(folder) else []
     found = [(n, frame.match(n)) for n in names]
     return [
-        os.path.join(os.path.dirname(args.out), n)
+        os.path.join(os.path.dirname(output.out), n)
         for n, m in found
-        if m and int(m.group(1)) < args.steps and (args.png or m.group(2) == "exr")
+        if m and int(m.group(1)) < steps and (output.png or m.group(2) == "exr")
     ]
 
 
-def planned(args):
+def planned(request):
     """``(kind, path)`` of the files the run will write (:func:`path_outputs`, :func:`point_outputs`)
     to check first: with ``--path``, the first frame (every frame's name is as long) and the
     frames that exist already, found without listing every step (``--steps`` is not yet checked
     against the memory).
     """
-    stem, png = _stem(args.out), args.png
-    if args.path is not None:
-        first = f"{stem}_{0:0{len(str(args.steps - 1))}d}.exr"
+    output = request.output
+    stem, png = output.stem, output.png
+    if request.path is not None:
+        steps = request.path.steps
+        first = f"{stem}_{0:0{len(str(steps - 1))}d}.exr"
         out = [("image", first)] + ([("png", first[:-4] + ".png")] if png else [])
         return (
             out
-            + [("frame", p) for p in _existing_frames(args)]
+            + [("frame", p) for p in _existing_frames(output, steps)]
             + [("contact sheet", stem + "_sheet.png")]
         )
-    out = [("image", args.out)] + ([("png", stem + ".png")] if png else [])
-    if args.render_reference:
+    out = [("image", output.out)] + ([("png", stem + ".png")] if png else [])
+    if request.reference.render:
         out += [("reference", stem + "_reference.exr")] + (
             [("reference PNG", stem + "_reference.png")] if png else []
         )
-    if args.reference or args.render_reference:
+    if request.reference.wanted:
         out += [("error image", stem + "_error.exr"), ("error PNG", stem + "_error.png")]
     return out
 
 
-def path_outputs(args, basis, manifold):
+def path_outputs(request, basis, manifold):
     """Blend the images along ``--path``; returns the outputs ``(kind, path, writer)`` to write."""
     from ..._util import checks as validate
-    from ...basis.blend import BlendSettings, MovingTarget, blend_path, path_labels
+    from ...basis.blend import MovingTarget, blend_path, path_labels
     from ...imaging import io as imageio
 
+    path, output = request.path, request.output
     w, h = basis.resolution
     validate.fits_in_memory(
-        "--steps", 2 * args.steps * w * h * 3 * 4, f"{args.steps} images of {w}x{h}"
+        "--steps", 2 * path.steps * w * h * 3 * 4, f"{path.steps} images of {w}x{h}"
     )
-    if args.x is not None and basis.p == 1:
+    if request.x is not None and basis.p == 1:
         fail(
             "--x sets the fixed targets along --path, and this basis has one target, whose point the path "
             "sets: drop --x (or drop --path to blend the point --x)"
         )
-    ends = [a if a in manifold.names else _point_or_name(a) for a in args.path]
-    for a, end in zip(args.path, ends):
+    ends = [a if a in manifold.names else _point_or_name(a) for a in path.ends]
+    for a, end in zip(path.ends, ends):
         if not isinstance(end, str) and (
             len(end) != manifold.q or not all(map(math.isfinite, end))
         ):
             fail(f"--path end {a!r} must be a material name or {manifold.q} finite numbers")
     target = 0
-    if args.target is not None:
-        if args.target not in basis.targets:
-            fail(f"--target {args.target!r} is not a target of the basis ({basis.targets})")
-        target = basis.targets.index(args.target)
+    if path.target is not None:
+        if path.target not in basis.targets:
+            fail(f"--target {path.target!r} is not a target of the basis ({basis.targets})")
+        target = basis.targets.index(path.target)
     with _one_line_warnings():
         images, _, info = blend_path(
             basis,
             manifold,
             ends[0],
             ends[1],
-            steps=args.steps,
-            kind=args.path_kind,
-            moving=MovingTarget(target, args.x),
-            settings=BlendSettings(
-                prune=args.prune,
-                renormalise=args.renormalise,
-                component=args.component,
-                l2=args.l2,
-            ),
+            steps=path.steps,
+            kind=path.kind,
+            moving=MovingTarget(target, request.x),
+            settings=request.settings,
         )
     _say_component(info)
     den = (
@@ -303,20 +408,20 @@ def path_outputs(args, basis, manifold):
         else ""
     )
     print(
-        f"path {args.path[0]} -> {args.path[1]}: {args.steps} images blended in "
-        f"{info['time_ms']:.2f} ms ({info['time_ms'] / args.steps:.3f} ms per image){den}"
+        f"path {path.ends[0]} -> {path.ends[1]}: {path.steps} images blended in "
+        f"{info['time_ms']:.2f} ms ({info['time_ms'] / path.steps:.3f} ms per image){den}"
     )
-    stem, outputs = _stem(args.out), []
-    for name, img in zip(frame_names(args), images):
+    outputs = []
+    for name, img in zip(frame_names(output, path.steps), images):
         outputs.append(("image", name, lambda n=name, i=img: imageio.write_exr(n, i)))
-        if args.png:
+        if output.png:
             png = name[:-4] + ".png"
             outputs.append(
-                ("png", png, lambda n=png, i=img: imageio.write_png(n, i, args.exposure))
+                ("png", png, lambda n=png, i=img: imageio.write_png(n, i, output.exposure))
             )
-    labels = path_labels(args.path, args.steps)
-    sheet = stem + "_sheet.png"
-    title = f"{args.path[0]} (t = 0) to {args.path[1]} (t = 1) along a {args.path_kind} latent path"
+    labels = path_labels(list(path.ends), path.steps)
+    sheet = output.stem + "_sheet.png"
+    title = f"{path.ends[0]} (t = 0) to {path.ends[1]} (t = 1) along a {path.kind} latent path"
     outputs.append(
         (
             "contact sheet",
@@ -325,8 +430,8 @@ def path_outputs(args, basis, manifold):
                 sheet,
                 images,
                 labels,
-                columns=min(args.steps, 10),
-                exposure=args.exposure,
+                columns=min(path.steps, 10),
+                exposure=output.exposure,
                 title=title,
             ),
         )
@@ -362,24 +467,24 @@ def _say_component(info):
         print(f"blend: {info['component_note']}")
 
 
-def _refined(args, basis, manifold):
+def _refined(request, basis, manifold):
     """The image of ``--refine`` (:func:`mitsuba_manifold.render.refine.refine`), its progress printed."""
     from ...render.refine import CONTROL_VARIATE, RefineRequest, refine_passes
 
-    request = RefineRequest(
-        spp=args.refine,
-        passes=args.refine_passes,
-        seed=args.seed,
-        database=args.database,
-        prune=args.prune,
-        l2=args.l2,
+    refine = RefineRequest(
+        spp=request.refine.spp,
+        passes=request.refine.passes,
+        seed=request.reference.seed,
+        database=request.database,
+        prune=request.settings.prune,
+        l2=request.settings.l2,
     )
-    print(f"refining at the point, {request.spp} spp in {request.passes} passes ...", flush=True)
+    print(f"refining at the point, {refine.spp} spp in {refine.passes} passes ...", flush=True)
     last = None
-    for last in refine_passes(basis, manifold, args.x, request):
+    for last in refine_passes(basis, manifold, request.x, refine):
         if last.passes:
             print(
-                f"  pass {last.passes}/{args.refine_passes}: {last.spp} spp, {last.seconds:.2f} s",
+                f"  pass {last.passes}/{refine.passes}: {last.spp} spp, {last.seconds:.2f} s",
                 flush=True,
             )
     written = (
@@ -398,21 +503,22 @@ def _point_or_name(a):  # a latent point "x0,x1", else a name blend_path reports
         return a
 
 
-def point_outputs(args, basis, manifold):
+def point_outputs(request, basis, manifold):
     """Blend the image of ``--x`` (and compare it with a reference); returns the outputs to write."""
     from ...basis.blend import blend
     from ...imaging import io as imageio
     from ...imaging import metrics
 
+    settings, output = request.settings, request.output
     with _one_line_warnings():
         image, info = blend(
             basis,
             manifold,
-            x=args.x,
-            prune=args.prune,
-            renormalise=args.renormalise,
-            component=args.component,
-            l2=args.l2,
+            x=request.x,
+            prune=settings.prune,
+            renormalise=settings.renormalise,
+            component=settings.component,
+            l2=settings.l2,
         )
     _say_component(info)
     for t, (weights, dropped) in enumerate(zip(info["weights"], info["dropped_weight"])):
@@ -432,8 +538,8 @@ def point_outputs(args, basis, manifold):
     )
     if (
         info.get("component") == "full"
-        and args.l2 == "raw"
-        and args.refine is None
+        and settings.l2 == "raw"
+        and request.refine.spp is None
         and (image < 0).any()
     ):
         print(
@@ -441,21 +547,21 @@ def point_outputs(args, basis, manifold):
             "the default --l2 denoised has none)"
         )
     unrefined = image
-    if args.refine is not None:
-        image = _refined(args, basis, manifold)
-    stem = _stem(args.out)
-    outputs = [("image", args.out, lambda: imageio.write_exr(args.out, image))]
-    if args.png:
+    if request.refine.spp is not None:
+        image = _refined(request, basis, manifold)
+    stem = output.stem
+    outputs = [("image", output.out, lambda: imageio.write_exr(output.out, image))]
+    if output.png:
         outputs.append(
-            ("png", stem + ".png", lambda: imageio.write_png(stem + ".png", image, args.exposure))
+            ("png", stem + ".png", lambda: imageio.write_png(stem + ".png", image, output.exposure))
         )
-    reference = reference_image(args, basis, manifold, outputs)
+    reference = reference_image(request, basis, manifold, outputs)
     if reference is not None:
         try:
             stats = metrics.compare(image, reference)
         except ValueError as e:
-            fail(f"reference {args.reference or 'render'}: {e}")
-        if args.refine is not None:
+            fail(f"reference {request.reference.file or 'render'}: {e}")
+        if request.refine.spp is not None:
             print(
                 f"before refining: relative MSE {metrics.compare(unrefined, reference)['rel_mse']:.4g}"
             )
@@ -481,7 +587,7 @@ def point_outputs(args, basis, manifold):
     return outputs
 
 
-def reference_image(args, basis, manifold, outputs):
+def reference_image(request, basis, manifold, outputs):
     """The reference of ``--reference`` (read) or ``--render-reference`` (rendered, and added
     to ``outputs``), or None.
     """
@@ -489,50 +595,55 @@ def reference_image(args, basis, manifold, outputs):
     from ...imaging import io as imageio
     from ...render.scenes import render_reference, scene_resolution
 
-    if args.reference:
-        return imageio.read_exr(args.reference)
-    if not args.render_reference:
+    ref, output = request.reference, request.output
+    if ref.file:
+        return imageio.read_exr(ref.file)
+    if not ref.render:
         return None
     m = basis.manifest
-    scene = args.scene or m.scene
-    paths = m.extra.get("integrator")
+    scene = request.scene or m.scene
+    paths = m.integrator
     how = (
         f"{paths['kind']}, max_depth {paths['max_depth']}"
         + (", hide_emitters" if paths["hide_emitters"] else "")
         if paths
         else f"max_depth {m.max_depth}"
     )
-    print(f"rendering the reference: {scene}, {how} (as the basis), {args.spp} spp ...", flush=True)
+    print(f"rendering the reference: {scene}, {how} (as the basis), {ref.spp} spp ...", flush=True)
     t0 = time.perf_counter()
-    points = latent_points(basis, manifold, args.x)
+    points = latent_points(basis, manifold, request.x)
     view = reference_view(basis, scene, render_reference)
     reference = render_reference(
         scene,
-        args.manifold or m.manifold,
+        request.manifold or m.manifold,
         points,
-        args.spp,
-        seed=args.seed,
+        ref.spp,
+        seed=ref.seed,
         resolution=scene_resolution(m),
         max_depth=m.max_depth,
         variant=m.variant,
         targets=basis.targets,
-        database=args.database,
+        database=request.database,
         **view,
     )
     print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
     if basis.p == 1:
-        neg = manifold.negative_fraction(points[0], database=args.database)
+        neg = manifold.negative_fraction(points[0], database=request.database)
         if neg > 1e-3:
             print(
                 f"note: {100 * neg:.1f}% of the interpolated table's values are negative; "
                 "manifold_brdf clamps them to 0, a blend keeps them, so the two differ beyond L2+"
             )
-    ref_path = _stem(args.out) + "_reference.exr"
+    ref_path = output.stem + "_reference.exr"
     outputs.append(("reference", ref_path, lambda: imageio.write_exr(ref_path, reference)))
-    if args.png:
-        ref_png = _stem(args.out) + "_reference.png"
+    if output.png:
+        ref_png = output.stem + "_reference.png"
         outputs.append(
-            ("reference PNG", ref_png, lambda: imageio.write_png(ref_png, reference, args.exposure))
+            (
+                "reference PNG",
+                ref_png,
+                lambda: imageio.write_png(ref_png, reference, output.exposure),
+            )
         )
     return reference
 
@@ -598,25 +709,26 @@ def remove_stale_companions(out, outputs):
 
 @guarded
 def main(argv=None):
-    args = parse(argv)
+    request = parse(argv)
     from ...basis.folder import Basis
 
     try:
-        basis = Basis.load(args.basis, manifold=args.manifold, scene=args.scene)
-        manifold = basis.check_manifold(args.manifold)
-        if args.x_groups > basis.p:
+        basis = Basis.load(request.basis, manifold=request.manifold, scene=request.scene)
+        manifold = basis.check_manifold(request.manifold)
+        if request.x_groups > basis.p:
             fail(
-                f"--x is given {args.x_groups} times, and this basis has {basis.p} target(s) {basis.targets}: "
+                f"--x is given {request.x_groups} times, and this basis has {basis.p} target(s) {basis.targets}: "
                 f"give --x once per target"
             )
-        args.x = resolve_names(args.x, manifold)
+        request = replace(request, x=resolve_names(request.x, manifold))
         print(basis)
-        if args.path is not None:
-            outputs = path_outputs(args, basis, manifold)
-            write_outputs(args.out, outputs, args.force, group="path:" + os.path.abspath(args.out))
+        out, force = request.output.out, request.output.force
+        if request.path is not None:
+            outputs = path_outputs(request, basis, manifold)
+            write_outputs(out, outputs, force, group="path:" + os.path.abspath(out))
         else:
-            outputs = point_outputs(args, basis, manifold)
-            write_outputs(args.out, outputs, args.force, group="point:" + os.path.abspath(args.out))
-            remove_stale_companions(args.out, outputs)
+            outputs = point_outputs(request, basis, manifold)
+            write_outputs(out, outputs, force, group="point:" + os.path.abspath(out))
+            remove_stale_companions(out, outputs)
     except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's, from a reference render
         fail(e)

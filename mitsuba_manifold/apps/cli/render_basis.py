@@ -16,6 +16,25 @@ import time
 
 from .common import ArgumentParser, fail, guarded, parse_floats, parse_indices, parse_list
 
+#: The options a chunked run passes to its chunks (their keys hash them, :func:`chunk_key`).
+CHUNKED = (
+    "spp",
+    "seed",
+    "sensor",
+    "materials",
+    "near",
+    "radius",
+    "mode",
+    "components",
+    "resolution",
+    "max_depth",
+    "variant",
+    "aovs",
+    "x",
+    "database",
+    "force",
+)
+
 
 def parse_views(text):
     """'all' or '0,2' -> 'all' or [0, 2]."""
@@ -169,10 +188,19 @@ def main(argv=None):
     materials = args.materials if args.materials != ["all"] else "all"
     check_numbers(args)
 
-    from ...basis.folder.manifest import Manifest
     from ...render.chunks import render_chunked
     from ...render.executor import make_executor
-    from ...render.render_basis import check_job_folders, plan_views, render_basis
+    from ...render.render_basis import (
+        BasisOptions,
+        FullGI,
+        RunBehaviour,
+        Sampling,
+        SceneSetup,
+        Selection,
+        check_job_folders,
+        plan_views,
+        render_basis,
+    )
     from ...render.scenes import scene_path
 
     t0 = time.perf_counter()
@@ -180,49 +208,30 @@ def main(argv=None):
     jobs = plan_views(scenes, args.views, args.out)
     check_job_folders(jobs, args.out, args.force)  # every folder, before the first render
     executor = make_executor(args.executor, args.address)
-    options = dict(
-        materials=materials,
-        near=args.near,
-        radius=args.radius,
-        mode=args.mode,
-        components="auto" if args.components == "full" else "l1",
-        resolution=args.res,
-        max_depth=args.max_depth,
-        variant=args.variant,
-        aovs=args.aovs,
-        x=args.x,
-        database=args.database,
-        force=args.force,
+    options = BasisOptions(
+        selection=Selection(materials, args.near, args.radius),
+        sampling=Sampling(spp=args.spp, seed=args.seed, mode=args.mode),
+        scene=SceneSetup(args.res, args.max_depth, args.variant, args.x, args.database),
+        gi=FullGI(components="auto" if args.components == "full" else "l1"),
+        run=RunBehaviour(force=args.force, progress=True, aovs=args.aovs),
     )
     try:
         for scene, sensor, out in jobs:
             t1 = time.perf_counter()
+            view = options.updated(sensor=sensor)
             if args.chunks == 1 and args.executor == "local":
-                manifest = render_basis(
-                    scene,
-                    args.manifold,
-                    out,
-                    spp=args.spp,
-                    seed=args.seed,
-                    sensor=sensor,
-                    progress=True,
-                    **options,
-                )
+                m = render_basis(scene, args.manifold, out, view)
             else:
-                manifest = render_chunked(
+                m = render_chunked(
                     scene,
                     args.manifold,
                     out,
-                    spp=args.spp,
                     chunks=args.chunks,
-                    seed=args.seed,
                     executor=executor,
                     keep_chunks=args.keep_chunks,
                     progress=True,
-                    sensor=sensor,
-                    **options,
+                    **view.keywords(*CHUNKED),
                 ).manifest
-            m = Manifest.from_json(manifest)
             gi, cross = len(m.gi_images or {}), (m.cross or {}).get("pairs", 0)
             extra = f" (and {gi} full-GI images, {cross} cross terms)" if gi else ""
             print(

@@ -14,8 +14,10 @@ from .manifest import (
     BASE,
     FORMAT,
     FORMAT_VERSION,
+    GI,
     MANIFEST,
     MODES,
+    NOT_RECORDED,
     SEP,
     SETTINGS,
     Manifest,
@@ -24,18 +26,12 @@ from .manifest import (
     image_key,
     is_basis_folder,
     key_materials,
-    make_manifest,
-    manifest_differences,
     manifold_file_identity,
-    read_manifest,
     scene_files,
     scene_hash,
-    upgrade_manifest,
-    validate_manifest,
-    write_manifest,
 )
 from .owned_files import check_output_outside_basis
-from .reader import GI, Basis, manifold_object
+from .reader import Basis, manifold_object
 
 __all__ = [
     "Basis",
@@ -44,6 +40,7 @@ __all__ = [
     "manifold_object",
     "GI",
     "BASE",
+    "NOT_RECORDED",
     "FORMAT",
     "FORMAT_VERSION",
     "MANIFEST",
@@ -54,14 +51,8 @@ __all__ = [
     "image_key",
     "is_basis_folder",
     "key_materials",
-    "make_manifest",
-    "manifest_differences",
     "manifold_file_identity",
-    "read_manifest",
     "scene_files",
     "scene_hash",
-    "upgrade_manifest",
-    "validate_manifest",
-    "write_manifest",
     "check_output_outside_basis",
 ]

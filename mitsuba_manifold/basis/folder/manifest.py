@@ -37,14 +37,16 @@ file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
 (:func:`mitsuba_manifold.manifold.identity.manifold_identity`), so an identical refit is accepted.
 Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
 ``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`).
-:class:`Manifest` alone reads, writes and checks the format (:func:`make_manifest`,
-:func:`write_manifest` and :func:`read_manifest` are its JSON-object face for the renderers);
+:class:`Manifest` alone reads, writes and checks the format (the renderers make one with
+:meth:`Manifest.new`, change its fields and :meth:`Manifest.write` it);
 :class:`~mitsuba_manifold.basis.folder.Basis` opens a folder and its images,
 :mod:`mitsuba_manifold.basis.folder.owned_files` says which files a basis folder owns, and
 :func:`mitsuba_manifold.basis.blend.blend` and :func:`~mitsuba_manifold.basis.blend.blend_path` combine the images.
 """
 
+import copy
 import dataclasses
+import enum
 import hashlib
 import json
 import os
@@ -331,32 +333,54 @@ def manifold_file_identity(manifold):
     return manifold_identity(Manifold.load(manifold))
 
 
-def upgrade_manifest(manifest, manifold):
-    """A version-1 manifest as version 2, when it was made with the file ``manifold`` (same
-    bytes): the manifold hash becomes its content identity and the images whose keys are
-    the same in both versions (names that escaping leaves unchanged) are kept. Any other
-    manifest is returned as it is.
+class NotRecorded(enum.Enum):
+    """A field a manifest of an earlier version does not record (written as an absent key)."""
+
+    NOT_RECORDED = "not recorded"
+
+
+#: The value of a manifest field that is absent from its file (not the same as JSON ``null``).
+NOT_RECORDED = NotRecorded.NOT_RECORDED
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """The settings a basis's images are rendered with, as its :class:`Manifest` records them.
+
+    Parameters
+    ----------
+    resolution : (int, int)
+        ``(width, height)``.
+    spp, seed, max_depth : int
+    variant : str
+        Mitsuba variant used.
+    mode : {"per-material", "onepass"}
+    sensor : int or None
+        The scene's sensor (view) the images are rendered from; a new basis always records it,
+        so that a reference of the basis renders the same view (None: a manifest of an earlier
+        version, which rendered sensor 0).
     """
-    if manifest.get("version") != 1 or file_hash(manifold) != manifest.get("manifold_hash"):
-        return manifest
-    images = {
-        k: e
-        for k, e in manifest["images"].items()
-        if k == BASE or all(names_mod.is_escaped(p) for p in k.split(SEP))
-    }
-    return dict(
-        manifest,
-        version=FORMAT_VERSION,
-        manifold_hash=manifold_file_identity(manifold),
-        images=images,
-    )
+
+    resolution: tuple
+    spp: int
+    variant: str
+    seed: int
+    max_depth: int
+    mode: str
+    sensor: Optional[int] = 0
+
+
+#: JSON keys of :class:`RenderSettings` written before ``targets`` (``sensor`` comes after
+#: ``images``: the order of the files written so far).
+_SETTINGS_HEAD = ("resolution", "spp", "variant", "seed", "max_depth", "mode")
 
 
 @dataclass
 class Manifest:
     """A basis folder's ``manifest.json`` (the format of this module's doc): what the images
     are, how they were made and which files hold them. Alone it reads (:meth:`read`), writes
-    (:meth:`write`) and checks (:meth:`check`) the format; the JSON keys are its field names.
+    (:meth:`write`) and checks (:meth:`check`) the format; the JSON keys are its field names,
+    with the render settings' (:class:`RenderSettings`) at the top level of the object.
 
     Attributes
     ----------
@@ -365,20 +389,15 @@ class Manifest:
     scene_hash, manifold_hash : str
         Their identities (:func:`scene_hash`; :func:`manifold_file_identity`, version 1: the
         file's SHA-256).
-    resolution : tuple of int
-        ``(width, height)``.
-    spp, seed, max_depth : int
-    variant : str
-        The Mitsuba variant rendered in.
-    mode : {"per-material", "onepass"}
+    settings : RenderSettings
+        What the images are rendered with (also read as :attr:`resolution`, :attr:`spp`,
+        :attr:`variant`, :attr:`seed`, :attr:`max_depth`, :attr:`mode`, :attr:`sensor`).
     targets : list of str
         BSDF ids of the scene's manifold materials, in the order of the image keys.
     images : dict
         Image key -> ``{"file", "time_s"[, "sha256"]}``.
     version : int
         Format version (1 or 2).
-    sensor : int or None
-        The scene's sensor rendered (None: not recorded; sensor 0).
     chunks : int or None
         Merged from this many chunks.
     pending : list of str or None
@@ -395,6 +414,18 @@ class Manifest:
         Component -> why it was left out.
     gi_stats : dict or None
         Measurements of the full-GI render.
+    integrator : dict or None
+        The scene's integrator settings the images were rendered with
+        (:meth:`~mitsuba_manifold.render.scenes.SceneIntegrator.to_manifest`).
+    scene_resolution : list of int, None or NOT_RECORDED
+        The ``resolution`` the scene was loaded with (None: its own film size; see
+        :attr:`loaded_resolution`).
+    chunk_complete : bool or None
+        A chunk folder whose images are all saved (:mod:`mitsuba_manifold.render.chunks`).
+    chunk_run : dict or None
+        Where and how fast a chunk was rendered.
+    chunk_key : str or None
+        What a chunk's images, or a merged basis's run, depend on (:func:`~mitsuba_manifold.render.chunks.chunk_key`).
     extra : dict
         Keys this version does not know (kept, and written back).
     """
@@ -403,16 +434,10 @@ class Manifest:
     scene_hash: str
     manifold: str
     manifold_hash: str
-    resolution: tuple
-    spp: int
-    variant: str
-    seed: int
-    max_depth: int
-    mode: str
+    settings: RenderSettings
     targets: list
     images: dict = field(default_factory=dict)
     version: int = FORMAT_VERSION
-    sensor: Optional[int] = None
     chunks: Optional[int] = None
     pending: Optional[list] = None
     components: Optional[list] = None
@@ -421,7 +446,81 @@ class Manifest:
     cross: Optional[dict] = None
     left_out: Optional[dict] = None
     gi_stats: Optional[dict] = None
+    integrator: Optional[dict] = None
+    scene_resolution: object = NOT_RECORDED
+    chunk_complete: Optional[bool] = None
+    chunk_run: Optional[dict] = None
+    chunk_key: Optional[str] = None
     extra: dict = field(default_factory=dict)
+
+    # ----------------------------------------------------------- making one
+    @classmethod
+    def new(cls, scene, manifold, settings, *, targets, images=None, components=("l1",)):
+        """A new, checked manifest of a basis of ``scene`` rendered with ``manifold``.
+
+        Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
+        itself, so every writer and reader agree on them.
+
+        Parameters
+        ----------
+        scene, manifold : str
+            Scene XML and saved manifold (``.npz``) paths.
+        settings : RenderSettings
+            What the images are rendered with.
+        targets : list of str
+            BSDF ids of the scene's manifold materials, in the order of the image keys.
+        images : dict, optional
+            ``{key: {"file": ..., "time_s": ...}}`` (default: none yet).
+        components : sequence of str
+            What the basis holds (:data:`COMPONENTS`; default L1- only). A renderer that adds
+            full-GI images sets it when it writes them.
+        """
+        manifold = os.fspath(manifold)
+        if not os.path.isfile(manifold):
+            raise MismatchError(f"manifold {manifold} does not exist")
+        settings = RenderSettings(
+            resolution=tuple(int(v) for v in settings.resolution),
+            spp=int(settings.spp),
+            variant=str(settings.variant),
+            seed=int(settings.seed),
+            max_depth=int(settings.max_depth),
+            mode=settings.mode,
+            sensor=int(settings.sensor or 0),
+        )
+        return cls(
+            scene=os.path.abspath(scene),
+            scene_hash=scene_hash(scene),
+            manifold=os.path.abspath(manifold),
+            manifold_hash=manifold_file_identity(manifold),
+            settings=settings,
+            targets=[str(t) for t in targets],
+            images=dict(images or {}),
+            components=[str(c) for c in components],
+        ).check("new manifest")
+
+    def copy(self):
+        """A deep copy (its entries can be changed without changing this one's)."""
+        return copy.deepcopy(self)
+
+    def upgraded(self, manifold):
+        """The manifest as version 2 when it is a version-1 manifest made with the file
+        ``manifold`` (same bytes): the manifold hash becomes its content identity and the images
+        whose keys are the same in both versions (names that escaping leaves unchanged) are kept.
+        Any other manifest is returned as it is.
+        """
+        if self.version != 1 or file_hash(manifold) != self.manifold_hash:
+            return self
+        images = {
+            k: e
+            for k, e in self.images.items()
+            if k == BASE or all(names_mod.is_escaped(p) for p in k.split(SEP))
+        }
+        return dataclasses.replace(
+            self,
+            version=FORMAT_VERSION,
+            manifold_hash=manifold_file_identity(manifold),
+            images=images,
+        )
 
     # ----------------------------------------------------------- JSON
     @classmethod
@@ -430,21 +529,38 @@ class Manifest:
         if isinstance(data, cls):
             return data
         _check_json(data, where)
-        names = {f.name for f in dataclasses.fields(cls)} - {"extra"}
+        data = dict(data)
+        settings = RenderSettings(
+            resolution=tuple(data.pop("resolution")),
+            **{k: data.pop(k) for k in _SETTINGS_HEAD[1:]},
+            sensor=data.pop("sensor", None),
+        )
+        names = {f.name for f in dataclasses.fields(cls)} - {"extra", "settings"}
         known = {k: v for k, v in data.items() if k in names}
-        known["resolution"] = tuple(known["resolution"])
         return cls(
-            **known, extra={k: v for k, v in data.items() if k not in names and k != "format"}
+            **known,
+            settings=settings,
+            extra={k: v for k, v in data.items() if k not in names and k != "format"},
         )
 
     def to_json(self):
-        """The JSON object of the format: ``format``, ``version``, the fields set, then :attr:`extra`."""
+        """The JSON object of the format: ``format``, ``version``, the fields set (the settings'
+        at the top level), then :attr:`extra`; its keys in the order of the files written so far.
+        """
         out = {"format": FORMAT, "version": self.version}
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if f.name in ("version", "extra") or (value is None and f.default is None):
+            if f.name == "settings":
+                out["resolution"] = list(value.resolution)
+                out.update({k: getattr(value, k) for k in _SETTINGS_HEAD[1:]})
                 continue
-            out[f.name] = list(value) if f.name == "resolution" else value
+            if f.name in ("version", "extra") or value is NOT_RECORDED:
+                continue
+            if value is None and f.default is None:
+                continue
+            out[f.name] = value
+            if f.name == "images" and self.settings.sensor is not None:
+                out["sensor"] = self.settings.sensor
         out.update(self.extra)
         return out
 
@@ -492,6 +608,41 @@ class Manifest:
 
     # ----------------------------------------------------------- meaning
     @property
+    def resolution(self):
+        """``(width, height)`` of the images."""
+        return self.settings.resolution
+
+    @property
+    def spp(self):
+        """Samples per pixel of every image."""
+        return self.settings.spp
+
+    @property
+    def variant(self):
+        """The Mitsuba variant rendered in."""
+        return self.settings.variant
+
+    @property
+    def seed(self):
+        """The images' seed."""
+        return self.settings.seed
+
+    @property
+    def max_depth(self):
+        """Path depth (-1: unbounded)."""
+        return self.settings.max_depth
+
+    @property
+    def mode(self):
+        """``"per-material"`` or ``"onepass"``."""
+        return self.settings.mode
+
+    @property
+    def sensor(self):
+        """The scene's sensor rendered (None: not recorded; sensor 0)."""
+        return self.settings.sensor
+
+    @property
     def sensor_index(self):
         """The sensor the images were rendered from (0 when not recorded)."""
         return 0 if self.sensor is None else self.sensor
@@ -500,6 +651,34 @@ class Manifest:
     def held_components(self):
         """What the basis holds (``["l1"]`` when not recorded)."""
         return list(self.components) if self.components is not None else ["l1"]
+
+    @property
+    def loaded_resolution(self):
+        """The ``resolution`` the basis's scene was loaded with (None: the scene's own film
+        size), to load it again as the basis saw it (its references, refinements); a manifest
+        that does not record it (an earlier version) was rendered at its image size.
+        """
+        if self.scene_resolution is NOT_RECORDED:
+            return tuple(self.resolution)
+        value = self.scene_resolution
+        return None if value is None else tuple(int(v) for v in value)
+
+    def section(self, name):
+        """The entries of ``"images"`` or ``"gi_images"`` (an empty one set first when absent)."""
+        if name not in ("images", "gi_images"):
+            raise ValueError(f"no image section {name!r}")
+        if getattr(self, name) is None:
+            setattr(self, name, {})
+        return getattr(self, name)
+
+    def entries(self):
+        """``(key, entry)`` of every image file: L1- images, then full-GI ones (``gi:<key>``)."""
+        return list(self.images.items()) + [(GI + k, e) for k, e in (self.gi_images or {}).items()]
+
+    def listed_files(self):
+        """The files the manifest lists: its images, full-GI images and cross terms."""
+        files = {e["file"] for _, e in self.entries()}
+        return files | ({self.cross["file"]} if self.cross else set())
 
     def differences(self, other, ignore=()):
         """Setting fields (:data:`SETTINGS`, but those in ``ignore``) whose values differ from
@@ -516,96 +695,8 @@ class Manifest:
         return [k for k in SETTINGS if k not in ignore and value(self, k) != value(other, k)]
 
 
-@dataclass(frozen=True)
-class RenderSettings:
-    """The settings a basis's images are rendered with, as its :class:`Manifest` records them.
-
-    Parameters
-    ----------
-    resolution : (int, int)
-        ``(width, height)``.
-    spp, seed, max_depth : int
-    variant : str
-        Mitsuba variant used.
-    mode : {"per-material", "onepass"}
-    sensor : int
-        The scene's sensor (view) the images are rendered from; always recorded, so that a
-        reference of the basis renders the same view.
-    """
-
-    resolution: tuple
-    spp: int
-    variant: str
-    seed: int
-    max_depth: int
-    mode: str
-    sensor: int = 0
-
-
-def make_manifest(scene, manifold, settings, *, targets, images=None, components=("l1",)):
-    """The JSON object of a new, checked :class:`Manifest` of a basis of ``scene`` rendered with
-    ``manifold``.
-
-    Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
-    itself, so every writer and reader agree on them.
-
-    Parameters
-    ----------
-    scene, manifold : str
-        Scene XML and saved manifold (``.npz``) paths.
-    settings : RenderSettings
-        What the images are rendered with.
-    targets : list of str
-        BSDF ids of the scene's manifold materials, in the order of the image keys.
-    images : dict, optional
-        ``{key: {"file": ..., "time_s": ...}}`` (default: none yet).
-    components : sequence of str
-        What the basis holds (:data:`COMPONENTS`; default L1- only). A renderer that adds
-        full-GI images sets it when it writes them.
-    """
-    manifold = os.fspath(manifold)
-    if not os.path.isfile(manifold):
-        raise MismatchError(f"manifold {manifold} does not exist")
-    manifest = {
-        "format": FORMAT,
-        "version": FORMAT_VERSION,
-        "scene": os.path.abspath(scene),
-        "scene_hash": scene_hash(scene),
-        "manifold": os.path.abspath(manifold),
-        "manifold_hash": manifold_file_identity(manifold),
-        "resolution": [int(v) for v in settings.resolution],
-        "spp": int(settings.spp),
-        "variant": str(settings.variant),
-        "seed": int(settings.seed),
-        "max_depth": int(settings.max_depth),
-        "mode": settings.mode,
-        "targets": [str(t) for t in targets],
-        "sensor": int(settings.sensor),
-        "images": dict(images or {}),
-        "components": [str(c) for c in components],
-    }
-    return validate_manifest(manifest, where="new manifest")
-
-
-def validate_manifest(manifest, where=MANIFEST):
-    """Check the fields and types of a manifest's JSON object (:meth:`Manifest.from_json`); returns it."""
-    Manifest.from_json(manifest, where)
-    return manifest
-
-
-def write_manifest(folder, manifest):
-    """Write the manifest (a :class:`Manifest` or its JSON object) to ``folder/manifest.json``,
-    checked and atomically (:meth:`Manifest.write`); returns its path.
-    """
-    return Manifest.from_json(manifest, where=os.path.join(os.fspath(folder), MANIFEST)).write(
-        folder
-    )
-
-
-def read_manifest(folder):
-    """The JSON object of ``folder/manifest.json``, checked (:meth:`Manifest.read`)."""
-    return Manifest.read(folder).to_json()
-
+#: Prefix of the keys of full-GI images (``Manifest.gi_images``) among a basis's images.
+GI = "gi:"
 
 #: Manifest fields that define what the images are (all but "images" and the paths).
 SETTINGS = (
@@ -624,11 +715,6 @@ SETTINGS = (
     "chunks",
     "levels",
 )
-
-
-def manifest_differences(a, b, ignore=()):
-    """:meth:`Manifest.differences` of two manifests (or their JSON objects)."""
-    return Manifest.from_json(a).differences(b, ignore)
 
 
 def is_basis_folder(folder):

@@ -75,8 +75,8 @@ def check_job_folders(jobs, out, force=False):
 
 
 def open_folder(out, manifest, files, force=False, read_images=True):
-    """Check ``out`` (locked by the caller) against ``manifest``; return the images still valid
-    (all those listed without ``read_images``).
+    """Check ``out`` (locked by the caller) against ``manifest`` (the run's :class:`Manifest`);
+    return the images still valid (all those listed without ``read_images``).
 
     A folder whose manifest has other settings is refused, unless it lists no image yet
     (nothing to lose). A listed image that is damaged or changed since it was written (its
@@ -90,22 +90,19 @@ def open_folder(out, manifest, files, force=False, read_images=True):
     old = None
     listed = set()
     if os.path.exists(os.path.join(out, basis_folder.MANIFEST)):
-        old = basis_folder.read_manifest(out)  # raises unless it is a basis manifest
-        old = basis_folder.upgrade_manifest(old, manifest["manifold"])  # resume a version-1 basis
+        old = basis_folder.Manifest.read(out)  # raises unless it is a basis manifest
+        old = old.upgraded(manifest.manifold)  # resume a version-1 basis
         listed.add(basis_folder.MANIFEST)
         listed |= _clear_pending(out, old, remove=read_images)
-        diff = basis_folder.manifest_differences(old, manifest)
-        if diff and old["images"]:
+        diff = old.differences(manifest)
+        if diff and old.images:
             raise InputError(
                 f"{out} holds a basis made with other settings ({', '.join(diff)} differ); "
                 "choose another folder or delete it"
             )
         if diff:
             old = None
-    listed |= {e["file"] for e in old["images"].values()} if old else set()
-    if old:  # a full-GI basis's own files
-        listed |= {e["file"] for e in old.get("gi_images", {}).values()}
-        listed |= {old["cross"]["file"]} if "cross" in old else set()
+    listed |= old.listed_files() if old else set()  # a full-GI basis's too
     foreign = sorted(f for f in files if f not in listed and os.path.lexists(os.path.join(out, f)))
     if foreign and not force:
         raise InputError(
@@ -118,11 +115,9 @@ def open_folder(out, manifest, files, force=False, read_images=True):
     if old is None:
         return {}
     if not read_images:
-        return dict(old["images"])
-    size = tuple(manifest["resolution"])
-    return {
-        key: entry for key, entry in old["images"].items() if image_still_valid(out, entry, size)
-    }
+        return dict(old.images)
+    size = tuple(manifest.resolution)
+    return {key: entry for key, entry in old.images.items() if image_still_valid(out, entry, size)}
 
 
 def image_still_valid(out, entry, size):
@@ -149,8 +144,8 @@ def _clear_pending(out, old, remove):
     """The files ``old`` lists as pending and not as images (a killed run's); removed when
     ``remove`` (a read-only one is left, and then refused as the user's).
     """
-    done = {e["file"] for e in old["images"].values()}
-    pending = {f for f in old.get("pending", []) if f not in done}
+    done = {e["file"] for e in old.images.values()}
+    pending = {f for f in old.pending or [] if f not in done}
     for f in pending if remove else ():
         path = os.path.join(out, f)
         if os.path.lexists(path) and not ownership.read_only(path):

@@ -14,11 +14,7 @@ from ..._util.cache import file_hash
 from ...errors import FormatError, MismatchError
 from ...imaging import io as imageio
 from ...manifold.identity import manifold_identity
-from .manifest import BASE, Manifest, image_changed, image_key, key_materials, scene_hash
-
-#: Prefix of the keys of full-GI images (``manifest["gi_images"]``) in :meth:`Basis.image`.
-GI = "gi:"
-
+from .manifest import BASE, GI, Manifest, image_changed, image_key, key_materials, scene_hash
 
 # -------------------------------------------------------------------- basis
 

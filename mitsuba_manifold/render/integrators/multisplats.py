@@ -16,8 +16,8 @@ material, and everywhere on the segment for two-vertex paths, where ``C_ij`` is 
 second-order term ``2 L2_ij - L2_ii - L2_jj = - sum a (f_i(b_1) - f_j(b_1)) (f_i(b_2) - f_j(b_2))``
 (computed in that form). Where paths touch the material three or more times, a cross term of
 two-vertex paths alone leaves the blend of two materials that see themselves differently
-(white-paint and blue-rubber on the table's bowl) 1.7% too bright at their midpoint, with the
-noise of the brighter one's ``L2+`` (``docs/benchmarks.md``). Nearest lookups (the table product
+(white-paint and blue-rubber on the table's bowl) too bright at their midpoint, with the
+noise of the brighter one's ``L2+`` (the measurement: ``docs/benchmarks.md``). Nearest lookups (the table product
 of :class:`.splats.TableSplats`); each splat goes into every pixel of its sample's filter
 footprint with the filter's weight there (:class:`.splats.FilterTaps`), as the film puts samples.
 """
