@@ -119,6 +119,8 @@ def select_materials(manifold, materials="all", near=None, radius=None):
 class Selection:
     """Which materials are rendered (:func:`select_materials`).
 
+    Parameters
+    ----------
     materials : "all" or list of str
     near, radius
         With both: the materials within ``radius`` of the latent point ``near`` (and those
@@ -134,6 +136,8 @@ class Selection:
 class Sampling:
     """How the images are sampled.
 
+    Parameters
+    ----------
     spp : int
         Samples per pixel of every image.
     seed : int
@@ -155,6 +159,8 @@ class Sampling:
 class SceneSetup:
     """How the scene is loaded (:func:`scenes.load_scene`).
 
+    Parameters
+    ----------
     resolution : int or (int, int), optional
         Image size, for scenes that take ``$res`` or ``$width``/``$height``.
     max_depth : int, optional
@@ -187,6 +193,8 @@ class SceneSetup:
 class FullGI:
     """The full-GI part of a one-pass basis.
 
+    Parameters
+    ----------
     components : {"auto", "l1"}
         ``"auto"`` (one-pass mode): also the full-GI images (``touch + L2+`` of every material,
         :func:`~.integrators.onepass.render_onepass_gi`) and the cross terms of the pairs blended
@@ -226,6 +234,8 @@ class FullGI:
 class RunBehaviour:
     """How the run behaves towards its folder and its user.
 
+    Parameters
+    ----------
     force : bool
         Render into an existing ``out`` that holds files but no basis manifest
         (:func:`check_foreign_folder`), and overwrite files in ``out`` that this basis did not make.
@@ -242,9 +252,12 @@ class RunBehaviour:
 
 @dataclass(frozen=True)
 class BasisOptions:
-    """How :func:`render_basis` renders a basis, in five groups (each field has the default of
-    the keyword of :func:`render_basis` of the same name).
+    """How :func:`render_basis` renders a basis, in five groups (a field not set keeps its
+    group's default); :meth:`updated` sets fields by their names, the keywords of
+    :func:`render_basis`.
 
+    Parameters
+    ----------
     selection : Selection
         Which materials.
     sampling : Sampling
