@@ -24,7 +24,7 @@ import re
 import sys
 import time
 from dataclasses import dataclass, replace
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND
 from ...manifold.paths import KINDS as PATH_KINDS
@@ -39,6 +39,9 @@ from .common import (
     reference_view,
     resolve_names,
 )
+
+if TYPE_CHECKING:  # imported by parse() when it runs (the command line is checked first)
+    from ...basis.blend import BlendSettings
 
 NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
 
@@ -237,7 +240,7 @@ class BlendRequest:
     database: Optional[str]
     x: Optional[list]
     x_groups: int
-    settings: "BlendSettings"  # noqa: F821 -- mitsuba_manifold.basis.blend's, imported by parse()
+    settings: "BlendSettings"
     path: Optional[PathRequest]
     reference: ReferenceRequest
     refine: RefineChoice

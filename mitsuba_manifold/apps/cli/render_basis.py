@@ -209,9 +209,15 @@ def main(argv=None):
     check_job_folders(jobs, args.out, args.force)  # every folder, before the first render
     executor = make_executor(args.executor, args.address)
     options = BasisOptions(
-        selection=Selection(materials, args.near, args.radius),
+        selection=Selection(materials=materials, near=args.near, radius=args.radius),
         sampling=Sampling(spp=args.spp, seed=args.seed, mode=args.mode),
-        scene=SceneSetup(args.res, args.max_depth, args.variant, args.x, args.database),
+        scene=SceneSetup(
+            resolution=args.res,
+            max_depth=args.max_depth,
+            variant=args.variant,
+            x=args.x,
+            database=args.database,
+        ),
         gi=FullGI(components="auto" if args.components == "full" else "l1"),
         run=RunBehaviour(force=args.force, progress=True, aovs=args.aovs),
     )
