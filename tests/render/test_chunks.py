@@ -44,6 +44,13 @@ def test_plan_splits_samples_and_seeds():
         chunks.plan(SPHERE, SPHERE, 2, 0)
 
 
+def test_a_misspelt_option_is_refused_before_the_folder_is_made(tmp_path, small_manifold):
+    out = tmp_path / "basis"
+    with pytest.raises(TypeError, match="resolutoin"):
+        chunks.render_chunked(SPHERE, small_manifold, out, chunks=2, spp=4, resolutoin=RES)
+    assert not out.exists()
+
+
 def test_merged_chunks_equal_single_process_basis(tmp_path, small_manifold):
     """k chunks at S/k spp with seeds seed*k+j are the passes of one render at S spp."""
     single = tmp_path / "single"
