@@ -121,7 +121,7 @@ def main(argv=None):
         default="full",
         help="full (default, one-pass mode): also every material's full-GI image and the cross terms "
         "of the pairs blended together, left out where the scene does not need them (a convex "
-        "object alone); l1: the L1- images only (about 3x faster to render)",
+        "object alone); l1: the L1- images only (faster to render: docs/benchmarks.md)",
     )
     p.add_argument("--res", type=int, default=None, help="square resolution (scenes taking $res)")
     p.add_argument("--seed", type=int, default=0)
