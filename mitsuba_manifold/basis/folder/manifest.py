@@ -59,7 +59,7 @@ import json
 import os
 import re
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Optional, Union
 
 import numpy as np
 
@@ -454,7 +454,7 @@ class Manifest:
     left_out: Optional[dict] = None
     gi_stats: Optional[dict] = None
     integrator: Optional[dict] = None
-    scene_resolution: object = NOT_RECORDED
+    scene_resolution: Union[list, None, NotRecorded] = NOT_RECORDED
     chunk_complete: Optional[bool] = None
     chunk_run: Optional[dict] = None
     chunk_key: Optional[str] = None
