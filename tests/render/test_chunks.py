@@ -1,4 +1,4 @@
-"""Chunked basis rendering: planning, merging, resuming, and the Ray executor (issue 13)."""
+"""Chunked basis rendering: planning, merging, resuming, and the Ray executor."""
 
 import os
 import signal
@@ -307,7 +307,7 @@ def test_ray_missing_is_a_clear_error(monkeypatch):
 
 
 def test_merged_chunks_of_a_full_gi_basis_equal_the_single_process_one(tmp_path, small_manifold):
-    """The table's full-GI images and cross terms merge as the L1- images do (issue 21)."""
+    """The table's full-GI images and cross terms merge as the L1- images do."""
     opts = dict(OPTIONS, materials="all", components="auto")
     single = tmp_path / "single"
     render_basis.render_basis(
