@@ -97,7 +97,9 @@ def parser():
     p.add_argument(
         "--spp", type=int, default=256, help="samples per pixel of --render-reference (default 256)"
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of --render-reference (default 0)")
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of --render-reference and --refine (default 0)"
+    )
     p.add_argument(
         "--path",
         nargs=2,
@@ -206,10 +208,13 @@ class ReferenceRequest:
 
 @dataclass(frozen=True)
 class RefineChoice:
-    """``--refine SPP``: ``spp`` samples per pixel in ``passes`` passes (None: no refinement)."""
+    """``--refine SPP``: ``spp`` samples per pixel in ``passes`` passes (None: no refinement),
+    seeded with ``--seed``.
+    """
 
     spp: Optional[int] = None
     passes: int = 4
+    seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -307,7 +312,7 @@ def parse(argv=None):
         ),
         path=path,
         reference=ReferenceRequest(args.reference, args.render_reference, args.spp, args.seed),
-        refine=RefineChoice(args.refine, passes),
+        refine=RefineChoice(args.refine, passes, args.seed),
         output=Output(args.out, args.png, args.exposure, args.force),
     )
     for kind, file in planned(request):  # names and kinds of targets (their owners: before writing)
@@ -477,7 +482,7 @@ def _refined(request, basis, manifold):
     refine = RefineRequest(
         spp=request.refine.spp,
         passes=request.refine.passes,
-        seed=request.reference.seed,
+        seed=request.refine.seed,
         database=request.database,
         prune=request.settings.prune,
         l2=request.settings.l2,
