@@ -314,6 +314,10 @@ _GROUP_OF = {f.name: g for g, cls in _GROUPS.items() for f in fields(cls)}
 def render_basis(scene_path, manifold_path, out, options=None, **settings):
     """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
 
+    Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
+    passes of :data:`interrupt.SAMPLES_PER_PASS` paths) and raises ``KeyboardInterrupt``;
+    every image listed in the manifest is then complete.
+
     Parameters
     ----------
     scene_path, manifold_path : str
@@ -321,18 +325,24 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
         Folder (created; resumed when it holds a basis with the same settings). It is
         locked (:class:`FolderLock`) while the images are written.
     options : BasisOptions, optional
-        How to render; or the fields of its groups as keywords (``render_basis(scene, manifold,
+        How to render (default: :class:`BasisOptions`'s defaults).
+    **settings
+        Fields of the groups of :class:`BasisOptions` by name (``render_basis(scene, manifold,
         out, spp=64, mode="onepass")``), which override those of ``options``
         (:meth:`BasisOptions.updated`).
-
-    Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
-    passes of :data:`interrupt.SAMPLES_PER_PASS` paths) and raises ``KeyboardInterrupt``;
-    every image listed in the manifest is then complete.
 
     Returns
     -------
     Manifest
         The manifest written.
+
+    Raises
+    ------
+    TypeError
+        A keyword that is no field of :class:`BasisOptions`.
+    MitsubaManifoldError
+        An option (:class:`InputError`), the scene, the manifold or the folder at fault, raised
+        before anything is rendered.
     """
     o = (options or BasisOptions()).updated(**settings)
     scene_path, manifold, chosen, x = _check_request(scene_path, manifold_path, out, o)
