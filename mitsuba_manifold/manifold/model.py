@@ -162,15 +162,11 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
     )
 
 
-def _float64(a):
-    return None if a is None else np.asarray(a, dtype=np.float64)
-
-
 def _stored(name, doc):
     """A property of the manifold's :class:`TrainingTables` attribute ``name``, set as float64."""
 
     def set_(self, value):
-        setattr(self._store, name, _float64(value))
+        self._store.set_matrix(name, value)
         self._pruned.clear()  # pruning answers made with the old matrices
 
     return property(lambda self: getattr(self._store, name), set_, doc=doc)

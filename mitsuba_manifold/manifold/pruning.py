@@ -14,8 +14,8 @@ the combination stays affine), and bounds what the change does. Two rules:
     :func:`data.database.albedo_weights`): by Cauchy-Schwarz it bounds the change of the
     light reflected towards any viewer, averaged over viewers, for incident light of bounded
     energy; exact through ``C = T diag(q) T^T`` (``|delta^T T|_q^2 = delta^T C delta``);
-    and (c) the raw L2 change within ``RAW_SHARE * budget`` (the previous rule's bound, for
-    the narrowest peaks). (a) does most of the work: any L2 norm, cosine-weighted too, is
+    and (c) the raw L2 change within ``RAW_SHARE * budget`` (the ``"raw-l2"`` rule's bound,
+    for the narrowest peaks). (a) does most of the work: any L2 norm, cosine-weighted too, is
     dominated by the spikiest tables' peaks, so (b) alone lets a dull material of small
     weight go and the albedo change by far more; (a) alone meets the image target at the
     benchmark's points; (b) and (c) bound what an albedo cannot see (where in angle the
@@ -51,9 +51,9 @@ DEFAULT_RULE = "image"
 #: The "image" rule's bound on each albedo channel's relative change, as a share of the budget.
 ALBEDO_SHARE = 0.5
 #: The "image" rule's bound on the raw table's relative L2 change, as a share of the budget
-#: (``inf``: none): the previous rule's bound, kept so that the narrow specular peaks (bins at
+#: (``inf``: none): the ``"raw-l2"`` rule's bound, so that the narrow specular peaks (bins at
 #: ``theta_h ~ 0``, of tiny solid angle, which a point light seen in a mirror-like highlight
-#: evaluates directly) stay bounded too, at no cost in the benchmark's median of materials kept.
+#: evaluates directly) stay bounded too (its cost in materials kept: ``docs/benchmarks.md``).
 RAW_SHARE = 1.0
 #: Albedos below this count as this in the relative albedo change (a black channel).
 ALBEDO_FLOOR = 1e-4

@@ -77,12 +77,13 @@ class TrainingTables:
     def __init__(self, names, hashes, gram=None, cos_gram=None, albedos=None, added=None):
         self.names, self.hashes = names, hashes
         self.added = dict(added or {})
-        self.gram, self.cos_gram, self.albedos = (
-            _float64(gram),
-            _float64(cos_gram),
-            _float64(albedos),
-        )
+        for name, value in (("gram", gram), ("cos_gram", cos_gram), ("albedos", albedos)):
+            self.set_matrix(name, value)
         self.loaded = None
+
+    def set_matrix(self, name, value):
+        """Set ``gram``, ``cos_gram`` or ``albedos`` (as float64; None: computed on first use)."""
+        setattr(self, name, _float64(value))
 
     def open(self, folder, names=None):
         """The :class:`Database` in ``folder``, its tables of ``names`` (default all) checked

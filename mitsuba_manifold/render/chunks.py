@@ -334,15 +334,21 @@ def render_chunked(
         Also write the denoising guides of the merged basis (rendered here, once).
     options
         :func:`mitsuba_manifold.render.render_basis.render_basis` keyword arguments (fields of
-        the groups of its ``BasisOptions``); ``spp`` and ``seed`` are those of the merged basis, split over
-        the chunks (chunk seeds: :func:`chunk_seed`).
+        the groups of its ``BasisOptions``); ``spp`` and ``seed`` are those of the merged basis,
+        split over the chunks (chunk seeds: :func:`chunk_seed`).
 
     Returns
     -------
     ChunkedRun
-    """
-    from .render_basis import Sampling
 
+    Raises
+    ------
+    TypeError
+        A keyword that is not a field of ``BasisOptions``, before anything is written.
+    """
+    from .render_basis import BasisOptions, Sampling
+
+    BasisOptions().updated(**options)  # a misspelt option: refused before the folder is made
     spp, seed = options.pop("spp", Sampling.spp), options.pop("seed", Sampling.seed)
     specs = plan(scene, manifold, spp, chunks, seed, **options)
     check_foreign_folder(

@@ -119,6 +119,8 @@ def select_materials(manifold, materials="all", near=None, radius=None):
 class Selection:
     """Which materials are rendered (:func:`select_materials`).
 
+    Parameters
+    ----------
     materials : "all" or list of str
     near, radius
         With both: the materials within ``radius`` of the latent point ``near`` (and those
@@ -134,6 +136,8 @@ class Selection:
 class Sampling:
     """How the images are sampled.
 
+    Parameters
+    ----------
     spp : int
         Samples per pixel of every image.
     seed : int
@@ -155,6 +159,8 @@ class Sampling:
 class SceneSetup:
     """How the scene is loaded (:func:`scenes.load_scene`).
 
+    Parameters
+    ----------
     resolution : int or (int, int), optional
         Image size, for scenes that take ``$res`` or ``$width``/``$height``.
     max_depth : int, optional
@@ -187,6 +193,8 @@ class SceneSetup:
 class FullGI:
     """The full-GI part of a one-pass basis.
 
+    Parameters
+    ----------
     components : {"auto", "l1"}
         ``"auto"`` (one-pass mode): also the full-GI images (``touch + L2+`` of every material,
         :func:`~.integrators.onepass.render_onepass_gi`) and the cross terms of the pairs blended
@@ -226,6 +234,8 @@ class FullGI:
 class RunBehaviour:
     """How the run behaves towards its folder and its user.
 
+    Parameters
+    ----------
     force : bool
         Render into an existing ``out`` that holds files but no basis manifest
         (:func:`check_foreign_folder`), and overwrite files in ``out`` that this basis did not make.
@@ -242,9 +252,12 @@ class RunBehaviour:
 
 @dataclass(frozen=True)
 class BasisOptions:
-    """How :func:`render_basis` renders a basis, in five groups (each field has the default of
-    the keyword of :func:`render_basis` of the same name).
+    """How :func:`render_basis` renders a basis, in five groups (a field not set keeps its
+    group's default); :meth:`updated` sets fields by their names, the keywords of
+    :func:`render_basis`.
 
+    Parameters
+    ----------
     selection : Selection
         Which materials.
     sampling : Sampling
@@ -301,6 +314,10 @@ _GROUP_OF = {f.name: g for g, cls in _GROUPS.items() for f in fields(cls)}
 def render_basis(scene_path, manifold_path, out, options=None, **settings):
     """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
 
+    Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
+    passes of :data:`interrupt.SAMPLES_PER_PASS` paths) and raises ``KeyboardInterrupt``;
+    every image listed in the manifest is then complete.
+
     Parameters
     ----------
     scene_path, manifold_path : str
@@ -308,18 +325,24 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
         Folder (created; resumed when it holds a basis with the same settings). It is
         locked (:class:`FolderLock`) while the images are written.
     options : BasisOptions, optional
-        How to render; or the fields of its groups as keywords (``render_basis(scene, manifold,
+        How to render (default: :class:`BasisOptions`'s defaults).
+    **settings
+        Fields of the groups of :class:`BasisOptions` by name (``render_basis(scene, manifold,
         out, spp=64, mode="onepass")``), which override those of ``options``
         (:meth:`BasisOptions.updated`).
-
-    Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
-    passes of :data:`interrupt.SAMPLES_PER_PASS` paths) and raises ``KeyboardInterrupt``;
-    every image listed in the manifest is then complete.
 
     Returns
     -------
     Manifest
         The manifest written.
+
+    Raises
+    ------
+    TypeError
+        A keyword that is no field of :class:`BasisOptions`.
+    MitsubaManifoldError
+        An option (:class:`InputError`), the scene, the manifold or the folder at fault, raised
+        before anything is rendered.
     """
     o = (options or BasisOptions()).updated(**settings)
     scene_path, manifold, chosen, x = _check_request(scene_path, manifold_path, out, o)

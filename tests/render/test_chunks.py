@@ -1,4 +1,4 @@
-"""Chunked basis rendering: planning, merging, resuming, and the Ray executor (issue 13)."""
+"""Chunked basis rendering: planning, merging, resuming, and the Ray executor."""
 
 import os
 import signal
@@ -42,6 +42,13 @@ def test_plan_splits_samples_and_seeds():
         chunks.plan(SPHERE, SPHERE, 2, 3)
     with pytest.raises(errors.MismatchError, match="`chunks` must be >= 1"):
         chunks.plan(SPHERE, SPHERE, 2, 0)
+
+
+def test_a_misspelt_option_is_refused_before_the_folder_is_made(tmp_path, small_manifold):
+    out = tmp_path / "basis"
+    with pytest.raises(TypeError, match="resolutoin"):
+        chunks.render_chunked(SPHERE, small_manifold, out, chunks=2, spp=4, resolutoin=RES)
+    assert not out.exists()
 
 
 def test_merged_chunks_equal_single_process_basis(tmp_path, small_manifold):
@@ -300,7 +307,7 @@ def test_ray_missing_is_a_clear_error(monkeypatch):
 
 
 def test_merged_chunks_of_a_full_gi_basis_equal_the_single_process_one(tmp_path, small_manifold):
-    """The table's full-GI images and cross terms merge as the L1- images do (issue 21)."""
+    """The table's full-GI images and cross terms merge as the L1- images do."""
     opts = dict(OPTIONS, materials="all", components="auto")
     single = tmp_path / "single"
     render_basis.render_basis(

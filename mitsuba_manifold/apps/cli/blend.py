@@ -24,7 +24,7 @@ import re
 import sys
 import time
 from dataclasses import dataclass, replace
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND
 from ...manifold.paths import KINDS as PATH_KINDS
@@ -39,6 +39,9 @@ from .common import (
     reference_view,
     resolve_names,
 )
+
+if TYPE_CHECKING:  # imported by parse() when it runs (the command line is checked first)
+    from ...basis.blend import BlendSettings
 
 NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
 
@@ -94,7 +97,9 @@ def parser():
     p.add_argument(
         "--spp", type=int, default=256, help="samples per pixel of --render-reference (default 256)"
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of --render-reference (default 0)")
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of --render-reference and --refine (default 0)"
+    )
     p.add_argument(
         "--path",
         nargs=2,
@@ -203,10 +208,13 @@ class ReferenceRequest:
 
 @dataclass(frozen=True)
 class RefineChoice:
-    """``--refine SPP``: ``spp`` samples per pixel in ``passes`` passes (None: no refinement)."""
+    """``--refine SPP``: ``spp`` samples per pixel in ``passes`` passes (None: no refinement),
+    seeded with ``--seed``.
+    """
 
     spp: Optional[int] = None
     passes: int = 4
+    seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -237,7 +245,7 @@ class BlendRequest:
     database: Optional[str]
     x: Optional[list]
     x_groups: int
-    settings: "BlendSettings"  # noqa: F821 -- mitsuba_manifold.basis.blend's, imported by parse()
+    settings: "BlendSettings"
     path: Optional[PathRequest]
     reference: ReferenceRequest
     refine: RefineChoice
@@ -304,7 +312,7 @@ def parse(argv=None):
         ),
         path=path,
         reference=ReferenceRequest(args.reference, args.render_reference, args.spp, args.seed),
-        refine=RefineChoice(args.refine, passes),
+        refine=RefineChoice(args.refine, passes, args.seed),
         output=Output(args.out, args.png, args.exposure, args.force),
     )
     for kind, file in planned(request):  # names and kinds of targets (their owners: before writing)
@@ -474,7 +482,7 @@ def _refined(request, basis, manifold):
     refine = RefineRequest(
         spp=request.refine.spp,
         passes=request.refine.passes,
-        seed=request.reference.seed,
+        seed=request.refine.seed,
         database=request.database,
         prune=request.settings.prune,
         l2=request.settings.l2,

@@ -16,8 +16,9 @@ import time
 
 from .common import ArgumentParser, fail, guarded, parse_floats, parse_indices, parse_list
 
-#: The options a chunked run passes to its chunks (their keys hash them, :func:`chunk_key`).
-CHUNKED = (
+#: The options a chunked run passes to its chunks (their keys hash them,
+#: :func:`~mitsuba_manifold.render.chunks.chunk_key`: a chunk made before keeps its key).
+CHUNK_OPTIONS = (
     "spp",
     "seed",
     "sensor",
@@ -121,7 +122,7 @@ def main(argv=None):
         default="full",
         help="full (default, one-pass mode): also every material's full-GI image and the cross terms "
         "of the pairs blended together, left out where the scene does not need them (a convex "
-        "object alone); l1: the L1- images only (about 3x faster to render)",
+        "object alone); l1: the L1- images only (faster to render: docs/benchmarks.md)",
     )
     p.add_argument("--res", type=int, default=None, help="square resolution (scenes taking $res)")
     p.add_argument("--seed", type=int, default=0)
@@ -209,20 +210,26 @@ def main(argv=None):
     check_job_folders(jobs, args.out, args.force)  # every folder, before the first render
     executor = make_executor(args.executor, args.address)
     options = BasisOptions(
-        selection=Selection(materials, args.near, args.radius),
+        selection=Selection(materials=materials, near=args.near, radius=args.radius),
         sampling=Sampling(spp=args.spp, seed=args.seed, mode=args.mode),
-        scene=SceneSetup(args.res, args.max_depth, args.variant, args.x, args.database),
+        scene=SceneSetup(
+            resolution=args.res,
+            max_depth=args.max_depth,
+            variant=args.variant,
+            x=args.x,
+            database=args.database,
+        ),
         gi=FullGI(components="auto" if args.components == "full" else "l1"),
         run=RunBehaviour(force=args.force, progress=True, aovs=args.aovs),
     )
     try:
         for scene, sensor, out in jobs:
             t1 = time.perf_counter()
-            view = options.updated(sensor=sensor)
+            view_options = options.updated(sensor=sensor)
             if args.chunks == 1 and args.executor == "local":
-                m = render_basis(scene, args.manifold, out, view)
+                manifest = render_basis(scene, args.manifold, out, view_options)
             else:
-                m = render_chunked(
+                manifest = render_chunked(
                     scene,
                     args.manifold,
                     out,
@@ -230,13 +237,16 @@ def main(argv=None):
                     executor=executor,
                     keep_chunks=args.keep_chunks,
                     progress=True,
-                    **view.keywords(*CHUNKED),
+                    **view_options.keywords(*CHUNK_OPTIONS),
                 ).manifest
-            gi, cross = len(m.gi_images or {}), (m.cross or {}).get("pairs", 0)
+            gi = len(manifest.gi_images or {})
+            cross = (manifest.cross or {}).get("pairs", 0)
             extra = f" (and {gi} full-GI images, {cross} cross terms)" if gi else ""
+            width, height = manifest.resolution
             print(
-                f"{len(m.images)} images{extra} in {out} ({m.resolution[0]}x{m.resolution[1]}, {m.spp} spp, "
-                f"{m.mode}, {m.variant}), {time.perf_counter() - t1:.1f} s",
+                f"{len(manifest.images)} images{extra} in {out} ({width}x{height}, "
+                f"{manifest.spp} spp, {manifest.mode}, {manifest.variant}), "
+                f"{time.perf_counter() - t1:.1f} s",
                 flush=True,
             )
     finally:

@@ -27,7 +27,14 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
         (``touch + L2+``: ``base + gi_images[i]`` is material i's full-GI image),
      "cross": {"file": "cross.npz", "pairs": int, "tol": float} (the cross terms ``C_ij``,
         float16, of the pairs of :mod:`mitsuba_manifold.basis.crossterms`),
-     "left_out": {"l2+" | "cross": "why"}, "gi_stats": {...} (measurements of the render)}
+     "left_out": {"l2+" | "cross": "why"}, "gi_stats": {...} (measurements of the render),
+     optional, what loading the scene again needs:
+     "integrator": {...} (the scene's integrator settings rendered with), "scene_resolution":
+        [width, height] or null (the resolution the scene was loaded with; null: its own film
+        size; absent: the image size),
+     optional, chunked renders (:mod:`mitsuba_manifold.render.chunks`):
+     "chunk_complete": true, "chunk_run": {"seconds", "host", "pid"} (a chunk folder),
+     "chunk_key": hex (what a chunk's images, or a merged basis's run, depend on)}
 
 With one target the keys are ``base`` and material names; with ``p`` targets they are
 ``"<matA>+<matB>..."`` (one name per target, in target order). From version 2 on, each
@@ -52,7 +59,7 @@ import json
 import os
 import re
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Optional, Union
 
 import numpy as np
 
@@ -447,7 +454,7 @@ class Manifest:
     left_out: Optional[dict] = None
     gi_stats: Optional[dict] = None
     integrator: Optional[dict] = None
-    scene_resolution: object = NOT_RECORDED
+    scene_resolution: Union[list, None, NotRecorded] = NOT_RECORDED
     chunk_complete: Optional[bool] = None
     chunk_run: Optional[dict] = None
     chunk_key: Optional[str] = None
@@ -458,8 +465,8 @@ class Manifest:
     def new(cls, scene, manifold, settings, *, targets, images=None, components=("l1",)):
         """A new, checked manifest of a basis of ``scene`` rendered with ``manifold``.
 
-        Computes the absolute paths and the hashes (:func:`scene_hash`, :func:`file_hash`)
-        itself, so every writer and reader agree on them.
+        Computes the absolute paths and the identities (:func:`scene_hash`,
+        :func:`manifold_file_identity`) itself, so every writer and reader agree on them.
 
         Parameters
         ----------

@@ -33,12 +33,12 @@ def check_output_outside_basis(out, basis_folder=None):
 
 def basis_entries(folder):
     """``(own, foreign)``: the names in a basis folder that its render made (the manifest, the
-    images it lists or has pending, :data:`EXTRA`, its lock and temporary files) and the others.
+    files it lists (:meth:`Manifest.listed_files`: images, full-GI images, cross terms) or has
+    pending, :data:`EXTRA`, its lock and temporary files) and the others.
     """
     folder = os.fspath(folder)
     manifest = Manifest.read(folder)
-    own = {MANIFEST, LOCK_NAME, *EXTRA, *(manifest.pending or [])}
-    own |= {e["file"] for e in manifest.images.values()}
+    own = {MANIFEST, LOCK_NAME, *EXTRA, *(manifest.pending or [])} | manifest.listed_files()
     names = sorted(os.listdir(folder))
     return (
         [n for n in names if n in own or is_temporary(n)],
