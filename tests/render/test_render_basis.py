@@ -93,7 +93,7 @@ def test_the_centre_of_a_near_basis_can_be_blended(tmp_path, small_manifold):
         SPHERE, small_manifold, out, spp=2, near=centre, radius=0.5 * d[i, j], resolution=8
     )
     image, info = blend(out, x=centre)
-    assert image.shape == (8, 8, 3) and not info["renormalised"] and not info["missing"]
+    assert image.shape == (8, 8, 3) and not info.renormalised and not info.missing
 
 
 def test_the_library_takes_a_shipped_scenes_name_like_the_tools(tmp_path, small_manifold):
