@@ -287,7 +287,7 @@ def test_manifest_helpers(tmp_path, small_manifold):
     b = replace(
         a,
         settings=replace(a.settings, spp=16),
-        images={"base": {"file": "base.exr", "time_s": 1.0}},
+        images={"base": bf.ImageEntry(file="base.exr", time_s=1.0)},
     )
     assert a.differences(b) == ["spp"]
     with pytest.raises(MismatchError, match="mode"):
@@ -305,7 +305,7 @@ def test_manifest_helpers(tmp_path, small_manifold):
             targets=["material"],
         )
     with pytest.raises(MismatchError, match="must name 2 material"):
-        replace(a, targets=["a", "b"], images={"x": {"file": "x.exr", "time_s": 0}}).write(
+        replace(a, targets=["a", "b"], images={"x": bf.ImageEntry("x.exr", 0)}).write(
             str(tmp_path)
         )
     assert bf.Manifest.read(str(tmp_path)) == a  # the refused write left the old manifest

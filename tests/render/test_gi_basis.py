@@ -282,11 +282,11 @@ def test_changed_or_truncated_cross_terms_and_aovs_are_refused_naming_the_file(
         max_depth=8,
         aovs=True,
     )
-    assert "cross" in manifest.components and len(manifest.cross["sha256"]) == 64
+    assert "cross" in manifest.components and len(manifest.cross.sha256) == 64
     m = Manifold.load(small_manifold)
     x = m.latent[0]
     good, _ = blend(bf.Basis.load(out, manifold=m), m, x=x, l2="raw")
-    cross = os.path.join(out, manifest.cross["file"])
+    cross = os.path.join(out, manifest.cross.file)
     edited = tmp_path / "edited"
     shutil.copytree(out, edited)
     with np.load(cross) as z:
