@@ -305,9 +305,7 @@ def test_manifest_helpers(tmp_path, small_manifold):
             targets=["material"],
         )
     with pytest.raises(MismatchError, match="must name 2 material"):
-        replace(a, targets=["a", "b"], images={"x": bf.ImageEntry("x.exr", 0)}).write(
-            str(tmp_path)
-        )
+        replace(a, targets=["a", "b"], images={"x": bf.ImageEntry("x.exr", 0)}).write(str(tmp_path))
     assert bf.Manifest.read(str(tmp_path)) == a  # the refused write left the old manifest
     assert bf.image_key(["gold-paint", "chrome"]) == "gold-paint+chrome"
 
