@@ -159,7 +159,7 @@ def write_basis(folder, manifold_path, images, targets=("material",), scene_text
     for key, img in images.items():
         file = key.replace("+", "__") + ".exr"
         imageio.write_exr(os.path.join(folder, file), img)
-        entries[key] = {"file": file, "time_s": 0.01}
+        entries[key] = bf.ImageEntry(file=file, time_s=0.01)
     h, w = next(iter(images.values())).shape[:2]
     manifest = bf.Manifest.new(
         scene,

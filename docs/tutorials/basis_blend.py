@@ -47,8 +47,8 @@ def main():
     x = 0.5 * (m.latent[m.index("gold-metallic-paint")] + m.latent[m.index("white-paint")])
     image, info = blend(basis, x=x)  # the part beyond L1- is denoised by default (l2="raw": summed)
     print(
-        f"blend: {info['time_ms']:.1f} ms; weights:",
-        {k: round(v, 3) for k, v in info["weights"][0].items()},
+        f"blend: {info.time_ms:.1f} ms; weights:",
+        {k: round(v, 3) for k, v in info.weights[0].items()},
     )
 
     # 3. What it approximates: a full-GI render of that material with Mitsuba's path tracer.

@@ -270,12 +270,12 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
             **metrics.compare(img, ref),
             "relative_bias": bias,
             "relative_bias_se": bias_se,
-            "materials_used": int(info["n_images"]),
-            "component": info["component"],
+            "materials_used": int(info.n_images),
+            "component": info.component,
         },
         "direct": [],
     }
-    if info.get("l2") == "denoised":  # the same blend as summed (the explorer while dragging)
+    if info.l2 == "denoised":  # the same blend as summed (the explorer while dragging)
         raw, _ = blend(b, m, x=x, l2="raw")
         raw_bias, raw_se = relative_bias(raw, ref)
         row["blend_summed"] = {
@@ -284,7 +284,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
             "relative_bias": raw_bias,
             "relative_bias_se": raw_se,
         }
-    if info["component"] == "full":  # the L1- blend of the same basis beside it
+    if info.component == "full":  # the L1- blend of the same basis beside it
         l1, _ = blend(b, m, x=x, component="l1")
         l1_bias, l1_se = relative_bias(l1, ref)
         row["blend_l1"] = {
@@ -298,7 +298,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
         )  # warm: as the direct renders
     guides = den = None
     if aovs is not None:
-        guides = (aovs.albedo_of_blend(info["plan"], b.manifest.version), aovs.normal)
+        guides = (aovs.albedo_of_blend(info.plan, b.manifest.version), aovs.normal)
         den, t_den = _denoised(img, guides)
         row["blend"]["denoised"] = {
             "time_s": t_blend + t_den,

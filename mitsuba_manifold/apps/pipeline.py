@@ -216,12 +216,12 @@ def _database_and_manifold(job, log, stages):
     m = Manifold.fit(db, q=job.q, features=job.features, preset=job.preset, progress=True)
     m.save(manifold_path)
     stages.update(
-        load_s=m.info["time_load_s"], gram_s=m.info["time_gram_s"], fit_s=m.info["time_fit_s"]
+        load_s=m.record.timings.load_s, gram_s=m.record.timings.gram_s, fit_s=m.record.timings.fit_s
     )
     log(m.summary())
     log(
-        f"load {m.info['time_load_s']:.1f} s, Gram {m.info['time_gram_s']:.1f} s, "
-        f"optimisation {m.info['time_fit_s']:.1f} s; saved {manifold_path}"
+        f"load {m.record.timings.load_s:.1f} s, Gram {m.record.timings.gram_s:.1f} s, "
+        f"optimisation {m.record.timings.fit_s:.1f} s; saved {manifold_path}"
     )
     t0 = time.perf_counter()
     for path in plots.write_fit_plots(m, os.path.join(job.out, "plots")):

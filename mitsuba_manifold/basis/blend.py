@@ -23,10 +23,11 @@ is then ``base + sum_i w_i F_i + sum_{i<j} w_i w_j C_ij``, summed (``l2="raw"``)
 training material and for paths with two vertices on the material; by default its part beyond
 L1- is denoised, keeping its light (:func:`~.denoise.denoised_l2`). ``component="l1"`` is Eq. 13. A basis without
 full-GI images blends L1- (an older basis says so with a warning; one whose scene does not
-need them, e.g. a convex object alone, says why in ``info["component_note"]``). The images
+need them, e.g. a convex object alone, says why in :attr:`BlendInfo.component_note`). The images
 come from a basis folder (:mod:`mitsuba_manifold.basis.folder`); no Mitsuba is loaded here.
 """
 
+import dataclasses
 import itertools
 import time
 import warnings
@@ -156,14 +157,102 @@ class BlendPlan:
         return self.keys if self.image_keys is None else self.image_keys
 
 
+@dataclass(frozen=True)
+class BlendInfo:
+    """What one blend made and how: the second value :func:`blend` returns.
+
+    Attributes
+    ----------
+    component : {"full", "l1"}
+        The blend made: full GI or L1- (Eq. 13).
+    component_note : str
+        Why :attr:`component` is not the one asked for ("" when it is).
+    l2 : {"denoised", "raw"} or None
+        The full-GI blend's part beyond L1-: denoised or summed; None for an L1- blend.
+    weights : tuple of dict
+        Per target, kept material name -> its weight after pruning.
+    dropped_weight : tuple of float
+        Per target, the weight pruning dropped.
+    missing : dict
+        Image key -> weight of the images the blend needed and the basis lacks (empty unless
+        ``renormalise``).
+    renormalised : bool
+        Whether the weights were rescaled over the images present.
+    cross_left_weight : float or None
+        Largest ``|w_i w_j|`` of a pair whose cross term the basis does not hold; None without
+        cross terms.
+    plan : BlendPlan
+        The images, weights and cross terms summed.
+    x : ndarray or None
+        The latent point ((q,) for one target, (p, q) for several); None for a blend of weights.
+    time_ms : float or None
+        Milliseconds of weights, pruning, summing the images in memory and denoising; None for
+        one image of :func:`blend_path` (:attr:`BlendPathInfo.time_ms` times them all).
+    time_read_s : float or None
+        Seconds reading the images from disk; None as :attr:`time_ms`.
+    denoise_ms : float or None
+        Milliseconds denoising the whole image (:func:`denoised_blend` only).
+    guided : bool or None
+        Whether that denoising used the basis's AOVs (:func:`denoised_blend` only).
+    """
+
+    component: str
+    component_note: str
+    l2: Optional[str]
+    weights: tuple
+    dropped_weight: tuple
+    missing: dict
+    renormalised: bool
+    cross_left_weight: Optional[float]
+    plan: BlendPlan
+    x: Optional[np.ndarray] = None
+    time_ms: Optional[float] = None
+    time_read_s: Optional[float] = None
+    denoise_ms: Optional[float] = None
+    guided: Optional[bool] = None
+
+    @property
+    def n_images(self):
+        """Number of images summed (:attr:`BlendPlan.summed`)."""
+        return len(self.plan.summed)
+
+
+@dataclass(frozen=True)
+class BlendPathInfo:
+    """What :func:`blend_path` made: the third value it returns.
+
+    Attributes
+    ----------
+    steps : tuple of BlendInfo
+        Each image's blend (their ``time_ms`` and ``time_read_s`` None).
+    component, component_note, l2
+        As :class:`BlendInfo`, the same for every image.
+    time_ms : float
+        Milliseconds of weights, pruning and summing all images in memory (denoising apart).
+    time_read_s : float
+        Seconds reading the images from disk.
+    denoise_ms : float
+        Milliseconds denoising the images' part beyond L1- (0 when not denoised).
+    """
+
+    steps: tuple
+    component: str
+    component_note: str
+    l2: Optional[str]
+    time_ms: float
+    time_read_s: float
+    denoise_ms: float
+
+
 def _plan(basis, manifold, W, prune, renormalise, component="l1"):
     """The :class:`BlendPlan` of one blend and its report.
 
-    Returns ``(plan, info)``: the images, weights and cross terms to sum, and ``info`` (kept
-    weights, dropped weight, missing images, renormalised, ``cross_left_weight``).
+    Returns ``(plan, report)``: the images, weights and cross terms to sum, and the
+    :class:`BlendInfo` fields they fix (``weights``, ``dropped_weight``, ``missing``,
+    ``renormalised``, ``cross_left_weight``) as keywords.
     """
     p, names = basis.p, manifold.names
-    kept, info = [], {"weights": [], "dropped_weight": []}
+    kept, info = [], {"weights": [], "dropped_weight": [], "cross_left_weight": None}
     for t in range(p):
         if p > 1 and abs(W[t].sum() - 1.0) > AFFINE_TOL:
             raise MismatchError(
@@ -222,6 +311,7 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
         cross = (rows, prods)
         info["cross_left_weight"] = left if "cross" in basis.components else None
     summed = keys if cross is None else [basis.gi_key(k) for k in keys]
+    info["weights"], info["dropped_weight"] = tuple(info["weights"]), tuple(info["dropped_weight"])
     return BlendPlan(keys, cw, cross, summed), info
 
 
@@ -264,13 +354,8 @@ def blend(
     Returns
     -------
     image : ndarray float32 (H, W, 3)
-    info : dict
-        ``component`` (the one blended) and ``component_note`` (why it is not the one
-        asked for, or ""), ``cross_left_weight`` (largest ``|w_i w_j|`` of a pair whose cross
-        term the basis does not hold; None without cross terms),
-        ``weights`` (per target, kept material -> weight), ``dropped_weight`` (per target),
-        ``plan`` (the :class:`BlendPlan` summed), ``missing``, ``renormalised``, ``x``, ``time_ms``
-        (weights, pruning, summing the images in memory, denoising), ``time_read_s`` (from disk).
+    info : BlendInfo
+        The blend made (component, weights kept, images missing, timings).
     """
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
@@ -280,7 +365,7 @@ def blend(
     t_cross = read_cross(basis, used)
     t0 = time.perf_counter()
     W, pts = _target_weights(basis, manifold, x, w)
-    plan, info = _plan(basis, manifold, W, prune, renormalise, used)
+    plan, report = _plan(basis, manifold, W, prune, renormalise, used)
     t_plan = time.perf_counter() - t0
     image, t_read, t_sum = compose(basis, plan.summed, plan.image_weights, plan.cross)
     t_read += t_cross
@@ -289,15 +374,15 @@ def blend(
         t0 = time.perf_counter()
         image = denoised_l2(basis, image, plan)
         t_den = time.perf_counter() - t0
-    info.update(
+    info = BlendInfo(
         component=used,
         component_note=note,
+        l2=l2 if used == "full" else None,
+        plan=plan,
         x=None if pts is None else (pts[0] if basis.p == 1 else pts),
         time_ms=1e3 * (t_plan + t_sum + t_den),
         time_read_s=t_read,
-        n_images=len(plan.summed),
-        plan=plan,
-        l2=l2 if used == "full" else None,
+        **report,
     )
     return image, info
 
@@ -317,8 +402,8 @@ def denoised_blend(basis, manifold=None, *, x=None, w=None, aovs=None, guides=Tr
     Returns
     -------
     raw, denoised : ndarray float32 (H, W, 3)
-    info : dict
-        The blend's info plus ``denoise_ms`` and ``guided`` (AOVs used).
+    info : BlendInfo
+        The blend's, with :attr:`~BlendInfo.denoise_ms` and :attr:`~BlendInfo.guided` set.
     """
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
@@ -328,11 +413,13 @@ def denoised_blend(basis, manifold=None, *, x=None, w=None, aovs=None, guides=Tr
     t0 = time.perf_counter()
     if guides:
         aovs = aovs or BasisAOVs.load(basis.folder, basis.manifest)
-        albedo = aovs.albedo_of_blend(info["plan"], basis.manifest.version)
+        albedo = aovs.albedo_of_blend(info.plan, basis.manifest.version)
         out = denoise(raw, albedo, aovs.normal)
     else:
         out = denoise(raw)
-    info.update(denoise_ms=1e3 * (time.perf_counter() - t0), guided=bool(guides))
+    info = dataclasses.replace(
+        info, denoise_ms=1e3 * (time.perf_counter() - t0), guided=bool(guides)
+    )
     return raw, out, info
 
 
@@ -418,9 +505,8 @@ def blend_path(
     images : ndarray float32 (steps, H, W, 3)
     xs : ndarray (steps, q)
         The latent points of the moving target.
-    info : dict
-        ``steps`` (the per-image info of :func:`blend`), ``time_ms`` (all images, as
-        :func:`blend`), ``time_read_s``.
+    info : BlendPathInfo
+        Each image's :class:`BlendInfo` and the timings of them all.
     """
     moving = MovingTarget() if moving is None else moving
     settings = BlendSettings() if settings is None else settings
@@ -483,21 +569,20 @@ def blend_path(
     ):  # as blend(): each step's L2+ part denoised
         for s_, ((plan, _), img) in enumerate(zip(plans, images)):
             images[s_] = denoised_l2(basis, img, plan)
-    for (plan, inf), xi in zip(plans, xs):
-        inf.update(x=xi, plan=plan)
-    return (
-        images,
-        xs,
-        {
-            "steps": [inf for _, inf in plans],
-            "time_ms": 1e3 * (t_plan + t_sum),
-            "time_read_s": t_read,
-            "denoise_ms": 1e3 * (time.perf_counter() - t0),
-            "component": used,
-            "component_note": note,
-            "l2": l2 if used == "full" else None,
-        },
+    l2_used = l2 if used == "full" else None
+    info = BlendPathInfo(
+        steps=tuple(
+            BlendInfo(component=used, component_note=note, l2=l2_used, plan=plan, x=xi, **report)
+            for (plan, report), xi in zip(plans, xs)
+        ),
+        component=used,
+        component_note=note,
+        l2=l2_used,
+        time_ms=1e3 * (t_plan + t_sum),
+        time_read_s=t_read,
+        denoise_ms=1e3 * (time.perf_counter() - t0),
     )
+    return images, xs, info
 
 
 def _segment_points(manifold, a, b, steps, kind):

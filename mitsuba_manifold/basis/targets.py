@@ -192,7 +192,7 @@ def _check_size(what, path, size, resolution):
 
 def _exr_size(path, resolution, what):
     info = imageio.read_exr_header(path)
-    _check_size(what, path, (info["width"], info["height"]), resolution)
+    _check_size(what, path, (info.width, info.height), resolution)
 
 
 def _read_coded(path, what, resolution=None):

@@ -9,6 +9,7 @@ non-finite values).
 import functools
 import json
 import os
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -83,45 +84,62 @@ def _size(header, path):
         raise FormatError(f"{path}: OpenEXR header has no valid data window") from None
 
 
+@dataclass(frozen=True)
+class ExrHeader:
+    """What an EXR file's header says (:func:`read_exr_header`).
+
+    Attributes
+    ----------
+    width, height : int
+        The image size (of the data window).
+    channels : list of str
+        The channel names, sorted.
+    attributes : dict
+        The other header entries (JSON metadata written by :func:`write_exr` stays a string).
+    """
+
+    width: int
+    height: int
+    channels: list
+    attributes: dict
+
+
 def read_exr_header(path):
     """Header of an EXR file without reading its pixels.
 
     Returns
     -------
-    dict
-        ``width``, ``height``, ``channels`` (sorted names) and ``attributes`` (the other
-        header entries; JSON metadata written by :func:`write_exr` stays a string).
+    ExrHeader
     """
     path = os.fspath(path)
     header, _ = _open(path, header_only=True)
     width, height = _size(header, path)
     names = sorted(c.name for c in header.get("channels", []))
     skip = {"channels", "dataWindow", "displayWindow"}
-    return {
-        "width": width,
-        "height": height,
-        "channels": names,
-        "attributes": {k: v for k, v in header.items() if k not in skip},
-    }
+    return ExrHeader(
+        width=width,
+        height=height,
+        channels=names,
+        attributes={k: v for k, v in header.items() if k not in skip},
+    )
 
 
 def check_exr_header(path, resolution=None):
     """Check that ``path`` is an RGB EXR (of ``resolution`` = (width, height) if given).
 
     Reads the header only: a file truncated after its header passes here and fails in
-    :func:`read_exr`.
+    :func:`read_exr`. Returns its :class:`ExrHeader`.
     """
     info = read_exr_header(path)
-    missing = [c for c in "RGB" if c not in info["channels"]]
+    missing = [c for c in "RGB" if c not in info.channels]
     if missing:
         raise FormatError(
-            f"{path}: EXR has channels {info['channels']}, missing {''.join(missing)} "
+            f"{path}: EXR has channels {info.channels}, missing {''.join(missing)} "
             "(an RGB image is needed)"
         )
-    if resolution is not None and (info["width"], info["height"]) != tuple(resolution):
+    if resolution is not None and (info.width, info.height) != tuple(resolution):
         raise FormatError(
-            f"{path}: image is {info['width']}x{info['height']}, expected "
-            f"{resolution[0]}x{resolution[1]}"
+            f"{path}: image is {info.width}x{info.height}, expected {resolution[0]}x{resolution[1]}"
         )
     return info
 

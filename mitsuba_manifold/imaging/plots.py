@@ -301,7 +301,7 @@ def write_fit_plots(manifold, folder):
             convergence(
                 manifold.history,
                 os.path.join(folder, FIT_PLOTS[-1]),
-                label=manifold.info.get("method", "fit"),
+                label=manifold.record.method or "fit",
             )
         )
     return paths

@@ -904,9 +904,9 @@ class Manifold:
         S = J @ S @ J
         fit = gplvm.fit_latent(
             S,
-            self.info["d"],
+            self.record.d,
             q=self.q,
-            method=self.info.get("method", "hooke-jeeves"),
+            method=self.record.method or "hooke-jeeves",
             length_scale=self.length_scale,
             noise=self.noise,
         )

@@ -81,7 +81,7 @@ class PathMetric:
 
     def __init__(self, manifold, stride=SEARCH_STRIDE, tables=None, rows=None):
         self.manifold = manifold
-        dims = tuple(manifold.info["dims"])
+        dims = tuple(manifold.record.dims)
         self.quad = Quadrature.of(dims, stride)
         self._small = self.quad.size * 4 <= 3 * int(np.prod(dims))
         if rows is not None:

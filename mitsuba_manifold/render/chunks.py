@@ -36,7 +36,7 @@ import shutil
 import socket
 import tempfile
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -47,15 +47,24 @@ from ..basis.folder.output import CHUNK_DIR, check_foreign_folder, open_folder
 from ..errors import MismatchError
 from ..imaging import io as imageio
 from .gi_basis import write_cross
+from .render_basis import BasisOptions, ensure_aovs, render_basis
 
 
 @dataclass(frozen=True)
 class ChunkSpec:
     """One chunk to render: plain data, sent to a worker as it is.
 
-    ``options`` are :class:`mitsuba_manifold.render.render_basis.BasisOptions` fields, as keyword
-    arguments of ``render_basis`` (``materials``, ``mode``, ``resolution``, ``max_depth``, ``variant``,
-    ``sensor``).
+    Attributes
+    ----------
+    scene, manifold : str
+        Absolute paths of the scene XML and the saved manifold.
+    index, count : int
+        Chunk ``index`` of ``count``.
+    spp, seed : int
+        The chunk's samples per pixel and seed (:func:`chunk_seed`); they replace those of
+        :attr:`options` when it is rendered.
+    options : BasisOptions
+        How the whole basis is rendered (:class:`mitsuba_manifold.render.render_basis.BasisOptions`).
     """
 
     scene: str
@@ -64,7 +73,7 @@ class ChunkSpec:
     count: int
     spp: int
     seed: int
-    options: dict = field(default_factory=dict)
+    options: BasisOptions = None
 
     @property
     def name(self):
@@ -88,12 +97,20 @@ def chunk_seed(seed, index, count):
     return int(seed) * int(count) + int(index)
 
 
-def plan(scene, manifold, spp, chunks, seed=0, **options):
-    """Split a basis of ``spp`` samples per pixel into ``chunks`` :class:`ChunkSpec`.
+def plan(scene, manifold, chunks, options=None):
+    """Split a basis rendered with ``options`` into ``chunks`` :class:`ChunkSpec`.
 
-    The first ``spp % chunks`` chunks get one sample more than the others.
+    Parameters
+    ----------
+    scene, manifold : str
+    chunks : int
+    options : BasisOptions, optional
+        How the whole basis is rendered (default: :class:`BasisOptions`'s defaults); its
+        ``spp`` samples per pixel are split over the chunks, the first ``spp % chunks`` getting
+        one more than the others, and its ``seed`` gives the chunks' (:func:`chunk_seed`).
     """
-    spp, chunks = int(spp), int(chunks)
+    options = BasisOptions() if options is None else options
+    spp, seed, chunks = int(options.sampling.spp), options.sampling.seed, int(chunks)
     if chunks < 1:
         raise MismatchError(f"`chunks` must be >= 1, got {chunks}")
     if spp < chunks:
@@ -110,7 +127,7 @@ def plan(scene, manifold, spp, chunks, seed=0, **options):
             chunks,
             spp // chunks + (j < spp % chunks),
             chunk_seed(seed, j, chunks),
-            dict(options),
+            options,
         )
         for j in range(chunks)
     ]
@@ -118,19 +135,17 @@ def plan(scene, manifold, spp, chunks, seed=0, **options):
 
 def render_chunk(spec):
     """Render one chunk into a private temporary folder; return its images (a worker's task)."""
-    from .render_basis import render_basis
-
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="mitsuba-manifold-chunk-") as tmp:
         manifest = render_basis(
-            spec.scene, spec.manifold, tmp, spp=spec.spp, seed=spec.seed, **spec.options
+            spec.scene, spec.manifold, tmp, spec.options, spp=spec.spp, seed=spec.seed
         )
         images = {
-            key: imageio.read_exr(os.path.join(tmp, entry["file"]))
+            key: imageio.read_exr(os.path.join(tmp, entry.file))
             for key, entry in manifest.entries()
         }
         if manifest.cross:
-            with np.load(os.path.join(tmp, manifest.cross["file"])) as data:
+            with np.load(os.path.join(tmp, manifest.cross.file)) as data:
                 images[_CROSS] = (data["pairs"], data["images"])
     return ChunkResult(
         spec, manifest, images, time.perf_counter() - t0, socket.gethostname(), os.getpid()
@@ -141,8 +156,39 @@ def chunk_folder(out, spec):
     return os.path.join(os.fspath(out), CHUNK_DIR, spec.name)
 
 
-#: Options that do not change a chunk's images (left out of :func:`chunk_key`).
-_NOT_SETTINGS = ("force", "progress", "database")
+#: :class:`BasisOptions` fields that do not change a chunk's images (left out of
+#: :func:`chunk_settings`); ``spp`` and ``seed`` are the chunk's own (:class:`ChunkSpec`).
+NOT_SETTINGS = ("force", "progress", "database", "aovs", "spp", "seed")
+#: Fields :func:`chunk_settings` always holds; the others only where they differ from their
+#: defaults.
+ALWAYS_HASHED = (
+    "sensor",
+    "materials",
+    "near",
+    "radius",
+    "mode",
+    "components",
+    "resolution",
+    "max_depth",
+    "variant",
+    "x",
+)
+
+
+def chunk_settings(options):
+    """The :class:`BasisOptions` fields that a chunk's images depend on, as ``{name: value}``
+    (the part of :func:`chunk_key` that the options give).
+
+    Every field but those of :data:`NOT_SETTINGS`: the fields of :data:`ALWAYS_HASHED`, and
+    each other one where it differs from its default (a field added to :class:`BasisOptions`
+    with a default leaves the keys of chunks rendered before unchanged).
+    """
+    default = BasisOptions().keywords()
+    return {
+        name: value
+        for name, value in options.keywords().items()
+        if name not in NOT_SETTINGS and (name in ALWAYS_HASHED or value != default[name])
+    }
 
 
 def identities(spec):
@@ -154,7 +200,7 @@ def chunk_key(spec, ids=None):
     """SHA-256 (hex) of what chunk ``spec``'s images depend on: index, count, spp, seed, the render
     options and the identities of its scene and manifold (``ids``: :func:`identities`).
     """
-    options = {k: v for k, v in spec.options.items() if k not in _NOT_SETTINGS}
+    options = chunk_settings(spec.options)
     head = json.dumps(
         {
             "index": spec.index,
@@ -180,7 +226,7 @@ def chunk_done(folder, key=None):
     if not manifest.chunk_complete or (key is not None and manifest.chunk_key != key):
         return None
     for _, entry in manifest.entries():
-        if not os.path.isfile(os.path.join(folder, entry["file"])) or basis_folder.image_changed(
+        if not os.path.isfile(os.path.join(folder, entry.file)) or basis_folder.image_changed(
             folder, entry
         ):
             return None
@@ -198,13 +244,14 @@ def save_chunk(out, result, key=None):
     folder = chunk_folder(out, result.spec)
     os.makedirs(folder, exist_ok=True)
     manifest = result.manifest.copy()  # the entries get this folder's hashes
-    for (key_, entry), (_, mine) in zip(result.manifest.entries(), manifest.entries()):
-        imageio.write_exr(os.path.join(folder, entry["file"]), result.images[key_])
-        mine["sha256"] = file_hash(os.path.join(folder, entry["file"]))
+    for key_, entry in result.manifest.entries():
+        imageio.write_exr(os.path.join(folder, entry.file), result.images[key_])
+        manifest.set_entry(key_, replace(entry, sha256=file_hash(os.path.join(folder, entry.file))))
     if result.manifest.cross:
-        manifest.cross["sha256"] = write_cross(
-            os.path.join(folder, result.manifest.cross["file"]), *result.images[_CROSS]
+        digest = write_cross(
+            os.path.join(folder, result.manifest.cross.file), *result.images[_CROSS]
         )
+        manifest.cross = replace(manifest.cross, sha256=digest)
     manifest.chunk_complete = True
     manifest.chunk_run = {"seconds": result.seconds, "host": result.host, "pid": result.pid}
     if key is not None:
@@ -250,9 +297,9 @@ def _merge(out, folders, seed, force, run_key=None):
         chunk_run=None,
         chunk_key=None,
     )
-    files = [e["file"] for _, e in first.entries()] + [basis_folder.MANIFEST]
+    files = [e.file for _, e in first.entries()] + [basis_folder.MANIFEST]
     merged.images = open_folder(out, merged, files, force)
-    done = {e["file"] for e in merged.images.values()}
+    done = {e.file for e in merged.images.values()}
     # listed as pending before the first is written: an interrupted merge leaves files the same
     # command knows as its own (removed and merged again); the manifest is rewritten as images land
     merged.pending = sorted(f for f in files[:-1] if f not in done)
@@ -269,27 +316,27 @@ def _merge(out, folders, seed, force, run_key=None):
             last_write = time.perf_counter()
         acc = None
         for f, m, w in zip(folders, manifests, weights):
-            file = getattr(m, section)[plain]["file"]
+            file = getattr(m, section)[plain].file
             img = imageio.read_exr(os.path.join(f, file)).astype(np.float64) * w
             acc = img if acc is None else acc + img
-        imageio.write_exr(os.path.join(out, entry["file"]), acc.astype(np.float32))
-        merged.section(section)[plain] = {
-            "file": entry["file"],
-            "time_s": float(sum(getattr(m, section)[plain]["time_s"] for m in manifests)),
-            "sha256": file_hash(os.path.join(out, entry["file"])),
-        }
+        imageio.write_exr(os.path.join(out, entry.file), acc.astype(np.float32))
+        merged.section(section)[plain] = basis_folder.ImageEntry(
+            file=entry.file,
+            time_s=float(sum(getattr(m, section)[plain].time_s for m in manifests)),
+            sha256=file_hash(os.path.join(out, entry.file)),
+        )
     if first.cross:  # the cross terms: the same spp-weighted mean
         acc, pairs = None, None
         for f, m, w in zip(folders, manifests, weights):
-            with np.load(os.path.join(f, m.cross["file"])) as data:
+            with np.load(os.path.join(f, m.cross.file)) as data:
                 if pairs is not None and list(data["pairs"].ravel()) != list(pairs.ravel()):
                     raise MismatchError(
                         f"chunk {f} holds cross terms of other pairs; delete {os.path.dirname(f)}"
                     )
                 pairs, img = data["pairs"], data["images"].astype(np.float64) * w
             acc = img if acc is None else acc + img
-        digest = write_cross(os.path.join(out, first.cross["file"]), pairs, acc)
-        merged.cross = {**first.cross, "sha256": digest}
+        digest = write_cross(os.path.join(out, first.cross.file), pairs, acc)
+        merged.cross = replace(first.cross, sha256=digest)
     if run_key is not None:  # the mark of a finished run (written with its last image)
         merged.chunk_key = run_key
     merged.pending = None
@@ -309,33 +356,27 @@ class ChunkedRun:
 
 
 def render_chunked(
-    scene,
-    manifold,
-    out,
-    *,
-    chunks=1,
-    executor=None,
-    keep_chunks=False,
-    progress=False,
-    aovs=False,
-    **options,
+    scene, manifold, out, options=None, *, chunks=1, executor=None, keep_chunks=False, **settings
 ):
     """Render a basis as ``chunks`` chunks with ``executor`` and merge them into ``out``.
 
     Parameters
     ----------
     scene, manifold, out : str
+    options : BasisOptions, optional
+        How to render the basis, as :func:`~mitsuba_manifold.render.render_basis.render_basis`
+        (default: :class:`BasisOptions`'s defaults). Its ``spp`` and ``seed`` are those of the
+        merged basis, split over the chunks (chunk seeds: :func:`chunk_seed`); ``progress``
+        prints a line per chunk, and ``aovs`` writes the denoising guides of the merged basis
+        (rendered here, once).
     chunks : int
     executor : LocalExecutor or RayExecutor, optional
         Default: :class:`mitsuba_manifold.render.executor.LocalExecutor`.
     keep_chunks : bool
         Keep ``<out>/.chunks`` after merging.
-    aovs : bool
-        Also write the denoising guides of the merged basis (rendered here, once).
-    options
-        :func:`mitsuba_manifold.render.render_basis.render_basis` keyword arguments (fields of
-        the groups of its ``BasisOptions``); ``spp`` and ``seed`` are those of the merged basis,
-        split over the chunks (chunk seeds: :func:`chunk_seed`).
+    **settings
+        Fields of the groups of :class:`BasisOptions` by name (``spp=64, mode="onepass"``),
+        which override those of ``options`` (:meth:`BasisOptions.updated`).
 
     Returns
     -------
@@ -346,14 +387,12 @@ def render_chunked(
     TypeError
         A keyword that is not a field of ``BasisOptions``, before anything is written.
     """
-    from .render_basis import BasisOptions, Sampling
-
-    BasisOptions().updated(**options)  # a misspelt option: refused before the folder is made
-    spp, seed = options.pop("spp", Sampling.spp), options.pop("seed", Sampling.seed)
-    specs = plan(scene, manifold, spp, chunks, seed, **options)
-    check_foreign_folder(
-        os.fspath(out), options.get("force", False)
-    )  # before any chunk is rendered
+    options = (BasisOptions() if options is None else options).updated(**settings)
+    run_opts = options.run
+    # the chunks: no progress bar of their own, the guides rendered once for the merged basis
+    specs = plan(scene, manifold, chunks, options.updated(progress=False, aovs=False))
+    spp, seed, force = options.sampling.spp, options.sampling.seed, run_opts.force
+    check_foreign_folder(os.fspath(out), force)  # before any chunk is rendered
     _check_out(out, specs[0], spp, seed, chunks)
     ids = identities(specs[0])
     keys = [chunk_key(s, ids) for s in specs]
@@ -365,11 +404,9 @@ def render_chunked(
             run = ChunkedRun(manifest, [], [s.name for s in specs], 0.0, 0.0)
         else:
             run = _render_and_merge(
-                out, specs, keys, run_key, executor, progress, seed, options.get("force", False)
+                out, specs, keys, run_key, executor, run_opts.progress, seed, force
             )
-        if aovs:
-            from .render_basis import ensure_aovs
-
+        if run_opts.aovs:
             ensure_aovs(out, run.manifest)
         if not keep_chunks:
             shutil.rmtree(os.path.join(out, CHUNK_DIR), ignore_errors=True)
@@ -389,7 +426,7 @@ def _finished(out, run_key):
         return None
     entries = manifest.entries()
     if any(
-        not os.path.isfile(os.path.join(out, e["file"])) or basis_folder.image_changed(out, e)
+        not os.path.isfile(os.path.join(out, e.file)) or basis_folder.image_changed(out, e)
         for _, e in entries
     ):
         return None
@@ -419,7 +456,7 @@ def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force
     if len(specs) > 1 and _chooses_pairs(specs[0].options):  # the first chunk's pairs for all
         run([s for s in todo if s.index == 0])
         follow = _first_choice(chunk_folder(out, specs[0]))
-        todo = [replace(s, options={**s.options, **follow}) for s in todo if s.index != 0]
+        todo = [replace(s, options=s.options.updated(**follow)) for s in todo if s.index != 0]
     run(todo)
     t1 = time.perf_counter()
     manifest = _merge(out, [chunk_folder(out, s) for s in specs], seed, force, run_key)
@@ -428,13 +465,11 @@ def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force
 
 def _chooses_pairs(options):
     """Whether a chunk of ``options`` chooses cross-term pairs on its first pass."""
-    from .render_basis import FullGI
-
     return (
-        options.get("mode") == "onepass"
-        and options.get("components") == "auto"
-        and options.get("cross_light_tol", FullGI.cross_light_tol)
-        and options.get("cross_keep") is None
+        options.sampling.mode == "onepass"
+        and options.gi.components == "auto"
+        and options.gi.cross_light_tol
+        and options.gi.cross_keep is None
     )
 
 
@@ -445,7 +480,7 @@ def _first_choice(folder):
         return {}
     if manifest.cross is None:
         return {"cross_keep": []}
-    with np.load(os.path.join(folder, manifest.cross["file"])) as data:
+    with np.load(os.path.join(folder, manifest.cross.file)) as data:
         return {"cross_keep": [tuple(str(v) for v in p) for p in data["pairs"]]}
 
 
@@ -468,9 +503,8 @@ def _check_out(out, spec, spp, seed, chunks):
             if old.version >= 2
             else file_hash(spec.manifold)
         ),
+        "mode": spec.options.sampling.mode,
     }
-    if "mode" in spec.options:
-        want["mode"] = spec.options["mode"]
     diff = [k for k, v in want.items() if getattr(old, k) != v]
     if diff:
         raise MismatchError(

@@ -222,12 +222,9 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
         digest = write_cross(
             os.path.join(out, CROSS_FILE), list(r.cross), np.stack([r.cross[p] for p in r.cross])
         )
-        manifest.cross = {
-            "file": CROSS_FILE,
-            "pairs": len(r.cross),
-            "tol": float(o.gi.cross_tol),
-            "sha256": digest,
-        }
+        manifest.cross = basis_folder.CrossEntry(
+            file=CROSS_FILE, pairs=len(r.cross), tol=float(o.gi.cross_tol), sha256=digest
+        )
         manifest.components = ["l1", "l2+", "cross"]
     else:
         sel = r.selection or {}

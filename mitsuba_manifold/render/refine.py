@@ -343,7 +343,7 @@ def _control_variate(basis, manifold, x, plan, request, stop, blend_image, kw):
     shown, info = blend(basis, manifold, x=x, component="full", l2=request.l2, **kw)
     base = shown if blend_image is None else np.asarray(blend_image, np.float32)
     by_key = {basis.key([n]): n for n in manifold.names}
-    summed = info["plan"]
+    summed = info.plan
     names, w = [by_key[k] for k in summed.keys], np.asarray(summed.image_weights, np.float64)
     rows, prods = summed.cross if summed.cross is not None else ((), ())
     row_pair = {r: p for p, r in basis.cross_terms()[0].items()}

@@ -529,11 +529,11 @@ def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
     for (
         key
     ) in images:  # each file's hash: an image edited later is found (open_folder, Basis.image)
-        entries[key] = {
-            "file": key + suffix,
-            "time_s": float(seconds),
-            "sha256": file_hash(os.path.join(out, key + suffix)),
-        }
+        entries[key] = basis_folder.ImageEntry(
+            file=key + suffix,
+            time_s=float(seconds),
+            sha256=file_hash(os.path.join(out, key + suffix)),
+        )
     manifest.pending = None
     manifest.write(out)
 

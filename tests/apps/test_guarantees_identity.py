@@ -108,9 +108,9 @@ def test_a_basis_image_edited_in_place_is_refused_by_blend_and_rendered_again(tm
     out = tmp_path / "basis"
     shutil.copytree(tiny["basis"], out)
     entry = Manifest.read(out).images["steel"]
-    path = out / entry["file"]
+    path = out / entry.file
     original = imageio.read_exr(path)
-    assert entry["sha256"] == file_hash(path)
+    assert entry.sha256 == file_hash(path)
     _edit(path)
     m = Manifold.load(tiny["manifold"])
     x = ",".join(f"{v:.17g}" for v in m.latent[m.index("steel")])  # steel alone
@@ -172,7 +172,7 @@ class _Dies(executor.LocalExecutor):
 
 def _images(folder):
     m = Manifest.read(folder)
-    return {k: imageio.read_exr(os.path.join(folder, e["file"])) for k, e in m.images.items()}
+    return {k: imageio.read_exr(os.path.join(folder, e.file)) for k, e in m.images.items()}
 
 
 def test_chunks_of_other_settings_are_rendered_again_and_a_finished_run_is_not(tmp_path, tiny):

@@ -73,7 +73,7 @@ def test_blend_is_the_weighted_sum(basis1, manifold):
         )
         assert img.dtype == np.float32 and img.shape == (RES[1], RES[0], 3)
         assert np.allclose(img, want, rtol=1e-5, atol=1e-5 * np.abs(w).sum())
-        assert info["time_ms"] >= 0 and not info["missing"] and np.allclose(info["x"], x)
+        assert info.time_ms >= 0 and not info.missing and np.allclose(info.x, x)
     # weights given directly: any weights (the touch images are linear in the BRDF)
     w = rng.normal(size=manifold.n)
     img, _ = bl.blend(basis, manifold, w=w, prune=0.0)
@@ -90,7 +90,7 @@ def test_pruning_drops_small_weights_and_keeps_the_sum(basis1, manifold):
     img, info = bl.blend(folder, manifold, x=x, prune=0.05)
     keep, wk, dropped = manifold.prune(w, 0.05)
     assert len(keep) < manifold.n and dropped > 0
-    assert info["weights"][0] == {manifold.names[i]: pytest.approx(v) for i, v in zip(keep, wk)}
+    assert info.weights[0] == {manifold.names[i]: pytest.approx(v) for i, v in zip(keep, wk)}
     want = images["base"] + sum(
         v * images[manifold.names[i]].astype(np.float64) for i, v in zip(keep, wk)
     )
@@ -103,14 +103,14 @@ def test_training_point_gives_base_plus_its_image_exactly(basis1, manifold):
     for i, name in enumerate(manifold.names):
         img, info = bl.blend(basis, x=manifold.latent[i])
         assert np.array_equal(img, images["base"] + images[name])
-        assert info["plan"].keys == [name]
+        assert info.plan.keys == [name]
 
 
 def test_uniform_weights_give_base_plus_mean(basis1, manifold):
     folder, _, images = basis1
     img, info = bl.blend(folder, manifold, w=np.full(manifold.n, 1.0 / manifold.n), prune=0.0)
     mean = np.mean([images[n].astype(np.float64) for n in manifold.names], axis=0)
-    assert len(info["plan"].keys) == manifold.n
+    assert len(info.plan.keys) == manifold.n
     assert np.allclose(img, images["base"] + mean, rtol=1e-6, atol=1e-6)
 
 
@@ -130,7 +130,7 @@ def test_missing_materials_raise_unless_pruned_or_renormalised(tmp_path, small_m
     _, w = manifold.weights(x)
     scaled = w[:3] * (w.sum() / w[:3].sum())
     want = images["base"] + sum(v * images[n].astype(np.float64) for v, n in zip(scaled, names))
-    assert info["renormalised"] and set(info["missing"]) == set(manifold.names[3:])
+    assert info.renormalised and set(info.missing) == set(manifold.names[3:])
     assert np.allclose(img, want, rtol=1e-5, atol=1e-5)
 
 
@@ -287,7 +287,7 @@ def test_manifest_helpers(tmp_path, small_manifold):
     b = replace(
         a,
         settings=replace(a.settings, spp=16),
-        images={"base": {"file": "base.exr", "time_s": 1.0}},
+        images={"base": bf.ImageEntry(file="base.exr", time_s=1.0)},
     )
     assert a.differences(b) == ["spp"]
     with pytest.raises(MismatchError, match="mode"):
@@ -305,9 +305,7 @@ def test_manifest_helpers(tmp_path, small_manifold):
             targets=["material"],
         )
     with pytest.raises(MismatchError, match="must name 2 material"):
-        replace(a, targets=["a", "b"], images={"x": {"file": "x.exr", "time_s": 0}}).write(
-            str(tmp_path)
-        )
+        replace(a, targets=["a", "b"], images={"x": bf.ImageEntry("x.exr", 0)}).write(str(tmp_path))
     assert bf.Manifest.read(str(tmp_path)) == a  # the refused write left the old manifest
     assert bf.image_key(["gold-paint", "chrome"]) == "gold-paint+chrome"
 
@@ -333,12 +331,12 @@ def test_multilinear_two_target_blend(tmp_path, small_manifold, manifold):
     img, info = bl.blend(basis, manifold, x=x, prune=0.0)
     _, W = manifold.weights(x)
     assert np.allclose(img, np.einsum("i,j,ijhwc->hwc", W[0], W[1], stack), rtol=1e-5, atol=1e-5)
-    assert len(info["weights"]) == 2
+    assert len(info.weights) == 2
     img2, _ = bl.blend(basis, manifold, x=x.ravel(), prune=0.0)  # p*q numbers in target order
     assert np.array_equal(img, img2)
     # training points of both targets: exactly the image of that pair
     img, info = bl.blend(basis, manifold, x=[manifold.latent[2], manifold.latent[5]])
-    assert np.array_equal(img, images[names[2] + "+" + names[5]]) and info["plan"].keys == [
+    assert np.array_equal(img, images[names[2] + "+" + names[5]]) and info.plan.keys == [
         names[2] + "+" + names[5]
     ]
     with pytest.raises(MismatchError, match=r"needs 4 numbers"):

@@ -83,7 +83,7 @@ def test_denoised_blend_beats_raw_and_aovs_are_checked(tmp_path, small_manifold)
     ref = scenes.render_reference(TABLE, small_manifold, x, 256, resolution=48)
     raw, den, info = denoised_blend(out, m, x=x, prune=0.0, renormalise=True)
     e_raw, e_den = metrics.compare(raw, ref)["rel_mse"], metrics.compare(den, ref)["rel_mse"]
-    assert info["guided"] and e_den < 0.5 * e_raw, (e_raw, e_den)
+    assert info.guided and e_den < 0.5 * e_raw, (e_raw, e_den)
 
     # AOVs of another basis are refused
     other = str(tmp_path / "other")

@@ -5,7 +5,14 @@ import json
 
 import pytest
 
-from mitsuba_manifold.basis.folder import MANIFEST, NOT_RECORDED, Manifest, RenderSettings
+from mitsuba_manifold.basis.folder import (
+    MANIFEST,
+    NOT_RECORDED,
+    CrossEntry,
+    ImageEntry,
+    Manifest,
+    RenderSettings,
+)
 from mitsuba_manifold.errors import MismatchError
 
 #: A manifest of format version 1, as the first releases wrote it: no sensor, no components.
@@ -48,11 +55,32 @@ def test_a_manifest_written_before_reads_and_writes_back_the_same(tmp_path, data
     (tmp_path / MANIFEST).write_text(json.dumps(data))
     m = Manifest.read(tmp_path)
     assert m.to_json() == data and list(m.to_json()) == list(data)
-    assert m.resolution == (32, 24) and m.images["chrome"]["time_s"] == 2.0
+    assert m.resolution == (32, 24) and m.images["chrome"] == ImageEntry("chrome.exr", 2.0)
     out = tmp_path / "again"
     out.mkdir()
     m.write(out)
     assert json.loads((out / MANIFEST).read_text()) == data
+
+
+def test_the_file_entries_are_typed_and_keep_what_this_version_does_not_know(tmp_path):
+    data = dict(
+        V2,
+        images={
+            "base": {"file": "base.exr", "time_s": 1, "sha256": "c" * 64},
+            "chrome": {"file": "chrome.exr", "time_s": 2.5, "note": [1]},
+        },
+        gi_images={"chrome": {"file": "chrome.gi.exr"}},
+        cross={"file": "cross.npz", "pairs": 3, "tol": 0.01, "sha256": "d" * 64},
+    )
+    m = Manifest.from_json(data)
+    assert m.images == {
+        "base": ImageEntry("base.exr", 1, "c" * 64),
+        "chrome": ImageEntry("chrome.exr", 2.5, extra={"note": [1]}),
+    }
+    assert m.gi_images == {"chrome": ImageEntry("chrome.gi.exr")}
+    assert m.cross == CrossEntry("cross.npz", pairs=3, tol=0.01, sha256="d" * 64)
+    m.write(tmp_path)
+    assert (tmp_path / MANIFEST).read_text() == json.dumps(data, indent=1) + "\n"
 
 
 def test_what_a_manifest_leaves_unsaid_has_its_meaning():

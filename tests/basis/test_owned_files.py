@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from helpers import write_basis
 
-from mitsuba_manifold.basis.folder import Manifest
+from mitsuba_manifold.basis.folder import CrossEntry, ImageEntry, Manifest
 from mitsuba_manifold.basis.folder.owned_files import basis_entries, remove_basis
 from mitsuba_manifold.errors import ForeignFileError
 
@@ -21,8 +21,8 @@ def _full_gi_basis(folder, manifold_path):
     (folder / "a.gi.exr").write_bytes(b"gi image")
     (folder / "cross.npz").write_bytes(b"cross terms")
     m.components = ["l1", "l2+", "cross"]
-    m.gi_images = {"a": {"file": "a.gi.exr", "time_s": 0.1}}
-    m.cross = {"file": "cross.npz", "pairs": 1, "tol": 0.001}
+    m.gi_images = {"a": ImageEntry(file="a.gi.exr", time_s=0.1)}
+    m.cross = CrossEntry(file="cross.npz", pairs=1, tol=0.001)
     m.write(folder)
 
 

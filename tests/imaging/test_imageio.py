@@ -23,10 +23,8 @@ def test_exr_round_trip_is_exact_and_keeps_metadata(tmp_path):
     assert back.dtype == np.float32 and back.shape == (7, 11, 3)
     assert np.array_equal(back.view(np.uint32), img.view(np.uint32))  # bit exact, signed zero too
     header = imageio.read_exr_header(path)
-    assert (header["width"], header["height"]) == (11, 7)
-    assert (
-        header["attributes"]["scene"] == "x.xml" and json.loads(header["attributes"]["spp"]) == 64
-    )
+    assert (header.width, header.height, header.channels) == (11, 7, ["B", "G", "R"])
+    assert header.attributes["scene"] == "x.xml" and json.loads(header.attributes["spp"]) == 64
 
 
 def test_exr_read_errors_name_the_file(tmp_path):

@@ -14,6 +14,14 @@ from mitsuba_manifold import errors  # noqa: E402
 from mitsuba_manifold.basis import folder as basis  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
 from mitsuba_manifold.render import chunks, executor, render_basis  # noqa: E402
+from mitsuba_manifold.render.render_basis import (  # noqa: E402
+    BasisOptions,
+    FullGI,
+    RunBehaviour,
+    Sampling,
+    SceneSetup,
+    Selection,
+)
 from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]  # renders and starts Ray
@@ -34,14 +42,100 @@ def _images(folder):
 
 
 def test_plan_splits_samples_and_seeds():
-    specs = chunks.plan(SPHERE, SPHERE, 10, 4, seed=3, mode="onepass")
+    specs = chunks.plan(SPHERE, SPHERE, 4, BasisOptions().updated(spp=10, seed=3, mode="onepass"))
     assert [s.spp for s in specs] == [3, 3, 2, 2]
     assert [s.seed for s in specs] == [12, 13, 14, 15]
     assert len({s.name for s in specs}) == 4
     with pytest.raises(errors.MismatchError, match="at least the number of chunks"):
-        chunks.plan(SPHERE, SPHERE, 2, 3)
+        chunks.plan(SPHERE, SPHERE, 3, BasisOptions().updated(spp=2))
     with pytest.raises(errors.MismatchError, match="`chunks` must be >= 1"):
-        chunks.plan(SPHERE, SPHERE, 2, 0)
+        chunks.plan(SPHERE, SPHERE, 0, BasisOptions().updated(spp=2))
+
+
+#: Chunk keys computed by the keyword-dict planner for the options the command line passed
+#: (``render_basis.py --chunks 2``), with the identities ``IDS``: a chunk saved by such a run
+#: keeps its key.
+IDS = ("a" * 64, "b" * 64)
+CLI_KEYS = {
+    "defaults": (
+        BasisOptions(
+            sampling=Sampling(spp=8, seed=0, mode="per-material"),
+            gi=FullGI(components="l1"),
+            run=RunBehaviour(progress=True),
+        ),
+        [
+            "4184144e0a495a8aaf43729817c6e5d5b4f18f1bf7e0bb31feb7ecf6c4fa259e",
+            "d419d82faa13566fba3ccab174ce563098183bb1f70fd2151ac1e48cfdb2a7e2",
+        ],
+    ),
+    "every option set": (
+        BasisOptions(
+            selection=Selection(materials=["gold-paint", "chrome"], near=[0.1, -0.2], radius=0.5),
+            sampling=Sampling(spp=9, seed=3, mode="onepass"),
+            scene=SceneSetup(
+                resolution=(32, 24),
+                max_depth=5,
+                variant="llvm_ad_rgb",
+                x=[0.25, 0.5],
+                database="db",
+                sensor=1,
+            ),
+            gi=FullGI(components="auto"),
+            run=RunBehaviour(force=True, progress=True, aovs=True),
+        ),
+        [
+            "e5be8189aa3315739b79e4b222b2278d3498b57fbed4039b531ad89eb0909f78",
+            "0656fb42354a6e952bcda7ecb6622e406ac2a69b16c074ecb9074b0220536f26",
+        ],
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(CLI_KEYS))
+def test_chunk_keys_of_the_command_line_are_those_of_chunks_saved_before(case):
+    options, keys = CLI_KEYS[case]
+    specs = chunks.plan("scene.xml", "m.npz", 2, options)
+    assert [chunks.chunk_key(s, IDS) for s in specs] == keys
+
+
+#: A value other than the default of every :class:`BasisOptions` field.
+CHANGED = {
+    "materials": ["chrome"],
+    "near": [0.5, 0.5],
+    "radius": 1.0,
+    "spp": 65,
+    "seed": 1,
+    "mode": "onepass",
+    "chunk_spp": 4,
+    "resolution": 32,
+    "max_depth": 3,
+    "variant": "scalar_rgb",
+    "x": [0.1, 0.2],
+    "database": "elsewhere",
+    "sensor": 2,
+    "components": "auto",
+    "levels": 2,
+    "cross_tol": 0.01,
+    "cross_light_tol": 0.0,
+    "cross_fraction": 0.5,
+    "cross_keep": [("a", "b")],
+    "force": True,
+    "progress": True,
+    "aovs": True,
+}
+
+
+def test_every_option_that_changes_the_images_changes_the_chunk_key():
+    """No render option is left out of a chunk's key: each one changes it, but those that
+    change no image (folder handling, progress, guides rendered after the merge, where the
+    tables are)."""
+    assert set(CHANGED) == set(BasisOptions().keywords())
+    base = chunks.chunk_key(chunks.plan("s.xml", "m.npz", 1, BasisOptions())[0], IDS)
+    for name, value in CHANGED.items():
+        spec = chunks.plan("s.xml", "m.npz", 1, BasisOptions().updated(**{name: value}))[0]
+        same = chunks.chunk_key(spec, IDS) == base
+        assert same == (name in ("force", "progress", "aovs", "database")), name
+        assert spec.options.keywords()[name] == value  # the chunk renders with it
 
 
 def test_a_misspelt_option_is_refused_before_the_folder_is_made(tmp_path, small_manifold):
@@ -217,9 +311,9 @@ def test_cli_chunks_views_and_scenes(tmp_path, small_manifold):
 # ------------------------------------------------------------------------------- Ray
 
 
-def _die_once(spec):
+def _die_once(job):
     """Kill this worker process the first time any chunk runs (marker file), then render."""
-    marker = spec.options.pop("_marker")
+    marker, spec = job
     if not os.path.exists(marker):
         with open(marker, "w") as f:
             f.write(str(os.getpid()))
@@ -270,8 +364,8 @@ def test_ray_chunks_equal_local_chunks_and_killed_worker_reruns(
 
     # a worker killed while rendering: Ray re-runs its task, the basis is complete and the same
     marker = tmp_path / "killed-once"
-    specs = chunks.plan(SPHERE, small_manifold, 4, 2, seed=1, _marker=str(marker), **OPTIONS)
-    results = list(ray_ex.map(_die_once, specs))
+    specs = chunks.plan(SPHERE, small_manifold, 2, BasisOptions().updated(spp=4, seed=1, **OPTIONS))
+    results = list(ray_ex.map(_die_once, [(str(marker), s) for s in specs]))
     assert marker.exists() and int(marker.read_text()) not in {r.pid for r in results}
     assert sorted(r.spec.name for r in results) == ["000-of-002", "001-of-002"]
     for r in results:
@@ -286,7 +380,7 @@ def test_ray_chunks_equal_local_chunks_and_killed_worker_reruns(
     # without retries the same fault fails the run
     marker.unlink()
     with pytest.raises(Exception, match="(?i)worker|died|crash|exit"):
-        list(executor.RayExecutor(max_retries=0).map(_die_once, specs[:1]))
+        list(executor.RayExecutor(max_retries=0).map(_die_once, [(str(marker), specs[0])]))
 
 
 def test_ray_missing_is_a_clear_error(monkeypatch):

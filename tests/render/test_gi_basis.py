@@ -170,13 +170,13 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
     b = bf.Basis.load(out, manifold=m)
     k = m.names.index("gold-paint")
     img, info = blend(b, m, x=m.latent[k], component="full", l2="raw")
-    assert info["component"] == "full" and info["component_note"] == ""
+    assert info.component == "full" and info.component_note == ""
     np.testing.assert_allclose(
         img, b.image("base") + b.image("gi:gold-paint"), rtol=1e-6, atol=1e-7
     )
     den, dinfo = blend(b, m, x=m.latent[k])  # the default: its part beyond L1- denoised
     l1_img = b.image("base") + b.image("gold-paint")
-    assert dinfo["l2"] == "denoised" and np.isfinite(den).all()
+    assert dinfo.l2 == "denoised" and np.isfinite(den).all()
     # the denoiser's smoothing keeps each channel's light beyond L1- (what it took is put back)
     np.testing.assert_allclose(
         (den - l1_img).sum(axis=(0, 1)),
@@ -201,7 +201,7 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
             l2="raw",
         )
         np.testing.assert_allclose(images[1], mid, rtol=1e-4, atol=1e-6)
-        assert pinfo["component"] == "full"
+        assert pinfo.component == "full"
 
 
 @pytest.mark.parametrize("levels", [1, 2.5, "5"])
@@ -239,7 +239,7 @@ def test_an_old_l1_basis_still_blends_and_says_so(tmp_path, small_manifold):
     with pytest.warns(UserWarning, match="L1- only") as caught:
         img, info = blend(b, m, x=m.latent[0], component="full")
     assert len(caught) == 1 and "\n" not in str(caught[0].message)
-    assert info["component"] == "l1"
+    assert info.component == "l1"
     np.testing.assert_allclose(img, blend(b, m, x=m.latent[0], component="l1")[0])
 
 
@@ -259,7 +259,7 @@ def test_a_convex_object_alone_holds_no_l2(tmp_path, small_manifold):
     assert "cannot see itself" in render_basis.describe_components(manifest)
     m = Manifold.load(small_manifold)
     img, info = blend(out, m, x=m.latent[0], component="full")
-    assert info["component"] == "l1" and "cannot see itself" in info["component_note"]
+    assert info.component == "l1" and "cannot see itself" in info.component_note
 
 
 def test_changed_or_truncated_cross_terms_and_aovs_are_refused_naming_the_file(
@@ -282,11 +282,11 @@ def test_changed_or_truncated_cross_terms_and_aovs_are_refused_naming_the_file(
         max_depth=8,
         aovs=True,
     )
-    assert "cross" in manifest.components and len(manifest.cross["sha256"]) == 64
+    assert "cross" in manifest.components and len(manifest.cross.sha256) == 64
     m = Manifold.load(small_manifold)
     x = m.latent[0]
     good, _ = blend(bf.Basis.load(out, manifold=m), m, x=x, l2="raw")
-    cross = os.path.join(out, manifest.cross["file"])
+    cross = os.path.join(out, manifest.cross.file)
     edited = tmp_path / "edited"
     shutil.copytree(out, edited)
     with np.load(cross) as z:

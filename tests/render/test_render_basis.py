@@ -93,7 +93,7 @@ def test_the_centre_of_a_near_basis_can_be_blended(tmp_path, small_manifold):
         SPHERE, small_manifold, out, spp=2, near=centre, radius=0.5 * d[i, j], resolution=8
     )
     image, info = blend(out, x=centre)
-    assert image.shape == (8, 8, 3) and not info["renormalised"] and not info["missing"]
+    assert image.shape == (8, 8, 3) and not info.renormalised and not info.missing
 
 
 def test_the_library_takes_a_shipped_scenes_name_like_the_tools(tmp_path, small_manifold):
@@ -167,17 +167,15 @@ def test_interrupted_run_resumes_without_corrupt_files(tmp_path, small_manifold,
     assert len(manifest.images) == 3
     assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
     for entry in manifest.images.values():  # every listed image is whole
-        assert imageio.read_exr(out / entry["file"]).shape == (RES, RES, 3)
-    before = {k: os.stat(out / e["file"]).st_mtime_ns for k, e in manifest.images.items()}
+        assert imageio.read_exr(out / entry.file).shape == (RES, RES, 3)
+    before = {k: os.stat(out / e.file).st_mtime_ns for k, e in manifest.images.items()}
 
     manifest = render_basis.render_basis(
         SPHERE, small_manifold, str(out), spp=4, resolution=RES, mode="per-material"
     )
     m = Manifold.load(small_manifold)
     assert set(manifest.images) == {"base", *m.names}
-    assert all(
-        os.stat(out / manifest.images[k]["file"]).st_mtime_ns == t for k, t in before.items()
-    )
+    assert all(os.stat(out / manifest.images[k].file).st_mtime_ns == t for k, t in before.items())
     b = bf.Basis.load(str(out), manifold=small_manifold, scene=SPHERE, verify=True)
     assert b.materials == [m.names]
 

@@ -411,13 +411,11 @@ def path_outputs(request, basis, manifold):
         )
     _say_component(info)
     den = (
-        f"; their L2+ light denoised in {info['denoise_ms']:.0f} ms"
-        if info["denoise_ms"] >= 0.5
-        else ""
+        f"; their L2+ light denoised in {info.denoise_ms:.0f} ms" if info.denoise_ms >= 0.5 else ""
     )
     print(
         f"path {path.ends[0]} -> {path.ends[1]}: {path.steps} images blended in "
-        f"{info['time_ms']:.2f} ms ({info['time_ms'] / path.steps:.3f} ms per image){den}"
+        f"{info.time_ms:.2f} ms ({info.time_ms / path.steps:.3f} ms per image){den}"
     )
     outputs = []
     for name, img in zip(frame_names(output, path.steps), images):
@@ -465,14 +463,14 @@ class _one_line_warnings:
 
 def _say_component(info):
     """One line: which blend was made (full GI or L1-) and, for L1-, why."""
-    if info.get("component") == "full":
+    if info.component == "full":
         print(
-            f"blend: full GI (full-GI images and cross terms; light beyond L1- {info.get('l2') or 'summed'})"
+            f"blend: full GI (full-GI images and cross terms; light beyond L1- {info.l2 or 'summed'})"
         )
-    elif info.get("component") == "l1" and not info.get("component_note"):
+    elif info.component == "l1" and not info.component_note:
         print("blend: L1- images only (paper Eq. 13; --component l1)")
-    elif info.get("component_note") and "predates" not in info["component_note"]:
-        print(f"blend: {info['component_note']}")
+    elif info.component_note and "predates" not in info.component_note:
+        print(f"blend: {info.component_note}")
 
 
 def _refined(request, basis, manifold):
@@ -529,23 +527,23 @@ def point_outputs(request, basis, manifold):
             l2=settings.l2,
         )
     _say_component(info)
-    for t, (weights, dropped) in enumerate(zip(info["weights"], info["dropped_weight"])):
+    for t, (weights, dropped) in enumerate(zip(info.weights, info.dropped_weight)):
         top = sorted(weights.items(), key=lambda kv: -abs(kv[1]))
         shown = ", ".join(f"{n} {v:.4g}" for n, v in top[:6]) + (" ..." if len(top) > 6 else "")
         print(
             f"target {basis.targets[t]}: {len(top)} material{'s' * (len(top) != 1)} kept "
             f"(dropped |w| {dropped:.3g}): {shown}"
         )
-    if info["renormalised"]:
+    if info.renormalised:
         print(
-            f"warning: renormalised over the images present; missing: {', '.join(sorted(info['missing']))}"
+            f"warning: renormalised over the images present; missing: {', '.join(sorted(info.missing))}"
         )
     print(
-        f"blend time: {info['time_ms']:.3f} ms ({info['n_images']} images; reading them: "
-        f"{info['time_read_s']:.3f} s)"
+        f"blend time: {info.time_ms:.3f} ms ({info.n_images} images; reading them: "
+        f"{info.time_read_s:.3f} s)"
     )
     if (
-        info.get("component") == "full"
+        info.component == "full"
         and settings.l2 == "raw"
         and request.refine.spp is None
         and (image < 0).any()

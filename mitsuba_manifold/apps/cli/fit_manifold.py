@@ -170,10 +170,10 @@ def fit_and_save(args, guard, t0):
     m.save(args.out)
     print(m.summary())
     print(
-        f"time: {time.perf_counter() - t0:.2f} s total; the fit's: load {m.info['time_load_s']:.2f} s, "
-        f"Gram {m.info['time_gram_s']:.2f} s, optimisation {m.info['time_fit_s']:.2f} s"
+        f"time: {time.perf_counter() - t0:.2f} s total; the fit's: load {m.record.timings.load_s:.2f} s, "
+        f"Gram {m.record.timings.gram_s:.2f} s, optimisation {m.record.timings.fit_s:.2f} s"
     )
-    print(f"final L = {m.info['log_likelihood']:.8g}, cond(K) = {m.condition_number():.4g}")
+    print(f"final L = {m.record.log_likelihood:.8g}, cond(K) = {m.condition_number():.4g}")
     print(f"saved {args.out}")
     if args.plot:
         for path in plots.write_fit_plots(m, args.plot):

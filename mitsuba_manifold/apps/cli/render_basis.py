@@ -16,26 +16,6 @@ import time
 
 from .common import ArgumentParser, fail, guarded, parse_floats, parse_indices, parse_list
 
-#: The options a chunked run passes to its chunks (their keys hash them,
-#: :func:`~mitsuba_manifold.render.chunks.chunk_key`: a chunk made before keeps its key).
-CHUNK_OPTIONS = (
-    "spp",
-    "seed",
-    "sensor",
-    "materials",
-    "near",
-    "radius",
-    "mode",
-    "components",
-    "resolution",
-    "max_depth",
-    "variant",
-    "aovs",
-    "x",
-    "database",
-    "force",
-)
-
 
 def parse_views(text):
     """'all' or '0,2' -> 'all' or [0, 2]."""
@@ -233,14 +213,13 @@ def main(argv=None):
                     scene,
                     args.manifold,
                     out,
+                    view_options,
                     chunks=args.chunks,
                     executor=executor,
                     keep_chunks=args.keep_chunks,
-                    progress=True,
-                    **view_options.keywords(*CHUNK_OPTIONS),
                 ).manifest
             gi = len(manifest.gi_images or {})
-            cross = (manifest.cross or {}).get("pairs", 0)
+            cross = (manifest.cross.pairs or 0) if manifest.cross else 0
             extra = f" (and {gi} full-GI images, {cross} cross terms)" if gi else ""
             width, height = manifest.resolution
             print(

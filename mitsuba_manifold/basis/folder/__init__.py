@@ -20,6 +20,8 @@ from .manifest import (
     NOT_RECORDED,
     SEP,
     SETTINGS,
+    CrossEntry,
+    ImageEntry,
     Manifest,
     RenderSettings,
     image_changed,
@@ -36,6 +38,8 @@ from .reader import Basis, manifold_object
 __all__ = [
     "Basis",
     "Manifest",
+    "ImageEntry",
+    "CrossEntry",
     "RenderSettings",
     "manifold_object",
     "GI",

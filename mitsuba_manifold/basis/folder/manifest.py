@@ -45,7 +45,8 @@ file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
 Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
 ``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`).
 :class:`Manifest` alone reads, writes and checks the format (the renderers make one with
-:meth:`Manifest.new`, change its fields and :meth:`Manifest.write` it);
+:meth:`Manifest.new`, change its fields and :meth:`Manifest.write` it; its image entries are
+:class:`ImageEntry`, its cross terms a :class:`CrossEntry`);
 :class:`~mitsuba_manifold.basis.folder.Basis` opens a folder and its images,
 :mod:`mitsuba_manifold.basis.folder.owned_files` says which files a basis folder owns, and
 :func:`mitsuba_manifold.basis.blend.blend` and :func:`~mitsuba_manifold.basis.blend.blend_path` combine the images.
@@ -187,14 +188,99 @@ def key_materials(key, version=FORMAT_VERSION):
 
 
 def image_changed(folder, entry):
-    """True when the image file of manifest ``entry`` is not the one written (its SHA-256 is
-    recorded and differs: edited in place, replaced); False when unchanged or not recorded.
+    """True when the file of manifest ``entry`` (:class:`ImageEntry` or :class:`CrossEntry`) is
+    not the one written (its SHA-256 is recorded and differs: edited in place, replaced); False
+    when unchanged or not recorded.
     """
-    recorded = entry.get("sha256")
     return (
-        recorded is not None
-        and file_hash(os.path.join(os.fspath(folder), entry["file"])) != recorded
+        entry.sha256 is not None
+        and file_hash(os.path.join(os.fspath(folder), entry.file)) != entry.sha256
     )
+
+
+class _FileEntry:
+    """A file a manifest lists, as a JSON object of the keys :data:`KEYS` (those not recorded
+    absent) and keys this version does not know (:attr:`extra`).
+    """
+
+    KEYS = ()
+
+    @classmethod
+    def from_json(cls, data):
+        """The entry of a JSON object (checked by :meth:`Manifest.from_json`)."""
+        return cls(
+            **{k: data[k] for k in cls.KEYS if k in data},
+            extra={k: v for k, v in data.items() if k not in cls.KEYS},
+        )
+
+    def to_json(self):
+        """The JSON object: the keys of :data:`KEYS` that are recorded, then :attr:`extra`."""
+        out = {k: getattr(self, k) for k in self.KEYS if getattr(self, k) is not None}
+        out.update(self.extra)
+        return out
+
+
+@dataclass(frozen=True)
+class ImageEntry(_FileEntry):
+    """One image file a manifest lists (in ``images`` or ``gi_images``): the JSON object
+    ``{"file", "time_s"[, "sha256"]}``.
+
+    Attributes
+    ----------
+    file : str
+        The EXR file's name inside the basis folder.
+    time_s : float or None
+        Seconds its render took (None: not recorded, written as an absent key).
+    sha256 : str or None
+        SHA-256 (hex) of the file's bytes (None: not recorded).
+    extra : dict
+        Keys this version does not know (kept, and written back).
+    """
+
+    file: str
+    time_s: Optional[float] = None
+    sha256: Optional[str] = None
+    extra: dict = field(default_factory=dict)
+
+    #: The JSON keys, in the order written.
+    KEYS = ("file", "time_s", "sha256")
+
+
+@dataclass(frozen=True)
+class CrossEntry(_FileEntry):
+    """The cross terms' file a manifest lists (``cross``): the JSON object
+    ``{"file", "pairs", "tol"[, "sha256"]}`` (:mod:`mitsuba_manifold.basis.crossterms`).
+
+    Attributes
+    ----------
+    file : str
+        The ``.npz`` file's name inside the basis folder.
+    pairs : int or None
+        Number of cross terms (pairs of materials) it holds.
+    tol : float or None
+        Smallest weight product of a candidate pair it was rendered with.
+    sha256 : str or None
+        SHA-256 (hex) of the file's bytes (None: not recorded).
+    extra : dict
+        Keys this version does not know (kept, and written back).
+    """
+
+    file: str
+    pairs: Optional[int] = None
+    tol: Optional[float] = None
+    sha256: Optional[str] = None
+    extra: dict = field(default_factory=dict)
+
+    #: The JSON keys, in the order written.
+    KEYS = ("file", "pairs", "tol", "sha256")
+
+
+def _entries_from_json(section):
+    return None if section is None else {k: ImageEntry.from_json(e) for k, e in section.items()}
+
+
+def _entries_to_json(section):
+    return None if section is None else {k: e.to_json() for k, e in section.items()}
 
 
 def _is_int(v):
@@ -402,7 +488,7 @@ class Manifest:
     targets : list of str
         BSDF ids of the scene's manifold materials, in the order of the image keys.
     images : dict
-        Image key -> ``{"file", "time_s"[, "sha256"]}``.
+        Image key -> its :class:`ImageEntry`.
     version : int
         Format version (1 or 2).
     chunks : int or None
@@ -414,9 +500,9 @@ class Manifest:
     levels : int or None
         Most vertices on the material per path in the L2+ images.
     gi_images : dict or None
-        Material key -> entry of its ``touch + L2+`` image.
-    cross : dict or None
-        ``{"file": "<name>.npz", "pairs", "tol"[, "sha256"]}``: the cross terms.
+        Material key -> the :class:`ImageEntry` of its ``touch + L2+`` image.
+    cross : CrossEntry or None
+        The cross terms' file.
     left_out : dict or None
         Component -> why it was left out.
     gi_stats : dict or None
@@ -450,7 +536,7 @@ class Manifest:
     components: Optional[list] = None
     levels: Optional[int] = None
     gi_images: Optional[dict] = None
-    cross: Optional[dict] = None
+    cross: Optional[CrossEntry] = None
     left_out: Optional[dict] = None
     gi_stats: Optional[dict] = None
     integrator: Optional[dict] = None
@@ -477,7 +563,7 @@ class Manifest:
         targets : list of str
             BSDF ids of the scene's manifold materials, in the order of the image keys.
         images : dict, optional
-            ``{key: {"file": ..., "time_s": ...}}`` (default: none yet).
+            ``{key: ImageEntry}`` (default: none yet).
         components : sequence of str
             What the basis holds (:data:`COMPONENTS`; default L1- only). A renderer that adds
             full-GI images sets it when it writes them.
@@ -544,6 +630,10 @@ class Manifest:
         )
         names = {f.name for f in dataclasses.fields(cls)} - {"extra", "settings"}
         known = {k: v for k, v in data.items() if k in names}
+        known["images"] = _entries_from_json(known["images"])
+        known["gi_images"] = _entries_from_json(known.get("gi_images"))
+        if known.get("cross") is not None:
+            known["cross"] = CrossEntry.from_json(known["cross"])
         return cls(
             **known,
             settings=settings,
@@ -565,6 +655,10 @@ class Manifest:
                 continue
             if value is None and f.default is None:
                 continue
+            if f.name in ("images", "gi_images"):
+                value = _entries_to_json(value)
+            elif f.name == "cross":
+                value = value.to_json()
             out[f.name] = value
             if f.name == "images" and self.settings.sensor is not None:
                 out["sensor"] = self.settings.sensor
@@ -682,10 +776,19 @@ class Manifest:
         """``(key, entry)`` of every image file: L1- images, then full-GI ones (``gi:<key>``)."""
         return list(self.images.items()) + [(GI + k, e) for k, e in (self.gi_images or {}).items()]
 
+    def set_entry(self, key, entry):
+        """List ``entry`` (:class:`ImageEntry`) as image ``key`` of :meth:`entries` (``gi:<key>``:
+        a full-GI image).
+        """
+        if key.startswith(GI):
+            self.section("gi_images")[key[len(GI) :]] = entry
+        else:
+            self.section("images")[key] = entry
+
     def listed_files(self):
         """The files the manifest lists: its images, full-GI images and cross terms."""
-        files = {e["file"] for _, e in self.entries()}
-        return files | ({self.cross["file"]} if self.cross else set())
+        files = {e.file for _, e in self.entries()}
+        return files | ({self.cross.file} if self.cross else set())
 
     def differences(self, other, ignore=()):
         """Setting fields (:data:`SETTINGS`, but those in ``ignore``) whose values differ from

@@ -124,7 +124,7 @@ def image_still_valid(out, entry, size):
     """True when the image of manifest ``entry`` in ``out`` is the one written (its SHA-256, when
     recorded), readable and of ``size``; one that is not and is read-only is refused (InputError).
     """
-    path = os.path.join(out, entry["file"])
+    path = os.path.join(out, entry.file)
     try:
         imageio.check_exr_header(path, size)
         imageio.read_exr(path)  # a killed writer never leaves a partial file, but check anyway
@@ -144,7 +144,7 @@ def _clear_pending(out, old, remove):
     """The files ``old`` lists as pending and not as images (a killed run's); removed when
     ``remove`` (a read-only one is left, and then refused as the user's).
     """
-    done = {e["file"] for e in old.images.values()}
+    done = {e.file for e in old.images.values()}
     pending = {f for f in old.pending or [] if f not in done}
     for f in pending if remove else ():
         path = os.path.join(out, f)

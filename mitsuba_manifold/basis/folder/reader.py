@@ -163,7 +163,7 @@ class Basis:
         entry = self._entry(key)
         if entry is None:
             raise MismatchError(f"basis {self.folder} has no image {key!r}")
-        return os.path.join(self.folder, entry["file"])
+        return os.path.join(self.folder, entry.file)
 
     def has(self, key):
         return self._entry(key) is not None
@@ -187,7 +187,7 @@ class Basis:
         w, h = self.resolution
         if entry is None or "cross" not in self.components:
             return {}, np.zeros((0, h, w, 3), np.float16)
-        path = os.path.join(self.folder, entry["file"])
+        path = os.path.join(self.folder, entry.file)
         again = "run the same render_basis command again to render them anew"
         if os.path.isfile(path) and image_changed(self.folder, entry):
             raise MismatchError(
