@@ -35,7 +35,7 @@ def basis_run(scene_path, manifold, folder, spp, mode, res, seed):
     return {
         "spp": int(spp),
         "wall_s": wall,
-        "render_s": float(sum(e["time_s"] for e in manifest.images.values())),
+        "render_s": float(sum(e.time_s for e in manifest.images.values())),
         "images": len(manifest.images),
     }
 

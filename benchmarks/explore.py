@@ -52,11 +52,9 @@ def upsampled_basis(folder, out, factor=2):
     os.makedirs(out, exist_ok=True)
     images = {}
     for key, entry in manifest.images.items():
-        img = imageio.read_exr(os.path.join(folder, entry["file"]))
-        imageio.write_exr(os.path.join(out, entry["file"]), img.repeat(factor, 0).repeat(factor, 1))
-        images[key] = dict(
-            entry, sha256=file_hash(os.path.join(out, entry["file"]))
-        )  # the new files' hashes
+        img = imageio.read_exr(os.path.join(folder, entry.file))
+        imageio.write_exr(os.path.join(out, entry.file), img.repeat(factor, 0).repeat(factor, 1))
+        images[key] = replace(entry, sha256=file_hash(os.path.join(out, entry.file)))
     size = tuple(v * factor for v in manifest.resolution)
     replace(manifest, images=images, settings=replace(manifest.settings, resolution=size)).write(
         out

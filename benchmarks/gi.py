@@ -162,9 +162,9 @@ def targets(
                     "relative_bias": bias,
                     "relative_bias_se": se,
                     "rel_mse": metrics.compare(img, ref)["rel_mse"],
-                    "component": info["component"],
-                    "images": info["n_images"],
-                    "cross_terms": len(info["plan"].cross[0]) if info["plan"].cross else 0,
+                    "component": info.component,
+                    "images": info.n_images,
+                    "cross_terms": len(info.plan.cross[0]) if info.plan.cross else 0,
                 }
             # the default refinement of the full-GI basis (the control variate; it costs about twice a
             # direct render per sample, so an eighth of the samples is about a quarter of the time)
@@ -232,7 +232,7 @@ def blend_time(manifold, out, res=256, scene="table", spp=1, points=20, log=prin
         "basis_bytes": size,
         "memory_bytes": int(mem),
         "components": manifest.components,
-        "pairs": (manifest.cross or {}).get("pairs", 0),
+        "pairs": manifest.cross.pairs if manifest.cross else 0,
     }
     if log:
         log(
