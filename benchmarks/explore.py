@@ -497,3 +497,80 @@ def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000),
     finally:
         launch.stop(proc)
     return path
+
+
+def fireflies(basis, manifold, out, points=12, seed=0):
+    """Drag frames against rest frames of the explorer (:mod:`mitsuba_manifold.apps.explore.fireflies`):
+    at the point 80% of the way from gold-metallic-paint (when the basis has it, else the first
+    material) to its nearest latent neighbour, ``points - 1`` random points between pairs of
+    materials and three materials, the summed blend (a drag's frame before the clamp), the drag's
+    frame and the rest frame (L2+ denoised), in 8-bit sRGB. Writes ``out`` (PNG: 32x32 crops,
+    x6, around the largest difference of the summed blend at the first two points; columns: drag
+    frame without the clamp, with it, rest frame) and returns the worst mean, 99.9th percentile
+    and largest difference to the rest frame over the points, without and with the clamp.
+    """
+    import io
+
+    from PIL import Image, ImageDraw
+
+    from mitsuba_manifold._util.atomic import write_bytes
+    from mitsuba_manifold.apps.explore import encode
+    from mitsuba_manifold.apps.explore import fireflies as ff
+    from mitsuba_manifold.basis.blend import blend
+    from mitsuba_manifold.basis.composition import compose
+    from mitsuba_manifold.basis.folder import Basis
+    from mitsuba_manifold.manifold.model import Manifold
+
+    b = Basis.load(basis)
+    m = Manifold.load(manifold or b.manifest.manifold)
+    lat, rng = m.latent, np.random.default_rng(seed)
+    first = m.index("gold-metallic-paint") if "gold-metallic-paint" in m.names else 0
+    near = int(np.argsort(np.linalg.norm(lat - lat[first], axis=1))[1])
+    xs = [0.8 * lat[first] + 0.2 * lat[near]]
+    for _ in range(points - 1):
+        i, j = rng.choice(len(lat), 2, replace=False)
+        t = rng.uniform(0.2, 0.8)
+        xs.append((1 - t) * lat[i] + t * lat[j])
+    xs += [lat[k] for k in rng.choice(len(lat), 3, replace=False)]
+    worst = {"summed": np.zeros(3), "clamped": np.zeros(3)}
+    crops = []
+    for k, x in enumerate(xs):
+        raw, info = blend(b, m, x=x, l2="raw")
+        l1 = compose(b, info["plan"].keys, info["plan"].image_weights, None)[0]
+        drag, _ = ff.drag_image(raw, l1)
+        rest, _ = blend(b, m, x=x, l2="denoised")
+        s, d, r = (encode.tonemap(v, 0).astype(int) for v in (raw, drag, rest))
+        for name, v in (("summed", s), ("clamped", d)):
+            diff = np.abs(v - r)
+            got = [diff.mean(), np.percentile(diff.max(axis=2), 99.9), diff.max()]
+            worst[name] = np.maximum(worst[name], got)
+        if k < 2:
+            y, xx = np.unravel_index(np.abs(s - r).max(axis=2).argmax(), s.shape[:2])
+            y0 = min(max(y - 16, 0), s.shape[0] - 32)
+            x0 = min(max(xx - 16, 0), s.shape[1] - 32)
+            crops.append(
+                [
+                    Image.fromarray(v[y0 : y0 + 32, x0 : x0 + 32].astype(np.uint8)).resize(
+                        (192, 192), Image.NEAREST
+                    )
+                    for v in (s, d, r)
+                ]
+            )
+    sheet = Image.new("RGB", (3 * 196, len(crops) * 196 + 18), "white")
+    draw = ImageDraw.Draw(sheet)
+    for c, label in enumerate(("drag frame, summed", "drag frame, clamped", "rest frame")):
+        draw.text((c * 196 + 4, len(crops) * 196 + 4), label, fill="black")
+    for r, row in enumerate(crops):
+        for c, tile in enumerate(row):
+            sheet.paste(tile, (c * 196, r * 196))
+    buf = io.BytesIO()
+    sheet.save(buf, format="PNG")
+    write_bytes(out, buf.getvalue())
+    return {
+        "points": len(xs),
+        "against the rest frame, 8-bit sRGB, worst over the points": {
+            name: {"mean": float(v[0]), "p99_9": float(v[1]), "max": float(v[2])}
+            for name, v in worst.items()
+        },
+        "crops": out,
+    }

@@ -764,7 +764,8 @@ def test_without_webgl_the_page_says_so_and_works(page, server, explorer, small_
     try:
         other.add_init_script("""{ const get = HTMLCanvasElement.prototype.getContext;
             HTMLCanvasElement.prototype.getContext = function (kind, ...rest) {
-                return kind === 'webgl2' ? null : get.call(this, kind, ...rest); }; }""")
+                return kind === 'webgl2' ? null : get.call(this, kind, ...rest); };
+            delete HTMLCanvasElement.prototype.transferControlToOffscreen; }""")  # no WebGL for the sphere's worker
         other.goto(server)
         other.wait_for_function(
             "window.explore && window.explore.state.displayed && window.explore.state.map",

@@ -10,9 +10,11 @@ const LOCAL = ["127.0.0.1", "localhost", "[::1]"].includes(location.hostname);
 
 const NUMBER = /^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$/;   // as the server takes them (no "1_0")
 
+// The page's state (store.js: changed through update(), which draws the parts that follow it).
 const state = {
   info: null, x: null, basis: null, exposure: 0, dims: [0, 1], map: null, mapImage: null,
   hover: -1, a: null, b: null, displayed: null, material: null, snippet: null, errors: [], zoom: null,
+  filter: "", status: null,
   mapKey: null, moves: 0, dragging: false, liveUntil: 0,
   // raw RGBA on this machine (exact, no encoding); JPEG when the page is viewed from elsewhere
   format: new URLSearchParams(location.search).get("format") || (LOCAL ? "rgba" : "jpeg"),
@@ -32,12 +34,14 @@ async function api(path, options) {
 // The header's status: one line, an error tied to its source (a kind of answer, "reference",
 // "snippet", ...): the next success of that source clears it (clearError).
 function setStatus(text, error = false, source = null) {
-  state.status = { text, error, source };
-  const s = $("status");
-  s.textContent = text;
-  s.title = text;
-  s.classList.toggle("error", error);
   if (error) state.errors.push(text);
+  update({ status: { text, error, source } });
+}
+function drawStatus() {
+  const st = state.status, s = $("status");
+  s.textContent = st.text;
+  s.title = st.text;
+  s.classList.toggle("error", st.error);
 }
 function clearError(source) {
   if (state.status && state.status.error && state.status.source === source) setStatus("connected");
@@ -98,9 +102,9 @@ function requestFrame() { channel.send(Object.assign({ type: "frame" }, frameReq
 // While a drag runs (pointer down on the map, a slider moving) the scene follows every move;
 // the panel (material, snippet) and the sphere's table follow at most every LIVE[kind] ms, so
 // that they do not take the frames' time (the sphere's redraw is the page's costliest work without
-// a GPU: every 150 ms, not 60); when the drag rests (REST ms) the kinds not yet
-// asked for the final point are asked for.
-const LIVE = { table: 150, material: 180, snippet: 250 }, REST = 120;
+// a GPU: every 150 ms, not 60; the snippet, a long text laid out again, every second); when the
+// drag rests (REST ms) the kinds not yet asked for the final point are asked for.
+const LIVE = { table: 150, material: 180, snippet: 1000 }, REST = 120;
 const asked = {};   // kind -> [time, x] of its last request
 
 function live() { return state.dragging || performance.now() < state.liveUntil; }
@@ -149,9 +153,14 @@ function requestMap() {
   channel.send({ type: "map", x: state.x, dims: state.dims, extent: state.zoom }, ["map"]);
 }
 
+// The point shown changes (a drag, a click, undo/redo, a name, a link, the path scrubber): the
+// state first, then every part that follows the point (the views below), then its answers asked for.
 function setX(x) {
-  state.x = x.slice();
+  update({ x: x.slice() });
   scheduleMove();
+}
+// The parts of the page that follow the point (store.js).
+function drawPoint() {
   // the point (and basis) in the address: a reload or a shared link comes back here (at most every
   // 200 ms: the browser rate-limits replaceState, and each call costs the drag milliseconds)
   clearTimeout(state.addressTimer);
@@ -159,11 +168,14 @@ function setX(x) {
                                   (state.basis ? "&basis=" + encodeURIComponent(state.basis) : "")), 200);
   updateSavePng();
   updateSliders();
-  showPoint();
   if (state.map && sliceKey() !== state.drawnSlice) drawMap();   // q > 2: the materials fade by their distance to the slice
   else placeCursor();
-  renderShelf();   // shelf.js: favourite button, highlights, the search filter
 }
+view(["x"], drawPoint);
+view(["x", "material", "snippet"], showPoint);
+view(["x"], () => renderShelf());   // shelf.js: favourite button, highlights, the search box
+view(["filter"], () => buildGallery());   // shelf.js: the tiles matching the search
+view(["status"], drawStatus);
 
 function updateSavePng() {
   $("save-png").href = "/api/frame?" + new URLSearchParams({ x: state.x.join(","), basis: state.basis,
@@ -261,16 +273,26 @@ function drawMap() {
 // moves it; redrawing the map canvas per move cost the software rasteriser most of a drag's time).
 function placeCursor() {
   if (!state.map || !state.x) return;
-  const c = $("map"), [cx, cy] = toCanvas(state.x), k = c.clientWidth / c.width;
+  const c = $("map"), [cx, cy] = toCanvas(state.x), k = mapBox().width / c.width;
   $("cursor").style.transform = `translate(${(cx * k).toFixed(1)}px, ${(cy * k).toFixed(1)}px)`;
   $("cursor").hidden = false;
 }
 
+// The map's box on the page, measured once per pointer press (or after a resize or scroll):
+// measuring it on every move would make the browser lay the page out again within each move.
+let mapRect = null;
+function mapBox() { return mapRect || (mapRect = $("map").getBoundingClientRect()); }
+function forgetMapBox() { mapRect = null; }
+
 function bindMap() {
   const c = $("map"), tip = $("tooltip");
   let dragging = false, lastDown = null;
+  const moved = new ResizeObserver(() => { forgetMapBox(); placeCursor(); });   // the map or the page above it changed size
+  for (const el of [c, document.querySelector("header"), document.body]) if (el) moved.observe(el);
+  window.addEventListener("scroll", forgetMapBox, { passive: true, capture: true });
+  c.addEventListener("pointerenter", forgetMapBox);
   const pos = (ev) => {
-    const r = c.getBoundingClientRect();
+    const r = mapBox();
     return [(ev.clientX - r.left) * c.width / r.width, (ev.clientY - r.top) * c.height / r.height, r];
   };
   // Near a measured material the point snaps to it. A click takes the material's whole point
@@ -286,6 +308,7 @@ function bindMap() {
   };
   c.addEventListener("pointerdown", (ev) => {
     if (!state.map) return;
+    forgetMapBox();   // measured again once for this press
     const now = performance.now();
     const again = lastDown && now - lastDown.t < 500 && Math.hypot(ev.clientX - lastDown.cx, ev.clientY - lastDown.cy) < 6;
     // the point before a press (before the first press of a double-click: where dblclick puts it back)
@@ -390,8 +413,7 @@ function materialName(x) {
 }
 
 function showMaterial(m) {
-  state.material = m;
-  showPoint();
+  update({ material: m });
   if (m.albedo) {
     const a = m.albedo;
     $("albedo-swatch").style.background = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
@@ -486,10 +508,9 @@ function goTo(name) { setX(state.info.latent[state.info.names.indexOf(name)]); }
 // ------------------------------------------------------------------ snippets
 function showSnippet(sn) {
   if (sn.folder !== state.snippetFolder) return;   // asked for before the folder changed
-  state.snippet = sn;
   $("snippet").textContent = sn.xml;
   $("snippet").dataset.x = sn.x.join(",");
-  showPoint();
+  update({ snippet: sn });
   for (const w of snippetWaiters.splice(0)) w();
 }
 const snippetWaiters = [];
@@ -686,15 +707,17 @@ async function main() {
   const mean = info.latent[0].map((_, k) => info.latent.reduce((s, p) => s + p[k], 0) / info.latent.length);
   let best = 0, bd = Infinity;
   info.latent.forEach((p, i) => { const d = p.reduce((s, v, k) => s + (v - mean[k]) ** 2, 0); if (d < bd) { bd = d; best = i; } });
-  state.x = info.latent[best].slice();
+  let x = info.latent[best].slice();
   const hash = new URLSearchParams(location.hash.slice(1));   // #x=...&basis=... from a link
   if (hash.get("basis") && info.bases.some((b) => b.name === hash.get("basis"))) {
     state.basis = hash.get("basis"); $("basis").value = state.basis; sceneInfo();
   }
-  if (hash.get("x")) state.x = linkedPoint(hash.get("x")) || state.x;
+  if (hash.get("x")) x = linkedPoint(hash.get("x")) || x;
+  state.x = x;   // the sliders are built at it; setX draws every part
   buildSliceControls();
   bindMap();
-  setX(state.x);
+  state.x = null;
+  setX(x);
   $("exposure").oninput = () => {
     state.exposure = +$("exposure").value;
     $("exposure-val").textContent = state.exposure.toFixed(1) + " EV";
@@ -706,9 +729,8 @@ async function main() {
   $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there
     const v = $("search").value.trim(), hit = info.names.find((n) => n.toLowerCase() === v.toLowerCase());
     $("search").setCustomValidity("");
-    state.filter = v.toLowerCase();
-    if (hit) { state.filter = ""; goTo(hit); commitPoint(); $("search").blur(); }
-    buildGallery();   // the gallery shows the names matching what is typed
+    if (hit) { goTo(hit); commitPoint(); $("search").blur(); }   // a point elsewhere: the filter ends
+    else update({ filter: v.toLowerCase() });   // the gallery shows the names matching what is typed
   };
   $("search").onkeydown = (ev) => {   // Enter: the one name containing what is typed, else say why not
     if (ev.key !== "Enter") return;
@@ -733,7 +755,7 @@ async function main() {
   };
   bindTabs();
   bindShelf();
-  window.addEventListener("resize", placeCursor);
+  window.addEventListener("resize", () => { forgetMapBox(); placeCursor(); });
   $("export-path").onclick = exportPath;
   $("ref-start").onclick = startReference;
   $("refine-auto").onchange = () => { if ($("refine-auto").checked) refineHere(); else refineOff(); };
@@ -747,7 +769,7 @@ async function main() {
   $("snippet-folder").value = info.snippet_folder;
   $("snippet-folder").onchange = () => {   // the snippets of the point again, relative to the new folder
     state.snippetFolder = $("snippet-folder").value.trim();
-    state.snippet = null; delete asked.snippet; showPoint(); scheduleMove();
+    delete asked.snippet; update({ snippet: null }); scheduleMove();
   };
   $("copy-xml").onclick = () => copySnippet("xml", "XML");
   $("copy-py").onclick = () => copySnippet("python", "Python");

@@ -12,6 +12,7 @@
 "use strict";
 
 const FULL_AFTER = 150;   // ms at rest before the sphere is drawn in full (setFast)
+const NO_WEBGL = "WebGL 2 is not available to a worker in this browser: the preview sphere is off; the rest of the page works.";
 
 class MaterialPreview {
   constructor(canvas, message) {
@@ -32,7 +33,7 @@ class MaterialPreview {
     this.draws = 0;   // sphere redraws (tools/bench.py explore --browser)
     this.worker = null;
     if (!canvas.transferControlToOffscreen || typeof Worker === "undefined") {
-      this.fail("this browser cannot draw WebGL in a worker: the preview sphere is off; the rest of the page works.");
+      this.fail(NO_WEBGL);
       return;
     }
     const offscreen = canvas.transferControlToOffscreen();
@@ -48,7 +49,7 @@ class MaterialPreview {
   answer(m) {
     if (m.type === "drawn") { this.draws++; if (m.serial === this.serial) this.pending = false; }
     else if (m.type === "env") { this.envReady = true; }
-    else if (m.type === "failed") this.fail("WebGL preview failed: " + m.message);
+    else if (m.type === "failed") this.fail(m.message === "no webgl2" ? NO_WEBGL : "WebGL preview failed: " + m.message);
   }
 
   fail(text) {
@@ -105,7 +106,8 @@ class MaterialPreview {
     const src = new Uint16Array(halfs);
     this.table = { halfs: src, layout };
     if (!this.worker) return;
-    this.worker.postMessage({ type: "table", halfs: src.slice().buffer, layout: { dims: layout.dims, full_dims: layout.full_dims, strides: layout.strides } });
+    const copy = src.slice().buffer;   // the worker's own (moved to it, not copied again)
+    this.worker.postMessage({ type: "table", halfs: copy, layout: { dims: layout.dims, full_dims: layout.full_dims, strides: layout.strides } }, [copy]);
     this.message.textContent = "drag on the sphere to move the light";
     this.draw();
   }

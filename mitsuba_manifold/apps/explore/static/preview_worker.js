@@ -150,7 +150,7 @@ const R = { gl: null, canvas: null, u: {}, envInfo: null, params: null, serial: 
 function init(canvas) {
   R.canvas = canvas;
   const gl = canvas.getContext("webgl2", { antialias: false, preserveDrawingBuffer: true });
-  if (!gl) throw new Error("WebGL 2 is not available to a worker in this browser");
+  if (!gl) throw new Error("no webgl2");   // the page says so in its own words
   const compile = (type, src) => {
     const s = gl.createShader(type);
     gl.shaderSource(s, src); gl.compileShader(s);
