@@ -101,10 +101,11 @@ function requestFrame() { channel.send(Object.assign({ type: "frame" }, frameReq
 
 // While a drag runs (pointer down on the map, a slider moving) the scene follows every move;
 // the panel (material, snippet) and the sphere's table follow at most every LIVE[kind] ms, so
-// that they do not take the frames' time (the sphere's redraw is the page's costliest work without
-// a GPU: every 150 ms, not 60; the snippet, a long text laid out again, every second); when the
-// drag rests (REST ms) the kinds not yet asked for the final point are asked for.
-const LIVE = { table: 150, material: 180, snippet: 1000 }, REST = 120;
+// that they do not take the frames' time (the sphere's table, its redraw and the panel cost the
+// server, the page and a machine without a GPU more than a frame: four times a second; the
+// snippet, a long text laid out again, once a second); when the drag rests (REST ms) the kinds
+// not yet asked for the final point are asked for.
+const LIVE = { table: 250, material: 250, snippet: 1000 }, REST = 120;
 const asked = {};   // kind -> [time, x] of its last request
 
 function live() { return state.dragging || performance.now() < state.liveUntil; }
