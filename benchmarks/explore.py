@@ -278,6 +278,20 @@ def _drags(page, at, latent, drags, moves, pace_ms, seed=0):
     return lat, frames, seconds, draws, sent, parts
 
 
+def _reference_until(page, job, done, timeout):
+    """The status of reference job ``job`` (``/api/reference/ID``, fetched by the page) once
+    ``done(status)`` holds; polled (``wait_for_function`` would not wait for a fetch's promise).
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        status = page.evaluate(f"fetch('/api/reference/{job}').then((r) => r.json())")
+        if done(status):
+            return status
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"reference job {job} did not get there in {timeout} s: {status}")
+        time.sleep(0.05)
+
+
 def _with_reference(page, at, latent, drags, moves, pace_ms):
     """The drags again while a 4096-spp reference render runs (started from the page), then the
     render cancelled from the page: ``{"move_to_frame_ms", "moves_per_s", "cancel_s", ...}``.
@@ -288,21 +302,14 @@ def _with_reference(page, at, latent, drags, moves, pace_ms):
     page.click("#ref-start")
     page.wait_for_function("window.explore.state.referenceJob", timeout=30000)
     job = page.evaluate("window.explore.state.referenceJob")
-    page.wait_for_function(
-        f"fetch('/api/reference/{job}').then((r) => r.json()).then((j) => j.progress > 0)",
-        timeout=120000,
-    )  # rendering (past the process's start)
+    _reference_until(page, job, lambda j: j["progress"] > 0, 120)  # rendering, past its start
     lat, frames, seconds, _, sent, _ = _drags(page, at, latent, drags, moves, pace_ms, seed=1)
-    state = page.evaluate(f"fetch('/api/reference/{job}').then((r) => r.json())")
+    state = _reference_until(page, job, lambda j: True, 10)
     cancel_s = None  # None: the render ended before the drags did (a small basis)
     if state["state"] == "rendering" and page.is_visible("#ref-cancel"):
         t0 = time.perf_counter()
         page.click("#ref-cancel")
-        page.wait_for_function(
-            f"fetch('/api/reference/{job}').then((r) => r.json())"
-            ".then((j) => j.state === 'cancelled')",
-            timeout=60000,
-        )
+        _reference_until(page, job, lambda j: j["state"] == "cancelled", 60)
         cancel_s = time.perf_counter() - t0
     return {
         "move_to_frame_ms": _stats(lat),

@@ -201,8 +201,11 @@ def test_snippets_name_the_manifold_relatively_and_render_after_the_folder_moves
 
 
 def _process_state(pid):
-    with open(f"/proc/{pid}/stat") as f:
-        return f.read().rsplit(")", 1)[1].split()[0]  # R, S, T (stopped), ...
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0]  # R, S, T (stopped), ...
+    except FileNotFoundError:
+        return "ended"
 
 
 @pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads process states from /proc")
@@ -221,14 +224,24 @@ def test_a_drag_pauses_a_running_reference_and_it_completes_after(
     pid = job.process.pid
     origin = {"origin": test_explore.TEST_ORIGIN}
     with client.websocket_connect("/ws", headers=origin) as ws:
-        for seq in range(1, 4):  # a drag's frames
-            x = (0.5 * (m.latent[1] + m.latent[2]) + 0.01 * seq).tolist()
+
+        def drag_frame(seq):
+            x = (0.5 * (m.latent[1] + m.latent[2]) + 0.001 * seq).tolist()
             ws.send_text(json.dumps({"type": "frame", "seq": seq, "x": x, "coarse": True}))
             ws.receive_bytes()
-        assert _process_state(pid) == "T"  # stopped while the drag runs
+
+        seq, deadline = 1, time.monotonic() + 30
+        drag_frame(seq)
+        while _process_state(pid) != "T":  # stopped while the drag runs
+            assert time.monotonic() < deadline, "a drag's frames did not pause the render"
+            seq += 1
+            drag_frame(seq)
         progress = job.progress
-        time.sleep(0.25 * reference.HOLD_S)
-        assert _process_state(pid) == "T" and job.progress == progress
+        for _ in range(3):  # the drag goes on: the render stays paused
+            seq += 1
+            drag_frame(seq)
+            time.sleep(0.1)
+            assert _process_state(pid) == "T" and job.progress == progress
     deadline = time.monotonic() + 5 * reference.HOLD_S
     while job.process is not None and _process_state(pid) == "T":
         assert time.monotonic() < deadline, "the render was not resumed after the drag"
