@@ -546,41 +546,45 @@ async function copy(text, what) {
 // replace it when they arrive, cached there per pair. t moves along the path's points at equal
 // index steps (equal perceptual steps for uniform and geodesic).
 const ROUTE_STEPS = 21;
-function endLabel(end) { return end.name || "(" + end.x.map((v) => fmtNum(v)).join(", ") + ")"; }
-function setEnd(which) {
-  const end = { x: state.x.slice(), name: materialName(state.x) };
-  state[which] = end;
-  $(which + "-label").textContent = endLabel(end);
-  const ready = state.a && state.b && !sameX(state.a.x, state.b.x);
-  $("scrub").disabled = !ready; $("export-path").disabled = !ready;
-  $("scrub").value = which === "a" ? 0 : 1000; updateScrub();
-  if (ready) requestRoute(); else { state.route = null; $("route-state").textContent = ""; }
+function endLabel(end) { return end ? end.name || "(" + end.x.map((v) => fmtNum(v)).join(", ") + ")" : "–"; }
+const pathReady = () => !!(state.a && state.b && !sameX(state.a.x, state.b.x));
+// The path's part of the page, drawn from the state (store.js): the ends, what the path is
+// (state.route.note) and the controls that need two different ends; the map shows the path.
+function drawPath() {
+  setText($("a-label"), endLabel(state.a));
+  setText($("b-label"), endLabel(state.b));
+  $("scrub").disabled = !pathReady(); $("export-path").disabled = !pathReady();
+  setText($("route-state"), state.route ? state.route.note : "");
   drawMap();
+}
+view(["a", "b", "route"], drawPath);
+function setEnd(which) {
+  $("scrub").value = which === "a" ? 0 : 1000; updateScrub();
+  update({ [which]: { x: state.x.slice(), name: materialName(state.x) }, route: null });
+  if (pathReady()) requestRoute();
 }
 function straightRoute() {
   const a = state.a.x, b = state.b.x;
   return Array.from({ length: ROUTE_STEPS }, (_, k) => a.map((v, d) => v + (k / (ROUTE_STEPS - 1)) * (b[d] - v)));
 }
 function requestRoute() {
-  const kind = $("path-kind").value;
-  state.route = { kind: "straight", want: kind, a: state.a.x, b: state.b.x, points: straightRoute() };
-  if (kind === "straight") { $("route-state").textContent = "the latent segment"; return; }
-  $("route-state").textContent = `${kind}: computing in the background… (straight meanwhile)`;
-  state.routeSeq = channel.send({ type: "route", a: state.a.x, b: state.b.x, steps: ROUTE_STEPS, kind }, ["route"]);
+  const kind = $("path-kind").value, straight = kind === "straight";
+  if (!straight) state.routeSeq = channel.send({ type: "route", a: state.a.x, b: state.b.x, steps: ROUTE_STEPS, kind }, ["route"]);
+  update({ route: { kind: "straight", want: kind, a: state.a.x, b: state.b.x, points: straightRoute(),
+                    note: straight ? "the latent segment" : `${kind}: computing in the background… (straight meanwhile)` } });
 }
 function showRoute(meta) {
   const r = state.route;
   if (!r || meta.seq !== state.routeSeq || meta.kind !== r.want || !sameX(meta.a, r.a) || !sameX(meta.b, r.b)) return;
   const onPath = sameX(state.x, pointOnRoute(+$("scrub").value / 1000));
-  state.route = Object.assign({}, r, { kind: meta.kind, points: meta.points });
   const L = meta.lengths.reduce((s, v) => s + v, 0), spread = Math.max(...meta.lengths) / (L / meta.lengths.length);
-  $("route-state").textContent = `${meta.kind} · perceptual length ${fmtNum(L)} · largest step ${spread.toFixed(2)}× the mean`;
+  update({ route: Object.assign({}, r, { kind: meta.kind, points: meta.points,
+    note: `${meta.kind} · perceptual length ${fmtNum(L)} · largest step ${spread.toFixed(2)}× the mean` }) });
   if (onPath) { scrub(); commitPoint(); }   // the point shown moves onto the new path
-  drawMap();
 }
 function routeFailed(meta) {
-  if (meta.seq !== state.routeSeq) return;
-  $("route-state").textContent = `${$("path-kind").value} unavailable (${meta.error}): straight`;
+  if (meta.seq !== state.routeSeq || !state.route) return;
+  update({ route: Object.assign({}, state.route, { note: `${$("path-kind").value} unavailable (${meta.error}): straight` }) });
 }
 function pointOnRoute(t) {
   const P = state.route.points, u = t * (P.length - 1), k = Math.min(P.length - 2, Math.floor(u)), f = u - k;
@@ -748,11 +752,10 @@ async function main() {
   for (const k of info.path_kinds) $("path-kind").add(new Option(k, k));
   $("path-kind").value = info.path_kind;
   $("path-kind").onchange = () => {
-    if (!(state.a && state.b && !sameX(state.a.x, state.b.x))) { drawMap(); return; }
+    if (!pathReady()) return;
     const onPath = state.route && sameX(state.x, pointOnRoute(+$("scrub").value / 1000));
     requestRoute();
     if (onPath) { scrub(); commitPoint(); }   // the point follows the scrubber onto the new path
-    drawMap();
   };
   bindTabs();
   bindShelf();
