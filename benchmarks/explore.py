@@ -278,6 +278,20 @@ def _drags(page, at, latent, drags, moves, pace_ms, seed=0):
     return lat, frames, seconds, draws, sent, parts
 
 
+def _reference_until(page, job, done, timeout):
+    """The status of reference job ``job`` (``/api/reference/ID``, fetched by the page) once
+    ``done(status)`` holds; polled (``wait_for_function`` would not wait for a fetch's promise).
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        status = page.evaluate(f"fetch('/api/reference/{job}').then((r) => r.json())")
+        if done(status):
+            return status
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"reference job {job} did not get there in {timeout} s: {status}")
+        time.sleep(0.05)
+
+
 def _with_reference(page, at, latent, drags, moves, pace_ms):
     """The drags again while a 4096-spp reference render runs (started from the page), then the
     render cancelled from the page: ``{"move_to_frame_ms", "moves_per_s", "cancel_s", ...}``.
@@ -288,21 +302,14 @@ def _with_reference(page, at, latent, drags, moves, pace_ms):
     page.click("#ref-start")
     page.wait_for_function("window.explore.state.referenceJob", timeout=30000)
     job = page.evaluate("window.explore.state.referenceJob")
-    page.wait_for_function(
-        f"fetch('/api/reference/{job}').then((r) => r.json()).then((j) => j.progress > 0)",
-        timeout=120000,
-    )  # rendering (past the process's start)
+    _reference_until(page, job, lambda j: j["progress"] > 0, 120)  # rendering, past its start
     lat, frames, seconds, _, sent, _ = _drags(page, at, latent, drags, moves, pace_ms, seed=1)
-    state = page.evaluate(f"fetch('/api/reference/{job}').then((r) => r.json())")
+    state = _reference_until(page, job, lambda j: True, 10)
     cancel_s = None  # None: the render ended before the drags did (a small basis)
     if state["state"] == "rendering" and page.is_visible("#ref-cancel"):
         t0 = time.perf_counter()
         page.click("#ref-cancel")
-        page.wait_for_function(
-            f"fetch('/api/reference/{job}').then((r) => r.json())"
-            ".then((j) => j.state === 'cancelled')",
-            timeout=60000,
-        )
+        _reference_until(page, job, lambda j: j["state"] == "cancelled", 60)
         cancel_s = time.perf_counter() - t0
     return {
         "move_to_frame_ms": _stats(lat),
@@ -497,3 +504,80 @@ def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000),
     finally:
         launch.stop(proc)
     return path
+
+
+def fireflies(basis, manifold, out, points=12, seed=0):
+    """Drag frames against rest frames of the explorer (:mod:`mitsuba_manifold.apps.explore.fireflies`):
+    at the point 80% of the way from gold-metallic-paint (when the basis has it, else the first
+    material) to its nearest latent neighbour, ``points - 1`` random points between pairs of
+    materials and three materials, the summed blend (a drag's frame before the clamp), the drag's
+    frame and the rest frame (L2+ denoised), in 8-bit sRGB. Writes ``out`` (PNG: 32x32 crops,
+    x6, around the largest difference of the summed blend at the first two points; columns: drag
+    frame without the clamp, with it, rest frame) and returns the worst mean, 99.9th percentile
+    and largest difference to the rest frame over the points, without and with the clamp.
+    """
+    import io
+
+    from PIL import Image, ImageDraw
+
+    from mitsuba_manifold._util.atomic import write_bytes
+    from mitsuba_manifold.apps.explore import encode
+    from mitsuba_manifold.apps.explore import fireflies as ff
+    from mitsuba_manifold.basis.blend import blend
+    from mitsuba_manifold.basis.composition import compose
+    from mitsuba_manifold.basis.folder import Basis
+    from mitsuba_manifold.manifold.model import Manifold
+
+    b = Basis.load(basis)
+    m = Manifold.load(manifold or b.manifest.manifold)
+    lat, rng = m.latent, np.random.default_rng(seed)
+    first = m.index("gold-metallic-paint") if "gold-metallic-paint" in m.names else 0
+    near = int(np.argsort(np.linalg.norm(lat - lat[first], axis=1))[1])
+    xs = [0.8 * lat[first] + 0.2 * lat[near]]
+    for _ in range(points - 1):
+        i, j = rng.choice(len(lat), 2, replace=False)
+        t = rng.uniform(0.2, 0.8)
+        xs.append((1 - t) * lat[i] + t * lat[j])
+    xs += [lat[k] for k in rng.choice(len(lat), 3, replace=False)]
+    worst = {"summed": np.zeros(3), "clamped": np.zeros(3)}
+    crops = []
+    for k, x in enumerate(xs):
+        raw, info = blend(b, m, x=x, l2="raw")
+        l1 = compose(b, info["plan"].keys, info["plan"].image_weights, None)[0]
+        drag, _ = ff.drag_image(raw, l1)
+        rest, _ = blend(b, m, x=x, l2="denoised")
+        s, d, r = (encode.tonemap(v, 0).astype(int) for v in (raw, drag, rest))
+        for name, v in (("summed", s), ("clamped", d)):
+            diff = np.abs(v - r)
+            got = [diff.mean(), np.percentile(diff.max(axis=2), 99.9), diff.max()]
+            worst[name] = np.maximum(worst[name], got)
+        if k < 2:
+            y, xx = np.unravel_index(np.abs(s - r).max(axis=2).argmax(), s.shape[:2])
+            y0 = min(max(y - 16, 0), s.shape[0] - 32)
+            x0 = min(max(xx - 16, 0), s.shape[1] - 32)
+            crops.append(
+                [
+                    Image.fromarray(v[y0 : y0 + 32, x0 : x0 + 32].astype(np.uint8)).resize(
+                        (192, 192), Image.NEAREST
+                    )
+                    for v in (s, d, r)
+                ]
+            )
+    sheet = Image.new("RGB", (3 * 196, len(crops) * 196 + 18), "white")
+    draw = ImageDraw.Draw(sheet)
+    for c, label in enumerate(("drag frame, summed", "drag frame, clamped", "rest frame")):
+        draw.text((c * 196 + 4, len(crops) * 196 + 4), label, fill="black")
+    for r, row in enumerate(crops):
+        for c, tile in enumerate(row):
+            sheet.paste(tile, (c * 196, r * 196))
+    buf = io.BytesIO()
+    sheet.save(buf, format="PNG")
+    write_bytes(out, buf.getvalue())
+    return {
+        "points": len(xs),
+        "against the rest frame, 8-bit sRGB, worst over the points": {
+            name: {"mean": float(v[0]), "p99_9": float(v[1]), "max": float(v[2])}
+            for name, v in worst.items()
+        },
+        "crops": out,
+    }

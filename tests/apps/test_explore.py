@@ -630,13 +630,15 @@ def test_drag_changes_the_image(page, small_manifold_paper):
 @browser_only
 def test_preview_sphere_is_shaded(page, small_manifold_paper):
     _click_material(page, small_manifold_paper, "white-diffuse-bball")
-    page.wait_for_timeout(500)
+    page.wait_for_function(
+        "() => { const p = window.explore.preview; return p.envReady && !p.fast && !p.pending; }"
+    )  # drawn in full (its worker has answered)
     centre, corner = page.evaluate("""() => { const s = document.getElementById('sphere');
         const c = document.createElement('canvas'); c.width = s.width; c.height = s.height;
         const g = c.getContext('2d'); g.drawImage(s, 0, 0);
         const px = (x, y) => Array.from(g.getImageData(x, y, 1, 1).data);
         return [px(s.width * 0.62, s.height * 0.38), px(s.width * 0.25, s.height * 0.78)]; }""")
-    assert page.evaluate("!!document.getElementById('sphere').getContext('webgl2')")
+    assert page.evaluate("!!window.explore.preview.worker && window.explore.preview.draws > 0")
     # the side facing the key light (upper right) is lit, the one facing the ground (lower left) much less
     lit, away = centre, corner
     assert sum(lit[:3]) > 3 * 60 and sum(lit[:3]) > sum(away[:3]) + 60, (lit, away)
@@ -762,7 +764,8 @@ def test_without_webgl_the_page_says_so_and_works(page, server, explorer, small_
     try:
         other.add_init_script("""{ const get = HTMLCanvasElement.prototype.getContext;
             HTMLCanvasElement.prototype.getContext = function (kind, ...rest) {
-                return kind === 'webgl2' ? null : get.call(this, kind, ...rest); }; }""")
+                return kind === 'webgl2' ? null : get.call(this, kind, ...rest); };
+            delete HTMLCanvasElement.prototype.transferControlToOffscreen; }""")  # no WebGL for the sphere's worker
         other.goto(server)
         other.wait_for_function(
             "window.explore && window.explore.state.displayed && window.explore.state.map",

@@ -301,3 +301,91 @@ def test_the_preview_sphere_has_no_point_light_speckles(
         img[inside].max(),
         spikes.sum(),
     )  # the sun: a small clean disc
+
+
+#: Every part of the page that follows the point, against the state: the list of the parts that
+#: disagree (empty: consistent). The answers of the point (frame, material, snippet) are awaited.
+INCONSISTENT = """() => {
+  const e = window.explore, s = e.state, x = s.x, key = x.join(","), bad = [];
+  const same = (text) => text === key;
+  const name = (() => { const i = s.info.latent.findIndex((p) => p.every((v, k) => v === x[k])); return i >= 0 ? s.info.names[i] : ""; })();
+  if (!same(document.getElementById('material-name').dataset.x)) bad.push('name');
+  if (!s.displayed || !same(s.displayed.x.join(",")) || !same(document.getElementById('scene').dataset.x)) bad.push('frame');
+  if (!s.material || !same(s.material.x.join(",")) || document.getElementById('material-panel').classList.contains('stale')) bad.push('material');
+  if (!s.snippet || !same(document.getElementById('snippet').dataset.x) || document.getElementById('use-box').classList.contains('stale')) bad.push('snippet');
+  if (document.getElementById('search').value !== name) bad.push('search box');
+  const n = s.info.names.length, tiles = document.querySelectorAll('#gallery .tile').length;
+  if (s.filter) bad.push('filter left over');
+  if (tiles !== n || document.getElementById('gallery-count').textContent !== n + ' materials') bad.push('gallery');
+  for (const el of document.querySelectorAll('#compare .cmp, #favs .fav'))
+    if (el.classList.contains('here') !== same(el.dataset.x)) bad.push('highlight ' + el.className);
+  const fav = JSON.parse(localStorage.getItem(Object.keys(localStorage).find((k) => k.includes('favourites')) || 'null') || '[]');
+  if ((document.getElementById('fav').textContent[0] === '★') !== fav.some((f) => f.x.join(",") === key)) bad.push('favourite button');
+  if (new URLSearchParams(document.getElementById('save-png').search).get('x') !== key) bad.push('save link');
+  if (new URLSearchParams(location.hash.slice(1)).get('x') !== key) bad.push('address');
+  if (s.status && s.status.error) bad.push('status error: ' + s.status.text);
+  if (e.channel.pending() !== 0) bad.push('answers pending');
+  return bad;
+}"""
+
+
+def _consistent(pg, what):
+    try:
+        pg.wait_for_function(f"({INCONSISTENT})().length === 0", timeout=30000)
+    except Exception:
+        raise AssertionError(f"after {what}: {pg.evaluate(INCONSISTENT)}") from None
+
+
+@browser_only
+def test_every_part_follows_the_point_through_undo_redo_search_drag_and_scrub(
+    browser, server, small_manifold_paper
+):
+    """One walk through the ways the point changes; after each, every part of the page (name,
+    frame, material panel, snippet, search box, gallery, highlights, favourite button, save link,
+    address, header status) shows the point the state holds."""
+    m = Manifold.load(small_manifold_paper)
+    with _page(browser, server) as pg:
+        pg.evaluate("localStorage.clear()")
+        _click(pg, m, "chrome")
+        pg.click("#compare-add")
+        pg.click("#set-a")
+        _click(pg, m, "steel")
+        pg.click("#fav")
+        pg.click("#set-b")
+        _consistent(pg, "clicks, compare, favourite, path ends")
+        pg.fill("#search", "blue-acrylic")  # a full name goes there
+        test_explore._wait_displayed(pg, m.latent[m.index("blue-acrylic")])
+        _consistent(pg, "search")
+        a = _map_position(pg, m.latent[m.index("blue-acrylic")])
+        b = _map_position(pg, 0.5 * (m.latent[m.index("chrome")] + m.latent[m.index("steel")]))
+        pg.mouse.move(*a)
+        pg.mouse.down()
+        for k in range(1, 13):  # a drag off the materials
+            pg.mouse.move(a[0] + (b[0] - a[0]) * k / 12, a[1] + (b[1] - a[1]) * k / 12 + 7)
+        pg.mouse.up()
+        dragged = pg.evaluate("window.explore.state.x")
+        _consistent(pg, "drag")
+        pg.click("#undo")
+        test_explore._wait_displayed(pg, m.latent[m.index("blue-acrylic")])
+        _consistent(pg, "undo of the drag")
+        pg.click("#undo")
+        test_explore._wait_displayed(pg, m.latent[m.index("steel")])
+        _consistent(pg, "undo of the search")
+        pg.click("#redo")
+        pg.click("#redo")
+        test_explore._wait_displayed(pg, dragged)
+        _consistent(pg, "redo twice")
+        pg.fill("#search", "paint")  # a partial name filters the gallery ...
+        assert pg.evaluate("window.explore.state.filter") == "paint"
+        pg.eval_on_selector(
+            "#scrub", "s => { s.value = '500'; s.dispatchEvent(new Event('input')); }"
+        )
+        pg.dispatch_event("#scrub", "change")  # ... until the point moves: along the path
+        assert pg.evaluate(
+            "() => { const e = window.explore; return e.state.x.every((v, k) => v === e.pointOnRoute(0.5)[k]); }"
+        )
+        _consistent(pg, "scrub")
+        pg.click("#undo")
+        test_explore._wait_displayed(pg, dragged)
+        _consistent(pg, "undo of the scrub")
+        assert not pg.errors

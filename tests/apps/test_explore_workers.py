@@ -3,6 +3,7 @@ whose page went away, that was cancelled or that failed never stops the worker, 
 job of each kind completes."""
 
 import json
+import os
 import time
 
 import numpy as np
@@ -14,6 +15,7 @@ pytestmark = pytest.mark.render
 
 import test_explore  # noqa: E402
 
+from mitsuba_manifold.apps.explore import reference  # noqa: E402
 from mitsuba_manifold.errors import InputError  # noqa: E402
 from mitsuba_manifold.manifold import paths  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
@@ -196,3 +198,53 @@ def test_snippets_name_the_manifold_relatively_and_render_after_the_folder_moves
     np.testing.assert_allclose(namespace["bsdf"].latent, x, rtol=1e-5)
     with pytest.raises(InputError, match="absolute folder"):
         explorer.snippets(x, "relative/folder")
+
+
+def _process_state(pid):
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0]  # R, S, T (stopped), ...
+    except FileNotFoundError:
+        return "ended"
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads process states from /proc")
+def test_a_drag_pauses_a_running_reference_and_it_completes_after(
+    client, explorer, small_manifold_paper, monkeypatch
+):
+    """The frames of a drag pause a running reference render (its process stopped while they
+    come, so it takes none of their CPU), which goes on by itself once they stop and completes."""
+    monkeypatch.setattr(reference, "HOLD_S", 2.0)  # longer than a frame takes on a loaded machine
+    m = Manifold.load(small_manifold_paper)
+    job = explorer.start_reference(None, m.latent[0], 4096)
+    deadline = time.monotonic() + 60
+    while job.process is None and job.state in ("queued", "rendering"):
+        assert time.monotonic() < deadline, "the reference render did not start"
+        time.sleep(0.02)
+    pid = job.process.pid
+    origin = {"origin": test_explore.TEST_ORIGIN}
+    with client.websocket_connect("/ws", headers=origin) as ws:
+
+        def drag_frame(seq):
+            x = (0.5 * (m.latent[1] + m.latent[2]) + 0.001 * seq).tolist()
+            ws.send_text(json.dumps({"type": "frame", "seq": seq, "x": x, "coarse": True}))
+            ws.receive_bytes()
+
+        seq, deadline = 1, time.monotonic() + 30
+        drag_frame(seq)
+        while _process_state(pid) != "T":  # stopped while the drag runs
+            assert time.monotonic() < deadline, "a drag's frames did not pause the render"
+            seq += 1
+            drag_frame(seq)
+        progress = job.progress
+        for _ in range(3):  # the drag goes on: the render stays paused
+            seq += 1
+            drag_frame(seq)
+            time.sleep(0.1)
+            assert _process_state(pid) == "T" and job.progress == progress
+    deadline = time.monotonic() + 5 * reference.HOLD_S
+    while job.process is not None and _process_state(pid) == "T":
+        assert time.monotonic() < deadline, "the render was not resumed after the drag"
+        time.sleep(0.02)
+    assert _wait(job) == "done", job.message
+    assert not explorer.references._paused

@@ -3,9 +3,10 @@
 The blend (Eq. 13) holds the paths that touch the material at most once (L1-); a render
 with ``manifold_brdf`` and Mitsuba's ``path`` integrator holds every path. A reference job
 renders the basis's scene with its material at ``x`` in its own process
-(:mod:`.render_job`, started with ``nice`` so that the blends of a drag take the CPU first)
-in passes of :data:`~.render_job.PASS_SAMPLES` paths, so the page can show its progress, then
-measures the blend against it (:func:`mitsuba_manifold.imaging.metrics.compare`). A refinement
+(:mod:`.render_job`, started with ``nice`` so that the blends of a drag take the CPU first,
+and paused while a drag runs: :meth:`References.hold`) in passes of
+:data:`~.render_job.PASS_SAMPLES` paths, so the page can show its progress, then measures the
+blend against it (:func:`mitsuba_manifold.imaging.metrics.compare`). A refinement
 (:meth:`References.submit_refine`) renders in the worker thread itself, at a lower priority.
 One job runs at a time; the others wait in line.
 
@@ -17,6 +18,7 @@ job does (cancelled, failed) stops the worker.
 
 import itertools
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -35,6 +37,8 @@ MAX_SPP = 1 << 14
 KEEP_JOBS = 16
 #: Niceness of the reference processes and of the refinements' thread.
 NICENESS = 10
+#: Seconds a reference render stays paused after a drag's last frame request (:meth:`References.hold`).
+HOLD_S = 0.4
 _ROOT = os.path.dirname(
     os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 )
@@ -114,6 +118,9 @@ class References:
         self._lock = threading.Lock()
         self._stopping = False
         self._latest_refine = None
+        self._held_until = 0.0  # monotonic time until which the running renders stay paused
+        self._paused = {}  # pid -> process paused by hold()
+        self._resumer = None  # the timer that resumes them
 
     def submit(self, name, basis, scene, manifold_path, x, spp, blend_image, tab=None):
         """Start a job; returns it. ``blend_image``: the blend at ``x`` to compare with; ``tab``:
@@ -156,6 +163,54 @@ class References:
         with self._lock:
             self._latest_refine = None
 
+    def hold(self, seconds=None):
+        """A drag's frame was asked for: the running reference processes pause (``SIGSTOP``)
+        until no frame has been asked for ``seconds`` (default :data:`HOLD_S`), then go on (``SIGCONT``). Niceness alone
+        does not keep a render from halving a drag's frames where the render shares the
+        processor's cores (hyperthreads, other users' load); paused, it takes none of their time.
+        Without ``SIGSTOP`` (not POSIX) this does nothing.
+        """
+        if not hasattr(signal, "SIGSTOP"):
+            return
+        seconds = HOLD_S if seconds is None else float(seconds)
+        with self._lock:
+            self._held_until = time.monotonic() + seconds
+            for job in self._jobs.values():
+                proc = job.process
+                if proc is not None and proc.pid not in self._paused and proc.poll() is None:
+                    try:
+                        os.killpg(proc.pid, signal.SIGSTOP)
+                    except OSError:  # ended meanwhile
+                        continue
+                    self._paused[proc.pid] = proc
+            if self._paused and self._resumer is None:
+                self._start_resumer(seconds)
+
+    def _start_resumer(self, seconds):
+        self._resumer = threading.Timer(seconds, self._resume)
+        self._resumer.daemon = True
+        self._resumer.start()
+
+    def _resume(self):
+        with self._lock:
+            left = self._held_until - time.monotonic()
+            if left > 0 and not self._stopping:  # asked again meanwhile: wait for the rest
+                self._start_resumer(left)
+                return
+            self._resumer = None
+            for pid in list(self._paused):
+                self._continue(pid)
+
+    def _continue(self, pid):
+        """Let a paused process go on (also one about to be ended: a stopped process ends only
+        once it runs); called with the lock held.
+        """
+        if self._paused.pop(pid, None) is not None:
+            try:
+                os.killpg(pid, signal.SIGCONT)
+            except OSError:
+                pass
+
     def cancel(self, job_id):
         """Cancel a job: queued, it never starts; rendering, it stops after its pass. Returns
         the job (None when unknown).
@@ -169,6 +224,7 @@ class References:
                 proc = job.process
                 if proc is not None and proc.poll() is None:
                     proc.terminate()
+                    self._continue(proc.pid)
         return job
 
     def cancel_tab(self, tab):
@@ -307,7 +363,9 @@ class References:
                 if proc.poll() is None:
                     proc.kill()
                     proc.wait()
-                job.process = None
+                with self._lock:
+                    self._paused.pop(proc.pid, None)
+                    job.process = None
             self._check(job)
             if proc.returncode != 0:
                 with open(os.path.join(tmp, "stderr.txt"), errors="replace") as f:

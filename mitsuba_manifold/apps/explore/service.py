@@ -19,12 +19,13 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from ...basis.blend import DEFAULT_PRUNE, blend
+from ...basis.composition import compose
 from ...basis.folder import Basis
 from ...data.database import cache_folder
 from ...errors import InputError
 from ...manifold import paths as path_kinds
 from ...manifold.model import Manifold
-from . import encode, hdri, latentmap, material
+from . import encode, fireflies, hdri, latentmap, material
 from .bases import names as _names
 from .bases import scene_of as _scene_of
 from .bases import warm as _warm
@@ -161,19 +162,26 @@ class Explorer:
     number = staticmethod(number)
 
     def blend(self, name, x, l2="denoised"):
-        """Linear image (H, W, 3) of latent point ``x`` and the blend's info (``l2``: of :func:`blend`);
-        the last one is kept (the exposure slider tonemaps it again, without denoising again).
+        """Linear image (H, W, 3) of latent point ``x`` and the blend's info (``l2``: of :func:`blend`;
+        ``"raw"``, a drag's, has the fireflies of its part beyond L1- clamped:
+        :func:`.fireflies.drag_image`); the last one is kept (the exposure slider tonemaps it
+        again, without denoising again).
         """
         key, last = (name, np.asarray(x, np.float64).tobytes(), l2), self._last_blend
         if last[0] != key:
-            last = self._last_blend = (
-                key,
-                blend(self.basis(name), self.manifold, x=x, prune=self.prune, l2=l2),
-            )
+            basis = self.basis(name)
+            img, info = blend(basis, self.manifold, x=x, prune=self.prune, l2=l2)
+            if info.get("l2") == "raw" and basis.p == 1:  # a drag's frame: no lone bright pixels
+                plan = info["plan"]
+                l1, _, _ = compose(basis, plan.keys, plan.image_weights, None)
+                img, info["fireflies"] = fireflies.drag_image(img, l1)
+            last = self._last_blend = (key, (img, info))
         return last[1]
 
     def frame(self, name, x, exposure=0.0, fmt="jpeg", coarse=False):
-        """Encoded frame of ``x``: ``(bytes, meta)``. ``coarse`` (a drag): L2+ summed, not denoised."""
+        """Encoded frame of ``x``: ``(bytes, meta)``. ``coarse`` (a drag): L2+ summed, not denoised
+        (its fireflies clamped).
+        """
         if fmt not in encode.FORMATS:
             raise InputError(f"format must be one of {encode.FORMATS}, got {show(fmt)}")
         t0 = time.perf_counter()

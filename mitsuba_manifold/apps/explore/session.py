@@ -247,8 +247,9 @@ class Session:
         if kind == "frame":
             exposure = ex.number(req.get("exposure"), "exposure", -20, 20, 0.0)
             coarse = _coarse(req)
-            if coarse:  # a drag: no refinement competes with its frames for the CPU
+            if coarse:  # a drag: no refinement nor reference competes with its frames for the CPU
                 ex.references.supersede_refine()
+                ex.references.hold()
             data, meta = await run_in_threadpool(
                 ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"), coarse
             )

@@ -10,9 +10,11 @@ const LOCAL = ["127.0.0.1", "localhost", "[::1]"].includes(location.hostname);
 
 const NUMBER = /^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$/;   // as the server takes them (no "1_0")
 
+// The page's state (store.js: changed through update(), which draws the parts that follow it).
 const state = {
   info: null, x: null, basis: null, exposure: 0, dims: [0, 1], map: null, mapImage: null,
   hover: -1, a: null, b: null, displayed: null, material: null, snippet: null, errors: [], zoom: null,
+  filter: "", status: null,
   mapKey: null, moves: 0, dragging: false, liveUntil: 0,
   // raw RGBA on this machine (exact, no encoding); JPEG when the page is viewed from elsewhere
   format: new URLSearchParams(location.search).get("format") || (LOCAL ? "rgba" : "jpeg"),
@@ -32,12 +34,14 @@ async function api(path, options) {
 // The header's status: one line, an error tied to its source (a kind of answer, "reference",
 // "snippet", ...): the next success of that source clears it (clearError).
 function setStatus(text, error = false, source = null) {
-  state.status = { text, error, source };
-  const s = $("status");
-  s.textContent = text;
-  s.title = text;
-  s.classList.toggle("error", error);
   if (error) state.errors.push(text);
+  update({ status: { text, error, source } });
+}
+function drawStatus() {
+  const st = state.status, s = $("status");
+  s.textContent = st.text;
+  s.title = st.text;
+  s.classList.toggle("error", st.error);
 }
 function clearError(source) {
   if (state.status && state.status.error && state.status.source === source) setStatus("connected");
@@ -97,10 +101,11 @@ function requestFrame() { channel.send(Object.assign({ type: "frame" }, frameReq
 
 // While a drag runs (pointer down on the map, a slider moving) the scene follows every move;
 // the panel (material, snippet) and the sphere's table follow at most every LIVE[kind] ms, so
-// that they do not take the frames' time (the sphere's redraw is the page's costliest work without
-// a GPU: every 150 ms, not 60); when the drag rests (REST ms) the kinds not yet
-// asked for the final point are asked for.
-const LIVE = { table: 150, material: 180, snippet: 250 }, REST = 120;
+// that they do not take the frames' time (the sphere's table, its redraw and the panel cost the
+// server, the page and a machine without a GPU more than a frame: four times a second; the
+// snippet, a long text laid out again, once a second); when the drag rests (REST ms) the kinds
+// not yet asked for the final point are asked for.
+const LIVE = { table: 250, material: 250, snippet: 1000 }, REST = 120;
 const asked = {};   // kind -> [time, x] of its last request
 
 function live() { return state.dragging || performance.now() < state.liveUntil; }
@@ -149,9 +154,14 @@ function requestMap() {
   channel.send({ type: "map", x: state.x, dims: state.dims, extent: state.zoom }, ["map"]);
 }
 
+// The point shown changes (a drag, a click, undo/redo, a name, a link, the path scrubber): the
+// state first, then every part that follows the point (the views below), then its answers asked for.
 function setX(x) {
-  state.x = x.slice();
+  update({ x: x.slice() });
   scheduleMove();
+}
+// The parts of the page that follow the point (store.js).
+function drawPoint() {
   // the point (and basis) in the address: a reload or a shared link comes back here (at most every
   // 200 ms: the browser rate-limits replaceState, and each call costs the drag milliseconds)
   clearTimeout(state.addressTimer);
@@ -159,11 +169,14 @@ function setX(x) {
                                   (state.basis ? "&basis=" + encodeURIComponent(state.basis) : "")), 200);
   updateSavePng();
   updateSliders();
-  showPoint();
   if (state.map && sliceKey() !== state.drawnSlice) drawMap();   // q > 2: the materials fade by their distance to the slice
   else placeCursor();
-  renderShelf();   // shelf.js: favourite button, highlights, the search filter
 }
+view(["x"], drawPoint);
+view(["x", "material", "snippet"], showPoint);
+view(["x"], () => renderShelf());   // shelf.js: favourite button, highlights, the search box
+view(["filter"], () => buildGallery());   // shelf.js: the tiles matching the search
+view(["status"], drawStatus);
 
 function updateSavePng() {
   $("save-png").href = "/api/frame?" + new URLSearchParams({ x: state.x.join(","), basis: state.basis,
@@ -261,16 +274,26 @@ function drawMap() {
 // moves it; redrawing the map canvas per move cost the software rasteriser most of a drag's time).
 function placeCursor() {
   if (!state.map || !state.x) return;
-  const c = $("map"), [cx, cy] = toCanvas(state.x), k = c.clientWidth / c.width;
+  const c = $("map"), [cx, cy] = toCanvas(state.x), k = mapBox().width / c.width;
   $("cursor").style.transform = `translate(${(cx * k).toFixed(1)}px, ${(cy * k).toFixed(1)}px)`;
   $("cursor").hidden = false;
 }
 
+// The map's box on the page, measured once per pointer press (or after a resize or scroll):
+// measuring it on every move would make the browser lay the page out again within each move.
+let mapRect = null;
+function mapBox() { return mapRect || (mapRect = $("map").getBoundingClientRect()); }
+function forgetMapBox() { mapRect = null; }
+
 function bindMap() {
   const c = $("map"), tip = $("tooltip");
   let dragging = false, lastDown = null;
+  const moved = new ResizeObserver(() => { forgetMapBox(); placeCursor(); });   // the map or the page above it changed size
+  for (const el of [c, document.querySelector("header"), document.body]) if (el) moved.observe(el);
+  window.addEventListener("scroll", forgetMapBox, { passive: true, capture: true });
+  c.addEventListener("pointerenter", forgetMapBox);
   const pos = (ev) => {
-    const r = c.getBoundingClientRect();
+    const r = mapBox();
     return [(ev.clientX - r.left) * c.width / r.width, (ev.clientY - r.top) * c.height / r.height, r];
   };
   // Near a measured material the point snaps to it. A click takes the material's whole point
@@ -286,6 +309,7 @@ function bindMap() {
   };
   c.addEventListener("pointerdown", (ev) => {
     if (!state.map) return;
+    forgetMapBox();   // measured again once for this press
     const now = performance.now();
     const again = lastDown && now - lastDown.t < 500 && Math.hypot(ev.clientX - lastDown.cx, ev.clientY - lastDown.cy) < 6;
     // the point before a press (before the first press of a double-click: where dblclick puts it back)
@@ -390,8 +414,7 @@ function materialName(x) {
 }
 
 function showMaterial(m) {
-  state.material = m;
-  showPoint();
+  update({ material: m });
   if (m.albedo) {
     const a = m.albedo;
     $("albedo-swatch").style.background = `rgb(${a.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)) ** (1 / 2.2))).join(",")})`;
@@ -486,10 +509,9 @@ function goTo(name) { setX(state.info.latent[state.info.names.indexOf(name)]); }
 // ------------------------------------------------------------------ snippets
 function showSnippet(sn) {
   if (sn.folder !== state.snippetFolder) return;   // asked for before the folder changed
-  state.snippet = sn;
   $("snippet").textContent = sn.xml;
   $("snippet").dataset.x = sn.x.join(",");
-  showPoint();
+  update({ snippet: sn });
   for (const w of snippetWaiters.splice(0)) w();
 }
 const snippetWaiters = [];
@@ -524,41 +546,45 @@ async function copy(text, what) {
 // replace it when they arrive, cached there per pair. t moves along the path's points at equal
 // index steps (equal perceptual steps for uniform and geodesic).
 const ROUTE_STEPS = 21;
-function endLabel(end) { return end.name || "(" + end.x.map((v) => fmtNum(v)).join(", ") + ")"; }
-function setEnd(which) {
-  const end = { x: state.x.slice(), name: materialName(state.x) };
-  state[which] = end;
-  $(which + "-label").textContent = endLabel(end);
-  const ready = state.a && state.b && !sameX(state.a.x, state.b.x);
-  $("scrub").disabled = !ready; $("export-path").disabled = !ready;
-  $("scrub").value = which === "a" ? 0 : 1000; updateScrub();
-  if (ready) requestRoute(); else { state.route = null; $("route-state").textContent = ""; }
+function endLabel(end) { return end ? end.name || "(" + end.x.map((v) => fmtNum(v)).join(", ") + ")" : "–"; }
+const pathReady = () => !!(state.a && state.b && !sameX(state.a.x, state.b.x));
+// The path's part of the page, drawn from the state (store.js): the ends, what the path is
+// (state.route.note) and the controls that need two different ends; the map shows the path.
+function drawPath() {
+  setText($("a-label"), endLabel(state.a));
+  setText($("b-label"), endLabel(state.b));
+  $("scrub").disabled = !pathReady(); $("export-path").disabled = !pathReady();
+  setText($("route-state"), state.route ? state.route.note : "");
   drawMap();
+}
+view(["a", "b", "route"], drawPath);
+function setEnd(which) {
+  $("scrub").value = which === "a" ? 0 : 1000; updateScrub();
+  update({ [which]: { x: state.x.slice(), name: materialName(state.x) }, route: null });
+  if (pathReady()) requestRoute();
 }
 function straightRoute() {
   const a = state.a.x, b = state.b.x;
   return Array.from({ length: ROUTE_STEPS }, (_, k) => a.map((v, d) => v + (k / (ROUTE_STEPS - 1)) * (b[d] - v)));
 }
 function requestRoute() {
-  const kind = $("path-kind").value;
-  state.route = { kind: "straight", want: kind, a: state.a.x, b: state.b.x, points: straightRoute() };
-  if (kind === "straight") { $("route-state").textContent = "the latent segment"; return; }
-  $("route-state").textContent = `${kind}: computing in the background… (straight meanwhile)`;
-  state.routeSeq = channel.send({ type: "route", a: state.a.x, b: state.b.x, steps: ROUTE_STEPS, kind }, ["route"]);
+  const kind = $("path-kind").value, straight = kind === "straight";
+  if (!straight) state.routeSeq = channel.send({ type: "route", a: state.a.x, b: state.b.x, steps: ROUTE_STEPS, kind }, ["route"]);
+  update({ route: { kind: "straight", want: kind, a: state.a.x, b: state.b.x, points: straightRoute(),
+                    note: straight ? "the latent segment" : `${kind}: computing in the background… (straight meanwhile)` } });
 }
 function showRoute(meta) {
   const r = state.route;
   if (!r || meta.seq !== state.routeSeq || meta.kind !== r.want || !sameX(meta.a, r.a) || !sameX(meta.b, r.b)) return;
   const onPath = sameX(state.x, pointOnRoute(+$("scrub").value / 1000));
-  state.route = Object.assign({}, r, { kind: meta.kind, points: meta.points });
   const L = meta.lengths.reduce((s, v) => s + v, 0), spread = Math.max(...meta.lengths) / (L / meta.lengths.length);
-  $("route-state").textContent = `${meta.kind} · perceptual length ${fmtNum(L)} · largest step ${spread.toFixed(2)}× the mean`;
+  update({ route: Object.assign({}, r, { kind: meta.kind, points: meta.points,
+    note: `${meta.kind} · perceptual length ${fmtNum(L)} · largest step ${spread.toFixed(2)}× the mean` }) });
   if (onPath) { scrub(); commitPoint(); }   // the point shown moves onto the new path
-  drawMap();
 }
 function routeFailed(meta) {
-  if (meta.seq !== state.routeSeq) return;
-  $("route-state").textContent = `${$("path-kind").value} unavailable (${meta.error}): straight`;
+  if (meta.seq !== state.routeSeq || !state.route) return;
+  update({ route: Object.assign({}, state.route, { note: `${$("path-kind").value} unavailable (${meta.error}): straight` }) });
 }
 function pointOnRoute(t) {
   const P = state.route.points, u = t * (P.length - 1), k = Math.min(P.length - 2, Math.floor(u)), f = u - k;
@@ -686,15 +712,17 @@ async function main() {
   const mean = info.latent[0].map((_, k) => info.latent.reduce((s, p) => s + p[k], 0) / info.latent.length);
   let best = 0, bd = Infinity;
   info.latent.forEach((p, i) => { const d = p.reduce((s, v, k) => s + (v - mean[k]) ** 2, 0); if (d < bd) { bd = d; best = i; } });
-  state.x = info.latent[best].slice();
+  let x = info.latent[best].slice();
   const hash = new URLSearchParams(location.hash.slice(1));   // #x=...&basis=... from a link
   if (hash.get("basis") && info.bases.some((b) => b.name === hash.get("basis"))) {
     state.basis = hash.get("basis"); $("basis").value = state.basis; sceneInfo();
   }
-  if (hash.get("x")) state.x = linkedPoint(hash.get("x")) || state.x;
+  if (hash.get("x")) x = linkedPoint(hash.get("x")) || x;
+  state.x = x;   // the sliders are built at it; setX draws every part
   buildSliceControls();
   bindMap();
-  setX(state.x);
+  state.x = null;
+  setX(x);
   $("exposure").oninput = () => {
     state.exposure = +$("exposure").value;
     $("exposure-val").textContent = state.exposure.toFixed(1) + " EV";
@@ -706,9 +734,8 @@ async function main() {
   $("search").oninput = () => {   // search by name: a full name (typed or picked from the list) goes there
     const v = $("search").value.trim(), hit = info.names.find((n) => n.toLowerCase() === v.toLowerCase());
     $("search").setCustomValidity("");
-    state.filter = v.toLowerCase();
-    if (hit) { state.filter = ""; goTo(hit); commitPoint(); $("search").blur(); }
-    buildGallery();   // the gallery shows the names matching what is typed
+    if (hit) { goTo(hit); commitPoint(); $("search").blur(); }   // a point elsewhere: the filter ends
+    else update({ filter: v.toLowerCase() });   // the gallery shows the names matching what is typed
   };
   $("search").onkeydown = (ev) => {   // Enter: the one name containing what is typed, else say why not
     if (ev.key !== "Enter") return;
@@ -725,15 +752,14 @@ async function main() {
   for (const k of info.path_kinds) $("path-kind").add(new Option(k, k));
   $("path-kind").value = info.path_kind;
   $("path-kind").onchange = () => {
-    if (!(state.a && state.b && !sameX(state.a.x, state.b.x))) { drawMap(); return; }
+    if (!pathReady()) return;
     const onPath = state.route && sameX(state.x, pointOnRoute(+$("scrub").value / 1000));
     requestRoute();
     if (onPath) { scrub(); commitPoint(); }   // the point follows the scrubber onto the new path
-    drawMap();
   };
   bindTabs();
   bindShelf();
-  window.addEventListener("resize", placeCursor);
+  window.addEventListener("resize", () => { forgetMapBox(); placeCursor(); });
   $("export-path").onclick = exportPath;
   $("ref-start").onclick = startReference;
   $("refine-auto").onchange = () => { if ($("refine-auto").checked) refineHere(); else refineOff(); };
@@ -747,7 +773,7 @@ async function main() {
   $("snippet-folder").value = info.snippet_folder;
   $("snippet-folder").onchange = () => {   // the snippets of the point again, relative to the new folder
     state.snippetFolder = $("snippet-folder").value.trim();
-    state.snippet = null; delete asked.snippet; showPoint(); scheduleMove();
+    delete asked.snippet; update({ snippet: null }); scheduleMove();
   };
   $("copy-xml").onclick = () => copySnippet("xml", "XML");
   $("copy-py").onclick = () => copySnippet("python", "Python");

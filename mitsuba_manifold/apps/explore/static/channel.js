@@ -25,7 +25,7 @@ class Channel {
     this.ws = new WebSocket(`${proto}://${location.host}/ws?tab=${TAB}`);
     this.ws.binaryType = "arraybuffer";
     this.ws.onopen = () => {
-      if (this.opened || !$("status").classList.contains("error")) setStatus("connected");   // keeps a first warning
+      if (this.opened || !(state.status && state.status.error)) setStatus("connected");   // keeps a first warning
       const queued = this.queued || [];
       this.queued = null;
       for (const m of queued) this.ws.send(m);

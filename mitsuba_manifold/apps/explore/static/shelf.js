@@ -77,16 +77,16 @@ async function pollThumbs() {
   buildGallery();
   if (state.material) showMaterial(state.material);
 }
-// Everything of the shelf and the header that follows the point: the favourite button, the
-// highlight of the compare and favourite entries at the point, and the search box (its text
-// is the point's name; what is typed filters the gallery until the point moves).
+// Everything of the shelf and the header that follows the point (a view of store.js): the
+// favourite button, the highlight of the compare and favourite entries at the point, and the
+// search box (its text is the point's name; what is typed filters the gallery, state.filter,
+// until the point moves).
 function renderShelf() {
   const here = (el) => el.dataset.x && sameX(el.dataset.x.split(",").map(Number), state.x);
   for (const el of document.querySelectorAll("#compare .cmp, #favs .fav")) el.classList.toggle("here", here(el));
   setText($("fav"), loadFavs().some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite");
   const name = materialName(state.x) || "", search = $("search");
   if (search.value !== name) { search.value = name; search.setCustomValidity(""); }
-  if (state.filter) { state.filter = ""; buildGallery(); }
 }
 function buildGallery() {
   const box = $("gallery"), filter = state.filter || "";
