@@ -543,7 +543,7 @@ def fireflies(basis, manifold, out, points=12, seed=0):
     crops = []
     for k, x in enumerate(xs):
         raw, info = blend(b, m, x=x, l2="raw")
-        l1 = compose(b, info["plan"].keys, info["plan"].image_weights, None)[0]
+        l1 = compose(b, info.plan.keys, info.plan.image_weights, None)[0]
         drag, _ = ff.drag_image(raw, l1)
         rest, _ = blend(b, m, x=x, l2="denoised")
         s, d, r = (encode.tonemap(v, 0).astype(int) for v in (raw, drag, rest))

@@ -171,10 +171,9 @@ class Explorer:
         if last[0] != key:
             basis = self.basis(name)
             img, info = blend(basis, self.manifold, x=x, prune=self.prune, l2=l2)
-            if info.get("l2") == "raw" and basis.p == 1:  # a drag's frame: no lone bright pixels
-                plan = info["plan"]
-                l1, _, _ = compose(basis, plan.keys, plan.image_weights, None)
-                img, info["fireflies"] = fireflies.drag_image(img, l1)
+            if info.l2 == "raw" and basis.p == 1:  # a drag's frame: no lone bright pixels
+                l1, _, _ = compose(basis, info.plan.keys, info.plan.image_weights, None)
+                img, _ = fireflies.drag_image(img, l1)
             last = self._last_blend = (key, (img, info))
         return last[1]
 
