@@ -169,8 +169,16 @@ def _summary(r):
 
 
 def _database(folder, out, n_materials):
+    """The database spec or folder the benchmark fits on: a built-in set at ``SMALL_DIMS`` (or
+    the resolution its spec gives), a folder of tables as given, else the surrogate materials
+    written in ``out``.
+    """
     from mitsuba_manifold.data import database
+    from mitsuba_manifold.data.sources import SET_NAMES
 
+    base, dims = database.split_spec(folder) if folder else (None, None)
+    if base in SET_NAMES:
+        return f"{base}@{'x'.join(map(str, dims or SMALL_DIMS))}"
     if folder and os.path.isdir(folder) and any(f.endswith(".binary") for f in os.listdir(folder)):
         return folder
     db = os.path.join(out, "database")
@@ -189,6 +197,19 @@ def _database(folder, out, n_materials):
                 os.link(os.path.join(db, f), os.path.join(db_sub, f))
         return db_sub
     return db
+
+
+def _subset(db, n_materials):
+    """The materials of a built-in set's spec ``db`` the benchmark keeps (None: all of them; a
+    folder holds only its chosen ones).
+    """
+    from mitsuba_manifold.data.database import Database
+
+    if os.path.exists(db) or n_materials >= 100:
+        return None
+    if n_materials <= len(SMALL_MATERIALS):
+        return list(SMALL_MATERIALS[:n_materials])
+    return sorted(Database(db).names)[:n_materials]
 
 
 def _train_floor(problem, x, opts, seeds=3):
@@ -359,7 +380,7 @@ def run(
     if manifold is None:
         manifold = os.path.join(out, "manifold.npz")
         if not os.path.isfile(manifold):
-            Manifold.fit(db, q=2).save(manifold)
+            Manifold.fit(db, q=2, names=_subset(db, n_materials)).save(manifold)
     m = Manifold.load(manifold)
     cbox = scene_path("cbox")
     sensors = _sensors(res)
@@ -399,7 +420,7 @@ def run(
             "part": part,
             "materials": m.n,
             "table_dims": list(m.dims),
-            "database": os.path.abspath(db),
+            "database": db if not os.path.exists(db) else os.path.abspath(db),
             "masked_pixels": [int(mk.sum()) for mk in masks],
         },
         "random_points": [],
