@@ -81,6 +81,27 @@ def _sensors(res):
     ]
 
 
+def _views_scene(out):
+    """``cbox.xml`` with a sensor per view of :data:`VIEWS` (sensor ``k`` looks from ``VIEWS[k]``;
+    sensor 0 is the scene's own camera), written in ``out``: :class:`match_render.View` names its
+    camera by the index of a sensor in the scene.
+    """
+    import re
+
+    from mitsuba_manifold._util.atomic import write_bytes
+
+    with open(scene_path("cbox")) as f:
+        text = f.read()
+    block = re.search(r"\s*<sensor .*?</sensor>", text, flags=re.S).group(0)
+    extra = "".join(
+        re.sub(r'origin="[^"]*"', f'origin="{x}, {y}, {z}"', block) for x, y, z in VIEWS[1:]
+    )
+    end = text.index(block) + len(block)
+    path = os.path.join(out, "cbox_views.xml")
+    write_bytes(path, text[:end] + extra + text[end:])
+    return path
+
+
 def _render(scene_xml, manifold_path, set_material, sensors, spp, seed, max_depth):
     """Renders (``path``) of every view, the scene's manifold materials set by ``set_material(bsdf)``."""
     import mitsuba as mi
@@ -121,7 +142,7 @@ def _object_masks(scene_xml, manifold_path, sensors):
 
 
 def _views(scene_xml, targets, sensors, masks):
-    return [mr.View(scene_xml, t, mk, s) for t, s, mk in zip(targets, sensors, masks)]
+    return [mr.View(scene_xml, t, mk, k) for k, (t, mk) in enumerate(zip(targets, masks))]
 
 
 def _floor(scene_xml, manifold_path, x, views, opts):
@@ -382,7 +403,7 @@ def run(
         if not os.path.isfile(manifold):
             Manifold.fit(db, q=2, names=_subset(db, n_materials)).save(manifold)
     m = Manifold.load(manifold)
-    cbox = scene_path("cbox")
+    cbox = _views_scene(out)
     sensors = _sensors(res)
     opts = mr.MatchRenderOptions(
         iterations=iterations,
