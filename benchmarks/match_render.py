@@ -81,6 +81,27 @@ def _sensors(res):
     ]
 
 
+def _views_scene(out):
+    """``cbox.xml`` with a sensor per view of :data:`VIEWS` (sensor ``k`` looks from ``VIEWS[k]``;
+    sensor 0 is the scene's own camera), written in ``out``: :class:`match_render.View` names its
+    camera by the index of a sensor in the scene.
+    """
+    import re
+
+    from mitsuba_manifold._util.atomic import write_bytes
+
+    with open(scene_path("cbox")) as f:
+        text = f.read()
+    block = re.search(r"\s*<sensor .*?</sensor>", text, flags=re.S).group(0)
+    extra = "".join(
+        re.sub(r'origin="[^"]*"', f'origin="{x}, {y}, {z}"', block) for x, y, z in VIEWS[1:]
+    )
+    end = text.index(block) + len(block)
+    path = os.path.join(out, "cbox_views.xml")
+    write_bytes(path, text[:end] + extra + text[end:])
+    return path
+
+
 def _render(scene_xml, manifold_path, set_material, sensors, spp, seed, max_depth):
     """Renders (``path``) of every view, the scene's manifold materials set by ``set_material(bsdf)``."""
     import mitsuba as mi
@@ -121,7 +142,7 @@ def _object_masks(scene_xml, manifold_path, sensors):
 
 
 def _views(scene_xml, targets, sensors, masks):
-    return [mr.View(scene_xml, t, mk, s) for t, s, mk in zip(targets, sensors, masks)]
+    return [mr.View(scene_xml, t, mk, k) for k, (t, mk) in enumerate(zip(targets, masks))]
 
 
 def _floor(scene_xml, manifold_path, x, views, opts):
@@ -169,8 +190,16 @@ def _summary(r):
 
 
 def _database(folder, out, n_materials):
+    """The database spec or folder the benchmark fits on: a built-in set at ``SMALL_DIMS`` (or
+    the resolution its spec gives), a folder of tables as given, else the surrogate materials
+    written in ``out``.
+    """
     from mitsuba_manifold.data import database
+    from mitsuba_manifold.data.sources import SET_NAMES
 
+    base, dims = database.split_spec(folder) if folder else (None, None)
+    if base in SET_NAMES:
+        return f"{base}@{'x'.join(map(str, dims or SMALL_DIMS))}"
     if folder and os.path.isdir(folder) and any(f.endswith(".binary") for f in os.listdir(folder)):
         return folder
     db = os.path.join(out, "database")
@@ -189,6 +218,19 @@ def _database(folder, out, n_materials):
                 os.link(os.path.join(db, f), os.path.join(db_sub, f))
         return db_sub
     return db
+
+
+def _subset(db, n_materials):
+    """The materials of a built-in set's spec ``db`` the benchmark keeps (None: all of them; a
+    folder holds only its chosen ones).
+    """
+    from mitsuba_manifold.data.database import Database
+
+    if os.path.exists(db) or n_materials >= 100:
+        return None
+    if n_materials <= len(SMALL_MATERIALS):
+        return list(SMALL_MATERIALS[:n_materials])
+    return sorted(Database(db).names)[:n_materials]
 
 
 def _train_floor(problem, x, opts, seeds=3):
@@ -359,9 +401,9 @@ def run(
     if manifold is None:
         manifold = os.path.join(out, "manifold.npz")
         if not os.path.isfile(manifold):
-            Manifold.fit(db, q=2).save(manifold)
+            Manifold.fit(db, q=2, names=_subset(db, n_materials)).save(manifold)
     m = Manifold.load(manifold)
-    cbox = scene_path("cbox")
+    cbox = _views_scene(out)
     sensors = _sensors(res)
     opts = mr.MatchRenderOptions(
         iterations=iterations,
@@ -399,7 +441,7 @@ def run(
             "part": part,
             "materials": m.n,
             "table_dims": list(m.dims),
-            "database": os.path.abspath(db),
+            "database": db if not os.path.exists(db) else os.path.abspath(db),
             "masked_pixels": [int(mk.sum()) for mk in masks],
         },
         "random_points": [],

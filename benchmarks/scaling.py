@@ -4,16 +4,16 @@ materials N, the table resolution, the image resolution and the samples per pixe
 
 Every point runs in its own subprocess (``python -m benchmarks.scaling STAGE
 JSON``), so that its peak RSS (``ru_maxrss``) is that stage's alone, Python and Mitsuba
-imports included (a floor of a few hundred MB). Stages: ``tabulate`` (the built-in
-surrogate database), ``gram`` (loading the float32 tables and the Gram matrix, log
-features), ``fit`` (Hooke-Jeeves and L-BFGS from the PCA start, q = 2), ``interp`` (one
-unpruned interpolated table: the weighted sum of the N tables in memory, as
+imports included (a floor of a few hundred MB). Stages: ``tabulate`` (tables of the built-in
+set ``SOURCE``, evaluated from its networks and exported as MERL files), ``gram`` (loading
+the float32 tables and the Gram matrix, log features), ``fit`` (Hooke-Jeeves and L-BFGS
+from the PCA start, q = 2), ``interp`` (one unpruned interpolated table: the weighted sum of the N tables in memory, as
 ``Manifold.combine``), ``plugin`` (constructing one ``manifold_brdf`` at a new latent point,
 after a warm-up construction), ``basis`` (a one-pass basis of ``table.xml``, after a 1-spp
 warm-up render in the same process) and ``blend`` (one blend of that basis, images in memory).
 
-N beyond 100 uses noisy copies of the 100 surrogate materials (``make_database`` with
-``noise`` 0.1 and seeds 1, 2, ..., names suffixed ``~<seed>``) at a reduced table
+N beyond 100 uses noisy copies of the 100 materials of ``SOURCE`` (multiplicative log-normal
+noise of sigma 0.1, seeds 1, 2, ..., names suffixed ``~<seed>``) at a reduced table
 resolution (22 x 22 x 45 bins: 1000 full-resolution tables would be 17.5 GB of float32
 and 35 GB as MERL files). Exponents are least-squares slopes of log(time) and
 log(peak RSS above the import floor) against log(size) over the points of each series.
@@ -30,6 +30,8 @@ import numpy as np
 SMALL_DIMS = (22, 22, 45)
 FULL_DIMS = (90, 90, 180)
 NOISE = 0.1
+#: The built-in set the series tabulate (the 100 measured MERL materials).
+SOURCE = "merl"
 
 
 # ------------------------------------------------------------------ one point (subprocess)
@@ -51,8 +53,11 @@ def _point(stage, p):
     from mitsuba_manifold.data.database import Database
 
     if stage == "tabulate":
+        names = Database(SOURCE).names[: p["n"]]
         t0 = time.perf_counter()
-        database.make_database(p["out"], tuple(p["dims"]), list(database.load_sgd_fits())[: p["n"]])
+        database.write_database(
+            p["out"], (SOURCE,), tuple(p["dims"]), materials=names, export=True, force=True
+        )
         return {"time_s": time.perf_counter() - t0}
     if stage == "gram":
         db = Database(p["db"], _names(p["db"], p["n"]))
@@ -191,21 +196,31 @@ def measure(stage, params, timeout=300):
 
 
 def _noisy_database(work, n_total, dims, progress):
-    """A folder of ``n_total`` tables: the 100 materials, then noisy copies (seeds 1, 2, ...)."""
-    from mitsuba_manifold.data import database
+    """A folder of ``n_total`` tables: the materials of ``SOURCE``, then noisy copies (seeds 1,
+    2, ...: each stored value times exp(``NOISE`` * a standard normal draw of that seed and
+    material)).
+    """
+    import zlib
+
+    from mitsuba_manifold.data import database, merl
 
     folder = os.path.join(work, f"db_{n_total}_{'x'.join(map(str, dims))}")
-    names = list(database.load_sgd_fits())
+    names = database.Database(SOURCE).names
     copies = -(-n_total // len(names))
     t0 = time.perf_counter()
     os.makedirs(folder, exist_ok=True)
-    for seed in range(copies):
-        part = os.path.join(work, f"part_{seed}_{'x'.join(map(str, dims))}")
-        database.make_database(part, dims, noise=NOISE if seed else 0.0, seed=seed)
-        for name in names:
-            target = os.path.join(folder, f"{name}~{seed}.binary" if seed else f"{name}.binary")
-            if not os.path.exists(target):
-                os.link(os.path.join(part, name + ".binary"), target)
+    exported = [os.path.join(folder, f"{name}.binary") for name in names]
+    if not all(os.path.exists(f) for f in exported):
+        database.write_database(folder, (SOURCE,), dims, materials=names, export=True, force=True)
+    for seed in range(1, copies):
+        for name, source in zip(names, exported):
+            target = os.path.join(folder, f"{name}~{seed}.binary")
+            if os.path.exists(target):
+                continue
+            rng = np.random.default_rng([seed, zlib.crc32(name.encode())])
+            raw = merl.read_binary(source)
+            noisy = raw * np.exp(NOISE * rng.standard_normal(raw.shape))
+            merl.write_binary(target, np.where(raw < 0, raw, noisy))
     if progress:
         print(
             f"  {copies * len(names)} tables at {dims} in {time.perf_counter() - t0:.1f} s",
