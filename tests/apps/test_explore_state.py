@@ -330,10 +330,11 @@ INCONSISTENT = """() => {
 
 
 def _consistent(pg, what):
+    both = f"() => ({INCONSISTENT})().concat(({DRAWN})())"
     try:
-        pg.wait_for_function(f"({INCONSISTENT})().length === 0", timeout=30000)
+        pg.wait_for_function(f"({both})().length === 0", timeout=30000)
     except Exception:
-        raise AssertionError(f"after {what}: {pg.evaluate(INCONSISTENT)}") from None
+        raise AssertionError(f"after {what}: {pg.evaluate(both)}") from None
 
 
 @browser_only
@@ -475,6 +476,19 @@ def test_lists_refine_status_reference_and_errors_are_drawn_from_the_state(
         ):
             pg.evaluate(f"window.explore.update({{reference: {ref}}})")
             drawn("reference " + ref)
+        pg.select_option("#ref-spp", "4096")  # a real reference, cancelled with the button
+        pg.click("#ref-start")
+        pg.wait_for_function(
+            "['queued', 'rendering'].includes((window.explore.state.reference || {}).state)",
+            timeout=30000,
+        )
+        drawn("reference rendering")
+        pg.click("#ref-cancel")
+        pg.wait_for_function(
+            "(window.explore.state.reference || {}).state === 'cancelled'", timeout=30000
+        )
+        drawn("reference cancelled")
+        assert "cancel" in pg.inner_text("#ref-note-cancel")
         pg.evaluate("window.explore.setStatus('snippet: no answer', true, 'snippet')")
         drawn("header error")
         pg.click("#copy-xml")  # a later success of the snippet clears its error
