@@ -323,17 +323,18 @@ INCONSISTENT = """() => {
   if ((document.getElementById('fav').textContent[0] === '★') !== fav.some((f) => f.x.join(",") === key)) bad.push('favourite button');
   if (new URLSearchParams(document.getElementById('save-png').search).get('x') !== key) bad.push('save link');
   if (new URLSearchParams(location.hash.slice(1)).get('x') !== key) bad.push('address');
-  if (s.status && s.status.error) bad.push('status error: ' + s.status.text);
+  if (s.errors.length) bad.push('status error: ' + s.errors.map((e) => e.text).join('; '));
   if (e.channel.pending() !== 0) bad.push('answers pending');
   return bad;
 }"""
 
 
 def _consistent(pg, what):
+    both = f"() => ({INCONSISTENT})().concat(({DRAWN})())"
     try:
-        pg.wait_for_function(f"({INCONSISTENT})().length === 0", timeout=30000)
+        pg.wait_for_function(f"({both})().length === 0", timeout=30000)
     except Exception:
-        raise AssertionError(f"after {what}: {pg.evaluate(INCONSISTENT)}") from None
+        raise AssertionError(f"after {what}: {pg.evaluate(both)}") from None
 
 
 @browser_only
@@ -389,3 +390,109 @@ def test_every_part_follows_the_point_through_undo_redo_search_drag_and_scrub(
         test_explore._wait_displayed(pg, dragged)
         _consistent(pg, "undo of the scrub")
         assert not pg.errors
+
+
+#: The parts kept in the state besides the point, against what the page shows: the favourites and
+#: compare lists and their highlights, the favourite button, the refine status, the reference
+#: render's controls and the header's error (the list of the parts that disagree).
+DRAWN = """() => {
+  const s = window.explore.state, $ = (id) => document.getElementById(id), bad = [], key = s.x.join(",");
+  const listed = (sel) => [...document.querySelectorAll(sel)].map((e) => e.dataset.x).join(";");
+  if (listed('#favs .fav') !== s.favs.map((f) => f.x.join(",")).join(";")) bad.push('favourites');
+  if (listed('#compare .cmp') !== s.compare.map((c) => c.x.join(",")).join(";")) bad.push('compare');
+  for (const el of document.querySelectorAll('#compare .cmp, #favs .fav'))
+    if (el.classList.contains('here') !== (el.dataset.x === key)) bad.push('highlight ' + el.className);
+  if (($('fav').textContent[0] === '★') !== s.favs.some((f) => f.x.join(",") === key)) bad.push('favourite button');
+  const r = s.refine;
+  if ($('refine-status').textContent !== (r ? r.text : '') || $('refine-detail').textContent !== (r ? r.detail : '')
+      || $('refine-show').hidden !== !(r && r.offer)) bad.push('refine');
+  const ref = s.reference, running = !!ref && ['starting', 'queued', 'rendering'].includes(ref.state);
+  if ($('ref-progress').hidden === running || $('ref-cancel').hidden === running || (running && !$('ref-start').disabled)
+      || (running && !$('ref-progress').textContent.includes(ref.message))
+      || $('ref-note-cancel').hidden !== !(ref && ref.state === 'cancelled')
+      || $('ref-result').hidden !== !(ref && ref.state === 'done')) bad.push('reference');
+  const err = s.errors[s.errors.length - 1];
+  if ($('status').classList.contains('error') !== !!err || (err && $('status').textContent !== err.text)) bad.push('header error');
+  return bad;
+}"""
+
+
+@browser_only
+def test_lists_refine_status_reference_and_errors_are_drawn_from_the_state(
+    browser, server, small_manifold_paper
+):
+    """Favourites, compare, refine status, reference render and header errors live in the state:
+    whatever changes them (a click, a remove, a move, undo, a state update), the page shows the
+    state; a move ends another point's refine status, a later success clears its source's error."""
+    m = Manifold.load(small_manifold_paper)
+    bad = []
+
+    def drawn(what, wait=False):
+        if wait:
+            try:
+                pg.wait_for_function(f"({DRAWN})().length === 0", timeout=10000)
+            except Exception:
+                pass
+        bad.extend(f"{what}: {part}" for part in pg.evaluate(DRAWN))
+
+    with _page(browser, server) as pg:
+        pg.evaluate("localStorage.clear()")
+        chrome = _click(pg, m, "chrome")
+        pg.click("#fav")
+        pg.click("#compare-add")
+        _click(pg, m, "steel")
+        pg.click("#compare-add")
+        drawn("favourite and compares added")
+        assert pg.evaluate("window.explore.state.compare.length") == 2
+        remove = "(sel) => { const b = document.querySelector(sel); if (b) b.click(); return !!b; }"
+        steel = [float(v) for v in m.latent[m.index("steel")]]
+        pg.evaluate(
+            "(x) => window.explore.update({favs: [{x, label: 'steel'}].concat(window.explore.state.favs)})",
+            steel,
+        )
+        drawn("favourites updated")
+        if not pg.evaluate(remove, "#favs .fav:nth-child(2) .x"):  # chrome's favourite removed
+            bad.append("favourites: no chrome entry to remove")
+        assert "chrome" not in pg.evaluate("JSON.stringify(localStorage)") or bad
+        drawn("a favourite removed")
+        if not pg.evaluate(remove, "#compare .cmp:nth-child(2) .x"):  # steel's compare slot removed
+            bad.append("compare: no steel slot to remove")
+        drawn("a compare slot removed")
+        pg.click("#undo")  # back to chrome: the highlights follow
+        test_explore._wait_displayed(pg, chrome)
+        drawn("undo")
+        pg.evaluate(
+            "(x) => window.explore.update({refine: {x, basis: window.explore.state.basis, text: 'refining…',"
+            " detail: 'refinement: checked', offer: {show() {}}}})",
+            [float(v) for v in chrome],
+        )
+        drawn("refine status")
+        _click(pg, m, "steel")  # a move: the status of chrome goes
+        assert pg.evaluate("window.explore.state.refine") is None
+        drawn("refine status after a move")
+        for ref in (
+            "{id: 'j', state: 'rendering', progress: 0.5, message: 'pass 1 of 4'}",
+            "{id: 'j', state: 'cancelled', progress: 0.5, message: 'cancelled after 1 pass'}",
+        ):
+            pg.evaluate(f"window.explore.update({{reference: {ref}}})")
+            drawn("reference " + ref)
+        pg.select_option("#ref-spp", "4096")  # a real reference, cancelled with the button
+        pg.click("#ref-start")
+        pg.wait_for_function(
+            "['queued', 'rendering'].includes((window.explore.state.reference || {}).state)",
+            timeout=30000,
+        )
+        drawn("reference rendering")
+        pg.click("#ref-cancel")
+        pg.wait_for_function(
+            "(window.explore.state.reference || {}).state === 'cancelled'", timeout=30000
+        )
+        drawn("reference cancelled")
+        assert "cancel" in pg.inner_text("#ref-note-cancel")
+        pg.evaluate("window.explore.setStatus('snippet: no answer', true, 'snippet')")
+        drawn("header error")
+        pg.click("#copy-xml")  # a later success of the snippet clears its error
+        pg.wait_for_function("window.explore.state.errors.length === 0", timeout=10000)
+        drawn("header error cleared", wait=True)
+        assert not pg.errors
+    assert bad == [], "; ".join(bad)

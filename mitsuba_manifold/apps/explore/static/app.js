@@ -14,7 +14,7 @@ const NUMBER = /^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$/;   // as the server
 const state = {
   info: null, x: null, basis: null, exposure: 0, dims: [0, 1], map: null, mapImage: null,
   hover: -1, a: null, b: null, displayed: null, material: null, snippet: null, errors: [], zoom: null,
-  filter: "", status: null,
+  filter: "", status: null, favs: [], compare: [], refine: null, reference: null,
   mapKey: null, moves: 0, dragging: false, liveUntil: 0,
   // raw RGBA on this machine (exact, no encoding); JPEG when the page is viewed from elsewhere
   format: new URLSearchParams(location.search).get("format") || (LOCAL ? "rgba" : "jpeg"),
@@ -31,20 +31,22 @@ async function api(path, options) {
   return r;
 }
 
-// The header's status: one line, an error tied to its source (a kind of answer, "reference",
-// "snippet", ...): the next success of that source clears it (clearError).
+// The header's status: one line. state.errors holds the errors not yet answered, each tied to its
+// source (a kind of answer, "reference", "snippet", "link", ...; one per source): the next success
+// of that source clears it (clearError). The header shows the latest of them, else state.status.
 function setStatus(text, error = false, source = null) {
-  if (error) state.errors.push(text);
-  update({ status: { text, error, source } });
+  if (!error) { update({ status: { text } }); return; }
+  update({ errors: state.errors.filter((e) => source === null || e.source !== source).concat([{ text, source }]) });
 }
 function drawStatus() {
-  const st = state.status, s = $("status");
-  s.textContent = st.text;
-  s.title = st.text;
-  s.classList.toggle("error", st.error);
+  const err = state.errors[state.errors.length - 1], text = err ? err.text : state.status ? state.status.text : "";
+  const s = $("status");
+  s.textContent = text;
+  s.title = text;
+  s.classList.toggle("error", !!err);
 }
 function clearError(source) {
-  if (state.status && state.status.error && state.status.source === source) setStatus("connected");
+  if (state.errors.some((e) => e.source === source)) update({ errors: state.errors.filter((e) => e.source !== source) });
 }
 
 let channel, preview;
@@ -174,9 +176,8 @@ function drawPoint() {
 }
 view(["x"], drawPoint);
 view(["x", "material", "snippet"], showPoint);
-view(["x"], () => renderShelf());   // shelf.js: favourite button, highlights, the search box
 view(["filter"], () => buildGallery());   // shelf.js: the tiles matching the search
-view(["status"], drawStatus);
+view(["status", "errors"], drawStatus);
 
 function updateSavePng() {
   $("save-png").href = "/api/frame?" + new URLSearchParams({ x: state.x.join(","), basis: state.basis,
@@ -652,38 +653,54 @@ function bindTabs() {
 }
 
 // ------------------------------------------------------------------ reference
+// state.reference: null (none asked for in this page), or the job's id and its state ("starting",
+// "queued", "rendering", "done", "cancelled", "failed"), progress, message, and, when done, the
+// job's answer and the exposure its images were asked at. drawReference shows it.
 async function startReference() {
-  $("ref-start").disabled = true;
-  $("ref-result").hidden = true;
+  update({ reference: { state: "starting", progress: 0, message: "starting" } });
   try {
     const job = await (await api("/api/reference", { method: "POST", headers: { "Content-Type": "application/json" },
       body: JSON.stringify({ basis: state.basis, x: state.x, spp: +$("ref-spp").value, tab: TAB }) })).json();
     state.referenceJob = job.id;
-    $("ref-cancel").hidden = false;
-    $("ref-cancel").onclick = () => api(`/api/reference/${job.id}/cancel`, { method: "POST" }).catch(() => {});
+    update({ reference: { id: job.id, state: "queued", progress: 0, message: "waiting…" } });
     pollReference(job.id);
-  } catch (e) { setStatus("reference: " + e.message, true, "reference"); $("ref-start").disabled = false; }
+  } catch (e) { update({ reference: null }); setStatus("reference: " + e.message, true, "reference"); }
 }
 async function pollReference(id) {
-  const bar = $("ref-progress");
-  bar.hidden = false;
   let job;
   try { job = await (await api("/api/reference/" + id)).json(); }
-  catch (e) { setStatus("reference: " + e.message, true, "reference"); $("ref-start").disabled = false; $("ref-cancel").hidden = true; return; }
-  bar.firstElementChild.style.width = (100 * job.progress).toFixed(0) + "%";
-  bar.lastElementChild.textContent = job.state === "queued" ? "waiting…" : `${job.message || "starting"}`;
-  if (job.state === "queued" || job.state === "rendering") { setTimeout(() => pollReference(id), 400); return; }
-  $("ref-start").disabled = false;
-  $("ref-cancel").hidden = true;
-  bar.hidden = true;
-  if (job.state === "cancelled") { $("ref-note-cancel").hidden = false; $("ref-note-cancel").textContent = "reference " + job.message; return; }
-  if (job.state === "failed") { setStatus("reference failed: " + job.message, true, "reference"); return; }
-  clearError("reference");
-  $("ref-note-cancel").hidden = true;
-  const ev = "?exposure=" + state.exposure;
-  $("ref-blend").src = `/api/reference/${id}/blend.png${ev}`;
-  $("ref-ref").src = `/api/reference/${id}/reference.png${ev}`;
-  $("ref-err").src = `/api/reference/${id}/error.png`;
+  catch (e) { update({ reference: null }); setStatus("reference: " + e.message, true, "reference"); return; }
+  const r = { id, state: job.state, progress: job.progress, message: job.state === "queued" ? "waiting…" : job.message || "starting" };
+  if (job.state === "queued" || job.state === "rendering") { update({ reference: r }); setTimeout(() => pollReference(id), 400); return; }
+  if (job.state === "failed") { update({ reference: null }); setStatus("reference failed: " + job.message, true, "reference"); return; }
+  if (job.state === "done") { r.job = job; r.exposure = state.exposure; clearError("reference"); }
+  update({ reference: r });
+}
+function cancelReference() {
+  const r = state.reference;
+  if (r && r.id) api(`/api/reference/${r.id}/cancel`, { method: "POST" }).catch(() => {});
+}
+function drawReference() {   // a view of store.js: the reference box from state.reference
+  const r = state.reference, b = state.info.bases.find((b) => b.name === state.basis);
+  const running = !!r && ["starting", "queued", "rendering"].includes(r.state), bar = $("ref-progress");
+  $("ref-start").disabled = running || !b.scene_available;
+  $("ref-note").hidden = b.scene_available;
+  $("ref-cancel").hidden = !running || !r.id;
+  bar.hidden = !running;
+  if (running) {
+    bar.firstElementChild.style.width = (100 * r.progress).toFixed(0) + "%";
+    setText(bar.lastElementChild, r.message);
+  }
+  $("ref-note-cancel").hidden = !(r && r.state === "cancelled");
+  if (r && r.state === "cancelled") setText($("ref-note-cancel"), "reference " + r.message);
+  const job = r && r.state === "done" ? r.job : null;
+  $("ref-result").hidden = !job;
+  if (!job || $("ref-result").dataset.job === String(r.id)) return;
+  $("ref-result").dataset.job = r.id;
+  const ev = "?exposure=" + r.exposure;
+  $("ref-blend").src = `/api/reference/${r.id}/blend.png${ev}`;
+  $("ref-ref").src = `/api/reference/${r.id}/reference.png${ev}`;
+  $("ref-err").src = `/api/reference/${r.id}/error.png`;
   $("ref-caption").textContent = `reference (full GI, ${job.spp} spp, ${job.seconds.toFixed(1)} s)`;
   const e = job.error;
   const verdict = e.psnr >= 40 ? "the blend is indistinguishable from full GI" : e.psnr >= 30 ? "the blend is close to full GI"
@@ -691,13 +708,13 @@ async function pollReference(id) {
   $("ref-metrics").innerHTML = `PSNR ${e.psnr.toFixed(1)} dB: ${verdict}<details><summary>details</summary>` +
     escapeHtml(`rel. MSE ${fmtNum(e.rel_mse, 4)} · mean |Δ| ${fmtNum(e.mean_abs, 4)} · at x = (${job.x.map((v) => fmtNum(v)).join(", ")})`) +
     `</details>`;
-  $("ref-result").hidden = false;
 }
+view(["reference"], drawReference);
 
 // ------------------------------------------------------------------ start
 async function main() {
   try { state.info = await (await api("/api/info")).json(); }
-  catch (e) { setStatus("cannot reach the server: " + e.message, true); return; }
+  catch (e) { setStatus("cannot reach the server: " + e.message, true, "connection"); return; }
   const info = state.info;
   for (const b of info.bases) $("basis").add(new Option(`${b.name} (${b.resolution.join("×")}, ${b.images} materials)`, b.name));
   state.basis = info.bases[0].name;
@@ -762,7 +779,9 @@ async function main() {
   window.addEventListener("resize", () => { forgetMapBox(); placeCursor(); });
   $("export-path").onclick = exportPath;
   $("ref-start").onclick = startReference;
+  $("ref-cancel").onclick = cancelReference;
   $("refine-auto").onchange = () => { if ($("refine-auto").checked) refineHere(); else refineOff(); };
+  $("refine-show").onclick = () => state.refine && state.refine.offer && state.refine.offer.show();
   if (!info.refine_spp) { $("refine-auto").checked = false; $("refine-auto").closest(".row").hidden = true; }
   else {   // refine.js: the server's --refine-spp is the default
     const sel = $("refine-spp"), spp = String(info.refine_spp);
@@ -788,11 +807,11 @@ function linkedPoint(text) {
   if (names.includes(text)) return latent[names.indexOf(text)].slice();
   const parts = text.split(",");
   if (parts.length !== q || !parts.every((p) => NUMBER.test(p.trim()))) {
-    setStatus(`the link's point x=${text.slice(0, 60)} is not ${q} numbers nor a material name: ignored`, true);
+    setStatus(`the link's point x=${text.slice(0, 60)} is not ${q} numbers nor a material name: ignored`, true, "link");
     return null;
   }
   const x = parts.map(Number), clamped = x.map((v, k) => { const [lo, hi] = coordRange(k); return Math.min(hi, Math.max(lo, v)); });
-  if (!sameX(x, clamped)) setStatus(`the link's point x=${text.slice(0, 60)} is outside the latent space shown: moved inside`, true);
+  if (!sameX(x, clamped)) setStatus(`the link's point x=${text.slice(0, 60)} is outside the latent space shown: moved inside`, true, "link");
   return clamped;
 }
 function coordRange(k) {
@@ -803,8 +822,7 @@ function coordRange(k) {
 function sceneInfo() {
   const b = state.info.bases.find((b) => b.name === state.basis);
   $("scene-info").textContent = `${b.scene.split("/").pop()} · ${b.resolution.join("×")} · ${b.spp} spp basis`;
-  $("ref-start").disabled = !b.scene_available;
-  $("ref-note").hidden = b.scene_available;
+  drawReference();
 }
 
 async function pollTables() {
@@ -814,5 +832,5 @@ async function pollTables() {
   requestAll();
 }
 
-window.explore = { state, setX, setEnd, currentSnippet, commitPoint, stepHistory, pointOnRoute, drawPlots, get channel() { return channel; }, get preview() { return preview; } };
+window.explore = { state, update, setStatus, setX, setEnd, currentSnippet, commitPoint, stepHistory, pointOnRoute, drawPlots, get channel() { return channel; }, get preview() { return preview; } };
 main();

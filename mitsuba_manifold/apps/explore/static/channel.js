@@ -25,7 +25,8 @@ class Channel {
     this.ws = new WebSocket(`${proto}://${location.host}/ws?tab=${TAB}`);
     this.ws.binaryType = "arraybuffer";
     this.ws.onopen = () => {
-      if (this.opened || !(state.status && state.status.error)) setStatus("connected");   // keeps a first warning
+      setStatus("connected");   // a first warning stays (state.errors) until its source answers
+      clearError("connection");
       const queued = this.queued || [];
       this.queued = null;
       for (const m of queued) this.ws.send(m);
@@ -33,7 +34,7 @@ class Channel {
       this.opened = true;
     };
     this.ws.onclose = (ev) => {
-      setStatus(`disconnected from the server${ev.reason ? " (" + ev.reason + ")" : ""} — retrying…`, true);
+      setStatus(`disconnected from the server${ev.reason ? " (" + ev.reason + ")" : ""} — retrying…`, true, "connection");
       setTimeout(() => this.connect(), 1000);
     };
     this.ws.onmessage = (ev) => this.receive(ev.data);

@@ -4,8 +4,10 @@
 // refinement is noisier than the blend (fireflies where light runs through a narrow peak), and its
 // noise, estimated from a few passes, can be too low where fireflies are rare. The status says
 // whether the blend agrees within that noise; "show refined" draws the refined image until the
-// point or the basis changes (a new exposure re-exposes it: reexposeRefined). Uses app.js's state,
-// $, api, sameX, fmtNum and requestFrame.
+// point or the basis changes (a new exposure re-exposes it: reexposeRefined). The status is
+// state.refine (store.js: null, or the point it is for, its text, the check's detail and the job
+// the "show refined" button offers), drawn by drawRefine. Uses app.js's state, $, api, sameX,
+// fmtNum and requestFrame.
 "use strict";
 
 let refineRun = 0;
@@ -17,12 +19,13 @@ function refineAvailable() {
 
 async function refineHere() {
   if (!refineAvailable()) return;
-  const x = state.x.slice(), basis = state.basis, run = ++refineRun, status = $("refine-status");
+  const x = state.x.slice(), basis = state.basis, run = ++refineRun;
   const current = () => run === refineRun && sameX(x, state.x) && state.basis === basis && !state.dragging &&
                         $("refine-auto").checked;
-  const say = (text) => { if (current()) status.textContent = text; };
-  const button = $("refine-show");
-  button.hidden = true;
+  const say = (text, more = {}) => {
+    if (current()) update({ refine: Object.assign({ x, basis, text, detail: "", offer: null }, state.refine, { text, offer: null }, more) });
+  };
+  update({ refine: null });
   say("refining…");
   try {
     let job = await (await api("/api/reference", { method: "POST", headers: { "Content-Type": "application/json" },
@@ -37,16 +40,12 @@ async function refineHere() {
       else if (e.agrees == null) say(`refining… ${job.message}`);
       else {
         say(e.agrees ? `full GI checked (${job.message}): the blend agrees with the unbiased render`
-                     : `full GI checked (${job.message}): the blend differs from the unbiased render`);
-        if (current()) $("refine-detail").textContent = `refinement: the blend's relative MSE against the unbiased ` +
-          `render is ${fmtNum(e.blend_rel_mse, 3)}, its own estimated noise ${fmtNum(e.noise_rel_mse, 3)} (agrees: within 2×)`;
-        if (!state.refined) {
-          button.hidden = false;
-          button.onclick = () => showRefined(job, x, basis, current).then((ok) => {
-            if (ok) { say(`showing the unbiased render (${job.message}; noisy at few spp); move to go back to the blend`);
-                      button.hidden = true; }
-          });
-        }
+                     : `full GI checked (${job.message}): the blend differs from the unbiased render`, {
+          detail: `refinement: the blend's relative MSE against the unbiased ` +
+            `render is ${fmtNum(e.blend_rel_mse, 3)}, its own estimated noise ${fmtNum(e.noise_rel_mse, 3)} (agrees: within 2×)`,
+          offer: state.refined ? null : { job, show: () => showRefined(job, x, basis, current).then((ok) => {
+            if (ok) say(`showing the unbiased render (${job.message}; noisy at few spp); move to go back to the blend`);
+          }) } });
       }
       if (job.state === "done") return;
       await new Promise((r) => setTimeout(r, 300));
@@ -67,8 +66,16 @@ function refineOff() {
 
 function clearRefined() {   // back to blends: the refined image and the last check are gone
   state.refined = null; delete $("scene").dataset.refined; delete $("scene").dataset.refinedExposure;
-  $("refine-status").textContent = ""; $("refine-show").hidden = true; $("refine-detail").textContent = "";
+  update({ refine: null });
 }
+
+function drawRefine() {   // a view of store.js: the refine status, its detail and the "show refined" button
+  const r = state.refine;
+  setText($("refine-status"), r ? r.text : "");
+  setText($("refine-detail"), r ? r.detail : "");
+  $("refine-show").hidden = !(r && r.offer);
+}
+view(["refine"], drawRefine);
 
 async function showRefined(job, x, basis, current) {
   const exposure = state.exposure, img = await refinedImage(job.id, exposure);

@@ -18,6 +18,7 @@ function commitPoint() {
   }
   undoLog.at = x.slice();
   updateHistoryButtons();
+  clearError("link");   // a point of the user's own: the link's message is answered
   refineHere();   // refine.js
 }
 function stepHistory(back) {
@@ -77,14 +78,16 @@ async function pollThumbs() {
   buildGallery();
   if (state.material) showMaterial(state.material);
 }
-// Everything of the shelf and the header that follows the point (a view of store.js): the
-// favourite button, the highlight of the compare and favourite entries at the point, and the
-// search box (its text is the point's name; what is typed filters the gallery, state.filter,
-// until the point moves).
-function renderShelf() {
+// The highlights that follow the point and the lists (a view of store.js): the entry of the
+// compare and favourite lists at the point and the favourite button.
+function renderHighlights() {
   const here = (el) => el.dataset.x && sameX(el.dataset.x.split(",").map(Number), state.x);
   for (const el of document.querySelectorAll("#compare .cmp, #favs .fav")) el.classList.toggle("here", here(el));
-  setText($("fav"), loadFavs().some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite");
+  setText($("fav"), state.favs.some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite");
+}
+// The search box (a view of store.js): its text is the point's name; what is typed filters the
+// gallery (state.filter) until the point moves.
+function renderSearch() {
   const name = materialName(state.x) || "", search = $("search");
   if (search.value !== name) { search.value = name; search.setCustomValidity(""); }
 }
@@ -107,25 +110,23 @@ function buildGallery() {
 }
 
 // ------------------------------------------------------------------ favourites
+// state.favs (this browser's localStorage keeps them per manifold); changed only by setFavs.
 const favKey = () => "mitsuba-manifold-explore-favourites:" + state.info.manifold;
-let favCache = null;   // read once: setX asks on every move
 function loadFavs() {
-  if (!favCache) { try { favCache = JSON.parse(localStorage.getItem(favKey())) || []; } catch (e) { favCache = []; } }
-  return favCache.slice();
+  try { return JSON.parse(localStorage.getItem(favKey())) || []; } catch (e) { return []; }
 }
-function saveFavs(favs) {
-  favCache = favs.slice(0, 24);
-  try { localStorage.setItem(favKey(), JSON.stringify(favCache)); } catch (e) { /* full: kept for this tab */ }
+function setFavs(favs) {
+  favs = favs.slice(0, 24);
+  try { localStorage.setItem(favKey(), JSON.stringify(favs)); } catch (e) { /* full: kept for this tab */ }
+  update({ favs });
 }
 function pointLabel(x) { return materialName(x) || "(" + x.map((v) => fmtNum(v)).join(", ") + ")"; }
 function addFavourite() {
-  const favs = loadFavs().filter((f) => !sameX(f.x, state.x));
-  favs.unshift({ x: state.x.slice(), label: pointLabel(state.x), img: preview && preview.snapshot() });
-  saveFavs(favs);
-  showFavs();
+  setFavs([{ x: state.x.slice(), label: pointLabel(state.x), img: preview && preview.snapshot() }]
+    .concat(state.favs.filter((f) => !sameX(f.x, state.x))));
 }
-function showFavs() {
-  const box = $("favs"), favs = loadFavs();
+function showFavs() {   // a view of store.js: the list of state.favs
+  const box = $("favs"), favs = state.favs;
   box.innerHTML = favs.length ? "" : `<span class="muted small">☆ favourite keeps the current point here</span>`;
   favs.forEach((f, k) => {
     const item = document.createElement("div");
@@ -135,28 +136,25 @@ function showFavs() {
     item.innerHTML = (f.img ? `<img src="${f.img}" alt="">` : thumbHtml(f.label, 40)) +
                      `<span>${escapeHtml(f.label)}</span><button class="x" title="remove">×</button>`;
     item.onclick = (ev) => {
-      if (ev.target.classList.contains("x")) { const all = loadFavs(); all.splice(k, 1); saveFavs(all); showFavs(); return; }
+      if (ev.target.classList.contains("x")) { setFavs(state.favs.filter((_, j) => j !== k)); return; }
       setX(f.x); commitPoint();
     };
     box.appendChild(item);
   });
-  $("fav").textContent = favs.some((f) => sameX(f.x, state.x)) ? "★ favourite" : "☆ favourite";
 }
 
 // ------------------------------------------------------------------ compare
-// Each slot: the scene frame of its point (PNG from the server), the sphere as drawn when it
-// was added, its name or coordinates and the closest measured material.
+// state.compare, each slot: the scene frame of its point (PNG from the server), the sphere as
+// drawn when it was added, its name or coordinates and the closest measured material.
 const COMPARE_MAX = 4;
 function addCompare() {
-  if (!state.compare) state.compare = [];
   if (state.compare.some((c) => sameX(c.x, state.x))) return;
-  if (state.compare.length >= COMPARE_MAX) state.compare.shift();
-  state.compare.push({ x: state.x.slice(), label: pointLabel(state.x), img: preview && preview.snapshot(),
-                       measured: state.material && sameX(state.material.x, state.x) ? state.material.measured : null });
-  showCompare();
+  update({ compare: state.compare.slice(-(COMPARE_MAX - 1)).concat([{ x: state.x.slice(), label: pointLabel(state.x),
+    img: preview && preview.snapshot(),
+    measured: state.material && sameX(state.material.x, state.x) ? state.material.measured : null }]) });
 }
-function showCompare() {
-  const box = $("compare"), items = state.compare || [];
+function showCompare() {   // a view of store.js: the list of state.compare
+  const box = $("compare"), items = state.compare;
   box.innerHTML = items.length ? "" : `<span class="muted small">+ compare adds the current point (2 to 4 side by side)</span>`;
   box.style.gridTemplateColumns = `repeat(${Math.max(2, items.length)}, minmax(0, 1fr))`;
   items.forEach((c, k) => {
@@ -170,17 +168,22 @@ function showCompare() {
         ` · closest ${escapeHtml(c.measured.name)} (d ${fmtNum(c.measured.distance)})` : ""}` +
       `<button class="x" title="remove">×</button></figcaption>`;
     cell.onclick = (ev) => {
-      if (ev.target.classList.contains("x")) { state.compare.splice(k, 1); showCompare(); return; }
+      if (ev.target.classList.contains("x")) { update({ compare: state.compare.filter((_, j) => j !== k) }); return; }
       setX(c.x); commitPoint();
     };
     box.appendChild(cell);
   });
 }
+view(["favs"], showFavs);
+view(["compare"], showCompare);
+view(["x", "favs", "compare"], renderHighlights);
+view(["x"], renderSearch);
 
 function bindShelf() {
   bindHistory();
   $("fav").onclick = addFavourite;
   $("compare-add").onclick = addCompare;
   undoLog.at = state.x.slice();
-  showFavs(); showCompare(); pollThumbs();
+  update({ favs: loadFavs() });
+  showCompare(); pollThumbs();
 }
