@@ -219,3 +219,62 @@ def _step_back(w, w0, full_rows, A):
             break
         s = 0.0 if s < 1e-3 else s * 0.99
     return w, full, s
+
+
+#: Relative slack of :class:`StepLimit`'s bound: room for the float32 rounding of a rendered table.
+BOUND_SLACK = 1e-3
+#: Convex weights above this share are summed by :class:`StepLimit` (the others only add).
+SUPPORT_FLOOR = 1e-4
+
+
+class StepLimit:
+    """The largest step ``s`` in [0, 1] for which ``w + s e`` is a plausible material.
+
+    ``w`` are convex weights (a plausible material) and ``e`` a direction of affine weights
+    (summing to 0). The table ``sum_i (w_i + s e_i) table_i`` must have no negative bin and
+    its directional albedo must stay at most 1 (:class:`DirectionalAlbedo`). Both are linear
+    in ``s``, so each limit is a ratio: over the bins where ``sum_i e_i table_i < 0``, the least
+    ``sum_i w_i table_i / -sum_i e_i table_i``, and likewise for the albedos. The tables summed
+    are those with ``e_i != 0`` or ``w_i`` above :data:`SUPPORT_FLOOR`; the others only add
+    non-negative values, so leaving them out makes the limit safe (never larger than exact).
+    A relative :data:`BOUND_SLACK` leaves room for the float32 rounding of a rendered table.
+
+    Parameters
+    ----------
+    tables : callable
+        Returns the training tables ``(N, 3 * bins)`` (float32, flat RGB), read when needed.
+    dims : tuple of int
+        The tables' resolution.
+    """
+
+    def __init__(self, tables, dims):
+        self._tables = tables
+        self.dims = tuple(int(v) for v in dims)
+        self._albedo = None
+
+    def albedos(self):
+        """Directional albedos of the training tables, ``(N, 3 n_incidence)``."""
+        if self._albedo is None:
+            T = self._tables()
+            self._albedo = DirectionalAlbedo(self.dims).of(T).reshape(len(T), -1)
+        return self._albedo
+
+    def step(self, w, e):
+        """The largest plausible step ``s`` (M,) of ``w + s e``; ``w`` convex (M, N), ``e`` (M, N)."""
+        w, e = np.atleast_2d(w), np.atleast_2d(e)
+        A = self.albedos()
+        a0, da = w @ A, e @ A
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(da > 0, (1.0 - a0) / da, np.inf)
+        s = np.clip(ratio.min(axis=1), 0.0, 1.0)
+        T = self._tables()
+        for k in np.flatnonzero((e < 0).any(axis=1) & (s > 0)):
+            used = np.flatnonzero((e[k] != 0) | (w[k] > SUPPORT_FLOOR))
+            rows = T[used]
+            base = w[k, used].astype(np.float32) @ rows
+            slope = e[k, used].astype(np.float32) @ rows
+            down = slope < 0
+            if down.any():
+                limit = float(np.min(base[down] / -slope[down])) * (1.0 - BOUND_SLACK)
+                s[k] = min(s[k], max(limit, 0.0))
+        return s
