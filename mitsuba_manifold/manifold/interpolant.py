@@ -206,7 +206,7 @@ class ShepardWeights(Interpolant):
     #: What the weights do outside the hull of the latent points.
     BEYOND = ("nearest", "continue")
     #: Weights below this share are dropped from the two ends of the continuation's secant.
-    SECANT_FLOOR = 0.01
+    SECANT_FLOOR = 0.05
 
     def __init__(
         self,
@@ -278,8 +278,8 @@ class ShepardWeights(Interpolant):
 
         (the change of the material over the last ``eps l`` inside the data, carried on;
         ``w~``: Shepard's weights without the taper, ``w_i ∝ r_i^-p``, so that the change is
-        not flattened next to a material, with shares below :data:`SECANT_FLOOR` dropped, a
-        continuous thinning). The weights ``w(x) + s(x) e(x)`` sum to 1; ``s`` is the
+        not flattened next to a material, thinned continuously: each less :data:`SECANT_FLOOR`
+        (or half the largest, if less), the negative ones dropped, the rest scaled to sum 1). The weights ``w(x) + s(x) e(x)`` sum to 1; ``s`` is the
         largest step in [0, 1] that keeps the material plausible (:meth:`StepLimit.step`):
         no negative bin, directional albedo at most 1. Zero inside the hull (so at every
         training point) and continuous across its boundary.
@@ -311,7 +311,8 @@ class ShepardWeights(Interpolant):
             return _normalise(-0.5 * self.power * np.log(np.einsum("mnq,mnq->mn", diff, diff)))
 
     def _thin(self, w):
-        w = np.maximum(w - self.SECANT_FLOOR, 0.0)
+        floor = np.minimum(self.SECANT_FLOOR, 0.5 * w.max(axis=1, keepdims=True))
+        w = np.maximum(w - floor, 0.0)
         return w / w.sum(axis=1, keepdims=True)
 
     def _terms(self, x):

@@ -224,7 +224,7 @@ def _step_back(w, w0, full_rows, A):
 #: Relative slack of :class:`StepLimit`'s bound: room for the float32 rounding of a rendered table.
 BOUND_SLACK = 1e-3
 #: Convex weights above this share are summed by :class:`StepLimit` (the others only add).
-SUPPORT_FLOOR = 1e-4
+SUPPORT_FLOOR = 1e-2
 
 
 class StepLimit:
@@ -238,6 +238,7 @@ class StepLimit:
     are those with ``e_i != 0`` or ``w_i`` above :data:`SUPPORT_FLOOR`; the others only add
     non-negative values, so leaving them out makes the limit safe (never larger than exact).
     A relative :data:`BOUND_SLACK` leaves room for the float32 rounding of a rendered table.
+    Each point costs one pass over the bins of the few tables it sums.
 
     Parameters
     ----------
@@ -270,9 +271,7 @@ class StepLimit:
         T = self._tables()
         for k in np.flatnonzero((e < 0).any(axis=1) & (s > 0)):
             used = np.flatnonzero((e[k] != 0) | (w[k] > SUPPORT_FLOOR))
-            rows = T[used]
-            base = w[k, used].astype(np.float32) @ rows
-            slope = e[k, used].astype(np.float32) @ rows
+            base, slope = np.stack([w[k, used], e[k, used]]).astype(np.float32) @ T[used]
             down = slope < 0
             if down.any():
                 limit = float(np.min(base[down] / -slope[down])) * (1.0 - BOUND_SLACK)

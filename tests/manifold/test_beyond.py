@@ -153,3 +153,12 @@ def test_the_jacobian_beyond_the_data_is_that_of_the_continued_weights(measured)
     assert np.abs(J - fd).max() <= 0.05 * scale
     # not the convex weights' Jacobian: beyond the data the continuation moves the material
     assert np.abs(m.interpolant._convex_jacobian(x[None])[0] - fd).max() > 0.2 * scale
+
+
+def test_a_saved_default_manifold_continues_beyond_the_data_when_loaded(measured, tmp_path):
+    m, _ = measured
+    m.save(tmp_path / "m.npz")
+    back = Manifold.load(tmp_path / "m.npz")
+    assert back.interpolant.params() == m.interpolant.params()
+    x = _rays_out_of_the_hull(m)[0][-1]
+    assert np.allclose(back.weights(x).w, m.weights(x).w)
