@@ -272,17 +272,18 @@ class ShepardWeights(Interpolant):
         """What the weights gain outside the hull of the latent points: ``s(x) e(x)`` (M, N).
 
         With ``p`` the point of the hull closest to ``x``, ``rho = |x - p|`` and ``n`` the unit
-        vector from ``p`` to ``x``, the convex weights ``w~`` continue linearly along ``n``:
+        vector from ``p`` to ``x``, the weights continue linearly along ``n``:
 
             e(x) = (rho / eps) (w~(p) - w~(p - eps l n))
 
         (the change of the material over the last ``eps l`` inside the data, carried on;
         ``w~``: Shepard's weights without the taper, ``w_i ∝ r_i^-p``, so that the change is
         not flattened next to a material, thinned continuously: each less :data:`SECANT_FLOOR`
-        (or half the largest, if less), the negative ones dropped, the rest scaled to sum 1). The weights ``w(x) + s(x) e(x)`` sum to 1; ``s`` is the
-        largest step in [0, 1] that keeps the material plausible (:meth:`StepLimit.step`):
-        no negative bin, directional albedo at most 1. Zero inside the hull (so at every
-        training point) and continuous across its boundary.
+        (or half the largest, if less), the negative ones dropped, the rest scaled to sum 1).
+        The weights ``w(x) + s(x) e(x)`` sum to 1; ``s`` is the largest step in [0, 1] that
+        keeps the material plausible (:meth:`StepLimit.step`): no negative bin, directional
+        albedo at most 1. Zero inside the hull (so at every training point) and continuous
+        across its boundary.
         """
         out = np.zeros_like(w)
         if self.limit is None:
