@@ -378,9 +378,12 @@ class LatentHull:
     """The convex hull of latent points and the closest point of it to any point.
 
     A point is inside when no facet's plane has it outside (``scipy.spatial.ConvexHull``;
-    for ``q = 1`` the interval); the closest point of the hull to one outside is the convex
-    combination of the hull's vertices nearest to it (non-negative least squares with the
-    weights' sum held at 1 by a heavy extra row).
+    for ``q = 1`` the interval). The closest point of the hull to one outside: for ``q`` of 2
+    and 3, the nearest of its projections onto each facet (where it falls inside the facet)
+    and onto each edge (clamped to the edge), which holds the closest point whether it lies
+    inside a facet, on an edge or at a vertex; for larger ``q``, the convex combination of
+    the hull's vertices nearest to it (non-negative least squares with the weights' sum held
+    at 1 by a heavy extra row, then solved exactly on the face it found).
     """
 
     def __init__(self, latent):
@@ -392,8 +395,9 @@ class LatentHull:
                 raise ValueError("one dimension")
             hull = scipy.spatial.ConvexHull(latent)
             self.vertices, self.planes = latent[hull.vertices], hull.equations
+            self.facets = latent[hull.simplices]  # (F, q, q): the corners of each facet
         except (ValueError, scipy.spatial.QhullError):
-            self.vertices, self.planes = latent, None
+            self.vertices, self.planes, self.facets = latent, None, None
             if self.q == 1:
                 self.vertices = np.array([[latent.min()], [latent.max()]])
 
@@ -407,6 +411,11 @@ class LatentHull:
             outside = (x[:, 0] < self.vertices[0, 0]) | (x[:, 0] > self.vertices[1, 0])
         else:
             outside = np.ones(len(x), dtype=bool)
+        if self.facets is not None and self.q in (2, 3):
+            out = np.flatnonzero(outside)
+            for s in range(0, len(out), 1024):
+                p[out[s : s + 1024]] = self._closest_on_faces(x[out[s : s + 1024]])
+            return p, np.sqrt(((x - p) ** 2).sum(axis=1))
         heavy = 1e4 * self.scale
         A = np.vstack([self.vertices.T, np.full(len(self.vertices), heavy)])
         for i in np.flatnonzero(outside):
@@ -414,6 +423,27 @@ class LatentHull:
             p[i] = self._exact(x[i], np.flatnonzero(lam > 0), lam / lam.sum())
         rho = np.sqrt(((x - p) ** 2).sum(axis=1))
         return p, rho
+
+    def _closest_on_faces(self, x):
+        """The closest point of the hull's surface to each row of ``x`` (``q`` of 2 or 3)."""
+        F = self.facets
+        edges = np.concatenate([F[:, [a, (a + 1) % self.q]] for a in range(self.q)])
+        a, d = edges[:, 0], edges[:, 1] - edges[:, 0]  # (E, q)
+        t = np.einsum("meq,eq->me", x[:, None] - a[None], d) / np.einsum("eq,eq->e", d, d)
+        cand = a[None] + np.clip(t, 0.0, 1.0)[..., None] * d[None]  # (M, E, q)
+        if self.q == 3:  # inside a facet: the projection onto its plane, where it falls inside
+            o, u, v = F[:, 0], F[:, 1] - F[:, 0], F[:, 2] - F[:, 0]
+            G = np.stack([np.stack([(u * u).sum(1), (u * v).sum(1)], 1),
+                          np.stack([(u * v).sum(1), (v * v).sum(1)], 1)], 1)  # fmt: skip
+            r = x[:, None] - o[None]  # (M, F, q)
+            rhs = np.stack([(r * u[None]).sum(-1), (r * v[None]).sum(-1)], -1)
+            ab = np.einsum("fij,mfj->mfi", np.linalg.inv(G), rhs)
+            inside = (ab >= 0).all(-1) & (ab.sum(-1) <= 1)
+            on = o[None] + ab[..., :1] * u[None] + ab[..., 1:] * v[None]
+            on = np.where(inside[..., None], on, np.inf)
+            cand = np.concatenate([cand, on], axis=1)
+        dist = ((cand - x[:, None]) ** 2).sum(-1)
+        return cand[np.arange(len(x)), dist.argmin(axis=1)]
 
     def _exact(self, x, active, lam):
         """The closest point of the affine span of the ``active`` vertices (the face NNLS found),

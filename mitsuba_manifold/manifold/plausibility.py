@@ -232,13 +232,22 @@ class StepLimit:
 
     ``w`` are convex weights (a plausible material) and ``e`` a direction of affine weights
     (summing to 0). The table ``sum_i (w_i + s e_i) table_i`` must have no negative bin and
-    its directional albedo must stay at most 1 (:class:`DirectionalAlbedo`). Both are linear
-    in ``s``, so each limit is a ratio: over the bins where ``sum_i e_i table_i < 0``, the least
-    ``sum_i w_i table_i / -sum_i e_i table_i``, and likewise for the albedos. The tables summed
-    are those with ``e_i != 0`` or ``w_i`` above :data:`SUPPORT_FLOOR`; the others only add
-    non-negative values, so leaving them out makes the limit safe (never larger than exact).
-    A relative :data:`BOUND_SLACK` leaves room for the float32 rounding of a rendered table.
-    Each point costs one pass over the bins of the few tables it sums.
+    its directional albedo must stay at most 1 (:class:`DirectionalAlbedo`; linear in ``s``,
+    so its limit is a ratio). Non-negativity is held by a sufficient condition that needs no
+    pass over the bins per point: with the domination ratios ``R_ij = min_b table_i[b] /
+    table_j[b]`` (over the bins where ``table_j > 0``, so ``table_i >= R_ij table_j`` in every
+    bin), a combination with coefficients ``c`` has no negative bin when, for each ``j`` with
+    ``c_j < 0``,
+
+        (1 - BOUND_SLACK) sum_{i: c_i > 0} c_i R_ij >= sum_{k: c_k < 0} |c_k|
+
+    (the positive tables cover each negative one bin by bin, in proportion to its share of the
+    negative weight). It is exact for two materials, never lets a negative bin through, and
+    costs a product of small matrices per point; the largest ``s`` meeting it is found by
+    bisection (it holds at ``s = 0``). The positive tables counted are those with ``e_i != 0``
+    or ``w_i`` above :data:`SUPPORT_FLOOR` (the others only add); a ratio ``R_ij`` is computed
+    (one pass over two tables) the first time a point needs it, and kept.
+    :data:`BOUND_SLACK` leaves room for the float32 rounding of a rendered table.
 
     Parameters
     ----------
@@ -252,6 +261,7 @@ class StepLimit:
         self._tables = tables
         self.dims = tuple(int(v) for v in dims)
         self._albedo = None
+        self._ratio = {}
 
     def albedos(self):
         """Directional albedos of the training tables, ``(N, 3 n_incidence)``."""
@@ -260,20 +270,70 @@ class StepLimit:
             self._albedo = DirectionalAlbedo(self.dims).of(T).reshape(len(T), -1)
         return self._albedo
 
-    def step(self, w, e):
+    def ratios(self, rows, cols):
+        """``R_ij = min_b table_i[b] / table_j[b]`` for the pairs ``(rows, cols)`` (same shape)."""
+        rows, cols = np.broadcast_arrays(np.asarray(rows), np.asarray(cols))
+        pairs = set(zip(rows.ravel().tolist(), cols.ravel().tolist()))
+        missing = sorted(p for p in pairs if p not in self._ratio)
+        if missing:
+            T = self._tables()
+            for i, j in missing:
+                if i == j:
+                    self._ratio[i, j] = 1.0
+                    continue
+                tj = T[j]
+                on = tj > 0
+                r = T[i][on] / tj[on]
+                self._ratio[i, j] = min(float(r.min()), 1e30) if len(r) else 1e30
+        flat = [self._ratio[p] for p in zip(rows.ravel().tolist(), cols.ravel().tolist())]
+        return np.asarray(flat, dtype=np.float64).reshape(rows.shape)
+
+    def step(self, w, e, iterations=40):
         """The largest plausible step ``s`` (M,) of ``w + s e``; ``w`` convex (M, N), ``e`` (M, N)."""
         w, e = np.atleast_2d(w), np.atleast_2d(e)
         A = self.albedos()
         a0, da = w @ A, e @ A
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(da > 0, (1.0 - a0) / da, np.inf)
-        s = np.clip(ratio.min(axis=1), 0.0, 1.0)
-        T = self._tables()
-        for k in np.flatnonzero((e < 0).any(axis=1) & (s > 0)):
-            used = np.flatnonzero((e[k] != 0) | (w[k] > SUPPORT_FLOOR))
-            base, slope = np.stack([w[k, used], e[k, used]]).astype(np.float32) @ T[used]
-            down = slope < 0
-            if down.any():
-                limit = float(np.min(base[down] / -slope[down])) * (1.0 - BOUND_SLACK)
-                s[k] = min(s[k], max(limit, 0.0))
-        return s
+        hi = np.clip(ratio.min(axis=1), 0.0, 1.0)
+        neg = np.flatnonzero((e < 0).any(axis=0))
+        if len(neg) == 0:
+            return hi
+        # each point's own tables: those it sums (support) and those that may go negative
+        sup, sup_on = _rows_of((w > SUPPORT_FLOOR) | (e != 0))
+        down, down_on = _rows_of(e < 0)
+        pair_on = sup_on[:, :, None] & down_on[:, None, :]
+        Rp = np.zeros(pair_on.shape)
+        Rp[pair_on] = self.ratios(
+            np.broadcast_to(sup[:, :, None], pair_on.shape)[pair_on],
+            np.broadcast_to(down[:, None, :], pair_on.shape)[pair_on],
+        )
+        Rp *= 1.0 - BOUND_SLACK  # (M, r, k)
+        ws, es = [np.where(sup_on, np.take_along_axis(a, sup, 1), 0.0) for a in (w, e)]
+        wd, ed = [np.where(down_on, np.take_along_axis(a, down, 1), 0.0) for a in (w, e)]
+
+        def ok(s):
+            cover = np.einsum("mr,mrk->mk", np.maximum(ws + s[:, None] * es, 0.0), Rp)
+            owed = np.maximum(-(wd + s[:, None] * ed), 0.0)
+            return ((owed <= 0) | (cover >= owed.sum(axis=1, keepdims=True))).all(axis=1)
+
+        good = ok(hi)
+        lo, top = np.where(good, hi, 0.0), hi.copy()
+        todo = ~good
+        for _ in range(iterations):
+            if not todo.any():
+                break
+            mid = 0.5 * (lo + top)
+            fine = ok(mid)
+            lo = np.where(todo & fine, mid, lo)
+            top = np.where(todo & ~fine, mid, top)
+        return lo
+
+
+def _rows_of(mask):
+    """Per row of ``mask`` (M, N), the columns where it holds, padded: ``(M, r)`` indices and
+    whether each is one (``r`` the most of any row, at least 1).
+    """
+    r = max(int(mask.sum(axis=1).max()), 1)
+    idx = np.argsort(~mask, axis=1, kind="stable")[:, :r]
+    return idx, np.take_along_axis(mask, idx, 1)
