@@ -280,8 +280,8 @@ class ShepardWeights(Interpolant):
         ``w~``: Shepard's weights without the taper, ``w_i ∝ r_i^-p``, so that the change is
         not flattened next to a material, thinned continuously: each less :data:`SECANT_FLOOR`
         (or half the largest, if less), the negative ones dropped, the rest scaled to sum 1).
-        The weights ``w(x) + s(x) e(x)`` sum to 1; ``s`` is the largest step in [0, 1] that
-        keeps the material plausible (:meth:`StepLimit.step`): no negative bin, directional
+        The weights ``w(x) + s(x) e(x)`` sum to 1; ``s`` is the largest step in [0, 1] for
+        which :meth:`StepLimit.step` holds the material plausible: no negative bin, directional
         albedo at most 1. Zero inside the hull (so at every training point) and continuous
         across its boundary.
         """

@@ -16,6 +16,10 @@ as constraints and solved again (a few rounds); and last the exact guarantee: th
 is moved toward a plausible start (a convex combination) by the largest step that keeps
 every bin of the full table non-negative and every directional albedo at most 1 (both
 conditions are linear, so that step is a ratio per bin).
+
+:class:`StepLimit` holds the default interpolant's continuation beyond the data to a
+plausible material: the largest step from convex weights along a direction of affine weights
+that a cheap sufficient condition (ratios of pairs of tables) and the albedo bound allow.
 """
 
 from __future__ import annotations
