@@ -259,14 +259,22 @@ class ShepardWeights(Interpolant):
             **({"beyond": self.beyond, "secant": self.secant} if self.beyond != "nearest" else {}),
         }
 
-    def attach(self, tables, dims):
-        """Give the continuation beyond the hull its plausibility limit (:class:`StepLimit`):
-        ``tables`` a callable returning the training tables ``(N, 3 * bins)`` when first needed,
-        ``dims`` their resolution. Without it (or with ``beyond="nearest"``) the weights are
-        the convex ones everywhere.
+    def attach(self, manifold):
+        """Give the continuation beyond the hull its plausibility limit (:class:`StepLimit`)
+        from the tables of ``manifold`` (a :class:`~.model.Manifold` over these latent points):
+        those in memory when all are loaded, else each material's read when first needed.
+        Without it (or with ``beyond="nearest"``) the weights are the convex ones everywhere.
         """
-        if self.beyond == "continue" and dims is not None:
-            self.limit = StepLimit(tables, dims)
+        if self.beyond != "continue" or manifold.dims is None:
+            return
+
+        def rows(idx):
+            if manifold._tables is not None:  # views of the rows, no copy
+                return [manifold._tables[i] for i in idx]
+            names = [manifold.names[i] for i in idx]
+            return manifold.open_database(names=names).stack(names)
+
+        self.limit = StepLimit(rows, self.n, manifold.dims)
 
     def continuation(self, x, w):
         """What the weights gain outside the hull of the latent points: ``s(x) e(x)`` (M, N).

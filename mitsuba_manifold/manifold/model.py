@@ -193,7 +193,7 @@ class Manifold:
         )
         ip = self.interpolant
         if isinstance(ip, interpolants.ShepardWeights):  # its continuation beyond the data
-            ip.attach(self.tables, self.dims)
+            ip.attach(self)
         same = isinstance(ip, interpolants.GaussianProcessWeights) and ip.gp.kernel == self.kernel
         self._gp = (
             ip.gp if same else interpolants.posterior(self.latent, self.kernel)

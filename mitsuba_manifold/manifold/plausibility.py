@@ -255,48 +255,63 @@ class StepLimit:
 
     Parameters
     ----------
-    tables : callable
-        Returns the training tables ``(N, 3 * bins)`` (float32, flat RGB), read when needed.
+    rows : callable
+        ``rows(indices)``: the training tables of those materials, each ``(3 * bins,)`` (float32,
+        flat RGB); called only for the materials a point sums, each once (and kept).
+    n : int
+        The number of training materials.
     dims : tuple of int
         The tables' resolution.
     """
 
-    def __init__(self, tables, dims):
-        self._tables = tables
+    def __init__(self, rows, n, dims):
+        self._rows = rows
+        self.n = int(n)
         self.dims = tuple(int(v) for v in dims)
-        self._albedo = None
+        self._table = {}
+        self._albedo = np.full((self.n, 3 * N_INCIDENCE), np.nan)
         self._ratio = {}
 
-    def albedos(self):
-        """Directional albedos of the training tables, ``(N, 3 n_incidence)``."""
-        if self._albedo is None:
-            T = self._tables()
-            self._albedo = DirectionalAlbedo(self.dims).of(T).reshape(len(T), -1)
-        return self._albedo
+    def _tables(self, idx):
+        missing = [int(i) for i in idx if int(i) not in self._table]
+        if missing:
+            for i, t in zip(missing, self._rows(missing)):
+                self._table[i] = np.asarray(t, dtype=np.float32)
+        return [self._table[int(i)] for i in idx]
+
+    def albedos(self, idx):
+        """Directional albedos of materials ``idx``, ``(len(idx), 3 n_incidence)``."""
+        idx = np.asarray(idx, dtype=int)
+        missing = idx[np.isnan(self._albedo[idx, 0])]
+        if len(missing):
+            da = DirectionalAlbedo(self.dims)
+            self._albedo[missing] = da.of(np.stack(self._tables(missing))).reshape(len(missing), -1)
+        return self._albedo[idx]
 
     def ratios(self, rows, cols):
         """``R_ij = min_b table_i[b] / table_j[b]`` for the pairs ``(rows, cols)`` (same shape)."""
         rows, cols = np.broadcast_arrays(np.asarray(rows), np.asarray(cols))
-        pairs = set(zip(rows.ravel().tolist(), cols.ravel().tolist()))
-        missing = sorted(p for p in pairs if p not in self._ratio)
-        if missing:
-            T = self._tables()
-            for i, j in missing:
-                if i == j:
-                    self._ratio[i, j] = 1.0
-                    continue
-                tj = T[j]
-                on = tj > 0
-                r = T[i][on] / tj[on]
-                self._ratio[i, j] = min(float(r.min()), 1e30) if len(r) else 1e30
-        flat = [self._ratio[p] for p in zip(rows.ravel().tolist(), cols.ravel().tolist())]
-        return np.asarray(flat, dtype=np.float64).reshape(rows.shape)
+        pairs = list(zip(rows.ravel().tolist(), cols.ravel().tolist()))
+        for i, j in sorted(set(p for p in pairs if p not in self._ratio)):
+            if i == j:
+                self._ratio[i, j] = 1.0
+                continue
+            ti, tj = self._tables([i, j])
+            on = tj > 0
+            r = ti[on] / tj[on]
+            self._ratio[i, j] = min(float(r.min()), 1e30) if len(r) else 1e30
+        return np.asarray([self._ratio[p] for p in pairs], dtype=np.float64).reshape(rows.shape)
 
     def step(self, w, e, iterations=40):
         """The largest plausible step ``s`` (M,) of ``w + s e``; ``w`` convex (M, N), ``e`` (M, N)."""
         w, e = np.atleast_2d(w), np.atleast_2d(e)
-        A = self.albedos()
-        a0, da = w @ A, e @ A
+        # albedos: of the materials summed; the others' share counted at the most, 1
+        summed = (w > SUPPORT_FLOOR) | (e != 0)
+        idx = np.flatnonzero(summed.any(axis=0))
+        A = self.albedos(idx)
+        ws = np.where(summed[:, idx], w[:, idx], 0.0)
+        a0 = ws @ A + (1.0 - ws.sum(axis=1))[:, None]
+        da = e[:, idx] @ A
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(da > 0, (1.0 - a0) / da, np.inf)
         hi = np.clip(ratio.min(axis=1), 0.0, 1.0)
@@ -304,7 +319,7 @@ class StepLimit:
         if len(neg) == 0:
             return hi
         # each point's own tables: those it sums (support) and those that may go negative
-        sup, sup_on = _rows_of((w > SUPPORT_FLOOR) | (e != 0))
+        sup, sup_on = _rows_of(summed)
         down, down_on = _rows_of(e < 0)
         pair_on = sup_on[:, :, None] & down_on[:, None, :]
         Rp = np.zeros(pair_on.shape)
