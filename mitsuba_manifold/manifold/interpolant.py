@@ -280,11 +280,13 @@ class ShepardWeights(Interpolant):
         """What the weights gain outside the hull of the latent points: ``s(x) e(x)`` (M, N).
 
         With ``p`` the point of the hull closest to ``x``, ``rho = |x - p|`` and ``n`` the unit
-        vector from ``p`` to ``x``, the weights continue linearly along ``n``:
+        vector from ``p`` to ``x``, the weights continue along ``n``:
 
-            e(x) = (rho / eps) (w~(p) - w~(p - eps l n))
+            e(x) = a(rho / (eps l)) (w~(p) - w~(p - eps l n)),   a(r) = r^4 / (1 + r^3)
 
-        (the change of the material over the last ``eps l`` inside the data, carried on;
+        (the change of the material over the last ``eps l`` inside the data, carried on: ``a``
+        grows as ``r`` far out and starts flat, as ``r^4``, so that the weights stay smooth
+        across the hull and flat at the training points on it;
         ``w~``: Shepard's weights without the taper, ``w_i ∝ r_i^-p``, so that the change is
         not flattened next to a material, thinned continuously: each less :data:`SECANT_FLOOR`
         (or half the largest, if less), the negative ones dropped, the rest scaled to sum 1).
@@ -303,7 +305,9 @@ class ShepardWeights(Interpolant):
         n = (x[far] - p[far]) / rho[far, None]
         eps = self.secant * self.length_scale
         ends = self._thin(self._untapered(np.concatenate([p[far], p[far] - eps * n])))
-        e = (rho[far] / eps)[:, None] * (ends[: len(far)] - ends[len(far) :])
+        r = rho[far] / eps
+        reach = r**4 / (1.0 + r**3)  # ~rho / eps far out, flat at the hull
+        e = reach[:, None] * (ends[: len(far)] - ends[len(far) :])
         s = self.limit.step(w[far], e)
         out[far] = s[:, None] * e
         return out
@@ -354,12 +358,15 @@ class ShepardWeights(Interpolant):
             return J
         _, rho = self.hull().project(x)
         far = np.flatnonzero(rho > 1e-12 * self.length_scale)
-        if len(far):  # beyond the hull: central differences of the continued weights
-            h = 1e-4 * self.length_scale
-            steps = np.eye(self.q) * h
-            X = x[far, None, :] + np.concatenate([steps, -steps])[None]
+        if len(far):  # beyond the hull: central differences of the continued weights, with
+            # steps that stay outside it (no larger than half the distance to it)
+            h = np.clip(0.5 * rho[far], 1e-9, 1e-4) * self.length_scale
+            steps = np.eye(self.q)[None] * h[:, None, None]
+            X = x[far, None, :] + np.concatenate([steps, -steps], axis=1)
             W = self._weights(X.reshape(-1, self.q)).reshape(len(far), 2 * self.q, self.n)
-            J[far] = np.transpose(W[:, : self.q] - W[:, self.q :], (0, 2, 1)) / (2 * h)
+            J[far] = np.transpose(W[:, : self.q] - W[:, self.q :], (0, 2, 1)) / (
+                2 * h[:, None, None]
+            )
         return J
 
     def _convex_jacobian(self, x):
