@@ -18,6 +18,9 @@ They differ only in the function ``w(x)``:
     ``e_i`` at ``x_i`` (no jump): interpolated tables stay non-negative and albedos stay
     inside the range of the measured ones. Far from every latent point the weights tend
     to the mean material (``h = inf``) or to the nearest latent points (finite ``h``).
+    With ``beyond="continue"`` (the default preset) they go on changing outside the convex
+    hull of the latent points instead (:meth:`ShepardWeights.continuation`): affine weights,
+    held to a physically plausible material by the training tables (:meth:`ShepardWeights.attach`).
 
 Both give their analytic Jacobian ``dw/dx`` (:meth:`Interpolant.jacobian`).
 """
@@ -27,11 +30,14 @@ from __future__ import annotations
 import numbers
 
 import numpy as np
+import scipy.optimize
+import scipy.spatial
 
 from .._util import checks
 from ..errors import InputError, NotPositiveDefiniteError
 from ..gp.kernel import Kernel, coincident
 from ..gp.posterior import Posterior
+from .plausibility import StepLimit
 
 KINDS = ("gp", "shepard")
 #: Largest latent coordinate accepted: far beyond it squared distances (and their squares in the
@@ -188,12 +194,41 @@ class ShepardWeights(Interpolant):
         ``s``: how much the taper widens with the distance to the data.
     length_scale : float
         ``l``: the unit of distances.
+    beyond : {"nearest", "continue"}
+        Outside the convex hull of the latent points: the convex weights alone (they tend
+        to the nearest materials), or continued (:meth:`continuation`) once
+        :meth:`attach` gave the tables.
+    secant : float
+        ``eps`` of the continuation, in units of ``l``.
     """
 
     kind = "shepard"
+    #: What the weights do outside the hull of the latent points.
+    BEYOND = ("nearest", "continue")
+    #: Weights below this share are dropped from the two ends of the continuation's secant.
+    SECANT_FLOOR = 0.05
 
-    def __init__(self, latent, power=2.0, taper=np.inf, spread=0.0, length_scale=1.0):
+    def __init__(
+        self,
+        latent,
+        power=2.0,
+        taper=np.inf,
+        spread=0.0,
+        length_scale=1.0,
+        beyond="nearest",
+        secant=0.3,
+    ):
         super().__init__(latent)
+        if beyond not in self.BEYOND:
+            raise InputError(
+                f"shepard weights: unknown `beyond` {beyond!r}; use one of {', '.join(self.BEYOND)}"
+            )
+        self.beyond = beyond
+        self.secant = _number(self.kind, "secant", secant)
+        if not self.secant > 0:
+            raise InputError(f"shepard weights need `secant` > 0, got {self.secant}")
+        self.limit = None
+        self._hull = None
         given = (
             ("power", power),
             ("taper", taper),
@@ -221,7 +256,77 @@ class ShepardWeights(Interpolant):
             "taper": self.taper,
             "spread": self.spread,
             "length_scale": self.length_scale,
+            **({"beyond": self.beyond, "secant": self.secant} if self.beyond != "nearest" else {}),
         }
+
+    def attach(self, manifold):
+        """Give the continuation beyond the hull its plausibility limit (:class:`StepLimit`)
+        from the tables of ``manifold`` (a :class:`~.model.Manifold` over these latent points):
+        those in memory when all are loaded, else each material's read when first needed.
+        Without it (or with ``beyond="nearest"``) the weights are the convex ones everywhere.
+        """
+        if self.beyond != "continue" or manifold.dims is None:
+            return
+
+        def rows(idx):
+            if manifold._tables is not None:  # views of the rows, no copy
+                return [manifold._tables[i] for i in idx]
+            names = [manifold.names[i] for i in idx]
+            return manifold.open_database(names=names).stack(names)
+
+        self.limit = StepLimit(rows, self.n, manifold.dims)
+
+    def continuation(self, x, w):
+        """What the weights gain outside the hull of the latent points: ``s(x) e(x)`` (M, N).
+
+        With ``p`` the point of the hull closest to ``x``, ``rho = |x - p|`` and ``n`` the unit
+        vector from ``p`` to ``x``, the weights continue along ``n``:
+
+            e(x) = a(rho / (eps l)) (w~(p) - w~(p - eps l n)),   a(r) = r^4 / (1 + r^3)
+
+        (the change of the material over the last ``eps l`` inside the data, carried on: ``a``
+        grows as ``r`` far out and starts flat, as ``r^4``, so that the weights stay smooth
+        across the hull and flat at the training points on it;
+        ``w~``: Shepard's weights without the taper, ``w_i ∝ r_i^-p``, so that the change is
+        not flattened next to a material, thinned continuously: each less :data:`SECANT_FLOOR`
+        (or half the largest, if less), the negative ones dropped, the rest scaled to sum 1).
+        The weights ``w(x) + s(x) e(x)`` sum to 1; ``s`` is the largest step in [0, 1] for
+        which :meth:`StepLimit.step` holds the material plausible: no negative bin, directional
+        albedo at most 1. Zero inside the hull (so at every training point) and continuous
+        across its boundary.
+        """
+        out = np.zeros_like(w)
+        if self.limit is None:
+            return out
+        p, rho = self.hull().project(x)
+        far = np.flatnonzero(rho > 1e-12 * self.length_scale)
+        if len(far) == 0:
+            return out
+        n = (x[far] - p[far]) / rho[far, None]
+        eps = self.secant * self.length_scale
+        ends = self._thin(self._untapered(np.concatenate([p[far], p[far] - eps * n])))
+        r = rho[far] / eps
+        reach = r**4 / (1.0 + r**3)  # ~rho / eps far out, flat at the hull
+        e = reach[:, None] * (ends[: len(far)] - ends[len(far) :])
+        s = self.limit.step(w[far], e)
+        out[far] = s[:, None] * e
+        return out
+
+    def hull(self):
+        """The :class:`LatentHull` of the latent points (made on first use)."""
+        if self._hull is None:
+            self._hull = LatentHull(self.latent)
+        return self._hull
+
+    def _untapered(self, x):
+        diff = (x[:, None, :] - self.latent[None]) / self.length_scale
+        with np.errstate(divide="ignore"):
+            return _normalise(-0.5 * self.power * np.log(np.einsum("mnq,mnq->mn", diff, diff)))
+
+    def _thin(self, w):
+        floor = np.minimum(self.SECANT_FLOOR, 0.5 * w.max(axis=1, keepdims=True))
+        w = np.maximum(w - floor, 0.0)
+        return w / w.sum(axis=1, keepdims=True)
 
     def _terms(self, x):
         """``x - x_i`` (units of l), ``r_i^2``, hit rows, ``m(x)``, ``h(x)^2`` and ``log u_i``."""
@@ -238,10 +343,33 @@ class ShepardWeights(Interpolant):
             log_u = -0.5 * self.power * np.log(r2) - 0.5 * r2 / h2[:, None]
         return diff, r2s, hit, inv, m, h2, log_u
 
-    def _weights(self, x):
+    def _convex(self, x):
         return _normalise(self._terms(x)[-1])
 
+    def _weights(self, x):
+        w = self._convex(x)
+        if self.limit is not None:
+            w = w + self.continuation(x, w)
+        return w
+
     def _jacobian(self, x):
+        J = self._convex_jacobian(x)
+        if self.limit is None:
+            return J
+        _, rho = self.hull().project(x)
+        far = np.flatnonzero(rho > 1e-12 * self.length_scale)
+        if len(far):  # beyond the hull: central differences of the continued weights, with
+            # steps that stay outside it (no larger than half the distance to it)
+            h = np.clip(0.5 * rho[far], 1e-9, 1e-4) * self.length_scale
+            steps = np.eye(self.q)[None] * h[:, None, None]
+            X = x[far, None, :] + np.concatenate([steps, -steps], axis=1)
+            W = self._weights(X.reshape(-1, self.q)).reshape(len(far), 2 * self.q, self.n)
+            J[far] = np.transpose(W[:, : self.q] - W[:, self.q :], (0, 2, 1)) / (
+                2 * h[:, None, None]
+            )
+        return J
+
+    def _convex_jacobian(self, x):
         diff, r2, hit, inv, m, h2, log_u = self._terms(x)
         w = _normalise(log_u)
         p, l = self.power, self.length_scale
@@ -259,6 +387,91 @@ class ShepardWeights(Interpolant):
         J = w[..., None] * (g - np.einsum("mn,mnq->mq", w, g)[:, None, :])
         J[hit] = 0.0  # at a latent point w = e_i and (for p > 1) it is stationary
         return J
+
+
+class LatentHull:
+    """The convex hull of latent points and the closest point of it to any point.
+
+    A point is inside when no facet's plane has it outside (``scipy.spatial.ConvexHull``;
+    for ``q = 1`` the interval). The closest point of the hull to one outside: for ``q`` of 2
+    and 3, the nearest of its projections onto each facet (where it falls inside the facet)
+    and onto each edge (clamped to the edge), which holds the closest point whether it lies
+    inside a facet, on an edge or at a vertex; for larger ``q``, the convex combination of
+    the hull's vertices nearest to it (non-negative least squares with the weights' sum held
+    at 1 by a heavy extra row, then solved exactly on the face it found).
+    """
+
+    def __init__(self, latent):
+        latent = np.asarray(latent, dtype=np.float64)
+        self.q = latent.shape[1]
+        self.scale = float(np.ptp(latent, axis=0).max()) or 1.0
+        try:
+            if self.q < 2:
+                raise ValueError("one dimension")
+            hull = scipy.spatial.ConvexHull(latent)
+            self.vertices, self.planes = latent[hull.vertices], hull.equations
+            self.facets = latent[hull.simplices]  # (F, q, q): the corners of each facet
+        except (ValueError, scipy.spatial.QhullError):
+            self.vertices, self.planes, self.facets = latent, None, None
+            if self.q == 1:
+                self.vertices = np.array([[latent.min()], [latent.max()]])
+
+    def project(self, x):
+        """The closest points of the hull ``(M, q)`` and the distances to them ``(M,)``."""
+        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        p = x.copy()
+        if self.planes is not None:
+            outside = (x @ self.planes[:, :-1].T + self.planes[:, -1] > 1e-12 * self.scale).any(1)
+        elif self.q == 1:
+            outside = (x[:, 0] < self.vertices[0, 0]) | (x[:, 0] > self.vertices[1, 0])
+        else:
+            outside = np.ones(len(x), dtype=bool)
+        if self.facets is not None and self.q in (2, 3):
+            out = np.flatnonzero(outside)
+            for s in range(0, len(out), 1024):
+                p[out[s : s + 1024]] = self._closest_on_faces(x[out[s : s + 1024]])
+            return p, np.sqrt(((x - p) ** 2).sum(axis=1))
+        heavy = 1e4 * self.scale
+        A = np.vstack([self.vertices.T, np.full(len(self.vertices), heavy)])
+        for i in np.flatnonzero(outside):
+            lam, _ = scipy.optimize.nnls(A, np.append(x[i], heavy))
+            p[i] = self._exact(x[i], np.flatnonzero(lam > 0), lam / lam.sum())
+        rho = np.sqrt(((x - p) ** 2).sum(axis=1))
+        return p, rho
+
+    def _closest_on_faces(self, x):
+        """The closest point of the hull's surface to each row of ``x`` (``q`` of 2 or 3)."""
+        F = self.facets
+        edges = np.concatenate([F[:, [a, (a + 1) % self.q]] for a in range(self.q)])
+        a, d = edges[:, 0], edges[:, 1] - edges[:, 0]  # (E, q)
+        t = np.einsum("meq,eq->me", x[:, None] - a[None], d) / np.einsum("eq,eq->e", d, d)
+        cand = a[None] + np.clip(t, 0.0, 1.0)[..., None] * d[None]  # (M, E, q)
+        if self.q == 3:  # inside a facet: the projection onto its plane, where it falls inside
+            o, u, v = F[:, 0], F[:, 1] - F[:, 0], F[:, 2] - F[:, 0]
+            G = np.stack([np.stack([(u * u).sum(1), (u * v).sum(1)], 1),
+                          np.stack([(u * v).sum(1), (v * v).sum(1)], 1)], 1)  # fmt: skip
+            r = x[:, None] - o[None]  # (M, F, q)
+            rhs = np.stack([(r * u[None]).sum(-1), (r * v[None]).sum(-1)], -1)
+            ab = np.einsum("fij,mfj->mfi", np.linalg.inv(G), rhs)
+            inside = (ab >= 0).all(-1) & (ab.sum(-1) <= 1)
+            on = o[None] + ab[..., :1] * u[None] + ab[..., 1:] * v[None]
+            on = np.where(inside[..., None], on, np.inf)
+            cand = np.concatenate([cand, on], axis=1)
+        dist = ((cand - x[:, None]) ** 2).sum(-1)
+        return cand[np.arange(len(x)), dist.argmin(axis=1)]
+
+    def _exact(self, x, active, lam):
+        """The closest point of the affine span of the ``active`` vertices (the face NNLS found),
+        solved exactly; NNLS's own point where that leaves the face.
+        """
+        V = self.vertices[active]
+        if len(V) == 1:
+            return V[0]
+        base = V[-1]
+        mu = np.linalg.lstsq((V[:-1] - base).T, x - base, rcond=None)[0]
+        if (mu >= 0).all() and mu.sum() <= 1:
+            return base + mu @ (V[:-1] - base)
+        return lam @ self.vertices
 
 
 def _normalise(log_u):

@@ -293,6 +293,8 @@ class Manifold:
             },
         )
         ip = self.interpolant
+        if isinstance(ip, interpolants.ShepardWeights):  # its continuation beyond the data
+            ip.attach(self)
         same = isinstance(ip, interpolants.GaussianProcessWeights) and ip.gp.kernel == self.kernel
         self._gp = (
             ip.gp if same else interpolants.posterior(self.latent, self.kernel)

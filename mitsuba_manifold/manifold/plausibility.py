@@ -16,6 +16,10 @@ as constraints and solved again (a few rounds); and last the exact guarantee: th
 is moved toward a plausible start (a convex combination) by the largest step that keeps
 every bin of the full table non-negative and every directional albedo at most 1 (both
 conditions are linear, so that step is a ratio per bin).
+
+:class:`StepLimit` holds the default interpolant's continuation beyond the data to a
+plausible material: the largest step from convex weights along a direction of affine weights
+that a cheap sufficient condition (ratios of pairs of tables) and the albedo bound allow.
 """
 
 from __future__ import annotations
@@ -219,3 +223,136 @@ def _step_back(w, w0, full_rows, A):
             break
         s = 0.0 if s < 1e-3 else s * 0.99
     return w, full, s
+
+
+#: Relative slack of :class:`StepLimit`'s bound: room for the float32 rounding of a rendered table.
+BOUND_SLACK = 1e-3
+#: Convex weights above this share are summed by :class:`StepLimit` (the others only add).
+SUPPORT_FLOOR = 1e-2
+
+
+class StepLimit:
+    """The largest step ``s`` in [0, 1] for which ``w + s e`` is a plausible material.
+
+    ``w`` are convex weights (a plausible material) and ``e`` a direction of affine weights
+    (summing to 0). The table ``sum_i (w_i + s e_i) table_i`` must have no negative bin and
+    its directional albedo must stay at most 1 (:class:`DirectionalAlbedo`; linear in ``s``,
+    so its limit is a ratio). Non-negativity is held by a sufficient condition that needs no
+    pass over the bins per point: with the domination ratios ``R_ij = min_b table_i[b] /
+    table_j[b]`` (over the bins where ``table_j > 0``, so ``table_i >= R_ij table_j`` in every
+    bin), a combination with coefficients ``c`` has no negative bin when, for each ``j`` with
+    ``c_j < 0``,
+
+        (1 - BOUND_SLACK) sum_{i: c_i > 0} c_i R_ij >= sum_{k: c_k < 0} |c_k|
+
+    (the positive tables cover each negative one bin by bin, in proportion to its share of the
+    negative weight). It is exact for two materials, never lets a negative bin through, and
+    costs a product of small matrices per point; the largest ``s`` meeting it is found by
+    bisection (it holds at ``s = 0``). The positive tables counted are those with ``e_i != 0``
+    or ``w_i`` above :data:`SUPPORT_FLOOR` (the others only add); a ratio ``R_ij`` is computed
+    (one pass over two tables) the first time a point needs it, and kept.
+    :data:`BOUND_SLACK` leaves room for the float32 rounding of a rendered table.
+
+    Parameters
+    ----------
+    rows : callable
+        ``rows(indices)``: the training tables of those materials, each ``(3 * bins,)`` (float32,
+        flat RGB); called only for the materials a point sums, each once (and kept).
+    n : int
+        The number of training materials.
+    dims : tuple of int
+        The tables' resolution.
+    """
+
+    def __init__(self, rows, n, dims):
+        self._rows = rows
+        self.n = int(n)
+        self.dims = tuple(int(v) for v in dims)
+        self._table = {}
+        self._albedo = np.full((self.n, 3 * N_INCIDENCE), np.nan)
+        self._ratio = {}
+
+    def _tables(self, idx):
+        missing = [int(i) for i in idx if int(i) not in self._table]
+        if missing:
+            for i, t in zip(missing, self._rows(missing)):
+                self._table[i] = np.asarray(t, dtype=np.float32)
+        return [self._table[int(i)] for i in idx]
+
+    def albedos(self, idx):
+        """Directional albedos of materials ``idx``, ``(len(idx), 3 n_incidence)``."""
+        idx = np.asarray(idx, dtype=int)
+        missing = idx[np.isnan(self._albedo[idx, 0])]
+        if len(missing):
+            da = DirectionalAlbedo(self.dims)
+            self._albedo[missing] = da.of(np.stack(self._tables(missing))).reshape(len(missing), -1)
+        return self._albedo[idx]
+
+    def ratios(self, rows, cols):
+        """``R_ij = min_b table_i[b] / table_j[b]`` for the pairs ``(rows, cols)`` (same shape)."""
+        rows, cols = np.broadcast_arrays(np.asarray(rows), np.asarray(cols))
+        pairs = list(zip(rows.ravel().tolist(), cols.ravel().tolist()))
+        for i, j in sorted(set(p for p in pairs if p not in self._ratio)):
+            if i == j:
+                self._ratio[i, j] = 1.0
+                continue
+            ti, tj = self._tables([i, j])
+            on = tj > 0
+            r = ti[on] / tj[on]
+            self._ratio[i, j] = min(float(r.min()), 1e30) if len(r) else 1e30
+        return np.asarray([self._ratio[p] for p in pairs], dtype=np.float64).reshape(rows.shape)
+
+    def step(self, w, e, iterations=40):
+        """The largest plausible step ``s`` (M,) of ``w + s e``; ``w`` convex (M, N), ``e`` (M, N)."""
+        w, e = np.atleast_2d(w), np.atleast_2d(e)
+        # albedos: of the materials summed; the others' share counted at the most, 1
+        summed = (w > SUPPORT_FLOOR) | (e != 0)
+        idx = np.flatnonzero(summed.any(axis=0))
+        A = self.albedos(idx)
+        ws = np.where(summed[:, idx], w[:, idx], 0.0)
+        a0 = ws @ A + (1.0 - ws.sum(axis=1))[:, None]
+        da = e[:, idx] @ A
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(da > 0, (1.0 - a0) / da, np.inf)
+        hi = np.clip(ratio.min(axis=1), 0.0, 1.0)
+        neg = np.flatnonzero((e < 0).any(axis=0))
+        if len(neg) == 0:
+            return hi
+        # each point's own tables: those it sums (support) and those that may go negative
+        sup, sup_on = _rows_of(summed)
+        down, down_on = _rows_of(e < 0)
+        pair_on = sup_on[:, :, None] & down_on[:, None, :]
+        Rp = np.zeros(pair_on.shape)
+        Rp[pair_on] = self.ratios(
+            np.broadcast_to(sup[:, :, None], pair_on.shape)[pair_on],
+            np.broadcast_to(down[:, None, :], pair_on.shape)[pair_on],
+        )
+        Rp *= 1.0 - BOUND_SLACK  # (M, r, k)
+        ws, es = [np.where(sup_on, np.take_along_axis(a, sup, 1), 0.0) for a in (w, e)]
+        wd, ed = [np.where(down_on, np.take_along_axis(a, down, 1), 0.0) for a in (w, e)]
+
+        def ok(s):
+            cover = np.einsum("mr,mrk->mk", np.maximum(ws + s[:, None] * es, 0.0), Rp)
+            owed = np.maximum(-(wd + s[:, None] * ed), 0.0)
+            return ((owed <= 0) | (cover >= owed.sum(axis=1, keepdims=True))).all(axis=1)
+
+        good = ok(hi)
+        lo, top = np.where(good, hi, 0.0), hi.copy()
+        todo = ~good
+        for _ in range(iterations):
+            if not todo.any():
+                break
+            mid = 0.5 * (lo + top)
+            fine = ok(mid)
+            lo = np.where(todo & fine, mid, lo)
+            top = np.where(todo & ~fine, mid, top)
+        return lo
+
+
+def _rows_of(mask):
+    """Per row of ``mask`` (M, N), the columns where it holds, padded: ``(M, r)`` indices and
+    whether each is one (``r`` the most of any row, at least 1).
+    """
+    r = max(int(mask.sum(axis=1).max()), 1)
+    idx = np.argsort(~mask, axis=1, kind="stable")[:, :r]
+    return idx, np.take_along_axis(mask, idx, 1)

@@ -28,7 +28,13 @@ PRESETS = {
         "method": "lbfgs",
         "length_scale": 1.0,
         "noise": 1e-4,
-        "interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2, "spread": 0.1},
+        "interpolant": {
+            "kind": "shepard",
+            "power": 2.0,
+            "taper": 0.2,
+            "spread": 0.1,
+            "beyond": "continue",
+        },
     },
 }
 

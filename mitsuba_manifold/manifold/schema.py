@@ -28,7 +28,7 @@ import numpy as np
 from ..data.database import FEATURES
 from ..errors import FormatError
 from ..gp.kernel import MAX_LATENT_DIM
-from .interpolant import KINDS
+from .interpolant import KINDS, ShepardWeights
 
 #: Largest ``meta`` entry read (a JSON text: names, hashes, settings), bytes.
 META_LIMIT = 64 << 20
@@ -96,10 +96,14 @@ def _info(v, n):
 def _interpolant(v, n):
     if not isinstance(v, dict) or v.get("kind") not in KINDS:
         return f"must be a dict with a 'kind' of {', '.join(map(repr, KINDS))}"
+    if "beyond" in v and v["beyond"] not in ShepardWeights.BEYOND:
+        return (
+            f"has a 'beyond' of {v['beyond']!r}; one of {', '.join(ShepardWeights.BEYOND)} expected"
+        )
     bad = [
         k
         for k, x in v.items()
-        if k != "kind" and not (isinstance(x, bool) if k == "exact" else _real(x))
+        if k not in ("kind", "beyond") and not (isinstance(x, bool) if k == "exact" else _real(x))
     ]
     return f"has a parameter {bad[0]!r} that is not a finite number: {v[bad[0]]!r}" if bad else None
 

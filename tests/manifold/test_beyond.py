@@ -96,3 +96,69 @@ def test_stray_on_the_measured_manifold_flags_blue_to_white_through_dark(measure
     V = W * (1 - bump)[:, None]
     V[:, ibrown] += bump
     assert appearance.stray(V, A)["delta_e"] > direct["delta_e"] + 10
+
+
+def _rays_out_of_the_hull(m):
+    """Points from the latent centroid through each vertex of the hull and on out of the data."""
+    from scipy.spatial import ConvexHull
+
+    c = m.latent.mean(axis=0)
+    ts = np.linspace(1.0, 3.0, 9)
+    return [c[None] + ts[:, None] * (m.latent[v] - c)[None] for v in ConvexHull(m.latent).vertices]
+
+
+def test_the_default_weights_go_on_beyond_the_data_and_stay_plausible(measured):
+    m, _ = measured
+    assert m.interpolant.params()["beyond"] == "continue"
+    tables, da = m.tables(), DirectionalAlbedo(m.dims)
+    beyond = []
+    for X in _rays_out_of_the_hull(m):
+        _, rho = m.interpolant.hull().project(X)
+        assert rho[0] < 1e-9 and (rho[1:] > 0).all()  # each ray leaves the hull at a vertex
+        w = m.weights(X).w
+        assert np.allclose(w.sum(axis=1), 1.0)
+        full = w.astype(np.float32) @ tables
+        assert (full >= 0).all()  # no negative bin
+        assert da.of(full).max() <= 1.0 + 1e-6  # albedo <= 1 at every incidence
+        gap = np.abs(w - m.interpolant._convex(X)).sum(axis=1)
+        beyond.append(w.min() < -1e-3 and gap[-1] > gap[2])
+    # on many rays the material leaves the mixes of the data, the farther the more (on the
+    # others a spiky or dark material meets the plausibility limit at once)
+    assert np.mean(beyond) >= 1 / 3
+
+
+def test_the_continuation_leaves_the_weights_inside_the_hull_unchanged(measured):
+    m, _ = measured
+    rng = np.random.default_rng(3)
+    lam = rng.dirichlet(np.full(m.n, 0.3), size=40)
+    inside = np.concatenate(
+        [lam @ m.latent, m.latent]
+    )  # convex combinations, the points themselves
+    w = m.weights(inside).w
+    assert np.array_equal(w, m.interpolant._convex(inside))
+    assert np.allclose(w[40:], np.eye(m.n))  # exact at every training point
+
+
+def test_the_jacobian_beyond_the_data_is_that_of_the_continued_weights(measured):
+    m, _ = measured
+    X = _rays_out_of_the_hull(m)
+    x = max((r[4] for r in X), key=lambda x: -m.weights(x).w.min())
+    h = 1e-3 * m.length_scale
+    fd = np.stack(
+        [(m.weights(x + h * e).w - m.weights(x - h * e).w) / (2 * h) for e in np.eye(m.q)], axis=1
+    )
+    J = m.weights_jacobian(x)
+    assert J.shape == (m.n, m.q)
+    scale = np.abs(fd).max()
+    assert np.abs(J - fd).max() <= 0.05 * scale
+    # not the convex weights' Jacobian: beyond the data the continuation moves the material
+    assert np.abs(m.interpolant._convex_jacobian(x[None])[0] - fd).max() > 0.2 * scale
+
+
+def test_a_saved_default_manifold_continues_beyond_the_data_when_loaded(measured, tmp_path):
+    m, _ = measured
+    m.save(tmp_path / "m.npz")
+    back = Manifold.load(tmp_path / "m.npz")
+    assert back.interpolant.params() == m.interpolant.params()
+    x = _rays_out_of_the_hull(m)[0][-1]
+    assert np.allclose(back.weights(x).w, m.weights(x).w)

@@ -33,15 +33,21 @@ def _box_points(m, n=64, seed=0):
     return lo + np.random.default_rng(seed).random((n, m.q)) * (hi - lo)
 
 
-def test_default_is_convex_continuous_and_reproduces_training_materials(default):
+def test_default_is_convex_inside_the_data_continuous_and_reproduces_training_materials(default):
     assert default.info["preset"] == "default" and default.interpolant.kind == "shepard"
-    X = _box_points(default)
+    lam = np.random.default_rng(0).dirichlet(np.full(default.n, 0.5), size=64)
+    X = lam @ default.latent  # inside the hull of the latent points
     _, W = default.weights(X)
     assert (W >= 0).all() and np.allclose(W.sum(axis=1), 1)
     A = default.albedo(X)
     assert (A >= default.albedos.min(0) - 1e-12).all() and (
         A <= default.albedos.max(0) + 1e-12
     ).all()
+    # around the data (beyond the hull: affine weights) the albedo stays in [0, 1]
+    _, W = default.weights(_box_points(default))
+    assert np.allclose(W.sum(axis=1), 1)
+    A = default.albedo(_box_points(default))
+    assert (A >= 0).all() and (A <= 1).all()
     for i in range(default.n):
         assert np.array_equal(default.weights(default.latent[i]).w, np.eye(default.n)[i])
     assert default.discontinuity() < 1e-6
@@ -99,7 +105,11 @@ def test_far_points_get_far_field_weights_without_warnings_until_they_overflow(d
             warnings.simplefilter("error")
             w = np.asarray(getattr(weights(far), "w", weights(far)))
             assert np.isfinite(jacobian(far)).all()
-        assert np.allclose(w, 1.0 / m.n)
+        if weights == default.weights:  # continued beyond the data: affine, plausible
+            assert np.isclose(w.sum(), 1.0) and np.isfinite(w).all()
+            assert np.allclose(default.interpolant._convex(far[None])[0], 1.0 / m.n)
+        else:
+            assert np.allclose(w, 1.0 / m.n)
         with pytest.raises(InputError, match="too far out"):
             weights(np.full(m.q, 1e308))
 
@@ -327,11 +337,11 @@ def test_plausibility_of_convex_and_affine_weights(default, paper):
     conv = space.plausibility(
         default.interpolant, default.albedos, tables, n_albedo=400, n_tables=8
     )
-    assert (
-        conv.albedo_outside == 0
-        and conv.negative_fraction.max() == 0
-        and conv.negative_weights == 0
-    )
+    assert conv.albedo_outside == 0 and conv.negative_fraction.max() == 0
+    assert conv.negative_weights > 0  # beyond the data: affine weights, held plausible
+    inside = interpolant.make(default.latent, {**default.interpolant.params(), "beyond": "nearest"})
+    conv = space.plausibility(inside, default.albedos, tables, n_albedo=400, n_tables=8)
+    assert conv.negative_weights == 0
     aff = space.plausibility(paper.interpolant, paper.albedos, tables, n_albedo=400, n_tables=8)
     assert aff.negative_weights > 0
 
