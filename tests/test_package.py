@@ -382,3 +382,16 @@ def test_the_wheel_lists_every_package_folder():
         if "__init__.py" in files
     }
     assert found - listed == set(), f"package folders missing from pyproject.toml: {found - listed}"
+
+
+def test_test_files_have_unique_names():
+    """pytest imports test files by their base name (no packages under ``tests/``): two files
+    of one name in different folders stop the whole collection.
+    """
+    tests = os.path.dirname(os.path.abspath(__file__))
+    names = {}
+    for folder, _, files in os.walk(tests):
+        for f in files:
+            if f.startswith("test_") and f.endswith(".py"):
+                names.setdefault(f, []).append(os.path.relpath(os.path.join(folder, f), tests))
+    assert not {k: v for k, v in names.items() if len(v) > 1}
