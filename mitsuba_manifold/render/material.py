@@ -100,6 +100,8 @@ def read_properties(props):
     database = resolve(database, "database folder") if database is not None else None
     if database is not None and not os.path.isdir(database):
         raise InputError(f"{PLUGIN_NAME}: database {database} is not a folder")
+    if database is not None:  # this instance's own manifold reads every table from there
+        manifold.database = database
     prune = props.get("prune", DEFAULT_PRUNE)
     try:
         prune = float(prune)

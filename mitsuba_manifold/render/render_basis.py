@@ -483,6 +483,8 @@ def _check_request(scene_path, manifold_path, out, o):
     if os.path.exists(out) and not os.path.isdir(out):
         raise InputError(f"`out` {out} is a file, not a folder")
     manifold = Manifold.load(manifold_path)
+    if o.scene.database is not None:  # moved tables: the weights beyond the data read them too
+        manifold.database = os.fspath(o.scene.database)
     x = None if o.scene.x is None else validate.latent_point("`x`", o.scene.x, manifold.q)
     chosen = select_materials(manifold, o.selection.materials, o.selection.near, o.selection.radius)
     try:
