@@ -231,6 +231,10 @@ BOUND_SLACK = 1e-3
 SUPPORT_FLOOR = 1e-2
 
 
+#: Tables read at once for their directional albedos (memory: two copies of this many tables).
+ALBEDO_BLOCK = 8
+
+
 class StepLimit:
     """The largest step ``s`` in [0, 1] for which ``w + s e`` is a plausible material.
 
@@ -250,14 +254,15 @@ class StepLimit:
     costs a product of small matrices per point; the largest ``s`` meeting it is found by
     bisection (it holds at ``s = 0``). The positive tables counted are those with ``e_i != 0``
     or ``w_i`` above :data:`SUPPORT_FLOOR` (the others only add); a ratio ``R_ij`` is computed
-    (one pass over two tables) the first time a point needs it, and kept.
+    (one pass over two tables) the first time a point needs it, and kept; the tables themselves
+    are kept only during one :meth:`step` call.
     :data:`BOUND_SLACK` leaves room for the float32 rounding of a rendered table.
 
     Parameters
     ----------
     rows : callable
         ``rows(indices)``: the training tables of those materials, each ``(3 * bins,)`` (float32,
-        flat RGB); called only for the materials a point sums, each once (and kept).
+        flat RGB); called only for the materials a point sums, each once per :meth:`step` call.
     n : int
         The number of training materials.
     dims : tuple of int
@@ -285,26 +290,40 @@ class StepLimit:
         missing = idx[np.isnan(self._albedo[idx, 0])]
         if len(missing):
             da = DirectionalAlbedo(self.dims)
-            self._albedo[missing] = da.of(np.stack(self._tables(missing))).reshape(len(missing), -1)
+            for s in range(0, len(missing), ALBEDO_BLOCK):
+                block = missing[s : s + ALBEDO_BLOCK]
+                self._albedo[block] = da.of(np.stack(self._tables(block))).reshape(len(block), -1)
         return self._albedo[idx]
 
     def ratios(self, rows, cols):
         """``R_ij = min_b table_i[b] / table_j[b]`` for the pairs ``(rows, cols)`` (same shape)."""
         rows, cols = np.broadcast_arrays(np.asarray(rows), np.asarray(cols))
         pairs = list(zip(rows.ravel().tolist(), cols.ravel().tolist()))
+        todo = {}
         for i, j in sorted(set(p for p in pairs if p not in self._ratio)):
             if i == j:
                 self._ratio[i, j] = 1.0
-                continue
-            ti, tj = self._tables([i, j])
+            else:
+                todo.setdefault(j, []).append(i)
+        for j, rows_j in todo.items():  # each column's bins and divisor once
+            (tj,) = self._tables([j])
             on = tj > 0
-            r = ti[on] / tj[on]
-            self._ratio[i, j] = min(float(r.min()), 1e30) if len(r) else 1e30
+            inv = 1.0 / tj[on]
+            for i, ti in zip(rows_j, self._tables(rows_j)):
+                self._ratio[i, j] = min(float((ti[on] * inv).min()), 1e30) if len(inv) else 1e30
         return np.asarray([self._ratio[p] for p in pairs], dtype=np.float64).reshape(rows.shape)
 
     def step(self, w, e, iterations=40):
-        """The largest plausible step ``s`` (M,) of ``w + s e``; ``w`` convex (M, N), ``e`` (M, N)."""
-        w, e = np.atleast_2d(w), np.atleast_2d(e)
+        """The largest plausible step ``s`` (M,) of ``w + s e``; ``w`` convex (M, N), ``e`` (M, N).
+
+        The tables read for it are let go when it returns (the albedos and ratios are kept).
+        """
+        try:
+            return self._step(np.atleast_2d(w), np.atleast_2d(e), iterations)
+        finally:
+            self._table.clear()
+
+    def _step(self, w, e, iterations):
         # albedos: of the materials summed; the others' share counted at the most, 1
         summed = (w > SUPPORT_FLOOR) | (e != 0)
         idx = np.flatnonzero(summed.any(axis=0))
