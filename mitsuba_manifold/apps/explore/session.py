@@ -12,8 +12,8 @@ answer that arrives after a newer one. ``"coarse": true`` (a drag running) asks 
 answers: a table of every other texel, a map of a quarter of the pixels, a material without the
 distance to the closest measured one, a frame whose L2+ part is summed, not denoised (also while
 ``"held": true``, the pointer still down); the page asks again in full when the drag rests. A
-full (denoised) frame has its own worker (:data:`FINAL`): denoising takes 50-300 ms, and the
-first frames of the next drag do not wait for it (a coarse frame drops a full one still
+full (denoised) frame has its own worker (:data:`FINAL`): denoising takes several frames'
+time, and the first frames of the next drag do not wait for it (a coarse frame drops a full one still
 waiting; one that comes after a newer frame was drawn, the page drops by its ``seq``).
 
 A path (``route``) is computed by the explorer's path thread (:class:`~.walks.Walks`); the

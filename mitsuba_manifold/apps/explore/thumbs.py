@@ -11,10 +11,8 @@ by the render settings. Each thumbnail is the blend of its material alone (weigh
 :func:`~mitsuba_manifold.basis.blend.blend`), denoised with OIDN guided by that material's
 albedo and the normals (:func:`~mitsuba_manifold.basis.denoise.denoise`; without pyoidn, as
 rendered), averaged over ``SUPERSAMPLE x SUPERSAMPLE`` pixels and tonemapped at 0 EV; the
-sheet is ``columns`` tiles wide, material ``i`` at tile ``i`` (row-major). At 48 px from
-96 px and 64 spp the 100 thumbnails of the main job's manifold took 35.5 s to render (one
-thread, nice 10, the 2-core machine at load 5-6) and 26.4 s to render and denoise in another
-run; at 48 px and 32 spp, undenoised, the render took 6 s and the thumbnails were visibly grainy.
+sheet is ``columns`` tiles wide, material ``i`` at tile ``i`` (row-major). Its cost and why
+these settings: ``docs/benchmarks.md``, "Measurements behind choices in the code".
 """
 
 import math
