@@ -13,8 +13,8 @@ answers: a table of every other texel, a map of a quarter of the pixels, a mater
 distance to the closest measured one, a frame whose L2+ part is summed, not denoised (also while
 ``"held": true``, the pointer still down); the page asks again in full when the drag rests. A
 full (denoised) frame has its own worker (:data:`FINAL`): denoising takes several frames'
-time, and the first frames of the next drag do not wait for it (a coarse frame drops a full one still
-waiting; one that comes after a newer frame was drawn, the page drops by its ``seq``).
+time, and the first frames of the next drag do not wait for it (a coarse frame drops a full
+one still waiting; one that comes after a newer frame was drawn, the page drops by its ``seq``).
 
 A path (``route``) is computed by the explorer's path thread (:class:`~.walks.Walks`); the
 session waits for it without holding any other kind, stops waiting when a newer ``route``
