@@ -37,7 +37,7 @@ from .._util import checks
 from ..errors import InputError, NotPositiveDefiniteError
 from ..gp.kernel import Kernel, coincident
 from ..gp.posterior import Posterior
-from .plausibility import StepLimit
+from .plausibility import StepLimit, store_path
 
 KINDS = ("gp", "shepard")
 #: Largest latent coordinate accepted: far beyond it squared distances (and their squares in the
@@ -274,7 +274,8 @@ class ShepardWeights(Interpolant):
             names = [manifold.names[i] for i in idx]
             return manifold.open_database(names=names).stack(names)
 
-        self.limit = StepLimit(rows, self.n, manifold.dims)
+        store = store_path(getattr(manifold, "hashes", None), manifold.dims, manifold.database)
+        self.limit = StepLimit(rows, self.n, manifold.dims, store=store)
 
     def continuation(self, x, w):
         """What the weights gain outside the hull of the latent points: ``s(x) e(x)`` (M, N).

@@ -24,12 +24,16 @@ that a cheap sufficient condition (ratios of pairs of tables) and the albedo bou
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.optimize
 
+from .._util.atomic import atomic_write
+from .._util.cache import key_hash
 from ..data import merl
+from ..data.database import database_cache
 
 #: Incidences of the directional albedo bound (degrees, midpoints up to 89).
 N_INCIDENCE = 16
@@ -267,15 +271,50 @@ class StepLimit:
         The number of training materials.
     dims : tuple of int
         The tables' resolution.
+    store : str, optional
+        File that keeps the ratios and albedos computed so far across processes (``.npz``,
+        written atomically after a :meth:`step` that added some): name it by the tables'
+        content (:func:`store_path`), since its values depend on nothing else.
     """
 
-    def __init__(self, rows, n, dims):
+    def __init__(self, rows, n, dims, store=None):
         self._rows = rows
         self.n = int(n)
         self.dims = tuple(int(v) for v in dims)
         self._table = {}
         self._albedo = np.full((self.n, 3 * N_INCIDENCE), np.nan)
         self._ratio = {}
+        self.store = None if store is None else os.fspath(store)
+        self._stored = 0
+        self._read_store()
+
+    def _read_store(self):
+        """The ratios and albedos kept in :attr:`store` (a missing or foreign file: none)."""
+        if self.store is None or not os.path.exists(self.store):
+            return
+        try:
+            with np.load(self.store) as f:
+                ratio, albedo = f["ratio"], f["albedo"]
+        except (OSError, ValueError, KeyError):
+            return  # unreadable: computed again and written anew
+        if ratio.shape != (self.n, self.n) or albedo.shape != self._albedo.shape:
+            return
+        i, j = np.nonzero(np.isfinite(ratio))
+        self._ratio.update(zip(zip(i.tolist(), j.tolist()), ratio[i, j].tolist()))
+        self._albedo = albedo.astype(np.float64)
+        self._stored = self._known()
+
+    def _known(self):
+        return len(self._ratio) + int(np.isfinite(self._albedo[:, 0]).sum())
+
+    def _write_store(self):
+        if self.store is None or self._known() == self._stored:
+            return
+        ratio = np.full((self.n, self.n), np.nan)
+        for (i, j), r in self._ratio.items():
+            ratio[i, j] = r
+        atomic_write(self.store, lambda f: np.savez(f, ratio=ratio, albedo=self._albedo))
+        self._stored = self._known()
 
     def _tables(self, idx):
         missing = [int(i) for i in idx if int(i) not in self._table]
@@ -322,6 +361,7 @@ class StepLimit:
             return self._step(np.atleast_2d(w), np.atleast_2d(e), iterations)
         finally:
             self._table.clear()
+            self._write_store()
 
     def _step(self, w, e, iterations):
         # albedos: of the materials summed; the others' share counted at the most, 1
@@ -375,3 +415,18 @@ def _rows_of(mask):
     r = max(int(mask.sum(axis=1).max()), 1)
     idx = np.argsort(~mask, axis=1, kind="stable")[:, :r]
     return idx, np.take_along_axis(mask, idx, 1)
+
+
+def store_path(hashes, dims, database):
+    """Where :class:`StepLimit` keeps the ratios and albedos of the tables with content hashes
+    ``hashes`` at resolution ``dims``: ``plausibility-<key>.npz`` in the cache folder of
+    ``database`` (:func:`~mitsuba_manifold.data.database.database_cache`, where its tables are
+    cached); None without a hash for every table or a cache folder.
+    """
+    if not hashes or not all(isinstance(h, str) and h for h in hashes) or database is None:
+        return None
+    folder = database_cache(database)
+    if folder is None:
+        return None
+    key = key_hash("x".join(str(int(v)) for v in dims), *hashes, length=32)
+    return os.path.join(folder, f"plausibility-{key}.npz")

@@ -162,3 +162,33 @@ def test_a_saved_default_manifold_continues_beyond_the_data_when_loaded(measured
     assert back.interpolant.params() == m.interpolant.params()
     x = _rays_out_of_the_hull(m)[0][-1]
     assert np.allclose(back.weights(x).w, m.weights(x).w)
+
+
+def test_the_plausibility_limit_is_kept_for_the_next_process(tmp_path):
+    """A second :class:`StepLimit` on the same tables reads the ratios and albedos the first one
+    computed from its store and reads no table for them; it gives the same steps.
+    """
+    from mitsuba_manifold.manifold.plausibility import StepLimit
+
+    rng = np.random.default_rng(0)
+    dims = (4, 4, 8)
+    tables = rng.uniform(0.05, 1.0, (3, 3 * 4 * 4 * 8)).astype(np.float32)
+    reads = []
+
+    def rows(idx):
+        reads.extend(idx)
+        return [tables[i] for i in idx]
+
+    w = np.array([[0.5, 0.5, 0.0], [0.2, 0.3, 0.5]])
+    e = np.array([[0.6, 0.4, -1.0], [1.0, -0.5, -0.5]])
+    store = tmp_path / "limit.npz"
+    first = StepLimit(rows, 3, dims, store=store).step(w, e)
+    assert reads and store.exists()
+    reads.clear()
+    second = StepLimit(rows, 3, dims, store=store).step(w, e)
+    assert reads == []
+    assert np.array_equal(first, second)
+    # a store of another number of tables is not used
+    reads.clear()
+    StepLimit(rows, 2, dims, store=store).step(w[:1, :2], np.array([[1.0, -1.0]]))
+    assert reads
