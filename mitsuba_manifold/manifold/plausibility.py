@@ -235,8 +235,8 @@ BOUND_SLACK = 1e-3
 SUPPORT_FLOOR = 1e-2
 
 
-#: Tables read at once for their directional albedos (memory: two copies of this many tables).
-ALBEDO_BLOCK = 8
+#: Tables read at once for their albedos and ratios (memory: two copies of this many tables).
+TABLE_BLOCK = 8
 
 
 class StepLimit:
@@ -258,15 +258,15 @@ class StepLimit:
     costs a product of small matrices per point; the largest ``s`` meeting it is found by
     bisection (it holds at ``s = 0``). The positive tables counted are those with ``e_i != 0``
     or ``w_i`` above :data:`SUPPORT_FLOOR` (the others only add); a ratio ``R_ij`` is computed
-    (one pass over two tables) the first time a point needs it, and kept; the tables themselves
-    are kept only during one :meth:`step` call.
+    (one pass over two tables) the first time a point needs it, and kept (with :attr:`store`,
+    across processes); the tables themselves are read a block at a time and not kept.
     :data:`BOUND_SLACK` leaves room for the float32 rounding of a rendered table.
 
     Parameters
     ----------
     rows : callable
         ``rows(indices)``: the training tables of those materials, each ``(3 * bins,)`` (float32,
-        flat RGB); called only for the materials a point sums, each once per :meth:`step` call.
+        flat RGB); called only for the materials a point sums, a few at a time.
     n : int
         The number of training materials.
     dims : tuple of int
@@ -281,7 +281,6 @@ class StepLimit:
         self._rows = rows
         self.n = int(n)
         self.dims = tuple(int(v) for v in dims)
-        self._table = {}
         self._albedo = np.full((self.n, 3 * N_INCIDENCE), np.nan)
         self._ratio = {}
         self.store = None if store is None else os.fspath(store)
@@ -317,11 +316,11 @@ class StepLimit:
         self._stored = self._known()
 
     def _tables(self, idx):
-        missing = [int(i) for i in idx if int(i) not in self._table]
-        if missing:
-            for i, t in zip(missing, self._rows(missing)):
-                self._table[i] = np.asarray(t, dtype=np.float32)
-        return [self._table[int(i)] for i in idx]
+        """The tables of materials ``idx`` (float32), read in blocks of :data:`TABLE_BLOCK`."""
+        idx = [int(i) for i in idx]
+        for s in range(0, len(idx), TABLE_BLOCK):
+            for t in self._rows(idx[s : s + TABLE_BLOCK]):
+                yield np.asarray(t, dtype=np.float32)
 
     def albedos(self, idx):
         """Directional albedos of materials ``idx``, ``(len(idx), 3 n_incidence)``."""
@@ -329,9 +328,11 @@ class StepLimit:
         missing = idx[np.isnan(self._albedo[idx, 0])]
         if len(missing):
             da = DirectionalAlbedo(self.dims)
-            for s in range(0, len(missing), ALBEDO_BLOCK):
-                block = missing[s : s + ALBEDO_BLOCK]
-                self._albedo[block] = da.of(np.stack(self._tables(block))).reshape(len(block), -1)
+            for s in range(0, len(missing), TABLE_BLOCK):
+                block = missing[s : s + TABLE_BLOCK]
+                self._albedo[block] = da.of(np.stack(list(self._tables(block)))).reshape(
+                    len(block), -1
+                )
         return self._albedo[idx]
 
     def ratios(self, rows, cols):
@@ -355,12 +356,11 @@ class StepLimit:
     def step(self, w, e, iterations=40):
         """The largest plausible step ``s`` (M,) of ``w + s e``; ``w`` convex (M, N), ``e`` (M, N).
 
-        The tables read for it are let go when it returns (the albedos and ratios are kept).
+        Tables are read a block at a time and let go at once (the albedos and ratios are kept).
         """
         try:
             return self._step(np.atleast_2d(w), np.atleast_2d(e), iterations)
         finally:
-            self._table.clear()
             self._write_store()
 
     def _step(self, w, e, iterations):
