@@ -274,7 +274,9 @@ class ShepardWeights(Interpolant):
             names = [manifold.names[i] for i in idx]
             return manifold.open_database(names=names).stack(names)
 
-        store = store_path(getattr(manifold, "hashes", None), manifold.dims, manifold.database)
+        def store():  # asked at the first step: the database may have been pointed elsewhere
+            return store_path(getattr(manifold, "hashes", None), manifold.dims, manifold.database)
+
         self.limit = StepLimit(rows, self.n, manifold.dims, store=store)
 
     def continuation(self, x, w):

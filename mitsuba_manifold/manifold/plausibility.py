@@ -271,10 +271,12 @@ class StepLimit:
         The number of training materials.
     dims : tuple of int
         The tables' resolution.
-    store : str, optional
+    store : str or callable, optional
         File that keeps the ratios and albedos computed so far across processes (``.npz``,
-        written atomically after a :meth:`step` that added some): name it by the tables'
-        content (:func:`store_path`), since its values depend on nothing else.
+        read at the first :meth:`step`, written atomically after a :meth:`step` that added
+        some): name it by the tables' content (:func:`store_path`), since its values depend on
+        nothing else. A callable is asked for the path at the first :meth:`step` (so that
+        making a :class:`StepLimit`, at every manifold load, touches no file).
     """
 
     def __init__(self, rows, n, dims, store=None):
@@ -283,12 +285,16 @@ class StepLimit:
         self.dims = tuple(int(v) for v in dims)
         self._albedo = np.full((self.n, 3 * N_INCIDENCE), np.nan)
         self._ratio = {}
-        self.store = None if store is None else os.fspath(store)
+        self._store = store
+        self.store = None  # its path, once the first step has asked for it
         self._stored = 0
-        self._read_store()
 
     def _read_store(self):
-        """The ratios and albedos kept in :attr:`store` (a missing or foreign file: none)."""
+        """The ratios and albedos kept in the store (a missing or foreign file: none)."""
+        store, self._store = self._store, None
+        if callable(store):
+            store = store()
+        self.store = None if store is None else os.fspath(store)
         if self.store is None or not os.path.exists(self.store):
             return
         try:
@@ -358,6 +364,8 @@ class StepLimit:
 
         Tables are read a block at a time and let go at once (the albedos and ratios are kept).
         """
+        if self._store is not None:
+            self._read_store()
         try:
             return self._step(np.atleast_2d(w), np.atleast_2d(e), iterations)
         finally:
