@@ -119,46 +119,23 @@ def test_escaped_names_are_injective_and_safe():
 # ------------------------------------------------------------ 2. locks
 
 
+def make_steel(out):
+    """The command that makes a one-material database (steel, 8x8x16) in ``out``."""
+    tool = os.path.join(ROOT, "tools", "make_database.py")
+    options = "--from sgd --resolution 8,8,16 --materials steel".split()
+    return [sys.executable, tool, "--out", str(out), *options]
+
+
 def test_second_writer_of_a_folder_gets_a_clear_error(tmp_path, tiny):
     out = tmp_path / "db"
     with FolderLock(out, "database folder"):
         before = snapshot(out)
-        r = subprocess.run(
-            [
-                sys.executable,
-                os.path.join(ROOT, "tools", "make_database.py"),
-                "--out",
-                str(out),
-                "--from",
-                "sgd",
-                "--resolution",
-                "8,8,16",
-                "--materials",
-                "steel",
-            ],
-            capture_output=True,
-            text=True,
-        )
+        r = subprocess.run(make_steel(out), capture_output=True, text=True)
         assert_one_error(r.returncode, r.stderr, str(out), "another process")
         assert snapshot(out) == before
         rc, _, err = run_render_basis(tiny["manifold"], out)
         assert_one_error(rc, err, "another process")
-    r = subprocess.run(
-        [
-            sys.executable,
-            os.path.join(ROOT, "tools", "make_database.py"),
-            "--out",
-            str(out),
-            "--from",
-            "sgd",
-            "--resolution",
-            "8,8,16",
-            "--materials",
-            "steel",
-        ],
-        capture_output=True,
-        text=True,
-    )
+    r = subprocess.run(make_steel(out), capture_output=True, text=True)
     assert r.returncode == 0, r.stderr  # the lock went with the process that held it
 
 
