@@ -265,19 +265,10 @@ def test_missing_and_truncated_images(basis1, manifold):
 
 def test_manifest_helpers(tmp_path, small_manifold):
     scene = _scene(str(tmp_path))
-    a = bf.Manifest.new(
-        scene,
-        small_manifold,
-        bf.RenderSettings(
-            resolution=(4, 3),
-            spp=8,
-            variant="llvm_ad_rgb",
-            seed=1,
-            max_depth=8,
-            mode="onepass",
-        ),
-        targets=["material"],
+    settings = bf.RenderSettings(
+        resolution=(4, 3), spp=8, variant="llvm_ad_rgb", seed=1, max_depth=8, mode="onepass"
     )
+    a = bf.Manifest.new(scene, small_manifold, settings, targets=["material"])
     assert a.scene == os.path.abspath(scene)
     assert a.manifold_hash == manifold_identity(
         Manifold.load(small_manifold)
@@ -291,19 +282,7 @@ def test_manifest_helpers(tmp_path, small_manifold):
     )
     assert a.differences(b) == ["spp"]
     with pytest.raises(MismatchError, match="mode"):
-        bf.Manifest.new(
-            scene,
-            small_manifold,
-            bf.RenderSettings(
-                resolution=(4, 3),
-                spp=8,
-                variant="llvm_ad_rgb",
-                seed=1,
-                max_depth=8,
-                mode="fast",
-            ),
-            targets=["material"],
-        )
+        bf.Manifest.new(scene, small_manifold, replace(settings, mode="fast"), targets=["material"])
     with pytest.raises(MismatchError, match="must name 2 material"):
         replace(a, targets=["a", "b"], images={"x": bf.ImageEntry("x.exr", 0)}).write(str(tmp_path))
     assert bf.Manifest.read(str(tmp_path)) == a  # the refused write left the old manifest
