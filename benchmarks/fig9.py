@@ -12,6 +12,10 @@ full grid of bins (the paths are searched on :data:`paths.SEARCH_STRIDE`):
 * ``largest_step``: the largest step's share of the path's perceptual length;
 * ``still``: the share of steps shorter than a quarter of an even step (``L / 80``);
 * ``length_ratio``: the path's perceptual length over ``d(A, B)`` (1: the straight chord);
+* ``off_ends``: how far the path strays from the two end materials in the same units: the
+  largest over its points of the distance to the nearer end, over ``d(A, B)`` (0.5 for a path
+  that stays between them: its middle is half-way; a path through a third material far from
+  both reads more);
 * ``stray``: how far the path's colours stray from the two ends' (:func:`appearance.stray`: the
   largest CIELAB distance of a point's directional-albedo colours from the segment between
   the ends', ``delta_e``, and its share of the ends' own distance): blue -> brown -> white strays.
@@ -81,6 +85,7 @@ def measure(D):
         "largest_step": float(s.max() / length),
         "still": float(np.mean(s < 0.25 * length / K)),
         "length_ratio": float(length / d_ab),
+        "off_ends": float(np.minimum(from_a, from_b).max()),
         "steps": (s / length).tolist(),
     }
 
@@ -91,6 +96,8 @@ def summary(rows, pair_a=None):
         "n_pairs": len(rows),
         "median_deviation": float(np.median(dev)),
         "worst_deviation": float(np.max(dev)),
+        "median_off_ends": float(np.median([r["off_ends"] for r in rows])),
+        "worst_off_ends": float(np.max([r["off_ends"] for r in rows])),
         "median_stray_delta_e": float(np.median([r["stray"]["delta_e"] for r in rows])),
         "worst_stray_delta_e": float(np.max([r["stray"]["delta_e"] for r in rows])),
         "largest_step": float(max(r["largest_step"] for r in rows)),
@@ -145,7 +152,8 @@ def _preset_report(m, sets, kinds, progress, every):
                 f"  {m.info.get('preset')} {kind:>9s}: median deviation {s['median_deviation']:.3f} "
                 f"(held out {h['median_deviation']:.3f}), largest step {s['largest_step']:.3f} "
                 f"({h['largest_step']:.3f}), median still {s['median_still']:.2f} ({h['median_still']:.2f}), "
-                f"pair (a) {s.get('pair_a_deviation', float('nan')):.3f}; stray median "
+                f"pair (a) {s.get('pair_a_deviation', float('nan')):.3f}; off the ends median "
+                f"{s['median_off_ends']:.2f} (worst {s['worst_off_ends']:.2f}), colour stray median "
                 f"{s['median_stray_delta_e']:.1f} dE (worst {s['worst_stray_delta_e']:.1f}); "
                 f"{np.median(times):.2f} s a path",
                 flush=True,
@@ -191,7 +199,8 @@ def every_pair_report(m, progress=True, metrics=None, albedos=None):
         **summary(rows),
         "steps_over_target": int(sum(r["largest_step"] > TARGETS["largest_step"] for r in rows)),
         "rows": [
-            {k: r[k] for k in ("pair", "deviation", "largest_step", "still", "stray")} for r in rows
+            {k: r[k] for k in ("pair", "deviation", "largest_step", "still", "off_ends", "stray")}
+            for r in rows
         ],
     }
     if progress:

@@ -5,7 +5,7 @@ perceptual distance of [PR12] (:mod:`mitsuba_manifold.data.distance`), how far e
 interpolated material is from the two ends; it hopes for "perceptually uniform traversal".
 The latent space is not that: with the default convex weights a material barely changes
 near its own latent point and then changes quickly, and a segment between materials that
-are far apart in latent space crosses others. :func:`path` offers three kinds:
+are far apart in latent space crosses others. :func:`path` offers four kinds:
 
 ``straight``
     The latent segment ``x(t) = (1 - t) a + t b`` at equal ``t`` (the paper's).
@@ -20,6 +20,12 @@ are far apart in latent space crosses others. :func:`path` offers three kinds:
     analytic gradient, :func:`minimise_energy`) and re-parameterised at equal perceptual
     steps. The graph is built once per manifold and metric and its edges cached on disk
     (:mod:`latent_graph`).
+``faithful``
+    Fig. 9's reading made the aim: the geodesic's points moved so that each is as far from the
+    two ends as its place along the path says (``d(a, x_k) = t_k d(a, b)`` and ``d(b, x_k) =
+    (1 - t_k) d(a, b)`` in the least-squares sense), in even, short steps
+    (:func:`faithful_objective`, :func:`faithful`): a morph that stays between its two materials
+    instead of passing through a third that is far from both.
 
 The metric on latent points is ``d(x, y) = d_PR12(table(x), table(y))`` with ``table(x) =
 sum_i w_i(x) table_i`` (the manifold's weights, unpruned, clamped at 0 as the plugin does).
@@ -46,7 +52,7 @@ from ..errors import InputError
 from . import latent_graph
 from .latent_graph import LatentGraph
 
-KINDS = ("straight", "uniform", "geodesic")
+KINDS = ("straight", "uniform", "geodesic", "faithful")
 #: The kind ``Manifold.path``, ``blend.py --path`` and the main job's contact sheet use: the
 #: best measured by ``tools/bench.py fig9`` (``benchmarks/results/fig9.json``).
 DEFAULT_KIND = "geodesic"
@@ -57,6 +63,11 @@ SEARCH_STRIDE = (3, 10, 15)
 FLOOR = 1e-6
 #: Samples of a segment when re-parameterising it by perceptual length.
 DENSE = 129
+#: Points a faithful path is relaxed at (at least; Fig. 9's 20 steps), and L-BFGS iterations.
+FAITHFUL_POINTS, FAITHFUL_ITERATIONS = 21, 100
+#: Weight and power of the evenness term of :func:`faithful_objective`.
+EVENNESS, EVEN_POWER = 1e-3, 8
+LENGTH = 0.01
 #: Samples of a geodesic's candidates (compared by length, then refined where coarse by :func:`even`).
 CHECK = 65
 
@@ -154,25 +165,34 @@ class PathMetric:
 
     def energy(self, X):
         """Discrete path energy ``E = sum_k |F(x_k+1) - F(x_k)|^2`` of the polyline ``X`` (M, q) and
-        its gradient ``dE/dX`` (M, q), analytic (chain rule through the cube root, the table
-        combination and the interpolant's Jacobian ``dw/dx``; the cube root's slope is capped
-        where a table value is below :data:`FLOOR`).
+        its gradient ``dE/dX`` (M, q), analytic (:meth:`pullback`).
         """
         V = self.weights(X) @ self.rows
-        C = np.cbrt(np.maximum(V, 0.0))
-        F = C * self.coef
-        D = np.diff(F, axis=0)
-        G = np.zeros_like(F)
+        D = np.diff(np.cbrt(np.maximum(V, 0.0)) * self.coef, axis=0)
+        G = np.zeros_like(V)
         G[:-1] -= 2.0 * D
         G[1:] += 2.0 * D
+        return float(np.einsum("mk,mk->", D, D, dtype=np.float64)), self.pullback(X, G, V)
+
+    def pullback(self, X, G, V=None):
+        """The gradient ``dE/dX`` (M, q) of a function ``E`` of the features at ``X`` (M, q), from
+        its gradient ``G = dE/dF`` (M, size): the chain rule through the cube root, the table
+        combination and the interpolant's Jacobian ``dw/dx`` (the cube root's slope capped where
+        a table value is below :data:`FLOOR`). ``V``: the combined table values at ``X`` when known.
+        """
+        if V is None:
+            V = self.weights(X) @ self.rows
+        C = np.cbrt(np.maximum(V, 0.0))
         # dF/dv = coef / (3 cbrt(v)^2) where v > 0
         C = np.maximum(C, np.float32(FLOOR ** (1.0 / 3.0)), out=C)
-        G *= np.where(V > 0, self.coef / (3.0 * C * C), np.float32(0.0))
+        G = np.asarray(G, dtype=np.float32) * np.where(
+            V > 0, self.coef / (3.0 * C * C), np.float32(0.0)
+        )
         dW = (self.rows @ G.T).T.astype(
             np.float64
         )  # this order: faster than G @ rows.T in OpenBLAS
         J = self.manifold.weights_jacobian(X)
-        return float(np.einsum("mk,mk->", D, D, dtype=np.float64)), np.einsum("mn,mnq->mq", dW, J)
+        return np.einsum("mn,mnq->mq", dW, J)
 
     def steps(self, X):
         """Perceptual lengths of the ``M - 1`` steps of the polyline ``X``."""
@@ -340,6 +360,75 @@ def geodesic(metric, xa, xb, steps, points=17, iterations=25, dense=CHECK):
     return even(metric, best[0], steps, F=best[1])
 
 
+def faithful_objective(metric, X, evenness=EVENNESS, power=EVEN_POWER, length=LENGTH):
+    """The objective of a faithful path ``X`` (M, q) from ``a = x_0`` to ``b = x_K`` (``K = M - 1``)
+    and its gradient ``dE/dX`` (M, q), analytic (:meth:`PathMetric.pullback`)::
+
+        E = 1/K sum_k [(d(a, x_k) / d(a, b) - t_k)^2 + (d(b, x_k) / d(a, b) - (1 - t_k))^2]
+            + evenness / K sum_k (s_k / s)^power + length K sum_k s_k^2 / d(a, b)^2
+
+    with ``t_k = k / K``, ``s_k`` the perceptual step from ``x_k`` to ``x_k+1`` and ``s`` their
+    mean: the first sum is the squared gap of the paper's Fig. 9 curves from its diagonals (each
+    point as far from the ends as its place along the path says), the second keeps the steps
+    even (a high power: it lets steps vary a little and forbids a jump), the third, the path
+    energy over that of the straight chord (the square of the length ratio at even steps),
+    keeps the path from zigzagging between points that each sit well.
+    """
+    V = metric.weights(X) @ metric.rows
+    F = (np.cbrt(np.maximum(V, 0.0)) * metric.coef).astype(np.float64)
+    K = len(X) - 1
+    t = np.linspace(0.0, 1.0, K + 1)
+    G = np.zeros_like(F)
+    d = np.linalg.norm(F[-1] - F[0])
+    value = 0.0
+    for end, target in ((F[0], t), (F[-1], 1.0 - t)):
+        diff = F - end
+        dist = np.sqrt(np.einsum("mk,mk->m", diff, diff))
+        r = dist / d - target
+        value += float(r @ r) / K
+        G += (2.0 * r / (K * d * np.maximum(dist, 1e-300)))[:, None] * diff
+    D = np.diff(F, axis=0)
+    s = np.sqrt(np.einsum("mk,mk->m", D, D)) + 1e-300
+    u = s / s.mean()
+    value += evenness * float(np.sum(u**power)) / K + length * K * float(s @ s) / d**2
+    # d/ds_j of the evenness term: evenness power / S (u_j^(power-1) - mean(u^power)), S = sum s
+    gs = (
+        evenness * power / s.sum() * (u ** (power - 1) - np.mean(u**power))
+        + 2 * length * K * s / d**2
+    )
+    gD = (gs / s)[:, None] * D
+    G[:-1] -= gD
+    G[1:] += gD
+    return value, metric.pullback(X, G, V)
+
+
+def faithful(metric, xa, xb, steps, iterations=FAITHFUL_ITERATIONS):
+    """A path from ``xa`` to ``xb`` whose every point is as far from the ends as its place along
+    the path says, in even steps: the :func:`geodesic` at ``max(steps, FAITHFUL_POINTS)`` points,
+    its interior points moved to minimise :func:`faithful_objective` (L-BFGS, ends fixed), then
+    read at ``steps`` equal shares of the point index (the relaxed points themselves when
+    ``steps >= FAITHFUL_POINTS``).
+    """
+    import scipy.optimize
+
+    n = max(int(steps), FAITHFUL_POINTS)
+    X = geodesic(metric, xa, xb, n)
+    q = X.shape[1]
+
+    def fun(flat):
+        Y = np.concatenate([xa[None], flat.reshape(-1, q), xb[None]])
+        e, g = faithful_objective(metric, Y)
+        return e, g[1:-1].ravel()
+
+    res = scipy.optimize.minimize(
+        fun, X[1:-1].ravel(), jac=True, method="L-BFGS-B", options={"maxiter": iterations}
+    )
+    X = np.concatenate([xa[None], res.x.reshape(-1, q), xb[None]])
+    if n == steps:
+        return X
+    return _at_length(X, np.arange(n, dtype=np.float64), np.linspace(0.0, n - 1, steps))
+
+
 def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):
     """``steps`` latent points from ``a`` to ``b`` (material names or latent points), of ``kind``.
 
@@ -356,9 +445,8 @@ def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):
         return straight(xa, xb, steps)
     with single_threaded():
         metric = metric or PathMetric.of(manifold)
-        return (
-            uniform(metric, xa, xb, steps) if kind == "uniform" else geodesic(metric, xa, xb, steps)
-        )
+        kinds = {"uniform": uniform, "geodesic": geodesic, "faithful": faithful}
+        return kinds[kind](metric, xa, xb, steps)
 
 
 def single_threaded():

@@ -156,3 +156,48 @@ def test_rows_and_graph_are_cached_by_the_manifolds_content(small_manifold, tmp_
     )
     other.database = str(tmp_path / "gone")
     assert latent_graph.cache_folder(other) is None and not os.path.exists(other.database)
+
+
+def _fig9_gaps(metric, X):
+    """Fig. 9's curves' largest gap from their diagonals and the largest step's share of the length."""
+    D = metric.distances(X)
+    t = np.linspace(0, 1, len(X))
+    d = D[0, -1]
+    gap = max(np.abs(D[0] / d - t).max(), np.abs(D[-1] / d - (1 - t)).max())
+    s = np.diag(D, 1)
+    return gap, s.max() / s.sum()
+
+
+def test_a_faithful_path_keeps_each_point_where_its_place_says_in_even_steps(m):
+    """Between the two materials whose geodesic strays furthest from Fig. 9's diagonals, the
+    faithful path's points are closer to them (each as far from the ends as its place along the
+    path says) and its steps stay even; its ends are the materials', other step counts read it."""
+    metric = paths.PathMetric.of(m)
+    worst = max(
+        ((a, b) for a in m.names for b in m.names if a < b),
+        key=lambda p: _fig9_gaps(metric, m.path(*p, steps=21, kind="geodesic"))[0],
+    )
+    gap_geodesic, _ = _fig9_gaps(metric, m.path(*worst, steps=21, kind="geodesic"))
+    F = m.path(*worst, steps=21, kind="faithful")
+    gap, largest = _fig9_gaps(metric, F)
+    assert gap < 0.5 * gap_geodesic, (gap, gap_geodesic)
+    assert largest < 0.1
+    assert np.array_equal(F[0], m.latent[m.index(worst[0])])
+    assert np.array_equal(F[-1], m.latent[m.index(worst[1])])
+    F6 = m.path(*worst, steps=6, kind="faithful")
+    assert F6.shape == (6, m.q) and np.allclose(F6, F[::4])
+
+
+def test_the_faithful_objective_gradient_is_its_derivative(m):
+    metric = paths.PathMetric.of(m)
+    X = paths.straight(m.latent[0], m.latent[4], 7) + np.array([0.03, -0.02])
+    e, g = paths.faithful_objective(metric, X)
+    h = 1e-5
+    for k, c in [(2, 0), (3, 1), (5, 0)]:
+        up, down = X.copy(), X.copy()
+        up[k, c] += h
+        down[k, c] -= h
+        fd = (
+            paths.faithful_objective(metric, up)[0] - paths.faithful_objective(metric, down)[0]
+        ) / (2 * h)
+        assert g[k, c] == pytest.approx(fd, rel=0.05, abs=1e-6 * abs(e))
