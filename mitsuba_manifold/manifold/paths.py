@@ -64,7 +64,9 @@ FLOOR = 1e-6
 #: Samples of a segment when re-parameterising it by perceptual length.
 DENSE = 129
 #: Points a faithful path is relaxed at (at least; Fig. 9's 20 steps), and L-BFGS iterations.
-FAITHFUL_POINTS, FAITHFUL_ITERATIONS = 21, 100
+FAITHFUL_POINTS, FAITHFUL_ITERATIONS = 21, 200
+#: The :func:`fig9_gap` up to which a faithful path is the geodesic itself.
+FAITHFUL_TOLERANCE = 0.1
 #: Weight and power of the evenness term of :func:`faithful_objective`.
 EVENNESS, EVEN_POWER = 1e-3, 8
 LENGTH = 0.01
@@ -362,7 +364,8 @@ def geodesic(metric, xa, xb, steps, points=17, iterations=25, dense=CHECK):
 
 def faithful_objective(metric, X, evenness=EVENNESS, power=EVEN_POWER, length=LENGTH):
     """The objective of a faithful path ``X`` (M, q) from ``a = x_0`` to ``b = x_K`` (``K = M - 1``)
-    and its gradient ``dE/dX`` (M, q), analytic (:meth:`PathMetric.pullback`)::
+    and its gradient ``dE/dX`` (M, q), analytic (:meth:`PathMetric.pullback`; zero at the ends,
+    which are held)::
 
         E = 1/K sum_k [(d(a, x_k) / d(a, b) - t_k)^2 + (d(b, x_k) / d(a, b) - (1 - t_k))^2]
             + evenness / K sum_k (s_k / s)^power + length K sum_k s_k^2 / d(a, b)^2
@@ -399,31 +402,51 @@ def faithful_objective(metric, X, evenness=EVENNESS, power=EVEN_POWER, length=LE
     gD = (gs / s)[:, None] * D
     G[:-1] -= gD
     G[1:] += gD
+    G[[0, -1]] = 0.0  # the ends are held
     return value, metric.pullback(X, G, V)
 
 
-def faithful(metric, xa, xb, steps, iterations=FAITHFUL_ITERATIONS):
+def fig9_gap(F):
+    """The largest gap of the paper's Fig. 9 curves from their diagonals for points of features
+    ``F`` (M, size) from ``a = F[0]`` to ``b = F[-1]``: ``max_k |d(a, x_k) / d(a, b) - t_k|`` and
+    ``|d(b, x_k) / d(a, b) - (1 - t_k)|``, ``t_k = k / (M - 1)``.
+    """
+    F = np.asarray(F, dtype=np.float64)
+    t = np.linspace(0.0, 1.0, len(F))
+    d = np.linalg.norm(F[-1] - F[0])
+    if d <= 0:
+        return 0.0
+    gap_a = np.abs(np.linalg.norm(F - F[0], axis=1) / d - t).max()
+    return float(max(gap_a, np.abs(np.linalg.norm(F - F[-1], axis=1) / d - (1 - t)).max()))
+
+
+def faithful(metric, xa, xb, steps, iterations=FAITHFUL_ITERATIONS, tolerance=FAITHFUL_TOLERANCE):
     """A path from ``xa`` to ``xb`` whose every point is as far from the ends as its place along
-    the path says, in even steps: the :func:`geodesic` at ``max(steps, FAITHFUL_POINTS)`` points,
-    its interior points moved to minimise :func:`faithful_objective` (L-BFGS, ends fixed), then
-    read at ``steps`` equal shares of the point index (the relaxed points themselves when
-    ``steps >= FAITHFUL_POINTS``).
+    the path says, in even steps: the :func:`geodesic` at ``max(steps, FAITHFUL_POINTS)`` points
+    where its :func:`fig9_gap` is at most ``tolerance`` (it is faithful already, and the most
+    even); otherwise its interior points moved to minimise :func:`faithful_objective` (L-BFGS,
+    ends fixed), kept where that lowers the gap. The points are read at ``steps`` equal shares
+    of the point index (the points themselves when ``steps >= FAITHFUL_POINTS``).
     """
     import scipy.optimize
 
     n = max(int(steps), FAITHFUL_POINTS)
     X = geodesic(metric, xa, xb, n)
-    q = X.shape[1]
+    gap = fig9_gap(metric.features(X))
+    if gap > tolerance:
+        q = X.shape[1]
 
-    def fun(flat):
-        Y = np.concatenate([xa[None], flat.reshape(-1, q), xb[None]])
-        e, g = faithful_objective(metric, Y)
-        return e, g[1:-1].ravel()
+        def fun(flat):
+            Y = np.concatenate([xa[None], flat.reshape(-1, q), xb[None]])
+            e, g = faithful_objective(metric, Y)
+            return e, g[1:-1].ravel()
 
-    res = scipy.optimize.minimize(
-        fun, X[1:-1].ravel(), jac=True, method="L-BFGS-B", options={"maxiter": iterations}
-    )
-    X = np.concatenate([xa[None], res.x.reshape(-1, q), xb[None]])
+        res = scipy.optimize.minimize(
+            fun, X[1:-1].ravel(), jac=True, method="L-BFGS-B", options={"maxiter": iterations}
+        )
+        Y = np.concatenate([xa[None], res.x.reshape(-1, q), xb[None]])
+        if fig9_gap(metric.features(Y)) < gap:
+            X = Y
     if n == steps:
         return X
     return _at_length(X, np.arange(n, dtype=np.float64), np.linspace(0.0, n - 1, steps))
