@@ -168,24 +168,28 @@ def _fig9_gaps(metric, X):
     return gap, s.max() / s.sum()
 
 
-def test_a_faithful_path_keeps_each_point_where_its_place_says_in_even_steps(m):
-    """Between the two materials whose geodesic strays furthest from Fig. 9's diagonals, the
-    faithful path's points are closer to them (each as far from the ends as its place along the
-    path says) and its steps stay even; its ends are the materials', other step counts read it."""
+def test_a_faithful_path_keeps_each_point_where_its_place_says_in_even_steps(m, pair):
+    """Between the two materials furthest apart in latent space, whose geodesic strays from
+    Fig. 9's diagonals, the faithful path's points are closer to them (each as far from the ends
+    as its place along the path says) and its steps stay even; its ends are the materials', other
+    step counts read it; between the nearest two, whose geodesic is faithful already, it is the
+    faithful path."""
     metric = paths.PathMetric.of(m)
-    worst = max(
-        ((a, b) for a in m.names for b in m.names if a < b),
-        key=lambda p: _fig9_gaps(metric, m.path(*p, steps=21, kind="geodesic"))[0],
-    )
-    gap_geodesic, _ = _fig9_gaps(metric, m.path(*worst, steps=21, kind="geodesic"))
-    F = m.path(*worst, steps=21, kind="faithful")
+    gap_geodesic, _ = _fig9_gaps(metric, m.path(*pair, steps=21, kind="geodesic"))
+    assert gap_geodesic > paths.FAITHFUL_TOLERANCE
+    F = m.path(*pair, steps=21, kind="faithful")
     gap, largest = _fig9_gaps(metric, F)
-    assert gap < 0.5 * gap_geodesic, (gap, gap_geodesic)
+    assert gap < 0.75 * gap_geodesic, (gap, gap_geodesic)
     assert largest < 0.1
-    assert np.array_equal(F[0], m.latent[m.index(worst[0])])
-    assert np.array_equal(F[-1], m.latent[m.index(worst[1])])
-    F6 = m.path(*worst, steps=6, kind="faithful")
+    assert np.array_equal(F[0], m.latent[m.index(pair[0])])
+    assert np.array_equal(F[-1], m.latent[m.index(pair[1])])
+    F6 = m.path(*pair, steps=6, kind="faithful")
     assert F6.shape == (6, m.q) and np.allclose(F6, F[::4])
+    d = np.linalg.norm(m.latent[:, None] - m.latent[None], axis=-1) + np.diag([np.inf] * m.n)
+    near = [m.names[i] for i in np.unravel_index(np.argmin(d), d.shape)]
+    G = m.path(*near, steps=21, kind="geodesic")
+    assert _fig9_gaps(metric, G)[0] < paths.FAITHFUL_TOLERANCE
+    assert np.array_equal(m.path(*near, steps=21, kind="faithful"), G)
 
 
 def test_the_faithful_objective_gradient_is_its_derivative(m):
