@@ -19,7 +19,8 @@ space      the latent space: held-out fidelity (10-fold), path smoothness, jump,
 prune      pruning rules: albedo, cosine-weighted and raw table change, materials kept, ms per call;
            --basis: image change
 fig9       the paper's Fig. 9: perceptual distances from both ends along paths of 20 steps, per preset
-           (--configs default,paper) and path kind (straight, uniform, geodesic); plots beside the JSON
+           (--configs default,paper) and path kind (straight, uniform, geodesic, faithful); plots beside
+           the JSON
 paths      speed of the paths: seconds per path of each kind, the latent graph cold and cached
 measured-space  by device (--database: a folder of merl/, rgl/, nielsen/ databases): projection
            beyond the data against the nearest material, its plausibility, and Manifold.add

@@ -1,4 +1,4 @@
-"""Paths through the space: Manifold.distance, the straight, uniform and geodesic kinds."""
+"""Paths through the space: Manifold.distance, the straight, uniform, geodesic and faithful kinds."""
 
 import os
 
