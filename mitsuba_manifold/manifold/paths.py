@@ -68,7 +68,7 @@ FAITHFUL_POINTS, FAITHFUL_ITERATIONS = 21, 200
 #: The :func:`fig9_gap` up to which a faithful path is the geodesic itself.
 FAITHFUL_TOLERANCE = 0.1
 #: Weight and power of the evenness term of :func:`faithful_objective`.
-EVENNESS, EVEN_POWER = 1e-3, 8
+EVENNESS, EVEN_POWER = 2e-3, 8
 LENGTH = 0.01
 #: Samples of a geodesic's candidates (compared by length, then refined where coarse by :func:`even`).
 CHECK = 65
