@@ -12,8 +12,8 @@ same metric without the full table stack in memory (1.7 GB for 100 MERL tables).
 - :meth:`Walks.nearest_measured`: the measured table nearest to the table at ``x`` under the
   metric (the distance the paths are even in), a few ms: one product over the sub-grid
   columns and a Gram product with the measured tables' features, computed once;
-- :meth:`Walks.submit`: a path ``a -> b`` of a kind (``straight`` at once, ``uniform`` and
-  ``geodesic`` in one low-priority background thread: the geodesic takes seconds; of the
+- :meth:`Walks.submit`: a path ``a -> b`` of a kind (``straight`` at once, ``uniform``,
+  ``geodesic`` and ``faithful`` in one low-priority background thread: they take seconds; of the
   requests waiting there only the newest is computed), cached per pair, steps and kind;
   returns a :class:`concurrent.futures.Future`, shared by every caller asking for the same path;
 - :meth:`Walks.release`: a caller no longer waits for a path (its page moved on or went away);
