@@ -31,6 +31,15 @@ def machine():
     return info
 
 
+def cpu_seconds():
+    """CPU time (user + system) of this process and its finished children: what a benchmark
+    cost the machine, which its wall time does not say on a shared one.
+    """
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def peak_rss_gib():
     """Peak resident memory of this process so far."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
