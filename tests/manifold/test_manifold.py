@@ -85,6 +85,30 @@ def test_pruning_reports_dropped_weight(fitted):
     assert np.abs(pruned - full).max() <= 1.1 * dropped * np.abs(fitted.tables()).max()
 
 
+def test_combine_is_the_weighted_sum_of_the_tables_to_float32_rounding(
+    small_manifold_paper, small_db
+):
+    """Every way combine sums (one product over all tables in memory, a sum over the few kept
+    rows in memory, the kept tables read from the database) gives ``sum_i w_i table_i`` to
+    float32 rounding; weights below float32's normal range count as 0.
+    """
+    memory, disk = Manifold.load(small_manifold_paper), Manifold.load(small_manifold_paper)
+    tables = memory.tables().astype(np.float64)
+    assert disk._tables is None
+    _, w = memory.weights(memory.latent[0] + 0.05)
+    w[1] += 1e-40  # below float32's normal range
+    w[0] -= 1e-40
+    scale = np.abs(tables).max()
+    for prune in (0.0, 0.2):
+        pruned = memory.prune(w, prune)
+        ref = pruned.w_kept @ tables[pruned.keep]
+        for c in (memory.combine(w, prune=prune), disk.combine(w, prune=prune)):
+            assert c.table.dtype == np.float32 and np.array_equal(c.keep, pruned.keep)
+            assert np.abs(c.table.reshape(-1) - ref).max() <= 1e-6 * scale
+    assert 2 * len(memory.prune(w, 0.2).keep) <= memory.n < 2 * len(memory.prune(w, 0.0).keep)
+    assert disk._tables is None  # the kept tables were read, not all loaded
+
+
 def test_save_load_round_trip_without_pickle(fitted, tmp_path):
     path = tmp_path / "m.npz"
     fitted.save(path)
