@@ -263,6 +263,18 @@ class Session:
         if kind == "snippet":
             return dict(ex.snippets(x, req.get("folder")), **tag), b""
         data, meta = await run_in_threadpool(
-            ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"), req.get("coarse") is True
+            ex.map_png,
+            req.get("dims", [0, 1]),
+            x,
+            req.get("extent"),
+            req.get("coarse") is True,
+            self.stale_map,
         )
         return dict(meta, **tag), data
+
+    def stale_map(self):
+        """Raises :class:`Superseded` when a newer map request waits (the map being made is
+        abandoned: its slice or zoom is not the page's any more). Called from the map's thread.
+        """
+        if "map" in self.pending:
+            raise Superseded()
