@@ -133,6 +133,7 @@ class Explorer:
         self.references = References()
         self._framing = _Count()  # frames being made: the maps' work waits for them
         self._maps, self._maps_lock = {}, threading.Lock()
+        self._making = {}  # key -> Event of the maps being made (a second request waits for it)
         threading.Thread(target=self._first_map, name="explore-map", daemon=True).start()
 
     def _first_map(
@@ -299,10 +300,10 @@ class Explorer:
         slice): the last few maps are kept by slice, so moving within the slice (every move
         for ``q = 2``) costs nothing. ``coarse``: a quarter of the pixels (:data:`COARSE_MAP`,
         while a slider or the path scrubber moves the slice). A map takes seconds of CPU where
-        a frame takes milliseconds: it is made a few rows at a time, each waiting while a frame
-        is being made (a drag's frames go first), and ``stale()``, when given, is asked before
-        each: it raises to abandon a map no longer wanted (the session's
-        :class:`~.session.Superseded`, a newer map asked for).
+        a frame takes milliseconds: it is made once (a request for a map being made waits for
+        it), a few rows at a time, each waiting while a frame is being made (a drag's frames go
+        first), and ``stale()``, when given, is asked before each: it raises to abandon a map no
+        longer wanted (the session's :class:`~.session.Superseded`, a newer map asked for).
         """
         dims = self._dims(dims)
         bounds = self._bounds(bounds) if bounds is not None and bounds != "" else None
@@ -317,25 +318,43 @@ class Explorer:
             if key in self._maps:
                 self._maps[key] = self._maps.pop(key)  # most recently used last
                 return self._maps[key]
+            making = self._making.get(key)
+            if making is None:
+                made_here = making = self._making[key] = threading.Event()
+            else:
+                made_here = None
+        if made_here is None:  # the same map is being made (the first map, another tab): waits
+            while not making.wait(FRAME_WAIT):
+                if stale is not None:
+                    stale()
+            with self._maps_lock:
+                if key in self._maps:
+                    return self._maps[key]
+            return self.map_png(dims, center, bounds, coarse, stale)  # abandoned there: made here
 
         def pause():
             self._framing.wait_idle(FRAME_WAIT)
             if stale is not None:
                 stale()
 
-        m = latentmap.render(
-            self.manifold,
-            c,
-            dims,
-            resolution=COARSE_MAP if coarse else FULL_MAP,
-            bounds=bounds,
-            pause=pause,
-        )
-        out = (encode.png_bytes(m.image), dict(m.info(), slice=[list(dims), list(key[1])]))
-        with self._maps_lock:
-            self._maps[key] = out
-            while len(self._maps) > MAPS_KEPT:
-                self._maps.pop(next(iter(self._maps)))
+        try:
+            m = latentmap.render(
+                self.manifold,
+                c,
+                dims,
+                resolution=COARSE_MAP if coarse else FULL_MAP,
+                bounds=bounds,
+                pause=pause,
+            )
+            out = (encode.png_bytes(m.image), dict(m.info(), slice=[list(dims), list(key[1])]))
+            with self._maps_lock:
+                self._maps[key] = out
+                while len(self._maps) > MAPS_KEPT:
+                    self._maps.pop(next(iter(self._maps)))
+        finally:
+            with self._maps_lock:
+                self._making.pop(key, None)
+            made_here.set()
         return out
 
     def snippet_folder(self):
