@@ -12,6 +12,8 @@ answer that arrives after a newer one. ``"coarse": true`` (a drag running) asks 
 answers: a table of every other texel, a map of a quarter of the pixels, a material without the
 distance to the closest measured one, a frame whose L2+ part is summed, not denoised (also while
 ``"held": true``, the pointer still down); the page asks again in full when the drag rests. A
+move's ``"map_coarse"``, when given, says whether its map is the coarse one instead (a drag on the
+map stays in one slice: its map is asked for in full at once). A
 full (denoised) frame has its own worker (:data:`FINAL`): denoising takes several frames'
 time, and the first frames of the next drag do not wait for it (a coarse frame drops a full
 one still waiting; one that comes after a newer frame was drawn, the page drops by its ``seq``).
@@ -267,7 +269,7 @@ class Session:
             req.get("dims", [0, 1]),
             x,
             req.get("extent"),
-            req.get("coarse") is True,
+            req.get("map_coarse", req.get("coarse")) is True,
             self.stale_map,
         )
         return dict(meta, **tag), data
