@@ -434,3 +434,27 @@ def test_a_drag_from_a_material_in_another_slice_asks_for_one_full_map(browser, 
     finally:
         code, out = launch.stop(proc)
         assert code == 0, out[-3000:]
+
+
+@browser_only
+def test_the_page_opens_on_the_coarse_map_then_the_full_one(browser, server):
+    """The first map the page asks for is the coarse one (shown in a fraction of the full one's
+    time); once it is shown the page asks for the full one, and that is the map left shown."""
+    ctx = browser.new_context(viewport={"width": 1500, "height": 1000})
+    try:
+        pg = ctx.new_page()
+        pg.add_init_script("""window.__maps = []; const send = WebSocket.prototype.send;
+            WebSocket.prototype.send = function (text) { const m = JSON.parse(text);
+                if (m.type === "map" || (m.want || []).includes("map"))
+                    window.__maps.push(m.type === "map" ? false : m.map_coarse === true);
+                return send.call(this, text); };""")
+        pg.goto(server)
+        pg.wait_for_function(
+            "window.explore && window.explore.state.mapImage && "
+            "window.explore.state.mapImage.naturalWidth === 192 && window.explore.channel.pending() === 0",
+            timeout=60000,
+        )
+        maps = pg.evaluate("window.__maps")
+        assert maps[0] is True and False in maps, maps
+    finally:
+        ctx.close()

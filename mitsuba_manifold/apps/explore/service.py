@@ -138,9 +138,10 @@ class Explorer:
 
     def _first_map(
         self,
-    ):  # meanwhile: the map the page opens on, then the first basis's float32 cross terms
+    ):  # meanwhile: the maps the page opens on (coarse, then full), then the float32 cross terms
         try:
-            self.map_png("0,1", self.start_point())
+            for coarse in (True, False):
+                self.map_png("0,1", self.start_point(), coarse=coarse)
         except Exception:  # the page asks for it anyway (and gets the error there)
             pass
         _warm(self.bases)
