@@ -1,13 +1,16 @@
 """The Manifold: weights, exact reproduction, far field, save/load and mismatches."""
 
+import gc
 import os
 import shutil
+import weakref
 
 import numpy as np
 import pytest
 
 from mitsuba_manifold.data import database, merl
 from mitsuba_manifold.data.database import Database
+from mitsuba_manifold.errors import UnavailableError
 from mitsuba_manifold.manifold.model import InputError, Manifold
 
 
@@ -335,3 +338,23 @@ def test_the_constructor_takes_the_learned_state_as_keywords(fitted):
     for call in (lambda: Manifold(*args, fitted.gram), lambda: Manifold(*args, tables=None)):
         with pytest.raises(TypeError):
             call()
+
+
+def test_a_manifold_and_its_tables_go_with_its_last_reference(small_manifold):
+    # The continuation beyond the data reads the manifold's tables; a manifold must still be freed
+    # (with the tables it holds in memory) as soon as it is unused, not at a later garbage collection.
+    m = Manifold.load(small_manifold)
+    assert m.interpolant.limit is not None  # the default preset continues beyond the data
+    loaded = weakref.ref(m.tables())
+    far = m.latent.mean(0) + 10 * (m.latent.max(0) - m.latent.min(0))
+    m.weights(far)  # the continuation's limit, reading the tables
+    gc.disable()
+    try:
+        del m
+        assert loaded() is None
+    finally:
+        gc.enable()
+    # an interpolant kept without its manifold says so when its limit needs the tables
+    interpolant = Manifold.load(small_manifold).interpolant
+    with pytest.raises(UnavailableError, match="no longer exists"):
+        interpolant.b_and_w(far[None])
