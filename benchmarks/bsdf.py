@@ -26,7 +26,8 @@ def run(
     """manifold_brdf against roughconductor, cdf against cosine sampling, construction time.
 
     Targets: render time at most 1.5x roughconductor at equal spp; relative MSE at least
-    5x lower with ``cdf`` than with ``cosine`` for the spiky metals.
+    5x lower with ``cdf`` than with ``cosine`` for the spiky metals. The ratio of CPU times
+    (``ratio_cpu_min``) is the one a loaded machine disturbs least.
     """
     from mitsuba_manifold.imaging import metrics
     from mitsuba_manifold.render.sampling import sampling_cache_path
@@ -80,6 +81,7 @@ def run(
         "times": t,
         "ratio_min": ratio,
         "ratio_median": t["manifold_brdf"]["median_s"] / t["roughconductor"]["median_s"],
+        "ratio_cpu_min": t["manifold_brdf"]["cpu_min_s"] / t["roughconductor"]["cpu_min_s"],
         "ratio_target": 1.5,
         "meets_target": ratio <= 1.5,
     }

@@ -183,11 +183,12 @@ def run(args):
     import benchmarks as bench
     from mitsuba_manifold._util.atomic import write_bytes
 
-    from .common import machine
+    from .common import cpu_seconds, machine
 
     explore = args.which == "explore"
     folder = database_folder(args)
-    t0 = time.perf_counter()
+    t0, load0 = time.perf_counter(), os.getloadavg()[0]
+    cpu0 = cpu_seconds()
     kwargs = (
         {"names": args.materials} if args.which in ("fit", "pca", "space", "fig9", "paths") else {}
     )
@@ -226,6 +227,8 @@ def run(args):
         "machine": machine(),
         "date": time.strftime("%Y-%m-%d %H:%M:%S"),
         "wall_s": time.perf_counter() - t0,
+        "cpu_s": cpu_seconds() - cpu0,
+        "load_average": {"start": load0, "end": os.getloadavg()[0]},
         "result": result,
     }
     text = json.dumps(report, indent=1, default=float)

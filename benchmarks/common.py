@@ -31,6 +31,15 @@ def machine():
     return info
 
 
+def cpu_seconds():
+    """CPU time (user + system) of this process and its finished children: what a benchmark
+    cost the machine, which its wall time does not say on a shared one.
+    """
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def peak_rss_gib():
     """Peak resident memory of this process so far."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
@@ -54,22 +63,32 @@ def sphere_with(bsdf_xml, spp, res, manifold=None):
 
 
 def time_renders(scenes, repeats):
-    """Interleaved timings (seconds) of ``mi.render`` per named scene, after a warm-up render."""
+    """Interleaved timings (seconds) of ``mi.render`` per named scene, after a warm-up render:
+    wall time and the process's CPU time (Dr.Jit's worker threads included).
+    """
     import drjit as dr
     import mitsuba as mi
 
     times = {k: [] for k in scenes}
+    cpus = {k: [] for k in scenes}
     for s in scenes.values():
         dr.eval(mi.render(s, seed=1000))
     for rep in range(repeats):
         for k, s in scenes.items():
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             img = mi.render(s, seed=rep)
             dr.eval(img)
             dr.sync_thread()
             times[k].append(time.perf_counter() - t0)
+            cpus[k].append(time.process_time() - c0)
     return {
-        k: {"min_s": float(np.min(v)), "median_s": float(np.median(v))} for k, v in times.items()
+        k: {
+            "min_s": float(np.min(v)),
+            "median_s": float(np.median(v)),
+            "cpu_min_s": float(np.min(cpus[k])),
+            "cpu_median_s": float(np.median(cpus[k])),
+        }
+        for k, v in times.items()
     }
 
 

@@ -212,6 +212,77 @@ def _launch_chromium(p, compositing="software"):
     )
 
 
+#: When each part of "tables ready" came (seconds from the page's start, polled every 20 ms):
+#: the page's info, the tables loaded, the sphere's first table, the map, the first frame.
+_READY_PARTS = """window.__ready = {}; const __t = setInterval(() => {
+  const e = window.explore, s = e && e.state, r = window.__ready, now = performance.now() / 1e3;
+  const parts = { info: s && s.info, tables: s && s.info && s.info.tables !== "loading",
+                  sphere_table: s && s.previewX, map: s && s.map, frame: s && s.displayed };
+  for (const k in parts) if (parts[k] && r[k] === undefined) r[k] = now;
+  if (Object.keys(r).length === Object.keys(parts).length) clearInterval(__t); }, 20);"""
+
+
+def _cpu_seconds(server_pid):
+    """CPU seconds (user + system, from ``/proc``) of the processes started from this one:
+    ``{"server": the explorer's process tree, "browser": every other descendant (Chromium's
+    processes and Playwright's driver)}``; empty where ``/proc`` is missing. A difference of
+    two readings is the work a drag costs, whatever else runs on the machine.
+    """
+    tick, parent, cpu = os.sysconf("SC_CLK_TCK"), {}, {}
+    if not os.path.isdir("/proc/self"):
+        return {}
+    for name in os.listdir("/proc"):
+        if not name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{name}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:  # gone meanwhile
+            continue
+        parent[int(name)] = int(fields[1])
+        cpu[int(name)] = (int(fields[11]) + int(fields[12])) / tick
+
+    def under(pid, root):
+        while pid > 1:
+            if pid == root:
+                return True
+            pid = parent.get(pid, 0)
+        return False
+
+    me, out = os.getpid(), {"server": 0.0, "browser": 0.0}
+    for pid, seconds in cpu.items():
+        if under(pid, server_pid):
+            out["server"] += seconds
+        elif pid != me and under(pid, me):
+            out["browser"] += seconds
+    return out
+
+
+def _settle(server_pid, share=0.1, window=1.0, timeout=120.0):
+    """Wait until the explorer's process uses under ``share`` of a core over ``window`` s (the
+    work after the tables, e.g. the perceptual metric, done), at most ``timeout`` s; returns the
+    seconds waited.
+    """
+    t0 = time.perf_counter()
+    last = _cpu_seconds(server_pid).get("server")
+    while last is not None and time.perf_counter() - t0 < timeout:
+        time.sleep(window)
+        now = _cpu_seconds(server_pid)["server"]
+        if now - last < share * window:
+            break
+        last = now
+    return time.perf_counter() - t0
+
+
+def _cpu_per_move(before, after, moves):
+    """Milliseconds of CPU per pointer move, per part and in all, between two :func:`_cpu_seconds`."""
+    if not before or not moves:
+        return None
+    out = {k: 1e3 * (after[k] - before[k]) / moves for k in before}
+    out["total"] = sum(out.values())
+    return out
+
+
 def _drag(page, a, b, moves, pace_ms):
     """One drag from page point ``a`` to ``b`` in ``moves`` pointer moves; returns per-move
     latency (ms) to the first frame drawn for that move or a later one, the frames drawn
@@ -359,6 +430,7 @@ def browser(
     try:
         context = chromium.new_context(viewport={"width": 1500, "height": 1000})
         page = context.new_page()
+        page.add_init_script(_READY_PARTS)
         t0 = time.perf_counter()
         page.goto(url)
         page.wait_for_function(
@@ -367,6 +439,7 @@ def browser(
             timeout=300000,
         )
         report["tables_ready_s"] = time.perf_counter() - t0
+        report["ready_parts_s"] = page.evaluate("window.__ready")
         latent = np.array(page.evaluate("window.explore.state.info.latent"))
         box = page.locator("#map").bounding_box()
         ext = page.evaluate("window.explore.state.map.extent")
@@ -377,7 +450,10 @@ def browser(
                 box["y"] + (1 - (x[1] - ext[2]) / (ext[3] - ext[2])) * box["height"],
             )
 
+        report["settle_s"] = _settle(proc.pid)  # per-move CPU without the server's start-up work
+        cpu0 = _cpu_seconds(proc.pid)
         lat, frames, seconds, draws, sent, parts = _drags(page, at, latent, drags, moves, pace_ms)
+        report["cpu_ms_per_move"] = _cpu_per_move(cpu0, _cpu_seconds(proc.pid), sent)
         report["load_average_1min_idle_drags"] = os.getloadavg()[0]
         report["with_reference"] = (
             _with_reference(page, at, latent, drags, moves, pace_ms) if reference else None

@@ -15,7 +15,11 @@ def run(folder, manifold=None, q=2, repeats=7, prunes=(1e-3, 1e-2, 3e-2, 1e-1)):
     """Time of one full interpolated table, unpruned and pruned, with the tables in memory.
 
     Targets: under 0.1 s unpruned, under 20 ms pruned. The physical limit for the
-    unpruned table is reading all N float32 tables once at memory bandwidth. Pruning
+    unpruned table is reading all N float32 tables once at memory bandwidth: measured here
+    as NumPy's read of the stack (a sum) and copy of a quarter of it (read and write), the
+    limits ``tables_gib / read bandwidth`` for float32 tables and half that for float16
+    (:func:`bandwidth`). CPU times (``*_cpu_s``) beside the wall times say how much of a
+    wall time on a loaded machine was waiting for a core. Pruning
     (``Manifold.prune``) is measured at several levels, with the materials it keeps and
     the error it makes (relative to the table's maximum and in albedo).
     """
@@ -28,7 +32,8 @@ def run(folder, manifold=None, q=2, repeats=7, prunes=(1e-3, 1e-2, 3e-2, 1e-1)):
     x = 0.5 * (m.latent[m.index(a)] + m.latent[m.index(b)])
     _, w = m.weights(x)
     t_weights, _ = median_time(lambda: m.weights(x), repeats)
-    t_full, _ = median_time(lambda: m.combine(w, prune=0.0), repeats)
+    t_full, cpu_full = timed(lambda: m.combine(w, prune=0.0), repeats)
+    bw = bandwidth(tables, repeats)
     full = m.combine(w, prune=0.0)[0]
     scale = float(np.abs(full).max())
     from mitsuba_manifold.data.database import albedo_weights
@@ -38,12 +43,13 @@ def run(folder, manifold=None, q=2, repeats=7, prunes=(1e-3, 1e-2, 3e-2, 1e-1)):
     pruned = []
     for prune in prunes:
         keep, _, dropped = m.prune(w, prune)
-        t_p, _ = median_time(lambda: m.combine(w, prune=prune), repeats)
+        t_p, cpu_p = timed(lambda: m.combine(w, prune=prune), repeats)
         table = m.combine(w, prune=prune)[0]
         pruned.append(
             {
                 "prune": prune,
                 "time_s": t_p,
+                "cpu_s": cpu_p,
                 "materials_kept": int(len(keep)),
                 "dropped_weight": dropped,
                 "l2_error_relative": float(np.linalg.norm(table - full) / np.linalg.norm(full)),
@@ -61,10 +67,44 @@ def run(folder, manifold=None, q=2, repeats=7, prunes=(1e-3, 1e-2, 3e-2, 1e-1)):
         "load_tables_s": t_load,
         "weights_s": t_weights,
         "unpruned_s": t_full,
+        "unpruned_cpu_s": cpu_full,
         "unpruned_target_s": 0.1,
         "meets_unpruned_target": t_full < 0.1,
         "unpruned_bandwidth_gib_s": tables.nbytes / 2**30 / t_full,
+        **bw,
         "pruned": pruned,
         "pruned_target_s": 0.02,
         "peak_rss_gib": peak_rss_gib(),
+    }
+
+
+def timed(fn, repeats):
+    """Median wall time and median process CPU time (all threads) of ``repeats`` calls of ``fn()``."""
+    walls, cpus = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    return float(np.median(walls)), float(np.median(cpus))
+
+
+def bandwidth(tables, repeats):
+    """Memory bandwidth NumPy reaches on ``tables`` (N, d) and the unpruned table's limits from it.
+
+    ``read``: a sum over the whole stack (one read, nothing written); ``copy``: a copy of a
+    quarter of it (read and write, counted twice). The limits are the stack's size (float32)
+    and half of it (float16) over the best read bandwidth measured.
+    """
+    gib = tables.nbytes / 2**30
+    t_read = min(timed(lambda: np.add.reduce(tables, axis=None), 1)[0] for _ in range(repeats))
+    part = tables[: max(1, len(tables) // 4)]
+    dst = np.empty_like(part)
+    t_copy = min(timed(lambda: np.copyto(dst, part), 1)[0] for _ in range(repeats))
+    read = gib / t_read
+    return {
+        "read_bandwidth_gib_s": read,
+        "copy_bandwidth_gib_s": 2 * part.nbytes / 2**30 / t_copy,
+        "limit_float32_s": gib / read,
+        "limit_float16_s": gib / 2 / read,
     }

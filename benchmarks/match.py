@@ -41,12 +41,16 @@ RATIO_TARGET = 1.5
 
 
 def _median(fn, repeats):
-    times, out = [], None
+    """Median and max wall time of ``repeats`` calls of ``fn()``, the median CPU time of this
+    process (all its threads), and the last result.
+    """
+    times, cpus, out = [], [], None
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         out = fn()
         times.append(time.perf_counter() - t0)
-    return float(np.median(times)), float(np.max(times)), out
+        cpus.append(time.process_time() - c0)
+    return float(np.median(times)), float(np.max(times)), float(np.median(cpus)), out
 
 
 def bench_speed(basis_folder, manifold=None, n_targets=5, repeats=3, seed=0):
@@ -78,18 +82,20 @@ def bench_speed(basis_folder, manifold=None, n_targets=5, repeats=3, seed=0):
         "load_average": os.getloadavg(),
     }
     for name, kw in settings.items():
-        meds, maxes, errs = [], [], []
+        meds, maxes, cpus, errs = [], [], [], []
         for x in pts:
             # the match fits the L1- blend (Eq. 13): so is the target, whatever the basis holds
             target = blend(basis, m, x=x, prune=0.0, component="l1")[0]
             target = target * (1.7 if kw.get("exposure_free") else 1.0)
-            med, mx, r = _median(lambda: mt.match(basis, target, manifold=m, **kw), repeats)
+            med, mx, cpu, r = _median(lambda: mt.match(basis, target, manifold=m, **kw), repeats)
             meds.append(med)
             maxes.append(mx)
+            cpus.append(cpu)
             errs.append(r.error)
         out["settings"][name] = {
             "median_s": float(np.median(meds)),
             "max_s": float(np.max(maxes)),
+            "cpu_median_s": float(np.median(cpus)),
             "max_error": float(np.max(errs)),
             "errors": errs,
             "recovered": int(np.sum(np.array(errs) < 1e-6)),

@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .._util.atomic import write_bytes
+from .._util.memory import peak_rss
 from .._util.timing import median_time
 from ..basis import denoise as denoise_mod
 from ..basis.blend import BlendSettings, blend, blend_path, path_labels
@@ -172,7 +173,9 @@ def gi_report(
 def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
     """:func:`gi_report` for one scene: render its basis (timed, from scratch; with its AOVs
     when ``settings.denoise``), then each point's blend, reference and direct renders; files
-    are named ``<stem>_...``.
+    are named ``<stem>_...``. ``peak_rss_after`` gives the process's peak memory (bytes,
+    :func:`~mitsuba_manifold._util.memory.peak_rss`) at the end of the basis, of each point and
+    of the contact sheets: the step where it grows holds the new peak.
     """
     opts = settings
     out, name = os.path.dirname(stem), os.path.basename(stem)
@@ -192,6 +195,7 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
         components="auto" if opts.mode == "onepass" else "l1",
     )
     t_basis = time.perf_counter() - t0
+    peak = {"basis": peak_rss()}  # the process's peak memory at the end of each step
     b = Basis.load(folder_b, manifold=m)
     aovs = denoise_mod.BasisAOVs.load(folder_b, b.manifest) if opts.denoise else None
     rows = []
@@ -200,6 +204,7 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
         rows.append({"point": kind, "x_is": label, **row})
         if opts.save_images:
             _save_point_images(f"{stem}_{kind}", *images)
+        peak[kind] = peak_rss()
         if opts.progress:
             print(
                 f"  {name}: {kind} done (blend rel. MSE {row['blend']['rel_mse']:.3g})", flush=True
@@ -219,11 +224,13 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
         extrapolation_sheet(
             b, m, pair, f"{stem}_extrapolation_sheet", log=print if opts.progress else None, l2=l2
         )
+    peak["sheets"] = peak_rss()
     out = {
         "basis_time_s": t_basis,
         "basis_images": len(b.keys) + 1,
         "points": rows,
         "basis_folder": os.path.abspath(folder_b),
+        "peak_rss_after": peak,
     }
     if aovs is not None:
         out["aovs_time_s"] = aovs.time_s
@@ -348,6 +355,7 @@ def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised"):
     t0 = time.perf_counter()
     refine(b, m, x=x, spp=spp, passes=passes, seed=seed, l2=l2)
     t_cold = time.perf_counter() - t0
+    forget_kept()  # the scene and the point's tables are not needed by what follows
     bias, se = relative_bias(r.image, ref)
     return {
         "spp": spp,

@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 
 from .._util import ownership
 from .._util.atomic import write_bytes
+from .._util.memory import peak_rss
 from ..data import database
 from ..imaging import plots
 from ..manifold.model import Manifold
@@ -112,8 +113,10 @@ def run_main_job(job, log=print, **fields):
 
     ``job``: a :class:`MainJob`, or its output folder with the other fields as keywords
     (``run_main_job("out", res=64, spp=16)``). ``log(text)`` reports progress (stages and
-    results). Returns the GI report (with ``report_path`` and ``stages``: the measured
-    seconds of each stage).
+    results). Returns the GI report (with ``report_path``, ``stages``: the measured
+    seconds of each stage, ``peak_rss_bytes``: the process's peak memory, and
+    ``peak_rss_after``: that peak at the end of each stage, None where the system does not
+    say; the stage where it grows holds the new peak).
     """
     job = replace(job, **fields) if isinstance(job, MainJob) else MainJob(job, **fields)
     job.check()
@@ -146,7 +149,8 @@ def _run(job, log):
     """:func:`run_main_job` once its outputs are checked (and watched)."""
     t_start = time.perf_counter()
     stages = {}
-    db_dir, manifold_path = _database_and_manifold(job, log, stages)
+    peak = {}
+    db_dir, manifold_path = _database_and_manifold(job, log, stages, peak)
     log(
         f"\n== basis of {job.scene} and blends ({job.res}x{job.res}, {job.spp} spp basis, "
         f"{job.ref_spp} spp references)"
@@ -183,9 +187,14 @@ def _run(job, log):
     report_path = os.path.join(job.out, "gi", "report.json")
     stages["total_s"] = time.perf_counter() - t_start
     report["stages"] = stages
+    peak.update(sc["peak_rss_after"], end=peak_rss())
+    report["peak_rss_bytes"], report["peak_rss_after"] = peak["end"], peak
     write_bytes(report_path, json.dumps(report, indent=1))
     log(f"plot: {report['plot']}\nreport: {report_path}\nimages: {os.path.join(job.out, 'gi')}")
     log("stages: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in stages.items() if k != "total_s"))
+    if peak["end"] is not None:
+        reached = next(k for k, v in peak.items() if v == peak["end"])
+        log(f"peak memory: {peak['end'] / 2**30:.2f} GiB (reached by the end of: {reached})")
     log(
         f"\nexplore the manifold in the browser:\n  {explore_command(sc['basis_folder'], manifold_path)}"
     )
@@ -194,9 +203,10 @@ def _run(job, log):
     return report
 
 
-def _database_and_manifold(job, log, stages):
+def _database_and_manifold(job, log, stages, peak):
     """Steps 1 and 2 of the main job: the database, the fitted manifold and its plots; returns
-    their paths and adds the seconds of each stage to ``stages``.
+    their paths and adds the seconds of each stage to ``stages``, the process's peak memory at
+    its end to ``peak``.
     """
     manifold_path = os.path.join(job.out, "manifold.npz")
     os.makedirs(job.out, exist_ok=True)
@@ -205,6 +215,7 @@ def _database_and_manifold(job, log, stages):
     db = database.Database(job.database, dims=job.resolution)
     db_dir = db.folder
     stages["tabulate_s"] = time.perf_counter() - t0
+    peak["tabulate"] = peak_rss()
     log(
         f"{len(db.names)} materials, {'x'.join(map(str, db.dims))} bins ({stages['tabulate_s']:.1f} s)"
     )
@@ -215,6 +226,7 @@ def _database_and_manifold(job, log, stages):
     )
     m = Manifold.fit(db, q=job.q, features=job.features, preset=job.preset, progress=True)
     m.save(manifold_path)
+    peak["fit"] = peak_rss()
     stages.update(
         load_s=m.record.timings.load_s, gram_s=m.record.timings.gram_s, fit_s=m.record.timings.fit_s
     )
@@ -227,6 +239,7 @@ def _database_and_manifold(job, log, stages):
     for path in plots.write_fit_plots(m, os.path.join(job.out, "plots")):
         log(f"plot: {path}")
     stages["plots_s"] = time.perf_counter() - t0
+    peak["plots"] = peak_rss()
     return db_dir, manifold_path
 
 

@@ -47,16 +47,16 @@ RESTORE_WIDTH = 1 / 8
 # ------------------------------------------------------------------ directional albedos
 
 
-def directional_albedos(db, names, bins=THETA_BINS, n_phi=64, refine=2, pad=16):
+def directional_albedos(db, names, bins=THETA_BINS, n_phi=64, refine=2, chunk=16):
     """``a[i, k, c]``: albedo of material ``names[i]`` lit from ``theta`` at the centre of bin ``k``.
 
     ``a(theta_i) = int f(w_i, w_o) cos(theta_o) dw_o``, integrated over half vectors
     ``h`` (``w_o`` = ``w_i`` reflected about ``h``, ``dw_o = 4 (w_i . h) dw_h``) by the
     midpoint rule on the tables' own ``theta_h`` spacing (``refine`` points per bin,
     so that narrow specular peaks are not missed) and ``n_phi`` azimuths, with the filled
-    tables (negative values clamped at 0 as the BSDF does; ``Database.material_rows``).
+    tables (negative values clamped at 0 as the BSDF does). The tables are read ``chunk``
+    materials at a time, and of each only the bins the quadrature visits.
     """
-    rows = db.material_rows(names, pad=pad)
     n_u = refine * int(db.dims[0])
     u = (np.arange(n_u) + 0.5) / n_u
     t_h = u * u * (np.pi / 2)
@@ -73,11 +73,17 @@ def directional_albedos(db, names, bins=THETA_BINS, n_phi=64, refine=2, pad=16):
     weight = np.where((wo[:, 2] > 0) & (cos_d > 0), wo[:, 2] * 4 * cos_d * np.tile(dwh, bins), 0.0)
     idx = merl.flat_index(wi, np.where(weight[:, None] > 0, wo, [0.0, 0.0, 1.0]), tuple(db.dims))
     uniq, inv = np.unique(idx, return_inverse=True)
-    values = np.maximum(
-        np.asarray(rows[uniq], dtype=np.float32)[..., : len(names)], 0.0
-    )  # (u, 3, N)
-    f = values[inv.reshape(-1)].reshape(bins, len(h), 3, len(names))
-    return np.einsum("kocn,ko->nkc", f, weight.reshape(bins, len(h))).astype(np.float32)
+    weight = weight.reshape(bins, len(h))
+    out = np.empty((len(names), bins, 3), np.float32)
+    for k0 in range(0, len(names), chunk):
+        part = names[k0 : k0 + chunk]
+        values = np.stack(
+            [np.asarray(db.reflectance(n), np.float32).reshape(3, -1)[:, uniq].T for n in part],
+            axis=-1,
+        )  # (u, 3, k)
+        f = np.maximum(values, 0.0)[inv.reshape(-1)].reshape(bins, len(h), 3, len(part))
+        out[k0 : k0 + len(part)] = np.einsum("kocn,ko->nkc", f, weight)
+    return out
 
 
 @dataclass

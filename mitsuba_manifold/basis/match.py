@@ -349,11 +349,12 @@ def _search(manifold, search, full, opts, f):
     """
     prior = opts.prior
     var_train = prior * manifold.variance(manifold.latent)
-    best = int(np.argmin(search.batch(np.eye(manifold.n))[0] + var_train))
     bounds = latent.box(manifold)
-    X, scan_err = latent.scan(manifold, search, prior, bounds, opts.scan)
-    # L-BFGS-B's small linear algebra is far slower on a BLAS thread pool than on one thread
+    # BLAS on one thread: L-BFGS-B's small linear algebra and the scan's products (a few
+    # hundred points at a time) are far slower on a thread pool, the more so on a busy machine
     with threadpool_limits(1, user_api="blas"):
+        best = int(np.argmin(search.batch(np.eye(manifold.n))[0] + var_train))
+        X, scan_err = latent.scan(manifold, search, prior, bounds, opts.scan)
         runs = [
             latent.descend(manifold, search, prior, x0, bounds, opts.max_iter)
             for x0 in latent.start_points(manifold, best, X, scan_err, int(opts.starts))

@@ -15,6 +15,7 @@ Exposure-free, both fit the blend's scale in closed form at every evaluation.
 import numpy as np
 from scipy.linalg import blas
 
+from .._util.float32 import weights32
 from ..imaging.metrics import REL_EPS
 from .folder import BASE
 
@@ -146,16 +147,20 @@ class LogLuminanceMSE:
         return float(self.m @ (d * d)), self.A[1:] @ g, self.mean_r / k
 
     def batch(self, W, chunk=256):
-        """Errors and exposures of many weight vectors W (M, N) at once (in float32)."""
+        """Errors and exposures of many weight vectors W (M, N) at once (in float32, the weights
+        below float32's normal range set to 0: :func:`~mitsuba_manifold._util.float32.weights32`).
+        """
         errs, norms = [], []
-        for s in range(0, len(W), chunk):
-            lum = self.A32[0] + W[s : s + chunk].astype(np.float32) @ self.A32[1:]
+        for s in range(0, len(W), chunk):  # in place: one (chunk, P) array a chunk
+            lum = np.matmul(weights32(W[s : s + chunk]), self.A32[1:])
+            lum += self.A32[0]
             k = self._norm(lum)
-            d = (
-                np.log(np.maximum(lum, 0.0) / k[:, None].astype(np.float32) + np.float32(self.eps))
-                - self.lr32
-            )
-            errs.append((d * d) @ self.m)
+            d = np.maximum(lum, 0.0, out=lum)
+            d /= k[:, None].astype(np.float32)
+            d += np.float32(self.eps)
+            d = np.log(d, out=d)
+            d -= self.lr32
+            errs.append(np.square(d, out=d) @ self.m)
             norms.append(k)
         return np.concatenate(errs), self.mean_r / np.concatenate(norms)
 

@@ -28,13 +28,14 @@ Both give their analytic Jacobian ``dw/dx`` (:meth:`Interpolant.jacobian`).
 from __future__ import annotations
 
 import numbers
+import weakref
 
 import numpy as np
 import scipy.optimize
 import scipy.spatial
 
 from .._util import checks
-from ..errors import InputError, NotPositiveDefiniteError
+from ..errors import InputError, NotPositiveDefiniteError, UnavailableError
 from ..gp.kernel import Kernel, coincident
 from ..gp.posterior import Posterior
 from .plausibility import StepLimit, store_path
@@ -264,18 +265,33 @@ class ShepardWeights(Interpolant):
         from the tables of ``manifold`` (a :class:`~.model.Manifold` over these latent points):
         those in memory when all are loaded, else each material's read when first needed.
         Without it (or with ``beyond="nearest"``) the weights are the convex ones everywhere.
+        The limit holds the manifold by a weak reference: the manifold holds this interpolant, and
+        a strong one back would keep both, and the tables the manifold holds, until the next
+        garbage collection; the limit is asked only while the manifold is in use.
         """
         if self.beyond != "continue" or manifold.dims is None:
             return
+        owner = weakref.ref(manifold)
+
+        def held():
+            m = owner()
+            if m is None:
+                raise UnavailableError(
+                    "the manifold of these interpolation weights no longer exists; "
+                    "take the weights from the manifold (Manifold.weights), not from its interpolant"
+                )
+            return m
 
         def rows(idx):
-            if manifold._tables is not None:  # views of the rows, no copy
-                return [manifold._tables[i] for i in idx]
-            names = [manifold.names[i] for i in idx]
-            return manifold.open_database(names=names).stack(names)
+            m = held()
+            if m._tables is not None:  # views of the rows, no copy
+                return [m._tables[i] for i in idx]
+            names = [m.names[i] for i in idx]
+            return m.open_database(names=names).stack(names)
 
         def store():  # asked at the first step: the database may have been pointed elsewhere
-            return store_path(getattr(manifold, "hashes", None), manifold.dims, manifold.database)
+            m = held()
+            return store_path(getattr(m, "hashes", None), m.dims, m.database)
 
         self.limit = StepLimit(rows, self.n, manifold.dims, store=store)
 

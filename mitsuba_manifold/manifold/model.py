@@ -37,6 +37,7 @@ import numpy as np
 
 from .._util.checks import weight_sum
 from .._util.fifo_cache import Recent
+from .._util.float32 import weights32
 from ..data import gram as gram_mod
 from ..data.database import FEATURES, Database, albedo_weights
 from ..errors import FormatError, InputError, did_you_mean
@@ -734,23 +735,27 @@ class Manifold:
         """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
         :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
 
-        Uses the tables in memory when they are (and ``database`` is None); otherwise reads
-        only the kept ones from ``database`` (default the manifold's).
+        Uses the tables in memory when they are (and ``database`` is None): one matrix-vector
+        product over the contiguous ``(N, d)`` stack when more than half the materials are kept,
+        else a sum over the kept rows; otherwise reads only the kept ones from ``database``
+        (default the manifold's). The weights are float32 with subnormal values set to 0
+        (:func:`~mitsuba_manifold._util.float32.weights32`).
         """
         keep, w_kept, dropped = self.prune(w, prune, rule)
+        w32 = weights32(w_kept)
         loaded = self._store.loaded
         if loaded is not None and database is None and self.dims is not None:
             shape = (3,) + tuple(self.dims)
             if 2 * len(keep) > self.n:  # one (multithreaded) matrix-vector product over all tables
                 full = np.zeros(self.n, dtype=np.float32)
-                full[keep] = w_kept
+                full[keep] = w32
                 return Combination((full @ loaded).reshape(shape), keep, dropped)
-            flat = pruning.weighted_sum((loaded[i] for i in keep), w_kept, loaded.shape[1])
+            flat = pruning.weighted_sum((loaded[i] for i in keep), w32, loaded.shape[1])
             return Combination(flat.reshape(shape), keep, dropped)
         db = self._store.open(database or self.database, [self.names[i] for i in keep])
         flat = pruning.weighted_sum(
             (db.reflectance(self.names[i]).reshape(-1) for i in keep),
-            w_kept,
+            w32,
             3 * int(np.prod(db.dims)),
         )
         return Combination(flat.reshape((3,) + db.dims), keep, dropped)

@@ -47,6 +47,7 @@ import weakref
 
 import numpy as np
 
+from .._util.float32 import weights32
 from ..data.distance import Quadrature, gram_distances
 from ..errors import InputError
 from . import latent_graph
@@ -133,7 +134,8 @@ class PathMetric:
         return cache[key]
 
     def weights(self, X):
-        return self.manifold.weights(np.atleast_2d(X)).w.astype(np.float32)
+        """The manifold's weights at latent points ``X`` as float32 operands (:func:`weights32`)."""
+        return weights32(self.manifold.weights(np.atleast_2d(X)).w)
 
     def features(self, X):
         """Features ``(M, size)`` float32 of the tables at latent points ``X`` (M, q) (sub-grids only)."""

@@ -32,6 +32,7 @@ import scipy.optimize
 
 from .._util.atomic import atomic_write
 from .._util.cache import key_hash
+from .._util.float32 import weights32
 from ..data import merl
 from ..data.database import database_cache
 
@@ -190,7 +191,7 @@ def plausible_weights(
             options={"maxiter": MAX_ITER, "ftol": 1e-12},
         )
         w = res.x if np.all(np.isfinite(res.x)) else w
-        full = w.astype(np.float32) @ full_rows
+        full = weights32(w) @ full_rows
         neg = np.flatnonzero(full < 0)
         if len(neg) == 0:
             break
@@ -208,8 +209,8 @@ def _step_back(w, w0, full_rows, A):
     ``s`` in [0, 1] for which no bin of the combination is negative (in float32, as rendered)
     and no directional albedo exceeds 1; returns the weights, the combination and ``s``.
     """
-    base = w0.astype(np.float32) @ full_rows
-    full = w.astype(np.float32) @ full_rows
+    base = weights32(w0) @ full_rows
+    full = weights32(w) @ full_rows
     s = 1.0
     neg = full < 0
     if neg.any():
@@ -222,7 +223,7 @@ def _step_back(w, w0, full_rows, A):
     w_end = w
     for _ in range(40):  # rounding of the float32 products: step back until no value is below 0
         w = w0 + s * (w_end - w0)
-        full = w.astype(np.float32) @ full_rows
+        full = weights32(w) @ full_rows
         if full.min() >= 0 or s == 0.0:
             break
         s = 0.0 if s < 1e-3 else s * 0.99

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.optimize
 
+from .._util.float32 import weights32
 from ..data import merl
 from ..errors import InputError
 from .plausibility import DirectionalAlbedo, plausible_weights
@@ -233,7 +234,7 @@ def project(
 def _blend(w, tables, rows, chunk=1 << 20):
     """``w @ tables[rows]`` in float32, by chunks of bins (no copy of the tables)."""
     full = np.zeros(len(tables), dtype=np.float32)
-    full[rows] = w
+    full[rows] = weights32(w)
     w = full
     out = np.empty(tables.shape[1], dtype=np.float32)
     for s in range(0, tables.shape[1], chunk):

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._util.float32 import weights32
 from ..data import gram
 from . import projection
 
@@ -325,7 +326,7 @@ def path_smoothness(interpolant, pairs, steps=40, images=None, base=None, exposu
         W = interpolant.weights(X[i] + t * (X[j] - X[i]))
         ws.append(np.abs(np.diff(W, axis=0)).sum(axis=1))
         if images is not None:
-            flat = W.astype(np.float32) @ images.reshape(len(images), -1)
+            flat = weights32(W) @ images.reshape(len(images), -1)
             if base is not None:
                 flat += base.reshape(-1)
             enc = srgb_encode(flat * 2.0**exposure)
@@ -389,7 +390,7 @@ def plausibility(interpolant, albedos, tables, n_albedo=4096, n_tables=200, seed
     A = interpolant.weights(P) @ albedos
     outside = float(np.mean(((A < 0) | (A > 1)).any(axis=1)))
     X = lo + rng.random((n_tables, interpolant.q)) * (hi - lo)
-    W = interpolant.weights(X).astype(np.float32)
+    W = weights32(interpolant.weights(X))
     neg = np.zeros(n_tables)
     d = tables.shape[1]
     for s in range(0, d, chunk):

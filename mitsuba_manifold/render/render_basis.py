@@ -446,8 +446,11 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
             _render_onepass(scene, targets[0], todo, o, paths, save, stop)
         elif todo:
             _render_each(scene, targets, todo, o, paths, save, stop)
+        del scene, loaded, targets, paths, sensors  # the AOVs load the scene again
+        scenes.release_render_memory()
         if o.run.aovs:
             ensure_aovs(out, manifest)
+            scenes.release_render_memory()
     return manifest
 
 

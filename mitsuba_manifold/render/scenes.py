@@ -299,6 +299,18 @@ def use_variant(variant=None, jit=False):
     return mi
 
 
+def release_render_memory():
+    """Give the memory Dr.Jit keeps for reuse after a render back to the system.
+
+    Dr.Jit caches the buffers a kernel frees (the paths and splats of a pass) for later kernels
+    of the same sizes; after a large render they would stay in the process, beside the NumPy
+    arrays of the next steps, until it ends. Called where a large render is done.
+    """
+    import drjit as dr
+
+    dr.flush_malloc_cache()
+
+
 def scene_parameters(scene):
     """Names of the ``$parameters`` a scene XML uses, and its ``<default>`` values."""
     root = scene_xml(scene)  # exists, and is a scene XML (not a table or an image)

@@ -390,3 +390,71 @@ def test_the_tooltip_goes_when_the_pointer_is_released(browser, server, small_ma
             pg.mouse.up()
             assert pg.evaluate(hidden)
         assert not pg.errors
+
+
+@browser_only
+def test_a_drag_from_a_material_in_another_slice_asks_for_one_full_map(browser, q3_basis):
+    """q = 3: a press on a material off the map's slice moves the slice (to its whole point) and
+    the drag from it stays there: the page asks for that slice's map once, in full (no coarse map
+    first); a slider moving the slice asks for coarse maps while it moves."""
+    basis, manifold = q3_basis
+    m = Manifold.load(manifold)
+    proc, url = launch.start([basis], manifold, ["--no-tables"])
+    try:
+        with _page(browser, url) as pg:
+            i = int(np.argmax(np.abs(m.latent[:, 2] - m.latent[:, 2].mean())))
+            start = m.latent.mean(axis=0)
+            start[2] = m.latent[:, 2].mean()
+            _set(pg, start)
+            pg.evaluate("""() => { const ch = window.explore.channel, send = ch.send.bind(ch);
+                window.__maps = []; ch.send = (body, kinds) => { const seq = send(body, kinds);
+                if (kinds.includes("map")) window.__maps.push([body.type, body.map_coarse === true || (body.type === "move" && body.map_coarse === undefined && body.coarse)]);
+                return seq; }; }""")
+            a = _map_position(pg, m.latent[i])
+            pg.mouse.move(*a)
+            pg.mouse.down()  # on the material: its whole point, a new slice
+            for k in range(1, 8):
+                pg.mouse.move(a[0] + 4 * k, a[1] + 3 * k)
+                pg.wait_for_timeout(20)
+            pg.mouse.up()
+            pg.wait_for_function(
+                "(z) => window.explore.state.map.slice[1][0] === z && window.explore.channel.pending() === 0",
+                arg=float(m.latent[i, 2]),
+                timeout=30000,
+            )
+            assert pg.evaluate("window.__maps") == [["move", False]]
+            pg.evaluate("() => { window.__maps = []; }")
+            pg.eval_on_selector(
+                "#sliders input",
+                """(s) => { for (const f of [0.2, 0.4, 0.6]) { s.value = +s.min + f * (s.max - s.min);
+                    s.dispatchEvent(new Event('input')); } }""",
+            )
+            pg.wait_for_function("window.__maps.length >= 1", timeout=30000)
+            assert pg.evaluate("window.__maps")[0] == ["move", True]
+    finally:
+        code, out = launch.stop(proc)
+        assert code == 0, out[-3000:]
+
+
+@browser_only
+def test_the_page_opens_on_the_coarse_map_then_the_full_one(browser, server):
+    """The first map the page asks for is the coarse one (shown in a fraction of the full one's
+    time); once it is shown the page asks for the full one, and that is the map left shown."""
+    ctx = browser.new_context(viewport={"width": 1500, "height": 1000})
+    try:
+        pg = ctx.new_page()
+        pg.add_init_script("""window.__maps = []; const send = WebSocket.prototype.send;
+            WebSocket.prototype.send = function (text) { const m = JSON.parse(text);
+                if (m.type === "map" || (m.want || []).includes("map"))
+                    window.__maps.push(m.type === "map" ? false : m.map_coarse === true);
+                return send.call(this, text); };""")
+        pg.goto(server)
+        pg.wait_for_function(
+            "window.explore && window.explore.state.mapImage && "
+            "window.explore.state.mapImage.naturalWidth === 192 && window.explore.channel.pending() === 0",
+            timeout=60000,
+        )
+        maps = pg.evaluate("window.__maps")
+        assert maps[0] is True and False in maps, maps
+    finally:
+        ctx.close()

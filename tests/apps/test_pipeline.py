@@ -115,6 +115,11 @@ def test_main_job_writes_its_outputs_and_measures_its_targets(tmp_path):
         assert v["speedup"] == pytest.approx(d["time_s"] / p["blend"]["time_s"])
         assert v["meets_error_target"] == (p["blend"]["rel_mse"] < d["rel_mse"])
     assert set(saved["stages"]) >= {"tabulate_s", "fit_s", "basis_s", "references_s", "total_s"}
+    peak = saved["peak_rss_after"]  # the process's peak memory, per stage, non-decreasing
+    assert list(peak)[:4] == ["tabulate", "fit", "plots", "basis"] and list(peak)[-1] == "end"
+    assert peak["end"] == saved["peak_rss_bytes"] == max(peak.values()) > 0
+    assert list(peak.values()) == sorted(peak.values())
+    assert any(line.startswith("peak memory: ") for line in lines)
     assert any("main job done" in line for line in lines) and os.path.isdir(
         report["scenes"]["table"]["basis_folder"]
     )

@@ -329,3 +329,22 @@ def test_cli_bad_input_writes_nothing(basis, manifold, tmp_path, capsys, small_m
         cli.main(["--basis", lost, "--target", good, "--out", out])
     assert e.value.code == 2 and "no longer exists" in capsys.readouterr().err
     assert not os.path.exists(out)
+
+
+@pytest.mark.parametrize("exposure_free", [False, True])
+def test_log_loss_batch_scores_as_one_vector_at_a_time(exposure_free):
+    """The float32 batch (the scan) gives each weight vector's error and exposure of the float64
+    one-vector objective (the descents), weights below float32's normal range included.
+    """
+    rng = np.random.default_rng(3)
+    n, p = 12, 700
+    rows = rng.uniform(0.0, 2.0, size=(n + 1, p)) ** 3
+    target = rng.uniform(0.0, 1.5, size=(p, 3))
+    weight = rng.uniform(0.0, 1.0, size=p)
+    obj = image_error.LogLuminanceMSE(rows, target, weight, exposure_free)
+    W = rng.dirichlet(np.ones(n), size=300)
+    W[:, 0] = np.where(rng.random(300) < 0.5, 1e-40, W[:, 0])
+    errs, scales = obj.batch(W, chunk=64)
+    for w, e, s in zip(W, errs, scales):
+        e1, _, s1 = obj(w)
+        assert e == pytest.approx(e1, rel=1e-4, abs=1e-7) and s == pytest.approx(s1, rel=1e-5)

@@ -1,13 +1,16 @@
 """The Manifold: weights, exact reproduction, far field, save/load and mismatches."""
 
+import gc
 import os
 import shutil
+import weakref
 
 import numpy as np
 import pytest
 
 from mitsuba_manifold.data import database, merl
 from mitsuba_manifold.data.database import Database
+from mitsuba_manifold.errors import UnavailableError
 from mitsuba_manifold.manifold.model import InputError, Manifold
 
 
@@ -83,6 +86,30 @@ def test_pruning_reports_dropped_weight(fitted):
     assert d0 == 0 and len(keep0) == fitted.n
     pruned, _, _ = fitted.combine(w, prune=0.05)
     assert np.abs(pruned - full).max() <= 1.1 * dropped * np.abs(fitted.tables()).max()
+
+
+def test_combine_is_the_weighted_sum_of_the_tables_to_float32_rounding(
+    small_manifold_paper, small_db
+):
+    """Every way combine sums (one product over all tables in memory, a sum over the few kept
+    rows in memory, the kept tables read from the database) gives ``sum_i w_i table_i`` to
+    float32 rounding; weights below float32's normal range count as 0.
+    """
+    memory, disk = Manifold.load(small_manifold_paper), Manifold.load(small_manifold_paper)
+    tables = memory.tables().astype(np.float64)
+    assert disk._tables is None
+    _, w = memory.weights(memory.latent[0] + 0.05)
+    w[1] += 1e-40  # below float32's normal range
+    w[0] -= 1e-40
+    scale = np.abs(tables).max()
+    for prune in (0.0, 0.2):
+        pruned = memory.prune(w, prune)
+        ref = pruned.w_kept @ tables[pruned.keep]
+        for c in (memory.combine(w, prune=prune), disk.combine(w, prune=prune)):
+            assert c.table.dtype == np.float32 and np.array_equal(c.keep, pruned.keep)
+            assert np.abs(c.table.reshape(-1) - ref).max() <= 1e-6 * scale
+    assert 2 * len(memory.prune(w, 0.2).keep) <= memory.n < 2 * len(memory.prune(w, 0.0).keep)
+    assert disk._tables is None  # the kept tables were read, not all loaded
 
 
 def test_save_load_round_trip_without_pickle(fitted, tmp_path):
@@ -311,3 +338,23 @@ def test_the_constructor_takes_the_learned_state_as_keywords(fitted):
     for call in (lambda: Manifold(*args, fitted.gram), lambda: Manifold(*args, tables=None)):
         with pytest.raises(TypeError):
             call()
+
+
+def test_a_manifold_and_its_tables_go_with_its_last_reference(small_manifold):
+    # The continuation beyond the data reads the manifold's tables; a manifold must still be freed
+    # (with the tables it holds in memory) as soon as it is unused, not at a later garbage collection.
+    m = Manifold.load(small_manifold)
+    assert m.interpolant.limit is not None  # the default preset continues beyond the data
+    loaded = weakref.ref(m.tables())
+    far = m.latent.mean(0) + 10 * (m.latent.max(0) - m.latent.min(0))
+    m.weights(far)  # the continuation's limit, reading the tables
+    gc.disable()
+    try:
+        del m
+        assert loaded() is None
+    finally:
+        gc.enable()
+    # an interpolant kept without its manifold says so when its limit needs the tables
+    interpolant = Manifold.load(small_manifold).interpolant
+    with pytest.raises(UnavailableError, match="no longer exists"):
+        interpolant.b_and_w(far[None])

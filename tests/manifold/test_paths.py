@@ -205,3 +205,34 @@ def test_the_faithful_objective_gradient_is_its_derivative(m):
             paths.faithful_objective(metric, up)[0] - paths.faithful_objective(metric, down)[0]
         ) / (2 * h)
         assert g[k, c] == pytest.approx(fd, rel=0.05, abs=1e-6 * abs(e))
+
+
+def test_path_weights_hold_no_subnormal_float32(m):
+    """The metric's float32 weights set weights below float32's normal range to 0 (a product
+    with a subnormal operand is slow) and equal the manifold's weights everywhere else.
+    """
+    from mitsuba_manifold._util.float32 import TINY
+
+    narrow = Manifold(  # a narrow taper: far materials' weights fall below float32's range
+        m.names,
+        m.latent,
+        m.database,
+        m.hashes,
+        m.length_scale,
+        m.noise,
+        m.features,
+        m.albedos,
+        gram=m.gram,
+        record=m.record,
+        interpolant={**m.interpolant.params(), "taper": 0.02, "spread": 0.0},
+        table_gram=m.table_gram,
+    )
+    rng = np.random.default_rng(1)
+    X = m.latent[rng.integers(m.n, size=400)] + 0.05 * rng.normal(size=(400, m.q))
+    w = narrow.weights(X).w
+    tiny = (w != 0) & (np.abs(w) < TINY)
+    assert tiny.any()  # the case the test is about occurs
+    W = paths.PathMetric(narrow, rows=paths.PathMetric.of(m).rows).weights(X)
+    assert W.dtype == np.float32 and not np.any((W != 0) & (np.abs(W) < TINY))
+    assert np.all(W[tiny] == 0)
+    assert np.array_equal(W[~tiny], w[~tiny].astype(np.float32))

@@ -18,6 +18,8 @@ import numpy as np
 DATA_VARIANCE = 0.5
 MARGIN = 0.25
 CMAP = "viridis"
+#: Points of the grid evaluated at once between two calls of :func:`render`'s ``pause``.
+CHUNK = 1152
 
 
 @dataclass
@@ -79,17 +81,28 @@ def colour_range(manifold):
     return 0.0, float(min(1.0, max(1.1 * np.asarray(manifold.albedos).mean(axis=-1).max(), 0.05)))
 
 
-def render(manifold, center, dims=(0, 1), resolution=192, bounds=None):
+def render(manifold, center, dims=(0, 1), resolution=192, bounds=None, pause=None):
     """A :class:`LatentMap` of the slice through ``center`` (q,) spanning ``dims``, over
     ``bounds`` ``(x0_min, x0_max, x1_min, x1_max)`` (default: :func:`extent`).
+
+    The grid's albedo and variance are evaluated :data:`CHUNK` points at a time (each point on
+    its own: the map is the same whatever the chunks), and ``pause()``, when given, is called
+    before each chunk: it may wait (the explorer lets a drag's frames go first) or raise to
+    abandon a map nobody waits for any more.
     """
     from matplotlib import colormaps
 
     dims = tuple(int(d) for d in dims)
     ext = extent(manifold, dims) if bounds is None else tuple(float(v) for v in bounds)
     pts = _grid(center, dims, ext, resolution)
-    alb = _albedo(manifold, pts).reshape(resolution, resolution, 3)
-    var = manifold.variance(pts).reshape(resolution, resolution) / (1.0 + manifold.noise)
+    alb, var = np.empty((len(pts), 3)), np.empty(len(pts))
+    for k in range(0, len(pts), CHUNK):
+        if pause is not None:
+            pause()
+        alb[k : k + CHUNK] = _albedo(manifold, pts[k : k + CHUNK])
+        var[k : k + CHUNK] = manifold.variance(pts[k : k + CHUNK])
+    alb = alb.reshape(resolution, resolution, 3)
+    var = var.reshape(resolution, resolution) / (1.0 + manifold.noise)
     mean = alb.mean(axis=-1)
     lo, hi = colour_range(manifold)
     rgba = colormaps[CMAP](np.clip((mean - lo) / (hi - lo), 0, 1)).astype(np.float64)

@@ -27,6 +27,7 @@ import threading
 import numpy as np
 
 from ..._util.fifo_cache import Recent
+from ..._util.float32 import weights32
 from .walks import metric_columns
 
 #: Largest preview table (n_theta_h, n_theta_d, n_phi_d) sent to the browser.
@@ -264,7 +265,7 @@ class TableStack:
     def _combine(self, rows, x, prune):
         _, w = self.manifold.weights(x)
         keep, w_kept, _ = self.manifold.prune(w, prune)
-        return w_kept.astype(np.float32) @ rows[keep]
+        return weights32(w_kept) @ rows[keep]
 
     def preview(self, x, prune, coarse=False):
         """Interpolated table at reduced resolution: float16 (3, n_h, n_d, n_p), and the

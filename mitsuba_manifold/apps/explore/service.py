@@ -37,6 +37,9 @@ from .walks import MAX_STEPS, STEPS, Walks
 MAPS_KEPT = 8
 #: Map resolutions (pixels per side): at rest, and while the slice moves.
 FULL_MAP, COARSE_MAP = 192, 96
+#: The longest a map's next rows wait for frames being made (seconds): a map still comes
+#: during a long drag.
+FRAME_WAIT = 0.25
 TOOLS = os.path.join(
     os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
     "tools",
@@ -128,14 +131,17 @@ class Explorer:
                 after=self.tables and self.tables.wait,
             )
         self.references = References()
+        self._framing = _Count()  # frames being made: the maps' work waits for them
         self._maps, self._maps_lock = {}, threading.Lock()
+        self._making = {}  # key -> Event of the maps being made (a second request waits for it)
         threading.Thread(target=self._first_map, name="explore-map", daemon=True).start()
 
     def _first_map(
         self,
-    ):  # meanwhile: the map the page opens on, then the first basis's float32 cross terms
+    ):  # meanwhile: the maps the page opens on (coarse, then full), then the float32 cross terms
         try:
-            self.map_png("0,1", self.start_point())
+            for coarse in (True, False):
+                self.map_png("0,1", self.start_point(), coarse=coarse)
         except Exception:  # the page asks for it anyway (and gets the error there)
             pass
         _warm(self.bases)
@@ -183,13 +189,14 @@ class Explorer:
         """
         if fmt not in encode.FORMATS:
             raise InputError(f"format must be one of {encode.FORMATS}, got {show(fmt)}")
-        t0 = time.perf_counter()
-        img, info = self.blend(name, x, "raw" if coarse else "denoised")
-        t1 = time.perf_counter()
-        rgb8 = encode.tonemap(img, exposure)
-        t2 = time.perf_counter()
-        data = encode.encode(rgb8, fmt)
-        t3 = time.perf_counter()
+        with self._framing:
+            t0 = time.perf_counter()
+            img, info = self.blend(name, x, "raw" if coarse else "denoised")
+            t1 = time.perf_counter()
+            rgb8 = encode.tonemap(img, exposure)
+            t2 = time.perf_counter()
+            data = encode.encode(rgb8, fmt)
+            t3 = time.perf_counter()
         h, w, _ = img.shape
         return data, {
             "width": w,
@@ -287,13 +294,17 @@ class Explorer:
     def _dims(self, dims):
         return map_dims(self.manifold, dims)
 
-    def map_png(self, dims, center, bounds=None, coarse=False):
+    def map_png(self, dims, center, bounds=None, coarse=False, stale=None):
         """PNG bytes and description of the map of the slice through ``center``.
 
         The map depends on ``center`` only through the coordinates not in ``dims`` (the
         slice): the last few maps are kept by slice, so moving within the slice (every move
         for ``q = 2``) costs nothing. ``coarse``: a quarter of the pixels (:data:`COARSE_MAP`,
-        while a slider or the path scrubber moves the slice).
+        while a slider or the path scrubber moves the slice). A map takes seconds of CPU where
+        a frame takes milliseconds: it is made once (a request for a map being made waits for
+        it), a few rows at a time, each waiting while a frame is being made (a drag's frames go
+        first), and ``stale()``, when given, is asked before each: it raises to abandon a map no
+        longer wanted (the session's :class:`~.session.Superseded`, a newer map asked for).
         """
         dims = self._dims(dims)
         bounds = self._bounds(bounds) if bounds is not None and bounds != "" else None
@@ -308,14 +319,43 @@ class Explorer:
             if key in self._maps:
                 self._maps[key] = self._maps.pop(key)  # most recently used last
                 return self._maps[key]
-        m = latentmap.render(
-            self.manifold, c, dims, resolution=COARSE_MAP if coarse else FULL_MAP, bounds=bounds
-        )
-        out = (encode.png_bytes(m.image), dict(m.info(), slice=[list(dims), list(key[1])]))
-        with self._maps_lock:
-            self._maps[key] = out
-            while len(self._maps) > MAPS_KEPT:
-                self._maps.pop(next(iter(self._maps)))
+            making = self._making.get(key)
+            if making is None:
+                made_here = making = self._making[key] = threading.Event()
+            else:
+                made_here = None
+        if made_here is None:  # the same map is being made (the first map, another tab): waits
+            while not making.wait(FRAME_WAIT):
+                if stale is not None:
+                    stale()
+            with self._maps_lock:
+                if key in self._maps:
+                    return self._maps[key]
+            return self.map_png(dims, center, bounds, coarse, stale)  # abandoned there: made here
+
+        def pause():
+            self._framing.wait_idle(FRAME_WAIT)
+            if stale is not None:
+                stale()
+
+        try:
+            m = latentmap.render(
+                self.manifold,
+                c,
+                dims,
+                resolution=COARSE_MAP if coarse else FULL_MAP,
+                bounds=bounds,
+                pause=pause,
+            )
+            out = (encode.png_bytes(m.image), dict(m.info(), slice=[list(dims), list(key[1])]))
+            with self._maps_lock:
+                self._maps[key] = out
+                while len(self._maps) > MAPS_KEPT:
+                    self._maps.pop(next(iter(self._maps)))
+        finally:
+            with self._maps_lock:
+                self._making.pop(key, None)
+            made_here.set()
         return out
 
     def snippet_folder(self):
@@ -519,6 +559,28 @@ class Explorer:
         if self.thumbs:
             self.thumbs.close()
         return self.references.shutdown(wait)
+
+
+class _Count:
+    """How many threads are inside ``with`` it; :meth:`wait_idle` waits for none."""
+
+    def __init__(self):
+        self._n, self._idle = 0, threading.Condition()
+
+    def __enter__(self):
+        with self._idle:
+            self._n += 1
+
+    def __exit__(self, *exc):
+        with self._idle:
+            self._n -= 1
+            if not self._n:
+                self._idle.notify_all()
+
+    def wait_idle(self, timeout):
+        """Wait until no thread is inside, at most ``timeout`` s; returns whether none is."""
+        with self._idle:
+            return self._idle.wait_for(lambda: not self._n, timeout)
 
 
 def _tab(tab):

@@ -12,6 +12,8 @@ answer that arrives after a newer one. ``"coarse": true`` (a drag running) asks 
 answers: a table of every other texel, a map of a quarter of the pixels, a material without the
 distance to the closest measured one, a frame whose L2+ part is summed, not denoised (also while
 ``"held": true``, the pointer still down); the page asks again in full when the drag rests. A
+move's ``"map_coarse"``, when given, says whether its map is the coarse one instead (a drag on the
+map stays in one slice: its map is asked for in full at once). A
 full (denoised) frame has its own worker (:data:`FINAL`): denoising takes several frames'
 time, and the first frames of the next drag do not wait for it (a coarse frame drops a full
 one still waiting; one that comes after a newer frame was drawn, the page drops by its ``seq``).
@@ -263,6 +265,18 @@ class Session:
         if kind == "snippet":
             return dict(ex.snippets(x, req.get("folder")), **tag), b""
         data, meta = await run_in_threadpool(
-            ex.map_png, req.get("dims", [0, 1]), x, req.get("extent"), req.get("coarse") is True
+            ex.map_png,
+            req.get("dims", [0, 1]),
+            x,
+            req.get("extent"),
+            req.get("map_coarse", req.get("coarse")) is True,
+            self.stale_map,
         )
         return dict(meta, **tag), data
+
+    def stale_map(self):
+        """Raises :class:`Superseded` when a newer map request waits (the map being made is
+        abandoned: its slice or zoom is not the page's any more). Called from the map's thread.
+        """
+        if "map" in self.pending:
+            raise Superseded()

@@ -370,6 +370,9 @@ def _render(
                 multi.release()
                 if progress is not None:
                     progress(done, total)  # the L2+ splats took a while: let the caller stop
+            # the buffers of a pass differ in size from the next one's (as many as its paths made
+            # splats): Dr.Jit's cache of freed buffers would grow with every pass, not be reused
+            dr.flush_malloc_cache()
     film.prepare([])
     film.put_block(base_block)
     film.develop()

@@ -123,8 +123,12 @@ function sendMove(resting = false) {
     if (last && sameX(last[1], state.x) && !(last[2] && !d)) continue;   // a coarse answer is asked again at rest
     if (!d || !last || now - last[0] >= (LIVE[kind] || 0)) { want.push(kind); asked[kind] = [now, state.x, d && kind !== "snippet"]; }
   }
-  const key = sliceKey();   // a new slice while dragging: a coarse map, the full one at rest
-  if (key !== state.mapKey) { state.mapKey = key; state.mapCoarse = dragging; want.push("map"); }
+  // a new slice while a slider or the path scrubber moves it: a coarse map, the full one at rest;
+  // a press on the map moves the slice once (to a material's whole point) and its drag stays in
+  // that slice: the full map at once (a coarse one first would cost the drag's frames its time);
+  // the page's first map: the coarse one first, the full one once it is shown (showMap)
+  const key = sliceKey();
+  if (key !== state.mapKey) { state.mapKey = key; state.mapCoarse = (dragging && !state.dragging) || !state.map; want.push("map"); }
   else if (state.mapCoarse && !dragging) { state.mapCoarse = false; want.push("map"); }
   if (preview) preview.setFast(state.dragging || dragging);   // a pointer held still keeps the drag's resolution
   owe(dragging);
@@ -134,7 +138,7 @@ function sendMove(resting = false) {
   // coarse: while dragging the sphere's table has every other texel (an eighth of the bytes), a new
   // slice's map a quarter of the pixels, the material no distance to the closest measured one
   channel.send(Object.assign({ type: "move", want, dims: state.dims, extent: state.zoom, slice: false, coarse: dragging, held,
-                               folder: state.snippetFolder },
+                               map_coarse: !!state.mapCoarse, folder: state.snippetFolder },
                              frameRequest()), want);
 }
 function owe(dragging) {   // kinds not asked for the point shown yet (counted by channel.pending())
@@ -205,6 +209,8 @@ function showMap(meta, payload) {
     state.mapImage = img; state.mapImageExtent = meta.extent;
     if (!state.zoom) state.fullExtent = meta.extent;
     drawMap();
+    // a coarse map shown at rest (the page's first): the full one now
+    if (state.mapCoarse && !live() && channel.isCurrent("map", meta.seq)) { state.mapCoarse = false; requestMap(); }
   };
   img.src = url;
   $("ramp").style.background = `linear-gradient(to right, ${meta.colormap.join(",")})`;
@@ -828,7 +834,7 @@ function sceneInfo() {
 async function pollTables() {
   const info = await (await api("/api/info")).json();
   state.info.tables = info.tables;
-  if (info.tables === "loading") { setTimeout(pollTables, 700); return; }
+  if (info.tables === "loading") { setTimeout(pollTables, 250); return; }
   requestAll();
 }
 
