@@ -60,7 +60,7 @@ DEFAULT_KIND = "geodesic"
 #: Sub-grid of the searches (see the module doc; its Fig. 9 measures on the built-in database:
 #: ``benchmarks/results/fig9_default.json``).
 SEARCH_STRIDE = (3, 10, 15)
-#: Table values below which the cube root's slope is capped (in :meth:`PathMetric.energy`).
+#: Table values below which the cube root's slope is capped (in :meth:`PathMetric.pullback`).
 FLOOR = 1e-6
 #: Samples of a segment when re-parameterising it by perceptual length.
 DENSE = 129
@@ -68,7 +68,7 @@ DENSE = 129
 FAITHFUL_POINTS, FAITHFUL_ITERATIONS = 21, 200
 #: The :func:`fig9_gap` up to which a faithful path is the geodesic itself.
 FAITHFUL_TOLERANCE = 0.1
-#: Weight and power of the evenness term of :func:`faithful_objective`.
+#: Weight and power of the evenness term of :func:`faithful_objective`, and the weight of its length term.
 EVENNESS, EVEN_POWER = 2e-3, 8
 LENGTH = 0.01
 #: Samples of a geodesic's candidates (compared by length, then refined where coarse by :func:`even`).
