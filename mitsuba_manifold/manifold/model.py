@@ -631,6 +631,8 @@ class Manifold:
         grown._tables = tables
         file = getattr(self, "file", None)
         self.__dict__.update(grown.__dict__)
+        if isinstance(self.interpolant, interpolants.ShepardWeights):  # its limit: this manifold
+            self.interpolant.attach(self)
         if file is not None:
             self.file = file
         return info

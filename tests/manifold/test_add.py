@@ -61,6 +61,9 @@ def test_add_keeps_the_others_reproduces_the_new_one_and_saves_its_provenance(me
     )  # exact at its point
     for i in range(base.n):  # and the others at theirs
         assert np.array_equal(m.weights(before[i]).w, np.eye(m.n)[i])
+    # beyond the hull the weights still continue (the limit belongs to the grown manifold)
+    far = m.latent.mean(0) + 3 * (m.latent.max(0) - m.latent.min(0))
+    assert np.isclose(m.weights(far).w.sum(), 1.0) and m.weights(far).w.shape == (m.n,)
     # the grown Gram matrices are those of all N + 1 tables
     g = gram.gram(tables, m.features, centre=True, raw=True)
     assert np.allclose(m.gram, g.S, rtol=1e-9, atol=1e-9 * np.abs(g.S).max())
