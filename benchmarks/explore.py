@@ -387,6 +387,7 @@ def _with_reference(page, at, latent, drags, moves, pace_ms):
         "moves": sent,
         "frames_drawn": frames,
         "moves_per_s": frames / seconds if seconds else None,
+        "pointer_moves_per_s": sent / seconds if seconds else None,
         "reference_progress_at_cancel": state["progress"],
         "cancel_s": cancel_s,
     }
@@ -470,6 +471,8 @@ def browser(
             "frame_server_ms": _stats([p[0] for p in parts] or [0]),
             "frame_round_trip_ms": _stats([p[1] for p in parts] or [0]),
             "moves_per_s": frames / seconds if seconds else None,
+            # the pointer moves the driver sent a second: the most frames a second can show
+            "pointer_moves_per_s": sent / seconds if seconds else None,
             "sphere_draws": draws,
             "load_average_1min_after": os.getloadavg()[0],
         }

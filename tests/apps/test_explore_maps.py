@@ -63,6 +63,29 @@ def test_a_map_waits_while_a_frame_is_made(explorer, small_manifold_paper, monke
     assert got and sum(done) == service.COARSE_MAP**2
 
 
+def test_a_map_waits_while_a_drags_frames_keep_coming(explorer, small_manifold_paper, monkeypatch):
+    """Between two frames of a drag (closer than DRAG_QUIET) no row of a map is computed; once
+    the frames pause, the map is made."""
+    monkeypatch.setattr(service, "FRAME_WAIT", 60.0)
+    monkeypatch.setattr(service, "DRAG_QUIET", 0.3)
+    zoom = "0.41,0.42,0.41,0.42"
+    done = _counting(monkeypatch, zoom)
+    m = Manifold.load(small_manifold_paper)
+    got = []
+    t = threading.Thread(
+        target=lambda: got.append(explorer.map_png("0,1", m.latent[2], zoom, coarse=True))
+    )
+    with explorer._framing:
+        t.start()
+    for _ in range(20):  # a drag: a frame every 50 ms for a second
+        time.sleep(0.05)
+        with explorer._framing:
+            pass
+    assert not done and not got
+    t.join(60)
+    assert got and sum(done) == service.COARSE_MAP**2
+
+
 def test_a_map_asked_twice_at_once_is_made_once(explorer, small_manifold_paper, monkeypatch):
     made, render = [], latentmap.render
 

@@ -37,9 +37,13 @@ from .walks import MAX_STEPS, STEPS, Walks
 MAPS_KEPT = 8
 #: Map resolutions (pixels per side): at rest, and while the slice moves.
 FULL_MAP, COARSE_MAP = 192, 96
-#: The longest a map's next rows wait for frames being made (seconds): a map still comes
-#: during a long drag.
-FRAME_WAIT = 0.25
+#: The longest a map's next rows wait for a drag's frames to pause (seconds): a map still
+#: comes during a long drag, a few rows every FRAME_WAIT.
+FRAME_WAIT = 2.0
+#: Frames this far apart (seconds) are a drag at rest: a map's rows run between them.
+DRAG_QUIET = 0.6
+#: How often a request waiting for a map made elsewhere asks whether it is still wanted (s).
+MAP_POLL = 0.25
 TOOLS = os.path.join(
     os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
     "tools",
@@ -302,9 +306,10 @@ class Explorer:
         for ``q = 2``) costs nothing. ``coarse``: a quarter of the pixels (:data:`COARSE_MAP`,
         while a slider or the path scrubber moves the slice). A map takes seconds of CPU where
         a frame takes milliseconds: it is made once (a request for a map being made waits for
-        it), a few rows at a time, each waiting while a frame is being made (a drag's frames go
-        first), and ``stale()``, when given, is asked before each: it raises to abandon a map no
-        longer wanted (the session's :class:`~.session.Superseded`, a newer map asked for).
+        it), a few rows at a time, each waiting while a drag's frames come (until they pause for
+        :data:`DRAG_QUIET`, at most :data:`FRAME_WAIT`: the frames go first), and ``stale()``,
+        when given, is asked before each: it raises to abandon a map no longer wanted (the
+        session's :class:`~.session.Superseded`, a newer map asked for).
         """
         dims = self._dims(dims)
         bounds = self._bounds(bounds) if bounds is not None and bounds != "" else None
@@ -325,7 +330,7 @@ class Explorer:
             else:
                 made_here = None
         if made_here is None:  # the same map is being made (the first map, another tab): waits
-            while not making.wait(FRAME_WAIT):
+            while not making.wait(MAP_POLL):
                 if stale is not None:
                     stale()
             with self._maps_lock:
@@ -334,7 +339,7 @@ class Explorer:
             return self.map_png(dims, center, bounds, coarse, stale)  # abandoned there: made here
 
         def pause():
-            self._framing.wait_idle(FRAME_WAIT)
+            self._framing.wait_quiet(DRAG_QUIET, FRAME_WAIT)
             if stale is not None:
                 stale()
 
@@ -562,10 +567,13 @@ class Explorer:
 
 
 class _Count:
-    """How many threads are inside ``with`` it; :meth:`wait_idle` waits for none."""
+    """How many threads are inside ``with`` it, and when the last one left; :meth:`wait_quiet`
+    waits for none to be inside for a while.
+    """
 
     def __init__(self):
         self._n, self._idle = 0, threading.Condition()
+        self._left = float("-inf")  # time.monotonic() of the last exit
 
     def __enter__(self):
         with self._idle:
@@ -574,13 +582,24 @@ class _Count:
     def __exit__(self, *exc):
         with self._idle:
             self._n -= 1
+            self._left = time.monotonic()
             if not self._n:
                 self._idle.notify_all()
 
-    def wait_idle(self, timeout):
-        """Wait until no thread is inside, at most ``timeout`` s; returns whether none is."""
+    def wait_quiet(self, quiet, timeout):
+        """Wait until no thread has been inside for ``quiet`` s, at most ``timeout`` s; returns
+        whether that is so.
+        """
+        end = time.monotonic() + timeout
         with self._idle:
-            return self._idle.wait_for(lambda: not self._n, timeout)
+            while True:
+                now = time.monotonic()
+                calm = 0.0 if self._n else quiet - (now - self._left)
+                if not self._n and calm <= 0:
+                    return True
+                if now >= end:
+                    return False
+                self._idle.wait(min(end - now, calm) if not self._n else end - now)
 
 
 def _tab(tab):
