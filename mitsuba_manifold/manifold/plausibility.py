@@ -351,13 +351,20 @@ class StepLimit:
             if i == j:
                 self._ratio[i, j] = 1.0
             else:
-                todo.setdefault(j, []).append(i)
-        for j, rows_j in todo.items():  # each column's bins and divisor once
-            (tj,) = self._tables([j])
-            on = tj > 0
-            inv = 1.0 / tj[on]
-            for i, ti in zip(rows_j, self._tables(rows_j)):
-                self._ratio[i, j] = min(float((ti[on] * inv).min()), 1e30) if len(inv) else 1e30
+                todo.setdefault(j, set()).add(i)
+        cols = sorted(todo)
+        for s in range(0, len(cols), TABLE_BLOCK):  # a block of columns' divisors at a time
+            block = cols[s : s + TABLE_BLOCK]
+            divisors = []
+            for j, tj in zip(block, self._tables(block)):
+                on = tj > 0
+                divisors.append((j, on, 1.0 / tj[on]))
+            wanted = sorted({i for j in block for i in todo[j]})
+            for i, ti in zip(wanted, self._tables(wanted)):  # each row table read once a block
+                for j, on, inv in divisors:
+                    if i in todo[j]:
+                        r = float((ti[on] * inv).min()) if len(inv) else 1e30
+                        self._ratio[i, j] = min(r, 1e30)
         return np.asarray([self._ratio[p] for p in pairs], dtype=np.float64).reshape(rows.shape)
 
     def step(self, w, e, iterations=40):

@@ -192,3 +192,29 @@ def test_the_plausibility_limit_is_kept_for_the_next_process(tmp_path):
     reads.clear()
     StepLimit(rows, 2, dims, store=store).step(w[:1, :2], np.array([[1.0, -1.0]]))
     assert reads
+
+
+def test_domination_ratios_read_each_table_once_per_block_of_columns():
+    """``StepLimit.ratios`` of r rows against c <= TABLE_BLOCK columns reads r + c tables (not
+    r per column), and its values are ``min_b table_i / table_j`` over the bins of ``table_j > 0``.
+    """
+    from mitsuba_manifold.manifold.plausibility import TABLE_BLOCK, StepLimit
+
+    rng = np.random.default_rng(1)
+    n = 10
+    tables = rng.uniform(0.05, 1.0, (n, 3 * 4 * 4 * 8)).astype(np.float32)
+    tables[3, :5] = 0.0  # bins a column skips
+    reads = []
+
+    def rows(idx):
+        reads.extend(idx)
+        return [tables[i] for i in idx]
+
+    r, c = np.array([0, 1, 2, 5, 6, 7]), np.array([3, 4, 8])
+    assert len(c) <= TABLE_BLOCK
+    R, C = np.meshgrid(r, c, indexing="ij")
+    got = StepLimit(rows, n, (4, 4, 8)).ratios(R, C)
+    assert sorted(reads) == sorted(r.tolist() + c.tolist())
+    on = tables > 0
+    want = [[(tables[i][on[j]] / tables[j][on[j]]).min() for j in c] for i in r]
+    np.testing.assert_allclose(got, want, rtol=1e-6)
