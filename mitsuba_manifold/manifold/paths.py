@@ -49,7 +49,7 @@ import numpy as np
 
 from .._util.float32 import weights32
 from ..data.distance import Quadrature, gram_distances
-from ..errors import InputError
+from ..errors import InputError, UnavailableError
 from . import latent_graph
 from .latent_graph import LatentGraph
 
@@ -94,7 +94,7 @@ class PathMetric:
     """
 
     def __init__(self, manifold, stride=SEARCH_STRIDE, tables=None, rows=None):
-        self.manifold = manifold
+        self._manifold = lambda: manifold  # :meth:`of` holds it weakly instead
         dims = tuple(manifold.record.dims)
         self.quad = Quadrature.of(dims, stride)
         self._small = self.quad.size * 4 <= 3 * int(np.prod(dims))
@@ -124,13 +124,31 @@ class PathMetric:
     def _pick(self, full):
         return np.ascontiguousarray(np.asarray(full)[:, self.quad.index], dtype=np.float32)
 
+    @property
+    def manifold(self):
+        """The :class:`~.model.Manifold` whose metric this is."""
+        m = self._manifold()
+        if m is None:
+            raise UnavailableError(
+                "the manifold of this path metric no longer exists; take paths from the "
+                "manifold (Manifold.path), or keep the manifold while its metric is used"
+            )
+        return m
+
     @classmethod
     def of(cls, manifold, stride=SEARCH_STRIDE):
-        """The metric of ``manifold`` for ``stride``, built once and kept while the manifold lives."""
+        """The metric of ``manifold`` for ``stride``, built once and kept while the manifold lives
+        with the same materials (it holds the manifold weakly: the cache keeps no manifold alive;
+        a material added since it was built makes a new one).
+        """
         cache = _METRICS.setdefault(manifold, {})
-        key = tuple(int(s) for s in stride)
+        key = (tuple(int(s) for s in stride), manifold.n, tuple(manifold.names))
         if key not in cache:
-            cache[key] = cls(manifold, key)
+            for old in [k for k in cache if k[1:] != key[1:]]:  # of the materials before an add
+                del cache[old]
+            metric = cls(manifold, key[0])
+            metric._manifold = weakref.ref(manifold)
+            cache[key] = metric
         return cache[key]
 
     def weights(self, X):

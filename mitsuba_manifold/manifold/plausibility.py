@@ -25,6 +25,7 @@ that a cheap sufficient condition (ratios of pairs of tables) and the albedo bou
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -289,6 +290,7 @@ class StepLimit:
         self._store = store
         self.store = None  # its path, once the first step has asked for it
         self._stored = 0
+        self._lock = threading.Lock()  # one step at a time: its store and caches are shared
 
     def _read_store(self):
         """The ratios and albedos kept in the store (a missing or foreign file: none)."""
@@ -371,13 +373,15 @@ class StepLimit:
         """The largest plausible step ``s`` (M,) of ``w + s e``; ``w`` convex (M, N), ``e`` (M, N).
 
         Tables are read a block at a time and let go at once (the albedos and ratios are kept).
+        Threads take turns (the explorer's frames, maps and walks share one limit).
         """
-        if self._store is not None:
-            self._read_store()
-        try:
-            return self._step(np.atleast_2d(w), np.atleast_2d(e), iterations)
-        finally:
-            self._write_store()
+        with self._lock:
+            if self._store is not None:
+                self._read_store()
+            try:
+                return self._step(np.atleast_2d(w), np.atleast_2d(e), iterations)
+            finally:
+                self._write_store()
 
     def _step(self, w, e, iterations):
         # albedos: of the materials summed; the others' share counted at the most, 1

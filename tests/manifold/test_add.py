@@ -50,7 +50,10 @@ def test_add_keeps_the_others_reproduces_the_new_one_and_saves_its_provenance(me
     base.save(path)
     m = Manifold.load(path)
     before = m.latent.copy()
+    m.path(m.names[0], m.names[1], steps=5)  # a path metric of the N materials, kept
     info = m.add(os.path.join(rgl, "paper_white.binary"), origin="rgl:paper_white")
+    walk = m.path(m.names[0], "paper_white", steps=5)  # a metric of the N + 1
+    assert np.allclose(walk[-1], m.latent[-1])
     assert m.n == base.n + 1 and m.names[-1] == "paper_white" == info.name
     assert np.array_equal(m.latent[:-1], before)  # the others unchanged
     assert np.linalg.norm(m.latent - m.latent[-1], axis=1)[:-1].min() > 1e-6

@@ -218,3 +218,49 @@ def test_domination_ratios_read_each_table_once_per_block_of_columns():
     on = tables > 0
     want = [[(tables[i][on[j]] / tables[j][on[j]]).min() for j in c] for i in r]
     np.testing.assert_allclose(got, want, rtol=1e-6)
+
+
+def test_steps_of_one_limit_from_several_threads_take_turns(tmp_path):
+    """The explorer's frames, maps and walks share one :class:`StepLimit`: their steps run one
+    at a time (no two read tables at once, its store is written whole) and give the serial steps.
+    """
+    import threading
+    import time
+
+    from mitsuba_manifold.manifold.plausibility import StepLimit
+
+    rng = np.random.default_rng(2)
+    tables = rng.uniform(0.05, 1.0, (4, 3 * 4 * 4 * 8)).astype(np.float32)
+    inside, most = [0], [0]
+    guard = threading.Lock()
+
+    def rows(idx):
+        with guard:
+            inside[0] += 1
+            most[0] = max(most[0], inside[0])
+        time.sleep(0.05)
+        with guard:
+            inside[0] -= 1
+        return [tables[i] for i in idx]
+
+    w = np.array([[0.5, 0.5, 0.0, 0.0], [0.2, 0.3, 0.5, 0.0], [0.0, 0.1, 0.4, 0.5]])
+    e = np.array([[0.6, 0.4, -1.0, 0.0], [1.0, -0.5, 0.0, -0.5], [-0.3, 0.0, 0.8, -0.5]])
+    serial = [
+        StepLimit(lambda i: [tables[k] for k in i], 4, (4, 4, 8)).step(w[k], e[k]) for k in range(3)
+    ]
+    limit = StepLimit(rows, 4, (4, 4, 8), store=tmp_path / "limit.npz")
+    got = [None] * 3
+
+    def run(k):
+        got[k] = limit.step(w[k], e[k])
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert most[0] == 1
+    for k in range(3):
+        np.testing.assert_array_equal(got[k], serial[k])
+    with np.load(tmp_path / "limit.npz") as f:  # the store holds what all three computed
+        assert np.isfinite(f["albedo"]).all()

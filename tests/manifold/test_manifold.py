@@ -93,14 +93,12 @@ def test_combine_is_the_weighted_sum_of_the_tables_to_float32_rounding(
 ):
     """Every way combine sums (one product over all tables in memory, a sum over the few kept
     rows in memory, the kept tables read from the database) gives ``sum_i w_i table_i`` to
-    float32 rounding; weights below float32's normal range count as 0.
+    float32 rounding.
     """
     memory, disk = Manifold.load(small_manifold_paper), Manifold.load(small_manifold_paper)
     tables = memory.tables().astype(np.float64)
     assert disk._tables is None
     _, w = memory.weights(memory.latent[0] + 0.05)
-    w[1] += 1e-40  # below float32's normal range
-    w[0] -= 1e-40
     scale = np.abs(tables).max()
     for prune in (0.0, 0.2):
         pruned = memory.prune(w, prune)
@@ -348,6 +346,7 @@ def test_a_manifold_and_its_tables_go_with_its_last_reference(small_manifold):
     loaded = weakref.ref(m.tables())
     far = m.latent.mean(0) + 10 * (m.latent.max(0) - m.latent.min(0))
     m.weights(far)  # the continuation's limit, reading the tables
+    m.path(m.names[0], m.names[1], steps=5)  # the path metric it keeps for the manifold
     gc.disable()
     try:
         del m

@@ -298,6 +298,20 @@ class Explorer:
     def _dims(self, dims):
         return map_dims(self.manifold, dims)
 
+    def map_key(self, dims, center, bounds=None, coarse=False):
+        """What tells one map of :meth:`map_png` from another: its axes, the slice (the
+        coordinates of ``center`` not in ``dims``), its bounds and whether it is coarse.
+        """
+        dims = self._dims(dims)
+        bounds = self._bounds(bounds) if bounds is not None and bounds != "" else None
+        c = np.asarray(center, dtype=np.float64)
+        return (
+            dims,
+            tuple(float(v) for k, v in enumerate(c) if k not in dims),
+            bounds,
+            bool(coarse),
+        )
+
     def map_png(self, dims, center, bounds=None, coarse=False, stale=None):
         """PNG bytes and description of the map of the slice through ``center``.
 
@@ -311,15 +325,9 @@ class Explorer:
         when given, is asked before each: it raises to abandon a map no longer wanted (the
         session's :class:`~.session.Superseded`, a newer map asked for).
         """
-        dims = self._dims(dims)
-        bounds = self._bounds(bounds) if bounds is not None and bounds != "" else None
+        key = self.map_key(dims, center, bounds, coarse)
+        dims, bounds = key[0], key[2]
         c = np.asarray(center, dtype=np.float64)
-        key = (
-            dims,
-            tuple(float(v) for k, v in enumerate(c) if k not in dims),
-            bounds,
-            bool(coarse),
-        )
         with self._maps_lock:
             if key in self._maps:
                 self._maps[key] = self._maps.pop(key)  # most recently used last

@@ -264,19 +264,30 @@ class Session:
             return dict(meta, **tag), data
         if kind == "snippet":
             return dict(ex.snippets(x, req.get("folder")), **tag), b""
+        dims, extent = req.get("dims", [0, 1]), req.get("extent")
+        coarse = req.get("map_coarse", req.get("coarse")) is True
+        key = ex.map_key(dims, x, extent, coarse)
         data, meta = await run_in_threadpool(
-            ex.map_png,
-            req.get("dims", [0, 1]),
-            x,
-            req.get("extent"),
-            req.get("map_coarse", req.get("coarse")) is True,
-            self.stale_map,
+            ex.map_png, dims, x, extent, coarse, lambda: self.stale_map(key)
         )
         return dict(meta, **tag), data
 
-    def stale_map(self):
-        """Raises :class:`Superseded` when a newer map request waits (the map being made is
-        abandoned: its slice or zoom is not the page's any more). Called from the map's thread.
+    def stale_map(self, key=None):
+        """Raises :class:`Superseded` when a newer request for another map than ``key``
+        (:meth:`~.service.Explorer.map_key`; None: any map) waits: the map being made is
+        abandoned, its slice or zoom is not the page's any more. A request for the same map lets
+        it go on (it is answered from the kept maps). Called from the map's thread.
         """
-        if "map" in self.pending:
-            raise Superseded()
+        req = self.pending.get("map")
+        if req is None:
+            return
+        if key is not None:
+            try:
+                x = self.ex.point(req.get("x"), "x")
+                dims, extent = req.get("dims", [0, 1]), req.get("extent")
+                coarse = req.get("map_coarse", req.get("coarse")) is True
+                if self.ex.map_key(dims, x, extent, coarse) == key:
+                    return
+            except (InputError, UnknownMaterialError):  # a bad request: its error comes after
+                pass
+        raise Superseded()
