@@ -442,15 +442,18 @@ def fig9_gap(F):
 
 def faithful(metric, xa, xb, steps, iterations=FAITHFUL_ITERATIONS, tolerance=FAITHFUL_TOLERANCE):
     """A path from ``xa`` to ``xb`` whose every point is as far from the ends as its place along
-    the path says, in even steps: the :func:`geodesic` at ``max(steps, FAITHFUL_POINTS)`` points
-    where its :func:`fig9_gap` is at most ``tolerance`` (it is faithful already, and the most
-    even); otherwise its interior points moved to minimise :func:`faithful_objective` (L-BFGS,
-    ends fixed), kept where that lowers the gap. The points are read at ``steps`` equal shares
-    of the point index (the points themselves when ``steps >= FAITHFUL_POINTS``).
+    the path says, in even steps: the :func:`geodesic` at ``n = (steps - 1) k + 1`` points (the
+    smallest ``k`` with ``n >= FAITHFUL_POINTS``) where its :func:`fig9_gap` is at most
+    ``tolerance`` (it is faithful already, and the most even); otherwise its interior points
+    moved to minimise :func:`faithful_objective` (L-BFGS, ends fixed), kept where that lowers the
+    gap. Every ``k``-th point is returned: points of the relaxed path itself, each at its own
+    place ``t``, so their gap is at most the whole path's.
     """
     import scipy.optimize
 
-    n = max(int(steps), FAITHFUL_POINTS)
+    steps = int(steps)
+    k = max(1, -(-(FAITHFUL_POINTS - 1) // (steps - 1)))
+    n = (steps - 1) * k + 1
     X = geodesic(metric, xa, xb, n)
     gap = fig9_gap(metric.features(X))
     if gap > tolerance:
@@ -467,9 +470,7 @@ def faithful(metric, xa, xb, steps, iterations=FAITHFUL_ITERATIONS, tolerance=FA
         Y = np.concatenate([xa[None], res.x.reshape(-1, q), xb[None]])
         if fig9_gap(metric.features(Y)) < gap:
             X = Y
-    if n == steps:
-        return X
-    return _at_length(X, np.arange(n, dtype=np.float64), np.linspace(0.0, n - 1, steps))
+    return X[::k]
 
 
 def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):

@@ -185,6 +185,11 @@ def test_a_faithful_path_keeps_each_point_where_its_place_says_in_even_steps(m, 
     assert np.array_equal(F[-1], m.latent[m.index(pair[1])])
     F6 = m.path(*pair, steps=6, kind="faithful")
     assert F6.shape == (6, m.q) and np.allclose(F6, F[::4])
+    # a step count that does not divide the relaxed points' reads points of a finer relaxed path,
+    # each at its own place (no point between two of them, which could be another material)
+    F20, F39 = (m.path(*pair, steps=s, kind="faithful") for s in (20, 39))
+    assert F20.shape == (20, m.q) and np.array_equal(F20, F39[::2])
+    assert _fig9_gaps(metric, F20)[0] <= _fig9_gaps(metric, F39)[0] + 1e-12
     d = np.linalg.norm(m.latent[:, None] - m.latent[None], axis=-1) + np.diag([np.inf] * m.n)
     near = [m.names[i] for i in np.unravel_index(np.argmin(d), d.shape)]
     G = m.path(*near, steps=21, kind="geodesic")
