@@ -192,7 +192,9 @@ def test_snippets_name_the_manifold_relatively_and_render_after_the_folder_moves
     shutil.move(str(project), str(moved))
     after = np.array(mi.render(mi.load_file(str(moved / "scenes" / "s.xml")), seed=1))
     assert np.isfinite(after).all() and after.mean() > 0
-    np.testing.assert_array_equal(after, before)
+    # Mitsuba's default (Gaussian) film filter splats each sample into neighbouring pixels from
+    # parallel threads, so the two renders may differ in the summation order: 1 ulp, not a material.
+    np.testing.assert_allclose(after, before, rtol=1e-5, atol=1e-6)
     namespace = {"__file__": str(moved / "scenes" / "s.py")}
     exec(compile(sn["python"], "s.py", "exec"), namespace)
     np.testing.assert_allclose(namespace["bsdf"].latent, x, rtol=1e-5)
