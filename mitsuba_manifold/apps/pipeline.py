@@ -17,7 +17,7 @@
 import json
 import os
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 from .._util import ownership
 from .._util.atomic import write_bytes
@@ -29,7 +29,7 @@ from ..render import scenes as _scenes
 from .gi_comparison import gi_report, versus_direct
 from .tool_commands import explore_command
 
-__all__ = ["MainJob", "run_main_job"]
+__all__ = ["MainJob", "Stages", "run_main_job"]
 
 
 @dataclass(frozen=True)
@@ -108,15 +108,54 @@ class MainJob:
         return path
 
 
+@dataclass
+class Stages:
+    """The main job's stages as they end, in order: the seconds of each and the process's peak
+    memory by the end of each (the stage where it grows holds the new peak).
+
+    Attributes
+    ----------
+    seconds : dict
+        ``"<part>_s"``: seconds (``report.json``'s ``stages``; a stage may time several parts).
+    peak_after : dict
+        Stage name: the process's peak memory in bytes
+        (:func:`~mitsuba_manifold._util.memory.peak_rss`) at its end, None where the system does
+        not say (``report.json``'s ``peak_rss_after``).
+    """
+
+    seconds: dict = field(default_factory=dict)
+    peak_after: dict = field(default_factory=dict)
+
+    def ended(self, stage, **seconds):
+        """Record the end of ``stage``: the peak memory now, and ``seconds`` (``part_s=value``)."""
+        self.seconds.update(seconds)
+        self.peak_after[stage] = peak_rss()
+
+    def peak(self):
+        """``(bytes, stage)``: the process's peak memory and the first stage by whose end it was
+        reached; ``(None, None)`` where the system does not say.
+        """
+        known = {k: v for k, v in self.peak_after.items() if v is not None}
+        if not known:
+            return None, None
+        top = max(known.values())
+        return top, next(k for k, v in known.items() if v == top)
+
+    def into(self, report):
+        """Write the stages into the GI report: ``stages``, ``peak_rss_bytes``, ``peak_rss_after``."""
+        report["stages"] = dict(self.seconds)
+        report["peak_rss_bytes"] = self.peak()[0]
+        report["peak_rss_after"] = dict(self.peak_after)
+
+
 def run_main_job(job, log=print, **fields):
     """The main job: database, manifold, plots, basis and blends of the scene, ``gi/report.json``.
 
     ``job``: a :class:`MainJob`, or its output folder with the other fields as keywords
     (``run_main_job("out", res=64, spp=16)``). ``log(text)`` reports progress (stages and
-    results). Returns the GI report (with ``report_path``, ``stages``: the measured
-    seconds of each stage, ``peak_rss_bytes``: the process's peak memory, and
-    ``peak_rss_after``: that peak at the end of each stage, None where the system does not
-    say; the stage where it grows holds the new peak).
+    results). Returns the GI report (with ``report_path``, and the :class:`Stages`' record:
+    ``stages``, the measured seconds of each stage, ``peak_rss_bytes``, the process's peak
+    memory, and ``peak_rss_after``, that peak at the end of each stage).
     """
     job = replace(job, **fields) if isinstance(job, MainJob) else MainJob(job, **fields)
     job.check()
@@ -148,9 +187,8 @@ def main_job_outputs(job):
 def _run(job, log):
     """:func:`run_main_job` once its outputs are checked (and watched)."""
     t_start = time.perf_counter()
-    stages = {}
-    peak = {}
-    db_dir, manifold_path = _database_and_manifold(job, log, stages, peak)
+    stages = Stages()
+    db_dir, manifold_path = _database_and_manifold(job, log, stages)
     log(
         f"\n== basis of {job.scene} and blends ({job.res}x{job.res}, {job.spp} spp basis, "
         f"{job.ref_spp} spp references)"
@@ -173,28 +211,30 @@ def _run(job, log):
     )  # a control-variate sample costs more than a direct one (docs/benchmarks.md)
     t_gi = time.perf_counter() - t0
     sc = report["scenes"][job.scene]
-    stages["basis_s"] = sc["basis_time_s"]
-    stages["references_s"] = sum(r["reference_time_s"] for r in sc["points"])
-    stages["direct_renders_s"] = sum(d["time_s"] for r in sc["points"] for d in r["direct"])
-    stages["blends_images_plot_s"] = (
-        t_gi - stages["basis_s"] - stages["references_s"] - stages["direct_renders_s"]
+    references = sum(r["reference_time_s"] for r in sc["points"])
+    direct = sum(d["time_s"] for r in sc["points"] for d in r["direct"])
+    stages.seconds.update(
+        basis_s=sc["basis_time_s"],
+        references_s=references,
+        direct_renders_s=direct,
+        blends_images_plot_s=t_gi - sc["basis_time_s"] - references - direct,
     )
+    stages.peak_after.update(sc["peak_rss_after"])
     log(
         f"basis: {sc['basis_images']} images in {sc['basis_time_s']:.1f} s"
         + (f" (AOVs {sc['aovs_time_s']:.1f} s)" if "aovs_time_s" in sc else "")
     )
     _log_points(sc["points"], max(job.direct_spp), log)
     report_path = os.path.join(job.out, "gi", "report.json")
-    stages["total_s"] = time.perf_counter() - t_start
-    report["stages"] = stages
-    peak.update(sc["peak_rss_after"], end=peak_rss())
-    report["peak_rss_bytes"], report["peak_rss_after"] = peak["end"], peak
+    stages.ended("end", total_s=time.perf_counter() - t_start)
+    stages.into(report)
     write_bytes(report_path, json.dumps(report, indent=1))
     log(f"plot: {report['plot']}\nreport: {report_path}\nimages: {os.path.join(job.out, 'gi')}")
-    log("stages: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in stages.items() if k != "total_s"))
-    if peak["end"] is not None:
-        reached = next(k for k, v in peak.items() if v == peak["end"])
-        log(f"peak memory: {peak['end'] / 2**30:.2f} GiB (reached by the end of: {reached})")
+    parts = ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in stages.seconds.items() if k != "total_s")
+    log(f"stages: {parts}")
+    top, reached = stages.peak()
+    if top is not None:
+        log(f"peak memory: {top / 2**30:.2f} GiB (reached by the end of: {reached})")
     log(
         f"\nexplore the manifold in the browser:\n  {explore_command(sc['basis_folder'], manifold_path)}"
     )
@@ -203,10 +243,9 @@ def _run(job, log):
     return report
 
 
-def _database_and_manifold(job, log, stages, peak):
+def _database_and_manifold(job, log, stages):
     """Steps 1 and 2 of the main job: the database, the fitted manifold and its plots; returns
-    their paths and adds the seconds of each stage to ``stages``, the process's peak memory at
-    its end to ``peak``.
+    their paths and records each stage's end in ``stages`` (:class:`Stages`).
     """
     manifold_path = os.path.join(job.out, "manifold.npz")
     os.makedirs(job.out, exist_ok=True)
@@ -214,10 +253,10 @@ def _database_and_manifold(job, log, stages, peak):
     t0 = time.perf_counter()
     db = database.Database(job.database, dims=job.resolution)
     db_dir = db.folder
-    stages["tabulate_s"] = time.perf_counter() - t0
-    peak["tabulate"] = peak_rss()
+    stages.ended("tabulate", tabulate_s=time.perf_counter() - t0)
     log(
-        f"{len(db.names)} materials, {'x'.join(map(str, db.dims))} bins ({stages['tabulate_s']:.1f} s)"
+        f"{len(db.names)} materials, {'x'.join(map(str, db.dims))} bins "
+        f"({stages.seconds['tabulate_s']:.1f} s)"
     )
     log(
         f"\n== manifold: preset {job.preset}"
@@ -226,10 +265,8 @@ def _database_and_manifold(job, log, stages, peak):
     )
     m = Manifold.fit(db, q=job.q, features=job.features, preset=job.preset, progress=True)
     m.save(manifold_path)
-    peak["fit"] = peak_rss()
-    stages.update(
-        load_s=m.record.timings.load_s, gram_s=m.record.timings.gram_s, fit_s=m.record.timings.fit_s
-    )
+    timings = m.record.timings
+    stages.ended("fit", load_s=timings.load_s, gram_s=timings.gram_s, fit_s=timings.fit_s)
     log(m.summary())
     log(
         f"load {m.record.timings.load_s:.1f} s, Gram {m.record.timings.gram_s:.1f} s, "
@@ -238,8 +275,7 @@ def _database_and_manifold(job, log, stages, peak):
     t0 = time.perf_counter()
     for path in plots.write_fit_plots(m, os.path.join(job.out, "plots")):
         log(f"plot: {path}")
-    stages["plots_s"] = time.perf_counter() - t0
-    peak["plots"] = peak_rss()
+    stages.ended("plots", plots_s=time.perf_counter() - t0)
     return db_dir, manifold_path
 
 
