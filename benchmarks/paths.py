@@ -7,14 +7,16 @@ What the explorer's path scrubber and ``blend.py --path`` wait for (:mod:`manifo
   (``graph_s``);
 * ``cached``: a fresh process (the manifold loaded from its file, the tables not read):
   the metric's rows and the graph's edges read from the database's cache folder
-  (``rows_s``, ``graph_s``), then the first geodesic (``first_path_s``: what a user
-  waits for after starting the explorer);
+  (``rows_s``, ``graph_s``), then the first path of the default kind (``first_path_s``:
+  what a user waits for after starting the explorer);
 * ``path_s``: seconds per path of each kind (median, max; ``cpu_median``: the process's CPU
   seconds, which a loaded machine does not stretch as it does the wall time) over the
   paper's three pairs and ten pairs of latent neighbours (:func:`fig9.pair_sets`'s tuned
   pairs), the graph built.
 
-Targets (the explorer's): graph <= 5 s once cached, a geodesic <= 1 s.
+Targets (the explorer's): graph <= 5 s once cached, a path of the default kind
+(:data:`~mitsuba_manifold.manifold.paths.DEFAULT_KIND`) <= 1 s median; the geodesic's median is
+reported against the same second.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from mitsuba_manifold.manifold.model import Manifold
 
 from . import fig9
 
-TARGETS = {"graph_cached_s": 5.0, "geodesic_median_s": 1.0}
+TARGETS = {"graph_cached_s": 5.0, "default_median_s": 1.0, "geodesic_median_s": 1.0}
 
 
 def _timed(f):
@@ -53,15 +55,18 @@ def cold(m):
 
 
 def cached(file, pair):
-    """A fresh load of the manifold ``file``: rows and graph from the cache, then one geodesic of ``pair``."""
+    """A fresh load of the manifold ``file``: rows and graph from the cache, then one path of the
+    default kind for ``pair``.
+    """
     m = Manifold.load(file)
     metric, rows_s = _timed(lambda: paths.PathMetric.of(m))
     _, graph_s = _timed(metric.graph)
-    _, first_s = _timed(lambda: paths.path(m, *pair, fig9.STEPS, "geodesic", metric=metric))
+    _, first_s = _timed(lambda: paths.path(m, *pair, fig9.STEPS, paths.DEFAULT_KIND, metric=metric))
     return {
         "rows_s": rows_s,
         "graph_s": graph_s,
         "first_path_s": first_s,
+        "first_path_kind": paths.DEFAULT_KIND,
         "tables_read": m._tables is not None,
     }
 
@@ -104,8 +109,11 @@ def run(folder, names=None, preset="default", kinds=paths.KINDS, progress=True):
                 f"  {kind:>9s}: {np.median(times):.3f} s a path (max {np.max(times):.3f})",
                 flush=True,
             )
+    out["default_kind"] = paths.DEFAULT_KIND
     out["meets"] = {
         "graph_cached_s": out["cached"]["graph_s"] <= TARGETS["graph_cached_s"],
+        "default_median_s": out["path_s"].get(paths.DEFAULT_KIND, {"median": np.inf})["median"]
+        <= TARGETS["default_median_s"],
         "geodesic_median_s": out["path_s"].get("geodesic", {"median": np.inf})["median"]
         <= TARGETS["geodesic_median_s"],
     }

@@ -54,9 +54,10 @@ from . import latent_graph
 from .latent_graph import LatentGraph
 
 KINDS = ("straight", "uniform", "geodesic", "faithful")
-#: The kind ``Manifold.path``, ``blend.py --path`` and the main job's contact sheet use: the
-#: best measured by ``tools/bench.py fig9`` (``benchmarks/results/fig9.json``).
-DEFAULT_KIND = "geodesic"
+#: The kind ``Manifold.path``, ``blend.py --path``, the explorer and the main job's contact sheet
+#: use: the one whose points stay between the two ends (the paper's Fig. 9 measures, ``tools/bench.py
+#: fig9``); where the geodesic already does, it is the geodesic.
+DEFAULT_KIND = "faithful"
 #: Sub-grid of the searches (see the module doc; its Fig. 9 measures on the built-in database:
 #: ``benchmarks/results/fig9_default.json``).
 SEARCH_STRIDE = (3, 10, 15)

@@ -116,7 +116,7 @@ def parser():
         help="the path of --path: straight (the latent segment at equal steps), uniform (the segment "
         "at equal perceptual steps), geodesic (a shortest path under the perceptual metric, at "
         "equal steps) or faithful (each image as far from the two ends as its place says, in even "
-        f"steps); default {DEFAULT_PATH_KIND}, the most even measured (tools/bench.py fig9)",
+        f"steps); default {DEFAULT_PATH_KIND} (the paper's Fig. 9 measures: tools/bench.py fig9)",
     )
     p.add_argument(
         "--target", default=None, help="with --path and several targets: the BSDF id that moves"
