@@ -14,10 +14,11 @@ They differ only in the function ``w(x)``:
 ``shepard`` (the default)
     Convex inverse-distance weights ``w_i ∝ |x - x_i|^-p exp(-|x - x_i|^2 / (2 h(x)^2))``
     (Shepard 1968, with a Gaussian taper whose width ``h(x)`` grows with the distance to
-    the data; ``h = inf`` is plain Shepard). Non-negative, summing to 1, continuous everywhere and equal to
-    ``e_i`` at ``x_i`` (no jump): interpolated tables stay non-negative and albedos stay
-    inside the range of the measured ones. Far from every latent point the weights tend
-    to the mean material (``h = inf``) or to the nearest latent points (finite ``h``).
+    the data, up to a bound; ``h = inf`` is plain Shepard). Non-negative, summing to 1,
+    continuous everywhere and equal to ``e_i`` at ``x_i`` (no jump): interpolated tables stay
+    non-negative and albedos stay inside the range of the measured ones. Far from every latent
+    point the weights tend to the mean material (``h = inf``) or, with a taper, to the
+    materials furthest out in the direction of ``x`` (the taper's width is bounded).
     With ``beyond="continue"`` (the default preset) they go on changing outside the convex
     hull of the latent points instead (:meth:`ShepardWeights.continuation`): affine weights,
     held to a physically plausible material by the training tables (:meth:`ShepardWeights.attach`).
@@ -175,13 +176,17 @@ class ShepardWeights(Interpolant):
     The taper's width adapts to the local spacing of the data, the same for every material
     at a given ``x`` (so that between two neighbours neither dominates the other's half)::
 
-        h(x)^2 = h^2 + s^2 m(x),   m(x) = sum_j r_j^(2-p) / sum_j r_j^-p
+        h(x)^2 = h^2 + s^2 min(m(x), M),   m(x) = sum_j r_j^(2-p) / sum_j r_j^-p
 
     ``m`` is a mean of the squared distances weighted by ``r_j^-p``; for ``p = 2`` their
     harmonic mean ``N / sum_j r_j^-2``. It is 0 at a data point and grows as ``N r_i^2``
     next to ``x_i`` (the nearest point dominates the sum), then levels off near the
     data's typical squared spacing: so the taper widens from ``h`` at the data to
     ``sqrt(h^2 + s^2 m)`` between materials, the more where every material is far.
+    ``M`` (:attr:`SPREAD_BOUND`) stops the widening a few ``l`` outside the data, where ``m``
+    keeps growing as the squared distance: unbounded, the taper would widen as fast as the
+    distances grow and the weights would drift to the mean of all materials; bounded, they
+    settle on the materials furthest out in that direction.
 
     Parameters
     ----------
@@ -208,6 +213,15 @@ class ShepardWeights(Interpolant):
     BEYOND = ("nearest", "continue")
     #: Weights below this share are dropped from the two ends of the continuation's secant.
     SECANT_FLOOR = 0.05
+    #: ``M``: the largest ``m(x)`` (units of ``l^2``) that widens the taper. Inside the hull of a
+    #: fitted layout ``m`` stays below about 5; it passes ``M`` some 2.5 to 3.5 ``l`` outside.
+    SPREAD_BOUND = 25.0
+    #: The continuation's reach stops growing this many ``eps`` outside the hull (where the
+    #: plausibility limit holds it long before): farther out the material no longer changes.
+    REACH_BOUND = 1e3
+    #: Distance from the data's centre (units of ``l``) beyond which the continuation is that of
+    #: the point this far out in the same direction.
+    FAR = 1e4
 
     def __init__(
         self,
@@ -305,18 +319,27 @@ class ShepardWeights(Interpolant):
 
         (the change of the material over the last ``eps l`` inside the data, carried on: ``a``
         grows as ``r`` far out and starts flat, as ``r^4``, so that the weights stay smooth
-        across the hull and flat at the training points on it;
+        across the hull and flat at the training points on it; ``r`` is bounded by
+        :attr:`REACH_BOUND`;
         ``w~``: Shepard's weights without the taper, ``w_i ∝ r_i^-p``, so that the change is
         not flattened next to a material, thinned continuously: each less :data:`SECANT_FLOOR`
         (or half the largest, if less), the negative ones dropped, the rest scaled to sum 1).
         The weights ``w(x) + s(x) e(x)`` sum to 1; ``s`` is the largest step in [0, 1] for
         which :meth:`StepLimit.step` holds the material plausible: no negative bin, directional
         albedo at most 1. Zero inside the hull (so at every training point) and continuous
-        across its boundary.
+        across its boundary. A point more than :attr:`FAR` from the data's centre gets the
+        continuation of the point that far out in its direction.
         """
         out = np.zeros_like(w)
         if self.limit is None:
             return out
+        # points farther out than where the reach stops growing are brought in along the line
+        # from the data's centre (the hull's closest point loses its precision far out)
+        centre, far_out = self.latent.mean(axis=0), self.FAR * self.length_scale
+        away = np.linalg.norm(x - centre, axis=1)
+        if (away > far_out).any():
+            x, pulled = x.copy(), away > far_out
+            x[pulled] = centre + (x[pulled] - centre) * (far_out / away[pulled])[:, None]
         p, rho = self.hull().project(x)
         far = np.flatnonzero(rho > 1e-12 * self.length_scale)
         if len(far) == 0:
@@ -324,7 +347,7 @@ class ShepardWeights(Interpolant):
         n = (x[far] - p[far]) / rho[far, None]
         eps = self.secant * self.length_scale
         ends = self._thin(self._untapered(np.concatenate([p[far], p[far] - eps * n])))
-        r = rho[far] / eps
+        r = np.minimum(rho[far] / eps, self.REACH_BOUND)
         reach = r**4 / (1.0 + r**3)  # ~rho / eps far out, flat at the hull
         e = reach[:, None] * (ends[: len(far)] - ends[len(far) :])
         s = self.limit.step(w[far], e)
@@ -357,9 +380,28 @@ class ShepardWeights(Interpolant):
             -0.5 * self.power
         )  # scaled: no underflow far out
         m = np.where(hit, 0.0, (r2s * inv).sum(1) / inv.sum(1))
+        m = np.minimum(m, self.SPREAD_BOUND)
         h2 = self.taper**2 + self.spread**2 * m
         with np.errstate(divide="ignore"):
             log_u = -0.5 * self.power * np.log(r2) - 0.5 * r2 / h2[:, None]
+        bounded = np.flatnonzero(m == self.SPREAD_BOUND)
+        if len(bounded) and np.isfinite(self.taper):
+            # far out r_i^2 / h^2 is huge and its differences between materials are lost in it:
+            # the same exponents less a constant per row, ``r_i^2 - r_k^2`` computed exactly
+            # (``k`` the nearest): ``(|x_i|^2 - |x_k|^2 - 2 x . (x_i - x_k)) / l^2``
+            y = x[bounded] / self.length_scale
+            lat = self.latent / self.length_scale
+            k = r2s[bounded].argmin(axis=1)
+            sq = np.einsum("nq,nq->n", lat, lat)
+            rel = (
+                sq[None]
+                - sq[k][:, None]
+                - 2.0 * (y @ lat.T - np.einsum("mq,mq->m", y, lat[k])[:, None])
+            )
+            with np.errstate(divide="ignore"):
+                log_u[bounded] = (
+                    -0.5 * self.power * np.log(r2[bounded]) - 0.5 * rel / h2[bounded, None]
+                )
         return diff, r2s, hit, inv, m, h2, log_u
 
     def _convex(self, x):
@@ -397,6 +439,7 @@ class ShepardWeights(Interpolant):
         dS0 = np.einsum("mn,mnq->mq", -p * inv / r2, diff) / l
         dS2 = np.einsum("mn,mnq->mq", (2 - p) * inv, diff) / l
         dm = (dS2 - m[:, None] * dS0) / S0[:, None]
+        dm[m == self.SPREAD_BOUND] = 0.0  # the taper's width no longer grows
         dh2 = self.spread**2 * dm
         # d log u_i / dx = -p (x - x_i) / (l r_i^2) - (x - x_i) / (l h^2) + r_i^2 / (2 h^4) dh^2/dx
         g = (

@@ -127,6 +127,26 @@ def test_the_default_weights_go_on_beyond_the_data_and_stay_plausible(measured):
     assert np.mean(beyond) >= 1 / 3
 
 
+def test_far_beyond_the_data_the_material_settles_and_stays_plausible(measured):
+    """Far out along a ray the weights stop changing (they do not drift to the mean of all
+    materials); the settled material is plausible and led by the materials furthest out in
+    that direction."""
+    m, _ = measured
+    tables, da = m.tables(), DirectionalAlbedo(m.dims)
+    c = m.latent.mean(axis=0)
+    for v in _rays_out_of_the_hull(m):
+        n = (v[-1] - c) / np.linalg.norm(v[-1] - c)
+        X = c + np.array([1e3, 1e6, 1e12, 1e29])[:, None] * n
+        w = m.weights(X).w
+        assert np.allclose(w[1:], w[1], atol=1e-9) and np.allclose(w[0], w[1], atol=1e-4)
+        assert np.isfinite(m.weights_jacobian(X)).all()
+        full = w[:1].astype(np.float32) @ tables
+        assert (full >= 0).all() and da.of(full).max() <= 1.0 + 1e-6
+        convex = m.interpolant._convex(X[:1])[0]
+        lead = np.flatnonzero(convex > 0.5)  # not the mean: one material holds most of it
+        assert len(lead) == 1 and np.isclose(m.latent[lead[0]] @ n, (m.latent @ n).max())
+
+
 def test_the_continuation_leaves_the_weights_inside_the_hull_unchanged(measured):
     m, _ = measured
     rng = np.random.default_rng(3)

@@ -107,9 +107,13 @@ def test_far_points_get_far_field_weights_without_warnings_until_they_overflow(d
             assert np.isfinite(jacobian(far)).all()
         if weights == default.weights:  # continued beyond the data: affine, plausible
             assert np.isclose(w.sum(), 1.0) and np.isfinite(w).all()
-            assert np.allclose(default.interpolant._convex(far[None])[0], 1.0 / m.n)
-        else:
+        if weights == paper.weights:  # Eq. 4: the mean material far from the data
             assert np.allclose(w, 1.0 / m.n)
+        else:  # a tapered Shepard: the material furthest out in that direction, not the mean
+            convex = np.asarray(default.interpolant._convex(far[None])[0])
+            if weights == steep.weights:
+                convex = w
+            assert np.isclose(convex.max(), 1.0) and np.argmax(convex) == np.argmin(m.latent.sum(1))
         with pytest.raises(InputError, match="too far out"):
             weights(np.full(m.q, 1e308))
 
