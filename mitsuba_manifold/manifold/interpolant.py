@@ -214,7 +214,7 @@ class ShepardWeights(Interpolant):
     #: Weights below this share are dropped from the two ends of the continuation's secant.
     SECANT_FLOOR = 0.05
     #: ``M``: the largest ``m(x)`` (units of ``l^2``) that widens the taper. Inside the hull of a
-    #: fitted layout ``m`` stays below about 5; it passes ``M`` 2 to 3.5 ``l`` outside (measured on the built-in ``merl`` layout).
+    #: fitted layout ``m`` is a few ``l^2``; it reaches ``M`` a few ``l`` outside.
     SPREAD_BOUND = 25.0
     #: The continuation's reach stops growing this many ``eps`` outside the hull (where the
     #: plausibility limit holds it long before): farther out the material no longer changes.
