@@ -582,7 +582,10 @@ class Manifold:
         """The latent point whose material is closest to ``table`` (any MERL table).
 
         ``table``: a reflectance table of this manifold's resolution (as :meth:`Database.reflectance`,
-        or flat) or the path of a MERL ``.binary`` file; ``options`` go to :func:`projection.project`.
+        or flat), or a material as the tools take one (:func:`~mitsuba_manifold.data.sources.material_source`):
+        a MERL ``.binary`` file, a Mitsuba ``measured`` ``.bsdf`` file (after ``import
+        mitsuba_manifold.render``, which reads them), an NBRDF ``.h5`` or ``.npz`` file, or
+        ``SET:NAME`` of a built-in set (``"rgl:paper_white"``); ``options`` go to :func:`projection.project`.
         Returns a :class:`projection.Projection`: ``x``, ``error`` (RMS of ``log(1 + rho)``
         differences over all bins), ``weights``, the nearest training material and its error.
 
@@ -611,14 +614,20 @@ class Manifold:
 
         Parameters
         ----------
-        table_or_path : path or array
+        table_or_path : path, str or array
             A MERL ``.binary`` file of this manifold's resolution (read from where it is, and
-            checked by its SHA-256 whenever read again), or a reflectance table (1/sr,
-            ``(3,) + dims`` or flat), written as a ``.binary`` file into the database's cache.
+            checked by its SHA-256 whenever read again); any other material as the tools take
+            one (:func:`~mitsuba_manifold.data.sources.material_source`: a ``.bsdf`` file after
+            ``import mitsuba_manifold.render``, an ``.h5`` or ``.npz`` network, ``SET:NAME``),
+            tabulated at this manifold's resolution; or a reflectance table (1/sr,
+            ``(3,) + dims`` or flat). A table that is not a ``.binary`` file is written as
+            one into the database's cache.
         name : str, optional
-            The material's name (default: the file's name without its extension).
+            The material's name (default: the file's name without its extension and a
+            trailing ``_rgb``/``_spec``, as in a database folder; ``NAME`` of ``SET:NAME``).
         origin : str, optional
-            What the table is, kept in the provenance (e.g. ``"rgl:paper_white"``).
+            What the table is, kept in the provenance (default for a source other than a
+            ``.binary`` file: its absolute path, or ``SET:NAME``).
 
         Returns
         -------

@@ -8,6 +8,7 @@ import signal
 import sys
 import threading
 
+from ...data.sources import MeasuredFile, register_reader
 from ...errors import MitsubaManifoldError, one_line
 
 #: What a tool reports as a one-line error (anything else is a bug and keeps its traceback).
@@ -23,6 +24,19 @@ INTERRUPTED_MESSAGE = (
 #: A latent point or list of numbers that starts with a minus sign ("-1.1,-0.2", "-1e-3 0.5"):
 #: argparse would take it for an option and refuse ``--x -1.1,-0.2``.
 _NUMBERS = re.compile(r"^-\.?\d[\d.eE+-]*(?:[,\s]+[-+]?\.?\d[\d.eE+-]*)*$")
+
+
+def read_measured(path, dims):
+    """The reader of Mitsuba ``measured`` files (``.bsdf``) for every tool: Mitsuba is imported
+    (:mod:`mitsuba_manifold.render`) only when a tool reads such a file, so that a database or
+    material given by any tool may hold them.
+    """
+    from ...render import measured
+
+    return measured.resample(path, dims)
+
+
+register_reader(MeasuredFile.kind, read_measured)
 
 
 #: The parser of the running tool: :func:`fail` names its options in library messages.
