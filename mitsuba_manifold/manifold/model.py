@@ -38,6 +38,7 @@ import numpy as np
 from .._util.checks import weight_sum
 from .._util.fifo_cache import Recent
 from .._util.float32 import weights32
+from .._util.names import is_name
 from ..data import gram as gram_mod
 from ..data.database import FEATURES, Database, albedo_weights
 from ..errors import FormatError, InputError, did_you_mean
@@ -69,6 +70,7 @@ __all__ = [
     "fit_layout",
     "make_interpolant",
     "InputError",
+    "is_name",
 ]
 
 FORMAT_VERSION = manifold_file.FORMAT_VERSION
@@ -501,6 +503,17 @@ class Manifold:
                 f"unknown material {name!r}{did_you_mean(name, names)}: this manifold has {n} "
                 f"materials ({', '.join(names[:6])}{', ...' if n > 6 else ''})"
             ) from None
+
+    def point(self, x, what="`x`"):
+        """One latent point ``(q,)`` float64 from a material's name (its latent point) or ``q``
+        numbers (a sequence, an array or text ``"0.3, -1.2"``); ``what`` names the parameter in
+        the messages. A word that does not start like a number is a name.
+        """
+        from .._util.checks import latent_point
+
+        if isinstance(x, str) and is_name(x):
+            return self.latent[self.index(x.strip())].astype(np.float64)
+        return latent_point(what, x, self.q)
 
     def parse_weights(self, text):
         """Weights of a combination of the training materials (``sum_i w_i table_i``, paper

@@ -49,6 +49,7 @@ def test_select_materials(small_manifold):
     ]
     near = render_basis.select_materials(m, near=m.latent[0], radius=1e-9)
     assert near == [m.names[0]]
+    assert render_basis.select_materials(m, near=m.names[0], radius=1e-9) == near  # a name
     with pytest.raises(render_basis.InputError, match="unknown material"):
         render_basis.select_materials(m, ["steel", "adamantium"])
     with pytest.raises(render_basis.InputError, match="2 finite numbers"):

@@ -14,7 +14,7 @@ listed in the folder's manifest.json is complete, and the same command resumes.
 import argparse
 import time
 
-from .common import ArgumentParser, fail, guarded, parse_floats, parse_indices, parse_list
+from .common import ArgumentParser, fail, guarded, parse_indices, parse_list, parse_point
 
 
 def parse_views(text):
@@ -84,10 +84,11 @@ def main(argv=None):
     p.add_argument("--materials", type=parse_list, default="all", help="'all' (default) or a,b,...")
     p.add_argument(
         "--near",
-        type=parse_floats,
+        type=parse_point,
         default=None,
         metavar="X",
-        help="only the materials within --radius of this latent point, and those its own blend needs",
+        help="only the materials within --radius of this latent point (q numbers or a material's "
+        "name), and those its own blend needs",
     )
     p.add_argument("--radius", type=float, default=None, help="radius for --near")
     p.add_argument(
@@ -121,10 +122,11 @@ def main(argv=None):
     )
     p.add_argument(
         "--x",
-        type=parse_floats,
+        type=parse_point,
         default=None,
         metavar="X",
-        help="the scene's latent point $x (q numbers; default: the first material's point)",
+        help="the scene's latent point $x (q numbers or a material's name; default: the first "
+        "material's point)",
     )
     p.add_argument(
         "--database",
