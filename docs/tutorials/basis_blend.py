@@ -49,7 +49,10 @@ def main():
         progress=not args.small,
     )
 
-    # 2. A blend: any latent point, in milliseconds.
+    # 2. A blend: any latent point, in milliseconds. Here the latent midpoint of
+    #    gold-metallic-paint and white-paint: a material of the manifold, not a mix of the two
+    #    (in this manifold of eight a blue one, mostly blue-rubber and green-metallic-paint:
+    #    the weights printed below say which materials it blends).
     m = Manifold.load(manifold)
     x = 0.5 * (m.latent[m.index("gold-metallic-paint")] + m.latent[m.index("white-paint")])
     image, info = blend(basis, x=x)  # the part beyond L1- is denoised by default (l2="raw": summed)
