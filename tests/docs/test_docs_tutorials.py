@@ -153,3 +153,6 @@ def test_cli_reference_lists_every_tool():
     for script in glob.glob(os.path.join(ROOT, "tools", "*.py")):
         assert f"tools/{os.path.basename(script)}`" in text
     assert "tools/match.py --render" in text
+    # the console command of each tool as the dispatcher names it; bench.py has none
+    assert "Installed as `mitsuba-manifold render-basis`" in text
+    assert "Installed as `mitsuba-manifold fit`" in text and "mitsuba-manifold bench" not in text

@@ -66,7 +66,12 @@ def parser():
         help="latent point (q numbers) or a measured material's name; repeat once per target "
         "for a multilinear basis (with --path: once per target that stays fixed)",
     )
-    p.add_argument("--out", required=True, help="output EXR (with --path: prefix of the sequence)")
+    p.add_argument(
+        "--out",
+        required=True,
+        help="output EXR (with --path, OUT.exr names the frames OUT_0.exr, OUT_1.exr, ... and "
+        "the contact sheet OUT_sheet.png)",
+    )
     p.add_argument("--png", action="store_true", help="also write tonemapped sRGB PNGs")
     p.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops (default 0)")
     p.add_argument(
@@ -277,7 +282,10 @@ def parse(argv=None):
     if args.path is not None and (args.reference or args.render_reference):
         fail("--reference/--render-reference compare one image; not with --path")
     if not args.out.lower().endswith(".exr"):
-        fail(f"--out must name an .exr file, got {args.out!r}")
+        frames = " (with --path: its frames are OUT_0.exr, OUT_1.exr, ...)" if args.path else ""
+        fail(
+            f"--out must name an .exr file{frames}, got {args.out!r}: use --out {_stem(args.out)}.exr"
+        )
     if not 2 <= args.steps <= MAX_STEPS:
         fail(f"--steps must be from 2 to {MAX_STEPS} (one EXR file each), got {args.steps}")
     if args.refine is not None and args.path is not None:
