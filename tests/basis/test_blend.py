@@ -583,3 +583,17 @@ def test_a_material_name_is_taken_wherever_a_latent_point_is(basis1, manifold, t
     assert parse_points([[name, "steel"], ["0.1", "0.2"]]) == [name, "steel", [0.1, 0.2]]
     with pytest.raises(InputError, match="did you mean"):
         manifold.point(name[:-1] + "x")
+
+
+def test_a_folder_of_one_basis_per_view_names_them(tmp_path, small_manifold, manifold):
+    """``render_basis.py --views all`` writes one basis per view into sub-folders: given the
+    parent, loading names them instead of saying it is no basis."""
+    for j in range(2):
+        _make_basis(
+            str(tmp_path / "views" / f"scene-view{j}"),
+            small_manifold,
+            manifold.names,
+            np.random.default_rng(j),
+        )
+    with pytest.raises(MismatchError, match=r"holds 2 basis folders.*scene-view0, .*scene-view1\)"):
+        Basis.load(str(tmp_path / "views"), manifold=manifold)
