@@ -595,5 +595,8 @@ def test_a_folder_of_one_basis_per_view_names_them(tmp_path, small_manifold, man
             manifold.names,
             np.random.default_rng(j),
         )
-    with pytest.raises(MismatchError, match=r"holds 2 basis folders.*scene-view0, .*scene-view1\)"):
+    with pytest.raises(
+        MismatchError,
+        match=r"no manifest.json; it holds 2 basis folder.*scene-view0, .*scene-view1\)",
+    ):
         Basis.load(str(tmp_path / "views"), manifold=manifold)

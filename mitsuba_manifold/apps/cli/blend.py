@@ -752,6 +752,11 @@ def checked_x(request, basis, manifold):
                 f"{', in this order' if len(fixed) > 1 else ''}), {each} (--x A{' --x B' if len(fixed) > 1 else ''})"
             )
         return x
+    if x is not None and request.path is None and request.x_groups > p:
+        fail(
+            f"--x is given {request.x_groups} times, and this basis has {p} target(s) "
+            f"{targets}: give --x once per target, {each}"
+        )
     if x is not None and request.path is None and len(x) != p * q and p == 1:
         fail(
             f"--x needs {q} numbers (the manifold's latent dimension) or a material's name, "

@@ -695,8 +695,8 @@ class Manifest:
             if held:  # render_basis of several scenes or views: one basis per sub-folder
                 shown = ", ".join(os.path.join(folder, f) for f in held[:4])
                 raise MismatchError(
-                    f"{folder} holds {len(held)} basis folders, one per scene or view, not a "
-                    f"basis itself: give one of them ({shown}{', ...' if len(held) > 4 else ''})"
+                    f"{folder}: no {MANIFEST}; it holds {len(held)} basis folder(s) (one per "
+                    f"scene or view): give one of them ({shown}{', ...' if len(held) > 4 else ''})"
                 )
             raise MismatchError(
                 f"{folder}: no {MANIFEST} (not a basis folder, or render_basis has not "
