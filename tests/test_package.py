@@ -276,6 +276,12 @@ def test_console_command_names_the_tool(capsys):
 
     assert cli.main(["nonsense"]) == 2
     assert "error: unknown tool 'nonsense'" in capsys.readouterr().err
+    assert cli.main(["fitt"]) == 2  # a near miss: the tool meant
+    assert "unknown tool 'fitt' (did you mean 'fit'?)" in capsys.readouterr().err
+    for spelling in ("render_basis", "fit_manifold"):  # the script's name runs its tool
+        with pytest.raises(SystemExit):
+            cli.main([spelling, "--help"])
+        assert f"usage: mitsuba-manifold {cli.ALIASES[spelling]}" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         cli.main(["fit", "--help"])
     assert "usage: mitsuba-manifold fit" in capsys.readouterr().out

@@ -65,6 +65,13 @@ def tools(root):
     return out
 
 
+def console_commands():
+    """``{module: subcommand}`` of the ``mitsuba-manifold`` console command (its dispatcher's table)."""
+    from mitsuba_manifold.apps.cli import TOOLS
+
+    return {f"mitsuba_manifold.apps.cli.{module}": tool for tool, module in TOOLS.items()}
+
+
 def help_text(parser, prog):
     parser.prog = prog
     old = os.environ.get("COLUMNS")
@@ -83,20 +90,30 @@ def page(root):
     lines = [
         "# Command-line tools",
         "",
-        "Every tool is a script in `tools/` (run it from a checkout: `python3 tools/NAME.py`) and, "
-        "once the package is installed, the console script `mitsuba-manifold NAME` (see the "
-        "`[project.scripts]` table of `pyproject.toml`). This page is generated from the tools' "
-        "own argument parsers when the documentation is built: it is what `--help` prints.",
+        "Every tool is a script in `tools/` (run it from a checkout: `python3 tools/NAME.py`). "
+        "Once the package is installed, the tools below that name a console command are also "
+        "`mitsuba-manifold COMMAND` (most also `mm-COMMAND`: `[project.scripts]` in "
+        "`pyproject.toml`; the script's own name works too: "
+        "`mitsuba-manifold render_basis`); the others run from a checkout only. This page is "
+        "generated from the tools' own argument parsers when the documentation is built: it is "
+        "what `--help` prints.",
         "",
     ]
+    commands = console_commands()
     for name, _script, module in tools(root):
         variants = [()] + [tuple(v) for v in SUB_MODES.get(name, [])]
+        command = commands.get(module)
+        installed = (
+            f"Installed as `mitsuba-manifold {command}`."
+            if command
+            else "From a checkout only (no console command)."
+        )
         for argv in variants:
             title = " ".join([f"tools/{name}.py", *argv])
             lines += [
                 f"## `{title}`",
                 "",
-                f"Module: `{module}`.",
+                f"Module: `{module}`. {installed}",
                 "",
                 "```text",
                 help_text(parser_of(module, argv), f"python3 {title}").rstrip(),

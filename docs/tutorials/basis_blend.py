@@ -10,10 +10,12 @@ and OUT/basis_parts.png: what the basis holds for one material (base, L1-, full 
 
 import argparse
 import os
+import sys
 
 import numpy as np
 
 from mitsuba_manifold import Manifold, blend
+from mitsuba_manifold.errors import MitsubaManifoldError
 from mitsuba_manifold.imaging.io import read_exr, write_contact_sheet
 from mitsuba_manifold.imaging.metrics import rel_mse
 from mitsuba_manifold.render.render_basis import render_basis
@@ -28,6 +30,11 @@ def main():
     res, spp, ref_spp = (24, 8, 16) if args.small else (128, 512, 1024)
     manifold = os.path.join(args.out, "manifold.npz")
     basis = os.path.join(args.out, "basis")
+    if not os.path.isfile(manifold):  # tutorial 1 writes it
+        sys.exit(
+            f"error: {manifold} does not exist: run tutorial 1 first "
+            f"(python3 docs/tutorials/manifold_tour.py --out {args.out})"
+        )
 
     # 1. The basis of the shipped scene "table" (a bowl of the material on a table): one set of
     #    paths gives base.exr, every material's image (full global illumination), the cross terms.
@@ -42,7 +49,10 @@ def main():
         progress=not args.small,
     )
 
-    # 2. A blend: any latent point, in milliseconds.
+    # 2. A blend: any latent point, in milliseconds. Here the latent midpoint of
+    #    gold-metallic-paint and white-paint: a material of the manifold, not a mix of the two
+    #    (in this manifold of eight a blue one, mostly blue-rubber and green-metallic-paint:
+    #    the weights printed below say which materials it blends).
     m = Manifold.load(manifold)
     x = 0.5 * (m.latent[m.index("gold-metallic-paint")] + m.latent[m.index("white-paint")])
     image, info = blend(basis, x=x)  # the part beyond L1- is denoised by default (l2="raw": summed)
@@ -85,4 +95,7 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except MitsubaManifoldError as e:  # e.g. OUT/basis made from an earlier manifold: one line
+        sys.exit(f"error: {e}")

@@ -10,6 +10,7 @@ starts from a training material and follows the gradient of the image loss throu
 
 import argparse
 import os
+import sys
 
 import drjit as dr
 import mitsuba as mi
@@ -27,6 +28,11 @@ ap.add_argument("--small", action="store_true", help="tiny images, few iteration
 args = ap.parse_args()
 res, spp, iterations = (24, 4, 4) if args.small else (128, 16, 60)
 manifold = os.path.join(args.out, "manifold.npz")
+if not os.path.isfile(manifold):  # tutorial 1 writes it
+    sys.exit(
+        f"error: {manifold} does not exist: run tutorial 1 first "
+        f"(python3 docs/tutorials/manifold_tour.py --out {args.out})"
+    )
 m = Manifold.load(manifold)
 
 mi.set_variant("llvm_ad_rgb")

@@ -8,6 +8,7 @@ Reads OUT/manifold.npz (tutorial 1 makes it); writes OUT/own_scene.png.
 
 import argparse
 import os
+import sys
 
 import mitsuba as mi
 import numpy as np
@@ -22,6 +23,11 @@ ap.add_argument("--small", action="store_true", help="tiny images (for the tests
 args = ap.parse_args()
 res, spp = (32, 4) if args.small else (192, 128)
 manifold = os.path.abspath(os.path.join(args.out, "manifold.npz"))
+if not os.path.isfile(manifold):  # tutorial 1 writes it
+    sys.exit(
+        f"error: {manifold} does not exist: run tutorial 1 first "
+        f"(python3 docs/tutorials/manifold_tour.py --out {args.out})"
+    )
 m = Manifold.load(manifold)
 
 mi.set_variant("llvm_ad_rgb")

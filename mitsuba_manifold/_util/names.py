@@ -79,3 +79,11 @@ def is_escaped(stem):
         return escape(unescape(stem)) == stem
     except (InputError, UnicodeDecodeError, ValueError):
         return False
+
+
+def is_name(text):
+    """Whether ``text`` (from a user, where a latent point may go) names a material rather than
+    giving numbers: one word that does not start like a number (a digit, a sign or a point).
+    """
+    words = str(text).split()
+    return len(words) == 1 and "," not in words[0] and words[0][0] not in "+-.0123456789"

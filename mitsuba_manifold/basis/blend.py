@@ -87,9 +87,18 @@ def resolve_component(basis, component=None):
 def latent_points(basis, manifold, x):
     """``x`` as (p, q): one latent point per target.
 
-    Accepts (q,) for one target, (p, q), or p*q numbers in target order.
+    Accepts (q,) for one target, (p, q), or p*q numbers in target order; a material's name
+    stands for its latent point (``"chrome"``, or ``["chrome", "steel"]`` one per target, or
+    names and points mixed in a list).
     """
     p, q = basis.p, manifold.q
+    if isinstance(x, str) or (isinstance(x, (list, tuple)) and any(isinstance(v, str) for v in x)):
+        x = np.concatenate(
+            [
+                manifold.point(v) if isinstance(v, str) else np.ravel(np.asarray(v, dtype=object))
+                for v in ([x] if isinstance(x, str) else x)
+            ]
+        )
     try:
         arr = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):

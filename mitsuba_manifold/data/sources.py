@@ -38,6 +38,7 @@ __all__ = [
     "folder_sources",
     "material_name",
     "material_source",
+    "material_table",
     "read_tensor_header",
     "register_reader",
 ]
@@ -249,7 +250,9 @@ _TYPES = {
 
 
 def read_tensor_header(path):
-    """Fields of a Mitsuba ``tensor_file``: ``{name: (dtype, shape, offset)}`` (the header only)."""
+    """Fields of a Mitsuba ``tensor_file``: ``{name: (dtype, shape, offset)}`` (the header only),
+    after checking that the file holds every field the header describes (offset + size).
+    """
     path = os.fspath(path)
     try:
         with open(path, "rb") as f:
@@ -280,6 +283,20 @@ def read_tensor_header(path):
             fields[name] = (dtype, shape, offset)
     except (KeyError, UnicodeDecodeError, IndexError):
         raise FormatError(f"{path}: a damaged tensor_file header") from None
+    needs = (
+        max(
+            (off + int(np.prod(shape, dtype=np.int64)) * np.dtype(dt).itemsize)
+            for dt, shape, off in fields.values()
+        )
+        if fields
+        else 0
+    )
+    size = os.path.getsize(path)
+    if size < needs:
+        raise FormatError(
+            f"{path}: file is truncated ({size} bytes; its header needs {needs}): copy or "
+            "download it again"
+        )
     return fields
 
 
@@ -422,3 +439,27 @@ def material_source(spec):
         at = nbrdf.NetworkSet.positions(spec, prefixes[0], USER_POSITIONS)
         return Network(name, nets[0], nets[0].names[0], spec, at)
     raise FormatError(f"{spec}: not a material file (.binary, .bsdf, .h5 or .npz)")
+
+
+def material_table(spec, dims=None, *, what="material"):
+    """The source of ``spec`` (:func:`material_source`: a file or ``SET:NAME``) and its reflectance
+    table ``(3,) + dims`` float32 at ``dims`` (default: the file's own resolution, a ``.binary``'s).
+
+    Errors keep their class and start with ``what`` (``"table to project"``), except a measured
+    file read without Mitsuba's reader registered (:class:`UnavailableError`, whose message says
+    to import ``mitsuba_manifold.render``).
+    """
+    from ..errors import MitsubaManifoldError, one_line
+
+    try:
+        source = material_source(spec)
+        dims = source.native_dims() if dims is None else tuple(dims)
+        if dims is None:
+            raise InputError(
+                f"{os.fspath(spec)}: has no resolution of its own; give the resolution to tabulate it at"
+            )
+        return source, source.table(dims)
+    except UnavailableError:
+        raise
+    except MitsubaManifoldError as e:
+        raise type(e)(f"{what}: {one_line(e)}") from None

@@ -28,6 +28,7 @@ import numpy as np
 from .._util.cache import file_hash, key_hash
 from ..data import merl
 from ..data.database import albedo_weights, database_cache
+from ..data.sources import material_name, material_table
 from ..errors import FormatError, InputError, MissingFileError
 from ..gp.placement import place_point
 from . import projection as projection_mod
@@ -199,9 +200,17 @@ def add(m, table_or_path, name=None, *, origin=None, n_starts=8):
             "this manifold was saved without its Gram matrix; refit it to add materials to it"
         )
     dims = m.dims
+    if isinstance(table_or_path, (str, os.PathLike)) and not os.fspath(table_or_path).endswith(
+        ".binary"
+    ):  # any other source (.bsdf, .h5, .npz, SET:NAME): its table, kept as an array's
+        spec = os.fspath(table_or_path)
+        found, table_or_path = material_table(spec, dims, what="material to add")
+        name = found.name if name is None else name
+        if origin is None:
+            origin = os.path.abspath(spec) if os.path.exists(spec) else spec
     if isinstance(table_or_path, (str, os.PathLike)):
         path = os.path.abspath(os.fspath(table_or_path))
-        name = name if name is not None else os.path.splitext(os.path.basename(path))[0]
+        name = name if name is not None else material_name(path)
         _check_name(name, m.names)
         table = read_table(path, dims)
         source = "file"

@@ -38,6 +38,7 @@ import numpy as np
 from .._util.checks import weight_sum
 from .._util.fifo_cache import Recent
 from .._util.float32 import weights32
+from .._util.names import is_name
 from ..data import gram as gram_mod
 from ..data.database import FEATURES, Database, albedo_weights
 from ..errors import FormatError, InputError, did_you_mean
@@ -69,6 +70,7 @@ __all__ = [
     "fit_layout",
     "make_interpolant",
     "InputError",
+    "is_name",
 ]
 
 FORMAT_VERSION = manifold_file.FORMAT_VERSION
@@ -502,6 +504,17 @@ class Manifold:
                 f"materials ({', '.join(names[:6])}{', ...' if n > 6 else ''})"
             ) from None
 
+    def point(self, x, what="`x`"):
+        """One latent point ``(q,)`` float64 from a material's name (its latent point) or ``q``
+        numbers (a sequence, an array or text ``"0.3, -1.2"``); ``what`` names the parameter in
+        the messages. A word that does not start like a number is a name.
+        """
+        from .._util.checks import latent_point
+
+        if isinstance(x, str) and is_name(x):
+            return self.latent[self.index(x.strip())].astype(np.float64)
+        return latent_point(what, x, self.q)
+
     def parse_weights(self, text):
         """Weights of a combination of the training materials (``sum_i w_i table_i``, paper
         Eq. 4) from ``"name:w, name:w"`` (unnamed materials get 0), ``(N,)`` float64.
@@ -582,7 +595,10 @@ class Manifold:
         """The latent point whose material is closest to ``table`` (any MERL table).
 
         ``table``: a reflectance table of this manifold's resolution (as :meth:`Database.reflectance`,
-        or flat) or the path of a MERL ``.binary`` file; ``options`` go to :func:`projection.project`.
+        or flat), or a material as the tools take one (:func:`~mitsuba_manifold.data.sources.material_source`):
+        a MERL ``.binary`` file, a Mitsuba ``measured`` ``.bsdf`` file (after ``import
+        mitsuba_manifold.render``, which reads them), an NBRDF ``.h5`` or ``.npz`` file, or
+        ``SET:NAME`` of a built-in set (``"rgl:paper_white"``); ``options`` go to :func:`projection.project`.
         Returns a :class:`projection.Projection`: ``x``, ``error`` (RMS of ``log(1 + rho)``
         differences over all bins), ``weights``, the nearest training material and its error.
 
@@ -611,14 +627,20 @@ class Manifold:
 
         Parameters
         ----------
-        table_or_path : path or array
+        table_or_path : path, str or array
             A MERL ``.binary`` file of this manifold's resolution (read from where it is, and
-            checked by its SHA-256 whenever read again), or a reflectance table (1/sr,
-            ``(3,) + dims`` or flat), written as a ``.binary`` file into the database's cache.
+            checked by its SHA-256 whenever read again); any other material as the tools take
+            one (:func:`~mitsuba_manifold.data.sources.material_source`: a ``.bsdf`` file after
+            ``import mitsuba_manifold.render``, an ``.h5`` or ``.npz`` network, ``SET:NAME``),
+            tabulated at this manifold's resolution; or a reflectance table (1/sr,
+            ``(3,) + dims`` or flat). A table that is not a ``.binary`` file is written as
+            one into the database's cache.
         name : str, optional
-            The material's name (default: the file's name without its extension).
+            The material's name (default: the file's name without its extension and a
+            trailing ``_rgb``/``_spec``, as in a database folder; ``NAME`` of ``SET:NAME``).
         origin : str, optional
-            What the table is, kept in the provenance (e.g. ``"rgl:paper_white"``).
+            What the table is, kept in the provenance (default for a source other than a
+            ``.binary`` file: its absolute path, or ``SET:NAME``).
 
         Returns
         -------

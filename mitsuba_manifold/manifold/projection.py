@@ -18,7 +18,7 @@ import numpy as np
 import scipy.optimize
 
 from .._util.float32 import weights32
-from ..data import merl
+from ..data.sources import material_table
 from ..errors import InputError
 from .plausibility import DirectionalAlbedo, plausible_weights
 
@@ -67,12 +67,11 @@ class Projection:
 
 
 def as_table(table, d, dims=None):
-    """``table`` (array, or path of a MERL ``.binary`` file) as a flat float32 array of ``d`` values."""
+    """``table`` (array, or a material file or ``SET:NAME``, :func:`.sources.material_table`,
+    tabulated at ``dims``) as a flat float32 array of ``d`` values.
+    """
     if isinstance(table, (str, os.PathLike)):
-        try:
-            table = merl.filled_reflectance(merl.read_binary(os.fspath(table)))
-        except (OSError, ValueError) as e:
-            raise InputError(f"table to project: {e}") from None
+        table = material_table(table, dims, what="table to project")[1]
     table = np.asarray(table, dtype=np.float32).reshape(-1)
     if table.size != d:
         raise InputError(

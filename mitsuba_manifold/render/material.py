@@ -15,6 +15,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..data.sources import SET_NAMES
 from ..errors import InputError
 from ..manifold.model import DEFAULT_PRUNE, Manifold
 from .overrides import database_folder
@@ -67,6 +68,12 @@ def resolve(path, what):
     if not os.path.exists(found):
         fr = mi.file_resolver()
         where = ", ".join(str(fr[i]) for i in range(len(fr)))
+        if what == "manifold file" and path.partition("@")[0] in SET_NAMES:
+            raise InputError(
+                f"{PLUGIN_NAME}: {what} '{path}' not found; '{path}' is a built-in database, not "
+                f"a manifold: fit one first (python3 tools/fit_manifold.py {path} --out "
+                f"{path.partition('@')[0]}.npz, or mitsuba-manifold fit ...) and name that file"
+            )
         raise InputError(f"{PLUGIN_NAME}: {what} '{path}' not found (searched {where})")
     return found
 

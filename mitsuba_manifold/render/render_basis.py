@@ -81,15 +81,16 @@ def select_materials(manifold, materials="all", near=None, radius=None):
     ----------
     manifold : Manifold
     materials : "all" or list of str
-    near : array_like (q,), optional
-        With ``radius``: only materials whose latent point lies within ``radius`` of it, and
-        those the blend at ``near`` itself needs (kept by the default prune), so that the
-        centre of a basis chosen by ``near`` can always be blended.
+    near : array_like (q,) or str, optional
+        A latent point or a material's name (its point). With ``radius``: only materials
+        whose latent point lies within ``radius`` of it, and those the blend at ``near``
+        itself needs (kept by the default prune), so that the centre of a basis chosen by
+        ``near`` can always be blended.
     """
     if near is not None or radius is not None:
         if near is None or radius is None:
             raise InputError("`near` and `radius` go together")
-        near = validate.latent_point("`near`", near, manifold.q)
+        near = manifold.point(near, "`near`")
         if not radius > 0:
             raise InputError(f"`radius` must be > 0, got {radius}")
         dist = np.linalg.norm(manifold.latent - near, axis=1)
@@ -172,9 +173,9 @@ class SceneSetup:
     variant : str, optional
         Mitsuba variant, activated (default: the active one, or :func:`scenes.default_variant`
         when none is active; see :func:`scenes.use_variant`). It must be a JIT RGB variant.
-    x : array_like (q,), optional
-        The scene's ``$x`` (default: the first material's latent point, which fits any
-        manifold whatever its latent dimension).
+    x : array_like (q,) or str, optional
+        The scene's ``$x``, a latent point or a material's name (default: the first
+        material's latent point, which fits any manifold whatever its latent dimension).
     database : str, optional
         Folder of the manifold's tables, if it moved.
     sensor : int
@@ -488,7 +489,7 @@ def _check_request(scene_path, manifold_path, out, o):
     manifold = Manifold.load(manifold_path)
     if o.scene.database is not None:  # moved tables: the weights beyond the data read them too
         manifold.database = os.fspath(o.scene.database)
-    x = None if o.scene.x is None else validate.latent_point("`x`", o.scene.x, manifold.q)
+    x = None if o.scene.x is None else manifold.point(o.scene.x, "`x`")
     chosen = select_materials(manifold, o.selection.materials, o.selection.near, o.selection.radius)
     try:
         names_mod.check_unique(chosen)

@@ -321,6 +321,26 @@ def scene_parameters(scene):
     return used, defaults
 
 
+def scene_sample_count(scene, sensor=0):
+    """Samples per pixel the sampler of sensor ``sensor`` of a scene XML declares: its
+    ``sample_count``, or the ``<default>`` of the ``$parameter`` it takes; None where it
+    declares none (or gives no integer).
+    """
+    root = scene_xml(scene)
+    defaults = {el.get("name"): el.get("value") for el in root.iter("default")}
+    sensors = root.findall("sensor")
+    if not 0 <= int(sensor) < len(sensors):
+        return None
+    for el in sensors[int(sensor)].iter("integer"):
+        if el.get("name") == "sample_count":
+            value = _PARAM.sub(lambda m: str(defaults.get(m.group(1), "")), el.get("value") or "")
+            try:
+                return int(value)
+            except ValueError:
+                return None
+    return None
+
+
 def scene_manifolds(scene, params=None):
     """``(bsdf id, manifold file)`` of each ``manifold_brdf`` of a scene XML: its ``manifold``
     value with ``$parameters`` taken from ``params``, else the scene's ``<default>``s, and a

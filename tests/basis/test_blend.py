@@ -504,3 +504,99 @@ def test_cli_bad_input_overwrites_nothing(basis1, manifold, tmp_path, cli, capsy
 
 
 # --------------------------------------------------------------- reference
+
+
+def test_cli_several_targets_take_names_and_the_fixed_targets_of_a_path(
+    tmp_path, small_manifold, manifold, cli, capsys
+):
+    """On a two-target basis: ``--x A B`` is ``--x A --x B``; ``--path A B --target T`` takes
+    ``--x`` for the target that stays fixed only; a wrong count says what to pass, in one line
+    (the library takes names where it takes a latent point too)."""
+    names = manifold.names
+    folder, _, _ = _make_basis(
+        str(tmp_path / "two"),
+        small_manifold,
+        [a + "+" + b for a in names for b in names],
+        np.random.default_rng(5),
+        targets=("cup", "saucer"),
+        with_base=False,
+    )
+    a, b, c = names[0], names[1], names[2]
+    one, two = str(tmp_path / "one.exr"), str(tmp_path / "two.exr")
+    cli.main(["--basis", folder, "--x", a, c, "--out", one])
+    cli.main(["--basis", folder, "--x", a, "--x", c, "--out", two])
+    want, _ = bl.blend(folder, manifold, x=[a, c])
+    np.testing.assert_array_equal(imageio.read_exr(one), want)
+    np.testing.assert_array_equal(imageio.read_exr(two), want)
+    np.testing.assert_array_equal(
+        want, bl.blend(folder, manifold, x=[manifold.latent[0], manifold.latent[2]])[0]
+    )
+    seq = str(tmp_path / "walk.exr")
+    cli.main(
+        [
+            "--basis",
+            folder,
+            "--path",
+            a,
+            b,
+            "--target",
+            "saucer",
+            "--x",
+            c,
+            "--steps",
+            "3",
+            "--path-kind",
+            "straight",
+        ]
+        + ["--out", seq]
+    )
+    images, _, _ = bl.blend_path(folder, manifold, a, b, steps=3, moving=bl.MovingTarget(1, [c, a]))
+    np.testing.assert_array_equal(imageio.read_exr(str(tmp_path / "walk_1.exr")), images[1])
+    capsys.readouterr()
+    for args, words in [
+        (["--path", a, b, "--target", "saucer"], "give one --x per target that stays fixed (cup"),
+        (["--x", a], "repeat --x once per target"),
+        (["--x", a, "0.3"], "repeat --x once per point"),
+        (["--x", "nosuch", "--x", a], "unknown material 'nosuch'"),
+    ]:
+        with pytest.raises(SystemExit) as e:
+            cli.main(["--basis", folder, "--out", str(tmp_path / "bad.exr")] + args)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.count("\n") == 1 and words in err, err
+    with pytest.raises(InputError, match="unknown material 'nosuch'"):
+        bl.blend(folder, manifold, x="nosuch")
+
+
+def test_a_material_name_is_taken_wherever_a_latent_point_is(basis1, manifold, tmp_path):
+    """``blend(x="chrome")``, ``Manifold.point`` and every tool's latent-point option (one parser:
+    ``render_basis.py --x/--near``, ``blend.py --x``) take a material's name for its point."""
+    from mitsuba_manifold.apps.cli.common import parse_point, parse_points
+
+    folder, _, _ = basis1
+    name = manifold.names[2]
+    np.testing.assert_array_equal(
+        bl.blend(folder, manifold, x=name)[0], bl.blend(folder, manifold, x=manifold.latent[2])[0]
+    )
+    np.testing.assert_array_equal(manifold.point(name), manifold.latent[2])
+    np.testing.assert_array_equal(manifold.point("0.5, -1"), [0.5, -1.0])
+    assert parse_point(name) == name and parse_point("-0.5,1e-3") == [-0.5, 1e-3]
+    assert parse_points([[name, "steel"], ["0.1", "0.2"]]) == [name, "steel", [0.1, 0.2]]
+    with pytest.raises(InputError, match="did you mean"):
+        manifold.point(name[:-1] + "x")
+
+
+def test_a_folder_of_one_basis_per_view_names_them(tmp_path, small_manifold, manifold):
+    """``render_basis.py --views all`` writes one basis per view into sub-folders: given the
+    parent, loading names them instead of saying it is no basis."""
+    for j in range(2):
+        _make_basis(
+            str(tmp_path / "views" / f"scene-view{j}"),
+            small_manifold,
+            manifold.names,
+            np.random.default_rng(j),
+        )
+    with pytest.raises(
+        MismatchError,
+        match=r"no manifest.json; it holds 2 basis folder.*scene-view0, .*scene-view1\)",
+    ):
+        Basis.load(str(tmp_path / "views"), manifold=manifold)

@@ -279,3 +279,62 @@ def test_the_main_job_runs_on_the_measured_merl_set_and_refuses_unknown_database
     ):
         MainJob(str(tmp_path / "out"), database="nope").check()
     assert not (tmp_path / "out").exists()
+
+
+def test_a_truncated_measured_file_is_refused_by_its_size(tmp_path, capsys):
+    """A ``.bsdf`` cut short is refused by the sizes its header gives, before Mitsuba reads it:
+    as a material, in a database folder and by ``make_database.py``, which writes nothing."""
+    from mitsuba_manifold.apps.cli import make_database
+
+    data = open(os.path.join(RGL, "paper_blue_rgb.bsdf"), "rb").read()
+    folder = tmp_path / "half"
+    folder.mkdir()
+    (folder / "half_rgb.bsdf").write_bytes(data[: len(data) // 2])
+    message = rf"half_rgb\.bsdf: file is truncated \({len(data) // 2} bytes; its header needs {len(data)}\)"
+    with pytest.raises(FormatError, match=message):
+        sources.material_source(str(folder / "half_rgb.bsdf"))
+    with pytest.raises(FormatError, match=message):
+        Database(folder)
+    with pytest.raises(SystemExit) as exit_:
+        make_database.main(["--from", str(folder), "--out", str(tmp_path / "db")])
+    assert exit_.value.code == 2 and "file is truncated" in capsys.readouterr().err
+    assert not (tmp_path / "db").exists()
+
+
+def test_project_and_add_take_a_material_as_the_tools_do(tmp_path):
+    """``Manifold.project`` / ``Manifold.add`` take ``SET:NAME`` and any material file, as the
+    tools do; a ``.bsdf`` without Mitsuba's reader (a fresh process that did not import the
+    rendering subsystem) is refused with the fix, never read as a MERL file."""
+    import subprocess
+    import sys
+
+    from mitsuba_manifold import Manifold
+
+    m = Manifold.fit("nielsen@8x8x16", q=2)
+    table = sources.material_source("rgl:paper_white").table(m.dims)
+    np.testing.assert_array_equal(m.project("rgl:paper_white").x, m.project(table).x)
+    with pytest.raises(UnknownMaterialError, match="did you mean 'paper_white'"):
+        m.project("rgl:paper_whyte")
+    m.save(tmp_path / "m.npz")
+    info = m.add("rgl:paper_white")
+    assert info.name == "paper_white" and m.added[-1].origin == "rgl:paper_white"
+    code = (
+        "import sys; from mitsuba_manifold import Manifold\n"
+        "from mitsuba_manifold.errors import UnavailableError\n"
+        f"m = Manifold.load({str(tmp_path / 'm.npz')!r})\n"
+        "for call in (m.project, m.add):\n"
+        "    try: call(sys.argv[1])\n"
+        "    except UnavailableError as e: print(e)\n"
+        "assert 'mitsuba' not in sys.modules\n"
+    )
+    root = os.path.join(os.path.dirname(__file__), "..", "..")
+    r = subprocess.run(
+        [sys.executable, "-c", code, os.path.join(RGL, "paper_blue_rgb.bsdf")],
+        capture_output=True,
+        text=True,
+        cwd=root,
+        check=False,
+    )
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert len(lines) == 2 and all("import mitsuba_manifold.render first" in ln for ln in lines)

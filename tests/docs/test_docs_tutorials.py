@@ -103,6 +103,24 @@ def test_tutorials_run_in_order_and_their_commands_too(tmp_path):
 
 
 @pytest.mark.render
+def test_a_tutorial_run_before_the_first_says_which_to_run_in_one_line(tmp_path):
+    """Tutorials 2 to 4 on a folder without tutorial 1's manifold: one ``error:`` line naming
+    the file and the tutorial to run first, no traceback, nothing written."""
+    for name in gallery.TUTORIALS[1:]:
+        r = subprocess.run(
+            [sys.executable, os.path.join(DOCS, "tutorials", f"{name}.py"), "--out", str(tmp_path)]
+            + ["--small"],
+            env=env(),
+            capture_output=True,
+            text=True,
+        )
+        err = r.stderr.strip()
+        assert r.returncode == 1 and "\n" not in err and "Traceback" not in err, f"{name}: {err}"
+        assert "manifold.npz does not exist: run tutorial 1 first" in err, f"{name}: {err}"
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.render
 def test_gallery_runs(tmp_path):
     r = subprocess.run(
         [
@@ -135,3 +153,6 @@ def test_cli_reference_lists_every_tool():
     for script in glob.glob(os.path.join(ROOT, "tools", "*.py")):
         assert f"tools/{os.path.basename(script)}`" in text
     assert "tools/match.py --render" in text
+    # the console command of each tool as the dispatcher names it; bench.py has none
+    assert "Installed as `mitsuba-manifold render-basis`" in text
+    assert "Installed as `mitsuba-manifold fit`" in text and "mitsuba-manifold bench" not in text

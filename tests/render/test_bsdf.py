@@ -543,6 +543,9 @@ def test_missing_manifold_or_database(small_manifold_paper, tmp_path):
     with pytest.raises(Exception) as info:
         make(str(tmp_path / "missing.npz"), material="chrome")
     assert "manifold file '" + str(tmp_path / "missing.npz") + "' not found" in chain(info.value)
+    with pytest.raises(Exception) as info:  # a built-in database's name: how to make its manifold
+        make("merl", material="chrome")
+    assert "fit_manifold.py merl --out merl.npz" in chain(info.value)
     moved = Manifold.load(small_manifold_paper)
     moved.database = str(tmp_path / "moved-away")
     moved.save(tmp_path / "moved.npz")

@@ -113,3 +113,39 @@ def test_an_imported_file_renders_as_mitsubas_measured_plugin(tmp_path):
     for r in rows:
         assert abs(r["mean_ratio"] - 1) < 0.01, r
     assert np.median([r["ratio_to_noise"] for r in rows]) <= 3.0, rows
+
+
+def test_every_tool_reads_a_database_folder_holding_measured_files(tmp_path):
+    """``make_database.py --from FOLDER`` then ``fit_manifold.py`` and ``project.py`` on a folder
+    holding a ``.bsdf`` file, each in a fresh process: the tools read Mitsuba measured files
+    without the user importing anything."""
+    import shutil
+    import subprocess
+    import sys
+
+    tools = os.path.join(os.path.dirname(__file__), "..", "..", "tools")
+    src = tmp_path / "src"
+    src.mkdir()
+    shutil.copy(os.path.join(RGL, FILES["paper_blue"]), src / FILES["paper_blue"])
+    db, m = str(tmp_path / "db"), str(tmp_path / "m.npz")
+    steps = [
+        ("make_database.py", "--from", "nielsen", "--from", str(src), "--resolution", "8,8,16")
+        + ("--out", db),
+        ("fit_manifold.py", db, "--q", "2", "--out", m, "--materials")
+        + ("paper_blue,notebook,bluebook,yellowpaper",),
+        ("project.py", str(src / FILES["paper_blue"]), "--manifold", m),
+    ]
+    env = dict(os.environ, MITSUBA_MANIFOLD_CACHE=str(tmp_path / "cache"))
+    for tool, *argv in steps:
+        r = subprocess.run(
+            [sys.executable, os.path.join(tools, tool), *argv],
+            capture_output=True,
+            text=True,
+            cwd=str(tmp_path),
+            env=env,
+            check=False,
+        )
+        assert r.returncode == 0, f"{tool}: {r.stderr}"
+    assert (
+        "nearest training material paper_blue" in r.stdout and "weights: paper_blue:1," in r.stdout
+    )

@@ -49,6 +49,7 @@ def test_select_materials(small_manifold):
     ]
     near = render_basis.select_materials(m, near=m.latent[0], radius=1e-9)
     assert near == [m.names[0]]
+    assert render_basis.select_materials(m, near=m.names[0], radius=1e-9) == near  # a name
     with pytest.raises(render_basis.InputError, match="unknown material"):
         render_basis.select_materials(m, ["steel", "adamantium"])
     with pytest.raises(render_basis.InputError, match="2 finite numbers"):
@@ -296,3 +297,37 @@ def test_two_manifold_materials_give_a_multilinear_basis(tmp_path, small_manifol
     img, _ = blend(bb, m, x=np.stack([m.latent[m.index(b)], m.latent[m.index(a)]]))
     assert np.array_equal(img, bb.image(f"{b}+{a}"))
     assert not np.array_equal(bb.image(f"{a}+{b}"), bb.image(f"{b}+{a}"))
+
+
+def test_the_tool_renders_at_the_scenes_sample_count_and_says_when_res_is_not_square(
+    tmp_path, small_manifold, capsys
+):
+    """Without ``--spp`` a basis has the samples per pixel the scene declares (its ``$spp``
+    default); ``--spp`` overrides them; ``--res`` on a scene whose film fixes its height says in
+    one line on stderr what size the images are."""
+    from mitsuba_manifold.apps.cli import render_basis as tool
+
+    scene = tmp_path / "wide.xml"
+    scene.write_text("""<scene version="3.0.0">
+      <default name="spp" value="3"/><default name="res" value="16"/>
+      <default name="manifold" value="m.npz"/><default name="x" value=""/>
+      <sensor type="perspective"><sampler type="independent">
+      <integer name="sample_count" value="$spp"/></sampler>
+      <film type="hdrfilm"><integer name="width" value="$res"/><integer name="height" value="6"/>
+      </film></sensor>
+      <bsdf type="manifold_brdf" id="ball"><string name="manifold" value="$manifold"/>
+      <string name="x" value="$x"/></bsdf>
+      <shape type="sphere"><ref id="ball"/><transform name="to_world">
+      <translate value="0, 0, 4"/></transform></shape>
+      <emitter type="constant"/></scene>""")
+    m = Manifold.load(small_manifold)
+    common = [str(scene), "--manifold", small_manifold, "--mode", "per-material"]
+    common += ["--materials", ",".join(m.names[:2]), "--res", "8"]
+    tool.main(common + ["--out", str(tmp_path / "a")])
+    err = capsys.readouterr().err
+    manifest = bf.Manifest.read(tmp_path / "a")
+    assert manifest.spp == 3 and manifest.resolution == (8, 6)
+    notes = [ln for ln in err.splitlines() if ln.startswith("note:")]  # besides the progress bar
+    assert len(notes) == 1 and "--res 8 gave 8x6 images" in notes[0]
+    tool.main(common + ["--out", str(tmp_path / "b"), "--spp", "2"])
+    assert bf.Manifest.read(tmp_path / "b").spp == 2

@@ -21,8 +21,20 @@ TOOLS = {
 }
 
 
+#: What else a user may type for a tool: the module's and the script's name (``render_basis``,
+#: ``fit_manifold``, ``main_job``), spelled with ``_`` or ``-``.
+ALIASES = {
+    spelling: tool
+    for tool, module in TOOLS.items()
+    for name in (tool, module)
+    for spelling in (name, name.replace("-", "_"), name.replace("_", "-"))
+}
+
+
 def main(argv=None):
-    """``mitsuba-manifold TOOL [args...]``: run one tool."""
+    """``mitsuba-manifold TOOL [args...]``: run one tool (also named as its script,
+    ``render_basis``).
+    """
     argv = sys.argv[1:] if argv is None else list(argv)
     usage = (
         "usage: mitsuba-manifold {" + ",".join(TOOLS) + "} [args...]\n\n"
@@ -31,8 +43,14 @@ def main(argv=None):
     if argv and argv[0] in ("-h", "--help"):
         print(usage)
         return 0
+    if argv and argv[0] in ALIASES:
+        argv[0] = ALIASES[argv[0]]
     if not argv or argv[0] not in TOOLS:
-        what = f"unknown tool {argv[0]!r}" if argv else "no tool given"
+        from ...errors import did_you_mean
+
+        what = (
+            f"unknown tool {argv[0]!r}{did_you_mean(argv[0], TOOLS)}" if argv else "no tool given"
+        )
         print(f"error: {what}; one of: {', '.join(TOOLS)}\n{usage}", file=sys.stderr)
         return 2
     # argparse names the program after argv[0]: make usage lines read "mitsuba-manifold fit ...".

@@ -14,7 +14,8 @@ corrects the blend by what the same paths say it misses (a control variate; noth
 material), otherwise it adds the L2+ light rendered at the point.
 
 With several manifold materials in the scene give one --x per target (in the manifest's
-target order). Nothing is written until every input has been read and checked.
+target order; --x A B is --x A --x B); with --path, --target names the one that moves and --x
+gives the others. Nothing is written until every input has been read and checked.
 """
 
 import argparse
@@ -34,8 +35,8 @@ from .common import (
     add_prune_argument,
     fail,
     guarded,
-    parse_floats,
-    parse_floats_or_name,
+    parse_point,
+    parse_points,
     reference_view,
     resolve_names,
 )
@@ -63,9 +64,14 @@ def parser():
         action="append",
         metavar="X",
         help="latent point (q numbers) or a measured material's name; repeat once per target "
-        "for a multilinear basis",
+        "for a multilinear basis (with --path: once per target that stays fixed)",
     )
-    p.add_argument("--out", required=True, help="output EXR (with --path: prefix of the sequence)")
+    p.add_argument(
+        "--out",
+        required=True,
+        help="output EXR (with --path, OUT.exr names the frames OUT_0.exr, OUT_1.exr, ... and "
+        "the contact sheet OUT_sheet.png)",
+    )
     p.add_argument("--png", action="store_true", help="also write tonemapped sRGB PNGs")
     p.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops (default 0)")
     p.add_argument(
@@ -119,7 +125,10 @@ def parser():
         f"steps); default {DEFAULT_PATH_KIND} (the paper's Fig. 9 measures: tools/bench.py fig9)",
     )
     p.add_argument(
-        "--target", default=None, help="with --path and several targets: the BSDF id that moves"
+        "--target",
+        default=None,
+        help="with --path and several targets: the BSDF id that moves (default: the first); "
+        "--x gives the others",
     )
     p.add_argument(
         "--database",
@@ -227,10 +236,11 @@ class BlendRequest:
     basis, manifold, scene, database : str or None
         ``--basis``, ``--manifold``, ``--scene``, ``--database``.
     x : list or None
-        The latent points of ``--x`` (numbers, or a material's name), flat, target after target;
-        :func:`main` resolves the names with the manifold.
+        The latent points of ``--x`` (:func:`.common.parse_points`: each a list of numbers or
+        a material's name), target after target; :func:`main` makes them one flat list of
+        numbers (:func:`checked_x`).
     x_groups : int
-        How often ``--x`` was given (once per target).
+        How many points ``--x`` gave (one per target, or per fixed target with ``--path``).
     settings : BlendSettings
         ``--prune``, ``--renormalise``, ``--component``, ``--l2``.
     path : PathRequest or None
@@ -262,9 +272,9 @@ def parse(argv=None):
             fail(f"{a!r} has an empty place between commas; expected numbers like '-0.3,1.2'")
     args = parser().parse_args([a.replace(",", " ") if NEGATIVE_LIST.match(a) else a for a in argv])
     x = None
-    if args.x:  # numbers, or (one word) a measured material's name, resolved with the manifold
+    if args.x:  # numbers, or measured materials' names, resolved with the manifold
         try:
-            x = [v for group in args.x for v in parse_floats_or_name(group)]
+            x = parse_points(args.x)
         except argparse.ArgumentTypeError as e:
             fail(f"--x: {e}")
     if args.path is None and x is None:
@@ -272,7 +282,10 @@ def parse(argv=None):
     if args.path is not None and (args.reference or args.render_reference):
         fail("--reference/--render-reference compare one image; not with --path")
     if not args.out.lower().endswith(".exr"):
-        fail(f"--out must name an .exr file, got {args.out!r}")
+        frames = " (with --path: its frames are OUT_0.exr, OUT_1.exr, ...)" if args.path else ""
+        fail(
+            f"--out must name an .exr file{frames}, got {args.out!r}: use --out {_stem(args.out)}.exr"
+        )
     if not 2 <= args.steps <= MAX_STEPS:
         fail(f"--steps must be from 2 to {MAX_STEPS} (one EXR file each), got {args.steps}")
     if args.refine is not None and args.path is not None:
@@ -307,7 +320,7 @@ def parse(argv=None):
         scene=args.scene,
         database=args.database,
         x=x,
-        x_groups=len(args.x or ()),
+        x_groups=len(x or ()),
         settings=BlendSettings(
             prune=args.prune, renormalise=args.renormalise, component=args.component, l2=args.l2
         ),
@@ -505,7 +518,7 @@ def _refined(request, basis, manifold):
 
 def _point_or_name(a):  # a latent point "x0,x1", else a name blend_path reports as unknown
     try:
-        return parse_floats(a)
+        return parse_point(a)
     except argparse.ArgumentTypeError:
         return a
 
@@ -714,6 +727,50 @@ def remove_stale_companions(out, outputs):
             print(f"removed {path} (from an earlier blend to {out}; this one did not write it)")
 
 
+def checked_x(request, basis, manifold):
+    """The numbers of ``--x`` (names resolved), checked against the basis's targets: one point
+    per target, or with ``--path`` on several targets one per target that stays fixed (the
+    moving one's row is filled in; one per target is accepted too, the moving one's ignored).
+    """
+    x = resolve_names(request.x, manifold)
+    p, q, targets = basis.p, manifold.q, basis.targets
+    each = f"each a material name or {q} number{'s' if q > 1 else ''}"
+    if request.path is not None and request.path.target not in (None, *targets):
+        fail(f"--target {request.path.target!r} is not a target of the basis ({targets})")
+    if request.path is not None and p > 1:
+        moving = 0 if request.path.target is None else targets.index(request.path.target)
+        fixed = [t for k, t in enumerate(targets) if k != moving]
+        if x is not None and len(x) == (p - 1) * q:
+            rows = [x[k * q : (k + 1) * q] for k in range(p - 1)]
+            rows.insert(moving, list(manifold.latent[0]))  # the path sets this target's point
+            return [v for row in rows for v in row]
+        if x is None or len(x) != p * q:
+            got = "no --x" if x is None else f"--x gives {request.x_groups} point(s)"
+            fail(
+                f"--path moves target {targets[moving]!r} of the basis's targets {targets}, and "
+                f"{got}: give one --x per target that stays fixed ({', '.join(fixed)}"
+                f"{', in this order' if len(fixed) > 1 else ''}), {each} (--x A{' --x B' if len(fixed) > 1 else ''})"
+            )
+        return x
+    if x is not None and request.path is None and request.x_groups > p:
+        fail(
+            f"--x is given {request.x_groups} times, and this basis has {p} target(s) "
+            f"{targets}: give --x once per target, {each}"
+        )
+    if x is not None and request.path is None and len(x) != p * q and p == 1:
+        fail(
+            f"--x needs {q} numbers (the manifold's latent dimension) or a material's name, "
+            f"got {len(x)} numbers"
+        )
+    if x is not None and request.path is None and len(x) != p * q:
+        fail(
+            f"--x gives {request.x_groups} point(s) ({len(x)} numbers), and this basis has "
+            f"{p} target(s) {targets} on a {q}-dimensional manifold: repeat --x once per target, "
+            f"in this order, {each}"
+        )
+    return x
+
+
 @guarded
 def main(argv=None):
     request = parse(argv)
@@ -722,12 +779,7 @@ def main(argv=None):
     try:
         basis = Basis.load(request.basis, manifold=request.manifold, scene=request.scene)
         manifold = basis.check_manifold(request.manifold)
-        if request.x_groups > basis.p:
-            fail(
-                f"--x is given {request.x_groups} times, and this basis has {basis.p} target(s) {basis.targets}: "
-                f"give --x once per target"
-            )
-        request = replace(request, x=resolve_names(request.x, manifold))
+        request = replace(request, x=checked_x(request, basis, manifold))
         print(basis)
         out, force = request.output.out, request.output.force
         if request.path is not None:

@@ -8,6 +8,8 @@ import signal
 import sys
 import threading
 
+from ..._util.names import is_name
+from ...data.sources import MeasuredFile, register_reader
 from ...errors import MitsubaManifoldError, one_line
 
 #: What a tool reports as a one-line error (anything else is a bug and keeps its traceback).
@@ -23,6 +25,19 @@ INTERRUPTED_MESSAGE = (
 #: A latent point or list of numbers that starts with a minus sign ("-1.1,-0.2", "-1e-3 0.5"):
 #: argparse would take it for an option and refuse ``--x -1.1,-0.2``.
 _NUMBERS = re.compile(r"^-\.?\d[\d.eE+-]*(?:[,\s]+[-+]?\.?\d[\d.eE+-]*)*$")
+
+
+def read_measured(path, dims):
+    """The reader of Mitsuba ``measured`` files (``.bsdf``) for every tool: Mitsuba is imported
+    (:mod:`mitsuba_manifold.render`) only when a tool reads such a file, so that a database or
+    material given by any tool may hold them.
+    """
+    from ...render import measured
+
+    return measured.resample(path, dims)
+
+
+register_reader(MeasuredFile.kind, read_measured)
 
 
 #: The parser of the running tool: :func:`fail` names its options in library messages.
@@ -128,22 +143,41 @@ def parse_floats(text):
         ) from None
 
 
-def parse_floats_or_name(group):
-    """One ``--x`` group (its words): its numbers, or ``[name]`` for a single word that is not a number."""
-    if len(group) == 1 and "," not in group[0] and not re.fullmatch(r"[-+.\d].*", group[0]):
-        return [group[0]]
-    return parse_floats(" ".join(group))
+def parse_point(text):
+    """One latent point as every tool takes it: numbers (``'0.3,-1.2'``, ``'0.3 -1.2'``) or a
+    material's name (one word that does not start like a number), resolved with the manifold
+    by the library (:meth:`~mitsuba_manifold.manifold.model.Manifold.point`).
+    """
+    return text.strip() if is_name(text) else parse_floats(text)
 
 
-def resolve_names(x, manifold):
-    """``x`` (numbers and material names) with each name replaced by its latent point (q numbers)."""
-    if x is None or not any(isinstance(v, str) for v in x):
-        return x
-    return [
-        float(c)
-        for v in x
-        for c in (manifold.latent[manifold.index(v)] if isinstance(v, str) else [v])
-    ]
+def parse_points(groups, option="--x"):
+    """The points of a repeatable option taking several words (``--x A B --x 0.3 -1.2``), in
+    order: each group is one point (numbers or a name), or several names, one point each.
+    """
+    points = []
+    for group in groups:
+        words = " ".join(group).replace(",", " ").split()
+        names = [w for w in words if is_name(w)]
+        if not names:
+            points.append(parse_floats(" ".join(group)))
+        elif len(names) == len(words):
+            points.extend(names)
+        else:
+            raise argparse.ArgumentTypeError(
+                f"{' '.join(group)!r} mixes material names and numbers; repeat {option} once per "
+                f"point ({option} NAME {option} 0.3,-1.2)"
+            )
+    return points
+
+
+def resolve_names(points, manifold):
+    """``points`` (:func:`parse_points`) as one flat list of numbers, each name replaced by its
+    latent point (q numbers).
+    """
+    if points is None:
+        return None
+    return [float(c) for v in points for c in (manifold.point(v) if isinstance(v, str) else v)]
 
 
 def cli_message(error, parser=None):

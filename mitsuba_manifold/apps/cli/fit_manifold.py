@@ -147,21 +147,8 @@ def fit_and_save(args, guard, t0):
             preset=args.preset,
             progress=True,
         )
-    from ...data.sources import material_source
-
     for k, path in enumerate(args.add):
-        source = material_source(path)
-        if source.kind == "measured":
-            from ... import render  # noqa: F401  (registers the reader of Mitsuba measured files)
-        name = args.name[k] if k < len(args.name) else source.name
-        if source.kind == "binary":
-            info = m.add(path, name)
-        else:
-            info = m.add(
-                source.table(m.dims),
-                name,
-                origin=os.path.abspath(path) if os.path.exists(path) else path,
-            )
+        info = m.add(path, args.name[k] if k < len(args.name) else None)
         print(
             f"added {info.name} at {info.x.round(4).tolist()} (closest material {info.nearest}) "
             f"in {info.time_s:.2f} s"

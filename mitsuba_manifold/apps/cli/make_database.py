@@ -55,13 +55,10 @@ def main(argv=None):
 
     from ..._util import checks as validate
     from ...data import database, merl
-    from ...data.sources import SET_NAMES
     from ...errors import InputError
 
     t0 = time.perf_counter()
     sources = args.sources or ["merl"]
-    if any(s not in SET_NAMES for s in sources):  # a folder may hold Mitsuba measured files
-        from ... import render  # noqa: F401  (registers their reader)
     if args.materials and len(set(args.materials)) < len(args.materials):
         repeated = sorted({n for n in args.materials if args.materials.count(n) > 1})
         print(f"note: {', '.join(repeated)} repeated in --materials; each table is made once")

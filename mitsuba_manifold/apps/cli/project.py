@@ -65,12 +65,10 @@ def project(args):
     from ...data.sources import material_source
     from ...manifold.model import Manifold
 
-    source = material_source(args.table)
-    if source.kind == "measured":
-        from ... import render  # noqa: F401  (registers the reader of Mitsuba measured files)
+    material_source(args.table)  # a missing or malformed file is refused before the manifold loads
     m = Manifold.load(args.manifold)
     m.tables(args.database)
-    r = m.project(args.table if source.kind == "binary" else source.table(m.dims))
+    r = m.project(args.table)
     top = sorted(range(m.n), key=lambda i: -abs(r.weights[i]))[:5]
     result = {
         "table": args.table,

@@ -12,9 +12,10 @@ listed in the folder's manifest.json is complete, and the same command resumes.
 """
 
 import argparse
+import sys
 import time
 
-from .common import ArgumentParser, fail, guarded, parse_floats, parse_indices, parse_list
+from .common import ArgumentParser, fail, guarded, parse_indices, parse_list, parse_point
 
 
 def parse_views(text):
@@ -36,16 +37,21 @@ def parse_views(text):
     return views
 
 
-def check_numbers(args):
-    """The options that need no scene, before any folder is made: ``--spp``, ``--chunks``,
-    ``--res``, ``--max-depth`` and
-    ``--seed``, whose derived seeds must fit Mitsuba's 32 bits (one-pass renders seed pass
-    ``p`` of ``n`` with ``seed * n + p``, at most one pass per sample; chunk ``j`` of ``k``
-    has seed ``seed * k + j``).
+#: Samples per pixel of a basis whose scene declares none and no ``--spp``.
+DEFAULT_SPP = 64
+
+
+def check_numbers(args, spp):
+    """The options checked before any folder is made: ``--spp`` (``spp``: the most samples
+    per pixel of any basis, the scenes' own where ``--spp`` is not given), ``--chunks``,
+    ``--res``, ``--max-depth`` and ``--seed``, whose derived seeds must fit Mitsuba's 32 bits
+    (one-pass renders seed pass ``p`` of ``n`` with ``seed * n + p``, at most one pass per
+    sample; chunk ``j`` of ``k`` has seed ``seed * k + j``).
     """
     from ..._util import checks as validate
 
-    validate.positive_int("--spp", args.spp, "64")
+    if args.spp is not None:
+        validate.positive_int("--spp", args.spp, "64")
     validate.positive_int("--chunks", args.chunks, "4")
     if args.res is not None and not 1 <= args.res <= 16384:
         fail(f"--res must be from 1 to 16384, got {args.res}")
@@ -54,10 +60,10 @@ def check_numbers(args):
             f"--max-depth must be -1 (unbounded) or at least 2, got {args.max_depth} (depth 1 "
             "reaches only the lights seen directly: no image would show the material)"
         )
-    per_chunk = -(-args.spp // args.chunks)
+    per_chunk = -(-spp // args.chunks)
     streams = args.chunks * (per_chunk if args.mode == "onepass" else 1)
     why = (
-        f" with --spp {args.spp}, --chunks {args.chunks} and --mode {args.mode} (the renderer derives up to "
+        f" with --spp {spp}, --chunks {args.chunks} and --mode {args.mode} (the renderer derives up to "
         f"{streams} seeds from it, and Mitsuba's seeds have 32 bits)"
     )
     validate.seed("--seed", args.seed, streams, why if streams > 1 else "")
@@ -80,14 +86,21 @@ def main(argv=None):
     p.add_argument(
         "--manifold", default="out/manifold.npz", help="saved manifold (default out/manifold.npz)"
     )
-    p.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
+    p.add_argument(
+        "--spp",
+        type=int,
+        default=None,
+        help="samples per pixel (default: the scene's own, its sampler's sample_count or the "
+        f"default of the $spp it takes; {DEFAULT_SPP} where it declares none)",
+    )
     p.add_argument("--materials", type=parse_list, default="all", help="'all' (default) or a,b,...")
     p.add_argument(
         "--near",
-        type=parse_floats,
+        type=parse_point,
         default=None,
         metavar="X",
-        help="only the materials within --radius of this latent point, and those its own blend needs",
+        help="only the materials within --radius of this latent point (q numbers or a material's "
+        "name), and those its own blend needs",
     )
     p.add_argument("--radius", type=float, default=None, help="radius for --near")
     p.add_argument(
@@ -121,10 +134,11 @@ def main(argv=None):
     )
     p.add_argument(
         "--x",
-        type=parse_floats,
+        type=parse_point,
         default=None,
         metavar="X",
-        help="the scene's latent point $x (q numbers; default: the first material's point)",
+        help="the scene's latent point $x (q numbers or a material's name; default: the first "
+        "material's point)",
     )
     p.add_argument(
         "--database",
@@ -167,7 +181,8 @@ def main(argv=None):
     p.add_argument("--out", required=True, help="output folder")
     args = p.parse_args(argv)
     materials = args.materials if args.materials != ["all"] else "all"
-    check_numbers(args)
+    if args.spp is not None:
+        check_numbers(args, args.spp)  # before the renderer is imported
 
     from ...render.chunks import render_chunked
     from ...render.executor import make_executor
@@ -182,16 +197,21 @@ def main(argv=None):
         plan_views,
         render_basis,
     )
-    from ...render.scenes import scene_path
+    from ...render.scenes import scene_path, scene_sample_count
 
     t0 = time.perf_counter()
     scenes = [scene_path(s) for s in args.scenes]  # a scene XML or a shipped scene's name
     jobs = plan_views(scenes, args.views, args.out)
+    spp = {
+        (scene, sensor): args.spp or scene_sample_count(scene, sensor) or DEFAULT_SPP
+        for scene, sensor, _ in jobs
+    }
+    check_numbers(args, max(spp.values()))
     check_job_folders(jobs, args.out, args.force)  # every folder, before the first render
     executor = make_executor(args.executor, args.address)
     options = BasisOptions(
         selection=Selection(materials=materials, near=args.near, radius=args.radius),
-        sampling=Sampling(spp=args.spp, seed=args.seed, mode=args.mode),
+        sampling=Sampling(spp=DEFAULT_SPP, seed=args.seed, mode=args.mode),  # per view below
         scene=SceneSetup(
             resolution=args.res,
             max_depth=args.max_depth,
@@ -205,7 +225,7 @@ def main(argv=None):
     try:
         for scene, sensor, out in jobs:
             t1 = time.perf_counter()
-            view_options = options.updated(sensor=sensor)
+            view_options = options.updated(sensor=sensor, spp=spp[scene, sensor])
             if args.chunks == 1 and args.executor == "local":
                 manifest = render_basis(scene, args.manifold, out, view_options)
             else:
@@ -222,6 +242,12 @@ def main(argv=None):
             cross = (manifest.cross.pairs or 0) if manifest.cross else 0
             extra = f" (and {gi} full-GI images, {cross} cross terms)" if gi else ""
             width, height = manifest.resolution
+            if args.res is not None and (width, height) != (args.res, args.res):
+                print(
+                    f"note: {scene} fixes its film's other side: --res {args.res} gave "
+                    f"{width}x{height} images (it takes $res for one side, or a crop window)",
+                    file=sys.stderr,
+                )
             print(
                 f"{len(manifest.images)} images{extra} in {out} ({width}x{height}, "
                 f"{manifest.spp} spp, {manifest.mode}, {manifest.variant}), "

@@ -689,6 +689,15 @@ class Manifest:
             )
         path = os.path.join(folder, MANIFEST)
         if not os.path.isfile(path):
+            held = sorted(
+                f for f in os.listdir(folder) if os.path.isfile(os.path.join(folder, f, MANIFEST))
+            )
+            if held:  # render_basis of several scenes or views: one basis per sub-folder
+                shown = ", ".join(os.path.join(folder, f) for f in held[:4])
+                raise MismatchError(
+                    f"{folder}: no {MANIFEST}; it holds {len(held)} basis folder(s) (one per "
+                    f"scene or view): give one of them ({shown}{', ...' if len(held) > 4 else ''})"
+                )
             raise MismatchError(
                 f"{folder}: no {MANIFEST} (not a basis folder, or render_basis has not "
                 "written one yet)"
