@@ -902,8 +902,9 @@ class Manifold:
         """The manifold of materials ``names`` alone, fit again on their Gram matrix.
 
         The sub-block of this manifold's Gram matrix is centred about the subset's own mean and
-        its latent points are fit (Eq. 6) with this manifold's kernel, optimiser and latent
-        dimension; the weights come from this manifold's interpolant (its kind and parameters,
+        its latent points are fit (Eq. 6) with this manifold's kernel, optimiser, latent
+        dimension and stress term (towards the subset's perceptual distances, from its tables);
+        the weights come from this manifold's interpolant (its kind and parameters,
         not the GP of Eq. 4 unless that is what this manifold uses). The result is not saved.
 
         Parameters
@@ -933,6 +934,11 @@ class Manifold:
         S = self.gram[np.ix_(keep, keep)]
         J = np.eye(len(keep)) - 1.0 / len(keep)
         S = J @ S @ J
+        info = self.info
+        stress = gplvm.Stress(info.get("stress", 0.0), info.get("stress_neighbours"))
+        distances = None
+        if stress.active:
+            distances = distance_matrix(self.tables()[keep], dims=self.dims)
         fit = gplvm.fit_latent(
             S,
             self.record.d,
@@ -940,7 +946,11 @@ class Manifold:
             method=self.record.method or "hooke-jeeves",
             length_scale=self.length_scale,
             noise=self.noise,
+            stress=stress,
+            distances=distances,
         )
+        if stress.active:
+            info = {**info, "stress_value": float(fit.stress)}
         table_gram = None if self.table_gram is None else self.table_gram[np.ix_(keep, keep)]
         return type(self)(
             names,
@@ -956,7 +966,7 @@ class Manifold:
             table_gram=table_gram,
             record=FitRecord.from_info(
                 {
-                    **self.info,
+                    **info,
                     "log_likelihood": float(fit.log_likelihood),
                     "subset_of": getattr(self, "file", None),
                 },

@@ -377,3 +377,17 @@ def test_a_stress_term_is_fitted_to_the_perceptual_distances_and_saved_with_the_
     assert Manifold.load(tmp_path / "m.npz").info == m.info
     with pytest.raises(InputError, match="needs method 'lbfgs'"):
         Manifold.fit(small_db, stress=1.0, method="hooke-jeeves")
+
+
+def test_a_subset_of_a_manifold_fitted_with_stress_is_fitted_with_it(small_db):
+    from mitsuba_manifold.data.distance import distance_matrix
+    from mitsuba_manifold.gp.stress import Stress
+
+    m = Manifold.fit(small_db, stress=3.0)
+    names = m.names[:6]
+    sub = m.subset(names)
+    D = distance_matrix(sub.tables(), dims=sub.dims)
+    sigma = Stress(1.0).term(D, sub.n, 1).value(sub.latent)
+    assert sub.info["stress"] == 3.0 and sub.info["stress_value"] == pytest.approx(sigma, rel=1e-9)
+    plain = Manifold.fit(small_db, names=names)
+    assert sigma < Stress(1.0).term(D, sub.n, 1).value(plain.latent)
