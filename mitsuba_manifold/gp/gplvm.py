@@ -351,13 +351,11 @@ def fit_latent(
     init=None,
     options=None,
     callback=None,
-    stress=None,
-    distances=None,
 ):
     """Latent points maximising the GPLVM log-likelihood L (Eq. 6): :class:`GPLVM` as one call.
 
-    ``GPLVM(q, Kernel(length_scale, noise), method, options, stress).fit(S, d, init, callback,
-    distances)``.
+    ``GPLVM(q, Kernel(length_scale, noise), method, options).fit(S, d, init, callback)``; a
+    fit with a stress term is made with :class:`GPLVM` itself.
 
     Parameters
     ----------
@@ -370,10 +368,6 @@ def fit_latent(
     options : HookeJeevesOptions or LBFGSOptions, optional
         The optimiser's settings, of ``method``'s type (default: its defaults; see
         :func:`optimiser_options`).
-    stress : Stress, optional
-        The stress term (:mod:`.stress`; default none).
-    distances : (N, N) array_like, optional
-        Its target distances between the materials.
 
     Returns
     -------
@@ -388,4 +382,4 @@ def fit_latent(
             f"`options` of method {method!r} must be a {METHODS[method].__name__}, "
             f"got {type(options).__name__}; make them with gplvm.optimiser_options"
         )
-    return GPLVM(q, kernel, method, options, stress).fit(S, d, init, callback, distances)
+    return GPLVM(q, kernel, method, options).fit(S, d, init, callback)

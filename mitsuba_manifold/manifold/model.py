@@ -939,15 +939,9 @@ class Manifold:
         distances = None
         if stress.active:
             distances = distance_matrix(self.tables()[keep], dims=self.dims)
-        fit = gplvm.fit_latent(
-            S,
-            self.record.d,
-            q=self.q,
-            method=self.record.method or "hooke-jeeves",
-            length_scale=self.length_scale,
-            noise=self.noise,
-            stress=stress,
-            distances=distances,
+        method = self.record.method or "hooke-jeeves"
+        fit = gplvm.GPLVM(self.q, self.kernel, method, gplvm.optimiser_options(method), stress).fit(
+            S, self.record.d, distances=distances
         )
         if stress.active:
             info = {**info, "stress_value": float(fit.stress)}

@@ -66,24 +66,19 @@ def settings(preset="default", **overrides):
 
 
 def fit_layout(S, d, cfg, init=None, callback=None, distances=None, **options):
-    """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:func:`gplvm.fit_latent`);
+    """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:class:`gplvm.GPLVM`);
     ``options`` (``max_iter``, ``tol``, ``initial_step``) set the optimiser
     (:func:`gplvm.optimiser_options`); ``distances``: the materials' perceptual distances (N, N),
     the stress term's targets (needed when ``cfg["stress"] > 0``).
     """
-    return gplvm.fit_latent(
-        S,
-        d,
-        q=cfg["q"],
-        method=cfg["method"],
-        length_scale=cfg["length_scale"],
-        noise=cfg["noise"],
-        init=init,
-        options=gplvm.optimiser_options(cfg["method"], **options),
-        callback=callback,
-        stress=stress_of(cfg),
-        distances=distances,
+    model = gplvm.GPLVM(
+        cfg["q"],
+        gplvm.Kernel(cfg["length_scale"], cfg["noise"]),
+        cfg["method"],
+        gplvm.optimiser_options(cfg["method"], **options),
+        stress_of(cfg),
     )
+    return model.fit(S, d, init, callback, distances)
 
 
 def stress_of(cfg):

@@ -60,7 +60,7 @@ def test_weight_zero_is_the_plain_fit_bit_for_bit():
     d = 1e5
     S = gram(smooth_data(12, seed=3), d)
     plain = gplvm.fit_latent(S, d, q=2, method="lbfgs")
-    off = gplvm.fit_latent(S, d, q=2, method="lbfgs", stress=Stress(0.0, 3), distances=_targets(12))
+    off = gplvm.GPLVM(2, method="lbfgs", stress=Stress(0.0, 3)).fit(S, d, distances=_targets(12))
     assert np.array_equal(plain.latent, off.latent)
     assert np.array_equal(plain.history, off.history)
     assert off.stress is None
@@ -75,8 +75,7 @@ def test_stress_term_pulls_the_layout_towards_the_targets():
     term = Stress(1.0).term(D, n, d)
     plain = gplvm.fit_latent(S, d, q=2, method="lbfgs")
     fits = [
-        gplvm.fit_latent(S, d, q=2, method="lbfgs", stress=Stress(w), distances=D)
-        for w in (0.01, 1.0)
+        gplvm.GPLVM(2, method="lbfgs", stress=Stress(w)).fit(S, d, distances=D) for w in (0.01, 1.0)
     ]
     sigmas = [term.value(plain.latent)] + [f.stress for f in fits]
     Ls = [plain.log_likelihood] + [f.log_likelihood for f in fits]
@@ -96,12 +95,12 @@ def test_stress_term_pulls_the_layout_towards_the_targets():
         (lambda: gplvm.GPLVM(2, stress=Stress(1.0)), "needs method 'lbfgs'"),
         (lambda: gplvm.GPLVM(2, method="lbfgs", stress=0.5), "must be a gplvm.Stress"),
         (
-            lambda: gplvm.fit_latent(np.eye(4), 10, method="lbfgs", stress=Stress(1.0)),
+            lambda: gplvm.GPLVM(2, method="lbfgs", stress=Stress(1.0)).fit(np.eye(4), 10),
             "needs the target `distances`",
         ),
         (
-            lambda: gplvm.fit_latent(
-                np.eye(4), 10, method="lbfgs", stress=Stress(1.0), distances=np.ones((3, 3))
+            lambda: gplvm.GPLVM(2, method="lbfgs", stress=Stress(1.0)).fit(
+                np.eye(4), 10, distances=np.ones((3, 3))
             ),
             "must be N x N",
         ),
