@@ -109,3 +109,26 @@ def test_stress_term_pulls_the_layout_towards_the_targets():
 def test_bad_stress_settings_are_rejected_clearly(make, match):
     with pytest.raises(InputError, match=match):
         make()
+
+
+def test_penalised_objective_gradient_matches_finite_differences():
+    """The objective the optimiser climbs, ``L - lambda (d N / 2) sigma``, with its gradient."""
+    from mitsuba_manifold.gp.likelihood import Likelihood
+    from mitsuba_manifold.gp.stress import PenalisedLikelihood
+
+    n, d = 10, 1e3
+    S = gram(smooth_data(n, seed=8), d)
+    unit = Likelihood(S, d).in_units()
+    obj = PenalisedLikelihood(unit, Stress(0.3).term(_targets(n, seed=9), n, d))
+    X = gplvm.pca_init(S, 2) + 0.1 * np.random.default_rng(1).standard_normal((n, 2))
+    value, g = obj._value_grad(X)
+    assert value == pytest.approx(unit._value(X) - obj.term.penalty(X), rel=1e-12)
+    h = 1e-6
+    fd = np.zeros_like(X)
+    for i in range(n):
+        for j in range(2):
+            Xp, Xm = X.copy(), X.copy()
+            Xp[i, j] += h
+            Xm[i, j] -= h
+            fd[i, j] = (obj._value(Xp) - obj._value(Xm)) / (2 * h)
+    np.testing.assert_allclose(g, fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
