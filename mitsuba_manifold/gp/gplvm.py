@@ -29,6 +29,9 @@ holds the PCA start and the estimator: :class:`GPLVM` (scikit-learn style: setti
 constructor, ``fit(S, d)`` returning a :class:`FitResult`) and :func:`fit_latent`, the same
 as one function; it re-exports the public names of the others.
 
+An optional stress term (:mod:`.stress`, L-BFGS-B only) asks the latent distances to follow
+given distances between the materials: the fit then maximises ``L - lambda (d N / 2) sigma``.
+
 Internally both work in units of the length scale (``u = x / l``): scaling ``l`` and the
 latent points together changes neither K nor L, so a fit at any ``l`` is the fit at ``l = 1``
 scaled by ``l``.
@@ -49,6 +52,7 @@ from .kernel import MAX_LATENT_DIM, Kernel, check_points, check_positive, kernel
 from .likelihood import Likelihood, check_gram, log_likelihood, log_likelihood_grad
 from .optimisers import HookeJeevesOptions, LBFGSOptions
 from .rank_update import MoveTrial, RankUpdatedInverse
+from .stress import PenalisedLikelihood, Stress
 
 try:  # optional: lets small fits run BLAS single-threaded, much faster for N ~ 100
     from threadpoolctl import threadpool_limits
@@ -70,6 +74,7 @@ __all__ = [
     "RankUpdatedInverse",
     "MoveTrial",
     "FitResult",
+    "Stress",
     "optimiser_options",
     "fit_latent",
 ]
@@ -163,6 +168,9 @@ class FitResult:
         From-scratch factorisations of K (Hooke-Jeeves).
     max_drift : float
         Largest relative disagreement between the maintained L and a fresh one (Hooke-Jeeves).
+    stress : float or None
+        The stress ``sigma`` of the final points (:mod:`.stress`) when the fit had a stress
+        term; ``history`` then holds ``L - lambda (d N / 2) sigma``, the objective maximised.
     """
 
     latent: np.ndarray
@@ -177,6 +185,7 @@ class FitResult:
     noise: float = 1e-4
     n_refactorisations: int = 0
     max_drift: float = 0.0
+    stress: float = None
 
     @property
     def n_iterations(self):
@@ -203,6 +212,9 @@ class GPLVM:
         The paper's direct search with rank-one updates, or L-BFGS-B with the gradient.
     options : HookeJeevesOptions or LBFGSOptions, optional
         The optimiser's settings (default: the method's defaults).
+    stress : Stress, optional
+        The stress term's weight and pairs (:mod:`.stress`; default none). A term with weight
+        > 0 needs ``method="lbfgs"`` and the target distances in :meth:`fit`.
 
     Notes
     -----
@@ -212,7 +224,7 @@ class GPLVM:
     single-threaded during the fit when ``threadpoolctl`` is installed.
     """
 
-    def __init__(self, q=2, kernel=None, method="hooke-jeeves", options=None):
+    def __init__(self, q=2, kernel=None, method="hooke-jeeves", options=None, stress=None):
         self.q = check_q(q)
         self.kernel = Kernel() if kernel is None else kernel
         check_positive("noise", self.kernel.noise)
@@ -225,8 +237,16 @@ class GPLVM:
                 f"`options` of method {method!r} must be a {METHODS[method].__name__}, "
                 f"got {type(options).__name__}"
             )
+        self.stress = Stress() if stress is None else stress
+        if not isinstance(self.stress, Stress):
+            raise InputError(f"`stress` must be a gplvm.Stress, got {type(stress).__name__}")
+        if self.stress.active and method != "lbfgs":
+            raise InputError(
+                f"a stress term (weight {self.stress.weight:g}) needs method 'lbfgs', got "
+                f"{method!r}; use method='lbfgs' or stress weight 0"
+            )
 
-    def fit(self, S, d, init=None, callback=None):
+    def fit(self, S, d, init=None, callback=None, distances=None):
         """Latent points maximising the log-likelihood L (Eq. 6) of Gram matrix ``S``.
 
         Parameters
@@ -239,12 +259,23 @@ class GPLVM:
             Starting points; :func:`pca_init` by default.
         callback : callable, optional
             ``callback(iteration, latent, L)`` after each iteration; returning True stops.
+        distances : (N, N) array_like, optional
+            The stress term's target distances between the materials (needed when it is on,
+            unused otherwise).
 
         Returns
         -------
         FitResult
         """
         likelihood = Likelihood(S, d, self.kernel)
+        term = None
+        if self.stress.active:
+            if distances is None:
+                raise InputError(
+                    "a stress term needs the target `distances` between the materials; "
+                    "pass distances=(N, N) array or use stress weight 0"
+                )
+            term = self.stress.term(distances, likelihood.n, likelihood.d)
         l = self.kernel.length_scale
         if init is None:
             X0 = pca_init(likelihood.S, self.q, l)
@@ -253,12 +284,14 @@ class GPLVM:
         if callback is not None and not callable(callback):
             raise InputError("`callback` must be callable")
         unit = likelihood.in_units()
+        target = unit if term is None else PenalisedLikelihood(unit, term)
         run = optimisers.hooke_jeeves if self.method == "hooke-jeeves" else optimisers.lbfgs
         single = threadpool_limits is not None and likelihood.n <= SINGLE_THREAD_MAX_N
         t0 = time.perf_counter()
         with threadpool_limits(1, user_api="blas") if single else contextlib.nullcontext():
-            res = run(unit, X0 / l, self.options, callback, l)
+            res = run(target, X0 / l, self.options, callback, l)
             L = unit._value(res.units)
+            sigma = None if term is None else term.value(res.units)
         return FitResult(
             latent=res.units * l,
             log_likelihood=L,
@@ -272,6 +305,7 @@ class GPLVM:
             noise=self.kernel.noise,
             n_refactorisations=res.n_refactorisations,
             max_drift=res.max_drift,
+            stress=sigma,
         )
 
 
@@ -320,7 +354,8 @@ def fit_latent(
 ):
     """Latent points maximising the GPLVM log-likelihood L (Eq. 6): :class:`GPLVM` as one call.
 
-    ``GPLVM(q, Kernel(length_scale, noise), method, options).fit(S, d, init, callback)``.
+    ``GPLVM(q, Kernel(length_scale, noise), method, options).fit(S, d, init, callback)``; a
+    fit with a stress term is made with :class:`GPLVM` itself.
 
     Parameters
     ----------

@@ -132,6 +132,10 @@ class Likelihood:
         return objective(f.logdet, float(np.trace(KS)), self.d), 0.5 * np.einsum("ij,kji->k", G, dK)
 
     # -- unchecked, in units of the length scale (the optimisers' inner loops)
+    def _penalty(self, U):
+        """What a penalised objective takes off ``L`` (:class:`~.stress.PenalisedLikelihood`): 0."""
+        return 0.0
+
     def _value(self, U):
         f = factorise(self._unit._K(U))
         return objective(f.logdet, float(np.trace(f.solve(self.S))), self.d)

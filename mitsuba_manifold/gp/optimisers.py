@@ -213,7 +213,7 @@ def lbfgs(likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.
         cache[flat.tobytes()] = L
         return -L / scale, -g.ravel() / scale
 
-    history = [objective(logdet, trace0, d)]
+    history = [objective(logdet, trace0, d) - likelihood._penalty(U0)]
     last = {"x": U0.ravel().copy()}
 
     class _Stop(Exception):

@@ -41,6 +41,7 @@ from .._util.float32 import weights32
 from .._util.names import is_name
 from ..data import gram as gram_mod
 from ..data.database import FEATURES, Database, albedo_weights
+from ..data.distance import distance_matrix
 from ..errors import FormatError, InputError, did_you_mean
 from ..gp.gplvm import FitResult
 from ..gp.kernel import Kernel
@@ -50,7 +51,7 @@ from . import interpolant as interpolants
 from . import io as manifold_file
 from . import projection as projection_mod
 from .fit_record import FitRecord, Timings
-from .presets import PRESETS, fit_layout, make_interpolant, settings
+from .presets import PRESETS, fit_layout, make_interpolant, settings, stress_of
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES, PruneReport
 from .tables import TrainingTables
 
@@ -140,7 +141,16 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
         tables, cfg["features"], centre=True, raw=True, weights=albedo_weights(db.dims).reshape(-1)
     )
     t_gram = time.perf_counter() - t0
-    result = fit_layout(g.S, tables.shape[1], cfg, init=init, **options)
+    stress = stress_of(cfg)
+    distances = distance_matrix(tables, dims=db.dims) if stress.active else None
+    result = fit_layout(g.S, tables.shape[1], cfg, init=init, distances=distances, **options)
+    extra = {}
+    if stress.active:  # the stress term's settings and outcome, in the saved info
+        extra = {
+            "stress": stress.weight,
+            "stress_neighbours": stress.neighbours,
+            "stress_value": float(result.stress),
+        }
     record = FitRecord(
         method=cfg["method"],
         preset=preset,
@@ -151,6 +161,7 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
         n_evaluations=int(result.n_evaluations),
         history=result.history,
         timings=Timings(t_load, t_gram, float(result.time_s)),
+        extra=extra,
     )
     return DatabaseFit(
         names,
@@ -319,11 +330,13 @@ class Manifold:
         progress=False,
         preset="default",
         interpolant=None,
+        stress=None,
+        stress_neighbours=None,
         **options,
     ):
         """Fit latent points to the tables of ``database`` (paper Sec. 3).
 
-        Its twelve parameters are the fit's settings as keywords (scikit-learn style), each
+        Its fourteen parameters are the fit's settings as keywords (scikit-learn style), each
         overriding the preset's value, so a user sets any one of them without a settings object.
 
         ``Manifold.fit(database)`` fits the default preset; ``preset="paper"`` the paper's
@@ -346,6 +359,13 @@ class Manifold:
             See :data:`PRESETS`.
         interpolant : dict, optional
             Weight function, e.g. ``{"kind": "gp", "exact": True}`` (see :mod:`interpolant`).
+        stress : float
+            Weight ``lambda >= 0`` of the layout's stress term towards the tables' perceptual
+            distances (:mod:`gp.stress`, :func:`data.distance.distance_matrix`; needs
+            ``method="lbfgs"``); 0: none. Saved in :attr:`info` when on.
+        stress_neighbours : int, optional
+            The pairs the stress term covers: each material with its ``k`` perceptually nearest;
+            None: every pair.
         **options
             The optimiser's ``max_iter``, ``tol``, ``initial_step`` (:func:`gplvm.optimiser_options`)
             and the fit's ``callback`` (:meth:`gplvm.GPLVM.fit`).
@@ -358,6 +378,8 @@ class Manifold:
             noise=noise,
             features=features,
             interpolant=interpolant,
+            stress=stress,
+            stress_neighbours=stress_neighbours,
         )
         if isinstance(names, str):  # "chrome, steel": the names of a comma-separated list
             names = [n.strip() for n in names.split(",") if n.strip()]
@@ -902,8 +924,9 @@ class Manifold:
         """The manifold of materials ``names`` alone, fit again on their Gram matrix.
 
         The sub-block of this manifold's Gram matrix is centred about the subset's own mean and
-        its latent points are fit (Eq. 6) with this manifold's kernel, optimiser and latent
-        dimension; the weights come from this manifold's interpolant (its kind and parameters,
+        its latent points are fit (Eq. 6) with this manifold's kernel, optimiser, latent
+        dimension and stress term (towards the subset's perceptual distances, from its tables);
+        the weights come from this manifold's interpolant (its kind and parameters,
         not the GP of Eq. 4 unless that is what this manifold uses). The result is not saved.
 
         Parameters
@@ -933,14 +956,17 @@ class Manifold:
         S = self.gram[np.ix_(keep, keep)]
         J = np.eye(len(keep)) - 1.0 / len(keep)
         S = J @ S @ J
-        fit = gplvm.fit_latent(
-            S,
-            self.record.d,
-            q=self.q,
-            method=self.record.method or "hooke-jeeves",
-            length_scale=self.length_scale,
-            noise=self.noise,
+        info = self.info
+        stress = gplvm.Stress(info.get("stress", 0.0), info.get("stress_neighbours"))
+        distances = None
+        if stress.active:
+            distances = distance_matrix(self.tables()[keep], dims=self.dims)
+        method = self.record.method or "hooke-jeeves"
+        fit = gplvm.GPLVM(self.q, self.kernel, method, gplvm.optimiser_options(method), stress).fit(
+            S, self.record.d, distances=distances
         )
+        if stress.active:
+            info = {**info, "stress_value": float(fit.stress)}
         table_gram = None if self.table_gram is None else self.table_gram[np.ix_(keep, keep)]
         return type(self)(
             names,
@@ -956,7 +982,7 @@ class Manifold:
             table_gram=table_gram,
             record=FitRecord.from_info(
                 {
-                    **self.info,
+                    **info,
                     "log_likelihood": float(fit.log_likelihood),
                     "subset_of": getattr(self, "file", None),
                 },

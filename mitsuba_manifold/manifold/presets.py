@@ -1,7 +1,9 @@
 """Named fit settings of a manifold: the paper's exact formulation and the measured default.
 
 A setting dict holds ``q``, ``features``, ``method``, ``length_scale``, ``noise`` (the GPLVM
-layout, paper Sec. 3) and ``interpolant`` (the weight function, :mod:`interpolant`).
+layout, paper Sec. 3), ``stress`` and ``stress_neighbours`` (the weight and pairs of the
+layout's optional stress term towards the tables' perceptual distances, :mod:`gp.stress`; 0:
+none) and ``interpolant`` (the weight function, :mod:`interpolant`).
 ``Manifold.fit`` and ``tools/bench.py space`` both go through :func:`settings`,
 :func:`fit_layout` and :func:`make_interpolant`, so the benchmark measures what users get.
 """
@@ -20,6 +22,8 @@ PRESETS = {
         "method": "hooke-jeeves",
         "length_scale": 1.0,
         "noise": 1e-4,
+        "stress": 0.0,
+        "stress_neighbours": None,
         "interpolant": {"kind": "gp", "exact": True},
     },
     "default": {
@@ -28,6 +32,8 @@ PRESETS = {
         "method": "lbfgs",
         "length_scale": 1.0,
         "noise": 1e-4,
+        "stress": 0.0,
+        "stress_neighbours": None,
         "interpolant": {
             "kind": "shepard",
             "power": 2.0,
@@ -59,22 +65,25 @@ def settings(preset="default", **overrides):
     return out
 
 
-def fit_layout(S, d, cfg, init=None, callback=None, **options):
-    """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:func:`gplvm.fit_latent`);
+def fit_layout(S, d, cfg, init=None, callback=None, distances=None, **options):
+    """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:class:`gplvm.GPLVM`);
     ``options`` (``max_iter``, ``tol``, ``initial_step``) set the optimiser
-    (:func:`gplvm.optimiser_options`).
+    (:func:`gplvm.optimiser_options`); ``distances``: the materials' perceptual distances (N, N),
+    the stress term's targets (needed when ``cfg["stress"] > 0``).
     """
-    return gplvm.fit_latent(
-        S,
-        d,
-        q=cfg["q"],
-        method=cfg["method"],
-        length_scale=cfg["length_scale"],
-        noise=cfg["noise"],
-        init=init,
-        options=gplvm.optimiser_options(cfg["method"], **options),
-        callback=callback,
+    model = gplvm.GPLVM(
+        cfg["q"],
+        gplvm.Kernel(cfg["length_scale"], cfg["noise"]),
+        cfg["method"],
+        gplvm.optimiser_options(cfg["method"], **options),
+        stress_of(cfg),
     )
+    return model.fit(S, d, init, callback, distances)
+
+
+def stress_of(cfg):
+    """The :class:`gplvm.Stress` of settings ``cfg`` (none when they have no stress entries)."""
+    return gplvm.Stress(cfg.get("stress", 0.0), cfg.get("stress_neighbours"))
 
 
 def make_interpolant(latent, cfg):

@@ -357,3 +357,37 @@ def test_a_manifold_and_its_tables_go_with_its_last_reference(small_manifold):
     interpolant = Manifold.load(small_manifold).interpolant
     with pytest.raises(UnavailableError, match="no longer exists"):
         interpolant.b_and_w(far[None])
+
+
+def test_a_stress_term_is_fitted_to_the_perceptual_distances_and_saved_with_the_fit(
+    small_db, tmp_path
+):
+    from mitsuba_manifold.data.distance import distance_matrix
+    from mitsuba_manifold.gp.stress import Stress
+
+    plain = Manifold.fit(small_db)
+    assert not any(k.startswith("stress") for k in plain.info)  # off: the info of before
+    m = Manifold.fit(small_db, stress=3.0, stress_neighbours=4)
+    D = distance_matrix(m.tables(), dims=m.dims)
+    sigma = Stress(1.0, 4).term(D, m.n, 1).value
+    assert m.info["stress"] == 3.0 and m.info["stress_neighbours"] == 4
+    assert m.info["stress_value"] == pytest.approx(sigma(m.latent), rel=1e-9)
+    assert sigma(m.latent) < sigma(plain.latent)
+    m.save(tmp_path / "m.npz")
+    assert Manifold.load(tmp_path / "m.npz").info == m.info
+    with pytest.raises(InputError, match="needs method 'lbfgs'"):
+        Manifold.fit(small_db, stress=1.0, method="hooke-jeeves")
+
+
+def test_a_subset_of_a_manifold_fitted_with_stress_is_fitted_with_it(small_db):
+    from mitsuba_manifold.data.distance import distance_matrix
+    from mitsuba_manifold.gp.stress import Stress
+
+    m = Manifold.fit(small_db, stress=3.0)
+    names = m.names[:6]
+    sub = m.subset(names)
+    D = distance_matrix(sub.tables(), dims=sub.dims)
+    sigma = Stress(1.0).term(D, sub.n, 1).value(sub.latent)
+    assert sub.info["stress"] == 3.0 and sub.info["stress_value"] == pytest.approx(sigma, rel=1e-9)
+    plain = Manifold.fit(small_db, names=names)
+    assert sigma < Stress(1.0).term(D, sub.n, 1).value(plain.latent)
