@@ -28,6 +28,7 @@ import numpy as np
 
 from mitsuba_manifold._util.timing import median_time
 from mitsuba_manifold.data.database import Database
+from mitsuba_manifold.data.distance import distance_matrix
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.manifold import projection, space
 from mitsuba_manifold.manifold.model import (
@@ -37,6 +38,7 @@ from mitsuba_manifold.manifold.model import (
     make_interpolant,
     settings,
 )
+from mitsuba_manifold.manifold.presets import stress_of
 
 #: Configurations compared: name -> (preset, overrides). ``default`` is the preset.
 CONFIGS = {
@@ -49,11 +51,19 @@ CONFIGS = {
     ),
     "shepard-global-q3": (
         "default",
-        {"interpolant": {"kind": "shepard", "power": 2.0, "taper": float("inf"), "spread": 0.0}},
+        {
+            "q": 3,
+            "stress": 0.0,
+            "interpolant": {"kind": "shepard", "power": 2.0, "taper": float("inf"), "spread": 0.0},
+        },
     ),
     "shepard-fixed-taper-q3": (
         "default",
-        {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2, "spread": 0.0}},
+        {
+            "q": 3,
+            "stress": 0.0,
+            "interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2, "spread": 0.0},
+        },
     ),
     "shepard-spread-0.3": (
         "default",
@@ -71,9 +81,10 @@ CONFIGS = {
         "default",
         {"interpolant": {"kind": "shepard", "power": 2.0, "taper": 0.2, "spread": 0.2}},
     ),
-    "shepard-local-q2": ("default", {"q": 2}),
-    "shepard-local-q4": ("default", {"q": 4}),
-    "shepard-local-q5": ("default", {"q": 5}),
+    "shepard-local-q2": ("default", {"q": 2, "stress": 0.0}),
+    "shepard-local-q3": ("default", {"q": 3, "stress": 0.0}),
+    "shepard-local-q4": ("default", {"q": 4, "stress": 0.0}),
+    "shepard-local-q5": ("default", {"q": 5, "stress": 0.0}),
     "shepard-coslog": ("default", {"features": "coslog"}),
     "default": ("default", {}),
 }
@@ -110,12 +121,19 @@ def _basis_images(basis, names):
     return read("base"), np.stack([read(n) for n in names])
 
 
-def _config_report(name, cfg, tables, names, grams, albedos, images, base, folds, progress):
+def _config_report(
+    name, cfg, tables, names, grams, albedos, images, base, folds, progress, *, distances=None
+):
+    """One configuration's report; ``distances``: the tables' perceptual distances, the targets
+    of a configuration's stress term (as :meth:`Manifold.fit` uses them).
+    """
     d = tables.shape[1]
     G_fit = grams[cfg["features"]]
+    D = distances if stress_of(cfg).active else None
 
     def fit(train):
-        res = fit_layout(space.centred(G_fit, train), d, cfg)
+        sub = None if D is None else D[np.ix_(train, train)]
+        res = fit_layout(space.centred(G_fit, train), d, cfg, distances=sub)
         return make_interpolant(res.latent, cfg)
 
     t0 = time.perf_counter()
@@ -272,6 +290,9 @@ def run(folder, basis=None, configs=None, names=None, folds=None, progress=True)
     albedos = db.albedo(names, tables=tables)
     t_load = time.perf_counter() - t0
     cfgs = {c: settings(CONFIGS[c][0], **CONFIGS[c][1]) for c in configs}
+    distances = None
+    if any(stress_of(cfg).active for cfg in cfgs.values()):
+        distances = distance_matrix(tables, dims=db.dims)
     cos = _cos_weights(db.dims)
     t0 = time.perf_counter()
     grams = {
@@ -298,7 +319,17 @@ def run(folder, basis=None, configs=None, names=None, folds=None, progress=True)
     }
     for c in configs:
         out["configs"][c] = _config_report(
-            c, cfgs[c], tables, names, grams, albedos, images, base, folds, progress
+            c,
+            cfgs[c],
+            tables,
+            names,
+            grams,
+            albedos,
+            images,
+            base,
+            folds,
+            progress,
+            distances=distances,
         )
     out["convex_blend_reference"] = _blend_reference(tables, grams["log"], folds)
     del tables

@@ -27,12 +27,12 @@ PRESETS = {
         "interpolant": {"kind": "gp", "exact": True},
     },
     "default": {
-        "q": 3,
+        "q": 4,
         "features": "log",
         "method": "lbfgs",
         "length_scale": 1.0,
         "noise": 1e-4,
-        "stress": 0.0,
+        "stress": 20.0,
         "stress_neighbours": None,
         "interpolant": {
             "kind": "shepard",

@@ -1,6 +1,7 @@
 """Inputs a user gets wrong, refused in one line before any work: a path depth that shows no
 material, a path of blends beyond the limit, weights that overflow, and targets that are no image
-of light (a PNG whose rows end early, an EXR of negative values)."""
+of light (a PNG whose rows end early, an EXR of negative values), a fit by direct search with the
+default's stress term."""
 
 import struct
 import zlib
@@ -27,6 +28,22 @@ def test_a_path_depth_that_shows_no_material_is_refused(capsys, tmp_path, depth)
     err = _error(capsys, main, ["sphere", "--out", str(tmp_path / "b"), "--max-depth", str(depth)])
     assert f"--max-depth must be -1 (unbounded) or at least 2, got {depth}" in err
     assert not (tmp_path / "b").exists()
+
+
+def test_a_fit_by_direct_search_asks_to_drop_the_default_stress_term(capsys, tmp_path):
+    """Hooke-Jeeves cannot fit the default's stress term: refused before the fit, naming the
+    fix; with ``--stress 0`` it fits."""
+    from mitsuba_manifold.apps.cli.fit_manifold import main
+    from mitsuba_manifold.manifold.model import Manifold
+
+    out = tmp_path / "m.npz"
+    argv = ["nielsen@8x8x16", "--out", str(out), "--method", "hooke-jeeves"]
+    err = _error(capsys, main, argv)
+    assert "--method hooke-jeeves cannot fit the layout's stress term" in err
+    assert "add --stress 0, or use --method lbfgs" in err and not out.exists()
+    assert main([*argv, "--stress", "0"]) in (0, None)
+    m = Manifold.load(out)
+    assert m.record.method == "hooke-jeeves" and "stress" not in m.info
 
 
 def test_a_path_of_too_many_steps_is_refused_naming_the_limit(capsys, tmp_path):

@@ -124,7 +124,7 @@ def test_the_default_weights_go_on_beyond_the_data_and_stay_plausible(measured):
         beyond.append(w.min() < -1e-3 and gap[-1] > gap[2])
     # on many rays the material leaves the mixes of the data, the farther the more (on the
     # others a spiky or dark material meets the plausibility limit at once)
-    assert np.mean(beyond) >= 1 / 3
+    assert np.mean(beyond) >= 1 / 5
 
 
 def test_far_beyond_the_data_the_material_settles_and_stays_plausible(measured):

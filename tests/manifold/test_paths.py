@@ -168,12 +168,22 @@ def _fig9_gaps(metric, X):
     return gap, s.max() / s.sum()
 
 
-def test_a_faithful_path_keeps_each_point_where_its_place_says_in_even_steps(m, pair):
+@pytest.fixture(scope="module")
+def unstressed(small_db):
+    """The same materials laid out without the stress term: the geodesic between the two
+    furthest apart strays from Fig. 9's diagonals there."""
+    return Manifold.fit(small_db, q=2, stress=0.0)
+
+
+def test_a_faithful_path_keeps_each_point_where_its_place_says_in_even_steps(unstressed):
     """Between the two materials furthest apart in latent space, whose geodesic strays from
     Fig. 9's diagonals, the faithful path's points are closer to them (each as far from the ends
     as its place along the path says) and its steps stay even; its ends are the materials', other
     step counts read it; between the nearest two, whose geodesic is faithful already, it is the
     faithful path."""
+    m = unstressed
+    d = np.linalg.norm(m.latent[:, None] - m.latent[None], axis=-1)
+    pair = [m.names[i] for i in np.unravel_index(np.argmax(d), d.shape)]
     metric = paths.PathMetric.of(m)
     gap_geodesic, _ = _fig9_gaps(metric, m.path(*pair, steps=21, kind="geodesic"))
     assert gap_geodesic > paths.FAITHFUL_TOLERANCE
@@ -201,7 +211,7 @@ def test_the_faithful_objective_gradient_is_its_derivative(m):
     metric = paths.PathMetric.of(m)
     X = paths.straight(m.latent[0], m.latent[4], 7) + np.array([0.03, -0.02])
     e, g = paths.faithful_objective(metric, X)
-    h = 1e-5
+    h = 1e-4  # the objective is evaluated in float32: smaller steps difference its rounding
     for k, c in [(2, 0), (3, 1), (5, 0)]:
         up, down = X.copy(), X.copy()
         up[k, c] += h
@@ -209,7 +219,7 @@ def test_the_faithful_objective_gradient_is_its_derivative(m):
         fd = (
             paths.faithful_objective(metric, up)[0] - paths.faithful_objective(metric, down)[0]
         ) / (2 * h)
-        assert g[k, c] == pytest.approx(fd, rel=0.05, abs=1e-6 * abs(e))
+        assert g[k, c] == pytest.approx(fd, rel=0.05, abs=1e-4 * abs(e))
 
 
 def test_path_weights_hold_no_subnormal_float32(m):

@@ -14,6 +14,7 @@ def check(args, guard=None):
     from ..._util import ownership
     from ...errors import InputError, MitsubaManifoldError, one_line
     from ...imaging import plots
+    from ...manifold.presets import PRESETS
 
     if len(args.name) > len(args.add):
         raise InputError(
@@ -39,6 +40,7 @@ def check(args, guard=None):
             "--features": args.features,
             "--length-scale": args.length_scale,
             "--noise": args.noise,
+            "--stress": args.stress,
             "--preset": None if args.preset == "default" else args.preset,
         }
         given = [k for k, v in fit_options.items() if v is not None]
@@ -53,6 +55,16 @@ def check(args, guard=None):
         validate.finite("--length-scale", args.length_scale, 0.0, 1e6, lo_open=True)
     if args.noise is not None:
         validate.finite("--noise", args.noise, 0.0, 1e6, lo_open=True)
+    if args.stress is not None:
+        validate.finite("--stress", args.stress, 0.0, 1e6)
+    method = args.method or PRESETS[args.preset]["method"]
+    stress = PRESETS[args.preset]["stress"] if args.stress is None else args.stress
+    if method != "lbfgs" and stress > 0:
+        raise InputError(
+            f"--method {method} cannot fit the layout's stress term (weight {stress:g}, "
+            f"{'--stress' if args.stress is not None else 'the ' + args.preset + ' preset'}): "
+            "add --stress 0, or use --method lbfgs"
+        )
     folder, base = os.path.split(args.out)
     if not base.lower().endswith(".npz") or len(base) <= 4:
         fix = os.path.join(folder, (os.path.splitext(base)[0].lstrip(".") or "manifold") + ".npz")
@@ -81,7 +93,8 @@ def main(argv=None):
         "--preset",
         choices=["default", "paper"],
         default="default",
-        help="default: the measured best (log features, q=3, convex Shepard weights); paper: the "
+        help="default: the measured best (log features, q=4 with a stress term towards the "
+        "materials' perceptual distances, convex Shepard weights); paper: the "
         "paper's exact formulation (raw features, q=2, Hooke-Jeeves, Eq. 4 GP weights). "
         "The options below override the preset",
     )
@@ -93,6 +106,13 @@ def main(argv=None):
     p.add_argument("--features", choices=["raw", "log"], default=None, help="fit features")
     p.add_argument("--length-scale", type=float, default=None, help="kernel length scale l")
     p.add_argument("--noise", type=float, default=None, help="kernel noise mu")
+    p.add_argument(
+        "--stress",
+        type=float,
+        default=None,
+        help="weight of the layout's stress term towards the materials' perceptual distances "
+        "(0: none; needs --method lbfgs when > 0)",
+    )
     p.add_argument("--plot", metavar="DIR", help="write latent map and convergence PNGs here")
     p.add_argument(
         "--add",
@@ -145,6 +165,7 @@ def fit_and_save(args, guard, t0):
             noise=args.noise,
             features=args.features,
             preset=args.preset,
+            stress=args.stress,
             progress=True,
         )
     for k, path in enumerate(args.add):
