@@ -226,11 +226,27 @@ _READY_PARTS = """window.__ready = {}; const __t = setInterval(() => {
   if (Object.keys(r).length === Object.keys(parts).length) clearInterval(__t); }, 20);"""
 
 
+def _process_kind(pid):
+    """What a process under this one is: Chromium's ``--type`` (``renderer``, ``gpu-process``,
+    ...; ``browser`` without one) or ``driver`` (Playwright's, anything else).
+    """
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            args = f.read().replace(b" ", b"\0").split(b"\0")  # Chromium's children: one string
+    except OSError:
+        return "driver"
+    if not args or b"chrom" not in os.path.basename(args[0]).lower():
+        return "driver"
+    kinds = [a[len(b"--type=") :].decode() for a in args if a.startswith(b"--type=")]
+    return kinds[0] if kinds else "browser"
+
+
 def _cpu_seconds(server_pid):
     """CPU seconds (user + system, from ``/proc``) of the processes started from this one:
     ``{"server": the explorer's process tree, "browser": every other descendant (Chromium's
-    processes and Playwright's driver)}``; empty where ``/proc`` is missing. A difference of
-    two readings is the work a drag costs, whatever else runs on the machine.
+    processes and Playwright's driver), "browser:KIND": the part of it of each kind of process
+    (:func:`_process_kind`)}``; empty where ``/proc`` is missing. A difference of two readings
+    is the work a drag costs, whatever else runs on the machine.
     """
     tick, parent, cpu = os.sysconf("SC_CLK_TCK"), {}, {}
     if not os.path.isdir("/proc/self"):
@@ -259,6 +275,8 @@ def _cpu_seconds(server_pid):
             out["server"] += seconds
         elif pid != me and under(pid, me):
             out["browser"] += seconds
+            kind = "browser:" + _process_kind(pid)
+            out[kind] = out.get(kind, 0.0) + seconds
     return out
 
 
@@ -279,11 +297,13 @@ def _settle(server_pid, share=0.1, window=1.0, timeout=120.0):
 
 
 def _cpu_per_move(before, after, moves):
-    """Milliseconds of CPU per pointer move, per part and in all, between two :func:`_cpu_seconds`."""
+    """Milliseconds of CPU per pointer move, per part and in all (``total``: server and
+    browser), between two :func:`_cpu_seconds` (a process started between them counts whole).
+    """
     if not before or not moves:
         return None
-    out = {k: 1e3 * (after[k] - before[k]) / moves for k in before}
-    out["total"] = sum(out.values())
+    out = {k: 1e3 * (after.get(k, 0.0) - before.get(k, 0.0)) / moves for k in after}
+    out["total"] = out["server"] + out["browser"]
     return out
 
 

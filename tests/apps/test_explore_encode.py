@@ -13,6 +13,7 @@ def test_fast_tonemap_equals_imageio(exposure):
     rng = np.random.default_rng(3)
     img = rng.lognormal(-2, 2.5, (40, 50, 3)).astype(np.float32)
     img[0, 0] = [np.nan, -1.0, np.inf]
+    img[0, 1] = [-np.inf, np.nan, 0.5]
     thr = encode._THRESHOLDS[:-1]
     edges = np.concatenate(
         [thr, np.nextafter(thr, np.float32(0)), np.nextafter(thr, np.float32(2))]

@@ -18,6 +18,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from ..._util.blas import one_thread
 from ...basis.blend import DEFAULT_PRUNE, blend
 from ...basis.composition import compose
 from ...basis.folder import Basis
@@ -193,7 +194,7 @@ class Explorer:
         """
         if fmt not in encode.FORMATS:
             raise InputError(f"format must be one of {encode.FORMATS}, got {show(fmt)}")
-        with self._framing:
+        with self._framing, one_thread():  # small products: BLAS threads would only wait
             t0 = time.perf_counter()
             img, info = self.blend(name, x, "raw" if coarse else "denoised")
             t1 = time.perf_counter()
