@@ -511,9 +511,10 @@ BROWSER_NOTE = (
     "for it or a later move. images_per_s: frames drawn of distinct points of the drags' moves, "
     "over the time from each drag's first move to the last such frame drawn. "
     "pointer_moves_per_s: the moves the page handled a second. cpu_ms_per_move: CPU of the "
-    "server and of Chromium (with Playwright's driver) per move, from /proc. load_average: "
+    "server and of Chromium (with Playwright's driver; browser:KIND per kind of process) per "
+    "move, from /proc; cpu_ms_per_image: the same over the images. load_average: "
     "os.getloadavg() (1, 5, 15 min) when each part ended; other jobs on the machine slow every "
-    "number but cpu_ms_per_move."
+    "number but the CPU per move and per image (which their contention still inflates)."
 )
 
 
@@ -596,6 +597,12 @@ def browser(
         cpu0 = _cpu_seconds(proc.pid)
         d = _drags(page, at, latent, drags, moves, pace_ms, driver=driver)
         report["cpu_ms_per_move"] = _cpu_per_move(cpu0, _cpu_seconds(proc.pid), d["moves"])
+        per_move = report["cpu_ms_per_move"]
+        report["cpu_ms_per_image"] = (
+            {k: v * d["moves"] / d["images"] for k, v in per_move.items()}
+            if per_move and d["images"]
+            else None
+        )
         report["load_average_after_drags"] = os.getloadavg()
         report["with_reference"] = (
             _with_reference(page, at, latent, drags, moves, pace_ms, driver) if reference else None
