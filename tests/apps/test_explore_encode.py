@@ -1,5 +1,7 @@
 """tools/explore.py without rendering: frame tonemapping and encoding, the latent map."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -102,3 +104,11 @@ def test_a_busy_port_names_port_not_host():
         assert "--host" not in str(e.value)
     finally:
         sock.close()
+
+
+@pytest.mark.parametrize("cores, threads", [(None, None), (1, 1), (2, 1), (3, 1), (4, 2), (16, 14)])
+def test_the_server_leaves_two_cores_to_the_browser_and_the_frames(cores, threads):
+    from mitsuba_manifold.apps.cli.explore import server_blas_threads
+
+    got = server_blas_threads(cores)
+    assert got == threads if threads else 1 <= got <= max(1, (os.cpu_count() or 1) - 2)
