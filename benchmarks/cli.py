@@ -57,6 +57,7 @@ ONLY = {
     "configs": ("space", "fig9"),
     "folds": ("space",),
     "browser": ("explore",),
+    "driver": ("explore",),
 }
 #: Library parameters named in the benchmarks' messages -> this tool's options.
 ALIASES = {"names": "materials", "presets": "configs", "folder": "database"}
@@ -103,6 +104,14 @@ def main(argv=None):
         default="software",
         help="explore --browser: how Chromium composites the page (default software, as Chrome "
         "without a GPU; swiftshader: through SwiftShader GL)",
+    )
+    p.add_argument(
+        "--driver",
+        choices=("page", "playwright"),
+        default=None,
+        help="explore --browser: how the drags' pointer moves reach the page (default page: "
+        "pointermove events dispatched in the page at 60 Hz after a real press, as a mouse's; "
+        "playwright: a Playwright mouse.move per move, a round trip from this process each)",
     )
     p.add_argument(
         "--configs",
@@ -215,6 +224,7 @@ def run(args):
             screenshot_path=os.path.splitext(args.json)[0] + ".png",
             browser=args.browser,
             compositing=args.compositing,
+            driver=args.driver or "page",
         )
     result = bench.run(args.which, folder, **kwargs)
     if args.which == "scaling":

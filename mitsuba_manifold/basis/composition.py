@@ -4,6 +4,7 @@ import time
 
 import numpy as np
 
+from .._util.blas import axpy, one_thread
 from .folder import BASE
 
 
@@ -25,15 +26,15 @@ def compose(basis, keys, weights, cross=None):
 
 
 def _add_cross(images, basis, rows, products):
-    """``images += sum_r products[..., r] C[rows[r]]``: one image in place, term by term, from the
-    float32 rows the basis keeps (:meth:`Basis.cross_term`); a sequence by ``tensordot``.
+    """``images += sum_r products[..., r] C[rows[r]]``: one image in place, term by term
+    (:func:`~mitsuba_manifold._util.blas.axpy`, on one BLAS thread), from the float32 rows the basis keeps
+    (:meth:`Basis.cross_term`); a sequence by ``tensordot``.
     """
     if products.ndim == 1:
-        tmp = np.empty(images.shape, np.float32)
-        for r, p in zip(rows, products):
-            if p != 0.0:
-                np.multiply(basis.cross_term(int(r)), p, out=tmp)
-                images += tmp
+        with one_thread():
+            for r, p in zip(rows, products):
+                if p != 0.0:
+                    axpy(images, basis.cross_term(int(r)), p)
         return
     images += np.tensordot(products, basis.cross_terms()[1][rows].astype(np.float32), axes=1)
 

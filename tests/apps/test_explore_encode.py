@@ -1,5 +1,7 @@
 """tools/explore.py without rendering: frame tonemapping and encoding, the latent map."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -13,6 +15,7 @@ def test_fast_tonemap_equals_imageio(exposure):
     rng = np.random.default_rng(3)
     img = rng.lognormal(-2, 2.5, (40, 50, 3)).astype(np.float32)
     img[0, 0] = [np.nan, -1.0, np.inf]
+    img[0, 1] = [-np.inf, np.nan, 0.5]
     thr = encode._THRESHOLDS[:-1]
     edges = np.concatenate(
         [thr, np.nextafter(thr, np.float32(0)), np.nextafter(thr, np.float32(2))]
@@ -101,3 +104,11 @@ def test_a_busy_port_names_port_not_host():
         assert "--host" not in str(e.value)
     finally:
         sock.close()
+
+
+@pytest.mark.parametrize("cores, threads", [(None, None), (1, 1), (2, 1), (3, 1), (4, 2), (16, 14)])
+def test_the_server_leaves_two_cores_to_the_browser_and_the_frames(cores, threads):
+    from mitsuba_manifold.apps.cli.explore import server_blas_threads
+
+    got = server_blas_threads(cores)
+    assert got == threads if threads else 1 <= got <= max(1, (os.cpu_count() or 1) - 2)

@@ -2,8 +2,9 @@
 L1- are clamped, and nothing else changes."""
 
 import numpy as np
+import pytest
 
-from mitsuba_manifold.apps.explore import fireflies
+from mitsuba_manifold.apps.explore import encode, fireflies
 
 
 def _smooth(rng, h=48, w=40):
@@ -53,3 +54,47 @@ def test_drag_image_clamps_the_part_beyond_l1_only_both_signs():
     assert (out[35, 8] > 0).all() and out[35, 8].sum() > l1[35, 8].sum() - 0.2  # not dark any more
     _, none = fireflies.drag_image(l1 + 0.2 * _smooth(rng), l1)
     assert none == 0
+
+
+def _drag_image_by_filter(image, l1, factor=fireflies.FACTOR):
+    """The clamp computed independently: one maximum filter over each whole part's luminance
+    (a matrix product), each part clamped as a whole image and the parts summed back onto l1."""
+    from scipy.ndimage import maximum_filter
+
+    ring = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], bool)
+    extra = image - l1
+    out = np.zeros_like(extra)
+    for sign in (1.0, -1.0):
+        part = np.maximum(sign * extra, 0.0)
+        lum = part @ fireflies.LUMA
+        near = maximum_filter(lum, footprint=ring, mode="nearest")
+        limit = factor * np.maximum(near, float(lum.mean()))
+        over = lum > limit
+        part[over] *= (limit[over] / lum[over])[:, None]
+        out += sign * part
+    return l1 + out
+
+
+@pytest.mark.parametrize("share", [0.001, 0.2])  # few bright pixels, and many
+def test_drag_image_is_the_clamp_of_each_whole_part(share):
+    """The frame equals the clamp computed over the whole image (to float32 rounding: 1e-6 of the
+    pixel's value; in 8-bit sRGB the same level), with fireflies of both signs at the border,
+    in corners and side by side."""
+    rng = np.random.default_rng(5)
+    l1 = _smooth(rng, 64, 80)
+    extra = 0.2 * _smooth(rng, 64, 80) - 0.1
+    hot = rng.random(extra.shape[:2]) < share
+    extra[hot] *= rng.choice([-30.0, 30.0], size=(hot.sum(), 1))
+    for y, x in ((0, 0), (63, 79), (0, 40), (31, 0), (20, 20), (20, 21)):
+        extra[y, x] = rng.choice([-1.0, 1.0]) * rng.uniform(5, 50, 3)
+    for k, (dy, dx) in enumerate((a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if a or b):
+        y, x = 8 + 16 * (k // 4), 10 + 18 * (k % 4)  # a bright pair: neither is a firefly
+        extra[y, x] = extra[y + dy, x + dx] = 20.0
+    image = (l1 + extra).astype(np.float32)
+    out, n = fireflies.drag_image(image, l1)
+    expect = _drag_image_by_filter(image, l1)
+    assert n > 0
+    np.testing.assert_allclose(out, expect, rtol=1e-6, atol=1e-6 * np.abs(image).max())
+    assert np.array_equal(encode.tonemap(out), encode.tonemap(expect))
+    changed = np.any(expect != image, axis=2) & ~np.isclose(expect, image, rtol=1e-6).all(axis=2)
+    assert np.array_equal(np.any(out != image, axis=2), changed)

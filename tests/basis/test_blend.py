@@ -600,3 +600,27 @@ def test_a_folder_of_one_basis_per_view_names_them(tmp_path, small_manifold, man
         match=r"no manifest.json; it holds 2 basis folder.*scene-view0, .*scene-view1\)",
     ):
         Basis.load(str(tmp_path / "views"), manifold=manifold)
+
+
+def test_cross_terms_are_added_to_the_image_in_place():
+    """Eq. 13's cross terms: ``image += sum_r p_r C[rows[r]]`` for one image (in place, term by
+    term) and for a sequence (a new sum), to float32 rounding."""
+    from mitsuba_manifold.basis.composition import _add_cross
+
+    rng = np.random.default_rng(7)
+    C = rng.normal(size=(5, 9, 11, 3)).astype(np.float32)
+
+    class Cross:  # the two reads of the basis that _add_cross makes
+        def cross_term(self, row):
+            return C[row]
+
+        def cross_terms(self):
+            return {}, C.astype(np.float16)
+
+    rows, p = np.array([4, 0, 2]), np.array([0.5, -1.25, 0.0], np.float32)
+    image = rng.normal(size=(9, 11, 3)).astype(np.float32)
+    want = image.astype(np.float64) + np.einsum("r,rhwc->hwc", p, C[rows].astype(np.float64))
+    same = image
+    _add_cross(image, Cross(), rows, p)
+    assert image is same
+    np.testing.assert_allclose(image, want, rtol=1e-5, atol=1e-5)

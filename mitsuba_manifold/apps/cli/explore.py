@@ -150,6 +150,14 @@ def main(argv=None):
         return 130
 
 
+def server_blas_threads(cores=None):
+    """BLAS threads of the explorer's server: the machine's cores less two (the browser showing
+    the page, and the frames), at least one.
+    """
+    cores = os.cpu_count() if cores is None else cores
+    return max(1, (cores or 1) - 2)
+
+
 def serve(args):
     try:
         import uvicorn
@@ -178,6 +186,11 @@ def serve(args):
         return 2
     explorer = None
     try:
+        from threadpoolctl import threadpool_limits
+
+        # for the server's life, its BLAS products (maps, the path metric) leave two cores to
+        # the page's browser and the frames: idle BLAS threads spin on the cores they wait for
+        threadpool_limits(server_blas_threads(), user_api="blas")
         print(f"loading {len(args.basis)} basis folder(s) ...", flush=True)
         explorer = Explorer(
             args.basis,

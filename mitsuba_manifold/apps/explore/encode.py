@@ -57,13 +57,17 @@ _THRESHOLDS, _LOWER = _tables()
 
 
 def tonemap(img, exposure=0.0):
-    """Linear RGB (..., 3) float to 8-bit sRGB, as :func:`imageio.tonemap` (NaN -> 0)."""
-    v = np.multiply(img, np.float32(2.0 ** float(exposure)), dtype=np.float32)
-    np.nan_to_num(v, copy=False, nan=0.0)
-    np.clip(v, 0.0, 1.0, out=v)
-    index = np.multiply(v, np.float32(_BUCKETS - 1)).astype(np.int32)
-    level = _LOWER[index]
-    level += v >= _THRESHOLDS[level]
+    """Linear RGB (..., 3) float to 8-bit sRGB, as :func:`imageio.tonemap` (NaN -> 0), in
+    float32 and in place after the one copy of ``img``.
+    """
+    scale = np.float32(2.0 ** float(exposure))
+    v = np.multiply(img, scale, dtype=np.float32) if scale != 1 else np.array(img, np.float32)
+    np.fmax(v, np.float32(0.0), out=v)  # fmax/fmin: NaN -> 0, +-inf -> 1, 0
+    np.fmin(v, np.float32(1.0), out=v)
+    index = np.empty(v.shape, np.int32)
+    np.multiply(v, np.float32(_BUCKETS - 1), out=index, casting="unsafe")  # truncated
+    level = np.take(_LOWER, index)
+    level += v >= np.take(_THRESHOLDS, level)
     return level
 
 

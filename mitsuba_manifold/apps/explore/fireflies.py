@@ -15,13 +15,46 @@ and is left as it is.
 """
 
 import numpy as np
-from scipy.ndimage import maximum_filter
 
 #: A pixel brighter than this many times its brightest neighbour is a firefly.
 FACTOR = 3.0
 #: Rec. 709 luminance of linear RGB.
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
-_RING = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], bool)  # the eight neighbours
+
+
+def luminance(image):
+    """Rec. 709 luminance (H, W) of linear RGB ``image`` (H, W, 3), float32 (summed channel by
+    channel: a matrix product would start BLAS threads for an image this small).
+    """
+    img = np.asarray(image, np.float32)
+    lum = np.multiply(img[..., 0], LUMA[0])
+    lum += np.multiply(img[..., 1], LUMA[1])
+    lum += np.multiply(img[..., 2], LUMA[2])
+    return lum
+
+
+def brightest_neighbour(lum):
+    """The largest of the eight neighbours of each pixel of ``lum`` (H, W), the border repeated
+    beyond the image: the larger of the three-pixel maxima of the rows above and below and of
+    the pixels left and right.
+    """
+    p = np.pad(lum, 1, mode="edge")
+    row3 = np.maximum(p[:, :-2], p[:, 1:-1])
+    np.maximum(row3, p[:, 2:], out=row3)
+    near = np.maximum(row3[:-2], row3[2:])
+    np.maximum(near, p[1:-1, :-2], out=near)
+    np.maximum(near, p[1:-1, 2:], out=near)
+    return near
+
+
+def _fireflies(lum, factor):
+    """Flat indices of the fireflies of luminance ``lum`` (H, W) and, per firefly, the luminance
+    it is scaled down to: ``factor * max(its brightest neighbour, mean of lum)``.
+    """
+    limit = np.maximum(brightest_neighbour(lum), np.float32(lum.mean()))
+    limit *= np.float32(factor)
+    index = np.flatnonzero(lum > limit)
+    return index, limit.ravel()[index]
 
 
 def clamp(image, factor=FACTOR):
@@ -30,29 +63,43 @@ def clamp(image, factor=FACTOR):
     exactly as they were. Returns ``(image, number of pixels changed)``.
     """
     img = np.asarray(image, np.float32)
-    lum = img @ LUMA
-    near = maximum_filter(lum, footprint=_RING, mode="nearest")
-    limit = factor * np.maximum(near, float(lum.mean()))
-    over = lum > limit
-    n = int(over.sum())
-    if not n:
+    lum = luminance(img)
+    index, limit = _fireflies(lum, factor)
+    if not index.size:
         return img, 0
     out = img.copy()
-    out[over] *= (limit[over] / lum[over])[:, None]
-    return out, n
+    flat = out.reshape(-1, 3)
+    flat[index] *= (limit / lum.ravel()[index])[:, None]
+    return out, int(index.size)
 
 
 def drag_image(image, l1, factor=FACTOR):
     """A summed full-GI blend ``image`` of one target with the fireflies of its part beyond L1-
     (``image - l1``; ``l1``: the same blend of the L1- images) clamped (:func:`clamp`). That part
     is signed (cross terms, negative weights), so its positive and negative parts are clamped
-    apart (a negative firefly is a lone dark pixel). Returns ``(image, number of pixels changed)``.
+    apart (a negative firefly is a lone dark pixel): a firefly pixel becomes ``l1 + (positive
+    part clamped - negative part clamped)``, every other pixel is ``image`` as it is. Returns
+    ``(image, number of pixels changed)``.
     """
+    image = np.asarray(image, np.float32)
     l1 = np.asarray(l1, np.float32)
-    extra = np.asarray(image, np.float32) - l1
-    out, changed = np.zeros_like(extra), 0
-    for sign in (1.0, -1.0):
-        part, n = clamp(np.maximum(sign * extra, 0.0), factor)
-        out += sign * part
-        changed += n
-    return ((l1 + out).astype(np.float32), changed) if changed else (image, 0)
+    extra = np.subtract(image, l1)
+    pos = np.maximum(extra, 0.0)
+    neg = np.subtract(pos, extra, out=extra)  # max(-extra, 0), exactly
+    found = []
+    for part in (pos, neg):
+        lum = luminance(part)
+        index, limit = _fireflies(lum, factor)
+        scale = np.ones(lum.size, np.float32)
+        scale[index] = limit / lum.ravel()[index]
+        found.append((index, scale))
+    changed = found[0][0].size + found[1][0].size
+    if not changed:
+        return image, 0
+    at = np.union1d(found[0][0], found[1][0])
+    p, n = pos.reshape(-1, 3)[at], neg.reshape(-1, 3)[at]
+    p *= found[0][1][at, None]
+    n *= found[1][1][at, None]
+    out = image.copy()
+    out.reshape(-1, 3)[at] = l1.reshape(-1, 3)[at] + (p - n)
+    return out, changed

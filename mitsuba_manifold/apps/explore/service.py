@@ -9,6 +9,7 @@ latent map, the snippets, the reference renders and refinements. Bad requests ra
 """
 
 import base64
+import functools
 import json
 import os
 import shlex
@@ -18,6 +19,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from ..._util.blas import one_thread
 from ...basis.blend import DEFAULT_PRUNE, blend
 from ...basis.composition import compose
 from ...basis.folder import Basis
@@ -48,6 +50,21 @@ TOOLS = os.path.join(
     os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
     "tools",
 )
+
+
+def _one_blas_thread(method):
+    """``method`` run with BLAS on one thread (:func:`~mitsuba_manifold._util.blas.one_thread`):
+    the answers a drag asks for on every move (frame, material, sphere table) are small products
+    whose BLAS threads would wait on each other and then spin on the cores the page's browser
+    needs.
+    """
+
+    @functools.wraps(method)
+    def run(*args, **kwargs):
+        with one_thread():
+            return method(*args, **kwargs)
+
+    return run
 
 
 class Explorer:
@@ -187,6 +204,7 @@ class Explorer:
             last = self._last_blend = (key, (img, info))
         return last[1]
 
+    @_one_blas_thread
     def frame(self, name, x, exposure=0.0, fmt="jpeg", coarse=False):
         """Encoded frame of ``x``: ``(bytes, meta)``. ``coarse`` (a drag): L2+ summed, not denoised
         (its fireflies clamped).
@@ -241,6 +259,7 @@ class Explorer:
                 self._walks = Walks(self.manifold, self.tables.metric_rows)
         return self._walks
 
+    @_one_blas_thread
     def material(self, x, with_slice=True, live=False):
         """Description of the material at ``x`` (JSON-ready), with the table-based parts
         when the tables are loaded: the negative-bin fraction (while a drag runs, ``live``, that
@@ -268,6 +287,7 @@ class Explorer:
             }
         return out
 
+    @_one_blas_thread
     def preview_table(self, x, coarse=False):
         """Float16 bytes of the reduced interpolated table and its layout (``coarse``: every
         other texel, :meth:`~.material.TableStack.preview`).

@@ -10,6 +10,7 @@ import zipfile
 
 import numpy as np
 
+from ..._util.blas import axpy, one_thread
 from ..._util.cache import file_hash
 from ...errors import FormatError, MismatchError
 from ...imaging import io as imageio
@@ -353,14 +354,13 @@ class Basis:
 
 
 def _axpy_sum(store, rows, weights):
-    """``sum_j weights[j] * store[rows[j]]`` (float32) by in-place NumPy passes over the images
-    used, without gathering them (a ``tensordot`` copies them first) and without BLAS (its
-    threads' wake-up costs more than a product this small).
+    """``sum_j weights[j] * store[rows[j]]`` (float32) by one in-place ``saxpy`` per image used
+    (:func:`~mitsuba_manifold._util.blas.axpy`, on one BLAS thread), without gathering them (a ``tensordot`` copies
+    them first).
     """
     out = np.zeros(store.shape[1:], dtype=np.float32)
-    tmp = np.empty_like(out)
-    for r, w in zip(rows, weights):
-        if w != 0.0:
-            np.multiply(store[r], w, out=tmp)
-            out += tmp
+    with one_thread():
+        for r, w in zip(rows, weights):
+            if w != 0.0:
+                axpy(out, store[r], w)
     return out

@@ -1,0 +1,65 @@
+"""In-place sums of float32 images, ``y += a * x``, by BLAS ``saxpy`` on one thread.
+
+One pass over ``x`` and ``y`` (NumPy needs a product into a temporary, then a sum: twice the
+memory traffic). BLAS would split a long ``saxpy`` over its threads, which for an image costs
+more than it gains: the threads wait on each other (far longer on a machine whose other cores
+are busy) and then spin on cores other work needs. A run of sums goes inside
+:func:`one_thread`, which holds BLAS to one thread (``threadpoolctl``) while any thread of the
+process is inside it.
+"""
+
+import contextlib
+import threading
+
+import numpy as np
+from scipy.linalg.blas import saxpy
+
+_lock = threading.Lock()
+_state = {"inside": 0, "limit": None, "controller": None}
+
+
+@contextlib.contextmanager
+def one_thread():
+    """BLAS on one thread while any thread is inside (nested and concurrent uses are counted;
+    the last one out restores the limits found by the first one in).
+    """
+    with _lock:
+        if not _state["inside"]:
+            if _state["controller"] is None:
+                from threadpoolctl import ThreadpoolController
+
+                _state["controller"] = ThreadpoolController()
+            _state["limit"] = _state["controller"].limit(limits=1, user_api="blas")
+        _state["inside"] += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _state["inside"] -= 1
+            if not _state["inside"]:
+                _state["limit"].restore_original_limits()
+                _state["limit"] = None
+
+
+def axpy(y, x, a):
+    """``y += a * x`` in place; ``y`` and ``x`` float32 C-contiguous arrays of one shape (run
+    inside :func:`one_thread`).
+
+    Raises ``ValueError`` for any other ``y`` or ``x`` (a copy would be summed, not ``y``).
+    """
+    if not (
+        y.dtype == x.dtype == np.float32
+        and y.shape == x.shape
+        and y.flags.c_contiguous
+        and x.flags.c_contiguous
+        and y.flags.writeable
+    ):
+        raise ValueError(
+            f"axpy needs two C-contiguous float32 arrays of one shape, y writable; got "
+            f"{y.dtype} {y.shape} and {x.dtype} {x.shape}"
+        )
+    flat = y.reshape(-1)
+    out = saxpy(x.reshape(-1), flat, a=float(a))
+    if out is not flat and not np.shares_memory(out, flat):  # not in place: keep the sum
+        flat[...] = out
+    return y
