@@ -28,7 +28,6 @@ import numpy as np
 
 from mitsuba_manifold._util.timing import median_time
 from mitsuba_manifold.data.database import Database
-from mitsuba_manifold.data.distance import distance_matrix
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.manifold import projection, space
 from mitsuba_manifold.manifold.model import (
@@ -38,7 +37,7 @@ from mitsuba_manifold.manifold.model import (
     make_interpolant,
     settings,
 )
-from mitsuba_manifold.manifold.presets import stress_of
+from mitsuba_manifold.manifold.presets import stress_distances, stress_of
 
 #: Configurations compared: name -> (preset, overrides). ``default`` is the preset.
 CONFIGS = {
@@ -292,7 +291,7 @@ def run(folder, basis=None, configs=None, names=None, folds=None, progress=True)
     cfgs = {c: settings(CONFIGS[c][0], **CONFIGS[c][1]) for c in configs}
     distances = None
     if any(stress_of(cfg).active for cfg in cfgs.values()):
-        distances = distance_matrix(tables, dims=db.dims)
+        distances = stress_distances(tables, db.dims)
     cos = _cos_weights(db.dims)
     t0 = time.perf_counter()
     grams = {

@@ -37,7 +37,7 @@ def main():
     db = "merl@{}x{}x{}".format(*bins)
     os.makedirs(args.out, exist_ok=True)
 
-    # 2. Fit the manifold: a latent point per material (q = 3 by default).
+    # 2. Fit the manifold: a latent point per material (q = 4 by default).
     m = Manifold.fit(db, names=MATERIALS)
     m.save(os.path.join(args.out, "manifold.npz"))
     print(m.summary())

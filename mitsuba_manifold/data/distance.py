@@ -169,13 +169,17 @@ def brdf_distance(a, b, dims=None, stride=(1, 1, 1)):
     float or ndarray
         ``d(a, b)`` over the broadcast leading axes (exact differences: 0 for equal tables).
     """
-    fa, fb, quad = _pair(a, b, dims, stride)
+    d = _distance(*_pair(a, b, dims, stride))
+    return float(d) if d.ndim == 0 else d
+
+
+def _distance(fa, fb, quad):
+    """:func:`brdf_distance` of flat rows ``fa``, ``fb`` under the quadrature ``quad``."""
     total = np.zeros(np.broadcast_shapes(fa.shape[:-1], fb.shape[:-1]))
     for part in quad.blocks():
         diff = part.features(fa[..., part.index]) - part.features(fb[..., part.index])
         total += np.einsum("...k,...k->...", diff, diff)
-    d = np.sqrt(total)
-    return float(d) if d.ndim == 0 else d
+    return np.sqrt(total)
 
 
 def distance_matrix(A, B=None, dims=None, stride=(1, 1, 1)):
@@ -186,15 +190,24 @@ def distance_matrix(A, B=None, dims=None, stride=(1, 1, 1)):
     block); entries too small for the Gram's rounding are recomputed from differences, so equal
     tables are at exactly 0. Without ``B`` the matrix is symmetric with a zero diagonal.
     """
-    fa, fb, quad = _pair(A, A if B is None else B, dims, stride)
+    same = B is None
+    fa, fb, quad = _pair(A, A if same else B, dims, stride)
     if fa.ndim != 2 or fb.ndim != 2:
         raise InputError(
             f"`A` and `B` must be stacks of tables (one leading axis), got leading shapes "
             f"{fa.shape[:-1]} and {fb.shape[:-1]}"
         )
-    parts = ((p.features(fa[:, p.index]), p.features(fb[:, p.index])) for p in quad.blocks())
-    D = gram_distances(parts, lambda i, j: brdf_distance(fa[i], fb[j], quad.dims, quad.stride))
-    if B is None:
+
+    def parts():  # each block's features, computed once when A is compared with itself
+        for p in quad.blocks():
+            F = p.features(fa[:, p.index])
+            yield F, F if same else p.features(fb[:, p.index])
+
+    def exact(i, j):  # a table's distance to itself is 0 (the diagonal of A with itself)
+        return 0.0 if same and i == j else float(_distance(fa[i], fb[j], quad))
+
+    D = gram_distances(parts(), exact)
+    if same:
         D = 0.5 * (D + D.T)
         np.fill_diagonal(D, 0.0)
     return D

@@ -12,7 +12,9 @@ the measured tables: training materials are reproduced exactly, and far from eve
 latent point ``b -> 0`` and the material tends to the mean BRDF. That is ``preset="paper"``.
 
 The default preset keeps the GPLVM layout but fits it on ``log(1 + rho)`` features in
-q = 3 dimensions and interpolates with convex, continuous, local weights
+q = 4 dimensions, with a stress term that asks latent distances to follow the materials'
+perceptual distances (:mod:`mitsuba_manifold.gp.stress`), and interpolates with convex,
+continuous, local weights
 (:class:`interpolant.ShepardWeights`): still a linear combination of the tables (so blends
 of images stay exact), but never negative, without a jump next to the training points, and
 a point between two neighbours is a blend of those two. The choice is measured by
@@ -41,7 +43,6 @@ from .._util.float32 import weights32
 from .._util.names import is_name
 from ..data import gram as gram_mod
 from ..data.database import FEATURES, Database, albedo_weights
-from ..data.distance import distance_matrix
 from ..errors import FormatError, InputError, did_you_mean
 from ..gp.gplvm import FitResult
 from ..gp.kernel import Kernel
@@ -51,7 +52,14 @@ from . import interpolant as interpolants
 from . import io as manifold_file
 from . import projection as projection_mod
 from .fit_record import FitRecord, Timings
-from .presets import PRESETS, fit_layout, make_interpolant, settings, stress_of
+from .presets import (
+    PRESETS,
+    fit_layout,
+    make_interpolant,
+    settings,
+    stress_distances,
+    stress_of,
+)
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES, PruneReport
 from .tables import TrainingTables
 
@@ -142,7 +150,7 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
     )
     t_gram = time.perf_counter() - t0
     stress = stress_of(cfg)
-    distances = distance_matrix(tables, dims=db.dims) if stress.active else None
+    distances = stress_distances(tables, db.dims) if stress.active else None
     result = fit_layout(g.S, tables.shape[1], cfg, init=init, distances=distances, **options)
     extra = {}
     if stress.active:  # the stress term's settings and outcome, in the saved info
@@ -361,7 +369,7 @@ class Manifold:
             Weight function, e.g. ``{"kind": "gp", "exact": True}`` (see :mod:`interpolant`).
         stress : float
             Weight ``lambda >= 0`` of the layout's stress term towards the tables' perceptual
-            distances (:mod:`gp.stress`, :func:`data.distance.distance_matrix`; needs
+            distances (:mod:`gp.stress`, :func:`presets.stress_distances`; needs
             ``method="lbfgs"``); 0: none. Saved in :attr:`info` when on.
         stress_neighbours : int, optional
             The pairs the stress term covers: each material with its ``k`` perceptually nearest;
@@ -960,7 +968,7 @@ class Manifold:
         stress = gplvm.Stress(info.get("stress", 0.0), info.get("stress_neighbours"))
         distances = None
         if stress.active:
-            distances = distance_matrix(self.tables()[keep], dims=self.dims)
+            distances = stress_distances(self.tables()[keep], self.dims)
         method = self.record.method or "hooke-jeeves"
         fit = gplvm.GPLVM(self.q, self.kernel, method, gplvm.optimiser_options(method), stress).fit(
             S, self.record.d, distances=distances

@@ -8,6 +8,7 @@ none) and ``interpolant`` (the weight function, :mod:`interpolant`).
 :func:`fit_layout` and :func:`make_interpolant`, so the benchmark measures what users get.
 """
 
+from ..data.distance import distance_matrix
 from ..errors import InputError
 from ..gp import gplvm
 from . import interpolant as interpolants
@@ -79,6 +80,24 @@ def fit_layout(S, d, cfg, init=None, callback=None, distances=None, **options):
         stress_of(cfg),
     )
     return model.fit(S, d, init, callback, distances)
+
+
+#: The grid of the stress term's distances: finer tables are compared on a sub-grid of about
+#: this many cells (one bin a cell, weighted by the cell's measure: :class:`~..data.distance.Quadrature`).
+STRESS_GRID = (30, 30, 60)
+
+
+def stress_stride(dims):
+    """The sub-grid stride of :func:`stress_distances` for tables of ``dims`` bins."""
+    return tuple(max(1, int(n) // g) for n, g in zip(dims, STRESS_GRID))
+
+
+def stress_distances(tables, dims):
+    """The stress term's targets: the [PR12] distances between ``tables`` (``(N, 3 * bins)``
+    rows of ``dims`` bins; :func:`~..data.distance.distance_matrix`) on the sub-grid of
+    :func:`stress_stride`.
+    """
+    return distance_matrix(tables, dims=dims, stride=stress_stride(dims))
 
 
 def stress_of(cfg):
