@@ -367,13 +367,16 @@ def test_cross_validation_runs_and_reports(default, small_db):
     tables = default.tables()
     G = space.feature_gram(tables, "log")
     from mitsuba_manifold.manifold.model import fit_layout, make_interpolant, settings
+    from mitsuba_manifold.manifold.presets import stress_distances
 
     cfg = settings("default", q=2)
+    D = stress_distances(tables, default.dims)  # the default's stress term's targets
 
     def fit(train):
-        return make_interpolant(
-            fit_layout(space.centred(G, train), tables.shape[1], cfg).latent, cfg
+        layout = fit_layout(
+            space.centred(G, train), tables.shape[1], cfg, distances=D[np.ix_(train, train)]
         )
+        return make_interpolant(layout.latent, cfg)
 
     held = space.cross_validate(
         tables, db.names, fit, G, 2, default.albedos, split=space.FoldSplit(k=4, only=(0,))
