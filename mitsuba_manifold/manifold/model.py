@@ -904,6 +904,12 @@ class Manifold:
                 f"  log-likelihood L = {rec.log_likelihood:.6g} "
                 f"({rec.method}, {len(rec.history)} iterations, {fit_s:.2f} s)"
             )
+        if self.info.get("stress"):
+            lines.append(
+                f"  stress term: weight {self.info['stress']:g}, normalised stress "
+                f"{self.info.get('stress_value', float('nan')):.3g} (latent against perceptual "
+                "distances)"
+            )
         return "\n".join(lines)
 
     # ------------------------------------------------------------ save/load

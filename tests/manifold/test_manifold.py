@@ -371,6 +371,8 @@ def test_a_stress_term_is_fitted_to_the_perceptual_distances_and_saved_with_the_
     D = distance_matrix(m.tables(), dims=m.dims)
     sigma = Stress(1.0, 4).term(D, m.n, 1).value
     assert m.info["stress"] == 3.0 and m.info["stress_neighbours"] == 4
+    assert f"stress term: weight 3, normalised stress {m.info['stress_value']:.3g}" in m.summary()
+    assert "stress term" not in plain.summary()
     assert m.info["stress_value"] == pytest.approx(sigma(m.latent), rel=1e-9)
     assert sigma(m.latent) < sigma(plain.latent)
     m.save(tmp_path / "m.npz")
