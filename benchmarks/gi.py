@@ -187,9 +187,9 @@ def targets(
             "basis_gi": {
                 "time_s": t_gi,
                 "bytes": s_gi,
-                "components": gi["components"],
-                "left_out": gi.get("left_out", {}),
-                "gi_stats": gi.get("gi_stats"),
+                "components": gi.components,
+                "left_out": gi.left_out or {},
+                "gi_stats": gi.gi_stats,
             },
             "render_ratio": t_gi / t_l1,
             "points": rows,
@@ -197,7 +197,7 @@ def targets(
         if log:
             log(
                 f"{name}: basis L1- {t_l1:.1f} s {s_l1 / 1e6:.2f} MB, full GI {t_gi:.1f} s {s_gi / 1e6:.2f} MB "
-                f"({t_gi / t_l1:.2f}x), holds {gi['components']}, left out {gi.get('left_out', {})}"
+                f"({t_gi / t_l1:.2f}x), holds {gi.components}, left out {gi.left_out or {}}"
             )
     return report
 
