@@ -552,9 +552,10 @@ class Manifold:
         Raises
         ------
         InputError
-            Unknown names, malformed entries, non-finite values or weights summing to 0.
+            Unknown names, a name given twice, malformed entries, non-finite values or weights
+            summing to 0.
         """
-        w = np.zeros(self.n)
+        w, seen = np.zeros(self.n), set()
         entries = [e.strip() for e in str(text).split(",") if e.strip()]
         if not entries:
             raise InputError(f"weights {text!r}: expected 'name:weight, name:weight'")
@@ -568,7 +569,14 @@ class Manifold:
                 raise InputError(
                     f"weights {text!r}: entry {e!r} is not 'name:number' (commas separate entries)"
                 )
-            w[self.index(name.strip())] += v
+            i = self.index(name.strip())
+            if i in seen:
+                raise InputError(
+                    f"weights {text!r}: {self.names[i]} is named twice; give each material once "
+                    "with its whole weight"
+                )
+            seen.add(i)
+            w[i] = v
         try:
             weight_sum(w)
         except InputError as e:

@@ -161,6 +161,8 @@ def test_bad_inputs_give_clear_errors(fitted, small_db, tmp_path):
     with pytest.raises(InputError, match="commas separate entries"):  # a comma forgotten
         fitted.parse_weights("chrome:0.4 steel:0.6")
     assert fitted.parse_weights("chrome:0.25, steel:0.75")[fitted.index("steel")] == 0.75
+    with pytest.raises(InputError, match="chrome is named twice"):
+        fitted.parse_weights("chrome:0.5, chrome:0.5")
     with pytest.raises(InputError, match="does not exist"):
         Manifold.load(tmp_path / "missing.npz")
     corrupt = tmp_path / "corrupt.npz"
