@@ -1,4 +1,10 @@
-"""In-place sums of float32 images, ``y += a * x``, by BLAS ``saxpy`` on one thread.
+"""BLAS on one thread for the whole process (:func:`one_thread`, the package's one way to ask
+for it), and in-place sums of float32 images, ``y += a * x``, by BLAS ``saxpy`` on one thread.
+
+BLAS limits are process-wide: two threads that each set and restore them in their own context
+would restore what the other set. :func:`one_thread` counts its users in every thread; the last
+one out restores the limits the first one in found.
+
 
 One pass over ``x`` and ``y`` (NumPy needs a product into a temporary, then a sum: twice the
 memory traffic). BLAS would split a long ``saxpy`` over its threads, which for an image costs
@@ -30,6 +36,7 @@ def one_thread():
 
                 _state["controller"] = ThreadpoolController()
             _state["limit"] = _state["controller"].limit(limits=1, user_api="blas")
+            release_control()
         _state["inside"] += 1
     try:
         yield
@@ -39,6 +46,20 @@ def one_thread():
             if not _state["inside"]:
                 _state["limit"].restore_original_limits()
                 _state["limit"] = None
+                release_control()
+
+
+def release_control():
+    """Let the next thread set OpenBLAS's limits: threadpoolctl lets one Python thread at a time
+    change them (the one that last did, until it lets go; the others' changes do nothing).
+    """
+    try:
+        from threadpoolctl import OpenBLASController
+    except ImportError:  # pragma: no cover - depends on the threadpoolctl version
+        return
+    clear = getattr(OpenBLASController, "clear_controlling_thread", None)
+    if clear is not None:
+        clear()
 
 
 def axpy(y, x, a):

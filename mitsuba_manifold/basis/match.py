@@ -39,8 +39,8 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from .._util.blas import one_thread
 from ..errors import InputError
 from ..manifold import search as latent
 from . import objectives as image_error
@@ -352,7 +352,7 @@ def _search(manifold, search, full, opts, f):
     bounds = latent.box(manifold)
     # BLAS on one thread: L-BFGS-B's small linear algebra and the scan's products (a few
     # hundred points at a time) are far slower on a thread pool, the more so on a busy machine
-    with threadpool_limits(1, user_api="blas"):
+    with one_thread():
         best = int(np.argmin(search.batch(np.eye(manifold.n))[0] + var_train))
         X, scan_err = latent.scan(manifold, search, prior, bounds, opts.scan)
         runs = [

@@ -88,7 +88,7 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
     """
     if features not in FEATURES:
         raise FormatError(f"`features` must be one of {FEATURES}, got {features!r}")
-    from threadpoolctl import threadpool_limits
+    from .._util.blas import one_thread
 
     n, d = tables.shape
     bins = d // 3
@@ -101,7 +101,7 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
         raise FormatError(f"`weights` must hold one value per bin ({bins}), got {weights.size}")
     # Small products (N x block): one BLAS thread is as fast as two on an idle machine and
     # much faster when another process competes for the cores.
-    with threadpool_limits(1, user_api="blas"):
+    with one_thread():
         for start in range(0, d, block):
             z = np.array(tables[:, start : start + block], dtype=np.float64)
             if raw:

@@ -259,7 +259,7 @@ def tabulate_many(
     the matrix products run on one BLAS thread (their matrices are 21 wide: more threads cost
     more than they gain).
     """
-    from threadpoolctl import threadpool_limits
+    from .._util.blas import one_thread
 
     if positions not in POSITIONS:
         raise InputError(f"positions={positions!r}: expected one of {', '.join(POSITIONS)}")
@@ -270,7 +270,7 @@ def tabulate_many(
     bins = int(np.prod(dims))
     out = np.zeros((len(names), 3, bins), dtype=dtype)
     values = np.empty((len(above), 3), dtype=np.float32)
-    with threadpool_limits(1, user_api="blas"):
+    with one_thread():
         for k, i in enumerate(idx):
             _evaluate(networks, i, v, values)
             out[k][:, above] = values.T

@@ -46,6 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._util.blas import one_thread
 from ..errors import InputError, NotPositiveDefiniteError
 from . import optimisers
 from .kernel import MAX_LATENT_DIM, Kernel, check_points, check_positive, kernel_matrix
@@ -53,11 +54,6 @@ from .likelihood import Likelihood, check_gram, log_likelihood, log_likelihood_g
 from .optimisers import HookeJeevesOptions, LBFGSOptions
 from .rank_update import MoveTrial, RankUpdatedInverse
 from .stress import PenalisedLikelihood, Stress
-
-try:  # optional: lets small fits run BLAS single-threaded, much faster for N ~ 100
-    from threadpoolctl import threadpool_limits
-except ImportError:  # pragma: no cover - depends on the environment
-    threadpool_limits = None
 
 __all__ = [
     "MAX_LATENT_DIM",
@@ -79,9 +75,9 @@ __all__ = [
     "fit_latent",
 ]
 
-#: Up to this many materials the fit runs BLAS on one thread (when threadpoolctl is
-#: installed): the N x N products are too small to gain from threads, which only add
-#: synchronisation (badly so on a busy machine).
+#: Up to this many materials the fit runs BLAS on one thread
+#: (:func:`~mitsuba_manifold._util.blas.one_thread`): the N x N products are too small to gain
+#: from threads, which only add synchronisation (badly so on a busy machine).
 SINGLE_THREAD_MAX_N = 256
 
 #: Optimisers by name, with their options type.
@@ -221,7 +217,7 @@ class GPLVM:
     Hooke-Jeeves moves single points, so collective motions of the whole cloud are slow
     for it: on strongly coupled layouts it can stop (every step below ``tol``) at a lower L
     than L-BFGS; a smaller ``tol`` goes further at a higher cost. For ``N <= 256`` BLAS runs
-    single-threaded during the fit when ``threadpoolctl`` is installed.
+    single-threaded during the fit.
     """
 
     def __init__(self, q=2, kernel=None, method="hooke-jeeves", options=None, stress=None):
@@ -286,9 +282,9 @@ class GPLVM:
         unit = likelihood.in_units()
         target = unit if term is None else PenalisedLikelihood(unit, term)
         run = optimisers.hooke_jeeves if self.method == "hooke-jeeves" else optimisers.lbfgs
-        single = threadpool_limits is not None and likelihood.n <= SINGLE_THREAD_MAX_N
+        single = likelihood.n <= SINGLE_THREAD_MAX_N  # small fits: BLAS threads only wait
         t0 = time.perf_counter()
-        with threadpool_limits(1, user_api="blas") if single else contextlib.nullcontext():
+        with one_thread() if single else contextlib.nullcontext():
             res = run(target, X0 / l, self.options, callback, l)
             L = unit._value(res.units)
             sigma = None if term is None else term.value(res.units)

@@ -495,12 +495,13 @@ def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):
 
 
 def single_threaded():
-    """BLAS on one thread (threadpoolctl): a path's products are small (tens of points), too
-    small for BLAS threads to gain more than they lose waiting on each other.
+    """BLAS on one thread (:func:`~mitsuba_manifold._util.blas.one_thread`, counted with every
+    other user in the process): a path's products are small (tens of points), too small for BLAS
+    threads to gain more than they lose waiting on each other.
     """
-    from threadpoolctl import threadpool_limits
+    from .._util.blas import one_thread
 
-    return threadpool_limits(1, user_api="blas")
+    return one_thread()
 
 
 def latent_distance(manifold, x, y, stride=(1, 1, 1)):

@@ -82,8 +82,9 @@ def fit_layout(S, d, cfg, init=None, callback=None, distances=None, **options):
     return model.fit(S, d, init, callback, distances)
 
 
-#: The grid of the stress term's distances: finer tables are compared on a sub-grid of about
-#: this many cells (one bin a cell, weighted by the cell's measure: :class:`~..data.distance.Quadrature`).
+#: The grid of the stress term's distances: tables are compared on every k-th bin along each
+#: axis, k their resolution over this one rounded down (one bin a cell, weighted by the cell's
+#: measure: :class:`~..data.distance.Quadrature`).
 STRESS_GRID = (30, 30, 60)
 
 

@@ -25,8 +25,8 @@ at a training point is moved off it (:func:`start_near`: the convex weights are 
 import time
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from .._util.blas import one_thread
 from ..manifold import search as latent
 
 #: Random latent points scored on the quadratic form (as ``basis.match``'s default scan).
@@ -121,7 +121,7 @@ def scan(problem, opts, check_spp):
     bounds = latent.box(m)
     X, err = latent.scan(m, obj, 0.0, bounds, SCAN_POINTS, seed=opts.seed)
     k = max(4, 2 * int(opts.starts))
-    with threadpool_limits(1, user_api="blas"):
+    with one_thread():
         runs = [
             latent.descend(m, obj, 0.0, x0, bounds, 100)
             for x0 in latent.start_points(m, ranked[0][1], X, err, k)

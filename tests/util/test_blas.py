@@ -47,3 +47,36 @@ def test_one_thread_holds_blas_to_one_thread_until_the_last_leaves():
     assert set(threads()) == {1}
     outer.__exit__(None, None, None)
     assert threads() == before
+
+
+def test_one_thread_holds_blas_to_one_thread_while_any_thread_is_inside():
+    """A frame (another thread) enters, then a path (here) enters, then the frame leaves first:
+    BLAS stays on one thread while the path runs, and the last one out gives the process's limit
+    back (as the explorer's frames and its path worker use it)."""
+    import threading
+
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from mitsuba_manifold._util.blas import one_thread, release_control
+    from mitsuba_manifold.manifold.paths import single_threaded
+
+    def threads():
+        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    with threadpool_limits(2, user_api="blas"):
+        release_control()  # as the explorer's server does after setting its limit
+        entered, leave = threading.Event(), threading.Event()
+
+        def frame():
+            with one_thread():
+                entered.set()
+                leave.wait(10)
+
+        worker = threading.Thread(target=frame)
+        worker.start()
+        assert entered.wait(10)
+        with single_threaded():  # the path
+            leave.set()
+            worker.join(10)
+            assert threads() == {1}  # the frame has left; the path still runs
+        assert threads() == {2}

@@ -188,9 +188,12 @@ def serve(args):
     try:
         from threadpoolctl import threadpool_limits
 
+        from ..._util.blas import release_control
+
         # for the server's life, its BLAS products (maps, the path metric) leave two cores to
         # the page's browser and the frames: idle BLAS threads spin on the cores they wait for
         threadpool_limits(server_blas_threads(), user_api="blas")
+        release_control()  # the frames' and paths' threads hold BLAS to one thread in turn
         print(f"loading {len(args.basis)} basis folder(s) ...", flush=True)
         explorer = Explorer(
             args.basis,
