@@ -195,7 +195,8 @@ def lbfgs(likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.
     factor = factorise(likelihood.kernel._K(U0))
     logdet, trace0 = factor.logdet, float(np.trace(factor.solve(S)))
     if max_iter == 0:
-        return OptimiserResult(U0, [objective(logdet, trace0, d)], 1, False, "reached max_iter = 0")
+        start = objective(logdet, trace0, d) - likelihood._penalty(U0)
+        return OptimiserResult(U0, [start], 1, False, "reached max_iter = 0")
     scale = 0.5 * d * abs(logdet) + 0.5 * abs(trace0)
     if not scale > 0:
         scale = 1.0

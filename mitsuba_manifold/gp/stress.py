@@ -102,13 +102,20 @@ def check_distances(distances, n):
             f"stress `distances` must be N x N for the N = {n} materials, got shape {D.shape}"
         )
     if not np.isfinite(D).all() or (D < 0).any():
-        raise InputError("stress `distances` must be finite and >= 0")
+        bad = D[~np.isfinite(D) | (D < 0)][0]
+        raise InputError(
+            f"stress `distances` must be finite and >= 0, got {bad}: give the tables' distances "
+            "(presets.stress_distances) or fit with stress=0.0"
+        )
     if np.abs(D - D.T).max() > 1e-8 * max(D.max(), 1e-300):
         raise InputError("stress `distances` must be symmetric (D[i, j] == D[j, i])")
     D = 0.5 * (D + D.T)
     np.fill_diagonal(D, 0.0)
     if not D.max() > 0:
-        raise InputError("stress `distances` are all 0: there is nothing to lay out by")
+        raise InputError(
+            "stress `distances` are all 0 (the tables look alike everywhere the distance "
+            "looks): there is nothing to lay out by; fit with stress=0.0 (--stress 0)"
+        )
     return D
 
 

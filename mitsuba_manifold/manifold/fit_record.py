@@ -16,7 +16,9 @@ import numpy as np
 
 @dataclass
 class Timings:
-    """Wall times of the fit's stages, seconds (None: not measured)."""
+    """Wall times of the fit's stages, seconds (None: not measured): reading the tables, the
+    Gram matrices (with the stress term's distances when it is on) and the optimisation.
+    """
 
     load_s: float = None
     gram_s: float = None

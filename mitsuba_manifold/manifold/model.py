@@ -148,9 +148,9 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
     g = gram_mod.gram(
         tables, cfg["features"], centre=True, raw=True, weights=albedo_weights(db.dims).reshape(-1)
     )
-    t_gram = time.perf_counter() - t0
     stress = stress_of(cfg)
     distances = stress_distances(tables, db.dims) if stress.active else None
+    t_gram = time.perf_counter() - t0  # with the stress term's distances
     result = fit_layout(g.S, tables.shape[1], cfg, init=init, distances=distances, **options)
     extra = {}
     if stress.active:  # the stress term's settings and outcome, in the saved info

@@ -104,6 +104,18 @@ def test_stress_term_pulls_the_layout_towards_the_targets():
             ),
             "must be N x N",
         ),
+        (
+            lambda: gplvm.GPLVM(2, method="lbfgs", stress=Stress(1.0)).fit(
+                np.eye(4), 10, distances=-np.ones((4, 4))
+            ),
+            r"finite and >= 0, got -1.0: .* or fit with stress=0.0",
+        ),
+        (
+            lambda: gplvm.GPLVM(2, method="lbfgs", stress=Stress(1.0)).fit(
+                np.eye(4), 10, distances=np.zeros((4, 4))
+            ),
+            r"all 0 .* fit with stress=0.0 \(--stress 0\)",
+        ),
     ],
 )
 def test_bad_stress_settings_are_rejected_clearly(make, match):
@@ -132,3 +144,16 @@ def test_penalised_objective_gradient_matches_finite_differences():
             Xm[i, j] -= h
             fd[i, j] = (obj._value(Xp) - obj._value(Xm)) / (2 * h)
     np.testing.assert_allclose(g, fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
+
+
+def test_the_first_history_entry_is_the_penalised_objective_whatever_max_iter():
+    """History holds L - lambda (d N / 2) sigma from its first entry on, also with no iteration."""
+    S, d = gram(smooth_data(12, 40, seed=3)), 40
+    D = _targets(12, seed=3)
+    first = [
+        gplvm.GPLVM(2, method="lbfgs", options=gplvm.LBFGSOptions(max_iter=k), stress=Stress(5.0))
+        .fit(S, d, distances=D)
+        .history[0]
+        for k in (0, 1)
+    ]
+    assert first[0] == pytest.approx(first[1], rel=1e-12)
