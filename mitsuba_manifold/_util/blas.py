@@ -5,8 +5,7 @@ BLAS limits are process-wide: two threads that each set and restore them in thei
 would restore what the other set. :func:`one_thread` counts its users in every thread; the last
 one out restores the limits the first one in found.
 
-
-One pass over ``x`` and ``y`` (NumPy needs a product into a temporary, then a sum: twice the
+The sums: one pass over ``x`` and ``y`` (NumPy needs a product into a temporary, then a sum: twice the
 memory traffic). BLAS would split a long ``saxpy`` over its threads, which for an image costs
 more than it gains: the threads wait on each other (far longer on a machine whose other cores
 are busy) and then spin on cores other work needs. A run of sums goes inside
