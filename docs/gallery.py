@@ -72,7 +72,7 @@ def gallery(out, small):
     os.makedirs(out, exist_ok=True)
     sheet = os.path.join(out, "measured.png")
     write_contact_sheet(sheet, render_spheres(path, m.latent, res, spp), list(m.names), columns=8)
-    # A 5x5 grid over the two first latent axes through the data's mean (third coordinate fixed).
+    # A 5x5 grid over the first two latent axes, the other coordinates at the data's mean.
     lo, hi = np.percentile(m.latent, [10, 90], axis=0)
     centre = m.latent.mean(axis=0)
     k = 3 if small else 5
