@@ -9,6 +9,10 @@ means run over every pixel and channel):
 - ``psnr     = 10 log10(peak^2 / mse)`` dB with ``peak = max(r)`` (the reference's brightest
   value; 1 if the reference is all zero or negative); ``inf`` for identical images.
 - ``max_abs  = max |a - r|``, ``mean_abs = mean |a - r|``.
+
+A Monte Carlo reference has noise of its own: :func:`pass_standard_error` estimates it per pixel
+from the images of independent passes, and :func:`noise_agreement` asks whether an image differs
+from the reference by more than that noise.
 """
 
 import numpy as np
@@ -63,6 +67,64 @@ def max_abs(a, ref):
     """Largest absolute difference over pixels and channels."""
     a, ref = _pair(a, ref)
     return float(np.max(np.abs(a - ref)))
+
+
+def pass_standard_error(weighted_sum, weighted_squares, samples, passes):
+    """Per-pixel standard error of the mean of independent render passes.
+
+    Pass ``k`` renders ``n_k`` samples per pixel into the image ``I_k``; the mean is
+    ``m = sum_k n_k I_k / N`` with ``N = sum_k n_k``. A pass's variance is ``s^2 / n_k`` with
+    ``s^2`` a sample's variance, estimated without bias by
+    ``s^2 = sum_k n_k (I_k - m)^2 / (P - 1) = (sum_k n_k I_k^2 - N m^2) / (P - 1)``; the mean's
+    standard error is ``sqrt(s^2 / N)``.
+
+    Parameters
+    ----------
+    weighted_sum, weighted_squares : ndarray
+        ``sum_k n_k I_k`` and ``sum_k n_k I_k^2``.
+    samples : int
+        ``N``.
+    passes : int
+        ``P``; with fewer than 2 the error is unknown (NaN).
+    """
+    total = np.asarray(weighted_sum, np.float64)
+    if passes < 2:
+        return np.full_like(total, np.nan)
+    mean = total / samples
+    var = np.maximum(np.asarray(weighted_squares, np.float64) - samples * mean * mean, 0.0)
+    return np.sqrt(var / ((passes - 1) * samples))
+
+
+def noise_agreement(a, ref, ref_se, eps=REL_EPS):
+    """Whether ``a`` equals a noisy reference within the reference's own noise.
+
+    ``noise_rel_mse = mean(se^2 / (r^2 + eps))`` is the relative MSE that an exact ``a`` would
+    show against ``r`` (on average); ``agrees`` when :func:`rel_mse` is at most twice that.
+    ``excess_rel_mse`` is the part of the error the noise does not explain
+    (``max(rel_mse - noise_rel_mse, 0)``).
+
+    Returns
+    -------
+    dict
+        ``noise_rel_mse``, ``excess_rel_mse``, ``agrees`` (all None where ``ref_se`` is NaN: a
+        reference of one pass).
+    """
+    a, ref = _pair(a, ref)
+    se = np.asarray(ref_se, np.float64)
+    if se.shape != ref.shape:
+        raise InputError(
+            f"reference error has shape {se.shape}, reference {ref.shape}: they must match"
+        )
+    if not np.isfinite(se).all():
+        return {"noise_rel_mse": None, "excess_rel_mse": None, "agrees": None}
+    scale = np.square(ref) + eps
+    noise = float(np.mean(se * se / scale))
+    err = float(np.mean(np.square(a - ref) / scale))
+    return {
+        "noise_rel_mse": noise,
+        "excess_rel_mse": max(err - noise, 0.0),
+        "agrees": bool(err <= 2.0 * noise),
+    }
 
 
 def error_image(a, ref):

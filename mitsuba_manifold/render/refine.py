@@ -49,7 +49,7 @@ import numpy as np
 
 from ..basis.blend import blend, latent_points
 from ..errors import InputError, MitsubaManifoldError
-from ..imaging.metrics import REL_EPS
+from ..imaging.metrics import REL_EPS, pass_standard_error
 from . import scenes
 from .integrators.onepass import POINT
 from .integrators.proxy import forget_point
@@ -389,10 +389,7 @@ def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"
     (``scale``: of :class:`Refined`; default the refined image).
     """
     rest = total / done
-    if passes > 1:  # sum_k n_k (img_k - rest)^2 / (passes - 1) estimates a sample's variance
-        se = np.sqrt(np.maximum(total2 - done * rest * rest, 0.0) / ((passes - 1) * done))
-    else:
-        se = np.full_like(rest, np.nan)
+    se = pass_standard_error(total, total2, done, passes)
     image = (l1 + rest).astype(np.float32)
     ref = np.asarray(image if scale is None else scale, np.float64)
     noise = float(np.mean(se**2 / (ref**2 + REL_EPS))) if passes > 1 else float("nan")

@@ -255,6 +255,10 @@ def test_reference_render_in_the_background(explorer, small_manifold_paper):
     assert job.progress == 1.0 and set(job.images) == {"blend", "reference"}
     assert np.isfinite(job.images["reference"]).all() and job.images["reference"].mean() > 0
     assert job.error["rel_mse"] >= 0 and np.isfinite(job.error["psnr"])
+    # two passes at least, so the reference's own noise is known and the blend judged against it
+    noise = job.error["noise_rel_mse"]
+    assert noise > 0 and job.error["agrees"] == (job.error["rel_mse"] <= 2 * noise)
+    assert job.error["excess_rel_mse"] == pytest.approx(max(job.error["rel_mse"] - noise, 0.0))
     png = explorer.reference_image(job.id, "error")
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(InputError, match="image must be"):

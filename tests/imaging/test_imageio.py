@@ -220,3 +220,41 @@ def test_control_characters_in_names_are_drawn_escaped_on_one_line(tmp_path):
         title="evil\nname (t = 0) to tab\there\x00 (t = 1)",
     )
     assert Image.open(path).size[0] > 0
+
+
+def test_pass_standard_error_predicts_the_spread_of_independent_means():
+    """z-test: the estimated standard error of a mean of unequal passes is the true one."""
+    rng = np.random.default_rng(7)
+    sigma, n = 0.3, (8, 8, 8, 5)  # a sample's standard deviation; spp of each pass
+    truth = rng.uniform(0.5, 2.0, (32, 32, 3))
+
+    def mean_and_se():
+        total = total2 = 0.0
+        for k in n:  # a pass of k samples: its image's variance is sigma^2 / k
+            img = truth + rng.normal(0.0, sigma / np.sqrt(k), truth.shape)
+            total, total2 = total + k * img, total2 + k * img * img
+        return total / sum(n), metrics.pass_standard_error(total, total2, sum(n), len(n))
+
+    a, se_a = mean_and_se()
+    b, _ = mean_and_se()
+    exact = sigma / np.sqrt(sum(n))
+    # mean of se^2 over 3072 values, each with 3 degrees of freedom: relative sd sqrt(2/3/3072)
+    assert abs(np.mean(se_a**2) / exact**2 - 1) < 5 * np.sqrt(2 / 3 / se_a.size)
+    # two independent means differ by sqrt(2) standard errors
+    z = (a - b) / np.sqrt(2 * exact**2)
+    assert abs(np.mean(z**2) - 1) < 5 * np.sqrt(2 / z.size)
+    assert np.isnan(metrics.pass_standard_error(truth, truth**2, 4, 1)).all()
+
+
+def test_noise_agreement_tells_an_exact_image_from_a_biased_one():
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0.2, 1.0, (24, 24, 3))
+    se = np.full_like(truth, 0.05)
+    noisy_ref = truth + rng.normal(0.0, 0.05, truth.shape)
+    exact = metrics.noise_agreement(truth, noisy_ref, se)
+    assert exact["agrees"] is True and exact["noise_rel_mse"] > 0
+    assert exact["excess_rel_mse"] < 0.2 * exact["noise_rel_mse"]
+    biased = metrics.noise_agreement(truth * 1.2, noisy_ref, se)
+    assert biased["agrees"] is False and biased["excess_rel_mse"] > exact["noise_rel_mse"]
+    one_pass = metrics.noise_agreement(truth, noisy_ref, np.full_like(truth, np.nan))
+    assert one_pass == {"noise_rel_mse": None, "excess_rel_mse": None, "agrees": None}

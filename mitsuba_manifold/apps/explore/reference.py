@@ -6,7 +6,9 @@ renders the basis's scene with its material at ``x`` in its own process
 (:mod:`.render_job`, started with ``nice`` so that the blends of a drag take the CPU first,
 and paused while a drag runs: :meth:`References.hold`) in passes of
 :data:`~.render_job.PASS_SAMPLES` paths, so the page can show its progress, then measures the
-blend against it (:func:`mitsuba_manifold.imaging.metrics.compare`). A refinement
+blend against it (:func:`mitsuba_manifold.imaging.metrics.compare`) and against the reference's
+own noise, which its passes measure (:func:`~mitsuba_manifold.imaging.metrics.noise_agreement`:
+a blend that equals full GI still differs from a noisy reference by that noise). A refinement
 (:meth:`References.submit_refine`) renders in the worker thread itself, at a lower priority.
 One job runs at a time; the others wait in line.
 
@@ -31,7 +33,7 @@ import numpy as np
 
 from ...imaging import metrics
 from ...render.scenes import scene_resolution
-from .render_job import RenderSpec
+from .render_job import Reference, RenderSpec
 
 MAX_SPP = 1 << 14
 KEEP_JOBS = 16
@@ -304,11 +306,10 @@ class References:
 
     def _run(self, job, basis, scene, manifold_path, blend_image):
         def render():
-            job.images = {
-                "blend": blend_image,
-                "reference": self._render(job, basis, scene, manifold_path),
-            }
-            job.error = metrics.compare(blend_image, job.images["reference"])
+            ref = self._render(job, basis, scene, manifold_path)
+            job.images = {"blend": blend_image, "reference": ref.image}
+            job.error = metrics.compare(blend_image, ref.image)
+            job.error.update(metrics.noise_agreement(blend_image, ref.image, ref.pixel_se))
 
         self._execute(job, render)
 
@@ -327,7 +328,7 @@ class References:
                 max_depth=int(basis.manifest.max_depth),
                 variant=basis.manifest.variant,
                 sensor=basis.sensor,
-                out=os.path.join(tmp, "reference.npy"),
+                out=os.path.join(tmp, "reference.npz"),
             )
             spec.write(os.path.join(tmp, "spec.json"))
             env = dict(os.environ)
@@ -373,7 +374,7 @@ class References:
                 raise RuntimeError(
                     lines[-1] if lines else f"the render exited with {proc.returncode}"
                 )
-            return np.load(spec.out)
+            return Reference.read(spec.out)
 
     def busy(self):
         """Whether a job is rendering now."""

@@ -4,8 +4,10 @@ The explorer starts it at a lower priority (``nice``) so that the blends of a dr
 first, and ends it at once when its job is cancelled (:mod:`.reference`). The process reads a
 :class:`RenderSpec` (JSON file), renders the scene at the point in passes of :data:`PASS_SAMPLES`
 paths (as :func:`~mitsuba_manifold.render.interrupt.render_in_passes`: different seeds,
-sample-weighted mean), prints ``done total`` after each pass, and writes the mean image (float32
-``.npy``) to ``spec.out`` atomically at the end.
+sample-weighted mean; at least two passes where the spp allows, so that the passes measure the
+render's own noise), prints ``done total`` after each pass, and writes a :class:`Reference` (the
+mean image and its standard error per pixel, :func:`~mitsuba_manifold.imaging.metrics.pass_standard_error`)
+to ``spec.out`` atomically at the end.
 """
 
 import json
@@ -43,11 +45,41 @@ class RenderSpec:
             return cls(**json.load(f))
 
 
+@dataclass
+class Reference:
+    """A reference render: the mean ``image`` (H, W, 3) float32, ``pixel_se`` the standard error
+    of each of its values (NaN for a render of one pass), rendered in ``passes`` passes.
+    """
+
+    image: object
+    pixel_se: object
+    passes: int
+
+    def write(self, path):
+        import io
+
+        import numpy as np
+
+        from ..._util.atomic import write_bytes
+
+        buf = io.BytesIO()
+        np.savez(buf, image=self.image, pixel_se=self.pixel_se, passes=self.passes)
+        write_bytes(path, buf.getvalue())
+
+    @classmethod
+    def read(cls, path):
+        import numpy as np
+
+        with np.load(path) as z:
+            return cls(z["image"], z["pixel_se"], int(z["passes"]))
+
+
 def render(spec, progress=print):
-    """The mean image of ``spec`` (H, W, 3) float32; ``progress(done, total)`` after each pass."""
+    """The :class:`Reference` of ``spec``; ``progress(done, total)`` after each pass."""
     import mitsuba as mi
     import numpy as np
 
+    from ...imaging.metrics import pass_standard_error
     from ...render.interrupt import sample_passes
     from ...render.scenes import load_scene, set_points
 
@@ -64,32 +96,26 @@ def render(spec, progress=print):
     set_points(loaded.targets, spec.x)
     integrator = loaded.integrator.reference(loaded.scene)  # the scene's own, as the basis's
     w, h = spec.size
-    acc, done = None, 0
-    for k, spp in enumerate(sample_passes(spec.spp, w * h, PASS_SAMPLES)):
+    per_pass = min(PASS_SAMPLES, max(1, spec.spp // 2) * w * h)  # two passes at least
+    acc, acc2, done = 0.0, 0.0, 0
+    passes = sample_passes(spec.spp, w * h, per_pass)
+    for k, spp in enumerate(passes):
         img = np.array(
             mi.render(
                 loaded.scene, integrator=integrator, spp=spp, seed=1000 + k, sensor=spec.sensor
             ),
             dtype=np.float64,
         )[..., :3]
-        acc = img * spp if acc is None else acc + img * spp
+        acc, acc2 = acc + img * spp, acc2 + img * img * spp
         done += spp
         progress(done, spec.spp)
-    return (acc / spec.spp).astype(np.float32)
+    se = pass_standard_error(acc, acc2, done, len(passes))
+    return Reference((acc / done).astype(np.float32), se.astype(np.float32), len(passes))
 
 
 def main(argv=None):
-    import io
-
-    import numpy as np
-
-    from ..._util.atomic import write_bytes
-
     spec = RenderSpec.read((argv or sys.argv[1:])[0])
-    image = render(spec, lambda done, total: print(done, total, flush=True))
-    buf = io.BytesIO()
-    np.save(buf, image)
-    write_bytes(spec.out, buf.getvalue())
+    render(spec, lambda done, total: print(done, total, flush=True)).write(spec.out)
     return 0
 
 
