@@ -725,6 +725,8 @@ def screenshot(basis, path, manifold=None, reference_spp=256, size=(1560, 1000),
                 page.goto(url)
                 _scenario(page, reference_spp if k == 0 else None, zoom_steps)
                 out = path if k == 0 else f"{os.path.splitext(path)[0]}_{w}.png"
+                page.evaluate("window.scrollTo(0, 0)")  # the clicks scrolled a small viewport
+                page.wait_for_timeout(300)
                 write_bytes(out, page.screenshot(full_page=k == 0))
                 context.close()
             browser.close()
