@@ -801,7 +801,12 @@ class Database:
         q = albedo_weights(self.dims).reshape(-1)
         names = self.names if names is None else list(names)
         rows = tables if tables is not None else (self.reflectance(n) for n in names)
-        return np.stack([np.asarray(t).reshape(3, -1) @ q for t in rows])
+        table = np.empty((3, q.size))  # each table in float64, in one reused buffer
+        out = []
+        for t in rows:
+            np.copyto(table, np.asarray(t).reshape(3, -1))
+            out.append(table @ q)
+        return np.stack(out)
 
     def gram(
         self, names=None, features="raw", block=1 << 16, tables=None, progress=False, raw=False

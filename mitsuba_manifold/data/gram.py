@@ -48,12 +48,16 @@ class Gram:
         ``T T^T`` of the raw tables (``raw=True`` only).
     weighted : (N, N) float64 or None
         ``T diag(q) T^T`` of the raw tables (``weights=q`` only).
+    sums : (N, 3) float64 or None
+        ``sum_b q_b T_c(b)``: each table's channel ``c`` summed with the weights ``q``
+        (``weights=q`` only; with the albedo weights, the albedos).
     """
 
     S: np.ndarray
     mean: np.ndarray = None
     raw: np.ndarray = None
     weighted: np.ndarray = None
+    sums: np.ndarray = None
 
 
 def transform(block, features, cos=None):
@@ -118,12 +122,15 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
     block = int(block)
     mean = np.empty(d, dtype=np.float32) if centre else None
     weights = None if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
-    if weights is not None and weights.size != bins:
+    if weights is not None and (weights.size != bins or bins == 0):
         raise FormatError(f"`weights` must hold one value per bin ({bins}), got {weights.size}")
+    root = None if weights is None or np.any(weights < 0) else np.sqrt(weights)
     buffers = threading.local()  # each worker's float64 block and weighted block, reused
 
     def products(start):
-        """The block at ``start``: its products ``(G, C, S)`` (None where not asked)."""
+        """The block at ``start``: its products ``(G, C, S)`` and weighted sums (None where
+        not asked).
+        """
         width = min(block, d - start)
         if getattr(buffers, "z", None) is None:
             buffers.z = np.empty(n * block)
@@ -132,28 +139,39 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
         np.copyto(z, tables[:, start : start + width], casting="unsafe")
         G = z @ z.T if raw else None
         bins_of = np.arange(start, start + width) % bins
-        C = None
-        if weights is not None:
-            zw = buffers.zw[: n * width].reshape(n, width)
-            C = np.multiply(z, weights[bins_of], out=zw) @ z.T
+        C, sums = None, None
+        if weights is not None:  # each channel's part of the block with its bins' weights
+            sums = np.zeros((n, 3))
+            for c in range(start // bins, min(3, -(-(start + width) // bins))):
+                lo, hi = max(start, c * bins) - start, min(start + width, (c + 1) * bins) - start
+                sums[:, c] = z[:, lo:hi] @ weights[bins_of[lo:hi]]
+        if root is not None:  # (T sqrt(q)) (T sqrt(q))^T: a syrk, half the work of (T q) T^T
+            zw = np.multiply(z, root[bins_of], out=buffers.zw[: n * width].reshape(n, width))
+            C = zw @ zw.T
+        elif weights is not None:
+            C = (
+                np.multiply(z, weights[bins_of], out=buffers.zw[: n * width].reshape(n, width))
+                @ z.T
+            )
         z = transform(z, features, None if cos is None else cos[bins_of])
         if centre:
             m = z.mean(axis=0)
             mean[start : start + width] = m
             z -= m
-        return G, C, z @ z.T
+        return G, C, z @ z.T, sums
 
     starts = range(0, d, block)
     sums = [np.zeros((n, n)), np.zeros((n, n)) if raw else None]
-    sums.append(None if weights is None else np.zeros((n, n)))
+    sums += [None, None] if weights is None else [np.zeros((n, n)), np.zeros((n, 3))]
     # Small products (N x block), one BLAS thread each: two workers on one BLAS thread each
     # are faster than one on two, and far faster when another process competes for the cores.
     with one_thread(), ThreadPoolExecutor(workers_for(len(starts)), "gram") as pool:
-        for G, C, S in pool.map(products, starts):  # summed in the order of the blocks
+        for G, C, S, W in pool.map(products, starts):  # summed in the order of the blocks
             sums[0] += S
             if raw:
                 sums[1] += G
             if C is not None:
                 sums[2] += C
+                sums[3] += W
     sym = lambda M: None if M is None else 0.5 * (M + M.T)
-    return Gram(sym(sums[0]), mean, sym(sums[1]), sym(sums[2]))
+    return Gram(sym(sums[0]), mean, sym(sums[1]), sym(sums[2]), sums[3])
