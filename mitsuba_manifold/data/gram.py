@@ -30,6 +30,8 @@ from ..errors import FormatError
 FEATURES = ("raw", "log", "coslog")
 #: Values per block (columns of the ``(N, d)`` stack).
 BLOCK = 1 << 16
+#: Values per part of a block in the weighted product ``T diag(q) T^T``.
+WEIGHTED_PART = 1 << 13
 #: Most worker threads of one :func:`gram` (fewer on a machine of fewer cores).
 MAX_WORKERS = 8
 
@@ -125,7 +127,7 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
     if weights is not None and (weights.size != bins or bins == 0):
         raise FormatError(f"`weights` must hold one value per bin ({bins}), got {weights.size}")
     root = None if weights is None or np.any(weights < 0) else np.sqrt(weights)
-    buffers = threading.local()  # each worker's float64 block and weighted block, reused
+    buffers = threading.local()  # each worker's float64 block and weighted part, reused
 
     def products(start):
         """The block at ``start``: its products ``(G, C, S)`` and weighted sums (None where
@@ -134,7 +136,7 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
         width = min(block, d - start)
         if getattr(buffers, "z", None) is None:
             buffers.z = np.empty(n * block)
-            buffers.zw = np.empty(n * block) if weights is not None else None
+            buffers.zw = np.empty(n * min(block, WEIGHTED_PART)) if weights is not None else None
         z = buffers.z[: n * width].reshape(n, width)
         np.copyto(z, tables[:, start : start + width], casting="unsafe")
         G = z @ z.T if raw else None
@@ -145,14 +147,15 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
             for c in range(start // bins, min(3, -(-(start + width) // bins))):
                 lo, hi = max(start, c * bins) - start, min(start + width, (c + 1) * bins) - start
                 sums[:, c] = z[:, lo:hi] @ weights[bins_of[lo:hi]]
-        if root is not None:  # (T sqrt(q)) (T sqrt(q))^T: a syrk, half the work of (T q) T^T
-            zw = np.multiply(z, root[bins_of], out=buffers.zw[: n * width].reshape(n, width))
-            C = zw @ zw.T
-        elif weights is not None:
-            C = (
-                np.multiply(z, weights[bins_of], out=buffers.zw[: n * width].reshape(n, width))
-                @ z.T
-            )
+            C = np.zeros((n, n))  # in parts of the block: the weighted copy is small
+            for lo in range(0, width, WEIGHTED_PART):
+                hi = min(width, lo + WEIGHTED_PART)
+                zw = buffers.zw[: n * (hi - lo)].reshape(n, hi - lo)
+                if root is not None:  # (T sqrt(q)) (T sqrt(q))^T: a syrk, half of (T q) T^T
+                    np.multiply(z[:, lo:hi], root[bins_of[lo:hi]], out=zw)
+                    C += zw @ zw.T
+                else:
+                    C += np.multiply(z[:, lo:hi], weights[bins_of[lo:hi]], out=zw) @ z[:, lo:hi].T
         z = transform(z, features, None if cos is None else cos[bins_of])
         if centre:
             m = z.mean(axis=0)
