@@ -6,9 +6,10 @@ the space metrics the uncentred ``F F^T`` of a feature space, and the "image" pr
 the cosine-weighted ``T diag(q) T^T`` (``q``: each bin's ``cos(theta_i) cos(theta_o) dw_i dw_o``).
 :func:`gram` computes any of them in one pass over blocks of values: each block is converted
 to float64 once (into a buffer its worker reuses), the products accumulate in float64 and
-``Z`` (or ``F``) is never held in float64 as a whole. Centring each block by its own column
-means (rather than centring the finished Gram matrix) keeps the small entries accurate next
-to chrome-like peaks of 1e4.
+``Z`` (or ``F``) is never held in float64 as a whole. ``T diag(q) T^T`` is the product
+``(T sqrt(q)) (T sqrt(q))^T`` of parts of a block (``q >= 0``; ``(T q) T^T`` otherwise).
+Centring each block by its own column means (rather than centring the finished Gram matrix)
+keeps the small entries accurate next to chrome-like peaks of 1e4.
 
 The blocks' products are computed by worker threads (NumPy's products and element-wise
 operations run without the interpreter lock), each on one BLAS thread
@@ -109,7 +110,8 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
         Values per block.
     weights : (bins,) array, optional
         Per-bin weights ``q`` (the same for each channel): also ``T diag(q) T^T`` of the raw
-        tables, from the same blocks.
+        tables and each table's channels summed with the weights (:attr:`Gram.sums`), from
+        the same blocks.
 
     Returns
     -------
@@ -166,15 +168,19 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
     starts = range(0, d, block)
     sums = [np.zeros((n, n)), np.zeros((n, n)) if raw else None]
     sums += [None, None] if weights is None else [np.zeros((n, n)), np.zeros((n, 3))]
-    # Small products (N x block), one BLAS thread each: two workers on one BLAS thread each
-    # are faster than one on two, and far faster when another process competes for the cores.
-    with one_thread(), ThreadPoolExecutor(workers_for(len(starts)), "gram") as pool:
-        for G, C, S, W in pool.map(products, starts):  # summed in the order of the blocks
-            sums[0] += S
-            if raw:
-                sums[1] += G
-            if C is not None:
-                sums[2] += C
-                sums[3] += W
+    # Small products (N x block), one BLAS thread per worker: the workers keep the cores busy
+    # between the products too, and no BLAS thread waits on another one's core.
+    with one_thread():
+        pool = ThreadPoolExecutor(workers_for(len(starts)), "gram")
+        try:
+            for G, C, S, W in pool.map(products, starts):  # summed in the order of the blocks
+                sums[0] += S
+                if raw:
+                    sums[1] += G
+                if C is not None:
+                    sums[2] += C
+                    sums[3] += W
+        finally:  # on an error or Ctrl-C, only the blocks already started are finished
+            pool.shutdown(cancel_futures=True)
     sym = lambda M: None if M is None else 0.5 * (M + M.T)
     return Gram(sym(sums[0]), mean, sym(sums[1]), sym(sums[2]), sums[3])
