@@ -128,8 +128,8 @@ READ_CHUNK = 1 << 18
 def read_npy_into(path, out, *, shape, dtype):
     """Read the ``.npy`` file ``path`` into the array ``out`` (converting its values to
     ``out``'s dtype, a chunk at a time), if it holds a C-ordered array of ``shape`` (of
-    ``out``'s size) and ``dtype``; returns whether it did (False: ``out`` is unchanged or partly written, and the
-    file is to be made again, as :func:`npy_cache` would).
+    ``out``'s size) and ``dtype``; returns whether it did (False: ``out`` is unchanged or
+    partly written, and the file is to be made again, as :func:`npy_cache` would).
 
     No temporary of the whole array: what ``np.load(path).astype(out.dtype)`` gives, without
     its two allocations.
