@@ -33,8 +33,9 @@ FEATURES = ("raw", "log", "coslog")
 BLOCK = 1 << 16
 #: Values per part of a block in the weighted product ``T diag(q) T^T``.
 WEIGHTED_PART = 1 << 13
-#: Most worker threads of one :func:`gram` (fewer on a machine of fewer cores).
-MAX_WORKERS = 8
+#: Most worker threads of one :func:`gram` (fewer on a machine of fewer cores): each holds a
+#: float64 block ``(N, block)``.
+MAX_WORKERS = 4
 
 
 @dataclass
