@@ -121,6 +121,46 @@ def _load_valid(path, shape, dtype, finite, mmap):
     return value
 
 
+#: Values read and converted at a time by :func:`read_npy_into`.
+READ_CHUNK = 1 << 18
+
+
+def read_npy_into(path, out, *, shape, dtype):
+    """Read the ``.npy`` file ``path`` into the array ``out`` (converting its values to
+    ``out``'s dtype, a chunk at a time), if it holds a C-ordered array of ``shape`` (of
+    ``out``'s size) and ``dtype``; returns whether it did (False: ``out`` is unchanged or
+    partly written, and the file is to be made again, as :func:`npy_cache` would).
+
+    No temporary of the whole array: what ``np.load(path).astype(out.dtype)`` gives, without
+    its two allocations.
+    """
+    if not (out.flags.c_contiguous and out.flags.writeable and out.size == np.prod(shape)):
+        raise ValueError(f"read_npy_into needs a writable C-contiguous `out` of {shape} values")
+    flat = out.reshape(-1)
+    dtype = np.dtype(dtype)
+    try:
+        with open(path, "rb") as f:
+            version = np.lib.format.read_magic(f)
+            if version == (1, 0):
+                found_shape, fortran, found = np.lib.format.read_array_header_1_0(f)
+            elif version == (2, 0):
+                found_shape, fortran, found = np.lib.format.read_array_header_2_0(f)
+            else:
+                return False
+            if fortran or found != dtype or tuple(found_shape) != tuple(shape):
+                return False
+            buf = np.empty(min(READ_CHUNK, flat.size), dtype=dtype)
+            for start in range(0, flat.size, buf.size):
+                part = buf[: min(buf.size, flat.size - start)]
+                view = memoryview(part).cast("B")
+                if f.readinto(view) != view.nbytes:
+                    return False
+                flat[start : start + part.size] = part
+    except (OSError, ValueError):
+        return False
+    return True
+
+
 @dataclass(frozen=True)
 class Eviction:
     """Which files of a cache folder :func:`npy_cache` keeps: the ``keep`` most recently used

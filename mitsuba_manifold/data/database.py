@@ -27,8 +27,10 @@ from .._util.cache import (
     file_identity,
     key_hash,
     npy_cache,
+    read_npy_into,
 )
 from .._util.locking import FolderLock
+from .._util.memory import prefaulted
 from .._util.ownership import owned_tables, pending_tables, write_table_record
 from .._util.workers import owned_pool
 from ..errors import FormatError, InputError, MissingFileError, UnknownMaterialError, did_you_mean
@@ -400,13 +402,21 @@ def builtin_cache():
     return folder
 
 
-def made_table(cache_dir, digest, build, shape):
+def made_table(cache_dir, digest, build, shape, out=None):
     """A table made from a source (not a file), cached as ``<digest>.refl16.npy`` (:data:`MADE_DTYPE`)
     or, where its values exceed that range, ``<digest>.refl.npy`` (float32); returned as float32, as cached
     (rounded to the cache's precision when just made).
+
+    ``out``: a float32 array of the table's size to fill (and return, in ``shape``) instead of
+    a new array; a cached half-precision table is then read straight into it.
     """
     half = os.path.join(cache_dir, f"{digest}.refl16.npy")
     full = os.path.join(cache_dir, f"{digest}.refl.npy")
+    if out is not None:
+        if not os.path.exists(full) and read_npy_into(half, out, shape=shape, dtype=MADE_DTYPE):
+            return out.reshape(shape)
+        np.copyto(out, made_table(cache_dir, digest, build, shape).reshape(out.shape))
+        return out.reshape(shape)
     if os.path.exists(full):
         return npy_cache(full, build, shape=shape, dtype=np.float32, mmap=True)
     made = []
@@ -695,12 +705,13 @@ class Database:
         return [self.hash(n) for n in (self.names if names is None else names)]
 
     # -- tables
-    def reflectance(self, name, mmap=True):
+    def reflectance(self, name, mmap=True, out=None):
         """Filled reflectance table, float32 of shape ``(3,) + dims`` (see merl.filled_reflectance).
 
         Made once and cached as ``.npy`` keyed by its content hash (:meth:`hash`): a ``.binary``
         file's as float32, returned memory-mapped read-only when ``mmap``; any other source's as
         :data:`MADE_DTYPE` (float32 where a value exceeds its range), returned in memory.
+        ``out``: a C-contiguous float32 array of the table's size to fill and return instead.
         """
         self.index(name)
         source = self.sources[name]
@@ -708,18 +719,28 @@ class Database:
         digest = self.hash(name)
         if source.kind == "binary":
             cached = os.path.join(self.cache_dir, f"{digest}.refl.npy")
-            return npy_cache(
-                cached, lambda: source.table(self.dims), shape=shape, dtype=np.float32, mmap=mmap
+            table = npy_cache(
+                cached,
+                lambda: source.table(self.dims),
+                shape=shape,
+                dtype=np.float32,
+                mmap=mmap or out is not None,
             )
-        return made_table(self.cache_dir, digest, lambda: source.table(self.dims), shape)
+            if out is None:
+                return table
+            np.copyto(out, table.reshape(out.shape))
+            return out.reshape(shape)
+        return made_table(self.cache_dir, digest, lambda: source.table(self.dims), shape, out=out)
 
     def stack(self, names=None, progress=False):
-        """Tables of ``names`` as one float32 matrix ``(N, d)``, rows = RGB-concatenated tables."""
+        """Tables of ``names`` as one float32 matrix ``(N, d)``, rows = RGB-concatenated tables
+        (each read from its cache straight into its row: :func:`~.._util.memory.prefaulted`).
+        """
         names = self.names if names is None else list(names)
         d = 3 * int(np.prod(self.dims))
-        out = np.empty((len(names), d), dtype=np.float32)
+        out = prefaulted((len(names), d), np.float32)
         for i, name in enumerate(_progress(names, progress, "loading")):
-            out[i] = self.reflectance(name).reshape(-1)
+            self.reflectance(name, out=out[i])
         return out
 
     def material_rows(self, names=None, pad=16, keep=2):
@@ -780,7 +801,12 @@ class Database:
         q = albedo_weights(self.dims).reshape(-1)
         names = self.names if names is None else list(names)
         rows = tables if tables is not None else (self.reflectance(n) for n in names)
-        return np.stack([np.asarray(t).reshape(3, -1) @ q for t in rows])
+        table = np.empty((3, q.size))  # each table in float64, in one reused buffer
+        out = []
+        for t in rows:
+            np.copyto(table, np.asarray(t).reshape(3, -1))
+            out.append(table @ q)
+        return np.stack(out)
 
     def gram(
         self, names=None, features="raw", block=1 << 16, tables=None, progress=False, raw=False

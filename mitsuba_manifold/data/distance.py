@@ -119,7 +119,8 @@ class Quadrature:
         rows = np.asarray(rows)
         if rows.shape[-1] != self.size:
             rows = rows[..., self.index]
-        return self.scale * np.cbrt(np.maximum(rows, 0.0) * self.cos)
+        out = np.maximum(rows, 0.0) * self.cos  # float64, transformed in place
+        return np.multiply(self.scale, np.cbrt(out, out=out), out=out)
 
 
 def _flat(tables, dims):
@@ -222,11 +223,15 @@ def gram_distances(parts, exact=None, rtol=1e-9):
     """
     D2, N2 = None, None
     for F, G in parts:
+        same = G is F  # a block compared with itself: its squared norms once
         F, G = np.asarray(F, dtype=np.float64), np.asarray(G, dtype=np.float64)
         centre = F.mean(axis=0)
-        f, g = F - centre, G - centre
-        nf, ng = (f * f).sum(1)[:, None], (g * g).sum(1)[None]
+        f = F - centre
+        nf = (f * f).sum(1)[:, None]
+        g = G - centre
+        ng = nf.reshape(1, -1) if same else (g * g).sum(1)[None]
         block = nf + ng - 2.0 * f @ g.T
+        del F, G, f, g  # before the next block's features are made
         D2 = block if D2 is None else D2 + block
         N2 = nf + ng if N2 is None else N2 + nf + ng
     if D2 is None:

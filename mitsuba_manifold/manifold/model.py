@@ -132,9 +132,9 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
     (:func:`presets.settings` of ``preset``); ``options`` go to :func:`gplvm.fit_latent`.
 
     Reads the tables once, computes in one pass over them the Gram matrix ``S`` of the fit's
-    features, the raw tables' ``T T^T`` and their cosine-weighted ``T diag(q) T^T`` (pruning,
-    :mod:`.pruning`), fits the GPLVM layout of the settings (:func:`presets.fit_layout`) and
-    records what it did (:class:`FitRecord`).
+    features, the raw tables' ``T T^T``, their cosine-weighted ``T diag(q) T^T`` (pruning,
+    :mod:`.pruning`) and the albedos (``q``: :func:`albedo_weights`), fits the GPLVM layout
+    of the settings (:func:`presets.fit_layout`) and records what it did (:class:`FitRecord`).
     """
     names = db.names if names is None else list(names)
     if len(names) < 2:
@@ -178,7 +178,7 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
         record,
         g.S,
         g.raw,
-        db.albedo(names, tables=tables),
+        g.sums,
         tables,
         g.weighted,
     )

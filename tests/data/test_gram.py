@@ -85,3 +85,45 @@ def test_cosine_weighted_gram_comes_from_the_same_pass():
     assert gram.gram(tables, "raw").weighted is None
     with pytest.raises(ValueError, match="`weights`.*3000"):
         gram.gram(tables, "raw", weights=q[:-1])
+
+
+def test_worker_threads_give_the_one_thread_sums_bit_for_bit(monkeypatch):
+    """The blocks' products are added in block order whatever the number of workers (a fit
+    whose optimiser runs to its iteration limit moves with any change of ``S``'s last bit).
+    """
+    rng = np.random.default_rng(3)
+    bins = 2500
+    tables = rng.lognormal(-3, 2, (7, 3 * bins)).astype(np.float32)
+    q = rng.uniform(0, 1e-3, bins)
+    runs = []
+    for workers in (1, 2, 5):
+        monkeypatch.setattr(gram, "workers_for", lambda n, w=workers: w)
+        runs.append(gram.gram(tables, "log", raw=True, weights=q, block=700))
+    for other in runs[1:]:
+        for field in ("S", "mean", "raw", "weighted", "sums"):
+            assert np.array_equal(getattr(other, field), getattr(runs[0], field)), field
+    # and the same as a plain serial NumPy loop over the blocks
+    S = np.zeros((7, 7))
+    for s in range(0, 3 * bins, 700):
+        z = np.log1p(tables[:, s : s + 700].astype(np.float64))
+        z -= z.mean(axis=0)
+        S += z @ z.T
+    assert np.array_equal(runs[0].S, 0.5 * (S + S.T))
+
+
+def test_weighted_sums_per_channel_across_blocks_that_straddle_channels():
+    """The albedo-like sums ``T_c q`` per channel, with blocks that span a channel's end."""
+    rng = np.random.default_rng(4)
+    bins = 1001
+    tables = rng.uniform(0, 5, (4, 3 * bins)).astype(np.float32)
+    q = rng.uniform(0, 1, bins)
+    ref = tables.astype(np.float64).reshape(4, 3, bins) @ q
+    for block in (64, 1000, 1002, 5000):
+        g = gram.gram(tables, "raw", centre=False, weights=q, block=block)
+        np.testing.assert_allclose(g.sums, ref, rtol=1e-12)
+    # negative weights: the weighted Gram by its general product
+    q[::7] *= -1
+    g = gram.gram(tables, "raw", centre=False, weights=q, block=300)
+    T = tables.astype(np.float64)
+    np.testing.assert_allclose(g.weighted, (T * np.tile(q, 3)) @ T.T, rtol=1e-10)
+    np.testing.assert_allclose(g.sums, T.reshape(4, 3, bins) @ q, rtol=1e-10)

@@ -338,3 +338,20 @@ def test_project_and_add_take_a_material_as_the_tools_do(tmp_path):
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
     assert len(lines) == 2 and all("import mitsuba_manifold.render first" in ln for ln in lines)
+
+
+def test_stack_reads_the_half_precision_cache_straight_into_its_rows(tmp_path):
+    """The stack of a built-in set: its tables as made, then as read back from the float16
+    cache into the rows, then with a damaged cache file made again."""
+    names = ["bluebook", "glossyredpaper", "greencloth"]
+    db = Database("nielsen@8x8x16")
+    cold = db.stack(names)  # made into the cache
+    ref = np.stack([db.reflectance(n).reshape(-1) for n in names])
+    assert cold.dtype == np.float32 and cold.shape == (3, 3 * 8 * 8 * 16)
+    assert cold.flags.c_contiguous and cold.flags.writeable
+    warm = Database("nielsen@8x8x16").stack(names)  # read from the cache
+    assert np.array_equal(cold, ref) and np.array_equal(warm, ref)
+    path = tmp_path / "cache" / "builtin" / (db.hash("glossyredpaper") + ".refl16.npy")
+    path.write_bytes(path.read_bytes()[:-100])  # cut short: made again
+    assert np.array_equal(Database("nielsen@8x8x16").stack(names), ref)
+    assert np.array_equal(np.load(path).astype(np.float32).reshape(-1), ref[1])

@@ -92,3 +92,26 @@ def test_atomic_write_errors_name_the_users_path_not_the_temporary_file(tmp_path
         atomic.atomic_replace(tmp_path / "y.exr", full)
     assert str(tmp_path / "y.exr") in str(e.value) and ".tmp" not in str(e.value)
     assert os.listdir(tmp_path) == []
+
+
+def test_read_npy_into_converts_in_place_and_refuses_other_arrays(tmp_path, monkeypatch):
+    monkeypatch.setattr(cache, "READ_CHUNK", 7)  # several chunks and a short last one
+    rng = np.random.default_rng(0)
+    half = rng.uniform(0, 100, (3, 4, 5)).astype(np.float16)
+    path = tmp_path / "t.npy"
+    np.save(path, half)
+    out = np.full(60, np.nan, dtype=np.float32)
+    assert cache.read_npy_into(path, out, shape=(3, 4, 5), dtype=np.float16)
+    assert np.array_equal(out, half.astype(np.float32).reshape(-1))
+    assert not cache.read_npy_into(path, out, shape=(3, 20), dtype=np.float16)  # other shape
+    assert not cache.read_npy_into(path, out, shape=(3, 4, 5), dtype=np.float32)  # other dtype
+    np.save(path, np.asfortranarray(half))
+    assert not cache.read_npy_into(path, out, shape=(3, 4, 5), dtype=np.float16)  # Fortran order
+    np.save(path, half)
+    path.write_bytes(path.read_bytes()[:-10])  # cut short
+    assert not cache.read_npy_into(path, out, shape=(3, 4, 5), dtype=np.float16)
+    assert not cache.read_npy_into(tmp_path / "missing.npy", out, shape=(3, 4, 5), dtype=np.float16)
+    with pytest.raises(ValueError, match="C-contiguous"):
+        cache.read_npy_into(
+            path, np.zeros((60, 2), np.float32)[:, 0], shape=(60,), dtype=np.float16
+        )
