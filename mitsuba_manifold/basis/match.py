@@ -374,9 +374,9 @@ def _winner(manifold, full, runs, prior):
     full_errs, full_scales = full.singles()
     best = int(np.argmin(full_errs + var_train))
     cand = [(full_errs[best] + var_train[best], None, manifold.latent[best].copy())]
-    for j, r in enumerate(runs):
-        w = manifold.weights(r["x"])[1]
-        cand.append((full(w)[0] + prior * float(manifold.variance(r["x"])), j, r["x"]))
+    X = np.array([r["x"] for r in runs])
+    errs = full.evaluate(manifold.weights(X)[1])[0] + prior * manifold.variance(X)
+    cand += [(float(errs[j]), j, r["x"]) for j, r in enumerate(runs)]
     _, from_start, x = min(cand, key=lambda c: c[0])
     single = SingleMatch(
         manifold.names[best], best, float(full_errs[best]), float(full_scales[best])

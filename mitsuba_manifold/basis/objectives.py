@@ -110,6 +110,12 @@ class RelativeMSE:
         """:meth:`batch` of every material alone (``W`` the identity)."""
         return self.batch(np.eye(len(self.h) - 1))
 
+    def evaluate(self, W):
+        """Errors and exposures of weight vectors W (M, N) as :meth:`__call__` gives them (the
+        quadratic form is exact: :meth:`batch`).
+        """
+        return self.batch(W)
+
 
 class LogLuminanceMSE:
     """MSE over the mask of ``log(lum / k + eps)`` against ``log(lum_r / mean(lum_r) + eps)``.
@@ -147,6 +153,15 @@ class LogLuminanceMSE:
             g = g - self.m * (lum > 0) * float(gn @ n) / k
         return float(self.m @ (d * d)), self.A[1:] @ g, self.mean_r / k
 
+    def evaluate(self, W):
+        """Errors and exposures of weight vectors W (M, N) in float64, each as :meth:`__call__`
+        gives it, in one product (the images are read once for all).
+        """
+        lum = self.A[0] + np.atleast_2d(W) @ self.A[1:]
+        k = self._norm(lum)
+        d = np.log(np.maximum(lum, 0.0) / k[:, None] + self.eps) - self.lr
+        return (d * d) @ self.m, self.mean_r / k
+
     def batch(self, W, chunk=256):
         """Errors and exposures of many weight vectors W (M, N) at once (in float32, the weights
         below float32's normal range set to 0: :func:`~mitsuba_manifold._util.float32.weights32`).
@@ -158,8 +173,11 @@ class LogLuminanceMSE:
             errs.append(self._errors(lum, norms))
         return np.concatenate(errs), self.mean_r / np.concatenate(norms)
 
-    def singles(self, chunk=256):
-        """:meth:`batch` of every material alone (``W`` the identity), without the product."""
+    def singles(self, chunk=None):
+        """:meth:`batch` of every material alone (``W`` the identity), without the product; a
+        chunk of about a million values at a time (default), which stays in the cache.
+        """
+        chunk = chunk or max(1, (1 << 20) // self.A32.shape[1])
         errs, norms = [], []
         for s in range(1, len(self.A32), chunk):
             errs.append(self._errors(self.A32[s : s + chunk] + self.A32[0], norms))

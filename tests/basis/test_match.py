@@ -132,6 +132,11 @@ def test_log_objectives_are_those_of_the_images_and_their_masked_box_averages(
         ref_errs, ref_scales = obj.batch(np.eye(manifold.n))
         assert np.array_equal(errs, ref_errs) and np.array_equal(scales, ref_scales)
     assert search.A.shape[1] == int((wp > 0).sum()) < wp.size
+    W = np.random.default_rng(4).dirichlet(np.ones(manifold.n), size=4)
+    for obj in (full, search):  # every point in one product, as one at a time
+        errs, scales = obj.evaluate(W)
+        one = np.array([obj(w)[::2] for w in W])
+        np.testing.assert_allclose(np.stack([errs, scales], 1), one, rtol=1e-12)
     rel = image_error.objectives(b, manifold, target, mask, "rel_mse", exposure_free)[0]
     assert np.array_equal(rel.singles()[0], rel.batch(np.eye(manifold.n))[0])
 
