@@ -50,7 +50,7 @@ def _luminance(basis, names):
     first = basis.image(keys[0])
     out = np.empty((len(keys),) + first.shape[:2])
     for j, key in enumerate(keys):
-        np.dot(basis.image(key), LUMINANCE, out=out[j])
+        np.matmul(basis.image(key).astype(np.float64), LUMINANCE, out=out[j])
     return out
 
 
