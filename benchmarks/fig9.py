@@ -30,6 +30,7 @@ import time
 
 import numpy as np
 
+from mitsuba_manifold._util.blas import one_thread
 from mitsuba_manifold.data.distance import gram_distances
 from mitsuba_manifold.imaging import plots
 from mitsuba_manifold.manifold import appearance, paths, space
@@ -115,7 +116,7 @@ def preset_report(m, sets, kinds, progress=True, every=False):
     (BLAS on one thread, as :func:`paths.path` runs: threads only contend on a busy machine);
     ``every``: also :func:`every_pair_report`, with the same metrics.
     """
-    with paths.single_threaded():
+    with one_thread():
         return _preset_report(m, sets, kinds, progress, every)
 
 
@@ -192,7 +193,7 @@ def every_pair_report(m, progress=True, metrics=None, albedos=None):
     pairs = [(m.names[i], m.names[j]) for i, j in space.all_neighbour_pairs(m.latent)]
     full, search = metrics or (paths.PathMetric(m, (1, 1, 1)), paths.PathMetric.of(m))
     albedos = appearance.material_albedos(m.tables(), m.dims) if albedos is None else albedos
-    with paths.single_threaded():
+    with one_thread():
         rows = _rows(m, pairs, paths.DEFAULT_KIND, full, search, [], albedos)
     out = {
         "kind": paths.DEFAULT_KIND,

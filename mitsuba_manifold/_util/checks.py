@@ -23,15 +23,22 @@ EXPOSURE_RANGE = (-64.0, 64.0)
 
 
 def finite(name, value, lo=-math.inf, hi=math.inf, lo_open=False):
-    """``value`` as a float, finite and in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``)."""
+    """``value`` as a float, finite and in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``); a
+    boolean is refused (``True`` is not a number a user means).
+    """
     try:
+        if isinstance(value, (bool, np.bool_)):
+            raise TypeError("a boolean")
         v = float(value)
     except (TypeError, ValueError):
         raise InputError(f"{name} must be a number, got {value!r}") from None
     low_ok = v > lo if lo_open else v >= lo
     if not math.isfinite(v) or not low_ok or v > hi:
-        span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
-        raise InputError(f"{name} must be a finite number in {span}, got {value!r}")
+        if hi < math.inf:
+            span = f" in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
+        else:
+            span = f" {'>' if lo_open else '>='} {lo:g}" if lo > -math.inf else ""
+        raise InputError(f"{name} must be a finite number{span}, got {value!r}")
     return v
 
 

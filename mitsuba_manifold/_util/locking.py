@@ -2,10 +2,14 @@
 
 :class:`FolderLock` takes ``fcntl.flock(LOCK_EX | LOCK_NB)`` on the folder itself (an open
 directory descriptor), so locking adds no file to the folder; where the file system does
-not lock directories it locks ``<folder>/.mitsuba-manifold.lock`` instead. The kernel
-releases the lock when the process ends, however it ends (kill -9 included), so there is
-nothing stale to clean up. A second writer does not wait: it gets
-:class:`FolderLockedError` naming the folder.
+not lock directories it locks ``<folder>/.mitsuba-manifold.lock`` instead (and a named lock,
+``name=``, locks that file). A lock file is removed as the lock is released, while it is
+still held, so a finished or failed run leaves none behind; an acquirer that locked a file
+since removed (its descriptor's inode no longer the one at the path) lets it go and locks the
+path afresh, so two processes never both hold a lock. The kernel releases the lock when the
+process ends, however it ends (kill -9 included, which leaves the file: harmless, the next
+run locks and removes it). A second writer does not wait: it gets :class:`FolderLockedError`
+naming the folder.
 """
 
 import fcntl
@@ -59,25 +63,47 @@ class FolderLock:
                 self.path = os.path.join(self.folder, LOCK_NAME)
         return os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
 
+    def _current(self, fd):
+        """True when ``fd`` is the folder, or the lock file still at :attr:`path` (not one a
+        releasing holder removed after this process opened it).
+        """
+        if self.path == self.folder:
+            return True
+        try:
+            at = os.stat(self.path)
+        except FileNotFoundError:
+            return False
+        held = os.fstat(fd)
+        return (at.st_dev, at.st_ino) == (held.st_dev, held.st_ino)
+
     def acquire(self):
         os.makedirs(self.folder, exist_ok=True)
-        fd = self._open()
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX if self.wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise FolderLockedError(
-                f"{self.what} {self.folder} is being written by another process (it holds the lock "
-                f"on {self.path}); wait for it to finish or choose another folder"
-            ) from None
-        except BaseException:
-            os.close(fd)
-            raise
+        while True:
+            fd = self._open()
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX if self.wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
+                if self._current(fd):
+                    break
+            except BlockingIOError:
+                os.close(fd)
+                raise FolderLockedError(
+                    f"{self.what} {self.folder} is being written by another process (it holds "
+                    f"the lock on {self.path}); wait for it to finish or choose another folder"
+                ) from None
+            except BaseException:
+                os.close(fd)
+                raise
+            os.close(fd)  # its holder removed the file as it released it: lock the new one
         self._fd = fd
         return self
 
     def release(self):
         if self._fd is not None:
+            if self.path != self.folder:  # removed while held: no one can have locked it since
+                try:
+                    os.unlink(self.path)
+                except OSError:
+                    pass  # gone already, or the folder is read-only: the file is harmless
             fcntl.flock(self._fd, fcntl.LOCK_UN)
             os.close(self._fd)
             self._fd = None

@@ -46,7 +46,7 @@ from ..manifold import search as latent
 from . import objectives as image_error
 from .composition import compose
 from .folder import BASE, Basis
-from .objectives import LOSSES, masked_pool, masked_rel_mse, pool
+from .objectives import LOSSES, masked_rel_mse
 from .targets import check_mask, check_target, read_mask, read_target
 
 #: Pixels of the downsampled search image (log loss) are about this many at most.
@@ -304,14 +304,9 @@ def match(basis, target, mask=None, manifold=None, settings=None, **overrides):
         )
     f = _downsample_factor(basis.resolution, opts.downsample) if opts.loss == "log" else 1
     t_read = basis.read([BASE] + basis.material_keys(manifold.names))
-    full = image_error.objective(basis, manifold, target, weight, opts.loss, opts.exposure_free)
-    search = full
-    if f > 1:
-        wp = pool(weight[..., None], f)[..., 0]
-        tp = masked_pool(target, weight[..., None], f)
-        search = image_error.objective(
-            basis, manifold, tp, wp, opts.loss, opts.exposure_free, f, weight[..., None]
-        )
+    full, search = image_error.objectives(
+        basis, manifold, target, weight, opts.loss, opts.exposure_free, f
+    )
     runs = _search(manifold, search, full, opts, f)
     best, from_start, x = _winner(manifold, full, runs, opts.prior)
     _, w = manifold.weights(x)
@@ -353,7 +348,7 @@ def _search(manifold, search, full, opts, f):
     # BLAS on one thread: L-BFGS-B's small linear algebra and the scan's products (a few
     # hundred points at a time) are far slower on a thread pool, the more so on a busy machine
     with one_thread():
-        best = int(np.argmin(search.batch(np.eye(manifold.n))[0] + var_train))
+        best = int(np.argmin(search.singles()[0] + var_train))
         X, scan_err = latent.scan(manifold, search, prior, bounds, opts.scan)
         runs = [
             latent.descend(manifold, search, prior, x0, bounds, opts.max_iter)
@@ -376,12 +371,12 @@ def _winner(manifold, full, runs, prior):
     alone, scored at full resolution): ``(SingleMatch, index of its run or None, x)``.
     """
     var_train = prior * manifold.variance(manifold.latent)
-    full_errs, full_scales = full.batch(np.eye(manifold.n))
+    full_errs, full_scales = full.singles()
     best = int(np.argmin(full_errs + var_train))
     cand = [(full_errs[best] + var_train[best], None, manifold.latent[best].copy())]
-    for j, r in enumerate(runs):
-        w = manifold.weights(r["x"])[1]
-        cand.append((full(w)[0] + prior * float(manifold.variance(r["x"])), j, r["x"]))
+    X = np.array([r["x"] for r in runs])
+    errs = full.evaluate(manifold.weights(X)[1])[0] + prior * manifold.variance(X)
+    cand += [(float(errs[j]), j, r["x"]) for j, r in enumerate(runs)]
     _, from_start, x = min(cand, key=lambda c: c[0])
     single = SingleMatch(
         manifold.names[best], best, float(full_errs[best]), float(full_scales[best])
@@ -397,8 +392,8 @@ def single_material_errors(basis, target, mask=None, manifold=None, exposure_fre
     basis, manifold = _basis_and_manifold(basis, manifold)
     target = check_target(target, basis.resolution)
     weight = np.ones(target.shape[:2]) if mask is None else check_mask(mask, basis.resolution)
-    obj = image_error.objective(basis, manifold, target, weight, "rel_mse", exposure_free)
-    return obj.batch(np.eye(manifold.n))
+    obj = image_error.objectives(basis, manifold, target, weight, "rel_mse", exposure_free)[0]
+    return obj.singles()
 
 
 __all__ = [

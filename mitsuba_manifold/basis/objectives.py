@@ -44,16 +44,13 @@ def masked_pool(img, weight, f, pooled_weight=None):
     return pool(img * weight, f) / np.maximum(pooled_weight, 1e-12)
 
 
-def _luminance_rows(basis, names, pixels, f=1, weight=None):
-    """Luminance of the base and material images over ``pixels`` as float64 (N + 1, P), each
-    first box-downsampled by ``f`` (weighted by the full-resolution mask ``weight`` (H, W, 1)).
-    """
+def _luminance(basis, names):
+    """Luminance of the base and material images as float64 (N + 1, H, W)."""
     keys = [BASE] + basis.material_keys(names)
-    wp = pool(weight, f) if f > 1 else None
-    out = np.empty((len(keys), int(pixels.sum())))
+    first = basis.image(keys[0])
+    out = np.empty((len(keys),) + first.shape[:2])
     for j, key in enumerate(keys):
-        img = masked_pool(basis.image(key), weight, f, wp)[pixels]
-        out[j] = img[:, 0] * LUMINANCE[0] + img[:, 1] * LUMINANCE[1] + img[:, 2] * LUMINANCE[2]
+        np.matmul(basis.image(key).astype(np.float64), LUMINANCE, out=out[j])
     return out
 
 
@@ -109,6 +106,16 @@ class RelativeMSE:
         )
         return np.maximum(s * s * a - 2.0 * s * b + self.e0, 0.0), s
 
+    def singles(self):
+        """:meth:`batch` of every material alone (``W`` the identity)."""
+        return self.batch(np.eye(len(self.h) - 1))
+
+    def evaluate(self, W):
+        """Errors and exposures of weight vectors W (M, N) as :meth:`__call__` gives them (the
+        quadratic form is exact: :meth:`batch`).
+        """
+        return self.batch(W)
+
 
 class LogLuminanceMSE:
     """MSE over the mask of ``log(lum / k + eps)`` against ``log(lum_r / mean(lum_r) + eps)``.
@@ -146,6 +153,15 @@ class LogLuminanceMSE:
             g = g - self.m * (lum > 0) * float(gn @ n) / k
         return float(self.m @ (d * d)), self.A[1:] @ g, self.mean_r / k
 
+    def evaluate(self, W):
+        """Errors and exposures of weight vectors W (M, N) in float64, each as :meth:`__call__`
+        gives it, in one product (the images are read once for all).
+        """
+        lum = self.A[0] + np.atleast_2d(W) @ self.A[1:]
+        k = self._norm(lum)
+        d = np.log(np.maximum(lum, 0.0) / k[:, None] + self.eps) - self.lr
+        return (d * d) @ self.m, self.mean_r / k
+
     def batch(self, W, chunk=256):
         """Errors and exposures of many weight vectors W (M, N) at once (in float32, the weights
         below float32's normal range set to 0: :func:`~mitsuba_manifold._util.float32.weights32`).
@@ -154,30 +170,54 @@ class LogLuminanceMSE:
         for s in range(0, len(W), chunk):  # in place: one (chunk, P) array a chunk
             lum = np.matmul(weights32(W[s : s + chunk]), self.A32[1:])
             lum += self.A32[0]
-            k = self._norm(lum)
-            d = np.maximum(lum, 0.0, out=lum)
-            d /= k[:, None].astype(np.float32)
-            d += np.float32(self.eps)
-            d = np.log(d, out=d)
-            d -= self.lr32
-            errs.append(np.square(d, out=d) @ self.m)
-            norms.append(k)
+            errs.append(self._errors(lum, norms))
         return np.concatenate(errs), self.mean_r / np.concatenate(norms)
 
+    def singles(self, chunk=None):
+        """:meth:`batch` of every material alone (``W`` the identity), without the product; a
+        chunk of about a million values at a time (default), which stays in the cache.
+        """
+        chunk = chunk or max(1, (1 << 20) // self.A32.shape[1])
+        errs, norms = [], []
+        for s in range(1, len(self.A32), chunk):
+            errs.append(self._errors(self.A32[s : s + chunk] + self.A32[0], norms))
+        return np.concatenate(errs), self.mean_r / np.concatenate(norms)
 
-def objective(basis, manifold, target, weight, loss, exposure_free, f=1, full_weight=None):
-    """The objective of ``loss`` for ``target`` (H', W', 3) with mask weights ``weight`` (H', W')
-    (the pixels of weight > 0 count).
+    def _errors(self, lum, norms):
+        """Errors of the blends' luminance ``lum`` (M, P) float32, overwritten; appends the
+        normalisations ``k`` (M,) to ``norms``.
+        """
+        k = self._norm(lum)
+        d = np.maximum(lum, 0.0, out=lum)
+        d /= k[:, None].astype(np.float32)
+        d += np.float32(self.eps)
+        d = np.log(d, out=d)
+        d -= self.lr32
+        norms.append(k)
+        return np.square(d, out=d) @ self.m
 
-    ``f > 1``: target and weights are already box-downsampled by ``f`` (log loss only) and
-    ``full_weight`` (H, W, 1) is the full-resolution mask used to downsample the basis.
+
+def objectives(basis, manifold, target, weight, loss, exposure_free, f=1):
+    """The objective of ``loss`` for ``target`` (H, W, 3) with mask weights ``weight`` (H, W)
+    (the pixels of weight > 0 count), and the one a search runs on: the same, or with ``f > 1``
+    (log loss only) on ``f x f`` box averages of the images, each weighted by the mask
+    (:func:`masked_pool`). The log loss takes the images' luminance once for both.
     """
-    pixels = weight > 0
     if loss == "rel_mse":
         keys = [BASE] + basis.material_keys(manifold.names)
-        return RelativeMSE([basis.image(k) for k in keys], target, weight, exposure_free)
-    rows = _luminance_rows(basis, manifold.names, pixels, f, full_weight)
-    return LogLuminanceMSE(rows, target[pixels], weight[pixels], exposure_free)
+        full = RelativeMSE([basis.image(k) for k in keys], target, weight, exposure_free)
+        return full, full
+    lum = _luminance(basis, manifold.names)
+    pixels = weight > 0
+    rows = lum.reshape(len(lum), -1) if pixels.all() else lum[:, pixels]
+    full = LogLuminanceMSE(rows, target[pixels], weight[pixels], exposure_free)
+    if f == 1:
+        return full, full
+    wp = pool(weight[..., None], f)[..., 0]
+    rows = masked_pool(lum[..., None], weight[..., None], f, wp[..., None])[..., 0]
+    tp = masked_pool(target, weight[..., None], f, wp[..., None])
+    on = wp > 0
+    return full, LogLuminanceMSE(rows[:, on], tp[on], wp[on], exposure_free)
 
 
 def masked_rel_mse(a, ref, weight):

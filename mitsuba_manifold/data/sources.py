@@ -413,6 +413,11 @@ def material_source(spec):
                 f"{did_you_mean(tail, list(found))}"
             )
         return found[tail]
+    if os.path.isdir(spec):
+        raise InputError(
+            f"material {spec} is a folder, not a file: give one .binary, .bsdf, .h5 or .npz "
+            "file (a folder of them is a database: give it where a database is expected)"
+        )
     if not os.path.isfile(spec):
         from ..errors import MissingFileError
 

@@ -24,28 +24,15 @@ and number of materials. With ``dr_ij / dx_i = (x_i - x_j) / r_ij``::
 
 from __future__ import annotations
 
-import math
 import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
+from .._util.checks import finite
 from ..errors import InputError
 
 __all__ = ["Stress", "StressTerm", "neighbour_mask"]
-
-
-def _check_weight(weight):
-    if isinstance(weight, (bool, np.bool_)) or not isinstance(weight, numbers.Real):
-        raise InputError(
-            f"`stress` (the stress term's weight) must be a number >= 0, got {weight!r}"
-        )
-    weight = float(weight)
-    if not math.isfinite(weight) or weight < 0:
-        raise InputError(
-            f"`stress` (the stress term's weight) must be a number >= 0, got {weight!r}"
-        )
-    return weight
 
 
 def _check_neighbours(k):
@@ -75,7 +62,8 @@ class Stress:
     neighbours: int = None
 
     def __post_init__(self):
-        object.__setattr__(self, "weight", _check_weight(self.weight))
+        weight = finite("`stress` (the stress term's weight)", self.weight, 0.0)
+        object.__setattr__(self, "weight", weight)
         object.__setattr__(self, "neighbours", _check_neighbours(self.neighbours))
 
     @property

@@ -451,6 +451,11 @@ class ShepardWeights(Interpolant):
         return J
 
 
+#: Points outside the hull from which :meth:`LatentHull.project` (``q >= 4``) first tries the facet
+#: each is farthest outside of, all at once (fewer: the face last found, point by point).
+MANY = 32
+
+
 class LatentHull:
     """The convex hull of latent points and the closest point of it to any point.
 
@@ -460,7 +465,14 @@ class LatentHull:
     and onto each edge (clamped to the edge), which holds the closest point whether it lies
     inside a facet, on an edge or at a vertex; for larger ``q``, the convex combination of
     the hull's vertices nearest to it (non-negative least squares with the weights' sum held
-    at 1 by a heavy extra row, then solved exactly on the face it found).
+    at 1 by a heavy extra row, then solved exactly on the face it found). Two shortcuts give
+    the same point without the least squares: the projection onto the plane of the facet the
+    point is farthest outside of, where it falls inside that facet (every vertex is on the
+    inner side of the plane: the closest point); then the face last found, whose projection,
+    where it falls on the face, is the closest point when no vertex lies beyond it
+    (``(x - p) . (v - p) <= 0`` for every vertex ``v``, the optimality condition of a
+    projection onto a convex set), so points near each other (a descent's steps, the
+    differences of a Jacobian) share it.
     """
 
     def __init__(self, latent):
@@ -477,13 +489,17 @@ class LatentHull:
             self.vertices, self.planes, self.facets = latent, None, None
             if self.q == 1:
                 self.vertices = np.array([[latent.min()], [latent.max()]])
+        self._faces = {}  # active vertices -> (base vertex, rows, pseudo-inverse) of the face
+        self._last = None  # the face the last projection found (q >= 4)
+        self._facet_pinv = None
 
     def project(self, x):
         """The closest points of the hull ``(M, q)`` and the distances to them ``(M,)``."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         p = x.copy()
         if self.planes is not None:
-            outside = (x @ self.planes[:, :-1].T + self.planes[:, -1] > 1e-12 * self.scale).any(1)
+            beyond = x @ self.planes[:, :-1].T + self.planes[:, -1]  # unit normals (Qhull)
+            outside = (beyond > 1e-12 * self.scale).any(1)
         elif self.q == 1:
             outside = (x[:, 0] < self.vertices[0, 0]) | (x[:, 0] > self.vertices[1, 0])
         else:
@@ -493,13 +509,70 @@ class LatentHull:
             for s in range(0, len(out), 1024):
                 p[out[s : s + 1024]] = self._closest_on_faces(x[out[s : s + 1024]])
             return p, np.sqrt(((x - p) ** 2).sum(axis=1))
+        out = np.flatnonzero(outside)
+        if self.planes is not None and len(out) >= MANY:  # inside the facet farthest outside of
+            f = beyond[out].argmax(axis=1)
+            y = x[out] - beyond[out, f][:, None] * self.planes[f, :-1]
+            lam = np.einsum("mij,mj->mi", self._facet_solvers()[f], np.c_[y, np.ones(len(y))])
+            inside = (lam >= 0).all(axis=1)
+            p[out[inside]] = y[inside]
+            outside[out[inside]] = False
         heavy = 1e4 * self.scale
         A = np.vstack([self.vertices.T, np.full(len(self.vertices), heavy)])
         for i in np.flatnonzero(outside):
+            last = self._last
+            near = None if last is None else self._on_face(x[i], last)
+            if near is not None and self._closest(x[i], near):
+                p[i] = near
+                continue
             lam, _ = scipy.optimize.nnls(A, np.append(x[i], heavy))
-            p[i] = self._exact(x[i], np.flatnonzero(lam > 0), lam / lam.sum())
+            active = tuple(np.flatnonzero(lam > 0).tolist())
+            p[i] = self._exact(x[i], active, lam / lam.sum())
+            self._last = active  # a hint only: a stale one (another thread's) is checked
         rho = np.sqrt(((x - p) ** 2).sum(axis=1))
         return p, rho
+
+    def _facet_solvers(self):
+        """Per facet, the pseudo-inverse ``(F, q, q + 1)`` giving the barycentric coordinates of
+        a point of its plane from ``(point, 1)`` (made once).
+        """
+        if self._facet_pinv is None:
+            corners = np.concatenate(
+                [np.transpose(self.facets, (0, 2, 1)), np.ones((len(self.facets), 1, self.q))],
+                axis=1,
+            )
+            self._facet_pinv = np.linalg.pinv(corners)
+        return self._facet_pinv
+
+    def _face(self, active):
+        """Base vertex, the other vertices less it (rows) and their pseudo-inverse, of face
+        ``active`` (made once per face).
+        """
+        face = self._faces.get(active)
+        if face is None:
+            V = self.vertices[list(active)]
+            B = V[:-1] - V[-1]
+            face = self._faces[active] = (V[-1], B, np.linalg.pinv(B.T))
+        return face
+
+    def _on_face(self, x, active):
+        """The closest point to ``x`` of the affine span of face ``active`` where it falls on the
+        face (barycentric coordinates >= 0), else None.
+        """
+        base, B, pinv = self._face(active)
+        if not len(B):
+            return base
+        mu = pinv @ (x - base)
+        if (mu >= 0).all() and mu.sum() <= 1:
+            return base + mu @ B
+        return None
+
+    def _closest(self, x, p):
+        """Whether ``p`` (on the hull) is the closest point of the hull to ``x``: no vertex lies
+        beyond the plane through ``p`` normal to ``x - p`` (to rounding).
+        """
+        d = x - p
+        return bool(((self.vertices - p) @ d).max() <= 1e-12 * self.scale * np.sqrt(d @ d))
 
     def _closest_on_faces(self, x):
         """The closest point of the hull's surface to each row of ``x`` (``q`` of 2 or 3)."""
@@ -524,16 +597,11 @@ class LatentHull:
 
     def _exact(self, x, active, lam):
         """The closest point of the affine span of the ``active`` vertices (the face NNLS found),
-        solved exactly; NNLS's own point where that leaves the face.
+        solved exactly (least squares by the face's pseudo-inverse); NNLS's own point where that
+        leaves the face.
         """
-        V = self.vertices[active]
-        if len(V) == 1:
-            return V[0]
-        base = V[-1]
-        mu = np.linalg.lstsq((V[:-1] - base).T, x - base, rcond=None)[0]
-        if (mu >= 0).all() and mu.sum() <= 1:
-            return base + mu @ (V[:-1] - base)
-        return lam @ self.vertices
+        p = self._on_face(x, active)
+        return lam @ self.vertices if p is None else p
 
 
 def _normalise(log_u):

@@ -36,7 +36,7 @@ are to the full grid's is in ``docs/benchmarks.md``); ``tools/bench.py fig9`` me
 paths on the full grid, ``tools/bench.py paths`` their speed.
 
 Speed (an explorer scrubs paths): a path's products are small, so BLAS runs on one thread
-(:func:`single_threaded`); the sub-grid's table values and the graph's edges are cached on
+(:func:`~mitsuba_manifold._util.blas.one_thread`); the sub-grid's table values and the graph's edges are cached on
 disk by content hash (:mod:`latent_graph`), so a fresh process reads neither the tables
 nor their hashes; :func:`even` evaluates only the points it adds.
 """
@@ -47,6 +47,7 @@ import weakref
 
 import numpy as np
 
+from .._util.blas import one_thread
 from .._util.float32 import weights32
 from ..data.distance import Quadrature, gram_distances
 from ..errors import InputError, UnavailableError
@@ -488,20 +489,10 @@ def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):
     xa, xb = endpoint(manifold, a, "a"), endpoint(manifold, b, "b")
     if kind == "straight" or np.array_equal(xa, xb):
         return straight(xa, xb, steps)
-    with single_threaded():
+    with one_thread():
         metric = metric or PathMetric.of(manifold)
         kinds = {"uniform": uniform, "geodesic": geodesic, "faithful": faithful}
         return kinds[kind](metric, xa, xb, steps)
-
-
-def single_threaded():
-    """BLAS on one thread (:func:`~mitsuba_manifold._util.blas.one_thread`, counted with every
-    other user in the process): a path's products are small (tens of points), too small for BLAS
-    threads to gain more than they lose waiting on each other.
-    """
-    from .._util.blas import one_thread
-
-    return one_thread()
 
 
 def latent_distance(manifold, x, y, stride=(1, 1, 1)):

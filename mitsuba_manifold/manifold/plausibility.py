@@ -394,9 +394,23 @@ class StepLimit:
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(da > 0, (1.0 - a0) / da, np.inf)
         hi = np.clip(ratio.min(axis=1), 0.0, 1.0)
-        neg = np.flatnonzero((e < 0).any(axis=0))
-        if len(neg) == 0:
-            return hi
+        lo = hi.copy()
+        down = np.flatnonzero((e < 0).any(axis=1))  # points with a table that may go negative
+        if len(down) == 0:
+            return lo
+        # padded per group of points of like sizes (support and negative tables, each rounded up
+        # to a power of 2): one point with many tables does not pad every other point to its size
+        sizes = [np.ceil(np.log2(np.maximum(m[down].sum(axis=1), 1))) for m in (summed, e < 0)]
+        group = sizes[0] * 64 + sizes[1]
+        for g in np.unique(group):
+            rows = down[group == g]
+            lo[rows] = self._bisect(w[rows], e[rows], summed[rows], hi[rows], iterations)
+        return lo
+
+    def _bisect(self, w, e, summed, hi, iterations):
+        """The largest step in ``[0, hi]`` (to ``hi / 2^iterations``) that leaves no table of the
+        points ``w + s e`` negative (each table ``j`` covered by the ratios ``R_ij`` of those summed).
+        """
         # each point's own tables: those it sums (support) and those that may go negative
         sup, sup_on = _rows_of(summed)
         down, down_on = _rows_of(e < 0)

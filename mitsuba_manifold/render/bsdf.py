@@ -438,11 +438,15 @@ class ManifoldBRDF(mi.BSDF):
         )  # edges made at each lookup
 
     def to_string(self):
+        """What ``print(bsdf)`` shows. The material's line is the plugin's own parameter, its
+        value as a scene gives it (``<string name="x" value="..."/>``, ``"x": "..."``), the
+        latent coordinates to full precision: pasted into a scene it gives the same material.
+        """
         c, o = self._c, self._options
         if c.material is not None:
-            what = f"material = {c.material}"
+            what = f'material = "{c.material}"'
         elif c.x is not None:
-            what = "x = [" + ", ".join(f"{v:.6g}" for v in c.x) + "]"
+            what = 'x = "' + ", ".join(repr(float(v)) for v in c.x) + '"'
         else:
             what = "weights = given"
         if self._w is not None:

@@ -2,6 +2,8 @@
 validators, content identity, render passes."""
 
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -25,6 +27,48 @@ def test_folder_lock_is_exclusive_adds_no_file_and_is_released(tmp_path):
         assert os.listdir(folder) == []
     with FolderLock(folder):  # released
         pass
+
+
+_LOCKER = """
+import os, sys
+from mitsuba_manifold._util.locking import FolderLock
+folder, n = sys.argv[1], int(sys.argv[2])
+inside = os.path.join(folder, "inside")
+for _ in range(n):
+    with FolderLock(folder, name="count.lock", wait=True):
+        os.close(os.open(inside, os.O_CREAT | os.O_EXCL))  # fails if the other is inside too
+        path = os.path.join(folder, "count")
+        count = int(open(path).read()) if os.path.exists(path) else 0
+        open(path, "w").write(str(count + 1))
+        os.unlink(inside)
+"""
+
+
+def test_a_lock_file_is_removed_on_release_and_still_excludes(tmp_path):
+    """A named lock's file goes with the lock, also when the block fails, and two processes
+    taking and releasing it in turn are never inside together (an acquirer that locked the
+    file just removed locks the new one).
+    """
+    folder = tmp_path / "f"
+    lock = FolderLock(folder, "output folder", name="x.lock")
+    with lock:
+        assert os.listdir(folder) == ["x.lock"]
+        with pytest.raises(FolderLockedError, match="output folder .* another process"):
+            FolderLock(folder, "output folder", name="x.lock").acquire()
+    assert os.listdir(folder) == []
+    with pytest.raises(KeyError), FolderLock(folder, name="x.lock"):
+        raise KeyError("a failed run")
+    assert os.listdir(folder) == []
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _LOCKER, str(folder), "300"], cwd=root, stderr=subprocess.PIPE
+        )
+        for _ in range(2)
+    ]
+    errors = [p.communicate(timeout=120)[1].decode() for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], errors
+    assert (folder / "count").read_text() == "600" and os.listdir(folder) == ["count"]
 
 
 def test_ownership_of_single_outputs(tmp_path):

@@ -204,7 +204,7 @@ def test_an_interrupted_fit_leaves_only_files_the_same_command_replaces(
     rc, text, err = run_tool(*cmd[:-1], "2")  # q = 2 has no second slice: its plot goes
     assert rc == 0 and "removed" in text, err
     assert sorted(os.listdir(tmp_path / "plots")) == sorted(
-        [ownership.RECORD, ownership.RECORD + ".lock", "latent_map.png", "log_likelihood.png"]
+        [ownership.RECORD, "latent_map.png", "log_likelihood.png"]
     )
 
 

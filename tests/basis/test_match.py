@@ -85,7 +85,7 @@ def test_match_objective_gradient_matches_finite_differences(
     target = 1.3 * _blend(b, manifold, _interior_point(manifold, 2, 5))
     mask = np.ones(target.shape[:2])
     mask[:5] = 0.0
-    obj = image_error.objective(b, manifold, target, mask, loss, exposure_free)
+    obj = image_error.objectives(b, manifold, target, mask, loss, exposure_free)[0]
     fun, _ = latent.evaluator(manifold, obj, prior)
     x0 = _interior_point(manifold, 0, 3, 0.6) + 0.05
     value, grad = fun(x0)
@@ -101,12 +101,44 @@ def test_quadratic_form_equals_the_direct_relative_mse(basis, manifold):
     mask = np.random.default_rng(3).uniform(size=target.shape[:2])
     mask[mask < 0.3] = 0.0
     for exposure_free in (False, True):
-        obj = image_error.objective(b, manifold, target, mask, "rel_mse", exposure_free)
+        obj = image_error.objectives(b, manifold, target, mask, "rel_mse", exposure_free)[0]
         x = _interior_point(manifold, 2, 6)
         err, _, s = obj(manifold.weights(x)[1])
         direct = image_error.masked_rel_mse(s * _blend(b, manifold, x), target, mask)
         assert err == pytest.approx(direct, rel=1e-6)
         assert (s == 1.0) != exposure_free
+
+
+@pytest.mark.parametrize("exposure_free", [False, True])
+def test_log_objectives_are_those_of_the_images_and_their_masked_box_averages(
+    basis, manifold, exposure_free
+):
+    """The log loss's objectives hold the luminance of every image over the masked pixels, and
+    the search's that of the mask-weighted ``f x f`` box averages of each image; every material
+    alone scores as the batch of the identity, exactly."""
+    b, _ = basis
+    target = _blend(b, manifold, _interior_point(manifold, 1, 4)) * 0.8
+    mask = np.random.default_rng(3).uniform(size=target.shape[:2])
+    mask[mask < 0.3] = 0.0
+    mask[:4, :4] = 0.0  # a box with no weight: left out of the search
+    keys = [BASE] + b.material_keys(manifold.names)
+    full, search = image_error.objectives(b, manifold, target, mask, "log", exposure_free, 2)
+    wp = image_error.pool(mask[..., None], 2)[..., 0]
+    for obj, f, on in ((full, 1, mask > 0), (search, 2, wp > 0)):
+        images = [image_error.masked_pool(b.image(k), mask[..., None], f) for k in keys]
+        lum = np.stack([img[on] @ image_error.LUMINANCE for img in images])
+        np.testing.assert_allclose(obj.A, lum, rtol=1e-12, atol=1e-300)
+        errs, scales = obj.singles()
+        ref_errs, ref_scales = obj.batch(np.eye(manifold.n))
+        assert np.array_equal(errs, ref_errs) and np.array_equal(scales, ref_scales)
+    assert search.A.shape[1] == int((wp > 0).sum()) < wp.size
+    W = np.random.default_rng(4).dirichlet(np.ones(manifold.n), size=4)
+    for obj in (full, search):  # every point in one product, as one at a time
+        errs, scales = obj.evaluate(W)
+        one = np.array([obj(w)[::2] for w in W])
+        np.testing.assert_allclose(np.stack([errs, scales], 1), one, rtol=1e-12)
+    rel = image_error.objectives(b, manifold, target, mask, "rel_mse", exposure_free)[0]
+    assert np.array_equal(rel.singles()[0], rel.batch(np.eye(manifold.n))[0])
 
 
 # ---------------------------------------------------------------- matches

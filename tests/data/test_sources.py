@@ -355,3 +355,24 @@ def test_stack_reads_the_half_precision_cache_straight_into_its_rows(tmp_path):
     path.write_bytes(path.read_bytes()[:-100])  # cut short: made again
     assert np.array_equal(Database("nielsen@8x8x16").stack(names), ref)
     assert np.array_equal(np.load(path).astype(np.float32).reshape(-1), ref[1])
+
+
+def test_a_folder_given_as_a_material_file_says_it_is_a_folder(tmp_path, capsys):
+    """A folder where a material file is expected: one line saying it is a folder and what to
+    give, from the reader and from a tool (``fit_manifold.py --add``), not "no such file"."""
+    from mitsuba_manifold.apps.cli import fit_manifold
+
+    folder = tmp_path / "tables.binary"
+    folder.mkdir()
+    with pytest.raises(InputError) as info:
+        sources.material_source(str(folder))
+    message = str(info.value)
+    assert f"material {folder} is a folder, not a file" in message and ".bsdf" in message
+    assert "\n" not in message and "no such file" not in message
+    with pytest.raises(SystemExit) as exit_:
+        fit_manifold.main(
+            ["nielsen@8x8x16", "--add", str(folder), "--out", str(tmp_path / "m.npz")]
+        )
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and f"--add {folder}: material {folder} is a folder" in err
+    assert not (tmp_path / "m.npz").exists()

@@ -89,8 +89,13 @@ def test_stress_term_pulls_the_layout_towards_the_targets():
 @pytest.mark.parametrize(
     "make, match",
     [
-        (lambda: Stress(-1.0), "must be a number >= 0"),
-        (lambda: Stress(float("nan")), "must be a number >= 0"),
+        (
+            lambda: Stress(-1.0),
+            r"`stress` \(the stress term.s weight\) must be a finite number >= 0, got -1.0",
+        ),
+        (lambda: Stress(float("nan")), "must be a finite number >= 0, got nan"),
+        (lambda: Stress(True), r"`stress` \(the stress term.s weight\) must be a number, got True"),
+        (lambda: Stress("0.5x"), "must be a number, got .0.5x."),
         (lambda: Stress(1.0, 0), "stress_neighbours"),
         (lambda: gplvm.GPLVM(2, stress=Stress(1.0)), "needs method 'lbfgs'"),
         (lambda: gplvm.GPLVM(2, method="lbfgs", stress=0.5), "must be a gplvm.Stress"),

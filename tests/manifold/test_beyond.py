@@ -147,6 +147,49 @@ def test_far_beyond_the_data_the_material_settles_and_stays_plausible(measured):
         assert len(lead) == 1 and np.isclose(m.latent[lead[0]] @ n, (m.latent @ n).max())
 
 
+def test_beyond_the_far_bound_a_point_gets_the_weights_of_the_point_at_it(measured):
+    """``FAR``: a point farther than ``FAR l`` from the data's centre is continued as the point
+    at ``FAR l`` in its direction: the same weights (to rounding of the pulled point), finite,
+    on directions through no vertex of the hull, where the hull's closest point and the
+    secant's direction still move with the distance.
+    """
+    m, _ = measured
+    it = m.interpolant
+    c, l = m.latent.mean(axis=0), m.length_scale
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        u = rng.standard_normal(m.q)
+        u /= np.linalg.norm(u)
+        X = c + np.array([it.FAR, 3 * it.FAR, 1e8])[:, None] * l * u
+        with np.errstate(over="raise", invalid="raise"):
+            w = m.weights(X).w
+            e = it.continuation(X, it._convex(X))
+        assert np.isfinite(w).all() and np.abs(e[0]).max() > 1e-4  # continued, not convex
+        np.testing.assert_allclose(w[1:], np.broadcast_to(w[0], w[1:].shape), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(e[1:], np.broadcast_to(e[0], e[1:].shape), rtol=0, atol=1e-12)
+
+
+def test_the_plausible_step_of_a_point_does_not_depend_on_the_others_of_its_batch(measured):
+    """``StepLimit.step`` bisects points in groups of like sizes: each point's step is the one it
+    gets alone (to rounding), whatever tables the other points of the batch sum."""
+    m, _ = measured
+    it = m.interpolant
+    rng = np.random.default_rng(5)
+    c = m.latent.mean(axis=0)
+    X = c + rng.standard_normal((80, m.q)) * 2.0 * np.ptp(m.latent, axis=0)
+    p, rho = it.hull().project(X)
+    n = (X - p) / rho[:, None]
+    eps = it.secant * it.length_scale
+    ends = it._thin(it._untapered(np.concatenate([p, p - eps * n])))
+    w, e = it._convex(X), 3.0 * (ends[:80] - ends[80:])
+    e[0] = rng.standard_normal(m.n) * 0.1  # one point that may push every table negative
+    e[0] -= e[0].mean()
+    together = it.limit.step(w, e)
+    alone = np.array([it.limit.step(w[i : i + 1], e[i : i + 1])[0] for i in range(len(w))])
+    np.testing.assert_allclose(together, alone, rtol=1e-9, atol=0)  # to the albedos' rounding
+    assert (together < 1).sum() > 10 and (together > 0).sum() > 10  # the limit holds, not all 0
+
+
 def test_the_continuation_leaves_the_weights_inside_the_hull_unchanged(measured):
     m, _ = measured
     rng = np.random.default_rng(3)

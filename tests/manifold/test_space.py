@@ -408,3 +408,28 @@ def test_convex_blend_recovers_a_blend_of_two_tables():
     y = np.log1p(0.3 * A[1] + 0.7 * A[2])
     w = space.convex_blend(A, y)
     assert w == pytest.approx([0.0, 0.3, 0.7, 0.0], abs=1e-3) and w.sum() == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("q", [4, 5])
+def test_the_closest_point_of_the_hull_is_the_projection_whatever_face_was_found_before(q):
+    """``LatentHull.project`` for ``q >= 4``: each point outside gets the point of the hull no
+    vertex lies beyond (``(x - p) . (v - p) <= 0``: the projection onto a convex set), the same
+    whether the face found for the point before it is right (steps of a descent), wrong (far
+    apart points) or none (a fresh hull)."""
+    rng = np.random.default_rng(q)
+    latent = rng.standard_normal((40, q))
+    hull = interpolant.LatentHull(latent)
+    walk = latent[0] * 1.8 + np.cumsum(1e-3 * rng.standard_normal((60, q)), axis=0)
+    scattered = 2.5 * rng.standard_normal((60, q))
+    for X in (walk, scattered, np.concatenate([scattered, walk])[rng.permutation(120)]):
+        one_by_one = np.array([hull.project(x)[0][0] for x in X])
+        fresh = np.array([interpolant.LatentHull(latent).project(x)[0][0] for x in X])
+        np.testing.assert_allclose(one_by_one, fresh, rtol=0, atol=1e-12)
+        p, rho = hull.project(X)
+        np.testing.assert_allclose(p, one_by_one, rtol=0, atol=1e-12)
+        out = rho > 0
+        assert out.sum() > 30
+        d = X[out] - p[out]
+        beyond = np.einsum("mvq,mq->mv", latent[None] - p[out][:, None], d)
+        assert (beyond.max(axis=1) <= 1e-9 * rho[out] ** 2).all()
+        assert (p @ hull.planes[:, :-1].T + hull.planes[:, -1] <= 1e-9).all()  # on the hull

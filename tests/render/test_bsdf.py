@@ -511,6 +511,32 @@ def test_relative_paths_resolve_against_the_scene(small_manifold_paper, small_db
     assert str(tmp_path / "tables") in str(bsdf)
 
 
+def test_printed_material_pastes_into_a_scene(small_manifold_paper, manifold):
+    """``print(bsdf)``'s material line is the parameter as a scene gives it: pasted into an XML
+    scene it gives back the same latent point, to the last bit, and the same material.
+    """
+
+    def pasted(bsdf, key):
+        lines = [ln.strip().rstrip(",") for ln in str(bsdf).splitlines()]
+        chosen = [ln for ln in lines if ln.startswith(key + " = ")]
+        assert len(chosen) == 1, str(bsdf)
+        name, _, value = chosen[0].partition(" = ")
+        scene = mi.load_string(
+            '<scene version="3.0.0"><shape type="sphere"><bsdf type="manifold_brdf">'
+            f'<string name="manifold" value="{small_manifold_paper}"/>'
+            f'<string name="{name}" value={value}/></bsdf></shape></scene>'
+        )
+        return scene.shapes()[0].bsdf()
+
+    x = 0.37 * manifold.latent[0] + 0.63 * manifold.latent[1] + 1e-7 / 3
+    bsdf = make(small_manifold_paper, x=", ".join(repr(float(v)) for v in x))
+    again = pasted(bsdf, "x")
+    assert np.array_equal(again.latent, x) and np.array_equal(again.weights, bsdf.weights)
+    assert pasted(make(small_manifold_paper, material="chrome"), "material").used_names == [
+        "chrome"
+    ]
+
+
 @pytest.mark.parametrize(
     "params, message",
     [

@@ -58,7 +58,6 @@ def test_one_thread_holds_blas_to_one_thread_while_any_thread_is_inside():
     from threadpoolctl import threadpool_info, threadpool_limits
 
     from mitsuba_manifold._util.blas import one_thread, release_control
-    from mitsuba_manifold.manifold.paths import single_threaded
 
     def threads():
         return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
@@ -75,7 +74,7 @@ def test_one_thread_holds_blas_to_one_thread_while_any_thread_is_inside():
         worker = threading.Thread(target=frame)
         worker.start()
         assert entered.wait(10)
-        with single_threaded():  # the path
+        with one_thread():  # the path
             leave.set()
             worker.join(10)
             assert threads() == {1}  # the frame has left; the path still runs

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from mitsuba_manifold._util import checks
 from mitsuba_manifold._util.checks import latent_point, latent_points
 from mitsuba_manifold.errors import InputError
 
@@ -73,3 +74,21 @@ def test_the_array_form_takes_batches_and_refuses_what_is_not_real():
             latent_points("latent point", bad, 3)
     with pytest.raises(InputError, match="too far out"):
         latent_points("latent point", [1e31, 0.0, 0.0], 3, max_abs=1e30)
+
+
+@pytest.mark.parametrize(
+    "value, bounds, message",
+    [
+        (True, {}, "`w` must be a number, got True"),
+        (np.bool_(False), {}, "`w` must be a number, got"),
+        ("x", {}, "`w` must be a number, got 'x'"),
+        (-1.0, {"lo": 0.0}, "`w` must be a finite number >= 0, got -1.0"),
+        (0.0, {"lo": 0.0, "lo_open": True}, "`w` must be a finite number > 0, got 0.0"),
+        (2.0, {"lo": 0.0, "hi": 1.0}, r"`w` must be a finite number in \[0, 1\], got 2.0"),
+        (float("nan"), {}, "`w` must be a finite number, got nan"),
+    ],
+)
+def test_finite_names_the_parameter_the_value_and_the_range(value, bounds, message):
+    with pytest.raises(InputError, match=message):
+        checks.finite("`w`", value, **bounds)
+    assert checks.finite("`w`", 0.5, **bounds) == 0.5
