@@ -138,7 +138,7 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
         """
         width = min(block, d - start)
         if getattr(buffers, "z", None) is None:
-            buffers.z = np.empty(n * block)
+            buffers.z = np.empty(n * min(block, d))
             buffers.zw = np.empty(n * min(block, WEIGHTED_PART)) if weights is not None else None
         z = buffers.z[: n * width].reshape(n, width)
         np.copyto(z, tables[:, start : start + width], casting="unsafe")

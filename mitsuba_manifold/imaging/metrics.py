@@ -98,10 +98,11 @@ def pass_standard_error(weighted_sum, weighted_squares, samples, passes):
 def noise_agreement(a, ref, ref_se, eps=REL_EPS):
     """Whether ``a`` equals a noisy reference within the reference's own noise.
 
-    ``noise_rel_mse = mean(se^2 / (r^2 + eps))`` is the relative MSE that an exact ``a`` would
-    show against ``r`` (on average); ``agrees`` when :func:`rel_mse` is at most twice that.
-    ``excess_rel_mse`` is the part of the error the noise does not explain
-    (``max(rel_mse - noise_rel_mse, 0)``).
+    ``noise_rel_mse = mean(se^2 / (r^2 + eps))`` is the relative MSE that an exact, noise-free
+    ``a`` would show against ``r`` (on average); ``agrees`` when :func:`rel_mse` is at most twice
+    that. ``excess_rel_mse`` is the part of the error the reference's noise does not explain
+    (``max(rel_mse - noise_rel_mse, 0)``): the bias of ``a`` and the noise ``a`` has of its own
+    (a blend of Monte Carlo renders has some).
 
     Returns
     -------

@@ -513,8 +513,13 @@ class LatentHull:
         if self.planes is not None and len(out) >= MANY:  # inside the facet farthest outside of
             f = beyond[out].argmax(axis=1)
             y = x[out] - beyond[out, f][:, None] * self.planes[f, :-1]
-            lam = np.einsum("mij,mj->mi", self._facet_solvers()[f], np.c_[y, np.ones(len(y))])
-            inside = (lam >= 0).all(axis=1)
+            target = np.c_[y, np.ones(len(y))]
+            lam = np.einsum("mij,mj->mi", self._facet_solvers()[f], target)
+            # a flat facet (corners in a lower-dimensional plane) has least-squares coordinates:
+            # accept only those that give the point back, on the facet
+            back = np.einsum("mcd,mc->md", self.facets[f], lam)
+            miss = np.abs(back - y).max(axis=1) + np.abs(lam.sum(axis=1) - 1.0)
+            inside = (lam >= 0).all(axis=1) & (miss <= 1e-9 * self.scale)
             p[out[inside]] = y[inside]
             outside[out[inside]] = False
         heavy = 1e4 * self.scale

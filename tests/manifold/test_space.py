@@ -433,3 +433,19 @@ def test_the_closest_point_of_the_hull_is_the_projection_whatever_face_was_found
         beyond = np.einsum("mvq,mq->mv", latent[None] - p[out][:, None], d)
         assert (beyond.max(axis=1) <= 1e-9 * rho[out] ** 2).all()
         assert (p @ hull.planes[:, :-1].T + hull.planes[:, -1] <= 1e-9).all()  # on the hull
+
+
+def test_the_closest_point_of_a_hull_with_flat_facets_is_on_the_hull():
+    """A hull whose faces hold many points in one plane (Qhull splits them into facets, some
+    flat): the closest point of the unit 4-cube to points around it is ``clip(x, 0, 1)``, for
+    many points at once (the facet shortcut) as for one at a time."""
+    rng = np.random.default_rng(0)
+    corners = np.array(np.meshgrid(*[[0.0, 1.0]] * 4)).reshape(4, -1).T
+    on_faces = rng.uniform(0.0, 1.0, (100, 4))
+    on_faces[np.arange(100), rng.integers(0, 4, 100)] = rng.integers(0, 2, 100)
+    latent = np.concatenate([corners, on_faces, rng.uniform(0.2, 0.8, (10, 4))])
+    X = rng.uniform(-1.5, 2.5, (200, 4))
+    exact = np.clip(X, 0.0, 1.0)
+    p, rho = interpolant.LatentHull(latent).project(X)
+    np.testing.assert_allclose(p, exact, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(rho, np.linalg.norm(X - exact, axis=1), rtol=0, atol=1e-9)

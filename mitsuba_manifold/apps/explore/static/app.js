@@ -712,9 +712,9 @@ function drawReference() {   // a view of store.js: the reference box from state
   // A noisy reference differs from an exact blend by its own noise: judge the rest of the error.
   const verdict = e.agrees === true ? `the blend agrees with full GI within the reference's ${job.spp}-spp noise`
     : e.psnr >= 40 ? "the blend is indistinguishable from full GI" : e.psnr >= 30 ? "the blend is close to full GI"
-    : e.agrees === false ? "the blend differs from full GI by more than the reference's noise"
+    : e.agrees === false ? "the blend differs from full GI by more than the reference's noise (its own noise included)"
     : "the blend differs visibly from full GI";
-  const noise = e.noise_rel_mse == null ? "" : ` · the reference's noise ${fmtNum(e.noise_rel_mse, 4)} · beyond it ${fmtNum(e.excess_rel_mse, 4)}`;
+  const noise = e.noise_rel_mse == null ? "" : ` · the reference's noise ${fmtNum(e.noise_rel_mse, 4)} · beyond it (the blend's bias and noise) ${fmtNum(e.excess_rel_mse, 4)}`;
   $("ref-metrics").innerHTML = `PSNR ${e.psnr.toFixed(1)} dB: ${verdict}<details><summary>details</summary>` +
     escapeHtml(`rel. MSE ${fmtNum(e.rel_mse, 4)}${noise} · mean |Δ| ${fmtNum(e.mean_abs, 4)} · at x = (${job.x.map((v) => fmtNum(v)).join(", ")})`) +
     `</details>`;
