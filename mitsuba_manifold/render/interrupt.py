@@ -26,6 +26,7 @@ class StopRequest:
     def __init__(self):
         self.requested = False
         self._previous = None
+        self._active = False
 
     def _handle(self, signum, frame):
         self.requested = True
@@ -34,13 +35,27 @@ class StopRequest:
     def __enter__(self):
         if threading.current_thread() is threading.main_thread():
             self._previous = signal.signal(signal.SIGINT, self._handle)
+            self._active = True
         return self
 
     def __exit__(self, *exc):
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
-            self._previous = None
+        if self._active:
+            previous = self._previous
+            signal.signal(
+                signal.SIGINT, signal.default_int_handler if previous is None else previous
+            )
+            self._previous, self._active = None, False
         return False
+
+    def rearm(self):
+        """Install the flag's handler again (while active, before the first Ctrl-C).
+
+        Mitsuba's ``render`` installs its own SIGINT handler, which passes the signal on to the
+        handler it found installed; whatever a render left installed, the next pass then passes
+        Ctrl-C on to this one.
+        """
+        if self._active and not self.requested:
+            signal.signal(signal.SIGINT, self._handle)
 
     def check(self):
         """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed."""
@@ -82,6 +97,7 @@ def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
     w, h = (int(v) for v in scene.sensors()[sensor].film().crop_size())
     total = None
     for k, n in enumerate(sample_passes(spp, w * h)):
+        stop.rearm()
         mi.render(
             scene,
             integrator=integrator,

@@ -4,6 +4,7 @@ validators, content identity, render passes."""
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -173,3 +174,21 @@ def test_render_passes_split_the_samples(spp, pixels):
     passes = interrupt.sample_passes(spp, pixels)
     assert sum(passes) == spp and all(n >= 1 for n in passes)
     assert all(n * pixels <= interrupt.SAMPLES_PER_PASS for n in passes) or passes == [1] * spp
+
+
+def test_a_stop_request_gets_ctrl_c_again_after_a_render_replaced_its_handler():
+    """A render may leave another SIGINT handler installed (Mitsuba's own passes the signal on
+    to the one it found): before each pass the request installs its handler again, so Ctrl-C
+    still sets the flag; leaving restores the handler found on entering."""
+    import signal
+
+    before = signal.getsignal(signal.SIGINT)
+    with interrupt.StopRequest() as stop:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # what a render left behind
+        stop.rearm()
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)  # the handler runs in the main thread between bytecodes
+        assert stop.requested
+        with pytest.raises(KeyboardInterrupt):
+            stop.check()
+    assert signal.getsignal(signal.SIGINT) is before
