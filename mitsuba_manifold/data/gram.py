@@ -167,21 +167,23 @@ def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, 
         return G, C, z @ z.T, sums
 
     starts = range(0, d, block)
-    sums = [np.zeros((n, n)), np.zeros((n, n)) if raw else None]
-    sums += [None, None] if weights is None else [np.zeros((n, n)), np.zeros((n, 3))]
+    S = np.zeros((n, n))
+    G = np.zeros((n, n)) if raw else None
+    C = None if weights is None else np.zeros((n, n))
+    W = None if weights is None else np.zeros((n, 3))
     # Small products (N x block), one BLAS thread per worker: the workers keep the cores busy
     # between the products too, and no BLAS thread waits on another one's core.
     with one_thread():
         pool = ThreadPoolExecutor(workers_for(len(starts)), "gram")
         try:
-            for G, C, S, W in pool.map(products, starts):  # summed in the order of the blocks
-                sums[0] += S
+            for g, c, s, w in pool.map(products, starts):  # summed in the order of the blocks
+                S += s
                 if raw:
-                    sums[1] += G
-                if C is not None:
-                    sums[2] += C
-                    sums[3] += W
+                    G += g
+                if c is not None:
+                    C += c
+                    W += w
         finally:  # on an error or Ctrl-C, only the blocks already started are finished
             pool.shutdown(cancel_futures=True)
     sym = lambda M: None if M is None else 0.5 * (M + M.T)
-    return Gram(sym(sums[0]), mean, sym(sums[1]), sym(sums[2]), sums[3])
+    return Gram(sym(S), mean, sym(G), sym(C), W)

@@ -95,20 +95,21 @@ def pass_standard_error(weighted_sum, weighted_squares, samples, passes):
     return np.sqrt(var / ((passes - 1) * samples))
 
 
-def noise_agreement(a, ref, ref_se, eps=REL_EPS):
+def noise_agreement(a, ref, ref_se, eps=REL_EPS, scale=None):
     """Whether ``a`` equals a noisy reference within the reference's own noise.
 
-    ``noise_rel_mse = mean(se^2 / (r^2 + eps))`` is the relative MSE that an exact, noise-free
-    ``a`` would show against ``r`` (on average); ``agrees`` when :func:`rel_mse` is at most twice
-    that. ``excess_rel_mse`` is the part of the error the reference's noise does not explain
-    (``max(rel_mse - noise_rel_mse, 0)``): the bias of ``a`` and the noise ``a`` has of its own
-    (a blend of Monte Carlo renders has some).
+    Relative to ``s = scale`` (default the reference ``r``): ``rel_mse = mean((a - r)^2 /
+    (s^2 + eps))``, and ``noise_rel_mse = mean(se^2 / (s^2 + eps))``, the relative MSE that an
+    exact, noise-free ``a`` would show against ``r`` (on average); ``agrees`` when ``rel_mse`` is
+    at most twice that. ``excess_rel_mse`` is the part of the error the reference's noise does
+    not explain (``max(rel_mse - noise_rel_mse, 0)``): the bias of ``a`` and the noise ``a`` has
+    of its own (a blend of Monte Carlo renders has some).
 
     Returns
     -------
     dict
-        ``noise_rel_mse``, ``excess_rel_mse``, ``agrees`` (all None where ``ref_se`` is NaN: a
-        reference of one pass).
+        ``rel_mse``, ``noise_rel_mse``, ``excess_rel_mse``, ``agrees`` (all None where ``ref_se``
+        is NaN: a reference of one pass).
     """
     a, ref = _pair(a, ref)
     se = np.asarray(ref_se, np.float64)
@@ -117,11 +118,12 @@ def noise_agreement(a, ref, ref_se, eps=REL_EPS):
             f"reference error has shape {se.shape}, reference {ref.shape}: they must match"
         )
     if not np.isfinite(se).all():
-        return {"noise_rel_mse": None, "excess_rel_mse": None, "agrees": None}
-    scale = np.square(ref) + eps
-    noise = float(np.mean(se * se / scale))
-    err = float(np.mean(np.square(a - ref) / scale))
+        return {"rel_mse": None, "noise_rel_mse": None, "excess_rel_mse": None, "agrees": None}
+    denominator = np.square(ref if scale is None else np.asarray(scale, np.float64)) + eps
+    noise = float(np.mean(se * se / denominator))
+    err = float(np.mean(np.square(a - ref) / denominator))
     return {
+        "rel_mse": err,
         "noise_rel_mse": noise,
         "excess_rel_mse": max(err - noise, 0.0),
         "agrees": bool(err <= 2.0 * noise),

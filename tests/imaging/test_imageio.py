@@ -257,4 +257,9 @@ def test_noise_agreement_tells_an_exact_image_from_a_biased_one():
     biased = metrics.noise_agreement(truth * 1.2, noisy_ref, se)
     assert biased["agrees"] is False and biased["excess_rel_mse"] > exact["noise_rel_mse"]
     one_pass = metrics.noise_agreement(truth, noisy_ref, np.full_like(truth, np.nan))
-    assert one_pass == {"noise_rel_mse": None, "excess_rel_mse": None, "agrees": None}
+    assert one_pass == {
+        "rel_mse": None,
+        "noise_rel_mse": None,
+        "excess_rel_mse": None,
+        "agrees": None,
+    }

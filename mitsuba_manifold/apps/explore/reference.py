@@ -102,11 +102,13 @@ def agreement(blend_image, refined):
     """
     if refined.passes < 2:
         return {"noise_rel_mse": None, "blend_rel_mse": None, "agrees": None}
-    diff = refined.rel_mse(blend_image)  # on the same scale as its noise
+    # on the scale of the refinement's own noise (:class:`Refined`)
+    scale = refined.image if refined.scale is None else refined.scale
+    r = metrics.noise_agreement(blend_image, refined.image, refined.pixel_se, scale=scale)
     return {
-        "noise_rel_mse": refined.noise_rel_mse,
-        "blend_rel_mse": diff,
-        "agrees": bool(diff <= 2.0 * refined.noise_rel_mse),
+        "noise_rel_mse": r["noise_rel_mse"],
+        "blend_rel_mse": r["rel_mse"],
+        "agrees": r["agrees"],
     }
 
 
@@ -309,7 +311,9 @@ class References:
             ref = self._render(job, basis, scene, manifold_path)
             job.images = {"blend": blend_image, "reference": ref.image}
             job.error = metrics.compare(blend_image, ref.image)
-            job.error.update(metrics.noise_agreement(blend_image, ref.image, ref.pixel_se))
+            noise = metrics.noise_agreement(blend_image, ref.image, ref.pixel_se)
+            del noise["rel_mse"]  # compare's, the same (None after one pass)
+            job.error.update(noise)
 
         self._execute(job, render)
 
