@@ -54,13 +54,17 @@ class StopRequest:
         handler it found installed; whatever a render left installed, the next pass then passes
         Ctrl-C on to this one.
         """
-        if self._active and not self.requested:
+        main = threading.current_thread() is threading.main_thread()  # signals: there only
+        if self._active and main and not self.requested:
             signal.signal(signal.SIGINT, self._handle)
 
     def check(self):
-        """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed."""
+        """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed; else :meth:`rearm` for what follows
+        (every loop of renders checks between its passes).
+        """
         if self.requested:
             raise KeyboardInterrupt("stopped by Ctrl-C")
+        self.rearm()
 
 
 def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS):

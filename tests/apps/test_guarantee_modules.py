@@ -192,3 +192,9 @@ def test_a_stop_request_gets_ctrl_c_again_after_a_render_replaced_its_handler():
         with pytest.raises(KeyboardInterrupt):
             stop.check()
     assert signal.getsignal(signal.SIGINT) is before
+    with interrupt.StopRequest() as stop:  # a check between passes re-arms it too
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        stop.check()
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)
+        assert stop.requested
