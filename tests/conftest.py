@@ -82,3 +82,12 @@ def small_manifold(small_db, tmp_path_factory):
     path = os.path.join(str(tmp_path_factory.mktemp("manifold")), "manifold.npz")
     Manifold.fit(small_db, q=2).save(path)
     return path
+
+
+@pytest.fixture(scope="session")
+def measured_files(tmp_path_factory):
+    """``{name: path}`` of three Mitsuba ``measured`` files made for the tests (a blue paper, a
+    metallic paint, a glossy yellow film: :mod:`measured_files`)."""
+    import measured_files as made
+
+    return made.write_all(str(tmp_path_factory.mktemp("measured")))

@@ -13,8 +13,6 @@ from mitsuba_manifold.data import merl, nbrdf, sources
 from mitsuba_manifold.data.database import Database, write_database
 from mitsuba_manifold.errors import FormatError, InputError, UnknownMaterialError
 
-RGL = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "data", "rgl")
-
 
 @pytest.fixture(autouse=True)
 def _cache(tmp_path, monkeypatch):
@@ -216,11 +214,11 @@ def test_anisotropic_measured_files_are_refused_by_their_header(tmp_path):
         Database(tmp_path)
 
 
-def test_the_real_rgl_files_are_isotropic_tensor_files():
-    for f in sorted(os.listdir(RGL)):
-        if f.endswith(".bsdf"):
-            src = sources.MeasuredFile(sources.material_name(f), os.path.join(RGL, f)).check()
-            assert not src.name.endswith("_rgb")
+def test_rgl_layout_files_are_isotropic_tensor_files(measured_files):
+    for path in measured_files.values():
+        f = os.path.basename(path)
+        src = sources.MeasuredFile(sources.material_name(f), path).check()
+        assert not src.name.endswith("_rgb")
 
 
 def test_builtin_names_in_the_command_line_tools(tmp_path):
@@ -281,12 +279,12 @@ def test_the_main_job_runs_on_the_measured_merl_set_and_refuses_unknown_database
     assert not (tmp_path / "out").exists()
 
 
-def test_a_truncated_measured_file_is_refused_by_its_size(tmp_path, capsys):
+def test_a_truncated_measured_file_is_refused_by_its_size(tmp_path, capsys, measured_files):
     """A ``.bsdf`` cut short is refused by the sizes its header gives, before Mitsuba reads it:
     as a material, in a database folder and by ``make_database.py``, which writes nothing."""
     from mitsuba_manifold.apps.cli import make_database
 
-    data = open(os.path.join(RGL, "paper_blue_rgb.bsdf"), "rb").read()
+    data = open(measured_files["paper_blue"], "rb").read()
     folder = tmp_path / "half"
     folder.mkdir()
     (folder / "half_rgb.bsdf").write_bytes(data[: len(data) // 2])
@@ -301,7 +299,7 @@ def test_a_truncated_measured_file_is_refused_by_its_size(tmp_path, capsys):
     assert not (tmp_path / "db").exists()
 
 
-def test_project_and_add_take_a_material_as_the_tools_do(tmp_path):
+def test_project_and_add_take_a_material_as_the_tools_do(tmp_path, measured_files):
     """``Manifold.project`` / ``Manifold.add`` take ``SET:NAME`` and any material file, as the
     tools do; a ``.bsdf`` without Mitsuba's reader (a fresh process that did not import the
     rendering subsystem) is refused with the fix, never read as a MERL file."""
@@ -329,7 +327,7 @@ def test_project_and_add_take_a_material_as_the_tools_do(tmp_path):
     )
     root = os.path.join(os.path.dirname(__file__), "..", "..")
     r = subprocess.run(
-        [sys.executable, "-c", code, os.path.join(RGL, "paper_blue_rgb.bsdf")],
+        [sys.executable, "-c", code, measured_files["paper_blue"]],
         capture_output=True,
         text=True,
         cwd=root,

@@ -4,9 +4,8 @@ import os
 
 from mitsuba_manifold.data import merl, nbrdf
 
-WEIGHTS = os.path.join(
-    os.path.dirname(__file__), "..", "..", "..", "shared", "data", "nbrdf", "nbrdf_weights.npz"
-)
+#: The NBRDF weights the package ships.
+WEIGHTS = nbrdf.WEIGHTS_PATH
 #: Resolution of the test tables (n_theta_h, n_theta_d, n_phi_d).
 DIMS = (12, 12, 24)
 #: MERL materials of the test manifolds (diffuse, glossy, metals, paints).
@@ -33,7 +32,7 @@ MERL = (
 
 
 def weights_path():
-    """The NBRDF weights file (tests that need it are skipped without it)."""
+    """The NBRDF weights file the package ships."""
     return os.path.abspath(WEIGHTS)
 
 

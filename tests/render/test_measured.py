@@ -5,18 +5,10 @@ import os
 
 import numpy as np
 import pytest
+from measured_files import FILES  # the files are made by the ``measured_files`` fixture
 
 from mitsuba_manifold.data import merl
 from mitsuba_manifold.data.database import Database
-
-RGL = os.path.abspath(
-    os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "data", "rgl")
-)
-FILES = {
-    "paper_blue": "paper_blue_rgb.bsdf",
-    "ilm_l3_37_metallic": "ilm_l3_37_metallic_rgb.bsdf",
-    "vch_golden_yellow": "vch_golden_yellow_rgb.bsdf",
-}
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
@@ -39,13 +31,13 @@ def _random_pairs(n, seed):
     return hemi(), hemi()
 
 
-def test_the_table_is_the_plugins_brdf_at_random_directions():
+def test_the_table_is_the_plugins_brdf_at_random_directions(measured_files):
     """At bin-centre directions (random bins, random phi_h) a one-sample table holds exactly the
     plugin's eval / cos(theta_o); at random directions the table looked up by MERL's indexing
     follows the plugin (a wrong phi_d, swapped directions or a cosine left in would not)."""
     from mitsuba_manifold.render import measured
 
-    path = os.path.join(RGL, FILES["vch_golden_yellow"])
+    path = measured_files["vch_golden_yellow"]
     dims = (90, 90, 180)
     table = measured.resample(path, dims, samples=1)
     bsdf = measured.load_measured(path)
@@ -73,13 +65,13 @@ def test_the_table_is_the_plugins_brdf_at_random_directions():
     assert error(wi, wo, extra=wo[:, 2:3]) > 2 * ok  # the cosine left in the table
 
 
-def test_measured_files_join_a_database_with_other_kinds(tmp_path):
+def test_measured_files_join_a_database_with_other_kinds(tmp_path, measured_files):
     import mitsuba_manifold.render  # noqa: F401  (registers the reader)
     from mitsuba_manifold.data import nbrdf
 
     folder = tmp_path / "db"
     folder.mkdir()
-    os.symlink(os.path.join(RGL, FILES["paper_blue"]), folder / FILES["paper_blue"])
+    os.symlink(measured_files["paper_blue"], folder / FILES["paper_blue"])
     nbrdf.NetworkSet.load(nbrdf.WEIGHTS_PATH, "nielsen").subset(["notebook"]).save(
         folder / "notebook.npz"
     )
@@ -94,7 +86,7 @@ def test_measured_files_join_a_database_with_other_kinds(tmp_path):
     ]
 
 
-def test_an_imported_file_renders_as_mitsubas_measured_plugin(tmp_path):
+def test_an_imported_file_renders_as_mitsubas_measured_plugin(tmp_path, measured_files):
     """Image mean within 1% and relative MSE within 3x the noise of two measured renders
     (median over the three files; 32x32 here, the benchmark runs larger)."""
     from mitsuba_manifold import Manifold
@@ -102,20 +94,20 @@ def test_an_imported_file_renders_as_mitsubas_measured_plugin(tmp_path):
 
     folder = tmp_path / "db"
     folder.mkdir()
-    for f in FILES.values():
-        os.symlink(os.path.join(RGL, f), folder / f)
+    for name, f in FILES.items():
+        os.symlink(measured_files[name], folder / f)
     m = Manifold.fit(str(folder), q=1)
     m.save(tmp_path / "m.npz")
     rows = [
-        measured.fidelity(os.path.join(RGL, f), tmp_path / "m.npz", res=32, spp=128)
-        for f in FILES.values()
+        measured.fidelity(path, tmp_path / "m.npz", res=32, spp=128)
+        for path in measured_files.values()
     ]
     for r in rows:
         assert abs(r["mean_ratio"] - 1) < 0.01, r
     assert np.median([r["ratio_to_noise"] for r in rows]) <= 3.0, rows
 
 
-def test_every_tool_reads_a_database_folder_holding_measured_files(tmp_path):
+def test_every_tool_reads_a_database_folder_holding_measured_files(tmp_path, measured_files):
     """``make_database.py --from FOLDER`` then ``fit_manifold.py`` and ``project.py`` on a folder
     holding a ``.bsdf`` file, each in a fresh process: the tools read Mitsuba measured files
     without the user importing anything."""
@@ -126,7 +118,7 @@ def test_every_tool_reads_a_database_folder_holding_measured_files(tmp_path):
     tools = os.path.join(os.path.dirname(__file__), "..", "..", "tools")
     src = tmp_path / "src"
     src.mkdir()
-    shutil.copy(os.path.join(RGL, FILES["paper_blue"]), src / FILES["paper_blue"])
+    shutil.copy(measured_files["paper_blue"], src / FILES["paper_blue"])
     db, m = str(tmp_path / "db"), str(tmp_path / "m.npz")
     steps = [
         ("make_database.py", "--from", "nielsen", "--from", str(src), "--resolution", "8,8,16")
