@@ -1,6 +1,6 @@
 """The documentation's images: the gallery, and the tutorials' pictures.
 
-    python3 docs/gallery.py          # writes docs/_static/gallery/ and docs/_static/tutorials/
+    python3 docs/gallery.py          # docs/_static/gallery/, tutorials/, readme_materials.png
     python3 docs/gallery.py --out /tmp/g --small --no-tutorials      # seconds (what the tests run)
 
 The gallery: measured materials of the built-in database on the shipped ``sphere`` scene, and a
@@ -92,6 +92,37 @@ def gallery(out, small):
     return [sheet, os.path.join(out, "latent_grid.png")]
 
 
+#: The README's first picture: training materials of the shipped ``merl`` manifold and points
+#: between them (name, or ``(a, b, t)``: the point a fraction ``t`` of the way from a to b).
+README_POINTS = [
+    "gold-metallic-paint",
+    ("gold-metallic-paint", "blue-metallic-paint", 0.5),
+    "blue-metallic-paint",
+    "red-fabric",
+    ("red-fabric", "white-paint", 0.5),
+    "chrome",
+]
+
+
+def readme_picture(path, res=160, spp=256):
+    """The README's first picture: :data:`README_POINTS` on the ``sphere`` scene (a sky map and a
+    point light), rendered from the shipped manifold ``merl``."""
+    from mitsuba_manifold.imaging.io import write_contact_sheet
+
+    m = Manifold.load("merl")
+    points, labels = [], []
+    for p in README_POINTS:
+        if isinstance(p, str):
+            points.append(m.point(p))
+            labels.append(p)
+        else:
+            a, b, t = p
+            points.append((1 - t) * m.point(a) + t * m.point(b))
+            labels.append("between")
+    write_contact_sheet(path, render_spheres("merl", points, res, spp), labels, columns=6)
+    return path
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=os.path.join(HERE, "_static", "gallery"))
@@ -101,6 +132,8 @@ def main():
     args = ap.parse_args()
     for f in gallery(args.out, args.small):
         print("wrote", f)
+    if not args.small:
+        print("wrote", readme_picture(os.path.join(HERE, "_static", "readme_materials.png")))
     if args.no_tutorials:
         return
     work = tempfile.mkdtemp(prefix="tutorials-")

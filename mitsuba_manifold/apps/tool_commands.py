@@ -5,6 +5,8 @@ hints): shared by the pipeline and the command-line tools, so that neither impor
 import os
 import shlex
 
+from ..manifold.shipped import resolve_manifold
+
 #: The checkout's ``tools/`` folder (absent in an installed wheel: the console scripts instead).
 TOOLS_DIR = os.path.join(
     os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "tools"
@@ -25,5 +27,5 @@ def explore_command(basis, manifold=None):
     """
     parts = tool_command("explore", "explore.py") + ["--basis", os.path.abspath(basis)]
     if manifold:
-        parts += ["--manifold", os.path.abspath(manifold)]
+        parts += ["--manifold", os.path.abspath(resolve_manifold(manifold))]
     return shlex.join(parts)

@@ -25,6 +25,7 @@ from .._util.atomic import atomic_write
 from ..errors import FormatError, InputError
 from . import schema
 from .fit_record import FitRecord
+from .shipped import SHIPPED, resolve_manifold
 
 FORMAT = "mitsuba-manifold"
 FORMAT_VERSION = 3
@@ -69,9 +70,12 @@ def read(path):
     """The keyword arguments of ``Manifold(...)`` stored in ``path``, every field checked
     against the schema (:mod:`.schema`) before it is used.
     """
-    path = os.fspath(path)
+    path = resolve_manifold(path)
     if not os.path.exists(path):
-        raise InputError(f"manifold file {path} does not exist")
+        raise InputError(
+            f"manifold file {path} does not exist (the shipped manifolds, by name: "
+            f"{', '.join(SHIPPED)})"
+        )
     if os.path.isdir(path) or not zipfile.is_zipfile(path):
         raise _not_a_manifold(path, "a folder" if os.path.isdir(path) else "not an .npz archive")
     try:

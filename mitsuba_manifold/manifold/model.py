@@ -61,6 +61,7 @@ from .presets import (
     stress_of,
 )
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES, PruneReport
+from .shipped import resolve_manifold
 from .tables import TrainingTables
 
 #: Names other modules import from here (the presets, the pruning default, the result types).
@@ -927,7 +928,9 @@ class Manifold:
 
     @classmethod
     def load(cls, path):
-        """Read a manifold written by :meth:`save` (:func:`manifold_file.read`).
+        """Read a manifold written by :meth:`save` (:func:`manifold_file.read`); ``path`` may
+        also name a shipped manifold (``"merl"``, ``"rgl"``, ``"nielsen"``, ``"all"``:
+        :mod:`.shipped`), where no file of that name exists.
 
         Files of format version 1 load with the paper's GP weights on
         their stored ``l`` and ``mu`` (what they were used with); refit for the default.
@@ -937,8 +940,9 @@ class Manifold:
         InputError
             Missing, corrupt or foreign files.
         """
+        path = resolve_manifold(path)
         m = cls(**manifold_file.read(path))
-        m.file = os.fspath(path)  # where it was read from (``path`` is the method of paths)
+        m.file = path  # where it was read from (``path`` is the method of paths)
         return m
 
     # ------------------------------------------------------------ subsets

@@ -18,6 +18,7 @@ import numpy as np
 from ..data.sources import SET_NAMES
 from ..errors import InputError
 from ..manifold.model import DEFAULT_PRUNE, Manifold
+from ..manifold.shipped import SHIPPED, shipped_path
 from .overrides import database_folder
 from .sampling import PLUGIN_NAME, combined_distribution, material_density
 
@@ -98,7 +99,11 @@ def read_properties(props):
         raise InputError(
             f"{PLUGIN_NAME}: the 'manifold' parameter (path of a saved manifold) is required"
         )
-    path = resolve(props["manifold"], "manifold file")
+    given = str(props["manifold"])
+    if given in SHIPPED and not os.path.exists(str(mi.file_resolver().resolve(given))):
+        path = shipped_path(given)  # a file of that name, where the scene is, wins
+    else:
+        path = resolve(given, "manifold file")
     try:
         manifold = Manifold.load(path)
     except InputError as e:

@@ -19,6 +19,7 @@ import numpy as np
 from .._util.checks import scene_xml
 from ..errors import InputError, MismatchError, MitsubaManifoldError, VariantError, did_you_mean
 from ..manifold.identity import manifold_identity
+from ..manifold.shipped import resolve_manifold
 
 
 def _scenes_dir():
@@ -487,7 +488,7 @@ def load_scene(
     from ..manifold.model import Manifold
     from .integrators import manifold_bsdfs
 
-    scene_path, manifold_path = os.fspath(scene_path), os.fspath(manifold_path)
+    scene_path, manifold_path = os.fspath(scene_path), resolve_manifold(manifold_path)
     if not os.path.isfile(manifold_path):
         raise MismatchError(f"manifold {manifold_path} does not exist")
     manifold = functools.cache(

@@ -25,10 +25,20 @@ def test_extras_named_in_the_readme_exist():
 
 def test_metadata_is_complete():
     p = project()
-    assert p["license"] == "BSD-3-Clause" and p["authors"] and p["urls"] and p["classifiers"]
+    assert p["license"] == "BSD-3-Clause" and p["authors"] and p["classifiers"]
+    # no invented URL: every project URL, if any, is one the project has
+    assert "urls" not in p or all(
+        "mitsuba-manifold/mitsuba-manifold" not in u for u in p["urls"].values()
+    )
     for f in p["license-files"]:
         assert os.path.isfile(os.path.join(ROOT, f)), f
     assert p["version"] in open(os.path.join(ROOT, "CITATION.cff"), encoding="utf-8").read()
+
+
+def test_read_the_docs_builds_what_ci_builds():
+    text = open(os.path.join(ROOT, ".readthedocs.yaml"), encoding="utf-8").read()
+    assert "configuration: docs/conf.py" in text and "fail_on_warning: true" in text
+    assert re.search(r"extra_requirements:\s*- docs", text)
 
 
 def test_setup_installs_the_docs_extra_and_ci_builds_with_warnings_as_errors():

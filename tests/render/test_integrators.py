@@ -22,6 +22,7 @@ from helpers import chain  # noqa: E402
 
 import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
+from mitsuba_manifold.manifold.shipped import shipped_path  # noqa: E402
 from mitsuba_manifold.render import geometry, integrators  # noqa: E402
 from mitsuba_manifold.render.scenes import SCENES_DIR  # noqa: E402
 
@@ -329,21 +330,23 @@ def test_scene_parameters(small_manifold, tmp_path, name):
     root = ET.parse(os.path.join(SCENES, f"{name}.xml")).getroot()
     defaults = {el.get("name"): el.get("value") for el in root.iter("default")}
     assert defaults == {
-        "manifold": "../out/manifold.npz",
+        "manifold": "merl",
         "x": "",
         "spp": "64",
         "res": "256",
         "integrator": "path",
         "max_depth": "8",
     }
-    # The default manifold is found relative to the scene's folder (../out/manifold.npz).
+    # The default is the shipped manifold "merl"; a file of that name beside the scene wins.
+    scene = mi.load_file(os.path.join(SCENES, f"{name}.xml"), res="8", spp="1")
+    (bsdf,) = integrators.manifold_bsdfs(scene)
+    assert os.path.samefile(bsdf.manifold_path, shipped_path("merl"))
     shutil.copytree(SCENES, tmp_path / "scenes")
-    (tmp_path / "out").mkdir()
-    shutil.copy(small_manifold, tmp_path / "out" / "manifold.npz")
+    shutil.copy(small_manifold, tmp_path / "scenes" / "merl")
     scene = mi.load_file(str(tmp_path / "scenes" / f"{name}.xml"))
     (bsdf,) = integrators.manifold_bsdfs(scene)
     assert bsdf.id() == "material"
-    assert os.path.samefile(bsdf.manifold_path, tmp_path / "out" / "manifold.npz")
+    assert os.path.samefile(bsdf.manifold_path, tmp_path / "scenes" / "merl")
     np.testing.assert_array_equal(
         bsdf.latent, Manifold.load(small_manifold).latent[0]
     )  # fits any q

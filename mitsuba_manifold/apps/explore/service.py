@@ -27,6 +27,7 @@ from ...data.database import cache_folder
 from ...errors import InputError
 from ...manifold import paths as path_kinds
 from ...manifold.model import Manifold
+from ...manifold.shipped import resolve_manifold
 from . import encode, fireflies, hdri, latentmap, material
 from .bases import names as _names
 from .bases import scene_of as _scene_of
@@ -122,7 +123,9 @@ class Explorer:
                     "explorer moves one material (render a basis of a scene with one)"
                 )
             if self.manifold_path is None:
-                self.manifold_path = os.path.abspath(manifold or basis.manifest.manifold)
+                self.manifold_path = os.path.abspath(
+                    resolve_manifold(manifold or basis.manifest.manifold)
+                )
                 self.manifold = Manifold.load(self.manifold_path)
                 if database is not None:  # given, so it must be there (the default may be missing)
                     material.check_database(database, self.manifold)

@@ -70,6 +70,7 @@ from ..._util.cache import file_hash
 from ..._util.checks import scene_xml
 from ...errors import MismatchError
 from ...manifold.identity import manifold_identity
+from ...manifold.shipped import resolve_manifold
 
 FORMAT = "mitsuba-manifold-basis"
 FORMAT_VERSION = 2
@@ -568,7 +569,7 @@ class Manifest:
             What the basis holds (:data:`COMPONENTS`; default L1- only). A renderer that adds
             full-GI images sets it when it writes them.
         """
-        manifold = os.fspath(manifold)
+        manifold = resolve_manifold(manifold)
         if not os.path.isfile(manifold):
             raise MismatchError(f"manifold {manifold} does not exist")
         settings = RenderSettings(

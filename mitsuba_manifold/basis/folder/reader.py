@@ -15,6 +15,7 @@ from ..._util.cache import file_hash
 from ...errors import FormatError, MismatchError
 from ...imaging import io as imageio
 from ...manifold.identity import manifold_identity
+from ...manifold.shipped import resolve_manifold
 from .manifest import BASE, GI, Manifest, image_changed, image_key, key_materials, scene_hash
 
 # -------------------------------------------------------------------- basis
@@ -321,7 +322,7 @@ class Basis:
         content identity (version 1: the file hash, when the manifold has a path).
         """
         if manifold is None:
-            manifold = self.manifest.manifold
+            manifold = resolve_manifold(self.manifest.manifold)
             if not os.path.isfile(manifold):
                 raise MismatchError(
                     f"basis {self.folder}: its manifold {manifold} no longer exists; "
