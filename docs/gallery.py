@@ -106,7 +106,8 @@ README_POINTS = [
 
 def readme_picture(path, res=160, spp=256):
     """The README's first picture: :data:`README_POINTS` on the ``sphere`` scene (a sky map and a
-    point light), rendered from the shipped manifold ``merl``."""
+    point light), rendered from the shipped manifold ``merl``.
+    """
     from mitsuba_manifold.imaging.io import write_contact_sheet
 
     m = Manifold.load("merl")
