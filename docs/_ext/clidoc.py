@@ -13,6 +13,15 @@ import contextlib
 import importlib
 import io
 import os
+import re
+import textwrap
+
+#: The user's tools, in the order of the page (the others follow by name; ``bench`` comes last).
+FIRST = ("main", "render_basis", "blend", "explore", "match", "fit_manifold", "project")
+#: The last tool of the page: the benchmarks, for developers.
+LAST = ("bench",)
+#: Width of the help texts (fits a code block of the documentation's page).
+COLUMNS = "78"
 
 #: Options whose presence makes a tool hand over to another parser (``match.py --render``).
 SUB_MODES = {"match": [["--render"]]}
@@ -72,12 +81,28 @@ def console_commands():
     return {f"mitsuba_manifold.apps.cli.{module}": tool for tool, module in TOOLS.items()}
 
 
+def _fit(text, width):
+    """``text`` with every line longer than ``width`` wrapped (descriptions that argparse prints
+    as written), continuation lines indented as the line they continue.
+    """
+    out = []
+    for line in text.splitlines():
+        if len(line) <= width:
+            out.append(line)
+            continue
+        indent = line[: len(line) - len(line.lstrip())]
+        item = re.match(r"\s*(\d+\.|-) ", line)
+        more = " " * len(item.group(0)) if item else indent
+        out += textwrap.wrap(line, width, subsequent_indent=more, break_on_hyphens=False)
+    return "\n".join(out) + "\n"
+
+
 def help_text(parser, prog):
     parser.prog = prog
     old = os.environ.get("COLUMNS")
-    os.environ["COLUMNS"] = "88"
+    os.environ["COLUMNS"] = COLUMNS
     try:
-        return parser.format_help()
+        return _fit(parser.format_help(), int(COLUMNS))
     finally:
         if old is None:
             del os.environ["COLUMNS"]
@@ -100,7 +125,12 @@ def page(root):
         "",
     ]
     commands = console_commands()
-    for name, _script, module in tools(root):
+
+    def order(tool):
+        name = tool[0]
+        return (name in LAST, FIRST.index(name) if name in FIRST else len(FIRST), name)
+
+    for name, _script, module in sorted(tools(root), key=order):
         variants = [()] + [tuple(v) for v in SUB_MODES.get(name, [])]
         command = commands.get(module)
         installed = (

@@ -31,6 +31,7 @@ from ..data.database import database_cache
 from ..imaging import io as imageio
 from ..imaging import metrics, plots
 from ..manifold import paths
+from ..manifold.appearance import lab
 from ..manifold.model import Manifold
 from ..render import scenes as _scenes  # (gi_report has a parameter named scenes)
 from ..render.refine import forget_kept, refine
@@ -40,20 +41,21 @@ from ..render.render_basis import render_basis
 def gi_pair(m, max_clamped=1e-3, min_share=0.6):
     """Two latent neighbours to interpolate between, for the GI comparison and the path sheet.
 
-    Among the pairs (material, its nearest latent neighbour) whose midpoint is a genuine
-    interpolation of the two (their weights there sum to at least ``min_share``) and whose
-    midpoint table needs (almost) no clamping, the one whose albedos differ most, so that
-    the interpolation is visible. Far-apart pairs cross other materials' regions, where an
-    affine combination with large weights of both signs goes negative in many bins; the
-    plugin clamps those but a blend cannot, so such a midpoint measures clamping rather
-    than Eq. 13.
+    The rule: among the pairs (material, its nearest latent neighbour) whose midpoint is a
+    genuine interpolation of the two (their weights there sum to at least ``min_share``) and
+    whose midpoint table needs (almost) no clamping, the one whose ends differ most in colour,
+    the CIELAB distance (``Delta E*ab``, D65; :func:`..manifold.appearance.lab`) of their
+    albedos, so that the path visibly changes (in hue, not only in lightness). Far-apart pairs
+    cross other materials' regions, where an affine combination with large weights of both
+    signs goes negative in many bins; the plugin clamps those but a blend cannot, so such a
+    midpoint measures clamping rather than Eq. 13.
     """
     d2 = ((m.latent[:, None] - m.latent[None]) ** 2).sum(-1)
     np.fill_diagonal(d2, np.inf)
     pairs = sorted({tuple(sorted((i, int(j)))) for i, j in enumerate(d2.argmin(axis=1))})
-    alb = m.albedos.mean(axis=1) if m.albedos is not None else np.zeros(m.n)
+    colour = lab(m.albedos) if m.albedos is not None else np.zeros((m.n, 3))
     best = pairs[0]
-    for i, j in sorted(pairs, key=lambda p: -abs(alb[p[0]] - alb[p[1]])):
+    for i, j in sorted(pairs, key=lambda p: -float(np.linalg.norm(colour[p[0]] - colour[p[1]]))):
         x = 0.5 * (m.latent[i] + m.latent[j])
         _, w = m.weights(x)
         if w[i] + w[j] >= min_share and m.negative_fraction(x) <= max_clamped:

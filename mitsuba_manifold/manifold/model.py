@@ -198,6 +198,10 @@ def _stored(name, doc):
 class Manifold:
     """A fitted latent space of measured materials (scikit-learn style: fit, then use).
 
+    The constructor takes the whole learned state of a manifold (14 parameters, the last six
+    keyword-only): :meth:`fit` and :meth:`load` make one (``Manifold.load("merl")``: the shipped
+    default), a user rarely does.
+
     Parameters
     ----------
     names, latent, database, hashes
@@ -214,9 +218,6 @@ class Manifold:
         What the fit did (default: nothing recorded).
     added : list of adding.Provenance or dict, optional
         Where the materials added after the fit (:meth:`add`) came from.
-
-    The constructor takes the whole learned state of a manifold (14 parameters, the last six
-    keyword-only): :meth:`fit` and :meth:`load` make one, a user rarely does.
 
     Attributes
     ----------

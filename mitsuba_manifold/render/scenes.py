@@ -19,7 +19,7 @@ import numpy as np
 from .._util.checks import scene_xml
 from ..errors import InputError, MismatchError, MitsubaManifoldError, VariantError, did_you_mean
 from ..manifold.identity import manifold_identity
-from ..manifold.shipped import resolve_manifold
+from ..manifold.shipped import SHIPPED, resolve_manifold, shipped_path
 
 
 def _scenes_dir():
@@ -345,7 +345,8 @@ def scene_sample_count(scene, sensor=0):
 def scene_manifolds(scene, params=None):
     """``(bsdf id, manifold file)`` of each ``manifold_brdf`` of a scene XML: its ``manifold``
     value with ``$parameters`` taken from ``params``, else the scene's ``<default>``s, and a
-    relative path resolved against the scene's folder (as Mitsuba's file resolver does).
+    relative path resolved against the scene's folder (as Mitsuba's file resolver does), or
+    a shipped manifold's name where no file of that name exists there.
     """
     root = scene_xml(scene)
     values = {**{el.get("name"): el.get("value") for el in root.iter("default")}, **(params or {})}
@@ -359,6 +360,8 @@ def scene_manifolds(scene, params=None):
         path = os.path.join(folder, value)
         if not os.path.exists(path) and os.path.exists(value):
             path = value
+        elif not os.path.exists(path) and value in SHIPPED:
+            path = shipped_path(value)
         found.append((bsdf.get("id"), os.path.abspath(path)))
     return found
 

@@ -1,11 +1,9 @@
-"""The README says what is true: its size and picture, its links, every command and snippet in it
-(run at a small size, or checked against the tool's own parser where a run would take minutes)."""
+"""The README says what is true: its size and picture, its links, every command in it checked
+against the tool's own parser (test_docs_blocks.py runs its blocks at a small size)."""
 
 import os
 import re
 import shlex
-import shutil
-import subprocess
 import sys
 
 import pytest
@@ -20,18 +18,6 @@ TOO_LONG = {
     "tools/main.py": "`tools/setup.sh && python3 tools/main.py` in a fresh clone: "
     "about 5 minutes on 2 CPU cores",
 }
-#: Sizes of the README's commands and snippets -> the tests' (the same code, smaller).
-SMALLER = [
-    ("--spp 64", "--spp 4"),
-    ("--res 128", "--res 16"),
-    ("--steps 8", "--steps 3"),
-    ('"width": 128, "height": 128', '"width": 16, "height": 16'),
-    ("spp=64", "spp=4"),
-    ("res=64", "res=16"),
-    ("spp=256", "spp=8"),
-    ("spp=16", "spp=2"),
-    ("range(60)", "range(2)"),
-]
 
 
 def text():
@@ -54,12 +40,6 @@ def tool_commands():
     return found
 
 
-def small(code):
-    for big, little in SMALLER:
-        code = code.replace(big, little)
-    return code
-
-
 def parse(command):
     """The tool's own parser's reading of ``command`` (SystemExit if it refuses it)."""
     words = shlex.split(command)
@@ -72,7 +52,7 @@ def parse(command):
 
 def test_one_or_two_screens_with_a_picture_first():
     lines = text().splitlines()
-    assert len(lines) <= 150
+    assert len(lines) <= 170
     first = "\n".join(lines[:30])
     assert re.search(r"<img src=|!\[", first)
 
@@ -123,51 +103,3 @@ def test_too_long_commands_are_listed():
         script = shlex.split(c)[1]
         if script in TOO_LONG:
             assert TOO_LONG[script]
-
-
-@pytest.fixture
-def workdir(tmp_path, small_manifold):
-    """A folder holding ``out/manifold.npz`` (a small manifold of the test database) and the
-    environment that imports this checkout."""
-    os.makedirs(tmp_path / "out")
-    shutil.copy(small_manifold, tmp_path / "out" / "manifold.npz")
-    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return tmp_path, env
-
-
-@pytest.mark.render
-def test_basis_and_blend_commands_run(workdir):
-    cwd, env = workdir
-    commands = [c for c in tool_commands() if "render_basis.py" in c or "blend.py" in c]
-    assert len(commands) == 3
-    for c in commands:
-        words = shlex.split(small(c))
-        subprocess.run(
-            [sys.executable, os.path.join(ROOT, words[1])] + words[2:],
-            cwd=cwd,
-            env=env,
-            check=True,
-            capture_output=True,
-        )
-    assert (cwd / "gold.png").stat().st_size > 0
-    assert list(cwd.glob("walk*.exr"))
-
-
-@pytest.mark.render
-@pytest.mark.parametrize("index", [0, 1])
-def test_python_snippets_run(workdir, index):
-    cwd, env = workdir
-    snippets = blocks("python")
-    assert len(snippets) == 2
-    r = subprocess.run(
-        [sys.executable, "-c", small(snippets[index])],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-    )
-    assert r.returncode == 0, r.stderr[-2000:]
-    if index == 0:
-        assert (cwd / "ball.png").stat().st_size > 0
-    else:
-        assert "found" in r.stdout

@@ -15,7 +15,8 @@ DOCS = os.path.join(ROOT, "docs")
 sys.path[:0] = [DOCS, os.path.join(DOCS, "_ext")]
 import clidoc  # noqa: E402
 import gallery  # noqa: E402  (docs/gallery.py: the tutorials' order)
-from test_docs_readme import SMALLER, parse  # noqa: E402
+from test_docs_blocks import small  # noqa: E402
+from test_docs_readme import parse  # noqa: E402
 
 #: Each tutorial's page and the images it writes.
 PAGES = {
@@ -89,9 +90,7 @@ def test_tutorials_run_in_order_and_their_commands_too(tmp_path):
     ]
     assert commands
     for c in commands:
-        for big, little in SMALLER + [("--spp 128", "--spp 4")]:
-            c = c.replace(big, little)
-        words = shlex.split(c)
+        words = shlex.split(small(c))
         r = subprocess.run(
             [sys.executable, os.path.join(ROOT, words[1])] + words[2:],
             cwd=tmp_path,
