@@ -401,3 +401,18 @@ def test_test_files_have_unique_names():
             if f.startswith("test_") and f.endswith(".py"):
                 names.setdefault(f, []).append(os.path.relpath(os.path.join(folder, f), tests))
     assert not {k: v for k, v in names.items() if len(v) > 1}
+
+
+def test_nothing_beside_the_checkout_is_read():
+    """The package and its tests never read a folder beside the checkout (``../shared``): a
+    user's clone has nothing beside it (``.ci/run`` runs the suite in such a clone)."""
+    pattern = re.compile(
+        r"""\.\./shared|/work/shared|["']\.\.["'],\s*["']\.\.["'],\s*["']\.\.["']"""
+    )
+    for top in ("mitsuba_manifold", "tests", "tools"):
+        for folder, _, files in os.walk(os.path.join(ROOT, top)):
+            for f in files:
+                if f.endswith(".py"):
+                    path = os.path.join(folder, f)
+                    if path != os.path.abspath(__file__):  # this test names what it looks for
+                        assert not pattern.search(open(path, encoding="utf-8").read()), path

@@ -10,6 +10,9 @@ process that imports this checkout:
 - ``xml``: loaded with ``mi.load_string`` (``version`` added to its root element); a block
   marked ``<!-- file: NAME -->`` is written to ``NAME`` instead, for a later block to use.
 
+A basis render (``tools/render_basis.py``) that another page ran with the same arguments is
+copied from that page's folder instead of rendered again (the same command on the same inputs).
+
 Sizes are made small by rewriting sample counts, resolutions, step and iteration counts
 (:data:`SMALLER`); nothing else of a block changes. A block preceded by
 ``<!-- not run: REASON -->`` is skipped, and :data:`MAX_NOT_RUN` bounds how many may be.
@@ -19,6 +22,7 @@ import glob
 import os
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 
@@ -80,6 +84,10 @@ def commands(code):
     return [ln.split(" #")[0].strip() for ln in joined.splitlines() if ln.split(" #")[0].strip()]
 
 
+#: Basis renders already run: their arguments -> the folder they wrote.
+_RENDERED = {}
+
+
 def _run(argv, cwd, what):
     env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
     r = subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, check=False)
@@ -100,7 +108,14 @@ def run_block(lang, code, work, what):
                 f"{what}: only python3 tools/*.py and docs/tutorials/*.py commands run here, "
                 f"got {c!r}: mark the block <!-- not run: REASON -->"
             )
+            out = words[words.index("--out") + 1] if "--out" in words else None
+            key = tuple(words) if words[1] == "tools/render_basis.py" and out else None
+            if key in _RENDERED and os.path.isdir(_RENDERED[key]):
+                shutil.copytree(_RENDERED[key], os.path.join(work, out))
+                continue
             _run([sys.executable, os.path.join(ROOT, words[1])] + words[2:], work, f"{what}: {c}")
+            if key:
+                _RENDERED[key] = os.path.join(work, out)
     else:
         xml = re.sub(r"^(\s*<\w+)", r'\1 version="3.0.0"', code, count=1)
         script = (

@@ -48,6 +48,15 @@ def test_setup_installs_the_docs_extra_and_ci_builds_with_warnings_as_errors():
     assert re.search(r"python3 -m sphinx -W .*docs docs/_build/html", ci)
 
 
+def test_ci_runs_the_suite_in_a_clone_with_nothing_beside_it():
+    """The suite runs from ``git clone`` of the checkout into a fresh temporary folder, so a file
+    beside the checkout or left untracked in it cannot make it pass."""
+    ci = open(os.path.join(ROOT, ".ci", "run"), encoding="utf-8").read()
+    clone = ci.index('git clone -q "$PWD" "$tmp/mitsuba-manifold"')
+    assert 'tmp="$(mktemp -d)"' in ci and ci.index('cd "$tmp/mitsuba-manifold"') > clone
+    assert ci.rindex("python3 -m pytest -q") > clone
+
+
 def test_explorer_without_its_extra_names_it(monkeypatch, capsys):
     from mitsuba_manifold.apps.cli import explore
 
