@@ -2,13 +2,16 @@
 unclamped midpoint whose ends differ most in colour (CIELAB of their albedos)."""
 
 import numpy as np
+import pytest
 
 from mitsuba_manifold import Manifold
-from mitsuba_manifold.apps.gi_comparison import gi_pair
 from mitsuba_manifold.manifold.appearance import lab
 
 
+@pytest.mark.render  # the GI comparison's module imports the rendering subsystem
 def test_the_pair_is_the_most_colourful_admissible_neighbour_pair():
+    from mitsuba_manifold.apps.gi_comparison import gi_pair
+
     m = Manifold.load("merl")
     a, b = gi_pair(m)
     i, j = m.index(a), m.index(b)

@@ -77,3 +77,19 @@ def test_the_plugin_and_the_tools_take_a_shipped_name(tmp_path, variant):
         check=False,
     )
     assert r.returncode == 0 and "nearest training material notebook" in r.stdout, r.stderr
+
+
+def test_build_manifolds_refits_a_shipped_manifold_byte_for_byte(tmp_path):
+    """tools/build_manifolds.py writes the default fit of a set; twice the same bytes (no wall
+    times, fixed archive dates), and the points of the shipped file."""
+    from mitsuba_manifold.apps.cli import build_manifolds
+
+    for out in ("a", "b"):
+        build_manifolds.main(["--sets", "nielsen", "--out", str(tmp_path / out)])
+    a, b = (tmp_path / out / "nielsen.npz" for out in ("a", "b"))
+    assert a.read_bytes() == b.read_bytes()
+    m = Manifold.load(a)
+    assert m.record.timings.fit_s is None and m.n == 8
+    np.testing.assert_allclose(m.latent, Manifold.load("nielsen").latent, atol=1e-4)
+    with pytest.raises(SystemExit):
+        build_manifolds.main(["--sets", "sgd", "--out", str(tmp_path / "c")])
