@@ -2,6 +2,10 @@
 to ``benchmarks/results/``): one module per benchmark, each with
 ``run(folder, ...)`` returning a JSON-ready dict of measurements.
 
+A module may define ``report(result) -> str``: its section of ``docs/benchmarks.md`` (a short
+Markdown table; ``result`` is its JSON file's content), which :mod:`.page` generates from
+``benchmarks/results/*.json`` (``python3 -m benchmarks.page``).
+
 Timings are wall-clock medians over repeats on the machine that runs them
 (:func:`common.machine` records which one). Targets are reported beside the numbers
 (``*_target`` and ``meets_*`` fields), never asserted. Benchmarks use the library (and

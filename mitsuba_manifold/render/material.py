@@ -72,8 +72,9 @@ def resolve(path, what):
         if what == "manifold file" and path.partition("@")[0] in SET_NAMES:
             raise InputError(
                 f"{PLUGIN_NAME}: {what} '{path}' not found; '{path}' is a built-in database, not "
-                f"a manifold: fit one first (python3 tools/fit_manifold.py {path} --out "
-                f"{path.partition('@')[0]}.npz, or mitsuba-manifold fit ...) and name that file"
+                f"a manifold: name a shipped manifold ({', '.join(SHIPPED)}), or fit one "
+                f"(python3 tools/fit_manifold.py {path} --out {path.partition('@')[0]}.npz) and "
+                "name that file"
             )
         raise InputError(f"{PLUGIN_NAME}: {what} '{path}' not found (searched {where})")
     return found

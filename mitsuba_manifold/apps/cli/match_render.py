@@ -35,7 +35,10 @@ def _parser():
         aliases={"manifold_path": "manifold", "views": "target"},
     )
     p.add_argument(
-        "--manifold", required=True, help="the manifold (.npz) of the scenes' manifold_brdf"
+        "--manifold",
+        required=True,
+        help="the manifold (.npz, or a shipped one by name: merl, rgl, nielsen, all) of the "
+        "scenes' manifold_brdf",
     )
     p.add_argument(
         "--scene",

@@ -37,7 +37,11 @@ def main(argv=None):
         help="material: .binary, .bsdf, .h5 or .npz file, or SET:NAME of a built-in database "
         "(e.g. rgl:paper_white)",
     )
-    p.add_argument("--manifold", required=True, help="saved manifold (.npz)")
+    p.add_argument(
+        "--manifold",
+        required=True,
+        help="saved manifold (.npz), or a shipped one by name (merl, rgl, nielsen, all)",
+    )
     p.add_argument(
         "--database",
         default=None,

@@ -84,7 +84,10 @@ def main(argv=None):
         "name of a shipped scene (table, sphere, cbox)",
     )
     p.add_argument(
-        "--manifold", default="out/manifold.npz", help="saved manifold (default out/manifold.npz)"
+        "--manifold",
+        default="merl",
+        help="saved manifold (.npz), or a shipped one by name (default merl: the shipped "
+        "manifold of the 100 MERL materials; the main job's is out/manifold.npz)",
     )
     p.add_argument(
         "--spp",
