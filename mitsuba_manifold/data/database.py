@@ -402,36 +402,61 @@ def builtin_cache():
     return folder
 
 
-def made_table(cache_dir, digest, build, shape, out=None):
+def finite_table(table, what):
+    """``table`` as float32, or a :class:`FormatError` naming ``what`` (the material and where it
+    comes from) when it holds NaN or Inf values: nothing is cached from it.
+    """
+    table = np.asarray(table, dtype=np.float32)
+    if not np.isfinite(table).all():
+        bad = int(np.size(table) - np.count_nonzero(np.isfinite(table)))
+        raise FormatError(
+            f"{what}: its table has {bad} NaN or Inf values (of {table.size}); the source is "
+            "damaged or not a reflectance table: replace it, or leave the material out"
+        )
+    return table
+
+
+def made_table(cache_dir, digest, build, shape, out=None, what="table"):
     """A table made from a source (not a file), cached as ``<digest>.refl16.npy`` (:data:`MADE_DTYPE`)
     or, where its values exceed that range, ``<digest>.refl.npy`` (float32); returned as float32, as cached
     (rounded to the cache's precision when just made).
 
     ``out``: a float32 array of the table's size to fill (and return, in ``shape``) instead of
-    a new array; a cached half-precision table is then read straight into it.
+    a new array; a cached half-precision table is then read straight into it. A cache file
+    whose checksum or values are wrong is reported (one line naming it) and made again
+    (:func:`~.._util.cache.npy_cache`); a table with NaN or Inf values is refused, naming
+    ``what`` (:func:`finite_table`).
     """
     half = os.path.join(cache_dir, f"{digest}.refl16.npy")
     full = os.path.join(cache_dir, f"{digest}.refl.npy")
     if out is not None:
-        if not os.path.exists(full) and read_npy_into(half, out, shape=shape, dtype=MADE_DTYPE):
+        if not os.path.exists(full) and read_npy_into(  # a damaged file: said by npy_cache below
+            half, out, shape=shape, dtype=MADE_DTYPE, finite=True, on_rebuild=None
+        ):
             return out.reshape(shape)
-        np.copyto(out, made_table(cache_dir, digest, build, shape).reshape(out.shape))
+        np.copyto(out, made_table(cache_dir, digest, build, shape, what=what).reshape(out.shape))
         return out.reshape(shape)
+
+    def build_full():
+        return finite_table(build(), what)
+
     if os.path.exists(full):
-        return npy_cache(full, build, shape=shape, dtype=np.float32, mmap=True)
+        return npy_cache(full, build_full, shape=shape, dtype=np.float32, mmap=True, finite=True)
     made = []
 
     def build_half():
-        table = np.asarray(build(), dtype=np.float32)
+        table = build_full()
         made.append(table)
         if not np.all(np.abs(table) <= np.finfo(MADE_DTYPE).max):
             raise OverflowError
         return table.astype(MADE_DTYPE)
 
     try:
-        value = npy_cache(half, build_half, shape=shape, dtype=MADE_DTYPE)
+        value = npy_cache(half, build_half, shape=shape, dtype=MADE_DTYPE, finite=True)
     except OverflowError:
-        return npy_cache(full, lambda: made[0], shape=shape, dtype=np.float32, mmap=True)
+        return npy_cache(
+            full, lambda: made[0], shape=shape, dtype=np.float32, mmap=True, finite=True
+        )
     return value.astype(
         np.float32
     )  # the cached precision, also when just made: the same values every run
@@ -717,20 +742,24 @@ class Database:
         source = self.sources[name]
         shape = (3,) + tuple(self.dims)
         digest = self.hash(name)
+        what = f"material {name!r} ({source.origin})"
         if source.kind == "binary":
             cached = os.path.join(self.cache_dir, f"{digest}.refl.npy")
             table = npy_cache(
                 cached,
-                lambda: source.table(self.dims),
+                lambda: finite_table(source.table(self.dims), what),
                 shape=shape,
                 dtype=np.float32,
                 mmap=mmap or out is not None,
+                finite=True,
             )
             if out is None:
                 return table
             np.copyto(out, table.reshape(out.shape))
             return out.reshape(shape)
-        return made_table(self.cache_dir, digest, lambda: source.table(self.dims), shape, out=out)
+        return made_table(
+            self.cache_dir, digest, lambda: source.table(self.dims), shape, out=out, what=what
+        )
 
     def stack(self, names=None, progress=False):
         """Tables of ``names`` as one float32 matrix ``(N, d)``, rows = RGB-concatenated tables

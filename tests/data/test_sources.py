@@ -376,3 +376,55 @@ def test_a_folder_given_as_a_material_file_says_it_is_a_folder(tmp_path, capsys)
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and f"--add {folder}: material {folder} is a folder" in err
     assert not (tmp_path / "m.npz").exists()
+
+
+def _damage(path, change, reseal=False):
+    """Rewrite the array of a cache file in place, its header and checksum trailer kept (what a
+    bad disk or an editor leaves: a valid ``.npy`` of the right shape); ``reseal``: with a
+    checksum of the new bytes (what a writer of bad values would leave)."""
+    from mitsuba_manifold._util import cache
+
+    data = bytearray(open(path, "rb").read())
+    value = np.load(path)
+    start = len(data) - cache.TRAILER_SIZE - value.nbytes
+    data[start : start + value.nbytes] = change(value).astype(value.dtype).tobytes()
+    if reseal:
+        data = data[: -cache.TRAILER_SIZE]
+    open(path, "wb").write(bytes(data))
+    if reseal:
+        cache.seal(path)
+
+
+@pytest.mark.parametrize("damage", ["doubled", "nan"])
+def test_a_damaged_table_cache_is_found_made_again_and_named(tmp_path, caplog, damage):
+    """A cached table whose values changed on disk (doubled: a valid float16 array of the right
+    shape; or NaN) is never used: every reader (the whole table, the rows of a stack) makes it
+    again, and one line names the file."""
+    names = ["bluebook", "glossyredpaper"]
+    db = Database("nielsen@8x8x16")
+    ref = db.stack(names).copy()
+    path = tmp_path / "cache" / "builtin" / (db.hash("glossyredpaper") + ".refl16.npy")
+    change = (lambda v: 2 * v) if damage == "doubled" else (lambda v: np.where(v > 0, np.nan, v))
+    for read in (lambda d: d.stack(names), lambda d: np.stack([d.reflectance(n) for n in names])):
+        _damage(path, change, reseal=damage == "nan")
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="mitsuba_manifold"):
+            got = read(Database("nielsen@8x8x16"))
+        assert np.array_equal(got.reshape(ref.shape), ref)
+        lines = [r.getMessage() for r in caplog.records]
+        assert len(lines) == 1 and str(path) in lines[0], lines
+        assert ("checksum" if damage == "doubled" else "NaN") in lines[0]
+        assert np.array_equal(np.load(path).astype(np.float32).reshape(-1), ref[1])
+
+
+def test_a_source_whose_table_is_not_finite_is_refused_naming_the_material(tmp_path, monkeypatch):
+    db = Database("nielsen@8x8x16")
+    source = db.sources["bluebook"]
+    monkeypatch.setattr(
+        type(source), "table", lambda self, dims: np.full((3,) + tuple(dims), np.nan, np.float32)
+    )
+    with pytest.raises(FormatError) as info:
+        db.reflectance("bluebook")
+    message = str(info.value)
+    assert "'bluebook'" in message and "NaN" in message and "\n" not in message
+    assert not os.listdir(tmp_path / "cache" / "builtin")  # nothing cached from it
