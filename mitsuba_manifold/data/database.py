@@ -36,7 +36,7 @@ from .._util.workers import owned_pool
 from ..errors import FormatError, InputError, MissingFileError, UnknownMaterialError, did_you_mean
 from . import gram as gram_matrix
 from . import merl
-from .sources import SET_NAMES, builtin, combine, folder_sources
+from .sources import BUILTIN_PREFIX, SET_NAMES, builtin, builtin_set, combine, folder_sources
 from .surrogate import (
     FITS_PATH,
     SGD_FIELDS,
@@ -59,6 +59,8 @@ __all__ = [
     "open_spec",
     "split_spec",
     "database_cache",
+    "canonical_spec",
+    "recorded_spec",
     "builtin_cache",
     "MADE_DTYPE",
     "FITS_PATH",
@@ -192,7 +194,10 @@ def write_database(
     dims = merl.table_resolution(dims, "`dims`")
     out_dir = os.path.abspath(os.fspath(out_dir))
     sets = tuple(
-        s if s in SET_NAMES else os.path.abspath(os.fspath(s)) for s in dict.fromkeys(sources)
+        dict.fromkeys(
+            builtin_set(s, what="source") or os.path.abspath(os.fspath(s))
+            for s in dict.fromkeys(sources)
+        )
     )
     if not sets:
         raise InputError(
@@ -532,12 +537,14 @@ def split_spec(spec):
     return spec, None
 
 
-def open_spec(spec, dims=None):
+def open_spec(spec, dims=None, recorded=False):
     """The sources of a database: a built-in set's name or a folder, with an optional ``@dims``.
 
-    A bare built-in name (``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``) always means the set;
-    a folder of that name is given as a path (``./merl``). Raises one-line errors naming the
-    spec: no such set or folder, files that cannot be read, names given twice.
+    Names are read by :func:`~.sources.builtin_set`: ``builtin:merl`` is the set, a bare built-in
+    name (``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``) is the set unless a file or folder of
+    that name exists in the current folder (then refused as ambiguous, naming both: ``./merl``
+    is the folder), except where ``recorded`` (a manifold's record). Raises one-line errors
+    naming the spec: no such set or folder, files that cannot be read, names given twice.
     """
     base, suffix = split_spec(spec)
     if dims is not None and suffix is not None and tuple(dims) != suffix:
@@ -545,6 +552,7 @@ def open_spec(spec, dims=None):
             f"database {spec}: its resolution suffix and `dims` {_size(dims)} differ; give one"
         )
     dims = tuple(int(v) for v in dims) if dims is not None else suffix
+    base = builtin_set(base, recorded=recorded) or base
     if base in SET_NAMES:
         dims = merl.table_resolution(dims or merl.MERL_DIMS, f"database {spec}: resolution")
         key = base if dims == merl.MERL_DIMS else f"{base}@{_size(dims)}"
@@ -580,12 +588,33 @@ def open_spec(spec, dims=None):
     return DatabaseSpec(key, folder, tuple(found), dims, folder)
 
 
+def recorded_spec(spec):
+    """A database spec as this package records it (a manifold's ``database``: a set's name or an
+    absolute folder, with ``@dims``), written so that it opens as what was recorded whatever
+    the current folder holds: a set's name as ``builtin:NAME`` (:func:`~.sources.builtin_set`).
+    """
+    spec = os.fspath(spec)
+    base, _ = split_spec(spec)
+    return BUILTIN_PREFIX + spec if base in SET_NAMES else spec
+
+
+def canonical_spec(spec, what="database"):
+    """The spec a user gave (``merl``, ``builtin:merl@45x45x90``, ``./merl``, ``tables``) as a
+    manifold records it: the set's name, or the folder's absolute path, with its ``@dims``
+    suffix; an ambiguous name is refused (:func:`~.sources.builtin_set`).
+    """
+    base, suffix = split_spec(spec)
+    name = builtin_set(base, what=what)
+    out = name if name is not None else os.path.abspath(base)
+    return out if suffix is None else f"{out}@{_size(suffix)}"
+
+
 def database_cache(spec):
     """The cache folder of the database ``spec`` (as a manifold records it), or None when it is
     a folder that is gone (creating it would make an empty database folder).
     """
     base, _ = split_spec(spec)
-    if base in SET_NAMES:
+    if builtin_set(base, recorded=True) is not None:
         return builtin_cache()
     if not os.path.isdir(base):
         return None
@@ -614,8 +643,10 @@ class Database:
     folder : str or path
         What :func:`open_spec` reads: a folder (its ``.binary``, ``.bsdf``, ``.h5`` + ``.json``
         and ``.npz`` files, plus the sets and folders its ``sources.json`` names), or a built-in
-        set's name (:data:`sources.BUILTIN`: ``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``);
-        either with an optional resolution suffix ``@NHxNDxNP`` (``merl@45x45x90``).
+        set's name (:data:`sources.BUILTIN`: ``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``;
+        ``builtin:merl`` always the set, a bare ``merl`` refused as ambiguous where the current
+        folder holds a ``merl``: :func:`~.sources.builtin_set`); either with an optional
+        resolution suffix ``@NHxNDxNP`` (``merl@45x45x90``).
     names : list of str, optional
         Materials to use, in this order (default: every material, sorted for folders and in
         the set's order for built-in sets).

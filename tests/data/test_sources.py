@@ -428,3 +428,48 @@ def test_a_source_whose_table_is_not_finite_is_refused_naming_the_material(tmp_p
     message = str(info.value)
     assert "'bluebook'" in message and "NaN" in message and "\n" not in message
     assert not os.listdir(tmp_path / "cache" / "builtin")  # nothing cached from it
+
+
+def test_a_folder_named_like_a_builtin_set_is_never_silently_replaced_by_it(
+    tmp_path, monkeypatch, capsys
+):
+    """``rgl`` in a folder holding ``rgl/``: refused, naming both and how to say each (``./rgl``,
+    ``builtin:rgl``), by the library and by the tools; a manifold recorded on the set still opens
+    its set there (what it recorded is no user's name)."""
+    from mitsuba_manifold.apps.cli import fit_manifold
+    from mitsuba_manifold.manifold.model import Manifold
+
+    work = tmp_path / "work"
+    (work / "rgl").mkdir(parents=True)
+    merl.write_binary(work / "rgl" / "mine.binary", np.full((3, 8, 8, 16), 0.01))
+    monkeypatch.chdir(work)
+    for spec in ("rgl", "rgl@8x8x16"):
+        with pytest.raises(InputError) as info:
+            Database(spec)
+        message = str(info.value)
+        assert "ambiguous" in message and str(work / "rgl") in message, message
+        assert "./rgl" in message and "builtin:rgl" in message and "\n" not in message
+    assert Database("./rgl").names == ["mine"]
+    assert Database(str(work / "rgl")).names == ["mine"]
+    assert len(Database("builtin:rgl@8x8x16").names) == 51
+    assert Database("builtin:rgl@8x8x16").folder == "rgl@8x8x16"  # recorded as the set's name
+    with pytest.raises(InputError, match="no built-in set 'merl2'"):
+        Database("builtin:merl2")
+    with pytest.raises(InputError, match="ambiguous"):
+        write_database(tmp_path / "out", ["rgl", "nielsen"])
+    with pytest.raises(SystemExit):
+        fit_manifold.main(["rgl@8x8x16", "--out", str(tmp_path / "m.npz")])
+    err = capsys.readouterr().err
+    assert "ambiguous" in err and "builtin:rgl" in err and not (tmp_path / "m.npz").exists()
+
+    monkeypatch.chdir(tmp_path)
+    m = Manifold.fit(
+        "nielsen@8x8x16", q=2, stress=0.0, method="hooke-jeeves", preset="paper"
+    )  # recorded "nielsen@8x8x16"
+    m.save(tmp_path / "n.npz")
+    (work / "nielsen").mkdir()
+    monkeypatch.chdir(work)
+    m = Manifold.load(tmp_path / "n.npz")
+    assert m.database == "nielsen@8x8x16"
+    assert m.tables().shape[0] == 8 and m.open_database().names == m.names
+    assert m.combine(np.full(8, 1 / 8), prune=0.0)[0].shape == (3, 8, 8, 16)
