@@ -501,9 +501,10 @@ class SourceList:
             if data.get("format") != cls.FORMAT:
                 raise ValueError(f"format is {data.get('format')!r}, not {cls.FORMAT!r}")
             return cls(tuple(data["from"]), tuple(int(v) for v in data["dims"])).check(path)
-        except (OSError, ValueError, KeyError, TypeError) as e:
+        except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:
+            why = "nested too deeply" if isinstance(e, RecursionError) else e
             raise FormatError(
-                f"{path}: not a database's source list ({e}); remake it with tools/make_database.py"
+                f"{path}: not a database's source list ({why}); remake it with tools/make_database.py"
             ) from None
 
     def write(self, path):

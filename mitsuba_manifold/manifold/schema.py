@@ -295,6 +295,10 @@ def read_meta(path, zf):
         return json.loads(str(text))
     except ValueError as e:
         raise _refuse(path, "meta", f"is not JSON ({e})", "entry") from None
+    except RecursionError:
+        raise _refuse(
+            path, "meta", "is JSON nested too deeply to be a manifold's", "entry"
+        ) from None
 
 
 def _shape_check(field, n, q):
