@@ -253,9 +253,10 @@ def read_npy_into(path, out, *, shape, dtype, finite=False, on_rebuild=report_re
                 if f.readinto(view) != view.nbytes:
                     return False
                 crc = zlib.crc32(view, crc)
-                if finite and why is None and not np.isfinite(part).all():
+                dest = flat[start : start + part.size]
+                dest[...] = part
+                if finite and why is None and not np.isfinite(dest).all():
                     why = "it holds NaN or Inf values"
-                flat[start : start + part.size] = part
             trailer = f.read(TRAILER_SIZE + 1)
     except (OSError, ValueError):
         return False

@@ -435,8 +435,10 @@ def made_table(cache_dir, digest, build, shape, out=None, what="table"):
     half = os.path.join(cache_dir, f"{digest}.refl16.npy")
     full = os.path.join(cache_dir, f"{digest}.refl.npy")
     if out is not None:
-        if not os.path.exists(full) and read_npy_into(  # a damaged file: said by npy_cache below
-            half, out, shape=shape, dtype=MADE_DTYPE, finite=True, on_rebuild=None
+        # the checksum alone (the writers refuse NaN and Inf: a sealed file holds none unless its
+        # bytes changed since); a damaged file is said by npy_cache below as it is made again
+        if not os.path.exists(full) and read_npy_into(
+            half, out, shape=shape, dtype=MADE_DTYPE, on_rebuild=None
         ):
             return out.reshape(shape)
         np.copyto(out, made_table(cache_dir, digest, build, shape, what=what).reshape(out.shape))
