@@ -12,14 +12,15 @@ arrays (reflectance tables, interleaved table rows, sampling densities, mixture
 tables): load the file if it exists and has the expected shape, dtype and values,
 otherwise build it, write it atomically, and keep only the newest few of its kind.
 
-Every cached ``.npy`` file ends with a checksum of its bytes (:func:`seal`: a 16-byte trailer,
-:data:`TRAILER_MAGIC` and the CRC-32 of all the bytes before it), written with the file and
-verified when it is read (:func:`verify`, once per file and process for memory-mapped files;
-:func:`read_npy_into` as it reads): NumPy ignores the bytes after an array, so the files stay
-plain ``.npy`` files. A file whose checksum does not match (damaged on disk, edited) is made
-again, and the rebuild is reported in one line naming the file (:func:`report_rebuild`, on the
-``mitsuba_manifold`` logger); a file without a checksum (written by an earlier version, or by
-another program) is made again without a word.
+Every cached ``.npy`` file ends with a checksum (:func:`seal`: a 16-byte trailer,
+:data:`TRAILER_MAGIC` and the CRC-32 of the file's name and of all its bytes before the
+trailer), written with the file and verified when it is read (:func:`verify`, once per file
+and process for memory-mapped files; :func:`read_npy_into` as it reads): NumPy ignores the
+bytes after an array, so the files stay plain ``.npy`` files. A file whose checksum does not
+match (damaged on disk, edited, or another cache file copied over it: the name is part of
+the checksum) is made again, and the rebuild is reported in one line naming the file
+(:func:`report_rebuild`, on the ``mitsuba_manifold`` logger); a file without a checksum
+(written by an earlier version, or by another program) is made again without a word.
 """
 
 import hashlib
@@ -103,22 +104,31 @@ def _trailer(crc):
     return TRAILER_MAGIC + int(crc).to_bytes(8, "little")
 
 
-def seal(path):
-    """Append the checksum trailer (see the module notes) to the ``.npy`` file ``path`` just written."""
-    crc = 0
+def _start(path):
+    """The CRC-32 of the file's name: where a file's checksum starts, so that it is bound to
+    the name the cache finds it by (another cache file copied over it does not match).
+    """
+    return zlib.crc32(os.path.basename(os.fspath(path)).encode())
+
+
+def seal(path, name=None):
+    """Append the checksum trailer (see the module notes) to the ``.npy`` file ``path`` just
+    written, for the name ``name`` (default ``path``: the file's name once in place).
+    """
+    crc = _start(path if name is None else name)
     with open(path, "r+b") as f:
         for chunk in iter(lambda: f.read(_BLOCK), b""):
             crc = zlib.crc32(chunk, crc)
         f.write(_trailer(crc))
 
 
-def write_npy(path, value):
-    """``np.save(path, value)`` and its checksum trailer (:func:`seal`), not atomically (a cache's
-    writer inside :func:`atomic_replace`, or a test making a cache file).
+def write_npy(path, value, name=None):
+    """``np.save(path, value)`` and its checksum trailer (:func:`seal`, for ``name``), not
+    atomically (a cache's writer inside :func:`atomic_replace`, or a test making a cache file).
     """
     with open(path, "wb") as f:
         np.save(f, np.asarray(value), allow_pickle=False)
-    seal(path)
+    seal(path, name)
 
 
 #: What :func:`verify` finds.
@@ -138,7 +148,7 @@ def verify(path):
     size = key[3]
     if size < TRAILER_SIZE:
         return UNSEALED
-    crc, left = 0, size - TRAILER_SIZE
+    crc, left = _start(path), size - TRAILER_SIZE
     with open(path, "rb") as f:
         while left > 0:
             chunk = f.read(min(_BLOCK, left))
@@ -245,7 +255,7 @@ def read_npy_into(path, out, *, shape, dtype, finite=False, on_rebuild=report_re
                 return False
             start_of_data = f.tell()
             f.seek(0)
-            crc = zlib.crc32(f.read(start_of_data))
+            crc = zlib.crc32(f.read(start_of_data), _start(path))
             buf = np.empty(min(READ_CHUNK, flat.size), dtype=dtype)
             for start in range(0, flat.size, buf.size):
                 part = buf[: min(buf.size, flat.size - start)]
@@ -335,13 +345,13 @@ def npy_cache(
 
         def sealed(tmp):
             write(tmp)
-            seal(tmp)
+            seal(tmp, path)
 
         atomic_replace(path, sealed)
         value = None
     else:
         value = build()
-        atomic_replace(path, lambda tmp: write_npy(tmp, value))
+        atomic_replace(path, lambda tmp: write_npy(tmp, value, path))
     if eviction is not None:
         evict(os.path.dirname(os.path.abspath(path)), eviction.marker, eviction.keep)
     if value is None or mmap:

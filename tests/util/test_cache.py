@@ -178,3 +178,24 @@ def test_a_full_disk_while_numpy_writes_says_no_space_left(tmp_path):
         atomic.atomic_replace(tmp_path / "t.refl16.npy", short)
     assert "no space left on the device" in str(e.value) and "Errno None" not in str(e.value)
     assert str(tmp_path / "t.refl16.npy") in str(e.value) and os.listdir(tmp_path) == []
+
+
+def test_a_cache_file_copied_over_another_is_not_taken_for_it(tmp_path, caplog):
+    """Two cache files of one shape (two materials' tables): one copied over the other is a
+    valid array with a valid checksum of its own bytes, and still not the file asked for."""
+    a, b = str(tmp_path / "a.refl16.npy"), str(tmp_path / "b.refl16.npy")
+    ta, tb = np.zeros((2, 3), np.float16), np.ones((2, 3), np.float16)
+    cache.npy_cache(a, lambda: ta, shape=(2, 3), dtype=np.float16)
+    cache.npy_cache(b, lambda: tb, shape=(2, 3), dtype=np.float16)
+    with open(a, "rb") as f:
+        data = f.read()
+    with open(b, "wb") as f:
+        f.write(data)
+    assert cache.verify(a) == cache.SEALED and cache.verify(b) == cache.DAMAGED
+    with caplog.at_level("WARNING", logger="mitsuba_manifold"):
+        got = cache.npy_cache(b, lambda: tb, shape=(2, 3), dtype=np.float16)
+    assert np.array_equal(got, tb) and len(caplog.records) == 1 and b in caplog.text
+    with open(b, "wb") as f:
+        f.write(data)
+    out = np.zeros(6, np.float32)
+    assert not cache.read_npy_into(b, out, shape=(2, 3), dtype=np.float16, on_rebuild=None)
