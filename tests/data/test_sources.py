@@ -464,6 +464,12 @@ def test_a_folder_named_like_a_builtin_set_is_never_silently_replaced_by_it(
         fit_manifold.main(["rgl@8x8x16", "--out", str(tmp_path / "m.npz")])
     err = capsys.readouterr().err
     assert "ambiguous" in err and "builtin:rgl" in err and not (tmp_path / "m.npz").exists()
+    from mitsuba_manifold.apps.cli import make_database
+
+    (work / "sgd").mkdir()  # the noisy copies of the SGD set are made from the set only
+    with pytest.raises(SystemExit):
+        make_database.main(["--out", str(tmp_path / "noisy"), "--from", "sgd", "--noise", "0.1"])
+    assert "ambiguous" in capsys.readouterr().err and not (tmp_path / "noisy").exists()
 
     monkeypatch.chdir(tmp_path)
     m = Manifold.fit(
