@@ -531,12 +531,23 @@ class DatabaseSpec:
         return cache_folder(self.directory) if self.directory else builtin_cache()
 
 
-def split_spec(spec):
-    """``(base, dims or None)`` of a database spec ``base[@NHxNDxNP]`` (an existing path is taken whole)."""
+def split_spec(spec, recorded=True):
+    """``(base, dims or None)`` of a database spec ``base[@NHxNDxNP]`` (an existing path is taken
+    whole). Unless ``recorded``, a path that exists and also reads as a set at a resolution
+    (a folder ``merl@45x45x90``) is refused as ambiguous, as :func:`~.sources.builtin_set` does.
+    """
     spec = os.fspath(spec)
     m = _SPEC_DIMS.match(spec)
     if m and not os.path.exists(spec):
         return m.group("base"), (int(m.group("h")), int(m.group("d")), int(m.group("p")))
+    if m and not recorded and m.group("base") in SET_NAMES:
+        base = m.group("base")
+        raise InputError(
+            f"database {spec!r} is ambiguous: the built-in set {base} at "
+            f"{m.group('h')}x{m.group('d')}x{m.group('p')} and the "
+            f"{'folder' if os.path.isdir(spec) else 'file'} {os.path.abspath(spec)}; say ./{spec} "
+            f"for the {'folder' if os.path.isdir(spec) else 'file'} or {BUILTIN_PREFIX}{spec} for the set"
+        )
     return spec, None
 
 
@@ -549,7 +560,7 @@ def open_spec(spec, dims=None, recorded=False):
     is the folder), except where ``recorded`` (a manifold's record). Raises one-line errors
     naming the spec: no such set or folder, files that cannot be read, names given twice.
     """
-    base, suffix = split_spec(spec)
+    base, suffix = split_spec(spec, recorded=recorded)
     if dims is not None and suffix is not None and tuple(dims) != suffix:
         raise InputError(
             f"database {spec}: its resolution suffix and `dims` {_size(dims)} differ; give one"
@@ -606,7 +617,7 @@ def canonical_spec(spec, what="database"):
     manifold records it: the set's name, or the folder's absolute path, with its ``@dims``
     suffix; an ambiguous name is refused (:func:`~.sources.builtin_set`).
     """
-    base, suffix = split_spec(spec)
+    base, suffix = split_spec(spec, recorded=False)
     name = builtin_set(base, what=what)
     out = name if name is not None else os.path.abspath(base)
     return out if suffix is None else f"{out}@{_size(suffix)}"

@@ -458,6 +458,13 @@ def test_a_folder_named_like_a_builtin_set_is_never_silently_replaced_by_it(
     assert Database("builtin:rgl@8x8x16").folder == "rgl@8x8x16"  # recorded as the set's name
     with pytest.raises(InputError, match="no built-in set 'merl2'"):
         Database("builtin:merl2")
+    (work / "nielsen@8x8x16").mkdir()  # named like a set at a resolution: ambiguous too
+    with pytest.raises(InputError, match="ambiguous") as info:
+        Database("nielsen@8x8x16")
+    assert "./nielsen@8x8x16" in str(info.value) and "builtin:nielsen@8x8x16" in str(info.value)
+    with pytest.raises(FormatError, match="holds no tables"):
+        Database("./nielsen@8x8x16")
+    os.rmdir(work / "nielsen@8x8x16")
     with pytest.raises(InputError, match="ambiguous"):
         write_database(tmp_path / "out", ["rgl", "nielsen"])
     with pytest.raises(SystemExit):
