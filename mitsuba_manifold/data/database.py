@@ -399,11 +399,18 @@ def builtin_cache():
     """Cache folder of the built-in sets' tables: ``$MITSUBA_MANIFOLD_CACHE/builtin`` or
     ``~/.cache/mitsuba_manifold/builtin`` (created).
     """
-    root = os.environ.get(CACHE_ENV) or os.path.join(
-        os.path.expanduser("~"), ".cache", "mitsuba_manifold"
-    )
+    given = os.environ.get(CACHE_ENV)
+    root = given or os.path.join(os.path.expanduser("~"), ".cache", "mitsuba_manifold")
     folder = os.path.join(root, "builtin")
-    os.makedirs(folder, exist_ok=True)
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        where = f"${CACHE_ENV} ({root})" if given else root
+        raise OSError(
+            e.errno,
+            f"the cache of the built-in sets cannot be made in {where}: "
+            f"{e.strerror or e}; set {CACHE_ENV} to a folder that can be written",
+        ) from None
     return folder
 
 

@@ -489,3 +489,12 @@ def test_a_folder_named_like_a_builtin_set_is_never_silently_replaced_by_it(
     assert m.database == "nielsen@8x8x16"
     assert m.tables().shape[0] == 8 and m.open_database().names == m.names
     assert m.combine(np.full(8, 1 / 8), prune=0.0)[0].shape == (3, 8, 8, 16)
+
+
+def test_a_cache_variable_naming_a_file_says_which_variable(tmp_path, monkeypatch):
+    blocker = tmp_path / "afile"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("MITSUBA_MANIFOLD_CACHE", str(blocker))
+    with pytest.raises(OSError) as info:
+        Database("nielsen@8x8x16").reflectance("bluebook")
+    assert "$MITSUBA_MANIFOLD_CACHE" in str(info.value) and str(blocker) in str(info.value)
