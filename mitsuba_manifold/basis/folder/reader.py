@@ -372,21 +372,21 @@ class Basis:
             if h != self.manifest.manifold_hash:
                 where = os.path.abspath(path) if path is not None else "the manifold given"
                 what = (
-                    "the SHA-256 of its file, as a version-1 manifest records it"
+                    "its file's SHA-256 (what a version-1 manifest records)"
                     if self.version < 2
-                    else "its latent points, hyperparameters, materials or tables"
+                    else "its identity (latent points, hyperparameters, materials, tables)"
                 )
                 if where == os.path.abspath(self.manifest.manifold):
                     raise MismatchError(
                         f"basis {self.folder}: its manifold {where} is not the one it was rendered "
-                        f"with ({what} changed since: identity {h[:12]}, the manifest records "
-                        f"{self.manifest.manifold_hash[:12]}); render the basis again with it, or "
+                        f"with: {what} is {h[:12]}, the manifest records "
+                        f"{self.manifest.manifold_hash[:12]}; render the basis again with it, or "
                         "give the manifold it was rendered with"
                     )
                 raise MismatchError(
                     f"basis {self.folder} was rendered with another manifold: {self.manifest.manifold} "
                     f"(identity {self.manifest.manifold_hash[:12]}), not {where} (identity {h[:12]}: "
-                    f"{what} differ)"
+                    "other latent points, hyperparameters, materials or tables)"
                 )
         self._checked[key] = m
         return m
