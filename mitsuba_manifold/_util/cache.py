@@ -337,7 +337,9 @@ def npy_cache(
         value, why = _load_valid(path, shape, dtype, finite, mmap)
         if value is not None:
             if eviction is not None:
-                os.utime(path)
+                os.utime(path)  # a use; the file just verified stays verified under its new times
+                with _LOCK:
+                    _VERIFIED[file_identity(path)] = True
             return value
         if on_rebuild is not None and why is not None:
             on_rebuild(path, why)

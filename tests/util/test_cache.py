@@ -199,3 +199,24 @@ def test_a_cache_file_copied_over_another_is_not_taken_for_it(tmp_path, caplog):
         f.write(data)
     out = np.zeros(6, np.float32)
     assert not cache.read_npy_into(b, out, shape=(2, 3), dtype=np.float16, on_rebuild=None)
+
+
+def test_a_cache_hit_that_marks_a_use_is_not_verified_again(tmp_path, monkeypatch):
+    """An evicting cache marks each hit as a use (new file times): the file verified on that hit
+    is not read again for its checksum on the next (the interleaved rows are gigabytes); a
+    change of its bytes still is found."""
+    path = str(tmp_path / "k.rows-v1-2x16.npy")
+    kind = cache.Eviction(2, ".rows-v1-")
+    cache.npy_cache(path, lambda: np.ones(4, np.float32), shape=(4,), eviction=kind, mmap=True)
+    cache.npy_cache(path, lambda: np.ones(4, np.float32), shape=(4,), eviction=kind, mmap=True)
+    sums = []
+    real = cache.zlib.crc32
+    monkeypatch.setattr(cache.zlib, "crc32", lambda *a: sums.append(1) or real(*a))
+    for _ in range(3):
+        got = cache.npy_cache(path, lambda: np.zeros(4, np.float32), shape=(4,), eviction=kind)
+        assert got[0] == 1.0
+    assert not sums  # no checksum taken: verified once, kept verified
+    data = bytearray(open(path, "rb").read())
+    data[-cache.TRAILER_SIZE - 1] ^= 1  # one bit of the last value
+    open(path, "wb").write(bytes(data))
+    assert cache.npy_cache(path, lambda: np.zeros(4, np.float32), shape=(4,), eviction=kind)[0] == 0
