@@ -135,30 +135,39 @@ def write_npy(path, value, name=None):
 SEALED, UNSEALED, DAMAGED = "sealed", "unsealed", "damaged"
 
 
+def _verified_key(path):
+    """What a sealed result is memoised by: the name the file is found by (part of its checksum)
+    and the file's identity (:func:`file_identity`: a link and its target share one).
+    """
+    return (os.path.basename(path),) + file_identity(path)
+
+
 def verify(path):
-    """``SEALED`` when the file's checksum trailer matches its bytes, ``DAMAGED`` when it does not,
-    ``UNSEALED`` when the file has no trailer; a sealed result is memoised per file identity and
-    process (a file changed since is read again).
+    """``SEALED`` when the file's checksum trailer matches its name and bytes, ``DAMAGED`` when
+    it does not, ``UNSEALED`` when the file has no trailer; a sealed result is memoised per name,
+    file identity and process (a file changed since is read again).
     """
     path = os.fspath(path)
-    key = file_identity(path)
+    key = _verified_key(path)
     with _LOCK:
         if _VERIFIED.get(key):
             return SEALED
-    size = key[3]
+    size = key[4]
     if size < TRAILER_SIZE:
         return UNSEALED
     crc, left = _start(path), size - TRAILER_SIZE
     with open(path, "rb") as f:
+        f.seek(left)
+        trailer = f.read(TRAILER_SIZE)
+        if trailer[:8] != TRAILER_MAGIC:
+            return UNSEALED
+        f.seek(0)
         while left > 0:
             chunk = f.read(min(_BLOCK, left))
             if not chunk:
                 return DAMAGED
             crc = zlib.crc32(chunk, crc)
             left -= len(chunk)
-        trailer = f.read(TRAILER_SIZE)
-    if trailer[:8] != TRAILER_MAGIC:
-        return UNSEALED
     if trailer != _trailer(crc):
         return DAMAGED
     with _LOCK:
@@ -339,7 +348,7 @@ def npy_cache(
             if eviction is not None:
                 os.utime(path)  # a use; the file just verified stays verified under its new times
                 with _LOCK:
-                    _VERIFIED[file_identity(path)] = True
+                    _VERIFIED[_verified_key(path)] = True
             return value
         if on_rebuild is not None and why is not None:
             on_rebuild(path, why)

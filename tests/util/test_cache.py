@@ -220,3 +220,14 @@ def test_a_cache_hit_that_marks_a_use_is_not_verified_again(tmp_path, monkeypatc
     data[-cache.TRAILER_SIZE - 1] ^= 1  # one bit of the last value
     open(path, "wb").write(bytes(data))
     assert cache.npy_cache(path, lambda: np.zeros(4, np.float32), shape=(4,), eviction=kind)[0] == 0
+
+
+def test_a_link_to_another_cache_file_is_not_taken_for_it_even_once_its_target_was_read(tmp_path):
+    a, b = str(tmp_path / "a.refl.npy"), str(tmp_path / "b.refl.npy")
+    cache.npy_cache(a, lambda: np.zeros(3, np.float32), shape=(3,), mmap=True)
+    cache.npy_cache(a, lambda: np.zeros(3, np.float32), shape=(3,), mmap=True)  # verified
+    os.symlink(a, b)
+    assert cache.verify(a) == cache.SEALED and cache.verify(b) == cache.DAMAGED
+    got = cache.npy_cache(b, lambda: np.ones(3, np.float32), shape=(3,), mmap=True)
+    assert got[0] == 1.0 and not os.path.islink(b)
+    assert np.load(a)[0] == 0.0  # the link's target untouched
