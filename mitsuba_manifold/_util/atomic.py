@@ -219,11 +219,33 @@ def sweep(folder, force=False):
     return removed
 
 
+#: What NumPy says when ``tofile`` (``np.save`` to a file) writes less than it should, without an errno.
+_SHORT_WRITE = re.compile(r"\d+ requested and \d+ written")
+
+
+def _full(error, folder):
+    """True when ``error`` is a full disk: ``ENOSPC``, or an error without an errno (NumPy's short
+    write) while the file system of ``folder`` has no space left.
+    """
+    if error.errno == errno.ENOSPC:
+        return True
+    if error.errno is not None:
+        return False
+    try:
+        st = os.statvfs(folder)
+        empty = st.f_bavail == 0
+    except (OSError, AttributeError):
+        empty = False
+    return empty or bool(_SHORT_WRITE.search(str(error)))
+
+
 def _naming(error, path, folder):
     """``error`` (about the temporary file) as the same kind of OSError about ``path``, the
-    user's name: the temporary file is an implementation detail that no longer exists.
+    user's name: the temporary file is an implementation detail that no longer exists. A
+    full disk is said so, whoever noticed it (the OS, or NumPy writing less than it asked).
     """
-    why = error.strerror or type(error).__name__
+    why = error.strerror or (str(error) or type(error).__name__)
+    number = error.errno
     if not os.path.isdir(folder):
         why = f"its folder {folder} does not exist (create it, or choose another path)"
     elif error.errno == errno.ENAMETOOLONG:
@@ -231,9 +253,12 @@ def _naming(error, path, folder):
             f"its name is too long for the file system ({len(os.fsencode(os.path.basename(path)))} bytes, "
             f"at most {_name_max(folder)}): choose a shorter name"
         )
-    elif error.errno == errno.ENOSPC:
+    elif _full(error, folder):
         why = "no space left on the device (free some space, or choose another folder)"
-    return OSError(error.errno, f"cannot write {path}: {why}")
+        number = errno.ENOSPC
+    if number is None:
+        return OSError(f"cannot write {path}: {why}")
+    return OSError(number, f"cannot write {path}: {why}")
 
 
 def atomic_write(path, write):

@@ -114,3 +114,27 @@ class FolderLock:
     def __exit__(self, *exc):
         self.release()
         return False
+
+
+def is_locked(folder):
+    """True when a :class:`FolderLock` of ``folder`` (on the folder, or on its lock file) is held
+    now, by another process or another lock of this one: a tool is writing into it. Takes
+    nothing: a shared lock is tried and let go at once.
+    """
+    folder = os.fspath(folder)
+    for path in (folder, os.path.join(folder, LOCK_NAME)):
+        try:
+            flags = os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if path == folder else 0)
+            fd = os.open(path, flags)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+        except BlockingIOError:
+            return True
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return False

@@ -49,7 +49,7 @@ def _read_record(path):
             if isinstance(files, dict)
             else {}
         )
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return {}
 
 
@@ -348,7 +348,7 @@ def pending_tables(out_dir):
     try:
         with open(os.path.join(out_dir, DATABASE_JSON), encoding="utf-8") as f:
             return set(json.load(f).get("pending", []))
-    except (OSError, ValueError, AttributeError, TypeError):
+    except (OSError, ValueError, AttributeError, TypeError, RecursionError):
         return set()
 
 
@@ -369,7 +369,7 @@ def owned_tables(out_dir, settings, names, force):
                 old = json.load(f)
             listed = old.get("tables", None)
             listed = None if listed is None else list(listed) + list(old.get("pending", []))
-        except (OSError, ValueError, AttributeError, TypeError):
+        except (OSError, ValueError, AttributeError, TypeError, RecursionError):
             raise ForeignFileError(
                 f"{path} is not a database.json written by make_database; choose another folder"
             ) from None

@@ -36,7 +36,7 @@ from .._util.workers import owned_pool
 from ..errors import FormatError, InputError, MissingFileError, UnknownMaterialError, did_you_mean
 from . import gram as gram_matrix
 from . import merl
-from .sources import SET_NAMES, builtin, combine, folder_sources
+from .sources import BUILTIN_PREFIX, SET_NAMES, builtin, builtin_set, combine, folder_sources
 from .surrogate import (
     FITS_PATH,
     SGD_FIELDS,
@@ -59,6 +59,8 @@ __all__ = [
     "open_spec",
     "split_spec",
     "database_cache",
+    "canonical_spec",
+    "recorded_spec",
     "builtin_cache",
     "MADE_DTYPE",
     "FITS_PATH",
@@ -192,7 +194,10 @@ def write_database(
     dims = merl.table_resolution(dims, "`dims`")
     out_dir = os.path.abspath(os.fspath(out_dir))
     sets = tuple(
-        s if s in SET_NAMES else os.path.abspath(os.fspath(s)) for s in dict.fromkeys(sources)
+        dict.fromkeys(
+            builtin_set(s, what="source") or os.path.abspath(os.fspath(s))
+            for s in dict.fromkeys(sources)
+        )
     )
     if not sets:
         raise InputError(
@@ -394,44 +399,78 @@ def builtin_cache():
     """Cache folder of the built-in sets' tables: ``$MITSUBA_MANIFOLD_CACHE/builtin`` or
     ``~/.cache/mitsuba_manifold/builtin`` (created).
     """
-    root = os.environ.get(CACHE_ENV) or os.path.join(
-        os.path.expanduser("~"), ".cache", "mitsuba_manifold"
-    )
+    given = os.environ.get(CACHE_ENV)
+    root = given or os.path.join(os.path.expanduser("~"), ".cache", "mitsuba_manifold")
     folder = os.path.join(root, "builtin")
-    os.makedirs(folder, exist_ok=True)
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        where = f"${CACHE_ENV} ({root})" if given else root
+        raise OSError(
+            e.errno,
+            f"the cache of the built-in sets cannot be made in {where}: "
+            f"{e.strerror or e}; set {CACHE_ENV} to a folder that can be written",
+        ) from None
     return folder
 
 
-def made_table(cache_dir, digest, build, shape, out=None):
+def finite_table(table, what):
+    """``table`` as float32, or a :class:`FormatError` naming ``what`` (the material and where it
+    comes from) when it holds NaN or Inf values: nothing is cached from it.
+    """
+    table = np.asarray(table, dtype=np.float32)
+    if not np.isfinite(table).all():
+        bad = int(np.size(table) - np.count_nonzero(np.isfinite(table)))
+        raise FormatError(
+            f"{what}: its table has {bad} NaN or Inf values (of {table.size}); the source is "
+            "damaged or not a reflectance table: replace it, or leave the material out"
+        )
+    return table
+
+
+def made_table(cache_dir, digest, build, shape, out=None, what="table"):
     """A table made from a source (not a file), cached as ``<digest>.refl16.npy`` (:data:`MADE_DTYPE`)
     or, where its values exceed that range, ``<digest>.refl.npy`` (float32); returned as float32, as cached
     (rounded to the cache's precision when just made).
 
     ``out``: a float32 array of the table's size to fill (and return, in ``shape``) instead of
-    a new array; a cached half-precision table is then read straight into it.
+    a new array; a cached half-precision table is then read straight into it. A cache file
+    whose checksum or values are wrong is reported (one line naming it) and made again
+    (:func:`~.._util.cache.npy_cache`); a table with NaN or Inf values is refused, naming
+    ``what`` (:func:`finite_table`).
     """
     half = os.path.join(cache_dir, f"{digest}.refl16.npy")
     full = os.path.join(cache_dir, f"{digest}.refl.npy")
     if out is not None:
-        if not os.path.exists(full) and read_npy_into(half, out, shape=shape, dtype=MADE_DTYPE):
+        # the checksum alone (the writers refuse NaN and Inf: a sealed file holds none unless its
+        # bytes changed since); a damaged file is said by npy_cache below as it is made again
+        if not os.path.exists(full) and read_npy_into(
+            half, out, shape=shape, dtype=MADE_DTYPE, on_rebuild=None
+        ):
             return out.reshape(shape)
-        np.copyto(out, made_table(cache_dir, digest, build, shape).reshape(out.shape))
+        np.copyto(out, made_table(cache_dir, digest, build, shape, what=what).reshape(out.shape))
         return out.reshape(shape)
+
+    def build_full():
+        return finite_table(build(), what)
+
     if os.path.exists(full):
-        return npy_cache(full, build, shape=shape, dtype=np.float32, mmap=True)
+        return npy_cache(full, build_full, shape=shape, dtype=np.float32, mmap=True, finite=True)
     made = []
 
     def build_half():
-        table = np.asarray(build(), dtype=np.float32)
+        table = build_full()
         made.append(table)
         if not np.all(np.abs(table) <= np.finfo(MADE_DTYPE).max):
             raise OverflowError
         return table.astype(MADE_DTYPE)
 
     try:
-        value = npy_cache(half, build_half, shape=shape, dtype=MADE_DTYPE)
+        value = npy_cache(half, build_half, shape=shape, dtype=MADE_DTYPE, finite=True)
     except OverflowError:
-        return npy_cache(full, lambda: made[0], shape=shape, dtype=np.float32, mmap=True)
+        return npy_cache(
+            full, lambda: made[0], shape=shape, dtype=np.float32, mmap=True, finite=True
+        )
     return value.astype(
         np.float32
     )  # the cached precision, also when just made: the same values every run
@@ -471,9 +510,10 @@ class SourceList:
             if data.get("format") != cls.FORMAT:
                 raise ValueError(f"format is {data.get('format')!r}, not {cls.FORMAT!r}")
             return cls(tuple(data["from"]), tuple(int(v) for v in data["dims"])).check(path)
-        except (OSError, ValueError, KeyError, TypeError) as e:
+        except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:
+            why = "nested too deeply" if isinstance(e, RecursionError) else e
             raise FormatError(
-                f"{path}: not a database's source list ({e}); remake it with tools/make_database.py"
+                f"{path}: not a database's source list ({why}); remake it with tools/make_database.py"
             ) from None
 
     def write(self, path):
@@ -498,28 +538,42 @@ class DatabaseSpec:
         return cache_folder(self.directory) if self.directory else builtin_cache()
 
 
-def split_spec(spec):
-    """``(base, dims or None)`` of a database spec ``base[@NHxNDxNP]`` (an existing path is taken whole)."""
+def split_spec(spec, recorded=True):
+    """``(base, dims or None)`` of a database spec ``base[@NHxNDxNP]`` (an existing path is taken
+    whole). Unless ``recorded``, a path that exists and also reads as a set at a resolution
+    (a folder ``merl@45x45x90``) is refused as ambiguous, as :func:`~.sources.builtin_set` does.
+    """
     spec = os.fspath(spec)
     m = _SPEC_DIMS.match(spec)
     if m and not os.path.exists(spec):
         return m.group("base"), (int(m.group("h")), int(m.group("d")), int(m.group("p")))
+    if m and not recorded and m.group("base") in SET_NAMES:
+        base = m.group("base")
+        raise InputError(
+            f"database {spec!r} is ambiguous: the built-in set {base} at "
+            f"{m.group('h')}x{m.group('d')}x{m.group('p')} and the "
+            f"{'folder' if os.path.isdir(spec) else 'file'} {os.path.abspath(spec)}; say ./{spec} "
+            f"for the {'folder' if os.path.isdir(spec) else 'file'} or {BUILTIN_PREFIX}{spec} for the set"
+        )
     return spec, None
 
 
-def open_spec(spec, dims=None):
+def open_spec(spec, dims=None, recorded=False):
     """The sources of a database: a built-in set's name or a folder, with an optional ``@dims``.
 
-    A bare built-in name (``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``) always means the set;
-    a folder of that name is given as a path (``./merl``). Raises one-line errors naming the
-    spec: no such set or folder, files that cannot be read, names given twice.
+    Names are read by :func:`~.sources.builtin_set`: ``builtin:merl`` is the set, a bare built-in
+    name (``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``) is the set unless a file or folder of
+    that name exists in the current folder (then refused as ambiguous, naming both: ``./merl``
+    is the folder), except where ``recorded`` (a manifold's record). Raises one-line errors
+    naming the spec: no such set or folder, files that cannot be read, names given twice.
     """
-    base, suffix = split_spec(spec)
+    base, suffix = split_spec(spec, recorded=recorded)
     if dims is not None and suffix is not None and tuple(dims) != suffix:
         raise InputError(
             f"database {spec}: its resolution suffix and `dims` {_size(dims)} differ; give one"
         )
     dims = tuple(int(v) for v in dims) if dims is not None else suffix
+    base = builtin_set(base, recorded=recorded) or base
     if base in SET_NAMES:
         dims = merl.table_resolution(dims or merl.MERL_DIMS, f"database {spec}: resolution")
         key = base if dims == merl.MERL_DIMS else f"{base}@{_size(dims)}"
@@ -555,12 +609,33 @@ def open_spec(spec, dims=None):
     return DatabaseSpec(key, folder, tuple(found), dims, folder)
 
 
+def recorded_spec(spec):
+    """A database spec as this package records it (a manifold's ``database``: a set's name or an
+    absolute folder, with ``@dims``), written so that it opens as what was recorded whatever
+    the current folder holds: a set's name as ``builtin:NAME`` (:func:`~.sources.builtin_set`).
+    """
+    spec = os.fspath(spec)
+    base, _ = split_spec(spec)
+    return BUILTIN_PREFIX + spec if base in SET_NAMES else spec
+
+
+def canonical_spec(spec, what="database"):
+    """The spec a user gave (``merl``, ``builtin:merl@45x45x90``, ``./merl``, ``tables``) as a
+    manifold records it: the set's name, or the folder's absolute path, with its ``@dims``
+    suffix; an ambiguous name is refused (:func:`~.sources.builtin_set`).
+    """
+    base, suffix = split_spec(spec, recorded=False)
+    name = builtin_set(base, what=what)
+    out = name if name is not None else os.path.abspath(base)
+    return out if suffix is None else f"{out}@{_size(suffix)}"
+
+
 def database_cache(spec):
     """The cache folder of the database ``spec`` (as a manifold records it), or None when it is
     a folder that is gone (creating it would make an empty database folder).
     """
     base, _ = split_spec(spec)
-    if base in SET_NAMES:
+    if builtin_set(base, recorded=True) is not None:
         return builtin_cache()
     if not os.path.isdir(base):
         return None
@@ -589,8 +664,10 @@ class Database:
     folder : str or path
         What :func:`open_spec` reads: a folder (its ``.binary``, ``.bsdf``, ``.h5`` + ``.json``
         and ``.npz`` files, plus the sets and folders its ``sources.json`` names), or a built-in
-        set's name (:data:`sources.BUILTIN`: ``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``);
-        either with an optional resolution suffix ``@NHxNDxNP`` (``merl@45x45x90``).
+        set's name (:data:`sources.BUILTIN`: ``merl``, ``rgl``, ``nielsen``, ``all``, ``sgd``;
+        ``builtin:merl`` always the set, a bare ``merl`` refused as ambiguous where the current
+        folder holds a ``merl``: :func:`~.sources.builtin_set`); either with an optional
+        resolution suffix ``@NHxNDxNP`` (``merl@45x45x90``).
     names : list of str, optional
         Materials to use, in this order (default: every material, sorted for folders and in
         the set's order for built-in sets).
@@ -717,20 +794,24 @@ class Database:
         source = self.sources[name]
         shape = (3,) + tuple(self.dims)
         digest = self.hash(name)
+        what = f"material {name!r} ({source.origin})"
         if source.kind == "binary":
             cached = os.path.join(self.cache_dir, f"{digest}.refl.npy")
             table = npy_cache(
                 cached,
-                lambda: source.table(self.dims),
+                lambda: finite_table(source.table(self.dims), what),
                 shape=shape,
                 dtype=np.float32,
                 mmap=mmap or out is not None,
+                finite=True,
             )
             if out is None:
                 return table
             np.copyto(out, table.reshape(out.shape))
             return out.reshape(shape)
-        return made_table(self.cache_dir, digest, lambda: source.table(self.dims), shape, out=out)
+        return made_table(
+            self.cache_dir, digest, lambda: source.table(self.dims), shape, out=out, what=what
+        )
 
     def stack(self, names=None, progress=False):
         """Tables of ``names`` as one float32 matrix ``(N, d)``, rows = RGB-concatenated tables

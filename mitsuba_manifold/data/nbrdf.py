@@ -337,8 +337,9 @@ def _check_keras_model(path):
             model = json.load(f)
         layers = model["config"]["layers"] if isinstance(model["config"], dict) else model["config"]
         dense = [layer["config"] for layer in layers if layer.get("class_name") == "Dense"]
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise FormatError(f"{path}: not a Keras model file ({e})") from None
+    except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:
+        why = "nested too deeply" if isinstance(e, RecursionError) else e
+        raise FormatError(f"{path}: not a Keras model file ({why})") from None
     units = [d.get("units") for d in dense]
     acts = [d.get("activation") for d in dense]
     if units != [21, 21, 3] or acts[:2] != ["relu", "relu"]:

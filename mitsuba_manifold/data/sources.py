@@ -28,12 +28,14 @@ from . import merl, nbrdf
 
 __all__ = [
     "BUILTIN",
+    "BUILTIN_PREFIX",
     "SET_NAMES",
     "BinaryFile",
     "MeasuredFile",
     "Network",
     "SgdFit",
     "builtin",
+    "builtin_set",
     "combine",
     "folder_sources",
     "material_name",
@@ -52,6 +54,8 @@ BUILTIN = {
     "sgd": "the Shifted-Gamma (SGD) fits of the 100 MERL materials",
 }
 SET_NAMES = tuple(BUILTIN)
+#: Names a built-in set whatever the current folder holds: ``builtin:merl``.
+BUILTIN_PREFIX = "builtin:"
 #: File kinds a folder may hold, by extension.
 EXTENSIONS = (".binary", ".bsdf", ".h5", ".npz")
 #: Suffixes dropped from a file's name to name its material.
@@ -306,6 +310,42 @@ def read_tensor_header(path):
 def _network_sources(path, prefix, origin):
     nets = nbrdf.NetworkSet.load(path, prefix)
     return [Network(n, nets, n, origin, SET_POSITIONS[prefix]) for n in nets.names]
+
+
+def builtin_set(name, *, recorded=False, what="database"):
+    """The built-in set (:data:`SET_NAMES`) that the name ``name`` means, or None when it means a
+    path: the one rule by which every database name is read.
+
+    * ``builtin:NAME`` (:data:`BUILTIN_PREFIX`) is always the set ``NAME`` (an unknown one is
+      refused, naming the sets);
+    * a bare set name (``merl``) is the set, unless a file or folder of that name exists in the
+      current folder: then the name is ambiguous and refused (:class:`InputError` naming both and
+      how to say each: ``./merl`` for the folder, ``builtin:merl`` for the set). Where the name
+      was recorded by this package (``recorded``: a manifold's database, a ``sources.json``
+      entry), folders are absolute paths, so a bare set name there is always the set;
+    * anything else is a path (None).
+
+    ``what`` names the name's role in the messages (``"database"``, ``"--database"``).
+    """
+    name = os.fspath(name)
+    if name.startswith(BUILTIN_PREFIX):
+        set_name = name[len(BUILTIN_PREFIX) :]
+        if set_name not in SET_NAMES:
+            raise InputError(
+                f"{what} {name!r}: no built-in set {set_name!r}; the built-in sets are "
+                f"{', '.join(BUILTIN_PREFIX + n for n in SET_NAMES)}"
+            )
+        return set_name
+    if name not in SET_NAMES:
+        return None
+    if not recorded and os.path.lexists(name):
+        kind = "folder" if os.path.isdir(name) else "file"
+        raise InputError(
+            f"{what} {name!r} is ambiguous: the built-in set {name} ({BUILTIN[name]}) and the "
+            f"{kind} {os.path.abspath(name)}; say ./{name} for the {kind} or "
+            f"{BUILTIN_PREFIX}{name} for the set"
+        )
+    return name
 
 
 def builtin(name):

@@ -114,6 +114,12 @@ def _check_name(name, names):
         raise InputError(
             f"`name` {name!r} of the material to add must be a non-empty name without '/'"
         )
+    if name.startswith(".") or name != name.strip() or not name.isprintable():
+        raise InputError(
+            f"`name` {name!r} of the material to add must not start with '.', have spaces at "
+            "either end or hold control characters (such a name cannot be selected by the "
+            "tools): give another `name`"
+        )
     if name in names:
         raise InputError(f"the manifold already has a material named {name!r}; give another `name`")
 
@@ -136,6 +142,23 @@ def _stored_table(table, folder, name):
     if not os.path.exists(path):
         merl.write_binary(path, merl.to_stored(table))
     return path
+
+
+def _check_reflects(table, what):
+    """Refuse a table with NaN or Inf values, or one that reflects nothing (zero everywhere above
+    the horizon): its Gram rows would be zero, and no manifold with it could be read again
+    (every Gram matrix of a manifold has a positive diagonal, :mod:`.schema`).
+    """
+    if not np.isfinite(table).all():
+        raise InputError(
+            f"material to add: {what} has NaN or Inf values; give a reflectance table (1/sr)"
+        )
+    if not np.any(table > 0):
+        raise InputError(
+            f"material to add: {what} reflects nothing (its table is zero everywhere): a "
+            "material that reflects no light has no place among measured materials; give a "
+            "measured table"
+        )
 
 
 def cross_products(tables, t, weights):
@@ -230,6 +253,7 @@ def add(m, table_or_path, name=None, *, origin=None, n_starts=8):
                 "table to add has NaN, Inf or negative values; give a reflectance table (1/sr)"
             )
         path, source = None, "table"
+    _check_reflects(table, path if source == "file" else "table to add")
     tables = m.tables()
     if table.size != tables.shape[1]:
         raise FormatError(
@@ -242,6 +266,8 @@ def add(m, table_or_path, name=None, *, origin=None, n_starts=8):
     own = projection_mod.log_rms(tables[:, bins], np.log1p(table[bins]))
     starts, order = _starts(m.latent, m.length_scale, own, n_starts)
     raw, cos, tt, tq = cross_products(tables, table, albedo_weights(dims))
+    if not (tt > 0 and tq > 0):  # e.g. values below the horizon only: no light reflected
+        _check_reflects(np.zeros(1), path if source == "file" else "table to add")
     S2 = grown_gram(m.gram, tables, table, m.features)
     placed = place_point(
         m.latent, S2, m.record.d, starts, length_scale=m.length_scale, noise=m.noise

@@ -21,7 +21,7 @@ import zipfile
 
 import numpy as np
 
-from .._util.atomic import atomic_write
+from .._util.atomic import atomic_replace
 from ..errors import FormatError, InputError
 from . import schema
 from .fit_record import FitRecord
@@ -42,7 +42,11 @@ def _not_a_manifold(path, why):
 
 
 def write(m, path):
-    """Write manifold ``m`` to ``path`` atomically."""
+    """Write manifold ``m`` to ``path`` atomically, and only when what is written reads back:
+    the new file is read and checked (:func:`read`, every field against :mod:`.schema`) before
+    it replaces ``path``, so a readable manifold file is never replaced by one nothing can read
+    (:class:`FormatError` naming ``path`` and the field; the existing file is kept).
+    """
     meta = {
         "format": FORMAT,
         "version": FORMAT_VERSION,
@@ -63,7 +67,21 @@ def write(m, path):
     for name in DERIVED:
         if getattr(m, name) is not None:
             arrays[name] = getattr(m, name)
-    atomic_write(os.fspath(path), lambda f: np.savez(f, **arrays))
+    path = os.fspath(path)
+
+    def checked(tmp):
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+        try:
+            read(tmp)
+        except InputError as e:
+            why = str(e).replace(tmp, path).removeprefix(path + ": ").split("; refit")[0]
+            kept = "the file there is unchanged" if os.path.exists(path) else "nothing written"
+            raise FormatError(
+                f"manifold not saved to {path}: it would not be readable ({why}); {kept}"
+            ) from None
+
+    atomic_replace(path, checked)
 
 
 def read(path):

@@ -42,7 +42,7 @@ from .._util.fifo_cache import Recent
 from .._util.float32 import weights32
 from .._util.names import is_name
 from ..data import gram as gram_mod
-from ..data.database import FEATURES, Database, albedo_weights
+from ..data.database import FEATURES, Database, albedo_weights, recorded_spec
 from ..errors import FormatError, InputError, did_you_mean
 from ..gp.gplvm import FitResult
 from ..gp.kernel import Kernel
@@ -595,11 +595,17 @@ class Manifold:
             names = list(names)
             for name in names:
                 self.index(name)  # an unknown name: InputError with the closest ones
-        return self._store.open(folder or self.database, names)
+        return self._store.open(self._source(folder), names)
+
+    def _source(self, database=None):
+        """``database`` (a user's), else the recorded one, opened as recorded (a set's name is the
+        set whatever the current folder holds: :func:`~..data.database.recorded_spec`).
+        """
+        return database or recorded_spec(self.database)
 
     def tables(self, database=None):
         """All N tables in memory as float32 ``(N, d)`` (loaded once, then kept)."""
-        return self._store.stack(database or self.database)
+        return self._store.stack(self._source(database))
 
     def interpolate(self, x, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
         """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""
@@ -708,7 +714,7 @@ class Manifold:
 
     def table_norms(self):
         """L2 norm of each raw table (from :attr:`table_gram`)."""
-        return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self.database)), 0.0))
+        return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self._source())), 0.0))
 
     def _checked(self, w, budget, rule):
         w = np.asarray(w, dtype=np.float64)
@@ -753,7 +759,7 @@ class Manifold:
         )  # the caller may change its arrays
 
     def _prune(self, w, budget, rule):
-        folder, store = self.database, self._store
+        folder, store = self._source(), self._store
         if rule == "raw-l2":
             return Pruned(*pruning.prune(w, store.raw_gram(folder), budget))
         return Pruned(
@@ -771,7 +777,7 @@ class Manifold:
         in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``).
         """
         w = self._checked(w, 0.0, rule)
-        folder, store = self.database, self._store
+        folder, store = self._source(), self._store
         return pruning.error(
             w, keep, store.raw_gram(folder) if rule == "raw-l2" else store.cosine_gram(folder)
         )
@@ -783,7 +789,7 @@ class Manifold:
         what :meth:`prune` kept of the same ``w`` (not pruned again).
         """
         keep = self.prune(w, prune, rule).keep if keep is None else keep
-        folder, store = self.database, self._store
+        folder, store = self._source(), self._store
         return pruning.report(
             w,
             keep,
@@ -816,7 +822,7 @@ class Manifold:
                 return Combination((full @ loaded).reshape(shape), keep, dropped)
             flat = pruning.weighted_sum((loaded[i] for i in keep), w32, loaded.shape[1])
             return Combination(flat.reshape(shape), keep, dropped)
-        db = self._store.open(database or self.database, [self.names[i] for i in keep])
+        db = self._store.open(self._source(database), [self.names[i] for i in keep])
         flat = pruning.weighted_sum(
             (db.reflectance(self.names[i]).reshape(-1) for i in keep),
             w32,

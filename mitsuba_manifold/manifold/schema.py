@@ -28,7 +28,7 @@ import numpy as np
 from ..data.database import FEATURES
 from ..errors import FormatError
 from ..gp.kernel import MAX_LATENT_DIM
-from .interpolant import KINDS, ShepardWeights
+from .interpolant import KINDS, MAX_COORDINATE, ShepardWeights
 
 #: Largest ``meta`` entry read (a JSON text: names, hashes, settings), bytes.
 META_LIMIT = 64 << 20
@@ -206,6 +206,13 @@ def coincident_latent(latent, hashes, names, length_scale=1.0):
 def _latent(a, meta):
     if not 1 <= a.shape[1] <= MAX_LATENT_DIM:
         return f"must have 1 to {MAX_LATENT_DIM} columns (the latent dimension q), has {a.shape[1]}"
+    big = float(np.abs(a).max(initial=0.0))
+    if big > MAX_COORDINATE:
+        row = int(np.argmax(np.abs(a).max(axis=1)))
+        return (
+            f"has a coordinate {big:.3g} (point {row}, {meta['names'][row]!r}) beyond "
+            f"+-{MAX_COORDINATE:.0e}, where no fit places a material: the file is damaged"
+        )
     same = coincident_latent(a, meta.get("hashes"), meta["names"], meta.get("length_scale", 1.0))
     if same:
         return (
@@ -288,6 +295,10 @@ def read_meta(path, zf):
         return json.loads(str(text))
     except ValueError as e:
         raise _refuse(path, "meta", f"is not JSON ({e})", "entry") from None
+    except RecursionError:
+        raise _refuse(
+            path, "meta", "is JSON nested too deeply to be a manifold's", "entry"
+        ) from None
 
 
 def _shape_check(field, n, q):

@@ -114,7 +114,7 @@ def read_properties(props):
     if database is not None and not os.path.isdir(database):
         raise InputError(f"{PLUGIN_NAME}: database {database} is not a folder")
     if database is not None:  # this instance's own manifold reads every table from there
-        manifold.database = database
+        manifold.database = os.path.abspath(database)  # a folder (even one named like a set)
     prune = props.get("prune", DEFAULT_PRUNE)
     try:
         prune = float(prune)

@@ -33,6 +33,7 @@ from .._util.cache import file_hash
 from .._util.locking import FolderLock
 from ..basis import folder as basis_folder
 from ..basis.folder.output import check_foreign_folder, check_job_folders, open_folder
+from ..data.database import canonical_spec
 from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
 from ..imaging import io as imageio
 from ..manifold.model import Manifold
@@ -488,7 +489,7 @@ def _check_request(scene_path, manifold_path, out, o):
         raise InputError(f"`out` {out} is a file, not a folder")
     manifold = Manifold.load(manifold_path)
     if o.scene.database is not None:  # moved tables: the weights beyond the data read them too
-        manifold.database = os.fspath(o.scene.database)
+        manifold.database = canonical_spec(o.scene.database, "`database`")
     x = None if o.scene.x is None else manifold.point(o.scene.x, "`x`")
     chosen = select_materials(manifold, o.selection.materials, o.selection.near, o.selection.radius)
     try:

@@ -113,8 +113,8 @@ def material_density(database, name, grid=SAMPLING_GRID, use_cache=True):
     if not use_cache:
         return sampling_density(database.reflectance(name), grid)
 
-    def warn(path):
-        mi.Log(mi.LogLevel.Warn, f"{PLUGIN_NAME}: rebuilding damaged sampling cache {path}")
+    def warn(path, why):
+        mi.Log(mi.LogLevel.Warn, f"{PLUGIN_NAME}: sampling cache {path}: {why}; making it again")
 
     return npy_cache(
         sampling_cache_path(database, name, grid),

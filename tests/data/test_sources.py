@@ -374,3 +374,125 @@ def test_a_folder_given_as_a_material_file_says_it_is_a_folder(tmp_path, capsys)
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and f"--add {folder}: material {folder} is a folder" in err
     assert not (tmp_path / "m.npz").exists()
+
+
+def _damage(path, change, reseal=False):
+    """Rewrite the array of a cache file in place, its header and checksum trailer kept (what a
+    bad disk or an editor leaves: a valid ``.npy`` of the right shape); ``reseal``: with a
+    checksum of the new bytes (what a writer of bad values would leave)."""
+    from mitsuba_manifold._util import cache
+
+    data = bytearray(open(path, "rb").read())
+    value = np.load(path)
+    start = len(data) - cache.TRAILER_SIZE - value.nbytes
+    data[start : start + value.nbytes] = change(value).astype(value.dtype).tobytes()
+    if reseal:
+        data = data[: -cache.TRAILER_SIZE]
+    open(path, "wb").write(bytes(data))
+    if reseal:
+        cache.seal(path)
+
+
+@pytest.mark.parametrize("damage", ["doubled", "nan"])
+def test_a_damaged_table_cache_is_found_made_again_and_named(tmp_path, caplog, damage):
+    """A cached table whose values changed on disk (doubled: a valid float16 array of the right
+    shape; or NaN) is never used: every reader (the whole table, the rows of a stack) makes it
+    again, and one line names the file."""
+    names = ["bluebook", "glossyredpaper"]
+    db = Database("nielsen@8x8x16")
+    ref = db.stack(names).copy()
+    path = tmp_path / "cache" / "builtin" / (db.hash("glossyredpaper") + ".refl16.npy")
+    change = (lambda v: 2 * v) if damage == "doubled" else (lambda v: np.where(v > 0, np.nan, v))
+    readers = [lambda d: np.stack([d.reflectance(n) for n in names])]
+    if damage == "doubled":  # the rows of a stack check the checksum alone
+        readers.append(lambda d: d.stack(names))
+    for read in readers:
+        _damage(path, change, reseal=damage == "nan")
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="mitsuba_manifold"):
+            got = read(Database("nielsen@8x8x16"))
+        assert np.array_equal(got.reshape(ref.shape), ref)
+        lines = [r.getMessage() for r in caplog.records]
+        assert len(lines) == 1 and str(path) in lines[0], lines
+        assert ("checksum" if damage == "doubled" else "NaN") in lines[0]
+        assert np.array_equal(np.load(path).astype(np.float32).reshape(-1), ref[1])
+
+
+def test_a_source_whose_table_is_not_finite_is_refused_naming_the_material(tmp_path, monkeypatch):
+    db = Database("nielsen@8x8x16")
+    source = db.sources["bluebook"]
+    monkeypatch.setattr(
+        type(source), "table", lambda self, dims: np.full((3,) + tuple(dims), np.nan, np.float32)
+    )
+    with pytest.raises(FormatError) as info:
+        db.reflectance("bluebook")
+    message = str(info.value)
+    assert "'bluebook'" in message and "NaN" in message and "\n" not in message
+    assert not os.listdir(tmp_path / "cache" / "builtin")  # nothing cached from it
+
+
+def test_a_folder_named_like_a_builtin_set_is_never_silently_replaced_by_it(
+    tmp_path, monkeypatch, capsys
+):
+    """``rgl`` in a folder holding ``rgl/``: refused, naming both and how to say each (``./rgl``,
+    ``builtin:rgl``), by the library and by the tools; a manifold recorded on the set still opens
+    its set there (what it recorded is no user's name)."""
+    from mitsuba_manifold.apps.cli import fit_manifold
+    from mitsuba_manifold.manifold.model import Manifold
+
+    work = tmp_path / "work"
+    (work / "rgl").mkdir(parents=True)
+    merl.write_binary(work / "rgl" / "mine.binary", np.full((3, 8, 8, 16), 0.01))
+    monkeypatch.chdir(work)
+    for spec in ("rgl", "rgl@8x8x16"):
+        with pytest.raises(InputError) as info:
+            Database(spec)
+        message = str(info.value)
+        assert "ambiguous" in message and str(work / "rgl") in message, message
+        assert "./rgl" in message and "builtin:rgl" in message and "\n" not in message
+    assert Database("./rgl").names == ["mine"]
+    assert Database(str(work / "rgl")).names == ["mine"]
+    assert len(Database("builtin:rgl@8x8x16").names) == 51
+    assert Database("builtin:rgl@8x8x16").folder == "rgl@8x8x16"  # recorded as the set's name
+    with pytest.raises(InputError, match="no built-in set 'merl2'"):
+        Database("builtin:merl2")
+    (work / "nielsen@8x8x16").mkdir()  # named like a set at a resolution: ambiguous too
+    with pytest.raises(InputError, match="ambiguous") as info:
+        Database("nielsen@8x8x16")
+    assert "./nielsen@8x8x16" in str(info.value) and "builtin:nielsen@8x8x16" in str(info.value)
+    with pytest.raises(FormatError, match="holds no tables"):
+        Database("./nielsen@8x8x16")
+    os.rmdir(work / "nielsen@8x8x16")
+    with pytest.raises(InputError, match="ambiguous"):
+        write_database(tmp_path / "out", ["rgl", "nielsen"])
+    with pytest.raises(SystemExit):
+        fit_manifold.main(["rgl@8x8x16", "--out", str(tmp_path / "m.npz")])
+    err = capsys.readouterr().err
+    assert "ambiguous" in err and "builtin:rgl" in err and not (tmp_path / "m.npz").exists()
+    from mitsuba_manifold.apps.cli import make_database
+
+    (work / "sgd").mkdir()  # the noisy copies of the SGD set are made from the set only
+    with pytest.raises(SystemExit):
+        make_database.main(["--out", str(tmp_path / "noisy"), "--from", "sgd", "--noise", "0.1"])
+    assert "ambiguous" in capsys.readouterr().err and not (tmp_path / "noisy").exists()
+
+    monkeypatch.chdir(tmp_path)
+    m = Manifold.fit(
+        "nielsen@8x8x16", q=2, stress=0.0, method="hooke-jeeves", preset="paper"
+    )  # recorded "nielsen@8x8x16"
+    m.save(tmp_path / "n.npz")
+    (work / "nielsen").mkdir()
+    monkeypatch.chdir(work)
+    m = Manifold.load(tmp_path / "n.npz")
+    assert m.database == "nielsen@8x8x16"
+    assert m.tables().shape[0] == 8 and m.open_database().names == m.names
+    assert m.combine(np.full(8, 1 / 8), prune=0.0)[0].shape == (3, 8, 8, 16)
+
+
+def test_a_cache_variable_naming_a_file_says_which_variable(tmp_path, monkeypatch):
+    blocker = tmp_path / "afile"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("MITSUBA_MANIFOLD_CACHE", str(blocker))
+    with pytest.raises(OSError) as info:
+        Database("nielsen@8x8x16").reflectance("bluebook")
+    assert "$MITSUBA_MANIFOLD_CACHE" in str(info.value) and str(blocker) in str(info.value)

@@ -58,6 +58,14 @@ CRAFTED = [  # (field, changes as a function of the saved arrays)
         lambda a: {"latent": _latent(a, lambda x: np.vstack([x[:1], x[:1], x[2:]]))},
     ),  # coincident
     ("latent", lambda a: {"latent": a["latent"][:3]}),
+    (
+        "latent",
+        lambda a: {
+            "latent": _latent(
+                a, lambda x: np.where(np.arange(x.size).reshape(x.shape) == 0, 1e300, x)
+            )
+        },
+    ),
     ("database", lambda a: {"meta_database": ["a", "b"]}),
     ("hashes", lambda a: {"meta_hashes": [1, 2]}),
     ("info", lambda a: {"meta_info": "fit"}),

@@ -86,7 +86,8 @@ def main(argv=None):
     p.add_argument(
         "database",
         help="built-in database (merl, rgl, nielsen, all, sgd; NAME@NHxNDxNP for another "
-        "resolution) or folder of measured tables (.binary, .bsdf, .h5, .npz)",
+        "resolution; builtin:NAME where the current folder holds a NAME of its own) or folder "
+        "of measured tables (.binary, .bsdf, .h5, .npz; ./NAME for a folder named like a set)",
     )
     p.add_argument("--out", required=True, help="output manifold (.npz)")
     p.add_argument(

@@ -25,8 +25,9 @@ def main(argv=None):
         action="append",
         default=None,
         metavar="NAME_OR_PATH",
-        help="built-in set (merl, rgl, nielsen, all, sgd) or folder of measured files; repeatable "
-        "(default: merl)",
+        help="built-in set (merl, rgl, nielsen, all, sgd; builtin:NAME where the current folder "
+        "holds a NAME of its own) or folder of measured files (./NAME for a folder named like a "
+        "set); repeatable (default: merl)",
     )
     p.add_argument(
         "--export", action="store_true", help="write every material as a MERL .binary file"
@@ -55,10 +56,12 @@ def main(argv=None):
 
     from ..._util import checks as validate
     from ...data import database, merl
+    from ...data.sources import builtin_set
     from ...errors import InputError
 
     t0 = time.perf_counter()
-    sources = args.sources or ["merl"]
+    # one rule for set names and folders (sgd where ./sgd exists is ambiguous, builtin:sgd the set)
+    sources = [builtin_set(s, what="--from") or s for s in args.sources or ["merl"]]
     if args.materials and len(set(args.materials)) < len(args.materials):
         repeated = sorted({n for n in args.materials if args.materials.count(n) > 1})
         print(f"note: {', '.join(repeated)} repeated in --materials; each table is made once")

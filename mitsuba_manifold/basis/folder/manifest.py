@@ -374,7 +374,36 @@ def _check_json(manifest, where=MANIFEST):
         ):
             bad(f"image {key!r}: sha256 must be a SHA-256 hex digest, got {entry['sha256']!r}")
     _validate_components(manifest, bad)
+    _check_files_are_their_keys(manifest, bad)
     return manifest
+
+
+def _check_files_are_their_keys(manifest, bad):
+    """Each image's file is its own: an entry listing the file named after another image key
+    (``"a": {"file": "b.exr", ...}``: two entries' ``file`` and ``sha256`` swapped) is refused,
+    since every file's hash is then right and every material wrong. The renderers name each
+    file after its key (``<key>.exr``; full-GI images ``<key>.gi.exr``).
+    """
+    sections = (("images", ".exr"), ("gi_images", ".gi.exr"))
+    for section, _ in sections:
+        entries = manifest.get(section) or {}
+        for key, entry in entries.items():
+            name = entry.get("file") if isinstance(entry, dict) else None
+            if not isinstance(name, str):
+                continue
+            for other_section, other_suffix in sections:
+                if not name.endswith(other_suffix):
+                    continue
+                owner = name[: -len(other_suffix)]
+                if (other_section, owner) != (section, key) and owner in (
+                    manifest.get(other_section) or {}
+                ):
+                    where = "" if other_section == section else f" in {other_section}"
+                    bad(
+                        f"image {key!r} lists the file {name!r}, the file of image {owner!r}"
+                        f"{where}: the manifest's entries were swapped or edited; render the "
+                        "basis again"
+                    )
 
 
 #: What a basis may hold (``components`` of the manifest; absent: ``["l1"]``, an older basis).
@@ -708,6 +737,10 @@ class Manifest:
                 data = json.load(f)
         except (ValueError, UnicodeDecodeError) as e:
             raise MismatchError(f"{path}: not valid JSON ({e})") from None
+        except RecursionError:
+            raise MismatchError(
+                f"{path}: not a basis manifest (its JSON is nested too deeply to be one)"
+            ) from None
         return cls.from_json(data, where=path)
 
     def write(self, folder):
@@ -842,5 +875,5 @@ def is_basis_folder(folder):
     try:
         with open(os.path.join(os.fspath(folder), MANIFEST), encoding="utf-8") as f:
             return json.load(f).get("format") == FORMAT
-    except (OSError, ValueError, AttributeError):
+    except (OSError, ValueError, AttributeError, RecursionError):
         return False

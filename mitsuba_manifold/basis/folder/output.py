@@ -87,6 +87,7 @@ def open_folder(out, manifest, files, force=False, read_images=True):
     and are removed when ``read_images`` (the locked call) so they are rendered again.
     """
     check_foreign_folder(out, force)
+    _refuse_special(out, files)
     old = None
     listed = set()
     if os.path.exists(os.path.join(out, basis_folder.MANIFEST)):
@@ -118,6 +119,27 @@ def open_folder(out, manifest, files, force=False, read_images=True):
         return dict(old.images)
     size = tuple(manifest.resolution)
     return {key: entry for key, entry in old.images.items() if image_still_valid(out, entry, size)}
+
+
+def _refuse_special(out, files):
+    """Refuse, whatever ``force`` says, a file the run would write that exists and is not a
+    regular file (a symbolic link, a folder, a FIFO or device): an atomic rename would replace
+    the node itself, and a link's target is the user's (the rule of :mod:`~mitsuba_manifold._util.ownership`).
+    """
+    for f in files:
+        path = os.path.join(out, f)
+        if os.path.islink(path) or (os.path.lexists(path) and not os.path.isfile(path)):
+            kind = (
+                "a symbolic link"
+                if os.path.islink(path)
+                else "a folder"
+                if os.path.isdir(path)
+                else "a device, FIFO or socket"
+            )
+            raise InputError(
+                f"{path} exists and is not a regular file ({kind}); not replacing it, even with "
+                "`force`: remove it, or choose another folder"
+            )
 
 
 def image_still_valid(out, entry, size):

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..._util.blas import axpy, one_thread
 from ..._util.cache import file_hash
+from ..._util.locking import is_locked
 from ...errors import FormatError, MismatchError
 from ...imaging import io as imageio
 from ...manifold.identity import manifold_identity
@@ -19,6 +20,19 @@ from ...manifold.shipped import resolve_manifold
 from .manifest import BASE, GI, Manifest, image_changed, image_key, key_materials, scene_hash
 
 # -------------------------------------------------------------------- basis
+
+#: What a reader says when a basis it finds changed is being written now.
+IN_PROGRESS = (
+    "render_basis is writing into this basis now (it holds the folder's lock): wait until it "
+    "finishes, then run this again"
+)
+
+
+def _in_progress(folder, where, why):
+    """``where: why``, or where a render holds the folder's lock (:func:`is_locked`), ``where``
+    and the render in progress (what changed is being written, not damaged).
+    """
+    return f"{where}: {IN_PROGRESS if is_locked(folder) else why}"
 
 
 def manifold_object(manifold):
@@ -117,7 +131,9 @@ class Basis:
             try:
                 imageio.check_exr_header(basis.path(key), basis.resolution)
             except FormatError as e:
-                raise MismatchError(f"basis {folder}, image {key!r}: {e}") from None
+                raise MismatchError(
+                    _in_progress(folder, f"basis {folder}, image {key!r}", str(e))
+                ) from None
         if scene is not None:
             basis.check_scene(scene)
         if manifold is not None:
@@ -193,8 +209,12 @@ class Basis:
         again = "run the same render_basis command again to render them anew"
         if os.path.isfile(path) and image_changed(self.folder, entry):
             raise MismatchError(
-                f"basis {self.folder}: cross terms {path} were changed after render_basis wrote "
-                f"them (their SHA-256 is not the manifest's); {again}"
+                _in_progress(
+                    self.folder,
+                    f"basis {self.folder}",
+                    f"cross terms {path} were changed after render_basis "
+                    f"wrote them (their SHA-256 is not the manifest's); {again}",
+                )
             )
         try:
             with np.load(path) as data:
@@ -241,13 +261,20 @@ class Basis:
             path = self.path(key)
             if os.path.isfile(path) and image_changed(self.folder, self._entry(key)):
                 raise MismatchError(
-                    f"basis {self.folder}, image {key!r}: {path} was changed after render_basis wrote it (its "
-                    "SHA-256 is not the manifest's); run the same render_basis command again to render it anew"
+                    _in_progress(
+                        self.folder,
+                        f"basis {self.folder}, image {key!r}",
+                        f"{path} was changed after render_basis "
+                        "wrote it (its SHA-256 is not the manifest's); run the same render_basis "
+                        "command again to render it anew",
+                    )
                 )
             try:
                 img = imageio.read_exr(path)
             except FormatError as e:
-                raise MismatchError(f"basis {self.folder}, image {key!r}: {e}") from None
+                raise MismatchError(
+                    _in_progress(self.folder, f"basis {self.folder}, image {key!r}", str(e))
+                ) from None
             w, h = self.resolution
             if img.shape != (h, w, 3):
                 raise MismatchError(
@@ -345,10 +372,22 @@ class Basis:
             h = manifold_identity(m) if self.version >= 2 else file_hash(path)
             if h != self.manifest.manifold_hash:
                 where = os.path.abspath(path) if path is not None else "the manifold given"
+                what = (
+                    "its file's SHA-256 (what a version-1 manifest records)"
+                    if self.version < 2
+                    else "its identity (latent points, hyperparameters, materials, tables)"
+                )
+                if where == os.path.abspath(self.manifest.manifold):
+                    raise MismatchError(
+                        f"basis {self.folder}: its manifold {where} is not the one it was rendered "
+                        f"with: {what} is {h[:12]}, the manifest records "
+                        f"{self.manifest.manifold_hash[:12]}; render the basis again with it, or "
+                        "give the manifold it was rendered with"
+                    )
                 raise MismatchError(
                     f"basis {self.folder} was rendered with another manifold: {self.manifest.manifold} "
-                    f"(identity {self.manifest.manifold_hash[:12]}), not {where} (identity {h[:12]}: other "
-                    "latent points, hyperparameters, materials or tables)"
+                    f"(identity {self.manifest.manifold_hash[:12]}), not {where} (identity {h[:12]}: "
+                    "other latent points, hyperparameters, materials or tables)"
                 )
         self._checked[key] = m
         return m
