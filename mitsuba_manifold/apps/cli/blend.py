@@ -1,10 +1,10 @@
 """Blend a basis of per-material renders into the image of a latent point (paper Eq. 13).
 
   blend.py --basis DIR --x 0.3 -1.2 --out img.exr [--png]
-  blend.py --basis DIR --x 0.3,-1.2 --out img.exr --reference ref.exr
-  blend.py --basis DIR --x 0.3,-1.2 --out img.exr --render-reference --spp 1024
+  blend.py --basis DIR --x 0.11,-0.29,0.49,0.68 --out img.exr --reference ref.exr
+  blend.py --basis DIR --x 0.11,-0.29,0.49,0.68 --out img.exr --render-reference --spp 1024
   blend.py --basis DIR --path gold-paint chrome --steps 20 --out seq.exr [--path-kind straight]
-  blend.py --basis DIR --x 0.3,-1.2 --out img.exr --component full
+  blend.py --basis DIR --x 0.11,-0.29,0.49,0.68 --out img.exr --component full
 
 The default blends the full-GI images and cross terms of the basis (render_basis.py's default), its
 light beyond L1- denoised (--l2 raw: summed, exact at the training materials but noisy where light runs
