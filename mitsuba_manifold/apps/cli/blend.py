@@ -1,6 +1,6 @@
 """Blend a basis of per-material renders into the image of a latent point (paper Eq. 13).
 
-  blend.py --basis DIR --x 0.3 -1.2 --out img.exr [--png]
+  blend.py --basis DIR --x gold-paint --out img.exr [--png]
   blend.py --basis DIR --x 0.11,-0.29,0.49,0.68 --out img.exr --reference ref.exr
   blend.py --basis DIR --x 0.11,-0.29,0.49,0.68 --out img.exr --render-reference --spp 1024
   blend.py --basis DIR --path gold-paint chrome --steps 20 --out seq.exr [--path-kind straight]
