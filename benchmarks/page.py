@@ -24,7 +24,6 @@ PAGE = os.path.join(ROOT, "docs", "benchmarks.md")
 #: Result files that are not a benchmark of ``tools/bench.py``: their title and command.
 OTHER = {
     "main_job_report": ("The main job", "python3 tools/main.py (writes out/gi/report.json)"),
-    "main_job_memory": ("The main job's memory", "/usr/bin/time -v python3 tools/main.py"),
     "gpu_check_h200": ("On a GPU (NVIDIA H200, cuda_ad_rgb)", "tools/gpu_check.sh"),
 }
 #: Keys never shown: what describes a run rather than what it measured.
@@ -103,6 +102,34 @@ def generic(name, data) -> str:
     lines += [f"| {rows[i][0]} | {rows[i][1]} |" for i in sorted(shown)]
     if len(rows) > len(shown):
         lines.append(f"| (and {len(rows) - len(shown)} more in the JSON) | |")
+    return "\n".join(lines)
+
+
+def main_job(data) -> str:
+    """The main job's section: its pair and, at each point, the blend against the reference
+    and against a direct render of 256 spp; its peak memory.
+    """
+    lines = [
+        f"Pair: {' and '.join(data['pair'])} (latent neighbours whose colours differ most). "
+        f"Basis {data['resolution']}x{data['resolution']} at {data['basis_spp']} spp, references "
+        f"at {data['reference_spp']} spp. Peak memory {data['peak_rss_bytes'] / 2**30:.2f} GiB.",
+        "",
+        "| point | blend | rel. MSE | bias | L1- bias | direct 256 spp rel. MSE |",
+        "|---|---|---|---|---|---|",
+    ]
+    for scene in data["scenes"].values():
+        for p in scene["points"]:
+            b = p["blend"]
+            l1 = p.get("blend_l1", {}).get("relative_bias")
+            direct = {d["spp"]: d for d in p.get("direct", [])}.get(256, {})
+            summed = p.get("blend_summed", {}).get("time_s")
+            lines.append(
+                f"| {p['point']} ({p['x_is']}) | {b['time_s'] * 1e3:.0f} ms"
+                + (f" ({summed * 1e3:.1f} ms summed)" if summed is not None else "")
+                + f" | {b['rel_mse']:.3g} | {b['relative_bias']:+.2%} | "
+                + (f"{l1:+.2%}" if l1 is not None else "")
+                + f" | {_number(direct['rel_mse']) if direct else ''} |"
+            )
     return "\n".join(lines)
 
 
@@ -185,7 +212,7 @@ def page(folder=RESULTS) -> str:
         else:
             title = name if stem.replace("_", "-") == name else f"{name} ({stem})"
             command = f"python3 tools/bench.py {name} --json benchmarks/results/{stem}.json"
-        report = _report(name)
+        report = main_job if stem == "main_job_report" else _report(name)
         body = report(data).strip() if report else generic(name, data)
         lines += [f"## {title}", "", f"`{command}`", "", body, ""]
     return "\n".join(lines)
