@@ -569,9 +569,11 @@ def test_missing_manifold_or_database(small_manifold_paper, tmp_path):
     with pytest.raises(Exception) as info:
         make(str(tmp_path / "missing.npz"), material="chrome")
     assert "manifold file '" + str(tmp_path / "missing.npz") + "' not found" in chain(info.value)
-    with pytest.raises(Exception) as info:  # a built-in database's name: how to make its manifold
-        make("merl", material="chrome")
-    assert "fit_manifold.py merl --out merl.npz" in chain(info.value)
+    with pytest.raises(Exception) as info:  # a database without a shipped manifold: how to make one
+        make("sgd", material="chrome")
+    assert "fit_manifold.py sgd --out sgd.npz" in chain(info.value)
+    assert "name a shipped manifold (merl, rgl, nielsen, all)" in chain(info.value)
+    assert make("merl", material="chrome").manifold.n == 100  # the shipped default
     moved = Manifold.load(small_manifold_paper)
     moved.database = str(tmp_path / "moved-away")
     moved.save(tmp_path / "moved.npz")
