@@ -170,6 +170,7 @@ def serve(args):
 
     from ..explore import Explorer, create_app
     from ..explore.guard import MAX_MESSAGE, AllowList
+    from ..explore.serving import protocol, quiet_logs
     from .common import ERRORS, cli_message
 
     try:
@@ -205,10 +206,13 @@ def serve(args):
             thumbnails=not args.no_thumbnails,
             refine_spp=args.refine_spp,
         )
-        # frames are JPEG or raw pixels: per-message deflate would cost more time than it saves
+        # frames are JPEG or raw pixels: per-message deflate would cost more time than it saves;
+        # a request not complete within seconds is closed, connections beyond a cap refused
+        # (serving.py), and repeated log messages collapsed
         server = uvicorn.Server(
             uvicorn.Config(
                 create_app(explorer, allow),
+                http=protocol(),
                 log_level="warning",
                 timeout_graceful_shutdown=1,
                 ws_ping_interval=None,
@@ -216,6 +220,7 @@ def serve(args):
                 ws_max_size=MAX_MESSAGE,
             )
         )
+        quiet_logs()
         for name, b in explorer.bases.items():
             print(
                 f"basis {name}: {len(b.keys)} materials, {b.resolution[0]}x{b.resolution[1]}, {b.folder}"
