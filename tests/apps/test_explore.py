@@ -479,15 +479,18 @@ def test_ctrl_c_stops_the_server_with_a_tab_connected(small_basis, small_manifol
 
 
 def test_real_server_refuses_other_hosts_and_ctrl_c_stops_a_render_within_2s(
-    small_basis, small_manifold_paper
+    small_basis, small_manifold_paper, tmp_path, monkeypatch
 ):
     """Against the real server (uvicorn): a DNS-rebinding Host gets 403 on HTTP and on the
-    websocket handshake; Ctrl-C while a reference render runs stops the server within 2 s."""
+    websocket handshake; Ctrl-C while a reference render runs stops the server within 2 s, and
+    leaves no temporary folder of the render behind."""
+    import glob
     import signal
     import socket
     import urllib.error
     import urllib.request
 
+    monkeypatch.setenv("TMPDIR", str(tmp_path))  # the server's temporary folders
     proc, url = launch.start([small_basis], small_manifold_paper, ["--no-tables"])
     try:
         port = url.rstrip("/").rsplit(":", 1)[1]
@@ -530,6 +533,7 @@ def test_real_server_refuses_other_hosts_and_ctrl_c_stops_a_render_within_2s(
         took,
         out,
     )
+    assert glob.glob(str(tmp_path / "explore-reference-*")) == []
 
 
 # ---------------------------------------------------------------- browser
