@@ -46,6 +46,8 @@ FRAME_WAIT = 2.0
 DRAG_QUIET = 0.6
 #: How often a request waiting for a map made elsewhere asks whether it is still wanted (s).
 MAP_POLL = 0.25
+#: The longest a path's next evaluation of the metric waits for a frame being made (s).
+PATH_YIELD = 0.1
 TOOLS = os.path.join(
     os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
     "tools",
@@ -256,8 +258,14 @@ class Explorer:
             if self._walks_error:
                 raise InputError(self._walks_error)
             if self._walks is None:
-                self._walks = Walks(self.manifold, self.tables.metric_rows)
+                self._walks = Walks(self.manifold, self.tables.metric_rows, pause=self._path_pause)
         return self._walks
+
+    def _path_pause(self):
+        """Called by the path thread before each evaluation of the metric: a frame being made
+        goes first (at most :data:`PATH_YIELD` s, so that the path goes on during a drag).
+        """
+        self._framing.wait_quiet(0.0, PATH_YIELD)
 
     @_one_blas_thread
     def material(self, x, with_slice=True, live=False):

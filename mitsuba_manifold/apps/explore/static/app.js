@@ -54,6 +54,7 @@ const sameX = (a, b) => !!a && !!b && a.length === b.length && a.every((v, k) =>
 
 function onMessage(meta, payload) {
   if (meta.type === "error" && meta.kind === "route") { routeFailed(meta); return; }
+  if (meta.type === "progress") { if (meta.kind === "route") routeProgress(meta); return; }
   if (meta.type === "error") { setStatus((meta.kind ? meta.kind + ": " : "") + meta.error, true, meta.kind); return; }
   clearError(meta.type);
   if (meta.type === "frame") drawFrame(meta, payload);
@@ -562,6 +563,7 @@ function drawPath() {
   setText($("b-label"), endLabel(state.b));
   $("scrub").disabled = !pathReady(); $("export-path").disabled = !pathReady();
   setText($("route-state"), state.route ? state.route.note : "");
+  $("route-cancel").hidden = !(state.route && state.route.computing);
   drawMap();
 }
 view(["a", "b", "route"], drawPath);
@@ -577,21 +579,32 @@ function straightRoute() {
 function requestRoute() {
   const kind = $("path-kind").value, straight = kind === "straight";
   if (!straight) state.routeSeq = channel.send({ type: "route", a: state.a.x, b: state.b.x, steps: ROUTE_STEPS, kind }, ["route"]);
-  update({ route: { kind: "straight", want: kind, a: state.a.x, b: state.b.x, points: straightRoute(),
+  update({ route: { kind: "straight", want: kind, a: state.a.x, b: state.b.x, points: straightRoute(), computing: !straight,
                     note: straight ? "the latent segment" : `${kind}: computing in the background… (straight meanwhile)` } });
+}
+// The server's progress of the path being computed (every half second): time and steps so far.
+function routeProgress(meta) {
+  const r = state.route;
+  if (!r || !r.computing || meta.route_seq !== state.routeSeq) return;
+  update({ route: Object.assign({}, r, { note: `${r.want}: computing… ${meta.seconds.toFixed(0)} s, ` +
+    `${meta.evaluations} evaluations of the metric (straight meanwhile)` }) });
+}
+function cancelRoute() {   // the path stops at its next step; the route's error answer says so
+  if (state.route && state.route.computing) channel.send({ type: "cancel", kind: "route" }, []);
 }
 function showRoute(meta) {
   const r = state.route;
   if (!r || meta.seq !== state.routeSeq || meta.kind !== r.want || !sameX(meta.a, r.a) || !sameX(meta.b, r.b)) return;
   const onPath = sameX(state.x, pointOnRoute(+$("scrub").value / 1000));
   const L = meta.lengths.reduce((s, v) => s + v, 0), spread = Math.max(...meta.lengths) / (L / meta.lengths.length);
-  update({ route: Object.assign({}, r, { kind: meta.kind, points: meta.points,
+  update({ route: Object.assign({}, r, { kind: meta.kind, points: meta.points, computing: false,
     note: `${meta.kind} · perceptual length ${fmtNum(L)} · largest step ${spread.toFixed(2)}× the mean` }) });
   if (onPath) { scrub(); commitPoint(); }   // the point shown moves onto the new path
 }
 function routeFailed(meta) {
   if (meta.seq !== state.routeSeq || !state.route) return;
-  update({ route: Object.assign({}, state.route, { note: `${$("path-kind").value} unavailable (${meta.error}): straight` }) });
+  update({ route: Object.assign({}, state.route, { computing: false,
+    note: `${state.route.want} unavailable (${meta.error}): straight` }) });
 }
 function pointOnRoute(t) {
   const P = state.route.points, u = t * (P.length - 1), k = Math.min(P.length - 2, Math.floor(u)), f = u - k;
@@ -788,6 +801,7 @@ async function main() {
   bindShelf();
   window.addEventListener("resize", () => { forgetMapBox(); placeCursor(); });
   $("export-path").onclick = exportPath;
+  $("route-cancel").onclick = cancelRoute;
   $("ref-start").onclick = startReference;
   $("ref-cancel").onclick = cancelReference;
   $("refine-auto").onchange = () => { if ($("refine-auto").checked) refineHere(); else refineOff(); };
