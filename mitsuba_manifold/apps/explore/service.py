@@ -285,6 +285,14 @@ class Explorer:
             out["measured"] = (
                 self._walks.nearest_measured(x) if self._walks is not None and not live else None
             )
+            kept = [w for w in out["weights"] if w["kept"]]
+            if (
+                out["measured"] is not None
+                and out["n_kept"] == len(kept) == 1
+                and kept[0]["w"] == 1.0
+            ):
+                # the table of one measured material alone: it is that material, at distance 0
+                out["measured"] = dict(out["measured"], name=kept[0]["name"], distance=0.0)
             out["live"] = bool(live)
         if self.tables and self.tables.state == "ready" and with_slice:
             rgb, (lo, hi) = material.slice_image(self.tables.slice(x, self.prune))

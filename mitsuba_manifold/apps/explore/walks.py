@@ -118,9 +118,12 @@ class Walks:
         f = self.metric.features(np.asarray(x, dtype=np.float64)[None])[0].astype(np.float32)
         d2 = self._measured_sq + float(f @ f) - 2.0 * (self._measured @ f)
         i = int(np.argmin(d2))
+        # the nearest one's distance again from the difference (the expanded square above
+        # loses the small distances to cancellation: a measured material came out "very close")
+        d = np.linalg.norm(self._measured[i].astype(np.float64) - f.astype(np.float64))
         return {
             "name": self.manifold.names[i],
-            "distance": float(np.sqrt(max(d2[i], 0.0))),
+            "distance": float(d),
             "spacing": self.spacing,
         }
 

@@ -15,7 +15,7 @@ const state = {
   info: null, x: null, basis: null, exposure: 0, dims: [0, 1], map: null, mapImage: null,
   hover: -1, a: null, b: null, displayed: null, material: null, snippet: null, errors: [], zoom: null,
   filter: "", status: null, favs: [], compare: [], refine: null, reference: null,
-  mapKey: null, moves: 0, dragging: false, liveUntil: 0,
+  mapKey: null, moves: 0, dragging: false, liveUntil: 0, connected: false,
   // raw RGBA on this machine (exact, no encoding); JPEG when the page is viewed from elsewhere
   format: new URLSearchParams(location.search).get("format") || (LOCAL ? "rgba" : "jpeg"),
 };
@@ -63,7 +63,8 @@ function onMessage(meta, payload) {
     // the full table of a point a new drag has left (a newer table asked for): not worth its upload
     if (!meta.coarse && live() && !channel.isCurrent("table", meta.seq)) return;
     if (!sameX(meta.x, state.previewX) || meta.coarse !== state.previewCoarse) { preview.setTable(payload, meta); drawPlots(); showGloss(); }
-    state.previewX = meta.x; state.previewCoarse = meta.coarse;   // redrawn only when it changed
+    state.previewCoarse = meta.coarse;   // redrawn only when it changed
+    update({ previewX: meta.x });
   }
   else if (meta.type === "route") showRoute(meta);
   else if (meta.type === "snippet") showSnippet(meta);
@@ -83,6 +84,7 @@ async function drawFrame(meta, payload) {
   if (bmp) ctx.drawImage(bmp, 0, 0);
   else ctx.putImageData(new ImageData(new Uint8ClampedArray(payload), meta.width, meta.height), 0, 0);
   state.displayed = { x: meta.x, seq: meta.seq, exposure: meta.exposure, basis: meta.basis, at: performance.now() };
+  drawStale();
   if (window.explore.trace) window.explore.trace.push({ x: meta.x, at: state.displayed.at, server_ms: meta.total_ms,
     round_trip_ms: meta.round_trip_ms });   // tools/bench.py explore --browser
   c.dataset.x = meta.x.join(",");
@@ -183,6 +185,34 @@ view(["x"], drawPoint);
 view(["x", "material", "snippet"], showPoint);
 view(["filter"], () => buildGallery());   // shelf.js: the tiles matching the search
 view(["status", "errors"], drawStatus);
+view(["connected", "x", "displayed", "previewX"], drawStale);
+
+// While the server is away, what it showed for another point than the one chosen is dimmed: the
+// scene and the sphere keep their last images, which are not the point's (the panel is dimmed
+// by showPoint whenever its answer is not the point's).
+function drawStale() {
+  const away = !state.connected && !!state.x;
+  $("scene").classList.toggle("stale", away && !(state.displayed && sameX(state.displayed.x, state.x)));
+  $("sphere").classList.toggle("stale", away && !sameX(state.previewX, state.x));
+  document.body.classList.toggle("disconnected", !state.connected);
+}
+
+// The websocket is back (the server restarted, or the network came back): the page asks again for
+// its whole state. The server's facts (/api/info: tables, thumbnails), every answer for the point
+// (frame, sphere table, material, snippet, map) and the refinement; the errors of the time
+// away are dropped (each comes back if its cause is still there), a shared link's excepted.
+async function reconnected() {
+  update({ errors: state.errors.filter((e) => e.source === "link") });
+  try {
+    const info = await (await api("/api/info")).json();
+    state.info.tables = info.tables; state.info.thumbs = info.thumbs; state.info.refine_spp = info.refine_spp;
+  } catch (e) { return; }   // gone again: the next reconnection asks again
+  update({ previewX: null });   // the sphere's table comes again, even for the same point
+  state.previewCoarse = null;
+  requestAll();
+  if (state.info.tables === "loading") pollTables();
+  if (state.refine || state.refineJob) { state.refineJob = null; update({ refine: null }); refineHere(); }
+}
 
 function updateSavePng() {
   $("save-png").href = "/api/frame?" + new URLSearchParams({ x: state.x.join(","), basis: state.basis,
@@ -747,7 +777,7 @@ async function main() {
   };
   sceneInfo();
   preview = new MaterialPreview($("sphere"), $("sphere-msg"));
-  channel = new Channel(onMessage, () => state.x && requestAll());
+  channel = new Channel(onMessage, () => state.x && reconnected());
   // start at the measured material closest to the centre of the data
   const mean = info.latent[0].map((_, k) => info.latent.reduce((s, p) => s + p[k], 0) / info.latent.length);
   let best = 0, bd = Infinity;
@@ -849,10 +879,15 @@ function sceneInfo() {
   drawReference();
 }
 
-async function pollTables() {
-  const info = await (await api("/api/info")).json();
+let tablesPoll = 0;
+async function pollTables() {   // one poll at a time; a failed one (the server away) is tried again
+  const run = ++tablesPoll;
+  let info;
+  try { info = await (await api("/api/info")).json(); }
+  catch (e) { setTimeout(() => run === tablesPoll && pollTables(), 1000); return; }
+  if (run !== tablesPoll) return;
   state.info.tables = info.tables;
-  if (info.tables === "loading") { setTimeout(pollTables, 250); return; }
+  if (info.tables === "loading") { setTimeout(() => run === tablesPoll && pollTables(), 250); return; }
   requestAll();
 }
 
