@@ -14,9 +14,11 @@ distance to the closest measured one, a frame whose L2+ part is summed, not deno
 ``"held": true``, the pointer still down); the page asks again in full when the drag rests. A
 move's ``"map_coarse"``, when given, says whether its map is the coarse one instead (a drag on the
 map stays in one slice: its map is asked for in full at once). A
-full (denoised) frame has its own worker (:data:`FINAL`): denoising takes several frames'
-time, and the first frames of the next drag do not wait for it (a coarse frame drops a full
-one still waiting; one that comes after a newer frame was drawn, the page drops by its ``seq``).
+full (denoised) frame has its own worker (:data:`FINAL`), denoised only where that changes the
+8-bit image visibly (:meth:`~.service.Explorer.frame`'s ``rest``; else the drag's frame):
+denoising takes several frames' time, and the first frames of the next drag do not wait for it
+(a coarse frame drops a full one still waiting; one that comes after a newer frame was drawn,
+the page drops by its ``seq``).
 
 A path (``route``) is computed by the explorer's path thread (:class:`~.walks.Walks`); the
 session waits for it without holding any other kind, sends its progress every
@@ -296,8 +298,14 @@ class Session:
             if coarse:  # a drag: no refinement nor reference competes with its frames for the CPU
                 ex.references.supersede_refine()
                 ex.references.hold()
-            data, meta = await run_in_threadpool(
-                ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"), coarse
+            data, meta = await run_in_threadpool(  # at rest: denoised where that shows
+                ex.frame,
+                req.get("basis"),
+                x,
+                exposure,
+                req.get("format", "jpeg"),
+                coarse,
+                not coarse,
             )
             return dict(meta, exposure=exposure, basis=ex.key(req.get("basis")), **tag), data
         if kind == "material":
