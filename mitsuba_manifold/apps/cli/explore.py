@@ -9,6 +9,11 @@ with its port, or to --host (other Host headers are refused: DNS rebinding), and
 of those origins (http) or of an --allow-origin. Every image of every basis is read into memory first; the material
 tables (for the WebGL preview, the negative-bin fraction and the BRDF slice) load in the
 background while the page already works.
+
+The server holds up against clients that misbehave: a connection whose request is not complete
+within 5 s is closed (408), connections beyond 256 at once are refused (503), a page has at most
+4 reference renders waiting or running (429 beyond), and a message repeated in the console is
+shown once per 10 s with a count of the others.
 """
 
 import argparse

@@ -212,6 +212,8 @@ async function reconnected() {
   requestAll();
   if (state.info.tables === "loading") pollTables();
   if (state.refine || state.refineJob) { state.refineJob = null; update({ refine: null }); refineHere(); }
+  if (state.route && state.route.computing && pathReady()) requestRoute();   // its request went with the old socket
+  if ($("path-cmd").classList.contains("stale") && pathReady()) exportPath();
 }
 
 function updateSavePng() {
