@@ -83,6 +83,22 @@ def test_a_restarted_server_gives_back_the_whole_page_and_stale_parts_are_dimmed
             for sel in ("#scene", "#sphere", "#material-panel"):
                 assert "stale" not in _classes(pg, sel), sel
             np.testing.assert_array_equal(pg.evaluate("window.explore.state.x"), there)
+            # back with other bases: the page's lists are not the server's; it says so and shows
+            # none of the new server's answers
+            launch.stop(proc)
+            pg.wait_for_function("!window.explore.state.connected", timeout=20000)
+            proc, _ = launch.start(
+                [small_basis, small_basis], small_manifold_paper, ["--port", port], timeout=300
+            )
+            pg.wait_for_function(
+                "document.getElementById('status').textContent.includes('reload the page')",
+                timeout=60000,
+            )
+            seq = pg.evaluate("window.explore.state.displayed.seq")
+            pg.evaluate("(x) => window.explore.setX(x)", [float(v) for v in first])
+            pg.wait_for_timeout(1500)
+            assert pg.evaluate("window.explore.state.displayed.seq") == seq
+            assert "stale" in _classes(pg, "#scene")
             assert not pg.errors
     finally:
         if proc.poll() is None:

@@ -53,6 +53,7 @@ let channel, preview;
 const sameX = (a, b) => !!a && !!b && a.length === b.length && a.every((v, k) => v === b[k]);
 
 function onMessage(meta, payload) {
+  if (state.foreign) return;   // the server serves another manifold now (reconnected)
   if (meta.type === "error" && meta.kind === "route") { routeFailed(meta); return; }
   if (meta.type === "progress") { if (meta.kind === "route") routeProgress(meta); return; }
   if (meta.type === "error") { setStatus((meta.kind ? meta.kind + ": " : "") + meta.error, true, meta.kind); return; }
@@ -191,6 +192,7 @@ view(["connected", "x", "displayed", "previewX"], drawStale);
 // scene and the sphere keep their last images, which are not the point's (the panel is dimmed
 // by showPoint whenever its answer is not the point's).
 function drawStale() {
+  if (state.foreign) return;   // stays dimmed: reload
   const away = !state.connected && !!state.x;
   $("scene").classList.toggle("stale", away && !(state.displayed && sameX(state.displayed.x, state.x)));
   $("sphere").classList.toggle("stale", away && !sameX(state.previewX, state.x));
@@ -202,11 +204,21 @@ function drawStale() {
 // (frame, sphere table, material, snippet, map) and the refinement; the errors of the time
 // away are dropped (each comes back if its cause is still there), a shared link's excepted.
 async function reconnected() {
-  update({ errors: state.errors.filter((e) => e.source === "link") });
-  try {
-    const info = await (await api("/api/info")).json();
-    state.info.tables = info.tables; state.info.thumbs = info.thumbs; state.info.refine_spp = info.refine_spp;
-  } catch (e) { return; }   // gone again: the next reconnection asks again
+  update({ errors: state.errors.filter((e) => e.source === "link" || e.source === "server") });
+  let info;
+  try { info = await (await api("/api/info")).json(); }
+  catch (e) { return; }   // gone again: the next reconnection asks again
+  const same = (a, b) => JSON.stringify(a) === JSON.stringify(b), was = state.info;
+  if (info.manifold !== was.manifold || !same(info.latent, was.latent) || !same(info.names, was.names) ||
+      !same(info.bases.map((b) => [b.name, b.folder]), was.bases.map((b) => [b.name, b.folder]))) {
+    // another manifold or other bases: the map, names and lists of this page are not the server's
+    state.foreign = true;   // its answers are for another manifold's points: none is shown
+    setStatus("the server restarted with another manifold or other bases: reload the page (its point is in the address)", true, "server");
+    document.body.classList.add("disconnected");
+    for (const id of ["scene", "sphere"]) $(id).classList.add("stale");
+    return;
+  }
+  state.info.tables = info.tables; state.info.thumbs = info.thumbs; state.info.refine_spp = info.refine_spp;
   update({ previewX: null });   // the sphere's table comes again, even for the same point
   state.previewCoarse = null;
   requestAll();
