@@ -24,6 +24,7 @@ job does (cancelled, failed) stops the worker.
 
 import itertools
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -422,7 +423,8 @@ class References:
             if self._stopping:
                 raise RuntimeError("the server is stopping")
             if self._folder is None or not os.path.isdir(self._folder):
-                self._folder = tempfile.mkdtemp(prefix="explore-reference-")
+                _sweep(tempfile.gettempdir())
+                self._folder = tempfile.mkdtemp(prefix=f"explore-reference-{os.getpid()}-")
             return self._folder
 
     def busy(self):
@@ -455,6 +457,32 @@ class References:
         if folder is not None:
             shutil.rmtree(folder, ignore_errors=True)
         return not self.busy()
+
+
+_FOLDER = re.compile(r"^explore-reference-([0-9]+)-")
+
+
+def _sweep(folder):
+    """Remove the reference renders' folders in ``folder`` left by explorers that no longer run
+    (killed: no shutdown removed them); a folder is an explorer's by its name, which holds the
+    process id.
+    """
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return
+    for name in names:
+        m = _FOLDER.match(name)
+        if m is None or int(m.group(1)) == os.getpid():
+            continue
+        try:
+            os.kill(int(m.group(1)), 0)
+            continue  # that explorer runs
+        except ProcessLookupError:
+            pass
+        except (OSError, OverflowError):
+            continue  # another user's, or not a process id: left alone
+        shutil.rmtree(os.path.join(folder, name), ignore_errors=True)
 
 
 def _listed(resolution):
