@@ -130,7 +130,9 @@ def protocol(
             if left > 0:
                 self._arm(left)
                 return
-            if self.conn.their_state is h11.IDLE:  # no request yet: say why it is closed
+            if self.conn.their_state is h11.IDLE or not (
+                self.cycle is None or self.cycle.response_started
+            ):  # no request yet, or a body cut short and no answer begun: say why it is closed
                 self.transport.write(
                     _reply(
                         408,
@@ -138,7 +140,7 @@ def protocol(
                         f"the request was not complete within {deadline:g} s",
                     )
                 )
-            self.transport.close()  # a body cut short: the app reading it sees the disconnect
+            self.transport.close()  # the app reading a body cut short sees the disconnect
 
         def on_response_complete(self):
             super().on_response_complete()
