@@ -144,7 +144,7 @@ def test_a_stopping_server_removes_the_files_of_the_render_it_ends(
     _wait(job, 30)
 
 
-def test_the_folders_of_a_killed_explorer_are_removed_by_the_next_one(
+def test_the_folders_of_a_killed_explorer_are_removed_when_the_next_one_starts(
     explorer, small_manifold_paper, temp_here
 ):
     import subprocess
@@ -159,7 +159,8 @@ def test_the_folders_of_a_killed_explorer_are_removed_by_the_next_one(
     other = temp_here / "explore-reference-notmine"
     other.mkdir()
     refs = reference.References()
-    try:
+    assert not dead.exists() and alive.exists() and other.exists()
+    try:  # and its own folder is made and removed as before
         m = Manifold.load(small_manifold_paper)
         name = next(iter(explorer.bases))
         job = refs.submit(

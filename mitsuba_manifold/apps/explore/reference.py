@@ -136,6 +136,7 @@ class References:
         self._paused = {}  # pid -> process paused by hold()
         self._resumer = None  # the timer that resumes them
         self._folder = None  # the temporary folder of the reference renders' files
+        _sweep(tempfile.gettempdir())  # those of explorers killed before they could remove them
 
     def submit(self, name, basis, scene, manifold_path, x, spp, blend_image, tab=None):
         """Start a job; returns it. ``blend_image``: the blend at ``x`` to compare with; ``tab``:
@@ -423,7 +424,6 @@ class References:
             if self._stopping:
                 raise RuntimeError("the server is stopping")
             if self._folder is None or not os.path.isdir(self._folder):
-                _sweep(tempfile.gettempdir())
                 self._folder = tempfile.mkdtemp(prefix=f"explore-reference-{os.getpid()}-")
             return self._folder
 
