@@ -13,8 +13,10 @@ a blend that equals full GI still differs from a noisy reference by that noise).
 One job runs at a time; the others wait in line, at most :data:`MAX_WAITING_PER_TAB` of one
 page and :data:`MAX_WAITING` in all (beyond, :class:`~mitsuba_manifold.errors.BusyError`); a
 newer refinement cancels the older ones still waiting. A reference render's files are in a
-folder of its own inside one temporary folder of the explorer's, removed when the render ends
-(done, failed or cancelled) and, with whatever is left in it, by :meth:`References.shutdown`.
+folder of its own inside one temporary folder of the explorer's (named with its process id),
+removed when the render ends (done, failed or cancelled) and, with whatever is left in it, by
+:meth:`References.shutdown`; the folders of explorers that were killed (no shutdown) are removed
+when the next explorer starts.
 
 Every job can be cancelled (:meth:`References.cancel`, or :meth:`References.cancel_tab` for
 all the jobs a tab started, when its websocket closes): a queued job never starts, a running
