@@ -160,6 +160,9 @@ def test_a_complete_request_and_a_keep_alive_connection_are_answered(serve):
                 head += chunk
             assert head.startswith(b"HTTP/1.1 200") and head.endswith(b"hello"), head
             time.sleep(0.6)  # within the deadline each time
+        # then idle: closed at the deadline without a word (a 408 there could be read as the
+        # answer to a request a client sends just then)
+        assert _read_all(s) == b""
 
 
 def test_a_response_its_client_never_reads_is_dropped(serve):

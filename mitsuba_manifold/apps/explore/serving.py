@@ -70,6 +70,7 @@ def protocol(
             self._stalled_since = None
             self._deadline = None
             self._refused = None
+            self._answered = 0
             if len(self.connections) > max_connections:
                 # refused: the 503 once the request's headers are read (closing a socket with
                 # unread data resets it, and the client would never see why), within a second
@@ -130,7 +131,8 @@ def protocol(
             if left > 0:
                 self._arm(left)
                 return
-            if self.conn.their_state is h11.IDLE or not (
+            idle = self._answered and not self.conn.trailing_data[0]  # kept alive, nothing sent
+            if (self.conn.their_state is h11.IDLE and not idle) or not (
                 self.cycle is None or self.cycle.response_started
             ):  # no request yet, or a body cut short and no answer begun: say why it is closed
                 self.transport.write(
@@ -143,6 +145,7 @@ def protocol(
             self.transport.close()  # the app reading a body cut short sees the disconnect
 
         def on_response_complete(self):
+            self._answered += 1
             super().on_response_complete()
             self._waiting_since = self.loop.time()  # the next request has its own deadline
 
