@@ -154,7 +154,7 @@ class References:
         self._pool.submit(self._run, job, basis, scene, manifold_path, blend_image)
         return job
 
-    def _admit(self, tab):
+    def _admit(self, tab) -> None:
         """Raise :class:`BusyError` when page ``tab`` (or every page) has as many jobs waiting
         or rendering as allowed; called with the lock held.
         """
@@ -420,7 +420,7 @@ class References:
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
 
-    def _job_folders(self):
+    def _job_folders(self) -> str:
         """The explorer's temporary folder of reference renders (made on first use)."""
         with self._lock:
             if self._stopping:
@@ -464,7 +464,7 @@ class References:
 _FOLDER = re.compile(r"^explore-reference-([0-9]+)-")
 
 
-def _sweep(folder):
+def _sweep(folder) -> None:
     """Remove the reference renders' folders in ``folder`` left by explorers that no longer run
     (killed: no shutdown removed them); a folder is an explorer's by its name, which holds the
     process id.

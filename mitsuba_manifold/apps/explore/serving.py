@@ -32,7 +32,7 @@ MAX_CONNECTIONS = 256
 LOG_WINDOW = 10.0
 
 
-def _reply(status, reason, text):
+def _reply(status, reason, text) -> bytes:
     body = (text + "\n").encode()
     return (
         f"HTTP/1.1 {status} {reason}\r\ncontent-type: text/plain; charset=utf-8\r\n"
@@ -42,7 +42,7 @@ def _reply(status, reason, text):
 
 def protocol(
     deadline=REQUEST_DEADLINE, max_connections=MAX_CONNECTIONS, write_deadline=WRITE_DEADLINE
-):
+) -> type:
     """The h11 HTTP protocol of uvicorn with a request deadline, a connection cap and a deadline
     on responses the client does not read (module doc); pass it as ``uvicorn.Config(http=...)``.
     """
@@ -64,7 +64,7 @@ def protocol(
     class GuardedH11Protocol(H11Protocol):
         """h11's protocol, with a deadline per request and a cap on open connections."""
 
-        def connection_made(self, transport):
+        def connection_made(self, transport) -> None:
             super().connection_made(transport)
             self._waiting_since = self.loop.time()
             self._stalled_since = None
@@ -80,7 +80,7 @@ def protocol(
                 return
             self._arm(deadline)
 
-        def data_received(self, data):
+        def data_received(self, data) -> None:
             if self._refused is None:
                 super().data_received(data)
                 return
@@ -88,7 +88,7 @@ def protocol(
             if b"\r\n\r\n" in self._refused or b"\n\n" in self._refused:
                 self._refuse()
 
-        def _refuse(self):
+        def _refuse(self) -> None:
             if self._deadline is not None:
                 self._deadline.cancel()
                 self._deadline = None
@@ -96,10 +96,10 @@ def protocol(
                 self.transport.write(refusal)
                 self.transport.close()
 
-        def _arm(self, seconds):
+        def _arm(self, seconds) -> None:
             self._deadline = self.loop.call_later(seconds, self._check_deadline)
 
-        def _receiving(self):
+        def _receiving(self) -> bool:
             """Whether the client owes the rest of a request (none begun, or one half sent)."""
             return self.conn.their_state in (h11.IDLE, h11.SEND_BODY) and (
                 self.cycle is None
@@ -107,7 +107,7 @@ def protocol(
                 or self.conn.their_state is h11.SEND_BODY
             )
 
-        def _check_deadline(self):
+        def _check_deadline(self) -> None:
             self._deadline = None
             if self.transport.is_closing() or self.transport.get_protocol() is not self:
                 return  # closed, or a websocket now (its protocol has its own pings and limits)
@@ -144,12 +144,12 @@ def protocol(
                 )
             self.transport.close()  # the app reading a body cut short sees the disconnect
 
-        def on_response_complete(self):
+        def on_response_complete(self) -> None:
             self._answered += 1
             super().on_response_complete()
             self._waiting_since = self.loop.time()  # the next request has its own deadline
 
-        def connection_lost(self, exc):
+        def connection_lost(self, exc) -> None:
             if self._deadline is not None:
                 self._deadline.cancel()
                 self._deadline = None
@@ -172,7 +172,7 @@ class RepeatFilter(logging.Filter):
         self._seen = {}  # key -> [time passed, records left out since]
         self._lock = threading.Lock()
 
-    def filter(self, record):
+    def filter(self, record) -> bool:
         exc = record.exc_info[0].__name__ if record.exc_info and record.exc_info[0] else None
         # the first line: asyncio's messages go on with the socket or task they are about
         key = (record.name, record.levelno, str(record.msg).split("\n", 1)[0][:200], exc)
@@ -198,7 +198,7 @@ class RepeatFilter(logging.Filter):
 SERVER_LOGGERS = ("asyncio", "uvicorn", "uvicorn.error", "uvicorn.access")
 
 
-def quiet_logs(window=LOG_WINDOW):
+def quiet_logs(window=LOG_WINDOW) -> RepeatFilter:
     """Put a :class:`RepeatFilter` on the server's loggers and on their handlers (a record is
     filtered where it is made, and where it is written when it comes from a logger below);
     returns it. Call it after uvicorn has configured its loggers.
