@@ -3,13 +3,16 @@
 ``merl``, ``rgl``, ``nielsen`` and ``all`` name a manifold wherever a manifold file is taken
 (``Manifold.load``, the plugin's ``manifold`` parameter, every tool's ``--manifold``): the
 default preset fit on that built-in set (:data:`~mitsuba_manifold.data.sources.BUILTIN`) at
-MERL's resolution, whose tables are the built-in ones, made on demand. An existing file or
-folder of that name wins over the built-in manifold. ``tools/build_manifolds.py`` refits and
-writes them all.
+MERL's resolution, whose tables are the built-in ones, made on demand. Names are read by the
+rule of database names (:func:`~mitsuba_manifold.data.sources.builtin_set`): ``builtin:merl``
+is always the shipped manifold; a bare ``merl`` is, unless a file or folder of that name
+exists, and then the name is ambiguous and refused, naming both. ``tools/build_manifolds.py``
+refits and writes them all.
 """
 
 import os
 
+from ..data.sources import BUILTIN_PREFIX
 from ..errors import InputError
 
 #: The shipped manifolds: name -> what it is (each the default fit of the built-in set of its name).
@@ -44,12 +47,33 @@ def shipped_path(name) -> str:
     return path
 
 
-def resolve_manifold(path) -> str:
-    """The manifold file that ``path`` names: ``path`` itself when it exists (an existing path
-    wins), else the shipped manifold of that name (:data:`SHIPPED`), else ``path`` unchanged
-    (its reader then says that it does not exist).
+def ambiguity(name, existing) -> InputError:
+    """The error of a bare shipped manifold's name where a file or folder ``existing`` of that
+    name exists: it names both and how to say each.
+    """
+    kind = "folder" if os.path.isdir(existing) else "file"
+    return InputError(
+        f"manifold {name!r} is ambiguous: the shipped manifold {name} ({SHIPPED[name]}) and the "
+        f"{kind} {os.path.abspath(existing)}; say ./{name} (or its full path) for the {kind} or "
+        f"{BUILTIN_PREFIX}{name} for the shipped manifold"
+    )
+
+
+def resolve_manifold(path, *, recorded=False) -> str:
+    """The manifold file that ``path`` names.
+
+    * ``builtin:NAME`` is the shipped manifold ``NAME`` (an unknown one is refused);
+    * a bare shipped name (``merl``) is the shipped manifold, unless a file or folder of that
+      name exists: then it is ambiguous and refused (:func:`ambiguity`). Where the name was
+      recorded by this package (``recorded``: a basis manifest), files are absolute paths, so a
+      bare name there is always the shipped manifold;
+    * anything else is ``path`` unchanged (its reader says when it does not exist).
     """
     path = os.fspath(path)
-    if os.path.exists(path) or path not in SHIPPED:
+    if path.startswith(BUILTIN_PREFIX):
+        return shipped_path(path[len(BUILTIN_PREFIX) :])
+    if path not in SHIPPED:
         return path
+    if not recorded and os.path.lexists(path):
+        raise ambiguity(path, path)
     return shipped_path(path)

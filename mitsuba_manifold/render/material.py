@@ -15,10 +15,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..data.sources import SET_NAMES
+from ..data.sources import BUILTIN_PREFIX, SET_NAMES
 from ..errors import InputError
 from ..manifold.model import DEFAULT_PRUNE, Manifold
-from ..manifold.shipped import SHIPPED, shipped_path
+from ..manifold.shipped import SHIPPED, ambiguity, resolve_manifold, shipped_path
 from .overrides import database_folder
 from .sampling import PLUGIN_NAME, combined_distribution, material_density
 
@@ -101,8 +101,13 @@ def read_properties(props):
             f"{PLUGIN_NAME}: the 'manifold' parameter (path of a saved manifold) is required"
         )
     given = str(props["manifold"])
-    if given in SHIPPED and not os.path.exists(str(mi.file_resolver().resolve(given))):
-        path = shipped_path(given)  # a file of that name, where the scene is, wins
+    if given in SHIPPED:  # the rule of manifold names, with the scene's folder searched too
+        found = str(mi.file_resolver().resolve(given))
+        if os.path.lexists(found):
+            raise InputError(f"{PLUGIN_NAME}: {ambiguity(given, found)}")
+        path = shipped_path(given)
+    elif given.startswith(BUILTIN_PREFIX):
+        path = resolve_manifold(given)
     else:
         path = resolve(given, "manifold file")
     try:

@@ -17,9 +17,10 @@ from typing import NamedTuple
 import numpy as np
 
 from .._util.checks import scene_xml
+from ..data.sources import BUILTIN_PREFIX
 from ..errors import InputError, MismatchError, MitsubaManifoldError, VariantError, did_you_mean
 from ..manifold.identity import manifold_identity
-from ..manifold.shipped import SHIPPED, resolve_manifold, shipped_path
+from ..manifold.shipped import SHIPPED, ambiguity, resolve_manifold
 
 
 def _scenes_dir():
@@ -358,10 +359,12 @@ def scene_manifolds(scene, params=None):
             continue
         value = _PARAM.sub(lambda m: str(values.get(m.group(1), m.group(0))), named[0])
         path = os.path.join(folder, value)
-        if not os.path.exists(path) and os.path.exists(value):
+        if value in SHIPPED or value.startswith(BUILTIN_PREFIX):
+            if value in SHIPPED and os.path.lexists(path):
+                raise ambiguity(value, path)
+            path = resolve_manifold(value)
+        elif not os.path.exists(path) and os.path.exists(value):
             path = value
-        elif not os.path.exists(path) and value in SHIPPED:
-            path = shipped_path(value)
         found.append((bsdf.get("id"), os.path.abspath(path)))
     return found
 

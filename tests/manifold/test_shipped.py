@@ -1,5 +1,6 @@
 """The shipped manifolds: each the default fit of its built-in set, loaded by name wherever a
-manifold file is taken; an existing path of that name wins."""
+manifold file is taken; a bare name where a path of that name exists is refused as ambiguous
+(the rule of database names), ``builtin:NAME`` and ``./NAME`` say which."""
 
 import os
 import re
@@ -37,17 +38,27 @@ def test_the_default_is_merl_with_its_materials_by_name():
     np.testing.assert_array_equal(m.point("gold-paint"), m.latent[m.index("gold-paint")])
 
 
-def test_an_existing_path_wins_over_a_shipped_name(tmp_path, small_manifold, monkeypatch):
+def test_a_shipped_name_beside_a_path_of_that_name_is_refused_naming_both(
+    tmp_path, small_manifold, monkeypatch
+):
     monkeypatch.chdir(tmp_path)
     assert resolve_manifold("merl") == shipped_path("merl")
     shutil.copy(small_manifold, tmp_path / "merl")
-    assert resolve_manifold("merl") == "merl"
-    assert Manifold.load("merl").n == Manifold.load(small_manifold).n
+    with pytest.raises(InputError, match=r"'merl' is ambiguous.*say \./merl.*builtin:merl"):
+        resolve_manifold("merl")
+    with pytest.raises(InputError, match="ambiguous"):
+        Manifold.load("merl")
+    assert resolve_manifold("./merl") == "./merl"
+    assert Manifold.load("./merl").n == Manifold.load(small_manifold).n
+    assert resolve_manifold("builtin:merl") == shipped_path("merl")
+    assert resolve_manifold("merl", recorded=True) == shipped_path("merl")
     assert resolve_manifold("no-such.npz") == "no-such.npz"  # the reader says it is missing
     with pytest.raises(InputError, match=r"no-such\.npz does not exist.*merl, rgl, nielsen, all"):
         Manifold.load("no-such.npz")
     with pytest.raises(InputError, match="no shipped manifold 'sgd'"):
         shipped_path("sgd")
+    with pytest.raises(InputError, match="no shipped manifold 'sgd'"):
+        resolve_manifold("builtin:sgd")
 
 
 def test_the_package_data_holds_the_shipped_manifolds():

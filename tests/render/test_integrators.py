@@ -337,13 +337,16 @@ def test_scene_parameters(small_manifold, tmp_path, name):
         "integrator": "path",
         "max_depth": "8",
     }
-    # The default is the shipped manifold "merl"; a file of that name beside the scene wins.
+    # The default is the shipped manifold "merl"; a file of that name beside the scene makes
+    # the name ambiguous (refused naming both); "./merl" is the file.
     scene = mi.load_file(os.path.join(SCENES, f"{name}.xml"), res="8", spp="1")
     (bsdf,) = integrators.manifold_bsdfs(scene)
     assert os.path.samefile(bsdf.manifold_path, shipped_path("merl"))
     shutil.copytree(SCENES, tmp_path / "scenes")
     shutil.copy(small_manifold, tmp_path / "scenes" / "merl")
-    scene = mi.load_file(str(tmp_path / "scenes" / f"{name}.xml"))
+    with pytest.raises(Exception, match=r"'merl' is ambiguous.*builtin:merl"):
+        mi.load_file(str(tmp_path / "scenes" / f"{name}.xml"))
+    scene = mi.load_file(str(tmp_path / "scenes" / f"{name}.xml"), manifold="./merl")
     (bsdf,) = integrators.manifold_bsdfs(scene)
     assert bsdf.id() == "material"
     assert os.path.samefile(bsdf.manifold_path, tmp_path / "scenes" / "merl")

@@ -349,7 +349,7 @@ class Basis:
         content identity (version 1: the file hash, when the manifold has a path).
         """
         if manifold is None:
-            manifold = resolve_manifold(self.manifest.manifold)
+            manifold = resolve_manifold(self.manifest.manifold, recorded=True)
             if not os.path.isfile(manifold):
                 raise MismatchError(
                     f"basis {self.folder}: its manifold {manifold} no longer exists; "
