@@ -42,18 +42,20 @@ from __future__ import annotations
 import contextlib
 import numbers
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._util.blas import one_thread
-from ..errors import InputError, NotPositiveDefiniteError
+from ..errors import ConvergenceWarning, InputError, NotPositiveDefiniteError
 from . import optimisers
 from .kernel import MAX_LATENT_DIM, Kernel, check_points, check_positive, kernel_matrix
 from .likelihood import Likelihood, check_gram, log_likelihood, log_likelihood_grad
-from .optimisers import HookeJeevesOptions, LBFGSOptions
+from .optimisers import HookeJeevesOptions, LBFGSOptions, NewtonOptions
+from .pose import canonical_pose
 from .rank_update import MoveTrial, RankUpdatedInverse
-from .stress import PenalisedLikelihood, Stress
+from .stress import PenalisedLikelihood, Stress, check_distances
 
 __all__ = [
     "MAX_LATENT_DIM",
@@ -62,11 +64,14 @@ __all__ = [
     "Likelihood",
     "HookeJeevesOptions",
     "LBFGSOptions",
+    "NewtonOptions",
     "GPLVM",
     "kernel_matrix",
     "log_likelihood",
     "log_likelihood_grad",
     "pca_init",
+    "mds_init",
+    "canonical_pose",
     "RankUpdatedInverse",
     "MoveTrial",
     "FitResult",
@@ -81,7 +86,14 @@ __all__ = [
 SINGLE_THREAD_MAX_N = 256
 
 #: Optimisers by name, with their options type.
-METHODS = {"hooke-jeeves": HookeJeevesOptions, "lbfgs": LBFGSOptions}
+METHODS = {
+    "hooke-jeeves": HookeJeevesOptions,
+    "lbfgs": LBFGSOptions,
+    "newton": NewtonOptions,
+}
+
+#: The optimisers that take a stress term (those working from the gradient).
+GRADIENT_METHODS = ("lbfgs", "newton")
 
 
 def check_q(q):
@@ -138,6 +150,47 @@ def pca_init(S, q, length_scale=1.0):
     return coords * (l / spread)
 
 
+def mds_init(distances, q, length_scale=1.0):
+    """Classical multidimensional scaling of target distances, as latent starting points.
+
+    The principal coordinates of the doubly centred ``B = -1/2 J D^2 J`` (``J = I - 1/N``):
+    ``U_q sqrt(lambda_q)`` of its ``q`` largest eigenvalues (negative ones count as zero),
+    scaled like :func:`pca_init` (first coordinate of standard deviation ``l``) and signed
+    the same way (each axis' largest entry positive). The start of a fit with a stress term:
+    the points already have the distances the term asks for, as far as ``q`` axes allow.
+
+    Parameters
+    ----------
+    distances : (N, N) array_like
+        Symmetric target distances, zero diagonal.
+    q : int
+        Latent dimension, 1 to 8.
+    length_scale : float
+
+    Returns
+    -------
+    (N, q) ndarray
+    """
+    q = check_q(q)
+    l = check_positive("length_scale", length_scale)
+    D = np.asarray(distances, dtype=np.float64)
+    D = check_distances(D, D.shape[0] if D.ndim == 2 else -1)
+    n = D.shape[0]
+    J = np.eye(n) - 1.0 / n
+    B = -0.5 * J @ (D * D) @ J
+    lam, vec = np.linalg.eigh(0.5 * (B + B.T))
+    lam, vec = lam[::-1], vec[:, ::-1]
+    k = min(q, n)
+    coords = np.zeros((n, q))
+    coords[:, :k] = vec[:, :k] * np.sqrt(np.maximum(lam[:k], 0.0))
+    big = np.argmax(np.abs(coords), axis=0)
+    coords *= np.where(coords[big, np.arange(q)] < 0, -1.0, 1.0)
+    spread = coords[:, 0].std()
+    if not spread > 0:
+        raise InputError("target `distances` place every material at one point: nothing to lay out")
+    return coords * (l / spread)
+
+
 @dataclass
 class FitResult:
     """Outcome of :func:`fit_latent`.
@@ -157,8 +210,10 @@ class FitResult:
         Wall time of the optimisation.
     method : str
     converged : bool
-        Whether the stopping tolerance was met before ``max_iter``.
+        Whether the optimiser's convergence test was met (:mod:`.optimisers`): the gradient
+        norm (L-BFGS-B, Newton) or every step (Hooke-Jeeves) at most ``tol``.
     message : str
+        Why it stopped.
     length_scale, noise : float
     n_refactorisations : int
         From-scratch factorisations of K (Hooke-Jeeves).
@@ -167,6 +222,11 @@ class FitResult:
     stress : float or None
         The stress ``sigma`` of the final points (:mod:`.stress`) when the fit had a stress
         term; ``history`` then holds ``L - lambda (d N / 2) sigma``, the objective maximised.
+    grad_norm : float or None
+        The objective's gradient norm at the final points, relative to ``d N / 2``
+        (:func:`.optimisers.gradient_norm`; in units of the length scale).
+    start : str
+        The start the points came from: ``"pca"``, ``"mds"`` or ``"given"``.
     """
 
     latent: np.ndarray
@@ -182,6 +242,8 @@ class FitResult:
     n_refactorisations: int = 0
     max_drift: float = 0.0
     stress: float = None
+    grad_norm: float = None
+    start: str = "given"
 
     @property
     def n_iterations(self):
@@ -236,14 +298,18 @@ class GPLVM:
         self.stress = Stress() if stress is None else stress
         if not isinstance(self.stress, Stress):
             raise InputError(f"`stress` must be a gplvm.Stress, got {type(stress).__name__}")
-        if self.stress.active and method != "lbfgs":
+        if self.stress.active and method not in GRADIENT_METHODS:
             raise InputError(
-                f"a stress term (weight {self.stress.weight:g}) needs method 'lbfgs', got "
-                f"{method!r}; use method='lbfgs' or stress weight 0"
+                f"a stress term (weight {self.stress.weight:g}) needs method 'newton' or "
+                f"'lbfgs', got {method!r}; use one of those or stress weight 0"
             )
 
     def fit(self, S, d, init=None, callback=None, distances=None):
         """Latent points maximising the log-likelihood L (Eq. 6) of Gram matrix ``S``.
+
+        The points come back in the canonical pose (:func:`.pose.canonical_pose`): the fit
+        fixes them only up to a rigid motion, which changes neither L nor the stress term.
+        A fit whose convergence test was not met warns (:class:`ConvergenceWarning`).
 
         Parameters
         ----------
@@ -252,9 +318,12 @@ class GPLVM:
         d : int
             Number of values per material.
         init : (N, q) array_like, optional
-            Starting points; :func:`pca_init` by default.
+            Starting points; by default :func:`mds_init` of ``distances`` when there is a
+            stress term (the points then start with the distances it asks for), else
+            :func:`pca_init` of ``S``.
         callback : callable, optional
-            ``callback(iteration, latent, L)`` after each iteration; returning True stops.
+            ``callback(iteration, latent, L)`` after each iteration (points as the optimiser
+            has them, before the pose); returning True stops.
         distances : (N, N) array_like, optional
             The stress term's target distances between the materials (needed when it is on,
             unused otherwise).
@@ -273,23 +342,34 @@ class GPLVM:
                 )
             term = self.stress.term(distances, likelihood.n, likelihood.d)
         l = self.kernel.length_scale
-        if init is None:
-            X0 = pca_init(likelihood.S, self.q, l)
+        if init is not None:
+            X0, start = check_points("init", init, n=likelihood.n, q=self.q), "given"
+        elif term is not None:
+            X0, start = mds_init(term.D, self.q, l), "mds"
         else:
-            X0 = check_points("init", init, n=likelihood.n, q=self.q)
+            X0, start = pca_init(likelihood.S, self.q, l), "pca"
         if callback is not None and not callable(callback):
             raise InputError("`callback` must be callable")
         unit = likelihood.in_units()
         target = unit if term is None else PenalisedLikelihood(unit, term)
-        run = optimisers.hooke_jeeves if self.method == "hooke-jeeves" else optimisers.lbfgs
+        run = getattr(optimisers, self.method.replace("-", "_"))
         single = likelihood.n <= SINGLE_THREAD_MAX_N  # small fits: BLAS threads only wait
         t0 = time.perf_counter()
         with one_thread() if single else contextlib.nullcontext():
             res = run(target, X0 / l, self.options, callback, l)
-            L = unit._value(res.units)
-            sigma = None if term is None else term.value(res.units)
+            units = canonical_pose(res.units)
+            L = unit._value(units)
+            sigma = None if term is None else term.value(units)
+        if not res.converged and res.message != "stopped by callback":
+            warnings.warn(
+                f"the GPLVM fit ({self.method}, N = {likelihood.n}, q = {self.q}) did not "
+                f"converge: {res.message}; the layout is not a stationary point and may "
+                "differ between machines (raise max_iter, or see FitResult.message)",
+                ConvergenceWarning,
+                stacklevel=2,
+            )
         return FitResult(
-            latent=res.units * l,
+            latent=units * l,
             log_likelihood=L,
             history=np.asarray(res.history, dtype=np.float64),
             n_evaluations=res.n_evaluations,
@@ -302,6 +382,8 @@ class GPLVM:
             n_refactorisations=res.n_refactorisations,
             max_drift=res.max_drift,
             stress=sigma,
+            grad_norm=res.grad_norm,
+            start=start,
         )
 
 
