@@ -27,6 +27,7 @@ import scipy.optimize
 
 from ..errors import InputError, NotPositiveDefiniteError
 from .kernel import check_positive
+from .pose import rigid_modes
 from .rank_update import RankUpdatedInverse
 
 
@@ -70,6 +71,11 @@ class LBFGSOptions:
         Most L-BFGS-B iterations (a safety cap: reaching it leaves the fit unconverged).
     tol : float
         Converged when the gradient's relative norm (:func:`gradient_norm`) is at most ``tol``.
+    step_tol : float
+        Or when the full Newton step (inside the trust region, the model's maximum) moves no
+        coordinate by more than ``step_tol`` (in units of ``l``): the points are that close to
+        the stationary point, where the gradient's own rounding (``d K^-1`` and
+        ``K^-1 S K^-1`` nearly cancel there) keeps its norm above ``tol``.
     """
 
     max_iter: int = 20000
@@ -90,14 +96,21 @@ class NewtonOptions:
         Most trust-region iterations (a safety cap: reaching it leaves the fit unconverged).
     tol : float
         Converged when the gradient's relative norm (:func:`gradient_norm`) is at most ``tol``.
+    step_tol : float
+        Or when the full Newton step (inside the trust region, the model's maximum) moves no
+        coordinate by more than ``step_tol`` (in units of ``l``): the points are that close to
+        the stationary point, where the gradient's own rounding (``d K^-1`` and
+        ``K^-1 S K^-1`` nearly cancel there) keeps its norm above ``tol``.
     """
 
     max_iter: int = 2000
     tol: float = 1e-7
+    step_tol: float = 1e-5
 
     def __post_init__(self):
         object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))
         object.__setattr__(self, "tol", check_positive("tol", self.tol))
+        object.__setattr__(self, "step_tol", check_positive("step_tol", self.step_tol))
 
 
 def objective_scale(likelihood):
@@ -107,15 +120,24 @@ def objective_scale(likelihood):
     return 0.5 * likelihood.d * likelihood.n
 
 
+def project(g, Q):
+    """``(I - Q Q^T) g``: ``g`` (flat) without its components along the rigid motions ``Q``
+    (:func:`.pose.rigid_modes`).
+    """
+    return g - Q @ (Q.T @ g)
+
+
 def gradient_norm(likelihood, U):
-    """The convergence test's measure: ``|dF/du|_2 / (d N / 2)`` at points ``U`` in units of the
-    length scale (``F`` the objective maximised: L, less the stress term when there is one).
+    """The convergence test's measure: ``|P dF/du|_2 / (d N / 2)`` at points ``U`` in units of
+    the length scale (``F`` the objective maximised: L, less the stress term when there is one;
+    ``P`` the projection off the rigid motions, :func:`project`, along which F is constant).
     Zero exactly at a stationary point; ``inf`` where K is not positive definite.
     """
     try:
         _, g = likelihood._value_grad(U)
     except NotPositiveDefiniteError:
         return float("inf")
+    g = project(g.ravel(), rigid_modes(U))
     return float(np.linalg.norm(g) / objective_scale(likelihood))
 
 
@@ -243,19 +265,30 @@ class _Scaled:
         self.scale = objective_scale(likelihood)
         self.n_evaluations = 0
         self.last = {}
+        self._q = None
 
     def fun(self, flat):
+        """Value and projected gradient (:func:`project`)."""
         self.n_evaluations += 1
+        U = flat.reshape(self.shape)
         try:
-            F, g = self.likelihood._value_grad(flat.reshape(self.shape))
+            F, g = self.likelihood._value_grad(U)
         except NotPositiveDefiniteError:
             return np.inf, np.zeros_like(flat)
         self.last = {flat.tobytes(): F}
-        return -F / self.scale, -g.ravel() / self.scale
+        return -F / self.scale, -project(g.ravel(), self._modes(flat)) / self.scale
 
     def hessp(self, flat, p):
-        H = self.likelihood._hessp(flat.reshape(self.shape), p.reshape(self.shape))
-        return -H.ravel() / self.scale
+        """The projected Hessian ``P H P`` times ``p``."""
+        Q = self._modes(flat)
+        H = self.likelihood._hessp(flat.reshape(self.shape), project(p, Q).reshape(self.shape))
+        return -project(H.ravel(), Q) / self.scale
+
+    def _modes(self, flat):
+        key = flat.tobytes()
+        if self._q is None or self._q[0] != key:
+            self._q = (key, rigid_modes(flat.reshape(self.shape)))
+        return self._q[1]
 
     def value(self, flat):
         key = flat.tobytes()
@@ -336,9 +369,18 @@ def lbfgs(likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.
 SNAP_GRID = 2.0**-10
 #: Steps whose largest entry is above this (in units of ``l``) end on the grid.
 SNAP_ABOVE = 2.0**-5
+#: Relative size of a predicted gain below which the objective's own rounding (that of
+#: ``log|K|`` with an ill-conditioned K) could hide it: such a step is taken when it lowers the
+#: gradient norm instead.
+ROUNDING = 1e-10
 #: The trust radius: initial, largest and smallest (below it no step improves: the
 #: objective's rounding is reached). Powers of two, changed by factors of two and four.
 RADIUS = (1.0, 64.0, 2.0**-40)
+
+
+#: Most conjugate-gradient iterations of a step, per unknown: CG loses its exactness by
+#: rounding on a stiff Hessian (K near-singular), so it may need more than one round.
+CG_ITERATIONS = 5
 
 
 def _steihaug(hessp, g, radius):
@@ -358,7 +400,7 @@ def _steihaug(hessp, g, radius):
         tau = (-b + np.sqrt(max(b * b - 4.0 * a * c, 0.0))) / (2.0 * a)
         return z + tau * d
 
-    for _ in range(g.size):
+    for _ in range(CG_ITERATIONS * g.size):
         Bd = hessp(d)
         curvature = d @ Bd
         if curvature <= 0:
@@ -383,7 +425,8 @@ def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=
     the exact Hessian-vector products (:meth:`Likelihood._hessp`; the stress term's by
     central differences of its gradient) inside the trust region, following directions of
     negative curvature out of saddles. A step is taken when it gains more than a tenth of
-    what the model predicts; the radius (a power of two) is quartered below a quarter and
+    what the model predicts (a predicted gain below :data:`ROUNDING` of the objective: when it
+    lowers the gradient norm); the radius (a power of two) is quartered below a quarter and
     doubled above three quarters on the boundary.
 
     So that the path depends on the data and not on the last bits of its arithmetic (BLAS
@@ -393,7 +436,8 @@ def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=
     The last small steps, off the grid, converge to it.
 
     ``likelihood``, ``callback`` and ``length_scale`` as for :func:`hooke_jeeves`. Stops when
-    :func:`gradient_norm` is at most ``tol`` (converged), when the radius falls below
+    :func:`gradient_norm` is at most ``tol`` or the full Newton step at most ``step_tol``
+    (converged, :class:`NewtonOptions`), when the radius falls below
     ``RADIUS[2]`` (no step improves: not converged) or at ``max_iter`` (not converged).
     """
     n, q = U0.shape
@@ -409,17 +453,23 @@ def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=
     history = [-fx * f.scale]
     radius, largest, smallest = RADIUS
     message = f"reached max_iter = {options.max_iter}"
-    stopped = False
+    stopped, newton_step = False, None
     for _ in range(options.max_iter):
         if np.linalg.norm(g) <= options.tol:
             break
         step, boundary = _steihaug(functools.partial(f.hessp, x), g, radius)
+        if not boundary and np.abs(step).max() <= options.step_tol:
+            newton_step = float(np.abs(step).max())
+            break
         predicted = -(g @ step + 0.5 * step @ f.hessp(x, step))
         trial = x + step
         if np.abs(step).max() > SNAP_ABOVE:
             trial = np.round(trial / SNAP_GRID) * SNAP_GRID
         f_trial, g_trial = f.fun(trial)
         rho = (fx - f_trial) / predicted if predicted > 0 else -np.inf
+        if 0 < predicted < ROUNDING * max(abs(fx), 1.0) and np.isfinite(f_trial):
+            # gains below the objective's rounding: judge the step by the gradient it leaves
+            rho = 1.0 if np.linalg.norm(g_trial) < np.linalg.norm(g) else -np.inf
         if rho < 0.25:
             radius /= 4.0
         elif rho > 0.75 and boundary:
@@ -437,9 +487,14 @@ def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=
             break
     U = x.reshape(n, q)
     norm = gradient_norm(likelihood, U)
-    ok = not stopped and norm <= options.tol
-    if ok:
+    ok = not stopped and (norm <= options.tol or newton_step is not None)
+    if norm <= options.tol and not stopped:
         message = f"gradient norm {norm:.3g} <= tol = {options.tol:g}"
+    elif ok:
+        message = (
+            f"Newton step {newton_step:.3g} <= step_tol = {options.step_tol:g} (gradient norm "
+            f"{norm:.3g}, at its rounding)"
+        )
     elif not stopped:
         message += f"; gradient norm {norm:.3g} > tol = {options.tol:g}"
     return OptimiserResult(U, history, f.n_evaluations, ok, message, grad_norm=norm)

@@ -48,3 +48,31 @@ def canonical_pose(X):
         first = np.nonzero(np.abs(Y[:, k]) > SYMMETRIC * big)[0]
         sign[k] = 1.0 if first.size == 0 else np.sign(Y[first[0], k])
     return Y * np.where(sign < 0, -1.0, 1.0)
+
+
+def rigid_modes(X):
+    """An orthonormal basis ``Q`` ((N q, m) array) of the first-order rigid motions of ``X``:
+    the ``q`` translations and the ``q (q - 1) / 2`` rotations ``x_i -> x_i + A x_i`` (``A``
+    skew-symmetric, about the points' mean), as flattened ``(N, q)`` displacements.
+
+    The objective does not change along them, so its gradient has no component there beyond
+    rounding, and its Hessian at a stationary point sends them to zero: the optimisers take
+    ``(I - Q Q^T)`` of the gradient and of Hessian products (the *projected* gradient) so that
+    no step drifts along them.
+    """
+    n, q = X.shape
+    Y = X - X.mean(axis=0)
+    gens = []
+    for k in range(q):
+        t = np.zeros((n, q))
+        t[:, k] = 1.0
+        gens.append(t.ravel())
+    for k in range(q):
+        for j in range(k + 1, q):
+            r = np.zeros((n, q))
+            r[:, k], r[:, j] = -Y[:, j], Y[:, k]
+            gens.append(r.ravel())
+    G = np.stack(gens, axis=1)
+    Q, R = np.linalg.qr(G)
+    keep = np.abs(np.diag(R)) > 1e-12 * max(np.abs(np.diag(R)).max(), 1e-300)
+    return Q[:, keep]
