@@ -83,7 +83,9 @@ def run(folder="merl", names=None, progress=False, sameness=True):
     t_load = time.perf_counter() - t0
     t0 = time.perf_counter()
     cfg = settings("default")
-    g = gram_mod.gram(tables, cfg["features"], centre=True, weights=albedo_weights(db.dims).reshape(-1))
+    g = gram_mod.gram(
+        tables, cfg["features"], centre=True, weights=albedo_weights(db.dims).reshape(-1)
+    )
     with one_thread():
         D = stress_distances(tables, db.dims)
     t_gram = time.perf_counter() - t0
