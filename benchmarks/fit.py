@@ -192,7 +192,8 @@ def report(result: dict) -> str:
     lines = [
         f"### Fit ({r['n_materials']} materials, {'x'.join(map(str, r['dims']))}, default objective)",
         "",
-        f"`tools/bench.py fit --database {db} --json benchmarks/results/fit_{db}.json`"
+        f"`tools/bench.py fit --database {db} --json benchmarks/results/"
+        f"{'fit' if db == 'merl' else 'fit_' + str(db)}.json`"
         f" (load average {r.get('load_average', float('nan')):.1f}; times are wall and CPU).",
         "",
         "| run | objective F | L | iterations | converged | gradient norm | wall s | CPU s |",

@@ -12,14 +12,24 @@ latent points, ``K_inv`` its inverse (the *inverse covariance*), ``l`` the lengt
 ``mu`` the noise. Only the ``N x N`` Gram matrix S and the number of values d enter the fit,
 so this module never sees a table.
 
-Two optimisers work on the same objective from the same start (:func:`pca_init` by default):
+Three optimisers work on the same objective (:mod:`.optimisers`), from :func:`pca_init` (the
+PCA of S) by default, or :func:`mds_init` (the classical MDS of the stress term's target
+distances) when there is a stress term:
 
 * ``"hooke-jeeves"``, the paper's: direct search moving one latent point at a time. A move
   changes one row and column of K; :class:`RankUpdatedInverse` updates ``K_inv``, ``log|K|``
   and ``tr(K_inv S)`` with two rank-one (Sherman-Morrison) updates and the matrix
   determinant lemma in O(N^2), refactorising from scratch periodically and whenever an
   update loses accuracy.
-* ``"lbfgs"``: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation).
+* ``"lbfgs"``: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation);
+* ``"newton"``: trust-region Newton-CG with exact Hessian-vector products (O(N^3) each), its
+  iterates rounded to a fixed grid while its steps are large, so that its path does not
+  depend on the last bits of the arithmetic.
+
+The gradient-based two stop on a stated test (the projected gradient norm relative to
+``d N / 2``, or the Newton step) and report whether they met it; a fit that did not warns
+(:class:`~mitsuba_manifold.errors.ConvergenceWarning`). The fitted points are returned in the
+canonical pose of :mod:`.pose` (the objective sees only their distances).
 
 The model is split GPy style: :mod:`.kernel` (the :class:`~.kernel.Kernel` object:
 covariance, gradients, the factorisation of K), :mod:`.likelihood` (the objective L and its
@@ -29,7 +39,7 @@ holds the PCA start and the estimator: :class:`GPLVM` (scikit-learn style: setti
 constructor, ``fit(S, d)`` returning a :class:`FitResult`) and :func:`fit_latent`, the same
 as one function; it re-exports the public names of the others.
 
-An optional stress term (:mod:`.stress`, L-BFGS-B only) asks the latent distances to follow
+An optional stress term (:mod:`.stress`, gradient-based optimisers only) asks the latent distances to follow
 given distances between the materials: the fit then maximises ``L - lambda (d N / 2) sigma``.
 
 Internally both work in units of the length scale (``u = x / l``): scaling ``l`` and the
@@ -266,13 +276,14 @@ class GPLVM:
         Latent dimension, 1 to 8.
     kernel : Kernel, optional
         ``l`` and ``mu > 0`` (default ``Kernel()``: ``l = 1``, ``mu = 1e-4``).
-    method : {"hooke-jeeves", "lbfgs"}
-        The paper's direct search with rank-one updates, or L-BFGS-B with the gradient.
-    options : HookeJeevesOptions or LBFGSOptions, optional
+    method : {"hooke-jeeves", "lbfgs", "newton"}
+        The paper's direct search with rank-one updates, L-BFGS-B with the gradient, or
+        trust-region Newton-CG with exact Hessian products.
+    options : HookeJeevesOptions, LBFGSOptions or NewtonOptions, optional
         The optimiser's settings (default: the method's defaults).
     stress : Stress, optional
         The stress term's weight and pairs (:mod:`.stress`; default none). A term with weight
-        > 0 needs ``method="lbfgs"`` and the target distances in :meth:`fit`.
+        > 0 needs ``method="newton"`` or ``"lbfgs"`` and the target distances in :meth:`fit`.
 
     Notes
     -----
@@ -392,21 +403,21 @@ def optimiser_options(method, *, max_iter=None, tol=None, initial_step=None):
 
     Parameters
     ----------
-    method : {"hooke-jeeves", "lbfgs"}
+    method : {"hooke-jeeves", "lbfgs", "newton"}
     max_iter : int, optional
-        Sweeps over all points (Hooke-Jeeves, default 500) or L-BFGS-B iterations (default
-        2000).
+        The safety cap: sweeps over all points (Hooke-Jeeves, default 500), L-BFGS-B
+        iterations (default 20000) or trust-region iterations (Newton, default 2000).
     tol : float, optional
-        Hooke-Jeeves: stop when every point's step is below ``tol * l`` (default 1e-3).
-        L-BFGS-B: stop when the largest gradient entry of ``L / scale`` with respect to
-        ``x / l`` is below ``tol`` (default 1e-7; ``scale`` is the size of L's terms at the
-        start).
+        Hooke-Jeeves: converged when every point's step is below ``tol * l`` (default 1e-3).
+        L-BFGS-B and Newton: converged when the projected gradient norm of ``F / (d N / 2)``
+        with respect to ``x / l`` is at most ``tol`` (default 1e-7;
+        :func:`.optimisers.gradient_norm`).
     initial_step : float, optional
-        Hooke-Jeeves: first step, in units of ``l`` (default 0.25; unused by L-BFGS-B).
+        Hooke-Jeeves: first step, in units of ``l`` (default 0.25; unused by the others).
 
     Returns
     -------
-    HookeJeevesOptions or LBFGSOptions
+    HookeJeevesOptions, LBFGSOptions or NewtonOptions
     """
     if method not in METHODS:
         raise InputError(f"unknown `method` {method!r}; use one of {', '.join(METHODS)}")
