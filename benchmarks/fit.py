@@ -72,8 +72,10 @@ def _one(S, d, D, cfg, order, init=None, **options):
     return res, time.perf_counter() - t0, time.process_time() - c0
 
 
-def run(folder="merl", names=None, progress=False, sameness=True):
-    """The comparison, the default fit's time and its sameness (module doc)."""
+def run(folder="merl", names=None, progress=False, sameness=True, manifold_fits=True):
+    """The comparison, the default fit's time and its sameness (module doc); ``manifold_fits``
+    False leaves out the three ``Manifold.fit`` runs (each reads and sums every table again).
+    """
     from mitsuba_manifold.manifold.model import Manifold
 
     db = Database(folder, names)
@@ -156,11 +158,12 @@ def run(folder="merl", names=None, progress=False, sameness=True):
         )
         same["material_order"] = float(np.abs(res.latent - default.latent[perm]).max())
         ref = None
-        for label, threads, given in (
+        manifolds = (
             ("manifold_2_threads", 2, names),
             ("manifold_1_thread", 1, names),
             ("manifold_reversed", 2, names[::-1]),
-        ):
+        )
+        for label, threads, given in manifolds if manifold_fits else ():
             from threadpoolctl import threadpool_limits
 
             with threadpool_limits(limits=threads, user_api="blas"):
