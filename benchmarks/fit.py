@@ -72,9 +72,10 @@ def _one(S, d, D, cfg, order, init=None, **options):
     return res, time.perf_counter() - t0, time.process_time() - c0
 
 
-def run(folder="merl", names=None, progress=False, sameness=True, manifold_fits=True):
+def run(folder="merl", names=None, progress=False, sameness=True, manifold_fits=True, runs=None):
     """The comparison, the default fit's time and its sameness (module doc); ``manifold_fits``
-    False leaves out the three ``Manifold.fit`` runs (each reads and sums every table again).
+    False leaves out the three ``Manifold.fit`` runs (each reads and sums every table again);
+    ``runs``: the names of :data:`RUNS` to make (default all; the default's is always made).
     """
     from mitsuba_manifold.manifold.model import Manifold
 
@@ -106,7 +107,8 @@ def run(folder="merl", names=None, progress=False, sameness=True, manifold_fits=
     }
     q = cfg["q"]
     default = None
-    for name, method, start, cap in RUNS:
+    chosen = [r for r in RUNS if runs is None or r[0] in runs or r[0] == "newton / mds"]
+    for name, method, start, cap in chosen:
         init = _start(start, S[np.ix_(order, order)], D[np.ix_(order, order)], q)
         back = np.empty_like(order)
         back[order] = np.arange(len(order))
