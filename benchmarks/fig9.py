@@ -324,3 +324,51 @@ def run(
         out["presets"][preset] = rep
         del m
     return out
+
+
+def report(result: dict) -> str:
+    """Markdown section for docs/benchmarks.md: Fig. 9's paper pairs and the path summaries of
+    the default preset, straight segments against the default path kind.
+    """
+    r = result["result"] if "result" in result else result
+    dims = "x".join(map(str, r.get("dims", ())))
+    lines = [
+        f"### Fig. 9 ({r.get('n_materials', '?')} materials, {dims})",
+        "",
+        f"`tools/bench.py fig9 --configs default --database {result.get('database', 'merl')} "
+        "--json benchmarks/results/fig9_default.json`: the deviation of the perceptual "
+        "distances from both ends from Fig. 9's diagonal along 20-step paths.",
+        "",
+        "| preset | path | pair | deviation | target | met |",
+        "|---|---|---|---|---|---|",
+    ]
+    target = TARGETS["pair_a_deviation"]
+    for preset, rep in r["presets"].items():
+        for kind in ("straight", r["default_kind"]):
+            rows = rep["kinds"].get(kind, {}).get("rows", {}).get("paper", [])
+            for label, row in zip("abc", rows):
+                dev = row["deviation"]
+                lines.append(
+                    f"| {preset} | {kind} | ({label}) {row['pair'][0]} - {row['pair'][1]} | "
+                    f"{dev:.3f} | <= {target:g} | {'yes' if dev <= target else 'no'} |"
+                )
+    lines += [
+        "",
+        "| preset | path | set | median deviation | largest step | median still |",
+        "|---|---|---|---|---|---|",
+    ]
+    for preset, rep in r["presets"].items():
+        for kind in ("straight", r["default_kind"]):
+            k = rep["kinds"].get(kind, {})
+            for group in ("tuned", "held_out"):
+                s = k.get(group)
+                if s:
+                    lines.append(
+                        f"| {preset} | {kind} | {group} | {s['median_deviation']:.3f} | "
+                        f"{s['largest_step']:.3f} | {s['median_still']:.2f} |"
+                    )
+    lines.append(
+        f"\nTargets: median deviation <= {TARGETS['median_deviation']:g}, largest step <= "
+        f"{TARGETS['largest_step']:g}, median still <= {TARGETS['median_still']:g}."
+    )
+    return "\n".join(lines)

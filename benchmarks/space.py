@@ -335,3 +335,84 @@ def run(folder, basis=None, configs=None, names=None, folds=None, progress=True)
     if "default" in configs:
         _, out["default_costs"] = _default_costs(folder, names)
     return out
+
+
+def report(result: dict) -> str:
+    """Markdown section for docs/benchmarks.md: per configuration, the 10-fold held-out error
+    against the nearest material, path smoothness, the jump at the data and plausibility.
+    """
+    r = result["result"] if "result" in result else result
+    t = r["targets"]
+    dims = "x".join(map(str, r.get("dims", ())))
+    lines = [
+        f"### The material space ({r.get('n_materials', '?')} materials, {dims})",
+        "",
+        f"`tools/bench.py space --configs {','.join(r['configs'])} --database "
+        f"{result.get('database', 'merl')} --json benchmarks/results/space.json` "
+        f"({'10-fold' if r.get('folds', 'all') == 'all' else 'folds ' + str(r['folds']) + ' of a 10-fold'}"
+        " cross-validation: each held-out table against its projection onto the manifold of the "
+        "others).",
+        "",
+        "| configuration | figure | value | target | met |",
+        "|---|---|---|---|---|",
+    ]
+    yes = lambda ok: "yes" if ok else "no"  # noqa: E731
+    for name, c in r["configs"].items():
+        h, p, j, pl = c["held_out"], c["paths"], c["jump"], c["plausibility"]
+        rows = [
+            (
+                "held-out median error / nearest material's",
+                f"{h['median_ratio_to_nearest']:.3f}",
+                f"<= {t['median_over_nearest']:g}",
+                h["median_ratio_to_nearest"] <= t["median_over_nearest"],
+            ),
+            (
+                "held-out materials beating the nearest",
+                f"{h['beats_nearest']:.0%}",
+                f">= {t['beats_nearest']:.0%}",
+                h["beats_nearest"] >= t["beats_nearest"],
+            ),
+            (
+                "worst fold's median ratio",
+                f"{h['worst_fold_median_ratio']:.3f}",
+                "< 1",
+                h["worst_fold_median_ratio"] < 1,
+            ),
+            (
+                "path: worst weight share of a step",
+                f"{p['worst_weight_share']:.3f}",
+                f"<= {t['path_weights']:g}",
+                p["worst_weight_share"] <= t["path_weights"],
+            ),
+            (
+                "every neighbour pair's worst step",
+                f"{p.get('all_pairs_worst_weight_share', float('nan')):.3f}",
+                f"<= {t['path_weights']:g}",
+                p.get("all_pairs_over_target", 1) == 0,
+            ),
+            (
+                "weight jump at the data",
+                f"{j['max']:.2g}",
+                f"<= {t['jump']:g}",
+                j["max"] <= t["jump"],
+            ),
+            (
+                "albedo outside the data's range",
+                f"{pl['albedo_outside_fraction']:.3f}",
+                f"<= {t['albedo_outside']:g}",
+                pl["albedo_outside_fraction"] <= t["albedo_outside"],
+            ),
+        ]
+        if p.get("worst_image_share") is not None:
+            rows.insert(
+                4,
+                (
+                    "path: worst image share of a step",
+                    f"{p['worst_image_share']:.3f}",
+                    f"<= {t['path_images']:g}",
+                    p["worst_image_share"] <= t["path_images"],
+                ),
+            )
+        for figure, value, target, ok in rows:
+            lines.append(f"| {name} | {figure} | {value} | {target} | {yes(ok)} |")
+    return "\n".join(lines)

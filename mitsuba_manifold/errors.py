@@ -131,3 +131,10 @@ def did_you_mean(name, choices):
 
     close = difflib.get_close_matches(str(name), [str(c) for c in choices], n=3)
     return f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""
+
+
+class ConvergenceWarning(MitsubaManifoldError, UserWarning):
+    """A fit stopped before its convergence test was met (at its iteration cap, or where no
+    step improved): the layout is not a stationary point of its objective and may differ
+    between machines.
+    """

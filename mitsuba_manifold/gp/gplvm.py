@@ -12,14 +12,24 @@ latent points, ``K_inv`` its inverse (the *inverse covariance*), ``l`` the lengt
 ``mu`` the noise. Only the ``N x N`` Gram matrix S and the number of values d enter the fit,
 so this module never sees a table.
 
-Two optimisers work on the same objective from the same start (:func:`pca_init` by default):
+Three optimisers work on the same objective (:mod:`.optimisers`), from :func:`pca_init` (the
+PCA of S) by default, or :func:`mds_init` (the classical MDS of the stress term's target
+distances) when there is a stress term:
 
 * ``"hooke-jeeves"``, the paper's: direct search moving one latent point at a time. A move
   changes one row and column of K; :class:`RankUpdatedInverse` updates ``K_inv``, ``log|K|``
   and ``tr(K_inv S)`` with two rank-one (Sherman-Morrison) updates and the matrix
   determinant lemma in O(N^2), refactorising from scratch periodically and whenever an
   update loses accuracy.
-* ``"lbfgs"``: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation).
+* ``"lbfgs"``: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation);
+* ``"newton"``: trust-region Newton-CG with exact Hessian-vector products (O(N^3) each), its
+  iterates rounded to a fixed grid while its steps are large, so that its path does not
+  depend on the last bits of the arithmetic.
+
+The gradient-based two stop on a stated test (the projected gradient norm relative to
+``d N / 2``, or the Newton step) and report whether they met it; a fit that did not warns
+(:class:`~mitsuba_manifold.errors.ConvergenceWarning`). The fitted points are returned in the
+canonical pose of :mod:`.pose` (the objective sees only their distances).
 
 The model is split GPy style: :mod:`.kernel` (the :class:`~.kernel.Kernel` object:
 covariance, gradients, the factorisation of K), :mod:`.likelihood` (the objective L and its
@@ -29,7 +39,7 @@ holds the PCA start and the estimator: :class:`GPLVM` (scikit-learn style: setti
 constructor, ``fit(S, d)`` returning a :class:`FitResult`) and :func:`fit_latent`, the same
 as one function; it re-exports the public names of the others.
 
-An optional stress term (:mod:`.stress`, L-BFGS-B only) asks the latent distances to follow
+An optional stress term (:mod:`.stress`, gradient-based optimisers only) asks the latent distances to follow
 given distances between the materials: the fit then maximises ``L - lambda (d N / 2) sigma``.
 
 Internally both work in units of the length scale (``u = x / l``): scaling ``l`` and the
@@ -42,18 +52,20 @@ from __future__ import annotations
 import contextlib
 import numbers
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._util.blas import one_thread
-from ..errors import InputError, NotPositiveDefiniteError
+from ..errors import ConvergenceWarning, InputError, NotPositiveDefiniteError
 from . import optimisers
 from .kernel import MAX_LATENT_DIM, Kernel, check_points, check_positive, kernel_matrix
 from .likelihood import Likelihood, check_gram, log_likelihood, log_likelihood_grad
-from .optimisers import HookeJeevesOptions, LBFGSOptions
+from .optimisers import HookeJeevesOptions, LBFGSOptions, NewtonOptions
+from .pose import canonical_pose
 from .rank_update import MoveTrial, RankUpdatedInverse
-from .stress import PenalisedLikelihood, Stress
+from .stress import PenalisedLikelihood, Stress, check_distances
 
 __all__ = [
     "MAX_LATENT_DIM",
@@ -62,11 +74,14 @@ __all__ = [
     "Likelihood",
     "HookeJeevesOptions",
     "LBFGSOptions",
+    "NewtonOptions",
     "GPLVM",
     "kernel_matrix",
     "log_likelihood",
     "log_likelihood_grad",
     "pca_init",
+    "mds_init",
+    "canonical_pose",
     "RankUpdatedInverse",
     "MoveTrial",
     "FitResult",
@@ -81,7 +96,14 @@ __all__ = [
 SINGLE_THREAD_MAX_N = 256
 
 #: Optimisers by name, with their options type.
-METHODS = {"hooke-jeeves": HookeJeevesOptions, "lbfgs": LBFGSOptions}
+METHODS = {
+    "hooke-jeeves": HookeJeevesOptions,
+    "lbfgs": LBFGSOptions,
+    "newton": NewtonOptions,
+}
+
+#: The optimisers that take a stress term (those working from the gradient).
+GRADIENT_METHODS = ("lbfgs", "newton")
 
 
 def check_q(q):
@@ -138,6 +160,47 @@ def pca_init(S, q, length_scale=1.0):
     return coords * (l / spread)
 
 
+def mds_init(distances, q, length_scale=1.0):
+    """Classical multidimensional scaling of target distances, as latent starting points.
+
+    The principal coordinates of the doubly centred ``B = -1/2 J D^2 J`` (``J = I - 1/N``):
+    ``U_q sqrt(lambda_q)`` of its ``q`` largest eigenvalues (negative ones count as zero),
+    scaled like :func:`pca_init` (first coordinate of standard deviation ``l``) and signed
+    the same way (each axis' largest entry positive). The start of a fit with a stress term:
+    the points already have the distances the term asks for, as far as ``q`` axes allow.
+
+    Parameters
+    ----------
+    distances : (N, N) array_like
+        Symmetric target distances, zero diagonal.
+    q : int
+        Latent dimension, 1 to 8.
+    length_scale : float
+
+    Returns
+    -------
+    (N, q) ndarray
+    """
+    q = check_q(q)
+    l = check_positive("length_scale", length_scale)
+    D = np.asarray(distances, dtype=np.float64)
+    D = check_distances(D, D.shape[0] if D.ndim == 2 else -1)
+    n = D.shape[0]
+    J = np.eye(n) - 1.0 / n
+    B = -0.5 * J @ (D * D) @ J
+    lam, vec = np.linalg.eigh(0.5 * (B + B.T))
+    lam, vec = lam[::-1], vec[:, ::-1]
+    k = min(q, n)
+    coords = np.zeros((n, q))
+    coords[:, :k] = vec[:, :k] * np.sqrt(np.maximum(lam[:k], 0.0))
+    big = np.argmax(np.abs(coords), axis=0)
+    coords *= np.where(coords[big, np.arange(q)] < 0, -1.0, 1.0)
+    spread = coords[:, 0].std()
+    if not spread > 0:
+        raise InputError("target `distances` place every material at one point: nothing to lay out")
+    return coords * (l / spread)
+
+
 @dataclass
 class FitResult:
     """Outcome of :func:`fit_latent`.
@@ -157,8 +220,10 @@ class FitResult:
         Wall time of the optimisation.
     method : str
     converged : bool
-        Whether the stopping tolerance was met before ``max_iter``.
+        Whether the optimiser's convergence test was met (:mod:`.optimisers`): the gradient
+        norm (L-BFGS-B, Newton) or every step (Hooke-Jeeves) at most ``tol``.
     message : str
+        Why it stopped.
     length_scale, noise : float
     n_refactorisations : int
         From-scratch factorisations of K (Hooke-Jeeves).
@@ -167,6 +232,11 @@ class FitResult:
     stress : float or None
         The stress ``sigma`` of the final points (:mod:`.stress`) when the fit had a stress
         term; ``history`` then holds ``L - lambda (d N / 2) sigma``, the objective maximised.
+    grad_norm : float or None
+        The objective's gradient norm at the final points, relative to ``d N / 2``
+        (:func:`.optimisers.gradient_norm`; in units of the length scale).
+    start : str
+        The start the points came from: ``"pca"``, ``"mds"`` or ``"given"``.
     """
 
     latent: np.ndarray
@@ -182,6 +252,8 @@ class FitResult:
     n_refactorisations: int = 0
     max_drift: float = 0.0
     stress: float = None
+    grad_norm: float = None
+    start: str = "given"
 
     @property
     def n_iterations(self):
@@ -204,13 +276,14 @@ class GPLVM:
         Latent dimension, 1 to 8.
     kernel : Kernel, optional
         ``l`` and ``mu > 0`` (default ``Kernel()``: ``l = 1``, ``mu = 1e-4``).
-    method : {"hooke-jeeves", "lbfgs"}
-        The paper's direct search with rank-one updates, or L-BFGS-B with the gradient.
-    options : HookeJeevesOptions or LBFGSOptions, optional
+    method : {"hooke-jeeves", "lbfgs", "newton"}
+        The paper's direct search with rank-one updates, L-BFGS-B with the gradient, or
+        trust-region Newton-CG with exact Hessian products.
+    options : HookeJeevesOptions, LBFGSOptions or NewtonOptions, optional
         The optimiser's settings (default: the method's defaults).
     stress : Stress, optional
         The stress term's weight and pairs (:mod:`.stress`; default none). A term with weight
-        > 0 needs ``method="lbfgs"`` and the target distances in :meth:`fit`.
+        > 0 needs ``method="newton"`` or ``"lbfgs"`` and the target distances in :meth:`fit`.
 
     Notes
     -----
@@ -236,14 +309,18 @@ class GPLVM:
         self.stress = Stress() if stress is None else stress
         if not isinstance(self.stress, Stress):
             raise InputError(f"`stress` must be a gplvm.Stress, got {type(stress).__name__}")
-        if self.stress.active and method != "lbfgs":
+        if self.stress.active and method not in GRADIENT_METHODS:
             raise InputError(
-                f"a stress term (weight {self.stress.weight:g}) needs method 'lbfgs', got "
-                f"{method!r}; use method='lbfgs' or stress weight 0"
+                f"a stress term (weight {self.stress.weight:g}) needs method 'newton' or "
+                f"'lbfgs', got {method!r}; use one of those or stress weight 0"
             )
 
     def fit(self, S, d, init=None, callback=None, distances=None):
         """Latent points maximising the log-likelihood L (Eq. 6) of Gram matrix ``S``.
+
+        The points come back in the canonical pose (:func:`.pose.canonical_pose`): the fit
+        fixes them only up to a rigid motion, which changes neither L nor the stress term.
+        A fit whose convergence test was not met warns (:class:`ConvergenceWarning`).
 
         Parameters
         ----------
@@ -252,9 +329,12 @@ class GPLVM:
         d : int
             Number of values per material.
         init : (N, q) array_like, optional
-            Starting points; :func:`pca_init` by default.
+            Starting points; by default :func:`mds_init` of ``distances`` when there is a
+            stress term (the points then start with the distances it asks for), else
+            :func:`pca_init` of ``S``.
         callback : callable, optional
-            ``callback(iteration, latent, L)`` after each iteration; returning True stops.
+            ``callback(iteration, latent, L)`` after each iteration (points as the optimiser
+            has them, before the pose); returning True stops.
         distances : (N, N) array_like, optional
             The stress term's target distances between the materials (needed when it is on,
             unused otherwise).
@@ -273,23 +353,34 @@ class GPLVM:
                 )
             term = self.stress.term(distances, likelihood.n, likelihood.d)
         l = self.kernel.length_scale
-        if init is None:
-            X0 = pca_init(likelihood.S, self.q, l)
+        if init is not None:
+            X0, start = check_points("init", init, n=likelihood.n, q=self.q), "given"
+        elif term is not None:
+            X0, start = mds_init(term.D, self.q, l), "mds"
         else:
-            X0 = check_points("init", init, n=likelihood.n, q=self.q)
+            X0, start = pca_init(likelihood.S, self.q, l), "pca"
         if callback is not None and not callable(callback):
             raise InputError("`callback` must be callable")
         unit = likelihood.in_units()
         target = unit if term is None else PenalisedLikelihood(unit, term)
-        run = optimisers.hooke_jeeves if self.method == "hooke-jeeves" else optimisers.lbfgs
+        run = getattr(optimisers, self.method.replace("-", "_"))
         single = likelihood.n <= SINGLE_THREAD_MAX_N  # small fits: BLAS threads only wait
         t0 = time.perf_counter()
         with one_thread() if single else contextlib.nullcontext():
             res = run(target, X0 / l, self.options, callback, l)
-            L = unit._value(res.units)
-            sigma = None if term is None else term.value(res.units)
+            units = canonical_pose(res.units)
+            L = unit._value(units)
+            sigma = None if term is None else term.value(units)
+        if not res.converged and res.message != "stopped by callback":
+            warnings.warn(
+                f"the GPLVM fit ({self.method}, N = {likelihood.n}, q = {self.q}) did not "
+                f"converge: {res.message}; the layout is not a stationary point and may "
+                "differ between machines (raise max_iter, or see FitResult.message)",
+                ConvergenceWarning,
+                stacklevel=2,
+            )
         return FitResult(
-            latent=res.units * l,
+            latent=units * l,
             log_likelihood=L,
             history=np.asarray(res.history, dtype=np.float64),
             n_evaluations=res.n_evaluations,
@@ -302,6 +393,8 @@ class GPLVM:
             n_refactorisations=res.n_refactorisations,
             max_drift=res.max_drift,
             stress=sigma,
+            grad_norm=res.grad_norm,
+            start=start,
         )
 
 
@@ -310,21 +403,21 @@ def optimiser_options(method, *, max_iter=None, tol=None, initial_step=None):
 
     Parameters
     ----------
-    method : {"hooke-jeeves", "lbfgs"}
+    method : {"hooke-jeeves", "lbfgs", "newton"}
     max_iter : int, optional
-        Sweeps over all points (Hooke-Jeeves, default 500) or L-BFGS-B iterations (default
-        2000).
+        The safety cap: sweeps over all points (Hooke-Jeeves, default 500), L-BFGS-B
+        iterations (default 20000) or trust-region iterations (Newton, default 2000).
     tol : float, optional
-        Hooke-Jeeves: stop when every point's step is below ``tol * l`` (default 1e-3).
-        L-BFGS-B: stop when the largest gradient entry of ``L / scale`` with respect to
-        ``x / l`` is below ``tol`` (default 1e-7; ``scale`` is the size of L's terms at the
-        start).
+        Hooke-Jeeves: converged when every point's step is below ``tol * l`` (default 1e-3).
+        L-BFGS-B and Newton: converged when the projected gradient norm of ``F / (d N / 2)``
+        with respect to ``x / l`` is at most ``tol`` (default 1e-7;
+        :func:`.optimisers.gradient_norm`).
     initial_step : float, optional
-        Hooke-Jeeves: first step, in units of ``l`` (default 0.25; unused by L-BFGS-B).
+        Hooke-Jeeves: first step, in units of ``l`` (default 0.25; unused by the others).
 
     Returns
     -------
-    HookeJeevesOptions or LBFGSOptions
+    HookeJeevesOptions, LBFGSOptions or NewtonOptions
     """
     if method not in METHODS:
         raise InputError(f"unknown `method` {method!r}; use one of {', '.join(METHODS)}")

@@ -13,6 +13,7 @@ scale (``u = x / l``, :meth:`Likelihood.in_units`). :func:`log_likelihood` and
 
 import math
 import numbers
+from typing import NamedTuple
 
 import numpy as np
 
@@ -153,6 +154,50 @@ class Likelihood:
         W[np.diag_indices_from(W)] = 0.0
         grad = W @ U - W.sum(axis=1)[:, None] * U
         return L, grad
+
+    def _hessp(self, U, V):
+        """``d/dt dL/dU (U + t V)`` at ``t = 0``: the Hessian of L times the direction ``V``
+        (N, q), in units of the length scale, exactly.
+
+        With ``A = K^-1``, ``B = A S A``, ``G = B - d A``, ``E`` the off-diagonal of K and
+        ``dE_ij = -E_ij (u_i - u_j).(v_i - v_j)``: ``dG = -(M + M^T) + d (A dE) A`` with
+        ``M = (A dE) B``, and the gradient's ``W = G o E`` changes by ``dG o E + G o dE``.
+        The factorisation at ``U`` is kept for the next product at the same points.
+        """
+        c = self._curvature(U)
+        diff = np.einsum("ik,ik->i", U, V)
+        dots = diff[:, None] + diff[None, :] - U @ V.T - V @ U.T  # (u_i - u_j).(v_i - v_j)
+        dE = -c.E * dots
+        AdE = c.A @ dE
+        M = AdE @ c.B
+        dW = (self.d * (AdE @ c.A) - M - M.T) * c.E + c.G * dE
+        dW[np.diag_indices_from(dW)] = 0.0
+        return dW @ U - dW.sum(axis=1)[:, None] * U + c.W @ V - c.W.sum(axis=1)[:, None] * V
+
+    def _curvature(self, U):
+        """``A``, ``B``, ``G``, ``E`` and ``W`` of :meth:`_hessp` at ``U`` (the last one kept)."""
+        key = U.tobytes()
+        cached = getattr(self, "_cache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        K = self._unit._K(U)
+        A = factorise(K).inverse()
+        B = A @ self.S @ A
+        B = 0.5 * (B + B.T)
+        E = K.copy()
+        E[np.diag_indices_from(E)] = 0.0
+        G = B - self.d * A
+        c = _Curvature(A, B, G, E, G * E)
+        self._cache = (key, c)
+        return c
+
+
+class _Curvature(NamedTuple):
+    A: np.ndarray
+    B: np.ndarray
+    G: np.ndarray
+    E: np.ndarray
+    W: np.ndarray
 
 
 def _likelihood(S, d, length_scale, noise):

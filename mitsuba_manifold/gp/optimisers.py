@@ -1,16 +1,24 @@
-"""The two optimisers of the GPLVM likelihood (paper Sec. 3, "Optimization"), in length-scale units.
+"""The optimisers of the GPLVM likelihood (paper Sec. 3, "Optimization"), in length-scale units.
 
 * :func:`hooke_jeeves`, the paper's: direct search moving one latent point at a time,
-  evaluated through :class:`~mitsuba_manifold.gp.rank_update.RankUpdatedInverse`;
-* :func:`lbfgs`: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation).
+  evaluated through :class:`~mitsuba_manifold.gp.rank_update.RankUpdatedInverse`; it stops
+  when every point's step is below ``tol``;
+* :func:`lbfgs`: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation);
+* :func:`newton`: trust-region Newton-CG with exact Hessian-vector products (O(N^3) each).
+
+The gradient-based two minimise ``-F / (d N / 2)`` (``F``: L, less the stress term when there
+is one) and share one convergence test: the gradient's norm relative to that scale,
+:func:`gradient_norm` ``<= tol``; their ``max_iter`` is a safety cap, and a fit that reaches
+it is reported as not converged. Every optimiser records the final gradient norm.
 
 Each takes the objective in units of the length scale (a :class:`~.likelihood.Likelihood`
 with ``l = 1``), the starting points and its options (:class:`HookeJeevesOptions`,
-:class:`LBFGSOptions`), and returns an :class:`OptimiserResult`;
+:class:`LBFGSOptions`, :class:`NewtonOptions`), and returns an :class:`OptimiserResult`;
 :class:`mitsuba_manifold.gp.gplvm.GPLVM` (and :func:`~mitsuba_manifold.gp.gplvm.fit_latent`)
 is the public entry point.
 """
 
+import functools
 import numbers
 from dataclasses import dataclass
 
@@ -18,8 +26,8 @@ import numpy as np
 import scipy.optimize
 
 from ..errors import InputError, NotPositiveDefiniteError
-from .kernel import check_positive, factorise
-from .likelihood import objective
+from .kernel import check_positive
+from .pose import rigid_modes
 from .rank_update import RankUpdatedInverse
 
 
@@ -60,18 +68,77 @@ class LBFGSOptions:
     Attributes
     ----------
     max_iter : int
-        L-BFGS-B iterations.
+        Most L-BFGS-B iterations (a safety cap: reaching it leaves the fit unconverged).
     tol : float
-        Stop when the largest gradient entry of ``L / scale`` with respect to ``x / l`` is
-        below ``tol`` (``scale``: the size of L's terms at the start).
+        Converged when the gradient's relative norm (:func:`gradient_norm`) is at most ``tol``.
+    step_tol : float
+        Or when the full Newton step (inside the trust region, the model's maximum) moves no
+        coordinate by more than ``step_tol`` (in units of ``l``): the points are that close to
+        the stationary point, where the gradient's own rounding (``d K^-1`` and
+        ``K^-1 S K^-1`` nearly cancel there) keeps its norm above ``tol``.
     """
 
-    max_iter: int = 2000
+    max_iter: int = 20000
     tol: float = 1e-7
 
     def __post_init__(self):
         object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))
         object.__setattr__(self, "tol", check_positive("tol", self.tol))
+
+
+@dataclass(frozen=True)
+class NewtonOptions:
+    """Settings of :func:`newton`.
+
+    Attributes
+    ----------
+    max_iter : int
+        Most trust-region iterations (a safety cap: reaching it leaves the fit unconverged).
+    tol : float
+        Converged when the gradient's relative norm (:func:`gradient_norm`) is at most ``tol``.
+    step_tol : float
+        Or when the full Newton step (inside the trust region, the model's maximum) moves no
+        coordinate by more than ``step_tol`` (in units of ``l``): the points are that close to
+        the stationary point, where the gradient's own rounding (``d K^-1`` and
+        ``K^-1 S K^-1`` nearly cancel there) keeps its norm above ``tol``.
+    """
+
+    max_iter: int = 2000
+    tol: float = 1e-7
+    step_tol: float = 1e-5
+
+    def __post_init__(self):
+        object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))
+        object.__setattr__(self, "tol", check_positive("tol", self.tol))
+        object.__setattr__(self, "step_tol", check_positive("step_tol", self.step_tol))
+
+
+def objective_scale(likelihood):
+    """``d N / 2``: the gradient-based optimisers work on ``L / (d N / 2)``, the objective per
+    value and material, whose size does not grow with the data.
+    """
+    return 0.5 * likelihood.d * likelihood.n
+
+
+def project(g, Q):
+    """``(I - Q Q^T) g``: ``g`` (flat) without its components along the rigid motions ``Q``
+    (:func:`.pose.rigid_modes`).
+    """
+    return g - Q @ (Q.T @ g)
+
+
+def gradient_norm(likelihood, U):
+    """The convergence test's measure: ``|P dF/du|_2 / (d N / 2)`` at points ``U`` in units of
+    the length scale (``F`` the objective maximised: L, less the stress term when there is one;
+    ``P`` the projection off the rigid motions, :func:`project`, along which F is constant).
+    Zero exactly at a stationary point; ``inf`` where K is not positive definite.
+    """
+    try:
+        _, g = likelihood._value_grad(U)
+    except NotPositiveDefiniteError:
+        return float("inf")
+    g = project(g.ravel(), rigid_modes(U))
+    return float(np.linalg.norm(g) / objective_scale(likelihood))
 
 
 @dataclass
@@ -85,6 +152,7 @@ class OptimiserResult:
     message: str
     n_refactorisations: int = 0
     max_drift: float = 0.0
+    grad_norm: float = None
 
 
 def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, length_scale=1.0):
@@ -182,68 +250,251 @@ def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, le
         message,
         state.n_refactorisations,
         state.max_drift,
+        gradient_norm(likelihood, state.units),
     )
 
 
-def lbfgs(likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.0):
-    """L-BFGS-B on ``-L / scale`` with the analytic gradient, in length-scale units.
-
-    ``likelihood``, ``callback`` and ``length_scale`` as for :func:`hooke_jeeves`.
+class _Scaled:
+    """``-F / (d N / 2)`` and its derivatives for SciPy's minimisers, counting evaluations,
+    keeping the last value (the per-iteration history) and ``inf`` where K is not positive
+    definite (the step is then rejected).
     """
-    n, q = U0.shape
-    S, d, max_iter, tol, l = likelihood.S, likelihood.d, options.max_iter, options.tol, length_scale
-    factor = factorise(likelihood.kernel._K(U0))
-    logdet, trace0 = factor.logdet, float(np.trace(factor.solve(S)))
-    if max_iter == 0:
-        start = objective(logdet, trace0, d) - likelihood._penalty(U0)
-        return OptimiserResult(U0, [start], 1, False, "reached max_iter = 0")
-    scale = 0.5 * d * abs(logdet) + 0.5 * abs(trace0)
-    if not scale > 0:
-        scale = 1.0
-    cache = {}
-    counter = {"nev": 0}
 
-    def fun(flat):
-        counter["nev"] += 1
-        U = flat.reshape(n, q)
+    def __init__(self, likelihood, n, q):
+        self.likelihood, self.shape = likelihood, (n, q)
+        self.scale = objective_scale(likelihood)
+        self.n_evaluations = 0
+        self.last = {}
+        self._q = None
+
+    def fun(self, flat):
+        """Value and projected gradient (:func:`project`)."""
+        self.n_evaluations += 1
+        U = flat.reshape(self.shape)
         try:
-            L, g = likelihood._value_grad(U)
+            F, g = self.likelihood._value_grad(U)
         except NotPositiveDefiniteError:
             return np.inf, np.zeros_like(flat)
-        cache.clear()
-        cache[flat.tobytes()] = L
-        return -L / scale, -g.ravel() / scale
+        self.last = {flat.tobytes(): F}
+        return -F / self.scale, -project(g.ravel(), self._modes(flat)) / self.scale
 
-    history = [objective(logdet, trace0, d) - likelihood._penalty(U0)]
+    def hessp(self, flat, p):
+        """The projected Hessian ``P H P`` times ``p``."""
+        Q = self._modes(flat)
+        H = self.likelihood._hessp(flat.reshape(self.shape), project(p, Q).reshape(self.shape))
+        return -project(H.ravel(), Q) / self.scale
+
+    def _modes(self, flat):
+        key = flat.tobytes()
+        if self._q is None or self._q[0] != key:
+            self._q = (key, rigid_modes(flat.reshape(self.shape)))
+        return self._q[1]
+
+    def value(self, flat):
+        key = flat.tobytes()
+        return (
+            self.last[key] if key in self.last else self.likelihood._value(flat.reshape(self.shape))
+        )
+
+
+def _minimise(likelihood, U0, method, options, callback, l, extra):
+    """SciPy's ``method`` on ``-F / (d N / 2)`` from ``U0``; converged by :func:`gradient_norm`."""
+    n, q = U0.shape
+    f = _Scaled(likelihood, n, q)
+    start = likelihood._value(U0)
+    history = [start]
+    if options.max_iter == 0:
+        norm = gradient_norm(likelihood, U0)
+        ok = norm <= options.tol
+        return OptimiserResult(U0, history, 1, ok, "reached max_iter = 0", grad_norm=norm)
     last = {"x": U0.ravel().copy()}
 
     class _Stop(Exception):
         pass
 
     def cb(xk):
-        key = xk.tobytes()
-        L = cache[key] if key in cache else likelihood._value(xk.reshape(n, q))
-        history.append(L)
+        F = f.value(xk)
+        history.append(F)
         last["x"] = xk.copy()
-        if callback is not None and callback(len(history) - 1, xk.reshape(n, q) * l, L):
+        if callback is not None and callback(len(history) - 1, xk.reshape(n, q) * l, F):
             raise _Stop
 
+    stopped = False
     try:
         res = scipy.optimize.minimize(
-            fun,
-            U0.ravel(),
-            jac=True,
-            method="L-BFGS-B",
-            callback=cb,
-            options={
-                "maxiter": max_iter,
-                "gtol": tol,
-                "ftol": 1e3 * np.finfo(float).eps,
-                "maxcor": 20,
-                "maxfun": 20 * max(max_iter, 1),
-            },
+            f.fun, U0.ravel(), jac=True, method=method, callback=cb, **extra(f)
         )
-        U, msg, ok = res.x.reshape(n, q), str(res.message), bool(res.success)
+        U, msg = res.x.reshape(n, q), str(res.message)
     except _Stop:
-        U, msg, ok = last["x"].reshape(n, q), "stopped by callback", False
-    return OptimiserResult(U, history, counter["nev"], ok, msg)
+        U, msg, stopped = last["x"].reshape(n, q), "stopped by callback", True
+    norm = gradient_norm(likelihood, U)
+    ok = not stopped and norm <= options.tol
+    if ok:
+        msg = f"gradient norm {norm:.3g} <= tol = {options.tol:g}"
+    elif not stopped:
+        cap = len(history) - 1 >= options.max_iter
+        msg = (
+            f"{'reached max_iter = ' + str(options.max_iter) if cap else msg}; gradient norm "
+            f"{norm:.3g} > tol = {options.tol:g}"
+        )
+    return OptimiserResult(U, history, f.n_evaluations, ok, msg, grad_norm=norm)
+
+
+def lbfgs(likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.0):
+    """L-BFGS-B on ``-F / (d N / 2)`` with the analytic gradient, in length-scale units.
+
+    ``likelihood``, ``callback`` and ``length_scale`` as for :func:`hooke_jeeves`. Stops when
+    the gradient's largest entry is below ``tol / sqrt(N q)`` (so its norm is below ``tol``),
+    when no step improves, or at ``max_iter``; converged when :func:`gradient_norm` ``<= tol``.
+    """
+    n, q = U0.shape
+
+    def extra(f):
+        gtol = options.tol / np.sqrt(n * q)
+        return {
+            "options": {
+                "maxiter": options.max_iter,
+                "gtol": gtol,
+                "ftol": 0.0,
+                "maxcor": 20,
+                "maxfun": 20 * max(options.max_iter, 1),
+            }
+        }
+
+    return _minimise(likelihood, U0, "L-BFGS-B", options, callback, length_scale, extra)
+
+
+#: The grid (in units of the length scale) that :func:`newton` rounds its iterates to while
+#: they move by more than :data:`SNAP_ABOVE`: a power of two, so rounding is exact.
+SNAP_GRID = 2.0**-10
+#: Steps whose largest entry is above this (in units of ``l``) end on the grid.
+SNAP_ABOVE = 2.0**-5
+#: Relative size of a predicted gain below which the objective's own rounding (that of
+#: ``log|K|`` with an ill-conditioned K) could hide it: such a step is taken when it lowers the
+#: gradient norm instead.
+ROUNDING = 1e-10
+#: The trust radius: initial, largest and smallest (below it no step improves: the
+#: objective's rounding is reached). Powers of two, changed by factors of two and four.
+RADIUS = (1.0, 64.0, 2.0**-40)
+
+
+#: Most conjugate-gradient iterations of a step, per unknown: CG loses its exactness by
+#: rounding on a stiff Hessian (K near-singular), so it may need more than one round.
+CG_ITERATIONS = 5
+
+
+def _steihaug(hessp, g, radius):
+    """The Steihaug-Toint conjugate-gradient step of the model ``g.p + p.H p / 2`` within
+    ``|p| <= radius``: CG until the residual is below ``min(0.5, sqrt|g|) |g|``, or to the
+    boundary along a direction of negative curvature or once a step leaves the region.
+    Returns the step and whether it ends on the boundary.
+    """
+    z = np.zeros_like(g)
+    r = g.copy()
+    d = -r
+    gnorm = np.linalg.norm(g)
+    stop = min(0.5, np.sqrt(gnorm)) * gnorm
+
+    def to_boundary(z, d):
+        a, b, c = d @ d, 2.0 * (z @ d), z @ z - radius * radius
+        tau = (-b + np.sqrt(max(b * b - 4.0 * a * c, 0.0))) / (2.0 * a)
+        return z + tau * d
+
+    for _ in range(CG_ITERATIONS * g.size):
+        Bd = hessp(d)
+        curvature = d @ Bd
+        if curvature <= 0:
+            return to_boundary(z, d), True
+        rr = r @ r
+        alpha = rr / curvature
+        z_next = z + alpha * d
+        if np.linalg.norm(z_next) >= radius:
+            return to_boundary(z, d), True
+        r = r + alpha * Bd
+        if np.linalg.norm(r) < stop:
+            return z_next, False
+        d = -r + (r @ r / rr) * d
+        z = z_next
+    return z, False
+
+
+def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=1.0):
+    """Trust-region Newton-CG on ``-F / (d N / 2)``, in length-scale units.
+
+    Each iteration takes the Steihaug-Toint conjugate-gradient step of the quadratic model on
+    the exact Hessian-vector products (:meth:`Likelihood._hessp`; the stress term's by
+    central differences of its gradient) inside the trust region, following directions of
+    negative curvature out of saddles. A step is taken when it gains more than a tenth of
+    what the model predicts (a predicted gain below :data:`ROUNDING` of the objective: when it
+    lowers the gradient norm); the radius (a power of two) is quartered below a quarter and
+    doubled above three quarters on the boundary.
+
+    So that the path depends on the data and not on the last bits of its arithmetic (BLAS
+    kernels, summation order), the start and every iterate after a step larger than
+    :data:`SNAP_ABOVE` are rounded to the grid :data:`SNAP_GRID`: two runs whose numbers
+    differ in the last bits land on the same grid points, and end at the same maximum.
+    The last small steps, off the grid, converge to it.
+
+    ``likelihood``, ``callback`` and ``length_scale`` as for :func:`hooke_jeeves`. Stops when
+    :func:`gradient_norm` is at most ``tol`` or the full Newton step at most ``step_tol``
+    (converged, :class:`NewtonOptions`), when the radius falls below
+    ``RADIUS[2]`` (no step improves: not converged) or at ``max_iter`` (not converged).
+    """
+    n, q = U0.shape
+    l = length_scale
+    f = _Scaled(likelihood, n, q)
+    x = np.round(U0.ravel() / SNAP_GRID) * SNAP_GRID
+    fx, g = f.fun(x)
+    if not np.isfinite(fx):
+        raise NotPositiveDefiniteError(
+            "the starting latent points give a covariance matrix K that is not positive "
+            "definite (points coincide); separate them or use a larger `noise` mu"
+        )
+    history = [-fx * f.scale]
+    radius, largest, smallest = RADIUS
+    message = f"reached max_iter = {options.max_iter}"
+    stopped, newton_step = False, None
+    for _ in range(options.max_iter):
+        if np.linalg.norm(g) <= options.tol:
+            break
+        step, boundary = _steihaug(functools.partial(f.hessp, x), g, radius)
+        if not boundary and np.abs(step).max() <= options.step_tol:
+            newton_step = float(np.abs(step).max())
+            break
+        predicted = -(g @ step + 0.5 * step @ f.hessp(x, step))
+        trial = x + step
+        if np.abs(step).max() > SNAP_ABOVE:
+            trial = np.round(trial / SNAP_GRID) * SNAP_GRID
+        f_trial, g_trial = f.fun(trial)
+        rho = (fx - f_trial) / predicted if predicted > 0 else -np.inf
+        if 0 < predicted < ROUNDING * max(abs(fx), 1.0) and np.isfinite(f_trial):
+            # gains below the objective's rounding: judge the step by the gradient it leaves
+            rho = 1.0 if np.linalg.norm(g_trial) < np.linalg.norm(g) else -np.inf
+        if rho < 0.25:
+            radius /= 4.0
+        elif rho > 0.75 and boundary:
+            radius = min(2.0 * radius, largest)
+        if rho > 0.1:
+            x, fx, g = trial, f_trial, g_trial
+            history.append(-fx * f.scale)
+            if callback is not None and callback(
+                len(history) - 1, x.reshape(n, q) * l, history[-1]
+            ):
+                message, stopped = "stopped by callback", True
+                break
+        if radius < smallest:
+            message = "no step improves (trust radius below the objective's rounding)"
+            break
+    U = x.reshape(n, q)
+    norm = gradient_norm(likelihood, U)
+    ok = not stopped and (norm <= options.tol or newton_step is not None)
+    if norm <= options.tol and not stopped:
+        message = f"gradient norm {norm:.3g} <= tol = {options.tol:g}"
+    elif ok:
+        message = (
+            f"Newton step {newton_step:.3g} <= step_tol = {options.step_tol:g} (gradient norm "
+            f"{norm:.3g}, at its rounding)"
+        )
+    elif not stopped:
+        message += f"; gradient norm {norm:.3g} > tol = {options.tol:g}"
+    return OptimiserResult(U, history, f.n_evaluations, ok, message, grad_norm=norm)

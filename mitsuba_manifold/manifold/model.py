@@ -37,6 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._util.blas import one_thread
 from .._util.checks import weight_sum
 from .._util.fifo_cache import Recent
 from .._util.float32 import weights32
@@ -54,6 +55,7 @@ from . import projection as projection_mod
 from .fit_record import FitRecord, Timings
 from .presets import (
     PRESETS,
+    canonical_order,
     fit_layout,
     make_interpolant,
     settings,
@@ -150,9 +152,19 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
         tables, cfg["features"], centre=True, raw=True, weights=albedo_weights(db.dims).reshape(-1)
     )
     stress = stress_of(cfg)
-    distances = stress_distances(tables, db.dims) if stress.active else None
+    with one_thread():  # the same sums, whatever the number of BLAS threads
+        distances = stress_distances(tables, db.dims) if stress.active else None
     t_gram = time.perf_counter() - t0  # with the stress term's distances
-    result = fit_layout(g.S, tables.shape[1], cfg, init=init, distances=distances, **options)
+    hashes = db.hashes(names)
+    result = fit_layout(
+        g.S,
+        tables.shape[1],
+        cfg,
+        init=init,
+        distances=distances,
+        order=canonical_order(hashes, names),
+        **options,
+    )
     extra = {}
     if stress.active:  # the stress term's settings and outcome, in the saved info
         extra = {
@@ -168,13 +180,17 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
         dims=db.dims,
         log_likelihood=float(result.log_likelihood),
         n_evaluations=int(result.n_evaluations),
+        converged=bool(result.converged),
+        n_iterations=int(result.n_iterations),
+        grad_norm=None if result.grad_norm is None else float(result.grad_norm),
+        stop=str(result.message),
         history=result.history,
         timings=Timings(t_load, t_gram, float(result.time_s)),
         extra=extra,
     )
     return DatabaseFit(
         names,
-        db.hashes(names),
+        hashes,
         result,
         record,
         g.S,
@@ -358,7 +374,7 @@ class Manifold:
         q : int
             Latent dimension (1 to 8).
         names : list of str, optional
-        method : {"hooke-jeeves", "lbfgs"}
+        method : {"newton", "lbfgs", "hooke-jeeves"}
         length_scale, noise : float
             ``l`` and ``mu`` of the kernel ``mu delta + exp(-|x-x'|^2 / 2 l^2)``.
         features : {"raw", "log"}
@@ -372,7 +388,7 @@ class Manifold:
         stress : float
             Weight ``lambda >= 0`` of the layout's stress term towards the tables' perceptual
             distances (:mod:`gp.stress`, :func:`presets.stress_distances`; needs
-            ``method="lbfgs"``); 0: none. Saved in :attr:`info` when on.
+            ``method="newton"`` or ``"lbfgs"``); 0: none. Saved in :attr:`info` when on.
         stress_neighbours : int, optional
             The pairs the stress term covers: each material with its ``k`` perceptually nearest;
             None: every pair.
@@ -917,9 +933,10 @@ class Manifold:
         if rec.log_likelihood is not None:
             fit_s = rec.timings.fit_s if rec.timings.fit_s is not None else float("nan")
             lines.append(
-                f"  log-likelihood L = {rec.log_likelihood:.6g} "
-                f"({rec.method}, {len(rec.history)} iterations, {fit_s:.2f} s)"
+                f"  log-likelihood L = {rec.log_likelihood:.6g} ({rec.method}, {fit_s:.2f} s)"
             )
+        if rec.method is not None:
+            lines.append(f"  fit: {rec.convergence()}")
         if self.info.get("stress"):
             lines.append(
                 f"  stress term: weight {self.info['stress']:g}, normalised stress "

@@ -78,6 +78,10 @@ INFO = {
     "log_likelihood": lambda v: (
         v is None or isinstance(v, numbers.Real) and not isinstance(v, bool)
     ),
+    "converged": lambda v: v is None or isinstance(v, bool),
+    "n_iterations": lambda v: v is None or _int(v) and v >= 0,
+    "grad_norm": lambda v: v is None or _real(v) and v >= 0 or v == float("inf"),
+    "stop": lambda v: v is None or isinstance(v, str),
     **{
         f"time_{k}_s": (lambda v: v is None or _real(v) and v >= 0) for k in ("load", "gram", "fit")
     },

@@ -260,7 +260,7 @@ def fit_args(draw):
                 one(["steel,chrome", "chrome,gold-paint,pink-fabric"]),
                 one(["steel", "steel,adamantium", "steel,steel", ","]),
             ),
-            ("--method", st.just("lbfgs"), one(["newton", "hooke-jeeves"])),
+            ("--method", one(["lbfgs", "newton"]), one(["newtons", "hooke-jeeves"])),
             ("--features", one(["raw", "log"]), st.just("sqrt")),
             ("--plot", st.just("WORK/plots"), one(["WORK/afile", "WORK/afile/sub"])),
         ],

@@ -379,7 +379,7 @@ def test_a_stress_term_is_fitted_to_the_perceptual_distances_and_saved_with_the_
     assert sigma(m.latent) < sigma(plain.latent)
     m.save(tmp_path / "m.npz")
     assert Manifold.load(tmp_path / "m.npz").info == m.info
-    with pytest.raises(InputError, match="needs method 'lbfgs'"):
+    with pytest.raises(InputError, match="needs method 'newton' or 'lbfgs'"):
         Manifold.fit(small_db, stress=1.0, method="hooke-jeeves")
 
 

@@ -59,11 +59,11 @@ def check(args, guard=None):
         validate.finite("--stress", args.stress, 0.0, 1e6)
     method = args.method or PRESETS[args.preset]["method"]
     stress = PRESETS[args.preset]["stress"] if args.stress is None else args.stress
-    if method != "lbfgs" and stress > 0:
+    if method == "hooke-jeeves" and stress > 0:
         raise InputError(
             f"--method {method} cannot fit the layout's stress term (weight {stress:g}, "
             f"{'--stress' if args.stress is not None else 'the ' + args.preset + ' preset'}): "
-            "add --stress 0, or use --method lbfgs"
+            "add --stress 0, or use --method newton (or lbfgs)"
         )
     folder, base = os.path.split(args.out)
     if not base.lower().endswith(".npz") or len(base) <= 4:
@@ -103,7 +103,13 @@ def main(argv=None):
     p.add_argument(
         "--materials", type=parse_list, default=None, help="subset of materials (default: all)"
     )
-    p.add_argument("--method", choices=["hooke-jeeves", "lbfgs"], default=None)
+    p.add_argument(
+        "--method",
+        choices=["hooke-jeeves", "lbfgs", "newton"],
+        default=None,
+        help="optimiser: newton (trust-region Newton-CG, the default preset's), lbfgs, or "
+        "hooke-jeeves (the paper's)",
+    )
     p.add_argument("--features", choices=["raw", "log"], default=None, help="fit features")
     p.add_argument("--length-scale", type=float, default=None, help="kernel length scale l")
     p.add_argument("--noise", type=float, default=None, help="kernel noise mu")
@@ -112,7 +118,7 @@ def main(argv=None):
         type=float,
         default=None,
         help="weight of the layout's stress term towards the materials' perceptual distances "
-        "(0: none; needs --method lbfgs when > 0)",
+        "(0: none; needs --method newton or lbfgs when > 0)",
     )
     p.add_argument("--plot", metavar="DIR", help="write latent map and convergence PNGs here")
     p.add_argument(

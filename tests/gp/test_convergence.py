@@ -1,0 +1,124 @@
+"""The fit as a property of the data: a stated convergence test, exact Hessian products, the
+canonical pose, and the same points whatever the last bits of the arithmetic or the order."""
+
+import warnings
+
+import numpy as np
+import pytest
+from gp_synthetic import gram, smooth_data
+
+from mitsuba_manifold.errors import ConvergenceWarning
+from mitsuba_manifold.gp import gplvm
+from mitsuba_manifold.gp.optimisers import gradient_norm
+from mitsuba_manifold.gp.stress import PenalisedLikelihood
+from mitsuba_manifold.manifold.presets import canonical_order, fit_layout, settings
+
+
+def _problem(n=16, seed=3, d=2e4):
+    Z = smooth_data(n, seed=seed)
+    S = gram(Z, d)
+    diff = Z[:, None, :] - Z[None, :, :]
+    D = np.sqrt((diff**2).sum(-1))
+    return S, d, D
+
+
+def _random_motion(X, seed):
+    rng = np.random.default_rng(seed)
+    R, _ = np.linalg.qr(rng.standard_normal((X.shape[1], X.shape[1])))
+    return X @ R + rng.standard_normal(X.shape[1])
+
+
+def test_hessian_vector_products_match_finite_differences_of_the_gradient():
+    S, d, D = _problem()
+    lik = gplvm.Likelihood(S, d).in_units()
+    target = PenalisedLikelihood(lik, gplvm.Stress(5.0).term(D, len(S), d))
+    rng = np.random.default_rng(0)
+    U = gplvm.pca_init(S, 3) + 0.1 * rng.standard_normal((len(S), 3))
+    V = rng.standard_normal(U.shape)
+    for f in (lik, target):
+        h = 1e-5
+        fd = (f._value_grad(U + h * V)[1] - f._value_grad(U - h * V)[1]) / (2 * h)
+        exact = f._hessp(U, V)
+        assert np.abs(exact - fd).max() < 1e-5 * np.abs(fd).max()
+
+
+def test_canonical_pose_is_the_same_for_every_rigid_motion_and_keeps_distances():
+    X = np.random.default_rng(1).standard_normal((30, 3)) * [3.0, 2.0, 1.0] + 0.3
+    X[:, 0] += 0.5 * X[:, 0] ** 2  # skewed: every axis has a third moment
+    posed = gplvm.canonical_pose(X)
+    for seed in range(4):
+        again = gplvm.canonical_pose(_random_motion(X, seed))
+        assert np.abs(again - posed).max() < 1e-9
+    assert np.abs(posed.mean(axis=0)).max() < 1e-12
+    var = posed.var(axis=0)
+    assert np.all(np.diff(var) <= 0)
+    cov = posed.T @ posed
+    assert np.abs(cov - np.diag(np.diag(cov))).max() < 1e-9 * cov.max()
+    dist = lambda A: np.sqrt(((A[:, None] - A[None]) ** 2).sum(-1))  # noqa: E731
+    assert np.abs(dist(posed) - dist(X)).max() < 1e-9
+
+
+@pytest.mark.parametrize("method", ["newton", "lbfgs"])
+def test_a_converged_fit_meets_its_stated_test_and_says_so(method):
+    S, d, D = _problem()
+    cfg = settings("default", q=2, method=method, stress=2.0)
+    tol = 1e-7 if method == "newton" else 1e-5  # L-BFGS's line search stops sooner
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ConvergenceWarning)
+        res = fit_layout(S, d, cfg, distances=D, tol=tol)
+    assert res.converged and "gradient norm" in res.message
+    assert res.grad_norm <= tol or "Newton step" in res.message  # the two stated tests
+    lik = gplvm.Likelihood(S, d).in_units()
+    target = PenalisedLikelihood(lik, gplvm.Stress(2.0).term(D, len(S), d))
+    assert gradient_norm(target, res.latent) == pytest.approx(res.grad_norm, rel=1e-3, abs=1e-12)
+
+
+@pytest.mark.parametrize("method", ["newton", "lbfgs", "hooke-jeeves"])
+def test_a_fit_stopped_by_its_cap_warns_and_is_recorded_unconverged(method):
+    S, d, D = _problem()
+    stress = 0.0 if method == "hooke-jeeves" else 2.0
+    cfg = settings("default", q=2, method=method, stress=stress)
+    with pytest.warns(ConvergenceWarning, match="did not converge"):
+        res = fit_layout(S, d, cfg, distances=D, max_iter=2)
+    assert not res.converged and res.n_iterations <= 2
+    assert "max_iter" in res.message and res.grad_norm > 0
+
+
+def test_newton_ends_at_the_same_points_when_the_data_differ_in_their_last_bits():
+    S, d, D = _problem(n=24, seed=5)
+    cfg = settings("default", q=3, stress=5.0)
+    ref = fit_layout(S, d, cfg, distances=D)
+    assert ref.converged
+    rng = np.random.default_rng(0)
+    for _ in range(2):  # what another BLAS, or another machine, does to S and D
+        noise = rng.standard_normal(S.shape)
+        S2 = S * (1 + 1e-14 * (noise + noise.T))
+        D2 = D * (1 + 1e-14 * np.abs(noise + noise.T))
+        res = fit_layout(S2, d, cfg, distances=D2)
+        assert res.converged
+        assert np.abs(res.latent - ref.latent).max() < 1e-4  # within the stopping step_tol
+
+
+@pytest.mark.parametrize("method", ["newton", "hooke-jeeves"])
+def test_the_layout_does_not_depend_on_the_order_the_materials_are_given_in(method):
+    S, d, D = _problem(n=14, seed=2)
+    cfg = settings("default", q=2, method=method, stress=0.0 if method == "hooke-jeeves" else 3.0)
+    names = [f"m{i:02d}" for i in range(len(S))]
+    hashes = [f"{(7 * i) % 14:064x}" for i in range(len(S))]  # an order unlike the names'
+    ref = fit_layout(S, d, cfg, distances=D, order=canonical_order(hashes, names))
+    perm = np.random.default_rng(4).permutation(len(S))
+    res = fit_layout(
+        S[np.ix_(perm, perm)],
+        d,
+        cfg,
+        distances=D[np.ix_(perm, perm)],
+        order=canonical_order([hashes[i] for i in perm], [names[i] for i in perm]),
+    )
+    assert np.abs(res.latent - ref.latent[perm]).max() < 1e-6
+
+
+def test_canonical_order_sorts_by_content_then_name():
+    order = canonical_order(["b" * 64, "a" * 64, "b" * 64], ["z", "y", "x"])
+    assert order.tolist() == [1, 2, 0]
+    with pytest.raises(ValueError, match="one per material"):
+        canonical_order(["a" * 64], ["x", "y"])
