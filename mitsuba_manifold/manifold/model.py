@@ -931,10 +931,9 @@ class Manifold:
                 + ("; try features='log'" if self.features == "raw" else "")
             )
         if rec.log_likelihood is not None:
-            fit_s = rec.timings.fit_s if rec.timings.fit_s is not None else float("nan")
-            lines.append(
-                f"  log-likelihood L = {rec.log_likelihood:.6g} ({rec.method}, {fit_s:.2f} s)"
-            )
+            fit_s = rec.timings.fit_s
+            took = "" if fit_s is None or not np.isfinite(fit_s) else f", {fit_s:.2f} s"
+            lines.append(f"  log-likelihood L = {rec.log_likelihood:.6g} ({rec.method}{took})")
         if rec.method is not None:
             lines.append(f"  fit: {rec.convergence()}")
         if self.info.get("stress"):
