@@ -12,8 +12,8 @@ import pytest
 from mitsuba_manifold.data.database import Database
 from mitsuba_manifold.gp import gplvm
 from mitsuba_manifold.manifold import interpolant, space
-from mitsuba_manifold.manifold.presets import canonical_order
 from mitsuba_manifold.manifold.model import InputError, Manifold
+from mitsuba_manifold.manifold.presets import canonical_order
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
