@@ -349,7 +349,7 @@ def report(result: dict) -> str:
         "",
         f"`tools/bench.py space --configs {','.join(r['configs'])} --database "
         f"{result.get('database', 'merl')} --json benchmarks/results/space.json` "
-        f"({'10-fold' if r.get('folds', 'all') == 'all' else 'folds ' + str(r['folds']) + ' of a 10-fold'}"
+        f"({'10-fold' if str(r.get('folds', 'all')).startswith('all') else 'folds ' + str(r['folds']) + ' of a 10-fold'}"
         " cross-validation: each held-out table against its projection onto the manifold of the "
         "others).",
         "",

@@ -95,7 +95,8 @@ def test_the_path_energy_gradient_is_the_derivative_of_the_energy(m):
         up[k, c] += h
         down[k, c] -= h
         fd = (metric.energy(up)[0] - metric.energy(down)[0]) / (2 * h)
-        assert g[k, c] == pytest.approx(fd, rel=0.05, abs=1e-6 * abs(e))
+        # a component near zero is judged on the gradient's scale (the differences' rounding)
+        assert g[k, c] == pytest.approx(fd, rel=0.05, abs=1e-3 * np.abs(g).max())
 
 
 def test_reparameterise_inverts_the_cumulative_length():
