@@ -344,12 +344,17 @@ def report(result: dict) -> str:
     r = result["result"] if "result" in result else result
     t = r["targets"]
     dims = "x".join(map(str, r.get("dims", ())))
+    folds = (
+        "10-fold"
+        if str(r.get("folds", "all")).startswith("all")
+        else f"folds {r['folds']} of a 10-fold"
+    )
     lines = [
         f"### The material space ({r.get('n_materials', '?')} materials, {dims})",
         "",
         f"`tools/bench.py space --configs {','.join(r['configs'])} --database "
         f"{result.get('database', 'merl')} --json benchmarks/results/space.json` "
-        f"({'10-fold' if str(r.get('folds', 'all')).startswith('all') else 'folds ' + str(r['folds']) + ' of a 10-fold'}"
+        f"({folds}"
         " cross-validation: each held-out table against its projection onto the manifold of the "
         "others).",
         "",

@@ -420,14 +420,20 @@ class ShepardWeights(Interpolant):
         _, rho = self.hull().project(x)
         far = np.flatnonzero(rho > 1e-12 * self.length_scale)
         if len(far):  # beyond the hull: central differences of the continued weights, with
-            # steps that stay outside it (no larger than half the distance to it)
-            h = np.clip(0.5 * rho[far], 1e-9, 1e-4) * self.length_scale
-            steps = np.eye(self.q)[None] * h[:, None, None]
-            X = x[far, None, :] + np.concatenate([steps, -steps], axis=1)
-            W = self._weights(X.reshape(-1, self.q)).reshape(len(far), 2 * self.q, self.n)
-            J[far] = np.transpose(W[:, : self.q] - W[:, self.q :], (0, 2, 1)) / (
-                2 * h[:, None, None]
-            )
+            # steps that stay outside it (no larger than half the distance to it), extrapolated
+            # from steps h and h / 2 (Richardson: the error of order h^2 cancels)
+            # from steps h and h / 2 (Richardson: the error of order h^2 cancels). Each point's
+            # steps are evaluated on their own, so that a point's row does not depend on the
+            # other points of the batch.
+            q = self.q
+            for i in far:
+                h = np.clip(0.5 * rho[i], 1e-9, 1e-4) * self.length_scale
+                steps = np.eye(q) * h
+                X = x[i] + np.concatenate([steps, -steps, steps / 2, -steps / 2])
+                W = self._weights(X)
+                d_h = (W[:q] - W[q : 2 * q]) / (2 * h)
+                d_half = (W[2 * q : 3 * q] - W[3 * q :]) / h
+                J[i] = ((4 * d_half - d_h) / 3).T
         return J
 
     def _convex_jacobian(self, x):

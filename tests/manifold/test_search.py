@@ -33,7 +33,7 @@ def _between(m, i, j, t=0.4):
 
 def test_descent_recovers_the_point_whose_weights_it_matches(manifold):
     m = manifold
-    x_true = _between(m, 0, 1)
+    x_true = _between(m, 0, 2)
     obj = WeightsTarget(m.weights(x_true)[1])
     bounds = search.box(m)
     X, err = search.scan(m, obj, 0.0, bounds, 512, seed=3)
