@@ -11,26 +11,31 @@ Stacking every masked pixel and channel of every view as a row,
 
 ``c_r = 1 / (t_r^2 + eps)`` (the relative error :func:`imaging.metrics.rel_mse` of the photo,
 ``eps`` relative to the photo's mean square), ``s = trace(A^T C A) / N`` (so that ``lam`` has no
-unit) and ``w_p`` a prior point (0 by default: a ridge). ``lam`` is chosen by cross-validation
-over held-out blocks of pixels (:data:`CV_FOLDS` folds, :data:`CV_GRID`) unless given.
+unit) and ``w_p`` a prior point (0 by default: a ridge).
 
-The feasible sets (``method``):
+The feasible sets:
 
-- ``"plausible"`` (default): weights of either sign (combinations beyond the manifold) with no
-  negative bin of the combined table and a directional albedo at most 1 at every incidence and
-  channel (:class:`~mitsuba_manifold.manifold.plausibility.DirectionalAlbedo`); both are linear
-  in ``w``. Non-negativity is imposed on a fixed random sample of :data:`CHECK_BINS` bins by
-  constraint generation (the most negative bins of the sample added to the active constraints,
-  up to :data:`ROUNDS` solves), then guaranteed on every bin of the full table by stepping back
-  toward the non-negative solution (:func:`guarantee`).
-- ``"nonneg"``: ``w >= 0`` (no bin can be negative) and the albedo bound.
+- ``"nonneg"``: ``w >= 0`` (no bin can be negative) and a directional albedo at most 1 at every
+  incidence and channel (:class:`~mitsuba_manifold.manifold.plausibility.DirectionalAlbedo`,
+  linear in ``w``).
+- ``"beyond"``: weights of either sign (combinations beyond the training materials' cone) with
+  no negative bin of the combined table and the same albedo bound. Non-negativity is imposed on
+  a sample of (bin, channel) values (:data:`CHECK_BINS` at random and, per material, the
+  :data:`CHECK_PER_MATERIAL` where it holds the largest share of all tables), then on the full
+  table: its most negative values join the constraints (:data:`FULL_ROUNDS` rounds) and a last
+  step back toward the non-negative solution guarantees it exactly (:func:`guarantee`).
 - ``"convex"``: ``w >= 0``, ``sum w = 1``.
+- ``"plausible"`` (the default): ``beyond`` where the photo needs it, else ``nonneg``:
+  both are cross-validated over held-out blocks of pixels and ``beyond`` is taken only when it
+  lowers the held-out error by more than :data:`CV_MARGIN` (:func:`choose`); ``lam`` is the
+  largest of :data:`CV_GRID` whose held-out error is within :data:`CV_TOLERANCE` of the best.
 
-Each programme is solved with SciPy's SLSQP on the N weights (the data enter through the N x N
-matrix ``A^T C A``, so the cost does not depend on the number of pixels once it is formed).
+Each programme is a least-distance programme solved through SciPy's non-negative least squares
+(:func:`quadratic_programme`); the data enter through the N x N matrix ``A^T C A``, so its cost
+does not depend on the number of pixels once that is formed.
 
 The latent-point search of the paper (:mod:`mitsuba_manifold.render.match_render`) stays
-available as ``method="latent"``; it is run by the rendering layer, not here.
+available as ``method="latent"``; the rendering layer runs it, not this module.
 """
 
 from __future__ import annotations
@@ -49,13 +54,18 @@ from ..errors import FormatError, InputError, NumericalError
 from ..manifold.plausibility import DirectionalAlbedo
 
 #: The feasible sets of :class:`AcquireOptions` (``latent``: the paper's latent-point search).
-METHODS = ("plausible", "nonneg", "convex", "latent")
+METHODS = ("plausible", "beyond", "nonneg", "convex", "latent")
 #: Relative floor of the data term's weights: ``eps = EPS_REL * mean(t^2)``.
 EPS_REL = 0.01
 #: Cross-validation: folds, the candidate regularisation weights, the side of a pixel block.
 CV_FOLDS = 4
 CV_GRID = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2)
 CV_BLOCK = 8
+#: The cross-validation's choices: a weight's held-out error within ``1 + CV_TOLERANCE`` of the
+#: best counts as as good (the largest such ``lam`` is taken); weights beyond the non-negative
+#: ones are taken when they lower the held-out error by more than ``CV_MARGIN``.
+CV_TOLERANCE = 0.05
+CV_MARGIN = 0.1
 #: (bin, channel) values sampled for the non-negativity constraints.
 CHECK_BINS = 1 << 13
 #: Per material: the values where it holds the largest share of all tables.
@@ -80,7 +90,7 @@ class AcquireOptions:
 
     Parameters
     ----------
-    method : {"plausible", "nonneg", "convex", "latent"}
+    method : {"plausible", "beyond", "nonneg", "convex", "latent"}
         The feasible set of the weights (module docstring); ``latent``: the paper's search of one
         latent point by differentiable rendering (slow; for comparison).
     regularisation : float, optional
@@ -323,7 +333,7 @@ def _constraints(cons, method, n) -> tuple:
     if method == "convex":
         rows += [np.ones((1, n)), -np.ones((1, n))]
         bound += [np.ones(1), -np.ones(1)]
-    if method == "plausible":
+    if method == "beyond":
         rows.append(cons.check.T)
         bound.append(np.zeros(cons.check.shape[1]))
     return np.vstack(rows), np.concatenate(bound)
@@ -366,13 +376,13 @@ def guarantee(w, start, table, n, albedo) -> tuple:
     return start + s * (w - start), s
 
 
-def solve_plausible(H, g, cons, lam, table, n, progress=None) -> tuple:
-    """:func:`solve` with ``method="plausible"`` made to hold on the full tables: up to
+def solve_beyond(H, g, cons, lam, table, n, progress=None) -> tuple:
+    """:func:`solve` with ``method="beyond"`` made to hold on the full tables: up to
     :data:`FULL_ROUNDS` times, the full combination is formed and its :data:`ADDED_PER_ROUND`
     most negative values join the constraints; then :func:`guarantee` (toward the non-negative
     solution). Returns ``(weights, share of the last step kept, constraints)``.
     """
-    w = solve(H, g, cons, "plausible", lam)
+    w = solve(H, g, cons, "beyond", lam)
     for _ in range(FULL_ROUNDS):
         if np.all(w >= 0):
             break
@@ -387,7 +397,7 @@ def solve_plausible(H, g, cons, lam, table, n, progress=None) -> tuple:
             [np.asarray(table(i), dtype=np.float32).reshape(-1)[worst] for i in range(n)]
         )
         cons = cons.add(values, worst)
-        w = solve(H, g, cons, "plausible", lam)
+        w = solve(H, g, cons, "beyond", lam)
     start = solve(H, g, cons, "nonneg", lam)
     w, shrink = guarantee(w, start, table, n, cons.albedo)
     return w, shrink, cons
@@ -401,11 +411,15 @@ def _folds(block, k, seed) -> np.ndarray:
     return np.array([fold_of[b] for b in block.tolist()])
 
 
-def cross_validate(photos, cons, method, grid=CV_GRID, folds=CV_FOLDS, seed=0, progress=None):
-    """``(best lam, [(lam, held-out relative RMSE)])`` over held-out pixel blocks.
+def cross_validate(
+    photos, cons, method, grid=CV_GRID, folds=CV_FOLDS, seed=0, progress=None, tolerance=0.0
+):
+    """``(chosen lam, [(lam, held-out relative RMSE)])`` over held-out pixel blocks: the largest
+    ``lam`` whose held-out error is within ``1 + tolerance`` of the smallest (the smoothest answer
+    the held-out pixels cannot tell from the best).
 
-    ``method="plausible"`` is cross-validated on the sampled-bin constraints of its first solve
-    only (the full-table guarantee changes little and costs a pass over the tables).
+    ``method="beyond"`` is cross-validated on the sampled-bin constraints (the full-table
+    guarantee changes little and costs a pass over the tables).
     """
     fold = _folds(photos.block, folds, seed)
     parts = [(photos.normal_equations(fold != k), fold == k) for k in range(folds)]
@@ -418,8 +432,30 @@ def cross_validate(photos, cons, method, grid=CV_GRID, folds=CV_FOLDS, seed=0, p
         scores.append((float(lam), float(np.sqrt(err / folds))))
         if progress is not None:
             progress()
-    best = min(scores, key=lambda s: s[1])[0]
+    low = min(s[1] for s in scores)
+    best = max(lam for lam, e in scores if e <= (1.0 + tolerance) * low)
     return best, scores
+
+
+def choose(photos, cons, method, seed=0, progress=None) -> tuple:
+    """``(feasible set, lam, {set: cross-validation scores})`` of an acquisition.
+
+    ``method="plausible"``: both the non-negative weights and the weights beyond them
+    (``beyond``) are cross-validated; ``beyond`` is taken only when its held-out error is below
+    ``1 - CV_MARGIN`` times the non-negative weights' (the photo needs a material beyond the
+    training materials' cone). ``lam``: the largest within :data:`CV_TOLERANCE` of the best.
+    """
+    sets = ("nonneg", "beyond") if method == "plausible" else (method,)
+    found = {}
+    for m in sets:
+        found[m] = cross_validate(
+            photos, cons, m, seed=seed, progress=progress, tolerance=CV_TOLERANCE
+        )
+    if method != "plausible":
+        return method, found[method][0], {method: found[method][1]}
+    low = {m: min(e for _, e in found[m][1]) for m in sets}
+    pick = "beyond" if low["beyond"] < (1.0 - CV_MARGIN) * low["nonneg"] else "nonneg"
+    return pick, found[pick][0], {m: found[m][1] for m in sets}
 
 
 @dataclass
@@ -481,6 +517,7 @@ class Acquisition:
     w : list of float
         The weights (render them with ``manifold_brdf``'s ``weights``).
     method : str
+        The method asked for; ``feasible``: the set the weights were found in.
     x : list of float or None
         The latent point, where the weights are those of one (``latent`` and ``convex`` methods:
         the nearest point's weights are not the acquired ones, so it is None otherwise).
@@ -489,7 +526,8 @@ class Acquisition:
     single : dict
         The best single training material: ``name``, ``error`` (same measure).
     regularisation : float
-    cross_validation : list of [lam, held-out error]
+    cross_validation : dict
+        Feasible set -> ``[[lam, held-out error], ...]``.
     coverage : dict
         Which outgoing and incident directions the masked pixels show (per view).
     spread : dict
@@ -510,8 +548,9 @@ class Acquisition:
     error: float
     single: dict
     x: list | None = None
+    feasible: str = ""
     regularisation: float = 0.0
-    cross_validation: list = field(default_factory=list)
+    cross_validation: dict = field(default_factory=dict)
     coverage: dict = field(default_factory=dict)
     spread: dict | None = None
     warnings: list = field(default_factory=list)

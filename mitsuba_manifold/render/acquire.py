@@ -322,7 +322,8 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
         path = scenes.check_scene("`scene`", ph.scene)
         target, mask = _read_photo(ph, path)
         views.append(_View(ph, path, target, mask))
-    steps = len(views) + len(aq.CV_GRID) * (opts.regularisation is None) + opts.bootstrap + 2
+    sets = 2 if opts.method == "plausible" else 1
+    steps = len(views) + sets * len(aq.CV_GRID) * (opts.regularisation is None) + opts.bootstrap + 2
     bar = tqdm(total=steps, desc="acquire", disable=not opts.progress, leave=False)
     t0 = time.perf_counter()
     for v in views:
@@ -345,21 +346,21 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
     bar.update(1)
     timings["constraints_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    scores = []
-    lam = opts.regularisation
+    scores = {}
+    feasible, lam = ("beyond" if opts.method == "plausible" else opts.method), opts.regularisation
     if lam is None:
-        lam, scores = aq.cross_validate(
+        feasible, lam, scores = aq.choose(
             photos_lin, cons, opts.method, seed=opts.seed, progress=lambda: bar.update(1)
         )
     H, g, _ = photos_lin.normal_equations()
     shrink = 1.0
-    if opts.method == "plausible":
+    if feasible == "beyond":
         db = manifold.open_database(database)
-        w, shrink, cons = aq.solve_plausible(
+        w, shrink, cons = aq.solve_beyond(
             H, g, cons, lam, lambda i: db.reflectance(manifold.names[i]), manifold.n
         )
     else:
-        w = aq.solve(H, g, cons, opts.method, lam)
+        w = aq.solve(H, g, cons, feasible, lam)
     timings["solve_s"] = time.perf_counter() - t0
     bar.update(1)
     t0 = time.perf_counter()
@@ -368,7 +369,7 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
         sp = aq.spread(
             photos_lin,
             cons,
-            opts.method,
+            feasible,
             lam,
             w,
             opts.bootstrap,
@@ -416,7 +417,8 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
         single={"name": manifold.names[best], "error": float(errors[best])},
         x=None,
         regularisation=float(lam),
-        cross_validation=[list(s) for s in scores],
+        feasible=feasible,
+        cross_validation={k: [list(v) for v in sc] for k, sc in scores.items()},
         coverage={"views": cov},
         spread=None if sp is None else sp.__dict__,
         warnings=warnings,

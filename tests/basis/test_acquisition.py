@@ -22,22 +22,22 @@ def _problem(seed=0, n=6, rows=200):
 def test_constraints_hold_and_the_target_beyond_them_is_not_reached():
     """A target far outside every feasible set: each method's answer satisfies its constraints
     (no negative weight for nonneg/convex, the simplex for convex, no negative sampled bin for
-    plausible) and the albedo bound, and plausible's feasible set contains nonneg's (its error is
-    no larger)."""
+    beyond) and the albedo bound, and beyond's feasible set contains nonneg's (its error is no
+    larger)."""
     A, cons = _problem()
     w_true = np.array([3.0, -2.0, 1.0, 0.0, -1.0, 2.0])
     t = A @ w_true
     photos = aq.LinearPhotos(A, np.zeros(len(t)), t, np.arange(len(t)) // 10, np.zeros(len(t), int))
     H, g, _ = photos.normal_equations()
-    got = {m: aq.solve(H, g, cons, m, 1e-6) for m in ("nonneg", "convex", "plausible")}
+    got = {m: aq.solve(H, g, cons, m, 1e-6) for m in ("nonneg", "convex", "beyond")}
     for m, w in got.items():
         assert (w @ cons.albedo).max() <= 1 + 1e-8, m
     assert got["nonneg"].min() >= -1e-10 and got["convex"].min() >= -1e-10
     assert got["convex"].sum() == pytest.approx(1.0, abs=1e-8)
-    assert (got["plausible"] @ cons.check).min() >= -1e-8
-    assert got["plausible"].min() < 0  # it used weights of either sign
+    assert (got["beyond"] @ cons.check).min() >= -1e-8
+    assert got["beyond"].min() < 0  # it used weights of either sign
     err = {m: photos.relative_error(w) for m, w in got.items()}
-    assert err["plausible"] <= err["nonneg"] + 1e-9 <= err["convex"] + 2e-9
+    assert err["beyond"] <= err["nonneg"] + 1e-9 <= err["convex"] + 2e-9
 
 
 def test_quadratic_programme_is_optimal():
@@ -76,11 +76,27 @@ def test_a_known_combination_comes_back():
     t = A @ w_true
     photos = aq.LinearPhotos(A, np.zeros(len(t)), t, np.arange(len(t)) // 10, np.zeros(len(t), int))
     H, g, _ = photos.normal_equations()
-    for method in ("nonneg", "plausible"):
+    for method in ("nonneg", "beyond"):
         w = aq.solve(H, g, cons, method, 1e-9)
         np.testing.assert_allclose(w, w_true, atol=1e-4)
     lam, scores = aq.cross_validate(photos, cons, "nonneg")
     assert lam == min(s[0] for s in scores)  # the least regularised fits noise-free data best
+    feasible, _, found = aq.choose(photos, cons, "plausible")
+    assert feasible == "nonneg" and set(found) == {"nonneg", "beyond"}  # beyond is not needed
+
+
+def test_beyond_is_chosen_where_the_photo_needs_it():
+    """Images of a combination with a negative weight (inside the plausible set): the choice
+    between the feasible sets takes ``beyond``."""
+    A, cons = _problem(seed=2)
+    cons = aq.Constraints(cons.albedo * 0.1, np.abs(cons.check) + 1.0, cons.peak)
+    w_true = np.array([1.0, -0.3, 0.5, 0.0, 0.0, 0.2])
+    t = A @ w_true
+    photos = aq.LinearPhotos(A, np.zeros(len(t)), t, np.arange(len(t)) // 10, np.zeros(len(t), int))
+    feasible, lam, _ = aq.choose(photos, cons, "plausible")
+    assert feasible == "beyond"
+    H, g, _ = photos.normal_equations()
+    np.testing.assert_allclose(aq.solve(H, g, cons, "beyond", 1e-9), w_true, atol=1e-3)
 
 
 def test_guarantee_steps_back_to_a_non_negative_table():

@@ -73,8 +73,9 @@ def _parser():
     p.add_argument(
         "--method",
         default="plausible",
-        choices=("plausible", "nonneg", "convex", "latent"),
-        help="plausible (default): weights beyond the manifold under plausibility constraints; "
+        choices=("plausible", "beyond", "nonneg", "convex", "latent"),
+        help="plausible (default): weights >= 0, or beyond them (either sign, no negative bin, "
+        "albedo <= 1) where cross-validation says the photo needs it; beyond: always beyond; "
         "nonneg: weights >= 0; convex: on the simplex; latent: the paper's latent-point search",
     )
     p.add_argument(
@@ -231,7 +232,9 @@ def _sheet_path(args):
 
 
 def _print_acquisition(r):
-    print(f"acquired ({r.method}): relative RMSE {r.error:.4g} over the masks")
+    print(
+        f"acquired ({r.method}: weights {r.feasible}): relative RMSE {r.error:.4g} over the masks"
+    )
     print("largest weights: " + ", ".join(f"{n} {w:+.4f}" for n, w in r.top_weights()))
     print(
         f"best single training material: {r.single['name']}, relative RMSE {r.single['error']:.4g}"
