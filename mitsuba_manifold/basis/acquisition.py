@@ -64,20 +64,20 @@ CV_BLOCK = 8
 #: The cross-validation's choices: a weight's held-out error within ``1 + CV_TOLERANCE`` of the
 #: best counts as as good (the largest such ``lam`` is taken); weights beyond the non-negative
 #: ones are taken when they lower the held-out error by more than ``CV_MARGIN``.
-CV_TOLERANCE = 0.05
+CV_TOLERANCE = 0.01
 CV_MARGIN = 0.1
 #: (bin, channel) values sampled for the non-negativity constraints.
 CHECK_BINS = 1 << 13
 #: Per material: the values where it holds the largest share of all tables.
 CHECK_PER_MATERIAL = 48
 #: Rounds of full-table checks adding the most negative values to the constraints.
-FULL_ROUNDS = 3
+FULL_ROUNDS = 2
 ADDED_PER_ROUND = 2048
 #: Smallest ridge (relative): keeps ``H`` positive definite when the images are collinear.
 JITTER = 1e-9
 #: Bootstrap solves of the spread of near-equally good answers, and the warning thresholds:
 #: relative spread (standard deviation / mean) of the albedo, and of the specular peak.
-BOOTSTRAP = 16
+BOOTSTRAP = 8
 WARN_ALBEDO_SPREAD = 0.1
 WARN_PEAK_SPREAD = 0.5
 #: Format tag of the result's JSON file.

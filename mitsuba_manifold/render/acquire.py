@@ -404,7 +404,7 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
             f"the gloss is not identifiable from these photos: the specular peak of near-equally "
             f"good answers differs by {100 * sp.peak_spread:.0f}%"
         )
-    if shrink < 1.0:
+    if shrink < 0.99:
         warnings.append(
             f"the plausibility guarantee on the full table kept {100 * shrink:.0f}% of the step "
             "beyond the non-negative solution"

@@ -88,7 +88,10 @@ def _parser():
         "--basis-cache", help="folder keeping the training materials' images of each scene"
     )
     p.add_argument(
-        "--bootstrap", type=int, default=16, help="bootstrap solves of the report's spread"
+        "--bootstrap",
+        type=int,
+        default=8,
+        help="bootstrap solves of the report's spread (default 8)",
     )
     p.add_argument("--sheet", help="contact sheet target | acquired | best single (.png)")
     p.add_argument("--snippet", help="Mitsuba XML manifold_brdf of the acquired material (.xml)")
