@@ -66,8 +66,8 @@ class AcquireOutput(NamedTuple):
     result: aq.Acquisition
     targets: list  # (H, W, 3) per photo
     masks: list  # (H, W) per photo
-    renders: list  # the acquired material, per photo
-    singles: list  # the best single training material, per photo
+    renders: list  # the acquired material, per photo (none with render_spp 0)
+    singles: list  # the best single training material, per photo (none with render_spp 0)
 
 
 @dataclass
@@ -150,8 +150,7 @@ def render_training_images(
 
     def advance(done, total):
         if bar is not None:
-            bar.total = bar.n - bar.n % 1000 + 1000 if bar.total is None else bar.total
-            bar.set_postfix_str(f"rendering training materials {done}/{total}")
+            bar.set_postfix_str(f"training images {done}/{total}")
 
     base, images = integrator.render_onepass(
         loaded.scene, spp=opts.spp, seed=opts.seed, sensor=sensor, progress=advance
@@ -442,7 +441,7 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
     )
     t0 = time.perf_counter()
     renders, singles = [], []
-    for v in views:
+    for v in views if opts.render_spp else []:
         size = (v.target.shape[1], v.target.shape[0])
         for what, weights in ((renders, w), (singles, np.eye(manifold.n)[best])):
             what.append(
