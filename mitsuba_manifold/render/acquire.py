@@ -283,7 +283,9 @@ def coverage_warnings(cov) -> list:
     return out
 
 
-def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput:
+def acquire(
+    photos, manifold_path, options=None, database=None, training_images=None
+) -> AcquireOutput:
     """Acquire the material of ``photos`` (:class:`Photo`) over the manifold's training tables.
 
     Parameters
@@ -294,6 +296,10 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
     options : AcquireOptions, optional
     database : str, optional
         Folder of the manifold's tables when moved.
+    training_images : list of Rendered, optional
+        Each photo's base image and training materials' images (``(N, H, W, 3)``, the manifold's
+        order) when the caller has them already (a basis of the scene): nothing is rendered for
+        them.
 
     Returns
     -------
@@ -312,6 +318,10 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
         )
     if not photos:
         raise InputError("`photos` is empty: give at least one scene and photo")
+    if training_images is not None and len(training_images) != len(photos):
+        raise InputError(
+            f"`training_images` has {len(training_images)} entries for {len(photos)} photos"
+        )
     t_start = time.perf_counter()
     timings = {}
     manifold = Manifold.load(manifold_path)
@@ -327,9 +337,14 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
     t0 = time.perf_counter()
     for v in views:
         size = (v.target.shape[1], v.target.shape[0])
-        v.rendered = render_training_images(
-            v.path, manifold_path, size, opts, v.photo.sensor, database, bar
-        )
+        if training_images is not None:
+            v.rendered = Rendered(
+                *training_images[len([u for u in views if u.rendered])][:2], 0.0, True
+            )
+        else:
+            v.rendered = render_training_images(
+                v.path, manifold_path, size, opts, v.photo.sensor, database, bar
+            )
         if v.rendered.images.shape[0] != manifold.n:
             raise InputError(
                 f"scene {v.path}: its manifold_brdf has {v.rendered.images.shape[0]} materials, "
