@@ -555,6 +555,8 @@ class Acquisition:
         Scene, target, mask and sensor of each photo.
     manifold : str
         The manifold's path.
+    renders : list of str
+        Files of the acquired material's renders, one per view (where written).
     """
 
     names: list
@@ -573,6 +575,7 @@ class Acquisition:
     timings: dict = field(default_factory=dict)
     views: list = field(default_factory=list)
     manifold: str = ""
+    renders: list = field(default_factory=list)
 
     @property
     def weights(self) -> dict:

@@ -328,9 +328,8 @@ def _acquire(args, views):
         written.append(args.snippet)
         print(f"wrote the manifold_brdf snippet: {args.snippet}")
     if args.json:
-        info = r.to_dict()
-        info["renders"] = _out_paths(args, len(views))
-        write_bytes(args.json, json.dumps(info, indent=1) + "\n")
+        r.renders = _out_paths(args, len(views))
+        r.write(args.json)
         written.append(args.json)
         print(f"wrote JSON: {args.json}")
     ownership.record(written, "match.py")
