@@ -143,7 +143,14 @@ def split(materials):
 
 
 def run(
-    folder=None, manifold=None, out=None, part="all", measured_dir=None, limit=None, shard=(0, 1)
+    folder=None,
+    manifold=None,
+    out=None,
+    part="all",
+    measured_dir=None,
+    limit=None,
+    shard=(0, 1),
+    on_row=None,
 ):
     """Acquire every photo of ``part`` (``tune``, ``held-out`` or ``all``; ``shard`` ``(i, n)``:
     every n-th from the i-th) and judge it.
@@ -161,8 +168,9 @@ def run(
         measured_dir = os.path.join(root, "..", "shared", "data", "rgl")
     photo_xml, mj, materials = _data(out, manifold, measured_dir)
     tune, held = split(materials)
-    chosen = {"tune": tune, "held-out": held, "all": tune + held}[part]
-    materials = [m for m in materials if m[0] in chosen][shard[0] :: shard[1]][:limit]
+    chosen = {"tune": tune, "held-out": held, "all": held + tune}[part]
+    by_name = {m[0]: m for m in materials}
+    materials = [by_name[n] for n in chosen][shard[0] :: shard[1]][:limit]
     jbase, jimg = mj["base"].astype(np.float64), mj["images"].astype(np.float64)
     jmask = (jbase.sum(-1) == 0) & (jimg.sum((0, 3)) > 0)
     n = len(jimg)
@@ -210,6 +218,8 @@ def run(
             "load": os.getloadavg()[0],
         }
         rows.append(row)
+        if on_row is not None:
+            on_row(rows)
         print(
             f"{name:40s} acquired {row['acquired']:.3f} single {row['single']:.3f} "
             f"nnls {row['nnls']:.3f} noise {row['noise']:.3f} {seconds:.1f} s",
@@ -314,6 +324,12 @@ def main(argv=None):
         print(report(out))
         return 0
     t0, load0 = time.perf_counter(), os.getloadavg()[0]
+
+    def partial(rows):
+        out = {"benchmark": "acquire", "partial": True, "result": summarise(rows)}
+        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
+        write_bytes(args.json, json.dumps(out, indent=1, default=float))
+
     result = run(
         manifold=args.manifold,
         out=args.out or os.path.splitext(args.json)[0] + "_work",
@@ -321,6 +337,7 @@ def main(argv=None):
         measured_dir=args.measured_dir,
         limit=args.limit,
         shard=tuple(args.shard),
+        on_row=partial,
     )
     report_ = {
         "benchmark": "acquire",
