@@ -32,6 +32,7 @@ NAMES = (
     "paths",
     "measured-space",
     "measured",
+    "acquire",
 )
 
 
