@@ -28,6 +28,7 @@ NAMES = (
     "paths",
     "measured-space",
     "measured",
+    "acquire",
 )
 
 

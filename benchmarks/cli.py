@@ -22,6 +22,9 @@ fig9       the paper's Fig. 9: perceptual distances from both ends along paths o
            (--configs default,paper) and path kind (straight, uniform, geodesic, faithful); plots beside
            the JSON
 paths      speed of the paths: seconds per path of each kind, the latent graph cold and cached
+acquire    a material acquired from one photo (merl manifold), judged in a new view and light:
+           relative RMSE against the best single material and a plain NNLS fit, time per photo
+           (--part tune|held-out|all; --out: its work folder)
 measured-space  by device (--database: a folder of merl/, rgl/, nielsen/ databases): projection
            beyond the data against the nearest material, its plausibility, and Manifold.add
 """
@@ -47,13 +50,15 @@ WITH_MANIFOLD = (
     "match-render",
     "explore",
     "prune",
+    "acquire",
 )
 #: Options that only some benchmarks use (option's dest -> those benchmarks): refused elsewhere.
 ONLY = {
     "materials": ("fit", "pca", "space", "fig9", "paths"),
     "basis": ("match", "explore", "space", "prune"),
     "res": ("match",),
-    "out": ("match", "match-render"),
+    "out": ("match", "match-render", "acquire"),
+    "part": ("acquire",),
     "configs": ("space", "fig9"),
     "folds": ("space",),
     "browser": ("explore",),
@@ -94,6 +99,12 @@ def main(argv=None):
         "--out",
         default=None,
         help="match: folder for its bases, manifolds and renders (default: DATABASE/.manifold-cache/bench_match)",
+    )
+    p.add_argument(
+        "--part",
+        choices=("all", "tune", "held-out"),
+        default=None,
+        help="acquire: the materials judged (tune: those its choices were made on; default all)",
     )
     p.add_argument(
         "--browser", action="store_true", help="explore: time the page in headless Chromium (drags)"
@@ -215,6 +226,10 @@ def run(args):
         kwargs["basis"] = args.basis
     if args.which == "match-render":
         kwargs["out"] = args.out or os.path.splitext(args.json)[0] + "_work"
+    if args.which == "acquire":
+        kwargs.update(
+            out=args.out or os.path.splitext(args.json)[0] + "_work", part=args.part or "all"
+        )
     if args.which == "gi":
         kwargs["plot"] = os.path.splitext(args.json)[0] + ".png"
     if args.which == "scaling":

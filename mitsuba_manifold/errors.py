@@ -77,6 +77,12 @@ class FolderLockedError(MitsubaManifoldError, OSError):
     """Another process is writing into the folder (:class:`~mitsuba_manifold._util.locking.FolderLock`)."""
 
 
+class BusyError(InputError):
+    """A request refused because too many like it wait already (a server's queue is full): ask
+    again once one of them is done or cancelled.
+    """
+
+
 # ------------------------------------------------------------ one-line messages
 # Mitsuba wraps an exception raised inside a Python plugin's constructor into a
 # RuntimeError whose text holds the parser's context and a Python traceback.

@@ -450,30 +450,47 @@ def test_cli_refuses_a_busy_port(small_basis, capsys):
 
 
 def test_ctrl_c_stops_the_server_with_a_tab_connected(small_basis, small_manifold_paper):
+    """Also: the real server closes connections whose request never ends (serving.py's
+    deadline, 408) and keeps the tab's websocket open past that deadline."""
+    import socket
+
     from websockets.sync.client import connect
 
     proc, url = launch.start([small_basis], small_manifold_paper, ["--no-tables"])
+    port = int(url.rstrip("/").rsplit(":", 1)[1])
+    stalled = [socket.create_connection(("127.0.0.1", port), timeout=30) for _ in range(3)]
     try:
+        for s in stalled:
+            s.sendall(b"GET /api/info HTTP/1.1\r\nHost: 127.0.0.1\r\n")  # never finished
         with connect(url.replace("http://", "ws://") + "ws", max_size=None) as ws:
             ws.send(json.dumps({"type": "frame", "seq": 1, "x": "chrome", "format": "jpeg"}))
             assert _unpack(ws.recv())[0]["type"] == "frame"
+            for s in stalled:  # closed by the server, saying why
+                assert s.recv(100).startswith(b"HTTP/1.1 408")
+            ws.send(json.dumps({"type": "frame", "seq": 2, "x": "chrome", "format": "jpeg"}))
+            assert _unpack(ws.recv())[0]["seq"] == 2  # the websocket outlives the deadline
             code, out = launch.stop(proc)  # SIGINT, as Ctrl-C, while the websocket is open
     finally:
+        for s in stalled:
+            s.close()
         if proc.poll() is None:
             proc.kill()
     assert code == 0 and out.strip().endswith("explore: stopped"), (code, out)
 
 
 def test_real_server_refuses_other_hosts_and_ctrl_c_stops_a_render_within_2s(
-    small_basis, small_manifold_paper
+    small_basis, small_manifold_paper, tmp_path, monkeypatch
 ):
     """Against the real server (uvicorn): a DNS-rebinding Host gets 403 on HTTP and on the
-    websocket handshake; Ctrl-C while a reference render runs stops the server within 2 s."""
+    websocket handshake; Ctrl-C while a reference render runs stops the server within 2 s, and
+    leaves no temporary folder of the render behind."""
+    import glob
     import signal
     import socket
     import urllib.error
     import urllib.request
 
+    monkeypatch.setenv("TMPDIR", str(tmp_path))  # the server's temporary folders
     proc, url = launch.start([small_basis], small_manifold_paper, ["--no-tables"])
     try:
         port = url.rstrip("/").rsplit(":", 1)[1]
@@ -516,6 +533,7 @@ def test_real_server_refuses_other_hosts_and_ctrl_c_stops_a_render_within_2s(
         took,
         out,
     )
+    assert glob.glob(str(tmp_path / "explore-reference-*")) == []
 
 
 # ---------------------------------------------------------------- browser

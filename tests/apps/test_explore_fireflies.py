@@ -98,3 +98,20 @@ def test_drag_image_is_the_clamp_of_each_whole_part(share):
     assert np.array_equal(encode.tonemap(out), encode.tonemap(expect))
     changed = np.any(expect != image, axis=2) & ~np.isclose(expect, image, rtol=1e-6).all(axis=2)
     assert np.array_equal(np.any(out != image, axis=2), changed)
+
+
+def test_rest_change_finds_visible_noise_and_ignores_faint_or_smooth_light():
+    """The estimate of what denoising the part beyond L1- would change: large for visible noise,
+    zero for a smooth part (a blur keeps it), below the threshold for faint noise."""
+    rng = np.random.default_rng(5)
+    l1 = _smooth(rng)
+    smooth_extra = 0.05 * np.ones_like(l1)
+    assert fireflies.rest_change(l1 + smooth_extra, l1) == 0.0
+    faint = 1e-4 * rng.standard_normal(l1.shape).astype(np.float32)
+    assert fireflies.rest_change(l1 + faint, l1) <= fireflies.REST_FRACTION
+    noisy = 0.05 * rng.standard_normal(l1.shape).astype(np.float32)
+    assert fireflies.rest_change(l1 + noisy, l1) > 0.3
+    # brighter exposure: the same faint noise may show; the estimate is on the 8-bit image shown
+    assert fireflies.rest_change(l1 + faint, l1, exposure=8.0) >= fireflies.rest_change(
+        l1 + faint, l1
+    )

@@ -250,3 +250,58 @@ def test_a_drag_pauses_a_running_reference_and_it_completes_after(
         time.sleep(0.02)
     assert _wait(job) == "done", job.message
     assert not explorer.references._paused
+
+
+def test_a_path_reports_progress_and_the_page_can_cancel_it(
+    client, explorer, small_manifold_paper, monkeypatch
+):
+    """A slow path sends its progress to the page while it is computed; the page's cancel
+    answers the route with "cancelled" and stops the path at its next step."""
+    walks = explorer.walks
+    steps_done = []
+
+    def slow(manifold, a, b, steps, kind, metric=None):  # 200 evaluations of 0.05 s: 10 s
+        X = paths.straight(np.asarray(a), np.asarray(b), steps)
+        for k in range(200):
+            metric.features(X)
+            steps_done.append(k)
+            time.sleep(0.05)
+        return X
+
+    monkeypatch.setattr(paths, "path", slow)
+    a, b = _ends(small_manifold_paper, 0, 5)
+    b = [v + 0.0123 for v in b]  # ends no earlier test has cached
+    with client.websocket_connect(
+        "/ws?tab=canceller", headers={"origin": test_explore.TEST_ORIGIN}
+    ) as ws:
+        ws.send_text(
+            json.dumps({"type": "route", "seq": 7, "a": a, "b": b, "kind": "geodesic", "steps": 9})
+        )
+        progress = []
+        while len(progress) < 2:
+            meta, _ = test_explore._unpack(ws.receive_bytes())
+            assert meta["type"] == "progress", meta
+            progress.append(meta)
+        assert progress[0]["kind"] == "route" and progress[0]["route_seq"] == 7
+        assert 0 < progress[0]["evaluations"] < progress[1]["evaluations"]
+        assert 0 < progress[0]["seconds"] < progress[1]["seconds"]
+        ws.send_text(json.dumps({"type": "cancel", "kind": "route"}))
+        while True:
+            meta, _ = test_explore._unpack(ws.receive_bytes())
+            if meta["type"] != "progress":
+                break
+        assert meta["type"] == "error" and meta["kind"] == "route" and meta["seq"] == 7, meta
+        assert "cancelled" in meta["error"]
+    deadline = time.monotonic() + 30
+    while walks.waiting() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not walks.waiting() and len(steps_done) < 200  # stopped long before its end
+    assert walks._thread.is_alive()
+
+
+def test_the_path_thread_runs_at_the_servers_own_priority(explorer):
+    """Not niced: on a busy machine a lowered priority starved the paths for minutes."""
+    walks = explorer.walks
+    assert os.getpriority(os.PRIO_PROCESS, walks._thread.native_id) == os.getpriority(
+        os.PRIO_PROCESS, 0
+    )

@@ -126,6 +126,8 @@ def test_match_render_tool(tmp_path, small_manifold, capsys):
     best, js, png = str(tmp_path / "best.exr"), str(tmp_path / "m.json"), str(tmp_path / "conv.png")
     common = [
         "--render",
+        "--method",
+        "latent",
         "--manifold",
         small_manifold,
         "--scene",
@@ -243,6 +245,8 @@ def test_match_render_tool_refuses_bad_settings_before_any_work(
     out = tmp_path / "out"
     args = [
         "--render",
+        "--method",
+        "latent",
         "--manifold",
         small_manifold,
         "--target",
@@ -308,6 +312,8 @@ def test_match_render_tool_takes_a_shipped_scene_name(tmp_path, small_manifold, 
         cli.main(
             [
                 "--render",
+                "--method",
+                "latent",
                 "--manifold",
                 small_manifold,
                 "--scene",

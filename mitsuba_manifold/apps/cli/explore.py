@@ -9,6 +9,11 @@ with its port, or to --host (other Host headers are refused: DNS rebinding), and
 of those origins (http) or of an --allow-origin. Every image of every basis is read into memory first; the material
 tables (for the WebGL preview, the negative-bin fraction and the BRDF slice) load in the
 background while the page already works.
+
+The server holds up against clients that misbehave: a connection whose request is not complete
+within 5 s is closed (408), connections beyond 256 at once are refused (503), a page has at most
+4 reference renders waiting or running (429 beyond), and a message repeated in the console is
+shown once per 10 s with a count of the others.
 """
 
 import argparse
@@ -170,6 +175,7 @@ def serve(args):
 
     from ..explore import Explorer, create_app
     from ..explore.guard import MAX_MESSAGE, AllowList
+    from ..explore.serving import protocol, quiet_logs
     from .common import ERRORS, cli_message
 
     try:
@@ -205,10 +211,13 @@ def serve(args):
             thumbnails=not args.no_thumbnails,
             refine_spp=args.refine_spp,
         )
-        # frames are JPEG or raw pixels: per-message deflate would cost more time than it saves
+        # frames are JPEG or raw pixels: per-message deflate would cost more time than it saves;
+        # a request not complete within seconds is closed, connections beyond a cap refused
+        # (serving.py), and repeated log messages collapsed
         server = uvicorn.Server(
             uvicorn.Config(
                 create_app(explorer, allow),
+                http=protocol(),
                 log_level="warning",
                 timeout_graceful_shutdown=1,
                 ws_ping_interval=None,
@@ -216,6 +225,7 @@ def serve(args):
                 ws_max_size=MAX_MESSAGE,
             )
         )
+        quiet_logs()
         for name, b in explorer.bases.items():
             print(
                 f"basis {name}: {len(b.keys)} materials, {b.resolution[0]}x{b.resolution[1]}, {b.folder}"

@@ -1,12 +1,23 @@
-"""Find the latent point whose full-GI renders best match target images (differentiable rendering,
-no basis): what match.py --render runs.
+"""Acquire a material from photos of a known object under known light (what match.py --render runs).
 
-  match.py --render --manifold M.npz --scene cbox.xml --target t.exr [--scene S --target T ...]
-           [--mask m.png ...] [--sensor 0 ...] [--basis DIR] [--iterations 30] [--spp 8]
-           [--eval-spp 64] [--starts 3] [--scan-spp 16] [--lr L] [--exposure-free] [--max-depth 4]
-           [--integrator prb] [--out best.exr] [--plot convergence.png] [--json match.json]
+  match.py --render --manifold M.npz --scene S.xml --target t.exr [--scene S --target T ...]
+           [--mask m.png ...] [--sensor 0 ...] [--method plausible|nonneg|convex|latent]
+           [--regularisation L] [--spp 64] [--basis-cache DIR] [--bootstrap 16]
+           [--out acquired.exr] [--sheet sheet.png] [--snippet material.xml] [--json J.json]
 
-Every manifold_brdf of the scenes shares one latent point x, optimised with mi.ad.Adam on the
+Default (--method plausible): every training material's image in each photo's scene is rendered
+once (one pass), the photo is a linear combination of them, and the weights come from a convex
+quadratic programme on the relative error over the masks: weights of either sign (combinations
+beyond the manifold) with no negative bin and directional albedo at most 1 at every incidence,
+a ridge chosen by cross-validation over held-out pixel blocks. --method nonneg keeps every weight
+>= 0, convex on the simplex. The report says which outgoing directions and light incidences the
+masked pixels show, how much near-equally good answers differ (bootstrap) and warns where the
+material is not identifiable. Writes the acquired render (--out; _1, _2, ... for more views), a
+contact sheet target | acquired | best single (--sheet, default beside --out), a manifold_brdf
+XML snippet (--snippet) and the result as JSON (--json: `weights` name -> weight, `single`).
+
+--method latent: the paper's search of one latent point (differentiable rendering):
+every manifold_brdf of the scenes shares one latent point x, optimised with mi.ad.Adam on the
 relative MSE over the masks (a progress bar shows the loss). Starts: a scan renders every
 training material alone (--scan-spp, two independent renders), estimates any blend's error from
 them free of the render noise, optimises that estimate and checks the best points with true
@@ -60,10 +71,36 @@ def _parser():
         "--database", help="the manifold's tables (folder or built-in set name), when moved"
     )
     p.add_argument(
+        "--method",
+        default="plausible",
+        choices=("plausible", "beyond", "nonneg", "convex", "latent"),
+        help="plausible (default): weights >= 0, or beyond them (either sign, no negative bin, "
+        "albedo <= 1) where cross-validation says the photo needs it; beyond: always beyond; "
+        "nonneg: weights >= 0; convex: on the simplex; latent: the paper's latent-point search",
+    )
+    p.add_argument(
+        "--regularisation",
+        type=float,
+        default=None,
+        help="ridge weight of the acquisition (default: cross-validated)",
+    )
+    p.add_argument(
+        "--basis-cache", help="folder keeping the training materials' images of each scene"
+    )
+    p.add_argument(
+        "--bootstrap", type=int, default=16, help="bootstrap solves of the report's spread"
+    )
+    p.add_argument("--sheet", help="contact sheet target | acquired | best single (.png)")
+    p.add_argument("--snippet", help="Mitsuba XML manifold_brdf of the acquired material (.xml)")
+    p.add_argument(
         "--iterations", type=int, default=30, help="Adam iterations per start (default 30)"
     )
     p.add_argument(
-        "--spp", type=int, default=8, help="samples per pixel of the optimisation (default 8)"
+        "--spp",
+        type=int,
+        default=None,
+        help="samples per pixel: of the training materials' images (default 64), or of the "
+        "latent search's optimisation (default 8)",
     )
     p.add_argument(
         "--eval-spp",
@@ -84,7 +121,12 @@ def _parser():
     p.add_argument(
         "--exposure-free", dest="exposure", action="store_true", help="fit a brightness scale too"
     )
-    p.add_argument("--max-depth", type=int, default=4, help="path depth (default 4)")
+    p.add_argument(
+        "--max-depth",
+        type=int,
+        default=None,
+        help="path depth (latent search: default 4; acquisition: the scene's own)",
+    )
     p.add_argument(
         "--integrator",
         default="prb",
@@ -137,12 +179,23 @@ def _check(args):
         fail(f"--plot must name a .png file, got {args.plot!r}")
     if args.json is not None and not args.json.lower().endswith(".json"):
         fail(f"--json must name a .json file, got {args.json!r}")
+    if args.sheet is not None and not args.sheet.lower().endswith(".png"):
+        fail(f"--sheet must name a .png file, got {args.sheet!r}")
+    if args.snippet is not None and not args.snippet.lower().endswith(".xml"):
+        fail(f"--snippet must name an .xml file, got {args.snippet!r}")
+    if args.spp is not None and args.spp < 1:
+        fail(f"--spp must be >= 1, got {args.spp}")
+    if args.bootstrap < 0:
+        fail(f"--bootstrap must be >= 0, got {args.bootstrap}")
+    if args.regularisation is not None and not args.regularisation >= 0:
+        fail(f"--regularisation must be a number >= 0, got {args.regularisation}")
     from ..._util import ownership
 
     inputs = {
         os.path.realpath(p) for p in args.target + (args.mask or []) + args.scene + [args.manifold]
     }
-    for path in _out_paths(args, len(args.target)) + [p for p in (args.plot, args.json) if p]:
+    extra = [p for p in (args.plot, args.json, _sheet_path(args), args.snippet) if p]
+    for path in _out_paths(args, len(args.target)) + extra:
         if os.path.realpath(path) in inputs:
             fail(f"output {path} would overwrite an input; choose another path")
         ownership.check_replaceable(path, args.force, what="output")
@@ -170,19 +223,138 @@ def _report(r, manifold):
     print("note: x is not identifiable from one image; compare the weights and the image error")
 
 
+def _sheet_path(args):
+    if args.sheet:
+        return args.sheet
+    if args.out and args.method != "latent":
+        return args.out[:-4] + "_sheet.png"
+    return None
+
+
+def _print_acquisition(r):
+    print(
+        f"acquired ({r.method}: weights {r.feasible}): relative RMSE {r.error:.4g} over the masks"
+    )
+    print("largest weights: " + ", ".join(f"{n} {w:+.4f}" for n, w in r.top_weights()))
+    print(
+        f"best single training material: {r.single['name']}, relative RMSE {r.single['error']:.4g}"
+    )
+    print(
+        f"regularisation: {r.regularisation:.3g}"
+        + (" (cross-validated)" if r.cross_validation else "")
+    )
+    for k, view in enumerate(r.coverage.get("views", [])):
+        o = view["theta_o"]
+        print(f"view {k}: {view['pixels']} pixels, outgoing elevation {o[0]:.0f}-{o[-1]:.0f} deg")
+        for light in view["lights"]:
+            if "theta_h" in light:
+                if light["theta_h"]:
+                    print(
+                        f"  {light['emitter']}: incidence {light['theta_i'][0]:.0f}-{light['theta_i'][-1]:.0f} deg, "
+                        f"half-angle {light['theta_h'][0]:.0f}-{light['theta_h'][-1]:.0f} deg, "
+                        f"difference angle {light['theta_d'][0]:.0f}-{light['theta_d'][-1]:.0f} deg"
+                    )
+                else:
+                    print(f"  {light['emitter']}: lights no masked pixel")
+            else:
+                print(f"  {light['emitter']}: {light['incidence']}")
+    if r.spread:
+        sp = r.spread
+        print(
+            f"near-equally good answers ({sp['solutions']} bootstrap solves): albedo "
+            + ", ".join(f"{v:.3f}" for v in sp["albedo"])
+            + f" (spread {100 * sp['albedo_spread']:.0f}%), specular peak "
+            + ", ".join(f"{v:.3g}" for v in sp["peak"])
+            + f" (spread {100 * sp['peak_spread']:.0f}%); the photos determine "
+            f"{sp['effective_rank']} of {len(r.w)} directions of the weights"
+        )
+    for w in r.warnings:
+        print(f"warning: {w}")
+    t = r.timings
+    print(
+        f"acquisition time: {r.time_s:.1f} s (training images {t.get('training_images_s', 0):.1f} s, "
+        f"solve {t.get('solve_s', 0):.1f} s, spread {t.get('spread_s', 0):.1f} s)"
+    )
+
+
+def _acquire(args, views):
+    from ..._util import ownership
+    from ..._util.atomic import write_bytes
+    from ...basis.acquisition import AcquireOptions
+    from ...imaging import io as imageio
+    from ...render.acquire import Photo, acquire
+
+    opts = AcquireOptions(
+        method=args.method,
+        regularisation=args.regularisation,
+        spp=args.spp or 64,
+        seed=args.seed,
+        max_depth=args.max_depth if args.max_depth_given else None,
+        bootstrap=args.bootstrap,
+        progress=not args.no_progress,
+        basis_cache=args.basis_cache,
+    ).check()
+    photos = [Photo(v.scene, v.target, v.mask, v.sensor) for v in views]
+    got = acquire(photos, args.manifold, opts, database=args.database)
+    r = got.result
+    _print_acquisition(r)
+    written = []
+    for path, img in zip(_out_paths(args, len(views)), got.renders):
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        imageio.write_exr(path, img.astype("float32"))
+        written.append(path)
+        print(f"wrote the acquired material's render: {path}")
+    sheet = _sheet_path(args)
+    if sheet:
+        import numpy as np
+
+        images, labels = [], []
+        for k, (t, a, s) in enumerate(zip(got.targets, got.renders, got.singles)):
+            images += [t, a, s]
+            labels += [
+                f"photo {k}" if len(views) > 1 else "photo",
+                f"acquired\n{r.error:.3f}",
+                f"{r.single['name']}\n{r.single['error']:.3f}",
+            ]
+        os.makedirs(os.path.dirname(os.path.abspath(sheet)), exist_ok=True)
+        imageio.write_contact_sheet(sheet, np.asarray(images, dtype=np.float32), labels, columns=3)
+        written.append(sheet)
+        print(f"wrote contact sheet (photo | acquired | best single): {sheet}")
+    if args.snippet:
+        write_bytes(args.snippet, r.snippet(os.path.abspath(args.manifold)))
+        written.append(args.snippet)
+        print(f"wrote the manifold_brdf snippet: {args.snippet}")
+    if args.json:
+        info = r.to_dict()
+        info["renders"] = _out_paths(args, len(views))
+        write_bytes(args.json, json.dumps(info, indent=1) + "\n")
+        written.append(args.json)
+        print(f"wrote JSON: {args.json}")
+    ownership.record(written, "match.py")
+    return 0
+
+
 @guarded
 def main(argv=None):
     args = _parser().parse_args(argv)
+    args.max_depth_given = args.max_depth is not None
+    if args.max_depth is None:
+        args.max_depth = 4
     _check(args)
     views = _views(args)
     from ...render import scenes
 
     scenes.use_variant()
+    if args.method != "latent":
+        for name in ("--plot", "--basis"):
+            if getattr(args, name[2:]):
+                fail(f"{name} belongs to --method latent")
+        return _acquire(args, views)
     from ...render.match_render import MatchRenderOptions, check_options, check_views, match_render
 
     opts = MatchRenderOptions(
         iterations=args.iterations,
-        spp=args.spp,
+        spp=args.spp or 8,
         eval_spp=args.eval_spp,
         starts=args.starts,
         scan_spp=args.scan_spp,

@@ -10,7 +10,11 @@ blend against it (:func:`mitsuba_manifold.imaging.metrics.compare`) and against 
 own noise, which its passes measure (:func:`~mitsuba_manifold.imaging.metrics.noise_agreement`:
 a blend that equals full GI still differs from a noisy reference by that noise). A refinement
 (:meth:`References.submit_refine`) renders in the worker thread itself, at a lower priority.
-One job runs at a time; the others wait in line.
+One job runs at a time; the others wait in line, at most :data:`MAX_WAITING_PER_TAB` of one
+page and :data:`MAX_WAITING` in all (beyond, :class:`~mitsuba_manifold.errors.BusyError`); a
+newer refinement cancels the older ones still waiting. A reference render's files are in a
+folder of its own inside one temporary folder of the explorer's, removed when the render ends
+(done, failed or cancelled) and, with whatever is left in it, by :meth:`References.shutdown`.
 
 Every job can be cancelled (:meth:`References.cancel`, or :meth:`References.cancel_tab` for
 all the jobs a tab started, when its websocket closes): a queued job never starts, a running
@@ -20,6 +24,7 @@ job does (cancelled, failed) stops the worker.
 
 import itertools
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -31,12 +36,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...errors import BusyError
 from ...imaging import metrics
 from ...render.scenes import scene_resolution
 from .render_job import Reference, RenderSpec
 
 MAX_SPP = 1 << 14
 KEEP_JOBS = 16
+#: Jobs of one page waiting or rendering at once, and of every page together.
+MAX_WAITING_PER_TAB = 4
+MAX_WAITING = 32
 #: Niceness of the reference processes and of the refinements' thread.
 NICENESS = 10
 #: Seconds a reference render stays paused after a drag's last frame request (:meth:`References.hold`).
@@ -125,6 +134,7 @@ class References:
         self._held_until = 0.0  # monotonic time until which the running renders stay paused
         self._paused = {}  # pid -> process paused by hold()
         self._resumer = None  # the timer that resumes them
+        self._folder = None  # the temporary folder of the reference renders' files
 
     def submit(self, name, basis, scene, manifold_path, x, spp, blend_image, tab=None):
         """Start a job; returns it. ``blend_image``: the blend at ``x`` to compare with; ``tab``:
@@ -134,10 +144,28 @@ class References:
             id=f"r{next(self._ids)}", basis=name, x=[float(v) for v in x], spp=int(spp), tab=tab
         )
         with self._lock:
+            self._admit(tab)
             self._jobs[job.id] = job
             self._trim()
         self._pool.submit(self._run, job, basis, scene, manifold_path, blend_image)
         return job
+
+    def _admit(self, tab):
+        """Raise :class:`BusyError` when page ``tab`` (or every page) has as many jobs waiting
+        or rendering as allowed; called with the lock held.
+        """
+        live = [j for j in self._jobs.values() if j.state in ("queued", "rendering")]
+        mine = [j for j in live if j.tab == tab] if tab is not None else []
+        if len(mine) >= MAX_WAITING_PER_TAB:
+            raise BusyError(
+                f"this page has {len(mine)} renders waiting or running, at most "
+                f"{MAX_WAITING_PER_TAB}: wait for one to finish or cancel one"
+            )
+        if len(live) >= MAX_WAITING:
+            raise BusyError(
+                f"the explorer has {len(live)} renders waiting or running, at most "
+                f"{MAX_WAITING}: wait for one to finish or cancel one"
+            )
 
     def submit_refine(self, name, basis, manifold, x, spp, blend_image, tab=None, **where):
         """Start a refinement of the blend at ``x`` (:func:`~mitsuba_manifold.render.refine.refine_passes`;
@@ -154,6 +182,11 @@ class References:
             tab=tab,
         )
         with self._lock:
+            for old in self._jobs.values():  # never to start: this one supersedes them
+                if old.kind == "refine" and old.state == "queued":
+                    old.cancelled = True
+                    old.state, old.message = "cancelled", "superseded by a newer refinement"
+            self._admit(tab)
             self._latest_refine = job.id
             self._jobs[job.id] = job
             self._trim()
@@ -321,7 +354,8 @@ class References:
         """The reference image of a job, rendered by :mod:`.render_job` in a process of its own
         (``nice``); ended when the job is cancelled or the server stops.
         """
-        with tempfile.TemporaryDirectory(prefix="explore-reference-") as tmp:
+        tmp = tempfile.mkdtemp(prefix="job-", dir=self._job_folders())
+        try:
             spec = RenderSpec(
                 scene=os.path.abspath(scene_path),
                 manifold=os.path.abspath(manifold_path),
@@ -379,6 +413,17 @@ class References:
                     lines[-1] if lines else f"the render exited with {proc.returncode}"
                 )
             return Reference.read(spec.out)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+    def _job_folders(self):
+        """The explorer's temporary folder of reference renders (made on first use)."""
+        with self._lock:
+            if self._stopping:
+                raise RuntimeError("the server is stopping")
+            if self._folder is None or not os.path.isdir(self._folder):
+                self._folder = tempfile.mkdtemp(prefix="explore-reference-")
+            return self._folder
 
     def busy(self):
         """Whether a job is rendering now."""
@@ -399,6 +444,16 @@ class References:
         deadline = time.monotonic() + wait
         while self.busy() and time.monotonic() < deadline:
             time.sleep(0.02)
+        with self._lock:  # still running: ended now, so that their files can go
+            procs = [j.process for j in self._jobs.values() if j.process is not None]
+            folder, self._folder = self._folder, None
+        for proc in procs:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except OSError:
+                pass
+        if folder is not None:
+            shutil.rmtree(folder, ignore_errors=True)
         return not self.busy()
 
 

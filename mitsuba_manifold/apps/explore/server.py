@@ -20,7 +20,7 @@ from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 
-from ...errors import InputError
+from ...errors import BusyError, InputError
 from . import encode
 from .guard import MAX_BODY, Guard
 from .service import show
@@ -200,6 +200,10 @@ async def _bad_request(request, exc):
     return JSONResponse({"error": str(exc)}, status_code=400)
 
 
+async def _busy(request, exc):
+    return JSONResponse({"error": str(exc)}, status_code=429)
+
+
 async def _http_error(request, exc):
     return JSONResponse({"error": exc.detail}, status_code=exc.status_code)
 
@@ -225,10 +229,12 @@ def create_app(explorer, allow=None, max_body=MAX_BODY):
     path's points); ``/api/thumbs.png`` (the thumbnail sheet); ``POST /api/reference`` ``{basis, x,
     spp}``, ``/api/reference/{id}``, ``POST /api/reference/{id}/cancel``,
     ``/api/reference/{id}/{blend|reference|error}.png``; websocket ``/ws?tab=ID``. Errors in a
-    request answer 400 (the package's input errors), their HTTP status, or 500 with one line (a
-    bug; the traceback stays on the server's console).
+    request answer 400 (the package's input errors), 429 (too many jobs of the page waiting:
+    :class:`~mitsuba_manifold.errors.BusyError`), their HTTP status, or 500 with one line (a bug;
+    the traceback stays on the server's console).
     """
     handlers = {e: _bad_request for e in BAD_REQUEST}
+    handlers[BusyError] = _busy  # too many jobs waiting: ask again later
     handlers[HTTPException] = _http_error
     handlers[Exception] = _server_error
     app = Starlette(

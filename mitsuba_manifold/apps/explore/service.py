@@ -46,6 +46,8 @@ FRAME_WAIT = 2.0
 DRAG_QUIET = 0.6
 #: How often a request waiting for a map made elsewhere asks whether it is still wanted (s).
 MAP_POLL = 0.25
+#: The longest a path's next evaluation of the metric waits for a frame being made (s).
+PATH_YIELD = 0.1
 TOOLS = os.path.join(
     os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
     "tools",
@@ -205,15 +207,21 @@ class Explorer:
         return last[1]
 
     @_one_blas_thread
-    def frame(self, name, x, exposure=0.0, fmt="jpeg", coarse=False):
+    def frame(self, name, x, exposure=0.0, fmt="jpeg", coarse=False, rest=False):
         """Encoded frame of ``x``: ``(bytes, meta)``. ``coarse`` (a drag): L2+ summed, not denoised
-        (its fireflies clamped).
+        (its fireflies clamped). ``rest`` (the page's frame where a drag rests): denoised only
+        where that changes the 8-bit image visibly (:func:`.fireflies.rest_change`), else the
+        drag's frame (``meta["rest"]``: the estimated change and whether it was denoised).
         """
         if fmt not in encode.FORMATS:
             raise InputError(f"format must be one of {encode.FORMATS}, got {show(fmt)}")
         with self._framing:
             t0 = time.perf_counter()
-            img, info = self.blend(name, x, "raw" if coarse else "denoised")
+            rest_meta = None
+            if rest and not coarse:
+                img, info, rest_meta = self._rest_blend(name, x, exposure)
+            else:
+                img, info = self.blend(name, x, "raw" if coarse else "denoised")
             t1 = time.perf_counter()
             rgb8 = encode.tonemap(img, exposure)
             t2 = time.perf_counter()
@@ -230,7 +238,24 @@ class Explorer:
             "tonemap_ms": 1e3 * (t2 - t1),
             "encode_ms": 1e3 * (t3 - t2),
             "total_ms": 1e3 * (t3 - t0),
+            "rest": rest_meta,
         }
+
+    def _rest_blend(self, name, x, exposure):
+        """``(image, info, {"change", "denoised"})`` of the frame where a drag rests: the drag's
+        (summed) blend, denoised only where :func:`.fireflies.rest_change` says more than
+        :data:`~.fireflies.REST_FRACTION` of the 8-bit values would change.
+        """
+        img, info = self.blend(name, x, "raw")
+        if info.l2 is None:  # no part beyond L1-: nothing to denoise
+            return img, info, {"change": 0.0, "denoised": False}
+        basis = self.basis(name)
+        l1, _, _ = compose(basis, info.plan.keys, info.plan.image_weights, None)
+        change = fireflies.rest_change(img, l1, exposure)
+        if change <= fireflies.REST_FRACTION:
+            return img, info, {"change": change, "denoised": False}
+        img, info = self.blend(name, x, "denoised")
+        return img, info, {"change": change, "denoised": True}
 
     def start_point(self):
         """Where the page opens: the measured material closest to the mean of the latent points."""
@@ -256,8 +281,14 @@ class Explorer:
             if self._walks_error:
                 raise InputError(self._walks_error)
             if self._walks is None:
-                self._walks = Walks(self.manifold, self.tables.metric_rows)
+                self._walks = Walks(self.manifold, self.tables.metric_rows, pause=self._path_pause)
         return self._walks
+
+    def _path_pause(self):
+        """Called by the path thread before each evaluation of the metric: a frame being made
+        goes first (at most :data:`PATH_YIELD` s, so that the path goes on during a drag).
+        """
+        self._framing.wait_quiet(0.0, PATH_YIELD)
 
     @_one_blas_thread
     def material(self, x, with_slice=True, live=False):
@@ -277,6 +308,14 @@ class Explorer:
             out["measured"] = (
                 self._walks.nearest_measured(x) if self._walks is not None and not live else None
             )
+            kept = [w for w in out["weights"] if w["kept"]]
+            if (
+                out["measured"] is not None
+                and out["n_kept"] == len(kept) == 1
+                and kept[0]["w"] == 1.0
+            ):
+                # the table of one measured material alone: it is that material, at distance 0
+                out["measured"] = dict(out["measured"], name=kept[0]["name"], distance=0.0)
             out["live"] = bool(live)
         if self.tables and self.tables.state == "ready" and with_slice:
             rgb, (lo, hi) = material.slice_image(self.tables.slice(x, self.prune))

@@ -14,16 +14,21 @@ distance to the closest measured one, a frame whose L2+ part is summed, not deno
 ``"held": true``, the pointer still down); the page asks again in full when the drag rests. A
 move's ``"map_coarse"``, when given, says whether its map is the coarse one instead (a drag on the
 map stays in one slice: its map is asked for in full at once). A
-full (denoised) frame has its own worker (:data:`FINAL`): denoising takes several frames'
-time, and the first frames of the next drag do not wait for it (a coarse frame drops a full
-one still waiting; one that comes after a newer frame was drawn, the page drops by its ``seq``).
+full (denoised) frame has its own worker (:data:`FINAL`), denoised only where that changes the
+8-bit image visibly (:meth:`~.service.Explorer.frame`'s ``rest``; else the drag's frame):
+denoising takes several frames' time, and the first frames of the next drag do not wait for it
+(a coarse frame drops a full one still waiting; one that comes after a newer frame was drawn,
+the page drops by its ``seq``).
 
 A path (``route``) is computed by the explorer's path thread (:class:`~.walks.Walks`); the
-session waits for it without holding any other kind, stops waiting when a newer ``route``
-request arrives or the tab goes away, and then releases the path (a path nobody waits for is
-never started). The websocket's query names the tab (``/ws?tab=ID``): when the tab's socket
-closes, the background renders the tab started with that ``tab`` (references, refinements)
-are cancelled.
+session waits for it without holding any other kind, sends its progress every
+:data:`PROGRESS_EVERY` s (``{"type": "progress", "kind": "route", "route_seq", "seconds",
+"evaluations"}``), stops waiting when a newer ``route`` request arrives, the page sends
+``{"type": "cancel", "kind": "route"}`` (answered with the route's error "cancelled"; the path
+stops at its next step unless another tab waits for it) or the tab goes away, and then releases
+the path (a path nobody waits for is never started). The websocket's query names the tab
+(``/ws?tab=ID``): when the tab's socket closes, the background renders the tab started with
+that ``tab`` (references, refinements) are cancelled.
 
 Malformed input never reaches a traceback: a bad request is answered with
 ``{"type": "error", "kind", "seq", "error"}``; a binary message or one larger than
@@ -47,6 +52,10 @@ from .service import show
 KINDS = ("frame", "table", "material", "snippet", "map", "path", "route")
 #: The worker of full (denoised) frames; their answers are frames.
 FINAL = "final"
+#: What a ``cancel`` message may cancel.
+CANCELS = ("route",)
+#: Seconds between two progress messages of a path being computed.
+PROGRESS_EVERY = 0.5
 #: Kinds answered for a point ``x`` (tagged with it).
 POINT_KINDS = ("frame", "table", "material", "snippet", "map")
 #: What answers a bad request with an error message.
@@ -73,6 +82,10 @@ def _shown(kind):
 
 class Superseded(Exception):
     """A newer request of the same kind arrived while this one waited: no answer is sent."""
+
+
+class _Cancelled(InputError):
+    """The page cancelled the path it waited for (answered as the route's error)."""
 
 
 class Closing(Exception):
@@ -102,6 +115,12 @@ def parse(text):
     ):
         raise InputError(f"'seq' must be an integer in 0..2^53, got {show(seq)}")
     kind = req["type"]
+    if kind == "cancel":
+        if req.get("kind") not in CANCELS:
+            raise InputError(
+                f"'kind' of a cancel must be one of {list(CANCELS)}, got {show(req.get('kind'))}"
+            )
+        return [("cancel", req)]
     if kind == "move":
         want = req.get("want")
         if (
@@ -115,7 +134,7 @@ def parse(text):
         return [(k, req) for k in dict.fromkeys(want)]
     if kind not in KINDS:
         raise InputError(
-            f"unknown message type {show(kind)}; expected one of {list(KINDS)} or 'move'"
+            f"unknown message type {show(kind)}; expected one of {list(KINDS)}, 'move' or 'cancel'"
         )
     return [(kind, req)]
 
@@ -128,6 +147,7 @@ class Session:
         self.pending = {}
         self.wake = {k: asyncio.Event() for k in KINDS + (FINAL,)}
         self.lock = asyncio.Lock()  # one message at a time on the socket
+        self.cancel_route = asyncio.Event()  # the page cancelled the path it waits for
         tab = ws.query_params.get("tab", "")
         self.tab = tab if isinstance(tab, str) and 0 < len(tab) <= 64 and tab.isascii() else None
 
@@ -168,6 +188,12 @@ class Session:
                 await self.send({"type": "error", "kind": None, "seq": None, "error": str(e)})
                 continue
             for kind, req in requests:
+                if kind == "cancel":  # the path waited for, or about to be
+                    self.pending.pop("route", None)
+                    self.cancel_route.set()
+                    continue
+                if kind == "route":
+                    self.cancel_route.clear()
                 if kind == "frame" and not _coarse(req):
                     kind = FINAL
                 elif kind == "frame":  # a drag again: a full frame not yet started is stale
@@ -204,19 +230,35 @@ class Session:
                     )
                 await self.send(dict(meta, seq=seq), payload)
 
-    async def wait_route(self, future):
-        """The result of a path's ``future``; raises :class:`Superseded` when a newer ``route``
-        request arrives first. Never cancels ``future`` itself (other tabs may wait for it).
+    async def wait_route(self, future, seq=None):
+        """The result of a path's ``future``, its progress sent meanwhile; raises
+        :class:`Superseded` when a newer ``route`` request arrives first, InputError when the
+        page cancels it (the caller's release then stops it). Never cancels ``future`` itself
+        (other tabs may wait for it).
         """
         result = asyncio.wrap_future(future)
         newer = asyncio.ensure_future(self.wake["route"].wait())
+        cancel = asyncio.ensure_future(self.cancel_route.wait())
         try:
-            await asyncio.wait({result, newer}, return_when=asyncio.FIRST_COMPLETED)
+            while True:
+                await asyncio.wait(
+                    {result, newer, cancel},
+                    timeout=PROGRESS_EVERY,
+                    return_when=asyncio.FIRST_COMPLETED,
+                )
+                if result.done() or newer.done() or cancel.done():
+                    break
+                progress = self.ex.walks.progress(future)
+                if progress is not None:
+                    await self.send(dict(progress, type="progress", kind="route", route_seq=seq))
         finally:
             newer.cancel()
+            cancel.cancel()
         if result.done():
             return result.result()
         result.add_done_callback(lambda f: f.cancelled() or f.exception())  # nobody reads it now
+        if self.cancel_route.is_set():
+            raise _Cancelled("cancelled")
         raise Superseded()
 
     async def answer(self, kind, req):
@@ -238,10 +280,14 @@ class Session:
             future = await run_in_threadpool(
                 ex.route, req.get("a"), req.get("b"), req.get("steps"), req.get("kind")
             )
+            stop = False
             try:
-                route = await self.wait_route(future)
+                route = await self.wait_route(future, req.get("seq"))
+            except _Cancelled:
+                stop = True
+                raise
             finally:
-                ex.walks.release(future)
+                ex.walks.release(future, stop=stop)
             return dict(route, type="route"), b""
         x = ex.point(req.get("x"), "x")
         kind = _shown(kind)
@@ -252,8 +298,14 @@ class Session:
             if coarse:  # a drag: no refinement nor reference competes with its frames for the CPU
                 ex.references.supersede_refine()
                 ex.references.hold()
-            data, meta = await run_in_threadpool(
-                ex.frame, req.get("basis"), x, exposure, req.get("format", "jpeg"), coarse
+            data, meta = await run_in_threadpool(  # at rest: denoised where that shows
+                ex.frame,
+                req.get("basis"),
+                x,
+                exposure,
+                req.get("format", "jpeg"),
+                coarse,
+                not coarse,
             )
             return dict(meta, exposure=exposure, basis=ex.key(req.get("basis")), **tag), data
         if kind == "material":

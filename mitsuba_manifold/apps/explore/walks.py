@@ -13,20 +13,27 @@ same metric without the full table stack in memory (1.7 GB for 100 MERL tables).
   metric (the distance the paths are even in), a few ms: one product over the sub-grid
   columns and a Gram product with the measured tables' features, computed once;
 - :meth:`Walks.submit`: a path ``a -> b`` of a kind (``straight`` at once, ``uniform``,
-  ``geodesic`` and ``faithful`` in one low-priority background thread: they take seconds; of the
-  requests waiting there only the newest is computed), cached per pair, steps and kind;
-  returns a :class:`concurrent.futures.Future`, shared by every caller asking for the same path;
+  ``geodesic`` and ``faithful`` in one background thread: they take seconds; of the requests
+  waiting there only the newest is computed), cached per pair, steps and kind; returns a
+  :class:`concurrent.futures.Future`, shared by every caller asking for the same path;
+- :meth:`Walks.progress`: how far a path being computed is (seconds, evaluations of the metric);
 - :meth:`Walks.release`: a caller no longer waits for a path (its page moved on or went away);
-  a path nobody waits for any more is dropped before it starts.
+  a path nobody waits for any more is dropped before it starts, and, released with
+  ``stop=True`` (the page's cancel), stopped at its next evaluation of the metric.
+
+The path thread runs at the process's own priority: at a lower one, a busy machine (other
+processes) can starve it for minutes. The drags keep their frames' time another way: before each
+evaluation of the metric the thread calls ``pause`` (the explorer's: waits, a fraction of a
+second at most, while a frame is being made).
 
 The worker thread outlives every request: a path whose future was cancelled, failed or
 superseded is skipped or answered with an error, never an exception in the thread.
 """
 
-import os
 import queue
 import sys
 import threading
+import time
 import traceback
 from collections import OrderedDict
 from concurrent.futures import Future
@@ -49,11 +56,28 @@ def metric_columns(dims, stride=paths.SEARCH_STRIDE):
     return Quadrature.of(tuple(int(d) for d in dims), stride).index
 
 
-def _lower_priority(niceness=10):
-    try:  # Linux: a thread's own niceness; drags keep the CPU
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), niceness)
-    except (AttributeError, OSError):
-        pass
+class _Stopped(Exception):
+    """The path being computed was cancelled by every page waiting for it."""
+
+
+class _Watched:
+    """The path metric as :func:`~mitsuba_manifold.manifold.paths.path` uses it, each call of
+    one of its methods first counted and passed to ``tick`` (progress, pause, cancel).
+    """
+
+    def __init__(self, metric, tick):
+        self._metric, self._tick = metric, tick
+
+    def __getattr__(self, name):
+        attr = getattr(self._metric, name)
+        if name.startswith("_") or not callable(attr):
+            return attr
+
+        def watched(*args, **kwargs):
+            self._tick()
+            return attr(*args, **kwargs)
+
+        return watched
 
 
 class Walks:
@@ -61,8 +85,8 @@ class Walks:
     on the metric's sub-grid ``(N, size)``.
     """
 
-    def __init__(self, manifold, rows):
-        self.manifold = manifold
+    def __init__(self, manifold, rows, pause=None):
+        self.manifold, self._pause = manifold, pause
         self.metric = paths.PathMetric(manifold, rows=rows)
         measured = self.metric.quad.features(self.metric.rows).astype(np.float32)
         self._measured, self._measured_sq = (
@@ -79,6 +103,9 @@ class Walks:
             {},
             False,
         )
+        self._running = (
+            None  # [future, started (monotonic), evaluations, stop] of the path computed now
+        )
         self._queue = queue.Queue()
         self._thread = threading.Thread(target=self._work, name="explore-paths", daemon=True)
         self._thread.start()
@@ -91,9 +118,12 @@ class Walks:
         f = self.metric.features(np.asarray(x, dtype=np.float64)[None])[0].astype(np.float32)
         d2 = self._measured_sq + float(f @ f) - 2.0 * (self._measured @ f)
         i = int(np.argmin(d2))
+        # the nearest one's distance again from the difference (the expanded square above
+        # loses the small distances to cancellation: a measured material came out "very close")
+        d = np.linalg.norm(self._measured[i].astype(np.float64) - f.astype(np.float64))
         return {
             "name": self.manifold.names[i],
-            "distance": float(np.sqrt(max(d2[i], 0.0))),
+            "distance": float(d),
             "spacing": self.spacing,
         }
 
@@ -126,10 +156,11 @@ class Walks:
             self._queue.put((future, xa, xb, int(steps), kind))
         return future
 
-    def release(self, future):
+    def release(self, future, stop=False):
         """One waiter of ``future`` (from :meth:`submit`) no longer needs it: when nobody does,
-        a path not yet started is cancelled and dropped from the cache (a running or finished
-        one is kept: it is cached for the next request of that path).
+        a path not yet started is cancelled and dropped from the cache; a running one is kept
+        (cached for the next request of that path) unless ``stop`` (the page cancelled it): it
+        then stops at its next evaluation of the metric, failing with an InputError.
         """
         with self._lock:
             n = self._waiters.get(future, 0) - 1
@@ -139,6 +170,28 @@ class Walks:
             self._waiters.pop(future, None)
             if future.cancel():
                 self._drop(future)
+            elif stop and self._running is not None and self._running[0] is future:
+                self._running[3] = True
+
+    def progress(self, future):
+        """``{"seconds", "evaluations"}`` of ``future`` while it is computed, else None."""
+        run = self._running
+        if run is None or run[0] is not future:
+            return None
+        return {"seconds": time.monotonic() - run[1], "evaluations": run[2]}
+
+    def _tick(self):
+        """Before each evaluation of the metric in the path thread: count it, let a frame being
+        made go first, stop when cancelled.
+        """
+        run = self._running
+        if run is None:
+            return
+        if run[3]:
+            raise _Stopped()
+        run[2] += 1
+        if self._pause is not None:
+            self._pause()
 
     def waiting(self):
         """Number of paths queued or computing (for tests and the server's status)."""
@@ -154,7 +207,6 @@ class Walks:
         dropped (its future fails; the page asks for the ends it shows). Nothing a request does
         (cancelled, failed, superseded) ends this loop.
         """
-        _lower_priority()
         while True:
             item = self._queue.get()
             try:
@@ -188,8 +240,12 @@ class Walks:
 
     def _run(self, future, xa, xb, steps, kind):
         """Compute one path into ``future`` (already running)."""
+        watched = kind != "straight"  # straight: at once, in the caller's thread
+        if watched:
+            self._running = [future, time.monotonic(), 0, False]
         try:
-            X = paths.path(self.manifold, xa, xb, steps, kind, metric=self.metric)
+            metric = _Watched(self.metric, self._tick) if watched else self.metric
+            X = paths.path(self.manifold, xa, xb, steps, kind, metric=metric)
             lengths = self.metric.steps(X)
             result = {
                 "kind": kind,
@@ -199,6 +255,9 @@ class Walks:
                 "points": X.tolist(),
                 "lengths": lengths.tolist(),
             }
+        except _Stopped:
+            self._fail(future, InputError(f"the {kind} path was cancelled"))
+            return
         except Exception as e:  # InputError or a numerical failure: the page falls back to straight
             self._fail(
                 future,
@@ -207,5 +266,8 @@ class Walks:
                 else InputError(f"the {kind} path failed ({type(e).__name__}: {str(e)[:120]})"),
             )
             return
+        finally:
+            if watched:
+                self._running = None
         if not future.done():
             future.set_result(result)

@@ -15,7 +15,7 @@ const state = {
   info: null, x: null, basis: null, exposure: 0, dims: [0, 1], map: null, mapImage: null,
   hover: -1, a: null, b: null, displayed: null, material: null, snippet: null, errors: [], zoom: null,
   filter: "", status: null, favs: [], compare: [], refine: null, reference: null,
-  mapKey: null, moves: 0, dragging: false, liveUntil: 0,
+  mapKey: null, moves: 0, dragging: false, liveUntil: 0, connected: false,
   // raw RGBA on this machine (exact, no encoding); JPEG when the page is viewed from elsewhere
   format: new URLSearchParams(location.search).get("format") || (LOCAL ? "rgba" : "jpeg"),
 };
@@ -53,7 +53,9 @@ let channel, preview;
 const sameX = (a, b) => !!a && !!b && a.length === b.length && a.every((v, k) => v === b[k]);
 
 function onMessage(meta, payload) {
+  if (state.foreign) return;   // the server serves another manifold now (reconnected)
   if (meta.type === "error" && meta.kind === "route") { routeFailed(meta); return; }
+  if (meta.type === "progress") { if (meta.kind === "route") routeProgress(meta); return; }
   if (meta.type === "error") { setStatus((meta.kind ? meta.kind + ": " : "") + meta.error, true, meta.kind); return; }
   clearError(meta.type);
   if (meta.type === "frame") drawFrame(meta, payload);
@@ -62,7 +64,8 @@ function onMessage(meta, payload) {
     // the full table of a point a new drag has left (a newer table asked for): not worth its upload
     if (!meta.coarse && live() && !channel.isCurrent("table", meta.seq)) return;
     if (!sameX(meta.x, state.previewX) || meta.coarse !== state.previewCoarse) { preview.setTable(payload, meta); drawPlots(); showGloss(); }
-    state.previewX = meta.x; state.previewCoarse = meta.coarse;   // redrawn only when it changed
+    state.previewCoarse = meta.coarse;   // redrawn only when it changed
+    update({ previewX: meta.x });
   }
   else if (meta.type === "route") showRoute(meta);
   else if (meta.type === "snippet") showSnippet(meta);
@@ -82,6 +85,7 @@ async function drawFrame(meta, payload) {
   if (bmp) ctx.drawImage(bmp, 0, 0);
   else ctx.putImageData(new ImageData(new Uint8ClampedArray(payload), meta.width, meta.height), 0, 0);
   state.displayed = { x: meta.x, seq: meta.seq, exposure: meta.exposure, basis: meta.basis, at: performance.now() };
+  drawStale();
   if (window.explore.trace) window.explore.trace.push({ x: meta.x, at: state.displayed.at, server_ms: meta.total_ms,
     round_trip_ms: meta.round_trip_ms });   // tools/bench.py explore --browser
   c.dataset.x = meta.x.join(",");
@@ -182,6 +186,47 @@ view(["x"], drawPoint);
 view(["x", "material", "snippet"], showPoint);
 view(["filter"], () => buildGallery());   // shelf.js: the tiles matching the search
 view(["status", "errors"], drawStatus);
+view(["connected", "x", "displayed", "previewX"], drawStale);
+
+// While the server is away, what it showed for another point than the one chosen is dimmed: the
+// scene and the sphere keep their last images, which are not the point's (the panel is dimmed
+// by showPoint whenever its answer is not the point's).
+function drawStale() {
+  if (state.foreign) return;   // stays dimmed: reload
+  const away = !state.connected && !!state.x;
+  $("scene").classList.toggle("stale", away && !(state.displayed && sameX(state.displayed.x, state.x)));
+  $("sphere").classList.toggle("stale", away && !sameX(state.previewX, state.x));
+  document.body.classList.toggle("disconnected", !state.connected);
+}
+
+// The websocket is back (the server restarted, or the network came back): the page asks again for
+// its whole state. The server's facts (/api/info: tables, thumbnails), every answer for the point
+// (frame, sphere table, material, snippet, map) and the refinement; the errors of the time
+// away are dropped (each comes back if its cause is still there), a shared link's excepted.
+async function reconnected() {
+  update({ errors: state.errors.filter((e) => e.source === "link" || e.source === "server") });
+  let info;
+  try { info = await (await api("/api/info")).json(); }
+  catch (e) { return; }   // gone again: the next reconnection asks again
+  const same = (a, b) => JSON.stringify(a) === JSON.stringify(b), was = state.info;
+  if (info.manifold !== was.manifold || !same(info.latent, was.latent) || !same(info.names, was.names) ||
+      !same(info.bases.map((b) => [b.name, b.folder]), was.bases.map((b) => [b.name, b.folder]))) {
+    // another manifold or other bases: the map, names and lists of this page are not the server's
+    state.foreign = true;   // its answers are for another manifold's points: none is shown
+    setStatus("the server restarted with another manifold or other bases: reload the page (its point is in the address)", true, "server");
+    document.body.classList.add("disconnected");
+    for (const id of ["scene", "sphere"]) $(id).classList.add("stale");
+    return;
+  }
+  state.info.tables = info.tables; state.info.thumbs = info.thumbs; state.info.refine_spp = info.refine_spp;
+  update({ previewX: null });   // the sphere's table comes again, even for the same point
+  state.previewCoarse = null;
+  requestAll();
+  if (state.info.tables === "loading") pollTables();
+  if (state.refine || state.refineJob) { state.refineJob = null; update({ refine: null }); refineHere(); }
+  if (state.route && state.route.computing && pathReady()) requestRoute();   // its request went with the old socket
+  if ($("path-cmd").classList.contains("stale") && pathReady()) exportPath();
+}
 
 function updateSavePng() {
   $("save-png").href = "/api/frame?" + new URLSearchParams({ x: state.x.join(","), basis: state.basis,
@@ -562,6 +607,7 @@ function drawPath() {
   setText($("b-label"), endLabel(state.b));
   $("scrub").disabled = !pathReady(); $("export-path").disabled = !pathReady();
   setText($("route-state"), state.route ? state.route.note : "");
+  $("route-cancel").hidden = !(state.route && state.route.computing);
   drawMap();
 }
 view(["a", "b", "route"], drawPath);
@@ -577,21 +623,32 @@ function straightRoute() {
 function requestRoute() {
   const kind = $("path-kind").value, straight = kind === "straight";
   if (!straight) state.routeSeq = channel.send({ type: "route", a: state.a.x, b: state.b.x, steps: ROUTE_STEPS, kind }, ["route"]);
-  update({ route: { kind: "straight", want: kind, a: state.a.x, b: state.b.x, points: straightRoute(),
+  update({ route: { kind: "straight", want: kind, a: state.a.x, b: state.b.x, points: straightRoute(), computing: !straight,
                     note: straight ? "the latent segment" : `${kind}: computing in the background… (straight meanwhile)` } });
+}
+// The server's progress of the path being computed (every half second): time and steps so far.
+function routeProgress(meta) {
+  const r = state.route;
+  if (!r || !r.computing || meta.route_seq !== state.routeSeq) return;
+  update({ route: Object.assign({}, r, { note: `${r.want}: computing… ${meta.seconds.toFixed(0)} s, ` +
+    `${meta.evaluations} evaluations of the metric (straight meanwhile)` }) });
+}
+function cancelRoute() {   // the path stops at its next step; the route's error answer says so
+  if (state.route && state.route.computing) channel.send({ type: "cancel", kind: "route" }, []);
 }
 function showRoute(meta) {
   const r = state.route;
   if (!r || meta.seq !== state.routeSeq || meta.kind !== r.want || !sameX(meta.a, r.a) || !sameX(meta.b, r.b)) return;
   const onPath = sameX(state.x, pointOnRoute(+$("scrub").value / 1000));
   const L = meta.lengths.reduce((s, v) => s + v, 0), spread = Math.max(...meta.lengths) / (L / meta.lengths.length);
-  update({ route: Object.assign({}, r, { kind: meta.kind, points: meta.points,
+  update({ route: Object.assign({}, r, { kind: meta.kind, points: meta.points, computing: false,
     note: `${meta.kind} · perceptual length ${fmtNum(L)} · largest step ${spread.toFixed(2)}× the mean` }) });
   if (onPath) { scrub(); commitPoint(); }   // the point shown moves onto the new path
 }
 function routeFailed(meta) {
   if (meta.seq !== state.routeSeq || !state.route) return;
-  update({ route: Object.assign({}, state.route, { note: `${$("path-kind").value} unavailable (${meta.error}): straight` }) });
+  update({ route: Object.assign({}, state.route, { computing: false,
+    note: `${state.route.want} unavailable (${meta.error}): straight` }) });
 }
 function pointOnRoute(t) {
   const P = state.route.points, u = t * (P.length - 1), k = Math.min(P.length - 2, Math.floor(u)), f = u - k;
@@ -734,7 +791,7 @@ async function main() {
   };
   sceneInfo();
   preview = new MaterialPreview($("sphere"), $("sphere-msg"));
-  channel = new Channel(onMessage, () => state.x && requestAll());
+  channel = new Channel(onMessage, () => state.x && reconnected());
   // start at the measured material closest to the centre of the data
   const mean = info.latent[0].map((_, k) => info.latent.reduce((s, p) => s + p[k], 0) / info.latent.length);
   let best = 0, bd = Infinity;
@@ -788,6 +845,7 @@ async function main() {
   bindShelf();
   window.addEventListener("resize", () => { forgetMapBox(); placeCursor(); });
   $("export-path").onclick = exportPath;
+  $("route-cancel").onclick = cancelRoute;
   $("ref-start").onclick = startReference;
   $("ref-cancel").onclick = cancelReference;
   $("refine-auto").onchange = () => { if ($("refine-auto").checked) refineHere(); else refineOff(); };
@@ -835,10 +893,15 @@ function sceneInfo() {
   drawReference();
 }
 
-async function pollTables() {
-  const info = await (await api("/api/info")).json();
+let tablesPoll = 0;
+async function pollTables() {   // one poll at a time; a failed one (the server away) is tried again
+  const run = ++tablesPoll;
+  let info;
+  try { info = await (await api("/api/info")).json(); }
+  catch (e) { setTimeout(() => run === tablesPoll && pollTables(), 1000); return; }
+  if (run !== tablesPoll) return;
   state.info.tables = info.tables;
-  if (info.tables === "loading") { setTimeout(pollTables, 250); return; }
+  if (info.tables === "loading") { setTimeout(() => run === tablesPoll && pollTables(), 250); return; }
   requestAll();
 }
 

@@ -27,13 +27,15 @@ class Channel {
     this.ws.onopen = () => {
       setStatus("connected");   // a first warning stays (state.errors) until its source answers
       clearError("connection");
+      update({ connected: true });
       const queued = this.queued || [];
       this.queued = null;
       for (const m of queued) this.ws.send(m);
-      if (this.opened && this.onOpen) this.onOpen();   // reconnected: ask again for what is shown
+      if (this.opened && this.onOpen) this.onOpen();   // reconnected: the page's whole state asked again
       this.opened = true;
     };
     this.ws.onclose = (ev) => {
+      update({ connected: false });   // what the server showed is dimmed where it is not the point's
       setStatus(`disconnected from the server${ev.reason ? " (" + ev.reason + ")" : ""} — retrying…`, true, "connection");
       setTimeout(() => this.connect(), 1000);
     };

@@ -37,7 +37,7 @@ async function refineHere() {
       if (job.state === "failed") { say("refine failed: " + job.message); return; }
       const e = job.error || {};
       if (state.refined && state.refined.job === job.id) { /* shown: its status stays until a move */ }
-      else if (e.agrees == null) say(`refining… ${job.message}`);
+      else if (e.agrees == null) say(job.state === "done" ? job.message : `refining… ${job.message}`);   // done: nothing to check
       else {
         say(e.agrees ? `full GI checked (${job.message}): the blend agrees with the unbiased render`
                      : `full GI checked (${job.message}): the blend differs from the unbiased render`, {

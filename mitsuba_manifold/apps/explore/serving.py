@@ -1,0 +1,168 @@
+"""How the explorer's server holds up under connections that misbehave: deadlines, a cap, a quiet log.
+
+uvicorn keeps a connection open as long as its client keeps it, and reads a request's headers
+for as long as they take: a client that opens connections and never finishes a request holds
+a socket each, forever, until the server runs out of them (and asyncio then logs the failed
+``accept`` on every turn of its loop). :func:`protocol` makes the HTTP protocol class the
+explorer runs uvicorn with (h11's, whatever else is installed), which
+
+- closes a connection whose request (headers and body) is not complete within ``deadline``
+  seconds of the connection opening or of its previous response (``408``, then closed);
+- refuses a connection beyond ``max_connections`` open at once (websockets included) at once,
+  with a ``503`` naming the limit, and closes it.
+
+:class:`RepeatFilter` collapses repeated log records (one per ``window`` seconds per message,
+then a count of those left out), so that no fault can fill the console or the disk.
+"""
+
+import logging
+import threading
+import time
+
+#: Seconds a connection has to send a complete request (after opening, or after a response).
+REQUEST_DEADLINE = 5.0
+#: Connections open at once (HTTP and websockets, every page together) before new ones get 503.
+MAX_CONNECTIONS = 256
+#: Seconds between two records of the same message in the console (the others are counted).
+LOG_WINDOW = 10.0
+
+
+def _reply(status, reason, text):
+    body = (text + "\n").encode()
+    return (
+        f"HTTP/1.1 {status} {reason}\r\ncontent-type: text/plain; charset=utf-8\r\n"
+        f"content-length: {len(body)}\r\nconnection: close\r\n\r\n"
+    ).encode() + body
+
+
+def protocol(deadline=REQUEST_DEADLINE, max_connections=MAX_CONNECTIONS):
+    """The h11 HTTP protocol of uvicorn with a request deadline and a connection cap (module doc);
+    pass it as ``uvicorn.Config(http=...)``.
+    """
+    import h11
+    from uvicorn.protocols.http.h11_impl import H11Protocol
+
+    if not deadline > 0 or int(max_connections) < 1:
+        raise ValueError(
+            f"deadline must be > 0 and max_connections >= 1, got {deadline}, {max_connections}"
+        )
+
+    class GuardedH11Protocol(H11Protocol):
+        """h11's protocol, with a deadline per request and a cap on open connections."""
+
+        def connection_made(self, transport):
+            super().connection_made(transport)
+            self._waiting_since = self.loop.time()
+            self._deadline = None
+            if len(self.connections) > max_connections:
+                self.connections.discard(self)
+                transport.write(
+                    _reply(
+                        503,
+                        "Service Unavailable",
+                        f"the explorer has {max_connections} connections open, its limit; "
+                        "close some tabs or try again",
+                    )
+                )
+                transport.close()
+                return
+            self._arm(deadline)
+
+        def _arm(self, seconds):
+            self._deadline = self.loop.call_later(seconds, self._check_deadline)
+
+        def _receiving(self):
+            """Whether the client owes the rest of a request (none begun, or one half sent)."""
+            return self.conn.their_state in (h11.IDLE, h11.SEND_BODY) and (
+                self.cycle is None
+                or self.cycle.response_complete
+                or self.conn.their_state is h11.SEND_BODY
+            )
+
+        def _check_deadline(self):
+            self._deadline = None
+            if self.transport.is_closing() or self.transport.get_protocol() is not self:
+                return  # closed, or a websocket now (its protocol has its own pings and limits)
+            if not self._receiving():
+                self._waiting_since = None  # the request is in: the app answers it
+                self._arm(deadline)
+                return
+            if self._waiting_since is None:
+                self._waiting_since = self.loop.time()
+            left = self._waiting_since + deadline - self.loop.time()
+            if left > 0:
+                self._arm(left)
+                return
+            if self.conn.their_state is h11.IDLE:  # no request yet: say why it is closed
+                self.transport.write(
+                    _reply(
+                        408,
+                        "Request Timeout",
+                        f"the request was not complete within {deadline:g} s",
+                    )
+                )
+            self.transport.close()  # a body cut short: the app reading it sees the disconnect
+
+        def on_response_complete(self):
+            super().on_response_complete()
+            self._waiting_since = self.loop.time()  # the next request has its own deadline
+
+        def connection_lost(self, exc):
+            if self._deadline is not None:
+                self._deadline.cancel()
+                self._deadline = None
+            super().connection_lost(exc)
+
+    return GuardedH11Protocol
+
+
+class RepeatFilter(logging.Filter):
+    """A logging filter passing the first record of each message (its format string, logger and
+    exception type) once per ``window`` seconds; the next one passed after a pause says how many
+    were left out meanwhile.
+    """
+
+    def __init__(self, window=LOG_WINDOW, clock=time.monotonic):
+        super().__init__()
+        self.window, self.clock = float(window), clock
+        self._seen = {}  # key -> [time passed, records left out since]
+        self._lock = threading.Lock()
+
+    def filter(self, record):
+        exc = record.exc_info[0].__name__ if record.exc_info and record.exc_info[0] else None
+        # the first line: asyncio's messages go on with the socket or task they are about
+        key = (record.name, record.levelno, str(record.msg).split("\n", 1)[0][:200], exc)
+        now = self.clock()
+        with self._lock:
+            seen = self._seen.get(key)
+            if seen is not None and now - seen[0] < self.window:
+                seen[1] += 1
+                return False
+            left_out = seen[1] if seen is not None else 0
+            self._seen[key] = [now, 0]
+            if len(self._seen) > 1024:  # messages that vary forever: the oldest forgotten
+                for k in sorted(self._seen, key=lambda k: self._seen[k][0])[:512]:
+                    del self._seen[k]
+        if left_out:
+            record.msg = (
+                f"{record.msg} [{left_out} more like this in the last {self.window:g} s, not shown]"
+            )
+        return True
+
+
+#: The loggers the explorer's server writes to (uvicorn's and asyncio's).
+SERVER_LOGGERS = ("asyncio", "uvicorn", "uvicorn.error", "uvicorn.access")
+
+
+def quiet_logs(window=LOG_WINDOW):
+    """Put a :class:`RepeatFilter` on the server's loggers and on their handlers (a record is
+    filtered where it is made, and where it is written when it comes from a logger below);
+    returns it. Call it after uvicorn has configured its loggers.
+    """
+    f = RepeatFilter(window)
+    for name in SERVER_LOGGERS:
+        logger = logging.getLogger(name)
+        logger.addFilter(f)
+        for h in logger.handlers:
+            h.addFilter(f)
+    return f
