@@ -20,7 +20,7 @@ import numpy as np
 from mitsuba_manifold import Manifold
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-TUTORIALS = ["manifold_tour", "own_scene", "basis_blend", "inverse"]
+TUTORIALS = ["manifold_tour", "own_scene", "basis_blend", "inverse", "acquire"]
 #: Materials of the gallery (names of the built-in database).
 MATERIALS = [
     "blue-rubber",

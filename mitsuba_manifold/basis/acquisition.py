@@ -58,26 +58,26 @@ METHODS = ("plausible", "beyond", "nonneg", "convex", "latent")
 #: Relative floor of the data term's weights: ``eps = EPS_REL * mean(t^2)``.
 EPS_REL = 0.01
 #: Cross-validation: folds, the candidate regularisation weights, the side of a pixel block.
-CV_FOLDS = 4
-CV_GRID = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2)
+CV_FOLDS = 3
+CV_GRID = (1e-4, 3e-4, 1e-3, 3e-3)
 CV_BLOCK = 8
 #: The cross-validation's choices: a weight's held-out error within ``1 + CV_TOLERANCE`` of the
 #: best counts as as good (the largest such ``lam`` is taken); weights beyond the non-negative
 #: ones are taken when they lower the held-out error by more than ``CV_MARGIN``.
-CV_TOLERANCE = 0.05
+CV_TOLERANCE = 0.01
 CV_MARGIN = 0.1
 #: (bin, channel) values sampled for the non-negativity constraints.
 CHECK_BINS = 1 << 13
 #: Per material: the values where it holds the largest share of all tables.
 CHECK_PER_MATERIAL = 48
 #: Rounds of full-table checks adding the most negative values to the constraints.
-FULL_ROUNDS = 3
-ADDED_PER_ROUND = 2048
+FULL_ROUNDS = 2
+ADDED_PER_ROUND = 8192
 #: Smallest ridge (relative): keeps ``H`` positive definite when the images are collinear.
 JITTER = 1e-9
 #: Bootstrap solves of the spread of near-equally good answers, and the warning thresholds:
 #: relative spread (standard deviation / mean) of the albedo, and of the specular peak.
-BOOTSTRAP = 16
+BOOTSTRAP = 8
 WARN_ALBEDO_SPREAD = 0.1
 WARN_PEAK_SPREAD = 0.5
 #: Format tag of the result's JSON file.
@@ -104,7 +104,8 @@ class AcquireOptions:
     bootstrap : int
         Bootstrap solves for the report's spread (0: none).
     render_spp : int
-        Samples per pixel of the acquired material's and the best single material's renders.
+        Samples per pixel of the acquired material's and the best single material's renders
+        (0: none).
     progress : bool
         Progress bar.
     basis_cache : str, optional
@@ -119,7 +120,7 @@ class AcquireOptions:
     seed: int = 0
     max_depth: int | None = None
     bootstrap: int = BOOTSTRAP
-    render_spp: int = 256
+    render_spp: int = 128
     progress: bool = True
     basis_cache: str | None = None
 
@@ -135,7 +136,7 @@ class AcquireOptions:
                 or not (math.isfinite(r) and r >= 0)
             ):
                 raise InputError(f"`regularisation` must be a number >= 0 or None, got {r!r}")
-        for name, low in (("spp", 1), ("seed", 0), ("bootstrap", 0), ("render_spp", 1)):
+        for name, low in (("spp", 1), ("seed", 0), ("bootstrap", 0), ("render_spp", 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise InputError(f"`{name}` must be an integer >= {low}, got {v!r}")
@@ -352,6 +353,20 @@ def solve(H, g, cons, method, lam, prior=None) -> np.ndarray:
     return quadratic_programme(H + lam * s * np.eye(n), g + lam * s * prior, G, h)
 
 
+def combined_pair(w, v, table, n) -> tuple:
+    """:func:`combined` of two weight vectors in one pass over the tables."""
+    a = b = None
+    for i in range(n):
+        if w[i] == 0 and v[i] == 0:
+            continue
+        t = np.asarray(table(i), dtype=np.float32).reshape(-1)
+        if a is None:
+            a, b = np.zeros(t.size, np.float32), np.zeros(t.size, np.float32)
+        a += np.float32(w[i]) * t
+        b += np.float32(v[i]) * t
+    return a, b
+
+
 def guarantee(w, start, table, n, albedo) -> tuple:
     """``start + s (w - start)`` with the largest ``s`` in [0, 1] for which every bin of the full
     combined table is non-negative (in float32, as rendered) and no directional albedo exceeds 1;
@@ -362,11 +377,10 @@ def guarantee(w, start, table, n, albedo) -> tuple:
     start = np.asarray(start, dtype=np.float64)
     if np.all(w >= 0):
         return w, 1.0
-    full = combined(w, table, n)
+    full, base = combined_pair(w, start, table, n)
     s = 1.0
     neg = full < 0
     if neg.any():
-        base = combined(start, table, n)
         s = min(s, float(np.min(base[neg] / (base[neg] - full[neg]))))
     a_w, a_0 = w @ albedo, start @ albedo
     over = a_w > 1.0
@@ -462,10 +476,11 @@ def choose(photos, cons, method, seed=0, progress=None) -> tuple:
 class Spread:
     """How different the near-equally good answers are (a bootstrap over pixel blocks).
 
-    ``albedo`` / ``peak``: mean and relative spread (standard deviation over mean) of the
-    normal-incidence directional albedo (RGB) and of the specular-peak value (RGB, 1/sr) over the
-    bootstrap solutions; ``effective_rank``: eigenvalues of the data term's ``A^T C A`` above
-    1e-6 of the largest (how many directions of the N weights the photos determine).
+    ``albedo`` / ``peak``: mean and relative spread of the normal-incidence directional albedo
+    (RGB; standard deviation over mean) and of the specular-peak value (RGB, 1/sr; standard
+    deviation over the mean peak plus the diffuse level albedo / pi) over the bootstrap solutions;
+    ``effective_rank``: eigenvalues of the data term's ``A^T C A`` above 1e-6 of the largest
+    (how many directions of the N weights the photos determine).
     """
 
     albedo: list
@@ -498,12 +513,12 @@ def spread(photos, cons, method, lam, w, n, seed=0, progress=None) -> Spread:
     sols = np.array(sols)
     a = sols @ cons.albedo.reshape(len(w), 3, -1)[:, :, 0]
     p = sols @ cons.peak
-
-    def rel(v):
-        m = np.abs(v.mean(axis=0)) + 1e-12
-        return float(np.max(v.std(axis=0) / m))
-
-    return Spread(a.mean(0).tolist(), rel(a), p.mean(0).tolist(), rel(p), rank, len(sols))
+    level = np.abs(p.mean(axis=0)) + np.abs(a.mean(axis=0)) / np.pi + 1e-12  # peak over diffuse
+    peak_spread = float(np.max(p.std(axis=0) / level))
+    albedo_spread = float(np.max(a.std(axis=0) / (np.abs(a.mean(axis=0)) + 1e-12)))
+    return Spread(
+        a.mean(0).tolist(), albedo_spread, p.mean(0).tolist(), peak_spread, rank, len(sols)
+    )
 
 
 @dataclass
@@ -540,6 +555,8 @@ class Acquisition:
         Scene, target, mask and sensor of each photo.
     manifold : str
         The manifold's path.
+    renders : list of str
+        Files of the acquired material's renders, one per view (where written).
     """
 
     names: list
@@ -558,6 +575,7 @@ class Acquisition:
     timings: dict = field(default_factory=dict)
     views: list = field(default_factory=list)
     manifold: str = ""
+    renders: list = field(default_factory=list)
 
     @property
     def weights(self) -> dict:

@@ -66,8 +66,8 @@ class AcquireOutput(NamedTuple):
     result: aq.Acquisition
     targets: list  # (H, W, 3) per photo
     masks: list  # (H, W) per photo
-    renders: list  # the acquired material, per photo
-    singles: list  # the best single training material, per photo
+    renders: list  # the acquired material, per photo (none with render_spp 0)
+    singles: list  # the best single training material, per photo (none with render_spp 0)
 
 
 @dataclass
@@ -150,8 +150,7 @@ def render_training_images(
 
     def advance(done, total):
         if bar is not None:
-            bar.total = bar.n - bar.n % 1000 + 1000 if bar.total is None else bar.total
-            bar.set_postfix_str(f"rendering training materials {done}/{total}")
+            bar.set_postfix_str(f"training images {done}/{total}")
 
     base, images = integrator.render_onepass(
         loaded.scene, spp=opts.spp, seed=opts.seed, sensor=sensor, progress=advance
@@ -284,7 +283,9 @@ def coverage_warnings(cov) -> list:
     return out
 
 
-def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput:
+def acquire(
+    photos, manifold_path, options=None, database=None, training_images=None
+) -> AcquireOutput:
     """Acquire the material of ``photos`` (:class:`Photo`) over the manifold's training tables.
 
     Parameters
@@ -295,6 +296,10 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
     options : AcquireOptions, optional
     database : str, optional
         Folder of the manifold's tables when moved.
+    training_images : list of Rendered, optional
+        Each photo's base image and training materials' images (``(N, H, W, 3)``, the manifold's
+        order) when the caller has them already (a basis of the scene): nothing is rendered for
+        them.
 
     Returns
     -------
@@ -313,6 +318,10 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
         )
     if not photos:
         raise InputError("`photos` is empty: give at least one scene and photo")
+    if training_images is not None and len(training_images) != len(photos):
+        raise InputError(
+            f"`training_images` has {len(training_images)} entries for {len(photos)} photos"
+        )
     t_start = time.perf_counter()
     timings = {}
     manifold = Manifold.load(manifold_path)
@@ -328,9 +337,14 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
     t0 = time.perf_counter()
     for v in views:
         size = (v.target.shape[1], v.target.shape[0])
-        v.rendered = render_training_images(
-            v.path, manifold_path, size, opts, v.photo.sensor, database, bar
-        )
+        if training_images is not None:
+            v.rendered = Rendered(
+                *training_images[len([u for u in views if u.rendered])][:2], 0.0, True
+            )
+        else:
+            v.rendered = render_training_images(
+                v.path, manifold_path, size, opts, v.photo.sensor, database, bar
+            )
         if v.rendered.images.shape[0] != manifold.n:
             raise InputError(
                 f"scene {v.path}: its manifold_brdf has {v.rendered.images.shape[0]} materials, "
@@ -404,7 +418,7 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
             f"the gloss is not identifiable from these photos: the specular peak of near-equally "
             f"good answers differs by {100 * sp.peak_spread:.0f}%"
         )
-    if shrink < 1.0:
+    if shrink < 0.99:
         warnings.append(
             f"the plausibility guarantee on the full table kept {100 * shrink:.0f}% of the step "
             "beyond the non-negative solution"
@@ -442,7 +456,7 @@ def acquire(photos, manifold_path, options=None, database=None) -> AcquireOutput
     )
     t0 = time.perf_counter()
     renders, singles = [], []
-    for v in views:
+    for v in views if opts.render_spp else []:
         size = (v.target.shape[1], v.target.shape[0])
         for what, weights in ((renders, w), (singles, np.eye(manifold.n)[best])):
             what.append(

@@ -142,3 +142,37 @@ def test_a_stopping_server_removes_the_files_of_the_render_it_ends(
     refs.shutdown(wait=0.0)
     assert glob.glob(os.path.join(temp_here, "explore-reference-*")) == []
     _wait(job, 30)
+
+
+def test_the_folders_of_a_killed_explorer_are_removed_when_the_next_one_starts(
+    explorer, small_manifold_paper, temp_here
+):
+    import subprocess
+
+    gone = subprocess.Popen(["true"])
+    gone.wait()  # a process that no longer runs: its explorer was killed
+    dead = temp_here / f"explore-reference-{gone.pid}-abcd"
+    (dead / "job-1").mkdir(parents=True)
+    (dead / "job-1" / "spec.json").write_text("{}")
+    alive = temp_here / f"explore-reference-{os.getppid()}-efgh"  # an explorer still running
+    alive.mkdir()
+    other = temp_here / "explore-reference-notmine"
+    other.mkdir()
+    refs = reference.References()
+    assert not dead.exists() and alive.exists() and other.exists()
+    try:  # and its own folder is made and removed as before
+        m = Manifold.load(small_manifold_paper)
+        name = next(iter(explorer.bases))
+        job = refs.submit(
+            name,
+            explorer.bases[name],
+            explorer.scenes[name],
+            explorer.manifold_path,
+            m.latent[0],
+            2,
+            explorer.blend(name, m.latent[0])[0],
+        )
+        assert _wait(job) == "done", job.message
+    finally:
+        refs.shutdown(wait=5)
+    assert not dead.exists() and alive.exists() and other.exists()

@@ -23,6 +23,7 @@ PAGES = {
     "own_scene": ("own-scene.md", ["own_scene.png"]),
     "basis_blend": ("basis-blend.md", ["basis_blend.png", "basis_parts.png"]),
     "inverse": ("inverse.md", ["inverse.png", "inverse_loss.png"]),
+    "acquire": ("acquire.md", ["acquire.png"]),
 }
 
 

@@ -96,3 +96,20 @@ def test_match_render_tool_acquires_by_default(small_manifold, tmp_path, capsys)
         cli.main(args + ["--mask", mpath, "--no-progress"])
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1 and "mask" in err
+
+
+def test_training_images_given_are_used(small_manifold):
+    """A caller with the scene's training images (a basis) passes them: the same weights, nothing
+    rendered for them."""
+    from mitsuba_manifold.render.acquire import render_training_images
+
+    m = Manifold.load(small_manifold)
+    w_true = np.zeros(m.n)
+    w_true[m.index("gold-paint")] = 1.0
+    photo = _photo(small_manifold, w_true, spp=64)
+    opts = AcquireOptions(spp=32, bootstrap=0, render_spp=0, progress=False)
+    own = acquire([Photo("sphere", photo)], small_manifold, opts)
+    tr = render_training_images(scenes.scene_path("sphere"), small_manifold, (RES, RES), opts)
+    given = acquire([Photo("sphere", photo)], small_manifold, opts, training_images=[tr])
+    np.testing.assert_allclose(given.result.w, own.result.w, atol=1e-9)
+    assert given.renders == [] and given.result.views[0]["cached_training_images"]

@@ -88,7 +88,10 @@ def _parser():
         "--basis-cache", help="folder keeping the training materials' images of each scene"
     )
     p.add_argument(
-        "--bootstrap", type=int, default=16, help="bootstrap solves of the report's spread"
+        "--bootstrap",
+        type=int,
+        default=8,
+        help="bootstrap solves of the report's spread (default 8)",
     )
     p.add_argument("--sheet", help="contact sheet target | acquired | best single (.png)")
     p.add_argument("--snippet", help="Mitsuba XML manifold_brdf of the acquired material (.xml)")
@@ -325,9 +328,8 @@ def _acquire(args, views):
         written.append(args.snippet)
         print(f"wrote the manifold_brdf snippet: {args.snippet}")
     if args.json:
-        info = r.to_dict()
-        info["renders"] = _out_paths(args, len(views))
-        write_bytes(args.json, json.dumps(info, indent=1) + "\n")
+        r.renders = _out_paths(args, len(views))
+        r.write(args.json)
         written.append(args.json)
         print(f"wrote JSON: {args.json}")
     ownership.record(written, "match.py")

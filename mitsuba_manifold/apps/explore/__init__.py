@@ -12,7 +12,8 @@ Modules: :mod:`.service` (the state and every answer, no HTTP), :mod:`.server` (
 :mod:`.reference`, :mod:`.guard` (who may talk to the server, size limits), :mod:`.inputs` (request
 values), :mod:`.bases` (basis names and scenes), :mod:`.session` (one tab's websocket),
 :mod:`.walks` (paths of ``Manifold.path`` and the distance to the closest measured material),
-:mod:`.thumbs` (the materials' thumbnails), :mod:`.hdri` (the sphere's environment); ``static/``
+:mod:`.thumbs` (the materials' thumbnails), :mod:`.hdri` (the sphere's environment),
+:mod:`.serving` (deadlines and a cap on connections, a quiet console); ``static/``
 holds the page (no build step, no network access).
 """
 

@@ -119,7 +119,7 @@ def drag_image(image, l1, factor=FACTOR):
     return out, changed
 
 
-def rest_change(image, l1, exposure=0.0, levels=REST_LEVELS, size=REST_BLUR):
+def rest_change(image, l1, exposure=0.0, levels=REST_LEVELS, size=REST_BLUR) -> float:
     """The fraction of the 8-bit values of ``image`` (a summed full-GI blend of one target, H x
     W x 3, tonemapped at ``exposure``) that denoising its part beyond L1- (``image - l1``) would
     change by ``levels`` or more, estimated with that part blurred by a ``size``-pixel box

@@ -13,8 +13,10 @@ a blend that equals full GI still differs from a noisy reference by that noise).
 One job runs at a time; the others wait in line, at most :data:`MAX_WAITING_PER_TAB` of one
 page and :data:`MAX_WAITING` in all (beyond, :class:`~mitsuba_manifold.errors.BusyError`); a
 newer refinement cancels the older ones still waiting. A reference render's files are in a
-folder of its own inside one temporary folder of the explorer's, removed when the render ends
-(done, failed or cancelled) and, with whatever is left in it, by :meth:`References.shutdown`.
+folder of its own inside one temporary folder of the explorer's (named with its process id),
+removed when the render ends (done, failed or cancelled) and, with whatever is left in it, by
+:meth:`References.shutdown`; the folders of explorers that were killed (no shutdown) are removed
+when the next explorer starts.
 
 Every job can be cancelled (:meth:`References.cancel`, or :meth:`References.cancel_tab` for
 all the jobs a tab started, when its websocket closes): a queued job never starts, a running
@@ -24,6 +26,7 @@ job does (cancelled, failed) stops the worker.
 
 import itertools
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -135,6 +138,7 @@ class References:
         self._paused = {}  # pid -> process paused by hold()
         self._resumer = None  # the timer that resumes them
         self._folder = None  # the temporary folder of the reference renders' files
+        _sweep(tempfile.gettempdir())  # those of explorers killed before they could remove them
 
     def submit(self, name, basis, scene, manifold_path, x, spp, blend_image, tab=None):
         """Start a job; returns it. ``blend_image``: the blend at ``x`` to compare with; ``tab``:
@@ -150,7 +154,7 @@ class References:
         self._pool.submit(self._run, job, basis, scene, manifold_path, blend_image)
         return job
 
-    def _admit(self, tab):
+    def _admit(self, tab) -> None:
         """Raise :class:`BusyError` when page ``tab`` (or every page) has as many jobs waiting
         or rendering as allowed; called with the lock held.
         """
@@ -416,13 +420,13 @@ class References:
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
 
-    def _job_folders(self):
+    def _job_folders(self) -> str:
         """The explorer's temporary folder of reference renders (made on first use)."""
         with self._lock:
             if self._stopping:
                 raise RuntimeError("the server is stopping")
             if self._folder is None or not os.path.isdir(self._folder):
-                self._folder = tempfile.mkdtemp(prefix="explore-reference-")
+                self._folder = tempfile.mkdtemp(prefix=f"explore-reference-{os.getpid()}-")
             return self._folder
 
     def busy(self):
@@ -455,6 +459,32 @@ class References:
         if folder is not None:
             shutil.rmtree(folder, ignore_errors=True)
         return not self.busy()
+
+
+_FOLDER = re.compile(r"^explore-reference-([0-9]+)-")
+
+
+def _sweep(folder) -> None:
+    """Remove the reference renders' folders in ``folder`` left by explorers that no longer run
+    (killed: no shutdown removed them); a folder is an explorer's by its name, which holds the
+    process id.
+    """
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return
+    for name in names:
+        m = _FOLDER.match(name)
+        if m is None or int(m.group(1)) == os.getpid():
+            continue
+        try:
+            os.kill(int(m.group(1)), 0)
+            continue  # that explorer runs
+        except ProcessLookupError:
+            pass
+        except (OSError, OverflowError):
+            continue  # another user's, or not a process id: left alone
+        shutil.rmtree(os.path.join(folder, name), ignore_errors=True)
 
 
 def _listed(resolution):

@@ -237,7 +237,7 @@ async def _bad_request(request, exc):
     return JSONResponse({"error": str(exc)}, status_code=400)
 
 
-async def _busy(request, exc):
+async def _busy(request, exc) -> JSONResponse:
     return JSONResponse({"error": str(exc)}, status_code=429)
 
 

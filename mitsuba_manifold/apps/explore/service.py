@@ -244,7 +244,7 @@ class Explorer:
             "rest": rest_meta,
         }
 
-    def _rest_blend(self, name, x, exposure):
+    def _rest_blend(self, name, x, exposure) -> tuple:
         """``(image, info, {"change", "denoised"})`` of the frame where a drag rests: the drag's
         (summed) blend, denoised only where :func:`.fireflies.rest_change` says more than
         :data:`~.fireflies.REST_FRACTION` of the 8-bit values would change.
@@ -287,7 +287,7 @@ class Explorer:
                 self._walks = Walks(self.manifold, self.tables.metric_rows, pause=self._path_pause)
         return self._walks
 
-    def _path_pause(self):
+    def _path_pause(self) -> None:
         """Called by the path thread before each evaluation of the metric: a frame being made
         goes first (at most :data:`PATH_YIELD` s, so that the path goes on during a drag).
         """

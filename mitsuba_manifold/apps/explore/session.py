@@ -230,7 +230,7 @@ class Session:
                     )
                 await self.send(dict(meta, seq=seq), payload)
 
-    async def wait_route(self, future, seq=None):
+    async def wait_route(self, future, seq=None) -> dict:
         """The result of a path's ``future``, its progress sent meanwhile; raises
         :class:`Superseded` when a newer ``route`` request arrives first, InputError when the
         page cancels it (the caller's release then stops it). Never cancels ``future`` itself

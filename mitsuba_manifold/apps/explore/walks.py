@@ -156,7 +156,7 @@ class Walks:
             self._queue.put((future, xa, xb, int(steps), kind))
         return future
 
-    def release(self, future, stop=False):
+    def release(self, future, stop=False) -> None:
         """One waiter of ``future`` (from :meth:`submit`) no longer needs it: when nobody does,
         a path not yet started is cancelled and dropped from the cache; a running one is kept
         (cached for the next request of that path) unless ``stop`` (the page cancelled it): it
@@ -173,14 +173,14 @@ class Walks:
             elif stop and self._running is not None and self._running[0] is future:
                 self._running[3] = True
 
-    def progress(self, future):
+    def progress(self, future) -> "dict | None":
         """``{"seconds", "evaluations"}`` of ``future`` while it is computed, else None."""
         run = self._running
         if run is None or run[0] is not future:
             return None
         return {"seconds": time.monotonic() - run[1], "evaluations": run[2]}
 
-    def _tick(self):
+    def _tick(self) -> None:
         """Before each evaluation of the metric in the path thread: count it, let a frame being
         made go first, stop when cancelled.
         """
