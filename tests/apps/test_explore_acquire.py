@@ -20,7 +20,7 @@ from mitsuba_manifold.apps.explore import acquire as explore_acquire  # noqa: E4
 from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
 
-small_basis, explorer = test_explore.small_basis, test_explore.explorer  # module fixtures
+small_basis, explorer, server = test_explore.small_basis, test_explore.explorer, test_explore.server
 
 
 @pytest.fixture(scope="module")
@@ -191,3 +191,52 @@ def test_a_combination_leaving_the_simplex_is_named_so():
     assert why and "negative" in why[0]
     text, why = explore_acquire.describe(names, [0.7, 0.3, 0.0])
     assert why == [] and text == "0.70 gold-paint + 0.30 steel"
+
+
+@test_explore.browser_only
+def test_the_page_acquires_a_photo_and_goes_to_its_point(
+    server, small_basis, small_manifold_paper, tmp_path
+):
+    """In headless Chromium: a photo of a measured material's point chosen in the panel, Acquire:
+    the panel names it, shows the sheet and the weights, and "go to it" moves the explorer there."""
+    from playwright.sync_api import sync_playwright
+
+    from mitsuba_manifold.basis.folder import Basis
+    from mitsuba_manifold.manifold.model import Manifold
+
+    m = Manifold.load(small_manifold_paper)
+    i = 3
+    photo, _ = blend(Basis.load(small_basis), m, x=m.latent[i], prune=0.0, l2="raw")
+    path = str(tmp_path / "photo.exr")
+    imageio.write_exr(path, photo)
+    with sync_playwright() as p:
+        b = p.chromium.launch(
+            executable_path=test_explore.CHROMIUM,
+            args=["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"],
+        )
+        try:
+            pg = b.new_page(viewport={"width": 1500, "height": 1000})
+            errors = []
+            pg.on("pageerror", lambda e: errors.append(str(e)))
+            pg.goto(server)
+            pg.wait_for_function("window.explore && window.explore.state.map", timeout=60000)
+            assert pg.is_disabled("#acq-start")  # nothing chosen yet
+            pg.set_input_files("#acq-photo", path)
+            pg.click("#acq-start")
+            pg.wait_for_function(
+                "window.explore.state.acquired && window.explore.state.acquired.state === 'done'",
+                timeout=300000,
+            )
+            assert m.names[i] in pg.inner_text("#acq-name")
+            pg.wait_for_function(
+                "document.getElementById('acq-sheet').complete && "
+                "document.getElementById('acq-sheet').naturalWidth > 0"
+            )
+            assert pg.locator("#acq-weights .name").count() >= 1
+            pg.click("#acq-where button")  # on the map: go there
+            pg.wait_for_function(
+                f"window.explore.state.x && Math.abs(window.explore.state.x[0] - {m.latent[i][0]}) < 0.05"
+            )
+            assert not errors, errors
+        finally:
+            b.close()

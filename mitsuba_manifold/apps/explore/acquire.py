@@ -59,7 +59,7 @@ LATENT_STARTS = 4
 #: Weights outside the simplex are "beyond the manifold": a weight below ``-SIMPLEX_TOLERANCE``,
 #: or weights summing to more than ``SUM_TOLERANCE`` away from 1.
 SIMPLEX_TOLERANCE = 1e-3
-SUM_TOLERANCE = 0.05
+SUM_TOLERANCE = 0.1
 #: Jobs kept (finished ones beyond are forgotten, oldest first).
 JOBS_KEPT = 4
 #: Smallest tile side of the contact sheet (pixels; small bases are enlarged, nearest pixel).
@@ -276,8 +276,10 @@ def _tile(img, side):
     return np.repeat(np.repeat(img, k, axis=0), k, axis=1)
 
 
-def contact_sheet(target, acquired, single, labels, exposure=0.0):
-    """PNG bytes of ``target | acquired | best single`` with ``labels`` under each."""
+def contact_sheet(target, acquired, single, labels, title=None, exposure=0.0):
+    """PNG bytes of ``target | acquired | best single`` with ``labels`` under each and ``title``
+    above.
+    """
     from ...imaging.io import write_contact_sheet
 
     fd, path = tempfile.mkstemp(suffix=".png", prefix="explore-sheet-")
@@ -291,6 +293,7 @@ def contact_sheet(target, acquired, single, labels, exposure=0.0):
             labels=labels,
             columns=3,
             exposure=exposure,
+            title=title,
         )
         with open(path, "rb") as f:
             return f.read()
@@ -460,14 +463,16 @@ class Acquisitions:
         job.state = "running"
         try:
             answer, images = acquire_photo(explorer, name, target, mask, notes, progress)
-            text = answer["description"]
             labels = [
                 "photo",
-                f"acquired: {text}\nrel. error {answer['error']:.3f}",
-                f"best single: {answer['single']['name']}\nrel. error {answer['single']['error']:.3f}",
+                f"acquired (rel. error {answer['error']:.3f})",
+                f"best single: {answer['single']['name']} ({answer['single']['error']:.3f})",
             ]
+            title = "acquired: " + answer["description"]
+            if answer["beyond"]:
+                title += " (beyond the manifold: " + ", ".join(answer["beyond"]) + ")"
             job.sheet = contact_sheet(
-                images["target"], images["acquired"], images["single"], labels
+                images["target"], images["acquired"], images["single"], labels, title
             )
             job.answer, job.images = answer, images
             job.stage, job.progress, job.state = "done", 1.0, "done"
