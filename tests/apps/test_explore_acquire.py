@@ -240,3 +240,44 @@ def test_the_page_acquires_a_photo_and_goes_to_its_point(
             assert not errors, errors
         finally:
             b.close()
+
+
+@pytest.fixture(scope="module")
+def gi_explorer(small_manifold, tmp_path_factory):
+    """An explorer of a full-GI basis of the table (the object sees itself: L2+ and cross terms)."""
+    import mitsuba as mi
+
+    import mitsuba_manifold
+    from mitsuba_manifold.apps.explore import Explorer
+    from mitsuba_manifold.render import render_basis
+
+    mi.set_variant("llvm_ad_rgb")
+    mitsuba_manifold.register()
+    out = tmp_path_factory.mktemp("acquire_gi") / "basis"
+    render_basis.render_basis(
+        "table", small_manifold, out, spp=4, mode="onepass", components="auto", resolution=24
+    )
+    ex = Explorer([str(out)], manifold=small_manifold, load_tables=False)
+    yield ex
+    ex.close()
+
+
+def test_a_full_gi_photo_is_solved_on_the_full_gi_images(gi_explorer):
+    """A photo with interreflection (the basis's full blend, cross terms included): solved on the
+    materials' full-GI images, the cross terms left out of the solve; the weights come back."""
+    ex = gi_explorer
+    basis = ex.basis(None)
+    assert "l2+" in basis.components
+    names = list(ex.manifold.names)
+    w_true = np.zeros(len(names))
+    w_true[names.index("gold-paint")], w_true[names.index("white-diffuse-bball")] = 0.6, 0.4
+    photo, info = blend(basis, ex.manifold, w=w_true, prune=0.0, l2="raw")
+    assert info.component == "full"
+    answer, images = explore_acquire.acquire_photo(ex, None, photo, None, [])
+    assert "full GI" in answer["model"] and answer["blend"] == "full"
+    w = np.array([answer["weights"][n] for n in names])
+    assert np.abs(w - w_true).max() < 0.1, dict(zip(names, w.round(3)))
+    assert answer["error"] < 0.05
+    # the image shown is the basis's full blend at the acquired weights
+    shown, _ = blend(basis, ex.manifold, w=w, prune=0.0)
+    np.testing.assert_allclose(images["acquired"], shown, rtol=1e-5, atol=1e-6)

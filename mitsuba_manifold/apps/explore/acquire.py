@@ -63,7 +63,7 @@ SUM_TOLERANCE = 0.1
 #: Jobs kept (finished ones beyond are forgotten, oldest first).
 JOBS_KEPT = 4
 #: Smallest tile side of the contact sheet (pixels; small bases are enlarged, nearest pixel).
-SHEET_TILE = 192
+SHEET_TILE = 256
 #: Images of a finished job (``/api/acquire/{id}/{which}.png``).
 IMAGES = ("target", "acquired", "single", "mask", "sheet")
 
