@@ -35,6 +35,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ..._util.blas import one_thread
 from ...basis import acquisition as aq
 from ...basis.blend import blend
 from ...basis.folder import BASE
@@ -462,7 +463,8 @@ class Acquisitions:
 
         job.state = "running"
         try:
-            answer, images = acquire_photo(explorer, name, target, mask, notes, progress)
+            with one_thread():  # the page's frames keep the other cores
+                answer, images = acquire_photo(explorer, name, target, mask, notes, progress)
             labels = [
                 "photo",
                 f"acquired (rel. error {answer['error']:.3f})",
