@@ -147,6 +147,13 @@ def test_a_resized_png_photo_and_a_mask_are_taken(explorer, client):
         ({}, "`photo`"),
         ({"photo": "x", "basis": "nope"}, "unknown basis"),
         ("[1, 2]", "JSON object"),
+        (
+            {
+                "photo": _png_url(np.full((32, 32, 3), 128, np.uint8)),
+                "mask": _png_url(np.zeros((32, 32, 3), np.uint8)),
+            },
+            "the mask selects no pixel",
+        ),
     ],
 )
 def test_a_bad_upload_answers_one_line(client, body, words):
