@@ -288,3 +288,30 @@ def test_a_full_gi_photo_is_solved_on_the_full_gi_images(gi_explorer):
     # the image shown is the basis's full blend at the acquired weights
     shown, _ = blend(basis, ex.manifold, w=w, prune=0.0)
     np.testing.assert_allclose(images["acquired"], shown, rtol=1e-5, atol=1e-6)
+
+
+def test_one_acquisition_at_a_time_and_a_failure_is_one_line(explorer, client, monkeypatch):
+    import threading
+
+    from mitsuba_manifold.errors import InputError
+
+    go = threading.Event()
+
+    def slow(ex, name, target, mask, notes, progress):
+        progress("solving", 0.5)
+        go.wait(30)
+        raise InputError("the photo explains nothing\nsecond line")
+
+    monkeypatch.setattr(explore_acquire, "acquire_photo", slow)
+    photo = {"photo": _png_url(np.full((32, 32, 3), 128, np.uint8))}
+    first = client.post("/api/acquire", json=photo)
+    assert first.status_code == 200, first.text
+    second = client.post("/api/acquire", json=photo)
+    assert second.status_code == 429 and "running" in second.json()["error"]
+    go.set()
+    job = _wait(client, first.json())
+    assert job["state"] == "failed" and job["message"] == "the photo explains nothing"
+    r = client.get(f"/api/acquire/{job['id']}/sheet.png")
+    assert r.status_code == 400 and "failed" in r.json()["error"]
+    assert client.get("/api/acquire/a999999").status_code == 400
+    assert client.get("/api/acquire/../etc").status_code in (400, 404)
