@@ -76,7 +76,7 @@ function drawAcquire() {   // a view of store.js: the acquisition panel from sta
   $("acq-result").dataset.job = a.id;
   const beyond = r.beyond.length ? ` <span class="beyond">beyond the manifold (${escapeHtml(r.beyond.join(", "))})</span>` : "";
   $("acq-name").innerHTML = escapeHtml(r.description) + beyond;
-  setText($("acq-fit"), `relative error ${fmtNum(r.error)} · best single ${fmtNum(r.single.error)}`);
+  setText($("acq-fit"), `basis ${r.basis} · relative error ${fmtNum(r.error)} · best single ${fmtNum(r.single.error)}`);
   const where = $("acq-where"), lx = r.latent.x.map((v) => fmtNum(v)).join(", ");
   where.innerHTML = "";
   if (r.latent.on_map) {
