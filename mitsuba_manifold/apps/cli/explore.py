@@ -10,6 +10,14 @@ of those origins (http) or of an --allow-origin. Every image of every basis is r
 tables (for the WebGL preview, the negative-bin fraction and the BRDF slice) load in the
 background while the page already works.
 
+Acquire from a photo: the page's "Acquire from a photo" panel takes a photo of the basis's object
+taken with its camera and lights (linear EXR, or PNG/JPEG in sRGB; another size of the same frame
+is resized, up to 24 MiB as sent) and an optional mask, and shows the acquired material: the
+basis's blend at its weights, its place on the latent map when a latent point explains the photo
+as well (else the combination of measured materials by name, "beyond the manifold" where its
+weights leave the simplex), the weights, the warnings (coverage, spread) and the contact sheet
+photo | acquired | best single (docs/guides/acquisition.md). One acquisition runs at a time.
+
 The server holds up against clients that misbehave: a connection whose request is not complete
 within 5 s is closed (408), connections beyond 256 at once are refused (503), a page has at most
 4 reference renders waiting or running (429 beyond), and a message repeated in the console is

@@ -5,7 +5,8 @@ interpolated material (a blend of a basis of per-material renders, Eq. 13, compu
 encoded on the server), the material itself on a sphere shaded in the browser from the
 interpolated table (WebGL 2, MERL's half/diff lookup in the fragment shader) and what the
 manifold says about it: weights, albedo, GP variance (Eq. 2), negative bins, neighbours
-and a BRDF slice. A full-GI reference render runs in the background on request.
+and a BRDF slice. A full-GI reference render runs in the background on request, and a photo of
+the basis's scene gives back the material in it (acquisition from the basis's own images).
 
 Modules: :mod:`.service` (the state and every answer, no HTTP), :mod:`.server` (Starlette app),
 :mod:`.encode` (tonemap and image encoding), :mod:`.material`, :mod:`.latentmap`,
@@ -13,7 +14,8 @@ Modules: :mod:`.service` (the state and every answer, no HTTP), :mod:`.server` (
 values), :mod:`.bases` (basis names and scenes), :mod:`.session` (one tab's websocket),
 :mod:`.walks` (paths of ``Manifold.path`` and the distance to the closest measured material),
 :mod:`.thumbs` (the materials' thumbnails), :mod:`.hdri` (the sphere's environment),
-:mod:`.serving` (deadlines and a cap on connections, a quiet console); ``static/``
+:mod:`.serving` (deadlines and a cap on connections, a quiet console), :mod:`.acquire` (a
+material from a photo of a basis's scene); ``static/``
 holds the page (no build step, no network access).
 """
 

@@ -164,13 +164,15 @@ async def _answer(send, status, message):
 
 class Guard:
     """ASGI middleware: the allow-list on every request and handshake, and bodies read with
-    a limit (413 past ``max_body`` bytes, before the app sees any of it).
+    a limit (413 past ``max_body`` bytes, before the app sees any of it; ``limits``: path ->
+    the limit of that path's bodies instead, e.g. an upload's).
     """
 
-    def __init__(self, app, allow=None, max_body=MAX_BODY):
+    def __init__(self, app, allow=None, max_body=MAX_BODY, limits=None):
         self.app = app
         self.allow = allow if allow is not None else AllowList()
         self.max_body = int(max_body)
+        self.limits = {str(k): int(v) for k, v in (limits or {}).items()}
 
     async def __call__(self, scope, receive, send):
         if scope["type"] not in ("http", "websocket"):
@@ -182,12 +184,13 @@ class Guard:
                 return await send({"type": "websocket.close", "code": 1008, "reason": why[:120]})
             return await _answer(send, 403, why)
         if scope["type"] == "http" and scope["method"] not in ("GET", "HEAD"):
+            limit = self.limits.get(scope.get("path", ""), self.max_body)
             length = _headers(scope).get("content-length", "0").strip()
-            if not length.isdigit() or int(length) > self.max_body:
+            if not length.isdigit() or int(length) > limit:
                 return await _answer(
                     send,
                     413 if length.isdigit() else 400,
-                    f"request body larger than {self.max_body} bytes refused"
+                    f"request body larger than {limit} bytes refused"
                     if length.isdigit()
                     else "bad Content-Length header",
                 )
@@ -198,9 +201,9 @@ class Guard:
                     return
                 chunk = message.get("body", b"")
                 size += len(chunk)
-                if size > self.max_body:
+                if size > limit:
                     return await _answer(
-                        send, 413, f"request body larger than {self.max_body} bytes refused"
+                        send, 413, f"request body larger than {limit} bytes refused"
                     )
                 body.append(chunk)
                 more = message.get("more_body", False)

@@ -22,12 +22,14 @@ from starlette.staticfiles import StaticFiles
 
 from ...errors import BusyError, InputError
 from . import encode
+from .acquire import MAX_UPLOAD
 from .guard import MAX_BODY, Guard
 from .service import show
 from .session import BAD_REQUEST, Session
 
 STATIC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
 _JOB_ID = re.compile(r"^r[0-9]{1,9}$")
+_ACQ_ID = re.compile(r"^a[0-9]{1,9}$")
 
 
 def _query(request, key, default=None):
@@ -171,6 +173,38 @@ class Api:
         )
         return Response(png, media_type="image/png")
 
+    async def acquire_start(self, request):
+        """Start an acquisition: a JSON body ``{basis, photo, mask}`` (files as data: URLs)."""
+        try:  # the body was read by Guard, at most MAX_UPLOAD bytes
+            body = json.loads(await request.body())
+        except (ValueError, RecursionError):
+            raise InputError(
+                'the request body must be JSON like {"basis": "name", "photo": "data:image/png;base64,..."}'
+            ) from None
+        if not isinstance(body, dict):
+            raise InputError("the request body must be a JSON object")
+        job = await run_in_threadpool(
+            self.ex.start_acquire, body.get("basis"), body.get("photo"), body.get("mask")
+        )
+        return JSONResponse(job.status())
+
+    def acquisition_of(self, request):
+        job_id = request.path_params["job"]
+        job = self.ex.acquisitions.get(job_id) if _ACQ_ID.match(job_id) else None
+        if job is None:
+            raise InputError(f"unknown acquisition {show(job_id)}")
+        return job
+
+    async def acquire_status(self, request):
+        return JSONResponse(self.acquisition_of(request).status())
+
+    async def acquire_image(self, request):
+        job, exposure = self.acquisition_of(request), self.exposure_of(request)
+        png = await run_in_threadpool(
+            self.ex.acquisitions.image, job.id, request.path_params["which"], exposure
+        )
+        return Response(png, media_type="image/png")
+
     async def websocket(self, ws):
         await Session(ws, self.ex).run()  # the handshake passed Guard's allow-list
 
@@ -191,6 +225,9 @@ class Api:
             Route("/api/reference/{job}", self.reference_status),
             Route("/api/reference/{job}/cancel", self.reference_cancel, methods=["POST"]),
             Route("/api/reference/{job}/{which}.png", self.reference_image),
+            Route("/api/acquire", self.acquire_start, methods=["POST"]),
+            Route("/api/acquire/{job}", self.acquire_status),
+            Route("/api/acquire/{job}/{which}.png", self.acquire_image),
             WebSocketRoute("/ws", self.websocket),
             Mount("/static", StaticFiles(directory=STATIC), name="static"),
         ]
@@ -228,7 +265,10 @@ def create_app(explorer, allow=None, max_body=MAX_BODY):
     ``/api/path?basis&a&b&steps&kind`` (the blend.py command); ``/api/route?a&b&steps&kind`` (the
     path's points); ``/api/thumbs.png`` (the thumbnail sheet); ``POST /api/reference`` ``{basis, x,
     spp}``, ``/api/reference/{id}``, ``POST /api/reference/{id}/cancel``,
-    ``/api/reference/{id}/{blend|reference|error}.png``; websocket ``/ws?tab=ID``. Errors in a
+    ``/api/reference/{id}/{blend|reference|error}.png``; ``POST /api/acquire`` ``{basis, photo,
+    mask}`` (a photo of the basis's scene, files as data: URLs, at most
+    :data:`~.acquire.MAX_UPLOAD` bytes), ``/api/acquire/{id}`` (progress, then the answer),
+    ``/api/acquire/{id}/{target|acquired|single|mask|sheet}.png``; websocket ``/ws?tab=ID``. Errors in a
     request answer 400 (the package's input errors), 429 (too many jobs of the page waiting:
     :class:`~mitsuba_manifold.errors.BusyError`), their HTTP status, or 500 with one line (a bug;
     the traceback stays on the server's console).
@@ -240,7 +280,9 @@ def create_app(explorer, allow=None, max_body=MAX_BODY):
     app = Starlette(
         routes=Api(explorer).routes(),
         exception_handlers=handlers,
-        middleware=[Middleware(Guard, allow=allow, max_body=max_body)],
+        middleware=[
+            Middleware(Guard, allow=allow, max_body=max_body, limits={"/api/acquire": MAX_UPLOAD})
+        ],
     )
     app.state.explorer = explorer
     return app

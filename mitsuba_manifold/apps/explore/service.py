@@ -29,6 +29,7 @@ from ...manifold import paths as path_kinds
 from ...manifold.model import Manifold
 from ...manifold.shipped import resolve_manifold
 from . import encode, fireflies, hdri, latentmap, material
+from .acquire import MAX_UPLOAD, Acquisitions, read_upload
 from .bases import names as _names
 from .bases import scene_of as _scene_of
 from .bases import warm as _warm
@@ -157,6 +158,8 @@ class Explorer:
                 after=self.tables and self.tables.wait,
             )
         self.references = References()
+        self.database = database
+        self.acquisitions = Acquisitions()
         self._framing = _Count()  # frames being made: the maps' work waits for them
         self._maps, self._maps_lock = {}, threading.Lock()
         self._making = {}  # key -> Event of the maps being made (a second request waits for it)
@@ -550,6 +553,7 @@ class Explorer:
             "path_kinds": list(path_kinds.KINDS),
             "path_kind": path_kinds.DEFAULT_KIND,
             "snippet_folder": self.snippet_folder(),
+            "max_upload": MAX_UPLOAD,
         }
 
     def environment(self, name):
@@ -629,10 +633,22 @@ class Explorer:
             )
         return encode.png_bytes(encode.tonemap(job.images[which], exposure))
 
+    # --------------------------------------------------------- acquisition
+    def start_acquire(self, name, photo, mask=None):
+        """Acquire the material of a photo of basis ``name``'s scene in the background
+        (:mod:`.acquire`): ``photo`` and ``mask`` are files' contents as base64 (data: URLs),
+        decoded and checked here (InputError naming what is wrong); returns the job.
+        """
+        name = self.key(name)
+        basis = self.bases[name]
+        target, m, notes = read_upload(photo, mask, basis.resolution)
+        return self.acquisitions.submit(self, name, target, m, notes)
+
     def close(self, wait=0.0):
         """Stop the reference renders (waits up to ``wait`` s); returns whether none still runs."""
         if self.thumbs:
             self.thumbs.close()
+        self.acquisitions.close()
         return self.references.shutdown(wait)
 
 

@@ -1,5 +1,5 @@
 // The explorer page: latent map, scene frames over a websocket, material panel, paths, snippets,
-// reference renders. No build step; talks only to the server that served it.
+// reference renders (the acquisition from a photo: acquire.js). No build step; talks only to the server that served it.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -318,6 +318,7 @@ function drawMap() {
     const [px, py] = toCanvas(end.x);
     ctx.fillStyle = "#fff"; ctx.font = "bold 13px system-ui"; ctx.fillText(label, px + 7, py - 7);
   }
+  drawAcquired(ctx);   // acquire.js: the photo's material, where it is a latent point
   state.drawnSlice = sliceKey();
   placeCursor();
 }
@@ -843,6 +844,7 @@ async function main() {
   };
   bindTabs();
   bindShelf();
+  bindAcquire();
   window.addEventListener("resize", () => { forgetMapBox(); placeCursor(); });
   $("export-path").onclick = exportPath;
   $("route-cancel").onclick = cancelRoute;
@@ -891,6 +893,7 @@ function sceneInfo() {
   const b = state.info.bases.find((b) => b.name === state.basis);
   $("scene-info").textContent = `${b.scene.split("/").pop()} · ${b.resolution.join("×")} · ${b.spp} spp basis`;
   drawReference();
+  drawAcquire();
 }
 
 let tablesPoll = 0;
