@@ -273,14 +273,15 @@ def report(result: dict) -> str:
     """Markdown section of ``docs/benchmarks.md``."""
     r = result.get("result", result)
     lines = [
-        "## Acquisition from one photo (`tools/bench.py acquire`)",
+        "### Acquisition from one photo",
         "",
         "Photo: sphere under the sky map and a point light, 64x64; judged in another view and "
-        "light; manifold of `merl` only. Relative RMSE over the sphere (median).",
+        "light; manifold of `merl` only. Relative RMSE over the sphere (median). Seconds per "
+        "photo: everything included with nothing cached / with the scene's training images "
+        "cached, as measured while the benchmark shared the machine with other work.",
         "",
         "| set | n | acquired | best single | plain NNLS | reference noise | better than single "
-        "| target (median <= 0.12, all better) | s/photo: everything, nothing cached "
-        "/ weights only, training images cached |",
+        "| target (median <= 0.12, all better) | s/photo cold / cached |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for key in ("held_out", "tune", "all"):

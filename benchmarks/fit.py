@@ -199,7 +199,7 @@ def report(result: dict) -> str:
         "",
         f"`tools/bench.py fit --database {db} --json benchmarks/results/"
         f"{'fit' if db == 'merl' else 'fit_' + str(db)}.json`"
-        f" (load average {r.get('load_average', float('nan')):.1f}; times are wall and CPU).",
+        " (times are wall and CPU; CPU time is the figure that does not depend on other work).",
         "",
         "| run | objective F | L | iterations | converged | gradient norm | wall s | CPU s |",
         "|---|---|---|---|---|---|---|---|",

@@ -304,6 +304,12 @@ def acquire(
     Returns
     -------
     AcquireOutput
+
+    Notes
+    -----
+    It is long because it is the whole sequence a user waits for behind one progress bar: the
+    photos read, the training images rendered or taken, the programme chosen and solved, the
+    spread, the coverage and the two renders; each step is a function of its own.
     """
     from tqdm import tqdm
 

@@ -45,6 +45,9 @@ def protocol(
 ) -> type:
     """The h11 HTTP protocol of uvicorn with a request deadline, a connection cap and a deadline
     on responses the client does not read (module doc); pass it as ``uvicorn.Config(http=...)``.
+
+    It is long because the subclass it returns is defined inside it: the class closes over the
+    limits given here and over uvicorn's protocol, which is imported only when a server starts.
     """
     import h11
     from uvicorn.protocols.http.h11_impl import H11Protocol
