@@ -22,7 +22,7 @@ extensions = [
     "clidoc",
 ]
 source_suffix = {".md": "markdown"}
-exclude_patterns = ["_build", "tutorials/*.py", "README.md"]
+exclude_patterns = ["_build", "tutorials/*.py", "tutorials/data", "README.md"]
 myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 
