@@ -35,6 +35,9 @@ import os
 
 from .common import ArgumentParser, fail, guarded
 
+#: Smallest width of a contact sheet's tile: smaller photos are enlarged by whole pixels.
+SHEET_TILE = 192
+
 
 def _parser():
     from ...render.match_render import INTEGRATORS
@@ -323,7 +326,11 @@ def _acquire(args, views):
                 f"{r.single['name']}\n{r.single['error']:.3f}",
             ]
         os.makedirs(os.path.dirname(os.path.abspath(sheet)), exist_ok=True)
-        imageio.write_contact_sheet(sheet, np.asarray(images, dtype=np.float32), labels, columns=3)
+        tiles = np.asarray(images, dtype=np.float32)
+        k = -(-SHEET_TILE // tiles.shape[2])  # small photos: whole pixels enlarged, to be seen
+        if k > 1:
+            tiles = tiles.repeat(k, axis=1).repeat(k, axis=2)
+        imageio.write_contact_sheet(sheet, tiles, labels, columns=3)
         written.append(sheet)
         print(f"wrote contact sheet (photo | acquired | best single): {sheet}")
     if args.snippet:
