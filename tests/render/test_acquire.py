@@ -111,5 +111,7 @@ def test_training_images_given_are_used(small_manifold):
     own = acquire([Photo("sphere", photo)], small_manifold, opts)
     tr = render_training_images(scenes.scene_path("sphere"), small_manifold, (RES, RES), opts)
     given = acquire([Photo("sphere", photo)], small_manifold, opts, training_images=[tr])
-    np.testing.assert_allclose(given.result.w, own.result.w, atol=1e-9)
+    # two renders with the same seed agree to float rounding only (the one-pass integrator's
+    # splats are summed by threads in no fixed order): the weights to 1e-6, far below any change
+    np.testing.assert_allclose(given.result.w, own.result.w, rtol=0, atol=1e-6)
     assert given.renders == [] and given.result.views[0]["cached_training_images"]
