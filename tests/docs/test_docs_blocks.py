@@ -2,7 +2,8 @@
 
 The ``python``, ``sh`` and ``xml`` blocks of each page run in order in one folder (a later block
 may use what an earlier one wrote, as a reader following the page would), each in a fresh
-process that imports this checkout:
+process that imports this checkout (the shipped data of :data:`SHIPPED_DATA` linked in, as a reader
+running them from the checkout's root finds it):
 
 - ``python``: the block, run with ``python3 -c``;
 - ``sh``: each command, which must be ``python3 tools/NAME.py ...`` or
@@ -138,11 +139,18 @@ def _pages_with_code():
     return [p for p in pages() if any(b[0] in RUN and b[2] != "not run" for b in blocks(p))]
 
 
+#: Data the pages name by their path in a checkout (read only): linked into the work folder.
+SHIPPED_DATA = ("docs/tutorials/data",)
+
+
 @pytest.mark.render
 @pytest.mark.parametrize("page", _pages_with_code())
 def test_the_pages_blocks_run(page, tmp_path):
     work = tmp_path / "work"
     work.mkdir()
+    for data in SHIPPED_DATA:  # the commands run where a reader would: the checkout's root
+        (work / data).parent.mkdir(parents=True, exist_ok=True)
+        (work / data).symlink_to(os.path.join(ROOT, data), target_is_directory=True)
     for lang, code, mark, arg, line in blocks(page):
         if lang not in RUN or mark == "not run":
             continue
