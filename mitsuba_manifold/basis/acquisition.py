@@ -95,6 +95,8 @@ class AcquireOptions:
         latent point by differentiable rendering (slow; for comparison).
     regularisation : float, optional
         ``lam`` of the ridge; default: chosen by cross-validation over held-out pixel blocks.
+        Given with ``method="plausible"``, nothing is cross-validated: the wider set, ``beyond``,
+        is solved with it.
     spp : int
         Samples per pixel of the training materials' images in the photo's scene (one pass).
     seed : int
@@ -628,8 +630,10 @@ class Acquisition:
             raise FormatError(f"{path}: not an acquisition JSON file ({e})") from None
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             raise FormatError(f"{path}: not an acquisition file (no format {FORMAT!r})")
-        weights = d.pop("weights")
-        if not isinstance(weights, dict):
+        weights = d.pop("weights", None)
+        if not isinstance(weights, dict) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in weights.values()
+        ):
             raise FormatError(f"{path}: `weights` must map names to numbers")
         d.pop("format")
         d.pop("top_weights", None)
@@ -637,4 +641,7 @@ class Acquisition:
         unknown = set(d) - known
         if unknown:
             raise FormatError(f"{path}: unknown keys {sorted(unknown)}")
-        return cls(names=list(weights), w=[float(v) for v in weights.values()], **d)
+        try:
+            return cls(names=list(weights), w=[float(v) for v in weights.values()], **d)
+        except (TypeError, ValueError) as e:  # a required key missing, a value of another kind
+            raise FormatError(f"{path}: not a complete acquisition file ({e})") from None

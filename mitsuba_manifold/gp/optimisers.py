@@ -71,11 +71,6 @@ class LBFGSOptions:
         Most L-BFGS-B iterations (a safety cap: reaching it leaves the fit unconverged).
     tol : float
         Converged when the gradient's relative norm (:func:`gradient_norm`) is at most ``tol``.
-    step_tol : float
-        Or when the full Newton step (inside the trust region, the model's maximum) moves no
-        coordinate by more than ``step_tol`` (in units of ``l``): the points are that close to
-        the stationary point, where the gradient's own rounding (``d K^-1`` and
-        ``K^-1 S K^-1`` nearly cancel there) keeps its norm above ``tol``.
     """
 
     max_iter: int = 20000

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import time
+import zipfile
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -27,7 +28,9 @@ import numpy as np
 
 from .._util.cache import file_hash, key_hash
 from ..basis import acquisition as aq
+from ..data.sources import BUILTIN_PREFIX
 from ..errors import InputError
+from ..manifold.shipped import SHIPPED, resolve_manifold
 
 #: The part of a pixel the material must bring (against what reaches it without the material)
 #: for the default mask to keep it.
@@ -135,8 +138,8 @@ def render_training_images(
             try:
                 with np.load(cache) as z:
                     return Rendered(z["base"], z["images"], 0.0, True)
-            except (OSError, ValueError, KeyError):
-                pass
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+                pass  # a damaged cache file is rendered again (and replaced)
     t0 = time.perf_counter()
     loaded = scenes.load_scene(
         scene_path, manifold_path, opts.spp, size, opts.max_depth, database=database, sensor=sensor
@@ -194,6 +197,11 @@ def default_mask(rendered) -> np.ndarray:
     return ((mat > 0) & (mat >= MASK_SHARE * (mat + base))).astype(np.float64)
 
 
+def _frame(transform) -> np.ndarray:
+    """The 4x4 matrix of an emitter's ``to_world`` (scalar or one-wide JIT transform)."""
+    return np.array(transform.matrix, dtype=np.float64).reshape(4, 4, -1)[..., 0]
+
+
 def coverage(scene_path, manifold_path, size, mask, sensor=0, database=None) -> dict:
     """Which directions the masked pixels show: rays through the pixel centres hit the object;
     the outgoing elevation ``theta_o`` of each; for each point or small area light, the
@@ -235,6 +243,11 @@ def coverage(scene_path, manifold_path, size, mask, sensor=0, database=None) -> 
             key = next((k for k in params.keys() if k.endswith("position")), None)
             if key is not None:
                 pos_l = np.array(params[key]).reshape(-1)[:3]
+            elif "to_world" in params:  # a spot light: the origin of its frame
+                pos_l = _frame(params["to_world"])[:3, 3]
+        elif "Directional" in kind:  # light from one direction: a point far along it
+            toward = _frame(mi.traverse(em)["to_world"])[:3, 2]  # the frame's z: where light goes
+            pos_l = -1e6 * toward / np.linalg.norm(toward)
         elif em.get_shape() is not None:
             pos_l = np.array(em.get_shape().bbox().center())
         if pos_l is None:
@@ -330,6 +343,16 @@ def acquire(
         )
     t_start = time.perf_counter()
     timings = {}
+    given = os.fspath(manifold_path)
+    manifold_path = resolve_manifold(given)  # a shipped name: its file, from here on
+    # what the result records: a shipped manifold by its name (portable), a file by its path
+    recorded = (
+        given
+        if given.startswith(BUILTIN_PREFIX)
+        else BUILTIN_PREFIX + given
+        if given in SHIPPED and manifold_path != given
+        else os.path.abspath(manifold_path)
+    )
     manifold = Manifold.load(manifold_path)
     scenes.use_variant(jit=True)
     views = []
@@ -458,7 +481,7 @@ def acquire(
             }
             for v in views
         ],
-        manifold=os.path.abspath(manifold_path),
+        manifold=recorded,
     )
     t0 = time.perf_counter()
     renders, singles = [], []

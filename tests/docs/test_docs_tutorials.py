@@ -90,6 +90,9 @@ def test_tutorials_run_in_order_and_their_commands_too(tmp_path):
         c for page, _ in PAGES.values() for c in sh_commands(os.path.join(DOCS, "tutorials", page))
     ]
     assert commands
+    data = tmp_path / "docs" / "tutorials" / "data"  # the shipped photo, where a reader finds it
+    data.parent.mkdir(parents=True)
+    data.symlink_to(os.path.join(DOCS, "tutorials", "data"), target_is_directory=True)
     for c in commands:
         words = shlex.split(small(c))
         r = subprocess.run(

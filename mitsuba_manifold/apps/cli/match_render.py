@@ -254,7 +254,8 @@ def _print_acquisition(r):
     )
     for k, view in enumerate(r.coverage.get("views", [])):
         o = view["theta_o"]
-        print(f"view {k}: {view['pixels']} pixels, outgoing elevation {o[0]:.0f}-{o[-1]:.0f} deg")
+        seen = f"outgoing elevation {o[0]:.0f}-{o[-1]:.0f} deg" if o else "no masked pixel sees it"
+        print(f"view {k}: {view['pixels']} pixels, {seen}")
         for light in view["lights"]:
             if "theta_h" in light:
                 if light["theta_h"]:
@@ -326,15 +327,21 @@ def _acquire(args, views):
                 f"{r.single['name']}\n{r.single['error']:.3f}",
             ]
         os.makedirs(os.path.dirname(os.path.abspath(sheet)), exist_ok=True)
-        tiles = np.asarray(images, dtype=np.float32)
-        k = -(-SHEET_TILE // tiles.shape[2])  # small photos: whole pixels enlarged, to be seen
-        if k > 1:
-            tiles = tiles.repeat(k, axis=1).repeat(k, axis=2)
-        imageio.write_contact_sheet(sheet, tiles, labels, columns=3)
+        # one tile size for all views: each enlarged by whole pixels to at least SHEET_TILE wide
+        # (small photos, to be seen), then padded with black to the largest
+        big = []
+        for im in images:
+            im = np.asarray(im, dtype=np.float32)
+            k = -(-SHEET_TILE // im.shape[1])
+            big.append(im.repeat(k, axis=0).repeat(k, axis=1))
+        tiles = np.zeros((len(big), max(i.shape[0] for i in big), max(i.shape[1] for i in big), 3))
+        for t, im in zip(tiles, big):
+            t[: im.shape[0], : im.shape[1]] = im
+        imageio.write_contact_sheet(sheet, tiles.astype(np.float32), labels, columns=3)
         written.append(sheet)
         print(f"wrote contact sheet (photo | acquired | best single): {sheet}")
     if args.snippet:
-        write_bytes(args.snippet, r.snippet(os.path.abspath(args.manifold)))
+        write_bytes(args.snippet, r.snippet())
         written.append(args.snippet)
         print(f"wrote the manifold_brdf snippet: {args.snippet}")
     if args.json:

@@ -122,6 +122,14 @@ def _read(data, what, reader):
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+        if kind == ".exr":  # its header's size, before any pixel is decoded
+            from ...imaging.io import read_exr_header
+
+            head = read_exr_header(path)
+            if head.width * head.height > MAX_PIXELS:
+                raise InputError(
+                    f"{what} is {head.width}x{head.height}: at most {MAX_PIXELS} pixels are read"
+                )
         return getattr(targets, reader)(path)
     except MitsubaManifoldError as e:
         raise InputError(f"{what}: {str(e).replace(path, 'the file')}") from None
@@ -359,7 +367,7 @@ def acquire_photo(explorer, name, target, mask, notes, progress=lambda stage, do
             f"the gloss is not identifiable from this photo: the specular peak of near-equally "
             f"good answers differs by {100 * sp.peak_spread:.0f}%"
         )
-    if shrink < 1.0:
+    if shrink < 0.99:
         warnings.append(
             f"the plausibility guarantee on the full table kept {100 * shrink:.0f}% of the step "
             "beyond the non-negative solution"
