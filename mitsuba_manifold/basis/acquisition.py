@@ -51,7 +51,7 @@ import scipy.optimize
 
 from .._util.atomic import write_bytes
 from ..errors import FormatError, InputError, NumericalError
-from ..manifold.plausibility import DirectionalAlbedo
+from ..manifold.plausibility import DirectionalAlbedo, largest_plausible_step
 
 #: The feasible sets of :class:`AcquireOptions` (``latent``: the paper's latent-point search).
 METHODS = ("plausible", "beyond", "nonneg", "convex", "latent")
@@ -380,14 +380,7 @@ def guarantee(w, start, table, n, albedo) -> tuple:
     if np.all(w >= 0):
         return w, 1.0
     full, base = combined_pair(w, start, table, n)
-    s = 1.0
-    neg = full < 0
-    if neg.any():
-        s = min(s, float(np.min(base[neg] / (base[neg] - full[neg]))))
-    a_w, a_0 = w @ albedo, start @ albedo
-    over = a_w > 1.0
-    if over.any():
-        s = min(s, float(np.min((1.0 - a_0[over]) / (a_w[over] - a_0[over]))))
+    s = largest_plausible_step(base, full, start @ albedo, w @ albedo)
     s = max(0.0, s * (1 - 1e-4)) if s < 1.0 else 1.0
     return start + s * (w - start), s
 

@@ -205,6 +205,25 @@ def plausible_weights(
     return Plausible(weights, _log_rms(full, t_log), float(full.min()), float((w @ A).max()), s)
 
 
+def largest_plausible_step(base, full, albedo_start, albedo_end) -> float:
+    """The largest ``s`` in [0, 1] for which ``start + s (end - start)`` has no negative value and
+    no directional albedo above 1, ``start`` being plausible: ``base``, ``full`` the combined
+    tables' values and ``albedo_start``, ``albedo_end`` their albedos at the two ends (linear in
+    ``s``, so each bound is where one value reaches 0 or one albedo reaches 1).
+    """
+    s = 1.0
+    neg = full < 0
+    if neg.any():
+        s = min(s, float(np.min(base[neg] / (base[neg] - full[neg]))))
+    over = albedo_end > 1.0
+    if over.any():
+        s = min(
+            s,
+            float(np.min((1.0 - albedo_start[over]) / (albedo_end[over] - albedo_start[over]))),
+        )
+    return s
+
+
 def _step_back(w, w0, full_rows, A):
     """The exact guarantee of :func:`plausible_weights`: ``w0 + s (w - w0)`` with the largest
     ``s`` in [0, 1] for which no bin of the combination is negative (in float32, as rendered)
@@ -212,14 +231,7 @@ def _step_back(w, w0, full_rows, A):
     """
     base = weights32(w0) @ full_rows
     full = weights32(w) @ full_rows
-    s = 1.0
-    neg = full < 0
-    if neg.any():
-        s = min(s, float(np.min(base[neg] / (base[neg] - full[neg]))))
-    a_w, a_0 = w @ A, w0 @ A
-    over = a_w > 1.0
-    if over.any():
-        s = min(s, float(np.min((1.0 - a_0[over]) / (a_w[over] - a_0[over]))))
+    s = largest_plausible_step(base, full, w0 @ A, w @ A)
     s = max(0.0, s * (1 - 1e-6) if s < 1.0 else 1.0)
     w_end = w
     for _ in range(40):  # rounding of the float32 products: step back until no value is below 0
