@@ -412,6 +412,43 @@ def solve_beyond(H, g, cons, lam, table, n, progress=None) -> tuple:
     return w, shrink, cons
 
 
+def solve_programme(photos, cons, feasible, lam, table, n) -> tuple:
+    """``(weights, s, constraints)`` of the programme on ``photos`` (:class:`LinearPhotos`) over
+    the feasible set ``feasible`` with ridge ``lam``: :func:`solve_beyond` for ``beyond`` (``s``,
+    the full-table guarantee's share of the step; the constraints grown by its rounds), else
+    :func:`solve` (``s = 1``). ``table(i)``: material ``i``'s flat table.
+    """
+    H, g, _ = photos.normal_equations()
+    if feasible == "beyond":
+        return solve_beyond(H, g, cons, lam, table, n)
+    return solve(H, g, cons, feasible, lam), 1.0, cons
+
+
+def answer_warnings(spread, step, what="these photos") -> list:
+    """Warnings of an acquired answer: albedo or gloss not identifiable from ``what`` (its
+    bootstrap :class:`Spread` beyond :data:`WARN_ALBEDO_SPREAD`, :data:`WARN_PEAK_SPREAD`; none
+    without a spread) and a full-table guarantee that kept less than 99% of the ``step`` beyond
+    the non-negative solution.
+    """
+    warnings = []
+    if spread is not None and spread.albedo_spread > WARN_ALBEDO_SPREAD:
+        warnings.append(
+            f"the albedo is not identifiable from {what}: near-equally good answers differ "
+            f"by {100 * spread.albedo_spread:.0f}% (relative standard deviation)"
+        )
+    if spread is not None and spread.peak_spread > WARN_PEAK_SPREAD:
+        warnings.append(
+            f"the gloss is not identifiable from {what}: the specular peak of near-equally "
+            f"good answers differs by {100 * spread.peak_spread:.0f}%"
+        )
+    if step < 0.99:
+        warnings.append(
+            f"the plausibility guarantee on the full table kept {100 * step:.0f}% of the step "
+            "beyond the non-negative solution"
+        )
+    return warnings
+
+
 def _folds(block, k, seed) -> np.ndarray:
     """Fold of every row: blocks of pixels assigned at random to ``k`` folds."""
     ids = np.unique(block)

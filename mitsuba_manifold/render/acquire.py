@@ -395,15 +395,10 @@ def acquire(
         feasible, lam, scores = aq.choose(
             photos_lin, cons, opts.method, seed=opts.seed, progress=lambda: bar.update(1)
         )
-    H, g, _ = photos_lin.normal_equations()
-    shrink = 1.0
-    if feasible == "beyond":
-        db = manifold.open_database(database)
-        w, shrink, cons = aq.solve_beyond(
-            H, g, cons, lam, lambda i: db.reflectance(manifold.names[i]), manifold.n
-        )
-    else:
-        w = aq.solve(H, g, cons, feasible, lam)
+    db = manifold.open_database(database) if feasible == "beyond" else None
+    w, shrink, cons = aq.solve_programme(
+        photos_lin, cons, feasible, lam, lambda i: db.reflectance(manifold.names[i]), manifold.n
+    )
     timings["solve_s"] = time.perf_counter() - t0
     bar.update(1)
     t0 = time.perf_counter()
@@ -437,21 +432,7 @@ def acquire(
     errors = [photos_lin.relative_error(np.eye(manifold.n)[i]) for i in range(manifold.n)]
     best = int(np.argmin(errors))
     warnings = coverage_warnings(cov)
-    if sp is not None and sp.albedo_spread > aq.WARN_ALBEDO_SPREAD:
-        warnings.append(
-            f"the albedo is not identifiable from these photos: near-equally good answers differ "
-            f"by {100 * sp.albedo_spread:.0f}% (relative standard deviation)"
-        )
-    if sp is not None and sp.peak_spread > aq.WARN_PEAK_SPREAD:
-        warnings.append(
-            f"the gloss is not identifiable from these photos: the specular peak of near-equally "
-            f"good answers differs by {100 * sp.peak_spread:.0f}%"
-        )
-    if shrink < 0.99:
-        warnings.append(
-            f"the plausibility guarantee on the full table kept {100 * shrink:.0f}% of the step "
-            "beyond the non-negative solution"
-        )
+    warnings += aq.answer_warnings(sp, shrink)
     result = aq.Acquisition(
         names=list(manifold.names),
         w=[float(v) for v in w],

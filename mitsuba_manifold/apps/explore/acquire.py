@@ -334,15 +334,10 @@ def acquire_photo(explorer, name, target, mask, notes, progress=lambda stage, do
         progress("solving", 0.1 + 0.7 * min(steps[0] / steps[1], 1.0))
 
     feasible, lam, scores = aq.choose(photos, cons, opts.method, seed=opts.seed, progress=step)
-    H, g, _ = photos.normal_equations()
-    shrink = 1.0
-    if feasible == "beyond":
-        db = manifold.open_database(ex.database)
-        w, shrink, cons = aq.solve_beyond(
-            H, g, cons, lam, lambda i: db.reflectance(names[i]), manifold.n
-        )
-    else:
-        w = aq.solve(H, g, cons, feasible, lam)
+    db = manifold.open_database(ex.database) if feasible == "beyond" else None
+    w, shrink, cons = aq.solve_programme(
+        photos, cons, feasible, lam, lambda i: db.reflectance(names[i]), manifold.n
+    )
     sp = aq.spread(photos, cons, feasible, lam, w, opts.bootstrap, opts.seed, progress=step)
     singles = [photos.relative_error(np.eye(manifold.n)[i]) for i in range(manifold.n)]
     best = int(np.argmin(singles))
@@ -357,21 +352,7 @@ def acquire_photo(explorer, name, target, mask, notes, progress=lambda stage, do
         warnings.append(
             "the basis's scene is missing: which directions the photo shows is unknown (start with --scene)"
         )
-    if sp.albedo_spread > aq.WARN_ALBEDO_SPREAD:
-        warnings.append(
-            f"the albedo is not identifiable from this photo: near-equally good answers differ "
-            f"by {100 * sp.albedo_spread:.0f}% (relative standard deviation)"
-        )
-    if sp.peak_spread > aq.WARN_PEAK_SPREAD:
-        warnings.append(
-            f"the gloss is not identifiable from this photo: the specular peak of near-equally "
-            f"good answers differs by {100 * sp.peak_spread:.0f}%"
-        )
-    if shrink < 0.99:
-        warnings.append(
-            f"the plausibility guarantee on the full table kept {100 * shrink:.0f}% of the step "
-            "beyond the non-negative solution"
-        )
+    warnings += aq.answer_warnings(sp, shrink, "this photo")
     progress("the nearest latent point", 0.86)
     x, x_error = latent_search(manifold, photos, singles)
     albedo = np.asarray(manifold.weights(x)[1], np.float64) @ cons.albedo
