@@ -898,7 +898,9 @@ def test_preview_follows_the_merl_mapping(page, small_manifold_paper):
     lit = inside & ((expected.max(-1) > 0.01) | (expected[::-1].max(-1) > 0.01))
     # (summed over RGB: a saturated material leaves two channels dark everywhere)
     rotated = np.abs(shown - expected[::-1]).sum(-1)[lit]
-    assert np.median(rotated) > 2 * np.median(np.abs(shown - expected).sum(-1)[lit]) + 0.005
+    asymmetric = np.median(np.abs(expected - expected[::-1]).sum(-1)[lit]) > 0.005
+    if asymmetric:  # a sphere that looks the same flipped cannot show a flip: nothing to judge
+        assert np.median(rotated) > 2 * np.median(np.abs(shown - expected).sum(-1)[lit]) + 0.005
 
 
 @pytest.fixture(scope="module")
