@@ -859,6 +859,9 @@ def test_preview_follows_the_merl_mapping(page, small_manifold_paper):
         timeout=30000,
     )
     page.wait_for_function("window.explore.preview.envReady && !window.explore.preview.fast")
+    # an earlier test may have dragged the key light anywhere: put it where it starts, off both
+    # axes, so that the sphere it lights is not the same flipped
+    page.evaluate("window.explore.preview.key = [0.55, 0.6, 0.58]")
     page.select_option(
         "#lighting", "key"
     )  # the key light alone: one direction, shaded exactly in NumPy
@@ -882,8 +885,11 @@ def test_preview_follows_the_merl_mapping(page, small_manifold_paper):
         size, pixels, lights = page.evaluate(read)
         shown = np.array(pixels, dtype=np.float64).reshape(size, size, 4)[..., :3] / 255
         expected, inside = _shade_like_the_preview(table, (1, 1, 1), lights, size)
-        err = np.abs(shown - expected)[inside]
-        close = np.median(err) < 0.004 and np.percentile(err, 95) < 0.02
+        # judged where either the expected sphere or its flip is lit (a single key light leaves
+        # most of the sphere dark, where a canvas not yet drawn would match too)
+        lit = inside & ((expected.max(-1) > 0.01) | (expected[::-1].max(-1) > 0.01))
+        lit_err = np.abs(shown - expected).sum(-1)[lit]
+        close = np.median(lit_err) < 0.012 and np.percentile(lit_err, 95) < 0.06
         if close or time.monotonic() > deadline:
             break
         page.wait_for_timeout(250)
@@ -892,15 +898,12 @@ def test_preview_follows_the_merl_mapping(page, small_manifold_paper):
         "#key-power", "e => { e.value = '0'; e.dispatchEvent(new Event('input')); }"
     )
     assert expected[inside].max() > 0.3  # a lit, non-trivial sphere
-    assert close, (np.median(err), np.percentile(err, 95))
-    # the test can tell a flipped image apart: judged where either image is lit (the key light
-    # leaves much of the sphere dark, where both are 0)
-    lit = inside & ((expected.max(-1) > 0.01) | (expected[::-1].max(-1) > 0.01))
-    # (summed over RGB: a saturated material leaves two channels dark everywhere)
+    assert close, (np.median(lit_err), np.percentile(lit_err, 95))
+    # the test can tell a flipped image apart (errors summed over RGB: a saturated material
+    # leaves two channels dark everywhere)
     rotated = np.abs(shown - expected[::-1]).sum(-1)[lit]
-    asymmetric = np.median(np.abs(expected - expected[::-1]).sum(-1)[lit]) > 0.005
-    if asymmetric:  # a sphere that looks the same flipped cannot show a flip: nothing to judge
-        assert np.median(rotated) > 2 * np.median(np.abs(shown - expected).sum(-1)[lit]) + 0.005
+    assert np.median(np.abs(expected - expected[::-1]).sum(-1)[lit]) > 0.005  # a flip would show
+    assert np.median(rotated) > 2 * np.median(np.abs(shown - expected).sum(-1)[lit]) + 0.005
 
 
 @pytest.fixture(scope="module")
