@@ -24,7 +24,14 @@ import mitsuba_manifold.render`` (or the two imports the other way round) and th
 ``mi.load_file(...)`` scenes with ``manifold_brdf`` materials.
 """
 
+from __future__ import annotations
+
 import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from types import ModuleType
+
 
 __version__ = "0.1.0"
 
@@ -42,7 +49,7 @@ _FACE = {
 __all__ = ["register", "__version__"] + sorted(_FACE)
 
 
-def __getattr__(name):
+def __getattr__(name) -> ModuleType:
     target = _FACE.get(name)
     if target is None:
         raise AttributeError(f"module 'mitsuba_manifold' has no attribute {name!r}")
@@ -54,7 +61,7 @@ def __getattr__(name):
     return value
 
 
-def __dir__():
+def __dir__() -> list:
     return sorted(set(globals()) | set(_FACE))
 
 

@@ -13,6 +13,8 @@ command-line tools write the option that sets it instead (``--spp must be >= 1, 
 option names.
 """
 
+from __future__ import annotations
+
 import re
 
 import numpy as np
@@ -47,7 +49,7 @@ class ForeignFileError(InputError):
 class UnknownMaterialError(MitsubaManifoldError, KeyError):
     """A material name that the database or manifold does not hold."""
 
-    def __str__(self):  # KeyError would quote the message
+    def __str__(self) -> str:  # KeyError would quote the message
         return Exception.__str__(self)
 
 
@@ -90,7 +92,7 @@ class BusyError(InputError):
 _PLUGIN_LINE = re.compile(r"(manifold_(?:brdf|path): [^\n]*)")
 
 
-def _chain(exc):
+def _chain(exc) -> list:
     seen = []
     while exc is not None and exc not in seen:
         seen.append(exc)
@@ -125,7 +127,7 @@ def one_line(exc):
     return " ".join((text or type(exc).__name__).split())
 
 
-def did_you_mean(name, choices):
+def did_you_mean(name, choices) -> str:
     """``" (did you mean 'steel'?)"`` for the names of ``choices`` closest to ``name``, or ``""``."""
     import difflib
 

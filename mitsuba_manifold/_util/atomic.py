@@ -16,6 +16,8 @@ before the rename (it records the file as its own, or returns False to keep the 
 file, e.g. one of identical content).
 """
 
+from __future__ import annotations
+
 import contextlib
 import errno
 import hashlib
@@ -44,14 +46,14 @@ _SWEPT = set()
 _LOCK = threading.Lock()
 
 
-def is_temporary(name):
+def is_temporary(name) -> bool:
     """True when the file name ``name`` is a temporary file of :func:`atomic_replace` (of this
     or an earlier version): readers skip it (and every name starting with ``.``).
     """
     return bool(_TEMPORARY.match(os.path.basename(os.fspath(name))))
 
 
-def _host():
+def _host() -> str:
     return hashlib.sha256(socket.gethostname().encode()).hexdigest()[:4]
 
 
@@ -105,14 +107,14 @@ def atomic_replace(path, write):
     _remove(tmp)
 
 
-def _remove(tmp):
+def _remove(tmp) -> None:
     try:
         os.unlink(tmp)
     except FileNotFoundError:
         pass
 
 
-def _name_max(folder):
+def _name_max(folder) -> int:
     try:
         return int(os.pathconf(folder, "PC_NAME_MAX"))
     except (OSError, ValueError, AttributeError):
@@ -164,7 +166,7 @@ def _temporary(path, folder):
     raise FileExistsError(f"no free temporary name beside {path} after {_TRIES} tries")
 
 
-def _alive(pid):
+def _alive(pid) -> bool:
     """Whether process ``pid`` runs; a zombie (ended, not yet reaped: a killed run's worker whose
     parent died too) does not.
     """
@@ -185,7 +187,7 @@ def _alive(pid):
         return True
 
 
-def sweep(folder, force=False):
+def sweep(folder, force=False) -> list:
     """Remove the temporary files in ``folder`` left by writers that were killed: those naming
     a process of this host that no longer runs, and those of earlier versions (no process
     named) older than :data:`STALE_AGE`. Done once per folder and process unless ``force``;
@@ -223,7 +225,7 @@ def sweep(folder, force=False):
 _SHORT_WRITE = re.compile(r"\d+ requested and \d+ written")
 
 
-def _full(error, folder):
+def _full(error, folder) -> bool:
     """True when ``error`` is a full disk: ``ENOSPC``, or an error without an errno (NumPy's short
     write) while the file system of ``folder`` has no space left.
     """
@@ -261,17 +263,17 @@ def _naming(error, path, folder):
     return OSError(number, f"cannot write {path}: {why}")
 
 
-def atomic_write(path, write):
+def atomic_write(path, write) -> None:
     """Call ``write(file_object)`` on a temporary file (binary mode) beside ``path``, then rename it."""
 
-    def to_path(tmp):
+    def to_path(tmp) -> None:
         with open(tmp, "wb") as f:
             write(f)
 
     atomic_replace(path, to_path)
 
 
-def write_bytes(path, data):
+def write_bytes(path, data) -> None:
     """Write ``data`` (bytes or str, UTF-8) to ``path`` atomically."""
     if isinstance(data, str):
         data = data.encode()

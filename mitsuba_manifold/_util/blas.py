@@ -48,7 +48,7 @@ def one_thread():
                 release_control()
 
 
-def release_control():
+def release_control() -> None:
     """Let the next thread set OpenBLAS's limits: threadpoolctl lets one Python thread at a time
     change them (the one that last did, until it lets go; the others' changes do nothing).
     """

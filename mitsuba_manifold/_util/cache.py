@@ -23,16 +23,23 @@ the checksum) is made again, and the rebuild is reported in one line naming the 
 (written by an earlier version, or by another program) is made again without a word.
 """
 
+from __future__ import annotations
+
 import hashlib
 import logging
 import os
 import threading
 import zlib
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .atomic import atomic_replace
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 _HASHES = {}
 _VERIFIED = {}
@@ -45,7 +52,7 @@ _BLOCK = 1 << 22
 LOG = logging.getLogger("mitsuba_manifold")
 
 
-def file_identity(path):
+def file_identity(path) -> tuple[Any, int, int, int, int, int]:
     """What the memo of :func:`file_hash` is keyed by: path, device, inode, size, times."""
     st = os.stat(path)
     return (
@@ -58,7 +65,7 @@ def file_identity(path):
     )
 
 
-def adopt_hash(path, identity, digest):
+def adopt_hash(path, identity, digest) -> bool:
     """Take the hash a worker process of this run computed for ``path`` right after writing
     it, when the file is still exactly the one it hashed (same :func:`file_identity`).
     Returns whether it was adopted (otherwise the file will be hashed again on use).
@@ -87,7 +94,7 @@ def file_hash(path, block=1 << 22):
     return digest
 
 
-def key_hash(*parts, length=None):
+def key_hash(*parts, length=None) -> str:
     """SHA-256 (hex) of ``parts`` (str, bytes or arrays), e.g. to name a cache file by its inputs."""
     h = hashlib.sha256()
     for p in parts:
@@ -100,18 +107,18 @@ def key_hash(*parts, length=None):
     return h.hexdigest()[:length]
 
 
-def _trailer(crc):
+def _trailer(crc) -> bytes:
     return TRAILER_MAGIC + int(crc).to_bytes(8, "little")
 
 
-def _start(path):
+def _start(path) -> int:
     """The CRC-32 of the file's name: where a file's checksum starts, so that it is bound to
     the name the cache finds it by (another cache file copied over it does not match).
     """
     return zlib.crc32(os.path.basename(os.fspath(path)).encode())
 
 
-def seal(path, name=None):
+def seal(path, name=None) -> None:
     """Append the checksum trailer (see the module notes) to the ``.npy`` file ``path`` just
     written, for the name ``name`` (default ``path``: the file's name once in place).
     """
@@ -122,7 +129,7 @@ def seal(path, name=None):
         f.write(_trailer(crc))
 
 
-def write_npy(path, value, name=None):
+def write_npy(path, value, name=None) -> None:
     """``np.save(path, value)`` and its checksum trailer (:func:`seal`, for ``name``), not
     atomically (a cache's writer inside :func:`atomic_replace`, or a test making a cache file).
     """
@@ -142,7 +149,7 @@ def _verified_key(path):
     return (os.path.basename(path),) + file_identity(path)
 
 
-def verify(path):
+def verify(path) -> str:
     """``SEALED`` when the file's checksum trailer matches its name and bytes, ``DAMAGED`` when
     it does not, ``UNSEALED`` when the file has no trailer; a sealed result is memoised per name,
     file identity and process (a file changed since is read again).
@@ -175,14 +182,14 @@ def verify(path):
     return SEALED
 
 
-def report_rebuild(path, why="its checksum does not match its content: damaged"):
+def report_rebuild(path, why="its checksum does not match its content: damaged") -> None:
     """Say in one line (a warning of the ``mitsuba_manifold`` logger) that the cache file
     ``path`` is made again, and why.
     """
     LOG.warning("cache file %s: %s; making it again", os.fspath(path), why)
 
 
-def evict(folder, marker, keep):
+def evict(folder, marker, keep) -> None:
     """Delete all but the ``keep`` (at least 1) most recently used ``.npy`` files of ``folder``
     whose name holds ``marker``.
     """
@@ -195,7 +202,7 @@ def evict(folder, marker, keep):
     except OSError:
         return
 
-    def mtime(f):
+    def mtime(f) -> float:
         try:
             return os.path.getmtime(os.path.join(folder, f))
         except OSError:
@@ -234,7 +241,7 @@ def _load_valid(path, shape, dtype, finite, mmap):
 READ_CHUNK = 1 << 18
 
 
-def read_npy_into(path, out, *, shape, dtype, finite=False, on_rebuild=report_rebuild):
+def read_npy_into(path, out, *, shape, dtype, finite=False, on_rebuild=report_rebuild) -> bool:
     """Read the cached ``.npy`` file ``path`` into the array ``out`` (converting its values to
     ``out``'s dtype, a chunk at a time), if it holds a C-ordered array of ``shape`` (of
     ``out``'s size) and ``dtype`` whose checksum trailer matches (and, with ``finite``, only
@@ -354,7 +361,7 @@ def npy_cache(
             on_rebuild(path, why)
     if write is not None:
 
-        def sealed(tmp):
+        def sealed(tmp) -> None:
             write(tmp)
             seal(tmp, path)
 

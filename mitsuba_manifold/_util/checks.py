@@ -6,6 +6,8 @@ value: a Python parameter in backquotes (```spp```, which the command-line tools
 their option, :func:`mitsuba_manifold.apps.cli.common.cli_message`) or a tool's own words.
 """
 
+from __future__ import annotations
+
 import math
 import numbers
 import os
@@ -22,7 +24,7 @@ from ..errors import InputError, MismatchError
 EXPOSURE_RANGE = (-64.0, 64.0)
 
 
-def finite(name, value, lo=-math.inf, hi=math.inf, lo_open=False):
+def finite(name, value, lo=-math.inf, hi=math.inf, lo_open=False) -> float:
     """``value`` as a float, finite and in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``); a
     boolean is refused (``True`` is not a number a user means).
     """
@@ -42,7 +44,7 @@ def finite(name, value, lo=-math.inf, hi=math.inf, lo_open=False):
     return v
 
 
-def positive_int(name, value, example, hi=None):
+def positive_int(name, value, example, hi=None) -> int:
     """``value`` as an int from 1 (to ``hi``); the error suggests ``name example``."""
     ok = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
     if not ok or value < 1 or (hi is not None and value > hi):
@@ -58,7 +60,7 @@ def exposure(value, name="`exposure`"):
     return finite(name, value, *EXPOSURE_RANGE)
 
 
-def available_memory():
+def available_memory() -> int | None:
     """Bytes of memory available to a new allocation (Linux ``MemAvailable``), or None."""
     try:
         with open("/proc/meminfo") as f:
@@ -90,7 +92,7 @@ _NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?
 _SEPARATOR = re.compile(r"\s*,\s*|\s+")
 
 
-def _items(values):
+def _items(values) -> list:
     """The scalars of a (nested) sequence or array, in order (Python types: ``ndarray.tolist``)."""
     if hasattr(values, "__array__") and not isinstance(values, np.ndarray):
         values = np.asarray(values)
@@ -101,7 +103,7 @@ def _items(values):
     return [values]
 
 
-def _coordinate(name, v, q):
+def _coordinate(name, v, q) -> float:
     """One coordinate as a float: a real number (not a boolean) or a number written as text."""
     if isinstance(v, str):
         if not v.strip():
@@ -125,7 +127,7 @@ def _coordinate(name, v, q):
 _NOT_REAL = {"b": "booleans", "c": "complex numbers", "U": "strings", "S": "strings"}
 
 
-def _kind(v):
+def _kind(v) -> str | None:
     """The NumPy kind of a scalar that is not a real number (``None`` for the others)."""
     if isinstance(v, (bool, np.bool_)):
         return "b"
@@ -134,7 +136,7 @@ def _kind(v):
     return "U" if isinstance(v, (str, bytes)) else None
 
 
-def latent_point(name, values, q):
+def latent_point(name, values, q) -> np.ndarray:
     """One latent point: ``q`` finite numbers as a float64 array ``(q,)``.
 
     ``values`` is a sequence or array of real numbers (any shape with ``q`` of them), or text
@@ -254,7 +256,7 @@ MAX_CANCELLATION = 1e6
 MAX_WEIGHT = 1e12
 
 
-def weight_sum(w):
+def weight_sum(w) -> float:
     """Raise :class:`InputError` unless weights ``w`` make a usable material: finite, none beyond
     :data:`MAX_WEIGHT` in magnitude, their sum (exact, :func:`math.fsum`) not 0 and not swamped by
     cancelling magnitudes.
@@ -286,7 +288,7 @@ def weight_sum(w):
 SEED_LIMIT = 1 << 32
 
 
-def seed(name, value, streams=1, why=""):
+def seed(name, value, streams=1, why="") -> int:
     """A seed from 0 such that ``streams`` consecutive seeds from ``value * streams`` (a
     renderer seeding pass ``p`` of ``n`` with ``seed * n + p``) fit Mitsuba's 32 bits.
     """

@@ -9,7 +9,7 @@ class Recent:
     gets back (copy mutable answers).
     """
 
-    def __init__(self, size):
+    def __init__(self, size) -> None:
         self.size, self._items, self._lock = int(size), {}, threading.Lock()
 
     def get(self, key, make):
@@ -24,6 +24,6 @@ class Recent:
                 self._items.pop(next(iter(self._items)))
         return value
 
-    def clear(self):
+    def clear(self) -> None:
         with self._lock:
             self._items.clear()

@@ -7,13 +7,15 @@ than with zeros there. Such a weight contributes less than ``2^-126 |table|``: n
 float32 precision next to the other weights of a combination summing to 1.
 """
 
+from __future__ import annotations
+
 import numpy as np
 
 #: The smallest normal float32.
 TINY = np.finfo(np.float32).tiny
 
 
-def weights32(w):
+def weights32(w) -> np.ndarray:
     """``w`` as a new float32 array with its subnormal values (``|w| < TINY``) set to 0."""
     out = np.array(w, dtype=np.float32)
     out[np.abs(out) < TINY] = 0.0

@@ -12,6 +12,8 @@ run locks and removes it). A second writer does not wait: it gets :class:`Folder
 naming the folder.
 """
 
+from __future__ import annotations
+
 import fcntl
 import os
 
@@ -40,14 +42,14 @@ class FolderLock:
     ...     render_into(out)
     """
 
-    def __init__(self, folder, what="folder", name=None, wait=False):
+    def __init__(self, folder, what="folder", name=None, wait=False) -> None:
         self.folder = os.fspath(folder)
         self.what = what
         self.path = self.folder if name is None else os.path.join(self.folder, name)
         self.wait = wait
         self._fd = None
 
-    def _open(self):
+    def _open(self) -> int:
         if os.path.isdir(self.path):
             fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
             try:
@@ -63,7 +65,7 @@ class FolderLock:
                 self.path = os.path.join(self.folder, LOCK_NAME)
         return os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
 
-    def _current(self, fd):
+    def _current(self, fd) -> bool:
         """True when ``fd`` is the folder, or the lock file still at :attr:`path` (not one a
         releasing holder removed after this process opened it).
         """
@@ -76,7 +78,7 @@ class FolderLock:
         held = os.fstat(fd)
         return (at.st_dev, at.st_ino) == (held.st_dev, held.st_ino)
 
-    def acquire(self):
+    def acquire(self) -> FolderLock:
         os.makedirs(self.folder, exist_ok=True)
         while True:
             fd = self._open()
@@ -97,7 +99,7 @@ class FolderLock:
         self._fd = fd
         return self
 
-    def release(self):
+    def release(self) -> None:
         if self._fd is not None:
             if self.path != self.folder:  # removed while held: no one can have locked it since
                 try:
@@ -111,12 +113,12 @@ class FolderLock:
     def __enter__(self):
         return self.acquire()
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc) -> bool:
         self.release()
         return False
 
 
-def is_locked(folder):
+def is_locked(folder) -> bool:
     """True when a :class:`FolderLock` of ``folder`` (on the folder, or on its lock file) is held
     now, by another process or another lock of this one: a tool is writing into it. Takes
     nothing: a shared lock is tried and let go at once.

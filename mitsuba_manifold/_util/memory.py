@@ -1,5 +1,7 @@
 """The process's peak memory, as the main job reports it per stage, and large arrays mapped at once."""
 
+from __future__ import annotations
+
 import mmap
 import sys
 
@@ -11,7 +13,7 @@ except ImportError:  # not on Windows
     resource = None
 
 
-def peak_rss():
+def peak_rss() -> int:
     """The largest resident set size this process has had so far, in bytes (``getrusage``'s
     ``ru_maxrss``: Linux's ``VmHWM``, what ``/usr/bin/time -v`` reports), or None where the
     system does not say.
@@ -22,7 +24,7 @@ def peak_rss():
     return int(peak) if sys.platform == "darwin" else int(peak) * 1024  # macOS: bytes; else kB
 
 
-def prefaulted(shape, dtype=np.float32):
+def prefaulted(shape, dtype=np.float32) -> np.ndarray:
     """A new uninitialised array of ``shape`` whose memory is mapped at once, for a large array
     that is about to be filled whole.
 

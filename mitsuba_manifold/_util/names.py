@@ -15,6 +15,8 @@ material), ``a+b`` (the separator of multilinear image keys), ``../x``, ``.hidde
 Common names are unchanged (``gold-paint`` -> ``gold-paint``), so the files stay readable.
 """
 
+from __future__ import annotations
+
 from urllib.parse import unquote
 
 from ..errors import InputError
@@ -30,7 +32,7 @@ RESERVED_SUFFIX = ".gi"
 MAX_STEM = 200
 
 
-def escape(name):
+def escape(name) -> str:
     """File stem of a material name (see the module docstring); reversible by :func:`unescape`."""
     if not isinstance(name, str) or not name:
         raise InputError(f"material name {name!r} must be a non-empty string")
@@ -51,12 +53,12 @@ def escape(name):
     return out
 
 
-def unescape(stem):
+def unescape(stem) -> str:
     """The material name of a stem made by :func:`escape`."""
     return unquote(stem, errors="strict")
 
 
-def check_unique(names):
+def check_unique(names) -> list:
     """Escaped stems of ``names``; raise if two would name one file on a case-insensitive
     file system (macOS, Windows), e.g. ``Steel`` and ``steel``.
     """
@@ -81,7 +83,7 @@ def is_escaped(stem):
         return False
 
 
-def is_name(text):
+def is_name(text) -> bool:
     """Whether ``text`` (from a user, where a latent point may go) names a material rather than
     giving numbers: one word that does not start like a number (a digit, a sign or a point).
     """

@@ -23,23 +23,30 @@ Folders with a manifest of their own list their files there: a basis folder's
 (:func:`owned_tables`, :func:`write_table_record`).
 """
 
+from __future__ import annotations
+
 import json
 import os
 import stat
+from typing import TYPE_CHECKING
 
 from ..errors import ForeignFileError
 from .atomic import name_max, watching, write_bytes
 from .cache import file_hash
 from .locking import FolderLock
 
+if TYPE_CHECKING:
+    from typing import Any
+
+
 RECORD = ".mitsuba-manifold-outputs.json"
 
 
-def _record_path(path):
+def _record_path(path) -> str:
     return os.path.join(os.path.dirname(os.path.abspath(path)), RECORD)
 
 
-def _read_record(path):
+def _read_record(path) -> dict:
     try:
         with open(_record_path(path), encoding="utf-8") as f:
             data = json.load(f)
@@ -53,7 +60,7 @@ def _read_record(path):
         return {}
 
 
-def _update_record(folder, change):
+def _update_record(folder, change) -> None:
     """Apply ``change(files)`` (it edits the ``{name: entry}`` dict in place and returns the
     names it set) to ``folder``'s record under its lock; entries of vanished files are
     dropped, but for those just set (written ahead of their file).
@@ -70,7 +77,7 @@ def _update_record(folder, change):
         write_bytes(os.path.join(folder, RECORD), text)
 
 
-def read_only(path):
+def read_only(path) -> bool:
     """True when ``path`` exists and its owner has no write permission (e.g. mode 0444)."""
     try:
         return not os.stat(path).st_mode & stat.S_IWUSR
@@ -78,7 +85,7 @@ def read_only(path):
         return False
 
 
-def owned(path):
+def owned(path) -> bool:
     """True when ``path`` is listed in its folder's record with its current content (or, for a
     run stopped between recording and renaming, the content it was replacing).
     """
@@ -88,7 +95,7 @@ def owned(path):
     return file_hash(path) in (entry.get("sha256"), entry.get("was"))
 
 
-def _refusal(path, force, what):
+def _refusal(path, force, what) -> tuple[str, str] | None:
     """``(kind, message)`` of why ``path`` may not be written, or None. ``kind`` is
     ``"foreign"`` for a file the tool did not make (allowed by ``force``), else the
     reason no option overrides.
@@ -150,7 +157,7 @@ def check_replaceable(path, force=False, what="output", owner=True):
         raise ForeignFileError(refusal[1])
 
 
-def record(paths, tool, group=None):
+def record(paths, tool, group=None) -> None:
     """List ``paths`` (just written) with their content hashes in their folders' records
     (``group``: what the run wrote them as, for :meth:`Outputs.remove_stale`).
     """
@@ -159,14 +166,14 @@ def record(paths, tool, group=None):
         by_folder.setdefault(os.path.dirname(os.path.abspath(p)), []).append(os.fspath(p))
     for folder, items in by_folder.items():
 
-        def change(files, items=items):
+        def change(files, items=items) -> None:
             for p in items:
                 files[os.path.basename(p)] = _entry(file_hash(p), tool, group)
 
         _update_record(folder, change)
 
 
-def _entry(digest, tool, group=None, was=None):
+def _entry(digest, tool, group=None, was=None) -> dict[str, Any]:
     entry = {"sha256": digest, "tool": tool}
     if group is not None:
         entry["group"] = group
@@ -199,7 +206,7 @@ class Outputs:
     ...     write_bytes(args.json, text)          # checked, recorded, renamed
     """
 
-    def __init__(self, tool, force=False, folders=(), group=None):
+    def __init__(self, tool, force=False, folders=(), group=None) -> None:
         self.tool, self.force, self.group = tool, bool(force), group
         self.folders = {os.path.abspath(os.fspath(f)) for f in folders}
         self.written, self.kept = (
@@ -239,7 +246,7 @@ class Outputs:
         if refusal is not None and not (key in self._identical and refusal[0] == "foreign"):
             raise ForeignFileError(refusal[1])
 
-    def claim(self, path, tmp):
+    def claim(self, path, tmp) -> bool:
         """Called by :func:`atomic.atomic_replace` with the complete new content ``tmp`` of
         ``path``: records it as the tool's own before the rename; returns False (keep the
         existing file) when the content is already ``tmp``'s.
@@ -264,7 +271,7 @@ class Outputs:
             self._was[key] = new
         name = os.path.basename(key)
 
-        def change(files):
+        def change(files) -> list:
             files[name] = _entry(new, self.tool, self.group, was)
             return [name]
 
@@ -272,7 +279,7 @@ class Outputs:
         self.written.append(path)
         return True
 
-    def remove_stale(self, folder, names=None):
+    def remove_stale(self, folder, names=None) -> list:
         """Remove the files of ``folder`` (of those ``names`` only, if given) that an earlier
         run of this tool and group recorded and this run did not write (unchanged since: a
         user's edit keeps a file). Returns the paths removed.
@@ -293,14 +300,14 @@ class Outputs:
             os.remove(p)
         if stale:
 
-            def change(files):
+            def change(files) -> None:
                 for p in stale:
                     files.pop(os.path.basename(p), None)
 
             _update_record(folder, change)
         return removed
 
-    def _settle(self):
+    def _settle(self) -> None:
         """Drop the replaced content's hash of every file renamed into place."""
         by_folder = {}
         for key, digest in self._was.items():
@@ -308,7 +315,7 @@ class Outputs:
                 by_folder.setdefault(os.path.dirname(key), []).append(os.path.basename(key))
         for folder, names in by_folder.items():
 
-            def change(files, names=names):
+            def change(files, names=names) -> None:
                 for n in names:
                     if n in files:
                         files[n].pop("was", None)
@@ -316,12 +323,12 @@ class Outputs:
             _update_record(folder, change)
         self._was.clear()
 
-    def __enter__(self):
+    def __enter__(self) -> Outputs:
         self._context = watching(self)
         self._context.__enter__()
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc) -> bool:
         self._context.__exit__(*exc)
         self._settle()
         return False
@@ -330,7 +337,7 @@ class Outputs:
 DATABASE_JSON = "database.json"
 
 
-def write_table_record(out_dir, settings, made, pending=()):
+def write_table_record(out_dir, settings, made, pending=()) -> None:
     """Write ``<out_dir>/database.json``: ``settings``, the names of the tables made and of those
     being written (``pending``, left out when empty: a run killed while writing them owns them).
     """
@@ -341,7 +348,7 @@ def write_table_record(out_dir, settings, made, pending=()):
     write_bytes(os.path.join(out_dir, DATABASE_JSON), text)
 
 
-def pending_tables(out_dir):
+def pending_tables(out_dir) -> set:
     """Names listed as ``pending`` in ``<out_dir>/database.json`` (tables a killed run was writing;
     one may be on disk without the cache its worker writes after it), empty without a record.
     """
@@ -352,7 +359,7 @@ def pending_tables(out_dir):
         return set()
 
 
-def owned_tables(out_dir, settings, names, force):
+def owned_tables(out_dir, settings, names, force) -> set:
     """Names of the tables in ``out_dir`` that ``database.make_database`` made with ``settings``.
 
     Raises when the folder was made with other settings (and holds tables of them), or when

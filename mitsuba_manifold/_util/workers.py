@@ -20,7 +20,7 @@ import sys
 PR_SET_PDEATHSIG = 1
 
 
-def die_with_parent(parent_pid):
+def die_with_parent(parent_pid) -> None:
     """In a worker: ignore SIGINT (the parent handles Ctrl-C), and be killed when the parent dies."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if sys.platform.startswith("linux"):

@@ -13,10 +13,13 @@ raw errors kept. :func:`gi_report` writes the log-log plot and, with ``save_imag
 images and the contact sheets of the latent path (paper Fig. 12) and of the extrapolation.
 """
 
+from __future__ import annotations
+
 import json
 import os
 import time
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,6 +39,9 @@ from ..manifold.model import Manifold
 from ..render import scenes as _scenes  # (gi_report has a parameter named scenes)
 from ..render.refine import forget_kept, refine
 from ..render.render_basis import render_basis
+
+if TYPE_CHECKING:
+    from typing import Any
 
 
 def gi_pair(m, max_clamped=1e-3, min_share=0.6):
@@ -65,7 +71,7 @@ def gi_pair(m, max_clamped=1e-3, min_share=0.6):
     return m.names[i], m.names[j]
 
 
-def gi_points(m, a, b):
+def gi_points(m, a, b) -> list:
     """Training point, midpoint and extrapolated point on the latent segment from a to b."""
     xa, xb = m.latent[m.index(a)], m.latent[m.index(b)]
     return [
@@ -129,7 +135,7 @@ def gi_report(
     plot=None,
     settings=None,
     **overrides,
-):
+) -> dict[str, Any]:
     """Error against run time: the blend (Eq. 13) beside re-rendering the interpolated material.
 
     For each scene (a shipped scene's name or a path) and latent point (training, midpoint,
@@ -172,7 +178,7 @@ def gi_report(
     return report
 
 
-def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
+def gi_scene(scene_path, manifold_path, m, pair, stem, settings) -> dict:
     """:func:`gi_report` for one scene: render its basis (timed, from scratch; with its AOVs
     when ``settings.denoise``), then each point's blend, reference and direct renders; files
     are named ``<stem>_...``. ``peak_rss_after`` gives the process's peak memory (bytes,
@@ -336,7 +342,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
     return row, (img, ref, den)
 
 
-def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised"):
+def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised") -> dict:
     """``blend.py --refine spp`` at ``x`` (:func:`~mitsuba_manifold.render.refine.refine`) against
     ``ref``: error, bias, the noise it estimates, and its time as the explorer has it at a newly
     chosen point (``time_s``: the scene kept from the last refinement, the point's tables built)
@@ -370,7 +376,9 @@ def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised"):
     }
 
 
-def extrapolation_sheet(basis, m, pair, stem, steps=12, reach=3.0, log=None, l2="denoised"):
+def extrapolation_sheet(
+    basis, m, pair, stem, steps=12, reach=3.0, log=None, l2="denoised"
+) -> list[dict[str, Any]]:
     """Contact sheet along the ray from ``pair[0]`` through ``pair[1]`` and on out of the data.
 
     ``x(t) = x_a + t (x_b - x_a)``, ``t`` from 0 to ``reach``: beyond ``t = 1`` the path leaves
@@ -416,7 +424,7 @@ def extrapolation_sheet(basis, m, pair, stem, steps=12, reach=3.0, log=None, l2=
     return rows
 
 
-def extrapolation_labels(rows):
+def extrapolation_labels(rows) -> list:
     """One label per frame of :func:`extrapolation_sheet`, a field per line (they read on 64 px
     tiles): ``t``, the albedo (mean RGB), the share of the table's bins below 0.
     """
@@ -432,7 +440,7 @@ def _denoised(image, guides):
     return out, median_time(lambda: denoise_mod.denoise(image, *guides), 3)[0]
 
 
-def _save_point_images(stem, img, ref, denoised=None):
+def _save_point_images(stem, img, ref, denoised=None) -> None:
     pairs = (("blend", img), ("reference", ref)) + (
         (("blend_denoised", denoised),) if denoised is not None else ()
     )
@@ -450,7 +458,7 @@ def _save_point_images(stem, img, ref, denoised=None):
         )
 
 
-def versus_direct(row, spp):
+def versus_direct(row, spp) -> dict:
     """The targets for one point of :func:`gi_report`: the blend against the direct render
     at ``spp`` (lower relative MSE, at least 100x faster per image).
     """

@@ -14,6 +14,8 @@
 :class:`~mitsuba_manifold.apps.gi_comparison.GISettings`; also behind ``tools/bench.py gi``).
 """
 
+from __future__ import annotations
+
 import json
 import os
 import time
@@ -126,7 +128,7 @@ class Stages:
     seconds: dict = field(default_factory=dict)
     peak_after: dict = field(default_factory=dict)
 
-    def ended(self, stage, **seconds):
+    def ended(self, stage, **seconds) -> None:
         """Record the end of ``stage``: the peak memory now, and ``seconds`` (``part_s=value``)."""
         self.seconds.update(seconds)
         self.peak_after[stage] = peak_rss()
@@ -141,7 +143,7 @@ class Stages:
         top = max(known.values())
         return top, next(k for k, v in known.items() if v == top)
 
-    def into(self, report):
+    def into(self, report) -> None:
         """Write the stages into the GI report: ``stages``, ``peak_rss_bytes``, ``peak_rss_after``."""
         report["stages"] = dict(self.seconds)
         report["peak_rss_bytes"] = self.peak()[0]
@@ -165,7 +167,7 @@ def run_main_job(job, log=print, **fields):
         return _run(job, log)
 
 
-def _output_folders(job):
+def _output_folders(job) -> list:
     """Folders whose every file is an output of the job: the plots, and ``gi/`` (whose image
     names depend on the fitted manifold). The database and the basis folders keep their own
     records (``database.json``, ``manifest.json``).
@@ -173,7 +175,7 @@ def _output_folders(job):
     return [os.path.join(job.out, "plots"), os.path.join(job.out, "gi")]
 
 
-def main_job_outputs(job):
+def main_job_outputs(job) -> list:
     """``(what, path)`` of the files the job writes whatever the data: the manifold, the
     latent map and the report (the others are checked as they are written).
     """
@@ -279,12 +281,12 @@ def _database_and_manifold(job, log, stages):
     return db_dir, manifold_path
 
 
-def _beside(label, r, took=""):
+def _beside(label, r, took="") -> str:
     """An indented line of :func:`_log_points`: another image of the point, its error and bias."""
     return f"{'':>12s} {label}: {took}rel. MSE {r['rel_mse']:.3g}, bias {100 * r['relative_bias']:+.2f}%"
 
 
-def _log_points(points, top, log):
+def _log_points(points, top, log) -> None:
     """One line per point of the GI report (two when denoised), with its targets against the
     direct render at ``top`` spp (added to each row as ``versus_direct``).
     """

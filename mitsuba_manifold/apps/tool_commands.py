@@ -2,6 +2,8 @@
 hints): shared by the pipeline and the command-line tools, so that neither imports the other.
 """
 
+from __future__ import annotations
+
 import os
 import shlex
 
@@ -13,7 +15,7 @@ TOOLS_DIR = os.path.join(
 )
 
 
-def tool_command(tool, script):
+def tool_command(tool, script) -> list:
     """The words that start ``tool`` (``"explore"``): ``python3 <checkout>/tools/<script>`` when
     the package runs from a checkout, else the ``mitsuba-manifold <tool>`` console script.
     """
@@ -21,7 +23,7 @@ def tool_command(tool, script):
     return ["python3", path] if os.path.isfile(path) else ["mitsuba-manifold", tool]
 
 
-def explore_command(basis, manifold=None):
+def explore_command(basis, manifold=None) -> str:
     """The explore command line for a basis, with absolute paths so that it works pasted from
     any folder.
     """

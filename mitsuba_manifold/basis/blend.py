@@ -84,7 +84,7 @@ def resolve_component(basis, component=None):
 # -------------------------------------------------------------------- blend
 
 
-def latent_points(basis, manifold, x):
+def latent_points(basis, manifold, x) -> "np.ndarray":
     """``x`` as (p, q): one latent point per target.
 
     Accepts (q,) for one target, (p, q), or p*q numbers in target order; a material's name
@@ -161,7 +161,7 @@ class BlendPlan:
     image_keys: list = None
 
     @property
-    def summed(self):
+    def summed(self) -> list:
         """The images summed: :attr:`image_keys` or, when not set, :attr:`keys`."""
         return self.keys if self.image_keys is None else self.image_keys
 
@@ -221,7 +221,7 @@ class BlendInfo:
     guided: Optional[bool] = None
 
     @property
-    def n_images(self):
+    def n_images(self) -> int:
         """Number of images summed (:attr:`BlendPlan.summed`)."""
         return len(self.plan.summed)
 
@@ -612,7 +612,7 @@ def _segment_points(manifold, a, b, steps, kind):
     return paths.path(manifold, xa, xb, steps, kind)
 
 
-def _path_points(manifold, points):
+def _path_points(manifold, points) -> "np.ndarray":
     """``points`` as a ``(steps, q)`` array of finite latent points (steps >= 2)."""
     try:
         xs = np.asarray(points, dtype=np.float64)
@@ -625,7 +625,7 @@ def _path_points(manifold, points):
     return xs
 
 
-def path_labels(pair, steps):
+def path_labels(pair, steps) -> list[str]:
     """Labels of a contact sheet of :func:`blend_path` from ``pair[0]`` to ``pair[1]``: ``t``
     under every frame, each end's name (or latent point, as given) under the first and the last
     (control characters of a name escaped: one field per line).

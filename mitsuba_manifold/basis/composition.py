@@ -1,5 +1,7 @@
 """Eq. 13 in memory: the weighted sum of a basis's images and cross terms (:mod:`.blend`)."""
 
+from __future__ import annotations
+
 import time
 
 import numpy as np
@@ -25,7 +27,7 @@ def compose(basis, keys, weights, cross=None):
     return images, t_read, time.perf_counter() - t0
 
 
-def _add_cross(images, basis, rows, products):
+def _add_cross(images, basis, rows, products) -> None:
     """``images += sum_r products[..., r] C[rows[r]]``: one image in place, term by term
     (:func:`~mitsuba_manifold._util.blas.axpy`, on one BLAS thread), from the float32 rows the basis keeps
     (:meth:`Basis.cross_term`); a sequence by ``tensordot``.
@@ -39,7 +41,7 @@ def _add_cross(images, basis, rows, products):
     images += np.tensordot(products, basis.cross_terms()[1][rows].astype(np.float32), axes=1)
 
 
-def read_cross(basis, component):
+def read_cross(basis, component) -> float:
     """Seconds reading the cross terms of a ``component`` ("full" or "l1") blend from disk (once
     per basis; before planning the blend, which needs them).
     """

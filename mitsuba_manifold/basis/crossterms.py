@@ -20,6 +20,8 @@ default: pruning only drops small weights and rescales the others by about ``1 +
 the pairs of the pruned blends are among these, up to that rescaling).
 """
 
+from __future__ import annotations
+
 import numpy as np
 
 from ..errors import InputError
@@ -30,7 +32,7 @@ CROSS_TOL = 1e-3
 NEIGHBOURS = 6
 
 
-def explored_points(manifold, random=200, neighbours=NEIGHBOURS, seed=0):
+def explored_points(manifold, random=200, neighbours=NEIGHBOURS, seed=0) -> np.ndarray:
     """Latent points standing for the explored region: training points, midpoints of each with
     its ``neighbours`` nearest, and ``random`` uniform points of the latent bounding box.
     """

@@ -21,6 +21,8 @@ manifest on load). :func:`denoise` calls ``pyoidn`` (OIDN 2.x, CPU). Report the 
 image's error beside the denoised one: the denoiser is biased towards smooth images.
 """
 
+from __future__ import annotations
+
 import os
 import zipfile
 from dataclasses import dataclass
@@ -47,7 +49,7 @@ RESTORE_WIDTH = 1 / 8
 # ------------------------------------------------------------------ directional albedos
 
 
-def directional_albedos(db, names, bins=THETA_BINS, n_phi=64, refine=2, chunk=16):
+def directional_albedos(db, names, bins=THETA_BINS, n_phi=64, refine=2, chunk=16) -> np.ndarray:
     """``a[i, k, c]``: albedo of material ``names[i]`` lit from ``theta`` at the centre of bin ``k``.
 
     ``a(theta_i) = int f(w_i, w_o) cos(theta_o) dw_o``, integrated over half vectors
@@ -126,7 +128,7 @@ class BasisAOVs:
             {basis_folder.key_materials(k, version)[0]: w for k, w in zip(plan.keys, weights)}
         )
 
-    def save(self, folder, manifest):
+    def save(self, folder, manifest) -> str:
         path = os.path.join(os.fspath(folder), AOV_FILE)
         key = _basis_key(manifest)
         import json
@@ -203,7 +205,7 @@ class BasisAOVs:
             ) from None
 
 
-def _basis_key(manifest):
+def _basis_key(manifest) -> dict:
     """What AOVs are made for: the basis's scene, manifold, resolution and sensor (a
     :class:`~.folder.Manifest` or its JSON object).
     """
@@ -267,7 +269,7 @@ def denoised_l2(basis, image, plan):
     return (l1 + smooth + restore_light(extra - smooth)).astype(np.float32)
 
 
-def restore_light(removed, width=RESTORE_WIDTH):
+def restore_light(removed, width=RESTORE_WIDTH) -> np.ndarray:
     """The low-frequency part of what a denoiser ``removed`` (H, W, 3), each channel's total kept.
 
     OIDN takes fireflies away, and with them the light they carry on average: caustic paths

@@ -35,8 +35,11 @@ itself is reachable exactly (every interpolant gives ``w = e_i`` there), so a tr
 material's own image gives back its own point.
 """
 
+from __future__ import annotations
+
 import time
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -48,6 +51,10 @@ from .composition import compose
 from .folder import BASE, Basis
 from .objectives import LOSSES, masked_rel_mse
 from .targets import check_mask, check_target, read_mask, read_target
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Pixels of the downsampled search image (log loss) are about this many at most.
 SEARCH_PIXELS = 64 * 64
@@ -68,12 +75,12 @@ class LatentMatch:
     materials ``names`` (the base of :class:`MatchResult` and of the rendered match's result).
     """
 
-    def top_weights(self, k=6):
+    def top_weights(self, k=6) -> list:
         """The ``k`` largest nonzero ``|w_i|`` as ``[(name, w_i)]``."""
         order = np.argsort(-np.abs(self.weights), kind="stable")[:k]
         return [(self.names[i], float(self.weights[i])) for i in order if self.weights[i] != 0]
 
-    def nearest(self, manifold, k=3):
+    def nearest(self, manifold, k=3) -> list:
         """The ``k`` training materials nearest to ``x`` in latent space, ``[(name, distance)]``."""
         d = np.linalg.norm(manifold.latent - self.x, axis=1)
         return [(manifold.names[i], float(d[i])) for i in np.argsort(d)[:k]]
@@ -136,7 +143,7 @@ class MatchResult(LatentMatch):
     time_read_s: float = 0.0
     extra: dict = field(default_factory=dict)
 
-    def __repr__(self):  # short: the image and the starts are attributes, not the summary
+    def __repr__(self) -> str:  # short: the image and the starts are attributes, not the summary
         fields = ", ".join(
             f"{k}={getattr(self, k)!r}"
             for k in ("error", "rel_mse", "exposure", "variance", "loss")
@@ -145,7 +152,7 @@ class MatchResult(LatentMatch):
         top = ", ".join(f"{n}:{w:.3g}" for n, w in self.top_weights(4))
         return f"MatchResult(x=[{x}], {fields}, top weights {top}, time_s={self.time_s:.3g})"
 
-    def to_dict(self, manifold=None):
+    def to_dict(self, manifold=None) -> dict[str, Any]:
         """JSON-ready summary (no image)."""
         out = {
             "x": self.x.tolist(),
@@ -182,7 +189,7 @@ class MatchResult(LatentMatch):
 # ------------------------------------------------------------------- search
 
 
-def _downsample_factor(resolution, downsample):
+def _downsample_factor(resolution, downsample) -> int:
     if downsample is not None:
         f = int(downsample)
         if f < 1 or f > min(resolution):
@@ -250,7 +257,7 @@ class MatchSettings:
     downsample: object = None
     scan: int = 8192
 
-    def check(self):
+    def check(self) -> MatchSettings:
         """Raise :class:`InputError` naming the first setting out of range; returns ``self``."""
         if self.loss not in LOSSES:
             raise InputError(f"`loss` must be one of {LOSSES}, got {self.loss!r}")
@@ -263,7 +270,7 @@ class MatchSettings:
         return self
 
 
-def match(basis, target, mask=None, manifold=None, settings=None, **overrides):
+def match(basis, target, mask=None, manifold=None, settings=None, **overrides) -> MatchResult:
     """Find the latent point whose blend (Eq. 13) best matches ``target``.
 
     Parameters
@@ -338,7 +345,7 @@ def match(basis, target, mask=None, manifold=None, settings=None, **overrides):
     )
 
 
-def _search(manifold, search, full, opts, f):
+def _search(manifold, search, full, opts, f) -> list:
     """The L-BFGS-B descents of :func:`match` on the ``search`` objective, from the best single
     material and the best scanned points; with ``f > 1`` the best is refined on ``full``.
     """

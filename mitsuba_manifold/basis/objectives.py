@@ -12,6 +12,8 @@ once from the basis images over the masked pixels and then evaluated for any wei
 Exposure-free, both fit the blend's scale in closed form at every evaluation.
 """
 
+from __future__ import annotations
+
 import numpy as np
 from scipy.linalg import blas
 
@@ -44,7 +46,7 @@ def masked_pool(img, weight, f, pooled_weight=None):
     return pool(img * weight, f) / np.maximum(pooled_weight, 1e-12)
 
 
-def _luminance(basis, names):
+def _luminance(basis, names) -> np.ndarray:
     """Luminance of the base and material images as float64 (N + 1, H, W)."""
     keys = [BASE] + basis.material_keys(names)
     first = basis.image(keys[0])
@@ -62,7 +64,7 @@ class RelativeMSE:
     ``s = max(0, u^T h / u^T G u)``.
     """
 
-    def __init__(self, images, target, weight, exposure_free, chunk=8192):
+    def __init__(self, images, target, weight, exposure_free, chunk=8192) -> None:
         """``images``: the base then the N material images (H, W, 3); ``weight`` (H, W)."""
         n1, (h, w) = len(images), weight.shape
         step = max(1, chunk // w)
@@ -125,7 +127,7 @@ class LogLuminanceMSE:
     is then ``mean(lum_r) / mean(lum)`` (means weighted by the mask).
     """
 
-    def __init__(self, lum_rows, target, weight, exposure_free, eps=LOG_EPS):
+    def __init__(self, lum_rows, target, weight, exposure_free, eps=LOG_EPS) -> None:
         self.A = lum_rows  # (N + 1, P) float64
         self.A32 = lum_rows.astype(np.float32)  # for batches (ranking)
         self.m = weight / weight.sum()
@@ -220,7 +222,7 @@ def objectives(basis, manifold, target, weight, loss, exposure_free, f=1):
     return full, LogLuminanceMSE(rows[:, on], tp[on], wp[on], exposure_free)
 
 
-def masked_rel_mse(a, ref, weight):
+def masked_rel_mse(a, ref, weight) -> float:
     """:func:`metrics.rel_mse` with pixel weights (the plain mean when all weights are 1)."""
     e = np.square(a - ref) / (np.square(ref) + REL_EPS)
     return float((e.mean(axis=-1) * weight).sum() / weight.sum())

@@ -8,6 +8,8 @@ each pixel a weight in [0, 1] (0: ignored). :func:`mitsuba_manifold.basis.match.
 :func:`read_target` and :func:`read_mask`.
 """
 
+from __future__ import annotations
+
 import struct
 import warnings
 
@@ -17,7 +19,7 @@ from ..errors import InputError
 from ..imaging import io as imageio
 
 
-def check_target(target, resolution, what="target"):
+def check_target(target, resolution, what="target") -> np.ndarray:
     """``target`` as float64 (H, W, 3), checked against the basis ``resolution`` (width, height)."""
     arr = np.asarray(target)
     w, h = resolution
@@ -45,7 +47,7 @@ def check_target(target, resolution, what="target"):
     return arr.astype(np.float64)
 
 
-def check_mask(mask, resolution, what="mask"):
+def check_mask(mask, resolution, what="mask") -> np.ndarray:
     """Mask weights in [0, 1] as float64 (H, W): (H, W) or (H, W, C) (channels averaged)."""
     w, h = resolution
     arr = np.asarray(mask, dtype=np.float64)
@@ -104,7 +106,7 @@ def read_mask(path, resolution=None):
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-def _png_header(path):
+def _png_header(path) -> None:
     """``(width, height, bit depth, colour type, interlace)`` from a PNG's IHDR chunk, or None
     (not a PNG).
     """
@@ -130,7 +132,7 @@ ADAM7 = (
 )
 
 
-def _png_data_size(width, height, depth, colour, interlace):
+def _png_data_size(width, height, depth, colour, interlace) -> int:
     """Bytes of a PNG's decompressed image data: one filter byte and the packed samples per row
     (of each Adam7 pass, when interlaced).
     """
@@ -190,7 +192,7 @@ def _check_size(what, path, size, resolution):
     validate.fits_in_memory(what, 4 * w * h * 3 * 8, f"the {w}x{h} image {path}")
 
 
-def _exr_size(path, resolution, what):
+def _exr_size(path, resolution, what) -> None:
     info = imageio.read_exr_header(path)
     _check_size(what, path, (info.width, info.height), resolution)
 

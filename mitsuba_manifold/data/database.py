@@ -10,6 +10,8 @@ the scaling benchmarks); :func:`write_database` writes a database of any sources
 matrix of the tables is :mod:`.gram`'s (:meth:`Database.gram`).
 """
 
+from __future__ import annotations
+
 import json
 import os
 import re
@@ -77,7 +79,7 @@ FEATURES = ("raw", "log")
 
 def make_database(
     out_dir, dims=merl.MERL_DIMS, materials=None, noise=0.0, seed=0, progress=False, force=False
-):
+) -> list:
     """Write the built-in surrogate database: one ``<name>.binary`` per material.
 
     Parameters
@@ -177,7 +179,7 @@ def write_database(
     export=False,
     progress=False,
     force=False,
-):
+) -> Database:
     """Write a database folder taking its materials from ``sources`` (built-in set names and folders).
 
     Without ``export`` the folder gets a ``sources.json`` (:class:`SourceList`) naming them and
@@ -237,7 +239,7 @@ def write_database(
     return Database(out_dir, None if not export else names)
 
 
-def _tabulate(jobs, workers, made, record, total, progress):
+def _tabulate(jobs, workers, made, record, total, progress) -> None:
     """Run the table jobs (one process per core for big tables), adding each finished table's name
     to ``made`` and calling ``record()``; if interrupted, also the tables finished meanwhile.
     """
@@ -279,11 +281,13 @@ def _tabulate(jobs, workers, made, record, total, progress):
                 record()
 
 
-def _has_reflectance(path, cache):  # else a worker stopped in between: the next run makes it again
+def _has_reflectance(
+    path, cache
+) -> bool:  # else a worker stopped in between: the next run makes it again
     return os.path.exists(os.path.join(cache, f"{file_hash(path)}.refl.npy"))
 
 
-def _inode(path):
+def _inode(path) -> int | None:
     try:
         return os.stat(path).st_ino
     except FileNotFoundError:
@@ -332,7 +336,7 @@ def _filled(raw, dims):
     return np.where(above, np.maximum(refl, 0.0), np.float32(0.0)).astype(np.float32)
 
 
-def cache_folder(folder):
+def cache_folder(folder) -> str:
     """``<folder>/.manifold-cache``, or under ``~/.cache/mitsuba_manifold`` if the folder is read-only (created)."""
     folder = os.path.abspath(os.fspath(folder))
     local = os.path.join(folder, CACHE_NAME)
@@ -391,11 +395,11 @@ SOURCES_NAME = "sources.json"
 _SPEC_DIMS = re.compile(r"^(?P<base>.+)@(?P<h>\d+)x(?P<d>\d+)x(?P<p>\d+)$")
 
 
-def _size(dims):
+def _size(dims) -> str:
     return "x".join(map(str, dims))
 
 
-def builtin_cache():
+def builtin_cache() -> str:
     """Cache folder of the built-in sets' tables: ``$MITSUBA_MANIFOLD_CACHE/builtin`` or
     ``~/.cache/mitsuba_manifold/builtin`` (created).
     """
@@ -492,7 +496,7 @@ class SourceList:
     dims: tuple = merl.MERL_DIMS
     FORMAT = "mitsuba-manifold-sources"
 
-    def check(self, where):
+    def check(self, where) -> SourceList:
         for s in self.sets:
             if s not in SET_NAMES and not os.path.isabs(s):
                 raise FormatError(
@@ -516,7 +520,7 @@ class SourceList:
                 f"{path}: not a database's source list ({why}); remake it with tools/make_database.py"
             ) from None
 
-    def write(self, path):
+    def write(self, path) -> None:
         text = json.dumps(
             {"format": self.FORMAT, "version": 1, "from": list(self.sets), "dims": list(self.dims)},
             indent=1,
@@ -558,7 +562,7 @@ def split_spec(spec, recorded=True):
     return spec, None
 
 
-def open_spec(spec, dims=None, recorded=False):
+def open_spec(spec, dims=None, recorded=False) -> DatabaseSpec:
     """The sources of a database: a built-in set's name or a folder, with an optional ``@dims``.
 
     Names are read by :func:`~.sources.builtin_set`: ``builtin:merl`` is the set, a bare built-in
@@ -698,7 +702,7 @@ class Database:
     other sources (networks, fits, measured files) as :data:`MADE_DTYPE`.
     """
 
-    def __init__(self, folder, names=None, dims=None):
+    def __init__(self, folder, names=None, dims=None) -> None:
         if isinstance(folder, (str, os.PathLike)) and os.path.isfile(folder):
             folder = os.path.abspath(os.fspath(folder))
             raise FormatError(
@@ -778,7 +782,7 @@ class Database:
         self.index(name)
         return self.sources[name].digest(self.dims)
 
-    def hashes(self, names=None):
+    def hashes(self, names=None) -> list:
         return [self.hash(n) for n in (self.names if names is None else names)]
 
     # -- tables
@@ -850,7 +854,7 @@ class Database:
             return out
         path = os.path.join(self.cache_dir, f"{key}.rows-v1-{len(names)}x{n_pad}.npy")
 
-        def write(tmp):
+        def write(tmp) -> None:
             out = np.lib.format.open_memmap(
                 tmp, mode="w+", dtype=np.float32, shape=(bins, 3, n_pad)
             )
@@ -874,7 +878,7 @@ class Database:
             eviction=Eviction(keep, ".rows-v1-"),
         )
 
-    def albedo(self, names=None, tables=None):
+    def albedo(self, names=None, tables=None) -> np.ndarray:
         """Bihemispherical albedo per material and channel, shape ``(N, 3)``.
 
         ``tables`` (the :meth:`stack` of ``names``) avoids reading the tables again.
@@ -891,7 +895,7 @@ class Database:
 
     def gram(
         self, names=None, features="raw", block=1 << 16, tables=None, progress=False, raw=False
-    ):
+    ) -> tuple:
         """Mean table and Gram matrix of the mean-subtracted observations (:func:`gram.gram`).
 
         ``S = Z Z^T`` where row i of ``Z`` is material i's table (in the feature space)

@@ -73,7 +73,7 @@ class Quadrature:
     cos: np.ndarray
 
     @classmethod
-    def of(cls, dims, stride=(1, 1, 1)):
+    def of(cls, dims, stride=(1, 1, 1)) -> Quadrature:
         dims = tuple(int(v) for v in dims)
         stride = tuple(int(s) for s in stride)
         if len(dims) != 3 or min(dims) < 1 or len(stride) != 3 or min(stride) < 1:
@@ -108,7 +108,7 @@ class Quadrature:
             )
 
     @property
-    def size(self):
+    def size(self) -> int:
         """Values per table used (3 channels times the bins kept)."""
         return self.index.size
 
@@ -174,7 +174,7 @@ def brdf_distance(a, b, dims=None, stride=(1, 1, 1)):
     return float(d) if d.ndim == 0 else d
 
 
-def _distance(fa, fb, quad):
+def _distance(fa, fb, quad) -> np.ndarray:
     """:func:`brdf_distance` of flat rows ``fa``, ``fb`` under the quadrature ``quad``."""
     total = np.zeros(np.broadcast_shapes(fa.shape[:-1], fb.shape[:-1]))
     for part in quad.blocks():
@@ -204,7 +204,7 @@ def distance_matrix(A, B=None, dims=None, stride=(1, 1, 1)):
             F = p.features(fa[:, p.index])
             yield F, F if same else p.features(fb[:, p.index])
 
-    def exact(i, j):  # a table's distance to itself is 0 (the diagonal of A with itself)
+    def exact(i, j) -> float:  # a table's distance to itself is 0 (the diagonal of A with itself)
         return 0.0 if same and i == j else float(_distance(fa[i], fb[j], quad))
 
     D = gram_distances(parts(), exact)

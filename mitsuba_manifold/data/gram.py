@@ -17,6 +17,8 @@ operations run without the interpreter lock), each on one BLAS thread
 depends on the tables and ``block`` only, not on the number of workers.
 """
 
+from __future__ import annotations
+
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -92,7 +94,9 @@ def workers_for(n_blocks):
     return max(1, min(cores, MAX_WORKERS, n_blocks))
 
 
-def gram(tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, weights=None):
+def gram(
+    tables, features="raw", centre=True, raw=False, cos=None, block=BLOCK, weights=None
+) -> Gram:
     """Gram matrices of the rows of ``tables`` in one pass (see the module docstring).
 
     Parameters

@@ -11,6 +11,8 @@ Bin indexing follows MERL's reference code: ``theta_h`` bins are uniform in
 ``[0, pi)`` by reciprocity; indices are clamped to range.
 """
 
+from __future__ import annotations
+
 import math
 import os
 
@@ -34,7 +36,7 @@ MAX_BINS = 1 << 28  # far above MERL's 1.46M bins; guards against garbage header
 # --------------------------------------------------------------------------- I/O
 
 
-def table_names(folder):
+def table_names(folder) -> list:
     """Names of the MERL tables in ``folder`` (``<name>.binary``), sorted; hidden files, among
     them the temporaries of writers (:func:`~mitsuba_manifold._util.atomic.is_temporary`), skipped.
     """
@@ -43,7 +45,7 @@ def table_names(folder):
     )
 
 
-def read_header(path):
+def read_header(path) -> tuple[int, ...]:
     """Dimensions ``(n_theta_h, n_theta_d, n_phi_d)`` from a file's header, validated.
 
     Raises
@@ -70,7 +72,7 @@ def read_header(path):
     return dims
 
 
-def resolution_mismatch(dims, show=5):
+def resolution_mismatch(dims, show=5) -> str:
     """Why tables of resolutions ``dims`` ({name: (n_theta_h, n_theta_d, n_phi_d)}) cannot go
     together, naming the files ``<name>.binary`` that differ from the most common resolution
     (every group when no resolution is the most common).
@@ -80,12 +82,12 @@ def resolution_mismatch(dims, show=5):
         groups.setdefault(tuple(d), []).append(name + ".binary")
     ranked = sorted(groups.items(), key=lambda kv: -len(kv[1]))
 
-    def files(names):
+    def files(names) -> str:
         return ", ".join(names[:show]) + (
             f" and {len(names) - show} more" if len(names) > show else ""
         )
 
-    def size(d):
+    def size(d) -> str:
         return "x".join(map(str, d))
 
     (common, members), rest = ranked[0], ranked[1:]
@@ -102,7 +104,7 @@ def resolution_mismatch(dims, show=5):
     )
 
 
-def read_binary(path):
+def read_binary(path) -> np.ndarray:
     """Stored values of a MERL file, float64, shape ``(3, n_theta_h, n_theta_d, n_phi_d)``.
 
     Values are as stored (multiply by :data:`SCALE` for reflectance, see
@@ -133,7 +135,7 @@ def write_binary(path, raw):
         raise FormatError(f"{path}: refusing to write NaN or Inf values")
     header = np.array(raw.shape[1:], dtype=_HEADER)
 
-    def write(f):
+    def write(f) -> None:
         f.write(header.tobytes())
         f.write(np.ascontiguousarray(raw, dtype=_VALUES).tobytes())
 
@@ -154,7 +156,7 @@ def to_stored(refl):
 # ------------------------------------------------------------- half/diff mapping
 
 
-def _rotate(v, axis, angle):
+def _rotate(v, axis, angle) -> np.ndarray:
     """Rotate vectors ``v`` (..., 3) about the z (axis=2) or y (axis=1) axis by ``angle``."""
     c, s = np.cos(angle), np.sin(angle)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
@@ -201,7 +203,7 @@ def directions(theta_h, theta_d, phi_d, phi_h=0.0):
     return wi, wo
 
 
-def bin_index(theta_h, theta_d, phi_d, dims=MERL_DIMS):
+def bin_index(theta_h, theta_d, phi_d, dims=MERL_DIMS) -> tuple:
     """MERL bin indices ``(i_h, i_d, i_phi)`` for Rusinkiewicz coordinates (clamped)."""
     n_h, n_d, n_p = dims
     th = np.clip(np.asarray(theta_h, dtype=np.float64), 0.0, np.pi / 2)
@@ -222,7 +224,7 @@ def flat_index(wi, wo, dims=MERL_DIMS):
     return (i_h * dims[1] + i_d) * dims[2] + i_p
 
 
-def bin_centres(dims=MERL_DIMS):
+def bin_centres(dims=MERL_DIMS) -> tuple:
     """Rusinkiewicz coordinates of bin centres, each of shape ``dims``."""
     n_h, n_d, n_p = dims
     th = ((np.arange(n_h) + 0.5) / n_h) ** 2 * (np.pi / 2)
@@ -243,7 +245,7 @@ def above_horizon(dims=MERL_DIMS):
     return a - b > 0.0
 
 
-def filled_reflectance(raw, dtype=np.float32):
+def filled_reflectance(raw, dtype=np.float32) -> np.ndarray:
     """Reflectance with every bin defined, the convention shared by the fit and the plugin.
 
     Bins below the horizon (see :func:`above_horizon`) are 0. Unmeasured bins above the

@@ -19,6 +19,8 @@ several, returning reflectance tables ``(3, n_h, n_d, n_p)`` (0 below the horizo
 :func:`.merl.filled_reflectance` makes tables).
 """
 
+from __future__ import annotations
+
 import functools
 import json
 import os
@@ -96,7 +98,7 @@ class NetworkSet:
                 raise FormatError(f"NBRDF layer {layer!r} holds non-finite values")
 
     @classmethod
-    def load(cls, path, prefix):
+    def load(cls, path, prefix) -> NetworkSet:
         """Read the set ``prefix`` (``S_names``, ``S_w1``, ...) from a ``.npz`` weights file."""
         with np.load(path, allow_pickle=False) as f:
             keys = set(f.files)
@@ -118,7 +120,7 @@ class NetworkSet:
         return value
 
     @staticmethod
-    def prefixes(path):
+    def prefixes(path) -> list:
         """The sets of a ``.npz`` weights file (``S`` of every ``S_names`` array), in file order."""
         try:
             with np.load(path, allow_pickle=False) as f:
@@ -141,21 +143,21 @@ class NetworkSet:
         atomic_write(os.fspath(path), lambda f: np.savez(f, **arrays))
 
     @classmethod
-    def concat(cls, sets, names=None):
+    def concat(cls, sets, names=None) -> NetworkSet:
         """One set of the networks of ``sets`` in order, renamed ``names`` when given."""
         sets = list(sets)
         names = tuple(n for s in sets for n in s.names) if names is None else tuple(names)
         return cls(names, **{k: np.concatenate([getattr(s, k) for s in sets]) for k in LAYERS})
 
-    def subset(self, names):
+    def subset(self, names) -> NetworkSet:
         """The networks of ``names``, in that order."""
         idx = [self.index(n) for n in names]
         return NetworkSet(tuple(names), **{k: getattr(self, k)[idx] for k in LAYERS})
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.names)
 
-    def index(self, name):
+    def index(self, name) -> int:
         """Position of the material ``name`` in the set."""
         try:
             return self.names.index(name)
@@ -213,7 +215,7 @@ def grid_positions(dims=merl.MERL_DIMS, positions="centres"):
     return np.meshgrid(th, td, pd, indexing="ij")
 
 
-def features(theta_h, theta_d, phi_d, dtype=np.float32):
+def features(theta_h, theta_d, phi_d, dtype=np.float32) -> np.ndarray:
     """Network inputs ``(m, 6)`` for Rusinkiewicz coordinates (flattened), ``phi_h = 0``."""
     th, td, pd = (np.ravel(np.asarray(a, dtype=np.float64)) for a in (theta_h, theta_d, phi_d))
     v = np.stack(
@@ -252,7 +254,7 @@ def tabulate(networks, name, dims=merl.MERL_DIMS, positions=DEFAULT_POSITIONS, d
 
 def tabulate_many(
     networks, names=None, dims=merl.MERL_DIMS, positions=DEFAULT_POSITIONS, dtype=np.float32
-):
+) -> np.ndarray:
     """Reflectance tables ``(len(names), 3, n_h, n_d, n_p)`` of the networks ``names`` (default all).
 
     The grid's inputs are computed once per resolution and positions (kept for the next call);
@@ -280,7 +282,7 @@ def tabulate_many(
 # ----------------------------------------------------------------- the authors' files
 
 
-def read_keras(h5_path, json_path=None, name=None):
+def read_keras(h5_path, json_path=None, name=None) -> NetworkSet:
     """One network from the authors' Keras files: the weights ``.h5`` and its model ``.json``.
 
     The ``.h5`` holds the three dense layers' ``kernel`` (in, out) and ``bias`` arrays, as

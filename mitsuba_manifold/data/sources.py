@@ -17,6 +17,8 @@ sources of a folder, whatever mix of kinds it holds. A material is named after i
 without the extension and a trailing ``_rgb`` or ``_spec``.
 """
 
+from __future__ import annotations
+
 import os
 from dataclasses import dataclass
 
@@ -76,7 +78,7 @@ MEASURED_SAMPLES = 2
 _READERS = {}
 
 
-def register_reader(kind, reader):
+def register_reader(kind, reader) -> None:
     """Register ``reader(path, dims) -> (3,) + dims`` float32 reflectance for the sources of ``kind``
     (``"measured"``: :class:`MeasuredFile`; the rendering subsystem registers Mitsuba's).
     """
@@ -93,7 +95,7 @@ def material_name(path):
     return stem
 
 
-def _resolution(dims):
+def _resolution(dims) -> str:
     return "x".join(map(str, dims))
 
 
@@ -109,7 +111,7 @@ class BinaryFile:
     kind = "binary"
 
     @property
-    def origin(self):
+    def origin(self) -> str:
         return self.path
 
     def native_dims(self):
@@ -144,7 +146,7 @@ class Network:
     positions: str = USER_POSITIONS
     kind = "nbrdf"
 
-    def native_dims(self):
+    def native_dims(self) -> None:
         return None
 
     def digest(self, dims):
@@ -165,10 +167,10 @@ class SgdFit:
     kind = "sgd"
 
     @property
-    def origin(self):
+    def origin(self) -> str:
         return "sgd"
 
-    def native_dims(self):
+    def native_dims(self) -> None:
         return None
 
     def digest(self, dims):
@@ -191,10 +193,10 @@ class MeasuredFile:
     kind = "measured"
 
     @property
-    def origin(self):
+    def origin(self) -> str:
         return self.path
 
-    def native_dims(self):
+    def native_dims(self) -> None:
         return None
 
     def digest(self, dims):
@@ -202,7 +204,7 @@ class MeasuredFile:
             "measured-table-v2", file_hash(self.path), _resolution(dims), str(MEASURED_SAMPLES)
         )
 
-    def check(self):
+    def check(self) -> MeasuredFile:
         """Refuse a file that is not an isotropic ``tensor_file`` (before any work)."""
         fields = read_tensor_header(self.path)
         if "phi_i" not in fields or "theta_i" not in fields:
@@ -229,7 +231,7 @@ class MeasuredFile:
         return reader(self.path, tuple(dims))
 
 
-def _filled(raw, dims):
+def _filled(raw, dims) -> np.ndarray:
     """Reflectance of stored values measured in every bin above the horizon (tabulated ones)."""
     above = merl.above_horizon(tuple(dims))
     refl = merl.reflectance(raw, dtype=np.float32)
@@ -253,7 +255,7 @@ _TYPES = {
 }
 
 
-def read_tensor_header(path):
+def read_tensor_header(path) -> dict[str, tuple[str, tuple[int, ...], int]]:
     """Fields of a Mitsuba ``tensor_file``: ``{name: (dtype, shape, offset)}`` (the header only),
     after checking that the file holds every field the header describes (offset + size).
     """
@@ -307,7 +309,7 @@ def read_tensor_header(path):
 # ------------------------------------------------------------------------- sets
 
 
-def _network_sources(path, prefix, origin):
+def _network_sources(path, prefix, origin) -> list:
     nets = nbrdf.NetworkSet.load(path, prefix)
     return [Network(n, nets, n, origin, SET_POSITIONS[prefix]) for n in nets.names]
 
@@ -366,7 +368,7 @@ def builtin(name):
     )
 
 
-def combine(groups):
+def combine(groups) -> list:
     """One list of the sources of ``groups`` ({label: sources}, in order), names made unique.
 
     A name given by more than one group is suffixed ``-<label>`` in each of them
@@ -400,7 +402,7 @@ def _renamed(source, name):
     return replace(source, name=name)
 
 
-def folder_sources(folder):
+def folder_sources(folder) -> list:
     """The sources of the files in ``folder``, sorted by name: ``.binary``, ``.bsdf``, ``.h5``
     (with its ``.json``) and ``.npz`` networks (one network: named after the file; a set: by the
     names it stores). Hidden files are skipped; two files naming one material are refused.

@@ -7,20 +7,27 @@ Distribution (SGD) fits of the 100 MERL materials (Bagher et al. 2012, parameter
 NumPy only, no files written here.
 """
 
+from __future__ import annotations
+
 import functools
 import json
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import FormatError, NumericalError, UnknownMaterialError
 from . import merl
 
+if TYPE_CHECKING:
+    from typing import Any
+
+
 FITS_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "merl_sgd_fits.json")
 SGD_FIELDS = ("rho_d", "rho_s", "alpha", "p", "f0", "f1", "kap", "lambda", "c", "k", "theta0")
 
 
-def load_sgd_fits(path=None):
+def load_sgd_fits(path=None) -> dict[Any, dict[str, np.ndarray]]:
     """SGD parameters per material: ``{name: {field: float64 array (3,)}}``, in file order."""
     path = path or FITS_PATH
     with open(path) as f:
@@ -68,7 +75,7 @@ def sgd_reflectance(params, wi, wo):
     return _sgd_values(params, _pair_geometry(wi, wo))
 
 
-def _pair_geometry(wi, wo):
+def _pair_geometry(wi, wo) -> dict[str, Any]:
     """The material-independent terms of the SGD model for direction pairs (..., 3)."""
     wi, wo = np.asarray(wi, dtype=np.float64), np.asarray(wo, dtype=np.float64)
     h = wi + wo
@@ -90,7 +97,7 @@ def _pair_geometry(wi, wo):
     return g
 
 
-def _sgd_values(params, g):
+def _sgd_values(params, g) -> np.ndarray:
     """SGD values from :func:`_pair_geometry` terms (broadcast over the channels of ``params``)."""
     alpha, p = params["alpha"], params["p"]
     a = alpha + g["tan2"] / alpha

@@ -106,7 +106,7 @@ METHODS = {
 GRADIENT_METHODS = ("lbfgs", "newton")
 
 
-def check_q(q):
+def check_q(q) -> int:
     if (
         isinstance(q, (bool, np.bool_))
         or not isinstance(q, numbers.Integral)
@@ -256,12 +256,12 @@ class FitResult:
     start: str = "given"
 
     @property
-    def n_iterations(self):
+    def n_iterations(self) -> int:
         """Iterations done (sweeps for Hooke-Jeeves)."""
         return len(self.history) - 1
 
     @property
-    def kernel(self):
+    def kernel(self) -> Kernel:
         """The :class:`Kernel` the points were fitted with."""
         return Kernel(self.length_scale, self.noise)
 
@@ -293,7 +293,7 @@ class GPLVM:
     single-threaded during the fit.
     """
 
-    def __init__(self, q=2, kernel=None, method="hooke-jeeves", options=None, stress=None):
+    def __init__(self, q=2, kernel=None, method="hooke-jeeves", options=None, stress=None) -> None:
         self.q = check_q(q)
         self.kernel = Kernel() if kernel is None else kernel
         check_positive("noise", self.kernel.noise)
@@ -315,7 +315,7 @@ class GPLVM:
                 f"'lbfgs', got {method!r}; use one of those or stress weight 0"
             )
 
-    def fit(self, S, d, init=None, callback=None, distances=None):
+    def fit(self, S, d, init=None, callback=None, distances=None) -> FitResult:
         """Latent points maximising the log-likelihood L (Eq. 6) of Gram matrix ``S``.
 
         The points come back in the canonical pose (:func:`.pose.canonical_pose`): the fit

@@ -15,6 +15,8 @@ GP posterior (:mod:`.posterior`) and through it the interpolant and
 length scale (``u = x / l``) are what :meth:`Kernel.in_units` works on.
 """
 
+from __future__ import annotations
+
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -45,7 +47,7 @@ class Factor(NamedTuple):
         return 0.5 * (K_inv + K_inv.T)
 
 
-def check_positive(name, value, allow_zero=False):
+def check_positive(name, value, allow_zero=False) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -82,7 +84,7 @@ def sq_dist(A, B):
     return scipy.spatial.distance.cdist(A, B, "sqeuclidean")
 
 
-def factorise(K):
+def factorise(K) -> Factor:
     """Cholesky factor and ``log|K|`` (a :class:`Factor`), raising :class:`NotPositiveDefiniteError`."""
     try:
         cho = scipy.linalg.cho_factor(K, lower=True, check_finite=False)
@@ -120,16 +122,16 @@ class Kernel:
     #: Names of the hyperparameters, in the order of :attr:`theta` and :meth:`dK_dtheta`.
     hyperparameters = ("length_scale", "noise")
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         object.__setattr__(self, "length_scale", check_positive("length_scale", self.length_scale))
         object.__setattr__(self, "noise", check_positive("noise", self.noise, allow_zero=True))
 
     @property
-    def theta(self):
+    def theta(self) -> np.ndarray:
         """``[l, mu]`` (plain values; scikit-learn's ``theta`` holds their logarithms)."""
         return np.array([self.length_scale, self.noise])
 
-    def in_units(self):
+    def in_units(self) -> Kernel:
         """The same kernel on points in units of the length scale (``u = x / l``): ``l = 1``."""
         return Kernel(1.0, self.noise)
 
@@ -143,7 +145,7 @@ class Kernel:
             return self._K(X)
         return self._cross(X, check_points("B", X2, q=X.shape[1]))
 
-    def Kdiag(self, X):
+    def Kdiag(self, X) -> np.ndarray:
         """``c(x, x) = 1 + mu`` for each point (the prior variance)."""
         return np.full(len(check_points("X", X)), 1.0 + self.noise)
 
@@ -173,7 +175,7 @@ class Kernel:
         k = self._cross(x, X) if k is None else k
         return -k[:, :, None] * (x[:, None, :] - X[None]) / self.length_scale**2
 
-    def dK_dtheta(self, X):
+    def dK_dtheta(self, X) -> np.ndarray:
         """``dK/dl`` and ``dK/dmu`` of ``K(X)``, stacked ``(2, n, n)``.
 
         ``dK_ij/dl = exp(-r_ij^2 / 2 l^2) r_ij^2 / l^3`` (zero on the diagonal) and
@@ -190,7 +192,7 @@ class Kernel:
         return factorise(self.K(X))
 
 
-def coincident(x, X):
+def coincident(x, X) -> tuple[np.ndarray, ...]:
     """Index pairs (row of ``x``, row of ``X``) of points that are exactly equal: where the
     kernel's ``delta(x, x')`` is 1.
     """

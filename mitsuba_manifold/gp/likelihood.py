@@ -11,6 +11,8 @@ scale (``u = x / l``, :meth:`Likelihood.in_units`). :func:`log_likelihood` and
 :func:`log_likelihood_grad` are the same as functions.
 """
 
+from __future__ import annotations
+
 import math
 import numbers
 from typing import NamedTuple
@@ -86,7 +88,7 @@ class Likelihood:
         On an invalid ``S``, ``d`` or ``mu = 0``.
     """
 
-    def __init__(self, S, d, kernel=None, _checked=False):
+    def __init__(self, S, d, kernel=None, _checked=False) -> None:
         kernel = Kernel() if kernel is None else kernel
         if not _checked:
             S, d = check_gram(S), check_d(d)
@@ -98,7 +100,7 @@ class Likelihood:
     def n(self):
         return self.S.shape[0]
 
-    def in_units(self):
+    def in_units(self) -> Likelihood:
         """The same objective of points in units of the length scale (``L(u l)``, ``l = 1``)."""
         return Likelihood(self.S, self.d, self.kernel.in_units(), _checked=True)
 
@@ -133,7 +135,7 @@ class Likelihood:
         return objective(f.logdet, float(np.trace(KS)), self.d), 0.5 * np.einsum("ij,kji->k", G, dK)
 
     # -- unchecked, in units of the length scale (the optimisers' inner loops)
-    def _penalty(self, U):
+    def _penalty(self, U) -> float:
         """What a penalised objective takes off ``L`` (:class:`~.stress.PenalisedLikelihood`): 0."""
         return 0.0
 
@@ -200,7 +202,7 @@ class _Curvature(NamedTuple):
     W: np.ndarray
 
 
-def _likelihood(S, d, length_scale, noise):
+def _likelihood(S, d, length_scale, noise) -> Likelihood:
     S, d = check_gram(S), check_d(d)
     kernel = Kernel(check_positive("length_scale", length_scale), check_positive("noise", noise))
     return Likelihood(S, d, kernel, _checked=True)

@@ -18,9 +18,12 @@ with ``l = 1``), the starting points and its options (:class:`HookeJeevesOptions
 is the public entry point.
 """
 
+from __future__ import annotations
+
 import functools
 import numbers
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.optimize
@@ -30,8 +33,11 @@ from .kernel import check_positive
 from .pose import rigid_modes
 from .rank_update import RankUpdatedInverse
 
+if TYPE_CHECKING:
+    from typing import Any
 
-def _check_max_iter(max_iter):
+
+def _check_max_iter(max_iter) -> int:
     if isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral) or max_iter < 0:
         raise InputError(f"`max_iter` must be an integer >= 0, got {max_iter!r}")
     return int(max_iter)
@@ -55,7 +61,7 @@ class HookeJeevesOptions:
     tol: float = 1e-3
     initial_step: float = 0.25
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))
         object.__setattr__(self, "tol", check_positive("tol", self.tol))
         object.__setattr__(self, "initial_step", check_positive("initial_step", self.initial_step))
@@ -76,7 +82,7 @@ class LBFGSOptions:
     max_iter: int = 20000
     tol: float = 1e-7
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))
         object.__setattr__(self, "tol", check_positive("tol", self.tol))
 
@@ -102,7 +108,7 @@ class NewtonOptions:
     tol: float = 1e-7
     step_tol: float = 1e-5
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))
         object.__setattr__(self, "tol", check_positive("tol", self.tol))
         object.__setattr__(self, "step_tol", check_positive("step_tol", self.step_tol))
@@ -122,7 +128,7 @@ def project(g, Q):
     return g - Q @ (Q.T @ g)
 
 
-def gradient_norm(likelihood, U):
+def gradient_norm(likelihood, U) -> float:
     """The convergence test's measure: ``|P dF/du|_2 / (d N / 2)`` at points ``U`` in units of
     the length scale (``F`` the objective maximised: L, less the stress term when there is one;
     ``P`` the projection off the rigid motions, :func:`project`, along which F is constant).
@@ -150,7 +156,9 @@ class OptimiserResult:
     grad_norm: float = None
 
 
-def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, length_scale=1.0):
+def hooke_jeeves(
+    likelihood, U0, options=HookeJeevesOptions(), callback=None, length_scale=1.0
+) -> OptimiserResult:
     """Hooke-Jeeves direct search, one latent point at a time, in length-scale units.
 
     ``likelihood``: the objective with ``l = 1`` (:meth:`Likelihood.in_units`); ``callback``
@@ -179,7 +187,7 @@ def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, le
     poll[0::2][np.diag_indices(q)] = 1.0
     poll[1::2][np.diag_indices(q)] = -1.0
 
-    def explore(i, centre, f_centre, step):
+    def explore(i, centre, f_centre, step) -> tuple[Any, Any, None, int]:
         """Best ``(x, L, trial, row)`` of the poll around ``centre``; ``f_centre=None``
         evaluates the centre too. ``trial`` is None when nothing beats the centre.
         """
@@ -255,7 +263,7 @@ class _Scaled:
     definite (the step is then rejected).
     """
 
-    def __init__(self, likelihood, n, q):
+    def __init__(self, likelihood, n, q) -> None:
         self.likelihood, self.shape = likelihood, (n, q)
         self.scale = objective_scale(likelihood)
         self.n_evaluations = 0
@@ -292,7 +300,7 @@ class _Scaled:
         )
 
 
-def _minimise(likelihood, U0, method, options, callback, l, extra):
+def _minimise(likelihood, U0, method, options, callback, l, extra) -> OptimiserResult:
     """SciPy's ``method`` on ``-F / (d N / 2)`` from ``U0``; converged by :func:`gradient_norm`."""
     n, q = U0.shape
     f = _Scaled(likelihood, n, q)
@@ -344,7 +352,7 @@ def lbfgs(likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.
     """
     n, q = U0.shape
 
-    def extra(f):
+    def extra(f) -> dict:
         gtol = options.tol / np.sqrt(n * q)
         return {
             "options": {
@@ -413,7 +421,9 @@ def _steihaug(hessp, g, radius):
     return z, False
 
 
-def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=1.0):
+def newton(
+    likelihood, U0, options=NewtonOptions(), callback=None, length_scale=1.0
+) -> OptimiserResult:
     """Trust-region Newton-CG on ``-F / (d N / 2)``, in length-scale units.
 
     Each iteration takes the Steihaug-Toint conjugate-gradient step of the quadratic model on

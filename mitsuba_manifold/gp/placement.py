@@ -17,6 +17,8 @@ O(N^2) after one factorisation of ``K``. Several starts are tried (L-BFGS-B from
 the best point found is returned.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,7 +52,7 @@ class OnePoint:
     kernel : Kernel
     """
 
-    def __init__(self, latent, S, d, kernel):
+    def __init__(self, latent, S, d, kernel) -> None:
         self.X = check_points("latent", latent)
         n = len(self.X)
         S = check_gram(S, check_psd=False)
@@ -88,7 +90,7 @@ class OnePoint:
         return float(L), dL
 
 
-def place_point(latent, S, d, starts, *, length_scale=1.0, noise=1e-4, max_iter=200):
+def place_point(latent, S, d, starts, *, length_scale=1.0, noise=1e-4, max_iter=200) -> Placement:
     """The latent point of material N (the last row of ``S``) with the N points ``latent`` fixed.
 
     Parameters

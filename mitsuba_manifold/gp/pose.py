@@ -20,6 +20,8 @@ the same coordinates. Axes of equal variance have no preferred direction; the ru
 ill-defined, which fitted layouts of measured materials do not come near.
 """
 
+from __future__ import annotations
+
 import numpy as np
 
 #: Relative size below which an axis' third moment counts as zero (a symmetric spread).
@@ -50,7 +52,7 @@ def canonical_pose(X):
     return Y * np.where(sign < 0, -1.0, 1.0)
 
 
-def rigid_modes(X):
+def rigid_modes(X) -> np.ndarray:
     """An orthonormal basis ``Q`` ((N q, m) array) of the first-order rigid motions of ``X``:
     the ``q`` translations and the ``q (q - 1) / 2`` rotations ``x_i -> x_i + A x_i`` (``A``
     skew-symmetric, about the points' mean), as flattened ``(N, q)`` displacements.

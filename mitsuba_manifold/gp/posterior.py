@@ -13,6 +13,8 @@ Jacobian ``K^-1 dk/dx``, the variance and its gradient. The interpolant of Eq. 4
 float64 arrays already checked by the caller.
 """
 
+from __future__ import annotations
+
 import numpy as np
 
 from .kernel import Kernel, check_points, factorise
@@ -34,21 +36,21 @@ class Posterior:
         If ``K`` cannot be factorised (coincident points, ``mu`` too small).
     """
 
-    def __init__(self, X, kernel=None):
+    def __init__(self, X, kernel=None) -> None:
         self.X = check_points("latent", X)
         self.kernel = Kernel() if kernel is None else kernel
         self.K = self.kernel._K(self.X)
         self.factor = factorise(self.K)
 
     @property
-    def n(self):
+    def n(self) -> int:
         return len(self.X)
 
     def inverse(self):
         """``K^-1`` (symmetrised)."""
         return self.factor.inverse()
 
-    def condition_number(self):
+    def condition_number(self) -> float:
         """2-norm condition number of ``K``."""
         ev = np.linalg.eigvalsh(self.K)
         return float(ev[-1] / ev[0])

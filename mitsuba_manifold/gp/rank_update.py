@@ -7,6 +7,8 @@ refactorises from scratch periodically and whenever an update loses accuracy; th
 Hooke-Jeeves optimiser (:mod:`.optimisers`) evaluates its trial moves through it.
 """
 
+from __future__ import annotations
+
 import math
 import numbers
 from dataclasses import dataclass, field
@@ -102,7 +104,7 @@ class RankUpdatedInverse:
         min_pivot=1e-6,
         max_correction=1e-5,
         _validated=False,
-    ):
+    ) -> None:
         if not _validated:
             S = check_gram(S)
             d = check_d(d)
@@ -133,12 +135,12 @@ class RankUpdatedInverse:
 
     # -- state
     @property
-    def latent(self):
+    def latent(self) -> np.ndarray:
         """Current latent points, ``(N, q)``."""
         return self._U * self._l
 
     @property
-    def units(self):
+    def units(self) -> np.ndarray:
         """Latent points in units of the length scale (``x / l``; the array itself, do not modify)."""
         return self._U
 
@@ -153,12 +155,12 @@ class RankUpdatedInverse:
         return self._B.copy()
 
     @property
-    def log_det(self):
+    def log_det(self) -> float:
         """Maintained ``log|K|``."""
         return self._logdet
 
     @property
-    def trace(self):
+    def trace(self) -> float:
         """Maintained ``tr(K_inv S)``."""
         return self._trace
 
@@ -168,11 +170,11 @@ class RankUpdatedInverse:
         return objective(self._logdet, self._trace, self._d)
 
     @property
-    def scale(self):
+    def scale(self) -> float:
         """Size of L's terms, ``d/2 |log|K|| + 1/2 tr(K_inv S)``: the yardstick for rounding."""
         return 0.5 * self._d * abs(self._logdet) + 0.5 * abs(self._trace)
 
-    def refactorise(self):
+    def refactorise(self) -> float:
         """Recompute K, ``K_inv``, ``log|K|`` and the trace from scratch.
 
         Returns
@@ -191,7 +193,7 @@ class RankUpdatedInverse:
             self.max_drift = max(self.max_drift, drift)
         return drift
 
-    def _install(self, K, factor):
+    def _install(self, K, factor) -> None:
         self._B = factor.inverse()
         self._K = K
         self._logdet = factor.logdet
@@ -200,7 +202,7 @@ class RankUpdatedInverse:
         self._version += 1
         self._prep = None
 
-    def _point(self, i):
+    def _point(self, i) -> None:
         """``b = K_inv e_i`` and ``P = K_inv - b b^T / b_i`` (row and column i exactly zero)
         for point i, cached until the next change: ``[i, version, b, P, old]``.
         """
@@ -247,7 +249,7 @@ class RankUpdatedInverse:
             raise InputError("candidate points must be finite")
         return self.try_units(int(i), pts / self._l, pts)
 
-    def try_units(self, i, u, pts=None):
+    def try_units(self, i, u, pts=None) -> MoveTrial:
         for attempt in range(2):
             prep = self._point(i)
             first = prep[4] is None  # then row 0 is the current position (s_old, w_old)

@@ -35,7 +35,7 @@ from ..errors import InputError
 __all__ = ["Stress", "StressTerm", "neighbour_mask"]
 
 
-def _check_neighbours(k):
+def _check_neighbours(k) -> int | None:
     if k is None:
         return None
     if isinstance(k, (bool, np.bool_)) or not isinstance(k, numbers.Integral) or k < 1:
@@ -61,17 +61,17 @@ class Stress:
     weight: float = 0.0
     neighbours: int = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         weight = finite("`stress` (the stress term's weight)", self.weight, 0.0)
         object.__setattr__(self, "weight", weight)
         object.__setattr__(self, "neighbours", _check_neighbours(self.neighbours))
 
     @property
-    def active(self):
+    def active(self) -> bool:
         """Whether the term is on (``weight > 0``)."""
         return self.weight > 0
 
-    def term(self, distances, n, d):
+    def term(self, distances, n, d) -> StressTerm:
         """The :class:`StressTerm` of target ``distances`` (N, N) in a fit of ``n`` materials of
         ``d`` values each.
         """
@@ -79,7 +79,7 @@ class Stress:
         return StressTerm(D, neighbour_mask(D, self.neighbours), self.weight * 0.5 * d * n)
 
 
-def check_distances(distances, n):
+def check_distances(distances, n) -> np.ndarray:
     """The target distances as a symmetric (N, N) float64 array with a zero diagonal, or raise."""
     try:
         D = np.array(distances, dtype=np.float64)
@@ -107,7 +107,7 @@ def check_distances(distances, n):
     return D
 
 
-def neighbour_mask(D, k=None):
+def neighbour_mask(D, k=None) -> np.ndarray:
     """``w`` (N, N) of 0/1, symmetric, zero diagonal: pairs where either is among the other's ``k``
     nearest by ``D`` (ties broken by index); ``k`` None or ``>= N - 1``: every pair.
     """
@@ -126,7 +126,7 @@ class StressTerm:
     (``coefficient``: ``lambda d N / 2``).
     """
 
-    def __init__(self, D, W, coefficient):
+    def __init__(self, D, W, coefficient) -> None:
         self.D, self.W, self.coefficient = D, W, float(coefficient)
         self._c = float((W * D * D).sum()) / 2.0
 
@@ -205,7 +205,7 @@ class PenalisedLikelihood:
     does not change with the units); ``likelihood``: a :class:`~.likelihood.Likelihood` in units.
     """
 
-    def __init__(self, likelihood, term):
+    def __init__(self, likelihood, term) -> None:
         self.likelihood, self.term = likelihood, term
         self.S, self.d, self.kernel = likelihood.S, likelihood.d, likelihood.kernel
 

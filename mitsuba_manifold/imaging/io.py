@@ -6,6 +6,8 @@ the file and the problem (missing, not an EXR, truncated or corrupt, wrong chann
 non-finite values).
 """
 
+from __future__ import annotations
+
 import functools
 import json
 import os
@@ -104,7 +106,7 @@ class ExrHeader:
     attributes: dict
 
 
-def read_exr_header(path):
+def read_exr_header(path) -> ExrHeader:
     """Header of an EXR file without reading its pixels.
 
     Returns
@@ -144,7 +146,7 @@ def check_exr_header(path, resolution=None):
     return info
 
 
-def read_exr(path):
+def read_exr(path) -> np.ndarray:
     """Read the R, G, B channels of an OpenEXR file as float32 (H, W, 3).
 
     Other channels (alpha, AOVs) are ignored; half-float channels are converted.
@@ -185,13 +187,13 @@ def read_exr(path):
 # ------------------------------------------------------------------ PNG
 
 
-def srgb_encode(linear):
+def srgb_encode(linear) -> np.ndarray:
     """Linear values in [0, 1] to sRGB-encoded values in [0, 1] (IEC 61966-2-1)."""
     c = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
     return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
 
 
-def srgb_decode(encoded):
+def srgb_decode(encoded) -> np.ndarray:
     """sRGB-encoded values in [0, 1] to linear values (the inverse of :func:`srgb_encode`)."""
     c = np.clip(np.asarray(encoded, dtype=np.float64), 0.0, 1.0)
     return np.where(c <= 0.04045, c / 12.92, np.power((c + 0.055) / 1.055, 2.4))
@@ -204,7 +206,7 @@ def tonemap(img, exposure=0.0):
     return np.round(srgb_encode(img) * 255.0).astype(np.uint8)
 
 
-def write_png(path, img, exposure=0.0, text=None):
+def write_png(path, img, exposure=0.0, text=None) -> None:
     """Write a PNG atomically.
 
     Parameters
@@ -228,7 +230,7 @@ def write_png(path, img, exposure=0.0, text=None):
     atomic_write(path, lambda f: pil.save(f, format="PNG", pnginfo=info))
 
 
-def printable(text):
+def printable(text) -> str:
     r"""``text`` with every character that is not printable (newlines, tabs, other control
     and format characters) written as its Python escape (``\n``, ``\x07``, ``\u202e``): a
     material name drawn in a label or a title reads as it is, on one line.
@@ -239,7 +241,7 @@ def printable(text):
     )
 
 
-def _wrap(text, width, length, max_lines=3):
+def _wrap(text, width, length, max_lines=3) -> list:
     """``text`` as at most ``max_lines`` lines no wider than ``width`` (``length(s)``: pixels);
     cut at ``-``, ``_`` or spaces where possible, the last line ending in ``...`` if it is cut.
     """
@@ -260,7 +262,7 @@ def _wrap(text, width, length, max_lines=3):
     return out or [""]
 
 
-def _label_lines(text, width, length, max_lines=4):
+def _label_lines(text, width, length, max_lines=4) -> list:
     r"""A label as lines no wider than ``width``: each ``\n``-separated field on lines of its
     own (:func:`_wrap`), at most ``max_lines`` in all, the last ending in ``...`` if cut.
     """
@@ -350,7 +352,7 @@ def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, p
     write_png(path, sheet)
 
 
-def with_colour_bar(image, ramp, ticks, caption, min_width=240, pad=6, background=32):
+def with_colour_bar(image, ramp, ticks, caption, min_width=240, pad=6, background=32) -> np.ndarray:
     """``image`` (uint8 (H, W, 3)) above a colour bar and its legend, as one uint8 image.
 
     Parameters

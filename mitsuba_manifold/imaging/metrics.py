@@ -15,6 +15,8 @@ from the images of independent passes, and :func:`noise_agreement` asks whether 
 from the reference by more than that noise.
 """
 
+from __future__ import annotations
+
 import numpy as np
 
 from ..errors import InputError
@@ -37,25 +39,25 @@ def _pair(a, ref):
     return a, ref
 
 
-def mse(a, ref):
+def mse(a, ref) -> float:
     """Mean squared error over pixels and channels."""
     a, ref = _pair(a, ref)
     return float(np.mean(np.square(a - ref)))
 
 
-def rel_mse(a, ref, eps=REL_EPS):
+def rel_mse(a, ref, eps=REL_EPS) -> float:
     """Relative MSE ``mean((a - r)^2 / (r^2 + eps))`` (per pixel and channel)."""
     a, ref = _pair(a, ref)
     return float(np.mean(np.square(a - ref) / (np.square(ref) + eps)))
 
 
-def psnr_peak(ref):
+def psnr_peak(ref) -> float:
     """The PSNR peak: ``max(ref)``, or 1 when the reference has no positive value."""
     m = float(np.max(ref))
     return m if m > 0 else 1.0
 
 
-def psnr(a, ref, peak=None):
+def psnr(a, ref, peak=None) -> float:
     """PSNR in dB, ``10 log10(peak^2 / mse)``; ``peak`` defaults to :func:`psnr_peak`."""
     a, ref = _pair(a, ref)
     peak = psnr_peak(ref) if peak is None else float(peak)
@@ -63,7 +65,7 @@ def psnr(a, ref, peak=None):
     return float("inf") if err == 0 else float(10.0 * np.log10(peak * peak / err))
 
 
-def max_abs(a, ref):
+def max_abs(a, ref) -> float:
     """Largest absolute difference over pixels and channels."""
     a, ref = _pair(a, ref)
     return float(np.max(np.abs(a - ref)))
@@ -95,7 +97,7 @@ def pass_standard_error(weighted_sum, weighted_squares, samples, passes):
     return np.sqrt(var / ((passes - 1) * samples))
 
 
-def noise_agreement(a, ref, ref_se, eps=REL_EPS, scale=None):
+def noise_agreement(a, ref, ref_se, eps=REL_EPS, scale=None) -> dict:
     """Whether ``a`` equals a noisy reference within the reference's own noise.
 
     Relative to ``s = scale`` (default the reference ``r``): ``rel_mse = mean((a - r)^2 /
@@ -136,7 +138,7 @@ def error_image(a, ref):
     return np.abs(a - ref).astype(np.float32)
 
 
-def compare(a, ref, eps=REL_EPS, peak=None):
+def compare(a, ref, eps=REL_EPS, peak=None) -> dict:
     """All metrics of ``a`` against ``ref``.
 
     Returns
@@ -193,7 +195,7 @@ def false_colour(error, vmax=None, cmap="inferno"):
 ERROR_PERCENTILE = 99.0
 
 
-def robust_scale(error, percentile=ERROR_PERCENTILE):
+def robust_scale(error, percentile=ERROR_PERCENTILE) -> float:
     """The ``percentile`` of a per-pixel error (mean over channels); its maximum if that is 0."""
     e = np.asarray(error, dtype=np.float64)
     e = e.mean(axis=-1) if e.ndim == 3 else e

@@ -1,5 +1,7 @@
 """Figures of a fitted manifold: the latent map over an albedo heat map, the fit's convergence."""
 
+from __future__ import annotations
+
 import os
 
 import numpy as np
@@ -21,7 +23,7 @@ def subplots(nrows=1, ncols=1, squeeze=True, layout=None, **figure_kw):
     return fig, fig.subplots(nrows, ncols, squeeze=squeeze)
 
 
-def save(fig, path):
+def save(fig, path) -> None:
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
 
 
@@ -179,7 +181,7 @@ _LABEL_SPOTS = (
 )
 
 
-def label_points(ax, xy, names, order=None, fontsize=7, marker_px=4):
+def label_points(ax, xy, names, order=None, fontsize=7, marker_px=4) -> int:
     """Name the points ``xy`` (data coordinates of ``ax``) where a name fits: inside the
     axes, over no other name and no other point. Tries each spot of :data:`_LABEL_SPOTS`
     in turn; points whose every spot is taken stay unnamed. ``order``: who is placed first
@@ -268,12 +270,12 @@ def convergence(history, path, label="Hooke-Jeeves", others=None):
     return path
 
 
-def slice_plot_name(dims):
+def slice_plot_name(dims) -> str:
     """File name of the latent map of ``dims`` (0-based, as its axes are labelled ``x[i]``)."""
     return "latent_map.png" if tuple(dims) == (0, 1) else f"latent_map_dims{dims[0]}{dims[1]}.png"
 
 
-def second_slice(q):
+def second_slice(q) -> tuple[int, int]:
     """The latent dimensions of the second map :func:`write_fit_plots` draws (for q > 2)."""
     return (2, 3) if q > 3 else (1, 2)
 
@@ -288,7 +290,7 @@ FIT_PLOTS = (
 )
 
 
-def write_fit_plots(manifold, folder):
+def write_fit_plots(manifold, folder) -> list:
     """Latent map(s) (a line for q = 1) and convergence plot into ``folder``; returns the paths."""
     os.makedirs(folder, exist_ok=True)
     first = os.path.join(folder, FIT_PLOTS[0])
@@ -319,7 +321,7 @@ GI_MARKERS = {
 }
 
 
-def _gi_points(row):
+def _gi_points(row) -> dict[str, tuple[list, list]]:
     """``{marker kind: ([times], [rel MSEs])}`` of one point of a GI report row."""
     b, d = row["blend"], row["direct"]
     out = {

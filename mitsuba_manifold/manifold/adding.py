@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +33,10 @@ from ..data.sources import material_name, material_table
 from ..errors import FormatError, InputError, MissingFileError
 from ..gp.placement import place_point
 from . import projection as projection_mod
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Values (bins x channels) on which the new table's feature products are taken.
 FEATURE_BINS = 1 << 18
@@ -66,12 +71,12 @@ class Provenance:
     hash: str
     origin: str = None
 
-    def as_dict(self):
+    def as_dict(self) -> dict[str, Any]:
         """JSON-able dict (the manifold file's ``added`` entries)."""
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d):
+    def from_dict(cls, d) -> Provenance:
         """Inverse of :meth:`as_dict` (fields checked by :mod:`.schema`)."""
         return cls(d["name"], d["source"], d["path"], d["hash"], d.get("origin"))
 
@@ -124,7 +129,7 @@ def _check_name(name, names):
         raise InputError(f"the manifold already has a material named {name!r}; give another `name`")
 
 
-def _stored_table(table, folder, name):
+def _stored_table(table, folder, name) -> str:
     """Write an array table as a ``.binary`` file under the cache of the database ``folder`` (a
     folder's own cache, or the user's cache for a built-in set), named by its content.
     """
@@ -175,7 +180,7 @@ def cross_products(tables, t, weights):
     return raw, cos, tt, tq
 
 
-def grown_gram(S, tables, t, features, n_bins=FEATURE_BINS, seed=0):
+def grown_gram(S, tables, t, features, n_bins=FEATURE_BINS, seed=0) -> np.ndarray:
     """Gram matrix ``S'`` (N + 1) of the mean-subtracted features with table ``t`` added.
 
     ``S`` is the N tables' centred Gram matrix. With ``u = f(t) - m`` (``m`` the N tables'
@@ -279,7 +284,7 @@ def add(m, table_or_path, name=None, *, origin=None, n_starts=8):
     ):  # on a training point: the weights could not tell the two apart
         x = x + 1e-3 * m.length_scale * np.eye(m.q)[0]
 
-    def grow(a, row, corner):
+    def grow(a, row, corner) -> np.ndarray:
         out = np.empty((len(a) + 1, len(a) + 1))
         out[:-1, :-1], out[:-1, -1], out[-1, :-1], out[-1, -1] = a, row, row, corner
         return out

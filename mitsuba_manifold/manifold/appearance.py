@@ -31,7 +31,7 @@ RGB_TO_XYZ = np.array(
 WHITE = RGB_TO_XYZ.sum(axis=1)
 
 
-def lab(rgb):
+def lab(rgb) -> np.ndarray:
     """CIELAB of linear RGB reflectances ``(..., 3)`` (1 = a perfect white)."""
     xyz = np.asarray(rgb, dtype=np.float64) @ RGB_TO_XYZ.T / WHITE
     xyz = np.maximum(xyz, 0.0)
@@ -42,7 +42,7 @@ def lab(rgb):
     )
 
 
-def material_albedos(tables, dims, incidences=INCIDENCES):
+def material_albedos(tables, dims, incidences=INCIDENCES) -> np.ndarray:
     """Directional albedos ``(N, n_incidence, 3)`` of flat RGB tables ``(N, d)``."""
     da = DirectionalAlbedo(dims, theta_i=np.radians(incidences))
     return np.transpose(da.of(tables), (0, 2, 1))
@@ -61,7 +61,7 @@ def distance_to_segment(P, a, b):
     return np.linalg.norm(P - (a + t[:, None] * ab), axis=1)
 
 
-def stray(weights, albedos):
+def stray(weights, albedos) -> dict:
     """Path stray of a path whose points have weights ``weights`` ``(K, N)`` (first and last: the ends).
 
     ``albedos``: :func:`material_albedos` of the N materials. Returns a dict: ``delta_e`` (the

@@ -10,9 +10,15 @@ entries this version does not know, which are kept in :attr:`FitRecord.extra` an
 back) and :meth:`FitRecord.as_info` writes it.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from typing import Any
 
 
 @dataclass
@@ -94,20 +100,20 @@ class FitRecord:
         "stop",
     )
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self.history = np.asarray(self.history, dtype=np.float64)
         if self.dims is not None:
             self.dims = tuple(self.dims)
 
     @classmethod
-    def from_info(cls, info=None, history=()):
+    def from_info(cls, info=None, history=()) -> FitRecord:
         """The record of a saved ``info`` dict and ``history`` array."""
         info = dict(info or {})
         times = Timings(*(info.pop(f"time_{k}_s", None) for k in ("load", "gram", "fit")))
         known = {k: info.pop(k) for k in cls.INFO if k in info}
         return cls(**known, history=history, timings=times, extra=info)
 
-    def convergence(self):
+    def convergence(self) -> str:
         """One line on the optimiser's convergence: met or not, iterations, gradient norm;
         ``unknown`` for a record without it.
         """
@@ -121,7 +127,7 @@ class FitRecord:
             return f"converged ({detail})"
         return f"NOT CONVERGED ({detail}): {self.stop or 'stopped early'}"
 
-    def as_info(self):
+    def as_info(self) -> dict[str, Any]:
         """The ``info`` dict of the saved layout (entries that are None left out)."""
         out = {}
         for key in self.INFO:

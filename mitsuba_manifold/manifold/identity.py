@@ -13,6 +13,8 @@ database's folder (a moved database is the same database) and the file's own byt
 (``np.savez`` stores zip time stamps).
 """
 
+from __future__ import annotations
+
 import hashlib
 import json
 
@@ -22,7 +24,7 @@ import numpy as np
 IDENTITY_VERSION = 1
 
 
-def manifold_identity(manifold):
+def manifold_identity(manifold) -> str:
     """SHA-256 (hex) of a :class:`Manifold`'s content (see the module docstring)."""
     latent = np.ascontiguousarray(manifold.latent, dtype="<f8")
     head = {

@@ -57,7 +57,7 @@ class Interpolant:
 
     kind = None
 
-    def __init__(self, latent):
+    def __init__(self, latent) -> None:
         self.latent = np.asarray(latent, dtype=np.float64)
         self.n, self.q = self.latent.shape
 
@@ -84,7 +84,7 @@ class Interpolant:
         J = self._jacobian(x)
         return J[0] if single else J
 
-    def jump(self, eps=1e-9):
+    def jump(self, eps=1e-9) -> float:
         """``max_i |w(x_i + eps l u) - e_i|_1``: how much the weights jump next to a training point."""
         u = np.zeros_like(self.latent)
         u[:, 0] = eps * getattr(self, "length_scale", 1.0)
@@ -107,7 +107,7 @@ class GaussianProcessWeights(Interpolant):
 
     kind = "gp"
 
-    def __init__(self, latent, length_scale=1.0, noise=1e-4, exact=True):
+    def __init__(self, latent, length_scale=1.0, noise=1e-4, exact=True) -> None:
         super().__init__(latent)
         self.length_scale = _number(self.kind, "length_scale", length_scale)
         self.noise = _number(self.kind, "noise", noise)
@@ -123,7 +123,7 @@ class GaussianProcessWeights(Interpolant):
         """The covariance matrix of the latent points."""
         return self.gp.K
 
-    def params(self):
+    def params(self) -> dict:
         return {
             "kind": self.kind,
             "length_scale": self.length_scale,
@@ -232,7 +232,7 @@ class ShepardWeights(Interpolant):
         length_scale=1.0,
         beyond="nearest",
         secant=0.3,
-    ):
+    ) -> None:
         super().__init__(latent)
         if beyond not in self.BEYOND:
             raise InputError(
@@ -264,7 +264,7 @@ class ShepardWeights(Interpolant):
                 f"got {self.power}, {self.taper}, {self.spread}, {self.length_scale}"
             )
 
-    def params(self):
+    def params(self) -> dict:
         return {
             "kind": self.kind,
             "power": self.power,
@@ -274,7 +274,7 @@ class ShepardWeights(Interpolant):
             **({"beyond": self.beyond, "secant": self.secant} if self.beyond != "nearest" else {}),
         }
 
-    def attach(self, manifold):
+    def attach(self, manifold) -> None:
         """Give the continuation beyond the hull its plausibility limit (:class:`StepLimit`)
         from the tables of ``manifold`` (a :class:`~.model.Manifold` over these latent points):
         those in memory when all are loaded, else each material's read when first needed.
@@ -354,7 +354,7 @@ class ShepardWeights(Interpolant):
         out[far] = s[:, None] * e
         return out
 
-    def hull(self):
+    def hull(self) -> None:
         """The :class:`LatentHull` of the latent points (made on first use)."""
         if self._hull is None:
             self._hull = LatentHull(self.latent)
@@ -481,7 +481,7 @@ class LatentHull:
     differences of a Jacobian) share it.
     """
 
-    def __init__(self, latent):
+    def __init__(self, latent) -> None:
         latent = np.asarray(latent, dtype=np.float64)
         self.q = latent.shape[1]
         self.scale = float(np.ptp(latent, axis=0).max()) or 1.0
@@ -543,7 +543,7 @@ class LatentHull:
         rho = np.sqrt(((x - p) ** 2).sum(axis=1))
         return p, rho
 
-    def _facet_solvers(self):
+    def _facet_solvers(self) -> None:
         """Per facet, the pseudo-inverse ``(F, q, q + 1)`` giving the barycentric coordinates of
         a point of its plane from ``(point, 1)`` (made once).
         """
@@ -578,7 +578,7 @@ class LatentHull:
             return base + mu @ B
         return None
 
-    def _closest(self, x, p):
+    def _closest(self, x, p) -> bool:
         """Whether ``p`` (on the hull) is the closest point of the hull to ``x``: no vertex lies
         beyond the plane through ``p`` normal to ``x - p`` (to rounding).
         """
@@ -630,7 +630,7 @@ def _normalise(log_u):
     return out
 
 
-def posterior(latent, kernel):
+def posterior(latent, kernel) -> Posterior:
     """The GP :class:`~mitsuba_manifold.gp.posterior.Posterior` of ``latent`` (the one factorisation
     of its K), or an :class:`InputError` saying why K has none.
     """
@@ -643,7 +643,7 @@ def posterior(latent, kernel):
         ) from None
 
 
-def _number(kind, name, value):
+def _number(kind, name, value) -> float:
     """``value`` as a float; a bool or a text is refused (``True`` is not a power)."""
     number = isinstance(value, (numbers.Real, np.floating, np.integer))
     if isinstance(value, (bool, np.bool_)) or not number:

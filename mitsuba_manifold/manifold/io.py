@@ -15,6 +15,8 @@ what they were used with; anything unreadable fails with a message that names th
 and says to refit.
 """
 
+from __future__ import annotations
+
 import json
 import os
 import zipfile
@@ -34,14 +36,14 @@ _REFIT = "refit it with tools/fit_manifold.py"
 DERIVED = ("albedos", "gram", "table_gram", "cos_gram")
 
 
-def _not_a_manifold(path, why):
+def _not_a_manifold(path, why) -> FormatError:
     return FormatError(
         f"{path} is not a manifold .npz written by fit_manifold ({why}); give the "
         "file that tools/fit_manifold.py or Manifold.save wrote"
     )
 
 
-def write(m, path):
+def write(m, path) -> None:
     """Write manifold ``m`` to ``path`` atomically, and only when what is written reads back:
     the new file is read and checked (:func:`read`, every field against :mod:`.schema`) before
     it replaces ``path``, so a readable manifold file is never replaced by one nothing can read
@@ -84,7 +86,7 @@ def write(m, path):
     atomic_replace(path, checked)
 
 
-def read(path):
+def read(path) -> dict:
     """The keyword arguments of ``Manifold(...)`` stored in ``path``, every field checked
     against the schema (:mod:`.schema`) before it is used.
     """
@@ -134,7 +136,7 @@ def read(path):
     }
 
 
-def _checked_version(path, meta):
+def _checked_version(path, meta) -> int:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise _not_a_manifold(path, "its 'meta' entry is not a mitsuba-manifold one")
     version = meta.get("version", 0)

@@ -118,7 +118,7 @@ class LatentGraph:
         return nodes, edges[edges[:, 0] != edges[:, 1]]
 
     @staticmethod
-    def weigh(metric, nodes, edges):
+    def weigh(metric, nodes, edges) -> np.ndarray:
         """Perceptual lengths of ``edges`` between ``nodes`` (blockwise, float32 features)."""
         F = np.concatenate(
             [metric.features(nodes[s : s + 1024]) for s in range(0, len(nodes), 1024)]
@@ -131,7 +131,7 @@ class LatentGraph:
         return w
 
     @classmethod
-    def build(cls, metric, cache=True):
+    def build(cls, metric, cache=True) -> LatentGraph:
         """The graph of ``metric``'s manifold; edge lengths read from the cache when ``cache`` (module doc)."""
         from scipy import sparse
 
@@ -157,7 +157,7 @@ class LatentGraph:
         ).tocsr()
         return cls(nodes, (g + g.T).tocsr())
 
-    def shortest(self, metric, xa, xb, k=K):
+    def shortest(self, metric, xa, xb, k=K) -> np.ndarray:
         """Latent polyline of the shortest graph path from ``xa`` to ``xb`` (ends joined to their
         ``k`` nearest nodes).
         """

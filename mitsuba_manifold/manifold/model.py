@@ -29,11 +29,13 @@ tables read and checked once (:class:`~.tables.TrainingTables`), projection
 (:mod:`.projection`), and the ``.npz`` file (:mod:`.io`).
 """
 
+from __future__ import annotations
+
 import numbers
 import os
 import time
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -65,6 +67,10 @@ from .presets import (
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES, PruneReport
 from .shipped import resolve_manifold
 from .tables import TrainingTables
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Names other modules import from here (the presets, the pruning default, the result types).
 __all__ = [
@@ -130,7 +136,7 @@ class DatabaseFit:
     cos_gram: np.ndarray = None
 
 
-def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
+def fit_database(db, names, cfg, preset, init=None, progress=False, **options) -> DatabaseFit:
     """Fit the materials ``names`` (default all) of :class:`Database` ``db`` with settings ``cfg``
     (:func:`presets.settings` of ``preset``); ``options`` go to :func:`gplvm.fit_latent`.
 
@@ -204,7 +210,7 @@ def fit_database(db, names, cfg, preset, init=None, progress=False, **options):
 def _stored(name, doc):
     """A property of the manifold's :class:`TrainingTables` attribute ``name``, set as float64."""
 
-    def set_(self, value):
+    def set_(self, value) -> None:
         self._store.set_matrix(name, value)
         self._pruned.clear()  # pruning answers made with the old matrices
 
@@ -285,7 +291,7 @@ class Manifold:
         interpolant=None,
         record=None,
         added=None,
-    ):
+    ) -> None:
         """The manifold's learned state, one parameter per attribute (see the class).
 
         Its fourteen parameters are the fields :meth:`load` reads back from a saved manifold (each
@@ -359,7 +365,7 @@ class Manifold:
         stress=None,
         stress_neighbours=None,
         **options,
-    ):
+    ) -> Manifold:
         """Fit latent points to the tables of ``database`` (paper Sec. 3).
 
         Its fourteen parameters are the fit's settings as keywords (scikit-learn style), each
@@ -446,12 +452,12 @@ class Manifold:
 
     # ------------------------------------------------------------ learned state
     @property
-    def length_scale(self):
+    def length_scale(self) -> float:
         """The kernel's length scale ``l``."""
         return self.kernel.length_scale
 
     @property
-    def noise(self):
+    def noise(self) -> float:
         """The kernel's noise ``mu``."""
         return self.kernel.noise
 
@@ -471,7 +477,7 @@ class Manifold:
         return self.record.as_info()
 
     @info.setter
-    def info(self, value):
+    def info(self, value) -> None:
         self.record = FitRecord.from_info(value, self.record.history)
 
     @property
@@ -480,11 +486,11 @@ class Manifold:
         return self.record.dims
 
     @property
-    def _tables(self):
+    def _tables(self) -> None:
         return self._store.loaded
 
     @_tables.setter
-    def _tables(self, tables):
+    def _tables(self, tables) -> None:
         self._store.loaded = tables
 
     @property
@@ -493,7 +499,7 @@ class Manifold:
         return self.latent.shape[1]
 
     @property
-    def n(self):
+    def n(self) -> int:
         """Number of materials."""
         return len(self.names)
 
@@ -501,7 +507,7 @@ class Manifold:
     def _points(self, x):
         return interpolants.points(x, self.q)
 
-    def weights(self, x):
+    def weights(self, x) -> Weights:
         """Weights of the interpolant at ``x`` ((q,) or (M, q)): a :class:`Weights` ``(b, w)``,
         each (N,) or (M, N); ``w`` sums to 1 and ``sum_i w_i table_i = mean + b^T Z`` exactly.
 
@@ -535,13 +541,13 @@ class Manifold:
         g = self._gp.variance_gradient(x)
         return g[0] if single else g
 
-    def material_weights(self, name):
+    def material_weights(self, name) -> np.ndarray:
         """One-hot weights of a training material."""
         w = np.zeros(self.n)
         w[self.index(name)] = 1.0
         return w
 
-    def index(self, name):
+    def index(self, name) -> int:
         """Position of material ``name``; :class:`InputError` with the closest names otherwise."""
         try:
             return self.names.index(name)
@@ -563,7 +569,7 @@ class Manifold:
             return self.latent[self.index(x.strip())].astype(np.float64)
         return latent_point(what, x, self.q)
 
-    def parse_weights(self, text):
+    def parse_weights(self, text) -> np.ndarray:
         """Weights of a combination of the training materials (``sum_i w_i table_i``, paper
         Eq. 4) from ``"name:w, name:w"`` (unnamed materials get 0), ``(N,)`` float64.
 
@@ -633,7 +639,7 @@ class Manifold:
         _, w = self.weights(x)
         return self.combine(w, prune, database, rule)
 
-    def negative_fraction(self, x, prune=DEFAULT_PRUNE, database=None):
+    def negative_fraction(self, x, prune=DEFAULT_PRUNE, database=None) -> float:
         """Fraction of the interpolated table's values below 0 at ``x``.
 
         ``manifold_brdf`` clamps them to 0, a blend of images cannot: where this is not
@@ -728,7 +734,7 @@ class Manifold:
         "albedos", "Albedo of each material, (N, 3) (:attr:`TrainingTables.albedos`)."
     )
 
-    def table_norms(self):
+    def table_norms(self) -> np.ndarray:
         """L2 norm of each raw table (from :attr:`table_gram`)."""
         return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self._source())), 0.0))
 
@@ -747,7 +753,7 @@ class Manifold:
             raise InputError(f"`rule` must be one of {', '.join(map(repr, RULES))}, got {rule!r}")
         return w
 
-    def prune(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE):
+    def prune(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE) -> Pruned:
         """Materials kept by pruning weights ``w`` within the budget ``prune`` under ``rule``.
 
         ``rule="image"`` (the default): each albedo channel changes by at most
@@ -774,7 +780,7 @@ class Manifold:
             hit.keep.copy(), hit.w_kept.copy(), hit.dropped
         )  # the caller may change its arrays
 
-    def _prune(self, w, budget, rule):
+    def _prune(self, w, budget, rule) -> Pruned:
         folder, store = self._source(), self._store
         if rule == "raw-l2":
             return Pruned(*pruning.prune(w, store.raw_gram(folder), budget))
@@ -817,7 +823,7 @@ class Manifold:
             names=self.names,
         )
 
-    def combine(self, w, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
+    def combine(self, w, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE) -> Combination:
         """The table ``sum_i w_i table_i`` over the materials kept by :meth:`prune`: a
         :class:`Combination` ``(table (3, n_theta_h, n_theta_d, n_phi_d) float32, keep, dropped)``.
 
@@ -851,7 +857,7 @@ class Manifold:
         """2-norm condition number of K."""
         return self._gp.condition_number()
 
-    def bound_terms(self, x):
+    def bound_terms(self, x) -> dict[str, Any]:
         """Terms of the paper's Eq. 7 bound on ``|z(x) - z_j|`` for the nearest latent point j.
 
         ``|z(x) - z_j| <= e^{-1/2} sqrt(2N) / l * cond(K) * |Z|_F * |x - x_j|`` with ``j`` the
@@ -893,7 +899,7 @@ class Manifold:
         """
         return self.interpolant.jump()
 
-    def coincident(self, tol=1e-2):
+    def coincident(self, tol=1e-2) -> list:
         """Materials whose nearest latent point lies within ``tol * l`` (indistinguishable to the GP).
 
         Interpolating between such materials is not possible: near them the weights spread
@@ -906,7 +912,7 @@ class Manifold:
         close = np.sqrt(d2.min(axis=1)) < tol * self.length_scale
         return [self.names[i] for i in np.flatnonzero(close)]
 
-    def summary(self):
+    def summary(self) -> str:
         """Short human-readable description (what the tools print after a fit)."""
         rec = self.record
         params = ", ".join(
@@ -945,12 +951,12 @@ class Manifold:
         return "\n".join(lines)
 
     # ------------------------------------------------------------ save/load
-    def save(self, path):
+    def save(self, path) -> None:
         """Write to ``.npz`` (no pickle), atomically (:func:`manifold_file.write`)."""
         manifold_file.write(self, path)
 
     @classmethod
-    def load(cls, path):
+    def load(cls, path) -> Manifold:
         """Read a manifold written by :meth:`save` (:func:`manifold_file.read`); ``path`` may
         also name a shipped manifold (``"merl"``, ``"rgl"``, ``"nielsen"``, ``"all"``:
         :mod:`.shipped`), where no file of that name exists.
@@ -969,7 +975,7 @@ class Manifold:
         return m
 
     # ------------------------------------------------------------ subsets
-    def subset(self, names):
+    def subset(self, names) -> Manifold:
         """The manifold of materials ``names`` alone, fit again on their Gram matrix.
 
         The sub-block of this manifold's Gram matrix is centred about the subset's own mean and

@@ -95,7 +95,7 @@ class PathMetric:
     combination ``w @ rows`` is float32 as the plugin's), sums of squares float64.
     """
 
-    def __init__(self, manifold, stride=SEARCH_STRIDE, tables=None, rows=None):
+    def __init__(self, manifold, stride=SEARCH_STRIDE, tables=None, rows=None) -> None:
         self._manifold = lambda: manifold  # :meth:`of` holds it weakly instead
         dims = tuple(manifold.record.dims)
         self.quad = Quadrature.of(dims, stride)
@@ -123,7 +123,7 @@ class PathMetric:
         self.coef = (self.quad.scale * np.cbrt(self.quad.cos)).astype(np.float32)
         self._graph = None
 
-    def _pick(self, full):
+    def _pick(self, full) -> np.ndarray:
         return np.ascontiguousarray(np.asarray(full)[:, self.quad.index], dtype=np.float32)
 
     @property
@@ -171,7 +171,7 @@ class PathMetric:
         W = self.weights(X if Y is None else np.concatenate([np.atleast_2d(X), np.atleast_2d(Y)]))
         m = len(np.atleast_2d(X))
 
-        def split(F):
+        def split(F) -> tuple:
             return (F, F) if Y is None else (F[:m], F[m:])
 
         if self._small:
@@ -224,7 +224,7 @@ class PathMetric:
             return step_lengths(self.features(X))
         return np.diag(self.distances(X), 1).copy()
 
-    def graph(self):
+    def graph(self) -> None:
         """The :class:`LatentGraph` of this metric (built on first use; its edges cached on disk)."""
         if self._graph is None:
             self._graph = LatentGraph.build(self)
@@ -344,7 +344,7 @@ def uniform(metric, xa, xb, steps, dense=DENSE):
     return even(metric, straight(xa, xb, max(dense, steps)), steps)
 
 
-def minimise_energy(metric, X, iterations=200):
+def minimise_energy(metric, X, iterations=200) -> np.ndarray:
     """The polyline ``X`` with its interior points moved to minimise :meth:`PathMetric.energy`
     (L-BFGS; its minimisers are discrete geodesics at constant speed), ends fixed.
     """
@@ -428,7 +428,7 @@ def faithful_objective(metric, X, evenness=EVENNESS, power=EVEN_POWER, length=LE
     return value, metric.pullback(X, G, V)
 
 
-def fig9_gap(F):
+def fig9_gap(F) -> float:
     """The largest gap of the paper's Fig. 9 curves from their diagonals for points of features
     ``F`` (M, size) from ``a = F[0]`` to ``b = F[-1]``: ``max_k |d(a, x_k) / d(a, b) - t_k|`` and
     ``|d(b, x_k) / d(a, b) - (1 - t_k)|``, ``t_k = k / (M - 1)``.

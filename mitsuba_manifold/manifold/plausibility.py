@@ -51,7 +51,9 @@ class DirectionalAlbedo:
     (radians) replaces the default incidences.
     """
 
-    def __init__(self, dims, n_incidence=N_INCIDENCE, n_theta=N_THETA, n_phi=N_PHI, theta_i=None):
+    def __init__(
+        self, dims, n_incidence=N_INCIDENCE, n_theta=N_THETA, n_phi=N_PHI, theta_i=None
+    ) -> None:
         self.dims = tuple(int(v) for v in dims)
         self.theta_i = (
             (np.arange(n_incidence) + 0.5) / n_incidence * np.radians(89.0)
@@ -74,7 +76,7 @@ class DirectionalAlbedo:
         self.index = np.array(idx)  # (n_incidence, n_out)
         self.bins = int(np.prod(self.dims))
 
-    def of(self, tables):
+    def of(self, tables) -> np.ndarray:
         """Directional albedos ``(M, 3, n_incidence)`` of flat RGB tables ``(M, 3 * bins)`` (or one)."""
         tables = np.atleast_2d(tables)
         out = np.empty((len(tables), 3, len(self.theta_i)))
@@ -109,7 +111,7 @@ class Plausible:
     shrink: float
 
 
-def _log_rms(blend, y):
+def _log_rms(blend, y) -> float:
     r = np.log1p(np.maximum(blend, 0.0)) - y
     return float(np.sqrt(np.mean(r * r, dtype=np.float64)))
 
@@ -128,7 +130,7 @@ def plausible_weights(
     *,
     bins,
     affine=True,
-):
+) -> Plausible:
     """Best plausible affine combination of the ``candidates`` rows of ``tables`` for ``target``.
 
     Parameters
@@ -293,7 +295,7 @@ class StepLimit:
         making a :class:`StepLimit`, at every manifold load, touches no file).
     """
 
-    def __init__(self, rows, n, dims, store=None):
+    def __init__(self, rows, n, dims, store=None) -> None:
         self._rows = rows
         self.n = int(n)
         self.dims = tuple(int(v) for v in dims)
@@ -304,7 +306,7 @@ class StepLimit:
         self._stored = 0
         self._lock = threading.Lock()  # one step at a time: its store and caches are shared
 
-    def _read_store(self):
+    def _read_store(self) -> None:
         """The ratios and albedos kept in the store (a missing or foreign file: none)."""
         store, self._store = self._store, None
         if callable(store):
@@ -324,10 +326,10 @@ class StepLimit:
         self._albedo = albedo.astype(np.float64)
         self._stored = self._known()
 
-    def _known(self):
+    def _known(self) -> int:
         return len(self._ratio) + int(np.isfinite(self._albedo[:, 0]).sum())
 
-    def _write_store(self):
+    def _write_store(self) -> None:
         if self.store is None or self._known() == self._stored:
             return
         ratio = np.full((self.n, self.n), np.nan)
@@ -356,7 +358,7 @@ class StepLimit:
                 )
         return self._albedo[idx]
 
-    def ratios(self, rows, cols):
+    def ratios(self, rows, cols) -> np.ndarray:
         """``R_ij = min_b table_i[b] / table_j[b]`` for the pairs ``(rows, cols)`` (same shape)."""
         rows, cols = np.broadcast_arrays(np.asarray(rows), np.asarray(cols))
         pairs = list(zip(rows.ravel().tolist(), cols.ravel().tolist()))
@@ -419,7 +421,7 @@ class StepLimit:
             lo[rows] = self._bisect(w[rows], e[rows], summed[rows], hi[rows], iterations)
         return lo
 
-    def _bisect(self, w, e, summed, hi, iterations):
+    def _bisect(self, w, e, summed, hi, iterations) -> np.ndarray:
         """The largest step in ``[0, hi]`` (to ``hi / 2^iterations``) that leaves no table of the
         points ``w + s e`` negative (each table ``j`` covered by the ratios ``R_ij`` of those summed).
         """
@@ -463,7 +465,7 @@ def _rows_of(mask):
     return idx, np.take_along_axis(mask, idx, 1)
 
 
-def store_path(hashes, dims, database):
+def store_path(hashes, dims, database) -> str | None:
     """Where :class:`StepLimit` keeps the ratios and albedos of the tables with content hashes
     ``hashes`` at resolution ``dims``: ``plausibility-<key>.npz`` in the cache folder of
     ``database`` (:func:`~mitsuba_manifold.data.database.database_cache`, where its tables are

@@ -8,12 +8,22 @@ none) and ``interpolant`` (the weight function, :mod:`interpolant`).
 :func:`fit_layout` and :func:`make_interpolant`, so the benchmark measures what users get.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..data.distance import distance_matrix
 from ..errors import InputError
 from ..gp import gplvm
 from . import interpolant as interpolants
+
+if TYPE_CHECKING:
+    from typing import Any
+
+    from mitsuba_manifold.gp.stress import Stress
+
 
 #: Fit settings by name. ``paper``: the paper's exact formulation (raw features, l = 1,
 #: mu = 1e-4, Hooke-Jeeves, Eq. 4 weights). ``default``: the measured best
@@ -48,7 +58,7 @@ PRESETS = {
 }
 
 
-def settings(preset="default", **overrides):
+def settings(preset="default", **overrides) -> dict[str, Any]:
     """Fit settings of ``preset`` (:data:`PRESETS`) with the non-None ``overrides`` applied.
 
     An ``interpolant`` override of the preset's kind (or without ``kind``) changes only the
@@ -68,7 +78,7 @@ def settings(preset="default", **overrides):
     return out
 
 
-def canonical_order(hashes, names):
+def canonical_order(hashes, names) -> np.ndarray:
     """The order a fit sees the materials in: by the content hash of each table (SHA-256,
     :meth:`~..data.database.Database.hash`), then by name for identical tables. It depends on
     the tables only, so the order the user lists them in does not reach the fit.
@@ -128,7 +138,7 @@ def fit_layout(S, d, cfg, init=None, callback=None, distances=None, order=None, 
 STRESS_GRID = (30, 30, 60)
 
 
-def stress_stride(dims):
+def stress_stride(dims) -> tuple:
     """The sub-grid stride of :func:`stress_distances` for tables of ``dims`` bins."""
     return tuple(max(1, int(n) // g) for n, g in zip(dims, STRESS_GRID))
 
@@ -141,7 +151,7 @@ def stress_distances(tables, dims):
     return distance_matrix(tables, dims=dims, stride=stress_stride(dims))
 
 
-def stress_of(cfg):
+def stress_of(cfg) -> Stress:
     """The :class:`gplvm.Stress` of settings ``cfg`` (none when they have no stress entries)."""
     return gplvm.Stress(cfg.get("stress", 0.0), cfg.get("stress_neighbours"))
 

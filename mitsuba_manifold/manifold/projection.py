@@ -87,14 +87,14 @@ def log_rms(blend, target_log):
     return np.sqrt(np.einsum("...i,...i->...", r, r, dtype=np.float64) / r.shape[-1])
 
 
-def search_bins(d, n=SEARCH_BINS, seed=0):
+def search_bins(d, n=SEARCH_BINS, seed=0) -> np.ndarray:
     """Sorted random subset of ``n`` of ``d`` bins (all of them if ``d <= n``)."""
     if d <= n:
         return np.arange(d)
     return np.sort(np.random.default_rng(seed).choice(d, n, replace=False))
 
 
-def candidates(latent, order, n_latent=6, steps=19):
+def candidates(latent, order, n_latent=6, steps=19) -> np.ndarray:
     """Starting points: along the segments between the latent points ``order`` (the closest
     materials in table space) and from each of them toward its ``n_latent`` nearest latent
     neighbours, plus the points themselves.
@@ -140,7 +140,7 @@ def project(
     rows=None,
     *,
     search=None,
-):
+) -> Projection:
     """Best latent point of ``target`` on the manifold of ``interpolant`` over ``tables``.
 
     Parameters
@@ -230,7 +230,7 @@ def project(
     )
 
 
-def _blend(w, tables, rows, chunk=1 << 20):
+def _blend(w, tables, rows, chunk=1 << 20) -> np.ndarray:
     """``w @ tables[rows]`` in float32, by chunks of bins (no copy of the tables)."""
     full = np.zeros(len(tables), dtype=np.float32)
     full[rows] = weights32(w)

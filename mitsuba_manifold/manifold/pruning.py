@@ -35,6 +35,8 @@ the combination stays affine), and bounds what the change does. Two rules:
 The measurements behind the choice: ``tools/bench.py prune`` (``benchmarks/results/prune.json``).
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,13 +104,13 @@ def albedo_changes(w, kept, albedos):
     return np.abs(_rescaled(w, kept) @ albedos) / ref
 
 
-def _mask(n, keep):
+def _mask(n, keep) -> np.ndarray:
     kept = np.zeros(n, dtype=bool)
     kept[np.asarray(keep, dtype=int)] = True
     return kept
 
 
-def error(w, keep, G):
+def error(w, keep, G) -> float:
     """:func:`errors` of keeping only the materials ``keep``."""
     return float(errors(w, _mask(len(w), keep), G)[0])
 
@@ -161,7 +163,7 @@ class _Search:
     ``b = a - 1`` and ``e = w_j s / S'``, ``delta' = a delta + b w - e e_j`` (rescaling included).
     """
 
-    def __init__(self, w, Cs, budgets, A, albedo_budget):
+    def __init__(self, w, Cs, budgets, A, albedo_budget) -> None:
         self.w, self.Cs, self.A = w, Cs, A
         self.s = w.sum()
         self.Cw = Cs @ w  # (F, m)
@@ -171,7 +173,7 @@ class _Search:
         self.limit_a = albedo_budget * np.maximum(np.abs(self.wA), ALBEDO_FLOOR)
         self.diag = np.diagonal(Cs, axis1=1, axis2=2)  # (F, m)
 
-    def start(self, kept):
+    def start(self, kept) -> None:
         """Set the state to keeping the boolean mask ``kept`` (exact, from scratch)."""
         self.kept = kept.copy()
         self.S = self.w[kept].sum()
@@ -228,7 +230,7 @@ class _Search:
             self.kept[jj] = False
         return self.kept
 
-    def longest_prefix(self, order):
+    def longest_prefix(self, order) -> int:
         """The largest k such that dropping ``order[:k]`` keeps every bound (0 when none does).
 
         All prefixes at once in O(F N^2) without a matrix product (the cores may be busy): over
@@ -238,7 +240,7 @@ class _Search:
         w, Cs = self.w[order], self.Cs[:, order][:, :, order]
         M = np.outer(w, w) * Cs
 
-        def tail(v):
+        def tail(v) -> np.ndarray:
             return np.cumsum(v[..., ::-1], axis=-1)[..., ::-1]
 
         uCu = tail(np.diagonal(M, axis1=1, axis2=2) + 2.0 * np.triu(M, 1).sum(axis=2))
@@ -249,7 +251,7 @@ class _Search:
         ok = self._shares(q, dA) <= _SAFETY
         return int(np.flatnonzero(ok).max()) if ok.any() else 0
 
-    def exact(self):
+    def exact(self) -> bool:
         """Whether the kept set keeps every bound, recomputed from scratch (a guard against the
         round-off of the updates).
         """
@@ -333,12 +335,12 @@ class PruneReport:
     names: tuple = ()
 
     @property
-    def kept(self):
+    def kept(self) -> int:
         """How many materials were kept."""
         return len(self.keep)
 
     @property
-    def within(self):
+    def within(self) -> bool:
         """Whether every bound of the rule holds."""
         pairs = [
             (self.cos_error, self.cos_budget),
@@ -347,12 +349,12 @@ class PruneReport:
         ]
         return all(v <= bound for v, bound in pairs if v is not None and bound is not None)
 
-    def __str__(self):
+    def __str__(self) -> str:
         parts = [
             f"{self.kept} of {self.n} materials kept ({self.rule} rule, budget {100 * self.budget:.3g}%)"
         ]
 
-        def bound(b):
+        def bound(b) -> str:
             return f" (<= {100 * b:.3g}%)" if b is not None else ""
 
         if self.albedo_change is not None:
@@ -372,7 +374,7 @@ class PruneReport:
         return ", ".join(parts)
 
 
-def report(w, keep, rule, budget, G=None, C=None, albedos=None, names=None):
+def report(w, keep, rule, budget, G=None, C=None, albedos=None, names=None) -> PruneReport:
     """The :class:`PruneReport` of keeping ``keep`` of ``w`` under ``rule`` (exact errors from
     the Gram matrices given: raw ``G``, cosine-weighted ``C``; albedo changes from ``albedos``).
     """
@@ -398,7 +400,7 @@ def report(w, keep, rule, budget, G=None, C=None, albedos=None, names=None):
     )
 
 
-def weighted_sum(rows, weights, size, chunk=1 << 18):
+def weighted_sum(rows, weights, size, chunk=1 << 18) -> np.ndarray:
     """``sum_k weights[k] * rows[k]`` in float32, one read of each row.
 
     Loops over chunks of bins outside and rows inside, so the accumulator and the scaled

@@ -16,12 +16,14 @@ pruning keep the wrong material). That they are the Gram matrices *of the tables
 names* is checked when the tables are read (:func:`check_grams`, by random probes).
 """
 
+from __future__ import annotations
+
 import json
 import math
 import numbers
 import os
 import re
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -29,6 +31,11 @@ from ..data.database import FEATURES
 from ..errors import FormatError
 from ..gp.kernel import MAX_LATENT_DIM
 from .interpolant import KINDS, MAX_COORDINATE, ShepardWeights
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Any
+
 
 #: Largest ``meta`` entry read (a JSON text: names, hashes, settings), bytes.
 META_LIMIT = 64 << 20
@@ -39,31 +46,31 @@ HEADER_SLACK = 1 << 16
 _HEX64 = re.compile(r"[0-9a-f]{64}")
 
 
-def _real(v):
+def _real(v) -> bool:
     return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _int(v):
+def _int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def _texts(v):
+def _texts(v) -> bool:
     return isinstance(v, list) and all(isinstance(s, str) for s in v)
 
 
-def _names(v, n):
+def _names(v, n) -> str | None:
     if not _texts(v) or not v or not all(v):
         return "must be a non-empty list of non-empty texts"
     return None if len(set(v)) == len(v) else "must not name a material twice"
 
 
-def _hashes(v, n):
+def _hashes(v, n) -> str | None:
     if not _texts(v) or len(v) != n or not all(_HEX64.fullmatch(h) for h in v):
         return f"must be a list of {n} SHA-256 hex digests (one per name)"
     return None
 
 
-def _dims(v):
+def _dims(v) -> bool:
     return v is None or (isinstance(v, list) and len(v) == 3 and all(_int(d) and d >= 1 for d in v))
 
 
@@ -88,7 +95,7 @@ INFO = {
 }
 
 
-def _info(v, n):
+def _info(v, n) -> str | None:
     if v is None:
         return None
     if not isinstance(v, dict):
@@ -97,7 +104,7 @@ def _info(v, n):
     return f"has a bad entry {bad[0]!r}: {v[bad[0]]!r}" if bad else None
 
 
-def _interpolant(v, n):
+def _interpolant(v, n) -> str | None:
     if not isinstance(v, dict) or v.get("kind") not in KINDS:
         return f"must be a dict with a 'kind' of {', '.join(map(repr, KINDS))}"
     if "beyond" in v and v["beyond"] not in ShepardWeights.BEYOND:
@@ -112,7 +119,7 @@ def _interpolant(v, n):
     return f"has a parameter {bad[0]!r} that is not a finite number: {v[bad[0]]!r}" if bad else None
 
 
-def _added(v, n):
+def _added(v, n) -> str | None:
     if v is None:
         return None
     if not isinstance(v, list) or len(v) >= n:
@@ -176,7 +183,7 @@ class ArrayField(NamedTuple):
     limit: int = 0
 
 
-def _symmetric(a, meta):
+def _symmetric(a, meta) -> str | None:
     scale = max(float(np.abs(a).max()), np.finfo(float).tiny)
     return None if np.abs(a - a.T).max() <= 1e-9 * scale else "is not symmetric"
 
@@ -197,7 +204,7 @@ def _gram(a, meta):
     return None
 
 
-def coincident_latent(latent, hashes, names, length_scale=1.0):
+def coincident_latent(latent, hashes, names, length_scale=1.0) -> None:
     """``(name_i, name_j)`` of two different tables (other hashes) at one latent point, or None."""
     a = np.asarray(latent, dtype=np.float64)
     d2 = np.sum((a[:, None, :] - a[None, :, :]) ** 2, axis=-1)
@@ -207,7 +214,7 @@ def coincident_latent(latent, hashes, names, length_scale=1.0):
     return None
 
 
-def _latent(a, meta):
+def _latent(a, meta) -> str | None:
     if not 1 <= a.shape[1] <= MAX_LATENT_DIM:
         return f"must have 1 to {MAX_LATENT_DIM} columns (the latent dimension q), has {a.shape[1]}"
     big = float(np.abs(a).max(initial=0.0))
@@ -238,7 +245,7 @@ ARRAYS = (
 )
 
 
-def _refuse(path, name, why, kind="field"):
+def _refuse(path, name, why, kind="field") -> FormatError:
     return FormatError(f"{path}: its {name} {kind} {why}; refit it with tools/fit_manifold.py")
 
 
@@ -255,7 +262,7 @@ def _header(zf, info):
     return shape, dtype
 
 
-def _entry(path, zf, name, shape_ok, limit, kinds="fiu"):
+def _entry(path, zf, name, shape_ok, limit, kinds="fiu") -> np.ndarray:
     """Array entry ``name`` once its size, header, dtype kind and shape are checked."""
     kind = "entry" if name == "meta" else "array"
     info = zf.getinfo(name + ".npy")
@@ -305,10 +312,10 @@ def read_meta(path, zf):
         ) from None
 
 
-def _shape_check(field, n, q):
+def _shape_check(field, n, q) -> Callable[..., Any]:
     want = tuple({"N": n, "q": q}.get(s, s) for s in field.shape)
 
-    def ok(shape):
+    def ok(shape) -> str | None:
         if len(shape) == len(want) and all(w is None or w == s for w, s in zip(want, shape)):
             return (
                 None
@@ -334,7 +341,7 @@ def check_meta(path, meta, version):
             raise _refuse(path, field.name, why)
 
 
-def read_arrays(path, zf, meta):
+def read_arrays(path, zf, meta) -> dict[str, Any]:
     """The :data:`ARRAYS` entries of open archive ``zf`` (checked; absent optional ones left out)."""
     n = len(meta["names"])
     entries = {i.filename[:-4] for i in zf.infolist() if i.filename.endswith(".npy")}
@@ -364,7 +371,7 @@ def read_arrays(path, zf, meta):
     return out
 
 
-def check_grams(tables, table_gram=None, cos_gram=None, weights=None, seed=0):
+def check_grams(tables, table_gram=None, cos_gram=None, weights=None, seed=0) -> str | None:
     """Why the Gram matrices are not those of ``tables`` ((N, d)): the name of the first that
     is not, or None.
 

@@ -15,6 +15,8 @@ the weights' analytic Jacobian (:meth:`Manifold.weights_jacobian`) chains ``dE/d
 - :func:`descend`: L-BFGS-B from one start (:func:`evaluator` gives SciPy its ``fun``).
 """
 
+from __future__ import annotations
+
 import numpy as np
 from scipy import optimize
 
@@ -22,7 +24,7 @@ from scipy import optimize
 MARGIN = 2.0
 
 
-def box(manifold, margin=MARGIN):
+def box(manifold, margin=MARGIN) -> list:
     """The search box ``[(lo, hi)] * q``: the latent points' bounds widened by ``margin`` l."""
     lo = manifold.latent.min(axis=0) - margin * manifold.length_scale
     hi = manifold.latent.max(axis=0) + margin * manifold.length_scale
@@ -48,7 +50,7 @@ def evaluator(manifold, objective, prior=0.0):
     return fun, count
 
 
-def descend(manifold, objective, prior, x0, bounds, max_iter):
+def descend(manifold, objective, prior, x0, bounds, max_iter) -> dict:
     """L-BFGS-B from ``x0`` within ``bounds``: a dict of the start ``x0``, the point ``x``, its
     ``objective``, ``n_evaluations`` and SciPy's ``message``.
     """
@@ -81,7 +83,7 @@ def scan(manifold, objective, prior, bounds, n_points, seed=0):
     return X, err
 
 
-def start_points(manifold, best, X, err, k, spread=0.25):
+def start_points(manifold, best, X, err, k, spread=0.25) -> list:
     """``k`` starts: the latent point of training material ``best``, then the best scanned
     points ``X`` (objectives ``err``) at least ``spread * l`` apart (without scanned points:
     the training points nearest to ``best``). Training points are nudged by ``1e-6 l`` so

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,12 +27,16 @@ from .._util.float32 import weights32
 from ..data import gram
 from . import projection
 
+if TYPE_CHECKING:
+    from typing import Any
+
+
 #: Feature transforms of the fit (``coslog``: ``log(1 + rho cos(theta_i) cos(theta_o))``).
 FEATURES = gram.FEATURES
 
 
 class _Report:
-    def as_dict(self):
+    def as_dict(self) -> dict[str, Any]:
         out = {}
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
@@ -64,7 +69,7 @@ def _cross(G, train, test):
     return C - C.mean(0)[None] - Gtt.mean(1)[:, None] + Gtt.mean()
 
 
-def baseline_errors(G, train, test, d, components=(2, 5)):
+def baseline_errors(G, train, test, d, components=(2, 5)) -> dict[str, Any]:
     """RMS errors (over d values) of the held-out rows: nearest training row, mean, PCA-k.
 
     Exact, from the Gram matrix ``G`` (uncentred, all rows) of the feature space in which
@@ -115,14 +120,14 @@ class HeldOut(_Report):
     project_s: float
     fold: np.ndarray
 
-    def fold_ratios(self):
+    def fold_ratios(self) -> np.ndarray:
         """Median per-material ratio to the nearest training material, fold by fold: how the
         measure varies on sets of held-out materials of the size one check sees.
         """
         ratio = self.error / self.nearest
         return np.array([np.median(ratio[self.fold == f]) for f in np.unique(self.fold)])
 
-    def summary(self):
+    def summary(self) -> dict:
         ratio = self.error / self.nearest
         by_fold = self.fold_ratios()
         return {
@@ -153,7 +158,7 @@ class HeldOut(_Report):
 FOLDS = 10
 
 
-def folds(n, k=FOLDS, seed=0):
+def folds(n, k=FOLDS, seed=0) -> list[np.ndarray]:
     """``k`` disjoint test folds covering ``range(n)`` (random, fixed seed)."""
     return np.array_split(np.random.default_rng(seed).permutation(n), k)
 
@@ -188,7 +193,7 @@ def cross_validate(
     split=None,
     bins=None,
     progress=None,
-):
+) -> HeldOut:
     """K-fold held-out fidelity of a manifold configuration.
 
     Parameters
@@ -266,7 +271,7 @@ class Paths(_Report):
     weight_share: np.ndarray
     image_share: np.ndarray
 
-    def summary(self):
+    def summary(self) -> dict[str, float]:
         out = {
             "n_pairs": len(self.pairs),
             "worst_weight_share": float(self.weight_share.max()),
@@ -280,7 +285,7 @@ class Paths(_Report):
         return out
 
 
-def neighbour_pairs(latent, n_pairs=20, seed=0, include=()):
+def neighbour_pairs(latent, n_pairs=20, seed=0, include=()) -> list[tuple]:
     """``n_pairs`` pairs (i, nearest latent neighbour of i), i random (fixed seed); ``include`` first."""
     nn = _nearest_neighbour(latent)
     pairs = [tuple(p) for p in include]
@@ -293,7 +298,7 @@ def neighbour_pairs(latent, n_pairs=20, seed=0, include=()):
     return pairs
 
 
-def all_neighbour_pairs(latent):
+def all_neighbour_pairs(latent) -> list:
     """Every pair (i, nearest latent neighbour of i), each once, sorted: the pair set no seed chooses."""
     return sorted({tuple(sorted((i, int(j)))) for i, j in enumerate(_nearest_neighbour(latent))})
 
@@ -305,13 +310,13 @@ def _nearest_neighbour(latent):
     return d2.argmin(axis=1)
 
 
-def step_share(steps):
+def step_share(steps) -> np.ndarray:
     """Largest step over the sum of steps (rows: paths)."""
     total = steps.sum(axis=-1)
     return np.where(total > 0, steps.max(axis=-1) / np.where(total > 0, total, 1), 0.0)
 
 
-def path_smoothness(interpolant, pairs, steps=40, images=None, base=None, exposure=0.0):
+def path_smoothness(interpolant, pairs, steps=40, images=None, base=None, exposure=0.0) -> Paths:
     """Share of the largest of ``steps`` steps along each latent segment between a pair.
 
     Weight steps are ``|w_{k+1} - w_k|_1``; image steps the RMS over pixels of consecutive
@@ -361,7 +366,7 @@ class Plausibility(_Report):
     negative_fraction: np.ndarray
     negative_weights: float
 
-    def summary(self):
+    def summary(self) -> dict:
         return {
             "albedo_outside_fraction": self.albedo_outside,
             "albedo_range": self.albedo_range,
@@ -377,7 +382,9 @@ def latent_box(latent, margin=0.1):
     return lo - pad, hi + pad
 
 
-def plausibility(interpolant, albedos, tables, n_albedo=4096, n_tables=200, seed=0, chunk=1 << 18):
+def plausibility(
+    interpolant, albedos, tables, n_albedo=4096, n_tables=200, seed=0, chunk=1 << 18
+) -> Plausibility:
     """Fraction of the box with any albedo channel outside [0, 1]; negative bins of random points."""
     lo, hi = latent_box(interpolant.latent)
     rng = np.random.default_rng(seed)

@@ -9,6 +9,8 @@ each computed from the tables on first use when a manifold file lacks it). The p
 the combination are :class:`~.model.Manifold`'s methods.
 """
 
+from __future__ import annotations
+
 import os
 
 import numpy as np
@@ -21,7 +23,7 @@ from ..errors import FormatError, InputError
 from . import pruning, schema
 
 
-def _float64(a):
+def _float64(a) -> np.ndarray | None:
     return None if a is None else np.asarray(a, dtype=np.float64)
 
 
@@ -30,7 +32,7 @@ class WithAdded(Database):
     ``{name: path}``); everything else (folder, cache, resolution) is the database ``base``'s.
     """
 
-    def __init__(self, base, names, added):  # noqa: D107 -- no Database.__init__: base is already read
+    def __init__(self, base, names, added) -> None:  # noqa: D107 -- no Database.__init__: base is already read
         self.__dict__.update(base.__dict__)
         self.names = list(names)
         self.sources = dict(base.sources)
@@ -74,18 +76,18 @@ class TrainingTables:
         The stack of all tables, once read (:meth:`stack`).
     """
 
-    def __init__(self, names, hashes, gram=None, cos_gram=None, albedos=None, added=None):
+    def __init__(self, names, hashes, gram=None, cos_gram=None, albedos=None, added=None) -> None:
         self.names, self.hashes = names, hashes
         self.added = dict(added or {})
         for name, value in (("gram", gram), ("cos_gram", cos_gram), ("albedos", albedos)):
             self.set_matrix(name, value)
         self.loaded = None
 
-    def set_matrix(self, name, value):
+    def set_matrix(self, name, value) -> None:
         """Set ``gram``, ``cos_gram`` or ``albedos`` (as float64; None: computed on first use)."""
         setattr(self, name, _float64(value))
 
-    def open(self, folder, names=None):
+    def open(self, folder, names=None) -> Database:
         """The :class:`Database` in ``folder``, its tables of ``names`` (default all) checked
         against the recorded hashes.
         """
@@ -111,7 +113,7 @@ class TrainingTables:
                 )
         return db
 
-    def stack(self, folder):
+    def stack(self, folder) -> None:
         """All N tables as float32 ``(N, d)`` (read from ``folder`` once, then kept)."""
         if self.loaded is None:
             db = self.open(folder)
@@ -146,7 +148,7 @@ class TrainingTables:
                 db.cache_dir, key_hash("cos-gram-v1", *self.hashes, length=40) + ".cosgram-v1.npy"
             )
 
-            def build():
+            def build() -> np.ndarray:
                 return np.stack(
                     pruning.cos_grams(self.stack(folder), albedo_weights(db.dims).reshape(-1))
                 )
@@ -159,7 +161,7 @@ class TrainingTables:
             self.cos_gram = np.array(self.cos_gram)
         return self.cos_gram
 
-    def albedo(self, folder):
+    def albedo(self, folder) -> np.ndarray:
         """:attr:`albedos`, computed from the tables in ``folder`` when absent."""
         if self.albedos is None:
             db = self.open(folder, self.names[:1])

@@ -111,7 +111,7 @@ def _read_photo(photo, path):
     return target, mask
 
 
-def _cache_path(folder, scene_path, manifold_path, size, opts, sensor):
+def _cache_path(folder, scene_path, manifold_path, size, opts, sensor) -> str:
     key = key_hash(
         file_hash(scene_path),
         file_hash(manifold_path),
@@ -123,7 +123,7 @@ def _cache_path(folder, scene_path, manifold_path, size, opts, sensor):
 
 def render_training_images(
     scene_path, manifold_path, size, opts, sensor=0, database=None, bar=None
-):
+) -> Rendered:
     """Every training material's image (and the base image) in the scene at ``size`` (width,
     height), in one pass; from ``opts.basis_cache`` when it holds them.
     """
@@ -151,7 +151,7 @@ def render_training_images(
         )
     integrator = _integrator("l1", loaded.integrator)
 
-    def advance(done, total):
+    def advance(done, total) -> None:
         if bar is not None:
             bar.set_postfix_str(f"training images {done}/{total}")
 
@@ -168,7 +168,9 @@ def render_training_images(
     return out
 
 
-def render_weights(scene_path, manifold_path, w, size, spp, seed=0, sensor=0, database=None):
+def render_weights(
+    scene_path, manifold_path, w, size, spp, seed=0, sensor=0, database=None
+) -> np.ndarray:
     """Mitsuba's render of ``sum_i w_i table_i`` (``manifold_brdf`` with these weights, no
     pruning) in the scene with its own integrator: what the snippet renders.
     """
@@ -228,7 +230,7 @@ def coverage(scene_path, manifold_path, size, mask, sensor=0, database=None) -> 
     p = np.array(si.p).T[valid]
     d = -np.array(rays.d).T[valid]
 
-    def pct(v):
+    def pct(v) -> list:
         return [round(float(x), 1) for x in np.percentile(v, [0, 5, 50, 95, 100])] if len(v) else []
 
     cos_o = np.clip(np.sum(n * d, axis=1), -1, 1)

@@ -36,11 +36,20 @@ and so is the image (gradient 0); a smaller ``prune`` (0 keeps every material) g
 optimisation a slope there.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from .material import Combination
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Any
+
 
 #: Default size of the active set.
 DEFAULT_TERMS = 8
@@ -48,7 +57,7 @@ DEFAULT_TERMS = 8
 HYSTERESIS = 0.25
 
 
-def typical_step(latent):
+def typical_step(latent) -> float:
     """A typical step in latent space: a quarter of the median nearest-neighbour distance."""
     latent = np.asarray(latent, dtype=np.float64)
     if latent.shape[0] < 2:
@@ -58,7 +67,7 @@ def typical_step(latent):
     return 0.25 * float(np.median(d.min(axis=1)))
 
 
-def choose_active(w, J, k, step, previous=None, hysteresis=HYSTERESIS):
+def choose_active(w, J, k, step, previous=None, hysteresis=HYSTERESIS) -> np.ndarray:
     """Indices (sorted, ``min(k, N)`` of them) of the active set for weights ``w`` (N,) and
     Jacobian ``J`` (N, q): the largest scores ``|w_i| + step ||J_i||``, the members of
     ``previous`` scored ``(1 + hysteresis)`` higher.
@@ -106,21 +115,21 @@ class LatentWeights(dr.CustomOp):
     ``dx = J^T dv``.
     """
 
-    def eval(self, x, weights_fn):
+    def eval(self, x, weights_fn) -> mi.Float:
         v, self.J = weights_fn(np.array(x, dtype=np.float64))
         return mi.Float(np.asarray(v, dtype=np.float32))
 
-    def forward(self):
+    def forward(self) -> None:
         dx = np.array(self.grad_in("x"), dtype=np.float64).ravel()
         dx = np.broadcast_to(dx, (self.J.shape[1],)) if dx.size == 1 else dx
         self.set_grad_out(mi.Float((self.J @ dx).astype(np.float32)))
 
-    def backward(self):
+    def backward(self) -> None:
         dv = np.array(self.grad_out(), dtype=np.float64).ravel()
         dv = np.broadcast_to(dv, (self.J.shape[0],)) if dv.size == 1 else dv
         self.set_grad_in("x", mi.Float((self.J.T @ dv).astype(np.float32)))
 
-    def name(self):
+    def name(self) -> str:
         return "manifold latent weights"
 
 
@@ -143,7 +152,7 @@ class ActiveSet:
     read what is not in memory yet.
     """
 
-    def __init__(self, manifold, k, tables, density, prune):
+    def __init__(self, manifold, k, tables, density, prune) -> None:
         self.manifold = manifold
         self.k = min(int(k), manifold.n)
         self.prune = float(prune)
@@ -177,7 +186,7 @@ class ActiveSet:
         self.keep = keep
         return self.idx.copy(), v, Jv, w
 
-    def _place(self, idx):
+    def _place(self, idx) -> None:
         """Keep materials already in a slot where they are; put the new ones in the freed slots
         (new slots at the end when K grew).
         """
@@ -212,13 +221,13 @@ class ActiveSet:
         self.slots = mi.Float(self.host.ravel())
 
 
-def _packed(table):
+def _packed(table) -> np.ndarray:
     """A (3, nh, nd, nphi) table as (bins, 3) float32 (the BSDF's packing)."""
     table = np.asarray(table, dtype=np.float32)
     return np.ascontiguousarray(table.reshape(3, -1).T)
 
 
-def traced_weights(x, v, J):
+def traced_weights(x, v, J) -> list[mi.Float]:
     """The K weights as Dr.Jit expressions of ``x``: ``w_k = v_k + sum_j J_kj (x_j - detach(x_j))``
     (``v`` (K,) and ``J`` (K * q,) row-major: detached ``mi.Float``), a list of K ``mi.Float``.
 
@@ -244,14 +253,14 @@ def traced_weights(x, v, J):
     return out
 
 
-def mixture_gather(slots, weights, n_bins, k):
+def mixture_gather(slots, weights, n_bins, k) -> Callable[..., Any]:
     """A ``gather(table, idx, active)`` for :func:`.lookups.table_value` that returns
     ``max(0, sum_k w_k slot_k[idx])`` (clamped per bin, as the combined table is). ``weights``: a
     ``mi.Float`` of size K, or a callable returning K ``mi.Float`` (:func:`traced_weights`), called
     at every lookup (so that the weights' AD edges are made where the lookup is).
     """
 
-    def gather(_table, idx, active):
+    def gather(_table, idx, active) -> mi.Color3f:
         if callable(weights):
             wk = weights()
         else:
@@ -264,7 +273,7 @@ def mixture_gather(slots, weights, n_bins, k):
     return gather
 
 
-def combination(manifold, active, state, distr, black):
+def combination(manifold, active, state, distr, black) -> Combination:
     """The :class:`.material.Combination` describing AD mode's material (``state``: ``idx`` of the
     slots, their weights ``v``, the full weights ``w``, the point ``x``, the pruned set ``keep``);
     ``table`` None (the slots are in ``active``), clamping counted nowhere (it happens per

@@ -17,6 +17,8 @@ and the last line registers it; :mod:`.plugins` imports (or reloads) this module
 variant, so import it only with a variant set (``import mitsuba_manifold.render`` does that).
 """
 
+from __future__ import annotations
+
 import dataclasses
 import operator
 from functools import partial
@@ -114,7 +116,7 @@ class ManifoldBRDF(mi.BSDF):
 
     is_manifold_brdf = True
 
-    def __init__(self, props):
+    def __init__(self, props) -> None:
         super().__init__(props)
         self.m_flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
         self.m_components = [self.m_flags]
@@ -158,7 +160,7 @@ class ManifoldBRDF(mi.BSDF):
     )
 
     @property
-    def names(self):
+    def names(self) -> list:
         """Names of the manifold's materials (the order of :attr:`weights`)."""
         return list(self._manifold.names)
 
@@ -173,7 +175,7 @@ class ManifoldBRDF(mi.BSDF):
         return None if self._c.x is None else self._c.x.copy()
 
     @property
-    def used_names(self):
+    def used_names(self) -> list:
         """Materials whose tables enter the combination (after pruning)."""
         return [self._manifold.names[i] for i in self._c.keep]
 
@@ -230,7 +232,7 @@ class ManifoldBRDF(mi.BSDF):
             raise InputError(prefixed(e)) from None
         self._rebuild(w, None, None, table)
 
-    def _rebuild(self, w, x, material, table=None):
+    def _rebuild(self, w, x, material, table=None) -> None:
         """Combine the tables and sampling densities for weights ``w``; committed only once
         everything succeeded.
         """
@@ -243,7 +245,7 @@ class ManifoldBRDF(mi.BSDF):
         if self._c.x is not None:
             self._publish_x()
 
-    def _publish_x(self):
+    def _publish_x(self) -> None:
         """The ``x`` parameter as the rendered latent point. Parameter objects returned by an
         earlier mi.traverse hold this array: replaced in place (length too), created the first time.
         """
@@ -323,7 +325,7 @@ class ManifoldBRDF(mi.BSDF):
 
     # --------------------------------------------------------- parameters
 
-    def traverse(self, callback):
+    def traverse(self, callback) -> None:
         if self._c.x is not None:
             flags = (
                 mi.ParamFlags.Differentiable
@@ -355,19 +357,19 @@ class ManifoldBRDF(mi.BSDF):
     # --------------------------------------------------------- AD mode
 
     @property
-    def differentiable(self):
+    def differentiable(self) -> bool:
         """True in an AD variant while the ``x`` parameter is grad-enabled (:mod:`.ad` mode)."""
         return (
             dr.is_diff_v(mi.Float) and self._x_param is not None and dr.grad_enabled(self._x_param)
         )
 
     @property
-    def active_set(self):
+    def active_set(self) -> None:
         """The :class:`.ad.ActiveSet` of AD mode (None before it was first entered)."""
         return self._active
 
     @property
-    def ad_weights(self):
+    def ad_weights(self) -> None:
         """AD mode: a new ``mi.Float`` (K) of the active set's weights following ``x`` through
         :class:`.ad.LatentWeights`, for use outside a render (``render_forward`` from ``x`` refuses its
         edge while it is alive); None otherwise.
@@ -393,7 +395,7 @@ class ManifoldBRDF(mi.BSDF):
         )
         return leaf
 
-    def _read_tables(self, names):
+    def _read_tables(self, names) -> dict:
         db = self._manifold.open_database(self._options.database, names)
         return {n: np.asarray(db.reflectance(n)) for n in names}
 
@@ -437,7 +439,7 @@ class ManifoldBRDF(mi.BSDF):
             a.slots, traced, a.host.shape[1], a.k
         )  # edges made at each lookup
 
-    def to_string(self):
+    def to_string(self) -> str:
         """What ``print(bsdf)`` shows. The material's line is the plugin's own parameter, its
         value as a scene gives it (``<string name="x" value="..."/>``, ``"x": "..."``), the
         latent coordinates to full precision: pasted into a scene it gives the same material.

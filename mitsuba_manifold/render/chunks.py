@@ -30,6 +30,8 @@ removed after a merge unless ``keep_chunks``. The driver holds ``<out>``'s folde
 second run into the same folder is refused at once.
 """
 
+from __future__ import annotations
+
 import json
 import os
 import shutil
@@ -76,7 +78,7 @@ class ChunkSpec:
     options: BasisOptions = None
 
     @property
-    def name(self):
+    def name(self) -> str:
         return f"{self.index:03d}-of-{self.count:03d}"
 
 
@@ -92,12 +94,12 @@ class ChunkResult:
     pid: int
 
 
-def chunk_seed(seed, index, count):
+def chunk_seed(seed, index, count) -> int:
     """Seed of chunk ``index`` of ``count`` (see the module docstring)."""
     return int(seed) * int(count) + int(index)
 
 
-def plan(scene, manifold, chunks, options=None):
+def plan(scene, manifold, chunks, options=None) -> list:
     """Split a basis rendered with ``options`` into ``chunks`` :class:`ChunkSpec`.
 
     Parameters
@@ -133,7 +135,7 @@ def plan(scene, manifold, chunks, options=None):
     ]
 
 
-def render_chunk(spec):
+def render_chunk(spec) -> ChunkResult:
     """Render one chunk into a private temporary folder; return its images (a worker's task)."""
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="mitsuba-manifold-chunk-") as tmp:
@@ -152,7 +154,7 @@ def render_chunk(spec):
     )
 
 
-def chunk_folder(out, spec):
+def chunk_folder(out, spec) -> str:
     return os.path.join(os.fspath(out), CHUNK_DIR, spec.name)
 
 
@@ -175,7 +177,7 @@ ALWAYS_HASHED = (
 )
 
 
-def chunk_settings(options):
+def chunk_settings(options) -> dict:
     """The :class:`BasisOptions` fields that a chunk's images depend on, as ``{name: value}``
     (the part of :func:`chunk_key` that the options give).
 
@@ -357,7 +359,7 @@ class ChunkedRun:
 
 def render_chunked(
     scene, manifold, out, options=None, *, chunks=1, executor=None, keep_chunks=False, **settings
-):
+) -> ChunkedRun:
     """Render a basis as ``chunks`` chunks with ``executor`` and merge them into ``out``.
 
     Parameters
@@ -433,7 +435,7 @@ def _finished(out, run_key):
     return manifest
 
 
-def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force):
+def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force) -> ChunkedRun:
     from .executor import LocalExecutor
 
     executor = executor or LocalExecutor()
@@ -442,7 +444,7 @@ def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force
     todo = [s for s in specs if s.name not in resumed]
     rendered = []
 
-    def run(batch):
+    def run(batch) -> None:
         for result in executor.map(render_chunk, batch):
             save_chunk(out, result, key_of[result.spec.name])
             rendered.append((result.spec.name, result.seconds, result.host, result.pid))
@@ -473,7 +475,7 @@ def _chooses_pairs(options):
     )
 
 
-def _first_choice(folder):
+def _first_choice(folder) -> dict:
     """Options that make a later chunk keep what the first chunk (in ``folder``) chose."""
     manifest = basis_folder.Manifest.read(folder)
     if "l2+" not in manifest.held_components:

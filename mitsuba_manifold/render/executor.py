@@ -8,7 +8,15 @@ scene, manifold and database at the same paths (the results come back through Ra
 object store, so the output folder need only exist on the driver).
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 from ..errors import UnavailableError
+
+if TYPE_CHECKING:
+    from types import ModuleType
+
 
 EXECUTORS = ("local", "ray")
 
@@ -22,7 +30,7 @@ class LocalExecutor:
         for item in items:
             yield fn(item)
 
-    def close(self):
+    def close(self) -> None:
         pass
 
 
@@ -48,7 +56,7 @@ class RayExecutor:
 
     def __init__(
         self, address=None, num_cpus=None, cpus_per_task=1, max_retries=3, runtime_env=None
-    ):
+    ) -> None:
         if int(cpus_per_task) < 1:
             raise UnavailableError(f"`cpus_per_task` must be >= 1, got {cpus_per_task}")
         if int(max_retries) < 0:
@@ -58,7 +66,7 @@ class RayExecutor:
         self.runtime_env = runtime_env
         self._started = False
 
-    def _ray(self):
+    def _ray(self) -> ModuleType:
         try:
             import ray
         except ImportError:
@@ -83,7 +91,7 @@ class RayExecutor:
             self._started = True
         return ray
 
-    def start(self):
+    def start(self) -> RayExecutor:
         """Start or join the cluster now (otherwise the first :meth:`map` does); returns self."""
         self._ray()
         return self
@@ -101,7 +109,7 @@ class RayExecutor:
             for ref in pending:
                 ray.cancel(ref, force=True)
 
-    def close(self):
+    def close(self) -> None:
         if self._started:
             import ray
 
@@ -109,7 +117,7 @@ class RayExecutor:
             self._started = False
 
 
-def make_executor(name="local", address=None, **kwargs):
+def make_executor(name="local", address=None, **kwargs) -> LocalExecutor | RayExecutor:
     """``local`` or ``ray`` (``address`` and ``kwargs`` go to :class:`RayExecutor`)."""
     if name == "local":
         if address:

@@ -9,6 +9,8 @@ environment with a bright sun, so that glossy materials show sharp reflections.
 ``tools/make_scene_meshes.py`` writes both into the shipped scenes folder (``scenes/``).
 """
 
+from __future__ import annotations
+
 import os
 
 import numpy as np
@@ -99,7 +101,7 @@ def revolve(r, y, segments=64):
     return vertices.astype(np.float32), np.concatenate(faces).astype(np.uint32)
 
 
-def signed_volume(vertices, faces):
+def signed_volume(vertices, faces) -> float:
     """Volume enclosed by a closed triangle mesh; positive when its normals point outwards."""
     v = np.asarray(vertices, float)[np.asarray(faces)]
     return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)

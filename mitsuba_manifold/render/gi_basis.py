@@ -10,6 +10,8 @@ object alone records no path touching it twice) and writes, beside the L1- image
 and why, and what was measured (the basis format: :mod:`mitsuba_manifold.basis.folder.manifest`).
 """
 
+from __future__ import annotations
+
 import contextlib
 import hashlib
 import io
@@ -36,7 +38,7 @@ REST_TOL = 1e-4
 MAX_LEVELS = 12
 
 
-def gi_levels(levels, max_depth):
+def gi_levels(levels, max_depth) -> int:
     """``levels`` of :class:`~.render_basis.FullGI` checked, or by default (None) every
     vertex a path of ``max_depth`` can have (:data:`MAX_LEVELS` for unbounded paths).
     """
@@ -49,7 +51,7 @@ def gi_levels(levels, max_depth):
     return int(levels)
 
 
-def carry_gi(out, manifest):
+def carry_gi(out, manifest) -> None:
     """What a resumed full-GI basis keeps of its earlier run: its full-GI images (of materials
     still listed), what it holds and left out, its cross terms, its measurements.
     """
@@ -70,7 +72,7 @@ def carry_gi(out, manifest):
             setattr(manifest, key, getattr(old, key))
 
 
-def write_cross(path, pairs, images):
+def write_cross(path, pairs, images) -> str:
     """Write the cross terms ``images`` (P, H, W, 3; stored as float16) of ``pairs`` to ``path``
     atomically; returns the file's SHA-256, recorded in the manifest so that an edited or
     replaced file is refused when read (:meth:`~mitsuba_manifold.basis.folder.Basis.cross_terms`).
@@ -82,7 +84,7 @@ def write_cross(path, pairs, images):
     return hashlib.sha256(data).hexdigest()
 
 
-def describe_components(manifest):
+def describe_components(manifest) -> str:
     """One line per component: what the basis holds, and what it left out and why."""
     held = ", ".join(manifest.held_components)
     lines = [
@@ -103,7 +105,7 @@ def progress_bar(desc, enabled, stop):
 
     with tqdm(desc=desc, unit="step", disable=not enabled) as bar:
 
-        def advance(done, total):
+        def advance(done, total) -> None:
             stop.check()
             bar.total = total
             bar.update(done - bar.n)
@@ -118,7 +120,7 @@ def _integrator(paths):
     return mi.load_dict({"type": "manifold_path", "component": "l1", **paths.path_properties()})
 
 
-def needs_rest(paths, touch, rest, tol):
+def needs_rest(paths, touch, rest, tol) -> tuple[bool, str, float]:
     """``(needed, why)``: whether the L2+ images carry light (their sum above ``tol`` of the
     material's), with the measurement that says so.
     """
@@ -149,7 +151,7 @@ def needs_rest(paths, touch, rest, tol):
     return True, "", frac
 
 
-def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop):
+def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop) -> None:
     """Render every material of ``todo`` (all of the basis's) with full GI from one pass and
     write the images, the cross terms and the manifest's account of them (see the module).
     ``paths``: the scene's integrator settings (:class:`~.scenes.SceneIntegrator`).

@@ -4,6 +4,8 @@ integrator), combined with the measured tables' directional albedos into a
 :class:`~mitsuba_manifold.basis.denoise.BasisAOVs` saved beside the basis.
 """
 
+from __future__ import annotations
+
 import time
 
 import numpy as np
@@ -35,7 +37,7 @@ def first_hit_aovs(scene, targets, spp=16, seed=0, sensor=0, bins=THETA_BINS):
 
 def render_aovs(
     scene_path, manifold_path, names, spp=16, seed=0, resolution=None, sensor=0, max_depth=None
-):
+) -> BasisAOVs:
     """First-hit AOVs and directional albedos of ``names`` for a scene (a :class:`BasisAOVs`)."""
     t0 = time.perf_counter()
     scene, targets, _ = scenes.load_scene(

@@ -10,6 +10,8 @@ images, which raises ``KeyboardInterrupt`` there: only complete, listed files re
 A second Ctrl-C while waiting for the pass to end stops at once (the default handler).
 """
 
+from __future__ import annotations
+
 import signal
 import threading
 
@@ -23,22 +25,22 @@ class StopRequest:
     Outside the main thread (where signals cannot be handled) it does nothing.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.requested = False
         self._previous = None
         self._active = False
 
-    def _handle(self, signum, frame):
+    def _handle(self, signum, frame) -> None:
         self.requested = True
         signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C: at once
 
-    def __enter__(self):
+    def __enter__(self) -> StopRequest:
         if threading.current_thread() is threading.main_thread():
             self._previous = signal.signal(signal.SIGINT, self._handle)
             self._active = True
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc) -> bool:
         if self._active:
             previous = self._previous
             signal.signal(
@@ -47,7 +49,7 @@ class StopRequest:
             self._previous, self._active = None, False
         return False
 
-    def rearm(self):
+    def rearm(self) -> None:
         """Install the flag's handler again (while active, before the first Ctrl-C).
 
         Mitsuba's ``render`` installs its own SIGINT handler, which passes the signal on to the
@@ -67,7 +69,7 @@ class StopRequest:
         self.rearm()
 
 
-def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS):
+def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS) -> list[int]:
     """Samples per pixel of each pass: ``spp`` split so that a pass traces at most
     ``samples_per_pass`` paths (at least 1 spp per pass); they sum to ``spp``.
     """

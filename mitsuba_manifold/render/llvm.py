@@ -8,6 +8,8 @@ is not imported yet, unless the user already chose one. Nothing else in the pack
 changes ``os.environ``.
 """
 
+from __future__ import annotations
+
 import glob
 import os
 import re
@@ -25,14 +27,14 @@ _SEARCH_DIRS = (
 )
 
 
-def _version(path):
+def _version(path) -> int | None:
     """Major version encoded in a libLLVM file name, or None."""
     name = os.path.basename(path)
     m = re.search(r"LLVM[-.](?:so\.)?(\d+)", name) or re.search(r"llvm-(\d+)", path)
     return int(m.group(1)) if m else None
 
 
-def candidates():
+def candidates() -> list:
     """LibLLVM files found on this machine, newest major version first."""
     found = {}
     patterns = []

@@ -2,6 +2,8 @@
 renderer's table indexing; :mod:`merl` holds the NumPy versions), and table values at them.
 """
 
+from __future__ import annotations
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -42,7 +44,7 @@ def _clamp_index(c, n):
     return dr.clip(mi.Int32(dr.floor(c)), 0, n - 1)
 
 
-def merl_bin(theta_h, theta_d, phi_d, dims):
+def merl_bin(theta_h, theta_d, phi_d, dims) -> mi.UInt32:
     """Flat MERL bin index (as :func:`merl.flat_index`) of Rusinkiewicz angles, in Dr.Jit."""
     n_h, n_d, n_p = dims
     th = dr.clip(theta_h, 0.0, HALF_PI)
@@ -60,7 +62,7 @@ def linear_axis(c, n):
     return i0, dr.minimum(i0 + 1, n - 1), t
 
 
-def gather_rgb(table, idx, active):
+def gather_rgb(table, idx, active) -> mi.Color3f:
     """RGB of bins ``idx`` of a packed table: a Dr.Jit array of ``(bins, 3)`` floats in JIT
     variants, a NumPy ``(bins, 3)`` array in scalar ones.
     """

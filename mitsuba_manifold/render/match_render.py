@@ -18,6 +18,8 @@ re-rendered at ``eval_spp`` with another seed, as are the scan's best few traini
 report the weights and the image error, not the error in ``x``.
 """
 
+from __future__ import annotations
+
 import dataclasses
 import math
 import time
@@ -96,11 +98,11 @@ class MatchRenderResult(LatentMatch):
     extra: dict = field(default_factory=dict)
 
     @property
-    def weights(self):
+    def weights(self) -> np.ndarray:
         """``w`` (:class:`~mitsuba_manifold.basis.match.LatentMatch`'s name for them)."""
         return self.w
 
-    def to_dict(self, manifold=None):
+    def to_dict(self, manifold=None) -> dict:
         """JSON-ready summary (no image)."""
         out = {
             "x": self.x.tolist(),
@@ -122,7 +124,7 @@ class MatchRenderResult(LatentMatch):
         return out
 
 
-def _targets(views):
+def _targets(views) -> list[tuple]:
     """Targets (float32 (H, W, 3)) and per-pixel loss weights ``mask / (t^2 + eps)`` normalised
     to mean 1 over the mask (so that the loss is :func:`rel_mse` over the mask).
     """
@@ -161,7 +163,7 @@ def _targets(views):
 class _Problem:
     """The loaded scenes, their ``x`` parameters and the loss of a set of views."""
 
-    def __init__(self, views, manifold_path, opts, database=None):
+    def __init__(self, views, manifold_path, opts, database=None) -> None:
         import mitsuba as mi
 
         from . import scenes
@@ -194,7 +196,7 @@ class _Problem:
         self.primal = mi.load_dict({"type": "path", "max_depth": opts.max_depth})
         self.tensors = [(mi.TensorXf(t), mi.TensorXf(w.astype(np.float32))) for t, w in self.data]
 
-    def set_x(self, x):
+    def set_x(self, x) -> None:
         """Every manifold material at ``x`` (a grad-enabled ``mi.Float``, or NumPy: no gradient)."""
         mi = self.mi
         for scene, params in self.params.items():
@@ -300,7 +302,9 @@ def _plot(history, path, labels):
     return finish(fig, ax, path)
 
 
-def match_render(views, manifold_path, options=None, basis=None, database=None):
+def match_render(
+    views, manifold_path, options=None, basis=None, database=None
+) -> MatchRenderResult:
     """Optimise ``x`` so that renders of ``views`` (:class:`View`) match their targets.
 
     Parameters
@@ -343,7 +347,7 @@ def match_render(views, manifold_path, options=None, basis=None, database=None):
     runs, t_iter = [], time.perf_counter()
     e_fix = None if opts.exposure else 1.0
 
-    def candidate(kind, x0, which, x, history):
+    def candidate(kind, x0, which, x, history) -> None:
         err, images, e = problem.evaluate(x, e_fix, opts.eval_spp, opts.seed + 55)
         runs.append(
             {
@@ -424,7 +428,7 @@ def check_options(opts):
         )
 
 
-def check_views(views):
+def check_views(views) -> list:
     """``views`` with each scene resolved (a scene XML or a shipped scene's name) and its sensor checked."""
     from . import scenes
     from .render_basis import count_sensors
@@ -448,12 +452,12 @@ def check_views(views):
     return out
 
 
-def _per_view_errors(images, data, exposure):
+def _per_view_errors(images, data, exposure) -> list:
     """Relative MSE over each view's mask."""
     return [float(np.sum(np.square(exposure * im - t) * w)) for im, (t, w) in zip(images, data)]
 
 
-def _basis_start(basis, manifold, target):
+def _basis_start(basis, manifold, target) -> np.ndarray:
     """The basis match's point for ``target`` (a start)."""
     from ..basis import match as mt
     from ..basis.folder import Basis

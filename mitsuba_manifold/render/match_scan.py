@@ -22,6 +22,8 @@ best ``starts`` of them, at least a quarter of a length scale apart, become Adam
 at a training point is moved off it (:func:`start_near`: the convex weights are flat there).
 """
 
+from __future__ import annotations
+
 import time
 
 import numpy as np
@@ -45,7 +47,7 @@ class CrossMSE:
     least-squares scale. The interface of :mod:`..basis.objectives` (``__call__``, ``batch``).
     """
 
-    def __init__(self, A, B, target, c, exposure_free=False):
+    def __init__(self, A, B, target, c, exposure_free=False) -> None:
         A, B = np.asarray(A, dtype=np.float64), np.asarray(B, dtype=np.float64)
         target, c = np.asarray(target, dtype=np.float64), np.asarray(c, dtype=np.float64)
         G = (A * c) @ B.T
@@ -86,13 +88,13 @@ def _pixels(problem):
     return sel, t, c
 
 
-def _rows(problem, sel, x, spp, seed):
+def _rows(problem, sel, x, spp, seed) -> np.ndarray:
     """The primal renders of every view at ``x`` over the loss's pixels, one row (P,)."""
     _, images, _ = problem.evaluate(x, 1.0, spp, seed)
     return np.concatenate([im[s] for im, s in zip(images, sel)]).astype(np.float64)
 
 
-def cross_error(problem, x, spp, seed, exposure_free=False):
+def cross_error(problem, x, spp, seed, exposure_free=False) -> float:
     """The unbiased error (:class:`CrossMSE`) of the true render at ``x``: two renders of ``spp``
     samples with independent seeds (``seed`` and ``seed + 5003``).
     """
@@ -101,7 +103,7 @@ def cross_error(problem, x, spp, seed, exposure_free=False):
     return float(CrossMSE(a[None], b[None], t, c, exposure_free)(np.ones(1))[0])
 
 
-def scan(problem, opts, check_spp):
+def scan(problem, opts, check_spp) -> dict:
     """Rank the training materials and choose Adam's starts (see the module docstring).
 
     Returns a dict: ``ranked`` ``[(error, index)]`` (every training material, scan estimate),

@@ -8,6 +8,8 @@ kept by pruning (negative values clamped to 0, uploaded as one packed table) and
 ``MarginalContinuous2D1`` (:mod:`.sampling`).
 """
 
+from __future__ import annotations
+
 import os
 from dataclasses import dataclass
 
@@ -60,7 +62,7 @@ class Combination:
     table: object  # (bins, 3) RGB, a Dr.Jit Float in JIT variants, NumPy in scalar ones
 
 
-def resolve(path, what):
+def resolve(path, what) -> str:
     """A path as given in a scene, resolved with Mitsuba's file resolver (which knows
     the folder of the scene being loaded); error naming the folders searched.
     """
@@ -80,7 +82,7 @@ def resolve(path, what):
     return found
 
 
-def _choice(props, key, default, modes):
+def _choice(props, key, default, modes) -> str:
     value = str(props.get(key, default)).strip().lower()
     if value not in modes:
         raise InputError(f"{PLUGIN_NAME}: {key} must be one of {modes}, got {value!r}")
@@ -158,7 +160,7 @@ def _checked_table(table):
     return np.ascontiguousarray(table.reshape(3, -1).T), dims, n_clamped  # (bins, 3): RGB together
 
 
-def combine(manifold, options, w, x=None, material=None, table=None):
+def combine(manifold, options, w, x=None, material=None, table=None) -> Combination:
     """The :class:`Combination` of weights ``w`` (the material at latent point ``x``, or training
     material ``material``, when given). ``table``, when the caller already has the sum over the
     materials kept by pruning, is used instead of reading and adding the tables.

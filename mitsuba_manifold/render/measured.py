@@ -11,6 +11,8 @@ Importing this module registers :func:`resample` as the reader of
 ``.bsdf`` files makes their tables (cached by content hash, :class:`~mitsuba_manifold.data.database.Database`).
 """
 
+from __future__ import annotations
+
 import os
 
 import numpy as np
@@ -42,7 +44,7 @@ def load_measured(path):
         ) from None
 
 
-def evaluate(bsdf, wi, wo, cosine=False):
+def evaluate(bsdf, wi, wo, cosine=False) -> np.ndarray:
     """BRDF values ``(m, 3)`` (1/sr) of a Mitsuba BSDF at local direction pairs ``(m, 3)``:
     ``eval(wi, wo) / cos(theta_o)`` (with ``cosine``: ``eval`` itself), 0 where either direction
     is below the surface.
@@ -69,7 +71,7 @@ def evaluate(bsdf, wi, wo, cosine=False):
     return np.maximum(out, 0.0)
 
 
-def resample(path, dims=merl.MERL_DIMS, samples=None):
+def resample(path, dims=merl.MERL_DIMS, samples=None) -> np.ndarray:
     """Reflectance table ``(3,) + dims`` float32 of the measured file ``path`` (0 below the horizon).
 
     A bin's value is the ratio ``sum eval(wi, wo) / sum cos(theta_o)`` over ``samples^3`` points
@@ -113,7 +115,7 @@ register_reader(MeasuredFile.kind, resample)
 # ------------------------------------------------------------------- fidelity
 
 
-def _sphere_scene(bsdf, res, spp, seed):
+def _sphere_scene(bsdf, res, spp, seed) -> dict:
     """The shipped sphere scene (sky map and point light, :file:`scenes/sphere.xml`) as a dict
     with ``bsdf`` on the sphere; the sphere sees nothing but the lights.
     """
@@ -152,7 +154,7 @@ def _lookat():
     return mi.ScalarTransform4f().look_at(origin=[0, 0.6, 5], target=[0, 0, 0], up=[0, 1, 0])
 
 
-def fidelity(path, manifold, name=None, res=64, spp=256, seed=0, interpolation="nearest"):
+def fidelity(path, manifold, name=None, res=64, spp=256, seed=0, interpolation="nearest") -> dict:
     """How a material imported from the measured file ``path`` renders against the file itself.
 
     Renders the sphere scene (:func:`_sphere_scene`) with Mitsuba's ``measured`` plugin twice
@@ -182,7 +184,7 @@ def fidelity(path, manifold, name=None, res=64, spp=256, seed=0, interpolation="
         "interpolation": interpolation,
     }
 
-    def render(bsdf, s):
+    def render(bsdf, s) -> np.ndarray:
         scene = mi.load_dict(_sphere_scene(bsdf, res, spp, s))
         return np.array(mi.render(scene, spp=spp, seed=s), dtype=np.float64)
 

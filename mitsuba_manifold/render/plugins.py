@@ -21,6 +21,8 @@ round trip (``llvm_ad_rgb -> scalar_rgb -> llvm_ad_rgb``) are still instances of
 ``mi.ad.integrators.prb.PRBIntegrator``.
 """
 
+from __future__ import annotations
+
 import importlib
 import sys
 import threading
@@ -39,7 +41,7 @@ _made = {}  # variant -> {module name: {class name: class}}
 _installed = False
 
 
-def _load(variant):
+def _load(variant) -> None:
     """Make the plugin modules' classes those of ``variant``: import, reload or restore them."""
     with _LOCK:
         made = _made.get(variant)
@@ -56,7 +58,7 @@ def _load(variant):
             _made.setdefault(variant, {})[name] = {cls: getattr(module, cls) for cls in classes}
 
 
-def register():
+def register() -> str:
     """Register the plugins for the active Mitsuba variant; returns the variant.
 
     Raises
@@ -79,7 +81,7 @@ def register():
     return variant
 
 
-def _on_variant(old, new):
+def _on_variant(old, new) -> None:
     """Mitsuba variant callback: the plugins of the new variant."""
     if new is None:
         return
@@ -95,7 +97,7 @@ def _on_variant(old, new):
         )
 
 
-def install():
+def install() -> str | None:
     """Register the plugins for the active variant and for every variant activated later
     (once per process); returns the active variant (None when none is set).
     """

@@ -78,7 +78,7 @@ class Refined:
     scale: np.ndarray = None
     method: str = "l2+"
 
-    def rel_mse(self, other):
+    def rel_mse(self, other) -> float:
         """Mean ``(other - image)^2 / (scale^2 + eps)``: ``other`` against the refinement, on the
         refinement's noise scale.
         """
@@ -86,7 +86,7 @@ class Refined:
         d = np.asarray(other, np.float64) - self.image
         return float(np.mean(d * d / (np.asarray(scale, np.float64) ** 2 + REL_EPS)))
 
-    def summary(self):
+    def summary(self) -> str:
         """One line: what was rendered and its estimated noise."""
         noise = "n/a (one pass)" if self.passes < 2 else f"{self.noise_rel_mse:.3g}"
         what = (
@@ -111,7 +111,7 @@ CONTROL_VARIATE = "control variate"
 CV_LEVELS = 5
 
 
-def _pass_plan(spp, passes):
+def _pass_plan(spp, passes) -> list:
     spp, passes = int(spp), int(passes)
     if spp < 1:
         raise InputError(f"`spp` must be >= 1, got {spp}")
@@ -130,7 +130,7 @@ class _SceneCache:
     ends or is stopped, not when it failed. One entry, locked.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.key, self.value, self.lock = None, None, threading.Lock()
 
     @contextlib.contextmanager
@@ -171,12 +171,12 @@ class _SceneCache:
                 with self.lock:
                     self.key, self.value = key, loaded
 
-    def clear(self):
+    def clear(self) -> None:
         with self.lock:
             self.key, self.value = None, None
 
     @staticmethod
-    def _key(basis, path, manifold_path, database):
+    def _key(basis, path, manifold_path, database) -> "Optional[tuple]":
         """What the scene is loaded with but the point; None where a file cannot be read (nothing
         is kept then, and loading says what is wrong).
         """
@@ -201,7 +201,7 @@ class _SceneCache:
 _SCENES = _SceneCache()
 
 
-def forget_kept(scene=True):
+def forget_kept(scene=True) -> None:
     """Drop what a refinement keeps for the next: the last point's tables and, with ``scene``, the
     loaded scene (a benchmark times a refinement at a new point, or one starting from nothing).
     """
@@ -300,7 +300,7 @@ def refine_passes(
         scenes.set_points(loaded.targets, points, basis.targets)
         integrator = _rest_integrator(basis, loaded.integrator)
 
-        def rest(n, pass_seed):
+        def rest(n, pass_seed) -> "np.ndarray":
             return np.array(
                 mi.render(
                     loaded.scene,
@@ -384,7 +384,7 @@ def _control_variate(basis, manifold, x, plan, request, stop, blend_image, kw):
         )
 
 
-def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"):
+def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+") -> "Refined":
     """The refined image from the spp-weighted sums of the pass images and their squares
     (``scale``: of :class:`Refined`; default the refined image).
     """

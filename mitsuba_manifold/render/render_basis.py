@@ -75,7 +75,7 @@ __all__ = [
 ]
 
 
-def select_materials(manifold, materials="all", near=None, radius=None):
+def select_materials(manifold, materials="all", near=None, radius=None) -> list:
     """Names of the materials to render, in manifold order.
 
     Parameters
@@ -278,7 +278,7 @@ class BasisOptions:
     gi: FullGI = field(default_factory=FullGI)
     run: RunBehaviour = field(default_factory=RunBehaviour)
 
-    def updated(self, **settings):
+    def updated(self, **settings) -> "BasisOptions":
         """These options with ``settings`` changed: fields of the groups by their own names
         (``spp=64``, ``mode="onepass"``), or whole groups (``gi=FullGI(...)``).
 
@@ -302,7 +302,7 @@ class BasisOptions:
         out = replace(self, **whole)
         return replace(out, **{g: replace(getattr(out, g), **kw) for g, kw in groups.items() if kw})
 
-    def keywords(self, *names):
+    def keywords(self, *names) -> dict:
         """The fields ``names`` (default all) as ``{name: value}``: the keywords of :func:`render_basis`."""
         names = names or tuple(_GROUP_OF)
         return {n: getattr(getattr(self, _GROUP_OF[n]), n) for n in names}
@@ -513,7 +513,7 @@ def _check_request(scene_path, manifold_path, out, o):
     return scene_path, manifold, chosen, x
 
 
-def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
+def _save(out, manifest, images, seconds, section="images", suffix=".exr") -> None:
     """Write ``{key: image}`` into ``out`` (EXR files in parallel), then list them in the
     :class:`Manifest`'s ``section`` (``"images"``, or ``"gi_images"`` with ``suffix``
     :data:`GI_SUFFIX`).
@@ -545,7 +545,7 @@ def _save(out, manifest, images, seconds, section="images", suffix=".exr"):
     manifest.write(out)
 
 
-def ensure_aovs(out, manifest, spp=16):
+def ensure_aovs(out, manifest, spp=16) -> None:
     """Write ``out/aovs.npz`` (:mod:`~mitsuba_manifold.render.guides`) unless one made for this basis is there."""
     from . import guides
 
@@ -555,7 +555,7 @@ def ensure_aovs(out, manifest, spp=16):
         guides.add_aovs(out, spp=spp)
 
 
-def _size(resolution):
+def _size(resolution) -> tuple:
     """``(width, height)`` of a ``resolution`` option (a square's side, or the pair)."""
     return (int(resolution),) * 2 if np.isscalar(resolution) else tuple(int(v) for v in resolution)
 
@@ -582,7 +582,7 @@ def _bar(total, enabled, desc):
     return tqdm(total=total, desc=desc, unit="image", disable=not enabled)
 
 
-def _render_each(scene, targets, todo, o, paths, save, stop):
+def _render_each(scene, targets, todo, o, paths, save, stop) -> None:
     """One render per image: base (component 'base'), then 'touch' per material or 'l1' per combination."""
     spp, seed, sensor = o.sampling.spp, o.sampling.seed, int(o.scene.sensor)
     single = len(targets) == 1
@@ -602,7 +602,7 @@ def _render_each(scene, targets, todo, o, paths, save, stop):
             bar.update()
 
 
-def _render_onepass(scene, target, todo, o, paths, save, stop):
+def _render_onepass(scene, target, todo, o, paths, save, stop) -> None:
     """All material images from one set of paths; base comes from the same paths."""
     integrator = _integrator("l1", paths)
     names = [combo[0] for key, combo in todo if combo is not None]
@@ -626,14 +626,14 @@ def _render_onepass(scene, target, todo, o, paths, save, stop):
     save(out, seconds)
 
 
-def count_sensors(scene_path):
+def count_sensors(scene_path) -> int:
     """Sensors (views) declared at the top level of a scene XML."""
     return len(
         validate.scene_xml(scene_path).findall("sensor")
     )  # or a MismatchError naming the file
 
 
-def plan_views(scenes, views, out):
+def plan_views(scenes, views, out) -> list:
     """``(scene, sensor, folder)`` for each scene and view asked for.
 
     One scene and one view render into ``out``; otherwise each basis goes to

@@ -8,6 +8,8 @@ density of an affine combination is ``sum_i w_i P_i``, clamped at 0
 ``MarginalContinuous2D1`` (:func:`sample_half_vector`, :func:`half_vector_pdf`).
 """
 
+from __future__ import annotations
+
 import functools
 import os
 
@@ -99,7 +101,7 @@ def sampling_density(table, grid=SAMPLING_GRID):
     return np.einsum("tvus,tvus->tvu", mean[index], weight, dtype=np.float32)
 
 
-def sampling_cache_path(database, name, grid=SAMPLING_GRID):
+def sampling_cache_path(database, name, grid=SAMPLING_GRID) -> str:
     """Cache file of a material's sampling density (keyed by the table's content hash)."""
     tag = f"v{SAMPLING_CACHE_VERSION}-{grid[0]}x{grid[1]}x{grid[2]}s{grid[3]}"
     return os.path.join(database.cache_dir, f"{database.hash(name)}.sampling-{tag}.npy")
@@ -113,7 +115,7 @@ def material_density(database, name, grid=SAMPLING_GRID, use_cache=True):
     if not use_cache:
         return sampling_density(database.reflectance(name), grid)
 
-    def warn(path, why):
+    def warn(path, why) -> None:
         mi.Log(mi.LogLevel.Warn, f"{PLUGIN_NAME}: sampling cache {path}: {why}; making it again")
 
     return npy_cache(

@@ -9,10 +9,12 @@ illumination of an interpolated material with Mitsuba's ``path`` (the ground tru
 ``L1-`` blends of paper Sec. 5.2 are compared with).
 """
 
+from __future__ import annotations
+
 import os
 import re
 from dataclasses import asdict, dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -22,8 +24,12 @@ from ..errors import InputError, MismatchError, MitsubaManifoldError, VariantErr
 from ..manifold.identity import manifold_identity
 from ..manifold.shipped import SHIPPED, ambiguity, resolve_manifold
 
+if TYPE_CHECKING:
+    from types import ModuleType
+    from typing import Any
 
-def _scenes_dir():
+
+def _scenes_dir() -> str:
     """The shipped scenes: ``scenes/`` at the top of a checkout, installed as the package data
     ``mitsuba_manifold/scenes`` (``pyproject.toml`` maps one to the other).
     """
@@ -93,7 +99,7 @@ class SceneIntegrator:
     hide_emitters: bool
     source: str
 
-    def path_properties(self):
+    def path_properties(self) -> dict:
         """Properties of a ``manifold_path`` (or ``path``) integrator that renders these paths."""
         return {
             "max_depth": int(self.max_depth),
@@ -112,7 +118,7 @@ class SceneIntegrator:
             return own
         return mi.load_dict({"type": "path", **self.path_properties()})
 
-    def describe(self):
+    def describe(self) -> str:
         """One phrase: ``path (max_depth 3, hide_emitters)``, with where it comes from."""
         depth = "unbounded" if self.max_depth < 0 else str(self.max_depth)
         extra = ", hide_emitters" if self.hide_emitters else ""
@@ -123,11 +129,11 @@ class SceneIntegrator:
         }[self.source]
         return f"{self.kind} (max_depth {depth}, rr_depth {self.rr_depth}{extra}; {where})"
 
-    def to_manifest(self):
+    def to_manifest(self) -> dict[str, Any]:
         return asdict(self)
 
 
-def _depth_of(integrator, name, text):
+def _depth_of(integrator, name, text) -> int | None:
     """An integer property of a Mitsuba integrator: its attribute, else its ``to_string``."""
     value = getattr(integrator, name, None)
     if value is None:
@@ -139,7 +145,7 @@ def _depth_of(integrator, name, text):
     return -1 if value >= 0xFFFFFFFF or value < 0 else value
 
 
-def scene_integrator(scene, scene_path, max_depth=None):
+def scene_integrator(scene, scene_path, max_depth=None) -> SceneIntegrator:
     """The :class:`SceneIntegrator` of a loaded scene, or an :class:`InputError` naming the
     setting the basis cannot reproduce (raised before anything is rendered).
 
@@ -197,7 +203,7 @@ def scene_integrator(scene, scene_path, max_depth=None):
     return found
 
 
-def _has_media(scene):
+def _has_media(scene) -> bool:
     """Whether any shape or sensor of ``scene`` bounds or holds a participating medium."""
     for shape in scene.shapes():
         for name in ("interior_medium", "exterior_medium"):
@@ -207,7 +213,7 @@ def _has_media(scene):
     return any(getattr(s, "medium", lambda: None)() is not None for s in scene.sensors())
 
 
-def shipped_scenes():
+def shipped_scenes() -> list:
     """Names of the scenes shipped with the package (``table``, ``sphere``, ...)."""
     return sorted(f[:-4] for f in os.listdir(SCENES_DIR) if f.endswith(".xml"))
 
@@ -227,7 +233,7 @@ def scene_path(scene):
     )
 
 
-def default_variant():
+def default_variant() -> str:
     """The variant named by the environment variable ``MM_VARIANT`` when set (``llvm_ad_rgb`` or
     ``cuda_ad_rgb``, the latter refused where CUDA does not run), else ``cuda_ad_rgb`` when a GPU
     works, else ``llvm_ad_rgb``.
@@ -253,7 +259,7 @@ def default_variant():
     return "llvm_ad_rgb"
 
 
-def _cuda_works():
+def _cuda_works() -> bool:
     """Whether Dr.Jit's CUDA backend runs here (a device and a driver)."""
     try:
         import drjit as dr
@@ -263,7 +269,7 @@ def _cuda_works():
         return False
 
 
-def use_variant(variant=None, jit=False):
+def use_variant(variant=None, jit=False) -> ModuleType:
     """The variant to render in, active and with the package's plugins; returns ``mi``.
 
     Never switches the variant unless asked, as Mitsuba itself:
@@ -301,7 +307,7 @@ def use_variant(variant=None, jit=False):
     return mi
 
 
-def release_render_memory():
+def release_render_memory() -> None:
     """Give the memory Dr.Jit keeps for reuse after a render back to the system.
 
     Dr.Jit caches the buffers a kernel frees (the paths and splats of a pass) for later kernels
@@ -323,7 +329,7 @@ def scene_parameters(scene):
     return used, defaults
 
 
-def scene_sample_count(scene, sensor=0):
+def scene_sample_count(scene, sensor=0) -> int | None:
     """Samples per pixel the sampler of sensor ``sensor`` of a scene XML declares: its
     ``sample_count``, or the ``<default>`` of the ``$parameter`` it takes; None where it
     declares none (or gives no integer).
@@ -343,7 +349,7 @@ def scene_sample_count(scene, sensor=0):
     return None
 
 
-def scene_manifolds(scene, params=None):
+def scene_manifolds(scene, params=None) -> list[tuple[Any, str]]:
     """``(bsdf id, manifold file)`` of each ``manifold_brdf`` of a scene XML: its ``manifold``
     value with ``$parameters`` taken from ``params``, else the scene's ``<default>``s, and a
     relative path resolved against the scene's folder (as Mitsuba's file resolver does), or
@@ -425,7 +431,7 @@ def _check_wrappers(scene):
             )
 
 
-def _other_manifold(scene, bsdf_id, path, manifold_path):
+def _other_manifold(scene, bsdf_id, path, manifold_path) -> str:
     if not os.path.isfile(path):
         return (
             f"scene {scene}: material {bsdf_id!r} names the manifold {path} (which does not exist), not "
@@ -447,7 +453,7 @@ def load_scene(
     variant=None,
     database=None,
     sensor=0,
-):
+) -> LoadedScene:
     """Load a scene XML with its ``$parameters`` set, and find its manifold materials.
 
     Only the parameters the XML uses are passed (Mitsuba refuses others): ``$manifold``,
@@ -609,7 +615,7 @@ def scene_resolution(manifest):
     return manifest.loaded_resolution
 
 
-def image_size(film):
+def image_size(film) -> tuple:
     """``(width, height)`` of the images a film gives: its crop window's size."""
     return tuple(int(v) for v in film.crop_size())
 
@@ -737,7 +743,7 @@ def set_points(found, x, targets=None):
         bsdf.set_latent(pts[row])
 
 
-def _points(x):
+def _points(x) -> np.ndarray:
     """``x`` as a (p, q) array of finite latent points, or the error naming it."""
     pts = np.atleast_2d(np.asarray(x, dtype=np.float64))
     if pts.ndim != 2 or not np.isfinite(pts).all():

@@ -41,6 +41,11 @@ from .common import (
     resolve_names,
 )
 
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Any
+
+
 if TYPE_CHECKING:  # imported by parse() when it runs (the command line is checked first)
     from ...basis.blend import BlendSettings
 
@@ -51,7 +56,7 @@ def _stem(path):
     return path[:-4] if path.lower().endswith(".exr") else path
 
 
-def parser():
+def parser() -> "ArgumentParser":
     p = ArgumentParser(
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -211,7 +216,7 @@ class ReferenceRequest:
     seed: int = 0
 
     @property
-    def wanted(self):
+    def wanted(self) -> bool:
         """Whether the blend is compared with a reference."""
         return bool(self.file or self.render)
 
@@ -263,7 +268,7 @@ class BlendRequest:
     output: Output
 
 
-def parse(argv=None):
+def parse(argv=None) -> "BlendRequest":
     """The checked :class:`BlendRequest` of the command line ``argv``."""
     argv = sys.argv[1:] if argv is None else list(argv)
     # "-0.3,1.2" would look like an option to argparse; with spaces it is a value
@@ -334,13 +339,13 @@ def parse(argv=None):
     return request
 
 
-def frame_names(output, steps):
+def frame_names(output, steps) -> list:
     """The EXR frames of ``--path``: ``<stem>_<s>.exr``, ``s`` zero-padded to the widest."""
     width = len(str(steps - 1))
     return [f"{output.stem}_{s:0{width}d}.exr" for s in range(steps)]
 
 
-def _existing_frames(output, steps):
+def _existing_frames(output, steps) -> list:
     """The frames of ``--path`` (EXR, and PNG with ``--png``) that exist already, found by
     listing their folder (not by trying every step).
     """
@@ -358,7 +363,7 @@ def _existing_frames(output, steps):
     ]
 
 
-def planned(request):
+def planned(request) -> list[tuple[str, str]]:
     """``(kind, path)`` of the files the run will write (:func:`path_outputs`, :func:`point_outputs`)
     to check first: with ``--path``, the first frame (every frame's name is as long) and the
     frames that exist already, found without listing every step (``--steps`` is not yet checked
@@ -385,7 +390,7 @@ def planned(request):
     return out
 
 
-def path_outputs(request, basis, manifold):
+def path_outputs(request, basis, manifold) -> "list[tuple[str, Any, Callable[..., Any]]]":
     """Blend the images along ``--path``; returns the outputs ``(kind, path, writer)`` to write."""
     from ..._util import checks as validate
     from ...basis.blend import MovingTarget, blend_path, path_labels
@@ -462,20 +467,20 @@ def path_outputs(request, basis, manifold):
 class _one_line_warnings:
     """Library warnings (an older L1- basis) as one ``warning: ...`` line on stderr."""
 
-    def __enter__(self):
+    def __enter__(self) -> None:
         import warnings
 
         self.catch = warnings.catch_warnings(record=True)
         self.caught = self.catch.__enter__()
         warnings.simplefilter("always", UserWarning)
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc) -> None:
         self.catch.__exit__(*exc)
         for w in self.caught:
             print(f"warning: {w.message}", file=sys.stderr)
 
 
-def _say_component(info):
+def _say_component(info) -> None:
     """One line: which blend was made (full GI or L1-) and, for L1-, why."""
     if info.component == "full":
         print(
@@ -523,7 +528,7 @@ def _point_or_name(a):  # a latent point "x0,x1", else a name blend_path reports
         return a
 
 
-def point_outputs(request, basis, manifold):
+def point_outputs(request, basis, manifold) -> "list[tuple[str, Any, Callable[..., Any]]]":
     """Blend the image of ``--x`` (and compare it with a reference); returns the outputs to write."""
     from ...basis.blend import blend
     from ...imaging import io as imageio
@@ -674,7 +679,7 @@ MAX_STEPS = 1000
 LIST_FILES = 50
 
 
-def write_outputs(out, outputs, force=False, group=None):
+def write_outputs(out, outputs, force=False, group=None) -> None:
     """Write ``outputs`` under the tools' output discipline (:class:`ownership.Outputs`): check
     that none replaces a file this tool did not make, create the folder of ``out``, run every
     writer (reporting each file, or more than :data:`LIST_FILES` with a progress bar and one
@@ -712,7 +717,7 @@ def write_outputs(out, outputs, force=False, group=None):
 COMPANIONS = (".png", "_error.exr", "_error.png", "_reference.exr", "_reference.png")
 
 
-def remove_stale_companions(out, outputs):
+def remove_stale_companions(out, outputs) -> None:
     """Remove the files an earlier blend to ``out`` wrote beside it that this run did not
     write again (e.g. the previous point's error image): only files this tool recorded as its
     own, unchanged since (:func:`ownership.owned`); a user's file is never touched.
@@ -772,7 +777,7 @@ def checked_x(request, basis, manifold):
 
 
 @guarded
-def main(argv=None):
+def main(argv=None) -> None:
     request = parse(argv)
     from ...basis.folder import Basis
 

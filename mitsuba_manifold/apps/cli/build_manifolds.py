@@ -50,7 +50,7 @@ def main(argv=None):
         )
 
 
-def _fixed_dates(path):
+def _fixed_dates(path) -> None:
     """Rewrite the ``.npz`` archive ``path`` with every entry dated 1980-01-01 (atomically)."""
     import zipfile
 

@@ -1,5 +1,7 @@
 """Argument helpers shared by the command-line tools (parsing and progress only; the work is in the library)."""
 
+from __future__ import annotations
+
 import argparse
 import functools
 import os
@@ -56,7 +58,7 @@ class ArgumentParser(argparse.ArgumentParser):
     parameters, and :func:`fail` writes the tool's option instead.
     """
 
-    def __init__(self, *args, aliases=None, **kwargs):
+    def __init__(self, *args, aliases=None, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = _NUMBERS
         self.aliases = dict(aliases or {})
@@ -65,7 +67,7 @@ class ArgumentParser(argparse.ArgumentParser):
         _ACTIVE[:] = [self]
         return super().parse_args(args, namespace)
 
-    def option_names(self):
+    def option_names(self) -> dict[str, str]:
         """Python parameter (argparse ``dest`` or alias) -> the option a user types."""
         names = {}
         for action in self._actions:
@@ -80,11 +82,11 @@ class ArgumentParser(argparse.ArgumentParser):
                 names[param] = names[dest]
         return names
 
-    def error(self, message):
+    def error(self, message) -> None:
         self.exit(2, f"error: {message} (see {self.prog} --help)\n")
 
 
-def add_prune_argument(parser):
+def add_prune_argument(parser) -> None:
     """``--prune``: the pruning budget of the blends a tool shows, the plugin's default and rule."""
     from ...manifold.pruning import DEFAULT_PRUNE
 
@@ -98,7 +100,7 @@ def add_prune_argument(parser):
     )
 
 
-def parse_list(text):
+def parse_list(text) -> list:
     """'a,b,c' -> ['a', 'b', 'c']."""
     items = [t.strip() for t in text.split(",") if t.strip()]
     if not items:
@@ -106,7 +108,7 @@ def parse_list(text):
     return items
 
 
-def parse_indices(text):
+def parse_indices(text) -> list[int]:
     """'0,3' -> [0, 3] (integers >= 0)."""
     try:
         values = [int(v) for v in parse_list(text)]
@@ -117,7 +119,7 @@ def parse_indices(text):
     return values
 
 
-def parse_resolution(text):
+def parse_resolution(text) -> tuple[int, int, int]:
     """'90,90,180' -> (90, 90, 180)."""
     try:
         dims = tuple(int(v) for v in text.split(","))
@@ -130,7 +132,7 @@ def parse_resolution(text):
     return dims
 
 
-def parse_floats(text):
+def parse_floats(text) -> list:
     """'0.3, -1.2' or '0.3 -1.2' -> [0.3, -1.2]; an empty place between commas ('0,,1') is refused."""
     parts = re.split(r"\s*,\s*|\s+", text.strip())
     try:
@@ -151,7 +153,7 @@ def parse_point(text):
     return text.strip() if is_name(text) else parse_floats(text)
 
 
-def parse_points(groups, option="--x"):
+def parse_points(groups, option="--x") -> list:
     """The points of a repeatable option taking several words (``--x A B --x 0.3 -1.2``), in
     order: each group is one point (numbers or a name), or several names, one point each.
     """
@@ -171,7 +173,7 @@ def parse_points(groups, option="--x"):
     return points
 
 
-def resolve_names(points, manifold):
+def resolve_names(points, manifold) -> list | None:
     """``points`` (:func:`parse_points`) as one flat list of numbers, each name replaced by its
     latent point (q numbers).
     """
@@ -180,7 +182,7 @@ def resolve_names(points, manifold):
     return [float(c) for v in points for c in (manifold.point(v) if isinstance(v, str) else v)]
 
 
-def cli_message(error, parser=None):
+def cli_message(error, parser=None) -> str:
     """``error`` as one line for a command-line user: each Python parameter the library named
     (`spp`) becomes the option that sets it (``--spp``), or plain text where none does.
     """
@@ -189,7 +191,7 @@ def cli_message(error, parser=None):
     return _PARAM.sub(lambda m: names.get(m.group(1), m.group(1)), one_line(error))
 
 
-def fail(error, code=2):
+def fail(error, code=2) -> None:
     """Print an error for the user (one line, in the tool's option names) and exit."""
     print(f"error: {cli_message(error)}", file=sys.stderr)
     sys.exit(code)
@@ -204,7 +206,7 @@ class _Interrupts:
     half-way): the note tells :func:`guarded` that it was the interrupt.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.seen = False
         self.previous = None
 
@@ -212,11 +214,11 @@ class _Interrupts:
         self.seen = True
         raise KeyboardInterrupt
 
-    def install(self):
+    def install(self) -> None:
         if threading.current_thread() is threading.main_thread():
             self.previous = signal.signal(signal.SIGINT, self.handle)
 
-    def restore(self, finished_process=False):
+    def restore(self, finished_process=False) -> None:
         """Put the handler back; a whole process that has finished ignores a late Ctrl-C instead
         (everything was written: exit 0, not a traceback while the interpreter shuts down).
         """
@@ -226,7 +228,7 @@ class _Interrupts:
         self.previous = None
 
 
-def _interrupted(process):
+def _interrupted(process) -> None:
     """Report Ctrl-C and exit 130. A whole process ends at once (its files are closed and its
     locks released by then): an extension module whose import the interrupt cut half-way
     would abort the interpreter's shutdown.
@@ -274,7 +276,7 @@ def guarded(main):
     return run
 
 
-def reference_view(basis, scene, render_reference, warn=print):
+def reference_view(basis, scene, render_reference, warn=print) -> dict:
     """Keyword arguments of ``render_reference`` (:func:`mitsuba_manifold.render.scenes.render_reference`)
     that render the view of ``basis`` (its manifest's ``sensor``), so that a reference compares
     with the blend pixel for pixel. Warns when the manifest does not record its sensor (a basis

@@ -24,20 +24,27 @@ within 5 s is closed (408), connections beyond 256 at once are refused (503), a 
 shown once per 10 s with a count of the others.
 """
 
+from __future__ import annotations
+
 import argparse
 import errno
 import os
 import socket
 import sys
+from typing import TYPE_CHECKING
 
 from ..tool_commands import explore_command
+
+if TYPE_CHECKING:
+    from mitsuba_manifold.apps.cli.common import ArgumentParser
+
 
 DEFAULT_PORT = 8765
 #: This tool's command line for a basis (as the main job prints it).
 command = explore_command
 
 
-def parse_port(text):
+def parse_port(text) -> int:
     """A TCP port number 0..65535 (0: any free port)."""
     try:
         port = int(text)
@@ -50,7 +57,7 @@ def parse_port(text):
     return port
 
 
-def parser():
+def parser() -> ArgumentParser:
     from .common import ArgumentParser, add_prune_argument
 
     p = ArgumentParser(
@@ -131,7 +138,7 @@ def bind(host, port):
     return sock
 
 
-def _bind_problem(error, host, port):
+def _bind_problem(error, host, port) -> str:
     """Why binding failed and which option to change: --host when the address is the
     problem (unknown name, not this machine's), --port when the port is (in use, privileged).
     """
@@ -148,13 +155,13 @@ def _bind_problem(error, host, port):
     return f"{reason}; check --host {host} and --port {port}"
 
 
-def url(sock):
+def url(sock) -> str:
     host, port = sock.getsockname()[:2]
     host = f"[{host}]" if ":" in host else host
     return f"http://{host}:{port}/"
 
 
-def main(argv=None):
+def main(argv=None) -> int:
     args = parser().parse_args(argv)
     try:
         return serve(args)
@@ -171,7 +178,7 @@ def server_blas_threads(cores=None):
     return max(1, (cores or 1) - 2)
 
 
-def serve(args):
+def serve(args) -> int:
     try:
         import uvicorn
     except ImportError:

@@ -81,7 +81,7 @@ def check(args, guard=None):
 
 
 @guarded
-def main(argv=None):
+def main(argv=None) -> None:
     p = ArgumentParser(description=__doc__, aliases={"names": "materials"})
     p.add_argument(
         "database",
@@ -153,7 +153,7 @@ def main(argv=None):
         fit_and_save(args, guard, t0)
 
 
-def fit_and_save(args, guard, t0):
+def fit_and_save(args, guard, t0) -> None:
     """The fit, the manifold and the plots (each recorded as written, under ``guard``);
     plots an earlier fit wrote into ``--plot`` and this one does not (another ``q``) are removed.
     """

@@ -15,7 +15,7 @@ from .common import ArgumentParser, guarded, parse_resolution
 
 
 @guarded
-def main(argv=None):
+def main(argv=None) -> None:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="out", help="output folder (default out/)")
     p.add_argument(

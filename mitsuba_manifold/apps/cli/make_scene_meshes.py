@@ -9,7 +9,7 @@ from .common import ArgumentParser, guarded
 
 
 @guarded
-def main(argv=None):
+def main(argv=None) -> None:
     from ...render.scenes import SCENES_DIR
 
     ap = ArgumentParser(description=__doc__.splitlines()[0])
@@ -40,7 +40,7 @@ def main(argv=None):
         write_assets(args, bowl, sky, guard)
 
 
-def write_assets(args, bowl, sky, guard):
+def write_assets(args, bowl, sky, guard) -> None:
     """Write the bowl mesh and the sky map (under ``guard``, :class:`ownership.Outputs`)."""
     import mitsuba as mi
 

@@ -12,16 +12,23 @@ at their depth: 8 bits, or a 16-bit greyscale PNG; clipped pixels left out). Not
 written until the match has succeeded.
 """
 
+from __future__ import annotations
+
 import argparse
 import json
 import os
 import sys
 import time
+from typing import TYPE_CHECKING
 
 from .common import ERRORS, ArgumentParser, fail, guarded, reference_view
 
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Any
 
-def _parser():
+
+def _parser() -> ArgumentParser:
     p = ArgumentParser(
         prog="match.py",
         description=__doc__,
@@ -98,7 +105,7 @@ def _stem(path):
     return path[:-4] if path.lower().endswith(".exr") else path
 
 
-def _check_args(args):
+def _check_args(args) -> None:
     if args.out is not None and not args.out.lower().endswith(".exr"):
         fail(f"--out must name an .exr file, got {args.out!r}")
     if (args.png or args.render_reference) and args.out is None:
@@ -146,7 +153,7 @@ def _inputs(args):
     return basis, manifold, target, weight
 
 
-def _report(result, manifold, basis):
+def _report(result, manifold, basis) -> None:
     print(basis)
     x = ", ".join(f"{v:.4f}" for v in result.x)
     print(
@@ -179,7 +186,7 @@ def _report(result, manifold, basis):
     )
 
 
-def _outputs(args, result, basis, manifold, target):
+def _outputs(args, result, basis, manifold, target) -> list[tuple[str, Any, Callable[..., Any]]]:
     """(kind, path, writer) of everything to write."""
     import numpy as np
 
@@ -252,7 +259,7 @@ def _outputs(args, result, basis, manifold, target):
     return outputs
 
 
-def _planned(args):
+def _planned(args) -> list:
     """Paths the tool will write."""
     out = [args.json] if args.json else []
     if args.out:
@@ -262,7 +269,7 @@ def _planned(args):
     return out
 
 
-def _refuse_inputs(args, guard):
+def _refuse_inputs(args, guard) -> None:
     """Never overwrite an input (the target, the mask or an image of the basis), nor a file
     this tool did not make (``guard``: :class:`ownership.Outputs`, which allows those with
     ``--force``).

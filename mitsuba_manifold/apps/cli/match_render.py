@@ -29,6 +29,8 @@ view, _1, _2, ... beside the first), a convergence plot (--plot) and everything 
 Nothing is written until the match has succeeded.
 """
 
+from __future__ import annotations
+
 import argparse
 import json
 import os
@@ -39,7 +41,7 @@ from .common import ArgumentParser, fail, guarded
 SHEET_TILE = 192
 
 
-def _parser():
+def _parser() -> ArgumentParser:
     from ...render.match_render import INTEGRATORS
 
     p = ArgumentParser(
@@ -154,7 +156,7 @@ def _parser():
     return p
 
 
-def _views(args):
+def _views(args) -> list:
     from ...render.match_render import View
 
     n = len(args.target)
@@ -174,14 +176,14 @@ def _views(args):
     return [View(s, t, m, i) for s, t, m, i in zip(scenes, args.target, masks, sensors)]
 
 
-def _out_paths(args, n):
+def _out_paths(args, n) -> list:
     if not args.out:
         return []
     stem = args.out[:-4]
     return [args.out] + [f"{stem}_{i}.exr" for i in range(1, n)]
 
 
-def _check(args):
+def _check(args) -> None:
     if args.out is not None and not args.out.lower().endswith(".exr"):
         fail(f"--out must name an .exr file, got {args.out!r}")
     if args.plot is not None and not args.plot.lower().endswith(".png"):
@@ -210,7 +212,7 @@ def _check(args):
         ownership.check_replaceable(path, args.force, what="output")
 
 
-def _report(r, manifold):
+def _report(r, manifold) -> None:
     print("best latent point: x = " + ", ".join(f"{v:.4f}" for v in r.x))
     print(
         "nearest training materials: " + ", ".join(f"{n} ({d:.3f})" for n, d in r.nearest(manifold))
@@ -240,7 +242,7 @@ def _sheet_path(args):
     return None
 
 
-def _print_acquisition(r):
+def _print_acquisition(r) -> None:
     print(
         f"acquired ({r.method}: weights {r.feasible}): relative RMSE {r.error:.4g} over the masks"
     )
@@ -287,7 +289,7 @@ def _print_acquisition(r):
     )
 
 
-def _acquire(args, views):
+def _acquire(args, views) -> int:
     from ..._util import ownership
     from ..._util.atomic import write_bytes
     from ...basis.acquisition import AcquireOptions
@@ -354,7 +356,7 @@ def _acquire(args, views):
 
 
 @guarded
-def main(argv=None):
+def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     args.max_depth_given = args.max_depth is not None
     if args.max_depth is None:

@@ -30,7 +30,7 @@ def check_json(args, guard=None):
 
 
 @guarded
-def main(argv=None):
+def main(argv=None) -> None:
     p = ArgumentParser(description=__doc__)
     p.add_argument(
         "table",
@@ -63,7 +63,7 @@ def main(argv=None):
         project(args)
 
 
-def project(args):
+def project(args) -> None:
     """Project ``args.table``, print the result and write ``--json``."""
     from ..._util.atomic import write_bytes
     from ...data.sources import material_source

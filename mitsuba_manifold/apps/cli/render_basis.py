@@ -41,7 +41,7 @@ def parse_views(text):
 DEFAULT_SPP = 64
 
 
-def check_numbers(args, spp):
+def check_numbers(args, spp) -> None:
     """The options checked before any folder is made: ``--spp`` (``spp``: the most samples
     per pixel of any basis, the scenes' own where ``--spp`` is not given), ``--chunks``,
     ``--res``, ``--max-depth`` and ``--seed``, whose derived seeds must fit Mitsuba's 32 bits
@@ -70,7 +70,7 @@ def check_numbers(args, spp):
 
 
 @guarded
-def main(argv=None):
+def main(argv=None) -> None:
     p = ArgumentParser(
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -23,6 +23,8 @@ named as a combination of measured materials. :class:`Acquisitions` runs one acq
 time in a background thread with its progress.
 """
 
+from __future__ import annotations
+
 import base64
 import binascii
 import io
@@ -32,6 +34,7 @@ import threading
 import time
 import traceback
 from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -42,6 +45,10 @@ from ...basis.folder import BASE
 from ...errors import BusyError, InputError, MitsubaManifoldError
 from . import encode
 from .inputs import show
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Largest upload (bytes of the JSON body: photo and mask, base64).
 MAX_UPLOAD = 24 * 1024 * 1024
@@ -70,7 +77,7 @@ IMAGES = ("target", "acquired", "single", "mask", "sheet")
 
 
 # ------------------------------------------------------------------ upload
-def decode_data(value, what):
+def decode_data(value, what) -> bytes:
     """Bytes of an upload field: a ``data:...;base64,`` URL or plain base64, or InputError."""
     if not isinstance(value, str) or not value:
         raise InputError(
@@ -83,7 +90,7 @@ def decode_data(value, what):
         raise InputError(f"`{what}` is not valid base64 (send the file as a data: URL)") from None
 
 
-def _kind(data, what):
+def _kind(data, what) -> str:
     """``".exr"``, ``".png"`` or ``".jpg"`` from the file's first bytes, or InputError."""
     if data[:4] == b"v/1\x01":
         return ".exr"
@@ -97,7 +104,7 @@ def _kind(data, what):
     )
 
 
-def _size_of(data, kind):
+def _size_of(data, kind) -> tuple[int, int] | None:
     """``(width, height)`` from the header, before any pixel is decoded."""
     if kind == ".exr":
         return None  # the reader checks the header itself
@@ -279,13 +286,13 @@ def describe(names, w, top=6):
     return text, why
 
 
-def _tile(img, side):
+def _tile(img, side) -> np.ndarray:
     """``img`` enlarged (nearest pixel) to at least ``side`` pixels wide."""
     k = max(1, int(np.ceil(side / img.shape[1])))
     return np.repeat(np.repeat(img, k, axis=0), k, axis=1)
 
 
-def contact_sheet(target, acquired, single, labels, title=None, exposure=0.0):
+def contact_sheet(target, acquired, single, labels, title=None, exposure=0.0) -> bytes:
     """PNG bytes of ``target | acquired | best single`` with ``labels`` under each and ``title``
     above.
     """
@@ -329,7 +336,7 @@ def acquire_photo(explorer, name, target, mask, notes, progress=lambda stage, do
     cons = constraints_of(manifold, ex.database)
     steps = [0, 2 * len(aq.CV_GRID) + opts.bootstrap + 2]
 
-    def step():
+    def step() -> None:
         steps[0] += 1
         progress("solving", 0.1 + 0.7 * min(steps[0] / steps[1], 1.0))
 
@@ -405,13 +412,13 @@ def acquire_photo(explorer, name, target, mask, notes, progress=lambda stage, do
 class Job:
     """One acquisition: its state (``queued``, ``running``, ``done``, ``failed``), progress and answer."""
 
-    def __init__(self, job_id, basis):
+    def __init__(self, job_id, basis) -> None:
         self.id, self.basis = job_id, basis
         self.state, self.stage, self.progress, self.message = "queued", "waiting", 0.0, ""
         self.answer, self.images, self.sheet = None, None, None
         self.started = time.time()
 
-    def status(self):
+    def status(self) -> dict[str, Any]:
         out = {
             "id": self.id,
             "state": self.state,
@@ -430,11 +437,11 @@ class Acquisitions:
     refused with :class:`BusyError` while one waits or runs), the last :data:`JOBS_KEPT` kept.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._jobs, self._lock, self._count = {}, threading.Lock(), 0
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="explore-acquire")
 
-    def submit(self, explorer, name, target, mask, notes):
+    def submit(self, explorer, name, target, mask, notes) -> Job:
         with self._lock:
             if any(j.state in ("queued", "running") for j in self._jobs.values()):
                 raise BusyError("an acquisition is running; wait for it to finish")
@@ -446,8 +453,8 @@ class Acquisitions:
         self._pool.submit(self._run, job, explorer, name, target, mask, notes)
         return job
 
-    def _run(self, job, explorer, name, target, mask, notes):
-        def progress(stage, done):
+    def _run(self, job, explorer, name, target, mask, notes) -> None:
+        def progress(stage, done) -> None:
             job.stage, job.progress = stage, done
 
         job.state = "running"
@@ -496,5 +503,5 @@ class Acquisitions:
             return encode.png_bytes(np.repeat((255 * img[..., None]).astype(np.uint8), 3, axis=-1))
         return encode.png_bytes(encode.tonemap(np.asarray(img, np.float32), exposure))
 
-    def close(self):
+    def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)

@@ -1,12 +1,14 @@
 """The bases of an explorer: a short name for each folder, and the scene its reference renders use."""
 
+from __future__ import annotations
+
 import os
 
 from ...basis.folder import scene_hash
 from ...render import scenes
 
 
-def names(folders):
+def names(folders) -> dict:
     """Short unique names of basis folders (their base names, numbered when they repeat)."""
     out = {}
     for folder in folders:
@@ -38,7 +40,7 @@ def scene_of(basis, scene=None):
     return None
 
 
-def warm(bases):
+def warm(bases) -> None:
     """The first basis's cross terms (the one the page opens on) in float32 before the first drag
     (:meth:`~mitsuba_manifold.basis.folder.Basis.warm_cross_terms`); other bases convert theirs as they are blended.
     """

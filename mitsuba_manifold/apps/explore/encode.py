@@ -10,6 +10,8 @@ result is identical to ``imageio.tonemap`` for whole stops of exposure (the scal
 then exact in float32) and within one level otherwise.
 """
 
+from __future__ import annotations
+
 import io
 
 import numpy as np
@@ -56,7 +58,7 @@ def _tables():
 _THRESHOLDS, _LOWER = _tables()
 
 
-def tonemap(img, exposure=0.0):
+def tonemap(img, exposure=0.0) -> np.ndarray:
     """Linear RGB (..., 3) float to 8-bit sRGB, as :func:`imageio.tonemap` (NaN -> 0), in
     float32 and in place after the one copy of ``img``.
     """
@@ -71,7 +73,7 @@ def tonemap(img, exposure=0.0):
     return level
 
 
-def encode(rgb8, fmt):
+def encode(rgb8, fmt) -> bytes:
     """Bytes of an (H, W, 3) uint8 image in ``fmt`` (one of :data:`FORMATS`)."""
     if fmt == "rgba":
         h, w, _ = rgb8.shape
@@ -95,7 +97,7 @@ def png_bytes(rgb8):
     return encode(np.ascontiguousarray(rgb8), "png") if rgb8.shape[-1] == 3 else _png_rgba(rgb8)
 
 
-def _png_rgba(rgba8):
+def _png_rgba(rgba8) -> bytes:
     from PIL import Image
 
     buf = io.BytesIO()

@@ -12,9 +12,17 @@ every HTTP request and websocket handshake, and reading request bodies with a si
 (:data:`MAX_BODY`) before any handler parses them.
 """
 
+from __future__ import annotations
+
 import json
 import re
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Any
+
 
 #: Largest request body (bytes) and websocket message (characters) accepted.
 MAX_BODY = 64 * 1024
@@ -31,7 +39,7 @@ def _name(host):
     return f"[{host}]" if ":" in host and not host.startswith("[") else host
 
 
-def parse_host(text, default_port=80):
+def parse_host(text, default_port=80) -> tuple | None:
     """``(name, port)`` of a Host header value, or None when it is not one."""
     m = _HOST.match(str(text or "").strip().lower())
     if not m:
@@ -72,7 +80,7 @@ class AllowList:
         Further origins, exactly (``https://explore.example:443``): each also allows its host.
     """
 
-    def __init__(self, port=None, hosts=LOCAL_NAMES, origins=()):
+    def __init__(self, port=None, hosts=LOCAL_NAMES, origins=()) -> None:
         self.port = None if port is None else int(port)
         self.hosts = {_name(h) for h in hosts}
         self.origins = set()
@@ -86,14 +94,14 @@ class AllowList:
             self.origins.add(origin)
 
     @classmethod
-    def for_server(cls, host, port, origins=(), bound=None):
+    def for_server(cls, host, port, origins=(), bound=None) -> AllowList:
         """The allow-list of a server started with ``--host host --port port`` (the port it
         got), listening on address ``bound``, with ``--allow-origin`` values ``origins``.
         """
         names = set(LOCAL_NAMES) | {_name(host)} | ({_name(bound)} if bound else set())
         return cls(port, names, origins)
 
-    def host_ok(self, header):
+    def host_ok(self, header) -> bool:
         """Whether a request with this Host header is for this server."""
         host = parse_host(header, default_port=None)
         if host is None:
@@ -120,21 +128,21 @@ class AllowList:
         port = self.port if self.port is not None else (parse_host(host_header) or (None, None))[1]
         return origin[0] == "http" and origin[1] in self.hosts and origin[2] == port
 
-    def describe(self):
+    def describe(self) -> list[str]:
         ports = f":{self.port}" if self.port is not None else ""
         return sorted(f"http://{h}{ports}" for h in self.hosts) + sorted(
             f"{s}://{h}:{p}" for s, h, p in self.origins
         )
 
 
-def _headers(scope):
+def _headers(scope) -> dict:
     out = {}
     for k, v in scope.get("headers", ()):
         out.setdefault(k.decode("latin-1").lower(), v.decode("latin-1"))
     return out
 
 
-def refusal(scope, allow):
+def refusal(scope, allow) -> str | None:
     """Why a request is refused (a one-line message), or None when it is allowed."""
     h = _headers(scope)
     if not allow.host_ok(h.get("host")):
@@ -147,7 +155,7 @@ def refusal(scope, allow):
     return None
 
 
-async def _answer(send, status, message):
+async def _answer(send, status, message) -> None:
     body = json.dumps({"error": message}).encode()
     await send(
         {
@@ -168,7 +176,7 @@ class Guard:
     the limit of that path's bodies instead, e.g. an upload's).
     """
 
-    def __init__(self, app, allow=None, max_body=MAX_BODY, limits=None):
+    def __init__(self, app, allow=None, max_body=MAX_BODY, limits=None) -> None:
         self.app = app
         self.allow = allow if allow is not None else AllowList()
         self.max_body = int(max_body)
@@ -211,7 +219,7 @@ class Guard:
         return await self.app(scope, receive, send)
 
 
-def _replay(body, receive):
+def _replay(body, receive) -> Callable[..., Any]:
     """An ASGI ``receive`` giving ``body`` (already read) once, then the connection's own."""
     replay = [{"type": "http.request", "body": body, "more_body": False}]
 

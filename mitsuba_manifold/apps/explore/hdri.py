@@ -15,10 +15,17 @@ Directions: ``y`` up, ``z`` towards the viewer; pixel ``(i, j)`` is at polar ang
 from ``+z`` towards ``+x``.
 """
 
+from __future__ import annotations
+
 import json
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 WIDTH, HEIGHT = 128, 64
 #: Lights of the median cut at rest and while dragging (a software rasteriser keeps up).
@@ -46,7 +53,7 @@ def _panel(d, phi, elevation, half_width, half_height):
     return (np.abs(off) < half_width) & (np.abs(el - elevation) < half_height)
 
 
-def studio(width=WIDTH, height=HEIGHT):
+def studio(width=WIDTH, height=HEIGHT) -> np.ndarray:
     """The environment: linear RGB float32 ``(H, W, 3)`` (see the module doc)."""
     d, omega = directions(width, height)
     up = d[..., 1:2]
@@ -102,7 +109,7 @@ def median_cut(env, count):
     return np.array(dirs), np.array(power)
 
 
-def describe(env):
+def describe(env) -> dict[str, Any]:
     """The JSON of :func:`write` for ``env``."""
     h, w, _ = env.shape
     out = {
@@ -120,7 +127,7 @@ def describe(env):
     return out
 
 
-def write(folder=FOLDER):
+def write(folder=FOLDER) -> tuple[str, str]:
     """Write ``studio.json`` and ``studio.f16`` into ``folder``; returns their paths."""
     from ..._util.atomic import write_bytes
 

@@ -2,6 +2,8 @@
 the explorer's request validation (latent points, numbers, map extents and coordinates, path kinds).
 """
 
+from __future__ import annotations
+
 import re
 
 import numpy as np
@@ -18,13 +20,13 @@ NUMBER = re.compile(
 )
 
 
-def show(value, limit=60):
+def show(value, limit=60) -> str:
     """``repr`` of a value from a request, cut to ``limit`` characters (messages stay one line)."""
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 5] + " ...>"
 
 
-def to_float(value):
+def to_float(value) -> float:
     """A number from a request as a float: ints, floats and number text only (no bools, no
     "1_0"); an integer too large for a float gives +-1e308 (refused as out of range).
     """
@@ -95,7 +97,7 @@ def number(value, what, lo, hi, default):
         ) from None
 
 
-def extent(text):
+def extent(text) -> tuple:
     """The extent ``(x_min, x_max, y_min, y_max)`` of a latent map from a request."""
     try:
         b = [
@@ -139,7 +141,7 @@ def map_dims(manifold, dims):
     return dims
 
 
-def path_kind(kind):
+def path_kind(kind) -> str:
     """A path kind of a request (one of :data:`~mitsuba_manifold.manifold.paths.KINDS`)."""
     if not isinstance(kind, str) or kind not in path_kinds.KINDS:
         raise InputError(f"kind must be one of {list(path_kinds.KINDS)}, got {show(kind)}")

@@ -10,6 +10,8 @@ outside it the map is dimmed. Where any albedo channel leaves [0, 1] (a physical
 impossible material: extrapolation, negative weights) the map is hatched.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,7 +35,7 @@ class LatentMap:
     outside_fraction: float
     colormap: list  # CSS colours from lo to hi, for the legend
 
-    def info(self):
+    def info(self) -> dict:
         return {
             "dims": list(self.dims),
             "extent": list(self.extent),
@@ -43,7 +45,7 @@ class LatentMap:
         }
 
 
-def extent(manifold, dims, margin=MARGIN):
+def extent(manifold, dims, margin=MARGIN) -> tuple[float, float, float, float]:
     """Bounds of the slice: the latent points' bounding box of ``dims`` plus ``margin`` each side
     (made square in latent units so distances look right).
     """
@@ -58,7 +60,7 @@ def extent(manifold, dims, margin=MARGIN):
     )
 
 
-def _grid(center, dims, ext, resolution):
+def _grid(center, dims, ext, resolution) -> np.ndarray:
     """Latent points of a resolution x resolution grid over ``ext`` (top row first)."""
     xs = np.linspace(ext[0], ext[1], resolution)
     ys = np.linspace(ext[3], ext[2], resolution)
@@ -81,7 +83,7 @@ def colour_range(manifold):
     return 0.0, float(min(1.0, max(1.1 * np.asarray(manifold.albedos).mean(axis=-1).max(), 0.05)))
 
 
-def render(manifold, center, dims=(0, 1), resolution=192, bounds=None, pause=None):
+def render(manifold, center, dims=(0, 1), resolution=192, bounds=None, pause=None) -> LatentMap:
     """A :class:`LatentMap` of the slice through ``center`` (q,) spanning ``dims``, over
     ``bounds`` ``(x0_min, x0_max, x1_min, x1_max)`` (default: :func:`extent`).
 

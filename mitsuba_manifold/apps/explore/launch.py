@@ -5,6 +5,8 @@ prints its URL; :func:`stop` stops it as Ctrl-C does. :func:`find_chromium` find
 system Chromium that Playwright drives (it cannot download its own here).
 """
 
+from __future__ import annotations
+
 import os
 import shutil
 import time
@@ -12,7 +14,7 @@ import time
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
 
-def find_chromium():
+def find_chromium() -> str | None:
     """Path of a system Chromium, or None."""
     for name in CHROMIUM_NAMES:
         path = shutil.which(name)

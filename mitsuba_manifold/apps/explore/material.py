@@ -20,15 +20,22 @@ named by the content hashes of the tables the manifold was fit on: the next star
 that one file and opens no table.
 """
 
+from __future__ import annotations
+
 import math
 import os
 import threading
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..._util.fifo_cache import Recent
 from ..._util.float32 import weights32
 from .walks import metric_columns
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Largest preview table (n_theta_h, n_theta_d, n_phi_d) sent to the browser.
 PREVIEW_DIMS = (45, 45, 90)
@@ -42,7 +49,7 @@ RECENT = 4
 CACHE_VERSION = "explore-preview-v2"
 
 
-def describe(manifold, x, prune):
+def describe(manifold, x, prune) -> dict[str, Any]:
     """Weights, albedo, variance and neighbours of latent point ``x`` (q,), as JSON-ready dict."""
     _, w = manifold.weights(x)
     report = manifold.prune_report(w, prune)  # what pruning keeps and the bounds it reaches
@@ -118,7 +125,7 @@ def check_database(folder, manifold):
         )
 
 
-def preview_strides(dims, target=PREVIEW_DIMS):
+def preview_strides(dims, target=PREVIEW_DIMS) -> tuple:
     """Bin stride per axis so the preview table is at most ``target``."""
     return tuple(max(1, math.ceil(n / t)) for n, t in zip(dims, target))
 
@@ -143,7 +150,7 @@ class TableStack:
         Full table resolution; ``preview_dims``: the reduced one.
     """
 
-    def __init__(self, manifold, database=None, cache_dir=None):
+    def __init__(self, manifold, database=None, cache_dir=None) -> None:
         self.manifold = manifold
         self.database = database
         self.cache_dir = cache_dir
@@ -154,12 +161,12 @@ class TableStack:
         self._thread = threading.Thread(target=self._load, name="explore-tables", daemon=True)
         self._thread.start()
 
-    def wait(self, timeout=None):
+    def wait(self, timeout=None) -> str:
         """Block until loaded (or failed); returns the state."""
         self._ready.wait(timeout)
         return self.state
 
-    def cache_path(self):
+    def cache_path(self) -> str | None:
         """The cache file of this manifold's reduced tables (named by the tables' hashes), or None."""
         if self.cache_dir is None:
             return None
@@ -168,7 +175,7 @@ class TableStack:
         key = key_hash(CACHE_VERSION, str(PREVIEW_DIMS), *self.manifold.hashes, length=24)
         return os.path.join(self.cache_dir, f"preview-{key}.npz")
 
-    def _load(self):
+    def _load(self) -> None:
         try:
             cached = self._read_cache()
             dims, reduced, slices, preview_dims, metric = (
@@ -218,7 +225,7 @@ class TableStack:
             self.message = f"loading tables {i + 1}/{n}"
         return dims, reduced, slices.reshape(n, -1), tuple(preview_dims), metric
 
-    def _read_cache(self):
+    def _read_cache(self) -> None:
         path = self.cache_path()
         if path is None or not os.path.isfile(path):
             return None
@@ -240,7 +247,7 @@ class TableStack:
             return None
         return dims, reduced, slices, preview_dims, metric
 
-    def _write_cache(self):
+    def _write_cache(self) -> None:
         path = self.cache_path()
         if path is None:
             return

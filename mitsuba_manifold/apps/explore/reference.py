@@ -24,6 +24,8 @@ reference's process is ended at once, a running refinement stops after its pass.
 job does (cancelled, failed) stops the worker.
 """
 
+from __future__ import annotations
+
 import itertools
 import os
 import re
@@ -62,7 +64,7 @@ class Cancelled(Exception):
     """The job was cancelled (by its page, or its page went away)."""
 
 
-def _lower_priority():
+def _lower_priority() -> None:
     try:  # Linux: the calling thread's own niceness
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICENESS)
     except (AttributeError, OSError):
@@ -88,7 +90,7 @@ class Job:
     method: str = None  # a refinement's: how its L2+ light is rendered
     process: object = field(default=None, repr=False)  # a reference's render process while it runs
 
-    def status(self):
+    def status(self) -> dict:
         return {
             "id": self.id,
             "basis": self.basis,
@@ -105,7 +107,7 @@ class Job:
         }
 
 
-def agreement(blend_image, refined):
+def agreement(blend_image, refined) -> dict:
     """Whether the blend shown agrees with an unbiased refinement (:class:`~mitsuba_manifold.render.refine.Refined`)
     within the refinement's noise: their relative MSE (blend against refined) is at most twice
     the refinement's own estimated noise (its expectation where the blend is exact). Where it
@@ -127,7 +129,7 @@ def agreement(blend_image, refined):
 class References:
     """Queue of reference jobs (one worker thread)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="explore-reference")
         self._jobs = {}
         self._ids = itertools.count(1)
@@ -140,7 +142,7 @@ class References:
         self._folder = None  # the temporary folder of the reference renders' files
         _sweep(tempfile.gettempdir())  # those of explorers killed before they could remove them
 
-    def submit(self, name, basis, scene, manifold_path, x, spp, blend_image, tab=None):
+    def submit(self, name, basis, scene, manifold_path, x, spp, blend_image, tab=None) -> Job:
         """Start a job; returns it. ``blend_image``: the blend at ``x`` to compare with; ``tab``:
         the page that asked (:meth:`cancel_tab`).
         """
@@ -171,7 +173,7 @@ class References:
                 f"{MAX_WAITING}: wait for one to finish or cancel one"
             )
 
-    def submit_refine(self, name, basis, manifold, x, spp, blend_image, tab=None, **where):
+    def submit_refine(self, name, basis, manifold, x, spp, blend_image, tab=None, **where) -> Job:
         """Start a refinement of the blend at ``x`` (:func:`~mitsuba_manifold.render.refine.refine_passes`;
         ``where``: its ``scene``, ``manifold_path`` and ``prune``): its image (``"refined"``) after
         every pass, in ``error`` the noise the passes measure and whether ``blend_image`` (the
@@ -197,14 +199,14 @@ class References:
         self._pool.submit(self._run_refine, job, basis, manifold, blend_image, where)
         return job
 
-    def supersede_refine(self):
+    def supersede_refine(self) -> None:
         """A drag began: the running refinement stops after its pass, the queued ones never start
         (they would take the frames' CPU).
         """
         with self._lock:
             self._latest_refine = None
 
-    def hold(self, seconds=None):
+    def hold(self, seconds=None) -> None:
         """A drag's frame was asked for: the running reference processes pause (``SIGSTOP``)
         until no frame has been asked for ``seconds`` (default :data:`HOLD_S`), then go on (``SIGCONT``). Niceness alone
         does not keep a render from halving a drag's frames where the render shares the
@@ -227,12 +229,12 @@ class References:
             if self._paused and self._resumer is None:
                 self._start_resumer(seconds)
 
-    def _start_resumer(self, seconds):
+    def _start_resumer(self, seconds) -> None:
         self._resumer = threading.Timer(seconds, self._resume)
         self._resumer.daemon = True
         self._resumer.start()
 
-    def _resume(self):
+    def _resume(self) -> None:
         with self._lock:
             left = self._held_until - time.monotonic()
             if left > 0 and not self._stopping:  # asked again meanwhile: wait for the rest
@@ -242,7 +244,7 @@ class References:
             for pid in list(self._paused):
                 self._continue(pid)
 
-    def _continue(self, pid):
+    def _continue(self, pid) -> None:
         """Let a paused process go on (also one about to be ended: a stopped process ends only
         once it runs); called with the lock held.
         """
@@ -268,22 +270,22 @@ class References:
                     self._continue(proc.pid)
         return job
 
-    def cancel_tab(self, tab):
+    def cancel_tab(self, tab) -> None:
         """Cancel every job the page ``tab`` started (its websocket closed)."""
         with self._lock:
             ids = [j.id for j in self._jobs.values() if j.tab == tab]
         for job_id in ids:
             self.cancel(job_id)
 
-    def _trim(self):
+    def _trim(self) -> None:
         for old in list(self._jobs)[:-KEEP_JOBS]:
             if self._jobs[old].state in ("done", "failed", "cancelled"):
                 del self._jobs[old]
 
-    def _run_refine(self, job, basis, manifold, blend_image, where):
+    def _run_refine(self, job, basis, manifold, blend_image, where) -> None:
         from ...render.refine import refine_passes
 
-        def passes():
+        def passes() -> None:
             self._check_current(job)  # queued behind a newer one: never started
             _lower_priority()
             for r in refine_passes(
@@ -320,7 +322,7 @@ class References:
         if job.cancelled:
             raise Cancelled("cancelled")
 
-    def _execute(self, job, work):
+    def _execute(self, job, work) -> None:
         """Run ``work()`` as ``job`` (unless cancelled meanwhile): its state, its failure shown
         on the page, its seconds. Nothing a job does ends the worker thread.
         """
@@ -343,8 +345,8 @@ class References:
         with self._lock:
             return self._jobs.get(job_id)
 
-    def _run(self, job, basis, scene, manifold_path, blend_image):
-        def render():
+    def _run(self, job, basis, scene, manifold_path, blend_image) -> None:
+        def render() -> None:
             ref = self._render(job, basis, scene, manifold_path)
             job.images = {"blend": blend_image, "reference": ref.image}
             job.error = metrics.compare(blend_image, ref.image)
@@ -429,12 +431,12 @@ class References:
                 self._folder = tempfile.mkdtemp(prefix=f"explore-reference-{os.getpid()}-")
             return self._folder
 
-    def busy(self):
+    def busy(self) -> bool:
         """Whether a job is rendering now."""
         with self._lock:
             return any(j.state == "rendering" for j in self._jobs.values())
 
-    def shutdown(self, wait=0.0):
+    def shutdown(self, wait=0.0) -> bool:
         """Drop the queued jobs; the running one stops (a reference at once, a refinement after
         its current pass). Waits up to ``wait`` seconds for it; returns whether no job is
         rendering any more.
@@ -487,6 +489,6 @@ def _sweep(folder) -> None:
         shutil.rmtree(os.path.join(folder, name), ignore_errors=True)
 
 
-def _listed(resolution):
+def _listed(resolution) -> list | None:
     """A scene's load resolution as JSON (None: the film's own size)."""
     return None if resolution is None else list(resolution)

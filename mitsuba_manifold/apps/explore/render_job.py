@@ -34,13 +34,13 @@ class RenderSpec:
     sensor: int
     out: str
 
-    def write(self, path):
+    def write(self, path) -> None:
         from ..._util.atomic import write_bytes
 
         write_bytes(path, json.dumps(asdict(self)).encode())
 
     @classmethod
-    def read(cls, path):
+    def read(cls, path) -> "RenderSpec":
         with open(path) as f:
             return cls(**json.load(f))
 
@@ -55,7 +55,7 @@ class Reference:
     pixel_se: object
     passes: int
 
-    def write(self, path):
+    def write(self, path) -> None:
         import io
 
         import numpy as np
@@ -67,14 +67,14 @@ class Reference:
         write_bytes(path, buf.getvalue())
 
     @classmethod
-    def read(cls, path):
+    def read(cls, path) -> "Reference":
         import numpy as np
 
         with np.load(path) as z:
             return cls(z["image"], z["pixel_se"], int(z["passes"]))
 
 
-def render(spec, progress=print):
+def render(spec, progress=print) -> "Reference":
     """The :class:`Reference` of ``spec``; ``progress(done, total)`` after each pass."""
     import mitsuba as mi
     import numpy as np
@@ -113,7 +113,7 @@ def render(spec, progress=print):
     return Reference((acc / done).astype(np.float32), se.astype(np.float32), len(passes))
 
 
-def main(argv=None):
+def main(argv=None) -> int:
     spec = RenderSpec.read((argv or sys.argv[1:])[0])
     render(spec, lambda done, total: print(done, total, flush=True)).write(spec.out)
     return 0

@@ -7,6 +7,8 @@ routes). Every request passes :class:`~.guard.Guard` first: the Host/Origin allo
 ``{"error": message}`` (one line); no traceback reaches the page.
 """
 
+from __future__ import annotations
+
 import base64
 import json
 import os
@@ -41,7 +43,7 @@ class Api:
     :func:`create_app`); the work is in the explorer, run off the event loop.
     """
 
-    def __init__(self, explorer):
+    def __init__(self, explorer) -> None:
         self.ex = explorer
 
     def x_of(self, request):
@@ -50,15 +52,15 @@ class Api:
     def exposure_of(self, request):
         return self.ex.number(_query(request, "exposure"), "exposure", -20, 20, 0.0)
 
-    async def index(self, request):
+    async def index(self, request) -> FileResponse:
         return FileResponse(
             os.path.join(STATIC, "index.html"), headers={"Cache-Control": "no-cache"}
         )
 
-    async def info(self, request):
+    async def info(self, request) -> JSONResponse:
         return JSONResponse(self.ex.info())
 
-    async def frame(self, request):
+    async def frame(self, request) -> Response:
         x, exposure, fmt = (
             self.x_of(request),
             self.exposure_of(request),
@@ -69,16 +71,16 @@ class Api:
         )
         return Response(data, media_type=encode.MIME[fmt], headers={"X-Frame": json.dumps(meta)})
 
-    async def material(self, request):
+    async def material(self, request) -> JSONResponse:
         return JSONResponse(await run_in_threadpool(self.ex.material, self.x_of(request)))
 
-    async def table(self, request):
+    async def table(self, request) -> Response:
         data, meta = await run_in_threadpool(self.ex.preview_table, self.x_of(request))
         return Response(
             data, media_type="application/octet-stream", headers={"X-Table": json.dumps(meta)}
         )
 
-    async def latent_map(self, request):
+    async def latent_map(self, request) -> JSONResponse:
         dims = _query(request, "dims", "0,1")
         center = (
             self.x_of(request) if _query(request, "x") else self.ex.manifold.latent.mean(axis=0)
@@ -90,16 +92,16 @@ class Api:
             dict(meta, png="data:image/png;base64," + base64.b64encode(png).decode())
         )
 
-    async def environment(self, request):
+    async def environment(self, request) -> Response:
         data, meta = await run_in_threadpool(self.ex.environment, _query(request, "basis"))
         return Response(
             data, media_type="application/octet-stream", headers={"X-Env": json.dumps(meta)}
         )
 
-    async def snippet(self, request):
+    async def snippet(self, request) -> JSONResponse:
         return JSONResponse(self.ex.snippets(self.x_of(request), _query(request, "folder")))
 
-    async def path(self, request):
+    async def path(self, request) -> JSONResponse:
         cmd = self.ex.path_command(
             _query(request, "basis"),
             _query(request, "a", ""),
@@ -109,7 +111,7 @@ class Api:
         )
         return JSONResponse({"command": cmd})
 
-    async def route(self, request):
+    async def route(self, request) -> JSONResponse:
         """The path's points when computed, else ``{"state": "computing"}`` (ask again)."""
         future = await run_in_threadpool(
             self.ex.route,
@@ -125,7 +127,7 @@ class Api:
             dict(future.result(), state="ready")
         )  # a failed path raises its InputError
 
-    async def thumbs(self, request):
+    async def thumbs(self, request) -> Response:
         if self.ex.thumbs is None:
             raise InputError("this explorer renders no thumbnails (--no-thumbnails)")
         return Response(
@@ -134,7 +136,7 @@ class Api:
             headers={"Cache-Control": "max-age=3600"},
         )
 
-    async def reference_start(self, request):
+    async def reference_start(self, request) -> JSONResponse:
         try:  # the body was read by Guard, at most max_body bytes
             body = json.loads(await request.body())
         except (ValueError, RecursionError):
@@ -151,7 +153,7 @@ class Api:
         job = await run_in_threadpool(start, body.get("basis"), x, body.get("spp"), body.get("tab"))
         return JSONResponse(job.status())
 
-    async def reference_cancel(self, request):
+    async def reference_cancel(self, request) -> JSONResponse:
         """Cancel a job (queued: never starts; rendering: stops after its pass)."""
         job = self.ex.references.cancel(self.job_of(request).id)
         return JSONResponse(job.status())
@@ -163,17 +165,17 @@ class Api:
             raise InputError(f"unknown reference job {show(job_id)}")
         return job
 
-    async def reference_status(self, request):
+    async def reference_status(self, request) -> JSONResponse:
         return JSONResponse(self.job_of(request).status())
 
-    async def reference_image(self, request):
+    async def reference_image(self, request) -> Response:
         job, exposure = self.job_of(request), self.exposure_of(request)
         png = await run_in_threadpool(
             self.ex.reference_image, job.id, request.path_params["which"], exposure
         )
         return Response(png, media_type="image/png")
 
-    async def acquire_start(self, request):
+    async def acquire_start(self, request) -> JSONResponse:
         """Start an acquisition: a JSON body ``{basis, photo, mask}`` (files as data: URLs)."""
         try:  # the body was read by Guard, at most MAX_UPLOAD bytes
             body = json.loads(await request.body())
@@ -195,20 +197,20 @@ class Api:
             raise InputError(f"unknown acquisition {show(job_id)}")
         return job
 
-    async def acquire_status(self, request):
+    async def acquire_status(self, request) -> JSONResponse:
         return JSONResponse(self.acquisition_of(request).status())
 
-    async def acquire_image(self, request):
+    async def acquire_image(self, request) -> Response:
         job, exposure = self.acquisition_of(request), self.exposure_of(request)
         png = await run_in_threadpool(
             self.ex.acquisitions.image, job.id, request.path_params["which"], exposure
         )
         return Response(png, media_type="image/png")
 
-    async def websocket(self, ws):
+    async def websocket(self, ws) -> None:
         await Session(ws, self.ex).run()  # the handshake passed Guard's allow-list
 
-    def routes(self):
+    def routes(self) -> list:
         return [
             Route("/", self.index),
             Route("/api/info", self.info),
@@ -233,7 +235,7 @@ class Api:
         ]
 
 
-async def _bad_request(request, exc):
+async def _bad_request(request, exc) -> JSONResponse:
     return JSONResponse({"error": str(exc)}, status_code=400)
 
 
@@ -241,18 +243,18 @@ async def _busy(request, exc) -> JSONResponse:
     return JSONResponse({"error": str(exc)}, status_code=429)
 
 
-async def _http_error(request, exc):
+async def _http_error(request, exc) -> JSONResponse:
     return JSONResponse({"error": exc.detail}, status_code=exc.status_code)
 
 
-async def _server_error(request, exc):
+async def _server_error(request, exc) -> JSONResponse:
     return JSONResponse(
         {"error": f"internal error ({type(exc).__name__}); see the server's console"},
         status_code=500,
     )
 
 
-def create_app(explorer, allow=None, max_body=MAX_BODY):
+def create_app(explorer, allow=None, max_body=MAX_BODY) -> Starlette:
     """The Starlette app serving ``explorer`` (a :class:`~.service.Explorer`).
 
     ``allow``: the :class:`~.guard.AllowList` of hosts and origins (default: ``127.0.0.1``,

@@ -8,6 +8,8 @@ latent map, the snippets, the reference renders and refinements. Bad requests ra
 :class:`InputError` naming the parameter, its value and what is expected.
 """
 
+from __future__ import annotations
+
 import base64
 import functools
 import json
@@ -15,6 +17,7 @@ import os
 import shlex
 import threading
 import time
+from typing import TYPE_CHECKING
 from xml.sax.saxutils import escape
 
 import numpy as np
@@ -36,6 +39,10 @@ from .bases import warm as _warm
 from .inputs import extent, latent_point, map_dims, number, path_kind, show
 from .reference import MAX_SPP, References
 from .walks import MAX_STEPS, STEPS, Walks
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Maps kept for repeated requests of the same slice.
 MAPS_KEPT = 8
@@ -107,7 +114,7 @@ class Explorer:
         scene=None,
         thumbnails=False,
         refine_spp=0,
-    ):
+    ) -> None:
         if not bases:
             raise InputError("give at least one basis folder")
         if not 0.0 <= float(prune) < 1.0:
@@ -167,6 +174,8 @@ class Explorer:
 
     def _first_map(
         self,
+    ) -> (
+        None
     ):  # meanwhile: the maps the page opens on (coarse, then full), then the float32 cross terms
         try:
             for coarse in (True, False):
@@ -196,7 +205,7 @@ class Explorer:
     #: A number of a request in ``[lo, hi]`` (:func:`.inputs.number`).
     number = staticmethod(number)
 
-    def blend(self, name, x, l2="denoised"):
+    def blend(self, name, x, l2="denoised") -> None:
         """Linear image (H, W, 3) of latent point ``x`` and the blend's info (``l2``: of :func:`blend`;
         ``"raw"``, a drag's, has the fireflies of its part beyond L1- clamped:
         :func:`.fireflies.drag_image`); the last one is kept (the exposure slider tonemaps it
@@ -268,7 +277,7 @@ class Explorer:
         lat = self.manifold.latent
         return lat[int(np.argmin(((lat - lat.mean(axis=0)) ** 2).sum(axis=1)))].copy()
 
-    def _prepare_walks(self):
+    def _prepare_walks(self) -> None:
         if self.tables.wait() == "ready":
             try:
                 _ = self.walks  # builds the path metric now, off the request path
@@ -276,7 +285,7 @@ class Explorer:
                 self._walks_error = f"perceptual metric unavailable: {e}"
 
     @property
-    def walks(self):
+    def walks(self) -> None:
         """The :class:`~.walks.Walks` (paths, distances) of the manifold, once the tables are loaded."""
         if not self.tables or self.tables.state != "ready":
             raise InputError(
@@ -363,7 +372,9 @@ class Explorer:
     def _dims(self, dims):
         return map_dims(self.manifold, dims)
 
-    def map_key(self, dims, center, bounds=None, coarse=False):
+    def map_key(
+        self, dims, center, bounds=None, coarse=False
+    ) -> tuple[Any, tuple[float, ...], Any, bool]:
         """What tells one map of :meth:`map_png` from another: its axes, the slice (the
         coordinates of ``center`` not in ``dims``), its bounds and whether it is coarse.
         """
@@ -411,7 +422,7 @@ class Explorer:
                     return self._maps[key]
             return self.map_png(dims, center, bounds, coarse, stale)  # abandoned there: made here
 
-        def pause():
+        def pause() -> None:
             self._framing.wait_quiet(DRAG_QUIET, FRAME_WAIT)
             if stale is not None:
                 stale()
@@ -443,7 +454,7 @@ class Explorer:
         scene = next(iter(self.scenes.values()))
         return os.path.dirname(os.path.abspath(scene)) if scene else os.getcwd()
 
-    def snippets(self, x, folder=None):
+    def snippets(self, x, folder=None) -> dict:
         """``<bsdf>`` XML and ``mi.load_dict`` Python for ``x``, naming the manifold through a
         ``$manifold`` parameter whose default is its path relative to ``folder`` (the scene's
         folder: Mitsuba resolves it from there; default :meth:`snippet_folder`), so that a scene
@@ -480,7 +491,7 @@ class Explorer:
             "manifold": rel,
         }
 
-    def path_command(self, name, a, b, steps, kind=None):
+    def path_command(self, name, a, b, steps, kind=None) -> str:
         """The ``tools/blend.py --path`` command rendering the sequence from ``a`` to ``b``
         (``kind``: its ``--path-kind``; None: blend.py's default, the same as :meth:`route`'s).
         """
@@ -524,7 +535,7 @@ class Explorer:
 
     _kind = staticmethod(path_kind)
 
-    def info(self):
+    def info(self) -> dict:
         m = self.manifold
         bases = [
             {
@@ -581,7 +592,7 @@ class Explorer:
         return out
 
     # ---------------------------------------------------------- references
-    def _job_args(self, name, x, spp, default):
+    def _job_args(self, name, x, spp, default) -> tuple[Any, Any, Any, int, Any]:
         """``(key, basis, scene, spp, blend image)`` of a background job of basis ``name`` at ``x``."""
         name = self.key(name)
         basis, scene = self.bases[name], self.scenes[name]
@@ -644,7 +655,7 @@ class Explorer:
         target, m, notes = read_upload(photo, mask, basis.resolution)
         return self.acquisitions.submit(self, name, target, m, notes)
 
-    def close(self, wait=0.0):
+    def close(self, wait=0.0) -> bool:
         """Stop the reference renders (waits up to ``wait`` s); returns whether none still runs."""
         if self.thumbs:
             self.thumbs.close()
@@ -657,22 +668,22 @@ class _Count:
     waits for none to be inside for a while.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._n, self._idle = 0, threading.Condition()
         self._left = float("-inf")  # time.monotonic() of the last exit
 
-    def __enter__(self):
+    def __enter__(self) -> None:
         with self._idle:
             self._n += 1
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc) -> None:
         with self._idle:
             self._n -= 1
             self._left = time.monotonic()
             if not self._n:
                 self._idle.notify_all()
 
-    def wait_quiet(self, quiet, timeout):
+    def wait_quiet(self, quiet, timeout) -> bool:
         """Wait until no thread has been inside for ``quiet`` s, at most ``timeout`` s; returns
         whether that is so.
         """
@@ -688,7 +699,7 @@ class _Count:
                 self._idle.wait(min(end - now, calm) if not self._n else end - now)
 
 
-def _tab(tab):
+def _tab(tab) -> str | None:
     """The page id of a job (None: no page), or InputError."""
     if tab is None or tab == "":
         return None

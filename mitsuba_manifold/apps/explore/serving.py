@@ -169,7 +169,7 @@ class RepeatFilter(logging.Filter):
     were left out meanwhile.
     """
 
-    def __init__(self, window=LOG_WINDOW, clock=time.monotonic):
+    def __init__(self, window=LOG_WINDOW, clock=time.monotonic) -> None:
         super().__init__()
         self.window, self.clock = float(window), clock
         self._seen = {}  # key -> [time passed, records left out since]

@@ -35,6 +35,8 @@ Malformed input never reaches a traceback: a bad request is answered with
 :data:`~.guard.MAX_MESSAGE` closes the websocket with code 1003 or 1009 and a reason.
 """
 
+from __future__ import annotations
+
 import asyncio
 import json
 import struct
@@ -71,7 +73,7 @@ def pack(meta, payload=b""):
     return struct.pack("<I", len(head)) + head + payload
 
 
-def _coarse(req):
+def _coarse(req) -> bool:
     """Whether a frame request asks for the cheap frame of a drag (L2+ summed, not denoised)."""
     return req.get("coarse") is True or req.get("held") is True
 
@@ -91,12 +93,12 @@ class _Cancelled(InputError):
 class Closing(Exception):
     """The client broke the protocol: close the websocket with ``code`` and ``reason``."""
 
-    def __init__(self, code, reason):
+    def __init__(self, code, reason) -> None:
         super().__init__(reason)
         self.code, self.reason = code, reason[:120]
 
 
-def parse(text):
+def parse(text) -> list:
     """The requests of one message: a list of ``(kind, request)``; raises InputError."""
     if len(text) > MAX_MESSAGE:
         raise Closing(1009, f"message of {len(text)} characters; at most {MAX_MESSAGE}")
@@ -142,7 +144,7 @@ def parse(text):
 class Session:
     """The websocket of one tab (see the module docstring)."""
 
-    def __init__(self, ws, explorer):
+    def __init__(self, ws, explorer) -> None:
         self.ws, self.ex = ws, explorer
         self.pending = {}
         self.wake = {k: asyncio.Event() for k in KINDS + (FINAL,)}
@@ -151,7 +153,7 @@ class Session:
         tab = ws.query_params.get("tab", "")
         self.tab = tab if isinstance(tab, str) and 0 < len(tab) <= 64 and tab.isascii() else None
 
-    async def send(self, meta, payload=b""):
+    async def send(self, meta, payload=b"") -> None:
         async with self.lock:
             await self.ws.send_bytes(pack(meta, payload))
 
@@ -201,7 +203,7 @@ class Session:
                 self.pending[kind] = req  # replaces an older request of this kind not yet started
                 self.wake[kind].set()
 
-    async def worker(self, kind):
+    async def worker(self, kind) -> None:
         while True:
             await self.wake[kind].wait()
             self.wake[kind].clear()

@@ -15,15 +15,23 @@ sheet is ``columns`` tiles wide, material ``i`` at tile ``i`` (row-major). Its c
 these settings: ``docs/benchmarks.md``, "Measurements behind choices in the code".
 """
 
+from __future__ import annotations
+
 import math
 import os
 import subprocess
 import sys
 import threading
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import encode
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Any
+
 
 SIZE = 48
 SPP = 64
@@ -41,7 +49,7 @@ class Thumbnails:
     tables' ``wait``, so that a first start loads the tables before the thumbnails take the cores).
     """
 
-    def __init__(self, manifold_path, manifold, cache_dir, size=SIZE, spp=SPP, after=None):
+    def __init__(self, manifold_path, manifold, cache_dir, size=SIZE, spp=SPP, after=None) -> None:
         from ..._util.cache import file_hash, key_hash
         from ...render import scenes
 
@@ -74,7 +82,7 @@ class Thumbnails:
         self._thread = threading.Thread(target=self._make, name="explore-thumbs", daemon=True)
         self._thread.start()
 
-    def info(self):
+    def info(self) -> dict:
         return {
             "state": self.state,
             "message": self.message,
@@ -82,7 +90,7 @@ class Thumbnails:
             "columns": self.columns,
         }
 
-    def sheet(self):
+    def sheet(self) -> None:
         """PNG bytes of the sheet (raises InputError until it is ready)."""
         from ...errors import InputError
 
@@ -90,18 +98,18 @@ class Thumbnails:
             raise InputError(f"thumbnails are {self.state}: {self.message}")
         return self._png
 
-    def wait(self, timeout=None):
+    def wait(self, timeout=None) -> str:
         self._thread.join(timeout)
         return self.state
 
-    def close(self):
+    def close(self) -> None:
         """Stop a render still running (the basis folder resumes next time)."""
         self._closed = True
         proc = self._proc
         if proc is not None and proc.poll() is None:
             proc.terminate()
 
-    def _make(self):
+    def _make(self) -> None:
         try:
             if not self._complete():
                 if self._after is not None:
@@ -114,7 +122,7 @@ class Thumbnails:
         except Exception as e:  # no thumbnails: the page shows names only
             self.state, self.message = "unavailable", f"thumbnails unavailable: {str(e)[:200]}"
 
-    def _complete(self):
+    def _complete(self) -> bool:
         from ...basis.denoise import AOV_FILE
         from ...basis.folder import Basis
 
@@ -179,7 +187,7 @@ class Thumbnails:
         write_bytes(path, png)
         return png
 
-    def _compose(self):
+    def _compose(self) -> np.ndarray:
         from ...basis.blend import blend
         from ...basis.folder import Basis
 
@@ -205,7 +213,7 @@ def shrink(img, size):
     return img.reshape(size, h // size, size, w // size, 3).mean(axis=(1, 3)).astype(np.float32)
 
 
-def _cleaner(basis):
+def _cleaner(basis) -> Callable[..., Any]:
     """``clean(image, name)``: a material's thumbnail render denoised by OIDN, guided by its albedo
     and the normals of the basis's AOVs (unguided without them); the image as it is without pyoidn.
     """
@@ -226,7 +234,7 @@ def _cleaner(basis):
     return clean
 
 
-def _have_denoiser():
+def _have_denoiser() -> bool:
     try:
         import pyoidn  # noqa: F401
 

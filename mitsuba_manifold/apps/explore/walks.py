@@ -30,6 +30,8 @@ The worker thread outlives every request: a path whose future was cancelled, fai
 superseded is skipped or answered with an error, never an exception in the thread.
 """
 
+from __future__ import annotations
+
 import queue
 import sys
 import threading
@@ -65,7 +67,7 @@ class _Watched:
     one of its methods first counted and passed to ``tick`` (progress, pause, cancel).
     """
 
-    def __init__(self, metric, tick):
+    def __init__(self, metric, tick) -> None:
         self._metric, self._tick = metric, tick
 
     def __getattr__(self, name):
@@ -85,7 +87,7 @@ class Walks:
     on the metric's sub-grid ``(N, size)``.
     """
 
-    def __init__(self, manifold, rows, pause=None):
+    def __init__(self, manifold, rows, pause=None) -> None:
         self.manifold, self._pause = manifold, pause
         self.metric = paths.PathMetric(manifold, rows=rows)
         measured = self.metric.quad.features(self.metric.rows).astype(np.float32)
@@ -110,7 +112,7 @@ class Walks:
         self._thread = threading.Thread(target=self._work, name="explore-paths", daemon=True)
         self._thread.start()
 
-    def nearest_measured(self, x):
+    def nearest_measured(self, x) -> dict:
         """``{"name", "distance", "spacing"}``: the measured material whose table is nearest to
         the table at ``x`` and the distance (``spacing``: the median nearest-neighbour distance
         between measured materials, for scale).
@@ -173,7 +175,7 @@ class Walks:
             elif stop and self._running is not None and self._running[0] is future:
                 self._running[3] = True
 
-    def progress(self, future) -> "dict | None":
+    def progress(self, future) -> dict | None:
         """``{"seconds", "evaluations"}`` of ``future`` while it is computed, else None."""
         run = self._running
         if run is None or run[0] is not future:
@@ -193,16 +195,16 @@ class Walks:
         if self._pause is not None:
             self._pause()
 
-    def waiting(self):
+    def waiting(self) -> int:
         """Number of paths queued or computing (for tests and the server's status)."""
         return self._queue.qsize() + int(self._busy)
 
-    def _drop(self, future):  # with self._lock held
+    def _drop(self, future) -> None:  # with self._lock held
         for k, f in list(self._paths.items()):
             if f is future:
                 del self._paths[k]
 
-    def _work(self):
+    def _work(self) -> None:
         """Compute the waiting paths, newest only: one asked for before a newer one started is
         dropped (its future fails; the page asks for the ends it shows). Nothing a request does
         (cancelled, failed, superseded) ends this loop.
@@ -228,7 +230,7 @@ class Walks:
             finally:
                 self._busy = False
 
-    def _fail(self, future, error):
+    def _fail(self, future, error) -> None:
         """Fail a running ``future`` with ``error`` and drop it from the cache (asked again, it
         is computed again).
         """
@@ -238,7 +240,7 @@ class Walks:
         if not future.done():
             future.set_exception(error)
 
-    def _run(self, future, xa, xb, steps, kind):
+    def _run(self, future, xa, xb, steps, kind) -> None:
         """Compute one path into ``future`` (already running)."""
         watched = kind != "straight"  # straight: at once, in the caller's thread
         if watched:

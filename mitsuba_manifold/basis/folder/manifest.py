@@ -86,7 +86,7 @@ _HEX64 = re.compile(r"^[0-9a-f]{64}$")
 # ------------------------------------------------------------------ hashes
 
 
-def _named(scene):
+def _named(scene) -> list[tuple]:
     """``(value, is_include)`` of each file the scene XML ``scene`` names (``$parameters`` skipped)."""
     out = []
     for el in scene_xml(scene).iter():  # a scene XML, or an error naming the file
@@ -100,7 +100,7 @@ def _named(scene):
     return out
 
 
-def scene_files(scene):
+def scene_files(scene) -> list:
     """Files a scene XML names (``filename`` properties and ``<include>``), resolved
     against the scene's folder; values holding ``$parameters`` are skipped.
     """
@@ -112,7 +112,7 @@ def scene_files(scene):
 MAX_INCLUDE_DEPTH = 16
 
 
-def _hash_included(h, xml, folders, seen):
+def _hash_included(h, xml, folders, seen) -> None:
     """Add to ``h`` the name and bytes of every file the included XML ``xml`` names, found
     beside the main scene or beside ``xml`` (Mitsuba resolves them against either), and of
     the files the XML files it includes name, recursively; ``seen``: the XML files already
@@ -137,7 +137,7 @@ def _hash_included(h, xml, folders, seen):
             _hash_included(h, found[-1], folders, seen)
 
 
-def scene_hash(scene):
+def scene_hash(scene) -> str:
     """SHA-256 (hex) of a scene: its XML bytes, then the name and bytes of every file it
     names (:func:`scene_files`) that exists beside it, and for each ``<include>``d XML the
     files that one names, recursively (:func:`_hash_included`). Meshes, environment maps and
@@ -164,7 +164,7 @@ def scene_hash(scene):
 # ---------------------------------------------------------------- manifest
 
 
-def image_key(materials, version=FORMAT_VERSION):
+def image_key(materials, version=FORMAT_VERSION) -> str:
     """Image key of one material per target: ``"a"`` or ``"a+b"``, names escaped
     (:func:`names.escape`) from format version 2 on; the image file is ``<key>.exr``.
     """
@@ -207,14 +207,14 @@ class _FileEntry:
     KEYS = ()
 
     @classmethod
-    def from_json(cls, data):
+    def from_json(cls, data) -> "_FileEntry":
         """The entry of a JSON object (checked by :meth:`Manifest.from_json`)."""
         return cls(
             **{k: data[k] for k in cls.KEYS if k in data},
             extra={k: v for k, v in data.items() if k not in cls.KEYS},
         )
 
-    def to_json(self):
+    def to_json(self) -> dict:
         """The JSON object: the keys of :data:`KEYS` that are recorded, then :attr:`extra`."""
         out = {k: getattr(self, k) for k in self.KEYS if getattr(self, k) is not None}
         out.update(self.extra)
@@ -276,15 +276,15 @@ class CrossEntry(_FileEntry):
     KEYS = ("file", "pairs", "tol", "sha256")
 
 
-def _entries_from_json(section):
+def _entries_from_json(section) -> "Optional[dict]":
     return None if section is None else {k: ImageEntry.from_json(e) for k, e in section.items()}
 
 
-def _entries_to_json(section):
+def _entries_to_json(section) -> "Optional[dict]":
     return None if section is None else {k: e.to_json() for k, e in section.items()}
 
 
-def _is_int(v):
+def _is_int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
@@ -378,7 +378,7 @@ def _check_json(manifest, where=MANIFEST):
     return manifest
 
 
-def _check_files_are_their_keys(manifest, bad):
+def _check_files_are_their_keys(manifest, bad) -> None:
     """Each image's file is its own: an entry listing the file named after another image key
     (``"a": {"file": "b.exr", ...}``: two entries' ``file`` and ``sha256`` swapped) is refused,
     since every file's hash is then right and every material wrong. The renderers name each
@@ -410,7 +410,7 @@ def _check_files_are_their_keys(manifest, bad):
 COMPONENTS = ("l1", "l2+", "cross")
 
 
-def _validate_components(manifest, bad):
+def _validate_components(manifest, bad) -> None:
     comps = manifest.get("components", ["l1"])
     if (
         not isinstance(comps, list)
@@ -440,7 +440,7 @@ def _validate_components(manifest, bad):
         bad("left_out must map components to the reason they were left out")
 
 
-def _plain_exr(name):
+def _plain_exr(name) -> bool:
     return (
         isinstance(name, str)
         and name.endswith(".exr")
@@ -621,11 +621,11 @@ class Manifest:
             components=[str(c) for c in components],
         ).check("new manifest")
 
-    def copy(self):
+    def copy(self) -> "Manifest":
         """A deep copy (its entries can be changed without changing this one's)."""
         return copy.deepcopy(self)
 
-    def upgraded(self, manifold):
+    def upgraded(self, manifold) -> "Manifest":
         """The manifest as version 2 when it is a version-1 manifest made with the file
         ``manifold`` (same bytes): the manifold hash becomes its content identity and the images
         whose keys are the same in both versions (names that escaping leaves unchanged) are kept.
@@ -647,7 +647,7 @@ class Manifest:
 
     # ----------------------------------------------------------- JSON
     @classmethod
-    def from_json(cls, data, where=MANIFEST):
+    def from_json(cls, data, where=MANIFEST) -> "Manifest":
         """The manifest of a JSON object, checked (:class:`MismatchError` naming ``where``)."""
         if isinstance(data, cls):
             return data
@@ -670,7 +670,7 @@ class Manifest:
             extra={k: v for k, v in data.items() if k not in names and k != "format"},
         )
 
-    def to_json(self):
+    def to_json(self) -> dict[str, object]:
         """The JSON object of the format: ``format``, ``version``, the fields set (the settings'
         at the top level), then :attr:`extra`; its keys in the order of the files written so far.
         """
@@ -695,7 +695,7 @@ class Manifest:
         out.update(self.extra)
         return out
 
-    def check(self, where="manifest"):
+    def check(self, where="manifest") -> "Manifest":
         """Return this manifest, its fields checked (:class:`MismatchError` naming ``where``)."""
         _check_json(self.to_json(), where)
         return self
@@ -743,7 +743,7 @@ class Manifest:
             ) from None
         return cls.from_json(data, where=path)
 
-    def write(self, folder):
+    def write(self, folder) -> str:
         """Check this manifest and write ``folder/manifest.json`` atomically; returns its path."""
         path = os.path.join(os.fspath(folder), MANIFEST)
         data = _check_json(self.to_json(), where=path)
@@ -752,37 +752,37 @@ class Manifest:
 
     # ----------------------------------------------------------- meaning
     @property
-    def resolution(self):
+    def resolution(self) -> tuple:
         """``(width, height)`` of the images."""
         return self.settings.resolution
 
     @property
-    def spp(self):
+    def spp(self) -> int:
         """Samples per pixel of every image."""
         return self.settings.spp
 
     @property
-    def variant(self):
+    def variant(self) -> str:
         """The Mitsuba variant rendered in."""
         return self.settings.variant
 
     @property
-    def seed(self):
+    def seed(self) -> int:
         """The images' seed."""
         return self.settings.seed
 
     @property
-    def max_depth(self):
+    def max_depth(self) -> int:
         """Path depth (-1: unbounded)."""
         return self.settings.max_depth
 
     @property
-    def mode(self):
+    def mode(self) -> str:
         """``"per-material"`` or ``"onepass"``."""
         return self.settings.mode
 
     @property
-    def sensor(self):
+    def sensor(self) -> "Optional[int]":
         """The scene's sensor rendered (None: not recorded; sensor 0)."""
         return self.settings.sensor
 
@@ -792,12 +792,12 @@ class Manifest:
         return 0 if self.sensor is None else self.sensor
 
     @property
-    def held_components(self):
+    def held_components(self) -> list:
         """What the basis holds (``["l1"]`` when not recorded)."""
         return list(self.components) if self.components is not None else ["l1"]
 
     @property
-    def loaded_resolution(self):
+    def loaded_resolution(self) -> "Optional[tuple]":
         """The ``resolution`` the basis's scene was loaded with (None: the scene's own film
         size), to load it again as the basis saw it (its references, refinements); a manifest
         that does not record it (an earlier version) was rendered at its image size.
@@ -815,11 +815,11 @@ class Manifest:
             setattr(self, name, {})
         return getattr(self, name)
 
-    def entries(self):
+    def entries(self) -> list:
         """``(key, entry)`` of every image file: L1- images, then full-GI ones (``gi:<key>``)."""
         return list(self.images.items()) + [(GI + k, e) for k, e in (self.gi_images or {}).items()]
 
-    def set_entry(self, key, entry):
+    def set_entry(self, key, entry) -> None:
         """List ``entry`` (:class:`ImageEntry`) as image ``key`` of :meth:`entries` (``gi:<key>``:
         a full-GI image).
         """
@@ -828,12 +828,12 @@ class Manifest:
         else:
             self.section("images")[key] = entry
 
-    def listed_files(self):
+    def listed_files(self) -> set:
         """The files the manifest lists: its images, full-GI images and cross terms."""
         files = {e.file for _, e in self.entries()}
         return files | ({self.cross.file} if self.cross else set())
 
-    def differences(self, other, ignore=()):
+    def differences(self, other, ignore=()) -> list:
         """Setting fields (:data:`SETTINGS`, but those in ``ignore``) whose values differ from
         ``other``'s: empty when images rendered for one are valid for the other (resume).
         """

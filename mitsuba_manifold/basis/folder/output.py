@@ -9,6 +9,8 @@ as ``pending`` are removed so they are rendered again (format: :mod:`mitsuba_man
 Used by :mod:`.render_basis` and by the merge of :mod:`.chunks`.
 """
 
+from __future__ import annotations
+
 import os
 import re
 
@@ -62,7 +64,7 @@ def check_foreign_folder(out, force=False, bases=None):
         )
 
 
-def check_job_folders(jobs, out, force=False):
+def check_job_folders(jobs, out, force=False) -> None:
     """Before the first render: every folder of :func:`plan_views`'s ``jobs`` and, for
     several, their parent ``out`` (:func:`check_foreign_folder`).
     """
@@ -74,7 +76,7 @@ def check_job_folders(jobs, out, force=False):
         check_foreign_folder(folder, force)
 
 
-def open_folder(out, manifest, files, force=False, read_images=True):
+def open_folder(out, manifest, files, force=False, read_images=True) -> dict:
     """Check ``out`` (locked by the caller) against ``manifest`` (the run's :class:`Manifest`);
     return the images still valid (all those listed without ``read_images``).
 
@@ -142,7 +144,7 @@ def _refuse_special(out, files):
             )
 
 
-def image_still_valid(out, entry, size):
+def image_still_valid(out, entry, size) -> bool:
     """True when the image of manifest ``entry`` in ``out`` is the one written (its SHA-256, when
     recorded), readable and of ``size``; one that is not and is read-only is refused (InputError).
     """
@@ -162,7 +164,7 @@ def image_still_valid(out, entry, size):
     return valid
 
 
-def _clear_pending(out, old, remove):
+def _clear_pending(out, old, remove) -> set:
     """The files ``old`` lists as pending and not as images (a killed run's); removed when
     ``remove`` (a read-only one is left, and then refused as the user's).
     """

@@ -7,6 +7,8 @@ or a match writes its results elsewhere (:func:`check_output_outside_basis`), so
 image of a basis is ever replaced by a result computed from it.
 """
 
+from __future__ import annotations
+
 import os
 
 from ..._util.atomic import is_temporary
@@ -31,7 +33,7 @@ def check_output_outside_basis(out, basis_folder=None):
         )
 
 
-def basis_entries(folder):
+def basis_entries(folder) -> tuple[list, list]:
     """``(own, foreign)``: the names in a basis folder that its render made (the manifest, the
     files it lists (:meth:`Manifest.listed_files`: images, full-GI images, cross terms) or has
     pending, :data:`EXTRA`, its lock and temporary files) and the others.

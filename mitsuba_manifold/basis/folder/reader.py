@@ -3,6 +3,8 @@
 The format (``manifest.json``, image keys, hashes) is :mod:`.manifest`.
 """
 
+from __future__ import annotations
+
 import os
 import threading
 import time
@@ -28,7 +30,7 @@ IN_PROGRESS = (
 )
 
 
-def _in_progress(folder, where, why):
+def _in_progress(folder, where, why) -> str:
     """``where: why``, or where a render holds the folder's lock (:func:`is_locked`), ``where``
     and the render in progress (what changed is being written, not damaged).
     """
@@ -72,7 +74,7 @@ class Basis:
         Per target, the materials that appear in some image key.
     """
 
-    def __init__(self, folder, manifest):
+    def __init__(self, folder, manifest) -> None:
         self.folder = os.fspath(folder)
         self.manifest = manifest = Manifest.from_json(manifest)
         self.resolution = tuple(manifest.resolution)
@@ -94,7 +96,7 @@ class Basis:
         self._read_lock = threading.RLock()  # one reader of a file kept here (explorer threads)
 
     @classmethod
-    def load(cls, folder, manifold=None, scene=None, verify=False):
+    def load(cls, folder, manifold=None, scene=None, verify=False) -> Basis:
         """Open a basis folder and check it.
 
         Parameters
@@ -151,7 +153,7 @@ class Basis:
                 self._derived[name] = make(self)
             return self._derived[name]
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return (
             f"Basis({self.folder!r}: {len(self.keys)} images, targets {self.targets}, "
             f"{self.resolution[0]}x{self.resolution[1]}, {self.manifest.spp} spp)"
@@ -165,7 +167,7 @@ class Basis:
         return self.manifest.sensor_index
 
     @property
-    def sensor_known(self):
+    def sensor_known(self) -> bool:
         """True when the manifest records its sensor (manifests of earlier versions recorded
         only sensors other than 0).
         """
@@ -183,14 +185,14 @@ class Basis:
             raise MismatchError(f"basis {self.folder} has no image {key!r}")
         return os.path.join(self.folder, entry.file)
 
-    def has(self, key):
+    def has(self, key) -> bool:
         return self._entry(key) is not None
 
     def gi_key(self, key):
         """Key of the full-GI image (``touch + L2+``) of material image ``key``."""
         return GI + key
 
-    def cross_terms(self):
+    def cross_terms(self) -> None:
         """The cross terms ``C_ij`` (:mod:`.crossterms`): ``({(name_i, name_j): row}, float16
         (P, H, W, 3))``, read once and kept as stored (half the memory of float32; a blend
         converts the few rows it uses); empty without them.
@@ -239,7 +241,7 @@ class Basis:
             self._cross32[row] = self.cross_terms()[1][row].astype(np.float32)
         return self._cross32[row]
 
-    def warm_cross_terms(self):
+    def warm_cross_terms(self) -> None:
         """Convert every cross term to float32 now (:meth:`cross_term`), as a long interactive
         session ends up holding them anyway; the first blends of a drag then skip the conversion.
         """
@@ -250,7 +252,7 @@ class Basis:
         """Image key of one material name per target (:func:`image_key` for this basis's version)."""
         return image_key(materials, self.version)
 
-    def material_keys(self, names):
+    def material_keys(self, names) -> list:
         """Image keys of single materials ``names`` (a one-target basis), in order."""
         return [self.key([n]) for n in names]
 
@@ -298,7 +300,7 @@ class Basis:
         view.setflags(write=False)
         return view
 
-    def read(self, keys):
+    def read(self, keys) -> float:
         """Read the images ``keys`` not read before; returns the seconds spent."""
         t0 = time.perf_counter()
         for k in keys:
@@ -324,7 +326,7 @@ class Basis:
             return np.tensordot(dense, self._store[:n], axes=1)
         return np.tensordot(weights, self._store[rows], axes=1)
 
-    def verify(self):
+    def verify(self) -> Basis:
         """Read every listed image in full (raises :class:`MismatchError` on the first bad one)."""
         for key in list(self.manifest.images) + [GI + k for k in self.manifest.gi_images or {}]:
             self.image(key)
@@ -393,7 +395,7 @@ class Basis:
         return m
 
 
-def _axpy_sum(store, rows, weights):
+def _axpy_sum(store, rows, weights) -> np.ndarray:
     """``sum_j weights[j] * store[rows[j]]`` (float32) by one in-place ``saxpy`` per image used
     (:func:`~mitsuba_manifold._util.blas.axpy`, on one BLAS thread), without gathering them (a ``tensordot`` copies
     them first).

@@ -4,6 +4,8 @@ A plugin module as Mitsuba's own (a ``mi.SamplingIntegrator`` of the active vari
 by the last line; :mod:`mitsuba_manifold.render.plugins` re-creates it for each variant).
 """
 
+from __future__ import annotations
+
 import drjit as dr
 import mitsuba as mi
 
@@ -27,13 +29,13 @@ class FirstHitAOVs(mi.SamplingIntegrator):
     the attribute ``targets`` (a list of BSDFs) before rendering.
     """
 
-    def __init__(self, props):
+    def __init__(self, props) -> None:
         check_variant()  # first: Mitsuba warns about Python integrators in scalar variants
         super().__init__(props)
         self.bins = int(props.get("bins", THETA_BINS))
         self.targets = []
 
-    def aov_names(self):
+    def aov_names(self) -> list[str]:
         return (
             [f"normal.{c}" for c in "XYZ"]
             + [f"albedo.{c}" for c in "RGB"]
@@ -58,7 +60,7 @@ class FirstHitAOVs(mi.SamplingIntegrator):
         hist = [dr.select(valid & on & (k == j), 1.0, 0.0) for j in range(self.bins)]
         return mi.Spectrum(0.0), valid, [n.x, n.y, n.z, albedo.x, albedo.y, albedo.z] + hist
 
-    def to_string(self):
+    def to_string(self) -> str:
         return f"FirstHitAOVs[bins={self.bins}, targets={len(self.targets)}]"
 
 

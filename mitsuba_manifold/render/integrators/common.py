@@ -8,10 +8,20 @@ and checks variants; integrators that trace whole wavefronts themselves seed sam
 make primary rays with Mitsuba's own ``ADIntegrator.prepare`` and ``sample_rays``.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import drjit as dr
 import mitsuba as mi
 
 from ...errors import InputError, VariantError
+
+if TYPE_CHECKING:
+    from typing import Any
+
+    import numpy as np
+
 
 #: Values of the ``component`` parameter besides ``touch:<id>+<id>...``.
 COMPONENTS = ("full", "l1", "base", "touch", "rest")
@@ -19,7 +29,7 @@ COMPONENTS = ("full", "l1", "base", "touch", "rest")
 MAX_GROUPS = 4
 
 
-def is_manifold_bsdf(bsdf):
+def is_manifold_bsdf(bsdf) -> bool:
     """True when ``bsdf`` is a manifold material: a ``manifold_brdf`` of the active variant
     (an instance of :class:`mitsuba_manifold.render.bsdf.ManifoldBRDF`).
     """
@@ -33,7 +43,7 @@ def is_manifold_bsdf(bsdf):
 TWOSIDED = "TwoSidedBRDF"
 
 
-def scene_shapes(scene):
+def scene_shapes(scene) -> list:
     """Every shape of ``scene``: its own, and those inside shape groups (instanced), which
     ``scene.shapes()`` does not list.
     """
@@ -44,7 +54,7 @@ def scene_shapes(scene):
     return shapes
 
 
-def _inner(bsdf):
+def _inner(bsdf) -> list:
     """The manifold BSDFs a (wrapper) BSDF holds, found through its parameters."""
     found = []
     for _, _, node, _ in mi.traverse(bsdf).properties.values():
@@ -53,7 +63,7 @@ def _inner(bsdf):
     return found
 
 
-def carriers(scene):
+def carriers(scene) -> list[tuple]:
     """``[(carrier, material)]``: every BSDF that a shape of ``scene`` holds (instanced ones too) and
     that is a manifold material or holds one (``twosided``, ...), with that manifold material, in
     the order of the shapes. A ray hitting ``carrier`` scatters off ``material``.
@@ -83,7 +93,7 @@ def is_plain_twosided(carrier):
     )
 
 
-def manifold_bsdfs(scene):
+def manifold_bsdfs(scene) -> list:
     """The distinct manifold BSDF instances of ``scene`` (a shape's own BSDF, or held by one such as
     ``twosided``; instanced shapes included), in the order of the shapes.
     """
@@ -94,7 +104,7 @@ def manifold_bsdfs(scene):
     return found
 
 
-def nested_manifold_bsdfs(scene):
+def nested_manifold_bsdfs(scene) -> list:
     """Manifold BSDFs of ``scene`` that no shape's BSDF holds in a way the split can see."""
     own = manifold_bsdfs(scene)
     nested = []
@@ -104,13 +114,13 @@ def nested_manifold_bsdfs(scene):
     return nested
 
 
-def group_carriers(scene, groups):
+def group_carriers(scene, groups) -> list:
     """Per target group (:func:`target_groups`), the BSDFs whose hit is a vertex on it."""
     pairs = carriers(scene)
     return [[c for c, m in pairs if any(m is b for b in bsdfs)] for _, bsdfs in groups]
 
 
-def target_groups(scene, target="all"):
+def target_groups(scene, target="all") -> list[tuple[str, Any]]:
     """Resolve the ``target`` parameter against ``scene``.
 
     Parameters
@@ -174,7 +184,7 @@ def target_groups(scene, target="all"):
     return groups
 
 
-def class_names(group_names):
+def class_names(group_names) -> list[str]:
     """Names of the path classes for the given group names.
 
     Class ``m`` (``0 <= m < 2 ** len(group_names)``) holds the paths that scattered off
@@ -220,7 +230,7 @@ def check_variant(variant=None):
     return variant
 
 
-def developed_rgb(film):
+def developed_rgb(film) -> np.ndarray:
     """The linear RGB image a film holds (float32 (H, W, 3), its crop window), whatever its
     ``pixel_format``: the film's raw storage (R, G, B, [A,] [AOVs,] W) divided by the filter
     weights, as ``develop`` does before converting to the pixel format (luminance, XYZ, ...), a

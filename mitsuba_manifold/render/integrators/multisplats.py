@@ -22,7 +22,10 @@ of :class:`.splats.TableSplats`); each splat goes into every pixel of its sample
 footprint with the filter's weight there (:class:`.splats.FilterTaps`), as the film puts samples.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import drjit as dr
 import mitsuba as mi
@@ -30,6 +33,10 @@ import numpy as np
 
 from ..lookups import merl_angles, merl_bin
 from .splats import PACKET, expand
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Pairs of materials per cross-term kernel (bounds the per-thread copies of the sums).
 PAIR_CHUNK = 64
@@ -60,7 +67,7 @@ class PairSelection:
     #: of every pair using every splat, for the products of the built-in database.
     min_share: float = 1 / 16
 
-    def share(self, product):
+    def share(self, product) -> float:
         """The share of the splats of a pair of weight product ``product``."""
         share = 2.0 ** np.ceil(np.log2(max(4.0 * abs(float(product)), self.min_share)))
         return float(min(1.0, share))
@@ -75,7 +82,7 @@ def _bins(wi, wo, dims):
 LEVEL_SETS = ((2, 2), (3, 3), (4, None))
 
 
-def _level_sets(levels):
+def _level_sets(levels) -> list:
     """:data:`LEVEL_SETS` up to ``levels``: ``(first, last)`` pairs."""
     return [(a, min(levels, b or levels)) for a, b in LEVEL_SETS if a <= levels]
 
@@ -117,7 +124,7 @@ class MultiSplats:
 
     def __init__(
         self, rows, n_pad, names, dims, pixels, levels, pairs=(), cross_fraction=1.0, select=None
-    ):
+    ) -> None:
         self.rows, self.n_pad, self.names, self.dims = rows, int(n_pad), names, dims
         self.cross_fraction = float(cross_fraction)
         self.pixels, self.levels = int(pixels), int(levels)
@@ -130,7 +137,7 @@ class MultiSplats:
         self.splats = []  # (k, [bins], amplitude, pixel, count) per set of levels (:func:`_merged`)
         self.counts = np.zeros(self.levels + 2, np.int64)  # paths by vertices on the target
 
-    def prepare(self, rec, weight, taps, seed=0):
+    def prepare(self, rec, weight, taps, seed=0) -> None:
         """Splats of levels ``2 ..`` of one pass (``weight``: the camera sample weight; ``taps``: each
         sample's pixels and filter weights, :meth:`.splats.FilterTaps.taps`; ``seed``:
         of the pass, for the choice of the splats that the cross terms use), in the sets of
@@ -152,7 +159,7 @@ class MultiSplats:
             if parts:
                 self.splats.append(_merged(parts, max(len(p[0]) for p in parts)))
 
-    def _level(self, lv, weight, taps):
+    def _level(self, lv, weight, taps) -> list[tuple[list[mi.UInt32], mi.Color3f, Any]]:
         """The splats ``(bins, amplitude, pixel)`` of level ``len(lv)``: light connection, sampled
         direction, each in every pixel of its sample's filter footprint (weighted).
         """
@@ -184,13 +191,13 @@ class MultiSplats:
                     )
         return out
 
-    def _sums(self, pairs, pixels=None):
+    def _sums(self, pairs, pixels=None) -> list:
         return [
             dr.zeros(mi.Float, (pixels or self.pixels) * 3 * len(pairs[p0 : p0 + PAIR_CHUNK]))
             for p0 in range(0, len(pairs), PAIR_CHUNK)
         ]
 
-    def _groups(self, pairs, shares):
+    def _groups(self, pairs, shares) -> list:
         """``[(share of the splats, pairs, their sums)]``: the pairs grouped by ``shares`` (pair ->
         share; ``cross_fraction`` times it, 1 where not given).
         """
@@ -199,7 +206,7 @@ class MultiSplats:
             by.setdefault(self.cross_fraction * shares.get(p, 1.0), []).append(p)
         return [(f, ps, self._sums(ps)) for f, ps in sorted(by.items(), reverse=True)]
 
-    def add(self):
+    def add(self) -> None:
         """Add the prepared splats to the ``L2+`` sums and the cross terms (on the first pass
         with a :class:`PairSelection`, after choosing the pairs).
 
@@ -217,7 +224,7 @@ class MultiSplats:
             for _k, bins, amp, pix, count in self.splats:
                 self._cross_all(sums, pairs, (bins, amp, pix, count), share, rng)
 
-    def _cross_all(self, sums, pairs, splats, fraction, rng):
+    def _cross_all(self, sums, pairs, splats, fraction, rng) -> None:
         """The cross terms of ``pairs`` into ``sums`` from a share ``fraction`` of the ``splats``
         (``bins, amp, pix, count``).
         """
@@ -234,7 +241,7 @@ class MultiSplats:
         for c, p0 in enumerate(range(0, len(pairs), PAIR_CHUNK)):
             self._cross(sums[c], pairs[p0 : p0 + PAIR_CHUNK], bins, amp, pix, count)
 
-    def _choose(self, rng):
+    def _choose(self, rng) -> None:
         """Keep the candidate pairs whose cross term matters (:class:`PairSelection`), measured
         on this first pass: every candidate's cross term from a share ``pilot`` of its splats.
         """
@@ -266,7 +273,7 @@ class MultiSplats:
         score = np.asarray(sel.products, float) * mag / ref
         self._kept(score >= sel.tol, score)
 
-    def _kept(self, keep, score):
+    def _kept(self, keep, score) -> None:
         """Use the candidates ``keep`` (bool), each with its share of the splats."""
         sel = self.select
         self.pairs = [p for p, k in zip(self.candidates, keep) if k]
@@ -282,7 +289,7 @@ class MultiSplats:
             "splat_share": float(np.mean(list(shares.values()))) if shares else 0.0,
         }
 
-    def _rest(self, bins, amp, pix, count=None):
+    def _rest(self, bins, amp, pix, count=None) -> None:
         packets = self.n_pad // PACKET
         lane = dr.arange(mi.UInt32, dr.width(pix) * packets)
         s, kb = lane // packets, lane % packets
@@ -308,7 +315,7 @@ class MultiSplats:
                 dr.scatter_add(self.sums, t, (q * 3 + c) * packets + kb, mode=dr.ReduceMode.Expand)
             dr.eval(self.sums)
 
-    def _cross(self, sums, pairs, bins, amp, pix, count=None):
+    def _cross(self, sums, pairs, bins, amp, pix, count=None) -> None:
         n = len(pairs)
         lane = dr.arange(mi.UInt32, dr.width(pix) * n)
         s, p = lane // n, lane % n
@@ -342,7 +349,7 @@ class MultiSplats:
                 dr.scatter_add(sums, term, (q * 3 + c) * n + p, mode=dr.ReduceMode.Expand)
             dr.eval(sums)
 
-    def release(self):
+    def release(self) -> None:
         self.splats = []
 
     def images(self, scale, shape):
@@ -368,7 +375,7 @@ class MultiSplats:
         return rest, dict(sorted(cross.items(), key=lambda kv: keyed[kv[0]]))
 
 
-def _has_bin(count, s, k):
+def _has_bin(count, s, k) -> list:
     """Per bin position of ``k``, whether the splats ``s`` have it: True, or a mask (``count``)."""
     return (
         [True] * k
@@ -380,12 +387,12 @@ def _has_bin(count, s, k):
 class _expand:
     """Let ``ReduceMode.Expand`` scatter-adds keep a copy of ``sums`` per thread."""
 
-    def __init__(self, sums):
+    def __init__(self, sums) -> None:
         self.width = dr.width(sums)
 
-    def __enter__(self):
+    def __enter__(self) -> None:
         self.threshold = dr.expand_threshold()
         dr.set_expand_threshold(max(self.threshold, self.width))
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc) -> None:
         dr.set_expand_threshold(self.threshold)

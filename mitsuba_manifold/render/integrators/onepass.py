@@ -14,10 +14,12 @@ material's ``L2+`` image is the sum over splats of ``a prod_j f_i(b_j)`` (:mod:`
 so that ``base + touch_i + rest_i`` is material ``i``'s full-GI image.
 """
 
+from __future__ import annotations
+
 import os
 import threading
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import drjit as dr
 import mitsuba as mi
@@ -35,11 +37,14 @@ from .multisplats import MultiSplats
 from .proxy import POINT, sampling_proxy, with_point  # noqa: F401 (POINT: re-exported)
 from .splats import PACKET, FilterSplats, TableSplats
 
+if TYPE_CHECKING:
+    from typing import Any
 
-def _prefetch(path, block=1 << 24):
+
+def _prefetch(path, block=1 << 24) -> None:
     """Read ``path`` in a background thread, so that it is in the page cache when needed."""
 
-    def run():
+    def run() -> None:
         try:
             buf = bytearray(block)
             with open(path, "rb", buffering=0) as f:
@@ -80,7 +85,7 @@ def render_onepass(
     sensor=0,
     settings=None,
     progress=None,
-):
+) -> OnePassImages:
     """Render the base image and every material's touch image from one set of paths.
 
     For paths scattering once off the target, the material enters only at that
@@ -160,7 +165,7 @@ class OnePassGI:
 
 def render_onepass_gi(
     integrator, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(), **options
-):
+) -> OnePassGI:
     """Render base, touch, ``L2+`` and cross-term images of every material from one set of paths.
 
     As :func:`render_onepass`, but paths go on after their second vertex on the target, up
@@ -232,7 +237,7 @@ def _check_counts(**counts):
             raise InputError(f"manifold_path: `{name}` must be >= 1, got {value}")
 
 
-def _multi_splats(gi, splat, names, dims, levels):
+def _multi_splats(gi, splat, names, dims, levels) -> MultiSplats:
     """The L2+ splats of :func:`render_onepass_gi` (``gi``: its levels and pairs) over the table
     product of ``splat`` (:class:`TableSplats`: the manifold_brdf's nearest lookups).
     """
@@ -287,7 +292,7 @@ def _render(
     settings,
     progress,
     gi=None,
-):
+) -> tuple[Any, Any, dict[str, Any]]:
     """:func:`render_onepass` (``gi`` None) or :func:`render_onepass_gi` (``gi``: levels, pairs);
     ``settings``: a :class:`PassSettings` (None: the defaults).
     """
@@ -406,7 +411,7 @@ class OnePassTarget:
     interpolation: str
     sampling: str
 
-    def options(self):
+    def options(self) -> dict[str, str]:
         """``manifold_brdf`` parameters that make a BSDF look tables up as the target does."""
         out = {"interpolation": self.interpolation}
         if self.database is not None:
@@ -414,7 +419,7 @@ class OnePassTarget:
         return out
 
 
-def one_target(scene, target):
+def one_target(scene, target) -> OnePassTarget:
     """The single target group of ``scene`` for the integrator's ``target`` parameter, checked."""
     groups = target_groups(scene, target)
     if len(groups) != 1:
@@ -456,7 +461,7 @@ def one_target(scene, target):
     )
 
 
-def _material_names(manifold, path, materials):
+def _material_names(manifold, path, materials) -> list:
     names = list(manifold.names) if materials is None else [str(n) for n in materials]
     unknown = [n for n in names if n not in manifold.names]
     if unknown or not names or len(set(names)) != len(names):
@@ -467,7 +472,7 @@ def _material_names(manifold, path, materials):
     return names
 
 
-def _passes(film, spp, max_samples, spp_per_pass):
+def _passes(film, spp, max_samples, spp_per_pass) -> list:
     """Samples per pixel of each pass: at most ``max_samples`` paths (or ``spp_per_pass``) at once."""
     size = film.crop_size()
     if film.sample_border():

@@ -16,6 +16,10 @@ Its method ``render_onepass`` renders ``base`` and the touch images of many mate
 one set of paths (:mod:`.onepass`).
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import drjit as dr
 import mitsuba as mi
 
@@ -30,6 +34,10 @@ from .common import (
     target_groups,
 )
 from .records import Records
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Any
 
 
 class ManifoldPathIntegrator(mi.SamplingIntegrator):
@@ -75,7 +83,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
     touch images of many materials of one target from one set of paths.
     """
 
-    def __init__(self, props):
+    def __init__(self, props) -> None:
         check_variant()  # first: Mitsuba warns about Python integrators in scalar variants
         super().__init__(props)
         max_depth = props.get("max_depth", -1)
@@ -99,11 +107,11 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
 
     # ------------------------------------------------------------ set-up
 
-    def needs_targets(self):
+    def needs_targets(self) -> bool:
         """Whether rendering needs the scene's manifold BSDFs."""
         return self.component != "full" or self.split
 
-    def plan(self, scene):
+    def plan(self, scene) -> dict:
         """Resolve targets and component for ``scene``.
 
         Returns
@@ -170,7 +178,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             mirror=mirror,
         )
 
-    def aov_names(self):
+    def aov_names(self) -> list:
         if not self.split:
             return []
         if self._names is None:
@@ -191,7 +199,9 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         self._aov_classes = plan["aovs"]
         return plan
 
-    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+    def render(
+        self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True
+    ) -> dr.auto.ad.TensorXf:
         # The film's channels come from aov_names(), which needs the scene: resolve first.
         self.prepare_scene(scene)
         return super().render(scene, sensor, seed, spp, develop, evaluate)
@@ -427,7 +437,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             **options,
         )
 
-    def to_string(self):
+    def to_string(self) -> str:
         return (
             f"ManifoldPathIntegrator[max_depth={self.max_depth}, rr_depth="
             f"{self.rr_depth}, component={self.component!r}, target={self.target!r}, "
@@ -435,12 +445,12 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         )
 
 
-def _target_test(hits):
+def _target_test(hits) -> Callable[..., Any]:
     """``test(bsdf)``: per lane, the bit set of the target groups whose BSDFs (``hits``: per group,
     its manifold materials and the twosided wrappers holding them) the BSDF pointer is one of.
     """
 
-    def test(bsdf):
+    def test(bsdf) -> mi.UInt32:
         hit = mi.UInt32(0)
         for g, carriers in enumerate(hits):
             for b in carriers:
@@ -450,7 +460,7 @@ def _target_test(hits):
     return test
 
 
-def _proxy_choice(mirror, proxy):
+def _proxy_choice(mirror, proxy) -> Callable[..., Any]:
     """``choose(bsdf, on, below)``: the BSDF sampled at each vertex (on the target: the proxy, or
     its twosided wrapper where one of the twosided materials ``mirror`` was hit; ``proxy`` is the
     proxy or the pair ``(proxy, twosided proxy)``) and whether the vertex is a twosided material's
@@ -470,7 +480,7 @@ def _proxy_choice(mirror, proxy):
     return choose
 
 
-def _mirrored(v, back):
+def _mirrored(v, back) -> mi.Vector3f:
     """``v`` with its z negated where ``back``: a direction on a twosided material's back side in
     the frame its front side is evaluated in.
     """

@@ -3,14 +3,21 @@ covers every rendered material (paper Sec. 5.3), or a point's blend of them, and
 material as one more column of the interleaved tables (:func:`with_point`).
 """
 
+from __future__ import annotations
+
 import os
 import threading
+from typing import TYPE_CHECKING
 
 import mitsuba as mi
 import numpy as np
 
 from ..._util.cache import Eviction, key_hash, npy_cache
 from .splats import PACKET
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Name of the point's own material in a render with ``point`` weights (:func:`.onepass.render_onepass_gi`).
 POINT = "(point)"
@@ -34,7 +41,7 @@ def _mixture_table(db, rows, mix, keep=2):
     path = os.path.join(db.cache_dir, f"{key}.mixture-v1-{digest}.npy")
     shape = (rows.shape[0], 3)
 
-    def build():
+    def build() -> np.ndarray:
         w = np.zeros(rows.shape[2], dtype=np.float32)
         w[: len(mix)] = mix
         return (np.asarray(rows).reshape(-1, rows.shape[2]) @ w).reshape(shape)
@@ -49,7 +56,7 @@ def _mixture_table(db, rows, mix, keep=2):
     )
 
 
-def _with_point(target, db, names, rows, w):
+def _with_point(target, db, names, rows, w) -> tuple[np.ndarray, Any, Any]:
     """``(rows, names, proxy)``: the ``(bins, 3, n)`` tables of the materials ``names`` and, after
     them, the column ``sum_k w_k table_k`` (the point's material, :data:`POINT`), padded to
     PACKET; the names with :data:`POINT`; the proxy sampling ``|w|`` (:func:`_sampling_proxy`).
@@ -78,7 +85,7 @@ class _LastPoint:
     tables' file, the names and the weights; one entry, locked.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.key, self.value, self.lock = None, None, threading.Lock()
 
     def get(self, args, build):
@@ -98,7 +105,7 @@ class _LastPoint:
             rows_out, names_out, proxy = self.value
             return rows_out, list(names_out), proxy
 
-    def clear(self):
+    def clear(self) -> None:
         with self.lock:
             self.key, self.value = None, None
 
@@ -106,7 +113,7 @@ class _LastPoint:
 _POINT_CACHE = _LastPoint()
 
 
-def forget_point():
+def forget_point() -> None:
     """Drop the last point's tables (:class:`_LastPoint`): the next point builds its own."""
     _POINT_CACHE.clear()
 

@@ -13,8 +13,15 @@ is the touch image; levels ``2 ..`` make the ``L2+`` image of the material (pape
 the one-pass weight becomes the product of ``f_i / proxy`` over those vertices).
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import drjit as dr
 import mitsuba as mi
+
+if TYPE_CHECKING:
+    from typing import Any
 
 
 class RecordState:
@@ -31,7 +38,7 @@ class RecordState:
         "c": mi.Float,
     }
 
-    def __init__(self, n=None, acc=None, tn=None, u=None, c=None):
+    def __init__(self, n=None, acc=None, tn=None, u=None, c=None) -> None:
         self.n = mi.UInt32(0) if n is None else n
         self.acc = mi.Spectrum(0) if acc is None else acc
         self.tn = mi.Spectrum(0) if tn is None else tn
@@ -44,7 +51,7 @@ class Records:
     state is a :class:`RecordState` (``self.state``, passed through every call).
     """
 
-    def __init__(self, levels, width):
+    def __init__(self, levels, width) -> None:
         self.levels = int(levels)
         self.state = RecordState()
         size = int(width) * self.levels
@@ -57,7 +64,7 @@ class Records:
         self.g = dr.zeros(mi.Spectrum, size)
         dr.make_opaque(self.wi, self.wo_nee, self.wo, self.e_nee, self.g)
 
-    def _flush(self, st, mask):
+    def _flush(self, st, mask) -> None:
         """Write what came back since the last vertex (``u * acc``) to its level."""
         ok = mask & (st.n > 0) & (st.n <= self.levels)
         dr.scatter(self.g, st.u * st.acc, self.base + st.n - 1, ok)
@@ -75,20 +82,20 @@ class Records:
         )
         return st, first
 
-    def light(self, st, first, wo, e):
+    def light(self, st, first, wo, e) -> None:
         """The light connection made there: direction ``wo``, ``e`` = radiance / light pdf, MIS."""
         idx = self.base + st.n - 1
         dr.scatter(self.wo_nee, wo, idx, first)
         dr.scatter(self.e_nee, st.tn * e, idx, first)
 
-    def leave(self, st, first, wo, inv_q):
+    def leave(self, st, first, wo, inv_q) -> RecordState:
         """The direction sampled there (``1 / q``; 0 where the path cannot go on); the new state."""
         dr.scatter(self.wo, wo, self.base + st.n - 1, first)
         return RecordState(
             st.n, st.acc, st.tn, dr.select(first, st.tn * inv_q, st.u), dr.select(first, wo.z, st.c)
         )
 
-    def finish(self, st):
+    def finish(self, st) -> dict[str, Any]:
         """The records: per level ``j`` (0-based) a dict ``wi, wo_nee, e_nee, wo, g`` in
         ``"levels"``; level 1's also at the top level, with ``beta`` = 1 (the earlier layout),
         and ``count`` (each path's vertices on the target, ``levels + 1`` where it was cut).

@@ -14,11 +14,19 @@ material's image is the film's.
 through image blocks with the film's filter (each material evaluated by its BSDF).
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from ..lookups import merl_angles, merl_bin
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Materials per packet of the table product (Dr.Jit packet gathers of 16 contiguous floats).
 PACKET = 16
@@ -35,18 +43,18 @@ class FilterTaps:
     sample's pixel. The block must not normalise its samples and have no border (a film's block).
     """
 
-    def __init__(self, block, rfilter):
+    def __init__(self, block, rfilter) -> None:
         self.size, self.offset = block.size(), block.offset()
         self.rfilter = rfilter
         self.box = rfilter.is_box_filter()
         self.n = 0 if self.box else int(np.ceil(float(rfilter.radius()) - 0.5))
 
     @property
-    def count(self):
+    def count(self) -> int:
         """Taps per sample."""
         return (2 * self.n + 1) ** 2
 
-    def taps(self, pos):
+    def taps(self, pos) -> list | list[tuple[mi.UInt32, Any]]:
         """``[(pixel, weight)]``, one pair per tap: each sample's pixel row (``y * width + x``)
         and weight (``None`` for the box filter's single tap: 1; 0 where the tap leaves the block).
         """
@@ -67,7 +75,7 @@ class FilterTaps:
         return out
 
 
-def expand(taps, idx):
+def expand(taps, idx) -> list[tuple[None, mi.UInt32, None]]:
     """The splats of samples ``idx`` (UInt32) in every pixel of their footprint: ``(take, pixel,
     weight)`` per tap with a weight somewhere, ``take`` indexing ``idx`` (None: all of them) and
     ``weight`` None for a weight of 1.
@@ -86,7 +94,7 @@ def expand(taps, idx):
     return out
 
 
-def _splat_rows(sums, splats, pixel, rows, row_packets, kb0, kb1):
+def _splat_rows(sums, splats, pixel, rows, row_packets, kb0, kb1) -> None:
     """Add ``a * max(rows[bin], 0)`` of every splat to its pixel's sums, for material packets
     ``kb0 .. kb1 - 1``.
 
@@ -133,7 +141,7 @@ class TableSplats:
     ``_SUM_BYTES``, the splats are processed in tiles of pixels into smaller sums first.
     """
 
-    def __init__(self, block, rows, names, chunks, dims, rfilter):
+    def __init__(self, block, rows, names, chunks, dims, rfilter) -> None:
         self.block, self.names, self.dims = block, names, dims
         self.filter = FilterTaps(block, rfilter)
         self.n_pad = int(rows.shape[2])
@@ -152,12 +160,12 @@ class TableSplats:
         """Each sample's pixels in the sums and their filter weights (:meth:`FilterTaps.taps`)."""
         return self.filter.taps(pos)
 
-    def scale(self):
+    def scale(self) -> np.ndarray:
         """Per pixel, 1 / the filter weights of all samples (0 where none), as NumPy."""
         weight = np.array(self.block.tensor())[..., -1].reshape(-1)
         return np.where(weight > 0, 1.0 / np.where(weight > 0, weight, 1.0), 0.0).astype(np.float32)
 
-    def prepare(self, rec, beta, pos):
+    def prepare(self, rec, beta, pos) -> None:
         """Turn one pass's records into splats, sorted by bin within tiles of pixels."""
         taps = self.taps(pos)
         pixel = taps[0][0]
@@ -221,7 +229,7 @@ class TableSplats:
             dr.eval(splats, local)
             self.tiles.append((int(p0), min(self.pixels, int(p0) + self.tile), splats, local))
 
-    def add(self, c):
+    def add(self, c) -> None:
         """Add the splats of the prepared pass to the sums of chunk ``c``'s materials."""
         kb0, kb1 = self.packets[c]
         width = 3 * (kb1 - kb0) * PACKET
@@ -235,10 +243,10 @@ class TableSplats:
                 dr.scatter_add(self.sums[c], part, i + p0 * width, mode=dr.ReduceMode.NoConflicts)
                 dr.eval(self.sums[c])
 
-    def release(self):
+    def release(self) -> None:
         self.tiles = []
 
-    def images(self, film):
+    def images(self, film) -> dict[Any, float]:
         """Each material's sums divided by the filter weights of all samples."""
         block = np.array(self.block.tensor())
         scale = mi.Float(self.scale())
@@ -266,7 +274,7 @@ class FilterSplats:
     BSDF's own ``eval``).
     """
 
-    def __init__(self, film, block, names, chunks, db, path, options, several_passes):
+    def __init__(self, film, block, names, chunks, db, path, options, several_passes) -> None:
         self.film, self.block, self.names, self.chunks = film, block, names, chunks
         self.db, self.path, self.options = db, path, options
         self.dims = tuple(int(d) for d in db.dims)
@@ -327,7 +335,7 @@ class FilterSplats:
             self.cache[c] = data
         return data
 
-    def prepare(self, rec, beta, pos):
+    def prepare(self, rec, beta, pos) -> None:
         """Two splat sets (light connection, sampled direction), compacted, sorted by bin."""
         dr.eval(self.block.tensor(), beta, rec, pos)
         self.splats = []
@@ -350,7 +358,7 @@ class FilterSplats:
             dr.eval(splat)
             self.splats.append(splat)
 
-    def add(self, c):
+    def add(self, c) -> None:
         if not self.splats:
             return
         data, block, ctx = self._data(c), self.blocks[c], mi.BSDFContext()
@@ -365,10 +373,10 @@ class FilterSplats:
             block.put(splat["pos"], values)
             dr.eval(block.tensor())
 
-    def release(self):
+    def release(self) -> None:
         self.splats = []
 
-    def images(self, film):
+    def images(self, film) -> dict[Any, np.ndarray]:
         """Develop as the film does: the material channels as AOVs of the base block,
         normalised by the filter weights of all samples.
         """
