@@ -121,7 +121,7 @@ def _name_max(folder) -> int:
         return NAME_MAX
 
 
-def name_max(path):
+def name_max(path) -> int:
     """Longest file name (bytes) the file system of ``path``'s folder (or its nearest existing
     parent) allows.
     """

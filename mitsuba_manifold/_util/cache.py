@@ -41,6 +41,10 @@ if TYPE_CHECKING:
     from typing import Any
 
 
+if TYPE_CHECKING:
+    from typing import Any
+
+
 _HASHES = {}
 _VERIFIED = {}
 _LOCK = threading.Lock()
@@ -142,7 +146,7 @@ def write_npy(path, value, name=None) -> None:
 SEALED, UNSEALED, DAMAGED = "sealed", "unsealed", "damaged"
 
 
-def _verified_key(path):
+def _verified_key(path) -> tuple[Any, Any, int, int, int, int, int]:
     """What a sealed result is memoised by: the name the file is found by (part of its checksum)
     and the file's identity (:func:`file_identity`: a link and its target share one).
     """

@@ -55,7 +55,7 @@ def positive_int(name, value, example, hi=None) -> int:
     return int(value)
 
 
-def exposure(value, name="`exposure`"):
+def exposure(value, name="`exposure`") -> float:
     """A PNG exposure in stops (see :data:`EXPOSURE_RANGE`)."""
     return finite(name, value, *EXPOSURE_RANGE)
 
@@ -240,7 +240,7 @@ def scene_xml(path):
     return root
 
 
-def fraction(name, value):
+def fraction(name, value) -> float:
     """A finite number in ``[0, 1)`` (e.g. a pruning threshold)."""
     v = finite(name, value, 0.0, 1.0)
     if v >= 1.0:

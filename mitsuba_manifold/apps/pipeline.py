@@ -20,6 +20,7 @@ import json
 import os
 import time
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 from .._util import ownership
 from .._util.atomic import write_bytes
@@ -30,6 +31,10 @@ from ..manifold.model import Manifold
 from ..render import scenes as _scenes
 from .gi_comparison import gi_report, versus_direct
 from .tool_commands import explore_command
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 __all__ = ["MainJob", "Stages", "run_main_job"]
 
@@ -186,7 +191,7 @@ def main_job_outputs(job) -> list:
     ]
 
 
-def _run(job, log):
+def _run(job, log) -> dict[str, Any]:
     """:func:`run_main_job` once its outputs are checked (and watched)."""
     t_start = time.perf_counter()
     stages = Stages()

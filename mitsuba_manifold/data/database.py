@@ -325,7 +325,7 @@ def _write_sgd_table(job):
     return name, path, file_identity(path), digest
 
 
-def _filled(raw, dims):
+def _filled(raw, dims) -> np.ndarray:
     """:func:`merl.filled_reflectance` of a table measured in every bin above the horizon (as tabulated
     ones are), without its search for missing bins (used when some are missing).
     """
@@ -507,7 +507,7 @@ class SourceList:
         return self
 
     @classmethod
-    def read(cls, path):
+    def read(cls, path) -> SourceList:
         try:
             with open(path) as f:
                 data = json.load(f)
@@ -538,7 +538,7 @@ class DatabaseSpec:
     dims: tuple
     directory: object = None  # the folder, or None for a built-in set
 
-    def cache_dir(self):
+    def cache_dir(self) -> str:
         return cache_folder(self.directory) if self.directory else builtin_cache()
 
 
@@ -634,7 +634,7 @@ def canonical_spec(spec, what="database"):
     return out if suffix is None else f"{out}@{_size(suffix)}"
 
 
-def database_cache(spec):
+def database_cache(spec) -> str | None:
     """The cache folder of the database ``spec`` (as a manifold records it), or None when it is
     a folder that is gone (creating it would make an empty database folder).
     """
@@ -817,7 +817,7 @@ class Database:
             self.cache_dir, digest, lambda: source.table(self.dims), shape, out=out, what=what
         )
 
-    def stack(self, names=None, progress=False):
+    def stack(self, names=None, progress=False) -> np.ndarray:
         """Tables of ``names`` as one float32 matrix ``(N, d)``, rows = RGB-concatenated tables
         (each read from its cache straight into its row: :func:`~.._util.memory.prefaulted`).
         """

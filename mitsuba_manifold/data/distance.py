@@ -152,7 +152,7 @@ def _flat(tables, dims):
     )
 
 
-def brdf_distance(a, b, dims=None, stride=(1, 1, 1)):
+def brdf_distance(a, b, dims=None, stride=(1, 1, 1)) -> float | np.ndarray:
     """The [PR12]-style distance (module doc) between tables ``a`` and ``b``, broadcast.
 
     Parameters

@@ -166,7 +166,7 @@ class NetworkSet:
                 f"no NBRDF network named {name!r}{did_you_mean(name, self.names)}"
             ) from None
 
-    def digest(self, name):
+    def digest(self, name) -> str:
         """SHA-256 of the network ``name``'s weights (what its tables are derived from)."""
         i = self.index(name)
         return key_hash(
@@ -202,7 +202,7 @@ def _evaluate(nets, i, v, out=None):
     return out
 
 
-def grid_positions(dims=merl.MERL_DIMS, positions="centres"):
+def grid_positions(dims=merl.MERL_DIMS, positions="centres") -> tuple:
     """Rusinkiewicz coordinates ``(theta_h, theta_d, phi_d)`` of a grid's bins, each of shape ``dims``."""
     if positions == "centres":
         return merl.bin_centres(dims)

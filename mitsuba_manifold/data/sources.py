@@ -114,7 +114,7 @@ class BinaryFile:
     def origin(self) -> str:
         return self.path
 
-    def native_dims(self):
+    def native_dims(self) -> tuple[int, ...]:
         """The file's resolution (its header)."""
         return merl.read_header(self.path)
 
@@ -122,7 +122,7 @@ class BinaryFile:
         """SHA-256 of the file (memoised per process, :func:`cache.file_hash`)."""
         return file_hash(self.path)
 
-    def table(self, dims):
+    def table(self, dims) -> np.ndarray:
         raw = merl.read_binary(self.path)  # format errors name the file
         if raw.shape[1:] != tuple(dims):
             raise FormatError(
@@ -149,7 +149,7 @@ class Network:
     def native_dims(self) -> None:
         return None
 
-    def digest(self, dims):
+    def digest(self, dims) -> str:
         return key_hash(
             "nbrdf-table-v1", self.networks.digest(self.key), _resolution(dims), self.positions
         )
@@ -173,11 +173,11 @@ class SgdFit:
     def native_dims(self) -> None:
         return None
 
-    def digest(self, dims):
+    def digest(self, dims) -> str:
         values = np.array([v for _, v in self.params], dtype="<f8")
         return key_hash("sgd-table-v1", values, _resolution(dims))
 
-    def table(self, dims):
+    def table(self, dims) -> np.ndarray:
         from .surrogate import tabulate_sgd
 
         params = {k: np.asarray(v, dtype=np.float64) for k, v in self.params}
@@ -199,7 +199,7 @@ class MeasuredFile:
     def native_dims(self) -> None:
         return None
 
-    def digest(self, dims):
+    def digest(self, dims) -> str:
         return key_hash(
             "measured-table-v2", file_hash(self.path), _resolution(dims), str(MEASURED_SAMPLES)
         )
@@ -350,7 +350,7 @@ def builtin_set(name, *, recorded=False, what="database"):
     return name
 
 
-def builtin(name):
+def builtin(name) -> list:
     """The sources of a built-in set (:data:`BUILTIN`), in the set's order."""
     if name == "sgd":
         from .surrogate import SGD_FIELDS, load_sgd_fits

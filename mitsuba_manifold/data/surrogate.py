@@ -57,7 +57,7 @@ def _shadowing(theta, params):
     return np.clip(1.0 + params["lambda"] - big, 0.0, 1.0)
 
 
-def sgd_reflectance(params, wi, wo):
+def sgd_reflectance(params, wi, wo) -> np.ndarray:
     """SGD BRDF values (1/sr) for direction pairs.
 
     Parameters
@@ -141,7 +141,7 @@ def bin_geometry(dims):
     return above, _pair_geometry(*merl.directions(th[above], td[above], pd[above]))
 
 
-def _fit_named(name):
+def _fit_named(name) -> dict[str, np.ndarray]:
     fits = load_sgd_fits()
     if name not in fits:
         raise UnknownMaterialError(

@@ -440,7 +440,7 @@ def fit_latent(
     init=None,
     options=None,
     callback=None,
-):
+) -> FitResult:
     """Latent points maximising the GPLVM log-likelihood L (Eq. 6): :class:`GPLVM` as one call.
 
     ``GPLVM(q, Kernel(length_scale, noise), method, options).fit(S, d, init, callback)``; a

@@ -187,7 +187,7 @@ class Kernel:
         return np.stack([dl, np.eye(len(X))])
 
     # -- factorisation
-    def factorise(self, X):
+    def factorise(self, X) -> Factor:
         """The :class:`Factor` of ``K(X)`` (:class:`NotPositiveDefiniteError` if it has none)."""
         return factorise(self.K(X))
 

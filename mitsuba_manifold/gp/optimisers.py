@@ -343,7 +343,9 @@ def _minimise(likelihood, U0, method, options, callback, l, extra) -> OptimiserR
     return OptimiserResult(U, history, f.n_evaluations, ok, msg, grad_norm=norm)
 
 
-def lbfgs(likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.0):
+def lbfgs(
+    likelihood, U0, options=LBFGSOptions(), callback=None, length_scale=1.0
+) -> OptimiserResult:
     """L-BFGS-B on ``-F / (d N / 2)`` with the analytic gradient, in length-scale units.
 
     ``likelihood``, ``callback`` and ``length_scale`` as for :func:`hooke_jeeves`. Stops when

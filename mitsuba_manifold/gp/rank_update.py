@@ -228,7 +228,7 @@ class RankUpdatedInverse:
         return y, pivot, corr
 
     # -- trials
-    def try_moves(self, i, points):
+    def try_moves(self, i, points) -> MoveTrial:
         """Evaluate L with point ``i`` moved to each of ``points`` ((m, q) or (q,)), O(m N^2).
 
         The state is not changed; pass the result to :meth:`accept` to move the point.

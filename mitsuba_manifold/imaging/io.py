@@ -126,7 +126,7 @@ def read_exr_header(path) -> ExrHeader:
     )
 
 
-def check_exr_header(path, resolution=None):
+def check_exr_header(path, resolution=None) -> ExrHeader:
     """Check that ``path`` is an RGB EXR (of ``resolution`` = (width, height) if given).
 
     Reads the header only: a file truncated after its header passes here and fails in
@@ -199,7 +199,7 @@ def srgb_decode(encoded) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, np.power((c + 0.055) / 1.055, 2.4))
 
 
-def tonemap(img, exposure=0.0):
+def tonemap(img, exposure=0.0) -> np.ndarray:
     """Linear RGB (H, W, 3) to 8-bit sRGB: scale by ``2**exposure``, clip to [0, 1], encode."""
     img = np.asarray(img, dtype=np.float64) * 2.0 ** float(exposure)
     img = np.nan_to_num(img, nan=0.0, posinf=1.0, neginf=0.0)

@@ -93,7 +93,7 @@ class Added:
     time_s: float
 
 
-def read_table(path, dims):
+def read_table(path, dims) -> np.ndarray:
     """Reflectance table of a MERL ``.binary`` file, flat float32, checked against ``dims``."""
     path = os.fspath(path)
     if not os.path.isfile(path):

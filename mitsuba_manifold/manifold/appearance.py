@@ -48,7 +48,7 @@ def material_albedos(tables, dims, incidences=INCIDENCES) -> np.ndarray:
     return np.transpose(da.of(tables), (0, 2, 1))
 
 
-def descriptor(albedos):
+def descriptor(albedos) -> np.ndarray:
     """Lab triples of directional albedos ``(..., n_incidence, 3)``, flattened to ``(..., 3 n_incidence)``."""
     L = lab(albedos)
     return L.reshape(L.shape[:-2] + (-1,))

@@ -131,7 +131,7 @@ class GaussianProcessWeights(Interpolant):
             "exact": self.exact,
         }
 
-    def jump(self, eps=1e-9):
+    def jump(self, eps=1e-9) -> float:
         """Exact for ``exact=True``: at ``x_i`` the noise term makes ``w = e_i``; an infinitesimal
         step away it is absent and ``b = e_i - mu K_inv e_i``. The paper calls this negligible;
         it is only when K's smooth part is well conditioned (points far apart compared with l).
@@ -303,7 +303,9 @@ class ShepardWeights(Interpolant):
             names = [m.names[i] for i in idx]
             return m.open_database(names=names).stack(names)
 
-        def store():  # asked at the first step: the database may have been pointed elsewhere
+        def store() -> (
+            str | None
+        ):  # asked at the first step: the database may have been pointed elsewhere
             m = held()
             return store_path(getattr(m, "hashes", None), m.dims, m.database)
 

@@ -30,7 +30,7 @@ NEIGHBOURS, PER_EDGE, K = 8, 7, 10
 EDGE_BLOCK = 2048
 
 
-def cache_key(metric, *parts):
+def cache_key(metric, *parts) -> str:
     """Content hash naming a cache file of ``metric`` (a :class:`paths.PathMetric`) and ``parts``:
     the manifold's latent points, interpolant and recorded table hashes, and the metric's bins.
     """
@@ -137,7 +137,7 @@ class LatentGraph:
 
         nodes, edges = cls.layout(metric.manifold.latent)
 
-        def weigh():
+        def weigh() -> np.ndarray:
             return cls.weigh(metric, nodes, edges)
 
         w = (

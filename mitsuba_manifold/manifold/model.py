@@ -69,6 +69,10 @@ from .shipped import resolve_manifold
 from .tables import TrainingTables
 
 if TYPE_CHECKING:
+    from .projection import Projection
+
+
+if TYPE_CHECKING:
     from typing import Any
 
 
@@ -608,7 +612,7 @@ class Manifold:
         return w
 
     # ------------------------------------------------------- tables, interpolation
-    def open_database(self, folder=None, names=None):
+    def open_database(self, folder=None, names=None) -> Database:
         """The database of this manifold (or ``folder``), checked against the recorded hashes.
 
         Only the materials in ``names`` (default: all) are read and checked.
@@ -625,11 +629,11 @@ class Manifold:
         """
         return database or recorded_spec(self.database)
 
-    def tables(self, database=None):
+    def tables(self, database=None) -> None:
         """All N tables in memory as float32 ``(N, d)`` (loaded once, then kept)."""
         return self._store.stack(self._source(database))
 
-    def interpolate(self, x, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE):
+    def interpolate(self, x, prune=DEFAULT_PRUNE, database=None, rule=DEFAULT_RULE) -> Combination:
         """The interpolated table at latent point ``x``; see :meth:`combine` for the outputs."""
         if np.ndim(x) > 1:
             raise InputError(
@@ -648,7 +652,7 @@ class Manifold:
         table, _, _ = self.interpolate(x, prune, database)
         return float((table < 0).mean())
 
-    def mean(self, database=None):
+    def mean(self, database=None) -> np.ndarray:
         """The mean table (the far-field limit of the interpolant)."""
         return self.combine(np.full(self.n, 1.0 / self.n), prune=0.0, database=database)[0]
 
@@ -659,7 +663,7 @@ class Manifold:
         _, w = self.weights(x)
         return w @ self.albedos
 
-    def project(self, table, *, beyond=False, **options):
+    def project(self, table, *, beyond=False, **options) -> Projection:
         """The latent point whose material is closest to ``table`` (any MERL table).
 
         ``table``: a reflectance table of this manifold's resolution (as :meth:`Database.reflectance`,
@@ -794,7 +798,7 @@ class Manifold:
             )
         )
 
-    def prune_error(self, w, keep, rule=DEFAULT_RULE):
+    def prune_error(self, w, keep, rule=DEFAULT_RULE) -> float:
         """Relative L2 change of the table ``sum w_i table_i`` when only ``keep`` is kept (rescaled),
         in the norm ``rule`` bounds: cosine-weighted (``"image"``) or raw (``"raw-l2"``).
         """
@@ -804,7 +808,7 @@ class Manifold:
             w, keep, store.raw_gram(folder) if rule == "raw-l2" else store.cosine_gram(folder)
         )
 
-    def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE, keep=None):
+    def prune_report(self, w, prune=DEFAULT_PRUNE, rule=DEFAULT_RULE, keep=None) -> PruneReport:
         """What :meth:`prune` keeps and the bounds it reaches: a :class:`pruning.PruneReport` (materials
         kept and their names, albedo change per channel, cosine-weighted and raw table errors,
         the budgets; ``str()`` of it is one line for ``print(bsdf)`` and the explorer). ``keep``:

@@ -153,7 +153,7 @@ class PathMetric:
             cache[key] = metric
         return cache[key]
 
-    def weights(self, X):
+    def weights(self, X) -> np.ndarray:
         """The manifold's weights at latent points ``X`` as float32 operands (:func:`weights32`)."""
         return weights32(self.manifold.weights(np.atleast_2d(X)).w)
 

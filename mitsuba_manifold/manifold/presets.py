@@ -20,9 +20,13 @@ from ..gp import gplvm
 from . import interpolant as interpolants
 
 if TYPE_CHECKING:
+    from ..gp.gplvm import FitResult
+
+
+if TYPE_CHECKING:
     from typing import Any
 
-    from mitsuba_manifold.gp.stress import Stress
+    from ..gp.stress import Stress
 
 
 #: Fit settings by name. ``paper``: the paper's exact formulation (raw features, l = 1,
@@ -95,7 +99,9 @@ def canonical_order(hashes, names) -> np.ndarray:
     )
 
 
-def fit_layout(S, d, cfg, init=None, callback=None, distances=None, order=None, **options):
+def fit_layout(
+    S, d, cfg, init=None, callback=None, distances=None, order=None, **options
+) -> FitResult:
     """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:class:`gplvm.GPLVM`);
     ``options`` (``max_iter``, ``tol``, ``initial_step``) set the optimiser
     (:func:`gplvm.optimiser_options`); ``distances``: the materials' perceptual distances (N, N),

@@ -63,7 +63,7 @@ ALBEDO_FLOOR = 1e-4
 _SAFETY = 1.0 - 1e-9
 
 
-def raw_gram(tables, block=gram.BLOCK):
+def raw_gram(tables, block=gram.BLOCK) -> np.ndarray:
     """``T T^T`` (float64) of float32 tables ``(N, d)``, by blocks of values (:func:`gram.gram`)."""
     return gram.gram(tables, "raw", centre=False, block=block).S
 

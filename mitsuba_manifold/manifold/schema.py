@@ -188,7 +188,7 @@ def _symmetric(a, meta) -> str | None:
     return None if np.abs(a - a.T).max() <= 1e-9 * scale else "is not symmetric"
 
 
-def _gram(a, meta):
+def _gram(a, meta) -> str | None:
     """Why ``a`` is not a Gram matrix of non-zero tables, or None."""
     diag = np.diag(a)
     if not (diag > 0).all():

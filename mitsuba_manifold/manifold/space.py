@@ -47,7 +47,7 @@ class _Report:
 # ------------------------------------------------------------------ features, Gram
 
 
-def feature_gram(tables, features="log", cos=None, block=gram.BLOCK):
+def feature_gram(tables, features="log", cos=None, block=gram.BLOCK) -> np.ndarray:
     """Uncentred Gram matrix ``F F^T`` (float64) of the tables in a feature space (:func:`gram.gram`).
 
     ``tables``: ``(N, d)`` float32 (RGB-concatenated); ``cos``: ``(d / 3,)`` per-bin

@@ -133,7 +133,7 @@ class LatentWeights(dr.CustomOp):
         return "manifold latent weights"
 
 
-def latent_weights(x, weights_fn):
+def latent_weights(x, weights_fn) -> mi.Float:
     """Differentiable ``mi.Float`` weights of the active set at ``x`` (:class:`LatentWeights`)."""
     return dr.custom(LatentWeights, x, weights_fn)
 

@@ -165,7 +165,7 @@ class ManifoldBRDF(mi.BSDF):
         return list(self._manifold.names)
 
     @property
-    def weights(self):
+    def weights(self) -> np.ndarray:
         """Weights ``w`` over :attr:`names` currently rendered (a copy; they sum to 1 for ``x``)."""
         return self._c.w.copy()
 

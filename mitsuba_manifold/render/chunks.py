@@ -198,7 +198,7 @@ def identities(spec):
     return basis_folder.scene_hash(spec.scene), basis_folder.manifold_file_identity(spec.manifold)
 
 
-def chunk_key(spec, ids=None):
+def chunk_key(spec, ids=None) -> str:
     """SHA-256 (hex) of what chunk ``spec``'s images depend on: index, count, spp, seed, the render
     options and the identities of its scene and manifold (``ids``: :func:`identities`).
     """

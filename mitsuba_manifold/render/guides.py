@@ -51,7 +51,7 @@ def render_aovs(
     )
 
 
-def add_aovs(folder, spp=16, seed=0):
+def add_aovs(folder, spp=16, seed=0) -> BasisAOVs:
     """Render the AOVs of the basis in ``folder`` (one target) and save them beside it."""
     manifest = basis_folder.Manifest.read(folder)
     if len(manifest.targets) != 1:

@@ -732,7 +732,7 @@ def remove_stale_companions(out, outputs) -> None:
             print(f"removed {path} (from an earlier blend to {out}; this one did not write it)")
 
 
-def checked_x(request, basis, manifold):
+def checked_x(request, basis, manifold) -> "Optional[list]":
     """The numbers of ``--x`` (names resolved), checked against the basis's targets: one point
     per target, or with ``--path`` on several targets one per target that stays fixed (the
     moving one's row is filled in; one per target is accepted too, the moving one's ignored).

@@ -9,10 +9,15 @@ import re
 import signal
 import sys
 import threading
+from typing import TYPE_CHECKING
 
 from ..._util.names import is_name
 from ...data.sources import MeasuredFile, register_reader
 from ...errors import MitsubaManifoldError, one_line
+
+if TYPE_CHECKING:
+    import numpy as np
+
 
 #: What a tool reports as a one-line error (anything else is a bug and keeps its traceback).
 ERRORS = (MitsubaManifoldError, OSError)
@@ -29,7 +34,7 @@ INTERRUPTED_MESSAGE = (
 _NUMBERS = re.compile(r"^-\.?\d[\d.eE+-]*(?:[,\s]+[-+]?\.?\d[\d.eE+-]*)*$")
 
 
-def read_measured(path, dims):
+def read_measured(path, dims) -> np.ndarray:
     """The reader of Mitsuba ``measured`` files (``.bsdf``) for every tool: Mitsuba is imported
     (:mod:`mitsuba_manifold.render`) only when a tool reads such a file, so that a database or
     material given by any tool may hold them.

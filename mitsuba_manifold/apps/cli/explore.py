@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 from ..tool_commands import explore_command
 
 if TYPE_CHECKING:
-    from mitsuba_manifold.apps.cli.common import ArgumentParser
+    from .common import ArgumentParser
 
 
 DEFAULT_PORT = 8765

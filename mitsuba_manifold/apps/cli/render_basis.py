@@ -11,6 +11,8 @@ Ctrl-C stops within a few seconds (at the end of the current render pass); every
 listed in the folder's manifest.json is complete, and the same command resumes.
 """
 
+from __future__ import annotations
+
 import argparse
 import sys
 import time
@@ -18,7 +20,7 @@ import time
 from .common import ArgumentParser, fail, guarded, parse_indices, parse_list, parse_point
 
 
-def parse_views(text):
+def parse_views(text) -> str | list[int]:
     """'all' or '0,2' -> 'all' or [0, 2]."""
     if text.strip() == "all":
         return "all"

@@ -19,11 +19,18 @@ material from a photo of a basis's scene); ``static/``
 holds the page (no build step, no network access).
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 from ...errors import InputError
 from .service import Explorer
 
+if TYPE_CHECKING:
+    from starlette.applications import Starlette
 
-def create_app(explorer, allow=None, **kwargs):
+
+def create_app(explorer, allow=None, **kwargs) -> Starlette:
     """The web app of an :class:`Explorer` (imports Starlette only when called); ``allow``: the
     :class:`~.guard.AllowList` of hosts and origins it answers to (see :func:`.server.create_app`).
     """

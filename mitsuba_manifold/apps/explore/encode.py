@@ -26,7 +26,7 @@ PNG_LEVEL = 1
 _BUCKETS = 1 << 14
 
 
-def _level(v):
+def _level(v) -> np.ndarray:
     """Reference 8-bit level of linear values in [0, 1] (as imageio.tonemap)."""
     return np.round(srgb_encode(np.asarray(v, dtype=np.float64)) * 255.0)
 
@@ -92,7 +92,7 @@ def encode(rgb8, fmt) -> bytes:
     return buf.getvalue()
 
 
-def png_bytes(rgb8):
+def png_bytes(rgb8) -> bytes:
     """PNG bytes of an 8-bit RGB(A) image (small images of the page: map, slice, error)."""
     return encode(np.ascontiguousarray(rgb8), "png") if rgb8.shape[-1] == 3 else _png_rgba(rgb8)
 

@@ -48,7 +48,7 @@ def parse_host(text, default_port=80) -> tuple | None:
     return (m.group(1), port) if port is None or port <= 65535 else None
 
 
-def parse_origin(text):
+def parse_origin(text) -> tuple | None:
     """``(scheme, name, port)`` of an origin like ``http://127.0.0.1:8765``, or None."""
     try:
         parts = urlsplit(str(text).strip())

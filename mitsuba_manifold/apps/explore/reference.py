@@ -356,7 +356,7 @@ class References:
 
         self._execute(job, render)
 
-    def _render(self, job, basis, scene_path, manifold_path):
+    def _render(self, job, basis, scene_path, manifold_path) -> Reference:
         """The reference image of a job, rendered by :mod:`.render_job` in a process of its own
         (``nice``); ended when the job is cancelled or the server stops.
         """

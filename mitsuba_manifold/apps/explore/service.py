@@ -43,6 +43,9 @@ from .walks import MAX_STEPS, STEPS, Walks
 if TYPE_CHECKING:
     from typing import Any
 
+    from . import acquire, reference
+    from .latentmap import LatentMap
+
 
 #: Maps kept for repeated requests of the same slice.
 MAPS_KEPT = 8
@@ -195,7 +198,7 @@ class Explorer:
             )
         return name
 
-    def basis(self, name):
+    def basis(self, name) -> Basis:
         return self.bases[self.key(name)]
 
     def point(self, value, what="x"):
@@ -306,7 +309,7 @@ class Explorer:
         self._framing.wait_quiet(0.0, PATH_YIELD)
 
     @_one_blas_thread
-    def material(self, x, with_slice=True, live=False):
+    def material(self, x, with_slice=True, live=False) -> dict[str, Any]:
         """Description of the material at ``x`` (JSON-ready), with the table-based parts
         when the tables are loaded: the negative-bin fraction (while a drag runs, ``live``, that
         of the sphere's coarse table of the point, cached), the measured material nearest
@@ -358,7 +361,7 @@ class Explorer:
             "coarse": bool(coarse),
         }
 
-    def latent_map(self, dims, center, bounds=None):
+    def latent_map(self, dims, center, bounds=None) -> LatentMap:
         """The map of the slice through ``center``; ``bounds``: ``"x0,x1,y0,y1"`` (zoom) or None."""
         dims = self._dims(dims)
         if bounds is not None and bounds != "":
@@ -609,14 +612,14 @@ class Explorer:
             self.blend(name, x)[0],
         )
 
-    def start_reference(self, name, x, spp, tab=None):
+    def start_reference(self, name, x, spp, tab=None) -> reference.Job:
         """A full-GI reference render at ``x`` in the background (``tab``: the page asking)."""
         name, basis, scene, spp, img = self._job_args(name, x, spp, 256)
         return self.references.submit(
             name, basis, scene, self.manifold_path, x, spp, img, tab=_tab(tab)
         )
 
-    def start_refine(self, name, x, spp, tab=None):
+    def start_refine(self, name, x, spp, tab=None) -> reference.Job:
         """A refinement of the blend at ``x`` (``blend.py --refine``) in the background."""
         name, basis, scene, spp, img = self._job_args(name, x, spp, 16)
         where = {"scene": scene, "manifold_path": self.manifold_path, "prune": self.prune}
@@ -645,7 +648,7 @@ class Explorer:
         return encode.png_bytes(encode.tonemap(job.images[which], exposure))
 
     # --------------------------------------------------------- acquisition
-    def start_acquire(self, name, photo, mask=None):
+    def start_acquire(self, name, photo, mask=None) -> acquire.Job:
         """Acquire the material of a photo of basis ``name``'s scene in the background
         (:mod:`.acquire`): ``photo`` and ``mask`` are files' contents as base64 (data: URLs),
         decoded and checked here (InputError naming what is wrong); returns the job.

@@ -53,7 +53,7 @@ STEPS = 21
 MAX_STEPS = 201
 
 
-def metric_columns(dims, stride=paths.SEARCH_STRIDE):
+def metric_columns(dims, stride=paths.SEARCH_STRIDE) -> np.ndarray:
     """Flat indices (into a ``(3 * bins,)`` table row) of the metric's sub-grid bins."""
     return Quadrature.of(tuple(int(d) for d in dims), stride).index
 

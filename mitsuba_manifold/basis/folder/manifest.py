@@ -449,7 +449,7 @@ def _plain_exr(name) -> bool:
     )
 
 
-def manifold_file_identity(manifold):
+def manifold_file_identity(manifold) -> str:
     """Content identity of a manifold file (:func:`manifold_identity`)."""
     from ...manifold.model import Manifold
 
@@ -578,7 +578,9 @@ class Manifest:
 
     # ----------------------------------------------------------- making one
     @classmethod
-    def new(cls, scene, manifold, settings, *, targets, images=None, components=("l1",)):
+    def new(
+        cls, scene, manifold, settings, *, targets, images=None, components=("l1",)
+    ) -> "Manifest":
         """A new, checked manifest of a basis of ``scene`` rendered with ``manifold``.
 
         Computes the absolute paths and the identities (:func:`scene_hash`,
@@ -702,7 +704,7 @@ class Manifest:
 
     # ----------------------------------------------------------- files
     @classmethod
-    def read(cls, folder):
+    def read(cls, folder) -> "Manifest":
         """The manifest of the basis folder ``folder``, checked.
 
         Raises
@@ -787,7 +789,7 @@ class Manifest:
         return self.settings.sensor
 
     @property
-    def sensor_index(self):
+    def sensor_index(self) -> int:
         """The sensor the images were rendered from (0 when not recorded)."""
         return 0 if self.sensor is None else self.sensor
 

@@ -248,7 +248,7 @@ class Basis:
         for row in range(len(self.cross_terms()[1])):
             self.cross_term(row)
 
-    def key(self, materials):
+    def key(self, materials) -> str:
         """Image key of one material name per target (:func:`image_key` for this basis's version)."""
         return image_key(materials, self.version)
 
@@ -307,7 +307,7 @@ class Basis:
             self.image(k)
         return time.perf_counter() - t0
 
-    def weighted_sum(self, keys, weights):
+    def weighted_sum(self, keys, weights) -> np.ndarray:
         """``sum_j weights[..., j] * image(keys[j])`` as float32 (..., H, W, 3).
 
         The images read so far live in one array: when the blend uses at least half of

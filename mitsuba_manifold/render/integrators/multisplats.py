@@ -73,7 +73,7 @@ class PairSelection:
         return float(min(1.0, share))
 
 
-def _bins(wi, wo, dims):
+def _bins(wi, wo, dims) -> mi.UInt32:
     return merl_bin(*merl_angles(wi, wo), dims)
 
 

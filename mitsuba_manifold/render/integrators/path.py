@@ -36,6 +36,10 @@ from .common import (
 from .records import Records
 
 if TYPE_CHECKING:
+    from .onepass import OnePassGI, OnePassImages
+
+
+if TYPE_CHECKING:
     from collections.abc import Callable
     from typing import Any
 
@@ -192,7 +196,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             out += [base + ".R", base + ".G", base + ".B"]
         return out
 
-    def prepare_scene(self, scene):
+    def prepare_scene(self, scene) -> dict:
         """Resolve the targets of ``scene`` now (raises on a scene it cannot split)."""
         plan = self.plan(scene)
         self._names = plan["names"]
@@ -397,7 +401,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         max_samples=1 << 22,
         spp_per_pass=None,
         progress=None,
-    ):
+    ) -> OnePassImages:
         """Render the base image and every material's touch image from one set of paths.
 
         See :func:`mitsuba_manifold.render.integrators.onepass.render_onepass` (the algorithm,
@@ -419,7 +423,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
 
     def render_onepass_gi(
         self, scene, materials=None, spp=0, seed=0, sensor=0, levels=5, pairs=(), **options
-    ):
+    ) -> OnePassGI:
         """Base, touch, ``L2+`` and cross-term images of every material from one set of paths:
         :func:`mitsuba_manifold.render.integrators.onepass.render_onepass_gi`.
         """

@@ -28,6 +28,10 @@ if TYPE_CHECKING:
     from typing import Any
 
 
+if TYPE_CHECKING:
+    from typing import Any
+
+
 #: Materials per packet of the table product (Dr.Jit packet gathers of 16 contiguous floats).
 PACKET = 16
 #: Most bytes of per-pixel sums one table kernel holds (Expand mode keeps a copy per thread).
@@ -156,7 +160,7 @@ class TableSplats:
         self.tile = max(1, _SUM_BYTES // (12 * widest * max(1, dr.thread_count())))
         self.tiles = []
 
-    def taps(self, pos):
+    def taps(self, pos) -> list[tuple[mi.UInt32, Any]]:
         """Each sample's pixels in the sums and their filter weights (:meth:`FilterTaps.taps`)."""
         return self.filter.taps(pos)
 
