@@ -27,8 +27,13 @@ import secrets
 import socket
 import threading
 import time
+from typing import TYPE_CHECKING
 
 from ..errors import MitsubaManifoldError
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Tries at a fresh temporary name before giving up (as :func:`tempfile.mkstemp`).
 _TRIES = 100
@@ -69,7 +74,7 @@ def watching(watcher):
             _WATCHERS.remove(watcher)
 
 
-def atomic_replace(path, write):
+def atomic_replace(path, write) -> None:
     """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it to ``path``.
 
     An existing ``path`` is replaced only when ``write`` succeeds; the new file gets the
@@ -143,7 +148,7 @@ def temporary_name(path, token, limit=NAME_MAX):
     return "." + base + suffix
 
 
-def _temporary(path, folder):
+def _temporary(path, folder) -> tuple[Any, int]:
     """A new empty file beside ``path`` (:func:`temporary_name`) and its permissions.
 
     The file is created with mode 0666, so the kernel applies the process's umask (read

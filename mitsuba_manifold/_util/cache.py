@@ -219,7 +219,7 @@ def evict(folder, marker, keep) -> None:
             pass
 
 
-def _load_valid(path, shape, dtype, finite, mmap):
+def _load_valid(path, shape, dtype, finite, mmap) -> tuple[Any, str | None]:
     """``(array, None)`` of a valid cache file, else ``(None, why)`` (``why`` None: nothing to
     report, e.g. a file of an earlier version without a checksum).
     """

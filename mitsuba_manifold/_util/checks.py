@@ -75,7 +75,7 @@ def available_memory() -> int | None:
         return None
 
 
-def fits_in_memory(name, nbytes, what, fraction=0.8):
+def fits_in_memory(name, nbytes, what, fraction=0.8) -> None:
     """Raise unless ``nbytes`` is below ``fraction`` of the memory available now."""
     avail = available_memory()
     if avail is not None and nbytes > fraction * avail:
@@ -161,7 +161,7 @@ def latent_point(name, values, q) -> np.ndarray:
     return arr
 
 
-def latent_points(name, x, q, max_abs=math.inf):
+def latent_points(name, x, q, max_abs=math.inf) -> tuple[np.ndarray, bool]:
     """Latent points as an ``(M, q)`` float64 array, and whether ``x`` was one point ``(q,)``.
 
     The array form of :func:`latent_point` (no text; vectorised for batches): ``x`` is

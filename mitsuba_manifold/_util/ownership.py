@@ -135,7 +135,7 @@ def _refusal(path, force, what) -> tuple[str, str] | None:
     return None
 
 
-def check_replaceable(path, force=False, what="output", owner=True):
+def check_replaceable(path, force=False, what="output", owner=True) -> None:
     """Raise :class:`ForeignFileError` unless writing ``path`` destroys nothing of the user's
     (see the module notes).
 
@@ -237,7 +237,7 @@ class Outputs:
             key in self._paths or os.path.dirname(key) in self.folders
         )
 
-    def before(self, path):
+    def before(self, path) -> None:
         """Called by :func:`atomic.atomic_replace` before it writes ``path``."""
         if not self.watches(path):
             return

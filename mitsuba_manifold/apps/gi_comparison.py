@@ -44,7 +44,7 @@ if TYPE_CHECKING:
     from typing import Any
 
 
-def gi_pair(m, max_clamped=1e-3, min_share=0.6):
+def gi_pair(m, max_clamped=1e-3, min_share=0.6) -> tuple:
     """Two latent neighbours to interpolate between, for the GI comparison and the path sheet.
 
     The rule: among the pairs (material, its nearest latent neighbour) whose midpoint is a
@@ -81,7 +81,7 @@ def gi_points(m, a, b) -> list:
     ]
 
 
-def relative_bias(a, ref):
+def relative_bias(a, ref) -> tuple[float, float]:
     """Mean relative difference of two images and its standard error (pixels independent)."""
     d = (a - ref).reshape(-1, 3).astype(np.float64).mean(axis=1)
     scale = float(np.mean(ref))
@@ -250,7 +250,7 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings) -> dict:
 WARM_SPP = 64
 
 
-def timed_render(render, spp, seed):
+def timed_render(render, spp, seed) -> tuple[Any, float]:
     """``(image, seconds)`` of ``render(spp, seed)``; at most :data:`WARM_SPP` spp, an untimed
     ``render(spp, seed + 1)`` first compiles its kernels (the sample count is in them).
     """
@@ -261,7 +261,7 @@ def timed_render(render, spp, seed):
     return image, time.perf_counter() - t0
 
 
-def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
+def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts) -> tuple[dict[str, Any], tuple]:
     """One latent point of :func:`gi_scene`: the blend (and its denoised image) against the
     reference, beside the direct renders. Returns the report row and the images
     ``(blend, reference, denoised blend or None)``.
@@ -434,7 +434,7 @@ def extrapolation_labels(rows) -> list:
     ]
 
 
-def _denoised(image, guides):
+def _denoised(image, guides) -> tuple:
     """OIDN on ``image`` with (albedo, normal) guides; returns the image and the seconds it took."""
     out = denoise_mod.denoise(image, *guides)
     return out, median_time(lambda: denoise_mod.denoise(image, *guides), 3)[0]

@@ -138,7 +138,7 @@ class Stages:
         self.seconds.update(seconds)
         self.peak_after[stage] = peak_rss()
 
-    def peak(self):
+    def peak(self) -> tuple[None, None]:
         """``(bytes, stage)``: the process's peak memory and the first stage by whose end it was
         reached; ``(None, None)`` where the system does not say.
         """
@@ -155,7 +155,7 @@ class Stages:
         report["peak_rss_after"] = dict(self.peak_after)
 
 
-def run_main_job(job, log=print, **fields):
+def run_main_job(job, log=print, **fields) -> dict[str, Any]:
     """The main job: database, manifold, plots, basis and blends of the scene, ``gi/report.json``.
 
     ``job``: a :class:`MainJob`, or its output folder with the other fields as keywords
@@ -250,7 +250,7 @@ def _run(job, log) -> dict[str, Any]:
     return report
 
 
-def _database_and_manifold(job, log, stages):
+def _database_and_manifold(job, log, stages) -> tuple[str, str]:
     """Steps 1 and 2 of the main job: the database, the fitted manifold and its plots; returns
     their paths and records each stage's end in ``stages`` (:class:`Stages`).
     """

@@ -459,7 +459,7 @@ def _folds(block, k, seed) -> np.ndarray:
 
 def cross_validate(
     photos, cons, method, grid=CV_GRID, folds=CV_FOLDS, seed=0, progress=None, tolerance=0.0
-):
+) -> tuple[float, list[tuple[float, float]]]:
     """``(chosen lam, [(lam, held-out relative RMSE)])`` over held-out pixel blocks: the largest
     ``lam`` whose held-out error is within ``1 + tolerance`` of the smallest (the smoothest answer
     the held-out pixels cannot tell from the best).

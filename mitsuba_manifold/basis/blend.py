@@ -32,7 +32,7 @@ import itertools
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 
@@ -44,13 +44,17 @@ from .crossterms import cross_weights
 from .denoise import BasisAOVs, denoise, denoised_l2
 from .folder import Basis
 
+if TYPE_CHECKING:
+    from typing import Any
+
+
 #: How far the weights of one target may sum away from 1 in a multilinear blend.
 AFFINE_TOL = 1e-6
 #: Values of ``component``: full GI where the basis holds it (default), or L1- (Eq. 13).
 BLEND_COMPONENTS = ("full", "l1")
 
 
-def resolve_component(basis, component=None):
+def resolve_component(basis, component=None) -> "tuple[Any, str]":
     """``(component used, note)`` of a blend of ``basis`` asked for ``component`` (None: "full").
 
     The default is the full-GI blend wherever the basis holds full-GI images (the paper's
@@ -115,7 +119,7 @@ def latent_points(basis, manifold, x) -> "np.ndarray":
     return arr
 
 
-def _target_weights(basis, manifold, x, w):
+def _target_weights(basis, manifold, x, w) -> "tuple[Any, np.ndarray | None]":
     """Affine weights (p, N) from ``x`` or ``w``, plus the latent points (or None)."""
     if (x is None) == (w is None):
         raise MismatchError("give exactly one of `x` (latent point) and `w` (weights)")
@@ -253,7 +257,9 @@ class BlendPathInfo:
     denoise_ms: float
 
 
-def _plan(basis, manifold, W, prune, renormalise, component="l1"):
+def _plan(
+    basis, manifold, W, prune, renormalise, component="l1"
+) -> "tuple[BlendPlan, dict[str, list | None]]":
     """The :class:`BlendPlan` of one blend and its report.
 
     Returns ``(plan, report)``: the images, weights and cross terms to sum, and the
@@ -334,7 +340,7 @@ def blend(
     renormalise=False,
     component=None,
     l2="denoised",
-):
+) -> "tuple[Any, BlendInfo]":
     """The image of latent point ``x`` (or weights ``w``) from a basis.
 
     Parameters
@@ -400,12 +406,14 @@ def blend(
 L2_MODES = ("denoised", "raw")
 
 
-def _check_l2(l2):
+def _check_l2(l2) -> None:
     if l2 not in L2_MODES:
         raise MismatchError(f"`l2` must be one of {L2_MODES}, got {l2!r}")
 
 
-def denoised_blend(basis, manifold=None, *, x=None, w=None, aovs=None, guides=True, **kwargs):
+def denoised_blend(
+    basis, manifold=None, *, x=None, w=None, aovs=None, guides=True, **kwargs
+) -> tuple:
     """:func:`blend` and its denoised version (OIDN on the whole image, :mod:`.denoise`).
 
     Returns
@@ -487,7 +495,7 @@ def blend_path(
     points=None,
     moving=None,
     settings=None,
-):
+) -> "tuple[Any, np.ndarray, BlendPathInfo]":
     """Images along a latent path from ``a`` to ``b`` (paper Fig. 12).
 
     Parameters

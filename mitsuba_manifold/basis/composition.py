@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._util.blas import axpy, one_thread
 from .folder import BASE
 
+if TYPE_CHECKING:
+    from typing import Any
 
-def compose(basis, keys, weights, cross=None):
+
+def compose(basis, keys, weights, cross=None) -> tuple[Any, Any, float]:
     """Eq. 13: ``base + sum_j weights[..., j] image(keys[j])`` (no base with several targets),
     plus ``sum_r products[..., r] C[rows[r]]`` with ``cross = (rows, products)`` (full GI).
 

@@ -45,7 +45,9 @@ def explored_points(manifold, random=200, neighbours=NEIGHBOURS, seed=0) -> np.n
     return np.concatenate([lat, mids, box])
 
 
-def select_pairs(manifold, names, tol=CROSS_TOL, prune=None, points=None):
+def select_pairs(
+    manifold, names, tol=CROSS_TOL, prune=None, points=None
+) -> tuple[list[tuple], dict[str, object]]:
     """Pairs ``(name_i, name_j)`` (manifold order, ``i < j``) among ``names`` whose weight
     product reaches ``tol`` at some explored point (:func:`explored_points`, or ``points``);
     ``prune``: of the weights first (:meth:`Manifold.prune`, slow: an exact table error per
@@ -91,7 +93,7 @@ def select_pairs(manifold, names, tol=CROSS_TOL, prune=None, points=None):
     }
 
 
-def cross_weights(names, weights, pairs):
+def cross_weights(names, weights, pairs) -> tuple[np.ndarray, np.ndarray, float]:
     """``w_i w_j`` of the stored ``pairs`` (a dict ``(a, b) -> row``) among the kept materials
     ``names`` with ``weights``: ``(rows, products)``, and the largest product of a pair not stored.
     """

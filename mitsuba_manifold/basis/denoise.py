@@ -26,6 +26,7 @@ from __future__ import annotations
 import os
 import zipfile
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,6 +35,10 @@ from ..data import merl
 from ..errors import MismatchError
 from . import folder as basis_folder
 from .composition import compose
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 AOV_FILE = "aovs.npz"
 THETA_BINS = 45  # as integrators.aovs.THETA_BINS (not imported: that module needs Mitsuba)
@@ -168,7 +173,7 @@ class BasisAOVs:
         return out
 
     @classmethod
-    def _read(cls, path):
+    def _read(cls, path) -> tuple[BasisAOVs, Any]:
         """``(aovs, the basis key they were made for)`` of the file ``path``; a file that is not one
         (truncated, garbage, another version) raises :class:`MismatchError` naming it.
         """
@@ -311,7 +316,7 @@ def _aovs_or_none(basis):
     return aovs if key == _basis_key(basis.manifest) else None
 
 
-def _guides(basis, plan):
+def _guides(basis, plan) -> tuple[None, None]:
     """``(albedo, normal)`` of a one-target L1- blend from the basis's AOVs, or ``(None, None)``."""
     aovs = basis_aovs(basis)
     if not aovs:

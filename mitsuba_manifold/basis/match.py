@@ -203,7 +203,7 @@ def _downsample_factor(resolution, downsample) -> int:
 # -------------------------------------------------------------------- match
 
 
-def _basis_and_manifold(basis, manifold):
+def _basis_and_manifold(basis, manifold) -> tuple:
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
     if basis.p != 1:
@@ -373,7 +373,7 @@ def _search(manifold, search, full, opts, f) -> list:
     return runs
 
 
-def _winner(manifold, full, runs, prior):
+def _winner(manifold, full, runs, prior) -> tuple[SingleMatch, None, Any]:
     """The best single material, and the winner (an optimised point or a training material
     alone, scored at full resolution): ``(SingleMatch, index of its run or None, x)``.
     """

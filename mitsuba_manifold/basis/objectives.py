@@ -14,12 +14,18 @@ Exposure-free, both fit the blend's scale in closed form at every evaluation.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from scipy.linalg import blas
 
 from .._util.float32 import weights32
 from ..imaging.metrics import REL_EPS
 from .folder import BASE
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 LOSSES = ("rel_mse", "log")
 #: Rec. 709 luminance of linear RGB.
@@ -86,7 +92,7 @@ class RelativeMSE:
         self.G = np.triu(self.G) + np.triu(self.G, 1).T
         self.exposure_free = exposure_free
 
-    def __call__(self, w):
+    def __call__(self, w) -> tuple[float, np.ndarray, float]:
         """``(error, dE/dw, exposure)``."""
         u = np.concatenate(([1.0], w))
         Gu = self.G @ u
@@ -96,7 +102,7 @@ class RelativeMSE:
         grad = 2.0 * s * s * Gu - 2.0 * s * self.h  # s is optimal: no ds/dw term (envelope)
         return max(err, 0.0), grad[1:], s
 
-    def batch(self, W):
+    def batch(self, W) -> tuple[Any, np.ndarray]:
         """Errors and exposures of many weight vectors W (M, N) at once."""
         U = np.concatenate((np.ones((len(W), 1)), W), axis=1)
         a = ((U @ self.G) * U).sum(axis=1)  # BLAS: faster than the three-operand einsum
@@ -144,7 +150,7 @@ class LogLuminanceMSE:
             return np.maximum(np.maximum(lum, 0.0) @ self.m, 1e-12 * self.mean_r)
         return np.full(lum.shape[:-1], self.mean_r)
 
-    def __call__(self, w):
+    def __call__(self, w) -> tuple[float, Any, float]:
         lum = self.A[0] + w @ self.A[1:]
         k = float(self._norm(lum))
         n = np.maximum(lum, 0.0) / k
@@ -164,7 +170,7 @@ class LogLuminanceMSE:
         d = np.log(np.maximum(lum, 0.0) / k[:, None] + self.eps) - self.lr
         return (d * d) @ self.m, self.mean_r / k
 
-    def batch(self, W, chunk=256):
+    def batch(self, W, chunk=256) -> tuple[np.ndarray, np.ndarray]:
         """Errors and exposures of many weight vectors W (M, N) at once (in float32, the weights
         below float32's normal range set to 0: :func:`~mitsuba_manifold._util.float32.weights32`).
         """
@@ -175,7 +181,7 @@ class LogLuminanceMSE:
             errs.append(self._errors(lum, norms))
         return np.concatenate(errs), self.mean_r / np.concatenate(norms)
 
-    def singles(self, chunk=None):
+    def singles(self, chunk=None) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`batch` of every material alone (``W`` the identity), without the product; a
         chunk of about a million values at a time (default), which stays in the cache.
         """
@@ -199,7 +205,9 @@ class LogLuminanceMSE:
         return np.square(d, out=d) @ self.m
 
 
-def objectives(basis, manifold, target, weight, loss, exposure_free, f=1):
+def objectives(
+    basis, manifold, target, weight, loss, exposure_free, f=1
+) -> tuple[RelativeMSE, RelativeMSE | LogLuminanceMSE]:
     """The objective of ``loss`` for ``target`` (H, W, 3) with mask weights ``weight`` (H, W)
     (the pixels of weight > 0 count), and the one a search runs on: the same, or with ``f > 1``
     (log loss only) on ``f x f`` box averages of the images, each weighted by the mask

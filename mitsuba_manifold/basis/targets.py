@@ -12,11 +12,15 @@ from __future__ import annotations
 
 import struct
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
 from ..imaging import io as imageio
+
+if TYPE_CHECKING:
+    from typing import Any
 
 
 def check_target(target, resolution, what="target") -> np.ndarray:
@@ -67,7 +71,7 @@ def check_mask(mask, resolution, what="mask") -> np.ndarray:
     return arr
 
 
-def read_target(path, resolution=None):
+def read_target(path, resolution=None) -> tuple[np.ndarray, Any]:
     """A target image: linear EXR, or a PNG/JPEG (sRGB-decoded to linear) read at its depth:
     8 bits, or 16 bits for a greyscale PNG (a 16-bit colour PNG is refused: Pillow would read
     it as 8 bits).
@@ -146,7 +150,7 @@ def _png_data_size(width, height, depth, colour, interlace) -> int:
     return total
 
 
-def _check_png_data(what, path, header):
+def _check_png_data(what, path, header) -> None:
     """Refuse a PNG whose image data holds fewer rows than its header says (Pillow would decode
     the missing rows as black): the IDAT chunks' zlib stream is decompressed and counted.
     """
@@ -179,7 +183,7 @@ def _check_png_data(what, path, header):
         )
 
 
-def _check_size(what, path, size, resolution):
+def _check_size(what, path, size, resolution) -> None:
     """Refuse an image of ``size`` (width, height) other than ``resolution``, or beyond memory."""
     from .._util import checks as validate
 
@@ -197,7 +201,7 @@ def _exr_size(path, resolution, what) -> None:
     _check_size(what, path, (info.width, info.height), resolution)
 
 
-def _read_coded(path, what, resolution=None):
+def _read_coded(path, what, resolution=None) -> tuple[np.ndarray, int]:
     """The integer codes of a PNG/JPEG as float64 (H, W, C) (C: 1 grey, 3 colour) and the
     largest code (255, or 65535 for a 16-bit greyscale PNG); the size checked before decoding.
     """

@@ -17,6 +17,7 @@ import os
 import re
 import zlib
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -47,6 +48,10 @@ from .surrogate import (
     sgd_reflectance,
     tabulate_sgd,
 )
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 __all__ = [
     "Database",
@@ -302,7 +307,7 @@ def _valid_table(path, dims):
         return False
 
 
-def _write_sgd_table(job):
+def _write_sgd_table(job) -> tuple:
     """Tabulate one SGD material, add its measurement noise, write it (a worker's task).
 
     Also writes its float32 reflectance cache (keyed by the file's hash, as :meth:`Database.reflectance`),
@@ -542,7 +547,7 @@ class DatabaseSpec:
         return cache_folder(self.directory) if self.directory else builtin_cache()
 
 
-def split_spec(spec, recorded=True):
+def split_spec(spec, recorded=True) -> tuple[Any, tuple[int, int, int] | None]:
     """``(base, dims or None)`` of a database spec ``base[@NHxNDxNP]`` (an existing path is taken
     whole). Unless ``recorded``, a path that exists and also reads as a set at a resolution
     (a folder ``merl@45x45x90``) is refused as ambiguous, as :func:`~.sources.builtin_set` does.

@@ -32,18 +32,23 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
 from . import merl
 
+if TYPE_CHECKING:
+    from typing import Any
+
+
 #: Bins per block in the blockwise products (memory: a block of float64 features per table).
 BLOCK = 1 << 16
 
 
 @functools.lru_cache(maxsize=8)
-def _measure(dims):
+def _measure(dims) -> tuple[Any, np.ndarray]:
     """Per-bin ``mu`` (shape ``dims``, sum 1) and ``cos_i cos_o`` at the bin centres."""
     n_h, n_d, n_p = dims
     dth = np.diff((np.arange(n_h + 1) / n_h) ** 2 * (np.pi / 2))  # theta_h bins: uniform in sqrt
@@ -123,7 +128,7 @@ class Quadrature:
         return np.multiply(self.scale, np.cbrt(out, out=out), out=out)
 
 
-def _flat(tables, dims):
+def _flat(tables, dims) -> tuple[np.ndarray, Any]:
     """Tables as flat RGB-concatenated rows ``(..., 3 * bins)`` and their dims.
 
     Accepts channel-first tables ``(..., 3, n_h, n_d, n_p)`` (as :meth:`Database.reflectance`),
@@ -243,7 +248,7 @@ def gram_distances(parts, exact=None, rtol=1e-9):
     return D
 
 
-def _pair(a, b, dims, stride):
+def _pair(a, b, dims, stride) -> tuple[Any, Any, Quadrature]:
     """Flat rows of ``a`` and ``b`` (same resolution) and the quadrature of ``stride``."""
     fa, da = _flat(a, dims)
     fb, db = _flat(b, dims if dims is not None or np.ndim(b) >= 4 else da)

@@ -136,7 +136,7 @@ def gram(
     root = None if weights is None or np.any(weights < 0) else np.sqrt(weights)
     buffers = threading.local()  # each worker's float64 block and weighted part, reused
 
-    def products(start):
+    def products(start) -> tuple:
         """The block at ``start``: its products ``(G, C, S)`` and weighted sums (None where
         not asked).
         """

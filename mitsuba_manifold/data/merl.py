@@ -124,7 +124,7 @@ def read_binary(path) -> np.ndarray:
     return raw.astype(np.float64, copy=False)
 
 
-def write_binary(path, raw):
+def write_binary(path, raw) -> None:
     """Write stored values ``raw`` (shape ``(3, nh, nd, nphi)``) as a MERL file, atomically."""
     raw = np.asarray(raw, dtype=np.float64)
     if raw.ndim != 4 or raw.shape[0] != 3:
@@ -165,7 +165,7 @@ def _rotate(v, axis, angle) -> np.ndarray:
     return np.stack([c * x + s * z, y, c * z - s * x], axis=-1)
 
 
-def half_diff(wi, wo):
+def half_diff(wi, wo) -> tuple:
     """Rusinkiewicz coordinates of direction pairs in the local frame (normal = +z).
 
     Parameters
@@ -190,7 +190,7 @@ def half_diff(wi, wo):
     return theta_h, theta_d, phi_d
 
 
-def directions(theta_h, theta_d, phi_d, phi_h=0.0):
+def directions(theta_h, theta_d, phi_d, phi_h=0.0) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of :func:`half_diff`: unit ``wi, wo`` (..., 3) for Rusinkiewicz coordinates."""
     theta_h, theta_d, phi_d, phi_h = np.broadcast_arrays(
         *(np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d, phi_h))

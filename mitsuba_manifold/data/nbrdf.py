@@ -85,7 +85,7 @@ class NetworkSet:
     w3: np.ndarray
     b3: np.ndarray
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         n = len(self.names)
         for layer in LAYERS:
             a = getattr(self, layer)
@@ -128,7 +128,7 @@ class NetworkSet:
         except (OSError, ValueError) as e:
             raise FormatError(f"{path}: not an NBRDF .npz weights file ({e})") from None
 
-    def save(self, path, prefix="nbrdf", positions=None):
+    def save(self, path, prefix="nbrdf", positions=None) -> None:
         """Write the set as ``prefix_names``, ``prefix_w1`` ... in a ``.npz`` file (atomically),
         with ``prefix_positions`` when given: where its tables are taken (:data:`POSITIONS`).
         """
@@ -233,7 +233,7 @@ def features(theta_h, theta_d, phi_d, dtype=np.float32) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=4)
-def _grid(dims, positions):
+def _grid(dims, positions) -> tuple[np.ndarray, np.ndarray]:
     """The flat indices of a grid's bins above the horizon and the network inputs there (read-only)."""
     above = np.flatnonzero(merl.above_horizon(dims))
     coords = [c.reshape(-1)[above] for c in grid_positions(dims, positions)]
@@ -332,7 +332,7 @@ def read_keras(h5_path, json_path=None, name=None) -> NetworkSet:
     return NetworkSet((name,), *flat)
 
 
-def _check_keras_model(path):
+def _check_keras_model(path) -> None:
     """Refuse a Keras model ``.json`` that is not the NBRDF's dense 6-21-21-3 with ReLU hidden layers."""
     try:
         with open(path) as f:

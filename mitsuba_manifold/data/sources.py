@@ -488,7 +488,7 @@ def material_source(spec):
     raise FormatError(f"{spec}: not a material file (.binary, .bsdf, .h5 or .npz)")
 
 
-def material_table(spec, dims=None, *, what="material"):
+def material_table(spec, dims=None, *, what="material") -> tuple:
     """The source of ``spec`` (:func:`material_source`: a file or ``SET:NAME``) and its reflectance
     table ``(3,) + dims`` float32 at ``dims`` (default: the file's own resolution, a ``.binary``'s).
 

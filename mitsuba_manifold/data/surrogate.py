@@ -133,7 +133,7 @@ def tabulate_sgd(params, dims=merl.MERL_DIMS):
 
 
 @functools.lru_cache(maxsize=2)
-def bin_geometry(dims):
+def bin_geometry(dims) -> tuple[Any, dict[str, Any]]:
     """The bins above the horizon and the SGD terms of their centres (once per process and resolution)."""
     th, td, pd = merl.bin_centres(dims)
     above = merl.above_horizon(dims)

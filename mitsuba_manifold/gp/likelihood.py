@@ -112,7 +112,7 @@ class Likelihood:
         """``L`` at latent points ``X`` (N, q)."""
         return self._value(self._latent(X) / self.kernel.length_scale)
 
-    def gradient(self, X):
+    def gradient(self, X) -> tuple:
         """``L`` and ``dL/dX`` (N, q).
 
         With ``G = K^-1 S K^-1 - d K^-1``, ``dL/dx_i = -sum_j G_ij K_ij (x_i - x_j) / l^2``.
@@ -121,7 +121,7 @@ class Likelihood:
         L, grad_u = self._value_grad(self._latent(X) / l)
         return L, grad_u / l
 
-    def gradient_theta(self, X):
+    def gradient_theta(self, X) -> tuple:
         """``L`` and ``dL/dtheta`` (2,) for the hyperparameters ``(l, mu)`` (:attr:`Kernel.theta`):
         ``dL/dtheta_k = 1/2 tr(G dK/dtheta_k)`` with ``G`` as in :meth:`gradient`.
         """
@@ -143,7 +143,7 @@ class Likelihood:
         f = factorise(self._unit._K(U))
         return objective(f.logdet, float(np.trace(f.solve(self.S))), self.d)
 
-    def _value_grad(self, U):
+    def _value_grad(self, U) -> tuple:
         """L and dL/dU for latent points in units of the length scale."""
         K = self._unit._K(U)
         f = factorise(K)

@@ -270,7 +270,7 @@ class _Scaled:
         self.last = {}
         self._q = None
 
-    def fun(self, flat):
+    def fun(self, flat) -> tuple[float, Any]:
         """Value and projected gradient (:func:`project`)."""
         self.n_evaluations += 1
         U = flat.reshape(self.shape)
@@ -315,7 +315,7 @@ def _minimise(likelihood, U0, method, options, callback, l, extra) -> OptimiserR
     class _Stop(Exception):
         pass
 
-    def cb(xk):
+    def cb(xk) -> None:
         F = f.value(xk)
         history.append(F)
         last["x"] = xk.copy()
@@ -388,7 +388,7 @@ RADIUS = (1.0, 64.0, 2.0**-40)
 CG_ITERATIONS = 5
 
 
-def _steihaug(hessp, g, radius):
+def _steihaug(hessp, g, radius) -> tuple[Any, bool]:
     """The Steihaug-Toint conjugate-gradient step of the model ``g.p + p.H p / 2`` within
     ``|p| <= radius``: CG until the residual is below ``min(0.5, sqrt|g|) |g|``, or to the
     boundary along a direction of negative curvature or once a step leaves the region.

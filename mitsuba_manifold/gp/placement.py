@@ -20,6 +20,7 @@ the best point found is returned.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.optimize
@@ -27,6 +28,9 @@ import scipy.optimize
 from ..errors import InputError
 from .kernel import Kernel, check_points, factorise
 from .likelihood import check_d, check_gram
+
+if TYPE_CHECKING:
+    from typing import Any
 
 
 @dataclass
@@ -71,7 +75,7 @@ class OnePoint:
         self.const = -0.5 * d * f.logdet - 0.5 * float(np.sum(K_inv * A))
         self.n_evaluations = 0
 
-    def value_grad(self, x):
+    def value_grad(self, x) -> tuple[float, Any]:
         """``L`` and ``dL/dx`` (q,) at the new point ``x``."""
         self.n_evaluations += 1
         x = np.asarray(x, dtype=np.float64)
@@ -118,7 +122,7 @@ def place_point(latent, S, d, starts, *, length_scale=1.0, noise=1e-4, max_iter=
         )
     scale = float(d)  # L is of order d: keep the optimiser's numbers near 1
 
-    def f(x):
+    def f(x) -> tuple:
         value, grad = one.value_grad(x)
         return -value / scale, -grad / scale
 

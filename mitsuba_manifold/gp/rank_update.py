@@ -214,7 +214,7 @@ class RankUpdatedInverse:
             self._prep = [i, self._version, b, P, None]
         return self._prep
 
-    def _schur(self, P, k):
+    def _schur(self, P, k) -> tuple:
         """For rows ``k`` (``k_i = 0``): ``y = A^-1 k`` padded with ``y_i = 0``, the pivot
         ``s = (1 + mu) - k^T y`` and the relative size of the refinement correction.
         """

@@ -26,11 +26,16 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._util.checks import finite
 from ..errors import InputError
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 __all__ = ["Stress", "StressTerm", "neighbour_mask"]
 
@@ -159,7 +164,7 @@ class StressTerm:
         self._cache = (key, out)
         return out
 
-    def _value_grad(self, X, grad):
+    def _value_grad(self, X, grad) -> tuple[Any, Any]:
         r, a, b, g = self._geometry(X)
         if not b > 0:
             return 1.0, np.zeros_like(X)
@@ -222,7 +227,7 @@ class PenalisedLikelihood:
     def _hessp(self, U, V):
         return self.likelihood._hessp(U, V) - self.term.coefficient * self.term.hessp(U, V)
 
-    def _value_grad(self, U):
+    def _value_grad(self, U) -> tuple:
         L, g = self.likelihood._value_grad(U)
         s, gs = self.term.value_grad(U)
         return L - self.term.coefficient * s, g - self.term.coefficient * gs

@@ -26,7 +26,7 @@ def _check_rgb(img, path, what="image"):
     return img
 
 
-def write_exr(path, img, metadata=None):
+def write_exr(path, img, metadata=None) -> None:
     """Write an (H, W, 3) image as a float32 RGB OpenEXR file (ZIP compressed), atomically.
 
     Parameters
@@ -52,7 +52,7 @@ def write_exr(path, img, metadata=None):
     atomic_write(path, exr.write)
 
 
-def _open(path, header_only):
+def _open(path, header_only) -> tuple:
     import OpenEXR
 
     path = os.fspath(path)
@@ -78,7 +78,7 @@ def _open(path, header_only):
     return header, channels
 
 
-def _size(header, path):
+def _size(header, path) -> tuple[int, int]:
     try:
         lo, hi = header["dataWindow"]
         return int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
@@ -294,7 +294,9 @@ def label_font(size=10):
         return ImageFont.load_default()
 
 
-def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, pad=4, title=None):
+def write_contact_sheet(
+    path, images, labels=None, columns=None, exposure=0.0, pad=4, title=None
+) -> None:
     r"""PNG grid of tonemapped images (one exposure for all), with optional labels; atomic.
 
     Parameters

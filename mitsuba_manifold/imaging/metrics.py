@@ -17,16 +17,22 @@ from the reference by more than that noise.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..errors import InputError
 from .io import write_png
 
+if TYPE_CHECKING:
+    from typing import Any
+
+
 #: Default regulariser of :func:`rel_mse`.
 REL_EPS = 0.01
 
 
-def _pair(a, ref):
+def _pair(a, ref) -> tuple:
     a = np.asarray(a, dtype=np.float64)
     ref = np.asarray(ref, dtype=np.float64)
     if a.shape != ref.shape:
@@ -162,7 +168,7 @@ def compare(a, ref, eps=REL_EPS, peak=None) -> dict:
     }
 
 
-def false_colour(error, vmax=None, cmap="inferno"):
+def false_colour(error, vmax=None, cmap="inferno") -> tuple[np.ndarray, Any]:
     """Map a scalar error per pixel to 8-bit RGB with a matplotlib colour map.
 
     Parameters

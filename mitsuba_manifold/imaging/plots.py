@@ -9,7 +9,7 @@ import numpy as np
 from .._util.atomic import atomic_write
 
 
-def subplots(nrows=1, ncols=1, squeeze=True, layout=None, **figure_kw):
+def subplots(nrows=1, ncols=1, squeeze=True, layout=None, **figure_kw) -> tuple:
     """A new figure and its axes (as ``pyplot.subplots``), drawn by Agg.
 
     The figure is made without ``pyplot``: no backend is switched (a caller's interactive
@@ -37,7 +37,7 @@ def finish(fig, axes, path):
     return path
 
 
-def slice_points(manifold, dims=(0, 1), resolution=160, margin=0.15):
+def slice_points(manifold, dims=(0, 1), resolution=160, margin=0.15) -> tuple:
     """Grid over a 2D slice of the latent space: ``(xs, ys, points (ny * nx, q))``.
 
     The slice spans latent coordinates ``dims``; the other coordinates are fixed at the
@@ -55,7 +55,7 @@ def slice_points(manifold, dims=(0, 1), resolution=160, margin=0.15):
     return xs, ys, pts
 
 
-def albedo_grid(manifold, dims=(0, 1), resolution=160, margin=0.15):
+def albedo_grid(manifold, dims=(0, 1), resolution=160, margin=0.15) -> tuple:
     """Albedo (mean of RGB) of the interpolated material over a 2D slice (:func:`slice_points`).
 
     Returns ``(xs, ys, albedo[ny, nx])``.
@@ -64,7 +64,7 @@ def albedo_grid(manifold, dims=(0, 1), resolution=160, margin=0.15):
     return xs, ys, manifold.albedo(pts).mean(axis=1).reshape(len(ys), len(xs))
 
 
-def data_distance(manifold, pts):
+def data_distance(manifold, pts) -> tuple:
     """Distance (in units of l) from each point to the nearest latent point, and the reach of the data.
 
     The reach is twice the median nearest-neighbour spacing of the latent points: closer than

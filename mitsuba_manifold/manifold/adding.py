@@ -114,7 +114,7 @@ def read_table(path, dims) -> np.ndarray:
         raise InputError(f"material to add: {path}: {e}") from None
 
 
-def _check_name(name, names):
+def _check_name(name, names) -> None:
     if not isinstance(name, str) or not name or "/" in name or os.sep in name or "\0" in name:
         raise InputError(
             f"`name` {name!r} of the material to add must be a non-empty name without '/'"
@@ -149,7 +149,7 @@ def _stored_table(table, folder, name) -> str:
     return path
 
 
-def _check_reflects(table, what):
+def _check_reflects(table, what) -> None:
     """Refuse a table with NaN or Inf values, or one that reflects nothing (zero everywhere above
     the horizon): its Gram rows would be zero, and no manifold with it could be read again
     (every Gram matrix of a manifold has a positive diagonal, :mod:`.schema`).
@@ -166,7 +166,7 @@ def _check_reflects(table, what):
         )
 
 
-def cross_products(tables, t, weights):
+def cross_products(tables, t, weights) -> tuple:
     """``T t`` and ``T diag(q) t`` (float64) of the rows of ``tables`` with ``t``, by blocks."""
     n, d = tables.shape
     raw, cos = np.zeros(n), np.zeros(n)
@@ -206,7 +206,7 @@ def grown_gram(S, tables, t, features, n_bins=FEATURE_BINS, seed=0) -> np.ndarra
     return 0.5 * (S2 + S2.T)
 
 
-def _starts(latent, length_scale, own, n_starts, seed=0):
+def _starts(latent, length_scale, own, n_starts, seed=0) -> tuple[np.ndarray, np.ndarray]:
     """Starting points: a tenth of ``l`` from each of the ``n_starts`` closest materials (``own``:
     each material's distance to the new table), and their mean weighted by ``own^-2``.
     """
@@ -217,7 +217,9 @@ def _starts(latent, length_scale, own, n_starts, seed=0):
     return np.vstack([out, (w @ latent[order]) / w.sum()]), order
 
 
-def add(m, table_or_path, name=None, *, origin=None, n_starts=8):
+def add(
+    m, table_or_path, name=None, *, origin=None, n_starts=8
+) -> tuple[dict[str, Any], np.ndarray, Added]:
     """Place a new material in manifold ``m``: the keyword arguments of the grown ``Manifold`` and :class:`Added`.
 
     See :meth:`Manifold.add` (which applies them to the manifold).

@@ -71,7 +71,7 @@ class Interpolant:
         w = self._weights(x)
         return w[0] if single else w
 
-    def b_and_w(self, x):
+    def b_and_w(self, x) -> tuple:
         """``b`` and the weights ``w`` (M, N) at points ``x`` (M, q): ``sum_i w_i table_i = mean + b^T Z``,
         so ``b = w - 1/N`` (the GP's Eq. 4 ``b`` for :class:`GaussianProcessWeights`).
         """
@@ -157,7 +157,7 @@ class GaussianProcessWeights(Interpolant):
         """The affine weights ``w = b + (1 - sum(b)) / N`` of Eq. 4's ``b`` (M, N)."""
         return b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
 
-    def b_and_w(self, x):
+    def b_and_w(self, x) -> tuple:
         b = self.gp_weights(x)
         return b, self.affine(b)
 
@@ -372,7 +372,7 @@ class ShepardWeights(Interpolant):
         w = np.maximum(w - floor, 0.0)
         return w / w.sum(axis=1, keepdims=True)
 
-    def _terms(self, x):
+    def _terms(self, x) -> tuple:
         """``x - x_i`` (units of l), ``r_i^2``, hit rows, ``m(x)``, ``h(x)^2`` and ``log u_i``."""
         diff = (x[:, None, :] - self.latent[None]) / self.length_scale
         r2 = np.einsum("mnq,mnq->mn", diff, diff)
@@ -501,7 +501,7 @@ class LatentHull:
         self._last = None  # the face the last projection found (q >= 4)
         self._facet_pinv = None
 
-    def project(self, x):
+    def project(self, x) -> tuple:
         """The closest points of the hull ``(M, q)`` and the distances to them ``(M,)``."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         p = x.copy()

@@ -71,7 +71,7 @@ def write(m, path) -> None:
             arrays[name] = getattr(m, name)
     path = os.fspath(path)
 
-    def checked(tmp):
+    def checked(tmp) -> None:
         with open(tmp, "wb") as f:
             np.savez(f, **arrays)
         try:
@@ -152,7 +152,7 @@ def _checked_version(path, meta) -> int:
     return version
 
 
-def _check_added(path, meta):
+def _check_added(path, meta) -> None:
     """Each added material is one of the names, with that name's hash."""
     index = {n: i for i, n in enumerate(meta["names"])}
     for a in meta.get("added") or ():

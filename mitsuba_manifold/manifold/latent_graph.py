@@ -16,11 +16,16 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._util.cache import Eviction, key_hash, npy_cache
 from ..errors import InputError
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Version of the cached edges' layout and of the graph's construction (part of the cache key).
 VERSION = "latent-graph-v2"
@@ -46,7 +51,7 @@ def cache_key(metric, *parts) -> str:
     )
 
 
-def cache_folder(manifold):
+def cache_folder(manifold) -> str | None:
     """The cache folder of ``manifold``'s database (a built-in set's: the user's cache), or None
     when that folder is gone (no caching: creating it would make an empty database folder).
     """
@@ -88,7 +93,7 @@ class LatentGraph:
     graph: object
 
     @staticmethod
-    def layout(X, neighbours=NEIGHBOURS, per_edge=PER_EDGE, k=K):
+    def layout(X, neighbours=NEIGHBOURS, per_edge=PER_EDGE, k=K) -> tuple[np.ndarray, Any]:
         """Nodes ``(n, q)`` and candidate edges ``(E, 2)`` (``i < j``) of the graph over latent points ``X``."""
         from scipy.sparse.csgraph import minimum_spanning_tree
         from scipy.spatial import cKDTree

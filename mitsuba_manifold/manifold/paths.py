@@ -44,6 +44,7 @@ nor their hashes; :func:`even` evaluates only the points it adds.
 from __future__ import annotations
 
 import weakref
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -53,6 +54,10 @@ from ..data.distance import Quadrature, gram_distances
 from ..errors import InputError, UnavailableError
 from . import latent_graph
 from .latent_graph import LatentGraph
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 KINDS = ("straight", "uniform", "geodesic", "faithful")
 #: The kind ``Manifold.path``, ``blend.py --path``, the explorer and the main job's contact sheet
@@ -187,7 +192,7 @@ class PathMetric:
         )
         return gram_distances(parts)
 
-    def energy(self, X):
+    def energy(self, X) -> tuple[float, Any]:
         """Discrete path energy ``E = sum_k |F(x_k+1) - F(x_k)|^2`` of the polyline ``X`` (M, q) and
         its gradient ``dE/dX`` (M, q), analytic (:meth:`pullback`).
         """
@@ -352,7 +357,7 @@ def minimise_energy(metric, X, iterations=200) -> np.ndarray:
 
     xa, xb, q = X[0], X[-1], X.shape[1]
 
-    def fun(flat):
+    def fun(flat) -> tuple:
         Y = np.concatenate([xa[None], flat.reshape(-1, q), xb[None]])
         e, g = metric.energy(Y)
         return e, g[1:-1].ravel()
@@ -384,7 +389,7 @@ def geodesic(metric, xa, xb, steps, points=17, iterations=25, dense=CHECK):
     return even(metric, best[0], steps, F=best[1])
 
 
-def faithful_objective(metric, X, evenness=EVENNESS, power=EVEN_POWER, length=LENGTH):
+def faithful_objective(metric, X, evenness=EVENNESS, power=EVEN_POWER, length=LENGTH) -> tuple:
     """The objective of a faithful path ``X`` (M, q) from ``a = x_0`` to ``b = x_K`` (``K = M - 1``)
     and its gradient ``dE/dX`` (M, q), analytic (:meth:`PathMetric.pullback`; zero at the ends,
     which are held)::
@@ -461,7 +466,7 @@ def faithful(metric, xa, xb, steps, iterations=FAITHFUL_ITERATIONS, tolerance=FA
     if gap > tolerance:
         q = X.shape[1]
 
-        def fun(flat):
+        def fun(flat) -> tuple:
             Y = np.concatenate([xa[None], flat.reshape(-1, q), xb[None]])
             e, g = faithful_objective(metric, Y)
             return e, g[1:-1].ravel()
@@ -507,7 +512,7 @@ def latent_distance(manifold, x, y, stride=(1, 1, 1)):
     return D
 
 
-def _points(manifold, v, what):
+def _points(manifold, v, what) -> tuple[Any, bool]:
     """``v`` (a name, a point or a stack of points) as ``(M, q)`` and whether it was one."""
     if isinstance(v, str):
         return endpoint(manifold, v, what)[None], True

@@ -27,6 +27,7 @@ from __future__ import annotations
 import os
 import threading
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.optimize
@@ -36,6 +37,10 @@ from .._util.cache import key_hash
 from .._util.float32 import weights32
 from ..data import merl
 from ..data.database import database_cache
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Incidences of the directional albedo bound (degrees, midpoints up to 89).
 N_INCIDENCE = 16
@@ -165,7 +170,7 @@ def plausible_weights(
     w0 = w0 / w0.sum() if w0.sum() > 0 else np.full(len(cand), 1.0 / len(cand))
     scale = 1.0 / len(bins)
 
-    def f(w):
+    def f(w) -> tuple[float, Any]:
         blend = w @ T
         pos = np.maximum(blend, 0.0)
         r = np.log1p(pos) - y
@@ -226,7 +231,7 @@ def largest_plausible_step(base, full, albedo_start, albedo_end) -> float:
     return s
 
 
-def _step_back(w, w0, full_rows, A):
+def _step_back(w, w0, full_rows, A) -> tuple[Any, Any, float]:
     """The exact guarantee of :func:`plausible_weights`: ``w0 + s (w - w0)`` with the largest
     ``s`` in [0, 1] for which no bin of the combination is negative (in float32, as rendered)
     and no directional albedo exceeds 1; returns the weights, the combination and ``s``.
@@ -456,7 +461,7 @@ class StepLimit:
         return lo
 
 
-def _rows_of(mask):
+def _rows_of(mask) -> tuple[np.ndarray, np.ndarray]:
     """Per row of ``mask`` (M, N), the columns where it holds, padded: ``(M, r)`` indices and
     whether each is one (``r`` the most of any row, at least 1).
     """

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.optimize
@@ -21,6 +22,10 @@ from .._util.float32 import weights32
 from ..data.sources import material_table
 from ..errors import InputError
 from .plausibility import DirectionalAlbedo, plausible_weights
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Bins used by the search (the report uses all of them).
 SEARCH_BINS = 1 << 15
@@ -186,7 +191,7 @@ def project(
     scores = log_rms(interpolant.weights(cand) @ T, y)
     best = (float(own[order[0]]), X[order[0]].copy())
 
-    def f(x):
+    def f(x) -> tuple[float, Any]:
         w = interpolant.weights(x)
         blend = w @ T
         pos = blend > 0

@@ -38,10 +38,15 @@ The measurements behind the choice: ``tools/bench.py prune`` (``benchmarks/resul
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..data import gram
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Default pruning budget, for ``Manifold.prune``, the ``manifold_brdf`` plugin, blends and
 #: the explorer: the largest relative cosine-weighted L2 change of the table ("image" rule) or
@@ -68,7 +73,7 @@ def raw_gram(tables, block=gram.BLOCK) -> np.ndarray:
     return gram.gram(tables, "raw", centre=False, block=block).S
 
 
-def cos_grams(tables, q, block=gram.BLOCK):
+def cos_grams(tables, q, block=gram.BLOCK) -> tuple[np.ndarray, np.ndarray]:
     """``(T T^T, T diag(q) T^T)`` of float32 tables ``(N, 3 * bins)`` in one pass; ``q``: the
     ``(bins,)`` albedo quadrature weights (the cosine-weighted measure of each bin).
     """
@@ -115,7 +120,7 @@ def error(w, keep, G) -> float:
     return float(errors(w, _mask(len(w), keep), G)[0])
 
 
-def _result(w, keep):
+def _result(w, keep) -> tuple[Any, Any, float]:
     keep = np.sort(np.asarray(keep, dtype=int))
     w_kept = w[keep]
     if abs(w_kept.sum()) > 0:
@@ -190,7 +195,7 @@ class _Search:
         )
         return np.maximum(np.sqrt(share_q.max(axis=0)), np.max(np.abs(dA) / self.limit_a, axis=1))
 
-    def scores(self):
+    def scores(self) -> tuple[np.ndarray, np.ndarray, tuple]:
         """Largest share of its bound after dropping each kept material (and the updates)."""
         j = np.flatnonzero(self.kept)
         wj = self.w[j]

@@ -249,7 +249,7 @@ def _refuse(path, name, why, kind="field") -> FormatError:
     return FormatError(f"{path}: its {name} {kind} {why}; refit it with tools/fit_manifold.py")
 
 
-def _header(zf, info):
+def _header(zf, info) -> tuple[tuple[int, ...], np.dtype]:
     """``(shape, dtype)`` from the ``.npy`` header of zip entry ``info`` (nothing else read)."""
     with zf.open(info) as f:
         major, _ = np.lib.format.read_magic(f)
@@ -328,7 +328,7 @@ def _shape_check(field, n, q) -> Callable[..., Any]:
     return ok
 
 
-def check_meta(path, meta, version):
+def check_meta(path, meta, version) -> None:
     """Check every :data:`META` field of ``meta`` (format version ``version``)."""
     n = len(meta["names"]) if _texts(meta.get("names")) else 0
     for field in META:

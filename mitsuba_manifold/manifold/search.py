@@ -17,8 +17,15 @@ the weights' analytic Jacobian (:meth:`Manifold.weights_jacobian`) chains ``dE/d
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from scipy import optimize
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Any
+
 
 #: Margin of the search box around the latent points, in length scales.
 MARGIN = 2.0
@@ -31,13 +38,13 @@ def box(manifold, margin=MARGIN) -> list:
     return list(zip(lo, hi))
 
 
-def evaluator(manifold, objective, prior=0.0):
+def evaluator(manifold, objective, prior=0.0) -> tuple[Callable[..., Any], list[int]]:
     """SciPy's ``fun(x) -> (value, gradient)`` of ``objective(w(x)) + prior * var(x)``, and a
     one-element list counting its evaluations.
     """
     count = [0]
 
-    def fun(x):
+    def fun(x) -> tuple:
         count[0] += 1
         _, w = manifold.weights(x)
         err, gw = objective(w)[:2]
@@ -67,7 +74,7 @@ def descend(manifold, objective, prior, x0, bounds, max_iter) -> dict:
     }
 
 
-def scan(manifold, objective, prior, bounds, n_points, seed=0):
+def scan(manifold, objective, prior, bounds, n_points, seed=0) -> tuple[np.ndarray, np.ndarray]:
     """``n_points`` random latent points near the data (a training point plus a normal step
     of ``l / 2``, clipped to ``bounds``), scored at once; returns ``(points (M, q), objectives (M,))``.
     """

@@ -376,7 +376,7 @@ class Plausibility(_Report):
         }
 
 
-def latent_box(latent, margin=0.1):
+def latent_box(latent, margin=0.1) -> tuple:
     lo, hi = latent.min(0), latent.max(0)
     pad = margin * (hi - lo)
     return lo - pad, hi + pad
@@ -436,7 +436,7 @@ def convex_blend(tables, target):
     y = np.asarray(target, dtype=np.float64)
     k = len(A)
 
-    def f(w):
+    def f(w) -> tuple[float, np.ndarray]:
         b = w @ A
         pos = b > 0
         r = np.log1p(np.where(pos, b, 0.0)) - y

@@ -128,7 +128,7 @@ class TrainingTables:
             self.loaded = tables
         return self.loaded
 
-    def raw_gram(self, folder):
+    def raw_gram(self, folder) -> np.ndarray:
         """:attr:`gram`, computed from the tables in ``folder`` when the manifold file holds none."""
         if self.gram is None:
             self.gram = pruning.raw_gram(self.stack(folder))

@@ -22,7 +22,7 @@ import os
 import time
 import zipfile
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -31,6 +31,10 @@ from ..basis import acquisition as aq
 from ..data.sources import BUILTIN_PREFIX
 from ..errors import InputError
 from ..manifold.shipped import SHIPPED, resolve_manifold
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: The part of a pixel the material must bring (against what reaches it without the material)
 #: for the default mask to keep it.
@@ -83,7 +87,7 @@ class _View:
     coverage: dict = field(default_factory=dict)
 
 
-def _read_photo(photo, path):
+def _read_photo(photo, path) -> tuple[np.ndarray, Any]:
     """``(target float64 (H, W, 3), mask (H, W) or None)`` of a photo, checked."""
     from ..basis import targets
 

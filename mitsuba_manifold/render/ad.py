@@ -80,7 +80,7 @@ def choose_active(w, J, k, step, previous=None, hysteresis=HYSTERESIS) -> np.nda
     return np.sort(np.argsort(-score, kind="stable")[:k])
 
 
-def rescaled(w, J, idx):
+def rescaled(w, J, idx) -> tuple:
     """Weights and Jacobian of the active set ``idx``, rescaled to the full set's sum:
     ``v = w_S s / sum(w_S)`` (``s = sum(w)``, 1 for a latent point) and its derivative
     ``dv/dx = (s / sum(w_S)) (J_S - v_S 1^T J_S / s)`` (with ``s`` constant, as its
@@ -166,7 +166,7 @@ class ActiveSet:
         self.switches = 0  # number of slot replacements so far
         self.keep = None  # materials kept by pruning (sorted)
 
-    def update(self, x):
+    def update(self, x) -> tuple[Any, np.ndarray, np.ndarray, Any]:
         """Prune at ``x`` and fill the slots; returns ``(idx, v, J_v, w_full)`` (NumPy): the
         material of each slot, its weight (0 outside the kept set) and Jacobian, the full
         weights.

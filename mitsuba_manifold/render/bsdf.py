@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import operator
 from functools import partial
+from typing import TYPE_CHECKING
 
 import drjit as dr
 import mitsuba as mi
@@ -40,6 +41,10 @@ from .sampling import (
     prefixed,
     sample_half_vector,
 )
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Probability of sampling the cosine hemisphere instead of the tabulated density.
 COSINE_FRACTION = 0.1
@@ -179,7 +184,7 @@ class ManifoldBRDF(mi.BSDF):
         """Materials whose tables enter the combination (after pruning)."""
         return [self._manifold.names[i] for i in self._c.keep]
 
-    def set_latent(self, x):
+    def set_latent(self, x) -> None:
         """Render the material at latent point ``x`` (``q`` numbers). In AD mode
         (:attr:`differentiable`) the point is the grad-enabled parameter's value: set it through
         ``params["<id>.x"]`` and ``params.update()``.
@@ -194,7 +199,7 @@ class ManifoldBRDF(mi.BSDF):
         _, w = self._manifold.weights(x)
         self._rebuild(w, x, None)
 
-    def set_material(self, name):
+    def set_material(self, name) -> None:
         """Render training material ``name`` (exactly its table)."""
         try:
             i = self._manifold.index(name)
@@ -202,7 +207,7 @@ class ManifoldBRDF(mi.BSDF):
             raise InputError(prefixed(e)) from None
         self._rebuild(self._manifold.material_weights(name), self._manifold.latent[i].copy(), name)
 
-    def set_weights(self, w, table=None):
+    def set_weights(self, w, table=None) -> None:
         """Render ``sum_i w_i table_i``; ``w`` has one weight per name, or is ``{name: w}``.
 
         Weights are used as given; they must not sum to 0. ``table`` (shape
@@ -257,7 +262,9 @@ class ManifoldBRDF(mi.BSDF):
 
     # --------------------------------------------------------- BSDF interface
 
-    def _eval_pdf(self, ctx, si, wo, active, p_table=None, known=None):
+    def _eval_pdf(
+        self, ctx, si, wo, active, p_table=None, known=None
+    ) -> tuple[Any, dr.auto.ad.Float]:
         """``f cos(theta_o)`` and the pdf at ``wo``; the pdf is 0 where ``f`` is.
 
         Lanes in ``known`` take the tabulated strategy's density from ``p_table``
@@ -299,7 +306,7 @@ class ManifoldBRDF(mi.BSDF):
             return mi.Color3f(0.0), mi.Float(0.0)
         return self._eval_pdf(ctx, si, wo, active)
 
-    def sample(self, ctx, si, sample1, sample2, active=True):
+    def sample(self, ctx, si, sample1, sample2, active=True) -> tuple[mi.BSDFSample3f, Any]:
         bs = dr.zeros(mi.BSDFSample3f)
         wi = si.wi
         active = active & (wi.z > 0)
@@ -334,7 +341,7 @@ class ManifoldBRDF(mi.BSDF):
             )
             callback.put("x", self._x_param, flags)
 
-    def parameters_changed(self, keys=()):
+    def parameters_changed(self, keys=()) -> None:
         if self._x_param is None or (keys and "x" not in keys):
             return
         x = np.array(self._x_param, dtype=np.float64).ravel()
@@ -402,7 +409,7 @@ class ManifoldBRDF(mi.BSDF):
     def _read_density(self, name):
         return material_density(self._manifold.open_database(self._options.database, [name]), name)
 
-    def _update_ad(self):
+    def _update_ad(self) -> None:
         """AD mode at the grad-enabled ``x``: the active set, its weights ``v`` and Jacobian ``J`` (NumPy),
         the slots' tables, and (unless :attr:`hold_proxy`) the detached sampling proxy. The weights enter
         every lookup as :func:`.ad.traced_weights` (value ``v``, derivative ``J dx``), made inside the

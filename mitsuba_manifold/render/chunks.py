@@ -39,6 +39,7 @@ import socket
 import tempfile
 import time
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -50,6 +51,9 @@ from ..errors import MismatchError
 from ..imaging import io as imageio
 from .gi_basis import write_cross
 from .render_basis import BasisOptions, ensure_aovs, render_basis
+
+if TYPE_CHECKING:
+    from ..basis.folder.manifest import Manifest
 
 
 @dataclass(frozen=True)
@@ -193,7 +197,7 @@ def chunk_settings(options) -> dict:
     }
 
 
-def identities(spec):
+def identities(spec) -> tuple[str, str]:
     """``(scene hash, manifold identity)`` of a chunk's scene and manifold files."""
     return basis_folder.scene_hash(spec.scene), basis_folder.manifold_file_identity(spec.manifold)
 
@@ -217,7 +221,7 @@ def chunk_key(spec, ids=None) -> str:
     return key_hash("chunk-v1", head, *(ids or identities(spec)))
 
 
-def chunk_done(folder, key=None):
+def chunk_done(folder, key=None) -> Manifest | None:
     """The manifest of a completely saved chunk folder (of ``chunk_key`` ``key``, when given, with
     every image as saved), else None.
     """
@@ -273,7 +277,7 @@ def merge(out, folders, seed, force=False):
         return _merge(out, folders, seed, force)
 
 
-def _merge(out, folders, seed, force, run_key=None):
+def _merge(out, folders, seed, force, run_key=None) -> Manifest:
     manifests = [basis_folder.Manifest.read(f) for f in folders]
     first = manifests[0]
     for f, m in zip(folders[1:], manifests[1:]):
@@ -416,7 +420,7 @@ def render_chunked(
     return run
 
 
-def _finished(out, run_key):
+def _finished(out, run_key) -> Manifest | None:
     """The manifest of ``out`` when it holds the merged basis of the run ``run_key`` with every
     image as merged, else None.
     """
@@ -486,7 +490,7 @@ def _first_choice(folder) -> dict:
         return {"cross_keep": [tuple(str(v) for v in p) for p in data["pairs"]]}
 
 
-def _check_out(out, spec, spp, seed, chunks):
+def _check_out(out, spec, spp, seed, chunks) -> None:
     """Refuse early (before rendering) an ``out`` holding a basis of other settings (one that lists
     no image yet, e.g. of a run that failed before its first, has nothing to lose: as :func:`open_folder`).
     """

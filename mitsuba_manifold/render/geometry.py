@@ -21,7 +21,7 @@ from ..errors import InputError
 # ------------------------------------------------------------------ bowl
 
 
-def bowl_profile(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56):
+def bowl_profile(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56) -> tuple:
     """Closed profile curve of the bowl in the (r, y) half-plane, sampled by arc length.
 
     The outer wall is ``y = height * (r / radius) ** exponent`` (flat-bottomed for
@@ -53,7 +53,7 @@ def bowl_profile(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56):
     return np.interp(u, s, curve[:, 0]), np.interp(u, s, curve[:, 1])
 
 
-def revolve(r, y, segments=64):
+def revolve(r, y, segments=64) -> tuple[np.ndarray, np.ndarray]:
     """Triangle mesh of the surface swept by the profile ``(r, y)`` around the y axis.
 
     The profile must start and end on the axis (``r[0] == r[-1] == 0``); those ends
@@ -112,7 +112,7 @@ def bowl(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56, segments=6
     return revolve(*bowl_profile(radius, height, thickness, exponent, n), segments)
 
 
-def write_ply(path, vertices, faces):
+def write_ply(path, vertices, faces) -> None:
     """Write a triangle mesh as binary PLY with smooth vertex normals (Mitsuba computes them).
 
     Needs an active Mitsuba variant. The file is written to a temporary name and renamed.

@@ -17,7 +17,7 @@ from ..manifold.model import Manifold
 from . import scenes
 
 
-def first_hit_aovs(scene, targets, spp=16, seed=0, sensor=0, bins=THETA_BINS):
+def first_hit_aovs(scene, targets, spp=16, seed=0, sensor=0, bins=THETA_BINS) -> tuple:
     """``(normal, albedo_base, hist)`` images of a loaded scene: (H, W, 3), (H, W, 3), (H, W, bins)."""
     import mitsuba as mi
 

@@ -60,7 +60,7 @@ class StopRequest:
         if self._active and main and not self.requested:
             signal.signal(signal.SIGINT, self._handle)
 
-    def check(self):
+    def check(self) -> None:
         """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed; else :meth:`rearm` for what follows
         (every loop of renders checks between its passes).
         """

@@ -11,7 +11,7 @@ import numpy as np
 HALF_PI = 0.5 * np.pi
 
 
-def merl_angles(wi, wo):
+def merl_angles(wi, wo) -> tuple:
     """Rusinkiewicz angles ``(theta_h, theta_d, phi_d)`` of direction pairs, in Dr.Jit.
 
     The same mapping as :func:`merl.half_diff` (``phi_d`` folded to ``[0, pi)``),
@@ -54,7 +54,7 @@ def merl_bin(theta_h, theta_d, phi_d, dims) -> mi.UInt32:
     return mi.UInt32((i_h * n_d + i_d) * n_p + i_p)
 
 
-def linear_axis(c, n):
+def linear_axis(c, n) -> tuple:
     """Neighbouring bins and weight of the upper one along a clamped axis."""
     c = dr.clip(c - 0.5, 0.0, float(n - 1))
     i0 = dr.minimum(mi.Int32(dr.floor(c)), n - 1)

@@ -24,6 +24,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,10 @@ from ..basis.match import LatentMatch
 from ..errors import InputError
 from ..imaging.metrics import REL_EPS
 from . import match_scan
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Mitsuba's differentiable integrators the loop can use (``integrator``; each takes max_depth and rr_depth).
 INTEGRATORS = ("prb", "prb_basic", "prbvolpath", "direct_projective", "prb_projective")
@@ -206,7 +211,7 @@ class _Problem:
                 )
             params.update()
 
-    def loss(self, exposure, spp, seed, differentiable=True):
+    def loss(self, exposure, spp, seed, differentiable=True) -> tuple[Any, list, float]:
         """``(loss, images, exposure)``: the mean over the views of the weighted squared error (a
         Dr.Jit Float) of ``exposure * image``; ``exposure`` None: the least-squares scale of the
         images (detached: at the optimal scale, the gradient in x is the one at fixed scale).
@@ -244,7 +249,7 @@ class _Problem:
         )
         return total / len(self.views), images, float(np.array(exposure).ravel()[0])
 
-    def evaluate(self, x, exposure, spp, seed):
+    def evaluate(self, x, exposure, spp, seed) -> tuple[float, list[np.ndarray], Any]:
         """Primal ``(error, images as NumPy, exposure)`` at ``x`` with today's combined table (no
         gradient); ``exposure`` None: fitted.
         """
@@ -261,7 +266,7 @@ class _Problem:
         return float(np.array(loss).ravel()[0]), [np.array(im) for im in images], e
 
 
-def _descend(problem, x0, opts, lr, bar):
+def _descend(problem, x0, opts, lr, bar) -> tuple:
     """Adam from ``x0`` (learning rate decayed to a tenth): ``(history, x_last, x_best, x_mean)``,
     ``x_mean`` the mean of the second half's iterates (the noisy gradients' random walk averaged).
     """
@@ -409,7 +414,7 @@ def match_render(
     )
 
 
-def check_options(opts):
+def check_options(opts) -> None:
     """Every setting of ``opts`` usable, or an :class:`InputError` naming it (before any work)."""
     for name in ("iterations", "spp", "eval_spp", "scan_spp", "starts", "max_depth"):
         if int(getattr(opts, name)) < 1:

@@ -25,11 +25,16 @@ at a training point is moved off it (:func:`start_near`: the convex weights are 
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._util.blas import one_thread
 from ..manifold import search as latent
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Random latent points scored on the quadratic form (as ``basis.match``'s default scan).
 SCAN_POINTS = 8192
@@ -61,7 +66,7 @@ class CrossMSE:
             return np.ones_like(a)
         return np.where(a > 0, np.maximum(b / np.where(a > 0, a, 1.0), 0.0), 1.0)
 
-    def __call__(self, w):
+    def __call__(self, w) -> tuple[float, Any, float]:
         """``(error, dE/dw, exposure)``."""
         w = np.asarray(w, dtype=np.float64)
         Gw = self.G @ w
@@ -69,7 +74,7 @@ class CrossMSE:
         s = float(self._scale(np.array(a), np.array(b)))
         return s * s * a - 2.0 * s * b + self.e0, 2.0 * s * s * Gw - 2.0 * s * self.h, s
 
-    def batch(self, W):
+    def batch(self, W) -> tuple:
         """Errors and exposures of many weight vectors W (M, N) at once."""
         W = np.asarray(W, dtype=np.float64)
         a = ((W @ self.G) * W).sum(axis=1)
@@ -78,7 +83,7 @@ class CrossMSE:
         return s * s * a - 2.0 * s * b + self.e0, s
 
 
-def _pixels(problem):
+def _pixels(problem) -> tuple[list, np.ndarray, np.ndarray]:
     """The loss's pixels of every view: ``(selections, target (P,), weights c (P,))``, ``c`` the
     loss weights divided by the number of views (the loss is the mean over the views).
     """

@@ -89,7 +89,7 @@ def _choice(props, key, default, modes) -> str:
     return value
 
 
-def read_properties(props):
+def read_properties(props) -> tuple[Manifold, BRDFOptions]:
     """``(manifold, options)`` of a ``manifold_brdf``'s properties, or an ``InputError``
     naming the property.
     """
@@ -143,7 +143,7 @@ def read_properties(props):
     )
 
 
-def _checked_table(table):
+def _checked_table(table) -> tuple[np.ndarray, tuple[int, ...], int]:
     """The combined table as float32 ``(bins, 3)`` with negatives clamped; ``(packed, dims, n_clamped)``."""
     table = np.asarray(table, dtype=np.float32)
     if table.ndim != 4 or table.shape[0] != 3:

@@ -23,7 +23,7 @@ import shutil
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
-from typing import Optional, Union
+from typing import TYPE_CHECKING, Optional, Union
 
 import numpy as np
 
@@ -50,6 +50,12 @@ from .gi_basis import (
 )
 from .interrupt import StopRequest, render_in_passes
 from .scenes import check_variant
+
+if TYPE_CHECKING:
+    from typing import Any
+
+    from ..basis.folder.manifest import Manifest
+
 
 MODES = basis_folder.MODES
 
@@ -313,7 +319,7 @@ _GROUPS = {f.name: f.default_factory for f in fields(BasisOptions)}
 _GROUP_OF = {f.name: g for g, cls in _GROUPS.items() for f in fields(cls)}
 
 
-def render_basis(scene_path, manifold_path, out, options=None, **settings):
+def render_basis(scene_path, manifold_path, out, options=None, **settings) -> "Manifest":
     """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
 
     Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
@@ -470,7 +476,7 @@ def _removed_if_nothing_made(out):
         raise
 
 
-def _check_request(scene_path, manifold_path, out, o):
+def _check_request(scene_path, manifold_path, out, o) -> "tuple[Any, Manifold, list, Any]":
     """Everything :func:`render_basis` can check before loading the scene; returns the scene's
     path, the manifold, the materials chosen and the latent point ``x`` (or None).
     """

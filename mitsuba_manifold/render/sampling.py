@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import os
+from typing import TYPE_CHECKING
 
 import drjit as dr
 import mitsuba as mi
@@ -19,6 +20,10 @@ import numpy as np
 
 from .._util.cache import npy_cache
 from ..data import merl
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 PLUGIN_NAME = "manifold_brdf"
 
@@ -40,7 +45,7 @@ _HALF_PI = 0.5 * np.pi
 
 
 @functools.lru_cache(maxsize=4)
-def _sampling_geometry(dims, grid=SAMPLING_GRID):
+def _sampling_geometry(dims, grid=SAMPLING_GRID) -> tuple[np.ndarray, np.ndarray, Any]:
     """Bins and weights turning a table into its sampling densities.
 
     For each incident elevation ``theta_i`` (``wi`` in the xz plane) and grid vertex
@@ -128,7 +133,7 @@ def material_density(database, name, grid=SAMPLING_GRID, use_cache=True):
     )
 
 
-def combined_density(densities, weights, grid=SAMPLING_GRID):
+def combined_density(densities, weights, grid=SAMPLING_GRID) -> tuple[np.ndarray, int]:
     """``max(0, sum_i w_i P_i)`` with every incident slice usable by the sampler.
 
     A slice with no mass (always the one at grazing incidence, ``theta_i = pi/2``)
@@ -160,7 +165,9 @@ def combined_density(densities, weights, grid=SAMPLING_GRID):
     return p.astype(np.float32), int(empty)
 
 
-def combined_distribution(densities, weights, grid=SAMPLING_GRID):
+def combined_distribution(
+    densities, weights, grid=SAMPLING_GRID
+) -> tuple[mi.MarginalContinuous2D1, Any]:
     """``(MarginalContinuous2D1 over (u, v) conditioned on theta_i, black)`` sampling
     :func:`combined_density` of ``densities`` (n, n_t, n_v, n_u) with ``weights`` (n,);
     ``black``: no slice had mass (the material reflects nothing).
@@ -195,7 +202,7 @@ def per_solid_angle(p_uv, u, sin_th, cos_d, active):
     return dr.select(ok, p_uv / dr.select(ok, jac, 1.0), 0.0)
 
 
-def incident_frame(wi):
+def incident_frame(wi) -> tuple:
     """Unit azimuth ``(ex, ey)`` of ``wi`` (x axis at normal incidence) and its elevation."""
     r = dr.sqrt(dr.square(wi.x) + dr.square(wi.y))
     has = r > 0
@@ -219,7 +226,7 @@ def half_vector_pdf(distr, wi, wo, active):
     return per_solid_angle(p_uv, u, rh * inv_len, dr.dot(wi, h) * inv_len, active)
 
 
-def sample_half_vector(distr, wi, sample2, flip, active):
+def sample_half_vector(distr, wi, sample2, flip, active) -> tuple:
     """``(wo, pdf)``: a half vector ``h`` drawn from ``distr`` over ``(u, v)``, its azimuth sign
     ``-`` where ``flip``, and ``wo`` the reflection of ``wi`` about it, with the solid-angle
     density of that strategy.

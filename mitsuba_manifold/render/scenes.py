@@ -319,7 +319,7 @@ def release_render_memory() -> None:
     dr.flush_malloc_cache()
 
 
-def scene_parameters(scene):
+def scene_parameters(scene) -> tuple[set, dict]:
     """Names of the ``$parameters`` a scene XML uses, and its ``<default>`` values."""
     root = scene_xml(scene)  # exists, and is a scene XML (not a table or an image)
     defaults = {el.get("name"): el.get("value") for el in root.iter("default")}
@@ -375,7 +375,7 @@ def scene_manifolds(scene, params=None) -> list[tuple[Any, str]]:
     return found
 
 
-def _check_scene_manifolds(scene, manifold_path, params):
+def _check_scene_manifolds(scene, manifold_path, params) -> None:
     """Raise unless every ``manifold_brdf`` of the scene uses ``manifold_path`` (the file, or
     one of the same content): a scene naming its own manifold is not rendered with another's
     latent points.
@@ -400,7 +400,7 @@ def _check_scene_manifolds(scene, manifold_path, params):
 HIDING_WRAPPERS = ("normalmap", "bumpmap")
 
 
-def _check_wrappers(scene):
+def _check_wrappers(scene) -> None:
     """Raise (before loading) if a ``manifold_brdf`` of the scene XML sits inside a
     :data:`HIDING_WRAPPERS` BSDF, naming it and what works instead.
     """
@@ -571,7 +571,7 @@ def load_scene(
 
 def _scene_params(
     used, defaults, manifold_path, manifold, *, x, spp, max_depth, database, resolution
-):
+) -> tuple:
     """The ``$parameters`` to load a scene with (only those its XML uses) and the image size
     asked for (None: the film's own); ``manifold`` loads the manifold when first called.
     """
@@ -620,7 +620,7 @@ def image_size(film) -> tuple:
     return tuple(int(v) for v in film.crop_size())
 
 
-def check_film(scene_path, film):
+def check_film(scene_path, film) -> None:
     """Raise unless the basis can render ``film``'s images: a film that develops an image
     (``hdrfilm``; every pixel format: the basis and references are RGB, the film's format being a
     fixed map of it).
@@ -710,7 +710,7 @@ def scene_at(
     variant=None,
     targets=None,
     database=None,
-):
+) -> tuple[object, int]:
     """``(scene, max_depth)``: the scene loaded (:func:`load_scene`) with every manifold material
     at its latent point: ``x`` (q,) for all of them, or (p, q) one per target (``targets``: the
     BSDF ids of the rows, default the scene's manifold materials in the order of its shapes).
@@ -723,7 +723,7 @@ def scene_at(
     return loaded.scene, loaded.max_depth
 
 
-def set_points(found, x, targets=None):
+def set_points(found, x, targets=None) -> None:
     """Every manifold material ``found`` (:attr:`LoadedScene.targets`) at its latent point: ``x``
     (q,) for all of them, or (p, q) one per target (``targets`` as :func:`scene_at`).
     """

@@ -7,6 +7,8 @@ file holds depends on the fit alone: the fit's wall times are left out and the a
 carry a fixed date, so the same fit gives the same bytes on every machine.
 """
 
+from __future__ import annotations
+
 import os
 import time
 
@@ -14,7 +16,7 @@ from .common import ArgumentParser, guarded, parse_list
 
 
 @guarded
-def main(argv=None):
+def main(argv=None) -> None:
     from ...errors import InputError
     from ...manifold.shipped import FOLDER, SHIPPED
 

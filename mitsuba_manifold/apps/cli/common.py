@@ -215,7 +215,7 @@ class _Interrupts:
         self.seen = False
         self.previous = None
 
-    def handle(self, signum, frame):
+    def handle(self, signum, frame) -> None:
         self.seen = True
         raise KeyboardInterrupt
 

@@ -1,12 +1,14 @@
 """Fit the latent manifold of a database of measured materials (paper Sec. 3) and save it."""
 
+from __future__ import annotations
+
 import os
 import time
 
 from .common import ArgumentParser, guarded, parse_list
 
 
-def check(args, guard=None):
+def check(args, guard=None) -> None:
     """Everything checked before the (long) fit: values, --out and --plot (``guard``: the run's
     :class:`ownership.Outputs`, which then watches them; default: checked only).
     """

@@ -9,6 +9,8 @@ on demand into its cache; ``--export`` writes every material as a ``.binary`` fi
 set needs no folder at all: every tool that takes a database also takes a set's name.
 """
 
+from __future__ import annotations
+
 import os
 import time
 
@@ -16,7 +18,7 @@ from .common import ArgumentParser, guarded, parse_list, parse_resolution
 
 
 @guarded
-def main(argv=None):
+def main(argv=None) -> None:
     p = ArgumentParser(description=__doc__)
     p.add_argument("--out", required=True, help="output folder (created or completed)")
     p.add_argument(

@@ -125,7 +125,7 @@ def _check_args(args) -> None:
     validate.seed("--seed", args.seed)
 
 
-def _inputs(args):
+def _inputs(args) -> tuple:
     """Basis, manifold, target and mask weights, all checked."""
     import numpy as np
 

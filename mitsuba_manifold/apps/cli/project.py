@@ -8,13 +8,15 @@ Prints the latent point, its error (RMS of log(1 + rho) differences over all bin
 nearest training material's, and the main weights; --json writes the same.
 """
 
+from __future__ import annotations
+
 import json
 import os
 
 from .common import ArgumentParser, guarded
 
 
-def check_json(args, guard=None):
+def check_json(args, guard=None) -> None:
     """Refuse a --json that is not a .json name, names an input, or would replace a file
     this tool did not write (``guard``, the run's :class:`ownership.Outputs`; never a
     read-only one).

@@ -172,7 +172,7 @@ def _resize(img, size, what, notes):
     return out[0] if img.ndim == 2 else np.stack(out, axis=-1)
 
 
-def read_upload(photo, mask, size):
+def read_upload(photo, mask, size) -> tuple[Any, Any, list[str]]:
     """The photo (linear float64 (H, W, 3)) and mask ((H, W) in [0, 1] or None) of an upload, at
     the basis's ``size`` (width, height), and notes of what was done (resized, clipped pixels
     left out). PNG/JPEG pixels at their largest code (clipped) are masked out.
@@ -201,7 +201,7 @@ def read_upload(photo, mask, size):
 
 
 # ------------------------------------------------------------------ solve
-def linear_photos(basis, names, target, mask):
+def linear_photos(basis, names, target, mask) -> tuple:
     """``(LinearPhotos, images (N, H, W, 3), base, mask)`` of a photo of ``basis``'s scene: the
     training materials' images (full GI where the basis holds it, else L1-) at the masked pixels
     (default mask: :func:`~mitsuba_manifold.render.acquire.default_mask`).
@@ -235,7 +235,7 @@ def linear_photos(basis, names, target, mask):
     return photos, images, base, mask
 
 
-def latent_search(manifold, photos, singles):
+def latent_search(manifold, photos, singles) -> tuple[None, float]:
     """``(x, relative error)``: the latent point whose weights explain the photos best
     (L-BFGS on the data term ``w(x)^T H w(x) - 2 g^T w(x)``, analytic gradient through
     :meth:`~mitsuba_manifold.manifold.model.Manifold.weights_jacobian`), started from the
@@ -245,7 +245,7 @@ def latent_search(manifold, photos, singles):
 
     H, g, e0 = photos.normal_equations()
 
-    def f(x):
+    def f(x) -> tuple[float, Any]:
         w = np.asarray(manifold.weights(x)[1], np.float64)
         J = np.asarray(manifold.weights_jacobian(x), np.float64)
         r = H @ w - g
@@ -264,7 +264,7 @@ def latent_search(manifold, photos, singles):
     return best[0], float(np.sqrt(max(best[1], 0.0)))
 
 
-def describe(names, w, top=6):
+def describe(names, w, top=6) -> tuple[str, list[str]]:
     """The acquired weights in words: ``"0.62 gold-paint + 0.31 steel"`` (largest first), and
     whether they leave the simplex (a negative weight or a sum away from 1) with why.
     """
@@ -317,7 +317,9 @@ def contact_sheet(target, acquired, single, labels, title=None, exposure=0.0) ->
         os.unlink(path)
 
 
-def acquire_photo(explorer, name, target, mask, notes, progress=lambda stage, done: None):
+def acquire_photo(
+    explorer, name, target, mask, notes, progress=lambda stage, done: None
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """Acquire the material of a photo of basis ``name``'s scene: ``(answer, images)``.
 
     ``answer`` (JSON-ready): the :class:`~mitsuba_manifold.basis.acquisition.Acquisition`'s dict,

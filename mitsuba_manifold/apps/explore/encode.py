@@ -31,7 +31,7 @@ def _level(v) -> np.ndarray:
     return np.round(srgb_encode(np.asarray(v, dtype=np.float64)) * 255.0)
 
 
-def _tables():
+def _tables() -> tuple[np.ndarray, np.ndarray]:
     """Thresholds (float32, the smallest float32 reaching each level; +inf appended) and the
     level at each bucket's lower edge.
     """

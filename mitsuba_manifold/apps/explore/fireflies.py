@@ -22,7 +22,15 @@ towards denoising), both images tonemapped; the explorer skips the denoised fram
 than :data:`REST_FRACTION` of the 8-bit values would change by :data:`REST_LEVELS` or more.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: A pixel brighter than this many times its brightest neighbour is a firefly.
 FACTOR = 3.0
@@ -61,7 +69,7 @@ def brightest_neighbour(lum):
     return near
 
 
-def _fireflies(lum, factor):
+def _fireflies(lum, factor) -> tuple[np.ndarray, Any]:
     """Flat indices of the fireflies of luminance ``lum`` (H, W) and, per firefly, the luminance
     it is scaled down to: ``factor * max(its brightest neighbour, mean of lum)``.
     """
@@ -71,7 +79,7 @@ def _fireflies(lum, factor):
     return index, limit.ravel()[index]
 
 
-def clamp(image, factor=FACTOR):
+def clamp(image, factor=FACTOR) -> tuple[np.ndarray, int]:
     """``image`` (H, W, 3, not negative) with every firefly scaled down to ``factor`` times its
     brightest neighbour's luminance (floored at the image's mean luminance); the other pixels
     exactly as they were. Returns ``(image, number of pixels changed)``.
@@ -87,7 +95,7 @@ def clamp(image, factor=FACTOR):
     return out, int(index.size)
 
 
-def drag_image(image, l1, factor=FACTOR):
+def drag_image(image, l1, factor=FACTOR) -> tuple[Any, int]:
     """A summed full-GI blend ``image`` of one target with the fireflies of its part beyond L1-
     (``image - l1``; ``l1``: the same blend of the L1- images) clamped (:func:`clamp`). That part
     is signed (cross terms, negative weights), so its positive and negative parts are clamped

@@ -35,7 +35,7 @@ UP_IRRADIANCE = 0.7 * np.pi
 FOLDER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static", "env")
 
 
-def directions(width=WIDTH, height=HEIGHT):
+def directions(width=WIDTH, height=HEIGHT) -> tuple[np.ndarray, Any]:
     """Unit directions ``(H, W, 3)`` of the pixel centres and their solid angles ``(H, 1)``."""
     theta = (np.arange(height) + 0.5) / height * np.pi
     phi = (np.arange(width) + 0.5) / width * 2 * np.pi - np.pi
@@ -76,7 +76,7 @@ def studio(width=WIDTH, height=HEIGHT) -> np.ndarray:
     return (env * (UP_IRRADIANCE / e_up)).astype(np.float32)
 
 
-def median_cut(env, count):
+def median_cut(env, count) -> tuple[np.ndarray, np.ndarray]:
     """``count`` (a power of 2) lights of ``env``: directions ``(count, 3)`` and RGB irradiance
     ``(count, 3)`` (the sum of ``L dw`` over each region).
     """
@@ -139,7 +139,7 @@ def write(folder=FOLDER) -> tuple[str, str]:
     return paths
 
 
-def scene_environment(scene_path, manifold_path, basis):
+def scene_environment(scene_path, manifold_path, basis) -> tuple[bytes, dict[str, object]]:
     """``(float16 RGB bytes, meta)``: the environment light of a basis's scene in the preview
     sphere's frame, as the basis's camera sees it (:meth:`Explorer.environment`): direction
     ``d`` of :func:`directions` is the camera's ``(-d_x, d_y, -d_z)`` (its ``+z`` looks into the

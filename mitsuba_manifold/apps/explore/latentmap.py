@@ -76,7 +76,7 @@ def _albedo(manifold, pts):
     return manifold.albedo(pts)
 
 
-def colour_range(manifold):
+def colour_range(manifold) -> tuple[float, float]:
     """The albedo range of the colour scale: the same for every slice and zoom of a manifold."""
     if manifold.albedos is None:
         return 0.0, 1.0

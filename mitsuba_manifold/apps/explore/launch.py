@@ -10,6 +10,12 @@ from __future__ import annotations
 import os
 import shutil
 import time
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from subprocess import Popen
+    from typing import Any
+
 
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
@@ -23,7 +29,7 @@ def find_chromium() -> str | None:
     return None
 
 
-def start(bases, manifold=None, extra=(), timeout=300, refine=False):
+def start(bases, manifold=None, extra=(), timeout=300, refine=False) -> tuple[Popen, Any]:
     """Run the explore CLI in a subprocess on a free port; returns ``(process, url)``.
 
     Waits for the line with the URL (the bases are then in memory). ``refine``: keep the page's
@@ -57,7 +63,7 @@ def start(bases, manifold=None, extra=(), timeout=300, refine=False):
     raise RuntimeError("explore server did not start:\n" + "".join(lines))
 
 
-def stop(proc, timeout=20):
+def stop(proc, timeout=20) -> tuple:
     """Ctrl-C (SIGINT) the server; returns its exit code and remaining output."""
     import signal
 

@@ -83,7 +83,7 @@ def describe(manifold, x, prune) -> dict[str, Any]:
     return out
 
 
-def check_database(folder, manifold):
+def check_database(folder, manifold) -> None:
     """Raise :class:`InputError` naming ``folder`` (an explicitly given ``--database``: a folder
     or a built-in set's name) unless it holds a table for each of ``manifold``'s materials.
 
@@ -200,7 +200,7 @@ class TableStack:
         finally:
             self._ready.set()
 
-    def _read_tables(self):
+    def _read_tables(self) -> tuple:
         db = self.manifold.open_database(self.database)
         dims = tuple(int(v) for v in db.dims)
         s = preview_strides(dims)
@@ -285,7 +285,7 @@ class TableStack:
         key = (np.asarray(x, dtype=np.float64).tobytes(), float(prune), bool(coarse))
         return self._recent.get(key, lambda: self._preview(x, prune, coarse))
 
-    def _preview(self, x, prune, coarse=False):
+    def _preview(self, x, prune, coarse=False) -> tuple[Any, float]:
         table = self._combine(self._coarse if coarse else self._reduced, x, prune)
         negative = float((table < 0).mean())
         half = np.clip(table, -HALF_MAX, HALF_MAX).astype(np.float16)  # peaks above 65504 saturate
@@ -297,7 +297,7 @@ class TableStack:
         return self._combine(self._slices, x, prune).reshape(3, self.dims[0], self.dims[1])
 
 
-def slice_image(slice_rgb, floor=1e-3, cmap="magma"):
+def slice_image(slice_rgb, floor=1e-3, cmap="magma") -> tuple[np.ndarray, tuple[float, float]]:
     """8-bit RGB image of ``log10`` of a slice's mean over RGB, ``theta_d`` right, ``theta_h`` up.
 
     Values at or below ``floor`` (negative ones included) show at the bottom of the colour

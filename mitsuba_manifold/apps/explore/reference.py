@@ -310,12 +310,12 @@ class References:
 
         self._execute(job, passes)
 
-    def _check_current(self, job):
+    def _check_current(self, job) -> None:
         self._check(job)
         if job.id != self._latest_refine:
             raise Cancelled("superseded by a newer refinement")
 
-    def _check(self, job):
+    def _check(self, job) -> None:
         """Raise when the job is to stop now (cancelled, or the server stopping)."""
         if self._stopping:
             raise RuntimeError("the server is stopping")

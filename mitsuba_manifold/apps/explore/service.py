@@ -225,7 +225,9 @@ class Explorer:
         return last[1]
 
     @_one_blas_thread
-    def frame(self, name, x, exposure=0.0, fmt="jpeg", coarse=False, rest=False):
+    def frame(
+        self, name, x, exposure=0.0, fmt="jpeg", coarse=False, rest=False
+    ) -> tuple[bytes, dict[str, Any]]:
         """Encoded frame of ``x``: ``(bytes, meta)``. ``coarse`` (a drag): L2+ summed, not denoised
         (its fireflies clamped). ``rest`` (the page's frame where a drag rests): denoised only
         where that changes the 8-bit image visibly (:func:`.fireflies.rest_change`), else the
@@ -345,7 +347,7 @@ class Explorer:
         return out
 
     @_one_blas_thread
-    def preview_table(self, x, coarse=False):
+    def preview_table(self, x, coarse=False) -> tuple[Any, dict[str, Any]]:
         """Float16 bytes of the reduced interpolated table and its layout (``coarse``: every
         other texel, :meth:`~.material.TableStack.preview`).
         """
@@ -627,7 +629,7 @@ class Explorer:
             name, basis, self.manifold, x, spp, img, tab=_tab(tab), **where
         )
 
-    def reference_image(self, job_id, which, exposure=0.0):
+    def reference_image(self, job_id, which, exposure=0.0) -> bytes:
         job = self.references.get(job_id)
         if job is None:
             raise InputError(f"unknown reference job {show(job_id)}")

@@ -42,6 +42,7 @@ import json
 import struct
 import sys
 import traceback
+from typing import TYPE_CHECKING
 
 from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocketDisconnect
@@ -49,6 +50,10 @@ from starlette.websockets import WebSocketDisconnect
 from ...errors import InputError, UnknownMaterialError
 from .guard import MAX_MESSAGE
 from .service import show
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Kinds of request, and the order in which they are started when several wait.
 KINDS = ("frame", "table", "material", "snippet", "map", "path", "route")
@@ -157,7 +162,7 @@ class Session:
         async with self.lock:
             await self.ws.send_bytes(pack(meta, payload))
 
-    async def run(self):
+    async def run(self) -> None:
         await self.ws.accept()
         tasks = [asyncio.ensure_future(self.reader())] + [
             asyncio.ensure_future(self.worker(k)) for k in KINDS + (FINAL,)
@@ -177,7 +182,7 @@ class Session:
                 elif not isinstance(e, GONE):
                     raise e
 
-    async def reader(self):
+    async def reader(self) -> None:
         while True:
             message = await self.ws.receive()
             if message["type"] == "websocket.disconnect":
@@ -263,7 +268,7 @@ class Session:
             raise _Cancelled("cancelled")
         raise Superseded()
 
-    async def answer(self, kind, req):
+    async def answer(self, kind, req) -> tuple[dict[str, Any], Any]:
         """``(meta, payload)`` of one request (raises InputError on bad input)."""
         ex = self.ex
         if kind == "path":
@@ -326,7 +331,7 @@ class Session:
         )
         return dict(meta, **tag), data
 
-    def stale_map(self, key=None):
+    def stale_map(self, key=None) -> None:
         """Raises :class:`Superseded` when a newer request for another map than ``key``
         (:meth:`~.service.Explorer.map_key`; None: any map) waits: the map being made is
         abandoned, its slice or zoom is not the page's any more. A request for the same map lets

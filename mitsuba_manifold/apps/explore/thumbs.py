@@ -134,7 +134,7 @@ class Thumbnails:
         except Exception:
             return False
 
-    def _render(self):
+    def _render(self) -> None:
         cmd = [
             "nice",
             "-n",
@@ -171,7 +171,7 @@ class Thumbnails:
                 lines[-1] if lines else f"render_basis exited with {self._proc.returncode}"
             )
 
-    def _cached_sheet(self):
+    def _cached_sheet(self) -> bytes:
         """The sheet's PNG, composed once (denoising takes seconds) and kept in the folder; one
         composed without a denoiser is kept apart (``sheet-raw.png``), made again once there is one.
         """

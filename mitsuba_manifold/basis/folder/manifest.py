@@ -300,7 +300,7 @@ def _check_json(manifest, where=MANIFEST):
         Naming ``where`` and the field at fault.
     """
 
-    def bad(msg):
+    def bad(msg) -> None:
         raise MismatchError(f"{where}: {msg}")
 
     if not isinstance(manifest, dict):

@@ -30,7 +30,7 @@ _OWN = re.compile(
 )
 
 
-def check_foreign_folder(out, force=False, bases=None):
+def check_foreign_folder(out, force=False, bases=None) -> None:
     """Refuse (unless ``force``) an existing ``out`` that holds files and no basis manifest:
     a folder of the user's (a database, blends), which a basis would fill with images that
     no blend may then be written beside. With ``bases`` (the names of the basis folders
@@ -123,7 +123,7 @@ def open_folder(out, manifest, files, force=False, read_images=True) -> dict:
     return {key: entry for key, entry in old.images.items() if image_still_valid(out, entry, size)}
 
 
-def _refuse_special(out, files):
+def _refuse_special(out, files) -> None:
     """Refuse, whatever ``force`` says, a file the run would write that exists and is not a
     regular file (a symbolic link, a folder, a FIFO or device): an atomic rename would replace
     the node itself, and a link's target is the user's (the rule of :mod:`~mitsuba_manifold._util.ownership`).

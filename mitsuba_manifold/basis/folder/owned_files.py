@@ -20,7 +20,7 @@ from .manifest import MANIFEST, Manifest, is_basis_folder
 EXTRA = ("aovs.npz", ".chunks")
 
 
-def check_output_outside_basis(out, basis_folder=None):
+def check_output_outside_basis(out, basis_folder=None) -> None:
     """Raise unless ``out`` lies outside every basis folder (``basis_folder`` included):
     a blend never writes into a basis, whose files the basis's manifest owns.
     """
@@ -48,7 +48,7 @@ def basis_entries(folder) -> tuple[list, list]:
     )
 
 
-def remove_basis(folder):
+def remove_basis(folder) -> None:
     """Remove a basis folder that render_basis made (to render it again from scratch): refused,
     with nothing removed, when it is not a basis folder or holds files its render did not make.
     """

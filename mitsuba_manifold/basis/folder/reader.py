@@ -46,7 +46,7 @@ def manifold_object(manifold):
     return manifold
 
 
-def _check_manifold_type(manifold):
+def _check_manifold_type(manifold) -> None:
     if not isinstance(manifold, (str, os.PathLike)) and not (
         hasattr(manifold, "weights") and hasattr(manifold, "names")
     ):
@@ -160,7 +160,7 @@ class Basis:
         )
 
     @property
-    def sensor(self):
+    def sensor(self) -> int:
         """The scene's sensor (view) the images were rendered from (0 when the manifest does
         not say: :attr:`sensor_known`).
         """
@@ -202,7 +202,7 @@ class Basis:
                 self._cross = self._read_cross()
             return self._cross
 
-    def _read_cross(self):
+    def _read_cross(self) -> tuple[dict, np.ndarray] | tuple:
         entry = self.manifest.cross
         w, h = self.resolution
         if entry is None or "cross" not in self.components:
@@ -333,7 +333,7 @@ class Basis:
         self.cross_terms()
         return self
 
-    def check_scene(self, scene):
+    def check_scene(self, scene) -> None:
         """Raise unless ``scene`` (an XML path) is the scene the basis was rendered from."""
         h = scene_hash(scene)
         if h != self.manifest.scene_hash:

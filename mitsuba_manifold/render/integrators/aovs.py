@@ -6,10 +6,16 @@ by the last line; :mod:`mitsuba_manifold.render.plugins` re-creates it for each 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import drjit as dr
 import mitsuba as mi
 
 from .common import check_variant
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 #: Bins of the viewing angle ``theta_i`` on the target (uniform over [0, pi/2]).
 THETA_BINS = 45
@@ -42,7 +48,9 @@ class FirstHitAOVs(mi.SamplingIntegrator):
             + [f"theta{k}" for k in range(self.bins)]
         )
 
-    def sample(self, scene, sampler, ray, medium=None, active=True):
+    def sample(
+        self, scene, sampler, ray, medium=None, active=True
+    ) -> tuple[mi.Spectrum, Any, list]:
         si = scene.ray_intersect(ray, active=active)
         valid = si.is_valid()
         bsdf = si.bsdf(ray)

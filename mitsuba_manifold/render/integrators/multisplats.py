@@ -87,7 +87,7 @@ def _level_sets(levels) -> list:
     return [(a, min(levels, b or levels)) for a, b in LEVEL_SETS if a <= levels]
 
 
-def _merged(parts, k):
+def _merged(parts, k) -> tuple[Any, list, Any, Any, Any]:
     """One splat set ``(k, bins, amplitude, pixel, count)`` from ``parts`` of levels up to ``k`` (the
     highest there: the products run over ``k`` bins):
     the bins past a splat's own level are 0 and ``count`` (None where every splat has ``k`` bins)
@@ -352,7 +352,7 @@ class MultiSplats:
     def release(self) -> None:
         self.splats = []
 
-    def images(self, scale, shape):
+    def images(self, scale, shape) -> tuple:
         """``rest`` (material -> ``L2+`` image) and ``cross`` ((name_i, name_j) -> ``C_ij``),
         scaled by ``scale`` (per pixel: 1 / the filter weights of all samples).
         """

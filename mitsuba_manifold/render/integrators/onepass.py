@@ -230,7 +230,7 @@ def render_onepass_gi(
     )
 
 
-def _check_counts(**counts):
+def _check_counts(**counts) -> None:
     """InputError for a count (``spp_per_pass``, ``chunk``) that is given and below 1."""
     for name, value in counts.items():
         if value is not None and int(value) < 1:
@@ -265,7 +265,9 @@ def _multi_splats(gi, splat, names, dims, levels) -> MultiSplats:
     )
 
 
-def _blocks(film, spp, rows, names, chunks, db, target, dims, several_passes):
+def _blocks(
+    film, spp, rows, names, chunks, db, target, dims, several_passes
+) -> tuple[Any, FilterSplats]:
     """The film's block of the base image and the splats of the material images: the table
     product (:class:`TableSplats`) where ``rows`` hold the tables, else the BSDF's own lookups
     (:class:`FilterSplats`).

@@ -212,7 +212,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
 
     # ------------------------------------------------------------ tracing
 
-    def sample(self, scene, sampler, ray, medium=None, active=True):
+    def sample(self, scene, sampler, ray, medium=None, active=True) -> tuple[Any, Any, list]:
         plan = self.prepare_scene(scene)
         L, valid, parts, _ = self.trace_paths(scene, sampler, ray, active, plan, False)
         aovs = []
@@ -221,7 +221,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         return L, valid, aovs
 
     @dr.syntax
-    def trace_paths(self, scene, sampler, ray, active, plan, record, proxy=None):
+    def trace_paths(self, scene, sampler, ray, active, plan, record, proxy=None) -> tuple:
         """Trace paths; return the selected radiance, validity, AOV parts and records.
 
         ``record``: False, or the most vertices on the target recorded per path (True: 1;
@@ -472,7 +472,7 @@ def _proxy_choice(mirror, proxy) -> Callable[..., Any]:
     """
     proxy, proxy_two = proxy if isinstance(proxy, tuple) else (proxy, None)
 
-    def choose(bsdf, on, below):
+    def choose(bsdf, on, below) -> tuple:
         two = mi.Bool(False)
         for carrier in mirror:
             two |= bsdf == mi.BSDFPtr(carrier)

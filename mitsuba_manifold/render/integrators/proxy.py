@@ -88,7 +88,7 @@ class _LastPoint:
     def __init__(self) -> None:
         self.key, self.value, self.lock = None, None, threading.Lock()
 
-    def get(self, args, build):
+    def get(self, args, build) -> tuple[Any, list, Any]:
         target, db, names, rows, w = args
         key = (
             rows_key(rows),

@@ -69,7 +69,7 @@ class Records:
         ok = mask & (st.n > 0) & (st.n <= self.levels)
         dr.scatter(self.g, st.u * st.acc, self.base + st.n - 1, ok)
 
-    def arrive(self, st, hit, beta, wi):
+    def arrive(self, st, hit, beta, wi) -> tuple:
         """A vertex on the target (lanes ``hit``); returns the new state and the lanes where it
         is recorded (those with at most ``levels`` vertices on the target so far).
         """
