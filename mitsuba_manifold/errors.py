@@ -111,7 +111,7 @@ def plugin_message(exc):
     return one_line(exc)
 
 
-def one_line(exc):
+def one_line(exc) -> str:
     """``exc`` as one line of text (a plugin's message when Mitsuba wrapped one)."""
     if not isinstance(exc, BaseException):
         return " ".join(str(exc).split())

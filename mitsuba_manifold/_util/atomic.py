@@ -136,7 +136,7 @@ def name_max(path) -> int:
     return _name_max(folder)
 
 
-def temporary_name(path, token, limit=NAME_MAX):
+def temporary_name(path, token, limit=NAME_MAX) -> str:
     """``.<name>.<token>.tmp<ext>`` for ``path``, its name shortened (never its token and
     extension) to at most ``limit`` bytes.
     """

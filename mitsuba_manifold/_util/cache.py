@@ -81,7 +81,7 @@ def adopt_hash(path, identity, digest) -> bool:
     return True
 
 
-def file_hash(path, block=1 << 22):
+def file_hash(path, block=1 << 22) -> str:
     """SHA-256 (hex) of a file's bytes, streamed; memoised per process (see the module notes)."""
     path = os.fspath(path)
     key = file_identity(path)
@@ -329,7 +329,7 @@ def npy_cache(
     mmap=False,
     eviction=None,
     on_rebuild=report_rebuild,
-):
+) -> np.ndarray:
     """Load the array cached at ``path``, or make it and cache it.
 
     Parameters

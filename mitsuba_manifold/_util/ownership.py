@@ -216,7 +216,7 @@ class Outputs:
         self._paths, self._identical, self._was = {}, set(), {}
         self._context = None
 
-    def check(self, path, what="output", identical=False):
+    def check(self, path, what="output", identical=False) -> str:
         """Refuse ``path`` now (:func:`check_replaceable`) and watch its writes. With
         ``identical``, a file the tool did not make is refused only when the new content
         differs (checked when it is written): for generated files shipped with the package.
@@ -230,7 +230,7 @@ class Outputs:
             self._identical.add(key)
         return path
 
-    def watches(self, path):
+    def watches(self, path) -> bool:
         """True when writes to ``path`` are this run's outputs."""
         key = os.path.abspath(os.fspath(path))
         return os.path.basename(key) != RECORD and (

@@ -138,7 +138,7 @@ class Stages:
         self.seconds.update(seconds)
         self.peak_after[stage] = peak_rss()
 
-    def peak(self) -> tuple[None, None]:
+    def peak(self) -> tuple[int | None, str | None]:
         """``(bytes, stage)``: the process's peak memory and the first stage by whose end it was
         reached; ``(None, None)`` where the system does not say.
         """

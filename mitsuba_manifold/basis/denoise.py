@@ -316,7 +316,7 @@ def _aovs_or_none(basis):
     return aovs if key == _basis_key(basis.manifest) else None
 
 
-def _guides(basis, plan) -> tuple[None, None]:
+def _guides(basis, plan) -> tuple[Any, Any]:
     """``(albedo, normal)`` of a one-target L1- blend from the basis's AOVs, or ``(None, None)``."""
     aovs = basis_aovs(basis)
     if not aovs:

@@ -110,7 +110,7 @@ def read_mask(path, resolution=None):
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-def _png_header(path) -> None:
+def _png_header(path) -> tuple[int, int, int, int, int] | None:
     """``(width, height, bit depth, colour type, interlace)`` from a PNG's IHDR chunk, or None
     (not a PNG).
     """

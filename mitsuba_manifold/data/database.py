@@ -368,7 +368,7 @@ def _progress(items, enabled, desc):
 # ----------------------------------------------------------------------- albedo
 
 
-def albedo_weights(dims=merl.MERL_DIMS):
+def albedo_weights(dims=merl.MERL_DIMS) -> np.ndarray:
     """Quadrature weights ``q`` over bins such that ``sum(q * f)`` is the bihemispherical albedo.
 
     albedo = 1/pi * int int f cos(theta_i) cos(theta_o) dw_i dw_o, with
@@ -423,7 +423,7 @@ def builtin_cache() -> str:
     return folder
 
 
-def finite_table(table, what):
+def finite_table(table, what) -> np.ndarray:
     """``table`` as float32, or a :class:`FormatError` naming ``what`` (the material and where it
     comes from) when it holds NaN or Inf values: nothing is cached from it.
     """
@@ -437,7 +437,7 @@ def finite_table(table, what):
     return table
 
 
-def made_table(cache_dir, digest, build, shape, out=None, what="table"):
+def made_table(cache_dir, digest, build, shape, out=None, what="table") -> np.ndarray:
     """A table made from a source (not a file), cached as ``<digest>.refl16.npy`` (:data:`MADE_DTYPE`)
     or, where its values exceed that range, ``<digest>.refl.npy`` (float32); returned as float32, as cached
     (rounded to the cache's precision when just made).
@@ -618,7 +618,7 @@ def open_spec(spec, dims=None, recorded=False) -> DatabaseSpec:
     return DatabaseSpec(key, folder, tuple(found), dims, folder)
 
 
-def recorded_spec(spec):
+def recorded_spec(spec) -> str:
     """A database spec as this package records it (a manifold's ``database``: a set's name or an
     absolute folder, with ``@dims``), written so that it opens as what was recorded whatever
     the current folder holds: a set's name as ``builtin:NAME`` (:func:`~.sources.builtin_set`).
@@ -771,7 +771,7 @@ class Database:
         """Where a material comes from: its file, or its set's name."""
         return self.sources[self.names[self.index(name)]].origin
 
-    def index(self, name):
+    def index(self, name) -> int:
         """Position of ``name`` in ``names`` (KeyError naming the database otherwise)."""
         try:
             return self.names.index(name)
@@ -780,7 +780,7 @@ class Database:
                 f"unknown material {name!r} in database {self.label} ({len(self.names)} materials)"
             ) from None
 
-    def hash(self, name):
+    def hash(self, name) -> str:
         """Content hash of a material's table: the SHA-256 of its ``.binary`` file, or of what the
         table is made from (network weights, fit, measured file) and the resolution.
         """
@@ -791,7 +791,7 @@ class Database:
         return [self.hash(n) for n in (self.names if names is None else names)]
 
     # -- tables
-    def reflectance(self, name, mmap=True, out=None):
+    def reflectance(self, name, mmap=True, out=None) -> np.ndarray:
         """Filled reflectance table, float32 of shape ``(3,) + dims`` (see merl.filled_reflectance).
 
         Made once and cached as ``.npy`` keyed by its content hash (:meth:`hash`): a ``.binary``

@@ -117,7 +117,7 @@ class Quadrature:
         """Values per table used (3 channels times the bins kept)."""
         return self.index.size
 
-    def features(self, rows):
+    def features(self, rows) -> np.ndarray:
         """Features ``scale * cbrt(rows * cos)`` (float64) of flat rows ``(..., 3 * bins)`` or of
         rows already restricted to :attr:`index` ``(..., size)``.
         """
@@ -188,7 +188,7 @@ def _distance(fa, fb, quad) -> np.ndarray:
     return np.sqrt(total)
 
 
-def distance_matrix(A, B=None, dims=None, stride=(1, 1, 1)):
+def distance_matrix(A, B=None, dims=None, stride=(1, 1, 1)) -> np.ndarray:
     """``D[i, j] = d(A[i], B[j])`` for two stacks of tables (``B`` omitted: ``A`` with itself).
 
     ``A``: ``(n, ...)`` tables as :func:`brdf_distance` takes them (one leading axis), ``B``
@@ -219,7 +219,7 @@ def distance_matrix(A, B=None, dims=None, stride=(1, 1, 1)):
     return D
 
 
-def gram_distances(parts, exact=None, rtol=1e-9):
+def gram_distances(parts, exact=None, rtol=1e-9) -> np.ndarray:
     """Euclidean distances ``(n, m)`` between the rows of feature blocks ``parts`` (pairs ``(F, G)``
     of ``(n, k)`` and ``(m, k)`` arrays over the same columns), accumulated blockwise.
 

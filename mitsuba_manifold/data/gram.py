@@ -83,7 +83,7 @@ def transform(block, features, cos=None):
     raise FormatError(f"`features` must be one of {FEATURES}, got {features!r}")
 
 
-def workers_for(n_blocks):
+def workers_for(n_blocks) -> int:
     """Worker threads for ``n_blocks`` blocks: one per core the process may run on (at most
     :data:`MAX_WORKERS`), none idle.
     """

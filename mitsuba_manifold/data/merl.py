@@ -142,13 +142,13 @@ def write_binary(path, raw) -> None:
     atomic_write(path, write)
 
 
-def reflectance(raw, dtype=np.float32):
+def reflectance(raw, dtype=np.float32) -> np.ndarray:
     """Stored values to reflectance (1/sr); unmeasured bins stay negative."""
     raw = np.asarray(raw)
     return (raw * SCALE.reshape(3, 1, 1, 1)).astype(dtype, copy=False)
 
 
-def to_stored(refl):
+def to_stored(refl) -> np.ndarray:
     """Reflectance to stored values (the inverse of :func:`reflectance`)."""
     return np.asarray(refl, dtype=np.float64) / SCALE.reshape(3, 1, 1, 1)
 
@@ -218,7 +218,7 @@ def bin_index(theta_h, theta_d, phi_d, dims=MERL_DIMS) -> tuple:
     )
 
 
-def flat_index(wi, wo, dims=MERL_DIMS):
+def flat_index(wi, wo, dims=MERL_DIMS) -> np.ndarray:
     """Flat bin index (into one channel of a table) for direction pairs."""
     i_h, i_d, i_p = bin_index(*half_diff(wi, wo), dims=dims)
     return (i_h * dims[1] + i_d) * dims[2] + i_p
@@ -233,7 +233,7 @@ def bin_centres(dims=MERL_DIMS) -> tuple:
     return np.meshgrid(th, td, pd, indexing="ij")
 
 
-def above_horizon(dims=MERL_DIMS):
+def above_horizon(dims=MERL_DIMS) -> np.ndarray:
     """Boolean mask, shape ``dims``: both directions of the bin centre lie above the surface.
 
     Elevations do not depend on ``phi_h`` (a rotation about the normal), so the
@@ -276,7 +276,7 @@ def filled_reflectance(raw, dtype=np.float32) -> np.ndarray:
     return out
 
 
-def table_resolution(dims, name="`dims`", bytes_per_bin=None, workers=1):
+def table_resolution(dims, name="`dims`", bytes_per_bin=None, workers=1) -> tuple[int, int, int]:
     """MERL dimensions ``(n_theta_h, n_theta_d, n_phi_d)``, readable by this package and small
     enough to tabulate in the memory available.
 

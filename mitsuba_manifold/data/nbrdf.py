@@ -179,7 +179,7 @@ class NetworkSet:
         return _evaluate(self, self.index(name), np.asarray(v, dtype=np.float32))
 
 
-def _evaluate(nets, i, v, out=None):
+def _evaluate(nets, i, v, out=None) -> np.ndarray:
     """The network ``i`` of ``nets`` at the rows of ``v`` ``(m, 6)`` float32, into ``out`` ``(m, 3)``.
 
     Evaluated in blocks of :data:`BLOCK` rows with float32 matrix products.
@@ -243,7 +243,9 @@ def _grid(dims, positions) -> tuple[np.ndarray, np.ndarray]:
     return above, v
 
 
-def tabulate(networks, name, dims=merl.MERL_DIMS, positions=DEFAULT_POSITIONS, dtype=np.float32):
+def tabulate(
+    networks, name, dims=merl.MERL_DIMS, positions=DEFAULT_POSITIONS, dtype=np.float32
+) -> np.ndarray:
     """Reflectance table ``(3, n_h, n_d, n_p)`` of one network at a MERL grid's bins.
 
     Bins whose centre lies below the horizon (:func:`.merl.above_horizon`) are 0; the others

@@ -85,7 +85,7 @@ def register_reader(kind, reader) -> None:
     _READERS[kind] = reader
 
 
-def material_name(path):
+def material_name(path) -> str:
     """A material's name from its file: the base name without extension and ``_rgb`` / ``_spec``."""
     stem = os.path.basename(os.fspath(path))
     stem = stem[: -len(".binary")] if stem.endswith(".binary") else os.path.splitext(stem)[0]
@@ -118,7 +118,7 @@ class BinaryFile:
         """The file's resolution (its header)."""
         return merl.read_header(self.path)
 
-    def digest(self, dims):
+    def digest(self, dims) -> str:
         """SHA-256 of the file (memoised per process, :func:`cache.file_hash`)."""
         return file_hash(self.path)
 
@@ -154,7 +154,7 @@ class Network:
             "nbrdf-table-v1", self.networks.digest(self.key), _resolution(dims), self.positions
         )
 
-    def table(self, dims):
+    def table(self, dims) -> np.ndarray:
         return nbrdf.tabulate(self.networks, self.key, dims, self.positions)
 
 
@@ -314,7 +314,7 @@ def _network_sources(path, prefix, origin) -> list:
     return [Network(n, nets, n, origin, SET_POSITIONS[prefix]) for n in nets.names]
 
 
-def builtin_set(name, *, recorded=False, what="database"):
+def builtin_set(name, *, recorded=False, what="database") -> str | None:
     """The built-in set (:data:`SET_NAMES`) that the name ``name`` means, or None when it means a
     path: the one rule by which every database name is read.
 
@@ -439,7 +439,7 @@ def folder_sources(folder) -> list:
     return [names[n] for n in sorted(names)]
 
 
-def material_source(spec):
+def material_source(spec) -> BinaryFile | Network:
     """The source of one material: ``SET:NAME`` of a built-in set (``rgl:paper_white``) or a file
     (``.binary``, ``.bsdf``, ``.h5`` with its ``.json``, or an ``.npz`` of one network).
     """

@@ -118,7 +118,7 @@ def check_q(q) -> int:
     return int(q)
 
 
-def pca_init(S, q, length_scale=1.0):
+def pca_init(S, q, length_scale=1.0) -> np.ndarray:
     """Linear PCA of the materials from their Gram matrix, as latent starting points.
 
     The principal coordinates are ``U_q sqrt(lambda_q)`` from the eigendecomposition of S,
@@ -160,7 +160,7 @@ def pca_init(S, q, length_scale=1.0):
     return coords * (l / spread)
 
 
-def mds_init(distances, q, length_scale=1.0):
+def mds_init(distances, q, length_scale=1.0) -> np.ndarray:
     """Classical multidimensional scaling of target distances, as latent starting points.
 
     The principal coordinates of the doubly centred ``B = -1/2 J D^2 J`` (``J = I - 1/N``):
@@ -398,7 +398,9 @@ class GPLVM:
         )
 
 
-def optimiser_options(method, *, max_iter=None, tol=None, initial_step=None):
+def optimiser_options(
+    method, *, max_iter=None, tol=None, initial_step=None
+) -> HookeJeevesOptions | LBFGSOptions | NewtonOptions:
     """The settings of the optimiser ``method`` (:data:`METHODS`), its defaults but those given.
 
     Parameters

@@ -37,11 +37,11 @@ class Factor(NamedTuple):
     cho: tuple
     logdet: float
 
-    def solve(self, B):
+    def solve(self, B) -> np.ndarray:
         """``K^-1 B``."""
         return scipy.linalg.cho_solve(self.cho, B, check_finite=False)
 
-    def inverse(self):
+    def inverse(self) -> np.ndarray:
         """``K^-1``, symmetrised."""
         K_inv = self.solve(np.eye(self.cho[0].shape[0]))
         return 0.5 * (K_inv + K_inv.T)
@@ -58,7 +58,7 @@ def check_positive(name, value, allow_zero=False) -> float:
     return v
 
 
-def check_points(name, X, n=None, q=None):
+def check_points(name, X, n=None, q=None) -> np.ndarray:
     try:
         X = np.array(X, dtype=np.float64)
     except (TypeError, ValueError) as e:
@@ -79,7 +79,7 @@ def check_points(name, X, n=None, q=None):
     return X
 
 
-def sq_dist(A, B):
+def sq_dist(A, B) -> np.ndarray:
     """Squared distances, summed from coordinate differences (no cancellation, no inf - inf)."""
     return scipy.spatial.distance.cdist(A, B, "sqeuclidean")
 
@@ -136,7 +136,7 @@ class Kernel:
         return Kernel(1.0, self.noise)
 
     # -- covariances
-    def K(self, X, X2=None):
+    def K(self, X, X2=None) -> np.ndarray:
         """``K(X)`` (n x n, ``1 + mu`` on the diagonal), or the cross-covariance ``(n, m)``
         with ``X2`` (the smooth part only, the vector ``k_*`` of Eq. 3: no noise term).
         """
@@ -149,7 +149,7 @@ class Kernel:
         """``c(x, x) = 1 + mu`` for each point (the prior variance)."""
         return np.full(len(check_points("X", X)), 1.0 + self.noise)
 
-    def cross(self, x, X, exact=False):
+    def cross(self, x, X, exact=False) -> np.ndarray:
         """``k(x)`` (M, N): covariances of points ``x`` with ``X``; with ``exact`` the noise term
         ``mu delta(x, x_i)`` is added where a row of ``x`` equals a point of ``X`` exactly.
         """
@@ -158,17 +158,17 @@ class Kernel:
             k[coincident(x, X)] += self.noise
         return k
 
-    def _K(self, X):
+    def _K(self, X) -> np.ndarray:
         U = X / self.length_scale
         K = np.exp(-0.5 * sq_dist(U, U))
         K[np.diag_indices_from(K)] = 1.0 + self.noise
         return K
 
-    def _cross(self, A, B):
+    def _cross(self, A, B) -> np.ndarray:
         return np.exp(-0.5 * sq_dist(A / self.length_scale, B / self.length_scale))
 
     # -- gradients
-    def dK_dx(self, x, X, k=None):
+    def dK_dx(self, x, X, k=None) -> np.ndarray:
         """``d k(x_m, X_n) / d x_m`` (M, N, q) ``= -k (x_m - X_n) / l^2``; ``k`` is
         :meth:`cross` ``(x, X)`` when already computed.
         """
@@ -199,7 +199,7 @@ def coincident(x, X) -> tuple[np.ndarray, ...]:
     return np.nonzero((x[:, None, :] == X[None, :, :]).all(-1))
 
 
-def kernel_matrix(A, B=None, length_scale=1.0, noise=1e-4):
+def kernel_matrix(A, B=None, length_scale=1.0, noise=1e-4) -> np.ndarray:
     """Covariance ``c(x, x') = mu delta(x, x') + exp(-|x - x'|^2 / (2 l^2))`` (Eq. 5).
 
     ``Kernel(length_scale, noise).K(A, B)``: ``K`` (n x n, ``1 + mu`` on the diagonal) when

@@ -23,7 +23,7 @@ from ..errors import InputError
 from .kernel import Kernel, check_points, check_positive, factorise
 
 
-def check_gram(S, check_psd=True):
+def check_gram(S, check_psd=True) -> np.ndarray:
     """Return S as a symmetric float64 array, or raise ValueError saying what is wrong."""
     try:
         S = np.array(S, dtype=np.float64)
@@ -56,7 +56,7 @@ def check_gram(S, check_psd=True):
     return S
 
 
-def check_d(d):
+def check_d(d) -> float:
     if isinstance(d, (bool, np.bool_)) or not isinstance(d, numbers.Real):
         raise InputError(f"`d` (number of values per material) must be an integer >= 1, got {d!r}")
     d = float(d)
@@ -65,7 +65,7 @@ def check_d(d):
     return d
 
 
-def objective(logdet, trace, d):
+def objective(logdet, trace, d) -> float | np.ndarray:
     """``L`` from ``log|K|`` and ``tr(K^-1 S)``."""
     return -0.5 * d * logdet - 0.5 * trace
 
@@ -97,18 +97,18 @@ class Likelihood:
         self._unit = kernel.in_units()
 
     @property
-    def n(self):
+    def n(self) -> int:
         return self.S.shape[0]
 
     def in_units(self) -> Likelihood:
         """The same objective of points in units of the length scale (``L(u l)``, ``l = 1``)."""
         return Likelihood(self.S, self.d, self.kernel.in_units(), _checked=True)
 
-    def _latent(self, X):
+    def _latent(self, X) -> np.ndarray:
         return check_points("latent", X, n=self.n)
 
     # -- public, checked
-    def __call__(self, X):
+    def __call__(self, X) -> float:
         """``L`` at latent points ``X`` (N, q)."""
         return self._value(self._latent(X) / self.kernel.length_scale)
 
@@ -139,7 +139,7 @@ class Likelihood:
         """What a penalised objective takes off ``L`` (:class:`~.stress.PenalisedLikelihood`): 0."""
         return 0.0
 
-    def _value(self, U):
+    def _value(self, U) -> float:
         f = factorise(self._unit._K(U))
         return objective(f.logdet, float(np.trace(f.solve(self.S))), self.d)
 
@@ -157,7 +157,7 @@ class Likelihood:
         grad = W @ U - W.sum(axis=1)[:, None] * U
         return L, grad
 
-    def _hessp(self, U, V):
+    def _hessp(self, U, V) -> np.ndarray:
         """``d/dt dL/dU (U + t V)`` at ``t = 0``: the Hessian of L times the direction ``V``
         (N, q), in units of the length scale, exactly.
 
@@ -176,7 +176,7 @@ class Likelihood:
         dW[np.diag_indices_from(dW)] = 0.0
         return dW @ U - dW.sum(axis=1)[:, None] * U + c.W @ V - c.W.sum(axis=1)[:, None] * V
 
-    def _curvature(self, U):
+    def _curvature(self, U) -> _Curvature:
         """``A``, ``B``, ``G``, ``E`` and ``W`` of :meth:`_hessp` at ``U`` (the last one kept)."""
         key = U.tobytes()
         cached = getattr(self, "_cache", None)
@@ -208,7 +208,7 @@ def _likelihood(S, d, length_scale, noise) -> Likelihood:
     return Likelihood(S, d, kernel, _checked=True)
 
 
-def log_likelihood(latent, S, d, length_scale=1.0, noise=1e-4):
+def log_likelihood(latent, S, d, length_scale=1.0, noise=1e-4) -> float:
     """Log-likelihood ``L = -d/2 log|K| - 1/2 tr(K_inv S)`` of latent points (Eq. 6).
 
     ``Likelihood(S, d, Kernel(length_scale, noise))(latent)``.
@@ -234,7 +234,7 @@ def log_likelihood(latent, S, d, length_scale=1.0, noise=1e-4):
     return _likelihood(S, d, length_scale, noise)(latent)
 
 
-def log_likelihood_grad(latent, S, d, length_scale=1.0, noise=1e-4):
+def log_likelihood_grad(latent, S, d, length_scale=1.0, noise=1e-4) -> tuple[float, np.ndarray]:
     """Log-likelihood and its analytic gradient with respect to the latent points.
 
     ``Likelihood(S, d, Kernel(length_scale, noise)).gradient(latent)``; same parameters as

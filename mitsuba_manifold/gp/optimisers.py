@@ -114,14 +114,14 @@ class NewtonOptions:
         object.__setattr__(self, "step_tol", check_positive("step_tol", self.step_tol))
 
 
-def objective_scale(likelihood):
+def objective_scale(likelihood) -> float:
     """``d N / 2``: the gradient-based optimisers work on ``L / (d N / 2)``, the objective per
     value and material, whose size does not grow with the data.
     """
     return 0.5 * likelihood.d * likelihood.n
 
 
-def project(g, Q):
+def project(g, Q) -> np.ndarray:
     """``(I - Q Q^T) g``: ``g`` (flat) without its components along the rigid motions ``Q``
     (:func:`.pose.rigid_modes`).
     """
@@ -281,19 +281,19 @@ class _Scaled:
         self.last = {flat.tobytes(): F}
         return -F / self.scale, -project(g.ravel(), self._modes(flat)) / self.scale
 
-    def hessp(self, flat, p):
+    def hessp(self, flat, p) -> np.ndarray:
         """The projected Hessian ``P H P`` times ``p``."""
         Q = self._modes(flat)
         H = self.likelihood._hessp(flat.reshape(self.shape), project(p, Q).reshape(self.shape))
         return -project(H.ravel(), Q) / self.scale
 
-    def _modes(self, flat):
+    def _modes(self, flat) -> np.ndarray:
         key = flat.tobytes()
         if self._q is None or self._q[0] != key:
             self._q = (key, rigid_modes(flat.reshape(self.shape)))
         return self._q[1]
 
-    def value(self, flat):
+    def value(self, flat) -> float:
         key = flat.tobytes()
         return (
             self.last[key] if key in self.last else self.likelihood._value(flat.reshape(self.shape))

@@ -28,7 +28,7 @@ import numpy as np
 SYMMETRIC = 1e-6
 
 
-def canonical_pose(X):
+def canonical_pose(X) -> np.ndarray:
     """``X`` (N, q) translated, rotated and reflected to the canonical pose (module doc).
 
     Returns

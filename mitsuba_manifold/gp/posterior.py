@@ -55,25 +55,25 @@ class Posterior:
         ev = np.linalg.eigvalsh(self.K)
         return float(ev[-1] / ev[0])
 
-    def weights(self, x):
+    def weights(self, x) -> np.ndarray:
         """``b(x) = K^-1 k(x)`` (M, N) of the smooth kernel (Eq. 4 away from the training points)."""
         return self.factor.solve(self.kernel.cross(x, self.X).T).T
 
-    def weights_jacobian(self, x):
+    def weights_jacobian(self, x) -> np.ndarray:
         """``db/dx = K^-1 dk/dx`` (M, N, q)."""
         dk = self.kernel.dK_dx(x, self.X)
         m, n, q = dk.shape
         db = self.factor.solve(dk.transpose(1, 0, 2).reshape(n, m * q))
         return db.reshape(n, m, q).transpose(1, 0, 2)
 
-    def variance(self, x):
+    def variance(self, x) -> np.ndarray:
         """``c(x, x) - k^T K^-1 k`` (M,) (Eq. 2), with the noise term ``mu delta(x, x_i)`` in ``k``
         where ``x`` is a latent point (the variance is then 0).
         """
         k = self.kernel.cross(x, self.X, exact=True)
         return 1.0 + self.kernel.noise - np.einsum("mn,mn->m", k, self.factor.solve(k.T).T)
 
-    def variance_gradient(self, x):
+    def variance_gradient(self, x) -> np.ndarray:
         """Gradient of the smooth part of :meth:`variance`: ``-2 (dk/dx)^T K^-1 k`` (M, q)."""
         k = self.kernel.cross(x, self.X)
         b = self.factor.solve(k.T).T

@@ -145,12 +145,12 @@ class RankUpdatedInverse:
         return self._U
 
     @property
-    def K(self):
+    def K(self) -> np.ndarray:
         """Current covariance matrix (copy)."""
         return self._K.copy()
 
     @property
-    def K_inv(self):
+    def K_inv(self) -> np.ndarray:
         """Maintained inverse covariance (copy)."""
         return self._B.copy()
 
@@ -165,7 +165,7 @@ class RankUpdatedInverse:
         return self._trace
 
     @property
-    def log_likelihood(self):
+    def log_likelihood(self) -> float:
         """Maintained L."""
         return objective(self._logdet, self._trace, self._d)
 
@@ -202,7 +202,7 @@ class RankUpdatedInverse:
         self._version += 1
         self._prep = None
 
-    def _point(self, i) -> None:
+    def _point(self, i) -> list:
         """``b = K_inv e_i`` and ``P = K_inv - b b^T / b_i`` (row and column i exactly zero)
         for point i, cached until the next change: ``[i, version, b, P, old]``.
         """
@@ -289,7 +289,7 @@ class RankUpdatedInverse:
             L[j] = self._fresh_trial(trial, j)
         return trial
 
-    def _fresh_trial(self, trial, j):
+    def _fresh_trial(self, trial, j) -> float:
         self.n_fresh_trials += 1
         i = trial.index
         K = self._K.copy()
@@ -306,7 +306,7 @@ class RankUpdatedInverse:
         trial._trace[j] = trace
         return objective(factor.logdet, trace, self._d)
 
-    def accept(self, trial, j=0):
+    def accept(self, trial, j=0) -> float:
         """Move the point of ``trial`` to its candidate ``j``; return the new L.
 
         Raises
@@ -348,7 +348,7 @@ class RankUpdatedInverse:
             self.refactorise()
         return self.log_likelihood
 
-    def move(self, i, point):
+    def move(self, i, point) -> float:
         """Move point ``i`` to ``point`` ((q,)); return the new L."""
         return self.accept(self.try_moves(i, np.reshape(point, (1, -1))), 0)
 

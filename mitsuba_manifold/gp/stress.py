@@ -135,15 +135,15 @@ class StressTerm:
         self.D, self.W, self.coefficient = D, W, float(coefficient)
         self._c = float((W * D * D).sum()) / 2.0
 
-    def value(self, X):
+    def value(self, X) -> float:
         """``sigma`` at latent points ``X`` (N, q)."""
         return self._value_grad(X, grad=False)[0]
 
-    def value_grad(self, X):
+    def value_grad(self, X) -> tuple[float, np.ndarray]:
         """``sigma`` and ``d sigma / dX`` (N, q)."""
         return self._value_grad(X, grad=True)
 
-    def _geometry(self, X):
+    def _geometry(self, X) -> tuple:
         """``r``, ``a``, ``b`` and ``d sigma / d r_ij / r_ij`` at ``X`` (the last one kept)."""
         key = X.tobytes()
         cached = getattr(self, "_cache", None)
@@ -173,7 +173,7 @@ class StressTerm:
             return sigma, None
         return sigma, g.sum(axis=1)[:, None] * X - g @ X
 
-    def hessp(self, X, V):
+    def hessp(self, X, V) -> np.ndarray:
         """``d/dt d sigma / dX (X + t V)`` at ``t = 0`` (N, q), exactly where no two points
         coincide (pairs at distance 0 contribute nothing, as to the gradient).
 
@@ -200,7 +200,7 @@ class StressTerm:
         dg[r == 0] = 0.0
         return dg.sum(axis=1)[:, None] * X - dg @ X + g.sum(axis=1)[:, None] * V - g @ V
 
-    def penalty(self, X):
+    def penalty(self, X) -> float:
         """The amount taken off the likelihood: ``lambda (d N / 2) sigma(X)``."""
         return self.coefficient * self.value(X)
 
@@ -215,16 +215,16 @@ class PenalisedLikelihood:
         self.S, self.d, self.kernel = likelihood.S, likelihood.d, likelihood.kernel
 
     @property
-    def n(self):
+    def n(self) -> int:
         return self.likelihood.n
 
     def _penalty(self, U):
         return self.term.penalty(U)
 
-    def _value(self, U):
+    def _value(self, U) -> float:
         return self.likelihood._value(U) - self.term.penalty(U)
 
-    def _hessp(self, U, V):
+    def _hessp(self, U, V) -> np.ndarray:
         return self.likelihood._hessp(U, V) - self.term.coefficient * self.term.hessp(U, V)
 
     def _value_grad(self, U) -> tuple:

@@ -47,7 +47,7 @@ KINDS = ("gp", "shepard")
 MAX_COORDINATE = 1e30
 
 
-def points(x, q):
+def points(x, q) -> tuple[np.ndarray, bool]:
     """``x`` as an ``(M, q)`` float array and whether it was a single point (:func:`checks.latent_points`)."""
     return checks.latent_points("latent point", x, q, MAX_COORDINATE)
 
@@ -78,7 +78,7 @@ class Interpolant:
         w = self._weights(x)
         return w - 1.0 / self.n, w
 
-    def jacobian(self, x):
+    def jacobian(self, x) -> np.ndarray:
         """``dw/dx``: ``(M, N, q)`` (or ``(N, q)`` for one point); columns sum to 0."""
         x, single = points(x, self.q)
         J = self._jacobian(x)
@@ -142,7 +142,7 @@ class GaussianProcessWeights(Interpolant):
         dw = db - db.sum(axis=0, keepdims=True) / self.n  # the affine weights' change
         return float(np.abs(dw).sum(axis=0).max())
 
-    def gp_weights(self, x):
+    def gp_weights(self, x) -> np.ndarray:
         """``b(x)`` (M, N) of Eq. 4."""
         b = self.gp.weights(x)
         if self.exact:
@@ -153,7 +153,7 @@ class GaussianProcessWeights(Interpolant):
             b[rows, cols] = 1.0
         return b
 
-    def affine(self, b):
+    def affine(self, b) -> np.ndarray:
         """The affine weights ``w = b + (1 - sum(b)) / N`` of Eq. 4's ``b`` (M, N)."""
         return b + (1.0 - b.sum(axis=1, keepdims=True)) / self.n
 
@@ -311,7 +311,7 @@ class ShepardWeights(Interpolant):
 
         self.limit = StepLimit(rows, self.n, manifold.dims, store=store)
 
-    def continuation(self, x, w):
+    def continuation(self, x, w) -> np.ndarray:
         """What the weights gain outside the hull of the latent points: ``s(x) e(x)`` (M, N).
 
         With ``p`` the point of the hull closest to ``x``, ``rho = |x - p|`` and ``n`` the unit
@@ -356,18 +356,18 @@ class ShepardWeights(Interpolant):
         out[far] = s[:, None] * e
         return out
 
-    def hull(self) -> None:
+    def hull(self) -> LatentHull:
         """The :class:`LatentHull` of the latent points (made on first use)."""
         if self._hull is None:
             self._hull = LatentHull(self.latent)
         return self._hull
 
-    def _untapered(self, x):
+    def _untapered(self, x) -> np.ndarray:
         diff = (x[:, None, :] - self.latent[None]) / self.length_scale
         with np.errstate(divide="ignore"):
             return _normalise(-0.5 * self.power * np.log(np.einsum("mnq,mnq->mn", diff, diff)))
 
-    def _thin(self, w):
+    def _thin(self, w) -> np.ndarray:
         floor = np.minimum(self.SECANT_FLOOR, 0.5 * w.max(axis=1, keepdims=True))
         w = np.maximum(w - floor, 0.0)
         return w / w.sum(axis=1, keepdims=True)
@@ -406,16 +406,16 @@ class ShepardWeights(Interpolant):
                 )
         return diff, r2s, hit, inv, m, h2, log_u
 
-    def _convex(self, x):
+    def _convex(self, x) -> np.ndarray:
         return _normalise(self._terms(x)[-1])
 
-    def _weights(self, x):
+    def _weights(self, x) -> np.ndarray:
         w = self._convex(x)
         if self.limit is not None:
             w = w + self.continuation(x, w)
         return w
 
-    def _jacobian(self, x):
+    def _jacobian(self, x) -> np.ndarray:
         J = self._convex_jacobian(x)
         if self.limit is None:
             return J
@@ -438,7 +438,7 @@ class ShepardWeights(Interpolant):
                 J[i] = ((4 * d_half - d_h) / 3).T
         return J
 
-    def _convex_jacobian(self, x):
+    def _convex_jacobian(self, x) -> np.ndarray:
         diff, r2, hit, inv, m, h2, log_u = self._terms(x)
         w = _normalise(log_u)
         p, l = self.power, self.length_scale
@@ -545,7 +545,7 @@ class LatentHull:
         rho = np.sqrt(((x - p) ** 2).sum(axis=1))
         return p, rho
 
-    def _facet_solvers(self) -> None:
+    def _facet_solvers(self) -> np.ndarray:
         """Per facet, the pseudo-inverse ``(F, q, q + 1)`` giving the barycentric coordinates of
         a point of its plane from ``(point, 1)`` (made once).
         """
@@ -557,7 +557,7 @@ class LatentHull:
             self._facet_pinv = np.linalg.pinv(corners)
         return self._facet_pinv
 
-    def _face(self, active):
+    def _face(self, active) -> tuple:
         """Base vertex, the other vertices less it (rows) and their pseudo-inverse, of face
         ``active`` (made once per face).
         """
@@ -568,7 +568,7 @@ class LatentHull:
             face = self._faces[active] = (V[-1], B, np.linalg.pinv(B.T))
         return face
 
-    def _on_face(self, x, active):
+    def _on_face(self, x, active) -> np.ndarray | None:
         """The closest point to ``x`` of the affine span of face ``active`` where it falls on the
         face (barycentric coordinates >= 0), else None.
         """
@@ -587,7 +587,7 @@ class LatentHull:
         d = x - p
         return bool(((self.vertices - p) @ d).max() <= 1e-12 * self.scale * np.sqrt(d @ d))
 
-    def _closest_on_faces(self, x):
+    def _closest_on_faces(self, x) -> np.ndarray:
         """The closest point of the hull's surface to each row of ``x`` (``q`` of 2 or 3)."""
         F = self.facets
         edges = np.concatenate([F[:, [a, (a + 1) % self.q]] for a in range(self.q)])
@@ -608,7 +608,7 @@ class LatentHull:
         dist = ((cand - x[:, None]) ** 2).sum(-1)
         return cand[np.arange(len(x)), dist.argmin(axis=1)]
 
-    def _exact(self, x, active, lam):
+    def _exact(self, x, active, lam) -> np.ndarray:
         """The closest point of the affine span of the ``active`` vertices (the face NNLS found),
         solved exactly (least squares by the face's pseudo-inverse); NNLS's own point where that
         leaves the face.
@@ -617,7 +617,7 @@ class LatentHull:
         return lam @ self.vertices if p is None else p
 
 
-def _normalise(log_u):
+def _normalise(log_u) -> np.ndarray:
     """Softmax along the last axis, with ``+inf`` entries sharing the whole weight."""
     inf = np.isposinf(log_u)
     rows = inf.any(axis=1)
@@ -653,7 +653,7 @@ def _number(kind, name, value) -> float:
     return float(value)
 
 
-def make(latent, params):
+def make(latent, params) -> GaussianProcessWeights | ShepardWeights:
     """An interpolant from saved parameters ``{"kind": ..., ...}``."""
     params = dict(params)
     kind = params.pop("kind", None)

@@ -60,7 +60,7 @@ def cache_folder(manifold) -> str | None:
     return database_cache(manifold.database)
 
 
-def cached(metric, name, build, shape=None, dtype=None, keep=4, settings=()):
+def cached(metric, name, build, shape=None, dtype=None, keep=4, settings=()) -> np.ndarray:
     """``build()`` cached as ``<key>.<name>.npy`` in the manifold's cache folder (:func:`cache_key`
     of ``name`` and ``settings``); only the ``keep`` most recently used files of ``name`` are kept.
     """

@@ -75,6 +75,8 @@ if TYPE_CHECKING:
 if TYPE_CHECKING:
     from typing import Any
 
+    from .adding import Added
+
 
 #: Names other modules import from here (the presets, the pruning default, the result types).
 __all__ = [
@@ -471,7 +473,7 @@ class Manifold:
         return self._gp.K
 
     @property
-    def history(self):
+    def history(self) -> np.ndarray:
         """Log-likelihood per optimiser iteration (:attr:`record`)."""
         return self.record.history
 
@@ -485,12 +487,12 @@ class Manifold:
         self.record = FitRecord.from_info(value, self.record.history)
 
     @property
-    def dims(self):
+    def dims(self) -> tuple[int, int, int]:
         """Table resolution ``(n_theta_h, n_theta_d, n_phi_d)`` of the fit (None if not recorded)."""
         return self.record.dims
 
     @property
-    def _tables(self) -> None:
+    def _tables(self) -> np.ndarray | None:
         return self._store.loaded
 
     @_tables.setter
@@ -498,7 +500,7 @@ class Manifold:
         self._store.loaded = tables
 
     @property
-    def q(self):
+    def q(self) -> int:
         """Latent dimension."""
         return self.latent.shape[1]
 
@@ -508,7 +510,7 @@ class Manifold:
         return len(self.names)
 
     # ------------------------------------------------------------- weights
-    def _points(self, x):
+    def _points(self, x) -> tuple[np.ndarray, bool]:
         return interpolants.points(x, self.q)
 
     def weights(self, x) -> Weights:
@@ -523,7 +525,7 @@ class Manifold:
         b, w = self.interpolant.b_and_w(x)
         return Weights(b[0], w[0]) if single else Weights(b, w)
 
-    def weights_jacobian(self, x):
+    def weights_jacobian(self, x) -> np.ndarray:
         """``dw/dx`` of the interpolant, analytic: ``(N, q)`` for one point, ``(M, N, q)`` for M.
 
         GP weights: ``(I - 1 1^T / N) K_inv dk/dx`` (Eq. 4 differentiated; at a training point
@@ -623,13 +625,13 @@ class Manifold:
                 self.index(name)  # an unknown name: InputError with the closest ones
         return self._store.open(self._source(folder), names)
 
-    def _source(self, database=None):
+    def _source(self, database=None) -> str:
         """``database`` (a user's), else the recorded one, opened as recorded (a set's name is the
         set whatever the current folder holds: :func:`~..data.database.recorded_spec`).
         """
         return database or recorded_spec(self.database)
 
-    def tables(self, database=None) -> None:
+    def tables(self, database=None) -> np.ndarray:
         """All N tables in memory as float32 ``(N, d)`` (loaded once, then kept)."""
         return self._store.stack(self._source(database))
 
@@ -687,7 +689,7 @@ class Manifold:
             p = projection_mod.beyond(p, self.tables(), table, dims=self.dims)
         return p
 
-    def add(self, table_or_path, name=None, *, origin=None):
+    def add(self, table_or_path, name=None, *, origin=None) -> Added:
         """Place a new measured material in this manifold without a refit (:mod:`.adding`).
 
         Its latent point maximises the GPLVM likelihood (paper Eq. 6) of all N + 1 tables with
@@ -742,7 +744,7 @@ class Manifold:
         """L2 norm of each raw table (from :attr:`table_gram`)."""
         return np.sqrt(np.maximum(np.diag(self._store.raw_gram(self._source())), 0.0))
 
-    def _checked(self, w, budget, rule):
+    def _checked(self, w, budget, rule) -> np.ndarray:
         w = np.asarray(w, dtype=np.float64)
         n = self.n
         if w.shape != (n,) or not np.isfinite(w).all():
@@ -857,7 +859,7 @@ class Manifold:
         return Combination(flat.reshape((3,) + db.dims), keep, dropped)
 
     # ----------------------------------------------------------- diagnostics
-    def condition_number(self):
+    def condition_number(self) -> float:
         """2-norm condition number of K."""
         return self._gp.condition_number()
 
@@ -895,7 +897,7 @@ class Manifold:
             raise InputError("this manifold was saved without its Gram matrix")
         return log_likelihood(self.latent, self.gram, self.record.d, self.length_scale, self.noise)
 
-    def discontinuity(self):
+    def discontinuity(self) -> float:
         """Largest jump of the weights when leaving a training point, ``max_i |w(x_i+) - e_i|_1``.
 
         See :meth:`interpolant.Interpolant.jump`: up to ~2 for the paper's GP weights when
@@ -1056,6 +1058,6 @@ class Manifold:
         """
         return paths.latent_distance(self, x, y, stride)
 
-    def path(self, a, b, steps=21, kind=None):
+    def path(self, a, b, steps=21, kind=None) -> np.ndarray:
         """``steps`` latent points from ``a`` to ``b`` of ``kind`` (default the best measured); :func:`paths.path`."""
         return paths.path(self, a, b, steps, kind or paths.DEFAULT_KIND)

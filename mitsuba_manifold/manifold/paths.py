@@ -58,6 +58,8 @@ from .latent_graph import LatentGraph
 if TYPE_CHECKING:
     from typing import Any
 
+    from .model import Manifold
+
 
 KINDS = ("straight", "uniform", "geodesic", "faithful")
 #: The kind ``Manifold.path``, ``blend.py --path``, the explorer and the main job's contact sheet
@@ -132,7 +134,7 @@ class PathMetric:
         return np.ascontiguousarray(np.asarray(full)[:, self.quad.index], dtype=np.float32)
 
     @property
-    def manifold(self):
+    def manifold(self) -> Manifold:
         """The :class:`~.model.Manifold` whose metric this is."""
         m = self._manifold()
         if m is None:
@@ -143,7 +145,7 @@ class PathMetric:
         return m
 
     @classmethod
-    def of(cls, manifold, stride=SEARCH_STRIDE):
+    def of(cls, manifold, stride=SEARCH_STRIDE) -> PathMetric:
         """The metric of ``manifold`` for ``stride``, built once and kept while the manifold lives
         with the same materials (it holds the manifold weakly: the cache keeps no manifold alive;
         a material added since it was built makes a new one).
@@ -162,7 +164,7 @@ class PathMetric:
         """The manifold's weights at latent points ``X`` as float32 operands (:func:`weights32`)."""
         return weights32(self.manifold.weights(np.atleast_2d(X)).w)
 
-    def features(self, X):
+    def features(self, X) -> np.ndarray:
         """Features ``(M, size)`` float32 of the tables at latent points ``X`` (M, q) (sub-grids only)."""
         if not self._small:
             raise InputError(
@@ -203,7 +205,7 @@ class PathMetric:
         G[1:] += 2.0 * D
         return float(np.einsum("mk,mk->", D, D, dtype=np.float64)), self.pullback(X, G, V)
 
-    def pullback(self, X, G, V=None):
+    def pullback(self, X, G, V=None) -> np.ndarray:
         """The gradient ``dE/dX`` (M, q) of a function ``E`` of the features at ``X`` (M, q), from
         its gradient ``G = dE/dF`` (M, size): the chain rule through the cube root, the table
         combination and the interpolant's Jacobian ``dw/dx`` (the cube root's slope capped where
@@ -223,26 +225,26 @@ class PathMetric:
         J = self.manifold.weights_jacobian(X)
         return np.einsum("mn,mnq->mq", dW, J)
 
-    def steps(self, X):
+    def steps(self, X) -> np.ndarray:
         """Perceptual lengths of the ``M - 1`` steps of the polyline ``X``."""
         if self._small:
             return step_lengths(self.features(X))
         return np.diag(self.distances(X), 1).copy()
 
-    def graph(self) -> None:
+    def graph(self) -> LatentGraph:
         """The :class:`LatentGraph` of this metric (built on first use; its edges cached on disk)."""
         if self._graph is None:
             self._graph = LatentGraph.build(self)
         return self._graph
 
 
-def step_lengths(F):
+def step_lengths(F) -> np.ndarray:
     """Euclidean lengths of the steps between consecutive rows of ``F`` (sums in float64)."""
     D = np.diff(F, axis=0)
     return np.sqrt(np.einsum("mk,mk->m", D, D, dtype=np.float64))
 
 
-def endpoint(manifold, v, what):
+def endpoint(manifold, v, what) -> np.ndarray:
     """A path end (material name or ``q`` numbers) as a latent point."""
     if isinstance(v, str):
         return manifold.latent[manifold.index(v)].copy()
@@ -257,7 +259,7 @@ def endpoint(manifold, v, what):
     return arr
 
 
-def reparameterise(X, lengths, steps):
+def reparameterise(X, lengths, steps) -> np.ndarray:
     """``steps`` points along the polyline ``X`` (M, q) at equal cumulative perceptual length.
 
     ``lengths``: the ``M - 1`` step lengths. Between samples the latent position is linear in
@@ -269,7 +271,7 @@ def reparameterise(X, lengths, steps):
     return _at_length(X, s, np.linspace(0.0, s[-1], steps))
 
 
-def even(metric, X, steps, fraction=0.1, passes=8, polish=20, F=None):
+def even(metric, X, steps, fraction=0.1, passes=8, polish=20, F=None) -> np.ndarray:
     """``steps`` points along the polyline ``X`` at equal perceptual steps.
 
     The polyline is refined first: every piece longer than ``fraction`` of an even step is
@@ -304,7 +306,7 @@ def even(metric, X, steps, fraction=0.1, passes=8, polish=20, F=None):
     return _polish(metric, X, s, steps, polish)
 
 
-def _polish(metric, X, s, steps, rounds):
+def _polish(metric, X, s, steps, rounds) -> np.ndarray:
     """The most even ``steps`` points of up to ``rounds`` rescalings along ``X`` (lengths ``s``): :func:`even`."""
     u = np.linspace(0.0, 1.0, steps)
     best, best_spread = None, np.inf
@@ -321,7 +323,7 @@ def _polish(metric, X, s, steps, rounds):
     return best
 
 
-def _at_length(X, s, target):
+def _at_length(X, s, target) -> np.ndarray:
     """Points of the polyline ``X`` (cumulative lengths ``s``) at lengths ``target``, ends exact."""
     k = np.clip(np.searchsorted(s, target, side="right") - 1, 0, len(X) - 2)
     span = s[k + 1] - s[k]
@@ -331,13 +333,13 @@ def _at_length(X, s, target):
     return out
 
 
-def densify(X, n):
+def densify(X, n) -> np.ndarray:
     """``n`` points along the latent polyline ``X``, equally spaced in latent length."""
     seg = np.linalg.norm(np.diff(X, axis=0), axis=1)
     return reparameterise(X, seg, n) if seg.sum() > 0 else np.repeat(X[:1], n, axis=0)
 
 
-def straight(xa, xb, steps):
+def straight(xa, xb, steps) -> np.ndarray:
     """The latent segment from ``xa`` to ``xb`` at ``steps`` equal steps of ``t`` (``t = 0..1``), ends exact."""
     X = xa + np.linspace(0.0, 1.0, steps)[:, None] * (xb - xa)
     X[-1] = xb
@@ -368,7 +370,7 @@ def minimise_energy(metric, X, iterations=200) -> np.ndarray:
     return np.concatenate([xa[None], res.x.reshape(-1, q), xb[None]])
 
 
-def geodesic(metric, xa, xb, steps, points=17, iterations=25, dense=CHECK):
+def geodesic(metric, xa, xb, steps, points=17, iterations=25, dense=CHECK) -> np.ndarray:
     """A shortest path from ``xa`` to ``xb``, at equal perceptual steps.
 
     Two starts, the latent segment and the shortest path through the :class:`LatentGraph`,
@@ -447,7 +449,9 @@ def fig9_gap(F) -> float:
     return float(max(gap_a, np.abs(np.linalg.norm(F - F[-1], axis=1) / d - (1 - t)).max()))
 
 
-def faithful(metric, xa, xb, steps, iterations=FAITHFUL_ITERATIONS, tolerance=FAITHFUL_TOLERANCE):
+def faithful(
+    metric, xa, xb, steps, iterations=FAITHFUL_ITERATIONS, tolerance=FAITHFUL_TOLERANCE
+) -> np.ndarray:
     """A path from ``xa`` to ``xb`` whose every point is as far from the ends as its place along
     the path says, in even steps: the :func:`geodesic` at ``n = (steps - 1) k + 1`` points (the
     smallest ``k`` with ``n >= FAITHFUL_POINTS``) where its :func:`fig9_gap` is at most
@@ -480,7 +484,7 @@ def faithful(metric, xa, xb, steps, iterations=FAITHFUL_ITERATIONS, tolerance=FA
     return X[::k]
 
 
-def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None):
+def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None) -> np.ndarray:
     """``steps`` latent points from ``a`` to ``b`` (material names or latent points), of ``kind``.
 
     See the module doc for the kinds. ``metric``: a :class:`PathMetric` (default: the

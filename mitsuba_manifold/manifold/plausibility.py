@@ -350,7 +350,7 @@ class StepLimit:
             for t in self._rows(idx[s : s + TABLE_BLOCK]):
                 yield np.asarray(t, dtype=np.float32)
 
-    def albedos(self, idx):
+    def albedos(self, idx) -> np.ndarray:
         """Directional albedos of materials ``idx``, ``(len(idx), 3 n_incidence)``."""
         idx = np.asarray(idx, dtype=int)
         missing = idx[np.isnan(self._albedo[idx, 0])]
@@ -388,7 +388,7 @@ class StepLimit:
                         self._ratio[i, j] = min(r, 1e30)
         return np.asarray([self._ratio[p] for p in pairs], dtype=np.float64).reshape(rows.shape)
 
-    def step(self, w, e, iterations=40):
+    def step(self, w, e, iterations=40) -> np.ndarray:
         """The largest plausible step ``s`` (M,) of ``w + s e``; ``w`` convex (M, N), ``e`` (M, N).
 
         Tables are read a block at a time and let go at once (the albedos and ratios are kept).
@@ -402,7 +402,7 @@ class StepLimit:
             finally:
                 self._write_store()
 
-    def _step(self, w, e, iterations):
+    def _step(self, w, e, iterations) -> np.ndarray:
         # albedos: of the materials summed; the others' share counted at the most, 1
         summed = (w > SUPPORT_FLOOR) | (e != 0)
         idx = np.flatnonzero(summed.any(axis=0))

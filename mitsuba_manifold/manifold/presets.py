@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from typing import Any
 
     from ..gp.stress import Stress
+    from .interpolant import GaussianProcessWeights, ShepardWeights
 
 
 #: Fit settings by name. ``paper``: the paper's exact formulation (raw features, l = 1,
@@ -149,7 +150,7 @@ def stress_stride(dims) -> tuple:
     return tuple(max(1, int(n) // g) for n, g in zip(dims, STRESS_GRID))
 
 
-def stress_distances(tables, dims):
+def stress_distances(tables, dims) -> np.ndarray:
     """The stress term's targets: the [PR12] distances between ``tables`` (``(N, 3 * bins)``
     rows of ``dims`` bins; :func:`~..data.distance.distance_matrix`) on the sub-grid of
     :func:`stress_stride`.
@@ -162,7 +163,7 @@ def stress_of(cfg) -> Stress:
     return gplvm.Stress(cfg.get("stress", 0.0), cfg.get("stress_neighbours"))
 
 
-def make_interpolant(latent, cfg):
+def make_interpolant(latent, cfg) -> GaussianProcessWeights | ShepardWeights:
     """The interpolant of settings ``cfg`` over ``latent`` (kernel l and mu filled in)."""
     params = dict(cfg["interpolant"])
     params.setdefault("length_scale", cfg["length_scale"])

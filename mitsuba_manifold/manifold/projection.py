@@ -86,7 +86,7 @@ def as_table(table, d, dims=None):
     return table
 
 
-def log_rms(blend, target_log):
+def log_rms(blend, target_log) -> np.ndarray:
     """RMS of ``log(1 + max(blend, 0)) - target_log`` along the last axis (float64 sums)."""
     r = np.log1p(np.maximum(blend, 0.0)) - target_log
     return np.sqrt(np.einsum("...i,...i->...", r, r, dtype=np.float64) / r.shape[-1])

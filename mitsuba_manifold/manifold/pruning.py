@@ -267,7 +267,9 @@ class _Search:
         )
 
 
-def prune_image(w, C, albedos, budget, albedo_share=ALBEDO_SHARE, G=None, raw_share=RAW_SHARE):
+def prune_image(
+    w, C, albedos, budget, albedo_share=ALBEDO_SHARE, G=None, raw_share=RAW_SHARE
+) -> tuple[np.ndarray, np.ndarray, float]:
     """The ``"image"`` rule: materials to keep so that each albedo channel changes by at most
     ``albedo_share * budget`` (relative), the cosine-weighted table by at most ``budget``
     (relative L2 in the norm of ``C = T diag(q) T^T``) and, with ``G = T T^T``, the raw table

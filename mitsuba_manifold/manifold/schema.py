@@ -204,7 +204,7 @@ def _gram(a, meta) -> str | None:
     return None
 
 
-def coincident_latent(latent, hashes, names, length_scale=1.0) -> None:
+def coincident_latent(latent, hashes, names, length_scale=1.0) -> tuple[str, str] | None:
     """``(name_i, name_j)`` of two different tables (other hashes) at one latent point, or None."""
     a = np.asarray(latent, dtype=np.float64)
     d2 = np.sum((a[:, None, :] - a[None, :, :]) ** 2, axis=-1)
@@ -296,7 +296,7 @@ def _entry(path, zf, name, shape_ok, limit, kinds="fiu") -> np.ndarray:
         return np.lib.format.read_array(f, allow_pickle=False)
 
 
-def read_meta(path, zf):
+def read_meta(path, zf) -> dict[str, Any]:
     """The ``meta`` dict of the manifold archive ``zf`` (a :class:`zipfile.ZipFile` of ``path``;
     its size and header checked, not its fields: :func:`check_meta`).
     """

@@ -113,7 +113,7 @@ class TrainingTables:
                 )
         return db
 
-    def stack(self, folder) -> None:
+    def stack(self, folder) -> np.ndarray:
         """All N tables as float32 ``(N, d)`` (read from ``folder`` once, then kept)."""
         if self.loaded is None:
             db = self.open(folder)
@@ -134,7 +134,7 @@ class TrainingTables:
             self.gram = pruning.raw_gram(self.stack(folder))
         return self.gram
 
-    def cosine_gram(self, folder):
+    def cosine_gram(self, folder) -> np.ndarray:
         """:attr:`cos_gram`, computed from the tables in ``folder`` when absent (with :attr:`gram`
         in the same pass when that is absent too), once per database: cached in its cache
         folder, named by the tables' hashes (a manifold file without it, which

@@ -371,12 +371,12 @@ class ManifoldBRDF(mi.BSDF):
         )
 
     @property
-    def active_set(self) -> None:
+    def active_set(self) -> ad.ActiveSet | None:
         """The :class:`.ad.ActiveSet` of AD mode (None before it was first entered)."""
         return self._active
 
     @property
-    def ad_weights(self) -> None:
+    def ad_weights(self) -> mi.Float | None:
         """AD mode: a new ``mi.Float`` (K) of the active set's weights following ``x`` through
         :class:`.ad.LatentWeights`, for use outside a render (``render_forward`` from ``x`` refuses its
         edge while it is alive); None otherwise.

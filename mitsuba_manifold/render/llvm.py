@@ -49,7 +49,7 @@ def candidates() -> list:
     return sorted(found.items(), key=lambda kv: -kv[1])
 
 
-def newest():
+def newest() -> str:
     """The newest libLLVM >= 16 of this machine, or None."""
     for path, version in candidates():
         if version >= MIN_VERSION:
@@ -57,7 +57,7 @@ def newest():
     return None
 
 
-def select():
+def select() -> str:
     """Set ``DRJIT_LIBLLVM_PATH`` to a libLLVM >= 16 unless the user set it.
 
     Returns the path in use, or None when no suitable library exists (then the
@@ -72,7 +72,7 @@ def select():
     return path
 
 
-def require():
+def require() -> str:
     """The libLLVM for Dr.Jit (``DRJIT_LIBLLVM_PATH``, else :func:`newest`); a ``VariantError``
     (a ``RuntimeError``) naming the problem when there is none. Changes nothing.
     """

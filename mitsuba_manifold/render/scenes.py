@@ -218,7 +218,7 @@ def shipped_scenes() -> list:
     return sorted(f[:-4] for f in os.listdir(SCENES_DIR) if f.endswith(".xml"))
 
 
-def scene_path(scene):
+def scene_path(scene) -> str:
     """Path of a scene given as a shipped scene's name (``"table"``) or as a path to an XML file."""
     scene = os.fspath(scene)
     if os.path.isfile(scene):

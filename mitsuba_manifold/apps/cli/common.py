@@ -16,6 +16,8 @@ from ...data.sources import MeasuredFile, register_reader
 from ...errors import MitsubaManifoldError, one_line
 
 if TYPE_CHECKING:
+    from argparse import Namespace
+
     import numpy as np
 
 
@@ -68,7 +70,7 @@ class ArgumentParser(argparse.ArgumentParser):
         self._negative_number_matcher = _NUMBERS
         self.aliases = dict(aliases or {})
 
-    def parse_args(self, args=None, namespace=None):
+    def parse_args(self, args=None, namespace=None) -> Namespace:
         _ACTIVE[:] = [self]
         return super().parse_args(args, namespace)
 

@@ -235,7 +235,7 @@ def linear_photos(basis, names, target, mask) -> tuple:
     return photos, images, base, mask
 
 
-def latent_search(manifold, photos, singles) -> tuple[None, float]:
+def latent_search(manifold, photos, singles) -> tuple[np.ndarray, float]:
     """``(x, relative error)``: the latent point whose weights explain the photos best
     (L-BFGS on the data term ``w(x)^T H w(x) - 2 g^T w(x)``, analytic gradient through
     :meth:`~mitsuba_manifold.manifold.model.Manifold.weights_jacobian`), started from the

@@ -208,7 +208,7 @@ class Explorer:
     #: A number of a request in ``[lo, hi]`` (:func:`.inputs.number`).
     number = staticmethod(number)
 
-    def blend(self, name, x, l2="denoised") -> None:
+    def blend(self, name, x, l2="denoised") -> tuple[np.ndarray, Any]:
         """Linear image (H, W, 3) of latent point ``x`` and the blend's info (``l2``: of :func:`blend`;
         ``"raw"``, a drag's, has the fireflies of its part beyond L1- clamped:
         :func:`.fireflies.drag_image`); the last one is kept (the exposure slider tonemaps it
@@ -290,7 +290,7 @@ class Explorer:
                 self._walks_error = f"perceptual metric unavailable: {e}"
 
     @property
-    def walks(self) -> None:
+    def walks(self) -> Walks:
         """The :class:`~.walks.Walks` (paths, distances) of the manifold, once the tables are loaded."""
         if not self.tables or self.tables.state != "ready":
             raise InputError(

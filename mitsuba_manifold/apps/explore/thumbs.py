@@ -90,7 +90,7 @@ class Thumbnails:
             "columns": self.columns,
         }
 
-    def sheet(self) -> None:
+    def sheet(self) -> bytes:
         """PNG bytes of the sheet (raises InputError until it is ready)."""
         from ...errors import InputError
 

@@ -192,7 +192,7 @@ class Basis:
         """Key of the full-GI image (``touch + L2+``) of material image ``key``."""
         return GI + key
 
-    def cross_terms(self) -> None:
+    def cross_terms(self) -> tuple[dict[tuple[str, str], int], np.ndarray]:
         """The cross terms ``C_ij`` (:mod:`.crossterms`): ``({(name_i, name_j): row}, float16
         (P, H, W, 3))``, read once and kept as stored (half the memory of float32; a blend
         converts the few rows it uses); empty without them.

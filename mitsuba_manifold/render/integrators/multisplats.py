@@ -241,7 +241,7 @@ class MultiSplats:
         for c, p0 in enumerate(range(0, len(pairs), PAIR_CHUNK)):
             self._cross(sums[c], pairs[p0 : p0 + PAIR_CHUNK], bins, amp, pix, count)
 
-    def _choose(self, rng) -> None:
+    def _choose(self, rng):
         """Keep the candidate pairs whose cross term matters (:class:`PairSelection`), measured
         on this first pass: every candidate's cross term from a share ``pilot`` of its splats.
         """

@@ -79,7 +79,7 @@ class FilterTaps:
         return out
 
 
-def expand(taps, idx) -> list[tuple[None, mi.UInt32, None]]:
+def expand(taps, idx) -> list[tuple[Any, mi.UInt32, Any]]:
     """The splats of samples ``idx`` (UInt32) in every pixel of their footprint: ``(take, pixel,
     weight)`` per tap with a weight somewhere, ``take`` indexing ``idx`` (None: all of them) and
     ``weight`` None for a weight of 1.
