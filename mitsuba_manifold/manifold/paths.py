@@ -58,8 +58,6 @@ from .latent_graph import LatentGraph
 if TYPE_CHECKING:
     from typing import Any
 
-    from .model import Manifold
-
 
 KINDS = ("straight", "uniform", "geodesic", "faithful")
 #: The kind ``Manifold.path``, ``blend.py --path``, the explorer and the main job's contact sheet
@@ -134,7 +132,7 @@ class PathMetric:
         return np.ascontiguousarray(np.asarray(full)[:, self.quad.index], dtype=np.float32)
 
     @property
-    def manifold(self) -> Manifold:
+    def manifold(self) -> Any:  # a Manifold (model imports this module)
         """The :class:`~.model.Manifold` whose metric this is."""
         m = self._manifold()
         if m is None:
