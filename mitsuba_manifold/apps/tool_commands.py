@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 import shlex
 
-from ..manifold.shipped import resolve_manifold
+from ..manifold.file.shipped import resolve_manifold
 
 #: The checkout's ``tools/`` folder (absent in an installed wheel: the console scripts instead).
 TOOLS_DIR = os.path.join(

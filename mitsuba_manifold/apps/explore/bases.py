@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 from ...basis.folder import scene_hash
-from ...render import scenes
+from ...render.scene import scenes
 
 
 def names(folders) -> dict:

@@ -149,7 +149,7 @@ def scene_environment(scene_path, manifold_path, basis) -> tuple[bytes, dict[str
     import mitsuba as mi
 
     from ...errors import InputError
-    from ...render.scenes import load_scene, scene_resolution
+    from ...render.scene.scenes import load_scene, scene_resolution
 
     loaded = load_scene(
         scene_path,

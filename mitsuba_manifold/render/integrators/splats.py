@@ -22,7 +22,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..lookups import merl_angles, merl_bin
+from ..plugin.lookups import merl_angles, merl_bin
 
 if TYPE_CHECKING:
     from typing import Any
