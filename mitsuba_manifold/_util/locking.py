@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+from typing import Literal
 
 from ..errors import FolderLockedError
 
@@ -113,7 +114,7 @@ class FolderLock:
     def __enter__(self) -> FolderLock:
         return self.acquire()
 
-    def __exit__(self, *exc) -> bool:
+    def __exit__(self, *exc) -> Literal[False]:
         self.release()
         return False
 

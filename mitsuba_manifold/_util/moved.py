@@ -12,6 +12,7 @@ import importlib.util
 import sys
 import threading
 import warnings
+from typing import Optional
 
 _MOVED: dict = {}  # old dotted name -> new dotted name
 _LOCK = threading.Lock()
@@ -33,7 +34,9 @@ class _Loader(importlib.abc.Loader):
 
 
 class _Finder(importlib.abc.MetaPathFinder):
-    def find_spec(self, fullname, path=None, target=None) -> "importlib.machinery.ModuleSpec":
+    def find_spec(
+        self, fullname, path=None, target=None
+    ) -> "Optional[importlib.machinery.ModuleSpec]":
         if fullname not in _MOVED:
             return None
         return importlib.util.spec_from_loader(fullname, _Loader())

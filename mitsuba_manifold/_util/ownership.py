@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import os
 import stat
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 from ..errors import ForeignFileError
 from .atomic import name_max, watching, write_bytes
@@ -328,7 +328,7 @@ class Outputs:
         self._context.__enter__()
         return self
 
-    def __exit__(self, *exc) -> bool:
+    def __exit__(self, *exc) -> Literal[False]:
         self._context.__exit__(*exc)
         self._settle()
         return False

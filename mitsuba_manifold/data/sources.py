@@ -439,7 +439,7 @@ def folder_sources(folder) -> list:
     return [names[n] for n in sorted(names)]
 
 
-def material_source(spec) -> BinaryFile | Network:
+def material_source(spec) -> BinaryFile | MeasuredFile | Network:
     """The source of one material: ``SET:NAME`` of a built-in set (``rgl:paper_white``) or a file
     (``.binary``, ``.bsdf``, ``.h5`` with its ``.json``, or an ``.npz`` of one network).
     """

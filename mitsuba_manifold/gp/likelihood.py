@@ -141,7 +141,7 @@ class Likelihood:
 
     def _value(self, U) -> float:
         f = factorise(self._unit._K(U))
-        return objective(f.logdet, float(np.trace(f.solve(self.S))), self.d)
+        return float(objective(f.logdet, float(np.trace(f.solve(self.S))), self.d))
 
     def _value_grad(self, U) -> tuple:
         """L and dL/dU for latent points in units of the length scale."""

@@ -124,7 +124,7 @@ class RankUpdatedInverse:
         self.min_pivot = float(min_pivot)
         self.max_correction = float(max_correction)
         self._version = 0
-        self._prep = None
+        self._prep: list | None = None
         self._logdet = self._trace = 0.0
         self.n_refactorisations = 0
         self.n_updates = 0
@@ -167,7 +167,7 @@ class RankUpdatedInverse:
     @property
     def log_likelihood(self) -> float:
         """Maintained L."""
-        return objective(self._logdet, self._trace, self._d)
+        return float(objective(self._logdet, self._trace, self._d))
 
     @property
     def scale(self) -> float:
@@ -304,7 +304,7 @@ class RankUpdatedInverse:
         trial._fresh[j] = (K, factor)
         trial._logdet[j] = factor.logdet
         trial._trace[j] = trace
-        return objective(factor.logdet, trace, self._d)
+        return float(objective(factor.logdet, trace, self._d))
 
     def accept(self, trial, j=0) -> float:
         """Move the point of ``trial`` to its candidate ``j``; return the new L.

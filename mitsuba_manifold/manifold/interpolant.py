@@ -243,7 +243,7 @@ class ShepardWeights(Interpolant):
         if not self.secant > 0:
             raise InputError(f"shepard weights need `secant` > 0, got {self.secant}")
         self.limit = None
-        self._hull = None
+        self._hull: LatentHull | None = None
         given = (
             ("power", power),
             ("taper", taper),
@@ -499,7 +499,7 @@ class LatentHull:
                 self.vertices = np.array([[latent.min()], [latent.max()]])
         self._faces = {}  # active vertices -> (base vertex, rows, pseudo-inverse) of the face
         self._last = None  # the face the last projection found (q >= 4)
-        self._facet_pinv = None
+        self._facet_pinv: np.ndarray | None = None
 
     def project(self, x) -> tuple:
         """The closest points of the hull ``(M, q)`` and the distances to them ``(M,)``."""

@@ -126,7 +126,7 @@ class PathMetric:
             )
         # F = scale cbrt(v cos) = coef cbrt(v): the per-bin constant once
         self.coef = (self.quad.scale * np.cbrt(self.quad.cos)).astype(np.float32)
-        self._graph = None
+        self._graph: LatentGraph | None = None
 
     def _pick(self, full) -> np.ndarray:
         return np.ascontiguousarray(np.asarray(full)[:, self.quad.index], dtype=np.float32)
@@ -304,7 +304,7 @@ def even(metric, X, steps, fraction=0.1, passes=8, polish=20, F=None) -> np.ndar
     return _polish(metric, X, s, steps, polish)
 
 
-def _polish(metric, X, s, steps, rounds) -> np.ndarray:
+def _polish(metric, X, s, steps, rounds):
     """The most even ``steps`` points of up to ``rounds`` rescalings along ``X`` (lengths ``s``): :func:`even`."""
     u = np.linspace(0.0, 1.0, steps)
     best, best_spread = None, np.inf

@@ -82,7 +82,7 @@ class TrainingTables:
         self.added = dict(added or {})
         for name, value in (("gram", gram), ("cos_gram", cos_gram), ("albedos", albedos)):
             self.set_matrix(name, value)
-        self.loaded = None
+        self.loaded: np.ndarray | None = None
 
     def set_matrix(self, name, value) -> None:
         """Set ``gram``, ``cos_gram`` or ``albedos`` (as float64; None: computed on first use)."""

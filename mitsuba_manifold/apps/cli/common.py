@@ -9,15 +9,13 @@ import re
 import signal
 import sys
 import threading
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn
 
 from ..._util.names import is_name
 from ...data.sources import MeasuredFile, register_reader
 from ...errors import MitsubaManifoldError, one_line
 
 if TYPE_CHECKING:
-    from argparse import Namespace
-
     import numpy as np
 
 
@@ -70,7 +68,7 @@ class ArgumentParser(argparse.ArgumentParser):
         self._negative_number_matcher = _NUMBERS
         self.aliases = dict(aliases or {})
 
-    def parse_args(self, args=None, namespace=None) -> Namespace:
+    def parse_args(self, args=None, namespace=None):  # argparse overloads it: left unannotated
         _ACTIVE[:] = [self]
         return super().parse_args(args, namespace)
 
@@ -89,7 +87,7 @@ class ArgumentParser(argparse.ArgumentParser):
                 names[param] = names[dest]
         return names
 
-    def error(self, message) -> None:
+    def error(self, message) -> NoReturn:
         self.exit(2, f"error: {message} (see {self.prog} --help)\n")
 
 
@@ -194,7 +192,7 @@ def cli_message(error, parser=None) -> str:
     (`spp`) becomes the option that sets it (``--spp``), or plain text where none does.
     """
     parser = parser or (_ACTIVE[0] if _ACTIVE else None)
-    names = parser.option_names() if parser is not None else {}
+    names: dict[str, str] = parser.option_names() if parser is not None else {}
     return _PARAM.sub(lambda m: names.get(m.group(1), m.group(1)), one_line(error))
 
 

@@ -251,7 +251,7 @@ def latent_search(manifold, photos, singles) -> tuple[np.ndarray, float]:
         r = H @ w - g
         return float(w @ H @ w - 2 * g @ w + e0), 2.0 * (J.T @ r)
 
-    best = (None, np.inf)
+    best: tuple[Any, float] = (None, np.inf)
     lat = np.asarray(manifold.latent, np.float64)
     span = lat.max(axis=0) - lat.min(axis=0)
     bounds = list(zip(lat.min(axis=0) - span, lat.max(axis=0) + span))

@@ -225,7 +225,7 @@ class TableStack:
             self.message = f"loading tables {i + 1}/{n}"
         return dims, reduced, slices.reshape(n, -1), tuple(preview_dims), metric
 
-    def _read_cache(self) -> np.ndarray | None:
+    def _read_cache(self) -> tuple | None:
         path = self.cache_path()
         if path is None or not os.path.isfile(path):
             return None

@@ -140,7 +140,7 @@ class References:
         self._held_until = 0.0  # monotonic time until which the running renders stay paused
         self._paused = {}  # pid -> process paused by hold()
         self._resumer = None  # the timer that resumes them
-        self._folder = None  # the temporary folder of the reference renders' files
+        self._folder: str | None = None  # the temporary folder of the reference renders' files
         _sweep(tempfile.gettempdir())  # those of explorers killed before they could remove them
 
     def submit(self, name, basis, scene, manifold_path, x, spp, blend_image, tab=None) -> Job:

@@ -124,6 +124,7 @@ class Explorer:
             raise InputError(
                 f"`prune` must be in [0, 1) (a fraction of the table's L2 norm), got {prune}"
             )
+        self._last_blend: tuple[Any, Any]
         self.prune, self._last_blend = float(prune), (None, None)
         self.refine_spp = int(self.number(refine_spp, "`refine_spp`", 0, MAX_SPP, 0))
         self.bases = {}
@@ -152,6 +153,7 @@ class Explorer:
             cache_folder(next(iter(self.bases.values())).folder) if load_tables else None
         )  # beside the basis
         self.tables = material.TableStack(self.manifold, database, cache) if load_tables else None
+        self._walks: Walks | None
         self._walks, self._walks_lock, self._walks_error = None, threading.Lock(), None
         if (
             self.tables

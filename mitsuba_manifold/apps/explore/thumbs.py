@@ -71,6 +71,7 @@ class Thumbnails:
         )
         self.folder = os.path.join(cache_dir, f"thumbs-{key}")
         self.columns = max(1, math.ceil(math.sqrt(manifold.n)))
+        self._png: bytes | None
         self.state, self.message, self._png, self._proc, self._closed = (
             "rendering",
             "rendering thumbnails",
@@ -90,7 +91,7 @@ class Thumbnails:
             "columns": self.columns,
         }
 
-    def sheet(self) -> bytes:
+    def sheet(self) -> bytes | None:
         """PNG bytes of the sheet (raises InputError until it is ready)."""
         from ...errors import InputError
 

@@ -60,7 +60,7 @@ import json
 import os
 import re
 from dataclasses import dataclass, field
-from typing import Optional, Union
+from typing import TYPE_CHECKING, Any, Optional, Union
 
 import numpy as np
 
@@ -205,6 +205,10 @@ class _FileEntry:
     """
 
     KEYS = ()
+
+    if TYPE_CHECKING:  # the dataclasses below define it
+
+        def __init__(self, **fields: Any) -> None: ...
 
     @classmethod
     def from_json(cls, data) -> "_FileEntry":

@@ -90,7 +90,9 @@ class Basis:
         #: What the basis holds (:data:`manifest.COMPONENTS`); an older basis: L1- only.
         self.components = manifest.held_components
         self.legacy = manifest.components is None
-        self._cross = None  # (pairs {(a, b): row}, float16 (P, H, W, 3)) once read
+        self._cross: tuple[dict[tuple[str, str], int], np.ndarray] | None = (
+            None  # (pairs {(a, b): row}, float16 (P, H, W, 3)) once read
+        )
         self._cross32 = {}  # row -> float32 (H, W, 3), the rows blended so far
         self._derived = {}  # name -> what derived() made from the folder's files
         self._read_lock = threading.RLock()  # one reader of a file kept here (explorer threads)

@@ -277,7 +277,7 @@ class Constraints:
         return cls(np.array(albedo), check, np.array(peak), sample)
 
 
-def combined(w, table, n) -> np.ndarray:
+def combined(w, table, n) -> np.ndarray | None:
     """``sum_i w_i table_i`` over the full tables in float32 (as rendered), one table at a time."""
     out = None
     for i in range(n):

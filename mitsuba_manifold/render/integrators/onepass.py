@@ -294,7 +294,7 @@ def _render(
     settings,
     progress,
     gi=None,
-) -> tuple[Any, Any, dict[str, Any]]:
+) -> tuple[Any, Any, dict[str, Any] | None]:
     """:func:`render_onepass` (``gi`` None) or :func:`render_onepass_gi` (``gi``: levels, pairs);
     ``settings``: a :class:`PassSettings` (None: the defaults).
     """

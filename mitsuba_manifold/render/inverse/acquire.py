@@ -373,9 +373,8 @@ def acquire(
     for v in views:
         size = (v.target.shape[1], v.target.shape[0])
         if training_images is not None:
-            v.rendered = Rendered(
-                *training_images[len([u for u in views if u.rendered])][:2], 0.0, True
-            )
+            base, images = training_images[len([u for u in views if u.rendered])][:2]
+            v.rendered = Rendered(base, images, 0.0, True)
         else:
             v.rendered = render_training_images(
                 v.path, manifold_path, size, opts, v.photo.sensor, database, bar

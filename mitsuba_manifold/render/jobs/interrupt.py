@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import signal
 import threading
+from typing import Literal
 
 #: Paths per render pass (a pass is the unit a stop request waits for).
 SAMPLES_PER_PASS = 1 << 20
@@ -40,7 +41,7 @@ class StopRequest:
             self._active = True
         return self
 
-    def __exit__(self, *exc) -> bool:
+    def __exit__(self, *exc) -> Literal[False]:
         if self._active:
             previous = self._previous
             signal.signal(

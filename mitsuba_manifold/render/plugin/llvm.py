@@ -49,7 +49,7 @@ def candidates() -> list:
     return sorted(found.items(), key=lambda kv: -kv[1])
 
 
-def newest() -> str:
+def newest() -> str | None:
     """The newest libLLVM >= 16 of this machine, or None."""
     for path, version in candidates():
         if version >= MIN_VERSION:
@@ -57,7 +57,7 @@ def newest() -> str:
     return None
 
 
-def select() -> str:
+def select() -> str | None:
     """Set ``DRJIT_LIBLLVM_PATH`` to a libLLVM >= 16 unless the user set it.
 
     Returns the path in use, or None when no suitable library exists (then the

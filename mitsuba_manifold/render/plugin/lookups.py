@@ -11,7 +11,7 @@ import numpy as np
 HALF_PI = 0.5 * np.pi
 
 
-def merl_angles(wi, wo) -> tuple:
+def merl_angles(wi, wo) -> tuple[mi.Float, mi.Float, mi.Float]:
     """Rusinkiewicz angles ``(theta_h, theta_d, phi_d)`` of direction pairs, in Dr.Jit.
 
     The same mapping as :func:`merl.half_diff` (``phi_d`` folded to ``[0, pi)``),
