@@ -416,3 +416,48 @@ def test_nothing_beside_the_checkout_is_read():
                     path = os.path.join(folder, f)
                     if path != os.path.abspath(__file__):  # this test names what it looks for
                         assert not pattern.search(open(path, encoding="utf-8").read()), path
+
+
+#: Least share of public functions and methods with a return annotation (mypy checks them).
+MIN_ANNOTATED = 0.8
+
+
+def _public_functions(tree):
+    """Module-level functions and methods (nested classes included) whose names do not start
+    with ``_``; functions inside functions are not counted."""
+    for node in ast.iter_child_nodes(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            if not node.name.startswith("_"):
+                yield node
+        elif isinstance(node, (ast.ClassDef, ast.If, ast.Try, ast.With)):
+            yield from _public_functions(node)
+
+
+def test_public_functions_say_what_they_return():
+    """At least 80% of the package's public functions and methods carry a return annotation."""
+    total, missing = 0, []
+    for rel, text in _sources():
+        for f in _public_functions(ast.parse(text)):
+            total += 1
+            if f.returns is None:
+                missing.append(f"{rel}:{f.lineno} {f.name}")
+    share = 1 - len(missing) / total
+    assert share >= MIN_ANNOTATED, (
+        f"{share:.0%} of {total} public functions have a return annotation, below "
+        f"{MIN_ANNOTATED:.0%}; without one: {missing[:20]}"
+    )
+
+
+def test_the_annotation_count_sees_methods_and_skips_inner_functions():
+    tree = ast.parse(
+        "def a() -> int: ...\n"
+        "def b(): ...\n"
+        "def _c(): ...\n"
+        "class K:\n"
+        "    def m(self) -> None:\n"
+        "        def inner(): ...\n"
+        "    class N:\n"
+        "        def n(self): ...\n"
+    )
+    found = {f.name: f.returns is not None for f in _public_functions(tree)}
+    assert found == {"a": True, "b": False, "m": True, "n": False}
