@@ -260,11 +260,11 @@ def blend_errors(scene_path, manifold, m, out, spp, spp_eq, res, ref_spp, seed):
         blends[key] = {
             "spp": s,
             "vs_full_gi": {
-                **metrics.compare(img, ref),
+                **metrics.compare(img, ref).as_dict(),
                 "relative_bias": bias,
                 "relative_bias_se": bias_se,
             },
-            "vs_l1": metrics.compare(img, ref_l1),
+            "vs_l1": metrics.compare(img, ref_l1).as_dict(),
         }
     return {
         "x": x.tolist(),

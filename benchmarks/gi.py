@@ -147,7 +147,7 @@ def targets(
                 "x_is": label,
                 "direct": {
                     "time_s": time.perf_counter() - t0,
-                    "rel_mse": metrics.compare(direct, ref)["rel_mse"],
+                    "rel_mse": metrics.compare(direct, ref).rel_mse,
                     "relative_bias": relative_bias(direct, ref)[0],
                 },
             }
@@ -161,7 +161,7 @@ def targets(
                 row[comp] = {
                     "relative_bias": bias,
                     "relative_bias_se": se,
-                    "rel_mse": metrics.compare(img, ref)["rel_mse"],
+                    "rel_mse": metrics.compare(img, ref).rel_mse,
                     "component": info.component,
                     "images": info.n_images,
                     "cross_terms": len(info.plan.cross[0]) if info.plan.cross else 0,

@@ -282,7 +282,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts) -> tuple[dict[str,
         "clamped_fraction": m.negative_fraction(x),
         "blend": {
             "time_s": t_blend,
-            **metrics.compare(img, ref),
+            **metrics.compare(img, ref).as_dict(),
             "relative_bias": bias,
             "relative_bias_se": bias_se,
             "materials_used": int(info.n_images),
@@ -295,7 +295,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts) -> tuple[dict[str,
         raw_bias, raw_se = relative_bias(raw, ref)
         row["blend_summed"] = {
             "time_s": median_time(lambda: blend(b, m, x=x, l2="raw"), 5)[0],
-            **metrics.compare(raw, ref),
+            **metrics.compare(raw, ref).as_dict(),
             "relative_bias": raw_bias,
             "relative_bias_se": raw_se,
         }
@@ -303,7 +303,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts) -> tuple[dict[str,
         l1, _ = blend(b, m, x=x, component="l1")
         l1_bias, l1_se = relative_bias(l1, ref)
         row["blend_l1"] = {
-            **metrics.compare(l1, ref),
+            **metrics.compare(l1, ref).as_dict(),
             "relative_bias": l1_bias,
             "relative_bias_se": l1_se,
         }
@@ -318,7 +318,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts) -> tuple[dict[str,
         row["blend"]["denoised"] = {
             "time_s": t_blend + t_den,
             "denoise_s": t_den,
-            **metrics.compare(den, ref),
+            **metrics.compare(den, ref).as_dict(),
         }
     for spp in opts.direct_spp:
         direct, t_direct = timed_render(
@@ -328,7 +328,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts) -> tuple[dict[str,
             spp,
             opts.seed + spp,
         )
-        entry = {"spp": spp, "time_s": t_direct, **metrics.compare(direct, ref)}
+        entry = {"spp": spp, "time_s": t_direct, **metrics.compare(direct, ref).as_dict()}
         if guides is not None and spp == max(
             opts.direct_spp
         ):  # the same denoiser, for a fair comparison
@@ -336,7 +336,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts) -> tuple[dict[str,
             entry["denoised"] = {
                 "time_s": entry["time_s"] + t_den,
                 "denoise_s": t_den,
-                **metrics.compare(d_den, ref),
+                **metrics.compare(d_den, ref).as_dict(),
             }
         row["direct"].append(entry)
     return row, (img, ref, den)
@@ -369,7 +369,7 @@ def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised") -> dict:
         "spp": spp,
         "time_s": t_new,
         "time_cold_s": t_cold,
-        **metrics.compare(r.image, ref),
+        **metrics.compare(r.image, ref).as_dict(),
         "relative_bias": bias,
         "relative_bias_se": se,
         "noise_rel_mse": r.noise_rel_mse,

@@ -17,16 +17,15 @@ from the reference by more than that noise.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import dataclasses
+from collections.abc import KeysView
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..errors import InputError
 from .io import write_png
-
-if TYPE_CHECKING:
-    from typing import Any
-
 
 #: Default regulariser of :func:`rel_mse`.
 REL_EPS = 0.01
@@ -103,7 +102,30 @@ def pass_standard_error(weighted_sum, weighted_squares, samples, passes):
     return np.sqrt(var / ((passes - 1) * samples))
 
 
-def noise_agreement(a, ref, ref_se, eps=REL_EPS, scale=None) -> dict:
+@dataclass(frozen=True)
+class NoiseAgreement:
+    """:func:`noise_agreement`'s answer (each None where the reference has no noise estimate: a
+    reference of one pass). Reads as the mapping it replaces too (``r["agrees"]``, ``{**r}``);
+    :meth:`as_dict` is its JSON object.
+    """
+
+    rel_mse: float | None
+    noise_rel_mse: float | None
+    excess_rel_mse: float | None
+    agrees: bool | None
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON object of the answer (its field names as keys)."""
+        return dataclasses.asdict(self)
+
+    def keys(self) -> KeysView[str]:
+        return self.as_dict().keys()
+
+    def __getitem__(self, key: str) -> Any:
+        return self.as_dict()[key]
+
+
+def noise_agreement(a, ref, ref_se, eps=REL_EPS, scale=None) -> NoiseAgreement:
     """Whether ``a`` equals a noisy reference within the reference's own noise.
 
     Relative to ``s = scale`` (default the reference ``r``): ``rel_mse = mean((a - r)^2 /
@@ -115,7 +137,7 @@ def noise_agreement(a, ref, ref_se, eps=REL_EPS, scale=None) -> dict:
 
     Returns
     -------
-    dict
+    NoiseAgreement
         ``rel_mse``, ``noise_rel_mse``, ``excess_rel_mse``, ``agrees`` (all None where ``ref_se``
         is NaN: a reference of one pass).
     """
@@ -126,16 +148,16 @@ def noise_agreement(a, ref, ref_se, eps=REL_EPS, scale=None) -> dict:
             f"reference error has shape {se.shape}, reference {ref.shape}: they must match"
         )
     if not np.isfinite(se).all():
-        return {"rel_mse": None, "noise_rel_mse": None, "excess_rel_mse": None, "agrees": None}
+        return NoiseAgreement(None, None, None, None)
     denominator = np.square(ref if scale is None else np.asarray(scale, np.float64)) + eps
     noise = float(np.mean(se * se / denominator))
     err = float(np.mean(np.square(a - ref) / denominator))
-    return {
-        "rel_mse": err,
-        "noise_rel_mse": noise,
-        "excess_rel_mse": max(err - noise, 0.0),
-        "agrees": bool(err <= 2.0 * noise),
-    }
+    return NoiseAgreement(
+        rel_mse=err,
+        noise_rel_mse=noise,
+        excess_rel_mse=max(err - noise, 0.0),
+        agrees=bool(err <= 2.0 * noise),
+    )
 
 
 def error_image(a, ref):
@@ -144,12 +166,38 @@ def error_image(a, ref):
     return np.abs(a - ref).astype(np.float32)
 
 
-def compare(a, ref, eps=REL_EPS, peak=None) -> dict:
+@dataclass(frozen=True)
+class Comparison:
+    """:func:`compare`'s metrics of an image against a reference (definitions in the module's
+    docstring). Reads as the mapping it replaces too (``c["psnr"]``, ``{**c}``); :meth:`as_dict`
+    is its JSON object.
+    """
+
+    rel_mse: float
+    mse: float
+    psnr: float  # dB; inf for identical images
+    peak: float
+    max_abs: float
+    mean_abs: float
+    eps: float
+
+    def as_dict(self) -> dict[str, float]:
+        """The JSON object of the metrics (their names as keys)."""
+        return dataclasses.asdict(self)
+
+    def keys(self) -> KeysView[str]:
+        return self.as_dict().keys()
+
+    def __getitem__(self, key: str) -> float:
+        return self.as_dict()[key]
+
+
+def compare(a, ref, eps=REL_EPS, peak=None) -> Comparison:
     """All metrics of ``a`` against ``ref``.
 
     Returns
     -------
-    dict
+    Comparison
         ``rel_mse``, ``mse``, ``psnr`` (dB), ``peak``, ``max_abs``, ``mean_abs``, ``eps``.
     """
     a, ref = _pair(a, ref)
@@ -157,15 +205,15 @@ def compare(a, ref, eps=REL_EPS, peak=None) -> dict:
     sq = np.square(d)
     err = float(sq.mean())
     peak = psnr_peak(ref) if peak is None else float(peak)
-    return {
-        "rel_mse": float(np.mean(sq / (np.square(ref) + eps))),
-        "mse": err,
-        "psnr": float("inf") if err == 0 else float(10.0 * np.log10(peak * peak / err)),
-        "peak": peak,
-        "max_abs": float(np.abs(d).max()),
-        "mean_abs": float(np.abs(d).mean()),
-        "eps": float(eps),
-    }
+    return Comparison(
+        rel_mse=float(np.mean(sq / (np.square(ref) + eps))),
+        mse=err,
+        psnr=float("inf") if err == 0 else float(10.0 * np.log10(peak * peak / err)),
+        peak=peak,
+        max_abs=float(np.abs(d).max()),
+        mean_abs=float(np.abs(d).mean()),
+        eps=float(eps),
+    )
 
 
 def false_colour(error, vmax=None, cmap="inferno") -> tuple[np.ndarray, Any]:

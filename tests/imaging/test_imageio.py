@@ -1,5 +1,6 @@
 """Image files (EXR, PNG, contact sheets) and image metrics: exact round trips, clear errors, atomic writes."""
 
+import dataclasses
 import json
 import os
 
@@ -106,9 +107,15 @@ def test_metrics_against_hand_computed_values():
     assert metrics.max_abs(a, ref) == pytest.approx(2.0)
     assert np.allclose(metrics.error_image(a, ref), np.abs(a - ref))
     s = metrics.compare(a, ref)
-    assert s["rel_mse"] == pytest.approx(rel) and s["max_abs"] == pytest.approx(2.0)
-    assert s["mean_abs"] == pytest.approx(2.6 / 6) and s["peak"] == 4.0
-    assert metrics.compare(ref, ref)["psnr"] == float("inf")
+    assert s.rel_mse == pytest.approx(rel) and s.max_abs == pytest.approx(2.0)
+    assert s.mean_abs == pytest.approx(2.6 / 6) and s.peak == 4.0
+    assert metrics.compare(ref, ref).psnr == float("inf")
+    # the JSON object keeps the dict's keys, and the result still reads as that dict did
+    keys = ["rel_mse", "mse", "psnr", "peak", "max_abs", "mean_abs", "eps"]
+    assert list(s.as_dict()) == keys and json.loads(json.dumps(s.as_dict()))["mse"] == s.mse
+    assert s["rel_mse"] == s.rel_mse and {**s} == s.as_dict()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.psnr = 0.0
     with pytest.raises(ValueError, match="shape"):
         metrics.compare(a, ref[:, :1])
     with pytest.raises(ValueError, match="reference contains NaN"):
@@ -252,12 +259,12 @@ def test_noise_agreement_tells_an_exact_image_from_a_biased_one():
     se = np.full_like(truth, 0.05)
     noisy_ref = truth + rng.normal(0.0, 0.05, truth.shape)
     exact = metrics.noise_agreement(truth, noisy_ref, se)
-    assert exact["agrees"] is True and exact["noise_rel_mse"] > 0
-    assert exact["excess_rel_mse"] < 0.2 * exact["noise_rel_mse"]
+    assert exact.agrees is True and exact.noise_rel_mse > 0
+    assert exact.excess_rel_mse < 0.2 * exact.noise_rel_mse
     biased = metrics.noise_agreement(truth * 1.2, noisy_ref, se)
-    assert biased["agrees"] is False and biased["excess_rel_mse"] > exact["noise_rel_mse"]
+    assert biased.agrees is False and biased.excess_rel_mse > exact.noise_rel_mse
     one_pass = metrics.noise_agreement(truth, noisy_ref, np.full_like(truth, np.nan))
-    assert one_pass == {
+    assert one_pass.as_dict() == {
         "rel_mse": None,
         "noise_rel_mse": None,
         "excess_rel_mse": None,

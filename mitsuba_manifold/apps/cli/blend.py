@@ -588,11 +588,11 @@ def point_outputs(request, basis, manifold) -> "list[tuple[str, Any, Callable[..
             fail(f"reference {request.reference.file or 'render'}: {e}")
         if request.refine.spp is not None:
             print(
-                f"before refining: relative MSE {metrics.compare(unrefined, reference)['rel_mse']:.4g}"
+                f"before refining: relative MSE {metrics.compare(unrefined, reference).rel_mse:.4g}"
             )
         print(
-            f"relative MSE {stats['rel_mse']:.4g} (eps {stats['eps']:g}), PSNR {stats['psnr']:.2f} dB "
-            f"(peak {stats['peak']:.4g}), max error {stats['max_abs']:.4g}, mean error {stats['mean_abs']:.4g}"
+            f"relative MSE {stats.rel_mse:.4g} (eps {stats.eps:g}), PSNR {stats.psnr:.2f} dB "
+            f"(peak {stats.peak:.4g}), max error {stats.max_abs:.4g}, mean error {stats.mean_abs:.4g}"
         )
         err = metrics.error_image(image, reference)
         outputs.append(

@@ -120,11 +120,7 @@ def agreement(blend_image, refined) -> dict:
     # on the scale of the refinement's own noise (:class:`Refined`)
     scale = refined.image if refined.scale is None else refined.scale
     r = metrics.noise_agreement(blend_image, refined.image, refined.pixel_se, scale=scale)
-    return {
-        "noise_rel_mse": r["noise_rel_mse"],
-        "blend_rel_mse": r["rel_mse"],
-        "agrees": r["agrees"],
-    }
+    return {"noise_rel_mse": r.noise_rel_mse, "blend_rel_mse": r.rel_mse, "agrees": r.agrees}
 
 
 class References:
@@ -350,8 +346,8 @@ class References:
         def render() -> None:
             ref = self._render(job, basis, scene, manifold_path)
             job.images = {"blend": blend_image, "reference": ref.image}
-            job.error = metrics.compare(blend_image, ref.image)
-            noise = metrics.noise_agreement(blend_image, ref.image, ref.pixel_se)
+            job.error = metrics.compare(blend_image, ref.image).as_dict()
+            noise = metrics.noise_agreement(blend_image, ref.image, ref.pixel_se).as_dict()
             del noise["rel_mse"]  # compare's, the same (None after one pass)
             job.error.update(noise)
 
