@@ -100,7 +100,7 @@ def _chain(exc) -> list:
     return seen
 
 
-def plugin_message(exc):
+def plugin_message(exc) -> str:
     """The ``manifold_brdf: ...`` / ``manifold_path: ...`` message inside ``exc`` (or its
     causes), without Mitsuba's wrapping and traceback; else :func:`one_line` of ``exc``.
     """

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 from ..errors import MitsubaManifoldError
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
     from typing import Any
 
 
@@ -63,7 +64,7 @@ def _host() -> str:
 
 
 @contextlib.contextmanager
-def watching(watcher):
+def watching(watcher) -> Iterator[None]:
     """Let ``watcher`` see every atomic write while the block runs (see the module notes)."""
     with _LOCK:
         _WATCHERS.append(watcher)

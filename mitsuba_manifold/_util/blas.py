@@ -13,18 +13,25 @@ are busy) and then spin on cores other work needs. A run of sums goes inside
 process is inside it.
 """
 
+from __future__ import annotations
+
 import contextlib
 import threading
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.linalg.blas import saxpy
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
 
 _lock = threading.Lock()
 _state = {"inside": 0, "limit": None, "controller": None}
 
 
 @contextlib.contextmanager
-def one_thread():
+def one_thread() -> Iterator[None]:
     """BLAS on one thread while any thread is inside (nested and concurrent uses are counted;
     the last one out restores the limits found by the first one in).
     """
@@ -61,7 +68,7 @@ def release_control() -> None:
         clear()
 
 
-def axpy(y, x, a):
+def axpy(y, x, a) -> np.ndarray:
     """``y += a * x`` in place; ``y`` and ``x`` float32 C-contiguous arrays of one shape (run
     inside :func:`one_thread`).
 

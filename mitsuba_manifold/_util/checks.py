@@ -197,7 +197,7 @@ def latent_points(name, x, q, max_abs=math.inf) -> tuple[np.ndarray, bool]:
     return arr, single
 
 
-def output_folder(name, path):
+def output_folder(name, path) -> str:
     """A folder that exists or can be created, and takes new files; returns it."""
     path = os.fspath(path)
     if os.path.exists(path) and not os.path.isdir(path):
@@ -217,7 +217,7 @@ def output_folder(name, path):
     return path
 
 
-def scene_xml(path):
+def scene_xml(path) -> ET.Element:
     """The root element of the Mitsuba scene XML ``path`` (a ``<scene>`` element), or a
     :class:`MismatchError` naming the file when it is missing, not XML (a table, an image) or
     not a scene.

@@ -1,6 +1,12 @@
 """The last few answers of a computation, by key (thread-safe, first in, first out)."""
 
+from __future__ import annotations
+
 import threading
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from typing import Any
 
 
 class Recent:
@@ -12,7 +18,7 @@ class Recent:
     def __init__(self, size) -> None:
         self.size, self._items, self._lock = int(size), {}, threading.Lock()
 
-    def get(self, key, make):
+    def get(self, key, make) -> Any:
         """The kept answer for ``key``, or ``make()`` kept."""
         with self._lock:
             if key in self._items:

@@ -75,7 +75,7 @@ def check_unique(names) -> list:
     return [escape(n) for n in names]
 
 
-def is_escaped(stem):
+def is_escaped(stem) -> bool:
     """True when ``stem`` is what :func:`escape` makes of some name."""
     try:
         return escape(unescape(stem)) == stem

@@ -9,12 +9,20 @@ when the parent is killed (SIGKILL, SIGTERM) the kernel ends them. Elsewhere tha
 the death signal is not available and the parent's normal exits still end them.
 """
 
+from __future__ import annotations
+
 import contextlib
 import ctypes
 import multiprocessing
 import os
 import signal
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+    from typing import Any
+
 
 #: ``PR_SET_PDEATHSIG`` of ``<linux/prctl.h>``.
 PR_SET_PDEATHSIG = 1
@@ -33,7 +41,7 @@ def die_with_parent(parent_pid) -> None:
 
 
 @contextlib.contextmanager
-def owned_pool(processes):
+def owned_pool(processes) -> Iterator[Any]:
     """A pool of ``processes`` spawned workers that end with this process (see the module notes)."""
     pool = multiprocessing.get_context("spawn").Pool(
         processes, initializer=die_with_parent, initargs=(os.getpid(),)

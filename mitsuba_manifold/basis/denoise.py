@@ -106,7 +106,7 @@ class BasisAOVs:
     spp: int
     time_s: float = 0.0
 
-    def albedo(self, weights):
+    def albedo(self, weights) -> np.ndarray:
         """Albedo image of the material with weights ``{name: w}`` (or (N,) in :attr:`names` order)."""
         if isinstance(weights, dict):
             index = {n: i for i, n in enumerate(self.names)}
@@ -125,7 +125,7 @@ class BasisAOVs:
         mixed = np.tensordot(w, self.table, axes=1)  # (bins, 3)
         return np.clip(self.albedo_base + self.hist @ mixed.astype(np.float32), 0.0, 1.0)
 
-    def albedo_of_blend(self, plan, version=basis_folder.FORMAT_VERSION):
+    def albedo_of_blend(self, plan, version=basis_folder.FORMAT_VERSION) -> np.ndarray:
         """Albedo image of a one-target blend, from its :class:`~.blend.BlendPlan` (image keys and
         weights).
         """
@@ -157,7 +157,7 @@ class BasisAOVs:
         return path
 
     @classmethod
-    def load(cls, folder, manifest=None):
+    def load(cls, folder, manifest=None) -> BasisAOVs:
         """Read ``folder/aovs.npz``; with ``manifest``, check it was made for that basis."""
         path = os.path.join(os.fspath(folder), AOV_FILE)
         if not os.path.isfile(path):
@@ -234,7 +234,7 @@ def _stored_key(key):
 # ------------------------------------------------------------------ denoising
 
 
-def denoise(image, albedo=None, normal=None, quality="high"):
+def denoise(image, albedo=None, normal=None, quality="high") -> np.ndarray:
     """OIDN (``pyoidn``) on a linear HDR image; ``albedo`` in [0, 1] and ``normal`` guide it."""
     try:
         import pyoidn
@@ -254,7 +254,7 @@ def denoise(image, albedo=None, normal=None, quality="high"):
 # ------------------------------------------------------------------ the L2+ part of full-GI blends
 
 
-def denoised_l2(basis, image, plan):
+def denoised_l2(basis, image, plan) -> np.ndarray:
     """``L1- blend + D + restore_light(extra - D)``: the full-GI ``image`` of a one-target blend
     with its part beyond L1- (``extra``) denoised (``D``), guided by the basis's AOVs when it has
     them (:mod:`.denoise`), and the light the denoiser took put back at low frequency
@@ -299,7 +299,7 @@ def restore_light(removed, width=RESTORE_WIDTH) -> np.ndarray:
     return out
 
 
-def basis_aovs(basis):
+def basis_aovs(basis) -> BasisAOVs | None:
     """The :class:`BasisAOVs` of ``basis`` (read once per basis object), or None when it has none
     made for it.
     """

@@ -628,7 +628,7 @@ def recorded_spec(spec) -> str:
     return BUILTIN_PREFIX + spec if base in SET_NAMES else spec
 
 
-def canonical_spec(spec, what="database"):
+def canonical_spec(spec, what="database") -> str:
     """The spec a user gave (``merl``, ``builtin:merl@45x45x90``, ``./merl``, ``tables``) as a
     manifold records it: the set's name, or the folder's absolute path, with its ``@dims``
     suffix; an ambiguous name is refused (:func:`~.sources.builtin_set`).
@@ -767,7 +767,7 @@ class Database:
                     )
 
     # -- files and caches
-    def path(self, name):
+    def path(self, name) -> str:
         """Where a material comes from: its file, or its set's name."""
         return self.sources[self.names[self.index(name)]].origin
 
@@ -833,7 +833,7 @@ class Database:
             self.reflectance(name, out=out[i])
         return out
 
-    def material_rows(self, names=None, pad=16, keep=2):
+    def material_rows(self, names=None, pad=16, keep=2) -> np.ndarray:
         """Tables of ``names`` interleaved by bin: float32 ``(bins, 3, n_pad)``, read-only memmap.
 
         ``rows[b, c, k]`` is channel ``c`` of material ``names[k]`` at flat bin ``b``, so

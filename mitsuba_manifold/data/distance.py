@@ -40,6 +40,7 @@ from ..errors import InputError
 from . import merl
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
     from typing import Any
 
 
@@ -104,7 +105,7 @@ class Quadrature:
         scale = np.tile(np.sqrt(w / 3.0), 3)
         return cls(dims, stride, index, scale, np.tile(cos.ravel()[flat], 3))
 
-    def blocks(self, size=BLOCK):
+    def blocks(self, size=BLOCK) -> Iterator[Any]:
         """The quadrature in consecutive pieces of ``size`` values (for blockwise sums)."""
         for s in range(0, self.size, size):
             part = slice(s, s + size)

@@ -66,7 +66,7 @@ class Gram:
     sums: np.ndarray = None
 
 
-def transform(block, features, cos=None):
+def transform(block, features, cos=None) -> np.ndarray:
     """Features of a block of table values (float64 ``(N, b)``), in place.
 
     ``cos``: the ``(b,)`` cosine weights of the block's bins (``coslog`` only).

@@ -174,7 +174,7 @@ class NetworkSet:
             *(np.ascontiguousarray(getattr(self, k)[i], dtype="<f4") for k in LAYERS),
         )
 
-    def evaluate(self, name, v):
+    def evaluate(self, name, v) -> np.ndarray:
         """Reflectance ``(m, 3)`` (1/sr, clamped at 0) of the network ``name`` at inputs ``v`` ``(m, 6)``."""
         return _evaluate(self, self.index(name), np.asarray(v, dtype=np.float32))
 

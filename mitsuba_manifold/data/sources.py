@@ -221,7 +221,7 @@ class MeasuredFile:
             )
         return self
 
-    def table(self, dims):
+    def table(self, dims) -> np.ndarray:
         reader = _READERS.get(self.kind)
         if reader is None:
             raise UnavailableError(

@@ -112,7 +112,7 @@ def _sgd_values(params, g) -> np.ndarray:
     return np.where(g["valid"], f, 0.0)
 
 
-def tabulate_sgd(params, dims=merl.MERL_DIMS):
+def tabulate_sgd(params, dims=merl.MERL_DIMS) -> np.ndarray:
     """Stored MERL values of an SGD material at bin centres (``phi_h = 0``).
 
     Bins whose directions lie below the horizon are marked :data:`merl.NOT_MEASURED`.

@@ -46,7 +46,7 @@ class Posterior:
     def n(self) -> int:
         return len(self.X)
 
-    def inverse(self):
+    def inverse(self) -> np.ndarray:
         """``K^-1`` (symmetrised)."""
         return self.factor.inverse()
 

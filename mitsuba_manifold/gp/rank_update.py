@@ -352,7 +352,7 @@ class RankUpdatedInverse:
         """Move point ``i`` to ``point`` ((q,)); return the new L."""
         return self.accept(self.try_moves(i, np.reshape(point, (1, -1))), 0)
 
-    def set_latent(self, latent):
+    def set_latent(self, latent) -> float:
         """Replace all latent points and refactorise; return the new L."""
         latent = check_points("latent", latent, n=self._U.shape[0], q=self._U.shape[1])
         self._U = latent / self._l

@@ -76,7 +76,7 @@ def max_abs(a, ref) -> float:
     return float(np.max(np.abs(a - ref)))
 
 
-def pass_standard_error(weighted_sum, weighted_squares, samples, passes):
+def pass_standard_error(weighted_sum, weighted_squares, samples, passes) -> np.ndarray:
     """Per-pixel standard error of the mean of independent render passes.
 
     Pass ``k`` renders ``n_k`` samples per pixel into the image ``I_k``; the mean is
@@ -160,7 +160,7 @@ def noise_agreement(a, ref, ref_se, eps=REL_EPS, scale=None) -> NoiseAgreement:
     )
 
 
-def error_image(a, ref):
+def error_image(a, ref) -> np.ndarray:
     """Per-pixel, per-channel absolute difference ``|a - r|`` as float32 (H, W, 3)."""
     a, ref = _pair(a, ref)
     return np.abs(a - ref).astype(np.float32)
@@ -259,7 +259,7 @@ def robust_scale(error, percentile=ERROR_PERCENTILE) -> float:
 
 def write_error_png(
     path, a, ref, vmax=None, cmap="inferno", percentile=ERROR_PERCENTILE, scale_note=None
-):
+) -> float:
     """False-colour PNG of ``|a - r|`` (mean over channels) with its colour bar, written atomically.
 
     The scale runs from 0 to ``vmax`` (default: the ``percentile`` of the error,

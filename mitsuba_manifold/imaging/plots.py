@@ -27,7 +27,7 @@ def save(fig, path) -> None:
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
 
 
-def finish(fig, axes, path):
+def finish(fig, axes, path) -> str:
     """Grid and legend on every axis of ``axes``, then save ``fig`` to ``path`` and close it; returns ``path``."""
     for ax in np.ravel(axes):
         ax.grid(alpha=0.3, which="both")
@@ -75,7 +75,7 @@ def data_distance(manifold, pts) -> tuple:
     return np.sqrt(d2.min(axis=1)) / manifold.length_scale, reach / manifold.length_scale
 
 
-def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None):
+def latent_map(manifold, path, dims=(0, 1), resolution=160, title=None) -> str:
     """PNG of the latent points with their names over the albedo heat map and iso-lines.
 
     Paper Fig. 7 and 10. Where any RGB albedo channel leaves [0, 1] the map is hatched; a
@@ -232,7 +232,7 @@ def label_points(ax, xy, names, order=None, fontsize=7, marker_px=4) -> int:
     return named
 
 
-def latent_line(manifold, path, resolution=400, margin=0.15):
+def latent_line(manifold, path, resolution=400, margin=0.15) -> str:
     """PNG of a one-dimensional latent space (q = 1): the albedo of the interpolated material
     along ``x`` with the materials at their latent points (the ``q = 1`` analogue of
     :func:`latent_map`).
@@ -255,7 +255,7 @@ def latent_line(manifold, path, resolution=400, margin=0.15):
     return path
 
 
-def convergence(history, path, label="Hooke-Jeeves", others=None):
+def convergence(history, path, label="Hooke-Jeeves", others=None) -> str:
     """PNG of the log-likelihood per iteration (paper Fig. 5); ``others``: {label: history}."""
     fig, ax = subplots(figsize=(6, 4))
     for lab, h in [(label, history)] + list((others or {}).items()):
@@ -342,7 +342,7 @@ def _gi_points(row) -> dict[str, tuple[list, list]]:
     return out
 
 
-def gi_error_vs_time(report, path):
+def gi_error_vs_time(report, path) -> str:
     """Log-log plot of relative MSE against time per image (Fig. 13 in spirit): per scene, each
     point's direct renders and blends; colour: the latent point, marker: how the image was made.
     """

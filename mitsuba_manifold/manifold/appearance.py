@@ -54,7 +54,7 @@ def descriptor(albedos) -> np.ndarray:
     return L.reshape(L.shape[:-2] + (-1,))
 
 
-def distance_to_segment(P, a, b):
+def distance_to_segment(P, a, b) -> np.ndarray:
     """Euclidean distance of the rows of ``P`` from the segment ``[a, b]``."""
     ab = b - a
     t = np.clip((P - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)

@@ -61,11 +61,11 @@ class Interpolant:
         self.latent = np.asarray(latent, dtype=np.float64)
         self.n, self.q = self.latent.shape
 
-    def params(self):
+    def params(self) -> dict:
         """The parameters, as saved with a manifold (JSON-able)."""
         raise NotImplementedError
 
-    def weights(self, x):
+    def weights(self, x) -> np.ndarray:
         """Weights ``(M, N)`` (or ``(N,)`` for one point), each row summing to 1."""
         x, single = points(x, self.q)
         w = self._weights(x)
@@ -119,7 +119,7 @@ class GaussianProcessWeights(Interpolant):
         self.gp = posterior(self.latent, Kernel(self.length_scale, self.noise))
 
     @property
-    def K(self):
+    def K(self) -> np.ndarray:
         """The covariance matrix of the latent points."""
         return self.gp.K
 

@@ -469,7 +469,7 @@ class Manifold:
         return self.kernel.noise
 
     @property
-    def K(self):
+    def K(self) -> np.ndarray:
         """Covariance matrix of the latent points (:class:`gp.posterior.Posterior`)."""
         return self._gp.K
 
@@ -479,7 +479,7 @@ class Manifold:
         return self.record.history
 
     @property
-    def info(self):
+    def info(self) -> dict:
         """The fit's record as the saved ``info`` dict (a new dict: assign one to replace it)."""
         return self.record.as_info()
 
@@ -536,13 +536,13 @@ class Manifold:
         J = self.interpolant.jacobian(x)
         return J[0] if single else J
 
-    def variance(self, x):
+    def variance(self, x) -> np.ndarray:
         """GP predictive variance (paper Eq. 2): ``c(x, x) - k^T K_inv k``."""
         x, single = self._points(x)
         v = self._gp.variance(x)
         return v[0] if single else v
 
-    def variance_gradient(self, x):
+    def variance_gradient(self, x) -> np.ndarray:
         """Gradient of the smooth part of :meth:`variance`: ``-2 (dk/dx)^T K_inv k``, (q,) or (M, q)."""
         x, single = self._points(x)
         g = self._gp.variance_gradient(x)
@@ -565,7 +565,7 @@ class Manifold:
                 f"materials ({', '.join(names[:6])}{', ...' if n > 6 else ''})"
             ) from None
 
-    def point(self, x, what="`x`"):
+    def point(self, x, what="`x`") -> np.ndarray:
         """One latent point ``(q,)`` float64 from a material's name (its latent point) or ``q``
         numbers (a sequence, an array or text ``"0.3, -1.2"``); ``what`` names the parameter in
         the messages. A word that does not start like a number is a name.
@@ -659,7 +659,7 @@ class Manifold:
         """The mean table (the far-field limit of the interpolant)."""
         return self.combine(np.full(self.n, 1.0 / self.n), prune=0.0, database=database)[0]
 
-    def albedo(self, x):
+    def albedo(self, x) -> np.ndarray:
         """Bihemispherical albedo (RGB) of the interpolated material, by linearity."""
         if self.albedos is None:
             raise InputError("this manifold has no per-material albedos")
@@ -892,7 +892,7 @@ class Manifold:
             out = {k: (v[0] if isinstance(v, np.ndarray) else v) for k, v in out.items()}
         return out
 
-    def log_likelihood(self):
+    def log_likelihood(self) -> float:
         """Paper Eq. 6 at the stored latent points (needs the Gram matrix)."""
         if self.gram is None or self.record.d is None:
             raise InputError("this manifold was saved without its Gram matrix")
@@ -1053,7 +1053,7 @@ class Manifold:
         )
 
     # ------------------------------------------------------------ perceptual paths
-    def distance(self, x, y, stride=(1, 1, 1)):
+    def distance(self, x, y, stride=(1, 1, 1)) -> Any:
         """[PR12] distance between the tables ``sum_i w_i table_i`` at ``x`` and ``y`` (names, points
         ``(q,)`` or stacks ``(M, q)``: a float, ``(M,)`` or ``(M, K)``); :func:`paths.latent_distance`.
         """

@@ -171,7 +171,7 @@ class PathMetric:
         V = self.weights(X) @ self.rows
         return np.cbrt(np.maximum(V, 0.0, out=V), out=V) * self.coef
 
-    def distances(self, X, Y=None):
+    def distances(self, X, Y=None) -> np.ndarray:
         """``(M, K)`` perceptual distances between the tables at ``X`` and at ``Y`` (default ``X``)."""
         W = self.weights(X if Y is None else np.concatenate([np.atleast_2d(X), np.atleast_2d(Y)]))
         m = len(np.atleast_2d(X))
@@ -344,7 +344,7 @@ def straight(xa, xb, steps) -> np.ndarray:
     return X
 
 
-def uniform(metric, xa, xb, steps, dense=DENSE):
+def uniform(metric, xa, xb, steps, dense=DENSE) -> np.ndarray:
     """The latent segment at equal perceptual steps (``dense`` samples, arc-length inversion)."""
     return even(metric, straight(xa, xb, max(dense, steps)), steps)
 
@@ -502,7 +502,7 @@ def path(manifold, a, b, steps=21, kind=DEFAULT_KIND, metric=None) -> np.ndarray
         return kinds[kind](metric, xa, xb, steps)
 
 
-def latent_distance(manifold, x, y, stride=(1, 1, 1)):
+def latent_distance(manifold, x, y, stride=(1, 1, 1)) -> Any:
     """:meth:`Manifold.distance`: ``d`` between the tables at ``x`` and ``y`` (names, points or stacks)."""
     X, x_single = _points(manifold, x, "x")
     Y, y_single = _points(manifold, y, "y")

@@ -66,12 +66,12 @@ class Projection:
     beyond: object = None
 
     @property
-    def best_error(self):
+    def best_error(self) -> float:
         """The smaller of :attr:`error` and the plausible combination's (when computed)."""
         return self.error if self.beyond is None else min(self.error, self.beyond.error)
 
 
-def as_table(table, d, dims=None):
+def as_table(table, d, dims=None) -> np.ndarray:
     """``table`` (array, or a material file or ``SET:NAME``, :func:`.sources.material_table`,
     tabulated at ``dims``) as a flat float32 array of ``d`` values.
     """

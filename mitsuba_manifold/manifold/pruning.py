@@ -89,7 +89,7 @@ def _rescaled(w, kept):
     return np.where(kept, w * scale[:, None], 0.0) - w
 
 
-def errors(w, kept, G):
+def errors(w, kept, G) -> np.ndarray:
     """Relative L2 change of ``w^T T`` for each row of the boolean matrix ``kept`` (M, N), in the
     norm of the Gram matrix ``G`` (raw ``T T^T`` or cosine-weighted ``T diag(q) T^T``).
     """
@@ -101,7 +101,7 @@ def errors(w, kept, G):
     return np.where(num > 0, np.inf, 0.0)
 
 
-def albedo_changes(w, kept, albedos):
+def albedo_changes(w, kept, albedos) -> np.ndarray:
     """Relative change ``|delta @ albedos| / max(|w @ albedos|, ALBEDO_FLOOR)`` of each albedo
     channel for each row of ``kept`` (M, N): ``(M, 3)``.
     """

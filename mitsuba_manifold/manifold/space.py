@@ -56,7 +56,7 @@ def feature_gram(tables, features="log", cos=None, block=gram.BLOCK) -> np.ndarr
     return gram.gram(tables, features, centre=False, cos=cos, block=block).S
 
 
-def centred(G, idx=None):
+def centred(G, idx=None) -> np.ndarray:
     """Centred Gram ``H G H`` of the rows ``idx`` (default all): ``Z Z^T`` of that subset."""
     G = G if idx is None else G[np.ix_(idx, idx)]
     return G - G.mean(0)[None] - G.mean(1)[:, None] + G.mean()
@@ -343,7 +343,7 @@ def path_smoothness(interpolant, pairs, steps=40, images=None, base=None, exposu
     )
 
 
-def training_jump(interpolant, eps=1e-6, seed=0):
+def training_jump(interpolant, eps=1e-6, seed=0) -> np.ndarray:
     """``|w(x_i + eps u) - e_i|_1`` for every training point (u a random unit direction)."""
     X = interpolant.latent
     u = np.random.default_rng(seed).normal(size=X.shape)
@@ -412,7 +412,7 @@ def plausibility(
     )
 
 
-def convex_blend(tables, target):
+def convex_blend(tables, target) -> np.ndarray:
     """Convex weights of the rows of ``tables`` whose blend is closest to ``target`` in log space.
 
     The weights ``w`` (each in [0, 1], summing to 1) minimise the mean of

@@ -4,6 +4,8 @@
 package (``mitsuba-manifold <tool> ...`` and ``mm-<tool>``) all call these.
 """
 
+from __future__ import annotations
+
 import importlib
 import sys
 
@@ -31,7 +33,7 @@ ALIASES = {
 }
 
 
-def main(argv=None):
+def main(argv=None) -> int:
     """``mitsuba-manifold TOOL [args...]``: run one tool (also named as its script,
     ``render_basis``).
     """

@@ -47,6 +47,8 @@ if TYPE_CHECKING:
 
 
 if TYPE_CHECKING:  # imported by parse() when it runs (the command line is checked first)
+    import numpy as np
+
     from ...basis.blend import BlendSettings
 
 NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
@@ -187,7 +189,7 @@ class Output:
     force: bool = False
 
     @property
-    def stem(self):
+    def stem(self) -> str:
         """``--out`` without its ``.exr``."""
         return _stem(self.out)
 
@@ -612,7 +614,7 @@ def point_outputs(request, basis, manifold) -> "list[tuple[str, Any, Callable[..
     return outputs
 
 
-def reference_image(request, basis, manifold, outputs):
+def reference_image(request, basis, manifold, outputs) -> "np.ndarray | None":
     """The reference of ``--reference`` (read) or ``--render-reference`` (rendered, and added
     to ``outputs``), or None.
     """

@@ -16,6 +16,9 @@ from ...data.sources import MeasuredFile, register_reader
 from ...errors import MitsubaManifoldError, one_line
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Any
+
     import numpy as np
 
 
@@ -150,7 +153,7 @@ def parse_floats(text) -> list:
         ) from None
 
 
-def parse_point(text):
+def parse_point(text) -> str | list[float]:
     """One latent point as every tool takes it: numbers (``'0.3,-1.2'``, ``'0.3 -1.2'``) or a
     material's name (one word that does not start like a number), resolved with the manifold
     by the library (:meth:`~mitsuba_manifold.manifold.model.Manifold.point`).
@@ -246,7 +249,7 @@ def _interrupted(process) -> None:
     sys.exit(INTERRUPTED)
 
 
-def guarded(main):
+def guarded(main) -> Callable[..., Any]:
     """Run a tool's ``main`` so that what goes wrong because of its input ends as one
     ``error:`` line: the package's errors and files the system refuses (:data:`ERRORS`),
     memory (exit 2), and Ctrl-C at any moment, imports included (exit 130). Anything else

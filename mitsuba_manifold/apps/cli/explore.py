@@ -123,7 +123,7 @@ def parser() -> ArgumentParser:
     return p
 
 
-def bind(host, port):
+def bind(host, port) -> socket.socket:
     """A listening socket (so that port 0 picks a free port and the URL printed is exact)."""
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_STREAM)
@@ -170,7 +170,7 @@ def main(argv=None) -> int:
         return 130
 
 
-def server_blas_threads(cores=None):
+def server_blas_threads(cores=None) -> int:
     """BLAS threads of the explorer's server: the machine's cores less two (the browser showing
     the page, and the frames), at least one.
     """

@@ -289,7 +289,7 @@ def _refuse_inputs(args, guard) -> None:
 
 
 @guarded
-def main(argv=None):
+def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if "--render" in argv:  # differentiable rendering, no basis: its own tool
         from .match_render import main as match_render_main

@@ -485,11 +485,11 @@ class Acquisitions:
                 "failed",
             )
 
-    def get(self, job_id):
+    def get(self, job_id) -> Job | None:
         with self._lock:
             return self._jobs.get(job_id)
 
-    def image(self, job_id, which, exposure=0.0):
+    def image(self, job_id, which, exposure=0.0) -> bytes | None:
         """PNG bytes of image ``which`` (:data:`IMAGES`) of a finished job."""
         job = self.get(job_id)
         if job is None:

@@ -20,7 +20,7 @@ def names(folders) -> dict:
     return out
 
 
-def scene_of(basis, scene=None):
+def scene_of(basis, scene=None) -> str | None:
     """Scene XML of a basis for reference renders (checked by hash), or None when it is gone."""
     if scene is not None:
         path = scenes.scene_path(scene)

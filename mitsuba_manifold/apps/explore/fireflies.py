@@ -44,7 +44,7 @@ REST_BLUR = 5
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 
-def luminance(image):
+def luminance(image) -> np.ndarray:
     """Rec. 709 luminance (H, W) of linear RGB ``image`` (H, W, 3), float32 (summed channel by
     channel: a matrix product would start BLAS threads for an image this small).
     """
@@ -55,7 +55,7 @@ def luminance(image):
     return lum
 
 
-def brightest_neighbour(lum):
+def brightest_neighbour(lum) -> np.ndarray:
     """The largest of the eight neighbours of each pixel of ``lum`` (H, W), the border repeated
     beyond the image: the larger of the three-pixel maxima of the rows above and below and of
     the pixels left and right.

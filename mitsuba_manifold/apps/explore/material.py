@@ -274,7 +274,7 @@ class TableStack:
         keep, w_kept, _ = self.manifold.prune(w, prune)
         return weights32(w_kept) @ rows[keep]
 
-    def preview(self, x, prune, coarse=False):
+    def preview(self, x, prune, coarse=False) -> tuple:
         """Interpolated table at reduced resolution: float16 (3, n_h, n_d, n_p), and the
         fraction of those bins below 0 (an estimate of the full table's).
 
@@ -292,7 +292,7 @@ class TableStack:
         dims = tuple(-(-d // 2) for d in self.preview_dims) if coarse else tuple(self.preview_dims)
         return half.reshape((3,) + dims), negative
 
-    def slice(self, x, prune):
+    def slice(self, x, prune) -> np.ndarray:
         """``theta_h x theta_d`` slice at ``phi_d = 90 deg``: float32 (3, n_h, n_d)."""
         return self._combine(self._slices, x, prune).reshape(3, self.dims[0], self.dims[1])
 

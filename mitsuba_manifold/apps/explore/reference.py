@@ -251,7 +251,7 @@ class References:
             except OSError:
                 pass
 
-    def cancel(self, job_id):
+    def cancel(self, job_id) -> Job | None:
         """Cancel a job: queued, it never starts; rendering, it stops after its pass. Returns
         the job (None when unknown).
         """
@@ -338,7 +338,7 @@ class References:
         finally:
             job.seconds = time.perf_counter() - t0
 
-    def get(self, job_id):
+    def get(self, job_id) -> Job | None:
         with self._lock:
             return self._jobs.get(job_id)
 

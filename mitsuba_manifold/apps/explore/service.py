@@ -41,6 +41,7 @@ from .walks import MAX_STEPS, STEPS, Walks
 from .web.inputs import extent, latent_point, map_dims, number, path_kind, show
 
 if TYPE_CHECKING:
+    from concurrent.futures import Future
     from typing import Any
 
     from . import acquire, reference
@@ -190,7 +191,7 @@ class Explorer:
         _warm(self.bases)
 
     # ------------------------------------------------------------ requests
-    def key(self, name):
+    def key(self, name) -> str:
         """Name of a basis (None or "": the first one)."""
         if name is None or name == "":
             return next(iter(self.bases))
@@ -203,7 +204,7 @@ class Explorer:
     def basis(self, name) -> Basis:
         return self.bases[self.key(name)]
 
-    def point(self, value, what="x"):
+    def point(self, value, what="x") -> np.ndarray:
         """Latent point of a request value (:func:`.inputs.latent_point`)."""
         return latent_point(self.manifold, value, what)
 
@@ -279,7 +280,7 @@ class Explorer:
         img, info = self.blend(name, x, "denoised")
         return img, info, {"change": change, "denoised": True}
 
-    def start_point(self):
+    def start_point(self) -> np.ndarray:
         """Where the page opens: the measured material closest to the mean of the latent points."""
         lat = self.manifold.latent
         return lat[int(np.argmin(((lat - lat.mean(axis=0)) ** 2).sum(axis=1)))].copy()
@@ -395,7 +396,7 @@ class Explorer:
             bool(coarse),
         )
 
-    def map_png(self, dims, center, bounds=None, coarse=False, stale=None):
+    def map_png(self, dims, center, bounds=None, coarse=False, stale=None) -> tuple[bytes, dict]:
         """PNG bytes and description of the map of the slice through ``center``.
 
         The map depends on ``center`` only through the coordinates not in ``dims`` (the
@@ -454,7 +455,7 @@ class Explorer:
             made_here.set()
         return out
 
-    def snippet_folder(self):
+    def snippet_folder(self) -> str:
         """The folder the snippets name the manifold relative to by default: that of the first
         basis's scene (a snippet pasted into that scene finds the manifold).
         """
@@ -532,7 +533,7 @@ class Explorer:
             + ["--out", "path.exr", "--png"]
         )
 
-    def route(self, a, b, steps=None, kind=None):
+    def route(self, a, b, steps=None, kind=None) -> Future:
         """Future of the path from ``a`` to ``b`` (material names or points) of ``kind``
         (default: :data:`Manifold.path`'s), ``steps`` points (:meth:`.walks.Walks.submit`).
         """
@@ -574,7 +575,7 @@ class Explorer:
             "max_upload": MAX_UPLOAD,
         }
 
-    def environment(self, name):
+    def environment(self, name) -> Any:
         """The environment light of basis ``name``'s scene as its camera sees it, for the preview
         sphere: float16 RGB bytes of a :data:`~.hdri.WIDTH` x :data:`~.hdri.HEIGHT`
         equirectangular map in the sphere's frame (``y`` up, ``z`` towards the viewer; the

@@ -208,7 +208,7 @@ class Thumbnails:
         return sheet
 
 
-def shrink(img, size):
+def shrink(img, size) -> np.ndarray:
     """``img`` (H, W, 3) averaged down to ``size`` x ``size`` (H and W multiples of ``size``)."""
     h, w = img.shape[:2]
     return img.reshape(size, h // size, size, w // size, 3).mean(axis=(1, 3)).astype(np.float32)

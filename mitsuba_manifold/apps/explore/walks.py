@@ -129,7 +129,7 @@ class Walks:
             "spacing": self.spacing,
         }
 
-    def submit(self, xa, xb, steps=STEPS, kind=paths.DEFAULT_KIND):
+    def submit(self, xa, xb, steps=STEPS, kind=paths.DEFAULT_KIND) -> Future:
         """Future of ``{"kind", "a", "b", "steps", "points", "lengths"}`` for the path from latent
         point ``xa`` to ``xb`` (done at once for ``straight`` and cached paths). Each call counts
         as one waiter until :meth:`release`.

@@ -182,13 +182,13 @@ def image_key(materials, version=FORMAT_VERSION) -> str:
     return SEP.join(materials)
 
 
-def key_materials(key, version=FORMAT_VERSION):
+def key_materials(key, version=FORMAT_VERSION) -> list[str]:
     """Material names (one per target) of an image key: the inverse of :func:`image_key`."""
     parts = key.split(SEP)
     return [names_mod.unescape(p) for p in parts] if version >= 2 else parts
 
 
-def image_changed(folder, entry):
+def image_changed(folder, entry) -> bool:
     """True when the file of manifest ``entry`` (:class:`ImageEntry` or :class:`CrossEntry`) is
     not the one written (its SHA-256 is recorded and differs: edited in place, replaced); False
     when unchanged or not recorded.
@@ -814,7 +814,7 @@ class Manifest:
         value = self.scene_resolution
         return None if value is None else tuple(int(v) for v in value)
 
-    def section(self, name):
+    def section(self, name) -> dict:
         """The entries of ``"images"`` or ``"gi_images"`` (an empty one set first when absent)."""
         if name not in ("images", "gi_images"):
             raise ValueError(f"no image section {name!r}")
@@ -877,7 +877,7 @@ SETTINGS = (
 )
 
 
-def is_basis_folder(folder):
+def is_basis_folder(folder) -> bool:
     """True when ``folder`` holds a basis manifest (whether or not it is complete)."""
     try:
         with open(os.path.join(os.fspath(folder), MANIFEST), encoding="utf-8") as f:

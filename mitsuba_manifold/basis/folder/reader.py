@@ -9,6 +9,7 @@ import os
 import threading
 import time
 import zipfile
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +21,10 @@ from ...imaging import io as imageio
 from ...manifold.file.identity import manifold_identity
 from ...manifold.file.shipped import resolve_manifold
 from .manifest import BASE, GI, Manifest, image_changed, image_key, key_materials, scene_hash
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 # -------------------------------------------------------------------- basis
 
@@ -146,7 +151,7 @@ class Basis:
             basis.verify()
         return basis
 
-    def derived(self, name, make):
+    def derived(self, name, make) -> Any:
         """``make(self)`` once per basis object, kept under ``name``: what other modules read from
         the folder's files (e.g. its AOVs for denoising) without re-reading them per blend.
         """
@@ -180,7 +185,7 @@ class Basis:
             return (self.manifest.gi_images or {}).get(key[len(GI) :])
         return self.manifest.images.get(key)
 
-    def path(self, key):
+    def path(self, key) -> str:
         """File of image ``key`` (``"gi:<key>"``: the material's full-GI image less base)."""
         entry = self._entry(key)
         if entry is None:
@@ -190,7 +195,7 @@ class Basis:
     def has(self, key) -> bool:
         return self._entry(key) is not None
 
-    def gi_key(self, key):
+    def gi_key(self, key) -> str:
         """Key of the full-GI image (``touch + L2+``) of material image ``key``."""
         return GI + key
 
@@ -234,7 +239,7 @@ class Basis:
             )
         return {(str(a), str(b)): r for r, (a, b) in enumerate(pairs)}, images
 
-    def cross_term(self, row):
+    def cross_term(self, row) -> np.ndarray:
         """Cross term ``row`` of :meth:`cross_terms` as float32 (H, W, 3), converted once and kept
         (NumPy's float16 conversion costs more than the blend itself; only the rows blended are kept
         twice).
@@ -258,7 +263,7 @@ class Basis:
         """Image keys of single materials ``names`` (a one-target basis), in order."""
         return [self.key([n]) for n in names]
 
-    def image(self, key):
+    def image(self, key) -> np.ndarray:
         """Image ``key`` as float32 (H, W, 3), read once and kept (a read-only view)."""
         row = self._rows.get(key)
         if row is None:

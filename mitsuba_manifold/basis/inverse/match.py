@@ -391,7 +391,9 @@ def _winner(manifold, full, runs, prior) -> tuple[SingleMatch, None, Any]:
     return single, from_start, x
 
 
-def single_material_errors(basis, target, mask=None, manifold=None, exposure_free=False):
+def single_material_errors(
+    basis, target, mask=None, manifold=None, exposure_free=False
+) -> tuple[np.ndarray, np.ndarray]:
     """Relative MSE (over the mask) of every training material alone; ``(errors (N,), exposures (N,))``.
 
     The baseline of a match: the best any one measured material can do.

@@ -34,7 +34,7 @@ LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 LOG_EPS = 1e-3
 
 
-def pool(img, f):
+def pool(img, f) -> np.ndarray:
     """Box-average ``f x f`` blocks of (..., H, W[, C]) images over axes -3/-2 (cropped to fit)."""
     if f == 1:
         return img
@@ -44,7 +44,7 @@ def pool(img, f):
     return img.reshape(shape).mean(axis=(-4, -2))
 
 
-def masked_pool(img, weight, f, pooled_weight=None):
+def masked_pool(img, weight, f, pooled_weight=None) -> np.ndarray:
     """Mask-weighted box average of ``f x f`` blocks: pixels outside the mask do not leak in."""
     if f == 1:
         return img
@@ -114,11 +114,11 @@ class RelativeMSE:
         )
         return np.maximum(s * s * a - 2.0 * s * b + self.e0, 0.0), s
 
-    def singles(self):
+    def singles(self) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`batch` of every material alone (``W`` the identity)."""
         return self.batch(np.eye(len(self.h) - 1))
 
-    def evaluate(self, W):
+    def evaluate(self, W) -> tuple[np.ndarray, np.ndarray]:
         """Errors and exposures of weight vectors W (M, N) as :meth:`__call__` gives them (the
         quadratic form is exact: :meth:`batch`).
         """
@@ -161,7 +161,7 @@ class LogLuminanceMSE:
             g = g - self.m * (lum > 0) * float(gn @ n) / k
         return float(self.m @ (d * d)), self.A[1:] @ g, self.mean_r / k
 
-    def evaluate(self, W):
+    def evaluate(self, W) -> tuple[np.ndarray, np.ndarray]:
         """Errors and exposures of weight vectors W (M, N) in float64, each as :meth:`__call__`
         gives it, in one product (the images are read once for all).
         """

@@ -94,7 +94,7 @@ def read_target(path, resolution=None) -> tuple[np.ndarray, Any]:
     return imageio.srgb_decode(codes / top).astype(np.float32), (codes == top).any(axis=-1)
 
 
-def read_mask(path, resolution=None):
+def read_mask(path, resolution=None) -> np.ndarray:
     """A mask image (PNG/JPEG grey or RGB: value / largest code, 255 or 65535; EXR: mean of
     R, G, B) as (H, W); ``resolution`` as for :func:`read_target`.
     """

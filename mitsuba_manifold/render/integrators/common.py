@@ -83,7 +83,7 @@ def carriers(scene) -> list[tuple]:
     return out
 
 
-def is_plain_twosided(carrier):
+def is_plain_twosided(carrier) -> bool:
     """Whether ``carrier`` is a ``twosided`` wrapper with the one manifold material on both sides."""
     name = carrier.class_name() if hasattr(carrier, "class_name") else type(carrier).__name__
     return (
@@ -206,13 +206,13 @@ def class_names(group_names) -> list[str]:
     return names
 
 
-def power_heuristic(pdf_a, pdf_b):
+def power_heuristic(pdf_a, pdf_b) -> mi.Float:
     a2, b2 = dr.square(pdf_a), dr.square(pdf_b)
     w = a2 / (a2 + b2)
     return dr.select(dr.isfinite(w), w, 0)
 
 
-def check_variant(variant=None):
+def check_variant(variant=None) -> str:
     """Raise ``RuntimeError`` unless ``variant`` (default: the active one) can run the integrator.
 
     The integrator traces whole wavefronts with Dr.Jit loops: it needs a JIT variant

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 POINT = "(point)"
 
 
-def rows_key(rows):
+def rows_key(rows) -> str:
     """The content hash naming interleaved tables: the cached file's name, or the key of tables
     made in memory (:class:`~mitsuba_manifold.data.database.TableRows`).
     """

@@ -15,7 +15,9 @@ from typing import TYPE_CHECKING
 from ...errors import UnavailableError
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
     from types import ModuleType
+    from typing import Any
 
 
 EXECUTORS = ("local", "ray")
@@ -26,7 +28,7 @@ class LocalExecutor:
 
     name = "local"
 
-    def map(self, fn, items):
+    def map(self, fn, items) -> Iterator[Any]:
         for item in items:
             yield fn(item)
 
@@ -96,7 +98,7 @@ class RayExecutor:
         self._ray()
         return self
 
-    def map(self, fn, items):
+    def map(self, fn, items) -> Iterator[Any]:
         ray = self._ray()
         items = list(items)
         remote = ray.remote(num_cpus=self.cpus_per_task, max_retries=self.max_retries)(fn)

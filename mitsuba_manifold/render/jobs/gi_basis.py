@@ -17,6 +17,7 @@ import hashlib
 import io
 import os
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,6 +27,11 @@ from ...basis.crossterms import select_pairs
 from ...basis.folder.output import image_still_valid
 from ...errors import InputError
 from ..integrators.multisplats import PairSelection
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
+    from typing import Any
+
 
 #: File suffix of a material's full-GI image (``Manifest.gi_images``) and the cross terms' file.
 GI_SUFFIX = ".gi.exr"
@@ -97,7 +103,7 @@ def describe_components(manifest) -> str:
 
 
 @contextlib.contextmanager
-def progress_bar(desc, enabled, stop):
+def progress_bar(desc, enabled, stop) -> Iterator[Callable[..., Any]]:
     """A tqdm bar; yields ``advance(done, total)`` for the renderers' ``progress`` (which also
     honours Ctrl-C through ``stop``).
     """

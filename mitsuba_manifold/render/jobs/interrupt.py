@@ -14,7 +14,11 @@ from __future__ import annotations
 
 import signal
 import threading
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
+
+if TYPE_CHECKING:
+    import numpy as np
+
 
 #: Paths per render pass (a pass is the unit a stop request waits for).
 SAMPLES_PER_PASS = 1 << 20
@@ -79,7 +83,7 @@ def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS) -> list[int]:
     return [per] * full + ([rest] if rest else [])
 
 
-def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
+def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0) -> np.ndarray:
     """``mi.render`` cut into passes (:func:`sample_passes`), checking ``stop`` after each.
 
     One pass (the usual case for small images) is exactly ``mi.render(..., spp, seed)``; passes

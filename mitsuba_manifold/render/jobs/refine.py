@@ -43,7 +43,7 @@ import os
 import threading
 import time
 from dataclasses import dataclass, replace
-from typing import Optional, Union
+from typing import TYPE_CHECKING, Optional, Union
 
 import numpy as np
 
@@ -54,6 +54,10 @@ from ..integrators.onepass import POINT
 from ..integrators.proxy import forget_point
 from ..scene import scenes
 from .interrupt import StopRequest
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+    from typing import Any
 
 
 @dataclass
@@ -134,7 +138,7 @@ class _SceneCache:
         self.key, self.value, self.lock = None, None, threading.Lock()
 
     @contextlib.contextmanager
-    def take(self, basis, scene, manifold_path, database, x):
+    def take(self, basis, scene, manifold_path, database, x) -> "Iterator[Any]":
         """The :class:`~.scenes.LoadedScene` of ``basis``'s scene (or ``scene``): the kept one (its
         materials where the last refinement put them; its variant activated, as loading it does),
         or one loaded with its materials at ``x``.
@@ -258,7 +262,7 @@ class RefineRequest:
 
 def refine_passes(
     basis, manifold, x=None, request=None, *, stop=None, blend_image=None, **settings
-):
+) -> "Iterator[Refined]":
     """Yield a :class:`Refined` estimate after each of ``request.passes`` passes (``spp`` in all):
     the ``L1-`` blend plus the ``L2+`` rendered at the point, or with ``control_variate`` and a
     full-GI basis of one target the control variate of the module's docstring.
@@ -407,7 +411,7 @@ def _estimate(l1, total, total2, done, passes, seconds, scale=None, method="l2+"
     )
 
 
-def refine(basis, manifold, x=None, request=None, **settings):
+def refine(basis, manifold, x=None, request=None, **settings) -> "Refined | None":
     """The last estimate of :func:`refine_passes` (all ``spp`` samples): a :class:`Refined`."""
     last = collections.deque(refine_passes(basis, manifold, x, request, **settings), maxlen=1)
     return last[0] if last else None

@@ -96,7 +96,7 @@ def rescaled(w, J, idx) -> tuple:
     return v, r * (Js - np.outer(ws / part, Js.sum(axis=0)))
 
 
-def jitter(x, manifold, scale=1.0, rng=None):
+def jitter(x, manifold, scale=1.0, rng=None) -> np.ndarray:
     """``x`` moved by ``scale`` typical steps (:func:`typical_step`) in a random direction, when it lies on a
     training point (where the Shepard weights' Jacobian is 0); otherwise unchanged.
     """

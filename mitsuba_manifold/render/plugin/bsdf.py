@@ -175,7 +175,7 @@ class ManifoldBRDF(mi.BSDF):
         return self._c.w.copy()
 
     @property
-    def latent(self):
+    def latent(self) -> np.ndarray | None:
         """Latent point of the material (None when set by weights)."""
         return None if self._c.x is None else self._c.x.copy()
 

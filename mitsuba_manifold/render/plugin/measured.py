@@ -14,6 +14,7 @@ Importing this module registers :func:`resample` as the reader of
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,13 +22,17 @@ from ...data import merl, sources
 from ...data.sources import MeasuredFile, material_name, register_reader
 from ...errors import FormatError, plugin_message
 
+if TYPE_CHECKING:
+    import mitsuba as mi
+
+
 __all__ = ["evaluate", "load_measured", "resample"]
 
 #: Direction pairs evaluated per call of the plugin.
 BLOCK = 1 << 20
 
 
-def load_measured(path):
+def load_measured(path) -> mi.BSDF:
     """Mitsuba's ``measured`` BSDF of the file ``path`` in the active variant (an RGB one, see
     :func:`.scenes.use_variant`), after checking the file is an isotropic tensor file.
     """

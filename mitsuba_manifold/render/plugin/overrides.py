@@ -7,19 +7,26 @@ its tables are now (:func:`mitsuba_manifold.render.scene.scenes.load_scene` uses
 It is process-wide, not thread-local: Mitsuba creates plugins on its own threads.
 """
 
+from __future__ import annotations
+
 import contextlib
 import os
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
 
 _database = None
 
 
-def database_folder():
+def database_folder() -> str | None:
     """The folder set by the innermost active :func:`database_override` (or None)."""
     return _database
 
 
 @contextlib.contextmanager
-def database_override(folder):
+def database_override(folder) -> Iterator[None]:
     """Within the block, new ``manifold_brdf`` instances without a ``database`` parameter
     read their tables from ``folder``; None changes nothing.
     """

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 PLUGIN_NAME = "manifold_brdf"
 
 
-def prefixed(error, suffix=""):
+def prefixed(error, suffix="") -> str:
     """``error``'s message led by the plugin's name once (a nested plugin error already has it)."""
     text = str(error)
     return (text if text.startswith(PLUGIN_NAME + ":") else f"{PLUGIN_NAME}: {text}") + suffix
@@ -94,7 +94,7 @@ def _sampling_geometry(dims, grid=SAMPLING_GRID) -> tuple[np.ndarray, np.ndarray
     return theta_i, index, weight
 
 
-def sampling_density(table, grid=SAMPLING_GRID):
+def sampling_density(table, grid=SAMPLING_GRID) -> np.ndarray:
     """Unnormalised sampling density of one table, float32 ``(n_t, n_v, n_u)``.
 
     The channel mean of ``f(wi, wo) cos(theta_o)`` times the Jacobian of the half-vector
@@ -112,7 +112,7 @@ def sampling_cache_path(database, name, grid=SAMPLING_GRID) -> str:
     return os.path.join(database.cache_dir, f"{database.hash(name)}.sampling-{tag}.npy")
 
 
-def material_density(database, name, grid=SAMPLING_GRID, use_cache=True):
+def material_density(database, name, grid=SAMPLING_GRID, use_cache=True) -> np.ndarray:
     """Sampling density of one material of ``database``, read from or written to the cache.
 
     A cache file of the wrong shape or with bad values is recomputed and replaced.
@@ -184,7 +184,7 @@ U_FLOOR = 1e-4
 _SIN_FLOOR = float(np.sin(U_FLOOR**2 * _HALF_PI))
 
 
-def per_solid_angle(p_uv, u, sin_th, cos_d, active):
+def per_solid_angle(p_uv, u, sin_th, cos_d, active) -> mi.Float:
     """Density over ``(u, v)`` to density over ``wo``: divide by ``|d wo / d(u, v)|``.
 
     ``wo = reflect(wi, h)`` gives ``d wo = 4 cos_d d h``, ``d h = sin_th d theta_h d phi``,
@@ -212,7 +212,7 @@ def incident_frame(wi) -> tuple:
     return ex, ey, dr.atan2(r, wi.z)
 
 
-def half_vector_pdf(distr, wi, wo, active):
+def half_vector_pdf(distr, wi, wo, active) -> mi.Float:
     """Density (solid angle) at ``wo`` of sampling the half vector from ``distr`` (a
     ``MarginalContinuous2D1`` over ``(u, v)``, conditioned on the incident elevation).
     """

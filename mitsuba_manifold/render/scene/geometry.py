@@ -21,7 +21,9 @@ from ...errors import InputError
 # ------------------------------------------------------------------ bowl
 
 
-def bowl_profile(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56) -> tuple:
+def bowl_profile(
+    radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56
+) -> tuple[np.ndarray, np.ndarray]:
     """Closed profile curve of the bowl in the (r, y) half-plane, sampled by arc length.
 
     The outer wall is ``y = height * (r / radius) ** exponent`` (flat-bottomed for
@@ -107,7 +109,9 @@ def signed_volume(vertices, faces) -> float:
     return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
 
 
-def bowl(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56, segments=64):
+def bowl(
+    radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56, segments=64
+) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and faces of the bowl (see :func:`bowl_profile`, :func:`revolve`)."""
     return revolve(*bowl_profile(radius, height, thickness, exponent, n), segments)
 
@@ -137,7 +141,7 @@ def write_ply(path, vertices, faces) -> None:
 
 def sky_envmap(
     width=128, height=64, sun_dir=(0.45, 0.62, 0.64), sun_radiance=300.0, sun_radius_deg=3.0
-):
+) -> np.ndarray:
     """Latitude-longitude sky in Mitsuba's ``envmap`` convention (y up), float32 (H, W, 3).
 
     A blue gradient above the horizon, a brownish ground below, a uniform bright sun disk

@@ -28,6 +28,8 @@ if TYPE_CHECKING:
     from types import ModuleType
     from typing import Any
 
+    import mitsuba as mi
+
 
 def _scenes_dir() -> str:
     """The shipped scenes: ``scenes/`` at the top of a checkout, installed as the package data
@@ -107,7 +109,7 @@ class SceneIntegrator:
             "hide_emitters": bool(self.hide_emitters),
         }
 
-    def reference(self, scene):
+    def reference(self, scene) -> mi.Integrator:
         """The integrator Mitsuba renders the scene's reference with: the scene's own, or a
         ``path`` of these settings where the depth was overridden or the scene has none.
         """
@@ -645,7 +647,7 @@ def render_reference(
     targets=None,
     database=None,
     sensor=0,
-):
+) -> np.ndarray:
     """Mitsuba's own image of the scene with the interpolated material: the ground truth of a blend.
 
     Its eleven parameters are a render's (scene, manifold, point, samples, seed) and the settings a
@@ -753,7 +755,7 @@ def _points(x) -> np.ndarray:
     return pts
 
 
-def check_scene(name, value):
+def check_scene(name, value) -> str:
     """A shipped scene's name or a readable scene XML; returns its path. The error names the
     option and the value, and suggests the closest shipped scene names.
     """
@@ -772,7 +774,7 @@ def check_scene(name, value):
     return path
 
 
-def check_variant(value, name="`variant`", jit=False):
+def check_variant(value, name="`variant`", jit=False) -> str:
     """A Mitsuba variant that is installed and renders measured RGB tables.
 
     Parameters

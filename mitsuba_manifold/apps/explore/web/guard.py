@@ -116,7 +116,7 @@ class AllowList:
             for o in self.origins
         )
 
-    def origin_ok(self, header, host_header):
+    def origin_ok(self, header, host_header) -> bool:
         """Whether a browser's Origin header (None: not sent, as for same-origin GETs) is allowed."""
         if header is None:
             return True

@@ -42,7 +42,7 @@ def to_float(value) -> float:
         return 1e308 if value > 0 else -1e308
 
 
-def latent_point(manifold, value, what="x"):
+def latent_point(manifold, value, what="x") -> np.ndarray:
     """Latent point of ``manifold`` from a list of numbers or ``"a,b"`` text; a training
     material's name gives its latent point.
     """
@@ -81,7 +81,7 @@ def latent_point(manifold, value, what="x"):
     return arr
 
 
-def number(value, what, lo, hi, default):
+def number(value, what, lo, hi, default) -> float:
     """A number of a request in ``[lo, hi]``; ``default`` when absent or empty."""
     if value is None or value == "":
         return default
@@ -121,7 +121,7 @@ def extent(text) -> tuple:
     return tuple(b)
 
 
-def map_dims(manifold, dims):
+def map_dims(manifold, dims) -> tuple[int, int]:
     """The two latent coordinates of a map of ``manifold`` from a request."""
     q = manifold.q
     if isinstance(dims, str):

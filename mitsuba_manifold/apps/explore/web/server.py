@@ -13,6 +13,7 @@ import base64
 import json
 import os
 import re
+from typing import TYPE_CHECKING
 
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
@@ -28,6 +29,10 @@ from ..acquire import MAX_UPLOAD
 from ..service import show
 from .guard import MAX_BODY, Guard
 from .session import BAD_REQUEST, Session
+
+if TYPE_CHECKING:
+    import numpy as np
+
 
 STATIC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "static")
 _JOB_ID = re.compile(r"^r[0-9]{1,9}$")
@@ -46,10 +51,10 @@ class Api:
     def __init__(self, explorer) -> None:
         self.ex = explorer
 
-    def x_of(self, request):
+    def x_of(self, request) -> np.ndarray:
         return self.ex.point(_query(request, "x", ""), "x")
 
-    def exposure_of(self, request):
+    def exposure_of(self, request) -> float:
         return self.ex.number(_query(request, "exposure"), "exposure", -20, 20, 0.0)
 
     async def index(self, request) -> FileResponse:

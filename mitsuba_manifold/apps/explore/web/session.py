@@ -72,7 +72,7 @@ GONE = (WebSocketDisconnect, OSError)
 _MAX_SEQ = 2**53
 
 
-def pack(meta, payload=b""):
+def pack(meta, payload=b"") -> bytes:
     """One binary websocket message: JSON meta then payload."""
     head = json.dumps(meta).encode()
     return struct.pack("<I", len(head)) + head + payload
