@@ -27,7 +27,7 @@ class FileSchema(BaseModel):
     every earlier one.
     """
 
-    model_config = ConfigDict(strict=True, extra="allow", frozen=True)
+    model_config = ConfigDict(strict=True, extra="allow", frozen=True, validate_by_name=True)
 
     #: The format's ``version`` this package writes (the newest it reads).
     VERSION: ClassVar[int] = 1
@@ -39,6 +39,7 @@ class FileSchema(BaseModel):
     #: The error class of a refused file.
     ERROR: ClassVar[type] = FormatError
 
+    format: str
     version: int
 
     @field_validator("version")
@@ -110,7 +111,8 @@ def _rule(model: type, loc: tuple) -> Any:
     for part in loc:
         annotation, rule = _plain(annotation, rule)
         if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-            field = annotation.model_fields.get(part) if isinstance(part, str) else None
+            fields = {f.alias or n: f for n, f in annotation.model_fields.items()}
+            field = fields.get(part) if isinstance(part, str) else None
             if field is None:
                 return rule
             rule, annotation = field.description or rule, field.annotation
