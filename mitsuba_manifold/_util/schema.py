@@ -71,7 +71,7 @@ class FileSchema(BaseModel):
         if type(version) is int and version > cls.VERSION:
             raise cls.ERROR(
                 f"{where}: its version field is {version}, newer than this package reads (1 to "
-                f"{cls.VERSION}); update mitsuba-manifold to read it"
+                f"{cls.VERSION}); update mitsuba-manifold to read it, or {fix or cls.FIX}"
             )
         try:
             return cls.model_validate(data)
