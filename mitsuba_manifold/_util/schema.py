@@ -34,6 +34,8 @@ class FileSchema(BaseModel):
     #: ``{version: upgrade}``: ``upgrade(data)`` turns a JSON object of that earlier version
     #: into one of the next version (a new dict; the object read is not changed).
     UPGRADES: ClassVar[dict[int, Callable[[dict], dict]]] = {}
+    #: What each version is, in a line (for the format's reference page).
+    VERSIONS: ClassVar[str] = ""
     #: What the user does about a file that is refused (ends every error message).
     FIX: ClassVar[str] = ""
     #: The error class of a refused file.

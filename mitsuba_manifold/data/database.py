@@ -508,6 +508,7 @@ class SourceList(FileSchema):
     """
 
     VERSION: ClassVar[int] = 1
+    VERSIONS: ClassVar[str] = "1: every release so far (a file without version reads as 1)."
     FIX: ClassVar[str] = "remake it with tools/make_database.py"
 
     format: Literal["mitsuba-manifold-sources"] = Field(

@@ -116,7 +116,7 @@ class AddedMaterial(_Entry):
 
 
 def _upgrade_1(meta: dict) -> dict:
-    """Version 1 -> 2: the paper's GP interpolant on the stored ``l`` and ``mu`` (what version-1
+    """To version 2: the paper's GP interpolant on the stored ``l`` and ``mu`` (what version-1
     files were used with), and the ``paper`` preset.
     """
     info = meta.get("info")
@@ -126,8 +126,8 @@ def _upgrade_1(meta: dict) -> dict:
 
 
 def _upgrade_2(meta: dict) -> dict:
-    """Version 2 -> 3: ``added`` (no material added after the fit; a version-2 reader ignored
-    the key).
+    """To version 3: no ``added`` (no material added after the fit; a version-2 reader
+    ignored the key).
     """
     meta.pop("added", None)
     return {**meta, "version": 3}
@@ -143,6 +143,10 @@ class ManifoldMeta(FileSchema):
 
     VERSION: ClassVar[int] = 3
     UPGRADES: ClassVar[dict] = {1: _upgrade_1, 2: _upgrade_2}
+    VERSIONS: ClassVar[str] = (
+        "1: no interpolant; 2: the interpolant; 3: added (a manifold without added materials is "
+        "written as version 2)."
+    )
     FIX: ClassVar[str] = _REFIT
 
     format: Literal["mitsuba-manifold"] = Field(description="'mitsuba-manifold'")

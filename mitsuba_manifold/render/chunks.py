@@ -77,7 +77,7 @@ class ChunkMark(BaseModel):
     chunk_complete: Optional[bool] = Field(
         None, description="true: a chunk folder whose images are all saved"
     )
-    chunk_run: Optional[ChunkRun] = None
+    chunk_run: Optional[ChunkRun] = Field(None, description="where and how fast a chunk rendered")
     chunk_key: Optional[str] = Field(
         None, description="SHA-256 (hex) of what the images, or the merged run, depend on"
     )

@@ -268,3 +268,25 @@ def test_a_blend_call_reads_its_basis_once(tmp_path, small_manifold, monkeypatch
     for x in m.latent[:3]:
         bl.blend(basis, small_manifold, x=x)
     assert len(reads) == 3 and len(checks) == 3 and len(basis._checked) == 1
+
+
+def test_a_version_1_manifest_upgrades_given_the_manifold_it_was_made_with(small_manifold):
+    """Version 1 recorded the manifold file's SHA-256 and raw names; the upgrade to version 2
+    (the manifold's content identity, escaped keys) needs that file, so it is
+    :meth:`Manifest.upgraded`, not a rewrite of the JSON alone."""
+    from mitsuba_manifold._util.cache import file_hash
+    from mitsuba_manifold.basis.folder import manifold_file_identity
+
+    v1 = dict(
+        V1,
+        manifold=small_manifold,
+        manifold_hash=file_hash(small_manifold),
+        images=dict(V1["images"], **{"Odd Name": {"file": "Odd Name.exr", "time_s": 1.0}}),
+    )
+    old = Manifest.from_json(v1)
+    new = old.upgraded(small_manifold)
+    assert (new.version, new.manifold_hash) == (2, manifold_file_identity(small_manifold))
+    assert set(new.images) == {"base", "chrome"}  # a raw name that escaping changes is dropped
+    assert new.check() is new and old.version == 1  # the one read is left as it was
+    other = Manifest.from_json(dict(v1, manifold_hash="f" * 64))
+    assert other.upgraded(small_manifold) is other  # made with another file: kept as it is

@@ -329,7 +329,8 @@ class CrossFile(_Entry):
 
 
 class ManifestSchema(FileSchema):
-    """The JSON object of a basis folder's ``manifest.json`` (this module's doc), declared.
+    """A basis folder's ``manifest.json``: what its images are, how they were made and which
+    files hold them (read and written by :class:`Manifest`).
 
     Version 1 (raw material names in image keys, the manifold file's SHA-256) reads as it is;
     :meth:`Manifest.upgraded` makes it version 2 given the manifold file it was made with (the
@@ -337,18 +338,23 @@ class ManifestSchema(FileSchema):
     """
 
     VERSION: ClassVar[int] = FORMAT_VERSION
+    VERSIONS: ClassVar[str] = (
+        "1: raw material names in the image keys, the manifold file's SHA-256 as manifold_hash; "
+        "2: escaped names, the manifold's content identity. A version-1 manifest reads as it is; "
+        "Manifest.upgraded(manifold) makes it version 2 given the manifold file it was made with."
+    )
     FIX: ClassVar[str] = "render the basis again with render_basis"
     ERROR: ClassVar[type] = MismatchError
 
     format: Literal["mitsuba-manifold-basis"] = Field(description=f"{FORMAT!r} (a basis manifest)")
     version: int = Field(description="the format version (1 or 2)")
-    scene: Text
+    scene: Text = Field(description="a non-empty string (the scene XML's absolute path)")
     scene_hash: Sha256
-    manifold: Text
+    manifold: Text = Field(description="a non-empty string (the manifold's absolute path)")
     manifold_hash: Sha256
     resolution: Size
     spp: int = Field(ge=1, description="a positive integer (samples per pixel)")
-    variant: Text
+    variant: Text = Field(description="a non-empty string (the Mitsuba variant)")
     seed: int = Field(description="an integer (the images' seed)")
     max_depth: int = Field(ge=-1, description="an integer >= -1 (-1: unbounded)")
     mode: Literal["per-material", "onepass"] = Field(description=f"one of {MODES}")
@@ -364,11 +370,13 @@ class ManifestSchema(FileSchema):
     gi_images: dict[str, GiImageFile] = Field(
         None, description="an object: material key -> full-GI image file"
     )
-    cross: Optional[CrossFile] = None
+    cross: Optional[CrossFile] = Field(None, description="the cross terms' file")
     left_out: dict[str, Any] = Field(None, description="an object: component -> why")
     gi_stats: dict[str, Any] = Field(None, description="an object (render measurements)")
     integrator: dict[str, Any] = Field(None, description="an object (the integrator's settings)")
-    scene_resolution: Optional[Size] = None
+    scene_resolution: Optional[Size] = Field(
+        None, description="[width, height] the scene was loaded with, or null (its film's size)"
+    )
 
     @model_validator(mode="after")
     def _between_fields(self) -> "ManifestSchema":
