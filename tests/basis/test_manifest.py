@@ -290,3 +290,12 @@ def test_a_version_1_manifest_upgrades_given_the_manifold_it_was_made_with(small
     assert new.check() is new and old.version == 1  # the one read is left as it was
     other = Manifest.from_json(dict(v1, manifold_hash="f" * 64))
     assert other.upgraded(small_manifold) is other  # made with another file: kept as it is
+
+
+def test_the_chunk_marks_read_through_their_old_names_with_a_deprecation_warning():
+    m = Manifest.from_json(V2)
+    with pytest.deprecated_call():
+        assert m.chunk_key == "k"
+    with pytest.deprecated_call():
+        m.chunk_key = None
+    assert "chunk_key" not in m.to_json() and ChunkMark.of(m) == ChunkMark()

@@ -57,6 +57,7 @@ import enum
 import hashlib
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 
@@ -607,6 +608,34 @@ class Manifest:
             images=dict(images or {}),
             components=[str(c) for c in components],
         ).check("new manifest")
+
+    def _chunk_mark(name):  # builds the deprecated properties below (not a method)
+        def get(self):
+            warnings.warn(
+                f"Manifest.{name} is deprecated: read it with "
+                "mitsuba_manifold.render.chunks.ChunkMark.of(manifest)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            return self.extra.get(name)
+
+        def put(self, value):
+            warnings.warn(
+                f"Manifest.{name} is deprecated: set it with "
+                "mitsuba_manifold.render.chunks.ChunkMark(...).put(manifest)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            self.extra.pop(name, None)
+            if value is not None:
+                self.extra[name] = value
+
+        return property(get, put, doc=f"Deprecated: ``ChunkMark.of(manifest).{name}``.")
+
+    chunk_complete = _chunk_mark("chunk_complete")
+    chunk_run = _chunk_mark("chunk_run")
+    chunk_key = _chunk_mark("chunk_key")
+    del _chunk_mark
 
     def copy(self):
         """A deep copy (its entries can be changed without changing this one's)."""
