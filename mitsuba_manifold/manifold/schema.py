@@ -65,18 +65,11 @@ class FitInfo(_Entry):
     log_likelihood: Optional[float] = Field(None, description="a number")
     converged: Optional[bool] = Field(None, description="true or false")
     n_iterations: Optional[_Count] = Field(None, description="an integer >= 0")
-    grad_norm: Optional[float] = Field(None, ge=0, description="a number >= 0")
+    grad_norm: Optional[float] = Field(None, ge=0, description="a number >= 0 (or infinity)")
     stop: Optional[str] = Field(None, description="a text (why the fit stopped)")
     time_load_s: Optional[_Seconds] = Field(None, description="a finite number >= 0 (seconds)")
     time_gram_s: Optional[_Seconds] = Field(None, description="a finite number >= 0 (seconds)")
     time_fit_s: Optional[_Seconds] = Field(None, description="a finite number >= 0 (seconds)")
-
-    @field_validator("grad_norm")
-    @classmethod
-    def _not_nan(cls, v: Optional[float]) -> Optional[float]:
-        if v is not None and math.isnan(v):
-            raise ValueError("must be a number >= 0 (or infinity), got nan")
-        return v
 
 
 class Interpolant(_Entry):
