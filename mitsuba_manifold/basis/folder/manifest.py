@@ -43,6 +43,7 @@ file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
 (:func:`mitsuba_manifold.manifold.identity.manifold_identity`), so an identical refit is accepted.
 Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
 ``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`).
+:class:`ManifestSchema` declares the JSON object (every key, its type and rule, the versions);
 :class:`Manifest` alone reads, writes and checks the format (the renderers make one with
 :meth:`Manifest.new`, change its fields and :meth:`Manifest.write` it; its image entries are
 :class:`ImageEntry`, its cross terms a :class:`CrossEntry`);
@@ -429,21 +430,6 @@ class ManifestSchema(FileSchema):
                         )
 
 
-def _check_json(manifest, where=MANIFEST):
-    """Check a manifest's JSON object against :class:`ManifestSchema`; returns it.
-
-    Does not require any image to be listed (a basis being rendered grows one image at a
-    time); :meth:`Basis.load` checks that the blend's images are there.
-
-    Raises
-    ------
-    MismatchError
-        Naming ``where``, the field at fault, its value and the fix.
-    """
-    ManifestSchema.checked(manifest, where)
-    return manifest
-
-
 def manifold_file_identity(manifold):
     """Content identity of a manifold file (:func:`manifold_identity`)."""
     from ...manifold.model import Manifold
@@ -667,7 +653,7 @@ class Manifest:
         """The manifest of a JSON object, checked (:class:`MismatchError` naming ``where``)."""
         if isinstance(data, cls):
             return data
-        _check_json(data, where)
+        ManifestSchema.checked(data, where)  # does not require any image listed: see Basis.load
         data = dict(data)
         settings = RenderSettings(
             resolution=tuple(data.pop("resolution")),
@@ -713,7 +699,7 @@ class Manifest:
 
     def check(self, where="manifest"):
         """Return this manifest, its fields checked (:class:`MismatchError` naming ``where``)."""
-        _check_json(self.to_json(), where)
+        ManifestSchema.checked(self.to_json(), where)
         return self
 
     # ----------------------------------------------------------- files
@@ -762,7 +748,8 @@ class Manifest:
     def write(self, folder):
         """Check this manifest and write ``folder/manifest.json`` atomically; returns its path."""
         path = os.path.join(os.fspath(folder), MANIFEST)
-        data = _check_json(self.to_json(), where=path)
+        data = self.to_json()
+        ManifestSchema.checked(data, path)
         write_bytes(path, json.dumps(data, indent=1, sort_keys=False) + "\n")
         return path
 
