@@ -41,22 +41,7 @@ def write(m, path):
     it replaces ``path``, so a readable manifold file is never replaced by one nothing can read
     (:class:`FormatError` naming ``path`` and the field; the existing file is kept).
     """
-    meta = {
-        "format": FORMAT,
-        "version": FORMAT_VERSION,
-        "names": m.names,
-        "database": m.database,
-        "hashes": m.hashes,
-        "length_scale": m.length_scale,
-        "noise": m.noise,
-        "features": m.features,
-        "info": m.info,
-        "interpolant": m.interpolant.params(),
-    }
-    if m.added:  # version 3: readers of version 2 refuse a file naming tables outside its database
-        meta["added"] = [a.as_dict() for a in m.added]
-    else:
-        meta["version"] = 2
+    meta = schema.ManifoldMeta.of(m)
     arrays = {"latent": m.latent, "history": m.history, "meta": np.array(json.dumps(meta))}
     for name in DERIVED:
         if getattr(m, name) is not None:

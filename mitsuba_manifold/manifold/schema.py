@@ -160,6 +160,28 @@ class ManifoldMeta(FileSchema):
         None, description="a list of the materials added after the fit"
     )
 
+    @classmethod
+    def of(cls, m: object) -> dict:
+        """The ``meta`` JSON object of the manifold ``m`` (keys in the order of every file
+        written so far): version 3 when it holds added materials (a version-2 reader refuses a
+        file naming tables outside its database), else version 2.
+        """
+        meta = {
+            "format": "mitsuba-manifold",
+            "version": cls.VERSION if m.added else 2,
+            "names": m.names,
+            "database": m.database,
+            "hashes": m.hashes,
+            "length_scale": m.length_scale,
+            "noise": m.noise,
+            "features": m.features,
+            "info": m.info,
+            "interpolant": m.interpolant.params(),
+        }
+        if m.added:
+            meta["added"] = [a.as_dict() for a in m.added]
+        return meta
+
     @field_validator("names")
     @classmethod
     def _distinct(cls, v: list) -> list:
