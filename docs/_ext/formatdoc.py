@@ -16,10 +16,10 @@ FORMATS = (
     (
         "Saved manifold",
         "the .npz file's meta entry",
-        "mitsuba_manifold.manifold.schema:ManifoldMeta",
+        "mitsuba_manifold.manifold.file.schema:ManifoldMeta",
     ),
     ("Database folder", "sources.json", "mitsuba_manifold.data.database:SourceList"),
-    ("Chunked render", "a chunk's manifest.json", "mitsuba_manifold.render.chunks:ChunkMark"),
+    ("Chunked render", "a chunk's manifest.json", "mitsuba_manifold.render.jobs.chunks:ChunkMark"),
 )
 
 

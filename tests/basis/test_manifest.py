@@ -15,7 +15,7 @@ from mitsuba_manifold.basis.folder import (
     RenderSettings,
 )
 from mitsuba_manifold.errors import MismatchError
-from mitsuba_manifold.render.chunks import ChunkMark
+from mitsuba_manifold.render.jobs.chunks import ChunkMark
 
 #: A manifest of format version 1, as the first releases wrote it: no sensor, no components.
 V1 = {
@@ -91,7 +91,9 @@ def test_what_a_manifest_leaves_unsaid_has_its_meaning():
     assert (new.sensor_index, new.held_components, new.extra) == (
         1,
         ["l1", "l2+", "cross"],
-        {"chunk_key": "k"},  # a chunked render's mark: kept for render.chunks, not the format's
+        {
+            "chunk_key": "k"
+        },  # a chunked render's mark: kept for render.jobs.chunks, not the format's
     )
     assert old.scene_resolution is NOT_RECORDED and old.loaded_resolution == (32, 24)
     assert (

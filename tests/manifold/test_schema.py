@@ -262,7 +262,7 @@ def _written_by_version(path, meta, arrays, version):
 
 @pytest.mark.parametrize("version", [1, "2-early", 2, 3])
 def test_a_file_of_every_version_written_before_reads_the_same(tmp_path, saved, version):
-    from mitsuba_manifold.manifold import io
+    from mitsuba_manifold.manifold.file import io
 
     meta, arrays = saved
     path = _written_by_version(tmp_path / "old.npz", meta, arrays, version)
@@ -291,7 +291,7 @@ def meta_added(path):
 
 
 def test_upgrades_are_declared_for_every_earlier_version():
-    from mitsuba_manifold.manifold.schema import ManifoldMeta
+    from mitsuba_manifold.manifold.file.schema import ManifoldMeta
 
     assert sorted(ManifoldMeta.UPGRADES) == list(range(1, ManifoldMeta.VERSION))
     v1 = {"format": "mitsuba-manifold", "version": 1, "info": None, "added": "ignored"}
@@ -305,7 +305,7 @@ def test_upgrades_are_declared_for_every_earlier_version():
 
 
 def test_a_shipped_manifold_saved_again_writes_its_meta_entry_byte_for_byte(tmp_path):
-    from mitsuba_manifold.manifold.shipped import SHIPPED, resolve_manifold
+    from mitsuba_manifold.manifold.file.shipped import SHIPPED, resolve_manifold
 
     for name in SHIPPED:
         path = resolve_manifold(name)

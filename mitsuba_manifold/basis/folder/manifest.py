@@ -33,14 +33,14 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
         [width, height] or null (the resolution the scene was loaded with; null: its own film
         size; absent: the image size),
      and keys the format leaves to the jobs that write it (kept and written back as they are:
-     a chunked render's marks, :class:`mitsuba_manifold.render.chunks.ChunkMark`)}
+     a chunked render's marks, :class:`mitsuba_manifold.render.jobs.chunks.ChunkMark`)}
 
 With one target the keys are ``base`` and material names; with ``p`` targets they are
 ``"<matA>+<matB>..."`` (one name per target, in target order). From version 2 on, each
 material name in a key is escaped (:func:`mitsuba_manifold._util.names.escape`: ``gold-paint``
 stays, ``base`` or ``a+b`` cannot collide with the base image or the separator) and the
 file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
-(:func:`mitsuba_manifold.manifold.identity.manifold_identity`), so an identical refit is accepted.
+(:func:`mitsuba_manifold.manifold.file.identity.manifold_identity`), so an identical refit is accepted.
 Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
 ``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`).
 :class:`ManifestSchema` declares the JSON object (every key, its type and rule, the versions);
@@ -70,8 +70,8 @@ from ..._util.cache import file_hash
 from ..._util.checks import scene_xml
 from ..._util.schema import FileSchema
 from ...errors import MismatchError
-from ...manifold.identity import manifold_identity
-from ...manifold.shipped import resolve_manifold
+from ...manifold.file.identity import manifold_identity
+from ...manifold.file.shipped import resolve_manifold
 
 FORMAT = "mitsuba-manifold-basis"
 FORMAT_VERSION = 2
@@ -505,7 +505,7 @@ class Manifest:
     chunks : int or None
         Merged from this many chunks.
     pending : list of str or None
-        Files being written (:mod:`mitsuba_manifold.render.render_basis`).
+        Files being written (:mod:`mitsuba_manifold.render.jobs.render_basis`).
     components : list of str or None
         What the basis holds (:data:`COMPONENTS`; None: not recorded, L1- only).
     levels : int or None
@@ -520,13 +520,13 @@ class Manifest:
         Measurements of the full-GI render.
     integrator : dict or None
         The scene's integrator settings the images were rendered with
-        (:meth:`~mitsuba_manifold.render.scenes.SceneIntegrator.to_manifest`).
+        (:meth:`~mitsuba_manifold.render.scene.scenes.SceneIntegrator.to_manifest`).
     scene_resolution : list of int, None or NOT_RECORDED
         The ``resolution`` the scene was loaded with (None: its own film size; see
         :attr:`loaded_resolution`).
     extra : dict
         Keys the format leaves to the jobs that write it (a chunked render's marks,
-        :class:`~mitsuba_manifold.render.chunks.ChunkMark`) or that this version does not know
+        :class:`~mitsuba_manifold.render.jobs.chunks.ChunkMark`) or that this version does not know
         (kept, and written back).
     """
 
@@ -599,7 +599,7 @@ class Manifest:
         def get(self):
             warnings.warn(
                 f"Manifest.{name} is deprecated: read it with "
-                "mitsuba_manifold.render.chunks.ChunkMark.of(manifest)",
+                "mitsuba_manifold.render.jobs.chunks.ChunkMark.of(manifest)",
                 DeprecationWarning,
                 stacklevel=2,
             )
@@ -608,7 +608,7 @@ class Manifest:
         def put(self, value):
             warnings.warn(
                 f"Manifest.{name} is deprecated: set it with "
-                "mitsuba_manifold.render.chunks.ChunkMark(...).put(manifest)",
+                "mitsuba_manifold.render.jobs.chunks.ChunkMark(...).put(manifest)",
                 DeprecationWarning,
                 stacklevel=2,
             )
