@@ -10,16 +10,15 @@ the scaling benchmarks); :func:`write_database` writes a database of any sources
 matrix of the tables is :mod:`.gram`'s (:meth:`Database.gram`).
 """
 
-from __future__ import annotations
-
 import json
 import os
 import re
 import zlib
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 import numpy as np
+from pydantic import AfterValidator, Field, Strict
 
 from .._util import checks
 from .._util.atomic import sweep, write_bytes
@@ -35,6 +34,7 @@ from .._util.cache import (
 from .._util.locking import FolderLock
 from .._util.memory import prefaulted
 from .._util.ownership import owned_tables, pending_tables, write_table_record
+from .._util.schema import FileSchema
 from .._util.workers import owned_pool
 from ..errors import FormatError, InputError, MissingFileError, UnknownMaterialError, did_you_mean
 from . import gram as gram_matrix
@@ -184,7 +184,7 @@ def write_database(
     export=False,
     progress=False,
     force=False,
-) -> Database:
+) -> "Database":
     """Write a database folder taking its materials from ``sources`` (built-in set names and folders).
 
     Without ``export`` the folder gets a ``sources.json`` (:class:`SourceList`) naming them and
@@ -234,7 +234,7 @@ def write_database(
     os.makedirs(out_dir, exist_ok=True)
     with FolderLock(out_dir, "database folder"):
         if not export:
-            SourceList(sets, dims).write(listing)
+            SourceList(sets=sets, dims=dims).write(listing)
             record([listing], "make_database")
         else:
             for name, path in zip(_progress(names, progress, "exporting"), targets):
@@ -292,7 +292,7 @@ def _has_reflectance(
     return os.path.exists(os.path.join(cache, f"{file_hash(path)}.refl.npy"))
 
 
-def _inode(path) -> int | None:
+def _inode(path) -> "int | None":
     try:
         return os.stat(path).st_ino
     except FileNotFoundError:
@@ -330,7 +330,7 @@ def _write_sgd_table(job) -> tuple:
     return name, path, file_identity(path), digest
 
 
-def _filled(raw, dims) -> np.ndarray:
+def _filled(raw, dims) -> "np.ndarray":
     """:func:`merl.filled_reflectance` of a table measured in every bin above the horizon (as tabulated
     ones are), without its search for missing bins (used when some are missing).
     """
@@ -368,7 +368,7 @@ def _progress(items, enabled, desc):
 # ----------------------------------------------------------------------- albedo
 
 
-def albedo_weights(dims=merl.MERL_DIMS) -> np.ndarray:
+def albedo_weights(dims=merl.MERL_DIMS) -> "np.ndarray":
     """Quadrature weights ``q`` over bins such that ``sum(q * f)`` is the bihemispherical albedo.
 
     albedo = 1/pi * int int f cos(theta_i) cos(theta_o) dw_i dw_o, with
@@ -423,7 +423,7 @@ def builtin_cache() -> str:
     return folder
 
 
-def finite_table(table, what) -> np.ndarray:
+def finite_table(table, what) -> "np.ndarray":
     """``table`` as float32, or a :class:`FormatError` naming ``what`` (the material and where it
     comes from) when it holds NaN or Inf values: nothing is cached from it.
     """
@@ -437,7 +437,7 @@ def finite_table(table, what) -> np.ndarray:
     return table
 
 
-def made_table(cache_dir, digest, build, shape, out=None, what="table") -> np.ndarray:
+def made_table(cache_dir, digest, build, shape, out=None, what="table") -> "np.ndarray":
     """A table made from a source (not a file), cached as ``<digest>.refl16.npy`` (:data:`MADE_DTYPE`)
     or, where its values exceed that range, ``<digest>.refl.npy`` (float32); returned as float32, as cached
     (rounded to the cache's precision when just made).
@@ -485,51 +485,78 @@ def made_table(cache_dir, digest, build, shape, out=None, what="table") -> np.nd
     )  # the cached precision, also when just made: the same values every run
 
 
-@dataclass(frozen=True)
-class SourceList:
+def _source_name(name: str) -> str:
+    if name not in SET_NAMES and not os.path.isabs(name):
+        raise ValueError(
+            f"names the source {name!r}, neither a built-in set ({', '.join(SET_NAMES)}) nor an "
+            "absolute folder path"
+        )
+    return name
+
+
+_Dim = Annotated[int, Strict(), Field(ge=1)]
+
+
+class SourceList(FileSchema):
     """``sources.json`` of a database folder: the built-in sets and folders it takes materials
-    from besides its own files, and the resolution of its tables.
+    from besides its own files, and the resolution of its tables, declared::
+
+        {"format": "mitsuba-manifold-sources", "version": 1,
+         "from": [set name or absolute folder, ...], "dims": [n_h, n_d, n_p]}
+
+    Every release wrote version 1; a file without ``version`` reads as version 1.
 
     Attributes
     ----------
     sets : tuple of str
-        Built-in set names and absolute folder paths, in order.
+        Built-in set names and absolute folder paths, in order (the JSON key ``from``).
     dims : tuple of 3 int
     """
 
-    sets: tuple
-    dims: tuple = merl.MERL_DIMS
-    FORMAT = "mitsuba-manifold-sources"
+    VERSION: ClassVar[int] = 1
+    VERSIONS: ClassVar[str] = "1: every release so far (a file without version reads as 1)."
+    FIX: ClassVar[str] = "remake it with tools/make_database.py"
 
-    def check(self, where) -> SourceList:
-        for s in self.sets:
-            if s not in SET_NAMES and not os.path.isabs(s):
-                raise FormatError(
-                    f"{where}: source {s!r} is neither a built-in set ({', '.join(SET_NAMES)}) "
-                    "nor an absolute folder path"
-                )
-        merl.table_resolution(self.dims, f"{where}: dims")
+    format: Literal["mitsuba-manifold-sources"] = Field(
+        "mitsuba-manifold-sources", description="'mitsuba-manifold-sources' (a source list)"
+    )
+    version: int = Field(1, description="the format version (1)")
+    sets: tuple[Annotated[str, AfterValidator(_source_name)], ...] = Field(
+        alias="from",
+        strict=False,
+        description="a list of built-in set names and absolute folder paths",
+    )
+    dims: tuple[_Dim, _Dim, _Dim] = Field(
+        merl.MERL_DIMS,
+        strict=False,
+        description="the tables' resolution [n_theta_h, n_theta_d, n_phi_d] (positive integers)",
+    )
+
+    #: The ``format`` of the file.
+    FORMAT: ClassVar[str] = "mitsuba-manifold-sources"
+
+    def check(self, where: str) -> "SourceList":
+        """Return this list, its resolution one this package tabulates (:class:`FormatError`)."""
+        try:
+            merl.table_resolution(self.dims, f"{where}: dims")
+        except InputError as e:
+            raise FormatError(f"{e}; {self.FIX}") from None
         return self
 
     @classmethod
-    def read(cls, path) -> SourceList:
+    def read(cls, path: str) -> "SourceList":
+        """The list in ``path``, checked (:class:`FormatError` naming the file and the field)."""
         try:
-            with open(path) as f:
+            with open(path, encoding="utf-8") as f:
                 data = json.load(f)
-            if data.get("format") != cls.FORMAT:
-                raise ValueError(f"format is {data.get('format')!r}, not {cls.FORMAT!r}")
-            return cls(tuple(data["from"]), tuple(int(v) for v in data["dims"])).check(path)
-        except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:
+        except (OSError, ValueError, RecursionError) as e:
             why = "nested too deeply" if isinstance(e, RecursionError) else e
-            raise FormatError(
-                f"{path}: not a database's source list ({why}); remake it with tools/make_database.py"
-            ) from None
+            raise FormatError(f"{path}: not a database's source list ({why}); {cls.FIX}") from None
+        return cls.checked(data, path).check(path)
 
-    def write(self, path) -> None:
-        text = json.dumps(
-            {"format": self.FORMAT, "version": 1, "from": list(self.sets), "dims": list(self.dims)},
-            indent=1,
-        )
+    def write(self, path: str) -> None:
+        """Write the list to ``path`` atomically."""
+        text = json.dumps(self.model_dump(mode="json", by_alias=True), indent=1)
         write_bytes(path, (text + "\n").encode())
 
 
@@ -547,7 +574,7 @@ class DatabaseSpec:
         return cache_folder(self.directory) if self.directory else builtin_cache()
 
 
-def split_spec(spec, recorded=True) -> tuple[Any, tuple[int, int, int] | None]:
+def split_spec(spec, recorded=True) -> "tuple[Any, tuple[int, int, int] | None]":
     """``(base, dims or None)`` of a database spec ``base[@NHxNDxNP]`` (an existing path is taken
     whole). Unless ``recorded``, a path that exists and also reads as a set at a resolution
     (a folder ``merl@45x45x90``) is refused as ambiguous, as :func:`~.sources.builtin_set` does.
@@ -567,7 +594,7 @@ def split_spec(spec, recorded=True) -> tuple[Any, tuple[int, int, int] | None]:
     return spec, None
 
 
-def open_spec(spec, dims=None, recorded=False) -> DatabaseSpec:
+def open_spec(spec, dims=None, recorded=False) -> "DatabaseSpec":
     """The sources of a database: a built-in set's name or a folder, with an optional ``@dims``.
 
     Names are read by :func:`~.sources.builtin_set`: ``builtin:merl`` is the set, a bare built-in
@@ -639,7 +666,7 @@ def canonical_spec(spec, what="database") -> str:
     return out if suffix is None else f"{out}@{_size(suffix)}"
 
 
-def database_cache(spec) -> str | None:
+def database_cache(spec) -> "str | None":
     """The cache folder of the database ``spec`` (as a manifold records it), or None when it is
     a folder that is gone (creating it would make an empty database folder).
     """
@@ -791,7 +818,7 @@ class Database:
         return [self.hash(n) for n in (self.names if names is None else names)]
 
     # -- tables
-    def reflectance(self, name, mmap=True, out=None) -> np.ndarray:
+    def reflectance(self, name, mmap=True, out=None) -> "np.ndarray":
         """Filled reflectance table, float32 of shape ``(3,) + dims`` (see merl.filled_reflectance).
 
         Made once and cached as ``.npy`` keyed by its content hash (:meth:`hash`): a ``.binary``
@@ -822,7 +849,7 @@ class Database:
             self.cache_dir, digest, lambda: source.table(self.dims), shape, out=out, what=what
         )
 
-    def stack(self, names=None, progress=False) -> np.ndarray:
+    def stack(self, names=None, progress=False) -> "np.ndarray":
         """Tables of ``names`` as one float32 matrix ``(N, d)``, rows = RGB-concatenated tables
         (each read from its cache straight into its row: :func:`~.._util.memory.prefaulted`).
         """
@@ -833,7 +860,7 @@ class Database:
             self.reflectance(name, out=out[i])
         return out
 
-    def material_rows(self, names=None, pad=16, keep=2) -> np.ndarray:
+    def material_rows(self, names=None, pad=16, keep=2) -> "np.ndarray":
         """Tables of ``names`` interleaved by bin: float32 ``(bins, 3, n_pad)``, read-only memmap.
 
         ``rows[b, c, k]`` is channel ``c`` of material ``names[k]`` at flat bin ``b``, so
@@ -883,7 +910,7 @@ class Database:
             eviction=Eviction(keep, ".rows-v1-"),
         )
 
-    def albedo(self, names=None, tables=None) -> np.ndarray:
+    def albedo(self, names=None, tables=None) -> "np.ndarray":
         """Bihemispherical albedo per material and channel, shape ``(N, 3)``.
 
         ``tables`` (the :meth:`stack` of ``names``) avoids reading the tables again.

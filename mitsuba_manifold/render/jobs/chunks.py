@@ -30,8 +30,6 @@ removed after a merge unless ``keep_chunks``. The driver holds ``<out>``'s folde
 second run into the same folder is refused at once.
 """
 
-from __future__ import annotations
-
 import json
 import os
 import shutil
@@ -39,9 +37,10 @@ import socket
 import tempfile
 import time
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..._util.cache import file_hash, key_hash
 from ..._util.locking import FolderLock
@@ -54,6 +53,55 @@ from .render_basis import BasisOptions, ensure_aovs, render_basis
 
 if TYPE_CHECKING:
     from ...basis.folder.manifest import Manifest
+
+
+class ChunkRun(BaseModel):
+    """Where and how fast a chunk was rendered (a chunk manifest's ``chunk_run``)."""
+
+    model_config = ConfigDict(strict=True, frozen=True, extra="allow")
+
+    seconds: float = Field(description="seconds the chunk's render took")
+    host: str = Field(description="the machine that rendered it")
+    pid: int = Field(description="the process that rendered it")
+
+
+class ChunkMark(BaseModel):
+    """The keys a chunked render adds to a basis manifest: the bookkeeping of this module,
+    not of the basis format, which keeps them as they are (:attr:`Manifest.extra
+    <mitsuba_manifold.basis.folder.Manifest>`).
+
+    ``chunk_complete`` and ``chunk_run`` mark a chunk folder whose images are all saved,
+    ``chunk_key`` what a chunk's images (:func:`chunk_key`), or a merged basis's whole run,
+    depend on. A mark that does not read as one is no mark: the chunk is rendered again.
+    """
+
+    model_config = ConfigDict(strict=True, frozen=True)
+
+    chunk_complete: Optional[bool] = Field(
+        None, description="true: a chunk folder whose images are all saved"
+    )
+    chunk_run: Optional[ChunkRun] = Field(None, description="where and how fast a chunk rendered")
+    chunk_key: Optional[str] = Field(
+        None, description="SHA-256 (hex) of what the images, or the merged run, depend on"
+    )
+
+    @classmethod
+    def of(cls, manifest) -> "ChunkMark":
+        """The mark ``manifest`` (a :class:`~mitsuba_manifold.basis.folder.Manifest`) carries
+        (an empty one when it carries none, or one that does not read).
+        """
+        try:
+            return cls.model_validate(
+                {k: manifest.extra[k] for k in cls.model_fields if k in manifest.extra}
+            )
+        except ValidationError:
+            return cls()
+
+    def put(self, manifest) -> None:
+        """Set this mark on ``manifest`` (the keys of an empty mark are removed)."""
+        for key in type(self).model_fields:
+            manifest.extra.pop(key, None)
+        manifest.extra.update(self.model_dump(mode="json", exclude_none=True))
 
 
 @dataclass(frozen=True)
@@ -139,7 +187,7 @@ def plan(scene, manifold, chunks, options=None) -> list:
     ]
 
 
-def render_chunk(spec) -> ChunkResult:
+def render_chunk(spec) -> "ChunkResult":
     """Render one chunk into a private temporary folder; return its images (a worker's task)."""
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="mitsuba-manifold-chunk-") as tmp:
@@ -197,7 +245,7 @@ def chunk_settings(options) -> dict:
     }
 
 
-def identities(spec) -> tuple[str, str]:
+def identities(spec) -> "tuple[str, str]":
     """``(scene hash, manifold identity)`` of a chunk's scene and manifold files."""
     return basis_folder.scene_hash(spec.scene), basis_folder.manifold_file_identity(spec.manifold)
 
@@ -221,7 +269,7 @@ def chunk_key(spec, ids=None) -> str:
     return key_hash("chunk-v1", head, *(ids or identities(spec)))
 
 
-def chunk_done(folder, key=None) -> Manifest | None:
+def chunk_done(folder, key=None) -> "Manifest | None":
     """The manifest of a completely saved chunk folder (of ``chunk_key`` ``key``, when given, with
     every image as saved), else None.
     """
@@ -229,7 +277,8 @@ def chunk_done(folder, key=None) -> Manifest | None:
         manifest = basis_folder.Manifest.read(folder)
     except MismatchError:
         return None
-    if not manifest.chunk_complete or (key is not None and manifest.chunk_key != key):
+    mark = ChunkMark.of(manifest)
+    if not mark.chunk_complete or (key is not None and mark.chunk_key != key):
         return None
     for _, entry in manifest.entries():
         if not os.path.isfile(os.path.join(folder, entry.file)) or basis_folder.image_changed(
@@ -258,10 +307,8 @@ def save_chunk(out, result, key=None):
             os.path.join(folder, result.manifest.cross.file), *result.images[_CROSS]
         )
         manifest.cross = replace(manifest.cross, sha256=digest)
-    manifest.chunk_complete = True
-    manifest.chunk_run = {"seconds": result.seconds, "host": result.host, "pid": result.pid}
-    if key is not None:
-        manifest.chunk_key = key
+    run = ChunkRun(seconds=float(result.seconds), host=str(result.host), pid=int(result.pid))
+    ChunkMark(chunk_complete=True, chunk_run=run, chunk_key=key).put(manifest)
     manifest.write(folder)
     return manifest
 
@@ -277,7 +324,7 @@ def merge(out, folders, seed, force=False):
         return _merge(out, folders, seed, force)
 
 
-def _merge(out, folders, seed, force, run_key=None) -> Manifest:
+def _merge(out, folders, seed, force, run_key=None) -> "Manifest":
     manifests = [basis_folder.Manifest.read(f) for f in folders]
     first = manifests[0]
     for f, m in zip(folders[1:], manifests[1:]):
@@ -299,10 +346,8 @@ def _merge(out, folders, seed, force, run_key=None) -> Manifest:
         chunks=len(folders),
         images={},
         gi_images=None,
-        chunk_complete=None,
-        chunk_run=None,
-        chunk_key=None,
     )
+    ChunkMark().put(merged)  # a merged basis is no chunk
     files = [e.file for _, e in first.entries()] + [basis_folder.MANIFEST]
     merged.images = open_folder(out, merged, files, force)
     done = {e.file for e in merged.images.values()}
@@ -344,7 +389,7 @@ def _merge(out, folders, seed, force, run_key=None) -> Manifest:
         digest = write_cross(os.path.join(out, first.cross.file), pairs, acc)
         merged.cross = replace(first.cross, sha256=digest)
     if run_key is not None:  # the mark of a finished run (written with its last image)
-        merged.chunk_key = run_key
+        ChunkMark(chunk_key=run_key).put(merged)
     merged.pending = None
     merged.write(out)
     return merged
@@ -363,7 +408,7 @@ class ChunkedRun:
 
 def render_chunked(
     scene, manifold, out, options=None, *, chunks=1, executor=None, keep_chunks=False, **settings
-) -> ChunkedRun:
+) -> "ChunkedRun":
     """Render a basis as ``chunks`` chunks with ``executor`` and merge them into ``out``.
 
     Parameters
@@ -420,7 +465,7 @@ def render_chunked(
     return run
 
 
-def _finished(out, run_key) -> Manifest | None:
+def _finished(out, run_key) -> "Manifest | None":
     """The manifest of ``out`` when it holds the merged basis of the run ``run_key`` with every
     image as merged, else None.
     """
@@ -428,7 +473,7 @@ def _finished(out, run_key) -> Manifest | None:
         manifest = basis_folder.Manifest.read(out)
     except MismatchError:
         return None
-    if manifest.chunk_key != run_key:
+    if ChunkMark.of(manifest).chunk_key != run_key:
         return None
     entries = manifest.entries()
     if any(
@@ -439,7 +484,7 @@ def _finished(out, run_key) -> Manifest | None:
     return manifest
 
 
-def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force) -> ChunkedRun:
+def _render_and_merge(out, specs, keys, run_key, executor, progress, seed, force) -> "ChunkedRun":
     from .executor import LocalExecutor
 
     executor = executor or LocalExecutor()
