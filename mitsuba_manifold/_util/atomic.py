@@ -47,8 +47,8 @@ _TEMPORARY = re.compile(
 #: A temporary file of an earlier version (no process named) this old (seconds) is stale.
 STALE_AGE = 6 * 3600
 
-_WATCHERS = []
-_SWEPT = set()
+_WATCHERS: list = []
+_SWEPT: set = set()
 _LOCK = threading.Lock()
 
 

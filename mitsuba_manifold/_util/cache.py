@@ -41,12 +41,8 @@ if TYPE_CHECKING:
     from typing import Any
 
 
-if TYPE_CHECKING:
-    from typing import Any
-
-
-_HASHES = {}
-_VERIFIED = {}
+_HASHES: dict = {}
+_VERIFIED: dict = {}
 _LOCK = threading.Lock()
 #: Start of the checksum trailer of a cached ``.npy`` file (8 bytes), then the CRC-32 (8 bytes LE).
 TRAILER_MAGIC = b"\x93MMSUM1\n"

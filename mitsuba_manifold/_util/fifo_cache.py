@@ -16,6 +16,7 @@ class Recent:
     """
 
     def __init__(self, size) -> None:
+        self._items: dict
         self.size, self._items, self._lock = int(size), {}, threading.Lock()
 
     def get(self, key, make) -> Any:

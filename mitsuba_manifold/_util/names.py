@@ -62,7 +62,7 @@ def check_unique(names) -> list:
     """Escaped stems of ``names``; raise if two would name one file on a case-insensitive
     file system (macOS, Windows), e.g. ``Steel`` and ``steel``.
     """
-    stems = {}
+    stems: dict = {}
     for n in names:
         s = escape(n)
         other = stems.get(s.lower())

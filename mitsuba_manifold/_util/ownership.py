@@ -161,7 +161,7 @@ def record(paths, tool, group=None) -> None:
     """List ``paths`` (just written) with their content hashes in their folders' records
     (``group``: what the run wrote them as, for :meth:`Outputs.remove_stale`).
     """
-    by_folder = {}
+    by_folder: dict = {}
     for p in paths:
         by_folder.setdefault(os.path.dirname(os.path.abspath(p)), []).append(os.fspath(p))
     for folder, items in by_folder.items():
@@ -209,10 +209,15 @@ class Outputs:
     def __init__(self, tool, force=False, folders=(), group=None) -> None:
         self.tool, self.force, self.group = tool, bool(force), group
         self.folders = {os.path.abspath(os.fspath(f)) for f in folders}
+        self.written: list
+        self.kept: list
         self.written, self.kept = (
             [],
             [],
         )  # paths written (or already right), those left as they were
+        self._paths: dict
+        self._identical: set
+        self._was: dict
         self._paths, self._identical, self._was = {}, set(), {}
         self._context = None
 
@@ -309,7 +314,7 @@ class Outputs:
 
     def _settle(self) -> None:
         """Drop the replaced content's hash of every file renamed into place."""
-        by_folder = {}
+        by_folder: dict = {}
         for key, digest in self._was.items():
             if os.path.isfile(key) and file_hash(key) == digest:
                 by_folder.setdefault(os.path.dirname(key), []).append(os.path.basename(key))

@@ -267,6 +267,7 @@ def _plan(
     ``renormalised``, ``cross_left_weight``) as keywords.
     """
     p, names = basis.p, manifold.names
+    info: dict[str, Any]
     kept, info = [], {"weights": [], "dropped_weight": [], "cross_left_weight": None}
     for t in range(p):
         if p > 1 and abs(W[t].sum() - 1.0) > AFFINE_TOL:

@@ -77,7 +77,7 @@ def resolution_mismatch(dims, show=5) -> str:
     together, naming the files ``<name>.binary`` that differ from the most common resolution
     (every group when no resolution is the most common).
     """
-    groups = {}
+    groups: dict = {}
     for name, d in dims.items():
         groups.setdefault(tuple(d), []).append(name + ".binary")
     ranked = sorted(groups.items(), key=lambda kv: -len(kv[1]))

@@ -75,7 +75,7 @@ USER_POSITIONS = "starts"
 #: subsystem's reader; part of the tables' content hash).
 MEASURED_SAMPLES = 2
 
-_READERS = {}
+_READERS: dict = {}
 
 
 def register_reader(kind, reader) -> None:
@@ -375,7 +375,7 @@ def combine(groups) -> list:
     (``cardboard-rgl``, ``cardboard-nielsen``) when every such group is a built-in set; a
     clash involving a user's files is refused, naming both files.
     """
-    seen = {}
+    seen: dict = {}
     for label, sources in groups.items():
         for s in sources:
             seen.setdefault(s.name, []).append((label, s))
@@ -428,7 +428,7 @@ def folder_sources(folder) -> list:
                     found.append(Network(material_name(f), nets, nets.names[0], path, at))
                 else:
                     found.extend(Network(n, nets, n, path, at) for n in nets.names)
-    names = {}
+    names: dict = {}
     for s in found:
         if s.name in names:
             raise FormatError(

@@ -267,7 +267,7 @@ class _Scaled:
         self.likelihood, self.shape = likelihood, (n, q)
         self.scale = objective_scale(likelihood)
         self.n_evaluations = 0
-        self.last = {}
+        self.last: dict = {}
         self._q = None
 
     def fun(self, flat) -> tuple[float, Any]:

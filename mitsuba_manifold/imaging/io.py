@@ -245,7 +245,7 @@ def _wrap(text, width, length, max_lines=3) -> list:
     """``text`` as at most ``max_lines`` lines no wider than ``width`` (``length(s)``: pixels);
     cut at ``-``, ``_`` or spaces where possible, the last line ending in ``...`` if it is cut.
     """
-    out = []
+    out: list = []
     while text and len(out) < max_lines:
         k = len(text)
         while k > 1 and length(text[:k]) > width:
@@ -266,6 +266,7 @@ def _label_lines(text, width, length, max_lines=4) -> list:
     r"""A label as lines no wider than ``width``: each ``\n``-separated field on lines of its
     own (:func:`_wrap`), at most ``max_lines`` in all, the last ending in ``...`` if cut.
     """
+    out: list
     out, fields = [], [printable(f) for f in str(text).split("\n")]
     for k, field in enumerate(fields):
         room = max_lines - len(out)

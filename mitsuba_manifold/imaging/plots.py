@@ -198,6 +198,7 @@ def label_points(ax, xy, names, order=None, fontsize=7, marker_px=4) -> int:
         for x, y in disp
     ]
     halo = [pe.withStroke(linewidth=2.5, foreground="white")]
+    taken: list
     taken, named = [], 0
     for i in range(len(names)) if order is None else order:
         for dx, dy, ha, va in _LABEL_SPOTS:

@@ -497,7 +497,7 @@ class LatentHull:
             self.vertices, self.planes, self.facets = latent, None, None
             if self.q == 1:
                 self.vertices = np.array([[latent.min()], [latent.max()]])
-        self._faces = {}  # active vertices -> (base vertex, rows, pseudo-inverse) of the face
+        self._faces: dict = {}  # active vertices -> (base vertex, rows, pseudo-inverse) of the face
         self._last = None  # the face the last projection found (q >= 4)
         self._facet_pinv: np.ndarray | None = None
 

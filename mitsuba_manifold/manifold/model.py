@@ -70,13 +70,10 @@ from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES, PruneReport
 from .tables import TrainingTables
 
 if TYPE_CHECKING:
-    from .projection import Projection
-
-
-if TYPE_CHECKING:
     from typing import Any
 
     from .adding import Added
+    from .projection import Projection
 
 
 #: Names other modules import from here (the presets, the pruning default, the result types).

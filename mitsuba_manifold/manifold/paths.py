@@ -81,7 +81,7 @@ LENGTH = 0.01
 #: Samples of a geodesic's candidates (compared by length, then refined where coarse by :func:`even`).
 CHECK = 65
 
-_METRICS = weakref.WeakKeyDictionary()
+_METRICS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 class PathMetric:

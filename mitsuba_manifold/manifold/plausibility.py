@@ -305,7 +305,7 @@ class StepLimit:
         self.n = int(n)
         self.dims = tuple(int(v) for v in dims)
         self._albedo = np.full((self.n, 3 * N_INCIDENCE), np.nan)
-        self._ratio = {}
+        self._ratio: dict = {}
         self._store = store
         self.store = None  # its path, once the first step has asked for it
         self._stored = 0
@@ -367,7 +367,7 @@ class StepLimit:
         """``R_ij = min_b table_i[b] / table_j[b]`` for the pairs ``(rows, cols)`` (same shape)."""
         rows, cols = np.broadcast_arrays(np.asarray(rows), np.asarray(cols))
         pairs = list(zip(rows.ravel().tolist(), cols.ravel().tolist()))
-        todo = {}
+        todo: dict = {}
         for i, j in sorted(set(p for p in pairs if p not in self._ratio)):
             if i == j:
                 self._ratio[i, j] = 1.0

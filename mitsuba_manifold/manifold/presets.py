@@ -20,12 +20,9 @@ from ..gp import gplvm
 from . import interpolant as interpolants
 
 if TYPE_CHECKING:
-    from ..gp.gplvm import FitResult
-
-
-if TYPE_CHECKING:
     from typing import Any
 
+    from ..gp.gplvm import FitResult
     from ..gp.stress import Stress
     from .interpolant import GaussianProcessWeights, ShepardWeights
 

@@ -219,8 +219,10 @@ def cross_validate(
     split = FoldSplit() if split is None else split
     n, d = tables.shape
     bins = projection.search_bins(d) if bins is None else bins
-    rows = {f: [] for f in ("error", "negative_fraction", "albedo_min", "albedo_max")}
-    base = {"nearest": [], "pca_q": [], "pca5": [], "mean": []}
+    rows: dict[str, list] = {
+        f: [] for f in ("error", "negative_fraction", "albedo_min", "albedo_max")
+    }
+    base: dict[str, list] = {"nearest": [], "pca_q": [], "pca5": [], "mean": []}
     order, fold_of, fit_s, proj_s = [], [], 0.0, 0.0
     for fold, test in enumerate(folds(n, split.k, split.seed)):
         if split.only is not None and fold not in split.only:

@@ -45,11 +45,11 @@ if TYPE_CHECKING:
     from collections.abc import Callable
     from typing import Any
 
-
-if TYPE_CHECKING:  # imported by parse() when it runs (the command line is checked first)
     import numpy as np
 
+    # imported by parse() when it runs (the command line is checked first)
     from ...basis.blend import BlendSettings
+
 
 NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
 

@@ -51,7 +51,7 @@ register_reader(MeasuredFile.kind, read_measured)
 
 
 #: The parser of the running tool: :func:`fail` names its options in library messages.
-_ACTIVE = []
+_ACTIVE: list = []
 
 #: A Python parameter named in a library message (:mod:`mitsuba_manifold.errors`): `name`.
 _PARAM = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")

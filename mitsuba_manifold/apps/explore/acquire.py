@@ -177,7 +177,7 @@ def read_upload(photo, mask, size) -> tuple[Any, Any, list[str]]:
     the basis's ``size`` (width, height), and notes of what was done (resized, clipped pixels
     left out). PNG/JPEG pixels at their largest code (clipped) are masked out.
     """
-    notes = []
+    notes: list = []
     target, clipped = _read(decode_data(photo, "photo"), "the photo", "read_target")
     target = _resize(np.asarray(target, np.float64), size, "the photo", notes)
     if not np.isfinite(target).all():
@@ -440,6 +440,7 @@ class Acquisitions:
     """
 
     def __init__(self) -> None:
+        self._jobs: dict
         self._jobs, self._lock, self._count = {}, threading.Lock(), 0
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="explore-acquire")
 

@@ -128,13 +128,13 @@ class References:
 
     def __init__(self) -> None:
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="explore-reference")
-        self._jobs = {}
+        self._jobs: dict = {}
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
         self._stopping = False
         self._latest_refine = None
         self._held_until = 0.0  # monotonic time until which the running renders stay paused
-        self._paused = {}  # pid -> process paused by hold()
+        self._paused: dict = {}  # pid -> process paused by hold()
         self._resumer = None  # the timer that resumes them
         self._folder: str | None = None  # the temporary folder of the reference renders' files
         _sweep(tempfile.gettempdir())  # those of explorers killed before they could remove them

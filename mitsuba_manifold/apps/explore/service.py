@@ -174,8 +174,9 @@ class Explorer:
         self.database = database
         self.acquisitions = Acquisitions()
         self._framing = _Count()  # frames being made: the maps' work waits for them
+        self._maps: dict
         self._maps, self._maps_lock = {}, threading.Lock()
-        self._making = {}  # key -> Event of the maps being made (a second request waits for it)
+        self._making: dict = {}  # key -> Event of the maps being made (a second request waits for it)
         threading.Thread(target=self._first_map, name="explore-map", daemon=True).start()
 
     def _first_map(

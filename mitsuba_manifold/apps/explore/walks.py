@@ -99,6 +99,8 @@ class Walks:
         np.fill_diagonal(D, np.inf)
         #: median distance of a measured material to its nearest measured neighbour (a scale)
         self.spacing = float(np.median(D.min(axis=1))) if manifold.n > 1 else 1.0
+        self._waiters: dict
+        self._paths: OrderedDict
         self._paths, self._lock, self._waiters, self._busy = (
             OrderedDict(),
             threading.Lock(),
@@ -108,7 +110,7 @@ class Walks:
         self._running = (
             None  # [future, started (monotonic), evaluations, stop] of the path computed now
         )
-        self._queue = queue.Queue()
+        self._queue: queue.Queue = queue.Queue()
         self._thread = threading.Thread(target=self._work, name="explore-paths", daemon=True)
         self._thread.start()
 

@@ -203,7 +203,7 @@ class _FileEntry:
     absent) and keys this version does not know (:attr:`extra`).
     """
 
-    KEYS = ()
+    KEYS: ClassVar["tuple[str, ...]"] = ()
 
     if TYPE_CHECKING:  # the dataclasses below define it
 

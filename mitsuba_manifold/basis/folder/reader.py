@@ -89,17 +89,17 @@ class Basis:
         self.keys = [k for k in manifest.images if k != BASE]
         parts = [key_materials(k, self.version) for k in self.keys]
         self.materials = [sorted({pt[t] for pt in parts}) for t in range(self.p)]
-        self._rows = {}  # image key -> row of self._store
+        self._rows: dict = {}  # image key -> row of self._store
         self._store = None  # float32 (capacity, H, W, 3): the images read so far
-        self._checked = {}  # manifold path or object -> manifold object, checked against the manifest
+        self._checked: dict = {}  # manifold path or object -> manifold object, checked against the manifest
         #: What the basis holds (:data:`manifest.COMPONENTS`); an older basis: L1- only.
         self.components = manifest.held_components
         self.legacy = manifest.components is None
         self._cross: tuple[dict[tuple[str, str], int], np.ndarray] | None = (
             None  # (pairs {(a, b): row}, float16 (P, H, W, 3)) once read
         )
-        self._cross32 = {}  # row -> float32 (H, W, 3), the rows blended so far
-        self._derived = {}  # name -> what derived() made from the folder's files
+        self._cross32: dict = {}  # row -> float32 (H, W, 3), the rows blended so far
+        self._derived: dict = {}  # name -> what derived() made from the folder's files
         self._read_lock = threading.RLock()  # one reader of a file kept here (explorer threads)
 
     @classmethod

@@ -174,6 +174,7 @@ class LogLuminanceMSE:
         """Errors and exposures of many weight vectors W (M, N) at once (in float32, the weights
         below float32's normal range set to 0: :func:`~mitsuba_manifold._util.float32.weights32`).
         """
+        norms: list
         errs, norms = [], []
         for s in range(0, len(W), chunk):  # in place: one (chunk, P) array a chunk
             lum = np.matmul(weights32(W[s : s + chunk]), self.A32[1:])
@@ -186,6 +187,7 @@ class LogLuminanceMSE:
         chunk of about a million values at a time (default), which stays in the cache.
         """
         chunk = chunk or max(1, (1 << 20) // self.A32.shape[1])
+        norms: list
         errs, norms = [], []
         for s in range(1, len(self.A32), chunk):
             errs.append(self._errors(self.A32[s : s + chunk] + self.A32[0], norms))

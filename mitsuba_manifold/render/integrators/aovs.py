@@ -39,7 +39,7 @@ class FirstHitAOVs(mi.SamplingIntegrator):
         check_variant()  # first: Mitsuba warns about Python integrators in scalar variants
         super().__init__(props)
         self.bins = int(props.get("bins", THETA_BINS))
-        self.targets = []
+        self.targets: list = []
 
     def aov_names(self) -> list[str]:
         return (

@@ -56,7 +56,7 @@ def scene_shapes(scene) -> list:
 
 def _inner(bsdf) -> list:
     """The manifold BSDFs a (wrapper) BSDF holds, found through its parameters."""
-    found = []
+    found: list = []
     for _, _, node, _ in mi.traverse(bsdf).properties.values():
         if is_manifold_bsdf(node) and not any(node is b for b in found):
             found.append(node)
@@ -68,7 +68,7 @@ def carriers(scene) -> list[tuple]:
     that is a manifold material or holds one (``twosided``, ...), with that manifold material, in
     the order of the shapes. A ray hitting ``carrier`` scatters off ``material``.
     """
-    out = []
+    out: list = []
     for shape in scene_shapes(scene):
         bsdf = shape.bsdf()
         if bsdf is None or any(bsdf is c for c, _ in out):
@@ -97,7 +97,7 @@ def manifold_bsdfs(scene) -> list:
     """The distinct manifold BSDF instances of ``scene`` (a shape's own BSDF, or held by one such as
     ``twosided``; instanced shapes included), in the order of the shapes.
     """
-    found = []
+    found: list = []
     for _, bsdf in carriers(scene):
         if not any(bsdf is b for b in found):
             found.append(bsdf)
@@ -107,7 +107,7 @@ def manifold_bsdfs(scene) -> list:
 def nested_manifold_bsdfs(scene) -> list:
     """Manifold BSDFs of ``scene`` that no shape's BSDF holds in a way the split can see."""
     own = manifold_bsdfs(scene)
-    nested = []
+    nested: list = []
     for _, _, node, _ in mi.traverse(scene).properties.values():
         if is_manifold_bsdf(node) and not any(node is b for b in own + nested):
             nested.append(node)

@@ -134,7 +134,7 @@ class MultiSplats:
         self.groups = self._groups(self.pairs or [], {})
         self.selection = None  # what :meth:`_choose` measured
         self.sums = dr.zeros(mi.Float, self.pixels * 3 * self.n_pad)
-        self.splats = []  # (k, [bins], amplitude, pixel, count) per set of levels (:func:`_merged`)
+        self.splats: list = []  # (k, [bins], amplitude, pixel, count) per set of levels (:func:`_merged`)
         self.counts = np.zeros(self.levels + 2, np.int64)  # paths by vertices on the target
 
     def prepare(self, rec, weight, taps, seed=0) -> None:
@@ -201,7 +201,7 @@ class MultiSplats:
         """``[(share of the splats, pairs, their sums)]``: the pairs grouped by ``shares`` (pair ->
         share; ``cross_fraction`` times it, 1 where not given).
         """
-        by = {}
+        by: dict = {}
         for p in pairs:
             by.setdefault(self.cross_fraction * shares.get(p, 1.0), []).append(p)
         return [(f, ps, self._sums(ps)) for f, ps in sorted(by.items(), reverse=True)]
@@ -301,7 +301,7 @@ class MultiSplats:
             for c in range(3):
                 t = a[c]
                 for bj, ok in zip(b, has):
-                    f = dr.maximum(
+                    f: Any = dr.maximum(
                         dr.gather(
                             mi.ArrayXf,
                             self.rows,

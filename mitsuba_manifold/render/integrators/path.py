@@ -36,12 +36,10 @@ from .common import (
 from .records import Records
 
 if TYPE_CHECKING:
-    from .onepass import OnePassGI, OnePassImages
-
-
-if TYPE_CHECKING:
     from collections.abc import Callable
     from typing import Any
+
+    from .onepass import OnePassGI, OnePassImages
 
 
 class ManifoldPathIntegrator(mi.SamplingIntegrator):

@@ -28,10 +28,6 @@ if TYPE_CHECKING:
     from typing import Any
 
 
-if TYPE_CHECKING:
-    from typing import Any
-
-
 #: Materials per packet of the table product (Dr.Jit packet gathers of 16 contiguous floats).
 PACKET = 16
 #: Most bytes of per-pixel sums one table kernel holds (Expand mode keeps a copy per thread).
@@ -118,7 +114,7 @@ def _splat_rows(sums, splats, pixel, rows, row_packets, kb0, kb1) -> None:
     dr.set_expand_threshold(max(threshold, dr.width(sums)))
     try:
         for c in range(3):
-            t = dr.gather(
+            t: Any = dr.gather(
                 mi.ArrayXf,
                 rows,
                 (b * 3 + c) * row_packets + kb0 + kb,
@@ -158,7 +154,7 @@ class TableSplats:
         ]
         widest = max(b1 - b0 for b0, b1 in self.packets) * PACKET
         self.tile = max(1, _SUM_BYTES // (12 * widest * max(1, dr.thread_count())))
-        self.tiles = []
+        self.tiles: list = []
 
     def taps(self, pos) -> list[tuple[mi.UInt32, Any]]:
         """Each sample's pixels in the sums and their filter weights (:meth:`FilterTaps.taps`)."""
@@ -296,12 +292,12 @@ class FilterSplats:
             )
             for k0, k1 in chunks
         ]
-        self.cache = {}  # chunk index -> tables (nearest) or BSDFs (linear)
+        self.cache: dict = {}  # chunk index -> tables (nearest) or BSDFs (linear)
         self.keep = several_passes and len(names) * bins * 12 <= (1 << 31)
         if self.nearest:  # planar (RGB, bins) -> interleaved (bins, RGB)
             i = dr.arange(mi.UInt32, 3 * bins)
             self.interleave = (i % 3) * bins + i // 3
-        self.splats = []
+        self.splats: list = []
 
     def _data(self, c):
         if c in self.cache:

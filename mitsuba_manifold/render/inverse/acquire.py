@@ -279,7 +279,7 @@ def coverage(scene_path, manifold_path, size, mask, sensor=0, database=None) -> 
 
 def coverage_warnings(cov) -> list:
     """Warnings of what the masked pixels do not show (from :func:`coverage` of every view)."""
-    out = []
+    out: list = []
     if not cov:
         return out
     grazing = max((c["theta_o"][-1] for c in cov if c.get("theta_o")), default=0.0)
@@ -470,6 +470,8 @@ def acquire(
         manifold=recorded,
     )
     t0 = time.perf_counter()
+    renders: list
+    singles: list
     renders, singles = [], []
     for v in views if opts.render_spp else []:
         size = (v.target.shape[1], v.target.shape[0])

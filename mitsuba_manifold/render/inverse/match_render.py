@@ -176,6 +176,7 @@ class _Problem:
 
         self.mi, self.opts, self.views = mi, opts, views
         self.data = _targets(views)
+        self.loaded: dict
         self.loaded, self.params, self.keys = {}, {}, {}
         for v, (target, _) in zip(views, self.data):
             if v.scene in self.loaded:

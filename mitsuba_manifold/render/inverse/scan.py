@@ -137,7 +137,7 @@ def scan(problem, opts, check_spp) -> dict:
         ("blend scan", r["x"], r["objective"]) for r in sorted(runs, key=lambda r: r["objective"])
     ]
     cand += [("material " + m.names[i], m.latent[i], e) for e, i in ranked[:2]]
-    checked = []
+    checked: list = []
     for label, x, e in cand:
         if any(np.linalg.norm(x - y) < SAME_POINT * m.length_scale for _, y, _, _ in checked):
             continue
@@ -150,7 +150,7 @@ def scan(problem, opts, check_spp) -> dict:
             )
         )
     checked.sort(key=lambda r: r[3])
-    starts = []
+    starts: list = []
     for label, x, _, _ in checked:
         if len(starts) == int(opts.starts):
             break

@@ -165,7 +165,7 @@ def render_gi(scene, manifold, todo, o, paths, out, manifest, save, stop) -> Non
     names = [combo[0] for _, combo in todo if combo is not None]
     keys = {combo[0]: key for key, combo in todo if combo is not None}
     pairs, pstats = select_pairs(manifold, names, tol=o.gi.cross_tol)
-    products = tuple(pstats.pop("products"))
+    products: tuple = tuple(pstats.pop("products"))
     select = PairSelection(products, tol=o.gi.cross_light_tol) if o.gi.cross_light_tol else None
     if o.gi.cross_keep is not None:  # a later chunk: the first chunk's pairs
         index = {tuple(p): k for k, p in enumerate(pairs)}

@@ -293,7 +293,7 @@ class BasisOptions:
         TypeError
             A name that is neither a field of a group nor a group.
         """
-        groups = {g: {} for g in _GROUPS}
+        groups: dict[str, dict] = {g: {} for g in _GROUPS}
         whole = {}
         for name, value in settings.items():
             if name in _GROUPS:

@@ -158,7 +158,7 @@ class ActiveSet:
         self.prune = float(prune)
         self.step = typical_step(manifold.latent)
         self._read, self._density = tables, density
-        self.idx = None  # (k,) material per slot
+        self.idx: np.ndarray | None = None  # (k,) material per slot
         self.dims = None  # table resolution
         self.host = None  # (k, bins, 3) float32
         self.slots = None  # mi.Float

@@ -36,7 +36,7 @@ def _version(path) -> int | None:
 
 def candidates() -> list:
     """LibLLVM files found on this machine, newest major version first."""
-    found = {}
+    found: dict = {}
     patterns = []
     for d in _SEARCH_DIRS:
         patterns += [os.path.join(d, "libLLVM*.so*"), os.path.join(d, "libLLVM*.dylib")]

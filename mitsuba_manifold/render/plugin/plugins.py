@@ -37,7 +37,7 @@ MODULES = {
 
 _PACKAGE = __name__.rsplit(".", 2)[0]  # mitsuba_manifold.render
 _LOCK = threading.RLock()
-_made = {}  # variant -> {module name: {class name: class}}
+_made: dict = {}  # variant -> {module name: {class name: class}}
 _installed = False
 
 

@@ -136,7 +136,7 @@ class AllowList:
 
 
 def _headers(scope) -> dict:
-    out = {}
+    out: dict = {}
     for k, v in scope.get("headers", ()):
         out.setdefault(k.decode("latin-1").lower(), v.decode("latin-1"))
     return out

@@ -172,7 +172,7 @@ class RepeatFilter(logging.Filter):
     def __init__(self, window=LOG_WINDOW, clock=time.monotonic) -> None:
         super().__init__()
         self.window, self.clock = float(window), clock
-        self._seen = {}  # key -> [time passed, records left out since]
+        self._seen: dict = {}  # key -> [time passed, records left out since]
         self._lock = threading.Lock()
 
     def filter(self, record) -> bool:

@@ -151,7 +151,7 @@ class Session:
 
     def __init__(self, ws, explorer) -> None:
         self.ws, self.ex = ws, explorer
-        self.pending = {}
+        self.pending: dict = {}
         self.wake = {k: asyncio.Event() for k in KINDS + (FINAL,)}
         self.lock = asyncio.Lock()  # one message at a time on the socket
         self.cancel_route = asyncio.Event()  # the page cancelled the path it waits for
