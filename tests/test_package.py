@@ -327,7 +327,7 @@ MAX_PARAMETERS = 10
 LONG_SIGNATURES = {
     "manifold/model.py:Manifold.__init__",
     "manifold/model.py:Manifold.fit",
-    "render/scene/scenes.py:render_reference",
+    "render/scene/references.py:render_reference",
 }
 
 
