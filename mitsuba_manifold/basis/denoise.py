@@ -306,7 +306,7 @@ def basis_aovs(basis) -> BasisAOVs | None:
     return basis.derived("aovs", _aovs_or_none)
 
 
-def _aovs_or_none(basis):
+def _aovs_or_none(basis) -> BasisAOVs | None:
     """The basis's AOVs; None when it has none or they were made for another basis (stale: the
     denoiser then runs unguided); an unreadable file raises, naming it.
     """

@@ -460,7 +460,7 @@ def made_table(cache_dir, digest, build, shape, out=None, what="table") -> "np.n
         np.copyto(out, made_table(cache_dir, digest, build, shape, what=what).reshape(out.shape))
         return out.reshape(shape)
 
-    def build_full():
+    def build_full() -> "np.ndarray":
         return finite_table(build(), what)
 
     if os.path.exists(full):

@@ -161,7 +161,7 @@ class GaussianProcessWeights(Interpolant):
         b = self.gp_weights(x)
         return b, self.affine(b)
 
-    def _weights(self, x):
+    def _weights(self, x) -> np.ndarray:
         return self.affine(self.gp_weights(x))
 
     def _jacobian(self, x):

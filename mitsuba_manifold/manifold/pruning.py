@@ -128,7 +128,7 @@ def _result(w, keep) -> tuple[Any, Any, float]:
     return keep, w_kept, float(np.abs(w).sum() - np.abs(w[keep]).sum())
 
 
-def prune(w, G, budget):
+def prune(w, G, budget) -> tuple[Any, Any, float]:
     """The ``"raw-l2"`` rule: materials to keep so that the raw table changes by at most
     ``budget`` (relative L2).
 

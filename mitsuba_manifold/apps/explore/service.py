@@ -378,7 +378,7 @@ class Explorer:
 
     _bounds = staticmethod(extent)
 
-    def _dims(self, dims):
+    def _dims(self, dims) -> tuple[int, int]:
         return map_dims(self.manifold, dims)
 
     def map_key(

@@ -225,7 +225,7 @@ def _cleaner(basis) -> Callable[..., Any]:
         return lambda img, name: img
     aovs = basis_aovs(basis)  # None: no AOVs, or another basis's
 
-    def clean(img, name):
+    def clean(img, name) -> np.ndarray:
         try:
             guides = (aovs.albedo({name: 1.0}), aovs.normal) if aovs else (None, None)
         except MismatchError:  # AOVs older than this material

@@ -611,7 +611,7 @@ class Manifest:
             )
             return self.extra.get(name)
 
-        def put(self, value):
+        def put(self, value) -> None:
             warnings.warn(
                 f"Manifest.{name} is deprecated: set it with "
                 "mitsuba_manifold.render.jobs.chunks.ChunkMark(...).put(manifest)",
@@ -629,7 +629,7 @@ class Manifest:
     chunk_key = _chunk_mark("chunk_key")
     del _chunk_mark
 
-    def copy(self):
+    def copy(self) -> "Manifest":
         """A deep copy (its entries can be changed without changing this one's)."""
         return copy.deepcopy(self)
 

@@ -376,7 +376,7 @@ def _shape_check(field, n, q) -> "Callable[..., Any]":
     return ok
 
 
-def read_arrays(path, zf, meta):
+def read_arrays(path, zf, meta) -> "dict[str, np.ndarray]":
     """The :data:`ARRAYS` entries of open archive ``zf`` (checked; absent optional ones left out)."""
     n = len(meta["names"])
     entries = {i.filename[:-4] for i in zf.infolist() if i.filename.endswith(".npy")}

@@ -30,7 +30,7 @@ def rows_key(rows) -> str:
     return getattr(rows, "key", None) or os.path.basename(rows.filename).split(".")[0]
 
 
-def _mixture_table(db, rows, mix, keep=2):
+def _mixture_table(db, rows, mix, keep=2) -> np.ndarray:
     """``sum_k mix_k table_k`` from the interleaved tables ``rows``, as ``(bins, 3)`` float32.
 
     Cached beside ``rows`` (keyed by them and the weights; the ``keep`` newest kept), so
@@ -118,7 +118,7 @@ def forget_point() -> None:
     _POINT_CACHE.clear()
 
 
-def with_point(target, db, names, rows, w):
+def with_point(target, db, names, rows, w) -> tuple[Any, list, Any]:
     """:func:`_with_point`, the last point's result reused (:class:`_LastPoint`)."""
     return _POINT_CACHE.get((target, db, names, rows, w), _with_point)
 

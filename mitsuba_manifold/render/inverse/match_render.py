@@ -297,7 +297,7 @@ def _descend(problem, x0, opts, lr, bar) -> tuple:
     return history, np.array(opt["x"], dtype=np.float64), best[1], np.mean(tail, axis=0)
 
 
-def _plot(history, path, labels):
+def _plot(history, path, labels) -> str:
     from ...imaging.plots import finish, subplots
 
     fig, ax = subplots(figsize=(6, 4))

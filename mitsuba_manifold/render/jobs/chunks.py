@@ -313,7 +313,7 @@ def save_chunk(out, result, key=None):
     return manifest
 
 
-def merge(out, folders, seed, force=False):
+def merge(out, folders, seed, force=False) -> "Manifest":
     """Merge complete chunk folders into the basis folder ``out``: the spp-weighted mean.
 
     Returns the merged manifest. Images ``out`` already holds for the same settings are

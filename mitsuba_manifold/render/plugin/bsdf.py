@@ -406,7 +406,7 @@ class ManifoldBRDF(mi.BSDF):
         db = self._manifold.open_database(self._options.database, names)
         return {n: np.asarray(db.reflectance(n)) for n in names}
 
-    def _read_density(self, name):
+    def _read_density(self, name) -> np.ndarray:
         return material_density(self._manifold.open_database(self._options.database, [name]), name)
 
     def _update_ad(self) -> None:

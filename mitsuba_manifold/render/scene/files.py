@@ -8,6 +8,8 @@ basis or a reference renders with (:func:`check_scene_manifolds`), and must not 
 that hides them (:func:`check_wrappers`).
 """
 
+from __future__ import annotations
+
 import os
 import re
 
@@ -18,7 +20,7 @@ from ...manifold.file.identity import manifold_identity
 from ...manifold.file.shipped import SHIPPED, ambiguity, resolve_manifold
 
 
-def _scenes_dir():
+def _scenes_dir() -> str:
     """The shipped scenes: ``scenes/`` at the top of a checkout, installed as the package data
     ``mitsuba_manifold/scenes`` (``pyproject.toml`` maps one to the other).
     """
@@ -38,7 +40,7 @@ SCENES_DIR = _scenes_dir()
 _PARAM = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 
 
-def shipped_scenes():
+def shipped_scenes() -> list:
     """Names of the scenes shipped with the package (``table``, ``sphere``, ...)."""
     return sorted(f[:-4] for f in os.listdir(SCENES_DIR) if f.endswith(".xml"))
 
@@ -58,7 +60,7 @@ def scene_path(scene):
     )
 
 
-def scene_parameters(scene):
+def scene_parameters(scene) -> tuple[set, dict[str | None, str | None]]:
     """Names of the ``$parameters`` a scene XML uses, and its ``<default>`` values."""
     root = scene_xml(scene)  # exists, and is a scene XML (not a table or an image)
     defaults = {el.get("name"): el.get("value") for el in root.iter("default")}
@@ -68,7 +70,7 @@ def scene_parameters(scene):
     return used, defaults
 
 
-def scene_sample_count(scene, sensor=0):
+def scene_sample_count(scene, sensor=0) -> int | None:
     """Samples per pixel the sampler of sensor ``sensor`` of a scene XML declares: its
     ``sample_count``, or the ``<default>`` of the ``$parameter`` it takes; None where it
     declares none (or gives no integer).
@@ -88,7 +90,7 @@ def scene_sample_count(scene, sensor=0):
     return None
 
 
-def scene_manifolds(scene, params=None):
+def scene_manifolds(scene, params=None) -> list[tuple[str | None, str]]:
     """``(bsdf id, manifold file)`` of each ``manifold_brdf`` of a scene XML: its ``manifold``
     value with ``$parameters`` taken from ``params``, else the scene's ``<default>``s, and a
     relative path resolved against the scene's folder (as Mitsuba's file resolver does), or
@@ -114,7 +116,7 @@ def scene_manifolds(scene, params=None):
     return found
 
 
-def check_scene_manifolds(scene, manifold_path, params):
+def check_scene_manifolds(scene, manifold_path, params) -> None:
     """Raise unless every ``manifold_brdf`` of the scene uses ``manifold_path`` (the file, or
     one of the same content): a scene naming its own manifold is not rendered with another's
     latent points.
@@ -139,7 +141,7 @@ def check_scene_manifolds(scene, manifold_path, params):
 HIDING_WRAPPERS = ("normalmap", "bumpmap")
 
 
-def check_wrappers(scene):
+def check_wrappers(scene) -> None:
     """Raise (before loading) if a ``manifold_brdf`` of the scene XML sits inside a
     :data:`HIDING_WRAPPERS` BSDF, naming it and what works instead.
     """
@@ -170,7 +172,7 @@ def check_wrappers(scene):
             )
 
 
-def other_manifold(scene, bsdf_id, path, manifold_path):
+def other_manifold(scene, bsdf_id, path, manifold_path) -> str:
     if not os.path.isfile(path):
         return (
             f"scene {scene}: material {bsdf_id!r} names the manifold {path} (which does not exist), not "

@@ -3,6 +3,8 @@
 manifest by :meth:`SceneIntegrator.to_manifest` and read back by :meth:`SceneIntegrator.from_manifest`).
 """
 
+from __future__ import annotations
+
 import re
 from dataclasses import asdict, dataclass, fields
 
@@ -72,7 +74,7 @@ class SceneIntegrator:
             )
 
     @classmethod
-    def from_manifest(cls, entry, where="the manifest") -> "SceneIntegrator | None":
+    def from_manifest(cls, entry, where="the manifest") -> SceneIntegrator | None:
         """The settings a basis manifest's ``integrator`` entry records (:meth:`to_manifest`), or
         None where it records none; a :class:`FormatError` naming ``where`` and the field when
         the entry is not such settings. Keys this version does not know are ignored.
@@ -92,7 +94,7 @@ class SceneIntegrator:
         except InputError as e:
             raise FormatError(f"{where}: {e}") from None
 
-    def path_properties(self):
+    def path_properties(self) -> dict:
         """Properties of a ``manifold_path`` (or ``path``) integrator that renders these paths."""
         return {
             "max_depth": int(self.max_depth),
@@ -111,7 +113,7 @@ class SceneIntegrator:
             return own
         return mi.load_dict({"type": "path", **self.path_properties()})
 
-    def describe(self):
+    def describe(self) -> str:
         """One phrase: ``path (max_depth 3, hide_emitters)``, with where it comes from."""
         depth = "unbounded" if self.max_depth < 0 else str(self.max_depth)
         extra = ", hide_emitters" if self.hide_emitters else ""
@@ -127,7 +129,7 @@ class SceneIntegrator:
         return asdict(self)
 
 
-def _depth_of(integrator, name, text):
+def _depth_of(integrator, name, text) -> int | None:
     """An integer property of a Mitsuba integrator: its attribute, else its ``to_string``."""
     value = getattr(integrator, name, None)
     if value is None:
@@ -139,7 +141,7 @@ def _depth_of(integrator, name, text):
     return -1 if value >= 0xFFFFFFFF or value < 0 else value
 
 
-def scene_integrator(scene, scene_path, max_depth=None):
+def scene_integrator(scene, scene_path, max_depth=None) -> SceneIntegrator:
     """The :class:`SceneIntegrator` of a loaded scene, or an :class:`InputError` naming the
     setting the basis cannot reproduce (raised before anything is rendered).
 
@@ -197,7 +199,7 @@ def scene_integrator(scene, scene_path, max_depth=None):
     return found
 
 
-def _has_media(scene):
+def _has_media(scene) -> bool:
     """Whether any shape or sensor of ``scene`` bounds or holds a participating medium."""
     for shape in scene.shapes():
         for name in ("interior_medium", "exterior_medium"):

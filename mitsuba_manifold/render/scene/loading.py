@@ -3,6 +3,8 @@ depth), finding its manifold materials (:func:`load_scene`), and setting them to
 (:func:`set_points`, :func:`scene_at`).
 """
 
+from __future__ import annotations
+
 import os
 from typing import NamedTuple
 
@@ -41,7 +43,7 @@ def load_scene(
     variant=None,
     database=None,
     sensor=0,
-):
+) -> LoadedScene:
     """Load a scene XML with its ``$parameters`` set, and find its manifold materials.
 
     Only the parameters the XML uses are passed (Mitsuba refuses others): ``$manifold``,
@@ -159,7 +161,7 @@ def load_scene(
 
 def _scene_params(
     used, defaults, manifold_path, manifold, *, x, spp, max_depth, database, resolution
-):
+) -> tuple:
     """The ``$parameters`` to load a scene with (only those its XML uses) and the image size
     asked for (None: the film's own); ``manifold`` loads the manifold when first called.
     """
@@ -203,12 +205,12 @@ def scene_resolution(manifest):
     return manifest.loaded_resolution
 
 
-def image_size(film):
+def image_size(film) -> tuple:
     """``(width, height)`` of the images a film gives: its crop window's size."""
     return tuple(int(v) for v in film.crop_size())
 
 
-def check_film(scene_path, film):
+def check_film(scene_path, film) -> None:
     """Raise unless the basis can render ``film``'s images: a film that develops an image
     (``hdrfilm``; every pixel format: the basis and references are RGB, the film's format being a
     fixed map of it).
@@ -231,7 +233,7 @@ def scene_at(
     variant=None,
     targets=None,
     database=None,
-):
+) -> tuple:
     """``(scene, max_depth)``: the scene loaded (:func:`load_scene`) with every manifold material
     at its latent point: ``x`` (q,) for all of them, or (p, q) one per target (``targets``: the
     BSDF ids of the rows, default the scene's manifold materials in the order of its shapes).
@@ -244,7 +246,7 @@ def scene_at(
     return loaded.scene, loaded.max_depth
 
 
-def set_points(found, x, targets=None):
+def set_points(found, x, targets=None) -> None:
     """Every manifold material ``found`` (:attr:`LoadedScene.targets`) at its latent point: ``x``
     (q,) for all of them, or (p, q) one per target (``targets`` as :func:`scene_at`).
     """
@@ -264,7 +266,7 @@ def set_points(found, x, targets=None):
         bsdf.set_latent(pts[row])
 
 
-def as_points(x):
+def as_points(x) -> np.ndarray:
     """``x`` as a (p, q) array of finite latent points, or the error naming it."""
     pts = np.atleast_2d(np.asarray(x, dtype=np.float64))
     if pts.ndim != 2 or not np.isfinite(pts).all():

@@ -2,8 +2,15 @@
 truth the ``L1-`` blends of paper Sec. 5.2 are compared with.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 from ...errors import MismatchError
 from .loading import as_points, load_scene, set_points
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 def render_reference(
@@ -18,7 +25,7 @@ def render_reference(
     targets=None,
     database=None,
     sensor=0,
-):
+) -> np.ndarray:
     """Mitsuba's own image of the scene with the interpolated material: the ground truth of a blend.
 
     Its eleven parameters are a render's (scene, manifold, point, samples, seed) and the settings a

@@ -2,12 +2,18 @@
 checking a variant asked for, and giving Dr.Jit's cached memory back after a large render.
 """
 
+from __future__ import annotations
+
 import os
+from typing import TYPE_CHECKING
 
 from ...errors import InputError, VariantError
 
+if TYPE_CHECKING:
+    from types import ModuleType
 
-def default_variant():
+
+def default_variant() -> str:
     """The variant named by the environment variable ``MM_VARIANT`` when set (``llvm_ad_rgb`` or
     ``cuda_ad_rgb``, the latter refused where CUDA does not run), else ``cuda_ad_rgb`` when a GPU
     works, else ``llvm_ad_rgb``.
@@ -33,7 +39,7 @@ def default_variant():
     return "llvm_ad_rgb"
 
 
-def _cuda_works():
+def _cuda_works() -> bool:
     """Whether Dr.Jit's CUDA backend runs here (a device and a driver)."""
     try:
         import drjit as dr
@@ -43,7 +49,7 @@ def _cuda_works():
         return False
 
 
-def use_variant(variant=None, jit=False):
+def use_variant(variant=None, jit=False) -> ModuleType:
     """The variant to render in, active and with the package's plugins; returns ``mi``.
 
     Never switches the variant unless asked, as Mitsuba itself:
@@ -81,7 +87,7 @@ def use_variant(variant=None, jit=False):
     return mi
 
 
-def release_render_memory():
+def release_render_memory() -> None:
     """Give the memory Dr.Jit keeps for reuse after a render back to the system.
 
     Dr.Jit caches the buffers a kernel frees (the paths and splats of a pass) for later kernels
