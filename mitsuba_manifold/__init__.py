@@ -69,7 +69,7 @@ def __dir__() -> list:
     return sorted(set(globals()) | set(_FACE))
 
 
-def register():
+def register() -> str:
     """Register ``manifold_brdf`` and the package's integrators for the active Mitsuba variant
     and every variant activated later; returns the active variant.
 

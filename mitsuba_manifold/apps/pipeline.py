@@ -83,7 +83,7 @@ class MainJob:
     force: bool = False
     database: str = "merl"
 
-    def check(self):
+    def check(self) -> str:
         """Check the settings before anything is computed or written; raises
         :class:`~mitsuba_manifold.errors.InputError` naming the field (in backquotes, which
         ``tools/main.py`` writes as its option), the value and the fix. Returns the scene's path.

@@ -25,12 +25,17 @@ import functools
 import json
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._util.cache import key_hash
 from ..errors import FormatError, InputError, UnknownMaterialError, did_you_mean
 from . import merl
+
+if TYPE_CHECKING:
+    from typing import Any
+
 
 __all__ = [
     "DEFAULT_POSITIONS",
@@ -110,7 +115,7 @@ class NetworkSet:
         return cls(names, **layers)
 
     @staticmethod
-    def positions(path, prefix, default):
+    def positions(path, prefix, default) -> Any:
         """The positions a ``.npz`` file records for its set ``prefix`` (``default`` when none)."""
         with np.load(path, allow_pickle=False) as f:
             key = f"{prefix}_positions"

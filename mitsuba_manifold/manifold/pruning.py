@@ -217,7 +217,7 @@ class _Search:
         share = np.where(ok, self._shares(q, dA), np.inf)
         return j, share, (a, b, e, q, dA)
 
-    def run(self):
+    def run(self) -> np.ndarray:
         """Drop, one at a time, the material whose removal keeps the largest share smallest, while
         that share stays within the bounds and more than one material is kept.
         """

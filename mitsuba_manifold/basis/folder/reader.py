@@ -25,6 +25,8 @@ from .manifest import BASE, GI, Manifest, image_changed, image_key, key_material
 if TYPE_CHECKING:
     from typing import Any
 
+    from ...manifold.model import Manifold
+
 
 # -------------------------------------------------------------------- basis
 
@@ -42,7 +44,7 @@ def _in_progress(folder, where, why) -> str:
     return f"{where}: {IN_PROGRESS if is_locked(folder) else why}"
 
 
-def manifold_object(manifold):
+def manifold_object(manifold) -> Manifold:
     from ...manifold.model import Manifold
 
     if isinstance(manifold, (str, os.PathLike)):
@@ -350,7 +352,7 @@ class Basis:
                 "the scene or a file it uses changed, render the basis again"
             )
 
-    def check_manifold(self, manifold=None):
+    def check_manifold(self, manifold=None) -> Manifold:
         """The manifold object, checked against the manifest (loaded from the manifest's
         path when ``manifold`` is None).
 

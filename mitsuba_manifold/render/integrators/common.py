@@ -279,7 +279,7 @@ class TracePlan:
             )
 
 
-def power_heuristic(pdf_a, pdf_b):
+def power_heuristic(pdf_a, pdf_b) -> mi.Float:
     a2, b2 = dr.square(pdf_a), dr.square(pdf_b)
     w = a2 / (a2 + b2)
     return dr.select(dr.isfinite(w), w, 0)

@@ -167,7 +167,7 @@ def scan(problem, opts, check_spp) -> dict:
     }
 
 
-def adam_start(manifold, x, ranked):
+def adam_start(manifold, x, ranked) -> np.ndarray:
     """``x``, or a start near it when ``x`` sits on a training point (:func:`start_near`)."""
     w = np.asarray(manifold.weights(x)[1])
     i = int(np.argmax(w))
@@ -178,7 +178,7 @@ def adam_start(manifold, x, ranked):
     )
 
 
-def start_near(manifold, i, ranked, t=0.3):
+def start_near(manifold, i, ranked, t=0.3) -> np.ndarray:
     """A start near training material ``i``, off its training point (where the Shepard weights
     are flat): ``t`` of the way towards the best-ranked of its 3 latent neighbours, so that both
     materials' weights move with ``x`` (:func:`.ad.jitter` when it has no neighbour).

@@ -292,7 +292,7 @@ def chunk_done(folder, key=None) -> "Manifest | None":
 _CROSS = "cross:"
 
 
-def save_chunk(out, result, key=None):
+def save_chunk(out, result, key=None) -> "Manifest":
     """Write a worker's chunk into its folder: images (their hashes recorded), then the manifest
     (the completion mark; ``key``: the chunk's :func:`chunk_key`, recorded).
     """

@@ -74,7 +74,7 @@ def gather_rgb(table, idx, active) -> mi.Color3f:
     return mi.Color3f(float(r), float(g), float(b))
 
 
-def table_value(table, dims, interpolation, wi, wo, active, gather=gather_rgb):
+def table_value(table, dims, interpolation, wi, wo, active, gather=gather_rgb) -> mi.Color3f:
     """Table value ``f(wi, wo)`` (no cosine) of a packed table (:func:`gather_rgb`) of MERL
     ``dims``: the bin of the pair (``"nearest"``) or trilinear interpolation between bin centres
     (``"linear"``, periodic in ``phi_d`` over ``pi``). ``gather(table, idx, active)`` reads the

@@ -45,7 +45,7 @@ def shipped_scenes() -> list:
     return sorted(f[:-4] for f in os.listdir(SCENES_DIR) if f.endswith(".xml"))
 
 
-def scene_path(scene):
+def scene_path(scene) -> str:
     """Path of a scene given as a shipped scene's name (``"table"``) or as a path to an XML file."""
     scene = os.fspath(scene)
     if os.path.isfile(scene):
@@ -184,7 +184,7 @@ def other_manifold(scene, bsdf_id, path, manifold_path) -> str:
     )
 
 
-def check_scene(name, value):
+def check_scene(name, value) -> str:
     """A shipped scene's name or a readable scene XML; returns its path. The error names the
     option and the value, and suggests the closest shipped scene names.
     """

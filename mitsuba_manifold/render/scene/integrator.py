@@ -7,8 +7,13 @@ from __future__ import annotations
 
 import re
 from dataclasses import asdict, dataclass, fields
+from typing import TYPE_CHECKING
 
 from ...errors import FormatError, InputError
+
+if TYPE_CHECKING:
+    import mitsuba as mi
+
 
 #: Mitsuba integrators whose image is that of ``path`` (unbiased path tracers, without media),
 #: by class name: the basis reproduces them.
@@ -102,7 +107,7 @@ class SceneIntegrator:
             "hide_emitters": bool(self.hide_emitters),
         }
 
-    def reference(self, scene):
+    def reference(self, scene) -> mi.Integrator:
         """The integrator Mitsuba renders the scene's reference with: the scene's own, or a
         ``path`` of these settings where the depth was overridden or the scene has none.
         """

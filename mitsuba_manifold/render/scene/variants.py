@@ -99,7 +99,7 @@ def release_render_memory() -> None:
     dr.flush_malloc_cache()
 
 
-def check_variant(value, name="`variant`", jit=False):
+def check_variant(value, name="`variant`", jit=False) -> str:
     """A Mitsuba variant that is installed and renders measured RGB tables.
 
     Parameters

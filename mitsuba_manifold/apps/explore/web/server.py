@@ -31,6 +31,8 @@ from .guard import MAX_BODY, Guard
 from .session import BAD_REQUEST, Session
 
 if TYPE_CHECKING:
+    from typing import Any
+
     import numpy as np
 
 
@@ -163,7 +165,7 @@ class Api:
         job = self.ex.references.cancel(self.job_of(request).id)
         return JSONResponse(job.status())
 
-    def job_of(self, request):
+    def job_of(self, request) -> Any:
         job_id = request.path_params["job"]
         job = self.ex.references.get(job_id) if _JOB_ID.match(job_id) else None
         if job is None:
@@ -195,7 +197,7 @@ class Api:
         )
         return JSONResponse(job.status())
 
-    def acquisition_of(self, request):
+    def acquisition_of(self, request) -> Any:
         job_id = request.path_params["job"]
         job = self.ex.acquisitions.get(job_id) if _ACQ_ID.match(job_id) else None
         if job is None:
