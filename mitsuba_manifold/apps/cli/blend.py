@@ -535,10 +535,7 @@ def point_outputs(request, basis, manifold):
             basis,
             manifold,
             x=request.x,
-            prune=settings.prune,
-            renormalise=settings.renormalise,
-            component=settings.component,
-            l2=settings.l2,
+            settings=settings,
         )
     _say_component(info)
     for t, (weights, dropped) in enumerate(zip(info.weights, info.dropped_weight)):
