@@ -191,7 +191,7 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
     if pairs:
         a, c = next(iter(pairs))
         images, _, pinfo = blend_path(
-            b, m, a, c, steps=3, settings=BlendSettings(component="full", l2="raw")
+            b, m, a, c, steps=3, kind="straight", settings=BlendSettings(component="full", l2="raw")
         )
         mid, minfo = blend(
             b,
