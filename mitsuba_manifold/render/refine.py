@@ -26,7 +26,7 @@ image exactly (Eq. 13 is affine in the weights: ``base + sum_i w_i touch_i``); w
 set of per-material images gives exactly is the light that touched the material twice or more
 (``L2+``, second order in the weights). The
 refinement renders only that part, at the point itself: ``manifold_path`` with
-``component="rest"`` and every target at its latent point, in independent passes, so that
+``component="l2+"`` and every target at its latent point, in independent passes, so that
 
     refined(x) = blend_L1(x) + rest(x)
 
@@ -215,7 +215,7 @@ def _rest_integrator(basis, paths):
 
     target = "all" if basis.p == 1 else ",".join(basis.targets)
     return mi.load_dict(
-        {"type": "manifold_path", "component": "rest", "target": target, **paths.path_properties()}
+        {"type": "manifold_path", "component": "l2+", "target": target, **paths.path_properties()}
     )
 
 

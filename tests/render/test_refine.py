@@ -40,7 +40,7 @@ def gi_basis(tmp_path_factory, small_manifold):
         mode="onepass",
         resolution=RES,
         max_depth=8,
-        components="auto",
+        components="full",
     )
     m = Manifold.load(small_manifold)
     return bf.Basis.load(out, manifold=m), m

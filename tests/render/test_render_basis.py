@@ -35,7 +35,7 @@ def test_basis_options_take_their_fields_by_name_into_their_groups():
         [0.1],
     )
     assert o.selection == render_basis.Selection() and o.sampling.seed == 0
-    gi = render_basis.FullGI(components="auto")
+    gi = render_basis.FullGI(components="full")
     assert o.updated(gi=gi).gi == gi and o.keywords("spp", "levels") == {"spp": 8, "levels": 3}
     with pytest.raises(TypeError, match="'sppp'.*spp"):
         o.updated(sppp=8)
@@ -108,8 +108,8 @@ def test_the_library_takes_a_shipped_scenes_name_like_the_tools(tmp_path, small_
 
 
 def test_an_unknown_components_value_is_refused_not_rendered_as_l1(tmp_path, small_manifold):
-    # "full" is the command line's word; the library's is "auto": it once rendered an L1- basis
-    with pytest.raises(render_basis.InputError, match="`components` must be 'auto'.*got 'full'"):
+    # the library and the command line share one word, "full"; another value is not read as l1
+    with pytest.raises(render_basis.InputError, match="`components` must be 'full'.*got 'l2\\+'"):
         render_basis.render_basis(
             "sphere",
             small_manifold,
@@ -117,7 +117,7 @@ def test_an_unknown_components_value_is_refused_not_rendered_as_l1(tmp_path, sma
             spp=1,
             resolution=8,
             mode="onepass",
-            components="full",
+            components="l2+",
         )
     assert not (tmp_path / "b").exists()
 

@@ -222,7 +222,7 @@ def main(argv=None):
             x=args.x,
             database=args.database,
         ),
-        gi=FullGI(components="auto" if args.components == "full" else "l1"),
+        gi=FullGI(components=args.components),
         run=RunBehaviour(force=args.force, progress=True, aovs=args.aovs),
     )
     try:
