@@ -32,6 +32,7 @@ from .._util import checks as validate
 from .._util import names as names_mod
 from .._util.cache import file_hash
 from .._util.locking import FolderLock
+from .._util.renamed import renamed_argument
 from ..basis import folder as basis_folder
 from ..basis.folder.output import check_foreign_folder, check_job_folders, open_folder
 from ..data.database import canonical_spec
@@ -329,8 +330,8 @@ _GROUPS = {f.name: f.default_factory for f in fields(BasisOptions)}
 _GROUP_OF = {f.name: g for g, cls in _GROUPS.items() for f in fields(cls)}
 
 
-def render_basis(scene_path, manifold_path, out, options=None, **settings):
-    """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
+def render_basis(scene=None, manifold=None, out=None, options=None, **settings):
+    """Render ``base.exr`` and the per-material images of ``scene`` into ``out``.
 
     Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
     passes of :data:`interrupt.SAMPLES_PER_PASS` paths) and raises ``KeyboardInterrupt``;
@@ -338,7 +339,11 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
 
     Parameters
     ----------
-    scene_path, manifold_path : str
+    scene : str
+        The scene: an XML file or a shipped scene's name (``scene_path``, its former name, is
+        read with a ``DeprecationWarning``).
+    manifold : str
+        The manifold file (``manifold_path``, its former name, likewise).
     out : str
         Folder (created; resumed when it holds a basis with the same settings). It is
         locked (:class:`FolderLock`) while the images are written.
@@ -362,6 +367,12 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):
         An option (:class:`InputError`), the scene, the manifold or the folder at fault, raised
         before anything is rendered.
     """
+    scene_path = renamed_argument(scene, settings, "scene_path", "scene", "render_basis")
+    manifold_path = renamed_argument(
+        manifold, settings, "manifold_path", "manifold", "render_basis"
+    )
+    if out is None:
+        raise TypeError("render_basis() missing its argument `out` (the basis folder)")
     o = (options or BasisOptions()).updated(**settings)
     scene_path, manifold, chosen, x = _check_request(scene_path, manifold_path, out, o)
     mi = scenes.use_variant(o.scene.variant, jit=True)

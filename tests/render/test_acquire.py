@@ -74,7 +74,7 @@ def test_match_render_tool_acquires_by_default(small_manifold, tmp_path, capsys)
     imageio.write_exr(tpath, _photo(small_manifold, w_true, spp=64))
     out, js = str(tmp_path / "o.exr"), str(tmp_path / "j.json")
     snippet = str(tmp_path / "m.xml")
-    args = ["--render", "--manifold", small_manifold, "--scene", "sphere", "--target", tpath]
+    args = ["--render", "--manifold", small_manifold, "--scene", "sphere", "--image", tpath]
     assert (
         cli.main(
             args

@@ -331,3 +331,22 @@ def test_the_tool_renders_at_the_scenes_sample_count_and_says_when_res_is_not_sq
     assert len(notes) == 1 and "--res 8 gave 8x6 images" in notes[0]
     tool.main(common + ["--out", str(tmp_path / "b"), "--spp", "2"])
     assert bf.Manifest.read(tmp_path / "b").spp == 2
+
+
+def test_scene_and_manifold_by_their_former_names_scene_path_and_manifold_path(
+    tmp_path, small_manifold
+):
+    """The former keywords still reach the same checks, each with a DeprecationWarning."""
+    with pytest.warns(DeprecationWarning) as caught:
+        with pytest.raises(render_basis.InputError, match="`spp` must be >= 1"):
+            render_basis.render_basis(
+                scene_path="sphere", manifold_path=small_manifold, out=str(tmp_path / "b"), spp=0
+            )
+    said = {str(w.message).split(";")[0] for w in caught}
+    assert said == {
+        "render_basis(scene_path=...) is now spelled render_basis(scene=...)",
+        "render_basis(manifold_path=...) is now spelled render_basis(manifold=...)",
+    }
+    with pytest.raises(TypeError, match="give `scene` only"):
+        render_basis.render_basis("sphere", small_manifold, str(tmp_path / "b"), scene_path="x")
+    assert not (tmp_path / "b").exists()
