@@ -458,8 +458,8 @@ def acquire(
         views=[
             {
                 "scene": v.path,
-                "target": os.path.abspath(v.photo.target)
-                if isinstance(v.photo.target, (str, os.PathLike))
+                "target": os.path.abspath(v.photo.image)
+                if isinstance(v.photo.image, (str, os.PathLike))
                 else None,
                 "mask": os.path.abspath(v.photo.mask)
                 if isinstance(v.photo.mask, (str, os.PathLike))

@@ -110,7 +110,8 @@ def parser():
         "--path",
         nargs=2,
         metavar=("A", "B"),
-        help="images along the latent segment between materials (or 'x0,x1' points) A and B",
+        help="images along a latent path (of --path-kind) between materials (or 'x0,x1' points) A "
+        "and B",
     )
     p.add_argument(
         "--steps", type=int, default=20, help="images along --path (default 20, at most 1000)"
