@@ -1,0 +1,119 @@
+"""Ctrl-C that stops long renders promptly and cleanly.
+
+A Dr.Jit kernel does not return to Python until it is done, and while Mitsuba's C++
+``render`` runs, its own SIGINT handler replaces Python's: it only asks the integrator to
+wind down (``cancel()``, which a JIT render ignores) and swallows the signal, so a loop
+over renders went on. :class:`StopRequest` turns SIGINT into a flag instead (callers also
+set it when ``integrator.should_stop()`` reports Mitsuba's cancel); renders are cut into short passes
+(:func:`sample_passes`) and call :meth:`StopRequest.check` between passes and between
+images, which raises ``KeyboardInterrupt`` there: only complete, listed files remain.
+A second Ctrl-C while waiting for the pass to end stops at once (the default handler).
+"""
+
+import signal
+import threading
+
+#: Paths per render pass (a pass is the unit a stop request waits for).
+SAMPLES_PER_PASS = 1 << 20
+
+
+class StopRequest:
+    """Context manager: while active, the first SIGINT sets :attr:`requested`.
+
+    Outside the main thread (where signals cannot be handled) it does nothing.
+    """
+
+    def __init__(self):
+        self.requested = False
+        self._previous = None
+        self._active = False
+
+    def _handle(self, signum, frame):
+        self.requested = True
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C: at once
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+            self._active = True
+        return self
+
+    def __exit__(self, *exc):
+        if self._active:
+            previous = self._previous
+            signal.signal(
+                signal.SIGINT, signal.default_int_handler if previous is None else previous
+            )
+            self._previous, self._active = None, False
+        return False
+
+    def rearm(self):
+        """Install the flag's handler again (while active, before the first Ctrl-C).
+
+        Mitsuba's ``render`` installs its own SIGINT handler, which passes the signal on to the
+        handler it found installed; whatever a render left installed, the next pass then passes
+        Ctrl-C on to this one.
+        """
+        main = threading.current_thread() is threading.main_thread()  # signals: there only
+        if self._active and main and not self.requested:
+            signal.signal(signal.SIGINT, self._handle)
+
+    def check(self):
+        """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed; else :meth:`rearm` for what follows
+        (every loop of renders checks between its passes).
+        """
+        if self.requested:
+            raise KeyboardInterrupt("stopped by Ctrl-C")
+        self.rearm()
+
+
+def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS):
+    """Samples per pixel of each pass: ``spp`` split so that a pass traces at most
+    ``samples_per_pass`` paths (at least 1 spp per pass); they sum to ``spp``.
+    """
+    per = max(1, min(int(spp), int(samples_per_pass) // max(1, int(pixels))))
+    full, rest = divmod(int(spp), per)
+    return [per] * full + ([rest] if rest else [])
+
+
+def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
+    """``mi.render`` cut into passes (:func:`sample_passes`), checking ``stop`` after each.
+
+    One pass (the usual case for small images) is exactly ``mi.render(..., spp, seed)``; passes
+    after the first use seeds ``(seed + k * 0x9E3779B9) mod 2^32``, and the image is their
+    sample-weighted mean (linear RGB of the film's crop window, float32, whatever its pixel
+    format).
+
+    Parameters
+    ----------
+    stop : StopRequest, optional
+        Default: a new one, active during the render (Ctrl-C then raises
+        ``KeyboardInterrupt`` at the end of the current pass).
+    """
+    import mitsuba as mi
+    import numpy as np
+
+    from ..integrators.common import developed_rgb
+
+    if stop is None:
+        with StopRequest() as own:
+            return render_in_passes(scene, integrator, spp, seed, own, sensor)
+    w, h = (int(v) for v in scene.sensors()[sensor].film().crop_size())
+    total = None
+    for k, n in enumerate(sample_passes(spp, w * h)):
+        stop.rearm()
+        mi.render(
+            scene,
+            integrator=integrator,
+            spp=n,
+            seed=(seed + k * 0x9E3779B9) & 0xFFFFFFFF,
+            sensor=sensor,
+        )
+        img = developed_rgb(scene.sensors()[sensor].film()).astype(
+            np.float64
+        )  # RGB, any pixel format
+        total = img * n if total is None else total + img * n
+        if integrator.should_stop():  # Mitsuba's own SIGINT handler ran during the pass
+            stop.requested = True
+        stop.check()
+    return (total / int(spp)).astype(np.float32)
