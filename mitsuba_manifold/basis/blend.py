@@ -333,9 +333,10 @@ class BlendSettings:
     """How an image is blended: the settings :func:`blend`, :func:`denoised_blend` and
     :func:`blend_path` share.
 
-    Each function takes them the same two ways, as :func:`~.match.match` takes its
-    :class:`~.match.MatchSettings`: ``settings=BlendSettings(...)``, and each field as a keyword
-    of its own (``blend(basis, x=x, prune=0.01)``), which replaces that field of ``settings``.
+    Each function takes them the same two ways, as :func:`~.inverse.match.match` takes its
+    :class:`~.inverse.match.MatchSettings`: ``settings=BlendSettings(...)``, and each field as a
+    keyword of its own (``blend(basis, x=x, prune=0.01)``), which replaces that field of
+    ``settings``.
 
     Parameters
     ----------
@@ -370,9 +371,19 @@ class BlendSettings:
         return self
 
 
-def blend_settings(settings=None, **fields) -> BlendSettings:
-    """``settings`` (default ``BlendSettings()``) with the ``fields`` given (not None) replaced,
+#: The fields of :class:`BlendSettings`: the keywords :func:`blend`, :func:`denoised_blend` and
+#: :func:`blend_path` take besides ``settings``.
+BLEND_SETTINGS = tuple(f.name for f in dataclasses.fields(BlendSettings))
+
+
+def blend_settings(settings=None, **overrides) -> BlendSettings:
+    """``settings`` (default ``BlendSettings()``) with the fields ``overrides`` names replaced,
     checked: how :func:`blend`, :func:`denoised_blend` and :func:`blend_path` read their settings.
+
+    Raises
+    ------
+    TypeError
+        A keyword that is no field of :class:`BlendSettings` (as Python says of any function).
     """
     if settings is None:
         settings = BlendSettings()
@@ -381,8 +392,13 @@ def blend_settings(settings=None, **fields) -> BlendSettings:
             f"`settings` must be a BlendSettings, got {type(settings).__name__}: give "
             "`settings=BlendSettings(...)` or the settings as keywords (`prune=...`)"
         )
-    given = {k: v for k, v in fields.items() if v is not None}
-    return dataclasses.replace(settings, **given).check() if given else settings.check()
+    unknown = sorted(set(overrides) - set(BLEND_SETTINGS))
+    if unknown:
+        raise TypeError(
+            f"unexpected keyword argument(s) {unknown}: the settings of a blend are "
+            f"{', '.join(BLEND_SETTINGS)} (fields of BlendSettings)"
+        )
+    return dataclasses.replace(settings, **overrides).check() if overrides else settings.check()
 
 
 def blend(
@@ -392,10 +408,7 @@ def blend(
     x=None,
     w=None,
     settings=None,
-    prune=None,
-    renormalise=None,
-    component=None,
-    l2=None,
+    **overrides,
 ):
     """The image of latent point ``x`` (or weights ``w``) from a basis.
 
@@ -410,10 +423,10 @@ def blend(
         Weights instead of ``x``: (N,) or (p, N). With one target any weights are allowed
         (the touch images are linear in the BRDF); with several, each row must sum to 1.
     settings : BlendSettings, optional
-        How to blend (default ``BlendSettings()``); each of its fields is also a keyword here,
-        which replaces the field's value when given (not None).
-    prune, renormalise, component, l2
-        The fields of :class:`BlendSettings`.
+        How to blend (default ``BlendSettings()``).
+    **overrides
+        Fields of :class:`BlendSettings` (``prune``, ``renormalise``, ``component``, ``l2``)
+        replacing those of ``settings``.
 
     Returns
     -------
@@ -421,9 +434,7 @@ def blend(
     info : BlendInfo
         The blend made (component, weights kept, images missing, timings).
     """
-    opts = blend_settings(
-        settings, prune=prune, renormalise=renormalise, component=component, l2=l2
-    )
+    opts = blend_settings(settings, **overrides)
     l2 = opts.l2
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
@@ -463,10 +474,7 @@ def denoised_blend(
     aovs=None,
     guides=True,
     settings=None,
-    prune=None,
-    renormalise=None,
-    component=None,
-    l2=None,
+    **overrides,
 ):
     """:func:`blend` and its denoised version (OIDN on the whole image, :mod:`.denoise`).
 
@@ -478,7 +486,7 @@ def denoised_blend(
         The denoising guides (default: read beside the basis).
     guides : bool
         Guide the denoiser by the blend's albedo and the normals.
-    settings, prune, renormalise, component, l2
+    settings, **overrides
         As :func:`blend`, but ``l2`` defaults to ``"raw"`` when neither it nor ``settings`` is
         given (the whole image is denoised).
 
@@ -488,11 +496,9 @@ def denoised_blend(
     info : BlendInfo
         The blend's, with :attr:`~BlendInfo.denoise_ms` and :attr:`~BlendInfo.guided` set.
     """
-    if settings is None and l2 is None:
-        l2 = "raw"  # its L2+ part summed: the whole image is denoised below
-    opts = blend_settings(
-        settings, prune=prune, renormalise=renormalise, component=component, l2=l2
-    )
+    if settings is None:  # its L2+ part summed: the whole image is denoised below
+        overrides = {"l2": "raw", **overrides}
+    opts = blend_settings(settings, **overrides)
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
     raw, info = blend(basis, manifold, x=x, w=w, settings=opts)
@@ -548,10 +554,7 @@ def blend_path(
     points=None,
     moving=None,
     settings=None,
-    prune=None,
-    renormalise=None,
-    component=None,
-    l2=None,
+    **overrides,
 ):
     """Images along a latent path from ``a`` to ``b`` (paper Fig. 12).
 
@@ -573,7 +576,7 @@ def blend_path(
     moving : MovingTarget, optional
         With several targets: which one moves and where the others stay (default
         ``MovingTarget()``: the first, with no others).
-    settings, prune, renormalise, component, l2
+    settings, **overrides
         How each image is blended, as :func:`blend` (``time_ms`` leaves the denoising out:
         ``denoise_ms``).
 
@@ -586,9 +589,7 @@ def blend_path(
         Each image's :class:`BlendInfo` and the timings of them all.
     """
     moving = MovingTarget() if moving is None else moving
-    opts = blend_settings(
-        settings, prune=prune, renormalise=renormalise, component=component, l2=l2
-    )
+    opts = blend_settings(settings, **overrides)
     target, x = moving.target, moving.x
     prune, renormalise, l2 = opts.prune, opts.renormalise, opts.l2
     if not isinstance(basis, Basis):

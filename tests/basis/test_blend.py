@@ -406,6 +406,8 @@ def test_blend_denoised_blend_and_blend_path_take_settings_the_same_two_ways(bas
             call(settings=bl.BlendSettings(l2="smooth"))
         with pytest.raises(MismatchError, match="`settings` must be a BlendSettings"):
             call(settings={"prune": 0.5})
+        with pytest.raises(TypeError, match="the settings of a blend are prune, renormalise"):
+            call(prunes=0.5)
 
 
 def test_blend_path_refuses_ignored_x_and_identical_ends(basis1, manifold, tmp_path, cli, capsys):
