@@ -135,7 +135,7 @@ def _inputs(args):
     basis = Basis.load(args.basis, manifold=args.manifold)
     manifold = basis.check_manifold(args.manifold)
     target, clipped = mt.read_target(args.target, basis.resolution)
-    target = mt.check_target(target, basis.resolution, what=f"target {args.target}")
+    target = mt.check_target(target, basis.resolution, what=f"image {args.target}")
     weight = np.ones(target.shape[:2])
     if args.mask:
         weight = mt.check_mask(
@@ -206,7 +206,7 @@ def _outputs(args, result, basis, manifold, target):
                 [target, result.exposure * result.image, result.single.exposure * single]
             )
             labels = [
-                "target",
+                "image to match",
                 f"match ({result.error:.3g})",
                 f"{result.single.name} ({result.single.error:.3g})",
             ]

@@ -13,7 +13,7 @@ a ridge chosen by cross-validation over held-out pixel blocks. --method nonneg k
 >= 0, convex on the simplex. The report says which outgoing directions and light incidences the
 masked pixels show, how much near-equally good answers differ (bootstrap) and warns where the
 material is not identifiable. Writes the acquired render (--out; _1, _2, ... for more views), a
-contact sheet image | acquired | best single (--sheet, default beside --out), a manifold_brdf
+contact sheet photo | acquired | best single (--sheet, default beside --out), a manifold_brdf
 XML snippet (--snippet) and the result as JSON (--json: `weights` name -> weight, `single`).
 
 --method latent: the paper's search of one latent point (differentiable rendering):
@@ -103,7 +103,7 @@ def _parser():
         default=8,
         help="bootstrap solves of the report's spread (default 8)",
     )
-    p.add_argument("--sheet", help="contact sheet image | acquired | best single (.png)")
+    p.add_argument("--sheet", help="contact sheet photo | acquired | best single (.png)")
     p.add_argument("--snippet", help="Mitsuba XML manifold_brdf of the acquired material (.xml)")
     p.add_argument(
         "--iterations", type=int, default=30, help="Adam iterations per start (default 30)"
