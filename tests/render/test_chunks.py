@@ -440,3 +440,37 @@ def test_components_auto_is_the_former_spelling_of_full_and_keeps_the_chunk_keys
     assert old == options.gi and old.components == "full"
     specs = chunks.plan("scene.xml", "m.npz", 2, replace(options, gi=old))
     assert [chunks.chunk_key(s, IDS) for s in specs] == keys
+
+
+def test_a_chunk_mark_reads_as_written_and_a_damaged_one_is_no_mark():
+    """The chunk bookkeeping is this module's (ChunkMark), kept by the manifest as keys it
+    leaves to the jobs: written and read back the same, in the keys chunks saved before used."""
+    data = {
+        "format": "mitsuba-manifold-basis",
+        "version": 2,
+        "scene": "/s.xml",
+        "scene_hash": "a" * 64,
+        "manifold": "/m.npz",
+        "manifold_hash": "b" * 64,
+        "resolution": [4, 3],
+        "spp": 4,
+        "variant": "llvm_ad_rgb",
+        "seed": 0,
+        "max_depth": -1,
+        "mode": "onepass",
+        "targets": ["mat"],
+        "images": {},
+        "chunk_complete": True,
+        "chunk_run": {"seconds": 1.5, "host": "h", "pid": 7},
+        "chunk_key": "e" * 64,
+    }
+    m = basis.Manifest.from_json(data)
+    mark = chunks.ChunkMark.of(m)
+    assert (mark.chunk_complete, mark.chunk_run.host, mark.chunk_key) == (True, "h", "e" * 64)
+    again = basis.Manifest.from_json({k: v for k, v in data.items() if not k.startswith("chunk_")})
+    mark.put(again)
+    assert again.to_json() == data
+    chunks.ChunkMark().put(again)  # a merged basis is no chunk
+    assert not any(k.startswith("chunk_") for k in again.to_json())
+    damaged = basis.Manifest.from_json(dict(data, chunk_run={"seconds": "1.5"}))
+    assert chunks.ChunkMark.of(damaged) == chunks.ChunkMark()  # rendered again, never trusted
