@@ -13,30 +13,39 @@ def warn_renamed(old: str, new: str, stacklevel: int = 3) -> None:
     warnings.warn(f"{old} is now spelled {new}; {GOES}", DeprecationWarning, stacklevel=stacklevel)
 
 
-def image_field(cls: type) -> type:
-    """Give a dataclass whose field ``image`` (the image to match) was called ``target`` its
-    former name back: ``cls(..., target=...)`` and ``obj.target`` work and warn.
+def renamed_field(old: str, new: str):
+    """A class decorator giving a dataclass whose field ``new`` was called ``old`` its former
+    name back: ``cls(..., old=...)`` and ``obj.old`` work and warn.
     """
-    init = cls.__init__
 
-    def __init__(self, *args, target=None, **kwargs):
-        if target is not None:
-            if "image" in kwargs or len(args) > 1:
-                raise TypeError(
-                    f"{cls.__name__}() got `image` and `target` (its former name): give `image` only"
-                )
-            warn_renamed(f"{cls.__name__}(target=...)", f"{cls.__name__}(image=...)")
-            kwargs["image"] = target
-        init(self, *args, **kwargs)
+    def decorate(cls: type) -> type:
+        init = cls.__init__
+        position = [f for f in cls.__dataclass_fields__].index(new)
 
-    def target(self):
-        warn_renamed(f"{cls.__name__}.target", f"{cls.__name__}.image")
-        return self.image
+        def __init__(self, *args, **kwargs):
+            if old in kwargs:
+                if new in kwargs or len(args) > position:
+                    raise TypeError(
+                        f"{cls.__name__}() got `{new}` and `{old}` (its former name): give `{new}` only"
+                    )
+                warn_renamed(f"{cls.__name__}({old}=...)", f"{cls.__name__}({new}=...)")
+                kwargs[new] = kwargs.pop(old)
+            init(self, *args, **kwargs)
 
-    __init__.__doc__ = init.__doc__
-    cls.__init__ = __init__
-    cls.target = property(target, doc="The former name of :attr:`image`.")
-    return cls
+        def former(self):
+            warn_renamed(f"{cls.__name__}.{old}", f"{cls.__name__}.{new}")
+            return getattr(self, new)
+
+        __init__.__doc__ = init.__doc__
+        cls.__init__ = __init__
+        setattr(cls, old, property(former, doc=f"The former name of :attr:`{new}`."))
+        return cls
+
+    return decorate
+
+
+#: For a dataclass whose ``image`` (the image to match) was called ``target``.
+image_field = renamed_field("target", "image")
 
 
 def renamed_argument(value, given: dict, old: str, new: str, where: str):

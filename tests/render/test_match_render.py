@@ -345,8 +345,8 @@ def test_match_render_tool_takes_a_shipped_scene_name(tmp_path, small_manifold, 
 
 
 def test_a_view_and_a_photo_take_the_image_to_match_by_its_former_name_target():
-    from mitsuba_manifold.render import match_render as mr
-    from mitsuba_manifold.render.acquire import Photo
+    from mitsuba_manifold.render.inverse import match_render as mr
+    from mitsuba_manifold.render.inverse.acquire import Photo
 
     image = np.zeros((2, 3, 3))
     for cls in (mr.View, Photo):
