@@ -41,8 +41,8 @@ from .._util.blas import one_thread
 from .._util.checks import weight_sum
 from .._util.fifo_cache import Recent
 from .._util.float32 import weights32
+from .._util.moved import renamed_argument
 from .._util.names import is_name
-from .._util.renamed import renamed_argument
 from ..data import gram as gram_mod
 from ..data.database import FEATURES, Database, albedo_weights, recorded_spec
 from ..errors import FormatError, InputError, did_you_mean

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..._util.blas import one_thread
-from ..._util.renamed import renamed_argument
+from ..._util.moved import renamed_argument
 from ...errors import InputError
 from ..composition import compose
 from ..folder import BASE, Basis

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._util.cache import file_hash, key_hash
-from ..._util.renamed import image_field, renamed_argument
+from ..._util.moved import image_field, renamed_argument
 from ...basis.inverse import acquisition as aq
 from ...data.sources import BUILTIN_PREFIX
 from ...errors import InputError

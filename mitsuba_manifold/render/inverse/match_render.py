@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..._util.renamed import image_field, renamed_argument
+from ..._util.moved import image_field, renamed_argument
 from ...basis.inverse.match import LatentMatch
 from ...errors import InputError
 from ...imaging.metrics import REL_EPS

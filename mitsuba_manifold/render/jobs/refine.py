@@ -47,7 +47,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from ..._util.renamed import renamed_argument, renamed_field
+from ..._util.moved import renamed_argument, renamed_field
 from ...basis.blend import blend, latent_points
 from ...errors import InputError, MitsubaManifoldError
 from ...imaging.metrics import REL_EPS, pass_standard_error

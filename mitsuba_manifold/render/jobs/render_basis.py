@@ -32,7 +32,7 @@ from ..._util import checks as validate
 from ..._util import names as names_mod
 from ..._util.cache import file_hash
 from ..._util.locking import FolderLock
-from ..._util.renamed import renamed_argument
+from ..._util.moved import renamed_argument
 from ...basis import folder as basis_folder
 from ...basis.folder.output import check_foreign_folder, check_job_folders, open_folder
 from ...data.database import canonical_spec
