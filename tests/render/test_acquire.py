@@ -49,6 +49,9 @@ def test_a_known_combination_is_acquired(small_manifold, tmp_path):
     again = acquire([Photo("sphere", photo)], small_manifold, opts)
     assert again.result.views[0]["cached_training_images"]
     np.testing.assert_allclose(again.result.w, r.w, atol=1e-9)
+    np.testing.assert_allclose(got.photos[0], photo, rtol=1e-6)  # the image matched, as read
+    with pytest.warns(DeprecationWarning, match=r"AcquireOutput.targets is now spelled"):
+        assert got.targets is got.photos
 
 
 def test_bad_input_is_one_line(small_manifold, tmp_path):

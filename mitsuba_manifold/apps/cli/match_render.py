@@ -323,7 +323,7 @@ def _acquire(args, views):
         import numpy as np
 
         images, labels = [], []
-        for k, (t, a, s) in enumerate(zip(got.targets, got.renders, got.singles)):
+        for k, (t, a, s) in enumerate(zip(got.photos, got.renders, got.singles)):
             images += [t, a, s]
             labels += [
                 f"photo {k}" if len(views) > 1 else "photo",

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._util.cache import file_hash, key_hash
-from ..._util.moved import image_field, renamed_argument
+from ..._util.moved import image_field, renamed_argument, warn_renamed
 from ...basis.inverse import acquisition as aq
 from ...data.sources import BUILTIN_PREFIX
 from ...errors import InputError
@@ -70,10 +70,16 @@ class AcquireOutput(NamedTuple):
     """:func:`acquire`: the result (written with its own ``write``) and the images per photo."""
 
     result: aq.Acquisition
-    targets: list  # (H, W, 3) per photo
+    photos: list  # the image to match (H, W, 3), linear, per photo
     masks: list  # (H, W) per photo
     renders: list  # the acquired material, per photo (none with render_spp 0)
     singles: list  # the best single training material, per photo (none with render_spp 0)
+
+    @property
+    def targets(self) -> list:
+        """The former name of :attr:`photos`."""
+        warn_renamed("AcquireOutput.targets", "AcquireOutput.photos")
+        return self.photos
 
 
 @dataclass
