@@ -24,8 +24,11 @@ if TYPE_CHECKING:
     import numpy as np
 
 
-#: Values of the ``component`` parameter besides ``touch:<id>+<id>...``.
-COMPONENTS = ("full", "l1", "base", "touch", "rest")
+#: Values of the ``component`` parameter besides ``touch:<id>+<id>...``: the components of the
+#: image (the glossary's one vocabulary).
+COMPONENTS = ("full", "l1", "base", "touch", "l2+")
+#: Former spellings of ``component`` values, still read with a ``DeprecationWarning``.
+DEPRECATED_COMPONENTS = {"rest": "l2+"}
 #: Most target groups (the number of path classes grows as 2 ** groups).
 MAX_GROUPS = 4
 
