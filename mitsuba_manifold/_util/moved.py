@@ -12,7 +12,11 @@ import importlib.util
 import sys
 import threading
 import warnings
-from typing import Optional
+from typing import TYPE_CHECKING, Any, Optional
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
 
 _MOVED: dict = {}  # old dotted name -> new dotted name
 _LOCK = threading.Lock()
@@ -70,7 +74,7 @@ def warn_renamed(old: str, new: str, stacklevel: int = 3) -> None:
     warnings.warn(f"{old} is now spelled {new}; {GOES}", DeprecationWarning, stacklevel=stacklevel)
 
 
-def renamed_field(old: str, new: str):
+def renamed_field(old: str, new: str) -> "Callable[..., Any]":
     """A class decorator giving a dataclass whose field ``new`` was called ``old`` its former
     name back: ``cls(..., old=...)`` and ``obj.old`` work and warn.
     """
@@ -79,7 +83,7 @@ def renamed_field(old: str, new: str):
         init = cls.__init__
         position = [f for f in cls.__dataclass_fields__].index(new)
 
-        def __init__(self, *args, **kwargs):
+        def __init__(self, *args, **kwargs) -> None:
             if old in kwargs:
                 if new in kwargs or len(args) > position:
                     raise TypeError(
@@ -105,7 +109,7 @@ def renamed_field(old: str, new: str):
 image_field = renamed_field("target", "image")
 
 
-def renamed_argument(value, given: dict, old: str, new: str, where: str):
+def renamed_argument(value: Any, given: dict, old: str, new: str, where: str) -> Any:
     """``value`` (the argument ``new`` of ``where``), or the one passed by its former name
     ``old``: popped from ``given`` (the call's other keywords) with a ``DeprecationWarning``.
     A ``value`` of None is missing.

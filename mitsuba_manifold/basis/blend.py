@@ -416,7 +416,7 @@ def blend(
     w=None,
     settings=None,
     **overrides,
-):
+) -> "tuple[Any, BlendInfo]":
     """The image of latent point ``x`` (or weights ``w``) from a basis.
 
     Parameters
@@ -482,7 +482,7 @@ def denoised_blend(
     guides=True,
     settings=None,
     **overrides,
-):
+) -> "tuple[Any, np.ndarray, Any]":
     """:func:`blend` and its denoised version (OIDN on the whole image, :mod:`.denoise`).
 
     Parameters
@@ -562,7 +562,7 @@ def blend_path(
     moving=None,
     settings=None,
     **overrides,
-):
+) -> "tuple[Any, np.ndarray, BlendPathInfo]":
     """Images along a latent path from ``a`` to ``b`` (paper Fig. 12).
 
     Parameters

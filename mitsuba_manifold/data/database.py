@@ -467,7 +467,7 @@ def made_table(cache_dir, digest, build, shape, out=None, what="table") -> "np.n
         return npy_cache(full, build_full, shape=shape, dtype=np.float32, mmap=True, finite=True)
     made = []
 
-    def build_half():
+    def build_half() -> "np.ndarray":
         table = build_full()
         made.append(table)
         if not np.all(np.abs(table) <= np.finfo(MADE_DTYPE).max):

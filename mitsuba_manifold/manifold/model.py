@@ -956,7 +956,7 @@ class Manifold:
         return "\n".join(lines)
 
     # ------------------------------------------------------------ save/load
-    def save(self, file=None, *, path=None):
+    def save(self, file=None, *, path=None) -> None:
         """Write to the ``.npz`` ``file`` (no pickle), atomically (:func:`manifold_file.write`);
         ``path``, its former name, is read with a ``DeprecationWarning``.
         """
@@ -964,7 +964,7 @@ class Manifold:
         manifold_file.write(self, renamed_argument(file, given, "path", "file", "Manifold.save"))
 
     @classmethod
-    def load(cls, file=None, *, path=None):
+    def load(cls, file=None, *, path=None) -> Manifold:
         """Read a manifold written by :meth:`save` (:func:`manifold_file.read`); ``file`` may
         also name a shipped manifold (``"merl"``, ``"rgl"``, ``"nielsen"``, ``"all"``:
         :mod:`.shipped`), where no file of that name exists. ``path``, its former name, is read

@@ -88,7 +88,7 @@ class ArgumentParser(argparse.ArgumentParser):
                 )
         return parsed
 
-    def option_names(self):
+    def option_names(self) -> dict[str, str]:
         """Python parameter (argparse ``dest`` or alias) -> the option a user types (its name
         now, not a former spelling).
         """

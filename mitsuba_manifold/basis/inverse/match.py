@@ -396,7 +396,7 @@ def _winner(manifold, full, runs, prior) -> tuple[SingleMatch, None, Any]:
 
 def single_material_errors(
     basis, image=None, mask=None, manifold=None, exposure_free=False, **renamed
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Relative MSE (over the mask) of every training material alone against ``image`` (the
     image to match; ``target``, its former name, is read with a ``DeprecationWarning``);
     ``(errors (N,), exposures (N,))``.

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from typing import Any
 
 
-def check_target(target, resolution, what="image to match"):
+def check_target(target, resolution, what="image to match") -> np.ndarray:
     """``target`` as float64 (H, W, 3), checked against the basis ``resolution`` (width, height)."""
     arr = np.asarray(target)
     w, h = resolution

@@ -311,7 +311,9 @@ def _plot(history, path, labels) -> str:
     return finish(fig, ax, path)
 
 
-def match_render(views, manifold=None, options=None, basis=None, database=None, **renamed):
+def match_render(
+    views, manifold=None, options=None, basis=None, database=None, **renamed
+) -> MatchRenderResult:
     """Optimise ``x`` so that renders of ``views`` (:class:`View`) match their images.
 
     Parameters
