@@ -257,7 +257,7 @@ def beyond(
     affine=False,
     albedo=None,
     dims=None,
-):
+) -> Projection:
     """The best physically plausible combination of training tables for ``target`` beyond the data.
 
     Weights over the ``n_candidates`` training materials closest to ``target`` (and those the

@@ -195,7 +195,7 @@ def _scene_params(
     return params, size
 
 
-def scene_resolution(manifest):
+def scene_resolution(manifest) -> tuple | None:
     """The ``resolution`` a basis's scene was loaded with (None: the scene's own film size), to
     load it again as the basis saw it (its references, refinements); a manifest that does not
     record it (an earlier version) was rendered at its image size. ``manifest`` is a
