@@ -37,7 +37,6 @@ from .common import (
     guarded,
     parse_point,
     parse_points,
-    reference_view,
     resolve_names,
 )
 
@@ -608,12 +607,13 @@ def point_outputs(request, basis, manifold):
 
 
 def reference_image(request, basis, manifold, outputs):
-    """The reference of ``--reference`` (read) or ``--render-reference`` (rendered, and added
-    to ``outputs``), or None.
+    """The reference of ``--reference`` (read) or ``--render-reference`` (rendered by
+    :func:`mitsuba_manifold.render.references.render_reference_passes`, and added to
+    ``outputs``), or None.
     """
     from ...basis.blend import latent_points
     from ...imaging import io as imageio
-    from ...render.scenes import render_reference, scene_resolution
+    from ...render.references import BasisView, render_reference_passes
 
     ref, output = request.reference, request.output
     if ref.file:
@@ -632,20 +632,8 @@ def reference_image(request, basis, manifold, outputs):
     print(f"rendering the reference: {scene}, {how} (as the basis), {ref.spp} spp ...", flush=True)
     t0 = time.perf_counter()
     points = latent_points(basis, manifold, request.x)
-    view = reference_view(basis, scene, render_reference)
-    reference = render_reference(
-        scene,
-        request.manifold or m.manifold,
-        points,
-        ref.spp,
-        seed=ref.seed,
-        resolution=scene_resolution(m),
-        max_depth=m.max_depth,
-        variant=m.variant,
-        targets=basis.targets,
-        database=request.database,
-        **view,
-    )
+    view = BasisView.of(basis, scene, request.manifold, request.database, warn=print)
+    reference = render_reference_passes(view, points, ref.spp, seed=ref.seed).image
     print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
     if basis.p == 1:
         neg = manifold.negative_fraction(points[0], database=request.database)

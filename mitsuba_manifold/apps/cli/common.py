@@ -272,31 +272,3 @@ def guarded(main):
             interrupts.restore(finished_process=finished and argv is None)
 
     return run
-
-
-def reference_view(basis, scene, render_reference, warn=print):
-    """Keyword arguments of ``render_reference`` (:func:`mitsuba_manifold.render.scenes.render_reference`)
-    that render the view of ``basis`` (its manifest's ``sensor``), so that a reference compares
-    with the blend pixel for pixel. Warns when the manifest does not record its sensor (a basis
-    of an earlier version) and ``scene`` has several; refuses a sensor other than 0 where
-    ``render_reference`` renders sensor 0 only.
-    """
-    import inspect
-
-    from ...errors import MismatchError
-    from ...render.render_basis import count_sensors
-
-    if not basis.sensor_known and count_sensors(scene) > 1:
-        warn(
-            f"warning: the basis {basis.folder} does not record which of the {count_sensors(scene)} sensors of "
-            f"{scene} it was rendered from (made by an earlier version); rendering the reference from sensor 0"
-        )
-    if "sensor" in inspect.signature(render_reference).parameters:
-        return {"sensor": basis.sensor}
-    if basis.sensor:
-        raise MismatchError(
-            f"the basis {basis.folder} was rendered from sensor {basis.sensor}, and this version "
-            "renders references from sensor 0 only: compare with a reference image of that view "
-            "instead"
-        )
-    return {}

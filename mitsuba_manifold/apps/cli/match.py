@@ -18,7 +18,7 @@ import os
 import sys
 import time
 
-from .common import ERRORS, ArgumentParser, fail, guarded, reference_view
+from .common import ERRORS, ArgumentParser, fail, guarded
 
 
 def _parser():
@@ -185,7 +185,7 @@ def _outputs(args, result, basis, manifold, target):
 
     from ...basis.folder import BASE
     from ...imaging import io as imageio
-    from ...render.scenes import render_reference, scene_resolution
+    from ...render.references import BasisView, render_reference_passes
 
     outputs, info = [], result.to_dict(manifold)
     if args.out:
@@ -219,18 +219,8 @@ def _outputs(args, result, basis, manifold, target):
             )
             t0 = time.perf_counter()
             try:
-                view = reference_view(basis, m.scene, render_reference)
-                ref = render_reference(
-                    m.scene,
-                    args.manifold or m.manifold,
-                    result.x,
-                    args.spp,
-                    seed=args.seed,
-                    resolution=scene_resolution(m),
-                    max_depth=m.max_depth,
-                    variant=m.variant,
-                    **view,
-                )
+                view = BasisView.of(basis, manifold=args.manifold, warn=print)
+                ref = render_reference_passes(view, result.x, args.spp, seed=args.seed).image
             except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's
                 fail(e)
             print(f"rendered in {time.perf_counter() - t0:.1f} s")
