@@ -160,3 +160,16 @@ def _check_added(path, meta):
                 f"{path}: its added material {a['name']!r} is not one of its names with that "
                 f"table's hash; {_REFIT}"
             )
+
+
+def check_save_path(out, what="`out`") -> None:
+    """Raise :class:`InputError` unless ``out`` names a ``.npz`` file (the manifold's format),
+    suggesting the name to use.
+    """
+    folder, base = os.path.split(out)
+    if not base.lower().endswith(".npz") or len(base) <= 4:
+        fix = os.path.join(folder, (os.path.splitext(base)[0].lstrip(".") or "manifold") + ".npz")
+        raise InputError(
+            f"{what} must name a .npz file (the manifold is saved as NumPy .npz), got {out!r}: "
+            f"use {what} {fix}"
+        )

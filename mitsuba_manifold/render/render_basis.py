@@ -33,6 +33,7 @@ from .._util.cache import file_hash
 from .._util.locking import FolderLock
 from ..basis import folder as basis_folder
 from ..basis.folder.output import check_foreign_folder, check_job_folders, open_folder
+from ..basis.sampling import DEFAULT_SPP
 from ..data.database import canonical_spec
 from ..errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
 from ..imaging import io as imageio
@@ -624,6 +625,18 @@ def _render_onepass(scene, target, todo, o, paths, save, stop):
     if any(combo is None for _, combo in todo):
         out[basis_folder.BASE] = np.asarray(base, dtype=np.float32)[..., :3]
     save(out, seconds)
+
+
+def view_spp(jobs, spp=None) -> dict:
+    """Samples per pixel of each view of ``jobs`` (:func:`plan_views`): ``spp`` where given,
+    else the scene's own for that sensor, else :data:`DEFAULT_SPP`.
+    """
+    from .scenes import scene_sample_count
+
+    return {
+        (scene, sensor): spp or scene_sample_count(scene, sensor) or DEFAULT_SPP
+        for scene, sensor, _ in jobs
+    }
 
 
 def count_sensors(scene_path):

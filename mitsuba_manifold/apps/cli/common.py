@@ -22,9 +22,10 @@ INTERRUPTED_MESSAGE = (
 )
 
 
-#: A latent point or list of numbers that starts with a minus sign ("-1.1,-0.2", "-1e-3 0.5"):
-#: argparse would take it for an option and refuse ``--x -1.1,-0.2``.
-_NUMBERS = re.compile(r"^-\.?\d[\d.eE+-]*(?:[,\s]+[-+]?\.?\d[\d.eE+-]*)*$")
+#: What argparse takes for a negative number, not an option: anything that starts like one
+#: (``-1.1,-0.2``, ``-.5``, ``-1e-3 0.5``), the rule of argparse itself from Python 3.13
+#: (``re.compile(r"-\.?\d")``, matched at the start); no tool has an option spelled so.
+_NUMBERS = re.compile(r"-\.?\d")
 
 
 def read_measured(path, dims):
@@ -49,7 +50,8 @@ _PARAM = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
 
 class ArgumentParser(argparse.ArgumentParser):
     """argparse with its errors as one line ``error: ...`` (exit 2), as every other error,
-    and negative numbers (also comma-separated lists of them) read as values, not options.
+    and negative numbers (also comma-separated lists of them) read as values, not options
+    (argparse's own matcher set to its Python 3.13 rule, :data:`_NUMBERS`).
 
     ``aliases`` maps library parameter names to this tool's options where the option's
     ``dest`` differs (``{"scene_path": "scene"}``): library messages name Python
@@ -133,9 +135,11 @@ def parse_resolution(text):
 def parse_floats(text):
     """'0.3, -1.2' or '0.3 -1.2' -> [0.3, -1.2]; an empty place between commas ('0,,1') is refused."""
     parts = re.split(r"\s*,\s*|\s+", text.strip())
+    if "" in parts:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} has an empty place between commas; expected numbers like '0.3,-1.2'"
+        )
     try:
-        if "" in parts:
-            raise ValueError
         return [float(v) for v in parts]
     except ValueError:
         raise argparse.ArgumentTypeError(

@@ -120,28 +120,15 @@ def _check_args(args):
 
 def _inputs(args):
     """Basis, manifold, target and mask weights, all checked."""
-    import numpy as np
-
-    from ...basis import match as mt
     from ...basis.folder import Basis
+    from ...basis.targets import read_target_and_weight
 
     basis = Basis.load(args.basis, manifold=args.manifold)
     manifold = basis.check_manifold(args.manifold)
-    target, clipped = mt.read_target(args.target, basis.resolution)
-    target = mt.check_target(target, basis.resolution, what=f"target {args.target}")
-    weight = np.ones(target.shape[:2])
-    if args.mask:
-        weight = mt.check_mask(
-            mt.read_mask(args.mask, basis.resolution), basis.resolution, what=f"mask {args.mask}"
-        )
-    if clipped.any():
+    target, weight, clipped = read_target_and_weight(args.target, args.mask, basis.resolution)
+    if clipped:
         print(
-            f"note: {int(clipped.sum())} clipped pixels of the target (a channel at its largest code) are left out"
-        )
-        weight = mt.check_mask(
-            weight * ~clipped,
-            basis.resolution,
-            what=f"mask {args.mask or '(all pixels)'} without the target's clipped pixels",
+            f"note: {clipped} clipped pixels of the target (a channel at its largest code) are left out"
         )
     return basis, manifold, target, weight
 
@@ -181,9 +168,7 @@ def _report(result, manifold, basis):
 
 def _outputs(args, result, basis, manifold, target):
     """(kind, path, writer) of everything to write."""
-    import numpy as np
-
-    from ...basis.folder import BASE
+    from ...basis.composition import single_image
     from ...imaging import io as imageio
     from ...render.references import BasisView, render_reference_passes
 
@@ -194,10 +179,8 @@ def _outputs(args, result, basis, manifold, target):
             ("blend at the best point", args.out, lambda: imageio.write_exr(args.out, result.image))
         )
         if args.png:
-            single = basis.image(basis.key([result.single.name])) + basis.image(BASE)
-            images = np.stack(
-                [target, result.exposure * result.image, result.single.exposure * single]
-            )
+            single = single_image(basis, result.single.name)
+            images = [target, result.exposure * result.image, result.single.exposure * single]
             labels = [
                 "target",
                 f"match ({result.error:.3g})",
@@ -257,16 +240,16 @@ def _refuse_inputs(args, guard):
     this tool did not make (``guard``: :class:`ownership.Outputs`, which allows those with
     ``--force``).
     """
+    from ..._util import ownership
     from ...basis.folder import owned_files as basis_ownership
 
-    inputs = {os.path.realpath(p) for p in (args.target, args.mask) if p}
     for path in _planned(args):
-        real = os.path.realpath(path)
-        if real in inputs or os.path.dirname(real) == os.path.realpath(args.basis):
-            fail(
-                f"output {path} would overwrite an input (the target, the mask or the basis); "
-                "choose another path"
-            )
+        ownership.check_not_inputs(
+            [path],
+            (args.target, args.mask),
+            folders=(args.basis,),
+            named="an input (the target, the mask or the basis)",
+        )
         basis_ownership.check_output_outside_basis(path)
         guard.check(path, "output")
 
