@@ -20,7 +20,6 @@ gives the others. Nothing is written until every input has been read and checked
 
 import argparse
 import os
-import sys
 import time
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Optional
@@ -41,8 +40,10 @@ from .common import (
     add_prune_argument,
     fail,
     guarded,
+    one_line_warnings,
     parse_point,
     parse_points,
+    write_outputs,
 )
 
 if TYPE_CHECKING:  # imported by parse() when it runs (the command line is checked first)
@@ -327,7 +328,7 @@ def path_outputs(request, basis, manifold):
         path_end(manifold, a if a in manifold.names else _point_or_name(a), a) for a in path.ends
     ]
     target = target_index(basis, path.target)
-    with _one_line_warnings():
+    with one_line_warnings():
         images, _, info = blend_path(
             basis,
             manifold,
@@ -372,22 +373,6 @@ def path_outputs(request, basis, manifold):
         )
     )
     return outputs
-
-
-class _one_line_warnings:
-    """Library warnings (an older L1- basis) as one ``warning: ...`` line on stderr."""
-
-    def __enter__(self):
-        import warnings
-
-        self.catch = warnings.catch_warnings(record=True)
-        self.caught = self.catch.__enter__()
-        warnings.simplefilter("always", UserWarning)
-
-    def __exit__(self, *exc):
-        self.catch.__exit__(*exc)
-        for w in self.caught:
-            print(f"warning: {w.message}", file=sys.stderr)
 
 
 def _say_component(info):
@@ -445,7 +430,7 @@ def point_outputs(request, basis, manifold):
     from ...imaging import metrics
 
     settings, output = request.settings, request.output
-    with _one_line_warnings():
+    with one_line_warnings():
         image, info = blend(
             basis,
             manifold,
@@ -572,44 +557,6 @@ def reference_image(request, basis, manifold, outputs):
     return reference
 
 
-#: Most files listed one per line; more are written under a progress bar.
-LIST_FILES = 50
-
-
-def write_outputs(out, outputs, force=False, group=None):
-    """Write ``outputs`` under the tools' output discipline (:class:`ownership.Outputs`): check
-    that none replaces a file this tool did not make, create the folder of ``out``, run every
-    writer (reporting each file, or more than :data:`LIST_FILES` with a progress bar and one
-    line), each file recorded as the tool's own as it is written (a run
-    stopped half-way leaves files the same command replaces). With ``group`` (what the run
-    writes, e.g. ``"path:" + out``), the files an earlier run of the group wrote and this one
-    did not are removed (a shorter ``--path``'s surplus frames).
-    """
-    from tqdm import tqdm
-
-    from ..._util import ownership
-
-    with ownership.Outputs("blend.py", force, group=group) as guard:
-        for kind, path, _ in outputs:
-            guard.check(path, kind)
-        os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
-        many = len(outputs) > LIST_FILES
-        bar = tqdm(
-            total=len(outputs), desc="writing", unit="file", disable=not many, file=sys.stderr
-        )
-        with bar:
-            for kind, path, write in outputs:
-                write()
-                bar.update()
-                if not many:
-                    print(f"wrote {kind}: {path}")
-        if many:
-            print(f"wrote {len(outputs)} files: {outputs[0][1]} ... {outputs[-1][1]}")
-        if group is not None:
-            for path in guard.remove_stale(os.path.dirname(os.path.abspath(out))):
-                print(f"removed {path} (from an earlier blend to {out}; this one did not write it)")
-
-
 def remove_stale_companions(out, outputs):
     """Remove the files an earlier blend to ``out`` wrote beside it that this run did not
     write again (e.g. the previous point's error image): only the tool's own, unchanged since
@@ -640,10 +587,10 @@ def main(argv=None):
         out, force = request.output.out, request.output.force
         if request.path is not None:
             outputs = path_outputs(request, basis, manifold)
-            write_outputs(out, outputs, force, group="path:" + os.path.abspath(out))
+            write_outputs("blend.py", out, outputs, force, group="path:" + os.path.abspath(out))
         else:
             outputs = point_outputs(request, basis, manifold)
-            write_outputs(out, outputs, force, group="point:" + os.path.abspath(out))
+            write_outputs("blend.py", out, outputs, force, group="point:" + os.path.abspath(out))
             remove_stale_companions(out, outputs)
     except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's, from a reference render
         fail(e)

@@ -276,3 +276,60 @@ def guarded(main):
             interrupts.restore(finished_process=finished and argv is None)
 
     return run
+
+
+class one_line_warnings:
+    """Library warnings (an older L1- basis) as one ``warning: ...`` line on stderr."""
+
+    def __enter__(self):
+        import warnings
+
+        self.catch = warnings.catch_warnings(record=True)
+        self.caught = self.catch.__enter__()
+        warnings.simplefilter("always", UserWarning)
+
+    def __exit__(self, *exc):
+        self.catch.__exit__(*exc)
+        for w in self.caught:
+            print(f"warning: {w.message}", file=sys.stderr)
+
+
+#: Most files listed one per line; more are written under a progress bar.
+LIST_FILES = 50
+
+
+def write_outputs(tool, out, outputs, force=False, group=None):
+    """Write ``outputs`` (``(kind, path, writer)``) as ``tool`` under the tools' output
+    discipline (:class:`mitsuba_manifold._util.ownership.Outputs`): check
+    that none replaces a file this tool did not make, create the folder of ``out``, run every
+    writer (reporting each file, or more than :data:`LIST_FILES` with a progress bar and one
+    line), each file recorded as the tool's own as it is written (a run
+    stopped half-way leaves files the same command replaces). With ``group`` (what the run
+    writes, e.g. ``"path:" + out``), the files an earlier run of the group wrote and this one
+    did not are removed (a shorter ``--path``'s surplus frames).
+    """
+    from tqdm import tqdm
+
+    from ..._util import ownership
+
+    with ownership.Outputs(tool, force, group=group) as guard:
+        for kind, path, _ in outputs:
+            guard.check(path, kind)
+        os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+        many = len(outputs) > LIST_FILES
+        bar = tqdm(
+            total=len(outputs), desc="writing", unit="file", disable=not many, file=sys.stderr
+        )
+        with bar:
+            for kind, path, write in outputs:
+                write()
+                bar.update()
+                if not many:
+                    print(f"wrote {kind}: {path}")
+        if many:
+            print(f"wrote {len(outputs)} files: {outputs[0][1]} ... {outputs[-1][1]}")
+        if group is not None:
+            for path in guard.remove_stale(os.path.dirname(os.path.abspath(out))):
+                print(
+                    f"removed {path} (from an earlier {tool.removesuffix('.py')} to {out}; this one did not write it)"
+                )

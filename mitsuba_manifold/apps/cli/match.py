@@ -266,21 +266,18 @@ def main(argv=None):
     from ..._util import ownership
     from ...basis import match as mt
 
+    settings = mt.MatchSettings(
+        loss="log" if args.log else "rel_mse",
+        exposure_free=args.exposure_free,
+        prior=args.prior,
+        starts=args.starts,
+        max_iter=args.max_iter,
+        scan=args.scan,
+    )  # the tool's parameter object (checked by the match)
     with ownership.Outputs("match.py", args.force) as guard:
         _refuse_inputs(args, guard)
         basis, manifold, target, weight = _inputs(args)
-        result = mt.match(
-            basis,
-            target,
-            weight,
-            manifold=manifold,
-            loss="log" if args.log else "rel_mse",
-            exposure_free=args.exposure_free,
-            prior=args.prior,
-            starts=args.starts,
-            max_iter=args.max_iter,
-            scan=args.scan,
-        )
+        result = mt.match(basis, target, weight, manifold=manifold, settings=settings)
         _report(result, manifold, basis)
         outputs = _outputs(args, result, basis, manifold, target)
         for kind, path, _ in outputs:
