@@ -89,23 +89,20 @@ def check_sets(names, what="`sets`") -> list:
     return list(names)
 
 
-def refit(name, folder=FOLDER, progress=True):
-    """Fit shipped manifold ``name`` again (the default preset, every material of its set) and
-    write it to ``<folder>/<name>.npz`` so that the same fit gives the same bytes on every
-    machine: the fit's wall times left out, the archive's entries dated 1980-01-01. Returns
-    ``(manifold, path, timings)`` (the timings the file leaves out).
+def write(manifold, name, folder=FOLDER):
+    """Write the fitted ``manifold`` as shipped manifold ``name`` (``<folder>/<name>.npz``) so
+    that the same fit gives the same bytes on every machine: the fit's wall times left out, the
+    archive's entries dated 1980-01-01. Returns ``(path, timings)`` (the timings left out).
     """
     from .fit_record import Timings
-    from .model import Manifold
 
     os.makedirs(folder, exist_ok=True)
-    m = Manifold.fit(name, progress=progress)
-    seconds = m.record.timings
-    m.record.timings = Timings()  # machine-dependent: not in the shipped file
+    seconds = manifold.record.timings
+    manifold.record.timings = Timings()  # machine-dependent: not in the shipped file
     path = os.path.join(folder, name + ".npz")
-    m.save(path)
+    manifold.save(path)
     _fixed_dates(path)
-    return m, path, seconds
+    return path, seconds
 
 
 def _fixed_dates(path) -> None:

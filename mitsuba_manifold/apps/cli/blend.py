@@ -456,14 +456,10 @@ def point_outputs(request, basis, manifold):
         f"blend time: {info.time_ms:.3f} ms ({info.n_images} images; reading them: "
         f"{info.time_read_s:.3f} s)"
     )
-    if (
-        info.component == "full"
-        and settings.l2 == "raw"
-        and request.refine.spp is None
-        and (image < 0).any()
-    ):
+    below = metrics.negative_pixels(image)
+    if info.component == "full" and settings.l2 == "raw" and request.refine.spp is None and below:
         print(
-            f"note: {int((image < 0).any(axis=-1).sum())} pixels below 0 (the summed cross terms' noise; "
+            f"note: {below} pixels below 0 (the summed cross terms' noise; "
             "the default --l2 denoised has none)"
         )
     unrefined = image

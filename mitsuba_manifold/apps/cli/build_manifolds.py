@@ -15,7 +15,8 @@ from .common import ArgumentParser, guarded, parse_list
 
 @guarded
 def main(argv=None):
-    from ...manifold.shipped import FOLDER, SHIPPED, check_sets, refit
+    from ...manifold.model import Manifold
+    from ...manifold.shipped import FOLDER, SHIPPED, check_sets, write
 
     p = ArgumentParser(description=__doc__)
     p.add_argument(
@@ -29,7 +30,8 @@ def main(argv=None):
     check_sets(args.sets)
     for name in args.sets:
         t0 = time.perf_counter()
-        m, path, seconds = refit(name, args.out)
+        m = Manifold.fit(name, progress=True)  # the default preset, every material of the set
+        path, seconds = write(m, name, args.out)
         size = os.path.getsize(path) / 1024
         print(
             f"{name}: {m.n} materials, q={m.q}, L = {m.record.log_likelihood:.8g}, {size:.0f} KiB, "
