@@ -15,8 +15,8 @@ from .common import ArgumentParser, guarded, parse_list
 
 @guarded
 def main(argv=None):
+    from ...manifold.file.shipped import FOLDER, SHIPPED, check_sets, write
     from ...manifold.model import Manifold
-    from ...manifold.shipped import FOLDER, SHIPPED, check_sets, write
 
     p = ArgumentParser(description=__doc__)
     p.add_argument(

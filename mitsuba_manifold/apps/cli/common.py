@@ -33,7 +33,7 @@ def read_measured(path, dims):
     (:mod:`mitsuba_manifold.render`) only when a tool reads such a file, so that a database or
     material given by any tool may hold them.
     """
-    from ...render import measured
+    from ...render.plugin import measured
 
     return measured.resample(path, dims)
 

@@ -164,8 +164,8 @@ def main(argv=None):
 
 
 def server_blas_threads(cores=None):
-    """:func:`mitsuba_manifold.apps.explore.serving.server_blas_threads` (imported when called)."""
-    from ..explore.serving import server_blas_threads as threads
+    """:func:`mitsuba_manifold.apps.explore.web.serving.server_blas_threads` (imported when called)."""
+    from ..explore.web.serving import server_blas_threads as threads
 
     return threads(cores)
 
@@ -181,8 +181,8 @@ def serve(args):
         return 2
 
     from ..explore import Explorer, create_app
-    from ..explore.guard import MAX_MESSAGE, AllowList
-    from ..explore.serving import make_server, quiet_logs
+    from ..explore.web.guard import MAX_MESSAGE, AllowList
+    from ..explore.web.serving import make_server, quiet_logs
     from .common import ERRORS, cli_message
 
     try:

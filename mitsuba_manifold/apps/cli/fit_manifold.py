@@ -36,7 +36,7 @@ def check(args, guard=None):
     from ...errors import InputError
     from ...imaging import plots
     from ...manifold.adding import check_additions
-    from ...manifold.io import check_save_path
+    from ...manifold.file.io import check_save_path
 
     check_additions(args.add, args.name)
     fit = options(args)

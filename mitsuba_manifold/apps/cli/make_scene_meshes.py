@@ -10,7 +10,7 @@ from .common import ArgumentParser, guarded
 
 @guarded
 def main(argv=None):
-    from ...render.scenes import SCENES_DIR
+    from ...render.scene.scenes import SCENES_DIR
 
     ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -43,7 +43,7 @@ def main(argv=None):
 def write_assets(args, bowl, sky, guard):
     """Write the bowl mesh and the sky map (under ``guard``, :class:`ownership.Outputs`)."""
     from ...imaging import io as imageio
-    from ...render import geometry
+    from ...render.scene import geometry
 
     v, f = geometry.write_bowl(bowl, args.profile, args.segments)
     note = " (unchanged)" if bowl in guard.kept else ""

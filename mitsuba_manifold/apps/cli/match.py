@@ -121,7 +121,7 @@ def _check_args(args):
 def _inputs(args):
     """Basis, manifold, target and mask weights, all checked."""
     from ...basis.folder import Basis
-    from ...basis.targets import read_target_and_weight
+    from ...basis.inverse.targets import read_target_and_weight
 
     basis = Basis.load(args.basis, manifold=args.manifold)
     manifold = basis.check_manifold(args.manifold)
@@ -170,7 +170,7 @@ def _outputs(args, result, basis, manifold, target):
     """(kind, path, writer) of everything to write."""
     from ...basis.composition import single_image
     from ...imaging import io as imageio
-    from ...render.references import BasisView, render_reference_passes
+    from ...render.scene.reference import BasisView, render_reference_passes
 
     outputs, info = [], result.to_dict(manifold)
     if args.out:
@@ -264,7 +264,7 @@ def main(argv=None):
     args = _parser().parse_args(argv)
     _check_args(args)
     from ..._util import ownership
-    from ...basis import match as mt
+    from ...basis.inverse import match as mt
 
     settings = mt.MatchSettings(
         loss="log" if args.log else "rel_mse",

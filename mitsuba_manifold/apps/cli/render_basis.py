@@ -166,9 +166,9 @@ def main(argv=None):
     if args.spp is not None:
         check_numbers(args, args.spp)  # before the renderer is imported
 
-    from ...render.chunks import render_view
-    from ...render.executor import make_executor
-    from ...render.render_basis import (
+    from ...render.jobs.chunks import render_view
+    from ...render.jobs.executor import make_executor
+    from ...render.jobs.render_basis import (
         BasisOptions,
         FullGI,
         RunBehaviour,
@@ -179,7 +179,7 @@ def main(argv=None):
         plan_views,
         view_spp,
     )
-    from ...render.scenes import scene_path
+    from ...render.scene.scenes import scene_path
 
     t0 = time.perf_counter()
     scenes = [scene_path(s) for s in args.scenes]  # a scene XML or a shipped scene's name
