@@ -266,7 +266,7 @@ def test_new_manifests_record_their_sensor_and_old_ones_mean_sensor_0(tiny):
 
 def test_references_render_the_sensor_of_the_basis_or_say_why_not(tmp_path, tiny):
     from mitsuba_manifold.basis.folder import Basis
-    from mitsuba_manifold.render.scene.reference import BasisView, reference_sensor
+    from mitsuba_manifold.render.scene.references import BasisView, reference_sensor
 
     scene = tmp_path / "two_views.xml"
     scene.write_text(

@@ -505,12 +505,12 @@ def point_outputs(request, basis, manifold):
 
 def reference_image(request, basis, manifold, outputs):
     """The reference of ``--reference`` (read) or ``--render-reference`` (rendered by
-    :func:`mitsuba_manifold.render.scene.reference.render_reference_passes`, and added to
+    :func:`mitsuba_manifold.render.scene.references.render_reference_passes`, and added to
     ``outputs``), or None.
     """
     from ...basis.blend import latent_points
     from ...imaging import io as imageio
-    from ...render.scene.reference import BasisView, render_reference_passes
+    from ...render.scene.references import BasisView, render_reference_passes
 
     ref, output = request.reference, request.output
     if ref.file:

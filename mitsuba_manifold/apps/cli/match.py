@@ -170,7 +170,7 @@ def _outputs(args, result, basis, manifold, target):
     """(kind, path, writer) of everything to write."""
     from ...basis.composition import single_image
     from ...imaging import io as imageio
-    from ...render.scene.reference import BasisView, render_reference_passes
+    from ...render.scene.references import BasisView, render_reference_passes
 
     outputs, info = [], result.to_dict(manifold)
     if args.out:

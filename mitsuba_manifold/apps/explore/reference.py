@@ -41,7 +41,7 @@ import numpy as np
 
 from ...errors import BusyError
 from ...imaging import metrics
-from ...render.scene.reference import BasisView, Reference
+from ...render.scene.references import BasisView, Reference
 from .render_job import RenderSpec
 
 MAX_SPP = 1 << 14

@@ -4,9 +4,9 @@ The explorer starts it at a lower priority (``nice``) so that the blends of a dr
 first, and ends it at once when its job is cancelled (:mod:`.reference`). The process reads a
 :class:`RenderSpec` (JSON file), renders the scene at the point in passes of :data:`PASS_SAMPLES`
 paths with the package's one reference renderer
-(:func:`~mitsuba_manifold.render.scene.reference.render_reference_passes`; at least two passes where
+(:func:`~mitsuba_manifold.render.scene.references.render_reference_passes`; at least two passes where
 the spp allows, so that the passes measure the render's own noise), prints ``done total`` after
-each pass, and writes a :class:`~mitsuba_manifold.render.scene.reference.Reference` (the mean image
+each pass, and writes a :class:`~mitsuba_manifold.render.scene.references.Reference` (the mean image
 and its standard error per pixel) to ``spec.out`` atomically at the end.
 """
 
@@ -14,7 +14,7 @@ import json
 import sys
 from dataclasses import dataclass
 
-from ...render.scene.reference import BasisView, Reference
+from ...render.scene.references import BasisView, Reference
 
 #: Paths per pass of a reference render (a fraction of a second on one core at 64x64).
 PASS_SAMPLES = 1 << 18
@@ -49,11 +49,11 @@ class RenderSpec:
 
 
 def render(spec, progress=print) -> Reference:
-    """The :class:`Reference` of ``spec`` (:func:`~mitsuba_manifold.render.scene.reference.render_reference_passes`,
+    """The :class:`Reference` of ``spec`` (:func:`~mitsuba_manifold.render.scene.references.render_reference_passes`,
     at least two passes of at most :data:`PASS_SAMPLES` paths); ``progress(done, total)`` after
     each pass.
     """
-    from ...render.scene.reference import render_reference_passes
+    from ...render.scene.references import render_reference_passes
 
     return render_reference_passes(
         spec.view,

@@ -39,6 +39,7 @@ from ...errors import InputError, MismatchError, MitsubaManifoldError, did_you_m
 from ...imaging import io as imageio
 from ...manifold.model import Manifold
 from ..scene import scenes
+from ..scene.files import count_sensors
 from ..scene.variants import check_variant
 from .gi_basis import (
     CROSS_FILE,
@@ -637,13 +638,6 @@ def view_spp(jobs, spp=None) -> dict:
         (scene, sensor): spp or scene_sample_count(scene, sensor) or DEFAULT_SPP
         for scene, sensor, _ in jobs
     }
-
-
-def count_sensors(scene_path):
-    """Sensors (views) declared at the top level of a scene XML."""
-    return len(
-        validate.scene_xml(scene_path).findall("sensor")
-    )  # or a MismatchError naming the file
 
 
 def plan_views(scenes, views, out):
