@@ -226,8 +226,6 @@ class BlendRequest:
         The latent points of ``--x`` (:func:`.common.parse_points`: each a list of numbers or
         a material's name), target after target; :func:`main` makes them one flat list of
         numbers (:func:`mitsuba_manifold.basis.points.target_points`).
-    x_groups : int
-        How many points ``--x`` gave (one per target, or per fixed target with ``--path``).
     settings : BlendSettings
         ``--prune``, ``--renormalise``, ``--component``, ``--l2``.
     path : PathRequest or None
@@ -242,7 +240,6 @@ class BlendRequest:
     scene: Optional[str]
     database: Optional[str]
     x: Optional[list]
-    x_groups: int
     settings: "BlendSettings"
     path: Optional[PathRequest]
     reference: ReferenceRequest
@@ -298,7 +295,6 @@ def parse(argv=None):
         scene=args.scene,
         database=args.database,
         x=x,
-        x_groups=len(x or ()),
         settings=BlendSettings(
             prune=args.prune, renormalise=args.renormalise, component=args.component, l2=args.l2
         ),
