@@ -1,5 +1,7 @@
 """The fit benchmark on a small database: every run reported, the default converged and the same."""
 
+import pytest
+
 from benchmarks import fit
 
 
@@ -10,4 +12,13 @@ def test_fit_bench_compares_the_runs_and_measures_sameness(small_db):
     assert set(r["sameness"]) >= {"last_bits_0", "material_order", "manifold_1_thread"}
     assert r["meets_sameness_target"] and r["manifold_info"]["converged"] is True
     text = fit.report({"database": "db", "result": r})
-    assert "| newton / mds (default) |" in text and "largest point difference" in text
+    assert f"| {fit.DEFAULT_RUN} (default) |" in text and "largest point difference" in text
+    default = next(row for row in r["runs"] if row["run"] == fit.DEFAULT_RUN)
+    assert [mu for mu, _ in default["stages"]] == [1e-2, 1e-3, 1e-4]  # the noise continuation
+    plain = next(row for row in r["runs"] if row["run"] == "newton / mds")
+    assert len(plain["stages"]) == 1
+    assert set(r["plain_sameness"]) == {f"plain_last_bits_{k}" for k in range(fit.LAST_BITS)}
+    objectives = r["last_bits_objectives"]
+    for k in range(fit.LAST_BITS):  # the same points: the same maximum of the objective
+        assert objectives[f"last_bits_{k}"] == pytest.approx(objectives["default"], rel=1e-9)
+    assert "without the noise continuation" in text
