@@ -24,12 +24,11 @@ distances) when there is a stress term:
 * ``"lbfgs"``: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation);
 * ``"newton"``: trust-region Newton-CG with exact Hessian-vector products (O(N^3) each), its
   iterates rounded to a fixed grid while its steps are large, so that its path does not
-  depend on the last bits of the arithmetic; by default through a continuation in the noise
-  ``mu`` (:attr:`NewtonOptions.continuation`: fits at ``mu = 1e-2`` and ``1e-3`` first, each
-  from the points of the one before, then at the kernel's ``mu``). A larger ``mu`` smooths the
-  likelihood, so the large-scale arrangement is settled where few local maxima compete: which
-  maximum a fit ends at then depends on the data and not on the path, and two machines whose
-  arithmetic differs in the last bits end at the same one.
+  depend on the last bits of the arithmetic; optionally through a continuation in the noise
+  ``mu`` (:attr:`NewtonOptions.continuation`, e.g. fits at ``mu = 1e-2`` and ``1e-3`` first,
+  each from the points of the one before, then at the kernel's ``mu``). A larger ``mu``
+  smooths the likelihood, so the large-scale arrangement is settled where fewer local maxima
+  compete.
 
 The gradient-based two stop on a stated test (the projected gradient norm relative to
 ``d N / 2``, or the Newton step) and report whether they met it; a fit that did not warns
@@ -468,8 +467,8 @@ def optimiser_options(method, *, max_iter=None, tol=None, initial_step=None, con
     initial_step : float, optional
         Hooke-Jeeves: first step, in units of ``l`` (default 0.25; unused by the others).
     continuation : sequence of float, optional
-        Newton: the noise levels fitted before the kernel's, largest first (default
-        ``(1e-2, 1e-3)``; ``()``: none; :class:`NewtonOptions`).
+        Newton: the noise levels fitted before the kernel's, largest first (default ``()``:
+        none; e.g. ``(1e-2, 1e-3)``; :class:`NewtonOptions`).
 
     Returns
     -------

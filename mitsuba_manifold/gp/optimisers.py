@@ -99,16 +99,17 @@ class NewtonOptions:
         ``K^-1 S K^-1`` nearly cancel there) keeps its norm above ``tol``.
     continuation : tuple of float
         Noise levels ``mu`` fitted first, largest first, each from the points of the one
-        before (:class:`~mitsuba_manifold.gp.gplvm.GPLVM`): a larger ``mu`` smooths the
-        likelihood, so the first stages settle the layout's large-scale arrangement where few
-        local maxima compete and the last one, at the kernel's own ``mu``, refines it. Levels
-        at or below the kernel's ``mu`` are skipped; ``()``: one fit at the kernel's ``mu``.
+        before (:class:`~mitsuba_manifold.gp.gplvm.GPLVM`), e.g. ``(1e-2, 1e-3)``: a larger
+        ``mu`` smooths the likelihood, so the first stages settle the layout's large-scale
+        arrangement where few local maxima compete and the last one, at the kernel's own
+        ``mu``, refines it. Levels at or below the kernel's ``mu`` are skipped; ``()`` (the
+        default): one fit at the kernel's ``mu``.
     """
 
     max_iter: int = 2000
     tol: float = 1e-7
     step_tol: float = 1e-5
-    continuation: tuple = (1e-2, 1e-3)
+    continuation: tuple = ()
 
     def __post_init__(self):
         object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))

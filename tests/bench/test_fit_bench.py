@@ -14,11 +14,13 @@ def test_fit_bench_compares_the_runs_and_measures_sameness(small_db):
     text = fit.report({"database": "db", "result": r})
     assert f"| {fit.DEFAULT_RUN} (default) |" in text and "largest point difference" in text
     default = next(row for row in r["runs"] if row["run"] == fit.DEFAULT_RUN)
-    assert [mu for mu, _ in default["stages"]] == [1e-2, 1e-3, 1e-4]  # the noise continuation
-    plain = next(row for row in r["runs"] if row["run"] == "newton / mds")
-    assert len(plain["stages"]) == 1
-    assert set(r["plain_sameness"]) == {f"plain_last_bits_{k}" for k in range(fit.LAST_BITS)}
+    assert len(default["stages"]) == 1  # no continuation by default
+    continued = next(row for row in r["runs"] if row["run"] == fit.CONTINUATION_RUN)
+    assert [mu for mu, _ in continued["stages"]] == [*fit.CONTINUATION, 1e-4]
+    assert set(r["continuation_sameness"]) == {
+        f"continuation_last_bits_{k}" for k in range(fit.LAST_BITS)
+    }
     objectives = r["last_bits_objectives"]
     for k in range(fit.LAST_BITS):  # the same points: the same maximum of the objective
         assert objectives[f"last_bits_{k}"] == pytest.approx(objectives["default"], rel=1e-9)
-    assert "without the noise continuation" in text
+    assert "through the noise continuation" in text
