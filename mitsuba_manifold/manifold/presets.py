@@ -142,7 +142,7 @@ def canonical_order(hashes, names):
 
 def fit_layout(S, d, cfg, init=None, callback=None, distances=None, order=None, **options):
     """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:class:`gplvm.GPLVM`);
-    ``options`` (``max_iter``, ``tol``, ``initial_step``) set the optimiser
+    ``options`` (``max_iter``, ``tol``, ``initial_step``, ``continuation``) set the optimiser
     (:func:`gplvm.optimiser_options`); ``distances``: the materials' perceptual distances (N, N),
     the stress term's targets (needed when ``cfg["stress"] > 0``).
 
