@@ -147,7 +147,7 @@ def remove_owned(paths, keep=()) -> list:
     return removed
 
 
-def _refusal(path, force, what):
+def _refusal(path, force, what) -> tuple[str, str] | None:
     """``(kind, message)`` of why ``path`` may not be written, or None. ``kind`` is
     ``"foreign"`` for a file the tool did not make (allowed by ``force``), else the
     reason no option overrides.

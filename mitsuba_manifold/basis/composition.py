@@ -38,7 +38,7 @@ def single_image(basis, name):
     return basis.image(basis.key([name])) + basis.image(BASE)
 
 
-def _add_cross(images, basis, rows, products):
+def _add_cross(images, basis, rows, products) -> None:
     """``images += sum_r products[..., r] C[rows[r]]``: one image in place, term by term
     (:func:`~mitsuba_manifold._util.blas.axpy`, on one BLAS thread), from the float32 rows the basis keeps
     (:meth:`Basis.cross_term`); a sequence by ``tensordot``.

@@ -300,7 +300,7 @@ class DatabaseRequest:
         )
 
 
-def build_database(request: DatabaseRequest, progress=True):
+def build_database(request: DatabaseRequest, progress=True) -> int:
     """Make the folder of a checked ``request`` (:meth:`DatabaseRequest.checked`): SGD copies
     by :func:`make_database`, else :func:`write_database`. Returns the number of tables or
     materials it holds.
@@ -334,7 +334,7 @@ def build_database(request: DatabaseRequest, progress=True):
     return len(db.names)
 
 
-def _tabulate(jobs, workers, made, record, total, progress):
+def _tabulate(jobs, workers, made, record, total, progress) -> None:
     """Run the table jobs (one process per core for big tables), adding each finished table's name
     to ``made`` and calling ``record()``; if interrupted, also the tables finished meanwhile.
     """

@@ -435,7 +435,7 @@ class GPLVM:
             stages=done,
         )
 
-    def noise_stages(self):
+    def noise_stages(self) -> list:
         """The noise levels ``mu`` the fit goes through, the kernel's last: the optimiser's
         ``continuation`` levels above the kernel's ``mu`` (Newton; :class:`NewtonOptions`),
         largest first, each stage starting from the points of the one before.

@@ -313,7 +313,9 @@ def tiles(images, min_width=0) -> np.ndarray:
     return out
 
 
-def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, pad=4, title=None):
+def write_contact_sheet(
+    path, images, labels=None, columns=None, exposure=0.0, pad=4, title=None
+) -> None:
     r"""PNG grid of tonemapped images (one exposure for all), with optional labels; atomic.
 
     Parameters

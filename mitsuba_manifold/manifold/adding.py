@@ -112,7 +112,7 @@ def check_additions(paths, names=()) -> None:
             raise InputError(f"`add` {path}: {one_line(e)}") from None
 
 
-def read_table(path, dims):
+def read_table(path, dims) -> np.ndarray:
     """Reflectance table of a MERL ``.binary`` file, flat float32, checked against ``dims``."""
     path = os.fspath(path)
     if not os.path.isfile(path):

@@ -131,7 +131,7 @@ class FitOptions:
         return self
 
 
-def canonical_order(hashes, names):
+def canonical_order(hashes, names) -> "np.ndarray":
     """The order a fit sees the materials in: by the content hash of each table (SHA-256,
     :meth:`~..data.database.Database.hash`), then by name for identical tables. It depends on
     the tables only, so the order the user lists them in does not reach the fit.

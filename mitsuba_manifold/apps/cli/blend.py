@@ -50,6 +50,8 @@ if TYPE_CHECKING:
     from collections.abc import Callable
     from typing import Any
 
+    import numpy as np
+
     # imported by parse() when it runs (the command line is checked first)
     from ...basis.blend import BlendSettings
 
@@ -317,7 +319,7 @@ def parse(argv=None) -> "BlendRequest":
     return request
 
 
-def path_outputs(request, basis, manifold):
+def path_outputs(request, basis, manifold) -> "list[tuple[str, Any, Callable[..., Any]]]":
     """Blend the images along ``--path``; returns the outputs ``(kind, path, writer)`` to write."""
     from ...basis.blend import MovingTarget, blend_path, path_labels
     from ...basis.points import check_path_memory, path_end, target_index
@@ -376,7 +378,7 @@ def path_outputs(request, basis, manifold):
     return outputs
 
 
-def _say_component(info):
+def _say_component(info) -> None:
     """One line: which blend was made (full GI or L1-) and, for L1-, why."""
     if info.component == "full":
         print(
@@ -501,7 +503,7 @@ def point_outputs(request, basis, manifold) -> "list[tuple[str, Any, Callable[..
     return outputs
 
 
-def reference_image(request, basis, manifold, outputs):
+def reference_image(request, basis, manifold, outputs) -> "Optional[np.ndarray]":
     """The reference of ``--reference`` (read) or ``--render-reference`` (rendered by
     :func:`mitsuba_manifold.render.scene.references.render_reference_passes`, and added to
     ``outputs``), or None.
@@ -551,7 +553,7 @@ def reference_image(request, basis, manifold, outputs):
     return reference
 
 
-def remove_stale_companions(out, outputs):
+def remove_stale_companions(out, outputs) -> None:
     """Remove the files an earlier blend to ``out`` wrote beside it that this run did not
     write again (e.g. the previous point's error image): only the tool's own, unchanged since
     (:func:`mitsuba_manifold._util.ownership.remove_owned`).

@@ -307,14 +307,14 @@ def guarded(main) -> Callable[..., Any]:
 class one_line_warnings:
     """Library warnings (an older L1- basis) as one ``warning: ...`` line on stderr."""
 
-    def __enter__(self):
+    def __enter__(self) -> None:
         import warnings
 
         self.catch = warnings.catch_warnings(record=True)
         self.caught = self.catch.__enter__()
         warnings.simplefilter("always", UserWarning)
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc) -> None:
         self.catch.__exit__(*exc)
         for w in self.caught:
             print(f"warning: {w.message}", file=sys.stderr)
@@ -324,7 +324,7 @@ class one_line_warnings:
 LIST_FILES = 50
 
 
-def write_outputs(tool, out, outputs, force=False, group=None):
+def write_outputs(tool, out, outputs, force=False, group=None) -> None:
     """Write ``outputs`` (``(kind, path, writer)``) as ``tool`` under the tools' output
     discipline (:class:`mitsuba_manifold._util.ownership.Outputs`): check
     that none replaces a file this tool did not make, create the folder of ``out``, run every

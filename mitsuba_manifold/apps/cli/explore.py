@@ -170,7 +170,7 @@ def main(argv=None) -> int:
         return 130
 
 
-def server_blas_threads(cores=None):
+def server_blas_threads(cores=None) -> int:
     """:func:`mitsuba_manifold.apps.explore.web.serving.server_blas_threads` (imported when called)."""
     from ..explore.web.serving import server_blas_threads as threads
 

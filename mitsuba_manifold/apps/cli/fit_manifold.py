@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import os
 import time
+from typing import TYPE_CHECKING
 
 from .common import ArgumentParser, guarded, parse_list
 
+if TYPE_CHECKING:
+    from ...manifold.presets import FitOptions
 
-def options(args):
+
+def options(args) -> FitOptions:
     """The :class:`~mitsuba_manifold.manifold.presets.FitOptions` of the command line."""
     from ...manifold.presets import FitOptions
 
@@ -29,7 +33,7 @@ def _saved_manifold(args):
     return os.path.isfile(args.database) and args.database.lower().endswith(".npz")
 
 
-def check(args, guard=None):
+def check(args, guard=None) -> None:
     """Everything checked before the (long) fit: values, --out and --plot (``guard``: the run's
     :class:`ownership.Outputs`, which then watches them; default: checked only).
     """

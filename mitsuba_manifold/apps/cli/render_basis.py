@@ -40,7 +40,7 @@ def parse_views(text) -> str | list[int]:
     return views
 
 
-def check_numbers(args, spp):
+def check_numbers(args, spp) -> None:
     """``--spp`` (``spp``: the most samples per pixel of any basis), ``--chunks``, ``--res``,
     ``--max-depth`` and ``--seed`` (:func:`mitsuba_manifold.basis.sampling.check_sampling`),
     before any folder is made.

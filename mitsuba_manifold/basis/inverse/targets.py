@@ -107,7 +107,9 @@ def read_mask(path, resolution=None) -> np.ndarray:
     return codes.mean(axis=-1) / top
 
 
-def read_target_and_weight(target_path, mask_path, resolution):
+def read_target_and_weight(
+    target_path, mask_path, resolution
+) -> tuple[np.ndarray, np.ndarray, int]:
     """The target of a match read from ``target_path`` and its pixel weights: the mask of
     ``mask_path`` (None: every pixel 1), without the target's clipped pixels
     (:func:`read_target`), all checked against ``resolution``.

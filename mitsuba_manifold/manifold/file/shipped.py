@@ -10,6 +10,8 @@ exists, and then the name is ambiguous and refused, naming both. ``tools/build_m
 refits and writes them all.
 """
 
+from __future__ import annotations
+
 import os
 
 from ...data.sources import BUILTIN_PREFIX
@@ -89,7 +91,7 @@ def check_sets(names, what="`sets`") -> list:
     return list(names)
 
 
-def write(manifold, name, folder=FOLDER):
+def write(manifold, name, folder=FOLDER) -> tuple:
     """Write the fitted ``manifold`` as shipped manifold ``name`` (``<folder>/<name>.npz``) so
     that the same fit gives the same bytes on every machine: the fit's wall times left out, the
     archive's entries dated 1980-01-01. Returns ``(path, timings)`` (the timings left out).

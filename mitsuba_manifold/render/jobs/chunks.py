@@ -472,7 +472,9 @@ def render_chunked(
     return run
 
 
-def render_view(scene, manifold, out, options, chunks=1, executor=None, keep_chunks=False):
+def render_view(
+    scene, manifold, out, options, chunks=1, executor=None, keep_chunks=False
+) -> "Manifest":
     """The basis of one view: rendered here (:func:`~mitsuba_manifold.render.jobs.render_basis.render_basis`)
     where it is one chunk on the local executor, else in ``chunks`` chunks by ``executor``
     (:func:`render_chunked`); returns its manifest.
@@ -490,7 +492,7 @@ def render_view(scene, manifold, out, options, chunks=1, executor=None, keep_chu
     ).manifest
 
 
-def _finished(out, run_key):
+def _finished(out, run_key) -> "Optional[Manifest]":
     """The manifest of ``out`` when it holds the merged basis of the run ``run_key`` with every
     image as merged, else None.
     """

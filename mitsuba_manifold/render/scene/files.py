@@ -203,6 +203,6 @@ def check_scene(name, value) -> str:
     return path
 
 
-def count_sensors(scene_path):
+def count_sensors(scene_path) -> int:
     """Sensors (views) declared at the top level of a scene XML."""
     return len(scene_xml(scene_path).findall("sensor"))  # or a MismatchError naming the file

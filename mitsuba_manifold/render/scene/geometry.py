@@ -116,7 +116,7 @@ def bowl(
     return revolve(*bowl_profile(radius, height, thickness, exponent, n), segments)
 
 
-def write_bowl(path, profile=56, segments=64):
+def write_bowl(path, profile=56, segments=64) -> tuple[np.ndarray, np.ndarray]:
     """Write the shipped scenes' bowl (:func:`bowl`, ``profile`` points turned in ``segments``)
     as PLY (:func:`write_ply`, with Mitsuba's ``scalar_rgb`` where no variant is active);
     returns its ``(vertices, faces)``.
@@ -130,7 +130,7 @@ def write_bowl(path, profile=56, segments=64):
     return v, f
 
 
-def write_ply(path, vertices, faces):
+def write_ply(path, vertices, faces) -> None:
     """Write a triangle mesh as binary PLY with smooth vertex normals (Mitsuba computes them).
 
     Needs an active Mitsuba variant. The file is written to a temporary name and renamed.
