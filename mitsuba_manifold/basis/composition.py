@@ -31,7 +31,7 @@ def compose(basis, keys, weights, cross=None) -> tuple[Any, Any, float]:
     return images, t_read, time.perf_counter() - t0
 
 
-def single_image(basis, name):
+def single_image(basis, name) -> np.ndarray:
     """The image of the training material ``name`` alone (weight 1, a basis of one target): its
     L1- image plus the base (Eq. 13 at that material, without cross terms).
     """

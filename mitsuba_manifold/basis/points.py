@@ -10,10 +10,13 @@ command-line tool writes as its options.
 
 import math
 from collections.abc import Sequence
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from .._util import checks
 from ..errors import MismatchError
+
+if TYPE_CHECKING:
+    from typing import Any
 
 
 def flat_numbers(points, manifold) -> Optional[list]:
@@ -111,7 +114,7 @@ def target_points(
     return x
 
 
-def path_end(manifold, end, given=None):
+def path_end(manifold, end, given=None) -> "Any":
     """One end of a path: a training material's name, or ``q`` finite numbers (``given``: the
     text the user typed, for the message). A name the manifold does not know is returned as it
     is (:func:`~mitsuba_manifold.basis.blend.blend_path` reports it).

@@ -451,7 +451,9 @@ def _offset(callback, k):
     return lambda i, X, F: callback(i + k - 1, X, F)
 
 
-def optimiser_options(method, *, max_iter=None, tol=None, initial_step=None, continuation=None):
+def optimiser_options(
+    method, *, max_iter=None, tol=None, initial_step=None, continuation=None
+) -> HookeJeevesOptions | LBFGSOptions | NewtonOptions:
     """The settings of the optimiser ``method`` (:data:`METHODS`), its defaults but those given.
 
     Parameters

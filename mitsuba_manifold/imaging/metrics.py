@@ -167,7 +167,7 @@ def negative_pixels(image) -> int:
     return int((np.asarray(image) < 0).any(axis=-1).sum())
 
 
-def error_image(a, ref):
+def error_image(a, ref) -> np.ndarray:
     """Per-pixel, per-channel absolute difference ``|a - r|`` as float32 (H, W, 3)."""
     a, ref = _pair(a, ref)
     return np.abs(a - ref).astype(np.float32)

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Literal
 
 if TYPE_CHECKING:
     pass
+    import numpy as np
 
 
 #: Paths per render pass (a pass is the unit a stop request waits for).
@@ -87,7 +88,7 @@ def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS) -> list[int]:
 SEED_STEP = 0x9E3779B9
 
 
-def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
+def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0) -> np.ndarray:
     """``mi.render`` cut into passes (:func:`sample_passes`), checking ``stop`` after each.
 
     One pass (the usual case for small images) is exactly ``mi.render(..., spp, seed)``; passes
@@ -114,7 +115,7 @@ def render_passes(
     samples_per_pass=SAMPLES_PER_PASS,
     min_passes=1,
     progress=None,
-):
+) -> tuple:
     """``mi.render`` cut into passes, as :func:`render_in_passes`, with what the passes say of
     their own noise.
 
