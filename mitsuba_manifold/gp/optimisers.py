@@ -150,7 +150,7 @@ class OptimiserResult:
     grad_norm: float = None
 
 
-def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, length_scale=1.0):
+def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, length_scale=1.0):  # noqa: C901  its poll, defined inside, shares the search state
     """Hooke-Jeeves direct search, one latent point at a time, in length-scale units.
 
     ``likelihood``: the objective with ``l = 1`` (:meth:`Likelihood.in_units`); ``callback``
@@ -413,7 +413,7 @@ def _steihaug(hessp, g, radius):
     return z, False
 
 
-def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=1.0):
+def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=1.0):  # noqa: C901  a trust-region iteration read as a whole
     """Trust-region Newton-CG on ``-F / (d N / 2)``, in length-scale units.
 
     Each iteration takes the Steihaug-Toint conjugate-gradient step of the quadratic model on

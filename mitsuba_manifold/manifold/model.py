@@ -268,7 +268,7 @@ class Manifold:
         where each table came from and the file (and its SHA-256) the manifold reads it from.
     """
 
-    def __init__(
+    def __init__(  # noqa: PLR0913  one parameter per attribute, as load() reads them back
         self,
         names,
         latent,
@@ -286,11 +286,8 @@ class Manifold:
         record=None,
         added=None,
     ):
-        """The manifold's learned state, one parameter per attribute (see the class).
-
-        Its fourteen parameters are the fields :meth:`load` reads back from a saved manifold (each
-        an attribute of the class), so a loader and a fit build it with one call; the last six
-        are keyword-only.
+        """The manifold's learned state, one parameter per attribute (see the class): the
+        fields :meth:`load` reads back from a saved manifold.
         """
         latent = np.asarray(latent, dtype=np.float64)
         if latent.ndim != 2 or latent.shape[0] != len(names):
@@ -342,7 +339,7 @@ class Manifold:
 
     # ------------------------------------------------------------------ fit
     @classmethod
-    def fit(
+    def fit(  # noqa: PLR0913  the fit's settings as keywords, scikit-learn style
         cls,
         database,
         *,
@@ -361,9 +358,6 @@ class Manifold:
         **options,
     ):
         """Fit latent points to the tables of ``database`` (paper Sec. 3).
-
-        Its fourteen parameters are the fit's settings as keywords (scikit-learn style), each
-        overriding the preset's value, so a user sets any one of them without a settings object.
 
         ``Manifold.fit(database)`` fits the default preset; ``preset="paper"`` the paper's
         exact formulation. Any other argument given overrides the preset's value.

@@ -313,7 +313,7 @@ _GROUPS = {f.name: f.default_factory for f in fields(BasisOptions)}
 _GROUP_OF = {f.name: g for g, cls in _GROUPS.items() for f in fields(cls)}
 
 
-def render_basis(scene_path, manifold_path, out, options=None, **settings):
+def render_basis(scene_path, manifold_path, out, options=None, **settings):  # noqa: C901  the images planned in one place, before the lock
     """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
 
     Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into

@@ -263,7 +263,7 @@ class BlendRequest:
     output: Output
 
 
-def parse(argv=None):
+def parse(argv=None):  # noqa: C901  one check per option, each naming it, before any work
     """The checked :class:`BlendRequest` of the command line ``argv``."""
     argv = sys.argv[1:] if argv is None else list(argv)
     # "-0.3,1.2" would look like an option to argparse; with spaces it is a value

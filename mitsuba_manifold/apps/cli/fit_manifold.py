@@ -6,7 +6,7 @@ import time
 from .common import ArgumentParser, guarded, parse_list
 
 
-def check(args, guard=None):
+def check(args, guard=None):  # noqa: C901  one check per option, each naming it, before the fit
     """Everything checked before the (long) fit: values, --out and --plot (``guard``: the run's
     :class:`ownership.Outputs`, which then watches them; default: checked only).
     """

@@ -288,7 +288,7 @@ def _is_int(v):
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def _check_json(manifest, where=MANIFEST):
+def _check_json(manifest, where=MANIFEST):  # noqa: C901  one check per field of the format
     """Check the fields and types of a manifest's JSON object; returns it.
 
     Does not require any image to be listed (a basis being rendered grows one image at a
