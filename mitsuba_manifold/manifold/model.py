@@ -31,15 +31,16 @@ tables read and checked once (:class:`~.tables.TrainingTables`), projection
 
 import numbers
 import os
+import threading
 import time
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import cachetools
 import numpy as np
 
 from .._util.blas import one_thread
 from .._util.checks import weight_sum
-from .._util.fifo_cache import Recent
 from .._util.float32 import weights32
 from .._util.names import is_name
 from ..data import gram as gram_mod
@@ -206,7 +207,8 @@ def _stored(name, doc):
 
     def set_(self, value):
         self._store.set_matrix(name, value)
-        self._pruned.clear()  # pruning answers made with the old matrices
+        with self._pruned_lock:  # pruning answers made with the old matrices
+            self._pruned.clear()
 
     return property(lambda self: getattr(self._store, name), set_, doc=doc)
 
@@ -320,7 +322,7 @@ class Manifold:
             albedos,
             {a.name: a.path for a in self.added},
         )
-        self._pruned = Recent(PRUNE_MEMO)
+        self._pruned, self._pruned_lock = cachetools.FIFOCache(PRUNE_MEMO), threading.Lock()
         self.interpolant = make_interpolant(
             self.latent,
             {
@@ -759,15 +761,16 @@ class Manifold:
             ``keep`` (ndarray of int), ``w_kept`` (ndarray), ``dropped`` (float: sum of
             ``|w_i|`` over the dropped materials).
         """
-        w = self._checked(w, prune, rule)
-        key = (w.tobytes(), float(prune), rule, self.database)
-        hit = self._pruned.get(
-            key, lambda: self._prune(w, prune, rule)
-        )  # cleared when a matrix is set
+        hit = self._prune(self._checked(w, prune, rule), float(prune), rule)
         return Pruned(
             hit.keep.copy(), hit.w_kept.copy(), hit.dropped
         )  # the caller may change its arrays
 
+    @cachetools.cachedmethod(
+        lambda self: self._pruned,  # the newest answers, cleared when a matrix is set
+        key=lambda self, w, budget, rule: (w.tobytes(), budget, rule, self.database),
+        lock=lambda self: self._pruned_lock,
+    )
     def _prune(self, w, budget, rule):
         folder, store = self._source(), self._store
         if rule == "raw-l2":
