@@ -285,6 +285,21 @@ def test_no_module_name_is_used_three_times():
     assert not ({"folder", "folders"} <= set(names) or {"record", "records"} <= set(names))
 
 
+def test_one_module_installs_the_ctrl_c_handlers():
+    """Only ``_util/interrupts.py`` calls ``signal.signal``: the tools' scripts, the command line,
+    the render loops and the worker processes use its calls."""
+    calls = set()
+    for top in ("mitsuba_manifold", "tools", "benchmarks"):
+        for folder, _, files in os.walk(os.path.join(ROOT, top)):
+            for f in files:
+                if f.endswith(".py"):
+                    path = os.path.join(folder, f)
+                    for n in ast.walk(ast.parse(open(path, encoding="utf-8").read())):
+                        if isinstance(n, ast.Call) and ast.unparse(n.func) == "signal.signal":
+                            calls.add(os.path.relpath(path, ROOT).replace(os.sep, "/"))
+    assert calls == {"mitsuba_manifold/_util/interrupts.py"}, calls
+
+
 def test_the_wheel_lists_every_package_folder():
     """Every folder of the package holding an ``__init__.py`` is in ``pyproject.toml``'s explicit
     package list (an editable install hides a missing one; ``pip install .`` would not)."""
