@@ -135,8 +135,34 @@ def test_every_page_with_code_is_covered():
     assert all(b[3] for b in skipped)  # each says why
 
 
+def _run_elsewhere():
+    """Pages whose commands another test runs in their context: the tutorials' pages show
+    commands to run after the tutorial scripts, which tests/docs/test_docs_tutorials.py runs in
+    that order."""
+    from test_docs_tutorials import PAGES
+
+    return {f"docs/tutorials/{page}" for page, _ in PAGES.values()}
+
+
 def _pages_with_code():
-    return [p for p in pages() if any(b[0] in RUN and b[2] != "not run" for b in blocks(p))]
+    elsewhere = _run_elsewhere()
+    return [
+        p
+        for p in pages()
+        if p not in elsewhere and any(b[0] in RUN and b[2] != "not run" for b in blocks(p))
+    ]
+
+
+def test_pages_run_elsewhere_hold_only_what_runs_there():
+    """A tutorial page's runnable blocks are ``sh`` blocks of tool commands, each of which the
+    tutorials' test runs (so leaving those pages out here skips nothing)."""
+    from test_docs_tutorials import sh_commands
+
+    for page in _run_elsewhere():
+        code = [b for b in blocks(page) if b[0] in RUN and b[2] != "not run"]
+        assert all(b[0] == "sh" for b in code), page
+        run = sh_commands(os.path.join(ROOT, page))
+        assert all(c in run for b in code for c in commands(b[1])), page
 
 
 #: Data the pages name by their path in a checkout (read only): linked into the work folder.
