@@ -5,7 +5,7 @@ point light), 64x64, of materials that are not in the manifold: the built-in ``r
 ``nielsen`` (8) networks (rendered through their tables: a manifold of each set, every material's
 image in one pass, 512 spp) and the real RGL-EPFL files of ``measured_dir`` (Mitsuba's
 ``measured`` plugin, ``path``, 1024 spp). Each photo is acquired with
-:func:`mitsuba_manifold.render.acquire.acquire` on a manifold of ``merl`` only (default options;
+:func:`mitsuba_manifold.render.inverse.acquire.acquire` on a manifold of ``merl`` only (default options;
 the training images kept in a cache per scene, so the first photo's time includes their render
 and the others' do not; ``cold`` photos are also acquired without the cache).
 
@@ -61,8 +61,8 @@ def _fit(setname, out):
 
 
 def _onepass(scene, manifold, spp, seed):
-    from mitsuba_manifold.render import scenes
-    from mitsuba_manifold.render.render_basis import _integrator
+    from mitsuba_manifold.render.jobs.render_basis import _integrator
+    from mitsuba_manifold.render.scene import scenes
 
     ls = scenes.load_scene(scene, manifold, spp, RES, None)
     base, images = _integrator("l1", ls.integrator).render_onepass(ls.scene, spp=spp, seed=seed)
@@ -165,9 +165,9 @@ def run(
     """Acquire every photo of ``part`` (``tune``, ``held-out`` or ``all``; ``shard`` ``(i, n)``:
     every n-th from the i-th) and judge it.
     """
-    from mitsuba_manifold.basis.acquisition import AcquireOptions
-    from mitsuba_manifold.render import scenes
-    from mitsuba_manifold.render.acquire import Photo, acquire
+    from mitsuba_manifold.basis.inverse.acquisition import AcquireOptions
+    from mitsuba_manifold.render.inverse.acquire import Photo, acquire
+    from mitsuba_manifold.render.scene import scenes
 
     out = os.path.abspath(out or "bench_acquire_work")
     os.makedirs(out, exist_ok=True)
@@ -202,7 +202,7 @@ def run(
         w = np.asarray(r.w)
         single = np.eye(n)[r.names.index(r.single["name"])]
         # the plain fit: the acquisition's own training images (the cached ones), linear RGB
-        from mitsuba_manifold.render.acquire import render_training_images
+        from mitsuba_manifold.render.inverse.acquire import render_training_images
 
         tr = render_training_images(
             photo_xml, manifold, (RES, RES), AcquireOptions(basis_cache=cache), 0

@@ -6,7 +6,7 @@ given as XML (a ``manifold_brdf`` or Mitsuba's ``measured``).
 
 import os
 
-from mitsuba_manifold.render.scenes import scene_path
+from mitsuba_manifold.render.scene.scenes import scene_path
 
 PHOTO_CAMERA = "0, 0.6, 5"
 JUDGE_CAMERA = "3.4, 2.4, 2.6"

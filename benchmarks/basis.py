@@ -10,8 +10,8 @@ from mitsuba_manifold.basis.blend import blend
 from mitsuba_manifold.basis.folder import Basis
 from mitsuba_manifold.data.database import database_cache
 from mitsuba_manifold.manifold.model import Manifold
-from mitsuba_manifold.render import scenes
-from mitsuba_manifold.render.scenes import use_variant
+from mitsuba_manifold.render.scene import scenes
+from mitsuba_manifold.render.scene.scenes import use_variant
 
 from .common import peak_rss_gib, work_manifold
 
@@ -24,7 +24,7 @@ def basis_run(scene_path, manifold, folder, spp, mode, res, seed):
     """
     import shutil
 
-    from mitsuba_manifold.render import render_basis as basis_mod
+    from mitsuba_manifold.render.jobs import render_basis as basis_mod
 
     shutil.rmtree(folder, ignore_errors=True)
     t0 = time.perf_counter()

@@ -7,7 +7,7 @@ import numpy as np
 
 from mitsuba_manifold._util.timing import median_time
 from mitsuba_manifold.manifold.model import Manifold
-from mitsuba_manifold.render.scenes import use_variant
+from mitsuba_manifold.render.scene.scenes import use_variant
 
 from .common import interpolated_point, sphere_with, time_renders, work_manifold
 
@@ -30,7 +30,7 @@ def run(
     (``ratio_cpu_min``) is the one a loaded machine disturbs least.
     """
     from mitsuba_manifold.imaging import metrics
-    from mitsuba_manifold.render.sampling import sampling_cache_path
+    from mitsuba_manifold.render.plugin.sampling import sampling_cache_path
 
     mi = use_variant()
     m = Manifold.load(manifold) if manifold else None

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from mitsuba_manifold.render.scenes import SCENES_DIR, use_variant
+from mitsuba_manifold.render.scene.scenes import SCENES_DIR, use_variant
 
 
 def machine():

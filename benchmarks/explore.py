@@ -38,7 +38,7 @@ import time
 
 import numpy as np
 
-from mitsuba_manifold.apps.explore import launch
+from mitsuba_manifold.apps.explore.web import launch
 
 TARGET_MS = {256 * 256: 30.0, 512 * 512: 60.0}
 

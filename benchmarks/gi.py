@@ -24,8 +24,8 @@ from mitsuba_manifold.basis.folder import Basis
 from mitsuba_manifold.data.database import database_cache
 from mitsuba_manifold.imaging import metrics
 from mitsuba_manifold.manifold.model import Manifold
-from mitsuba_manifold.render import scenes as _scenes
-from mitsuba_manifold.render.render_basis import render_basis
+from mitsuba_manifold.render.jobs.render_basis import render_basis
+from mitsuba_manifold.render.scene import scenes as _scenes
 
 from .common import work_manifold
 
@@ -92,7 +92,7 @@ def targets(  # noqa: PLR0913  tools/bench.py's options, as keywords
     the points of :func:`gi_points` the bias and relative MSE of both blends and of a
     ``direct_spp`` render against a ``ref_spp`` reference (Mitsuba's ``path``); ``both_ends``:
     also at the pair's second material (with convex weights the extrapolated point is close to it);
-    ``gi_options``: more :class:`~mitsuba_manifold.render.render_basis.BasisOptions` fields of the
+    ``gi_options``: more :class:`~mitsuba_manifold.render.jobs.render_basis.BasisOptions` fields of the
     full-GI basis (e.g. ``cross_fraction``).
     """
     manifold = manifold or work_manifold(folder)

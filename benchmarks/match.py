@@ -1,9 +1,9 @@
-"""``tools/bench.py match``: speed and accuracy of :func:`mitsuba_manifold.basis.match.match`.
+"""``tools/bench.py match``: speed and accuracy of :func:`mitsuba_manifold.basis.inverse.match.match`.
 
 - ``speed``: match time for a full basis (default: N = 100, 256x256) held in memory, per
   setting (relative MSE, exposure-free, masked, log luminance, starts from the nearest
   training points only), for targets that are blends at points between neighbouring
-  training points (their L1- blends, which :func:`~mitsuba_manifold.basis.match.match` fits,
+  training points (their L1- blends, which :func:`~mitsuba_manifold.basis.inverse.match.match` fits,
   also on a full-GI basis; ``recovered``: error < 1e-6), and the time to read the basis; target:
   at most 2 s.
 - ``scenes`` (``table.xml``, ``sphere.xml``, small renders), per scene:
@@ -24,15 +24,20 @@ import time
 
 import numpy as np
 
-from mitsuba_manifold.basis import match as mt
 from mitsuba_manifold.basis.blend import blend
 from mitsuba_manifold.basis.folder import BASE, Basis
-from mitsuba_manifold.basis.objectives import masked_rel_mse
+from mitsuba_manifold.basis.inverse import match as mt
+from mitsuba_manifold.basis.inverse.objectives import masked_rel_mse
 from mitsuba_manifold.data.database import database_cache
 from mitsuba_manifold.imaging.metrics import rel_mse
 from mitsuba_manifold.manifold.model import Manifold
-from mitsuba_manifold.render.render_basis import render_basis
-from mitsuba_manifold.render.scenes import load_scene, render_reference, scene_path, use_variant
+from mitsuba_manifold.render.jobs.render_basis import render_basis
+from mitsuba_manifold.render.scene.scenes import (
+    load_scene,
+    render_reference,
+    scene_path,
+    use_variant,
+)
 
 from .common import work_manifold
 

@@ -2,7 +2,7 @@
 
 Targets are rendered with Mitsuba's ``path`` at ``target_spp`` from 3 views of ``cbox`` (a scene
 no basis is made for; view 0 is the scene's own camera), and matched with
-:func:`mitsuba_manifold.render.match_render.match_render` (``prb``, ``mi.ad.Adam``) on all 3 views:
+:func:`mitsuba_manifold.render.inverse.match_render.match_render` (``prb``, ``mi.ad.Adam``) on all 3 views:
 
 1. ``random_points``: latent points between neighbouring training points; the recovered image
    error against the noise floor (the error of a render at the true point, same spp and seed as
@@ -13,7 +13,7 @@ no basis is made for; view 0 is the scene's own camera), and matched with
    same manifold rendered from view 0 only: the basis match sees view 0, ``match_render`` all views;
    both points rendered with ``path`` on views 1 and 2 (``uncovered``), where the basis has no image;
    the error there also free of the render noise (``uncovered_noise_free``: two independent renders
-   of each point, :func:`match_scan.cross_error`): one render's error adds its own variance, which
+   of each point, :func:`scan.cross_error`): one render's error adds its own variance, which
    penalises a glossy point against a matte one.
 
 Images are compared over the pixels where the camera sees the material (object masks), where the
@@ -31,9 +31,9 @@ import time
 import numpy as np
 
 from mitsuba_manifold.manifold.model import Manifold
-from mitsuba_manifold.render import match_render as mr
-from mitsuba_manifold.render import match_scan
-from mitsuba_manifold.render.scenes import load_scene, scene_path, use_variant
+from mitsuba_manifold.render.inverse import match_render as mr
+from mitsuba_manifold.render.inverse import scan
+from mitsuba_manifold.render.scene.scenes import load_scene, scene_path, use_variant
 
 from .common import peak_rss_gib
 from .match import _interior_points
@@ -275,9 +275,9 @@ def _held_out(cbox, manifold, db, m, name, ctx):
     """One held-out material: the match on the manifold of the others, against the best single
     material and the basis match (a basis of view 0 only).
     """
-    from mitsuba_manifold.basis import match as mt
     from mitsuba_manifold.basis.folder import Basis
-    from mitsuba_manifold.render.render_basis import render_basis
+    from mitsuba_manifold.basis.inverse import match as mt
+    from mitsuba_manifold.render.jobs.render_basis import render_basis
 
     sensors, masks, opts, out = ctx["sensors"], ctx["masks"], ctx["opts"], ctx["out"]
     sub = os.path.join(out, f"manifold_without_{name}.npz")
@@ -315,8 +315,7 @@ def _held_out(cbox, manifold, db, m, name, ctx):
     uncovered, basis_uncovered = float(np.mean(r.errors[1:])), float(np.mean(basis_errors[1:]))
     unc = mr._Problem(views[1:], sub, opts)  # the same, free of the render noise (two renders each)
     nf, nf_basis = (
-        match_scan.cross_error(unc, x, max(1, opts.eval_spp // 4), opts.seed + 77)
-        for x in (r.x, b.x)
+        scan.cross_error(unc, x, max(1, opts.eval_spp // 4), opts.seed + 77) for x in (r.x, b.x)
     )
     return {
         **_summary(r),

@@ -69,7 +69,7 @@ def positions(dims=(90, 90, 180), merl_stride=5, rgl_dir=RGL_DIR):
     """Bin centres against bin starts for the networks of each set (see the module docstring)."""
     from mitsuba_manifold.data import nbrdf, sources
     from mitsuba_manifold.data.database import albedo_weights
-    from mitsuba_manifold.render import measured
+    from mitsuba_manifold.render.plugin import measured
 
     q = albedo_weights(dims)
     near = np.zeros(dims, bool)
@@ -118,7 +118,7 @@ def positions(dims=(90, 90, 180), merl_stride=5, rgl_dir=RGL_DIR):
 def fidelity(res=64, spp=256, rgl_dir=RGL_DIR, work=None):
     """Imported ``.bsdf`` files rendered by ``manifold_brdf`` against Mitsuba's ``measured``."""
     from mitsuba_manifold.manifold.model import Manifold
-    from mitsuba_manifold.render import measured
+    from mitsuba_manifold.render.plugin import measured
 
     files = (
         sorted(f for f in os.listdir(rgl_dir) if f.endswith(".bsdf"))

@@ -97,7 +97,7 @@ def _point(stage, p):
         w += (1 - w.sum()) / p["n"]
         t, _ = median_time(lambda: w.astype(np.float32) @ tables, 3)
         return {"time_s": t, "table_bytes": int(tables.nbytes // p["n"])}
-    from mitsuba_manifold.render.scenes import use_variant
+    from mitsuba_manifold.render.scene.scenes import use_variant
 
     mi = use_variant()
     if stage == "plugin":
@@ -118,8 +118,8 @@ def _point(stage, p):
         import tempfile
 
         from mitsuba_manifold.manifold.model import Manifold
-        from mitsuba_manifold.render.render_basis import render_basis
-        from mitsuba_manifold.render.scenes import scene_path
+        from mitsuba_manifold.render.jobs.render_basis import render_basis
+        from mitsuba_manifold.render.scene.scenes import scene_path
 
         Manifold.load(
             p["manifold"]
@@ -512,9 +512,9 @@ def chunk_speedup(manifold, work, res=128, spp=256, chunks=4, progress=True):
     """
     import shutil
 
-    from mitsuba_manifold.render.chunks import render_chunked
-    from mitsuba_manifold.render.executor import LocalExecutor, RayExecutor
-    from mitsuba_manifold.render.scenes import scene_path
+    from mitsuba_manifold.render.jobs.chunks import render_chunked
+    from mitsuba_manifold.render.jobs.executor import LocalExecutor, RayExecutor
+    from mitsuba_manifold.render.scene.scenes import scene_path
 
     scene = scene_path("table")
     out = {"resolution": res, "spp": spp, "chunks": chunks, "manifold": manifold, "runs": {}}

@@ -47,7 +47,7 @@ def render_spheres(manifold_path, points, res, spp):
     import mitsuba as mi
 
     import mitsuba_manifold.render  # noqa: F401
-    from mitsuba_manifold.render.scenes import scene_path
+    from mitsuba_manifold.render.scene.scenes import scene_path
 
     mi.set_variant("llvm_ad_rgb")
     scene = mi.load_file(scene_path("sphere"), manifold=manifold_path, res=res, spp=spp)

@@ -11,7 +11,7 @@ Basis, blend, register`` loads only what is asked for.
 No side effects on import: ``import mitsuba_manifold`` (and every subsystem but ``render``)
 loads neither Mitsuba nor Dr.Jit and changes nothing, ``os.environ`` included. The one
 subsystem that does something on import is the rendering one: importing
-:mod:`mitsuba_manifold.render` (any of its modules, e.g. ``mitsuba_manifold.render.scenes``),
+:mod:`mitsuba_manifold.render` (any of its modules, e.g. ``mitsuba_manifold.render.scene.scenes``),
 or calling :func:`register`,
 
 - sets ``DRJIT_LIBLLVM_PATH`` to a libLLVM >= 16 when Dr.Jit is not imported yet and the
@@ -22,6 +22,10 @@ or calling :func:`register`,
 So a Mitsuba user writes ``import mitsuba as mi; mi.set_variant("llvm_ad_rgb");
 import mitsuba_manifold.render`` (or the two imports the other way round) and then
 ``mi.load_file(...)`` scenes with ``manifold_brdf`` materials.
+
+Modules that moved into sub-packages keep their old dotted names, deprecated: importing a
+subsystem that lost modules adds one finder to ``sys.meta_path`` that answers only for those
+old names (:mod:`mitsuba_manifold._util.moved`).
 """
 
 import importlib
@@ -72,7 +76,7 @@ def register():
         without libLLVM >= 16.
     """
     plugins = importlib.import_module(
-        ".render.plugins", __name__
+        ".render.plugin.plugins", __name__
     )  # by name: the face imports no module
     plugins.install()
     return plugins.register()

@@ -20,7 +20,8 @@ def load(name, manifold, material=None, **params):
     """A scene of scenes/, its manifold material set to a training ``material``."""
     import mitsuba as mi
 
-    from mitsuba_manifold.render import integrators, scenes
+    from mitsuba_manifold.render import integrators
+    from mitsuba_manifold.render.scene import scenes
 
     scene = mi.load_file(
         scenes.scene_path(name), manifold=manifold, **{k: str(v) for k, v in params.items()}

@@ -115,7 +115,7 @@ b, w = m.weights([0.3, -1.2])
 import mitsuba as mi
 mi.set_variant("llvm_ad_rgb")
 import mitsuba_manifold
-from mitsuba_manifold.render.scenes import scene_path
+from mitsuba_manifold.render.scene.scenes import scene_path
 scene = mi.load_file(scene_path("sphere"), manifold={str(tmp_path / "manifold.npz")!r}, x="0.3, -1.2", res="8")
 params = mi.traverse(scene); params["material.x"] = [0.5, -1.0]; params.update()
 img = mi.render(scene, spp=2)
@@ -150,7 +150,7 @@ def test_importing_the_package_changes_no_environment_variable():
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
     pytest.importorskip("mitsuba")
     r = _python(
-        "import os, mitsuba_manifold.render, mitsuba_manifold.render.llvm as llvm\n"
+        "import os, mitsuba_manifold.render, mitsuba_manifold.render.plugin.llvm as llvm\n"
         "print(os.environ.get('DRJIT_LIBLLVM_PATH') == llvm.newest())",
         env=env,
     )

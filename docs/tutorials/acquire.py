@@ -33,9 +33,9 @@ def main():
             f"(python3 docs/tutorials/manifold_tour.py --out {args.out})"
         )
     from mitsuba_manifold import Manifold
-    from mitsuba_manifold.basis.acquisition import AcquireOptions
+    from mitsuba_manifold.basis.inverse.acquisition import AcquireOptions
     from mitsuba_manifold.imaging import io
-    from mitsuba_manifold.render.acquire import Photo, acquire
+    from mitsuba_manifold.render.inverse.acquire import Photo, acquire
 
     # 1. The library of materials to acquire with: all 100 MERL materials.
     merl = os.path.join(args.out, "merl.npz")

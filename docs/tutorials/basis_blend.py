@@ -18,8 +18,8 @@ from mitsuba_manifold import Manifold, blend
 from mitsuba_manifold.errors import MitsubaManifoldError
 from mitsuba_manifold.imaging.io import read_exr, write_contact_sheet
 from mitsuba_manifold.imaging.metrics import rel_mse
-from mitsuba_manifold.render.render_basis import render_basis
-from mitsuba_manifold.render.scenes import render_reference, scene_path
+from mitsuba_manifold.render.jobs.render_basis import render_basis
+from mitsuba_manifold.render.scene.scenes import render_reference, scene_path
 
 
 def main():

@@ -20,7 +20,7 @@ import mitsuba_manifold.render  # noqa: F401  (registers manifold_brdf)
 from mitsuba_manifold import Manifold
 from mitsuba_manifold.imaging.io import write_contact_sheet
 from mitsuba_manifold.imaging.plots import save, subplots
-from mitsuba_manifold.render.scenes import scene_path
+from mitsuba_manifold.render.scene.scenes import scene_path
 
 ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 ap.add_argument("--out", default="out/tutorials")

@@ -55,7 +55,7 @@ def main():
 
     import mitsuba_manifold.render  # noqa: E402,F401  (registers manifold_brdf)
     from mitsuba_manifold.imaging.io import write_contact_sheet  # noqa: E402
-    from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
+    from mitsuba_manifold.render.scene.scenes import scene_path  # noqa: E402
 
     mi.set_variant("llvm_ad_rgb")
     points = m.path("blue-rubber", "white-paint", steps=5)

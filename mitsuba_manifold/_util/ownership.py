@@ -19,7 +19,7 @@ moment -- an exception, Ctrl-C, SIGKILL -- leaves only files the same command re
 A file whose content is already what the tool would write is left as it is.
 
 Folders with a manifest of their own list their files there: a basis folder's
-``manifest.json`` (:mod:`mitsuba_manifold.render.render_basis`), a database folder's ``database.json``
+``manifest.json`` (:mod:`mitsuba_manifold.render.jobs.render_basis`), a database folder's ``database.json``
 (:func:`owned_tables`, :func:`write_table_record`).
 """
 

@@ -33,9 +33,9 @@ from ..imaging import metrics, plots
 from ..manifold import paths
 from ..manifold.appearance import lab
 from ..manifold.model import Manifold
-from ..render import scenes as _scenes  # (gi_report has a parameter named scenes)
-from ..render.refine import forget_kept, refine
-from ..render.render_basis import render_basis
+from ..render.jobs.refine import forget_kept, refine
+from ..render.jobs.render_basis import render_basis
+from ..render.scene import scenes as _scenes  # (gi_report has a parameter named scenes)
 
 
 def gi_pair(m, max_clamped=1e-3, min_share=0.6):
@@ -95,7 +95,7 @@ class GISettings:
     direct_spp : tuple of int
         Samples per pixel of the direct renders the blend is compared with.
     mode : {"onepass", "per-material"}
-        How the basis is rendered (:func:`~mitsuba_manifold.render.render_basis.render_basis`).
+        How the basis is rendered (:func:`~mitsuba_manifold.render.jobs.render_basis.render_basis`).
     seed : int
     save_images : bool
         Also write the blends, references and error images (EXR and PNG) and the contact
@@ -337,7 +337,7 @@ def _gi_point(scene_path, manifold_path, b, m, x, aovs, opts):
 
 
 def refined_row(b, m, x, ref, spp, seed, warm=False, l2="denoised"):
-    """``blend.py --refine spp`` at ``x`` (:func:`~mitsuba_manifold.render.refine.refine`) against
+    """``blend.py --refine spp`` at ``x`` (:func:`~mitsuba_manifold.render.jobs.refine.refine`) against
     ``ref``: error, bias, the noise it estimates, and its time as the explorer has it at a newly
     chosen point (``time_s``: the scene kept from the last refinement, the point's tables built)
     and from nothing (``time_cold_s``: the scene loaded, as a new ``blend.py`` process does);

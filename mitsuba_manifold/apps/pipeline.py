@@ -25,7 +25,7 @@ from .._util.memory import peak_rss
 from ..data import database
 from ..imaging import plots
 from ..manifold.model import Manifold
-from ..render import scenes as _scenes
+from ..render.scene import scenes as _scenes
 from .gi_comparison import gi_report, versus_direct
 from .tool_commands import explore_command
 

@@ -5,7 +5,7 @@ hints): shared by the pipeline and the command-line tools, so that neither impor
 import os
 import shlex
 
-from ..manifold.shipped import resolve_manifold
+from ..manifold.file.shipped import resolve_manifold
 
 #: The checkout's ``tools/`` folder (absent in an installed wheel: the console scripts instead).
 TOOLS_DIR = os.path.join(

@@ -10,7 +10,8 @@ available for any latent point from the basis without rendering:
   albedo ``a_i(theta)`` at the viewing angle, and that is linear in the BRDF, so the
   albedo of a blend with weights ``w`` is ``sum_i w_i a_i(theta)``, like Eq. 13.
 
-:func:`~mitsuba_manifold.render.guides.render_aovs` traces first hits only (the ``manifold_aovs`` integrator, ``spp``
+:func:`~mitsuba_manifold.render.jobs.guides.render_aovs` traces first hits only (the
+``manifold_aovs`` integrator, ``spp``
 anti-aliased samples): normals, ``albedo_base`` (of other BSDFs) and, on the target, a
 per-pixel histogram ``h`` of the viewing angle over :data:`THETA_BINS` bins.
 :func:`directional_albedos` tabulates ``a_i`` per material and angle bin from the

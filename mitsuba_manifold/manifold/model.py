@@ -49,11 +49,13 @@ from ..errors import FormatError, InputError, did_you_mean
 from ..gp.gplvm import FitResult
 from ..gp.kernel import Kernel
 from ..gp.likelihood import log_likelihood
-from . import adding, paths, pruning, schema
+from . import adding, paths, pruning
 from . import interpolant as interpolants
-from . import io as manifold_file
 from . import projection as projection_mod
-from .fit_record import FitRecord, Timings
+from .file import io as manifold_file
+from .file import schema
+from .file.fit_record import FitRecord, Timings
+from .file.shipped import resolve_manifold
 from .presets import (
     PRESETS,
     canonical_order,
@@ -64,7 +66,6 @@ from .presets import (
     stress_of,
 )
 from .pruning import DEFAULT_PRUNE, DEFAULT_RULE, RULES, PruneReport
-from .shipped import resolve_manifold
 from .tables import TrainingTables
 
 #: Names other modules import from here (the presets, the pruning default, the result types).

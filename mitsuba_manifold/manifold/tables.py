@@ -18,7 +18,8 @@ from ..data import merl
 from ..data.database import Database, albedo_weights
 from ..data.sources import BinaryFile
 from ..errors import FormatError, InputError
-from . import pruning, schema
+from . import pruning
+from .file import schema
 
 
 def _float64(a):

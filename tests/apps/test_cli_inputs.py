@@ -9,7 +9,7 @@ import zlib
 import numpy as np
 import pytest
 
-from mitsuba_manifold.basis import targets
+from mitsuba_manifold.basis.inverse import targets
 from mitsuba_manifold.errors import InputError
 
 
@@ -138,7 +138,7 @@ def test_refining_with_fewer_samples_than_the_default_passes_is_not_refused(caps
 def test_a_variant_that_cannot_render_is_refused_in_one_line(monkeypatch):
     pytest.importorskip("mitsuba")
     from mitsuba_manifold.errors import VariantError
-    from mitsuba_manifold.render import scenes
+    from mitsuba_manifold.render.scene import scenes
 
     monkeypatch.setenv("MM_VARIANT", "scalar_rgb")
     with pytest.raises(

@@ -19,13 +19,14 @@ mi.set_variant("llvm_ad_rgb")
 pytestmark = pytest.mark.render
 
 import mitsuba_manifold  # noqa: E402
-from mitsuba_manifold.apps.explore import Explorer, InputError, create_app, launch  # noqa: E402
+from mitsuba_manifold.apps.explore import Explorer, InputError, create_app
+from mitsuba_manifold.apps.explore.web import launch  # noqa: E402
 from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.basis.folder import Basis  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.render import scenes
-from mitsuba_manifold.render.render_basis import render_basis  # noqa: E402
+from mitsuba_manifold.render.jobs.render_basis import render_basis  # noqa: E402
+from mitsuba_manifold.render.scene import scenes
 
 SPHERE = scenes.scene_path("sphere")
 RES = 32
@@ -55,7 +56,7 @@ TEST_ORIGIN = "http://testserver"
 def app_for(explorer):
     """The app of ``explorer`` answering the test client (Host ``testserver``) as the CLI
     answers ``--allow-origin http://testserver``."""
-    from mitsuba_manifold.apps.explore.guard import AllowList
+    from mitsuba_manifold.apps.explore.web.guard import AllowList
 
     return create_app(explorer, AllowList.for_server("127.0.0.1", 8765, [TEST_ORIGIN]))
 

@@ -256,7 +256,7 @@ def gi_explorer(small_manifold, tmp_path_factory):
 
     import mitsuba_manifold
     from mitsuba_manifold.apps.explore import Explorer
-    from mitsuba_manifold.render import render_basis
+    from mitsuba_manifold.render.jobs import render_basis
 
     mi.set_variant("llvm_ad_rgb")
     mitsuba_manifold.register()

@@ -85,7 +85,7 @@ def test_refinement_replaces_the_blend_only_where_it_is_off_by_more_than_its_noi
     agrees; one 10% too dark does not, although its difference is small beside the pixels; after one
     pass (no noise estimate) there is no decision."""
     from mitsuba_manifold.apps.explore.reference import agreement
-    from mitsuba_manifold.render.refine import _estimate
+    from mitsuba_manifold.render.jobs.refine import _estimate
 
     rng = np.random.default_rng(3)
     truth = rng.uniform(0.2, 0.8, (16, 16, 3))
@@ -127,7 +127,7 @@ def test_thumbnails_are_the_materials_alone_denoised_and_cached(small_manifold_p
     import mitsuba_manifold
     from mitsuba_manifold.apps.explore import encode, thumbs
     from mitsuba_manifold.basis.blend import blend
-    from mitsuba_manifold.render.render_basis import render_basis
+    from mitsuba_manifold.render.jobs.render_basis import render_basis
 
     m = Manifold.load(small_manifold_paper)
     t = thumbs.Thumbnails(small_manifold_paper, m, str(tmp_path), size=16, spp=4)

@@ -16,7 +16,7 @@ pytestmark = pytest.mark.render
 
 import test_explore  # noqa: E402
 
-from mitsuba_manifold.apps.explore import launch  # noqa: E402
+from mitsuba_manifold.apps.explore.web import launch  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 
 small_basis, q3_basis, server = test_explore.small_basis, test_explore.q3_basis, test_explore.server

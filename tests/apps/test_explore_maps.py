@@ -14,7 +14,7 @@ pytestmark = pytest.mark.render
 import test_explore  # noqa: E402
 
 from mitsuba_manifold.apps.explore import latentmap, service  # noqa: E402
-from mitsuba_manifold.apps.explore.session import Session, Superseded  # noqa: E402
+from mitsuba_manifold.apps.explore.web.session import Session, Superseded  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 
 small_basis, explorer = test_explore.small_basis, test_explore.explorer

@@ -14,7 +14,7 @@ import test_explore  # noqa: E402
 import test_explore_browser  # noqa: E402
 import test_explore_state  # noqa: E402
 
-from mitsuba_manifold.apps.explore import launch  # noqa: E402
+from mitsuba_manifold.apps.explore.web import launch  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 
 small_basis, browser, refine_server = (

@@ -12,7 +12,7 @@ import mitsuba_manifold  # noqa: E402
 from mitsuba_manifold.apps.explore import Explorer, fireflies  # noqa: E402
 from mitsuba_manifold.basis import blend as blend_module  # noqa: E402
 from mitsuba_manifold.basis.composition import compose  # noqa: E402
-from mitsuba_manifold.render import render_basis  # noqa: E402
+from mitsuba_manifold.render.jobs import render_basis  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -20,14 +20,14 @@ from starlette.testclient import TestClient  # noqa: E402
 from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
 from mitsuba_manifold.apps.explore import create_app  # noqa: E402
-from mitsuba_manifold.apps.explore.guard import (
+from mitsuba_manifold.apps.explore.web.guard import (
     MAX_BODY,
     MAX_MESSAGE,
     AllowList,
     parse_host,
     parse_origin,
 )  # noqa: E402
-from mitsuba_manifold.apps.explore.session import Closing, parse  # noqa: E402
+from mitsuba_manifold.apps.explore.web.session import Closing, parse  # noqa: E402
 from mitsuba_manifold.errors import InputError  # noqa: E402
 
 PORT = 8799

@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("uvicorn")
 pytest.importorskip("starlette")
 
-from mitsuba_manifold.apps.explore.serving import RepeatFilter, protocol  # noqa: E402
+from mitsuba_manifold.apps.explore.web.serving import RepeatFilter, protocol  # noqa: E402
 
 BIG = 64 << 20  # a response far larger than the sockets' buffers
 

@@ -12,7 +12,7 @@ pytestmark = pytest.mark.render
 import test_explore  # noqa: E402
 import test_explore_browser  # noqa: E402
 
-from mitsuba_manifold.apps.explore import launch  # noqa: E402
+from mitsuba_manifold.apps.explore.web import launch  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 
 small_basis, server, browser = (

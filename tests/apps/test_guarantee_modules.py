@@ -14,10 +14,10 @@ from mitsuba_manifold._util import ownership
 from mitsuba_manifold._util.locking import FolderLock
 from mitsuba_manifold.data import merl
 from mitsuba_manifold.errors import FolderLockedError, ForeignFileError, InputError
-from mitsuba_manifold.manifold import identity
-from mitsuba_manifold.manifold.fit_record import FitRecord
+from mitsuba_manifold.manifold.file import identity
+from mitsuba_manifold.manifold.file.fit_record import FitRecord
 from mitsuba_manifold.manifold.model import Manifold
-from mitsuba_manifold.render import interrupt
+from mitsuba_manifold.render.jobs import interrupt
 
 
 def test_folder_lock_is_exclusive_adds_no_file_and_is_released(tmp_path):

@@ -37,7 +37,7 @@ from mitsuba_manifold._util.locking import FolderLock  # noqa: E402
 from mitsuba_manifold.basis.folder.manifest import Manifest  # noqa: E402
 from mitsuba_manifold.data import database, merl  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
-from mitsuba_manifold.manifold.identity import manifold_identity  # noqa: E402
+from mitsuba_manifold.manifold.file.identity import manifold_identity  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
 
 # ------------------------------------------------------ 1. reserved and odd names

@@ -19,7 +19,7 @@ from mitsuba_manifold.basis.folder.manifest import Manifest, scene_hash  # noqa:
 from mitsuba_manifold.errors import FolderLockedError  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.render import chunks, executor  # noqa: E402
+from mitsuba_manifold.render.jobs import chunks, executor  # noqa: E402
 
 
 def _included_scene(folder):

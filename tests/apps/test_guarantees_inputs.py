@@ -196,7 +196,7 @@ def test_plugin_errors_are_one_clean_line(tiny, props, words):
 
 
 def test_shipped_scenes_load_with_a_manifold_of_any_latent_dimension(tmp_path, tiny):
-    from mitsuba_manifold.render.scenes import scene_path
+    from mitsuba_manifold.render.scene.scenes import scene_path
 
     m3 = tmp_path / "m3.npz"
     Manifold.fit(tiny["db"], q=3).save(m3)

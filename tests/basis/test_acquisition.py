@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from mitsuba_manifold.basis import acquisition as aq
+from mitsuba_manifold.basis.inverse import acquisition as aq
 from mitsuba_manifold.errors import FormatError, InputError
 
 

@@ -15,7 +15,7 @@ from mitsuba_manifold.basis.folder import Basis
 from mitsuba_manifold.errors import InputError, MismatchError
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.imaging import metrics
-from mitsuba_manifold.manifold.identity import manifold_identity
+from mitsuba_manifold.manifold.file.identity import manifold_identity
 from mitsuba_manifold.manifold.model import Manifold
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

@@ -53,7 +53,8 @@ def test_denoised_blend_beats_raw_and_aovs_are_checked(tmp_path, small_manifold)
     mi = pytest.importorskip("mitsuba")
     pytest.importorskip("pyoidn")
     import mitsuba_manifold
-    from mitsuba_manifold.render import render_basis, scenes
+    from mitsuba_manifold.render.jobs import render_basis
+    from mitsuba_manifold.render.scene import scenes
 
     mi.set_variant("llvm_ad_rgb")
     mitsuba_manifold.register()

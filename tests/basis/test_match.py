@@ -10,12 +10,12 @@ from helpers import write_basis
 
 from mitsuba_manifold.apps.cli import match as cli
 from mitsuba_manifold.basis import blend as bl
-from mitsuba_manifold.basis import match as mt
-from mitsuba_manifold.basis import objectives as image_error
 from mitsuba_manifold.basis.folder import BASE, Basis
+from mitsuba_manifold.basis.inverse import match as mt
+from mitsuba_manifold.basis.inverse import objectives as image_error
+from mitsuba_manifold.basis.inverse import search as latent
 from mitsuba_manifold.errors import InputError, MismatchError
 from mitsuba_manifold.imaging import io as imageio
-from mitsuba_manifold.manifold import search as latent
 from mitsuba_manifold.manifold.model import Manifold
 
 RES = (20, 16)  # width, height

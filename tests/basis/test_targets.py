@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from mitsuba_manifold.basis import targets
+from mitsuba_manifold.basis.inverse import targets
 from mitsuba_manifold.errors import InputError
 from mitsuba_manifold.imaging import io as imageio
 

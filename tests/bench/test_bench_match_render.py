@@ -26,8 +26,8 @@ def test_builtin_subset_of_materials(tmp_path):
 @pytest.mark.render
 def test_views_are_sensors_of_the_scene(tmp_path, small_manifold):
     """Each view is a sensor index of one scene, looking from its place in ``VIEWS``."""
-    from mitsuba_manifold.render import match_render as mr
-    from mitsuba_manifold.render.scenes import load_scene, use_variant
+    from mitsuba_manifold.render.inverse import match_render as mr
+    from mitsuba_manifold.render.scene.scenes import load_scene, use_variant
 
     mi = use_variant()
 

@@ -20,7 +20,7 @@ import test_explore_browser  # noqa: E402
 
 from benchmarks.explore import DRIVERS, _drag, _drag_numbers, _rates, upsampled_basis
 from benchmarks.explore import browser as bench_browser  # noqa: E402
-from mitsuba_manifold.apps.explore import launch  # noqa: E402
+from mitsuba_manifold.apps.explore.web import launch  # noqa: E402
 from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.basis.folder import Basis  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402

@@ -103,7 +103,7 @@ def test_page_has_the_three_plugins():
 def test_manifold_brdf_parameters(small_manifold):
     import mitsuba as mi
 
-    from mitsuba_manifold.render import bsdf, material
+    from mitsuba_manifold.render.plugin import bsdf, material
 
     rows = tables()["manifold_brdf"]
     read = read_keys(bsdf, material) | set(material.CHOOSERS)

@@ -292,7 +292,7 @@ def test_unknown_material_suggests_the_closest_names(small_manifold):
 
 
 def test_the_fit_is_kept_as_a_typed_record_written_in_the_info_layout(fitted, tmp_path):
-    from mitsuba_manifold.manifold.fit_record import FitRecord
+    from mitsuba_manifold.manifold.file.fit_record import FitRecord
 
     rec = fitted.record
     assert (rec.method, rec.preset, rec.q, rec.d) == ("hooke-jeeves", "paper", 2, 3 * 32 * 32 * 64)

@@ -1,9 +1,9 @@
-"""The latent search shared by the basis match and the render match (manifold/search.py)."""
+"""The latent search shared by the basis match and the render match (basis/inverse/search.py)."""
 
 import numpy as np
 import pytest
 
-from mitsuba_manifold.manifold import search
+from mitsuba_manifold.basis.inverse import search
 from mitsuba_manifold.manifold.model import Manifold
 
 

@@ -15,7 +15,7 @@ from mitsuba_manifold import Manifold
 from mitsuba_manifold.data.database import Database
 from mitsuba_manifold.errors import InputError
 from mitsuba_manifold.manifold import presets
-from mitsuba_manifold.manifold.shipped import SHIPPED, resolve_manifold, shipped_path
+from mitsuba_manifold.manifold.file.shipped import SHIPPED, resolve_manifold, shipped_path
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from mitsuba_manifold.apps.cli import match as cli
-from mitsuba_manifold.basis.acquisition import AcquireOptions
+from mitsuba_manifold.basis.inverse.acquisition import AcquireOptions
 from mitsuba_manifold.errors import InputError
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.manifold.model import Manifold
-from mitsuba_manifold.render import scenes
-from mitsuba_manifold.render.acquire import Photo, acquire, render_weights
+from mitsuba_manifold.render.inverse.acquire import Photo, acquire, render_weights
+from mitsuba_manifold.render.scene import scenes
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
@@ -101,7 +101,7 @@ def test_match_render_tool_acquires_by_default(small_manifold, tmp_path, capsys)
 def test_training_images_given_are_used(small_manifold):
     """A caller with the scene's training images (a basis) passes them: the same weights, nothing
     rendered for them."""
-    from mitsuba_manifold.render.acquire import render_training_images
+    from mitsuba_manifold.render.inverse.acquire import render_training_images
 
     m = Manifold.load(small_manifold)
     w_true = np.zeros(m.n)

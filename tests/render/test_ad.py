@@ -1,4 +1,4 @@
-"""The differentiable latent point of ``manifold_brdf`` (:mod:`mitsuba_manifold.render.ad`): the custom
+"""The differentiable latent point of ``manifold_brdf`` (:mod:`mitsuba_manifold.render.plugin.ad`): the custom
 operation's Jacobian, the gradient of a full-GI ``prb`` render against central finite differences
 (fixed sampling proxy, no Russian roulette), training-point starts, and the primal image of AD mode
 against the combined table."""
@@ -12,7 +12,7 @@ import pytest
 
 import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.render import ad  # noqa: E402
+from mitsuba_manifold.render.plugin import ad  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 

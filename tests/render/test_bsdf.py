@@ -23,8 +23,9 @@ import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before 
 from mitsuba_manifold.data import merl  # noqa: E402
 from mitsuba_manifold.data.database import Database  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.render import integrators, lookups, sampling  # noqa: E402
-from mitsuba_manifold.render.scenes import SCENES_DIR  # noqa: E402
+from mitsuba_manifold.render import integrators
+from mitsuba_manifold.render.plugin import lookups, sampling  # noqa: E402
+from mitsuba_manifold.render.scene.scenes import SCENES_DIR  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
@@ -417,7 +418,7 @@ def test_traverse_x_rebuilds(small_manifold_paper, manifold, negative_x):
 
 def test_python_methods_switch_materials(small_manifold_paper, small_db, manifold):
     bsdf = make(small_manifold_paper, x="0, 0")
-    from mitsuba_manifold.render import bsdf as manifold_brdf
+    from mitsuba_manifold.render.plugin import bsdf as manifold_brdf
 
     assert isinstance(bsdf, manifold_brdf.ManifoldBRDF) and isinstance(bsdf, mi.BSDF)
     assert bsdf.names == manifold.names and isinstance(bsdf.manifold, Manifold)
@@ -608,7 +609,7 @@ def test_scalar_variant_matches_llvm(small_manifold_paper, negative_x):
     samples = np.random.default_rng(10).random((6, 3))
     results = {}
     for variant in ("llvm_ad_rgb", "scalar_rgb"):
-        mi.set_variant(variant)  # the plugins follow (mitsuba_manifold.render.plugins)
+        mi.set_variant(variant)  # the plugins follow (mitsuba_manifold.render.plugin.plugins)
         ctx = mi.BSDFContext()
         out = []
         for interpolation in ("nearest", "linear"):
@@ -661,7 +662,9 @@ def test_import_registers_for_the_active_variant(order):
 
 def test_sphere_scene_renders(small_manifold_paper, negative_x, tmp_path):
     """scenes/sphere.xml renders an interpolated material; both sampling strategies agree."""
-    from mitsuba_manifold.render import bsdf as manifold_brdf  # the class of the active variant
+    from mitsuba_manifold.render.plugin import (
+        bsdf as manifold_brdf,
+    )  # the class of the active variant
 
     for name in ("sphere.xml", "sky.exr"):
         shutil.copy(os.path.join(SCENES_DIR, name), tmp_path / name)

@@ -13,16 +13,16 @@ pytest.importorskip("mitsuba")
 from mitsuba_manifold import errors  # noqa: E402
 from mitsuba_manifold.basis import folder as basis  # noqa: E402
 from mitsuba_manifold.imaging import io as imageio  # noqa: E402
-from mitsuba_manifold.render import chunks, executor, render_basis  # noqa: E402
-from mitsuba_manifold.render.render_basis import (  # noqa: E402
+from mitsuba_manifold.render.jobs import chunks, executor, render_basis  # noqa: E402
+from mitsuba_manifold.render.jobs.render_basis import (
     BasisOptions,
     FullGI,
     RunBehaviour,
     Sampling,
     SceneSetup,
     Selection,
-)
-from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
+)  # noqa: E402
+from mitsuba_manifold.render.scene.scenes import scene_path  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]  # renders and starts Ray
 

@@ -14,7 +14,8 @@ from mitsuba_manifold.basis import folder as bf  # noqa: E402
 from mitsuba_manifold.basis.blend import BlendSettings, blend, blend_path  # noqa: E402
 from mitsuba_manifold.errors import InputError, MismatchError  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.render import integrators, render_basis  # noqa: E402
+from mitsuba_manifold.render import integrators
+from mitsuba_manifold.render.jobs import render_basis  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 

@@ -21,10 +21,11 @@ import pytest
 from helpers import chain  # noqa: E402
 
 import mitsuba_manifold.render  # noqa: F401  (selects a working libLLVM before drjit loads; the plugins)
+from mitsuba_manifold.manifold.file.shipped import shipped_path  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.manifold.shipped import shipped_path  # noqa: E402
-from mitsuba_manifold.render import geometry, integrators  # noqa: E402
-from mitsuba_manifold.render.scenes import SCENES_DIR  # noqa: E402
+from mitsuba_manifold.render import integrators  # noqa: E402
+from mitsuba_manifold.render.scene import geometry
+from mitsuba_manifold.render.scene.scenes import SCENES_DIR  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SCENES = SCENES_DIR

@@ -2,7 +2,7 @@
 
 import pytest
 
-from mitsuba_manifold.render import llvm as _llvm
+from mitsuba_manifold.render.plugin import llvm as _llvm
 
 
 def test_version_parsing():

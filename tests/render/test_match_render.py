@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 
 from mitsuba_manifold.apps.cli import match as cli
-from mitsuba_manifold.basis import match as mt
 from mitsuba_manifold.basis.blend import blend
 from mitsuba_manifold.basis.folder import Basis
+from mitsuba_manifold.basis.inverse import match as mt
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.imaging.metrics import rel_mse
 from mitsuba_manifold.manifold.model import Manifold
-from mitsuba_manifold.render import render_basis, scenes
+from mitsuba_manifold.render.jobs import render_basis
+from mitsuba_manifold.render.scene import scenes
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
@@ -63,7 +64,7 @@ def test_match_of_a_path_render_and_the_tools_reference(tmp_path, small_manifold
     assert os.path.isfile(best)
 
     # the differentiable match starts from the basis match too
-    from mitsuba_manifold.render import match_render as mr
+    from mitsuba_manifold.render.inverse import match_render as mr
 
     opts = mr.MatchRenderOptions(
         iterations=2, spp=2, eval_spp=16, starts=1, max_depth=2, progress=False
@@ -76,7 +77,7 @@ def test_match_of_a_path_render_and_the_tools_reference(tmp_path, small_manifold
 def test_match_render_converges_without_a_basis(tmp_path, small_manifold):
     """The differentiable x (no basis): a target rendered with path at a point between materials is
     matched to within 1.5x the noise floor of its own point, better than the best training material."""
-    from mitsuba_manifold.render import match_render as mr
+    from mitsuba_manifold.render.inverse import match_render as mr
 
     sphere = scenes.scene_path("sphere")
     m = Manifold.load(small_manifold)
@@ -187,7 +188,7 @@ def test_match_render_tool(tmp_path, small_manifold, capsys):
 def test_match_render_fits_an_exposure(small_manifold):
     """exposure=True: a target 2.5x brighter than a training material's render is matched with a
     fitted scale near 2.5 (least squares at every step), and the images returned are scaled."""
-    from mitsuba_manifold.render import match_render as mr
+    from mitsuba_manifold.render.inverse import match_render as mr
 
     sphere = scenes.scene_path("sphere")
     m = Manifold.load(small_manifold)
@@ -285,7 +286,7 @@ def test_match_render_tool_refuses_bad_settings_before_any_work(
 def test_match_render_refuses_bad_parameters(small_manifold, monkeypatch, change, param):
     """The library names the Python parameter of a bad view or option (InputError), before any work."""
     from mitsuba_manifold.errors import InputError
-    from mitsuba_manifold.render import match_render as mr
+    from mitsuba_manifold.render.inverse import match_render as mr
 
     _no_render(monkeypatch)
     view = mr.View(

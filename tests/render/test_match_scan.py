@@ -4,7 +4,7 @@ the scan on a rendered target."""
 import numpy as np
 import pytest
 
-from mitsuba_manifold.render import match_scan as ms
+from mitsuba_manifold.render.inverse import scan as ms
 
 
 def _synthetic(rng, n=6, p=400, noisy=0, sigma=0.6):
@@ -61,8 +61,8 @@ def test_scan_finds_a_glossy_target_and_checks_its_candidates(small_manifold):
     noisiest): the scan ranks one of them first, its starts are checked candidates, apart, off the
     training points."""
     from mitsuba_manifold.manifold.model import Manifold
-    from mitsuba_manifold.render import match_render as mr
-    from mitsuba_manifold.render import scenes
+    from mitsuba_manifold.render.inverse import match_render as mr
+    from mitsuba_manifold.render.scene import scenes
 
     sphere = scenes.scene_path("sphere")
     m = Manifold.load(small_manifold)

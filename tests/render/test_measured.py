@@ -35,7 +35,7 @@ def test_the_table_is_the_plugins_brdf_at_random_directions(measured_files):
     """At bin-centre directions (random bins, random phi_h) a one-sample table holds exactly the
     plugin's eval / cos(theta_o); at random directions the table looked up by MERL's indexing
     follows the plugin (a wrong phi_d, swapped directions or a cosine left in would not)."""
-    from mitsuba_manifold.render import measured
+    from mitsuba_manifold.render.plugin import measured
 
     path = measured_files["vch_golden_yellow"]
     dims = (90, 90, 180)
@@ -90,7 +90,7 @@ def test_an_imported_file_renders_as_mitsubas_measured_plugin(tmp_path, measured
     """Image mean within 1% and relative MSE within 3x the noise of two measured renders
     (median over the three files; 32x32 here, the benchmark runs larger)."""
     from mitsuba_manifold import Manifold
-    from mitsuba_manifold.render import measured
+    from mitsuba_manifold.render.plugin import measured
 
     folder = tmp_path / "db"
     folder.mkdir()

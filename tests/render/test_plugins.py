@@ -1,21 +1,22 @@
 """The package's Mitsuba plugins are Mitsuba classes of the active variant, made again for each
-variant as Mitsuba makes its own Python integrators (:mod:`mitsuba_manifold.render.plugins`)."""
+variant as Mitsuba makes its own Python integrators (:mod:`mitsuba_manifold.render.plugin.plugins`)."""
 
 import numpy as np
 import pytest
 
 mi = pytest.importorskip("mitsuba")
 
-from mitsuba_manifold.render import integrators, plugins  # noqa: E402
-from mitsuba_manifold.render.scenes import scene_path  # noqa: E402
+from mitsuba_manifold.render import integrators
+from mitsuba_manifold.render.plugin import plugins  # noqa: E402
+from mitsuba_manifold.render.scene.scenes import scene_path  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
 
 def _classes():
     """The plugin classes of the active variant, through their modules."""
-    from mitsuba_manifold.render import bsdf
     from mitsuba_manifold.render.integrators import aovs, path
+    from mitsuba_manifold.render.plugin import bsdf
 
     return bsdf.ManifoldBRDF, path.ManifoldPathIntegrator, aovs.FirstHitAOVs
 

@@ -11,8 +11,9 @@ from mitsuba_manifold.basis import folder as bf  # noqa: E402
 from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.errors import InputError  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.render import render_basis, scenes  # noqa: E402
-from mitsuba_manifold.render.refine import refine, refine_passes  # noqa: E402
+from mitsuba_manifold.render.jobs import render_basis
+from mitsuba_manifold.render.jobs.refine import refine, refine_passes  # noqa: E402
+from mitsuba_manifold.render.scene import scenes  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 
@@ -222,7 +223,7 @@ def test_a_refinement_after_another_point_is_the_one_of_a_fresh_scene(
     at a second point the refinement on the kept scene (not loaded again) equals, same seed, the
     one on a scene loaded afresh, for the control variate and for the L2+ rendered at the point."""
     pytest.importorskip("pyoidn")  # the default blend denoises (a GPU machine may lack OIDN)
-    from mitsuba_manifold.render import refine as refine_module
+    from mitsuba_manifold.render.jobs import refine as refine_module
 
     b, m = gi_basis
     loads = []

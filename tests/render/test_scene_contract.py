@@ -18,8 +18,9 @@ from mitsuba_manifold.basis import folder as bf  # noqa: E402
 from mitsuba_manifold.basis.blend import blend  # noqa: E402
 from mitsuba_manifold.errors import InputError, MitsubaManifoldError  # noqa: E402
 from mitsuba_manifold.manifold.model import Manifold  # noqa: E402
-from mitsuba_manifold.render import render_basis, scenes  # noqa: E402
 from mitsuba_manifold.render.integrators import manifold_bsdfs  # noqa: E402
+from mitsuba_manifold.render.jobs import render_basis
+from mitsuba_manifold.render.scene import scenes  # noqa: E402
 
 pytestmark = [pytest.mark.render, pytest.mark.usefixtures("variant")]
 

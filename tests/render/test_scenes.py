@@ -10,7 +10,7 @@ import pytest
 from mitsuba_manifold.errors import MismatchError
 from mitsuba_manifold.imaging import metrics
 from mitsuba_manifold.manifold.model import Manifold
-from mitsuba_manifold.render import scenes
+from mitsuba_manifold.render.scene import scenes
 
 
 @pytest.fixture(scope="module")
@@ -154,7 +154,7 @@ def test_load_scene_renders_in_the_active_variant_and_switches_only_when_asked(
     import mitsuba as mi
 
     from mitsuba_manifold.errors import InputError
-    from mitsuba_manifold.render import render_basis
+    from mitsuba_manifold.render.jobs import render_basis
 
     sphere = scenes.scene_path("sphere")
     mi.set_variant("scalar_rgb")

@@ -3,7 +3,7 @@
 from mitsuba_manifold._util.names import escape, is_escaped, unescape
 
 GI_SUFFIX = (
-    ".gi.exr"  # the full-GI image of a material (render/gi_basis.py; no Mitsuba import here)
+    ".gi.exr"  # the full-GI image of a material (render/jobs/gi_basis.py; no Mitsuba import here)
 )
 
 

@@ -488,8 +488,8 @@ def _say_component(info):
 
 
 def _refined(request, basis, manifold):
-    """The image of ``--refine`` (:func:`mitsuba_manifold.render.refine.refine`), its progress printed."""
-    from ...render.refine import CONTROL_VARIATE, RefineRequest, refine_passes
+    """The image of ``--refine`` (:func:`mitsuba_manifold.render.jobs.refine.refine`), its progress printed."""
+    from ...render.jobs.refine import CONTROL_VARIATE, RefineRequest, refine_passes
 
     refine = RefineRequest(
         spp=request.refine.spp,
@@ -613,7 +613,7 @@ def reference_image(request, basis, manifold, outputs):
     """
     from ...basis.blend import latent_points
     from ...imaging import io as imageio
-    from ...render.scenes import render_reference, scene_resolution
+    from ...render.scene.scenes import render_reference, scene_resolution
 
     ref, output = request.reference, request.output
     if ref.file:

@@ -16,7 +16,7 @@ from .common import ArgumentParser, guarded, parse_list
 @guarded
 def main(argv=None):
     from ...errors import InputError
-    from ...manifold.shipped import FOLDER, SHIPPED
+    from ...manifold.file.shipped import FOLDER, SHIPPED
 
     p = ArgumentParser(description=__doc__)
     p.add_argument(
@@ -31,7 +31,7 @@ def main(argv=None):
     if unknown:
         raise InputError(f"--sets {','.join(unknown)}: not shipped; one of {', '.join(SHIPPED)}")
 
-    from ...manifold.fit_record import Timings
+    from ...manifold.file.fit_record import Timings
     from ...manifold.model import Manifold
 
     os.makedirs(args.out, exist_ok=True)

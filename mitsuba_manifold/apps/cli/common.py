@@ -29,7 +29,7 @@ def read_measured(path, dims):
     (:mod:`mitsuba_manifold.render`) only when a tool reads such a file, so that a database or
     material given by any tool may hold them.
     """
-    from ...render import measured
+    from ...render.plugin import measured
 
     return measured.resample(path, dims)
 
@@ -240,7 +240,7 @@ def guarded(main):
 
 
 def reference_view(basis, scene, render_reference, warn=print):
-    """Keyword arguments of ``render_reference`` (:func:`mitsuba_manifold.render.scenes.render_reference`)
+    """Keyword arguments of ``render_reference`` (:func:`mitsuba_manifold.render.scene.scenes.render_reference`)
     that render the view of ``basis`` (its manifest's ``sensor``), so that a reference compares
     with the blend pixel for pixel. Warns when the manifest does not record its sensor (a basis
     of an earlier version) and ``scene`` has several; refuses a sensor other than 0 where
@@ -249,7 +249,7 @@ def reference_view(basis, scene, render_reference, warn=print):
     import inspect
 
     from ...errors import MismatchError
-    from ...render.render_basis import count_sensors
+    from ...render.jobs.render_basis import count_sensors
 
     if not basis.sensor_known and count_sensors(scene) > 1:
         warn(

@@ -182,8 +182,8 @@ def serve(args):
         return 2
 
     from ..explore import Explorer, create_app
-    from ..explore.guard import MAX_MESSAGE, AllowList
-    from ..explore.serving import protocol, quiet_logs
+    from ..explore.web.guard import MAX_MESSAGE, AllowList
+    from ..explore.web.serving import protocol, quiet_logs
     from .common import ERRORS, cli_message
 
     try:

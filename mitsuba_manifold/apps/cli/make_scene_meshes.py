@@ -10,7 +10,7 @@ from .common import ArgumentParser, guarded
 
 @guarded
 def main(argv=None):
-    from ...render.scenes import SCENES_DIR
+    from ...render.scene.scenes import SCENES_DIR
 
     ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -45,7 +45,7 @@ def write_assets(args, bowl, sky, guard):
     import mitsuba as mi
 
     from ...imaging import io as imageio
-    from ...render import geometry
+    from ...render.scene import geometry
 
     if mi.variant() is None:
         mi.set_variant("scalar_rgb")  # write_ply builds the mesh with Mitsuba

@@ -122,8 +122,8 @@ def _inputs(args):
     """Basis, manifold, target and mask weights, all checked."""
     import numpy as np
 
-    from ...basis import match as mt
     from ...basis.folder import Basis
+    from ...basis.inverse import match as mt
 
     basis = Basis.load(args.basis, manifold=args.manifold)
     manifold = basis.check_manifold(args.manifold)
@@ -185,7 +185,7 @@ def _outputs(args, result, basis, manifold, target):
 
     from ...basis.folder import BASE
     from ...imaging import io as imageio
-    from ...render.scenes import render_reference, scene_resolution
+    from ...render.scene.scenes import render_reference, scene_resolution
 
     outputs, info = [], result.to_dict(manifold)
     if args.out:
@@ -291,7 +291,7 @@ def main(argv=None):
     args = _parser().parse_args(argv)
     _check_args(args)
     from ..._util import ownership
-    from ...basis import match as mt
+    from ...basis.inverse import match as mt
 
     with ownership.Outputs("match.py", args.force) as guard:
         _refuse_inputs(args, guard)

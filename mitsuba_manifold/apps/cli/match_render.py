@@ -40,7 +40,7 @@ SHEET_TILE = 192
 
 
 def _parser():
-    from ...render.match_render import INTEGRATORS
+    from ...render.inverse.match_render import INTEGRATORS
 
     p = ArgumentParser(
         prog="match.py --render",
@@ -155,7 +155,7 @@ def _parser():
 
 
 def _views(args):
-    from ...render.match_render import View
+    from ...render.inverse.match_render import View
 
     n = len(args.target)
     for name, values, once in (
@@ -290,9 +290,9 @@ def _print_acquisition(r):
 def _acquire(args, views):
     from ..._util import ownership
     from ..._util.atomic import write_bytes
-    from ...basis.acquisition import AcquireOptions
+    from ...basis.inverse.acquisition import AcquireOptions
     from ...imaging import io as imageio
-    from ...render.acquire import Photo, acquire
+    from ...render.inverse.acquire import Photo, acquire
 
     opts = AcquireOptions(
         method=args.method,
@@ -361,7 +361,7 @@ def main(argv=None):
         args.max_depth = 4
     _check(args)
     views = _views(args)
-    from ...render import scenes
+    from ...render.scene import scenes
 
     scenes.use_variant()
     if args.method != "latent":
@@ -369,7 +369,12 @@ def main(argv=None):
             if getattr(args, name[2:]):
                 fail(f"{name} belongs to --method latent")
         return _acquire(args, views)
-    from ...render.match_render import MatchRenderOptions, check_options, check_views, match_render
+    from ...render.inverse.match_render import (
+        MatchRenderOptions,
+        check_options,
+        check_views,
+        match_render,
+    )
 
     opts = MatchRenderOptions(
         iterations=args.iterations,

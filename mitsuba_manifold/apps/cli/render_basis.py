@@ -187,9 +187,9 @@ def main(argv=None):
     if args.spp is not None:
         check_numbers(args, args.spp)  # before the renderer is imported
 
-    from ...render.chunks import render_chunked
-    from ...render.executor import make_executor
-    from ...render.render_basis import (
+    from ...render.jobs.chunks import render_chunked
+    from ...render.jobs.executor import make_executor
+    from ...render.jobs.render_basis import (
         BasisOptions,
         FullGI,
         RunBehaviour,
@@ -200,7 +200,7 @@ def main(argv=None):
         plan_views,
         render_basis,
     )
-    from ...render.scenes import scene_path, scene_sample_count
+    from ...render.scene.scenes import scene_path, scene_sample_count
 
     t0 = time.perf_counter()
     scenes = [scene_path(s) for s in args.scenes]  # a scene XML or a shipped scene's name

@@ -3,10 +3,10 @@
 A basis of one target already holds what acquisition needs for a photo taken with its camera
 and lights: the image of every training material alone (``I_i``) and of everything else
 (``base``), so the photo is modelled as ``base + sum_i w_i I_i`` without rendering anything
-(:class:`~mitsuba_manifold.basis.acquisition.LinearPhotos`), and the weights are found by the
-acquisition's convex programme (:func:`~mitsuba_manifold.basis.acquisition.choose`, ``solve``,
+(:class:`~mitsuba_manifold.basis.inverse.acquisition.LinearPhotos`), and the weights are found by the
+acquisition's convex programme (:func:`~mitsuba_manifold.basis.inverse.acquisition.choose`, ``solve``,
 ``solve_beyond``, ``spread``; the plausibility constraints of
-:func:`~mitsuba_manifold.render.acquire.constraints_of`).
+:func:`~mitsuba_manifold.render.inverse.acquire.constraints_of`).
 
 Cross terms: where the basis holds full-GI images, ``I_i`` is material ``i``'s full-GI image
 (``touch_i + L2+_i``, exact at every training material); the cross terms ``C_ij`` (second order
@@ -36,12 +36,12 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..._util.blas import one_thread
-from ...basis import acquisition as aq
 from ...basis.blend import blend
 from ...basis.folder import BASE
+from ...basis.inverse import acquisition as aq
 from ...errors import BusyError, InputError, MitsubaManifoldError
 from . import encode
-from .inputs import show
+from .web.inputs import show
 
 #: Largest upload (bytes of the JSON body: photo and mask, base64).
 MAX_UPLOAD = 24 * 1024 * 1024
@@ -112,7 +112,7 @@ def _size_of(data, kind):
 
 def _read(data, what, reader):
     """``reader(path)`` of the uploaded bytes (written to a temporary file), errors in one line."""
-    from ...basis import targets
+    from ...basis.inverse import targets
 
     kind = _kind(data, what)
     size = _size_of(data, kind)
@@ -197,9 +197,9 @@ def read_upload(photo, mask, size):
 def linear_photos(basis, names, target, mask):
     """``(LinearPhotos, images (N, H, W, 3), base, mask)`` of a photo of ``basis``'s scene: the
     training materials' images (full GI where the basis holds it, else L1-) at the masked pixels
-    (default mask: :func:`~mitsuba_manifold.render.acquire.default_mask`).
+    (default mask: :func:`~mitsuba_manifold.render.inverse.acquire.default_mask`).
     """
-    from ...render.acquire import Rendered, default_mask
+    from ...render.inverse.acquire import Rendered, default_mask
 
     full = "l2+" in basis.components
     keys = basis.material_keys(names)
@@ -313,12 +313,12 @@ def contact_sheet(target, acquired, single, labels, title=None, exposure=0.0):
 def acquire_photo(explorer, name, target, mask, notes, progress=lambda stage, done: None):
     """Acquire the material of a photo of basis ``name``'s scene: ``(answer, images)``.
 
-    ``answer`` (JSON-ready): the :class:`~mitsuba_manifold.basis.acquisition.Acquisition`'s dict,
+    ``answer`` (JSON-ready): the :class:`~mitsuba_manifold.basis.inverse.acquisition.Acquisition`'s dict,
     ``description`` (the combination in words), ``beyond`` (why it leaves the simplex, or []),
     ``latent`` (``x``, its error, ``on_map``), ``snippet`` and ``notes``; ``images``: linear
     target, acquired, best single and the mask.
     """
-    from ...render.acquire import constraints_of, coverage, coverage_warnings
+    from ...render.inverse.acquire import constraints_of, coverage, coverage_warnings
 
     ex, t0 = explorer, time.perf_counter()
     basis, manifold, names = ex.basis(name), ex.manifold, list(ex.manifold.names)

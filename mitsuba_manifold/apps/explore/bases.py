@@ -3,7 +3,7 @@
 import os
 
 from ...basis.folder import scene_hash
-from ...render import scenes
+from ...render.scene import scenes
 
 
 def names(folders):

@@ -142,7 +142,7 @@ def scene_environment(scene_path, manifold_path, basis):
     import mitsuba as mi
 
     from ...errors import InputError
-    from ...render.scenes import load_scene, scene_resolution
+    from ...render.scene.scenes import load_scene, scene_resolution
 
     loaded = load_scene(
         scene_path,

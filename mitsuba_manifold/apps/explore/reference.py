@@ -41,7 +41,7 @@ import numpy as np
 
 from ...errors import BusyError
 from ...imaging import metrics
-from ...render.scenes import scene_resolution
+from ...render.scene.scenes import scene_resolution
 from .render_job import Reference, RenderSpec
 
 MAX_SPP = 1 << 14
@@ -106,11 +106,12 @@ class Job:
 
 
 def agreement(blend_image, refined):
-    """Whether the blend shown agrees with an unbiased refinement (:class:`~mitsuba_manifold.render.refine.Refined`)
-    within the refinement's noise: their relative MSE (blend against refined) is at most twice
-    the refinement's own estimated noise (its expectation where the blend is exact). Where it
-    does not, the blend is off by more than the refinement's noise, and the refined image is
-    the better one (``agrees`` False); ``None`` after one pass (no noise estimate yet).
+    """Whether the blend shown agrees with an unbiased refinement
+    (:class:`~mitsuba_manifold.render.jobs.refine.Refined`) within the refinement's noise: their
+    relative MSE (blend against refined) is at most twice the refinement's own estimated noise
+    (its expectation where the blend is exact). Where it does not, the blend is off by more than
+    the refinement's noise, and the refined image is the better one (``agrees`` False); ``None``
+    after one pass (no noise estimate yet).
     """
     if refined.passes < 2:
         return {"noise_rel_mse": None, "blend_rel_mse": None, "agrees": None}
@@ -172,7 +173,7 @@ class References:
             )
 
     def submit_refine(self, name, basis, manifold, x, spp, blend_image, tab=None, **where):
-        """Start a refinement of the blend at ``x`` (:func:`~mitsuba_manifold.render.refine.refine_passes`;
+        """Start a refinement of the blend at ``x`` (:func:`~mitsuba_manifold.render.jobs.refine.refine_passes`;
         ``where``: its ``scene``, ``manifold_path`` and ``prune``): its image (``"refined"``) after
         every pass, in ``error`` the noise the passes measure and whether ``blend_image`` (the
         blend shown) agrees with it within that noise. A newer refinement supersedes it.
@@ -281,7 +282,7 @@ class References:
                 del self._jobs[old]
 
     def _run_refine(self, job, basis, manifold, blend_image, where):
-        from ...render.refine import refine_passes
+        from ...render.jobs.refine import refine_passes
 
         def passes():
             self._check_current(job)  # queued behind a newer one: never started

@@ -3,7 +3,7 @@
 The explorer starts it at a lower priority (``nice``) so that the blends of a drag take the CPU
 first, and ends it at once when its job is cancelled (:mod:`.reference`). The process reads a
 :class:`RenderSpec` (JSON file), renders the scene at the point in passes of :data:`PASS_SAMPLES`
-paths (as :func:`~mitsuba_manifold.render.interrupt.render_in_passes`: different seeds,
+paths (as :func:`~mitsuba_manifold.render.jobs.interrupt.render_in_passes`: different seeds,
 sample-weighted mean; at least two passes where the spp allows, so that the passes measure the
 render's own noise), prints ``done total`` after each pass, and writes a :class:`Reference` (the
 mean image and its standard error per pixel, :func:`~mitsuba_manifold.imaging.metrics.pass_standard_error`)
@@ -80,8 +80,8 @@ def render(spec, progress=print):
     import numpy as np
 
     from ...imaging.metrics import pass_standard_error
-    from ...render.interrupt import sample_passes
-    from ...render.scenes import load_scene, set_points
+    from ...render.jobs.interrupt import sample_passes
+    from ...render.scene.scenes import load_scene, set_points
 
     loaded = load_scene(
         spec.scene,

@@ -26,16 +26,16 @@ from ...basis.folder import Basis
 from ...data.database import cache_folder
 from ...errors import InputError
 from ...manifold import paths as path_kinds
+from ...manifold.file.shipped import resolve_manifold
 from ...manifold.model import Manifold
-from ...manifold.shipped import resolve_manifold
 from . import encode, fireflies, hdri, latentmap, material
 from .acquire import MAX_UPLOAD, Acquisitions, read_upload
 from .bases import names as _names
 from .bases import scene_of as _scene_of
 from .bases import warm as _warm
-from .inputs import extent, latent_point, map_dims, number, path_kind, show
 from .reference import MAX_SPP, References
 from .walks import MAX_STEPS, STEPS, Walks
+from .web.inputs import extent, latent_point, map_dims, number, path_kind, show
 
 #: Maps kept for repeated requests of the same slice.
 MAPS_KEPT = 8

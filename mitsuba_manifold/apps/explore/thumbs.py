@@ -1,7 +1,7 @@
 """Thumbnails of the measured materials: each one rendered once with the plugin on the shipped
 sphere scene at a small size, cached, shown as one sprite sheet.
 
-The renders are a basis (:func:`~mitsuba_manifold.render.render_basis.render_basis`, one
+The renders are a basis (:func:`~mitsuba_manifold.render.jobs.render_basis.render_basis`, one
 pass for every material, with its albedo and normal guides ``aovs.npz``) of
 ``scenes/sphere.xml`` at :data:`SUPERSAMPLE` times :data:`SIZE` pixels, written by
 ``render_basis.py`` in a subprocess at low priority (the page stays usable meanwhile; a
@@ -43,7 +43,7 @@ class Thumbnails:
 
     def __init__(self, manifold_path, manifold, cache_dir, size=SIZE, spp=SPP, after=None):
         from ..._util.cache import file_hash, key_hash
-        from ...render import scenes
+        from ...render.scene import scenes
 
         self.manifold_path, self.manifold, self.size, self.spp = (
             manifold_path,

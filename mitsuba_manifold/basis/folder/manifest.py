@@ -32,7 +32,7 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
      "integrator": {...} (the scene's integrator settings rendered with), "scene_resolution":
         [width, height] or null (the resolution the scene was loaded with; null: its own film
         size; absent: the image size),
-     optional, chunked renders (:mod:`mitsuba_manifold.render.chunks`):
+     optional, chunked renders (:mod:`mitsuba_manifold.render.jobs.chunks`):
      "chunk_complete": true, "chunk_run": {"seconds", "host", "pid"} (a chunk folder),
      "chunk_key": hex (what a chunk's images, or a merged basis's run, depend on)}
 
@@ -41,7 +41,7 @@ With one target the keys are ``base`` and material names; with ``p`` targets the
 material name in a key is escaped (:func:`mitsuba_manifold._util.names.escape`: ``gold-paint``
 stays, ``base`` or ``a+b`` cannot collide with the base image or the separator) and the
 file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
-(:func:`mitsuba_manifold.manifold.identity.manifold_identity`), so an identical refit is accepted.
+(:func:`mitsuba_manifold.manifold.file.identity.manifold_identity`), so an identical refit is accepted.
 Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
 ``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`).
 :class:`Manifest` alone reads, writes and checks the format (the renderers make one with
@@ -69,8 +69,8 @@ from ..._util.atomic import write_bytes
 from ..._util.cache import file_hash
 from ..._util.checks import scene_xml
 from ...errors import MismatchError
-from ...manifold.identity import manifold_identity
-from ...manifold.shipped import resolve_manifold
+from ...manifold.file.identity import manifold_identity
+from ...manifold.file.shipped import resolve_manifold
 
 FORMAT = "mitsuba-manifold-basis"
 FORMAT_VERSION = 2
@@ -524,7 +524,7 @@ class Manifest:
     chunks : int or None
         Merged from this many chunks.
     pending : list of str or None
-        Files being written (:mod:`mitsuba_manifold.render.render_basis`).
+        Files being written (:mod:`mitsuba_manifold.render.jobs.render_basis`).
     components : list of str or None
         What the basis holds (:data:`COMPONENTS`; None: not recorded, L1- only).
     levels : int or None
@@ -539,16 +539,17 @@ class Manifest:
         Measurements of the full-GI render.
     integrator : dict or None
         The scene's integrator settings the images were rendered with
-        (:meth:`~mitsuba_manifold.render.scenes.SceneIntegrator.to_manifest`).
+        (:meth:`~mitsuba_manifold.render.scene.scenes.SceneIntegrator.to_manifest`).
     scene_resolution : list of int, None or NOT_RECORDED
         The ``resolution`` the scene was loaded with (None: its own film size; see
         :attr:`loaded_resolution`).
     chunk_complete : bool or None
-        A chunk folder whose images are all saved (:mod:`mitsuba_manifold.render.chunks`).
+        A chunk folder whose images are all saved (:mod:`mitsuba_manifold.render.jobs.chunks`).
     chunk_run : dict or None
         Where and how fast a chunk was rendered.
     chunk_key : str or None
-        What a chunk's images, or a merged basis's run, depend on (:func:`~mitsuba_manifold.render.chunks.chunk_key`).
+        What a chunk's images, or a merged basis's run, depend on
+        (:func:`~mitsuba_manifold.render.jobs.chunks.chunk_key`).
     extra : dict
         Keys this version does not know (kept, and written back).
     """

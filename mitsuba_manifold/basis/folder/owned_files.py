@@ -1,7 +1,7 @@
 """Which files a basis folder owns: the images and the manifest that ``render_basis`` wrote.
 
 A folder with a basis manifest (:func:`~mitsuba_manifold.basis.folder.manifest.is_basis_folder`)
-belongs to the renderer that lists its images there (:mod:`mitsuba_manifold.render.render_basis`
+belongs to the renderer that lists its images there (:mod:`mitsuba_manifold.render.jobs.render_basis`
 resumes and completes it under a :class:`~mitsuba_manifold._util.locking.FolderLock`); a blend
 or a match writes its results elsewhere (:func:`check_output_outside_basis`), so that no
 image of a basis is ever replaced by a result computed from it.

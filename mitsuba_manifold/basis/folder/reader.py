@@ -15,8 +15,8 @@ from ..._util.cache import file_hash
 from ..._util.locking import is_locked
 from ...errors import FormatError, MismatchError
 from ...imaging import io as imageio
-from ...manifold.identity import manifold_identity
-from ...manifold.shipped import resolve_manifold
+from ...manifold.file.identity import manifold_identity
+from ...manifold.file.shipped import resolve_manifold
 from .manifest import BASE, GI, Manifest, image_changed, image_key, key_materials, scene_hash
 
 # -------------------------------------------------------------------- basis

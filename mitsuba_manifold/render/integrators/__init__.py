@@ -9,7 +9,7 @@
 - :mod:`.aovs`: ``manifold_aovs``, first-hit normal and albedo guides for denoising blends.
 
 :mod:`.path` and :mod:`.aovs` are plugin modules (classes on the active variant's
-``mi.SamplingIntegrator``), made for each variant by :mod:`mitsuba_manifold.render.plugins`;
+``mi.SamplingIntegrator``), made for each variant by :mod:`mitsuba_manifold.render.plugin.plugins`;
 this package imports neither, so it can be imported before a variant is set.
 """
 

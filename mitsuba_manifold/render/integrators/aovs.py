@@ -1,7 +1,7 @@
 """``manifold_aovs``: first-hit guides for denoising blends (:mod:`mitsuba_manifold.basis.denoise`).
 
 A plugin module as Mitsuba's own (a ``mi.SamplingIntegrator`` of the active variant, registered
-by the last line; :mod:`mitsuba_manifold.render.plugins` re-creates it for each variant).
+by the last line; :mod:`mitsuba_manifold.render.plugin.plugins` re-creates it for each variant).
 """
 
 import drjit as dr

@@ -21,9 +21,9 @@ MAX_GROUPS = 4
 
 def is_manifold_bsdf(bsdf):
     """True when ``bsdf`` is a manifold material: a ``manifold_brdf`` of the active variant
-    (an instance of :class:`mitsuba_manifold.render.bsdf.ManifoldBRDF`).
+    (an instance of :class:`mitsuba_manifold.render.plugin.bsdf.ManifoldBRDF`).
     """
-    from .. import bsdf as manifold_brdf  # the module .plugins made for the active variant
+    from ..plugin import bsdf as manifold_brdf  # the module .plugins made for the active variant
 
     return isinstance(bsdf, manifold_brdf.ManifoldBRDF)
 

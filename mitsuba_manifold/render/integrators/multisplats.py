@@ -28,7 +28,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..lookups import merl_angles, merl_bin
+from ..plugin.lookups import merl_angles, merl_bin
 from .splats import PACKET, expand
 
 #: Pairs of materials per cross-term kernel (bounds the per-thread copies of the sums).
@@ -47,7 +47,7 @@ class PairSelection:
     ``L2+`` light in that pass): what leaving it out changes of the ``L2+`` light, at most
     ``tol``. Pairs of materials that see themselves alike have cross terms near 0 and are dropped.
     ``keep`` (indices into the candidates) keeps those, unmeasured: a chunk of a chunked basis
-    keeps the pairs its first chunk chose (:mod:`mitsuba_manifold.render.chunks`).
+    keeps the pairs its first chunk chose (:mod:`mitsuba_manifold.render.jobs.chunks`).
     """
 
     products: tuple

@@ -173,7 +173,7 @@ def render_onepass_gi(
     (a :class:`.multisplats.PairSelection`: ``pairs`` are candidates, those whose cross term
     matters are kept, measured on the first pass) and ``point`` (weights, one per material: the
     paths sample their blend, in absolute value, and the blend is rendered too, as :data:`POINT`:
-    with the others' ``rest`` from the same paths, the control variate of :mod:`mitsuba_manifold.render.refine`)
+    with the others' ``rest`` from the same paths, the control variate of :mod:`mitsuba_manifold.render.jobs.refine`)
     and ``touch`` (default True; False: no touch images, ``touch`` is empty, for a caller that
     needs only ``rest`` and ``cross``).
 

@@ -8,7 +8,7 @@ scatter off the target (the same for every material), ``touch_i`` the paths that
 scatter off it exactly once, rendered with training material ``i``.
 
 The integrator is the class below, a ``mi.SamplingIntegrator`` of the active variant
-registered by the module's last line (:mod:`mitsuba_manifold.render.plugins` re-creates it
+registered by the module's last line (:mod:`mitsuba_manifold.render.plugin.plugins` re-creates it
 for each variant, as Mitsuba does its own Python integrators). It is not one of Mitsuba's
 ``ADIntegrator`` family: it differentiates nothing (its BSDF's ``x`` is not differentiable),
 and Mitsuba's C++ ``SamplingIntegrator.render`` (film, AOVs, passes, cancel) is what it needs.

@@ -123,7 +123,7 @@ def sampling_proxy(target, db, names, rows, mix=None, table=None):
     (``(bins, 3)``; for convex weights the point's own material: its paths are sampled as a
     direct render's).
     """
-    from ..sampling import material_density
+    from ..plugin.sampling import material_density
 
     if mix is None:
         mass = np.array([material_density(db, n).sum() for n in names], float)

@@ -18,7 +18,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..lookups import merl_angles, merl_bin
+from ..plugin.lookups import merl_angles, merl_bin
 
 #: Materials per packet of the table product (Dr.Jit packet gathers of 16 contiguous floats).
 PACKET = 16

@@ -1,4 +1,4 @@
-// The tab's websocket to the explorer (mitsuba_manifold/apps/explore/session.py).
+// The tab's websocket to the explorer (mitsuba_manifold/apps/explore/web/session.py).
 // Every request carries a sequence number; the server answers the newest request of each
 // kind and repeats its seq (and the point x) in the answer. Answers of a kind are applied in
 // order only: one arriving after a newer answer of its kind is late and dropped.

@@ -1,0 +1,162 @@
+"""The saved manifold: a ``.npz`` file (no pickle) with a JSON ``meta`` entry and arrays.
+
+The fit's :class:`~.fit_record.FitRecord` is stored as the ``meta`` entry's ``info`` dict and the
+``history`` array, the layout of every release so far.
+
+Version 2 adds the interpolant's parameters and the raw tables' Gram matrix (exact pruning
+errors); files of this release add ``cos_gram``, the cosine-weighted Gram matrix of the
+"image" pruning rule, an optional array that readers of earlier version-2 files ignore and
+that this reader computes from the tables when a file lacks it. Version 3 is version 2 with an
+``added`` entry: the provenance of materials added after the fit (:mod:`.adding`), whose
+tables are files outside the database folder; a manifold without added materials is
+written as version 2. Version 1 files read as the paper's GP interpolant on their stored
+``l`` and ``mu``,
+what they were used with; anything unreadable fails with a message that names the file
+and says to refit.
+"""
+
+import json
+import os
+import zipfile
+
+import numpy as np
+
+from ..._util.atomic import atomic_replace
+from ...errors import FormatError, InputError
+from . import schema
+from .fit_record import FitRecord
+from .shipped import SHIPPED, resolve_manifold
+
+FORMAT = "mitsuba-manifold"
+FORMAT_VERSION = 3
+_REFIT = "refit it with tools/fit_manifold.py"
+#: Arrays derived from the tables (optional: computed from them on first use when absent).
+DERIVED = ("albedos", "gram", "table_gram", "cos_gram")
+
+
+def _not_a_manifold(path, why):
+    return FormatError(
+        f"{path} is not a manifold .npz written by fit_manifold ({why}); give the "
+        "file that tools/fit_manifold.py or Manifold.save wrote"
+    )
+
+
+def write(m, path):
+    """Write manifold ``m`` to ``path`` atomically, and only when what is written reads back:
+    the new file is read and checked (:func:`read`, every field against :mod:`.schema`) before
+    it replaces ``path``, so a readable manifold file is never replaced by one nothing can read
+    (:class:`FormatError` naming ``path`` and the field; the existing file is kept).
+    """
+    meta = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "names": m.names,
+        "database": m.database,
+        "hashes": m.hashes,
+        "length_scale": m.length_scale,
+        "noise": m.noise,
+        "features": m.features,
+        "info": m.info,
+        "interpolant": m.interpolant.params(),
+    }
+    if m.added:  # version 3: readers of version 2 refuse a file naming tables outside its database
+        meta["added"] = [a.as_dict() for a in m.added]
+    else:
+        meta["version"] = 2
+    arrays = {"latent": m.latent, "history": m.history, "meta": np.array(json.dumps(meta))}
+    for name in DERIVED:
+        if getattr(m, name) is not None:
+            arrays[name] = getattr(m, name)
+    path = os.fspath(path)
+
+    def checked(tmp):
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+        try:
+            read(tmp)
+        except InputError as e:
+            why = str(e).replace(tmp, path).removeprefix(path + ": ").split("; refit")[0]
+            kept = "the file there is unchanged" if os.path.exists(path) else "nothing written"
+            raise FormatError(
+                f"manifold not saved to {path}: it would not be readable ({why}); {kept}"
+            ) from None
+
+    atomic_replace(path, checked)
+
+
+def read(path):
+    """The keyword arguments of ``Manifold(...)`` stored in ``path``, every field checked
+    against the schema (:mod:`.schema`) before it is used.
+    """
+    path = resolve_manifold(path)
+    if not os.path.exists(path):
+        raise InputError(
+            f"manifold file {path} does not exist (the shipped manifolds, by name: "
+            f"{', '.join(SHIPPED)})"
+        )
+    if os.path.isdir(path) or not zipfile.is_zipfile(path):
+        raise _not_a_manifold(path, "a folder" if os.path.isdir(path) else "not an .npz archive")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            if "meta.npy" not in zf.namelist():
+                raise _not_a_manifold(path, "an .npz without the manifold's 'meta' entry")
+            try:
+                meta = schema.read_meta(path, zf)
+            except FormatError as e:
+                raise _not_a_manifold(
+                    path, f"unreadable: {str(e).removeprefix(path + ': ').split(';')[0]}"
+                ) from None
+            version = _checked_version(path, meta)
+            schema.check_meta(path, meta, version)
+            _check_added(path, meta)
+            arrays = schema.read_arrays(path, zf, meta)
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as e:
+        if isinstance(e, InputError):
+            raise
+        raise _not_a_manifold(path, f"damaged: {type(e).__name__}: {e}") from None
+    info = dict(meta.get("info") or {})
+    info.setdefault("preset", "paper" if version < 2 else "custom")
+    return {
+        "names": meta["names"],
+        "latent": arrays["latent"],
+        "database": meta["database"],
+        "hashes": meta["hashes"],
+        "length_scale": meta["length_scale"],
+        "noise": meta["noise"],
+        "features": meta["features"],
+        "albedos": arrays.get("albedos"),
+        "gram": arrays.get("gram"),
+        "record": FitRecord.from_info(info, arrays.get("history", ())),
+        "interpolant": meta["interpolant"] if version >= 2 else {"kind": "gp", "exact": True},
+        "table_gram": arrays.get("table_gram"),
+        "cos_gram": arrays.get("cos_gram"),
+        "added": meta.get("added") if version >= 3 else None,
+    }
+
+
+def _checked_version(path, meta):
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise _not_a_manifold(path, "its 'meta' entry is not a mitsuba-manifold one")
+    version = meta.get("version", 0)
+    if (
+        isinstance(version, bool)
+        or not isinstance(version, int)
+        or not 1 <= version <= FORMAT_VERSION
+    ):
+        raise FormatError(
+            f"{path}: its version field {version!r} is not a format version this package reads "
+            f"(1 to {FORMAT_VERSION}); {_REFIT}"
+        )
+    return version
+
+
+def _check_added(path, meta):
+    """Each added material is one of the names, with that name's hash."""
+    index = {n: i for i, n in enumerate(meta["names"])}
+    for a in meta.get("added") or ():
+        i = index.get(a["name"])
+        if i is None or meta["hashes"][i] != a["hash"]:
+            raise FormatError(
+                f"{path}: its added material {a['name']!r} is not one of its names with that "
+                f"table's hash; {_REFIT}"
+            )

@@ -1,0 +1,79 @@
+"""Manifolds that ship with the package: the default fit of each built-in measured set.
+
+``merl``, ``rgl``, ``nielsen`` and ``all`` name a manifold wherever a manifold file is taken
+(``Manifold.load``, the plugin's ``manifold`` parameter, every tool's ``--manifold``): the
+default preset fit on that built-in set (:data:`~mitsuba_manifold.data.sources.BUILTIN`) at
+MERL's resolution, whose tables are the built-in ones, made on demand. Names are read by the
+rule of database names (:func:`~mitsuba_manifold.data.sources.builtin_set`): ``builtin:merl``
+is always the shipped manifold; a bare ``merl`` is, unless a file or folder of that name
+exists, and then the name is ambiguous and refused, naming both. ``tools/build_manifolds.py``
+refits and writes them all.
+"""
+
+import os
+
+from ...data.sources import BUILTIN_PREFIX
+from ...errors import InputError
+
+#: The shipped manifolds: name -> what it is (each the default fit of the built-in set of its name).
+SHIPPED = {
+    "merl": "the default fit of the 100 MERL materials (the default manifold)",
+    "rgl": "the default fit of the 51 RGL-EPFL materials",
+    "nielsen": "the default fit of the 8 Nielsen et al. materials",
+    "all": "the default fit of all 159 built-in materials",
+}
+#: The folder holding them, ``<name>.npz``.
+FOLDER = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "shipped")
+
+
+def shipped_path(name) -> str:
+    """The file of shipped manifold ``name`` (:data:`SHIPPED`).
+
+    Raises
+    ------
+    InputError
+        ``name`` is not a shipped manifold, or its file is missing from this installation.
+    """
+    if name not in SHIPPED:
+        raise InputError(
+            f"no shipped manifold {name!r}; the shipped manifolds are {', '.join(SHIPPED)}"
+        )
+    path = os.path.join(FOLDER, name + ".npz")
+    if not os.path.isfile(path):
+        raise InputError(
+            f"the shipped manifold {name!r} is missing from this installation ({path}); "
+            "reinstall the package or run tools/build_manifolds.py"
+        )
+    return path
+
+
+def ambiguity(name, existing) -> InputError:
+    """The error of a bare shipped manifold's name where a file or folder ``existing`` of that
+    name exists: it names both and how to say each.
+    """
+    kind = "folder" if os.path.isdir(existing) else "file"
+    return InputError(
+        f"manifold {name!r} is ambiguous: the shipped manifold {name} ({SHIPPED[name]}) and the "
+        f"{kind} {os.path.abspath(existing)}; say ./{name} (or its full path) for the {kind} or "
+        f"{BUILTIN_PREFIX}{name} for the shipped manifold"
+    )
+
+
+def resolve_manifold(path, *, recorded=False) -> str:
+    """The manifold file that ``path`` names.
+
+    * ``builtin:NAME`` is the shipped manifold ``NAME`` (an unknown one is refused);
+    * a bare shipped name (``merl``) is the shipped manifold, unless a file or folder of that
+      name exists: then it is ambiguous and refused (:func:`ambiguity`). Where the name was
+      recorded by this package (``recorded``: a basis manifest), files are absolute paths, so a
+      bare name there is always the shipped manifold;
+    * anything else is ``path`` unchanged (its reader says when it does not exist).
+    """
+    path = os.fspath(path)
+    if path.startswith(BUILTIN_PREFIX):
+        return shipped_path(path[len(BUILTIN_PREFIX) :])
+    if path not in SHIPPED:
+        return path
+    if not recorded and os.path.lexists(path):
+        raise ambiguity(path, path)
+    return shipped_path(path)
