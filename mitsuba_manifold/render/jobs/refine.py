@@ -47,13 +47,13 @@ from typing import Optional, Union
 
 import numpy as np
 
+from ..._util.interrupts import StopRequest
 from ...basis.blend import blend, latent_points
 from ...errors import InputError, MitsubaManifoldError
 from ...imaging.metrics import REL_EPS, pass_standard_error
 from ..integrators.onepass import POINT
 from ..integrators.proxy import forget_point
 from ..scene import scenes
-from .interrupt import StopRequest
 
 
 @dataclass

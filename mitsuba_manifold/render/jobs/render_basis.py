@@ -30,6 +30,7 @@ import numpy as np
 from ..._util import checks as validate
 from ..._util import names as names_mod
 from ..._util.cache import file_hash
+from ..._util.interrupts import StopRequest
 from ..._util.locking import FolderLock
 from ...basis import folder as basis_folder
 from ...basis.folder.output import check_foreign_folder, check_job_folders, open_folder
@@ -49,7 +50,7 @@ from .gi_basis import (
     progress_bar,
     render_gi,
 )
-from .interrupt import StopRequest, render_in_passes
+from .interrupt import render_in_passes
 
 MODES = basis_folder.MODES
 
