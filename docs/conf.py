@@ -1,5 +1,6 @@
 """Sphinx configuration: MyST Markdown pages, autodoc with numpydoc docstrings (napoleon), the
-command-line reference generated from the tools' parsers (``_ext/clidoc.py``).
+command-line reference generated from the tools' parsers (``_ext/clidoc.py``), the file-format
+reference from the formats' declared models (``_ext/formatdoc.py``).
 
 Build (as ``.ci/run`` does): ``python3 -m sphinx -W -b html docs docs/_build/html``.
 """
@@ -20,6 +21,7 @@ extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.napoleon",
     "clidoc",
+    "formatdoc",
 ]
 source_suffix = {".md": "markdown"}
 exclude_patterns = ["_build", "tutorials/*.py", "tutorials/data", "README.md"]

@@ -15,8 +15,10 @@ import os
 import re
 import zlib
 from dataclasses import dataclass
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
+from pydantic import AfterValidator, Field, Strict
 
 from .._util import checks
 from .._util.atomic import sweep, write_bytes
@@ -32,6 +34,7 @@ from .._util.cache import (
 from .._util.locking import FolderLock
 from .._util.memory import prefaulted
 from .._util.ownership import owned_tables, pending_tables, write_table_record
+from .._util.schema import FileSchema
 from .._util.workers import owned_pool
 from ..errors import FormatError, InputError, MissingFileError, UnknownMaterialError, did_you_mean
 from . import gram as gram_matrix
@@ -227,7 +230,7 @@ def write_database(
     os.makedirs(out_dir, exist_ok=True)
     with FolderLock(out_dir, "database folder"):
         if not export:
-            SourceList(sets, dims).write(listing)
+            SourceList(sets=sets, dims=dims).write(listing)
             record([listing], "make_database")
         else:
             for name, path in zip(_progress(names, progress, "exporting"), targets):
@@ -476,51 +479,78 @@ def made_table(cache_dir, digest, build, shape, out=None, what="table"):
     )  # the cached precision, also when just made: the same values every run
 
 
-@dataclass(frozen=True)
-class SourceList:
+def _source_name(name: str) -> str:
+    if name not in SET_NAMES and not os.path.isabs(name):
+        raise ValueError(
+            f"names the source {name!r}, neither a built-in set ({', '.join(SET_NAMES)}) nor an "
+            "absolute folder path"
+        )
+    return name
+
+
+_Dim = Annotated[int, Strict(), Field(ge=1)]
+
+
+class SourceList(FileSchema):
     """``sources.json`` of a database folder: the built-in sets and folders it takes materials
-    from besides its own files, and the resolution of its tables.
+    from besides its own files, and the resolution of its tables, declared::
+
+        {"format": "mitsuba-manifold-sources", "version": 1,
+         "from": [set name or absolute folder, ...], "dims": [n_h, n_d, n_p]}
+
+    Every release wrote version 1; a file without ``version`` reads as version 1.
 
     Attributes
     ----------
     sets : tuple of str
-        Built-in set names and absolute folder paths, in order.
+        Built-in set names and absolute folder paths, in order (the JSON key ``from``).
     dims : tuple of 3 int
     """
 
-    sets: tuple
-    dims: tuple = merl.MERL_DIMS
-    FORMAT = "mitsuba-manifold-sources"
+    VERSION: ClassVar[int] = 1
+    VERSIONS: ClassVar[str] = "1: every release so far (a file without version reads as 1)."
+    FIX: ClassVar[str] = "remake it with tools/make_database.py"
 
-    def check(self, where):
-        for s in self.sets:
-            if s not in SET_NAMES and not os.path.isabs(s):
-                raise FormatError(
-                    f"{where}: source {s!r} is neither a built-in set ({', '.join(SET_NAMES)}) "
-                    "nor an absolute folder path"
-                )
-        merl.table_resolution(self.dims, f"{where}: dims")
+    format: Literal["mitsuba-manifold-sources"] = Field(
+        "mitsuba-manifold-sources", description="'mitsuba-manifold-sources' (a source list)"
+    )
+    version: int = Field(1, description="the format version (1)")
+    sets: tuple[Annotated[str, AfterValidator(_source_name)], ...] = Field(
+        alias="from",
+        strict=False,
+        description="a list of built-in set names and absolute folder paths",
+    )
+    dims: tuple[_Dim, _Dim, _Dim] = Field(
+        merl.MERL_DIMS,
+        strict=False,
+        description="the tables' resolution [n_theta_h, n_theta_d, n_phi_d] (positive integers)",
+    )
+
+    #: The ``format`` of the file.
+    FORMAT: ClassVar[str] = "mitsuba-manifold-sources"
+
+    def check(self, where: str) -> "SourceList":
+        """Return this list, its resolution one this package tabulates (:class:`FormatError`)."""
+        try:
+            merl.table_resolution(self.dims, f"{where}: dims")
+        except InputError as e:
+            raise FormatError(f"{e}; {self.FIX}") from None
         return self
 
     @classmethod
-    def read(cls, path):
+    def read(cls, path: str) -> "SourceList":
+        """The list in ``path``, checked (:class:`FormatError` naming the file and the field)."""
         try:
-            with open(path) as f:
+            with open(path, encoding="utf-8") as f:
                 data = json.load(f)
-            if data.get("format") != cls.FORMAT:
-                raise ValueError(f"format is {data.get('format')!r}, not {cls.FORMAT!r}")
-            return cls(tuple(data["from"]), tuple(int(v) for v in data["dims"])).check(path)
-        except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:
+        except (OSError, ValueError, RecursionError) as e:
             why = "nested too deeply" if isinstance(e, RecursionError) else e
-            raise FormatError(
-                f"{path}: not a database's source list ({why}); remake it with tools/make_database.py"
-            ) from None
+            raise FormatError(f"{path}: not a database's source list ({why}); {cls.FIX}") from None
+        return cls.checked(data, path).check(path)
 
-    def write(self, path):
-        text = json.dumps(
-            {"format": self.FORMAT, "version": 1, "from": list(self.sets), "dims": list(self.dims)},
-            indent=1,
-        )
+    def write(self, path: str) -> None:
+        """Write the list to ``path`` atomically."""
+        text = json.dumps(self.model_dump(mode="json", by_alias=True), indent=1)
         write_bytes(path, (text + "\n").encode())
 
 

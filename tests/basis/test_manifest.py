@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import re
 
 import pytest
 
@@ -14,6 +15,7 @@ from mitsuba_manifold.basis.folder import (
     RenderSettings,
 )
 from mitsuba_manifold.errors import MismatchError
+from mitsuba_manifold.render.jobs.chunks import ChunkMark
 
 #: A manifest of format version 1, as the first releases wrote it: no sensor, no components.
 V1 = {
@@ -86,11 +88,12 @@ def test_the_file_entries_are_typed_and_keep_what_this_version_does_not_know(tmp
 def test_what_a_manifest_leaves_unsaid_has_its_meaning():
     old, new = Manifest.from_json(V1), Manifest.from_json(V2)
     assert (old.sensor, old.sensor_index, old.held_components) == (None, 0, ["l1"])
-    assert (new.sensor_index, new.held_components, new.chunk_key, new.extra) == (
+    assert (new.sensor_index, new.held_components, new.extra) == (
         1,
         ["l1", "l2+", "cross"],
-        "k",
-        {},
+        {
+            "chunk_key": "k"
+        },  # a chunked render's mark: kept for render.jobs.chunks, not the format's
     )
     assert old.scene_resolution is NOT_RECORDED and old.loaded_resolution == (32, 24)
     assert (
@@ -192,8 +195,10 @@ def test_a_file_written_before_reads_the_same_and_is_written_back_byte_for_byte(
     )
     assert m.integrator["source"] == "scene" and m.scene_resolution is None
     assert m.loaded_resolution is None  # loaded at the scene's own film size
-    assert (m.chunks, m.chunk_complete, m.chunk_run["pid"], m.chunk_key) == (2, True, 7, "e" * 64)
-    assert m.extra == {"future_key": [1, 2]}
+    assert m.chunks == 2
+    mark = ChunkMark.of(m)  # the chunk bookkeeping belongs to the jobs that write chunks
+    assert (mark.chunk_complete, mark.chunk_run.pid, mark.chunk_key) == (True, 7, "e" * 64)
+    assert list(m.extra) == ["chunk_complete", "chunk_run", "chunk_key", "future_key"]
     assert [k for k, _ in m.entries()] == ["base", "steel", "gi:steel"]
     assert m.listed_files() == {"base.exr", "steel.exr", "steel.gi.exr", "cross.npz"}
     assert list(m.to_json()) == list(json.loads(WRITTEN_BEFORE))
@@ -206,23 +211,31 @@ def test_a_file_written_before_reads_the_same_and_is_written_back_byte_for_byte(
 @pytest.mark.parametrize(
     "field, value, words",
     [
-        ("spp", 0, "spp must be a positive integer"),
-        ("resolution", [32], "resolution must be [width, height]"),
-        ("mode", "fast", "mode must be one of"),
-        ("scene_hash", "xyz", "'scene_hash' must be a SHA-256"),
+        ("spp", 0, "its spp field must be a positive integer (samples per pixel), got 0"),
+        ("resolution", [32], "its resolution field must be [width, height]"),
+        ("mode", "fast", "its mode field must be one of ('per-material', 'onepass'), got 'fast'"),
+        ("scene_hash", "xyz", "its scene_hash field must be a SHA-256 hex digest, got 'xyz'"),
+        ("seed", True, "its seed field must be an integer (the images' seed), got True"),
+        ("targets", ["a", "a"], "its targets field must name distinct BSDF ids"),
+        ("images", {"base": {"file": "../base.exr", "time_s": 1}}, "its images field at base.file"),
     ],
 )
 def test_a_bad_field_is_refused_naming_the_file_and_the_field(tmp_path, field, value, words):
     (tmp_path / MANIFEST).write_text(json.dumps(dict(V1, **{field: value})))
     with pytest.raises(MismatchError, match=str(tmp_path)) as e:
         Manifest.read(tmp_path)
-    assert words in str(e.value)
+    assert words in str(e.value) and str(e.value).endswith(
+        "; render the basis again with render_basis"
+    )
+    assert "\n" not in str(e.value)
     bad = Manifest.from_json(V1)
     if field in {f.name for f in dataclasses.fields(RenderSettings)}:
         bad.settings = dataclasses.replace(bad.settings, **{field: value})
+    elif field == "images":
+        bad.images = {k: ImageEntry.from_json(v) for k, v in value.items()}
     else:
         setattr(bad, field, value)
-    with pytest.raises(MismatchError, match=words.replace("[", r"\[")):
+    with pytest.raises(MismatchError, match=re.escape(words)):
         bad.write(tmp_path / "nowhere")
     assert not (tmp_path / "nowhere").exists()
 
@@ -257,3 +270,34 @@ def test_a_blend_call_reads_its_basis_once(tmp_path, small_manifold, monkeypatch
     for x in m.latent[:3]:
         bl.blend(basis, small_manifold, x=x)
     assert len(reads) == 3 and len(checks) == 3 and len(basis._checked) == 1
+
+
+def test_a_version_1_manifest_upgrades_given_the_manifold_it_was_made_with(small_manifold):
+    """Version 1 recorded the manifold file's SHA-256 and raw names; the upgrade to version 2
+    (the manifold's content identity, escaped keys) needs that file, so it is
+    :meth:`Manifest.upgraded`, not a rewrite of the JSON alone."""
+    from mitsuba_manifold._util.cache import file_hash
+    from mitsuba_manifold.basis.folder import manifold_file_identity
+
+    v1 = dict(
+        V1,
+        manifold=small_manifold,
+        manifold_hash=file_hash(small_manifold),
+        images=dict(V1["images"], **{"Odd Name": {"file": "Odd Name.exr", "time_s": 1.0}}),
+    )
+    old = Manifest.from_json(v1)
+    new = old.upgraded(small_manifold)
+    assert (new.version, new.manifold_hash) == (2, manifold_file_identity(small_manifold))
+    assert set(new.images) == {"base", "chrome"}  # a raw name that escaping changes is dropped
+    assert new.check() is new and old.version == 1  # the one read is left as it was
+    other = Manifest.from_json(dict(v1, manifold_hash="f" * 64))
+    assert other.upgraded(small_manifold) is other  # made with another file: kept as it is
+
+
+def test_the_chunk_marks_read_through_their_old_names_with_a_deprecation_warning():
+    m = Manifest.from_json(V2)
+    with pytest.deprecated_call():
+        assert m.chunk_key == "k"
+    with pytest.deprecated_call():
+        m.chunk_key = None
+    assert "chunk_key" not in m.to_json() and ChunkMark.of(m) == ChunkMark()

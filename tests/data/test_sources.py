@@ -496,3 +496,66 @@ def test_a_cache_variable_naming_a_file_says_which_variable(tmp_path, monkeypatc
     with pytest.raises(OSError) as info:
         Database("nielsen@8x8x16").reflectance("bluebook")
     assert "$MITSUBA_MANIFOLD_CACHE" in str(info.value) and str(blocker) in str(info.value)
+
+
+#: A ``sources.json`` as every release so far wrote it (format version 1), byte for byte.
+SOURCES_V1 = """{
+ "format": "mitsuba-manifold-sources",
+ "version": 1,
+ "from": [
+  "nielsen"
+ ],
+ "dims": [
+  8,
+  8,
+  16
+ ]
+}
+"""
+
+
+def test_a_source_list_written_before_opens_the_same_and_writes_back_byte_for_byte(tmp_path):
+    from mitsuba_manifold.data.database import SOURCES_NAME, SourceList, open_spec
+
+    folder = tmp_path / "db"
+    folder.mkdir()
+    (folder / SOURCES_NAME).write_text(SOURCES_V1)
+    record = SourceList.read(str(folder / SOURCES_NAME))
+    assert (record.version, record.sets, record.dims) == (1, ("nielsen",), (8, 8, 16))
+    spec = open_spec(str(folder))
+    assert spec.dims == (8, 8, 16) and spec.key == str(folder)  # the list's resolution is natural
+    assert [s.name for s in spec.sources] == [s.name for s in sources.builtin("nielsen")]
+    record.write(str(tmp_path / "again.json"))
+    assert (tmp_path / "again.json").read_text() == SOURCES_V1
+    unversioned = json.loads(SOURCES_V1)
+    del unversioned["version"]  # no release wrote one without it; it reads as version 1
+    (folder / SOURCES_NAME).write_text(json.dumps(unversioned))
+    assert SourceList.read(str(folder / SOURCES_NAME)) == record
+
+
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        ({"format": "other"}, "its format field must be 'mitsuba-manifold-sources'"),
+        (
+            {"version": 2},
+            "its version field is 2, newer than this package reads (1 to 1); update mitsuba-manifold to read it, or remake it",
+        ),
+        ({"from": ["tables"]}, "its from field at 0 names the source 'tables', neither a built-in"),
+        ({"from": "merl"}, "its from field must be a list of built-in set names"),
+        ({"dims": [8, "8", 16]}, "its dims field at 1 must be the tables' resolution"),
+        ({"dims": [8, 8, 0]}, "its dims field at 2 must be the tables' resolution"),
+    ],
+)
+def test_a_bad_source_list_is_one_error_naming_the_file_and_the_field(tmp_path, change, words):
+    from mitsuba_manifold.data.database import open_spec
+
+    folder = tmp_path / "db"
+    folder.mkdir()
+    (folder / "sources.json").write_text(json.dumps(dict(json.loads(SOURCES_V1), **change)))
+    with pytest.raises(FormatError) as e:
+        open_spec(str(folder))
+    message = str(e.value)
+    assert message.startswith(str(folder / "sources.json")) and words in message, message
+    assert "\n" not in message
+    assert message.endswith(" remake it with tools/make_database.py")

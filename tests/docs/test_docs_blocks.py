@@ -31,7 +31,7 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 #: Generated pages (no examples of their own).
-GENERATED = {"docs/reference/cli.md", "docs/benchmarks.md"}
+GENERATED = {"docs/reference/cli.md", "docs/reference/formats.md", "docs/benchmarks.md"}
 #: Languages that run.
 RUN = ("python", "sh", "xml")
 #: How many blocks of all pages may be marked not run.

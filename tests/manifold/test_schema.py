@@ -232,3 +232,83 @@ def test_api_values_of_the_wrong_kind_are_one_input_error(small_db, small_manifo
         Manifold.fit(small_db, names=[])
     with pytest.raises(InputError, match="interpolant 'shepard'"):
         Manifold.fit(small_db, interpolant={"taper": "x"}, max_iter=1)
+
+
+def _written_by_version(path, meta, arrays, version):
+    """The small manifold as the writer of format ``version`` wrote it: version 1 without the
+    interpolant, the preset and the table Gram matrices; the first version-2 files without
+    ``cos_gram`` ("2-early"); version 3 with a material added after the fit."""
+    meta, arrays = dict(meta), dict(arrays)
+    if version == 1:
+        meta.pop("interpolant")
+        meta["info"] = {k: v for k, v in meta["info"].items() if k != "preset"}
+        arrays = {k: arrays[k] for k in ("latent", "history", "albedos", "gram")}
+    if version == "2-early":
+        arrays.pop("cos_gram")
+    if version == 3:
+        meta["added"] = [
+            {
+                "name": meta["names"][-1],
+                "source": "file",
+                "path": "/tables/added.binary",
+                "hash": meta["hashes"][-1],
+                "origin": None,
+            }
+        ]
+    meta["version"] = 2 if version == "2-early" else version
+    np.savez(path, meta=np.array(json.dumps(meta)), **arrays)
+    return path
+
+
+@pytest.mark.parametrize("version", [1, "2-early", 2, 3])
+def test_a_file_of_every_version_written_before_reads_the_same(tmp_path, saved, version):
+    from mitsuba_manifold.manifold.file import io
+
+    meta, arrays = saved
+    path = _written_by_version(tmp_path / "old.npz", meta, arrays, version)
+    old = io.read(str(path))
+    now = io.read(str(_written_by_version(tmp_path / "now.npz", meta, arrays, 2)))
+    assert old["names"] == now["names"] and np.array_equal(old["latent"], now["latent"])
+    if version == 1:  # the paper's GP on the stored length scale and noise, as used then
+        assert old["interpolant"] == {"kind": "gp", "exact": True}
+        assert old["record"].preset == "paper" and old["table_gram"] is None
+    else:
+        assert old["interpolant"] == meta["interpolant"]
+        assert old["record"].as_info() == now["record"].as_info()
+    assert (old["cos_gram"] is None) == (version in (1, "2-early"))
+    assert old["added"] == (meta_added(path) if version == 3 else None)
+    m = Manifold(**old)
+    again = tmp_path / "again.npz"
+    m.save(again)  # written as the newest version of what it holds
+    with np.load(again) as z:
+        assert json.loads(str(z["meta"]))["version"] == (3 if version == 3 else 2)
+    assert io.read(str(again))["interpolant"].items() >= old["interpolant"].items()
+
+
+def meta_added(path):
+    with np.load(path) as z:
+        return json.loads(str(z["meta"]))["added"]
+
+
+def test_upgrades_are_declared_for_every_earlier_version():
+    from mitsuba_manifold.manifold.file.schema import ManifoldMeta
+
+    assert sorted(ManifoldMeta.UPGRADES) == list(range(1, ManifoldMeta.VERSION))
+    v1 = {"format": "mitsuba-manifold", "version": 1, "info": None, "added": "ignored"}
+    assert ManifoldMeta.upgrade(v1) == {
+        "format": "mitsuba-manifold",
+        "version": 3,
+        "info": {"preset": "paper"},
+        "interpolant": {"kind": "gp", "exact": True},
+    }
+    assert v1["version"] == 1 and v1["info"] is None  # the object read is left as it was
+
+
+def test_a_shipped_manifold_saved_again_writes_its_meta_entry_byte_for_byte(tmp_path):
+    from mitsuba_manifold.manifold.file.shipped import SHIPPED, resolve_manifold
+
+    for name in SHIPPED:
+        path = resolve_manifold(name)
+        Manifold.load(path).save(tmp_path / "again.npz")
+        with np.load(path) as old, np.load(tmp_path / "again.npz") as new:
+            assert str(new["meta"]) == str(old["meta"]), name

@@ -429,3 +429,37 @@ def test_merged_chunks_of_a_full_gi_basis_equal_the_single_process_one(tmp_path,
     np.testing.assert_allclose(
         cb, ca, rtol=2e-3, atol=1e-3 * max(1.0, float(np.abs(ca).max()))
     )  # float16
+
+
+def test_a_chunk_mark_reads_as_written_and_a_damaged_one_is_no_mark():
+    """The chunk bookkeeping is this module's (ChunkMark), kept by the manifest as keys it
+    leaves to the jobs: written and read back the same, in the keys chunks saved before used."""
+    data = {
+        "format": "mitsuba-manifold-basis",
+        "version": 2,
+        "scene": "/s.xml",
+        "scene_hash": "a" * 64,
+        "manifold": "/m.npz",
+        "manifold_hash": "b" * 64,
+        "resolution": [4, 3],
+        "spp": 4,
+        "variant": "llvm_ad_rgb",
+        "seed": 0,
+        "max_depth": -1,
+        "mode": "onepass",
+        "targets": ["mat"],
+        "images": {},
+        "chunk_complete": True,
+        "chunk_run": {"seconds": 1.5, "host": "h", "pid": 7},
+        "chunk_key": "e" * 64,
+    }
+    m = basis.Manifest.from_json(data)
+    mark = chunks.ChunkMark.of(m)
+    assert (mark.chunk_complete, mark.chunk_run.host, mark.chunk_key) == (True, "h", "e" * 64)
+    again = basis.Manifest.from_json({k: v for k, v in data.items() if not k.startswith("chunk_")})
+    mark.put(again)
+    assert again.to_json() == data
+    chunks.ChunkMark().put(again)  # a merged basis is no chunk
+    assert not any(k.startswith("chunk_") for k in again.to_json())
+    damaged = basis.Manifest.from_json(dict(data, chunk_run={"seconds": "1.5"}))
+    assert chunks.ChunkMark.of(damaged) == chunks.ChunkMark()  # rendered again, never trusted

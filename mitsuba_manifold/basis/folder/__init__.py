@@ -23,6 +23,7 @@ from .manifest import (
     CrossEntry,
     ImageEntry,
     Manifest,
+    ManifestSchema,
     RenderSettings,
     image_changed,
     image_key,
@@ -38,6 +39,7 @@ from .reader import Basis, manifold_object
 __all__ = [
     "Basis",
     "Manifest",
+    "ManifestSchema",
     "ImageEntry",
     "CrossEntry",
     "RenderSettings",

@@ -32,9 +32,8 @@ A *basis folder* holds those images as float32 EXR files and a ``manifest.json``
      "integrator": {...} (the scene's integrator settings rendered with), "scene_resolution":
         [width, height] or null (the resolution the scene was loaded with; null: its own film
         size; absent: the image size),
-     optional, chunked renders (:mod:`mitsuba_manifold.render.jobs.chunks`):
-     "chunk_complete": true, "chunk_run": {"seconds", "host", "pid"} (a chunk folder),
-     "chunk_key": hex (what a chunk's images, or a merged basis's run, depend on)}
+     and keys the format leaves to the jobs that write it (kept and written back as they are:
+     a chunked render's marks, :class:`mitsuba_manifold.render.jobs.chunks.ChunkMark`)}
 
 With one target the keys are ``base`` and material names; with ``p`` targets they are
 ``"<matA>+<matB>..."`` (one name per target, in target order). From version 2 on, each
@@ -44,6 +43,7 @@ file is ``<key>.exr``; ``manifold_hash`` is the manifold's content identity
 (:func:`mitsuba_manifold.manifold.file.identity.manifold_identity`), so an identical refit is accepted.
 Version 1 manifests (raw names, SHA-256 of the manifold file) are still read.
 ``scene_hash`` is the SHA-256 of the scene XML and the files it names (:func:`scene_hash`).
+:class:`ManifestSchema` declares the JSON object (every key, its type and rule, the versions);
 :class:`Manifest` alone reads, writes and checks the format (the renderers make one with
 :meth:`Manifest.new`, change its fields and :meth:`Manifest.write` it; its image entries are
 :class:`ImageEntry`, its cross terms a :class:`CrossEntry`);
@@ -58,16 +58,17 @@ import enum
 import hashlib
 import json
 import os
-import re
+import warnings
 from dataclasses import dataclass, field
-from typing import Optional, Union
+from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 
-import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from ..._util import names as names_mod
 from ..._util.atomic import write_bytes
 from ..._util.cache import file_hash
 from ..._util.checks import scene_xml
+from ..._util.schema import FileSchema
 from ...errors import MismatchError
 from ...manifold.file.identity import manifold_identity
 from ...manifold.file.shipped import resolve_manifold
@@ -79,8 +80,6 @@ BASE = "base"
 #: Joins one material name per target into an image key (multilinear bases).
 SEP = "+"
 MODES = ("per-material", "onepass")
-
-_HEX64 = re.compile(r"^[0-9a-f]{64}$")
 
 
 # ------------------------------------------------------------------ hashes
@@ -284,169 +283,151 @@ def _entries_to_json(section):
     return None if section is None else {k: e.to_json() for k, e in section.items()}
 
 
-def _is_int(v):
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _check_json(manifest, where=MANIFEST):  # noqa: C901  one check per field of the format
-    """Check the fields and types of a manifest's JSON object; returns it.
-
-    Does not require any image to be listed (a basis being rendered grows one image at a
-    time); :meth:`Basis.load` checks that the blend's images are there.
-
-    Raises
-    ------
-    MismatchError
-        Naming ``where`` and the field at fault.
-    """
-
-    def bad(msg):
-        raise MismatchError(f"{where}: {msg}")
-
-    if not isinstance(manifest, dict):
-        bad("not a JSON object")
-    if manifest.get("format") != FORMAT:
-        bad(f"not a basis manifest (format {manifest.get('format')!r}, expected {FORMAT!r})")
-    version = manifest.get("version")
-    if not _is_int(version) or version < 1:
-        bad(f"invalid version {version!r}")
-    if version > FORMAT_VERSION:
-        bad(f"format version {version} is newer than this package reads ({FORMAT_VERSION})")
-    for key in ("scene", "manifold", "variant"):
-        if not isinstance(manifest.get(key), str) or not manifest[key]:
-            bad(f"field {key!r} must be a non-empty string, got {manifest.get(key)!r}")
-    for key in ("scene_hash", "manifold_hash"):
-        if not isinstance(manifest.get(key), str) or not _HEX64.match(manifest[key]):
-            bad(f"field {key!r} must be a SHA-256 hex digest, got {manifest.get(key)!r}")
-    res = manifest.get("resolution")
-    if not (isinstance(res, list) and len(res) == 2 and all(_is_int(v) and v > 0 for v in res)):
-        bad(f"resolution must be [width, height] (positive integers), got {res!r}")
-    if not _is_int(manifest.get("spp")) or manifest["spp"] < 1:
-        bad(f"spp must be a positive integer, got {manifest.get('spp')!r}")
-    if not _is_int(manifest.get("seed")):
-        bad(f"seed must be an integer, got {manifest.get('seed')!r}")
-    if not _is_int(manifest.get("max_depth")) or manifest["max_depth"] < -1:
-        bad(f"max_depth must be an integer >= -1, got {manifest.get('max_depth')!r}")
-    if manifest.get("mode") not in MODES:
-        bad(f"mode must be one of {MODES}, got {manifest.get('mode')!r}")
-    for key in ("sensor", "chunks"):  # optional: absent means sensor 0, one chunk
-        if key in manifest and (
-            not _is_int(manifest[key]) or manifest[key] < (0 if key == "sensor" else 1)
-        ):
-            bad(f"{key} must be an integer >= {0 if key == 'sensor' else 1}, got {manifest[key]!r}")
-    targets = manifest.get("targets")
-    if (
-        not isinstance(targets, list)
-        or not targets
-        or not all(isinstance(t, str) and t for t in targets)
-        or len(set(targets)) != len(targets)
-    ):
-        bad(f"targets must be a non-empty list of distinct BSDF ids, got {targets!r}")
-    pending = manifest.get("pending", [])
-    if not isinstance(pending, list) or not all(_plain_exr(f) for f in pending):
-        bad(f"pending must be a list of plain '<name>.exr' file names, got {pending!r}")
-    images = manifest.get("images")
-    if not isinstance(images, dict):
-        bad(f"images must be an object, got {type(images).__name__}")
-    files = set()
-    for key, entry in images.items():
-        if key != BASE:
-            parts = key.split(SEP)
-            escaped = version < 2 or all(names_mod.is_escaped(pt) for pt in parts if pt)
-            if len(parts) != len(targets) or not all(parts) or BASE in parts or not escaped:
-                bad(
-                    f"image key {key!r} must name {len(targets)} material(s) joined by {SEP!r} "
-                    f"(one per target {targets})"
-                )
-        if not isinstance(entry, dict):
-            bad(f"image {key!r}: entry must be an object with 'file' and 'time_s'")
-        name = entry.get("file")
-        if not _plain_exr(name):
-            bad(f"image {key!r}: file must be a plain '<name>.exr' inside the folder, got {name!r}")
-        if name in files:
-            bad(f"image {key!r}: file {name!r} is listed twice")
-        files.add(name)
-        t = entry.get("time_s")
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
-            bad(f"image {key!r}: time_s must be a non-negative number, got {t!r}")
-        if "sha256" in entry and not (
-            isinstance(entry["sha256"], str) and _HEX64.match(entry["sha256"])
-        ):
-            bad(f"image {key!r}: sha256 must be a SHA-256 hex digest, got {entry['sha256']!r}")
-    _validate_components(manifest, bad)
-    _check_files_are_their_keys(manifest, bad)
-    return manifest
-
-
-def _check_files_are_their_keys(manifest, bad):
-    """Each image's file is its own: an entry listing the file named after another image key
-    (``"a": {"file": "b.exr", ...}``: two entries' ``file`` and ``sha256`` swapped) is refused,
-    since every file's hash is then right and every material wrong. The renderers name each
-    file after its key (``<key>.exr``; full-GI images ``<key>.gi.exr``).
-    """
-    sections = (("images", ".exr"), ("gi_images", ".gi.exr"))
-    for section, _ in sections:
-        entries = manifest.get(section) or {}
-        for key, entry in entries.items():
-            name = entry.get("file") if isinstance(entry, dict) else None
-            if not isinstance(name, str):
-                continue
-            for other_section, other_suffix in sections:
-                if not name.endswith(other_suffix):
-                    continue
-                owner = name[: -len(other_suffix)]
-                if (other_section, owner) != (section, key) and owner in (
-                    manifest.get(other_section) or {}
-                ):
-                    where = "" if other_section == section else f" in {other_section}"
-                    bad(
-                        f"image {key!r} lists the file {name!r}, the file of image {owner!r}"
-                        f"{where}: the manifest's entries were swapped or edited; render the "
-                        "basis again"
-                    )
-
-
 #: What a basis may hold (``components`` of the manifest; absent: ``["l1"]``, an older basis).
 COMPONENTS = ("l1", "l2+", "cross")
 
-
-def _validate_components(manifest, bad):
-    comps = manifest.get("components", ["l1"])
-    if (
-        not isinstance(comps, list)
-        or not comps
-        or comps[0] != "l1"
-        or len(set(comps)) != len(comps)
-        or not set(comps) <= set(COMPONENTS)
-        or ("cross" in comps and "l2+" not in comps)
-    ):
-        bad(f"components must list 'l1', then 'l2+' and 'cross' if held, got {comps!r}")
-    if "levels" in manifest and (not _is_int(manifest["levels"]) or manifest["levels"] < 1):
-        bad(f"levels must be an integer >= 1, got {manifest['levels']!r}")
-    gi = manifest.get("gi_images", {})
-    if not isinstance(gi, dict) or not all(
-        isinstance(e, dict) and _plain_exr(e.get("file")) for e in gi.values()
-    ):
-        bad("gi_images must map material keys to {'file': '<name>.exr', 'time_s': ...}")
-    cross = manifest.get("cross")
-    if cross is not None and not (
-        isinstance(cross, dict)
-        and isinstance(cross.get("file"), str)
-        and os.path.basename(cross["file"]) == cross["file"]
-        and cross["file"].endswith(".npz")
-    ):
-        bad(f"cross must be {{'file': '<name>.npz', ...}}, got {cross!r}")
-    if not isinstance(manifest.get("left_out", {}), dict):
-        bad("left_out must map components to the reason they were left out")
+Sha256 = Annotated[str, Field(pattern=r"^[0-9a-f]{64}$", description="a SHA-256 hex digest")]
+Text = Annotated[str, Field(min_length=1, description="a non-empty string")]
+ExrName = Annotated[
+    str,
+    Field(
+        pattern=r"^[^/.][^/]*\.exr$",
+        description="a plain '<name>.exr' file name inside the folder",
+    ),
+]
+Size = Annotated[
+    list[Annotated[int, Field(ge=1)]],
+    Field(min_length=2, max_length=2, description="[width, height] (positive integers)"),
+]
 
 
-def _plain_exr(name):
-    return (
-        isinstance(name, str)
-        and name.endswith(".exr")
-        and os.path.basename(name) == name
-        and not name.startswith(".")
+class _Entry(BaseModel):
+    model_config = ConfigDict(strict=True, extra="allow", frozen=True)
+
+
+class GiImageFile(_Entry):
+    """A full-GI image a manifest lists (``gi_images``): ``{"file", "time_s", "sha256"}``."""
+
+    file: ExrName
+    time_s: Optional[float] = Field(
+        None, ge=0, allow_inf_nan=False, description="a non-negative number (render seconds)"
     )
+    sha256: Sha256 = None
+
+
+class ImageFile(GiImageFile):
+    """An image a manifest lists (``images``): ``{"file", "time_s"[, "sha256"]}``."""
+
+    time_s: float = Field(
+        ge=0, allow_inf_nan=False, description="a non-negative number (render seconds)"
+    )
+
+
+class CrossFile(_Entry):
+    """The cross terms' file (``cross``): ``{"file", "pairs", "tol"[, "sha256"]}``."""
+
+    file: str = Field(pattern=r"^[^/]+\.npz$", description="a plain '<name>.npz' file name")
+    sha256: Sha256 = None
+
+
+class ManifestSchema(FileSchema):
+    """A basis folder's ``manifest.json``: what its images are, how they were made and which
+    files hold them (read and written by :class:`Manifest`).
+
+    Version 1 (raw material names in image keys, the manifold file's SHA-256) reads as it is;
+    :meth:`Manifest.upgraded` makes it version 2 given the manifold file it was made with (the
+    manifold's content identity needs the file, so the upgrade is not a JSON rewrite).
+    """
+
+    VERSION: ClassVar[int] = FORMAT_VERSION
+    VERSIONS: ClassVar[str] = (
+        "1: raw material names in the image keys, the manifold file's SHA-256 as manifold_hash; "
+        "2: escaped names, the manifold's content identity. A version-1 manifest reads as it is; "
+        "Manifest.upgraded(manifold) makes it version 2 given the manifold file it was made with."
+    )
+    FIX: ClassVar[str] = "render the basis again with render_basis"
+    ERROR: ClassVar[type] = MismatchError
+
+    format: Literal["mitsuba-manifold-basis"] = Field(description=f"{FORMAT!r} (a basis manifest)")
+    version: int = Field(description="the format version (1 or 2)")
+    scene: Text = Field(description="a non-empty string (the scene XML's absolute path)")
+    scene_hash: Sha256
+    manifold: Text = Field(description="a non-empty string (the manifold's absolute path)")
+    manifold_hash: Sha256
+    resolution: Size
+    spp: int = Field(ge=1, description="a positive integer (samples per pixel)")
+    variant: Text = Field(description="a non-empty string (the Mitsuba variant)")
+    seed: int = Field(description="an integer (the images' seed)")
+    max_depth: int = Field(ge=-1, description="an integer >= -1 (-1: unbounded)")
+    mode: Literal["per-material", "onepass"] = Field(description=f"one of {MODES}")
+    targets: list[Text] = Field(min_length=1, description="a non-empty list of BSDF ids")
+    images: dict[str, ImageFile] = Field(description="an object: image key -> image file")
+    sensor: int = Field(None, ge=0, description="an integer >= 0 (the sensor rendered)")
+    chunks: int = Field(None, ge=1, description="an integer >= 1 (merged from this many chunks)")
+    pending: list[ExrName] = Field(None, description="a list of image files being written")
+    components: list[Literal[COMPONENTS]] = Field(
+        None, min_length=1, description=f"a list of {COMPONENTS}: what the basis holds"
+    )
+    levels: int = Field(None, ge=1, description="an integer >= 1 (most vertices per L2+ path)")
+    gi_images: dict[str, GiImageFile] = Field(
+        None, description="an object: material key -> full-GI image file"
+    )
+    cross: Optional[CrossFile] = Field(None, description="the cross terms' file")
+    left_out: dict[str, Any] = Field(None, description="an object: component -> why")
+    gi_stats: dict[str, Any] = Field(None, description="an object (render measurements)")
+    integrator: dict[str, Any] = Field(None, description="an object (the integrator's settings)")
+    scene_resolution: Optional[Size] = Field(
+        None, description="[width, height] the scene was loaded with, or null (its film's size)"
+    )
+
+    @model_validator(mode="after")
+    def _between_fields(self) -> "ManifestSchema":
+        targets = self.targets
+        if len(set(targets)) != len(targets):
+            raise ValueError(f"its targets field must name distinct BSDF ids, got {targets!r}")
+        comps = self.components or ["l1"]
+        if (
+            comps[0] != "l1"
+            or len(set(comps)) != len(comps)
+            or ("cross" in comps and "l2+" not in comps)
+        ):
+            raise ValueError(
+                f"its components field must list 'l1', then 'l2+' and 'cross' if held, got {comps!r}"
+            )
+        files = set()
+        for key, entry in self.images.items():
+            parts = key.split(SEP)
+            escaped = self.version < 2 or all(names_mod.is_escaped(p) for p in parts if p)
+            if key != BASE and (
+                len(parts) != len(targets) or not all(parts) or BASE in parts or not escaped
+            ):
+                raise ValueError(
+                    f"image key {key!r} must name {len(targets)} material(s) joined by {SEP!r} "
+                    f"(one per target {targets})"
+                )
+            if entry.file in files:
+                raise ValueError(f"image {key!r}: file {entry.file!r} is listed twice")
+            files.add(entry.file)
+        self._check_files_are_their_keys()
+        return self
+
+    def _check_files_are_their_keys(self) -> None:
+        """Each image's file is its own: an entry listing the file named after another image
+        key (``"a": {"file": "b.exr", ...}``: two entries' ``file`` and ``sha256`` swapped) is
+        refused, since every file's hash is then right and every material wrong. The renderers
+        name each file after its key (``<key>.exr``; full-GI images ``<key>.gi.exr``).
+        """
+        sections = (("images", ".exr"), ("gi_images", ".gi.exr"))
+        for section, _ in sections:
+            for key, entry in (getattr(self, section) or {}).items():
+                for other, suffix in sections:
+                    owner = entry.file[: -len(suffix)] if entry.file.endswith(suffix) else None
+                    if owner in (getattr(self, other) or {}) and (other, owner) != (section, key):
+                        where = "" if other == section else f" in {other}"
+                        raise ValueError(
+                            f"image {key!r} lists the file {entry.file!r}, the file of image "
+                            f"{owner!r}{where}: the manifest's entries were swapped or edited"
+                        )
 
 
 def manifold_file_identity(manifold):
@@ -543,15 +524,10 @@ class Manifest:
     scene_resolution : list of int, None or NOT_RECORDED
         The ``resolution`` the scene was loaded with (None: its own film size; see
         :attr:`loaded_resolution`).
-    chunk_complete : bool or None
-        A chunk folder whose images are all saved (:mod:`mitsuba_manifold.render.jobs.chunks`).
-    chunk_run : dict or None
-        Where and how fast a chunk was rendered.
-    chunk_key : str or None
-        What a chunk's images, or a merged basis's run, depend on
-        (:func:`~mitsuba_manifold.render.jobs.chunks.chunk_key`).
     extra : dict
-        Keys this version does not know (kept, and written back).
+        Keys the format leaves to the jobs that write it (a chunked render's marks,
+        :class:`~mitsuba_manifold.render.jobs.chunks.ChunkMark`) or that this version does not know
+        (kept, and written back).
     """
 
     scene: str
@@ -572,9 +548,6 @@ class Manifest:
     gi_stats: Optional[dict] = None
     integrator: Optional[dict] = None
     scene_resolution: Union[list, None, NotRecorded] = NOT_RECORDED
-    chunk_complete: Optional[bool] = None
-    chunk_run: Optional[dict] = None
-    chunk_key: Optional[str] = None
     extra: dict = field(default_factory=dict)
 
     # ----------------------------------------------------------- making one
@@ -622,6 +595,34 @@ class Manifest:
             components=[str(c) for c in components],
         ).check("new manifest")
 
+    def _chunk_mark(name):  # builds the deprecated properties below (not a method)
+        def get(self):
+            warnings.warn(
+                f"Manifest.{name} is deprecated: read it with "
+                "mitsuba_manifold.render.jobs.chunks.ChunkMark.of(manifest)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            return self.extra.get(name)
+
+        def put(self, value):
+            warnings.warn(
+                f"Manifest.{name} is deprecated: set it with "
+                "mitsuba_manifold.render.jobs.chunks.ChunkMark(...).put(manifest)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            self.extra.pop(name, None)
+            if value is not None:
+                self.extra[name] = value
+
+        return property(get, put, doc=f"Deprecated: ``ChunkMark.of(manifest).{name}``.")
+
+    chunk_complete = _chunk_mark("chunk_complete")
+    chunk_run = _chunk_mark("chunk_run")
+    chunk_key = _chunk_mark("chunk_key")
+    del _chunk_mark
+
     def copy(self):
         """A deep copy (its entries can be changed without changing this one's)."""
         return copy.deepcopy(self)
@@ -652,7 +653,7 @@ class Manifest:
         """The manifest of a JSON object, checked (:class:`MismatchError` naming ``where``)."""
         if isinstance(data, cls):
             return data
-        _check_json(data, where)
+        ManifestSchema.checked(data, where)  # does not require any image listed: see Basis.load
         data = dict(data)
         settings = RenderSettings(
             resolution=tuple(data.pop("resolution")),
@@ -698,7 +699,7 @@ class Manifest:
 
     def check(self, where="manifest"):
         """Return this manifest, its fields checked (:class:`MismatchError` naming ``where``)."""
-        _check_json(self.to_json(), where)
+        ManifestSchema.checked(self.to_json(), where)
         return self
 
     # ----------------------------------------------------------- files
@@ -747,7 +748,8 @@ class Manifest:
     def write(self, folder):
         """Check this manifest and write ``folder/manifest.json`` atomically; returns its path."""
         path = os.path.join(os.fspath(folder), MANIFEST)
-        data = _check_json(self.to_json(), where=path)
+        data = self.to_json()
+        ManifestSchema.checked(data, path)
         write_bytes(path, json.dumps(data, indent=1, sort_keys=False) + "\n")
         return path
 

@@ -1,18 +1,13 @@
 """The saved manifold: a ``.npz`` file (no pickle) with a JSON ``meta`` entry and arrays.
 
 The fit's :class:`~.fit_record.FitRecord` is stored as the ``meta`` entry's ``info`` dict and the
-``history`` array, the layout of every release so far.
-
-Version 2 adds the interpolant's parameters and the raw tables' Gram matrix (exact pruning
-errors); files of this release add ``cos_gram``, the cosine-weighted Gram matrix of the
-"image" pruning rule, an optional array that readers of earlier version-2 files ignore and
-that this reader computes from the tables when a file lacks it. Version 3 is version 2 with an
-``added`` entry: the provenance of materials added after the fit (:mod:`.adding`), whose
-tables are files outside the database folder; a manifold without added materials is
-written as version 2. Version 1 files read as the paper's GP interpolant on their stored
-``l`` and ``mu``,
-what they were used with; anything unreadable fails with a message that names the file
-and says to refit.
+``history`` array. The ``meta`` entry is declared by :class:`.schema.ManifoldMeta`, with its
+versions and the upgrade from each earlier one (version 1 reads as the paper's GP interpolant on
+its stored ``l`` and ``mu``; version 3 adds ``added``, the provenance of materials added after
+the fit, whose tables are files outside the database folder: a manifold without added materials
+is written as version 2); the arrays by :data:`.schema.ARRAYS` (``table_gram`` and ``cos_gram``
+are optional: this reader computes them from the tables when a file lacks them). Anything
+unreadable fails with a message that names the file and the field, and says to refit.
 """
 
 import json
@@ -28,8 +23,7 @@ from .fit_record import FitRecord
 from .shipped import SHIPPED, resolve_manifold
 
 FORMAT = "mitsuba-manifold"
-FORMAT_VERSION = 3
-_REFIT = "refit it with tools/fit_manifold.py"
+FORMAT_VERSION = schema.ManifoldMeta.VERSION
 #: Arrays derived from the tables (optional: computed from them on first use when absent).
 DERIVED = ("albedos", "gram", "table_gram", "cos_gram")
 
@@ -47,22 +41,7 @@ def write(m, path):
     it replaces ``path``, so a readable manifold file is never replaced by one nothing can read
     (:class:`FormatError` naming ``path`` and the field; the existing file is kept).
     """
-    meta = {
-        "format": FORMAT,
-        "version": FORMAT_VERSION,
-        "names": m.names,
-        "database": m.database,
-        "hashes": m.hashes,
-        "length_scale": m.length_scale,
-        "noise": m.noise,
-        "features": m.features,
-        "info": m.info,
-        "interpolant": m.interpolant.params(),
-    }
-    if m.added:  # version 3: readers of version 2 refuse a file naming tables outside its database
-        meta["added"] = [a.as_dict() for a in m.added]
-    else:
-        meta["version"] = 2
+    meta = schema.ManifoldMeta.of(m)
     arrays = {"latent": m.latent, "history": m.history, "meta": np.array(json.dumps(meta))}
     for name in DERIVED:
         if getattr(m, name) is not None:
@@ -106,16 +85,17 @@ def read(path):
                 raise _not_a_manifold(
                     path, f"unreadable: {str(e).removeprefix(path + ': ').split(';')[0]}"
                 ) from None
-            version = _checked_version(path, meta)
-            schema.check_meta(path, meta, version)
-            _check_added(path, meta)
+            if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+                raise _not_a_manifold(path, "its 'meta' entry is not a mitsuba-manifold one")
+            meta = schema.ManifoldMeta.upgrade(meta)
+            schema.ManifoldMeta.checked(meta, path)
             arrays = schema.read_arrays(path, zf, meta)
     except (zipfile.BadZipFile, OSError, EOFError, ValueError) as e:
         if isinstance(e, InputError):
             raise
         raise _not_a_manifold(path, f"damaged: {type(e).__name__}: {e}") from None
     info = dict(meta.get("info") or {})
-    info.setdefault("preset", "paper" if version < 2 else "custom")
+    info.setdefault("preset", "custom")
     return {
         "names": meta["names"],
         "latent": arrays["latent"],
@@ -127,36 +107,8 @@ def read(path):
         "albedos": arrays.get("albedos"),
         "gram": arrays.get("gram"),
         "record": FitRecord.from_info(info, arrays.get("history", ())),
-        "interpolant": meta["interpolant"] if version >= 2 else {"kind": "gp", "exact": True},
+        "interpolant": meta["interpolant"],
         "table_gram": arrays.get("table_gram"),
         "cos_gram": arrays.get("cos_gram"),
-        "added": meta.get("added") if version >= 3 else None,
+        "added": meta.get("added"),
     }
-
-
-def _checked_version(path, meta):
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise _not_a_manifold(path, "its 'meta' entry is not a mitsuba-manifold one")
-    version = meta.get("version", 0)
-    if (
-        isinstance(version, bool)
-        or not isinstance(version, int)
-        or not 1 <= version <= FORMAT_VERSION
-    ):
-        raise FormatError(
-            f"{path}: its version field {version!r} is not a format version this package reads "
-            f"(1 to {FORMAT_VERSION}); {_REFIT}"
-        )
-    return version
-
-
-def _check_added(path, meta):
-    """Each added material is one of the names, with that name's hash."""
-    index = {n: i for i, n in enumerate(meta["names"])}
-    for a in meta.get("added") or ():
-        i = index.get(a["name"])
-        if i is None or meta["hashes"][i] != a["hash"]:
-            raise FormatError(
-                f"{path}: its added material {a['name']!r} is not one of its names with that "
-                f"table's hash; {_REFIT}"
-            )

@@ -1,12 +1,13 @@
 """The schema of a saved manifold (:mod:`.io`): every field's type, shape, dtype and range.
 
-A manifold ``.npz`` holds a JSON ``meta`` entry (:data:`META`) and arrays (:data:`ARRAYS`).
-:func:`read_checked` reads one without trusting it: the zip directory's entry sizes and each
-``.npy`` header (dtype, shape) are checked before an entry is read, so an entry larger than
-its shape allows (a few MB of zeros that inflate to gigabytes) is refused unread and only
-the entries named here are read at all; then each value is checked against its row of the
-tables below. Every refusal is one :class:`~mitsuba_manifold.errors.FormatError` line
-naming the file and the field.
+A manifold ``.npz`` holds a JSON ``meta`` entry, declared by :class:`ManifoldMeta` (a pydantic
+model: its keys, their rules, its versions and the upgrade from each earlier one), and arrays,
+declared by :data:`ARRAYS` and checked in code. :func:`~.io.read` reads one without trusting
+it: the zip directory's entry sizes and each ``.npy`` header (dtype, shape) are checked before
+an entry is read (:func:`read_meta`, :func:`read_arrays`), so an entry larger than its shape
+allows (a few MB of zeros that inflate to gigabytes) is refused unread and only the entries
+named here are read at all; then each value is checked against its declaration. Every refusal
+is one :class:`~mitsuba_manifold.errors.FormatError` line naming the file and the field.
 
 Beyond types and shapes: names are distinct, hashes are SHA-256 hex digests, two latent
 points of different tables do not coincide (a coincident pair would share the weight of
@@ -20,11 +21,12 @@ import json
 import math
 import numbers
 import os
-import re
-from typing import NamedTuple
+from typing import Annotated, ClassVar, Literal, NamedTuple, Optional
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from ..._util.schema import FileSchema
 from ...data.database import FEATURES
 from ...errors import FormatError
 from ...gp.kernel import MAX_LATENT_DIM
@@ -36,131 +38,179 @@ META_LIMIT = 64 << 20
 HISTORY_LIMIT = 10**7
 #: Bytes an ``.npy`` entry may hold beyond its data (its header).
 HEADER_SLACK = 1 << 16
-_HEX64 = re.compile(r"[0-9a-f]{64}")
 
 
-def _real(v):
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+_REFIT = "refit it with tools/fit_manifold.py"
+Sha256 = Annotated[str, Field(pattern=r"^[0-9a-f]{64}$", description="a SHA-256 hex digest")]
+_Count = Annotated[int, Field(ge=0)]
+_Seconds = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
 
-def _int(v):
-    return isinstance(v, int) and not isinstance(v, bool)
+class _Entry(BaseModel):
+    model_config = ConfigDict(strict=True, extra="allow", frozen=True)
 
 
-def _texts(v):
-    return isinstance(v, list) and all(isinstance(s, str) for s in v)
-
-
-def _names(v, n):
-    if not _texts(v) or not v or not all(v):
-        return "must be a non-empty list of non-empty texts"
-    return None if len(set(v)) == len(v) else "must not name a material twice"
-
-
-def _hashes(v, n):
-    if not _texts(v) or len(v) != n or not all(_HEX64.fullmatch(h) for h in v):
-        return f"must be a list of {n} SHA-256 hex digests (one per name)"
-    return None
-
-
-def _dims(v):
-    return v is None or (isinstance(v, list) and len(v) == 3 and all(_int(d) and d >= 1 for d in v))
-
-
-#: ``info`` entries of known meaning and what each must be (others are kept as they are).
-INFO = {
-    "method": lambda v: isinstance(v, str),
-    "preset": lambda v: isinstance(v, str),
-    "q": lambda v: _int(v) and v >= 1,
-    "d": lambda v: _int(v) and v >= 1,
-    "dims": _dims,
-    "n_evaluations": lambda v: _int(v) and v >= 0,
-    "log_likelihood": lambda v: (
-        v is None or isinstance(v, numbers.Real) and not isinstance(v, bool)
-    ),
-    "converged": lambda v: v is None or isinstance(v, bool),
-    "n_iterations": lambda v: v is None or _int(v) and v >= 0,
-    "grad_norm": lambda v: v is None or _real(v) and v >= 0 or v == float("inf"),
-    "stop": lambda v: v is None or isinstance(v, str),
-    **{
-        f"time_{k}_s": (lambda v: v is None or _real(v) and v >= 0) for k in ("load", "gram", "fit")
-    },
-}
-
-
-def _info(v, n):
-    if v is None:
-        return None
-    if not isinstance(v, dict):
-        return "must be a dict of the fit's record"
-    bad = [k for k, ok in INFO.items() if k in v and not ok(v[k])]
-    return f"has a bad entry {bad[0]!r}: {v[bad[0]]!r}" if bad else None
-
-
-def _interpolant(v, n):
-    if not isinstance(v, dict) or v.get("kind") not in KINDS:
-        return f"must be a dict with a 'kind' of {', '.join(map(repr, KINDS))}"
-    if "beyond" in v and v["beyond"] not in ShepardWeights.BEYOND:
-        return (
-            f"has a 'beyond' of {v['beyond']!r}; one of {', '.join(ShepardWeights.BEYOND)} expected"
-        )
-    bad = [
-        k
-        for k, x in v.items()
-        if k not in ("kind", "beyond") and not (isinstance(x, bool) if k == "exact" else _real(x))
-    ]
-    return f"has a parameter {bad[0]!r} that is not a finite number: {v[bad[0]]!r}" if bad else None
-
-
-def _added(v, n):
-    if v is None:
-        return None
-    if not isinstance(v, list) or len(v) >= n:
-        return f"must be a list of fewer than {n} added materials"
-    for a in v:
-        if not isinstance(a, dict) or not {"name", "source", "path", "hash"} <= set(a):
-            return "must hold dicts with 'name', 'source', 'path' and 'hash'"
-        if (
-            not all(isinstance(a[k], str) for k in ("name", "source", "path", "hash"))
-            or not _HEX64.fullmatch(a["hash"])
-            or not os.path.isabs(a["path"])
-            or not isinstance(a.get("origin"), (str, type(None)))
-        ):
-            return f"has a bad entry for {str(a.get('name'))[:40]!r} (texts, an absolute path, a SHA-256 hash)"
-    return None
-
-
-class MetaField(NamedTuple):
-    """A ``meta`` entry: ``check(value, n)`` returns why it is wrong, or None; ``since``: first
-    format version that requires it (None: optional).
+class FitInfo(_Entry):
+    """The ``info`` entry: the fit's record (:class:`~.fit_record.FitRecord`); the entries of
+    known meaning are declared, others kept as they are.
     """
 
-    name: str
-    check: object
-    since: object = 1
+    method: str = Field(None, description="a text (the fitting method)")
+    preset: str = Field(None, description="a text (the preset fitted with)")
+    q: int = Field(None, ge=1, description="an integer >= 1 (the latent dimension)")
+    d: int = Field(None, ge=1, description="an integer >= 1 (the features per table)")
+    dims: Optional[
+        Annotated[list[Annotated[int, Field(ge=1)]], Field(min_length=3, max_length=3)]
+    ] = Field(None, description="three positive integers (the tables' resolution)")
+    n_evaluations: int = Field(None, ge=0, description="an integer >= 0")
+    log_likelihood: Optional[float] = Field(None, description="a number")
+    converged: Optional[bool] = Field(None, description="true or false")
+    n_iterations: Optional[_Count] = Field(None, description="an integer >= 0")
+    grad_norm: Optional[float] = Field(None, ge=0, description="a number >= 0 (or infinity)")
+    stop: Optional[str] = Field(None, description="a text (why the fit stopped)")
+    time_load_s: Optional[_Seconds] = Field(None, description="a finite number >= 0 (seconds)")
+    time_gram_s: Optional[_Seconds] = Field(None, description="a finite number >= 0 (seconds)")
+    time_fit_s: Optional[_Seconds] = Field(None, description="a finite number >= 0 (seconds)")
 
 
-#: The ``meta`` entries (``n``: the number of names, checked first).
-META = (
-    MetaField("version", lambda v, n: None if _int(v) else "must be an integer"),
-    MetaField("names", _names),
-    MetaField("hashes", _hashes),
-    MetaField(
-        "database", lambda v, n: None if isinstance(v, str) else "must be a folder's path (text)"
-    ),
-    MetaField(
-        "length_scale", lambda v, n: None if _real(v) and v > 0 else "must be a finite number > 0"
-    ),
-    MetaField(
-        "noise", lambda v, n: None if _real(v) and v >= 0 else "must be a finite number >= 0"
-    ),
-    MetaField(
-        "features", lambda v, n: None if v in FEATURES else f"must be one of {', '.join(FEATURES)}"
-    ),
-    MetaField("info", _info, None),
-    MetaField("interpolant", _interpolant, 2),
-    MetaField("added", _added, None),
-)
+class Interpolant(_Entry):
+    """The ``interpolant`` entry: ``kind`` and its parameters
+    (:meth:`~mitsuba_manifold.manifold.interpolant.Interpolant.params`), every other key a finite number.
+    """
+
+    kind: Literal[KINDS] = Field(description=f"one of {', '.join(map(repr, KINDS))}")
+    beyond: Literal[ShepardWeights.BEYOND] = Field(
+        None, description=f"one of {', '.join(map(repr, ShepardWeights.BEYOND))}"
+    )
+    exact: bool = Field(None, description="true or false")
+
+    @model_validator(mode="after")
+    def _numbers(self) -> "Interpolant":
+        for k, x in (self.model_extra or {}).items():
+            if isinstance(x, bool) or not isinstance(x, numbers.Real) or not math.isfinite(x):
+                raise ValueError(f"has a parameter {k!r} that is not a finite number: {x!r}")
+        return self
+
+
+class AddedMaterial(_Entry):
+    """One entry of ``added``: a material added after the fit (:mod:`mitsuba_manifold.manifold.adding`)."""
+
+    name: str = Field(description="a text (one of the names)")
+    source: str = Field(description="a text (what the table was made from)")
+    path: str = Field(description="an absolute path (the table's file)")
+    hash: Sha256
+    origin: Optional[str] = Field(None, description="a text or null")
+
+    @field_validator("path")
+    @classmethod
+    def _absolute(cls, v: str) -> str:
+        if not os.path.isabs(v):
+            raise ValueError(f"must be an absolute path, got {v!r}")
+        return v
+
+
+def _upgrade_1(meta: dict) -> dict:
+    """To version 2: the paper's GP interpolant on the stored ``l`` and ``mu`` (what version-1
+    files were used with), and the ``paper`` preset.
+    """
+    info = meta.get("info")
+    if info is None or isinstance(info, dict):
+        meta["info"] = {**(info or {}), "preset": (info or {}).get("preset", "paper")}
+    return {**meta, "version": 2, "interpolant": {"kind": "gp", "exact": True}}
+
+
+def _upgrade_2(meta: dict) -> dict:
+    """To version 3: no ``added`` (no material added after the fit; a version-2 reader
+    ignored the key).
+    """
+    meta.pop("added", None)
+    return {**meta, "version": 3}
+
+
+class ManifoldMeta(FileSchema):
+    """The ``meta`` entry of a saved manifold (a JSON text), declared.
+
+    Version 1: no ``interpolant`` (read as the paper's GP interpolant, preset ``paper``);
+    version 2 adds ``interpolant``; version 3 adds ``added``, the provenance of materials
+    added after the fit (a manifold without them is written as version 2).
+    """
+
+    VERSION: ClassVar[int] = 3
+    UPGRADES: ClassVar[dict] = {1: _upgrade_1, 2: _upgrade_2}
+    VERSIONS: ClassVar[str] = (
+        "1: no interpolant; 2: the interpolant; 3: added (a manifold without added materials is "
+        "written as version 2)."
+    )
+    FIX: ClassVar[str] = _REFIT
+
+    format: Literal["mitsuba-manifold"] = Field(description="'mitsuba-manifold'")
+    version: int = Field(description="the format version (1 to 3)")
+    names: list[str] = Field(
+        min_length=1, description="a non-empty list of distinct, non-empty material names"
+    )
+    hashes: list[Sha256] = Field(description="a list of SHA-256 hex digests, one per name")
+    database: str = Field(description="a folder's path or a built-in set's name (text)")
+    length_scale: float = Field(gt=0, allow_inf_nan=False, description="a finite number > 0")
+    noise: float = Field(ge=0, allow_inf_nan=False, description="a finite number >= 0")
+    features: Literal[FEATURES] = Field(description=f"one of {', '.join(FEATURES)}")
+    info: Optional[FitInfo] = Field(None, description="an object: the fit's record")
+    interpolant: Interpolant = Field(
+        description=f"an object with a 'kind' of {' or '.join(map(repr, KINDS))}"
+    )
+    added: Optional[list[AddedMaterial]] = Field(
+        None, description="a list of the materials added after the fit"
+    )
+
+    @classmethod
+    def of(cls, m: object) -> dict:
+        """The ``meta`` JSON object of the manifold ``m`` (keys in the order of every file
+        written so far): version 3 when it holds added materials (a version-2 reader refuses a
+        file naming tables outside its database), else version 2.
+        """
+        meta = {
+            "format": "mitsuba-manifold",
+            "version": cls.VERSION if m.added else 2,
+            "names": m.names,
+            "database": m.database,
+            "hashes": m.hashes,
+            "length_scale": m.length_scale,
+            "noise": m.noise,
+            "features": m.features,
+            "info": m.info,
+            "interpolant": m.interpolant.params(),
+        }
+        if m.added:
+            meta["added"] = [a.as_dict() for a in m.added]
+        return meta
+
+    @field_validator("names")
+    @classmethod
+    def _distinct(cls, v: list) -> list:
+        if not all(v):
+            raise ValueError("must hold non-empty material names")
+        if len(set(v)) != len(v):
+            raise ValueError("must not name a material twice")
+        return v
+
+    @model_validator(mode="after")
+    def _between_fields(self) -> "ManifoldMeta":
+        n = len(self.names)
+        if len(self.hashes) != n:
+            raise ValueError(
+                f"its hashes field must hold one SHA-256 hex digest per entry of its names field "
+                f"({len(self.hashes)} hashes, {n} names)"
+            )
+        added = self.added or ()
+        if len(added) >= n:
+            raise ValueError(f"its added field must list fewer than {n} added materials")
+        index = {name: i for i, name in enumerate(self.names)}
+        for a in added:
+            i = index.get(a.name)
+            if i is None or self.hashes[i] != a.hash:
+                raise ValueError(
+                    f"its added material {a.name!r} is not one of its names with that table's hash"
+                )
+        return self
 
 
 class ArrayField(NamedTuple):
@@ -319,19 +369,6 @@ def _shape_check(field, n, q):
         return f"must have shape ({text}{',' if len(want) == 1 else ''}), has {tuple(shape)}"
 
     return ok
-
-
-def check_meta(path, meta, version):
-    """Check every :data:`META` field of ``meta`` (format version ``version``)."""
-    n = len(meta["names"]) if _texts(meta.get("names")) else 0
-    for field in META:
-        if field.name not in meta or (meta[field.name] is None and field.since is None):
-            if field.since is not None and version >= field.since:
-                raise _refuse(path, field.name, "is missing")
-            continue
-        why = field.check(meta[field.name], n)
-        if why:
-            raise _refuse(path, field.name, why)
 
 
 def read_arrays(path, zf, meta):

@@ -37,8 +37,10 @@ import socket
 import tempfile
 import time
 from dataclasses import dataclass, replace
+from typing import Optional
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..._util.cache import file_hash, key_hash
 from ..._util.locking import FolderLock
@@ -48,6 +50,55 @@ from ...errors import MismatchError
 from ...imaging import io as imageio
 from .gi_basis import write_cross
 from .render_basis import BasisOptions, ensure_aovs, render_basis
+
+
+class ChunkRun(BaseModel):
+    """Where and how fast a chunk was rendered (a chunk manifest's ``chunk_run``)."""
+
+    model_config = ConfigDict(strict=True, frozen=True, extra="allow")
+
+    seconds: float = Field(description="seconds the chunk's render took")
+    host: str = Field(description="the machine that rendered it")
+    pid: int = Field(description="the process that rendered it")
+
+
+class ChunkMark(BaseModel):
+    """The keys a chunked render adds to a basis manifest: the bookkeeping of this module,
+    not of the basis format, which keeps them as they are (:attr:`Manifest.extra
+    <mitsuba_manifold.basis.folder.Manifest>`).
+
+    ``chunk_complete`` and ``chunk_run`` mark a chunk folder whose images are all saved,
+    ``chunk_key`` what a chunk's images (:func:`chunk_key`), or a merged basis's whole run,
+    depend on. A mark that does not read as one is no mark: the chunk is rendered again.
+    """
+
+    model_config = ConfigDict(strict=True, frozen=True)
+
+    chunk_complete: Optional[bool] = Field(
+        None, description="true: a chunk folder whose images are all saved"
+    )
+    chunk_run: Optional[ChunkRun] = Field(None, description="where and how fast a chunk rendered")
+    chunk_key: Optional[str] = Field(
+        None, description="SHA-256 (hex) of what the images, or the merged run, depend on"
+    )
+
+    @classmethod
+    def of(cls, manifest) -> "ChunkMark":
+        """The mark ``manifest`` (a :class:`~mitsuba_manifold.basis.folder.Manifest`) carries
+        (an empty one when it carries none, or one that does not read).
+        """
+        try:
+            return cls.model_validate(
+                {k: manifest.extra[k] for k in cls.model_fields if k in manifest.extra}
+            )
+        except ValidationError:
+            return cls()
+
+    def put(self, manifest) -> None:
+        """Set this mark on ``manifest`` (the keys of an empty mark are removed)."""
+        for key in type(self).model_fields:
+            manifest.extra.pop(key, None)
+        manifest.extra.update(self.model_dump(mode="json", exclude_none=True))
 
 
 @dataclass(frozen=True)
@@ -223,7 +274,8 @@ def chunk_done(folder, key=None):
         manifest = basis_folder.Manifest.read(folder)
     except MismatchError:
         return None
-    if not manifest.chunk_complete or (key is not None and manifest.chunk_key != key):
+    mark = ChunkMark.of(manifest)
+    if not mark.chunk_complete or (key is not None and mark.chunk_key != key):
         return None
     for _, entry in manifest.entries():
         if not os.path.isfile(os.path.join(folder, entry.file)) or basis_folder.image_changed(
@@ -252,10 +304,8 @@ def save_chunk(out, result, key=None):
             os.path.join(folder, result.manifest.cross.file), *result.images[_CROSS]
         )
         manifest.cross = replace(manifest.cross, sha256=digest)
-    manifest.chunk_complete = True
-    manifest.chunk_run = {"seconds": result.seconds, "host": result.host, "pid": result.pid}
-    if key is not None:
-        manifest.chunk_key = key
+    run = ChunkRun(seconds=float(result.seconds), host=str(result.host), pid=int(result.pid))
+    ChunkMark(chunk_complete=True, chunk_run=run, chunk_key=key).put(manifest)
     manifest.write(folder)
     return manifest
 
@@ -293,10 +343,8 @@ def _merge(out, folders, seed, force, run_key=None):
         chunks=len(folders),
         images={},
         gi_images=None,
-        chunk_complete=None,
-        chunk_run=None,
-        chunk_key=None,
     )
+    ChunkMark().put(merged)  # a merged basis is no chunk
     files = [e.file for _, e in first.entries()] + [basis_folder.MANIFEST]
     merged.images = open_folder(out, merged, files, force)
     done = {e.file for e in merged.images.values()}
@@ -338,7 +386,7 @@ def _merge(out, folders, seed, force, run_key=None):
         digest = write_cross(os.path.join(out, first.cross.file), pairs, acc)
         merged.cross = replace(first.cross, sha256=digest)
     if run_key is not None:  # the mark of a finished run (written with its last image)
-        merged.chunk_key = run_key
+        ChunkMark(chunk_key=run_key).put(merged)
     merged.pending = None
     merged.write(out)
     return merged
@@ -422,7 +470,7 @@ def _finished(out, run_key):
         manifest = basis_folder.Manifest.read(out)
     except MismatchError:
         return None
-    if manifest.chunk_key != run_key:
+    if ChunkMark.of(manifest).chunk_key != run_key:
         return None
     entries = manifest.entries()
     if any(
