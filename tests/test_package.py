@@ -270,6 +270,22 @@ def test_the_sources_state_the_contract_not_the_history():
     assert not found, "history in the sources:\n" + "\n".join(found)
 
 
+#: Most modules (``__init__.py`` counted) in one folder of the package: a folder that grows past
+#: it is split into sub-packages, one concept each (render/plugin, render/scene, ...).
+MAX_MODULES = 15
+
+
+def test_no_package_folder_holds_more_than_fifteen_modules():
+    crowded = {
+        os.path.relpath(folder, PACKAGE): n
+        for folder, _, files in os.walk(PACKAGE)
+        if (n := sum(f.endswith(".py") for f in files)) > MAX_MODULES
+    }
+    assert not crowded, (
+        f"folders of more than {MAX_MODULES} modules (split them into rooms): {crowded}"
+    )
+
+
 def test_no_module_name_is_used_three_times():
     """A module's name says what it holds: at most two modules of the package share a name; the
     basis folder's format is one package (no ``folder`` beside ``folders``), the fit's record is

@@ -25,8 +25,8 @@ does anything on import:
    (:mod:`.plugin.plugins`), whatever the order of ``mi.set_variant`` and this import.
 
 Rendering functions never change the active variant unless asked: they render in the
-active one (or activate :func:`.scene.scenes.default_variant` when Mitsuba has none yet), and a
-``variant`` parameter activates that one (:func:`.scene.scenes.use_variant`).
+active one (or activate :func:`.scene.variants.default_variant` when Mitsuba has none yet), and a
+``variant`` parameter activates that one (:func:`.scene.variants.use_variant`).
 """
 
 import sys as _sys

@@ -15,7 +15,6 @@ from mitsuba_manifold.basis.folder import (
     RenderSettings,
 )
 from mitsuba_manifold.errors import MismatchError
-from mitsuba_manifold.render.jobs.chunks import ChunkMark
 
 #: A manifest of format version 1, as the first releases wrote it: no sensor, no components.
 V1 = {
@@ -196,8 +195,6 @@ def test_a_file_written_before_reads_the_same_and_is_written_back_byte_for_byte(
     assert m.integrator["source"] == "scene" and m.scene_resolution is None
     assert m.loaded_resolution is None  # loaded at the scene's own film size
     assert m.chunks == 2
-    mark = ChunkMark.of(m)  # the chunk bookkeeping belongs to the jobs that write chunks
-    assert (mark.chunk_complete, mark.chunk_run.pid, mark.chunk_key) == (True, 7, "e" * 64)
     assert list(m.extra) == ["chunk_complete", "chunk_run", "chunk_key", "future_key"]
     assert [k for k, _ in m.entries()] == ["base", "steel", "gi:steel"]
     assert m.listed_files() == {"base.exr", "steel.exr", "steel.gi.exr", "cross.npz"}
@@ -294,7 +291,19 @@ def test_a_version_1_manifest_upgrades_given_the_manifold_it_was_made_with(small
     assert other.upgraded(small_manifold) is other  # made with another file: kept as it is
 
 
+@pytest.mark.render  # the chunk bookkeeping belongs to the jobs that write chunks (render.jobs)
+def test_a_file_written_before_keeps_its_chunk_mark(tmp_path):
+    from mitsuba_manifold.render.jobs.chunks import ChunkMark
+
+    (tmp_path / MANIFEST).write_text(WRITTEN_BEFORE)
+    mark = ChunkMark.of(Manifest.read(tmp_path))
+    assert (mark.chunk_complete, mark.chunk_run.pid, mark.chunk_key) == (True, 7, "e" * 64)
+
+
+@pytest.mark.render
 def test_the_chunk_marks_read_through_their_old_names_with_a_deprecation_warning():
+    from mitsuba_manifold.render.jobs.chunks import ChunkMark
+
     m = Manifest.from_json(V2)
     with pytest.deprecated_call():
         assert m.chunk_key == "k"

@@ -283,7 +283,7 @@ def test_a_manifold_material_inside_twosided_is_the_target(small_manifold):
     ((name, (bsdf,)),) = integrators.target_groups(scene, "each")
     assert name == "b" and integrators.is_manifold_bsdf(bsdf)
     plan = integrator(component="touch").plan(scene)
-    assert [type(c).__name__ for c in plan["hits"][0]] == ["BSDF"] and len(plan["mirror"]) == 1
+    assert [type(c).__name__ for c in plan.hits[0]] == ["BSDF"] and len(plan.mirror) == 1
 
 
 @pytest.mark.parametrize(

@@ -16,6 +16,7 @@ this package imports neither, so it can be imported before a variant is set.
 from .common import (
     COMPONENTS,
     MAX_GROUPS,
+    TracePlan,
     check_variant,
     class_names,
     is_manifold_bsdf,
@@ -26,6 +27,7 @@ from .common import (
 __all__ = [
     "COMPONENTS",
     "MAX_GROUPS",
+    "TracePlan",
     "check_variant",
     "class_names",
     "is_manifold_bsdf",

@@ -8,6 +8,8 @@ and checks variants; integrators that trace whole wavefronts themselves seed sam
 make primary rays with Mitsuba's own ``ADIntegrator.prepare`` and ``sample_rays``.
 """
 
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 
@@ -194,6 +196,78 @@ def class_names(group_names):
             names.append("touch:" + "+".join(group_names[g] for g in range(p) if m >> g & 1))
     names.append("rest")
     return names
+
+
+@dataclass(frozen=True)
+class TracePlan:
+    """What :meth:`~.path.ManifoldPathIntegrator.trace_paths` traces in one scene: the target
+    groups and which path classes (:func:`class_names`: class ``m < 2 ** len(groups)`` the paths
+    that scattered once off the groups of the bits of ``m``, class ``2 ** len(groups)`` the
+    rest) it sums and records.
+
+    Made by :meth:`~.path.ManifoldPathIntegrator.plan` for a ``component`` and ``target``, and by
+    the one-pass renderer (:mod:`.onepass`) for its recorded vertices; checked when made.
+
+    Attributes
+    ----------
+    groups : list of (str, list)
+        The target groups: name and ``manifold_brdf`` instances (:func:`target_groups`).
+    select : int
+        Bit set over the classes summed into the image.
+    keep : int
+        Bit set over the classes a path may still be in while it is worth tracing.
+    aovs : list of int
+        Classes written as AOVs (``split``).
+    hits : list of list
+        Per group, the BSDFs whose hit is a vertex on it: its manifold materials and the
+        ``twosided`` wrappers holding them (:func:`group_carriers`).
+    mirror : list
+        Those wrappers whose back side the one-pass records mirror.
+    names : list of str
+        The classes' names (:func:`class_names`; empty where not needed).
+    """
+
+    groups: list
+    select: int
+    keep: int
+    aovs: list
+    hits: list
+    mirror: list
+    names: list = ()
+
+    def __post_init__(self) -> None:
+        self.check()
+
+    @property
+    def classes(self) -> int:
+        """Number of path classes: ``2 ** len(groups)`` single-scattering ones and the rest."""
+        return (1 << len(self.groups)) + 1
+
+    def check(self) -> None:
+        """Raise an :class:`InputError` naming the field unless the plan is consistent: at most
+        :data:`MAX_GROUPS` groups, class bit sets and AOV classes within the classes, one list
+        of hits per group, and a name per class where names are given.
+        """
+        if len(self.groups) > MAX_GROUPS:
+            raise InputError(f"trace plan: {len(self.groups)} target groups, at most {MAX_GROUPS}")
+        every = (1 << self.classes) - 1
+        for name in ("select", "keep"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= every:
+                raise InputError(
+                    f"trace plan: `{name}` must be a bit set over {self.classes} classes, got {value!r}"
+                )
+        bad = [c for c in self.aovs if not 0 <= int(c) < self.classes]
+        if bad:
+            raise InputError(f"trace plan: AOV classes {bad} are not among {self.classes} classes")
+        if len(self.hits) != len(self.groups):
+            raise InputError(
+                f"trace plan: {len(self.hits)} lists of hits for {len(self.groups)} groups"
+            )
+        if self.names and len(self.names) != self.classes:
+            raise InputError(
+                f"trace plan: {len(self.names)} class names for {self.classes} classes"
+            )
 
 
 def power_heuristic(pdf_a, pdf_b):

@@ -25,6 +25,7 @@ import numpy as np
 
 from ...errors import InputError
 from .common import (
+    TracePlan,
     developed_rgb,
     group_carriers,
     is_manifold_bsdf,
@@ -328,7 +329,7 @@ def _render(
     chunks = [(i, min(len(names), i + chunk)) for i in range(0, len(names), chunk)]
     alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
     hits = group_carriers(scene, target.groups)
-    plan = dict(
+    plan = TracePlan(
         groups=target.groups,
         select=1,
         keep=3 if levels == 1 else 7,

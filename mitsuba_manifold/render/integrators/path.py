@@ -22,6 +22,7 @@ import mitsuba as mi
 from ...errors import InputError, UnavailableError
 from .common import (
     COMPONENTS,
+    TracePlan,
     check_variant,
     class_names,
     group_carriers,
@@ -108,13 +109,9 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
 
         Returns
         -------
-        dict
-            ``groups`` (list of ``(name, bsdfs)``), ``names`` (class names),
-            ``select`` (bit set over classes summed into the image), ``keep``
-            (bit set over classes a path may still be in while worth tracing),
-            ``aovs`` (class indices written as AOVs), ``hits`` (per group, the BSDFs whose hit
-            is a vertex on it: its manifold materials and the ``twosided`` wrappers holding them)
-            and ``mirror`` (those wrappers, whose back side the one-pass records mirror).
+        TracePlan
+            The groups, the classes summed, kept and written as AOVs, the vertices on each
+            group and the mirrored wrappers (:class:`~.common.TracePlan`).
         """
         groups = target_groups(scene, self.target) if self.needs_targets() else []
         hits = group_carriers(scene, groups)
@@ -160,14 +157,14 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
                 keep |= 1 << c
         if need >> rest & 1:
             keep |= 1 << rest
-        return dict(
+        return TracePlan(
             groups=groups,
-            names=names,
             select=select,
             keep=keep,
             aovs=aovs,
             hits=hits,
             mirror=mirror,
+            names=names,
         )
 
     def aov_names(self):
@@ -187,8 +184,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
     def prepare_scene(self, scene):
         """Resolve the targets of ``scene`` now (raises on a scene it cannot split)."""
         plan = self.plan(scene)
-        self._names = plan["names"]
-        self._aov_classes = plan["aovs"]
+        self._names = plan.names
+        self._aov_classes = plan.aovs
         return plan
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
@@ -227,14 +224,14 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         The body is one ``@dr.syntax`` loop, as Mitsuba's ``prb`` ``sample``: Dr.Jit tracks
         every loop variable of it.
         """
-        groups, select, keep = plan["groups"], plan["select"], plan["keep"]
+        groups, select, keep = plan.groups, plan.select, plan.keep
         # closures over the BSDFs: read in the loop, they would be its state (their tables as variables)
-        on_target = _target_test(plan.get("hits") or [g[1] for g in groups])
-        sampled_at = _proxy_choice(plan.get("mirror", ()) if record else (), proxy)
+        on_target = _target_test(plan.hits or [g[1] for g in groups])
+        sampled_at = _proxy_choice(plan.mirror if record else (), proxy)
         n_sub = 1 << len(groups)
         rest = mi.UInt32(n_sub)
         track = len(groups) > 0
-        aov_classes = plan["aovs"]
+        aov_classes = plan.aovs
 
         levels = int(record)  # most vertices on the target recorded (True: 1)
         bsdf_ctx = mi.BSDFContext()

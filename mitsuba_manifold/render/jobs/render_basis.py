@@ -39,7 +39,7 @@ from ...errors import InputError, MismatchError, MitsubaManifoldError, did_you_m
 from ...imaging import io as imageio
 from ...manifold.model import Manifold
 from ..scene import scenes
-from ..scene.scenes import check_variant
+from ..scene.variants import check_variant
 from .gi_basis import (
     CROSS_FILE,
     GI_SUFFIX,

@@ -29,7 +29,7 @@ def load_measured(path):
     """Mitsuba's ``measured`` BSDF of the file ``path`` in the active variant (an RGB one, see
     :func:`.scenes.use_variant`), after checking the file is an isotropic tensor file.
     """
-    from ..scene.scenes import use_variant
+    from ..scene.variants import use_variant
 
     path = os.path.abspath(os.fspath(path))
     MeasuredFile(material_name(path), path).check()
@@ -117,7 +117,7 @@ def _sphere_scene(bsdf, res, spp, seed):
     """The shipped sphere scene (sky map and point light, :file:`scenes/sphere.xml`) as a dict
     with ``bsdf`` on the sphere; the sphere sees nothing but the lights.
     """
-    from ..scene.scenes import scene_path
+    from ..scene.files import scene_path
 
     sky = os.path.join(os.path.dirname(scene_path("sphere")), "sky.exr")
     return {
@@ -169,7 +169,7 @@ def fidelity(path, manifold, name=None, res=64, spp=256, seed=0, interpolation="
         ``ratio_to_noise``: ``rel_mse / noise_rel_mse``.
     """
     from ...imaging.metrics import rel_mse
-    from ..scene.scenes import use_variant
+    from ..scene.variants import use_variant
 
     mi = use_variant()
     path = os.path.abspath(os.fspath(path))

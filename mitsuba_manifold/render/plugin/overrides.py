@@ -3,7 +3,7 @@
 Mitsuba instantiates plugins from a scene file, with only the scene's parameters as
 input. When a manifold's database moved, :func:`database_override` tells every
 ``manifold_brdf`` created meanwhile (without a ``database`` parameter of its own) where
-its tables are now (:func:`mitsuba_manifold.render.scene.scenes.load_scene` uses it for its ``database`` parameter).
+its tables are now (:func:`mitsuba_manifold.render.scene.loading.load_scene` uses it for its ``database`` parameter).
 It is process-wide, not thread-local: Mitsuba creates plugins on its own threads.
 """
 
