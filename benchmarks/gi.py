@@ -123,7 +123,7 @@ def targets(  # noqa: PLR0913  tools/bench.py's options, as keywords
             path,
             manifold,
             os.path.join(out, f"{name}_gi"),
-            components="auto",
+            components="full",
             levels=levels,
             **kw,
             **(gi_options or {}),
@@ -212,7 +212,7 @@ def blend_time(manifold, out, res=256, scene="table", spp=1, points=20, log=prin
     m = Manifold.load(manifold)
     folder = os.path.join(out, f"blend_time_{scene}_{res}")
     manifest, t, size = _basis(
-        _scenes.scene_path(scene), manifold, folder, spp=spp, resolution=res, components="auto"
+        _scenes.scene_path(scene), manifold, folder, spp=spp, resolution=res, components="full"
     )
     b = Basis.load(folder, manifold=m)
     pts = explored_points(m)[m.n : m.n + points]

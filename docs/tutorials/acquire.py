@@ -64,7 +64,7 @@ def main():
     sheet = os.path.join(args.out, "acquire.png")
     io.write_contact_sheet(
         sheet,
-        np.stack([got.targets[0], got.renders[0], got.singles[0]]).astype(np.float32),
+        np.stack([got.photos[0], got.renders[0], got.singles[0]]).astype(np.float32),
         ["photo", f"acquired\n{r.error:.3f}", f"{r.single['name']}\n{r.single['error']:.3f}"],
         columns=3,
     )

@@ -45,7 +45,7 @@ def main():
         spp=spp,
         resolution=res,
         mode="onepass",
-        components="auto",
+        components="full",
         progress=not args.small,
     )
 

@@ -3,9 +3,9 @@
     python3 docs/tutorials/inverse.py --out out/tutorials              # after tutorial 1
     python3 docs/tutorials/inverse.py --out /tmp/t --small
 
-Reads OUT/manifold.npz (tutorial 1 makes it). Makes its own target (a render of a known point),
+Reads OUT/manifold.npz (tutorial 1 makes it). Makes its own image to match (a render of a known point),
 starts from a training material and follows the gradient of the image loss through Mitsuba's
-``prb`` integrator. Writes OUT/inverse.png (target | start | result) and OUT/inverse_loss.png.
+``prb`` integrator. Writes OUT/inverse.png (image to match | start | result) and OUT/inverse_loss.png.
 """
 
 import argparse
@@ -40,12 +40,12 @@ scene = mi.load_file(scene_path("sphere"), manifold=manifold, res=res)  # <bsdf 
 params = mi.traverse(scene)
 prb = mi.load_dict({"type": "prb", "max_depth": 8})
 
-# The target: the material a third of the way from gold-metallic-paint to white-paint.
+# The image to match: the material a third of the way from gold-metallic-paint to white-paint.
 gold, white = m.latent[m.index("gold-metallic-paint")], m.latent[m.index("white-paint")]
 x_true = gold + (white - gold) / 3
 params["material.x"] = x_true
 params.update()
-target = mi.render(scene, params, integrator=prb, spp=64 * spp, seed=1000)
+image_to_match = mi.render(scene, params, integrator=prb, spp=64 * spp, seed=1000)
 
 # The start: two thirds of the way (at a training point itself the weights are flat: no gradient).
 x_start = gold + 2 * (white - gold) / 3
@@ -63,7 +63,7 @@ for it in range(iterations):
     # (a - t)^2 adds the render's variance, which would favour the materials that render smoothly.
     a = mi.render(scene, params, integrator=prb, spp=spp, seed=2 * it)
     b = mi.render(scene, params, integrator=prb, spp=spp, seed=2 * it + 1)
-    loss = dr.mean((a - target) * (b - target), axis=None)
+    loss = dr.mean((a - image_to_match) * (b - image_to_match), axis=None)
     dr.backward(loss)
     opt.step()
     params.update(opt)
@@ -77,8 +77,8 @@ params.update()
 result = mi.render(scene, params, integrator=prb, spp=8 * spp, seed=1002)
 write_contact_sheet(
     os.path.join(args.out, "inverse.png"),
-    np.stack([np.array(target), np.array(start), np.array(result)]),
-    ["target", "start", f"best of {iterations} Adam steps"],
+    np.stack([np.array(image_to_match), np.array(start), np.array(result)]),
+    ["image to match", "start", f"best of {iterations} Adam steps"],
     columns=3,
 )
 fig, ax = subplots(figsize=(4, 2.6), layout="constrained")

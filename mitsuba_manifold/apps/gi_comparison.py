@@ -194,7 +194,7 @@ def gi_scene(scene_path, manifold_path, m, pair, stem, settings):
         seed=opts.seed,
         progress=opts.progress,
         aovs=opts.denoise,
-        components="auto" if opts.mode == "onepass" else "l1",
+        components="full" if opts.mode == "onepass" else "l1",
     )
     t_basis = time.perf_counter() - t0
     peak = {"basis": peak_rss()}  # the process's peak memory at the end of each step

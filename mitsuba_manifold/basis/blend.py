@@ -324,16 +324,91 @@ def _plan(basis, manifold, W, prune, renormalise, component="l1"):
     return BlendPlan(keys, cw, cross, summed), info
 
 
+#: Values of ``l2`` (:class:`BlendSettings`).
+L2_MODES = ("denoised", "raw")
+
+
+@dataclass(frozen=True)
+class BlendSettings:
+    """How an image is blended: the settings :func:`blend`, :func:`denoised_blend` and
+    :func:`blend_path` share.
+
+    Each function takes them the same two ways, as :func:`~.inverse.match.match` takes its
+    :class:`~.inverse.match.MatchSettings`: ``settings=BlendSettings(...)``, and each field as a
+    keyword of its own (``blend(basis, x=x, prune=0.01)``), which replaces that field of
+    ``settings``.
+
+    Parameters
+    ----------
+    prune : float
+        The pruning bound of :meth:`Manifold.prune` (by default on each albedo channel and the
+        cosine-weighted table change; the kept weights are rescaled to the same sum).
+    renormalise : bool
+        When images the blend needs are missing (e.g. a basis rendered ``near`` a point only), drop
+        them and rescale the others' weights to the same sum instead of raising (an approximation).
+    component : {"full", "l1"}, optional
+        The component of the image blended (see the glossary): ``"full"`` (default, None): all
+        light, the full-GI blend where the basis holds full-GI images (else L1-, see
+        :func:`resolve_component`); ``"l1"``: Eq. 13 on the L1- images.
+    l2 : {"denoised", "raw"}
+        The full-GI blend's part beyond L1- (noisy where interreflection runs through a narrow peak):
+        OIDN-denoised, its light kept (default, :func:`~.denoise.denoised_l2`), or summed (faster).
+    """
+
+    prune: float = DEFAULT_PRUNE
+    renormalise: bool = False
+    component: Optional[str] = None
+    l2: str = "denoised"
+
+    def check(self) -> "BlendSettings":
+        """Raise :class:`MismatchError` naming the first setting out of range; returns ``self``."""
+        if self.component is not None and str(self.component) not in BLEND_COMPONENTS:
+            raise MismatchError(
+                f"`component` must be one of {BLEND_COMPONENTS}, got {self.component!r}"
+            )
+        if self.l2 not in L2_MODES:
+            raise MismatchError(f"`l2` must be one of {L2_MODES}, got {self.l2!r}")
+        return self
+
+
+#: The fields of :class:`BlendSettings`: the keywords :func:`blend`, :func:`denoised_blend` and
+#: :func:`blend_path` take besides ``settings``.
+BLEND_SETTINGS = tuple(f.name for f in dataclasses.fields(BlendSettings))
+
+
+def blend_settings(settings=None, **overrides) -> BlendSettings:
+    """``settings`` (default ``BlendSettings()``) with the fields ``overrides`` names replaced,
+    checked: how :func:`blend`, :func:`denoised_blend` and :func:`blend_path` read their settings.
+
+    Raises
+    ------
+    TypeError
+        A keyword that is no field of :class:`BlendSettings` (as Python says of any function).
+    """
+    if settings is None:
+        settings = BlendSettings()
+    elif not isinstance(settings, BlendSettings):
+        raise MismatchError(
+            f"`settings` must be a BlendSettings, got {type(settings).__name__}: give "
+            "`settings=BlendSettings(...)` or the settings as keywords (`prune=...`)"
+        )
+    unknown = sorted(set(overrides) - set(BLEND_SETTINGS))
+    if unknown:
+        raise TypeError(
+            f"unexpected keyword argument(s) {unknown}: the settings of a blend are "
+            f"{', '.join(BLEND_SETTINGS)} (fields of BlendSettings)"
+        )
+    return dataclasses.replace(settings, **overrides).check() if overrides else settings.check()
+
+
 def blend(
     basis,
     manifold=None,
     *,
     x=None,
     w=None,
-    prune=DEFAULT_PRUNE,
-    renormalise=False,
-    component=None,
-    l2="denoised",
+    settings=None,
+    **overrides,
 ):
     """The image of latent point ``x`` (or weights ``w``) from a basis.
 
@@ -347,18 +422,11 @@ def blend(
     w : array_like
         Weights instead of ``x``: (N,) or (p, N). With one target any weights are allowed
         (the touch images are linear in the BRDF); with several, each row must sum to 1.
-    prune : float
-        The pruning bound of :meth:`Manifold.prune` (by default on each albedo channel and the
-        cosine-weighted table change; the kept weights are rescaled to the same sum).
-    renormalise : bool
-        When images the blend needs are missing (e.g. a basis rendered ``near`` a point only), drop
-        them and rescale the others' weights to the same sum instead of raising (an approximation).
-    component : {"full", "l1"}, optional
-        ``"full"`` (default): the full-GI blend where the basis holds full-GI images (else
-        L1-, see :func:`resolve_component`); ``"l1"``: Eq. 13 on the L1- images.
-    l2 : {"denoised", "raw"}
-        The full-GI blend's part beyond L1- (noisy where interreflection runs through a narrow peak):
-        OIDN-denoised, its light kept (default, :func:`~.denoise.denoised_l2`), or summed (faster).
+    settings : BlendSettings, optional
+        How to blend (default ``BlendSettings()``).
+    **overrides
+        Fields of :class:`BlendSettings` (``prune``, ``renormalise``, ``component``, ``l2``)
+        replacing those of ``settings``.
 
     Returns
     -------
@@ -366,15 +434,16 @@ def blend(
     info : BlendInfo
         The blend made (component, weights kept, images missing, timings).
     """
+    opts = blend_settings(settings, **overrides)
+    l2 = opts.l2
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
     manifold = basis.check_manifold(manifold)
-    used, note = resolve_component(basis, component)
-    _check_l2(l2)
+    used, note = resolve_component(basis, opts.component)
     t_cross = read_cross(basis, used)
     t0 = time.perf_counter()
     W, pts = _target_weights(basis, manifold, x, w)
-    plan, report = _plan(basis, manifold, W, prune, renormalise, used)
+    plan, report = _plan(basis, manifold, W, opts.prune, opts.renormalise, used)
     t_plan = time.perf_counter() - t0
     image, t_read, t_sum = compose(basis, plan.summed, plan.image_weights, plan.cross)
     t_read += t_cross
@@ -396,17 +465,30 @@ def blend(
     return image, info
 
 
-#: Values of ``l2`` (:func:`blend`).
-L2_MODES = ("denoised", "raw")
-
-
-def _check_l2(l2):
-    if l2 not in L2_MODES:
-        raise MismatchError(f"`l2` must be one of {L2_MODES}, got {l2!r}")
-
-
-def denoised_blend(basis, manifold=None, *, x=None, w=None, aovs=None, guides=True, **kwargs):
+def denoised_blend(
+    basis,
+    manifold=None,
+    *,
+    x=None,
+    w=None,
+    aovs=None,
+    guides=True,
+    settings=None,
+    **overrides,
+):
     """:func:`blend` and its denoised version (OIDN on the whole image, :mod:`.denoise`).
+
+    Parameters
+    ----------
+    basis, manifold, x, w
+        As :func:`blend`.
+    aovs : BasisAOVs, optional
+        The denoising guides (default: read beside the basis).
+    guides : bool
+        Guide the denoiser by the blend's albedo and the normals.
+    settings, **overrides
+        As :func:`blend`, but ``l2`` defaults to ``"raw"`` when neither it nor ``settings`` is
+        given (the whole image is denoised).
 
     Returns
     -------
@@ -414,11 +496,12 @@ def denoised_blend(basis, manifold=None, *, x=None, w=None, aovs=None, guides=Tr
     info : BlendInfo
         The blend's, with :attr:`~BlendInfo.denoise_ms` and :attr:`~BlendInfo.guided` set.
     """
+    if settings is None:  # its L2+ part summed: the whole image is denoised below
+        overrides = {"l2": "raw", **overrides}
+    opts = blend_settings(settings, **overrides)
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
-    raw, info = blend(
-        basis, manifold, x=x, w=w, **{"l2": "raw", **kwargs}
-    )  # raw: its L2+ part summed
+    raw, info = blend(basis, manifold, x=x, w=w, settings=opts)
     t0 = time.perf_counter()
     if guides:
         aovs = aovs or BasisAOVs.load(basis.folder, basis.manifest)
@@ -441,22 +524,6 @@ def _endpoint(manifold, v):
             f"path end {v!r} (`a` or `b`): expected a material name or {manifold.q} finite numbers"
         )
     return arr
-
-
-@dataclass(frozen=True)
-class BlendSettings:
-    """How each image of a path is blended: the settings of :func:`blend` a path shares.
-
-    Parameters
-    ----------
-    prune, renormalise, component, l2
-        As :func:`blend`.
-    """
-
-    prune: float = DEFAULT_PRUNE
-    renormalise: bool = False
-    component: Optional[str] = None
-    l2: str = "denoised"
 
 
 @dataclass(frozen=True)
@@ -483,10 +550,11 @@ def blend_path(  # noqa: C901  its arguments checked, then one pass over the ste
     b=None,
     *,
     steps=20,
-    kind="straight",
+    kind=None,
     points=None,
     moving=None,
     settings=None,
+    **overrides,
 ):
     """Images along a latent path from ``a`` to ``b`` (paper Fig. 12).
 
@@ -496,18 +564,21 @@ def blend_path(  # noqa: C901  its arguments checked, then one pass over the ste
         Material names (their latent points) or latent points.
     steps : int
         Number of images, ``t = 0 .. 1`` inclusive (>= 2).
-    kind : str
-        The path (:mod:`mitsuba_manifold.manifold.paths`): ``straight`` (the latent segment at
-        equal steps, the default here), ``uniform`` or ``geodesic`` (equal perceptual steps).
+    kind : {"faithful", "straight", "uniform", "geodesic"}, optional
+        The path (:mod:`mitsuba_manifold.manifold.paths`; default
+        :data:`~mitsuba_manifold.manifold.paths.DEFAULT_KIND`, ``faithful``, as
+        ``Manifold.path``, ``blend.py --path`` and the explorer): ``straight`` (the latent segment
+        at equal steps), ``uniform`` or ``geodesic`` (equal perceptual steps), ``faithful`` (each
+        image as far from the two ends as its place says).
     points : array_like (steps, q), optional
         The latent points of the path instead (e.g. from ``Manifold.path``); ``a``, ``b``,
         ``steps`` and ``kind`` are then ignored.
     moving : MovingTarget, optional
         With several targets: which one moves and where the others stay (default
         ``MovingTarget()``: the first, with no others).
-    settings : BlendSettings, optional
-        How each image is blended, as :func:`blend` (default ``BlendSettings()``; ``time_ms``
-        leaves the denoising out: ``denoise_ms``).
+    settings, **overrides
+        How each image is blended, as :func:`blend` (``time_ms`` leaves the denoising out:
+        ``denoise_ms``).
 
     Returns
     -------
@@ -518,10 +589,9 @@ def blend_path(  # noqa: C901  its arguments checked, then one pass over the ste
         Each image's :class:`BlendInfo` and the timings of them all.
     """
     moving = MovingTarget() if moving is None else moving
-    settings = BlendSettings() if settings is None else settings
+    opts = blend_settings(settings, **overrides)
     target, x = moving.target, moving.x
-    prune, renormalise = settings.prune, settings.renormalise
-    component, l2 = settings.component, settings.l2
+    prune, renormalise, l2 = opts.prune, opts.renormalise, opts.l2
     if not isinstance(basis, Basis):
         basis = Basis.load(basis)
     manifold = basis.check_manifold(manifold)
@@ -545,8 +615,7 @@ def blend_path(  # noqa: C901  its arguments checked, then one pass over the ste
                 f"the basis has {basis.p} targets: give `x` for the targets that stay fixed"
             )
         fixed = latent_points(basis, manifold, x)
-    used, note = resolve_component(basis, component)
-    _check_l2(l2)
+    used, note = resolve_component(basis, opts.component)
     t_cross = read_cross(basis, used)
     t0 = time.perf_counter()
     plans = []
@@ -595,8 +664,8 @@ def blend_path(  # noqa: C901  its arguments checked, then one pass over the ste
 
 
 def _segment_points(manifold, a, b, steps, kind):
-    """The ``steps`` latent points of a path of ``kind`` from ``a`` to ``b`` (``"straight"``: the
-    segment, evenly spaced).
+    """The ``steps`` latent points of a path of ``kind`` from ``a`` to ``b`` (None: the package's
+    default kind; ``"straight"``: the segment, evenly spaced).
     """
     xa, xb = _endpoint(manifold, a), _endpoint(manifold, b)
     if np.array_equal(xa, xb):
@@ -604,11 +673,12 @@ def _segment_points(manifold, a, b, steps, kind):
             f"the path's ends {a!r} and {b!r} are the same latent point (all {steps} images would "
             "be the same): give two different materials or points"
         )
+    from ..manifold import paths
+
+    kind = paths.DEFAULT_KIND if kind is None else kind
     if kind == "straight":
         t = np.linspace(0.0, 1.0, steps)[:, None]
         return (1.0 - t) * xa + t * xb
-    from ..manifold import paths
-
     return paths.path(manifold, xa, xb, steps, kind)
 
 

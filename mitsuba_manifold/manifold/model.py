@@ -42,6 +42,7 @@ import numpy as np
 from .._util.blas import one_thread
 from .._util.checks import weight_sum
 from .._util.float32 import weights32
+from .._util.moved import renamed_argument
 from .._util.names import is_name
 from ..data import gram as gram_mod
 from ..data.database import FEATURES, Database, albedo_weights, recorded_spec
@@ -943,15 +944,19 @@ class Manifold:
         return "\n".join(lines)
 
     # ------------------------------------------------------------ save/load
-    def save(self, path):
-        """Write to ``.npz`` (no pickle), atomically (:func:`manifold_file.write`)."""
-        manifold_file.write(self, path)
+    def save(self, file=None, *, path=None):
+        """Write to the ``.npz`` ``file`` (no pickle), atomically (:func:`manifold_file.write`);
+        ``path``, its former name, is read with a ``DeprecationWarning``.
+        """
+        given = {} if path is None else {"path": path}
+        manifold_file.write(self, renamed_argument(file, given, "path", "file", "Manifold.save"))
 
     @classmethod
-    def load(cls, path):
-        """Read a manifold written by :meth:`save` (:func:`manifold_file.read`); ``path`` may
+    def load(cls, file=None, *, path=None):
+        """Read a manifold written by :meth:`save` (:func:`manifold_file.read`); ``file`` may
         also name a shipped manifold (``"merl"``, ``"rgl"``, ``"nielsen"``, ``"all"``:
-        :mod:`.shipped`), where no file of that name exists.
+        :mod:`.shipped`), where no file of that name exists. ``path``, its former name, is read
+        with a ``DeprecationWarning``.
 
         Files of format version 1 load with the paper's GP weights on
         their stored ``l`` and ``mu`` (what they were used with); refit for the default.
@@ -961,9 +966,10 @@ class Manifold:
         InputError
             Missing, corrupt or foreign files.
         """
-        path = resolve_manifold(path)
-        m = cls(**manifold_file.read(path))
-        m.file = path  # where it was read from (``path`` is the method of paths)
+        given = {} if path is None else {"path": path}
+        file = resolve_manifold(renamed_argument(file, given, "path", "file", "Manifold.load"))
+        m = cls(**manifold_file.read(file))
+        m.file = file  # where it was read from (``path`` is the method of latent paths)
         return m
 
     # ------------------------------------------------------------ subsets

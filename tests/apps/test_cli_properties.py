@@ -379,7 +379,7 @@ MATCH_BAD = [
     _opt("--json", "WORK/m.txt", *JSON_FAULTS),
     _opt("--prior", "nan", -1),
     _opt(
-        "--target",
+        "--image",
         "WORK/bomb.png",
         "WORK/rgb16.png",
         "WORK/small.png",
@@ -401,7 +401,7 @@ MATCH_BAD = [
 def test_match_cli_succeeds_or_refuses_cleanly(data, case, extra):
     """Valid lists match the 16-bit greyscale target over all its 64 pixels (issue 20: it was
     cut to 8 bits, every pixel clipped)."""
-    args, _, valid = _place((["--target", "WORK/t16.png"] + case[0] + extra, {}, case[1]), data)
+    args, _, valid = _place((["--image", "WORK/t16.png"] + case[0] + extra, {}, case[1]), data)
     if not valid:
         return _refused(data, "match", ["--basis", data["basis"]], args)
     before = snapshot(data["basis"])

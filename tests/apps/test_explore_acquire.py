@@ -262,7 +262,7 @@ def gi_explorer(small_manifold, tmp_path_factory):
     mitsuba_manifold.register()
     out = tmp_path_factory.mktemp("acquire_gi") / "basis"
     render_basis.render_basis(
-        "table", small_manifold, out, spp=4, mode="onepass", components="auto", resolution=24
+        "table", small_manifold, out, spp=4, mode="onepass", components="full", resolution=24
     )
     ex = Explorer([str(out)], manifold=small_manifold, load_tables=False)
     yield ex

@@ -76,7 +76,7 @@ def test_material_named_base_or_with_separator_gets_its_own_image(tmp_path):
         "match",
         "--basis",
         out,
-        "--target",
+        "--image",
         tmp_path / "a+b.exr",
         "--json",
         tmp_path / "m.json",

@@ -264,8 +264,8 @@ def test_fit_manifold_names_materials_it_cannot_find_with_a_did_you_mean(tmp_pat
     [
         ("blend", ["--path", "0,0", "nan,1", "--out", "{tmp}/seq.exr"], "--path"),
         ("blend", ["--path", "0,0", "1,2,3", "--out", "{tmp}/seq.exr"], "--path"),
-        ("match", ["--target", "{tmp}/t.exr", "--starts", "0"], "--starts"),
-        ("match", ["--target", "{tmp}/t.exr", "--scan", "-1"], "--scan"),
+        ("match", ["--image", "{tmp}/t.exr", "--starts", "0"], "--starts"),
+        ("match", ["--image", "{tmp}/t.exr", "--scan", "-1"], "--scan"),
         ("blend", ["--x", "-1,,0", "--out", "{tmp}/o.exr"], "empty place"),
         (
             "blend",
@@ -313,7 +313,7 @@ def test_an_exposure_free_match_of_a_black_target_is_refused(tmp_path, tiny):
 
     imageio.write_exr(tmp_path / "black.exr", np.zeros((8, 8, 3), np.float32))
     rc, _, err = run_tool(
-        "match", "--basis", tiny["basis"], "--target", tmp_path / "black.exr", "--exposure-free"
+        "match", "--basis", tiny["basis"], "--image", tmp_path / "black.exr", "--exposure-free"
     )
     assert_one_error(rc, err, "--exposure-free")
     assert "black" in err

@@ -15,6 +15,7 @@ from mitsuba_manifold.basis.folder import Basis
 from mitsuba_manifold.errors import InputError, MismatchError
 from mitsuba_manifold.imaging import io as imageio
 from mitsuba_manifold.imaging import metrics
+from mitsuba_manifold.manifold import paths
 from mitsuba_manifold.manifold.file.identity import manifold_identity
 from mitsuba_manifold.manifold.model import Manifold
 
@@ -338,7 +339,7 @@ def test_blend_path_and_contact_sheet(basis1, manifold, tmp_path):
 
     folder, _, images = basis1
     a, b = manifold.names[1], manifold.names[4]
-    seq, xs, info = bl.blend_path(folder, manifold, a, b, steps=5)
+    seq, xs, info = bl.blend_path(folder, manifold, a, b, steps=5, kind="straight")
     assert seq.shape == (5, RES[1], RES[0], 3)
     assert np.allclose(xs[2], 0.5 * (manifold.latent[1] + manifold.latent[4]))
     assert np.array_equal(seq[0], images["base"] + images[a]) and np.array_equal(
@@ -362,6 +363,11 @@ def test_blend_path_of_a_kind_or_of_given_points(basis1, manifold):
     assert np.array_equal(seq[0], images["base"] + images[a]) and np.array_equal(
         seq[-1], images["base"] + images[b]
     )
+    # no kind: the package's one default path, as Manifold.path, blend.py --path and the explorer
+    _, xs, _ = bl.blend_path(folder, manifold, a, b, steps=5)
+    assert paths.DEFAULT_KIND == "faithful"
+    assert np.allclose(xs, manifold.path(a, b, steps=5))
+    assert np.allclose(xs, manifold.path(a, b, steps=5, kind="faithful"))
     pts = manifold.latent[[0, 2, 3]] + 0.01
     seq, xs, _ = bl.blend_path(folder, manifold, points=pts)
     assert np.array_equal(xs, pts) and len(seq) == 3
@@ -371,6 +377,37 @@ def test_blend_path_of_a_kind_or_of_given_points(basis1, manifold):
         bl.blend_path(folder, manifold, points=pts[:1])
     with pytest.raises(InputError, match="`kind`"):
         bl.blend_path(folder, manifold, a, b, steps=5, kind="scenic")
+
+
+def test_blend_denoised_blend_and_blend_path_take_settings_the_same_two_ways(basis1, manifold):
+    """Each takes ``settings=BlendSettings(...)`` and each field as a keyword, which wins."""
+    folder, _, images = basis1
+    a, b = manifold.names[1], manifold.names[4]
+    x = manifold.latent.mean(0)
+    loose = bl.BlendSettings(prune=0.5)
+    by_object, info_o = bl.blend(folder, manifold, x=x, settings=loose)
+    by_keyword, info_k = bl.blend(folder, manifold, x=x, prune=0.5)
+    assert np.array_equal(by_object, by_keyword) and info_o.weights == info_k.weights
+    exact, info_e = bl.blend(folder, manifold, x=x, settings=loose, prune=0.0)  # the keyword wins
+    assert len(info_e.weights[0]) > len(info_o.weights[0])
+    assert np.array_equal(exact, bl.blend(folder, manifold, x=x, prune=0.0)[0])
+    path_o = bl.blend_path(folder, manifold, a, b, steps=3, kind="straight", settings=loose)[0]
+    path_k = bl.blend_path(folder, manifold, a, b, steps=3, kind="straight", prune=0.5)[0]
+    assert np.array_equal(path_o, path_k)
+    steps = bl.blend_path(folder, manifold, a, b, steps=3, kind="straight", prune=0.5)[1]
+    assert np.array_equal(path_k[1], bl.blend(folder, manifold, x=steps[1], prune=0.5)[0])
+    for call in (
+        lambda **kw: bl.blend(folder, manifold, x=x, **kw),
+        lambda **kw: bl.blend_path(folder, manifold, a, b, steps=3, kind="straight", **kw),
+    ):
+        with pytest.raises(MismatchError, match="`component` must be one of"):
+            call(component="rest")
+        with pytest.raises(MismatchError, match="`l2` must be one of"):
+            call(settings=bl.BlendSettings(l2="smooth"))
+        with pytest.raises(MismatchError, match="`settings` must be a BlendSettings"):
+            call(settings={"prune": 0.5})
+        with pytest.raises(TypeError, match="the settings of a blend are prune, renormalise"):
+            call(prunes=0.5)
 
 
 def test_blend_path_refuses_ignored_x_and_identical_ends(basis1, manifold, tmp_path, cli, capsys):
@@ -545,11 +582,9 @@ def test_cli_several_targets_take_names_and_the_fixed_targets_of_a_path(
             c,
             "--steps",
             "3",
-            "--path-kind",
-            "straight",
         ]
         + ["--out", seq]
-    )
+    )  # the command line's default path kind is blend_path's
     images, _, _ = bl.blend_path(folder, manifold, a, b, steps=3, moving=bl.MovingTarget(1, [c, a]))
     np.testing.assert_array_equal(imageio.read_exr(str(tmp_path / "walk_1.exr")), images[1])
     capsys.readouterr()

@@ -221,7 +221,7 @@ def test_prior_pulls_towards_the_data(basis, manifold):
 def test_bad_inputs_are_clear_errors(basis, manifold, tmp_path, small_manifold_paper):
     b, images = basis
     target = _blend(b, manifold, manifold.latent[0])
-    with pytest.raises(InputError, match=r"target is 20x15, the basis is 20x16"):
+    with pytest.raises(InputError, match=r"`image` is 20x15, the basis is 20x16"):
         mt.match(b, target[:-1])
     nan = target.copy()
     nan[3, 4, 1] = np.nan
@@ -229,7 +229,7 @@ def test_bad_inputs_are_clear_errors(basis, manifold, tmp_path, small_manifold_p
         mt.match(b, nan)
     with pytest.raises(InputError, match=r"mask selects no pixel \(all zero\)"):
         mt.match(b, target, mask=np.zeros(target.shape[:2]))
-    with pytest.raises(InputError, match=r"mask is 3x3, the target is 20x16"):
+    with pytest.raises(InputError, match=r"mask is 3x3, the image to match is 20x16"):
         mt.match(b, target, mask=np.ones((3, 3)))
     for kwargs, msg in (
         ({"loss": "l1"}, "`loss` must be one of"),
@@ -256,6 +256,22 @@ def test_bad_inputs_are_clear_errors(basis, manifold, tmp_path, small_manifold_p
     )
     with pytest.raises(InputError, match=r"has 2 targets"):
         mt.match(two, target[:, :, :])
+
+
+def test_the_image_to_match_by_its_former_name_target_still_works_and_warns(basis, manifold):
+    b, _ = basis
+    image = _blend(b, manifold, manifold.latent[0])
+    new = mt.match(b, image=image, starts=1, scan=0)
+    with pytest.warns(
+        DeprecationWarning, match=r"match\(target=...\) is now spelled match\(image=...\)"
+    ):
+        old = mt.match(b, target=image, starts=1, scan=0)
+    np.testing.assert_array_equal(old.x, new.x)
+    with pytest.raises(TypeError, match="give `image` only"):
+        mt.match(b, image, target=image)
+    errors, _ = mt.single_material_errors(b, image)
+    with pytest.warns(DeprecationWarning, match="single_material_errors"):
+        np.testing.assert_array_equal(mt.single_material_errors(b, target=image)[0], errors)
 
 
 def test_8bit_target_is_decoded_and_clipped_pixels_dropped(tmp_path):
@@ -306,7 +322,10 @@ def test_cli_writes_blend_sheet_and_json(basis, manifold, tmp_path, capsys):
         )
         == 0
     )
-    text = capsys.readouterr().out
+    captured = capsys.readouterr()
+    text = captured.out
+    # --target: the former spelling of --image, still read
+    assert "note: --target is now spelled --image" in captured.err
     assert (
         "best latent point" in text
         and "fitted exposure x2" in text
@@ -340,13 +359,13 @@ def test_cli_bad_input_writes_nothing(basis, manifold, tmp_path, capsys, small_m
     out, js = str(tmp_path / "best.exr"), str(tmp_path / "best.json")
     outs = ["--out", out, "--json", js]
     cases = [
-        (["--target", small] + outs, "small.exr is 8x8, the basis is 20x16"),
-        (["--target", nan] + outs, "NaN or Inf"),
-        (["--target", good, "--mask", black] + outs, "selects no pixel (all zero)"),
-        (["--target", str(tmp_path / "none.exr")] + outs, "none.exr: image file does not exist"),
-        (["--target", good, "--out", good], "would overwrite an input"),
-        (["--target", good, "--out", str(tmp_path / "best.png")], "--out must name an .exr file"),
-        (["--target", good, "--png", "--json", js], "give --out"),
+        (["--image", small] + outs, "small.exr is 8x8, the basis is 20x16"),
+        (["--image", nan] + outs, "NaN or Inf"),
+        (["--image", good, "--mask", black] + outs, "selects no pixel (all zero)"),
+        (["--image", str(tmp_path / "none.exr")] + outs, "none.exr: image file does not exist"),
+        (["--image", good, "--out", good], "would overwrite an input"),
+        (["--image", good, "--out", str(tmp_path / "best.png")], "--out must name an .exr file"),
+        (["--image", good, "--png", "--json", js], "give --out"),
     ]
     for extra, message in cases:
         with pytest.raises(SystemExit) as e:
@@ -358,7 +377,7 @@ def test_cli_bad_input_writes_nothing(basis, manifold, tmp_path, capsys, small_m
     # a basis without its manifold
     lost = _basis_without_manifold(tmp_path, small_manifold_paper, manifold.names)
     with pytest.raises(SystemExit) as e:
-        cli.main(["--basis", lost, "--target", good, "--out", out])
+        cli.main(["--basis", lost, "--image", good, "--out", out])
     assert e.value.code == 2 and "no longer exists" in capsys.readouterr().err
     assert not os.path.exists(out)
 

@@ -13,7 +13,7 @@ from mitsuba_manifold.errors import ForeignFileError
 
 def _full_gi_basis(folder, manifold_path):
     """A one-target basis whose manifest lists full-GI images and cross terms, as a one-pass
-    render with ``components="auto"`` writes it."""
+    render with ``components="full"`` writes it."""
     image = np.full((4, 4, 3), 0.5, np.float32)
     write_basis(str(folder), manifold_path, {"base": image, "a": image})
     os.remove(folder / "scene.xml")  # the stand-in scene is not the basis's

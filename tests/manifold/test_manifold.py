@@ -121,6 +121,13 @@ def test_save_load_round_trip_without_pickle(fitted, tmp_path):
     assert m.log_likelihood() == pytest.approx(fitted.info["log_likelihood"], rel=1e-9)
     x = fitted.latent.mean(0)
     assert np.array_equal(m.weights(x)[1], fitted.weights(x)[1])
+    # ``path``: the former name of ``file`` (a path is a latent path here), still read
+    with pytest.warns(DeprecationWarning, match=r"Manifold.save\(path=...\) is now spelled"):
+        fitted.save(path=tmp_path / "old.npz")
+    with pytest.warns(DeprecationWarning, match=r"Manifold.load\(path=...\) is now spelled"):
+        again = Manifold.load(path=tmp_path / "old.npz")
+    assert np.array_equal(again.latent, fitted.latent)
+    assert Manifold.load(file=path).names == fitted.names
 
 
 @pytest.mark.parametrize("name", ["albedos", "gram", "table_gram"])

@@ -49,6 +49,9 @@ def test_a_known_combination_is_acquired(small_manifold, tmp_path):
     again = acquire([Photo("sphere", photo)], small_manifold, opts)
     assert again.result.views[0]["cached_training_images"]
     np.testing.assert_allclose(again.result.w, r.w, atol=1e-9)
+    np.testing.assert_allclose(got.photos[0], photo, rtol=1e-6)  # the image matched, as read
+    with pytest.warns(DeprecationWarning, match=r"AcquireOutput.targets is now spelled"):
+        assert got.targets is got.photos
 
 
 def test_bad_input_is_one_line(small_manifold, tmp_path):
@@ -74,7 +77,7 @@ def test_match_render_tool_acquires_by_default(small_manifold, tmp_path, capsys)
     imageio.write_exr(tpath, _photo(small_manifold, w_true, spp=64))
     out, js = str(tmp_path / "o.exr"), str(tmp_path / "j.json")
     snippet = str(tmp_path / "m.xml")
-    args = ["--render", "--manifold", small_manifold, "--scene", "sphere", "--target", tpath]
+    args = ["--render", "--manifold", small_manifold, "--scene", "sphere", "--image", tpath]
     assert (
         cli.main(
             args

@@ -4,6 +4,7 @@ import os
 import signal
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -80,7 +81,7 @@ CLI_KEYS = {
                 database="db",
                 sensor=1,
             ),
-            gi=FullGI(components="auto"),
+            gi=FullGI(components="full"),
             run=RunBehaviour(force=True, progress=True, aovs=True),
         ),
         [
@@ -113,7 +114,7 @@ CHANGED = {
     "x": [0.1, 0.2],
     "database": "elsewhere",
     "sensor": 2,
-    "components": "auto",
+    "components": "full",
     "levels": 2,
     "cross_tol": 0.01,
     "cross_light_tol": 0.0,
@@ -402,7 +403,7 @@ def test_ray_missing_is_a_clear_error(monkeypatch):
 
 def test_merged_chunks_of_a_full_gi_basis_equal_the_single_process_one(tmp_path, small_manifold):
     """The table's full-GI images and cross terms merge as the L1- images do."""
-    opts = dict(OPTIONS, materials="all", components="auto")
+    opts = dict(OPTIONS, materials="all", components="full")
     single = tmp_path / "single"
     render_basis.render_basis(
         scene_path("table"), small_manifold, str(single), spp=4, seed=1, chunk_spp=2, **opts
@@ -429,6 +430,16 @@ def test_merged_chunks_of_a_full_gi_basis_equal_the_single_process_one(tmp_path,
     np.testing.assert_allclose(
         cb, ca, rtol=2e-3, atol=1e-3 * max(1.0, float(np.abs(ca).max()))
     )  # float16
+
+
+def test_components_auto_is_the_former_spelling_of_full_and_keeps_the_chunk_keys():
+    """``FullGI(components="auto")`` warns, names ``'full'``, and keys chunks as before."""
+    options, keys = CLI_KEYS["every option set"]
+    with pytest.warns(DeprecationWarning, match="components='full'"):
+        old = FullGI(components="auto")
+    assert old == options.gi and old.components == "full"
+    specs = chunks.plan("scene.xml", "m.npz", 2, replace(options, gi=old))
+    assert [chunks.chunk_key(s, IDS) for s in specs] == keys
 
 
 def test_a_chunk_mark_reads_as_written_and_a_damaged_one_is_no_mark():

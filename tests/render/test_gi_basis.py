@@ -159,7 +159,7 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
         out,
         spp=8,
         mode="onepass",
-        components="auto",
+        components="full",
         resolution=16,
         max_depth=8,
     )
@@ -192,7 +192,7 @@ def test_blend_at_a_training_material_is_its_full_gi_image(tmp_path, small_manif
     if pairs:
         a, c = next(iter(pairs))
         images, _, pinfo = blend_path(
-            b, m, a, c, steps=3, settings=BlendSettings(component="full", l2="raw")
+            b, m, a, c, steps=3, kind="straight", settings=BlendSettings(component="full", l2="raw")
         )
         mid, minfo = blend(
             b,
@@ -215,7 +215,7 @@ def test_bad_levels_are_refused_before_anything_is_made(tmp_path, small_manifold
             out,
             spp=2,
             mode="onepass",
-            components="auto",
+            components="full",
             resolution=8,
             levels=levels,
         )
@@ -249,7 +249,7 @@ def test_a_convex_object_alone_holds_no_l2(tmp_path, small_manifold):
     cross-term images, and the manifest (and the blend's note) say why."""
     out = tmp_path / "sphere"
     manifest = render_basis.render_basis(
-        "sphere", small_manifold, out, spp=4, mode="onepass", components="auto", resolution=12
+        "sphere", small_manifold, out, spp=4, mode="onepass", components="full", resolution=12
     )
     assert manifest.components == ["l1"]
     assert "cannot see itself" in manifest.left_out["l2+"]
@@ -278,7 +278,7 @@ def test_changed_or_truncated_cross_terms_and_aovs_are_refused_naming_the_file(
         out,
         spp=4,
         mode="onepass",
-        components="auto",
+        components="full",
         resolution=8,
         max_depth=8,
         aovs=True,

@@ -158,6 +158,26 @@ def test_split_aovs_partition_the_image(small_manifold):
     np.testing.assert_allclose(l1[..., 3:6], base, rtol=1e-5, atol=1e-6)
 
 
+def test_component_l2_plus_is_the_rest_aov_and_rest_its_former_spelling(small_manifold):
+    """component="l2+" renders what split=true's ``rest`` AOV holds (same paths, same seed);
+    "rest", its former spelling, is the same image with a DeprecationWarning."""
+    scene = load("table", small_manifold, "white-diffuse-bball", res=16)
+    split = np.array(
+        mi.render(
+            scene, integrator=integrator(component="full", split=True, max_depth=6), spp=4, seed=5
+        )
+    )
+    l2 = np.array(
+        mi.render(scene, integrator=integrator(component="l2+", max_depth=6), spp=4, seed=5)
+    )
+    assert l2.max() > 0
+    np.testing.assert_allclose(l2, split[..., 9:12], rtol=1e-5, atol=1e-6)
+    with pytest.warns(DeprecationWarning, match="now spelled 'l2\\+'"):
+        old = integrator(component="rest", max_depth=6)
+    assert old.component == "l2+"
+    np.testing.assert_array_equal(np.array(mi.render(scene, integrator=old, spp=4, seed=5)), l2)
+
+
 def test_l1_misses_measurable_l2_plus_on_concave_scene(small_manifold):
     """In the bowl, light scatters off the material more than once: path > L1- clearly."""
     scene = load("table", small_manifold, "white-diffuse-bball", res=32)

@@ -42,7 +42,7 @@ def test_match_of_a_path_render_and_the_tools_reference(tmp_path, small_manifold
             [
                 "--basis",
                 out,
-                "--target",
+                "--image",
                 tpath,
                 "--out",
                 best,
@@ -133,7 +133,7 @@ def test_match_render_tool(tmp_path, small_manifold, capsys):
         small_manifold,
         "--scene",
         sphere,
-        "--target",
+        "--image",
         tpath,
         "--max-depth",
         "2",
@@ -181,8 +181,8 @@ def test_match_render_tool(tmp_path, small_manifold, capsys):
         cli.main(common + ["--scan-spp", "0"])
     assert "--scan-spp must be >= 1" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        cli.main(common + ["--target", tpath, "--mask", tpath])
-    assert "--mask is given 1 times for 2 targets" in capsys.readouterr().err
+        cli.main(common + ["--image", tpath, "--mask", tpath])
+    assert "--mask is given 1 times for 2 images to match" in capsys.readouterr().err
 
 
 def test_match_render_fits_an_exposure(small_manifold):
@@ -250,7 +250,7 @@ def test_match_render_tool_refuses_bad_settings_before_any_work(
         "latent",
         "--manifold",
         small_manifold,
-        "--target",
+        "--image",
         tpath,
         "--no-progress",
         "--out",
@@ -319,7 +319,7 @@ def test_match_render_tool_takes_a_shipped_scene_name(tmp_path, small_manifold, 
                 small_manifold,
                 "--scene",
                 "sphere",
-                "--target",
+                "--image",
                 tpath,
                 "--max-depth",
                 "1",
@@ -342,3 +342,20 @@ def test_match_render_tool_takes_a_shipped_scene_name(tmp_path, small_manifold, 
     )
     assert "image error: relative MSE" in capsys.readouterr().out
     assert json.load(open(js))["views"][0]["scene"] == scenes.scene_path("sphere")
+
+
+def test_a_view_and_a_photo_take_the_image_to_match_by_its_former_name_target():
+    from mitsuba_manifold.render.inverse import match_render as mr
+    from mitsuba_manifold.render.inverse.acquire import Photo
+
+    image = np.zeros((2, 3, 3))
+    for cls in (mr.View, Photo):
+        with pytest.warns(
+            DeprecationWarning, match=rf"{cls.__name__}\(target=...\) is now spelled"
+        ):
+            old = cls("sphere", target=image, sensor=1)
+        assert old == cls("sphere", image, sensor=1) and old.image is image
+        with pytest.warns(DeprecationWarning, match=rf"{cls.__name__}.target is now spelled"):
+            assert old.target is image
+        with pytest.raises(TypeError, match="give `image` only"):
+            cls("sphere", image, target=image)

@@ -41,7 +41,7 @@ def gi_basis(tmp_path_factory, small_manifold):
         mode="onepass",
         resolution=RES,
         max_depth=8,
-        components="auto",
+        components="full",
     )
     m = Manifold.load(small_manifold)
     return bf.Basis.load(out, manifold=m), m
@@ -253,6 +253,23 @@ def test_a_refinement_of_a_missing_manifold_says_so(gi_basis, tmp_path):
     with pytest.raises(errors.MismatchError, match=r"manifold .*gone\.npz does not exist"):
         next(
             refine_passes(
-                b, m, x=_midpoint(m), spp=2, passes=1, manifold_path=str(tmp_path / "gone.npz")
+                b, m, x=_midpoint(m), spp=2, passes=1, manifold_file=str(tmp_path / "gone.npz")
             )
         )
+
+
+def test_manifold_path_is_the_former_name_of_manifold_file(gi_basis, tmp_path):
+    """``manifold_path=`` (a keyword of refine_passes, or a RefineRequest field) still reaches the
+    same check, with a DeprecationWarning naming ``manifold_file``."""
+    from mitsuba_manifold.render.jobs.refine import RefineRequest
+
+    b, m = gi_basis
+    gone = str(tmp_path / "gone.npz")
+    with pytest.warns(DeprecationWarning, match=r"RefineRequest\(manifold_path=...\) is now"):
+        request = RefineRequest(spp=2, passes=1, manifold_path=gone)
+    assert request == RefineRequest(spp=2, passes=1, manifold_file=gone)
+    with pytest.warns(DeprecationWarning, match=r"RefineRequest.manifold_path is now spelled"):
+        assert request.manifold_path == gone
+    with pytest.warns(DeprecationWarning, match=r"refine_passes\(manifold_path=...\) is now"):
+        with pytest.raises(errors.MismatchError, match=r"manifold .*gone\.npz does not exist"):
+            next(refine_passes(b, m, x=_midpoint(m), spp=2, passes=1, manifold_path=gone))

@@ -36,7 +36,7 @@ def test_basis_options_take_their_fields_by_name_into_their_groups():
         [0.1],
     )
     assert o.selection == render_basis.Selection() and o.sampling.seed == 0
-    gi = render_basis.FullGI(components="auto")
+    gi = render_basis.FullGI(components="full")
     assert o.updated(gi=gi).gi == gi and o.keywords("spp", "levels") == {"spp": 8, "levels": 3}
     with pytest.raises(TypeError, match="'sppp'.*spp"):
         o.updated(sppp=8)
@@ -109,8 +109,8 @@ def test_the_library_takes_a_shipped_scenes_name_like_the_tools(tmp_path, small_
 
 
 def test_an_unknown_components_value_is_refused_not_rendered_as_l1(tmp_path, small_manifold):
-    # "full" is the command line's word; the library's is "auto": it once rendered an L1- basis
-    with pytest.raises(render_basis.InputError, match="`components` must be 'auto'.*got 'full'"):
+    # the library and the command line share one word, "full"; another value is not read as l1
+    with pytest.raises(render_basis.InputError, match="`components` must be 'full'.*got 'l2\\+'"):
         render_basis.render_basis(
             "sphere",
             small_manifold,
@@ -118,7 +118,7 @@ def test_an_unknown_components_value_is_refused_not_rendered_as_l1(tmp_path, sma
             spp=1,
             resolution=8,
             mode="onepass",
-            components="full",
+            components="l2+",
         )
     assert not (tmp_path / "b").exists()
 
@@ -332,3 +332,22 @@ def test_the_tool_renders_at_the_scenes_sample_count_and_says_when_res_is_not_sq
     assert len(notes) == 1 and "--res 8 gave 8x6 images" in notes[0]
     tool.main(common + ["--out", str(tmp_path / "b"), "--spp", "2"])
     assert bf.Manifest.read(tmp_path / "b").spp == 2
+
+
+def test_scene_and_manifold_by_their_former_names_scene_path_and_manifold_path(
+    tmp_path, small_manifold
+):
+    """The former keywords still reach the same checks, each with a DeprecationWarning."""
+    with pytest.warns(DeprecationWarning) as caught:
+        with pytest.raises(render_basis.InputError, match="`spp` must be >= 1"):
+            render_basis.render_basis(
+                scene_path="sphere", manifold_path=small_manifold, out=str(tmp_path / "b"), spp=0
+            )
+    said = {str(w.message).split(";")[0] for w in caught}
+    assert said == {
+        "render_basis(scene_path=...) is now spelled render_basis(scene=...)",
+        "render_basis(manifold_path=...) is now spelled render_basis(manifold=...)",
+    }
+    with pytest.raises(TypeError, match="give `scene` only"):
+        render_basis.render_basis("sphere", small_manifold, str(tmp_path / "b"), scene_path="x")
+    assert not (tmp_path / "b").exists()

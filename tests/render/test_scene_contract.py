@@ -132,7 +132,7 @@ def basis_blend(path, out, x=None, spp=64, **options):
         out,
         spp=spp,
         mode="onepass",
-        components="auto",
+        components="full",
         seed=3,
         materials=[MATERIAL, OTHER],
         **options,
@@ -269,7 +269,7 @@ def test_blend_reference_renders_the_scene_integrator(folder, tmp_path, capsys):
         out,
         spp=8,
         mode="onepass",
-        components="auto",
+        components="full",
         materials=[MATERIAL, OTHER],
     )
     blend_cli.main(

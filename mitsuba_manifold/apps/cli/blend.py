@@ -10,7 +10,7 @@ The default blends the full-GI images and cross terms of the basis (render_basis
 light beyond L1- denoised (--l2 raw: summed, exact at the training materials but noisy where light runs
 through narrow peaks); --component l1 blends the L1- images (paper Eq. 13). A basis without full-GI
 images blends L1- and says so. --refine SPP makes the point's image unbiased: with a full-GI basis it
-corrects the blend by what the same paths say it misses (a control variate; nothing at a training
+corrects the blend by what the same light paths say it misses (a control variate; nothing at a training
 material), otherwise it adds the L2+ light rendered at the point.
 
 With several manifold materials in the scene give one --x per target (in the manifest's
@@ -110,7 +110,8 @@ def parser():
         "--path",
         nargs=2,
         metavar=("A", "B"),
-        help="images along the latent segment between materials (or 'x0,x1' points) A and B",
+        help="images along a latent path (of --path-kind) between materials (or 'x0,x1' points) A "
+        "and B",
     )
     p.add_argument(
         "--steps", type=int, default=20, help="images along --path (default 20, at most 1000)"
@@ -535,10 +536,7 @@ def point_outputs(request, basis, manifold):
             basis,
             manifold,
             x=request.x,
-            prune=settings.prune,
-            renormalise=settings.renormalise,
-            component=settings.component,
-            l2=settings.l2,
+            settings=settings,
         )
     _say_component(info)
     for t, (weights, dropped) in enumerate(zip(info.weights, info.dropped_weight)):

@@ -51,23 +51,39 @@ class ArgumentParser(argparse.ArgumentParser):
     ``aliases`` maps library parameter names to this tool's options where the option's
     ``dest`` differs (``{"scene_path": "scene"}``): library messages name Python
     parameters, and :func:`fail` writes the tool's option instead.
+
+    ``renamed`` maps an option's former spelling to its name now (``{"--target": "--image"}``):
+    both are option strings of one argument (the name first), and a command line that uses the
+    former spelling works and says on stderr what it is now spelled.
     """
 
-    def __init__(self, *args, aliases=None, **kwargs):
+    def __init__(self, *args, aliases=None, renamed=None, **kwargs):
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = _NUMBERS
         self.aliases = dict(aliases or {})
+        self.renamed = dict(renamed or {})
 
     def parse_args(self, args=None, namespace=None):
         _ACTIVE[:] = [self]
-        return super().parse_args(args, namespace)
+        parsed = super().parse_args(args, namespace)
+        given = sys.argv[1:] if args is None else list(args)
+        for old, new in self.renamed.items():
+            if any(a == old or a.startswith(old + "=") for a in given):
+                print(
+                    f"note: {old} is now spelled {new}; the old spelling goes in the next release",
+                    file=sys.stderr,
+                )
+        return parsed
 
     def option_names(self):
-        """Python parameter (argparse ``dest`` or alias) -> the option a user types."""
+        """Python parameter (argparse ``dest`` or alias) -> the option a user types (its name
+        now, not a former spelling).
+        """
         names = {}
         for action in self._actions:
             if action.option_strings:
-                names[action.dest] = max(action.option_strings, key=len)
+                current = [o for o in action.option_strings if o not in self.renamed]
+                names[action.dest] = max(current or action.option_strings, key=len)
             elif action.dest != "help":
                 names[action.dest] = (
                     action.metavar if isinstance(action.metavar, str) else action.dest

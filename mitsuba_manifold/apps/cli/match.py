@@ -1,15 +1,15 @@
-"""Find the latent point whose blend best matches a target image (inverse rendering on a basis).
+"""Find the latent point whose blend best matches an image (inverse rendering on a basis).
 
-  match.py --basis DIR --target target.exr [--mask mask.png] [--exposure-free] [--starts K]
+  match.py --basis DIR --image photo.exr [--mask mask.png] [--exposure-free] [--starts K]
            [--out best.exr] [--png] [--json match.json] [--render-reference --spp 256]
 
 Prints the best latent point, its nearest training materials and largest weights, the
 image error (relative MSE over the mask; the fitted exposure with --exposure-free) and the
 best single training material; writes the blend at the best point (--out), a contact sheet
-target | match | best single material (--png), a full-GI render of the point (--render-
-reference) and everything as JSON (--json). Targets: linear EXR, or PNG/JPEG (sRGB-decoded
-at their depth: 8 bits, or a 16-bit greyscale PNG; clipped pixels left out). Nothing is
-written until the match has succeeded.
+image | match | best single material (--png), a full-GI render of the point (--render-
+reference) and everything as JSON (--json). The image to match (--image; --target is its former
+spelling): linear EXR, or PNG/JPEG (sRGB-decoded at its depth: 8 bits, or a 16-bit greyscale
+PNG; clipped pixels left out). Nothing is written until the match has succeeded.
 """
 
 import argparse
@@ -26,7 +26,8 @@ def _parser():
         prog="match.py",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        aliases={"manifold_path": "manifold"},
+        aliases={"manifold_path": "manifold", "image": "target"},
+        renamed={"--target": "--image"},
     )
     p.add_argument(
         "--render",
@@ -34,15 +35,21 @@ def _parser():
         help="match full-GI renders of scenes instead of a basis (differentiable x; --render --help)",
     )
     p.add_argument(
-        "--basis", required=True, help="basis folder written by render_basis.py (one target)"
-    )
-    p.add_argument(
-        "--target",
+        "--basis",
         required=True,
-        help="target image: linear .exr, or .png/.jpg (sRGB; 8 bits, or 16-bit grey)",
+        help="basis folder written by render_basis.py (of one manifold material)",
     )
     p.add_argument(
-        "--mask", help="mask image of the target's size: pixels > 0 are matched (grey = weight)"
+        "--image",
+        "--target",
+        dest="target",
+        required=True,
+        help="the image to match: linear .exr, or .png/.jpg (sRGB; 8 bits, or 16-bit grey); "
+        "--target is its former spelling",
+    )
+    p.add_argument(
+        "--mask",
+        help="mask image of the image's size: pixels > 0 are matched (grey = weight)",
     )
     p.add_argument(
         "--exposure-free", action="store_true", help="fit the blend's brightness scale too"
@@ -74,7 +81,7 @@ def _parser():
     p.add_argument(
         "--png",
         action="store_true",
-        help="with --out: also a contact sheet target | match | best single",
+        help="with --out: also a contact sheet image | match | best single",
     )
     p.add_argument("--json", metavar="OUT", help="write the result as JSON")
     p.add_argument(
@@ -128,7 +135,7 @@ def _inputs(args):
     basis = Basis.load(args.basis, manifold=args.manifold)
     manifold = basis.check_manifold(args.manifold)
     target, clipped = mt.read_target(args.target, basis.resolution)
-    target = mt.check_target(target, basis.resolution, what=f"target {args.target}")
+    target = mt.check_target(target, basis.resolution, what=f"image {args.target}")
     weight = np.ones(target.shape[:2])
     if args.mask:
         weight = mt.check_mask(
@@ -199,7 +206,7 @@ def _outputs(args, result, basis, manifold, target):
                 [target, result.exposure * result.image, result.single.exposure * single]
             )
             labels = [
-                "target",
+                "image to match",
                 f"match ({result.error:.3g})",
                 f"{result.single.name} ({result.single.error:.3g})",
             ]

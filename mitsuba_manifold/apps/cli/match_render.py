@@ -1,6 +1,6 @@
 """Acquire a material from photos of a known object under known light (what match.py --render runs).
 
-  match.py --render --manifold M.npz --scene S.xml --target t.exr [--scene S --target T ...]
+  match.py --render --manifold M.npz --scene S.xml --image t.exr [--scene S --image T ...]
            [--mask m.png ...] [--sensor 0 ...] [--method plausible|nonneg|convex|latent]
            [--regularisation L] [--spp 64] [--basis-cache DIR] [--bootstrap 16]
            [--out acquired.exr] [--sheet sheet.png] [--snippet material.xml] [--json J.json]
@@ -13,7 +13,7 @@ a ridge chosen by cross-validation over held-out pixel blocks. --method nonneg k
 >= 0, convex on the simplex. The report says which outgoing directions and light incidences the
 masked pixels show, how much near-equally good answers differ (bootstrap) and warns where the
 material is not identifiable. Writes the acquired render (--out; _1, _2, ... for more views), a
-contact sheet target | acquired | best single (--sheet, default beside --out), a manifold_brdf
+contact sheet photo | acquired | best single (--sheet, default beside --out), a manifold_brdf
 XML snippet (--snippet) and the result as JSON (--json: `weights` name -> weight, `single`).
 
 --method latent: the paper's search of one latent point (differentiable rendering):
@@ -46,7 +46,8 @@ def _parser():
         prog="match.py --render",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        aliases={"manifold_path": "manifold", "views": "target"},
+        aliases={"manifold_path": "manifold", "views": "target", "image": "target"},
+        renamed={"--target": "--image"},
     )
     p.add_argument(
         "--manifold",
@@ -58,21 +59,24 @@ def _parser():
         "--scene",
         action="append",
         required=True,
-        help="scene XML or a shipped scene's name (repeat: one per --target, or one for all)",
+        help="scene XML or a shipped scene's name (repeat: one per --image, or one for all)",
     )
     p.add_argument(
+        "--image",
         "--target",
+        dest="target",
         action="append",
         required=True,
-        help="target image (repeat): linear .exr, or 8-bit .png/.jpg (sRGB)",
+        help="an image to match (repeat: one per view): linear .exr, or 8-bit .png/.jpg (sRGB); "
+        "--target is its former spelling",
     )
     p.add_argument(
-        "--mask", action="append", help="mask per target (repeat; pixels > 0 are matched)"
+        "--mask", action="append", help="mask per --image (repeat; pixels > 0 are matched)"
     )
     p.add_argument(
-        "--sensor", action="append", type=int, help="sensor index per target (repeat; default 0)"
+        "--sensor", action="append", type=int, help="sensor index per --image (repeat; default 0)"
     )
-    p.add_argument("--basis", help="also start from the basis match of the first target")
+    p.add_argument("--basis", help="also start from the basis match of the first --image")
     p.add_argument(
         "--database", help="the manifold's tables (folder or built-in set name), when moved"
     )
@@ -99,7 +103,7 @@ def _parser():
         default=8,
         help="bootstrap solves of the report's spread (default 8)",
     )
-    p.add_argument("--sheet", help="contact sheet target | acquired | best single (.png)")
+    p.add_argument("--sheet", help="contact sheet photo | acquired | best single (.png)")
     p.add_argument("--snippet", help="Mitsuba XML manifold_brdf of the acquired material (.xml)")
     p.add_argument(
         "--iterations", type=int, default=30, help="Adam iterations per start (default 30)"
@@ -165,7 +169,7 @@ def _views(args):
     ):
         if values is not None and len(values) != n and not (once and len(values) == 1):
             fail(
-                f"{name} is given {len(values)} times for {n} targets: give it once per target"
+                f"{name} is given {len(values)} times for {n} images to match: give it once per --image"
                 + (" or once for all" if once else "")
             )
     scenes = args.scene * n if len(args.scene) == 1 else args.scene
@@ -304,7 +308,7 @@ def _acquire(args, views):
         progress=not args.no_progress,
         basis_cache=args.basis_cache,
     ).check()
-    photos = [Photo(v.scene, v.target, v.mask, v.sensor) for v in views]
+    photos = [Photo(v.scene, v.image, v.mask, v.sensor) for v in views]
     got = acquire(photos, args.manifold, opts, database=args.database)
     r = got.result
     _print_acquisition(r)
@@ -319,7 +323,7 @@ def _acquire(args, views):
         import numpy as np
 
         images, labels = [], []
-        for k, (t, a, s) in enumerate(zip(got.targets, got.renders, got.singles)):
+        for k, (t, a, s) in enumerate(zip(got.photos, got.renders, got.singles)):
             images += [t, a, s]
             labels += [
                 f"photo {k}" if len(views) > 1 else "photo",
@@ -415,7 +419,7 @@ def main(argv=None):
             views=[
                 {
                     "scene": os.path.abspath(v.scene),
-                    "target": os.path.abspath(v.target),
+                    "target": os.path.abspath(v.image),
                     "mask": v.mask and os.path.abspath(v.mask),
                     "sensor": v.sensor,
                 }

@@ -1,5 +1,5 @@
-"""Render the basis of a scene: base.exr (paths never touching the manifold material), one
-<material>.exr per measured material (paths touching it exactly once) and, by default in
+"""Render the basis of a scene: base.exr (light paths never touching the manifold material), one
+<material>.exr per measured material (light paths touching it exactly once) and, by default in
 one-pass mode, the full-GI images <material>.gi.exr and the cross terms cross.npz (where the
 scene needs them; --components l1 for the L1- basis only).
 
@@ -110,7 +110,7 @@ def main(argv=None):
         "--mode",
         choices=["onepass", "per-material"],
         default="onepass",
-        help="all materials from one set of paths (default) or one render per material",
+        help="all materials from one set of light paths (default) or one render per material",
     )
     p.add_argument(
         "--components",
@@ -222,7 +222,7 @@ def main(argv=None):
             x=args.x,
             database=args.database,
         ),
-        gi=FullGI(components="auto" if args.components == "full" else "l1"),
+        gi=FullGI(components=args.components),
         run=RunBehaviour(force=args.force, progress=True, aovs=args.aovs),
     )
     try:

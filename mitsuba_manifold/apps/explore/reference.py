@@ -174,7 +174,7 @@ class References:
 
     def submit_refine(self, name, basis, manifold, x, spp, blend_image, tab=None, **where):
         """Start a refinement of the blend at ``x`` (:func:`~mitsuba_manifold.render.jobs.refine.refine_passes`;
-        ``where``: its ``scene``, ``manifold_path`` and ``prune``): its image (``"refined"``) after
+        ``where``: its ``scene``, ``manifold_file`` and ``prune``): its image (``"refined"``) after
         every pass, in ``error`` the noise the passes measure and whether ``blend_image`` (the
         blend shown) agrees with it within that noise. A newer refinement supersedes it.
         """

@@ -608,7 +608,7 @@ class Explorer:
     def start_refine(self, name, x, spp, tab=None):
         """A refinement of the blend at ``x`` (``blend.py --refine``) in the background."""
         name, basis, scene, spp, img = self._job_args(name, x, spp, 16)
-        where = {"scene": scene, "manifold_path": self.manifold_path, "prune": self.prune}
+        where = {"scene": scene, "manifold_file": self.manifold_path, "prune": self.prune}
         return self.references.submit_refine(
             name, basis, self.manifold, x, spp, img, tab=_tab(tab), **where
         )

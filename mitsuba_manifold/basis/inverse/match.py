@@ -1,4 +1,4 @@
-"""Inverse rendering on a basis: the latent point whose image best matches a target.
+"""Inverse rendering on a basis: the latent point whose image best matches an image.
 
 The ``L1-`` image of latent point ``x`` (paper Eq. 13) is linear in the affine weights,
 
@@ -6,13 +6,13 @@ The ``L1-`` image of latent point ``x`` (paper Eq. 13) is linear in the affine w
                                            Shepard weights; preset "paper": Eq. 4)
 
 and ``w`` is smooth in ``x`` with the closed-form Jacobian :meth:`Manifold.weights_jacobian`,
-so ``dI/dx = sum_i (dw_i/dx) I_i`` and a target image can be matched by optimising ``x``
+so ``dI/dx = sum_i (dw_i/dx) I_i`` and an image can be matched by optimising ``x``
 over the blend, without rendering. :func:`match` minimises
 
-    E(x) = image_error(s I(x), target) + prior * var(x)
+    E(x) = image_error(s I(x), image) + prior * var(x)
 
 - ``image_error``: the relative MSE of :mod:`metrics` (``(a - r)^2 / (r^2 + eps)`` per pixel
-  and channel, ``eps = 0.01``: bright pixels and fireflies of the target do not dominate)
+  and channel, ``eps = 0.01``: bright pixels and fireflies of the image do not dominate)
   averaged over the mask, or (``loss="log"``) the MSE of log luminance;
 - ``s``: 1, or with ``exposure_free`` the best scale for each ``x`` in closed form (for the
   log loss: both images normalised by their mean luminance over the mask);
@@ -41,6 +41,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..._util.blas import one_thread
+from ..._util.moved import renamed_argument
 from ...errors import InputError
 from ..composition import compose
 from ..folder import BASE, Basis
@@ -263,14 +264,15 @@ class MatchSettings:
         return self
 
 
-def match(basis, target, mask=None, manifold=None, settings=None, **overrides):
-    """Find the latent point whose blend (Eq. 13) best matches ``target``.
+def match(basis, image=None, mask=None, manifold=None, settings=None, **overrides):
+    """Find the latent point whose blend (Eq. 13) best matches ``image``.
 
     Parameters
     ----------
     basis : Basis or str
         A complete one-target basis (every material of the manifold).
-    target : array_like (H, W, 3)
+    image : array_like (H, W, 3)
+        The image to match (``target``, its former name, is read with a ``DeprecationWarning``).
         Linear RGB at the basis' resolution, finite.
     mask : array_like (H, W) or (H, W, C), optional
         Pixel weights in [0, 1] (0: ignored); default all pixels.
@@ -289,18 +291,19 @@ def match(basis, target, mask=None, manifold=None, settings=None, **overrides):
     Raises
     ------
     InputError, MismatchError
-        A target of another size or with NaN/Inf pixels, an all-zero mask, a basis with
+        An image of another size or with NaN/Inf pixels, an all-zero mask, a basis with
         several targets, missing images or without its manifold, bad settings.
     """
     t0 = time.perf_counter()
+    target = renamed_argument(image, overrides, "target", "image", "match")
     opts = replace(settings or MatchSettings(), **overrides).check()
     basis, manifold = _basis_and_manifold(basis, manifold)
-    target = check_target(target, basis.resolution)
+    target = check_target(target, basis.resolution, what="`image`")
     weight = np.ones(target.shape[:2]) if mask is None else check_mask(mask, basis.resolution)
     if opts.exposure_free and not (np.abs(target) * weight[..., None]).any():
         raise InputError(
-            "`target` is black wherever `mask` weighs it: an exposure-free match has no "
-            "brightness to fit (give a target with light in it, or match without `exposure_free`)"
+            "`image` is black wherever `mask` weighs it: an exposure-free match has no "
+            "brightness to fit (give an image with light in it, or match without `exposure_free`)"
         )
     f = _downsample_factor(basis.resolution, opts.downsample) if opts.loss == "log" else 1
     t_read = basis.read([BASE] + basis.material_keys(manifold.names))
@@ -384,13 +387,20 @@ def _winner(manifold, full, runs, prior):
     return single, from_start, x
 
 
-def single_material_errors(basis, target, mask=None, manifold=None, exposure_free=False):
-    """Relative MSE (over the mask) of every training material alone; ``(errors (N,), exposures (N,))``.
+def single_material_errors(
+    basis, image=None, mask=None, manifold=None, exposure_free=False, **renamed
+):
+    """Relative MSE (over the mask) of every training material alone against ``image`` (the
+    image to match; ``target``, its former name, is read with a ``DeprecationWarning``);
+    ``(errors (N,), exposures (N,))``.
 
     The baseline of a match: the best any one measured material can do.
     """
+    target = renamed_argument(image, renamed, "target", "image", "single_material_errors")
+    if renamed:
+        raise TypeError(f"single_material_errors() got unexpected keywords {sorted(renamed)}")
     basis, manifold = _basis_and_manifold(basis, manifold)
-    target = check_target(target, basis.resolution)
+    target = check_target(target, basis.resolution, what="`image`")
     weight = np.ones(target.shape[:2]) if mask is None else check_mask(mask, basis.resolution)
     obj = image_error.objectives(basis, manifold, target, weight, "rel_mse", exposure_free)[0]
     return obj.singles()

@@ -1,6 +1,7 @@
-"""The target of a match and its mask: read from image files and checked against a basis.
+"""The image a match matches and its mask: read from image files and checked against a basis.
 
-A target is linear RGB at the basis' resolution (an EXR as it is; a PNG/JPEG sRGB-decoded at
+The image to match (the functions keep their names ``*_target``) is linear RGB at the basis'
+resolution (an EXR as it is; a PNG/JPEG sRGB-decoded at
 its depth, 8 bits or a 16-bit greyscale PNG, its clipped pixels reported so that the match
 leaves them out; the size checked before any pixel is decoded); a mask gives
 each pixel a weight in [0, 1] (0: ignored). :func:`mitsuba_manifold.basis.inverse.match.match` uses
@@ -17,7 +18,7 @@ from ...errors import InputError
 from ...imaging import io as imageio
 
 
-def check_target(target, resolution, what="target"):
+def check_target(target, resolution, what="image to match"):
     """``target`` as float64 (H, W, 3), checked against the basis ``resolution`` (width, height)."""
     arr = np.asarray(target)
     w, h = resolution
@@ -39,7 +40,7 @@ def check_target(target, resolution, what="target"):
     if (arr < 0).any() and not (arr > 0).any():
         raise InputError(
             f"{what} holds only negative values (the lowest {float(arr.min()):.3g}) "
-            "and no light: a rendered or photographed target has positive linear RGB "
+            "and no light: a rendered or photographed image has positive linear RGB "
             "(a negated image?)"
         )
     return arr.astype(np.float64)
@@ -54,7 +55,7 @@ def check_mask(mask, resolution, what="mask"):
     if arr.shape != (h, w):
         raise InputError(
             f"{what} is {arr.shape[1] if arr.ndim == 2 else arr.shape}"
-            f"{'x' + str(arr.shape[0]) if arr.ndim == 2 else ''}, the target is {w}x{h}: "
+            f"{'x' + str(arr.shape[0]) if arr.ndim == 2 else ''}, the image to match is {w}x{h}: "
             "they must have the same size"
         )
     if not np.isfinite(arr).all():
@@ -66,7 +67,7 @@ def check_mask(mask, resolution, what="mask"):
 
 
 def read_target(path, resolution=None):
-    """A target image: linear EXR, or a PNG/JPEG (sRGB-decoded to linear) read at its depth:
+    """The image to match: linear EXR, or a PNG/JPEG (sRGB-decoded to linear) read at its depth:
     8 bits, or 16 bits for a greyscale PNG (a 16-bit colour PNG is refused: Pillow would read
     it as 8 bits).
 
@@ -79,10 +80,10 @@ def read_target(path, resolution=None):
     """
     path = str(path)
     if path.lower().endswith(".exr"):
-        _exr_size(path, resolution, "target")
+        _exr_size(path, resolution, "image to match")
         img = imageio.read_exr(path)
         return img, np.zeros(img.shape[:2], dtype=bool)
-    codes, top = _read_coded(path, "target", resolution)
+    codes, top = _read_coded(path, "image to match", resolution)
     if codes.shape[-1] == 1:
         codes = np.repeat(codes, 3, axis=-1)
     return imageio.srgb_decode(codes / top).astype(np.float32), (codes == top).any(axis=-1)

@@ -15,8 +15,11 @@ import mitsuba as mi
 
 from ...errors import InputError, VariantError
 
-#: Values of the ``component`` parameter besides ``touch:<id>+<id>...``.
-COMPONENTS = ("full", "l1", "base", "touch", "rest")
+#: Values of the ``component`` parameter besides ``touch:<id>+<id>...``: the components of the
+#: image (the glossary's one vocabulary).
+COMPONENTS = ("full", "l1", "base", "touch", "l2+")
+#: Former spellings of ``component`` values, still read with a ``DeprecationWarning``.
+DEPRECATED_COMPONENTS = {"rest": "l2+"}
 #: Most target groups (the number of path classes grows as 2 ** groups).
 MAX_GROUPS = 4
 

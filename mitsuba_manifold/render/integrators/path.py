@@ -16,12 +16,15 @@ Its method ``render_onepass`` renders ``base`` and the touch images of many mate
 one set of paths (:mod:`.onepass`).
 """
 
+import warnings
+
 import drjit as dr
 import mitsuba as mi
 
 from ...errors import InputError, UnavailableError
 from .common import (
     COMPONENTS,
+    DEPRECATED_COMPONENTS,
     TracePlan,
     check_variant,
     class_names,
@@ -59,8 +62,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         scattering off each target group at most once), ``"base"`` (never),
         ``"touch"`` (exactly once off every group; with one group: exactly once),
         ``"touch:id1+id2"`` (exactly once off the named groups, never off the others;
-        several groups only), ``"rest"`` (``L2+``: twice or more off some group).
-        Default ``"l1"``.
+        several groups only), ``"l2+"`` (twice or more off some group; ``"rest"``, its former
+        spelling, is read with a ``DeprecationWarning``). Default ``"l1"``.
     target : str
         Which manifold BSDFs are "the material": ``"all"`` (default, every
         ``manifold_brdf`` of the scene, as one group), ``"each"`` (one group each, for
@@ -89,6 +92,15 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         if self.rr_depth <= 0:
             raise InputError(f"manifold_path: rr_depth must be > 0, got {self.rr_depth}")
         self.component = str(props.get("component", "l1")).strip()
+        if self.component in DEPRECATED_COMPONENTS:
+            new = DEPRECATED_COMPONENTS[self.component]
+            warnings.warn(
+                f"manifold_path: component {self.component!r} is now spelled {new!r}; the old "
+                "spelling goes in the next release",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            self.component = new
         if self.component not in COMPONENTS and not self.component.startswith("touch:"):
             raise InputError(
                 f"manifold_path: unknown component {self.component!r}; expected one of "
@@ -126,7 +138,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
             select = (1 << n_sub) - 1
         elif comp == "base":
             select = 1
-        elif comp == "rest":
+        elif comp == "l2+":
             select = 1 << rest
         elif comp == "touch":
             select = 1 << (n_sub - 1)

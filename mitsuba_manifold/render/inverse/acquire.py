@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._util.cache import file_hash, key_hash
+from ..._util.moved import image_field, renamed_argument, warn_renamed
 from ...basis.inverse import acquisition as aq
 from ...data.sources import BUILTIN_PREFIX
 from ...errors import InputError
@@ -41,15 +42,17 @@ PEAK_SEEN_DEG = 5.0
 GRAZING_DEG = 70.0
 
 
+@image_field
 @dataclass
 class Photo:
-    """One photograph: its scene (XML path or a shipped scene's name), the image (array ``(H, W,
-    3)`` linear, or a path: linear EXR, or PNG/JPEG in sRGB), an optional mask (array or path;
-    default: the pixels where the material brings most of the light) and the sensor index.
+    """One photograph: its scene (XML file or a shipped scene's name), the image to match (array
+    ``(H, W, 3)`` linear, or a file: linear EXR, or PNG/JPEG in sRGB), an optional mask (array or
+    file; default: the pixels where the material brings most of the light) and the sensor index.
+    ``target``, the former name of ``image``, still works (``DeprecationWarning``).
     """
 
     scene: str
-    target: object
+    image: object
     mask: object = None
     sensor: int = 0
 
@@ -67,10 +70,16 @@ class AcquireOutput(NamedTuple):
     """:func:`acquire`: the result (written with its own ``write``) and the images per photo."""
 
     result: aq.Acquisition
-    targets: list  # (H, W, 3) per photo
+    photos: list  # the image to match (H, W, 3), linear, per photo
     masks: list  # (H, W) per photo
     renders: list  # the acquired material, per photo (none with render_spp 0)
     singles: list  # the best single training material, per photo (none with render_spp 0)
+
+    @property
+    def targets(self) -> list:
+        """The former name of :attr:`photos`."""
+        warn_renamed("AcquireOutput.targets", "AcquireOutput.photos")
+        return self.photos
 
 
 @dataclass
@@ -88,12 +97,12 @@ def _read_photo(photo, path):
     from ...basis.inverse import targets
 
     what = f"target of {os.path.basename(path)}"
-    if isinstance(photo.target, (str, os.PathLike)):
-        if not os.path.isfile(photo.target):
-            raise InputError(f"target {photo.target}: no such file")
-        target, clipped = targets.read_target(os.fspath(photo.target))
+    if isinstance(photo.image, (str, os.PathLike)):
+        if not os.path.isfile(photo.image):
+            raise InputError(f"image {photo.image}: no such file")
+        target, clipped = targets.read_target(os.fspath(photo.image))
     else:
-        target = np.asarray(photo.target, dtype=np.float64)
+        target = np.asarray(photo.image, dtype=np.float64)
         clipped = None
     shape = np.shape(target)
     target = targets.check_target(target, (shape[1], shape[0]) if len(shape) == 3 else (0, 0), what)
@@ -297,15 +306,16 @@ def coverage_warnings(cov) -> list:
 
 
 def acquire(  # noqa: PLR0915  the steps behind one progress bar, each a function of its own
-    photos, manifold_path, options=None, database=None, training_images=None
+    photos, manifold=None, options=None, database=None, training_images=None, **renamed
 ) -> AcquireOutput:
     """Acquire the material of ``photos`` (:class:`Photo`) over the manifold's training tables.
 
     Parameters
     ----------
     photos : list of Photo
-    manifold_path : str
-        The manifold the scenes' ``manifold_brdf`` uses (its training tables are the basis).
+    manifold : str
+        The manifold file the scenes' ``manifold_brdf`` uses (its training tables are the basis;
+        ``manifold_path``, its former name, is read with a ``DeprecationWarning``).
     options : AcquireOptions, optional
     database : str, optional
         Folder of the manifold's tables when moved.
@@ -329,6 +339,9 @@ def acquire(  # noqa: PLR0915  the steps behind one progress bar, each a functio
     from ...manifold.model import Manifold
     from ..scene import scenes
 
+    manifold_path = renamed_argument(manifold, renamed, "manifold_path", "manifold", "acquire")
+    if renamed:
+        raise TypeError(f"acquire() got unexpected keywords {sorted(renamed)}")
     opts = (options or aq.AcquireOptions()).check()
     if opts.method == "latent":
         raise InputError(
@@ -451,8 +464,8 @@ def acquire(  # noqa: PLR0915  the steps behind one progress bar, each a functio
         views=[
             {
                 "scene": v.path,
-                "target": os.path.abspath(v.photo.target)
-                if isinstance(v.photo.target, (str, os.PathLike))
+                "target": os.path.abspath(v.photo.image)
+                if isinstance(v.photo.image, (str, os.PathLike))
                 else None,
                 "mask": os.path.abspath(v.photo.mask)
                 if isinstance(v.photo.mask, (str, os.PathLike))

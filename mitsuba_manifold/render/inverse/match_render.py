@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..._util.moved import image_field, renamed_argument
 from ...basis.inverse.match import LatentMatch
 from ...errors import InputError
 from ...imaging.metrics import REL_EPS
@@ -37,14 +38,16 @@ INTEGRATORS = ("prb", "prb_basic", "prbvolpath", "direct_projective", "prb_proje
 SINGLES_CHECKED = 3
 
 
+@image_field
 @dataclass
 class View:
-    """One target: a scene file, the sensor index in it, the target image (array ``(H, W, 3)``
-    linear, or a path: EXR, or 8-bit PNG/JPEG), and an optional mask (array or path).
+    """One view to match: a scene file, the sensor index in it, the image to match (array
+    ``(H, W, 3)`` linear, or a file: EXR, or 8-bit PNG/JPEG), and an optional mask (array or
+    file). ``target``, the former name of ``image``, still works (``DeprecationWarning``).
     """
 
     scene: str
-    target: object
+    image: object
     mask: object = None
     sensor: int = 0
 
@@ -130,15 +133,15 @@ def _targets(views):
 
     out = []
     for v in views:
-        if isinstance(v.target, str):
-            target, clipped = mt.read_target(v.target)
+        if isinstance(v.image, str):
+            target, clipped = mt.read_target(v.image)
         else:
-            target = np.asarray(v.target, dtype=np.float32)
+            target = np.asarray(v.image, dtype=np.float32)
             clipped = np.zeros(target.shape[:2], dtype=bool)
         shape = np.shape(target) + (0, 0)
-        target = mt.check_target(target, (shape[1], shape[0]), what=f"target of {v.scene}").astype(
-            np.float32
-        )
+        target = mt.check_target(
+            target, (shape[1], shape[0]), what=f"image to match of {v.scene}"
+        ).astype(np.float32)
         mask = np.ones(target.shape[:2])
         if v.mask is not None:
             mask = (
@@ -300,17 +303,18 @@ def _plot(history, path, labels):
     return finish(fig, ax, path)
 
 
-def match_render(views, manifold_path, options=None, basis=None, database=None):
-    """Optimise ``x`` so that renders of ``views`` (:class:`View`) match their targets.
+def match_render(views, manifold=None, options=None, basis=None, database=None, **renamed):
+    """Optimise ``x`` so that renders of ``views`` (:class:`View`) match their images.
 
     Parameters
     ----------
     views : list of View
-    manifold_path : str
-        The manifold every ``manifold_brdf`` of the scenes uses.
+    manifold : str
+        The manifold file every ``manifold_brdf`` of the scenes uses (``manifold_path``, its
+        former name, is read with a ``DeprecationWarning``).
     options : MatchRenderOptions, optional
     basis : basis folder path or :class:`basis.folder.Basis`, optional
-        Also start from the basis match of the first view's target.
+        Also start from the basis match of the first view's image.
     database : str, optional
         Folder of the manifold's tables (as :func:`.scenes.load_scene`).
 
@@ -320,6 +324,9 @@ def match_render(views, manifold_path, options=None, basis=None, database=None):
     """
     from ..plugin import ad
 
+    manifold_path = renamed_argument(manifold, renamed, "manifold_path", "manifold", "match_render")
+    if renamed:
+        raise TypeError(f"match_render() got unexpected keywords {sorted(renamed)}")
     opts = options or MatchRenderOptions()
     check_options(opts)
     views = check_views(views)

@@ -225,6 +225,10 @@ ALWAYS_HASHED = (
     "x",
 )
 
+#: How :func:`chunk_settings` spells ``components="full"``: its former name, so that the chunks
+#: of a basis rendered before keep their keys.
+KEYED_FULL = "auto"
+
 
 def chunk_settings(options):
     """The :class:`BasisOptions` fields that a chunk's images depend on, as ``{name: value}``
@@ -235,11 +239,14 @@ def chunk_settings(options):
     with a default leaves the keys of chunks rendered before unchanged).
     """
     default = BasisOptions().keywords()
-    return {
+    hashed = {
         name: value
         for name, value in options.keywords().items()
         if name not in NOT_SETTINGS and (name in ALWAYS_HASHED or value != default[name])
     }
+    if hashed.get("components") == "full":  # hashed as spelled when chunks were first keyed
+        hashed["components"] = KEYED_FULL
+    return hashed
 
 
 def identities(spec):
@@ -515,7 +522,7 @@ def _chooses_pairs(options):
     """Whether a chunk of ``options`` chooses cross-term pairs on its first pass."""
     return (
         options.sampling.mode == "onepass"
-        and options.gi.components == "auto"
+        and options.gi.components == "full"
         and options.gi.cross_light_tol
         and options.gi.cross_keep is None
     )

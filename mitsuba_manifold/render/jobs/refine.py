@@ -26,7 +26,7 @@ image exactly (Eq. 13 is affine in the weights: ``base + sum_i w_i touch_i``); w
 set of per-material images gives exactly is the light that touched the material twice or more
 (``L2+``, second order in the weights). The
 refinement renders only that part, at the point itself: ``manifold_path`` with
-``component="rest"`` and every target at its latent point, in independent passes, so that
+``component="l2+"`` and every target at its latent point, in independent passes, so that
 
     refined(x) = blend_L1(x) + rest(x)
 
@@ -48,6 +48,7 @@ from typing import Optional, Union
 import numpy as np
 
 from ..._util.interrupts import StopRequest
+from ..._util.moved import renamed_argument, renamed_field
 from ...basis.blend import blend, latent_points
 from ...errors import InputError, MitsubaManifoldError
 from ...imaging.metrics import REL_EPS, pass_standard_error
@@ -215,10 +216,11 @@ def _rest_integrator(basis, paths):
 
     target = "all" if basis.p == 1 else ",".join(basis.targets)
     return mi.load_dict(
-        {"type": "manifold_path", "component": "rest", "target": target, **paths.path_properties()}
+        {"type": "manifold_path", "component": "l2+", "target": target, **paths.path_properties()}
     )
 
 
+@renamed_field("manifold_path", "manifold_file")
 @dataclass(frozen=True)
 class RefineRequest:
     """How a refinement renders (:func:`refine_passes`; every field has the default of the keyword).
@@ -233,7 +235,7 @@ class RefineRequest:
     prune : float, optional
         The blend's pruning (default: the blend's); the rendered material prunes as
         ``manifold_brdf`` does at the same point.
-    scene, manifold_path : str, optional
+    scene, manifold_file : str, optional
         The scene and manifold files to render (default: the manifest's; the explorer passes
         the ones it resolved, e.g. ``--scene``).
     l2 : {"denoised", "raw"}
@@ -251,7 +253,7 @@ class RefineRequest:
     database: Optional[str] = None
     prune: Optional[float] = None
     scene: Optional[str] = None
-    manifold_path: Optional[str] = None
+    manifold_file: Optional[str] = None
     l2: str = "denoised"
     control_variate: Union[str, bool] = "auto"
 
@@ -281,6 +283,10 @@ def refine_passes(
     """
     import mitsuba as mi
 
+    if "manifold_path" in settings:
+        settings["manifold_file"] = renamed_argument(
+            None, settings, "manifold_path", "manifold_file", "refine_passes"
+        )
     r = replace(request or RefineRequest(), **settings)
     plan = _pass_plan(r.spp, r.passes)
     kw = {} if r.prune is None else {"prune": r.prune}
@@ -296,7 +302,7 @@ def refine_passes(
     if scale is None:
         scale = blend(basis, manifold, x=x, **kw)[0] if "l2+" in basis.components else l1
     points = latent_points(basis, manifold, x)
-    with _SCENES.take(basis, r.scene, r.manifold_path, r.database, points) as loaded:
+    with _SCENES.take(basis, r.scene, r.manifold_file, r.database, points) as loaded:
         scenes.set_points(loaded.targets, points, basis.targets)
         integrator = _rest_integrator(basis, loaded.integrator)
 
@@ -357,7 +363,7 @@ def _control_variate(basis, manifold, x, plan, request, stop, blend_image, kw):
     # point's weights (the point's column, onepass), so a cached scene is not moved to the point
     points = latent_points(basis, manifold, x)
     with _SCENES.take(
-        basis, request.scene, request.manifold_path, request.database, points
+        basis, request.scene, request.manifold_file, request.database, points
     ) as loaded:
         integrator = mi.load_dict(
             {"type": "manifold_path", "component": "l1", **loaded.integrator.path_properties()}

@@ -21,6 +21,7 @@ import itertools
 import os
 import shutil
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Optional, Union
@@ -32,6 +33,7 @@ from ..._util import names as names_mod
 from ..._util.cache import file_hash
 from ..._util.interrupts import StopRequest
 from ..._util.locking import FolderLock
+from ..._util.moved import renamed_argument
 from ...basis import folder as basis_folder
 from ...basis.folder.output import check_foreign_folder, check_job_folders, open_folder
 from ...data.database import canonical_spec
@@ -53,6 +55,8 @@ from .gi_basis import (
 from .interrupt import render_in_passes
 
 MODES = basis_folder.MODES
+#: The former spelling of ``components="full"`` (still read, with a ``DeprecationWarning``).
+DEPRECATED_FULL = "auto"
 
 __all__ = [
     "CROSS_FILE",
@@ -198,13 +202,15 @@ class FullGI:
 
     Parameters
     ----------
-    components : {"auto", "l1"}
-        ``"auto"`` (one-pass mode): also the full-GI images (``touch + L2+`` of every material,
+    components : {"full", "l1"}
+        The components of the image the basis holds (see the glossary). ``"full"`` (one-pass
+        mode): all light, so also the full-GI images (``touch + L2+`` of every material,
         :func:`~.integrators.onepass.render_onepass_gi`) and the cross terms of the pairs blended
         together (:mod:`mitsuba_manifold.basis.crossterms`), left out (and said why in the
         manifest's ``left_out``) where the scene does not need them: L2+ below
         :data:`REST_TOL` of the material's light (a convex object alone: exactly 0). ``"l1"``:
-        the L1- basis only. Per-material mode renders L1- only.
+        the L1- basis only. Per-material mode renders L1- only. ``"auto"``, this value's former
+        spelling, is read as ``"full"`` with a ``DeprecationWarning``.
     levels : int, optional
         Most vertices on the material per path in the L2+ images (more are cut, counted in
         ``gi_stats``); default: all a path of ``max_depth`` can have (:data:`.gi_basis.MAX_LEVELS`
@@ -231,6 +237,17 @@ class FullGI:
     cross_light_tol: float = 0.005
     cross_fraction: float = 1.0
     cross_keep: Optional[Sequence[tuple[str, str]]] = None
+
+    def __post_init__(self) -> None:
+        if self.components == DEPRECATED_FULL:
+            warnings.warn(
+                f"`components={DEPRECATED_FULL!r}` is now spelled `components='full'` (all light: "
+                "the full-GI images where the scene needs them); the old spelling goes in the next "
+                "release",
+                DeprecationWarning,
+                stacklevel=3,
+            )
+            object.__setattr__(self, "components", "full")
 
 
 @dataclass(frozen=True)
@@ -314,8 +331,8 @@ _GROUPS = {f.name: f.default_factory for f in fields(BasisOptions)}
 _GROUP_OF = {f.name: g for g, cls in _GROUPS.items() for f in fields(cls)}
 
 
-def render_basis(scene_path, manifold_path, out, options=None, **settings):  # noqa: C901  the images planned in one place, before the lock
-    """Render ``base.exr`` and the per-material images of ``scene_path`` into ``out``.
+def render_basis(scene=None, manifold=None, out=None, options=None, **settings):  # noqa: C901  the images planned in one place, before the lock
+    """Render ``base.exr`` and the per-material images of ``scene`` into ``out``.
 
     Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
     passes of :data:`interrupt.SAMPLES_PER_PASS` paths) and raises ``KeyboardInterrupt``;
@@ -323,7 +340,11 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):  # n
 
     Parameters
     ----------
-    scene_path, manifold_path : str
+    scene : str
+        The scene: an XML file or a shipped scene's name (``scene_path``, its former name, is
+        read with a ``DeprecationWarning``).
+    manifold : str
+        The manifold file (``manifold_path``, its former name, likewise).
     out : str
         Folder (created; resumed when it holds a basis with the same settings). It is
         locked (:class:`FolderLock`) while the images are written.
@@ -347,6 +368,12 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):  # n
         An option (:class:`InputError`), the scene, the manifold or the folder at fault, raised
         before anything is rendered.
     """
+    scene_path = renamed_argument(scene, settings, "scene_path", "scene", "render_basis")
+    manifold_path = renamed_argument(
+        manifold, settings, "manifold_path", "manifold", "render_basis"
+    )
+    if out is None:
+        raise TypeError("render_basis() missing its argument `out` (the basis folder)")
     o = (options or BasisOptions()).updated(**settings)
     scene_path, manifold, chosen, x = _check_request(scene_path, manifold_path, out, o)
     mi = scenes.use_variant(o.scene.variant, jit=True)
@@ -393,11 +420,11 @@ def render_basis(scene_path, manifold_path, out, options=None, **settings):  # n
     scatters_twice = (
         max_depth < 0 or max_depth > 2
     )  # depth 2 (direct): one scattering vertex per path
-    gi = o.sampling.mode == "onepass" and o.gi.components == "auto" and scatters_twice
+    gi = o.sampling.mode == "onepass" and o.gi.components == "full" and scatters_twice
     if gi:
         o = o.updated(levels=gi_levels(o.gi.levels, max_depth))
         manifest.levels = o.gi.levels
-    elif o.sampling.mode == "onepass" and o.gi.components == "auto":
+    elif o.sampling.mode == "onepass" and o.gi.components == "full":
         manifest.left_out = {
             "l2+": f"the scene's paths scatter once at most ({paths.describe()}): "
             "its L1- images are its full-GI images"
@@ -477,9 +504,9 @@ def _check_request(scene_path, manifold_path, out, o):
     """
     if o.sampling.mode not in MODES:
         raise InputError(f"`mode` must be one of {MODES}, got {o.sampling.mode!r}")
-    if o.gi.components not in ("auto", "l1"):
+    if o.gi.components not in ("full", "l1"):
         raise InputError(
-            f"`components` must be 'auto' (full GI where the scene needs it) or 'l1', got {o.gi.components!r}"
+            f"`components` must be 'full' (full GI where the scene needs it) or 'l1', got {o.gi.components!r}"
         )
     if int(o.sampling.spp) < 1:
         raise InputError(f"`spp` must be >= 1, got {o.sampling.spp}")
