@@ -163,10 +163,12 @@ def machine(results) -> str:
 
 
 def load(folder=RESULTS):
-    """``{stem: content}`` of the result files in ``folder``, sorted by name."""
+    """``{stem: content}`` of the result files in ``folder``, sorted by name (hidden files, such
+    as the tools' record of the outputs they own, are not results).
+    """
     out = {}
     for f in sorted(os.listdir(folder)):
-        if f.endswith(".json"):
+        if f.endswith(".json") and not f.startswith("."):
             with open(os.path.join(folder, f), encoding="utf-8") as fh:
                 out[f[:-5]] = json.load(fh)
     return out

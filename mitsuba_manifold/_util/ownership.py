@@ -20,7 +20,13 @@ A file whose content is already what the tool would write is left as it is.
 
 Folders with a manifest of their own list their files there: a basis folder's
 ``manifest.json`` (:mod:`mitsuba_manifold.render.jobs.render_basis`), a database folder's ``database.json``
-(:func:`owned_tables`, :func:`write_table_record`).
+(:func:`owned_tables`, :func:`write_table_record`). No tool writes a result into a folder a
+manifest owns (:func:`check_outside_managed`: the basis format says which folders those are,
+:mod:`mitsuba_manifold.basis.folder.owned_files`), nor over one of its own inputs
+(:func:`check_not_inputs`); a run removes only files it recorded as its own and that are
+unchanged since (:func:`remove_owned`, :meth:`Outputs.remove_stale`).
+
+This module is the one rule of what every tool may overwrite, remove or must refuse.
 """
 
 import json
@@ -86,6 +92,52 @@ def owned(path):
     if not isinstance(entry, dict) or not os.path.isfile(path):
         return False
     return file_hash(path) in (entry.get("sha256"), entry.get("was"))
+
+
+def check_not_inputs(
+    outputs, inputs, folders=(), named="an input", what="output", reason=None
+) -> None:
+    """Raise :class:`ForeignFileError` when an output is one of ``inputs`` or lies in one of the
+    input ``folders`` (paths compared after resolving links): ``"<what> <path> <reason>"``,
+    by default ``would overwrite <named>; choose another path``.
+    """
+    files = {os.path.realpath(os.fspath(p)) for p in inputs if p}
+    dirs = {os.path.realpath(os.fspath(f)) for f in folders if f}
+    reason = reason or f"would overwrite {named}; choose another path"
+    for path in outputs:
+        real = os.path.realpath(os.fspath(path))
+        if real in files or os.path.dirname(real) in dirs:
+            raise ForeignFileError(f"{what} {path} {reason}")
+
+
+def check_outside_managed(
+    out, managed, folder=None, what="`out`", writer="a blend", kind="basis", owner="render_basis"
+) -> None:
+    """Raise :class:`ForeignFileError` unless ``out`` lies outside ``folder`` and outside every
+    folder that ``managed(folder)`` says a manifest owns (a basis folder: its images belong to
+    ``owner``, and a result computed from them never replaces one).
+    """
+    here = os.path.realpath(os.path.dirname(os.path.abspath(os.fspath(out))))
+    inside = folder is not None and here == os.path.realpath(os.fspath(folder))
+    if inside or managed(here):
+        raise ForeignFileError(
+            f"{what} {out} lies in the {kind} folder {here}; {writer} never writes into a "
+            f"{kind} (its images belong to {owner}): choose another folder"
+        )
+
+
+def remove_owned(paths, keep=()) -> list:
+    """Remove those of ``paths`` not in ``keep`` that exist and are this package's outputs,
+    unchanged since written (:func:`owned`): what an earlier run wrote and this one did not
+    write again. A user's file is never touched. Returns the paths removed.
+    """
+    kept = {os.path.abspath(os.fspath(p)) for p in keep}
+    removed = []
+    for path in paths:
+        if os.path.abspath(path) not in kept and os.path.isfile(path) and owned(path):
+            os.remove(path)
+            removed.append(path)
+    return removed
 
 
 def _refusal(path, force, what):

@@ -25,6 +25,13 @@ def compose(basis, keys, weights, cross=None):
     return images, t_read, time.perf_counter() - t0
 
 
+def single_image(basis, name):
+    """The image of the training material ``name`` alone (weight 1, a basis of one target): its
+    L1- image plus the base (Eq. 13 at that material, without cross terms).
+    """
+    return basis.image(basis.key([name])) + basis.image(BASE)
+
+
 def _add_cross(images, basis, rows, products):
     """``images += sum_r products[..., r] C[rows[r]]``: one image in place, term by term
     (:func:`~mitsuba_manifold._util.blas.axpy`, on one BLAS thread), from the float32 rows the basis keeps

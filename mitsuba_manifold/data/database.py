@@ -15,7 +15,7 @@ import os
 import re
 import zlib
 from dataclasses import dataclass
-from typing import Annotated, ClassVar, Literal
+from typing import Annotated, ClassVar, Literal, Optional
 
 import numpy as np
 from pydantic import AfterValidator, Field, Strict
@@ -238,6 +238,96 @@ def write_database(
                 merl.write_binary(path, merl.to_stored(table))
                 record([path], "make_database")
     return Database(out_dir, None if not export else names)
+
+
+@dataclass(frozen=True)
+class DatabaseRequest:
+    """A database folder to make: the plan of ``make_database.py``.
+
+    Parameters
+    ----------
+    out : str
+        The folder (created or completed).
+    sources : tuple of str
+        Built-in set names (:func:`~mitsuba_manifold.data.sources.builtin_set`) and folders.
+    resolution : tuple of int
+        MERL bins ``(theta_h, theta_d, phi_d)``.
+    materials : tuple of str, optional
+        The materials to export (implies ``export``); each made once.
+    export : bool
+        Write every material as a MERL ``.binary`` file (else only ``sources.json``).
+    noise, seed : float, int
+        Multiplicative log-normal noise of noisy copies of the SGD fits (``sources`` ``sgd``).
+    force : bool
+        Replace files this package did not make.
+    """
+
+    out: str
+    sources: tuple = ("merl",)
+    resolution: tuple = tuple(merl.MERL_DIMS)
+    materials: Optional[tuple] = None
+    export: bool = False
+    noise: float = 0.0
+    seed: int = 0
+    force: bool = False
+
+    def checked(self) -> "DatabaseRequest":
+        """The request with its set names read (:func:`builtin_set`) and each material once;
+        raises :class:`InputError` for a bad noise or seed, or noise without ``sgd``.
+        """
+        from dataclasses import replace
+
+        sources = tuple(builtin_set(s, what="`sources`") or s for s in self.sources or ["merl"])
+        materials = None if self.materials is None else tuple(dict.fromkeys(self.materials))
+        checks.finite("`noise`", self.noise, 0.0, 10.0)
+        checks.seed("`seed`", self.seed)
+        out = replace(self, sources=sources, materials=materials)
+        if self.noise > 0 and not out.sgd_copies:
+            raise InputError("`noise` applies to `sources` sgd only (noisy copies of the SGD fits)")
+        return out
+
+    @property
+    def sgd_copies(self) -> bool:
+        """Whether the tables are (noisy) copies of the SGD fits, tabulated here
+        (:func:`make_database`), rather than a folder of sources (:func:`write_database`).
+        """
+        return list(self.sources) == ["sgd"] and bool(
+            self.export or self.materials or self.noise > 0
+        )
+
+
+def build_database(request: DatabaseRequest, progress=True):
+    """Make the folder of a checked ``request`` (:meth:`DatabaseRequest.checked`): SGD copies
+    by :func:`make_database`, else :func:`write_database`. Returns the number of tables or
+    materials it holds.
+    """
+    materials = None if request.materials is None else list(request.materials)
+    if request.sgd_copies:
+        n = len(materials) if materials else 100
+        merl.table_resolution(
+            request.resolution, "`resolution`", workers=min(n, os.cpu_count() or 1)
+        )
+        paths = make_database(
+            request.out,
+            request.resolution,
+            materials,
+            request.noise,
+            request.seed,
+            progress=progress,
+            force=request.force,
+        )
+        return len(paths)
+    merl.table_resolution(request.resolution, "`resolution`")
+    db = write_database(
+        request.out,
+        list(request.sources),
+        request.resolution,
+        materials,
+        export=request.export or request.materials is not None,
+        progress=progress,
+        force=request.force,
+    )
+    return len(db.names)
 
 
 def _tabulate(jobs, workers, made, record, total, progress):

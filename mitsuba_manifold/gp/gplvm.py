@@ -24,7 +24,11 @@ distances) when there is a stress term:
 * ``"lbfgs"``: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation);
 * ``"newton"``: trust-region Newton-CG with exact Hessian-vector products (O(N^3) each), its
   iterates rounded to a fixed grid while its steps are large, so that its path does not
-  depend on the last bits of the arithmetic.
+  depend on the last bits of the arithmetic; optionally through a continuation in the noise
+  ``mu`` (:attr:`NewtonOptions.continuation`, e.g. fits at ``mu = 1e-2`` and ``1e-3`` first,
+  each from the points of the one before, then at the kernel's ``mu``). A larger ``mu``
+  smooths the likelihood, so the large-scale arrangement is settled where fewer local maxima
+  compete.
 
 The gradient-based two stop on a stated test (the projected gradient norm relative to
 ``d N / 2``, or the Newton step) and report whether they met it; a fit that did not warns
@@ -53,7 +57,7 @@ import contextlib
 import numbers
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -213,7 +217,8 @@ class FitResult:
         Final L, from a fresh factorisation.
     history : ndarray
         L at the start and after each iteration (a sweep over all points for Hooke-Jeeves,
-        an L-BFGS-B iteration otherwise).
+        an L-BFGS-B or trust-region iteration otherwise); through a noise continuation
+        (:attr:`stages`) each stage's values are those of its own ``mu``, the last the kernel's.
     n_evaluations : int
         Objective evaluations (trial positions for Hooke-Jeeves, L and gradient for L-BFGS).
     time_s : float
@@ -237,6 +242,9 @@ class FitResult:
         (:func:`.optimisers.gradient_norm`; in units of the length scale).
     start : str
         The start the points came from: ``"pca"``, ``"mds"`` or ``"given"``.
+    stages : list of (float, int)
+        The noise levels ``mu`` fitted in turn and each one's iterations
+        (:meth:`GPLVM.noise_stages`); one entry when there was no continuation.
     """
 
     latent: np.ndarray
@@ -254,6 +262,7 @@ class FitResult:
     stress: float = None
     grad_norm: float = None
     start: str = "given"
+    stages: list = None
 
     @property
     def n_iterations(self):
@@ -362,15 +371,42 @@ class GPLVM:
         if callback is not None and not callable(callback):
             raise InputError("`callback` must be callable")
         unit = likelihood.in_units()
-        target = unit if term is None else PenalisedLikelihood(unit, term)
         run = getattr(optimisers, self.method.replace("-", "_"))
         single = likelihood.n <= SINGLE_THREAD_MAX_N  # small fits: BLAS threads only wait
         t0 = time.perf_counter()
+        stages = [(mu, None) for mu in self.noise_stages()[:-1]] + [(self.kernel.noise, unit)]
+        U, history, n_evaluations, done = X0 / l, [], 0, []
         with one_thread() if single else contextlib.nullcontext():
-            res = run(target, X0 / l, self.options, callback, l)
+            for mu, stage in stages:
+                if stage is None:  # a continuation stage: the same data at a larger noise
+                    stage = Likelihood(likelihood.S, likelihood.d, Kernel(1.0, mu), _checked=True)
+                target = stage if term is None else PenalisedLikelihood(stage, term)
+                options = self.options
+                if len(stages) > 1:  # max_iter caps the whole fit, every stage together
+                    used = max(len(history) - 1, 0)
+                    options = replace(options, max_iter=max(options.max_iter - used, 0))
+                later = {"snap_start": False} if history else {}  # a converged stage's points
+                res = run(target, U, options, _offset(callback, len(history)), l, **later)
+                U = res.units
+                history += res.history if not history else res.history[1:]
+                n_evaluations += res.n_evaluations
+                done.append((mu, len(res.history) - 1))
+                if res.message == "stopped by callback":
+                    break
             units = canonical_pose(res.units)
             L = unit._value(units)
             sigma = None if term is None else term.value(units)
+        if options.max_iter != self.options.max_iter and not res.converged:
+            res.message = res.message.replace(
+                f"max_iter = {options.max_iter}",
+                f"max_iter = {self.options.max_iter} (every noise stage together)",
+            )
+        if len(done) > 1:
+            res.message += (
+                " (after noise continuation "
+                + ", ".join(f"mu = {mu:g}: {k} iterations" for mu, k in done[:-1])
+                + ")"
+            )
         if not res.converged and res.message != "stopped by callback":
             warnings.warn(
                 f"the GPLVM fit ({self.method}, N = {likelihood.n}, q = {self.q}) did not "
@@ -382,8 +418,8 @@ class GPLVM:
         return FitResult(
             latent=units * l,
             log_likelihood=L,
-            history=np.asarray(res.history, dtype=np.float64),
-            n_evaluations=res.n_evaluations,
+            history=np.asarray(history, dtype=np.float64),
+            n_evaluations=n_evaluations,
             time_s=time.perf_counter() - t0,
             method=self.method,
             converged=res.converged,
@@ -395,10 +431,26 @@ class GPLVM:
             stress=sigma,
             grad_norm=res.grad_norm,
             start=start,
+            stages=done,
         )
 
+    def noise_stages(self):
+        """The noise levels ``mu`` the fit goes through, the kernel's last: the optimiser's
+        ``continuation`` levels above the kernel's ``mu`` (Newton; :class:`NewtonOptions`),
+        largest first, each stage starting from the points of the one before.
+        """
+        levels = getattr(self.options, "continuation", ())
+        return [mu for mu in levels if mu > self.kernel.noise] + [self.kernel.noise]
 
-def optimiser_options(method, *, max_iter=None, tol=None, initial_step=None):
+
+def _offset(callback, k):
+    """``callback`` with its iteration numbers counted on from ``k`` (a later stage's)."""
+    if callback is None or k == 0:
+        return callback
+    return lambda i, X, F: callback(i + k - 1, X, F)
+
+
+def optimiser_options(method, *, max_iter=None, tol=None, initial_step=None, continuation=None):
     """The settings of the optimiser ``method`` (:data:`METHODS`), its defaults but those given.
 
     Parameters
@@ -414,6 +466,9 @@ def optimiser_options(method, *, max_iter=None, tol=None, initial_step=None):
         :func:`.optimisers.gradient_norm`).
     initial_step : float, optional
         Hooke-Jeeves: first step, in units of ``l`` (default 0.25; unused by the others).
+    continuation : sequence of float, optional
+        Newton: the noise levels fitted before the kernel's, largest first (default ``()``:
+        none; e.g. ``(1e-2, 1e-3)``; :class:`NewtonOptions`).
 
     Returns
     -------
@@ -426,6 +481,13 @@ def optimiser_options(method, *, max_iter=None, tol=None, initial_step=None):
         step = check_positive("initial_step", initial_step)
         if method == "hooke-jeeves":
             given["initial_step"] = step
+    if continuation is not None:
+        if method != "newton":
+            raise InputError(
+                f"`continuation` (noise levels fitted first) is an option of method 'newton', "
+                f"not {method!r}; leave it out or use method='newton'"
+            )
+        given["continuation"] = continuation
     return METHODS[method](**given)
 
 

@@ -88,7 +88,8 @@ class NewtonOptions:
     Attributes
     ----------
     max_iter : int
-        Most trust-region iterations (a safety cap: reaching it leaves the fit unconverged).
+        Most trust-region iterations, every stage of the ``continuation`` together (a safety
+        cap: reaching it leaves the fit unconverged).
     tol : float
         Converged when the gradient's relative norm (:func:`gradient_norm`) is at most ``tol``.
     step_tol : float
@@ -96,16 +97,36 @@ class NewtonOptions:
         coordinate by more than ``step_tol`` (in units of ``l``): the points are that close to
         the stationary point, where the gradient's own rounding (``d K^-1`` and
         ``K^-1 S K^-1`` nearly cancel there) keeps its norm above ``tol``.
+    continuation : tuple of float
+        Noise levels ``mu`` fitted first, largest first, each from the points of the one
+        before (:class:`~mitsuba_manifold.gp.gplvm.GPLVM`), e.g. ``(1e-2, 1e-3)``: a larger
+        ``mu`` smooths the likelihood, so the first stages settle the layout's large-scale
+        arrangement where few local maxima compete and the last one, at the kernel's own
+        ``mu``, refines it. Levels at or below the kernel's ``mu`` are skipped; ``()`` (the
+        default): one fit at the kernel's ``mu``.
     """
 
     max_iter: int = 2000
     tol: float = 1e-7
     step_tol: float = 1e-5
+    continuation: tuple = ()
 
     def __post_init__(self):
         object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))
         object.__setattr__(self, "tol", check_positive("tol", self.tol))
         object.__setattr__(self, "step_tol", check_positive("step_tol", self.step_tol))
+        try:
+            levels = tuple(float(check_positive("continuation", v)) for v in self.continuation)
+        except TypeError:
+            raise InputError(
+                f"`continuation` must be a sequence of noise levels > 0 (largest first), "
+                f"got {self.continuation!r}"
+            ) from None
+        if any(b >= a for a, b in zip(levels, levels[1:])):
+            raise InputError(
+                f"`continuation` noise levels must decrease (largest first), got {levels}"
+            )
+        object.__setattr__(self, "continuation", levels)
 
 
 def objective_scale(likelihood):
@@ -413,7 +434,9 @@ def _steihaug(hessp, g, radius):
     return z, False
 
 
-def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=1.0):  # noqa: C901  a trust-region iteration read as a whole
+def newton(  # noqa: C901  a trust-region iteration read as a whole
+    likelihood, U0, options=NewtonOptions(), callback=None, length_scale=1.0, snap_start=True
+):
     """Trust-region Newton-CG on ``-F / (d N / 2)``, in length-scale units.
 
     Each iteration takes the Steihaug-Toint conjugate-gradient step of the quadratic model on
@@ -425,7 +448,9 @@ def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=
     doubled above three quarters on the boundary.
 
     So that the path depends on the data and not on the last bits of its arithmetic (BLAS
-    kernels, summation order), the start and every iterate after a step larger than
+    kernels, summation order), the start (unless ``snap_start`` is False: a start that is
+    itself a converged fit, whose last bits rounding could only amplify) and every iterate
+    after a step larger than
     :data:`SNAP_ABOVE` are rounded to the grid :data:`SNAP_GRID`: two runs whose numbers
     differ in the last bits land on the same grid points, and end at the same maximum.
     The last small steps, off the grid, converge to it.
@@ -438,7 +463,9 @@ def newton(likelihood, U0, options=NewtonOptions(), callback=None, length_scale=
     n, q = U0.shape
     l = length_scale
     f = _Scaled(likelihood, n, q)
-    x = np.round(U0.ravel() / SNAP_GRID) * SNAP_GRID
+    x = U0.ravel().copy()
+    if snap_start:
+        x = np.round(x / SNAP_GRID) * SNAP_GRID
     fx, g = f.fun(x)
     if not np.isfinite(fx):
         raise NotPositiveDefiniteError(

@@ -292,6 +292,24 @@ def label_font(size=10):
         return ImageFont.load_default()
 
 
+def tiles(images, min_width=0) -> np.ndarray:
+    """Images of different sizes as one (n, H, W, 3) float32 stack for a contact sheet: each
+    enlarged by whole pixels (nearest) to at least ``min_width`` wide, so that small ones can
+    be seen, then padded with black to the largest.
+    """
+    big = []
+    for im in images:
+        im = np.asarray(im, dtype=np.float32)
+        k = max(1, -(-int(min_width) // im.shape[1]))
+        big.append(im.repeat(k, axis=0).repeat(k, axis=1))
+    out = np.zeros(
+        (len(big), max(i.shape[0] for i in big), max(i.shape[1] for i in big), 3), np.float32
+    )
+    for t, im in zip(out, big):
+        t[: im.shape[0], : im.shape[1]] = im
+    return out
+
+
 def write_contact_sheet(path, images, labels=None, columns=None, exposure=0.0, pad=4, title=None):
     r"""PNG grid of tonemapped images (one exposure for all), with optional labels; atomic.
 

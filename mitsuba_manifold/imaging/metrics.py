@@ -130,6 +130,13 @@ def noise_agreement(a, ref, ref_se, eps=REL_EPS, scale=None):
     }
 
 
+def negative_pixels(image) -> int:
+    """Pixels of ``image`` (H, W, 3) with a value below 0 in any channel (a sum of noisy
+    signed terms, such as the cross terms of a full-GI blend, can go below 0).
+    """
+    return int((np.asarray(image) < 0).any(axis=-1).sum())
+
+
 def error_image(a, ref):
     """Per-pixel, per-channel absolute difference ``|a - r|`` as float32 (H, W, 3)."""
     a, ref = _pair(a, ref)

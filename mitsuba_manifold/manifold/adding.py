@@ -88,6 +88,25 @@ class Added:
     time_s: float
 
 
+def check_additions(paths, names=()) -> None:
+    """Raise :class:`InputError` unless every path names a material a manifold can add
+    (:func:`~mitsuba_manifold.data.sources.material_source`) and ``names`` gives at most one
+    name per path.
+    """
+    from ..data.sources import material_source
+    from ..errors import MitsubaManifoldError, one_line
+
+    if len(names) > len(paths):
+        raise InputError(
+            f"`name` given {len(names)} times for {len(paths)} `add`; give one `name` per `add`"
+        )
+    for path in paths:
+        try:
+            material_source(path)
+        except MitsubaManifoldError as e:
+            raise InputError(f"`add` {path}: {one_line(e)}") from None
+
+
 def read_table(path, dims):
     """Reflectance table of a MERL ``.binary`` file, flat float32, checked against ``dims``."""
     path = os.fspath(path)

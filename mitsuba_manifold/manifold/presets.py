@@ -8,8 +8,12 @@ none) and ``interpolant`` (the weight function, :mod:`interpolant`).
 :func:`fit_layout` and :func:`make_interpolant`, so the benchmark measures what users get.
 """
 
+from dataclasses import dataclass
+from typing import Optional
+
 import numpy as np
 
+from .._util import checks
 from ..data.distance import distance_matrix
 from ..errors import InputError
 from ..gp import gplvm
@@ -68,6 +72,57 @@ def settings(preset="default", **overrides):
     return out
 
 
+@dataclass(frozen=True)
+class FitOptions:
+    """What a user sets of a fit (``Manifold.fit``'s parameters; None: the ``preset``'s).
+
+    Parameters
+    ----------
+    preset : str
+        A name of :data:`PRESETS`.
+    q, names, method, features, length_scale, noise, stress
+        As ``Manifold.fit``.
+    """
+
+    preset: str = "default"
+    q: Optional[int] = None
+    names: Optional[list] = None
+    method: Optional[str] = None
+    features: Optional[str] = None
+    length_scale: Optional[float] = None
+    noise: Optional[float] = None
+    stress: Optional[float] = None
+
+    def given(self) -> list:
+        """The options set (a preset other than the default counts), as backquoted names."""
+        fields = ("q", "names", "method", "features", "length_scale", "noise", "stress")
+        given = [f"`{k}`" for k in fields if getattr(self, k) is not None]
+        preset = [] if self.preset == "default" else ["`preset`"]
+        return given + preset
+
+    def check(self) -> "FitOptions":
+        """Raise :class:`InputError` for a value out of range, or a method that cannot fit the
+        preset's (or the given) stress term; returns ``self``.
+        """
+        if self.q is not None and not 1 <= self.q <= 8:
+            raise InputError(f"`q` must be an integer from 1 to 8, got {self.q}")
+        if self.length_scale is not None:
+            checks.finite("`length_scale`", self.length_scale, 0.0, 1e6, lo_open=True)
+        if self.noise is not None:
+            checks.finite("`noise`", self.noise, 0.0, 1e6, lo_open=True)
+        if self.stress is not None:
+            checks.finite("`stress`", self.stress, 0.0, 1e6)
+        method = self.method or PRESETS[self.preset]["method"]
+        stress = PRESETS[self.preset]["stress"] if self.stress is None else self.stress
+        if method == "hooke-jeeves" and stress > 0:
+            raise InputError(
+                f"`method` {method} cannot fit the layout's stress term (weight {stress:g}, "
+                f"{'`stress`' if self.stress is not None else 'the ' + self.preset + ' preset'}): "
+                "add `stress` 0, or use `method` newton (or lbfgs)"
+            )
+        return self
+
+
 def canonical_order(hashes, names):
     """The order a fit sees the materials in: by the content hash of each table (SHA-256,
     :meth:`~..data.database.Database.hash`), then by name for identical tables. It depends on
@@ -87,7 +142,7 @@ def canonical_order(hashes, names):
 
 def fit_layout(S, d, cfg, init=None, callback=None, distances=None, order=None, **options):
     """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:class:`gplvm.GPLVM`);
-    ``options`` (``max_iter``, ``tol``, ``initial_step``) set the optimiser
+    ``options`` (``max_iter``, ``tol``, ``initial_step``, ``continuation``) set the optimiser
     (:func:`gplvm.optimiser_options`); ``distances``: the materials' perceptual distances (N, N),
     the stress term's targets (needed when ``cfg["stress"] > 0``).
 

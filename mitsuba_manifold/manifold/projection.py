@@ -65,6 +65,22 @@ class Projection:
         """The smaller of :attr:`error` and the plausible combination's (when computed)."""
         return self.error if self.beyond is None else min(self.error, self.beyond.error)
 
+    def to_json(self, table, names, top=5) -> dict:
+        """The projection of ``table`` as JSON values: the point, its error, the nearest
+        training material's, the negative fraction and the ``top`` largest weights (by
+        magnitude, none that is 0) by the training materials' ``names``.
+        """
+        order = sorted(range(len(names)), key=lambda i: -abs(self.weights[i]))[:top]
+        return {
+            "table": table,
+            "x": self.x.tolist(),
+            "error": self.error,
+            "nearest": self.nearest,
+            "nearest_error": self.nearest_error,
+            "negative_fraction": self.negative_fraction,
+            "weights": {names[i]: float(self.weights[i]) for i in order if self.weights[i] != 0},
+        }
+
 
 def as_table(table, d, dims=None):
     """``table`` (array, or a material file or ``SET:NAME``, :func:`.sources.material_table`,

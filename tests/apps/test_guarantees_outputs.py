@@ -265,9 +265,8 @@ def test_new_manifests_record_their_sensor_and_old_ones_mean_sensor_0(tiny):
 
 
 def test_references_render_the_sensor_of_the_basis_or_say_why_not(tmp_path, tiny):
-    from mitsuba_manifold.apps.cli.common import reference_view
     from mitsuba_manifold.basis.folder import Basis
-    from mitsuba_manifold.errors import MismatchError
+    from mitsuba_manifold.render.scene.references import BasisView, reference_sensor
 
     scene = tmp_path / "two_views.xml"
     scene.write_text(
@@ -275,20 +274,14 @@ def test_references_render_the_sensor_of_the_basis_or_say_why_not(tmp_path, tiny
     )
     m = json.loads(open(os.path.join(tiny["basis"], "manifest.json")).read())
     one = Basis(tiny["basis"], dict(m, sensor=1))
-
-    def with_sensor(scene, manifold, x, spp, seed=0, sensor=0):
-        pass
-
-    def without_sensor(scene, manifold, x, spp, seed=0):
-        pass
-
-    assert reference_view(one, scene, with_sensor) == {"sensor": 1}
-    with pytest.raises(MismatchError, match="sensor 1"):
-        reference_view(one, scene, without_sensor)
+    assert reference_sensor(one, scene, warn=print) == 1
+    assert BasisView.of(one, str(scene)).sensor == 1
     warnings = []
     old = Basis(tiny["basis"], {k: v for k, v in m.items() if k != "sensor"})
-    assert reference_view(old, scene, with_sensor, warn=warnings.append) == {"sensor": 0}
+    assert reference_sensor(old, scene, warn=warnings.append) == 0
     assert len(warnings) == 1 and "2 sensors" in warnings[0]
+    view = BasisView.of(old, str(scene), warn=warnings.append)
+    assert BasisView.from_json(json.loads(json.dumps(view.to_json()))) == view
 
 
 def test_the_main_job_removes_only_a_basis_of_its_own_to_render_it_again(tmp_path, tiny):

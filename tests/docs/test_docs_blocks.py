@@ -136,12 +136,15 @@ def test_every_page_with_code_is_covered():
 
 
 def _run_elsewhere():
-    """Pages whose commands another test runs in their context: the tutorials' pages show
-    commands to run after the tutorial scripts, which tests/docs/test_docs_tutorials.py runs in
-    that order."""
-    from test_docs_tutorials import PAGES
-
-    return {f"docs/tutorials/{page}" for page, _ in PAGES.values()}
+    """Pages whose commands another test runs in their context: the tutorials' pages (each shows
+    its script, docs/tutorials/NAME.py) show commands to run after the tutorial scripts, which
+    tests/docs/test_docs_tutorials.py runs in that order."""
+    return {
+        p
+        for p in pages()
+        if p.startswith("docs/tutorials/")
+        and re.search(r"literalinclude\W+\w+\.py", open(os.path.join(ROOT, p)).read())
+    }
 
 
 def _pages_with_code():
@@ -156,8 +159,9 @@ def _pages_with_code():
 def test_pages_run_elsewhere_hold_only_what_runs_there():
     """A tutorial page's runnable blocks are ``sh`` blocks of tool commands, each of which the
     tutorials' test runs (so leaving those pages out here skips nothing)."""
-    from test_docs_tutorials import sh_commands
+    from test_docs_tutorials import PAGES, sh_commands
 
+    assert _run_elsewhere() == {f"docs/tutorials/{page}" for page, _ in PAGES.values()}
     for page in _run_elsewhere():
         code = [b for b in blocks(page) if b[0] in RUN and b[2] != "not run"]
         assert all(b[0] == "sh" for b in code), page

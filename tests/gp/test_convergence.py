@@ -13,6 +13,9 @@ from mitsuba_manifold.gp.optimisers import gradient_norm
 from mitsuba_manifold.gp.stress import PenalisedLikelihood
 from mitsuba_manifold.manifold.presets import canonical_order, fit_layout, settings
 
+#: The noise levels of the continuation tests.
+CONTINUATION = (1e-2, 1e-3)
+
 
 def _problem(n=16, seed=3, d=2e4):
     Z = smooth_data(n, seed=seed)
@@ -122,3 +125,69 @@ def test_canonical_order_sorts_by_content_then_name():
     assert order.tolist() == [1, 2, 0]
     with pytest.raises(ValueError, match="one per material"):
         canonical_order(["a" * 64], ["x", "y"])
+
+
+def test_a_newton_fit_through_the_noise_continuation_records_its_stages():
+    S, d, D = _problem(n=20, seed=1)
+    cfg = settings("default", q=2, stress=3.0)
+    res = fit_layout(S, d, cfg, distances=D, continuation=CONTINUATION)
+    assert [mu for mu, _ in res.stages] == [1e-2, 1e-3, cfg["noise"]]
+    assert sum(k for _, k in res.stages) == res.n_iterations
+    assert res.converged and "noise continuation" in res.message
+    # the last stage is the fit at the kernel's own mu: a stationary point of its objective
+    lik = gplvm.Likelihood(S, d).in_units()
+    target = PenalisedLikelihood(lik, gplvm.Stress(3.0).term(D, len(S), d))
+    assert gradient_norm(target, res.latent) == pytest.approx(res.grad_norm, rel=1e-3)
+    assert res.log_likelihood == pytest.approx(lik._value(res.latent), rel=1e-12)
+    plain = fit_layout(S, d, cfg, distances=D)  # the default: no continuation
+    assert plain.stages == [(cfg["noise"], plain.n_iterations)]
+    assert "continuation" not in plain.message
+
+
+def test_the_continuation_skips_levels_at_or_below_the_kernels_noise():
+    S, d, D = _problem(n=12, seed=4)
+    cfg = settings("default", q=2, stress=1.0, noise=1e-3)
+    res = fit_layout(S, d, cfg, distances=D, continuation=CONTINUATION)
+    assert [mu for mu, _ in res.stages] == [1e-2, 1e-3]
+
+
+def test_max_iter_caps_every_stage_of_the_continuation_together():
+    S, d, D = _problem(n=16, seed=3)
+    with pytest.warns(ConvergenceWarning, match="every noise stage together"):
+        cfg = settings("default", q=2, stress=2.0)
+        res = fit_layout(S, d, cfg, distances=D, max_iter=3, continuation=CONTINUATION)
+    assert res.n_iterations <= 3 and not res.converged
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"continuation": (1e-3, 1e-2)}, "must decrease"),
+        ({"continuation": (1e-2, -1.0)}, "continuation"),
+        ({"continuation": 5}, "sequence of noise levels"),
+    ],
+)
+def test_bad_continuations_are_rejected_clearly(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        gplvm.optimiser_options("newton", **kwargs)
+    with pytest.raises(ValueError, match="option of method 'newton'"):
+        gplvm.optimiser_options("lbfgs", continuation=(1e-2,))
+
+
+def test_the_continued_fit_ends_at_the_same_points_when_the_data_differ_in_their_last_bits():
+    S, d, D = _problem(n=30, seed=7)
+    cfg = settings("default", q=4)
+    ref = fit_layout(S, d, cfg, distances=D, continuation=CONTINUATION)
+    rng = np.random.default_rng(1)
+    for _ in range(2):
+        noise = rng.standard_normal(S.shape)
+        res = fit_layout(
+            S * (1 + 1e-14 * (noise + noise.T)),
+            d,
+            cfg,
+            distances=D * (1 + 1e-14 * np.abs(noise + noise.T)),
+            continuation=CONTINUATION,
+        )
+        assert res.converged
+        assert np.abs(res.latent - ref.latent).max() < 1e-4
+        assert res.history[-1] == pytest.approx(ref.history[-1], rel=1e-9)

@@ -37,3 +37,15 @@ def test_a_database_of_one_bin_tables_is_refused_before_fitting(tmp_path):
             np.full(3, 0.1 * (i + 1)).tofile(f)
     with pytest.raises(InputError, match="1x1x1 bins .* use tables of more bins"):
         Manifold.fit(str(tmp_path), q=2)
+
+
+def test_fit_options_refuse_a_method_that_cannot_fit_the_stress_term():
+    from mitsuba_manifold.manifold.presets import FitOptions
+
+    assert FitOptions(preset="paper").check().given() == ["`preset`"]
+    assert FitOptions(q=3, stress=0.0).given() == ["`q`", "`stress`"]
+    with pytest.raises(InputError, match="`method` hooke-jeeves cannot fit .* the default preset"):
+        FitOptions(method="hooke-jeeves").check()
+    FitOptions(method="hooke-jeeves", stress=0.0).check()
+    with pytest.raises(InputError, match="`q` must be an integer from 1 to 8"):
+        FitOptions(q=9).check()

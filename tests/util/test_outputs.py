@@ -246,3 +246,46 @@ def test_a_zombie_writers_temporary_file_is_swept(tmp_path):
         running.kill()
         running.wait()
         ended.wait()
+
+
+def test_no_output_replaces_an_input_or_lands_in_an_input_folder(tmp_path):
+    photo = tmp_path / "photo.exr"
+    photo.write_bytes(b"the user's")
+    basis = tmp_path / "basis"
+    basis.mkdir()
+    alias = tmp_path / "alias.exr"
+    alias.symlink_to(photo)
+    for out in (photo, alias, basis / "blend.exr"):
+        with pytest.raises(ForeignFileError, match="would overwrite an input"):
+            ownership.check_not_inputs([out], [photo], folders=[basis])
+    ownership.check_not_inputs([tmp_path / "new.exr"], [photo], folders=[basis])
+    with pytest.raises(ForeignFileError, match=r"^--json .* is an input of this run"):
+        ownership.check_not_inputs(
+            [photo], [photo], what="--json", reason="is an input of this run"
+        )
+
+
+def test_only_the_tools_own_unchanged_files_are_removed(tmp_path):
+    mine, edited, users = (tmp_path / n for n in ("mine.png", "edited.png", "users.png"))
+    for p in (mine, edited, users):
+        atomic.write_bytes(p, b"made")
+    ownership.record([mine, edited], "t.py")
+    edited.write_bytes(b"the user's edit")
+    kept = tmp_path / "kept.png"
+    atomic.write_bytes(kept, b"made")
+    ownership.record([kept], "t.py")
+    removed = ownership.remove_owned(
+        [mine, edited, users, kept, tmp_path / "gone.png"], keep=[kept]
+    )
+    assert removed == [mine] and not mine.exists()
+    assert edited.exists() and users.exists() and kept.exists()
+
+
+def test_a_result_never_lands_in_a_folder_a_manifest_owns(tmp_path):
+    managed = tmp_path / "basis"
+    managed.mkdir()
+    with pytest.raises(ForeignFileError, match="lies in the basis folder"):
+        ownership.check_outside_managed(managed / "o.exr", lambda f: f == str(managed))
+    with pytest.raises(ForeignFileError, match="never writes into a basis"):
+        ownership.check_outside_managed(tmp_path / "o.exr", lambda f: False, folder=tmp_path)
+    ownership.check_outside_managed(tmp_path / "o.exr", lambda f: False, folder=managed)

@@ -19,14 +19,19 @@ gives the others. Nothing is written until every input has been read and checked
 """
 
 import argparse
-import math
 import os
-import re
-import sys
 import time
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Optional
 
+from ...basis.outputs import (
+    MAX_STEPS,
+    Output,
+    check_steps,
+    companions,
+    frame_names,
+    planned_files,
+)
 from ...manifold.paths import DEFAULT_KIND as DEFAULT_PATH_KIND
 from ...manifold.paths import KINDS as PATH_KINDS
 from .common import (
@@ -35,20 +40,14 @@ from .common import (
     add_prune_argument,
     fail,
     guarded,
+    one_line_warnings,
     parse_point,
     parse_points,
-    reference_view,
-    resolve_names,
+    write_outputs,
 )
 
 if TYPE_CHECKING:  # imported by parse() when it runs (the command line is checked first)
     from ...basis.blend import BlendSettings
-
-NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
-
-
-def _stem(path):
-    return path[:-4] if path.lower().endswith(".exr") else path
 
 
 def parser():
@@ -114,7 +113,10 @@ def parser():
         "and B",
     )
     p.add_argument(
-        "--steps", type=int, default=20, help="images along --path (default 20, at most 1000)"
+        "--steps",
+        type=int,
+        default=20,
+        help=f"images along --path (default 20, at most {MAX_STEPS})",
     )
     p.add_argument(
         "--path-kind",
@@ -174,21 +176,6 @@ def parser():
 
 
 @dataclass(frozen=True)
-class Output:
-    """Where and how the images are written: ``--out``, ``--png``, ``--exposure``, ``--force``."""
-
-    out: str
-    png: bool = False
-    exposure: float = 0.0
-    force: bool = False
-
-    @property
-    def stem(self):
-        """``--out`` without its ``.exr``."""
-        return _stem(self.out)
-
-
-@dataclass(frozen=True)
 class PathRequest:
     """``--path A B``: ``steps`` images along a latent path of ``kind``; ``target`` (a BSDF id)
     the target that moves when the basis has several.
@@ -239,9 +226,7 @@ class BlendRequest:
     x : list or None
         The latent points of ``--x`` (:func:`.common.parse_points`: each a list of numbers or
         a material's name), target after target; :func:`main` makes them one flat list of
-        numbers (:func:`checked_x`).
-    x_groups : int
-        How many points ``--x`` gave (one per target, or per fixed target with ``--path``).
+        numbers (:func:`mitsuba_manifold.basis.points.target_points`).
     settings : BlendSettings
         ``--prune``, ``--renormalise``, ``--component``, ``--l2``.
     path : PathRequest or None
@@ -256,7 +241,6 @@ class BlendRequest:
     scene: Optional[str]
     database: Optional[str]
     x: Optional[list]
-    x_groups: int
     settings: "BlendSettings"
     path: Optional[PathRequest]
     reference: ReferenceRequest
@@ -264,14 +248,9 @@ class BlendRequest:
     output: Output
 
 
-def parse(argv=None):  # noqa: C901  one check per option, each naming it, before any work
+def parse(argv=None):
     """The checked :class:`BlendRequest` of the command line ``argv``."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    # "-0.3,1.2" would look like an option to argparse; with spaces it is a value
-    for a in argv:
-        if NEGATIVE_LIST.match(a) and re.search(r",\s*(,|$)", a):
-            fail(f"{a!r} has an empty place between commas; expected numbers like '-0.3,1.2'")
-    args = parser().parse_args([a.replace(",", " ") if NEGATIVE_LIST.match(a) else a for a in argv])
+    args = parser().parse_args(argv)
     x = None
     if args.x:  # numbers, or measured materials' names, resolved with the manifold
         try:
@@ -282,13 +261,9 @@ def parse(argv=None):  # noqa: C901  one check per option, each naming it, befor
         fail("give --x (a latent point) or --path A B")
     if args.path is not None and (args.reference or args.render_reference):
         fail("--reference/--render-reference compare one image; not with --path")
-    if not args.out.lower().endswith(".exr"):
-        frames = " (with --path: its frames are OUT_0.exr, OUT_1.exr, ...)" if args.path else ""
-        fail(
-            f"--out must name an .exr file{frames}, got {args.out!r}: use --out {_stem(args.out)}.exr"
-        )
-    if not 2 <= args.steps <= MAX_STEPS:
-        fail(f"--steps must be from 2 to {MAX_STEPS} (one EXR file each), got {args.steps}")
+    output = Output(args.out, args.png, args.exposure, args.force)
+    output.check(path=args.path is not None)
+    check_steps(args.steps)
     if args.refine is not None and args.path is not None:
         fail("--refine makes one point's image exact; not with --path")
     if args.refine is not None and args.refine < 1:
@@ -321,99 +296,36 @@ def parse(argv=None):  # noqa: C901  one check per option, each naming it, befor
         scene=args.scene,
         database=args.database,
         x=x,
-        x_groups=len(x or ()),
         settings=BlendSettings(
             prune=args.prune, renormalise=args.renormalise, component=args.component, l2=args.l2
         ),
         path=path,
         reference=ReferenceRequest(args.reference, args.render_reference, args.spp, args.seed),
         refine=RefineChoice(args.refine, passes, args.seed),
-        output=Output(args.out, args.png, args.exposure, args.force),
+        output=output,
     )
-    for kind, file in planned(request):  # names and kinds of targets (their owners: before writing)
+    reference = request.reference
+    planned = planned_files(
+        output, args.steps if path else None, reference.render, reference.wanted
+    )  # names and kinds of targets (their owners: before writing)
+    for kind, file in planned:
         ownership.check_replaceable(file, args.force, what=kind, owner=False)
     return request
 
 
-def frame_names(output, steps):
-    """The EXR frames of ``--path``: ``<stem>_<s>.exr``, ``s`` zero-padded to the widest."""
-    width = len(str(steps - 1))
-    return [f"{output.stem}_{s:0{width}d}.exr" for s in range(steps)]
-
-
-def _existing_frames(output, steps):
-    """The frames of ``--path`` (EXR, and PNG with ``--png``) that exist already, found by
-    listing their folder (not by trying every step).
-    """
-    width = len(str(steps - 1))
-    frame = re.compile(
-        re.escape(os.path.basename(output.stem)) + r"_(\d{" + str(width) + r"})\.(exr|png)$"
-    )
-    folder = os.path.dirname(os.path.abspath(output.out))
-    names = os.listdir(folder) if os.path.isdir(folder) else []
-    found = [(n, frame.match(n)) for n in names]
-    return [
-        os.path.join(os.path.dirname(output.out), n)
-        for n, m in found
-        if m and int(m.group(1)) < steps and (output.png or m.group(2) == "exr")
-    ]
-
-
-def planned(request):
-    """``(kind, path)`` of the files the run will write (:func:`path_outputs`, :func:`point_outputs`)
-    to check first: with ``--path``, the first frame (every frame's name is as long) and the
-    frames that exist already, found without listing every step (``--steps`` is not yet checked
-    against the memory).
-    """
-    output = request.output
-    stem, png = output.stem, output.png
-    if request.path is not None:
-        steps = request.path.steps
-        first = f"{stem}_{0:0{len(str(steps - 1))}d}.exr"
-        out = [("image", first)] + ([("png", first[:-4] + ".png")] if png else [])
-        return (
-            out
-            + [("frame", p) for p in _existing_frames(output, steps)]
-            + [("contact sheet", stem + "_sheet.png")]
-        )
-    out = [("image", output.out)] + ([("png", stem + ".png")] if png else [])
-    if request.reference.render:
-        out += [("reference", stem + "_reference.exr")] + (
-            [("reference PNG", stem + "_reference.png")] if png else []
-        )
-    if request.reference.wanted:
-        out += [("error image", stem + "_error.exr"), ("error PNG", stem + "_error.png")]
-    return out
-
-
 def path_outputs(request, basis, manifold):
     """Blend the images along ``--path``; returns the outputs ``(kind, path, writer)`` to write."""
-    from ..._util import checks as validate
     from ...basis.blend import MovingTarget, blend_path, path_labels
+    from ...basis.points import check_path_memory, path_end, target_index
     from ...imaging import io as imageio
 
     path, output = request.path, request.output
-    w, h = basis.resolution
-    validate.fits_in_memory(
-        "--steps", 2 * path.steps * w * h * 3 * 4, f"{path.steps} images of {w}x{h}"
-    )
-    if request.x is not None and basis.p == 1:
-        fail(
-            "--x sets the fixed targets along --path, and this basis has one target, whose point the path "
-            "sets: drop --x (or drop --path to blend the point --x)"
-        )
-    ends = [a if a in manifold.names else _point_or_name(a) for a in path.ends]
-    for a, end in zip(path.ends, ends):
-        if not isinstance(end, str) and (
-            len(end) != manifold.q or not all(map(math.isfinite, end))
-        ):
-            fail(f"--path end {a!r} must be a material name or {manifold.q} finite numbers")
-    target = 0
-    if path.target is not None:
-        if path.target not in basis.targets:
-            fail(f"--target {path.target!r} is not a target of the basis ({basis.targets})")
-        target = basis.targets.index(path.target)
-    with _one_line_warnings():
+    check_path_memory(basis, path.steps)
+    ends = [
+        path_end(manifold, a if a in manifold.names else _point_or_name(a), a) for a in path.ends
+    ]
+    target = target_index(basis, path.target)
+    with one_line_warnings():
         images, _, info = blend_path(
             basis,
             manifold,
@@ -458,22 +370,6 @@ def path_outputs(request, basis, manifold):
         )
     )
     return outputs
-
-
-class _one_line_warnings:
-    """Library warnings (an older L1- basis) as one ``warning: ...`` line on stderr."""
-
-    def __enter__(self):
-        import warnings
-
-        self.catch = warnings.catch_warnings(record=True)
-        self.caught = self.catch.__enter__()
-        warnings.simplefilter("always", UserWarning)
-
-    def __exit__(self, *exc):
-        self.catch.__exit__(*exc)
-        for w in self.caught:
-            print(f"warning: {w.message}", file=sys.stderr)
 
 
 def _say_component(info):
@@ -531,7 +427,7 @@ def point_outputs(request, basis, manifold):
     from ...imaging import metrics
 
     settings, output = request.settings, request.output
-    with _one_line_warnings():
+    with one_line_warnings():
         image, info = blend(
             basis,
             manifold,
@@ -554,14 +450,10 @@ def point_outputs(request, basis, manifold):
         f"blend time: {info.time_ms:.3f} ms ({info.n_images} images; reading them: "
         f"{info.time_read_s:.3f} s)"
     )
-    if (
-        info.component == "full"
-        and settings.l2 == "raw"
-        and request.refine.spp is None
-        and (image < 0).any()
-    ):
+    below = metrics.negative_pixels(image)
+    if info.component == "full" and settings.l2 == "raw" and request.refine.spp is None and below:
         print(
-            f"note: {int((image < 0).any(axis=-1).sum())} pixels below 0 (the summed cross terms' noise; "
+            f"note: {below} pixels below 0 (the summed cross terms' noise; "
             "the default --l2 denoised has none)"
         )
     unrefined = image
@@ -606,12 +498,13 @@ def point_outputs(request, basis, manifold):
 
 
 def reference_image(request, basis, manifold, outputs):
-    """The reference of ``--reference`` (read) or ``--render-reference`` (rendered, and added
-    to ``outputs``), or None.
+    """The reference of ``--reference`` (read) or ``--render-reference`` (rendered by
+    :func:`mitsuba_manifold.render.scene.references.render_reference_passes`, and added to
+    ``outputs``), or None.
     """
     from ...basis.blend import latent_points
     from ...imaging import io as imageio
-    from ...render.scene.scenes import render_reference, scene_resolution
+    from ...render.scene.references import BasisView, render_reference_passes
 
     ref, output = request.reference, request.output
     if ref.file:
@@ -630,20 +523,8 @@ def reference_image(request, basis, manifold, outputs):
     print(f"rendering the reference: {scene}, {how} (as the basis), {ref.spp} spp ...", flush=True)
     t0 = time.perf_counter()
     points = latent_points(basis, manifold, request.x)
-    view = reference_view(basis, scene, render_reference)
-    reference = render_reference(
-        scene,
-        request.manifold or m.manifold,
-        points,
-        ref.spp,
-        seed=ref.seed,
-        resolution=scene_resolution(m),
-        max_depth=m.max_depth,
-        variant=m.variant,
-        targets=basis.targets,
-        database=request.database,
-        **view,
-    )
+    view = BasisView.of(basis, scene, request.manifold, request.database, warn=print)
+    reference = render_reference_passes(view, points, ref.spp, seed=ref.seed).image
     print(f"reference rendered in {time.perf_counter() - t0:.2f} s")
     if basis.p == 1:
         neg = manifold.negative_fraction(points[0], database=request.database)
@@ -666,126 +547,40 @@ def reference_image(request, basis, manifold, outputs):
     return reference
 
 
-#: Most images along ``--path`` (one EXR file each, and a contact-sheet tile).
-MAX_STEPS = 1000
-#: Most files listed one per line; more are written under a progress bar.
-LIST_FILES = 50
-
-
-def write_outputs(out, outputs, force=False, group=None):
-    """Write ``outputs`` under the tools' output discipline (:class:`ownership.Outputs`): check
-    that none replaces a file this tool did not make, create the folder of ``out``, run every
-    writer (reporting each file, or more than :data:`LIST_FILES` with a progress bar and one
-    line), each file recorded as the tool's own as it is written (a run
-    stopped half-way leaves files the same command replaces). With ``group`` (what the run
-    writes, e.g. ``"path:" + out``), the files an earlier run of the group wrote and this one
-    did not are removed (a shorter ``--path``'s surplus frames).
-    """
-    from tqdm import tqdm
-
-    from ..._util import ownership
-
-    with ownership.Outputs("blend.py", force, group=group) as guard:
-        for kind, path, _ in outputs:
-            guard.check(path, kind)
-        os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
-        many = len(outputs) > LIST_FILES
-        bar = tqdm(
-            total=len(outputs), desc="writing", unit="file", disable=not many, file=sys.stderr
-        )
-        with bar:
-            for kind, path, write in outputs:
-                write()
-                bar.update()
-                if not many:
-                    print(f"wrote {kind}: {path}")
-        if many:
-            print(f"wrote {len(outputs)} files: {outputs[0][1]} ... {outputs[-1][1]}")
-        if group is not None:
-            for path in guard.remove_stale(os.path.dirname(os.path.abspath(out))):
-                print(f"removed {path} (from an earlier blend to {out}; this one did not write it)")
-
-
-#: Files a point blend may write beside ``<stem>.exr``.
-COMPANIONS = (".png", "_error.exr", "_error.png", "_reference.exr", "_reference.png")
-
-
 def remove_stale_companions(out, outputs):
     """Remove the files an earlier blend to ``out`` wrote beside it that this run did not
-    write again (e.g. the previous point's error image): only files this tool recorded as its
-    own, unchanged since (:func:`ownership.owned`); a user's file is never touched.
+    write again (e.g. the previous point's error image): only the tool's own, unchanged since
+    (:func:`mitsuba_manifold._util.ownership.remove_owned`).
     """
     from ..._util import ownership
 
-    written = {os.path.abspath(path) for _, path, _ in outputs}
-    for suffix in COMPANIONS:
-        path = _stem(out) + suffix
-        if os.path.abspath(path) not in written and os.path.isfile(path) and ownership.owned(path):
-            os.remove(path)
-            print(f"removed {path} (from an earlier blend to {out}; this one did not write it)")
-
-
-def checked_x(request, basis, manifold):
-    """The numbers of ``--x`` (names resolved), checked against the basis's targets: one point
-    per target, or with ``--path`` on several targets one per target that stays fixed (the
-    moving one's row is filled in; one per target is accepted too, the moving one's ignored).
-    """
-    x = resolve_names(request.x, manifold)
-    p, q, targets = basis.p, manifold.q, basis.targets
-    each = f"each a material name or {q} number{'s' if q > 1 else ''}"
-    if request.path is not None and request.path.target not in (None, *targets):
-        fail(f"--target {request.path.target!r} is not a target of the basis ({targets})")
-    if request.path is not None and p > 1:
-        moving = 0 if request.path.target is None else targets.index(request.path.target)
-        fixed = [t for k, t in enumerate(targets) if k != moving]
-        if x is not None and len(x) == (p - 1) * q:
-            rows = [x[k * q : (k + 1) * q] for k in range(p - 1)]
-            rows.insert(moving, list(manifold.latent[0]))  # the path sets this target's point
-            return [v for row in rows for v in row]
-        if x is None or len(x) != p * q:
-            got = "no --x" if x is None else f"--x gives {request.x_groups} point(s)"
-            fail(
-                f"--path moves target {targets[moving]!r} of the basis's targets {targets}, and "
-                f"{got}: give one --x per target that stays fixed ({', '.join(fixed)}"
-                f"{', in this order' if len(fixed) > 1 else ''}), {each} (--x A{' --x B' if len(fixed) > 1 else ''})"
-            )
-        return x
-    if x is not None and request.path is None and request.x_groups > p:
-        fail(
-            f"--x is given {request.x_groups} times, and this basis has {p} target(s) "
-            f"{targets}: give --x once per target, {each}"
-        )
-    if x is not None and request.path is None and len(x) != p * q and p == 1:
-        fail(
-            f"--x needs {q} numbers (the manifold's latent dimension) or a material's name, "
-            f"got {len(x)} numbers"
-        )
-    if x is not None and request.path is None and len(x) != p * q:
-        fail(
-            f"--x gives {request.x_groups} point(s) ({len(x)} numbers), and this basis has "
-            f"{p} target(s) {targets} on a {q}-dimensional manifold: repeat --x once per target, "
-            f"in this order, {each}"
-        )
-    return x
+    written = [path for _, path, _ in outputs]
+    for path in ownership.remove_owned(companions(out), keep=written):
+        print(f"removed {path} (from an earlier blend to {out}; this one did not write it)")
 
 
 @guarded
 def main(argv=None):
     request = parse(argv)
     from ...basis.folder import Basis
+    from ...basis.points import target_points
 
     try:
         basis = Basis.load(request.basis, manifold=request.manifold, scene=request.scene)
         manifold = basis.check_manifold(request.manifold)
-        request = replace(request, x=checked_x(request, basis, manifold))
+        path = request.path
+        x = target_points(
+            basis, manifold, request.x, path is not None, path and path.target
+        )  # one point per target, names resolved
+        request = replace(request, x=x)
         print(basis)
         out, force = request.output.out, request.output.force
         if request.path is not None:
             outputs = path_outputs(request, basis, manifold)
-            write_outputs(out, outputs, force, group="path:" + os.path.abspath(out))
+            write_outputs("blend.py", out, outputs, force, group="path:" + os.path.abspath(out))
         else:
             outputs = point_outputs(request, basis, manifold)
-            write_outputs(out, outputs, force, group="point:" + os.path.abspath(out))
+            write_outputs("blend.py", out, outputs, force, group="point:" + os.path.abspath(out))
             remove_stale_companions(out, outputs)
     except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's, from a reference render
         fail(e)

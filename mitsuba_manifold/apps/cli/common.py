@@ -19,9 +19,10 @@ INTERRUPTED_MESSAGE = (
 )
 
 
-#: A latent point or list of numbers that starts with a minus sign ("-1.1,-0.2", "-1e-3 0.5"):
-#: argparse would take it for an option and refuse ``--x -1.1,-0.2``.
-_NUMBERS = re.compile(r"^-\.?\d[\d.eE+-]*(?:[,\s]+[-+]?\.?\d[\d.eE+-]*)*$")
+#: What argparse takes for a negative number, not an option: anything that starts like one
+#: (``-1.1,-0.2``, ``-.5``, ``-1e-3 0.5``), the rule of argparse itself from Python 3.13
+#: (``re.compile(r"-\.?\d")``, matched at the start); no tool has an option spelled so.
+_NUMBERS = re.compile(r"-\.?\d")
 
 
 def read_measured(path, dims):
@@ -46,7 +47,8 @@ _PARAM = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
 
 class ArgumentParser(argparse.ArgumentParser):
     """argparse with its errors as one line ``error: ...`` (exit 2), as every other error,
-    and negative numbers (also comma-separated lists of them) read as values, not options.
+    and negative numbers (also comma-separated lists of them) read as values, not options
+    (argparse's own matcher set to its Python 3.13 rule, :data:`_NUMBERS`).
 
     ``aliases`` maps library parameter names to this tool's options where the option's
     ``dest`` differs (``{"scene_path": "scene"}``): library messages name Python
@@ -146,9 +148,11 @@ def parse_resolution(text):
 def parse_floats(text):
     """'0.3, -1.2' or '0.3 -1.2' -> [0.3, -1.2]; an empty place between commas ('0,,1') is refused."""
     parts = re.split(r"\s*,\s*|\s+", text.strip())
+    if "" in parts:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} has an empty place between commas; expected numbers like '0.3,-1.2'"
+        )
     try:
-        if "" in parts:
-            raise ValueError
         return [float(v) for v in parts]
     except ValueError:
         raise argparse.ArgumentTypeError(
@@ -255,29 +259,58 @@ def guarded(main):
     return run
 
 
-def reference_view(basis, scene, render_reference, warn=print):
-    """Keyword arguments of ``render_reference`` (:func:`mitsuba_manifold.render.scene.scenes.render_reference`)
-    that render the view of ``basis`` (its manifest's ``sensor``), so that a reference compares
-    with the blend pixel for pixel. Warns when the manifest does not record its sensor (a basis
-    of an earlier version) and ``scene`` has several; refuses a sensor other than 0 where
-    ``render_reference`` renders sensor 0 only.
+class one_line_warnings:
+    """Library warnings (an older L1- basis) as one ``warning: ...`` line on stderr."""
+
+    def __enter__(self):
+        import warnings
+
+        self.catch = warnings.catch_warnings(record=True)
+        self.caught = self.catch.__enter__()
+        warnings.simplefilter("always", UserWarning)
+
+    def __exit__(self, *exc):
+        self.catch.__exit__(*exc)
+        for w in self.caught:
+            print(f"warning: {w.message}", file=sys.stderr)
+
+
+#: Most files listed one per line; more are written under a progress bar.
+LIST_FILES = 50
+
+
+def write_outputs(tool, out, outputs, force=False, group=None):
+    """Write ``outputs`` (``(kind, path, writer)``) as ``tool`` under the tools' output
+    discipline (:class:`mitsuba_manifold._util.ownership.Outputs`): check
+    that none replaces a file this tool did not make, create the folder of ``out``, run every
+    writer (reporting each file, or more than :data:`LIST_FILES` with a progress bar and one
+    line), each file recorded as the tool's own as it is written (a run
+    stopped half-way leaves files the same command replaces). With ``group`` (what the run
+    writes, e.g. ``"path:" + out``), the files an earlier run of the group wrote and this one
+    did not are removed (a shorter ``--path``'s surplus frames).
     """
-    import inspect
+    from tqdm import tqdm
 
-    from ...errors import MismatchError
-    from ...render.jobs.render_basis import count_sensors
+    from ..._util import ownership
 
-    if not basis.sensor_known and count_sensors(scene) > 1:
-        warn(
-            f"warning: the basis {basis.folder} does not record which of the {count_sensors(scene)} sensors of "
-            f"{scene} it was rendered from (made by an earlier version); rendering the reference from sensor 0"
+    with ownership.Outputs(tool, force, group=group) as guard:
+        for kind, path, _ in outputs:
+            guard.check(path, kind)
+        os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+        many = len(outputs) > LIST_FILES
+        bar = tqdm(
+            total=len(outputs), desc="writing", unit="file", disable=not many, file=sys.stderr
         )
-    if "sensor" in inspect.signature(render_reference).parameters:
-        return {"sensor": basis.sensor}
-    if basis.sensor:
-        raise MismatchError(
-            f"the basis {basis.folder} was rendered from sensor {basis.sensor}, and this version "
-            "renders references from sensor 0 only: compare with a reference image of that view "
-            "instead"
-        )
-    return {}
+        with bar:
+            for kind, path, write in outputs:
+                write()
+                bar.update()
+                if not many:
+                    print(f"wrote {kind}: {path}")
+        if many:
+            print(f"wrote {len(outputs)} files: {outputs[0][1]} ... {outputs[-1][1]}")
+        if group is not None:
+            for path in guard.remove_stale(os.path.dirname(os.path.abspath(out))):
+                print(
+                    f"removed {path} (from an earlier {tool.removesuffix('.py')} to {out}; this one did not write it)"
+                )

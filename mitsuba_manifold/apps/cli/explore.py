@@ -164,16 +164,15 @@ def main(argv=None):
 
 
 def server_blas_threads(cores=None):
-    """BLAS threads of the explorer's server: the machine's cores less two (the browser showing
-    the page, and the frames), at least one.
-    """
-    cores = os.cpu_count() if cores is None else cores
-    return max(1, (cores or 1) - 2)
+    """:func:`mitsuba_manifold.apps.explore.web.serving.server_blas_threads` (imported when called)."""
+    from ..explore.web.serving import server_blas_threads as threads
+
+    return threads(cores)
 
 
 def serve(args):
     try:
-        import uvicorn
+        import uvicorn  # noqa: F401 (the explorer's extra)
     except ImportError:
         print(
             "error: the explorer needs its extra: pip install 'mitsuba-manifold[explore]'",
@@ -183,7 +182,7 @@ def serve(args):
 
     from ..explore import Explorer, create_app
     from ..explore.web.guard import MAX_MESSAGE, AllowList
-    from ..explore.web.serving import protocol, quiet_logs
+    from ..explore.web.serving import make_server, quiet_logs
     from .common import ERRORS, cli_message
 
     try:
@@ -219,20 +218,7 @@ def serve(args):
             thumbnails=not args.no_thumbnails,
             refine_spp=args.refine_spp,
         )
-        # frames are JPEG or raw pixels: per-message deflate would cost more time than it saves;
-        # a request not complete within seconds is closed, connections beyond a cap refused
-        # (serving.py), and repeated log messages collapsed
-        server = uvicorn.Server(
-            uvicorn.Config(
-                create_app(explorer, allow),
-                http=protocol(),
-                log_level="warning",
-                timeout_graceful_shutdown=1,
-                ws_ping_interval=None,
-                ws_per_message_deflate=False,
-                ws_max_size=MAX_MESSAGE,
-            )
-        )
+        server = make_server(create_app(explorer, allow), MAX_MESSAGE)
         quiet_logs()
         for name, b in explorer.bases.items():
             print(

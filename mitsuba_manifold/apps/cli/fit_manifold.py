@@ -6,72 +6,53 @@ import time
 from .common import ArgumentParser, guarded, parse_list
 
 
-def check(args, guard=None):  # noqa: C901  one check per option, each naming it, before the fit
+def options(args):
+    """The :class:`~mitsuba_manifold.manifold.presets.FitOptions` of the command line."""
+    from ...manifold.presets import FitOptions
+
+    return FitOptions(
+        preset=args.preset,
+        q=args.q,
+        names=args.materials,
+        method=args.method,
+        features=args.features,
+        length_scale=args.length_scale,
+        noise=args.noise,
+        stress=args.stress,
+    )
+
+
+def _saved_manifold(args):
+    """Whether DATABASE is a saved manifold (``.npz``) to add materials to."""
+    return os.path.isfile(args.database) and args.database.lower().endswith(".npz")
+
+
+def check(args, guard=None):
     """Everything checked before the (long) fit: values, --out and --plot (``guard``: the run's
     :class:`ownership.Outputs`, which then watches them; default: checked only).
     """
     from ..._util import checks as validate
     from ..._util import ownership
-    from ...errors import InputError, MitsubaManifoldError, one_line
+    from ...errors import InputError
     from ...imaging import plots
-    from ...manifold.presets import PRESETS
+    from ...manifold.adding import check_additions
+    from ...manifold.file.io import check_save_path
 
-    if len(args.name) > len(args.add):
-        raise InputError(
-            f"--name given {len(args.name)} times for {len(args.add)} --add; give one --name per --add"
-        )
-    from ...data.sources import material_source
-
-    for path in args.add:
-        try:
-            material_source(path)
-        except MitsubaManifoldError as e:
-            raise InputError(f"--add {path}: {one_line(e)}") from None
-    if os.path.isfile(args.database) and args.database.lower().endswith(".npz"):
+    check_additions(args.add, args.name)
+    fit = options(args)
+    if _saved_manifold(args):
         if not args.add:
             raise InputError(
                 f"{args.database} is a saved manifold, not a database: add materials to it with "
                 "--add PATH, or give a database folder or built-in name to fit"
             )
-        fit_options = {
-            "--q": args.q,
-            "--materials": args.materials,
-            "--method": args.method,
-            "--features": args.features,
-            "--length-scale": args.length_scale,
-            "--noise": args.noise,
-            "--stress": args.stress,
-            "--preset": None if args.preset == "default" else args.preset,
-        }
-        given = [k for k, v in fit_options.items() if v is not None]
-        if given:
+        if fit.given():
             raise InputError(
-                f"{', '.join(given)} set how a manifold is fitted; {args.database} is fitted "
+                f"{', '.join(fit.given())} set how a manifold is fitted; {args.database} is fitted "
                 "already (--add keeps its points): drop them, or fit a database instead"
             )
-    if args.q is not None and not 1 <= args.q <= 8:
-        raise InputError(f"--q must be an integer from 1 to 8, got {args.q}")
-    if args.length_scale is not None:
-        validate.finite("--length-scale", args.length_scale, 0.0, 1e6, lo_open=True)
-    if args.noise is not None:
-        validate.finite("--noise", args.noise, 0.0, 1e6, lo_open=True)
-    if args.stress is not None:
-        validate.finite("--stress", args.stress, 0.0, 1e6)
-    method = args.method or PRESETS[args.preset]["method"]
-    stress = PRESETS[args.preset]["stress"] if args.stress is None else args.stress
-    if method == "hooke-jeeves" and stress > 0:
-        raise InputError(
-            f"--method {method} cannot fit the layout's stress term (weight {stress:g}, "
-            f"{'--stress' if args.stress is not None else 'the ' + args.preset + ' preset'}): "
-            "add --stress 0, or use --method newton (or lbfgs)"
-        )
-    folder, base = os.path.split(args.out)
-    if not base.lower().endswith(".npz") or len(base) <= 4:
-        fix = os.path.join(folder, (os.path.splitext(base)[0].lstrip(".") or "manifold") + ".npz")
-        raise InputError(
-            f"--out must name a .npz file (the manifold is saved as NumPy .npz), got {args.out!r}: "
-            f"use --out {fix}"
-        )
+    fit.check()
+    check_save_path(args.out)
     guard = guard or ownership.Outputs("fit_manifold.py", args.force)
     guard.check(args.out, "--out")
     if args.plot:
@@ -160,19 +141,20 @@ def fit_and_save(args, guard, t0):
     from ...imaging import plots
     from ...manifold.model import Manifold
 
-    if args.add and os.path.isfile(args.database) and args.database.lower().endswith(".npz"):
+    if args.add and _saved_manifold(args):
         m = Manifold.load(args.database)
     else:
+        fit = options(args)
         m = Manifold.fit(
             args.database,
-            q=args.q,
-            names=args.materials,
-            method=args.method,
-            length_scale=args.length_scale,
-            noise=args.noise,
-            features=args.features,
-            preset=args.preset,
-            stress=args.stress,
+            q=fit.q,
+            names=fit.names,
+            method=fit.method,
+            length_scale=fit.length_scale,
+            noise=fit.noise,
+            features=fit.features,
+            preset=fit.preset,
+            stress=fit.stress,
             progress=True,
         )
     for k, path in enumerate(args.add):

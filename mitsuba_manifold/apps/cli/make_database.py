@@ -9,7 +9,6 @@ on demand into its cache; ``--export`` writes every material as a ``.binary`` fi
 set needs no folder at all: every tool that takes a database also takes a set's name.
 """
 
-import os
 import time
 
 from .common import ArgumentParser, guarded, parse_list, parse_resolution
@@ -54,48 +53,32 @@ def main(argv=None):
     p.add_argument("--force", action="store_true", help="overwrite files this tool did not make")
     args = p.parse_args(argv)
 
-    from ..._util import checks as validate
-    from ...data import database, merl
-    from ...data.sources import builtin_set
-    from ...errors import InputError
+    from ...data.database import DatabaseRequest, build_database
 
     t0 = time.perf_counter()
-    # one rule for set names and folders (sgd where ./sgd exists is ambiguous, builtin:sgd the set)
-    sources = [builtin_set(s, what="--from") or s for s in args.sources or ["merl"]]
     if args.materials and len(set(args.materials)) < len(args.materials):
         repeated = sorted({n for n in args.materials if args.materials.count(n) > 1})
         print(f"note: {', '.join(repeated)} repeated in --materials; each table is made once")
-        args.materials = list(dict.fromkeys(args.materials))
-    validate.finite("--noise", args.noise, 0.0, 10.0)
-    validate.seed("--seed", args.seed)
-    if sources == ["sgd"] and (args.export or args.materials or args.noise > 0):
-        n = len(args.materials) if args.materials else 100
-        merl.table_resolution(args.resolution, "--resolution", workers=min(n, os.cpu_count() or 1))
-        paths = database.make_database(
-            args.out,
-            args.resolution,
-            args.materials,
-            args.noise,
-            args.seed,
-            progress=True,
-            force=args.force,
-        )
-        print(f"{len(paths)} tables in {args.out} ({time.perf_counter() - t0:.1f} s)")
-        return
-    if args.noise > 0:
-        raise InputError("--noise applies to --from sgd only (noisy copies of the SGD fits)")
-    merl.table_resolution(args.resolution, "--resolution")
-    export = args.export or args.materials is not None
-    db = database.write_database(
-        args.out,
-        sources,
-        args.resolution,
-        args.materials,
-        export=export,
-        progress=True,
+    request = DatabaseRequest(
+        out=args.out,
+        sources=tuple(args.sources or ["merl"]),
+        resolution=args.resolution,
+        materials=None if args.materials is None else tuple(args.materials),
+        export=args.export,
+        noise=args.noise,
+        seed=args.seed,
         force=args.force,
+    ).checked()
+    count = build_database(request)
+    if request.sgd_copies:
+        print(f"{count} tables in {args.out} ({time.perf_counter() - t0:.1f} s)")
+        return
+    what = (
+        ".binary files"
+        if request.export or request.materials is not None
+        else ("materials (tables made on demand)")
     )
-    what = ".binary files" if export else "materials (tables made on demand)"
     print(
-        f"{len(db.names)} {what} in {args.out} from {', '.join(sources)} ({time.perf_counter() - t0:.1f} s)"
+        f"{count} {what} in {args.out} from {', '.join(request.sources)} "
+        f"({time.perf_counter() - t0:.1f} s)"
     )

@@ -42,15 +42,10 @@ def main(argv=None):
 
 def write_assets(args, bowl, sky, guard):
     """Write the bowl mesh and the sky map (under ``guard``, :class:`ownership.Outputs`)."""
-    import mitsuba as mi
-
     from ...imaging import io as imageio
     from ...render.scene import geometry
 
-    if mi.variant() is None:
-        mi.set_variant("scalar_rgb")  # write_ply builds the mesh with Mitsuba
-    v, f = geometry.bowl(n=args.profile, segments=args.segments)
-    geometry.write_ply(bowl, v, f)
+    v, f = geometry.write_bowl(bowl, args.profile, args.segments)
     note = " (unchanged)" if bowl in guard.kept else ""
     print(
         f"{bowl}{note}: {len(v)} vertices, {len(f)} triangles, volume {geometry.signed_volume(v, f):.4f}"

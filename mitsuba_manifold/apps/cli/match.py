@@ -18,7 +18,7 @@ import os
 import sys
 import time
 
-from .common import ERRORS, ArgumentParser, fail, guarded, reference_view
+from .common import ERRORS, ArgumentParser, fail, guarded
 
 
 def _parser():
@@ -127,28 +127,15 @@ def _check_args(args):
 
 def _inputs(args):
     """Basis, manifold, target and mask weights, all checked."""
-    import numpy as np
-
     from ...basis.folder import Basis
-    from ...basis.inverse import match as mt
+    from ...basis.inverse.targets import read_target_and_weight
 
     basis = Basis.load(args.basis, manifold=args.manifold)
     manifold = basis.check_manifold(args.manifold)
-    target, clipped = mt.read_target(args.target, basis.resolution)
-    target = mt.check_target(target, basis.resolution, what=f"image {args.target}")
-    weight = np.ones(target.shape[:2])
-    if args.mask:
-        weight = mt.check_mask(
-            mt.read_mask(args.mask, basis.resolution), basis.resolution, what=f"mask {args.mask}"
-        )
-    if clipped.any():
+    target, weight, clipped = read_target_and_weight(args.target, args.mask, basis.resolution)
+    if clipped:
         print(
-            f"note: {int(clipped.sum())} clipped pixels of the target (a channel at its largest code) are left out"
-        )
-        weight = mt.check_mask(
-            weight * ~clipped,
-            basis.resolution,
-            what=f"mask {args.mask or '(all pixels)'} without the target's clipped pixels",
+            f"note: {clipped} clipped pixels of the target (a channel at its largest code) are left out"
         )
     return basis, manifold, target, weight
 
@@ -188,11 +175,9 @@ def _report(result, manifold, basis):
 
 def _outputs(args, result, basis, manifold, target):
     """(kind, path, writer) of everything to write."""
-    import numpy as np
-
-    from ...basis.folder import BASE
+    from ...basis.composition import single_image
     from ...imaging import io as imageio
-    from ...render.scene.scenes import render_reference, scene_resolution
+    from ...render.scene.references import BasisView, render_reference_passes
 
     outputs, info = [], result.to_dict(manifold)
     if args.out:
@@ -201,10 +186,8 @@ def _outputs(args, result, basis, manifold, target):
             ("blend at the best point", args.out, lambda: imageio.write_exr(args.out, result.image))
         )
         if args.png:
-            single = basis.image(basis.key([result.single.name])) + basis.image(BASE)
-            images = np.stack(
-                [target, result.exposure * result.image, result.single.exposure * single]
-            )
+            single = single_image(basis, result.single.name)
+            images = [target, result.exposure * result.image, result.single.exposure * single]
             labels = [
                 "image to match",
                 f"match ({result.error:.3g})",
@@ -226,18 +209,8 @@ def _outputs(args, result, basis, manifold, target):
             )
             t0 = time.perf_counter()
             try:
-                view = reference_view(basis, m.scene, render_reference)
-                ref = render_reference(
-                    m.scene,
-                    args.manifold or m.manifold,
-                    result.x,
-                    args.spp,
-                    seed=args.seed,
-                    resolution=scene_resolution(m),
-                    max_depth=m.max_depth,
-                    variant=m.variant,
-                    **view,
-                )
+                view = BasisView.of(basis, manifold=args.manifold, warn=print)
+                ref = render_reference_passes(view, result.x, args.spp, seed=args.seed).image
             except (*ERRORS, RuntimeError) as e:  # RuntimeError: Mitsuba's
                 fail(e)
             print(f"rendered in {time.perf_counter() - t0:.1f} s")
@@ -274,16 +247,16 @@ def _refuse_inputs(args, guard):
     this tool did not make (``guard``: :class:`ownership.Outputs`, which allows those with
     ``--force``).
     """
+    from ..._util import ownership
     from ...basis.folder import owned_files as basis_ownership
 
-    inputs = {os.path.realpath(p) for p in (args.target, args.mask) if p}
     for path in _planned(args):
-        real = os.path.realpath(path)
-        if real in inputs or os.path.dirname(real) == os.path.realpath(args.basis):
-            fail(
-                f"output {path} would overwrite an input (the target, the mask or the basis); "
-                "choose another path"
-            )
+        ownership.check_not_inputs(
+            [path],
+            (args.target, args.mask),
+            folders=(args.basis,),
+            named="an input (the target, the mask or the basis)",
+        )
         basis_ownership.check_output_outside_basis(path)
         guard.check(path, "output")
 
@@ -300,21 +273,18 @@ def main(argv=None):
     from ..._util import ownership
     from ...basis.inverse import match as mt
 
+    settings = mt.MatchSettings(
+        loss="log" if args.log else "rel_mse",
+        exposure_free=args.exposure_free,
+        prior=args.prior,
+        starts=args.starts,
+        max_iter=args.max_iter,
+        scan=args.scan,
+    )  # the tool's parameter object (checked by the match)
     with ownership.Outputs("match.py", args.force) as guard:
         _refuse_inputs(args, guard)
         basis, manifold, target, weight = _inputs(args)
-        result = mt.match(
-            basis,
-            target,
-            weight,
-            manifold=manifold,
-            loss="log" if args.log else "rel_mse",
-            exposure_free=args.exposure_free,
-            prior=args.prior,
-            starts=args.starts,
-            max_iter=args.max_iter,
-            scan=args.scan,
-        )
+        result = mt.match(basis, target, weight, manifold=manifold, settings=settings)
         _report(result, manifold, basis)
         outputs = _outputs(args, result, basis, manifold, target)
         for kind, path, _ in outputs:

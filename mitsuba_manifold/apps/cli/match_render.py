@@ -204,13 +204,10 @@ def _check(args):
         fail(f"--regularisation must be a number >= 0, got {args.regularisation}")
     from ..._util import ownership
 
-    inputs = {
-        os.path.realpath(p) for p in args.target + (args.mask or []) + args.scene + [args.manifold]
-    }
+    inputs = args.target + (args.mask or []) + args.scene + [args.manifold]
     extra = [p for p in (args.plot, args.json, _sheet_path(args), args.snippet) if p]
     for path in _out_paths(args, len(args.target)) + extra:
-        if os.path.realpath(path) in inputs:
-            fail(f"output {path} would overwrite an input; choose another path")
+        ownership.check_not_inputs([path], inputs)
         ownership.check_replaceable(path, args.force, what="output")
 
 
@@ -320,8 +317,6 @@ def _acquire(args, views):
         print(f"wrote the acquired material's render: {path}")
     sheet = _sheet_path(args)
     if sheet:
-        import numpy as np
-
         images, labels = [], []
         for k, (t, a, s) in enumerate(zip(got.photos, got.renders, got.singles)):
             images += [t, a, s]
@@ -331,17 +326,9 @@ def _acquire(args, views):
                 f"{r.single['name']}\n{r.single['error']:.3f}",
             ]
         os.makedirs(os.path.dirname(os.path.abspath(sheet)), exist_ok=True)
-        # one tile size for all views: each enlarged by whole pixels to at least SHEET_TILE wide
-        # (small photos, to be seen), then padded with black to the largest
-        big = []
-        for im in images:
-            im = np.asarray(im, dtype=np.float32)
-            k = -(-SHEET_TILE // im.shape[1])
-            big.append(im.repeat(k, axis=0).repeat(k, axis=1))
-        tiles = np.zeros((len(big), max(i.shape[0] for i in big), max(i.shape[1] for i in big), 3))
-        for t, im in zip(tiles, big):
-            t[: im.shape[0], : im.shape[1]] = im
-        imageio.write_contact_sheet(sheet, tiles.astype(np.float32), labels, columns=3)
+        # one tile size for all views, small photos enlarged to be seen
+        tiles = imageio.tiles(images, SHEET_TILE)
+        imageio.write_contact_sheet(sheet, tiles, labels, columns=3)
         written.append(sheet)
         print(f"wrote contact sheet (photo | acquired | best single): {sheet}")
     if args.snippet:

@@ -9,7 +9,6 @@ nearest training material's, and the main weights; --json writes the same.
 """
 
 import json
-import os
 
 from .common import ArgumentParser, guarded
 
@@ -20,12 +19,16 @@ def check_json(args, guard=None):
     read-only one).
     """
     from ..._util import ownership
-    from ...errors import ForeignFileError, InputError
+    from ...errors import InputError
 
     if not args.json.lower().endswith(".json"):
         raise InputError(f"--json must name a .json file, got {args.json!r}")
-    if os.path.realpath(args.json) in {os.path.realpath(p) for p in (args.table, args.manifold)}:
-        raise ForeignFileError(f"--json {args.json} is an input of this run; choose another name")
+    ownership.check_not_inputs(
+        [args.json],
+        (args.table, args.manifold),
+        what="--json",
+        reason="is an input of this run; choose another name",
+    )
     (guard or ownership.Outputs("project.py", args.force)).check(args.json, "--json")
 
 
@@ -73,16 +76,7 @@ def project(args):
     m = Manifold.load(args.manifold)
     m.tables(args.database)
     r = m.project(args.table)
-    top = sorted(range(m.n), key=lambda i: -abs(r.weights[i]))[:5]
-    result = {
-        "table": args.table,
-        "x": r.x.tolist(),
-        "error": r.error,
-        "nearest": r.nearest,
-        "nearest_error": r.nearest_error,
-        "negative_fraction": r.negative_fraction,
-        "weights": {m.names[i]: float(r.weights[i]) for i in top if r.weights[i] != 0},
-    }
+    result = r.to_json(args.table, m.names)
     if args.json:
         write_bytes(args.json, json.dumps(result, indent=1) + "\n")
     print(f"x = {', '.join(f'{v:.6g}' for v in r.x)}")

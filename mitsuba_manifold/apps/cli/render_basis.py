@@ -15,7 +15,8 @@ import argparse
 import sys
 import time
 
-from .common import ArgumentParser, fail, guarded, parse_indices, parse_list, parse_point
+from ...basis.sampling import DEFAULT_SPP
+from .common import ArgumentParser, guarded, parse_indices, parse_list, parse_point
 
 
 def parse_views(text):
@@ -37,36 +38,14 @@ def parse_views(text):
     return views
 
 
-#: Samples per pixel of a basis whose scene declares none and no ``--spp``.
-DEFAULT_SPP = 64
-
-
 def check_numbers(args, spp):
-    """The options checked before any folder is made: ``--spp`` (``spp``: the most samples
-    per pixel of any basis, the scenes' own where ``--spp`` is not given), ``--chunks``,
-    ``--res``, ``--max-depth`` and ``--seed``, whose derived seeds must fit Mitsuba's 32 bits
-    (one-pass renders seed pass ``p`` of ``n`` with ``seed * n + p``, at most one pass per
-    sample; chunk ``j`` of ``k`` has seed ``seed * k + j``).
+    """``--spp`` (``spp``: the most samples per pixel of any basis), ``--chunks``, ``--res``,
+    ``--max-depth`` and ``--seed`` (:func:`mitsuba_manifold.basis.sampling.check_sampling`),
+    before any folder is made.
     """
-    from ..._util import checks as validate
+    from ...basis.sampling import check_sampling
 
-    if args.spp is not None:
-        validate.positive_int("--spp", args.spp, "64")
-    validate.positive_int("--chunks", args.chunks, "4")
-    if args.res is not None and not 1 <= args.res <= 16384:
-        fail(f"--res must be from 1 to 16384, got {args.res}")
-    if args.max_depth is not None and args.max_depth != -1 and args.max_depth < 2:
-        fail(
-            f"--max-depth must be -1 (unbounded) or at least 2, got {args.max_depth} (depth 1 "
-            "reaches only the lights seen directly: no image would show the material)"
-        )
-    per_chunk = -(-spp // args.chunks)
-    streams = args.chunks * (per_chunk if args.mode == "onepass" else 1)
-    why = (
-        f" with --spp {spp}, --chunks {args.chunks} and --mode {args.mode} (the renderer derives up to "
-        f"{streams} seeds from it, and Mitsuba's seeds have 32 bits)"
-    )
-    validate.seed("--seed", args.seed, streams, why if streams > 1 else "")
+    check_sampling(spp, args.chunks, args.mode, args.seed, args.res, args.max_depth)
 
 
 @guarded
@@ -187,7 +166,7 @@ def main(argv=None):
     if args.spp is not None:
         check_numbers(args, args.spp)  # before the renderer is imported
 
-    from ...render.jobs.chunks import render_chunked
+    from ...render.jobs.chunks import render_view
     from ...render.jobs.executor import make_executor
     from ...render.jobs.render_basis import (
         BasisOptions,
@@ -198,17 +177,14 @@ def main(argv=None):
         Selection,
         check_job_folders,
         plan_views,
-        render_basis,
+        view_spp,
     )
-    from ...render.scene.scenes import scene_path, scene_sample_count
+    from ...render.scene.scenes import scene_path
 
     t0 = time.perf_counter()
     scenes = [scene_path(s) for s in args.scenes]  # a scene XML or a shipped scene's name
     jobs = plan_views(scenes, args.views, args.out)
-    spp = {
-        (scene, sensor): args.spp or scene_sample_count(scene, sensor) or DEFAULT_SPP
-        for scene, sensor, _ in jobs
-    }
+    spp = view_spp(jobs, args.spp)
     check_numbers(args, max(spp.values()))
     check_job_folders(jobs, args.out, args.force)  # every folder, before the first render
     executor = make_executor(args.executor, args.address)
@@ -229,18 +205,9 @@ def main(argv=None):
         for scene, sensor, out in jobs:
             t1 = time.perf_counter()
             view_options = options.updated(sensor=sensor, spp=spp[scene, sensor])
-            if args.chunks == 1 and args.executor == "local":
-                manifest = render_basis(scene, args.manifold, out, view_options)
-            else:
-                manifest = render_chunked(
-                    scene,
-                    args.manifold,
-                    out,
-                    view_options,
-                    chunks=args.chunks,
-                    executor=executor,
-                    keep_chunks=args.keep_chunks,
-                ).manifest
+            manifest = render_view(
+                scene, args.manifold, out, view_options, args.chunks, executor, args.keep_chunks
+            )
             gi = len(manifest.gi_images or {})
             cross = (manifest.cross.pairs or 0) if manifest.cross else 0
             extra = f" (and {gi} full-GI images, {cross} cross terms)" if gi else ""

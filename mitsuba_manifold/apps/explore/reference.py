@@ -41,8 +41,8 @@ import numpy as np
 
 from ...errors import BusyError
 from ...imaging import metrics
-from ...render.scene.scenes import scene_resolution
-from .render_job import Reference, RenderSpec
+from ...render.scene.references import BasisView, Reference
+from .render_job import RenderSpec
 
 MAX_SPP = 1 << 14
 KEEP_JOBS = 16
@@ -361,18 +361,10 @@ class References:
         """
         tmp = tempfile.mkdtemp(prefix="job-", dir=self._job_folders())
         try:
-            spec = RenderSpec(
-                scene=os.path.abspath(scene_path),
-                manifold=os.path.abspath(manifold_path),
-                x=list(job.x),
-                spp=job.spp,
-                resolution=_listed(scene_resolution(basis.manifest)),
-                size=list(basis.resolution),
-                max_depth=int(basis.manifest.max_depth),
-                variant=basis.manifest.variant,
-                sensor=basis.sensor,
-                out=os.path.join(tmp, "reference.npz"),
+            view = BasisView.of(
+                basis, scene=os.path.abspath(scene_path), manifold=os.path.abspath(manifold_path)
             )
+            spec = RenderSpec(view, list(job.x), job.spp, os.path.join(tmp, "reference.npz"))
             spec.write(os.path.join(tmp, "spec.json"))
             env = dict(os.environ)
             env["PYTHONPATH"] = os.pathsep.join([_ROOT] + [p for p in [env.get("PYTHONPATH")] if p])
@@ -486,8 +478,3 @@ def _sweep(folder) -> None:
         except (OSError, OverflowError):
             continue  # another user's, or not a process id: left alone
         shutil.rmtree(os.path.join(folder, name), ignore_errors=True)
-
-
-def _listed(resolution):
-    """A scene's load resolution as JSON (None: the film's own size)."""
-    return None if resolution is None else list(resolution)

@@ -9,6 +9,7 @@ image of a basis is ever replaced by a result computed from it.
 
 import os
 
+from ..._util import ownership
 from ..._util.atomic import is_temporary
 from ..._util.locking import LOCK_NAME
 from ...errors import ForeignFileError
@@ -20,15 +21,10 @@ EXTRA = ("aovs.npz", ".chunks")
 
 def check_output_outside_basis(out, basis_folder=None):
     """Raise unless ``out`` lies outside every basis folder (``basis_folder`` included):
-    a blend never writes into a basis, whose files the basis's manifest owns.
+    a blend never writes into a basis, whose files the basis's manifest owns (the rule of
+    :func:`mitsuba_manifold._util.ownership.check_outside_managed`).
     """
-    folder = os.path.realpath(os.path.dirname(os.path.abspath(os.fspath(out))))
-    inside = basis_folder is not None and folder == os.path.realpath(os.fspath(basis_folder))
-    if inside or is_basis_folder(folder):
-        raise ForeignFileError(
-            f"`out` {out} lies in the basis folder {folder}; a blend never writes into a "
-            "basis (its images belong to render_basis): choose another folder"
-        )
+    ownership.check_outside_managed(out, is_basis_folder, basis_folder)
 
 
 def basis_entries(folder):

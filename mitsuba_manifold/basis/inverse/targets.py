@@ -101,6 +101,28 @@ def read_mask(path, resolution=None):
     return codes.mean(axis=-1) / top
 
 
+def read_target_and_weight(target_path, mask_path, resolution):
+    """The target of a match read from ``target_path`` and its pixel weights: the mask of
+    ``mask_path`` (None: every pixel 1), without the target's clipped pixels
+    (:func:`read_target`), all checked against ``resolution``.
+
+    Returns ``(target float32 (H, W, 3), weight (H, W), clipped)``: ``clipped`` the number of
+    pixels left out because a channel is at its largest code.
+    """
+    target, clipped = read_target(target_path, resolution)
+    target = check_target(target, resolution, what=f"image {target_path}")
+    weight = np.ones(target.shape[:2])
+    if mask_path:
+        weight = check_mask(read_mask(mask_path, resolution), resolution, what=f"mask {mask_path}")
+    if clipped.any():
+        weight = check_mask(
+            weight * ~clipped,
+            resolution,
+            what=f"mask {mask_path or '(all pixels)'} without the target's clipped pixels",
+        )
+    return target, weight, int(clipped.sum())
+
+
 #: The 8 bytes every PNG file starts with.
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

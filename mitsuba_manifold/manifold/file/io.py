@@ -112,3 +112,16 @@ def read(path):
         "cos_gram": arrays.get("cos_gram"),
         "added": meta.get("added"),
     }
+
+
+def check_save_path(out, what="`out`") -> None:
+    """Raise :class:`InputError` unless ``out`` names a ``.npz`` file (the manifold's format),
+    suggesting the name to use.
+    """
+    folder, base = os.path.split(out)
+    if not base.lower().endswith(".npz") or len(base) <= 4:
+        fix = os.path.join(folder, (os.path.splitext(base)[0].lstrip(".") or "manifold") + ".npz")
+        raise InputError(
+            f"{what} must name a .npz file (the manifold is saved as NumPy .npz), got {out!r}: "
+            f"use {what} {fix}"
+        )

@@ -77,3 +77,42 @@ def resolve_manifold(path, *, recorded=False) -> str:
     if not recorded and os.path.lexists(path):
         raise ambiguity(path, path)
     return shipped_path(path)
+
+
+def check_sets(names, what="`sets`") -> list:
+    """``names`` when each is a shipped manifold (:data:`SHIPPED`), else an :class:`InputError`
+    naming the others.
+    """
+    unknown = [s for s in names if s not in SHIPPED]
+    if unknown:
+        raise InputError(f"{what} {','.join(unknown)}: not shipped; one of {', '.join(SHIPPED)}")
+    return list(names)
+
+
+def write(manifold, name, folder=FOLDER):
+    """Write the fitted ``manifold`` as shipped manifold ``name`` (``<folder>/<name>.npz``) so
+    that the same fit gives the same bytes on every machine: the fit's wall times left out, the
+    archive's entries dated 1980-01-01. Returns ``(path, timings)`` (the timings left out).
+    """
+    from .fit_record import Timings
+
+    os.makedirs(folder, exist_ok=True)
+    seconds = manifold.record.timings
+    manifold.record.timings = Timings()  # machine-dependent: not in the shipped file
+    path = os.path.join(folder, name + ".npz")
+    manifold.save(path)
+    _fixed_dates(path)
+    return path, seconds
+
+
+def _fixed_dates(path) -> None:
+    """Rewrite the ``.npz`` archive ``path`` with every entry dated 1980-01-01 (atomically)."""
+    import zipfile
+
+    with zipfile.ZipFile(path) as z:
+        entries = [(info.filename, z.read(info)) for info in z.infolist()]
+    tmp = path + ".tmp"
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as z:
+        for name, data in entries:
+            z.writestr(zipfile.ZipInfo(name, (1980, 1, 1, 0, 0, 0)), data)
+    os.replace(tmp, path)

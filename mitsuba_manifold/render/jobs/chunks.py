@@ -469,6 +469,24 @@ def render_chunked(
     return run
 
 
+def render_view(scene, manifold, out, options, chunks=1, executor=None, keep_chunks=False):
+    """The basis of one view: rendered here (:func:`~mitsuba_manifold.render.jobs.render_basis.render_basis`)
+    where it is one chunk on the local executor, else in ``chunks`` chunks by ``executor``
+    (:func:`render_chunked`); returns its manifest.
+    """
+    if chunks == 1 and getattr(executor, "name", "local") == "local":
+        return render_basis(scene, manifold, out, options)
+    return render_chunked(
+        scene,
+        manifold,
+        out,
+        options,
+        chunks=chunks,
+        executor=executor,
+        keep_chunks=keep_chunks,
+    ).manifest
+
+
 def _finished(out, run_key):
     """The manifest of ``out`` when it holds the merged basis of the run ``run_key`` with every
     image as merged, else None.

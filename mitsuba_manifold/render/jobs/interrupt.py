@@ -25,13 +25,17 @@ def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS):
     return [per] * full + ([rest] if rest else [])
 
 
+#: Seed step between passes: pass ``k`` is seeded ``(seed + k * SEED_STEP) mod 2^32``.
+SEED_STEP = 0x9E3779B9
+
+
 def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
     """``mi.render`` cut into passes (:func:`sample_passes`), checking ``stop`` after each.
 
     One pass (the usual case for small images) is exactly ``mi.render(..., spp, seed)``; passes
     after the first use seeds ``(seed + k * 0x9E3779B9) mod 2^32``, and the image is their
     sample-weighted mean (linear RGB of the film's crop window, float32, whatever its pixel
-    format).
+    format): :func:`render_passes`'s image.
 
     Parameters
     ----------
@@ -39,30 +43,74 @@ def render_in_passes(scene, integrator, spp, seed=0, stop=None, sensor=0):
         Default: a new one, active during the render (Ctrl-C then raises
         ``KeyboardInterrupt`` at the end of the current pass).
     """
+    return render_passes(scene, integrator, spp, seed, stop, sensor)[0]
+
+
+def render_passes(
+    scene,
+    integrator,
+    spp,
+    seed=0,
+    stop=None,
+    sensor=0,
+    samples_per_pass=SAMPLES_PER_PASS,
+    min_passes=1,
+    progress=None,
+):
+    """``mi.render`` cut into passes, as :func:`render_in_passes`, with what the passes say of
+    their own noise.
+
+    Parameters
+    ----------
+    samples_per_pass : int
+        Paths per pass at most (:func:`sample_passes`).
+    min_passes : int
+        Passes at least, where ``spp`` allows (two measure the render's noise).
+    progress : callable, optional
+        ``progress(done, spp)`` after each pass.
+
+    Returns
+    -------
+    image : ndarray float32 (H, W, 3)
+        The sample-weighted mean of the passes.
+    pixel_se : ndarray float32 (H, W, 3)
+        Its standard error per value (:func:`~mitsuba_manifold.imaging.metrics.pass_standard_error`;
+        NaN for one pass).
+    passes : int
+    """
     import mitsuba as mi
     import numpy as np
 
+    from ...imaging.metrics import pass_standard_error
     from ..integrators.common import developed_rgb
 
     if stop is None:
         with StopRequest() as own:
-            return render_in_passes(scene, integrator, spp, seed, own, sensor)
+            return render_passes(
+                scene, integrator, spp, seed, own, sensor, samples_per_pass, min_passes, progress
+            )
+    spp = int(spp)
     w, h = (int(v) for v in scene.sensors()[sensor].film().crop_size())
-    total = None
-    for k, n in enumerate(sample_passes(spp, w * h)):
+    per_pass = min(int(samples_per_pass), max(1, spp // max(1, int(min_passes))) * w * h)
+    passes = sample_passes(spp, w * h, per_pass)
+    acc, acc2, done = 0.0, 0.0, 0
+    for k, n in enumerate(passes):
         stop.rearm()
         mi.render(
             scene,
             integrator=integrator,
             spp=n,
-            seed=(seed + k * 0x9E3779B9) & 0xFFFFFFFF,
+            seed=(seed + k * SEED_STEP) & 0xFFFFFFFF,
             sensor=sensor,
         )
         img = developed_rgb(scene.sensors()[sensor].film()).astype(
             np.float64
         )  # RGB, any pixel format
-        total = img * n if total is None else total + img * n
+        acc, acc2, done = acc + img * n, acc2 + img * img * n, done + n
         if integrator.should_stop():  # Mitsuba's own SIGINT handler ran during the pass
             stop.requested = True
         stop.check()
-    return (total / int(spp)).astype(np.float32)
+        if progress is not None:
+            progress(done, spp)
+    se = pass_standard_error(acc, acc2, done, len(passes))
+    return (acc / spp).astype(np.float32), se.astype(np.float32), len(passes)

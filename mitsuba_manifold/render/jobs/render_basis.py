@@ -36,11 +36,13 @@ from ..._util.locking import FolderLock
 from ..._util.moved import renamed_argument
 from ...basis import folder as basis_folder
 from ...basis.folder.output import check_foreign_folder, check_job_folders, open_folder
+from ...basis.sampling import DEFAULT_SPP
 from ...data.database import canonical_spec
 from ...errors import InputError, MismatchError, MitsubaManifoldError, did_you_mean
 from ...imaging import io as imageio
 from ...manifold.model import Manifold
 from ..scene import scenes
+from ..scene.files import count_sensors
 from ..scene.variants import check_variant
 from .gi_basis import (
     CROSS_FILE,
@@ -654,11 +656,16 @@ def _render_onepass(scene, target, todo, o, paths, save, stop):
     save(out, seconds)
 
 
-def count_sensors(scene_path):
-    """Sensors (views) declared at the top level of a scene XML."""
-    return len(
-        validate.scene_xml(scene_path).findall("sensor")
-    )  # or a MismatchError naming the file
+def view_spp(jobs, spp=None) -> dict:
+    """Samples per pixel of each view of ``jobs`` (:func:`plan_views`): ``spp`` where given,
+    else the scene's own for that sensor, else :data:`DEFAULT_SPP`.
+    """
+    from ..scene.scenes import scene_sample_count
+
+    return {
+        (scene, sensor): spp or scene_sample_count(scene, sensor) or DEFAULT_SPP
+        for scene, sensor, _ in jobs
+    }
 
 
 def plan_views(scenes, views, out):

@@ -199,3 +199,8 @@ def check_scene(name, value):
             f"{', '.join(shipped)}"
         ) from None
     return path
+
+
+def count_sensors(scene_path):
+    """Sensors (views) declared at the top level of a scene XML."""
+    return len(scene_xml(scene_path).findall("sensor"))  # or a MismatchError naming the file

@@ -110,6 +110,20 @@ def bowl(radius=1.0, height=0.55, thickness=0.06, exponent=2.4, n=56, segments=6
     return revolve(*bowl_profile(radius, height, thickness, exponent, n), segments)
 
 
+def write_bowl(path, profile=56, segments=64):
+    """Write the shipped scenes' bowl (:func:`bowl`, ``profile`` points turned in ``segments``)
+    as PLY (:func:`write_ply`, with Mitsuba's ``scalar_rgb`` where no variant is active);
+    returns its ``(vertices, faces)``.
+    """
+    import mitsuba as mi
+
+    if mi.variant() is None:
+        mi.set_variant("scalar_rgb")  # write_ply builds the mesh with Mitsuba
+    v, f = bowl(n=profile, segments=segments)
+    write_ply(path, v, f)
+    return v, f
+
+
 def write_ply(path, vertices, faces):
     """Write a triangle mesh as binary PLY with smooth vertex normals (Mitsuba computes them).
 

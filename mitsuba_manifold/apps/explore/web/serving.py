@@ -213,3 +213,34 @@ def quiet_logs(window=LOG_WINDOW) -> RepeatFilter:
         for h in logger.handlers:
             h.addFilter(f)
     return f
+
+
+def server_blas_threads(cores=None) -> int:
+    """BLAS threads of the explorer's server: the machine's cores less two (the browser showing
+    the page, and the frames), at least one.
+    """
+    import os
+
+    cores = os.cpu_count() if cores is None else cores
+    return max(1, (cores or 1) - 2)
+
+
+def make_server(app, max_message):
+    """The uvicorn server of the explorer's ``app``: the protocol of :func:`protocol` (deadlines,
+    a cap on connections), websocket messages up to ``max_message`` bytes, no per-message deflate
+    (frames are JPEG or raw pixels: compressing them would cost more time than it saves), no
+    pings, a second to shut down.
+    """
+    import uvicorn
+
+    return uvicorn.Server(
+        uvicorn.Config(
+            app,
+            http=protocol(),
+            log_level="warning",
+            timeout_graceful_shutdown=1,
+            ws_ping_interval=None,
+            ws_per_message_deflate=False,
+            ws_max_size=max_message,
+        )
+    )
