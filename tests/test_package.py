@@ -80,8 +80,8 @@ def test_tools_are_thin_and_the_cli_reachable():
     assert cli.main(["--help"]) == 0 and cli.main(["no-such-tool"]) == 2
 
 
-#: A size rule of ruff (branches, parameters, statements) waived at a function: ``# noqa: CODE``
-#: and then the reason, on the same line.
+#: A size rule of ruff (branches, parameters, statements) waived at a function: a ``noqa``
+#: comment naming the rule's code, then the reason, on the same line.
 SIZE_WAIVER = re.compile(r"#\s*noqa:\s*((?:C901|PLR09\d\d)(?:\s*,\s*[A-Z]+\d+)*)(.*)$")
 
 
