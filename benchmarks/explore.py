@@ -109,7 +109,7 @@ def _stats(values):
     }
 
 
-def run(
+def run(  # noqa: PLR0913  tools/bench.py's options, as keywords
     basis,
     manifold=None,
     requests=60,

@@ -85,7 +85,7 @@ def _one(S, d, D, cfg, order, init=None, **options):
     return res, time.perf_counter() - t0, time.process_time() - c0
 
 
-def run(folder="merl", names=None, progress=False, sameness=True, manifold_fits=True, runs=None):
+def run(folder="merl", names=None, progress=False, sameness=True, manifold_fits=True, runs=None):  # noqa: PLR0915  one measurement after another, each reported
     """The comparison, the default fit's time and its sameness (module doc); ``manifold_fits``
     False leaves out the three ``Manifold.fit`` runs (each reads and sums every table again);
     ``runs``: the names of :data:`RUNS` to make (default all; the default's is always made).

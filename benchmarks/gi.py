@@ -73,7 +73,7 @@ def _basis(scene, manifold, out, warm=True, **kw):
     return manifest, time.perf_counter() - t0, _size(out)
 
 
-def targets(
+def targets(  # noqa: PLR0913  tools/bench.py's options, as keywords
     folder,
     manifold=None,
     scenes=("table", "sphere", "cbox", FACING),

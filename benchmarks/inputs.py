@@ -123,7 +123,7 @@ def fold_numbers(values, name="`folds`", n=None):
     return values
 
 
-def check(
+def check(  # noqa: PLR0913  the keywords of the benchmarks' run, as given
     which,
     folder,
     *,

@@ -306,7 +306,7 @@ def _masked_and_exposure(scene_xml, b, m, manifold_path, res, spp, rng, seed, sc
     }
 
 
-def run(
+def run(  # noqa: PLR0913  tools/bench.py's options, as keywords
     folder,
     manifold=None,
     basis=None,

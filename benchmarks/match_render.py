@@ -368,7 +368,7 @@ def _timing(cbox, manifold, m, ctx, report):
     }
 
 
-def run(
+def run(  # noqa: PLR0913  tools/bench.py's options, as keywords
     folder,
     manifold=None,
     res=32,

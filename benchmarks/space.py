@@ -120,7 +120,7 @@ def _basis_images(basis, names):
     return read("base"), np.stack([read(n) for n in names])
 
 
-def _config_report(
+def _config_report(  # noqa: PLR0913  the data set's parts as run holds them
     name, cfg, tables, names, grams, albedos, images, base, folds, progress, *, distances=None
 ):
     """One configuration's report; ``distances``: the tables' perceptual distances, the targets

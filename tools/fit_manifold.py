@@ -5,19 +5,15 @@ The tool is mitsuba_manifold/apps/cli/fit_manifold.py (also installed as a conso
 """
 
 import os
-import signal
 import sys
 
-# Ctrl-C while Python imports the tool, before it can write anything: one line, no traceback.
-signal.signal(
-    signal.SIGINT,
-    lambda *_: (
-        sys.stderr.write("error: interrupted while starting; nothing was written\n"),
-        os._exit(130),
-    ),
-)
 # Run from a checkout without installing the package: its root comes first on the path.
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from mitsuba_manifold._util import interrupts  # noqa: E402
+
+# Ctrl-C while Python imports the tool, before it can write anything: one line, no traceback.
+interrupts.exit_while_starting()
 
 from mitsuba_manifold.apps.cli.fit_manifold import main  # noqa: E402
 

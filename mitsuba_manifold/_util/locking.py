@@ -10,6 +10,9 @@ path afresh, so two processes never both hold a lock. The kernel releases the lo
 process ends, however it ends (kill -9 included, which leaves the file: harmless, the next
 run locks and removes it). A second writer does not wait: it gets :class:`FolderLockedError`
 naming the folder.
+
+``filelock`` does not serve here: it locks a file it creates (never the folder itself) and
+leaves that file in place on release.
 """
 
 from __future__ import annotations

@@ -24,13 +24,15 @@ if TYPE_CHECKING:
     from typing import Any
 
 
+from . import interrupts
+
 #: ``PR_SET_PDEATHSIG`` of ``<linux/prctl.h>``.
 PR_SET_PDEATHSIG = 1
 
 
 def die_with_parent(parent_pid) -> None:
     """In a worker: ignore SIGINT (the parent handles Ctrl-C), and be killed when the parent dies."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    interrupts.ignore()
     if sys.platform.startswith("linux"):
         try:
             ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)

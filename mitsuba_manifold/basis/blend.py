@@ -550,7 +550,7 @@ class MovingTarget:
     x: object = None
 
 
-def blend_path(
+def blend_path(  # noqa: C901  its arguments checked, then one pass over the steps
     basis,
     manifold=None,
     a=None,

@@ -177,9 +177,7 @@ class OptimiserResult:
     grad_norm: float = None
 
 
-def hooke_jeeves(
-    likelihood, U0, options=HookeJeevesOptions(), callback=None, length_scale=1.0
-) -> OptimiserResult:
+def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, length_scale=1.0):  # noqa: C901  its poll, defined inside, shares the search state
     """Hooke-Jeeves direct search, one latent point at a time, in length-scale units.
 
     ``likelihood``: the objective with ``l = 1`` (:meth:`Likelihood.in_units`); ``callback``
@@ -444,7 +442,7 @@ def _steihaug(hessp, g, radius) -> tuple[Any, bool]:
     return z, False
 
 
-def newton(
+def newton(  # noqa: C901  a trust-region iteration read as a whole
     likelihood, U0, options=NewtonOptions(), callback=None, length_scale=1.0, snap_start=True
 ) -> OptimiserResult:
     """Trust-region Newton-CG on ``-F / (d N / 2)``, in length-scale units.

@@ -33,15 +33,16 @@ from __future__ import annotations
 
 import numbers
 import os
+import threading
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
+import cachetools
 import numpy as np
 
 from .._util.blas import one_thread
 from .._util.checks import weight_sum
-from .._util.fifo_cache import Recent
 from .._util.float32 import weights32
 from .._util.moved import renamed_argument
 from .._util.names import is_name
@@ -217,7 +218,8 @@ def _stored(name, doc):
 
     def set_(self, value) -> None:
         self._store.set_matrix(name, value)
-        self._pruned.clear()  # pruning answers made with the old matrices
+        with self._pruned_lock:  # pruning answers made with the old matrices
+            self._pruned.clear()
 
     return property(lambda self: getattr(self._store, name), set_, doc=doc)
 
@@ -279,7 +281,7 @@ class Manifold:
         where each table came from and the file (and its SHA-256) the manifold reads it from.
     """
 
-    def __init__(
+    def __init__(  # noqa: PLR0913  one parameter per attribute, as load() reads them back
         self,
         names,
         latent,
@@ -296,12 +298,9 @@ class Manifold:
         interpolant=None,
         record=None,
         added=None,
-    ) -> None:
-        """The manifold's learned state, one parameter per attribute (see the class).
-
-        Its fourteen parameters are the fields :meth:`load` reads back from a saved manifold (each
-        an attribute of the class), so a loader and a fit build it with one call; the last six
-        are keyword-only.
+    ):
+        """The manifold's learned state, one parameter per attribute (see the class): the
+        fields :meth:`load` reads back from a saved manifold.
         """
         latent = np.asarray(latent, dtype=np.float64)
         if latent.ndim != 2 or latent.shape[0] != len(names):
@@ -334,7 +333,7 @@ class Manifold:
             albedos,
             {a.name: a.path for a in self.added},
         )
-        self._pruned = Recent(PRUNE_MEMO)
+        self._pruned, self._pruned_lock = cachetools.FIFOCache(PRUNE_MEMO), threading.Lock()
         self.interpolant = make_interpolant(
             self.latent,
             {
@@ -353,7 +352,7 @@ class Manifold:
 
     # ------------------------------------------------------------------ fit
     @classmethod
-    def fit(
+    def fit(  # noqa: PLR0913  the fit's settings as keywords, scikit-learn style
         cls,
         database,
         *,
@@ -372,9 +371,6 @@ class Manifold:
         **options,
     ) -> Manifold:
         """Fit latent points to the tables of ``database`` (paper Sec. 3).
-
-        Its fourteen parameters are the fit's settings as keywords (scikit-learn style), each
-        overriding the preset's value, so a user sets any one of them without a settings object.
 
         ``Manifold.fit(database)`` fits the default preset; ``preset="paper"`` the paper's
         exact formulation. Any other argument given overrides the preset's value.
@@ -776,16 +772,17 @@ class Manifold:
             ``keep`` (ndarray of int), ``w_kept`` (ndarray), ``dropped`` (float: sum of
             ``|w_i|`` over the dropped materials).
         """
-        w = self._checked(w, prune, rule)
-        key = (w.tobytes(), float(prune), rule, self.database)
-        hit = self._pruned.get(
-            key, lambda: self._prune(w, prune, rule)
-        )  # cleared when a matrix is set
+        hit = self._prune(self._checked(w, prune, rule), float(prune), rule)
         return Pruned(
             hit.keep.copy(), hit.w_kept.copy(), hit.dropped
         )  # the caller may change its arrays
 
-    def _prune(self, w, budget, rule) -> Pruned:
+    @cachetools.cachedmethod(
+        lambda self: self._pruned,  # the newest answers, cleared when a matrix is set
+        key=lambda self, w, budget, rule: (w.tobytes(), budget, rule, self.database),
+        lock=lambda self: self._pruned_lock,
+    )
+    def _prune(self, w, budget, rule):
         folder, store = self._source(), self._store
         if rule == "raw-l2":
             return Pruned(*pruning.prune(w, store.raw_gram(folder), budget))

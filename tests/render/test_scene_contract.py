@@ -37,7 +37,7 @@ SPHERE = (
 )
 
 
-def cbox(
+def cbox(  # noqa: PLR0913  one keyword per element of the scene text
     folder,
     name,
     integrator="",

@@ -6,11 +6,10 @@ import argparse
 import functools
 import os
 import re
-import signal
 import sys
-import threading
 from typing import TYPE_CHECKING, NoReturn
 
+from ..._util.interrupts import INTERRUPTED, Noted
 from ..._util.names import is_name
 from ...data.sources import MeasuredFile, register_reader
 from ...errors import MitsubaManifoldError, one_line
@@ -24,8 +23,6 @@ if TYPE_CHECKING:
 
 #: What a tool reports as a one-line error (anything else is a bug and keeps its traceback).
 ERRORS = (MitsubaManifoldError, OSError)
-#: Exit status of a run stopped by Ctrl-C (128 + SIGINT), as shells report it.
-INTERRUPTED = 130
 #: What a tool stopped by Ctrl-C says.
 INTERRUPTED_MESSAGE = (
     "interrupted; every file listed so far is complete (run the same command again to resume)"
@@ -225,38 +222,7 @@ def fail(error, code=2) -> None:
     sys.exit(code)
 
 
-class _Interrupts:
-    """SIGINT while a tool runs: noted, then ``KeyboardInterrupt`` as Python's own handler
-    raises it.
-
-    Ctrl-C while a module is being imported (Mitsuba, Dr.Jit or SciPy take most of a tool's first
-    second) can surface as another exception (an ``ImportError`` or ``NameError`` of the module cut
-    half-way): the note tells :func:`guarded` that it was the interrupt.
-    """
-
-    def __init__(self) -> None:
-        self.seen = False
-        self.previous = None
-
-    def handle(self, signum, frame) -> None:
-        self.seen = True
-        raise KeyboardInterrupt
-
-    def install(self) -> None:
-        if threading.current_thread() is threading.main_thread():
-            self.previous = signal.signal(signal.SIGINT, self.handle)
-
-    def restore(self, finished_process=False) -> None:
-        """Put the handler back; a whole process that has finished ignores a late Ctrl-C instead
-        (everything was written: exit 0, not a traceback while the interpreter shuts down).
-        """
-        if self.previous is None:
-            return
-        signal.signal(signal.SIGINT, signal.SIG_IGN if finished_process else self.previous)
-        self.previous = None
-
-
-def _interrupted(process) -> None:
+def _interrupted(process):
     """Report Ctrl-C and exit 130. A whole process ends at once (its files are closed and its
     locks released by then): an extension module whose import the interrupt cut half-way
     would abort the interpreter's shutdown.
@@ -279,8 +245,7 @@ def guarded(main) -> Callable[..., Any]:
 
     @functools.wraps(main)
     def run(argv=None):
-        interrupts = _Interrupts()
-        interrupts.install()
+        interrupts = Noted().install()
         finished = False
         try:
             result = main(argv)

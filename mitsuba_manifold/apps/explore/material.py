@@ -27,9 +27,9 @@ import os
 import threading
 from typing import TYPE_CHECKING
 
+import cachetools
 import numpy as np
 
-from ..._util.fifo_cache import Recent
 from ..._util.float32 import weights32
 from .walks import metric_columns
 
@@ -157,7 +157,8 @@ class TableStack:
         self.state, self.message = "loading", "loading tables"
         self.dims = self.preview_dims = self.metric_rows = self._coarse = None
         self._ready = threading.Event()
-        self._recent = Recent(RECENT)
+        self._recent: cachetools.FIFOCache
+        self._recent, self._recent_lock = cachetools.FIFOCache(RECENT), threading.Lock()
         self._thread = threading.Thread(target=self._load, name="explore-tables", daemon=True)
         self._thread.start()
 
@@ -282,10 +283,18 @@ class TableStack:
         the bytes: the page's sphere while a drag runs). The page asks for the material's
         description and its table at the same point: the last few answers are kept.
         """
-        key = (np.asarray(x, dtype=np.float64).tobytes(), float(prune), bool(coarse))
-        return self._recent.get(key, lambda: self._preview(x, prune, coarse))
+        return self._preview(x, prune, coarse)
 
-    def _preview(self, x, prune, coarse=False) -> tuple[Any, float]:
+    @cachetools.cachedmethod(
+        lambda self: self._recent,
+        key=lambda self, x, prune, coarse: (
+            np.asarray(x, dtype=np.float64).tobytes(),
+            float(prune),
+            bool(coarse),
+        ),
+        lock=lambda self: self._recent_lock,
+    )
+    def _preview(self, x, prune, coarse):
         table = self._combine(self._coarse if coarse else self._reduced, x, prune)
         negative = float((table < 0).mean())
         half = np.clip(table, -HALF_MAX, HALF_MAX).astype(np.float16)  # peaks above 65504 saturate

@@ -227,7 +227,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         return L, valid, aovs
 
     @dr.syntax
-    def trace_paths(self, scene, sampler, ray, active, plan, record, proxy=None) -> tuple:
+    def trace_paths(self, scene, sampler, ray, active, plan, record, proxy=None):  # noqa: C901, PLR0915  one @dr.syntax loop, as prb.sample
         """Trace paths; return the selected radiance, validity, AOV parts and records.
 
         ``record``: False, or the most vertices on the target recorded per path (True: 1;
@@ -244,9 +244,8 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         ``beta * (f(wi, wo_nee) e_nee + f(wi, wo) g)``: the same estimator as
         rendering it alone, except that directions come from ``q``.
 
-        One long function (~150 lines) on purpose: it is one ``@dr.syntax`` loop, like Mitsuba's own
-        ``prb`` ``sample``; Dr.Jit tracks every loop variable of its body, and splitting the
-        body would thread some twenty path-state variables through helper calls.
+        The body is one ``@dr.syntax`` loop, as Mitsuba's ``prb`` ``sample``: Dr.Jit tracks
+        every loop variable of it.
         """
         groups, select, keep = plan.groups, plan.select, plan.keep
         # closures over the BSDFs: read in the loop, they would be its state (their tables as variables)

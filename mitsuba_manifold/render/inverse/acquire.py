@@ -311,7 +311,7 @@ def coverage_warnings(cov) -> list:
     return out
 
 
-def acquire(
+def acquire(  # noqa: PLR0915  the steps behind one progress bar, each a function of its own
     photos, manifold=None, options=None, database=None, training_images=None, **renamed
 ) -> AcquireOutput:
     """Acquire the material of ``photos`` (:class:`Photo`) over the manifold's training tables.
@@ -336,9 +336,9 @@ def acquire(
 
     Notes
     -----
-    It is long because it is the whole sequence a user waits for behind one progress bar: the
-    photos read, the training images rendered or taken, the programme chosen and solved, the
-    spread, the coverage and the two renders; each step is a function of its own.
+    The steps, in order, behind one progress bar: the photos read, the training images
+    rendered or taken, the programme chosen and solved, the spread, the coverage and the two
+    renders.
     """
     from tqdm import tqdm
 

@@ -1,81 +1,30 @@
-"""Ctrl-C that stops long renders promptly and cleanly.
+"""Renders cut into short passes, so that Ctrl-C stops them promptly and cleanly.
 
-A Dr.Jit kernel does not return to Python until it is done, and while Mitsuba's C++
-``render`` runs, its own SIGINT handler replaces Python's: it only asks the integrator to
-wind down (``cancel()``, which a JIT render ignores) and swallows the signal, so a loop
-over renders went on. :class:`StopRequest` turns SIGINT into a flag instead (callers also
-set it when ``integrator.should_stop()`` reports Mitsuba's cancel); renders are cut into short passes
-(:func:`sample_passes`) and call :meth:`StopRequest.check` between passes and between
-images, which raises ``KeyboardInterrupt`` there: only complete, listed files remain.
-A second Ctrl-C while waiting for the pass to end stops at once (the default handler).
+A Dr.Jit kernel does not return to Python until it is done, and Mitsuba's ``render`` swallows
+Ctrl-C; :func:`render_in_passes` cuts a render into passes of at most
+:data:`SAMPLES_PER_PASS` paths (:func:`sample_passes`) and checks a
+:class:`~mitsuba_manifold._util.interrupts.StopRequest` (the package's handling of Ctrl-C,
+:mod:`mitsuba_manifold._util.interrupts`) after each: ``KeyboardInterrupt`` there, only
+complete, listed files remain.
 """
 
 from __future__ import annotations
 
-import signal
-import threading
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
+
+from ..._util.interrupts import StopRequest
 
 if TYPE_CHECKING:
-    pass
     import numpy as np
 
+
+__all__ = ["SAMPLES_PER_PASS", "StopRequest", "render_in_passes", "sample_passes"]
 
 #: Paths per render pass (a pass is the unit a stop request waits for).
 SAMPLES_PER_PASS = 1 << 20
 
 
-class StopRequest:
-    """Context manager: while active, the first SIGINT sets :attr:`requested`.
-
-    Outside the main thread (where signals cannot be handled) it does nothing.
-    """
-
-    def __init__(self) -> None:
-        self.requested = False
-        self._previous = None
-        self._active = False
-
-    def _handle(self, signum, frame) -> None:
-        self.requested = True
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C: at once
-
-    def __enter__(self) -> StopRequest:
-        if threading.current_thread() is threading.main_thread():
-            self._previous = signal.signal(signal.SIGINT, self._handle)
-            self._active = True
-        return self
-
-    def __exit__(self, *exc) -> Literal[False]:
-        if self._active:
-            previous = self._previous
-            signal.signal(
-                signal.SIGINT, signal.default_int_handler if previous is None else previous
-            )
-            self._previous, self._active = None, False
-        return False
-
-    def rearm(self) -> None:
-        """Install the flag's handler again (while active, before the first Ctrl-C).
-
-        Mitsuba's ``render`` installs its own SIGINT handler, which passes the signal on to the
-        handler it found installed; whatever a render left installed, the next pass then passes
-        Ctrl-C on to this one.
-        """
-        main = threading.current_thread() is threading.main_thread()  # signals: there only
-        if self._active and main and not self.requested:
-            signal.signal(signal.SIGINT, self._handle)
-
-    def check(self) -> None:
-        """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed; else :meth:`rearm` for what follows
-        (every loop of renders checks between its passes).
-        """
-        if self.requested:
-            raise KeyboardInterrupt("stopped by Ctrl-C")
-        self.rearm()
-
-
-def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS) -> list[int]:
+def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS):
     """Samples per pixel of each pass: ``spp`` split so that a pass traces at most
     ``samples_per_pass`` paths (at least 1 spp per pass); they sum to ``spp``.
     """

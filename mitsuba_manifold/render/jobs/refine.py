@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING, Optional, Union
 
 import numpy as np
 
+from ..._util.interrupts import StopRequest
 from ..._util.moved import renamed_argument, renamed_field
 from ...basis.blend import blend, latent_points
 from ...errors import InputError, MitsubaManifoldError
@@ -54,7 +55,6 @@ from ...imaging.metrics import REL_EPS, pass_standard_error
 from ..integrators.onepass import POINT
 from ..integrators.proxy import forget_point
 from ..scene import scenes
-from .interrupt import StopRequest
 
 if TYPE_CHECKING:
     from collections.abc import Iterator

@@ -31,6 +31,7 @@ import numpy as np
 from ..._util import checks as validate
 from ..._util import names as names_mod
 from ..._util.cache import file_hash
+from ..._util.interrupts import StopRequest
 from ..._util.locking import FolderLock
 from ..._util.moved import renamed_argument
 from ...basis import folder as basis_folder
@@ -53,12 +54,10 @@ from .gi_basis import (
     progress_bar,
     render_gi,
 )
-from .interrupt import StopRequest, render_in_passes
+from .interrupt import render_in_passes
 
 if TYPE_CHECKING:
     from typing import Any
-
-    from ...basis.folder.manifest import Manifest
 
 
 MODES = basis_folder.MODES
@@ -338,7 +337,7 @@ _GROUPS = {f.name: f.default_factory for f in fields(BasisOptions)}
 _GROUP_OF = {f.name: g for g, cls in _GROUPS.items() for f in fields(cls)}
 
 
-def render_basis(scene=None, manifold=None, out=None, options=None, **settings) -> "Manifest":
+def render_basis(scene=None, manifold=None, out=None, options=None, **settings):  # noqa: C901  the images planned in one place, before the lock
     """Render ``base.exr`` and the per-material images of ``scene`` into ``out``.
 
     Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     import numpy as np
 
 
-def render_reference(
+def render_reference(  # noqa: PLR0913  a render's own five and the view settings a basis records
     scene_path,
     manifold_path,
     x,
@@ -41,9 +41,8 @@ def render_reference(
 ) -> "np.ndarray":
     """Mitsuba's own image of the scene with the interpolated material: the ground truth of a blend.
 
-    Its eleven parameters are a render's (scene, manifold, point, samples, seed) and the settings a
-    basis records (resolution, depth, variant, targets, database, sensor), so that a caller renders
-    the view a basis was rendered with; all but the first four are optional.
+    The optional settings are those a basis records (resolution, depth, variant, targets,
+    database, sensor): a caller renders the view a basis was rendered with.
 
     :func:`render_reference_passes` with the view given by its parameters: loads the scene
     (:func:`~.loading.load_scene`), sets every manifold material to its latent point, and

@@ -40,14 +40,14 @@ def _reply(status, reason, text) -> bytes:
     ).encode() + body
 
 
-def protocol(
+def protocol(  # noqa: C901  counts the methods of the class it defines (closing over the limits)
     deadline=REQUEST_DEADLINE, max_connections=MAX_CONNECTIONS, write_deadline=WRITE_DEADLINE
 ) -> type:
     """The h11 HTTP protocol of uvicorn with a request deadline, a connection cap and a deadline
     on responses the client does not read (module doc); pass it as ``uvicorn.Config(http=...)``.
 
-    It is long because the subclass it returns is defined inside it: the class closes over the
-    limits given here and over uvicorn's protocol, which is imported only when a server starts.
+    The subclass is defined here: it closes over the limits given and over uvicorn's protocol,
+    which is imported only when a server starts.
     """
     import h11
     from uvicorn.protocols.http.h11_impl import H11Protocol
