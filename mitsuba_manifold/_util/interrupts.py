@@ -17,6 +17,8 @@ A process meets Ctrl-C in one of four situations, each with its call here:
 Signals are handled in the main thread only; elsewhere each of these leaves the handler alone.
 """
 
+from __future__ import annotations
+
 import os
 import signal
 import sys
@@ -39,7 +41,7 @@ def exit_while_starting(message=STARTING_MESSAGE) -> None:
     ends the process at once with :data:`INTERRUPTED`, no traceback.
     """
 
-    def handle(signum, frame):
+    def handle(signum, frame) -> None:
         sys.stderr.write(message + "\n")
         os._exit(INTERRUPTED)
 
@@ -61,15 +63,15 @@ class Noted:
     into a traceback while the interpreter shuts down).
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.seen = False
         self.previous = None
 
-    def _handle(self, signum, frame):
+    def _handle(self, signum, frame) -> None:
         self.seen = True
         raise KeyboardInterrupt
 
-    def install(self) -> "Noted":
+    def install(self) -> Noted:
         if _main_thread():
             self.previous = signal.signal(signal.SIGINT, self._handle)
         return self
@@ -94,16 +96,16 @@ class StopRequest:
     on entering. Outside the main thread it does nothing.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.requested = False
         self._previous = None
         self._active = False
 
-    def _handle(self, signum, frame):
+    def _handle(self, signum, frame) -> None:
         self.requested = True
         signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C: at once
 
-    def __enter__(self) -> "StopRequest":
+    def __enter__(self) -> StopRequest:
         if _main_thread():
             self._previous = signal.signal(signal.SIGINT, self._handle)
             self._active = True

@@ -177,7 +177,9 @@ class OptimiserResult:
     grad_norm: float = None
 
 
-def hooke_jeeves(likelihood, U0, options=HookeJeevesOptions(), callback=None, length_scale=1.0):  # noqa: C901  its poll, defined inside, shares the search state
+def hooke_jeeves(  # noqa: C901  its poll, defined inside, shares the search state
+    likelihood, U0, options=HookeJeevesOptions(), callback=None, length_scale=1.0
+) -> OptimiserResult:
     """Hooke-Jeeves direct search, one latent point at a time, in length-scale units.
 
     ``likelihood``: the objective with ``l = 1`` (:meth:`Likelihood.in_units`); ``callback``

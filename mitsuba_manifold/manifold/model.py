@@ -298,7 +298,7 @@ class Manifold:
         interpolant=None,
         record=None,
         added=None,
-    ):
+    ) -> None:
         """The manifold's learned state, one parameter per attribute (see the class): the
         fields :meth:`load` reads back from a saved manifold.
         """
@@ -333,6 +333,7 @@ class Manifold:
             albedos,
             {a.name: a.path for a in self.added},
         )
+        self._pruned: cachetools.FIFOCache
         self._pruned, self._pruned_lock = cachetools.FIFOCache(PRUNE_MEMO), threading.Lock()
         self.interpolant = make_interpolant(
             self.latent,
@@ -782,7 +783,7 @@ class Manifold:
         key=lambda self, w, budget, rule: (w.tobytes(), budget, rule, self.database),
         lock=lambda self: self._pruned_lock,
     )
-    def _prune(self, w, budget, rule):
+    def _prune(self, w, budget, rule) -> Pruned:
         folder, store = self._source(), self._store
         if rule == "raw-l2":
             return Pruned(*pruning.prune(w, store.raw_gram(folder), budget))

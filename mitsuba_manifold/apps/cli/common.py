@@ -222,7 +222,7 @@ def fail(error, code=2) -> None:
     sys.exit(code)
 
 
-def _interrupted(process):
+def _interrupted(process) -> None:
     """Report Ctrl-C and exit 130. A whole process ends at once (its files are closed and its
     locks released by then): an extension module whose import the interrupt cut half-way
     would abort the interpreter's shutdown.

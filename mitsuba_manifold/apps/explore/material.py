@@ -294,7 +294,7 @@ class TableStack:
         ),
         lock=lambda self: self._recent_lock,
     )
-    def _preview(self, x, prune, coarse):
+    def _preview(self, x, prune, coarse) -> tuple[Any, float]:
         table = self._combine(self._coarse if coarse else self._reduced, x, prune)
         negative = float((table < 0).mean())
         half = np.clip(table, -HALF_MAX, HALF_MAX).astype(np.float16)  # peaks above 65504 saturate

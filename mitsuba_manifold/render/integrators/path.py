@@ -227,7 +227,7 @@ class ManifoldPathIntegrator(mi.SamplingIntegrator):
         return L, valid, aovs
 
     @dr.syntax
-    def trace_paths(self, scene, sampler, ray, active, plan, record, proxy=None):  # noqa: C901, PLR0915  one @dr.syntax loop, as prb.sample
+    def trace_paths(self, scene, sampler, ray, active, plan, record, proxy=None) -> tuple:  # noqa: C901, PLR0915  one @dr.syntax loop, as prb.sample
         """Trace paths; return the selected radiance, validity, AOV parts and records.
 
         ``record``: False, or the most vertices on the target recorded per path (True: 1;

@@ -24,7 +24,7 @@ __all__ = ["SAMPLES_PER_PASS", "StopRequest", "render_in_passes", "sample_passes
 SAMPLES_PER_PASS = 1 << 20
 
 
-def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS):
+def sample_passes(spp, pixels, samples_per_pass=SAMPLES_PER_PASS) -> list[int]:
     """Samples per pixel of each pass: ``spp`` split so that a pass traces at most
     ``samples_per_pass`` paths (at least 1 spp per pass); they sum to ``spp``.
     """

@@ -59,6 +59,8 @@ from .interrupt import render_in_passes
 if TYPE_CHECKING:
     from typing import Any
 
+    from ...basis.folder.manifest import Manifest
+
 
 MODES = basis_folder.MODES
 #: The former spelling of ``components="full"`` (still read, with a ``DeprecationWarning``).
@@ -337,7 +339,7 @@ _GROUPS = {f.name: f.default_factory for f in fields(BasisOptions)}
 _GROUP_OF = {f.name: g for g, cls in _GROUPS.items() for f in fields(cls)}
 
 
-def render_basis(scene=None, manifold=None, out=None, options=None, **settings):  # noqa: C901  the images planned in one place, before the lock
+def render_basis(scene=None, manifold=None, out=None, options=None, **settings) -> "Manifest":  # noqa: C901  the images planned in one place, before the lock
     """Render ``base.exr`` and the per-material images of ``scene`` into ``out``.
 
     Ctrl-C (SIGINT) stops the render at the end of the current pass (renders are cut into
