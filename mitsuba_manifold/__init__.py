@@ -31,11 +31,7 @@ old names (:mod:`mitsuba_manifold._util.moved`).
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from types import ModuleType
-
+from typing import Any
 
 __version__ = "0.1.0"
 
@@ -53,7 +49,7 @@ _FACE = {
 __all__ = ["register", "__version__"] + sorted(_FACE)
 
 
-def __getattr__(name) -> ModuleType:
+def __getattr__(name: str) -> Any:
     target = _FACE.get(name)
     if target is None:
         raise AttributeError(f"module 'mitsuba_manifold' has no attribute {name!r}")

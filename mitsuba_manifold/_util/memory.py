@@ -13,7 +13,7 @@ except ImportError:  # not on Windows
     resource = None
 
 
-def peak_rss() -> int:
+def peak_rss() -> int | None:
     """The largest resident set size this process has had so far, in bytes (``getrusage``'s
     ``ru_maxrss``: Linux's ``VmHWM``, what ``/usr/bin/time -v`` reports), or None where the
     system does not say.

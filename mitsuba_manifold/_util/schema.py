@@ -8,7 +8,8 @@ function that turns such an object into one of the next version, and :meth:`File
 applies them in turn. :meth:`FileSchema.checked` validates an object and turns the first fault
 into the package's one-line error naming the file, the field, the value and the fix
 (:func:`fault_message`); ``model_json_schema()`` of a format is its reference
-(``docs/formats.md`` is made from them by ``tools/format_docs.py``).
+(``docs/reference/formats.md`` is made from them by ``docs/_ext/formatdoc.py`` when the
+documentation is built).
 """
 
 import typing
@@ -27,7 +28,9 @@ class FileSchema(BaseModel):
     every earlier one.
     """
 
-    model_config = ConfigDict(strict=True, extra="allow", frozen=True, validate_by_name=True)
+    model_config = ConfigDict(
+        strict=True, extra="allow", frozen=True, validate_by_name=True, populate_by_name=True
+    )
 
     #: The format's ``version`` this package writes (the newest it reads).
     VERSION: ClassVar[int] = 1

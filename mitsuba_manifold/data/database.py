@@ -589,7 +589,9 @@ _Dim = Annotated[int, Strict(), Field(ge=1)]
 
 class SourceList(FileSchema):
     """``sources.json`` of a database folder: the built-in sets and folders it takes materials
-    from besides its own files, and the resolution of its tables, declared::
+    from besides its own files, and the resolution of its tables.
+
+    The file, as declared::
 
         {"format": "mitsuba-manifold-sources", "version": 1,
          "from": [set name or absolute folder, ...], "dims": [n_h, n_d, n_p]}

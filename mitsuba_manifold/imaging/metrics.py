@@ -18,7 +18,7 @@ from the reference by more than that noise.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import KeysView
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -102,27 +102,36 @@ def pass_standard_error(weighted_sum, weighted_squares, samples, passes) -> np.n
     return np.sqrt(var / ((passes - 1) * samples))
 
 
+class _Fields(Mapping):
+    """A frozen answer that reads as the mapping of its fields too (``r["psnr"]``, ``"psnr" in r``,
+    ``r.get``, ``r.items()``, ``{**r}``, ``dict(r)``), as the dicts these answers replace did.
+    """
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON object of the answer (its field names as keys)."""
+        return dataclasses.asdict(self)
+
+    def __getitem__(self, key: str) -> Any:
+        return self.as_dict()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(f.name for f in dataclasses.fields(self))
+
+    def __len__(self) -> int:
+        return len(dataclasses.fields(self))
+
+
 @dataclass(frozen=True)
-class NoiseAgreement:
+class NoiseAgreement(_Fields):
     """:func:`noise_agreement`'s answer (each None where the reference has no noise estimate: a
     reference of one pass). Reads as the mapping it replaces too (``r["agrees"]``, ``{**r}``);
-    :meth:`as_dict` is its JSON object.
+    ``as_dict()`` is its JSON object.
     """
 
     rel_mse: float | None
     noise_rel_mse: float | None
     excess_rel_mse: float | None
     agrees: bool | None
-
-    def as_dict(self) -> dict[str, Any]:
-        """The JSON object of the answer (its field names as keys)."""
-        return dataclasses.asdict(self)
-
-    def keys(self) -> KeysView[str]:
-        return self.as_dict().keys()
-
-    def __getitem__(self, key: str) -> Any:
-        return self.as_dict()[key]
 
 
 def noise_agreement(a, ref, ref_se, eps=REL_EPS, scale=None) -> NoiseAgreement:
@@ -174,9 +183,9 @@ def error_image(a, ref) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Comparison:
+class Comparison(_Fields):
     """:func:`compare`'s metrics of an image against a reference (definitions in the module's
-    docstring). Reads as the mapping it replaces too (``c["psnr"]``, ``{**c}``); :meth:`as_dict`
+    docstring). Reads as the mapping it replaces too (``c["psnr"]``, ``{**c}``); ``as_dict()``
     is its JSON object.
     """
 
@@ -187,16 +196,6 @@ class Comparison:
     max_abs: float
     mean_abs: float
     eps: float
-
-    def as_dict(self) -> dict[str, float]:
-        """The JSON object of the metrics (their names as keys)."""
-        return dataclasses.asdict(self)
-
-    def keys(self) -> KeysView[str]:
-        return self.as_dict().keys()
-
-    def __getitem__(self, key: str) -> float:
-        return self.as_dict()[key]
 
 
 def compare(a, ref, eps=REL_EPS, peak=None) -> Comparison:

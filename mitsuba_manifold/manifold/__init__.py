@@ -1,9 +1,11 @@
 """The learned material space: :class:`~mitsuba_manifold.manifold.model.Manifold` (latent points
-and what was learned, its :class:`~.file.fit_record.FitRecord`), the fit of a database (:mod:`.fitting`),
-the interpolants giving weights ``w(x)`` (paper Eq. 4 and the convex default), the training
-tables and their combination (:mod:`.tables`), pruning, materials by name and weight text
-(:mod:`.materials`), projection of new tables, diagnostics and the summary (:mod:`.report`),
-presets, space metrics; the saved file in :mod:`.file`: the ``.npz`` format (:mod:`.file.io`), its
+and what was learned, its :class:`~.file.fit_record.FitRecord`; its fit, materials by name and
+weight text, diagnostics and summary are its methods), the fit's settings (:mod:`.presets`),
+the interpolants giving weights ``w(x)`` (:mod:`.interpolant`: paper Eq. 4 and the convex
+default), the training tables and their combination (:mod:`.tables`), pruning (:mod:`.pruning`),
+plausibility beyond the data (:mod:`.plausibility`), projection of new tables
+(:mod:`.projection`), adding materials (:mod:`.adding`), paths (:mod:`.paths`), space metrics
+(:mod:`.space`); the saved file in :mod:`.file`: the ``.npz`` format (:mod:`.file.io`), its
 schema (:mod:`.file.schema`), the fit's record, the identity of a manifold and the shipped
 manifolds.
 

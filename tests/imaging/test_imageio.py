@@ -114,6 +114,8 @@ def test_metrics_against_hand_computed_values():
     keys = ["rel_mse", "mse", "psnr", "peak", "max_abs", "mean_abs", "eps"]
     assert list(s.as_dict()) == keys and json.loads(json.dumps(s.as_dict()))["mse"] == s.mse
     assert s["rel_mse"] == s.rel_mse and {**s} == s.as_dict()
+    assert "psnr" in s and s.get("psnr") == s.psnr and list(s) == keys and len(s) == 7
+    assert dict(s.items()) == s.as_dict() and "nope" not in s and s.get("nope") is None
     with pytest.raises(dataclasses.FrozenInstanceError):
         s.psnr = 0.0
     with pytest.raises(ValueError, match="shape"):

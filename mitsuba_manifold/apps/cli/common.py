@@ -216,7 +216,7 @@ def cli_message(error, parser=None) -> str:
     return _PARAM.sub(lambda m: names.get(m.group(1), m.group(1)), one_line(error))
 
 
-def fail(error, code=2) -> None:
+def fail(error, code=2) -> NoReturn:
     """Print an error for the user (one line, in the tool's option names) and exit."""
     print(f"error: {cli_message(error)}", file=sys.stderr)
     sys.exit(code)
