@@ -16,6 +16,8 @@ import os
 import re
 import textwrap
 
+from generated import write_page
+
 #: The user's tools, in the order of the page (the others follow by name; ``bench`` comes last).
 FIRST = ("main", "render_basis", "blend", "explore", "match", "fit_manifold", "project")
 #: The last tool of the page: the benchmarks, for developers.
@@ -154,13 +156,7 @@ def page(root):
 
 
 def _write(app):
-    root = os.path.dirname(app.srcdir)
-    text = page(root)
-    path = os.path.join(app.srcdir, "reference", "cli.md")
-    old = open(path, encoding="utf-8").read() if os.path.exists(path) else None
-    if old != text:  # unchanged: keep the file's time, so Sphinx does not rebuild the page
-        with open(path, "w", encoding="utf-8") as f:
-            f.write(text)
+    write_page(app, "cli.md", page(os.path.dirname(app.srcdir)))
 
 
 def setup(app):

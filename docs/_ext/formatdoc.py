@@ -7,8 +7,9 @@ required and its rule, and the versions each format reads. Nothing here lists a 
 """
 
 import importlib
-import os
 import re
+
+from generated import write_page
 
 #: ``(title, file, "module:Model")`` of the page's formats, in its order.
 FORMATS = (
@@ -109,12 +110,7 @@ def page():
 
 
 def _write(app):
-    text = page()
-    path = os.path.join(app.srcdir, "reference", "formats.md")
-    old = open(path, encoding="utf-8").read() if os.path.exists(path) else None
-    if old != text:  # unchanged: keep the file's time, so Sphinx does not rebuild the page
-        with open(path, "w", encoding="utf-8") as f:
-            f.write(text)
+    write_page(app, "formats.md", page())
 
 
 def setup(app):

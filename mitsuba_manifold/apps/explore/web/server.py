@@ -41,6 +41,28 @@ _JOB_ID = re.compile(r"^r[0-9]{1,9}$")
 _ACQ_ID = re.compile(r"^a[0-9]{1,9}$")
 
 
+async def _json_object(request, example: str) -> dict:
+    """The request's body as a JSON object (the body was read by Guard, within its size limit);
+    ``example`` shows a valid body in the error.
+    """
+    try:
+        body = json.loads(await request.body())
+    except (ValueError, RecursionError):
+        raise InputError(f"the request body must be JSON like {example}") from None
+    if not isinstance(body, dict):
+        raise InputError("the request body must be a JSON object")
+    return body
+
+
+def _job(request, jobs, pattern: re.Pattern, what: str) -> Any:
+    """The job of ``jobs`` the request's path names (an id matching ``pattern``)."""
+    job_id = request.path_params["job"]
+    job = jobs.get(job_id) if pattern.match(job_id) else None
+    if job is None:
+        raise InputError(f"unknown {what} {show(job_id)}")
+    return job
+
+
 def _query(request, key, default=None):
     return request.query_params.get(key, default)
 
@@ -144,14 +166,7 @@ class Api:
         )
 
     async def reference_start(self, request) -> JSONResponse:
-        try:  # the body was read by Guard, at most max_body bytes
-            body = json.loads(await request.body())
-        except (ValueError, RecursionError):
-            raise InputError(
-                'the request body must be JSON like {"x": [0.1, 0.2], "spp": 256}'
-            ) from None
-        if not isinstance(body, dict):
-            raise InputError("the request body must be a JSON object")
+        body = await _json_object(request, '{"x": [0.1, 0.2], "spp": 256}')
         x = self.ex.point(body.get("x"), "x")
         kind = body.get("kind", "reference")
         if kind not in ("reference", "refine"):
@@ -166,11 +181,7 @@ class Api:
         return JSONResponse(job.status())
 
     def job_of(self, request) -> Any:
-        job_id = request.path_params["job"]
-        job = self.ex.references.get(job_id) if _JOB_ID.match(job_id) else None
-        if job is None:
-            raise InputError(f"unknown reference job {show(job_id)}")
-        return job
+        return _job(request, self.ex.references, _JOB_ID, "reference job")
 
     async def reference_status(self, request) -> JSONResponse:
         return JSONResponse(self.job_of(request).status())
@@ -184,25 +195,16 @@ class Api:
 
     async def acquire_start(self, request) -> JSONResponse:
         """Start an acquisition: a JSON body ``{basis, photo, mask}`` (files as data: URLs)."""
-        try:  # the body was read by Guard, at most MAX_UPLOAD bytes
-            body = json.loads(await request.body())
-        except (ValueError, RecursionError):
-            raise InputError(
-                'the request body must be JSON like {"basis": "name", "photo": "data:image/png;base64,..."}'
-            ) from None
-        if not isinstance(body, dict):
-            raise InputError("the request body must be a JSON object")
+        body = await _json_object(
+            request, '{"basis": "name", "photo": "data:image/png;base64,..."}'
+        )  # at most MAX_UPLOAD bytes
         job = await run_in_threadpool(
             self.ex.start_acquire, body.get("basis"), body.get("photo"), body.get("mask")
         )
         return JSONResponse(job.status())
 
     def acquisition_of(self, request) -> Any:
-        job_id = request.path_params["job"]
-        job = self.ex.acquisitions.get(job_id) if _ACQ_ID.match(job_id) else None
-        if job is None:
-            raise InputError(f"unknown acquisition {show(job_id)}")
-        return job
+        return _job(request, self.ex.acquisitions, _ACQ_ID, "acquisition")
 
     async def acquire_status(self, request) -> JSONResponse:
         return JSONResponse(self.acquisition_of(request).status())
