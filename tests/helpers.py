@@ -1,8 +1,15 @@
 """Small helpers shared by the test modules (Mitsuba is imported only by those that render)."""
 
+import os
+import subprocess
+import sys
+import textwrap
+
 import numpy as np
 
 from mitsuba_manifold.manifold.model import Manifold
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 Z_MAX = 4.5  # |z| above this fails; P(|N(0,1)| > 4.5) ~ 7e-6 per statistic
 
@@ -178,3 +185,17 @@ def write_basis(folder, manifold_path, images, targets=("material",), scene_text
     )
     manifest.write(folder)
     return scene
+
+
+def run_python(code, imports):
+    """Run ``code`` (dedented) in a fresh Python process that imports this checkout, after ``import
+    os, signal, sys, time`` and ``imports``: ``(returncode, stdout, stderr)``."""
+    head = f"import os, signal, sys, time\nsys.path.insert(0, {ROOT!r})\n{imports}\n"
+    p = subprocess.run(
+        [sys.executable, "-c", head + textwrap.dedent(code)],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    return p.returncode, p.stdout, p.stderr

@@ -2,31 +2,15 @@
 cuts an import half-way (which surfaces as another exception), and exit 0 when it comes after
 everything was written."""
 
-import os
 import signal
-import subprocess
-import sys
-import textwrap
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-
-HEAD = (
-    f"import os, signal, sys, time\nsys.path.insert(0, {ROOT!r})\n"
-    "from mitsuba_manifold.apps.cli.common import guarded\n"
-)
+from helpers import run_python
 
 
 def _run(code):
-    """Run ``code`` (after :data:`HEAD`) in a fresh Python process: (returncode, stderr)."""
-    p = subprocess.run(
-        [sys.executable, "-c", HEAD + textwrap.dedent(code)],
-        check=False,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    return p.returncode, p.stderr
+    """Run ``code`` in a fresh Python process that imports ``guarded``: (returncode, stderr)."""
+    rc, _, err = run_python(code, "from mitsuba_manifold.apps.cli.common import guarded")
+    return rc, err
 
 
 def test_ctrl_c_that_cuts_an_import_is_reported_as_an_interrupt():

@@ -3,32 +3,17 @@ the signal and the interpreter's exit are part of the test."""
 
 import os
 import signal
-import subprocess
-import sys
-import textwrap
 import threading
 import time
 
 import pytest
+from helpers import run_python
 
 from mitsuba_manifold._util import interrupts
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-HEAD = (
-    f"import os, signal, sys, time\nsys.path.insert(0, {ROOT!r})\n"
-    "from mitsuba_manifold._util import interrupts\n"
-)
-
 
 def _run(code):
-    p = subprocess.run(
-        [sys.executable, "-c", HEAD + textwrap.dedent(code)],
-        check=False,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    return p.returncode, p.stdout, p.stderr
+    return run_python(code, "from mitsuba_manifold._util import interrupts")
 
 
 def test_ctrl_c_while_a_tool_starts_is_one_line_and_exit_130():
