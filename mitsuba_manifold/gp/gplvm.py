@@ -22,9 +22,10 @@ distances) when there is a stress term:
   determinant lemma in O(N^2), refactorising from scratch periodically and whenever an
   update loses accuracy.
 * ``"lbfgs"``: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation);
-* ``"newton"``: trust-region Newton-CG with exact Hessian-vector products (O(N^3) each), its
-  iterates rounded to a fixed grid while its steps are large, so that its path does not
-  depend on the last bits of the arithmetic; optionally through a continuation in the noise
+* ``"newton"``: trust-region Newton with exact Hessian-vector products (O(N^3) each), each
+  step the model's exact minimiser on a Krylov subspace (Lanczos), a continuous function of
+  the gradient and the Hessian, and its iterates rounded to a fixed grid while its steps are
+  large, so that its path does not depend on the last bits of the arithmetic; optionally through a continuation in the noise
   ``mu`` (:attr:`NewtonOptions.continuation`, e.g. fits at ``mu = 1e-2`` and ``1e-3`` first,
   each from the points of the one before, then at the kernel's ``mu``). A larger ``mu``
   smooths the likelihood, so the large-scale arrangement is settled where fewer local maxima
@@ -287,7 +288,8 @@ class GPLVM:
         ``l`` and ``mu > 0`` (default ``Kernel()``: ``l = 1``, ``mu = 1e-4``).
     method : {"hooke-jeeves", "lbfgs", "newton"}
         The paper's direct search with rank-one updates, L-BFGS-B with the gradient, or
-        trust-region Newton-CG with exact Hessian products.
+        trust-region Newton with exact Hessian products (its model solved on a Krylov
+        subspace).
     options : HookeJeevesOptions, LBFGSOptions or NewtonOptions, optional
         The optimiser's settings (default: the method's defaults).
     stress : Stress, optional
@@ -452,7 +454,7 @@ def _offset(callback, k):
 
 
 def optimiser_options(
-    method, *, max_iter=None, tol=None, initial_step=None, continuation=None
+    method, *, max_iter=None, tol=None, initial_step=None, continuation=None, krylov=None
 ) -> HookeJeevesOptions | LBFGSOptions | NewtonOptions:
     """The settings of the optimiser ``method`` (:data:`METHODS`), its defaults but those given.
 
@@ -472,6 +474,9 @@ def optimiser_options(
     continuation : sequence of float, optional
         Newton: the noise levels fitted before the kernel's, largest first (default ``()``:
         none; e.g. ``(1e-2, 1e-3)``; :class:`NewtonOptions`).
+    krylov : int, optional
+        Newton: the dimension of the Krylov subspace each step is solved on (default 64;
+        :class:`NewtonOptions`).
 
     Returns
     -------
@@ -491,6 +496,13 @@ def optimiser_options(
                 f"not {method!r}; leave it out or use method='newton'"
             )
         given["continuation"] = continuation
+    if krylov is not None:
+        if method != "newton":
+            raise InputError(
+                f"`krylov` (the dimension of each step's Krylov subspace) is an option of "
+                f"method 'newton', not {method!r}; leave it out or use method='newton'"
+            )
+        given["krylov"] = krylov
     return METHODS[method](**given)
 
 

@@ -162,22 +162,22 @@ class Likelihood:
         (N, q), in units of the length scale, exactly.
 
         With ``A = K^-1``, ``B = A S A``, ``G = B - d A``, ``E`` the off-diagonal of K and
-        ``dE_ij = -E_ij (u_i - u_j).(v_i - v_j)``: ``dG = -(M + M^T) + d (A dE) A`` with
-        ``M = (A dE) B``, and the gradient's ``W = G o E`` changes by ``dG o E + G o dE``.
+        ``dE_ij = -E_ij (u_i - u_j).(v_i - v_j)``: ``dG = d (A dE) A - M - M^T`` with
+        ``M = (A dE) B``, that is ``dG = P + P^T`` with ``P = (A dE) (d A / 2 - B)`` (``A dE A``
+        is symmetric), and the gradient's ``W = G o E`` changes by ``dG o E + G o dE``.
         The factorisation at ``U`` is kept for the next product at the same points.
         """
         c = self._curvature(U)
         diff = np.einsum("ik,ik->i", U, V)
-        dots = diff[:, None] + diff[None, :] - U @ V.T - V @ U.T  # (u_i - u_j).(v_i - v_j)
-        dE = -c.E * dots
-        AdE = c.A @ dE
-        M = AdE @ c.B
-        dW = (self.d * (AdE @ c.A) - M - M.T) * c.E + c.G * dE
-        dW[np.diag_indices_from(dW)] = 0.0
-        return dW @ U - dW.sum(axis=1)[:, None] * U + c.W @ V - c.W.sum(axis=1)[:, None] * V
+        UV = U @ V.T
+        dE = c.E * (UV + UV.T - diff[:, None] - diff[None, :])  # -E_ij (u_i - u_j).(v_i - v_j)
+        P = (c.A @ dE) @ c.C
+        dW = (P + P.T) * c.E + c.G * dE  # E's diagonal is 0: so is dW's
+        return dW @ U - dW.sum(axis=1)[:, None] * U + c.W @ V - c.Wsum[:, None] * V
 
     def _curvature(self, U) -> _Curvature:
-        """``A``, ``B``, ``G``, ``E`` and ``W`` of :meth:`_hessp` at ``U`` (the last one kept)."""
+        """``A``, ``C = d A / 2 - B``, ``G``, ``E``, ``W`` and its row sums of :meth:`_hessp` at
+        ``U`` (the last one kept)."""
         key = U.tobytes()
         cached = getattr(self, "_cache", None)
         if cached is not None and cached[0] == key:
@@ -189,17 +189,19 @@ class Likelihood:
         E = K.copy()
         E[np.diag_indices_from(E)] = 0.0
         G = B - self.d * A
-        c = _Curvature(A, B, G, E, G * E)
+        W = G * E
+        c = _Curvature(A, 0.5 * self.d * A - B, G, E, W, W.sum(axis=1))
         self._cache = (key, c)
         return c
 
 
 class _Curvature(NamedTuple):
     A: np.ndarray
-    B: np.ndarray
+    C: np.ndarray  # d A / 2 - B
     G: np.ndarray
     E: np.ndarray
     W: np.ndarray
+    Wsum: np.ndarray
 
 
 def _likelihood(S, d, length_scale, noise) -> Likelihood:

@@ -4,7 +4,8 @@
   evaluated through :class:`~mitsuba_manifold.gp.rank_update.RankUpdatedInverse`; it stops
   when every point's step is below ``tol``;
 * :func:`lbfgs`: SciPy's L-BFGS-B with the analytic gradient (O(N^3) per evaluation);
-* :func:`newton`: trust-region Newton-CG with exact Hessian-vector products (O(N^3) each).
+* :func:`newton`: trust-region Newton with exact Hessian-vector products (O(N^3) each), its
+  model solved exactly on a Krylov subspace (Lanczos).
 
 The gradient-based two minimise ``-F / (d N / 2)`` (``F``: L, less the stress term when there
 is one) and share one convergence test: the gradient's norm relative to that scale,
@@ -110,17 +111,32 @@ class NewtonOptions:
         arrangement where few local maxima compete and the last one, at the kernel's own
         ``mu``, refines it. Levels at or below the kernel's ``mu`` are skipped; ``()`` (the
         default): one fit at the kernel's ``mu``.
+    krylov : int
+        The dimension of the Krylov subspace each step's model is solved on
+        (:class:`_KrylovModel`; at most the number of unknowns): more Hessian products per
+        step, and steps closer to the full Newton step.
     """
 
     max_iter: int = 2000
     tol: float = 1e-7
     step_tol: float = 1e-5
     continuation: tuple = ()
+    krylov: int = 64
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "max_iter", _check_max_iter(self.max_iter))
         object.__setattr__(self, "tol", check_positive("tol", self.tol))
         object.__setattr__(self, "step_tol", check_positive("step_tol", self.step_tol))
+        if (
+            isinstance(self.krylov, bool)
+            or not isinstance(self.krylov, numbers.Integral)
+            or self.krylov < 1
+        ):
+            raise InputError(
+                f"`krylov` (the dimension of each step's Krylov subspace) must be an integer "
+                f">= 1, got {self.krylov!r}"
+            )
+        object.__setattr__(self, "krylov", int(self.krylov))
         try:
             levels = tuple(float(check_positive("continuation", v)) for v in self.continuation)
         except TypeError:
@@ -395,6 +411,11 @@ def lbfgs(
 SNAP_GRID = 2.0**-10
 #: Steps whose largest entry is above this (in units of ``l``) end on the grid.
 SNAP_ABOVE = 2.0**-5
+#: Lanczos stops early when the new direction's norm is below this, relative to the
+#: tridiagonal's entries so far: the subspace is then invariant under H.
+BREAKDOWN = 1e-12
+#: Bisection steps of the secular equation at most (it stops when the interval's ends meet).
+BISECTIONS = 200
 #: Relative size of a predicted gain below which the objective's own rounding (that of
 #: ``log|K|`` with an ill-conditioned K) could hide it: such a step is taken when it lowers the
 #: gradient norm instead.
@@ -404,70 +425,112 @@ ROUNDING = 1e-10
 RADIUS = (1.0, 64.0, 2.0**-40)
 
 
-#: Most conjugate-gradient iterations of a step, per unknown: CG loses its exactness by
-#: rounding on a stiff Hessian (K near-singular), so it may need more than one round.
-CG_ITERATIONS = 5
+class _KrylovModel:
+    """The quadratic model ``m(p) = g.p + p.H p / 2`` of one trust-region iteration on the
+    Krylov subspace ``span{g, H g, ..., H^(k-1) g}``, solved exactly there for any radius.
 
-
-def _steihaug(hessp, g, radius) -> tuple[Any, bool]:
-    """The Steihaug-Toint conjugate-gradient step of the model ``g.p + p.H p / 2`` within
-    ``|p| <= radius``: CG until the residual is below ``min(0.5, sqrt|g|) |g|``, or to the
-    boundary along a direction of negative curvature or once a step leaves the region.
-    Returns the step and whether it ends on the boundary.
+    Lanczos with full reorthogonalisation gives an orthonormal basis ``Q`` ((k, n) rows) and
+    the tridiagonal ``T = Q H Q^T``; with ``T = V diag(e) V^T`` and ``c = |g| V^T e_1`` the
+    model's minimiser within ``|p| <= radius`` is ``p = -Q^T V (c / (e + lam))`` with
+    ``lam = 0`` when ``T`` is positive definite and that step lies inside, else the ``lam >=
+    max(0, -e_min)`` where ``|c / (e + lam)| = radius`` (Moré and Sorensen's secular equation,
+    solved by bisection). The step is a continuous function of ``g`` and ``H`` (no truncation
+    test decides where it ends, as the loose residual and boundary tests of truncated
+    conjugate gradients do), so arithmetic that differs in its last bits gives steps that
+    differ in their last bits. ``k`` is ``m`` unless the subspace is invariant under ``H``
+    sooner (Lanczos breaks down: the model is then exact).
+    A rejected step's smaller radius is solved again without new Hessian products.
     """
-    z = np.zeros_like(g)
-    r = g.copy()
-    d = -r
-    gnorm = np.linalg.norm(g)
-    stop = min(0.5, np.sqrt(gnorm)) * gnorm
 
-    def to_boundary(z, d):
-        a, b, c = d @ d, 2.0 * (z @ d), z @ z - radius * radius
-        tau = (-b + np.sqrt(max(b * b - 4.0 * a * c, 0.0))) / (2.0 * a)
-        return z + tau * d
+    def __init__(self, hessp, g, m) -> None:
+        n = g.size
+        m = min(m, n)
+        gnorm = float(np.linalg.norm(g))
+        Q = np.empty((m, n))
+        alpha, beta = np.empty(m), np.empty(m)
+        v, k = g / gnorm, m
+        for j in range(m):
+            Q[j] = v
+            w = hessp(v)
+            alpha[j] = v @ w
+            for _ in range(2):  # twice is enough (Kahan's "twice is enough")
+                w = w - Q[: j + 1].T @ (Q[: j + 1] @ w)
+            beta[j] = np.linalg.norm(w)
+            if beta[j] <= BREAKDOWN * max(np.abs(alpha[: j + 1]).max(), beta[: j + 1].max()):
+                k = j + 1  # an invariant subspace: the model is exact there
+                break
+            v = w / beta[j]
+        self._factor(alpha[:k], beta[: k - 1], Q[:k], gnorm)
+        self.size = k
 
-    for _ in range(CG_ITERATIONS * g.size):
-        Bd = hessp(d)
-        curvature = d @ Bd
-        if curvature <= 0:
-            return to_boundary(z, d), True
-        rr = r @ r
-        alpha = rr / curvature
-        z_next = z + alpha * d
-        if np.linalg.norm(z_next) >= radius:
-            return to_boundary(z, d), True
-        r = r + alpha * Bd
-        if np.linalg.norm(r) < stop:
-            return z_next, False
-        d = -r + (r @ r / rr) * d
-        z = z_next
-    return z, False
+    def _factor(self, alpha, beta, Q, gnorm) -> None:
+        T = np.diag(alpha) + np.diag(beta, 1) + np.diag(beta, -1)
+        self.e, V = np.linalg.eigh(T)
+        self.basis = V.T @ Q  # the eigenvectors of T as steps (rows)
+        self.c = gnorm * V[0]
+
+    def _size(self, lam) -> float:
+        with np.errstate(divide="ignore"):
+            return float(np.linalg.norm(self.c / (self.e + lam)))
+
+    def step(self, radius) -> tuple[Any, bool, float]:
+        """The model's minimiser within ``radius``, whether it is on the boundary, and the
+        decrease the model predicts, ``-m(p)``."""
+        e, c = self.e, self.c
+        if e[0] > 0 and self._size(0.0) <= radius:
+            y, boundary = -c / e, False
+        else:
+            lo = max(0.0, -e[0])
+            hi = lo + max(np.linalg.norm(c) / radius, np.finfo(float).tiny)
+            while self._size(hi) > radius:
+                hi = lo + 2.0 * (hi - lo)
+            if self._size(lo + (hi - lo) * 1e-15) < radius and e[0] <= 0:
+                # the hard case: g has (almost) nothing along the lowest eigenvector; the
+                # step to lam = -e_min is completed to the boundary along that vector
+                y = np.where(e + lo > 0, -c / np.where(e + lo > 0, e + lo, 1.0), 0.0)
+                tau = np.sqrt(max(radius * radius - y @ y, 0.0))
+                y[0] += -tau if c[0] > 0 else tau
+            else:
+                for _ in range(BISECTIONS):
+                    mid = 0.5 * (lo + hi)
+                    if mid in (lo, hi):
+                        break
+                    if self._size(mid) > radius:
+                        lo = mid
+                    else:
+                        hi = mid
+                y = -c / (e + hi)
+            boundary = True
+        predicted = -(c @ y + 0.5 * (e * y) @ y)
+        return self.basis.T @ y, boundary, float(predicted)
 
 
 def newton(  # noqa: C901  a trust-region iteration read as a whole
     likelihood, U0, options=NewtonOptions(), callback=None, length_scale=1.0, snap_start=True
 ) -> OptimiserResult:
-    """Trust-region Newton-CG on ``-F / (d N / 2)``, in length-scale units.
+    """Trust-region Newton on ``-F / (d N / 2)``, in length-scale units.
 
-    Each iteration takes the Steihaug-Toint conjugate-gradient step of the quadratic model on
-    the exact Hessian-vector products (:meth:`Likelihood._hessp`; the stress term's by
-    central differences of its gradient) inside the trust region, following directions of
-    negative curvature out of saddles. A step is taken when it gains more than a tenth of
-    what the model predicts (a predicted gain below :data:`ROUNDING` of the objective: when it
-    lowers the gradient norm); the radius (a power of two) is quartered below a quarter and
-    doubled above three quarters on the boundary.
+    Each iteration minimises the quadratic model on the exact Hessian-vector products
+    (:meth:`Likelihood._hessp`, the stress term's :meth:`~.stress.StressTerm.hessp`) inside
+    the trust region, exactly on the Krylov subspace of dimension ``options.krylov``
+    (:class:`_KrylovModel`), following directions of negative curvature out of saddles. A
+    step is taken when it gains more than a tenth of what the model predicts (a predicted
+    gain below :data:`ROUNDING` of the objective: when it lowers the gradient norm and loses
+    nothing); the radius
+    (a power of two) is quartered below a quarter and doubled above three quarters on the
+    boundary.
 
     So that the path depends on the data and not on the last bits of its arithmetic (BLAS
-    kernels, summation order), the start (unless ``snap_start`` is False: a start that is
-    itself a converged fit, whose last bits rounding could only amplify) and every iterate
-    after a step larger than
-    :data:`SNAP_ABOVE` are rounded to the grid :data:`SNAP_GRID`: two runs whose numbers
-    differ in the last bits land on the same grid points, and end at the same maximum.
-    The last small steps, off the grid, converge to it.
+    kernels, summation order), each step is a continuous function of the gradient and the
+    Hessian (:class:`_KrylovModel`), and the start (unless ``snap_start`` is False: a start
+    that is itself a converged fit, whose last bits rounding could only amplify) and every
+    iterate after a step larger than :data:`SNAP_ABOVE` are rounded to the grid
+    :data:`SNAP_GRID`: two runs whose numbers differ in the last bits land on the same grid
+    points, and end at the same maximum. The last small steps, off the grid, converge to it.
 
     ``likelihood``, ``callback`` and ``length_scale`` as for :func:`hooke_jeeves`. Stops when
-    :func:`gradient_norm` is at most ``tol`` or the full Newton step at most ``step_tol``
-    (converged, :class:`NewtonOptions`), when the radius falls below
+    :func:`gradient_norm` is at most ``tol`` or the model's step, inside the region, at most
+    ``step_tol`` (converged, :class:`NewtonOptions`), when the radius falls below
     ``RADIUS[2]`` (no step improves: not converged) or at ``max_iter`` (not converged).
     """
     n, q = U0.shape
@@ -485,29 +548,32 @@ def newton(  # noqa: C901  a trust-region iteration read as a whole
     history = [-fx * f.scale]
     radius, largest, smallest = RADIUS
     message = f"reached max_iter = {options.max_iter}"
-    stopped, newton_step = False, None
+    stopped, newton_step, model = False, None, None
     for _ in range(options.max_iter):
         if np.linalg.norm(g) <= options.tol:
             break
-        step, boundary = _steihaug(functools.partial(f.hessp, x), g, radius)
+        if model is None:  # the same model serves the smaller radii after a rejection
+            model = _KrylovModel(functools.partial(f.hessp, x), g, options.krylov)
+        step, boundary, predicted = model.step(radius)
         if not boundary and np.abs(step).max() <= options.step_tol:
             newton_step = float(np.abs(step).max())
             break
-        predicted = -(g @ step + 0.5 * step @ f.hessp(x, step))
         trial = x + step
         if np.abs(step).max() > SNAP_ABOVE:
             trial = np.round(trial / SNAP_GRID) * SNAP_GRID
         f_trial, g_trial = f.fun(trial)
         rho = (fx - f_trial) / predicted if predicted > 0 else -np.inf
         if 0 < predicted < ROUNDING * max(abs(fx), 1.0) and np.isfinite(f_trial):
-            # gains below the objective's rounding: judge the step by the gradient it leaves
-            rho = 1.0 if np.linalg.norm(g_trial) < np.linalg.norm(g) else -np.inf
+            # gains below the objective's rounding: judge the step by the gradient it leaves,
+            # never taking a loss (the history stays monotone)
+            better = np.linalg.norm(g_trial) < np.linalg.norm(g) and f_trial <= fx
+            rho = 1.0 if better else -np.inf
         if rho < 0.25:
             radius /= 4.0
         elif rho > 0.75 and boundary:
             radius = min(2.0 * radius, largest)
         if rho > 0.1:
-            x, fx, g = trial, f_trial, g_trial
+            x, fx, g, model = trial, f_trial, g_trial, None
             history.append(-fx * f.scale)
             if callback is not None and callback(
                 len(history) - 1, x.reshape(n, q) * l, history[-1]

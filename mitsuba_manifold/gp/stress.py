@@ -185,20 +185,35 @@ class StressTerm:
         r, a, b, g = self._geometry(X)
         if not b > 0:
             return np.zeros_like(X)
+        inv, W2, base, quad, gsum = self._curvature(X)
         xv = np.einsum("ik,ik->i", X, V)
-        dots = xv[:, None] + xv[None, :] - X @ V.T - V @ X.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = np.where(r > 0, 1.0 / r, 0.0)
-        dr = dots * inv
-        da = float((self.W * dr * self.D).sum()) / 2.0
-        db = float((self.W * r * dr).sum())
+        XV = X @ V.T
+        dr = (xv[:, None] + xv[None, :] - XV - XV.T) * inv
+        da = float(np.vdot(W2 * self.D, dr)) / 4.0
+        db = float(np.vdot(W2 * r, dr)) / 2.0
         c = self._c
         s = a / (b * c)
-        ds = (da * b - a * db) / (b * b * c)
         dab = (da * b - a * db) / (b * b)
-        dg = 2.0 * self.W * (ds * (a / b - self.D * inv) + s * (dab + self.D * dr * inv * inv))
-        dg[r == 0] = 0.0
-        return dg.sum(axis=1)[:, None] * X - dg @ X + g.sum(axis=1)[:, None] * V - g @ V
+        ds = dab / c
+        # dg = 2 w (ds (a / b - d / r) + s (d(a / b) + d dr / r^2)), zero where r = 0
+        dg = ds * base + (s * dab) * W2 + s * (quad * dr)
+        return dg.sum(axis=1)[:, None] * X - dg @ X + gsum[:, None] * V - g @ V
+
+    def _curvature(self, X) -> tuple:
+        """What :meth:`hessp` needs at ``X`` besides :meth:`_geometry` (the last one kept):
+        ``1 / r`` (0 where ``r = 0``), ``2 w`` where ``r > 0``, ``2 w (a / b - d / r)``,
+        ``2 w d / r^2`` and the row sums of ``g``."""
+        key = X.tobytes()
+        cached = getattr(self, "_hcache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        r, a, b, g = self._geometry(X)
+        with np.errstate(divide="ignore"):
+            inv = np.where(r > 0, 1.0 / r, 0.0)
+        W2 = np.where(r > 0, 2.0 * self.W, 0.0)
+        out = (inv, W2, W2 * (a / b - self.D * inv), W2 * self.D * inv * inv, g.sum(axis=1))
+        self._hcache = (key, out)
+        return out
 
     def penalty(self, X) -> float:
         """The amount taken off the likelihood: ``lambda (d N / 2) sigma(X)``."""

@@ -152,8 +152,8 @@ def fit_layout(
     S, d, cfg, init=None, callback=None, distances=None, order=None, **options
 ) -> "FitResult":
     """Latent points for the Gram matrix ``S`` under settings ``cfg`` (:class:`gplvm.GPLVM`);
-    ``options`` (``max_iter``, ``tol``, ``initial_step``, ``continuation``) set the optimiser
-    (:func:`gplvm.optimiser_options`); ``distances``: the materials' perceptual distances (N, N),
+    ``options`` (``max_iter``, ``tol``, ``initial_step``, ``continuation``, ``krylov``) set the
+    optimiser (:func:`gplvm.optimiser_options`); ``distances``: the materials' perceptual distances (N, N),
     the stress term's targets (needed when ``cfg["stress"] > 0``).
 
     ``order`` (:func:`canonical_order`): the order the optimiser sees the materials in; ``S``,

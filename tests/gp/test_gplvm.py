@@ -262,7 +262,9 @@ def test_far_away_point_decouples(problem, method):
         callback=lambda it, latent, L: seen.append(latent.copy()),
     )
     assert np.isfinite(res.latent).all()
-    assert np.all(seen[-1][6] == X[6])  # no force reaches it (before the pose)
+    # no force reaches it (before the pose): it moves only by the steps' projection off the
+    # rigid motions (rotations about the mean, which a point at 1e6 dominates), 1e-7 of a step
+    assert np.abs(seen[-1][6] - X[6]).max() <= 1e-12 * np.abs(X[6]).max()
     assert res.log_likelihood > L
     assert np.all(np.diff(res.history) >= 0)
 
