@@ -11,7 +11,10 @@ whether its convergence test was met, the final gradient norm, and its wall and 
   default fit did before it had a convergence test);
 * ``lbfgs / mds``: L-BFGS-B to its gradient test (cap 20000) from the MDS start;
 * ``newton / pca``, ``newton / mds-0.5``, ``newton / mds-2``, ``newton / mds`` (the default):
-  trust-region Newton-CG from the PCA start and from the MDS start at scales 0.5, 2 and 1;
+  trust-region Newton (each step solved on a 64-vector Krylov subspace) from the PCA start
+  and from the MDS start at scales 0.5, 2 and 1;
+* ``newton-128 / mds``: the default with a 128-vector Krylov subspace
+  (:attr:`gplvm.NewtonOptions.krylov`);
 * ``newton / mds + continuation``: the same from the MDS start through a noise continuation
   (fits at ``mu = 1e-2`` and ``1e-3`` first, :attr:`gplvm.NewtonOptions.continuation`).
 
@@ -60,10 +63,11 @@ RUNS = (
     ("newton / mds-0.5", "newton", "mds-0.5", {}),
     ("newton / mds-2", "newton", "mds-2", {}),
     (DEFAULT_RUN, "newton", "mds", {}),
+    ("newton-128 / mds", "newton", "mds", {"krylov": 128}),
     (CONTINUATION_RUN, "newton", "mds", {"continuation": CONTINUATION}),
 )
 #: Draws of last-bit noise the sameness check fits again.
-LAST_BITS = 2
+LAST_BITS = 4
 
 
 def _start(kind, S, D, q):
