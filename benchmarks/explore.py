@@ -487,10 +487,16 @@ def _with_reference(page, at, latent, drags, moves, pace_ms, driver="page"):
     state = _reference_until(page, job, lambda j: True, 10)
     cancel_s = None  # None: the render ended before the drags did (a small basis)
     if state["state"] == "rendering" and page.is_visible("#ref-cancel"):
+        from playwright.sync_api import TimeoutError as ClickTimeout
+
         t0 = time.perf_counter()
-        page.click("#ref-cancel")
-        _reference_until(page, job, lambda j: j["state"] == "cancelled", 60)
-        cancel_s = time.perf_counter() - t0
+        try:
+            page.click("#ref-cancel", timeout=10000)
+        except ClickTimeout:  # the button went: the render ended between the look and the click
+            state = _reference_until(page, job, lambda j: j["state"] != "rendering", 10)
+        else:
+            _reference_until(page, job, lambda j: j["state"] == "cancelled", 60)
+            cancel_s = time.perf_counter() - t0
     return {
         "move_to_frame_ms": _stats(d["latencies"] or [0]),
         "moves": d["moves"],
