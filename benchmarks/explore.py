@@ -495,8 +495,9 @@ def _with_reference(page, at, latent, drags, moves, pace_ms, driver="page"):
         except ClickTimeout:  # the button went: the render ended between the look and the click
             state = _reference_until(page, job, lambda j: j["state"] != "rendering", 10)
         else:
-            _reference_until(page, job, lambda j: j["state"] == "cancelled", 60)
-            cancel_s = time.perf_counter() - t0
+            state = _reference_until(page, job, lambda j: j["state"] != "rendering", 60)
+            if state["state"] == "cancelled":  # not "done": the render ended before the click
+                cancel_s = time.perf_counter() - t0
     return {
         "move_to_frame_ms": _stats(d["latencies"] or [0]),
         "moves": d["moves"],

@@ -25,11 +25,11 @@ distances) when there is a stress term:
 * ``"newton"``: trust-region Newton with exact Hessian-vector products (O(N^3) each), each
   step the model's exact minimiser on a Krylov subspace (Lanczos), a continuous function of
   the gradient and the Hessian, and its iterates rounded to a fixed grid while its steps are
-  large, so that its path does not depend on the last bits of the arithmetic; optionally through a continuation in the noise
-  ``mu`` (:attr:`NewtonOptions.continuation`, e.g. fits at ``mu = 1e-2`` and ``1e-3`` first,
-  each from the points of the one before, then at the kernel's ``mu``). A larger ``mu``
-  smooths the likelihood, so the large-scale arrangement is settled where fewer local maxima
-  compete.
+  large, so that its path does not depend on the last bits of the arithmetic; optionally
+  through a continuation in the noise ``mu`` (:attr:`NewtonOptions.continuation`, e.g. fits at
+  ``mu = 1e-2`` and ``1e-3`` first, each from the points of the one before, then at the
+  kernel's ``mu``). A larger ``mu`` smooths the likelihood, so the large-scale arrangement is
+  settled where fewer local maxima compete.
 
 The gradient-based two stop on a stated test (the projected gradient norm relative to
 ``d N / 2``, or the Newton step) and report whether they met it; a fit that did not warns

@@ -177,7 +177,8 @@ class Likelihood:
 
     def _curvature(self, U) -> _Curvature:
         """``A``, ``C = d A / 2 - B``, ``G``, ``E``, ``W`` and its row sums of :meth:`_hessp` at
-        ``U`` (the last one kept)."""
+        ``U`` (the last one kept).
+        """
         key = U.tobytes()
         cached = getattr(self, "_cache", None)
         if cached is not None and cached[0] == key:

@@ -475,7 +475,8 @@ class _KrylovModel:
 
     def step(self, radius) -> tuple[Any, bool, float]:
         """The model's minimiser within ``radius``, whether it is on the boundary, and the
-        decrease the model predicts, ``-m(p)``."""
+        decrease the model predicts, ``-m(p)``.
+        """
         e, c = self.e, self.c
         if e[0] > 0 and self._size(0.0) <= radius:
             y, boundary = -c / e, False

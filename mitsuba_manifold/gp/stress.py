@@ -202,7 +202,8 @@ class StressTerm:
     def _curvature(self, X) -> tuple:
         """What :meth:`hessp` needs at ``X`` besides :meth:`_geometry` (the last one kept):
         ``1 / r`` (0 where ``r = 0``), ``2 w`` where ``r > 0``, ``2 w (a / b - d / r)``,
-        ``2 w d / r^2`` and the row sums of ``g``."""
+        ``2 w d / r^2`` and the row sums of ``g``.
+        """
         key = X.tobytes()
         cached = getattr(self, "_hcache", None)
         if cached is not None and cached[0] == key:

@@ -94,7 +94,7 @@ def main(argv=None) -> None:
         "--method",
         choices=["hooke-jeeves", "lbfgs", "newton"],
         default=None,
-        help="optimiser: newton (trust-region Newton-CG, the default preset's), lbfgs, or "
+        help="optimiser: newton (trust-region Newton, the default preset's), lbfgs, or "
         "hooke-jeeves (the paper's)",
     )
     p.add_argument("--features", choices=["raw", "log"], default=None, help="fit features")
