@@ -9,7 +9,7 @@ from gp_synthetic import gram, smooth_data
 
 from mitsuba_manifold.errors import ConvergenceWarning
 from mitsuba_manifold.gp import gplvm
-from mitsuba_manifold.gp.optimisers import gradient_norm
+from mitsuba_manifold.gp.optimisers import _KrylovModel, gradient_norm
 from mitsuba_manifold.gp.stress import PenalisedLikelihood
 from mitsuba_manifold.manifold.presets import canonical_order, fit_layout, settings
 
@@ -191,3 +191,52 @@ def test_the_continued_fit_ends_at_the_same_points_when_the_data_differ_in_their
         assert res.converged
         assert np.abs(res.latent - ref.latent).max() < 1e-4
         assert res.history[-1] == pytest.approx(ref.history[-1], rel=1e-9)
+
+
+def _symmetric(n, seed, lowest):
+    """A symmetric n x n matrix with eigenvalues from ``lowest`` to 10 (log-spaced above 0)."""
+    rng = np.random.default_rng(seed)
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    e = np.concatenate([[lowest], np.geomspace(1e-3, 10.0, n - 1)])
+    return (Q * e) @ Q.T, rng.standard_normal(n)
+
+
+@pytest.mark.parametrize("lowest, radius", [(0.5, 100.0), (0.5, 0.1), (-2.0, 1.0)])
+def test_each_newton_step_minimises_its_model_within_the_trust_region(lowest, radius):
+    """With the whole space as its Krylov subspace the step is the trust-region problem's
+    solution: ``(H + lam I) p = -g`` with ``lam >= max(0, -lowest eigenvalue)``, ``lam = 0``
+    inside the region, ``|p| = radius`` on its boundary, and the model's decrease as predicted."""
+    H, g = _symmetric(12, seed=2, lowest=lowest)
+    model = _KrylovModel(lambda v: H @ v, g, 12)
+    p, boundary, predicted = model.step(radius)
+    newton = -np.linalg.solve(H, g)
+    if lowest > 0 and np.linalg.norm(newton) <= radius:
+        assert not boundary and np.allclose(p, newton, rtol=1e-9, atol=1e-12)
+    else:
+        assert boundary and np.linalg.norm(p) == pytest.approx(radius, rel=1e-9)
+        lam = -(p @ (H @ p + g)) / (p @ p)
+        assert lam >= max(0.0, -lowest) - 1e-9
+        assert np.abs(H @ p + lam * p + g).max() < 1e-8 * np.abs(g).max()
+    assert predicted == pytest.approx(-(g @ p + 0.5 * p @ H @ p), rel=1e-9)
+    assert predicted > 0
+
+
+def test_the_newton_step_changes_by_the_last_bits_when_the_data_do():
+    """The step on a subspace smaller than the space (ill-conditioned, indefinite H), inside the
+    region and on its boundary, moves by about as much as the gradient's last bits."""
+    H, g = _symmetric(200, seed=4, lowest=-1e-2)
+    rng = np.random.default_rng(5)
+    for radius in (0.05, 1.0, 50.0):
+        p = _KrylovModel(lambda v: H @ v, g, 24).step(radius)[0]
+        for _ in range(5):
+            g2 = g * (1 + 1e-14 * rng.standard_normal(g.size))
+            p2 = _KrylovModel(lambda v: H @ v, g2, 24).step(radius)[0]
+            assert np.abs(p2 - p).max() < 1e-9 * max(radius, 1.0)
+
+
+@pytest.mark.parametrize("krylov", [0, -3, 2.5, True, "64"])
+def test_a_bad_krylov_size_is_rejected_clearly(krylov):
+    with pytest.raises(ValueError, match="krylov"):
+        gplvm.optimiser_options("newton", krylov=krylov)
+    with pytest.raises(ValueError, match="option of method 'newton'"):
+        gplvm.optimiser_options("lbfgs", krylov=8)
