@@ -20,7 +20,6 @@ import threading
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg.blas import saxpy
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -85,6 +84,8 @@ def axpy(y, x, a) -> np.ndarray:
             f"axpy needs two C-contiguous float32 arrays of one shape, y writable; got "
             f"{y.dtype} {y.shape} and {x.dtype} {x.shape}"
         )
+    from scipy.linalg.blas import saxpy  # here: SciPy's import is a third of a tool's start
+
     flat = y.reshape(-1)
     out = saxpy(x.reshape(-1), flat, a=float(a))
     if out is not flat and not np.shares_memory(out, flat):  # not in place: keep the sum
