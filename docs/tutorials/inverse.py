@@ -47,8 +47,8 @@ params["material.x"] = x_true
 params.update()
 image_to_match = mi.render(scene, params, integrator=prb, spp=64 * spp, seed=1000)
 
-# The start: two thirds of the way (at a training point itself the weights are flat: no gradient).
-x_start = gold + 2 * (white - gold) / 3
+# The start: halfway (at a training point itself the weights are flat: no gradient).
+x_start = gold + (white - gold) / 2
 params["material.x"] = x_start
 params.update()
 start = mi.render(scene, params, integrator=prb, spp=8 * spp, seed=1001)
