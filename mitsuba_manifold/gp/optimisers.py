@@ -438,8 +438,8 @@ class _KrylovModel:
     test decides where it ends, as the loose residual and boundary tests of truncated
     conjugate gradients do), so arithmetic that differs in its last bits gives steps that
     differ in their last bits. ``k`` is ``m`` unless the subspace is invariant under ``H``
-    sooner (Lanczos breaks down: the model is then exact).
-    A rejected step's smaller radius is solved again without new Hessian products.
+    sooner (Lanczos breaks down: the model is then exact). A rejected step's smaller radius
+    is solved again without new Hessian products.
     """
 
     def __init__(self, hessp, g, m) -> None:
@@ -461,7 +461,6 @@ class _KrylovModel:
                 break
             v = w / beta[j]
         self._factor(alpha[:k], beta[: k - 1], Q[:k], gnorm)
-        self.size = k
 
     def _factor(self, alpha, beta, Q, gnorm) -> None:
         T = np.diag(alpha) + np.diag(beta, 1) + np.diag(beta, -1)
@@ -517,9 +516,8 @@ def newton(  # noqa: C901  a trust-region iteration read as a whole
     (:class:`_KrylovModel`), following directions of negative curvature out of saddles. A
     step is taken when it gains more than a tenth of what the model predicts (a predicted
     gain below :data:`ROUNDING` of the objective: when it lowers the gradient norm and loses
-    nothing); the radius
-    (a power of two) is quartered below a quarter and doubled above three quarters on the
-    boundary.
+    nothing); the radius (a power of two) is quartered below a quarter and doubled above
+    three quarters on the boundary.
 
     So that the path depends on the data and not on the last bits of its arithmetic (BLAS
     kernels, summation order), each step is a continuous function of the gradient and the
