@@ -503,6 +503,7 @@ def _with_reference(page, at, latent, drags, moves, pace_ms, driver="page"):
         "moves": d["moves"],
         "images": d["images"],
         **_rates(d),
+        # where the render was when the cancel took effect (1.0: it had ended first)
         "reference_progress_at_cancel": state["progress"],
         "cancel_s": cancel_s,
         "load_average": os.getloadavg(),

@@ -100,8 +100,9 @@ class NewtonOptions:
     tol : float
         Converged when the gradient's relative norm (:func:`gradient_norm`) is at most ``tol``.
     step_tol : float
-        Or when the full Newton step (inside the trust region, the model's maximum) moves no
-        coordinate by more than ``step_tol`` (in units of ``l``): the points are that close to
+        Or when the Newton step (the model's minimiser on the Krylov subspace, inside the
+        trust region) moves no coordinate by more than ``step_tol`` (in units of ``l``): near
+        a maximum it approximates the full Newton step, so the points are about that close to
         the stationary point, where the gradient's own rounding (``d K^-1`` and
         ``K^-1 S K^-1`` nearly cancel there) keeps its norm above ``tol``.
     continuation : tuple of float
@@ -415,7 +416,10 @@ SNAP_ABOVE = 2.0**-5
 #: tridiagonal's entries so far: the subspace is then invariant under H.
 BREAKDOWN = 1e-12
 #: Bisection steps of the secular equation at most (it stops when the interval's ends meet).
+#: A boundary step shorter than the radius by more than this fraction after the bisection is
+#: the hard case (:meth:`_KrylovModel.step`).
 BISECTIONS = 200
+HARD_CASE = 1e-8
 #: Relative size of a predicted gain below which the objective's own rounding (that of
 #: ``log|K|`` with an ill-conditioned K) could hide it: such a step is taken when it lowers the
 #: gradient norm instead.
@@ -484,22 +488,22 @@ class _KrylovModel:
             hi = lo + max(np.linalg.norm(c) / radius, np.finfo(float).tiny)
             while self._size(hi) > radius:
                 hi = lo + 2.0 * (hi - lo)
-            if self._size(lo + (hi - lo) * 1e-15) < radius and e[0] <= 0:
-                # the hard case: g has (almost) nothing along the lowest eigenvector; the
-                # step to lam = -e_min is completed to the boundary along that vector
-                y = np.where(e + lo > 0, -c / np.where(e + lo > 0, e + lo, 1.0), 0.0)
-                tau = np.sqrt(max(radius * radius - y @ y, 0.0))
-                y[0] += -tau if c[0] > 0 else tau
-            else:
-                for _ in range(BISECTIONS):
-                    mid = 0.5 * (lo + hi)
-                    if mid in (lo, hi):
-                        break
-                    if self._size(mid) > radius:
-                        lo = mid
-                    else:
-                        hi = mid
-                y = -c / (e + hi)
+            for _ in range(BISECTIONS):
+                mid = 0.5 * (lo + hi)
+                if mid in (lo, hi):
+                    break
+                if self._size(mid) > radius:
+                    lo = mid
+                else:
+                    hi = mid
+            shift = e + hi
+            y = np.where(shift > 0, -c / np.where(shift > 0, shift, 1.0), 0.0)
+            if e[0] <= 0 and y @ y < (radius * (1.0 - HARD_CASE)) ** 2:
+                # the (near-)hard case: g has (almost) nothing along the lowest eigenvector, so
+                # the step stays inside as lam -> -e_min; it is completed to the boundary along
+                # that vector, downhill in the model (Moré and Sorensen)
+                tau = np.sqrt(max(radius * radius - y[1:] @ y[1:], 0.0))
+                y[0] = -tau if c[0] > 0 else tau
             boundary = True
         predicted = -(c @ y + 0.5 * (e * y) @ y)
         return self.basis.T @ y, boundary, float(predicted)

@@ -194,23 +194,25 @@ def test_the_continued_fit_ends_at_the_same_points_when_the_data_differ_in_their
 
 
 def _symmetric(n, seed, lowest):
-    """A symmetric n x n matrix with eigenvalues from ``lowest`` to 10 (log-spaced above 0)."""
+    """A symmetric n x n matrix with eigenvalues ``lowest`` and log-spaced from 1 to 10, and a
+    gradient."""
     rng = np.random.default_rng(seed)
     Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
-    e = np.concatenate([[lowest], np.geomspace(1e-3, 10.0, n - 1)])
+    e = np.concatenate([[lowest], np.geomspace(1.0, 10.0, n - 1)])
     return (Q * e) @ Q.T, rng.standard_normal(n)
 
 
-@pytest.mark.parametrize("lowest, radius", [(0.5, 100.0), (0.5, 0.1), (-2.0, 1.0)])
-def test_each_newton_step_minimises_its_model_within_the_trust_region(lowest, radius):
+@pytest.mark.parametrize("lowest, size", [(0.5, 2.0), (0.5, 0.1), (-2.0, 0.5)])
+def test_each_newton_step_minimises_its_model_within_the_trust_region(lowest, size):
     """With the whole space as its Krylov subspace the step is the trust-region problem's
-    solution: ``(H + lam I) p = -g`` with ``lam >= max(0, -lowest eigenvalue)``, ``lam = 0``
-    inside the region, ``|p| = radius`` on its boundary, and the model's decrease as predicted."""
+    solution: the Newton step when H is positive definite and that step fits (``size``: the
+    radius over its length), else ``(H + lam I) p = -g`` with ``lam >= max(0, -lowest
+    eigenvalue)`` and ``|p| = radius``; and the model's decrease as predicted."""
     H, g = _symmetric(12, seed=2, lowest=lowest)
-    model = _KrylovModel(lambda v: H @ v, g, 12)
-    p, boundary, predicted = model.step(radius)
     newton = -np.linalg.solve(H, g)
-    if lowest > 0 and np.linalg.norm(newton) <= radius:
+    radius = size * np.linalg.norm(newton)
+    p, boundary, predicted = _KrylovModel(lambda v: H @ v, g, 12).step(radius)
+    if lowest > 0 and size > 1:
         assert not boundary and np.allclose(p, newton, rtol=1e-9, atol=1e-12)
     else:
         assert boundary and np.linalg.norm(p) == pytest.approx(radius, rel=1e-9)
@@ -221,17 +223,41 @@ def test_each_newton_step_minimises_its_model_within_the_trust_region(lowest, ra
     assert predicted > 0
 
 
+@pytest.mark.parametrize("along_lowest", [0.0, 1e-20])
+def test_a_step_at_a_saddle_approached_along_its_stable_directions_follows_the_negative_curvature(
+    along_lowest,
+):
+    """The hard case: in the model's eigenbasis the gradient has (almost) nothing along the
+    direction of negative curvature; the step still goes to the boundary, mostly along it, and
+    lowers the model."""
+    H = np.diag([-1.0, 2.0, 3.0])
+    g = np.array([along_lowest, 0.01, 0.01])
+    model = object.__new__(_KrylovModel)  # the model in its eigenbasis, as Lanczos leaves it
+    model.e, model.c, model.basis = np.diag(H).copy(), g, np.eye(3)
+    for radius in (1.0, 10.0):
+        p, boundary, predicted = model.step(radius)
+        assert boundary and np.linalg.norm(p) == pytest.approx(radius, rel=1e-6)
+        assert abs(p[0]) > 0.9 * radius
+        assert predicted == pytest.approx(-(g @ p + 0.5 * p @ H @ p), rel=1e-9) and predicted > 0
+
+
 def test_the_newton_step_changes_by_the_last_bits_when_the_data_do():
-    """The step on a subspace smaller than the space (ill-conditioned, indefinite H), inside the
-    region and on its boundary, moves by about as much as the gradient's last bits."""
+    """The step on a subspace smaller than the space (ill-conditioned, indefinite H), on the
+    region's boundary and inside it, moves by about as much as the gradient's last bits."""
     H, g = _symmetric(200, seed=4, lowest=-1e-2)
+    H = H + np.diag(np.geomspace(1e-3, 1.0, 200))  # stiff as well
     rng = np.random.default_rng(5)
-    for radius in (0.05, 1.0, 50.0):
-        p = _KrylovModel(lambda v: H @ v, g, 24).step(radius)[0]
+    model = _KrylovModel(lambda v: H @ v, g, 24)
+    inside = 2.0 * np.linalg.norm(-model.basis.T @ (model.c / model.e))
+    kinds = set()
+    for radius in (0.05, 1.0, inside):
+        p, boundary, _ = model.step(radius)
+        kinds.add(boundary)
         for _ in range(5):
             g2 = g * (1 + 1e-14 * rng.standard_normal(g.size))
             p2 = _KrylovModel(lambda v: H @ v, g2, 24).step(radius)[0]
             assert np.abs(p2 - p).max() < 1e-9 * max(radius, 1.0)
+    assert kinds == {True, False}  # both kinds of step were checked
 
 
 @pytest.mark.parametrize("krylov", [0, -3, 2.5, True, "64"])

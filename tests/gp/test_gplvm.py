@@ -262,9 +262,10 @@ def test_far_away_point_decouples(problem, method):
         callback=lambda it, latent, L: seen.append(latent.copy()),
     )
     assert np.isfinite(res.latent).all()
-    # no force reaches it (before the pose): it moves only by the steps' projection off the
-    # rigid motions (rotations about the mean, which a point at 1e6 dominates), 1e-7 of a step
-    assert np.abs(seen[-1][6] - X[6]).max() <= 1e-12 * np.abs(X[6]).max()
+    # no force reaches it (before the pose); Newton's steps are kept off the rigid motions
+    # (rotations about the mean, which a point at 1e6 dominates), which moves it by 1e-7 of a step
+    moved = np.abs(seen[-1][6] - X[6]).max()
+    assert moved <= (1e-12 * np.abs(X[6]).max() if method == "newton" else 0.0)
     assert res.log_likelihood > L
     assert np.all(np.diff(res.history) >= 0)
 
