@@ -84,7 +84,7 @@ def axpy(y, x, a) -> np.ndarray:
             f"axpy needs two C-contiguous float32 arrays of one shape, y writable; got "
             f"{y.dtype} {y.shape} and {x.dtype} {x.shape}"
         )
-    from scipy.linalg.blas import saxpy  # here: SciPy's import is a third of a tool's start
+    from scipy.linalg.blas import saxpy  # here, not at import: tools that never sum skip SciPy
 
     flat = y.reshape(-1)
     out = saxpy(x.reshape(-1), flat, a=float(a))

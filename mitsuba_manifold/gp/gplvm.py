@@ -489,20 +489,18 @@ def optimiser_options(
         step = check_positive("initial_step", initial_step)
         if method == "hooke-jeeves":
             given["initial_step"] = step
-    if continuation is not None:
+    for name, value, what in (
+        ("continuation", continuation, "noise levels fitted first"),
+        ("krylov", krylov, "the dimension of each step's Krylov subspace"),
+    ):
+        if value is None:
+            continue
         if method != "newton":
             raise InputError(
-                f"`continuation` (noise levels fitted first) is an option of method 'newton', "
-                f"not {method!r}; leave it out or use method='newton'"
+                f"`{name}` ({what}) is an option of method 'newton', not {method!r}; leave it "
+                f"out or use method='newton'"
             )
-        given["continuation"] = continuation
-    if krylov is not None:
-        if method != "newton":
-            raise InputError(
-                f"`krylov` (the dimension of each step's Krylov subspace) is an option of "
-                f"method 'newton', not {method!r}; leave it out or use method='newton'"
-            )
-        given["krylov"] = krylov
+        given[name] = value
     return METHODS[method](**given)
 
 

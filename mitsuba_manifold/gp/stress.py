@@ -185,12 +185,12 @@ class StressTerm:
         r, a, b, g = self._geometry(X)
         if not b > 0:
             return np.zeros_like(X)
-        inv, W2, base, quad, gsum = self._curvature(X)
+        inv, W2, W2D, W2r, base, quad, gsum = self._curvature(X)
         xv = np.einsum("ik,ik->i", X, V)
         XV = X @ V.T
         dr = (xv[:, None] + xv[None, :] - XV - XV.T) * inv
-        da = float(np.vdot(W2 * self.D, dr)) / 4.0
-        db = float(np.vdot(W2 * r, dr)) / 2.0
+        da = float(np.vdot(W2D, dr)) / 4.0
+        db = float(np.vdot(W2r, dr)) / 2.0
         c = self._c
         s = a / (b * c)
         dab = (da * b - a * db) / (b * b)
@@ -201,8 +201,8 @@ class StressTerm:
 
     def _curvature(self, X) -> tuple:
         """What :meth:`hessp` needs at ``X`` besides :meth:`_geometry` (the last one kept):
-        ``1 / r`` (0 where ``r = 0``), ``2 w`` where ``r > 0``, ``2 w (a / b - d / r)``,
-        ``2 w d / r^2`` and the row sums of ``g``.
+        ``1 / r`` (0 where ``r = 0``), ``2 w`` where ``r > 0``, ``2 w d``, ``2 w r``,
+        ``2 w (a / b - d / r)``, ``2 w d / r^2`` and the row sums of ``g``.
         """
         key = X.tobytes()
         cached = getattr(self, "_hcache", None)
@@ -212,7 +212,8 @@ class StressTerm:
         with np.errstate(divide="ignore"):
             inv = np.where(r > 0, 1.0 / r, 0.0)
         W2 = np.where(r > 0, 2.0 * self.W, 0.0)
-        out = (inv, W2, W2 * (a / b - self.D * inv), W2 * self.D * inv * inv, g.sum(axis=1))
+        W2D = W2 * self.D
+        out = (inv, W2, W2D, W2 * r, W2 * (a / b - self.D * inv), W2D * inv * inv, g.sum(axis=1))
         self._hcache = (key, out)
         return out
 
